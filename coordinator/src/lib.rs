@@ -1,0 +1,4 @@
+//! lightfold's coordinator: the pure planner (`plan(scene, cluster, options) -> Plan`) and the
+//! control loop that dials daemons, applies plans, drives frames and receives the final image.
+//!
+//! Must not depend on wgpu or the node crate.

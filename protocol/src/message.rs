@@ -1,0 +1,273 @@
+//! Control messages (serde + bincode 2.x with an explicit size limit; ARCHITECTURE §6).
+//!
+//! The coordinator dials every daemon; after the handshake the daemon sends `Register`, the
+//! coordinator sends the scene (by content hash, in chunks) and a configuration, then drives frames.
+//! Types here are plain data: the `scene` crate's types are mirrored as `Wire*` so this crate stays
+//! free of scene loading.
+
+use serde::{Deserialize, Serialize};
+
+/// A content hash (SHA-256) naming a scene blob.
+pub type Hash = [u8; 32];
+
+/// Which part of the cluster a peer is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum Role {
+    Coordinator,
+    Node,
+    Compositor,
+    Viewer,
+}
+
+/// The image layers that travel between processes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub enum Layer {
+    /// Diffuse RGB + specular RGB illumination (`I^d`, `I^s`), six channels.
+    Illumination,
+    /// `m^d`, three channels.
+    Diffuse,
+    /// `m^s`, three channels.
+    Specular,
+    /// `m^a`, three channels.
+    Ambient,
+    /// `e`, three channels.
+    Emissive,
+    /// Eye depth, one channel.
+    Depth,
+    /// Final radiance RGB (after the material stage), three channels.
+    Radiance,
+}
+
+impl Layer {
+    pub const ALL: [Layer; 7] = [
+        Layer::Illumination,
+        Layer::Diffuse,
+        Layer::Specular,
+        Layer::Ambient,
+        Layer::Emissive,
+        Layer::Depth,
+        Layer::Radiance,
+    ];
+
+    /// f32 channels per pixel of this layer in memory.
+    pub fn channels(self) -> usize {
+        match self {
+            Layer::Illumination => 6,
+            Layer::Depth => 1,
+            _ => 3,
+        }
+    }
+}
+
+/// What a daemon can do, reported when it registers.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Capabilities {
+    pub role: Role,
+    pub daemon_id: String,
+    /// The address other daemons should dial for data links.
+    pub advertise: String,
+    /// Adapter name and backend, empty for compositors.
+    pub adapter: String,
+    pub backend: String,
+    /// Largest K the device supports (0 for compositors).
+    pub max_lights: u32,
+    pub max_texture_size: u32,
+    pub formats: Vec<crate::format::PixelFormat>,
+    /// Measured cost of one light (shadow pass + share of the eye pass), microseconds; 0 unknown.
+    pub cost_per_light_us: u64,
+    /// Measured fixed cost of a frame (eye pass, readback), microseconds; 0 unknown.
+    pub fixed_cost_us: u64,
+    pub threads: u32,
+    pub version: String,
+}
+
+/// A point-light sample as carried by the plan (mirrors `scene::LightSample`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct WireLight {
+    pub position: [f32; 3],
+    pub direction: [f32; 3],
+    /// 0 isotropic, 1 cosine lobe, 2 two-sided lobe, 3 spot, 4 directional.
+    pub kind: u8,
+    /// Spot cosines (outer, inner); zero otherwise.
+    pub cone: [f32; 2],
+    pub intensity: f32,
+    pub color: [f32; 3],
+    /// Range window; 0 is unbounded.
+    pub range: f32,
+    /// Source light index.
+    pub light: u32,
+    /// Index of the sample in the scene's full sample list (stable across plans).
+    pub sample: u32,
+}
+
+/// Camera as carried by frame requests (mirrors `scene::Camera`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct WireCamera {
+    pub position: [f32; 3],
+    pub target: [f32; 3],
+    pub up: [f32; 3],
+    pub fov_y_deg: f32,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// One shadow-map request for a light: the faces to render and the map size.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WireShadow {
+    /// Index into `NodeConfig::lights`.
+    pub light: u32,
+    pub map_size: u32,
+    /// Mesh indices that cast into this light's map (empty: none needed).
+    pub casters: Vec<u32>,
+}
+
+/// A node's configuration for one plan epoch.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NodeConfig {
+    pub epoch: u64,
+    pub scene: Hash,
+    pub lights: Vec<WireLight>,
+    pub shadows: Vec<WireShadow>,
+    /// The node's light colour `c_n`; the node emits `Σ (c_λ ⊘ c_n)·i·s`.
+    pub color: [f32; 3],
+    /// Layers this node renders and streams (illumination and/or material layers).
+    pub layers: Vec<(Layer, crate::format::PixelFormat)>,
+    /// Scale for fixed-point formats (per frame; may be updated by `RenderFrame`).
+    pub scale: f32,
+    pub band_height: u32,
+    pub camera: WireCamera,
+    /// Keep shadow maps between frames while lights and geometry do not move.
+    pub walkthrough: bool,
+    /// Where to send bands (a compositor's data address), and this node's input index there.
+    pub downstream: String,
+    pub input_index: u32,
+    /// Shadow filter: 0 none, 1 PCF 2×2, n > 1 n×n grid of 2×2 lookups.
+    pub filter: u32,
+    pub depth_bias: f32,
+    pub slope_bias: f32,
+}
+
+/// One input of a compositor stage.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageInput {
+    /// Daemon id expected on this input (authenticated in the handshake).
+    pub peer: String,
+    pub layers: Vec<(Layer, crate::format::PixelFormat)>,
+}
+
+/// A compositor's configuration for one plan epoch.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CompositorConfig {
+    pub epoch: u64,
+    pub width: u32,
+    pub height: u32,
+    pub band_height: u32,
+    /// Inputs in input-index order.
+    pub inputs: Vec<StageInput>,
+    /// Operator name in the registry and its parameters (JSON object text).
+    pub operator: String,
+    pub params: String,
+    /// Layers and formats this stage emits downstream.
+    pub outputs: Vec<(Layer, crate::format::PixelFormat)>,
+    /// Downstream address (next compositor or the coordinator's sink listener).
+    pub downstream: String,
+    pub input_index: u32,
+    /// Frames buffered per input before backpressure applies.
+    pub frames_in_flight: u32,
+}
+
+/// Per-frame parameters that may change without re-rendering.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FrameParams {
+    /// New node colour `c_n` per compositor input, if changed (compositors apply it).
+    pub colors: Vec<(u32, [f32; 3])>,
+    pub scale: Option<f32>,
+}
+
+/// Per-frame timing a daemon reports back.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct FrameStats {
+    pub epoch: u64,
+    pub frame: u64,
+    pub daemon_id: String,
+    pub shadow_us: u64,
+    pub eye_us: u64,
+    pub readback_us: u64,
+    pub pack_us: u64,
+    pub send_us: u64,
+    pub composite_us: u64,
+    pub total_us: u64,
+    pub shadow_passes: u32,
+    pub lights_rendered: Vec<u32>,
+    pub bytes_out: u64,
+    pub empty_bands: u32,
+    pub saturated: u64,
+    pub peak_rss_bytes: u64,
+}
+
+/// Typed error codes that travel in `Message::Error`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ErrorCode {
+    UnknownScene,
+    UnsupportedFormat,
+    UnknownOperator,
+    BadConfig,
+    BandMismatch,
+    RenderFailed,
+    Timeout,
+    PeerLost,
+    Internal,
+}
+
+/// Every control message.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum Message {
+    /// Daemon → coordinator, first message after the handshake.
+    Register(Capabilities),
+    /// Coordinator → node: a scene of this hash and size is next; answer `SceneNeed`.
+    SceneOffer {
+        hash: Hash,
+        size: u64,
+    },
+    /// Node → coordinator: whether the scene must be sent (false: cached).
+    SceneNeed {
+        hash: Hash,
+        need: bool,
+    },
+    SceneChunk {
+        hash: Hash,
+        offset: u64,
+        data: Vec<u8>,
+        last: bool,
+    },
+    /// Node → coordinator: the scene is loaded.
+    SceneReady {
+        hash: Hash,
+        triangles: u64,
+    },
+    ConfigureNode(NodeConfig),
+    ConfigureCompositor(CompositorConfig),
+    /// Daemon → coordinator: configuration applied.
+    Configured {
+        epoch: u64,
+    },
+    /// Coordinator → daemons: render / composite this frame.
+    RenderFrame {
+        epoch: u64,
+        frame: u64,
+        camera: Option<WireCamera>,
+        params: FrameParams,
+    },
+    FrameDone(FrameStats),
+    Error {
+        code: ErrorCode,
+        message: String,
+    },
+    Ping {
+        seq: u64,
+    },
+    Pong {
+        seq: u64,
+    },
+    Shutdown,
+}

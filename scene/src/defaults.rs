@@ -1,0 +1,28 @@
+//! Project defaults, named once (ARCHITECTURE §10).
+
+use crate::model::{Quality, SamplePattern, ShadowFilter};
+
+/// Default image width and height.
+pub const WIDTH: u32 = 800;
+pub const HEIGHT: u32 = 600;
+/// Point samples per area light in the default scene (two area lights × 16 = 32 lights).
+pub const SAMPLES_PER_AREA_LIGHT: u32 = 16;
+/// Shadow-map resolution per face.
+pub const SHADOW_MAP_SIZE: u32 = 512;
+/// Lights per render node (the paper's K).
+pub const LIGHTS_PER_NODE: u32 = 4;
+/// The built-in scene `lightfold demo` renders.
+pub const DEFAULT_SCENE: &str = "balls";
+
+pub fn quality() -> Quality {
+    Quality {
+        samples_per_area_light: None,
+        pattern: SamplePattern::Grid,
+        seed: 1,
+        shadow_map_size: SHADOW_MAP_SIZE,
+        filter: ShadowFilter::Pcf2x2,
+        depth_bias: 0.002,
+        slope_bias: 1.5,
+        lights_per_node: LIGHTS_PER_NODE,
+    }
+}

@@ -1,0 +1,18 @@
+//! lightfold's scene: the model every part agrees on (meshes, materials, lights, camera), the
+//! lighting maths defined once (`shading`), light sampling into point samples, primitives, images,
+//! glTF 2.0 and TOML scene-file loading, and the built-in scenes.
+//!
+//! Must not depend on tokio, wgpu or any networking: the GPU node, the CPU reference, the planner
+//! and the tests all read scenes through this crate.
+
+pub mod camera;
+pub mod defaults;
+pub mod image;
+pub mod model;
+pub mod primitives;
+pub mod sampling;
+mod sampling_shapes;
+pub mod shading;
+
+pub use image::Image;
+pub use model::*;

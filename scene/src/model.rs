@@ -1,0 +1,244 @@
+//! The scene model every part of lightfold agrees on: world-space triangle meshes, materials,
+//! textures, source lights, the camera and quality options.
+//!
+//! Meshes are stored flattened into world space (node transforms already applied) so that the GPU
+//! renderer and the CPU reference see exactly the same triangles.
+
+use serde::{Deserialize, Serialize};
+
+/// A whole scene, ready to render.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Scene {
+    pub name: String,
+    pub meshes: Vec<Mesh>,
+    pub materials: Vec<Material>,
+    pub textures: Vec<Texture>,
+    pub lights: Vec<Light>,
+    pub camera: Camera,
+    /// Global ambient colour `c^a` of the paper's eq. 2 (zero for physically based scenes).
+    pub ambient: [f32; 3],
+    /// Exposure applied before the sRGB transfer for PNG output (`sRGB(clamp(exposure·L))`).
+    pub exposure: f32,
+    pub quality: Quality,
+}
+
+/// A triangle mesh in world space. `normals` and `uvs` are either empty or one per position.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Mesh {
+    pub name: String,
+    pub positions: Vec<[f32; 3]>,
+    pub normals: Vec<[f32; 3]>,
+    pub uvs: Vec<[f32; 2]>,
+    pub indices: Vec<u32>,
+    pub material: usize,
+}
+
+/// How a material's alpha is used. BLEND from glTF becomes `Mask { cutoff: 0.5 }`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum AlphaMode {
+    Opaque,
+    Mask { cutoff: f32 },
+}
+
+/// Material colours of the paper's eq. 1: `m^d` (diffuse albedo), `m^s` (specular colour),
+/// `m^a` (ambient), `e` (emitted radiance). Linear RGB.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Material {
+    pub name: String,
+    pub diffuse: [f32; 3],
+    /// Texture multiplied into `diffuse` (its alpha multiplies `alpha`).
+    pub diffuse_texture: Option<usize>,
+    pub specular: [f32; 3],
+    /// Blinn-Phong exponent of the energy-normalised lobe `(n+8)/(8π)·(n·h)^n`.
+    pub shininess: f32,
+    pub ambient: [f32; 3],
+    pub emissive: [f32; 3],
+    pub alpha: f32,
+    pub alpha_mode: AlphaMode,
+    pub double_sided: bool,
+}
+
+impl Material {
+    /// A diffuse-only, opaque, double-sided material.
+    pub fn diffuse(name: &str, rgb: [f32; 3]) -> Self {
+        Material {
+            name: name.to_string(),
+            diffuse: rgb,
+            diffuse_texture: None,
+            specular: [0.0; 3],
+            shininess: 1.0,
+            ambient: [0.0; 3],
+            emissive: [0.0; 3],
+            alpha: 1.0,
+            alpha_mode: AlphaMode::Opaque,
+            double_sided: true,
+        }
+    }
+
+    pub fn has_specular(&self) -> bool {
+        self.specular.iter().any(|&c| c > 0.0)
+    }
+}
+
+/// An RGBA8 texture; `srgb` says whether the colour channels are sRGB-encoded.
+/// Sampling (wrap: repeat, filter: bilinear) is defined in [`crate::shading::sample_texture`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Texture {
+    pub name: String,
+    pub width: u32,
+    pub height: u32,
+    pub srgb: bool,
+    pub rgba8: Vec<u8>,
+}
+
+/// The geometric kind of a source light.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum LightShape {
+    /// Isotropic point light; `Light::power` is intensity in W/sr.
+    Point { position: [f32; 3] },
+    /// glTF spot light (smooth falloff between the cone angles, radians); power in W/sr.
+    Spot {
+        position: [f32; 3],
+        direction: [f32; 3],
+        inner_angle: f32,
+        outer_angle: f32,
+    },
+    /// Directional light; power is irradiance in W/m² on a surface facing it.
+    Directional { direction: [f32; 3] },
+    /// One-sided rectangle emitting along `normal`; `u_axis` spans `size[0]`, `normal × u_axis`
+    /// spans `size[1]`. Power is radiance in W/(sr·m²).
+    Rect {
+        center: [f32; 3],
+        normal: [f32; 3],
+        u_axis: [f32; 3],
+        size: [f32; 2],
+    },
+    /// One-sided disk emitting along `normal`; power is radiance.
+    Disk {
+        center: [f32; 3],
+        normal: [f32; 3],
+        radius: f32,
+    },
+    /// Sphere emitting outward; power is radiance.
+    Sphere { center: [f32; 3], radius: f32 },
+    /// The triangles of `Scene::meshes[mesh]` emit along their geometric normals (both sides when
+    /// the mesh's material is double-sided); power is radiance.
+    EmissiveMesh { mesh: usize },
+}
+
+/// A source light as authored. Area lights become point samples through [`crate::sampling`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Light {
+    pub name: String,
+    pub shape: LightShape,
+    /// Linear colour (multiplies `power` per channel).
+    pub color: [f32; 3],
+    pub power: f32,
+    /// Optional range window (glTF KHR_lights_punctual): contribution is zero beyond it.
+    pub range: Option<f32>,
+    /// Number of point samples for an area light (ignored for point, spot, directional).
+    pub samples: u32,
+}
+
+impl Light {
+    pub fn is_area(&self) -> bool {
+        matches!(
+            self.shape,
+            LightShape::Rect { .. }
+                | LightShape::Disk { .. }
+                | LightShape::Sphere { .. }
+                | LightShape::EmissiveMesh { .. }
+        )
+    }
+}
+
+/// The emission pattern of one point-light sample.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum SampleKind {
+    /// `I(ω) = intensity`.
+    Isotropic,
+    /// `I(θ) = intensity·max(0, cos θ)` about `direction` (an area-light sample; one-sided).
+    CosineLobe,
+    /// `I(θ) = intensity·max(0, |cos θ|)` — a sample of a double-sided emitter.
+    TwoSidedLobe,
+    /// glTF spot falloff about `direction` between the cosines of the outer and inner angles.
+    Spot { cos_outer: f32, cos_inner: f32 },
+    /// Parallel light travelling along `direction`; `intensity` is irradiance (W/m²).
+    Directional,
+}
+
+/// One point-light sample `λ`: what the plan carries and what nodes render. Nodes never resample.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LightSample {
+    pub position: [f32; 3],
+    /// Lobe axis / spot axis / direction of travel (unit); unused for `Isotropic`.
+    pub direction: [f32; 3],
+    pub kind: SampleKind,
+    /// Peak scalar intensity in W/sr (irradiance for `Directional`).
+    pub intensity: f32,
+    /// Light colour `c_λ` (linear).
+    pub color: [f32; 3],
+    /// Range window; `None` is unbounded.
+    pub range: Option<f32>,
+    /// Index of the source light in `Scene::lights`.
+    pub light: u32,
+}
+
+/// A pinhole camera: right-handed, Y up, vertical field of view, image row 0 at the top.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Camera {
+    pub position: [f32; 3],
+    pub target: [f32; 3],
+    pub up: [f32; 3],
+    /// Vertical field of view in degrees.
+    pub fov_y_deg: f32,
+    pub width: u32,
+    pub height: u32,
+}
+
+/// How area lights are turned into point samples.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+pub enum SamplePattern {
+    /// A fixed stratified grid at cell centres (the default: with shadow maps one fixed grid gives
+    /// lower error than one fixed jittered set).
+    #[default]
+    Grid,
+    /// One seeded random point per grid cell.
+    Jittered,
+    /// The 2-D Halton sequence (bases 2, 3).
+    Halton,
+}
+
+/// Percentage-closer filtering kernel of the shadow lookup.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ShadowFilter {
+    /// One comparison at the texel nearest the lookup (no filtering).
+    None,
+    /// The hardware 2×2 bilinear comparison (one `textureSampleCompare`).
+    Pcf2x2,
+    /// `n×n` grid of 2×2 bilinear comparisons (n = 3 or 5), averaged.
+    Pcf { taps: u32 },
+}
+
+/// Quality options that a scene file may set and `lightfold accuracy` varies.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Quality {
+    /// Overrides `Light::samples` of every area light when set.
+    pub samples_per_area_light: Option<u32>,
+    pub pattern: SamplePattern,
+    pub seed: u64,
+    pub shadow_map_size: u32,
+    pub filter: ShadowFilter,
+    /// Constant depth bias in light-space depth units (metres along the light ray).
+    pub depth_bias: f32,
+    /// Slope-scaled bias factor.
+    pub slope_bias: f32,
+    /// Lights per render node (the paper's K).
+    pub lights_per_node: u32,
+}
+
+impl Default for Quality {
+    fn default() -> Self {
+        crate::defaults::quality()
+    }
+}

@@ -1,0 +1,9 @@
+#!/usr/bin/env bash
+# The main job: installs system packages if missing, builds, and runs a local multi-process cluster
+# rendering the default scene to out.png and out.exr.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+scripts/install-deps.sh
+export NODEVICE_SELECT=1
+cargo build --release -p lightfold-cli
+exec target/release/lightfold demo "$@"
