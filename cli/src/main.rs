@@ -1,7 +1,10 @@
 //! The one `lightfold` binary: every daemon role and every tool (render, plan, demo, bench,
-//! accuracy) as a subcommand.
+//! accuracy) as a subcommand. Each subcommand lives in its own module with an `Args` struct and a
+//! `run` function; this file only dispatches.
 
 use clap::{Parser, Subcommand};
+
+mod defaults_cmd;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -10,6 +13,9 @@ use clap::{Parser, Subcommand};
     about = "Distributed many-light soft-shadow renderer"
 )]
 struct Cli {
+    /// Log filter (tracing `EnvFilter` syntax); `RUST_LOG` overrides it.
+    #[arg(long, global = true, default_value = "info")]
+    log: String,
     #[command(subcommand)]
     command: Command,
 }
@@ -17,24 +23,23 @@ struct Cli {
 #[derive(Debug, Subcommand)]
 enum Command {
     /// Print the built-in defaults (image size, samples, K, shadow-map size).
-    Defaults,
+    Defaults(defaults_cmd::Args),
 }
 
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
+    init_logging(&cli.log);
     match cli.command {
-        Command::Defaults => {
-            let q = lightfold_scene::defaults::quality();
-            println!(
-                "scene {} {}x{} samples/area light {} K {} shadow map {}",
-                lightfold_scene::defaults::DEFAULT_SCENE,
-                lightfold_scene::defaults::WIDTH,
-                lightfold_scene::defaults::HEIGHT,
-                lightfold_scene::defaults::SAMPLES_PER_AREA_LIGHT,
-                q.lights_per_node,
-                q.shadow_map_size
-            );
-        }
+        Command::Defaults(args) => defaults_cmd::run(args),
     }
-    Ok(())
+}
+
+fn init_logging(default: &str) {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_target(false)
+        .try_init();
 }

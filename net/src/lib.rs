@@ -1,0 +1,4 @@
+//! lightfold's transport: authenticated, framed TCP links over the pure `lightfold-protocol` core,
+//! with a deadline on every wait. Shared by every daemon and the coordinator.
+//!
+//! Must not depend on wgpu, the scene, or any daemon crate.
