@@ -164,9 +164,8 @@ pub struct CompositorConfig {
     pub band_height: u32,
     /// Inputs in input-index order.
     pub inputs: Vec<StageInput>,
-    /// Operator name in the registry and its parameters (JSON object text).
-    pub operator: String,
-    pub params: String,
+    /// Operators applied in order to each band: (registry name, parameters as JSON object text).
+    pub ops: Vec<(String, String)>,
     /// Layers and formats this stage emits downstream.
     pub outputs: Vec<(Layer, crate::format::PixelFormat)>,
     /// Downstream address (next compositor or the coordinator's sink listener).
