@@ -13,6 +13,7 @@ pub mod primitives;
 pub mod sampling;
 mod sampling_shapes;
 pub mod shading;
+pub mod wire;
 
 pub use image::Image;
 pub use model::*;

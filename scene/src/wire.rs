@@ -1,0 +1,205 @@
+//! Conversions between scene types and their wire mirrors in `lightfold-protocol` (the plan carries
+//! explicit light samples and cameras; nodes never resample).
+
+use crate::model::{Camera, LightSample, SampleKind};
+use lightfold_protocol::{WireCamera, WireLight};
+
+/// The wire form of a sample; `sample` is its index in the scene's full sample list.
+pub fn light_to_wire(s: &LightSample, sample: u32) -> WireLight {
+    let (kind, cone) = match s.kind {
+        SampleKind::Isotropic => (0, [0.0, 0.0]),
+        SampleKind::CosineLobe => (1, [0.0, 0.0]),
+        SampleKind::TwoSidedLobe => (2, [0.0, 0.0]),
+        SampleKind::Spot {
+            cos_outer,
+            cos_inner,
+        } => (3, [cos_outer, cos_inner]),
+        SampleKind::Directional => (4, [0.0, 0.0]),
+    };
+    WireLight {
+        position: s.position,
+        direction: s.direction,
+        kind,
+        cone,
+        intensity: s.intensity,
+        color: s.color,
+        range: s.range.unwrap_or(0.0),
+        light: s.light,
+        sample,
+    }
+}
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum WireError {
+    #[error("light sample {sample} has unknown kind {kind}")]
+    UnknownKind { sample: u32, kind: u8 },
+    #[error("light sample {sample} has a non-finite field")]
+    NonFinite { sample: u32 },
+    #[error("camera is invalid: {0}")]
+    Camera(&'static str),
+}
+
+/// The scene form of a wire sample, validated (input from the network).
+pub fn light_from_wire(w: &WireLight) -> Result<LightSample, WireError> {
+    let finite = w
+        .position
+        .iter()
+        .chain(w.direction.iter())
+        .chain(w.color.iter())
+        .chain(w.cone.iter())
+        .all(|v| v.is_finite())
+        && w.intensity.is_finite()
+        && w.range.is_finite();
+    if !finite {
+        return Err(WireError::NonFinite { sample: w.sample });
+    }
+    let kind = match w.kind {
+        0 => SampleKind::Isotropic,
+        1 => SampleKind::CosineLobe,
+        2 => SampleKind::TwoSidedLobe,
+        3 => SampleKind::Spot {
+            cos_outer: w.cone[0],
+            cos_inner: w.cone[1],
+        },
+        4 => SampleKind::Directional,
+        kind => {
+            return Err(WireError::UnknownKind {
+                sample: w.sample,
+                kind,
+            });
+        }
+    };
+    Ok(LightSample {
+        position: w.position,
+        direction: w.direction,
+        kind,
+        intensity: w.intensity,
+        color: w.color,
+        range: (w.range > 0.0).then_some(w.range),
+        light: w.light,
+    })
+}
+
+pub fn camera_to_wire(c: &Camera) -> WireCamera {
+    WireCamera {
+        position: c.position,
+        target: c.target,
+        up: c.up,
+        fov_y_deg: c.fov_y_deg,
+        width: c.width,
+        height: c.height,
+    }
+}
+
+/// Largest image side accepted from the network.
+pub const MAX_IMAGE_SIDE: u32 = 16384;
+
+pub fn camera_from_wire(w: &WireCamera) -> Result<Camera, WireError> {
+    let finite = w
+        .position
+        .iter()
+        .chain(w.target.iter())
+        .chain(w.up.iter())
+        .all(|v| v.is_finite())
+        && w.fov_y_deg.is_finite();
+    if !finite {
+        return Err(WireError::Camera("non-finite field"));
+    }
+    if !(w.fov_y_deg > 0.0 && w.fov_y_deg < 180.0) {
+        return Err(WireError::Camera(
+            "vertical field of view must be in (0, 180) degrees",
+        ));
+    }
+    if w.width == 0 || w.height == 0 || w.width > MAX_IMAGE_SIDE || w.height > MAX_IMAGE_SIDE {
+        return Err(WireError::Camera(
+            "image size must be 1..=16384 on each side",
+        ));
+    }
+    if w.position == w.target {
+        return Err(WireError::Camera("position equals target"));
+    }
+    Ok(Camera {
+        position: w.position,
+        target: w.target,
+        up: w.up,
+        fov_y_deg: w.fov_y_deg,
+        width: w.width,
+        height: w.height,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn samples_round_trip() {
+        let kinds = [
+            SampleKind::Isotropic,
+            SampleKind::CosineLobe,
+            SampleKind::TwoSidedLobe,
+            SampleKind::Spot {
+                cos_outer: 0.5,
+                cos_inner: 0.9,
+            },
+            SampleKind::Directional,
+        ];
+        for (i, kind) in kinds.into_iter().enumerate() {
+            let s = LightSample {
+                position: [1.0, 2.0, 3.0],
+                direction: [0.0, -1.0, 0.0],
+                kind,
+                intensity: 4.5,
+                color: [1.0, 0.5, 0.25],
+                range: if i % 2 == 0 { Some(7.0) } else { None },
+                light: 3,
+            };
+            assert_eq!(light_from_wire(&light_to_wire(&s, i as u32)).unwrap(), s);
+        }
+        let mut bad = light_to_wire(
+            &LightSample {
+                position: [0.0; 3],
+                direction: [0.0; 3],
+                kind: SampleKind::Isotropic,
+                intensity: 1.0,
+                color: [1.0; 3],
+                range: None,
+                light: 0,
+            },
+            9,
+        );
+        bad.kind = 17;
+        assert_eq!(
+            light_from_wire(&bad),
+            Err(WireError::UnknownKind {
+                sample: 9,
+                kind: 17
+            })
+        );
+        bad.kind = 0;
+        bad.intensity = f32::NAN;
+        assert_eq!(
+            light_from_wire(&bad),
+            Err(WireError::NonFinite { sample: 9 })
+        );
+    }
+
+    #[test]
+    fn cameras_are_validated() {
+        let c = Camera {
+            position: [0.0, 1.0, 5.0],
+            target: [0.0; 3],
+            up: [0.0, 1.0, 0.0],
+            fov_y_deg: 45.0,
+            width: 64,
+            height: 48,
+        };
+        assert_eq!(camera_from_wire(&camera_to_wire(&c)).unwrap(), c);
+        let mut w = camera_to_wire(&c);
+        w.width = 0;
+        assert!(camera_from_wire(&w).is_err());
+        let mut w = camera_to_wire(&c);
+        w.fov_y_deg = f32::INFINITY;
+        assert!(camera_from_wire(&w).is_err());
+    }
+}
