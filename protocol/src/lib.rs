@@ -5,8 +5,16 @@
 //! `Buf` and tell "need more bytes" from "invalid", so the daemons, the tests and the fuzzer drive
 //! the same code.
 
+pub mod band;
+pub mod error;
 pub mod format;
+pub mod frame;
+pub mod handshake;
 pub mod message;
 
+pub use band::{BAND_HEADER_LEN, BandError, BandHeader};
+pub use error::ProtocolError;
 pub use format::PixelFormat;
+pub use frame::{Codec, DEFAULT_MAX_FRAME, Frame, MAX_CONTROL};
+pub use handshake::{Handshake, HandshakeError, Hello, MAGIC, PROTOCOL_VERSION, PeerInfo};
 pub use message::*;
