@@ -12,7 +12,9 @@ pub mod model;
 pub mod primitives;
 pub mod sampling;
 mod sampling_shapes;
+mod scene_ops;
 pub mod shading;
+pub mod shadow_views;
 pub mod wire;
 
 pub use image::Image;

@@ -6,6 +6,9 @@
 use crate::model::{LightSample, LightShape, Quality, SampleKind, SamplePattern, Scene};
 use crate::shading::{V3, add, cross, normalize, scale};
 
+pub use crate::sampling_shapes::sample_power;
+pub use crate::scene_ops::mesh_area;
+
 /// All point samples of a scene, in light order, with the scene's quality options.
 pub fn scene_samples(scene: &Scene) -> Vec<LightSample> {
     let mut out = Vec::new();
@@ -117,7 +120,7 @@ pub fn unit_square_points(n: u32, pattern: SamplePattern, seed: u64) -> Vec<(f32
 pub fn grid_shape(n: u32) -> (u32, u32) {
     let n = n.max(1);
     let mut ny = (n as f64).sqrt() as u32;
-    while ny > 1 && n % ny != 0 {
+    while ny > 1 && !n.is_multiple_of(ny) {
         ny -= 1;
     }
     (n / ny.max(1), ny.max(1))

@@ -158,6 +158,8 @@ pub fn coefficients(
 }
 
 /// The final pixel of paper eq. 2: `e + m^a⊙(c^a + I^a) + m^d⊙I^d + m^s⊙I^s`.
+/// The eight arguments are the eight named terms of eq. 2; a struct would hide the mapping.
+#[allow(clippy::too_many_arguments)]
 #[inline]
 pub fn compose(e: V3, ma: V3, ca: V3, ia: V3, md: V3, id: V3, ms: V3, is: V3) -> V3 {
     add(add(e, mul(ma, add(ca, ia))), add(mul(md, id), mul(ms, is)))
