@@ -1,0 +1,166 @@
+//! Shadow-view coverage: every receiver point a sample lights must land inside some view, at a
+//! depth inside the map; faces that see nothing are skipped.
+
+use lightfold_scene::shading::V3;
+use lightfold_scene::shadow_views::{ShadowViewKind, project, shadow_views};
+use lightfold_scene::{LightSample, SampleKind};
+
+fn sample(position: V3, direction: V3, kind: SampleKind) -> LightSample {
+    LightSample {
+        position,
+        direction,
+        kind,
+        intensity: 1.0,
+        color: [1.0; 3],
+        range: None,
+        light: 0,
+    }
+}
+
+/// Deterministic points spread over a box (corners, face centres and a lattice).
+fn box_points(lo: V3, hi: V3) -> Vec<V3> {
+    let mut out = Vec::new();
+    let n = 6;
+    for i in 0..=n {
+        for j in 0..=n {
+            for k in 0..=n {
+                let t = |a: f32, b: f32, q: u32| a + (b - a) * q as f32 / n as f32;
+                out.push([t(lo[0], hi[0], i), t(lo[1], hi[1], j), t(lo[2], hi[2], k)]);
+            }
+        }
+    }
+    out
+}
+
+/// Asserts every lit point of every box is inside some view (uv in [0,1], depth in [0,1]).
+fn assert_covered(s: &LightSample, boxes: &[(V3, V3)]) -> usize {
+    let views = shadow_views(s, boxes);
+    let mut lit = 0;
+    for &(lo, hi) in boxes {
+        for p in box_points(lo, hi) {
+            let d = [
+                p[0] - s.position[0],
+                p[1] - s.position[1],
+                p[2] - s.position[2],
+            ];
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            let cos = (d[0] * s.direction[0] + d[1] * s.direction[1] + d[2] * s.direction[2]) / len;
+            let lit_here = match s.kind {
+                SampleKind::CosineLobe => cos > 1e-3,
+                SampleKind::Directional => true,
+                _ => len > 1e-3,
+            };
+            if !lit_here {
+                continue;
+            }
+            lit += 1;
+            let inside = views.iter().any(|v| {
+                project(v, p).is_some_and(|(uv, z)| {
+                    (0.0..=1.0).contains(&uv[0])
+                        && (0.0..=1.0).contains(&uv[1])
+                        && (-1e-4..=1.0001).contains(&z)
+                })
+            });
+            assert!(inside, "lit point {p:?} outside all {} views", views.len());
+        }
+    }
+    lit
+}
+
+const FLOOR: (V3, V3) = ([-2.0, -0.01, -2.0], [2.0, 0.0, 2.0]);
+
+#[test]
+fn a_lobe_over_a_small_floor_gets_one_fitted_frustum() {
+    let s = sample([0.0, 3.0, 0.0], [0.0, -1.0, 0.0], SampleKind::CosineLobe);
+    let boxes = [FLOOR, ([-0.5, 0.0, -0.5], [0.5, 1.0, 0.5])];
+    let views = shadow_views(&s, &boxes);
+    assert_eq!(views.len(), 1);
+    assert_eq!(views[0].kind, ShadowViewKind::Fitted);
+    assert!(views[0].near > 1.5 && views[0].far < 3.2, "{views:?}");
+    assert!(assert_covered(&s, &boxes) > 100);
+}
+
+#[test]
+fn a_lobe_in_a_room_needs_five_faces_and_covers_grazing_walls() {
+    // Light on the ceiling of a closed room: the walls reach 90° off the lobe axis.
+    let s = sample([0.0, 2.99, 0.0], [0.0, -1.0, 0.0], SampleKind::CosineLobe);
+    let boxes = [
+        FLOOR,
+        ([-2.0, 0.0, -2.01], [2.0, 3.0, -2.0]),
+        ([-2.0, 0.0, 2.0], [2.0, 3.0, 2.01]),
+        ([-2.01, 0.0, -2.0], [-2.0, 3.0, 2.0]),
+        ([2.0, 0.0, -2.0], [2.01, 3.0, 2.0]),
+    ];
+    let views = shadow_views(&s, &boxes);
+    assert_eq!(views.len(), 5, "{views:#?}");
+    assert!(
+        views
+            .iter()
+            .all(|v| matches!(v.kind, ShadowViewKind::CubeFace(_)))
+    );
+    assert!(assert_covered(&s, &boxes) > 500);
+}
+
+#[test]
+fn an_occluder_beyond_a_90_degree_cone_is_covered() {
+    // A wall 80° off the lobe axis.
+    let s = sample([0.0, 1.0, 0.0], [0.0, -1.0, 0.0], SampleKind::CosineLobe);
+    let boxes = [FLOOR, ([3.0, 0.0, -1.0], [3.2, 0.8, 1.0])];
+    let views = shadow_views(&s, &boxes);
+    assert!(views.len() >= 2, "{views:#?}");
+    assert!(assert_covered(&s, &boxes) > 100);
+}
+
+#[test]
+fn faces_without_receivers_are_skipped() {
+    // An isotropic light above a floor sees it through the bottom face and four sides only.
+    let s = sample([0.0, 0.2, 0.0], [0.0, -1.0, 0.0], SampleKind::Isotropic);
+    let views = shadow_views(&s, &[FLOOR]);
+    assert_eq!(views.len(), 5, "{views:#?}");
+    assert_covered(&s, &[FLOOR]);
+    // Inside a box every face is needed.
+    let room = [([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0])];
+    let s = sample([0.1, 0.2, 0.3], [0.0, -1.0, 0.0], SampleKind::Isotropic);
+    assert_eq!(shadow_views(&s, &room).len(), 6);
+    assert_covered(&s, &room);
+}
+
+#[test]
+fn out_of_range_and_behind_the_lobe_give_no_views() {
+    let mut s = sample([0.0, 10.0, 0.0], [0.0, -1.0, 0.0], SampleKind::CosineLobe);
+    s.range = Some(5.0);
+    assert!(shadow_views(&s, &[FLOOR]).is_empty());
+    let s = sample([0.0, 3.0, 0.0], [0.0, 1.0, 0.0], SampleKind::CosineLobe);
+    assert!(shadow_views(&s, &[FLOOR]).is_empty());
+    assert!(shadow_views(&s, &[]).is_empty());
+}
+
+#[test]
+fn directional_light_gets_one_orthographic_view() {
+    let s = sample([0.0; 3], [0.3, -1.0, 0.2], SampleKind::Directional);
+    let s = LightSample {
+        direction: lightfold_scene::shading::normalize(s.direction),
+        ..s
+    };
+    let boxes = [FLOOR, ([-0.5, 0.0, -0.5], [0.5, 1.0, 0.5])];
+    let views = shadow_views(&s, &boxes);
+    assert_eq!(views.len(), 1);
+    assert!(views[0].is_ortho());
+    assert_covered(&s, &boxes);
+}
+
+#[test]
+fn depth_is_reversed_between_near_and_far() {
+    let s = sample([0.0, 3.0, 0.0], [0.0, -1.0, 0.0], SampleKind::CosineLobe);
+    let v = shadow_views(&s, &[FLOOR])[0];
+    let (_, z_top) = project(&v, [0.0, 0.0, 0.0]).unwrap();
+    let (_, z_bottom) = project(&v, [0.0, -0.01, 0.0]).unwrap();
+    assert!(
+        0.0 < z_bottom && z_bottom < z_top && z_top < 1.0,
+        "{z_bottom} {z_top}"
+    );
+    // In front of near (a caster close to the light) the depth exceeds 1 and is clamped on the GPU.
+    assert!(project(&v, [0.0, 1.5, 0.0]).unwrap().1 > 1.0);
+    let (_, z_near) = project(&v, [0.0, 3.0 - v.near, 0.0]).unwrap();
+    assert!((z_near - 1.0).abs() < 1e-4, "{z_near}");
+}
