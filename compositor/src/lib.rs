@@ -2,3 +2,5 @@
 //! join, output) as pure, fast CPU code, and the stage daemon that streams bands through them.
 //!
 //! Must not depend on wgpu, the node crate or the coordinator crate.
+
+pub mod ops;

@@ -1,0 +1,386 @@
+//! `accumulate`: the illumination-node compositing operator, paper eq. 3–4 and 6–7:
+//! `p_n = p_{n−1} + c_n ⊙ I_n` for diffuse and specular, over an optional upstream partial sum
+//! (input 0) and one or more local nodes, each with its own colour `c_n`.
+//!
+//! Options: a uniform specular colour `m^s` pre-multiplied into every node's specular colour
+//! (eq. 4, so a single material stage follows), and the ambient folding of eq. 6–7, which adds
+//! `c_n^d ⊙ I^a` at one node whose diffuse colour is the ambient colour; `I^a` is 1 everywhere
+//! (`mask = "uniform"`: every material has `m^a = m^d`) or read per pixel from that input's
+//! `ambient` layer (`mask = "layer"`). Terms are added in input-index order, so a chain of
+//! stages and one stage with many inputs give the same bits.
+
+use super::params::{self, check_rgb};
+use super::{
+    BLOCK, BandMut, BandView, InputSpec, MAX_VALUE, OpError, Operator, Signature, check_band,
+    clamp_fast, for_spans, sanitize, saturate,
+};
+use lightfold_protocol::Layer;
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+pub const NAME: &str = "accumulate";
+
+/// A node's light colour: one colour for diffuse and specular, or the paper's separate pair.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum NodeColor {
+    Rgb([f32; 3]),
+    Split {
+        diffuse: [f32; 3],
+        specular: [f32; 3],
+    },
+}
+
+impl NodeColor {
+    fn pair(self) -> ([f32; 3], [f32; 3]) {
+        match self {
+            NodeColor::Rgb(c) => (c, c),
+            NodeColor::Split { diffuse, specular } => (diffuse, specular),
+        }
+    }
+}
+
+/// Where eq. 7's `I^a` comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AmbientMask {
+    /// `I^a = 1` at every pixel.
+    #[default]
+    Uniform,
+    /// `I^a` per pixel and channel from the `ambient` layer of the folding input.
+    Layer,
+}
+
+/// The eq. 6 folding: input `input` (a local node whose `c_n^d` is the ambient colour) adds
+/// `c_n^d ⊙ I^a` to the diffuse sum.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AmbientFold {
+    pub input: usize,
+    #[serde(default)]
+    pub mask: AmbientMask,
+}
+
+fn yes() -> bool {
+    true
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Params {
+    /// `c_n` of each local input, in input order.
+    colors: Vec<NodeColor>,
+    /// Whether input 0 is the upstream partial sum.
+    #[serde(default = "yes")]
+    upstream: bool,
+    /// Eq. 4's uniform `m^s`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    specular_color: Option<[f32; 3]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    ambient: Option<AmbientFold>,
+    /// Per-frame colour changes as `[[input index, colour], …]` (the shape of
+    /// `FrameParams::colors`), applied over `colors` and then forgotten.
+    #[serde(default, skip_serializing)]
+    input_colors: Vec<(usize, NodeColor)>,
+}
+
+/// The accumulate operator (see the module documentation).
+#[derive(Debug, Clone)]
+pub struct Accumulate {
+    params: Params,
+    /// Per local input, the six channel factors: `c^d` then `m^s ⊙ c^s`.
+    coeffs: Vec<[f32; 6]>,
+}
+
+impl Accumulate {
+    pub fn new(params: &Value) -> Result<Self, OpError> {
+        Self::from_params(params::parse(NAME, params)?)
+    }
+
+    fn from_params(mut p: Params) -> Result<Self, OpError> {
+        let first = usize::from(p.upstream);
+        for (input, color) in std::mem::take(&mut p.input_colors) {
+            let slot = input
+                .checked_sub(first)
+                .and_then(|j| p.colors.get_mut(j))
+                .ok_or_else(|| {
+                    bad(format!(
+                        "input_colors names input {input}, not a local node"
+                    ))
+                })?;
+            *slot = color;
+        }
+        if p.colors.is_empty() {
+            return Err(bad("colors must list at least one local node".into()));
+        }
+        let ms = p.specular_color.unwrap_or([1.0; 3]);
+        check_rgb(NAME, "specular_color", ms)?;
+        let mut coeffs = Vec::with_capacity(p.colors.len());
+        for (j, color) in p.colors.iter().enumerate() {
+            let (cd, cs) = color.pair();
+            check_rgb(NAME, &format!("diffuse colour of input {}", first + j), cd)?;
+            check_rgb(NAME, &format!("specular colour of input {}", first + j), cs)?;
+            coeffs.push([
+                cd[0],
+                cd[1],
+                cd[2],
+                ms[0] * cs[0],
+                ms[1] * cs[1],
+                ms[2] * cs[2],
+            ]);
+        }
+        if let Some(a) = p.ambient
+            && !(first..first + p.colors.len()).contains(&a.input)
+        {
+            return Err(bad(format!(
+                "ambient.input {} is not a local node input",
+                a.input
+            )));
+        }
+        Ok(Accumulate { params: p, coeffs })
+    }
+
+    /// Local input `j`'s input index.
+    fn input_of(&self, j: usize) -> usize {
+        j + usize::from(self.params.upstream)
+    }
+
+    /// The folding mask of local input `j`, if it folds the ambient term.
+    fn fold_of(&self, j: usize) -> Option<AmbientMask> {
+        let a = self.params.ambient?;
+        (a.input == self.input_of(j)).then_some(a.mask)
+    }
+
+    /// The layers of every input and the local-input lookups both versions start from.
+    #[allow(clippy::type_complexity)]
+    fn views<'a>(
+        &self,
+        inputs: &[BandView<'a>],
+    ) -> (
+        Option<&'a [f32]>,
+        Vec<(Option<&'a [f32]>, Option<&'a [f32]>)>,
+    ) {
+        let up = if self.params.upstream {
+            inputs[0].layer(Layer::Illumination)
+        } else {
+            None
+        };
+        let locals = (0..self.coeffs.len())
+            .map(|j| {
+                let v = &inputs[self.input_of(j)];
+                (v.layer(Layer::Illumination), v.layer(Layer::Ambient))
+            })
+            .collect();
+        (up, locals)
+    }
+}
+
+fn bad(reason: String) -> OpError {
+    OpError::BadParam { op: NAME, reason }
+}
+
+impl Operator for Accumulate {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn signature(&self) -> Signature {
+        let optional_ill = InputSpec {
+            required: vec![],
+            optional: vec![Layer::Illumination],
+        };
+        let mut inputs = Vec::new();
+        if self.params.upstream {
+            inputs.push(optional_ill.clone());
+        }
+        for j in 0..self.coeffs.len() {
+            inputs.push(match self.fold_of(j) {
+                Some(AmbientMask::Layer) => InputSpec {
+                    required: vec![Layer::Ambient],
+                    optional: vec![Layer::Illumination],
+                },
+                _ => optional_ill.clone(),
+            });
+        }
+        Signature {
+            inputs,
+            outputs: vec![Layer::Illumination],
+        }
+    }
+
+    fn apply_scalar(&self, inputs: &[BandView<'_>], out: &mut BandMut<'_>) -> Result<(), OpError> {
+        check_band(NAME, &self.signature(), inputs, out)?;
+        let (up, locals) = self.views(inputs);
+        let folds: Vec<Option<AmbientMask>> = (0..locals.len()).map(|j| self.fold_of(j)).collect();
+        let pixels = out.pixels;
+        let dst = out.layer_mut(Layer::Illumination).expect("checked");
+        for px in 0..pixels {
+            for ch in 0..6 {
+                let mut p = match up {
+                    Some(u) => sanitize(u[px * 6 + ch]),
+                    None => 0.0,
+                };
+                for (j, &(ill, amb)) in locals.iter().enumerate() {
+                    let i = match ill {
+                        Some(x) => sanitize(x[px * 6 + ch]),
+                        None => 0.0,
+                    };
+                    // Eq. 6: the folded ambient joins the diffuse illumination before c_n^d.
+                    let term = match (folds[j], ch < 3) {
+                        (Some(AmbientMask::Uniform), true) => i + 1.0,
+                        (Some(AmbientMask::Layer), true) => {
+                            i + sanitize(amb.expect("checked")[px * 3 + ch])
+                        }
+                        _ => i,
+                    };
+                    p += self.coeffs[j][ch] * term;
+                }
+                dst[px * 6 + ch] = p.min(MAX_VALUE);
+            }
+        }
+        Ok(())
+    }
+
+    fn apply(&self, inputs: &[BandView<'_>], out: &mut BandMut<'_>) -> Result<(), OpError> {
+        check_band(NAME, &self.signature(), inputs, out)?;
+        let (up, locals) = self.views(inputs);
+        let terms: Vec<Term<'_>> = locals
+            .iter()
+            .enumerate()
+            .filter_map(|(j, &(ill, amb))| {
+                let c = repeat24(&self.coeffs[j]);
+                match (self.fold_of(j), ill) {
+                    (None, None) => None,
+                    (None, Some(x)) => Some(Term::Plain(x, c)),
+                    (Some(AmbientMask::Uniform), x) => Some(Term::Uniform(x, c)),
+                    (Some(AmbientMask::Layer), x) => {
+                        Some(Term::Masked(x, amb.expect("checked"), self.coeffs[j]))
+                    }
+                }
+            })
+            .collect();
+        let pixels = out.pixels;
+        let dst = out.layer_mut(Layer::Illumination).expect("checked");
+        for_spans(pixels, vec![(6, dst)], |first, outs| {
+            let span = &mut *outs[0];
+            for (b, o) in span.chunks_mut(BLOCK * 6).enumerate() {
+                let lo = (first + b * BLOCK) * 6;
+                let hi = lo + o.len();
+                match up {
+                    Some(u) => {
+                        for (o, u) in o.iter_mut().zip(&u[lo..hi]) {
+                            *o = clamp_fast(*u);
+                        }
+                    }
+                    None => o.fill(0.0),
+                }
+                for t in &terms {
+                    t.add(o, lo, hi);
+                }
+                for o in o.iter_mut() {
+                    *o = saturate(*o);
+                }
+            }
+        });
+        Ok(())
+    }
+
+    fn set_params(&mut self, params: &Value) -> Result<(), OpError> {
+        let current = serde_json::to_value(&self.params).map_err(|e| bad(e.to_string()))?;
+        let merged = params::merge(NAME, &current, params)?;
+        let next = Accumulate::new(&merged)?;
+        if next.signature() != self.signature() {
+            return Err(OpError::SignatureChange { op: NAME });
+        }
+        *self = next;
+        Ok(())
+    }
+}
+
+/// The six channel factors repeated over four pixels, the unit of the vector loops.
+fn repeat24(c: &[f32; 6]) -> [f32; 24] {
+    std::array::from_fn(|k| c[k % 6])
+}
+
+/// One local input's contribution in the fast version.
+enum Term<'a> {
+    Plain(&'a [f32], [f32; 24]),
+    /// Uniform ambient fold; the illumination may be absent (an empty band still adds `c^d`).
+    Uniform(Option<&'a [f32]>, [f32; 24]),
+    Masked(Option<&'a [f32]>, &'a [f32], [f32; 6]),
+}
+
+/// Eq. 6 with `I^a = 1`: 1 on the diffuse channels, 0 (an exact no-op) on the specular ones.
+const UNIFORM_AMBIENT: [f32; 24] = {
+    let mut a = [0.0; 24];
+    let mut k = 0;
+    while k < 24 {
+        if k % 6 < 3 {
+            a[k] = 1.0;
+        }
+        k += 1;
+    }
+    a
+};
+
+impl Term<'_> {
+    /// Adds this term to `o`, the block of channels `lo..hi` of the band.
+    #[inline]
+    fn add(&self, o: &mut [f32], lo: usize, hi: usize) {
+        match self {
+            Term::Plain(x, c) => madd::<false>(o, &x[lo..hi], c),
+            Term::Uniform(Some(x), c) => madd::<true>(o, &x[lo..hi], c),
+            Term::Uniform(None, c) => {
+                for o4 in o.chunks_mut(24) {
+                    for ((o, a), c) in o4.iter_mut().zip(&UNIFORM_AMBIENT).zip(c) {
+                        *o += *c * *a;
+                    }
+                }
+            }
+            Term::Masked(x, a, c) => {
+                let a = &a[lo / 2..hi / 2];
+                let x = x.map(|x| &x[lo..hi]);
+                for (px, (o, a)) in o.chunks_exact_mut(6).zip(a.chunks_exact(3)).enumerate() {
+                    let x: [f32; 6] = match x {
+                        Some(x) => std::array::from_fn(|k| clamp_fast(x[px * 6 + k])),
+                        None => [0.0; 6],
+                    };
+                    for k in 0..3 {
+                        o[k] += c[k] * (x[k] + clamp_fast(a[k]));
+                    }
+                    for k in 3..6 {
+                        o[k] += c[k] * x[k];
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// `o += c ⊙ clamp(x)`, or with `FOLD` `o += c ⊙ (clamp(x) + I^a)` for `I^a = 1` (adding the zero
+/// of the specular channels is exact), over whole groups of four pixels, then the rest.
+#[inline(always)]
+fn madd<const FOLD: bool>(o: &mut [f32], x: &[f32], c: &[f32; 24]) {
+    let term = |x: f32, k: usize| {
+        if FOLD {
+            clamp_fast(x) + UNIFORM_AMBIENT[k]
+        } else {
+            clamp_fast(x)
+        }
+    };
+    let mut oc = o.chunks_exact_mut(24);
+    let mut xc = x.chunks_exact(24);
+    for (o, x) in (&mut oc).zip(&mut xc) {
+        for k in 0..24 {
+            o[k] += c[k] * term(x[k], k);
+        }
+    }
+    for (k, (o, x)) in oc
+        .into_remainder()
+        .iter_mut()
+        .zip(xc.remainder())
+        .enumerate()
+    {
+        *o += c[k] * term(*x, k);
+    }
+}

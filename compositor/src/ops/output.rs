@@ -1,0 +1,209 @@
+//! `output`: the sink compositor's last step. `apply` emits linear HDR radiance for EXR (the
+//! colour policy applied, nothing else); `encode_srgb8` tone-maps a radiance band to 8-bit sRGB
+//! for PNG as `sRGB(clamp(exposure·L))` (ARCHITECTURE §2).
+//!
+//! The sRGB transfer is implemented here (the compositor must not depend on `scene`). The fast
+//! encoder reads a bucket table and then steps over exact code thresholds found from the reference
+//! transfer itself, so it gives the reference's bytes, not an approximation of them.
+//! Unlike a bare transfer, +Inf reads as the largest value and encodes as white.
+
+use super::params;
+use super::{
+    BandMut, BandView, InputSpec, OpError, Operator, PAR_SPAN, Signature, check_band, clamp_fast,
+    for_spans, sanitize,
+};
+use lightfold_protocol::Layer;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use std::sync::OnceLock;
+
+pub const NAME: &str = "output";
+
+fn one() -> f32 {
+    1.0
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Params {
+    #[serde(default = "one")]
+    exposure: f32,
+}
+
+/// The output operator (see the module documentation).
+#[derive(Debug, Clone)]
+pub struct Output {
+    params: Params,
+}
+
+fn bad(reason: String) -> OpError {
+    OpError::BadParam { op: NAME, reason }
+}
+
+/// The sRGB transfer of a linear value; NaN and values outside [0, 1] are clamped first.
+pub fn linear_to_srgb(x: f32) -> f32 {
+    let x = if x.is_nan() { 0.0 } else { x.clamp(0.0, 1.0) };
+    if x <= 0.003_130_8 {
+        12.92 * x
+    } else {
+        1.055 * x.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// The reference 8-bit code of a linear value (round to nearest).
+pub fn srgb8(x: f32) -> u8 {
+    (linear_to_srgb(x) * 255.0 + 0.5) as u8
+}
+
+/// Buckets of the fast encoder's first guess over [0, 1].
+const BUCKETS: usize = 4096;
+
+struct Tables {
+    /// `thresholds[k]`: the smallest non-negative f32 whose reference code is at least `k`.
+    thresholds: [f32; 256],
+    /// The code at each bucket's lower edge, a lower bound for every value in the bucket.
+    start: [u8; BUCKETS],
+}
+
+fn tables() -> &'static Tables {
+    static T: OnceLock<Tables> = OnceLock::new();
+    T.get_or_init(|| {
+        let mut thresholds = [0.0f32; 256];
+        for (k, t) in thresholds.iter_mut().enumerate().skip(1) {
+            // Non-negative floats order like their bit patterns: bisect on the bits.
+            let (mut lo, mut hi) = (0u32, 1.0f32.to_bits());
+            while lo < hi {
+                let mid = lo + (hi - lo) / 2;
+                if usize::from(srgb8(f32::from_bits(mid))) >= k {
+                    hi = mid;
+                } else {
+                    lo = mid + 1;
+                }
+            }
+            *t = f32::from_bits(lo);
+        }
+        let start = std::array::from_fn(|b| srgb8(b as f32 / BUCKETS as f32));
+        Tables { thresholds, start }
+    })
+}
+
+/// The fast encoder: a bucket guess, then at most a step or two over exact thresholds (the
+/// steepest part of the curve, 12.92·255 codes per unit, moves under one code per bucket).
+#[inline]
+fn srgb8_fast(t: &Tables, v: f32) -> u8 {
+    let v = if v > 0.0 { v } else { 0.0 };
+    if v >= 1.0 {
+        return 255;
+    }
+    // Multiplying by a power of two is exact, so the bucket's edge is at or below `v`.
+    let mut c = t.start[(v * BUCKETS as f32) as usize] as usize;
+    while c < 255 && v >= t.thresholds[c + 1] {
+        c += 1;
+    }
+    c as u8
+}
+
+impl Output {
+    pub fn new(params: &Value) -> Result<Self, OpError> {
+        let p: Params = params::parse(NAME, params)?;
+        if !(p.exposure.is_finite() && p.exposure >= 0.0) {
+            return Err(bad(format!(
+                "exposure must be finite and non-negative, got {}",
+                p.exposure
+            )));
+        }
+        Ok(Output { params: p })
+    }
+
+    pub fn exposure(&self) -> f32 {
+        self.params.exposure
+    }
+
+    fn check_rgb8(radiance: &[f32], rgb8: &[u8]) -> Result<(), OpError> {
+        if !radiance.len().is_multiple_of(3) || rgb8.len() != radiance.len() {
+            return Err(OpError::BufferLength {
+                op: NAME,
+                what: "the sRGB8 buffer (3 bytes a pixel, as radiance has 3 values)",
+                expected: radiance.len() - radiance.len() % 3,
+                got: rgb8.len(),
+            });
+        }
+        Ok(())
+    }
+
+    /// The reference tone map: `rgb8[k] = srgb8(exposure · L[k])`, three bytes a pixel.
+    pub fn encode_srgb8_scalar(&self, radiance: &[f32], rgb8: &mut [u8]) -> Result<(), OpError> {
+        Self::check_rgb8(radiance, rgb8)?;
+        for (b, l) in rgb8.iter_mut().zip(radiance) {
+            *b = srgb8(self.params.exposure * sanitize(*l));
+        }
+        Ok(())
+    }
+
+    /// The fast tone map; the same bytes as `encode_srgb8_scalar`.
+    pub fn encode_srgb8(&self, radiance: &[f32], rgb8: &mut [u8]) -> Result<(), OpError> {
+        Self::check_rgb8(radiance, rgb8)?;
+        let (t, e) = (tables(), self.params.exposure);
+        let run = |bytes: &mut [u8], lin: &[f32]| {
+            for (b, l) in bytes.iter_mut().zip(lin) {
+                *b = srgb8_fast(t, e * clamp_fast(*l));
+            }
+        };
+        if rgb8.len() >= 2 * PAR_SPAN * 3 && rayon::current_num_threads() > 1 {
+            rgb8.par_chunks_mut(PAR_SPAN * 3)
+                .zip(radiance.par_chunks(PAR_SPAN * 3))
+                .for_each(|(b, l)| run(b, l));
+        } else {
+            run(rgb8, radiance);
+        }
+        Ok(())
+    }
+}
+
+impl Operator for Output {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn signature(&self) -> Signature {
+        Signature {
+            inputs: vec![InputSpec {
+                required: vec![Layer::Radiance],
+                optional: vec![],
+            }],
+            outputs: vec![Layer::Radiance],
+        }
+    }
+
+    fn apply_scalar(&self, inputs: &[BandView<'_>], out: &mut BandMut<'_>) -> Result<(), OpError> {
+        check_band(NAME, &self.signature(), inputs, out)?;
+        let src = inputs[0].layer(Layer::Radiance).expect("checked");
+        let dst = out.layer_mut(Layer::Radiance).expect("checked");
+        for (d, s) in dst.iter_mut().zip(src) {
+            *d = sanitize(*s);
+        }
+        Ok(())
+    }
+
+    fn apply(&self, inputs: &[BandView<'_>], out: &mut BandMut<'_>) -> Result<(), OpError> {
+        check_band(NAME, &self.signature(), inputs, out)?;
+        let src = inputs[0].layer(Layer::Radiance).expect("checked");
+        let pixels = out.pixels;
+        let dst = out.layer_mut(Layer::Radiance).expect("checked");
+        for_spans(pixels, vec![(3, dst)], |first, outs| {
+            let o = &mut *outs[0];
+            let s = &src[first * 3..first * 3 + o.len()];
+            for (d, s) in o.iter_mut().zip(s) {
+                *d = clamp_fast(*s);
+            }
+        });
+        Ok(())
+    }
+
+    fn set_params(&mut self, params: &Value) -> Result<(), OpError> {
+        let current = serde_json::to_value(&self.params).map_err(|e| bad(e.to_string()))?;
+        *self = Output::new(&params::merge(NAME, &current, params)?)?;
+        Ok(())
+    }
+}
