@@ -2,3 +2,13 @@
 //! with a deadline on every wait. Shared by every daemon and the coordinator.
 //!
 //! Must not depend on wgpu, the scene, or any daemon crate.
+
+mod codec;
+mod link;
+mod token;
+
+pub use codec::LinkCodec;
+pub use link::{
+    Identity, Link, LinkReader, LinkWriter, NetError, Timeouts, accept, describe, dial, dial_retry,
+};
+pub use token::{TokenError, load_token};
