@@ -3,3 +3,12 @@
 //!
 //! Shares the scene model and `scene::shading` with the GPU path but no visibility code. Must not
 //! depend on tokio or wgpu.
+
+pub mod bvh;
+pub mod point_sum;
+pub mod trace;
+
+pub use point_sum::{
+    Layers, PointSumOptions, radiance_point_sum, render_point_sum, render_point_sum_with,
+};
+pub use trace::{SurfaceHit, Tracer};

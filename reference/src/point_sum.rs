@@ -1,0 +1,207 @@
+//! The exact CPU evaluator of a set of point-light samples: per pixel centre, the sum of paper
+//! eq. 2 over the samples with ray-traced binary visibility `s_λ ∈ {0, 1}`, through the same
+//! `scene::shading` the GPU mirrors. Produces the same layers an illumination node and the
+//! material pass produce, so GPU output can be compared layer by layer.
+
+use crate::trace::{SurfaceHit, Tracer};
+use lightfold_scene::shading::{self, V3};
+use lightfold_scene::{Image, LightSample, Scene};
+use rayon::prelude::*;
+
+/// What one render of a set of samples produces, per pixel.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Layers {
+    /// 6 channels: `Σ (c_λ ⊘ c_n)·i^d_λ·s_λ` (RGB), then the same for `i^s`.
+    pub illumination: Image,
+    /// 3 channels each: `m^d` (texture applied), `m^s`, `m^a`, `e`.
+    pub diffuse: Image,
+    pub specular: Image,
+    pub ambient: Image,
+    pub emissive: Image,
+    /// Whether the pixel's primary ray hit geometry.
+    pub coverage: Vec<bool>,
+    /// 1 channel: eye-space distance along the view axis, 0 for background.
+    pub depth: Image,
+}
+
+/// Options of the evaluator beyond the sample set.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PointSumOptions {
+    /// Trace shadow rays; `false` gives the unoccluded image (every `s_λ = 1`).
+    pub shadows: bool,
+}
+
+impl Default for PointSumOptions {
+    fn default() -> Self {
+        PointSumOptions { shadows: true }
+    }
+}
+
+/// One pixel's layers before they are split into images.
+#[derive(Debug, Clone, Copy, Default)]
+pub(crate) struct PixelLayers {
+    pub illum: [f64; 6],
+    pub diffuse: V3,
+    pub specular: V3,
+    pub ambient: V3,
+    pub emissive: V3,
+    pub depth: f32,
+    pub covered: bool,
+}
+
+impl Layers {
+    /// Final linear radiance (paper eq. 2) with `I^d = c_n ⊙ illumination`, `I^a = 0` and global
+    /// ambient `c^a = ambient`: `e + m^a⊙c^a + m^d⊙I^d + m^s⊙I^s`. 3 channels.
+    pub fn radiance(&self, c_n: [f32; 3], ambient: [f32; 3]) -> Image {
+        let (w, h) = (self.illumination.width, self.illumination.height);
+        let mut out = Image::new(w, h, 3);
+        for (i, px) in out.data.chunks_exact_mut(3).enumerate() {
+            let il = &self.illumination.data[i * 6..i * 6 + 6];
+            let get = |img: &Image| -> V3 { [0, 1, 2].map(|k| img.data[i * 3 + k]) };
+            let id = [0, 1, 2].map(|k| c_n[k] * il[k]);
+            let is = [0, 1, 2].map(|k| c_n[k] * il[3 + k]);
+            let ca = if self.coverage[i] { ambient } else { [0.0; 3] };
+            let p = shading::compose(
+                get(&self.emissive),
+                get(&self.ambient),
+                ca,
+                [0.0; 3],
+                get(&self.diffuse),
+                id,
+                get(&self.specular),
+                is,
+            );
+            px.copy_from_slice(&p);
+        }
+        out
+    }
+
+    pub(crate) fn from_pixels(width: u32, height: u32, pixels: &[PixelLayers]) -> Layers {
+        let mut l = Layers {
+            illumination: Image::new(width, height, 6),
+            diffuse: Image::new(width, height, 3),
+            specular: Image::new(width, height, 3),
+            ambient: Image::new(width, height, 3),
+            emissive: Image::new(width, height, 3),
+            coverage: vec![false; pixels.len()],
+            depth: Image::new(width, height, 1),
+        };
+        for (i, p) in pixels.iter().enumerate() {
+            for k in 0..6 {
+                l.illumination.data[i * 6 + k] = p.illum[k] as f32;
+            }
+            l.diffuse.data[i * 3..i * 3 + 3].copy_from_slice(&p.diffuse);
+            l.specular.data[i * 3..i * 3 + 3].copy_from_slice(&p.specular);
+            l.ambient.data[i * 3..i * 3 + 3].copy_from_slice(&p.ambient);
+            l.emissive.data[i * 3..i * 3 + 3].copy_from_slice(&p.emissive);
+            l.depth.data[i] = p.depth;
+            l.coverage[i] = p.covered;
+        }
+        l
+    }
+}
+
+/// Renders the exact sum over `samples` (shadows on) for a node colour `c_n`.
+pub fn render_point_sum(scene: &Scene, samples: &[LightSample], c_n: [f32; 3]) -> Layers {
+    render_point_sum_with(scene, samples, c_n, PointSumOptions::default())
+}
+
+/// [`render_point_sum`] with options (e.g. no shadows for the unoccluded image).
+pub fn render_point_sum_with(
+    scene: &Scene,
+    samples: &[LightSample],
+    c_n: [f32; 3],
+    options: PointSumOptions,
+) -> Layers {
+    let tracer = Tracer::new(scene);
+    let weights: Vec<[f64; 3]> = samples
+        .iter()
+        .map(|s| [0, 1, 2].map(|k| colour_ratio(s.color[k], c_n[k])))
+        .collect();
+    let pixels = render_pixels(&tracer, |hit, px| {
+        accumulate_samples(
+            &tracer,
+            hit,
+            samples,
+            &weights,
+            options.shadows,
+            &mut px.illum,
+        );
+    });
+    let cam = &scene.camera;
+    Layers::from_pixels(cam.width, cam.height, &pixels)
+}
+
+/// Final linear radiance of the exact sum over `samples` (3 channels, `c_n` = white).
+pub fn radiance_point_sum(scene: &Scene, samples: &[LightSample]) -> Image {
+    render_point_sum(scene, samples, [1.0; 3]).radiance([1.0; 3], scene.ambient)
+}
+
+/// `c_λ / c_n` per channel; a channel the node colour lacks contributes nothing.
+fn colour_ratio(c: f32, c_n: f32) -> f64 {
+    if c_n != 0.0 && c_n.is_finite() {
+        f64::from(c) / f64::from(c_n)
+    } else {
+        0.0
+    }
+}
+
+/// Adds `Σ w_λ·(i^d_λ, i^s_λ)·s_λ` of `samples` at `hit` into `illum`.
+pub(crate) fn accumulate_samples(
+    tracer: &Tracer<'_>,
+    hit: &SurfaceHit,
+    samples: &[LightSample],
+    weights: &[[f64; 3]],
+    shadows: bool,
+    illum: &mut [f64; 6],
+) {
+    let mat = tracer.material(hit);
+    let p = hit.position_f32();
+    let specular = mat.has_specular();
+    for (s, w) in samples.iter().zip(weights) {
+        let (id, is) =
+            shading::coefficients(s, p, hit.normal, hit.to_viewer, mat.shininess, specular);
+        if id == 0.0 && is == 0.0 {
+            continue;
+        }
+        if shadows && !tracer.visible(hit, s) {
+            continue;
+        }
+        for k in 0..3 {
+            illum[k] += w[k] * f64::from(id);
+            illum[3 + k] += w[k] * f64::from(is);
+        }
+    }
+}
+
+/// Traces every pixel centre in parallel over rows, fills the material layers and depth, and
+/// lets `light` add the illumination of covered pixels.
+pub(crate) fn render_pixels(
+    tracer: &Tracer<'_>,
+    light: impl Fn(&SurfaceHit, &mut PixelLayers) + Sync,
+) -> Vec<PixelLayers> {
+    let cam = &tracer.scene().camera;
+    let (w, h) = (cam.width, cam.height);
+    let rows: Vec<Vec<PixelLayers>> = (0..h)
+        .into_par_iter()
+        .map(|y| {
+            (0..w)
+                .map(|x| {
+                    let mut px = PixelLayers::default();
+                    if let Some(hit) = tracer.primary(x, y) {
+                        let mat = tracer.material(&hit);
+                        px.covered = true;
+                        px.depth = hit.depth;
+                        px.diffuse = tracer.diffuse(&hit);
+                        px.specular = mat.specular;
+                        px.ambient = mat.ambient;
+                        px.emissive = mat.emissive;
+                        light(&hit, &mut px);
+                    }
+                    px
+                })
+                .collect()
+        })
+        .collect();
+    rows.into_iter().flatten().collect()
+}

@@ -1,0 +1,282 @@
+//! Ray tracing of a scene for the CPU reference: primary hits through pixel centres with the
+//! surface attributes shading needs, and shadow visibility towards a point-light sample.
+//!
+//! Conventions the GPU renderer must match: eye rays skip the back faces of single-sided
+//! materials; a back-face hit on a double-sided material negates both normals (like WGSL's
+//! `front_facing`); the shading normal is the interpolated vertex normal, or the geometric normal
+//! when that is missing or degenerate; alpha-masked texels below the cutoff are transparent to eye
+//! and shadow rays alike; every other triangle casts shadows whatever its sidedness.
+
+use crate::bvh::Bvh;
+use lightfold_scene::shading::{self, V3, dot, normalize, sample_texture};
+use lightfold_scene::{AlphaMode, LightSample, Material, SampleKind, Scene};
+
+/// Shadow-ray origin offset and end shortening, relative to the scene's bounding diagonal.
+const EPSILON_REL: f64 = 1e-5;
+
+/// Where a primary ray met the scene, with everything shading needs.
+#[derive(Debug, Clone, Copy)]
+pub struct SurfaceHit {
+    /// World position (f64 keeps shadow-ray origins clean).
+    pub position: [f64; 3],
+    /// Unit geometric normal on the viewer's side.
+    pub geometric_normal: V3,
+    /// Unit shading normal (flipped with the geometric one for back faces).
+    pub normal: V3,
+    /// Unit direction from the surface to the viewer.
+    pub to_viewer: V3,
+    /// Eye-space depth: distance along the camera's forward axis.
+    pub depth: f32,
+    pub uv: [f32; 2],
+    pub material: usize,
+}
+
+impl SurfaceHit {
+    pub fn position_f32(&self) -> V3 {
+        self.position.map(|c| c as f32)
+    }
+}
+
+/// Per-triangle data, indexed by the BVH triangle id.
+#[derive(Debug, Clone, Copy)]
+struct TriInfo {
+    mesh: u32,
+    first_index: u32,
+}
+
+/// The traced scene: a BVH over every mesh triangle plus the lookups shading needs.
+#[derive(Debug)]
+pub struct Tracer<'a> {
+    scene: &'a Scene,
+    bvh: Bvh,
+    tris: Vec<TriInfo>,
+    /// Absolute epsilon for shadow-ray offsets (scene diagonal × `EPSILON_REL`).
+    epsilon: f64,
+}
+
+impl<'a> Tracer<'a> {
+    /// Builds the BVH over every triangle of every mesh; out-of-range indices and degenerate
+    /// triangles are skipped (they cannot be hit).
+    pub fn new(scene: &'a Scene) -> Self {
+        let mut tris = Vec::new();
+        let mut verts = Vec::new();
+        for (m, mesh) in scene.meshes.iter().enumerate() {
+            for (k, idx) in mesh.indices.chunks_exact(3).enumerate() {
+                let get = |i: u32| mesh.positions.get(i as usize).copied();
+                if let (Some(a), Some(b), Some(c)) = (get(idx[0]), get(idx[1]), get(idx[2])) {
+                    verts.push([a, b, c]);
+                    tris.push(TriInfo {
+                        mesh: m as u32,
+                        first_index: (k * 3) as u32,
+                    });
+                }
+            }
+        }
+        let bvh = Bvh::build(&verts);
+        let diag = bvh.bounds().map_or(1.0, |(lo, hi)| {
+            let d = [0, 1, 2].map(|k| f64::from(hi[k]) - f64::from(lo[k]));
+            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt()
+        });
+        let epsilon = EPSILON_REL * diag.max(1e-3);
+        Tracer {
+            scene,
+            bvh,
+            tris,
+            epsilon,
+        }
+    }
+
+    pub fn scene(&self) -> &'a Scene {
+        self.scene
+    }
+
+    pub fn bvh(&self) -> &Bvh {
+        &self.bvh
+    }
+
+    /// Absolute shadow-ray epsilon in metres.
+    pub fn epsilon(&self) -> f64 {
+        self.epsilon
+    }
+
+    /// The primary hit through the centre of pixel `(x, y)`.
+    pub fn primary(&self, x: u32, y: u32) -> Option<SurfaceHit> {
+        let cam = &self.scene.camera;
+        let dir = cam.ray_dir(x as f32 + 0.5, y as f32 + 0.5);
+        let forward = cam.frame().forward;
+        self.eye_ray(cam.position, dir, dot(dir, forward))
+    }
+
+    /// Closest visible surface along an eye ray; `depth_scale` converts ray distance to depth.
+    pub fn eye_ray(&self, origin: V3, dir: V3, depth_scale: f32) -> Option<SurfaceHit> {
+        let o = origin.map(f64::from);
+        let d = dir.map(f64::from);
+        let hit = self.bvh.closest(o, d, 0.0, f64::INFINITY, |id, u, v| {
+            let mat = self.triangle_material(id);
+            if !mat.double_sided && dot(self.geometric_normal(id), dir) >= 0.0 {
+                return false;
+            }
+            !self.masked_out(id, mat, u, v)
+        })?;
+        let info = self.tris[hit.id as usize];
+        let mesh = &self.scene.meshes[info.mesh as usize];
+        let ng_raw = self.geometric_normal(hit.id);
+        let idx = self.indices(hit.id);
+        let (u, v) = (hit.u as f32, hit.v as f32);
+        let w = 1.0 - u - v;
+        let bary =
+            |a: V3, b: V3, c: V3| -> V3 { [0, 1, 2].map(|k| w * a[k] + u * b[k] + v * c[k]) };
+        let mut n = if mesh.normals.len() == mesh.positions.len() {
+            let nn = |i: u32| mesh.normals[i as usize];
+            let n = normalize(bary(nn(idx[0]), nn(idx[1]), nn(idx[2])));
+            if n == [0.0; 3] { ng_raw } else { n }
+        } else {
+            ng_raw
+        };
+        let mut ng = ng_raw;
+        if dot(ng, dir) > 0.0 {
+            // Back face of a double-sided material (single-sided back faces were rejected).
+            ng = shading::scale(ng, -1.0);
+            n = shading::scale(n, -1.0);
+        }
+        let uv = if mesh.uvs.len() == mesh.positions.len() {
+            let t = |i: u32| mesh.uvs[i as usize];
+            let (a, b, c) = (t(idx[0]), t(idx[1]), t(idx[2]));
+            [0, 1].map(|k| w * a[k] + u * b[k] + v * c[k])
+        } else {
+            [0.0; 2]
+        };
+        let position = [0, 1, 2].map(|k| o[k] + hit.t * d[k]);
+        Some(SurfaceHit {
+            position,
+            geometric_normal: ng,
+            normal: n,
+            to_viewer: shading::scale(dir, -1.0),
+            depth: (hit.t as f32) * depth_scale,
+            uv,
+            material: mesh.material,
+        })
+    }
+
+    /// Whether `sample` is visible from the surface point (`s_λ ∈ {0, 1}`). The ray starts
+    /// `epsilon` off the surface on the light's side of the geometric normal and stops `epsilon`
+    /// short of the sample, so geometry the sample lies on does not shadow it.
+    pub fn visible(&self, hit: &SurfaceHit, sample: &LightSample) -> bool {
+        let p = hit.position;
+        let (dir, tmax) = match sample.kind {
+            SampleKind::Directional => {
+                let l = normalize(shading::scale(sample.direction, -1.0)).map(f64::from);
+                (l, f64::INFINITY)
+            }
+            _ => {
+                let d = [0, 1, 2].map(|k| f64::from(sample.position[k]) - p[k]);
+                let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                // Also catches a NaN distance: nothing sensible to trace.
+                if r.is_nan() || r <= 2.0 * self.epsilon {
+                    return true;
+                }
+                (d.map(|c| c / r), r - self.epsilon)
+            }
+        };
+        self.segment_clear(p, hit.geometric_normal, dir, tmax)
+    }
+
+    /// Whether the segment from `p` (offset along `±ng` towards `dir`) along unit `dir` up to
+    /// `tmax` is free of accepted triangles.
+    pub fn segment_clear(&self, p: [f64; 3], ng: V3, dir: [f64; 3], tmax: f64) -> bool {
+        let ngd = ng.map(f64::from);
+        let side = if dot64(ngd, dir) >= 0.0 { 1.0 } else { -1.0 };
+        let o = [0, 1, 2].map(|k| p[k] + side * self.epsilon * ngd[k]);
+        !self.bvh.occluded(o, dir, 0.0, tmax, |id, u, v| {
+            !self.masked_out(id, self.triangle_material(id), u, v)
+        })
+    }
+
+    /// The hit's material (a grey diffuse fallback for an out-of-range index).
+    pub fn material(&self, hit: &SurfaceHit) -> &'a Material {
+        material_of(self.scene, hit.material)
+    }
+
+    /// Diffuse albedo `m^d` at the hit: material colour times texture colour.
+    pub fn diffuse(&self, hit: &SurfaceHit) -> V3 {
+        let mat = self.material(hit);
+        match mat.diffuse_texture.and_then(|t| self.scene.textures.get(t)) {
+            Some(tex) => {
+                let c = sample_texture(tex, hit.uv);
+                [0, 1, 2].map(|k| mat.diffuse[k] * c[k])
+            }
+            None => mat.diffuse,
+        }
+    }
+
+    fn indices(&self, id: u32) -> [u32; 3] {
+        let info = self.tris[id as usize];
+        let mesh = &self.scene.meshes[info.mesh as usize];
+        let f = info.first_index as usize;
+        [mesh.indices[f], mesh.indices[f + 1], mesh.indices[f + 2]]
+    }
+
+    fn triangle_material(&self, id: u32) -> &'a Material {
+        let info = self.tris[id as usize];
+        material_of(self.scene, self.scene.meshes[info.mesh as usize].material)
+    }
+
+    /// Unit geometric normal (counter-clockwise front), computed in f64 so tiny triangles keep
+    /// a direction.
+    fn geometric_normal(&self, id: u32) -> V3 {
+        let info = self.tris[id as usize];
+        let mesh = &self.scene.meshes[info.mesh as usize];
+        let idx = self.indices(id);
+        let p = |i: u32| mesh.positions[i as usize].map(f64::from);
+        let (a, b, c) = (p(idx[0]), p(idx[1]), p(idx[2]));
+        let e1 = [0, 1, 2].map(|k| b[k] - a[k]);
+        let e2 = [0, 1, 2].map(|k| c[k] - a[k]);
+        let n = [
+            e1[1] * e2[2] - e1[2] * e2[1],
+            e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0],
+        ];
+        let l = dot64(n, n).sqrt();
+        if l > 0.0 {
+            n.map(|c| (c / l) as f32)
+        } else {
+            [0.0; 3]
+        }
+    }
+
+    /// True when an alpha-masked texel at barycentrics `(u, v)` is below the cutoff.
+    fn masked_out(&self, id: u32, mat: &Material, u: f64, v: f64) -> bool {
+        let AlphaMode::Mask { cutoff } = mat.alpha_mode else {
+            return false;
+        };
+        let mut alpha = mat.alpha;
+        if let Some(tex) = mat.diffuse_texture.and_then(|t| self.scene.textures.get(t)) {
+            let info = self.tris[id as usize];
+            let mesh = &self.scene.meshes[info.mesh as usize];
+            if mesh.uvs.len() == mesh.positions.len() {
+                let idx = self.indices(id);
+                let t = |i: u32| mesh.uvs[i as usize];
+                let (a, b, c) = (t(idx[0]), t(idx[1]), t(idx[2]));
+                let (u, v) = (u as f32, v as f32);
+                let w = 1.0 - u - v;
+                let uv = [0, 1].map(|k| w * a[k] + u * b[k] + v * c[k]);
+                alpha *= sample_texture(tex, uv)[3];
+            }
+        }
+        alpha < cutoff
+    }
+}
+
+/// A fallback for meshes whose material index is out of range: mid-grey diffuse.
+fn material_of(scene: &Scene, index: usize) -> &Material {
+    static FALLBACK: std::sync::OnceLock<Material> = std::sync::OnceLock::new();
+    scene
+        .materials
+        .get(index)
+        .unwrap_or_else(|| FALLBACK.get_or_init(|| Material::diffuse("fallback", [0.5; 3])))
+}
+
+#[inline]
+fn dot64(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
