@@ -2,3 +2,7 @@
 //! control loop that dials daemons, applies plans, drives frames and receives the final image.
 //!
 //! Must not depend on wgpu or the node crate.
+
+pub mod cluster;
+
+pub mod plan;

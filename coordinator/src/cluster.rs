@@ -1,0 +1,123 @@
+//! The cluster file: which daemons exist and where (TOML, versioned, `deny_unknown_fields`).
+//!
+//! ```toml
+//! version = 1
+//! sink_listen = "0.0.0.0:7400"          # where the sink compositor sends final bands
+//! sink_advertise = "coordinator:7400"   # how compositors reach it (defaults to sink_listen)
+//! [[node]]
+//! address = "render-0.lightfold:7300"  # DNS names are re-resolved on every dial
+//! [[compositor]]
+//! address = "comp-0.lightfold:7300"
+//! ```
+
+use serde::Deserialize;
+use std::path::Path;
+
+pub const CLUSTER_FILE_VERSION: u32 = 1;
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ClusterFile {
+    pub version: u32,
+    #[serde(default = "default_sink")]
+    pub sink_listen: String,
+    #[serde(default)]
+    pub sink_advertise: Option<String>,
+    #[serde(default, rename = "node")]
+    pub nodes: Vec<DaemonEntry>,
+    #[serde(default, rename = "compositor")]
+    pub compositors: Vec<DaemonEntry>,
+}
+
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DaemonEntry {
+    /// Address (host:port) of the daemon's listener.
+    pub address: String,
+    /// Expected daemon id; when set, a daemon registering under another id is refused.
+    #[serde(default)]
+    pub id: Option<String>,
+}
+
+fn default_sink() -> String {
+    "127.0.0.1:0".to_string()
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ClusterFileError {
+    #[error("cannot read cluster file {path}: {source}")]
+    Read {
+        path: String,
+        source: std::io::Error,
+    },
+    #[error("malformed cluster file {path}: {message}")]
+    Parse { path: String, message: String },
+    #[error("cluster file {path} has version {found}; this lightfold reads version {CLUSTER_FILE_VERSION}")]
+    Version { path: String, found: u32 },
+    #[error("cluster file {path} lists no {what}")]
+    Empty { path: String, what: &'static str },
+}
+
+impl ClusterFile {
+    pub fn load(path: &Path) -> Result<ClusterFile, ClusterFileError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ClusterFileError::Read {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Self::parse(&text, &path.display().to_string())
+    }
+
+    pub fn parse(text: &str, origin: &str) -> Result<ClusterFile, ClusterFileError> {
+        let file: ClusterFile = toml::from_str(text).map_err(|e| ClusterFileError::Parse {
+            path: origin.to_string(),
+            message: e.to_string(),
+        })?;
+        if file.version != CLUSTER_FILE_VERSION {
+            return Err(ClusterFileError::Version {
+                path: origin.to_string(),
+                found: file.version,
+            });
+        }
+        if file.nodes.is_empty() {
+            return Err(ClusterFileError::Empty {
+                path: origin.to_string(),
+                what: "[[node]]",
+            });
+        }
+        if file.compositors.is_empty() {
+            return Err(ClusterFileError::Empty {
+                path: origin.to_string(),
+                what: "[[compositor]]",
+            });
+        }
+        Ok(file)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_a_cluster() {
+        let f = ClusterFile::parse(
+            "version = 1\n[[node]]\naddress = \"a:1\"\n[[compositor]]\naddress = \"b:2\"\nid = \"c0\"\n",
+            "t",
+        )
+        .unwrap();
+        assert_eq!(f.nodes[0].address, "a:1");
+        assert_eq!(f.compositors[0].id.as_deref(), Some("c0"));
+    }
+
+    #[test]
+    fn rejects_unknown_fields_versions_and_empty_lists() {
+        let e = ClusterFile::parse("version = 1\nbogus = 3\n", "t").unwrap_err();
+        assert!(e.to_string().contains("malformed cluster file t"), "{e}");
+        let e = ClusterFile::parse("version = 2\n[[node]]\naddress=\"a\"\n", "t").unwrap_err();
+        assert!(matches!(e, ClusterFileError::Version { found: 2, .. }), "{e}");
+        let e = ClusterFile::parse("version = 1\n", "t").unwrap_err();
+        assert!(matches!(e, ClusterFileError::Empty { .. }), "{e}");
+        let e = ClusterFile::parse("version = 1\n[[node]]\naddress = 5\n", "t").unwrap_err();
+        assert!(matches!(e, ClusterFileError::Parse { .. }), "{e}");
+    }
+}
