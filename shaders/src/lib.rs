@@ -1,4 +1,90 @@
 //! lightfold's WGSL shaders, as source strings, validated by a naga unit test so a broken shader
 //! fails `cargo test` without a GPU.
 //!
-//! Depends on nothing; the node crate builds its pipelines from these sources.
+//! Depends on nothing; the node crate builds its pipelines from these sources. WGSL has no
+//! includes, so each pipeline's module is a concatenation of the shared pieces it needs.
+
+/// Lighting maths mirrored from `scene::shading`.
+pub const SHADING_WGSL: &str = include_str!("../wgsl/shading.wgsl");
+/// Materials, textures and alpha masking (group 0), shared by every pass.
+pub const MATERIALS_WGSL: &str = include_str!("../wgsl/materials.wgsl");
+
+/// Shadow pass: entry points `vs_depth` (opaque casters, no fragment stage) and
+/// `vs_masked`/`fs_masked` (alpha-masked casters).
+pub const SHADOW_WGSL: &str = concat!(
+    include_str!("../wgsl/shading.wgsl"),
+    include_str!("../wgsl/materials.wgsl"),
+    include_str!("../wgsl/shadow.wgsl"),
+);
+
+/// Eye pass: `vs_eye` with `fs_illumination` (illumination + depth) or `fs_layers` (plus the
+/// material layers m^d, m^s, m^a, e as extra render targets).
+pub const EYE_WGSL: &str = concat!(
+    include_str!("../wgsl/shading.wgsl"),
+    include_str!("../wgsl/materials.wgsl"),
+    include_str!("../wgsl/eye.wgsl"),
+);
+
+/// Every complete shader module with a name, for validation and diagnostics.
+pub const MODULES: &[(&str, &str)] = &[("shadow", SHADOW_WGSL), ("eye", EYE_WGSL)];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn validate(name: &str, src: &str) -> naga::Module {
+        let module = naga::front::wgsl::parse_str(src)
+            .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(src)));
+        naga::valid::Validator::new(
+            naga::valid::ValidationFlags::all(),
+            naga::valid::Capabilities::empty(),
+        )
+        .validate(&module)
+        .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(src)));
+        module
+    }
+
+    #[test]
+    fn every_module_parses_and_validates() {
+        for (name, src) in MODULES {
+            validate(name, src);
+        }
+    }
+
+    #[test]
+    fn entry_points_the_renderer_uses_exist() {
+        let names = |src: &str, name: &str| -> Vec<String> {
+            validate(name, src)
+                .entry_points
+                .iter()
+                .map(|e| e.name.clone())
+                .collect()
+        };
+        let shadow = names(SHADOW_WGSL, "shadow");
+        for e in ["vs_depth", "vs_masked", "fs_masked"] {
+            assert!(shadow.iter().any(|n| n == e), "shadow lacks {e}");
+        }
+        let eye = names(EYE_WGSL, "eye");
+        for e in ["vs_eye", "fs_illumination", "fs_layers"] {
+            assert!(eye.iter().any(|n| n == e), "eye lacks {e}");
+        }
+    }
+
+    #[test]
+    fn a_broken_shader_fails_validation() {
+        // The check itself must be able to fail: a type error is caught without a GPU.
+        let broken = EYE_WGSL.replace("return s.intensity * abs(c);", "return abs(c) + 1u;");
+        assert_ne!(broken, EYE_WGSL);
+        let parsed = naga::front::wgsl::parse_str(&broken);
+        let failed = match parsed {
+            Err(_) => true,
+            Ok(m) => naga::valid::Validator::new(
+                naga::valid::ValidationFlags::all(),
+                naga::valid::Capabilities::empty(),
+            )
+            .validate(&m)
+            .is_err(),
+        };
+        assert!(failed);
+    }
+}

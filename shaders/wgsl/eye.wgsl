@@ -1,0 +1,228 @@
+// Eye pass: per pixel the node's illumination Σ (c_λ ⊘ c_n)·(i^d_λ, i^s_λ)·s_λ over its K samples,
+// with s_λ from the shadow maps, plus eye depth and (entry point `fs_layers`) the material layers.
+
+const FILTER_NEAREST: u32 = 0u;
+const FILTER_PCF2X2: u32 = 1u;
+const FILTER_GRID: u32 = 2u;
+
+struct Frame {
+    view_proj: mat4x4f,
+    camera: vec3f,
+    light_count: u32,
+    forward: vec3f,
+    map_size: f32,
+    // Constant bias in metres along the light ray, and the slope factor.
+    depth_bias: f32,
+    slope_bias: f32,
+    filter_mode: u32,
+    taps: u32,
+    // Half-width of the filter footprint in texels (the slope bias scales with it).
+    kernel_radius: f32,
+    _pad0: u32,
+    _pad1: u32,
+    _pad2: u32,
+}
+
+// One shadow map: a layer of `shadow_maps` and how world points land in it.
+struct View {
+    view: mat4x4f,
+    proj: mat4x4f,
+    // Width of a texel: in tangent units (perspective) or metres (orthographic).
+    texel: f32,
+    ortho: u32,
+    layer: u32,
+    _pad: u32,
+}
+
+@group(1) @binding(0) var<uniform> frame: Frame;
+@group(1) @binding(1) var<storage, read> lights: array<Light>;
+@group(1) @binding(2) var<storage, read> views: array<View>;
+@group(1) @binding(3) var shadow_maps: texture_depth_2d_array;
+@group(1) @binding(4) var shadow_linear: sampler_comparison;
+@group(1) @binding(5) var shadow_nearest: sampler_comparison;
+
+struct VsIn {
+    @location(0) position: vec3f,
+    @location(1) normal: vec3f,
+    @location(2) geometric_normal: vec3f,
+    @location(3) uv: vec2f,
+    @location(4) material: u32,
+}
+
+struct VsOut {
+    @builtin(position) clip: vec4f,
+    @location(0) world: vec3f,
+    @location(1) normal: vec3f,
+    @location(2) geometric_normal: vec3f,
+    @location(3) uv: vec2f,
+    @location(4) @interpolate(flat) material: u32,
+}
+
+@vertex
+fn vs_eye(in: VsIn) -> VsOut {
+    var out: VsOut;
+    out.clip = frame.view_proj * vec4f(in.position, 1.0);
+    out.world = in.position;
+    out.normal = in.normal;
+    out.geometric_normal = in.geometric_normal;
+    out.uv = in.uv;
+    out.material = in.material;
+    return out;
+}
+
+// Comparison lookups: `ref` passes where it is at least the stored (reversed-Z) depth.
+fn shadow_filter(uv: vec2f, layer: u32, ref_depth: f32) -> f32 {
+    if frame.filter_mode == FILTER_NEAREST {
+        return textureSampleCompareLevel(shadow_maps, shadow_nearest, uv, layer, ref_depth);
+    }
+    if frame.filter_mode == FILTER_PCF2X2 {
+        return textureSampleCompareLevel(shadow_maps, shadow_linear, uv, layer, ref_depth);
+    }
+    let taps = max(frame.taps, 1u);
+    let step = 1.0 / frame.map_size;
+    let half = 0.5 * f32(taps - 1u);
+    var sum = 0.0;
+    for (var j = 0u; j < taps; j++) {
+        for (var i = 0u; i < taps; i++) {
+            let o = (vec2f(f32(i), f32(j)) - vec2f(half)) * step;
+            sum += textureSampleCompareLevel(shadow_maps, shadow_linear, uv + o, layer, ref_depth);
+        }
+    }
+    return sum / f32(taps * taps);
+}
+
+// s_λ at world point p with geometric normal ng; 1 where no view of the light covers p.
+fn visibility(s: Light, p: vec3f, ng: vec3f, l: vec3f) -> f32 {
+    for (var k = 0u; k < s.view_count; k++) {
+        let v = views[s.first_view + k];
+        let q = v.view * vec4f(p, 1.0);
+        let clip = v.proj * q;
+        if !(clip.w > 0.0) {
+            continue;
+        }
+        let ndc = clip.xy / clip.w;
+        let uv = vec2f(ndc.x * 0.5 + 0.5, 0.5 - ndc.y * 0.5);
+        if any(uv < vec2f(0.0)) || any(uv > vec2f(1.0)) {
+            continue;
+        }
+        // Slope-scaled bias in metres: the surface rises by tanθ per metre across a texel.
+        let c = clamp(dot(ng, l), 0.0, 1.0);
+        let tan_theta = min(sqrt(max(1.0 - c * c, 0.0)) / max(c, 1e-3), 10.0);
+        var texel_m = v.texel;
+        if v.ortho == 0u {
+            texel_m = v.texel * max(-q.z, 0.0);
+        }
+        let bias = frame.depth_bias + frame.slope_bias * frame.kernel_radius * texel_m * tan_theta;
+        // Move the receiver towards the light along the light ray, then take its depth.
+        var qb = q.xyz;
+        if v.ortho != 0u {
+            qb.z = qb.z + bias;
+        } else {
+            let dist = length(q.xyz);
+            if dist <= bias {
+                return 1.0;
+            }
+            qb = q.xyz * (1.0 - bias / dist);
+        }
+        let cb = v.proj * vec4f(qb, 1.0);
+        let ref_depth = clamp(cb.z / cb.w, 0.0, 1.0);
+        return shadow_filter(uv, v.layer, ref_depth);
+    }
+    return 1.0;
+}
+
+struct Shaded {
+    diffuse: vec3f,
+    specular: vec3f,
+    depth: f32,
+}
+
+fn shade(in: VsOut, front: bool) -> Shaded {
+    let m = materials[in.material & ~NO_UV_BIT];
+    var ng = safe_normalize(in.geometric_normal);
+    var n = safe_normalize(in.normal);
+    if all(n == vec3f(0.0)) {
+        n = ng;
+    }
+    if !front {
+        // Back face of a double-sided material: both normals face the viewer.
+        ng = -ng;
+        n = -n;
+    }
+    let p = in.world;
+    let v = safe_normalize(frame.camera - p);
+    let specular = m.has_specular != 0u;
+    var out: Shaded;
+    out.diffuse = vec3f(0.0);
+    out.specular = vec3f(0.0);
+    for (var i = 0u; i < frame.light_count; i++) {
+        let s = lights[i];
+        let c = coefficients(s, p, n, v, m.shininess, specular);
+        if c.x == 0.0 && c.y == 0.0 {
+            continue;
+        }
+        let vis = visibility(s, p, ng, to_light(s, p).xyz);
+        out.diffuse += s.weight * (c.x * vis);
+        out.specular += s.weight * (c.y * vis);
+    }
+    out.depth = dot(p - frame.camera, frame.forward);
+    return out;
+}
+
+// Eye rays skip single-sided back faces and transparent masked texels (CPU reference rules).
+fn rejected(in: VsOut, front: bool) -> bool {
+    let m = materials[in.material & ~NO_UV_BIT];
+    return (!front && m.double_sided == 0u)
+        || masked_out(m, in.uv, (in.material & NO_UV_BIT) == 0u);
+}
+
+struct IlluminationOut {
+    @location(0) diffuse: vec4f,
+    @location(1) specular: vec4f,
+    @location(2) depth: f32,
+}
+
+@fragment
+fn fs_illumination(in: VsOut, @builtin(front_facing) front: bool) -> IlluminationOut {
+    if rejected(in, front) {
+        discard;
+    }
+    let s = shade(in, front);
+    var out: IlluminationOut;
+    out.diffuse = vec4f(s.diffuse, 1.0);
+    out.specular = vec4f(s.specular, 1.0);
+    out.depth = s.depth;
+    return out;
+}
+
+struct LayersOut {
+    @location(0) diffuse: vec4f,
+    @location(1) specular: vec4f,
+    @location(2) depth: f32,
+    @location(3) m_diffuse: vec4f,
+    @location(4) m_specular: vec4f,
+    @location(5) m_ambient: vec4f,
+    @location(6) emissive: vec4f,
+}
+
+@fragment
+fn fs_layers(in: VsOut, @builtin(front_facing) front: bool) -> LayersOut {
+    if rejected(in, front) {
+        discard;
+    }
+    let s = shade(in, front);
+    let m = materials[in.material & ~NO_UV_BIT];
+    var md = m.diffuse;
+    if m.diffuse_texture != NO_TEXTURE {
+        md = md * sample_texture(m.diffuse_texture, in.uv).rgb;
+    }
+    var out: LayersOut;
+    out.diffuse = vec4f(s.diffuse, 1.0);
+    out.specular = vec4f(s.specular, 1.0);
+    out.depth = s.depth;
+    out.m_diffuse = vec4f(md, 1.0);
+    out.m_specular = vec4f(m.specular, 1.0);
+    out.m_ambient = vec4f(m.ambient, 1.0);
+    out.emissive = vec4f(m.emissive, 1.0);
+    return out;
+}

@@ -1,0 +1,130 @@
+// Lighting maths mirrored from `scene::shading` (docs/shading.md): keep the two in step.
+
+const PI: f32 = 3.14159265358979;
+
+const KIND_ISOTROPIC: u32 = 0u;
+const KIND_COSINE_LOBE: u32 = 1u;
+const KIND_TWO_SIDED_LOBE: u32 = 2u;
+const KIND_SPOT: u32 = 3u;
+const KIND_DIRECTIONAL: u32 = 4u;
+
+// One point-light sample λ as the node renders it.
+struct Light {
+    position: vec3f,
+    kind: u32,
+    // Lobe / spot axis, or direction of travel for a directional light (unit).
+    direction: vec3f,
+    intensity: f32,
+    // c_λ ⊘ c_n: the light colour relative to the node colour.
+    weight: vec3f,
+    // Range window; 0 means unbounded.
+    range: f32,
+    cos_outer: f32,
+    cos_inner: f32,
+    first_view: u32,
+    view_count: u32,
+}
+
+// Unit vector, or zero for a zero or non-finite input.
+fn safe_normalize(a: vec3f) -> vec3f {
+    let l = length(a);
+    if l > 0.0 && l < 3.0e38 {
+        return a / l;
+    }
+    return vec3f(0.0);
+}
+
+fn range_window(r: f32, range: f32) -> f32 {
+    if range > 0.0 {
+        let q = r / range;
+        let w = clamp(1.0 - q * q * q * q, 0.0, 1.0);
+        return w * w;
+    }
+    return 1.0;
+}
+
+// Radiant intensity towards unit direction `to_point` (light → point).
+fn sample_intensity(s: Light, to_point: vec3f) -> f32 {
+    let c = dot(s.direction, to_point);
+    switch s.kind {
+        case KIND_COSINE_LOBE: {
+            return s.intensity * max(c, 0.0);
+        }
+        case KIND_TWO_SIDED_LOBE: {
+            return s.intensity * abs(c);
+        }
+        case KIND_SPOT: {
+            let t = clamp((c - s.cos_outer) / max(s.cos_inner - s.cos_outer, 1e-4), 0.0, 1.0);
+            return s.intensity * t * t;
+        }
+        default: {
+            return s.intensity;
+        }
+    }
+}
+
+// Unit direction from p towards the light (xyz) and its distance (w; huge for directional).
+fn to_light(s: Light, p: vec3f) -> vec4f {
+    if s.kind == KIND_DIRECTIONAL {
+        return vec4f(-safe_normalize(s.direction), 3.0e38);
+    }
+    let d = s.position - p;
+    return vec4f(safe_normalize(d), length(d));
+}
+
+// Unshadowed scalar irradiance E_λ at p with unit normal n.
+fn irradiance(s: Light, p: vec3f, n: vec3f) -> f32 {
+    let lr = to_light(s, p);
+    let l = lr.xyz;
+    let r = lr.w;
+    let cos_n = dot(n, l);
+    if !(cos_n > 0.0) {
+        return 0.0;
+    }
+    var e: f32;
+    if s.kind == KIND_DIRECTIONAL {
+        e = s.intensity * cos_n;
+    } else {
+        if !(r > 0.0) {
+            return 0.0;
+        }
+        e = sample_intensity(s, -l) * cos_n / (r * r) * range_window(r, s.range);
+    }
+    if !(abs(e) < 3.0e38) {
+        return 0.0;
+    }
+    return e;
+}
+
+// Energy-normalised Blinn-Phong lobe (s+8)/(8π)·max(0, n·h)^s.
+fn blinn_phong(n: vec3f, l: vec3f, v: vec3f, shininess: f32) -> f32 {
+    let h = safe_normalize(l + v);
+    let nh = max(dot(n, h), 0.0);
+    var p = 0.0;
+    if nh > 0.0 {
+        p = pow(nh, shininess);
+    } else if shininess == 0.0 {
+        p = 1.0;
+    }
+    return (shininess + 8.0) / (8.0 * PI) * p;
+}
+
+// Unshadowed (i^d, i^s) of one sample at a surface point.
+fn coefficients(s: Light, p: vec3f, n: vec3f, v: vec3f, shininess: f32, specular: bool) -> vec2f {
+    let e = irradiance(s, p, n);
+    if e == 0.0 {
+        return vec2f(0.0);
+    }
+    var is = 0.0;
+    if specular {
+        is = e * blinn_phong(n, to_light(s, p).xyz, v, shininess);
+    }
+    return vec2f(e / PI, is);
+}
+
+fn srgb_to_linear(x: f32) -> f32 {
+    if x <= 0.04045 {
+        return x / 12.92;
+    }
+    return pow((x + 0.055) / 1.055, 2.4);
+}
