@@ -5,8 +5,10 @@
 //! Must not depend on tokio, wgpu or any networking: the GPU node, the CPU reference, the planner
 //! and the tests all read scenes through this crate.
 
+pub mod builtin;
 pub mod camera;
 pub mod defaults;
+mod error;
 pub mod image;
 pub mod model;
 pub mod primitives;
@@ -17,5 +19,7 @@ pub mod shading;
 pub mod shadow_views;
 pub mod wire;
 
+pub use builtin::{builtin, builtin_names};
+pub use error::SceneError;
 pub use image::Image;
 pub use model::*;

@@ -143,3 +143,79 @@ impl Mesh {
         }))
     }
 }
+
+/// A closed cylinder standing on `base` along +Y with `segments` sides (flat caps, smooth sides).
+pub fn cylinder(
+    name: &str,
+    base: V3,
+    radius: f32,
+    height: f32,
+    segments: u32,
+    material: usize,
+) -> Mesh {
+    let segments = segments.max(3);
+    let mut m = empty(name, material);
+    let ring = |k: u32| {
+        let phi = std::f32::consts::TAU * k as f32 / segments as f32;
+        [phi.cos(), 0.0, -phi.sin()]
+    };
+    // Sides: two vertices per column so the seam gets its own uv.
+    for k in 0..=segments {
+        let n = ring(k);
+        for y in [0.0, height] {
+            m.positions
+                .push(add(base, add(scale(n, radius), [0.0, y, 0.0])));
+            m.normals.push(n);
+            m.uvs
+                .push([k as f32 / segments as f32, y / height.max(1e-6)]);
+        }
+    }
+    for k in 0..segments {
+        let (b0, t0, b1, t1) = (2 * k, 2 * k + 1, 2 * k + 2, 2 * k + 3);
+        m.indices.extend_from_slice(&[b0, b1, t1, b0, t1, t0]);
+    }
+    // Caps: a centre vertex fanned to the rim.
+    for (y, n) in [(height, [0.0, 1.0, 0.0]), (0.0, [0.0, -1.0, 0.0])] {
+        let centre = m.positions.len() as u32;
+        m.positions.push(add(base, [0.0, y, 0.0]));
+        m.normals.push(n);
+        m.uvs.push([0.5, 0.5]);
+        for k in 0..segments {
+            let r = ring(k);
+            m.positions
+                .push(add(base, add(scale(r, radius), [0.0, y, 0.0])));
+            m.normals.push(n);
+            m.uvs.push([0.5 + 0.5 * r[0], 0.5 - 0.5 * r[2]]);
+        }
+        for k in 0..segments {
+            let a = centre + 1 + k;
+            let b = centre + 1 + (k + 1) % segments;
+            if n[1] > 0.0 {
+                m.indices.extend_from_slice(&[centre, a, b]);
+            } else {
+                m.indices.extend_from_slice(&[centre, b, a]);
+            }
+        }
+    }
+    m
+}
+
+impl Mesh {
+    /// Applies an affine transform in place: positions by `m`, normals by its inverse transpose
+    /// (renormalised), and the winding is flipped when `m` mirrors (negative determinant) so that
+    /// counter-clockwise stays front-facing.
+    pub fn transform(&mut self, m: &glam::Affine3A) {
+        let normal_matrix = glam::Mat3::from(m.matrix3).inverse().transpose();
+        for p in &mut self.positions {
+            *p = m.transform_point3(glam::Vec3::from(*p)).to_array();
+        }
+        for n in &mut self.normals {
+            *n = normalize((normal_matrix * glam::Vec3::from(*n)).to_array());
+        }
+        if m.matrix3.determinant() < 0.0 {
+            for t in self.indices.chunks_exact_mut(3) {
+                t.swap(1, 2);
+            }
+        }
+    }
+}

@@ -1,0 +1,37 @@
+//! The one error type of scene loading, building and decoding. Every variant names the input it
+//! came from (a file path, a built-in name or "scene bytes") and what was wrong with it.
+
+/// Why a scene could not be loaded, built or decoded.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneError {
+    #[error("unknown built-in scene {name:?} (built-ins: {known})")]
+    UnknownBuiltin { name: String, known: String },
+    #[error("{input:?} is neither a built-in scene ({known}) nor a .toml, .gltf or .glb file")]
+    UnknownInput { input: String, known: String },
+    #[error("cannot read {path}: {message}")]
+    Io { path: String, message: String },
+    #[error("{path}: invalid glTF: {message}")]
+    Gltf { path: String, message: String },
+    #[error("{path}: texture {texture}: {message}")]
+    Texture {
+        path: String,
+        texture: String,
+        message: String,
+    },
+    #[error("{path}: invalid scene file: {message}")]
+    SceneFile { path: String, message: String },
+    #[error(
+        "{path}: scene file version {found} is not supported (this build reads version {supported})"
+    )]
+    Version {
+        path: String,
+        found: u32,
+        supported: u32,
+    },
+    #[error("scene {scene:?} is unusable: {message}")]
+    Invalid { scene: String, message: String },
+    #[error("cannot decode scene bytes: {message}")]
+    Decode { message: String },
+    #[error("cannot encode scene {scene:?}: {message}")]
+    Encode { scene: String, message: String },
+}
