@@ -1,0 +1,83 @@
+//! `rgb9e5x2`: two shared-exponent RGB triples (diffuse, specular), each packed as in
+//! GL_EXT_texture_shared_exponent (9-bit mantissas R, G, B in bits 0–26, 5-bit exponent in 27–31,
+//! bias 15), diffuse in the low 32 bits; stored little-endian. Mantissas round to nearest (ties to
+//! even); the exponent comes from the f32 bits of the largest channel, not `log2`.
+
+use super::{clamp_nonneg, round_u32};
+
+/// Largest representable value, 511/512 · 2^16.
+pub const MAX: f32 = 65408.0;
+
+/// The shared exponent (0..=31) for a triple whose largest clamped channel is `m`: the smallest
+/// that holds `m` after rounding. `m = 1.f·2^e` needs `e + 16` unless its rounded 9-bit mantissa
+/// carries into bit 9 (the mantissa bits of `m` ≥ 511/512), which takes one more.
+#[inline(always)]
+fn shared_exponent(m: f32) -> u32 {
+    let bits = m.to_bits();
+    let e = (bits >> 23) as i32 - 127;
+    let carry = (e >= -16) & ((bits & 0x7F_FFFF) >= 0x7F_C000);
+    (e.max(-16) + 16) as u32 + u32::from(carry)
+}
+
+#[inline(always)]
+fn encode(r: f32, g: f32, b: f32) -> u32 {
+    let (r, g, b) = (
+        clamp_nonneg(r, MAX),
+        clamp_nonneg(g, MAX),
+        clamp_nonneg(b, MAX),
+    );
+    let m = if r > g { r } else { g };
+    let m = if m > b { m } else { b };
+    let es = shared_exponent(m);
+    // 2^(24 − es): scaling by a power of two is exact, so only the rounding loses anything.
+    let f = f32::from_bits((151 - es) << 23);
+    round_u32(r * f) | round_u32(g * f) << 9 | round_u32(b * f) << 18 | es << 27
+}
+
+#[inline(always)]
+fn decode(w: u32) -> [f32; 3] {
+    let f = f32::from_bits(((w >> 27) + 103) << 23);
+    [
+        (w & 511) as f32 * f,
+        (w >> 9 & 511) as f32 * f,
+        (w >> 18 & 511) as f32 * f,
+    ]
+}
+
+/// Half a mantissa step at the exponent chosen for a triple whose largest clamped channel is `m`;
+/// exact (the arithmetic adds no rounding of its own).
+pub(super) fn bound(m: f32) -> f32 {
+    f32::from_bits((shared_exponent(m) + 102) << 23)
+}
+
+pub(super) fn pack(src: &[f32], dst: &mut [u8]) -> u64 {
+    let mut saturated = 0u64;
+    for (p, out) in src
+        .as_chunks::<6>()
+        .0
+        .iter()
+        .zip(dst.as_chunks_mut::<8>().0)
+    {
+        let lo = encode(p[0], p[1], p[2]);
+        let hi = encode(p[3], p[4], p[5]);
+        *out = (u64::from(hi) << 32 | u64::from(lo)).to_le_bytes();
+        let over =
+            (p[0] > MAX) | (p[1] > MAX) | (p[2] > MAX) | (p[3] > MAX) | (p[4] > MAX) | (p[5] > MAX);
+        saturated += u64::from(over);
+    }
+    saturated
+}
+
+pub(super) fn unpack(src: &[u8], dst: &mut [f32]) {
+    for (b, out) in src
+        .as_chunks::<8>()
+        .0
+        .iter()
+        .zip(dst.as_chunks_mut::<6>().0)
+    {
+        let w = u64::from_le_bytes(*b);
+        let [r, g, bl] = decode(w as u32);
+        let [sr, sg, sb] = decode((w >> 32) as u32);
+        *out = [r, g, bl, sr, sg, sb];
+    }
+}

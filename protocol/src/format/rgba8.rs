@@ -1,0 +1,151 @@
+//! `rgba8` (linear) and `rgba8srgb`: three 8-bit channels in [0, 1] and a pad byte of 255 (opaque
+//! alpha for anything that views the layer as RGBA). Linear rounds v·255 to nearest. sRGB picks the
+//! code whose decoded **linear** value is nearest — the error that matters to the material stage,
+//! which multiplies in linear space — via a 4096-bucket table and one threshold compare per channel
+//! instead of `powf`.
+
+use std::sync::LazyLock;
+
+use super::{clamp_nonneg, round_u32};
+
+const BUCKETS: usize = 4096;
+
+struct Srgb {
+    /// Linear value of each code.
+    decode: [f32; 256],
+    /// `threshold[c]`: midpoint between codes c and c+1; values at or above it encode above c.
+    threshold: [f32; 256],
+    /// Code of the bucket start `i/4096`. The smallest gap between codes (1/255/12.92 ≈ 3.0e-4)
+    /// is wider than a bucket (2.4e-4), so a bucket holds at most one threshold.
+    start: [u8; BUCKETS],
+}
+
+fn srgb_to_linear(s: f64) -> f64 {
+    if s <= 0.04045 {
+        s / 12.92
+    } else {
+        ((s + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+static SRGB: LazyLock<Srgb> = LazyLock::new(|| {
+    let exact: [f64; 256] = std::array::from_fn(|c| srgb_to_linear(c as f64 / 255.0));
+    let decode = exact.map(|v| v as f32);
+    let threshold: [f32; 256] = std::array::from_fn(|c| match exact.get(c + 1) {
+        Some(next) => ((exact[c] + next) / 2.0) as f32,
+        None => f32::INFINITY,
+    });
+    let start = std::array::from_fn(|i| {
+        let x = i as f32 / BUCKETS as f32;
+        threshold.iter().take_while(|&&t| t <= x).count() as u8
+    });
+    Srgb {
+        decode,
+        threshold,
+        start,
+    }
+});
+
+#[inline(always)]
+fn encode_srgb(t: &Srgb, v: f32) -> u8 {
+    let x = clamp_nonneg(v, 1.0);
+    let bucket = ((x * BUCKETS as f32) as usize).min(BUCKETS - 1);
+    let c = t.start[bucket];
+    c + u8::from(x >= t.threshold[usize::from(c)])
+}
+
+/// Quantisation bound of linear 8-bit: half a step plus the rounding of v·255 and c/255.
+pub(super) fn bound_linear() -> f32 {
+    1.0 / 510.0 + 1.0 / 4_194_304.0
+}
+
+/// Quantisation bound of sRGB 8-bit at `v` in [0, 1]: half the wider of the two gaps around the
+/// code `v` encodes to (the farthest a value of that code's cell can lie), plus f32 rounding.
+pub(super) fn bound_srgb(v: f32) -> f32 {
+    let t = &*SRGB;
+    let c = usize::from(encode_srgb(t, v));
+    let below = if c == 0 {
+        0.0
+    } else {
+        t.decode[c] - t.threshold[c - 1]
+    };
+    let above = if c == 255 {
+        0.0
+    } else {
+        t.threshold[c] - t.decode[c]
+    };
+    below.max(above) + 1.0 / 16_777_216.0
+}
+
+fn pack_with(src: &[f32], dst: &mut [u8], encode: impl Fn(f32) -> u8) -> u64 {
+    let mut saturated = 0u64;
+    for (p, out) in src
+        .as_chunks::<3>()
+        .0
+        .iter()
+        .zip(dst.as_chunks_mut::<4>().0)
+    {
+        *out = [encode(p[0]), encode(p[1]), encode(p[2]), 255];
+        saturated += u64::from((p[0] > 1.0) | (p[1] > 1.0) | (p[2] > 1.0));
+    }
+    saturated
+}
+
+pub(super) fn pack_linear(src: &[f32], dst: &mut [u8]) -> u64 {
+    pack_with(src, dst, |v| round_u32(clamp_nonneg(v, 1.0) * 255.0) as u8)
+}
+
+pub(super) fn pack_srgb(src: &[f32], dst: &mut [u8]) -> u64 {
+    let t = &*SRGB;
+    pack_with(src, dst, |v| encode_srgb(t, v))
+}
+
+pub(super) fn unpack_linear(src: &[u8], dst: &mut [f32]) {
+    for (b, out) in src
+        .as_chunks::<4>()
+        .0
+        .iter()
+        .zip(dst.as_chunks_mut::<3>().0)
+    {
+        *out = [b[0], b[1], b[2]].map(|c| f32::from(c) / 255.0);
+    }
+}
+
+pub(super) fn unpack_srgb(src: &[u8], dst: &mut [f32]) {
+    let t = &*SRGB;
+    for (b, out) in src
+        .as_chunks::<4>()
+        .0
+        .iter()
+        .zip(dst.as_chunks_mut::<3>().0)
+    {
+        *out = [b[0], b[1], b[2]].map(|c| t.decode[usize::from(c)]);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The bucketed encoder agrees with a brute-force nearest-code search everywhere, including
+    /// on every threshold and its neighbours.
+    #[test]
+    fn srgb_encoder_is_nearest_code() {
+        let t = &*SRGB;
+        let brute = |x: f32| t.threshold.iter().take_while(|&&th| th <= x).count() as u8;
+        let mut probes: Vec<f32> = (0..=200_000).map(|i| i as f32 / 200_000.0).collect();
+        for &th in &t.threshold[..255] {
+            probes.extend([th, th.next_down(), th.next_up()]);
+        }
+        for i in 0..=BUCKETS {
+            let b = i as f32 / BUCKETS as f32;
+            probes.extend([b, b.next_down(), b.next_up()]);
+        }
+        for x in probes.into_iter().filter(|x| (0.0..=1.0).contains(x)) {
+            assert_eq!(encode_srgb(t, x), brute(x), "x = {x}");
+        }
+        for c in 0..=255u8 {
+            assert_eq!(encode_srgb(t, t.decode[usize::from(c)]), c);
+        }
+    }
+}
