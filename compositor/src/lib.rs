@@ -4,3 +4,4 @@
 //! Must not depend on wgpu, the node crate or the coordinator crate.
 
 pub mod ops;
+pub mod pipeline;

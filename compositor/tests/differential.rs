@@ -1,0 +1,166 @@
+//! Fast versions against the scalar references on random bands with odd widths and hostile
+//! values (NaN, ±Inf, negatives, subnormals, values that overflow when summed). Every operator is
+//! held to the same bits, on one thread and with the band split across the rayon pool.
+
+mod common;
+
+use common::{Owned, assert_same_bits, hostile, rng, run};
+use lightfold_compositor::ops::{self, Operator, Output, PAR_SPAN};
+use serde_json::{Value, json};
+
+/// Widths that exercise the vector remainders, one pixel, and a band large enough to be split
+/// into parallel spans with a ragged last span.
+fn widths() -> Vec<usize> {
+    vec![1, 2, 3, 5, 7, 13, 31, 255, 257, 1023, 2 * PAR_SPAN + 77]
+}
+
+/// Random inputs for `op`: required layers always, optional ones present two times in three.
+fn inputs_for(op: &dyn Operator, pixels: usize, seed: u64) -> Vec<Owned> {
+    let mut r = rng(seed);
+    op.signature()
+        .inputs
+        .iter()
+        .enumerate()
+        .map(|(i, spec)| {
+            let mut layers = spec.required.clone();
+            for &l in &spec.optional {
+                if !(seed + i as u64).is_multiple_of(3) {
+                    layers.push(l);
+                }
+            }
+            Owned::random(pixels, &layers, &mut r, hostile)
+        })
+        .collect()
+}
+
+fn differential(name: &str, params: Value) {
+    let op = ops::create(name, &params).unwrap();
+    for (n, pixels) in widths().into_iter().enumerate() {
+        for seed in 0..3u64 {
+            let inputs = inputs_for(&*op, pixels, seed * 100 + n as u64);
+            let fast = run(&*op, &inputs, pixels, false);
+            let reference = run(&*op, &inputs, pixels, true);
+            assert_same_bits(&fast, &reference, &format!("{name} {params} w={pixels}"));
+            for (_, d) in &fast.layers {
+                assert!(d.iter().all(|v| !v.is_nan()), "{name}: NaN out");
+            }
+        }
+    }
+}
+
+#[test]
+fn accumulate_matches_reference() {
+    differential("accumulate", json!({"colors": [[0.5, 1, 2]]}));
+    differential(
+        "accumulate",
+        json!({"upstream": false, "colors": [[0.3, 0.7, 1.1], [2, 2, 2], [0, 1, 3e37]]}),
+    );
+    differential(
+        "accumulate",
+        json!({"colors": [[0.3, 0.7, 1.1], {"diffuse": [1, 2, 3], "specular": [0.1, 0.2, 0.3]}],
+               "specular_color": [0.9, 0.5, 0.1], "ambient": {"input": 2}}),
+    );
+    differential(
+        "accumulate",
+        json!({"colors": [[0.3, 0.7, 1.1], [1, 1, 1]], "ambient": {"input": 1, "mask": "layer"}}),
+    );
+}
+
+#[test]
+fn material_matches_reference() {
+    differential("material", json!({"stage": "specular"}));
+    differential("material", json!({"stage": "diffuse"}));
+    differential(
+        "material",
+        json!({"stage": "ambient", "ambient_color": [0.1, 0.2, 0.3]}),
+    );
+    differential("material", json!({"stage": "emissive"}));
+    differential("material", json!({"stage": "single"}));
+    differential(
+        "material",
+        json!({"stage": "single", "specular": true, "emissive": true, "ambient_color": [0.1, 0.2, 0.3]}),
+    );
+    differential("material", json!({"stage": "single", "emissive": true}));
+}
+
+#[test]
+fn depth_matches_reference() {
+    differential("depth", json!({"inputs": 1}));
+    differential(
+        "depth",
+        json!({"inputs": 4, "layers": ["illumination", "diffuse", "specular"]}),
+    );
+    differential(
+        "depth",
+        json!({"inputs": 3, "layers": ["radiance"], "reversed_z": true}),
+    );
+}
+
+#[test]
+fn join_matches_reference() {
+    differential("join", json!({"inputs": 1}));
+    differential("join", json!({"inputs": 5}));
+    differential("join", json!({"inputs": 2, "layer": "radiance"}));
+}
+
+#[test]
+fn output_matches_reference() {
+    differential("output", json!({"exposure": 0.7}));
+}
+
+/// The fast sRGB encoder gives the reference bytes: on a sweep through every 251st float of
+/// [0, 1], around every code threshold, and on hostile values, at two exposures.
+#[test]
+fn srgb8_matches_reference() {
+    let mut lin: Vec<f32> = (0..=1.0f32.to_bits())
+        .step_by(251)
+        .map(f32::from_bits)
+        .collect();
+    // Around each code boundary, found by a coarse scan of the reference.
+    let mut prev = ops::output::srgb8(0.0);
+    for i in 0..=200_000u32 {
+        let x = i as f32 / 200_000.0;
+        let c = ops::output::srgb8(x);
+        if c != prev {
+            let b = x.to_bits();
+            lin.extend((b.saturating_sub(2000)..b + 2000).map(f32::from_bits));
+            prev = c;
+        }
+    }
+    let mut r = rng(7);
+    lin.extend((0..100_000).map(|_| hostile(&mut r)));
+    lin.extend([1.0, 1.0 + f32::EPSILON, 2.0, f32::MAX]);
+    lin.truncate(lin.len() / 3 * 3);
+    for exposure in [1.0, 3.3] {
+        let op = Output::new(&json!({ "exposure": exposure })).unwrap();
+        let mut fast = vec![0u8; lin.len()];
+        let mut reference = vec![0u8; lin.len()];
+        op.encode_srgb8(&lin, &mut fast).unwrap();
+        op.encode_srgb8_scalar(&lin, &mut reference).unwrap();
+        if let Some(k) = (0..lin.len()).find(|&k| fast[k] != reference[k]) {
+            panic!(
+                "exposure {exposure}: {:e} → fast {} reference {}",
+                lin[k], fast[k], reference[k]
+            );
+        }
+    }
+}
+
+/// The split across rayon spans changes nothing: one thread and the pool give the same bits.
+#[test]
+fn one_thread_and_pool_agree() {
+    let op = ops::create("accumulate", &json!({"colors": [[0.5, 1, 2], [1, 1, 1]]})).unwrap();
+    let pixels = 3 * PAR_SPAN + 5;
+    let inputs = inputs_for(&*op, pixels, 11);
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
+    let many = rayon::ThreadPoolBuilder::new()
+        .num_threads(3)
+        .build()
+        .unwrap();
+    let a = one.install(|| run(&*op, &inputs, pixels, false));
+    let b = many.install(|| run(&*op, &inputs, pixels, false));
+    assert_same_bits(&a, &b, "threads");
+}
