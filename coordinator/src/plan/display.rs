@@ -1,0 +1,220 @@
+//! The plan printed for people (`lightfold plan`): stages, lights per node, dropped samples and
+//! why, shadow passes, and bytes per frame per link.
+
+use super::types::{
+    Downstream, DropReason, MaterialMode, MaterialPlacement, Plan, ShadowViews, Source,
+};
+use lightfold_protocol::{Layer, PixelFormat};
+use std::fmt::{self, Display, Formatter};
+
+fn layers(l: &[(Layer, PixelFormat)]) -> String {
+    l.iter()
+        .map(|(l, f)| format!("{} {}", format!("{l:?}").to_lowercase(), f.name()))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+fn rgb(c: [f32; 3]) -> String {
+    format!("({}, {}, {})", c[0], c[1], c[2])
+}
+
+fn ms(us: u64) -> String {
+    format!("{:.1} ms", us as f64 / 1000.0)
+}
+
+fn mb(bytes: u64) -> String {
+    format!("{:.2} MB", bytes as f64 / 1e6)
+}
+
+impl Display for DropReason {
+    fn fmt(&self, f: &mut Formatter<'_>) -> fmt::Result {
+        match self {
+            DropReason::ZeroEmission => {
+                f.write_str("emits nothing (zero intensity, colour or direction)")
+            }
+            DropReason::NonFinite => f.write_str("non-finite parameters"),
+            DropReason::NoVisibleReceiver => f.write_str("no geometry in view"),
+            DropReason::Unreached {
+                out_of_range,
+                outside_cone,
+                behind,
+            } => write!(
+                f,
+                "reaches no visible receiver ({out_of_range} out of range, {outside_cone} outside its cone, {behind} behind its lobe)"
+            ),
+            DropReason::BelowEpsilon { bound } => {
+                write!(f, "adds at most {bound:.2e} to any pixel (within ε)")
+            }
+        }
+    }
+}
+
+impl Display for ShadowViews {
+    fn fmt(&self, f: &mut Formatter<'_>) -> fmt::Result {
+        match self {
+            ShadowViews::None => f.write_str("no map (no caster)"),
+            ShadowViews::Frustum { half_angle_deg, .. } => {
+                write!(f, "1 fitted frustum ±{half_angle_deg:.0}°")
+            }
+            ShadowViews::Ortho => f.write_str("1 orthographic view"),
+            ShadowViews::Cube { faces } => {
+                let names = ["+x", "-x", "+y", "-y", "+z", "-z"];
+                let on: Vec<&str> = (0..6)
+                    .filter(|i| faces & (1 << i) != 0)
+                    .map(|i| names[i])
+                    .collect();
+                write!(f, "{} cube faces {}", on.len(), on.join(" "))
+            }
+        }
+    }
+}
+
+impl Display for Plan {
+    fn fmt(&self, f: &mut Formatter<'_>) -> fmt::Result {
+        let hash: String = self.scene_hash[..6]
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect();
+        writeln!(
+            f,
+            "plan epoch {} · scene {} ({hash}…) · {}×{} · {} · K = {} · bands of {} rows",
+            self.epoch,
+            self.scene_name,
+            self.width,
+            self.height,
+            self.topology,
+            self.k,
+            self.band_height
+        )?;
+        writeln!(
+            f,
+            "samples: {} total, {} active, {} dropped · ε = {:.1e} (display units), {:.1e} of it used",
+            self.samples.len(),
+            self.active.len(),
+            self.dropped.len(),
+            self.epsilon,
+            self.epsilon_used
+        )?;
+        for (i, why) in &self.dropped {
+            writeln!(
+                f,
+                "  dropped #{i} (light {}): {why}",
+                self.samples[*i].light
+            )?;
+        }
+        let passes: usize = self
+            .nodes
+            .iter()
+            .flat_map(|n| &n.shadows)
+            .map(|s| s.views.count())
+            .sum();
+        writeln!(
+            f,
+            "nodes: {} used, {} idle · {passes} shadow passes per frame · est. frame {}",
+            self.nodes.len(),
+            self.idle_nodes.len(),
+            ms(self.est_frame_us)
+        )?;
+        for n in &self.nodes {
+            write!(
+                f,
+                "  {} → {} input {} · ",
+                n.node, n.downstream, n.input_index
+            )?;
+            if n.lights.is_empty() && n.layers.iter().all(|l| l.0 != Layer::Illumination) {
+                writeln!(
+                    f,
+                    "material layers {} · est. {}",
+                    layers(&n.layers),
+                    ms(n.est_cost_us)
+                )?;
+                continue;
+            }
+            let ids: Vec<String> = n.lights.iter().map(|i| format!("#{i}")).collect();
+            writeln!(
+                f,
+                "c_n = {} · {} lights [{}] · est. {}",
+                rgb(n.color),
+                n.lights.len(),
+                ids.join(" "),
+                ms(n.est_cost_us)
+            )?;
+            for (i, s) in n.lights.iter().zip(&n.shadows) {
+                writeln!(
+                    f,
+                    "      #{i}: {} · {}² · {} casters {:?}",
+                    s.views,
+                    s.map_size,
+                    s.casters.len(),
+                    s.casters
+                )?;
+            }
+        }
+        if !self.idle_nodes.is_empty() {
+            writeln!(f, "  idle: {}", self.idle_nodes.join(", "))?;
+        }
+        let m = &self.material;
+        let mode = match m.mode {
+            MaterialMode::UniformSpecular { specular } => {
+                format!(
+                    "single stage, uniform specular {} pre-multiplied (eq. 4–5)",
+                    rgb(specular)
+                )
+            }
+            MaterialMode::General => "single stage with a specular layer".to_string(),
+        };
+        let place = match &m.placement {
+            MaterialPlacement::None => "none".to_string(),
+            MaterialPlacement::ExtraTargets { node } => format!("extra targets of {node}"),
+            MaterialPlacement::OwnNode { node } => format!("own node {node}"),
+        };
+        writeln!(
+            f,
+            "material: {mode} · layers {} · on {place}",
+            layers(&m.layers)
+        )?;
+        if m.fold_ambient {
+            writeln!(
+                f,
+                "  c^a = {} folded into the diffuse sum (eq. 6–7)",
+                rgb(m.ambient)
+            )?;
+        }
+        for note in &m.notes {
+            writeln!(f, "  {note}")?;
+        }
+        writeln!(f, "stages:")?;
+        for s in &self.stages {
+            let ins: Vec<String> = s
+                .inputs
+                .iter()
+                .map(|i| match &i.source {
+                    Source::Node(n) | Source::Stage(n) => n.clone(),
+                })
+                .collect();
+            let to = match &s.downstream {
+                Downstream::Stage(d) => format!("{d} input {}", s.input_index),
+                Downstream::Sink => format!("sink {}", self.sink),
+            };
+            writeln!(f, "  {} ← [{}] → {to}", s.compositor, ins.join(", "))?;
+            for (name, p) in &s.ops {
+                writeln!(f, "      {name} {p}")?;
+            }
+        }
+        writeln!(f, "links (bytes per frame):")?;
+        let mut total = 0;
+        for l in &self.links {
+            total += l.bytes_per_frame;
+            writeln!(
+                f,
+                "  {} → {} ({}) · {} · {}",
+                l.from,
+                l.to,
+                l.address,
+                layers(&l.layers),
+                mb(l.bytes_per_frame)
+            )?;
+        }
+        writeln!(f, "  total {} per frame", mb(total))
+    }
+}

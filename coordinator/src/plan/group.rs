@@ -1,0 +1,167 @@
+//! Groups of at most K active samples with a node colour `c_n` (by colour where the scene allows,
+//! so a light's colour can change per frame by changing `c_n` alone), and their assignment to
+//! render nodes balanced by measured or estimated cost (ARCHITECTURE §9).
+
+use super::types::{DaemonSpec, ShadowPlan};
+use lightfold_scene::LightSample;
+
+/// Estimated cost of one light at 800×600 with one 512² shadow view (PLATFORM.md: ≈ 12 ms).
+pub const DEFAULT_LIGHT_US: u64 = 12_000;
+/// Estimated fixed cost of a frame at 800×600: the eye pass and readback (PLATFORM.md: ≈ 60 ms).
+pub const DEFAULT_FIXED_US: u64 = 60_000;
+/// Pixels the default costs were measured at.
+const REFERENCE_PIXELS: f64 = 800.0 * 600.0;
+/// Cost of each extra material render target, as a fraction of the fixed eye-pass cost.
+pub const TARGET_FRACTION: f64 = 0.05;
+
+/// A group of samples that one node renders.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Group {
+    pub lights: Vec<usize>,
+    pub color: [f32; 3],
+}
+
+/// Forms groups of at most `k` from `active` (ascending sample indices): each colour class is cut
+/// into runs of `k`; the remainders stay apart (keeping their colour) unless mixing them saves
+/// nodes, in which case mixed groups get `c_n` = white.
+pub(crate) fn form_groups(active: &[usize], samples: &[LightSample], k: u32) -> Vec<Group> {
+    let k = k.max(1) as usize;
+    let mut classes: Vec<([f32; 3], Vec<usize>)> = Vec::new();
+    for &i in active {
+        let c = samples[i].color;
+        match classes.iter_mut().find(|(cc, _)| bits(*cc) == bits(c)) {
+            Some((_, v)) => v.push(i),
+            None => classes.push((c, vec![i])),
+        }
+    }
+    let mut groups = Vec::new();
+    let mut rest: Vec<([f32; 3], Vec<usize>)> = Vec::new();
+    for (c, members) in classes {
+        let full = members.len() / k * k;
+        for chunk in members[..full].chunks(k) {
+            groups.push(Group {
+                lights: chunk.to_vec(),
+                color: node_colour(c),
+            });
+        }
+        if full < members.len() {
+            rest.push((c, members[full..].to_vec()));
+        }
+    }
+    let total: usize = rest.iter().map(|r| r.1.len()).sum();
+    if total.div_ceil(k) < rest.len() {
+        let all: Vec<(usize, [f32; 3])> = rest
+            .iter()
+            .flat_map(|(c, m)| m.iter().map(move |&i| (i, *c)))
+            .collect();
+        for chunk in all.chunks(k) {
+            let first = chunk[0].1;
+            let same = chunk.iter().all(|(_, c)| bits(*c) == bits(first));
+            groups.push(Group {
+                lights: chunk.iter().map(|(i, _)| *i).collect(),
+                color: if same { node_colour(first) } else { [1.0; 3] },
+            });
+        }
+    } else {
+        groups.extend(rest.into_iter().map(|(c, lights)| Group {
+            lights,
+            color: node_colour(c),
+        }));
+    }
+    groups.sort_by_key(|g| g.lights[0]);
+    groups
+}
+
+/// A class colour as `c_n`; compositors take only non-negative colours, so others become white
+/// (the node then carries the light colour itself).
+fn node_colour(c: [f32; 3]) -> [f32; 3] {
+    if c.iter().all(|&v| v >= 0.0) {
+        c
+    } else {
+        [1.0; 3]
+    }
+}
+
+fn bits(c: [f32; 3]) -> [u32; 3] {
+    c.map(f32::to_bits)
+}
+
+/// A node's cost model: measured when it reported it, otherwise the defaults scaled by pixels.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct NodeCost {
+    pub light_us: f64,
+    pub fixed_us: f64,
+}
+
+impl NodeCost {
+    pub fn of(spec: &DaemonSpec, pixels: u64) -> NodeCost {
+        let scale = pixels as f64 / REFERENCE_PIXELS;
+        let caps = spec.capabilities.as_ref();
+        let measured = |v: Option<u64>| v.filter(|&v| v > 0).map(|v| v as f64);
+        NodeCost {
+            light_us: measured(caps.map(|c| c.cost_per_light_us))
+                .unwrap_or(DEFAULT_LIGHT_US as f64 * (0.5 + 0.5 * scale)),
+            fixed_us: measured(caps.map(|c| c.fixed_cost_us))
+                .unwrap_or(DEFAULT_FIXED_US as f64 * scale),
+        }
+    }
+
+    /// One light: half eye-pass share, half shadow passes (per view, growing with the map side).
+    pub fn light(&self, shadow: &ShadowPlan) -> f64 {
+        let views = shadow.views.count() as f64 * shadow.map_size as f64 / 512.0;
+        self.light_us * (0.5 + 0.5 * views)
+    }
+
+    pub fn frame(&self, shadows: &[&ShadowPlan], extra_targets: usize) -> f64 {
+        self.fixed_us * (1.0 + TARGET_FRACTION * extra_targets as f64)
+            + shadows.iter().map(|s| self.light(s)).sum::<f64>()
+    }
+}
+
+/// Largest K the nodes' devices take (the smallest reported limit; `k` when none reported).
+pub(crate) fn device_limit(nodes: &[DaemonSpec], k: u32) -> u32 {
+    nodes
+        .iter()
+        .filter_map(|n| n.capabilities.as_ref().map(|c| c.max_lights))
+        .filter(|&m| m > 0)
+        .min()
+        .unwrap_or(k)
+        .max(k)
+}
+
+/// Assigns each group to its own node: the costliest group first, each to the free node that
+/// finishes it soonest (ties: cluster order). Returns, per group, the node index (`usize::MAX`
+/// when nodes ran out, which the caller rules out first).
+pub(crate) fn assign(group_costs: &[Vec<f64>]) -> Vec<usize> {
+    let groups = group_costs.len();
+    let nodes = group_costs.first().map_or(0, Vec::len);
+    // Identical nodes: any assignment is as good, so keep group i on node i (stable plans).
+    if nodes >= groups
+        && group_costs
+            .iter()
+            .all(|row| row.iter().all(|c| c.to_bits() == row[0].to_bits()))
+    {
+        return (0..groups).collect();
+    }
+    let mut order: Vec<usize> = (0..groups).collect();
+    // Costliest first, judged on the first node (costs differ across nodes only by a factor).
+    order.sort_by(|&a, &b| {
+        group_costs[b][0]
+            .total_cmp(&group_costs[a][0])
+            .then(a.cmp(&b))
+    });
+    let mut free = vec![true; nodes];
+    let mut out = vec![usize::MAX; groups];
+    for g in order {
+        let best = (0..nodes).filter(|&n| free[n]).min_by(|&a, &b| {
+            group_costs[g][a]
+                .total_cmp(&group_costs[g][b])
+                .then(a.cmp(&b))
+        });
+        if let Some(n) = best {
+            free[n] = false;
+            out[g] = n;
+        }
+    }
+    out
+}

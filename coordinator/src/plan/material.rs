@@ -1,0 +1,133 @@
+//! Which material layers the view needs (paper §3): no emissive material in view → no emissive
+//! layer; no global ambient `c^a` or no ambient material → no ambient layer; one specular colour
+//! over the visible materials → eq. 4–5 (specular pre-multiplied in `accumulate`, a single
+//! material stage); eq. 6–7 folding of `c^a` into the diffuse sum when every visible material has
+//! `m^a = m^d`.
+
+use super::cull::Receiver;
+use super::types::{FormatChoice, MaterialMode};
+use lightfold_protocol::{Layer, PixelFormat};
+use lightfold_scene::{Material, Scene};
+
+/// What the visible materials ask of the material stage.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct Needs {
+    /// The common specular colour of every visible material, if there is one.
+    pub uniform_specular: Option<[f32; 3]>,
+    pub emissive: bool,
+    /// `c^a ≠ 0` and some visible material has `m^a ≠ 0`.
+    pub ambient: bool,
+    /// Every visible material has `m^a = m^d` (untextured): eq. 6–7 may fold `c^a`.
+    pub foldable: bool,
+    /// Layers whose visible values exceed 1 (they need the HDR material format).
+    pub hdr: Vec<Layer>,
+    pub notes: Vec<String>,
+}
+
+pub(crate) fn needs(scene: &Scene, receivers: &[Receiver], force_all: bool) -> Needs {
+    let mut ids: Vec<usize> = receivers
+        .iter()
+        .map(|r| scene.meshes[r.mesh].material)
+        .collect();
+    ids.sort_unstable();
+    ids.dedup();
+    let mats: Vec<&Material> = ids.iter().filter_map(|&i| scene.materials.get(i)).collect();
+    let nonzero = |c: [f32; 3]| c.iter().any(|&v| v != 0.0);
+    let over_one = |c: [f32; 3]| c.iter().any(|&v| v > 1.0);
+    let mut hdr = Vec::new();
+    for (layer, get) in [
+        (
+            Layer::Diffuse,
+            (|m: &Material| m.diffuse) as fn(&Material) -> [f32; 3],
+        ),
+        (Layer::Specular, |m: &Material| m.specular),
+        (Layer::Ambient, |m: &Material| m.ambient),
+    ] {
+        if mats.iter().any(|m| over_one(get(m))) {
+            hdr.push(layer);
+        }
+    }
+    let mut notes = Vec::new();
+    if force_all {
+        notes.push("forced: every material layer, no folding".to_string());
+        return Needs {
+            uniform_specular: None,
+            emissive: true,
+            ambient: true,
+            foldable: false,
+            hdr,
+            notes,
+        };
+    }
+    let emissive = mats.iter().any(|m| nonzero(m.emissive));
+    let ambient_light = nonzero(scene.ambient);
+    let ambient = ambient_light && mats.iter().any(|m| nonzero(m.ambient));
+    let foldable = ambient
+        && mats
+            .iter()
+            .all(|m| m.ambient == m.diffuse && m.diffuse_texture.is_none());
+    let first_spec = mats.first().map(|m| m.specular);
+    let uniform_specular = match first_spec {
+        Some(s) if mats.iter().all(|m| m.specular == s) => Some(s),
+        None => Some([0.0; 3]),
+        _ => None,
+    };
+    notes.push(if emissive {
+        "emissive: a visible material emits → emissive layer".to_string()
+    } else {
+        "emissive: no visible material emits → no emissive layer".to_string()
+    });
+    notes.push(match (ambient_light, ambient, foldable) {
+        (false, _, _) => "ambient: c^a = 0 → no ambient layer".to_string(),
+        (true, false, _) => "ambient: no visible material has m^a → no ambient layer".to_string(),
+        (true, true, true) => {
+            "ambient: every visible material has m^a = m^d → c^a folded into the diffuse sum (eq. 6–7) if a node can carry c_n = c^a"
+                .to_string()
+        }
+        (true, true, false) => "ambient: m^a differs from m^d → ambient layer".to_string(),
+    });
+    notes.push(match uniform_specular {
+        Some(s) => format!(
+            "specular: one colour {s:?} over the visible materials → pre-multiplied in accumulate, single material stage (eq. 4–5)"
+        ),
+        None => "specular: colours differ → specular layer".to_string(),
+    });
+    Needs {
+        uniform_specular,
+        emissive,
+        ambient,
+        foldable,
+        hdr,
+        notes,
+    }
+}
+
+/// The material mode and the layers the material node renders, given whether `c^a` is folded.
+pub(crate) fn layers(
+    needs: &Needs,
+    fold: bool,
+    formats: &FormatChoice,
+) -> (MaterialMode, Vec<(Layer, PixelFormat)>) {
+    let format = |l: Layer| {
+        if l == Layer::Emissive || needs.hdr.contains(&l) {
+            formats.material_hdr
+        } else {
+            formats.material
+        }
+    };
+    let mut layers = vec![Layer::Diffuse];
+    let mode = match needs.uniform_specular {
+        Some(specular) => MaterialMode::UniformSpecular { specular },
+        None => {
+            layers.push(Layer::Specular);
+            MaterialMode::General
+        }
+    };
+    if needs.ambient && !fold {
+        layers.push(Layer::Ambient);
+    }
+    if needs.emissive {
+        layers.push(Layer::Emissive);
+    }
+    (mode, layers.into_iter().map(|l| (l, format(l))).collect())
+}

@@ -1,0 +1,410 @@
+//! The planner: a pure function from a scene, the cluster and options to a `Plan` — which light
+//! samples are active, the casters, views and map size of each shadow map, groups of K with their
+//! colour `c_n` on nodes balanced by cost, which material layers exist, the compositor stages and
+//! the bytes of every link (ARCHITECTURE §9). No I/O, no clock, no randomness: the same inputs give
+//! the same plan, so the control loop can diff plans and tests can state properties of them.
+
+mod config;
+mod cull;
+mod display;
+mod geom;
+mod group;
+mod material;
+mod shadow;
+mod topology;
+mod types;
+pub mod wire;
+
+pub use group::{DEFAULT_FIXED_US, DEFAULT_LIGHT_US};
+pub use topology::BAND_OVERHEAD_BYTES;
+pub use types::*;
+
+use group::{Group, NodeCost};
+use lightfold_protocol::Layer;
+use lightfold_scene::Scene;
+use sha2::{Digest, Sha256};
+
+/// Why no plan could be made.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum PlanError {
+    #[error("the cluster has no render node")]
+    NoNodes,
+    #[error("the cluster has no compositor")]
+    NoCompositors,
+    #[error("daemon id {id:?} appears twice in the cluster")]
+    DuplicateDaemon { id: String },
+    #[error(
+        "{active} active light samples need {needed} render nodes at K = {k} (including one for the material layers) and the devices take at most K = {limit}; the cluster has {available}"
+    )]
+    NotEnoughNodes {
+        active: usize,
+        k: u32,
+        limit: u32,
+        needed: usize,
+        available: usize,
+    },
+    #[error("invalid scene: {reason}")]
+    InvalidScene { reason: String },
+    #[error("invalid plan options: {reason}")]
+    InvalidOptions { reason: String },
+}
+
+/// SHA-256 of the scene's canonical encoding (bincode 2, standard configuration): the content hash
+/// nodes cache scenes by when the coordinator ships this encoding.
+pub fn scene_hash(scene: &Scene) -> [u8; 32] {
+    let bytes =
+        bincode::serde::encode_to_vec(scene, bincode::config::standard()).unwrap_or_default();
+    Sha256::digest(&bytes).into()
+}
+
+/// Plans `scene` on `cluster` (see the module documentation and `docs/planner.md`).
+pub fn plan(
+    scene: &Scene,
+    cluster: &ClusterSpec,
+    options: &PlanOptions,
+) -> Result<Plan, PlanError> {
+    validate(scene, cluster, options)?;
+    let cam = &scene.camera;
+    let samples = lightfold_scene::sampling::scene_samples(scene);
+    let bounds = geom::mesh_bounds(scene);
+    let receivers = cull::receivers(scene, &bounds);
+    let culling = cull::cull(
+        &samples,
+        &receivers,
+        scene.exposure,
+        options.epsilon,
+        options.force_all,
+    );
+    let probes = shadow::probes(cam, &receivers);
+    let shadow_of = |i: usize| {
+        let lit: Vec<&cull::Receiver> = culling.lit[i].iter().map(|&r| &receivers[r]).collect();
+        shadow::shadow_plan(
+            &samples[i],
+            &lit,
+            &bounds,
+            &probes,
+            cam,
+            options.map_sizing,
+            options.force_all,
+        )
+    };
+    let shadows: Vec<Option<ShadowPlan>> = {
+        let mut v = vec![None; samples.len()];
+        for &i in &culling.active {
+            v[i] = Some(shadow_of(i));
+        }
+        v
+    };
+
+    // Groups: K per node, raised towards the device limit when nodes are short. One node more
+    // renders the material layers.
+    let k = options.lights_per_node;
+    let limit = group::device_limit(&cluster.nodes, k);
+    let available = cluster.nodes.len();
+    let groups_for = |k: u32| {
+        let mut g = group::form_groups(&culling.active, &samples, k);
+        if g.is_empty() {
+            // Nothing lit: one node with no light keeps the pipeline whole (it sends empty bands).
+            g.push(Group {
+                lights: Vec::new(),
+                color: [1.0; 3],
+            });
+        }
+        g
+    };
+    let mut k_used = k;
+    let mut groups = groups_for(k);
+    while groups.len() + 1 > available && k_used < limit {
+        k_used += 1;
+        groups = groups_for(k_used);
+    }
+    if groups.len() + 1 > available {
+        return Err(PlanError::NotEnoughNodes {
+            active: culling.active.len(),
+            k,
+            limit,
+            needed: groups_for(k).len() + 1,
+            available,
+        });
+    }
+
+    // Materials, and the eq. 6–7 folding when a node can carry c_n = c^a.
+    let needs = material::needs(scene, &receivers, options.force_all);
+    let mut fold = None;
+    if needs.foldable {
+        let ca = scene.ambient;
+        let positive = ca.iter().all(|&c| c > 0.0);
+        fold = groups
+            .iter()
+            .position(|g| g.color.map(f32::to_bits) == ca.map(f32::to_bits))
+            .or_else(|| groups.iter().position(|g| g.lights.is_empty()))
+            .or_else(|| {
+                groups
+                    .iter()
+                    .position(|g| positive && !same_colour(&g.lights, &samples))
+            });
+        if let Some(f) = fold {
+            groups[f].color = ca;
+        }
+    }
+    let (mode, material_layers) = material::layers(&needs, fold.is_some(), &options.formats);
+
+    // Assignment: group → node by cost; the material node is the cheapest node left.
+    let pixels = u64::from(cam.width) * u64::from(cam.height);
+    let costs: Vec<NodeCost> = cluster
+        .nodes
+        .iter()
+        .map(|n| NodeCost::of(n, pixels))
+        .collect();
+    let group_shadows = |g: &Group| -> Vec<&ShadowPlan> {
+        g.lights
+            .iter()
+            .filter_map(|&i| shadows[i].as_ref())
+            .collect()
+    };
+    let group_costs: Vec<Vec<f64>> = groups
+        .iter()
+        .map(|g| {
+            costs
+                .iter()
+                .map(|c| c.frame(&group_shadows(g), 0))
+                .collect()
+        })
+        .collect();
+    let on_node = group::assign(&group_costs);
+    let material_node = (0..available)
+        .filter(|n| !on_node.contains(n))
+        .min_by(|&a, &b| {
+            costs[a]
+                .fixed_us
+                .total_cmp(&costs[b].fixed_us)
+                .then(a.cmp(&b))
+        })
+        .expect("checked: one node more than groups");
+
+    let illum: Vec<topology::IllumInput> = groups
+        .iter()
+        .zip(&on_node)
+        .map(|(g, &n)| topology::IllumInput {
+            node: cluster.nodes[n].id.clone(),
+            color: g.color,
+            layers: vec![(Layer::Illumination, options.formats.node)],
+        })
+        .collect();
+    let finish = topology::Finish {
+        mode,
+        ambient: scene.ambient,
+        ambient_layer: material_layers.iter().any(|l| l.0 == Layer::Ambient),
+        emissive: material_layers.iter().any(|l| l.0 == Layer::Emissive),
+        material_node: (
+            cluster.nodes[material_node].id.clone(),
+            material_layers.clone(),
+        ),
+        fold,
+        exposure: scene.exposure,
+    };
+    let (stages, node_dst, material_dst) = topology::stages(
+        &illum,
+        &finish,
+        &cluster.compositors,
+        options.topology,
+        &options.formats,
+    );
+
+    let mut nodes: Vec<NodePlan> = groups
+        .iter()
+        .zip(&on_node)
+        .zip(node_dst)
+        .map(|((g, &n), (stage, input))| NodePlan {
+            node: cluster.nodes[n].id.clone(),
+            lights: g.lights.clone(),
+            color: g.color,
+            shadows: g
+                .lights
+                .iter()
+                .filter_map(|&i| shadows[i].clone())
+                .collect(),
+            layers: vec![(Layer::Illumination, options.formats.node)],
+            downstream: stage,
+            input_index: input,
+            est_cost_us: costs[n].frame(&group_shadows(g), 0).round() as u64,
+        })
+        .collect();
+    nodes.push(NodePlan {
+        node: cluster.nodes[material_node].id.clone(),
+        lights: Vec::new(),
+        color: [1.0; 3],
+        shadows: Vec::new(),
+        layers: material_layers.clone(),
+        downstream: material_dst.0,
+        input_index: material_dst.1,
+        est_cost_us: costs[material_node]
+            .frame(&[], material_layers.len())
+            .round() as u64,
+    });
+    let used: Vec<&str> = nodes.iter().map(|n| n.node.as_str()).collect();
+    let idle_nodes = cluster
+        .nodes
+        .iter()
+        .filter(|n| !used.contains(&n.id.as_str()))
+        .map(|n| n.id.clone())
+        .collect();
+
+    let daemons: Vec<&DaemonSpec> = cluster.nodes.iter().chain(&cluster.compositors).collect();
+    let address_of = |id: &str| {
+        daemons
+            .iter()
+            .find(|d| d.id == id)
+            .map_or_else(String::new, |d| d.data_address().to_string())
+    };
+    let mut addresses: Vec<(String, String)> = used
+        .iter()
+        .map(|&id| (id.to_string(), address_of(id)))
+        .collect();
+    addresses.extend(
+        stages
+            .iter()
+            .map(|s| (s.compositor.clone(), address_of(&s.compositor))),
+    );
+    let links = topology::links(
+        &stages,
+        address_of,
+        &cluster.sink,
+        (cam.width, cam.height, options.band_height),
+    );
+    let est_frame_us = nodes.iter().map(|n| n.est_cost_us).max().unwrap_or(0);
+    let mut notes = needs.notes;
+    if needs.foldable && fold.is_none() {
+        notes.push("ambient: no node can carry c_n = c^a → ambient layer instead".to_string());
+    }
+    let material = MaterialPlan {
+        mode,
+        layers: material_layers,
+        ambient: scene.ambient,
+        fold_ambient: fold.is_some(),
+        placement: MaterialPlacement::OwnNode {
+            node: cluster.nodes[material_node].id.clone(),
+        },
+        notes,
+    };
+    Ok(Plan {
+        epoch: options.epoch,
+        scene_hash: scene_hash(scene),
+        scene_name: scene.name.clone(),
+        width: cam.width,
+        height: cam.height,
+        band_height: options.band_height,
+        camera: *cam,
+        exposure: scene.exposure,
+        topology: options.topology,
+        k: k_used,
+        samples,
+        active: culling.active,
+        dropped: culling.dropped,
+        epsilon: options.epsilon,
+        epsilon_used: culling.epsilon_used,
+        nodes,
+        idle_nodes,
+        stages,
+        material,
+        links,
+        sink: cluster.sink.clone(),
+        walkthrough: options.walkthrough,
+        frames_in_flight: options.frames_in_flight,
+        filter: scene.quality.filter,
+        depth_bias: scene.quality.depth_bias,
+        slope_bias: scene.quality.slope_bias,
+        est_frame_us,
+        addresses,
+    })
+}
+
+fn same_colour(lights: &[usize], samples: &[lightfold_scene::LightSample]) -> bool {
+    lights
+        .windows(2)
+        .all(|w| samples[w[0]].color.map(f32::to_bits) == samples[w[1]].color.map(f32::to_bits))
+}
+
+fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(), PlanError> {
+    let bad_options = |reason: &str| {
+        Err(PlanError::InvalidOptions {
+            reason: reason.to_string(),
+        })
+    };
+    let bad_scene = |reason: String| Err(PlanError::InvalidScene { reason });
+    if o.lights_per_node == 0 {
+        return bad_options("lights per node (K) must be at least 1");
+    }
+    if o.band_height == 0 {
+        return bad_options("band height must be at least 1");
+    }
+    if o.frames_in_flight == 0 {
+        return bad_options("frames in flight must be at least 1");
+    }
+    if !(o.epsilon >= 0.0 && o.epsilon.is_finite()) {
+        return bad_options("epsilon must be finite and non-negative");
+    }
+    if let MapSizing::Fixed(0) = o.map_sizing {
+        return bad_options("a fixed shadow-map size must be at least 1");
+    }
+    if cluster.nodes.is_empty() {
+        return Err(PlanError::NoNodes);
+    }
+    if cluster.compositors.is_empty() {
+        return Err(PlanError::NoCompositors);
+    }
+    let mut ids: Vec<&str> = cluster
+        .nodes
+        .iter()
+        .chain(&cluster.compositors)
+        .map(|d| d.id.as_str())
+        .collect();
+    ids.sort_unstable();
+    if let Some(w) = ids.windows(2).find(|w| w[0] == w[1]) {
+        return Err(PlanError::DuplicateDaemon {
+            id: w[0].to_string(),
+        });
+    }
+    if let Err(e) = lightfold_scene::wire::camera_from_wire(&lightfold_scene::wire::camera_to_wire(
+        &scene.camera,
+    )) {
+        return bad_scene(e.to_string());
+    }
+    if !(scene.exposure.is_finite() && scene.exposure >= 0.0) {
+        return bad_scene(format!(
+            "exposure {} must be finite and non-negative",
+            scene.exposure
+        ));
+    }
+    if !scene.ambient.iter().all(|c| c.is_finite() && *c >= 0.0) {
+        return bad_scene(format!(
+            "ambient colour {:?} must be finite and non-negative",
+            scene.ambient
+        ));
+    }
+    if let Some((i, m)) = scene
+        .meshes
+        .iter()
+        .enumerate()
+        .find(|(_, m)| m.material >= scene.materials.len())
+    {
+        return bad_scene(format!(
+            "mesh {i} ({}) names material {} of {}",
+            m.name,
+            m.material,
+            scene.materials.len()
+        ));
+    }
+    for (i, m) in scene.materials.iter().enumerate() {
+        let ok = [m.diffuse, m.specular, m.ambient, m.emissive]
+            .iter()
+            .all(|c| c.iter().all(|v| v.is_finite() && *v >= 0.0));
+        if !ok {
+            return bad_scene(format!(
+                "material {i} ({}) has a negative or non-finite colour",
+                m.name
+            ));
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,221 @@
+//! Compositor stages and data links: a chain like the paper's (each stage adds its nodes to the
+//! upstream sum) or a tree (leaf stages accumulate nodes, stages above `join` pairs), with the
+//! material and output operators at the last stage. Operator names and JSON parameters are those
+//! of the compositor's registry (`compositor/src/ops/`); a stage's operators read its inputs as a
+//! fold: operator 0 the first inputs, each next one the previous output plus the next inputs.
+
+use super::types::{DaemonSpec, Topology};
+use super::types::{Downstream, FormatChoice, InputRef, LinkPlan, MaterialMode, Source, StagePlan};
+use lightfold_protocol::{Layer, PixelFormat};
+use serde_json::{Value, json};
+
+/// Framing cost of one band on a link: the band header plus the frame's kind and length.
+pub const BAND_OVERHEAD_BYTES: u64 = 52 + 5;
+
+/// An illumination node as the topology sees it.
+#[derive(Debug, Clone)]
+pub(crate) struct IllumInput {
+    pub node: String,
+    pub color: [f32; 3],
+    pub layers: Vec<(Layer, PixelFormat)>,
+}
+
+/// What the last stage does after the illumination sum.
+#[derive(Debug, Clone)]
+pub(crate) struct Finish {
+    pub mode: MaterialMode,
+    pub ambient: [f32; 3],
+    pub ambient_layer: bool,
+    pub emissive: bool,
+    /// The material node and its layers.
+    pub material_node: (String, Vec<(Layer, PixelFormat)>),
+    /// Index into the illumination nodes of the node whose `c_n = c^a` folds the ambient term.
+    pub fold: Option<usize>,
+    pub exposure: f32,
+}
+
+/// Builds the stages. Returns them with, per illumination node, `(stage id, input index)`, and
+/// the material node's `(stage id, input index)`.
+pub(crate) fn stages(
+    nodes: &[IllumInput],
+    finish: &Finish,
+    compositors: &[DaemonSpec],
+    topology: Topology,
+    formats: &FormatChoice,
+) -> (Vec<StagePlan>, Vec<(String, u32)>, (String, u32)) {
+    let n = nodes.len().max(1);
+    let c = compositors.len().max(1);
+    let leaves = match topology {
+        Topology::Chain => n.min(c),
+        Topology::Tree => n.min(c.div_ceil(2)),
+    };
+    // Contiguous, even chunks of nodes per leaf (earlier leaves take the extra ones).
+    let mut chunks = Vec::with_capacity(leaves);
+    let mut start = 0;
+    for i in 0..leaves {
+        let len = nodes.len() / leaves + usize::from(i < nodes.len() % leaves);
+        chunks.push(start..start + len);
+        start += len;
+    }
+    let chain_fmt = formats.chain;
+    let ill = |f: PixelFormat| vec![(Layer::Illumination, f)];
+    let mut stages: Vec<StagePlan> = Vec::new();
+    let mut node_dst = vec![(String::new(), 0u32); nodes.len()];
+    let accumulate = |range: &std::ops::Range<usize>, upstream: bool| -> Value {
+        let colors: Vec<[f32; 3]> = nodes[range.clone()].iter().map(|n| n.color).collect();
+        let mut p = json!({ "colors": colors, "upstream": upstream });
+        if let MaterialMode::UniformSpecular { specular } = finish.mode {
+            p["specular_color"] = json!(specular);
+        }
+        if let Some(f) = finish.fold.filter(|f| range.contains(f)) {
+            p["ambient"] =
+                json!({ "input": f - range.start + usize::from(upstream), "mask": "uniform" });
+        }
+        p
+    };
+    for (i, range) in chunks.iter().enumerate() {
+        let id = compositors[i].id.clone();
+        let upstream = topology == Topology::Chain && i > 0;
+        let mut inputs = Vec::new();
+        if upstream {
+            inputs.push(InputRef {
+                source: Source::Stage(stages[i - 1].compositor.clone()),
+                layers: ill(chain_fmt),
+            });
+        }
+        for (j, k) in range.clone().enumerate() {
+            node_dst[k] = (id.clone(), (j + usize::from(upstream)) as u32);
+            inputs.push(InputRef {
+                source: Source::Node(nodes[k].node.clone()),
+                layers: nodes[k].layers.clone(),
+            });
+        }
+        if let (Topology::Chain, Some(prev)) = (topology, stages.last_mut()) {
+            prev.downstream = Downstream::Stage(id.clone());
+            prev.input_index = 0;
+        }
+        let ops = if range.is_empty() {
+            Vec::new()
+        } else {
+            vec![("accumulate".to_string(), accumulate(range, upstream))]
+        };
+        stages.push(StagePlan {
+            compositor: id,
+            ops,
+            inputs,
+            outputs: ill(chain_fmt),
+            downstream: Downstream::Sink,
+            input_index: 0,
+        });
+    }
+    if topology == Topology::Tree {
+        // Join adjacent pairs level by level; an odd stage moves up unchanged.
+        let mut level: Vec<usize> = (0..stages.len()).collect();
+        let mut next_comp = leaves;
+        while level.len() > 1 {
+            let mut up = Vec::new();
+            for pair in level.chunks(2) {
+                if pair.len() == 1 {
+                    up.push(pair[0]);
+                    continue;
+                }
+                let id = compositors[next_comp].id.clone();
+                next_comp += 1;
+                let mut inputs = Vec::new();
+                for (j, &s) in pair.iter().enumerate() {
+                    stages[s].downstream = Downstream::Stage(id.clone());
+                    stages[s].input_index = j as u32;
+                    inputs.push(InputRef {
+                        source: Source::Stage(stages[s].compositor.clone()),
+                        layers: ill(chain_fmt),
+                    });
+                }
+                stages.push(StagePlan {
+                    compositor: id,
+                    ops: vec![(
+                        "join".to_string(),
+                        json!({ "inputs": 2, "layer": "illumination" }),
+                    )],
+                    inputs,
+                    outputs: ill(chain_fmt),
+                    downstream: Downstream::Sink,
+                    input_index: 0,
+                });
+                up.push(stages.len() - 1);
+            }
+            level = up;
+        }
+    }
+    // The last stage built is the root: material and output follow its sum.
+    let root = stages.last_mut().expect("at least one stage");
+    let (mnode, mlayers) = &finish.material_node;
+    let material_dst = (root.compositor.clone(), root.inputs.len() as u32);
+    root.inputs.push(InputRef {
+        source: Source::Node(mnode.clone()),
+        layers: mlayers.clone(),
+    });
+    let mut mp = json!({
+        "stage": "single",
+        "specular": matches!(finish.mode, MaterialMode::General),
+        "emissive": finish.emissive,
+    });
+    if finish.ambient_layer {
+        mp["ambient_color"] = json!(finish.ambient);
+    }
+    root.ops.push(("material".to_string(), mp));
+    root.ops
+        .push(("output".to_string(), json!({ "exposure": finish.exposure })));
+    root.outputs = vec![(Layer::Radiance, formats.sink)];
+    root.downstream = Downstream::Sink;
+    (stages, node_dst, material_dst)
+}
+
+/// Bytes of one frame of these layers at this size and band height, band framing included.
+pub(crate) fn frame_bytes(
+    layers: &[(Layer, PixelFormat)],
+    w: u32,
+    h: u32,
+    band_height: u32,
+) -> u64 {
+    let bands = u64::from(h.div_ceil(band_height.max(1)));
+    layers
+        .iter()
+        .map(|(_, f)| {
+            u64::from(w) * u64::from(h) * f.bytes_per_pixel() as u64 + bands * BAND_OVERHEAD_BYTES
+        })
+        .sum()
+}
+
+/// One link per stage input, plus the sink link.
+pub(crate) fn links(
+    stages: &[StagePlan],
+    address_of: impl Fn(&str) -> String,
+    sink: &str,
+    (w, h, band_height): (u32, u32, u32),
+) -> Vec<LinkPlan> {
+    let mut out = Vec::new();
+    for s in stages {
+        for i in &s.inputs {
+            let from = match &i.source {
+                Source::Node(n) | Source::Stage(n) => n.clone(),
+            };
+            out.push(LinkPlan {
+                from,
+                to: s.compositor.clone(),
+                address: address_of(&s.compositor),
+                layers: i.layers.clone(),
+                bytes_per_frame: frame_bytes(&i.layers, w, h, band_height),
+            });
+        }
+        if s.downstream == Downstream::Sink {
+            out.push(LinkPlan {
+                from: s.compositor.clone(),
+                to: "sink".to_string(),
+                address: sink.to_string(),
+                layers: s.outputs.clone(),
+                bytes_per_frame: frame_bytes(&s.outputs, w, h, band_height),
+            });
+        }
+    }
+    out
+}

@@ -1,0 +1,357 @@
+//! The planner's inputs (cluster, options) and its output, the `Plan`: plain data, serialisable,
+//! printed by `Display` in `display.rs`.
+
+use lightfold_protocol::{Capabilities, Layer, PixelFormat};
+use lightfold_scene::{Camera, LightSample, ShadowFilter};
+use serde::{Deserialize, Serialize};
+
+/// One daemon the planner may use: its id, the address it was dialled at, and what it reported.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DaemonSpec {
+    pub id: String,
+    pub address: String,
+    pub capabilities: Option<Capabilities>,
+}
+
+impl DaemonSpec {
+    /// The address other daemons dial for data: the advertised one when reported.
+    pub fn data_address(&self) -> &str {
+        match &self.capabilities {
+            Some(c) if !c.advertise.is_empty() => &c.advertise,
+            _ => &self.address,
+        }
+    }
+}
+
+/// The daemons available to a plan.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ClusterSpec {
+    pub nodes: Vec<DaemonSpec>,
+    pub compositors: Vec<DaemonSpec>,
+    /// The coordinator's data address, where the sink compositor sends final bands.
+    pub sink: String,
+}
+
+impl ClusterSpec {
+    /// A synthetic cluster of local daemons without capabilities (for `lightfold plan` and tests):
+    /// `node-i` at `127.0.0.1:7300+i`, `comp-j` at `127.0.0.1:7500+j`, sink `127.0.0.1:7400`.
+    pub fn local(nodes: usize, compositors: usize) -> ClusterSpec {
+        let spec = |prefix: &str, base: usize, i: usize| DaemonSpec {
+            id: format!("{prefix}-{i}"),
+            address: format!("127.0.0.1:{}", base + i),
+            capabilities: None,
+        };
+        ClusterSpec {
+            nodes: (0..nodes).map(|i| spec("node", 7300, i)).collect(),
+            compositors: (0..compositors).map(|i| spec("comp", 7500, i)).collect(),
+            sink: "127.0.0.1:7400".to_string(),
+        }
+    }
+}
+
+/// How compositor stages are connected.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+pub enum Topology {
+    /// A linear pipeline like the paper's: each stage adds its nodes to the upstream sum.
+    #[default]
+    Chain,
+    /// Leaf stages accumulate nodes; stages above join pairs of partial sums.
+    Tree,
+}
+
+impl std::str::FromStr for Topology {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "chain" => Ok(Topology::Chain),
+            "tree" => Ok(Topology::Tree),
+            other => Err(format!("unknown topology {other:?} (chain or tree)")),
+        }
+    }
+}
+
+impl std::fmt::Display for Topology {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Topology::Chain => "chain",
+            Topology::Tree => "tree",
+        })
+    }
+}
+
+/// Pixel formats per kind of link (ARCHITECTURE §7).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FormatChoice {
+    /// Illumination node → compositor.
+    pub node: PixelFormat,
+    /// Compositor → compositor (accumulated illumination).
+    pub chain: PixelFormat,
+    /// Sink compositor → coordinator (final radiance).
+    pub sink: PixelFormat,
+    /// Material colours `m^d`, `m^s`, `m^a` in [0, 1].
+    pub material: PixelFormat,
+    /// Material layers that may exceed 1 (emissive radiance, colours above 1).
+    pub material_hdr: PixelFormat,
+}
+
+impl Default for FormatChoice {
+    fn default() -> Self {
+        FormatChoice {
+            node: PixelFormat::Rgb9e5x2,
+            chain: PixelFormat::F16x6,
+            sink: PixelFormat::F32x3,
+            material: PixelFormat::Rgba8Srgb,
+            material_hdr: PixelFormat::F16x4,
+        }
+    }
+}
+
+/// How shadow-map sizes are chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum MapSizing {
+    /// From the eye/light resolution mismatch factor (seed 002), a power of two in `[min, max]`.
+    Mismatch { min: u32, max: u32 },
+    /// The same size for every map.
+    Fixed(u32),
+}
+
+/// What the planner is asked for.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PlanOptions {
+    /// Lights per node, the paper's K (raised up to the device limit when nodes are short).
+    pub lights_per_node: u32,
+    pub topology: Topology,
+    /// Budget on the radiance (exposure-scaled, 1 = display white) that culled samples may add to
+    /// any pixel in total; 0 drops only samples that provably add nothing.
+    pub epsilon: f32,
+    /// No culling: every sample, every material stage, every caster, full cube maps.
+    pub force_all: bool,
+    pub band_height: u32,
+    pub formats: FormatChoice,
+    pub epoch: u64,
+    pub walkthrough: bool,
+    pub map_sizing: MapSizing,
+    /// Frames each compositor input buffers before backpressure.
+    pub frames_in_flight: u32,
+}
+
+/// Default ε: about a quarter of one 8-bit sRGB code value at mid-grey (a step there is ≈ 4e-3
+/// linear), so culling cannot move a PNG pixel of a lit surface by a visible amount.
+pub const DEFAULT_EPSILON: f32 = 1e-3;
+/// Default band height in rows.
+pub const DEFAULT_BAND_HEIGHT: u32 = 32;
+/// Shadow-map size bounds and the size used when the mismatch factor has nothing to measure.
+pub const MIN_MAP_SIZE: u32 = 256;
+pub const MAX_MAP_SIZE: u32 = 4096;
+pub const DEFAULT_MAP_SIZE: u32 = 512;
+
+impl Default for PlanOptions {
+    fn default() -> Self {
+        PlanOptions {
+            lights_per_node: lightfold_scene::defaults::LIGHTS_PER_NODE,
+            topology: Topology::Chain,
+            epsilon: DEFAULT_EPSILON,
+            force_all: false,
+            band_height: DEFAULT_BAND_HEIGHT,
+            formats: FormatChoice::default(),
+            epoch: 1,
+            walkthrough: false,
+            map_sizing: MapSizing::Mismatch {
+                min: MIN_MAP_SIZE,
+                max: MAX_MAP_SIZE,
+            },
+            frames_in_flight: 2,
+        }
+    }
+}
+
+/// Why a sample is not rendered.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum DropReason {
+    /// Zero intensity, zero colour or a degenerate direction: it emits nothing.
+    ZeroEmission,
+    /// A non-finite intensity, colour, position or direction (shading yields zero or garbage).
+    NonFinite,
+    /// No geometry is in view.
+    NoVisibleReceiver,
+    /// Every visible receiver is beyond its range, outside its cone or behind its lobe.
+    Unreached {
+        out_of_range: u32,
+        outside_cone: u32,
+        behind: u32,
+    },
+    /// Its contribution to any pixel is at most `bound` (exposure-scaled radiance), within ε.
+    BelowEpsilon { bound: f32 },
+}
+
+/// The shadow geometry of one light: what covers its lit receivers.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum ShadowViews {
+    /// No caster can shadow a visible receiver: no map is rendered.
+    None,
+    /// One perspective frustum about `axis` with half field of view `half_angle_deg`.
+    Frustum { axis: [f32; 3], half_angle_deg: f32 },
+    /// One orthographic view (directional light).
+    Ortho,
+    /// Cube-map faces, bit i set for face i in the order +X, −X, +Y, −Y, +Z, −Z.
+    Cube { faces: u8 },
+}
+
+impl ShadowViews {
+    /// Shadow passes this geometry costs.
+    pub fn count(&self) -> usize {
+        match self {
+            ShadowViews::None => 0,
+            ShadowViews::Frustum { .. } | ShadowViews::Ortho => 1,
+            ShadowViews::Cube { faces } => faces.count_ones() as usize,
+        }
+    }
+}
+
+/// The shadow map of one light.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ShadowPlan {
+    pub views: ShadowViews,
+    pub map_size: u32,
+    /// Mesh indices drawn into the map.
+    pub casters: Vec<u32>,
+}
+
+/// One render node's work.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NodePlan {
+    pub node: String,
+    /// Indices into `Plan::samples`.
+    pub lights: Vec<usize>,
+    /// The node colour `c_n` applied by `accumulate` (the node emits `Σ (c_λ ⊘ c_n)·i·s`).
+    pub color: [f32; 3],
+    /// One per light, in the order of `lights`.
+    pub shadows: Vec<ShadowPlan>,
+    pub layers: Vec<(Layer, PixelFormat)>,
+    /// The compositor stage this node streams to, and its input index there.
+    pub downstream: String,
+    pub input_index: u32,
+    pub est_cost_us: u64,
+}
+
+/// Where an input of a stage comes from.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Source {
+    Node(String),
+    Stage(String),
+}
+
+/// One input of a stage, in input-index order.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct InputRef {
+    pub source: Source,
+    pub layers: Vec<(Layer, PixelFormat)>,
+}
+
+/// Where a stage sends its output.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Downstream {
+    Stage(String),
+    Sink,
+}
+
+/// One compositor stage.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StagePlan {
+    pub compositor: String,
+    /// Operators in order: registry name and JSON parameters.
+    pub ops: Vec<(String, serde_json::Value)>,
+    pub inputs: Vec<InputRef>,
+    pub outputs: Vec<(Layer, PixelFormat)>,
+    pub downstream: Downstream,
+    /// This stage's input index at its downstream stage (0 for the sink).
+    pub input_index: u32,
+}
+
+/// How the material equation is evaluated (paper §3).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum MaterialMode {
+    /// Eq. 4–5: one specular colour for every visible material, pre-multiplied in `accumulate`;
+    /// the material stage computes `E + A⊙c^a + D⊙p^d + p^s` with the layers present.
+    UniformSpecular { specular: [f32; 3] },
+    /// A specular layer travels and the material stage multiplies it.
+    General,
+}
+
+/// Where the material layers are rendered.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub enum MaterialPlacement {
+    /// No material layer is needed (nothing visible).
+    None,
+    /// Extra render targets of this illumination node.
+    ExtraTargets { node: String },
+    /// A node of its own (one eye pass, no shadows).
+    OwnNode { node: String },
+}
+
+/// Which material layers exist and how the final stage combines them.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MaterialPlan {
+    pub mode: MaterialMode,
+    pub layers: Vec<(Layer, PixelFormat)>,
+    /// Global ambient `c^a`.
+    pub ambient: [f32; 3],
+    /// Eq. 6–7: `c^a` is added to the diffuse sum in `accumulate` (every visible material has
+    /// `m^a = m^d`), so no ambient layer travels.
+    pub fold_ambient: bool,
+    pub placement: MaterialPlacement,
+    /// Why each layer is present or absent, for the printout.
+    pub notes: Vec<String>,
+}
+
+/// One data link and its cost.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LinkPlan {
+    pub from: String,
+    /// Daemon id of the consumer, or `"sink"`.
+    pub to: String,
+    pub address: String,
+    pub layers: Vec<(Layer, PixelFormat)>,
+    /// Pixel bytes plus band headers for one full frame.
+    pub bytes_per_frame: u64,
+}
+
+/// Everything the cluster does for one scene and view.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Plan {
+    pub epoch: u64,
+    pub scene_hash: [u8; 32],
+    pub scene_name: String,
+    pub width: u32,
+    pub height: u32,
+    pub band_height: u32,
+    pub camera: Camera,
+    pub exposure: f32,
+    pub topology: Topology,
+    /// Lights per node actually used (K, or raised when nodes are short).
+    pub k: u32,
+    /// Every sample of the scene, with stable indices.
+    pub samples: Vec<LightSample>,
+    pub active: Vec<usize>,
+    pub dropped: Vec<(usize, DropReason)>,
+    pub epsilon: f32,
+    /// Sum of the bounds of samples dropped under ε (≤ ε).
+    pub epsilon_used: f32,
+    pub nodes: Vec<NodePlan>,
+    /// Nodes of the cluster the plan leaves idle.
+    pub idle_nodes: Vec<String>,
+    pub stages: Vec<StagePlan>,
+    pub material: MaterialPlan,
+    pub links: Vec<LinkPlan>,
+    pub sink: String,
+    pub walkthrough: bool,
+    pub frames_in_flight: u32,
+    /// Shadow lookup settings from the scene's quality options.
+    pub filter: ShadowFilter,
+    pub depth_bias: f32,
+    pub slope_bias: f32,
+    /// Estimated frame time: the slowest node.
+    pub est_frame_us: u64,
+    /// Data addresses of the daemons the plan uses, by id.
+    pub addresses: Vec<(String, String)>,
+}
