@@ -50,34 +50,34 @@ pub(super) fn bound(m: f32) -> f32 {
     f32::from_bits((shared_exponent(m) + 102) << 23)
 }
 
+/// Pixels per block: the saturation pass re-reads a block while it is still in L1.
+const BLOCK: usize = 512;
+
 pub(super) fn pack(src: &[f32], dst: &mut [u8]) -> u64 {
+    // Diffuse and specular words are consecutive little-endian u32s, so the hot loop runs over
+    // triples (one u32 each), which the compiler vectorises across triples.
+    let triples = src.as_chunks::<3>().0;
+    let words = dst.as_chunks_mut::<4>().0;
     let mut saturated = 0u64;
-    for (p, out) in src
-        .as_chunks::<6>()
-        .0
-        .iter()
-        .zip(dst.as_chunks_mut::<8>().0)
-    {
-        let lo = encode(p[0], p[1], p[2]);
-        let hi = encode(p[3], p[4], p[5]);
-        *out = (u64::from(hi) << 32 | u64::from(lo)).to_le_bytes();
-        let over =
-            (p[0] > MAX) | (p[1] > MAX) | (p[2] > MAX) | (p[3] > MAX) | (p[4] > MAX) | (p[5] > MAX);
-        saturated += u64::from(over);
+    for (t, w) in triples.chunks(2 * BLOCK).zip(words.chunks_mut(2 * BLOCK)) {
+        for (t, w) in t.iter().zip(w.iter_mut()) {
+            *w = encode(t[0], t[1], t[2]).to_le_bytes();
+        }
+        for p in t.as_chunks::<2>().0 {
+            let over = p.iter().flatten().fold(false, |acc, &v| acc | (v > MAX));
+            saturated += u64::from(over);
+        }
     }
     saturated
 }
 
 pub(super) fn unpack(src: &[u8], dst: &mut [f32]) {
-    for (b, out) in src
-        .as_chunks::<8>()
+    for (w, out) in src
+        .as_chunks::<4>()
         .0
         .iter()
-        .zip(dst.as_chunks_mut::<6>().0)
+        .zip(dst.as_chunks_mut::<3>().0)
     {
-        let w = u64::from_le_bytes(*b);
-        let [r, g, bl] = decode(w as u32);
-        let [sr, sg, sb] = decode((w >> 32) as u32);
-        *out = [r, g, bl, sr, sg, sb];
+        *out = decode(u32::from_le_bytes(*w));
     }
 }
