@@ -3,5 +3,6 @@
 //!
 //! Must not depend on wgpu, the node crate or the coordinator crate.
 
+pub mod daemon;
 pub mod ops;
 pub mod pipeline;

@@ -1,0 +1,250 @@
+//! One band through the stage: unpack every input layer to f32, run the operator fold, pack the
+//! outputs and seal their headers. Synchronous and allocation-free in steady state (scratch
+//! buffers are reused), so the engine runs it on a blocking thread while the next band arrives.
+
+use super::config::StagePlan;
+use super::inputs::InBand;
+use super::pixels::{pack, unpack};
+use crate::ops::{BandMut, BandView};
+use crate::pipeline::{Pipeline, PipelineError, Scratch as PipelineScratch};
+use bytes::Bytes;
+use lightfold_protocol::{BandHeader, Layer, PixelFormat};
+use std::time::{Duration, Instant};
+
+/// Why a band could not be combined. Headers were checked before, so these are internal faults
+/// or packed values a format rejects.
+#[derive(Debug, thiserror::Error)]
+pub enum ComputeError {
+    #[error(transparent)]
+    Pipeline(PipelineError),
+    #[error("cannot unpack input {input} layer {layer:?} ({format:?}): {reason}")]
+    Unpack {
+        input: usize,
+        layer: Layer,
+        format: PixelFormat,
+        reason: String,
+    },
+    #[error("cannot pack output layer {layer:?} as {format:?}: {reason}")]
+    Pack {
+        layer: Layer,
+        format: PixelFormat,
+        reason: String,
+    },
+}
+
+/// Reused f32 buffers: per stage input per layer, the stage's output layers, and the
+/// pipeline's intermediate results.
+#[derive(Debug, Default)]
+pub(crate) struct Scratch {
+    inputs: Vec<Vec<Vec<f32>>>,
+    outs: Vec<Vec<f32>>,
+    pipeline: PipelineScratch,
+}
+
+/// The packed result of one band and what it cost.
+#[derive(Debug, Default)]
+pub(crate) struct BandOut {
+    pub bands: Vec<(BandHeader, Bytes)>,
+    pub composite: Duration,
+    pub pack: Duration,
+    pub saturated: u64,
+    pub empty: u32,
+}
+
+/// Combines band `b` of `frame`. `received[i][j]` is stage input i's layer j (configuration
+/// order). `scale` is the fixed-point scale of this frame's outgoing bands. `pipeline` is `None`
+/// for a relay.
+pub(crate) fn combine(
+    plan: &StagePlan,
+    pipeline: Option<&Pipeline>,
+    frame: u64,
+    b: u32,
+    received: &[Vec<InBand>],
+    scale: f32,
+    scratch: &mut Scratch,
+) -> Result<BandOut, ComputeError> {
+    let cfg = &plan.config;
+    let (y0, rows) = plan.band_rows(b);
+    let pixels = cfg.width as usize * rows as usize;
+    let start = Instant::now();
+    let mut out = BandOut::default();
+    let Some(pipeline) = pipeline else {
+        return relay(plan, frame, y0, rows, &received[0], scale, scratch, out);
+    };
+
+    scratch.inputs.resize_with(received.len(), Vec::new);
+    for (i, layers) in received.iter().enumerate() {
+        scratch.inputs[i].resize_with(layers.len(), Vec::new);
+        for (j, band) in layers.iter().enumerate() {
+            let buf = &mut scratch.inputs[i][j];
+            let layer = band.header.layer;
+            if band.header.empty {
+                // Only required layers need the zeros; optional ones are left out of the view.
+                if plan.required[i].contains(&layer) {
+                    buf.clear();
+                    buf.resize(pixels * layer.channels(), 0.0);
+                }
+                continue;
+            }
+            buf.resize(pixels * layer.channels(), 0.0);
+            unpack(band.header.format, &band.payload, band.header.scale, buf).map_err(
+                |reason| ComputeError::Unpack {
+                    input: i,
+                    layer,
+                    format: band.header.format,
+                    reason,
+                },
+            )?;
+        }
+    }
+    let views: Vec<BandView<'_>> = received
+        .iter()
+        .zip(&scratch.inputs)
+        .enumerate()
+        .map(|(i, (layers, bufs))| {
+            layers
+                .iter()
+                .zip(bufs)
+                .filter(|(band, _)| {
+                    !band.header.empty || plan.required[i].contains(&band.header.layer)
+                })
+                .fold(BandView::new(pixels), |v, (band, data)| {
+                    v.with(band.header.layer, data)
+                })
+        })
+        .collect();
+    scratch.outs.resize_with(plan.produced.len(), Vec::new);
+    for (buf, layer) in scratch.outs.iter_mut().zip(&plan.produced) {
+        buf.resize(pixels * layer.channels(), 0.0);
+    }
+    let mut band_mut = plan
+        .produced
+        .iter()
+        .zip(scratch.outs.iter_mut())
+        .fold(BandMut::new(pixels), |m, (l, d)| m.with(*l, d));
+    pipeline
+        .run(&views, &mut band_mut, &mut scratch.pipeline)
+        .map_err(ComputeError::Pipeline)?;
+    let packing = Instant::now();
+    out.composite = packing - start;
+
+    for &(layer, format) in &cfg.outputs {
+        let idx = plan
+            .produced
+            .iter()
+            .position(|l| *l == layer)
+            .unwrap_or_default();
+        let header = header(plan, frame, layer, format, y0, rows, scale);
+        let packed = pack_band(header, &scratch.outs[idx], &mut out)?;
+        out.bands.push(packed);
+    }
+    out.pack = packing.elapsed();
+    Ok(out)
+}
+
+/// The no-operator stage: forwards each configured output layer of its one input, repacking
+/// only when the format changes.
+#[allow(clippy::too_many_arguments)]
+fn relay(
+    plan: &StagePlan,
+    frame: u64,
+    y0: u32,
+    rows: u32,
+    layers: &[InBand],
+    scale: f32,
+    scratch: &mut Scratch,
+    mut out: BandOut,
+) -> Result<BandOut, ComputeError> {
+    let packing = Instant::now();
+    let pixels = plan.config.width as usize * rows as usize;
+    scratch.inputs.resize_with(1, Vec::new);
+    scratch.inputs[0].resize_with(1, Vec::new);
+    for &(layer, format) in &plan.config.outputs {
+        let Some(band) = layers.iter().find(|b| b.header.layer == layer) else {
+            continue;
+        };
+        let mut h = header(plan, frame, layer, format, y0, rows, scale);
+        if band.header.empty {
+            h.empty = true;
+            h.seal(&[]);
+            out.empty += 1;
+            out.bands.push((h, Bytes::new()));
+        } else if band.header.format == format {
+            h.scale = band.header.scale;
+            h.saturated = band.header.saturated;
+            h.payload_len = band.header.payload_len;
+            h.checksum = band.header.checksum;
+            out.bands.push((h, band.payload.clone()));
+        } else {
+            let buf = &mut scratch.inputs[0][0];
+            buf.resize(pixels * layer.channels(), 0.0);
+            unpack(band.header.format, &band.payload, band.header.scale, buf).map_err(
+                |reason| ComputeError::Unpack {
+                    input: 0,
+                    layer,
+                    format: band.header.format,
+                    reason,
+                },
+            )?;
+            let values = std::mem::take(buf);
+            let packed = pack_band(h, &values, &mut out);
+            scratch.inputs[0][0] = values;
+            out.bands.push(packed?);
+        }
+    }
+    out.pack = packing.elapsed();
+    Ok(out)
+}
+
+fn header(
+    plan: &StagePlan,
+    frame: u64,
+    layer: Layer,
+    format: PixelFormat,
+    y0: u32,
+    rows: u32,
+    scale: f32,
+) -> BandHeader {
+    BandHeader {
+        frame,
+        epoch: plan.epoch(),
+        layer,
+        format,
+        x0: 0,
+        y0,
+        width: plan.config.width,
+        height: rows,
+        scale,
+        empty: false,
+        payload_len: 0,
+        checksum: 0,
+        saturated: 0,
+    }
+}
+
+/// Packs `values` under `header` (all zeros become an empty band with no payload).
+fn pack_band(
+    mut header: BandHeader,
+    values: &[f32],
+    out: &mut BandOut,
+) -> Result<(BandHeader, Bytes), ComputeError> {
+    if values.iter().all(|v| *v == 0.0) {
+        header.empty = true;
+        header.seal(&[]);
+        out.empty += 1;
+        return Ok((header, Bytes::new()));
+    }
+    let mut bytes =
+        vec![0u8; values.len() / header.format.channels() * header.format.bytes_per_pixel()];
+    let saturated = pack(header.format, values, header.scale, &mut bytes).map_err(|reason| {
+        ComputeError::Pack {
+            layer: header.layer,
+            format: header.format,
+            reason,
+        }
+    })?;
+    header.saturated = u32::try_from(saturated).unwrap_or(u32::MAX);
+    out.saturated += saturated;
+    header.seal(&bytes);
+    Ok((header, Bytes::from(bytes)))
+}

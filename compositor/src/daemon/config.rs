@@ -1,0 +1,367 @@
+//! A `CompositorConfig` checked and resolved into a `StagePlan`: the band grid, which stage inputs
+//! each operator reads, the operators themselves, and the byte budget of each input's queue. All
+//! pure, so a bad configuration is refused with a typed error before anything runs.
+//!
+//! Operators are chained as `Pipeline::from_ops` does it, a fold: operator 0 reads the first
+//! stage inputs; operator k > 0 reads the previous operator's output as its input 0 and the next
+//! unused stage inputs. Every stage input is read by exactly one operator. With no operator the
+//! stage relays its one input.
+
+use crate::ops::OpError;
+use crate::pipeline::{Pipeline, PipelineError, Source};
+use lightfold_protocol::{CompositorConfig, ErrorCode, Layer, PixelFormat};
+
+/// Largest image side a stage accepts (keeps every size computation far from overflow).
+pub const MAX_SIDE: u32 = 1 << 15;
+/// Most frames an input may buffer, whatever the configuration asks.
+pub const MAX_FRAMES_IN_FLIGHT: u32 = 16;
+/// Bytes a queued band costs beyond its payload (header, bookkeeping), so that even empty bands
+/// count against the budget.
+pub const BAND_OVERHEAD: u64 = 128;
+
+/// Why a configuration is refused.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    #[error("image size {width}x{height} is outside 1..={MAX_SIDE}")]
+    BadSize { width: u32, height: u32 },
+    #[error("band height {0} must be at least 1")]
+    BadBandHeight(u32),
+    #[error("frames_in_flight {0} is outside 1..={MAX_FRAMES_IN_FLIGHT}")]
+    BadFramesInFlight(u32),
+    #[error("a stage needs at least one input")]
+    NoInputs,
+    #[error("input {input} and input {other} are both daemon {peer:?}")]
+    DuplicatePeer {
+        input: usize,
+        other: usize,
+        peer: String,
+    },
+    #[error("input {input} names an invalid daemon id {peer:?}")]
+    BadPeer { input: usize, peer: String },
+    #[error("input {input} carries no layer")]
+    NoLayers { input: usize },
+    #[error("{place} lists layer {layer:?} twice")]
+    DuplicateLayer { place: String, layer: Layer },
+    #[error(
+        "{place}: format {format:?} packs {format_channels} channels, layer {layer:?} has {layer_channels}"
+    )]
+    FormatLayer {
+        place: String,
+        layer: Layer,
+        format: PixelFormat,
+        format_channels: usize,
+        layer_channels: usize,
+    },
+    #[error("operators: {0}")]
+    Pipeline(#[from] PipelineError),
+    #[error("a stage without operators relays exactly one input, this one has {0}")]
+    RelayInputs(usize),
+    #[error("the stage emits no layer")]
+    NoOutputs,
+    #[error("output layer {layer:?} is not produced (the stage makes {made:?})")]
+    OutputNotMade { layer: Layer, made: Vec<Layer> },
+    #[error("a band of {bytes} bytes does not fit the maximum frame of {max} bytes")]
+    BandTooLarge { bytes: u64, max: usize },
+    #[error("downstream address is empty")]
+    NoDownstream,
+}
+
+impl ConfigError {
+    /// The code the coordinator sees in `Message::Error`.
+    pub fn code(&self) -> ErrorCode {
+        match self {
+            ConfigError::Pipeline(PipelineError::Operator {
+                source: OpError::UnknownOperator { .. },
+                ..
+            }) => ErrorCode::UnknownOperator,
+            ConfigError::FormatLayer { .. } => ErrorCode::UnsupportedFormat,
+            _ => ErrorCode::BadConfig,
+        }
+    }
+}
+
+/// A checked configuration, ready to run.
+#[derive(Debug)]
+pub struct StagePlan {
+    pub config: CompositorConfig,
+    pub bands: u32,
+    /// Per stage input: the operator stage reading it and as which of its inputs.
+    pub readers: Vec<Option<(usize, usize)>>,
+    /// Per stage input: the layers its reader requires (an empty band of any other layer is left
+    /// out of the view instead of being expanded to zeros).
+    pub required: Vec<Vec<Layer>>,
+    /// Layers the stage can emit (the last operator's, or the relayed input's).
+    pub produced: Vec<Layer>,
+    /// Queue budget of each input in bytes: `frames_in_flight` whole frames of its layers.
+    pub input_budget: Vec<u64>,
+}
+
+impl StagePlan {
+    /// Checks `config` and builds its operators (`None`: a relay). `max_frame` is the link's
+    /// frame limit.
+    pub fn new(
+        config: CompositorConfig,
+        max_frame: usize,
+    ) -> Result<(StagePlan, Option<Pipeline>), ConfigError> {
+        let c = &config;
+        if !(1..=MAX_SIDE).contains(&c.width) || !(1..=MAX_SIDE).contains(&c.height) {
+            return Err(ConfigError::BadSize {
+                width: c.width,
+                height: c.height,
+            });
+        }
+        if c.band_height == 0 {
+            return Err(ConfigError::BadBandHeight(c.band_height));
+        }
+        if !(1..=MAX_FRAMES_IN_FLIGHT).contains(&c.frames_in_flight) {
+            return Err(ConfigError::BadFramesInFlight(c.frames_in_flight));
+        }
+        if c.downstream.trim().is_empty() {
+            return Err(ConfigError::NoDownstream);
+        }
+        check_inputs(c)?;
+        check_formats(&c.outputs, "outputs")?;
+        let band_rows = c.band_height.min(c.height);
+        let widest = c
+            .inputs
+            .iter()
+            .flat_map(|i| &i.layers)
+            .chain(&c.outputs)
+            .map(|(_, f)| f.bytes_per_pixel() as u64)
+            .max()
+            .unwrap_or(0);
+        let band_bytes = u64::from(c.width) * u64::from(band_rows) * widest;
+        let band_frame = band_bytes + lightfold_protocol::BAND_HEADER_LEN as u64 + 1;
+        if band_frame > max_frame as u64 {
+            return Err(ConfigError::BandTooLarge {
+                bytes: band_bytes,
+                max: max_frame,
+            });
+        }
+
+        let input_layers: Vec<Vec<Layer>> = c
+            .inputs
+            .iter()
+            .map(|i| i.layers.iter().map(|l| l.0).collect())
+            .collect();
+        let mut readers = vec![None; c.inputs.len()];
+        let mut required = vec![Vec::new(); c.inputs.len()];
+        let (pipeline, produced) = if c.ops.is_empty() {
+            if c.inputs.len() != 1 {
+                return Err(ConfigError::RelayInputs(c.inputs.len()));
+            }
+            required[0] = input_layers[0].clone();
+            (None, input_layers[0].clone())
+        } else {
+            let p = Pipeline::from_ops(&c.ops, &input_layers)?;
+            for (k, stage) in p.stages().iter().enumerate() {
+                let sig = stage.op.signature();
+                for (j, src) in stage.sources.iter().enumerate() {
+                    if let Source::Input(n) = *src {
+                        readers[n] = Some((k, j));
+                        required[n] = sig.inputs[j].required.clone();
+                    }
+                }
+            }
+            let produced = p.output_layers();
+            (Some(p), produced)
+        };
+        if c.outputs.is_empty() {
+            return Err(ConfigError::NoOutputs);
+        }
+        for &(layer, _) in &c.outputs {
+            if !produced.contains(&layer) {
+                return Err(ConfigError::OutputNotMade {
+                    layer,
+                    made: produced.clone(),
+                });
+            }
+        }
+        let bands = c.height.div_ceil(c.band_height);
+        let input_budget = c
+            .inputs
+            .iter()
+            .map(|i| {
+                let per_frame: u64 = i
+                    .layers
+                    .iter()
+                    .map(|(_, f)| {
+                        u64::from(c.width) * u64::from(c.height) * f.bytes_per_pixel() as u64
+                            + u64::from(bands) * BAND_OVERHEAD
+                    })
+                    .sum();
+                per_frame * u64::from(c.frames_in_flight)
+            })
+            .collect();
+        let plan = StagePlan {
+            bands,
+            readers,
+            required,
+            produced,
+            input_budget,
+            config,
+        };
+        Ok((plan, pipeline))
+    }
+
+    pub fn epoch(&self) -> u64 {
+        self.config.epoch
+    }
+
+    /// Rows `(y0, height)` of band `b`.
+    pub fn band_rows(&self, b: u32) -> (u32, u32) {
+        let y0 = b * self.config.band_height;
+        (y0, self.config.band_height.min(self.config.height - y0))
+    }
+}
+
+fn check_inputs(c: &CompositorConfig) -> Result<(), ConfigError> {
+    if c.inputs.is_empty() {
+        return Err(ConfigError::NoInputs);
+    }
+    for (input, i) in c.inputs.iter().enumerate() {
+        if lightfold_protocol::handshake::check_daemon_id(&i.peer).is_err() {
+            return Err(ConfigError::BadPeer {
+                input,
+                peer: i.peer.clone(),
+            });
+        }
+        if let Some(other) = c.inputs[..input].iter().position(|o| o.peer == i.peer) {
+            return Err(ConfigError::DuplicatePeer {
+                input,
+                other,
+                peer: i.peer.clone(),
+            });
+        }
+        if i.layers.is_empty() {
+            return Err(ConfigError::NoLayers { input });
+        }
+        check_formats(&i.layers, &format!("input {input}"))?;
+    }
+    Ok(())
+}
+
+fn check_formats(layers: &[(Layer, PixelFormat)], place: &str) -> Result<(), ConfigError> {
+    for (k, &(layer, format)) in layers.iter().enumerate() {
+        if layers[..k].iter().any(|(l, _)| *l == layer) {
+            return Err(ConfigError::DuplicateLayer {
+                place: place.to_string(),
+                layer,
+            });
+        }
+        if format.channels() != layer.channels() {
+            return Err(ConfigError::FormatLayer {
+                place: place.to_string(),
+                layer,
+                format,
+                format_channels: format.channels(),
+                layer_channels: layer.channels(),
+            });
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use lightfold_protocol::StageInput;
+
+    fn input(peer: &str, layers: &[(Layer, PixelFormat)]) -> StageInput {
+        StageInput {
+            peer: peer.into(),
+            layers: layers.to_vec(),
+        }
+    }
+
+    fn config() -> CompositorConfig {
+        let ill = [(Layer::Illumination, PixelFormat::F16x6)];
+        let mat = [(Layer::Diffuse, PixelFormat::Rgba8Linear)];
+        CompositorConfig {
+            epoch: 3,
+            width: 33,
+            height: 17,
+            band_height: 5,
+            inputs: vec![input("up", &ill), input("n1", &ill), input("m", &mat)],
+            ops: vec![
+                ("accumulate".into(), r#"{"colors": [[1, 1, 1]]}"#.into()),
+                ("material".into(), r#"{"stage": "diffuse"}"#.into()),
+            ],
+            outputs: vec![(Layer::Radiance, PixelFormat::F32x3)],
+            downstream: "127.0.0.1:1".into(),
+            input_index: 0,
+            frames_in_flight: 2,
+        }
+    }
+
+    #[test]
+    fn a_fold_of_two_operators_reads_every_input_once() {
+        let (plan, pipeline) = StagePlan::new(config(), 1 << 20).unwrap();
+        assert_eq!(pipeline.unwrap().stages().len(), 2);
+        assert_eq!(plan.bands, 4);
+        assert_eq!(plan.band_rows(3), (15, 2));
+        assert_eq!(plan.readers, vec![Some((0, 0)), Some((0, 1)), Some((1, 1))]);
+        assert_eq!(plan.required[2], vec![Layer::Diffuse]);
+        assert_eq!(plan.produced, vec![Layer::Radiance]);
+        let frame = 33 * 17 * 12 + 4 * BAND_OVERHEAD;
+        assert_eq!(plan.input_budget[0], 2 * frame);
+    }
+
+    #[test]
+    fn bad_configurations_are_refused_with_their_reason() {
+        let mut c = config();
+        c.ops[0].0 = "blend".into();
+        let e = StagePlan::new(c, 1 << 20).unwrap_err();
+        assert_eq!(e.code(), ErrorCode::UnknownOperator);
+
+        let mut c = config();
+        c.inputs[1].layers[0].1 = PixelFormat::F16x4;
+        let e = StagePlan::new(c, 1 << 20).unwrap_err();
+        assert_eq!(e.code(), ErrorCode::UnsupportedFormat);
+
+        let mut c = config();
+        c.inputs.pop();
+        let e = StagePlan::new(c, 1 << 20).unwrap_err();
+        assert!(matches!(e, ConfigError::Pipeline(_)), "{e}");
+
+        let mut c = config();
+        c.inputs[2].layers[0].0 = Layer::Specular;
+        let e = StagePlan::new(c, 1 << 20).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                ConfigError::Pipeline(PipelineError::MissingLayer {
+                    layer: Layer::Diffuse,
+                    ..
+                })
+            ),
+            "{e}"
+        );
+
+        let mut c = config();
+        c.outputs = vec![(Layer::Illumination, PixelFormat::F16x6)];
+        let e = StagePlan::new(c, 1 << 20).unwrap_err();
+        assert!(matches!(e, ConfigError::OutputNotMade { .. }), "{e}");
+
+        let mut c = config();
+        c.inputs[1].peer = "up".into();
+        assert!(matches!(
+            StagePlan::new(c, 1 << 20).unwrap_err(),
+            ConfigError::DuplicatePeer { .. }
+        ));
+
+        let e = StagePlan::new(config(), 1000).unwrap_err();
+        assert!(matches!(e, ConfigError::BandTooLarge { .. }), "{e}");
+    }
+
+    #[test]
+    fn a_stage_without_operators_relays_one_input() {
+        let mut c = config();
+        c.ops.clear();
+        c.inputs.truncate(1);
+        c.outputs = vec![(Layer::Illumination, PixelFormat::F32x6)];
+        let (plan, pipeline) = StagePlan::new(c, 1 << 20).unwrap();
+        assert!(pipeline.is_none());
+        assert_eq!(plan.produced, vec![Layer::Illumination]);
+    }
+}

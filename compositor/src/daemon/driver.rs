@@ -1,0 +1,444 @@
+//! A small driver for stages, over the real `net` links: it plays the coordinator (dial a stage,
+//! read its `Register`, configure it, request frames, collect `FrameDone` and errors), a producer
+//! (a node or upstream stage streaming frames band-major) and a sink (the coordinator's data
+//! listener assembling frames). Tests, benchmarks and bring-up use it until the coordinator exists;
+//! every wait has a deadline.
+
+use super::pixels::{pack, unpack};
+use bytes::Bytes;
+use lightfold_net::{Identity, Link, LinkReader, LinkWriter, NetError, Timeouts, dial_retry};
+use lightfold_protocol::{
+    BandHeader, Capabilities, CompositorConfig, ErrorCode, Frame, FrameParams, FrameStats, Layer,
+    Message, PixelFormat,
+};
+use std::collections::VecDeque;
+use std::time::Duration;
+use tokio::net::TcpListener;
+use tokio::time::Instant;
+
+#[derive(Debug, thiserror::Error)]
+pub enum DriverError {
+    #[error(transparent)]
+    Net(#[from] NetError),
+    #[error("the stage answered {code:?}: {message}")]
+    Refused { code: ErrorCode, message: String },
+    #[error("expected {expected}, got {got}")]
+    Unexpected { expected: &'static str, got: String },
+    #[error("no {what} within {after:?}")]
+    Timeout { what: String, after: Duration },
+    #[error("cannot pack {layer:?} as {format:?}: {reason}")]
+    Pack {
+        layer: Layer,
+        format: PixelFormat,
+        reason: String,
+    },
+    #[error("layer {layer:?} holds {got} values, a {width}x{height} frame needs {expected}")]
+    Size {
+        layer: Layer,
+        width: u32,
+        height: u32,
+        expected: usize,
+        got: usize,
+    },
+}
+
+/// The coordinator's side of a stage's control link.
+#[derive(Debug)]
+pub struct ControlClient {
+    link: Link,
+    pub capabilities: Capabilities,
+    /// Messages read while waiting for something else, in arrival order.
+    backlog: VecDeque<Message>,
+}
+
+impl ControlClient {
+    /// Dials the stage at `addr` (retrying until `within`) and reads its `Register`.
+    pub async fn connect(
+        addr: &str,
+        me: &Identity,
+        t: Timeouts,
+        within: Duration,
+    ) -> Result<ControlClient, DriverError> {
+        let mut link = dial_retry(addr, me, t, within).await?;
+        let capabilities = match link.recv_msg(within).await? {
+            Message::Register(c) => c,
+            other => {
+                return Err(DriverError::Unexpected {
+                    expected: "Register",
+                    got: format!("{other:?}"),
+                });
+            }
+        };
+        Ok(ControlClient {
+            link,
+            capabilities,
+            backlog: VecDeque::new(),
+        })
+    }
+
+    /// Sends a configuration and waits for `Configured` (an `Error` becomes `Refused`).
+    pub async fn configure(
+        &mut self,
+        config: CompositorConfig,
+        within: Duration,
+    ) -> Result<(), DriverError> {
+        let epoch = config.epoch;
+        self.link
+            .send_msg(Message::ConfigureCompositor(config))
+            .await?;
+        let deadline = Instant::now() + within;
+        loop {
+            match self.read(deadline, "Configured").await? {
+                Message::Configured { epoch: e } if e == epoch => return Ok(()),
+                Message::Error { code, message } => {
+                    return Err(DriverError::Refused { code, message });
+                }
+                other => self.backlog.push_back(other),
+            }
+        }
+    }
+
+    /// Requests a frame.
+    pub async fn render(
+        &mut self,
+        epoch: u64,
+        frame: u64,
+        params: FrameParams,
+    ) -> Result<(), DriverError> {
+        let msg = Message::RenderFrame {
+            epoch,
+            frame,
+            camera: None,
+            params,
+        };
+        Ok(self.link.send_msg(msg).await?)
+    }
+
+    /// The next message from the stage (backlog first).
+    pub async fn next_message(&mut self, within: Duration) -> Result<Message, DriverError> {
+        if let Some(m) = self.backlog.pop_front() {
+            return Ok(m);
+        }
+        self.read(Instant::now() + within, "control message").await
+    }
+
+    /// Waits for `FrameDone` of `frame`; the first `Error` before it becomes `Refused`.
+    pub async fn frame_done(
+        &mut self,
+        frame: u64,
+        within: Duration,
+    ) -> Result<FrameStats, DriverError> {
+        let deadline = Instant::now() + within;
+        if let Some(k) = self.backlog.iter().position(|m| is_done_or_error(m, frame)) {
+            let m = self.backlog.remove(k).ok_or(DriverError::Timeout {
+                what: "backlog".into(),
+                after: within,
+            })?;
+            return done_or_refused(m);
+        }
+        loop {
+            let m = self.read(deadline, "FrameDone").await?;
+            if is_done_or_error(&m, frame) {
+                return done_or_refused(m);
+            }
+            self.backlog.push_back(m);
+        }
+    }
+
+    pub async fn send_ping(&mut self, seq: u64) -> Result<(), DriverError> {
+        Ok(self.link.send_msg(Message::Ping { seq }).await?)
+    }
+
+    /// Asks the stage to exit.
+    pub async fn shutdown(&mut self) -> Result<(), DriverError> {
+        Ok(self.link.send_msg(Message::Shutdown).await?)
+    }
+
+    async fn read(
+        &mut self,
+        deadline: Instant,
+        what: &'static str,
+    ) -> Result<Message, DriverError> {
+        let left = deadline.saturating_duration_since(Instant::now());
+        match self.link.recv_msg(left).await {
+            Err(NetError::Timeout { .. }) => Err(DriverError::Timeout {
+                what: what.into(),
+                after: left,
+            }),
+            r => Ok(r?),
+        }
+    }
+}
+
+fn is_done_or_error(m: &Message, frame: u64) -> bool {
+    matches!(m, Message::FrameDone(s) if s.frame == frame) || matches!(m, Message::Error { .. })
+}
+
+fn done_or_refused(m: Message) -> Result<FrameStats, DriverError> {
+    match m {
+        Message::FrameDone(s) => Ok(s),
+        Message::Error { code, message } => Err(DriverError::Refused { code, message }),
+        other => Err(DriverError::Unexpected {
+            expected: "FrameDone",
+            got: format!("{other:?}"),
+        }),
+    }
+}
+
+/// What a frame on a link looks like: its ids and band grid.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameShape {
+    pub epoch: u64,
+    pub frame: u64,
+    pub width: u32,
+    pub height: u32,
+    pub band_height: u32,
+    /// Fixed-point scale carried by every band (used by `seed64`).
+    pub scale: f32,
+}
+
+impl FrameShape {
+    pub fn bands(&self) -> u32 {
+        self.height.div_ceil(self.band_height.max(1))
+    }
+
+    /// Rows `(y0, height)` of band `b`.
+    pub fn band_rows(&self, b: u32) -> (u32, u32) {
+        let y0 = b * self.band_height;
+        (y0, self.band_height.min(self.height - y0))
+    }
+
+    /// The header of band `b` of `layer` (payload fields unset).
+    pub fn header(&self, b: u32, layer: Layer, format: PixelFormat) -> BandHeader {
+        let (y0, rows) = self.band_rows(b);
+        BandHeader {
+            frame: self.frame,
+            epoch: self.epoch,
+            layer,
+            format,
+            x0: 0,
+            y0,
+            width: self.width,
+            height: rows,
+            scale: self.scale,
+            empty: false,
+            payload_len: 0,
+            checksum: 0,
+            saturated: 0,
+        }
+    }
+}
+
+/// One whole layer of a frame in memory: interleaved f32, `layer.channels()` values a pixel.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LayerImage {
+    pub layer: Layer,
+    pub format: PixelFormat,
+    pub data: Vec<f32>,
+}
+
+/// Packs band `b` of `img` (all-zero bands go out empty, as nodes send them).
+pub fn pack_band(
+    shape: &FrameShape,
+    b: u32,
+    img: &LayerImage,
+) -> Result<(BandHeader, Bytes), DriverError> {
+    let ch = img.layer.channels();
+    let expected = shape.width as usize * shape.height as usize * ch;
+    if img.data.len() != expected {
+        return Err(DriverError::Size {
+            layer: img.layer,
+            width: shape.width,
+            height: shape.height,
+            expected,
+            got: img.data.len(),
+        });
+    }
+    let mut h = shape.header(b, img.layer, img.format);
+    let (y0, rows) = shape.band_rows(b);
+    let row = shape.width as usize * ch;
+    let values = &img.data[y0 as usize * row..(y0 + rows) as usize * row];
+    if values.iter().all(|v| *v == 0.0) {
+        h.empty = true;
+        h.seal(&[]);
+        return Ok((h, Bytes::new()));
+    }
+    let mut bytes = vec![0u8; values.len() / ch * img.format.bytes_per_pixel()];
+    let saturated =
+        pack(img.format, values, shape.scale, &mut bytes).map_err(|reason| DriverError::Pack {
+            layer: img.layer,
+            format: img.format,
+            reason,
+        })?;
+    h.saturated = u32::try_from(saturated).unwrap_or(u32::MAX);
+    h.seal(&bytes);
+    Ok((h, Bytes::from(bytes)))
+}
+
+/// A producer's data link into a stage (plays a render node or an upstream stage).
+#[derive(Debug)]
+pub struct Producer {
+    writer: LinkWriter,
+}
+
+impl Producer {
+    /// Dials the consumer at `addr`, retrying until `within`.
+    pub async fn connect(
+        addr: &str,
+        me: &Identity,
+        t: Timeouts,
+        within: Duration,
+    ) -> Result<Producer, DriverError> {
+        let link = dial_retry(addr, me, t, within).await?;
+        let (_, writer) = link.split();
+        Ok(Producer { writer })
+    }
+
+    /// Streams one frame band-major (band b of every layer, then band b+1); returns payload bytes.
+    pub async fn send_frame(
+        &mut self,
+        shape: &FrameShape,
+        layers: &[LayerImage],
+    ) -> Result<u64, DriverError> {
+        let mut bytes = 0;
+        for b in 0..shape.bands() {
+            for img in layers {
+                let (h, payload) = pack_band(shape, b, img)?;
+                bytes += payload.len() as u64;
+                self.writer.send(Frame::Band(h, payload)).await?;
+            }
+        }
+        Ok(bytes)
+    }
+
+    /// Sends one band as given (tests use it to send wrong ones).
+    pub async fn send_band(
+        &mut self,
+        header: BandHeader,
+        payload: Bytes,
+    ) -> Result<(), DriverError> {
+        Ok(self.writer.send(Frame::Band(header, payload)).await?)
+    }
+}
+
+/// The coordinator's data listener: accepts the sink stage's link and assembles frames.
+#[derive(Debug)]
+pub struct Sink {
+    listener: TcpListener,
+    me: Identity,
+    timeouts: Timeouts,
+    link: Option<LinkReader>,
+}
+
+impl Sink {
+    pub fn new(listener: TcpListener, me: Identity, timeouts: Timeouts) -> Sink {
+        Sink {
+            listener,
+            me,
+            timeouts,
+            link: None,
+        }
+    }
+
+    pub fn local_addr(&self) -> std::io::Result<std::net::SocketAddr> {
+        self.listener.local_addr()
+    }
+
+    /// Receives one whole frame of `layers` with `shape`, unpacked, skipping bands of earlier
+    /// frames; a band out of place is an error naming it.
+    pub async fn recv_frame(
+        &mut self,
+        shape: &FrameShape,
+        layers: &[(Layer, PixelFormat)],
+        within: Duration,
+    ) -> Result<Vec<LayerImage>, DriverError> {
+        let deadline = Instant::now() + within;
+        let mut out: Vec<LayerImage> = layers
+            .iter()
+            .map(|&(layer, format)| LayerImage {
+                layer,
+                format,
+                data: vec![0.0; shape.width as usize * shape.height as usize * layer.channels()],
+            })
+            .collect();
+        for b in 0..shape.bands() {
+            for img in out.iter_mut() {
+                // Bands of earlier frames are the streamed part of a frame a stage abandoned.
+                let (h, payload) = loop {
+                    let (h, p) = self.next_band(deadline).await?;
+                    if (h.epoch, h.frame) >= (shape.epoch, shape.frame) {
+                        break (h, p);
+                    }
+                };
+                let want = shape.header(b, img.layer, img.format);
+                let same = (h.epoch, h.frame, h.layer, h.format, h.y0, h.height, h.width)
+                    == (
+                        want.epoch,
+                        want.frame,
+                        want.layer,
+                        want.format,
+                        want.y0,
+                        want.height,
+                        want.width,
+                    );
+                if !same {
+                    return Err(DriverError::Unexpected {
+                        expected: "the next band of the frame",
+                        got: format!("{h:?}"),
+                    });
+                }
+                if h.empty {
+                    continue;
+                }
+                let row = shape.width as usize * img.layer.channels();
+                let dst = &mut img.data[h.y0 as usize * row..(h.y0 + h.height) as usize * row];
+                unpack(h.format, &payload, h.scale, dst).map_err(|reason| DriverError::Pack {
+                    layer: h.layer,
+                    format: h.format,
+                    reason,
+                })?;
+            }
+        }
+        Ok(out)
+    }
+
+    /// The next band, accepting the stage's link first if needed.
+    pub async fn next_band(
+        &mut self,
+        deadline: Instant,
+    ) -> Result<(BandHeader, Bytes), DriverError> {
+        let after = deadline.saturating_duration_since(Instant::now());
+        let timeout = |what: &str| DriverError::Timeout {
+            what: what.into(),
+            after,
+        };
+        if self.link.is_none() {
+            let (stream, _) = tokio::time::timeout_at(deadline, self.listener.accept())
+                .await
+                .map_err(|_| timeout("connection to the sink"))?
+                .map_err(|source| NetError::Io {
+                    addr: "sink listener".into(),
+                    source,
+                })?;
+            let link = lightfold_net::accept(stream, &self.me, self.timeouts).await?;
+            self.link = Some(link.split().0);
+        }
+        let link = self.link.as_mut().ok_or_else(|| timeout("link"))?;
+        loop {
+            let frame = tokio::time::timeout_at(deadline, link.next())
+                .await
+                .map_err(|_| timeout("band"))?;
+            match frame {
+                None => {
+                    self.link = None;
+                    return Err(DriverError::Net(NetError::Closed {
+                        addr: "sink stage".into(),
+                    }));
+                }
+                Some(Err(e)) => return Err(e.into()),
+                Some(Ok(Frame::Band(h, p))) => return Ok((h, p)),
+                Some(Ok(_)) => continue,
+            }
+        }
+    }
+}

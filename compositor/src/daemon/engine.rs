@@ -1,0 +1,384 @@
+//! The stage's frame loop: applies configurations in order, and for each requested frame gathers
+//! band b from every input, combines it on a blocking thread while band b+1 is being gathered,
+//! and queues the packed result for the writer. A band that does not match the configuration
+//! fails its frame with a report to the coordinator; the loop goes on to the next frame.
+
+use super::check::Expect;
+use super::compute::{BandOut, Scratch, combine};
+use super::config::StagePlan;
+use super::control::{ControlOut, NewConfig};
+use super::inputs::{InBand, InputError, Slot, SlotContext};
+use super::output::Out;
+use crate::pipeline::Pipeline;
+use lightfold_protocol::{ErrorCode, FrameParams, FrameStats};
+use serde_json::json;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio::sync::{mpsc, watch};
+use tokio::task::JoinHandle;
+use tokio::time::Instant;
+
+/// Frame requests and configurations, in the order the coordinator sent them.
+#[derive(Debug)]
+pub(crate) enum Command {
+    Configure(Box<NewConfig>),
+    Frame(FrameRequest),
+}
+
+#[derive(Debug)]
+pub(crate) struct FrameRequest {
+    pub epoch: u64,
+    pub frame: u64,
+    pub params: FrameParams,
+}
+
+/// Why a frame was not completed.
+#[derive(Debug, thiserror::Error)]
+enum FrameError {
+    #[error(transparent)]
+    Input(#[from] InputError),
+    #[error("combining band {band} failed: {reason}")]
+    Compute { band: u32, reason: String },
+    #[error("a newer configuration arrived")]
+    Reconfigured,
+    #[error("the stage is shutting down")]
+    Shutdown,
+}
+
+type Ops = Arc<Mutex<Option<Pipeline>>>;
+type Pending = JoinHandle<(Scratch, Result<BandOut, String>)>;
+
+pub(crate) struct Engine {
+    pub ctx: SlotContext,
+    pub control: ControlOut,
+    pub out: mpsc::Sender<Out>,
+    pub generation: watch::Receiver<u64>,
+    pub input_timeout: Duration,
+    pub daemon_id: String,
+    plan: Option<Arc<StagePlan>>,
+    ops: Ops,
+    slots: Vec<Slot>,
+    applied: u64,
+    /// Fixed-point scale of outgoing bands; `FrameParams::scale` changes it.
+    scale: f32,
+    spare: Vec<Scratch>,
+}
+
+impl Engine {
+    pub fn new(
+        ctx: SlotContext,
+        control: ControlOut,
+        out: mpsc::Sender<Out>,
+        generation: watch::Receiver<u64>,
+        input_timeout: Duration,
+        daemon_id: String,
+    ) -> Engine {
+        Engine {
+            ctx,
+            control,
+            out,
+            generation,
+            input_timeout,
+            daemon_id,
+            plan: None,
+            ops: Arc::new(Mutex::new(None)),
+            slots: Vec::new(),
+            applied: 0,
+            scale: 1.0,
+            spare: Vec::new(),
+        }
+    }
+
+    pub async fn run(mut self, mut commands: mpsc::Receiver<Command>) {
+        let shutdown = self.ctx.shutdown.clone();
+        loop {
+            let cmd = tokio::select! {
+                _ = shutdown.cancelled() => return,
+                cmd = commands.recv() => match cmd {
+                    Some(cmd) => cmd,
+                    None => return,
+                },
+            };
+            match cmd {
+                Command::Configure(new) => self.apply(*new).await,
+                Command::Frame(req) => {
+                    let frame = req.frame;
+                    if *self.generation.borrow() > self.applied {
+                        tracing::info!(frame, "frame skipped: a newer configuration follows it");
+                        continue;
+                    }
+                    match self.run_frame(req).await {
+                        Ok(()) => {}
+                        Err(FrameError::Shutdown) => return,
+                        Err(FrameError::Reconfigured) => {
+                            tracing::info!(frame, "frame abandoned: reconfigured");
+                            let _ = self.out.send(Out::Abort { frame }).await;
+                        }
+                        Err(e) => {
+                            self.ctx.metrics.frame_failed();
+                            let code = match &e {
+                                FrameError::Input(InputError::Mismatch { .. }) => {
+                                    self.ctx.metrics.mismatch();
+                                    ErrorCode::BandMismatch
+                                }
+                                FrameError::Input(InputError::Timeout { .. }) => ErrorCode::Timeout,
+                                FrameError::Input(InputError::Link { .. }) => ErrorCode::PeerLost,
+                                _ => ErrorCode::Internal,
+                            };
+                            self.control
+                                .error(code, format!("frame {frame} dropped: {e}"));
+                            let _ = self.out.send(Out::Abort { frame }).await;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Switches to a new configuration, keeping the links of inputs that stay.
+    async fn apply(&mut self, new: NewConfig) {
+        let NewConfig {
+            plan,
+            pipeline,
+            generation,
+        } = new;
+        let mut old: Vec<Slot> = std::mem::take(&mut self.slots);
+        for (index, input) in plan.config.inputs.iter().enumerate() {
+            let budget = plan.input_budget[index];
+            let slot = match old.iter().position(|s| s.peer == input.peer) {
+                Some(k) => {
+                    let mut s = old.swap_remove(k);
+                    s.reconfigure(index, budget);
+                    s
+                }
+                None => Slot::new(index, input.peer.clone(), budget),
+            };
+            self.slots.push(slot);
+        }
+        // Slots of peers no longer configured drop here, closing their links.
+        drop(old);
+        *self.ops.lock().unwrap_or_else(|e| e.into_inner()) = pipeline;
+        let addr = plan.config.downstream.clone();
+        self.plan = Some(Arc::new(plan));
+        self.applied = generation;
+        let _ = self.out.send(Out::Connect { addr }).await;
+    }
+
+    async fn run_frame(&mut self, req: FrameRequest) -> Result<(), FrameError> {
+        let Some(plan) = self.plan.clone() else {
+            self.control.error(
+                ErrorCode::BadConfig,
+                format!("frame {} refused: the stage is not configured", req.frame),
+            );
+            return Ok(());
+        };
+        if req.epoch != plan.epoch() {
+            self.control.error(
+                ErrorCode::BadConfig,
+                format!(
+                    "frame {} refused: it is for epoch {} but the stage is configured for epoch {}",
+                    req.frame,
+                    req.epoch,
+                    plan.epoch()
+                ),
+            );
+            return Ok(());
+        }
+        self.apply_params(&plan, &req.params);
+        let started = Instant::now();
+        let mut stats = FrameStats {
+            epoch: req.epoch,
+            frame: req.frame,
+            daemon_id: self.daemon_id.clone(),
+            ..FrameStats::default()
+        };
+        let mut scales: Vec<Vec<Option<f32>>> = plan
+            .config
+            .inputs
+            .iter()
+            .map(|i| vec![None; i.layers.len()])
+            .collect();
+        let mut pending: Option<(u32, Pending)> = None;
+        for b in 0..plan.bands {
+            let received = self.gather(&plan, req.frame, b, &mut scales).await;
+            let received = match received {
+                Ok(r) => r,
+                Err(e) => {
+                    if let Some((_, p)) = pending.take() {
+                        self.reclaim(p).await;
+                    }
+                    return Err(e);
+                }
+            };
+            if let Some((pb, p)) = pending.take() {
+                self.forward(pb, p, &mut stats).await?;
+            }
+            pending = Some((b, self.spawn_combine(&plan, req.frame, b, received)));
+        }
+        if let Some((pb, p)) = pending.take() {
+            self.forward(pb, p, &mut stats).await?;
+        }
+        self.send_out(Out::End { stats, started }).await
+    }
+
+    /// Sets this frame's light colours (`(stage input, c_n)`) on the operators that read them.
+    fn apply_params(&mut self, plan: &StagePlan, params: &FrameParams) {
+        if let Some(scale) = params.scale {
+            if scale.is_finite() && scale >= 0.0 {
+                self.scale = scale;
+            } else {
+                self.control.error(
+                    ErrorCode::BadConfig,
+                    format!("ignored scale {scale}: not finite and non-negative"),
+                );
+            }
+        }
+        let mut refused = Vec::new();
+        {
+            let mut guard = self.ops.lock().unwrap_or_else(|e| e.into_inner());
+            for &(input, rgb) in &params.colors {
+                let reader = plan.readers.get(input as usize).copied().flatten();
+                let result = match (guard.as_mut(), reader) {
+                    (Some(p), Some((k, j))) => {
+                        let stage = &p.stages()[k];
+                        if stage.op.name() == crate::ops::accumulate::NAME {
+                            let name = stage.name.clone();
+                            p.set_params(&name, &json!({ "input_colors": [[j, rgb]] }))
+                                .map_err(|e| e.to_string())
+                        } else {
+                            Err(format!(
+                                "operator {k} ({}) takes no light colour",
+                                stage.op.name()
+                            ))
+                        }
+                    }
+                    _ => Err("no operator reads that input".to_string()),
+                };
+                if let Err(why) = result {
+                    refused.push(format!("colour for input {input} ignored: {why}"));
+                }
+            }
+        }
+        for why in refused {
+            self.control.error(ErrorCode::BadConfig, why);
+        }
+    }
+
+    /// Band `b` of every input layer, in configuration order, each judged against the plan.
+    async fn gather(
+        &mut self,
+        plan: &StagePlan,
+        frame: u64,
+        b: u32,
+        scales: &mut [Vec<Option<f32>>],
+    ) -> Result<Vec<Vec<InBand>>, FrameError> {
+        let (y0, rows) = plan.band_rows(b);
+        let ctx = self.ctx.clone();
+        let timeout = self.input_timeout;
+        let slots = &mut self.slots;
+        let work = async {
+            let mut received = Vec::with_capacity(slots.len());
+            for (slot, input) in slots.iter_mut().zip(&plan.config.inputs) {
+                let mut layers = Vec::with_capacity(input.layers.len());
+                for (j, &(layer, format)) in input.layers.iter().enumerate() {
+                    let expect = Expect {
+                        epoch: plan.epoch(),
+                        frame,
+                        layer,
+                        format,
+                        x0: 0,
+                        y0,
+                        width: plan.config.width,
+                        height: rows,
+                        scale: scales[slot.index][j],
+                    };
+                    let band = slot.next(&expect, &ctx, Instant::now() + timeout).await?;
+                    if !band.header.empty {
+                        scales[slot.index][j].get_or_insert(band.header.scale);
+                    }
+                    layers.push(band);
+                }
+                received.push(layers);
+            }
+            Ok::<_, FrameError>(received)
+        };
+        let generation = &mut self.generation;
+        let applied = self.applied;
+        tokio::select! {
+            biased;
+            _ = ctx.shutdown.cancelled() => Err(FrameError::Shutdown),
+            _ = generation.wait_for(|g| *g > applied) => Err(FrameError::Reconfigured),
+            r = work => r,
+        }
+    }
+
+    fn spawn_combine(
+        &mut self,
+        plan: &Arc<StagePlan>,
+        frame: u64,
+        b: u32,
+        received: Vec<Vec<InBand>>,
+    ) -> Pending {
+        let plan = Arc::clone(plan);
+        let ops = Arc::clone(&self.ops);
+        let mut scratch = self.spare.pop().unwrap_or_default();
+        let scale = self.scale;
+        tokio::task::spawn_blocking(move || {
+            let pipeline = ops.lock().unwrap_or_else(|e| e.into_inner());
+            let r = combine(
+                &plan,
+                pipeline.as_ref(),
+                frame,
+                b,
+                &received,
+                scale,
+                &mut scratch,
+            )
+            .map_err(|e| e.to_string());
+            (scratch, r)
+        })
+    }
+
+    /// Waits for a combine whose result is no longer wanted, keeping its scratch.
+    async fn reclaim(&mut self, p: Pending) {
+        if let Ok((scratch, _)) = p.await {
+            self.spare.push(scratch);
+        }
+    }
+
+    /// Waits for band `b`'s combine and queues its output bands.
+    async fn forward(
+        &mut self,
+        b: u32,
+        p: Pending,
+        stats: &mut FrameStats,
+    ) -> Result<(), FrameError> {
+        let (scratch, result) = p.await.map_err(|e| FrameError::Compute {
+            band: b,
+            reason: e.to_string(),
+        })?;
+        self.spare.push(scratch);
+        let out = result.map_err(|reason| FrameError::Compute { band: b, reason })?;
+        stats.composite_us += out.composite.as_micros() as u64;
+        stats.pack_us += out.pack.as_micros() as u64;
+        stats.saturated += out.saturated;
+        stats.empty_bands += out.empty;
+        for (header, payload) in out.bands {
+            let held = self.ctx.metrics.hold(payload.len() as u64);
+            self.send_out(Out::Band {
+                header,
+                payload,
+                held,
+            })
+            .await?;
+        }
+        Ok(())
+    }
+
+    async fn send_out(&mut self, item: Out) -> Result<(), FrameError> {
+        tokio::select! {
+            _ = self.ctx.shutdown.cancelled() => Err(FrameError::Shutdown),
+            r = self.out.send(item) => r.map_err(|_| FrameError::Shutdown),
+        }
+    }
+}

@@ -1,0 +1,336 @@
+//! Data inputs: authenticated links from producers parked by daemon id until the configuration
+//! claims them, a reader task per claimed link that queues bands under a byte budget (so a
+//! stalled stage stops reading and TCP pushes back on the producer), and the engine's per-input
+//! slot that hands out bands in order with a deadline on every wait.
+
+use super::check::{Expect, Mismatch, Verdict, judge};
+use super::config::BAND_OVERHEAD;
+use super::metrics::{Held, StageMetrics};
+use bytes::Bytes;
+use lightfold_net::LinkReader;
+use lightfold_protocol::{BandHeader, Frame};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use tokio::sync::{Notify, OwnedSemaphorePermit, Semaphore, mpsc};
+use tokio::time::Instant;
+use tokio_util::sync::CancellationToken;
+use tokio_util::task::TaskTracker;
+
+/// Most producer links parked before any configuration claims them.
+const MAX_PARKED: usize = 256;
+
+/// One received band, holding its share of the input's budget until dropped.
+#[derive(Debug)]
+pub(crate) struct InBand {
+    pub header: BandHeader,
+    pub payload: Bytes,
+    _held: Held,
+    _permit: OwnedSemaphorePermit,
+}
+
+/// Links accepted from producers, by authenticated daemon id, not yet claimed by an input slot.
+#[derive(Debug, Default)]
+pub(crate) struct Registry {
+    parked: Mutex<HashMap<String, LinkReader>>,
+    arrived: Notify,
+}
+
+impl Registry {
+    /// Parks a producer's link, replacing an older one from the same daemon (it reconnected).
+    /// Returns false when too many links are parked.
+    pub fn offer(&self, peer: String, link: LinkReader) -> bool {
+        {
+            let mut parked = self.parked.lock().unwrap_or_else(|e| e.into_inner());
+            if parked.len() >= MAX_PARKED && !parked.contains_key(&peer) {
+                return false;
+            }
+            parked.insert(peer, link);
+        }
+        self.arrived.notify_waiters();
+        true
+    }
+
+    fn take(&self, peer: &str) -> Option<LinkReader> {
+        self.parked
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .remove(peer)
+    }
+}
+
+/// Why no band could be had from an input.
+#[derive(Debug, thiserror::Error)]
+pub(crate) enum InputError {
+    #[error(
+        "input {input} ({peer}) delivered no band within {waited_ms} ms (no link connected: {unconnected})"
+    )]
+    Timeout {
+        input: usize,
+        peer: String,
+        waited_ms: u128,
+        unconnected: bool,
+    },
+    #[error("input {input} ({peer}) link failed: {reason}")]
+    Link {
+        input: usize,
+        peer: String,
+        reason: String,
+    },
+    #[error("input {input} ({peer}): {mismatch}")]
+    Mismatch {
+        input: usize,
+        peer: String,
+        mismatch: Mismatch,
+    },
+}
+
+enum Event {
+    Band(InBand),
+    Failed(String),
+}
+
+/// The engine's view of one configured input.
+#[derive(Debug)]
+pub(crate) struct Slot {
+    pub index: usize,
+    pub peer: String,
+    rx: Option<mpsc::Receiver<Event>>,
+    pump: CancellationToken,
+    budget: Arc<Semaphore>,
+    budget_total: u64,
+    peeked: Option<InBand>,
+    /// (epoch, frame) of a frame this input sent wrong: the rest of it is dropped.
+    poisoned: Option<(u64, u64)>,
+}
+
+impl std::fmt::Debug for Event {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Event::Band(b) => write!(f, "Band({:?})", b.header),
+            Event::Failed(e) => write!(f, "Failed({e})"),
+        }
+    }
+}
+
+impl Slot {
+    pub fn new(index: usize, peer: String, budget: u64) -> Slot {
+        Slot {
+            index,
+            peer,
+            rx: None,
+            pump: CancellationToken::new(),
+            budget: Arc::new(Semaphore::new(budget_permits(budget))),
+            budget_total: budget,
+            peeked: None,
+            poisoned: None,
+        }
+    }
+
+    /// Keeps this slot (and its link) under a new configuration; the budget only grows, so the
+    /// bound is the largest budget configured while the link lives.
+    pub fn reconfigure(&mut self, index: usize, budget: u64) {
+        self.index = index;
+        if budget > self.budget_total {
+            self.budget
+                .add_permits(budget_permits(budget) - budget_permits(self.budget_total));
+            self.budget_total = budget;
+        }
+    }
+
+    /// The next band of this input that is not stale, judged against `expect`.
+    pub async fn next(
+        &mut self,
+        expect: &Expect,
+        ctx: &SlotContext,
+        deadline: Instant,
+    ) -> Result<InBand, InputError> {
+        let start = Instant::now();
+        loop {
+            let band = match self.peeked.take() {
+                Some(b) => b,
+                None => self.recv(ctx, deadline, start).await?,
+            };
+            let h = &band.header;
+            if self.poisoned == Some((h.epoch, h.frame)) {
+                ctx.metrics.stale_band();
+                continue;
+            }
+            match judge(h, expect) {
+                Verdict::Accept => return Ok(band),
+                Verdict::Stale => {
+                    tracing::debug!(
+                        input = self.index,
+                        epoch = h.epoch,
+                        frame = h.frame,
+                        "dropped stale band"
+                    );
+                    ctx.metrics.stale_band();
+                }
+                Verdict::Ahead(mismatch) => {
+                    self.peeked = Some(band);
+                    return Err(self.mismatch(mismatch));
+                }
+                Verdict::Reject(mismatch) => {
+                    self.poisoned = Some((h.epoch, h.frame));
+                    return Err(self.mismatch(mismatch));
+                }
+            }
+        }
+    }
+
+    fn mismatch(&self, mismatch: Mismatch) -> InputError {
+        InputError::Mismatch {
+            input: self.index,
+            peer: self.peer.clone(),
+            mismatch,
+        }
+    }
+
+    async fn recv(
+        &mut self,
+        ctx: &SlotContext,
+        deadline: Instant,
+        start: Instant,
+    ) -> Result<InBand, InputError> {
+        loop {
+            let arrived = ctx.registry.arrived.notified();
+            tokio::pin!(arrived);
+            arrived.as_mut().enable();
+            // A link parked under our peer id is newer than the one we hold: the producer
+            // reconnected, so the old link is dead or abandoned.
+            if let Some(link) = ctx.registry.take(&self.peer) {
+                self.attach(link, ctx);
+            }
+            let unconnected = self.rx.is_none();
+            let timed_out = InputError::Timeout {
+                input: self.index,
+                peer: self.peer.clone(),
+                waited_ms: start.elapsed().as_millis(),
+                unconnected,
+            };
+            let Some(rx) = self.rx.as_mut() else {
+                tokio::select! {
+                    _ = &mut arrived => continue,
+                    _ = tokio::time::sleep_until(deadline) => return Err(timed_out),
+                }
+            };
+            tokio::select! {
+                event = rx.recv() => match event {
+                    Some(Event::Band(b)) => return Ok(b),
+                    Some(Event::Failed(reason)) => {
+                        self.rx = None;
+                        return Err(InputError::Link { input: self.index, peer: self.peer.clone(), reason });
+                    }
+                    None => self.rx = None,
+                },
+                _ = &mut arrived => continue,
+                _ = tokio::time::sleep_until(deadline) => return Err(timed_out),
+            }
+        }
+    }
+
+    /// Starts reading `link` into this slot's queue (replacing any previous link).
+    fn attach(&mut self, link: LinkReader, ctx: &SlotContext) {
+        self.pump.cancel();
+        self.pump = ctx.shutdown.child_token();
+        self.peeked = None;
+        // Capacity in bands is a second bound next to the byte budget; bands cost at least
+        // BAND_OVERHEAD, so the budget admits at most this many.
+        let capacity = (self.budget_total / BAND_OVERHEAD).clamp(1, 1 << 16) as usize;
+        let (tx, rx) = mpsc::channel(capacity);
+        self.rx = Some(rx);
+        tracing::info!(input = self.index, peer = %self.peer, addr = %link.addr, "input link attached");
+        ctx.tracker.spawn(pump(
+            link,
+            tx,
+            Arc::clone(&self.budget),
+            self.budget_total,
+            Arc::clone(&ctx.metrics),
+            self.pump.clone(),
+        ));
+    }
+}
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        self.pump.cancel();
+    }
+}
+
+/// What every slot needs from the stage.
+#[derive(Debug, Clone)]
+pub(crate) struct SlotContext {
+    pub registry: Arc<Registry>,
+    pub metrics: Arc<StageMetrics>,
+    pub tracker: TaskTracker,
+    pub shutdown: CancellationToken,
+}
+
+fn budget_permits(bytes: u64) -> usize {
+    usize::try_from(bytes)
+        .unwrap_or(usize::MAX)
+        .min(Semaphore::MAX_PERMITS)
+}
+
+/// Reads bands from one producer link into the slot's queue. Waiting for budget stops the reads,
+/// which is what makes TCP push back on the producer.
+async fn pump(
+    mut link: LinkReader,
+    tx: mpsc::Sender<Event>,
+    budget: Arc<Semaphore>,
+    total: u64,
+    metrics: Arc<StageMetrics>,
+    cancel: CancellationToken,
+) {
+    loop {
+        let frame = tokio::select! {
+            _ = cancel.cancelled() => return,
+            f = link.next() => f,
+        };
+        let (header, payload) = match frame {
+            None => return,
+            Some(Err(e)) => {
+                let _ = tx.send(Event::Failed(e.to_string())).await;
+                return;
+            }
+            Some(Ok(Frame::Band(h, p))) => (h, p),
+            Some(Ok(Frame::Control(m))) => {
+                tracing::debug!(addr = %link.addr, ?m, "ignored control message on a data link");
+                continue;
+            }
+            Some(Ok(other)) => {
+                let what = format!("unexpected {} after the handshake", frame_kind(&other));
+                let _ = tx.send(Event::Failed(what)).await;
+                return;
+            }
+        };
+        let cost = payload.len() as u64 + BAND_OVERHEAD;
+        let permits = u32::try_from(cost.min(total).max(1)).unwrap_or(u32::MAX);
+        let permit = tokio::select! {
+            _ = cancel.cancelled() => return,
+            p = Arc::clone(&budget).acquire_many_owned(permits) => match p {
+                Ok(p) => p,
+                Err(_) => return,
+            },
+        };
+        let band = InBand {
+            header,
+            _held: metrics.hold(payload.len() as u64),
+            payload,
+            _permit: permit,
+        };
+        tokio::select! {
+            _ = cancel.cancelled() => return,
+            r = tx.send(Event::Band(band)) => if r.is_err() { return },
+        }
+    }
+}
+
+fn frame_kind(f: &Frame) -> &'static str {
+    match f {
+        Frame::Hello(_) => "hello",
+        Frame::Proof(_) => "proof",
+        Frame::Control(_) => "control message",
+        Frame::Band(..) => "band",
+    }
+}

@@ -1,0 +1,217 @@
+//! The compositor stage daemon (ARCHITECTURE §5–8, docs/cluster-protocol.md): one listener takes
+//! the coordinator's control link and the producers' data links; configured inputs are matched by
+//! authenticated daemon id; each frame is combined band by band as the bands arrive and streamed to
+//! the downstream stage, with bounded queues (a stalled consumer blocks its producers through TCP),
+//! a deadline on every wait, and a clean stop when the shutdown token fires.
+//!
+//! `run` follows mini-redis `server::run(listener, shutdown)`: the caller binds (tests bind port
+//! 0) and owns the cancellation token (the CLI wires SIGTERM and Ctrl-C to it).
+
+mod check;
+mod compute;
+mod config;
+mod control;
+pub mod driver;
+mod engine;
+mod inputs;
+mod metrics;
+mod output;
+pub mod pixels;
+
+pub use check::{Expect, Mismatch, Verdict, judge};
+pub use config::{BAND_OVERHEAD, ConfigError, MAX_FRAMES_IN_FLIGHT, StagePlan};
+pub use metrics::{StageMetrics, peak_rss_bytes};
+
+use control::ControlHub;
+use engine::Engine;
+use inputs::{Registry, SlotContext};
+use lightfold_net::{Identity, Link, Timeouts};
+use lightfold_protocol::Role;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::net::{TcpListener, TcpStream};
+use tokio::sync::{mpsc, watch};
+use tokio_util::sync::CancellationToken;
+use tokio_util::task::TaskTracker;
+
+/// Frame requests a stage queues ahead of the one it is combining.
+pub const QUEUED_FRAMES: usize = 256;
+/// How long `run` waits for its tasks after shutdown before giving up on them.
+const SHUTDOWN_GRACE: Duration = Duration::from_secs(5);
+
+/// How a stage runs. `token` is the shared cluster secret (never logged).
+#[derive(Clone)]
+pub struct CompositorOptions {
+    /// This stage's daemon id: producers and the coordinator know it by this name.
+    pub daemon_id: String,
+    /// The address reported in `Register` for others to dial.
+    pub advertise: String,
+    pub token: Arc<[u8]>,
+    /// Link deadlines (connect, handshake, each send) and the frame size limit.
+    pub timeouts: Timeouts,
+    /// Longest wait for any one input band once a frame is due (covers the producer's render
+    /// time for the first band).
+    pub input_timeout: Duration,
+    /// How long to keep dialing the downstream before reporting it lost.
+    pub dial_timeout: Duration,
+    /// Counters the caller may read while the stage runs.
+    pub metrics: Arc<StageMetrics>,
+}
+
+impl std::fmt::Debug for CompositorOptions {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("CompositorOptions")
+            .field("daemon_id", &self.daemon_id)
+            .field("advertise", &self.advertise)
+            .field("timeouts", &self.timeouts)
+            .field("input_timeout", &self.input_timeout)
+            .field("dial_timeout", &self.dial_timeout)
+            .finish_non_exhaustive()
+    }
+}
+
+impl CompositorOptions {
+    /// Options with the default deadlines: 30 s per input band, 10 s to reach the downstream.
+    pub fn new(daemon_id: impl Into<String>, advertise: impl Into<String>, token: &[u8]) -> Self {
+        CompositorOptions {
+            daemon_id: daemon_id.into(),
+            advertise: advertise.into(),
+            token: Arc::from(token),
+            timeouts: Timeouts::default(),
+            input_timeout: Duration::from_secs(30),
+            dial_timeout: Duration::from_secs(10),
+            metrics: StageMetrics::new(),
+        }
+    }
+}
+
+/// Runs a compositor stage on `listener` until `shutdown` is cancelled (or the coordinator sends
+/// `Shutdown`, which cancels it). Returns once every task has stopped.
+pub async fn run(
+    listener: TcpListener,
+    opts: CompositorOptions,
+    shutdown: CancellationToken,
+) -> anyhow::Result<()> {
+    lightfold_protocol::handshake::check_daemon_id(&opts.daemon_id)
+        .map_err(|e| anyhow::anyhow!("daemon id {:?}: {e}", opts.daemon_id))?;
+    if opts.token.is_empty() {
+        anyhow::bail!("the cluster token is empty");
+    }
+    let identity = Identity::new(&opts.token, Role::Compositor, opts.daemon_id.clone());
+    let tracker = TaskTracker::new();
+    let (cmd_tx, cmd_rx) = mpsc::channel(QUEUED_FRAMES);
+    let (out_tx, out_rx) = mpsc::channel(output::OUT_QUEUE);
+    let (gen_tx, gen_rx) = watch::channel(0u64);
+    let hub = Arc::new(ControlHub::new(
+        cmd_tx,
+        gen_tx,
+        &opts.daemon_id,
+        &opts.advertise,
+        opts.timeouts.max_frame,
+    ));
+    let registry = Arc::new(Registry::default());
+    let ctx = SlotContext {
+        registry: Arc::clone(&registry),
+        metrics: Arc::clone(&opts.metrics),
+        tracker: tracker.clone(),
+        shutdown: shutdown.clone(),
+    };
+    let engine = Engine::new(
+        ctx,
+        hub.out(),
+        out_tx,
+        gen_rx,
+        opts.input_timeout,
+        opts.daemon_id.clone(),
+    );
+    tracker.spawn(engine.run(cmd_rx));
+    let settings = output::WriterSettings {
+        identity: identity.clone(),
+        timeouts: opts.timeouts,
+        dial_timeout: opts.dial_timeout,
+    };
+    tracker.spawn(output::run(
+        settings,
+        hub.out(),
+        Arc::clone(&opts.metrics),
+        out_rx,
+        shutdown.clone(),
+    ));
+    tracing::info!(id = %opts.daemon_id, addr = ?listener.local_addr().ok(), "compositor listening");
+
+    loop {
+        let accepted = tokio::select! {
+            _ = shutdown.cancelled() => break,
+            a = listener.accept() => a,
+        };
+        match accepted {
+            Ok((stream, _)) => {
+                let conn = Connection {
+                    identity: identity.clone(),
+                    timeouts: opts.timeouts,
+                    hub: Arc::clone(&hub),
+                    registry: Arc::clone(&registry),
+                    shutdown: shutdown.clone(),
+                };
+                tracker.spawn(conn.serve(stream));
+            }
+            Err(e) => {
+                // Out of descriptors and the like: back off instead of spinning.
+                tracing::warn!("accept failed: {e}");
+                tokio::select! {
+                    _ = shutdown.cancelled() => break,
+                    _ = tokio::time::sleep(Duration::from_millis(100)) => {}
+                }
+            }
+        }
+    }
+    drop(listener);
+    tracker.close();
+    if tokio::time::timeout(SHUTDOWN_GRACE, tracker.wait())
+        .await
+        .is_err()
+    {
+        tracing::warn!("some tasks did not stop within {SHUTDOWN_GRACE:?}");
+    }
+    tracing::info!(id = %opts.daemon_id, "compositor stopped");
+    Ok(())
+}
+
+/// One accepted connection, before we know who it is.
+struct Connection {
+    identity: Identity,
+    timeouts: Timeouts,
+    hub: Arc<ControlHub>,
+    registry: Arc<Registry>,
+    shutdown: CancellationToken,
+}
+
+impl Connection {
+    async fn serve(self, stream: TcpStream) {
+        let link: Link = tokio::select! {
+            _ = self.shutdown.cancelled() => return,
+            l = lightfold_net::accept(stream, &self.identity, self.timeouts) => match l {
+                Ok(l) => l,
+                Err(e) => {
+                    tracing::warn!("refused a connection: {e}");
+                    return;
+                }
+            },
+        };
+        match link.peer.role {
+            Role::Coordinator => self.hub.session(link, &self.shutdown).await,
+            Role::Node | Role::Compositor => {
+                let peer = link.peer.daemon_id.clone();
+                let (reader, _) = link.split();
+                if self.registry.offer(peer.clone(), reader) {
+                    tracing::info!(%peer, "producer connected");
+                } else {
+                    tracing::warn!(%peer, "refused a producer: too many unclaimed links");
+                }
+            }
+            Role::Viewer => {
+                tracing::warn!(peer = %link.peer.daemon_id, "refused a viewer: a compositor serves none");
+            }
+        }
+    }
+}

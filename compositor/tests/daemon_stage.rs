@@ -1,0 +1,245 @@
+//! One stage in-process over real links: it combines an upstream partial sum and a node's bands
+//! into the in-memory result within the link formats' bound, applies per-frame light colours,
+//! reports `FrameDone` statistics, reconfigures to a new epoch without restarting (dropping the
+//! old epoch's bands), relays, and stops on `Shutdown`.
+
+mod support;
+
+use lightfold_protocol::{ErrorCode, FrameParams, Layer, Message, PixelFormat};
+use support::*;
+
+const ILL: Layer = Layer::Illumination;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stage_accumulates_its_inputs_band_by_band() {
+    let size = (37, 23, 6);
+    let (w, h, _) = size;
+    let stage = start_stage("c1").await;
+    let (mut sink, sink_addr) = sink().await;
+    let mut ctl = stage.control().await;
+    assert_eq!(ctl.capabilities.daemon_id, "c1");
+    let ops = [("accumulate", r#"{"colors": [[0.5, 1.0, 2.0]]}"#)];
+    let cfg = config(
+        1,
+        size,
+        vec![
+            input("up", &[(ILL, PixelFormat::F16x6)]),
+            input("n1", &[(ILL, PixelFormat::Rgb9e5x2)]),
+        ],
+        &ops,
+        &[(ILL, PixelFormat::F32x6)],
+        &sink_addr,
+    );
+    ctl.configure(cfg, WAIT).await.unwrap();
+    let mut up = stage.producer("up").await;
+    let mut node = stage.producer("n1").await;
+
+    let upstream = image(ILL, PixelFormat::F16x6, hdr(1, w, h, ILL, 0..0));
+    let local = image(ILL, PixelFormat::Rgb9e5x2, hdr(2, w, h, ILL, 6..12));
+    for frame in 1..=2u64 {
+        // Frame 2 changes the node's colour without touching the node.
+        let (params, colour) = if frame == 1 {
+            (no_params(), "[0.5, 1.0, 2.0]")
+        } else {
+            let p = FrameParams {
+                colors: vec![(1, [3.0, 0.25, 1.0])],
+                scale: None,
+            };
+            (p, "[3.0, 0.25, 1.0]")
+        };
+        ctl.render(1, frame, params).await.unwrap();
+        let s = shape(1, frame, size);
+        up.send_frame(&s, std::slice::from_ref(&upstream))
+            .await
+            .unwrap();
+        node.send_frame(&s, std::slice::from_ref(&local))
+            .await
+            .unwrap();
+        let got = sink
+            .recv_frame(&s, &[(ILL, PixelFormat::F32x6)], WAIT)
+            .await
+            .unwrap();
+        let stats = ctl.frame_done(frame, WAIT).await.unwrap();
+
+        let ops = format!(r#"{{"colors": [{colour}]}}"#);
+        let want = reference(&[("accumulate", &ops)], &[&upstream, &local], w, h);
+        let colour: Vec<f32> = serde_json::from_str(colour).unwrap();
+        let b_up = link_bound(PixelFormat::F16x6, &upstream.data, 1.0);
+        let b_node = link_bound(PixelFormat::Rgb9e5x2, &local.data, 1.0);
+        let bound: Vec<f32> = b_up
+            .iter()
+            .zip(&b_node)
+            .enumerate()
+            .map(|(k, (a, b))| a + colour[k % 3] * b)
+            .collect();
+        assert_within(&got[0].data, &want[0], &bound, &format!("frame {frame}"));
+
+        assert_eq!(
+            (stats.epoch, stats.frame, stats.daemon_id.as_str()),
+            (1, frame, "c1")
+        );
+        let payload = w as u64 * h as u64 * 24;
+        assert!(stats.bytes_out >= payload, "bytes out {}", stats.bytes_out);
+        assert!(stats.total_us > 0 && stats.peak_rss_bytes > 0, "{stats:?}");
+    }
+    assert_eq!(stage.metrics.frames_done(), 2);
+    stage.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_new_epoch_reconfigures_without_restart_and_drops_old_bands() {
+    let old = (16, 9, 4);
+    let new = (21, 11, 5);
+    let stage = start_stage("c2").await;
+    let (mut sink, sink_addr) = sink().await;
+    let mut ctl = stage.control().await;
+    let ins = |p| vec![input("a", &[(ILL, p)]), input("b", &[(ILL, p)])];
+    let join = [("join", r#"{"inputs": 2}"#)];
+    let out = [(ILL, PixelFormat::F32x6)];
+    ctl.configure(
+        config(1, old, ins(PixelFormat::F16x6), &join, &out, &sink_addr),
+        WAIT,
+    )
+    .await
+    .unwrap();
+    let mut a = stage.producer("a").await;
+    let mut b = stage.producer("b").await;
+
+    // Epoch 2: another size, format and operator, same links.
+    let acc = [(
+        "accumulate",
+        r#"{"upstream": false, "colors": [[1, 1, 1], [2, 2, 2]]}"#,
+    )];
+    ctl.configure(
+        config(2, new, ins(PixelFormat::F32x6), &acc, &out, &sink_addr),
+        WAIT,
+    )
+    .await
+    .unwrap();
+    // A producer still on epoch 1 sends a whole frame; the stage drops it as stale.
+    let (ow, oh, _) = old;
+    let stale = image(ILL, PixelFormat::F16x6, hdr(3, ow, oh, ILL, 0..0));
+    a.send_frame(&shape(1, 7, old), std::slice::from_ref(&stale))
+        .await
+        .unwrap();
+
+    let (w, h, _) = new;
+    let ia = image(ILL, PixelFormat::F32x6, hdr(4, w, h, ILL, 0..0));
+    let ib = image(ILL, PixelFormat::F32x6, hdr(5, w, h, ILL, 0..5));
+    ctl.render(2, 8, no_params()).await.unwrap();
+    a.send_frame(&shape(2, 8, new), std::slice::from_ref(&ia))
+        .await
+        .unwrap();
+    b.send_frame(&shape(2, 8, new), std::slice::from_ref(&ib))
+        .await
+        .unwrap();
+    let got = sink
+        .recv_frame(&shape(2, 8, new), &out, WAIT)
+        .await
+        .unwrap();
+    ctl.frame_done(8, WAIT).await.unwrap();
+    let want = reference(&acc, &[&ia, &ib], w, h);
+    let zero = vec![0.0; want[0].len()];
+    assert_within(&got[0].data, &want[0], &zero, "epoch 2 frame");
+    assert_eq!(
+        stage.metrics.stale_bands(),
+        u64::from(old.1.div_ceil(old.2))
+    );
+
+    // A frame requested for an epoch the stage is not in is refused, clearly.
+    ctl.render(1, 9, no_params()).await.unwrap();
+    match ctl.next_message(WAIT).await.unwrap() {
+        Message::Error { code, message } => {
+            assert_eq!(code, ErrorCode::BadConfig);
+            assert!(
+                message.contains("epoch 1") && message.contains("epoch 2"),
+                "{message}"
+            );
+        }
+        other => panic!("expected an error, got {other:?}"),
+    }
+    stage.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stage_without_operators_relays_and_repacks() {
+    let size = (13, 10, 3);
+    let (w, h, _) = size;
+    let stage = start_stage("relay").await;
+    let (mut sink, sink_addr) = sink().await;
+    let mut ctl = stage.control().await;
+    let layers = [
+        (ILL, PixelFormat::F16x6),
+        (Layer::Depth, PixelFormat::DepthF32),
+    ];
+    let outs = [
+        (Layer::Depth, PixelFormat::DepthF32),
+        (ILL, PixelFormat::F32x6),
+    ];
+    let cfg = config(5, size, vec![input("up", &layers)], &[], &outs, &sink_addr);
+    ctl.configure(cfg, WAIT).await.unwrap();
+    let mut up = stage.producer("up").await;
+    let ill = image(ILL, PixelFormat::F16x6, hdr(6, w, h, ILL, 3..6));
+    let depth = image(
+        Layer::Depth,
+        PixelFormat::DepthF32,
+        hdr(7, w, h, Layer::Depth, 0..0),
+    );
+    ctl.render(5, 1, no_params()).await.unwrap();
+    up.send_frame(&shape(5, 1, size), &[ill.clone(), depth.clone()])
+        .await
+        .unwrap();
+    let got = sink
+        .recv_frame(&shape(5, 1, size), &outs, WAIT)
+        .await
+        .unwrap();
+    let stats = ctl.frame_done(1, WAIT).await.unwrap();
+    assert_eq!(got[0].data, depth.data, "depth relayed bit for bit");
+    let bound = link_bound(PixelFormat::F16x6, &ill.data, 1.0);
+    assert_within(&got[1].data, &ill.data, &bound, "illumination repacked");
+    assert_eq!(stats.empty_bands, 1, "the all-zero band stays empty");
+    stage.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn shutdown_from_the_coordinator_stops_the_stage() {
+    let stage = start_stage("c3").await;
+    let mut ctl = stage.control().await;
+    ctl.send_ping(7).await.unwrap();
+    assert_eq!(
+        ctl.next_message(WAIT).await.unwrap(),
+        Message::Pong { seq: 7 }
+    );
+    ctl.shutdown().await.unwrap();
+    let r = tokio::time::timeout(WAIT, stage.handle)
+        .await
+        .expect("stops in time");
+    r.unwrap().unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_bad_configuration_is_refused_and_the_old_one_kept() {
+    let size = (8, 8, 8);
+    let stage = start_stage("c4").await;
+    let (_sink, sink_addr) = sink().await;
+    let mut ctl = stage.control().await;
+    let ins = vec![input("n", &[(ILL, PixelFormat::F32x6)])];
+    let out = [(ILL, PixelFormat::F32x6)];
+    let bad = config(3, size, ins.clone(), &[("blend", "{}")], &out, &sink_addr);
+    match ctl.configure(bad, WAIT).await {
+        Err(lightfold_compositor::daemon::driver::DriverError::Refused { code, message }) => {
+            assert_eq!(code, ErrorCode::UnknownOperator);
+            assert!(message.contains("blend"), "{message}");
+        }
+        other => panic!("expected a refusal, got {other:?}"),
+    }
+    let mut bad = config(3, size, ins, &[], &out, &sink_addr);
+    bad.inputs[0].layers[0].1 = PixelFormat::F16x4;
+    match ctl.configure(bad, WAIT).await {
+        Err(lightfold_compositor::daemon::driver::DriverError::Refused { code, .. }) => {
+            assert_eq!(code, ErrorCode::UnsupportedFormat)
+        }
+        other => panic!("expected a refusal, got {other:?}"),
+    }
+    stage.stop().await;
+}
