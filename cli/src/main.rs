@@ -4,6 +4,7 @@
 
 use clap::{Parser, Subcommand};
 
+mod compositor_cmd;
 mod defaults_cmd;
 
 #[derive(Debug, Parser)]
@@ -22,6 +23,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Run a compositor stage daemon.
+    Compositor(compositor_cmd::Args),
     /// Print the built-in defaults (image size, samples, K, shadow-map size).
     Defaults(defaults_cmd::Args),
 }
@@ -30,6 +33,7 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     init_logging(&cli.log);
     match cli.command {
+        Command::Compositor(args) => compositor_cmd::run(args),
         Command::Defaults(args) => defaults_cmd::run(args),
     }
 }
