@@ -18,6 +18,7 @@ pub mod join;
 pub mod material;
 pub mod output;
 pub(crate) mod params;
+pub mod precision;
 
 use lightfold_protocol::Layer;
 use rayon::prelude::*;
@@ -30,6 +31,7 @@ pub use join::Join;
 pub use material::{Material, MaterialStage};
 pub use output::Output;
 pub use params::{layer_from_name, layer_name};
+pub use precision::{LinkFormat, LinkKind, chain_bound, recommended_link_format};
 
 /// The largest colour value an operator emits: sums saturate here instead of reaching +Inf, so a
 /// later multiply by a zero material stays 0 rather than NaN.
