@@ -164,3 +164,92 @@ fn one_thread_and_pool_agree() {
     let b = many.install(|| run(&*op, &inputs, pixels, false));
     assert_same_bits(&a, &b, "threads");
 }
+
+/// Fused unpack + accumulate gives the bits of unpacking every band and then accumulating.
+#[test]
+fn packed_accumulate_matches_unpack_then_apply() {
+    use lightfold_compositor::ops::{Accumulate, OpError, PackedIllumination};
+    use lightfold_protocol::format::{pack, unpack};
+    use lightfold_protocol::{Layer, PixelFormat};
+
+    let op = Accumulate::new(&json!({"colors": [[0.5, 1, 2], [1, 1, 1], [3, 2, 1]],
+                                     "ambient": {"input": 2}}))
+    .unwrap();
+    for format in [
+        PixelFormat::Rgb9e5x2,
+        PixelFormat::Seed64,
+        PixelFormat::F16x6,
+        PixelFormat::F32x6,
+    ] {
+        for (n, pixels) in widths().into_iter().enumerate() {
+            let scale = 3.0;
+            let mut r = rng(n as u64);
+            let raw: Vec<Owned> = (0..4)
+                .map(|_| Owned::random(pixels, &[Layer::Illumination], &mut r, hostile))
+                .collect();
+            let packed: Vec<Vec<u8>> = raw
+                .iter()
+                .map(|o| {
+                    let mut b = vec![0u8; pixels * format.bytes_per_pixel()];
+                    pack(format, o.layer(Layer::Illumination), scale, &mut b).unwrap();
+                    b
+                })
+                .collect();
+            // Input 3 is an empty band.
+            let unpacked: Vec<Owned> = packed
+                .iter()
+                .enumerate()
+                .map(|(i, b)| {
+                    if i == 3 {
+                        return Owned::zeros(pixels, &[]);
+                    }
+                    let mut v = vec![0f32; pixels * 6];
+                    unpack(format, b, scale, &mut v).unwrap();
+                    Owned {
+                        pixels,
+                        layers: vec![(Layer::Illumination, v)],
+                    }
+                })
+                .collect();
+            let want = run(&op, &unpacked, pixels, false);
+            let views: Vec<Option<PackedIllumination<'_>>> = packed
+                .iter()
+                .enumerate()
+                .map(|(i, b)| {
+                    (i != 3).then_some(PackedIllumination {
+                        format,
+                        scale,
+                        bytes: b,
+                    })
+                })
+                .collect();
+            let mut got = Owned::zeros(pixels, &[Layer::Illumination]);
+            op.apply_packed(&views, &mut got.view_mut()).unwrap();
+            assert_same_bits(&got, &want, &format!("{format:?} w={pixels}"));
+        }
+    }
+    // Malformed packed input is an error, not a panic.
+    let mut out = Owned::zeros(2, &[Layer::Illumination]);
+    let short = PackedIllumination {
+        format: PixelFormat::F16x6,
+        scale: 1.0,
+        bytes: &[0u8; 13],
+    };
+    let e = op.apply_packed(&[None, Some(short), None, None], &mut out.view_mut());
+    assert!(matches!(e, Err(OpError::Packed { input: 1, .. })), "{e:?}");
+    let bad_scale = PackedIllumination {
+        format: PixelFormat::Seed64,
+        scale: f32::NAN,
+        bytes: &[0u8; 16],
+    };
+    let e = op.apply_packed(&[Some(bad_scale), None, None, None], &mut out.view_mut());
+    assert!(matches!(e, Err(OpError::Packed { input: 0, .. })), "{e:?}");
+    let material = PackedIllumination {
+        format: PixelFormat::F32x3,
+        scale: 1.0,
+        bytes: &[0u8; 24],
+    };
+    let e = op.apply_packed(&[None, Some(material), None, None], &mut out.view_mut());
+    assert!(matches!(e, Err(OpError::MissingLayer { .. })), "{e:?}");
+    assert!(op.apply_packed(&[None], &mut out.view_mut()).is_err());
+}

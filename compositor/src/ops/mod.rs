@@ -25,7 +25,7 @@ use rayon::prelude::*;
 use serde_json::Value;
 use std::fmt;
 
-pub use accumulate::Accumulate;
+pub use accumulate::{Accumulate, PackedIllumination};
 pub use depth::Depth;
 pub use join::Join;
 pub use material::{Material, MaterialStage};
@@ -159,6 +159,12 @@ pub enum OpError {
         layer: Layer,
         expected: usize,
         got: usize,
+    },
+    #[error("operator {op}: packed input {input}: {source}")]
+    Packed {
+        op: &'static str,
+        input: usize,
+        source: lightfold_protocol::format::FormatError,
     },
     #[error("operator {op}: {what} holds {got} values, expected {expected}")]
     BufferLength {

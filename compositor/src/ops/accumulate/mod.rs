@@ -10,9 +10,13 @@
 //! stages and one stage with many inputs give the same bits.
 
 use super::params::{self, check_rgb};
+mod fast;
+
+pub use fast::PackedIllumination;
+
 use super::{
     BLOCK, BandMut, BandView, InputSpec, MAX_VALUE, OpError, Operator, Signature, check_band,
-    clamp_fast, for_spans, sanitize, saturate,
+    for_spans, sanitize,
 };
 use lightfold_protocol::Layer;
 use serde::{Deserialize, Serialize};
@@ -244,21 +248,7 @@ impl Operator for Accumulate {
     fn apply(&self, inputs: &[BandView<'_>], out: &mut BandMut<'_>) -> Result<(), OpError> {
         check_band(NAME, &self.signature(), inputs, out)?;
         let (up, locals) = self.views(inputs);
-        let terms: Vec<Term<'_>> = locals
-            .iter()
-            .enumerate()
-            .filter_map(|(j, &(ill, amb))| {
-                let c = repeat24(&self.coeffs[j]);
-                match (self.fold_of(j), ill) {
-                    (None, None) => None,
-                    (None, Some(x)) => Some(Term::Plain(x, c)),
-                    (Some(AmbientMask::Uniform), x) => Some(Term::Uniform(x, c)),
-                    (Some(AmbientMask::Layer), x) => {
-                        Some(Term::Masked(x, amb.expect("checked"), self.coeffs[j]))
-                    }
-                }
-            })
-            .collect();
+        let terms = fast::terms(self);
         let pixels = out.pixels;
         let dst = out.layer_mut(Layer::Illumination).expect("checked");
         for_spans(pixels, vec![(6, dst)], |first, outs| {
@@ -266,20 +256,11 @@ impl Operator for Accumulate {
             for (b, o) in span.chunks_mut(BLOCK * 6).enumerate() {
                 let lo = (first + b * BLOCK) * 6;
                 let hi = lo + o.len();
-                match up {
-                    Some(u) => {
-                        for (o, u) in o.iter_mut().zip(&u[lo..hi]) {
-                            *o = clamp_fast(*u);
-                        }
-                    }
-                    None => o.fill(0.0),
+                fast::init(o, up.map(|u| &u[lo..hi]));
+                for (t, (x, a)) in terms.iter().zip(&locals) {
+                    t.add(o, x.map(|x| &x[lo..hi]), a.map(|a| &a[lo / 2..hi / 2]));
                 }
-                for t in &terms {
-                    t.add(o, lo, hi);
-                }
-                for o in o.iter_mut() {
-                    *o = saturate(*o);
-                }
+                fast::finish(o);
             }
         });
         Ok(())
@@ -294,93 +275,5 @@ impl Operator for Accumulate {
         }
         *self = next;
         Ok(())
-    }
-}
-
-/// The six channel factors repeated over four pixels, the unit of the vector loops.
-fn repeat24(c: &[f32; 6]) -> [f32; 24] {
-    std::array::from_fn(|k| c[k % 6])
-}
-
-/// One local input's contribution in the fast version.
-enum Term<'a> {
-    Plain(&'a [f32], [f32; 24]),
-    /// Uniform ambient fold; the illumination may be absent (an empty band still adds `c^d`).
-    Uniform(Option<&'a [f32]>, [f32; 24]),
-    Masked(Option<&'a [f32]>, &'a [f32], [f32; 6]),
-}
-
-/// Eq. 6 with `I^a = 1`: 1 on the diffuse channels, 0 (an exact no-op) on the specular ones.
-const UNIFORM_AMBIENT: [f32; 24] = {
-    let mut a = [0.0; 24];
-    let mut k = 0;
-    while k < 24 {
-        if k % 6 < 3 {
-            a[k] = 1.0;
-        }
-        k += 1;
-    }
-    a
-};
-
-impl Term<'_> {
-    /// Adds this term to `o`, the block of channels `lo..hi` of the band.
-    #[inline]
-    fn add(&self, o: &mut [f32], lo: usize, hi: usize) {
-        match self {
-            Term::Plain(x, c) => madd::<false>(o, &x[lo..hi], c),
-            Term::Uniform(Some(x), c) => madd::<true>(o, &x[lo..hi], c),
-            Term::Uniform(None, c) => {
-                for o4 in o.chunks_mut(24) {
-                    for ((o, a), c) in o4.iter_mut().zip(&UNIFORM_AMBIENT).zip(c) {
-                        *o += *c * *a;
-                    }
-                }
-            }
-            Term::Masked(x, a, c) => {
-                let a = &a[lo / 2..hi / 2];
-                let x = x.map(|x| &x[lo..hi]);
-                for (px, (o, a)) in o.chunks_exact_mut(6).zip(a.chunks_exact(3)).enumerate() {
-                    let x: [f32; 6] = match x {
-                        Some(x) => std::array::from_fn(|k| clamp_fast(x[px * 6 + k])),
-                        None => [0.0; 6],
-                    };
-                    for k in 0..3 {
-                        o[k] += c[k] * (x[k] + clamp_fast(a[k]));
-                    }
-                    for k in 3..6 {
-                        o[k] += c[k] * x[k];
-                    }
-                }
-            }
-        }
-    }
-}
-
-/// `o += c ⊙ clamp(x)`, or with `FOLD` `o += c ⊙ (clamp(x) + I^a)` for `I^a = 1` (adding the zero
-/// of the specular channels is exact), over whole groups of four pixels, then the rest.
-#[inline(always)]
-fn madd<const FOLD: bool>(o: &mut [f32], x: &[f32], c: &[f32; 24]) {
-    let term = |x: f32, k: usize| {
-        if FOLD {
-            clamp_fast(x) + UNIFORM_AMBIENT[k]
-        } else {
-            clamp_fast(x)
-        }
-    };
-    let mut oc = o.chunks_exact_mut(24);
-    let mut xc = x.chunks_exact(24);
-    for (o, x) in (&mut oc).zip(&mut xc) {
-        for k in 0..24 {
-            o[k] += c[k] * term(x[k], k);
-        }
-    }
-    for (k, (o, x)) in oc
-        .into_remainder()
-        .iter_mut()
-        .zip(xc.remainder())
-        .enumerate()
-    {
-        *o += c[k] * term(*x, k);
     }
 }
