@@ -38,7 +38,7 @@ fn every_builtin_builds_small_with_its_samples() {
 #[test]
 fn balls_and_box_are_at_least_a_fifth_in_shadow() {
     let mut thin = Vec::new();
-    for name in ["balls", "box", "plant", "cornell"] {
+    for name in ["balls", "box", "plant", "animal", "cornell"] {
         let s = builtin(name).unwrap();
         let view = support::render(&s, &scene_samples(&s), 200, 150);
         let f = view.shadow_fraction();

@@ -3,6 +3,7 @@
 //!
 //! They need no files: the Fox model of "animal" is compiled into the crate.
 
+mod animal;
 mod balls;
 mod boxes;
 mod cornell;
@@ -13,7 +14,7 @@ use crate::error::SceneError;
 use crate::model::{Camera, Light, LightShape, Material, Scene};
 use crate::shading::{V3, normalize, sub};
 
-const NAMES: &[&str] = &["balls", "box", "plant", "cornell"];
+const NAMES: &[&str] = &["balls", "box", "plant", "animal", "cornell"];
 
 /// The names [`builtin`] accepts; the first is the default scene.
 pub fn builtin_names() -> &'static [&'static str] {
@@ -26,6 +27,7 @@ pub fn builtin(name: &str) -> Result<Scene, SceneError> {
         "balls" => balls::build(),
         "box" => boxes::build(),
         "plant" => plant::build(),
+        "animal" => animal::build()?,
         "cornell" => cornell::build(),
         _ => {
             return Err(SceneError::UnknownBuiltin {

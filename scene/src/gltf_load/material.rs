@@ -1,0 +1,234 @@
+//! glTF materials and base-colour textures → lightfold materials.
+//!
+//! Metallic-roughness maps onto the paper's Blinn-Phong terms (documented in `docs/scenes.md`):
+//! `m^d = baseColor·(1 − metallic)`, `m^s = mix(0.04, baseColor, metallic)`, and with
+//! `α = roughness²` the exponent `s = 2/α² − 2` (the Beckmann-matched Blinn-Phong exponent),
+//! clamped to `[1, 2048]`. The base-colour texture multiplies `m^d`; a metallic-roughness texture
+//! contributes its mean metallic and roughness (the Blinn-Phong terms are per material).
+
+use super::accessor::Buffers;
+use crate::model::{AlphaMode, Material, Texture};
+use std::collections::{BTreeSet, HashMap};
+use std::path::Path;
+
+pub(super) const MIN_SHININESS: f32 = 1.0;
+pub(super) const MAX_SHININESS: f32 = 2048.0;
+
+/// The Blinn-Phong exponent for a glTF roughness (see the module comment).
+pub fn shininess_from_roughness(roughness: f32) -> f32 {
+    let r = if roughness.is_finite() {
+        roughness.clamp(0.0, 1.0)
+    } else {
+        1.0
+    };
+    let alpha = r * r;
+    let s = 2.0 / (alpha * alpha).max(1e-12) - 2.0;
+    s.clamp(MIN_SHININESS, MAX_SHININESS)
+}
+
+/// Converts materials and decodes the base-colour textures they use (each image once).
+pub(super) struct MaterialLoader<'a> {
+    pub bufs: &'a Buffers,
+    pub base: Option<&'a Path>,
+    pub ignored: &'a mut BTreeSet<String>,
+    pub textures: Vec<Texture>,
+    cache: HashMap<usize, usize>,
+    means: HashMap<usize, (f32, f32)>,
+}
+
+impl<'a> MaterialLoader<'a> {
+    pub fn new(
+        bufs: &'a Buffers,
+        base: Option<&'a Path>,
+        ignored: &'a mut BTreeSet<String>,
+    ) -> Self {
+        MaterialLoader {
+            bufs,
+            base,
+            ignored,
+            textures: Vec::new(),
+            cache: HashMap::new(),
+            means: HashMap::new(),
+        }
+    }
+
+    pub fn convert(&mut self, m: &gltf::Material) -> Result<Material, String> {
+        let pbr = m.pbr_metallic_roughness();
+        let base = pbr.base_color_factor();
+        // Without the texture's mean, a model relying on it (default factor 1) turns black.
+        let (mean_roughness, mean_metallic) = match pbr.metallic_roughness_texture() {
+            Some(info) => {
+                self.ignored
+                    .insert("metallic-roughness texture detail (its mean used)".into());
+                self.mean_roughness_metallic(&info.texture())?
+            }
+            None => (1.0, 1.0),
+        };
+        let metallic = (pbr.metallic_factor() * mean_metallic).clamp(0.0, 1.0);
+        let roughness = pbr.roughness_factor() * mean_roughness;
+        let rgb = [base[0], base[1], base[2]];
+        let diffuse = rgb.map(|c| c * (1.0 - metallic));
+        let specular = rgb.map(|c| 0.04 + (c - 0.04) * metallic);
+        let alpha_mode = match m.alpha_mode() {
+            gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
+            gltf::material::AlphaMode::Mask => AlphaMode::Mask {
+                cutoff: m.alpha_cutoff().unwrap_or(0.5),
+            },
+            gltf::material::AlphaMode::Blend => AlphaMode::Mask { cutoff: 0.5 },
+        };
+        let strength = m.emissive_strength().unwrap_or(1.0);
+        let diffuse_texture = match pbr.base_color_texture() {
+            Some(info) => {
+                if info.tex_coord() != 0 {
+                    self.ignored
+                        .insert("base-colour textures on TEXCOORD_1+ (TEXCOORD_0 used)".into());
+                }
+                Some(self.texture(&info.texture())?)
+            }
+            None => None,
+        };
+        if m.normal_texture().is_some() {
+            self.ignored.insert("normal textures".into());
+        }
+        if m.occlusion_texture().is_some() {
+            self.ignored.insert("occlusion textures".into());
+        }
+        if m.emissive_texture().is_some() {
+            self.ignored
+                .insert("emissive textures (emissive factor used alone)".into());
+        }
+        Ok(Material {
+            name: m.name().unwrap_or("material").to_string(),
+            diffuse,
+            diffuse_texture,
+            specular,
+            shininess: shininess_from_roughness(roughness),
+            ambient: [0.0; 3],
+            emissive: m.emissive_factor().map(|c| c * strength),
+            alpha: base[3],
+            alpha_mode,
+            double_sided: m.double_sided(),
+        })
+    }
+
+    fn texture(&mut self, t: &gltf::Texture) -> Result<usize, String> {
+        let sampler = t.sampler();
+        if sampler.wrap_s() != gltf::texture::WrappingMode::Repeat
+            || sampler.wrap_t() != gltf::texture::WrappingMode::Repeat
+        {
+            self.ignored
+                .insert("texture wrap modes other than REPEAT".into());
+        }
+        let image = t.source();
+        if let Some(&k) = self.cache.get(&image.index()) {
+            return Ok(k);
+        }
+        let (name, decoded) = self.decode(&image)?;
+        self.textures.push(Texture {
+            name,
+            width: decoded.width(),
+            height: decoded.height(),
+            srgb: true,
+            rgba8: decoded.into_raw(),
+        });
+        let k = self.textures.len() - 1;
+        self.cache.insert(image.index(), k);
+        Ok(k)
+    }
+
+    /// Mean (roughness, metallic) of a metallic-roughness texture (green and blue channels).
+    fn mean_roughness_metallic(&mut self, t: &gltf::Texture) -> Result<(f32, f32), String> {
+        let image = t.source();
+        if let Some(&m) = self.means.get(&image.index()) {
+            return Ok(m);
+        }
+        let (_, decoded) = self.decode(&image)?;
+        let (mut g, mut b) = (0u64, 0u64);
+        for px in decoded.pixels() {
+            g += px.0[1] as u64;
+            b += px.0[2] as u64;
+        }
+        let n = (decoded.width() as u64 * decoded.height() as u64).max(1) as f32 * 255.0;
+        let m = (g as f32 / n, b as f32 / n);
+        self.means.insert(image.index(), m);
+        Ok(m)
+    }
+
+    fn decode(&self, image: &gltf::Image) -> Result<(String, image::RgbaImage), String> {
+        let name = image
+            .name()
+            .map(str::to_string)
+            .unwrap_or_else(|| format!("image {}", image.index()));
+        let bytes = match image.source() {
+            gltf::image::Source::View { view, .. } => self.bufs.view_bytes(&view)?.to_vec(),
+            gltf::image::Source::Uri { uri, .. } => read_uri(uri, self.base)?,
+        };
+        let decoded = image::load_from_memory(&bytes)
+            .map_err(|e| format!("texture {name}: cannot decode: {e}"))?
+            .to_rgba8();
+        Ok((name, decoded))
+    }
+}
+
+/// The bytes behind a buffer or image URI: a base64 data URI or a path relative to `base`.
+pub(super) fn read_uri(uri: &str, base: Option<&Path>) -> Result<Vec<u8>, String> {
+    if uri.starts_with("data:") {
+        return gltf::buffer::Data::from_source(gltf::buffer::Source::Uri(uri), None)
+            .map(|d| d.0)
+            .map_err(|e| format!("bad data URI: {e}"));
+    }
+    if uri.contains(':') {
+        return Err(format!("unsupported URI scheme in {uri:?}"));
+    }
+    let rel = percent_decode(uri)?;
+    let base = base.ok_or_else(|| {
+        format!("{rel:?} is an external file but the glTF was given as bytes without a folder")
+    })?;
+    let path = base.join(&rel);
+    std::fs::read(&path).map_err(|e| format!("cannot read {}: {e}", path.display()))
+}
+
+/// RFC 3986 percent-decoding of a relative URI (the `gltf` crate's own decoder panics on bad
+/// UTF-8).
+fn percent_decode(uri: &str) -> Result<String, String> {
+    let b = uri.as_bytes();
+    let mut out = Vec::with_capacity(b.len());
+    let mut i = 0;
+    while i < b.len() {
+        if b[i] == b'%' {
+            let hex = b
+                .get(i + 1..i + 3)
+                .and_then(|h| std::str::from_utf8(h).ok())
+                .and_then(|h| u8::from_str_radix(h, 16).ok())
+                .ok_or_else(|| format!("bad percent-encoding in URI {uri:?}"))?;
+            out.push(hex);
+            i += 3;
+        } else {
+            out.push(b[i]);
+            i += 1;
+        }
+    }
+    String::from_utf8(out).map_err(|_| format!("URI {uri:?} does not decode to UTF-8"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn roughness_maps_to_a_clamped_exponent() {
+        assert_eq!(shininess_from_roughness(1.0), MIN_SHININESS);
+        assert_eq!(shininess_from_roughness(0.0), MAX_SHININESS);
+        // roughness 0.5: α = 0.25, s = 2/0.0625 − 2 = 30.
+        assert!((shininess_from_roughness(0.5) - 30.0).abs() < 1e-4);
+        assert_eq!(shininess_from_roughness(f32::NAN), MIN_SHININESS);
+    }
+
+    #[test]
+    fn percent_decoding() {
+        assert_eq!(percent_decode("a%20b.png").unwrap(), "a b.png");
+        assert!(percent_decode("bad%zz").is_err());
+        assert!(percent_decode("bad%ff").is_err());
+        assert!(percent_decode("cut%2").is_err());
+    }
+}

@@ -1,0 +1,262 @@
+//! glTF mesh primitives → world-space lightfold meshes: node transforms (normals by the inverse
+//! transpose, winding flipped under mirroring), skinned meshes in their rest pose (joint nodes at
+//! their authored transforms), triangle strips and fans, and flat normals where none are given.
+
+use super::accessor::{Buffers, ReadResult};
+use crate::model::Mesh;
+use crate::shading::{cross, normalize, sub};
+use glam::{Mat3, Mat4, Vec3};
+use gltf::Semantic;
+use gltf::accessor::Dimensions;
+use gltf::mesh::Mode;
+use std::collections::BTreeSet;
+
+/// What a node's meshes need from the rest of the document.
+pub(super) struct NodeContext<'a> {
+    pub bufs: &'a Buffers,
+    /// World matrix of every node.
+    pub world: &'a [Mat4],
+    pub ignored: &'a mut BTreeSet<String>,
+}
+
+/// The meshes of one node's primitives; `material` maps a glTF material index (None = default).
+pub(super) fn node_meshes(
+    node: &gltf::Node,
+    mesh: &gltf::Mesh,
+    ctx: &mut NodeContext,
+    material: &mut dyn FnMut(Option<usize>) -> usize,
+) -> ReadResult<Vec<Mesh>> {
+    let mut out = Vec::new();
+    let name = node.name().or(mesh.name()).unwrap_or("mesh");
+    for prim in mesh.primitives() {
+        let at = format!("mesh {} primitive {}", mesh.index(), prim.index());
+        let mode = prim.mode();
+        if !matches!(
+            mode,
+            Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+        ) {
+            ctx.ignored.insert("point and line primitives".into());
+            continue;
+        }
+        if prim.morph_targets().len() > 0 {
+            ctx.ignored.insert("morph targets (base shape used)".into());
+        }
+        let pos_acc = prim
+            .get(&Semantic::Positions)
+            .ok_or_else(|| format!("{at} has no POSITION attribute"))?;
+        let (pos, _) = ctx
+            .bufs
+            .read_f32(&pos_acc, &[Dimensions::Vec3], "POSITION")?;
+        let n = pos.len() / 3;
+        let attr = |sem: Semantic, dims: Dimensions, what: &str| -> ReadResult<Option<Vec<f32>>> {
+            match prim.get(&sem) {
+                None => Ok(None),
+                Some(acc) => {
+                    let (v, c) = ctx.bufs.read_f32(&acc, &[dims], what)?;
+                    if v.len() / c != n {
+                        return Err(format!(
+                            "{at}: {what} has {} elements but POSITION has {n}",
+                            v.len() / c
+                        ));
+                    }
+                    Ok(Some(v))
+                }
+            }
+        };
+        let normals = attr(Semantic::Normals, Dimensions::Vec3, "NORMAL")?;
+        let uvs = attr(Semantic::TexCoords(0), Dimensions::Vec2, "TEXCOORD_0")?;
+        if prim.get(&Semantic::Colors(0)).is_some() {
+            ctx.ignored.insert("vertex colours".into());
+        }
+        let indices: Vec<u32> = match prim.indices() {
+            Some(acc) => ctx.bufs.read_u32(&acc, &[Dimensions::Scalar], "indices")?.0,
+            None => (0..n as u32).collect(),
+        };
+        if let Some(&bad) = indices.iter().find(|&&i| i as usize >= n) {
+            return Err(format!("{at}: index {bad} is out of range ({n} vertices)"));
+        }
+        let tris = triangulate(mode, &indices);
+
+        let skinning = match node.skin() {
+            Some(skin) => skin_matrices(&skin, &prim, n, ctx, &at)?,
+            None => None,
+        };
+        let mut m = Mesh {
+            name: format!("{name}#{}", prim.index()),
+            positions: Vec::with_capacity(n),
+            normals: Vec::new(),
+            uvs: uvs
+                .map(|u| u.chunks_exact(2).map(|c| [c[0], c[1]]).collect())
+                .unwrap_or_default(),
+            indices: tris,
+            material: material(prim.material().index()),
+        };
+        let rigid = ctx.world[node.index()];
+        let rigid_normal = normal_matrix(&rigid);
+        let mut mirrored = vec![false; n];
+        let mut world_normals = Vec::with_capacity(if normals.is_some() { n } else { 0 });
+        for v in 0..n {
+            let p = Vec3::new(pos[3 * v], pos[3 * v + 1], pos[3 * v + 2]);
+            let mat = skinning.as_ref().map_or(rigid, |s| s[v]);
+            m.positions.push(mat.transform_point3(p).to_array());
+            mirrored[v] = Mat3::from_mat4(mat).determinant() < 0.0;
+            if let Some(nrm) = &normals {
+                let nm = if skinning.is_some() {
+                    normal_matrix(&mat)
+                } else {
+                    rigid_normal
+                };
+                let nv = Vec3::new(nrm[3 * v], nrm[3 * v + 1], nrm[3 * v + 2]);
+                world_normals.push(normalize((nm * nv).to_array()));
+            }
+        }
+        m.normals = world_normals;
+        // Mirroring transforms turn counter-clockwise into clockwise: swap to keep CCW front.
+        for t in m.indices.chunks_exact_mut(3) {
+            if mirrored[t[0] as usize] {
+                t.swap(1, 2);
+            }
+        }
+        if normals.is_none() {
+            m = flat_shaded(m);
+        }
+        out.push(m);
+    }
+    Ok(out)
+}
+
+fn normal_matrix(m: &Mat4) -> Mat3 {
+    let m3 = Mat3::from_mat4(*m);
+    if m3.determinant().abs() > 1e-30 {
+        m3.inverse().transpose()
+    } else {
+        m3
+    }
+}
+
+/// Triangle list from a list, strip or fan (strips alternate winding so every triangle keeps the
+/// orientation of the first).
+fn triangulate(mode: Mode, idx: &[u32]) -> Vec<u32> {
+    match mode {
+        Mode::TriangleStrip => (0..idx.len().saturating_sub(2))
+            .flat_map(|i| {
+                if i % 2 == 0 {
+                    [idx[i], idx[i + 1], idx[i + 2]]
+                } else {
+                    [idx[i + 1], idx[i], idx[i + 2]]
+                }
+            })
+            .collect(),
+        Mode::TriangleFan => (1..idx.len().saturating_sub(1))
+            .flat_map(|i| [idx[0], idx[i], idx[i + 1]])
+            .collect(),
+        _ => idx[..idx.len() - idx.len() % 3].to_vec(),
+    }
+}
+
+/// Per-vertex skinning matrices `Σ w_k · world(joint_k) · inverseBind_k` in the rest pose, or
+/// `None` when the primitive carries no joints/weights.
+fn skin_matrices(
+    skin: &gltf::Skin,
+    prim: &gltf::Primitive,
+    n: usize,
+    ctx: &NodeContext,
+    at: &str,
+) -> ReadResult<Option<Vec<Mat4>>> {
+    let (Some(ja), Some(wa)) = (
+        prim.get(&Semantic::Joints(0)),
+        prim.get(&Semantic::Weights(0)),
+    ) else {
+        return Ok(None);
+    };
+    let (joints, _) = ctx.bufs.read_u32(&ja, &[Dimensions::Vec4], "JOINTS_0")?;
+    let (weights, _) = ctx.bufs.read_f32(&wa, &[Dimensions::Vec4], "WEIGHTS_0")?;
+    if joints.len() != 4 * n || weights.len() != 4 * n {
+        return Err(format!(
+            "{at}: JOINTS_0/WEIGHTS_0 counts differ from POSITION ({n})"
+        ));
+    }
+    let joint_nodes: Vec<usize> = skin.joints().map(|j| j.index()).collect();
+    let ibm: Vec<Mat4> = match skin.inverse_bind_matrices() {
+        Some(acc) => {
+            let (v, _) = ctx
+                .bufs
+                .read_f32(&acc, &[Dimensions::Mat4], "inverseBindMatrices")?;
+            v.chunks_exact(16).map(Mat4::from_cols_slice).collect()
+        }
+        None => vec![Mat4::IDENTITY; joint_nodes.len()],
+    };
+    if ibm.len() < joint_nodes.len() {
+        return Err(format!(
+            "skin {}: {} inverse bind matrices for {} joints",
+            skin.index(),
+            ibm.len(),
+            joint_nodes.len()
+        ));
+    }
+    let joint_mats: Vec<Mat4> = joint_nodes
+        .iter()
+        .zip(&ibm)
+        .map(|(&j, ib)| ctx.world[j] * *ib)
+        .collect();
+    let mut out = Vec::with_capacity(n);
+    for v in 0..n {
+        let mut m = Mat4::ZERO;
+        let mut total = 0.0;
+        for k in 0..4 {
+            let w = weights[4 * v + k];
+            if w == 0.0 {
+                continue;
+            }
+            let j = joints[4 * v + k] as usize;
+            let jm = joint_mats.get(j).ok_or_else(|| {
+                format!(
+                    "{at}: joint {j} is out of range (skin has {})",
+                    joint_mats.len()
+                )
+            })?;
+            m += *jm * w;
+            total += w;
+        }
+        // Weights should sum to one; renormalise small drift, fall back to the first joint.
+        out.push(if total > 1e-6 {
+            m * (1.0 / total)
+        } else {
+            joint_mats.first().copied().unwrap_or(Mat4::IDENTITY)
+        });
+    }
+    Ok(Some(out))
+}
+
+/// Unwelds the mesh so every triangle gets its own vertices with the face normal.
+fn flat_shaded(m: Mesh) -> Mesh {
+    let Mesh {
+        name,
+        positions,
+        uvs,
+        indices,
+        material,
+        ..
+    } = m;
+    let mut out = Mesh {
+        name,
+        positions: Vec::with_capacity(indices.len()),
+        normals: Vec::with_capacity(indices.len()),
+        uvs: Vec::new(),
+        indices: Vec::with_capacity(indices.len()),
+        material,
+    };
+    for t in indices.chunks_exact(3) {
+        let p = [0, 1, 2].map(|k| positions[t[k] as usize]);
+        let nrm = normalize(cross(sub(p[1], p[0]), sub(p[2], p[0])));
+        for (k, &i) in t.iter().enumerate() {
+            out.indices.push(out.positions.len() as u32);
+            out.positions.push(p[k]);
+            out.normals.push(nrm);
+            if !uvs.is_empty() {
+                out.uvs.push(uvs[i as usize]);
+            }
+        }
+    }
+    out
+}

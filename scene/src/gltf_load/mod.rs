@@ -1,0 +1,382 @@
+//! glTF 2.0 loading (`.gltf` with external or embedded buffers, `.glb`) into a world-space
+//! [`Scene`]: meshes through the node hierarchy, materials, base-colour textures,
+//! KHR_lights_punctual (candela and lux read 1:1 as W/sr and W/m²), perspective cameras and skinned
+//! meshes in their rest pose. Features it does not use are listed in one warning.
+//!
+//! Untrusted input: every index and byte range is checked here; the `gltf` crate is known to
+//! panic on some malformed input (URI decoding, its accessor reader), so the walk over the
+//! document is additionally guarded and a panic becomes an error naming the file.
+
+mod accessor;
+mod material;
+mod mesh;
+
+pub use material::shininess_from_roughness;
+
+use crate::error::SceneError;
+use crate::framing;
+use crate::model::{Camera, Light, LightShape, Material, Scene};
+use crate::shading::normalize;
+use accessor::Buffers;
+use glam::{Mat4, Quat, Vec3};
+use std::collections::BTreeSet;
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::path::Path;
+
+/// How a glTF is placed and completed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GltfOptions {
+    /// Uniform scale applied at the root (e.g. 0.01 for a model in centimetres).
+    pub scale: f32,
+    /// Translation applied at the root after scaling.
+    pub translation: [f32; 3],
+    /// Add a framed camera when the file has none, and a ground plane and area light when it has
+    /// no lights ([`crate::framing::complete`]).
+    pub complete: bool,
+}
+
+impl Default for GltfOptions {
+    fn default() -> Self {
+        GltfOptions {
+            scale: 1.0,
+            translation: [0.0; 3],
+            complete: true,
+        }
+    }
+}
+
+/// A converted document before completion.
+pub(crate) struct Imported {
+    pub scene: Scene,
+    pub has_camera: bool,
+}
+
+/// Loads a `.gltf` or `.glb` file with default options.
+pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
+    load_gltf_with(path, &GltfOptions::default())
+}
+
+/// Loads a `.gltf` or `.glb` file.
+pub fn load_gltf_with(path: &Path, opts: &GltfOptions) -> Result<Scene, SceneError> {
+    let label = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|e| SceneError::Io {
+        path: label.clone(),
+        message: e.to_string(),
+    })?;
+    let name = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "gltf".into());
+    let imported = import(&bytes, &label, &name, path.parent(), opts)?;
+    Ok(finish(imported, opts))
+}
+
+/// Loads glTF or GLB bytes; `label` names them in errors, `base` resolves relative URIs.
+pub fn load_gltf_slice(
+    bytes: &[u8],
+    label: &str,
+    base: Option<&Path>,
+    opts: &GltfOptions,
+) -> Result<Scene, SceneError> {
+    Ok(finish(import(bytes, label, label, base, opts)?, opts))
+}
+
+fn finish(mut imported: Imported, opts: &GltfOptions) -> Scene {
+    if opts.complete {
+        framing::complete(&mut imported.scene, imported.has_camera);
+    }
+    let report = imported.scene.sanitize();
+    if !report.is_clean() {
+        tracing::warn!(scene = %imported.scene.name, %report, "glTF geometry sanitised");
+    }
+    imported.scene
+}
+
+pub(crate) fn import(
+    bytes: &[u8],
+    label: &str,
+    name: &str,
+    base: Option<&Path>,
+    opts: &GltfOptions,
+) -> Result<Imported, SceneError> {
+    let err = |message: String| SceneError::Gltf {
+        path: label.to_string(),
+        message,
+    };
+    let parsed = catch_unwind(|| gltf::Gltf::from_slice(bytes))
+        .map_err(|p| err(format!("the glTF parser panicked: {}", panic_text(&p))))?;
+    let gltf = parsed.map_err(|e| err(describe(&e)))?;
+    let walk = catch_unwind(AssertUnwindSafe(|| {
+        convert(&gltf.document, gltf.blob.as_deref(), name, base, opts)
+    }));
+    match walk {
+        Ok(r) => r.map_err(err),
+        Err(p) => Err(err(format!("the glTF walk panicked: {}", panic_text(&p)))),
+    }
+}
+
+fn panic_text(p: &Box<dyn std::any::Any + Send>) -> String {
+    p.downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| p.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".into())
+}
+
+fn describe(e: &gltf::Error) -> String {
+    match e {
+        gltf::Error::Validation(list) => {
+            let items: Vec<String> = list
+                .iter()
+                .take(8)
+                .map(|(path, err)| format!("{path}: {err}"))
+                .collect();
+            format!("validation failed: {}", items.join("; "))
+        }
+        gltf::Error::Binary(b) => format!("truncated or malformed GLB container: {b}"),
+        gltf::Error::Deserialize(j) => format!("malformed JSON: {j}"),
+        other => other.to_string(),
+    }
+}
+
+fn convert(
+    doc: &gltf::Document,
+    blob: Option<&[u8]>,
+    name: &str,
+    base: Option<&Path>,
+    opts: &GltfOptions,
+) -> Result<Imported, String> {
+    let mut ignored = BTreeSet::new();
+    let bufs = load_buffers(doc, blob, base)?;
+    let root = Mat4::from_scale_rotation_translation(
+        Vec3::splat(opts.scale),
+        Quat::IDENTITY,
+        Vec3::from(opts.translation),
+    );
+    let world = world_matrices(doc, root)?;
+
+    let mut scene = Scene::new(name);
+    let mut loader = material::MaterialLoader::new(&bufs, base, &mut ignored);
+    for m in doc.materials() {
+        let converted = loader.convert(&m)?;
+        scene.materials.push(converted);
+    }
+    scene.textures = std::mem::take(&mut loader.textures);
+    let mut default_material = None;
+    let mut has_camera = false;
+
+    let mut ctx = mesh::NodeContext {
+        bufs: &bufs,
+        world: &world,
+        ignored: &mut ignored,
+    };
+    for node in scene_nodes(doc)? {
+        let w = world[node.index()];
+        if let Some(m) = node.mesh() {
+            let mut pick = |i: Option<usize>| match i {
+                Some(i) => i,
+                None => *default_material.get_or_insert_with(|| {
+                    scene.materials.push(Material::diffuse("default", [0.8; 3]));
+                    scene.materials.len() - 1
+                }),
+            };
+            let meshes = mesh::node_meshes(&node, &m, &mut ctx, &mut pick)?;
+            scene.meshes.extend(meshes);
+        }
+        if let Some(light) = node.light() {
+            scene.lights.push(convert_light(&light, &w));
+        }
+        if let Some(cam) = node.camera() {
+            match cam.projection() {
+                gltf::camera::Projection::Perspective(p) if !has_camera => {
+                    scene.camera = convert_camera(&p, &w, &scene.camera);
+                    has_camera = true;
+                }
+                gltf::camera::Projection::Perspective(_) => {
+                    ctx.ignored.insert("cameras after the first".into());
+                }
+                gltf::camera::Projection::Orthographic(_) => {
+                    ctx.ignored.insert("orthographic cameras".into());
+                }
+            }
+        }
+    }
+    if doc.animations().len() > 0 {
+        ignored.insert("animations (rest pose used)".into());
+    }
+    if doc.scenes().len() > 1 {
+        ignored.insert("scenes other than the default".into());
+    }
+    for ext in doc.extensions_used() {
+        if !matches!(
+            ext,
+            "KHR_lights_punctual" | "KHR_materials_emissive_strength"
+        ) {
+            ignored.insert(format!("extension {ext}"));
+        }
+    }
+    if !ignored.is_empty() {
+        let list: Vec<String> = ignored.into_iter().collect();
+        tracing::warn!(scene = name, ignored = %list.join(", "), "glTF features ignored");
+    }
+    Ok(Imported { scene, has_camera })
+}
+
+fn load_buffers(
+    doc: &gltf::Document,
+    blob: Option<&[u8]>,
+    base: Option<&Path>,
+) -> Result<Buffers, String> {
+    let mut data = Vec::new();
+    for b in doc.buffers() {
+        let bytes = match b.source() {
+            gltf::buffer::Source::Bin => blob
+                .ok_or_else(|| {
+                    format!(
+                        "buffer {} refers to a GLB binary chunk the file lacks",
+                        b.index()
+                    )
+                })?
+                .to_vec(),
+            gltf::buffer::Source::Uri(uri) => material::read_uri(uri, base)
+                .map_err(|e| format!("buffer {} ({uri}): {e}", b.index()))?,
+        };
+        if bytes.len() < b.length() {
+            return Err(format!(
+                "buffer {} holds {} bytes but declares {}",
+                b.index(),
+                bytes.len(),
+                b.length()
+            ));
+        }
+        data.push(bytes);
+    }
+    Ok(Buffers { data })
+}
+
+/// World matrix of every node: `root · parent chain · local`. Rejects nodes with two parents and
+/// cycles (which would otherwise recurse forever).
+fn world_matrices(doc: &gltf::Document, root: Mat4) -> Result<Vec<Mat4>, String> {
+    let n = doc.nodes().len();
+    let mut parent = vec![None; n];
+    for node in doc.nodes() {
+        for child in node.children() {
+            let c = child.index();
+            if parent[c].is_some() || c == node.index() {
+                return Err(format!(
+                    "node {c} has more than one parent or is its own child"
+                ));
+            }
+            parent[c] = Some(node.index());
+        }
+    }
+    let local: Vec<Mat4> = doc
+        .nodes()
+        .map(|nd| Mat4::from_cols_array_2d(&nd.transform().matrix()))
+        .collect();
+    let mut world: Vec<Option<Mat4>> = vec![None; n];
+    for start in 0..n {
+        let mut chain = vec![start];
+        let mut at = start;
+        while world[at].is_none() {
+            match parent[at] {
+                Some(p) => {
+                    if chain.len() > n {
+                        return Err(format!("node hierarchy has a cycle through node {start}"));
+                    }
+                    chain.push(p);
+                    at = p;
+                }
+                None => break,
+            }
+        }
+        let mut acc = match world[at] {
+            Some(w) => {
+                chain.pop();
+                w
+            }
+            None => root,
+        };
+        while let Some(k) = chain.pop() {
+            acc *= local[k];
+            world[k] = Some(acc);
+        }
+    }
+    Ok(world.into_iter().map(|w| w.unwrap_or(root)).collect())
+}
+
+/// Nodes of the default scene (or the first; or every root node when there are no scenes), each
+/// once, parents before children.
+fn scene_nodes(doc: &gltf::Document) -> Result<Vec<gltf::Node<'_>>, String> {
+    let roots: Vec<gltf::Node> = match doc.default_scene().or_else(|| doc.scenes().next()) {
+        Some(s) => s.nodes().collect(),
+        None => {
+            let mut child = vec![false; doc.nodes().len()];
+            for nd in doc.nodes() {
+                for c in nd.children() {
+                    child[c.index()] = true;
+                }
+            }
+            doc.nodes().filter(|nd| !child[nd.index()]).collect()
+        }
+    };
+    let mut seen = vec![false; doc.nodes().len()];
+    let mut out = Vec::new();
+    let mut stack: Vec<gltf::Node> = roots.into_iter().rev().collect();
+    while let Some(nd) = stack.pop() {
+        if std::mem::replace(&mut seen[nd.index()], true) {
+            return Err(format!(
+                "node {} is reached twice from the scene",
+                nd.index()
+            ));
+        }
+        let children: Vec<gltf::Node> = nd.children().collect();
+        stack.extend(children.into_iter().rev());
+        out.push(nd);
+    }
+    Ok(out)
+}
+
+fn convert_light(l: &gltf::khr_lights_punctual::Light, w: &Mat4) -> Light {
+    let position = w.transform_point3(Vec3::ZERO).to_array();
+    let direction = normalize(w.transform_vector3(Vec3::NEG_Z).to_array());
+    let shape = match l.kind() {
+        gltf::khr_lights_punctual::Kind::Point => LightShape::Point { position },
+        gltf::khr_lights_punctual::Kind::Directional => LightShape::Directional { direction },
+        gltf::khr_lights_punctual::Kind::Spot {
+            inner_cone_angle,
+            outer_cone_angle,
+        } => LightShape::Spot {
+            position,
+            direction,
+            inner_angle: inner_cone_angle,
+            outer_angle: outer_cone_angle,
+        },
+    };
+    Light {
+        name: l.name().unwrap_or("light").to_string(),
+        shape,
+        color: l.color(),
+        power: l.intensity(),
+        range: l.range(),
+        samples: 1,
+    }
+}
+
+fn convert_camera(p: &gltf::camera::Perspective, w: &Mat4, current: &Camera) -> Camera {
+    let position = w.transform_point3(Vec3::ZERO);
+    let forward = w.transform_vector3(Vec3::NEG_Z).normalize_or_zero();
+    let up = w.transform_vector3(Vec3::Y).normalize_or_zero();
+    let width = current.width;
+    let height = match p.aspect_ratio() {
+        Some(a) if a.is_finite() && a > 0.0 => ((width as f32 / a).round() as u32).max(1),
+        _ => current.height,
+    };
+    Camera {
+        position: position.to_array(),
+        target: (position + forward).to_array(),
+        up: up.to_array(),
+        fov_y_deg: p.yfov().to_degrees(),
+        width,
+        height,
+    }
+}

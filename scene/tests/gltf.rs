@@ -1,0 +1,275 @@
+//! glTF loading: every public model in `../shared/scenes/` loads, is completed with a camera,
+//! ground and area light, and is clean; broken files give errors naming the file and the problem.
+
+mod support;
+
+use lightfold_scene::sampling::scene_samples;
+use lightfold_scene::{AlphaMode, GltfOptions, SceneError, load_gltf, load_gltf_with};
+use std::path::{Path, PathBuf};
+
+fn shared(model: &str, file: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../shared/scenes")
+        .join(model)
+        .join(file)
+}
+
+#[test]
+fn public_models_load_and_are_completed() {
+    let cases = [
+        ("AlphaBlendModeTest", "AlphaBlendModeTest.gltf"),
+        ("BoxTextured", "BoxTextured.gltf"),
+        ("CesiumMan", "CesiumMan.gltf"),
+        ("FlightHelmet", "FlightHelmet.gltf"),
+        ("Fox", "Fox.glb"),
+    ];
+    for (model, file) in cases {
+        let t = std::time::Instant::now();
+        let s = load_gltf(&shared(model, file)).unwrap_or_else(|e| panic!("{e}"));
+        println!(
+            "{model}: {} meshes, {} triangles, {} materials, {} textures, {} lights, bounds {:?}, {:?}",
+            s.meshes.len(),
+            s.triangle_count(),
+            s.materials.len(),
+            s.textures.len(),
+            s.lights.len(),
+            s.bounds(),
+            t.elapsed()
+        );
+        assert!(s.triangle_count() > 0, "{model}");
+        assert_eq!(s.lights.len(), 1, "{model}: the framing light");
+        assert!(s.validate().is_clean(), "{model}: {}", s.validate());
+        let view = support::render(&s, &scene_samples(&s), 160, 120);
+        let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("scene-previews");
+        std::fs::create_dir_all(&dir).unwrap();
+        view.image
+            .write_png(&dir.join(format!("{model}.png")), s.exposure)
+            .unwrap();
+    }
+}
+
+/// A scratch folder for hand-made files, unique per test.
+fn scratch(test: &str) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+        .join("gltf-broken")
+        .join(test);
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+/// One triangle: three positions then three u16 indices (padded), as a .gltf + .bin pair.
+/// `edit` may change the JSON text before it is written.
+fn triangle_case(test: &str, indices: [u16; 3], edit: impl Fn(String) -> String) -> PathBuf {
+    let dir = scratch(test);
+    let mut bin = Vec::new();
+    for p in [[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
+        for c in p {
+            bin.extend_from_slice(&c.to_le_bytes());
+        }
+    }
+    for i in indices {
+        bin.extend_from_slice(&i.to_le_bytes());
+    }
+    bin.extend_from_slice(&[0, 0]);
+    std::fs::write(dir.join("tri.bin"), &bin).unwrap();
+    let json = r#"{
+  "asset": {"version": "2.0"},
+  "scene": 0,
+  "scenes": [{"nodes": [0]}],
+  "nodes": [{"mesh": 0}],
+  "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+  "buffers": [{"uri": "tri.bin", "byteLength": 44}],
+  "bufferViews": [
+    {"buffer": 0, "byteOffset": 0, "byteLength": 36},
+    {"buffer": 0, "byteOffset": 36, "byteLength": 6}
+  ],
+  "accessors": [
+    {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+     "min": [0, 0, 0], "max": [1, 1, 0]},
+    {"bufferView": 1, "componentType": 5123, "count": 3, "type": "SCALAR"}
+  ]
+}"#;
+    let path = dir.join("tri.gltf");
+    std::fs::write(&path, edit(json.to_string())).unwrap();
+    path
+}
+
+fn expect_error(path: &Path, words: &[&str]) -> String {
+    let err = match load_gltf(path) {
+        Ok(_) => panic!("{} loaded but is broken", path.display()),
+        Err(e) => e,
+    };
+    let text = err.to_string();
+    assert!(text.contains(&path.display().to_string()), "{text}");
+    for w in words {
+        assert!(text.contains(w), "{text:?} lacks {w:?}");
+    }
+    text
+}
+
+#[test]
+fn a_hand_made_triangle_loads_with_flat_normals() {
+    let path = triangle_case("good", [0, 1, 2], |j| j);
+    let opts = GltfOptions {
+        complete: false,
+        ..GltfOptions::default()
+    };
+    let s = load_gltf_with(&path, &opts).unwrap();
+    assert_eq!(s.triangle_count(), 1);
+    assert_eq!(s.meshes[0].normals, vec![[0.0, 0.0, 1.0]; 3]);
+    assert!(s.lights.is_empty());
+    // The default material (none given) is a grey diffuse.
+    assert_eq!(s.materials[s.meshes[0].material].diffuse, [0.8; 3]);
+    let completed = load_gltf(&path).unwrap();
+    assert_eq!(completed.lights.len(), 1);
+    assert_eq!(completed.meshes.len(), 2, "the ground plane is added");
+}
+
+#[test]
+fn truncated_glb_is_an_error() {
+    let dir = scratch("truncated");
+    let bytes = std::fs::read(shared("Fox", "Fox.glb")).unwrap();
+    for cut in [10, 20, 1000, bytes.len() / 2, bytes.len() - 1] {
+        let path = dir.join(format!("cut{cut}.glb"));
+        std::fs::write(&path, &bytes[..cut]).unwrap();
+        println!("{}", expect_error(&path, &["invalid glTF"]));
+    }
+}
+
+#[test]
+fn missing_buffer_file_is_an_error() {
+    let dir = scratch("missing-bin");
+    let src = shared("BoxTextured", "BoxTextured.gltf");
+    let path = dir.join("BoxTextured.gltf");
+    std::fs::copy(src, &path).unwrap();
+    println!("{}", expect_error(&path, &["buffer 0", "BoxTextured0.bin"]));
+}
+
+#[test]
+fn short_buffer_is_an_error() {
+    let path = triangle_case("short-bin", [0, 1, 2], |j| {
+        j.replace("\"byteLength\": 44", "\"byteLength\": 400")
+    });
+    println!(
+        "{}",
+        expect_error(&path, &["buffer 0 holds 44 bytes but declares 400"])
+    );
+}
+
+#[test]
+fn bad_accessors_are_errors() {
+    // More elements than the view holds.
+    let path = triangle_case("count", [0, 1, 2], |j| {
+        j.replace(
+            "\"count\": 3, \"type\": \"VEC3\"",
+            "\"count\": 30, \"type\": \"VEC3\"",
+        )
+    });
+    println!(
+        "{}",
+        expect_error(&path, &["accessor 0", "POSITION", "exceed buffer view 0"])
+    );
+    // A view that runs past its buffer.
+    let path = triangle_case("view", [0, 1, 2], |j| {
+        j.replace(
+            "\"byteOffset\": 36, \"byteLength\": 6",
+            "\"byteOffset\": 40, \"byteLength\": 6",
+        )
+    });
+    println!("{}", expect_error(&path, &["buffer view 1"]));
+    // Positions declared as VEC2.
+    let path = triangle_case("type", [0, 1, 2], |j| {
+        j.replace(
+            "\"count\": 3, \"type\": \"VEC3\"",
+            "\"count\": 3, \"type\": \"VEC2\"",
+        )
+    });
+    println!("{}", expect_error(&path, &["accessor 0"]));
+    // An accessor index that does not exist.
+    let path = triangle_case("dangling", [0, 1, 2], |j| {
+        j.replace("\"indices\": 1", "\"indices\": 7")
+    });
+    println!("{}", expect_error(&path, &["validation failed"]));
+}
+
+#[test]
+fn out_of_range_vertex_index_is_an_error() {
+    let path = triangle_case("index", [0, 1, 9], |j| j);
+    println!(
+        "{}",
+        expect_error(&path, &["index 9 is out of range (3 vertices)"])
+    );
+}
+
+#[test]
+fn malformed_structure_is_an_error() {
+    let path = triangle_case("json", [0, 1, 2], |j| j[..j.len() / 2].to_string());
+    println!("{}", expect_error(&path, &["invalid glTF"]));
+    let path = triangle_case("cycle", [0, 1, 2], |j| {
+        j.replace(
+            "\"nodes\": [{\"mesh\": 0}]",
+            "\"nodes\": [{\"mesh\": 0, \"children\": [1]}, {\"children\": [0]}]",
+        )
+    });
+    println!("{}", expect_error(&path, &["node"]));
+    let path = triangle_case("uri", [0, 1, 2], |j| {
+        j.replace("\"uri\": \"tri.bin\"", "\"uri\": \"tri%ff.bin\"")
+    });
+    println!("{}", expect_error(&path, &["UTF-8"]));
+    let path = triangle_case("scheme", [0, 1, 2], |j| {
+        j.replace(
+            "\"uri\": \"tri.bin\"",
+            "\"uri\": \"http://example.invalid/tri.bin\"",
+        )
+    });
+    println!("{}", expect_error(&path, &["unsupported URI scheme"]));
+}
+
+#[test]
+fn missing_file_is_an_io_error() {
+    let path = scratch("absent").join("absent.glb");
+    assert!(matches!(load_gltf(&path), Err(SceneError::Io { .. })));
+}
+
+#[test]
+fn alpha_modes_and_textures_are_read() {
+    let s = load_gltf(&shared("AlphaBlendModeTest", "AlphaBlendModeTest.gltf")).unwrap();
+    let masks = s
+        .materials
+        .iter()
+        .filter(|m| matches!(m.alpha_mode, AlphaMode::Mask { .. }))
+        .count();
+    assert!(masks >= 2, "MASK and BLEND materials become masks: {masks}");
+    let cutoffs: Vec<f32> = s
+        .materials
+        .iter()
+        .filter_map(|m| match m.alpha_mode {
+            AlphaMode::Mask { cutoff } => Some(cutoff),
+            AlphaMode::Opaque => None,
+        })
+        .collect();
+    assert!(cutoffs.contains(&0.5), "{cutoffs:?}");
+    let tex = &s.textures[0];
+    assert!(tex.srgb);
+    assert_eq!(tex.rgba8.len(), (tex.width * tex.height * 4) as usize);
+    let boxed = load_gltf(&shared("BoxTextured", "BoxTextured.gltf")).unwrap();
+    assert!(boxed.materials.iter().any(|m| m.diffuse_texture.is_some()));
+}
+
+#[test]
+fn fox_is_scaled_and_skinned_upright() {
+    let opts = GltfOptions {
+        scale: 0.01,
+        complete: false,
+        ..GltfOptions::default()
+    };
+    let s = load_gltf_with(&shared("Fox", "Fox.glb"), &opts).unwrap();
+    let (lo, hi) = s.bounds().unwrap();
+    // The rest pose stands on the ground, under a metre tall, about 1.5 m nose to tail.
+    assert!(
+        lo[1].abs() < 0.02 && (0.5..1.0).contains(&hi[1]),
+        "{lo:?} {hi:?}"
+    );
+    assert!((1.0..2.0).contains(&(hi[2] - lo[2])), "{lo:?} {hi:?}");
+}
