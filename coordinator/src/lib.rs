@@ -4,5 +4,6 @@
 //! Must not depend on wgpu or the node crate.
 
 pub mod cluster;
-
+pub mod control;
 pub mod plan;
+pub mod report;

@@ -1,0 +1,179 @@
+//! The coordinator's sink: accepts the sink compositor's data link and assembles final radiance
+//! frames from bands.
+
+use lightfold_net::{Identity, NetError, Timeouts};
+use lightfold_protocol::frame::Frame;
+use lightfold_protocol::{Layer, PixelFormat, format};
+use lightfold_scene::Image;
+use std::collections::BTreeMap;
+use std::time::Instant;
+use tokio::net::TcpListener;
+use tokio::sync::mpsc;
+use tokio_util::sync::CancellationToken;
+
+/// A finished frame as received from the sink compositor.
+#[derive(Debug)]
+pub struct SinkFrame {
+    pub epoch: u64,
+    pub frame: u64,
+    pub image: Image,
+    pub bytes: u64,
+    pub received_at: Instant,
+}
+
+/// Something the sink saw.
+#[derive(Debug)]
+pub enum SinkEvent {
+    Frame(SinkFrame),
+    Error(String),
+}
+
+/// The frame geometry the sink expects (set by the coordinator for each plan epoch).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SinkGeometry {
+    pub epoch: u64,
+    pub width: u32,
+    pub height: u32,
+    pub band_height: u32,
+}
+
+struct Partial {
+    image: Image,
+    bands: u32,
+    bytes: u64,
+}
+
+/// Runs the sink until cancelled: every accepted link streams radiance bands; frames are sent on
+/// `out` when all their bands arrived.
+pub async fn run_sink(
+    listener: TcpListener,
+    me: Identity,
+    timeouts: Timeouts,
+    geometry: tokio::sync::watch::Receiver<SinkGeometry>,
+    out: mpsc::Sender<SinkEvent>,
+    cancel: CancellationToken,
+) {
+    loop {
+        let accepted = tokio::select! {
+            _ = cancel.cancelled() => return,
+            a = listener.accept() => a,
+        };
+        let stream = match accepted {
+            Ok((s, _)) => s,
+            Err(e) => {
+                let _ = out.send(SinkEvent::Error(format!("sink accept failed: {e}"))).await;
+                continue;
+            }
+        };
+        let (me, out, geometry, cancel) = (me.clone(), out.clone(), geometry.clone(), cancel.clone());
+        tokio::spawn(async move {
+            match lightfold_net::accept(stream, &me, timeouts).await {
+                Ok(link) => {
+                    let addr = link.addr.clone();
+                    if let Err(e) = receive(link, geometry, &out, cancel).await {
+                        let _ = out.send(SinkEvent::Error(format!("sink link from {addr}: {e}"))).await;
+                    }
+                }
+                Err(e) => {
+                    let _ = out.send(SinkEvent::Error(format!("sink handshake: {e}"))).await;
+                }
+            }
+        });
+    }
+}
+
+async fn receive(
+    link: lightfold_net::Link,
+    geometry: tokio::sync::watch::Receiver<SinkGeometry>,
+    out: &mpsc::Sender<SinkEvent>,
+    cancel: CancellationToken,
+) -> Result<(), NetError> {
+    let (mut reader, _writer) = link.split();
+    let mut partial: BTreeMap<u64, Partial> = BTreeMap::new();
+    loop {
+        let next = tokio::select! {
+            _ = cancel.cancelled() => return Ok(()),
+            n = reader.next() => n,
+        };
+        let frame = match next {
+            None => return Ok(()),
+            Some(f) => f?,
+        };
+        let (h, payload) = match frame {
+            Frame::Band(h, p) => (h, p),
+            other => {
+                let _ = out
+                    .send(SinkEvent::Error(format!(
+                        "sink got {} instead of a band",
+                        lightfold_net::describe(&other)
+                    )))
+                    .await;
+                continue;
+            }
+        };
+        let g = *geometry.borrow();
+        if h.epoch != g.epoch {
+            continue; // a band of an old plan
+        }
+        let bands = g.height.div_ceil(g.band_height.max(1));
+        let expect_y0 = h.y0;
+        let ok = h.layer == Layer::Radiance
+            && h.x0 == 0
+            && h.width == g.width
+            && expect_y0 % g.band_height.max(1) == 0
+            && h.height == g.band_height.min(g.height.saturating_sub(h.y0))
+            && h.height > 0;
+        if !ok {
+            let _ = out
+                .send(SinkEvent::Error(format!(
+                    "sink rejected band of frame {} (layer {:?}, rect {}x{}+{}+{}): does not match {}x{} bands of {}",
+                    h.frame, h.layer, h.width, h.height, h.x0, h.y0, g.width, g.height, g.band_height
+                )))
+                .await;
+            partial.remove(&h.frame);
+            continue;
+        }
+        let p = partial.entry(h.frame).or_insert_with(|| Partial {
+            image: Image::new(g.width, g.height, 3),
+            bands: 0,
+            bytes: 0,
+        });
+        if !h.empty {
+            let start = h.y0 as usize * g.width as usize * 3;
+            let len = h.height as usize * g.width as usize * 3;
+            let dst = &mut p.image.data[start..start + len];
+            if let Err(e) = unpack_into(h.format, &payload, h.scale, dst) {
+                let _ = out.send(SinkEvent::Error(format!("sink cannot unpack frame {}: {e}", h.frame))).await;
+                partial.remove(&h.frame);
+                continue;
+            }
+        }
+        p.bands += 1;
+        p.bytes += payload.len() as u64;
+        if p.bands == bands {
+            let done = partial.remove(&h.frame).expect("present");
+            // Older incomplete frames will never complete once a newer one has.
+            let stale: Vec<u64> = partial.range(..h.frame).map(|(k, _)| *k).collect();
+            for k in stale {
+                partial.remove(&k);
+                let _ = out.send(SinkEvent::Error(format!("frame {k} incomplete at the sink"))).await;
+            }
+            let _ = out
+                .send(SinkEvent::Frame(SinkFrame {
+                    epoch: h.epoch,
+                    frame: h.frame,
+                    image: done.image,
+                    bytes: done.bytes,
+                    received_at: Instant::now(),
+                }))
+                .await;
+        }
+    }
+}
+
+fn unpack_into(fmt: PixelFormat, payload: &[u8], scale: f32, dst: &mut [f32]) -> Result<(), String> {
+    if fmt.channels() != 3 {
+        return Err(format!("format {} is not a radiance format", fmt.name()));
+    }
+    format::unpack(fmt, payload, scale, dst).map_err(|e| e.to_string())
+}
