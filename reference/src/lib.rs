@@ -4,11 +4,20 @@
 //! Shares the scene model and `scene::shading` with the GPU path but no visibility code. Must not
 //! depend on tokio or wgpu.
 
+pub mod area;
 pub mod bvh;
+pub mod masks;
+pub mod metrics;
+pub mod output;
 pub mod point_sum;
 pub mod trace;
+pub mod truth;
 
+pub use area::{AreaOptions, direct_at, radiance_area, render_area};
+pub use metrics::{ErrorStats, Metrics, MetricsError, compare};
+pub use output::{ReferenceError, ReferenceMode, render_to_files};
 pub use point_sum::{
     Layers, PointSumOptions, radiance_point_sum, render_point_sum, render_point_sum_with,
 };
 pub use trace::{SurfaceHit, Tracer};
+pub use truth::{ErrorSplit, GroundTruth, noise_floor, split_error};

@@ -118,7 +118,7 @@ pub fn render_point_sum_with(
         .iter()
         .map(|s| [0, 1, 2].map(|k| colour_ratio(s.color[k], c_n[k])))
         .collect();
-    let pixels = render_pixels(&tracer, |hit, px| {
+    let pixels = render_pixels(&tracer, |_, _, hit, px| {
         accumulate_samples(
             &tracer,
             hit,
@@ -147,7 +147,7 @@ fn colour_ratio(c: f32, c_n: f32) -> f64 {
 }
 
 /// Adds `Σ w_λ·(i^d_λ, i^s_λ)·s_λ` of `samples` at `hit` into `illum`.
-pub(crate) fn accumulate_samples(
+fn accumulate_samples(
     tracer: &Tracer<'_>,
     hit: &SurfaceHit,
     samples: &[LightSample],
@@ -155,17 +155,54 @@ pub(crate) fn accumulate_samples(
     shadows: bool,
     illum: &mut [f64; 6],
 ) {
-    let mat = tracer.material(hit);
-    let p = hit.position_f32();
-    let specular = mat.has_specular();
+    let shade = Shade::new(tracer, hit);
     for (s, w) in samples.iter().zip(weights) {
-        let (id, is) =
-            shading::coefficients(s, p, hit.normal, hit.to_viewer, mat.shininess, specular);
+        shade.add(tracer, hit, s, *w, shadows, illum);
+    }
+}
+
+/// The per-hit constants of shading one sample after another.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Shade {
+    position: V3,
+    shininess: f32,
+    specular: bool,
+}
+
+impl Shade {
+    pub(crate) fn new(tracer: &Tracer<'_>, hit: &SurfaceHit) -> Shade {
+        let mat = tracer.material(hit);
+        Shade {
+            position: hit.position_f32(),
+            shininess: mat.shininess,
+            specular: mat.has_specular(),
+        }
+    }
+
+    /// Adds `w·(i^d, i^s)·s` of one sample, tracing its shadow ray only when it contributes.
+    #[inline]
+    pub(crate) fn add(
+        &self,
+        tracer: &Tracer<'_>,
+        hit: &SurfaceHit,
+        s: &LightSample,
+        w: [f64; 3],
+        shadows: bool,
+        illum: &mut [f64; 6],
+    ) {
+        let (id, is) = shading::coefficients(
+            s,
+            self.position,
+            hit.normal,
+            hit.to_viewer,
+            self.shininess,
+            self.specular,
+        );
         if id == 0.0 && is == 0.0 {
-            continue;
+            return;
         }
         if shadows && !tracer.visible(hit, s) {
-            continue;
+            return;
         }
         for k in 0..3 {
             illum[k] += w[k] * f64::from(id);
@@ -178,7 +215,7 @@ pub(crate) fn accumulate_samples(
 /// lets `light` add the illumination of covered pixels.
 pub(crate) fn render_pixels(
     tracer: &Tracer<'_>,
-    light: impl Fn(&SurfaceHit, &mut PixelLayers) + Sync,
+    light: impl Fn(u32, u32, &SurfaceHit, &mut PixelLayers) + Sync,
 ) -> Vec<PixelLayers> {
     let cam = &tracer.scene().camera;
     let (w, h) = (cam.width, cam.height);
@@ -196,7 +233,7 @@ pub(crate) fn render_pixels(
                         px.specular = mat.specular;
                         px.ambient = mat.ambient;
                         px.emissive = mat.emissive;
-                        light(&hit, &mut px);
+                        light(x, y, &hit, &mut px);
                     }
                     px
                 })

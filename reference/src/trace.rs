@@ -159,34 +159,41 @@ impl<'a> Tracer<'a> {
     }
 
     /// Whether `sample` is visible from the surface point (`s_λ ∈ {0, 1}`). The ray starts
-    /// `epsilon` off the surface on the light's side of the geometric normal and stops `epsilon`
-    /// short of the sample, so geometry the sample lies on does not shadow it.
+    /// `epsilon` off the surface on the light's side of the geometric normal and, measured from
+    /// that origin, stops `epsilon` short of the sample, so geometry the sample lies on (an
+    /// emissive mesh, a ceiling a rectangle light sits on) does not shadow it.
     pub fn visible(&self, hit: &SurfaceHit, sample: &LightSample) -> bool {
         let p = hit.position;
-        let (dir, tmax) = match sample.kind {
+        let ng = hit.geometric_normal.map(f64::from);
+        match sample.kind {
             SampleKind::Directional => {
                 let l = normalize(shading::scale(sample.direction, -1.0)).map(f64::from);
-                (l, f64::INFINITY)
+                let o = self.offset(p, ng, l);
+                self.clear(o, l, f64::INFINITY)
             }
             _ => {
-                let d = [0, 1, 2].map(|k| f64::from(sample.position[k]) - p[k]);
-                let r = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                let q = sample.position.map(f64::from);
+                let towards = [0, 1, 2].map(|k| q[k] - p[k]);
+                let o = self.offset(p, ng, towards);
+                let d = [0, 1, 2].map(|k| q[k] - o[k]);
+                let r = dot64(d, d).sqrt();
                 // Also catches a NaN distance: nothing sensible to trace.
                 if r.is_nan() || r <= 2.0 * self.epsilon {
                     return true;
                 }
-                (d.map(|c| c / r), r - self.epsilon)
+                self.clear(o, d.map(|c| c / r), r - self.epsilon)
             }
-        };
-        self.segment_clear(p, hit.geometric_normal, dir, tmax)
+        }
     }
 
-    /// Whether the segment from `p` (offset along `±ng` towards `dir`) along unit `dir` up to
-    /// `tmax` is free of accepted triangles.
-    pub fn segment_clear(&self, p: [f64; 3], ng: V3, dir: [f64; 3], tmax: f64) -> bool {
-        let ngd = ng.map(f64::from);
-        let side = if dot64(ngd, dir) >= 0.0 { 1.0 } else { -1.0 };
-        let o = [0, 1, 2].map(|k| p[k] + side * self.epsilon * ngd[k]);
+    /// `p` moved `epsilon` along `±ng`, on the side `towards` points to.
+    fn offset(&self, p: [f64; 3], ng: [f64; 3], towards: [f64; 3]) -> [f64; 3] {
+        let side = if dot64(ng, towards) >= 0.0 { 1.0 } else { -1.0 };
+        [0, 1, 2].map(|k| p[k] + side * self.epsilon * ng[k])
+    }
+
+    /// Whether the ray from `o` along unit `dir` meets no opaque triangle before `tmax`.
+    pub fn clear(&self, o: [f64; 3], dir: [f64; 3], tmax: f64) -> bool {
         !self.bvh.occluded(o, dir, 0.0, tmax, |id, u, v| {
             !self.masked_out(id, self.triangle_material(id), u, v)
         })

@@ -1,0 +1,158 @@
+//! Files from the CPU reference, for `lightfold render --reference`: the exact point sum (or the
+//! area-light truth) as linear EXR plus the sRGB PNG at the scene's exposure.
+
+use crate::area::{AreaOptions, render_area};
+use crate::point_sum::{Layers, PointSumOptions, render_point_sum_with};
+use lightfold_scene::image::ImageError;
+use lightfold_scene::{Image, LightSample, Scene};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ReferenceError {
+    #[error(transparent)]
+    Image(#[from] ImageError),
+    #[error("light {name:?} is not in scene {scene:?} (lights: {available})")]
+    UnknownLight {
+        name: String,
+        scene: String,
+        available: String,
+    },
+}
+
+/// What the CPU reference renders.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ReferenceMode {
+    /// The exact sum over the scene's point samples (what the GPU approximates).
+    PointSum,
+    /// The true area lights (what the point samples approximate).
+    AreaTruth(AreaOptions),
+}
+
+/// Which files to write.
+#[derive(Debug, Clone, Default)]
+pub struct Outputs {
+    pub exr: PathBuf,
+    /// sRGB PNG at the scene's exposure.
+    pub png: Option<PathBuf>,
+    /// Radiance without shadows (linear EXR), for penumbra masks.
+    pub unoccluded: Option<PathBuf>,
+    /// Eye depth in every channel (linear EXR, 0 = background), for silhouette masks.
+    pub depth: Option<PathBuf>,
+}
+
+/// How long a render took and how many rays it traced at most.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RenderReport {
+    pub seconds: f64,
+    /// Upper bound: one eye ray per pixel plus one shadow ray per pixel per light point
+    /// (points facing away trace none).
+    pub max_rays: f64,
+}
+
+impl RenderReport {
+    pub fn rays_per_second(&self) -> f64 {
+        self.max_rays / self.seconds.max(1e-9)
+    }
+}
+
+/// Keeps the samples of the named source lights (names or indices into `Scene::lights`).
+pub fn select_lights(
+    scene: &Scene,
+    samples: &[LightSample],
+    names: &[String],
+) -> Result<Vec<LightSample>, ReferenceError> {
+    let mut keep = Vec::new();
+    for name in names {
+        let index = scene
+            .lights
+            .iter()
+            .position(|l| &l.name == name)
+            .or_else(|| {
+                name.parse::<usize>()
+                    .ok()
+                    .filter(|&i| i < scene.lights.len())
+            });
+        match index {
+            Some(i) => keep.push(i as u32),
+            None => {
+                return Err(ReferenceError::UnknownLight {
+                    name: name.clone(),
+                    scene: scene.name.clone(),
+                    available: scene
+                        .lights
+                        .iter()
+                        .map(|l| l.name.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", "),
+                });
+            }
+        }
+    }
+    Ok(samples
+        .iter()
+        .filter(|s| keep.contains(&s.light))
+        .copied()
+        .collect())
+}
+
+/// Renders `scene` on the CPU and writes the requested files. For [`ReferenceMode::AreaTruth`]
+/// the scene's own lights are used (restrict them beforehand to render a subset).
+pub fn render_to_files(
+    scene: &Scene,
+    samples: &[LightSample],
+    mode: ReferenceMode,
+    outputs: &Outputs,
+) -> Result<RenderReport, ReferenceError> {
+    let start = Instant::now();
+    let pixels = scene.camera.width as f64 * scene.camera.height as f64;
+    let render = |shadows: bool| -> (Layers, f64) {
+        match mode {
+            ReferenceMode::PointSum => (
+                render_point_sum_with(scene, samples, [1.0; 3], PointSumOptions { shadows }),
+                samples.len() as f64,
+            ),
+            ReferenceMode::AreaTruth(o) => {
+                let area = scene.lights.iter().filter(|l| l.is_area()).count() as f64;
+                let exact = scene.lights.len() as f64 - area;
+                (
+                    render_area(scene, &AreaOptions { shadows, ..o }),
+                    area * f64::from(o.samples_per_light.max(1)) + exact,
+                )
+            }
+        }
+    };
+    let (layers, per_pixel) = render(true);
+    let report = RenderReport {
+        seconds: start.elapsed().as_secs_f64(),
+        max_rays: pixels * (1.0 + per_pixel),
+    };
+    let radiance = layers.radiance([1.0; 3], scene.ambient);
+    radiance.write_exr(&outputs.exr)?;
+    if let Some(png) = &outputs.png {
+        radiance.write_png(png, scene.exposure)?;
+    }
+    if let Some(path) = &outputs.depth {
+        depth_rgb(&layers.depth).write_exr(path)?;
+    }
+    if let Some(path) = &outputs.unoccluded {
+        render(false)
+            .0
+            .radiance([1.0; 3], scene.ambient)
+            .write_exr(path)?;
+    }
+    Ok(report)
+}
+
+/// The PNG path next to an EXR path (`x.exr` → `x.png`).
+pub fn png_next_to(exr: &Path) -> PathBuf {
+    exr.with_extension("png")
+}
+
+fn depth_rgb(depth: &Image) -> Image {
+    let mut out = Image::new(depth.width, depth.height, 3);
+    for (o, &z) in out.data.chunks_exact_mut(3).zip(&depth.data) {
+        o.fill(z);
+    }
+    out
+}
