@@ -52,13 +52,11 @@ impl Display for DropReason {
 impl Display for ShadowViews {
     fn fmt(&self, f: &mut Formatter<'_>) -> fmt::Result {
         match self {
-            ShadowViews::None => f.write_str("no map (no caster)"),
-            ShadowViews::Frustum { half_angle_deg, .. } => {
-                write!(f, "1 fitted frustum ±{half_angle_deg:.0}°")
-            }
+            ShadowViews::None => f.write_str("no map"),
+            ShadowViews::Frustum { fov_deg } => write!(f, "1 fitted frustum {fov_deg:.0}°"),
             ShadowViews::Ortho => f.write_str("1 orthographic view"),
             ShadowViews::Cube { faces } => {
-                let names = ["+x", "-x", "+y", "-y", "+z", "-z"];
+                let names = ["+x", "-x", "+y", "-y", "+axis", "-axis"];
                 let on: Vec<&str> = (0..6)
                     .filter(|i| faces & (1 << i) != 0)
                     .map(|i| names[i])

@@ -46,10 +46,6 @@ impl Aabb {
         }
     }
 
-    pub fn union(&self, o: &Aabb) -> Aabb {
-        self.union_point(o.lo).union_point(o.hi)
-    }
-
     pub fn intersects(&self, o: &Aabb) -> bool {
         (0..3).all(|k| self.lo[k] <= o.hi[k] && o.lo[k] <= self.hi[k])
     }
@@ -207,7 +203,16 @@ pub(crate) fn reach(s: &LightSample, b: &Aabb) -> Result<f32, Miss> {
         SampleKind::TwoSidedLobe => s.intensity.abs() * len.max(1.0),
         SampleKind::Spot { cos_outer, .. } => {
             let outer = cos_outer.clamp(-1.0, 1.0).acos();
-            if unit && !inside && max_cos < (outer + 1e-4).min(std::f32::consts::PI).cos() {
+            // Outside the cone's bounding sphere test, or (for cones narrower than a half-space)
+            // entirely behind the plane through the apex.
+            let behind_apex = cos_outer >= 0.0
+                && b.corners()
+                    .iter()
+                    .all(|&p| dot(s.direction, sub(p, s.position)) <= 0.0);
+            if unit
+                && (behind_apex
+                    || (!inside && max_cos < (outer + 1e-4).min(std::f32::consts::PI).cos()))
+            {
                 return Err(Miss::Cone);
             }
             s.intensity.abs()

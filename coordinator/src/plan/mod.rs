@@ -76,12 +76,20 @@ pub fn plan(
         options.force_all,
     );
     let probes = shadow::probes(cam, &receivers);
+    // The boxes nodes fit shadow views to: every mesh with triangles (node/src/gpu/scene_data.rs).
+    let scene_receivers: Vec<_> = bounds
+        .iter()
+        .zip(&scene.meshes)
+        .filter(|(_, m)| m.indices.len() >= 3)
+        .filter_map(|(b, _)| b.map(|b| (b.lo, b.hi)))
+        .collect();
     let shadow_of = |i: usize| {
         let lit: Vec<&cull::Receiver> = culling.lit[i].iter().map(|&r| &receivers[r]).collect();
         shadow::shadow_plan(
             &samples[i],
             &lit,
             &bounds,
+            &scene_receivers,
             &probes,
             cam,
             options.map_sizing,
@@ -128,21 +136,36 @@ pub fn plan(
         });
     }
 
+    // A node renders every map at one size (its shadow maps are layers of one texture array):
+    // the largest its lights ask for.
+    let mut shadows = shadows;
+    for g in &groups {
+        let size = g
+            .lights
+            .iter()
+            .filter_map(|&i| shadows[i].as_ref())
+            .map(|s| s.map_size)
+            .max();
+        for &i in &g.lights {
+            if let (Some(s), Some(size)) = (shadows[i].as_mut(), size) {
+                s.map_size = size;
+            }
+        }
+    }
+
     // Materials, and the eq. 6–7 folding when a node can carry c_n = c^a.
     let needs = material::needs(scene, &receivers, options.force_all);
     let mut fold = None;
     if needs.foldable {
         let ca = scene.ambient;
         let positive = ca.iter().all(|&c| c > 0.0);
+        // A group of colour c^a folds as is; otherwise any group can take c_n = c^a (the node
+        // emits c_λ ⊘ c_n, so c_n is free) when no channel of c^a is zero.
         fold = groups
             .iter()
             .position(|g| g.color.map(f32::to_bits) == ca.map(f32::to_bits))
             .or_else(|| groups.iter().position(|g| g.lights.is_empty()))
-            .or_else(|| {
-                groups
-                    .iter()
-                    .position(|g| positive && !same_colour(&g.lights, &samples))
-            });
+            .or_else(|| positive.then_some(0));
         if let Some(f) = fold {
             groups[f].color = ca;
         }
@@ -317,12 +340,6 @@ pub fn plan(
         est_frame_us,
         addresses,
     })
-}
-
-fn same_colour(lights: &[usize], samples: &[lightfold_scene::LightSample]) -> bool {
-    lights
-        .windows(2)
-        .all(|w| samples[w[0]].color.map(f32::to_bits) == samples[w[1]].color.map(f32::to_bits))
 }
 
 fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(), PlanError> {

@@ -1,15 +1,16 @@
-//! Per active sample: the casters its shadow map needs, the views that cover its lit receivers,
-//! and the map size from the eye/light resolution mismatch factor of Govindaraju et al. (seed 002):
-//! `m = (d_s·r_s/cos α)/(d_i·r_i/cos β)`, chosen so that `m ≤ 1` on the median lit visible point.
+//! Per active sample: the casters its shadow map needs (meshes in its reach that overlap the region
+//! between it and a visible receiver it lights), the views `scene::shadow_views` fits (as the node
+//! does), and the map size from the eye/light resolution mismatch factor of Govindaraju et al.
+//! (seed 002): `m = (d_s·r_s/cos α)/(d_i·r_i/cos β)`, chosen so that `m ≤ 1` at the median lit
+//! visible point found by a coarse grid of eye rays.
 
 use super::cull::Receiver;
 use super::geom::{Aabb, lights_point, reach};
-use super::types::{DEFAULT_MAP_SIZE, MapSizing, ShadowPlan, ShadowViews};
-use lightfold_scene::shading::{V3, dot, normalize, sub};
+use super::types::{DEFAULT_MAP_SIZE, MAX_MAP_SIZE, MapSizing, ShadowPlan, ShadowViews};
+use lightfold_scene::shading::{V3, dot};
+use lightfold_scene::shadow_views::{ShadowView, ShadowViewKind, shadow_views};
 use lightfold_scene::{Camera, LightSample, SampleKind};
 
-/// Above this half-angle one frustum wastes too much resolution at its edges: use cube faces.
-const MAX_FRUSTUM_HALF_ANGLE_DEG: f32 = 60.0;
 /// Grazing angles are capped so one nearly edge-on surface does not ask for a huge map.
 const MIN_COS_ALPHA: f32 = 0.2;
 /// The coarse grid of eye rays that finds representative visible points.
@@ -77,112 +78,54 @@ pub(crate) fn casters(s: &LightSample, lit: &[&Receiver], bounds: &[Option<Aabb>
         .collect()
 }
 
-/// The shadow geometry covering the lit receivers.
-pub(crate) fn views(
-    s: &LightSample,
-    lit: &[&Receiver],
-    casters: &[u32],
-    force_all: bool,
-) -> ShadowViews {
-    if matches!(s.kind, SampleKind::Directional) {
-        return if casters.is_empty() && !force_all {
-            ShadowViews::None
-        } else {
-            ShadowViews::Ortho
-        };
-    }
-    if force_all {
-        return ShadowViews::Cube { faces: 0b11_1111 };
-    }
-    if casters.is_empty() {
+/// Summary of the views `scene::shadow_views` fits for this sample — the same call, with the same
+/// receivers (every mesh with triangles), that the node makes, so the pass count is the node's.
+pub(crate) fn summarize(views: &[ShadowView]) -> ShadowViews {
+    let Some(first) = views.first() else {
         return ShadowViews::None;
-    }
-    let p = s.position;
-    let mut dirs = Vec::new();
-    let mut surrounded = false;
-    for r in lit {
-        if r.bounds.distance(p) <= 1e-6 {
-            surrounded = true;
-            break;
-        }
-        dirs.extend(r.bounds.corners().iter().map(|&c| normalize(sub(c, p))));
-    }
-    if !surrounded && !dirs.is_empty() {
-        let sum = dirs
-            .iter()
-            .fold([0.0; 3], |a: V3, d| std::array::from_fn(|k| a[k] + d[k]));
-        let axis = normalize(sum);
-        if axis != [0.0; 3] {
-            let min_cos = dirs.iter().map(|&d| dot(axis, d)).fold(1.0f32, f32::min);
-            let half = min_cos.clamp(-1.0, 1.0).acos().to_degrees();
-            if half <= MAX_FRUSTUM_HALF_ANGLE_DEG {
-                // A little margin so the PCF footprint at the edge stays inside the map.
-                return ShadowViews::Frustum {
-                    axis,
-                    half_angle_deg: half * 1.02 + 0.1,
-                };
+    };
+    match first.kind {
+        ShadowViewKind::Ortho => ShadowViews::Ortho,
+        ShadowViewKind::Fitted => {
+            let e = first.extent;
+            let fov = |lo: f32, hi: f32| (hi.atan() - lo.atan()).to_degrees();
+            ShadowViews::Frustum {
+                fov_deg: fov(e[0], e[1]).max(fov(e[2], e[3])),
             }
         }
-    }
-    ShadowViews::Cube {
-        faces: cube_faces(s, lit),
+        ShadowViewKind::CubeFace(_) => {
+            let mut faces = 0u8;
+            for v in views {
+                if let ShadowViewKind::CubeFace(f) = v.kind {
+                    faces |= 1 << (f as u8);
+                }
+            }
+            ShadowViews::Cube { faces }
+        }
     }
 }
 
-/// Cube faces whose pyramid may hold a lit receiver (and, for lobes, lies partly in front).
-fn cube_faces(s: &LightSample, lit: &[&Receiver]) -> u8 {
-    let mut mask = 0u8;
-    for face in 0..6 {
-        let (a, sign) = (face / 2, if face % 2 == 0 { 1.0f32 } else { -1.0 });
-        let (b, c) = ((a + 1) % 3, (a + 2) % 3);
-        if matches!(s.kind, SampleKind::CosineLobe) {
-            // The face pyramid is spanned by its four edge rays: behind the lobe if all are.
-            let behind = [(1.0f32, 1.0f32), (1.0, -1.0), (-1.0, 1.0), (-1.0, -1.0)]
-                .iter()
-                .all(|&(u, v)| {
-                    let mut e = [0.0; 3];
-                    e[a] = sign;
-                    e[b] = u;
-                    e[c] = v;
-                    dot(s.direction, e) <= 0.0
-                });
-            if behind {
-                continue;
-            }
-        }
-        let holds = lit.iter().any(|r| {
-            let q: Vec<V3> = r
-                .bounds
-                .corners()
-                .iter()
-                .map(|&p| sub(p, s.position))
-                .collect();
-            // Outside the pyramid `sign·x_a ≥ |x_b|, |x_c|` when all corners fail one plane.
-            let planes = [(b, 1.0f32), (b, -1.0), (c, 1.0), (c, -1.0)];
-            !planes
-                .iter()
-                .any(|&(k, t)| q.iter().all(|v| sign * v[a] - t * v[k] < 0.0))
-        });
-        if holds {
-            mask |= 1 << face;
-        }
-    }
-    mask
+/// World → view-space point (views look down −Z).
+fn to_view(m: &[[f32; 4]; 4], p: V3) -> V3 {
+    std::array::from_fn(|r| m[0][r] * p[0] + m[1][r] * p[1] + m[2][r] * p[2] + m[3][r])
 }
 
 /// Map size: the smallest power of two with mismatch `m ≤ 1` at the median lit probe point.
 pub(crate) fn map_size(
     s: &LightSample,
-    views: &ShadowViews,
-    lit: &[&Receiver],
+    views: &[ShadowView],
     probes: &[Probe],
     cam: &Camera,
     sizing: MapSizing,
 ) -> u32 {
     let (lo, hi) = match sizing {
         MapSizing::Fixed(n) => return n.clamp(1, super::types::MAX_MAP_SIZE),
-        MapSizing::Mismatch { min, max } => (min.min(max), max.max(min)),
+        MapSizing::Mismatch { min, max } => (
+            min.clamp(1, MAX_MAP_SIZE).next_power_of_two(),
+            prev_power_of_two(max.clamp(1, MAX_MAP_SIZE)),
+        ),
     };
+    let hi = hi.max(lo);
     // Angular size of an image pixel at the centre of the view (d_i per unit distance).
     let d_i = 2.0 * (cam.fov_y_deg.to_radians() * 0.5).tan() / cam.height.max(1) as f32;
     let mut need: Vec<f32> = Vec::new();
@@ -190,23 +133,28 @@ pub(crate) fn map_size(
         if !lights_point(s, p.point) {
             continue;
         }
-        let (l, r_s) = lightfold_scene::shading::to_light(s, p.point);
+        let (l, _) = lightfold_scene::shading::to_light(s, p.point);
         let cos_alpha = dot(p.normal, l).abs().max(MIN_COS_ALPHA);
-        // World size of a shadow texel at the point, per texel of an N-texel map: span / N.
-        let span = match views {
-            ShadowViews::None => return DEFAULT_MAP_SIZE.clamp(lo, hi),
-            ShadowViews::Frustum { half_angle_deg, .. } => {
-                2.0 * half_angle_deg.to_radians().tan() * r_s
+        // The view holding the point; a texel there spans `span·depth / N` metres (`span / N`
+        // for orthographic views).
+        let held = views.iter().find_map(|v| {
+            let q = to_view(&v.view, p.point);
+            let e = v.extent;
+            let span = (e[1] - e[0]).max(e[3] - e[2]);
+            if v.is_ortho() {
+                let inside = (e[0]..=e[1]).contains(&q[0]) && (e[2]..=e[3]).contains(&q[1]);
+                return inside.then_some(span);
             }
-            ShadowViews::Cube { .. } => 2.0 * r_s,
-            ShadowViews::Ortho => {
-                let b = lit.iter().fold(None::<Aabb>, |a, r| {
-                    Some(a.map_or(r.bounds, |a| a.union(&r.bounds)))
-                });
-                b.map_or(0.0, |b| 2.0 * b.radius())
+            let z = -q[2];
+            if z <= 0.0 {
+                return None;
             }
-        };
-        let n = span * p.cos_beta / (d_i * p.eye_dist * cos_alpha);
+            let (x, y) = (q[0] / z, q[1] / z);
+            let inside = (e[0]..=e[1]).contains(&x) && (e[2]..=e[3]).contains(&y);
+            inside.then_some(span * z)
+        });
+        let Some(world) = held else { continue };
+        let n = world * p.cos_beta / (d_i * p.eye_dist * cos_alpha);
         if n.is_finite() && n > 0.0 {
             need.push(n);
         }
@@ -216,15 +164,28 @@ pub(crate) fn map_size(
     }
     need.sort_by(f32::total_cmp);
     let median = need[need.len() / 2];
-    let size = (median.ceil() as u32).clamp(1, 1 << 16).next_power_of_two();
-    size.clamp(lo, hi).next_power_of_two()
+    let size = (median.ceil().min(MAX_MAP_SIZE as f32) as u32)
+        .max(1)
+        .next_power_of_two();
+    size.clamp(lo, hi)
 }
 
-/// The whole shadow plan of one active sample.
+fn prev_power_of_two(n: u32) -> u32 {
+    if n.is_power_of_two() {
+        n
+    } else {
+        n.next_power_of_two() / 2
+    }
+}
+
+/// The whole shadow plan of one active sample. `scene_receivers` are the boxes the node fits
+/// views to (every mesh with triangles).
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn shadow_plan(
     s: &LightSample,
     lit: &[&Receiver],
     bounds: &[Option<Aabb>],
+    scene_receivers: &[(V3, V3)],
     probes: &[Probe],
     cam: &Camera,
     sizing: MapSizing,
@@ -235,10 +196,10 @@ pub(crate) fn shadow_plan(
     } else {
         casters(s, lit, bounds)
     };
-    let views = views(s, lit, &casters, force_all);
-    let map_size = map_size(s, &views, lit, probes, cam, sizing);
+    let views = shadow_views(s, scene_receivers);
+    let map_size = map_size(s, &views, probes, cam, sizing);
     ShadowPlan {
-        views,
+        views: summarize(&views),
         map_size,
         casters,
     }

@@ -184,16 +184,18 @@ pub enum DropReason {
     BelowEpsilon { bound: f32 },
 }
 
-/// The shadow geometry of one light: what covers its lit receivers.
+/// The shadow geometry of one light, as `scene::shadow_views` fits it to the receivers (the node
+/// makes the same call, so these are the passes it renders).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub enum ShadowViews {
-    /// No caster can shadow a visible receiver: no map is rendered.
+    /// The sample reaches no receiver: no map.
     None,
-    /// One perspective frustum about `axis` with half field of view `half_angle_deg`.
-    Frustum { axis: [f32; 3], half_angle_deg: f32 },
+    /// One perspective frustum fitted to the receivers, `fov_deg` across its wider side.
+    Frustum { fov_deg: f32 },
     /// One orthographic view (directional light).
     Ortho,
-    /// Cube-map faces, bit i set for face i in the order +X, −X, +Y, −Y, +Z, −Z.
+    /// Cube-map faces in the sample's frame (+Z its axis), bit i for face i in the order
+    /// +X, −X, +Y, −Y, +Z, −Z.
     Cube { faces: u8 },
 }
 

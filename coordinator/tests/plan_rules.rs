@@ -1,0 +1,491 @@
+//! The planner's rules on hand-built scenes: each culling reason, casters, material layers and
+//! folding, K raised on short clusters, cost balancing, topologies, map sizes and errors.
+
+mod plan_scenes;
+
+use lightfold_coordinator::plan::{
+    ClusterSpec, Downstream, DropReason, MapSizing, MaterialMode, PlanError, PlanOptions, Topology,
+    plan,
+};
+use lightfold_protocol::{Capabilities, Layer, Role};
+use lightfold_scene::primitives::cuboid;
+use lightfold_scene::{Light, LightShape, Material, Scene};
+use plan_scenes::{rect, stage};
+
+fn opts() -> PlanOptions {
+    PlanOptions::default()
+}
+
+fn local() -> ClusterSpec {
+    ClusterSpec::local(16, 16)
+}
+
+fn point(name: &str, position: [f32; 3], power: f32) -> Light {
+    Light {
+        name: name.to_string(),
+        shape: LightShape::Point { position },
+        color: [1.0; 3],
+        power,
+        range: None,
+        samples: 1,
+    }
+}
+
+fn reasons(scene: &Scene, o: &PlanOptions) -> Vec<DropReason> {
+    plan(scene, &local(), o)
+        .unwrap()
+        .dropped
+        .into_iter()
+        .map(|d| d.1)
+        .collect()
+}
+
+#[test]
+fn the_stage_scene_plans_one_group_and_one_material_node() {
+    let p = plan(&stage(), &local(), &opts()).unwrap();
+    assert_eq!(p.active, vec![0, 1, 2, 3]);
+    assert_eq!(p.nodes.len(), 2);
+    assert_eq!(p.nodes[0].lights, vec![0, 1, 2, 3]);
+    assert_eq!(p.nodes[0].color, [1.0; 3]);
+    assert_eq!(
+        p.nodes[1].layers.iter().map(|l| l.0).collect::<Vec<_>>(),
+        vec![Layer::Diffuse]
+    );
+    assert_eq!(
+        p.material.mode,
+        MaterialMode::UniformSpecular { specular: [0.0; 3] }
+    );
+    assert_eq!(p.stages.len(), 1);
+    let ops: Vec<&str> = p.stages[0].ops.iter().map(|o| o.0.as_str()).collect();
+    assert_eq!(ops, ["accumulate", "material", "output"]);
+    assert_eq!(p.idle_nodes.len(), 14);
+    assert!(p.node_config("node-5").is_none());
+    assert!(p.compositor_config("comp-3").is_none());
+    let text = p.to_string();
+    for part in [
+        "samples: 4 total, 4 active",
+        "stages:",
+        "links (bytes per frame):",
+        "accumulate",
+    ] {
+        assert!(text.contains(part), "missing {part:?} in\n{text}");
+    }
+}
+
+#[test]
+fn each_provable_zero_is_dropped_with_its_reason() {
+    let mut s = stage();
+    s.lights.push(rect(
+        "up",
+        [0.0, 3.0, 0.0],
+        [0.0, 1.0, 0.0],
+        1.0,
+        [1.0; 3],
+        1,
+    ));
+    let mut short = point("short", [0.0, 6.0, 0.0], 10.0);
+    short.range = Some(1.0);
+    s.lights.push(short);
+    s.lights.push(Light {
+        name: "spot-up".into(),
+        shape: LightShape::Spot {
+            position: [0.0, 3.0, 0.0],
+            direction: [0.0, 1.0, 0.0],
+            inner_angle: 0.2,
+            outer_angle: 0.4,
+        },
+        color: [1.0; 3],
+        power: 10.0,
+        range: None,
+        samples: 1,
+    });
+    let mut black = point("black", [0.0, 3.0, 1.0], 10.0);
+    black.color = [0.0; 3];
+    s.lights.push(black);
+    let got = reasons(
+        &s,
+        &PlanOptions {
+            epsilon: 0.0,
+            ..opts()
+        },
+    );
+    assert_eq!(got.len(), 4, "{got:?}");
+    assert!(
+        matches!(got[0], DropReason::Unreached { behind: 3, .. }),
+        "{got:?}"
+    );
+    assert!(
+        matches!(
+            got[1],
+            DropReason::Unreached {
+                out_of_range: 3,
+                ..
+            }
+        ),
+        "{got:?}"
+    );
+    assert!(
+        matches!(
+            got[2],
+            DropReason::Unreached {
+                outside_cone: 3,
+                ..
+            }
+        ),
+        "{got:?}"
+    );
+    assert_eq!(got[3], DropReason::ZeroEmission);
+    // Forced: nothing dropped.
+    let forced = plan(
+        &s,
+        &local(),
+        &PlanOptions {
+            force_all: true,
+            ..opts()
+        },
+    )
+    .unwrap();
+    assert!(forced.dropped.is_empty());
+    assert_eq!(forced.active.len(), forced.samples.len());
+}
+
+#[test]
+fn a_faint_light_is_dropped_within_epsilon_only() {
+    let mut s = stage();
+    s.lights.push(point("faint", [0.0, 8.0, 0.0], 1e-3));
+    let p = plan(&s, &local(), &opts()).unwrap();
+    let Some((4, DropReason::BelowEpsilon { bound })) = p.dropped.first().copied() else {
+        panic!("{:?}", p.dropped)
+    };
+    assert!(bound > 0.0 && bound <= p.epsilon && p.epsilon_used == bound);
+    let strict = plan(
+        &s,
+        &local(),
+        &PlanOptions {
+            epsilon: 0.0,
+            ..opts()
+        },
+    )
+    .unwrap();
+    assert!(strict.active.contains(&4));
+}
+
+#[test]
+fn nothing_in_view_drops_every_light_but_keeps_a_pipeline() {
+    let mut s = stage();
+    s.camera.target = [0.0, 2.5, 20.0];
+    let p = plan(&s, &local(), &opts()).unwrap();
+    assert!(p.active.is_empty());
+    assert!(
+        p.dropped
+            .iter()
+            .all(|d| d.1 == DropReason::NoVisibleReceiver)
+    );
+    assert_eq!(p.nodes.len(), 2);
+    assert!(p.nodes[0].lights.is_empty());
+    assert!(p.compositor_config(&p.stages[0].compositor).is_some());
+}
+
+#[test]
+fn casters_are_the_meshes_between_a_light_and_what_it_lights() {
+    let mut s = stage();
+    // Beside the light, above everything it lights: cannot shadow a visible receiver.
+    s.add_mesh(cuboid("shelf", [3.5, 3.5, 0.0], [0.3, 0.1, 0.3], 0));
+    // Behind the camera, out of view and not between the light and the scene.
+    s.add_mesh(cuboid("behind", [0.0, 1.0, 30.0], [1.0, 1.0, 1.0], 0));
+    let p = plan(&s, &local(), &opts()).unwrap();
+    for sh in &p.nodes[0].shadows {
+        assert_eq!(sh.casters, vec![0, 1, 2], "floor, box and ball only");
+    }
+    let forced = plan(
+        &s,
+        &local(),
+        &PlanOptions {
+            force_all: true,
+            ..opts()
+        },
+    )
+    .unwrap();
+    assert_eq!(forced.nodes[0].shadows[0].casters, vec![0, 1, 2, 3, 4]);
+}
+
+#[test]
+fn material_layers_follow_the_visible_materials() {
+    // Emission on a visible mesh needs the emissive layer; on a hidden one it does not.
+    let mut s = stage();
+    let mut glow = Material::diffuse("glow", [0.5; 3]);
+    glow.emissive = [2.0, 1.0, 0.5];
+    let g = s.add_material(glow);
+    s.meshes[2].material = g;
+    let p = plan(&s, &local(), &opts()).unwrap();
+    let layers: Vec<Layer> = p.material.layers.iter().map(|l| l.0).collect();
+    assert_eq!(layers, [Layer::Diffuse, Layer::Emissive]);
+    let material = &p.stages[0].ops[1].1;
+    assert_eq!(material["emissive"], true);
+    let mut hidden = stage();
+    hidden.add_mesh(cuboid(
+        "lamp",
+        [0.0, 1.0, 30.0],
+        [0.5; 3],
+        g.min(hidden.materials.len()),
+    ));
+    let mut glow2 = Material::diffuse("glow", [0.5; 3]);
+    glow2.emissive = [1.0; 3];
+    let m = hidden.add_material(glow2);
+    hidden.meshes.last_mut().unwrap().material = m;
+    let q = plan(&hidden, &local(), &opts()).unwrap();
+    assert_eq!(q.material.layers.len(), 1);
+
+    // Different specular colours need a specular layer.
+    let mut spec = stage();
+    spec.materials[1].specular = [0.5; 3];
+    let r = plan(&spec, &local(), &opts()).unwrap();
+    assert_eq!(r.material.mode, MaterialMode::General);
+    assert!(r.material.layers.iter().any(|l| l.0 == Layer::Specular));
+    assert_eq!(r.stages[0].ops[1].1["specular"], true);
+}
+
+#[test]
+fn ambient_is_folded_when_every_material_has_ma_equal_md() {
+    let mut s = stage();
+    s.ambient = [0.1, 0.1, 0.1];
+    for m in &mut s.materials {
+        m.ambient = m.diffuse;
+    }
+    let p = plan(&s, &local(), &opts()).unwrap();
+    assert!(p.material.fold_ambient);
+    assert!(!p.material.layers.iter().any(|l| l.0 == Layer::Ambient));
+    assert_eq!(
+        p.nodes[0].color, [0.1; 3],
+        "the folding node carries c_n = c^a"
+    );
+    let acc = &p.stages[0].ops[0].1;
+    assert_eq!(acc["ambient"]["input"], 0);
+    assert_eq!(acc["ambient"]["mask"], "uniform");
+
+    // m^a ≠ m^d somewhere: an ambient layer and c^a in the material stage.
+    s.materials[0].ambient = [0.3; 3];
+    let q = plan(&s, &local(), &opts()).unwrap();
+    assert!(!q.material.fold_ambient);
+    assert!(q.material.layers.iter().any(|l| l.0 == Layer::Ambient));
+    assert_eq!(q.stages[0].ops[1].1["ambient_color"][0], 0.1f32 as f64);
+
+    // c^a = 0: nothing.
+    s.ambient = [0.0; 3];
+    let r = plan(&s, &local(), &opts()).unwrap();
+    assert!(!r.material.layers.iter().any(|l| l.0 == Layer::Ambient));
+}
+
+fn caps(max_lights: u32, light_us: u64, fixed_us: u64) -> Option<Capabilities> {
+    Some(Capabilities {
+        role: Role::Node,
+        daemon_id: String::new(),
+        advertise: String::new(),
+        adapter: "test".into(),
+        backend: "vulkan".into(),
+        max_lights,
+        max_texture_size: 8192,
+        formats: Vec::new(),
+        cost_per_light_us: light_us,
+        fixed_cost_us: fixed_us,
+        threads: 2,
+        version: "0".into(),
+    })
+}
+
+fn many_lights() -> Scene {
+    let mut s = stage();
+    s.lights[0].samples = 32;
+    s
+}
+
+#[test]
+fn short_clusters_raise_k_to_the_device_limit_or_say_how_many_nodes_they_need() {
+    let s = many_lights();
+    let err = plan(&s, &ClusterSpec::local(3, 3), &opts()).unwrap_err();
+    assert_eq!(
+        err,
+        PlanError::NotEnoughNodes {
+            active: 32,
+            k: 4,
+            limit: 4,
+            needed: 9,
+            available: 3
+        }
+    );
+    assert!(err.to_string().contains("need 9 render nodes"), "{err}");
+    let mut cluster = ClusterSpec::local(3, 3);
+    for n in &mut cluster.nodes {
+        n.capabilities = caps(16, 0, 0);
+    }
+    let p = plan(&s, &cluster, &opts()).unwrap();
+    assert_eq!(p.k, 16);
+    assert_eq!(
+        p.nodes.iter().map(|n| n.lights.len()).collect::<Vec<_>>(),
+        [16, 16, 0]
+    );
+}
+
+#[test]
+fn the_costliest_group_goes_to_the_fastest_node() {
+    let mut s = stage();
+    s.lights[0].samples = 6; // groups of 4 and 2 at K = 4
+    let mut cluster = ClusterSpec::local(3, 2);
+    cluster.nodes[0].capabilities = caps(8, 30_000, 90_000);
+    cluster.nodes[1].capabilities = caps(8, 6_000, 20_000);
+    cluster.nodes[2].capabilities = caps(8, 12_000, 60_000);
+    let p = plan(&s, &cluster, &opts()).unwrap();
+    let four = p.nodes.iter().find(|n| n.lights.len() == 4).unwrap();
+    let two = p.nodes.iter().find(|n| n.lights.len() == 2).unwrap();
+    assert_eq!(four.node, "node-1");
+    assert_eq!(two.node, "node-2");
+    assert_eq!(
+        p.material.placement,
+        lightfold_coordinator::plan::MaterialPlacement::OwnNode {
+            node: "node-0".into()
+        }
+    );
+    assert_eq!(
+        p.est_frame_us,
+        p.nodes.iter().map(|n| n.est_cost_us).max().unwrap()
+    );
+}
+
+#[test]
+fn a_tree_joins_pairs_and_a_chain_links_stages() {
+    let s = many_lights();
+    let tree = plan(
+        &s,
+        &ClusterSpec::local(9, 7),
+        &PlanOptions {
+            topology: Topology::Tree,
+            ..opts()
+        },
+    )
+    .unwrap();
+    assert_eq!(tree.stages.len(), 7);
+    let joins = tree
+        .stages
+        .iter()
+        .filter(|st| st.ops[0].0 == "join")
+        .count();
+    assert_eq!(joins, 3);
+    let root = tree
+        .stages
+        .iter()
+        .find(|st| st.downstream == Downstream::Sink)
+        .unwrap();
+    let ops: Vec<&str> = root.ops.iter().map(|o| o.0.as_str()).collect();
+    assert_eq!(ops, ["join", "material", "output"]);
+    let chain = plan(&s, &ClusterSpec::local(9, 3), &opts()).unwrap();
+    assert_eq!(chain.stages.len(), 3);
+    assert_eq!(
+        chain.stages[0].downstream,
+        Downstream::Stage("comp-1".into())
+    );
+    assert_eq!(chain.stages[1].ops[0].1["upstream"], true);
+    assert_eq!(
+        chain.stages[0].ops[0].1["colors"].as_array().unwrap().len(),
+        3
+    );
+    // Bytes: 8 node links at rgb9e5x2, 2 chain links at f16x6, 1 material link, 1 sink link.
+    assert_eq!(chain.links.len(), 8 + 2 + 1 + 1);
+}
+
+#[test]
+fn map_sizes_are_powers_of_two_in_range_and_uniform_per_node() {
+    let s = many_lights();
+    let p = plan(&s, &local(), &opts()).unwrap();
+    for n in &p.nodes {
+        let sizes: Vec<u32> = n.shadows.iter().map(|s| s.map_size).collect();
+        assert!(sizes.windows(2).all(|w| w[0] == w[1]));
+        for size in sizes {
+            assert!(
+                size.is_power_of_two() && (256..=4096).contains(&size),
+                "{size}"
+            );
+        }
+    }
+    let fixed = plan(
+        &s,
+        &local(),
+        &PlanOptions {
+            map_sizing: MapSizing::Fixed(1024),
+            ..opts()
+        },
+    )
+    .unwrap();
+    assert!(
+        fixed
+            .nodes
+            .iter()
+            .flat_map(|n| &n.shadows)
+            .all(|s| s.map_size == 1024)
+    );
+    // A larger image asks for finer maps.
+    let mut big = s.clone();
+    big.camera.width *= 8;
+    big.camera.height *= 8;
+    let q = plan(&big, &local(), &opts()).unwrap();
+    assert!(q.nodes[0].shadows[0].map_size >= p.nodes[0].shadows[0].map_size);
+}
+
+#[test]
+fn configurations_carry_the_plan() {
+    let p = plan(&stage(), &local(), &opts()).unwrap();
+    let n = p.node_config("node-0").unwrap();
+    assert_eq!(n.lights.len(), 4);
+    assert_eq!(n.lights[2].sample, 2);
+    assert_eq!(n.shadows.len(), 4);
+    assert_eq!(n.downstream, "127.0.0.1:7500");
+    assert_eq!(n.scene, p.scene_hash);
+    let c = p.compositor_config("comp-0").unwrap();
+    assert_eq!(c.inputs.len(), 2);
+    assert_eq!(c.downstream, "127.0.0.1:7400");
+    for (_, params) in &c.ops {
+        assert!(
+            serde_json::from_str::<serde_json::Value>(params)
+                .unwrap()
+                .is_object()
+        );
+    }
+}
+
+#[test]
+fn bad_inputs_give_clear_errors() {
+    let s = stage();
+    assert_eq!(
+        plan(&s, &ClusterSpec::local(0, 1), &opts()),
+        Err(PlanError::NoNodes)
+    );
+    assert_eq!(
+        plan(&s, &ClusterSpec::local(2, 0), &opts()),
+        Err(PlanError::NoCompositors)
+    );
+    let mut dup = ClusterSpec::local(2, 1);
+    dup.compositors[0].id = "node-1".into();
+    assert_eq!(
+        plan(&s, &dup, &opts()),
+        Err(PlanError::DuplicateDaemon {
+            id: "node-1".into()
+        })
+    );
+    let k0 = PlanOptions {
+        lights_per_node: 0,
+        ..opts()
+    };
+    assert!(matches!(
+        plan(&s, &local(), &k0),
+        Err(PlanError::InvalidOptions { .. })
+    ));
+    let mut bad = stage();
+    bad.exposure = f32::NAN;
+    assert!(matches!(
+        plan(&bad, &local(), &opts()),
+        Err(PlanError::InvalidScene { .. })
+    ));
+    let mut bad = stage();
+    bad.meshes[0].material = 99;
+    let e = plan(&bad, &local(), &opts()).unwrap_err();
+    assert!(e.to_string().contains("names material 99"), "{e}");
+}
