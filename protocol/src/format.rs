@@ -300,6 +300,20 @@ pub(crate) fn clamp_nonneg(v: f32, max: f32) -> f32 {
     if x < max { x } else { max }
 }
 
+/// Pixels of C channels with a channel above `max` (NaN never counts). A flat count, which
+/// vectorises, screens the slice first; the per-pixel count runs only when something saturated.
+#[inline]
+pub(crate) fn count_saturated<const C: usize>(src: &[f32], max: f32) -> u64 {
+    let over = src.iter().fold(0usize, |n, &v| n + usize::from(v > max));
+    if over == 0 {
+        return 0;
+    }
+    // Branch-free per pixel: saturation comes in clusters a branch predictor cannot learn.
+    let pixels = src.as_chunks::<C>().0;
+    let over = |p: &[f32; C]| p.iter().fold(false, |acc, &v| acc | (v > max));
+    pixels.iter().map(|p| u64::from(over(p))).sum()
+}
+
 /// Rounds `x` in `[0, 2^22]` to the nearest integer (ties to even): adding 2^23 leaves the integer
 /// in the low mantissa bits, exactly, without a float→int conversion.
 #[inline(always)]

@@ -3,7 +3,7 @@
 //! `f32::MAX` (saturated). Depth keeps every finite value, sign included; NaN → 0, ±Inf → ±`f32::MAX`
 //! (saturated).
 
-use super::clamp_nonneg;
+use super::{clamp_nonneg, count_saturated};
 
 pub(super) fn clamp_depth(v: f32) -> f32 {
     let x = if v.is_nan() { 0.0 } else { v };
@@ -11,21 +11,11 @@ pub(super) fn clamp_depth(v: f32) -> f32 {
     if x < f32::MAX { x } else { f32::MAX }
 }
 
-/// Counts pixels of C channels with a channel that saturates. A separate pass keeps the copy loop
-/// lean; it reads data the copy just brought into cache.
-fn count<const C: usize>(src: &[f32], saturates: impl Fn(f32) -> bool) -> u64 {
-    let pixels = src.as_chunks::<C>().0;
-    pixels
-        .iter()
-        .filter(|p| p.iter().any(|&v| saturates(v)))
-        .count() as u64
-}
-
 pub(super) fn pack_nonneg<const C: usize>(src: &[f32], dst: &mut [u8]) -> u64 {
     for (&v, out) in src.iter().zip(dst.as_chunks_mut::<4>().0) {
         *out = clamp_nonneg(v, f32::MAX).to_le_bytes();
     }
-    count::<C>(src, |v| v == f32::INFINITY)
+    count_saturated::<C>(src, f32::MAX)
 }
 
 pub(super) fn unpack_nonneg(src: &[u8], dst: &mut [f32]) {
@@ -38,7 +28,8 @@ pub(super) fn pack_depth(src: &[f32], dst: &mut [u8]) -> u64 {
     for (&v, out) in src.iter().zip(dst.as_chunks_mut::<4>().0) {
         *out = clamp_depth(v).to_le_bytes();
     }
-    count::<1>(src, f32::is_infinite)
+    // One channel per pixel, and −Inf saturates too.
+    src.iter().filter(|v| v.is_infinite()).count() as u64
 }
 
 pub(super) fn unpack_depth(src: &[u8], dst: &mut [f32]) {

@@ -6,7 +6,7 @@
 use half::f16;
 use half::slice::HalfFloatSliceExt;
 
-use super::{F16_MAX, clamp_nonneg};
+use super::{F16_MAX, clamp_nonneg, count_saturated};
 
 /// Pixels per block: small enough for the staging buffers to sit in L1.
 const BLOCK: usize = 256;
@@ -35,8 +35,8 @@ pub(super) fn pack<const IN: usize, const OUT: usize>(src: &[f32], dst: &mut [u8
                     1.0
                 };
             }
-            saturated += u64::from(p.iter().fold(false, |acc, &v| acc | (v > F16_MAX)));
         }
+        saturated += count_saturated::<IN>(block.as_flattened(), F16_MAX);
         halves[..n].convert_from_f32_slice(&staged[..n]);
         for (o, h) in out.iter_mut().zip(&halves[..n]) {
             *o = h.to_bits().to_le_bytes();

@@ -3,7 +3,7 @@
 //! bias 15), diffuse in the low 32 bits; stored little-endian. Mantissas round to nearest (ties to
 //! even); the exponent comes from the f32 bits of the largest channel, not `log2`.
 
-use super::{clamp_nonneg, round_u32};
+use super::{clamp_nonneg, count_saturated, round_u32};
 
 /// Largest representable value, 511/512 · 2^16.
 pub const MAX: f32 = 65408.0;
@@ -63,10 +63,7 @@ pub(super) fn pack(src: &[f32], dst: &mut [u8]) -> u64 {
         for (t, w) in t.iter().zip(w.iter_mut()) {
             *w = encode(t[0], t[1], t[2]).to_le_bytes();
         }
-        for p in t.as_chunks::<2>().0 {
-            let over = p.iter().flatten().fold(false, |acc, &v| acc | (v > MAX));
-            saturated += u64::from(over);
-        }
+        saturated += count_saturated::<6>(t.as_flattened(), MAX);
     }
     saturated
 }

@@ -6,7 +6,7 @@
 
 use std::sync::LazyLock;
 
-use super::{clamp_nonneg, round_u32};
+use super::{clamp_nonneg, count_saturated, round_u32};
 
 const BUCKETS: usize = 4096;
 
@@ -78,7 +78,6 @@ pub(super) fn bound_srgb(v: f32) -> f32 {
 }
 
 fn pack_with(src: &[f32], dst: &mut [u8], encode: impl Fn(f32) -> u8) -> u64 {
-    let mut saturated = 0u64;
     for (p, out) in src
         .as_chunks::<3>()
         .0
@@ -86,9 +85,8 @@ fn pack_with(src: &[f32], dst: &mut [u8], encode: impl Fn(f32) -> u8) -> u64 {
         .zip(dst.as_chunks_mut::<4>().0)
     {
         *out = [encode(p[0]), encode(p[1]), encode(p[2]), 255];
-        saturated += u64::from((p[0] > 1.0) | (p[1] > 1.0) | (p[2] > 1.0));
     }
-    saturated
+    count_saturated::<3>(src, 1.0)
 }
 
 pub(super) fn pack_linear(src: &[f32], dst: &mut [u8]) -> u64 {

@@ -15,29 +15,29 @@ pub(super) fn bound(channel: usize, scale: f32) -> f32 {
     scale / (2.0 * steps) + scale * (1.0 / 2_097_152.0)
 }
 
+/// Pixels per block: the saturation pass re-reads a block while it is still in L1.
+const BLOCK: usize = 512;
+
 pub(super) fn pack(src: &[f32], scale: f32, dst: &mut [u8]) -> u64 {
     let kd = DMAX / scale;
     let ks = SMAX / scale;
     // v·k is NaN only for NaN input or an infinite k times 0; the clamp maps NaN to 0.
-    let d = |v: f32| u64::from(round_u32(clamp_nonneg(v * kd, DMAX)));
-    let s = |v: f32| u64::from(round_u32(clamp_nonneg(v * ks, SMAX)));
+    let d = |v: f32| round_u32(clamp_nonneg(v * kd, DMAX));
+    let s = |v: f32| round_u32(clamp_nonneg(v * ks, SMAX));
     let mut saturated = 0u64;
-    for (p, out) in src
-        .as_chunks::<6>()
-        .0
-        .iter()
-        .zip(dst.as_chunks_mut::<8>().0)
-    {
-        let word =
-            d(p[0]) | d(p[1]) << 11 | d(p[2]) << 22 | s(p[3]) << 33 | s(p[4]) << 43 | s(p[5]) << 53;
-        *out = word.to_le_bytes();
-        let over = (p[0] > scale)
-            | (p[1] > scale)
-            | (p[2] > scale)
-            | (p[3] > scale)
-            | (p[4] > scale)
-            | (p[5] > scale);
-        saturated += u64::from(over);
+    let pixels = src.as_chunks::<6>().0;
+    let words = dst.as_chunks_mut::<4>().0;
+    for (block, out) in pixels.chunks(BLOCK).zip(words.chunks_mut(2 * BLOCK)) {
+        // Two 32-bit halves per pixel keep every lane 32 bits wide, which vectorises across
+        // pixels; diffuse blue straddles them (its top bit is bit 0 of the high half).
+        for (p, o) in block.iter().zip(out.as_chunks_mut::<2>().0) {
+            let (b, sr, sg, sb) = (d(p[2]), s(p[3]), s(p[4]), s(p[5]));
+            let lo = d(p[0]) | d(p[1]) << 11 | b << 22;
+            let hi = b >> 10 | sr << 1 | sg << 11 | sb << 21;
+            *o = [lo.to_le_bytes(), hi.to_le_bytes()];
+            let over = p.iter().fold(false, |acc, &v| acc | (v > scale));
+            saturated += u64::from(over);
+        }
     }
     saturated
 }
