@@ -35,3 +35,12 @@ pub enum SceneError {
     #[error("cannot encode scene {scene:?}: {message}")]
     Encode { scene: String, message: String },
 }
+
+impl SceneError {
+    pub(crate) fn file(path: &str, message: String) -> Self {
+        SceneError::SceneFile {
+            path: path.to_string(),
+            message,
+        }
+    }
+}

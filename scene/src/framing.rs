@@ -100,15 +100,21 @@ pub fn add_area_light(scene: &mut Scene) {
 /// Fills in what is missing: a framed camera when `has_camera` is false; a ground plane and an
 /// area light when the scene has no lights.
 pub fn complete(scene: &mut Scene, has_camera: bool) {
+    complete_with(scene, has_camera, true);
+}
+
+/// As [`complete`], adding the ground plane only when `ground` is true (a scene file that builds
+/// its own floor does not want a second one).
+pub fn complete_with(scene: &mut Scene, has_camera: bool, ground: bool) {
     let needs_light = scene.lights.is_empty();
+    // Light and camera are fitted to the model alone, before the ground widens the bounds.
     if needs_light {
-        // Bounds of the model alone: light and camera ignore the ground's extent.
         add_area_light(scene);
     }
     if !has_camera {
         scene.camera = framed_camera(scene);
     }
-    if needs_light {
+    if needs_light && ground {
         add_ground(scene);
     }
 }

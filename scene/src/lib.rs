@@ -9,6 +9,7 @@ pub mod builtin;
 pub mod camera;
 pub mod defaults;
 mod error;
+pub mod file;
 pub mod framing;
 pub mod gltf_load;
 pub mod image;
@@ -24,6 +25,7 @@ pub mod wire;
 
 pub use builtin::{builtin, builtin_names};
 pub use error::SceneError;
+pub use file::{SceneFile, load, load_scene_file, parse_scene_file};
 pub use gltf_load::{GltfOptions, load_gltf, load_gltf_slice, load_gltf_with};
 pub use image::Image;
 pub use model::*;

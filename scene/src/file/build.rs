@@ -1,0 +1,415 @@
+//! Building a [`Scene`] from a parsed scene file: the glTF (if any), primitive objects with
+//! their materials, lights, camera, ambient, exposure and quality; then completion of whatever is
+//! missing (camera, lights) exactly as for a bare glTF.
+
+use super::spec::{CameraSpec, FilterSpec, LightSpec, ObjectSpec, PatternSpec, SceneFile};
+use crate::error::SceneError;
+use crate::framing;
+use crate::gltf_load::{self, GltfOptions};
+use crate::model::{
+    Camera, Light, LightShape, Material, Mesh, Quality, SamplePattern, Scene, ShadowFilter,
+};
+use crate::primitives;
+use glam::{Affine3A, Quat, Vec3};
+use std::collections::HashMap;
+use std::path::Path;
+
+pub(super) fn build(
+    file: &SceneFile,
+    label: &str,
+    base: Option<&Path>,
+) -> Result<Scene, SceneError> {
+    let err = |m: String| SceneError::SceneFile {
+        path: label.to_string(),
+        message: m,
+    };
+    let name = file.name.clone().unwrap_or_else(|| {
+        Path::new(label)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| "scene".into())
+    });
+    let (mut scene, gltf_camera) = match &file.gltf {
+        Some(g) => {
+            let path = base.map_or_else(|| Path::new(&g.path).to_path_buf(), |b| b.join(&g.path));
+            let bytes = std::fs::read(&path).map_err(|e| SceneError::Io {
+                path: path.display().to_string(),
+                message: e.to_string(),
+            })?;
+            let opts = GltfOptions {
+                scale: g.scale,
+                translation: g.translation,
+                complete: false,
+            };
+            let label = path.display().to_string();
+            let imported = gltf_load::import(&bytes, &label, &name, path.parent(), &opts)?;
+            (imported.scene, imported.has_camera)
+        }
+        None => (Scene::new(&name), false),
+    };
+    scene.name = name;
+
+    let mut by_name: HashMap<&str, usize> = HashMap::new();
+    for m in &file.materials {
+        if by_name.contains_key(m.name.as_str()) {
+            return Err(err(format!("material {:?} is defined twice", m.name)));
+        }
+        let k = scene.add_material(Material {
+            name: m.name.clone(),
+            diffuse: m.diffuse,
+            diffuse_texture: None,
+            specular: m.specular,
+            shininess: m.shininess,
+            ambient: m.ambient,
+            emissive: m.emissive,
+            alpha: 1.0,
+            alpha_mode: crate::model::AlphaMode::Opaque,
+            double_sided: m.double_sided,
+        });
+        by_name.insert(&m.name, k);
+    }
+    let mut objects: HashMap<String, usize> = HashMap::new();
+    for (i, o) in file.objects.iter().enumerate() {
+        let (mesh, obj_name) = object_mesh(o, i, &mut scene, &by_name).map_err(err)?;
+        if objects.insert(obj_name.clone(), mesh).is_some() {
+            return Err(err(format!("object name {obj_name:?} is used twice")));
+        }
+    }
+    for (i, l) in file.lights.iter().enumerate() {
+        let light = light(l, i, &mut scene, &objects).map_err(err)?;
+        scene.lights.push(light);
+    }
+    if let Some(c) = &file.camera {
+        scene.camera = camera(c);
+    }
+    scene.ambient = file.ambient.unwrap_or([0.0; 3]);
+    scene.exposure = file.exposure;
+    if let Some(q) = &file.quality {
+        apply_quality(&mut scene.quality, q);
+    }
+    if !file.specular {
+        for m in &mut scene.materials {
+            m.specular = [0.0; 3];
+        }
+    }
+    let has_camera = file.camera.is_some() || gltf_camera;
+    framing::complete_with(&mut scene, has_camera, file.objects.is_empty());
+    let report = scene.sanitize();
+    if !report.is_clean() {
+        tracing::warn!(file = label, %report, "scene sanitised");
+    }
+    Ok(scene)
+}
+
+fn camera(c: &CameraSpec) -> Camera {
+    Camera {
+        position: c.position,
+        target: c.target,
+        up: c.up,
+        fov_y_deg: c.fov_y_deg,
+        width: c.width,
+        height: c.height,
+    }
+}
+
+/// The material index for an object: its named material, or a new one from its inline diffuse
+/// colour (grey when neither is given).
+fn look(
+    scene: &mut Scene,
+    by_name: &HashMap<&str, usize>,
+    object: &str,
+    material: &Option<String>,
+    diffuse: &Option<[f32; 3]>,
+) -> Result<usize, String> {
+    match (material, diffuse) {
+        (Some(_), Some(_)) => Err(format!(
+            "object {object:?} gives both `material` and `diffuse`; use one"
+        )),
+        (Some(m), None) => by_name
+            .get(m.as_str())
+            .copied()
+            .ok_or_else(|| format!("object {object:?} uses unknown material {m:?}")),
+        (None, d) => Ok(scene.add_material(Material::diffuse(object, d.unwrap_or([0.8; 3])))),
+    }
+}
+
+fn object_mesh(
+    o: &ObjectSpec,
+    index: usize,
+    scene: &mut Scene,
+    by_name: &HashMap<&str, usize>,
+) -> Result<(usize, String), String> {
+    let default_name = |kind: &str| format!("{kind} {index}");
+    let mesh: Mesh = match o {
+        ObjectSpec::Plane {
+            name,
+            center,
+            normal,
+            u_axis,
+            size,
+            divisions,
+            material,
+            diffuse,
+        } => {
+            let n = name.clone().unwrap_or_else(|| default_name("plane"));
+            let m = look(scene, by_name, &n, material, diffuse)?;
+            primitives::plane(
+                &n,
+                *center,
+                *normal,
+                *u_axis,
+                *size,
+                (*divisions).min(256),
+                m,
+            )
+        }
+        ObjectSpec::Box {
+            name,
+            center,
+            size,
+            rotation_y_deg,
+            material,
+            diffuse,
+        } => {
+            let n = name.clone().unwrap_or_else(|| default_name("box"));
+            let m = look(scene, by_name, &n, material, diffuse)?;
+            let half = size.map(|s| 0.5 * s);
+            if *rotation_y_deg == 0.0 {
+                // Built in place so an axis-aligned box has exactly the coordinates written.
+                primitives::cuboid(&n, *center, half, m)
+            } else {
+                let mut mesh = primitives::cuboid(&n, [0.0; 3], half, m);
+                mesh.transform(&Affine3A::from_rotation_translation(
+                    Quat::from_rotation_y(rotation_y_deg.to_radians()),
+                    Vec3::from(*center),
+                ));
+                mesh
+            }
+        }
+        ObjectSpec::Sphere {
+            name,
+            center,
+            radius,
+            segments,
+            rings,
+            material,
+            diffuse,
+        } => {
+            let n = name.clone().unwrap_or_else(|| default_name("sphere"));
+            let m = look(scene, by_name, &n, material, diffuse)?;
+            primitives::sphere(
+                &n,
+                *center,
+                *radius,
+                (*segments).min(1024),
+                (*rings).min(512),
+                m,
+            )
+        }
+        ObjectSpec::Cylinder {
+            name,
+            base,
+            radius,
+            height,
+            segments,
+            material,
+            diffuse,
+        } => {
+            let n = name.clone().unwrap_or_else(|| default_name("cylinder"));
+            let m = look(scene, by_name, &n, material, diffuse)?;
+            primitives::cylinder(&n, *base, *radius, *height, (*segments).min(1024), m)
+        }
+    };
+    let name = mesh.name.clone();
+    Ok((scene.add_mesh(mesh), name))
+}
+
+fn light(
+    l: &LightSpec,
+    index: usize,
+    scene: &mut Scene,
+    objects: &HashMap<String, usize>,
+) -> Result<Light, String> {
+    let named = |name: &Option<String>, kind: &str| {
+        name.clone()
+            .unwrap_or_else(|| format!("{kind} light {index}"))
+    };
+    let make = |name: String, shape, color, power, range, samples| Light {
+        name,
+        shape,
+        color,
+        power,
+        range,
+        samples,
+    };
+    Ok(match l {
+        LightSpec::Point {
+            name,
+            position,
+            intensity,
+            color,
+            range,
+        } => make(
+            named(name, "point"),
+            LightShape::Point {
+                position: *position,
+            },
+            *color,
+            *intensity,
+            *range,
+            1,
+        ),
+        LightSpec::Spot {
+            name,
+            position,
+            direction,
+            intensity,
+            inner_angle_deg,
+            outer_angle_deg,
+            color,
+            range,
+        } => make(
+            named(name, "spot"),
+            LightShape::Spot {
+                position: *position,
+                direction: *direction,
+                inner_angle: inner_angle_deg.to_radians(),
+                outer_angle: outer_angle_deg.to_radians(),
+            },
+            *color,
+            *intensity,
+            *range,
+            1,
+        ),
+        LightSpec::Directional {
+            name,
+            direction,
+            irradiance,
+            color,
+        } => make(
+            named(name, "directional"),
+            LightShape::Directional {
+                direction: *direction,
+            },
+            *color,
+            *irradiance,
+            None,
+            1,
+        ),
+        LightSpec::Rect {
+            name,
+            center,
+            size,
+            normal,
+            u_axis,
+            radiance,
+            color,
+            samples,
+        } => make(
+            named(name, "rect"),
+            LightShape::Rect {
+                center: *center,
+                normal: *normal,
+                u_axis: *u_axis,
+                size: *size,
+            },
+            *color,
+            *radiance,
+            None,
+            *samples,
+        ),
+        LightSpec::Disk {
+            name,
+            center,
+            normal,
+            radius,
+            radiance,
+            color,
+            samples,
+        } => make(
+            named(name, "disk"),
+            LightShape::Disk {
+                center: *center,
+                normal: *normal,
+                radius: *radius,
+            },
+            *color,
+            *radiance,
+            None,
+            *samples,
+        ),
+        LightSpec::Sphere {
+            name,
+            center,
+            radius,
+            radiance,
+            color,
+            samples,
+        } => make(
+            named(name, "sphere"),
+            LightShape::Sphere {
+                center: *center,
+                radius: *radius,
+            },
+            *color,
+            *radiance,
+            None,
+            *samples,
+        ),
+        LightSpec::EmissiveMesh {
+            name,
+            object,
+            radiance,
+            color,
+            two_sided,
+            samples,
+        } => {
+            let mesh = *objects
+                .get(object)
+                .ok_or_else(|| format!("emissive_mesh light names unknown object {object:?}"))?;
+            // A material of its own: the object glows with exactly the light's radiance.
+            let base = scene.materials[scene.meshes[mesh].material].clone();
+            let glow = scene.add_material(Material {
+                name: format!("{} (emissive)", base.name),
+                emissive: color.map(|c| c * radiance),
+                double_sided: *two_sided,
+                ..base
+            });
+            scene.meshes[mesh].material = glow;
+            make(
+                named(name, "emissive mesh"),
+                LightShape::EmissiveMesh { mesh },
+                *color,
+                *radiance,
+                None,
+                *samples,
+            )
+        }
+    })
+}
+
+fn apply_quality(q: &mut Quality, s: &super::spec::QualitySpec) {
+    if s.samples_per_area_light.is_some() {
+        q.samples_per_area_light = s.samples_per_area_light;
+    }
+    if let Some(p) = s.pattern {
+        q.pattern = match p {
+            PatternSpec::Grid => SamplePattern::Grid,
+            PatternSpec::Jittered => SamplePattern::Jittered,
+            PatternSpec::Halton => SamplePattern::Halton,
+        };
+    }
+    if let Some(f) = s.filter {
+        q.filter = match f {
+            FilterSpec::None => ShadowFilter::None,
+            FilterSpec::Pcf2x2 => ShadowFilter::Pcf2x2,
+            FilterSpec::Pcf3x3 => ShadowFilter::Pcf { taps: 3 },
+            FilterSpec::Pcf5x5 => ShadowFilter::Pcf { taps: 5 },
+        };
+    }
+    q.seed = s.seed.unwrap_or(q.seed);
+    q.shadow_map_size = s.shadow_map_size.unwrap_or(q.shadow_map_size);
+    q.depth_bias = s.depth_bias.unwrap_or(q.depth_bias);
+    q.slope_bias = s.slope_bias.unwrap_or(q.slope_bias);
+    q.lights_per_node = s.lights_per_node.unwrap_or(q.lights_per_node);
+}

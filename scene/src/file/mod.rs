@@ -1,0 +1,83 @@
+//! Scene files (TOML, `version = 1`, unknown fields rejected) and [`load`], the one entry point
+//! that accepts a built-in name, a `.toml` scene file or a `.gltf` / `.glb` model.
+//!
+//! A scene file references a glTF (relative to the file) and/or builds primitives (plane, box,
+//! sphere, cylinder) with materials, and sets camera, lights, ambient, exposure and quality.
+//! Whatever it leaves out is completed like a bare glTF: a framed camera, and without lights a
+//! rectangular area light (plus a ground plane when the file builds no objects).
+
+mod build;
+pub mod spec;
+
+pub use spec::SceneFile;
+
+use crate::builtin::{builtin, builtin_names};
+use crate::error::SceneError;
+use crate::gltf_load::load_gltf;
+use crate::model::Scene;
+use std::path::Path;
+
+/// Loads a built-in scene by name, a `.toml` scene file, or a `.gltf` / `.glb` model.
+pub fn load(path_or_builtin: &str) -> Result<Scene, SceneError> {
+    if builtin_names().contains(&path_or_builtin) {
+        return builtin(path_or_builtin);
+    }
+    let path = Path::new(path_or_builtin);
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    match ext.as_str() {
+        "toml" => load_scene_file(path),
+        "gltf" | "glb" => load_gltf(path),
+        _ => Err(SceneError::UnknownInput {
+            input: path_or_builtin.to_string(),
+            known: builtin_names().join(", "),
+        }),
+    }
+}
+
+/// Reads and builds a scene file; a referenced glTF is resolved relative to the file's folder.
+pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
+    let label = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| SceneError::Io {
+        path: label.clone(),
+        message: e.to_string(),
+    })?;
+    let base = path.parent().filter(|p| !p.as_os_str().is_empty());
+    parse_scene_file(&text, &label, Some(base.unwrap_or(Path::new("."))))
+}
+
+/// Builds a scene from scene-file text; `label` names it in errors, `base` resolves the glTF path.
+pub fn parse_scene_file(text: &str, label: &str, base: Option<&Path>) -> Result<Scene, SceneError> {
+    let file = parse(text, label)?;
+    build::build(&file, label, base)
+}
+
+/// Parses and version-checks scene-file text without building it.
+pub fn parse(text: &str, label: &str) -> Result<SceneFile, SceneError> {
+    let err = |m: String| SceneError::file(label, m);
+    // The version is read first so that a newer file gets a version error, not a field error.
+    let table: toml::Table = toml::from_str(text).map_err(|e| err(e.to_string()))?;
+    match table.get("version") {
+        Some(toml::Value::Integer(v)) if *v == spec::VERSION as i64 => {}
+        Some(toml::Value::Integer(v)) => {
+            return Err(SceneError::Version {
+                path: label.to_string(),
+                found: (*v).clamp(0, u32::MAX as i64) as u32,
+                supported: spec::VERSION,
+            });
+        }
+        Some(_) => return Err(err("`version` must be an integer".into())),
+        None => return Err(err(format!("missing `version = {}`", spec::VERSION))),
+    }
+    toml::from_str(text).map_err(|e| err(e.to_string()))
+}
+
+/// The TOML text of a scene file (what [`parse`] reads back to an equal value).
+pub fn to_toml(file: &SceneFile) -> Result<String, SceneError> {
+    toml::to_string_pretty(file).map_err(|e| SceneError::Encode {
+        scene: file.name.clone().unwrap_or_default(),
+        message: e.to_string(),
+    })
+}

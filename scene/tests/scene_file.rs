@@ -1,0 +1,238 @@
+//! Scene files: the simple case is expressed exactly, files round-trip through TOML, unknown
+//! fields and versions are rejected, every example in `scenes/` loads clean, and `load` dispatches
+//! on built-in names and extensions.
+
+mod support;
+
+use lightfold_scene::file::{parse, to_toml};
+use lightfold_scene::sampling::{sample_power, scene_samples};
+use lightfold_scene::{LightShape, SceneError, load, parse_scene_file};
+use std::path::{Path, PathBuf};
+
+fn scenes_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes")
+}
+
+fn example(name: &str) -> String {
+    scenes_dir().join(name).display().to_string()
+}
+
+#[test]
+fn the_simple_case_is_expressed_exactly() {
+    let s = load(&example("simple.toml")).unwrap();
+    assert_eq!(s.name, "simple");
+    let c = s.camera;
+    assert_eq!(
+        (c.position, c.target, c.up, c.fov_y_deg, c.width, c.height),
+        (
+            [0.0, 2.5, 6.0],
+            [0.0, 0.5, 0.0],
+            [0.0, 1.0, 0.0],
+            45.0,
+            800,
+            600
+        )
+    );
+    let names: Vec<&str> = s.meshes.iter().map(|m| m.name.as_str()).collect();
+    assert_eq!(
+        names,
+        ["ground", "box", "sphere"],
+        "no ground or light added"
+    );
+    let colours: Vec<[f32; 3]> = s
+        .meshes
+        .iter()
+        .map(|m| s.materials[m.material].diffuse)
+        .collect();
+    assert_eq!(colours, [[0.8, 0.8, 0.8], [0.8, 0.3, 0.2], [0.2, 0.4, 0.8]]);
+    assert!(s.materials.iter().all(|m| !m.has_specular()));
+    assert_eq!(s.lights.len(), 1);
+    let l = &s.lights[0];
+    assert_eq!(
+        l.shape,
+        LightShape::Rect {
+            center: [-2.5, 2.5, 1.5],
+            normal: [0.0, -1.0, 0.0],
+            u_axis: [1.0, 0.0, 0.0],
+            size: [1.0, 0.5],
+        }
+    );
+    assert_eq!(
+        (l.power, l.color, l.samples, l.range),
+        (40.0, [1.0; 3], 16, None)
+    );
+    // One-sided: every sample is a cosine lobe pointing down, together emitting π·L·A.
+    let samples = scene_samples(&s);
+    assert_eq!(samples.len(), 16);
+    let total: f64 = samples.iter().map(|x| sample_power(x).unwrap()).sum();
+    let exact = std::f64::consts::PI * 40.0 * 0.5;
+    assert!((total - exact).abs() < 1e-6 * exact);
+    assert!(s.validate().is_clean(), "{}", s.validate());
+    let view = support::render(&s, &samples, 160, 120);
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("scene-previews");
+    std::fs::create_dir_all(&dir).unwrap();
+    view.image
+        .write_png(&dir.join("simple.png"), s.exposure)
+        .unwrap();
+    assert!(view.shadow_fraction() > 0.05, "{}", view.shadow_fraction());
+    // The box is the cube [-1.4, -0.4] × [0, 1] × [-0.5, 0.5].
+    let (lo, hi) = s.meshes[1].bounds().unwrap();
+    let expect = [-1.4, 0.0, -0.5, -0.4, 1.0, 0.5];
+    for (got, want) in lo.iter().chain(&hi).zip(expect) {
+        assert!((got - want).abs() < 1e-6, "{lo:?} {hi:?}");
+    }
+}
+
+#[test]
+fn scene_files_round_trip_through_toml() {
+    for name in ["simple.toml", "lights.toml", "fox.toml"] {
+        let text = std::fs::read_to_string(example(name)).unwrap();
+        let file = parse(&text, name).unwrap();
+        let again = parse(&to_toml(&file).unwrap(), name).unwrap();
+        assert_eq!(file, again, "{name}");
+        let base = scenes_dir();
+        let a = parse_scene_file(&text, name, Some(&base)).unwrap();
+        let b = parse_scene_file(&to_toml(&file).unwrap(), name, Some(&base)).unwrap();
+        assert_eq!(a, b, "{name}");
+    }
+}
+
+#[test]
+fn every_example_loads_clean() {
+    let mut n = 0;
+    for entry in std::fs::read_dir(scenes_dir()).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            let s = load(&path.display().to_string()).unwrap_or_else(|e| panic!("{e}"));
+            assert!(
+                s.validate().is_clean(),
+                "{}: {}",
+                path.display(),
+                s.validate()
+            );
+            assert!(!scene_samples(&s).is_empty());
+            n += 1;
+        }
+    }
+    assert!(n >= 3);
+}
+
+#[test]
+fn every_light_kind_is_read() {
+    let s = load(&example("lights.toml")).unwrap();
+    let kinds: Vec<&str> = s
+        .lights
+        .iter()
+        .map(|l| match l.shape {
+            LightShape::Point { .. } => "point",
+            LightShape::Spot { .. } => "spot",
+            LightShape::Directional { .. } => "directional",
+            LightShape::Rect { .. } => "rect",
+            LightShape::Disk { .. } => "disk",
+            LightShape::Sphere { .. } => "sphere",
+            LightShape::EmissiveMesh { .. } => "emissive_mesh",
+        })
+        .collect();
+    assert_eq!(
+        kinds,
+        [
+            "point",
+            "spot",
+            "directional",
+            "rect",
+            "disk",
+            "sphere",
+            "emissive_mesh"
+        ]
+    );
+    // 3 punctual samples + 4 area lights × 16 (the quality override).
+    assert_eq!(scene_samples(&s).len(), 3 + 4 * 16);
+    let LightShape::EmissiveMesh { mesh } = s.lights[6].shape else {
+        unreachable!()
+    };
+    let glow = &s.materials[s.meshes[mesh].material];
+    assert_eq!(glow.emissive, [8.0, 6.4, 4.0]);
+    assert!(!glow.double_sided);
+    assert_eq!(s.ambient, [0.02; 3]);
+}
+
+#[test]
+fn a_gltf_reference_is_relative_to_the_file() {
+    let s = load(&example("fox.toml")).unwrap();
+    assert_eq!(s.lights.len(), 2, "the file's lights, no framing light");
+    assert_eq!(s.camera.position, [2.0, 1.0, 2.0]);
+    let (_, hi) = s.bounds().unwrap();
+    assert!(hi[1] < 1.0, "scaled to metres: {hi:?}");
+}
+
+fn parse_err(text: &str) -> SceneError {
+    match parse_scene_file(text, "test.toml", None) {
+        Ok(_) => panic!("accepted:\n{text}"),
+        Err(e) => e,
+    }
+}
+
+#[test]
+fn mistakes_are_reported() {
+    let e = parse_err("version = 1\nexposur = 2.0\n");
+    assert!(e.to_string().contains("exposur"), "{e}");
+    let e = parse_err(
+        "version = 1\n[[object]]\ntype = \"sphere\"\ncenter = [0,0,0]\nradius = 1.0\ncolour = [1,0,0]\n",
+    );
+    assert!(e.to_string().contains("colour"), "{e}");
+    let e = parse_err("version = 1\n[[object]]\ntype = \"torus\"\ncenter = [0,0,0]\n");
+    assert!(e.to_string().contains("torus"), "{e}");
+    let e = parse_err("version = 2\n");
+    assert!(
+        matches!(
+            e,
+            SceneError::Version {
+                found: 2,
+                supported: 1,
+                ..
+            }
+        ),
+        "{e}"
+    );
+    let e = parse_err("name = \"x\"\n");
+    assert!(e.to_string().contains("version"), "{e}");
+    let e = parse_err(
+        "version = 1\n[[object]]\ntype = \"box\"\ncenter = [0,0,0]\nsize = [1,1,1]\nmaterial = \"gold\"\n",
+    );
+    assert!(e.to_string().contains("unknown material \"gold\""), "{e}");
+    let e = parse_err(
+        "version = 1\n[[light]]\ntype = \"emissive_mesh\"\nobject = \"nothing\"\nradiance = 1.0\n",
+    );
+    assert!(e.to_string().contains("nothing"), "{e}");
+    let e = parse_err("version = 1\n[gltf]\npath = \"missing.glb\"\n");
+    assert!(matches!(e, SceneError::Io { .. }), "{e}");
+    assert!(e.to_string().contains("test.toml") || e.to_string().contains("missing.glb"));
+}
+
+#[test]
+fn load_dispatches_on_names_and_extensions() {
+    assert_eq!(load("balls").unwrap().name, "balls");
+    assert!(matches!(
+        load("model.obj"),
+        Err(SceneError::UnknownInput { .. })
+    ));
+    assert!(matches!(
+        load("ballz"),
+        Err(SceneError::UnknownInput { .. })
+    ));
+    let fox = Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/Fox/Fox.glb");
+    let s = load(&fox.display().to_string()).unwrap();
+    assert_eq!(s.lights.len(), 1, "a bare glTF gets the framing light");
+}
+
+#[test]
+fn a_file_without_lights_or_camera_is_completed() {
+    let text = "version = 1\n[[object]]\ntype = \"sphere\"\ncenter = [0, 1, 0]\nradius = 1.0\n";
+    let s = parse_scene_file(text, "bare.toml", None).unwrap();
+    assert_eq!(s.lights.len(), 1);
+    assert_eq!(s.meshes.len(), 1, "objects given: no ground added");
+    assert_ne!(
+        s.camera.position,
+        lightfold_scene::Scene::new("x").camera.position
+    );
+}
