@@ -9,7 +9,7 @@
 //! Matrices are column-major (like [`crate::Camera::view_matrix`]); views look down −Z; the
 //! projection is reversed-Z (depth 1 at `near`, 0 at `far`) with wgpu clip conventions.
 
-use crate::model::{LightSample, SampleKind};
+use crate::model::{Camera, LightSample, SampleKind};
 use crate::shading::{V3, cross, dot, length, normalize, scale, sub};
 
 /// Widest field of view (per axis) of a single fitted frustum before cube faces are used: wider
@@ -87,6 +87,56 @@ pub fn shadow_views(sample: &LightSample, receivers: &[(V3, V3)]) -> Vec<ShadowV
 /// Axis-aligned bounds of each mesh, the receivers [`shadow_views`] expects for a whole scene.
 pub fn mesh_receivers(scene: &crate::Scene) -> Vec<(V3, V3)> {
     scene.meshes.iter().filter_map(|m| m.bounds()).collect()
+}
+
+/// The parts of `receivers` the camera can see: each box cut to the camera's view pyramid (no far
+/// plane) and re-boxed; boxes out of view are dropped. Shadow maps only need to cover these, so
+/// with a fixed camera fewer lights need more than one fitted frustum.
+pub fn visible_receivers(camera: &Camera, receivers: &[(V3, V3)]) -> Vec<(V3, V3)> {
+    let (w, h) = (camera.width as f32, camera.height as f32);
+    let corners = [
+        camera.ray_dir(0.0, 0.0),
+        camera.ray_dir(w, 0.0),
+        camera.ray_dir(w, h),
+        camera.ray_dir(0.0, h),
+    ];
+    let forward = camera.frame().forward;
+    let planes: Vec<V3> = (0..4)
+        .map(|i| {
+            let n = normalize(cross(corners[i], corners[(i + 1) % 4]));
+            if dot(n, forward) < 0.0 {
+                scale(n, -1.0)
+            } else {
+                n
+            }
+        })
+        .collect();
+    let eye = camera.position;
+    let mut out = Vec::new();
+    for &(lo, hi) in receivers {
+        let mut b = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        let mut grow = |p: V3| {
+            for k in 0..3 {
+                b.0[k] = b.0[k].min(p[k]);
+                b.1[k] = b.1[k].max(p[k]);
+            }
+        };
+        if box_distance(eye, lo, hi) <= 0.0 {
+            grow(eye);
+        }
+        for face in box_faces(lo, hi) {
+            let rel: Poly = face.iter().map(|p| sub(*p, eye)).collect();
+            for p in clip_all(rel, &planes) {
+                grow(add3(p, eye));
+            }
+        }
+        if b.0[0] <= b.1[0] {
+            // Clipping never leaves the box; rounding must not either.
+            let clamp = |v: V3| std::array::from_fn(|k| v[k].clamp(lo[k], hi[k]));
+            out.push((clamp(b.0), clamp(b.1)));
+        }
+    }
+    out
 }
 
 /// A convex polygon of points relative to the sample position.

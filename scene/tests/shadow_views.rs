@@ -2,8 +2,8 @@
 //! depth inside the map; faces that see nothing are skipped.
 
 use lightfold_scene::shading::V3;
-use lightfold_scene::shadow_views::{ShadowViewKind, project, shadow_views};
-use lightfold_scene::{LightSample, SampleKind};
+use lightfold_scene::shadow_views::{ShadowViewKind, project, shadow_views, visible_receivers};
+use lightfold_scene::{Camera, LightSample, SampleKind};
 
 fn sample(position: V3, direction: V3, kind: SampleKind) -> LightSample {
     LightSample {
@@ -163,4 +163,46 @@ fn depth_is_reversed_between_near_and_far() {
     assert!(project(&v, [0.0, 1.5, 0.0]).unwrap().1 > 1.0);
     let (_, z_near) = project(&v, [0.0, 3.0 - v.near, 0.0]).unwrap();
     assert!((z_near - 1.0).abs() < 1e-4, "{z_near}");
+}
+
+#[test]
+fn receivers_are_cut_to_what_the_camera_sees() {
+    let camera = Camera {
+        position: [0.0, 1.0, 3.0],
+        target: [0.0, 0.0, 0.0],
+        up: [0.0, 1.0, 0.0],
+        fov_y_deg: 40.0,
+        width: 40,
+        height: 30,
+    };
+    let big_floor = ([-50.0, 0.0, -50.0], [50.0, 0.0, 50.0]);
+    let behind = ([-1.0, 0.0, 5.0], [1.0, 1.0, 6.0]);
+    let cut = visible_receivers(&camera, &[big_floor, behind]);
+    assert_eq!(cut.len(), 1, "{cut:?}");
+    let (lo, hi) = cut[0];
+    // The floor is seen from the bottom edge of the view (z ≈ 1.7) to its far end, and narrows.
+    assert!(hi[2] > 1.0 && hi[2] < 2.0 && lo[2] == -50.0, "{cut:?}");
+    assert!(hi[0] < 30.0, "{cut:?}");
+    assert!(lo[0] >= -50.0 && hi[0] <= 50.0 && lo[1] == 0.0 && hi[1] == 0.0);
+    // Every floor point the camera sees through a pixel lies inside the cut box.
+    for (x, y) in [(0.5, 29.5), (39.5, 29.5), (20.0, 20.0), (5.0, 16.0)] {
+        let d = camera.ray_dir(x, y);
+        if d[1] < 0.0 {
+            let t = -camera.position[1] / d[1];
+            let p = [
+                camera.position[0] + t * d[0],
+                0.0,
+                camera.position[2] + t * d[2],
+            ];
+            if p[0].abs() <= 50.0 && p[2].abs() <= 50.0 {
+                assert!(
+                    (0..3).all(|k| p[k] >= lo[k] - 1e-3 && p[k] <= hi[k] + 1e-3),
+                    "{p:?}"
+                );
+            }
+        }
+    }
+    // A camera inside a box keeps the part of the box in front of it.
+    let room = ([-2.0, 0.0, -2.0], [2.0, 3.0, 4.0]);
+    assert_eq!(visible_receivers(&camera, &[room]).len(), 1);
 }
