@@ -12,6 +12,10 @@ use std::time::Instant;
 pub enum ReferenceError {
     #[error(transparent)]
     Image(#[from] ImageError),
+    #[error(transparent)]
+    Metrics(#[from] crate::metrics::MetricsError),
+    #[error("cannot write {path}: {message}")]
+    Write { path: String, message: String },
     #[error("light {name:?} is not in scene {scene:?} (lights: {available})")]
     UnknownLight {
         name: String,
@@ -56,27 +60,21 @@ impl RenderReport {
     }
 }
 
-/// Keeps the samples of the named source lights (names or indices into `Scene::lights`).
-pub fn select_lights(
-    scene: &Scene,
-    samples: &[LightSample],
-    names: &[String],
-) -> Result<Vec<LightSample>, ReferenceError> {
-    let mut keep = Vec::new();
-    for name in names {
-        let index = scene
-            .lights
-            .iter()
-            .position(|l| &l.name == name)
-            .or_else(|| {
-                name.parse::<usize>()
-                    .ok()
-                    .filter(|&i| i < scene.lights.len())
-            });
-        match index {
-            Some(i) => keep.push(i as u32),
-            None => {
-                return Err(ReferenceError::UnknownLight {
+/// Indices into `Scene::lights` of the named lights (names, or indices as text).
+pub fn light_indices(scene: &Scene, names: &[String]) -> Result<Vec<usize>, ReferenceError> {
+    names
+        .iter()
+        .map(|name| {
+            scene
+                .lights
+                .iter()
+                .position(|l| &l.name == name)
+                .or_else(|| {
+                    name.parse::<usize>()
+                        .ok()
+                        .filter(|&i| i < scene.lights.len())
+                })
+                .ok_or_else(|| ReferenceError::UnknownLight {
                     name: name.clone(),
                     scene: scene.name.clone(),
                     available: scene
@@ -85,15 +83,38 @@ pub fn select_lights(
                         .map(|l| l.name.as_str())
                         .collect::<Vec<_>>()
                         .join(", "),
-                });
-            }
-        }
-    }
+                })
+        })
+        .collect()
+}
+
+/// Keeps the samples of the named source lights.
+pub fn select_lights(
+    scene: &Scene,
+    samples: &[LightSample],
+    names: &[String],
+) -> Result<Vec<LightSample>, ReferenceError> {
+    let keep = light_indices(scene, names)?;
     Ok(samples
         .iter()
-        .filter(|s| keep.contains(&s.light))
+        .filter(|s| keep.contains(&(s.light as usize)))
         .copied()
         .collect())
+}
+
+/// The scene with only the named lights (for the area truth of a subset). Sample `light`
+/// indices of the result refer to the reduced list.
+pub fn retain_lights(scene: &Scene, names: &[String]) -> Result<Scene, ReferenceError> {
+    let keep = light_indices(scene, names)?;
+    let mut out = scene.clone();
+    out.lights = scene
+        .lights
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| keep.contains(i))
+        .map(|(_, l)| l.clone())
+        .collect();
+    Ok(out)
 }
 
 /// Renders `scene` on the CPU and writes the requested files. For [`ReferenceMode::AreaTruth`]
@@ -142,6 +163,22 @@ pub fn render_to_files(
             .write_exr(path)?;
     }
     Ok(report)
+}
+
+/// Writes the FLIP error map of `test` against `reference` (magma colours) as PNG.
+pub fn write_error_map(
+    test: &Image,
+    reference: &Image,
+    exposure: f32,
+    path: &Path,
+) -> Result<(), ReferenceError> {
+    let rgb = crate::metrics::flip_error_map_rgb8(test, reference, exposure)?;
+    image::save_buffer(path, &rgb, test.width, test.height, image::ColorType::Rgb8).map_err(|e| {
+        ReferenceError::Write {
+            path: path.display().to_string(),
+            message: e.to_string(),
+        }
+    })
 }
 
 /// The PNG path next to an EXR path (`x.exr` → `x.png`).
