@@ -191,13 +191,12 @@ impl Operator for Depth {
                     }
                 }
                 for ((ch, srcs), dst) in carried.iter().zip(couts.iter_mut()) {
-                    let ch = *ch;
                     let dst = &mut dst[b * BLOCK * ch..(b * BLOCK + n) * ch];
-                    for (k, (d, w)) in dst.chunks_exact_mut(ch).zip(&win[..n]).enumerate() {
-                        let s = &srcs[*w as usize][(lo + k) * ch..(lo + k + 1) * ch];
-                        for (d, s) in d.iter_mut().zip(s) {
-                            *d = clamp_fast(*s);
-                        }
+                    let win = &win[..n];
+                    match ch {
+                        6 => carry::<6>(dst, srcs, win, lo),
+                        3 => carry::<3>(dst, srcs, win, lo),
+                        _ => carry::<1>(dst, srcs, win, lo),
                     }
                 }
             }
@@ -213,5 +212,28 @@ impl Operator for Depth {
         }
         *self = next;
         Ok(())
+    }
+}
+
+/// Copies the winning input's `CH` channels of each pixel of a block (pixels `lo..`): starts
+/// from input 0 and selects each later input where it won, so every loop is a plain vector
+/// select rather than a per-pixel gather.
+fn carry<const CH: usize>(dst: &mut [f32], srcs: &[&[f32]], win: &[u32], lo: usize) {
+    let range = lo * CH..(lo + win.len()) * CH;
+    for (d, s) in dst.iter_mut().zip(&srcs[0][range.clone()]) {
+        *d = clamp_fast(*s);
+    }
+    for (i, src) in srcs.iter().enumerate().skip(1) {
+        let i = i as u32;
+        let (d, s) = (
+            dst.as_chunks_mut::<CH>().0,
+            src[range.clone()].as_chunks::<CH>().0,
+        );
+        for ((d, s), w) in d.iter_mut().zip(s).zip(win) {
+            let take = *w == i;
+            for c in 0..CH {
+                d[c] = if take { clamp_fast(s[c]) } else { d[c] };
+            }
+        }
     }
 }

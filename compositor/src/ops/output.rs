@@ -60,17 +60,18 @@ pub fn srgb8(x: f32) -> u8 {
 const BUCKETS: usize = 4096;
 
 struct Tables {
-    /// `thresholds[k]`: the smallest non-negative f32 whose reference code is at least `k`.
-    thresholds: [f32; 256],
+    /// `thresholds[k]`: the smallest non-negative f32 whose reference code is at least `k`
+    /// (`thresholds[256]` is +Inf, so code 255 never steps further).
+    thresholds: [f32; 257],
     /// The code at each bucket's lower edge, a lower bound for every value in the bucket.
-    start: [u8; BUCKETS],
+    start: [u8; BUCKETS + 1],
 }
 
 fn tables() -> &'static Tables {
     static T: OnceLock<Tables> = OnceLock::new();
     T.get_or_init(|| {
-        let mut thresholds = [0.0f32; 256];
-        for (k, t) in thresholds.iter_mut().enumerate().skip(1) {
+        let mut thresholds = [f32::INFINITY; 257];
+        for (k, t) in thresholds.iter_mut().enumerate().take(256).skip(1) {
             // Non-negative floats order like their bit patterns: bisect on the bits.
             let (mut lo, mut hi) = (0u32, 1.0f32.to_bits());
             while lo < hi {
@@ -88,20 +89,17 @@ fn tables() -> &'static Tables {
     })
 }
 
-/// The fast encoder: a bucket guess, then at most a step or two over exact thresholds (the
-/// steepest part of the curve, 12.92·255 codes per unit, moves under one code per bucket).
+/// The fast encoder: the code at the bucket's lower edge, plus one if `v` is past the next
+/// exact threshold. A bucket holds at most one threshold: the steepest part of the curve,
+/// 12.92·255 codes per unit, moves 0.8 codes per bucket.
 #[inline]
 fn srgb8_fast(t: &Tables, v: f32) -> u8 {
     let v = if v > 0.0 { v } else { 0.0 };
-    if v >= 1.0 {
-        return 255;
-    }
-    // Multiplying by a power of two is exact, so the bucket's edge is at or below `v`.
-    let mut c = t.start[(v * BUCKETS as f32) as usize] as usize;
-    while c < 255 && v >= t.thresholds[c + 1] {
-        c += 1;
-    }
-    c as u8
+    let v = if v < 1.0 { v } else { 1.0 };
+    // Multiplying by a power of two is exact, so the bucket's edge is at or below `v`; 1.0 falls
+    // in the extra last bucket.
+    let c = t.start[(v * BUCKETS as f32) as i32 as usize];
+    c + u8::from(v >= t.thresholds[usize::from(c) + 1])
 }
 
 impl Output {

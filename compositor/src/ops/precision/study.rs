@@ -80,6 +80,8 @@ pub struct Outcome {
     pub energy_bias: f64,
     /// Pixels the last chain hop reported saturated.
     pub saturated: u64,
+    /// Node-band pixels the node links reported saturated, summed over the nodes.
+    pub node_saturated: u64,
     /// Pixels whose brightness is in the darkest decade of the content.
     pub dark: u64,
     /// Of those, pixels that kept less than half their light (sum of their six channels).
@@ -187,11 +189,11 @@ pub fn run(setup: &Setup) -> Result<Outcome, FormatError> {
     let mut partial = vec![0f32; pixels * 6];
     let mut next = vec![0f32; pixels * 6];
     let mut bytes = Vec::new();
-    let mut saturated = 0;
+    let (mut saturated, mut node_saturated) = (0, 0);
     for n in 0..stages {
         nodes.node(n, &mut local);
         if let Some(link) = node_link {
-            round_trip(link, &mut local, &mut bytes)?;
+            node_saturated += round_trip(link, &mut local, &mut bytes)?;
         }
         let op = Accumulate::new(&json!({"upstream": n > 0, "colors": [nodes.colors[n]]}))
             .expect("study parameters are valid");
@@ -206,7 +208,9 @@ pub fn run(setup: &Setup) -> Result<Outcome, FormatError> {
         std::mem::swap(&mut partial, &mut next);
         saturated = round_trip(chain, &mut partial, &mut bytes)?;
     }
-    Ok(measure(setup, &nodes, &exact, &partial, saturated, chain))
+    let mut o = measure(setup, &nodes, &exact, &partial, saturated, chain);
+    o.node_saturated = node_saturated;
+    Ok(o)
 }
 
 fn measure(
