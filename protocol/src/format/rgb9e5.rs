@@ -78,3 +78,40 @@ pub(super) fn unpack(src: &[u8], dst: &mut [f32]) {
         *out = decode(u32::from_le_bytes(*w));
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// GL_EXT_texture_shared_exponent's encoder written out in f64 with `log2`, as the spec
+    /// states it (rounding ties to even, as ours does).
+    fn reference(rgb: [f32; 3]) -> u32 {
+        let c = rgb.map(|v| f64::from(clamp_nonneg(v, MAX)));
+        let m = c[0].max(c[1]).max(c[2]);
+        let mut es = m.log2().floor().max(-16.0) as i32 + 16;
+        let mut denom = 2f64.powi(es - 24);
+        if (m / denom).round_ties_even() == 512.0 {
+            es += 1;
+            denom *= 2.0;
+        }
+        let q = c.map(|v| (v / denom).round_ties_even() as u32);
+        q[0] | q[1] << 9 | q[2] << 18 | (es as u32) << 27
+    }
+
+    #[test]
+    fn matches_the_extension_reference() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        for _ in 0..200_000 {
+            let rgb: [f32; 3] = std::array::from_fn(|_| match rng.random_range(0..4) {
+                0 => f32::from_bits(rng.random::<u32>() & 0x7FFF_FFFF),
+                1 => rng.random_range(-1.0..70_000.0),
+                // Just under a power of two, where the mantissa carries into the exponent.
+                2 => 2f32.powi(rng.random_range(-20..17)) * rng.random_range(0.998..1.0),
+                _ => 2f32.powi(rng.random_range(-30..17)) * rng.random_range(0.0..1.0),
+            });
+            assert_eq!(encode(rgb[0], rgb[1], rgb[2]), reference(rgb), "{rgb:?}");
+        }
+        assert_eq!(decode(encode(MAX, 0.0, 1.0)), [MAX, 0.0, 0.0]);
+    }
+}
