@@ -116,10 +116,8 @@ pub fn visible_receivers(camera: &Camera, receivers: &[(V3, V3)]) -> Vec<(V3, V3
     for &(lo, hi) in receivers {
         let mut b = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
         let mut grow = |p: V3| {
-            for k in 0..3 {
-                b.0[k] = b.0[k].min(p[k]);
-                b.1[k] = b.1[k].max(p[k]);
-            }
+            b.0 = std::array::from_fn(|k| b.0[k].min(p[k]));
+            b.1 = std::array::from_fn(|k| b.1[k].max(p[k]));
         };
         if box_distance(eye, lo, hi) <= 0.0 {
             grow(eye);
