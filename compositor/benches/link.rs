@@ -1,0 +1,481 @@
+//! Stage daemon benchmarks over loopback TCP, everything in this one process on real links:
+//!
+//! 1. Link cost: 1920×1080 dense frames, two inputs combined by `accumulate` (an upstream f16x6
+//!    sum and a node's rgb9e5x2 illumination) and by `depth` (f16x6 illumination + f32 depth per
+//!    input), one frame at a time: ms per frame (median, best) against the time the same bytes
+//!    take over raw TCP sockets in the same topology (two senders → a relay that forwards a band's
+//!    worth of bytes per band pair → a receiver), measured in the same run.
+//! 2. Pipelining: a chain of stages, each fed by a rate-paced synthetic source with its own
+//!    period; the steady-state frame interval at the sink against the slowest period, and the
+//!    latency from the slowest source starting a frame to the sink holding all of it.
+//!
+//! `cargo bench -p lightfold-compositor --bench link` (add `-- --frames N` for more samples).
+
+use bytes::Bytes;
+use lightfold_compositor::daemon::driver::{
+    ControlClient, FrameShape, LayerImage, Producer, Sink, pack_band,
+};
+use lightfold_compositor::daemon::{CompositorOptions, run};
+use lightfold_net::{Identity, Timeouts};
+use lightfold_protocol::{
+    BandHeader, CompositorConfig, FrameParams, Layer, PixelFormat, Role, StageInput,
+};
+use std::time::Duration;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::time::Instant;
+use tokio_util::sync::CancellationToken;
+
+const TOKEN: &[u8] = b"bench-token";
+const WAIT: Duration = Duration::from_secs(60);
+const ILL: Layer = Layer::Illumination;
+/// Bytes of framing around a band payload: length prefix, kind byte, header.
+const FRAMING: usize = 4 + 1 + lightfold_protocol::BAND_HEADER_LEN;
+
+fn me(role: Role, id: &str) -> Identity {
+    Identity::new(TOKEN, role, id)
+}
+
+fn timeouts() -> Timeouts {
+    Timeouts {
+        send: WAIT,
+        ..Timeouts::default()
+    }
+}
+
+async fn stage(id: &str) -> (String, CancellationToken) {
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let mut opts = CompositorOptions::new(id, addr.clone(), TOKEN);
+    opts.timeouts = timeouts();
+    let token = CancellationToken::new();
+    tokio::spawn(run(listener, opts, token.clone()));
+    (addr, token)
+}
+
+fn no_params() -> FrameParams {
+    FrameParams {
+        colors: vec![],
+        scale: None,
+    }
+}
+
+/// Smooth HDR content (no empty bands: every band is dense).
+fn content(seed: u32, width: u32, height: u32, layer: Layer) -> Vec<f32> {
+    let ch = layer.channels();
+    let mut v = Vec::with_capacity((width * height) as usize * ch);
+    for y in 0..height {
+        for x in 0..width {
+            for c in 0..ch {
+                let t = (x * 7 + y * 3 + c as u32 * 11 + seed * 101) % 997;
+                v.push(if layer == Layer::Depth {
+                    1.0 + t as f32
+                } else {
+                    0.01 + t as f32 * 0.1
+                });
+            }
+        }
+    }
+    v
+}
+
+/// Every band of a frame, packed once; the frame id is patched per frame (the checksum covers
+/// only the payload).
+fn prepack(shape: &FrameShape, layers: &[LayerImage]) -> Vec<(BandHeader, Bytes)> {
+    let mut out = Vec::new();
+    for b in 0..shape.bands() {
+        for img in layers {
+            out.push(pack_band(shape, b, img).unwrap());
+        }
+    }
+    out
+}
+
+async fn send_bands(p: &mut Producer, bands: &[(BandHeader, Bytes)], frame: u64) {
+    for (h, payload) in bands {
+        let h = BandHeader { frame, ..*h };
+        p.send_band(h, payload.clone()).await.unwrap();
+    }
+}
+
+fn stats(mut v: Vec<f64>) -> (f64, f64) {
+    v.sort_by(f64::total_cmp);
+    (v[v.len() / 2], v[0])
+}
+
+struct LinkCase {
+    name: &'static str,
+    inputs: [Vec<(Layer, PixelFormat)>; 2],
+    op: (&'static str, &'static str),
+    outputs: Vec<(Layer, PixelFormat)>,
+}
+
+async fn link_cost(case: &LinkCase, frames: usize) {
+    let (width, height, band_height) = (1920u32, 1080u32, 64u32);
+    let (stage_addr, stop) = stage("stage").await;
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let sink_addr = listener.local_addr().unwrap().to_string();
+    let mut sink = Sink::new(listener, me(Role::Coordinator, "coord"), timeouts());
+    let mut ctl = ControlClient::connect(
+        &stage_addr,
+        &me(Role::Coordinator, "coord"),
+        timeouts(),
+        WAIT,
+    )
+    .await
+    .unwrap();
+    let cfg = CompositorConfig {
+        epoch: 1,
+        width,
+        height,
+        band_height,
+        inputs: ["a", "b"]
+            .iter()
+            .zip(&case.inputs)
+            .map(|(p, l)| StageInput {
+                peer: p.to_string(),
+                layers: l.clone(),
+            })
+            .collect(),
+        ops: vec![(case.op.0.into(), case.op.1.into())],
+        outputs: case.outputs.clone(),
+        downstream: sink_addr,
+        input_index: 0,
+        frames_in_flight: 2,
+    };
+    ctl.configure(cfg, WAIT).await.unwrap();
+    let shape = |frame| FrameShape {
+        epoch: 1,
+        frame,
+        width,
+        height,
+        band_height,
+        scale: 1.0,
+    };
+    let packed: Vec<Vec<(BandHeader, Bytes)>> = case
+        .inputs
+        .iter()
+        .enumerate()
+        .map(|(i, layers)| {
+            let imgs: Vec<LayerImage> = layers
+                .iter()
+                .map(|&(l, f)| LayerImage {
+                    layer: l,
+                    format: f,
+                    data: content(i as u32, width, height, l),
+                })
+                .collect();
+            prepack(&shape(0), &imgs)
+        })
+        .collect();
+    let mut a = Producer::connect(&stage_addr, &me(Role::Node, "a"), timeouts(), WAIT)
+        .await
+        .unwrap();
+    let mut b = Producer::connect(&stage_addr, &me(Role::Node, "b"), timeouts(), WAIT)
+        .await
+        .unwrap();
+    let bands_out = (height.div_ceil(band_height) as usize) * case.outputs.len();
+
+    let mut times = Vec::new();
+    let mut work = Vec::new();
+    let mut out_bytes = 0usize;
+    for f in 0..frames as u64 + 3 {
+        ctl.render(1, f, no_params()).await.unwrap();
+        let start = Instant::now();
+        let recv = async {
+            let mut bytes = 0;
+            for _ in 0..bands_out {
+                let (_, p) = sink.next_band(Instant::now() + WAIT).await.unwrap();
+                bytes += p.len() + FRAMING;
+            }
+            bytes
+        };
+        let (_, _, bytes) = tokio::join!(
+            send_bands(&mut a, &packed[0], f),
+            send_bands(&mut b, &packed[1], f),
+            recv
+        );
+        let t = start.elapsed().as_secs_f64() * 1e3;
+        let done = ctl.frame_done(f, WAIT).await.unwrap();
+        out_bytes = bytes;
+        if f >= 3 {
+            times.push(t);
+            work.push((
+                done.composite_us as f64 / 1e3,
+                done.pack_us as f64 / 1e3,
+                done.send_us as f64 / 1e3,
+            ));
+        }
+    }
+    stop.cancel();
+
+    let in_sizes: Vec<Vec<usize>> = packed
+        .iter()
+        .map(|bs| bs.iter().map(|(_, p)| p.len() + FRAMING).collect())
+        .collect();
+    let out_band = out_bytes / bands_out;
+    let raw = raw_relay(&in_sizes, bands_out, out_band, frames).await;
+    let in_bytes: usize = in_sizes.iter().flatten().sum();
+    let (med, best) = stats(times);
+    let (rmed, rbest) = stats(raw);
+    let (combine, _) = stats(work.iter().map(|w| w.0).collect());
+    let (pack, _) = stats(work.iter().map(|w| w.1).collect());
+    let (send, _) = stats(work.iter().map(|w| w.2).collect());
+    println!(
+        "link {:<10} in {:>5.1} MB + out {:>5.1} MB per frame | stage median {:>6.1} ms best {:>6.1} ms | raw TCP median {:>6.1} ms best {:>6.1} ms | ratio {:.2} (best {:.2})",
+        case.name,
+        in_bytes as f64 / 1e6,
+        out_bytes as f64 / 1e6,
+        med,
+        best,
+        rmed,
+        rbest,
+        med / rmed,
+        best / rbest
+    );
+    println!(
+        "     {:<10} stage work per frame (median): unpack+operate {combine:.1} ms, pack {pack:.1} ms, writing {send:.1} ms",
+        case.name
+    );
+}
+
+/// The same bytes over plain sockets: two senders → relay → receiver, the relay forwarding
+/// `out_band` bytes for every pair of input bands it has read.
+async fn raw_relay(
+    in_sizes: &[Vec<usize>],
+    bands_out: usize,
+    out_band: usize,
+    frames: usize,
+) -> Vec<f64> {
+    let relay_l = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let sink_l = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let relay_addr = relay_l.local_addr().unwrap();
+    let sink_addr = sink_l.local_addr().unwrap();
+    let mut senders = Vec::new();
+    let mut ins = Vec::new();
+    for _ in 0..2 {
+        let s = TcpStream::connect(relay_addr).await.unwrap();
+        s.set_nodelay(true).unwrap();
+        senders.push(s);
+        let (r, _) = relay_l.accept().await.unwrap();
+        ins.push(r);
+    }
+    let mut out = TcpStream::connect(sink_addr).await.unwrap();
+    out.set_nodelay(true).unwrap();
+    let (mut recv, _) = sink_l.accept().await.unwrap();
+    let max = in_sizes
+        .iter()
+        .flatten()
+        .copied()
+        .max()
+        .unwrap_or(0)
+        .max(out_band);
+    let zeros = vec![0u8; max];
+    let per_out = in_sizes[0].len() / bands_out;
+    let mut times = Vec::new();
+    for f in 0..frames + 3 {
+        let start = Instant::now();
+        let (s0, s1) = senders.split_at_mut(1);
+        let (i0, i1) = ins.split_at_mut(1);
+        let relay = async {
+            let mut buf = vec![0u8; max];
+            for band in 0..bands_out {
+                for k in band * per_out..(band + 1) * per_out {
+                    i0[0].read_exact(&mut buf[..in_sizes[0][k]]).await.unwrap();
+                    i1[0].read_exact(&mut buf[..in_sizes[1][k]]).await.unwrap();
+                }
+                out.write_all(&buf[..out_band]).await.unwrap();
+            }
+        };
+        let sink = async {
+            let mut buf = vec![0u8; out_band];
+            for _ in 0..bands_out {
+                recv.read_exact(&mut buf).await.unwrap();
+            }
+        };
+        tokio::join!(
+            send_raw(&mut s0[0], &in_sizes[0], &zeros),
+            send_raw(&mut s1[0], &in_sizes[1], &zeros),
+            relay,
+            sink
+        );
+        if f >= 3 {
+            times.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    times
+}
+
+async fn send_raw(s: &mut TcpStream, sizes: &[usize], zeros: &[u8]) {
+    for &n in sizes {
+        s.write_all(&zeros[..n]).await.unwrap();
+    }
+}
+
+/// A chain of stages, source k paced at `periods[k]`; returns (interval, latency) medians in ms.
+async fn pipelining(periods: &[u64], frames: u64) {
+    let (width, height, band_height) = (800u32, 600u32, 32u32);
+    let n = periods.len();
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let sink_addr = listener.local_addr().unwrap().to_string();
+    let mut sink = Sink::new(listener, me(Role::Coordinator, "coord"), timeouts());
+    let mut stages = Vec::new();
+    for k in 0..n {
+        stages.push(stage(&format!("c{k}")).await);
+    }
+    let node_fmt = PixelFormat::Rgb9e5x2;
+    let link_fmt = PixelFormat::F16x6;
+    let mut ctls = Vec::new();
+    for k in 0..n {
+        let mut ctl = ControlClient::connect(
+            &stages[k].0,
+            &me(Role::Coordinator, "coord"),
+            timeouts(),
+            WAIT,
+        )
+        .await
+        .unwrap();
+        let node = StageInput {
+            peer: format!("n{k}"),
+            layers: vec![(ILL, node_fmt)],
+        };
+        let (inputs, params) = if k == 0 {
+            (vec![node], r#"{"upstream": false, "colors": [[1, 1, 1]]}"#)
+        } else {
+            let up = StageInput {
+                peer: format!("c{}", k - 1),
+                layers: vec![(ILL, link_fmt)],
+            };
+            (vec![up, node], r#"{"colors": [[1, 1, 1]]}"#)
+        };
+        let last = k + 1 == n;
+        let cfg = CompositorConfig {
+            epoch: 1,
+            width,
+            height,
+            band_height,
+            inputs,
+            ops: vec![("accumulate".into(), params.into())],
+            outputs: vec![(ILL, if last { PixelFormat::F32x6 } else { link_fmt })],
+            downstream: if last {
+                sink_addr.clone()
+            } else {
+                stages[k + 1].0.clone()
+            },
+            input_index: 0,
+            frames_in_flight: 2,
+        };
+        ctl.configure(cfg, WAIT).await.unwrap();
+        for f in 0..frames {
+            ctl.render(1, f, no_params()).await.unwrap();
+        }
+        ctls.push(ctl);
+    }
+    let shape = FrameShape {
+        epoch: 1,
+        frame: 0,
+        width,
+        height,
+        band_height,
+        scale: 1.0,
+    };
+    let t0 = Instant::now() + Duration::from_millis(200);
+    for (k, &period) in periods.iter().enumerate() {
+        let img = LayerImage {
+            layer: ILL,
+            format: node_fmt,
+            data: content(k as u32, width, height, ILL),
+        };
+        let bands = prepack(&shape, &[img]);
+        let mut p = Producer::connect(
+            &stages[k].0,
+            &me(Role::Node, &format!("n{k}")),
+            timeouts(),
+            WAIT,
+        )
+        .await
+        .unwrap();
+        tokio::spawn(async move {
+            for f in 0..frames {
+                tokio::time::sleep_until(t0 + Duration::from_millis(f * period)).await;
+                send_bands(&mut p, &bands, f).await;
+            }
+        });
+    }
+    let bands = height.div_ceil(band_height);
+    let mut done = Vec::new();
+    for _ in 0..frames {
+        for _ in 0..bands {
+            sink.next_band(Instant::now() + WAIT).await.unwrap();
+        }
+        done.push(Instant::now());
+    }
+    for (ctl, (_, stop)) in ctls.iter_mut().zip(&stages) {
+        ctl.frame_done(frames - 1, WAIT).await.unwrap();
+        stop.cancel();
+    }
+    let slowest = *periods.iter().max().unwrap();
+    let warm = (frames / 4) as usize;
+    let intervals: Vec<f64> = done
+        .windows(2)
+        .skip(warm)
+        .map(|w| (w[1] - w[0]).as_secs_f64() * 1e3)
+        .collect();
+    let latencies: Vec<f64> = done
+        .iter()
+        .enumerate()
+        .skip(warm)
+        .map(|(f, t)| (*t - (t0 + Duration::from_millis(f as u64 * slowest))).as_secs_f64() * 1e3)
+        .collect();
+    let (interval, _) = stats(intervals);
+    let (latency, _) = stats(latencies);
+    println!(
+        "pipeline {n} stages, source periods {periods:?} ms: interval median {interval:.1} ms = {:.3} x slowest ({slowest} ms); latency median {latency:.1} ms = {:.2} frames",
+        interval / slowest as f64,
+        latency / slowest as f64
+    );
+}
+
+fn main() {
+    let mut frames = 30usize;
+    let args: Vec<String> = std::env::args().collect();
+    if let Some(i) = args.iter().position(|a| a == "--frames") {
+        frames = args
+            .get(i + 1)
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(frames);
+    }
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .unwrap();
+    rt.block_on(async {
+        let accumulate = LinkCase {
+            name: "accumulate",
+            inputs: [
+                vec![(ILL, PixelFormat::F16x6)],
+                vec![(ILL, PixelFormat::Rgb9e5x2)],
+            ],
+            op: ("accumulate", r#"{"colors": [[1, 1, 1]]}"#),
+            outputs: vec![(ILL, PixelFormat::F16x6)],
+        };
+        let layers = vec![
+            (ILL, PixelFormat::F16x6),
+            (Layer::Depth, PixelFormat::DepthF32),
+        ];
+        let depth = LinkCase {
+            name: "depth",
+            inputs: [layers.clone(), layers.clone()],
+            op: ("depth", r#"{"inputs": 2, "layers": ["illumination"]}"#),
+            outputs: vec![
+                (Layer::Depth, PixelFormat::DepthF32),
+                (ILL, PixelFormat::F16x6),
+            ],
+        };
+        link_cost(&accumulate, frames).await;
+        link_cost(&depth, frames).await;
+        pipelining(&[40, 60, 50, 45], 40).await;
+        pipelining(&[60, 60, 60, 60], 40).await;
+    });
+}
