@@ -1,7 +1,8 @@
-//! Measures the CPU reference's speed on a synthetic 50k-triangle scene at 800×600: the exact
-//! point sum over 2 area lights × 16 samples, and (with `--area SPP`) the area-light truth.
+//! Measures the CPU reference's speed: the exact point sum over the scene's samples and (with
+//! `--area SPP`) the area-light truth. Without `--scene` it uses a synthetic 50k-triangle scene
+//! at 800×600 with 2 area lights × 16 samples.
 //!
-//! `cargo run --release -p lightfold-reference --example speed [-- --area 64]`
+//! `cargo run --release -p lightfold-reference --example speed -- [--scene balls] [--area 64]`
 
 use lightfold_scene::primitives::{plane, sphere};
 use lightfold_scene::sampling::scene_samples;
@@ -9,7 +10,22 @@ use lightfold_scene::{Camera, Light, LightShape, Material, Quality, Scene};
 use std::time::Instant;
 
 fn main() {
-    let scene = synthetic_scene();
+    let args: Vec<String> = std::env::args().collect();
+    let value = |flag: &str| {
+        args.iter()
+            .position(|a| a == flag)
+            .and_then(|i| args.get(i + 1))
+    };
+    let scene = match value("--scene") {
+        Some(name) => match lightfold_scene::load(name) {
+            Ok(s) => s,
+            Err(e) => {
+                eprintln!("cannot load {name}: {e}");
+                std::process::exit(2);
+            }
+        },
+        None => synthetic_scene(),
+    };
     let tris: usize = scene.meshes.iter().map(|m| m.triangle_count()).sum();
     let samples = scene_samples(&scene);
     let t = Instant::now();
@@ -33,6 +49,23 @@ fn main() {
         rays / 1e6,
         rayon::current_num_threads()
     );
+    if let Some(spp) = value("--area").and_then(|s| s.parse::<u32>().ok()) {
+        let t = Instant::now();
+        let opts = lightfold_reference::AreaOptions {
+            samples_per_light: spp,
+            ..Default::default()
+        };
+        let _ = lightfold_reference::render_area(&scene, &opts);
+        let secs = t.elapsed().as_secs_f64();
+        let area = scene.lights.iter().filter(|l| l.is_area()).count();
+        let exact = scene.lights.len() - area;
+        let rays = pixels * (1.0 + (spp as usize * area + exact) as f64);
+        println!(
+            "area truth at {spp} samples/light/pixel: {secs:.2} s, {:.2} Mrays/s (≤ {:.1} M rays)",
+            rays / secs / 1e6,
+            rays / 1e6
+        );
+    }
 }
 
 /// A ground plane, 12 spheres of 4k triangles and two 16-sample rectangle lights (~50k triangles).

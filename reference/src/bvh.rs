@@ -205,14 +205,13 @@ impl Bvh {
         if self.nodes.is_empty() {
             return false;
         }
-        let of = o.map(|c| c as f32);
-        let inv = d.map(|c| 1.0 / c as f32);
+        let ray = BoxRay::new(o, d);
         let mut stack = [0u32; STACK];
         let mut sp = 1usize;
         while sp > 0 {
             sp -= 1;
             let node = &self.nodes[stack[sp] as usize];
-            if slab(node, of, inv, tmin as f32, *tmax as f32).is_none() {
+            if ray.hit(node, tmin as f32, *tmax as f32).is_none() {
                 continue;
             }
             if node.count > 0 {
@@ -227,20 +226,8 @@ impl Bvh {
             let left = stack[sp] + 1;
             let right = node.offset;
             let (near, far) = if ordered {
-                let tl = slab(
-                    &self.nodes[left as usize],
-                    of,
-                    inv,
-                    tmin as f32,
-                    *tmax as f32,
-                );
-                let tr = slab(
-                    &self.nodes[right as usize],
-                    of,
-                    inv,
-                    tmin as f32,
-                    *tmax as f32,
-                );
+                let tl = ray.hit(&self.nodes[left as usize], tmin as f32, *tmax as f32);
+                let tr = ray.hit(&self.nodes[right as usize], tmin as f32, *tmax as f32);
                 match (tl, tr) {
                     (None, None) => continue,
                     (Some(_), None) => (left, None),
@@ -262,19 +249,51 @@ impl Bvh {
     }
 }
 
-/// Entry distance of the ray into the node's box within `[tmin, tmax]`, or `None`.
-#[inline]
-fn slab(n: &Node, o: [f32; 3], inv: [f32; 3], tmin: f32, tmax: f32) -> Option<f32> {
-    let mut t0 = tmin;
-    let mut t1 = tmax;
-    for k in 0..3 {
-        let a = (n.min[k] - o[k]) * inv[k];
-        let b = (n.max[k] - o[k]) * inv[k];
-        // `max`/`min` drop the NaN of 0·∞ (origin on a slab plane, direction parallel to it).
-        t0 = t0.max(a.min(b));
-        t1 = t1.min(a.max(b) * SLAB_GROW);
+/// A ray prepared for slab tests: f32 origin, reciprocal direction with zero components nudged
+/// to ±1e-30 (so no 0·∞ NaN can arise and plain comparisons replace NaN-aware `min`/`max`), and
+/// which slab plane is entered first per axis.
+#[derive(Clone, Copy)]
+struct BoxRay {
+    o: [f32; 3],
+    inv: [f32; 3],
+    neg: [bool; 3],
+}
+
+impl BoxRay {
+    fn new(o: [f64; 3], d: [f64; 3]) -> BoxRay {
+        let inv = d.map(|c| {
+            let c = c as f32;
+            1.0 / if c.abs() < 1e-30 {
+                1e-30f32.copysign(c)
+            } else {
+                c
+            }
+        });
+        BoxRay {
+            o: o.map(|c| c as f32),
+            inv,
+            neg: inv.map(|c| c < 0.0),
+        }
     }
-    (t0 <= t1).then_some(t0)
+
+    /// Entry distance into the node's box within `[tmin, tmax]`, or `None`.
+    #[inline(always)]
+    fn hit(&self, n: &Node, tmin: f32, tmax: f32) -> Option<f32> {
+        let mut t0 = tmin;
+        let mut t1 = tmax;
+        for k in 0..3 {
+            let (near, far) = if self.neg[k] {
+                (n.max[k], n.min[k])
+            } else {
+                (n.min[k], n.max[k])
+            };
+            let a = (near - self.o[k]) * self.inv[k];
+            let b = (far - self.o[k]) * self.inv[k] * SLAB_GROW;
+            t0 = if a > t0 { a } else { t0 };
+            t1 = if b < t1 { b } else { t1 };
+        }
+        (t0 <= t1).then_some(t0)
+    }
 }
 
 /// Möller–Trumbore in f64 with edges widened by `EDGE_TOLERANCE`: `(t, u, v)` for `t` in
