@@ -2,8 +2,8 @@
 //! chain of `accumulate` stages (the paper's topology), then — reconfigured to a new epoch without
 //! restarting — as a tree of `accumulate` leaves and `join`s. Fed random HDR content (1e4 : 1)
 //! with an odd image size and a band height that does not divide it, each produces the operators'
-//! in-memory result within the bound of its link formats. Every process is killed at the end,
-//! even on failure.
+//! in-memory result within the bound of its link formats. The stages then exit cleanly on the
+//! coordinator's `Shutdown` or on SIGTERM; every process is killed at the end, even on failure.
 
 use lightfold_compositor::daemon::driver::{ControlClient, FrameShape, LayerImage, Producer, Sink};
 use lightfold_compositor::ops::{BandMut, BandView};
@@ -442,10 +442,13 @@ async fn eight_processes_as_a_chain_then_a_tree_match_the_in_memory_result() {
         c.frame_done(3, WAIT).await.unwrap();
     }
 
-    // Clean exit on the coordinator's word.
-    for c in ctl.iter_mut() {
+    // Clean exit on the coordinator's word, and for the last one on SIGTERM.
+    for c in ctl.iter_mut().take(STAGES - 1) {
         c.shutdown().await.unwrap();
     }
+    let pid = daemons.0[STAGES - 1].id().to_string();
+    let killed = Command::new("kill").args(["-TERM", &pid]).status().unwrap();
+    assert!(killed.success(), "kill -TERM {pid}");
     let deadline = std::time::Instant::now() + WAIT;
     for (k, child) in daemons.0.iter_mut().enumerate() {
         loop {
@@ -455,7 +458,7 @@ async fn eight_processes_as_a_chain_then_a_tree_match_the_in_memory_result() {
             }
             assert!(
                 std::time::Instant::now() < deadline,
-                "c{k} did not exit after Shutdown"
+                "c{k} did not exit after Shutdown or SIGTERM"
             );
             tokio::time::sleep(Duration::from_millis(20)).await;
         }
