@@ -45,7 +45,7 @@ fn brdf_max(scene: &Scene, material: usize) -> f32 {
     // A diffuse texture multiplies `diffuse` by at most 1.
     let d = cmax(m.diffuse) / PI;
     let s = if m.has_specular() || m.specular.iter().any(|&v| v != 0.0) {
-        if !(m.shininess >= 0.0) || !m.shininess.is_finite() {
+        if m.shininess.is_nan() || m.shininess < 0.0 || !m.shininess.is_finite() {
             return f32::INFINITY;
         }
         cmax(m.specular) * (m.shininess + 8.0) / (8.0 * PI)

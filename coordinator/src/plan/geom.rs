@@ -54,16 +54,16 @@ impl Aabb {
     /// infinity, for directional lights). Exact for boxes: the overlap in all three axes at once.
     pub fn sweep_hits(&self, d: V3, o: &Aabb) -> bool {
         let (mut t0, mut t1) = (0.0f32, f32::INFINITY);
-        for k in 0..3 {
+        for (k, &dk) in d.iter().enumerate() {
             // Overlap on axis k: lo + t·d ≤ o.hi and o.lo ≤ hi + t·d.
-            if d[k].abs() < 1e-12 {
+            if dk.abs() < 1e-12 {
                 if self.lo[k] > o.hi[k] || o.lo[k] > self.hi[k] {
                     return false;
                 }
                 continue;
             }
-            let a = (o.lo[k] - self.hi[k]) / d[k];
-            let b = (o.hi[k] - self.lo[k]) / d[k];
+            let a = (o.lo[k] - self.hi[k]) / dk;
+            let b = (o.hi[k] - self.lo[k]) / dk;
             t0 = t0.max(a.min(b));
             t1 = t1.min(a.max(b));
         }

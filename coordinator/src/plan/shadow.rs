@@ -1,8 +1,8 @@
 //! Per active sample: the casters its shadow map needs (meshes in its reach that overlap the region
 //! between it and a visible receiver it lights), the views `scene::shadow_views` fits (as the node
 //! does), and the map size from the eye/light resolution mismatch factor of Govindaraju et al.
-//! (seed 002): `m = (d_s·r_s/cos α)/(d_i·r_i/cos β)`, chosen so that `m ≤ 1` at the median lit
-//! visible point found by a coarse grid of eye rays.
+//! (seed 002): `m = (d_s·r_s/cos α)/(d_i·r_i/cos β)`, near the target `m` at the median lit visible
+//! point found by a coarse grid of eye rays.
 
 use super::cull::Receiver;
 use super::geom::{Aabb, lights_point, reach};
@@ -110,7 +110,8 @@ fn to_view(m: &[[f32; 4]; 4], p: V3) -> V3 {
     std::array::from_fn(|r| m[0][r] * p[0] + m[1][r] * p[1] + m[2][r] * p[2] + m[3][r])
 }
 
-/// Map size: the smallest power of two with mismatch `m ≤ 1` at the median lit probe point.
+/// Map size: the power of two nearest the size with mismatch `m = target` at the median lit
+/// probe point.
 pub(crate) fn map_size(
     s: &LightSample,
     views: &[ShadowView],
@@ -118,11 +119,16 @@ pub(crate) fn map_size(
     cam: &Camera,
     sizing: MapSizing,
 ) -> u32 {
-    let (lo, hi) = match sizing {
+    let (lo, hi, target) = match sizing {
         MapSizing::Fixed(n) => return n.clamp(1, super::types::MAX_MAP_SIZE),
-        MapSizing::Mismatch { min, max } => (
+        MapSizing::Mismatch { min, max, target } => (
             min.clamp(1, MAX_MAP_SIZE).next_power_of_two(),
             prev_power_of_two(max.clamp(1, MAX_MAP_SIZE)),
+            if target.is_finite() && target > 0.0 {
+                target
+            } else {
+                1.0
+            },
         ),
     };
     let hi = hi.max(lo);
@@ -154,7 +160,7 @@ pub(crate) fn map_size(
             inside.then_some(span * z)
         });
         let Some(world) = held else { continue };
-        let n = world * p.cos_beta / (d_i * p.eye_dist * cos_alpha);
+        let n = world * p.cos_beta / (d_i * p.eye_dist * cos_alpha * target);
         if n.is_finite() && n > 0.0 {
             need.push(n);
         }
@@ -164,9 +170,7 @@ pub(crate) fn map_size(
     }
     need.sort_by(f32::total_cmp);
     let median = need[need.len() / 2];
-    let size = (median.ceil().min(MAX_MAP_SIZE as f32) as u32)
-        .max(1)
-        .next_power_of_two();
+    let size = 2u32.pow(median.max(1.0).log2().round().clamp(0.0, 12.0) as u32);
     size.clamp(lo, hi)
 }
 

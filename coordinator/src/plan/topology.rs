@@ -34,15 +34,18 @@ pub(crate) struct Finish {
     pub exposure: f32,
 }
 
-/// Builds the stages. Returns them with, per illumination node, `(stage id, input index)`, and
-/// the material node's `(stage id, input index)`.
+/// Where a node streams: `(stage id, input index)`.
+pub(crate) type Dest = (String, u32);
+
+/// Builds the stages. Returns them with, per illumination node, its destination, and the
+/// material node's.
 pub(crate) fn stages(
     nodes: &[IllumInput],
     finish: &Finish,
     compositors: &[DaemonSpec],
     topology: Topology,
     formats: &FormatChoice,
-) -> (Vec<StagePlan>, Vec<(String, u32)>, (String, u32)) {
+) -> (Vec<StagePlan>, Vec<Dest>, Dest) {
     let n = nodes.len().max(1);
     let c = compositors.len().max(1);
     let leaves = match topology {

@@ -107,10 +107,11 @@ impl Default for FormatChoice {
 }
 
 /// How shadow-map sizes are chosen.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub enum MapSizing {
-    /// From the eye/light resolution mismatch factor (seed 002), a power of two in `[min, max]`.
-    Mismatch { min: u32, max: u32 },
+    /// From the eye/light resolution mismatch factor `m` (seed 002): the power of two in
+    /// `[min, max]` nearest (in log₂) to the size giving `m = target` at the median lit point.
+    Mismatch { min: u32, max: u32, target: f32 },
     /// The same size for every map.
     Fixed(u32),
 }
@@ -144,6 +145,10 @@ pub const DEFAULT_BAND_HEIGHT: u32 = 32;
 pub const MIN_MAP_SIZE: u32 = 256;
 pub const MAX_MAP_SIZE: u32 = 4096;
 pub const DEFAULT_MAP_SIZE: u32 = 512;
+/// Default target mismatch: a shadow texel may span two image pixels. The bilinear 2×2 PCF lookup
+/// turns a texel step into a ramp one texel wide, so this blurs an edge over at most two pixels —
+/// far less than the penumbra of an area light sampled by many points — instead of stair steps.
+pub const DEFAULT_TARGET_MISMATCH: f32 = 2.0;
 
 impl Default for PlanOptions {
     fn default() -> Self {
@@ -159,6 +164,7 @@ impl Default for PlanOptions {
             map_sizing: MapSizing::Mismatch {
                 min: MIN_MAP_SIZE,
                 max: MAX_MAP_SIZE,
+                target: DEFAULT_TARGET_MISMATCH,
             },
             frames_in_flight: 2,
         }

@@ -89,7 +89,7 @@ pub fn random(seed: u64) -> Scene {
             range(rng, 0.1, 0.9),
         ];
         let mut m = Material::diffuse(&format!("m{i}"), d);
-        m.specular = if rng.next_u64() % 4 == 0 {
+        m.specular = if rng.next_u64().is_multiple_of(4) {
             [0.5; 3]
         } else {
             spec
@@ -100,7 +100,7 @@ pub fn random(seed: u64) -> Scene {
             1 => d,
             _ => [0.2; 3],
         };
-        if rng.next_u64() % 6 == 0 {
+        if rng.next_u64().is_multiple_of(6) {
             m.emissive = [0.5, 0.4, 0.1];
         }
         s.add_material(m)
@@ -123,19 +123,19 @@ pub fn random(seed: u64) -> Scene {
             range(&mut rng, 0.3, 1.5),
             range(&mut rng, -3.0, 3.0),
         ];
-        if rng.next_u64() % 2 == 0 {
+        if rng.next_u64().is_multiple_of(2) {
             s.add_mesh(cuboid(&format!("box{i}"), c, [0.4, 0.4, 0.4], m));
         } else {
             s.add_mesh(sphere(&format!("ball{i}"), c, 0.5, 8, 6, m));
         }
     }
     // Far away behind the camera: never visible, still a possible caster.
-    if rng.next_u64() % 2 == 0 {
+    if rng.next_u64().is_multiple_of(2) {
         s.add_mesh(cuboid("hidden", [0.0, 1.0, 40.0], [1.0, 1.0, 1.0], floor));
     }
     let lights = 1 + rng.next_u64() % 4;
     for i in 0..lights {
-        let color = if rng.next_u64() % 8 == 0 {
+        let color = if rng.next_u64().is_multiple_of(8) {
             [0.0; 3]
         } else {
             pick(&mut rng, &PALETTE)
@@ -147,7 +147,7 @@ pub fn random(seed: u64) -> Scene {
         ];
         let mut light = match rng.next_u64() % 5 {
             0 => {
-                let up = rng.next_u64() % 4 == 0;
+                let up = rng.next_u64().is_multiple_of(4);
                 let n = if up {
                     [0.0, 1.0, 0.0]
                 } else {
@@ -171,7 +171,7 @@ pub fn random(seed: u64) -> Scene {
                 samples: 1,
             },
             2 => {
-                let away = rng.next_u64() % 3 == 0;
+                let away = rng.next_u64().is_multiple_of(3);
                 Light {
                     name: format!("spot{i}"),
                     shape: LightShape::Spot {
@@ -211,12 +211,12 @@ pub fn random(seed: u64) -> Scene {
                 samples: 1,
             },
         };
-        if rng.next_u64() % 4 == 0 {
+        if rng.next_u64().is_multiple_of(4) {
             light.range = Some(range(&mut rng, 0.5, 4.0));
         }
         s.lights.push(light);
     }
-    if ambient_mode != 0 && rng.next_u64() % 2 == 0 {
+    if ambient_mode != 0 && rng.next_u64().is_multiple_of(2) {
         s.ambient = [0.05, 0.05, 0.05];
     }
     s.camera.position = [range(&mut rng, -2.0, 2.0), 3.0, 7.0];
