@@ -9,14 +9,18 @@ use std::sync::LazyLock;
 use super::{clamp_nonneg, count_saturated, round_u32};
 
 const BUCKETS: usize = 4096;
+/// Values map to buckets by `round(x · SPAN)`.
+const SPAN: f32 = (BUCKETS - 1) as f32;
 
 struct Srgb {
     /// Linear value of each code.
     decode: [f32; 256],
     /// `threshold[c]`: midpoint between codes c and c+1; values at or above it encode above c.
     threshold: [f32; 256],
-    /// Code of the bucket start `i/4096`. The smallest gap between codes (1/255/12.92 ≈ 3.0e-4)
-    /// is wider than a bucket (2.4e-4), so a bucket holds at most one threshold.
+    /// Code at the lower edge of bucket `i`, the values that round to `i` in `x·4095`:
+    /// [(i − ½)/4095, (i + ½)/4095], widened by 1e-6 for the rounding of the product. The smallest
+    /// gap between codes (1/255/12.92 ≈ 3.0e-4) is wider than a bucket (2.4e-4 + 2e-6), so a
+    /// bucket holds at most one threshold.
     start: [u8; BUCKETS],
 }
 
@@ -36,8 +40,8 @@ static SRGB: LazyLock<Srgb> = LazyLock::new(|| {
         None => f32::INFINITY,
     });
     let start = std::array::from_fn(|i| {
-        let x = i as f32 / BUCKETS as f32;
-        threshold.iter().take_while(|&&t| t <= x).count() as u8
+        let edge = ((i as f64 - 0.5) / f64::from(SPAN) - 1e-6).max(0.0) as f32;
+        threshold.iter().take_while(|&&t| t <= edge).count() as u8
     });
     Srgb {
         decode,
@@ -49,7 +53,8 @@ static SRGB: LazyLock<Srgb> = LazyLock::new(|| {
 #[inline(always)]
 fn encode_srgb(t: &Srgb, v: f32) -> u8 {
     let x = clamp_nonneg(v, 1.0);
-    let bucket = ((x * BUCKETS as f32) as usize).min(BUCKETS - 1);
+    // Rounding by the 2^23 trick keeps this free of float→int conversions.
+    let bucket = (round_u32(x * SPAN) as usize).min(BUCKETS - 1);
     let c = t.start[bucket];
     c + u8::from(x >= t.threshold[usize::from(c)])
 }
@@ -136,7 +141,7 @@ mod tests {
             probes.extend([th, th.next_down(), th.next_up()]);
         }
         for i in 0..=BUCKETS {
-            let b = i as f32 / BUCKETS as f32;
+            let b = (i as f32 - 0.5) / SPAN;
             probes.extend([b, b.next_down(), b.next_up()]);
         }
         for x in probes.into_iter().filter(|x| (0.0..=1.0).contains(x)) {
