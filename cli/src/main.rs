@@ -6,6 +6,7 @@ use clap::{Parser, Subcommand};
 
 mod compositor_cmd;
 mod defaults_cmd;
+mod plan_cmd;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -27,6 +28,8 @@ enum Command {
     Compositor(compositor_cmd::Args),
     /// Print the built-in defaults (image size, samples, K, shadow-map size).
     Defaults(defaults_cmd::Args),
+    /// Print the plan for a scene: stages, lights per node, culled lights, shadow passes, bytes.
+    Plan(plan_cmd::Args),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -35,6 +38,7 @@ fn main() -> anyhow::Result<()> {
     match cli.command {
         Command::Compositor(args) => compositor_cmd::run(args),
         Command::Defaults(args) => defaults_cmd::run(args),
+        Command::Plan(args) => plan_cmd::run(args),
     }
 }
 
