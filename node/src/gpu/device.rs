@@ -1,0 +1,246 @@
+//! Device setup in one place: pick a backend (flag, `LIGHTFOLD_BACKEND`, else Vulkan before GL),
+//! pick an adapter (optionally by name), check the features and limits the renderer needs, and
+//! open the device with typed errors. Everything else takes `&Device`/`&Queue` so tests can inject
+//! their own.
+
+use std::fmt;
+
+/// Environment variable naming the backend (`vulkan` or `gl`) when no flag is given.
+pub const BACKEND_ENV: &str = "LIGHTFOLD_BACKEND";
+
+/// Bytes of one shadow-map texel (Depth32Float).
+pub const SHADOW_TEXEL_BYTES: u64 = 4;
+/// Most shadow views one light can need: the six faces of a cube map.
+pub const MAX_VIEWS_PER_LIGHT: u32 = 6;
+/// Device memory we allow shadow maps to take (lavapipe allocates them in host memory).
+pub const SHADOW_MEMORY_BUDGET: u64 = 1 << 30;
+
+/// How to choose the device.
+#[derive(Debug, Clone, Default)]
+pub struct GpuOptions {
+    /// Backends to consider; `None` reads [`BACKEND_ENV`], else tries Vulkan then GL.
+    pub backend: Option<wgpu::Backends>,
+    /// Case-insensitive substring of the adapter name (e.g. `llvmpipe`).
+    pub adapter_name: Option<String>,
+}
+
+/// An open device and what it can do.
+#[derive(Debug)]
+pub struct Gpu {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub info: wgpu::AdapterInfo,
+    pub limits: wgpu::Limits,
+    pub features: wgpu::Features,
+    /// Whether `Rgba32Float` is a render target here (GL cannot): else illumination is f16.
+    pub float32_targets: bool,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceError {
+    #[error("no graphics adapter found for backends {backends}{}", name_hint(.adapter_name))]
+    NoAdapter {
+        backends: String,
+        adapter_name: Option<String>,
+    },
+    #[error("unknown backend {value:?} in {BACKEND_ENV} (expected vulkan or gl)")]
+    UnknownBackend { value: String },
+    #[error("adapter {adapter} lacks required feature {feature}")]
+    MissingFeature {
+        adapter: String,
+        feature: &'static str,
+    },
+    #[error("adapter limit {limit} is {maximum}, renderer needs {requested}")]
+    LimitTooLow {
+        limit: &'static str,
+        requested: u64,
+        maximum: u64,
+    },
+    #[error("device request failed: {0}")]
+    RequestDevice(String),
+}
+
+fn name_hint(name: &Option<String>) -> String {
+    match name {
+        Some(n) => format!(" matching adapter name {n:?}"),
+        None => String::new(),
+    }
+}
+
+/// Features the renderer cannot work without, with their names for error messages.
+/// Depth clamping lets casters in front of a shadow frustum's near plane (which is fitted to the
+/// receivers) still land in the map instead of being clipped away.
+const REQUIRED_FEATURES: &[(wgpu::Features, &str)] =
+    &[(wgpu::Features::DEPTH_CLIP_CONTROL, "DEPTH_CLIP_CONTROL")];
+
+/// Limits below which the renderer cannot run at all: (name, needed, adapter value).
+fn required_limits(l: &wgpu::Limits) -> [(&'static str, u64, u64); 5] {
+    [
+        (
+            "max_storage_buffers_per_shader_stage",
+            4,
+            l.max_storage_buffers_per_shader_stage as u64,
+        ),
+        ("max_color_attachments", 2, l.max_color_attachments as u64),
+        (
+            "max_texture_array_layers",
+            2,
+            l.max_texture_array_layers as u64,
+        ),
+        (
+            "max_texture_dimension_2d",
+            1024,
+            l.max_texture_dimension_2d as u64,
+        ),
+        (
+            "max_inter_stage_shader_variables",
+            8,
+            l.max_inter_stage_shader_variables as u64,
+        ),
+    ]
+}
+
+/// Parses a backend name as accepted by `--backend` and [`BACKEND_ENV`].
+pub fn parse_backend(value: &str) -> Result<wgpu::Backends, DeviceError> {
+    match value.trim().to_ascii_lowercase().as_str() {
+        "vulkan" | "vk" => Ok(wgpu::Backends::VULKAN),
+        "gl" | "gles" | "opengl" => Ok(wgpu::Backends::GL),
+        "metal" => Ok(wgpu::Backends::METAL),
+        "dx12" => Ok(wgpu::Backends::DX12),
+        _ => Err(DeviceError::UnknownBackend {
+            value: value.to_string(),
+        }),
+    }
+}
+
+fn backend_rank(b: wgpu::Backend) -> u32 {
+    // GL misreads some texture arrays (PLATFORM.md): every native API comes first.
+    match b {
+        wgpu::Backend::Vulkan | wgpu::Backend::Metal | wgpu::Backend::Dx12 => 0,
+        wgpu::Backend::Gl => 1,
+        _ => 2,
+    }
+}
+
+fn device_rank(t: wgpu::DeviceType) -> u32 {
+    match t {
+        wgpu::DeviceType::DiscreteGpu => 0,
+        wgpu::DeviceType::IntegratedGpu => 1,
+        wgpu::DeviceType::VirtualGpu => 2,
+        wgpu::DeviceType::Cpu => 3,
+        wgpu::DeviceType::Other => 4,
+    }
+}
+
+impl Gpu {
+    /// Opens the best matching adapter with every limit it offers.
+    pub fn new(opts: &GpuOptions) -> Result<Gpu, DeviceError> {
+        let backends = match opts.backend {
+            Some(b) => b,
+            None => match std::env::var(BACKEND_ENV) {
+                Ok(v) if !v.trim().is_empty() => parse_backend(&v)?,
+                _ => wgpu::Backends::VULKAN | wgpu::Backends::GL,
+            },
+        };
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        desc.backends = backends;
+        // Debian's validation layers flag every SPIR-V module with a false "source language" error
+        // when DEBUG is on (PLATFORM.md); keep validation, drop the debug labels.
+        desc.flags =
+            (wgpu::InstanceFlags::from_build_config() - wgpu::InstanceFlags::DEBUG).with_env();
+        let instance = wgpu::Instance::new(desc);
+        let mut adapters = pollster::block_on(instance.enumerate_adapters(backends));
+        if let Some(name) = &opts.adapter_name {
+            let needle = name.to_ascii_lowercase();
+            adapters.retain(|a| a.get_info().name.to_ascii_lowercase().contains(&needle));
+        }
+        adapters.sort_by_key(|a| {
+            let i = a.get_info();
+            (backend_rank(i.backend), device_rank(i.device_type))
+        });
+        let Some(adapter) = adapters.into_iter().next() else {
+            return Err(DeviceError::NoAdapter {
+                backends: format!("{backends:?}"),
+                adapter_name: opts.adapter_name.clone(),
+            });
+        };
+        let info = adapter.get_info();
+        let features = adapter.features();
+        for (f, name) in REQUIRED_FEATURES {
+            if !features.contains(*f) {
+                return Err(DeviceError::MissingFeature {
+                    adapter: info.name.clone(),
+                    feature: name,
+                });
+            }
+        }
+        let limits = adapter.limits();
+        for (limit, requested, maximum) in required_limits(&limits) {
+            if maximum < requested {
+                return Err(DeviceError::LimitTooLow {
+                    limit,
+                    requested,
+                    maximum,
+                });
+            }
+        }
+        let required: wgpu::Features = REQUIRED_FEATURES
+            .iter()
+            .fold(wgpu::Features::empty(), |a, (f, _)| a | *f);
+        let float32_targets = adapter
+            .get_texture_format_features(wgpu::TextureFormat::Rgba32Float)
+            .allowed_usages
+            .contains(wgpu::TextureUsages::RENDER_ATTACHMENT);
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("lightfold node"),
+            required_features: required,
+            required_limits: limits.clone(),
+            experimental_features: wgpu::ExperimentalFeatures::disabled(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        }))
+        .map_err(|e| DeviceError::RequestDevice(e.to_string()))?;
+        tracing::info!(adapter = %info.name, backend = ?info.backend, float32_targets, "gpu device open");
+        Ok(Gpu {
+            device,
+            queue,
+            info,
+            limits,
+            features: required,
+            float32_targets,
+        })
+    }
+
+    /// Most lights one render can take with `shadow_map_size`² maps, assuming every light needs
+    /// six views (the worst case): bounded by texture-array layers and the shadow memory budget.
+    pub fn max_lights(&self, shadow_map_size: u32) -> u32 {
+        max_lights_for(&self.limits, shadow_map_size)
+    }
+
+    /// True on the GL backend, whose texture arrays need padding (PLATFORM.md).
+    pub fn is_gl(&self) -> bool {
+        self.info.backend == wgpu::Backend::Gl
+    }
+}
+
+/// [`Gpu::max_lights`] for given limits (pure, so the planner can reason about other devices).
+pub fn max_lights_for(limits: &wgpu::Limits, shadow_map_size: u32) -> u32 {
+    if shadow_map_size == 0 || shadow_map_size > limits.max_texture_dimension_2d {
+        return 0;
+    }
+    // One layer is kept spare for GL's layer-count padding.
+    let by_layers = limits.max_texture_array_layers.saturating_sub(1) / MAX_VIEWS_PER_LIGHT;
+    let layer_bytes = shadow_map_size as u64 * shadow_map_size as u64 * SHADOW_TEXEL_BYTES;
+    let by_memory = SHADOW_MEMORY_BUDGET / (layer_bytes * MAX_VIEWS_PER_LIGHT as u64);
+    by_layers.min(by_memory.min(u32::MAX as u64) as u32)
+}
+
+impl fmt::Display for GpuOptions {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(
+            f,
+            "backend={:?} adapter={:?}",
+            self.backend, self.adapter_name
+        )
+    }
+}

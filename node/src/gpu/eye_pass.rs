@@ -1,0 +1,246 @@
+//! The eye pass: one raster of the scene from the camera that sums the node's K lights with their
+//! shadow lookups into the illumination targets, writes eye depth, and (when asked) the material
+//! layers as extra render targets of the same pass.
+
+use super::lights::{GpuLight, GpuView, mat_mul};
+use super::pipelines::{DEPTH_FORMAT, DrawContext, EYE_DEPTH_FORMAT, MATERIAL_FORMAT};
+use super::shadow_pass::ShadowMaps;
+use bytemuck::{Pod, Zeroable};
+use lightfold_scene::Camera;
+use wgpu::util::DeviceExt;
+
+/// `Frame` in `eye.wgsl` (uniform layout).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct GpuFrame {
+    pub view_proj: [[f32; 4]; 4],
+    pub camera: [f32; 3],
+    pub light_count: u32,
+    pub forward: [f32; 3],
+    pub map_size: f32,
+    pub depth_bias: f32,
+    pub slope_bias: f32,
+    pub filter_mode: u32,
+    pub taps: u32,
+    pub kernel_radius: f32,
+    pub _pad: [u32; 3],
+}
+
+impl GpuFrame {
+    /// Camera part of the frame; light and filter fields are filled by the caller.
+    pub fn for_camera(camera: &Camera, near: f32) -> GpuFrame {
+        let f = camera.frame();
+        GpuFrame {
+            view_proj: mat_mul(&camera.projection_reversed_z(near), &camera.view_matrix()),
+            camera: camera.position,
+            light_count: 0,
+            forward: f.forward,
+            map_size: 1.0,
+            depth_bias: 0.0,
+            slope_bias: 0.0,
+            filter_mode: 1,
+            taps: 1,
+            kernel_radius: 1.0,
+            _pad: [0; 3],
+        }
+    }
+}
+
+/// The eye pass's render targets at one image size.
+#[derive(Debug)]
+pub struct EyeTargets {
+    pub width: u32,
+    pub height: u32,
+    pub diffuse: wgpu::Texture,
+    pub specular: wgpu::Texture,
+    pub depth: wgpu::Texture,
+    /// m^d, m^s, m^a, e.
+    pub materials: [wgpu::Texture; 4],
+    depth_buffer: wgpu::Texture,
+}
+
+fn target(
+    device: &wgpu::Device,
+    label: &str,
+    w: u32,
+    h: u32,
+    format: wgpu::TextureFormat,
+) -> wgpu::Texture {
+    // Depth buffers are never read back (GL cannot copy them); colour targets are.
+    let usage = if format == DEPTH_FORMAT {
+        wgpu::TextureUsages::RENDER_ATTACHMENT
+    } else {
+        wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC
+    };
+    device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width: w,
+            height: h,
+            depth_or_array_layers: 1,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage,
+        view_formats: &[],
+    })
+}
+
+impl EyeTargets {
+    pub fn new(device: &wgpu::Device, w: u32, h: u32, illumination: wgpu::TextureFormat) -> Self {
+        EyeTargets {
+            width: w,
+            height: h,
+            diffuse: target(device, "illumination diffuse", w, h, illumination),
+            specular: target(device, "illumination specular", w, h, illumination),
+            depth: target(device, "eye depth", w, h, EYE_DEPTH_FORMAT),
+            materials: ["m^d", "m^s", "m^a", "e"].map(|l| target(device, l, w, h, MATERIAL_FORMAT)),
+            depth_buffer: target(device, "eye depth buffer", w, h, DEPTH_FORMAT),
+        }
+    }
+}
+
+/// Inputs of one eye pass.
+#[derive(Debug)]
+pub struct EyeInputs<'a> {
+    pub frame: GpuFrame,
+    pub lights: &'a [GpuLight],
+    pub views: &'a [GpuView],
+    pub maps: &'a ShadowMaps,
+    pub linear: &'a wgpu::Sampler,
+    pub nearest: &'a wgpu::Sampler,
+    pub material_layers: bool,
+}
+
+/// Records and submits the eye pass over all `vertex_count` vertices.
+pub fn render_eye(
+    cx: &DrawContext<'_>,
+    vertex_count: u32,
+    targets: &EyeTargets,
+    inputs: &EyeInputs<'_>,
+) {
+    let buffer = |label: &str, bytes: &[u8], usage| {
+        cx.device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: bytes,
+                usage,
+            })
+    };
+    // Storage bindings cannot be empty: pad with one unused record.
+    let lights: Vec<GpuLight> = if inputs.lights.is_empty() {
+        vec![GpuLight::zeroed()]
+    } else {
+        inputs.lights.to_vec()
+    };
+    let views: Vec<GpuView> = if inputs.views.is_empty() {
+        vec![GpuView::zeroed()]
+    } else {
+        inputs.views.to_vec()
+    };
+    let frame_buf = buffer(
+        "frame",
+        bytemuck::bytes_of(&inputs.frame),
+        wgpu::BufferUsages::UNIFORM,
+    );
+    let light_buf = buffer(
+        "lights",
+        bytemuck::cast_slice(&lights),
+        wgpu::BufferUsages::STORAGE,
+    );
+    let view_buf = buffer(
+        "views",
+        bytemuck::cast_slice(&views),
+        wgpu::BufferUsages::STORAGE,
+    );
+    let bind_group = cx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("eye"),
+        layout: &cx.pipelines.eye_layout,
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: frame_buf.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: light_buf.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: view_buf.as_entire_binding(),
+            },
+            wgpu::BindGroupEntry {
+                binding: 3,
+                resource: wgpu::BindingResource::TextureView(&inputs.maps.array_view),
+            },
+            wgpu::BindGroupEntry {
+                binding: 4,
+                resource: wgpu::BindingResource::Sampler(inputs.linear),
+            },
+            wgpu::BindGroupEntry {
+                binding: 5,
+                resource: wgpu::BindingResource::Sampler(inputs.nearest),
+            },
+        ],
+    });
+    let view = |t: &wgpu::Texture| t.create_view(&Default::default());
+    let mut colour = vec![
+        view(&targets.diffuse),
+        view(&targets.specular),
+        view(&targets.depth),
+    ];
+    if inputs.material_layers {
+        colour.extend(targets.materials.iter().map(view));
+    }
+    let attachments: Vec<Option<wgpu::RenderPassColorAttachment<'_>>> = colour
+        .iter()
+        .map(|v| {
+            Some(wgpu::RenderPassColorAttachment {
+                view: v,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                    store: wgpu::StoreOp::Store,
+                },
+            })
+        })
+        .collect();
+    let depth_view = view(&targets.depth_buffer);
+    let mut encoder = cx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("eye pass"),
+        });
+    {
+        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("eye pass"),
+            color_attachments: &attachments,
+            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                view: &depth_view,
+                depth_ops: Some(wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(0.0),
+                    store: wgpu::StoreOp::Discard,
+                }),
+                stencil_ops: None,
+            }),
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        pass.set_pipeline(if inputs.material_layers {
+            &cx.pipelines.eye_layers
+        } else {
+            &cx.pipelines.eye_illumination
+        });
+        pass.set_bind_group(0, cx.scene_bind_group, &[]);
+        pass.set_bind_group(1, &bind_group, &[]);
+        pass.set_vertex_buffer(0, cx.vertices.slice(..));
+        if vertex_count > 0 {
+            pass.draw(0..vertex_count, 0..1);
+        }
+    }
+    cx.queue.submit([encoder.finish()]);
+}

@@ -1,0 +1,247 @@
+//! Per-frame light data: each sample λ packed for the shaders with its weight `c_λ ⊘ c_n`, and its
+//! shadow views (from `scene::shadow_views`) packed as layers of one depth-texture array. Pure CPU
+//! code, so the packing and the deliberate faults of the negative controls are testable alone.
+
+use bytemuck::{Pod, Zeroable};
+use lightfold_scene::shading::V3;
+use lightfold_scene::shadow_views::{ShadowView, ShadowViewKind, shadow_views};
+use lightfold_scene::{LightSample, SampleKind};
+
+/// Deliberate mistakes for negative-control tests: each must make the comparison with the CPU
+/// reference fail. Never set outside tests.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Fault {
+    /// Depth and slope bias forced to 0 (shadow acne).
+    NoBias,
+    /// A 0.5 m constant bias (shadows detach from their casters).
+    HugeBias,
+    /// Cube-mapped lights keep only the face along their axis, as a single 90° frustum would.
+    MissingFace,
+    /// The light colour is multiplied in as `c_λ` instead of `c_λ ⊘ c_n` (applied twice downstream).
+    ColourNotDivided,
+}
+
+/// `Light` in `shading.wgsl` (std430).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct GpuLight {
+    pub position: [f32; 3],
+    pub kind: u32,
+    pub direction: [f32; 3],
+    pub intensity: f32,
+    pub weight: [f32; 3],
+    pub range: f32,
+    pub cos_outer: f32,
+    pub cos_inner: f32,
+    pub first_view: u32,
+    pub view_count: u32,
+}
+
+/// `View` in `eye.wgsl` (std430).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct GpuView {
+    pub view: [[f32; 4]; 4],
+    pub proj: [[f32; 4]; 4],
+    pub texel: f32,
+    pub ortho: u32,
+    pub layer: u32,
+    pub _pad: u32,
+}
+
+/// Everything the shadow and eye passes need to know about this frame's lights.
+#[derive(Debug, Clone, Default)]
+pub struct LightPlan {
+    pub lights: Vec<GpuLight>,
+    pub views: Vec<GpuView>,
+    /// The geometry of each view (same order as `views`) and the light it belongs to.
+    pub geometry: Vec<ShadowView>,
+    pub view_light: Vec<u32>,
+    pub passes_per_light: Vec<u32>,
+}
+
+/// `c_λ / c_n` per channel; a channel the node colour lacks contributes nothing (as the reference).
+pub fn colour_weight(c: V3, c_n: V3) -> V3 {
+    std::array::from_fn(|k| {
+        if c_n[k] != 0.0 && c_n[k].is_finite() {
+            c[k] / c_n[k]
+        } else {
+            0.0
+        }
+    })
+}
+
+/// Packs `samples` and their shadow views for receivers `receivers` on `map_size`² maps.
+pub fn plan_lights(
+    samples: &[LightSample],
+    receivers: &[(V3, V3)],
+    c_n: V3,
+    map_size: u32,
+    fault: Option<Fault>,
+) -> LightPlan {
+    let mut plan = LightPlan::default();
+    for (i, s) in samples.iter().enumerate() {
+        let mut views = shadow_views(s, receivers);
+        if fault == Some(Fault::MissingFace) && views.len() > 1 {
+            views.retain(|v| v.kind == ShadowViewKind::CubeFace(CUBE_AXIS_FACE));
+        }
+        let first_view = plan.views.len() as u32;
+        for v in &views {
+            let e = v.extent;
+            plan.views.push(GpuView {
+                view: v.view,
+                proj: v.proj,
+                texel: (e[1] - e[0]).max(e[3] - e[2]) / map_size.max(1) as f32,
+                ortho: v.is_ortho() as u32,
+                layer: plan.views.len() as u32,
+                _pad: 0,
+            });
+            plan.geometry.push(*v);
+            plan.view_light.push(i as u32);
+        }
+        plan.passes_per_light.push(views.len() as u32);
+        let weight = if fault == Some(Fault::ColourNotDivided) {
+            s.color
+        } else {
+            colour_weight(s.color, c_n)
+        };
+        plan.lights
+            .push(gpu_light(s, weight, first_view, views.len() as u32));
+    }
+    plan
+}
+
+/// The cube face looking along the sample's own axis.
+const CUBE_AXIS_FACE: lightfold_scene::shadow_views::CubeFace =
+    lightfold_scene::shadow_views::CubeFace::PosZ;
+
+fn gpu_light(s: &LightSample, weight: V3, first_view: u32, view_count: u32) -> GpuLight {
+    let (kind, cos_outer, cos_inner) = match s.kind {
+        SampleKind::Isotropic => (0, 0.0, 0.0),
+        SampleKind::CosineLobe => (1, 0.0, 0.0),
+        SampleKind::TwoSidedLobe => (2, 0.0, 0.0),
+        SampleKind::Spot {
+            cos_outer,
+            cos_inner,
+        } => (3, cos_outer, cos_inner),
+        SampleKind::Directional => (4, 0.0, 0.0),
+    };
+    GpuLight {
+        position: s.position,
+        kind,
+        direction: s.direction,
+        intensity: s.intensity,
+        weight,
+        range: match s.range {
+            Some(r) if r > 0.0 => r,
+            _ => 0.0,
+        },
+        cos_outer,
+        cos_inner,
+        first_view,
+        view_count,
+    }
+}
+
+/// Whether the box may be seen by a view: false only when all eight corners are outside one clip
+/// plane (left, right, bottom, top, or beyond far). Casters in front of near are kept (they are
+/// depth-clamped into the map).
+pub fn box_in_view(view: &ShadowView, lo: V3, hi: V3) -> bool {
+    let vp = mat_mul(&view.proj, &view.view);
+    let mut outside = [true; 5];
+    for i in 0..8 {
+        let p = [
+            if i & 1 == 0 { lo[0] } else { hi[0] },
+            if i & 2 == 0 { lo[1] } else { hi[1] },
+            if i & 4 == 0 { lo[2] } else { hi[2] },
+        ];
+        let c: [f32; 4] =
+            std::array::from_fn(|r| vp[0][r] * p[0] + vp[1][r] * p[1] + vp[2][r] * p[2] + vp[3][r]);
+        let tests = [
+            c[0] < -c[3],
+            c[0] > c[3],
+            c[1] < -c[3],
+            c[1] > c[3],
+            c[2] < 0.0,
+        ];
+        for (o, t) in outside.iter_mut().zip(tests) {
+            *o &= t;
+        }
+    }
+    !outside.iter().any(|&o| o)
+}
+
+/// Column-major `a · b`.
+pub fn mat_mul(a: &[[f32; 4]; 4], b: &[[f32; 4]; 4]) -> [[f32; 4]; 4] {
+    std::array::from_fn(|c| std::array::from_fn(|r| (0..4).map(|k| a[k][r] * b[c][k]).sum()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lobe(position: V3) -> LightSample {
+        LightSample {
+            position,
+            direction: [0.0, -1.0, 0.0],
+            kind: SampleKind::CosineLobe,
+            intensity: 2.0,
+            color: [1.0, 0.5, 0.25],
+            range: None,
+            light: 0,
+        }
+    }
+
+    const ROOM: [(V3, V3); 2] = [
+        ([-2.0, 0.0, -2.0], [2.0, 0.0, 2.0]),
+        ([-2.0, 0.0, -2.0], [2.0, 3.0, -2.0]),
+    ];
+
+    #[test]
+    fn layouts_match_the_wgsl_structs() {
+        assert_eq!(std::mem::size_of::<GpuLight>(), 64);
+        assert_eq!(std::mem::size_of::<GpuView>(), 144);
+    }
+
+    #[test]
+    fn views_are_numbered_across_lights_and_weights_divide_by_c_n() {
+        let samples = [lobe([0.0, 2.9, 0.0]), lobe([0.0, 10.0, 5.0])];
+        let p = plan_lights(&samples, &ROOM, [2.0, 1.0, 0.0], 512, None);
+        assert_eq!(p.lights.len(), 2);
+        assert_eq!(
+            p.passes_per_light.iter().sum::<u32>() as usize,
+            p.views.len()
+        );
+        assert!(
+            p.passes_per_light[0] > 1,
+            "ceiling light next to a wall needs faces"
+        );
+        assert_eq!(p.lights[1].first_view, p.passes_per_light[0]);
+        for (i, v) in p.views.iter().enumerate() {
+            assert_eq!(v.layer as usize, i);
+        }
+        assert_eq!(p.lights[0].weight, [0.5, 0.5, 0.0]);
+        let bad = plan_lights(
+            &samples,
+            &ROOM,
+            [2.0, 1.0, 0.0],
+            512,
+            Some(Fault::ColourNotDivided),
+        );
+        assert_eq!(bad.lights[0].weight, [1.0, 0.5, 0.25]);
+        let dropped = plan_lights(&samples, &ROOM, [1.0; 3], 512, Some(Fault::MissingFace));
+        assert_eq!(dropped.passes_per_light[0], 1);
+    }
+
+    #[test]
+    fn boxes_outside_a_view_are_culled() {
+        let s = lobe([0.0, 3.0, 0.0]);
+        let v = shadow_views(&s, &[([-1.0, 0.0, -1.0], [1.0, 0.0, 1.0])])[0];
+        assert!(box_in_view(&v, [-0.1, 0.5, -0.1], [0.1, 0.7, 0.1]));
+        // Between the light and its near plane: kept (depth clamp).
+        assert!(box_in_view(&v, [-0.1, 2.8, -0.1], [0.1, 2.9, 0.1]));
+        assert!(!box_in_view(&v, [5.0, 0.0, 5.0], [6.0, 1.0, 6.0]));
+        // Beyond the far plane (below the floor).
+        assert!(!box_in_view(&v, [-0.1, -3.0, -0.1], [0.1, -2.0, 0.1]));
+    }
+}

@@ -1,0 +1,15 @@
+//! The GPU renderer of a render node: device setup, shadow maps for K point-light samples, the
+//! illumination eye pass with optional material layers, and readback into `scene::Image`s.
+
+pub mod device;
+mod eye_pass;
+pub mod lights;
+mod pipelines;
+mod readback;
+pub mod renderer;
+pub mod scene_data;
+mod shadow_pass;
+
+pub use device::{DeviceError, Gpu, GpuOptions};
+pub use lights::Fault;
+pub use renderer::{LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats, Renderer};

@@ -1,0 +1,543 @@
+//! The renderer of one node: uploads a scene once, then per frame renders the shadow maps of its
+//! K light samples and one eye pass that emits `Σ_λ (c_λ ⊘ c_n)·(i^d_λ, i^s_λ)·s_λ`, eye depth and,
+//! on request, the material layers; reads them back as `scene::Image`s with per-phase timings.
+//! Shadow maps cover the receivers the camera sees; in walkthrough mode they cover every receiver
+//! and are kept while the lights, casters and map size stay the same, whatever the camera does.
+
+use super::device::Gpu;
+use super::eye_pass::{EyeInputs, EyeTargets, GpuFrame, render_eye};
+use super::lights::{Fault, LightPlan, plan_lights};
+use super::pipelines::{DrawContext, Pipelines};
+use super::readback::{ReadRequest, read_targets};
+use super::scene_data::SceneData;
+use super::shadow_pass::{ShadowMaps, layer_count, render_shadow_maps};
+use lightfold_scene::shadow_views::visible_receivers;
+use lightfold_scene::{Camera, Image, LightSample, Quality, Scene, ShadowFilter};
+use std::time::Instant;
+use wgpu::util::DeviceExt;
+
+/// Constant bias the [`Fault::HugeBias`] negative control forces, in metres.
+const HUGE_BIAS: f32 = 0.5;
+
+/// How a renderer draws shadows.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RenderOptions {
+    pub shadow_map_size: u32,
+    pub filter: ShadowFilter,
+    /// Constant bias in metres along the light ray.
+    pub depth_bias: f32,
+    /// Slope-scaled bias, in texel footprints of the filter kernel per unit of `tan θ`.
+    pub slope_bias: f32,
+    /// Keep shadow maps between frames while lights and casters do not change.
+    pub walkthrough: bool,
+    /// A deliberate mistake for negative-control tests.
+    pub fault: Option<Fault>,
+}
+
+impl RenderOptions {
+    pub fn from_quality(q: &Quality) -> RenderOptions {
+        RenderOptions {
+            shadow_map_size: q.shadow_map_size,
+            filter: q.filter,
+            depth_bias: q.depth_bias,
+            slope_bias: q.slope_bias,
+            walkthrough: false,
+            fault: None,
+        }
+    }
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        RenderOptions::from_quality(&Quality::default())
+    }
+}
+
+/// Which layers a frame produces.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct LayerSet {
+    pub illumination: bool,
+    pub diffuse: bool,
+    pub specular: bool,
+    pub ambient: bool,
+    pub emissive: bool,
+    pub depth: bool,
+}
+
+impl LayerSet {
+    /// Illumination only (an illumination node's usual job).
+    pub fn illumination() -> LayerSet {
+        LayerSet {
+            illumination: true,
+            ..Default::default()
+        }
+    }
+
+    pub fn all() -> LayerSet {
+        LayerSet {
+            illumination: true,
+            diffuse: true,
+            specular: true,
+            ambient: true,
+            emissive: true,
+            depth: true,
+        }
+    }
+
+    fn any_material(&self) -> bool {
+        self.diffuse || self.specular || self.ambient || self.emissive
+    }
+}
+
+/// What one frame of a node produced.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NodeFrame {
+    /// 6 channels: diffuse RGB then specular RGB.
+    pub illumination: Option<Image>,
+    /// 3 channels each: m^d (texture applied), m^s, m^a, e.
+    pub diffuse: Option<Image>,
+    pub specular: Option<Image>,
+    pub ambient: Option<Image>,
+    pub emissive: Option<Image>,
+    /// 1 channel: eye-space distance along the camera's forward axis, 0 for background.
+    pub depth: Option<Image>,
+    pub stats: RenderStats,
+}
+
+/// Counters and wall-clock time per phase (each phase waits for the device).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct RenderStats {
+    /// Depth passes rendered this frame (0 when walkthrough mode reused the maps).
+    pub shadow_passes: u32,
+    /// Views (maps) each light needs, whether or not they were re-rendered.
+    pub passes_per_light: Vec<u32>,
+    pub shadow_us: u64,
+    pub eye_us: u64,
+    pub readback_us: u64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    #[error("{requested} lights requested, this device takes at most {maximum}")]
+    TooManyLights { requested: usize, maximum: u32 },
+    #[error("{views} shadow views needed, the device has {maximum} texture-array layers")]
+    TooManyViews { views: usize, maximum: u32 },
+    #[error("shadow map size {size} outside 1..={maximum}")]
+    ShadowMapSize { size: u32, maximum: u32 },
+    #[error("image {width}x{height} outside 1..={maximum} per side")]
+    ImageSize {
+        width: u32,
+        height: u32,
+        maximum: u32,
+    },
+    #[error("caster lists given for {given} lights, frame has {lights}")]
+    Casters { lights: usize, given: usize },
+    #[error("{what} takes {bytes} bytes, binding limit is {maximum}")]
+    BindingTooLarge {
+        what: &'static str,
+        bytes: u64,
+        maximum: u64,
+    },
+    #[error("gpu: {0}")]
+    Gpu(String),
+}
+
+/// What the cached shadow maps were rendered from (walkthrough mode).
+#[derive(Debug, Clone, PartialEq)]
+struct MapKey {
+    lights: Vec<LightSample>,
+    casters: Option<Vec<Vec<u32>>>,
+    size: u32,
+    fault: Option<Fault>,
+}
+
+/// One node's renderer: pipelines and scene buffers built once, targets and maps reused.
+#[derive(Debug)]
+pub struct Renderer {
+    pipelines: Pipelines,
+    scene: SceneData,
+    receivers: Vec<([f32; 3], [f32; 3])>,
+    vertices: wgpu::Buffer,
+    scene_bind_group: wgpu::BindGroup,
+    camera: Camera,
+    near: f32,
+    options: RenderOptions,
+    linear: wgpu::Sampler,
+    nearest: wgpu::Sampler,
+    maps: Option<ShadowMaps>,
+    map_key: Option<MapKey>,
+    targets: Option<EyeTargets>,
+    max_lights: u32,
+}
+
+impl Renderer {
+    pub fn new(gpu: &Gpu, scene: &Scene, opts: RenderOptions) -> Result<Renderer, RenderError> {
+        let device = &gpu.device;
+        let max = gpu.limits.max_texture_dimension_2d;
+        if opts.shadow_map_size == 0 || opts.shadow_map_size > max {
+            return Err(RenderError::ShadowMapSize {
+                size: opts.shadow_map_size,
+                maximum: max,
+            });
+        }
+        let data = SceneData::new(scene);
+        let storage_max = gpu.limits.max_storage_buffer_binding_size;
+        for (what, bytes) in [
+            ("texture texels", data.texels.len() as u64 * 4),
+            (
+                "materials",
+                std::mem::size_of_val(&data.materials[..]) as u64,
+            ),
+        ] {
+            if bytes > storage_max {
+                return Err(RenderError::BindingTooLarge {
+                    what,
+                    bytes,
+                    maximum: storage_max,
+                });
+            }
+        }
+        let vertex_bytes = std::mem::size_of_val(&data.vertices[..]) as u64;
+        if vertex_bytes > gpu.limits.max_buffer_size {
+            return Err(RenderError::BindingTooLarge {
+                what: "vertices",
+                bytes: vertex_bytes,
+                maximum: gpu.limits.max_buffer_size,
+            });
+        }
+        let pipelines = Pipelines::new(device, gpu.float32_targets);
+        let init = |label: &str, contents: &[u8], usage| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage,
+            })
+        };
+        // A vertex buffer cannot be empty either.
+        let vbytes: &[u8] = if data.vertices.is_empty() {
+            &[0; 48]
+        } else {
+            bytemuck::cast_slice(&data.vertices)
+        };
+        let vertices = init("vertices", vbytes, wgpu::BufferUsages::VERTEX);
+        let materials = init(
+            "materials",
+            bytemuck::cast_slice(&data.materials),
+            wgpu::BufferUsages::STORAGE,
+        );
+        let textures = init(
+            "textures",
+            bytemuck::cast_slice(&data.textures),
+            wgpu::BufferUsages::STORAGE,
+        );
+        let texels = init(
+            "texels",
+            bytemuck::cast_slice(&data.texels),
+            wgpu::BufferUsages::STORAGE,
+        );
+        let scene_bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("scene"),
+            layout: &pipelines.scene_layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: materials.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: textures.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: texels.as_entire_binding(),
+                },
+            ],
+        });
+        let sampler = |filter| {
+            device.create_sampler(&wgpu::SamplerDescriptor {
+                label: Some("shadow comparison"),
+                mag_filter: filter,
+                min_filter: filter,
+                compare: Some(wgpu::CompareFunction::GreaterEqual),
+                ..Default::default()
+            })
+        };
+        let near = (data.diagonal * 1e-4).clamp(1e-4, 1e-2);
+        Ok(Renderer {
+            linear: sampler(wgpu::FilterMode::Linear),
+            nearest: sampler(wgpu::FilterMode::Nearest),
+            receivers: data.receivers(),
+            pipelines,
+            scene: data,
+            vertices,
+            scene_bind_group,
+            camera: scene.camera,
+            near,
+            options: opts,
+            maps: None,
+            map_key: None,
+            targets: None,
+            max_lights: gpu.max_lights(opts.shadow_map_size),
+        })
+    }
+
+    pub fn set_camera(&mut self, camera: &Camera) {
+        self.camera = *camera;
+    }
+
+    pub fn options(&self) -> &RenderOptions {
+        &self.options
+    }
+
+    /// Renders `lights` (shadowed) for node colour `c_n`. `casters[λ]` lists the mesh indices that
+    /// cast into light λ's maps (`None`: every mesh).
+    pub fn render(
+        &mut self,
+        gpu: &Gpu,
+        lights: &[LightSample],
+        casters: Option<&[Vec<u32>]>,
+        c_n: [f32; 3],
+        layers: LayerSet,
+    ) -> Result<NodeFrame, RenderError> {
+        if lights.len() > self.max_lights as usize {
+            return Err(RenderError::TooManyLights {
+                requested: lights.len(),
+                maximum: self.max_lights,
+            });
+        }
+        if let Some(c) = casters
+            && c.len() != lights.len()
+        {
+            return Err(RenderError::Casters {
+                lights: lights.len(),
+                given: c.len(),
+            });
+        }
+        let (w, h) = (self.camera.width, self.camera.height);
+        let max_side = gpu.limits.max_texture_dimension_2d;
+        if w == 0 || h == 0 || w > max_side || h > max_side {
+            return Err(RenderError::ImageSize {
+                width: w,
+                height: h,
+                maximum: max_side,
+            });
+        }
+        let opts = self.options;
+        let lit = layers.illumination;
+        let frame_lights: &[LightSample] = if lit { lights } else { &[] };
+        // Moving lights: maps cover only what the camera sees. Walkthrough: the maps must outlive
+        // camera moves, so they cover every receiver.
+        let visible;
+        let receivers: &[([f32; 3], [f32; 3])] = if opts.walkthrough {
+            &self.receivers
+        } else {
+            visible = visible_receivers(&self.camera, &self.receivers);
+            &visible
+        };
+        let plan = plan_lights(
+            frame_lights,
+            receivers,
+            c_n,
+            opts.shadow_map_size,
+            opts.fault,
+        );
+        let max_layers = gpu.limits.max_texture_array_layers;
+        if layer_count(plan.views.len()) > max_layers {
+            return Err(RenderError::TooManyViews {
+                views: plan.views.len(),
+                maximum: max_layers,
+            });
+        }
+        let mut stats = RenderStats {
+            passes_per_light: plan.passes_per_light.clone(),
+            ..Default::default()
+        };
+
+        // Shadow maps (skipped in walkthrough mode when nothing they depend on changed).
+        let t0 = Instant::now();
+        let key = MapKey {
+            lights: frame_lights.to_vec(),
+            casters: casters.map(|c| c.to_vec()),
+            size: opts.shadow_map_size,
+            fault: opts.fault,
+        };
+        let reuse = opts.walkthrough
+            && self.map_key.as_ref() == Some(&key)
+            && self
+                .maps
+                .as_ref()
+                .is_some_and(|m| m.fits(opts.shadow_map_size, plan.views.len()));
+        if !reuse {
+            if !self
+                .maps
+                .as_ref()
+                .is_some_and(|m| m.fits(opts.shadow_map_size, plan.views.len()))
+            {
+                let layers = layer_count(plan.views.len());
+                self.maps = Some(ShadowMaps::new(&gpu.device, opts.shadow_map_size, layers));
+            }
+            let maps = self.maps.as_ref().expect("allocated above");
+            stats.shadow_passes = render_shadow_maps(
+                &self.draw_context(gpu),
+                &self.scene.meshes,
+                maps,
+                &plan,
+                casters,
+            );
+            wait(gpu)?;
+            self.map_key = Some(key);
+        }
+        stats.shadow_us = t0.elapsed().as_micros() as u64;
+
+        // Eye pass.
+        let t1 = Instant::now();
+        if !self
+            .targets
+            .as_ref()
+            .is_some_and(|t| t.width == w && t.height == h)
+        {
+            self.targets = Some(EyeTargets::new(
+                &gpu.device,
+                w,
+                h,
+                self.pipelines.illumination_format,
+            ));
+        }
+        let targets = self.targets.as_ref().expect("allocated above");
+        let frame = self.frame_uniform(&plan);
+        let maps = self.maps.as_ref().expect("allocated with the shadow maps");
+        render_eye(
+            &self.draw_context(gpu),
+            self.scene.vertices.len() as u32,
+            targets,
+            &EyeInputs {
+                frame,
+                lights: &plan.lights,
+                views: &plan.views,
+                maps,
+                linear: &self.linear,
+                nearest: &self.nearest,
+                material_layers: layers.any_material(),
+            },
+        );
+        wait(gpu)?;
+        stats.eye_us = t1.elapsed().as_micros() as u64;
+
+        // Readback of the requested layers.
+        let t2 = Instant::now();
+        let mut requests: Vec<(ReadRequest<'_>, &str)> = Vec::new();
+        if lit {
+            requests.push((req(&targets.diffuse, 3), "diffuse illumination"));
+            requests.push((req(&targets.specular, 3), "specular illumination"));
+        }
+        let m = &targets.materials;
+        for (want, tex, name) in [
+            (layers.diffuse, &m[0], "m^d"),
+            (layers.specular, &m[1], "m^s"),
+            (layers.ambient, &m[2], "m^a"),
+            (layers.emissive, &m[3], "e"),
+            (layers.depth, &targets.depth, "depth"),
+        ] {
+            if want {
+                requests.push((req(tex, if name == "depth" { 1 } else { 3 }), name));
+            }
+        }
+        let reqs: Vec<ReadRequest<'_>> = requests.iter().map(|(r, _)| *r).collect();
+        let mut data = read_targets(&gpu.device, &gpu.queue, &reqs)?.into_iter();
+        let image = |data: Vec<f32>, channels| Image {
+            width: w,
+            height: h,
+            channels,
+            data,
+        };
+        let mut out = NodeFrame {
+            illumination: None,
+            diffuse: None,
+            specular: None,
+            ambient: None,
+            emissive: None,
+            depth: None,
+            stats: RenderStats::default(),
+        };
+        if lit {
+            let (d, s) = (
+                data.next().unwrap_or_default(),
+                data.next().unwrap_or_default(),
+            );
+            let mut il = Vec::with_capacity(d.len() * 2);
+            for (a, b) in d.chunks_exact(3).zip(s.chunks_exact(3)) {
+                il.extend_from_slice(a);
+                il.extend_from_slice(b);
+            }
+            out.illumination = Some(image(il, 6));
+        }
+        for (want, slot) in [
+            (layers.diffuse, &mut out.diffuse),
+            (layers.specular, &mut out.specular),
+            (layers.ambient, &mut out.ambient),
+            (layers.emissive, &mut out.emissive),
+        ] {
+            if want {
+                *slot = Some(image(data.next().unwrap_or_default(), 3));
+            }
+        }
+        if layers.depth {
+            out.depth = Some(image(data.next().unwrap_or_default(), 1));
+        }
+        stats.readback_us = t2.elapsed().as_micros() as u64;
+        out.stats = stats;
+        Ok(out)
+    }
+
+    fn draw_context<'a>(&'a self, gpu: &'a Gpu) -> DrawContext<'a> {
+        DrawContext {
+            device: &gpu.device,
+            queue: &gpu.queue,
+            pipelines: &self.pipelines,
+            scene_bind_group: &self.scene_bind_group,
+            vertices: &self.vertices,
+        }
+    }
+
+    fn frame_uniform(&self, plan: &LightPlan) -> GpuFrame {
+        let o = &self.options;
+        let (mut depth_bias, mut slope_bias) = (o.depth_bias, o.slope_bias);
+        match o.fault {
+            Some(Fault::NoBias) => (depth_bias, slope_bias) = (0.0, 0.0),
+            Some(Fault::HugeBias) => depth_bias = HUGE_BIAS,
+            _ => {}
+        }
+        let (filter_mode, taps, kernel_radius) = match o.filter {
+            ShadowFilter::None => (0, 1, 0.5),
+            ShadowFilter::Pcf2x2 => (1, 1, 1.0),
+            ShadowFilter::Pcf { taps } => {
+                let taps = taps.clamp(1, 15);
+                (2, taps, (taps - 1) as f32 * 0.5 + 1.0)
+            }
+        };
+        GpuFrame {
+            light_count: plan.lights.len() as u32,
+            map_size: o.shadow_map_size as f32,
+            depth_bias,
+            slope_bias,
+            filter_mode,
+            taps,
+            kernel_radius,
+            ..GpuFrame::for_camera(&self.camera, self.near)
+        }
+    }
+}
+
+fn req(texture: &wgpu::Texture, keep_channels: usize) -> ReadRequest<'_> {
+    ReadRequest {
+        texture,
+        keep_channels,
+    }
+}
+
+fn wait(gpu: &Gpu) -> Result<(), RenderError> {
+    gpu.device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map(|_| ())
+        .map_err(|e| RenderError::Gpu(format!("device wait: {e}")))
+}

@@ -1,0 +1,296 @@
+//! The scene as the GPU sees it: triangles expanded to one vertex each (so every vertex carries its
+//! triangle's geometric normal, computed in f64 like the CPU reference), the material table with
+//! the reference's grey fallback, and textures as packed RGBA8 words sampled by the shaders
+//! themselves (bit-for-bit the `scene::shading::sample_texture` rules).
+
+use bytemuck::{Pod, Zeroable};
+use lightfold_scene::shading::V3;
+use lightfold_scene::{AlphaMode, Material, Scene};
+
+/// Marks a vertex whose mesh has no UVs (the shaders then ignore texture alpha, as the reference).
+pub const NO_UV_BIT: u32 = 0x8000_0000;
+/// `Material::diffuse_texture` when there is none.
+pub const NO_TEXTURE: u32 = u32::MAX;
+
+/// One vertex of the expanded triangle list; layout matches `VsIn` in `eye.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct Vertex {
+    pub position: [f32; 3],
+    pub normal: [f32; 3],
+    pub geometric_normal: [f32; 3],
+    pub uv: [f32; 2],
+    /// Material index, with [`NO_UV_BIT`] when the mesh has no UVs.
+    pub material: u32,
+}
+
+/// `Material` in `materials.wgsl` (std430).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct GpuMaterial {
+    pub diffuse: [f32; 3],
+    pub diffuse_texture: u32,
+    pub specular: [f32; 3],
+    pub shininess: f32,
+    pub ambient: [f32; 3],
+    pub alpha: f32,
+    pub emissive: [f32; 3],
+    pub alpha_mode: u32,
+    pub cutoff: f32,
+    pub double_sided: u32,
+    pub has_specular: u32,
+    pub _pad: u32,
+}
+
+/// `TextureInfo` in `materials.wgsl`.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct GpuTexture {
+    pub offset: u32,
+    pub width: u32,
+    pub height: u32,
+    pub srgb: u32,
+}
+
+/// Where one mesh's triangles sit in the vertex list.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MeshRange {
+    pub first_vertex: u32,
+    pub vertex_count: u32,
+    /// Whether its material discards masked texels (needs the masked shadow pipeline).
+    pub masked: bool,
+    /// Bounds of the mesh's referenced positions, `None` when it has no valid triangle.
+    pub bounds: Option<(V3, V3)>,
+}
+
+/// The CPU-side arrays uploaded once per scene.
+#[derive(Debug, Clone)]
+pub struct SceneData {
+    pub vertices: Vec<Vertex>,
+    pub meshes: Vec<MeshRange>,
+    pub materials: Vec<GpuMaterial>,
+    pub textures: Vec<GpuTexture>,
+    pub texels: Vec<u32>,
+    /// Length of the scene's bounding-box diagonal (1 for an empty scene).
+    pub diagonal: f32,
+}
+
+impl SceneData {
+    pub fn new(scene: &Scene) -> SceneData {
+        let mut materials: Vec<GpuMaterial> = scene
+            .materials
+            .iter()
+            .map(|m| gpu_material(m, scene.textures.len()))
+            .collect();
+        // Out-of-range material indices get the reference's mid-grey diffuse fallback.
+        let fallback = materials.len() as u32;
+        materials.push(gpu_material(
+            &Material::diffuse("fallback", [0.5; 3]),
+            scene.textures.len(),
+        ));
+
+        let mut vertices = Vec::new();
+        let mut meshes = Vec::with_capacity(scene.meshes.len());
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        for mesh in &scene.meshes {
+            let first_vertex = vertices.len() as u32;
+            let material = if mesh.material < scene.materials.len() {
+                mesh.material as u32
+            } else {
+                fallback
+            };
+            let masked = materials[material as usize].alpha_mode == 1;
+            let has_normals = mesh.normals.len() == mesh.positions.len();
+            let has_uvs = mesh.uvs.len() == mesh.positions.len();
+            let word = material | if has_uvs { 0 } else { NO_UV_BIT };
+            let (mut mlo, mut mhi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+            for tri in mesh.indices.chunks_exact(3) {
+                let idx = [tri[0] as usize, tri[1] as usize, tri[2] as usize];
+                let Some(p) = idx
+                    .iter()
+                    .map(|&i| mesh.positions.get(i).copied())
+                    .collect::<Option<Vec<V3>>>()
+                else {
+                    continue; // out-of-range index: the reference skips the triangle too
+                };
+                if p.iter().flatten().any(|c| !c.is_finite()) {
+                    continue;
+                }
+                let ng = geometric_normal(p[0], p[1], p[2]);
+                for (k, &i) in idx.iter().enumerate() {
+                    for a in 0..3 {
+                        mlo[a] = mlo[a].min(p[k][a]);
+                        mhi[a] = mhi[a].max(p[k][a]);
+                    }
+                    vertices.push(Vertex {
+                        position: p[k],
+                        normal: if has_normals { mesh.normals[i] } else { ng },
+                        geometric_normal: ng,
+                        uv: if has_uvs { mesh.uvs[i] } else { [0.0; 2] },
+                        material: word,
+                    });
+                }
+            }
+            let vertex_count = vertices.len() as u32 - first_vertex;
+            let bounds = (vertex_count > 0).then_some((mlo, mhi));
+            if let Some((a, b)) = bounds {
+                for k in 0..3 {
+                    lo[k] = lo[k].min(a[k]);
+                    hi[k] = hi[k].max(b[k]);
+                }
+            }
+            meshes.push(MeshRange {
+                first_vertex,
+                vertex_count,
+                masked,
+                bounds,
+            });
+        }
+        let diagonal = if lo[0] <= hi[0] {
+            let d = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
+            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt().max(1e-3)
+        } else {
+            1.0
+        };
+
+        let mut textures = Vec::with_capacity(scene.textures.len());
+        let mut texels: Vec<u32> = Vec::new();
+        for t in &scene.textures {
+            let n = t.width as usize * t.height as usize;
+            // A texture with too few bytes samples as white, like `sample_texture`.
+            let valid = n > 0 && t.rgba8.len() >= n * 4;
+            textures.push(GpuTexture {
+                offset: texels.len() as u32,
+                width: if valid { t.width } else { 0 },
+                height: if valid { t.height } else { 0 },
+                srgb: t.srgb as u32,
+            });
+            if valid {
+                texels.extend(
+                    t.rgba8[..n * 4]
+                        .chunks_exact(4)
+                        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+                );
+            }
+        }
+        // Storage bindings cannot be empty.
+        if textures.is_empty() {
+            textures.push(GpuTexture::zeroed());
+        }
+        if texels.is_empty() {
+            texels.push(0);
+        }
+        SceneData {
+            vertices,
+            meshes,
+            materials,
+            textures,
+            texels,
+            diagonal,
+        }
+    }
+
+    /// Receivers for `shadow_views`: the bounds of every mesh with triangles.
+    pub fn receivers(&self) -> Vec<(V3, V3)> {
+        self.meshes.iter().filter_map(|m| m.bounds).collect()
+    }
+}
+
+fn gpu_material(m: &Material, texture_count: usize) -> GpuMaterial {
+    let (alpha_mode, cutoff) = match m.alpha_mode {
+        AlphaMode::Opaque => (0, 0.0),
+        AlphaMode::Mask { cutoff } => (1, cutoff),
+    };
+    GpuMaterial {
+        diffuse: m.diffuse,
+        diffuse_texture: match m.diffuse_texture {
+            Some(t) if t < texture_count => t as u32,
+            _ => NO_TEXTURE,
+        },
+        specular: m.specular,
+        shininess: m.shininess,
+        ambient: m.ambient,
+        alpha: m.alpha,
+        emissive: m.emissive,
+        alpha_mode,
+        cutoff,
+        double_sided: m.double_sided as u32,
+        has_specular: m.has_specular() as u32,
+        _pad: 0,
+    }
+}
+
+/// Unit counter-clockwise normal computed in f64 (zero for a degenerate triangle).
+fn geometric_normal(a: V3, b: V3, c: V3) -> V3 {
+    let f = |v: V3| v.map(f64::from);
+    let (a, b, c) = (f(a), f(b), f(c));
+    let e1 = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+    let e2 = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+    let n = [
+        e1[1] * e2[2] - e1[2] * e2[1],
+        e1[2] * e2[0] - e1[0] * e2[2],
+        e1[0] * e2[1] - e1[1] * e2[0],
+    ];
+    let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+    if l > 0.0 {
+        n.map(|c| (c / l) as f32)
+    } else {
+        [0.0; 3]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use lightfold_scene::primitives::plane;
+
+    #[test]
+    fn layouts_match_the_wgsl_structs() {
+        assert_eq!(std::mem::size_of::<Vertex>(), 48);
+        assert_eq!(std::mem::size_of::<GpuMaterial>(), 80);
+        assert_eq!(std::mem::size_of::<GpuTexture>(), 16);
+    }
+
+    #[test]
+    fn triangles_expand_with_geometric_normals_and_fallback_material() {
+        let mut mesh = plane(
+            "p",
+            [0.0; 3],
+            [0.0, 1.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [2.0; 2],
+            1,
+            7,
+        );
+        mesh.normals.clear();
+        mesh.indices.extend_from_slice(&[0, 1, 99]); // out of range: skipped
+        let scene = Scene {
+            name: "t".into(),
+            meshes: vec![mesh],
+            materials: vec![Material::diffuse("m", [1.0; 3])],
+            textures: vec![],
+            lights: vec![],
+            camera: lightfold_scene::Camera {
+                position: [0.0, 1.0, 3.0],
+                target: [0.0; 3],
+                up: [0.0, 1.0, 0.0],
+                fov_y_deg: 45.0,
+                width: 8,
+                height: 8,
+            },
+            ambient: [0.0; 3],
+            exposure: 1.0,
+            quality: Default::default(),
+        };
+        let d = SceneData::new(&scene);
+        assert_eq!(d.vertices.len(), 6);
+        assert_eq!(d.materials.len(), 2);
+        for v in &d.vertices {
+            assert_eq!(v.material & !NO_UV_BIT, 1, "fallback material");
+            assert_eq!(v.geometric_normal, [0.0, 1.0, 0.0]);
+            assert_eq!(v.normal, v.geometric_normal);
+        }
+        assert_eq!(d.meshes[0].vertex_count, 6);
+        assert_eq!(d.receivers().len(), 1);
+    }
+}

@@ -1,0 +1,169 @@
+//! Shadow maps: one Depth32Float texture array holding every view of every light of a frame (one
+//! layer per view), and the depth passes that fill it, drawing per view only the casters the
+//! caller allows that can reach the view's frustum.
+
+use super::lights::{LightPlan, box_in_view, mat_mul};
+use super::pipelines::{DEPTH_FORMAT, DrawContext, VIEW_UNIFORM_STRIDE};
+use super::scene_data::MeshRange;
+use wgpu::util::DeviceExt;
+
+/// The shadow-map array and a render view per layer.
+#[derive(Debug)]
+pub struct ShadowMaps {
+    pub size: u32,
+    pub layers: u32,
+    _texture: wgpu::Texture,
+    pub array_view: wgpu::TextureView,
+    layer_views: Vec<wgpu::TextureView>,
+}
+
+/// Layers to allocate for `views` maps. GL turns arrays of 1 layer or a multiple of 6 layers into
+/// a 2D texture or a cube map and misreads them (PLATFORM.md), so those counts get one spare layer
+/// on every backend.
+pub fn layer_count(views: usize) -> u32 {
+    let n = views.max(1) as u32;
+    if n == 1 || n.is_multiple_of(6) {
+        n + 1
+    } else {
+        n
+    }
+}
+
+impl ShadowMaps {
+    pub fn new(device: &wgpu::Device, size: u32, layers: u32) -> ShadowMaps {
+        let texture = device.create_texture(&wgpu::TextureDescriptor {
+            label: Some("shadow maps"),
+            size: wgpu::Extent3d {
+                width: size,
+                height: size,
+                depth_or_array_layers: layers,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format: DEPTH_FORMAT,
+            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+            view_formats: &[],
+        });
+        let array_view = texture.create_view(&wgpu::TextureViewDescriptor {
+            label: Some("shadow maps array"),
+            dimension: Some(wgpu::TextureViewDimension::D2Array),
+            ..Default::default()
+        });
+        let layer_views = (0..layers)
+            .map(|l| {
+                texture.create_view(&wgpu::TextureViewDescriptor {
+                    label: Some("shadow map layer"),
+                    dimension: Some(wgpu::TextureViewDimension::D2),
+                    base_array_layer: l,
+                    array_layer_count: Some(1),
+                    ..Default::default()
+                })
+            })
+            .collect();
+        ShadowMaps {
+            size,
+            layers,
+            _texture: texture,
+            array_view,
+            layer_views,
+        }
+    }
+
+    /// Whether this array can hold `views` maps of `size`².
+    pub fn fits(&self, size: u32, views: usize) -> bool {
+        self.size == size && self.layers >= layer_count(views)
+    }
+}
+
+/// Records and submits one depth pass per view of `plan`. `casters[λ]` lists the meshes that may
+/// cast into light λ's maps (`None`: all). Returns the number of passes.
+pub fn render_shadow_maps(
+    cx: &DrawContext<'_>,
+    meshes: &[MeshRange],
+    maps: &ShadowMaps,
+    plan: &LightPlan,
+    casters: Option<&[Vec<u32>]>,
+) -> u32 {
+    if plan.views.is_empty() {
+        return 0;
+    }
+    let mut uniforms = vec![0u8; VIEW_UNIFORM_STRIDE as usize * plan.views.len()];
+    for (i, v) in plan.geometry.iter().enumerate() {
+        let vp = mat_mul(&v.proj, &v.view);
+        let at = i * VIEW_UNIFORM_STRIDE as usize;
+        uniforms[at..at + 64].copy_from_slice(bytemuck::cast_slice(&vp));
+    }
+    let uniform_buffer = cx
+        .device
+        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("shadow view uniforms"),
+            contents: &uniforms,
+            usage: wgpu::BufferUsages::UNIFORM,
+        });
+    let view_bind_group = cx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("shadow view"),
+        layout: &cx.pipelines.shadow_layout,
+        entries: &[wgpu::BindGroupEntry {
+            binding: 0,
+            resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
+                buffer: &uniform_buffer,
+                offset: 0,
+                size: wgpu::BufferSize::new(64),
+            }),
+        }],
+    });
+    let mut encoder = cx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("shadow passes"),
+        });
+    let all: Vec<u32> = (0..meshes.len() as u32).collect();
+    for (i, geometry) in plan.geometry.iter().enumerate() {
+        let light = plan.view_light[i] as usize;
+        let allowed: &[u32] = casters.and_then(|c| c.get(light)).map_or(&all, |c| c);
+        let drawn: Vec<&MeshRange> = allowed
+            .iter()
+            .filter_map(|&m| meshes.get(m as usize))
+            .filter(|m| {
+                m.bounds
+                    .is_some_and(|(lo, hi)| m.vertex_count > 0 && box_in_view(geometry, lo, hi))
+            })
+            .collect();
+        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+            label: Some("shadow pass"),
+            color_attachments: &[],
+            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                view: &maps.layer_views[plan.views[i].layer as usize],
+                depth_ops: Some(wgpu::Operations {
+                    // Reversed-Z: 0 is "nothing in front", so uncovered texels are lit.
+                    load: wgpu::LoadOp::Clear(0.0),
+                    store: wgpu::StoreOp::Store,
+                }),
+                stencil_ops: None,
+            }),
+            timestamp_writes: None,
+            occlusion_query_set: None,
+            multiview_mask: None,
+        });
+        pass.set_bind_group(0, cx.scene_bind_group, &[]);
+        pass.set_bind_group(
+            1,
+            &view_bind_group,
+            &[(i as u64 * VIEW_UNIFORM_STRIDE) as u32],
+        );
+        pass.set_vertex_buffer(0, cx.vertices.slice(..));
+        for masked in [false, true] {
+            pass.set_pipeline(if masked {
+                &cx.pipelines.shadow_masked
+            } else {
+                &cx.pipelines.shadow_opaque
+            });
+            for m in drawn.iter().filter(|m| m.masked == masked) {
+                pass.draw(m.first_vertex..m.first_vertex + m.vertex_count, 0..1);
+            }
+        }
+    }
+    cx.queue.submit([encoder.finish()]);
+    plan.views.len() as u32
+}
