@@ -92,7 +92,11 @@ fn shadow_filter(uv: vec2f, layer: u32, ref_depth: f32) -> f32 {
 }
 
 // s_λ at world point p with geometric normal ng; 1 where no view of the light covers p.
-fn visibility(s: Light, p: vec3f, ng: vec3f, l: vec3f) -> f32 {
+//
+// Bias: the constant part is `depth_bias` metres along the light ray; the slope part follows the
+// receiver's own plane: how much its view-axis depth D changes across the filter footprint in the
+// map, |∂D/∂x| + |∂D/∂y| per texel (exact for a plane, also off-axis in wide frusta and cube faces).
+fn visibility(s: Light, p: vec3f, ng: vec3f) -> f32 {
     for (var k = 0u; k < s.view_count; k++) {
         let v = views[s.first_view + k];
         let q = v.view * vec4f(p, 1.0);
@@ -105,27 +109,31 @@ fn visibility(s: Light, p: vec3f, ng: vec3f, l: vec3f) -> f32 {
         if any(uv < vec2f(0.0)) || any(uv > vec2f(1.0)) {
             continue;
         }
-        // Slope-scaled bias in metres: the surface rises by tanθ per metre across a texel.
-        let c = clamp(dot(ng, l), 0.0, 1.0);
-        let tan_theta = min(sqrt(max(1.0 - c * c, 0.0)) / max(c, 1e-3), 10.0);
+        let n = (v.view * vec4f(ng, 0.0)).xyz;
+        let depth = max(-q.z, 0.0);
+        // Depth change per texel: slope · texel_m, with texel_m the texel width in metres.
+        var slope: f32;
         var texel_m = v.texel;
-        if v.ortho == 0u {
-            texel_m = v.texel * max(-q.z, 0.0);
-        }
-        let bias = frame.depth_bias + frame.slope_bias * frame.kernel_radius * texel_m * tan_theta;
-        // Move the receiver towards the light along the light ray, then take its depth.
-        var qb = q.xyz;
+        var along_axis = 1.0;
         if v.ortho != 0u {
-            qb.z = qb.z + bias;
+            slope = (abs(n.x) + abs(n.y)) / max(abs(n.z), 1e-3);
         } else {
-            let dist = length(q.xyz);
-            if dist <= bias {
-                return 1.0;
-            }
-            qb = q.xyz * (1.0 - bias / dist);
+            // Plane through q with normal n: at tangent (x, y) its depth is
+            // D = (n·q) / (n·(x, y, −1)), so |∂D/∂x| = D·|n.x| / |n·(x, y, −1)|.
+            let d = vec3f(q.xy / max(depth, 1e-6), -1.0);
+            slope = (abs(n.x) + abs(n.y)) / max(abs(dot(n, d)), 1e-3);
+            texel_m = v.texel * depth;
+            along_axis = depth / max(length(q.xyz), 1e-6);
         }
-        let cb = v.proj * vec4f(qb, 1.0);
-        let ref_depth = clamp(cb.z / cb.w, 0.0, 1.0);
+        // Grazing receivers cannot ask for more than ten texels' worth of depth per texel.
+        let bias = frame.depth_bias * along_axis
+            + frame.slope_bias * frame.kernel_radius * min(slope, 10.0) * texel_m;
+        // Move the receiver towards the light along the map's axis, then take its depth.
+        let cb = v.proj * vec4f(q.xy, q.z + bias, 1.0);
+        var ref_depth = 1.0;
+        if cb.w > 0.0 {
+            ref_depth = clamp(cb.z / cb.w, 0.0, 1.0);
+        }
         return shadow_filter(uv, v.layer, ref_depth);
     }
     return 1.0;
@@ -161,7 +169,7 @@ fn shade(in: VsOut, front: bool) -> Shaded {
         if c.x == 0.0 && c.y == 0.0 {
             continue;
         }
-        let vis = visibility(s, p, ng, to_light(s, p).xyz);
+        let vis = visibility(s, p, ng);
         out.diffuse += s.weight * (c.x * vis);
         out.specular += s.weight * (c.y * vis);
     }
