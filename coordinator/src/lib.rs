@@ -7,3 +7,4 @@ pub mod cluster;
 pub mod control;
 pub mod plan;
 pub mod report;
+pub mod run;
