@@ -187,3 +187,40 @@ fn culling_never_changes_the_picture() {
     // Five variants × at least the four extra lights: the culler had work to do.
     assert!(dropped >= 20, "only {dropped} samples were dropped");
 }
+
+/// Every stage of every plan (chain and tree, K = 2 and 4, forced or not) is a configuration the
+/// compositor accepts: operator names, JSON parameters, input wiring and layers all line up.
+#[test]
+fn compositors_accept_every_planned_stage() {
+    use lightfold_compositor::daemon::StagePlan;
+    use lightfold_coordinator::plan::Topology;
+    for name in lightfold_scene::builtin_names() {
+        for scene in [small(name), culled_variant(name)] {
+            for (topology, k, force_all, compositors) in [
+                (Topology::Chain, 4, false, 8),
+                (Topology::Tree, 4, false, 7),
+                (Topology::Chain, 2, true, 3),
+                (Topology::Tree, 2, false, 16),
+            ] {
+                let options = PlanOptions {
+                    topology,
+                    lights_per_node: k,
+                    force_all,
+                    ..PlanOptions::default()
+                };
+                let p = plan(&scene, &ClusterSpec::local(64, compositors), &options).unwrap();
+                for s in &p.stages {
+                    let config = p.compositor_config(&s.compositor).unwrap();
+                    if let Err(e) =
+                        StagePlan::new(config, lightfold_protocol::frame::DEFAULT_MAX_FRAME)
+                    {
+                        panic!(
+                            "{name} {topology} K={k}: stage {} refused: {e}\n{p}",
+                            s.compositor
+                        );
+                    }
+                }
+            }
+        }
+    }
+}

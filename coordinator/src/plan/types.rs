@@ -95,11 +95,14 @@ pub struct FormatChoice {
 }
 
 impl Default for FormatChoice {
+    /// Link formats from the compositor's precision study (`docs/precision.md`); material colours
+    /// in [0, 1] as 8-bit sRGB, anything brighter as half floats.
     fn default() -> Self {
+        use lightfold_compositor::ops::{LinkKind, recommended_link_format};
         FormatChoice {
-            node: PixelFormat::Rgb9e5x2,
-            chain: PixelFormat::F16x6,
-            sink: PixelFormat::F32x3,
+            node: recommended_link_format(LinkKind::NodeToCompositor),
+            chain: recommended_link_format(LinkKind::CompositorToCompositor),
+            sink: recommended_link_format(LinkKind::SinkToCoordinator),
             material: PixelFormat::Rgba8Srgb,
             material_hdr: PixelFormat::F16x4,
         }
