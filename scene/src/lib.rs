@@ -8,6 +8,7 @@
 pub mod builtin;
 pub mod camera;
 pub mod defaults;
+mod encode;
 mod error;
 pub mod file;
 pub mod framing;
@@ -24,6 +25,7 @@ pub mod validate;
 pub mod wire;
 
 pub use builtin::{builtin, builtin_names};
+pub use encode::{MAX_SCENE_BYTES, SCENE_BYTES_VERSION};
 pub use error::SceneError;
 pub use file::{SceneFile, load, load_scene_file, parse_scene_file};
 pub use gltf_load::{GltfOptions, load_gltf, load_gltf_slice, load_gltf_with};

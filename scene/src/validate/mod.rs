@@ -1,0 +1,284 @@
+//! Checking and sanitising scenes built from untrusted input: NaN positions, out-of-range
+//! indices, zero-area triangles, zero normals, empty meshes, dangling material, texture and mesh
+//! references, unusable lights, camera and exposure. Sanitising fixes or drops what is wrong and
+//! reports it, so renderers can index and divide without further checks.
+
+mod issue;
+mod settings;
+
+pub use issue::{Issue, ValidationReport};
+
+use crate::model::{AlphaMode, Material, Mesh, Scene, Texture};
+use crate::shading::{V3, add, cross, dot, length, normalize, sub};
+use settings::{sanitize_camera, sanitize_light, sanitize_quality};
+
+impl Scene {
+    /// Reports what [`Scene::sanitize`] would fix, without changing the scene.
+    pub fn validate(&self) -> ValidationReport {
+        let mut copy = Scene {
+            textures: Vec::new(),
+            ..Scene::new(&self.name)
+        };
+        copy.meshes = self.meshes.clone();
+        copy.materials = self.materials.clone();
+        copy.lights = self.lights.clone();
+        copy.camera = self.camera;
+        copy.ambient = self.ambient;
+        copy.exposure = self.exposure;
+        copy.quality = self.quality;
+        let mut issues = texture_issues(&self.textures);
+        issues.extend(copy.sanitize_without_textures(self.textures.len()));
+        ValidationReport { issues }
+    }
+
+    /// Fixes or drops everything unusable and reports what it did. Afterwards `validate()` is
+    /// clean, every index is in range and every number finite.
+    pub fn sanitize(&mut self) -> ValidationReport {
+        let mut issues = texture_issues(&self.textures);
+        for t in &mut self.textures {
+            if !texture_ok(t) {
+                t.width = 1;
+                t.height = 1;
+                t.rgba8 = vec![255; 4];
+            }
+        }
+        issues.extend(self.sanitize_without_textures(self.textures.len()));
+        ValidationReport { issues }
+    }
+
+    fn sanitize_without_textures(&mut self, texture_count: usize) -> Vec<Issue> {
+        let mut issues = Vec::new();
+        for m in &mut self.materials {
+            sanitize_material(m, texture_count, &mut issues);
+        }
+        let mut default_material = None;
+        for m in &mut self.meshes {
+            sanitize_mesh(m, &mut issues);
+            if m.material >= self.materials.len() {
+                issues.push(Issue::MaterialOutOfRange {
+                    mesh: m.name.clone(),
+                    material: m.material,
+                });
+                m.material = *default_material.get_or_insert(self.materials.len());
+            }
+        }
+        if default_material.is_some() {
+            self.materials
+                .push(Material::diffuse("default", [0.8, 0.8, 0.8]));
+        }
+        // Drop empty meshes and renumber the emissive-mesh lights that refer to meshes.
+        let mut new_index = vec![None; self.meshes.len()];
+        let mut kept = Vec::with_capacity(self.meshes.len());
+        for (i, m) in std::mem::take(&mut self.meshes).into_iter().enumerate() {
+            if m.indices.is_empty() {
+                issues.push(Issue::EmptyMesh { mesh: m.name });
+            } else {
+                new_index[i] = Some(kept.len());
+                kept.push(m);
+            }
+        }
+        self.meshes = kept;
+        self.lights
+            .retain_mut(|l| sanitize_light(l, &new_index, &mut issues));
+        sanitize_camera(&mut self.camera, &mut issues);
+        if !(self.exposure.is_finite() && self.exposure > 0.0) {
+            issues.push(Issue::BadExposure);
+            self.exposure = 1.0;
+        }
+        if !self.ambient.iter().all(|c| c.is_finite() && *c >= 0.0) {
+            issues.push(Issue::BadCamera {
+                problem: "ambient colour is not finite and non-negative",
+            });
+            self.ambient = [0.0; 3];
+        }
+        sanitize_quality(self, &mut issues);
+        issues
+    }
+}
+
+fn texture_ok(t: &Texture) -> bool {
+    t.width > 0 && t.height > 0 && t.rgba8.len() as u64 == t.width as u64 * t.height as u64 * 4
+}
+
+fn texture_issues(textures: &[Texture]) -> Vec<Issue> {
+    textures
+        .iter()
+        .filter(|t| !texture_ok(t))
+        .map(|t| Issue::TextureSize {
+            texture: t.name.clone(),
+        })
+        .collect()
+}
+
+pub(super) fn finite3(v: &V3) -> bool {
+    v.iter().all(|c| c.is_finite())
+}
+
+fn sanitize_material(m: &mut Material, texture_count: usize, issues: &mut Vec<Issue>) {
+    let colour_ok = |c: &V3| c.iter().all(|x| x.is_finite() && *x >= 0.0);
+    let cutoff_ok = match m.alpha_mode {
+        AlphaMode::Opaque => true,
+        AlphaMode::Mask { cutoff } => cutoff.is_finite(),
+    };
+    if !(colour_ok(&m.diffuse)
+        && colour_ok(&m.specular)
+        && colour_ok(&m.ambient)
+        && colour_ok(&m.emissive)
+        && m.shininess.is_finite()
+        && m.shininess >= 0.0
+        && m.alpha.is_finite()
+        && cutoff_ok)
+    {
+        issues.push(Issue::BadMaterial {
+            material: m.name.clone(),
+        });
+        for c in [
+            &mut m.diffuse,
+            &mut m.specular,
+            &mut m.ambient,
+            &mut m.emissive,
+        ] {
+            *c = c.map(|x| if x.is_finite() { x.max(0.0) } else { 0.0 });
+        }
+        if !(m.shininess.is_finite() && m.shininess >= 0.0) {
+            m.shininess = 1.0;
+        }
+        if !m.alpha.is_finite() {
+            m.alpha = 1.0;
+        }
+        if !cutoff_ok {
+            m.alpha_mode = AlphaMode::Mask { cutoff: 0.5 };
+        }
+    }
+    if let Some(t) = m.diffuse_texture
+        && t >= texture_count
+    {
+        issues.push(Issue::TextureOutOfRange {
+            material: m.name.clone(),
+            texture: t,
+        });
+        m.diffuse_texture = None;
+    }
+}
+
+fn sanitize_mesh(m: &mut Mesh, issues: &mut Vec<Issue>) {
+    let n = m.positions.len();
+    let name = m.name.clone();
+    for (attribute, len) in [("normals", m.normals.len()), ("uvs", m.uvs.len())] {
+        if len != 0 && len != n {
+            issues.push(Issue::AttributeCount {
+                mesh: name.clone(),
+                attribute,
+                found: len,
+                expected: n,
+            });
+            if attribute == "normals" {
+                m.normals.clear();
+            } else {
+                m.uvs.clear();
+            }
+        }
+    }
+    if !m.indices.len().is_multiple_of(3) {
+        issues.push(Issue::TruncatedIndices {
+            mesh: name.clone(),
+            len: m.indices.len(),
+        });
+        m.indices.truncate(m.indices.len() - m.indices.len() % 3);
+    }
+    let mut bad_pos = vec![false; n];
+    let mut nonfinite = 0;
+    for (p, bad) in m.positions.iter_mut().zip(&mut bad_pos) {
+        if !finite3(p) {
+            *p = [0.0; 3];
+            *bad = true;
+            nonfinite += 1;
+        }
+    }
+    let (mut out_of_range, mut degenerate) = (0, 0);
+    let mut kept = Vec::with_capacity(m.indices.len());
+    for t in m.indices.chunks_exact(3) {
+        if t.iter().any(|&i| i as usize >= n) {
+            out_of_range += 1;
+            continue;
+        }
+        if t.iter().any(|&i| bad_pos[i as usize]) || triangle_is_degenerate(m, t) {
+            degenerate += 1;
+            continue;
+        }
+        kept.extend_from_slice(t);
+    }
+    m.indices = kept;
+    let mut push = |count: usize, make: fn(String, usize) -> Issue| {
+        if count > 0 {
+            issues.push(make(name.clone(), count));
+        }
+    };
+    push(nonfinite, |mesh, count| Issue::NonFinitePositions {
+        mesh,
+        count,
+    });
+    push(out_of_range, |mesh, count| Issue::IndexOutOfRange {
+        mesh,
+        count,
+    });
+    push(degenerate, |mesh, count| Issue::DegenerateTriangles {
+        mesh,
+        count,
+    });
+    let bad_uvs = m
+        .uvs
+        .iter_mut()
+        .filter(|uv| !uv.iter().all(|c| c.is_finite()))
+        .map(|uv| *uv = [0.0, 0.0])
+        .count();
+    push(bad_uvs, |mesh, count| Issue::NonFiniteUvs { mesh, count });
+    let bad_normals = repair_normals(m);
+    push(bad_normals, |mesh, count| Issue::BadNormals { mesh, count });
+}
+
+/// Zero area relative to the triangle's size (catches collinear and coincident corners).
+fn triangle_is_degenerate(m: &Mesh, t: &[u32]) -> bool {
+    let p = [0, 1, 2].map(|k| m.positions[t[k] as usize]);
+    let e1 = sub(p[1], p[0]);
+    let e2 = sub(p[2], p[0]);
+    let c = length(cross(e1, e2));
+    let scale2 = dot(e1, e1) + dot(e2, e2);
+    !(c.is_finite() && c > 1e-7 * scale2)
+}
+
+/// Replaces zero or non-finite normals by the area-weighted normal of the adjacent triangles
+/// (or +Y for a vertex no triangle uses); returns how many were replaced.
+fn repair_normals(m: &mut Mesh) -> usize {
+    if m.normals.is_empty() {
+        return 0;
+    }
+    let bad: Vec<bool> = m
+        .normals
+        .iter()
+        .map(|n| !(finite3(n) && length(*n) > 1e-6))
+        .collect();
+    let count = bad.iter().filter(|b| **b).count();
+    if count == 0 {
+        return 0;
+    }
+    let mut acc = vec![[0.0f32; 3]; m.positions.len()];
+    for t in m.indices.chunks_exact(3) {
+        let p = [0, 1, 2].map(|k| m.positions[t[k] as usize]);
+        let face = cross(sub(p[1], p[0]), sub(p[2], p[0]));
+        for &i in t {
+            if bad[i as usize] {
+                acc[i as usize] = add(acc[i as usize], face);
+            }
+        }
+    }
+    for (i, n) in m.normals.iter_mut().enumerate() {
+        if bad[i] {
+            let a = normalize(acc[i]);
+            *n = if a == [0.0; 3] { [0.0, 1.0, 0.0] } else { a };
+        } else {
+            *n = normalize(*n);
+        }
+    }
+    count
+}
