@@ -249,9 +249,10 @@ impl Bvh {
     }
 }
 
-/// A ray prepared for slab tests: f32 origin, reciprocal direction with zero components nudged
-/// to ±1e-30 (so no 0·∞ NaN can arise and plain comparisons replace NaN-aware `min`/`max`), and
-/// which slab plane is entered first per axis.
+/// A ray prepared for slab tests: f32 origin, reciprocal direction (±∞ for zero components) and
+/// which slab plane is entered first per axis. The comparisons below keep the running bound when
+/// the candidate is NaN (`0·∞`: the origin lies on a slab plane of an axis the ray is parallel
+/// to), which makes such boxes inclusive, as they should be.
 #[derive(Clone, Copy)]
 struct BoxRay {
     o: [f32; 3],
@@ -261,14 +262,7 @@ struct BoxRay {
 
 impl BoxRay {
     fn new(o: [f64; 3], d: [f64; 3]) -> BoxRay {
-        let inv = d.map(|c| {
-            let c = c as f32;
-            1.0 / if c.abs() < 1e-30 {
-                1e-30f32.copysign(c)
-            } else {
-                c
-            }
-        });
+        let inv = d.map(|c| 1.0 / c as f32);
         BoxRay {
             o: o.map(|c| c as f32),
             inv,

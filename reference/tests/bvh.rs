@@ -160,3 +160,33 @@ fn deep_degenerate_distributions_build_and_trace() {
     let bvh = Bvh::build(&same);
     assert!(bvh.occluded([0.2, 0.2, 1.0], [0.0, 0.0, -1.0], 0.0, 2.0, |_, _, _| true));
 }
+
+/// Axis-parallel rays (zero direction components) through vertices and edges of a flat grid,
+/// whose boxes have zero thickness: the slab test must neither produce NaN nor miss.
+#[test]
+fn axis_parallel_rays_hit_flat_geometry() {
+    let at = |i: usize, j: usize| [i as f32 * 0.25, 0.0, j as f32 * 0.25];
+    let mut tris = Vec::new();
+    for j in 0..8 {
+        for i in 0..8 {
+            tris.push([at(i, j), at(i + 1, j), at(i + 1, j + 1)]);
+            tris.push([at(i, j), at(i + 1, j + 1), at(i, j + 1)]);
+        }
+    }
+    let bvh = Bvh::build(&tris);
+    for j in 0..=8 {
+        for i in 0..=8 {
+            let p = at(i, j).map(f64::from);
+            for dy in [-1.0, 1.0] {
+                let o = [p[0], -dy, p[2]];
+                let h = bvh.closest(o, [0.0, dy, 0.0], 0.0, 10.0, |_, _, _| true);
+                assert!(
+                    h.is_some_and(|h| (h.t - 1.0).abs() < 1e-12),
+                    "({i},{j}) dy {dy}: {h:?}"
+                );
+            }
+        }
+    }
+    // A ray lying in the plane of the grid never reports a hit (and does not panic).
+    assert!(!bvh.occluded([-1.0, 0.0, 0.5], [1.0, 0.0, 0.0], 0.0, 10.0, |_, _, _| true));
+}
