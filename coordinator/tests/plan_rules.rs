@@ -268,7 +268,7 @@ fn ambient_is_folded_when_every_material_has_ma_equal_md() {
     let q = plan(&s, &local(), &opts()).unwrap();
     assert!(!q.material.fold_ambient);
     assert!(q.material.layers.iter().any(|l| l.0 == Layer::Ambient));
-    assert_eq!(q.stages[0].ops[1].1["ambient_color"][0], 0.1f32 as f64);
+    assert_eq!(q.stages[0].ops[1].1["ambient_color"][0], 0.1);
 
     // c^a = 0: nothing.
     s.ambient = [0.0; 3];

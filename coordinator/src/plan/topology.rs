@@ -12,6 +12,12 @@ use serde_json::{Value, json};
 /// Framing cost of one band on a link: the band header plus the frame's kind and length.
 pub const BAND_OVERHEAD_BYTES: u64 = 52 + 5;
 
+/// An f32 colour as JSON numbers with the f32's shortest decimal form (0.92, not
+/// 0.9200000166893005); the compositor reads them back to the same f32.
+fn rgb(c: [f32; 3]) -> Value {
+    json!(c.map(|x| x.to_string().parse::<f64>().unwrap_or(f64::from(x))))
+}
+
 /// An illumination node as the topology sees it.
 #[derive(Debug, Clone)]
 pub(crate) struct IllumInput {
@@ -65,10 +71,10 @@ pub(crate) fn stages(
     let mut stages: Vec<StagePlan> = Vec::new();
     let mut node_dst = vec![(String::new(), 0u32); nodes.len()];
     let accumulate = |range: &std::ops::Range<usize>, upstream: bool| -> Value {
-        let colors: Vec<[f32; 3]> = nodes[range.clone()].iter().map(|n| n.color).collect();
+        let colors: Vec<Value> = nodes[range.clone()].iter().map(|n| rgb(n.color)).collect();
         let mut p = json!({ "colors": colors, "upstream": upstream });
         if let MaterialMode::UniformSpecular { specular } = finish.mode {
-            p["specular_color"] = json!(specular);
+            p["specular_color"] = rgb(specular);
         }
         if let Some(f) = finish.fold.filter(|f| range.contains(f)) {
             p["ambient"] =
@@ -163,7 +169,7 @@ pub(crate) fn stages(
         "emissive": finish.emissive,
     });
     if finish.ambient_layer {
-        mp["ambient_color"] = json!(finish.ambient);
+        mp["ambient_color"] = rgb(finish.ambient);
     }
     root.ops.push(("material".to_string(), mp));
     root.ops
