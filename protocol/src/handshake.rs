@@ -55,8 +55,9 @@ pub enum HandshakeError {
     /// The proof does not match: wrong token, or a replayed transcript.
     #[error("bad proof: wrong cluster token or replayed handshake")]
     BadProof,
-    #[error("handshake step out of order: {0}")]
-    OutOfOrder(&'static str),
+    /// A second hello, or a proof before the peer's hello.
+    #[error("handshake step out of order")]
+    OutOfOrder,
 }
 
 /// One side's handshake state.
@@ -135,7 +136,7 @@ impl Handshake {
     /// Checks magic/version/id sanity, records the peer's hello; returns our proof to send.
     pub fn receive_hello(&mut self, peer: Hello) -> Result<[u8; 32], HandshakeError> {
         if self.peer.is_some() {
-            return Err(HandshakeError::OutOfOrder("second hello"));
+            return Err(HandshakeError::OutOfOrder);
         }
         if peer.magic != MAGIC {
             return Err(HandshakeError::BadMagic);
@@ -156,10 +157,7 @@ impl Handshake {
 
     /// Verifies the peer's proof; on success returns who the peer is.
     pub fn verify(&self, proof: [u8; 32]) -> Result<PeerInfo, HandshakeError> {
-        let peer = self
-            .peer
-            .as_ref()
-            .ok_or(HandshakeError::OutOfOrder("proof before hello"))?;
+        let peer = self.peer.as_ref().ok_or(HandshakeError::OutOfOrder)?;
         // verify_slice compares in constant time.
         self.mac(!self.dialer)?
             .verify_slice(&proof)
@@ -173,10 +171,7 @@ impl Handshake {
 
     /// The MAC state for the proof that the side `by_dialer` sends.
     fn mac(&self, by_dialer: bool) -> Result<HmacSha256, HandshakeError> {
-        let peer = self
-            .peer
-            .as_ref()
-            .ok_or(HandshakeError::OutOfOrder("proof before hello"))?;
+        let peer = self.peer.as_ref().ok_or(HandshakeError::OutOfOrder)?;
         let (dialer, acceptor) = if self.dialer {
             (&self.ours, peer)
         } else {

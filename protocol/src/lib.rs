@@ -14,7 +14,7 @@ pub mod message;
 
 pub use band::{BAND_HEADER_LEN, BandError, BandHeader};
 pub use error::ProtocolError;
-pub use format::PixelFormat;
+pub use format::{FormatError, PackStats, PixelFormat};
 pub use frame::{Codec, DEFAULT_MAX_FRAME, Frame, MAX_CONTROL};
 pub use handshake::{Handshake, HandshakeError, Hello, MAGIC, PROTOCOL_VERSION, PeerInfo};
 pub use message::*;

@@ -176,10 +176,7 @@ fn wrong_version_and_bad_magic_are_typed() {
 #[test]
 fn bad_daemon_ids_and_out_of_order_steps() {
     let mut a = Handshake::new(TOKEN, Role::Node, "node", nonce(13), false);
-    assert_eq!(
-        a.verify([0; 32]),
-        Err(HandshakeError::OutOfOrder("proof before hello"))
-    );
+    assert_eq!(a.verify([0; 32]), Err(HandshakeError::OutOfOrder));
     for id in ["", "has space", "ctl\u{7}", &"x".repeat(256)] {
         let hello = Hello {
             magic: MAGIC,
@@ -198,10 +195,7 @@ fn bad_daemon_ids_and_out_of_order_steps() {
     }
     let d = Handshake::new(TOKEN, Role::Coordinator, "coord", nonce(15), true);
     a.receive_hello(d.hello()).unwrap();
-    assert_eq!(
-        a.receive_hello(d.hello()),
-        Err(HandshakeError::OutOfOrder("second hello"))
-    );
+    assert_eq!(a.receive_hello(d.hello()), Err(HandshakeError::OutOfOrder));
     assert!(
         !format!("{a:?}").contains("battery"),
         "Debug shows the token"
