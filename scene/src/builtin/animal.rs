@@ -55,7 +55,7 @@ pub(super) fn build() -> Result<Scene, SceneError> {
         [-1.3, 2.2, 1.2],
         [0.0, 0.3, 0.0],
         0.8,
-        30.0,
+        45.0,
         [1.0, 0.95, 0.88],
     );
     light.samples = 32;
