@@ -188,26 +188,48 @@ fn perspective_views(sample: &LightSample, boxes: &[(V3, V3)]) -> Vec<ShadowView
     if polys.is_empty() {
         return Vec::new();
     }
-    if !contains_light && let Some(v) = fitted_view(origin, &polys) {
+    let own_axis = (sample.kind != SampleKind::Isotropic).then_some(axis);
+    if !contains_light && let Some(v) = fitted_view(origin, own_axis, &polys) {
         return vec![v];
     }
     cube_views(origin, axis, &polys, &region, contains_light)
 }
 
-/// One frustum around the mean receiver direction, if every receiver fits inside it.
-fn fitted_view(origin: V3, polys: &[Poly]) -> Option<ShadowView> {
+/// One frustum around the receivers, if they all fit inside [`MAX_FITTED_FOV_DEG`]. Axes tried:
+/// the mean receiver direction and the sample's own axis, each re-centred on the receivers'
+/// angular bounds a few times; the tightest frustum wins.
+fn fitted_view(origin: V3, sample_axis: Option<V3>, polys: &[Poly]) -> Option<ShadowView> {
     let mut sum = [0.0f32; 3];
     for p in polys.iter().flatten() {
-        let n = normalize(*p);
-        sum = [sum[0] + n[0], sum[1] + n[1], sum[2] + n[2]];
+        sum = add3(sum, normalize(*p));
     }
-    let axis = normalize(sum);
-    if axis == [0.0; 3] {
-        return None;
-    }
-    let (right, up) = perpendicular_frame(axis);
     let limit = (MAX_FITTED_FOV_DEG.to_radians() * 0.5).tan();
-    let fit = fit_points(polys.iter().flatten().copied(), axis, right, up, limit)?;
+    let mut best: Option<(f32, V3, V3, V3, Fit)> = None;
+    for start in [Some(normalize(sum)), sample_axis].into_iter().flatten() {
+        let mut axis = start;
+        for _ in 0..4 {
+            if axis == [0.0; 3] {
+                break;
+            }
+            let (right, up) = perpendicular_frame(axis);
+            // Loose bounds (no limit) to re-centre on; the limit applies to the final frame.
+            let Some(loose) = fit_points(polys.iter().flatten().copied(), axis, right, up, 1e6)
+            else {
+                break;
+            };
+            if let Some(fit) = fit_points(polys.iter().flatten().copied(), axis, right, up, limit) {
+                let e = fit.extent;
+                let area = (e[1] - e[0]) * (e[3] - e[2]);
+                if best.as_ref().is_none_or(|b| area < b.0) {
+                    best = Some((area, axis, right, up, fit));
+                }
+            }
+            let e = loose.extent;
+            let (cx, cy) = (0.5 * (e[0] + e[1]), 0.5 * (e[2] + e[3]));
+            axis = normalize(add3(axis, add3(scale(right, cx), scale(up, cy))));
+        }
+    }
+    let (_, axis, right, up, fit) = best?;
     Some(perspective_view(
         ShadowViewKind::Fitted,
         origin,
