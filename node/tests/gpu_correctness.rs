@@ -80,7 +80,29 @@ fn the_scene_stresses_shadows() {
         "edge mask leaves only {:.1} %",
         compared * 100.0
     );
-    // Some sample needs more than a fitted frustum: its casters span more than 90°.
+    // The pillar lies wholly outside the 90° cone around the axis of every sample of the low light.
+    let pillar = e
+        .scene
+        .meshes
+        .iter()
+        .find(|m| m.name == "pillar")
+        .expect("pillar");
+    let (lo, hi) = pillar.bounds().expect("pillar bounds");
+    for s in e.samples.iter().filter(|s| s.light == 0) {
+        for i in 0..8 {
+            let c = [0, 1, 2].map(|k| if i >> k & 1 == 0 { lo[k] } else { hi[k] });
+            let d =
+                lightfold_scene::shading::normalize(lightfold_scene::shading::sub(c, s.position));
+            let angle = lightfold_scene::shading::dot(d, s.direction)
+                .acos()
+                .to_degrees();
+            assert!(
+                angle > 45.0,
+                "pillar corner {c:?} at {angle}° from a sample's axis"
+            );
+        }
+    }
+    // So such samples need more than one fitted frustum.
     let gpu = gpu();
     let frame = render(&gpu, default_options(), LayerSet::illumination());
     assert!(

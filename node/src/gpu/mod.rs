@@ -3,6 +3,7 @@
 
 pub mod device;
 mod eye_pass;
+pub mod frame;
 pub mod lights;
 mod pipelines;
 mod readback;
@@ -11,5 +12,6 @@ pub mod scene_data;
 mod shadow_pass;
 
 pub use device::{DeviceError, Gpu, GpuOptions};
+pub use frame::{LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
 pub use lights::Fault;
-pub use renderer::{LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats, Renderer};
+pub use renderer::Renderer;

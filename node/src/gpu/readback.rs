@@ -1,7 +1,7 @@
 //! Reading render targets back to the CPU: one copy per texture into a mappable buffer whose rows
 //! are padded to wgpu's 256-byte alignment, then unpadded and converted to f32 channels.
 
-use super::renderer::RenderError;
+use super::frame::RenderError;
 
 /// A render target to read and how many of its channels to keep.
 #[derive(Debug, Clone, Copy)]

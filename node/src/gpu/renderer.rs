@@ -6,141 +6,19 @@
 
 use super::device::Gpu;
 use super::eye_pass::{EyeInputs, EyeTargets, GpuFrame, render_eye};
+use super::frame::{LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
 use super::lights::{Fault, LightPlan, plan_lights};
 use super::pipelines::{DrawContext, Pipelines};
 use super::readback::{ReadRequest, read_targets};
 use super::scene_data::SceneData;
 use super::shadow_pass::{ShadowMaps, layer_count, render_shadow_maps};
 use lightfold_scene::shadow_views::visible_receivers;
-use lightfold_scene::{Camera, Image, LightSample, Quality, Scene, ShadowFilter};
+use lightfold_scene::{Camera, Image, LightSample, Scene, ShadowFilter};
 use std::time::Instant;
 use wgpu::util::DeviceExt;
 
 /// Constant bias the [`Fault::HugeBias`] negative control forces, in metres.
 const HUGE_BIAS: f32 = 0.5;
-
-/// How a renderer draws shadows.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct RenderOptions {
-    pub shadow_map_size: u32,
-    pub filter: ShadowFilter,
-    /// Constant bias in metres along the light ray.
-    pub depth_bias: f32,
-    /// Slope-scaled bias, in texel footprints of the filter kernel per unit of `tan θ`.
-    pub slope_bias: f32,
-    /// Keep shadow maps between frames while lights and casters do not change.
-    pub walkthrough: bool,
-    /// A deliberate mistake for negative-control tests.
-    pub fault: Option<Fault>,
-}
-
-impl RenderOptions {
-    pub fn from_quality(q: &Quality) -> RenderOptions {
-        RenderOptions {
-            shadow_map_size: q.shadow_map_size,
-            filter: q.filter,
-            depth_bias: q.depth_bias,
-            slope_bias: q.slope_bias,
-            walkthrough: false,
-            fault: None,
-        }
-    }
-}
-
-impl Default for RenderOptions {
-    fn default() -> Self {
-        RenderOptions::from_quality(&Quality::default())
-    }
-}
-
-/// Which layers a frame produces.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct LayerSet {
-    pub illumination: bool,
-    pub diffuse: bool,
-    pub specular: bool,
-    pub ambient: bool,
-    pub emissive: bool,
-    pub depth: bool,
-}
-
-impl LayerSet {
-    /// Illumination only (an illumination node's usual job).
-    pub fn illumination() -> LayerSet {
-        LayerSet {
-            illumination: true,
-            ..Default::default()
-        }
-    }
-
-    pub fn all() -> LayerSet {
-        LayerSet {
-            illumination: true,
-            diffuse: true,
-            specular: true,
-            ambient: true,
-            emissive: true,
-            depth: true,
-        }
-    }
-
-    fn any_material(&self) -> bool {
-        self.diffuse || self.specular || self.ambient || self.emissive
-    }
-}
-
-/// What one frame of a node produced.
-#[derive(Debug, Clone, PartialEq)]
-pub struct NodeFrame {
-    /// 6 channels: diffuse RGB then specular RGB.
-    pub illumination: Option<Image>,
-    /// 3 channels each: m^d (texture applied), m^s, m^a, e.
-    pub diffuse: Option<Image>,
-    pub specular: Option<Image>,
-    pub ambient: Option<Image>,
-    pub emissive: Option<Image>,
-    /// 1 channel: eye-space distance along the camera's forward axis, 0 for background.
-    pub depth: Option<Image>,
-    pub stats: RenderStats,
-}
-
-/// Counters and wall-clock time per phase (each phase waits for the device).
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct RenderStats {
-    /// Depth passes rendered this frame (0 when walkthrough mode reused the maps).
-    pub shadow_passes: u32,
-    /// Views (maps) each light needs, whether or not they were re-rendered.
-    pub passes_per_light: Vec<u32>,
-    pub shadow_us: u64,
-    pub eye_us: u64,
-    pub readback_us: u64,
-}
-
-#[derive(Debug, thiserror::Error)]
-pub enum RenderError {
-    #[error("{requested} lights requested, this device takes at most {maximum}")]
-    TooManyLights { requested: usize, maximum: u32 },
-    #[error("{views} shadow views needed, the device has {maximum} texture-array layers")]
-    TooManyViews { views: usize, maximum: u32 },
-    #[error("shadow map size {size} outside 1..={maximum}")]
-    ShadowMapSize { size: u32, maximum: u32 },
-    #[error("image {width}x{height} outside 1..={maximum} per side")]
-    ImageSize {
-        width: u32,
-        height: u32,
-        maximum: u32,
-    },
-    #[error("caster lists given for {given} lights, frame has {lights}")]
-    Casters { lights: usize, given: usize },
-    #[error("{what} takes {bytes} bytes, binding limit is {maximum}")]
-    BindingTooLarge {
-        what: &'static str,
-        bytes: u64,
-        maximum: u64,
-    },
-    #[error("gpu: {0}")]
-    Gpu(String),
-}
 
 /// What the cached shadow maps were rendered from (walkthrough mode).
 #[derive(Debug, Clone, PartialEq)]
@@ -168,6 +46,7 @@ pub struct Renderer {
     map_key: Option<MapKey>,
     targets: Option<EyeTargets>,
     max_lights: u32,
+    fit_to_camera: bool,
 }
 
 impl Renderer {
@@ -278,11 +157,18 @@ impl Renderer {
             map_key: None,
             targets: None,
             max_lights: gpu.max_lights(opts.shadow_map_size),
+            fit_to_camera: true,
         })
     }
 
     pub fn set_camera(&mut self, camera: &Camera) {
         self.camera = *camera;
+    }
+
+    /// Whether moving-light frames fit shadow views to the receivers the camera sees (the
+    /// default: fewer cube faces) or to the whole scene, as walkthrough mode always does.
+    pub fn set_fit_to_camera(&mut self, on: bool) {
+        self.fit_to_camera = on;
     }
 
     pub fn options(&self) -> &RenderOptions {
@@ -328,7 +214,7 @@ impl Renderer {
         // Moving lights: maps cover only what the camera sees. Walkthrough: the maps must outlive
         // camera moves, so they cover every receiver.
         let visible;
-        let receivers: &[([f32; 3], [f32; 3])] = if opts.walkthrough {
+        let receivers: &[([f32; 3], [f32; 3])] = if opts.walkthrough || !self.fit_to_camera {
             &self.receivers
         } else {
             visible = visible_receivers(&self.camera, &self.receivers);

@@ -1,0 +1,130 @@
+//! What a frame is asked for and what it returns: render options (shadow filter, bias, walkthrough,
+//! deliberate faults), the set of layers, the frame's images and per-phase statistics, and the
+//! renderer's errors.
+
+use super::lights::Fault;
+use lightfold_scene::{Image, Quality, ShadowFilter};
+
+/// How a renderer draws shadows.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RenderOptions {
+    pub shadow_map_size: u32,
+    pub filter: ShadowFilter,
+    /// Constant bias in metres along the light ray.
+    pub depth_bias: f32,
+    /// Slope-scaled bias, in texel footprints of the filter kernel per unit of `tan θ`.
+    pub slope_bias: f32,
+    /// Keep shadow maps between frames while lights and casters do not change. The maps then
+    /// cover every receiver, as the camera may move (see `Renderer::set_fit_to_camera`).
+    pub walkthrough: bool,
+    /// A deliberate mistake for negative-control tests.
+    pub fault: Option<Fault>,
+}
+
+impl RenderOptions {
+    pub fn from_quality(q: &Quality) -> RenderOptions {
+        RenderOptions {
+            shadow_map_size: q.shadow_map_size,
+            filter: q.filter,
+            depth_bias: q.depth_bias,
+            slope_bias: q.slope_bias,
+            walkthrough: false,
+            fault: None,
+        }
+    }
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        RenderOptions::from_quality(&Quality::default())
+    }
+}
+
+/// Which layers a frame produces.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct LayerSet {
+    pub illumination: bool,
+    pub diffuse: bool,
+    pub specular: bool,
+    pub ambient: bool,
+    pub emissive: bool,
+    pub depth: bool,
+}
+
+impl LayerSet {
+    /// Illumination only (an illumination node's usual job).
+    pub fn illumination() -> LayerSet {
+        LayerSet {
+            illumination: true,
+            ..Default::default()
+        }
+    }
+
+    pub fn all() -> LayerSet {
+        LayerSet {
+            illumination: true,
+            diffuse: true,
+            specular: true,
+            ambient: true,
+            emissive: true,
+            depth: true,
+        }
+    }
+
+    pub(crate) fn any_material(&self) -> bool {
+        self.diffuse || self.specular || self.ambient || self.emissive
+    }
+}
+
+/// What one frame of a node produced.
+#[derive(Debug, Clone, PartialEq)]
+pub struct NodeFrame {
+    /// 6 channels: diffuse RGB then specular RGB.
+    pub illumination: Option<Image>,
+    /// 3 channels each: m^d (texture applied), m^s, m^a, e.
+    pub diffuse: Option<Image>,
+    pub specular: Option<Image>,
+    pub ambient: Option<Image>,
+    pub emissive: Option<Image>,
+    /// 1 channel: eye-space distance along the camera's forward axis, 0 for background.
+    pub depth: Option<Image>,
+    pub stats: RenderStats,
+}
+
+/// Counters and wall-clock time per phase (each phase waits for the device).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct RenderStats {
+    /// Depth passes rendered this frame (0 when walkthrough mode reused the maps).
+    pub shadow_passes: u32,
+    /// Views (maps) each light needs, whether or not they were re-rendered.
+    pub passes_per_light: Vec<u32>,
+    pub shadow_us: u64,
+    pub eye_us: u64,
+    pub readback_us: u64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    #[error("{requested} lights requested, this device takes at most {maximum}")]
+    TooManyLights { requested: usize, maximum: u32 },
+    #[error("{views} shadow views needed, the device has {maximum} texture-array layers")]
+    TooManyViews { views: usize, maximum: u32 },
+    #[error("shadow map size {size} outside 1..={maximum}")]
+    ShadowMapSize { size: u32, maximum: u32 },
+    #[error("image {width}x{height} outside 1..={maximum} per side")]
+    ImageSize {
+        width: u32,
+        height: u32,
+        maximum: u32,
+    },
+    #[error("caster lists given for {given} lights, frame has {lights}")]
+    Casters { lights: usize, given: usize },
+    #[error("{what} takes {bytes} bytes, binding limit is {maximum}")]
+    BindingTooLarge {
+        what: &'static str,
+        bytes: u64,
+        maximum: u64,
+    },
+    #[error("gpu: {0}")]
+    Gpu(String),
+}
