@@ -5,6 +5,7 @@
 
 mod support;
 
+use lightfold_compositor::daemon::driver::DriverError;
 use lightfold_protocol::{ErrorCode, FrameParams, Layer, Message, PixelFormat};
 use support::*;
 
@@ -220,26 +221,120 @@ async fn shutdown_from_the_coordinator_stops_the_stage() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_bad_configuration_is_refused_and_the_old_one_kept() {
     let size = (8, 8, 8);
+    let img = image(ILL, PixelFormat::F32x6, hdr(10, 8, 8, ILL, 0..0));
     let stage = start_stage("c4").await;
-    let (_sink, sink_addr) = sink().await;
+    let (mut sink, sink_addr) = sink().await;
     let mut ctl = stage.control().await;
     let ins = vec![input("n", &[(ILL, PixelFormat::F32x6)])];
     let out = [(ILL, PixelFormat::F32x6)];
+    ctl.configure(config(2, size, ins.clone(), &[], &out, &sink_addr), WAIT)
+        .await
+        .unwrap();
     let bad = config(3, size, ins.clone(), &[("blend", "{}")], &out, &sink_addr);
     match ctl.configure(bad, WAIT).await {
-        Err(lightfold_compositor::daemon::driver::DriverError::Refused { code, message }) => {
+        Err(DriverError::Refused { code, message }) => {
             assert_eq!(code, ErrorCode::UnknownOperator);
-            assert!(message.contains("blend"), "{message}");
+            assert!(
+                message.contains("blend") && message.contains("epoch 3"),
+                "{message}"
+            );
         }
         other => panic!("expected a refusal, got {other:?}"),
     }
     let mut bad = config(3, size, ins, &[], &out, &sink_addr);
     bad.inputs[0].layers[0].1 = PixelFormat::F16x4;
     match ctl.configure(bad, WAIT).await {
-        Err(lightfold_compositor::daemon::driver::DriverError::Refused { code, .. }) => {
-            assert_eq!(code, ErrorCode::UnsupportedFormat)
+        Err(DriverError::Refused { code, message }) => {
+            assert_eq!(code, ErrorCode::UnsupportedFormat, "{message}")
         }
         other => panic!("expected a refusal, got {other:?}"),
+    }
+    // Epoch 2 still runs.
+    let mut n = stage.producer("n").await;
+    ctl.render(2, 1, no_params()).await.unwrap();
+    n.send_frame(&shape(2, 1, size), std::slice::from_ref(&img))
+        .await
+        .unwrap();
+    let got = sink
+        .recv_frame(&shape(2, 1, size), &out, WAIT)
+        .await
+        .unwrap();
+    assert_eq!(got[0].data, img.data);
+    ctl.frame_done(1, WAIT).await.unwrap();
+    stage.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_reconfiguration_abandons_the_frame_in_progress() {
+    let size = (12, 9, 3);
+    let (w, h, _) = size;
+    let stage = start_stage("c5").await;
+    let (mut sink, sink_addr) = sink().await;
+    let mut ctl = stage.control().await;
+    let ins = vec![input("a", &[(ILL, PixelFormat::F32x6)])];
+    let out = [(ILL, PixelFormat::F32x6)];
+    ctl.configure(config(1, size, ins.clone(), &[], &out, &sink_addr), WAIT)
+        .await
+        .unwrap();
+    let mut a = stage.producer("a").await;
+    let img = image(ILL, PixelFormat::F32x6, hdr(8, w, h, ILL, 0..0));
+    // Frame 1 gets one band of three, then the plan changes under it.
+    ctl.render(1, 1, no_params()).await.unwrap();
+    let (hd, p) =
+        lightfold_compositor::daemon::driver::pack_band(&shape(1, 1, size), 0, &img).unwrap();
+    a.send_band(hd, p).await.unwrap();
+    ctl.configure(config(2, size, ins, &[], &out, &sink_addr), WAIT)
+        .await
+        .unwrap();
+    ctl.render(2, 2, no_params()).await.unwrap();
+    a.send_frame(&shape(2, 2, size), std::slice::from_ref(&img))
+        .await
+        .unwrap();
+    let got = sink
+        .recv_frame(&shape(2, 2, size), &out, WAIT)
+        .await
+        .unwrap();
+    assert_eq!(got[0].data, img.data);
+    ctl.frame_done(2, WAIT).await.unwrap();
+    assert_eq!(
+        stage.metrics.frames_failed(),
+        0,
+        "an abandoned frame is not a failure"
+    );
+    stage.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_new_coordinator_and_a_reconnected_producer_take_over() {
+    let size = (10, 7, 4);
+    let (w, h, _) = size;
+    let stage = start_stage("c6").await;
+    let (mut sink, sink_addr) = sink().await;
+    let out = [(ILL, PixelFormat::F32x6)];
+    let img = image(ILL, PixelFormat::F32x6, hdr(9, w, h, ILL, 0..0));
+    {
+        let mut first = stage.control().await;
+        let ins = vec![input("a", &[(ILL, PixelFormat::F32x6)])];
+        first
+            .configure(config(1, size, ins, &[], &out, &sink_addr), WAIT)
+            .await
+            .unwrap();
+        // The first coordinator leaves without `Shutdown`: the stage keeps its configuration.
+    }
+    let mut ctl = stage.control().await;
+    for frame in 1..=2 {
+        // Each frame comes over a new connection from the same producer.
+        let mut a = stage.producer("a").await;
+        ctl.render(1, frame, no_params()).await.unwrap();
+        a.send_frame(&shape(1, frame, size), std::slice::from_ref(&img))
+            .await
+            .unwrap();
+        let got = sink
+            .recv_frame(&shape(1, frame, size), &out, WAIT)
+            .await
+            .unwrap();
+        assert_eq!(got[0].data, img.data, "frame {frame}");
+        ctl.frame_done(frame, WAIT).await.unwrap();
     }
     stage.stop().await;
 }

@@ -176,11 +176,11 @@ impl ControlHub {
                             pipeline,
                             generation,
                         }));
+                        // The engine answers `Configured` once it has switched, so a band of
+                        // the new epoch can never meet the old configuration.
                         if self.commands.send(cmd).await.is_err() {
                             return false;
                         }
-                        tracing::info!(epoch, "configured");
-                        self.out.send(Message::Configured { epoch });
                     }
                     Err(e) => self.out.error(
                         e.code(),

@@ -10,7 +10,7 @@ use super::control::{ControlOut, NewConfig};
 use super::inputs::{InBand, InputError, Slot, SlotContext};
 use super::output::Out;
 use crate::pipeline::Pipeline;
-use lightfold_protocol::{ErrorCode, FrameParams, FrameStats};
+use lightfold_protocol::{ErrorCode, FrameParams, FrameStats, Message};
 use serde_json::json;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -159,8 +159,11 @@ impl Engine {
         drop(old);
         *self.ops.lock().unwrap_or_else(|e| e.into_inner()) = pipeline;
         let addr = plan.config.downstream.clone();
+        let epoch = plan.epoch();
         self.plan = Some(Arc::new(plan));
         self.applied = generation;
+        tracing::info!(epoch, "configured");
+        self.control.send(Message::Configured { epoch });
         let _ = self.out.send(Out::Connect { addr }).await;
     }
 
@@ -224,12 +227,12 @@ impl Engine {
     /// Sets this frame's light colours (`(stage input, c_n)`) on the operators that read them.
     fn apply_params(&mut self, plan: &StagePlan, params: &FrameParams) {
         if let Some(scale) = params.scale {
-            if scale.is_finite() && scale >= 0.0 {
+            if scale.is_finite() && scale > 0.0 {
                 self.scale = scale;
             } else {
                 self.control.error(
                     ErrorCode::BadConfig,
-                    format!("ignored scale {scale}: not finite and non-negative"),
+                    format!("ignored scale {scale}: not finite and positive"),
                 );
             }
         }
@@ -375,9 +378,13 @@ impl Engine {
         Ok(())
     }
 
+    /// Queues for the writer; a stalled consumer blocks here until shutdown or a reconfiguration.
     async fn send_out(&mut self, item: Out) -> Result<(), FrameError> {
+        let applied = self.applied;
         tokio::select! {
+            biased;
             _ = self.ctx.shutdown.cancelled() => Err(FrameError::Shutdown),
+            _ = self.generation.wait_for(|g| *g > applied) => Err(FrameError::Reconfigured),
             r = self.out.send(item) => r.map_err(|_| FrameError::Shutdown),
         }
     }
