@@ -89,7 +89,7 @@ fn main() {
         }
     }
     println!("\n### The recommended formats end to end (rgb9e5x2 nodes, f16x6 chain)\n");
-    header("links");
+    header("links", "saturated px");
     for content in [Content::Hdr, Content::Dark] {
         let o = run(
             content,
