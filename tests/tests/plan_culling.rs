@@ -78,6 +78,17 @@ fn culled_variant(name: &str) -> Scene {
     s
 }
 
+/// The scene under a global ambient `c^a` with `m^a = m^d` wherever that is expressible
+/// (untextured materials), so the plan folds `c^a` into the diffuse sum (eq. 6–7) when it can.
+fn ambient_variant(name: &str) -> Scene {
+    let mut s = small(name);
+    s.ambient = [0.05, 0.04, 0.03];
+    for m in &mut s.materials {
+        m.ambient = m.diffuse;
+    }
+    s
+}
+
 /// The planned pipeline on the CPU: nodes' illumination (exact point sums with shadows), then
 /// accumulate (`c_n`, uniform specular, ambient folding) and the single material stage.
 fn pipeline(scene: &Scene, p: &Plan) -> Image {
@@ -143,9 +154,10 @@ fn culling_never_changes_the_picture() {
         [
             (n.to_string(), small(n)),
             (format!("{n}+culled"), culled_variant(n)),
+            (format!("{n}+ambient"), ambient_variant(n)),
         ]
     });
-    let mut dropped = 0;
+    let (mut dropped, mut folded) = (0, 0);
     for (name, scene) in scenes {
         let cluster = ClusterSpec::local(64, 8);
         let culled = plan(&scene, &cluster, &PlanOptions::default()).unwrap();
@@ -177,6 +189,7 @@ fn culling_never_changes_the_picture() {
             "{name}: culled and forced images differ by {worst:e} beyond 1e-4 relative + ε ({eps:e}); plan:\n{culled}"
         );
         dropped += culled.dropped.len();
+        folded += usize::from(culled.material.fold_ambient);
         println!(
             "{name}: {} of {} samples active, {} material layers, worst excess {worst:e}",
             culled.active.len(),
@@ -186,6 +199,7 @@ fn culling_never_changes_the_picture() {
     }
     // Five variants × at least the four extra lights: the culler had work to do.
     assert!(dropped >= 20, "only {dropped} samples were dropped");
+    assert!(folded >= 1, "no scene exercised the ambient folding");
 }
 
 /// Every stage of every plan (chain and tree, K = 2 and 4, forced or not) is a configuration the
