@@ -238,3 +238,45 @@ fn compositors_accept_every_planned_stage() {
         }
     }
 }
+
+/// On the GPU renderer, each node's lights drawn with only their planned casters give the same
+/// illumination as with every mesh casting. Needs an adapter (lavapipe in CI); fails without one.
+#[test]
+fn planned_casters_give_the_same_gpu_image_as_every_caster() {
+    use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+    let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter (install lavapipe)");
+    for name in lightfold_scene::builtin_names() {
+        let scene = culled_variant(name);
+        let p = plan(&scene, &ClusterSpec::local(64, 8), &PlanOptions::default()).unwrap();
+        let mut culled_casters = 0;
+        for n in p.nodes.iter().filter(|n| !n.lights.is_empty()) {
+            let lights: Vec<_> = n.lights.iter().map(|&i| p.samples[i]).collect();
+            let casters: Vec<Vec<u32>> = n.shadows.iter().map(|s| s.casters.clone()).collect();
+            culled_casters += casters
+                .iter()
+                .map(|c| scene.meshes.len() - c.len())
+                .sum::<usize>();
+            let opts = RenderOptions {
+                shadow_map_size: n.shadows[0].map_size,
+                ..RenderOptions::from_quality(&scene.quality)
+            };
+            let mut r = Renderer::new(&gpu, &scene, opts).unwrap();
+            let mut image = |c: Option<&[Vec<u32>]>| {
+                r.render(&gpu, &lights, c, n.color, LayerSet::illumination())
+                    .unwrap()
+                    .illumination
+                    .unwrap()
+            };
+            let planned = image(Some(&casters));
+            let every = image(None);
+            for (i, (a, b)) in planned.data.iter().zip(&every.data).enumerate() {
+                assert!(
+                    (a - b).abs() <= 1e-4 * b.abs() + 1e-6,
+                    "{name} {}: value {i} is {a} with planned casters, {b} with all",
+                    n.node
+                );
+            }
+        }
+        println!("{name}: {culled_casters} (light, mesh) caster pairs culled");
+    }
+}
