@@ -4,8 +4,10 @@
 
 use clap::{Parser, Subcommand};
 
+mod bench_cmd;
 mod compositor_cmd;
 mod defaults_cmd;
+mod node_cmd;
 mod plan_cmd;
 
 #[derive(Debug, Parser)]
@@ -24,10 +26,14 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Benchmarks that print figures (`bench node`: what K lights per node cost).
+    Bench(bench_cmd::Args),
     /// Run a compositor stage daemon.
     Compositor(compositor_cmd::Args),
     /// Print the built-in defaults (image size, samples, K, shadow-map size).
     Defaults(defaults_cmd::Args),
+    /// Run a render-node daemon.
+    Node(node_cmd::Args),
     /// Print the plan for a scene: stages, lights per node, culled lights, shadow passes, bytes.
     Plan(plan_cmd::Args),
 }
@@ -36,8 +42,10 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     init_logging(&cli.log);
     match cli.command {
+        Command::Bench(args) => bench_cmd::run(args),
         Command::Compositor(args) => compositor_cmd::run(args),
         Command::Defaults(args) => defaults_cmd::run(args),
+        Command::Node(args) => node_cmd::run(args),
         Command::Plan(args) => plan_cmd::run(args),
     }
 }

@@ -5,4 +5,5 @@
 //! Must not depend on the coordinator or compositor crates: it speaks to them only through
 //! `lightfold-protocol`.
 
+pub mod daemon;
 pub mod gpu;

@@ -1,0 +1,453 @@
+//! `lightfold bench`: benchmarks that print figures (not timed tests). `bench node` measures what
+//! K buys on one render node: for each K and each mode it starts a fresh `lightfold node` process
+//! with a fixed `LP_NUM_THREADS`, plays the coordinator and the compositor over loopback, drives a
+//! few frames with a slowly orbiting camera and reports the node's own per-phase timings, the
+//! node-seconds a frame of L lights costs, and the nodes L lights need under a frame budget.
+
+use anyhow::{Context, bail};
+use lightfold_net::{Identity, Link, Timeouts, accept, dial};
+use lightfold_protocol::frame::Frame;
+use lightfold_protocol::{
+    FrameParams, FrameStats, Layer, Message, NodeConfig, PixelFormat, Role, WireShadow,
+};
+use lightfold_scene::sampling::scene_samples;
+use lightfold_scene::wire::{camera_to_wire, light_to_wire};
+use lightfold_scene::{Camera, Scene};
+use std::process::Stdio;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
+use tokio::io::{AsyncBufReadExt, BufReader};
+use tokio::net::TcpListener;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(subcommand)]
+    what: What,
+}
+
+#[derive(Debug, clap::Subcommand)]
+enum What {
+    /// Frame time of one render node against K (lights per node), moving lights and walkthrough.
+    Node(NodeArgs),
+}
+
+#[derive(Debug, clap::Args)]
+pub struct NodeArgs {
+    /// Built-in scene name.
+    #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
+    scene: String,
+    #[arg(long, default_value_t = 800)]
+    width: u32,
+    #[arg(long, default_value_t = 600)]
+    height: u32,
+    /// Shadow-map size per face.
+    #[arg(long, default_value_t = 512)]
+    map: u32,
+    /// Lights per node to measure.
+    #[arg(long, value_delimiter = ',', default_value = "1,2,4,8,16,32")]
+    ks: Vec<u32>,
+    /// L, the lights a frame needs in all (for node-seconds and node counts).
+    #[arg(long, default_value_t = 32)]
+    lights: u32,
+    /// Modes to measure: `moving` (shadow maps every frame) and/or `walkthrough`.
+    #[arg(long, value_delimiter = ',', default_value = "moving,walkthrough")]
+    modes: Vec<String>,
+    /// Timed frames per configuration (after the warm-up frames).
+    #[arg(long, default_value_t = 4)]
+    frames: u32,
+    #[arg(long, default_value_t = 2)]
+    warmup: u32,
+    /// `LP_NUM_THREADS` of every node process (lavapipe's rasteriser threads).
+    #[arg(long, default_value_t = 2)]
+    threads: u32,
+    /// Frame budget for the node count, milliseconds.
+    #[arg(long, default_value_t = 1000.0)]
+    budget_ms: f64,
+    /// Link format of the illumination layer.
+    #[arg(long, default_value = "rgb9e5x2")]
+    format: String,
+    #[arg(long, default_value_t = 64)]
+    band_height: u32,
+    /// Graphics backend of the node processes.
+    #[arg(long, value_parser = ["vulkan", "gl"])]
+    backend: Option<String>,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    match args.what {
+        What::Node(a) => {
+            let rt = tokio::runtime::Builder::new_multi_thread()
+                .worker_threads(2)
+                .enable_all()
+                .build()?;
+            rt.block_on(bench_node(a))
+        }
+    }
+}
+
+/// One measured configuration.
+#[derive(Debug, Clone)]
+struct Row {
+    mode: String,
+    k: u32,
+    frames: Vec<FrameStats>,
+}
+
+fn median(mut v: Vec<u64>) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_unstable();
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2] as f64
+    } else {
+        (v[n / 2 - 1] + v[n / 2]) as f64 / 2.0
+    }
+}
+
+impl Row {
+    fn ms(&self, f: impl Fn(&FrameStats) -> u64) -> f64 {
+        median(self.frames.iter().map(f).collect()) / 1000.0
+    }
+    fn total_ms(&self) -> f64 {
+        self.ms(|s| s.total_us)
+    }
+}
+
+async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
+    let format = PixelFormat::from_name(&a.format)
+        .with_context(|| format!("unknown pixel format {:?}", a.format))?;
+    let mut scene = lightfold_scene::builtin(&a.scene)?;
+    scene.camera.width = a.width;
+    scene.camera.height = a.height;
+    scene.quality.shadow_map_size = a.map;
+    let samples = scene_samples(&scene);
+    if samples.is_empty() {
+        bail!("scene {} has no lights", a.scene);
+    }
+    let bytes = scene.to_bytes()?;
+    let hash = scene.content_hash();
+    let token_text = run_token();
+
+    // The compositor: accepts data links and counts what arrives.
+    let data = TcpListener::bind("127.0.0.1:0").await?;
+    let data_addr = data.local_addr()?.to_string();
+    let received = Arc::new(AtomicU64::new(0));
+    tokio::spawn(drain(data, token_text.clone(), received.clone()));
+
+    eprintln!(
+        "bench node: scene {} ({} triangles, {} samples), {}x{}, {}² maps, LP_NUM_THREADS={}",
+        a.scene,
+        scene.triangle_count(),
+        samples.len(),
+        a.width,
+        a.height,
+        a.map,
+        a.threads
+    );
+    let mut rows = Vec::new();
+    for mode in &a.modes {
+        let walkthrough = match mode.as_str() {
+            "moving" => false,
+            "walkthrough" => true,
+            other => bail!("unknown mode {other:?} (moving, walkthrough)"),
+        };
+        for &k in &a.ks {
+            let lights: Vec<_> = (0..k as usize)
+                .map(|i| {
+                    let idx = (i * samples.len() / k as usize) % samples.len();
+                    light_to_wire(&samples[idx], idx as u32)
+                })
+                .collect();
+            let config = NodeConfig {
+                epoch: 1,
+                scene: hash,
+                shadows: (0..k)
+                    .map(|light| WireShadow {
+                        light,
+                        map_size: a.map,
+                        casters: (0..scene.meshes.len() as u32).collect(),
+                    })
+                    .collect(),
+                lights,
+                color: [1.0; 3],
+                layers: vec![(Layer::Illumination, format)],
+                scale: 1.0,
+                band_height: a.band_height,
+                camera: camera_to_wire(&scene.camera),
+                walkthrough,
+                downstream: data_addr.clone(),
+                input_index: 0,
+                filter: 1,
+                depth_bias: scene.quality.depth_bias,
+                slope_bias: scene.quality.slope_bias,
+            };
+            let frames = measure(&a, &token_text, &scene, &bytes, config).await?;
+            let row = Row {
+                mode: mode.clone(),
+                k,
+                frames,
+            };
+            eprintln!("  {mode:<11} K={k:<3} {:>8.1} ms/frame", row.total_ms());
+            rows.push(row);
+        }
+    }
+    print_tables(&a, &rows);
+    eprintln!("bands received: {}", received.load(Ordering::Relaxed));
+    Ok(())
+}
+
+/// A cluster token for this run only (std's per-process random hasher keys as the source).
+fn run_token() -> String {
+    use std::hash::{BuildHasher, Hasher};
+    (0..4)
+        .map(|i| {
+            let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+            h.write_u32(i);
+            format!("{:016x}", h.finish())
+        })
+        .collect()
+}
+
+/// Starts a node process, sends the scene and `config`, drives warm-up and timed frames, stops it.
+async fn measure(
+    a: &NodeArgs,
+    token: &str,
+    scene: &Scene,
+    bytes: &[u8],
+    config: NodeConfig,
+) -> anyhow::Result<Vec<FrameStats>> {
+    let exe = std::env::current_exe()?;
+    let mut cmd = tokio::process::Command::new(exe);
+    cmd.args([
+        "--log",
+        "warn",
+        "node",
+        "--listen",
+        "127.0.0.1:0",
+        "--id",
+        "bench-node",
+    ])
+    .env("LIGHTFOLD_TOKEN", token)
+    .env("LP_NUM_THREADS", a.threads.to_string())
+    .stdin(Stdio::null())
+    .stdout(Stdio::piped())
+    .stderr(Stdio::inherit())
+    .kill_on_drop(true);
+    if let Some(b) = &a.backend {
+        cmd.args(["--backend", b]);
+    }
+    let mut child = cmd.spawn().context("cannot start a node process")?;
+    let stdout = child.stdout.take().context("node stdout")?;
+    let mut lines = BufReader::new(stdout).lines();
+    let line = tokio::time::timeout(Duration::from_secs(30), lines.next_line())
+        .await
+        .context("node did not report its address")??
+        .context("node exited before listening")?;
+    let addr = line
+        .strip_prefix("listening ")
+        .with_context(|| format!("unexpected node output {line:?}"))?
+        .to_string();
+
+    let me = Identity::new(token.as_bytes(), Role::Coordinator, "bench");
+    let t = Timeouts::default();
+    let mut link = dial(&addr, &me, t).await?;
+    let wait = Duration::from_secs(600);
+    match link.recv_msg(wait).await? {
+        Message::Register(_) => {}
+        other => bail!("expected Register, got {other:?}"),
+    }
+    send_scene(&mut link, config.scene, bytes, wait).await?;
+    let epoch = config.epoch;
+    expect(&mut link, Message::ConfigureNode(config), wait, |m| {
+        matches!(m, Message::Configured { .. })
+    })
+    .await?;
+    let mut stats = Vec::new();
+    for f in 0..a.warmup + a.frames {
+        let camera = orbit(&scene.camera, f);
+        let msg = Message::RenderFrame {
+            epoch,
+            frame: u64::from(f),
+            camera: Some(camera_to_wire(&camera)),
+            params: FrameParams {
+                colors: Vec::new(),
+                scale: None,
+            },
+        };
+        let m = expect(&mut link, msg, wait, |m| matches!(m, Message::FrameDone(_))).await?;
+        if let (Message::FrameDone(s), true) = (m, f >= a.warmup) {
+            stats.push(s);
+        }
+    }
+    link.send_msg(Message::Shutdown).await?;
+    if tokio::time::timeout(Duration::from_secs(30), child.wait())
+        .await
+        .is_err()
+    {
+        child.kill().await?;
+    }
+    Ok(stats)
+}
+
+/// The scene camera turned `f` half-degrees about the vertical through its target: a walkthrough
+/// that needs a new eye pass every frame.
+fn orbit(c: &Camera, f: u32) -> Camera {
+    let angle = (f as f32 * 0.5).to_radians();
+    let (s, co) = angle.sin_cos();
+    let d = [c.position[0] - c.target[0], c.position[2] - c.target[2]];
+    Camera {
+        position: [
+            c.target[0] + d[0] * co - d[1] * s,
+            c.position[1],
+            c.target[2] + d[0] * s + d[1] * co,
+        ],
+        ..*c
+    }
+}
+
+async fn send_scene(
+    link: &mut Link,
+    hash: [u8; 32],
+    bytes: &[u8],
+    wait: Duration,
+) -> anyhow::Result<()> {
+    let offer = Message::SceneOffer {
+        hash,
+        size: bytes.len() as u64,
+    };
+    let answer = expect(link, offer, wait, |m| {
+        matches!(m, Message::SceneNeed { .. })
+    })
+    .await?;
+    if let Message::SceneNeed { need: false, .. } = answer {
+        return Ok(());
+    }
+    const CHUNK: usize = 4 << 20;
+    let n = bytes.chunks(CHUNK).count().max(1);
+    for (i, c) in bytes.chunks(CHUNK).enumerate() {
+        link.send_msg(Message::SceneChunk {
+            hash,
+            offset: (i * CHUNK) as u64,
+            data: c.to_vec(),
+            last: i + 1 == n,
+        })
+        .await?;
+    }
+    match link.recv_msg(wait).await? {
+        Message::SceneReady { .. } => Ok(()),
+        other => bail!("scene transfer: {other:?}"),
+    }
+}
+
+/// Sends `msg` and returns the answer if `ok` accepts it.
+async fn expect(
+    link: &mut Link,
+    msg: Message,
+    wait: Duration,
+    ok: impl Fn(&Message) -> bool,
+) -> anyhow::Result<Message> {
+    link.send_msg(msg).await?;
+    let answer = link.recv_msg(wait).await?;
+    if !ok(&answer) {
+        bail!("node answered {answer:?}");
+    }
+    Ok(answer)
+}
+
+/// Accepts data links and counts the bands that arrive.
+async fn drain(listener: TcpListener, token: String, count: Arc<AtomicU64>) {
+    let me = Identity::new(token.as_bytes(), Role::Compositor, "bench-compositor");
+    while let Ok((stream, _)) = listener.accept().await {
+        let (me, count) = (me.clone(), count.clone());
+        tokio::spawn(async move {
+            let Ok(link) = accept(stream, &me, Timeouts::default()).await else {
+                return;
+            };
+            let (mut reader, _writer) = link.split();
+            while let Some(Ok(Frame::Band(..))) = reader.next().await {
+                count.fetch_add(1, Ordering::Relaxed);
+            }
+        });
+    }
+}
+
+fn print_tables(a: &NodeArgs, rows: &[Row]) {
+    let l = a.lights;
+    println!(
+        "\n### Frame time per node ({}x{}, {}² maps, LP_NUM_THREADS={}, median of {} frames, ms)\n",
+        a.width, a.height, a.map, a.threads, a.frames
+    );
+    println!(
+        "| mode | K | frame | shadow | eye | readback | pack | send | shadow passes | MB out | peak RSS MB |"
+    );
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    for r in rows {
+        let passes = median(
+            r.frames
+                .iter()
+                .map(|s| u64::from(s.shadow_passes))
+                .collect(),
+        );
+        let mb = median(r.frames.iter().map(|s| s.bytes_out).collect()) / 1e6;
+        let rss = r.frames.iter().map(|s| s.peak_rss_bytes).max().unwrap_or(0) as f64 / 1e6;
+        println!(
+            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.2} | {:.0} |",
+            r.mode,
+            r.k,
+            r.total_ms(),
+            r.ms(|s| s.shadow_us),
+            r.ms(|s| s.eye_us),
+            r.ms(|s| s.readback_us),
+            r.ms(|s| s.pack_us),
+            r.ms(|s| s.send_us),
+            passes,
+            mb,
+            rss
+        );
+    }
+    println!(
+        "\n### L = {l}: node-seconds per frame and nodes needed (budget {:.0} ms per frame)\n",
+        a.budget_ms
+    );
+    println!("| mode | K | nodes ⌈L/K⌉ | node-s / frame | vs K = 1 | within budget |");
+    println!("|---|---:|---:|---:|---:|---|");
+    for r in rows {
+        let nodes = l.div_ceil(r.k);
+        let node_s = f64::from(nodes) * r.total_ms() / 1000.0;
+        let base = rows
+            .iter()
+            .find(|b| b.mode == r.mode && b.k == 1)
+            .map(|b| f64::from(l) * b.total_ms() / 1000.0);
+        let ratio = base.map_or("—".to_string(), |b| format!("{:.2}×", b / node_s));
+        let ok = if r.total_ms() <= a.budget_ms {
+            "yes"
+        } else {
+            "no"
+        };
+        println!(
+            "| {} | {} | {nodes} | {node_s:.2} | {ratio} | {ok} |",
+            r.mode, r.k
+        );
+    }
+    for mode in &a.modes {
+        let best = rows
+            .iter()
+            .filter(|r| &r.mode == mode && r.total_ms() <= a.budget_ms)
+            .min_by_key(|r| l.div_ceil(r.k));
+        match best {
+            Some(r) => println!(
+                "\n{mode}: L = {l} within {:.0} ms needs {} illumination nodes (K = {}) + 1 material node",
+                a.budget_ms,
+                l.div_ceil(r.k),
+                r.k
+            ),
+            None => println!(
+                "\n{mode}: no measured K meets {:.0} ms per frame",
+                a.budget_ms
+            ),
+        }
+    }
+}

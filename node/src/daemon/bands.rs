@@ -1,0 +1,277 @@
+//! Cutting a rendered frame into bands and packing them into link formats, in the order the
+//! cluster protocol fixes: band-major (rows `[b·H, min((b+1)·H, height))`), and within a band the
+//! configured layers in configuration order. A band whose source values are all zero is flagged
+//! empty and carries no payload. Packing runs on a blocking thread and hands each band to the
+//! async sender through a bounded channel, so the first bands are on the wire while later ones are
+//! still being packed.
+
+use bytes::Bytes;
+use lightfold_protocol::format::{self, FormatError};
+use lightfold_protocol::{BandHeader, Layer, PixelFormat};
+use lightfold_scene::Image;
+use std::sync::Arc;
+use std::time::Instant;
+use tokio::sync::mpsc;
+
+/// One packed band, ready for `Frame::Band`.
+#[derive(Debug, Clone)]
+pub struct PackedBand {
+    pub header: BandHeader,
+    pub payload: Bytes,
+}
+
+/// What packing a whole frame cost and found.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct PackTotals {
+    pub pack_us: u64,
+    pub empty_bands: u32,
+    pub saturated: u64,
+    pub bands: u32,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum PackError {
+    #[error("layer {layer:?} was configured but the renderer produced no image for it")]
+    MissingLayer { layer: Layer },
+    #[error(
+        "layer {layer:?} image is {width}x{height}x{channels}, the frame is {frame_width}x{frame_height}x{expected}"
+    )]
+    Shape {
+        layer: Layer,
+        width: u32,
+        height: u32,
+        channels: usize,
+        frame_width: u32,
+        frame_height: u32,
+        expected: usize,
+    },
+    #[error("packing layer {layer:?}: {source}")]
+    Format { layer: Layer, source: FormatError },
+}
+
+/// The layout of a frame's bands.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BandLayout {
+    pub epoch: u64,
+    pub frame: u64,
+    pub width: u32,
+    pub height: u32,
+    pub band_height: u32,
+    pub scale: f32,
+}
+
+impl BandLayout {
+    pub fn bands(&self) -> u32 {
+        self.height.div_ceil(self.band_height.max(1))
+    }
+
+    /// Rows `[y0, y1)` of band `b`.
+    pub fn rows(&self, b: u32) -> (u32, u32) {
+        let h = self.band_height.max(1);
+        let y0 = b.saturating_mul(h).min(self.height);
+        (y0, y0.saturating_add(h).min(self.height))
+    }
+}
+
+/// The images of one frame, one per configured layer in configuration order.
+pub type LayerImages = Vec<(Layer, PixelFormat, Arc<Image>)>;
+
+/// Checks every configured layer has an image of the frame's size.
+pub fn check_images(layout: &BandLayout, images: &LayerImages) -> Result<(), PackError> {
+    for (layer, _, img) in images {
+        if img.width != layout.width
+            || img.height != layout.height
+            || img.channels != layer.channels()
+            || img.data.len() != img.pixel_count() * img.channels
+        {
+            return Err(PackError::Shape {
+                layer: *layer,
+                width: img.width,
+                height: img.height,
+                channels: img.channels,
+                frame_width: layout.width,
+                frame_height: layout.height,
+                expected: layer.channels(),
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Packs one band of one layer.
+pub fn pack_band(
+    layout: &BandLayout,
+    band: u32,
+    layer: Layer,
+    format: PixelFormat,
+    image: &Image,
+) -> Result<PackedBand, PackError> {
+    let (y0, y1) = layout.rows(band);
+    let row = image.width as usize * image.channels;
+    let src = &image.data[y0 as usize * row..y1 as usize * row];
+    let mut header = BandHeader {
+        frame: layout.frame,
+        epoch: layout.epoch,
+        layer,
+        format,
+        x0: 0,
+        y0,
+        width: layout.width,
+        height: y1 - y0,
+        scale: layout.scale,
+        empty: false,
+        payload_len: 0,
+        checksum: 0,
+        saturated: 0,
+    };
+    // Only exact zeros make an empty band: whatever packs to zero but is not zero still travels,
+    // so the receiver's unpacked values never depend on this shortcut.
+    if src.iter().all(|v| *v == 0.0) {
+        header.empty = true;
+        header.seal(&[]);
+        return Ok(PackedBand {
+            header,
+            payload: Bytes::new(),
+        });
+    }
+    let mut payload = vec![0u8; (src.len() / image.channels) * format.bytes_per_pixel()];
+    let stats = format::pack(format, src, layout.scale, &mut payload)
+        .map_err(|source| PackError::Format { layer, source })?;
+    header.saturated = u32::try_from(stats.saturated).unwrap_or(u32::MAX);
+    header.seal(&payload);
+    Ok(PackedBand {
+        header,
+        payload: Bytes::from(payload),
+    })
+}
+
+/// Packs every band of the frame in protocol order and hands each to `out` (blocking when the
+/// sender is behind). Stops early, without error, when the receiver is gone.
+pub fn pack_frame(
+    layout: &BandLayout,
+    images: &LayerImages,
+    out: &mpsc::Sender<PackedBand>,
+) -> Result<PackTotals, PackError> {
+    check_images(layout, images)?;
+    let mut totals = PackTotals::default();
+    for band in 0..layout.bands() {
+        for (layer, format, image) in images {
+            let start = Instant::now();
+            let packed = pack_band(layout, band, *layer, *format, image)?;
+            totals.pack_us += start.elapsed().as_micros() as u64;
+            totals.bands += 1;
+            totals.empty_bands += u32::from(packed.header.empty);
+            totals.saturated += u64::from(packed.header.saturated);
+            if out.blocking_send(packed).is_err() {
+                return Ok(totals);
+            }
+        }
+    }
+    Ok(totals)
+}
+
+/// The same bands stamped with another frame number (checksums cover payloads only, so they
+/// stay valid).
+pub fn restamp(bands: &[PackedBand], frame: u64) -> impl Iterator<Item = PackedBand> + '_ {
+    bands.iter().map(move |b| PackedBand {
+        header: BandHeader { frame, ..b.header },
+        payload: b.payload.clone(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn layout(height: u32, band_height: u32) -> BandLayout {
+        BandLayout {
+            epoch: 3,
+            frame: 9,
+            width: 4,
+            height,
+            band_height,
+            scale: 1.0,
+        }
+    }
+
+    #[test]
+    fn bands_cover_every_row_once() {
+        for (h, bh) in [(1, 1), (7, 3), (600, 64), (600, 600), (5, 9)] {
+            let l = layout(h, bh);
+            let mut next = 0;
+            for b in 0..l.bands() {
+                let (y0, y1) = l.rows(b);
+                assert_eq!(y0, next);
+                assert!(y1 > y0);
+                next = y1;
+            }
+            assert_eq!(next, h);
+        }
+    }
+
+    #[test]
+    fn frames_pack_band_major_with_empty_bands_flagged() {
+        let l = layout(5, 2);
+        let mut illum = Image::new(4, 5, 6);
+        // Rows 0-1 stay zero; row 3 carries light.
+        illum.pixel_mut(1, 3)[0] = 0.5;
+        let mut depth = Image::new(4, 5, 1);
+        depth.data.iter_mut().for_each(|v| *v = 2.0);
+        let images: LayerImages = vec![
+            (
+                Layer::Illumination,
+                PixelFormat::F32x6,
+                Arc::new(illum.clone()),
+            ),
+            (Layer::Depth, PixelFormat::DepthF32, Arc::new(depth)),
+        ];
+        let (tx, mut rx) = mpsc::channel(64);
+        let totals = pack_frame(&l, &images, &tx).unwrap();
+        drop(tx);
+        let mut got = Vec::new();
+        while let Ok(b) = rx.try_recv() {
+            got.push(b);
+        }
+        let order: Vec<(u32, Layer, bool)> = got
+            .iter()
+            .map(|b| (b.header.y0, b.header.layer, b.header.empty))
+            .collect();
+        assert_eq!(
+            order,
+            vec![
+                (0, Layer::Illumination, true),
+                (0, Layer::Depth, false),
+                (2, Layer::Illumination, false),
+                (2, Layer::Depth, false),
+                (4, Layer::Illumination, true),
+                (4, Layer::Depth, false),
+            ]
+        );
+        assert_eq!(totals.empty_bands, 2);
+        assert_eq!(totals.bands, 6);
+        assert!(got[0].payload.is_empty());
+        let b = &got[2];
+        assert_eq!(b.header.height, 2);
+        let mut back = vec![0.0; 4 * 2 * 6];
+        format::unpack(b.header.format, &b.payload, b.header.scale, &mut back).unwrap();
+        assert_eq!(back, illum.data[2 * 4 * 6..4 * 4 * 6]);
+        let again: Vec<PackedBand> = restamp(&got, 10).collect();
+        assert!(again.iter().all(|b| b.header.frame == 10));
+        assert_eq!(again[2].header.checksum, got[2].header.checksum);
+    }
+
+    #[test]
+    fn a_wrongly_sized_image_is_refused() {
+        let l = layout(5, 2);
+        let images: LayerImages = vec![(
+            Layer::Illumination,
+            PixelFormat::F32x6,
+            Arc::new(Image::new(4, 4, 6)),
+        )];
+        let (tx, _rx) = mpsc::channel(4);
+        assert!(matches!(
+            pack_frame(&l, &images, &tx),
+            Err(PackError::Shape { .. })
+        ));
+    }
+}

@@ -1,0 +1,115 @@
+//! Start-up calibration: a few renders of a tiny scene with one and with four lights, so that
+//! registration reports a measured cost per light and a fixed cost per frame for this device
+//! (the planner sizes K from them on heterogeneous machines). Takes well under a second on
+//! lavapipe; the figures are for the calibration scene at its small size, so they rank devices and
+//! K choices rather than predict a big scene's frame time.
+
+use crate::gpu::{Gpu, LayerSet, RenderError, RenderOptions, Renderer};
+use lightfold_scene::primitives::{plane, sphere};
+use lightfold_scene::{Camera, LightSample, Material, SampleKind, Scene};
+use std::time::Instant;
+
+/// Calibration image size and map size.
+pub const WIDTH: u32 = 320;
+pub const HEIGHT: u32 = 240;
+pub const MAP_SIZE: u32 = 256;
+/// Lights of the second calibration render.
+const MANY: usize = 4;
+/// Timed repetitions of each render (the fastest counts: the machine is shared and noisy).
+const REPEATS: usize = 2;
+
+/// What one frame costs on this device, measured.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Calibration {
+    pub cost_per_light_us: u64,
+    pub fixed_cost_us: u64,
+}
+
+/// A ground plane and a ball: shadows to cast, little geometry.
+pub fn calibration_scene() -> Scene {
+    let mut s = Scene::new("calibration");
+    let grey = s.add_material(Material::diffuse("grey", [0.7, 0.7, 0.7]));
+    let red = s.add_material(Material {
+        specular: [0.3, 0.3, 0.3],
+        shininess: 32.0,
+        ..Material::diffuse("red", [0.8, 0.2, 0.2])
+    });
+    s.add_mesh(plane(
+        "floor",
+        [0.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [6.0, 6.0],
+        4,
+        grey,
+    ));
+    s.add_mesh(sphere("ball", [0.0, 0.6, 0.0], 0.6, 24, 12, red));
+    s.camera = Camera {
+        position: [0.0, 2.5, 4.5],
+        target: [0.0, 0.4, 0.0],
+        up: [0.0, 1.0, 0.0],
+        fov_y_deg: 45.0,
+        width: WIDTH,
+        height: HEIGHT,
+    };
+    s.quality.shadow_map_size = MAP_SIZE;
+    s
+}
+
+/// `n` cosine-lobe samples of a small square emitter above the ball, facing down.
+pub fn calibration_lights(n: usize) -> Vec<LightSample> {
+    let side = (n as f32).sqrt().ceil() as usize;
+    (0..n)
+        .map(|i| {
+            let (x, z) = ((i % side) as f32, (i / side) as f32);
+            LightSample {
+                position: [-0.5 + x * 0.3, 3.0, -0.5 + z * 0.3],
+                direction: [0.0, -1.0, 0.0],
+                kind: SampleKind::CosineLobe,
+                intensity: 4.0 / n as f32,
+                color: [1.0, 1.0, 1.0],
+                range: None,
+                light: 0,
+            }
+        })
+        .collect()
+}
+
+/// Measures this device. Shadow maps are recomputed every frame (moving-light cost).
+pub fn run(gpu: &Gpu) -> Result<Calibration, RenderError> {
+    let start = Instant::now();
+    let scene = calibration_scene();
+    let options = RenderOptions {
+        shadow_map_size: MAP_SIZE,
+        ..RenderOptions::default()
+    };
+    let mut renderer = Renderer::new(gpu, &scene, options)?;
+    renderer.set_camera(&scene.camera);
+    let layers = LayerSet::illumination();
+    let few = calibration_lights(1);
+    let many = calibration_lights(MANY);
+    let mut time = |lights: &[LightSample]| -> Result<u64, RenderError> {
+        let t = Instant::now();
+        renderer.render(gpu, lights, None, [1.0; 3], layers)?;
+        Ok(t.elapsed().as_micros() as u64)
+    };
+    // The first render compiles shaders: not part of any frame's cost.
+    time(&many)?;
+    let (mut t1, mut tk) = (u64::MAX, u64::MAX);
+    for _ in 0..REPEATS {
+        t1 = t1.min(time(&few)?);
+        tk = tk.min(time(&many)?);
+    }
+    let per_light = tk.saturating_sub(t1) / (MANY as u64 - 1);
+    let c = Calibration {
+        cost_per_light_us: per_light.max(1),
+        fixed_cost_us: t1.saturating_sub(per_light),
+    };
+    tracing::info!(
+        per_light_us = c.cost_per_light_us,
+        fixed_us = c.fixed_cost_us,
+        ms = start.elapsed().as_millis() as u64,
+        "calibrated"
+    );
+    Ok(c)
+}

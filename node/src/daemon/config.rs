@@ -1,0 +1,282 @@
+//! A `NodeConfig` from the coordinator checked and resolved into what the render thread and the
+//! band packer need: scene light samples, per-light caster lists, the camera, and the layers in
+//! link order. Pure, so a bad configuration is refused with a typed error (and its wire code)
+//! before the device sees it.
+
+use lightfold_protocol::{
+    BAND_HEADER_LEN, ErrorCode, Layer, NodeConfig, PixelFormat, WireCamera, WireShadow,
+};
+use lightfold_scene::wire::{WireError, camera_from_wire, light_from_wire};
+use lightfold_scene::{Camera, LightSample, Scene};
+
+/// Layers a render node produces (radiance is made by the material stage, never by a node).
+pub const NODE_LAYERS: [Layer; 6] = [
+    Layer::Illumination,
+    Layer::Diffuse,
+    Layer::Specular,
+    Layer::Ambient,
+    Layer::Emissive,
+    Layer::Depth,
+];
+
+/// Formats a node can pack, by layer kind.
+pub fn supported_formats() -> Vec<PixelFormat> {
+    PixelFormat::ALL
+        .into_iter()
+        .filter(|f| *f != PixelFormat::F32x3)
+        .collect()
+}
+
+/// Whether a node emits `layer` in `format`.
+pub fn supports(layer: Layer, format: PixelFormat) -> bool {
+    if !NODE_LAYERS.contains(&layer) || format.channels() != layer.channels() {
+        return false;
+    }
+    match layer {
+        Layer::Illumination => matches!(
+            format,
+            PixelFormat::Seed64 | PixelFormat::Rgb9e5x2 | PixelFormat::F16x6 | PixelFormat::F32x6
+        ),
+        Layer::Depth => format == PixelFormat::DepthF32,
+        _ => matches!(
+            format,
+            PixelFormat::Rgba8Linear | PixelFormat::Rgba8Srgb | PixelFormat::F16x4
+        ),
+    }
+}
+
+/// Why a configuration is refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ConfigError {
+    #[error("layer {layer:?} in format {format:?} is not something a node can emit")]
+    UnsupportedFormat { layer: Layer, format: PixelFormat },
+    #[error("the configuration lists no layer")]
+    NoLayers,
+    #[error("layer {0:?} is listed twice")]
+    DuplicateLayer(Layer),
+    #[error("{count} lights exceed this device's limit of {max} at {map_size}² shadow maps")]
+    TooManyLights {
+        count: usize,
+        max: u32,
+        map_size: u32,
+    },
+    #[error("the illumination layer needs at least one light")]
+    NoLights,
+    #[error("light {index}: {source}")]
+    Light { index: usize, source: WireError },
+    #[error("camera: {0}")]
+    Camera(WireError),
+    #[error("node colour {0:?} must be finite and positive in every channel")]
+    BadColor([f32; 3]),
+    #[error("scale {0} must be finite and positive")]
+    BadScale(f32),
+    #[error("band height must be at least 1")]
+    BadBandHeight,
+    #[error("{what} {value} is not finite")]
+    NonFinite { what: &'static str, value: f32 },
+    #[error("shadow entry {entry} names light {light}, but the node has {lights} lights")]
+    ShadowLight {
+        entry: usize,
+        light: u32,
+        lights: usize,
+    },
+    #[error("light {0} has more than one shadow entry")]
+    DuplicateShadow(u32),
+    #[error("light {0} has no shadow entry (give every light one, or none at all)")]
+    MissingShadow(usize),
+    #[error("shadow maps of {0}² and {1}² in one configuration (a node uses one map size)")]
+    MixedMapSizes(u32, u32),
+    #[error("shadow map size {size} is outside 1..={max}")]
+    BadMapSize { size: u32, max: u32 },
+    #[error("light {light} lists caster mesh {mesh}, but the scene has {meshes} meshes")]
+    BadCaster {
+        light: usize,
+        mesh: u32,
+        meshes: usize,
+    },
+    #[error("a band of {bytes} bytes does not fit the link's maximum frame of {max} bytes")]
+    BandTooLarge { bytes: u64, max: usize },
+    #[error("downstream address is empty")]
+    NoDownstream,
+    #[error("filter {0} is not 0, 1, 3 or 5")]
+    BadFilter(u32),
+}
+
+impl ConfigError {
+    /// The code the coordinator sees in `Message::Error`.
+    pub fn code(&self) -> ErrorCode {
+        match self {
+            ConfigError::UnsupportedFormat { .. } => ErrorCode::UnsupportedFormat,
+            _ => ErrorCode::BadConfig,
+        }
+    }
+}
+
+/// Caster meshes of each light, indexed like the lights.
+pub type Casters = Vec<Vec<u32>>;
+
+/// A configuration checked against the device and the scene.
+#[derive(Debug, Clone)]
+pub struct Checked {
+    pub config: NodeConfig,
+    pub lights: Vec<LightSample>,
+    /// Caster meshes per light (index = light), or `None` for "every mesh casts".
+    pub casters: Option<Casters>,
+    pub camera: Camera,
+    pub map_size: u32,
+}
+
+/// Checks a camera from a configuration or a frame request.
+pub fn check_camera(camera: &WireCamera) -> Result<Camera, ConfigError> {
+    camera_from_wire(camera).map_err(ConfigError::Camera)
+}
+
+/// Checks `config` for a node whose device takes at most `max_lights(map_size)` lights, whose
+/// links carry frames up to `max_frame` bytes, rendering `scene`. `default_map_size` applies when
+/// the configuration carries no shadow entries.
+pub fn check(
+    config: NodeConfig,
+    scene: &Scene,
+    max_lights: impl Fn(u32) -> u32,
+    max_texture: u32,
+    max_frame: usize,
+) -> Result<Checked, ConfigError> {
+    if config.layers.is_empty() {
+        return Err(ConfigError::NoLayers);
+    }
+    for (i, &(layer, format)) in config.layers.iter().enumerate() {
+        if !supports(layer, format) {
+            return Err(ConfigError::UnsupportedFormat { layer, format });
+        }
+        if config.layers[..i].iter().any(|(l, _)| *l == layer) {
+            return Err(ConfigError::DuplicateLayer(layer));
+        }
+    }
+    let has_illumination = config.layers.iter().any(|(l, _)| *l == Layer::Illumination);
+    if has_illumination && config.lights.is_empty() {
+        return Err(ConfigError::NoLights);
+    }
+    let lights = config
+        .lights
+        .iter()
+        .enumerate()
+        .map(|(index, w)| light_from_wire(w).map_err(|source| ConfigError::Light { index, source }))
+        .collect::<Result<Vec<_>, _>>()?;
+    if !config.color.iter().all(|c| c.is_finite() && *c > 0.0) {
+        return Err(ConfigError::BadColor(config.color));
+    }
+    if !(config.scale.is_finite() && config.scale > 0.0) {
+        return Err(ConfigError::BadScale(config.scale));
+    }
+    if config.band_height == 0 {
+        return Err(ConfigError::BadBandHeight);
+    }
+    for (what, value) in [
+        ("depth bias", config.depth_bias),
+        ("slope bias", config.slope_bias),
+    ] {
+        if !value.is_finite() {
+            return Err(ConfigError::NonFinite { what, value });
+        }
+    }
+    if !matches!(config.filter, 0 | 1 | 3 | 5) {
+        return Err(ConfigError::BadFilter(config.filter));
+    }
+    if config.downstream.trim().is_empty() {
+        return Err(ConfigError::NoDownstream);
+    }
+    let camera = check_camera(&config.camera)?;
+    let widest = config
+        .layers
+        .iter()
+        .map(|(_, f)| f.bytes_per_pixel() as u64)
+        .max()
+        .unwrap_or(0);
+    let bytes = u64::from(camera.width) * u64::from(config.band_height.min(camera.height)) * widest;
+    if bytes + BAND_HEADER_LEN as u64 + 1 > max_frame as u64 {
+        return Err(ConfigError::BandTooLarge {
+            bytes,
+            max: max_frame,
+        });
+    }
+    let (map_size, casters) = check_shadows(
+        &config.shadows,
+        lights.len(),
+        scene,
+        scene.quality.shadow_map_size,
+        max_texture,
+    )?;
+    let max = max_lights(map_size);
+    if lights.len() > max as usize {
+        return Err(ConfigError::TooManyLights {
+            count: lights.len(),
+            max,
+            map_size,
+        });
+    }
+    Ok(Checked {
+        config,
+        lights,
+        casters,
+        camera,
+        map_size,
+    })
+}
+
+/// One map size for the node and, when the plan gives caster lists, one list per light.
+fn check_shadows(
+    shadows: &[WireShadow],
+    lights: usize,
+    scene: &Scene,
+    default_size: u32,
+    max_texture: u32,
+) -> Result<(u32, Option<Casters>), ConfigError> {
+    let mut size = None;
+    let mut per_light: Vec<Option<Vec<u32>>> = vec![None; lights];
+    for (entry, s) in shadows.iter().enumerate() {
+        let slot = per_light
+            .get_mut(s.light as usize)
+            .ok_or(ConfigError::ShadowLight {
+                entry,
+                light: s.light,
+                lights,
+            })?;
+        if slot.is_some() {
+            return Err(ConfigError::DuplicateShadow(s.light));
+        }
+        if let Some(m) = s
+            .casters
+            .iter()
+            .find(|&&m| m as usize >= scene.meshes.len())
+        {
+            return Err(ConfigError::BadCaster {
+                light: s.light as usize,
+                mesh: *m,
+                meshes: scene.meshes.len(),
+            });
+        }
+        match size {
+            Some(prev) if prev != s.map_size => {
+                return Err(ConfigError::MixedMapSizes(prev, s.map_size));
+            }
+            _ => size = Some(s.map_size),
+        }
+        *slot = Some(s.casters.clone());
+    }
+    let size = size.unwrap_or(default_size);
+    if size == 0 || size > max_texture {
+        return Err(ConfigError::BadMapSize {
+            size,
+            max: max_texture,
+        });
+    }
+    if shadows.is_empty() {
+        return Ok((size, None));
+    }
+    let casters = per_light
+        .into_iter()
+        .enumerate()
+        .map(|(i, c)| c.ok_or(ConfigError::MissingShadow(i)))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok((size, Some(casters)))
+}

@@ -1,0 +1,106 @@
+//! The data link to this node's compositor. It is dialled (with retry until a deadline) as soon as
+//! a configuration names the address, so configuration order does not matter and the first frame
+//! does not pay for the connection; it is kept while the address stays the same, and dropped on
+//! any send error so the next frame dials afresh (a DNS name is then resolved again).
+
+use lightfold_net::{Identity, LinkWriter, NetError, Timeouts, dial_retry};
+use std::time::Duration;
+use tokio::task::JoinHandle;
+
+#[derive(Debug)]
+enum State {
+    None,
+    Dialling(JoinHandle<Result<LinkWriter, NetError>>),
+    Ready(Box<LinkWriter>),
+}
+
+/// The node's one downstream data link.
+#[derive(Debug)]
+pub struct Downstream {
+    me: Identity,
+    timeouts: Timeouts,
+    deadline: Duration,
+    addr: String,
+    state: State,
+}
+
+impl Downstream {
+    pub fn new(me: Identity, timeouts: Timeouts, deadline: Duration) -> Downstream {
+        Downstream {
+            me,
+            timeouts,
+            deadline,
+            addr: String::new(),
+            state: State::None,
+        }
+    }
+
+    /// Points the link at `addr`, dialling in the background unless it is already connected (or
+    /// connecting) there.
+    pub fn set_address(&mut self, addr: &str) {
+        if addr == self.addr && !matches!(self.state, State::None) {
+            return;
+        }
+        self.close();
+        self.addr = addr.to_string();
+        self.state = State::Dialling(self.spawn_dial());
+    }
+
+    fn spawn_dial(&self) -> JoinHandle<Result<LinkWriter, NetError>> {
+        let (addr, me, t, total) = (
+            self.addr.clone(),
+            self.me.clone(),
+            self.timeouts,
+            self.deadline,
+        );
+        tokio::spawn(async move {
+            let link = dial_retry(&addr, &me, t, total).await?;
+            tracing::info!(addr = %addr, peer = %link.peer.daemon_id, "data link up");
+            // Nothing is read from a compositor: its reading half is dropped.
+            let (_reader, writer) = link.split();
+            Ok(writer)
+        })
+    }
+
+    /// The connected writer, waiting for a dial in progress (or starting one after an error).
+    pub async fn writer(&mut self) -> Result<&mut LinkWriter, NetError> {
+        if matches!(self.state, State::None) {
+            self.state = State::Dialling(self.spawn_dial());
+        }
+        if let State::Dialling(handle) = &mut self.state {
+            let result = match handle.await {
+                Ok(r) => r,
+                Err(e) => Err(NetError::Io {
+                    addr: self.addr.clone(),
+                    source: std::io::Error::other(e.to_string()),
+                }),
+            };
+            match result {
+                Ok(w) => self.state = State::Ready(Box::new(w)),
+                Err(e) => {
+                    self.state = State::None;
+                    return Err(e);
+                }
+            }
+        }
+        match &mut self.state {
+            State::Ready(w) => Ok(w),
+            _ => Err(NetError::Closed {
+                addr: self.addr.clone(),
+            }),
+        }
+    }
+
+    /// Drops the link (after a send error, or when the address changes).
+    pub fn close(&mut self) {
+        if let State::Dialling(h) = std::mem::replace(&mut self.state, State::None) {
+            h.abort();
+        }
+    }
+}
+
+impl Drop for Downstream {
+    fn drop(&mut self) {
+        self.close();
+    }
+}

@@ -1,0 +1,449 @@
+//! The node's state between messages and what each control message does to it: scenes by hash,
+//! the active configuration, the downstream link and the last frame's packed bands. Every request
+//! is answered with exactly one message (or, for a scene chunk that is not the last, none); a
+//! failure is an `Error` with a code and the node stays ready for the next request.
+
+use super::bands::{BandLayout, LayerImages, PackedBand, pack_frame, restamp};
+use super::config::{self, Checked};
+use super::downstream::Downstream;
+use super::render_thread::{DeviceReport, RenderHandle, RenderSetup};
+use super::scene_cache::{self, SceneCache, SceneCacheError, hex};
+use super::sys::peak_rss_bytes;
+use crate::gpu::device::max_lights_for;
+use lightfold_net::NetError;
+use lightfold_protocol::frame::Frame;
+use lightfold_protocol::{
+    BAND_HEADER_LEN, ErrorCode, FrameParams, FrameStats, Hash, Message, NodeConfig, WireCamera,
+};
+use lightfold_scene::Camera;
+use std::sync::Arc;
+use std::time::Instant;
+use tokio::sync::mpsc;
+
+/// Packed bands waiting for the socket: enough to keep it busy, few enough to bound memory.
+const BAND_QUEUE: usize = 8;
+/// Bytes a band frame costs beyond its payload: length prefix, kind byte, header.
+const BAND_OVERHEAD: u64 = 4 + 1 + BAND_HEADER_LEN as u64;
+
+/// A refused request: becomes `Message::Error` on the control link.
+#[derive(Debug)]
+struct Refusal {
+    code: ErrorCode,
+    message: String,
+}
+
+impl From<Refusal> for Message {
+    fn from(r: Refusal) -> Message {
+        Message::Error {
+            code: r.code,
+            message: r.message,
+        }
+    }
+}
+
+fn refuse(code: ErrorCode, message: impl Into<String>) -> Refusal {
+    let message = message.into();
+    tracing::warn!(?code, %message, "request refused");
+    Refusal { code, message }
+}
+
+fn error(code: ErrorCode, message: impl Into<String>) -> Message {
+    refuse(code, message).into()
+}
+
+#[derive(Debug)]
+struct Active {
+    checked: Checked,
+    camera: Camera,
+    scale: f32,
+}
+
+/// What makes two frames identical: in walkthrough mode the same key means the same bands.
+#[derive(Debug, Clone, PartialEq)]
+struct FrameKey {
+    epoch: u64,
+    camera: Camera,
+    scale: u32,
+}
+
+#[derive(Debug)]
+struct CachedFrame {
+    key: FrameKey,
+    bands: Vec<PackedBand>,
+}
+
+/// The node's state.
+#[derive(Debug)]
+pub struct Engine {
+    pub daemon_id: String,
+    render: RenderHandle,
+    pub report: DeviceReport,
+    scenes: SceneCache,
+    active: Option<Active>,
+    downstream: Downstream,
+    cached: Option<CachedFrame>,
+    max_frame: usize,
+}
+
+impl Engine {
+    pub fn new(
+        daemon_id: String,
+        render: RenderHandle,
+        report: DeviceReport,
+        scenes: SceneCache,
+        downstream: Downstream,
+        max_frame: usize,
+    ) -> Engine {
+        Engine {
+            daemon_id,
+            render,
+            report,
+            scenes,
+            active: None,
+            downstream,
+            cached: None,
+            max_frame,
+        }
+    }
+
+    /// Stops the render thread (the device is released when this returns).
+    pub async fn stop(self) {
+        self.render.stop().await;
+    }
+
+    /// `SceneOffer`: `SceneNeed { need: false }` when the scene is in memory or in the disk cache,
+    /// else starts a transfer and answers `need: true`.
+    pub async fn scene_offer(&mut self, hash: Hash, size: u64) -> Message {
+        if self.scenes.get(&hash).is_some() {
+            return Message::SceneNeed { hash, need: false };
+        }
+        if let Some(path) = self.scenes.disk_path(&hash) {
+            let loaded =
+                tokio::task::spawn_blocking(move || scene_cache::load_file(&path, &hash)).await;
+            if let Ok(Some(scene)) = loaded {
+                tracing::info!(scene = %hex(&hash), "scene loaded from the disk cache");
+                self.scenes.insert(hash, Arc::new(scene));
+                return Message::SceneNeed { hash, need: false };
+            }
+        }
+        match self.scenes.begin(hash, size) {
+            Ok(()) => Message::SceneNeed { hash, need: true },
+            Err(e) => error(e.code(), e.to_string()),
+        }
+    }
+
+    /// `SceneChunk`: nothing until the last chunk, then `SceneReady` once the bytes match the hash
+    /// and decode.
+    pub async fn scene_chunk(
+        &mut self,
+        hash: Hash,
+        offset: u64,
+        data: Vec<u8>,
+        last: bool,
+    ) -> Option<Message> {
+        let bytes = match self.scenes.chunk(hash, offset, &data, last) {
+            Ok(None) => return None,
+            Ok(Some(bytes)) => bytes,
+            Err(e) => return Some(error(e.code(), e.to_string())),
+        };
+        let path = self.scenes.disk_path(&hash);
+        let decoded = tokio::task::spawn_blocking(move || {
+            let scene = scene_cache::decode_verified(&bytes, &hash)?;
+            if let Some(path) = path
+                && let Err(e) = scene_cache::store_file(&path, &bytes)
+            {
+                tracing::warn!(path = %path.display(), error = %e, "cannot cache scene on disk");
+            }
+            Ok::<_, SceneCacheError>(scene)
+        })
+        .await;
+        match decoded {
+            Ok(Ok(scene)) => {
+                let triangles = scene.triangle_count() as u64;
+                tracing::info!(scene = %hex(&hash), triangles, "scene received");
+                self.scenes.insert(hash, Arc::new(scene));
+                Some(Message::SceneReady { hash, triangles })
+            }
+            Ok(Err(e)) => Some(error(e.code(), e.to_string())),
+            Err(e) => Some(error(
+                ErrorCode::Internal,
+                format!("scene decoding task: {e}"),
+            )),
+        }
+    }
+
+    /// `ConfigureNode`: checks the configuration, hands it to the render thread (which rebuilds
+    /// the renderer only for a new scene or new build options) and points the data link at the
+    /// new downstream. A refused configuration leaves the node unconfigured.
+    pub async fn configure(&mut self, config: NodeConfig) -> Message {
+        self.active = None;
+        self.cached = None;
+        let epoch = config.epoch;
+        let hash = config.scene;
+        let Some(scene) = self.scenes.get(&hash) else {
+            let e = SceneCacheError::Unknown { hash: hex(&hash) };
+            return error(e.code(), e.to_string());
+        };
+        let limits = self.report.limits.clone();
+        let checked = match config::check(
+            config,
+            &scene,
+            |size| max_lights_for(&limits, size),
+            limits.max_texture_dimension_2d,
+            self.max_frame,
+        ) {
+            Ok(c) => c,
+            Err(e) => return error(e.code(), format!("configuration {epoch}: {e}")),
+        };
+        let setup = RenderSetup {
+            scene_hash: hash,
+            scene,
+            checked: checked.clone(),
+        };
+        if let Err(e) = self.render.configure(setup).await {
+            return error(
+                ErrorCode::RenderFailed,
+                format!("configuration {epoch}: {e}"),
+            );
+        }
+        self.downstream.set_address(&checked.config.downstream);
+        tracing::info!(
+            epoch,
+            lights = checked.lights.len(),
+            layers = ?checked.config.layers,
+            walkthrough = checked.config.walkthrough,
+            downstream = %checked.config.downstream,
+            "configured"
+        );
+        self.active = Some(Active {
+            camera: checked.camera,
+            scale: checked.config.scale,
+            checked,
+        });
+        Message::Configured { epoch }
+    }
+
+    /// `RenderFrame`: renders (or, in walkthrough mode with nothing changed, reuses the last
+    /// frame's bands), streams the bands downstream and answers `FrameDone`.
+    pub async fn render_frame(
+        &mut self,
+        epoch: u64,
+        frame: u64,
+        camera: Option<WireCamera>,
+        params: FrameParams,
+    ) -> Message {
+        let start = Instant::now();
+        let key = match self.frame_key(epoch, frame, camera, &params) {
+            Ok(k) => k,
+            Err(r) => return r.into(),
+        };
+        let Some(active) = &self.active else {
+            return error(ErrorCode::BadConfig, "not configured");
+        };
+        let walkthrough = active.checked.config.walkthrough;
+        let mut stats = FrameStats {
+            epoch,
+            frame,
+            daemon_id: self.daemon_id.clone(),
+            ..FrameStats::default()
+        };
+        let reuse = walkthrough && self.cached.as_ref().is_some_and(|c| c.key == key);
+        let sent = if reuse {
+            self.resend(frame, &mut stats).await
+        } else {
+            self.render_and_send(key, frame, walkthrough, &mut stats)
+                .await
+        };
+        if let Err(r) = sent {
+            return r.into();
+        }
+        stats.total_us = start.elapsed().as_micros() as u64;
+        stats.peak_rss_bytes = peak_rss_bytes();
+        Message::FrameDone(stats)
+    }
+
+    /// Applies a frame request's camera and scale to the active configuration.
+    fn frame_key(
+        &mut self,
+        epoch: u64,
+        frame: u64,
+        camera: Option<WireCamera>,
+        params: &FrameParams,
+    ) -> Result<FrameKey, Refusal> {
+        let Some(active) = self.active.as_mut() else {
+            return Err(refuse(
+                ErrorCode::BadConfig,
+                format!("frame {frame} requested, but this node is not configured"),
+            ));
+        };
+        let configured = active.checked.config.epoch;
+        if epoch != configured {
+            return Err(refuse(
+                ErrorCode::BadConfig,
+                format!(
+                    "frame {frame} is for plan epoch {epoch}, this node is configured for epoch {configured}"
+                ),
+            ));
+        }
+        if let Some(w) = camera {
+            let c = config::check_camera(&w)
+                .map_err(|e| refuse(ErrorCode::BadConfig, format!("frame {frame}: {e}")))?;
+            if (c.width, c.height) != (active.camera.width, active.camera.height) {
+                return Err(refuse(
+                    ErrorCode::BadConfig,
+                    format!(
+                        "frame {frame} asks for {}x{}, the plan of epoch {epoch} is {}x{}",
+                        c.width, c.height, active.camera.width, active.camera.height
+                    ),
+                ));
+            }
+            active.camera = c;
+        }
+        if let Some(s) = params.scale {
+            if !(s.is_finite() && s > 0.0) {
+                return Err(refuse(
+                    ErrorCode::BadConfig,
+                    format!("frame {frame}: scale {s} must be finite and positive"),
+                ));
+            }
+            active.scale = s;
+        }
+        Ok(FrameKey {
+            epoch,
+            camera: active.camera,
+            scale: active.scale.to_bits(),
+        })
+    }
+
+    async fn resend(&mut self, frame: u64, stats: &mut FrameStats) -> Result<(), Refusal> {
+        let Some(cached) = self.cached.take() else {
+            return Err(refuse(ErrorCode::Internal, "no cached frame"));
+        };
+        let result = self.send_bands(restamp(&cached.bands, frame), stats).await;
+        stats.empty_bands = cached.bands.iter().filter(|b| b.header.empty).count() as u32;
+        stats.saturated = cached
+            .bands
+            .iter()
+            .map(|b| u64::from(b.header.saturated))
+            .sum();
+        self.cached = Some(cached);
+        result
+    }
+
+    async fn render_and_send(
+        &mut self,
+        key: FrameKey,
+        frame: u64,
+        walkthrough: bool,
+        stats: &mut FrameStats,
+    ) -> Result<(), Refusal> {
+        self.cached = None;
+        let Some(active) = &self.active else {
+            return Err(refuse(ErrorCode::BadConfig, "not configured"));
+        };
+        let cfg = &active.checked.config;
+        let layout = BandLayout {
+            epoch: cfg.epoch,
+            frame,
+            width: active.camera.width,
+            height: active.camera.height,
+            band_height: cfg.band_height,
+            scale: active.scale,
+        };
+        let formats: Vec<_> = cfg.layers.iter().map(|(_, f)| *f).collect();
+        let lights: Vec<u32> = cfg.lights.iter().map(|l| l.sample).collect();
+        let rendered = self
+            .render
+            .render(active.camera)
+            .await
+            .map_err(|e| refuse(ErrorCode::RenderFailed, format!("frame {frame}: {e}")))?;
+        stats.shadow_us = rendered.stats.shadow_us;
+        stats.eye_us = rendered.stats.eye_us;
+        stats.readback_us = rendered.stats.readback_us;
+        stats.shadow_passes = rendered.stats.shadow_passes;
+        stats.lights_rendered = lights;
+        let images: LayerImages = rendered
+            .images
+            .into_iter()
+            .zip(formats)
+            .map(|((layer, img), format)| (layer, format, img))
+            .collect();
+
+        let (tx, mut rx) = mpsc::channel::<PackedBand>(BAND_QUEUE);
+        let packer = tokio::task::spawn_blocking(move || pack_frame(&layout, &images, &tx));
+        let mut kept = Vec::new();
+        let stream = async {
+            let writer = self.downstream.writer().await?;
+            let mut send_us = 0u64;
+            let mut bytes = 0u64;
+            while let Some(band) = rx.recv().await {
+                bytes += BAND_OVERHEAD + band.payload.len() as u64;
+                let t = Instant::now();
+                writer
+                    .feed(Frame::Band(band.header, band.payload.clone()))
+                    .await?;
+                send_us += t.elapsed().as_micros() as u64;
+                if walkthrough {
+                    kept.push(band);
+                }
+            }
+            let t = Instant::now();
+            writer.flush().await?;
+            Ok::<_, NetError>((send_us + t.elapsed().as_micros() as u64, bytes))
+        };
+        let streamed = stream.await;
+        drop(rx);
+        let totals = match packer.await {
+            Ok(Ok(t)) => t,
+            Ok(Err(e)) => {
+                return Err(refuse(
+                    ErrorCode::RenderFailed,
+                    format!("frame {frame}: {e}"),
+                ));
+            }
+            Err(e) => return Err(refuse(ErrorCode::Internal, format!("packing task: {e}"))),
+        };
+        let (send_us, bytes) = streamed.map_err(|e| self.link_lost(frame, e))?;
+        stats.pack_us = totals.pack_us;
+        stats.send_us = send_us;
+        stats.bytes_out = bytes;
+        stats.empty_bands = totals.empty_bands;
+        stats.saturated = totals.saturated;
+        if walkthrough {
+            self.cached = Some(CachedFrame { key, bands: kept });
+        }
+        Ok(())
+    }
+
+    async fn send_bands(
+        &mut self,
+        bands: impl Iterator<Item = PackedBand>,
+        stats: &mut FrameStats,
+    ) -> Result<(), Refusal> {
+        let t = Instant::now();
+        let frame = stats.frame;
+        let result = async {
+            let writer = self.downstream.writer().await?;
+            let mut bytes = 0u64;
+            for band in bands {
+                bytes += BAND_OVERHEAD + band.payload.len() as u64;
+                writer.feed(Frame::Band(band.header, band.payload)).await?;
+            }
+            writer.flush().await?;
+            Ok::<_, NetError>(bytes)
+        }
+        .await;
+        stats.bytes_out = result.map_err(|e| self.link_lost(frame, e))?;
+        stats.send_us = t.elapsed().as_micros() as u64;
+        Ok(())
+    }
+
+    /// A failed data link: dropped (the next frame dials again) and reported.
+    fn link_lost(&mut self, frame: u64, e: NetError) -> Refusal {
+        self.downstream.close();
+        refuse(
+            ErrorCode::PeerLost,
+            format!("frame {frame}: data link to the compositor failed: {e}"),
+        )
+    }
+}

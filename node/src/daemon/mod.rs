@@ -1,0 +1,175 @@
+//! The render-node daemon: a render thread owns the device; the tokio side accepts authenticated
+//! control links from coordinators on one listener, receives scenes by content hash and
+//! configurations, and streams each frame's packed bands to the compositor it dials. See
+//! `docs/cluster-protocol.md` for the sequence and `docs/node.md` for operation and measurements.
+
+pub mod bands;
+pub mod calibrate;
+pub mod config;
+mod downstream;
+mod engine;
+pub mod render_thread;
+pub mod scene_cache;
+mod session;
+pub mod sys;
+
+use crate::gpu::GpuOptions;
+use crate::gpu::device::max_lights_for;
+use engine::Engine;
+use lightfold_net::{Identity, Timeouts, accept};
+use lightfold_protocol::{Capabilities, Role};
+use render_thread::{DeviceReport, RenderHandle};
+use scene_cache::SceneCache;
+use session::Ended;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::net::TcpListener;
+use tokio::sync::Mutex;
+use tokio_util::sync::CancellationToken;
+use tokio_util::task::TaskTracker;
+
+/// How a node runs.
+#[derive(Clone)]
+pub struct NodeOptions {
+    /// This daemon's id (authenticated in every handshake; compositors match inputs by it).
+    pub daemon_id: String,
+    /// Address other daemons should dial; `None` advertises the listener's local address.
+    pub advertise: Option<String>,
+    /// The cluster token (never logged).
+    pub token: Arc<[u8]>,
+    pub gpu: GpuOptions,
+    pub timeouts: Timeouts,
+    /// Scene bytes are also kept here, by hash, across restarts.
+    pub cache_dir: Option<PathBuf>,
+    /// Largest scene accepted, bytes.
+    pub max_scene_bytes: u64,
+    /// How long the data link keeps dialling a compositor that is not up yet.
+    pub dial_deadline: Duration,
+}
+
+impl std::fmt::Debug for NodeOptions {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("NodeOptions")
+            .field("daemon_id", &self.daemon_id)
+            .field("advertise", &self.advertise)
+            .field("gpu", &self.gpu)
+            .field("timeouts", &self.timeouts)
+            .field("cache_dir", &self.cache_dir)
+            .field("max_scene_bytes", &self.max_scene_bytes)
+            .field("dial_deadline", &self.dial_deadline)
+            .finish_non_exhaustive()
+    }
+}
+
+impl NodeOptions {
+    /// Defaults for everything but identity and token.
+    pub fn new(daemon_id: impl Into<String>, token: &[u8]) -> NodeOptions {
+        NodeOptions {
+            daemon_id: daemon_id.into(),
+            advertise: None,
+            token: Arc::from(token),
+            gpu: GpuOptions::default(),
+            timeouts: Timeouts::default(),
+            cache_dir: None,
+            max_scene_bytes: lightfold_scene::MAX_SCENE_BYTES as u64,
+            dial_deadline: Duration::from_secs(30),
+        }
+    }
+}
+
+/// What registration reports for this device.
+fn capabilities(opts: &NodeOptions, advertise: String, report: &DeviceReport) -> Capabilities {
+    let map = lightfold_scene::defaults::SHADOW_MAP_SIZE;
+    Capabilities {
+        role: Role::Node,
+        daemon_id: opts.daemon_id.clone(),
+        advertise,
+        adapter: report.adapter.clone(),
+        backend: report.backend.clone(),
+        max_lights: max_lights_for(&report.limits, map),
+        max_texture_size: report.limits.max_texture_dimension_2d,
+        formats: config::supported_formats(),
+        cost_per_light_us: report.calibration.cost_per_light_us,
+        fixed_cost_us: report.calibration.fixed_cost_us,
+        threads: sys::threads(),
+        version: env!("CARGO_PKG_VERSION").to_string(),
+    }
+}
+
+/// Runs a render node on `listener` until `shutdown` is cancelled or a coordinator sends
+/// `Shutdown`. Fails only when the device cannot be opened or calibrated; every later error is
+/// reported to the peer that caused it and the node keeps serving.
+pub async fn run(
+    listener: TcpListener,
+    opts: NodeOptions,
+    shutdown: CancellationToken,
+) -> anyhow::Result<()> {
+    let local = listener.local_addr()?;
+    let advertise = opts.advertise.clone().unwrap_or_else(|| local.to_string());
+    let (render, report) = RenderHandle::start(opts.gpu.clone()).await?;
+    let caps = capabilities(&opts, advertise, &report);
+    tracing::info!(
+        id = %opts.daemon_id, %local, adapter = %caps.adapter, backend = %caps.backend,
+        max_lights = caps.max_lights, "render node ready"
+    );
+    let me = Identity {
+        token: opts.token.clone(),
+        role: Role::Node,
+        daemon_id: opts.daemon_id.clone(),
+    };
+    let engine = Arc::new(Mutex::new(Engine::new(
+        opts.daemon_id.clone(),
+        render,
+        report,
+        SceneCache::new(opts.cache_dir.clone(), opts.max_scene_bytes),
+        downstream::Downstream::new(me.clone(), opts.timeouts, opts.dial_deadline),
+        opts.timeouts.max_frame,
+    )));
+    let stop = shutdown.child_token();
+    let tracker = TaskTracker::new();
+    loop {
+        let (stream, peer) = tokio::select! {
+            _ = stop.cancelled() => break,
+            r = listener.accept() => match r {
+                Ok(x) => x,
+                Err(e) => {
+                    // Out of descriptors and the like: back off rather than spin.
+                    tracing::warn!(error = %e, "accept failed");
+                    tokio::time::sleep(Duration::from_millis(100)).await;
+                    continue;
+                }
+            },
+        };
+        let (me, caps, engine, stop, t) = (
+            me.clone(),
+            caps.clone(),
+            engine.clone(),
+            stop.clone(),
+            opts.timeouts,
+        );
+        tracker.spawn(async move {
+            let link = tokio::select! {
+                _ = stop.cancelled() => return,
+                l = accept(stream, &me, t) => l,
+            };
+            match link {
+                Ok(link) => {
+                    if session::serve(link, caps, engine, stop.clone()).await == Ended::Shutdown {
+                        stop.cancel();
+                    }
+                }
+                Err(e) => tracing::warn!(%peer, error = %e, "handshake failed"),
+            }
+        });
+    }
+    tracker.close();
+    tracker.wait().await;
+    drop(listener);
+    match Arc::try_unwrap(engine) {
+        Ok(engine) => engine.into_inner().stop().await,
+        Err(_) => tracing::warn!("engine still shared at shutdown"),
+    }
+    tracing::info!("render node stopped");
+    Ok(())
+}

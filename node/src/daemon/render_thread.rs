@@ -1,0 +1,328 @@
+//! The render thread: the only owner of the wgpu device. GPU work never runs on the async runtime
+//! (`device.poll` blocks); the tokio side sends commands over a bounded channel and awaits each
+//! answer on a oneshot. The renderer is rebuilt only when the scene or a build-time option changes;
+//! a new light set, colour or camera reuses it (and, in walkthrough mode, its shadow maps).
+
+use super::calibrate::{self, Calibration};
+use super::config::Checked;
+use crate::gpu::{
+    DeviceError, Gpu, GpuOptions, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats,
+    Renderer,
+};
+use lightfold_protocol::{Hash, Layer};
+use lightfold_scene::{Camera, Image, Scene, ShadowFilter};
+use std::panic::AssertUnwindSafe;
+use std::sync::Arc;
+use std::time::Instant;
+use tokio::sync::{mpsc, oneshot};
+
+/// Commands waiting for the render thread.
+const QUEUE: usize = 4;
+
+/// What the device is and what it costs, reported once at start-up.
+#[derive(Debug, Clone)]
+pub struct DeviceReport {
+    pub adapter: String,
+    pub backend: String,
+    pub limits: wgpu::Limits,
+    pub calibration: Calibration,
+}
+
+/// A configuration the render thread applies.
+#[derive(Debug, Clone)]
+pub struct RenderSetup {
+    pub scene_hash: Hash,
+    pub scene: Arc<Scene>,
+    pub checked: Checked,
+}
+
+/// One rendered frame: an image per configured layer (configuration order) and what it cost.
+#[derive(Debug)]
+pub struct Rendered {
+    pub images: Vec<(Layer, Arc<Image>)>,
+    pub stats: RenderStats,
+    /// Wall time of the whole render call on the render thread, microseconds.
+    pub total_us: u64,
+}
+
+#[derive(Debug, Clone, thiserror::Error)]
+pub enum RenderFailure {
+    #[error("the render thread has stopped")]
+    Stopped,
+    #[error("no configuration has been applied")]
+    NotConfigured,
+    #[error("cannot build the renderer: {0}")]
+    Build(String),
+    #[error("render failed: {0}")]
+    Render(String),
+    #[error("the renderer panicked: {0}")]
+    Panic(String),
+}
+
+enum Command {
+    Configure(Box<RenderSetup>, oneshot::Sender<Result<(), RenderFailure>>),
+    Render(Camera, oneshot::Sender<Result<Rendered, RenderFailure>>),
+}
+
+/// The async side's handle on the render thread.
+#[derive(Debug)]
+pub struct RenderHandle {
+    tx: mpsc::Sender<Command>,
+    thread: std::thread::JoinHandle<()>,
+}
+
+impl std::fmt::Debug for Command {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Command::Configure(..) => "Configure",
+            Command::Render(..) => "Render",
+        })
+    }
+}
+
+impl RenderHandle {
+    /// Starts the render thread: it opens the device, calibrates, reports, then serves commands.
+    pub async fn start(opts: GpuOptions) -> Result<(RenderHandle, DeviceReport), DeviceError> {
+        let (tx, rx) = mpsc::channel(QUEUE);
+        let (ready_tx, ready_rx) = oneshot::channel();
+        let thread = std::thread::Builder::new()
+            .name("render".into())
+            .spawn(move || thread_main(opts, rx, ready_tx))
+            .map_err(|e| DeviceError::RequestDevice(format!("cannot start render thread: {e}")))?;
+        let report = match ready_rx.await {
+            Ok(r) => r?,
+            Err(_) => {
+                return Err(DeviceError::RequestDevice(
+                    "render thread ended during start-up".into(),
+                ));
+            }
+        };
+        Ok((RenderHandle { tx, thread }, report))
+    }
+
+    pub async fn configure(&self, setup: RenderSetup) -> Result<(), RenderFailure> {
+        let (reply, answer) = oneshot::channel();
+        self.tx
+            .send(Command::Configure(Box::new(setup), reply))
+            .await
+            .map_err(|_| RenderFailure::Stopped)?;
+        answer.await.map_err(|_| RenderFailure::Stopped)?
+    }
+
+    pub async fn render(&self, camera: Camera) -> Result<Rendered, RenderFailure> {
+        let (reply, answer) = oneshot::channel();
+        self.tx
+            .send(Command::Render(camera, reply))
+            .await
+            .map_err(|_| RenderFailure::Stopped)?;
+        answer.await.map_err(|_| RenderFailure::Stopped)?
+    }
+
+    /// Closes the queue and waits for the thread to release the device.
+    pub async fn stop(self) {
+        drop(self.tx);
+        let thread = self.thread;
+        let _ = tokio::task::spawn_blocking(move || thread.join()).await;
+    }
+}
+
+struct Current {
+    hash: Hash,
+    options: RenderOptions,
+    renderer: Renderer,
+    setup: RenderSetup,
+    camera: Option<Camera>,
+}
+
+fn thread_main(
+    opts: GpuOptions,
+    mut rx: mpsc::Receiver<Command>,
+    ready: oneshot::Sender<Result<DeviceReport, DeviceError>>,
+) {
+    let gpu = match Gpu::new(&opts) {
+        Ok(g) => g,
+        Err(e) => {
+            let _ = ready.send(Err(e));
+            return;
+        }
+    };
+    let calibration = match calibrate::run(&gpu) {
+        Ok(c) => c,
+        Err(e) => {
+            let _ = ready.send(Err(DeviceError::RequestDevice(format!(
+                "calibration render failed: {e}"
+            ))));
+            return;
+        }
+    };
+    let report = DeviceReport {
+        adapter: gpu.info.name.clone(),
+        backend: format!("{:?}", gpu.info.backend).to_lowercase(),
+        limits: gpu.limits.clone(),
+        calibration,
+    };
+    if ready.send(Ok(report)).is_err() {
+        return;
+    }
+    let mut current: Option<Current> = None;
+    while let Some(cmd) = rx.blocking_recv() {
+        match cmd {
+            Command::Configure(setup, reply) => {
+                let r = guarded(|| configure(&gpu, &mut current, *setup));
+                if r.is_err() {
+                    current = None;
+                }
+                let _ = reply.send(r);
+            }
+            Command::Render(camera, reply) => {
+                let r = guarded(|| render(&gpu, &mut current, camera));
+                if matches!(r, Err(RenderFailure::Panic(_))) {
+                    current = None;
+                }
+                let _ = reply.send(r);
+            }
+        }
+    }
+    tracing::debug!("render thread stopping");
+}
+
+/// Runs `f`, turning a panic inside the renderer or wgpu into an error so the daemon survives.
+fn guarded<T>(f: impl FnOnce() -> Result<T, RenderFailure>) -> Result<T, RenderFailure> {
+    match std::panic::catch_unwind(AssertUnwindSafe(f)) {
+        Ok(r) => r,
+        Err(p) => {
+            let msg = p
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| p.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "unknown panic".into());
+            tracing::error!(panic = %msg, "renderer panicked");
+            Err(RenderFailure::Panic(msg))
+        }
+    }
+}
+
+/// The renderer's build-time options for a configuration.
+fn options_for(setup: &RenderSetup) -> RenderOptions {
+    let c = &setup.checked.config;
+    RenderOptions {
+        shadow_map_size: setup.checked.map_size,
+        filter: shadow_filter(c.filter),
+        depth_bias: c.depth_bias,
+        slope_bias: c.slope_bias,
+        walkthrough: c.walkthrough,
+        fault: None,
+    }
+}
+
+/// The wire's filter code (`NodeConfig::filter`): 0 none, 1 PCF 2×2, n > 1 an n×n grid.
+pub fn shadow_filter(code: u32) -> ShadowFilter {
+    match code {
+        0 => ShadowFilter::None,
+        1 => ShadowFilter::Pcf2x2,
+        taps => ShadowFilter::Pcf { taps },
+    }
+}
+
+fn configure(
+    gpu: &Gpu,
+    current: &mut Option<Current>,
+    setup: RenderSetup,
+) -> Result<(), RenderFailure> {
+    let options = options_for(&setup);
+    let reuse = matches!(&*current, Some(c) if c.hash == setup.scene_hash && c.options == options);
+    if reuse {
+        if let Some(c) = current.as_mut() {
+            c.setup = setup;
+        }
+        return Ok(());
+    }
+    *current = None;
+    let start = Instant::now();
+    let renderer = Renderer::new(gpu, &setup.scene, options)
+        .map_err(|e: RenderError| RenderFailure::Build(e.to_string()))?;
+    tracing::info!(ms = start.elapsed().as_millis() as u64, "renderer built");
+    *current = Some(Current {
+        hash: setup.scene_hash,
+        options,
+        renderer,
+        setup,
+        camera: None,
+    });
+    Ok(())
+}
+
+fn render(
+    gpu: &Gpu,
+    current: &mut Option<Current>,
+    camera: Camera,
+) -> Result<Rendered, RenderFailure> {
+    let c = current.as_mut().ok_or(RenderFailure::NotConfigured)?;
+    let start = Instant::now();
+    if c.camera != Some(camera) {
+        c.renderer.set_camera(&camera);
+        c.camera = Some(camera);
+    }
+    let checked = &c.setup.checked;
+    let layers: Vec<Layer> = checked.config.layers.iter().map(|(l, _)| *l).collect();
+    let frame = c
+        .renderer
+        .render(
+            gpu,
+            &checked.lights,
+            checked.casters.as_deref(),
+            checked.config.color,
+            layer_set(&layers),
+        )
+        .map_err(|e| RenderFailure::Render(e.to_string()))?;
+    let stats = frame.stats.clone();
+    let images = take_layers(frame, &layers)?;
+    Ok(Rendered {
+        images,
+        stats,
+        total_us: start.elapsed().as_micros() as u64,
+    })
+}
+
+/// The renderer's layer selection for the configured layers.
+pub fn layer_set(layers: &[Layer]) -> LayerSet {
+    let has = |l| layers.contains(&l);
+    LayerSet {
+        illumination: has(Layer::Illumination),
+        diffuse: has(Layer::Diffuse),
+        specular: has(Layer::Specular),
+        ambient: has(Layer::Ambient),
+        emissive: has(Layer::Emissive),
+        depth: has(Layer::Depth),
+    }
+}
+
+/// Takes one layer's image out of a rendered frame (radiance is never a node's).
+pub fn take_layer(frame: &mut NodeFrame, layer: Layer) -> Option<Image> {
+    match layer {
+        Layer::Illumination => frame.illumination.take(),
+        Layer::Diffuse => frame.diffuse.take(),
+        Layer::Specular => frame.specular.take(),
+        Layer::Ambient => frame.ambient.take(),
+        Layer::Emissive => frame.emissive.take(),
+        Layer::Depth => frame.depth.take(),
+        Layer::Radiance => None,
+    }
+}
+
+/// The configured layers' images out of a rendered frame, in configuration order.
+fn take_layers(
+    mut frame: NodeFrame,
+    layers: &[Layer],
+) -> Result<Vec<(Layer, Arc<Image>)>, RenderFailure> {
+    layers
+        .iter()
+        .map(|&layer| {
+            take_layer(&mut frame, layer)
+                .map(|img| (layer, Arc::new(img)))
+                .ok_or_else(|| {
+                    RenderFailure::Render(format!("the renderer produced no {layer:?} image"))
+                })
+        })
+        .collect()
+}

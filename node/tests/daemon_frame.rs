@@ -1,0 +1,198 @@
+//! A node on loopback receives a scene and a configuration from a test coordinator and streams a
+//! frame to a test compositor; unpacked, it equals a direct render of the same lights within each
+//! link format's bound. Walkthrough frames with nothing changed are resent without rendering.
+//! Needs a GPU adapter (lavapipe in CI): fails, never skips, without one.
+
+mod daemon_support;
+
+use daemon_support::*;
+use lightfold_node::daemon::render_thread::{layer_set, shadow_filter, take_layer};
+use lightfold_node::gpu::{Gpu, GpuOptions, RenderOptions, Renderer};
+use lightfold_protocol::{ErrorCode, FrameParams, Layer, Message, PixelFormat, Role};
+use lightfold_scene::wire::camera_to_wire;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_streamed_frame_equals_a_direct_render() {
+    let mut node = start_node("node-a", None).await;
+    let mut comp = start_compositor().await;
+    let mut coord = node.coordinator().await;
+    let caps = coord.caps.clone();
+    eprintln!("registered: {caps:?}");
+    assert_eq!((caps.role, caps.daemon_id.as_str()), (Role::Node, "node-a"));
+    assert!(caps.max_lights >= 4, "max lights {}", caps.max_lights);
+    assert!(
+        caps.cost_per_light_us > 0 && caps.fixed_cost_us > 0,
+        "{caps:?}"
+    );
+    assert!(caps.formats.contains(&PixelFormat::Rgb9e5x2));
+
+    let scene = scene();
+    let hash = coord.send_scene(&scene).await;
+    let lights = lights(4);
+    let layers = vec![
+        (Layer::Illumination, PixelFormat::Rgb9e5x2),
+        (Layer::Diffuse, PixelFormat::Rgba8Linear),
+        (Layer::Depth, PixelFormat::DepthF32),
+    ];
+    let mut config = node_config(7, hash, &lights, layers.clone(), &comp.addr);
+    config.color = [1.0, 0.8, 0.5];
+    assert_eq!(
+        coord.request(Message::ConfigureNode(config.clone())).await,
+        Message::Configured { epoch: 7 }
+    );
+    let stats = match coord.frame(7, 1).await {
+        Message::FrameDone(s) => s,
+        other => panic!("expected FrameDone, got {other:?}"),
+    };
+    let bands = comp.take(band_count(&config)).await;
+    assert!(comp.idle(), "exactly the configured bands arrive");
+    eprintln!("frame: {stats:?}");
+
+    // Band-major order, layers in configuration order, stamped with epoch and frame.
+    for (i, (peer, h, _)) in bands.iter().enumerate() {
+        assert_eq!(peer, "node-a");
+        assert_eq!((h.epoch, h.frame), (7, 1));
+        assert_eq!(h.y0, (i / layers.len()) as u32 * config.band_height);
+        assert_eq!((h.layer, h.format), layers[i % layers.len()]);
+    }
+    assert_eq!(stats.lights_rendered, vec![0, 1, 2, 3]);
+    assert!(stats.shadow_passes >= 4, "{stats:?}");
+    assert!(stats.bytes_out > 0 && stats.peak_rss_bytes > 0, "{stats:?}");
+    let flagged = bands.iter().filter(|(_, h, _)| h.empty).count() as u32;
+    assert_eq!(stats.empty_bands, flagged);
+
+    // The same lights rendered directly on this process's own device.
+    let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter (install lavapipe)");
+    let options = RenderOptions {
+        shadow_map_size: scene.quality.shadow_map_size,
+        filter: shadow_filter(config.filter),
+        depth_bias: config.depth_bias,
+        slope_bias: config.slope_bias,
+        ..RenderOptions::default()
+    };
+    let mut renderer = Renderer::new(&gpu, &scene, options).expect("renderer");
+    renderer.set_camera(&scene.camera);
+    let wanted: Vec<Layer> = layers.iter().map(|(l, _)| *l).collect();
+    let mut direct = renderer
+        .render(&gpu, &lights, None, config.color, layer_set(&wanted))
+        .expect("direct render");
+    for (layer, format) in &layers {
+        let want = take_layer(&mut direct, *layer).expect("direct layer");
+        let got = assemble(&bands, *layer, WIDTH, HEIGHT);
+        let excess = worst_excess(*format, &got, &want, config.scale);
+        eprintln!("{layer:?} in {format:?}: worst excess over the bound {excess:e}");
+        assert!(
+            excess <= 0.0,
+            "{layer:?} in {format:?} exceeds its bound by {excess}"
+        );
+        // Exactly the bands whose values are all zero are flagged empty.
+        let row = (WIDTH as usize) * layer.channels();
+        for (_, h, _) in bands.iter().filter(|(_, h, _)| h.layer == *layer) {
+            let rows = &want.data[h.y0 as usize * row..(h.y0 + h.height) as usize * row];
+            assert_eq!(
+                h.empty,
+                rows.iter().all(|v| *v == 0.0),
+                "band at row {}",
+                h.y0
+            );
+        }
+    }
+    let illum = assemble(&bands, Layer::Illumination, WIDTH, HEIGHT);
+    assert!(illum.data.iter().any(|v| *v > 0.0), "the frame is lit");
+
+    drop(coord);
+    node.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn walkthrough_frames_reuse_what_did_not_change() {
+    let mut node = start_node("node-w", None).await;
+    let mut comp = start_compositor().await;
+    let mut coord = node.coordinator().await;
+    let scene = scene();
+    let hash = coord.send_scene(&scene).await;
+    let mut config = node_config(
+        1,
+        hash,
+        &lights(2),
+        vec![(Layer::Illumination, PixelFormat::F16x6)],
+        &comp.addr,
+    );
+    config.walkthrough = true;
+    assert_eq!(
+        coord.request(Message::ConfigureNode(config.clone())).await,
+        Message::Configured { epoch: 1 }
+    );
+    let n = band_count(&config);
+    let first = match coord.frame(1, 1).await {
+        Message::FrameDone(s) => s,
+        other => panic!("expected FrameDone, got {other:?}"),
+    };
+    let a = comp.take(n).await;
+    assert_eq!(first.lights_rendered, vec![0, 1]);
+    assert!(first.shadow_passes >= 2);
+
+    // Nothing changed: the cached bands go out again under the new frame number.
+    let second = match coord.frame(1, 2).await {
+        Message::FrameDone(s) => s,
+        other => panic!("expected FrameDone, got {other:?}"),
+    };
+    let b = comp.take(n).await;
+    assert!(second.lights_rendered.is_empty(), "{second:?}");
+    assert_eq!((second.shadow_passes, second.eye_us), (0, 0));
+    assert_eq!(second.bytes_out, first.bytes_out);
+    for ((_, ha, pa), (_, hb, pb)) in a.iter().zip(&b) {
+        assert_eq!(hb.frame, 2);
+        assert_eq!((ha.y0, ha.layer, ha.empty), (hb.y0, hb.layer, hb.empty));
+        assert_eq!(pa, pb);
+    }
+
+    // The camera moves: the eye pass runs again; the lights did not move.
+    let mut cam = scene.camera;
+    cam.position[0] += 0.5;
+    let third = match coord
+        .request(Message::RenderFrame {
+            epoch: 1,
+            frame: 3,
+            camera: Some(camera_to_wire(&cam)),
+            params: FrameParams {
+                colors: Vec::new(),
+                scale: None,
+            },
+        })
+        .await
+    {
+        Message::FrameDone(s) => s,
+        other => panic!("expected FrameDone, got {other:?}"),
+    };
+    let c = comp.take(n).await;
+    assert_eq!(third.lights_rendered, vec![0, 1]);
+    assert_eq!(
+        third.shadow_passes, 0,
+        "walkthrough keeps the shadow maps: {third:?}"
+    );
+    assert!(
+        c.iter().zip(&b).any(|((_, _, pc), (_, _, pb))| pc != pb),
+        "the view changed"
+    );
+
+    // A camera of another size does not fit the plan.
+    cam.width += 1;
+    let refused = coord
+        .request(Message::RenderFrame {
+            epoch: 1,
+            frame: 4,
+            camera: Some(camera_to_wire(&cam)),
+            params: FrameParams {
+                colors: Vec::new(),
+                scale: None,
+            },
+        })
+        .await;
+    assert!(
+        matches!(&refused, Message::Error { code: ErrorCode::BadConfig, message } if message.contains("161x120")),
+        "{refused:?}"
+    );
+    drop(coord);
+    node.stop().await;
+}
