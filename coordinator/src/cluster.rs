@@ -52,7 +52,9 @@ pub enum ClusterFileError {
     },
     #[error("malformed cluster file {path}: {message}")]
     Parse { path: String, message: String },
-    #[error("cluster file {path} has version {found}; this lightfold reads version {CLUSTER_FILE_VERSION}")]
+    #[error(
+        "cluster file {path} has version {found}; this lightfold reads version {CLUSTER_FILE_VERSION}"
+    )]
     Version { path: String, found: u32 },
     #[error("cluster file {path} lists no {what}")]
     Empty { path: String, what: &'static str },
@@ -114,7 +116,10 @@ mod tests {
         let e = ClusterFile::parse("version = 1\nbogus = 3\n", "t").unwrap_err();
         assert!(e.to_string().contains("malformed cluster file t"), "{e}");
         let e = ClusterFile::parse("version = 2\n[[node]]\naddress=\"a\"\n", "t").unwrap_err();
-        assert!(matches!(e, ClusterFileError::Version { found: 2, .. }), "{e}");
+        assert!(
+            matches!(e, ClusterFileError::Version { found: 2, .. }),
+            "{e}"
+        );
         let e = ClusterFile::parse("version = 1\n", "t").unwrap_err();
         assert!(matches!(e, ClusterFileError::Empty { .. }), "{e}");
         let e = ClusterFile::parse("version = 1\n[[node]]\naddress = 5\n", "t").unwrap_err();

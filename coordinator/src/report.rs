@@ -34,7 +34,11 @@ impl Report {
         stats.sort_by(|a, b| a.daemon_id.cmp(&b.daemon_id));
         self.frames.push(FrameRecord {
             frame: r.frame,
-            latency_ms: r.received_at.saturating_duration_since(r.requested_at).as_secs_f64() * 1e3,
+            latency_ms: r
+                .received_at
+                .saturating_duration_since(r.requested_at)
+                .as_secs_f64()
+                * 1e3,
             interval_ms,
             latency_frames: r.latency_frames,
             sink_bytes: r.sink_bytes,
@@ -51,7 +55,16 @@ impl Report {
         let _ = writeln!(
             out,
             "{:<14} {:>6} {:>8} {:>8} {:>8} {:>8} {:>8} {:>9} {:>8} {:>10}",
-            "daemon", "lights", "passes", "shadow", "eye", "readbk", "pack", "composite", "total", "bytes out"
+            "daemon",
+            "lights",
+            "passes",
+            "shadow",
+            "eye",
+            "readbk",
+            "pack",
+            "composite",
+            "total",
+            "bytes out"
         );
         for id in &ids {
             let rows: Vec<&FrameStats> = self
@@ -59,9 +72,14 @@ impl Report {
                 .iter()
                 .flat_map(|f| f.stats.iter().filter(|s| &s.daemon_id == id))
                 .collect();
-            let mean = |f: &dyn Fn(&FrameStats) -> u64| rows.iter().map(|s| f(s) as f64).sum::<f64>() / n;
+            let mean =
+                |f: &dyn Fn(&FrameStats) -> u64| rows.iter().map(|s| f(s) as f64).sum::<f64>() / n;
             let ms = |us: f64| format!("{:.1}", us / 1e3);
-            let lights = plan.nodes.iter().find(|p| &p.node == id).map_or("-".to_string(), |p| p.lights.len().to_string());
+            let lights = plan
+                .nodes
+                .iter()
+                .find(|p| &p.node == id)
+                .map_or("-".to_string(), |p| p.lights.len().to_string());
             let _ = writeln!(
                 out,
                 "{:<14} {:>6} {:>8.1} {:>8} {:>8} {:>8} {:>8} {:>9} {:>8} {:>10.0}",
@@ -90,7 +108,8 @@ impl Report {
                 f.frame,
                 f.latency_ms,
                 f.latency_frames,
-                f.interval_ms.map_or("-".to_string(), |i| format!("{i:.1} ms")),
+                f.interval_ms
+                    .map_or("-".to_string(), |i| format!("{i:.1} ms")),
                 f.sink_bytes
             );
         }
@@ -106,7 +125,11 @@ impl Report {
         let node_seconds = self
             .frames
             .iter()
-            .flat_map(|f| f.stats.iter().filter(|s| node_ids.contains(&s.daemon_id.as_str())))
+            .flat_map(|f| {
+                f.stats
+                    .iter()
+                    .filter(|s| node_ids.contains(&s.daemon_id.as_str()))
+            })
             .map(|s| s.total_us as f64 / 1e6)
             .sum::<f64>()
             / n;
@@ -118,7 +141,11 @@ impl Report {
         );
         if !intervals.is_empty() {
             let mean = intervals.iter().sum::<f64>() / intervals.len() as f64;
-            let _ = write!(s, ", mean frame interval {mean:.1} ms ({:.2} frames/s)", 1e3 / mean);
+            let _ = write!(
+                s,
+                ", mean frame interval {mean:.1} ms ({:.2} frames/s)",
+                1e3 / mean
+            );
         }
         s
     }

@@ -1,7 +1,9 @@
 //! One coordinator run: connect the cluster, plan the scene, send it, configure every daemon,
 //! drive the frames and collect the images with their per-frame reports.
 
-use crate::control::{ControlError, ControlOptions, FrameRequest, Session, SinkGeometry};
+use crate::control::{
+    ControlError, ControlOptions, FrameRequest, Participants, Session, SinkGeometry,
+};
 use crate::plan::{ClusterSpec, DaemonSpec, Plan, PlanError, PlanOptions, plan};
 use lightfold_protocol::{FrameParams, Message, Role};
 use lightfold_scene::{Camera, Scene};
@@ -53,7 +55,9 @@ pub enum RunError {
     Plan(#[from] PlanError),
     #[error("cannot encode the scene: {0}")]
     Scene(String),
-    #[error("light colour change at frame {frame} splits the colour group of node {node}: re-plan needed")]
+    #[error(
+        "light colour change at frame {frame} splits the colour group of node {node}: re-plan needed"
+    )]
     ColorSplit { frame: u64, node: String },
 }
 
@@ -79,12 +83,18 @@ pub fn cluster_spec(session: &Session) -> ClusterSpec {
 }
 
 /// Plans `scene` for the connected cluster, sends it and configures every daemon the plan uses.
-pub async fn apply(session: &mut Session, scene: &Scene, opts: &PlanOptions) -> Result<Plan, RunError> {
+pub async fn apply(
+    session: &mut Session,
+    scene: &Scene,
+    opts: &PlanOptions,
+) -> Result<Plan, RunError> {
     let spec = cluster_spec(session);
     let mut plan = plan(scene, &spec, opts)?;
-    let bytes = scene.to_bytes().map_err(|e| RunError::Scene(e.to_string()))?;
-    // Nodes verify what they receive against this: the SHA-256 of the wire bytes.
-    let hash: [u8; 32] = sha2::Digest::finalize(<sha2::Sha256 as sha2::Digest>::new_with_prefix(&bytes)).into();
+    let bytes = scene
+        .to_bytes()
+        .map_err(|e| RunError::Scene(e.to_string()))?;
+    // Nodes decode what they receive and check it against this.
+    let hash = scene.content_hash();
     plan.scene_hash = hash;
     let nodes: Vec<String> = plan.nodes.iter().map(|n| n.node.clone()).collect();
     session.distribute_scene(&nodes, hash, &bytes).await?;
@@ -111,6 +121,14 @@ pub async fn apply(session: &mut Session, scene: &Scene, opts: &PlanOptions) -> 
     Ok(plan)
 }
 
+/// The daemons `plan` uses.
+pub fn participants(plan: &Plan) -> Participants {
+    Participants {
+        compositors: plan.stages.iter().map(|s| s.compositor.clone()).collect(),
+        nodes: plan.nodes.iter().map(|n| n.node.clone()).collect(),
+    }
+}
+
 /// The camera of frame `i` along `path`.
 pub fn camera_at(base: &Camera, path: FramePath, i: u32) -> Camera {
     match path {
@@ -126,7 +144,11 @@ pub fn camera_at(base: &Camera, path: FramePath, i: u32) -> Camera {
             // Rotation about +Y (the scene's up).
             let r = [c * d[0] + s * d[2], d[1], -s * d[0] + c * d[2]];
             Camera {
-                position: [base.target[0] + r[0], base.target[1] + r[1], base.target[2] + r[2]],
+                position: [
+                    base.target[0] + r[0],
+                    base.target[1] + r[1],
+                    base.target[2] + r[2],
+                ],
                 ..*base
             }
         }
@@ -135,7 +157,11 @@ pub fn camera_at(base: &Camera, path: FramePath, i: u32) -> Camera {
 
 /// Frame requests for a plan: cameras along the path, and per-frame colour overrides for the
 /// stages whose inputs' node colours change.
-pub fn requests(plan: &Plan, opts: &RunOptions, first_frame: u64) -> Result<Vec<FrameRequest>, RunError> {
+pub fn requests(
+    plan: &Plan,
+    opts: &RunOptions,
+    first_frame: u64,
+) -> Result<Vec<FrameRequest>, RunError> {
     let mut colors: Vec<[f32; 3]> = plan.samples.iter().map(|s| s.color).collect();
     let mut out = Vec::new();
     for i in 0..opts.frames {
@@ -152,18 +178,28 @@ pub fn requests(plan: &Plan, opts: &RunOptions, first_frame: u64) -> Result<Vec<
         let mut params: HashMap<String, FrameParams> = HashMap::new();
         if changed || opts.color_changes.iter().any(|c| c.frame < frame) {
             for node in &plan.nodes {
-                let new_c = group_color(plan, node, &colors)
-                    .ok_or_else(|| RunError::ColorSplit { frame, node: node.node.clone() })?;
+                let new_c =
+                    group_color(plan, node, &colors).ok_or_else(|| RunError::ColorSplit {
+                        frame,
+                        node: node.node.clone(),
+                    })?;
                 params
                     .entry(node.downstream.clone())
-                    .or_insert_with(|| FrameParams { colors: Vec::new(), scale: None })
+                    .or_insert_with(|| FrameParams {
+                        colors: Vec::new(),
+                        scale: None,
+                    })
                     .colors
                     .push((node.input_index, new_c));
             }
         }
         let camera = (opts.path != FramePath::Still)
             .then(|| lightfold_scene::wire::camera_to_wire(&camera_at(&plan.camera, opts.path, i)));
-        out.push(FrameRequest { frame, camera, params });
+        out.push(FrameRequest {
+            frame,
+            camera,
+            params,
+        });
     }
     Ok(out)
 }
@@ -195,5 +231,9 @@ fn group_color(plan: &Plan, node: &crate::plan::NodePlan, colors: &[[f32; 3]]) -
         }
     }
     let f = factor.unwrap_or([1.0; 3]);
-    Some([node.color[0] * f[0], node.color[1] * f[1], node.color[2] * f[2]])
+    Some([
+        node.color[0] * f[0],
+        node.color[1] * f[1],
+        node.color[2] * f[2],
+    ])
 }

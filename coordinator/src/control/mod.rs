@@ -3,5 +3,8 @@
 mod session;
 mod sink;
 
-pub use session::{ControlError, ControlOptions, Daemon, DaemonAddr, FrameRequest, FrameResult, SCENE_CHUNK, Session};
+pub use session::{
+    ControlError, ControlOptions, Daemon, DaemonAddr, FrameRequest, FrameResult, Participants,
+    SCENE_CHUNK, Session,
+};
 pub use sink::{SinkEvent, SinkFrame, SinkGeometry};

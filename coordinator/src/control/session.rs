@@ -5,7 +5,9 @@
 use super::sink::{SinkEvent, SinkFrame, SinkGeometry, run_sink};
 use lightfold_net::{Identity, LinkWriter, NetError, Timeouts};
 use lightfold_protocol::frame::Frame;
-use lightfold_protocol::{Capabilities, ErrorCode, FrameParams, FrameStats, Message, Role, WireCamera};
+use lightfold_protocol::{
+    Capabilities, ErrorCode, FrameParams, FrameStats, Message, Role, WireCamera,
+};
 use std::collections::{BTreeMap, HashMap};
 use std::time::{Duration, Instant};
 use tokio::net::TcpListener;
@@ -47,7 +49,9 @@ pub enum ControlError {
     Link { address: String, source: NetError },
     #[error("daemon at {address} did not register within {after:?}")]
     NoRegister { address: String, after: Duration },
-    #[error("daemon at {address} registered as {got:?}, the cluster file lists it as a {expected:?}")]
+    #[error(
+        "daemon at {address} registered as {got:?}, the cluster file lists it as a {expected:?}"
+    )]
     WrongRole {
         address: String,
         expected: Role,
@@ -165,7 +169,12 @@ impl Session {
                             match reader.next().await {
                                 None => {
                                     let _ = tx
-                                        .send((rid.clone(), Err(NetError::Closed { addr: reader.addr.clone() })))
+                                        .send((
+                                            rid.clone(),
+                                            Err(NetError::Closed {
+                                                addr: reader.addr.clone(),
+                                            }),
+                                        ))
                                         .await;
                                     return;
                                 }
@@ -190,7 +199,14 @@ impl Session {
                             }
                         }
                     });
-                    map.insert(id, Daemon { address, caps, writer });
+                    map.insert(
+                        id,
+                        Daemon {
+                            address,
+                            caps,
+                            writer,
+                        },
+                    );
                 }
                 Err(e) => {
                     first_error.get_or_insert(e);
@@ -215,7 +231,14 @@ impl Session {
             band_height: 1,
         });
         let cancel = CancellationToken::new();
-        tokio::spawn(run_sink(sink_listener, me, opts.link, geometry_rx, sink_tx, cancel.clone()));
+        tokio::spawn(run_sink(
+            sink_listener,
+            me,
+            opts.link,
+            geometry_rx,
+            sink_tx,
+            cancel.clone(),
+        ));
         Ok(Session {
             daemons: map,
             events,
@@ -243,18 +266,29 @@ impl Session {
             .daemons
             .get_mut(id)
             .ok_or_else(|| ControlError::UnknownDaemon(id.to_string()))?;
-        d.writer.send_msg(msg).await.map_err(|source| ControlError::Link {
-            address: d.address.clone(),
-            source,
-        })
+        d.writer
+            .send_msg(msg)
+            .await
+            .map_err(|source| ControlError::Link {
+                address: d.address.clone(),
+                source,
+            })
     }
 
     fn address(&self, id: &str) -> String {
-        self.daemons.get(id).map(|d| d.address.clone()).unwrap_or_default()
+        self.daemons
+            .get(id)
+            .map(|d| d.address.clone())
+            .unwrap_or_default()
     }
 
     /// Waits for the next control message from any daemon, at most until `deadline`.
-    async fn next_event(&mut self, deadline: Instant, what: &'static str, pending: &dyn Fn() -> String) -> Result<(String, Message), ControlError> {
+    async fn next_event(
+        &mut self,
+        deadline: Instant,
+        what: &'static str,
+        pending: &dyn Fn() -> String,
+    ) -> Result<(String, Message), ControlError> {
         let left = deadline.saturating_duration_since(Instant::now());
         match tokio::time::timeout(left, self.events.recv()).await {
             Err(_) => Err(ControlError::Timeout {
@@ -279,9 +313,21 @@ impl Session {
 
     /// Sends the scene to every node that does not have it cached. `bytes` is the scene's
     /// network encoding and `hash` its content hash.
-    pub async fn distribute_scene(&mut self, nodes: &[String], hash: [u8; 32], bytes: &[u8]) -> Result<(), ControlError> {
+    pub async fn distribute_scene(
+        &mut self,
+        nodes: &[String],
+        hash: [u8; 32],
+        bytes: &[u8],
+    ) -> Result<(), ControlError> {
         for id in nodes {
-            self.send(id, Message::SceneOffer { hash, size: bytes.len() as u64 }).await?;
+            self.send(
+                id,
+                Message::SceneOffer {
+                    hash,
+                    size: bytes.len() as u64,
+                },
+            )
+            .await?;
         }
         let deadline = Instant::now() + self.opts.configure;
         let mut waiting: Vec<String> = nodes.to_vec();
@@ -289,7 +335,9 @@ impl Session {
         let mut answered = 0;
         while answered < nodes.len() {
             let pending = waiting.join(", ");
-            let (id, m) = self.next_event(deadline, "scene offers to be answered", &|| pending.clone()).await?;
+            let (id, m) = self
+                .next_event(deadline, "scene offers to be answered", &|| pending.clone())
+                .await?;
             match m {
                 Message::SceneNeed { hash: h, need } if h == hash => {
                     answered += 1;
@@ -317,13 +365,24 @@ impl Session {
                 self.send(id, msg).await?;
             }
             if bytes.is_empty() {
-                self.send(id, Message::SceneChunk { hash, offset: 0, data: Vec::new(), last: true }).await?;
+                self.send(
+                    id,
+                    Message::SceneChunk {
+                        hash,
+                        offset: 0,
+                        data: Vec::new(),
+                        last: true,
+                    },
+                )
+                .await?;
             }
         }
         let mut ready = 0;
         while ready < need_send.len() {
             let pending = waiting.join(", ");
-            let (id, m) = self.next_event(deadline, "scenes to load", &|| pending.clone()).await?;
+            let (id, m) = self
+                .next_event(deadline, "scenes to load", &|| pending.clone())
+                .await?;
             match m {
                 Message::SceneReady { hash: h, .. } if h == hash => {
                     ready += 1;
@@ -336,7 +395,12 @@ impl Session {
     }
 
     /// Sends configurations (compositors first) and waits for every `Configured { epoch }`.
-    pub async fn configure(&mut self, configs: Vec<(String, Message)>, epoch: u64, geometry: SinkGeometry) -> Result<(), ControlError> {
+    pub async fn configure(
+        &mut self,
+        configs: Vec<(String, Message)>,
+        epoch: u64,
+        geometry: SinkGeometry,
+    ) -> Result<(), ControlError> {
         self.sink_geometry.send_replace(geometry);
         let mut waiting: Vec<String> = Vec::new();
         for (id, msg) in configs {
@@ -346,7 +410,11 @@ impl Session {
         let deadline = Instant::now() + self.opts.configure;
         while !waiting.is_empty() {
             let pending = waiting.join(", ");
-            let (id, m) = self.next_event(deadline, "configurations to be applied", &|| pending.clone()).await?;
+            let (id, m) = self
+                .next_event(deadline, "configurations to be applied", &|| {
+                    pending.clone()
+                })
+                .await?;
             match m {
                 Message::Configured { epoch: e } if e == epoch => waiting.retain(|w| *w != id),
                 Message::Configured { .. } => {}
@@ -356,7 +424,12 @@ impl Session {
         Ok(())
     }
 
-    fn backlog_or_unexpected(&mut self, id: String, m: Message, expected: &'static str) -> Result<(), ControlError> {
+    fn backlog_or_unexpected(
+        &mut self,
+        id: String,
+        m: Message,
+        expected: &'static str,
+    ) -> Result<(), ControlError> {
         match m {
             Message::FrameDone(_) | Message::Pong { .. } => {
                 self.backlog.push((id, m));
@@ -377,10 +450,16 @@ impl Session {
     pub async fn drive(
         &mut self,
         epoch: u64,
+        participants: &Participants,
         frames: &[FrameRequest],
         mut on_frame: impl FnMut(FrameResult),
     ) -> Result<(), ControlError> {
-        let participants: Vec<String> = self.daemons.keys().cloned().collect();
+        let all: Vec<String> = participants
+            .compositors
+            .iter()
+            .chain(&participants.nodes)
+            .cloned()
+            .collect();
         let mut sent_at: HashMap<u64, Instant> = HashMap::new();
         let mut stats: HashMap<u64, Vec<FrameStats>> = HashMap::new();
         let mut images: HashMap<u64, SinkFrame> = HashMap::new();
@@ -396,10 +475,11 @@ impl Session {
         while done < frames.len() {
             while next_send < frames.len() && next_send < done + self.opts.frames_in_flight.max(1) {
                 let req = &frames[next_send];
-                let compositors = self.ids(Role::Compositor);
-                let nodes = self.ids(Role::Node);
-                for id in compositors.iter().chain(nodes.iter()) {
-                    let params = req.params.get(id).cloned().unwrap_or(FrameParams { colors: Vec::new(), scale: None });
+                for id in &all {
+                    let params = req.params.get(id).cloned().unwrap_or(FrameParams {
+                        colors: Vec::new(),
+                        scale: None,
+                    });
                     self.send(
                         id,
                         Message::RenderFrame {
@@ -417,8 +497,10 @@ impl Session {
             }
             let current = frames[done].frame;
             let deadline = sent_at[&current] + self.opts.frame;
-            let complete = |images: &HashMap<u64, SinkFrame>, stats: &HashMap<u64, Vec<FrameStats>>| {
-                images.contains_key(&current) && stats.get(&current).map_or(0, |s| s.len()) >= participants.len()
+            let complete = |images: &HashMap<u64, SinkFrame>,
+                            stats: &HashMap<u64, Vec<FrameStats>>| {
+                images.contains_key(&current)
+                    && stats.get(&current).map_or(0, |s| s.len()) >= all.len()
             };
             while !complete(&images, &stats) {
                 let left = deadline.saturating_duration_since(Instant::now());
@@ -439,7 +521,7 @@ impl Session {
                     },
                     _ = tokio::time::sleep(left) => {
                         let have: Vec<String> = stats.get(&current).map(|s| s.iter().map(|s| s.daemon_id.clone()).collect()).unwrap_or_default();
-                        let mut pending: Vec<String> = participants.iter().filter(|p| !have.contains(p)).cloned().collect();
+                        let mut pending: Vec<String> = all.iter().filter(|p| !have.contains(p)).cloned().collect();
                         if !images.contains_key(&current) { pending.push(format!("the sink (frame {current})")); }
                         return Err(ControlError::Timeout { what: "a frame", after: self.opts.frame, pending: pending.join(", ") });
                     }
@@ -479,6 +561,13 @@ impl Session {
     }
 }
 
+/// The daemons a plan uses: frames are requested from these (compositors first).
+#[derive(Debug, Clone, Default)]
+pub struct Participants {
+    pub compositors: Vec<String>,
+    pub nodes: Vec<String>,
+}
+
 /// What to send for one frame.
 #[derive(Debug, Clone)]
 pub struct FrameRequest {
@@ -500,7 +589,11 @@ pub struct FrameResult {
     pub stats: Vec<FrameStats>,
 }
 
-async fn register(d: DaemonAddr, me: Identity, opts: ControlOptions) -> Result<(Capabilities, String, lightfold_net::Link), ControlError> {
+async fn register(
+    d: DaemonAddr,
+    me: Identity,
+    opts: ControlOptions,
+) -> Result<(Capabilities, String, lightfold_net::Link), ControlError> {
     let mut link = lightfold_net::dial(&d.address, &me, opts.link)
         .await
         .map_err(|source| ControlError::Link {

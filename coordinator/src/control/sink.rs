@@ -61,21 +61,28 @@ pub async fn run_sink(
         let stream = match accepted {
             Ok((s, _)) => s,
             Err(e) => {
-                let _ = out.send(SinkEvent::Error(format!("sink accept failed: {e}"))).await;
+                let _ = out
+                    .send(SinkEvent::Error(format!("sink accept failed: {e}")))
+                    .await;
                 continue;
             }
         };
-        let (me, out, geometry, cancel) = (me.clone(), out.clone(), geometry.clone(), cancel.clone());
+        let (me, out, geometry, cancel) =
+            (me.clone(), out.clone(), geometry.clone(), cancel.clone());
         tokio::spawn(async move {
             match lightfold_net::accept(stream, &me, timeouts).await {
                 Ok(link) => {
                     let addr = link.addr.clone();
                     if let Err(e) = receive(link, geometry, &out, cancel).await {
-                        let _ = out.send(SinkEvent::Error(format!("sink link from {addr}: {e}"))).await;
+                        let _ = out
+                            .send(SinkEvent::Error(format!("sink link from {addr}: {e}")))
+                            .await;
                     }
                 }
                 Err(e) => {
-                    let _ = out.send(SinkEvent::Error(format!("sink handshake: {e}"))).await;
+                    let _ = out
+                        .send(SinkEvent::Error(format!("sink handshake: {e}")))
+                        .await;
                 }
             }
         });
@@ -143,7 +150,12 @@ async fn receive(
             let len = h.height as usize * g.width as usize * 3;
             let dst = &mut p.image.data[start..start + len];
             if let Err(e) = unpack_into(h.format, &payload, h.scale, dst) {
-                let _ = out.send(SinkEvent::Error(format!("sink cannot unpack frame {}: {e}", h.frame))).await;
+                let _ = out
+                    .send(SinkEvent::Error(format!(
+                        "sink cannot unpack frame {}: {e}",
+                        h.frame
+                    )))
+                    .await;
                 partial.remove(&h.frame);
                 continue;
             }
@@ -156,7 +168,11 @@ async fn receive(
             let stale: Vec<u64> = partial.range(..h.frame).map(|(k, _)| *k).collect();
             for k in stale {
                 partial.remove(&k);
-                let _ = out.send(SinkEvent::Error(format!("frame {k} incomplete at the sink"))).await;
+                let _ = out
+                    .send(SinkEvent::Error(format!(
+                        "frame {k} incomplete at the sink"
+                    )))
+                    .await;
             }
             let _ = out
                 .send(SinkEvent::Frame(SinkFrame {
@@ -171,7 +187,12 @@ async fn receive(
     }
 }
 
-fn unpack_into(fmt: PixelFormat, payload: &[u8], scale: f32, dst: &mut [f32]) -> Result<(), String> {
+fn unpack_into(
+    fmt: PixelFormat,
+    payload: &[u8],
+    scale: f32,
+    dst: &mut [f32],
+) -> Result<(), String> {
     if fmt.channels() != 3 {
         return Err(format!("format {} is not a radiance format", fmt.name()));
     }
