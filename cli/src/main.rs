@@ -5,10 +5,12 @@
 use clap::{Parser, Subcommand};
 
 mod bench_cmd;
+mod compare_cmd;
 mod compositor_cmd;
 mod defaults_cmd;
 mod node_cmd;
 mod plan_cmd;
+mod render_cmd;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -28,6 +30,8 @@ struct Cli {
 enum Command {
     /// Benchmarks that print figures (`bench node`: what K lights per node cost).
     Bench(bench_cmd::Args),
+    /// Image metrics of a test EXR against a reference EXR (RMSE, PSNR, FLIP, penumbra).
+    Compare(compare_cmd::Args),
     /// Run a compositor stage daemon.
     Compositor(compositor_cmd::Args),
     /// Print the built-in defaults (image size, samples, K, shadow-map size).
@@ -36,6 +40,8 @@ enum Command {
     Node(node_cmd::Args),
     /// Print the plan for a scene: stages, lights per node, culled lights, shadow passes, bytes.
     Plan(plan_cmd::Args),
+    /// Render one image to EXR + PNG (`--reference`: on the CPU with ray-traced shadows).
+    Render(render_cmd::Args),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -43,10 +49,12 @@ fn main() -> anyhow::Result<()> {
     init_logging(&cli.log);
     match cli.command {
         Command::Bench(args) => bench_cmd::run(args),
+        Command::Compare(args) => compare_cmd::run(args),
         Command::Compositor(args) => compositor_cmd::run(args),
         Command::Defaults(args) => defaults_cmd::run(args),
         Command::Node(args) => node_cmd::run(args),
         Command::Plan(args) => plan_cmd::run(args),
+        Command::Render(args) => render_cmd::run(args),
     }
 }
 

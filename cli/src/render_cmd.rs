@@ -1,0 +1,140 @@
+//! `lightfold render`: one image of a scene to EXR (linear) and PNG (sRGB at the scene's
+//! exposure), on the local GPU (shadow maps, K samples per pass), or with `--reference` on the CPU:
+//! the exact sum over the scene's point samples, or with `--area-truth SPP` the true area lights.
+
+use anyhow::{Context, bail};
+use lightfold_reference::output::{
+    Outputs, ReferenceMode, png_next_to, retain_lights, select_lights,
+};
+use lightfold_reference::{AreaOptions, render_to_files};
+use lightfold_scene::sampling::scene_samples;
+use std::path::PathBuf;
+
+#[path = "render_gpu.rs"]
+mod gpu;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Built-in scene name, `.toml` scene file or `.gltf`/`.glb` model.
+    #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
+    pub scene: String,
+    /// Output EXR (linear radiance); the PNG is written next to it.
+    #[arg(long, default_value = "render.exr")]
+    pub out: PathBuf,
+    /// Render with the CPU reference (ray-traced visibility) instead of the GPU.
+    #[arg(long)]
+    pub reference: bool,
+    /// GPU: point samples per shadow-map set and eye pass (default: the scene's K).
+    #[arg(short = 'K', long = "lights-per-pass")]
+    pub k: Option<u32>,
+    /// GPU: shadow-map resolution per view (default: the scene's).
+    #[arg(long)]
+    pub shadow_map_size: Option<u32>,
+    /// GPU: backend, `vulkan` or `gl` (default: `LIGHTFOLD_BACKEND`, else Vulkan then GL).
+    #[arg(long)]
+    pub backend: Option<String>,
+    /// GPU: adapter whose name contains this.
+    #[arg(long)]
+    pub adapter: Option<String>,
+    /// GPU: render the image this many times (the last is written), e.g. for `--timings`.
+    #[arg(long, default_value_t = 1)]
+    pub frames: u32,
+    /// GPU: keep shadow maps between frames (lights and geometry are static).
+    #[arg(long)]
+    pub walkthrough: bool,
+    /// GPU: print shadow passes and shadow / eye / readback time per frame.
+    #[arg(long)]
+    pub timings: bool,
+    /// Only these source lights (names or indices, comma-separated).
+    #[arg(long, value_delimiter = ',')]
+    pub lights: Vec<String>,
+    /// Render the true area lights with this many points per light per pixel instead of the
+    /// point samples.
+    #[arg(long, value_name = "SPP")]
+    pub area_truth: Option<u32>,
+    /// Seed of the area-truth jitter.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Point samples per area light (overrides the scene).
+    #[arg(long)]
+    pub samples: Option<u32>,
+    /// Image size as WIDTHxHEIGHT (default: the scene's).
+    #[arg(long)]
+    pub size: Option<String>,
+    /// Also write the radiance without shadows (EXR), for `compare --unoccluded`.
+    #[arg(long)]
+    pub unoccluded_out: Option<PathBuf>,
+    /// Also write eye depth (EXR, 0 = background), for `compare --depth`.
+    #[arg(long)]
+    pub depth_out: Option<PathBuf>,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if !args.reference && args.area_truth.is_some() {
+        bail!("--area-truth renders true area lights on the CPU: add --reference");
+    }
+    let mut scene = lightfold_scene::load(&args.scene)
+        .with_context(|| format!("cannot load scene {:?}", args.scene))?;
+    if let Some(size) = &args.size {
+        let (w, h) = size
+            .split_once('x')
+            .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
+            .filter(|&(w, h): &(u32, u32)| w > 0 && h > 0)
+            .with_context(|| format!("bad --size {size:?}: expected WIDTHxHEIGHT"))?;
+        scene.camera.width = w;
+        scene.camera.height = h;
+    }
+    if let Some(n) = args.samples {
+        scene.quality.samples_per_area_light = Some(n.max(1));
+    }
+    let (mode, samples) = match args.area_truth {
+        Some(spp) => {
+            if !args.lights.is_empty() {
+                scene = retain_lights(&scene, &args.lights)?;
+            }
+            let opts = AreaOptions {
+                samples_per_light: spp.max(1),
+                seed: args.seed,
+                shadows: true,
+            };
+            (ReferenceMode::AreaTruth(opts), Vec::new())
+        }
+        None => {
+            let all = scene_samples(&scene);
+            let samples = if args.lights.is_empty() {
+                all
+            } else {
+                select_lights(&scene, &all, &args.lights)?
+            };
+            (ReferenceMode::PointSum, samples)
+        }
+    };
+    if !args.reference {
+        return gpu::render(&args, &scene, &samples);
+    }
+    let outputs = Outputs {
+        exr: args.out.clone(),
+        png: Some(png_next_to(&args.out)),
+        unoccluded: args.unoccluded_out.clone(),
+        depth: args.depth_out.clone(),
+    };
+    let report = render_to_files(&scene, &samples, mode, &outputs)?;
+    tracing::info!(
+        scene = %scene.name,
+        width = scene.camera.width,
+        height = scene.camera.height,
+        samples = samples.len(),
+        seconds = format_args!("{:.2}", report.seconds),
+        mrays_per_s = format_args!("{:.2}", report.rays_per_second() / 1e6),
+        "rendered on the CPU"
+    );
+    println!(
+        "wrote {} and {} ({:.2} s, ≤ {:.1} M rays, {:.2} M rays/s)",
+        outputs.exr.display(),
+        png_next_to(&args.out).display(),
+        report.seconds,
+        report.max_rays / 1e6,
+        report.rays_per_second() / 1e6
+    );
+    Ok(())
+}
