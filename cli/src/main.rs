@@ -6,8 +6,12 @@ use clap::{Parser, Subcommand};
 
 mod bench_cmd;
 mod compare_cmd;
+mod compare_reference;
 mod compositor_cmd;
+mod coordinator_cmd;
 mod defaults_cmd;
+mod demo_cmd;
+mod lifecycle;
 mod node_cmd;
 mod plan_cmd;
 mod render_cmd;
@@ -34,6 +38,13 @@ enum Command {
     Compare(compare_cmd::Args),
     /// Run a compositor stage daemon.
     Compositor(compositor_cmd::Args),
+    /// Run the coordinator: connect a cluster, plan the scene, drive frames, write the image.
+    Coordinator(coordinator_cmd::Args),
+    /// Start a local multi-process cluster and render a scene (also: `cluster up`).
+    Demo(demo_cmd::Args),
+    /// Local cluster commands (`cluster up` is `demo`).
+    #[command(subcommand)]
+    Cluster(ClusterCommand),
     /// Print the built-in defaults (image size, samples, K, shadow-map size).
     Defaults(defaults_cmd::Args),
     /// Run a render-node daemon.
@@ -44,6 +55,12 @@ enum Command {
     Render(render_cmd::Args),
 }
 
+#[derive(Debug, Subcommand)]
+enum ClusterCommand {
+    /// Start a local multi-process cluster and render a scene (the same as `demo`).
+    Up(demo_cmd::Args),
+}
+
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     init_logging(&cli.log);
@@ -51,7 +68,9 @@ fn main() -> anyhow::Result<()> {
         Command::Bench(args) => bench_cmd::run(args),
         Command::Compare(args) => compare_cmd::run(args),
         Command::Compositor(args) => compositor_cmd::run(args),
+        Command::Coordinator(args) => coordinator_cmd::run_cmd(args),
         Command::Defaults(args) => defaults_cmd::run(args),
+        Command::Demo(args) | Command::Cluster(ClusterCommand::Up(args)) => demo_cmd::run(args),
         Command::Node(args) => node_cmd::run(args),
         Command::Plan(args) => plan_cmd::run(args),
         Command::Render(args) => render_cmd::run(args),

@@ -1,0 +1,272 @@
+//! `lightfold coordinator`: connect a cluster (from a cluster file or addresses on the command
+//! line), plan the scene, drive frames, write the final image (EXR linear, PNG sRGB) and print the
+//! plan and timing tables.
+
+use anyhow::{Context, bail};
+use lightfold_coordinator::cluster::ClusterFile;
+use lightfold_coordinator::control::Session;
+use lightfold_coordinator::control::{ControlOptions, DaemonAddr};
+use lightfold_coordinator::plan::{PlanOptions, Topology};
+use lightfold_coordinator::report::Report;
+use lightfold_coordinator::run::{FramePath, RunOptions, apply, participants, requests};
+use lightfold_net::{Identity, Timeouts};
+use lightfold_protocol::Role;
+use std::path::PathBuf;
+use std::time::Duration;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Cluster file (TOML) listing daemons by address or DNS name.
+    #[arg(long, conflicts_with_all = ["node", "compositor"])]
+    pub cluster: Option<PathBuf>,
+    /// A render node's address (repeatable), instead of a cluster file.
+    #[arg(long)]
+    pub node: Vec<String>,
+    /// A compositor's address (repeatable), instead of a cluster file.
+    #[arg(long)]
+    pub compositor: Vec<String>,
+    /// Where the sink compositor sends final bands (overrides the cluster file).
+    #[arg(long)]
+    pub sink_listen: Option<String>,
+    #[arg(long)]
+    pub sink_advertise: Option<String>,
+    /// File holding the cluster token (else LIGHTFOLD_TOKEN).
+    #[arg(long)]
+    pub token_file: Option<PathBuf>,
+    #[command(flatten)]
+    pub job: JobArgs,
+    /// Stop every daemon when done.
+    #[arg(long)]
+    pub shutdown: bool,
+    /// Seconds to wait for a daemon to accept and register.
+    #[arg(long, default_value_t = 10.0)]
+    pub connect_timeout: f64,
+    /// Seconds a frame may take end to end.
+    #[arg(long, default_value_t = 120.0)]
+    pub frame_timeout: f64,
+    /// Exit when this process is no longer our parent (set by launchers).
+    #[arg(long)]
+    pub parent_pid: Option<u32>,
+}
+
+/// What to render and how: shared by `coordinator` and `demo`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct JobArgs {
+    /// Built-in scene name, scene file (.toml) or glTF (.gltf/.glb).
+    #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
+    pub scene: String,
+    /// Image size as WIDTHxHEIGHT (default: the scene's).
+    #[arg(long)]
+    pub size: Option<String>,
+    /// Lights per node (K).
+    #[arg(short = 'K', long, default_value_t = lightfold_scene::defaults::LIGHTS_PER_NODE)]
+    pub lights_per_node: u32,
+    /// Compositor topology: chain or tree.
+    #[arg(long, default_value = "chain")]
+    pub topology: Topology,
+    /// Frames to render.
+    #[arg(long, default_value_t = 1)]
+    pub frames: u32,
+    /// Orbit the camera by this many degrees per frame (a camera path).
+    #[arg(long)]
+    pub orbit: Option<f32>,
+    /// Keep shadow maps between frames (static lights and geometry).
+    #[arg(long)]
+    pub walkthrough: bool,
+    /// No culling: every light, stage and caster.
+    #[arg(long)]
+    pub force_all: bool,
+    /// PNG output (sRGB at the scene's exposure).
+    #[arg(long, default_value = "out.png")]
+    pub out: PathBuf,
+    /// EXR output (linear radiance).
+    #[arg(long, default_value = "out.exr")]
+    pub exr: PathBuf,
+}
+
+impl JobArgs {
+    pub fn load_scene(&self) -> anyhow::Result<lightfold_scene::Scene> {
+        let mut scene = lightfold_scene::load(&self.scene)
+            .with_context(|| format!("cannot load scene {:?}", self.scene))?;
+        if let Some(size) = &self.size {
+            let (w, h) = parse_size(size)?;
+            scene.camera.width = w;
+            scene.camera.height = h;
+        }
+        Ok(scene)
+    }
+
+    pub fn plan_options(&self) -> PlanOptions {
+        PlanOptions {
+            lights_per_node: self.lights_per_node,
+            topology: self.topology,
+            force_all: self.force_all,
+            walkthrough: self.walkthrough,
+            ..PlanOptions::default()
+        }
+    }
+
+    pub fn path(&self) -> FramePath {
+        match self.orbit {
+            Some(d) => FramePath::Orbit { degrees: d },
+            None => FramePath::Still,
+        }
+    }
+}
+
+pub fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .with_context(|| format!("size {s:?} is not WIDTHxHEIGHT"))?;
+    let (w, h): (u32, u32) = (w.parse()?, h.parse()?);
+    if w == 0 || h == 0 || w > 16384 || h > 16384 {
+        bail!("size {s:?} out of range (1..=16384 per side)");
+    }
+    Ok((w, h))
+}
+
+pub fn run_cmd(args: Args) -> anyhow::Result<()> {
+    let token = lightfold_net::load_token(args.token_file.as_deref())?;
+    let (daemons, sink_listen, sink_advertise) = match &args.cluster {
+        Some(path) => {
+            let f = ClusterFile::load(path)?;
+            let mut d: Vec<DaemonAddr> = f
+                .nodes
+                .iter()
+                .map(|e| DaemonAddr {
+                    address: e.address.clone(),
+                    role: Role::Node,
+                    id: e.id.clone(),
+                })
+                .collect();
+            d.extend(f.compositors.iter().map(|e| DaemonAddr {
+                address: e.address.clone(),
+                role: Role::Compositor,
+                id: e.id.clone(),
+            }));
+            (
+                d,
+                args.sink_listen.clone().unwrap_or(f.sink_listen),
+                args.sink_advertise.clone().or(f.sink_advertise),
+            )
+        }
+        None => {
+            if args.node.is_empty() || args.compositor.is_empty() {
+                bail!("give --cluster FILE, or at least one --node ADDR and one --compositor ADDR");
+            }
+            let mut d: Vec<DaemonAddr> = args
+                .node
+                .iter()
+                .map(|a| DaemonAddr {
+                    address: a.clone(),
+                    role: Role::Node,
+                    id: None,
+                })
+                .collect();
+            d.extend(args.compositor.iter().map(|a| DaemonAddr {
+                address: a.clone(),
+                role: Role::Compositor,
+                id: None,
+            }));
+            (
+                d,
+                args.sink_listen
+                    .clone()
+                    .unwrap_or_else(|| "127.0.0.1:0".into()),
+                args.sink_advertise.clone(),
+            )
+        }
+    };
+    let scene = args.job.load_scene()?;
+    let rt = tokio::runtime::Runtime::new()?;
+    rt.block_on(async move {
+        let listener = tokio::net::TcpListener::bind(&sink_listen)
+            .await
+            .with_context(|| format!("cannot bind the sink listener on {sink_listen}"))?;
+        let control = ControlOptions {
+            link: Timeouts {
+                connect: Duration::from_secs_f64(args.connect_timeout),
+                ..Timeouts::default()
+            },
+            register: Duration::from_secs_f64(args.connect_timeout),
+            frame: Duration::from_secs_f64(args.frame_timeout),
+            ..ControlOptions::default()
+        };
+        let opts = RunOptions {
+            plan: args.job.plan_options(),
+            frames: args.job.frames,
+            path: args.job.path(),
+            color_changes: Vec::new(),
+            control,
+        };
+        let me = Identity::new(&token, Role::Coordinator, "coordinator");
+        let cancel = crate::lifecycle::shutdown_token(args.parent_pid);
+        let work = async {
+            let session = Session::connect(&daemons, listener, sink_advertise, me, control).await?;
+            execute(session, &scene, &opts, &args.job, args.shutdown).await
+        };
+        tokio::select! {
+            r = work => r,
+            _ = cancel.cancelled() => bail!("interrupted"),
+        }
+    })
+}
+
+/// Runs the job on a connected session and prints the plan, frames, timing table and summary;
+/// writes the last image.
+pub async fn execute(
+    mut session: Session,
+    scene: &lightfold_scene::Scene,
+    opts: &RunOptions,
+    job: &JobArgs,
+    shutdown: bool,
+) -> anyhow::Result<()> {
+    let start = std::time::Instant::now();
+    let plan = apply(&mut session, scene, &opts.plan).await?;
+    println!("{plan}");
+    let reqs = requests(&plan, opts, 1)?;
+    let mut report = Report::default();
+    let mut last: Option<lightfold_scene::Image> = None;
+    let progress = (opts.frames > 1).then(|| {
+        let pb = indicatif::ProgressBar::new(opts.frames as u64);
+        pb.set_style(
+            indicatif::ProgressStyle::with_template(
+                "{bar:40} {pos}/{len} frames {per_sec} eta {eta}",
+            )
+            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        pb
+    });
+    session
+        .drive(plan.epoch, &participants(&plan), &reqs, |frame| {
+            report.record(&frame);
+            if let Some(pb) = &progress {
+                pb.inc(1);
+            }
+            last = Some(frame.image);
+        })
+        .await?;
+    if let Some(pb) = progress {
+        pb.finish_and_clear();
+    }
+    let image = last.context("no frame was rendered")?;
+    image.write_exr(&job.exr)?;
+    image.write_png(&job.out, scene.exposure)?;
+    println!("{}", report.frame_lines());
+    println!("{}", report.table(&plan));
+    println!("{}", report.summary(&plan));
+    println!(
+        "wrote {} and {} ({}x{}) in {:.2} s",
+        job.out.display(),
+        job.exr.display(),
+        image.width,
+        image.height,
+        start.elapsed().as_secs_f64()
+    );
+    if shutdown {
+        session.shutdown().await;
+    } else {
+        session.detach();
+    }
+    Ok(())
+}

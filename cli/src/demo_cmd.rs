@@ -1,0 +1,231 @@
+//! `lightfold demo` (alias `cluster up`): a local multi-process cluster in one command. Plans the
+//! scene to learn how many nodes and compositors it needs, spawns them as separate processes on
+//! loopback, runs the coordinator as another process, then compares the image with the CPU
+//! reference and shuts every process down — also on Ctrl-C; children also exit on their own if
+//! this process dies (`--parent-pid`).
+
+use crate::coordinator_cmd::JobArgs;
+use anyhow::{Context, bail};
+use lightfold_coordinator::plan::{ClusterSpec, plan};
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    #[command(flatten)]
+    pub job: JobArgs,
+    /// Lavapipe threads per render node (LP_NUM_THREADS); 0 leaves Mesa's default.
+    #[arg(long, default_value_t = 1)]
+    pub gpu_threads: u32,
+    /// Skip the comparison with the CPU reference.
+    #[arg(long)]
+    pub no_compare: bool,
+    /// Directory for the token and cluster file (default: a fresh temporary directory).
+    #[arg(long)]
+    pub work_dir: Option<PathBuf>,
+}
+
+/// Spawned daemons, killed and reaped on drop (so every exit path, panics included, cleans up).
+struct Children(Vec<(String, Child)>);
+
+impl Drop for Children {
+    fn drop(&mut self) {
+        for (_, c) in &mut self.0 {
+            terminate(c);
+        }
+        let deadline = Instant::now() + Duration::from_secs(5);
+        for (name, c) in &mut self.0 {
+            loop {
+                match c.try_wait() {
+                    Ok(Some(_)) => break,
+                    Ok(None) if Instant::now() < deadline => {
+                        std::thread::sleep(Duration::from_millis(20))
+                    }
+                    _ => {
+                        tracing::warn!(daemon = %name, "did not stop on SIGTERM; killing");
+                        let _ = c.kill();
+                        let _ = c.wait();
+                        break;
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn terminate(c: &Child) {
+    // SIGTERM through the `kill` utility keeps this crate free of unsafe code.
+    let _ = Command::new("kill")
+        .arg("-TERM")
+        .arg(c.id().to_string())
+        .stderr(Stdio::null())
+        .status();
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let started = Instant::now();
+    let scene = args.job.load_scene()?;
+    // Plan against a large synthetic cluster to learn what this scene needs.
+    let probe = plan(
+        &scene,
+        &ClusterSpec::local(256, 256),
+        &args.job.plan_options(),
+    )?;
+    let nodes = probe.nodes.len();
+    let compositors = probe.stages.len();
+    println!(
+        "demo: scene {:?} needs {} render node(s) and {} compositor(s); starting them on loopback",
+        scene.name, nodes, compositors
+    );
+    let dir = match &args.work_dir {
+        Some(d) => {
+            std::fs::create_dir_all(d)?;
+            d.clone()
+        }
+        None => std::env::temp_dir().join(format!("lightfold-demo-{}", std::process::id())),
+    };
+    std::fs::create_dir_all(&dir)?;
+    let token_path = dir.join("token");
+    write_token(&token_path)?;
+    let exe = std::env::current_exe().context("cannot find the lightfold executable")?;
+    let mut children = Children(Vec::new());
+    for i in 0..nodes {
+        let id = format!("node-{i}");
+        let mut cmd = daemon_command(&exe, "node", &id, &token_path);
+        if args.gpu_threads > 0 {
+            cmd.env("LP_NUM_THREADS", args.gpu_threads.to_string());
+        }
+        let child = cmd.spawn().with_context(|| format!("cannot start {id}"))?;
+        children.0.push((id, child));
+    }
+    for i in 0..compositors {
+        let id = format!("comp-{i}");
+        let mut cmd = daemon_command(&exe, "compositor", &id, &token_path);
+        let child = cmd.spawn().with_context(|| format!("cannot start {id}"))?;
+        children.0.push((id, child));
+    }
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mut addrs = Vec::new();
+    for (name, child) in &mut children.0 {
+        addrs.push(read_listening(child, name, deadline)?);
+    }
+    let (node_addrs, comp_addrs) = addrs.split_at(nodes);
+    let cluster = dir.join("cluster.toml");
+    let mut text = String::from("version = 1\nsink_listen = \"127.0.0.1:0\"\n");
+    for (i, a) in node_addrs.iter().enumerate() {
+        text.push_str(&format!("[[node]]\naddress = \"{a}\"\nid = \"node-{i}\"\n"));
+    }
+    for (i, a) in comp_addrs.iter().enumerate() {
+        text.push_str(&format!(
+            "[[compositor]]\naddress = \"{a}\"\nid = \"comp-{i}\"\n"
+        ));
+    }
+    std::fs::write(&cluster, text)?;
+    let mut coord = Command::new(&exe);
+    coord
+        .arg("coordinator")
+        .arg("--cluster")
+        .arg(&cluster)
+        .arg("--token-file")
+        .arg(&token_path)
+        .arg("--shutdown");
+    job_args(&mut coord, &args.job);
+    coord
+        .arg("--parent-pid")
+        .arg(std::process::id().to_string());
+    let mut child = coord
+        .stdout(Stdio::inherit())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .context("cannot start the coordinator")?;
+    let status = child.wait()?;
+    drop(children);
+    if !status.success() {
+        bail!("the coordinator failed ({status})");
+    }
+    println!(
+        "demo: cluster finished in {:.2} s (all daemons stopped)",
+        started.elapsed().as_secs_f64()
+    );
+    if !args.no_compare {
+        crate::compare_reference::report(&scene, &args.job.exr)?;
+    }
+    Ok(())
+}
+
+fn write_token(path: &Path) -> anyhow::Result<()> {
+    use std::io::{Read, Write};
+    let mut bytes = [0u8; 32];
+    std::fs::File::open("/dev/urandom")?.read_exact(&mut bytes)?;
+    let hex: String = bytes.iter().map(|b| format!("{b:02x}")).collect();
+    let mut f = std::fs::File::create(path)?;
+    let mut perms = f.metadata()?.permissions();
+    std::os::unix::fs::PermissionsExt::set_mode(&mut perms, 0o600);
+    std::fs::set_permissions(path, perms)?;
+    f.write_all(hex.as_bytes())?;
+    Ok(())
+}
+
+fn daemon_command(exe: &Path, role: &str, id: &str, token: &Path) -> Command {
+    let mut cmd = Command::new(exe);
+    cmd.arg(role)
+        .arg("--listen")
+        .arg("127.0.0.1:0")
+        .arg("--id")
+        .arg(id)
+        .arg("--token-file")
+        .arg(token)
+        .arg("--parent-pid")
+        .arg(std::process::id().to_string())
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::inherit());
+    cmd
+}
+
+/// Reads the daemon's `listening <addr>` line from its stdout.
+fn read_listening(child: &mut Child, name: &str, deadline: Instant) -> anyhow::Result<String> {
+    let stdout = child
+        .stdout
+        .take()
+        .with_context(|| format!("{name} has no stdout"))?;
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        let mut lines = BufReader::new(stdout).lines();
+        let first = lines.next();
+        let _ = tx.send(first);
+        // Keep draining so the daemon never blocks on a full pipe.
+        for _ in lines {}
+    });
+    let left = deadline.saturating_duration_since(Instant::now());
+    match rx.recv_timeout(left) {
+        Ok(Some(Ok(line))) => match line.strip_prefix("listening ") {
+            Some(addr) => Ok(addr.trim().to_string()),
+            None => bail!("{name} printed {line:?} instead of its address"),
+        },
+        Ok(_) => bail!("{name} exited before it was listening"),
+        Err(_) => bail!("{name} did not start listening within 30 s"),
+    }
+}
+
+fn job_args(cmd: &mut Command, job: &JobArgs) {
+    cmd.arg("--scene").arg(&job.scene);
+    if let Some(s) = &job.size {
+        cmd.arg("--size").arg(s);
+    }
+    cmd.arg("-K").arg(job.lights_per_node.to_string());
+    cmd.arg("--topology").arg(job.topology.to_string());
+    cmd.arg("--frames").arg(job.frames.to_string());
+    if let Some(o) = job.orbit {
+        cmd.arg("--orbit").arg(o.to_string());
+    }
+    if job.walkthrough {
+        cmd.arg("--walkthrough");
+    }
+    if job.force_all {
+        cmd.arg("--force-all");
+    }
+    cmd.arg("--out").arg(&job.out).arg("--exr").arg(&job.exr);
+}

@@ -1,0 +1,180 @@
+//! `lightfold render` on one local GPU: the scene's samples in batches of K (one shadow-map set and
+//! one eye pass per batch), illumination summed over batches with `c_n` = white, material layers
+//! from the first batch, then paper eq. 2 into linear radiance (EXR) and sRGB at the scene's
+//! exposure (PNG). `--timings` prints the per-phase cost of every frame.
+
+use super::Args;
+use anyhow::Context;
+use lightfold_node::gpu::device::parse_backend;
+use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, NodeFrame, RenderOptions, Renderer};
+use lightfold_reference::output::png_next_to;
+use lightfold_scene::shading::compose;
+use lightfold_scene::{Image, LightSample, Scene};
+use std::time::Instant;
+
+/// Sums of one frame over its batches.
+#[derive(Debug, Default)]
+struct FrameTimes {
+    shadow_passes: u32,
+    shadow_us: u64,
+    eye_us: u64,
+    readback_us: u64,
+    total_us: u64,
+}
+
+pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Result<()> {
+    let backend = args
+        .backend
+        .as_deref()
+        .map(parse_backend)
+        .transpose()
+        .context("bad --backend")?;
+    let gpu = Gpu::new(&GpuOptions {
+        backend,
+        adapter_name: args.adapter.clone(),
+    })
+    .context("no usable GPU (try --backend gl, or --reference for the CPU)")?;
+    let mut opts = RenderOptions::from_quality(&scene.quality);
+    if let Some(size) = args.shadow_map_size {
+        opts.shadow_map_size = size;
+    }
+    opts.walkthrough = args.walkthrough;
+    let k = args
+        .k
+        .unwrap_or(scene.quality.lights_per_node)
+        .clamp(1, gpu.max_lights(opts.shadow_map_size).max(1)) as usize;
+    let mut renderer = Renderer::new(&gpu, scene, opts)?;
+    let frames = args.frames.max(1);
+    if args.timings {
+        println!(
+            "adapter {} ({:?}), {}x{}, {} samples, K = {k}, {}² maps, {} batch(es)",
+            gpu.info.name,
+            gpu.info.backend,
+            scene.camera.width,
+            scene.camera.height,
+            samples.len(),
+            opts.shadow_map_size,
+            samples.len().div_ceil(k).max(1)
+        );
+        println!("frame  shadow_passes  shadow_ms  eye_ms  readback_ms  total_ms");
+    }
+    let mut image = None;
+    for f in 0..frames {
+        let (radiance, times) = render_frame(&gpu, &mut renderer, scene, samples, k, None)?;
+        if args.timings {
+            println!(
+                "{f:>5}  {:>13}  {:>9.1}  {:>6.1}  {:>11.1}  {:>8.1}",
+                times.shadow_passes,
+                times.shadow_us as f64 / 1e3,
+                times.eye_us as f64 / 1e3,
+                times.readback_us as f64 / 1e3,
+                times.total_us as f64 / 1e3
+            );
+        }
+        image = Some(radiance);
+    }
+    let (radiance, depth) = image.expect("at least one frame");
+    radiance.write_exr(&args.out)?;
+    let png = png_next_to(&args.out);
+    radiance.write_png(&png, scene.exposure)?;
+    if let Some(path) = &args.depth_out {
+        let mut rgb = Image::new(depth.width, depth.height, 3);
+        for (o, &z) in rgb.data.chunks_exact_mut(3).zip(&depth.data) {
+            o.fill(z);
+        }
+        rgb.write_exr(path)?;
+    }
+    if let Some(path) = &args.unoccluded_out {
+        let none = vec![Vec::new(); samples.len()];
+        let ((open, _), _) = render_frame(&gpu, &mut renderer, scene, samples, k, Some(&none))?;
+        open.write_exr(path)?;
+    }
+    println!(
+        "wrote {} and {} on {} ({} samples, K = {k})",
+        args.out.display(),
+        png.display(),
+        gpu.info.name,
+        samples.len()
+    );
+    Ok(())
+}
+
+/// One image: every batch of `k` samples, summed, composed with the material layers. Returns the
+/// radiance and the eye depth.
+fn render_frame(
+    gpu: &Gpu,
+    renderer: &mut Renderer,
+    scene: &Scene,
+    samples: &[LightSample],
+    k: usize,
+    casters: Option<&[Vec<u32>]>,
+) -> anyhow::Result<((Image, Image), FrameTimes)> {
+    let t = Instant::now();
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let mut illumination = Image::new(w, h, 6);
+    let mut materials: Option<NodeFrame> = None;
+    let mut times = FrameTimes::default();
+    let batches: Vec<&[LightSample]> = if samples.is_empty() {
+        vec![&[]]
+    } else {
+        samples.chunks(k).collect()
+    };
+    let mut start = 0;
+    for (i, batch) in batches.into_iter().enumerate() {
+        let layers = if i == 0 {
+            LayerSet::all()
+        } else {
+            LayerSet::illumination()
+        };
+        let batch_casters = casters.map(|c| &c[start..start + batch.len()]);
+        start += batch.len();
+        let frame = renderer.render(gpu, batch, batch_casters, [1.0; 3], layers)?;
+        times.shadow_passes += frame.stats.shadow_passes;
+        times.shadow_us += frame.stats.shadow_us;
+        times.eye_us += frame.stats.eye_us;
+        times.readback_us += frame.stats.readback_us;
+        if let Some(il) = &frame.illumination {
+            for (a, b) in illumination.data.iter_mut().zip(&il.data) {
+                *a += b;
+            }
+        }
+        if i == 0 {
+            materials = Some(frame);
+        }
+    }
+    let m = materials.context("no frame rendered")?;
+    let layer = |img: &Option<Image>, name: &str| {
+        img.clone().with_context(|| format!("{name} layer missing"))
+    };
+    let (md, ms, ma, e) = (
+        layer(&m.diffuse, "m^d")?,
+        layer(&m.specular, "m^s")?,
+        layer(&m.ambient, "m^a")?,
+        layer(&m.emissive, "e")?,
+    );
+    let depth = layer(&m.depth, "depth")?;
+    let mut radiance = Image::new(w, h, 3);
+    for (i, px) in radiance.data.chunks_exact_mut(3).enumerate() {
+        let rgb = |img: &Image| -> [f32; 3] { [0, 1, 2].map(|c| img.data[i * 3 + c]) };
+        let il = &illumination.data[i * 6..i * 6 + 6];
+        // Global ambient only where there is a surface (depth 0 is background).
+        let ca = if depth.data[i] > 0.0 {
+            scene.ambient
+        } else {
+            [0.0; 3]
+        };
+        let p = compose(
+            rgb(&e),
+            rgb(&ma),
+            ca,
+            [0.0; 3],
+            rgb(&md),
+            [il[0], il[1], il[2]],
+            rgb(&ms),
+            [il[3], il[4], il[5]],
+        );
+        px.copy_from_slice(&p);
+    }
+    times.total_us = t.elapsed().as_micros() as u64;
+    Ok(((radiance, depth), times))
+}
