@@ -9,6 +9,7 @@ use crate::ops::{BandMut, BandView};
 use crate::pipeline::{Pipeline, PipelineError, Scratch as PipelineScratch};
 use bytes::Bytes;
 use lightfold_protocol::{BandHeader, Layer, PixelFormat};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 /// Why a band could not be combined. Headers were checked before, so these are internal faults
@@ -33,12 +34,73 @@ pub enum ComputeError {
 }
 
 /// Reused f32 buffers: per stage input per layer, the stage's output layers, and the
-/// pipeline's intermediate results.
-#[derive(Debug, Default)]
+/// pipeline's intermediate results; and the pool outgoing payloads come from.
+#[derive(Debug)]
 pub(crate) struct Scratch {
     inputs: Vec<Vec<Vec<f32>>>,
     outs: Vec<Vec<f32>>,
     pipeline: PipelineScratch,
+    pool: Arc<BufferPool>,
+}
+
+impl Scratch {
+    pub fn new(pool: Arc<BufferPool>) -> Scratch {
+        Scratch {
+            inputs: Vec::new(),
+            outs: Vec::new(),
+            pipeline: PipelineScratch::default(),
+            pool,
+        }
+    }
+}
+
+/// Most payload buffers kept for reuse (a few bands in the writer's queue and on the wire).
+const POOLED: usize = 16;
+
+/// Payload buffers handed back when the last reference to a sent band is dropped, so a
+/// steady stream of bands neither zeroes nor faults in fresh pages for every band.
+#[derive(Debug, Default)]
+pub(crate) struct BufferPool {
+    free: Mutex<Vec<Vec<u8>>>,
+}
+
+impl BufferPool {
+    /// A buffer of `len` bytes with unspecified content (the packer overwrites all of it).
+    fn take(&self, len: usize) -> Vec<u8> {
+        let mut buf = self
+            .free
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .pop()
+            .unwrap_or_default();
+        buf.resize(len, 0);
+        buf
+    }
+
+    fn put(&self, buf: Vec<u8>) {
+        let mut free = self.free.lock().unwrap_or_else(|e| e.into_inner());
+        if free.len() < POOLED {
+            free.push(buf);
+        }
+    }
+}
+
+/// A pooled payload: goes back to its pool when the band's last `Bytes` is dropped.
+struct Pooled {
+    buf: Vec<u8>,
+    pool: Arc<BufferPool>,
+}
+
+impl AsRef<[u8]> for Pooled {
+    fn as_ref(&self) -> &[u8] {
+        &self.buf
+    }
+}
+
+impl Drop for Pooled {
+    fn drop(&mut self) {
+        self.pool.put(std::mem::take(&mut self.buf));
+    }
 }
 
 /// The packed result of one band and what it cost.
@@ -135,7 +197,7 @@ pub(crate) fn combine(
             .position(|l| *l == layer)
             .unwrap_or_default();
         let header = header(plan, frame, layer, format, y0, rows, scale);
-        let packed = pack_band(header, &scratch.outs[idx], &mut out)?;
+        let packed = pack_band(header, &scratch.outs[idx], &mut out, &scratch.pool)?;
         out.bands.push(packed);
     }
     out.pack = packing.elapsed();
@@ -187,7 +249,7 @@ fn relay(
                 },
             )?;
             let values = std::mem::take(buf);
-            let packed = pack_band(h, &values, &mut out);
+            let packed = pack_band(h, &values, &mut out, &scratch.pool);
             scratch.inputs[0][0] = values;
             out.bands.push(packed?);
         }
@@ -227,6 +289,7 @@ fn pack_band(
     mut header: BandHeader,
     values: &[f32],
     out: &mut BandOut,
+    pool: &Arc<BufferPool>,
 ) -> Result<(BandHeader, Bytes), ComputeError> {
     if values.iter().all(|v| *v == 0.0) {
         header.empty = true;
@@ -234,8 +297,8 @@ fn pack_band(
         out.empty += 1;
         return Ok((header, Bytes::new()));
     }
-    let mut bytes =
-        vec![0u8; values.len() / header.format.channels() * header.format.bytes_per_pixel()];
+    let len = values.len() / header.format.channels() * header.format.bytes_per_pixel();
+    let mut bytes = pool.take(len);
     let saturated = pack(header.format, values, header.scale, &mut bytes).map_err(|reason| {
         ComputeError::Pack {
             layer: header.layer,
@@ -246,5 +309,9 @@ fn pack_band(
     header.saturated = u32::try_from(saturated).unwrap_or(u32::MAX);
     out.saturated += saturated;
     header.seal(&bytes);
-    Ok((header, Bytes::from(bytes)))
+    let pooled = Pooled {
+        buf: bytes,
+        pool: Arc::clone(pool),
+    };
+    Ok((header, Bytes::from_owner(pooled)))
 }

@@ -4,7 +4,7 @@
 //! fails its frame with a report to the coordinator; the loop goes on to the next frame.
 
 use super::check::Expect;
-use super::compute::{BandOut, Scratch, combine};
+use super::compute::{BandOut, BufferPool, Scratch, combine};
 use super::config::StagePlan;
 use super::control::{ControlOut, NewConfig};
 use super::inputs::{InBand, InputError, Slot, SlotContext};
@@ -62,6 +62,7 @@ pub(crate) struct Engine {
     /// Fixed-point scale of outgoing bands; `FrameParams::scale` changes it.
     scale: f32,
     spare: Vec<Scratch>,
+    pool: Arc<BufferPool>,
 }
 
 impl Engine {
@@ -86,6 +87,7 @@ impl Engine {
             applied: 0,
             scale: 1.0,
             spare: Vec::new(),
+            pool: Arc::default(),
         }
     }
 
@@ -324,7 +326,10 @@ impl Engine {
     ) -> Pending {
         let plan = Arc::clone(plan);
         let ops = Arc::clone(&self.ops);
-        let mut scratch = self.spare.pop().unwrap_or_default();
+        let mut scratch = self
+            .spare
+            .pop()
+            .unwrap_or_else(|| Scratch::new(Arc::clone(&self.pool)));
         let scale = self.scale;
         tokio::task::spawn_blocking(move || {
             let pipeline = ops.lock().unwrap_or_else(|e| e.into_inner());
