@@ -8,15 +8,18 @@ use super::{clamp_nonneg, count_saturated, round_u32};
 /// Largest representable value, 511/512 · 2^16.
 pub const MAX: f32 = 65408.0;
 
-/// The shared exponent (0..=31) for a triple whose largest clamped channel is `m`: the smallest
-/// that holds `m` after rounding. `m = 1.f·2^e` needs `e + 16` unless its rounded 9-bit mantissa
-/// carries into bit 9 (the mantissa bits of `m` ≥ 511/512), which takes one more.
+/// Smallest value with its own exponent: below it the exponent is 0 and the step 2^-24.
+const FLOOR: f32 = 1.0 / 65536.0;
+
+/// The biased shared exponent (0..=31) for a triple whose largest clamped channel is `m`: the
+/// smallest that holds `m` after rounding to 9 bits. Adding half a 9-bit step (bit 14) to the f32
+/// bits carries into the exponent field exactly when the mantissa would round up to 512, so the
+/// exponent field of the sum is already the answer (`m = 1.f·2^e` → `e + 16`, or `e + 17` on a
+/// carry); clamping `m` to 2^-16 first gives exponent 0 to everything smaller.
 #[inline(always)]
 fn shared_exponent(m: f32) -> u32 {
-    let bits = m.to_bits();
-    let e = (bits >> 23) as i32 - 127;
-    let carry = (e >= -16) & ((bits & 0x7F_FFFF) >= 0x7F_C000);
-    (e.max(-16) + 16) as u32 + u32::from(carry)
+    let m = if m > FLOOR { m } else { FLOOR };
+    ((m.to_bits() + 0x4000) >> 23) - 111
 }
 
 #[inline(always)]
