@@ -3,3 +3,6 @@
 //! sweep behind `lightfold accuracy`.
 //!
 //! Uses the GPU renderer and the CPU reference side by side; nothing here runs in a daemon.
+
+pub mod accuracy;
+pub mod hard;

@@ -1,0 +1,190 @@
+//! What the hard cases share: loading a case's scene file (at CI or full size), the device (a
+//! missing adapter is an error, never a skip), GPU renders beside the CPU reference, per-pixel
+//! shadow states and the edge mask the GPU correctness tests use, and non-finite counting.
+//!
+//! Edge mask: a pixel is compared only when its 3×3 neighbourhood has one shadow state (the same
+//! set of samples lights it and is visible from it) and touches no silhouette; shadow maps and
+//! ray tracing legitimately disagree on the rest.
+
+use super::{CaseReport, HardCaseError};
+use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+use lightfold_reference::{Tracer, masks};
+use lightfold_scene::shading::coefficients;
+use lightfold_scene::{Image, LightSample, Scene};
+use std::path::PathBuf;
+
+/// Per-pixel tolerance of "agrees with the reference" (as in the GPU correctness tests).
+pub const REL_TOL: f32 = 1e-3;
+pub const ABS_TOL: f32 = 1e-4;
+
+/// `scenes/hard/` of the repository.
+pub fn scene_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/hard")
+}
+
+/// Loads `scenes/hard/<file>`; the CI version renders at `small` (width, height).
+pub fn load_case_scene(
+    case: &'static str,
+    file: &str,
+    full_size: bool,
+    small: (u32, u32),
+) -> Result<Scene, HardCaseError> {
+    let path = scene_dir().join(file);
+    let mut scene = lightfold_scene::load(&path.to_string_lossy())
+        .map_err(|source| HardCaseError::Scene { case, source })?;
+    if !full_size {
+        scene.camera.width = small.0;
+        scene.camera.height = small.1;
+    }
+    Ok(scene)
+}
+
+pub fn count_non_finite(v: &[f32]) -> usize {
+    v.iter().filter(|x| !x.is_finite()).count()
+}
+
+pub fn gpu() -> Result<Gpu, HardCaseError> {
+    Gpu::new(&GpuOptions::default()).map_err(|e| HardCaseError::Gpu {
+        message: format!("hard cases need an adapter (lavapipe will do): {e}"),
+    })
+}
+
+/// The GPU illumination (6 channels) of `samples` with node colour `c_n` under `opts`.
+pub fn gpu_illumination(
+    case: &'static str,
+    gpu: &Gpu,
+    scene: &Scene,
+    samples: &[LightSample],
+    c_n: [f32; 3],
+    opts: RenderOptions,
+) -> Result<Image, HardCaseError> {
+    let err = |e: lightfold_node::gpu::RenderError| HardCaseError::Render {
+        case,
+        message: e.to_string(),
+    };
+    let mut r = Renderer::new(gpu, scene, opts).map_err(err)?;
+    let frame = r
+        .render(gpu, samples, None, c_n, LayerSet::illumination())
+        .map_err(err)?;
+    frame.illumination.ok_or(HardCaseError::Render {
+        case,
+        message: "no illumination layer".into(),
+    })
+}
+
+/// Per pixel: bit k of `lit` when sample k would light it (k < 64), of `visible` when it also
+/// reaches it unblocked; `covered` when the primary ray hit.
+pub struct ShadowStates {
+    pub lit: Vec<u64>,
+    pub visible: Vec<u64>,
+    pub covered: Vec<bool>,
+}
+
+pub fn shadow_states(scene: &Scene, samples: &[LightSample]) -> ShadowStates {
+    let tracer = Tracer::new(scene);
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let n = (w * h) as usize;
+    let mut st = ShadowStates {
+        lit: vec![0; n],
+        visible: vec![0; n],
+        covered: vec![false; n],
+    };
+    for y in 0..h {
+        for x in 0..w {
+            let i = (y * w + x) as usize;
+            let Some(hit) = tracer.primary(x, y) else {
+                continue;
+            };
+            st.covered[i] = true;
+            let mat = tracer.material(&hit);
+            for (k, s) in samples.iter().enumerate().take(64) {
+                let (id, is) = coefficients(
+                    s,
+                    hit.position_f32(),
+                    hit.normal,
+                    hit.to_viewer,
+                    mat.shininess,
+                    mat.has_specular(),
+                );
+                if id > 0.0 || is > 0.0 {
+                    st.lit[i] |= 1 << k;
+                    if tracer.visible(&hit, s) {
+                        st.visible[i] |= 1 << k;
+                    }
+                }
+            }
+        }
+    }
+    st
+}
+
+/// Pixels compared: not on a shadow edge or a silhouette (module docs).
+pub fn comparable(depth: &Image, coverage: &[bool], states: &[u64]) -> Vec<bool> {
+    let (w, h) = (depth.width as i64, depth.height as i64);
+    let sil = masks::silhouettes(depth, coverage, 0);
+    let mut out = vec![false; (w * h) as usize];
+    for y in 0..h {
+        for x in 0..w {
+            let i = (y * w + x) as usize;
+            let mut ok = true;
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let (xx, yy) = (x + dx, y + dy);
+                    if xx < 0 || yy < 0 || xx >= w || yy >= h {
+                        continue;
+                    }
+                    let j = (yy * w + xx) as usize;
+                    ok &= states[j] == states[i] && !sil[j];
+                }
+            }
+            out[i] = ok;
+        }
+    }
+    out
+}
+
+/// Whether every channel of pixel `i` agrees within the per-pixel tolerance.
+pub fn pixel_agrees(a: &Image, b: &Image, i: usize) -> bool {
+    let c = a.channels;
+    a.data[i * c..i * c + c]
+        .iter()
+        .zip(&b.data[i * c..i * c + c])
+        .all(|(x, y)| (x - y).abs() <= REL_TOL * y.abs() + ABS_TOL)
+}
+
+/// Fraction of the `mask` pixels where `gpu` and `reference` disagree.
+pub fn disagreement(gpu: &Image, reference: &Image, mask: &[bool]) -> (f64, usize) {
+    let (mut n, mut bad) = (0usize, 0usize);
+    for (i, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
+        n += 1;
+        bad += usize::from(!pixel_agrees(gpu, reference, i));
+    }
+    (bad as f64 / n.max(1) as f64, n)
+}
+
+/// Sum of the six channels of pixel `i`.
+pub fn pixel_sum(img: &Image, i: usize) -> f32 {
+    let c = img.channels;
+    img.data[i * c..i * c + c].iter().sum()
+}
+
+/// A report skeleton for cases whose details are filled in by the caller.
+pub fn report(
+    name: &'static str,
+    metric: &'static str,
+    (measured, bound): (f64, f64),
+    control: &'static str,
+    control_value: f64,
+    non_finite: usize,
+) -> CaseReport {
+    CaseReport {
+        name,
+        metric,
+        measured,
+        bound,
+        control,
+        control_value,
+        non_finite,
+        details: Vec::new(),
+    }
+}

@@ -1,0 +1,55 @@
+//! The hard cases of issue 12, small versions: each within its bound, free of NaN and Inf, and
+//! its negative control outside the bound. GPU cases fail (never skip) without an adapter.
+
+use lightfold_quality::hard::{CaseReport, case_names, run_case};
+
+fn check(name: &str) -> CaseReport {
+    let r = run_case(name, false).unwrap_or_else(|e| panic!("{name}: {e}"));
+    eprintln!("{r}");
+    assert_eq!(r.non_finite, 0, "{r}");
+    assert!(r.within_bound(), "{r}");
+    assert!(r.control_fails(), "negative control within the bound: {r}");
+    r
+}
+
+#[test]
+fn chain64() {
+    check("chain64");
+}
+
+#[test]
+fn hdr_mix() {
+    check("hdr-mix");
+}
+
+#[test]
+fn many_lights() {
+    check("many-lights");
+}
+
+#[test]
+fn grazing() {
+    check("grazing");
+}
+
+#[test]
+fn thin_wall() {
+    check("thin-wall");
+}
+
+#[test]
+fn near_light() {
+    check("near-light");
+}
+
+#[test]
+fn degenerate() {
+    check("degenerate");
+}
+
+#[test]
+fn every_case_is_tested_and_unknown_names_fail() {
+    let names = case_names();
+    assert_eq!(names.len(), 7, "{names:?}: add a test per case");
+    assert!(run_case("no-such-case", false).is_err());
+}
