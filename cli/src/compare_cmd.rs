@@ -2,7 +2,6 @@
 //! PSNR, max error, energy bias, non-finite pixels, FLIP), whole image and over the penumbra when
 //! the reference's unoccluded image is given.
 
-use anyhow::Context;
 use lightfold_reference::masks::{penumbra, penumbra_mask};
 use lightfold_reference::metrics::compare;
 use lightfold_reference::output::write_error_map;
@@ -72,5 +71,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 }
 
 fn read(path: &Path) -> anyhow::Result<Image> {
-    Image::read_exr(path).with_context(|| format!("cannot read {}", path.display()))
+    // The image error already names the file.
+    Ok(Image::read_exr(path)?)
 }
