@@ -18,7 +18,9 @@ fuzz_target!(|data: &[u8]| {
             Ok(Some(frame)) => {
                 assert!(buf.len() < before, "frame without consuming bytes");
                 let mut wire = BytesMut::new();
-                codec.encode(&frame, &mut wire).expect("a decoded frame re-encodes");
+                codec
+                    .encode(&frame, &mut wire)
+                    .expect("a decoded frame re-encodes");
                 let first = wire.clone();
                 let back = codec.decode(&mut wire).expect("re-encoded frame decodes");
                 let back = back.expect("re-encoded frame is whole");
