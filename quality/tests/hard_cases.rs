@@ -48,8 +48,18 @@ fn degenerate() {
 }
 
 #[test]
+fn contact() {
+    check("contact");
+}
+
+#[test]
+fn terminator() {
+    check("terminator");
+}
+
+#[test]
 fn every_case_is_tested_and_unknown_names_fail() {
     let names = case_names();
-    assert_eq!(names.len(), 7, "{names:?}: add a test per case");
+    assert_eq!(names.len(), 9, "{names:?}: add a test per case");
     assert!(run_case("no-such-case", false).is_err());
 }

@@ -113,6 +113,8 @@ const CASES: &[(&str, CaseFn)] = &[
     ("near-light", shadow::near_light),
     ("many-lights", chain::many_lights),
     ("degenerate", degenerate::degenerate),
+    ("contact", shadow::contact),
+    ("terminator", shadow::terminator),
 ];
 
 /// Names of the hard cases `run_case` knows.
