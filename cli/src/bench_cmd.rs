@@ -50,7 +50,8 @@ pub struct NodeArgs {
     /// L, the lights a frame needs in all (for node-seconds and node counts).
     #[arg(long, default_value_t = 32)]
     lights: u32,
-    /// Modes to measure: `moving` (shadow maps every frame) and/or `walkthrough`.
+    /// Modes to measure: `moving` (shadow maps every frame), `walkthrough` (maps kept, the camera
+    /// orbits) and `static` (walkthrough with a still camera: cached bands are resent).
     #[arg(long, value_delimiter = ',', default_value = "moving,walkthrough")]
     modes: Vec<String>,
     /// Timed frames per configuration (after the warm-up frames).
@@ -59,7 +60,7 @@ pub struct NodeArgs {
     #[arg(long, default_value_t = 2)]
     warmup: u32,
     /// `LP_NUM_THREADS` of every node process (lavapipe's rasteriser threads).
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = 1)]
     threads: u32,
     /// Frame budget for the node count, milliseconds.
     #[arg(long, default_value_t = 1000.0)]
@@ -70,8 +71,8 @@ pub struct NodeArgs {
     #[arg(long, default_value_t = 64)]
     band_height: u32,
     /// Graphics backend of the node processes.
-    #[arg(long, value_parser = ["vulkan", "gl"])]
-    backend: Option<String>,
+    #[arg(long, value_parser = ["vulkan", "gl"], default_value = "vulkan")]
+    backend: String,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -92,7 +93,22 @@ struct Row {
     mode: String,
     k: u32,
     frames: Vec<FrameStats>,
+    /// Mean CPU time of the node process per timed frame, ms (all its threads).
+    cpu_ms: f64,
 }
+
+/// User + system CPU time of process `pid` so far, in clock ticks (`/proc/<pid>/stat`).
+fn cpu_ticks(pid: u32) -> Option<u64> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // The command name may hold spaces and parentheses: fields are counted after the last ')'.
+    let rest = &stat[stat.rfind(')')? + 1..];
+    let fields: Vec<&str> = rest.split_whitespace().collect();
+    // utime and stime are fields 14 and 15 of the whole line, 12 and 13 after the name.
+    Some(fields.get(11)?.parse::<u64>().ok()? + fields.get(12)?.parse::<u64>().ok()?)
+}
+
+/// Linux reports CPU times in USER_HZ ticks, 100 per second on every mainstream architecture.
+const TICKS_PER_SECOND: f64 = 100.0;
 
 fn median(mut v: Vec<u64>) -> f64 {
     if v.is_empty() {
@@ -151,8 +167,8 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
     for mode in &a.modes {
         let walkthrough = match mode.as_str() {
             "moving" => false,
-            "walkthrough" => true,
-            other => bail!("unknown mode {other:?} (moving, walkthrough)"),
+            "walkthrough" | "static" => true,
+            other => bail!("unknown mode {other:?} (moving, walkthrough, static)"),
         };
         for &k in &a.ks {
             let lights: Vec<_> = (0..k as usize)
@@ -184,13 +200,18 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
                 depth_bias: scene.quality.depth_bias,
                 slope_bias: scene.quality.slope_bias,
             };
-            let frames = measure(&a, &token_text, &scene, &bytes, config).await?;
+            let still = mode == "static";
+            let (frames, cpu_ms) = measure(&a, &token_text, &scene, &bytes, config, still).await?;
             let row = Row {
                 mode: mode.clone(),
                 k,
                 frames,
+                cpu_ms,
             };
-            eprintln!("  {mode:<11} K={k:<3} {:>8.1} ms/frame", row.total_ms());
+            eprintln!(
+                "  {mode:<11} K={k:<3} {:>8.1} ms/frame, {cpu_ms:>8.1} CPU ms/frame",
+                row.total_ms()
+            );
             rows.push(row);
         }
     }
@@ -218,7 +239,8 @@ async fn measure(
     scene: &Scene,
     bytes: &[u8],
     config: NodeConfig,
-) -> anyhow::Result<Vec<FrameStats>> {
+    still: bool,
+) -> anyhow::Result<(Vec<FrameStats>, f64)> {
     let exe = std::env::current_exe()?;
     let mut cmd = tokio::process::Command::new(exe);
     cmd.args([
@@ -236,9 +258,7 @@ async fn measure(
     .stdout(Stdio::piped())
     .stderr(Stdio::inherit())
     .kill_on_drop(true);
-    if let Some(b) = &a.backend {
-        cmd.args(["--backend", b]);
-    }
+    cmd.args(["--backend", &a.backend]);
     let mut child = cmd.spawn().context("cannot start a node process")?;
     let stdout = child.stdout.take().context("node stdout")?;
     let mut lines = BufReader::new(stdout).lines();
@@ -266,8 +286,17 @@ async fn measure(
     })
     .await?;
     let mut stats = Vec::new();
+    let pid = child.id().context("node process id")?;
+    let mut cpu_start = None;
     for f in 0..a.warmup + a.frames {
-        let camera = orbit(&scene.camera, f);
+        if f == a.warmup {
+            cpu_start = cpu_ticks(pid);
+        }
+        let camera = if still {
+            scene.camera
+        } else {
+            orbit(&scene.camera, f)
+        };
         let msg = Message::RenderFrame {
             epoch,
             frame: u64::from(f),
@@ -282,6 +311,10 @@ async fn measure(
             stats.push(s);
         }
     }
+    let cpu_ms = match (cpu_start, cpu_ticks(pid)) {
+        (Some(a0), Some(a1)) => (a1 - a0) as f64 / TICKS_PER_SECOND * 1000.0 / f64::from(a.frames),
+        _ => f64::NAN,
+    };
     link.send_msg(Message::Shutdown).await?;
     if tokio::time::timeout(Duration::from_secs(30), child.wait())
         .await
@@ -289,7 +322,7 @@ async fn measure(
     {
         child.kill().await?;
     }
-    Ok(stats)
+    Ok((stats, cpu_ms))
 }
 
 /// The scene camera turned `f` half-degrees about the vertical through its target: a walkthrough
@@ -381,9 +414,9 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
         a.width, a.height, a.map, a.threads, a.frames
     );
     println!(
-        "| mode | K | frame | shadow | eye | readback | pack | send | shadow passes | MB out | peak RSS MB |"
+        "| mode | K | frame | CPU | shadow | eye | readback | pack | send | shadow passes | MB out | peak RSS MB |"
     );
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for r in rows {
         let passes = median(
             r.frames
@@ -394,10 +427,11 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
         let mb = median(r.frames.iter().map(|s| s.bytes_out).collect()) / 1e6;
         let rss = r.frames.iter().map(|s| s.peak_rss_bytes).max().unwrap_or(0) as f64 / 1e6;
         println!(
-            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.2} | {:.0} |",
+            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.2} | {:.0} |",
             r.mode,
             r.k,
             r.total_ms(),
+            r.cpu_ms,
             r.ms(|s| s.shadow_us),
             r.ms(|s| s.eye_us),
             r.ms(|s| s.readback_us),
@@ -409,27 +443,38 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
         );
     }
     println!(
-        "\n### L = {l}: node-seconds per frame and nodes needed (budget {:.0} ms per frame)\n",
+        "\n### L = {l}: node-seconds per frame (wall and CPU) and nodes needed (budget {:.0} ms)\n",
         a.budget_ms
     );
-    println!("| mode | K | nodes ⌈L/K⌉ | node-s / frame | vs K = 1 | within budget |");
-    println!("|---|---:|---:|---:|---:|---|");
+    println!(
+        "| mode | K | nodes ⌈L/K⌉ | node-s / frame | vs K = 1 | CPU node-s / frame | vs K = 1 | within budget |"
+    );
+    println!("|---|---:|---:|---:|---:|---:|---:|---|");
     for r in rows {
-        let nodes = l.div_ceil(r.k);
-        let node_s = f64::from(nodes) * r.total_ms() / 1000.0;
-        let base = rows
-            .iter()
-            .find(|b| b.mode == r.mode && b.k == 1)
-            .map(|b| f64::from(l) * b.total_ms() / 1000.0);
-        let ratio = base.map_or("—".to_string(), |b| format!("{:.2}×", b / node_s));
+        let nodes = f64::from(l.div_ceil(r.k));
+        let base = rows.iter().find(|b| b.mode == r.mode && b.k == 1);
+        let ratio = |per_frame: &dyn Fn(&Row) -> f64| {
+            let (b, x) = (base.map_or(0.0, per_frame), per_frame(r));
+            // A still camera costs almost nothing: no ratio of two near-zero figures.
+            if b > 0.0 && x > 0.0 {
+                format!("{:.2}×", f64::from(l) * b / (nodes * x))
+            } else {
+                "—".to_string()
+            }
+        };
         let ok = if r.total_ms() <= a.budget_ms {
             "yes"
         } else {
             "no"
         };
         println!(
-            "| {} | {} | {nodes} | {node_s:.2} | {ratio} | {ok} |",
-            r.mode, r.k
+            "| {} | {} | {nodes} | {:.2} | {} | {:.2} | {} | {ok} |",
+            r.mode,
+            r.k,
+            nodes * r.total_ms() / 1000.0,
+            ratio(&|x: &Row| x.total_ms()),
+            nodes * r.cpu_ms / 1000.0,
+            ratio(&|x: &Row| x.cpu_ms),
         );
     }
     for mode in &a.modes {
