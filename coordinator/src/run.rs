@@ -177,7 +177,7 @@ pub fn requests(
         }
         let mut params: HashMap<String, FrameParams> = HashMap::new();
         if changed || opts.color_changes.iter().any(|c| c.frame < frame) {
-            for node in &plan.nodes {
+            for node in plan.nodes.iter().filter(|n| !n.lights.is_empty()) {
                 let new_c =
                     group_color(plan, node, &colors).ok_or_else(|| RunError::ColorSplit {
                         frame,
