@@ -140,6 +140,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .stderr(Stdio::inherit())
         .spawn()
         .context("cannot start the coordinator")?;
+    // Every process this demo started, so tests (and people) can check none is left behind.
+    let pids: String = children
+        .0
+        .iter()
+        .map(|(name, c)| format!("{name} {}\n", c.id()))
+        .chain(std::iter::once(format!("coordinator {}\n", child.id())))
+        .collect();
+    std::fs::write(dir.join("pids"), pids)?;
     let status = child.wait()?;
     drop(children);
     if !status.success() {
