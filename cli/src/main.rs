@@ -4,6 +4,7 @@
 
 use clap::{Parser, Subcommand};
 
+mod accuracy_cmd;
 mod bench_cmd;
 mod compare_cmd;
 mod compare_reference;
@@ -32,6 +33,8 @@ struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
+    /// Speed against error: sweep the quality knobs against the area-light ground truth.
+    Accuracy(accuracy_cmd::Args),
     /// Benchmarks that print figures (`bench node`: what K lights per node cost).
     Bench(bench_cmd::Args),
     /// Image metrics of a test EXR against a reference EXR (RMSE, PSNR, FLIP, penumbra).
@@ -65,6 +68,7 @@ fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     init_logging(&cli.log);
     match cli.command {
+        Command::Accuracy(args) => accuracy_cmd::run(args),
         Command::Bench(args) => bench_cmd::run(args),
         Command::Compare(args) => compare_cmd::run(args),
         Command::Compositor(args) => compositor_cmd::run(args),

@@ -4,4 +4,5 @@
 //!
 //! Uses the GPU renderer and the CPU reference side by side; nothing here runs in a daemon.
 
+pub mod accuracy;
 pub mod hard;

@@ -1,0 +1,170 @@
+//! `lightfold accuracy`: the speed-against-error sweep of one scene (CSV, Markdown, SVG under
+//! `--out`), or with `--hard` the full-size hard cases of numerical stability.
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+use lightfold_node::gpu::{Gpu, GpuOptions};
+use lightfold_quality::accuracy::{
+    self, SweepPlan, TruthOptions, load_or_render_truth, report, run_sweep,
+};
+use std::path::PathBuf;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Built-in scene name, `.toml` scene file or `.gltf`/`.glb` model.
+    #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
+    scene: String,
+    /// Run the hard cases of numerical stability at full size instead of the sweep.
+    #[arg(long)]
+    hard: bool,
+    /// Image size as WIDTHxHEIGHT.
+    #[arg(long, default_value = "400x300")]
+    size: String,
+    /// Output folder (default: docs/accuracy/<scene>).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Points per area light per pixel of the ground truth.
+    #[arg(long, default_value_t = 256)]
+    truth_samples: u32,
+    /// Sweep: `full`, `reduced` (samples ≤ 64, maps ≤ 2048, fewer K) or `tiny`.
+    #[arg(long, default_value = "full")]
+    sweep: String,
+    /// Where ground truths are cached by scene hash.
+    #[arg(long, default_value = "target/lightfold-cache/accuracy")]
+    cache_dir: PathBuf,
+    /// The penumbra PSNR the report looks for the cheapest setting to reach.
+    #[arg(long, default_value_t = 45.0)]
+    target_db: f64,
+}
+
+fn scene_label(scene: &str) -> String {
+    let stem = std::path::Path::new(scene)
+        .file_stem()
+        .map_or_else(|| scene.to_string(), |s| s.to_string_lossy().into_owned());
+    stem.to_ascii_lowercase()
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.hard {
+        return run_hard(&args);
+    }
+    let plan = match args.sweep.as_str() {
+        "full" => SweepPlan::full(),
+        "reduced" => SweepPlan::reduced(),
+        "tiny" => SweepPlan::tiny(),
+        other => anyhow::bail!("unknown --sweep {other:?}: full, reduced or tiny"),
+    };
+    let mut scene = lightfold_scene::load(&args.scene)
+        .with_context(|| format!("cannot load scene {:?}", args.scene))?;
+    let (w, h) = args
+        .size
+        .split_once('x')
+        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
+        .filter(|&(w, h): &(u32, u32)| w > 0 && h > 0)
+        .with_context(|| format!("bad --size {:?}: expected WIDTHxHEIGHT", args.size))?;
+    scene.camera.width = w;
+    scene.camera.height = h;
+    let label = scene_label(&args.scene);
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("docs/accuracy").join(&label));
+    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+
+    eprintln!(
+        "truth: {}x{}, {} points per area light per pixel…",
+        w, h, args.truth_samples
+    );
+    let truth = load_or_render_truth(
+        &scene,
+        &TruthOptions {
+            samples_per_light: args.truth_samples,
+            cache_dir: Some(args.cache_dir.clone()),
+        },
+    )?;
+    eprintln!(
+        "truth {} ({}; {:.1} s); floor penumbra PSNR {:.2} dB",
+        truth.key,
+        if truth.from_cache {
+            "cached"
+        } else {
+            "rendered"
+        },
+        truth.render_seconds,
+        truth.floor.penumbra.map_or(f64::NAN, |p| p.psnr)
+    );
+
+    let gpu = Gpu::new(&GpuOptions::default()).context("no usable GPU")?;
+    let points = plan.points(accuracy::Setting::defaults(&scene));
+    let bar = ProgressBar::new(points.len() as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} points, {elapsed} {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let points = run_sweep(&gpu, &scene, &truth, &plan, |done, what| {
+        bar.set_position(done as u64);
+        bar.set_message(what.to_string());
+    })?;
+    bar.finish_and_clear();
+
+    let threads = std::env::var("LP_NUM_THREADS").unwrap_or_else(|_| "unset".into());
+    let command = format!(
+        "LP_NUM_THREADS={threads} NODEVICE_SELECT=1 lightfold accuracy --scene {} --size {} \
+         --truth-samples {} --sweep {} --out {}",
+        args.scene,
+        args.size,
+        args.truth_samples,
+        args.sweep,
+        out.display()
+    );
+    let title = format!("{label} ({w}×{h}, {} on {})", args.sweep, gpu.info.name);
+    report::write_csv(&out.join("sweep.csv"), &points)?;
+    report::write_markdown(
+        &out.join("README.md"),
+        &title,
+        &command,
+        &truth,
+        &points,
+        args.target_db,
+    )?;
+    report::write_svg(&out.join("frontier.svg"), &title, &truth, &points)?;
+    let md = report::markdown(&title, &command, &truth, &points, args.target_db);
+    // The headline paragraphs (everything before the table).
+    for line in md.lines().take_while(|l| !l.starts_with('|')) {
+        println!("{line}");
+    }
+    println!(
+        "wrote {}/{{sweep.csv,README.md,frontier.svg}}",
+        out.display()
+    );
+    Ok(())
+}
+
+fn run_hard(args: &Args) -> anyhow::Result<()> {
+    use lightfold_quality::hard::{case_names, run_case};
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("docs/accuracy/hard"));
+    std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
+    let mut text = String::from(
+        "# Hard cases at full size\n\nReproduce: `lightfold accuracy --hard`\n\n```\n",
+    );
+    let mut failed = Vec::new();
+    for name in case_names() {
+        let report = run_case(name, true).with_context(|| format!("hard case {name}"))?;
+        println!("{report}");
+        text.push_str(&format!("{report}\n"));
+        if !report.passes() {
+            failed.push(name);
+        }
+    }
+    text.push_str("```\n");
+    let path = out.join("README.md");
+    std::fs::write(&path, text).with_context(|| format!("cannot write {}", path.display()))?;
+    if failed.is_empty() {
+        Ok(())
+    } else {
+        anyhow::bail!("hard cases failed: {}", failed.join(", "))
+    }
+}

@@ -1,0 +1,153 @@
+//! Renders one setting as a cluster would: the frame's samples split into batches of K, each batch
+//! one node's frame (the first also draws the material layers), its illumination sent through the
+//! link format (pack, unpack) and summed, then paper eq. 2 into linear radiance. Every batch is
+//! timed wall-clock, pack included; a warm-up batch first keeps shader compilation out of it.
+
+use super::{AccuracyError, Setting};
+use lightfold_node::gpu::{Gpu, LayerSet, NodeFrame, RenderOptions, Renderer};
+use lightfold_protocol::format::{self, PixelFormat};
+use lightfold_scene::sampling::scene_samples;
+use lightfold_scene::shading::compose;
+use lightfold_scene::{Image, LightSample, Scene};
+use std::time::Instant;
+
+/// One setting's image and cost.
+#[derive(Debug, Clone)]
+pub struct Measured {
+    pub image: Image,
+    /// Frame time of each node (batch), seconds.
+    pub node_seconds: Vec<f64>,
+    pub k_run: u32,
+    pub lights: usize,
+}
+
+/// Renders the settings of one group (they differ in link format only) from one set of batches.
+pub fn measure_group(
+    gpu: &Gpu,
+    scene: &Scene,
+    settings: &[Setting],
+) -> Result<Vec<Measured>, AccuracyError> {
+    let Some(first) = settings.first() else {
+        return Ok(Vec::new());
+    };
+    let err = |message: String| AccuracyError::Render {
+        setting: first.to_string(),
+        message,
+    };
+    let mut scene = scene.clone();
+    scene.quality.samples_per_area_light = Some(first.samples.max(1));
+    scene.quality.shadow_map_size = first.map_size;
+    scene.quality.filter = first.filter;
+    let samples = scene_samples(&scene);
+    let opts = RenderOptions::from_quality(&scene.quality);
+    let k_run = first.k.clamp(1, gpu.max_lights(first.map_size).max(1));
+    let mut renderer = Renderer::new(gpu, &scene, opts).map_err(|e| err(e.to_string()))?;
+    let batches: Vec<&[LightSample]> = if samples.is_empty() {
+        vec![&[]]
+    } else {
+        samples.chunks(k_run as usize).collect()
+    };
+    // Warm-up: pipelines compile and textures are created on the first draw.
+    renderer
+        .render(gpu, batches[0], None, [1.0; 3], LayerSet::all())
+        .map_err(|e| err(e.to_string()))?;
+    let mut frames: Vec<(NodeFrame, f64)> = Vec::with_capacity(batches.len());
+    for (i, batch) in batches.iter().enumerate() {
+        let layers = if i == 0 {
+            LayerSet::all()
+        } else {
+            LayerSet::illumination()
+        };
+        let t = Instant::now();
+        let frame = renderer
+            .render(gpu, batch, None, [1.0; 3], layers)
+            .map_err(|e| err(e.to_string()))?;
+        frames.push((frame, t.elapsed().as_secs_f64()));
+    }
+    let mut out = Vec::with_capacity(settings.len());
+    for s in settings {
+        let (w, h) = (scene.camera.width, scene.camera.height);
+        let mut illumination = Image::new(w, h, 6);
+        let mut node_seconds = Vec::with_capacity(frames.len());
+        let mut bytes = Vec::new();
+        for (frame, secs) in &frames {
+            let il = frame
+                .illumination
+                .as_ref()
+                .ok_or_else(|| err("illumination layer missing".into()))?;
+            let t = Instant::now();
+            let linked = through_link(s.format, &il.data, &mut bytes)?;
+            node_seconds.push(secs + t.elapsed().as_secs_f64());
+            for (a, b) in illumination.data.iter_mut().zip(&linked) {
+                *a += b;
+            }
+        }
+        let image = radiance(&scene, &frames[0].0, &illumination).map_err(err)?;
+        out.push(Measured {
+            image,
+            node_seconds,
+            k_run,
+            lights: samples.len(),
+        });
+    }
+    Ok(out)
+}
+
+/// `unpack(pack(v))` through `format`. `seed64` is fixed point against a per-frame scale: the
+/// node's own maximum, the best a coordinator could choose for this frame.
+fn through_link(
+    format: PixelFormat,
+    v: &[f32],
+    bytes: &mut Vec<u8>,
+) -> Result<Vec<f32>, AccuracyError> {
+    let map = |source| AccuracyError::Format { format, source };
+    let max = v
+        .iter()
+        .copied()
+        .filter(|x| x.is_finite())
+        .fold(0.0f32, f32::max);
+    let scale = if max > 0.0 { max } else { 1.0 };
+    bytes.resize(v.len() / 6 * format.bytes_per_pixel(), 0);
+    format::pack(format, v, scale, bytes).map_err(map)?;
+    let mut back = vec![0.0; v.len()];
+    format::unpack(format, bytes, scale, &mut back).map_err(map)?;
+    Ok(back)
+}
+
+/// Paper eq. 2 from the first node's material layers and the summed illumination (`c_n` white).
+fn radiance(scene: &Scene, m: &NodeFrame, il: &Image) -> Result<Image, String> {
+    let layer = |img: &Option<Image>, name: &str| {
+        img.as_ref()
+            .ok_or_else(|| format!("{name} layer missing"))
+            .cloned()
+    };
+    let (md, ms, ma, e) = (
+        layer(&m.diffuse, "m^d")?,
+        layer(&m.specular, "m^s")?,
+        layer(&m.ambient, "m^a")?,
+        layer(&m.emissive, "e")?,
+    );
+    let depth = layer(&m.depth, "depth")?;
+    let mut out = Image::new(il.width, il.height, 3);
+    for (i, px) in out.data.chunks_exact_mut(3).enumerate() {
+        let rgb = |img: &Image| -> [f32; 3] { [0, 1, 2].map(|c| img.data[i * 3 + c]) };
+        let l = &il.data[i * 6..i * 6 + 6];
+        // Global ambient only where there is a surface (depth 0 is background).
+        let ca = if depth.data[i] > 0.0 {
+            scene.ambient
+        } else {
+            [0.0; 3]
+        };
+        px.copy_from_slice(&compose(
+            rgb(&e),
+            rgb(&ma),
+            ca,
+            [0.0; 3],
+            rgb(&md),
+            [l[0], l[1], l[2]],
+            rgb(&ms),
+            [l[3], l[4], l[5]],
+        ));
+    }
+    Ok(out)
+}
