@@ -2,11 +2,11 @@
 //! outputs and seal their headers. Synchronous and allocation-free in steady state (scratch
 //! buffers are reused), so the engine runs it on a blocking thread while the next band arrives.
 
-use super::config::StagePlan;
+use super::config::{Operators, StagePlan};
 use super::inputs::InBand;
 use super::pixels::{pack, unpack};
-use crate::ops::{BandMut, BandView};
-use crate::pipeline::{Pipeline, PipelineError, Scratch as PipelineScratch};
+use crate::ops::{BandMut, BandView, OpError, PackedIllumination};
+use crate::pipeline::{PipelineError, Scratch as PipelineScratch};
 use bytes::Bytes;
 use lightfold_protocol::{BandHeader, Layer, PixelFormat};
 use std::sync::{Arc, Mutex};
@@ -18,6 +18,8 @@ use std::time::{Duration, Instant};
 pub enum ComputeError {
     #[error(transparent)]
     Pipeline(PipelineError),
+    #[error(transparent)]
+    Fused(OpError),
     #[error("cannot unpack input {input} layer {layer:?} ({format:?}): {reason}")]
     Unpack {
         input: usize,
@@ -114,11 +116,10 @@ pub(crate) struct BandOut {
 }
 
 /// Combines band `b` of `frame`. `received[i][j]` is stage input i's layer j (configuration
-/// order). `scale` is the fixed-point scale of this frame's outgoing bands. `pipeline` is `None`
-/// for a relay.
+/// order). `scale` is the fixed-point scale of this frame's outgoing bands.
 pub(crate) fn combine(
     plan: &StagePlan,
-    pipeline: Option<&Pipeline>,
+    ops: &Operators,
     frame: u64,
     b: u32,
     received: &[Vec<InBand>],
@@ -129,10 +130,30 @@ pub(crate) fn combine(
     let (y0, rows) = plan.band_rows(b);
     let pixels = cfg.width as usize * rows as usize;
     let start = Instant::now();
-    let mut out = BandOut::default();
-    let Some(pipeline) = pipeline else {
+    let out = BandOut::default();
+    let Some(pipeline) = ops.pipeline.as_ref() else {
         return relay(plan, frame, y0, rows, &received[0], scale, scratch, out);
     };
+    if let Some(acc) = &ops.fused {
+        // One accumulate over illumination-only inputs: add straight from the packed bytes.
+        let packed: Vec<Option<PackedIllumination<'_>>> = received
+            .iter()
+            .map(|layers| {
+                let b = &layers[0];
+                (!b.header.empty).then_some(PackedIllumination {
+                    format: b.header.format,
+                    scale: b.header.scale,
+                    bytes: &b.payload,
+                })
+            })
+            .collect();
+        scratch.outs.resize_with(1, Vec::new);
+        scratch.outs[0].resize(pixels * Layer::Illumination.channels(), 0.0);
+        let mut band_mut = BandMut::new(pixels).with(Layer::Illumination, &mut scratch.outs[0]);
+        acc.apply_packed(&packed, &mut band_mut)
+            .map_err(ComputeError::Fused)?;
+        return finish(plan, frame, y0, rows, scale, scratch, out, start);
+    }
 
     scratch.inputs.resize_with(received.len(), Vec::new);
     for (i, layers) in received.iter().enumerate() {
@@ -187,6 +208,22 @@ pub(crate) fn combine(
     pipeline
         .run(&views, &mut band_mut, &mut scratch.pipeline)
         .map_err(ComputeError::Pipeline)?;
+    finish(plan, frame, y0, rows, scale, scratch, out, start)
+}
+
+/// Packs the combined layers (`scratch.outs`, in `plan.produced` order) as the stage's outputs.
+#[allow(clippy::too_many_arguments)]
+fn finish(
+    plan: &StagePlan,
+    frame: u64,
+    y0: u32,
+    rows: u32,
+    scale: f32,
+    scratch: &mut Scratch,
+    mut out: BandOut,
+    start: Instant,
+) -> Result<BandOut, ComputeError> {
+    let cfg = &plan.config;
     let packing = Instant::now();
     out.composite = packing - start;
 

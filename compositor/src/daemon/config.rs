@@ -7,7 +7,7 @@
 //! unused stage inputs. Every stage input is read by exactly one operator. With no operator the
 //! stage relays its one input.
 
-use crate::ops::OpError;
+use crate::ops::{Accumulate, OpError};
 use crate::pipeline::{Pipeline, PipelineError, Source};
 use lightfold_protocol::{CompositorConfig, ErrorCode, Layer, PixelFormat};
 
@@ -80,6 +80,15 @@ impl ConfigError {
     }
 }
 
+/// The operators of a stage: the pipeline (`None` for a relay) and, when the stage is one
+/// `accumulate` over illumination-only inputs, the same operator for the fused unpack-and-add
+/// path (`Accumulate::apply_packed`, bit-identical to unpacking and running the pipeline).
+#[derive(Debug, Default)]
+pub struct Operators {
+    pub pipeline: Option<Pipeline>,
+    pub fused: Option<Accumulate>,
+}
+
 /// A checked configuration, ready to run.
 #[derive(Debug)]
 pub struct StagePlan {
@@ -102,7 +111,7 @@ impl StagePlan {
     pub fn new(
         config: CompositorConfig,
         max_frame: usize,
-    ) -> Result<(StagePlan, Option<Pipeline>), ConfigError> {
+    ) -> Result<(StagePlan, Operators), ConfigError> {
         let c = &config;
         if !(1..=MAX_SIDE).contains(&c.width) || !(1..=MAX_SIDE).contains(&c.height) {
             return Err(ConfigError::BadSize {
@@ -177,6 +186,18 @@ impl StagePlan {
                 });
             }
         }
+        let fused = match c.ops.as_slice() {
+            [(name, params)]
+                if name == crate::ops::accumulate::NAME
+                    && c.inputs
+                        .iter()
+                        .all(|i| i.layers.len() == 1 && i.layers[0].0 == Layer::Illumination) =>
+            {
+                let params: serde_json::Value = serde_json::from_str(params).unwrap_or_default();
+                Accumulate::new(&params).ok()
+            }
+            _ => None,
+        };
         let bands = c.height.div_ceil(c.band_height);
         let input_budget = c
             .inputs
@@ -201,7 +222,7 @@ impl StagePlan {
             input_budget,
             config,
         };
-        Ok((plan, pipeline))
+        Ok((plan, Operators { pipeline, fused }))
     }
 
     pub fn epoch(&self) -> u64 {
@@ -296,8 +317,9 @@ mod tests {
 
     #[test]
     fn a_fold_of_two_operators_reads_every_input_once() {
-        let (plan, pipeline) = StagePlan::new(config(), 1 << 20).unwrap();
-        assert_eq!(pipeline.unwrap().stages().len(), 2);
+        let (plan, ops) = StagePlan::new(config(), 1 << 20).unwrap();
+        assert_eq!(ops.pipeline.unwrap().stages().len(), 2);
+        assert!(ops.fused.is_none(), "two operators are not one accumulate");
         assert_eq!(plan.bands, 4);
         assert_eq!(plan.band_rows(3), (15, 2));
         assert_eq!(plan.readers, vec![Some((0, 0)), Some((0, 1)), Some((1, 1))]);
@@ -360,8 +382,8 @@ mod tests {
         c.ops.clear();
         c.inputs.truncate(1);
         c.outputs = vec![(Layer::Illumination, PixelFormat::F32x6)];
-        let (plan, pipeline) = StagePlan::new(c, 1 << 20).unwrap();
-        assert!(pipeline.is_none());
+        let (plan, ops) = StagePlan::new(c, 1 << 20).unwrap();
+        assert!(ops.pipeline.is_none() && ops.fused.is_none());
         assert_eq!(plan.produced, vec![Layer::Illumination]);
     }
 }

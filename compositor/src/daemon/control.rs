@@ -2,9 +2,8 @@
 //! by the engine in order), per-frame requests, pings and shutdown. One coordinator at a time; a
 //! new one replaces the old, and a coordinator that goes away leaves the stage running.
 
-use super::config::StagePlan;
+use super::config::{Operators, StagePlan};
 use super::engine::{Command, FrameRequest};
-use crate::pipeline::Pipeline;
 use lightfold_net::Link;
 use lightfold_protocol::{Capabilities, ErrorCode, Frame, Message, PixelFormat, Role};
 use std::sync::Mutex;
@@ -49,7 +48,7 @@ pub(crate) struct ControlHub {
 #[derive(Debug)]
 pub(crate) struct NewConfig {
     pub plan: StagePlan,
-    pub pipeline: Option<Pipeline>,
+    pub ops: Operators,
     pub generation: u64,
 }
 
@@ -165,7 +164,7 @@ impl ControlHub {
             Message::ConfigureCompositor(config) => {
                 let epoch = config.epoch;
                 match StagePlan::new(config, self.max_frame) {
-                    Ok((plan, pipeline)) => {
+                    Ok((plan, ops)) => {
                         let mut generation = 0;
                         self.generation.send_modify(|g| {
                             *g += 1;
@@ -173,7 +172,7 @@ impl ControlHub {
                         });
                         let cmd = Command::Configure(Box::new(NewConfig {
                             plan,
-                            pipeline,
+                            ops,
                             generation,
                         }));
                         // The engine answers `Configured` once it has switched, so a band of

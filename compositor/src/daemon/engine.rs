@@ -5,11 +5,11 @@
 
 use super::check::Expect;
 use super::compute::{BandOut, BufferPool, Scratch, combine};
-use super::config::StagePlan;
+use super::config::{Operators, StagePlan};
 use super::control::{ControlOut, NewConfig};
 use super::inputs::{InBand, InputError, Slot, SlotContext};
 use super::output::Out;
-use crate::pipeline::Pipeline;
+use crate::ops::Operator;
 use lightfold_protocol::{ErrorCode, FrameParams, FrameStats, Message};
 use serde_json::json;
 use std::sync::{Arc, Mutex};
@@ -45,7 +45,7 @@ enum FrameError {
     Shutdown,
 }
 
-type Ops = Arc<Mutex<Option<Pipeline>>>;
+type Ops = Arc<Mutex<Operators>>;
 type Pending = JoinHandle<(Scratch, Result<BandOut, String>)>;
 
 pub(crate) struct Engine {
@@ -82,7 +82,7 @@ impl Engine {
             input_timeout,
             daemon_id,
             plan: None,
-            ops: Arc::new(Mutex::new(None)),
+            ops: Arc::default(),
             slots: Vec::new(),
             applied: 0,
             scale: 1.0,
@@ -141,7 +141,7 @@ impl Engine {
     async fn apply(&mut self, new: NewConfig) {
         let NewConfig {
             plan,
-            pipeline,
+            ops,
             generation,
         } = new;
         let mut old: Vec<Slot> = std::mem::take(&mut self.slots);
@@ -159,7 +159,7 @@ impl Engine {
         }
         // Slots of peers no longer configured drop here, closing their links.
         drop(old);
-        *self.ops.lock().unwrap_or_else(|e| e.into_inner()) = pipeline;
+        *self.ops.lock().unwrap_or_else(|e| e.into_inner()) = ops;
         let addr = plan.config.downstream.clone();
         let epoch = plan.epoch();
         self.plan = Some(Arc::new(plan));
@@ -243,13 +243,20 @@ impl Engine {
             let mut guard = self.ops.lock().unwrap_or_else(|e| e.into_inner());
             for &(input, rgb) in &params.colors {
                 let reader = plan.readers.get(input as usize).copied().flatten();
-                let result = match (guard.as_mut(), reader) {
+                let ops = &mut *guard;
+                let result = match (ops.pipeline.as_mut(), reader) {
                     (Some(p), Some((k, j))) => {
                         let stage = &p.stages()[k];
                         if stage.op.name() == crate::ops::accumulate::NAME {
                             let name = stage.name.clone();
-                            p.set_params(&name, &json!({ "input_colors": [[j, rgb]] }))
-                                .map_err(|e| e.to_string())
+                            let change = json!({ "input_colors": [[j, rgb]] });
+                            let fused = match ops.fused.as_mut() {
+                                Some(f) => f.set_params(&change).map_err(|e| e.to_string()),
+                                None => Ok(()),
+                            };
+                            fused.and_then(|()| {
+                                p.set_params(&name, &change).map_err(|e| e.to_string())
+                            })
                         } else {
                             Err(format!(
                                 "operator {k} ({}) takes no light colour",
@@ -332,17 +339,9 @@ impl Engine {
             .unwrap_or_else(|| Scratch::new(Arc::clone(&self.pool)));
         let scale = self.scale;
         tokio::task::spawn_blocking(move || {
-            let pipeline = ops.lock().unwrap_or_else(|e| e.into_inner());
-            let r = combine(
-                &plan,
-                pipeline.as_ref(),
-                frame,
-                b,
-                &received,
-                scale,
-                &mut scratch,
-            )
-            .map_err(|e| e.to_string());
+            let ops = ops.lock().unwrap_or_else(|e| e.into_inner());
+            let r = combine(&plan, &ops, frame, b, &received, scale, &mut scratch)
+                .map_err(|e| e.to_string());
             (scratch, r)
         })
     }
