@@ -280,3 +280,185 @@ fn check_shadows(
         .collect::<Result<Vec<_>, _>>()?;
     Ok((size, Some(casters)))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use lightfold_protocol::{WireCamera, WireLight};
+
+    fn config(layers: Vec<(Layer, PixelFormat)>, lights: usize) -> NodeConfig {
+        let light = WireLight {
+            position: [0.0, 2.0, 0.0],
+            direction: [0.0, -1.0, 0.0],
+            kind: 1,
+            cone: [0.0; 2],
+            intensity: 1.0,
+            color: [1.0; 3],
+            range: 0.0,
+            light: 0,
+            sample: 0,
+        };
+        NodeConfig {
+            epoch: 1,
+            scene: [0; 32],
+            lights: vec![light; lights],
+            shadows: Vec::new(),
+            color: [1.0; 3],
+            layers,
+            scale: 1.0,
+            band_height: 16,
+            camera: WireCamera {
+                position: [0.0, 1.0, 5.0],
+                target: [0.0; 3],
+                up: [0.0, 1.0, 0.0],
+                fov_y_deg: 45.0,
+                width: 64,
+                height: 48,
+            },
+            walkthrough: false,
+            downstream: "127.0.0.1:1".into(),
+            input_index: 0,
+            filter: 1,
+            depth_bias: 0.0,
+            slope_bias: 0.0,
+        }
+    }
+
+    fn scene(meshes: usize) -> Scene {
+        let mut s = Scene::new("t");
+        for _ in 0..meshes {
+            s.add_mesh(lightfold_scene::primitives::cuboid(
+                "c", [0.0; 3], [1.0; 3], 0,
+            ));
+        }
+        s
+    }
+
+    fn run(c: NodeConfig) -> Result<Checked, ConfigError> {
+        check(c, &scene(2), |_| 8, 4096, 1 << 20)
+    }
+
+    #[test]
+    fn a_good_configuration_passes() {
+        let c = run(config(
+            vec![(Layer::Illumination, PixelFormat::Rgb9e5x2)],
+            2,
+        ))
+        .unwrap();
+        assert_eq!((c.lights.len(), c.map_size, c.casters), (2, 512, None));
+    }
+
+    #[test]
+    fn every_supported_pair_is_a_real_format() {
+        for layer in NODE_LAYERS {
+            let formats: Vec<_> = supported_formats()
+                .into_iter()
+                .filter(|f| supports(layer, *f))
+                .collect();
+            assert!(!formats.is_empty(), "{layer:?} has a format");
+            assert!(formats.iter().all(|f| f.channels() == layer.channels()));
+        }
+        assert!(!supports(Layer::Radiance, PixelFormat::F32x3));
+    }
+
+    #[test]
+    fn bad_configurations_are_refused_with_their_code() {
+        let illum = vec![(Layer::Illumination, PixelFormat::F16x6)];
+        let cases: Vec<(NodeConfig, fn(&ConfigError) -> bool)> = vec![
+            (
+                config(vec![(Layer::Illumination, PixelFormat::Rgba8Linear)], 1),
+                |e| matches!(e, ConfigError::UnsupportedFormat { .. }),
+            ),
+            (config(Vec::new(), 1), |e| *e == ConfigError::NoLayers),
+            (config(vec![illum[0], illum[0]], 1), |e| {
+                matches!(e, ConfigError::DuplicateLayer(Layer::Illumination))
+            }),
+            (config(illum.clone(), 0), |e| *e == ConfigError::NoLights),
+            (config(illum.clone(), 9), |e| {
+                matches!(
+                    e,
+                    ConfigError::TooManyLights {
+                        count: 9,
+                        max: 8,
+                        ..
+                    }
+                )
+            }),
+            (
+                NodeConfig {
+                    band_height: 0,
+                    ..config(illum.clone(), 1)
+                },
+                |e| *e == ConfigError::BadBandHeight,
+            ),
+            (
+                NodeConfig {
+                    color: [1.0, 0.0, 1.0],
+                    ..config(illum.clone(), 1)
+                },
+                |e| matches!(e, ConfigError::BadColor(_)),
+            ),
+            (
+                NodeConfig {
+                    band_height: 48,
+                    camera: WireCamera {
+                        width: 4096,
+                        ..config(illum.clone(), 1).camera
+                    },
+                    ..config(vec![(Layer::Illumination, PixelFormat::F32x6)], 1)
+                },
+                |e| matches!(e, ConfigError::BandTooLarge { .. }),
+            ),
+            (
+                NodeConfig {
+                    shadows: vec![WireShadow {
+                        light: 0,
+                        map_size: 256,
+                        casters: vec![2],
+                    }],
+                    ..config(illum.clone(), 1)
+                },
+                |e| matches!(e, ConfigError::BadCaster { mesh: 2, .. }),
+            ),
+            (
+                NodeConfig {
+                    shadows: vec![WireShadow {
+                        light: 1,
+                        map_size: 256,
+                        casters: vec![],
+                    }],
+                    ..config(illum.clone(), 2)
+                },
+                |e| matches!(e, ConfigError::MissingShadow(0)),
+            ),
+        ];
+        for (i, (c, expected)) in cases.into_iter().enumerate() {
+            let e = run(c).expect_err(&format!("case {i} is refused"));
+            assert!(expected(&e), "case {i}: {e}");
+            let code = if matches!(e, ConfigError::UnsupportedFormat { .. }) {
+                ErrorCode::UnsupportedFormat
+            } else {
+                ErrorCode::BadConfig
+            };
+            assert_eq!(e.code(), code);
+        }
+    }
+
+    #[test]
+    fn caster_lists_cover_every_light() {
+        let shadows = (0..2)
+            .map(|light| WireShadow {
+                light,
+                map_size: 256,
+                casters: vec![light],
+            })
+            .collect();
+        let c = run(NodeConfig {
+            shadows,
+            ..config(vec![(Layer::Illumination, PixelFormat::F16x6)], 2)
+        })
+        .unwrap();
+        assert_eq!(c.map_size, 256);
+        assert_eq!(c.casters, Some(vec![vec![0], vec![1]]));
+    }
+}
