@@ -334,6 +334,8 @@ mod tests {
         s
     }
 
+    type Expect = fn(&ConfigError) -> bool;
+
     fn run(c: NodeConfig) -> Result<Checked, ConfigError> {
         check(c, &scene(2), |_| 8, 4096, 1 << 20)
     }
@@ -364,7 +366,7 @@ mod tests {
     #[test]
     fn bad_configurations_are_refused_with_their_code() {
         let illum = vec![(Layer::Illumination, PixelFormat::F16x6)];
-        let cases: Vec<(NodeConfig, fn(&ConfigError) -> bool)> = vec![
+        let cases: Vec<(NodeConfig, Expect)> = vec![
             (
                 config(vec![(Layer::Illumination, PixelFormat::Rgba8Linear)], 1),
                 |e| matches!(e, ConfigError::UnsupportedFormat { .. }),
