@@ -140,14 +140,31 @@ pub fn visible_receivers(camera: &Camera, receivers: &[(V3, V3)]) -> Vec<(V3, V3
 /// A convex polygon of points relative to the sample position.
 type Poly = Vec<V3>;
 
-fn perspective_views(sample: &LightSample, boxes: &[(V3, V3)]) -> Vec<ShadowView> {
-    let origin = sample.position;
+/// The frame of a sample's cube faces, `[x, y, z]` with `z` the sample's axis (−Y without one):
+/// a direction `d` from the sample falls in the face of the largest `|d·axis|`, its sign picking
+/// `Pos`/`Neg` (ties go to x before y before z).
+pub fn cube_frame(sample: &LightSample) -> [V3; 3] {
     let axis = normalize(sample.direction);
     let axis = if axis == [0.0; 3] {
         [0.0, -1.0, 0.0]
     } else {
         axis
     };
+    let (r, u) = perpendicular_frame(axis);
+    [r, u, axis]
+}
+
+impl CubeFace {
+    /// Position in `[PosX, NegX, PosY, NegY, PosZ, NegZ]`.
+    pub fn index(self) -> usize {
+        self as usize
+    }
+}
+
+fn perspective_views(sample: &LightSample, boxes: &[(V3, V3)]) -> Vec<ShadowView> {
+    let origin = sample.position;
+    let frame = cube_frame(sample);
+    let axis = frame[2];
     // Half-spaces through the sample bounding its lit region.
     let mut region: Vec<V3> = Vec::new();
     match sample.kind {
@@ -192,7 +209,7 @@ fn perspective_views(sample: &LightSample, boxes: &[(V3, V3)]) -> Vec<ShadowView
     if !contains_light && let Some(v) = fitted_view(origin, own_axis, &polys) {
         return vec![v];
     }
-    cube_views(origin, axis, &polys, &region, contains_light)
+    cube_views(origin, frame, &polys, &region, contains_light)
 }
 
 /// One frustum around the receivers, if they all fit inside [`MAX_FITTED_FOV_DEG`]. Axes tried:
@@ -244,12 +261,11 @@ fn fitted_view(origin: V3, sample_axis: Option<V3>, polys: &[Poly]) -> Option<Sh
 /// The cube faces that see a receiver, each fitted to the receivers inside it.
 fn cube_views(
     origin: V3,
-    axis: V3,
+    [r, u, axis]: [V3; 3],
     polys: &[Poly],
     region: &[V3],
     contains_light: bool,
 ) -> Vec<ShadowView> {
-    let (r, u) = perpendicular_frame(axis);
     let faces = [
         (CubeFace::PosX, r, u),
         (CubeFace::NegX, scale(r, -1.0), u),

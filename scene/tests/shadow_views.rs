@@ -2,7 +2,9 @@
 //! depth inside the map; faces that see nothing are skipped.
 
 use lightfold_scene::shading::V3;
-use lightfold_scene::shadow_views::{ShadowViewKind, project, shadow_views, visible_receivers};
+use lightfold_scene::shadow_views::{
+    ShadowViewKind, cube_frame, project, shadow_views, visible_receivers,
+};
 use lightfold_scene::{Camera, LightSample, SampleKind};
 
 fn sample(position: V3, direction: V3, kind: SampleKind) -> LightSample {
@@ -54,13 +56,39 @@ fn assert_covered(s: &LightSample, boxes: &[(V3, V3)]) -> usize {
                 continue;
             }
             lit += 1;
-            let inside = views.iter().any(|v| {
+            let holds = |v: &&lightfold_scene::shadow_views::ShadowView| {
                 project(v, p).is_some_and(|(uv, z)| {
                     (0.0..=1.0).contains(&uv[0])
                         && (0.0..=1.0).contains(&uv[1])
                         && (-1e-4..=1.0001).contains(&z)
                 })
-            });
+            };
+            // Cube faces are picked by the dominant axis of the direction, as the shader does.
+            let inside = if matches!(
+                views.first().map(|v| v.kind),
+                Some(ShadowViewKind::CubeFace(_))
+            ) {
+                let f = cube_frame(s);
+                let c = [0, 1, 2].map(|k| d[0] * f[k][0] + d[1] * f[k][1] + d[2] * f[k][2]);
+                let a = c.map(f32::abs);
+                let face = if a[0] >= a[1] && a[0] >= a[2] {
+                    if c[0] >= 0.0 { 0 } else { 1 }
+                } else if a[1] >= a[2] {
+                    if c[1] >= 0.0 { 2 } else { 3 }
+                } else if c[2] >= 0.0 {
+                    4
+                } else {
+                    5
+                };
+                views
+                    .iter()
+                    .filter(
+                        |v| matches!(v.kind, ShadowViewKind::CubeFace(cf) if cf.index() == face),
+                    )
+                    .any(|v| holds(&v))
+            } else {
+                views.iter().any(|v| holds(&v))
+            };
             assert!(inside, "lit point {p:?} outside all {} views", views.len());
         }
     }
