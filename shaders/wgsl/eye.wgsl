@@ -23,10 +23,13 @@ struct Frame {
     _pad2: u32,
 }
 
-// One shadow map: a layer of `shadow_maps` and how world points land in it.
+// One shadow map: a layer of `shadow_maps` and how world points land in it. The projection keeps
+// its eight non-zero entries: clip = (a.x·x + a.y·z + a.z, a.w·y + b.x·z + b.y, b.z·z + b.w, w)
+// with w = 1 (orthographic) or −z (perspective).
 struct View {
     view: mat4x4f,
-    proj: mat4x4f,
+    proj_a: vec4f,
+    proj_b: vec4f,
     // Width of a texel: in tangent units (perspective) or metres (orthographic).
     texel: f32,
     ortho: u32,
@@ -91,52 +94,86 @@ fn shadow_filter(uv: vec2f, layer: u32, ref_depth: f32) -> f32 {
     return sum / f32(taps * taps);
 }
 
-// s_λ at world point p with geometric normal ng; 1 where no view of the light covers p.
+// The view of light s that holds p: its only one, or the cube face of p's direction.
+fn view_for(s: Light, p: vec3f) -> u32 {
+    if s.view_count == 0u {
+        return NO_VIEW;
+    }
+    if s.cube == 0u {
+        return s.first_view;
+    }
+    let d = p - s.position;
+    let c = vec3f(dot(d, s.cube_x), dot(d, s.cube_y), dot(d, s.cube_z));
+    let a = abs(c);
+    if a.x >= a.y && a.x >= a.z {
+        return select(s.faces_a.y, s.faces_a.x, c.x >= 0.0);
+    }
+    if a.y >= a.z {
+        return select(s.faces_a.w, s.faces_a.z, c.y >= 0.0);
+    }
+    return select(s.faces_b.y, s.faces_b.x, c.z >= 0.0);
+}
+
+fn project(v: View, q: vec3f) -> vec4f {
+    var w = -q.z;
+    if v.ortho != 0u {
+        w = 1.0;
+    }
+    return vec4f(
+        v.proj_a.x * q.x + v.proj_a.y * q.z + v.proj_a.z,
+        v.proj_a.w * q.y + v.proj_b.x * q.z + v.proj_b.y,
+        v.proj_b.z * q.z + v.proj_b.w,
+        w,
+    );
+}
+
+// s_λ at world point p with geometric normal ng; 1 where no view of the light holds p.
 //
 // Bias: the constant part is `depth_bias` metres along the light ray; the slope part follows the
 // receiver's own plane: how much its view-axis depth D changes across the filter footprint in the
 // map, |∂D/∂x| + |∂D/∂y| per texel (exact for a plane, also off-axis in wide frusta and cube faces).
 fn visibility(s: Light, p: vec3f, ng: vec3f) -> f32 {
-    for (var k = 0u; k < s.view_count; k++) {
-        let v = views[s.first_view + k];
-        let q = v.view * vec4f(p, 1.0);
-        let clip = v.proj * q;
-        if !(clip.w > 0.0) {
-            continue;
-        }
-        let ndc = clip.xy / clip.w;
-        let uv = vec2f(ndc.x * 0.5 + 0.5, 0.5 - ndc.y * 0.5);
-        if any(uv < vec2f(0.0)) || any(uv > vec2f(1.0)) {
-            continue;
-        }
-        let n = (v.view * vec4f(ng, 0.0)).xyz;
-        let depth = max(-q.z, 0.0);
-        // Depth change per texel: slope · texel_m, with texel_m the texel width in metres.
-        var slope: f32;
-        var texel_m = v.texel;
-        var along_axis = 1.0;
-        if v.ortho != 0u {
-            slope = (abs(n.x) + abs(n.y)) / max(abs(n.z), 1e-3);
-        } else {
-            // Plane through q with normal n: at tangent (x, y) its depth is
-            // D = (n·q) / (n·(x, y, −1)), so |∂D/∂x| = D·|n.x| / |n·(x, y, −1)|.
-            let d = vec3f(q.xy / max(depth, 1e-6), -1.0);
-            slope = (abs(n.x) + abs(n.y)) / max(abs(dot(n, d)), 1e-3);
-            texel_m = v.texel * depth;
-            along_axis = depth / max(length(q.xyz), 1e-6);
-        }
-        // Grazing receivers cannot ask for more than ten texels' worth of depth per texel.
-        let bias = frame.depth_bias * along_axis
-            + frame.slope_bias * frame.kernel_radius * min(slope, 10.0) * texel_m;
-        // Move the receiver towards the light along the map's axis, then take its depth.
-        let cb = v.proj * vec4f(q.xy, q.z + bias, 1.0);
-        var ref_depth = 1.0;
-        if cb.w > 0.0 {
-            ref_depth = clamp(cb.z / cb.w, 0.0, 1.0);
-        }
-        return shadow_filter(uv, v.layer, ref_depth);
+    let index = view_for(s, p);
+    if index == NO_VIEW {
+        return 1.0;
     }
-    return 1.0;
+    let v = views[index];
+    let q = (v.view * vec4f(p, 1.0)).xyz;
+    let clip = project(v, q);
+    if !(clip.w > 0.0) {
+        return 1.0;
+    }
+    let ndc = clip.xy / clip.w;
+    let uv = vec2f(ndc.x * 0.5 + 0.5, 0.5 - ndc.y * 0.5);
+    if any(uv < vec2f(0.0)) || any(uv > vec2f(1.0)) {
+        return 1.0;
+    }
+    let n = (v.view * vec4f(ng, 0.0)).xyz;
+    let depth = max(-q.z, 0.0);
+    // Depth change per texel: slope · texel_m, with texel_m the texel width in metres.
+    var slope: f32;
+    var texel_m = v.texel;
+    var along_axis = 1.0;
+    if v.ortho != 0u {
+        slope = (abs(n.x) + abs(n.y)) / max(abs(n.z), 1e-3);
+    } else {
+        // Plane through q with normal n: at tangent (x, y) its depth is
+        // D = (n·q) / (n·(x, y, −1)), so |∂D/∂x| = D·|n.x| / |n·(x, y, −1)|.
+        let d = vec3f(q.xy / max(depth, 1e-6), -1.0);
+        slope = (abs(n.x) + abs(n.y)) / max(abs(dot(n, d)), 1e-3);
+        texel_m = v.texel * depth;
+        along_axis = depth / max(length(q), 1e-6);
+    }
+    // Grazing receivers cannot ask for more than ten texels' worth of depth per texel.
+    let bias = frame.depth_bias * along_axis
+        + frame.slope_bias * frame.kernel_radius * min(slope, 10.0) * texel_m;
+    // Move the receiver towards the light along the map's axis, then take its depth.
+    let cb = project(v, vec3f(q.xy, q.z + bias));
+    var ref_depth = 1.0;
+    if cb.w > 0.0 {
+        ref_depth = clamp(cb.z / cb.w, 0.0, 1.0);
+    }
+    return shadow_filter(uv, v.layer, ref_depth);
 }
 
 struct Shaded {

@@ -23,7 +23,20 @@ struct Light {
     cos_inner: f32,
     first_view: u32,
     view_count: u32,
+    // Cube frame (`scene::shadow_views::cube_frame`), used when `cube` is 1: a point falls in the
+    // face of the dominant axis of its direction from the light.
+    cube_x: vec3f,
+    cube: u32,
+    cube_y: vec3f,
+    _pad0: u32,
+    cube_z: vec3f,
+    _pad1: u32,
+    // View index per face: +x, −x, +y, −y, +z, −z (then two unused); NO_VIEW where none.
+    faces_a: vec4<u32>,
+    faces_b: vec4<u32>,
 }
+
+const NO_VIEW: u32 = 0xffffffffu;
 
 // Unit vector, or zero for a zero or non-finite input.
 fn safe_normalize(a: vec3f) -> vec3f {

@@ -4,7 +4,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use lightfold_scene::shading::V3;
-use lightfold_scene::shadow_views::{ShadowView, ShadowViewKind, shadow_views};
+use lightfold_scene::shadow_views::{ShadowView, ShadowViewKind, cube_frame, shadow_views};
 use lightfold_scene::{LightSample, SampleKind};
 
 /// Deliberate mistakes for negative-control tests: each must make the comparison with the CPU
@@ -35,14 +35,30 @@ pub struct GpuLight {
     pub cos_inner: f32,
     pub first_view: u32,
     pub view_count: u32,
+    /// Cube frame axes (`cube_frame`); `cube` is 1 when the views are cube faces.
+    pub cube_x: [f32; 3],
+    pub cube: u32,
+    pub cube_y: [f32; 3],
+    pub _pad0: u32,
+    pub cube_z: [f32; 3],
+    pub _pad1: u32,
+    /// View index of each cube face (`CubeFace::index` order), [`NO_VIEW`] where none.
+    pub faces: [u32; 8],
 }
 
-/// `View` in `eye.wgsl` (std430).
+/// A cube face with no receivers, hence no view.
+pub const NO_VIEW: u32 = u32::MAX;
+
+/// `View` in `eye.wgsl` (std430). The projection is stored as its eight non-zero entries:
+/// `clip = (p00·x + p20·z + p30, p11·y + p21·z + p31, p22·z + p32, ortho ? 1 : −z)`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub struct GpuView {
     pub view: [[f32; 4]; 4],
-    pub proj: [[f32; 4]; 4],
+    /// `(p00, p20, p30, p11)`.
+    pub proj_a: [f32; 4],
+    /// `(p21, p31, p22, p32)`.
+    pub proj_b: [f32; 4],
     pub texel: f32,
     pub ortho: u32,
     pub layer: u32,
@@ -86,11 +102,17 @@ pub fn plan_lights(
             views.retain(|v| v.kind == ShadowViewKind::CubeFace(CUBE_AXIS_FACE));
         }
         let first_view = plan.views.len() as u32;
+        let mut faces = [NO_VIEW; 8];
         for v in &views {
             let e = v.extent;
+            let p = &v.proj;
+            if let ShadowViewKind::CubeFace(f) = v.kind {
+                faces[f.index()] = plan.views.len() as u32;
+            }
             plan.views.push(GpuView {
                 view: v.view,
-                proj: v.proj,
+                proj_a: [p[0][0], p[2][0], p[3][0], p[1][1]],
+                proj_b: [p[2][1], p[3][1], p[2][2], p[3][2]],
                 texel: (e[1] - e[0]).max(e[3] - e[2]) / map_size.max(1) as f32,
                 ortho: v.is_ortho() as u32,
                 layer: plan.views.len() as u32,
@@ -105,8 +127,16 @@ pub fn plan_lights(
         } else {
             colour_weight(s.color, c_n)
         };
-        plan.lights
-            .push(gpu_light(s, weight, first_view, views.len() as u32));
+        let mut light = gpu_light(s, weight, first_view, views.len() as u32);
+        if views
+            .iter()
+            .any(|v| matches!(v.kind, ShadowViewKind::CubeFace(_)))
+        {
+            let [x, y, z] = cube_frame(s);
+            (light.cube, light.cube_x, light.cube_y, light.cube_z) = (1, x, y, z);
+            light.faces = faces;
+        }
+        plan.lights.push(light);
     }
     plan
 }
@@ -140,6 +170,13 @@ fn gpu_light(s: &LightSample, weight: V3, first_view: u32, view_count: u32) -> G
         cos_inner,
         first_view,
         view_count,
+        cube_x: [0.0; 3],
+        cube: 0,
+        cube_y: [0.0; 3],
+        _pad0: 0,
+        cube_z: [0.0; 3],
+        _pad1: 0,
+        faces: [NO_VIEW; 8],
     }
 }
 
@@ -199,8 +236,8 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(std::mem::size_of::<GpuLight>(), 64);
-        assert_eq!(std::mem::size_of::<GpuView>(), 144);
+        assert_eq!(std::mem::size_of::<GpuLight>(), 144);
+        assert_eq!(std::mem::size_of::<GpuView>(), 112);
     }
 
     #[test]
@@ -217,6 +254,15 @@ mod tests {
             "ceiling light next to a wall needs faces"
         );
         assert_eq!(p.lights[1].first_view, p.passes_per_light[0]);
+        // The cube light maps each face it needs to its view.
+        assert_eq!(p.lights[0].cube, 1);
+        let mapped: Vec<u32> = p.lights[0]
+            .faces
+            .iter()
+            .copied()
+            .filter(|&f| f != NO_VIEW)
+            .collect();
+        assert_eq!(mapped.len() as u32, p.passes_per_light[0]);
         for (i, v) in p.views.iter().enumerate() {
             assert_eq!(v.layer as usize, i);
         }
