@@ -49,7 +49,7 @@ mod tests {
     #[test]
     fn frontier_points_are_never_dominated_and_others_are() {
         // A deterministic scatter: every frontier point undominated, every other point dominated.
-        let pts: Vec<(f64, f64)> = (0..200u64)
+        let pts: Vec<(f64, f64)> = (1..200u64)
             .map(|i| {
                 let a = (i.wrapping_mul(2_654_435_761) % 1000) as f64;
                 let b = (i.wrapping_mul(40_503) % 997) as f64;
