@@ -4,7 +4,7 @@
 //!    sum and a node's rgb9e5x2 illumination) and by `depth` (f16x6 illumination + f32 depth per
 //!    input), one frame at a time: ms per frame (median, best) against the time the same bytes
 //!    take over raw TCP sockets in the same topology (two senders → a relay that forwards a band's
-//!    worth of bytes per band pair → a receiver), measured in the same run.
+//!    worth of bytes per band pair → a receiver), measured in the same run, frames alternating.
 //! 2. Pipelining: a chain of stages, each fed by a rate-paced synthetic source with its own
 //!    period (one frame per period, never bursting to catch up); the steady-state frame interval
 //!    at the sink against the slowest period, and the latency from the last source starting to
@@ -100,6 +100,17 @@ async fn send_bands(p: &mut Producer, bands: &[(BandHeader, Bytes)], frame: u64)
     }
 }
 
+/// CPU time (user + system) this process has used, in ms (from `/proc/self/stat`, 10 ms ticks:
+/// only sums over many frames are meaningful).
+fn cpu_ms() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (ticks(11) + ticks(12)) * 10.0
+}
+
 fn stats(mut v: Vec<f64>) -> (f64, f64) {
     v.sort_by(f64::total_cmp);
     (v[v.len() / 2], v[0])
@@ -176,17 +187,34 @@ async fn link_cost(case: &LinkCase, frames: usize) {
     let mut b = Producer::connect(&stage_addr, &me(Role::Node, "b"), timeouts(), WAIT)
         .await
         .unwrap();
-    let bands_out = (height.div_ceil(band_height) as usize) * case.outputs.len();
+    let bands = height.div_ceil(band_height);
+    let out_sizes: Vec<usize> = (0..bands)
+        .flat_map(|b| {
+            let rows = band_height.min(height - b * band_height) as usize;
+            case.outputs
+                .iter()
+                .map(move |(_, f)| width as usize * rows * f.bytes_per_pixel() + FRAMING)
+        })
+        .collect();
+    let in_sizes: Vec<Vec<usize>> = packed
+        .iter()
+        .map(|bs| bs.iter().map(|(_, p)| p.len() + FRAMING).collect())
+        .collect();
+    let mut raw = RawRelay::new(in_sizes.clone(), out_sizes.clone()).await;
 
+    // Stage and raw frames alternate, so both see the same machine.
     let mut times = Vec::new();
+    let mut raw_times = Vec::new();
+    let mut cpu = (0.0, 0.0);
     let mut work = Vec::new();
     let mut out_bytes = 0usize;
     for f in 0..frames as u64 + 3 {
         ctl.render(1, f, no_params()).await.unwrap();
         let start = Instant::now();
+        let cpu0 = cpu_ms();
         let recv = async {
             let mut bytes = 0;
-            for _ in 0..bands_out {
+            for _ in 0..out_sizes.len() {
                 let (_, p) = sink.next_band(Instant::now() + WAIT).await.unwrap();
                 bytes += p.len() + FRAMING;
             }
@@ -198,10 +226,17 @@ async fn link_cost(case: &LinkCase, frames: usize) {
             recv
         );
         let t = start.elapsed().as_secs_f64() * 1e3;
+        let cpu1 = cpu_ms();
         let done = ctl.frame_done(f, WAIT).await.unwrap();
+        let cpu2 = cpu_ms();
+        let r = raw.frame().await;
+        let cpu3 = cpu_ms();
         out_bytes = bytes;
         if f >= 3 {
             times.push(t);
+            raw_times.push(r);
+            cpu.0 += cpu1 - cpu0;
+            cpu.1 += cpu3 - cpu2;
             work.push((
                 done.composite_us as f64 / 1e3,
                 done.pack_us as f64 / 1e3,
@@ -210,13 +245,13 @@ async fn link_cost(case: &LinkCase, frames: usize) {
         }
     }
     stop.cancel();
+    assert_eq!(
+        out_bytes,
+        out_sizes.iter().sum::<usize>(),
+        "dense output bands"
+    );
+    let raw = raw_times;
 
-    let in_sizes: Vec<Vec<usize>> = packed
-        .iter()
-        .map(|bs| bs.iter().map(|(_, p)| p.len() + FRAMING).collect())
-        .collect();
-    let out_band = out_bytes / bands_out;
-    let raw = raw_relay(&in_sizes, bands_out, out_band, frames).await;
     let in_bytes: usize = in_sizes.iter().flatten().sum();
     let (med, best) = stats(times);
     let (rmed, rbest) = stats(raw);
@@ -236,76 +271,101 @@ async fn link_cost(case: &LinkCase, frames: usize) {
         best / rbest
     );
     println!(
-        "     {:<10} stage work per frame (median): unpack+operate {combine:.1} ms, pack {pack:.1} ms, writing {send:.1} ms",
-        case.name
+        "     {:<10} stage work per frame (median): unpack+operate {combine:.1} ms, pack {pack:.1} ms, writing {send:.1} ms; process CPU per frame: stage path {:.1} ms, raw {:.1} ms",
+        case.name,
+        cpu.0 / frames as f64,
+        cpu.1 / frames as f64
     );
 }
 
-/// The same bytes over plain sockets: two senders → relay → receiver, the relay forwarding
-/// `out_band` bytes for every pair of input bands it has read.
-async fn raw_relay(
-    in_sizes: &[Vec<usize>],
-    bands_out: usize,
-    out_band: usize,
-    frames: usize,
-) -> Vec<f64> {
-    let relay_l = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let sink_l = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let relay_addr = relay_l.local_addr().unwrap();
-    let sink_addr = sink_l.local_addr().unwrap();
-    let mut senders = Vec::new();
-    let mut ins = Vec::new();
-    for _ in 0..2 {
-        let s = TcpStream::connect(relay_addr).await.unwrap();
-        s.set_nodelay(true).unwrap();
-        senders.push(s);
-        let (r, _) = relay_l.accept().await.unwrap();
-        ins.push(r);
+/// The same bytes over plain sockets: two senders → relay → receiver, the relay writing output
+/// band k once it has read input band k of both senders (as the stage does, minus the work).
+struct RawRelay {
+    senders: Vec<TcpStream>,
+    ins: Vec<TcpStream>,
+    out: TcpStream,
+    recv: TcpStream,
+    in_sizes: Vec<Vec<usize>>,
+    out_sizes: Vec<usize>,
+    zeros: Vec<u8>,
+}
+
+impl RawRelay {
+    async fn new(in_sizes: Vec<Vec<usize>>, out_sizes: Vec<usize>) -> RawRelay {
+        let relay_l = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let sink_l = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let mut senders = Vec::new();
+        let mut ins = Vec::new();
+        for _ in 0..2 {
+            let s = TcpStream::connect(relay_l.local_addr().unwrap())
+                .await
+                .unwrap();
+            s.set_nodelay(true).unwrap();
+            senders.push(s);
+            ins.push(relay_l.accept().await.unwrap().0);
+        }
+        let out = TcpStream::connect(sink_l.local_addr().unwrap())
+            .await
+            .unwrap();
+        out.set_nodelay(true).unwrap();
+        let recv = sink_l.accept().await.unwrap().0;
+        let max = in_sizes
+            .iter()
+            .flatten()
+            .chain(&out_sizes)
+            .copied()
+            .max()
+            .unwrap_or(0);
+        RawRelay {
+            senders,
+            ins,
+            out,
+            recv,
+            in_sizes,
+            out_sizes,
+            zeros: vec![0u8; max],
+        }
     }
-    let mut out = TcpStream::connect(sink_addr).await.unwrap();
-    out.set_nodelay(true).unwrap();
-    let (mut recv, _) = sink_l.accept().await.unwrap();
-    let max = in_sizes
-        .iter()
-        .flatten()
-        .copied()
-        .max()
-        .unwrap_or(0)
-        .max(out_band);
-    let zeros = vec![0u8; max];
-    let per_out = in_sizes[0].len() / bands_out;
-    let mut times = Vec::new();
-    for f in 0..frames + 3 {
+
+    /// One frame; returns its time in ms.
+    async fn frame(&mut self) -> f64 {
         let start = Instant::now();
+        let RawRelay {
+            senders,
+            ins,
+            out,
+            recv,
+            in_sizes,
+            out_sizes,
+            zeros,
+        } = self;
         let (s0, s1) = senders.split_at_mut(1);
         let (i0, i1) = ins.split_at_mut(1);
+        let per_out = in_sizes[0].len() / out_sizes.len();
         let relay = async {
-            let mut buf = vec![0u8; max];
-            for band in 0..bands_out {
+            let mut buf = vec![0u8; zeros.len()];
+            for (band, &n) in out_sizes.iter().enumerate() {
                 for k in band * per_out..(band + 1) * per_out {
                     i0[0].read_exact(&mut buf[..in_sizes[0][k]]).await.unwrap();
                     i1[0].read_exact(&mut buf[..in_sizes[1][k]]).await.unwrap();
                 }
-                out.write_all(&buf[..out_band]).await.unwrap();
+                out.write_all(&buf[..n]).await.unwrap();
             }
         };
         let sink = async {
-            let mut buf = vec![0u8; out_band];
-            for _ in 0..bands_out {
-                recv.read_exact(&mut buf).await.unwrap();
+            let mut buf = vec![0u8; zeros.len()];
+            for &n in out_sizes.iter() {
+                recv.read_exact(&mut buf[..n]).await.unwrap();
             }
         };
         tokio::join!(
-            send_raw(&mut s0[0], &in_sizes[0], &zeros),
-            send_raw(&mut s1[0], &in_sizes[1], &zeros),
+            send_raw(&mut s0[0], &in_sizes[0], zeros),
+            send_raw(&mut s1[0], &in_sizes[1], zeros),
             relay,
             sink
         );
-        if f >= 3 {
-            times.push(start.elapsed().as_secs_f64() * 1e3);
-        }
+        start.elapsed().as_secs_f64() * 1e3
     }
-    times
 }
 
 async fn send_raw(s: &mut TcpStream, sizes: &[usize], zeros: &[u8]) {
