@@ -130,6 +130,11 @@ impl Row {
     fn total_ms(&self) -> f64 {
         self.ms(|s| s.total_us)
     }
+    /// The fastest frame: other processes on a shared machine only ever add time, so this is
+    /// the best estimate of a node with the machine to itself.
+    fn best_ms(&self) -> f64 {
+        self.frames.iter().map(|s| s.total_us).min().unwrap_or(0) as f64 / 1000.0
+    }
 }
 
 async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
@@ -410,13 +415,13 @@ async fn drain(listener: TcpListener, token: String, count: Arc<AtomicU64>) {
 fn print_tables(a: &NodeArgs, rows: &[Row]) {
     let l = a.lights;
     println!(
-        "\n### Frame time per node ({}x{}, {}² maps, LP_NUM_THREADS={}, median of {} frames, ms)\n",
+        "\n### Frame time per node ({}x{}, {}² maps, LP_NUM_THREADS={}, {} frames, phases are medians, ms)\n",
         a.width, a.height, a.map, a.threads, a.frames
     );
     println!(
-        "| mode | K | frame | CPU | shadow | eye | readback | pack | send | shadow passes | MB out | peak RSS MB |"
+        "| mode | K | fastest | median | CPU | shadow | eye | readback | pack | send | shadow passes | MB out | peak RSS MB |"
     );
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for r in rows {
         let passes = median(
             r.frames
@@ -427,9 +432,10 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
         let mb = median(r.frames.iter().map(|s| s.bytes_out).collect()) / 1e6;
         let rss = r.frames.iter().map(|s| s.peak_rss_bytes).max().unwrap_or(0) as f64 / 1e6;
         println!(
-            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.2} | {:.0} |",
+            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.2} | {:.0} |",
             r.mode,
             r.k,
+            r.best_ms(),
             r.total_ms(),
             r.cpu_ms,
             r.ms(|s| s.shadow_us),
@@ -442,7 +448,9 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
             rss
         );
     }
-    println!("\n### L = {l}: node-seconds per frame (wall and CPU clock of the node)\n");
+    println!(
+        "\n### L = {l}: node-seconds per frame (fastest wall time, and CPU time of the node)\n"
+    );
     println!(
         "| mode | K | nodes ⌈L/K⌉ | node-s / frame | vs K = 1 | CPU node-s / frame | vs K = 1 |"
     );
@@ -463,13 +471,15 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
             "| {} | {} | {nodes} | {:.2} | {} | {:.2} | {} |",
             r.mode,
             r.k,
-            nodes * r.total_ms() / 1000.0,
-            ratio(&|x: &Row| x.total_ms()),
+            nodes * r.best_ms() / 1000.0,
+            ratio(&|x: &Row| x.best_ms()),
             nodes * r.cpu_ms / 1000.0,
             ratio(&|x: &Row| x.cpu_ms),
         );
     }
-    println!("\n### L = {l}: illumination nodes needed within a frame budget (wall time)\n");
+    println!(
+        "\n### L = {l}: illumination nodes needed within a frame budget (fastest wall time)\n"
+    );
     println!(
         "| mode | {} |",
         a.budget_ms
@@ -485,7 +495,7 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
             .iter()
             .map(|&budget| {
                 rows.iter()
-                    .filter(|r| &r.mode == mode && r.total_ms() <= budget)
+                    .filter(|r| &r.mode == mode && r.best_ms() <= budget)
                     .min_by_key(|r| l.div_ceil(r.k))
                     .map_or("none".to_string(), |r| {
                         format!("{} (K = {})", l.div_ceil(r.k), r.k)

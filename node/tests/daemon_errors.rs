@@ -124,6 +124,30 @@ async fn bad_requests_get_clear_errors_and_the_node_keeps_serving() {
     assert!(matches!(coord.frame(3, 1).await, Message::FrameDone(_)));
     assert_eq!(comp.take(n).await.len(), n);
 
+    // Reconfigured without a restart to no light at all (the planner's stand-in when nothing is
+    // lit): every illumination band is empty.
+    let cfg = node_config(
+        4,
+        hash,
+        &[],
+        vec![(Layer::Illumination, PixelFormat::Rgb9e5x2)],
+        &comp.addr,
+    );
+    assert_eq!(
+        coord.request(Message::ConfigureNode(cfg)).await,
+        Message::Configured { epoch: 4 }
+    );
+    match coord.frame(4, 1).await {
+        Message::FrameDone(s) => assert_eq!(s.empty_bands as usize, n, "{s:?}"),
+        other => panic!("expected FrameDone, got {other:?}"),
+    }
+    let bands = comp.take(n).await;
+    assert!(
+        bands
+            .iter()
+            .all(|(_, h, p)| h.empty && h.epoch == 4 && p.is_empty())
+    );
+
     // A coordinator that leaves without Shutdown leaves the node running with its scenes.
     drop(coord);
     let mut second = node.coordinator().await;

@@ -60,15 +60,13 @@ pub enum ConfigError {
         max: u32,
         map_size: u32,
     },
-    #[error("the illumination layer needs at least one light")]
-    NoLights,
     #[error("light {index}: {source}")]
     Light { index: usize, source: WireError },
     #[error("camera: {0}")]
     Camera(WireError),
     #[error("node colour {0:?} must be finite and positive in every channel")]
     BadColor([f32; 3]),
-    #[error("scale {0} must be finite and positive")]
+    #[error("scale {0} must be finite and non-negative, and positive for seed64")]
     BadScale(f32),
     #[error("band height must be at least 1")]
     BadBandHeight,
@@ -126,6 +124,16 @@ pub struct Checked {
     pub map_size: u32,
 }
 
+/// Checks a fixed-point scale (from a configuration or a frame request) for these layers.
+pub fn check_scale(scale: f32, layers: &[(Layer, PixelFormat)]) -> Result<(), ConfigError> {
+    let seed64 = layers.iter().any(|(_, f)| *f == PixelFormat::Seed64);
+    if scale.is_finite() && scale >= 0.0 && (scale > 0.0 || !seed64) {
+        Ok(())
+    } else {
+        Err(ConfigError::BadScale(scale))
+    }
+}
+
 /// Checks a camera from a configuration or a frame request.
 pub fn check_camera(camera: &WireCamera) -> Result<Camera, ConfigError> {
     camera_from_wire(camera).map_err(ConfigError::Camera)
@@ -152,10 +160,8 @@ pub fn check(
             return Err(ConfigError::DuplicateLayer(layer));
         }
     }
-    let has_illumination = config.layers.iter().any(|(l, _)| *l == Layer::Illumination);
-    if has_illumination && config.lights.is_empty() {
-        return Err(ConfigError::NoLights);
-    }
+    // No light is allowed: such a node (the planner's stand-in when nothing is lit) streams
+    // empty illumination bands.
     let lights = config
         .lights
         .iter()
@@ -165,9 +171,7 @@ pub fn check(
     if !config.color.iter().all(|c| c.is_finite() && *c > 0.0) {
         return Err(ConfigError::BadColor(config.color));
     }
-    if !(config.scale.is_finite() && config.scale > 0.0) {
-        return Err(ConfigError::BadScale(config.scale));
-    }
+    check_scale(config.scale, &config.layers)?;
     if config.band_height == 0 {
         return Err(ConfigError::BadBandHeight);
     }
@@ -375,7 +379,20 @@ mod tests {
             (config(vec![illum[0], illum[0]], 1), |e| {
                 matches!(e, ConfigError::DuplicateLayer(Layer::Illumination))
             }),
-            (config(illum.clone(), 0), |e| *e == ConfigError::NoLights),
+            (
+                NodeConfig {
+                    scale: 0.0,
+                    ..config(vec![(Layer::Illumination, PixelFormat::Seed64)], 1)
+                },
+                |e| *e == ConfigError::BadScale(0.0),
+            ),
+            (
+                NodeConfig {
+                    scale: f32::NAN,
+                    ..config(illum.clone(), 1)
+                },
+                |e| matches!(e, ConfigError::BadScale(_)),
+            ),
             (config(illum.clone(), 9), |e| {
                 matches!(
                     e,

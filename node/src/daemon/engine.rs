@@ -300,12 +300,8 @@ impl Engine {
             active.camera = c;
         }
         if let Some(s) = params.scale {
-            if !(s.is_finite() && s > 0.0) {
-                return Err(refuse(
-                    ErrorCode::BadConfig,
-                    format!("frame {frame}: scale {s} must be finite and positive"),
-                ));
-            }
+            config::check_scale(s, &active.checked.config.layers)
+                .map_err(|e| refuse(ErrorCode::BadConfig, format!("frame {frame}: {e}")))?;
             active.scale = s;
         }
         Ok(FrameKey {
