@@ -485,11 +485,20 @@ async fn pipelining(periods: &[u64], frames: u64) {
     }
     let slowest = *periods.iter().max().unwrap();
     let warm = (frames / 4) as usize;
-    // The mean interval over the steady state (a median of single intervals would reward the
-    // bunching that follows a hiccup).
+    // The steady-state interval: the least-squares slope of completion time over frame number
+    // (endpoints alone would be at the mercy of one late frame).
     let steady = &done[warm..];
-    let interval =
-        (steady[steady.len() - 1] - steady[0]).as_secs_f64() * 1e3 / (steady.len() - 1) as f64;
+    let base = steady[0];
+    let n_s = steady.len() as f64;
+    let xs: Vec<f64> = (0..steady.len()).map(|i| i as f64).collect();
+    let ys: Vec<f64> = steady
+        .iter()
+        .map(|t| (*t - base).as_secs_f64() * 1e3)
+        .collect();
+    let (mx, my) = (xs.iter().sum::<f64>() / n_s, ys.iter().sum::<f64>() / n_s);
+    let cov: f64 = xs.iter().zip(&ys).map(|(x, y)| (x - mx) * (y - my)).sum();
+    let var: f64 = xs.iter().map(|x| (x - mx) * (x - mx)).sum();
+    let interval = cov / var;
     let mut last_start = vec![Instant::now(); frames as usize];
     for (k, s) in started.into_iter().enumerate() {
         let starts = s.await.unwrap();
@@ -572,8 +581,8 @@ fn main() {
             link_cost(&depth, frames).await;
         }
         if pipes {
-            pipelining(&[40, 60, 50, 45], 40).await;
-            pipelining(&[60, 60, 60, 60], 40).await;
+            pipelining(&[40, 60, 50, 45], 80).await;
+            pipelining(&[60, 60, 60, 60], 80).await;
         }
     });
 }
