@@ -8,7 +8,7 @@ use gpu_support::*;
 use lightfold_node::gpu::{LayerSet, RenderError, RenderOptions, Renderer};
 use lightfold_reference::{PointSumOptions, render_point_sum, render_point_sum_with};
 use lightfold_scene::shading::normalize;
-use lightfold_scene::{LightSample, SampleKind, sampling};
+use lightfold_scene::{LightSample, SampleKind, ShadowFilter, sampling};
 
 const W: u32 = 160;
 const H: u32 = 120;
@@ -224,5 +224,36 @@ fn more_lights_than_the_device_takes_is_an_error() {
             assert_eq!((requested, maximum as usize), (max + 1, max));
         }
         other => panic!("expected TooManyLights, got {other:?}"),
+    }
+}
+
+#[test]
+fn every_shadow_filter_matches_the_reference_away_from_edges() {
+    let gpu = gpu();
+    let scene = shadow_scene(W, H);
+    let samples = samples(&scene);
+    let reference = render_point_sum(&scene, &samples, C_N);
+    let states = shadow_states(&scene, &samples);
+    let mask = comparable(&reference, &states.visible);
+    for filter in [
+        ShadowFilter::None,
+        ShadowFilter::Pcf2x2,
+        ShadowFilter::Pcf { taps: 3 },
+    ] {
+        let opts = RenderOptions {
+            filter,
+            ..RenderOptions::from_quality(&scene.quality)
+        };
+        let mut r = Renderer::new(&gpu, &scene, opts).unwrap();
+        let frame = r
+            .render(&gpu, &samples, None, C_N, LayerSet::illumination())
+            .unwrap();
+        let c = compare(
+            frame.illumination.as_ref().unwrap(),
+            &reference.illumination,
+            &mask,
+        );
+        eprintln!("{filter:?}: {c:?}");
+        assert!(c.passes(), "{filter:?}: {c:?}");
     }
 }

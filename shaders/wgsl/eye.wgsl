@@ -41,8 +41,9 @@ struct View {
 @group(1) @binding(1) var<storage, read> lights: array<Light>;
 @group(1) @binding(2) var<storage, read> views: array<View>;
 @group(1) @binding(3) var shadow_maps: texture_depth_2d_array;
+// One linear comparison sampler (GL cannot pair one texture with two samplers); the nearest
+// filter reads it at texel centres, where the bilinear weights select a single texel.
 @group(1) @binding(4) var shadow_linear: sampler_comparison;
-@group(1) @binding(5) var shadow_nearest: sampler_comparison;
 
 struct VsIn {
     @location(0) position: vec3f,
@@ -76,7 +77,8 @@ fn vs_eye(in: VsIn) -> VsOut {
 // Comparison lookups: `ref` passes where it is at least the stored (reversed-Z) depth.
 fn shadow_filter(uv: vec2f, layer: u32, ref_depth: f32) -> f32 {
     if frame.filter_mode == FILTER_NEAREST {
-        return textureSampleCompareLevel(shadow_maps, shadow_nearest, uv, layer, ref_depth);
+        let centre = (floor(uv * frame.map_size) + vec2f(0.5)) / frame.map_size;
+        return textureSampleCompareLevel(shadow_maps, shadow_linear, centre, layer, ref_depth);
     }
     if frame.filter_mode == FILTER_PCF2X2 {
         return textureSampleCompareLevel(shadow_maps, shadow_linear, uv, layer, ref_depth);
@@ -221,10 +223,11 @@ fn rejected(in: VsOut, front: bool) -> bool {
         || masked_out(m, in.uv, (in.material & NO_UV_BIT) == 0u);
 }
 
+// Illumination and depth leave as f32 bits in integer targets: exact, and renderable on GL too.
 struct IlluminationOut {
-    @location(0) diffuse: vec4f,
-    @location(1) specular: vec4f,
-    @location(2) depth: f32,
+    @location(0) diffuse: vec4<u32>,
+    @location(1) specular: vec4<u32>,
+    @location(2) depth: u32,
 }
 
 @fragment
@@ -234,16 +237,16 @@ fn fs_illumination(in: VsOut, @builtin(front_facing) front: bool) -> Illuminatio
     }
     let s = shade(in, front);
     var out: IlluminationOut;
-    out.diffuse = vec4f(s.diffuse, 1.0);
-    out.specular = vec4f(s.specular, 1.0);
-    out.depth = s.depth;
+    out.diffuse = bitcast<vec4<u32>>(vec4f(s.diffuse, 1.0));
+    out.specular = bitcast<vec4<u32>>(vec4f(s.specular, 1.0));
+    out.depth = bitcast<u32>(s.depth);
     return out;
 }
 
 struct LayersOut {
-    @location(0) diffuse: vec4f,
-    @location(1) specular: vec4f,
-    @location(2) depth: f32,
+    @location(0) diffuse: vec4<u32>,
+    @location(1) specular: vec4<u32>,
+    @location(2) depth: u32,
     @location(3) m_diffuse: vec4f,
     @location(4) m_specular: vec4f,
     @location(5) m_ambient: vec4f,
@@ -262,9 +265,9 @@ fn fs_layers(in: VsOut, @builtin(front_facing) front: bool) -> LayersOut {
         md = md * sample_texture(m.diffuse_texture, in.uv).rgb;
     }
     var out: LayersOut;
-    out.diffuse = vec4f(s.diffuse, 1.0);
-    out.specular = vec4f(s.specular, 1.0);
-    out.depth = s.depth;
+    out.diffuse = bitcast<vec4<u32>>(vec4f(s.diffuse, 1.0));
+    out.specular = bitcast<vec4<u32>>(vec4f(s.specular, 1.0));
+    out.depth = bitcast<u32>(s.depth);
     out.m_diffuse = vec4f(md, 1.0);
     out.m_specular = vec4f(m.specular, 1.0);
     out.m_ambient = vec4f(m.ambient, 1.0);

@@ -32,7 +32,8 @@ pub struct Gpu {
     pub info: wgpu::AdapterInfo,
     pub limits: wgpu::Limits,
     pub features: wgpu::Features,
-    /// Whether `Rgba32Float` is a render target here (GL cannot): else illumination is f16.
+    /// Whether `Rgba32Float` is a render target here (GL cannot). The renderer does not need it:
+    /// it writes f32 bits into integer targets.
     pub float32_targets: bool,
 }
 

@@ -109,8 +109,7 @@ pub struct EyeInputs<'a> {
     pub lights: &'a [GpuLight],
     pub views: &'a [GpuView],
     pub maps: &'a ShadowMaps,
-    pub linear: &'a wgpu::Sampler,
-    pub nearest: &'a wgpu::Sampler,
+    pub sampler: &'a wgpu::Sampler,
     pub material_layers: bool,
 }
 
@@ -177,11 +176,7 @@ pub fn render_eye(
             },
             wgpu::BindGroupEntry {
                 binding: 4,
-                resource: wgpu::BindingResource::Sampler(inputs.linear),
-            },
-            wgpu::BindGroupEntry {
-                binding: 5,
-                resource: wgpu::BindingResource::Sampler(inputs.nearest),
+                resource: wgpu::BindingResource::Sampler(inputs.sampler),
             },
         ],
     });

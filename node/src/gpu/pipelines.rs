@@ -8,8 +8,11 @@ use super::scene_data::Vertex;
 pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// Material layers as render targets (f16 keeps 4 of them within the per-sample byte limit).
 pub const MATERIAL_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
-/// Eye depth target.
-pub const EYE_DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Float;
+/// Eye depth target: f32 bits in a u32, since GL cannot render to 32-bit float formats.
+pub const EYE_DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
+/// Illumination targets: f32 bits in u32s, exact on every backend (GL has no Rgba32Float
+/// target and f16 would cost the 1e-3 accuracy margin).
+pub const ILLUMINATION_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Uint;
 /// Stride of per-view uniforms for dynamic offsets (the largest alignment any device asks for).
 pub const VIEW_UNIFORM_STRIDE: u64 = 256;
 
@@ -73,7 +76,7 @@ fn depth_state(write: bool) -> wgpu::DepthStencilState {
 }
 
 impl Pipelines {
-    pub fn new(device: &wgpu::Device, float32_targets: bool) -> Pipelines {
+    pub fn new(device: &wgpu::Device) -> Pipelines {
         let fragment = wgpu::ShaderStages::FRAGMENT;
         let vf = wgpu::ShaderStages::VERTEX_FRAGMENT;
         let scene_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -129,7 +132,6 @@ impl Pipelines {
                     count: None,
                 },
                 comparison(4),
-                comparison(5),
             ],
         });
 
@@ -185,11 +187,7 @@ impl Pipelines {
         let shadow_opaque = shadow("vs_depth", None);
         let shadow_masked = shadow("vs_masked", Some("fs_masked"));
 
-        let illumination_format = if float32_targets {
-            wgpu::TextureFormat::Rgba32Float
-        } else {
-            wgpu::TextureFormat::Rgba16Float
-        };
+        let illumination_format = ILLUMINATION_FORMAT;
         let target = |f: wgpu::TextureFormat| {
             Some(wgpu::ColorTargetState {
                 format: f,

@@ -17,11 +17,11 @@ pub fn padded_row(width: u32, bytes_per_pixel: u32) -> u32 {
 }
 
 fn format_info(f: wgpu::TextureFormat) -> Result<(u32, usize, bool), RenderError> {
-    // (bytes per pixel, channels, half floats)
+    // (bytes per pixel, channels, half floats); 32-bit formats hold f32 bits either way.
     match f {
-        wgpu::TextureFormat::Rgba32Float => Ok((16, 4, false)),
+        wgpu::TextureFormat::Rgba32Float | wgpu::TextureFormat::Rgba32Uint => Ok((16, 4, false)),
         wgpu::TextureFormat::Rgba16Float => Ok((8, 4, true)),
-        wgpu::TextureFormat::R32Float => Ok((4, 1, false)),
+        wgpu::TextureFormat::R32Float | wgpu::TextureFormat::R32Uint => Ok((4, 1, false)),
         other => Err(RenderError::Gpu(format!(
             "cannot read back format {other:?}"
         ))),

@@ -40,8 +40,7 @@ pub struct Renderer {
     camera: Camera,
     near: f32,
     options: RenderOptions,
-    linear: wgpu::Sampler,
-    nearest: wgpu::Sampler,
+    sampler: wgpu::Sampler,
     maps: Option<ShadowMaps>,
     map_key: Option<MapKey>,
     targets: Option<EyeTargets>,
@@ -84,7 +83,7 @@ impl Renderer {
                 maximum: gpu.limits.max_buffer_size,
             });
         }
-        let pipelines = Pipelines::new(device, gpu.float32_targets);
+        let pipelines = Pipelines::new(device);
         let init = |label: &str, contents: &[u8], usage| {
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(label),
@@ -132,19 +131,17 @@ impl Renderer {
                 },
             ],
         });
-        let sampler = |filter| {
-            device.create_sampler(&wgpu::SamplerDescriptor {
-                label: Some("shadow comparison"),
-                mag_filter: filter,
-                min_filter: filter,
-                compare: Some(wgpu::CompareFunction::GreaterEqual),
-                ..Default::default()
-            })
-        };
+        // Reversed-Z: a receiver is lit where its depth is at least the stored one.
+        let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
+            label: Some("shadow comparison"),
+            mag_filter: wgpu::FilterMode::Linear,
+            min_filter: wgpu::FilterMode::Linear,
+            compare: Some(wgpu::CompareFunction::GreaterEqual),
+            ..Default::default()
+        });
         let near = (data.diagonal * 1e-4).clamp(1e-4, 1e-2);
         Ok(Renderer {
-            linear: sampler(wgpu::FilterMode::Linear),
-            nearest: sampler(wgpu::FilterMode::Nearest),
+            sampler,
             receivers: data.receivers(),
             pipelines,
             scene: data,
@@ -301,8 +298,7 @@ impl Renderer {
                 lights: &plan.lights,
                 views: &plan.views,
                 maps,
-                linear: &self.linear,
-                nearest: &self.nearest,
+                sampler: &self.sampler,
                 material_layers: layers.any_material(),
             },
         );
