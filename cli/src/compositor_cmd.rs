@@ -9,7 +9,6 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::time::Duration;
 use tokio::net::TcpListener;
-use tokio_util::sync::CancellationToken;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -73,44 +72,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             writeln!(out, "listening {local}")?;
             out.flush()?;
         }
-        let shutdown = CancellationToken::new();
-        tokio::spawn(cancel_on_signal(shutdown.clone()));
-        if let Some(pid) = args.parent_pid {
-            tokio::spawn(cancel_when_orphaned(pid, shutdown.clone()));
-        }
+        let shutdown = crate::lifecycle::shutdown_token(args.parent_pid);
         daemon::run(listener, opts, shutdown).await
     })
-}
-
-/// Cancels `token` on SIGTERM or Ctrl-C.
-async fn cancel_on_signal(token: CancellationToken) {
-    use tokio::signal::unix::{SignalKind, signal};
-    let mut term = match signal(SignalKind::terminate()) {
-        Ok(s) => s,
-        Err(e) => {
-            tracing::warn!("cannot watch SIGTERM: {e}");
-            return;
-        }
-    };
-    tokio::select! {
-        _ = term.recv() => tracing::info!("SIGTERM: shutting down"),
-        _ = tokio::signal::ctrl_c() => tracing::info!("interrupted: shutting down"),
-        _ = token.cancelled() => return,
-    }
-    token.cancel();
-}
-
-/// Cancels `token` once `pid` is no longer our parent (the launcher died), so no orphan stays.
-async fn cancel_when_orphaned(pid: u32, token: CancellationToken) {
-    loop {
-        if std::os::unix::process::parent_id() != pid {
-            tracing::info!(parent = pid, "launcher exited: shutting down");
-            token.cancel();
-            return;
-        }
-        tokio::select! {
-            _ = tokio::time::sleep(Duration::from_millis(250)) => {}
-            _ = token.cancelled() => return,
-        }
-    }
 }

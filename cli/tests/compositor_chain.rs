@@ -344,12 +344,12 @@ async fn eight_processes_as_a_chain_then_a_tree_match_the_in_memory_result() {
         &[colour(0)],
         LINK_FMT,
     );
-    for k in 1..STAGES {
+    for (k, img) in images.iter().enumerate().skip(1) {
         let out = if k + 1 < STAGES { LINK_FMT } else { SINK_FMT };
         want = stage_in_memory(
             "accumulate",
             &accumulate(true, &[colour(k)]),
-            &[want, node(&images[k])],
+            &[want, node(img)],
             &[colour(k)],
             out,
         );
@@ -375,7 +375,7 @@ async fn eight_processes_as_a_chain_then_a_tree_match_the_in_memory_result() {
         _ => sink_addr.clone(),
     };
     let join = ("join", r#"{"inputs": 2}"#.to_string());
-    for k in 0..STAGES {
+    for (k, c) in ctl.iter_mut().enumerate() {
         let cfg = match k {
             0..=3 => {
                 let ins = vec![
@@ -401,7 +401,7 @@ async fn eight_processes_as_a_chain_then_a_tree_match_the_in_memory_result() {
                 &down(k),
             ),
         };
-        ctl[k].configure(cfg, WAIT).await.unwrap();
+        c.configure(cfg, WAIT).await.unwrap();
     }
     let mut producers = Vec::new();
     for k in 0..STAGES {
