@@ -32,6 +32,9 @@ pub struct Args {
     /// Where ground truths are cached by scene hash.
     #[arg(long, default_value = "target/lightfold-cache/accuracy")]
     cache_dir: PathBuf,
+    /// Timed frames per point (each node's fastest counts).
+    #[arg(long, default_value_t = 2)]
+    repeats: u32,
     /// The penumbra PSNR the report looks for the cheapest setting to reach.
     #[arg(long, default_value_t = 45.0)]
     target_db: f64,
@@ -101,7 +104,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ProgressStyle::with_template("{bar:40} {pos}/{len} points, {elapsed} {msg}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    let points = run_sweep(&gpu, &scene, &truth, &plan, |done, what| {
+    let points = run_sweep(&gpu, &scene, &truth, &plan, args.repeats, |done, what| {
         bar.set_position(done as u64);
         bar.set_message(what.to_string());
     })?;
@@ -110,11 +113,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let threads = std::env::var("LP_NUM_THREADS").unwrap_or_else(|_| "unset".into());
     let command = format!(
         "LP_NUM_THREADS={threads} NODEVICE_SELECT=1 lightfold accuracy --scene {} --size {} \
-         --truth-samples {} --sweep {} --out {}",
+         --truth-samples {} --sweep {} --repeats {} --out {}",
         args.scene,
         args.size,
         args.truth_samples,
         args.sweep,
+        args.repeats,
         out.display()
     );
     let title = format!("{label} ({w}×{h}, {} on {})", args.sweep, gpu.info.name);

@@ -34,7 +34,9 @@ fn a_tiny_sweep_runs_and_writes_the_expected_columns() -> anyhow::Result<()> {
 
     let gpu = Gpu::new(&GpuOptions::default())?;
     let mut calls = 0;
-    let points = run_sweep(&gpu, &scene, &truth, &SweepPlan::tiny(), |_, _| calls += 1)?;
+    let points = run_sweep(&gpu, &scene, &truth, &SweepPlan::tiny(), 1, |_, _| {
+        calls += 1
+    })?;
     assert_eq!(points.len(), 3, "defaults, samples=2, f16x6");
     assert!(calls >= 2);
     assert_eq!(points[0].knob, Knob::Default);

@@ -304,12 +304,13 @@ pub fn render_groups(points: &[(Knob, Setting)]) -> Vec<Vec<usize>> {
 }
 
 /// Runs the sweep on `scene` against `truth`: every point of `plan` around the scene's defaults.
-/// `progress` is called with the number of points done after each render group.
+/// Each node's time is its fastest of `repeats` frames. `progress` is called with the number of points done after each render group.
 pub fn run_sweep(
     gpu: &lightfold_node::gpu::Gpu,
     scene: &Scene,
     truth: &CachedTruth,
     plan: &SweepPlan,
+    repeats: u32,
     mut progress: impl FnMut(usize, &str),
 ) -> Result<Vec<Point>, AccuracyError> {
     let points = plan.points(Setting::defaults(scene));
@@ -318,7 +319,7 @@ pub fn run_sweep(
     for group in render_groups(&points) {
         let settings: Vec<Setting> = group.iter().map(|&i| points[i].1).collect();
         progress(done, &settings[0].to_string());
-        let measured = measure_group(gpu, scene, &settings)?;
+        let measured = measure_group(gpu, scene, &settings, repeats)?;
         for (&i, m) in group.iter().zip(measured) {
             let metrics = truth.truth.compare(&m.image)?;
             out[i] = Some(Point {
