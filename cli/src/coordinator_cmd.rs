@@ -154,20 +154,7 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
             if args.node.is_empty() || args.compositor.is_empty() {
                 bail!("give --cluster FILE, or at least one --node ADDR and one --compositor ADDR");
             }
-            let mut d: Vec<DaemonAddr> = args
-                .node
-                .iter()
-                .map(|a| DaemonAddr {
-                    address: a.clone(),
-                    role: Role::Node,
-                    id: None,
-                })
-                .collect();
-            d.extend(args.compositor.iter().map(|a| DaemonAddr {
-                address: a.clone(),
-                role: Role::Compositor,
-                id: None,
-            }));
+            let d = DaemonAddr::list(&args.node, &args.compositor);
             (
                 d,
                 args.sink_listen

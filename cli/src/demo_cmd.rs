@@ -22,6 +22,9 @@ pub struct Args {
     /// Skip the comparison with the CPU reference.
     #[arg(long)]
     pub no_compare: bool,
+    /// Log filter for the spawned daemons and coordinator (their logs go to stderr).
+    #[arg(long, default_value = "warn")]
+    pub daemon_log: String,
     /// Directory for the token and cluster file (default: a fresh temporary directory).
     #[arg(long)]
     pub work_dir: Option<PathBuf>,
@@ -93,7 +96,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut children = Children(Vec::new());
     for i in 0..nodes {
         let id = format!("node-{i}");
-        let mut cmd = daemon_command(&exe, "node", &id, &token_path);
+        let mut cmd = daemon_command(&exe, "node", &id, &token_path, &args.daemon_log);
         if args.gpu_threads > 0 {
             cmd.env("LP_NUM_THREADS", args.gpu_threads.to_string());
         }
@@ -102,7 +105,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     for i in 0..compositors {
         let id = format!("comp-{i}");
-        let mut cmd = daemon_command(&exe, "compositor", &id, &token_path);
+        let mut cmd = daemon_command(&exe, "compositor", &id, &token_path, &args.daemon_log);
         let child = cmd.spawn().with_context(|| format!("cannot start {id}"))?;
         children.0.push((id, child));
     }
@@ -125,12 +128,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     std::fs::write(&cluster, text)?;
     let mut coord = Command::new(&exe);
     coord
+        .arg("--log")
+        .arg(&args.daemon_log)
         .arg("coordinator")
         .arg("--cluster")
         .arg(&cluster)
         .arg("--token-file")
-        .arg(&token_path)
-        .arg("--shutdown");
+        .arg(&token_path);
     job_args(&mut coord, &args.job);
     coord
         .arg("--parent-pid")
@@ -149,6 +153,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .collect();
     std::fs::write(dir.join("pids"), pids)?;
     let status = child.wait()?;
+    // Daemons are still up (the coordinator detached): read what CPU time they used.
+    let cpu: Vec<(String, f64)> = children
+        .0
+        .iter()
+        .map(|(n, c)| (n.clone(), cpu_seconds(c.id())))
+        .collect();
     drop(children);
     if !status.success() {
         bail!("the coordinator failed ({status})");
@@ -157,6 +167,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "demo: cluster finished in {:.2} s (all daemons stopped)",
         started.elapsed().as_secs_f64()
     );
+    print_cpu(&cpu, args.job.frames);
     if !args.no_compare {
         crate::compare_reference::report(&scene, &args.job.exr)?;
     }
@@ -176,9 +187,11 @@ fn write_token(path: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn daemon_command(exe: &Path, role: &str, id: &str, token: &Path) -> Command {
+fn daemon_command(exe: &Path, role: &str, id: &str, token: &Path, log: &str) -> Command {
     let mut cmd = Command::new(exe);
-    cmd.arg(role)
+    cmd.arg("--log")
+        .arg(log)
+        .arg(role)
         .arg("--listen")
         .arg("127.0.0.1:0")
         .arg("--id")
@@ -236,4 +249,40 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
         cmd.arg("--force-all");
     }
     cmd.arg("--out").arg(&job.out).arg("--exr").arg(&job.exr);
+}
+
+/// CPU seconds (user + system) a process has used so far, from `/proc/<pid>/stat`; 0 if unknown.
+fn cpu_seconds(pid: u32) -> f64 {
+    let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
+        return 0.0;
+    };
+    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
+    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    // Linux reports in USER_HZ, which is 100 on every mainstream configuration.
+    (ticks(11) + ticks(12)) / 100.0
+}
+
+/// Daemon CPU per frame and the frame interval it implies on this machine's cores (start-up and
+/// calibration included, so an upper estimate of the steady state).
+fn print_cpu(cpu: &[(String, f64)], frames: u32) {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as f64;
+    let frames = frames.max(1) as f64;
+    let total: f64 = cpu.iter().map(|(_, s)| s).sum();
+    let nodes: f64 = cpu
+        .iter()
+        .filter(|(n, _)| n.starts_with("node"))
+        .map(|(_, s)| s)
+        .sum();
+    println!(
+        "demo: daemon CPU {:.2} s ({:.2} s render nodes, {:.2} s compositors) over {} frame(s): {:.3} s per frame, {:.3} s per frame over {} cores",
+        total,
+        nodes,
+        total - nodes,
+        frames,
+        total / frames,
+        total / frames / cores,
+        cores
+    );
 }

@@ -76,21 +76,7 @@ impl InProcessCluster {
     }
 
     pub fn daemons(&self) -> Vec<DaemonAddr> {
-        let mut d: Vec<DaemonAddr> = self
-            .nodes
-            .iter()
-            .map(|a| DaemonAddr {
-                address: a.clone(),
-                role: Role::Node,
-                id: None,
-            })
-            .collect();
-        d.extend(self.compositors.iter().map(|a| DaemonAddr {
-            address: a.clone(),
-            role: Role::Compositor,
-            id: None,
-        }));
-        d
+        DaemonAddr::list(&self.nodes, &self.compositors)
     }
 
     pub fn identity(&self) -> Identity {

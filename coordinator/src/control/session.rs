@@ -130,6 +130,24 @@ pub struct DaemonAddr {
     pub id: Option<String>,
 }
 
+impl DaemonAddr {
+    /// Render nodes then compositors, by address, with no expected ids.
+    pub fn list(nodes: &[String], compositors: &[String]) -> Vec<DaemonAddr> {
+        let with = |role: Role| {
+            move |a: &String| DaemonAddr {
+                address: a.clone(),
+                role,
+                id: None,
+            }
+        };
+        nodes
+            .iter()
+            .map(with(Role::Node))
+            .chain(compositors.iter().map(with(Role::Compositor)))
+            .collect()
+    }
+}
+
 impl Session {
     /// Dials every daemon concurrently, authenticates it and collects its registration; binds the
     /// sink listener.
