@@ -1,6 +1,7 @@
 //! Bands that do not match the configured frame — another epoch, a wrong size, a wrong format, a
 //! producer that skips ahead — are rejected with an `Error { BandMismatch }` that says what was
-//! wrong, no corrupt frame is emitted, and the stage serves the next frame correctly.
+//! wrong, no corrupt frame is emitted, and the stage serves the next frame correctly. An input
+//! that never delivers is a `Timeout` within the deadline, and the stage goes on.
 
 mod support;
 
@@ -178,5 +179,46 @@ async fn wrong_bands_are_rejected_and_the_next_frame_is_served() {
     assert_eq!(stage.metrics.mismatches(), 4);
     assert_eq!(stage.metrics.frames_failed(), 4);
     assert_eq!(stage.metrics.frames_done(), 5);
+    stage.stop().await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_missing_input_times_out_and_the_next_frame_is_served() {
+    let (w, h, _) = SIZE;
+    let stage = start_stage_with("c2", |o| {
+        o.input_timeout = std::time::Duration::from_millis(300)
+    })
+    .await;
+    let (mut sink, sink_addr) = sink().await;
+    let mut ctl = stage.control().await;
+    let out = [(ILL, PixelFormat::F32x6)];
+    let ins = vec![input("a", &[(ILL, PixelFormat::F32x6)])];
+    ctl.configure(config(1, SIZE, ins, &[], &out, &sink_addr), WAIT)
+        .await
+        .unwrap();
+    // Nobody feeds frame 1.
+    ctl.render(1, 1, no_params()).await.unwrap();
+    match ctl.frame_done(1, WAIT).await {
+        Err(DriverError::Refused { code, message }) => {
+            assert_eq!(code, ErrorCode::Timeout, "{message}");
+            assert!(
+                message.contains("frame 1") && message.contains("no link"),
+                "{message}"
+            );
+        }
+        other => panic!("expected a timeout, got {other:?}"),
+    }
+    let img = image(ILL, PixelFormat::F32x6, hdr(3, w, h, ILL, 0..0));
+    let mut a = stage.producer("a").await;
+    ctl.render(1, 2, no_params()).await.unwrap();
+    a.send_frame(&shape(1, 2, SIZE), std::slice::from_ref(&img))
+        .await
+        .unwrap();
+    let got = sink
+        .recv_frame(&shape(1, 2, SIZE), &out, WAIT)
+        .await
+        .unwrap();
+    assert_eq!(got[0].data, img.data);
+    ctl.frame_done(2, WAIT).await.unwrap();
     stage.stop().await;
 }

@@ -61,14 +61,13 @@ impl Registry {
 /// Why no band could be had from an input.
 #[derive(Debug, thiserror::Error)]
 pub(crate) enum InputError {
-    #[error(
-        "input {input} ({peer}) delivered no band within {waited_ms} ms (no link connected: {unconnected})"
-    )]
+    #[error("input {input} ({peer}) delivered no band within {waited_ms} ms ({link})")]
     Timeout {
         input: usize,
         peer: String,
         waited_ms: u128,
-        unconnected: bool,
+        /// Whether a link from the producer was connected at the deadline.
+        link: &'static str,
     },
     #[error("input {input} ({peer}) link failed: {reason}")]
     Link {
@@ -201,12 +200,16 @@ impl Slot {
             if let Some(link) = ctx.registry.take(&self.peer) {
                 self.attach(link, ctx);
             }
-            let unconnected = self.rx.is_none();
+            let link = if self.rx.is_some() {
+                "its link is connected"
+            } else {
+                "no link from it is connected"
+            };
             let timed_out = InputError::Timeout {
                 input: self.index,
                 peer: self.peer.clone(),
                 waited_ms: start.elapsed().as_millis(),
-                unconnected,
+                link,
             };
             let Some(rx) = self.rx.as_mut() else {
                 tokio::select! {
