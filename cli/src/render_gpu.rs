@@ -12,7 +12,7 @@ use lightfold_scene::shading::compose;
 use lightfold_scene::{Image, LightSample, Scene};
 use std::time::Instant;
 
-/// Sums of one frame over its batches.
+/// Sums of one frame over its batches, and each batch's own cost (one node frame of K lights).
 #[derive(Debug, Default)]
 struct FrameTimes {
     shadow_passes: u32,
@@ -20,6 +20,16 @@ struct FrameTimes {
     eye_us: u64,
     readback_us: u64,
     total_us: u64,
+    batches: Vec<[u64; 3]>,
+}
+
+/// Median of each column.
+fn medians(rows: &[[u64; 3]]) -> [u64; 3] {
+    std::array::from_fn(|c| {
+        let mut v: Vec<u64> = rows.iter().map(|r| r[c]).collect();
+        v.sort_unstable();
+        v.get(v.len() / 2).copied().unwrap_or(0)
+    })
 }
 
 pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Result<()> {
@@ -59,6 +69,8 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
         println!("frame  shadow_passes  shadow_ms  eye_ms  readback_ms  total_ms");
     }
     let mut image = None;
+    // Per-batch costs after the first frame (which also compiles shaders and allocates).
+    let mut steady: Vec<[u64; 3]> = Vec::new();
     for f in 0..frames {
         let (radiance, times) = render_frame(&gpu, &mut renderer, scene, samples, k, None)?;
         if args.timings {
@@ -71,7 +83,22 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
                 times.total_us as f64 / 1e3
             );
         }
+        if f > 0 || frames == 1 {
+            steady.extend(times.batches.iter().skip(1));
+        }
         image = Some(radiance);
+    }
+    if args.timings && !steady.is_empty() {
+        let [s, e, r] = medians(&steady);
+        println!(
+            "node frame (K = {k}, illumination only), median of {}: shadow {:.1} ms, eye {:.1} ms, \
+             readback {:.1} ms, total {:.1} ms",
+            steady.len(),
+            s as f64 / 1e3,
+            e as f64 / 1e3,
+            r as f64 / 1e3,
+            (s + e + r) as f64 / 1e3
+        );
     }
     let (radiance, depth) = image.expect("at least one frame");
     radiance.write_exr(&args.out)?;
@@ -133,6 +160,11 @@ fn render_frame(
         times.shadow_us += frame.stats.shadow_us;
         times.eye_us += frame.stats.eye_us;
         times.readback_us += frame.stats.readback_us;
+        times.batches.push([
+            frame.stats.shadow_us,
+            frame.stats.eye_us,
+            frame.stats.readback_us,
+        ]);
         if let Some(il) = &frame.illumination {
             for (a, b) in illumination.data.iter_mut().zip(&il.data) {
                 *a += b;
