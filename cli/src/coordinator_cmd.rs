@@ -38,7 +38,8 @@ pub struct Args {
     /// Stop every daemon when done.
     #[arg(long)]
     pub shutdown: bool,
-    /// Seconds to wait for a daemon to accept and register.
+    /// Seconds to wait for a daemon to accept, authenticate and register (daemons still opening
+    /// their devices answer late).
     #[arg(long, default_value_t = 10.0)]
     pub connect_timeout: f64,
     /// Seconds a frame may take end to end.
@@ -173,6 +174,7 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
         let control = ControlOptions {
             link: Timeouts {
                 connect: Duration::from_secs_f64(args.connect_timeout),
+                handshake: Duration::from_secs_f64(args.connect_timeout),
                 ..Timeouts::default()
             },
             register: Duration::from_secs_f64(args.connect_timeout),

@@ -134,7 +134,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .arg("--cluster")
         .arg(&cluster)
         .arg("--token-file")
-        .arg(&token_path);
+        .arg(&token_path)
+        // Many daemons opening devices at once on few cores answer slowly at first.
+        .arg("--connect-timeout")
+        .arg("180");
     job_args(&mut coord, &args.job);
     coord
         .arg("--parent-pid")
