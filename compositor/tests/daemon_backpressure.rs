@@ -27,8 +27,18 @@ async fn a_stalled_consumer_blocks_the_producer_and_memory_stays_bounded() {
     let (mut sink, sink_addr) = sink().await;
     let mut ctl = stage.control().await;
     let fmt = PixelFormat::F32x6;
-    let ops = [("accumulate", r#"{"upstream": false, "colors": [[1, 1, 1]]}"#)];
-    let cfg = config(1, SIZE, vec![input("n", &[(ILL, fmt)])], &ops, &[(ILL, fmt)], &sink_addr);
+    let ops = [(
+        "accumulate",
+        r#"{"upstream": false, "colors": [[1, 1, 1]]}"#,
+    )];
+    let cfg = config(
+        1,
+        SIZE,
+        vec![input("n", &[(ILL, fmt)])],
+        &ops,
+        &[(ILL, fmt)],
+        &sink_addr,
+    );
     let frames_in_flight = u64::from(cfg.frames_in_flight);
     ctl.configure(cfg, WAIT).await.unwrap();
     for frame in 1..=FRAMES {
@@ -38,8 +48,8 @@ async fn a_stalled_consumer_blocks_the_producer_and_memory_stays_bounded() {
     let frame_bytes = u64::from(w * h) * fmt.bytes_per_pixel() as u64;
     let bands = u64::from(h.div_ceil(bh));
     let band_bytes = frame_bytes / bands;
-    let bound = frames_in_flight * (frame_bytes + bands * BAND_OVERHEAD)
-        + OUT_BANDS_IN_FLIGHT * band_bytes;
+    let bound =
+        frames_in_flight * (frame_bytes + bands * BAND_OVERHEAD) + OUT_BANDS_IN_FLIGHT * band_bytes;
 
     let img = image(ILL, fmt, hdr(1, w, h, ILL, 0..0));
     let sent = Arc::new(AtomicU64::new(0));
@@ -67,9 +77,15 @@ async fn a_stalled_consumer_blocks_the_producer_and_memory_stays_bounded() {
             break;
         }
         last = now;
-        assert!(start.elapsed() < WAIT, "the producer never blocked ({now} frames sent)");
+        assert!(
+            start.elapsed() < WAIT,
+            "the producer never blocked ({now} frames sent)"
+        );
     }
-    assert!(last < FRAMES, "the producer should block, it sent all {FRAMES} frames");
+    assert!(
+        last < FRAMES,
+        "the producer should block, it sent all {FRAMES} frames"
+    );
     let peak = stage.metrics.peak_buffered_bytes();
     eprintln!(
         "producer blocked after {last} frames of {} KiB; stage peak {} KiB, bound {} KiB",
@@ -78,7 +94,10 @@ async fn a_stalled_consumer_blocks_the_producer_and_memory_stays_bounded() {
         bound / 1024
     );
     assert!(peak <= bound, "stage held {peak} bytes, bound {bound}");
-    assert!(peak >= frame_bytes, "the stage should have queued at least a frame ({peak})");
+    assert!(
+        peak >= frame_bytes,
+        "the stage should have queued at least a frame ({peak})"
+    );
 
     // The consumer resumes: the rest of frame 1 and every later frame arrive complete.
     let rest = (bands - 1) as usize;
@@ -86,7 +105,10 @@ async fn a_stalled_consumer_blocks_the_producer_and_memory_stays_bounded() {
         sink.next_band(Instant::now() + WAIT).await.unwrap();
     }
     for frame in 2..=FRAMES {
-        let got = sink.recv_frame(&shape(1, frame, SIZE), &[(ILL, fmt)], WAIT).await.unwrap();
+        let got = sink
+            .recv_frame(&shape(1, frame, SIZE), &[(ILL, fmt)], WAIT)
+            .await
+            .unwrap();
         assert!(got[0].data == img.data, "frame {frame} differs");
     }
     tokio::time::timeout(WAIT, produce).await.unwrap().unwrap();
