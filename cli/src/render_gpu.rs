@@ -21,6 +21,7 @@ struct FrameTimes {
     readback_us: u64,
     total_us: u64,
     batches: Vec<[u64; 3]>,
+    passes_per_light: Vec<u32>,
 }
 
 /// Median of each column.
@@ -85,6 +86,16 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
         }
         if f > 0 || frames == 1 {
             steady.extend(times.batches.iter().skip(1));
+        }
+        if args.timings && f == 0 {
+            let p = &times.passes_per_light;
+            let sum: u32 = p.iter().sum();
+            println!(
+                "shadow views per light: min {}, mean {:.2}, max {} ({sum} in all)",
+                p.iter().min().unwrap_or(&0),
+                sum as f64 / p.len().max(1) as f64,
+                p.iter().max().unwrap_or(&0)
+            );
         }
         image = Some(radiance);
     }
@@ -157,6 +168,9 @@ fn render_frame(
         start += batch.len();
         let frame = renderer.render(gpu, batch, batch_casters, [1.0; 3], layers)?;
         times.shadow_passes += frame.stats.shadow_passes;
+        times
+            .passes_per_light
+            .extend_from_slice(&frame.stats.passes_per_light);
         times.shadow_us += frame.stats.shadow_us;
         times.eye_us += frame.stats.eye_us;
         times.readback_us += frame.stats.readback_us;
