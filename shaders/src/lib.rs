@@ -18,11 +18,14 @@ pub const SHADOW_WGSL: &str = concat!(
 );
 
 /// Eye pass: `vs_eye` with `fs_illumination` (illumination + depth) or `fs_layers` (plus the
-/// material layers m^d, m^s, m^a, e as extra render targets).
+/// material layers m^d, m^s, m^a, e as extra render targets); and the deferred variant:
+/// `fs_gbuffer` / `fs_gbuffer_layers` then the compute pass `cs_lights`.
 pub const EYE_WGSL: &str = concat!(
     include_str!("../wgsl/shading.wgsl"),
     include_str!("../wgsl/materials.wgsl"),
+    include_str!("../wgsl/lighting.wgsl"),
     include_str!("../wgsl/eye.wgsl"),
+    include_str!("../wgsl/deferred.wgsl"),
 );
 
 /// Every complete shader module with a name, for validation and diagnostics.
@@ -65,7 +68,14 @@ mod tests {
             assert!(shadow.iter().any(|n| n == e), "shadow lacks {e}");
         }
         let eye = names(EYE_WGSL, "eye");
-        for e in ["vs_eye", "fs_illumination", "fs_layers"] {
+        for e in [
+            "vs_eye",
+            "fs_illumination",
+            "fs_layers",
+            "fs_gbuffer",
+            "fs_gbuffer_layers",
+            "cs_lights",
+        ] {
             assert!(eye.iter().any(|n| n == e), "eye lacks {e}");
         }
     }

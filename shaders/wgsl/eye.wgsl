@@ -1,49 +1,6 @@
-// Eye pass: per pixel the node's illumination Σ (c_λ ⊘ c_n)·(i^d_λ, i^s_λ)·s_λ over its K samples,
-// with s_λ from the shadow maps, plus eye depth and (entry point `fs_layers`) the material layers.
-
-const FILTER_NEAREST: u32 = 0u;
-const FILTER_PCF2X2: u32 = 1u;
-const FILTER_GRID: u32 = 2u;
-
-struct Frame {
-    view_proj: mat4x4f,
-    camera: vec3f,
-    light_count: u32,
-    forward: vec3f,
-    map_size: f32,
-    // Constant bias in metres along the light ray, and the slope factor.
-    depth_bias: f32,
-    slope_bias: f32,
-    filter_mode: u32,
-    taps: u32,
-    // Half-width of the filter footprint in texels (the slope bias scales with it).
-    kernel_radius: f32,
-    _pad0: u32,
-    _pad1: u32,
-    _pad2: u32,
-}
-
-// One shadow map: a layer of `shadow_maps` and how world points land in it. The projection keeps
-// its eight non-zero entries: clip = (a.x·x + a.y·z + a.z, a.w·y + b.x·z + b.y, b.z·z + b.w, w)
-// with w = 1 (orthographic) or −z (perspective).
-struct View {
-    view: mat4x4f,
-    proj_a: vec4f,
-    proj_b: vec4f,
-    // Width of a texel: in tangent units (perspective) or metres (orthographic).
-    texel: f32,
-    ortho: u32,
-    layer: u32,
-    _pad: u32,
-}
-
-@group(1) @binding(0) var<uniform> frame: Frame;
-@group(1) @binding(1) var<storage, read> lights: array<Light>;
-@group(1) @binding(2) var<storage, read> views: array<View>;
-@group(1) @binding(3) var shadow_maps: texture_depth_2d_array;
-// One linear comparison sampler (GL cannot pair one texture with two samplers); the nearest
-// filter reads it at texel centres, where the bilinear weights select a single texel.
-@group(1) @binding(4) var shadow_linear: sampler_comparison;
+// Eye pass (forward variant): per pixel the node's illumination Σ (c_λ ⊘ c_n)·(i^d_λ, i^s_λ)·s_λ
+// over its K samples, with s_λ from the shadow maps, plus eye depth and (entry point `fs_layers`)
+// the material layers. Needs `lighting.wgsl` before it.
 
 struct VsIn {
     @location(0) position: vec3f,
@@ -74,118 +31,8 @@ fn vs_eye(in: VsIn) -> VsOut {
     return out;
 }
 
-// Comparison lookups: `ref` passes where it is at least the stored (reversed-Z) depth.
-fn shadow_filter(uv: vec2f, layer: u32, ref_depth: f32) -> f32 {
-    if frame.filter_mode == FILTER_NEAREST {
-        let centre = (floor(uv * frame.map_size) + vec2f(0.5)) / frame.map_size;
-        return textureSampleCompareLevel(shadow_maps, shadow_linear, centre, layer, ref_depth);
-    }
-    if frame.filter_mode == FILTER_PCF2X2 {
-        return textureSampleCompareLevel(shadow_maps, shadow_linear, uv, layer, ref_depth);
-    }
-    let taps = max(frame.taps, 1u);
-    let step = 1.0 / frame.map_size;
-    let half = 0.5 * f32(taps - 1u);
-    var sum = 0.0;
-    for (var j = 0u; j < taps; j++) {
-        for (var i = 0u; i < taps; i++) {
-            let o = (vec2f(f32(i), f32(j)) - vec2f(half)) * step;
-            sum += textureSampleCompareLevel(shadow_maps, shadow_linear, uv + o, layer, ref_depth);
-        }
-    }
-    return sum / f32(taps * taps);
-}
-
-// The view of light s that holds p: its only one, or the cube face of p's direction.
-fn view_for(s: Light, p: vec3f) -> u32 {
-    if s.view_count == 0u {
-        return NO_VIEW;
-    }
-    if s.cube == 0u {
-        return s.first_view;
-    }
-    let d = p - s.position;
-    let c = vec3f(dot(d, s.cube_x), dot(d, s.cube_y), dot(d, s.cube_z));
-    let a = abs(c);
-    if a.x >= a.y && a.x >= a.z {
-        return select(s.faces_a.y, s.faces_a.x, c.x >= 0.0);
-    }
-    if a.y >= a.z {
-        return select(s.faces_a.w, s.faces_a.z, c.y >= 0.0);
-    }
-    return select(s.faces_b.y, s.faces_b.x, c.z >= 0.0);
-}
-
-fn project(v: View, q: vec3f) -> vec4f {
-    var w = -q.z;
-    if v.ortho != 0u {
-        w = 1.0;
-    }
-    return vec4f(
-        v.proj_a.x * q.x + v.proj_a.y * q.z + v.proj_a.z,
-        v.proj_a.w * q.y + v.proj_b.x * q.z + v.proj_b.y,
-        v.proj_b.z * q.z + v.proj_b.w,
-        w,
-    );
-}
-
-// s_λ at world point p with geometric normal ng; 1 where no view of the light holds p.
-//
-// Bias: the constant part is `depth_bias` metres along the light ray; the slope part follows the
-// receiver's own plane: how much its view-axis depth D changes across the filter footprint in the
-// map, |∂D/∂x| + |∂D/∂y| per texel (exact for a plane, also off-axis in wide frusta and cube faces).
-fn visibility(s: Light, p: vec3f, ng: vec3f) -> f32 {
-    let index = view_for(s, p);
-    if index == NO_VIEW {
-        return 1.0;
-    }
-    let v = views[index];
-    let q = (v.view * vec4f(p, 1.0)).xyz;
-    let clip = project(v, q);
-    if !(clip.w > 0.0) {
-        return 1.0;
-    }
-    let ndc = clip.xy / clip.w;
-    let uv = vec2f(ndc.x * 0.5 + 0.5, 0.5 - ndc.y * 0.5);
-    if any(uv < vec2f(0.0)) || any(uv > vec2f(1.0)) {
-        return 1.0;
-    }
-    let n = (v.view * vec4f(ng, 0.0)).xyz;
-    let depth = max(-q.z, 0.0);
-    // Depth change per texel: slope · texel_m, with texel_m the texel width in metres.
-    var slope: f32;
-    var texel_m = v.texel;
-    var along_axis = 1.0;
-    if v.ortho != 0u {
-        slope = (abs(n.x) + abs(n.y)) / max(abs(n.z), 1e-3);
-    } else {
-        // Plane through q with normal n: at tangent (x, y) its depth is
-        // D = (n·q) / (n·(x, y, −1)), so |∂D/∂x| = D·|n.x| / |n·(x, y, −1)|.
-        let d = vec3f(q.xy / max(depth, 1e-6), -1.0);
-        slope = (abs(n.x) + abs(n.y)) / max(abs(dot(n, d)), 1e-3);
-        texel_m = v.texel * depth;
-        along_axis = depth / max(length(q), 1e-6);
-    }
-    // Grazing receivers cannot ask for more than ten texels' worth of depth per texel.
-    let bias = frame.depth_bias * along_axis
-        + frame.slope_bias * frame.kernel_radius * min(slope, 10.0) * texel_m;
-    // Move the receiver towards the light along the map's axis, then take its depth.
-    let cb = project(v, vec3f(q.xy, q.z + bias));
-    var ref_depth = 1.0;
-    if cb.w > 0.0 {
-        ref_depth = clamp(cb.z / cb.w, 0.0, 1.0);
-    }
-    return shadow_filter(uv, v.layer, ref_depth);
-}
-
-struct Shaded {
-    diffuse: vec3f,
-    specular: vec3f,
-    depth: f32,
-}
-
-fn shade(in: VsOut, front: bool) -> Shaded {
-    let m = materials[in.material & ~NO_UV_BIT];
+// The surface under a fragment, normals turned towards the viewer on back faces.
+fn surface(in: VsOut, front: bool) -> Surface {
     var ng = safe_normalize(in.geometric_normal);
     var n = safe_normalize(in.normal);
     if all(n == vec3f(0.0)) {
@@ -196,24 +43,29 @@ fn shade(in: VsOut, front: bool) -> Shaded {
         ng = -ng;
         n = -n;
     }
-    let p = in.world;
-    let v = safe_normalize(frame.camera - p);
-    let specular = m.has_specular != 0u;
-    var out: Shaded;
-    out.diffuse = vec3f(0.0);
-    out.specular = vec3f(0.0);
-    for (var i = 0u; i < frame.light_count; i++) {
-        let s = lights[i];
-        let c = coefficients(s, p, n, v, m.shininess, specular);
-        if c.x == 0.0 && c.y == 0.0 {
-            continue;
-        }
-        let vis = visibility(s, p, ng);
-        out.diffuse += s.weight * (c.x * vis);
-        out.specular += s.weight * (c.y * vis);
+    return Surface(in.world, n, ng, in.material & ~NO_UV_BIT);
+}
+
+// The material layers m^d (texture applied), m^s, m^a, e at a fragment.
+struct MaterialLayers {
+    diffuse: vec4f,
+    specular: vec4f,
+    ambient: vec4f,
+    emissive: vec4f,
+}
+
+fn material_layers(in: VsOut) -> MaterialLayers {
+    let m = materials[in.material & ~NO_UV_BIT];
+    var md = m.diffuse;
+    if m.diffuse_texture != NO_TEXTURE {
+        md = md * sample_texture(m.diffuse_texture, in.uv).rgb;
     }
-    out.depth = dot(p - frame.camera, frame.forward);
-    return out;
+    return MaterialLayers(
+        vec4f(md, 1.0),
+        vec4f(m.specular, 1.0),
+        vec4f(m.ambient, 1.0),
+        vec4f(m.emissive, 1.0),
+    );
 }
 
 // Eye rays skip single-sided back faces and transparent masked texels (CPU reference rules).
@@ -235,11 +87,11 @@ fn fs_illumination(in: VsOut, @builtin(front_facing) front: bool) -> Illuminatio
     if rejected(in, front) {
         discard;
     }
-    let s = shade(in, front);
+    let s = illuminate(surface(in, front));
     var out: IlluminationOut;
     out.diffuse = bitcast<vec4<u32>>(vec4f(s.diffuse, 1.0));
     out.specular = bitcast<vec4<u32>>(vec4f(s.specular, 1.0));
-    out.depth = bitcast<u32>(s.depth);
+    out.depth = bitcast<u32>(eye_depth(in.world));
     return out;
 }
 
@@ -258,19 +110,15 @@ fn fs_layers(in: VsOut, @builtin(front_facing) front: bool) -> LayersOut {
     if rejected(in, front) {
         discard;
     }
-    let s = shade(in, front);
-    let m = materials[in.material & ~NO_UV_BIT];
-    var md = m.diffuse;
-    if m.diffuse_texture != NO_TEXTURE {
-        md = md * sample_texture(m.diffuse_texture, in.uv).rgb;
-    }
+    let s = illuminate(surface(in, front));
+    let m = material_layers(in);
     var out: LayersOut;
     out.diffuse = bitcast<vec4<u32>>(vec4f(s.diffuse, 1.0));
     out.specular = bitcast<vec4<u32>>(vec4f(s.specular, 1.0));
-    out.depth = bitcast<u32>(s.depth);
-    out.m_diffuse = vec4f(md, 1.0);
-    out.m_specular = vec4f(m.specular, 1.0);
-    out.m_ambient = vec4f(m.ambient, 1.0);
-    out.emissive = vec4f(m.emissive, 1.0);
+    out.depth = bitcast<u32>(eye_depth(in.world));
+    out.m_diffuse = m.diffuse;
+    out.m_specular = m.specular;
+    out.m_ambient = m.ambient;
+    out.emissive = m.emissive;
     return out;
 }
