@@ -1,12 +1,13 @@
 //! The GPU renderer against the CPU reference (same samples, same triangles) on a scene built so
-//! that ≥ 20 % of pixels are shadowed and a caster sits outside a 90° cone of a sample; and the
-//! negative controls: a wrong bias, a missing cube face and a mis-applied colour must each fail
-//! the same comparison. The edge mask is documented in `gpu_support`.
+//! that ≥ 20 % of pixels are shadowed and a caster sits outside a 90° cone of a sample, for both
+//! eye-pass variants; and the negative controls: a wrong bias, a missing cube face and a
+//! mis-applied colour must each fail the same comparison. The edge mask is documented in
+//! `gpu_support`.
 
 mod gpu_support;
 
 use gpu_support::*;
-use lightfold_node::gpu::{Fault, Gpu, LayerSet, NodeFrame, RenderOptions, Renderer};
+use lightfold_node::gpu::{EyeVariant, Fault, Gpu, LayerSet, NodeFrame, RenderOptions, Renderer};
 use lightfold_reference::{Layers, render_point_sum};
 use lightfold_scene::{LightSample, Scene};
 use std::sync::OnceLock;
@@ -41,9 +42,20 @@ fn expected() -> &'static Expected {
     })
 }
 
+/// Renders with the default eye variant.
 fn render(gpu: &Gpu, opts: RenderOptions, layers: LayerSet) -> NodeFrame {
+    render_variant(gpu, opts, layers, EyeVariant::default())
+}
+
+fn render_variant(
+    gpu: &Gpu,
+    opts: RenderOptions,
+    layers: LayerSet,
+    variant: EyeVariant,
+) -> NodeFrame {
     let e = expected();
     let mut r = Renderer::new(gpu, &e.scene, opts).expect("renderer");
+    r.set_variant(variant);
     r.render(gpu, &e.samples, None, C_N, layers)
         .expect("render")
 }
@@ -123,10 +135,36 @@ fn illumination_matches_the_reference() {
 }
 
 #[test]
-fn material_layers_and_depth_match_the_reference() {
+fn forward_illumination_matches_the_reference() {
     let gpu = gpu();
     let e = expected();
-    let frame = render(&gpu, default_options(), LayerSet::all());
+    let frame = render_variant(
+        &gpu,
+        default_options(),
+        LayerSet::illumination(),
+        EyeVariant::Forward,
+    );
+    dump("forward", &frame, &e.reference);
+    let c = compare(
+        frame.illumination.as_ref().expect("illumination"),
+        &e.reference.illumination,
+        &e.mask,
+    );
+    eprintln!("forward: {c:?}");
+    assert!(c.passes(), "{c:?}");
+}
+
+#[test]
+fn material_layers_and_depth_match_the_reference() {
+    for variant in [EyeVariant::Forward, EyeVariant::Deferred] {
+        layers_match(variant);
+    }
+}
+
+fn layers_match(variant: EyeVariant) {
+    let gpu = gpu();
+    let e = expected();
+    let frame = render_variant(&gpu, default_options(), LayerSet::all(), variant);
     // Material layers do not depend on shadows: only silhouettes are masked.
     let sil = lightfold_reference::masks::silhouettes(&e.reference.depth, &e.reference.coverage, 1);
     let mask: Vec<bool> = sil.iter().map(|&s| !s).collect();
@@ -139,15 +177,15 @@ fn material_layers_and_depth_match_the_reference() {
     ] {
         let got = got.as_ref().unwrap_or_else(|| panic!("{name} missing"));
         let c = compare(got, want, &mask);
-        eprintln!("{name}: {c:?}");
-        assert!(c.passes(), "{name}: {c:?}");
+        eprintln!("{variant:?} {name}: {c:?}");
+        assert!(c.passes(), "{variant:?} {name}: {c:?}");
     }
     let il = compare(
         frame.illumination.as_ref().expect("illumination"),
         &e.reference.illumination,
         &e.mask,
     );
-    assert!(il.passes(), "with layers: {il:?}");
+    assert!(il.passes(), "{variant:?} with layers: {il:?}");
 }
 
 #[test]

@@ -5,7 +5,7 @@
 mod gpu_support;
 
 use gpu_support::*;
-use lightfold_node::gpu::{LayerSet, RenderError, RenderOptions, Renderer};
+use lightfold_node::gpu::{EyeVariant, LayerSet, RenderError, RenderOptions, Renderer};
 use lightfold_reference::{PointSumOptions, render_point_sum, render_point_sum_with};
 use lightfold_scene::shading::normalize;
 use lightfold_scene::{LightSample, SampleKind, ShadowFilter, sampling};
@@ -256,4 +256,48 @@ fn every_shadow_filter_matches_the_reference_away_from_edges() {
         eprintln!("{filter:?}: {c:?}");
         assert!(c.passes(), "{filter:?}: {c:?}");
     }
+}
+
+#[test]
+fn forward_and_deferred_agree_and_walkthrough_is_bit_identical_in_both() {
+    let gpu = gpu();
+    let scene = shadow_scene(W, H);
+    let samples = samples(&scene);
+    let opts = RenderOptions::from_quality(&scene.quality);
+    let mut frames = Vec::new();
+    for variant in [EyeVariant::Forward, EyeVariant::Deferred] {
+        let mut r = Renderer::new(
+            &gpu,
+            &scene,
+            RenderOptions {
+                walkthrough: true,
+                ..opts
+            },
+        )
+        .unwrap();
+        r.set_variant(variant);
+        let first = r
+            .render(&gpu, &samples, None, C_N, LayerSet::all())
+            .unwrap();
+        let steady = r
+            .render(&gpu, &samples, None, C_N, LayerSet::all())
+            .unwrap();
+        assert_eq!(steady.stats.shadow_passes, 0);
+        assert_eq!(first.illumination, steady.illumination, "{variant:?}");
+        frames.push(first);
+    }
+    let (f, d) = (&frames[0], &frames[1]);
+    assert_eq!(f.diffuse, d.diffuse);
+    assert_eq!(f.depth, d.depth);
+    let (a, b) = (
+        f.illumination.as_ref().unwrap(),
+        d.illumination.as_ref().unwrap(),
+    );
+    let worst = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| (x - y).abs() / (x.abs().max(y.abs()) + 1e-6))
+        .fold(0.0f32, f32::max);
+    assert!(worst < 1e-4, "variants differ by {worst} relative");
 }

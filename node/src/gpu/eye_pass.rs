@@ -23,7 +23,9 @@ pub struct GpuFrame {
     pub filter_mode: u32,
     pub taps: u32,
     pub kernel_radius: f32,
-    pub _pad: [u32; 3],
+    pub width: u32,
+    pub height: u32,
+    pub _pad: u32,
 }
 
 impl GpuFrame {
@@ -41,7 +43,9 @@ impl GpuFrame {
             filter_mode: 1,
             taps: 1,
             kernel_radius: 1.0,
-            _pad: [0; 3],
+            width: camera.width,
+            height: camera.height,
+            _pad: 0,
         }
     }
 }
@@ -56,7 +60,7 @@ pub struct EyeTargets {
     pub depth: wgpu::Texture,
     /// m^d, m^s, m^a, e.
     pub materials: [wgpu::Texture; 4],
-    depth_buffer: wgpu::Texture,
+    pub depth_buffer: wgpu::Texture,
 }
 
 fn target(
@@ -113,13 +117,8 @@ pub struct EyeInputs<'a> {
     pub material_layers: bool,
 }
 
-/// Records and submits the eye pass over all `vertex_count` vertices.
-pub fn render_eye(
-    cx: &DrawContext<'_>,
-    vertex_count: u32,
-    targets: &EyeTargets,
-    inputs: &EyeInputs<'_>,
-) {
+/// The eye pass's uniform, light and view buffers bound as group 1.
+pub fn eye_bind_group(cx: &DrawContext<'_>, inputs: &EyeInputs<'_>) -> wgpu::BindGroup {
     let buffer = |label: &str, bytes: &[u8], usage| {
         cx.device
             .create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -154,7 +153,7 @@ pub fn render_eye(
         bytemuck::cast_slice(&views),
         wgpu::BufferUsages::STORAGE,
     );
-    let bind_group = cx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+    cx.device.create_bind_group(&wgpu::BindGroupDescriptor {
         label: Some("eye"),
         layout: &cx.pipelines.eye_layout,
         entries: &[
@@ -179,17 +178,23 @@ pub fn render_eye(
                 resource: wgpu::BindingResource::Sampler(inputs.sampler),
             },
         ],
-    });
+    })
+}
+
+/// Records one raster of the scene from the camera into `colour` (cleared to zero) with a
+/// reversed-Z depth buffer.
+pub fn record_raster(
+    cx: &DrawContext<'_>,
+    encoder: &mut wgpu::CommandEncoder,
+    pipeline: &wgpu::RenderPipeline,
+    bind_group: &wgpu::BindGroup,
+    colour: &[&wgpu::Texture],
+    depth_buffer: &wgpu::Texture,
+    vertex_count: u32,
+) {
     let view = |t: &wgpu::Texture| t.create_view(&Default::default());
-    let mut colour = vec![
-        view(&targets.diffuse),
-        view(&targets.specular),
-        view(&targets.depth),
-    ];
-    if inputs.material_layers {
-        colour.extend(targets.materials.iter().map(view));
-    }
-    let attachments: Vec<Option<wgpu::RenderPassColorAttachment<'_>>> = colour
+    let views: Vec<wgpu::TextureView> = colour.iter().map(|t| view(t)).collect();
+    let attachments: Vec<Option<wgpu::RenderPassColorAttachment<'_>>> = views
         .iter()
         .map(|v| {
             Some(wgpu::RenderPassColorAttachment {
@@ -203,39 +208,61 @@ pub fn render_eye(
             })
         })
         .collect();
-    let depth_view = view(&targets.depth_buffer);
+    let depth_view = view(depth_buffer);
+    let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+        label: Some("eye raster"),
+        color_attachments: &attachments,
+        depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+            view: &depth_view,
+            depth_ops: Some(wgpu::Operations {
+                load: wgpu::LoadOp::Clear(0.0),
+                store: wgpu::StoreOp::Discard,
+            }),
+            stencil_ops: None,
+        }),
+        timestamp_writes: None,
+        occlusion_query_set: None,
+        multiview_mask: None,
+    });
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, cx.scene_bind_group, &[]);
+    pass.set_bind_group(1, bind_group, &[]);
+    pass.set_vertex_buffer(0, cx.vertices.slice(..));
+    if vertex_count > 0 {
+        pass.draw(0..vertex_count, 0..1);
+    }
+}
+
+/// Records and submits the forward eye pass over all `vertex_count` vertices.
+pub fn render_eye(
+    cx: &DrawContext<'_>,
+    vertex_count: u32,
+    targets: &EyeTargets,
+    inputs: &EyeInputs<'_>,
+) {
+    let bind_group = eye_bind_group(cx, inputs);
+    let mut colour = vec![&targets.diffuse, &targets.specular, &targets.depth];
+    if inputs.material_layers {
+        colour.extend(targets.materials.iter());
+    }
+    let pipeline = if inputs.material_layers {
+        &cx.pipelines.eye_layers
+    } else {
+        &cx.pipelines.eye_illumination
+    };
     let mut encoder = cx
         .device
         .create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("eye pass"),
         });
-    {
-        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("eye pass"),
-            color_attachments: &attachments,
-            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                view: &depth_view,
-                depth_ops: Some(wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(0.0),
-                    store: wgpu::StoreOp::Discard,
-                }),
-                stencil_ops: None,
-            }),
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
-        pass.set_pipeline(if inputs.material_layers {
-            &cx.pipelines.eye_layers
-        } else {
-            &cx.pipelines.eye_illumination
-        });
-        pass.set_bind_group(0, cx.scene_bind_group, &[]);
-        pass.set_bind_group(1, &bind_group, &[]);
-        pass.set_vertex_buffer(0, cx.vertices.slice(..));
-        if vertex_count > 0 {
-            pass.draw(0..vertex_count, 0..1);
-        }
-    }
+    record_raster(
+        cx,
+        &mut encoder,
+        pipeline,
+        &bind_group,
+        &colour,
+        &targets.depth_buffer,
+        vertex_count,
+    );
     cx.queue.submit([encoder.finish()]);
 }

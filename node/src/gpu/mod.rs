@@ -1,6 +1,7 @@
 //! The GPU renderer of a render node: device setup, shadow maps for K point-light samples, the
 //! illumination eye pass with optional material layers, and readback into `scene::Image`s.
 
+mod deferred;
 pub mod device;
 mod eye_pass;
 pub mod frame;
@@ -12,6 +13,6 @@ pub mod scene_data;
 mod shadow_pass;
 
 pub use device::{DeviceError, Gpu, GpuOptions};
-pub use frame::{LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
+pub use frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
 pub use lights::Fault;
 pub use renderer::Renderer;

@@ -37,7 +37,15 @@ pub struct Pipelines {
     pub eye_illumination: wgpu::RenderPipeline,
     pub eye_layers: wgpu::RenderPipeline,
     pub illumination_format: wgpu::TextureFormat,
+    /// Deferred variant: G-buffer rasters (without / with material layers) and the light pass.
+    pub deferred_layout: wgpu::BindGroupLayout,
+    pub gbuffer: wgpu::RenderPipeline,
+    pub gbuffer_layers: wgpu::RenderPipeline,
+    pub deferred_lights: wgpu::ComputePipeline,
 }
+
+/// G-buffer targets: position + material, shading normal, geometric normal (f32 bits).
+pub const GBUFFER_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Uint;
 
 fn storage_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
@@ -77,8 +85,9 @@ fn depth_state(write: bool) -> wgpu::DepthStencilState {
 
 impl Pipelines {
     pub fn new(device: &wgpu::Device) -> Pipelines {
-        let fragment = wgpu::ShaderStages::FRAGMENT;
-        let vf = wgpu::ShaderStages::VERTEX_FRAGMENT;
+        // Lighting runs in fragment shaders (forward) and in a compute shader (deferred).
+        let fragment = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
+        let vf = wgpu::ShaderStages::VERTEX_FRAGMENT | wgpu::ShaderStages::COMPUTE;
         let scene_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("scene"),
             entries: &[
@@ -235,6 +244,63 @@ impl Pipelines {
         };
         let eye_illumination = eye("fs_illumination", &illum_targets);
         let eye_layers = eye("fs_layers", &layer_targets);
+        let gbuffer_targets = [
+            target(GBUFFER_FORMAT),
+            target(GBUFFER_FORMAT),
+            target(GBUFFER_FORMAT),
+            target(EYE_DEPTH_FORMAT),
+            target(MATERIAL_FORMAT),
+            target(MATERIAL_FORMAT),
+            target(MATERIAL_FORMAT),
+            target(MATERIAL_FORMAT),
+        ];
+        let gbuffer = eye("fs_gbuffer", &gbuffer_targets[..4]);
+        let gbuffer_layers = eye("fs_gbuffer_layers", &gbuffer_targets);
+        let gbuffer_entry = |binding| wgpu::BindGroupLayoutEntry {
+            binding,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Texture {
+                sample_type: wgpu::TextureSampleType::Uint,
+                view_dimension: wgpu::TextureViewDimension::D2,
+                multisampled: false,
+            },
+            count: None,
+        };
+        let deferred_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("deferred"),
+            entries: &[
+                gbuffer_entry(0),
+                gbuffer_entry(1),
+                gbuffer_entry(2),
+                wgpu::BindGroupLayoutEntry {
+                    binding: 3,
+                    visibility: wgpu::ShaderStages::COMPUTE,
+                    ty: wgpu::BindingType::Buffer {
+                        ty: wgpu::BufferBindingType::Storage { read_only: false },
+                        has_dynamic_offset: false,
+                        min_binding_size: None,
+                    },
+                    count: None,
+                },
+            ],
+        });
+        let deferred_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("deferred lights"),
+            bind_group_layouts: &[
+                Some(&scene_layout),
+                Some(&eye_layout),
+                Some(&deferred_layout),
+            ],
+            immediate_size: 0,
+        });
+        let deferred_lights = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("cs_lights"),
+            layout: Some(&deferred_pl),
+            module: &eye_module,
+            entry_point: Some("cs_lights"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
         Pipelines {
             scene_layout,
             shadow_layout,
@@ -244,6 +310,10 @@ impl Pipelines {
             eye_illumination,
             eye_layers,
             illumination_format,
+            deferred_layout,
+            gbuffer,
+            gbuffer_layers,
+            deferred_lights,
         }
     }
 }

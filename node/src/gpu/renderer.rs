@@ -4,9 +4,10 @@
 //! Shadow maps cover the receivers the camera sees; in walkthrough mode they cover every receiver
 //! and are kept while the lights, casters and map size stay the same, whatever the camera does.
 
+use super::deferred::{DeferredTargets, read_illumination, render_deferred};
 use super::device::Gpu;
 use super::eye_pass::{EyeInputs, EyeTargets, GpuFrame, render_eye};
-use super::frame::{LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
+use super::frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
 use super::lights::{Fault, LightPlan, plan_lights};
 use super::pipelines::{DrawContext, Pipelines};
 use super::readback::{ReadRequest, read_targets};
@@ -44,6 +45,8 @@ pub struct Renderer {
     maps: Option<ShadowMaps>,
     map_key: Option<MapKey>,
     targets: Option<EyeTargets>,
+    variant: EyeVariant,
+    deferred: Option<DeferredTargets>,
     max_lights: u32,
     fit_to_camera: bool,
 }
@@ -155,6 +158,8 @@ impl Renderer {
             targets: None,
             max_lights: gpu.max_lights(opts.shadow_map_size),
             fit_to_camera: true,
+            variant: EyeVariant::default(),
+            deferred: None,
         })
     }
 
@@ -166,6 +171,15 @@ impl Renderer {
     /// default: fewer cube faces) or to the whole scene, as walkthrough mode always does.
     pub fn set_fit_to_camera(&mut self, on: bool) {
         self.fit_to_camera = on;
+    }
+
+    /// Chooses how the eye pass lights pixels (same images either way, within f32 rounding).
+    pub fn set_variant(&mut self, variant: EyeVariant) {
+        self.variant = variant;
+    }
+
+    pub fn variant(&self) -> EyeVariant {
+        self.variant
     }
 
     pub fn options(&self) -> &RenderOptions {
@@ -289,26 +303,47 @@ impl Renderer {
         let targets = self.targets.as_ref().expect("allocated above");
         let frame = self.frame_uniform(&plan);
         let maps = self.maps.as_ref().expect("allocated with the shadow maps");
-        render_eye(
-            &self.draw_context(gpu),
-            self.scene.vertices.len() as u32,
-            targets,
-            &EyeInputs {
-                frame,
-                lights: &plan.lights,
-                views: &plan.views,
-                maps,
-                sampler: &self.sampler,
-                material_layers: layers.any_material(),
-            },
-        );
+        let inputs = EyeInputs {
+            frame,
+            lights: &plan.lights,
+            views: &plan.views,
+            maps,
+            sampler: &self.sampler,
+            material_layers: layers.any_material(),
+        };
+        let vertex_count = self.scene.vertices.len() as u32;
+        if self.variant == EyeVariant::Deferred {
+            if !self
+                .deferred
+                .as_ref()
+                .is_some_and(|d| d.width == w && d.height == h)
+            {
+                self.deferred = Some(DeferredTargets::new(&gpu.device, w, h));
+            }
+            let deferred = self.deferred.as_ref().expect("allocated above");
+            render_deferred(
+                &self.draw_context(gpu),
+                vertex_count,
+                targets,
+                deferred,
+                &inputs,
+            );
+        } else {
+            render_eye(&self.draw_context(gpu), vertex_count, targets, &inputs);
+        }
         wait(gpu)?;
         stats.eye_us = t1.elapsed().as_micros() as u64;
 
         // Readback of the requested layers.
         let t2 = Instant::now();
         let mut requests: Vec<(ReadRequest<'_>, &str)> = Vec::new();
-        if lit {
+        let lit_buffer = match (&self.deferred, self.variant) {
+            (Some(d), EyeVariant::Deferred) if lit => {
+                Some(read_illumination(&gpu.device, &gpu.queue, d)?)
+            }
+            _ => None,
+        };
+        if lit && lit_buffer.is_none() {
             requests.push((req(&targets.diffuse, 3), "diffuse illumination"));
             requests.push((req(&targets.specular, 3), "specular illumination"));
         }
@@ -342,10 +377,13 @@ impl Renderer {
             stats: RenderStats::default(),
         };
         if lit {
-            let (d, s) = (
-                data.next().unwrap_or_default(),
-                data.next().unwrap_or_default(),
-            );
+            let (d, s) = match lit_buffer {
+                Some(ds) => ds,
+                None => (
+                    data.next().unwrap_or_default(),
+                    data.next().unwrap_or_default(),
+                ),
+            };
             let mut il = Vec::with_capacity(d.len() * 2);
             for (a, b) in d.chunks_exact(3).zip(s.chunks_exact(3)) {
                 il.extend_from_slice(a);

@@ -1,0 +1,178 @@
+//! The deferred variant of the eye pass: one raster writes a G-buffer (position, normals and
+//! material per pixel as f32 bits, plus eye depth and the material layers), then one compute pass
+//! lights every pixel with the K samples into a storage buffer. Same maths as the forward pass;
+//! no fragment of a hidden surface is ever lit.
+
+use super::eye_pass::{EyeInputs, EyeTargets, eye_bind_group, record_raster};
+use super::frame::RenderError;
+use super::pipelines::{DrawContext, GBUFFER_FORMAT};
+
+/// Workgroup edge of `cs_lights`.
+const WORKGROUP: u32 = 8;
+
+/// The G-buffer and the lit result at one image size.
+#[derive(Debug)]
+pub struct DeferredTargets {
+    pub width: u32,
+    pub height: u32,
+    gbuffer: [wgpu::Texture; 3],
+    /// Two vec4<f32> per pixel: diffuse then specular illumination.
+    pub illumination: wgpu::Buffer,
+}
+
+impl DeferredTargets {
+    pub fn new(device: &wgpu::Device, w: u32, h: u32) -> DeferredTargets {
+        let gbuffer = [
+            "g-buffer position",
+            "g-buffer normal",
+            "g-buffer geometric normal",
+        ]
+        .map(|label| {
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d {
+                    width: w,
+                    height: h,
+                    depth_or_array_layers: 1,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format: GBUFFER_FORMAT,
+                usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                    | wgpu::TextureUsages::TEXTURE_BINDING,
+                view_formats: &[],
+            })
+        });
+        let illumination = device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("deferred illumination"),
+            size: w as u64 * h as u64 * 32,
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        DeferredTargets {
+            width: w,
+            height: h,
+            gbuffer,
+            illumination,
+        }
+    }
+}
+
+/// Records and submits the G-buffer raster and the light pass.
+pub fn render_deferred(
+    cx: &DrawContext<'_>,
+    vertex_count: u32,
+    targets: &EyeTargets,
+    deferred: &DeferredTargets,
+    inputs: &EyeInputs<'_>,
+) {
+    let bind_group = eye_bind_group(cx, inputs);
+    let g = &deferred.gbuffer;
+    let mut colour = vec![&g[0], &g[1], &g[2], &targets.depth];
+    if inputs.material_layers {
+        colour.extend(targets.materials.iter());
+    }
+    let pipeline = if inputs.material_layers {
+        &cx.pipelines.gbuffer_layers
+    } else {
+        &cx.pipelines.gbuffer
+    };
+    let mut encoder = cx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("deferred eye pass"),
+        });
+    record_raster(
+        cx,
+        &mut encoder,
+        pipeline,
+        &bind_group,
+        &colour,
+        &targets.depth_buffer,
+        vertex_count,
+    );
+    let view = |t: &wgpu::Texture| t.create_view(&Default::default());
+    let views = [view(&g[0]), view(&g[1]), view(&g[2])];
+    let gbuffer_group = cx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: Some("g-buffer"),
+        layout: &cx.pipelines.deferred_layout,
+        entries: &[
+            wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::TextureView(&views[0]),
+            },
+            wgpu::BindGroupEntry {
+                binding: 1,
+                resource: wgpu::BindingResource::TextureView(&views[1]),
+            },
+            wgpu::BindGroupEntry {
+                binding: 2,
+                resource: wgpu::BindingResource::TextureView(&views[2]),
+            },
+            wgpu::BindGroupEntry {
+                binding: 3,
+                resource: deferred.illumination.as_entire_binding(),
+            },
+        ],
+    });
+    {
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some("deferred lights"),
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(&cx.pipelines.deferred_lights);
+        pass.set_bind_group(0, cx.scene_bind_group, &[]);
+        pass.set_bind_group(1, &bind_group, &[]);
+        pass.set_bind_group(2, &gbuffer_group, &[]);
+        pass.dispatch_workgroups(
+            deferred.width.div_ceil(WORKGROUP),
+            deferred.height.div_ceil(WORKGROUP),
+            1,
+        );
+    }
+    cx.queue.submit([encoder.finish()]);
+}
+
+/// Reads the lit buffer back as (diffuse RGB, specular RGB) per pixel.
+pub fn read_illumination(
+    device: &wgpu::Device,
+    queue: &wgpu::Queue,
+    deferred: &DeferredTargets,
+) -> Result<(Vec<f32>, Vec<f32>), RenderError> {
+    let size = deferred.illumination.size();
+    let staging = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("deferred readback"),
+        size,
+        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+        mapped_at_creation: false,
+    });
+    let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
+        label: Some("deferred readback"),
+    });
+    encoder.copy_buffer_to_buffer(&deferred.illumination, 0, &staging, 0, size);
+    queue.submit([encoder.finish()]);
+    let (tx, rx) = std::sync::mpsc::channel();
+    staging.map_async(wgpu::MapMode::Read, .., move |r| {
+        let _ = tx.send(r);
+    });
+    device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map_err(|e| RenderError::Gpu(format!("readback wait: {e}")))?;
+    rx.recv()
+        .map_err(|e| RenderError::Gpu(format!("map callback lost: {e}")))?
+        .map_err(|e| RenderError::Gpu(format!("map of the lit buffer: {e}")))?;
+    let mapped = staging
+        .get_mapped_range(..)
+        .map_err(|e| RenderError::Gpu(format!("mapped range: {e}")))?;
+    let values: &[f32] = bytemuck::cast_slice(&mapped);
+    let n = (deferred.width * deferred.height) as usize;
+    let (mut diffuse, mut specular) = (Vec::with_capacity(n * 3), Vec::with_capacity(n * 3));
+    for px in values.chunks_exact(8) {
+        diffuse.extend_from_slice(&px[0..3]);
+        specular.extend_from_slice(&px[4..7]);
+    }
+    drop(mapped);
+    staging.unmap();
+    Ok((diffuse, specular))
+}
