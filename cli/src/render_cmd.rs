@@ -45,6 +45,9 @@ pub struct Args {
     /// GPU: print shadow passes and shadow / eye / readback time per frame.
     #[arg(long)]
     pub timings: bool,
+    /// GPU: light pixels in the forward eye pass instead of the deferred G-buffer + compute pass.
+    #[arg(long)]
+    pub forward: bool,
     /// Only these source lights (names or indices, comma-separated).
     #[arg(long, value_delimiter = ',')]
     pub lights: Vec<String>,

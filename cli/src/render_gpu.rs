@@ -6,7 +6,9 @@
 use super::Args;
 use anyhow::Context;
 use lightfold_node::gpu::device::parse_backend;
-use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, NodeFrame, RenderOptions, Renderer};
+use lightfold_node::gpu::{
+    EyeVariant, Gpu, GpuOptions, LayerSet, NodeFrame, RenderOptions, Renderer,
+};
 use lightfold_reference::output::png_next_to;
 use lightfold_scene::shading::compose;
 use lightfold_scene::{Image, LightSample, Scene};
@@ -55,12 +57,16 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
         .unwrap_or(scene.quality.lights_per_node)
         .clamp(1, gpu.max_lights(opts.shadow_map_size).max(1)) as usize;
     let mut renderer = Renderer::new(&gpu, scene, opts)?;
+    if args.forward {
+        renderer.set_variant(EyeVariant::Forward);
+    }
     let frames = args.frames.max(1);
     if args.timings {
         println!(
-            "adapter {} ({:?}), {}x{}, {} samples, K = {k}, {}² maps, {} batch(es)",
+            "adapter {} ({:?}), {:?} eye pass, {}x{}, {} samples, K = {k}, {}² maps, {} batch(es)",
             gpu.info.name,
             gpu.info.backend,
+            renderer.variant(),
             scene.camera.width,
             scene.camera.height,
             samples.len(),
