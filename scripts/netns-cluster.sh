@@ -19,7 +19,7 @@ cleanup() {
   for p in "${pids[@]}"; do kill -KILL "$p" 2>/dev/null || true; done
   for ns in $(ip netns list | awk '{print $1}' | grep "^${prefix}-" || true); do ip netns del "$ns" 2>/dev/null || true; done
   ip link del "$bridge" 2>/dev/null || true
-  rm -rf "$work"
+  if [ -n "${KEEP:-}" ]; then echo "logs kept in $work" >&2; else rm -rf "$work"; fi
 }
 trap cleanup EXIT
 ip link add "$bridge" type bridge
@@ -27,21 +27,23 @@ ip addr add 10.77.0.1/24 dev "$bridge"
 ip link set "$bridge" up
 head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \n' > "$work/token"
 host=2
-add_host() { # name -> prints the host's address
-  local ns=${prefix}-$1 ip=10.77.0.$host
+add_host() { # name -> sets $ip to the new host's address
+  local ns=${prefix}-$1
+  ip=10.77.0.$host
   ip netns add "$ns"
-  ip link add "v${prefix}$host" type veth peer name eth0 netns "$ns"
-  ip link set "v${prefix}$host" master "$bridge" up
+  ip link add "v${prefix}h$host" type veth peer name "p${prefix}h$host"
+  ip link set "p${prefix}h$host" netns "$ns"
+  ip -n "$ns" link set "p${prefix}h$host" name eth0
+  ip link set "v${prefix}h$host" master "$bridge" up
   ip -n "$ns" addr add "$ip/24" dev eth0
   ip -n "$ns" link set eth0 up
   ip -n "$ns" link set lo up
   host=$((host + 1))
-  echo "$ip"
 }
 echo "version = 1" > "$work/cluster.toml"
 echo 'sink_listen = "10.77.0.1:0"' >> "$work/cluster.toml"
 start() { # role index
-  local ip; ip=$(add_host "$1$2")
+  add_host "$1$2"
   ip netns exec "${prefix}-$1$2" env NODEVICE_SELECT=1 LP_NUM_THREADS=1 "$bin" "$1" --listen "$ip:7300" \
     --id "$1-$2" --token-file "$work/token" > "$work/$1$2.out" 2> "$work/$1$2.log" &
   pids+=($!)

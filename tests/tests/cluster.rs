@@ -235,7 +235,8 @@ async fn wrong_token_and_unreachable_daemon_are_clear_errors() {
         "{msg}"
     );
 
-    // A closed port: refused at once, with the address.
+    // A closed port: refused dials are retried (daemons may still be starting) until the
+    // registration deadline, then reported with the address.
     let closed = {
         let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
         l.local_addr().unwrap().to_string()
@@ -246,10 +247,18 @@ async fn wrong_token_and_unreachable_daemon_are_clear_errors() {
         role: Role::Node,
         id: None,
     }];
-    let e = Session::connect(&d, sink, None, cluster.identity(), test_control())
+    let mut quick = test_control();
+    quick.register = Duration::from_secs(1);
+    let t = Instant::now();
+    let e = Session::connect(&d, sink, None, cluster.identity(), quick)
         .await
         .unwrap_err();
     assert!(e.to_string().contains(&closed), "{e}");
+    assert!(
+        t.elapsed() < Duration::from_secs(5),
+        "took {:?}",
+        t.elapsed()
+    );
 
     // The daemon listed as a node is a compositor.
     let sink = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();

@@ -612,7 +612,8 @@ async fn register(
     me: Identity,
     opts: ControlOptions,
 ) -> Result<(Capabilities, String, lightfold_net::Link), ControlError> {
-    let mut link = lightfold_net::dial(&d.address, &me, opts.link)
+    // Daemons started by an engine at the same time may not listen yet: retry refused dials.
+    let mut link = lightfold_net::dial_retry(&d.address, &me, opts.link, opts.register)
         .await
         .map_err(|source| ControlError::Link {
             address: d.address.clone(),
