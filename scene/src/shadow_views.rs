@@ -55,6 +55,10 @@ pub struct ShadowView {
     /// Image-plane bounds `[left, right, bottom, top]`: tangents (`x/z`) for perspective views,
     /// metres for orthographic ones. A texel spans `(right − left)/size` of them.
     pub extent: [f32; 4],
+    /// For one of two fitted frusta that split the receivers by a plane through the sample: the
+    /// plane's normal, pointing to this view's side (a point `p` belongs to the view whose
+    /// `half_space·(p − sample)` is ≥ 0).
+    pub half_space: Option<V3>,
 }
 
 impl ShadowView {
@@ -206,10 +210,52 @@ fn perspective_views(sample: &LightSample, boxes: &[(V3, V3)]) -> Vec<ShadowView
         return Vec::new();
     }
     let own_axis = (sample.kind != SampleKind::Isotropic).then_some(axis);
-    if !contains_light && let Some(v) = fitted_view(origin, own_axis, &polys) {
-        return vec![v];
+    if !contains_light {
+        if let Some(v) = fitted_view(origin, own_axis, &polys) {
+            return vec![v];
+        }
+        if let Some(views) = split_views(origin, frame, &polys) {
+            return views;
+        }
     }
     cube_views(origin, frame, &polys, &region, contains_light)
+}
+
+/// Two fitted frusta, one each side of a plane through the sample containing its axis, when
+/// both halves of the receivers fit; of the planes tried the tightest pair wins. Cheaper than
+/// three to five cube faces for receivers spread wide in one direction only.
+fn split_views(origin: V3, [r, u, _]: [V3; 3], polys: &[Poly]) -> Option<Vec<ShadowView>> {
+    let normals = [r, u, normalize(add3(r, u)), normalize(sub(r, u))];
+    let mut best: Option<(f32, Vec<ShadowView>)> = None;
+    'planes: for n in normals {
+        let mut views = Vec::with_capacity(2);
+        for side in [n, scale(n, -1.0)] {
+            let half: Vec<Poly> = polys
+                .iter()
+                .map(|p| clip(p, side))
+                .filter(|p| p.len() >= 3)
+                .collect();
+            if half.is_empty() {
+                continue;
+            }
+            let Some(mut v) = fitted_view(origin, None, &half) else {
+                continue 'planes;
+            };
+            v.half_space = Some(side);
+            views.push(v);
+        }
+        // One empty half means a single frustum would have fitted: not this function's case.
+        if views.len() == 2 {
+            let area: f32 = views
+                .iter()
+                .map(|v| (v.extent[1] - v.extent[0]) * (v.extent[3] - v.extent[2]))
+                .sum();
+            if best.as_ref().is_none_or(|b| area < b.0) {
+                best = Some((area, views));
+            }
+        }
+    }
+    best.map(|b| b.1)
 }
 
 /// One frustum around the receivers, if they all fit inside [`MAX_FITTED_FOV_DEG`]. Axes tried:
@@ -402,6 +448,7 @@ fn perspective_view(
         near,
         far,
         extent: e,
+        half_space: None,
     }
 }
 
@@ -450,6 +497,7 @@ fn ortho_view(dir: V3, boxes: &[(V3, V3)]) -> Option<ShadowView> {
         near,
         far,
         extent: [l, r, b, t],
+        half_space: None,
     })
 }
 

@@ -86,6 +86,12 @@ fn assert_covered(s: &LightSample, boxes: &[(V3, V3)]) -> usize {
                         |v| matches!(v.kind, ShadowViewKind::CubeFace(cf) if cf.index() == face),
                     )
                     .any(|v| holds(&v))
+            } else if let Some(v) = views.iter().find(|v| {
+                v.half_space
+                    .is_some_and(|n| n[0] * d[0] + n[1] * d[1] + n[2] * d[2] >= 0.0)
+            }) {
+                // Split frusta: the side of the plane picks the view, as the shader does.
+                holds(&v)
             } else {
                 views.iter().any(|v| holds(&v))
             };
@@ -233,4 +239,19 @@ fn receivers_are_cut_to_what_the_camera_sees() {
     // A camera inside a box keeps the part of the box in front of it.
     let room = ([-2.0, 0.0, -2.0], [2.0, 3.0, 4.0]);
     assert_eq!(visible_receivers(&camera, &[room]).len(), 1);
+}
+
+#[test]
+fn receivers_spread_one_way_get_two_fitted_frusta() {
+    // A long strip under a low light: ±84° along x, ±45° along z.
+    let strip = ([-10.0, 0.0, -1.0], [10.0, 0.0, 1.0]);
+    let s = sample([0.0, 1.0, 0.0], [0.0, -1.0, 0.0], SampleKind::CosineLobe);
+    let views = shadow_views(&s, &[strip]);
+    assert_eq!(views.len(), 2, "{views:#?}");
+    assert!(
+        views
+            .iter()
+            .all(|v| v.kind == ShadowViewKind::Fitted && v.half_space.is_some())
+    );
+    assert!(assert_covered(&s, &[strip]) > 100);
 }
