@@ -68,7 +68,8 @@ fn shadow_filter(uv: vec2f, layer: u32, ref_depth: f32) -> f32 {
     return sum / f32(taps * taps);
 }
 
-// The view of light s that holds p: its only one, or the cube face of p's direction.
+// The view of light s that holds p: its only one, the cube face of p's direction, or the side
+// of its split plane.
 fn view_for(s: Light, p: vec3f) -> u32 {
     if s.view_count == 0u {
         return NO_VIEW;
@@ -77,6 +78,9 @@ fn view_for(s: Light, p: vec3f) -> u32 {
         return s.first_view;
     }
     let d = p - s.position;
+    if s.cube == 2u {
+        return select(s.faces_a.y, s.faces_a.x, dot(d, s.cube_x) >= 0.0);
+    }
     let c = vec3f(dot(d, s.cube_x), dot(d, s.cube_y), dot(d, s.cube_z));
     let a = abs(c);
     if a.x >= a.y && a.x >= a.z {

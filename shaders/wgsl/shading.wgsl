@@ -23,8 +23,9 @@ struct Light {
     cos_inner: f32,
     first_view: u32,
     view_count: u32,
-    // Cube frame (`scene::shadow_views::cube_frame`), used when `cube` is 1: a point falls in the
-    // face of the dominant axis of its direction from the light.
+    // How a point picks its view: `cube` 0 = the only view; 1 = cube faces, by the dominant axis
+    // of its direction in the frame cube_x/y/z (`scene::shadow_views::cube_frame`); 2 = two
+    // frusta split by the plane with normal cube_x (faces_a.x on its positive side, else .y).
     cube_x: vec3f,
     cube: u32,
     cube_y: vec3f,

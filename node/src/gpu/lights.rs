@@ -15,7 +15,8 @@ pub enum Fault {
     NoBias,
     /// A 0.5 m constant bias (shadows detach from their casters).
     HugeBias,
-    /// Cube-mapped lights keep only the face along their axis, as a single 90° frustum would.
+    /// Lights with several views keep only the one looking most along their axis (for a cube,
+    /// the face a single 90° frustum would be).
     MissingFace,
     /// The light colour is multiplied in as `c_λ` instead of `c_λ ⊘ c_n` (applied twice downstream).
     ColourNotDivided,
@@ -35,7 +36,9 @@ pub struct GpuLight {
     pub cos_inner: f32,
     pub first_view: u32,
     pub view_count: u32,
-    /// Cube frame axes (`cube_frame`); `cube` is 1 when the views are cube faces.
+    /// How a point picks its view: [`MODE_SINGLE`], [`MODE_CUBE`] (dominant axis of its direction
+    /// in the frame `cube_x/y/z`, then `faces`) or [`MODE_SPLIT`] (side of the plane with normal
+    /// `cube_x`: `faces[0]` where `cube_x·d ≥ 0`, else `faces[1]`).
     pub cube_x: [f32; 3],
     pub cube: u32,
     pub cube_y: [f32; 3],
@@ -48,6 +51,10 @@ pub struct GpuLight {
 
 /// A cube face with no receivers, hence no view.
 pub const NO_VIEW: u32 = u32::MAX;
+/// View selection modes of [`GpuLight::cube`].
+pub const MODE_SINGLE: u32 = 0;
+pub const MODE_CUBE: u32 = 1;
+pub const MODE_SPLIT: u32 = 2;
 
 /// `View` in `eye.wgsl` (std430). The projection is stored as its eight non-zero entries:
 /// `clip = (p00·x + p20·z + p30, p11·y + p21·z + p31, p22·z + p32, ortho ? 1 : −z)`.
@@ -99,7 +106,17 @@ pub fn plan_lights(
     for (i, s) in samples.iter().enumerate() {
         let mut views = shadow_views(s, receivers);
         if fault == Some(Fault::MissingFace) && views.len() > 1 {
-            views.retain(|v| v.kind == ShadowViewKind::CubeFace(CUBE_AXIS_FACE));
+            // Keep the view looking most along the sample's axis: a single frustum's coverage.
+            let axis = cube_frame(s)[2];
+            let along = |v: &ShadowView| {
+                -(v.view[0][2] * axis[0] + v.view[1][2] * axis[1] + v.view[2][2] * axis[2])
+            };
+            let best = views
+                .iter()
+                .copied()
+                .max_by(|a, b| along(a).total_cmp(&along(b)))
+                .expect("more than one view");
+            views = vec![best];
         }
         let first_view = plan.views.len() as u32;
         let mut faces = [NO_VIEW; 8];
@@ -133,17 +150,17 @@ pub fn plan_lights(
             .any(|v| matches!(v.kind, ShadowViewKind::CubeFace(_)))
         {
             let [x, y, z] = cube_frame(s);
-            (light.cube, light.cube_x, light.cube_y, light.cube_z) = (1, x, y, z);
+            (light.cube, light.cube_x, light.cube_y, light.cube_z) = (MODE_CUBE, x, y, z);
             light.faces = faces;
+        } else if let (2, Some(n)) = (views.len(), views[0].half_space) {
+            (light.cube, light.cube_x) = (MODE_SPLIT, n);
+            light.faces[0] = first_view;
+            light.faces[1] = first_view + 1;
         }
         plan.lights.push(light);
     }
     plan
 }
-
-/// The cube face looking along the sample's own axis.
-const CUBE_AXIS_FACE: lightfold_scene::shadow_views::CubeFace =
-    lightfold_scene::shadow_views::CubeFace::PosZ;
 
 fn gpu_light(s: &LightSample, weight: V3, first_view: u32, view_count: u32) -> GpuLight {
     let (kind, cos_outer, cos_inner) = match s.kind {
@@ -254,8 +271,8 @@ mod tests {
             "ceiling light next to a wall needs faces"
         );
         assert_eq!(p.lights[1].first_view, p.passes_per_light[0]);
-        // The cube light maps each face it needs to its view.
-        assert_eq!(p.lights[0].cube, 1);
+        // The multi-view light maps each view it needs to its layer.
+        assert_ne!(p.lights[0].cube, MODE_SINGLE);
         let mapped: Vec<u32> = p.lights[0]
             .faces
             .iter()
@@ -277,6 +294,23 @@ mod tests {
         assert_eq!(bad.lights[0].weight, [1.0, 0.5, 0.25]);
         let dropped = plan_lights(&samples, &ROOM, [1.0; 3], 512, Some(Fault::MissingFace));
         assert_eq!(dropped.passes_per_light[0], 1);
+    }
+
+    #[test]
+    fn a_light_inside_closed_walls_uses_cube_faces() {
+        let walls = [
+            ([-2.0, 0.0, -2.0], [2.0, 0.0, 2.0]),
+            ([-2.0, 0.0, -2.0], [2.0, 3.0, -2.0]),
+            ([-2.0, 0.0, 2.0], [2.0, 3.0, 2.0]),
+            ([-2.0, 0.0, -2.0], [-2.0, 3.0, 2.0]),
+            ([2.0, 0.0, -2.0], [2.0, 3.0, 2.0]),
+        ];
+        let p = plan_lights(&[lobe([0.0, 2.9, 0.0])], &walls, [1.0; 3], 512, None);
+        assert_eq!(p.lights[0].cube, MODE_CUBE);
+        assert_eq!(p.passes_per_light[0], 5);
+        let faces = &p.lights[0].faces;
+        assert_eq!(faces.iter().filter(|&&f| f != NO_VIEW).count(), 5);
+        assert_eq!(faces[5], NO_VIEW, "nothing behind the lobe");
     }
 
     #[test]
