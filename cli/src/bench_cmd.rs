@@ -59,6 +59,9 @@ pub struct NodeArgs {
     frames: u32,
     #[arg(long, default_value_t = 2)]
     warmup: u32,
+    /// Rounds over all configurations (a fresh node process each time).
+    #[arg(long, default_value_t = 3)]
+    rounds: u32,
     /// `LP_NUM_THREADS` of every node process (lavapipe's rasteriser threads).
     #[arg(long, default_value_t = 1)]
     threads: u32,
@@ -93,8 +96,8 @@ struct Row {
     mode: String,
     k: u32,
     frames: Vec<FrameStats>,
-    /// Mean CPU time of the node process per timed frame, ms (all its threads).
-    cpu_ms: f64,
+    /// CPU time of the node process over all timed frames, ms (all its threads).
+    cpu_ms_total: f64,
 }
 
 /// User + system CPU time of process `pid` so far, in clock ticks (`/proc/<pid>/stat`).
@@ -129,6 +132,10 @@ impl Row {
     }
     fn total_ms(&self) -> f64 {
         self.ms(|s| s.total_us)
+    }
+    /// Mean CPU time of the node process per timed frame, ms.
+    fn cpu_ms(&self) -> f64 {
+        self.cpu_ms_total / self.frames.len().max(1) as f64
     }
     /// The fastest frame: other processes on a shared machine only ever add time, so this is
     /// the best estimate of a node with the machine to itself.
@@ -168,7 +175,7 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
         a.map,
         a.threads
     );
-    let mut rows = Vec::new();
+    let mut plan = Vec::new();
     for mode in &a.modes {
         let walkthrough = match mode.as_str() {
             "moving" => false,
@@ -205,19 +212,32 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
                 depth_bias: scene.quality.depth_bias,
                 slope_bias: scene.quality.slope_bias,
             };
+            plan.push((mode.clone(), k, config));
+        }
+    }
+    let mut rows: Vec<Row> = plan
+        .iter()
+        .map(|(mode, k, _)| Row {
+            mode: mode.clone(),
+            k: *k,
+            frames: Vec::new(),
+            cpu_ms_total: 0.0,
+        })
+        .collect();
+    // Rounds interleave the configurations, so a burst of load from other processes on a
+    // shared machine spreads over all of them instead of skewing one.
+    for round in 0..a.rounds {
+        for ((mode, k, config), row) in plan.iter().zip(rows.iter_mut()) {
             let still = mode == "static";
-            let (frames, cpu_ms) = measure(&a, &token_text, &scene, &bytes, config, still).await?;
-            let row = Row {
-                mode: mode.clone(),
-                k,
-                frames,
-                cpu_ms,
-            };
+            let (frames, cpu_ms) =
+                measure(&a, &token_text, &scene, &bytes, config.clone(), still).await?;
+            row.cpu_ms_total += cpu_ms * frames.len() as f64;
+            row.frames.extend(frames);
             eprintln!(
-                "  {mode:<11} K={k:<3} {:>8.1} ms/frame, {cpu_ms:>8.1} CPU ms/frame",
-                row.total_ms()
+                "  round {round} {mode:<11} K={k:<3} {:>8.1} ms/frame fastest, {:>8.1} CPU ms/frame",
+                row.best_ms(),
+                row.cpu_ms()
             );
-            rows.push(row);
         }
     }
     print_tables(&a, &rows);
@@ -415,8 +435,8 @@ async fn drain(listener: TcpListener, token: String, count: Arc<AtomicU64>) {
 fn print_tables(a: &NodeArgs, rows: &[Row]) {
     let l = a.lights;
     println!(
-        "\n### Frame time per node ({}x{}, {}² maps, LP_NUM_THREADS={}, {} frames, phases are medians, ms)\n",
-        a.width, a.height, a.map, a.threads, a.frames
+        "\n### Frame time per node ({}x{}, {}² maps, LP_NUM_THREADS={}, {} rounds × {} frames, phases are medians, ms)\n",
+        a.width, a.height, a.map, a.threads, a.rounds, a.frames
     );
     println!(
         "| mode | K | fastest | median | CPU | shadow | eye | readback | pack | send | shadow passes | MB out | peak RSS MB |"
@@ -437,7 +457,7 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
             r.k,
             r.best_ms(),
             r.total_ms(),
-            r.cpu_ms,
+            r.cpu_ms(),
             r.ms(|s| s.shadow_us),
             r.ms(|s| s.eye_us),
             r.ms(|s| s.readback_us),
@@ -473,8 +493,8 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
             r.k,
             nodes * r.best_ms() / 1000.0,
             ratio(&|x: &Row| x.best_ms()),
-            nodes * r.cpu_ms / 1000.0,
-            ratio(&|x: &Row| x.cpu_ms),
+            nodes * r.cpu_ms() / 1000.0,
+            ratio(&|x: &Row| x.cpu_ms()),
         );
     }
     println!(
