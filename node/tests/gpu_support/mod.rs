@@ -88,7 +88,7 @@ pub fn shadow_scene(width: u32, height: u32) -> Scene {
     ));
     s.add_mesh(cuboid("glow", [1.3, 0.1, 1.4], [0.2, 0.1, 0.2], glow));
     // A floating slab 0.25 m above the floor: its shadow's casters are close to the receivers.
-    s.add_mesh(cuboid("slab", [-0.2, 0.28, 1.9], [0.9, 0.03, 0.45], red));
+    s.add_mesh(cuboid("slab", [-0.2, 0.28, 1.9], [1.1, 0.03, 0.55], red));
     let rect = |name: &str, center, normal, u_axis, side: f32, color| Light {
         name: name.into(),
         shape: LightShape::Rect {
