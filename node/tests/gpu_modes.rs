@@ -301,3 +301,30 @@ fn forward_and_deferred_agree_and_walkthrough_is_bit_identical_in_both() {
         .fold(0.0f32, f32::max);
     assert!(worst < 1e-4, "variants differ by {worst} relative");
 }
+
+#[test]
+fn empty_scenes_no_lights_and_tiny_images_render_zeros() {
+    let gpu = gpu();
+    let mut empty = shadow_scene(7, 5);
+    empty.meshes.clear();
+    let samples = samples(&empty);
+    let opts = RenderOptions::from_quality(&empty.quality);
+    let mut r = Renderer::new(&gpu, &empty, opts).unwrap();
+    let f = r
+        .render(&gpu, &samples, None, C_N, LayerSet::all())
+        .unwrap();
+    assert_eq!(f.stats.shadow_passes, 0, "no receiver, no map");
+    for img in [&f.illumination, &f.diffuse, &f.depth] {
+        let img = img.as_ref().unwrap();
+        assert_eq!((img.width, img.height), (7, 5));
+        assert!(img.data.iter().all(|&v| v == 0.0));
+    }
+    let scene = shadow_scene(1, 1);
+    let mut r = Renderer::new(&gpu, &scene, opts).unwrap();
+    let dark = r.render(&gpu, &[], None, C_N, LayerSet::all()).unwrap();
+    assert_eq!(dark.illumination.unwrap().data, vec![0.0; 6]);
+    assert!(
+        dark.depth.unwrap().data[0] > 0.0,
+        "the floor is under the only pixel"
+    );
+}

@@ -152,7 +152,9 @@ pub fn plan_lights(
             let [x, y, z] = cube_frame(s);
             (light.cube, light.cube_x, light.cube_y, light.cube_z) = (MODE_CUBE, x, y, z);
             light.faces = faces;
-        } else if let (2, Some(n)) = (views.len(), views[0].half_space) {
+        } else if views.len() == 2
+            && let Some(n) = views[0].half_space
+        {
             (light.cube, light.cube_x) = (MODE_SPLIT, n);
             light.faces[0] = first_view;
             light.faces[1] = first_view + 1;
@@ -311,6 +313,23 @@ mod tests {
         let faces = &p.lights[0].faces;
         assert_eq!(faces.iter().filter(|&&f| f != NO_VIEW).count(), 5);
         assert_eq!(faces[5], NO_VIEW, "nothing behind the lobe");
+    }
+
+    #[test]
+    fn degenerate_samples_do_not_panic() {
+        let mut bad = lobe([f32::NAN, 1.0, 0.0]);
+        let p = plan_lights(&[bad], &ROOM, [1.0; 3], 512, Some(Fault::MissingFace));
+        assert_eq!(p.lights.len(), 1);
+        bad.position = [0.0, 1.0, 0.0];
+        bad.direction = [0.0; 3];
+        bad.intensity = f32::INFINITY;
+        let p = plan_lights(&[bad], &ROOM, [0.0, f32::NAN, 1.0], 0, None);
+        assert_eq!(p.lights[0].weight[..2], [0.0, 0.0]);
+        assert!(
+            plan_lights(&[bad], &[], [1.0; 3], 512, None)
+                .views
+                .is_empty()
+        );
     }
 
     #[test]
