@@ -10,7 +10,6 @@ use lightfold_node::gpu::device::parse_backend;
 use std::io::Write;
 use std::path::PathBuf;
 use tokio::net::TcpListener;
-use tokio_util::sync::CancellationToken;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -75,44 +74,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             writeln!(out, "listening {local}")?;
             out.flush()?;
         }
-        let shutdown = CancellationToken::new();
-        tokio::spawn(cancel_on_signal(shutdown.clone()));
-        if let Some(pid) = args.parent_pid {
-            tokio::spawn(cancel_when_orphaned(pid, shutdown.clone()));
-        }
+        let shutdown = crate::lifecycle::shutdown_token(args.parent_pid);
         daemon::run(listener, opts, shutdown).await
     })
-}
-
-/// Cancels `token` once `pid` is no longer this process's parent (the launcher died).
-async fn cancel_when_orphaned(pid: u32, token: CancellationToken) {
-    loop {
-        if std::os::unix::process::parent_id() != pid {
-            tracing::info!(parent = pid, "launcher exited: stopping");
-            token.cancel();
-            return;
-        }
-        tokio::select! {
-            _ = tokio::time::sleep(std::time::Duration::from_millis(250)) => {}
-            _ = token.cancelled() => return,
-        }
-    }
-}
-
-/// Cancels `token` on SIGTERM or Ctrl-C.
-async fn cancel_on_signal(token: CancellationToken) {
-    use tokio::signal::unix::{SignalKind, signal};
-    let mut term = match signal(SignalKind::terminate()) {
-        Ok(s) => s,
-        Err(e) => {
-            tracing::warn!("cannot watch SIGTERM: {e}");
-            return;
-        }
-    };
-    tokio::select! {
-        _ = term.recv() => tracing::info!("SIGTERM: stopping"),
-        _ = tokio::signal::ctrl_c() => tracing::info!("interrupted: stopping"),
-        _ = token.cancelled() => return,
-    }
-    token.cancel();
 }
