@@ -77,6 +77,10 @@ pub struct JobArgs {
     /// No culling: every light, stage and caster.
     #[arg(long)]
     pub force_all: bool,
+    /// One shadow-map size for every light (default: sized per node from the eye/light
+    /// resolution mismatch).
+    #[arg(long)]
+    pub shadow_map_size: Option<u32>,
     /// PNG output (sRGB at the scene's exposure).
     #[arg(long, default_value = "out.png")]
     pub out: PathBuf,
@@ -103,6 +107,10 @@ impl JobArgs {
             topology: self.topology,
             force_all: self.force_all,
             walkthrough: self.walkthrough,
+            map_sizing: match self.shadow_map_size {
+                Some(n) => lightfold_coordinator::plan::MapSizing::Fixed(n),
+                None => PlanOptions::default().map_sizing,
+            },
             ..PlanOptions::default()
         }
     }

@@ -251,6 +251,9 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
     if job.force_all {
         cmd.arg("--force-all");
     }
+    if let Some(n) = job.shadow_map_size {
+        cmd.arg("--shadow-map-size").arg(n.to_string());
+    }
     cmd.arg("--out").arg(&job.out).arg("--exr").arg(&job.exr);
 }
 

@@ -23,7 +23,15 @@ fn demo_renders_and_leaves_no_process_behind() {
     std::fs::create_dir_all(&dir).unwrap();
     let (png, exr) = (dir.join("out.png"), dir.join("out.exr"));
     let out = lightfold()
-        .args(["demo", "--size", "96x72", "--no-compare", "--work-dir"])
+        .args([
+            "demo",
+            "--size",
+            "96x72",
+            "--shadow-map-size",
+            "512",
+            "--no-compare",
+            "--work-dir",
+        ])
         .arg(&dir)
         .arg("--out")
         .arg(&png)
