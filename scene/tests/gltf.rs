@@ -1,4 +1,4 @@
-//! glTF loading: every public model in `../shared/scenes/` loads, is completed with a camera,
+//! glTF loading: every public model (copied with its licence into `assets/`) loads, is completed with a camera,
 //! ground and area light, and is clean; broken files give errors naming the file and the problem.
 
 mod support;
@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 fn shared(model: &str, file: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../shared/scenes")
+        .join("../assets")
         .join(model)
         .join(file)
 }
