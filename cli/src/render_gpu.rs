@@ -10,7 +10,6 @@ use lightfold_node::gpu::{
     EyeVariant, Gpu, GpuOptions, LayerSet, NodeFrame, RenderOptions, Renderer,
 };
 use lightfold_reference::output::png_next_to;
-use lightfold_scene::shading::compose;
 use lightfold_scene::{Image, LightSample, Scene};
 use std::time::Instant;
 
@@ -198,35 +197,8 @@ fn render_frame(
     let layer = |img: &Option<Image>, name: &str| {
         img.clone().with_context(|| format!("{name} layer missing"))
     };
-    let (md, ms, ma, e) = (
-        layer(&m.diffuse, "m^d")?,
-        layer(&m.specular, "m^s")?,
-        layer(&m.ambient, "m^a")?,
-        layer(&m.emissive, "e")?,
-    );
     let depth = layer(&m.depth, "depth")?;
-    let mut radiance = Image::new(w, h, 3);
-    for (i, px) in radiance.data.chunks_exact_mut(3).enumerate() {
-        let rgb = |img: &Image| -> [f32; 3] { [0, 1, 2].map(|c| img.data[i * 3 + c]) };
-        let il = &illumination.data[i * 6..i * 6 + 6];
-        // Global ambient only where there is a surface (depth 0 is background).
-        let ca = if depth.data[i] > 0.0 {
-            scene.ambient
-        } else {
-            [0.0; 3]
-        };
-        let p = compose(
-            rgb(&e),
-            rgb(&ma),
-            ca,
-            [0.0; 3],
-            rgb(&md),
-            [il[0], il[1], il[2]],
-            rgb(&ms),
-            [il[3], il[4], il[5]],
-        );
-        px.copy_from_slice(&p);
-    }
+    let radiance = m.radiance(&illumination, scene.ambient)?;
     times.total_us = t.elapsed().as_micros() as u64;
     Ok(((radiance, depth), times))
 }

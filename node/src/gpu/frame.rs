@@ -139,3 +139,50 @@ pub enum RenderError {
     #[error("gpu: {0}")]
     Gpu(String),
 }
+
+/// A material layer [`NodeFrame::radiance`] needs was not rendered.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("the {0} layer was not rendered")]
+pub struct MissingLayer(pub &'static str);
+
+impl NodeFrame {
+    /// Paper eq. 2 from this frame's material layers and `illumination` (6 channels, summed over
+    /// every node with `c_n` white): `e + m^a⊙c^a + m^d⊙I^d + m^s⊙I^s`, the global ambient `c^a`
+    /// only where there is a surface (depth 0 is background).
+    pub fn radiance(&self, illumination: &Image, ambient: [f32; 3]) -> Result<Image, MissingLayer> {
+        fn layer<'a>(
+            img: &'a Option<Image>,
+            name: &'static str,
+        ) -> Result<&'a Image, MissingLayer> {
+            img.as_ref().ok_or(MissingLayer(name))
+        }
+        let (md, ms, ma, e) = (
+            layer(&self.diffuse, "m^d")?,
+            layer(&self.specular, "m^s")?,
+            layer(&self.ambient, "m^a")?,
+            layer(&self.emissive, "e")?,
+        );
+        let depth = layer(&self.depth, "depth")?;
+        let mut out = Image::new(illumination.width, illumination.height, 3);
+        for (i, px) in out.data.chunks_exact_mut(3).enumerate() {
+            let rgb = |img: &Image| -> [f32; 3] { [0, 1, 2].map(|c| img.data[i * 3 + c]) };
+            let l = &illumination.data[i * 6..i * 6 + 6];
+            let ca = if depth.data[i] > 0.0 {
+                ambient
+            } else {
+                [0.0; 3]
+            };
+            px.copy_from_slice(&lightfold_scene::shading::compose(
+                rgb(e),
+                rgb(ma),
+                ca,
+                [0.0; 3],
+                rgb(md),
+                [l[0], l[1], l[2]],
+                rgb(ms),
+                [l[3], l[4], l[5]],
+            ));
+        }
+        Ok(out)
+    }
+}

@@ -13,6 +13,8 @@ pub mod scene_data;
 mod shadow_pass;
 
 pub use device::{DeviceError, Gpu, GpuOptions};
-pub use frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
+pub use frame::{
+    EyeVariant, LayerSet, MissingLayer, NodeFrame, RenderError, RenderOptions, RenderStats,
+};
 pub use lights::Fault;
 pub use renderer::Renderer;

@@ -8,7 +8,6 @@ use super::{AccuracyError, Setting};
 use lightfold_node::gpu::{Gpu, LayerSet, NodeFrame, RenderOptions, Renderer};
 use lightfold_protocol::format::{self, PixelFormat};
 use lightfold_scene::sampling::scene_samples;
-use lightfold_scene::shading::compose;
 use lightfold_scene::{Image, LightSample, Scene};
 use std::time::Instant;
 
@@ -126,38 +125,5 @@ fn through_link(
 
 /// Paper eq. 2 from the first node's material layers and the summed illumination (`c_n` white).
 fn radiance(scene: &Scene, m: &NodeFrame, il: &Image) -> Result<Image, String> {
-    let layer = |img: &Option<Image>, name: &str| {
-        img.as_ref()
-            .ok_or_else(|| format!("{name} layer missing"))
-            .cloned()
-    };
-    let (md, ms, ma, e) = (
-        layer(&m.diffuse, "m^d")?,
-        layer(&m.specular, "m^s")?,
-        layer(&m.ambient, "m^a")?,
-        layer(&m.emissive, "e")?,
-    );
-    let depth = layer(&m.depth, "depth")?;
-    let mut out = Image::new(il.width, il.height, 3);
-    for (i, px) in out.data.chunks_exact_mut(3).enumerate() {
-        let rgb = |img: &Image| -> [f32; 3] { [0, 1, 2].map(|c| img.data[i * 3 + c]) };
-        let l = &il.data[i * 6..i * 6 + 6];
-        // Global ambient only where there is a surface (depth 0 is background).
-        let ca = if depth.data[i] > 0.0 {
-            scene.ambient
-        } else {
-            [0.0; 3]
-        };
-        px.copy_from_slice(&compose(
-            rgb(&e),
-            rgb(&ma),
-            ca,
-            [0.0; 3],
-            rgb(&md),
-            [l[0], l[1], l[2]],
-            rgb(&ms),
-            [l[3], l[4], l[5]],
-        ));
-    }
-    Ok(out)
+    m.radiance(il, scene.ambient).map_err(|e| e.to_string())
 }
