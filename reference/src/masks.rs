@@ -120,3 +120,30 @@ pub fn dilate(mask: &[bool], w: usize, h: usize, r: u32) -> Vec<bool> {
     }
     out
 }
+
+/// Pixels fit for an exact GPU-against-reference comparison: neither the pixel nor any 3×3
+/// neighbour is on a silhouette, and all nine share one shadow state (`states[i]` is a bit set of
+/// the samples that light pixel `i`).
+pub fn comparable(depth: &Image, coverage: &[bool], states: &[u64]) -> Vec<bool> {
+    let (w, h) = (depth.width as i64, depth.height as i64);
+    let sil = silhouettes(depth, coverage, 0);
+    let mut out = vec![false; (w * h) as usize];
+    for y in 0..h {
+        for x in 0..w {
+            let i = (y * w + x) as usize;
+            let mut ok = true;
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let (xx, yy) = (x + dx, y + dy);
+                    if xx < 0 || yy < 0 || xx >= w || yy >= h {
+                        continue;
+                    }
+                    let j = (yy * w + xx) as usize;
+                    ok &= states[j] == states[i] && !sil[j];
+                }
+            }
+            out[i] = ok;
+        }
+    }
+    out
+}

@@ -10,7 +10,7 @@
 #![allow(dead_code)]
 
 use lightfold_node::gpu::{Gpu, GpuOptions, NodeFrame};
-use lightfold_reference::{Layers, Tracer, masks};
+use lightfold_reference::{Layers, Tracer};
 use lightfold_scene::primitives::{cuboid, plane, sphere};
 use lightfold_scene::shading::coefficients;
 use lightfold_scene::{
@@ -189,31 +189,6 @@ pub fn shadow_states(scene: &Scene, samples: &[LightSample]) -> ShadowStates {
     st
 }
 
-/// Pixels compared: not on a shadow edge or a silhouette (see the module docs).
-pub fn comparable(reference: &Layers, states: &[u64]) -> Vec<bool> {
-    let (w, h) = (reference.depth.width as i64, reference.depth.height as i64);
-    let sil = masks::silhouettes(&reference.depth, &reference.coverage, 0);
-    let mut out = vec![false; (w * h) as usize];
-    for y in 0..h {
-        for x in 0..w {
-            let i = (y * w + x) as usize;
-            let mut ok = true;
-            for dy in -1..=1 {
-                for dx in -1..=1 {
-                    let (xx, yy) = (x + dx, y + dy);
-                    if xx < 0 || yy < 0 || xx >= w || yy >= h {
-                        continue;
-                    }
-                    let j = (yy * w + xx) as usize;
-                    ok &= states[j] == states[i] && !sil[j];
-                }
-            }
-            out[i] = ok;
-        }
-    }
-    out
-}
-
 /// Outcome of comparing a GPU layer with the reference.
 #[derive(Debug, Clone, Copy)]
 pub struct Comparison {
@@ -282,4 +257,9 @@ pub fn dump(name: &str, frame: &NodeFrame, reference: &Layers) {
     let _ = g.write_png(&dir.join(format!("{name}-actual.png")), 1.0);
     let _ = r.write_png(&dir.join(format!("{name}-expected.png")), 1.0);
     let _ = diff.write_png(&dir.join(format!("{name}-diff.png")), 1.0);
+}
+
+/// Pixels compared: not on a shadow edge or a silhouette (see the module docs).
+pub fn comparable(reference: &Layers, states: &[u64]) -> Vec<bool> {
+    lightfold_reference::masks::comparable(&reference.depth, &reference.coverage, states)
 }

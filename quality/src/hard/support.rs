@@ -8,7 +8,7 @@
 
 use super::{CaseReport, HardCaseError};
 use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
-use lightfold_reference::{Tracer, masks};
+use lightfold_reference::Tracer;
 use lightfold_scene::shading::coefficients;
 use lightfold_scene::{Image, LightSample, Scene};
 use std::path::PathBuf;
@@ -118,31 +118,6 @@ pub fn shadow_states(scene: &Scene, samples: &[LightSample]) -> ShadowStates {
     st
 }
 
-/// Pixels compared: not on a shadow edge or a silhouette (module docs).
-pub fn comparable(depth: &Image, coverage: &[bool], states: &[u64]) -> Vec<bool> {
-    let (w, h) = (depth.width as i64, depth.height as i64);
-    let sil = masks::silhouettes(depth, coverage, 0);
-    let mut out = vec![false; (w * h) as usize];
-    for y in 0..h {
-        for x in 0..w {
-            let i = (y * w + x) as usize;
-            let mut ok = true;
-            for dy in -1..=1 {
-                for dx in -1..=1 {
-                    let (xx, yy) = (x + dx, y + dy);
-                    if xx < 0 || yy < 0 || xx >= w || yy >= h {
-                        continue;
-                    }
-                    let j = (yy * w + xx) as usize;
-                    ok &= states[j] == states[i] && !sil[j];
-                }
-            }
-            out[i] = ok;
-        }
-    }
-    out
-}
-
 /// Whether every channel of pixel `i` agrees within the per-pixel tolerance.
 pub fn pixel_agrees(a: &Image, b: &Image, i: usize) -> bool {
     let c = a.channels;
@@ -188,3 +163,5 @@ pub fn report(
         details: Vec::new(),
     }
 }
+
+pub use lightfold_reference::masks::comparable;
