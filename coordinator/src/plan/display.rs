@@ -53,7 +53,12 @@ impl Display for ShadowViews {
     fn fmt(&self, f: &mut Formatter<'_>) -> fmt::Result {
         match self {
             ShadowViews::None => f.write_str("no map"),
-            ShadowViews::Frustum { fov_deg } => write!(f, "1 fitted frustum {fov_deg:.0}°"),
+            ShadowViews::Frustum { count: 1, fov_deg } => {
+                write!(f, "1 fitted frustum {fov_deg:.0}°")
+            }
+            ShadowViews::Frustum { count, fov_deg } => {
+                write!(f, "{count} fitted frusta, widest {fov_deg:.0}°")
+            }
             ShadowViews::Ortho => f.write_str("1 orthographic view"),
             ShadowViews::Cube { faces } => {
                 let names = ["+x", "-x", "+y", "-y", "+axis", "-axis"];

@@ -83,6 +83,13 @@ pub fn plan(
         .filter(|(_, m)| m.indices.len() >= 3)
         .filter_map(|(b, _)| b.map(|b| (b.lo, b.hi)))
         .collect();
+    // Like the node's renderer: moving-light maps cover only what the camera sees; walkthrough
+    // maps outlive camera moves, so they cover every receiver.
+    let scene_receivers = if options.walkthrough {
+        scene_receivers
+    } else {
+        lightfold_scene::shadow_views::visible_receivers(cam, &scene_receivers)
+    };
     let shadow_of = |i: usize| {
         let lit: Vec<&cull::Receiver> = culling.lit[i].iter().map(|&r| &receivers[r]).collect();
         shadow::shadow_plan(

@@ -87,10 +87,16 @@ pub(crate) fn summarize(views: &[ShadowView]) -> ShadowViews {
     match first.kind {
         ShadowViewKind::Ortho => ShadowViews::Ortho,
         ShadowViewKind::Fitted => {
-            let e = first.extent;
             let fov = |lo: f32, hi: f32| (hi.atan() - lo.atan()).to_degrees();
+            let fitted = views.iter().filter(|v| v.kind == ShadowViewKind::Fitted);
             ShadowViews::Frustum {
-                fov_deg: fov(e[0], e[1]).max(fov(e[2], e[3])),
+                count: fitted.clone().count().min(u8::MAX as usize) as u8,
+                fov_deg: fitted
+                    .map(|v| {
+                        let e = v.extent;
+                        fov(e[0], e[1]).max(fov(e[2], e[3]))
+                    })
+                    .fold(0.0, f32::max),
             }
         }
         ShadowViewKind::CubeFace(_) => {

@@ -199,8 +199,9 @@ pub enum DropReason {
 pub enum ShadowViews {
     /// The sample reaches no receiver: no map.
     None,
-    /// One perspective frustum fitted to the receivers, `fov_deg` across its wider side.
-    Frustum { fov_deg: f32 },
+    /// `count` perspective frusta fitted to the receivers (two when one would be too wide),
+    /// the widest `fov_deg` across its wider side.
+    Frustum { count: u8, fov_deg: f32 },
     /// One orthographic view (directional light).
     Ortho,
     /// Cube-map faces in the sample's frame (+Z its axis), bit i for face i in the order
@@ -213,7 +214,8 @@ impl ShadowViews {
     pub fn count(&self) -> usize {
         match self {
             ShadowViews::None => 0,
-            ShadowViews::Frustum { .. } | ShadowViews::Ortho => 1,
+            ShadowViews::Frustum { count, .. } => *count as usize,
+            ShadowViews::Ortho => 1,
             ShadowViews::Cube { faces } => faces.count_ones() as usize,
         }
     }
