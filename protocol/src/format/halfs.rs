@@ -1,15 +1,25 @@
 //! `f16x6` (six halves) and `f16x4` (three halves and a pad of 1.0, so a GPU reading it as RGBA
 //! sees opaque alpha), little-endian. Values clamp to [0, 65504] first, so rounding (to nearest,
-//! ties to even) never overflows to infinity; the conversion itself runs on `half`'s slice routines
-//! (F16C when the CPU has it) over blocks that stay in L1.
+//! ties to even) never overflows to infinity. Packing runs on `half`'s slice conversion (F16C when
+//! the CPU has it) block by block; a block whose values are all in range already (one vectorised
+//! test of the bits) is converted straight into the output, and only a block holding a negative,
+//! NaN, infinite or too large value is clamped into a staging buffer first. Unpacking decodes the
+//! bits directly (exact: a shift and one multiplication by 2^112), which vectorises and needs no
+//! alignment of the packed bytes.
 
 use half::f16;
 use half::slice::HalfFloatSliceExt;
 
 use super::{F16_MAX, clamp_nonneg, count_saturated};
 
-/// Pixels per block: small enough for the staging buffers to sit in L1.
-const BLOCK: usize = 256;
+/// Pixels per block: small enough for the block and its staging buffers to sit in L1, so the
+/// range test and the conversion read the values from memory once.
+const BLOCK: usize = 384;
+
+/// Bits of `F16_MAX`. Compared as unsigned integers, exactly the values the clamp would change
+/// lie above it: negatives (−0 included, the sign bit makes them huge), NaN, +Inf and everything
+/// beyond 65504.
+const MAX_BITS: u32 = 0x477F_E000;
 
 /// Half an ulp of `v` in half precision: 2^(e−11) for `v` in [2^e, 2^(e+1)), e ≥ −14; 2^−25 in
 /// the subnormal range. Exact.
@@ -20,12 +30,67 @@ pub(super) fn bound(v: f32) -> f32 {
 
 /// Packs IN channels per pixel into OUT halves (OUT > IN pads with 1.0).
 pub(super) fn pack<const IN: usize, const OUT: usize>(src: &[f32], dst: &mut [u8]) -> u64 {
+    if IN != OUT {
+        return pack_padded::<IN, OUT>(src, dst);
+    }
+    // Straight into the output when it can be viewed as halves (little-endian, 2-byte aligned:
+    // pooled payload buffers and their pixel-aligned splits are), else through an L1 buffer.
+    #[cfg(target_endian = "little")]
+    if let Ok(halves) = bytemuck::try_cast_slice_mut::<u8, f16>(dst) {
+        return src
+            .chunks(BLOCK * IN)
+            .zip(halves.chunks_mut(BLOCK * IN))
+            .map(|(s, o)| pack_block::<IN>(s, o))
+            .sum();
+    }
+    let mut staged = [f16::ZERO; BLOCK * 6];
+    let mut saturated = 0;
+    for (s, out) in src.chunks(BLOCK * IN).zip(dst.chunks_mut(BLOCK * IN * 2)) {
+        let halves = &mut staged[..s.len()];
+        saturated += pack_block::<IN>(s, halves);
+        store_le(halves, out);
+    }
+    saturated
+}
+
+/// Converts one block of whole pixels; returns its saturated pixels.
+#[inline]
+fn pack_block<const C: usize>(src: &[f32], out: &mut [f16]) -> u64 {
+    // A flat OR of comparisons (not `any`, whose early exit would stop the vectorisation).
+    let outside = src
+        .iter()
+        .fold(0u32, |acc, v| acc | u32::from(v.to_bits() > MAX_BITS));
+    if outside == 0 {
+        out.convert_from_f32_slice(src);
+        return 0;
+    }
+    let mut staged = [0f32; BLOCK * 6];
+    let clamped = &mut staged[..src.len()];
+    for (c, &v) in clamped.iter_mut().zip(src) {
+        *c = clamp_nonneg(v, F16_MAX);
+    }
+    out.convert_from_f32_slice(clamped);
+    count_saturated::<C>(src, F16_MAX)
+}
+
+/// Writes `halves` little-endian into `out` (as long).
+fn store_le(halves: &[f16], out: &mut [u8]) {
+    if cfg!(target_endian = "little") {
+        out.copy_from_slice(bytemuck::cast_slice(halves));
+    } else {
+        for (o, h) in out.as_chunks_mut::<2>().0.iter_mut().zip(halves) {
+            *o = h.to_bits().to_le_bytes();
+        }
+    }
+}
+
+/// The padded formats: clamp and interleave the pad into a staging block, then convert.
+fn pack_padded<const IN: usize, const OUT: usize>(src: &[f32], dst: &mut [u8]) -> u64 {
     let mut staged = [0f32; BLOCK * 6];
     let mut halves = [f16::ZERO; BLOCK * 6];
     let mut saturated = 0u64;
     let pixels = src.as_chunks::<IN>().0;
-    let packed = dst.as_chunks_mut::<2>().0;
-    for (block, out) in pixels.chunks(BLOCK).zip(packed.chunks_mut(BLOCK * OUT)) {
+    for (block, out) in pixels.chunks(BLOCK).zip(dst.chunks_mut(BLOCK * OUT * 2)) {
         let n = block.len() * OUT;
         for (p, s) in block.iter().zip(staged.as_chunks_mut::<OUT>().0) {
             for c in 0..OUT {
@@ -38,30 +103,41 @@ pub(super) fn pack<const IN: usize, const OUT: usize>(src: &[f32], dst: &mut [u8
         }
         saturated += count_saturated::<IN>(block.as_flattened(), F16_MAX);
         halves[..n].convert_from_f32_slice(&staged[..n]);
-        for (o, h) in out.iter_mut().zip(&halves[..n]) {
-            *o = h.to_bits().to_le_bytes();
-        }
+        store_le(&halves[..n], out);
     }
     saturated
+}
+
+/// One half (its bits) as the clamped f32 unpack yields: finite positive values exactly, +Inf →
+/// 65504, NaN and everything with the sign bit (−0 included) → 0.
+#[inline(always)]
+fn decode(bits: u16) -> f32 {
+    let h = u32::from(bits);
+    // Exponent and mantissa moved to the f32 positions: the value is then 2^−112 of the half's,
+    // subnormals included (they become f32 subnormals), and the multiplication is exact.
+    let v = f32::from_bits(h << 13) * f32::from_bits((127 + 112) << 23);
+    if h < 0x7C00 {
+        v
+    } else if h == 0x7C00 {
+        F16_MAX
+    } else {
+        0.0
+    }
 }
 
 /// Unpacks OUT halves per pixel into IN channels. Whatever the bytes, the result is finite and in
 /// [0, 65504]: NaN → 0, negatives → 0, +Inf → 65504.
 pub(super) fn unpack<const IN: usize, const OUT: usize>(src: &[u8], dst: &mut [f32]) {
-    let mut halves = [f16::ZERO; BLOCK * 6];
-    let mut staged = [0f32; BLOCK * 6];
-    let packed = src.as_chunks::<2>().0;
-    let pixels = dst.as_chunks_mut::<IN>().0;
-    for (block, out) in packed.chunks(BLOCK * OUT).zip(pixels.chunks_mut(BLOCK)) {
-        let n = block.len();
-        for (h, b) in halves.iter_mut().zip(block) {
-            *h = f16::from_bits(u16::from_le_bytes(*b));
+    let halves = src.as_chunks::<2>().0;
+    if IN == OUT {
+        for (o, h) in dst.iter_mut().zip(halves) {
+            *o = decode(u16::from_le_bytes(*h));
         }
-        halves[..n].convert_to_f32_slice(&mut staged[..n]);
-        for (p, s) in out.iter_mut().zip(staged.as_chunks::<OUT>().0) {
-            for c in 0..IN {
-                p[c] = clamp_nonneg(s[c], F16_MAX);
-            }
+        return;
+    }
+    for (p, o) in halves.chunks_exact(OUT).zip(dst.as_chunks_mut::<IN>().0) {
+        for c in 0..IN {
+            o[c] = decode(u16::from_le_bytes(p[c]));
         }
     }
 }
