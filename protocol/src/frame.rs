@@ -2,7 +2,9 @@
 //! The length is checked against an explicit maximum before anything is reserved, so a lying
 //! length never allocates; the decoder consumes bytes only when it returns a whole frame and
 //! answers `Ok(None)` for "need more bytes", so the daemons, the tests and the fuzzer all drive
-//! this one function over plain buffers.
+//! this one function over plain buffers. Bands also split at their payload, so a link can write a
+//! payload it already holds without copying it (`encode_head`) and read one into a buffer of its
+//! choice (`decode_head`, then `check_payload`) under the same rules as `decode`.
 
 use bytes::{Buf, BufMut, Bytes, BytesMut};
 
@@ -17,6 +19,9 @@ pub const DEFAULT_MAX_FRAME: usize = 256 << 20;
 /// Largest control body. bincode may reserve up to this much for a lying container length
 /// inside a control frame, so it is kept far below the frame limit; scene chunks must be smaller.
 pub const MAX_CONTROL: usize = 16 << 20;
+
+/// Bytes in front of a band payload: length prefix, kind byte and band header.
+pub const BAND_PREFIX_LEN: usize = 5 + BAND_HEADER_LEN;
 
 const KIND_HELLO: u8 = 1;
 const KIND_PROOF: u8 = 2;
@@ -33,6 +38,19 @@ pub enum Frame {
     Proof([u8; 32]),
     Control(Message),
     Band(BandHeader, Bytes),
+}
+
+/// What the first bytes of a buffer say about the frame they start ([`Codec::decode_head`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Head {
+    /// Too few bytes to tell yet: a band needs its [`BAND_PREFIX_LEN`]-byte prefix, any other
+    /// frame its first 5 bytes.
+    Incomplete,
+    /// A band with a valid header whose payload (`header.payload_len` bytes, agreeing with the
+    /// length prefix) follows the [`BAND_PREFIX_LEN`]-byte prefix.
+    Band(BandHeader),
+    /// Any other kind of frame: decode it whole with [`Codec::decode`].
+    Other,
 }
 
 type ControlConfig = bincode::config::Configuration<
@@ -85,27 +103,9 @@ impl Codec {
 
     /// Consumes bytes only when a whole frame is decoded. Ok(None) = need more bytes.
     pub fn decode(&mut self, src: &mut BytesMut) -> Result<Option<Frame>, ProtocolError> {
-        let Some(prefix) = src.first_chunk::<4>() else {
+        let Some(length) = self.check_prefix(src)? else {
             return Ok(None);
         };
-        let length = u32::from_be_bytes(*prefix) as usize;
-        if length == 0 {
-            return Err(ProtocolError::EmptyFrame);
-        }
-        if length > self.max_frame {
-            return Err(ProtocolError::FrameTooLarge {
-                length,
-                max: self.max_frame,
-            });
-        }
-        // Reject what the first bytes already condemn, without waiting for a body that may
-        // never come.
-        if let Some(&kind) = src.get(4) {
-            check_kind_length(kind, length - 1)?;
-            if kind == KIND_HELLO {
-                check_hello_prefix(&src[5..src.len().min(4 + length)])?;
-            }
-        }
         let total = 4 + length;
         if src.len() < total {
             src.reserve(total - src.len());
@@ -124,21 +124,7 @@ impl Codec {
             KIND_CONTROL => Frame::Control(decode_control(body)?),
             KIND_BAND => {
                 let header = BandHeader::decode(body)?;
-                let payload = &body[BAND_HEADER_LEN..];
-                if payload.len() != header.payload_len as usize {
-                    return Err(BandError::PayloadSizeMismatch {
-                        header: header.payload_len,
-                        actual: payload.len(),
-                    }
-                    .into());
-                }
-                let actual = checksum(payload);
-                if actual != header.checksum {
-                    return Err(ProtocolError::ChecksumMismatch {
-                        expected: header.checksum,
-                        actual,
-                    });
-                }
+                check_payload(&header, &body[BAND_HEADER_LEN..])?;
                 let mut whole = src.split_to(total);
                 whole.advance(5 + BAND_HEADER_LEN);
                 return Ok(Some(Frame::Band(header, whole.freeze())));
@@ -149,10 +135,81 @@ impl Codec {
         Ok(Some(frame))
     }
 
+    /// Checks the prefix (length, and kind and hello magic/version once present) and returns
+    /// the length of the rest of the frame, or `None` before the length has arrived. Rejects what
+    /// the first bytes already condemn, without waiting for a body that may never come.
+    fn check_prefix(&self, src: &[u8]) -> Result<Option<usize>, ProtocolError> {
+        let Some(prefix) = src.first_chunk::<4>() else {
+            return Ok(None);
+        };
+        let length = u32::from_be_bytes(*prefix) as usize;
+        if length == 0 {
+            return Err(ProtocolError::EmptyFrame);
+        }
+        if length > self.max_frame {
+            return Err(ProtocolError::FrameTooLarge {
+                length,
+                max: self.max_frame,
+            });
+        }
+        if let Some(&kind) = src.get(4) {
+            check_kind_length(kind, length - 1)?;
+            if kind == KIND_HELLO {
+                check_hello_prefix(&src[5..src.len().min(4 + length)])?;
+            }
+        }
+        Ok(Some(length))
+    }
+
+    /// Judges the frame at the front of `src` from its first bytes, consuming nothing. For a band
+    /// it checks everything [`Codec::decode`] checks except the payload's checksum, which
+    /// [`check_payload`] does once the payload is in: a reader can then put the payload where it
+    /// likes. Whatever `decode` rejects from these bytes, this rejects with the same error.
+    pub fn decode_head(&mut self, src: &[u8]) -> Result<Head, ProtocolError> {
+        let Some(length) = self.check_prefix(src)? else {
+            return Ok(Head::Incomplete);
+        };
+        match src.get(4) {
+            None => Ok(Head::Incomplete),
+            Some(&KIND_BAND) => {
+                let Some(prefix) = src.get(..BAND_PREFIX_LEN) else {
+                    return Ok(Head::Incomplete);
+                };
+                let header = BandHeader::decode(&prefix[5..])?;
+                let payload = length - 1 - BAND_HEADER_LEN;
+                if payload != header.payload_len as usize {
+                    return Err(BandError::PayloadSizeMismatch {
+                        header: header.payload_len,
+                        actual: payload,
+                    }
+                    .into());
+                }
+                Ok(Head::Band(header))
+            }
+            Some(_) => Ok(Head::Other),
+        }
+    }
+
     /// Appends one frame to `dst`; on error `dst` is left as it was.
     pub fn encode(&mut self, frame: &Frame, dst: &mut BytesMut) -> Result<(), ProtocolError> {
+        self.encode_parts(frame, dst, true)
+    }
+
+    /// Appends one frame to `dst` except a band's payload, which belongs on the wire right after
+    /// (a link writes it from where it already is, without a copy); `encode` then
+    /// `encode_head` + payload give the same bytes. On error `dst` is left as it was.
+    pub fn encode_head(&mut self, frame: &Frame, dst: &mut BytesMut) -> Result<(), ProtocolError> {
+        self.encode_parts(frame, dst, false)
+    }
+
+    fn encode_parts(
+        &self,
+        frame: &Frame,
+        dst: &mut BytesMut,
+        payload: bool,
+    ) -> Result<(), ProtocolError> {
         let start = dst.len();
-        let result = self.encode_inner(frame, dst, start);
+        let result = self.encode_inner(frame, dst, start, payload);
         if result.is_err() {
             dst.truncate(start);
         }
@@ -164,6 +221,7 @@ impl Codec {
         frame: &Frame,
         dst: &mut BytesMut,
         start: usize,
+        with_payload: bool,
     ) -> Result<(), ProtocolError> {
         let body_len = match frame {
             Frame::Hello(hello) => HELLO_FIXED + hello.daemon_id.len(),
@@ -179,7 +237,10 @@ impl Codec {
                 max: self.max_frame,
             });
         }
-        dst.reserve(4 + length);
+        dst.reserve(match frame {
+            Frame::Band(..) if !with_payload => BAND_PREFIX_LEN,
+            _ => 4 + length,
+        });
         dst.put_u32(length as u32);
         match frame {
             Frame::Hello(hello) => {
@@ -226,11 +287,32 @@ impl Codec {
                 }
                 dst.put_u8(KIND_BAND);
                 header.encode(dst);
-                dst.put_slice(payload);
+                if with_payload {
+                    dst.put_slice(payload);
+                }
             }
         }
         Ok(())
     }
+}
+
+/// Checks a band payload against its header: its length and its checksum.
+pub fn check_payload(header: &BandHeader, payload: &[u8]) -> Result<(), ProtocolError> {
+    if payload.len() != header.payload_len as usize {
+        return Err(BandError::PayloadSizeMismatch {
+            header: header.payload_len,
+            actual: payload.len(),
+        }
+        .into());
+    }
+    let actual = checksum(payload);
+    if actual != header.checksum {
+        return Err(ProtocolError::ChecksumMismatch {
+            expected: header.checksum,
+            actual,
+        });
+    }
+    Ok(())
 }
 
 /// Per-kind size rules, checked as soon as the kind byte arrives.
