@@ -6,6 +6,7 @@
 mod codec;
 mod link;
 mod token;
+mod wire;
 
 pub use codec::LinkCodec;
 pub use link::{

@@ -1,10 +1,9 @@
 //! Authenticated links: dial or accept a TCP connection, run the handshake of
 //! `protocol::handshake` (the token never crosses the wire), then exchange frames with a deadline on
-//! every wait.
+//! every wait. Band payloads are written and read in place (`wire`).
 
-use crate::codec::{CodecError, LinkCodec};
-use futures::stream::{SplitSink, SplitStream};
-use futures::{SinkExt, StreamExt};
+use crate::codec::CodecError;
+use crate::wire::{FrameReader, FrameWriter};
 use lightfold_protocol::frame::{DEFAULT_MAX_FRAME, Frame, ProtocolError};
 use lightfold_protocol::handshake::{Handshake, HandshakeError, PeerInfo};
 use lightfold_protocol::{Message, Role};
@@ -13,7 +12,6 @@ use std::sync::Arc;
 use std::time::Duration;
 use tokio::net::TcpStream;
 use tokio::time::timeout;
-use tokio_util::codec::Framed;
 
 /// Who we are on every link: the shared token, our role and daemon id.
 #[derive(Clone)]
@@ -142,7 +140,8 @@ fn message_name(m: &Message) -> String {
 /// An authenticated, framed connection.
 #[derive(Debug)]
 pub struct Link {
-    framed: Framed<TcpStream, LinkCodec>,
+    reader: FrameReader,
+    writer: FrameWriter,
     pub peer: PeerInfo,
     pub addr: String,
     pub timeouts: Timeouts,
@@ -216,13 +215,15 @@ async fn handshake(
     t: Timeouts,
 ) -> Result<Link, NetError> {
     let _ = stream.set_nodelay(true);
-    let mut framed = Framed::new(stream, LinkCodec::new(t.max_frame));
+    let (read, write) = stream.into_split();
+    let mut reader = FrameReader::new(read, t.max_frame);
+    let mut writer = FrameWriter::new(write, t.max_frame);
     let mut nonce = [0u8; 32];
     rand::rng().fill_bytes(&mut nonce);
     let mut hs = Handshake::new(&me.token, me.role, &me.daemon_id, nonce, dialer);
     let run = async {
-        send_frame(&mut framed, &addr, Frame::Hello(hs.hello())).await?;
-        let peer_hello = match next_frame(&mut framed, &addr).await? {
+        send_frame(&mut writer, &addr, Frame::Hello(hs.hello())).await?;
+        let peer_hello = match next_frame(&mut reader, &addr).await? {
             Frame::Hello(h) => h,
             other => {
                 return Err(NetError::Unexpected {
@@ -238,8 +239,8 @@ async fn handshake(
                 addr: addr.clone(),
                 source,
             })?;
-        send_frame(&mut framed, &addr, Frame::Proof(proof)).await?;
-        let peer_proof = match next_frame(&mut framed, &addr).await? {
+        send_frame(&mut writer, &addr, Frame::Proof(proof)).await?;
+        let peer_proof = match next_frame(&mut reader, &addr).await? {
             Frame::Proof(p) => p,
             other => {
                 return Err(NetError::Unexpected {
@@ -265,29 +266,23 @@ async fn handshake(
         Ok(r) => r?,
     };
     Ok(Link {
-        framed,
+        reader,
+        writer,
         peer,
         addr,
         timeouts: t,
     })
 }
 
-async fn send_frame(
-    framed: &mut Framed<TcpStream, LinkCodec>,
-    addr: &str,
-    frame: Frame,
-) -> Result<(), NetError> {
-    framed
+async fn send_frame(writer: &mut FrameWriter, addr: &str, frame: Frame) -> Result<(), NetError> {
+    writer
         .send(frame)
         .await
         .map_err(|e| NetError::from_codec(addr, e))
 }
 
-async fn next_frame(
-    framed: &mut Framed<TcpStream, LinkCodec>,
-    addr: &str,
-) -> Result<Frame, NetError> {
-    match framed.next().await {
+async fn next_frame(reader: &mut FrameReader, addr: &str) -> Result<Frame, NetError> {
+    match reader.next().await {
         None => Err(NetError::Closed {
             addr: addr.to_string(),
         }),
@@ -310,7 +305,7 @@ impl Link {
 
     pub async fn send(&mut self, frame: Frame) -> Result<(), NetError> {
         let (addr, after) = (self.addr.clone(), self.timeouts.send);
-        match timeout(after, send_frame(&mut self.framed, &addr, frame)).await {
+        match timeout(after, send_frame(&mut self.writer, &addr, frame)).await {
             Err(_) => Err(NetError::Timeout {
                 what: "send",
                 addr,
@@ -327,7 +322,7 @@ impl Link {
     /// The next frame, waiting at most `within`.
     pub async fn recv(&mut self, within: Duration) -> Result<Frame, NetError> {
         let addr = self.addr.clone();
-        match timeout(within, next_frame(&mut self.framed, &addr)).await {
+        match timeout(within, next_frame(&mut self.reader, &addr)).await {
             Err(_) => Err(NetError::Timeout {
                 what: "receive",
                 addr,
@@ -351,14 +346,13 @@ impl Link {
 
     /// Splits into independently owned reading and writing halves.
     pub fn split(self) -> (LinkReader, LinkWriter) {
-        let (sink, stream) = self.framed.split();
         (
             LinkReader {
-                stream,
+                reader: self.reader,
                 addr: self.addr.clone(),
             },
             LinkWriter {
-                sink,
+                writer: self.writer,
                 addr: self.addr,
                 send_timeout: self.timeouts.send,
             },
@@ -369,7 +363,7 @@ impl Link {
 /// The reading half of a [`Link`].
 #[derive(Debug)]
 pub struct LinkReader {
-    stream: SplitStream<Framed<TcpStream, LinkCodec>>,
+    reader: FrameReader,
     pub addr: String,
 }
 
@@ -377,7 +371,7 @@ impl LinkReader {
     /// The next frame; `None` when the peer closed cleanly. No deadline: callers `select!` this
     /// against cancellation or wrap it in their own deadline.
     pub async fn next(&mut self) -> Option<Result<Frame, NetError>> {
-        self.stream
+        self.reader
             .next()
             .await
             .map(|r| r.map_err(|e| NetError::from_codec(&self.addr, e)))
@@ -401,7 +395,7 @@ impl LinkReader {
 /// The writing half of a [`Link`]; every send has a deadline.
 #[derive(Debug)]
 pub struct LinkWriter {
-    sink: SplitSink<Framed<TcpStream, LinkCodec>, Frame>,
+    writer: FrameWriter,
     pub addr: String,
     pub send_timeout: Duration,
 }
@@ -409,7 +403,7 @@ pub struct LinkWriter {
 impl LinkWriter {
     pub async fn send(&mut self, frame: Frame) -> Result<(), NetError> {
         let after = self.send_timeout;
-        match timeout(after, self.sink.send(frame)).await {
+        match timeout(after, self.writer.send(frame)).await {
             Err(_) => Err(NetError::Timeout {
                 what: "send",
                 addr: self.addr.clone(),
@@ -426,7 +420,7 @@ impl LinkWriter {
     /// Queues a frame without flushing (the next `send` or `flush` writes it); for bursts of bands.
     pub async fn feed(&mut self, frame: Frame) -> Result<(), NetError> {
         let after = self.send_timeout;
-        match timeout(after, self.sink.feed(frame)).await {
+        match timeout(after, self.writer.feed(frame)).await {
             Err(_) => Err(NetError::Timeout {
                 what: "send",
                 addr: self.addr.clone(),
@@ -438,7 +432,7 @@ impl LinkWriter {
 
     pub async fn flush(&mut self) -> Result<(), NetError> {
         let after = self.send_timeout;
-        match timeout(after, self.sink.flush()).await {
+        match timeout(after, self.writer.flush()).await {
             Err(_) => Err(NetError::Timeout {
                 what: "send",
                 addr: self.addr.clone(),
