@@ -253,3 +253,79 @@ fn packed_accumulate_matches_unpack_then_apply() {
     assert!(matches!(e, Err(OpError::MissingLayer { .. })), "{e:?}");
     assert!(op.apply_packed(&[None], &mut out.view_mut()).is_err());
 }
+
+/// Every instruction-set path of the fused decode (`ops::dispatch`) gives the bits of unpacking
+/// and then accumulating: on arbitrary bytes (every exponent, every code, the spare bit), with
+/// and without the eq. 6 folding, and for `seed64` scales whose lane factors are exact (decoded
+/// directly), with subnormal lane factors (1e-31: staged through `unpack` instead), subnormal
+/// factors or zero.
+#[test]
+fn packed_accumulate_every_isa_matches_unpack_then_apply() {
+    use lightfold_compositor::ops::{Accumulate, Isa, OpError, PackedIllumination};
+    use lightfold_protocol::format::unpack;
+    use lightfold_protocol::{Layer, PixelFormat};
+    use rand::Rng;
+
+    let ops = [
+        Accumulate::new(&json!({"colors": [[0.5, 1, 2], [3, 2, 1]]})).unwrap(),
+        Accumulate::new(
+            &json!({"upstream": false, "colors": [[0.3, 0.7, 1.1], [2, 2, 2], [1, 0, 3e37]],
+                                "ambient": {"input": 1}}),
+        )
+        .unwrap(),
+    ];
+    let available: Vec<Isa> = Isa::ALL.into_iter().filter(|i| i.available()).collect();
+    for isa in Isa::ALL.into_iter().filter(|i| !i.available()) {
+        eprintln!("this cpu lacks {isa}: that path is not tested here");
+        let mut out = Owned::zeros(1, &[Layer::Illumination]);
+        let e = ops[0].apply_packed_on(isa, &[None, None, None], &mut out.view_mut());
+        assert!(matches!(e, Err(OpError::IsaUnavailable { .. })), "{e:?}");
+    }
+    assert!(available.contains(&Isa::Baseline) && available.contains(&Isa::best()));
+    let cases = [
+        (PixelFormat::Rgb9e5x2, 1.0),
+        (PixelFormat::Seed64, 3.0),
+        (PixelFormat::Seed64, 1e-31),
+        (PixelFormat::Seed64, 7.5e-37),
+        (PixelFormat::Seed64, 0.0),
+    ];
+    for (format, scale) in cases {
+        for (n, pixels) in widths().into_iter().enumerate() {
+            let mut r = rng(1000 + n as u64);
+            let bytes: Vec<Vec<u8>> = (0..3)
+                .map(|_| (0..pixels * 8).map(|_| r.random::<u8>()).collect())
+                .collect();
+            let unpacked: Vec<Owned> = bytes
+                .iter()
+                .map(|b| {
+                    let mut v = vec![0f32; pixels * 6];
+                    unpack(format, b, scale, &mut v).unwrap();
+                    Owned {
+                        pixels,
+                        layers: vec![(Layer::Illumination, v)],
+                    }
+                })
+                .collect();
+            let views: Vec<Option<PackedIllumination<'_>>> = bytes
+                .iter()
+                .map(|b| {
+                    Some(PackedIllumination {
+                        format,
+                        scale,
+                        bytes: b,
+                    })
+                })
+                .collect();
+            for (k, op) in ops.iter().enumerate() {
+                let want = run(op, &unpacked, pixels, false);
+                for &isa in &available {
+                    let mut got = Owned::zeros(pixels, &[Layer::Illumination]);
+                    op.apply_packed_on(isa, &views, &mut got.view_mut())
+                        .unwrap();
+                    let what = format!("op {k} {format:?} scale {scale} w={pixels} on {isa}");
+                    assert_same_bits(&got, &want, &what);
+                }
+            }
+        }
+    }
+}

@@ -14,6 +14,7 @@
 
 pub mod accumulate;
 pub mod depth;
+pub mod dispatch;
 pub mod join;
 pub mod material;
 pub mod output;
@@ -27,6 +28,7 @@ use std::fmt;
 
 pub use accumulate::{Accumulate, PackedIllumination};
 pub use depth::Depth;
+pub use dispatch::Isa;
 pub use join::Join;
 pub use material::{Material, MaterialStage};
 pub use output::Output;
@@ -166,6 +168,8 @@ pub enum OpError {
         input: usize,
         source: lightfold_protocol::format::FormatError,
     },
+    #[error("this cpu lacks the {isa} instruction set")]
+    IsaUnavailable { isa: Isa },
     #[error("operator {op}: {what} holds {got} values, expected {expected}")]
     BufferLength {
         op: &'static str,

@@ -10,9 +10,11 @@
 //! stages and one stage with many inputs give the same bits.
 
 use super::params::{self, check_rgb};
+mod decode;
 mod fast;
+mod packed;
 
-pub use fast::PackedIllumination;
+pub use packed::PackedIllumination;
 
 use super::{
     BLOCK, BandMut, BandView, InputSpec, MAX_VALUE, OpError, Operator, Signature, check_band,

@@ -1,0 +1,224 @@
+//! `Accumulate::apply_packed`: unpack and accumulate fused, from the bands as they arrived on
+//! their links. Per block of `BLOCK` pixels, `rgb9e5x2` and `seed64` inputs are decoded straight
+//! into the sum (`decode.rs`) and other formats are unpacked into an L1 buffer just before they
+//! are added, so a packed band is read once and never expanded to a full f32 band. The block loop
+//! is a dispatched kernel (`ops::dispatch`): the decode is limited by arithmetic, which wider
+//! vectors speed up.
+
+use super::decode::{BPP, Decoder, Shape};
+use super::fast::{Kind, Term, finish, init, terms};
+use super::{Accumulate, AmbientMask, NAME};
+use crate::ops::dispatch::{self, Isa, Kernel};
+use crate::ops::{BLOCK, BandMut, OpError, Operator, Signature, check_band, for_spans};
+use lightfold_protocol::format::{self, FormatError};
+use lightfold_protocol::{Layer, PixelFormat};
+use std::sync::Mutex;
+
+/// One input's illumination band as it arrived on its link.
+#[derive(Debug, Clone, Copy)]
+pub struct PackedIllumination<'a> {
+    pub format: PixelFormat,
+    /// The band header's scale (`seed64`; ignored by the other formats).
+    pub scale: f32,
+    pub bytes: &'a [u8],
+}
+
+/// How the kernel reads one input.
+#[derive(Debug, Clone, Copy)]
+enum Source<'a> {
+    /// Decoded by `decode` straight into the sum.
+    Direct(Decoder, &'a [u8]),
+    /// Unpacked by `protocol::format::unpack` into the block buffer, then added.
+    Staged(PackedIllumination<'a>),
+}
+
+impl<'a> Source<'a> {
+    fn of(p: PackedIllumination<'a>) -> Source<'a> {
+        match Decoder::of(p.format, p.scale) {
+            Some(d) => Source::Direct(d, p.bytes),
+            None => Source::Staged(p),
+        }
+    }
+}
+
+/// Unpacks the pixels `px..px + x.len() / 6` of a packed band into `x`.
+fn unpack_block(p: &PackedIllumination<'_>, px: usize, x: &mut [f32]) -> Result<(), FormatError> {
+    let bpp = p.format.bytes_per_pixel();
+    let bytes = &p.bytes[px * bpp..(px + x.len() / 6) * bpp];
+    format::unpack(p.format, bytes, p.scale, x)
+}
+
+/// A band's inputs, as the kernel reads them.
+struct Band<'a> {
+    up: Option<Source<'a>>,
+    /// Per local input: its term, its band (`None`: empty) and its input index.
+    locals: Vec<(Term, Option<Source<'a>>, usize)>,
+}
+
+/// The block loop over one span of the output, starting at pixel `first`.
+struct Span<'s, 'a> {
+    band: &'s Band<'a>,
+    first: usize,
+    out: &'s mut [f32],
+}
+
+impl Kernel for Span<'_, '_> {
+    type Output = Result<(), OpError>;
+
+    #[inline(always)]
+    fn run(self, isa: Isa) -> Result<(), OpError> {
+        // Measured per instruction set (docs/operators.md): AVX2 packs the straight-line lanes
+        // best; SSE2 and AVX-512 vectorise the per-pixel loops better.
+        let shape = match isa {
+            Isa::Avx2 => Shape::Lanes,
+            Isa::Baseline | Isa::Avx512 => Shape::Loop,
+        };
+        let mut buf = [0f32; BLOCK * 6];
+        for (b, o) in self.out.chunks_mut(BLOCK * 6).enumerate() {
+            let (px, n) = (self.first + b * BLOCK, o.len() / 6);
+            let x = &mut buf[..n * 6];
+            match &self.band.up {
+                // Decoded values are finite and non-negative: the clamp is the identity.
+                Some(Source::Direct(d, bytes)) => {
+                    d.load(shape, o, &bytes[px * BPP..(px + n) * BPP])
+                }
+                Some(Source::Staged(p)) => {
+                    unpack_block(p, px, x).map_err(|e| packed_error(0, e))?;
+                    init(o, Some(x));
+                }
+                None => init(o, None),
+            }
+            for (t, src, input) in &self.band.locals {
+                match (src, t.kind) {
+                    (None, _) => t.add(o, None, None),
+                    (Some(Source::Direct(d, bytes)), kind) => {
+                        let bytes = &bytes[px * BPP..(px + n) * BPP];
+                        match kind {
+                            Kind::Plain => d.madd::<false>(shape, o, bytes, &t.cg),
+                            Kind::Uniform => d.madd::<true>(shape, o, bytes, &t.cg),
+                            Kind::Masked => unreachable!("apply_packed refuses masked folding"),
+                        }
+                    }
+                    (Some(Source::Staged(p)), _) => {
+                        unpack_block(p, px, x).map_err(|e| packed_error(*input, e))?;
+                        t.add(o, Some(x), None);
+                    }
+                }
+            }
+            finish(o);
+        }
+        Ok(())
+    }
+}
+
+/// Records the first failure of a parallel span (validation makes this unreachable in practice).
+fn fail(slot: &Mutex<Option<OpError>>, e: OpError) {
+    let mut f = slot.lock().unwrap_or_else(|p| p.into_inner());
+    f.get_or_insert(e);
+}
+
+fn packed_error(input: usize, source: FormatError) -> OpError {
+    OpError::Packed {
+        op: NAME,
+        input,
+        source,
+    }
+}
+
+impl Accumulate {
+    /// Unpack and accumulate fused: `inputs[i]` is input i's illumination band still in its link
+    /// format (`None`: an empty band). Gives the bits of unpacking every band and calling `apply`.
+    /// The masked ambient folding needs an ambient layer and is not available here. Runs on the
+    /// widest instruction set this CPU has (`Isa::best`).
+    pub fn apply_packed(
+        &self,
+        inputs: &[Option<PackedIllumination<'_>>],
+        out: &mut BandMut<'_>,
+    ) -> Result<(), OpError> {
+        self.apply_packed_on(Isa::best(), inputs, out)
+    }
+
+    /// `apply_packed` on the instruction set `isa` (the same bits on every one), which this CPU
+    /// must have (`Isa::available`); for tests and benchmarks of each path.
+    pub fn apply_packed_on(
+        &self,
+        isa: Isa,
+        inputs: &[Option<PackedIllumination<'_>>],
+        out: &mut BandMut<'_>,
+    ) -> Result<(), OpError> {
+        if !isa.available() {
+            return Err(OpError::IsaUnavailable { isa });
+        }
+        let sig = self.signature();
+        if inputs.len() != sig.inputs.len() {
+            return Err(OpError::InputCount {
+                op: NAME,
+                expected: sig.inputs.len(),
+                got: inputs.len(),
+            });
+        }
+        let outputs_only = Signature {
+            inputs: vec![],
+            outputs: sig.outputs,
+        };
+        check_band(NAME, &outputs_only, &[], out)?;
+        if let Some(j) =
+            (0..self.coeffs.len()).find(|&j| matches!(self.fold_of(j), Some(AmbientMask::Layer)))
+        {
+            return Err(OpError::MissingLayer {
+                op: NAME,
+                input: self.input_of(j),
+                layer: Layer::Ambient,
+            });
+        }
+        let pixels = out.pixels;
+        for (i, p) in inputs.iter().enumerate() {
+            let Some(p) = p else { continue };
+            if p.format.channels() != 6 {
+                return Err(OpError::MissingLayer {
+                    op: NAME,
+                    input: i,
+                    layer: Layer::Illumination,
+                });
+            }
+            // An empty unpack checks the scale; the length must match the band.
+            format::unpack(p.format, &[], p.scale, &mut []).map_err(|e| packed_error(i, e))?;
+            if p.bytes.len() != pixels * p.format.bytes_per_pixel() {
+                return Err(packed_error(
+                    i,
+                    FormatError::PixelCount {
+                        format: p.format,
+                        expected: pixels,
+                        actual: p.bytes.len() / p.format.bytes_per_pixel(),
+                    },
+                ));
+            }
+        }
+        let first_local = usize::from(self.params.upstream);
+        let band = Band {
+            up: inputs[0].filter(|_| self.params.upstream).map(Source::of),
+            locals: terms(self)
+                .into_iter()
+                .zip(&inputs[first_local..])
+                .enumerate()
+                .map(|(j, (t, p))| (t, p.map(Source::of), first_local + j))
+                .collect(),
+        };
+        let failure: Mutex<Option<OpError>> = Mutex::new(None);
+        let dst = out.layer_mut(Layer::Illumination).expect("checked");
+        for_spans(pixels, vec![(6, dst)], |first, outs| {
+            let span = Span {
+                band: &band,
+                first,
+                out: &mut *outs[0],
+            };
+            if let Err(e) = dispatch::run(isa, span) {
+                fail(&failure, e);
+            }
+        });
+        match failure.into_inner().unwrap_or_else(|p| p.into_inner()) {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+}
