@@ -31,6 +31,16 @@ fn sample(
 }
 
 fn assert_matches(samples: &[LightSample], c_n: [f32; 3], what: &str) -> Vec<u32> {
+    assert_matches_shadowing(samples, c_n, what, 0.05)
+}
+
+/// As [`assert_matches`], with at least `min_shadow` of the pixels in some sample's shadow.
+fn assert_matches_shadowing(
+    samples: &[LightSample],
+    c_n: [f32; 3],
+    what: &str,
+    min_shadow: f64,
+) -> Vec<u32> {
     let gpu = gpu();
     let scene = shadow_scene(W, H);
     let reference = render_point_sum(&scene, samples, c_n);
@@ -49,7 +59,7 @@ fn assert_matches(samples: &[LightSample], c_n: [f32; 3], what: &str) -> Vec<u32
     eprintln!("{what}: {c:?} passes {:?}", frame.stats.passes_per_light);
     assert!(c.passes(), "{what}: {c:?}");
     assert!(
-        states.shadowed_fraction() > 0.05,
+        states.shadowed_fraction() >= min_shadow,
         "{what}: too little shadow to test"
     );
     frame.stats.passes_per_light
@@ -90,6 +100,10 @@ fn point_spot_and_directional_samples_match_the_reference() {
         ),
     ];
     let passes = assert_matches(&samples, [1.0; 3], "kinds");
+    // Alone, each kind gets a light pass compiled for that kind only.
+    for (i, s) in samples.iter().enumerate() {
+        assert_matches_shadowing(&[*s], [1.0; 3], &format!("kind {i} alone"), 0.0);
+    }
     assert!(
         passes[0] >= 5,
         "a point light above the floor needs cube faces: {passes:?}"
@@ -108,6 +122,37 @@ fn sixteen_lights_in_one_eye_pass_match_the_reference() {
     assert_eq!(samples.len(), 16);
     let passes = assert_matches(&samples, C_N, "k16");
     assert_eq!(passes.len(), 16);
+}
+
+#[test]
+fn more_lights_than_one_dispatch_takes_add_up_in_order() {
+    // 80 samples: the deferred pass lights them in two dispatches (64 + 16), the forward pass in
+    // one raster; the sums must agree as closely as the two variants always do.
+    let gpu = gpu();
+    let mut scene = shadow_scene(W / 2, H / 2);
+    scene.quality.samples_per_area_light = Some(40);
+    let samples = sampling::scene_samples(&scene);
+    assert_eq!(samples.len(), 80);
+    let opts = RenderOptions::from_quality(&scene.quality);
+    let mut images = Vec::new();
+    for variant in [EyeVariant::Forward, EyeVariant::Deferred] {
+        let mut r = Renderer::new(&gpu, &scene, opts).unwrap();
+        r.set_variant(variant);
+        let f = r
+            .render(&gpu, &samples, None, C_N, LayerSet::illumination())
+            .unwrap();
+        images.push(f.illumination.unwrap());
+    }
+    let (a, b) = (&images[0], &images[1]);
+    let energy: f64 = a.data.iter().map(|&v| f64::from(v)).sum();
+    assert!(energy > 0.0, "black image");
+    let worst = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| (x - y).abs() / (x.abs().max(y.abs()) + 1e-6))
+        .fold(0.0f32, f32::max);
+    assert!(worst < 1e-4, "chunked deferred differs by {worst} relative");
 }
 
 #[test]

@@ -17,19 +17,46 @@ pub const SHADOW_WGSL: &str = concat!(
     include_str!("../wgsl/shadow.wgsl"),
 );
 
-/// Eye pass: `vs_eye` with `fs_illumination` (illumination + depth) or `fs_layers` (plus the
-/// material layers m^d, m^s, m^a, e as extra render targets); and the deferred variant:
-/// `fs_gbuffer` / `fs_gbuffer_layers` then the compute pass `cs_lights`.
-pub const EYE_WGSL: &str = concat!(
+/// Forward eye pass: `vs_eye` with `fs_illumination` (illumination + depth) or `fs_layers` (plus
+/// the material layers m^d, m^s, m^a, e as extra render targets); lights and views in storage
+/// buffers.
+pub const FORWARD_WGSL: &str = concat!(
     include_str!("../wgsl/shading.wgsl"),
     include_str!("../wgsl/materials.wgsl"),
     include_str!("../wgsl/lighting.wgsl"),
+    include_str!("../wgsl/lights_storage.wgsl"),
+    include_str!("../wgsl/eye.wgsl"),
+    include_str!("../wgsl/forward.wgsl"),
+);
+
+/// Deferred variant: `vs_eye` with `fs_gbuffer` / `fs_gbuffer_layers`, then the compute pass
+/// `cs_lights` once per chunk of [`CHUNK_LIGHTS`] lights held in uniform buffers.
+pub const DEFERRED_WGSL: &str = concat!(
+    include_str!("../wgsl/shading.wgsl"),
+    include_str!("../wgsl/materials.wgsl"),
+    include_str!("../wgsl/lighting.wgsl"),
+    include_str!("../wgsl/lights_uniform.wgsl"),
     include_str!("../wgsl/eye.wgsl"),
     include_str!("../wgsl/deferred.wgsl"),
 );
 
+/// Lights one `cs_lights` dispatch takes (`CHUNK_LIGHTS` in `lights_uniform.wgsl`).
+pub const CHUNK_LIGHTS: usize = 64;
+/// Views one `cs_lights` dispatch takes (`CHUNK_VIEWS`): six per light.
+pub const CHUNK_VIEWS: usize = 384;
+
+/// Pipeline-overridable constants of the eye modules: the sample kinds handled (bit mask of
+/// `KIND_*`), the shadow filter (`FILTER_*`) and its taps per axis.
+pub const OVERRIDE_LIGHT_KINDS: &str = "LIGHT_KINDS";
+pub const OVERRIDE_SHADOW_FILTER: &str = "SHADOW_FILTER";
+pub const OVERRIDE_SHADOW_TAPS: &str = "SHADOW_TAPS";
+
 /// Every complete shader module with a name, for validation and diagnostics.
-pub const MODULES: &[(&str, &str)] = &[("shadow", SHADOW_WGSL), ("eye", EYE_WGSL)];
+pub const MODULES: &[(&str, &str)] = &[
+    ("shadow", SHADOW_WGSL),
+    ("forward", FORWARD_WGSL),
+    ("deferred", DEFERRED_WGSL),
+];
 
 #[cfg(test)]
 mod tests {
@@ -67,24 +94,41 @@ mod tests {
         for e in ["vs_depth", "vs_masked", "fs_masked"] {
             assert!(shadow.iter().any(|n| n == e), "shadow lacks {e}");
         }
-        let eye = names(EYE_WGSL, "eye");
-        for e in [
-            "vs_eye",
-            "fs_illumination",
-            "fs_layers",
-            "fs_gbuffer",
-            "fs_gbuffer_layers",
-            "cs_lights",
+        let forward = names(FORWARD_WGSL, "forward");
+        for e in ["vs_eye", "fs_illumination", "fs_layers"] {
+            assert!(forward.iter().any(|n| n == e), "forward lacks {e}");
+        }
+        let deferred = names(DEFERRED_WGSL, "deferred");
+        for e in ["vs_eye", "fs_gbuffer", "fs_gbuffer_layers", "cs_lights"] {
+            assert!(deferred.iter().any(|n| n == e), "deferred lacks {e}");
+        }
+    }
+
+    #[test]
+    fn chunk_sizes_match_the_wgsl() {
+        for (name, value) in [("CHUNK_LIGHTS", CHUNK_LIGHTS), ("CHUNK_VIEWS", CHUNK_VIEWS)] {
+            let decl = format!("const {name}: u32 = {value}u;");
+            assert!(DEFERRED_WGSL.contains(&decl), "{decl} missing");
+        }
+        for name in [
+            OVERRIDE_LIGHT_KINDS,
+            OVERRIDE_SHADOW_FILTER,
+            OVERRIDE_SHADOW_TAPS,
         ] {
-            assert!(eye.iter().any(|n| n == e), "eye lacks {e}");
+            for (module, src) in [("forward", FORWARD_WGSL), ("deferred", DEFERRED_WGSL)] {
+                assert!(
+                    src.contains(&format!("override {name}: u32")),
+                    "{module}: {name}"
+                );
+            }
         }
     }
 
     #[test]
     fn a_broken_shader_fails_validation() {
         // The check itself must be able to fail: a type error is caught without a GPU.
-        let broken = EYE_WGSL.replace("return s.intensity * abs(c);", "return abs(c) + 1u;");
-        assert_ne!(broken, EYE_WGSL);
+        let broken = DEFERRED_WGSL.replace("s.intensity * abs(c)", "abs(c) + 1u");
+        assert_ne!(broken, DEFERRED_WGSL);
         let parsed = naga::front::wgsl::parse_str(&broken);
         let failed = match parsed {
             Err(_) => true,

@@ -1,6 +1,7 @@
 // Deferred variant: a G-buffer pass stores each pixel's surface (position, normals, material) as
-// f32 bits, then one compute pass lights every pixel with the K samples. Same maths as the
-// forward eye pass (`illuminate`), no shading of hidden fragments. Needs `eye.wgsl` before it.
+// f32 bits, then a compute pass lights every pixel with the K samples, one dispatch per chunk of
+// lights (`lights_uniform.wgsl`), each adding to the last. Same maths as the forward eye pass
+// (`illuminate`), no shading of hidden fragments. Needs `eye.wgsl` before it.
 
 // Material index + 1 in `position.w`; 0 marks background.
 struct GBufferOut {
@@ -70,10 +71,12 @@ fn cs_lights(@builtin(global_invocation_id) id: vec3<u32>) {
         return;
     }
     let px = vec2<i32>(id.xy);
+    let i = 2u * (id.y * frame.width + id.x);
+    var s = Shaded(vec3f(0.0), vec3f(0.0));
+    if frame.accumulate != 0u {
+        s = Shaded(illumination[i].xyz, illumination[i + 1u].xyz);
+    }
     let g = textureLoad(gb_position, px, 0);
-    var s: Shaded;
-    s.diffuse = vec3f(0.0);
-    s.specular = vec3f(0.0);
     if g.w != 0u {
         let n = textureLoad(gb_normal, px, 0);
         let ng = textureLoad(gb_geometric_normal, px, 0);
@@ -82,9 +85,8 @@ fn cs_lights(@builtin(global_invocation_id) id: vec3<u32>) {
             bitcast<vec3f>(n.xyz),
             bitcast<vec3f>(ng.xyz),
             g.w - 1u,
-        ));
+        ), s);
     }
-    let i = 2u * (id.y * frame.width + id.x);
     illumination[i] = vec4f(s.diffuse, 0.0);
     illumination[i + 1u] = vec4f(s.specular, 0.0);
 }

@@ -1,6 +1,6 @@
-// Eye pass (forward variant): per pixel the node's illumination Σ (c_λ ⊘ c_n)·(i^d_λ, i^s_λ)·s_λ
-// over its K samples, with s_λ from the shadow maps, plus eye depth and (entry point `fs_layers`)
-// the material layers. Needs `lighting.wgsl` before it.
+// The eye raster's common part: the vertex stage, the visible surface under a fragment, its
+// material layers, and which fragments eye rays skip. The forward (`forward.wgsl`) and deferred
+// (`deferred.wgsl`) variants build on it; needs `lighting.wgsl` before it.
 
 struct VsIn {
     @location(0) position: vec3f,
@@ -73,52 +73,4 @@ fn rejected(in: VsOut, front: bool) -> bool {
     let m = materials[in.material & ~NO_UV_BIT];
     return (!front && m.double_sided == 0u)
         || masked_out(m, in.uv, (in.material & NO_UV_BIT) == 0u);
-}
-
-// Illumination and depth leave as f32 bits in integer targets: exact, and renderable on GL too.
-struct IlluminationOut {
-    @location(0) diffuse: vec4<u32>,
-    @location(1) specular: vec4<u32>,
-    @location(2) depth: u32,
-}
-
-@fragment
-fn fs_illumination(in: VsOut, @builtin(front_facing) front: bool) -> IlluminationOut {
-    if rejected(in, front) {
-        discard;
-    }
-    let s = illuminate(surface(in, front));
-    var out: IlluminationOut;
-    out.diffuse = bitcast<vec4<u32>>(vec4f(s.diffuse, 1.0));
-    out.specular = bitcast<vec4<u32>>(vec4f(s.specular, 1.0));
-    out.depth = bitcast<u32>(eye_depth(in.world));
-    return out;
-}
-
-struct LayersOut {
-    @location(0) diffuse: vec4<u32>,
-    @location(1) specular: vec4<u32>,
-    @location(2) depth: u32,
-    @location(3) m_diffuse: vec4f,
-    @location(4) m_specular: vec4f,
-    @location(5) m_ambient: vec4f,
-    @location(6) emissive: vec4f,
-}
-
-@fragment
-fn fs_layers(in: VsOut, @builtin(front_facing) front: bool) -> LayersOut {
-    if rejected(in, front) {
-        discard;
-    }
-    let s = illuminate(surface(in, front));
-    let m = material_layers(in);
-    var out: LayersOut;
-    out.diffuse = bitcast<vec4<u32>>(vec4f(s.diffuse, 1.0));
-    out.specular = bitcast<vec4<u32>>(vec4f(s.specular, 1.0));
-    out.depth = bitcast<u32>(eye_depth(in.world));
-    out.m_diffuse = m.diffuse;
-    out.m_specular = m.specular;
-    out.m_ambient = m.ambient;
-    out.emissive = m.emissive;
-    return out;
 }

@@ -1,9 +1,16 @@
 // Lighting of a visible surface point by the node's K samples with their shadow lookups: shared
-// by the forward eye pass (`eye.wgsl`) and the deferred variant (`deferred.wgsl`).
+// by the forward eye pass (`forward.wgsl`) and the deferred light pass (`deferred.wgsl`). Lights
+// and views come from `light_at` / `view_at`, which each variant binds its own way
+// (`lights_storage.wgsl`, `lights_uniform.wgsl`).
 
 const FILTER_NEAREST: u32 = 0u;
 const FILTER_PCF2X2: u32 = 1u;
 const FILTER_GRID: u32 = 2u;
+
+// The shadow filter and its taps per axis are fixed per pipeline, so only the chosen filter's
+// lookups are in the code (a CPU rasteriser would run the others' too).
+override SHADOW_FILTER: u32 = FILTER_PCF2X2;
+override SHADOW_TAPS: u32 = 1u;
 
 struct Frame {
     view_proj: mat4x4f,
@@ -14,14 +21,15 @@ struct Frame {
     // Constant bias in metres along the light ray, and the slope factor.
     depth_bias: f32,
     slope_bias: f32,
-    filter_mode: u32,
-    taps: u32,
+    // Deferred light pass: nonzero when this dispatch adds to what an earlier one lit.
+    accumulate: u32,
+    _pad0: u32,
     // Half-width of the filter footprint in texels (the slope bias scales with it).
     kernel_radius: f32,
     // Image size (the deferred variant's compute pass needs it).
     width: u32,
     height: u32,
-    _pad: u32,
+    _pad1: u32,
 }
 
 // One shadow map: a layer of `shadow_maps` and how world points land in it. The projection keeps
@@ -39,8 +47,6 @@ struct View {
 }
 
 @group(1) @binding(0) var<uniform> frame: Frame;
-@group(1) @binding(1) var<storage, read> lights: array<Light>;
-@group(1) @binding(2) var<storage, read> views: array<View>;
 @group(1) @binding(3) var shadow_maps: texture_depth_2d_array;
 // One linear comparison sampler (GL cannot pair one texture with two samplers); the nearest
 // filter reads it at texel centres, where the bilinear weights select a single texel.
@@ -48,14 +54,14 @@ struct View {
 
 // Comparison lookups: `ref` passes where it is at least the stored (reversed-Z) depth.
 fn shadow_filter(uv: vec2f, layer: u32, ref_depth: f32) -> f32 {
-    if frame.filter_mode == FILTER_NEAREST {
+    if SHADOW_FILTER == FILTER_NEAREST {
         let centre = (floor(uv * frame.map_size) + vec2f(0.5)) / frame.map_size;
         return textureSampleCompareLevel(shadow_maps, shadow_linear, centre, layer, ref_depth);
     }
-    if frame.filter_mode == FILTER_PCF2X2 {
+    if SHADOW_FILTER == FILTER_PCF2X2 {
         return textureSampleCompareLevel(shadow_maps, shadow_linear, uv, layer, ref_depth);
     }
-    let taps = max(frame.taps, 1u);
+    let taps = max(SHADOW_TAPS, 1u);
     let step = 1.0 / frame.map_size;
     let half = 0.5 * f32(taps - 1u);
     var sum = 0.0;
@@ -92,16 +98,17 @@ fn view_for(s: Light, p: vec3f) -> u32 {
     return select(s.faces_b.y, s.faces_b.x, c.z >= 0.0);
 }
 
+// Only directional samples have orthographic views.
+fn is_ortho(v: View) -> bool {
+    return handles(KIND_DIRECTIONAL) && v.ortho != 0u;
+}
+
 fn project(v: View, q: vec3f) -> vec4f {
-    var w = -q.z;
-    if v.ortho != 0u {
-        w = 1.0;
-    }
     return vec4f(
         v.proj_a.x * q.x + v.proj_a.y * q.z + v.proj_a.z,
         v.proj_a.w * q.y + v.proj_b.x * q.z + v.proj_b.y,
         v.proj_b.z * q.z + v.proj_b.w,
-        w,
+        select(-q.z, 1.0, is_ortho(v)),
     );
 }
 
@@ -115,7 +122,7 @@ fn visibility(s: Light, p: vec3f, ng: vec3f) -> f32 {
     if index == NO_VIEW {
         return 1.0;
     }
-    let v = views[index];
+    let v = view_at(index);
     let q = (v.view * vec4f(p, 1.0)).xyz;
     let clip = project(v, q);
     if !(clip.w > 0.0) {
@@ -129,28 +136,23 @@ fn visibility(s: Light, p: vec3f, ng: vec3f) -> f32 {
     let n = (v.view * vec4f(ng, 0.0)).xyz;
     let depth = max(-q.z, 0.0);
     // Depth change per texel: slope · texel_m, with texel_m the texel width in metres.
-    var slope: f32;
-    var texel_m = v.texel;
-    var along_axis = 1.0;
-    if v.ortho != 0u {
+    // Perspective: the plane through q with normal n has depth D = (n·q) / (n·(x, y, −1)) at
+    // tangent (x, y), so |∂D/∂x| = D·|n.x| / |n·(x, y, −1)|.
+    let d = vec3f(q.xy / max(depth, 1e-6), -1.0);
+    var slope = (abs(n.x) + abs(n.y)) / max(abs(dot(n, d)), 1e-3);
+    var texel_m = v.texel * depth;
+    var along_axis = depth / max(length(q), 1e-6);
+    if is_ortho(v) {
         slope = (abs(n.x) + abs(n.y)) / max(abs(n.z), 1e-3);
-    } else {
-        // Plane through q with normal n: at tangent (x, y) its depth is
-        // D = (n·q) / (n·(x, y, −1)), so |∂D/∂x| = D·|n.x| / |n·(x, y, −1)|.
-        let d = vec3f(q.xy / max(depth, 1e-6), -1.0);
-        slope = (abs(n.x) + abs(n.y)) / max(abs(dot(n, d)), 1e-3);
-        texel_m = v.texel * depth;
-        along_axis = depth / max(length(q), 1e-6);
+        texel_m = v.texel;
+        along_axis = 1.0;
     }
     // Grazing receivers cannot ask for more than ten texels' worth of depth per texel.
     let bias = frame.depth_bias * along_axis
         + frame.slope_bias * frame.kernel_radius * min(slope, 10.0) * texel_m;
     // Move the receiver towards the light along the map's axis, then take its depth.
     let cb = project(v, vec3f(q.xy, q.z + bias));
-    var ref_depth = 1.0;
-    if cb.w > 0.0 {
-        ref_depth = clamp(cb.z / cb.w, 0.0, 1.0);
-    }
+    let ref_depth = select(1.0, clamp(cb.z / cb.w, 0.0, 1.0), cb.w > 0.0);
     return shadow_filter(uv, v.layer, ref_depth);
 }
 
@@ -168,16 +170,15 @@ struct Shaded {
     specular: vec3f,
 }
 
-// Σ_λ (c_λ ⊘ c_n)·(i^d_λ, i^s_λ)·s_λ at a surface point.
-fn illuminate(sf: Surface) -> Shaded {
+// `start` + Σ_λ (c_λ ⊘ c_n)·(i^d_λ, i^s_λ)·s_λ at a surface point, in light order (a deferred
+// pass split into dispatches adds in the same order as one dispatch).
+fn illuminate(sf: Surface, start: Shaded) -> Shaded {
     let m = materials[sf.material];
     let v = safe_normalize(frame.camera - sf.p);
     let specular = m.has_specular != 0u;
-    var out: Shaded;
-    out.diffuse = vec3f(0.0);
-    out.specular = vec3f(0.0);
+    var out = start;
     for (var i = 0u; i < frame.light_count; i++) {
-        let s = lights[i];
+        let s = light_at(i);
         let c = coefficients(s, sf.p, sf.n, v, m.shininess, specular);
         if c.x == 0.0 && c.y == 0.0 {
             continue;

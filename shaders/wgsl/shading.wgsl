@@ -42,97 +42,82 @@ const NO_VIEW: u32 = 0xffffffffu;
 // Unit vector, or zero for a zero or non-finite input.
 fn safe_normalize(a: vec3f) -> vec3f {
     let l = length(a);
-    if l > 0.0 && l < 3.0e38 {
-        return a / l;
-    }
-    return vec3f(0.0);
+    return select(vec3f(0.0), a / l, l > 0.0 && l < 3.0e38);
+}
+
+// The sample kinds a pipeline is built for, one bit per KIND_* (all by default). A CPU rasteriser
+// runs every side of every branch, so the eye pass is specialised to the kinds its lights have:
+// the code of the others folds away. The maths below is branch-free for the same reason.
+override LIGHT_KINDS: u32 = 0x1fu;
+
+fn handles(kind: u32) -> bool {
+    return (LIGHT_KINDS & (1u << kind)) != 0u;
 }
 
 fn range_window(r: f32, range: f32) -> f32 {
-    if range > 0.0 {
-        let q = r / range;
-        let w = clamp(1.0 - q * q * q * q, 0.0, 1.0);
-        return w * w;
-    }
-    return 1.0;
+    let q = r / range;
+    let w = clamp(1.0 - q * q * q * q, 0.0, 1.0);
+    return select(1.0, w * w, range > 0.0);
 }
 
 // Radiant intensity towards unit direction `to_point` (light → point).
 fn sample_intensity(s: Light, to_point: vec3f) -> f32 {
     let c = dot(s.direction, to_point);
-    switch s.kind {
-        case KIND_COSINE_LOBE: {
-            return s.intensity * max(c, 0.0);
-        }
-        case KIND_TWO_SIDED_LOBE: {
-            return s.intensity * abs(c);
-        }
-        case KIND_SPOT: {
-            let t = clamp((c - s.cos_outer) / max(s.cos_inner - s.cos_outer, 1e-4), 0.0, 1.0);
-            return s.intensity * t * t;
-        }
-        default: {
-            return s.intensity;
-        }
+    // Isotropic and directional samples radiate `intensity` every way.
+    var i = s.intensity;
+    if handles(KIND_COSINE_LOBE) {
+        i = select(i, s.intensity * max(c, 0.0), s.kind == KIND_COSINE_LOBE);
     }
+    if handles(KIND_TWO_SIDED_LOBE) {
+        i = select(i, s.intensity * abs(c), s.kind == KIND_TWO_SIDED_LOBE);
+    }
+    if handles(KIND_SPOT) {
+        let t = clamp((c - s.cos_outer) / max(s.cos_inner - s.cos_outer, 1e-4), 0.0, 1.0);
+        i = select(i, s.intensity * t * t, s.kind == KIND_SPOT);
+    }
+    return i;
 }
 
 // Unit direction from p towards the light (xyz) and its distance (w; huge for directional).
 fn to_light(s: Light, p: vec3f) -> vec4f {
-    if s.kind == KIND_DIRECTIONAL {
-        return vec4f(-safe_normalize(s.direction), 3.0e38);
-    }
     let d = s.position - p;
-    return vec4f(safe_normalize(d), length(d));
+    var lr = vec4f(safe_normalize(d), length(d));
+    if handles(KIND_DIRECTIONAL) {
+        let travel = vec4f(-safe_normalize(s.direction), 3.0e38);
+        lr = select(lr, travel, s.kind == KIND_DIRECTIONAL);
+    }
+    return lr;
 }
 
-// Unshadowed scalar irradiance E_λ at p with unit normal n.
-fn irradiance(s: Light, p: vec3f, n: vec3f) -> f32 {
-    let lr = to_light(s, p);
+// Unshadowed scalar irradiance E_λ at a point with unit normal n, given `to_light` there.
+fn irradiance(s: Light, lr: vec4f, n: vec3f) -> f32 {
     let l = lr.xyz;
     let r = lr.w;
     let cos_n = dot(n, l);
-    if !(cos_n > 0.0) {
-        return 0.0;
+    var e = sample_intensity(s, -l) * cos_n / (r * r) * range_window(r, s.range);
+    var reached = r > 0.0;
+    if handles(KIND_DIRECTIONAL) {
+        let directional = s.kind == KIND_DIRECTIONAL;
+        e = select(e, s.intensity * cos_n, directional);
+        reached = reached || directional;
     }
-    var e: f32;
-    if s.kind == KIND_DIRECTIONAL {
-        e = s.intensity * cos_n;
-    } else {
-        if !(r > 0.0) {
-            return 0.0;
-        }
-        e = sample_intensity(s, -l) * cos_n / (r * r) * range_window(r, s.range);
-    }
-    if !(abs(e) < 3.0e38) {
-        return 0.0;
-    }
-    return e;
+    return select(0.0, e, cos_n > 0.0 && reached && abs(e) < 3.0e38);
 }
 
 // Energy-normalised Blinn-Phong lobe (s+8)/(8π)·max(0, n·h)^s.
 fn blinn_phong(n: vec3f, l: vec3f, v: vec3f, shininess: f32) -> f32 {
     let h = safe_normalize(l + v);
     let nh = max(dot(n, h), 0.0);
-    var p = 0.0;
-    if nh > 0.0 {
-        p = pow(nh, shininess);
-    } else if shininess == 0.0 {
-        p = 1.0;
-    }
+    // 0^0 is 1; pow(0, s) may be NaN where it is not taken.
+    let p = select(select(0.0, 1.0, shininess == 0.0), pow(nh, shininess), nh > 0.0);
     return (shininess + 8.0) / (8.0 * PI) * p;
 }
 
 // Unshadowed (i^d, i^s) of one sample at a surface point.
 fn coefficients(s: Light, p: vec3f, n: vec3f, v: vec3f, shininess: f32, specular: bool) -> vec2f {
-    let e = irradiance(s, p, n);
-    if e == 0.0 {
-        return vec2f(0.0);
-    }
-    var is = 0.0;
-    if specular {
-        is = e * blinn_phong(n, to_light(s, p).xyz, v, shininess);
-    }
+    let lr = to_light(s, p);
+    let e = irradiance(s, lr, n);
+    let is = select(0.0, e * blinn_phong(n, lr.xyz, v, shininess), specular && e != 0.0);
     return vec2f(e / PI, is);
 }
 

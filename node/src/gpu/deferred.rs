@@ -1,11 +1,16 @@
 //! The deferred variant of the eye pass: one raster writes a G-buffer (position, normals and
-//! material per pixel as f32 bits, plus eye depth and the material layers), then one compute pass
-//! lights every pixel with the K samples into a storage buffer. Same maths as the forward pass;
-//! no fragment of a hidden surface is ever lit.
+//! material per pixel as f32 bits, plus eye depth and the material layers), then a compute pass
+//! lights every pixel with the K samples into a storage buffer, one dispatch per chunk of
+//! [`CHUNK_LIGHTS`] lights (their records in uniform buffers, which lavapipe reads far faster than
+//! storage buffers), each adding to the last in light order. Same maths as the forward pass; no
+//! fragment of a hidden surface is ever lit.
 
-use super::eye_pass::{EyeInputs, EyeTargets, eye_bind_group, record_raster};
+use super::eye_pass::{EyeInputs, EyeTargets, GpuFrame, light_group, record_raster};
 use super::frame::RenderError;
+use super::lights::{GpuLight, GpuView, chunk_lights};
 use super::pipelines::{DrawContext, GBUFFER_FORMAT};
+use bytemuck::Zeroable;
+use lightfold_shaders::{CHUNK_LIGHTS, CHUNK_VIEWS};
 
 /// Workgroup edge of `cs_lights`.
 const WORKGROUP: u32 = 8;
@@ -59,15 +64,46 @@ impl DeferredTargets {
     }
 }
 
-/// Records and submits the G-buffer raster and the light pass.
+/// Group 1 of each light dispatch: its chunk of lights and views, padded to the sizes the
+/// shader declares, and the frame with the chunk's light count.
+fn chunk_groups(cx: &DrawContext<'_>, inputs: &EyeInputs<'_>) -> Vec<wgpu::BindGroup> {
+    chunk_lights(inputs.lights, inputs.views, CHUNK_LIGHTS)
+        .into_iter()
+        .enumerate()
+        .map(|(i, mut chunk)| {
+            debug_assert!(
+                chunk.views.len() <= CHUNK_VIEWS,
+                "at most six views per light"
+            );
+            let frame = GpuFrame {
+                light_count: chunk.lights.len() as u32,
+                accumulate: u32::from(i > 0),
+                ..inputs.frame
+            };
+            chunk.lights.resize(CHUNK_LIGHTS, GpuLight::zeroed());
+            chunk.views.resize(CHUNK_VIEWS, GpuView::zeroed());
+            light_group(
+                cx,
+                &cx.pipelines.chunk_layout,
+                inputs,
+                &frame,
+                (&chunk.lights, &chunk.views),
+                wgpu::BufferUsages::UNIFORM,
+            )
+        })
+        .collect()
+}
+
+/// Records and submits the G-buffer raster and the light dispatches of `light_pass`.
 pub fn render_deferred(
     cx: &DrawContext<'_>,
     vertex_count: u32,
     targets: &EyeTargets,
     deferred: &DeferredTargets,
     inputs: &EyeInputs<'_>,
+    light_pass: &wgpu::ComputePipeline,
 ) {
-    let bind_group = eye_bind_group(cx, inputs);
+    let groups = chunk_groups(cx, inputs);
     let g = &deferred.gbuffer;
     let mut colour = vec![&g[0], &g[1], &g[2], &targets.depth];
     if inputs.material_layers {
@@ -87,7 +123,7 @@ pub fn render_deferred(
         cx,
         &mut encoder,
         pipeline,
-        &bind_group,
+        &groups[0],
         &colour,
         &targets.depth_buffer,
         vertex_count,
@@ -121,15 +157,17 @@ pub fn render_deferred(
             label: Some("deferred lights"),
             timestamp_writes: None,
         });
-        pass.set_pipeline(&cx.pipelines.deferred_lights);
+        pass.set_pipeline(light_pass);
         pass.set_bind_group(0, cx.scene_bind_group, &[]);
-        pass.set_bind_group(1, &bind_group, &[]);
         pass.set_bind_group(2, &gbuffer_group, &[]);
-        pass.dispatch_workgroups(
-            deferred.width.div_ceil(WORKGROUP),
-            deferred.height.div_ceil(WORKGROUP),
-            1,
-        );
+        for group in &groups {
+            pass.set_bind_group(1, group, &[]);
+            pass.dispatch_workgroups(
+                deferred.width.div_ceil(WORKGROUP),
+                deferred.height.div_ceil(WORKGROUP),
+                1,
+            );
+        }
     }
     cx.queue.submit([encoder.finish()]);
 }

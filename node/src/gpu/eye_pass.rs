@@ -20,12 +20,13 @@ pub struct GpuFrame {
     pub map_size: f32,
     pub depth_bias: f32,
     pub slope_bias: f32,
-    pub filter_mode: u32,
-    pub taps: u32,
+    /// Deferred light pass: nonzero when this dispatch adds to an earlier one's result.
+    pub accumulate: u32,
+    pub _pad0: u32,
     pub kernel_radius: f32,
     pub width: u32,
     pub height: u32,
-    pub _pad: u32,
+    pub _pad1: u32,
 }
 
 impl GpuFrame {
@@ -40,12 +41,12 @@ impl GpuFrame {
             map_size: 1.0,
             depth_bias: 0.0,
             slope_bias: 0.0,
-            filter_mode: 1,
-            taps: 1,
+            accumulate: 0,
+            _pad0: 0,
             kernel_radius: 1.0,
             width: camera.width,
             height: camera.height,
-            _pad: 0,
+            _pad1: 0,
         }
     }
 }
@@ -117,16 +118,8 @@ pub struct EyeInputs<'a> {
     pub material_layers: bool,
 }
 
-/// The eye pass's uniform, light and view buffers bound as group 1.
+/// The forward pass's uniform, light and view buffers bound as group 1 (storage buffers).
 pub fn eye_bind_group(cx: &DrawContext<'_>, inputs: &EyeInputs<'_>) -> wgpu::BindGroup {
-    let buffer = |label: &str, bytes: &[u8], usage| {
-        cx.device
-            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents: bytes,
-                usage,
-            })
-    };
     // Storage bindings cannot be empty: pad with one unused record.
     let lights: Vec<GpuLight> = if inputs.lights.is_empty() {
         vec![GpuLight::zeroed()]
@@ -138,24 +131,43 @@ pub fn eye_bind_group(cx: &DrawContext<'_>, inputs: &EyeInputs<'_>) -> wgpu::Bin
     } else {
         inputs.views.to_vec()
     };
+    light_group(
+        cx,
+        &cx.pipelines.eye_layout,
+        inputs,
+        &inputs.frame,
+        (&lights, &views),
+        wgpu::BufferUsages::STORAGE,
+    )
+}
+
+/// Group 1 of an eye pass: `frame` and the light and view records in buffers of `usage`.
+pub fn light_group(
+    cx: &DrawContext<'_>,
+    layout: &wgpu::BindGroupLayout,
+    inputs: &EyeInputs<'_>,
+    frame: &GpuFrame,
+    (lights, views): (&[GpuLight], &[GpuView]),
+    usage: wgpu::BufferUsages,
+) -> wgpu::BindGroup {
+    let buffer = |label: &str, bytes: &[u8], usage| {
+        cx.device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents: bytes,
+                usage,
+            })
+    };
     let frame_buf = buffer(
         "frame",
-        bytemuck::bytes_of(&inputs.frame),
+        bytemuck::bytes_of(frame),
         wgpu::BufferUsages::UNIFORM,
     );
-    let light_buf = buffer(
-        "lights",
-        bytemuck::cast_slice(&lights),
-        wgpu::BufferUsages::STORAGE,
-    );
-    let view_buf = buffer(
-        "views",
-        bytemuck::cast_slice(&views),
-        wgpu::BufferUsages::STORAGE,
-    );
+    let light_buf = buffer("lights", bytemuck::cast_slice(lights), usage);
+    let view_buf = buffer("views", bytemuck::cast_slice(views), usage);
     cx.device.create_bind_group(&wgpu::BindGroupDescriptor {
         label: Some("eye"),
-        layout: &cx.pipelines.eye_layout,
+        layout,
         entries: &[
             wgpu::BindGroupEntry {
                 binding: 0,

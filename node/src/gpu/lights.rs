@@ -199,6 +199,57 @@ fn gpu_light(s: &LightSample, weight: V3, first_view: u32, view_count: u32) -> G
     }
 }
 
+/// One dispatch's share of a plan: at most `max_lights` lights with their views, view indices
+/// (`first_view`, `faces`) rebased to the chunk; layers stay those of the whole array.
+#[derive(Debug, Clone)]
+pub struct LightChunk {
+    pub lights: Vec<GpuLight>,
+    pub views: Vec<GpuView>,
+}
+
+/// Splits `lights` (with `views`, numbered across all lights as [`plan_lights`] does) into chunks
+/// of at most `max_lights` lights, in order. No lights gives one empty chunk.
+pub fn chunk_lights(lights: &[GpuLight], views: &[GpuView], max_lights: usize) -> Vec<LightChunk> {
+    if lights.is_empty() {
+        return vec![LightChunk {
+            lights: Vec::new(),
+            views: Vec::new(),
+        }];
+    }
+    lights
+        .chunks(max_lights.max(1))
+        .map(|part| {
+            let first = part[0].first_view;
+            let end = part
+                .iter()
+                .map(|l| l.first_view + l.view_count)
+                .max()
+                .unwrap_or(first);
+            let rebased = part
+                .iter()
+                .map(|l| {
+                    let mut l = *l;
+                    l.first_view -= first;
+                    for f in &mut l.faces {
+                        if *f != NO_VIEW {
+                            *f -= first;
+                        }
+                    }
+                    l
+                })
+                .collect();
+            let range = first as usize..(end as usize).min(views.len());
+            LightChunk {
+                lights: rebased,
+                views: views
+                    .get(range)
+                    .map(<[GpuView]>::to_vec)
+                    .unwrap_or_default(),
+            }
+        })
+        .collect()
+}
+
 /// Whether the box may be seen by a view: false only when all eight corners are outside one clip
 /// plane (left, right, bottom, top, or beyond far). Casters in front of near are kept (they are
 /// depth-clamped into the map).
@@ -330,6 +381,45 @@ mod tests {
                 .views
                 .is_empty()
         );
+    }
+
+    #[test]
+    fn chunks_rebase_view_indices_and_keep_layers() {
+        let samples: Vec<LightSample> = (0..5)
+            .map(|i| lobe([i as f32 * 0.3 - 0.6, 2.9, 0.0]))
+            .collect();
+        let p = plan_lights(&samples, &ROOM, [1.0; 3], 512, None);
+        let chunks = chunk_lights(&p.lights, &p.views, 2);
+        assert_eq!(
+            chunks.iter().map(|c| c.lights.len()).collect::<Vec<_>>(),
+            [2, 2, 1]
+        );
+        let mut next_light = 0;
+        for c in &chunks {
+            for (k, l) in c.lights.iter().enumerate() {
+                let whole = &p.lights[next_light + k];
+                for j in 0..l.view_count {
+                    let local = &c.views[(l.first_view + j) as usize];
+                    let global = &p.views[(whole.first_view + j) as usize];
+                    assert_eq!(local.layer, global.layer);
+                }
+                for (f, g) in l.faces.iter().zip(&whole.faces) {
+                    if *g == NO_VIEW {
+                        assert_eq!(*f, NO_VIEW);
+                    } else {
+                        assert_eq!(c.views[*f as usize].layer, p.views[*g as usize].layer);
+                    }
+                }
+            }
+            next_light += c.lights.len();
+        }
+        assert_eq!(
+            chunks.iter().map(|c| c.views.len()).sum::<usize>(),
+            p.views.len()
+        );
+        let none = chunk_lights(&[], &[], 64);
+        assert_eq!(none.len(), 1);
+        assert!(none[0].lights.is_empty());
     }
 
     #[test]

@@ -1,6 +1,12 @@
-//! Bind-group layouts and render pipelines, built once per renderer from the `shaders` crate:
-//! depth-only and alpha-masked shadow pipelines (reversed-Z, depth clamp, no culling: every
-//! triangle casts), and the eye pipelines with or without the material-layer targets.
+//! Bind-group layouts and pipelines, built once per renderer from the `shaders` crate: depth-only
+//! and alpha-masked shadow pipelines (reversed-Z, depth clamp, no culling: every triangle casts),
+//! the forward and G-buffer eye rasters with or without the material-layer targets, and the
+//! deferred light pass, compiled per set of sample kinds on first use. The shadow filter is
+//! fixed per renderer and compiled in as a pipeline constant.
+
+use lightfold_scene::ShadowFilter;
+use lightfold_shaders::{OVERRIDE_LIGHT_KINDS, OVERRIDE_SHADOW_FILTER, OVERRIDE_SHADOW_TAPS};
+use std::collections::HashMap;
 
 use super::scene_data::Vertex;
 
@@ -31,7 +37,10 @@ pub struct DrawContext<'a> {
 pub struct Pipelines {
     pub scene_layout: wgpu::BindGroupLayout,
     pub shadow_layout: wgpu::BindGroupLayout,
+    /// Group 1 of the forward pass: lights and views in storage buffers.
     pub eye_layout: wgpu::BindGroupLayout,
+    /// Group 1 of the deferred variant: one chunk of lights and views in uniform buffers.
+    pub chunk_layout: wgpu::BindGroupLayout,
     pub shadow_opaque: wgpu::RenderPipeline,
     pub shadow_masked: wgpu::RenderPipeline,
     pub eye_illumination: wgpu::RenderPipeline,
@@ -41,7 +50,11 @@ pub struct Pipelines {
     pub deferred_layout: wgpu::BindGroupLayout,
     pub gbuffer: wgpu::RenderPipeline,
     pub gbuffer_layers: wgpu::RenderPipeline,
-    pub deferred_lights: wgpu::ComputePipeline,
+    deferred_module: wgpu::ShaderModule,
+    deferred_pl: wgpu::PipelineLayout,
+    filter: [(&'static str, f64); 2],
+    /// `cs_lights` per bit mask of the sample kinds it handles.
+    light_passes: HashMap<u32, wgpu::ComputePipeline>,
 }
 
 /// G-buffer targets: position + material, shading normal, geometric normal (f32 bits).
@@ -83,8 +96,22 @@ fn depth_state(write: bool) -> wgpu::DepthStencilState {
     }
 }
 
+/// The filter's pipeline constants: `FILTER_*` of `lighting.wgsl` and taps per axis.
+fn filter_constants(filter: ShadowFilter) -> [(&'static str, f64); 2] {
+    let (mode, taps) = match filter {
+        ShadowFilter::None => (0, 1),
+        ShadowFilter::Pcf2x2 => (1, 1),
+        ShadowFilter::Pcf { taps } => (2, taps.clamp(1, 15)),
+    };
+    [
+        (OVERRIDE_SHADOW_FILTER, f64::from(mode)),
+        (OVERRIDE_SHADOW_TAPS, f64::from(taps)),
+    ]
+}
+
 impl Pipelines {
-    pub fn new(device: &wgpu::Device) -> Pipelines {
+    pub fn new(device: &wgpu::Device, filter: ShadowFilter) -> Pipelines {
+        let filter = filter_constants(filter);
         // Lighting runs in fragment shaders (forward) and in a compute shader (deferred).
         let fragment = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
         let vf = wgpu::ShaderStages::VERTEX_FRAGMENT | wgpu::ShaderStages::COMPUTE;
@@ -115,51 +142,74 @@ impl Pipelines {
             ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
             count: None,
         };
-        let eye_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("eye"),
-            entries: &[
-                wgpu::BindGroupLayoutEntry {
-                    binding: 0,
-                    visibility: vf,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Uniform,
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
+        let eye_group = |label, data: wgpu::BufferBindingType| {
+            let data_entry = |binding| wgpu::BindGroupLayoutEntry {
+                binding,
+                visibility: fragment,
+                ty: wgpu::BindingType::Buffer {
+                    ty: data,
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
                 },
-                storage_entry(1, fragment),
-                storage_entry(2, fragment),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 3,
-                    visibility: fragment,
-                    ty: wgpu::BindingType::Texture {
-                        sample_type: wgpu::TextureSampleType::Depth,
-                        view_dimension: wgpu::TextureViewDimension::D2Array,
-                        multisampled: false,
+                count: None,
+            };
+            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+                label: Some(label),
+                entries: &[
+                    wgpu::BindGroupLayoutEntry {
+                        binding: 0,
+                        visibility: vf,
+                        ty: wgpu::BindingType::Buffer {
+                            ty: wgpu::BufferBindingType::Uniform,
+                            has_dynamic_offset: false,
+                            min_binding_size: None,
+                        },
+                        count: None,
                     },
-                    count: None,
-                },
-                comparison(4),
-            ],
-        });
+                    data_entry(1),
+                    data_entry(2),
+                    wgpu::BindGroupLayoutEntry {
+                        binding: 3,
+                        visibility: fragment,
+                        ty: wgpu::BindingType::Texture {
+                            sample_type: wgpu::TextureSampleType::Depth,
+                            view_dimension: wgpu::TextureViewDimension::D2Array,
+                            multisampled: false,
+                        },
+                        count: None,
+                    },
+                    comparison(4),
+                ],
+            })
+        };
+        let eye_layout = eye_group("eye", wgpu::BufferBindingType::Storage { read_only: true });
+        let chunk_layout = eye_group("light chunk", wgpu::BufferBindingType::Uniform);
 
         let shadow_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("shadow.wgsl"),
             source: wgpu::ShaderSource::Wgsl(lightfold_shaders::SHADOW_WGSL.into()),
         });
-        let eye_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("eye.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(lightfold_shaders::EYE_WGSL.into()),
+        let forward_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("forward eye pass"),
+            source: wgpu::ShaderSource::Wgsl(lightfold_shaders::FORWARD_WGSL.into()),
+        });
+        let deferred_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("deferred eye pass"),
+            source: wgpu::ShaderSource::Wgsl(lightfold_shaders::DEFERRED_WGSL.into()),
         });
         let shadow_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("shadow"),
             bind_group_layouts: &[Some(&scene_layout), Some(&shadow_layout)],
             immediate_size: 0,
         });
-        let eye_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("eye"),
+        let forward_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("forward eye pass"),
             bind_group_layouts: &[Some(&scene_layout), Some(&eye_layout)],
+            immediate_size: 0,
+        });
+        let gbuffer_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("g-buffer"),
+            bind_group_layouts: &[Some(&scene_layout), Some(&chunk_layout)],
             immediate_size: 0,
         });
 
@@ -218,12 +268,15 @@ impl Pipelines {
             target(MATERIAL_FORMAT),
             target(MATERIAL_FORMAT),
         ];
-        let eye = |fs: &str, targets: &[Option<wgpu::ColorTargetState>]| {
+        let eye = |module: &wgpu::ShaderModule,
+                   layout: &wgpu::PipelineLayout,
+                   fs: &str,
+                   targets: &[Option<wgpu::ColorTargetState>]| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(fs),
-                layout: Some(&eye_pl),
+                layout: Some(layout),
                 vertex: wgpu::VertexState {
-                    module: &eye_module,
+                    module,
                     entry_point: Some("vs_eye"),
                     compilation_options: Default::default(),
                     buffers: &[Some(vertex_layout())],
@@ -233,17 +286,21 @@ impl Pipelines {
                 depth_stencil: Some(depth_state(true)),
                 multisample: Default::default(),
                 fragment: Some(wgpu::FragmentState {
-                    module: &eye_module,
+                    module,
                     entry_point: Some(fs),
-                    compilation_options: Default::default(),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants: &filter,
+                        ..Default::default()
+                    },
                     targets,
                 }),
                 multiview_mask: None,
                 cache: None,
             })
         };
-        let eye_illumination = eye("fs_illumination", &illum_targets);
-        let eye_layers = eye("fs_layers", &layer_targets);
+        let forward = |fs, targets: &[_]| eye(&forward_module, &forward_pl, fs, targets);
+        let eye_illumination = forward("fs_illumination", &illum_targets);
+        let eye_layers = forward("fs_layers", &layer_targets);
         let gbuffer_targets = [
             target(GBUFFER_FORMAT),
             target(GBUFFER_FORMAT),
@@ -254,8 +311,18 @@ impl Pipelines {
             target(MATERIAL_FORMAT),
             target(MATERIAL_FORMAT),
         ];
-        let gbuffer = eye("fs_gbuffer", &gbuffer_targets[..4]);
-        let gbuffer_layers = eye("fs_gbuffer_layers", &gbuffer_targets);
+        let gbuffer = eye(
+            &deferred_module,
+            &gbuffer_pl,
+            "fs_gbuffer",
+            &gbuffer_targets[..4],
+        );
+        let gbuffer_layers = eye(
+            &deferred_module,
+            &gbuffer_pl,
+            "fs_gbuffer_layers",
+            &gbuffer_targets,
+        );
         let gbuffer_entry = |binding| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,
@@ -288,23 +355,16 @@ impl Pipelines {
             label: Some("deferred lights"),
             bind_group_layouts: &[
                 Some(&scene_layout),
-                Some(&eye_layout),
+                Some(&chunk_layout),
                 Some(&deferred_layout),
             ],
             immediate_size: 0,
-        });
-        let deferred_lights = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some("cs_lights"),
-            layout: Some(&deferred_pl),
-            module: &eye_module,
-            entry_point: Some("cs_lights"),
-            compilation_options: Default::default(),
-            cache: None,
         });
         Pipelines {
             scene_layout,
             shadow_layout,
             eye_layout,
+            chunk_layout,
             shadow_opaque,
             shadow_masked,
             eye_illumination,
@@ -313,7 +373,37 @@ impl Pipelines {
             deferred_layout,
             gbuffer,
             gbuffer_layers,
-            deferred_lights,
+            deferred_module,
+            deferred_pl,
+            filter,
+            light_passes: HashMap::new(),
         }
+    }
+
+    /// The deferred light pass for lights whose kinds (`GpuLight::kind`) are the set bits of
+    /// `kinds`, compiled on first use (a handle: clones share the pipeline).
+    pub fn light_pass(&mut self, device: &wgpu::Device, kinds: u32) -> wgpu::ComputePipeline {
+        let (module, layout, filter) = (&self.deferred_module, &self.deferred_pl, self.filter);
+        self.light_passes
+            .entry(kinds)
+            .or_insert_with(|| {
+                let constants = [
+                    filter[0],
+                    filter[1],
+                    (OVERRIDE_LIGHT_KINDS, f64::from(kinds)),
+                ];
+                device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some("cs_lights"),
+                    layout: Some(layout),
+                    module,
+                    entry_point: Some("cs_lights"),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants: &constants,
+                        ..Default::default()
+                    },
+                    cache: None,
+                })
+            })
+            .clone()
     }
 }

@@ -86,7 +86,7 @@ impl Renderer {
                 maximum: gpu.limits.max_buffer_size,
             });
         }
-        let pipelines = Pipelines::new(device);
+        let pipelines = Pipelines::new(device, opts.filter);
         let init = |label: &str, contents: &[u8], usage| {
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(label),
@@ -300,6 +300,12 @@ impl Renderer {
                 self.pipelines.illumination_format,
             ));
         }
+        // The light pass is specialised to the kinds of samples this frame has.
+        let kinds = plan
+            .lights
+            .iter()
+            .fold(0u32, |m, l| m | 1 << l.kind.min(31));
+        let light_pass = self.pipelines.light_pass(&gpu.device, kinds);
         let targets = self.targets.as_ref().expect("allocated above");
         let frame = self.frame_uniform(&plan);
         let maps = self.maps.as_ref().expect("allocated with the shadow maps");
@@ -327,6 +333,7 @@ impl Renderer {
                 targets,
                 deferred,
                 &inputs,
+                &light_pass,
             );
         } else {
             render_eye(&self.draw_context(gpu), vertex_count, targets, &inputs);
@@ -427,21 +434,17 @@ impl Renderer {
             Some(Fault::HugeBias) => depth_bias = HUGE_BIAS,
             _ => {}
         }
-        let (filter_mode, taps, kernel_radius) = match o.filter {
-            ShadowFilter::None => (0, 1, 0.5),
-            ShadowFilter::Pcf2x2 => (1, 1, 1.0),
-            ShadowFilter::Pcf { taps } => {
-                let taps = taps.clamp(1, 15);
-                (2, taps, (taps - 1) as f32 * 0.5 + 1.0)
-            }
+        // The filter itself is compiled into the pipelines; its footprint scales the slope bias.
+        let kernel_radius = match o.filter {
+            ShadowFilter::None => 0.5,
+            ShadowFilter::Pcf2x2 => 1.0,
+            ShadowFilter::Pcf { taps } => (taps.clamp(1, 15) - 1) as f32 * 0.5 + 1.0,
         };
         GpuFrame {
             light_count: plan.lights.len() as u32,
             map_size: o.shadow_map_size as f32,
             depth_bias,
             slope_bias,
-            filter_mode,
-            taps,
             kernel_radius,
             ..GpuFrame::for_camera(&self.camera, self.near)
         }
