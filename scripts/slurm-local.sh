@@ -9,8 +9,9 @@
 #   scripts/slurm-local.sh [NODES]        # default 9, as the batch script asks (--nodes=9)
 #
 # LIGHTFOLD_BIN (default target/release/lightfold) is copied into the temp dir, which stands for
-# the shared file system. KEEP=1 keeps the temp dir (logs, configs, image); TIMEOUT (seconds,
-# default 600) bounds the wait for the job.
+# the shared file system. KEEP=1 keeps the temp dir (logs, configs, image); OUT=FILE copies the
+# PNG there; TIMEOUT (seconds, default 600) bounds the wait for the job. After the job, the EXR is
+# compared with the CPU reference (lightfold render --reference, lightfold compare).
 set -euo pipefail
 nodes=${1:-9}
 repo=$(cd "$(dirname "$0")/.." && pwd)
@@ -24,13 +25,22 @@ done
 [ -x "$bin" ] || { echo "no binary at $bin (cargo build --release -p lightfold-cli)" >&2; exit 2; }
 (( nodes >= 2 && nodes <= 200 )) || { echo "NODES must be 2..200" >&2; exit 2; }
 
-# Leftovers of a run that was killed outright (its PID is gone): namespaces and bridge.
+# Leftovers of a run that was killed outright (its PID is gone): the daemons in its namespaces,
+# the namespaces, its bridge, its munged and its temp dir. (A zombie counts as gone: kill -0
+# would still reach it until its new parent reaps it.)
+alive() { local state; state=$(sed 's/.*) //' "/proc/$1/stat" 2> /dev/null | cut -d' ' -f1) && [ -n "$state" ] && [ "$state" != Z ]; }
 for ns in $(ip netns list | awk '{print $1}' | grep -E '^lfs[0-9]+-' || true); do
   owner=${ns%%-*}; owner=${owner#lfs}
-  if ! kill -0 "$owner" 2> /dev/null; then
+  if ! alive "$owner"; then
     ip netns pids "$ns" 2> /dev/null | xargs -r kill -KILL 2> /dev/null || true
     ip netns del "$ns" 2> /dev/null || true
     ip link del "lfs${owner}br" 2> /dev/null || true
+  fi
+done
+for dir in /tmp/lightfold-slurm.*; do
+  if [ -f "$dir/owner" ] && ! alive "$(cat "$dir/owner")"; then
+    if [ -f "$dir/munge/munged.pid" ]; then kill -TERM "$(cat "$dir/munge/munged.pid")" 2> /dev/null || true; fi
+    rm -rf "$dir"
   fi
 done
 
@@ -38,18 +48,20 @@ prefix=lfs$$
 bridge=${prefix}br
 work=$(mktemp -d /tmp/lightfold-slurm.XXXXXX)
 chmod 0755 "$work"
+echo $$ > "$work/owner"
 pids=()
 namespaces=()
 cleanup() {
   set +e
   for p in "${pids[@]}"; do kill -TERM "$p" 2> /dev/null; done
   for _ in $(seq 50); do
-    alive=0
-    for p in "${pids[@]}"; do kill -0 "$p" 2> /dev/null && alive=1; done
-    [ $alive = 0 ] && break
+    running=0
+    for p in "${pids[@]}"; do alive "$p" && running=1; done
+    [ $running = 0 ] && break
     sleep 0.1
   done
   for p in "${pids[@]}"; do kill -KILL "$p" 2> /dev/null; done
+  wait 2> /dev/null # reap our children (munged daemonised itself and is not one)
   # Anything the job left behind (a slurmstepd, a daemon) lives in one of our namespaces.
   for ns in "${namespaces[@]}"; do
     ip netns pids "$ns" 2> /dev/null | xargs -r kill -KILL 2> /dev/null
@@ -88,9 +100,11 @@ add_host() { # name address
 # a mount namespace where $hosts_file is /etc/hosts, so host names resolve as on a cluster with DNS
 # without touching the machine's /etc/hosts. (Not `ip netns exec`: it remounts /sys, which hides
 # the cgroup mounts slurmd insists on.)
+# The daemon becomes the process itself (exec all the way), so $! of `on_host ... &` is its PID.
 on_host() { # name command...
   local name=$1; shift
-  nsenter --net="/run/netns/$prefix-$name" unshare --uts --mount --propagation private \
+  # shellcheck disable=SC2016 # expanded by the inner sh
+  exec nsenter --net="/run/netns/$prefix-$name" unshare --uts --mount --propagation private \
     sh -c 'mount --bind "$0" /etc/hosts && hostname "$1" && shift && exec "$@"' "$hosts_file" "$name" "$@"
 }
 add_host ctl 10.78.0.1
@@ -141,7 +155,7 @@ for n in "${names[@]}"; do
   on_host "$n" slurmd -D > "$work/slurmd-$n.out" 2>&1 &
   pids+=($!)
 done
-ctl() { on_host ctl "$@"; }
+ctl() { (on_host ctl "$@"); }
 
 # Wait until every node has registered and is idle.
 for _ in $(seq 120); do
@@ -164,11 +178,14 @@ status=$?
 set -e
 end=$(date +%s.%N)
 job=$(head -1 "$work/sbatch.out" | cut -d';' -f1)
-echo "job $job finished with status $status after $(awk "BEGIN { printf \"%.1f\", $end - $start }") s (submit to end)"
-ctl scontrol show job "$job" 2> /dev/null | grep -E 'JobState|RunTime|NodeList=|ExitCode' || true
+echo "job $job: sbatch --wait returned $status after $(awk "BEGIN { printf \"%.1f\", $end - $start }") s (it polls the job state)"
+ctl scontrol show job "$job" 2> /dev/null | grep -E 'JobState|RunTime|StartTime|NodeList=|ExitCode' || true
 echo "--- slurm-$job.out"
 cat "$work/job/slurm-$job.out" 2> /dev/null || echo "(no output file)"
 ls -l "$work/job"
 if [ -n "${OUT:-}" ] && [ -f "$work/job/out-$job.png" ]; then cp "$work/job/out-$job.png" "$OUT"; echo "image copied to $OUT"; fi
-[ $status = 0 ] || KEEP=1
-exit $status
+[ $status = 0 ] || { KEEP=1; exit $status; }
+# The image against the CPU reference (ray-traced shadows, same scene and light samples).
+echo "--- against the CPU reference"
+"$work/lightfold" render --reference --scene balls --out "$work/reference.exr" --log warn
+"$work/lightfold" compare "$work/job/out-$job.exr" "$work/reference.exr" --log warn
