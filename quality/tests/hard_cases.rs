@@ -58,8 +58,13 @@ fn terminator() {
 }
 
 #[test]
+fn depth_range() {
+    check("depth-range");
+}
+
+#[test]
 fn every_case_is_tested_and_unknown_names_fail() {
     let names = case_names();
-    assert_eq!(names.len(), 9, "{names:?}: add a test per case");
+    assert_eq!(names.len(), 10, "{names:?}: add a test per case");
     assert!(run_case("no-such-case", false).is_err());
 }

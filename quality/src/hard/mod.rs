@@ -7,6 +7,7 @@
 
 mod chain;
 mod degenerate;
+mod depth_range;
 mod shadow;
 mod support;
 
@@ -115,6 +116,7 @@ const CASES: &[(&str, CaseFn)] = &[
     ("degenerate", degenerate::degenerate),
     ("contact", shadow::contact),
     ("terminator", shadow::terminator),
+    ("depth-range", depth_range::depth_range),
 ];
 
 /// Names of the hard cases `run_case` knows.

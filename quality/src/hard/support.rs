@@ -10,7 +10,7 @@ use super::{CaseReport, HardCaseError};
 use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
 use lightfold_reference::Tracer;
 use lightfold_scene::shading::coefficients;
-use lightfold_scene::{Image, LightSample, Scene};
+use lightfold_scene::{Camera, Image, LightSample, Scene};
 use std::path::PathBuf;
 
 /// Per-pixel tolerance of "agrees with the reference" (as in the GPU correctness tests).
@@ -165,3 +165,80 @@ pub fn report(
 }
 
 pub use lightfold_reference::masks::comparable;
+
+/// The GPU illumination of `samples` seen by each of `cameras`, one renderer whose shadow maps
+/// are fitted to every receiver of the scene (not just what a camera sees), so every camera
+/// looks at the same maps.
+pub fn gpu_illumination_views(
+    case: &'static str,
+    gpu: &Gpu,
+    scene: &Scene,
+    samples: &[LightSample],
+    opts: RenderOptions,
+    cameras: &[Camera],
+) -> Result<Vec<Image>, HardCaseError> {
+    let err = |e: lightfold_node::gpu::RenderError| HardCaseError::Render {
+        case,
+        message: e.to_string(),
+    };
+    let mut r = Renderer::new(gpu, scene, opts).map_err(err)?;
+    r.set_fit_to_camera(false);
+    let mut out = Vec::with_capacity(cameras.len());
+    for cam in cameras {
+        r.set_camera(cam);
+        let frame = r
+            .render(gpu, samples, None, [1.0; 3], LayerSet::illumination())
+            .map_err(err)?;
+        out.push(frame.illumination.ok_or(HardCaseError::Render {
+            case,
+            message: "no illumination layer".into(),
+        })?);
+    }
+    Ok(out)
+}
+
+/// What the reference says about one view of a scene: the exact point sum, the same without
+/// shadows, per-pixel shadow states and the comparable-pixel mask.
+pub struct ReferenceView {
+    pub scene: Scene,
+    pub shadowed: lightfold_reference::Layers,
+    pub unshadowed: Image,
+    pub states: ShadowStates,
+    pub mask: Vec<bool>,
+}
+
+impl ReferenceView {
+    pub fn new(scene: &Scene, camera: Camera, samples: &[LightSample]) -> ReferenceView {
+        use lightfold_reference::{PointSumOptions, render_point_sum, render_point_sum_with};
+        let mut scene = scene.clone();
+        scene.camera = camera;
+        let shadowed = render_point_sum(&scene, samples, [1.0; 3]);
+        let unshadowed = render_point_sum_with(
+            &scene,
+            samples,
+            [1.0; 3],
+            PointSumOptions { shadows: false },
+        )
+        .illumination;
+        let states = shadow_states(&scene, samples);
+        let mask = comparable(&shadowed.depth, &shadowed.coverage, &states.visible);
+        ReferenceView {
+            scene,
+            shadowed,
+            unshadowed,
+            states,
+            mask,
+        }
+    }
+
+    /// Every sample that would light pixel `i` reaches it.
+    pub fn fully_lit(&self, i: usize) -> bool {
+        let (l, v) = (self.states.lit[i], self.states.visible[i]);
+        l != 0 && l == v
+    }
+
+    /// Some sample would light pixel `i` but none reaches it.
+    pub fn fully_shadowed(&self, i: usize) -> bool {
+        self.states.lit[i] != 0 && self.states.visible[i] == 0
+    }
+}
