@@ -8,7 +8,7 @@
 
 use bytes::{Buf, BufMut, Bytes, BytesMut};
 
-use crate::band::{BAND_HEADER_LEN, BandError, BandHeader, checksum};
+use crate::band::{BAND_HEADER_LEN, BandError, BandHeader};
 use crate::handshake::{Hello, MAGIC, MAX_DAEMON_ID, PROTOCOL_VERSION};
 use crate::message::{Message, Role};
 
@@ -298,21 +298,44 @@ impl Codec {
 
 /// Checks a band payload against its header: its length and its checksum.
 pub fn check_payload(header: &BandHeader, payload: &[u8]) -> Result<(), ProtocolError> {
-    if payload.len() != header.payload_len as usize {
-        return Err(BandError::PayloadSizeMismatch {
-            header: header.payload_len,
-            actual: payload.len(),
+    let mut check = PayloadCheck::default();
+    check.update(payload);
+    check.finish(header)
+}
+
+/// [`check_payload`] over a payload that arrives in pieces: each piece is hashed as it comes,
+/// while it is still in cache, instead of in one more pass over the whole payload.
+#[derive(Debug, Clone, Default)]
+pub struct PayloadCheck {
+    hasher: crc32fast::Hasher,
+    len: usize,
+}
+
+impl PayloadCheck {
+    /// The next bytes of the payload.
+    pub fn update(&mut self, bytes: &[u8]) {
+        self.hasher.update(bytes);
+        self.len += bytes.len();
+    }
+
+    /// The verdict on everything passed to `update`, as [`check_payload`] gives it.
+    pub fn finish(self, header: &BandHeader) -> Result<(), ProtocolError> {
+        if self.len != header.payload_len as usize {
+            return Err(BandError::PayloadSizeMismatch {
+                header: header.payload_len,
+                actual: self.len,
+            }
+            .into());
         }
-        .into());
+        let actual = self.hasher.finalize();
+        if actual != header.checksum {
+            return Err(ProtocolError::ChecksumMismatch {
+                expected: header.checksum,
+                actual,
+            });
+        }
+        Ok(())
     }
-    let actual = checksum(payload);
-    if actual != header.checksum {
-        return Err(ProtocolError::ChecksumMismatch {
-            expected: header.checksum,
-            actual,
-        });
-    }
-    Ok(())
 }
 
 /// Per-kind size rules, checked as soon as the kind byte arrives.

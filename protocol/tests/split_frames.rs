@@ -7,7 +7,7 @@ mod common;
 
 use bytes::BytesMut;
 use common::frame;
-use lightfold_protocol::frame::{BAND_PREFIX_LEN, Head, check_payload};
+use lightfold_protocol::frame::{BAND_PREFIX_LEN, Head, PayloadCheck, check_payload};
 use lightfold_protocol::{Codec, Frame, ProtocolError};
 use proptest::strategy::{Strategy, ValueTree};
 use proptest::test_runner::TestRunner;
@@ -148,4 +148,43 @@ fn damaged_frames_get_the_same_verdict_both_ways() {
         early > 100,
         "only {early} bands were judged from their head"
     );
+}
+
+#[test]
+fn a_payload_checked_in_pieces_gets_the_whole_verdict() {
+    let mut rng = ChaCha8Rng::seed_from_u64(0xC4C);
+    let bands: Vec<Frame> = frames(300)
+        .into_iter()
+        .filter(|f| matches!(f, Frame::Band(..)))
+        .collect();
+    assert!(bands.len() > 20);
+    for (i, f) in bands.iter().enumerate() {
+        let Frame::Band(header, payload) = f else {
+            continue;
+        };
+        let mut bytes = payload.to_vec();
+        // Every third band damaged: a flipped bit, or a byte short.
+        match i % 3 {
+            1 if !bytes.is_empty() => {
+                let at = rng.random_range(0..bytes.len());
+                bytes[at] ^= 1 << rng.random_range(0..8);
+            }
+            2 if !bytes.is_empty() => {
+                bytes.pop();
+            }
+            _ => {}
+        }
+        let mut check = PayloadCheck::default();
+        let mut rest = &bytes[..];
+        while !rest.is_empty() {
+            let (piece, tail) = rest.split_at(rng.random_range(1..=rest.len()));
+            check.update(piece);
+            rest = tail;
+        }
+        assert_eq!(
+            check.finish(header),
+            check_payload(header, &bytes),
+            "band {i}"
+        );
+    }
 }
