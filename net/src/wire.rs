@@ -1,16 +1,17 @@
 //! Frames on the two halves of a TCP stream without copying band payloads. The writer puts each
 //! frame's head in a small buffer and hands head and payload to the kernel together (`writev`), so
 //! a payload is written from wherever its `Bytes` live. The reader takes heads from a small buffer
-//! and reads each band payload straight from the socket into a buffer from the link's pool; the
-//! buffer returns to the pool when the band's last `Bytes` is dropped, so a steady stream of bands
-//! reuses warm pages instead of faulting in fresh ones for every band. Both judge frames with
+//! and reads each band payload straight from the socket into a buffer from the link's pool,
+//! hashing each piece for the checksum as it lands (while it is still in cache); the buffer
+//! returns to the pool when the band's last `Bytes` is dropped, so a steady stream of bands reuses
+//! warm pages instead of faulting in fresh ones for every band. Both judge frames with
 //! `protocol::Codec`, and both keep their progress in `self`, so a read or write cancelled at an
 //! `.await` (by a deadline or a `select!`) resumes where it stopped.
 
 use crate::codec::CodecError;
 use bytes::{Buf, Bytes, BytesMut};
 use lightfold_protocol::BandHeader;
-use lightfold_protocol::frame::{BAND_PREFIX_LEN, Codec, Frame, Head, check_payload};
+use lightfold_protocol::frame::{BAND_PREFIX_LEN, Codec, Frame, Head, PayloadCheck, check_payload};
 use std::collections::VecDeque;
 use std::io::IoSlice;
 use std::sync::{Arc, Mutex};
@@ -131,6 +132,8 @@ struct Partial {
     header: BandHeader,
     payload: Pooled,
     filled: usize,
+    /// The checksum of `payload[..filled]`, hashed as each read lands (still in cache).
+    check: PayloadCheck,
 }
 
 impl FrameReader {
@@ -152,18 +155,24 @@ impl FrameReader {
                 if p.filled < len {
                     match self.io.read(&mut p.payload.buf[p.filled..len]).await {
                         Ok(0) => return Some(Err(eof())),
-                        Ok(n) => p.filled += n,
+                        Ok(n) => {
+                            p.check.update(&p.payload.buf[p.filled..p.filled + n]);
+                            p.filled += n;
+                        }
                         Err(e) => return Some(Err(e.into())),
                     }
                     continue;
                 }
                 let Some(Partial {
-                    header, payload, ..
+                    header,
+                    payload,
+                    check,
+                    ..
                 }) = self.partial.take()
                 else {
                     continue;
                 };
-                return Some(match check_payload(&header, payload.as_ref()) {
+                return Some(match check.finish(&header) {
                     Ok(()) => Ok(Frame::Band(header, Bytes::from_owner(payload))),
                     Err(e) => Err(e.into()),
                 });
@@ -183,10 +192,13 @@ impl FrameReader {
                     let have = self.buf.len().min(len);
                     payload.buf[..have].copy_from_slice(&self.buf[..have]);
                     self.buf.advance(have);
+                    let mut check = PayloadCheck::default();
+                    check.update(&payload.buf[..have]);
                     self.partial = Some(Partial {
                         header,
                         payload,
                         filled: have,
+                        check,
                     });
                     continue;
                 }
@@ -237,17 +249,13 @@ struct Pool {
 }
 
 impl Pool {
-    /// A buffer for `len` payload bytes: a free one large enough (the smallest such), else new.
+    /// A buffer for `len` payload bytes: the most recently freed one large enough (its pages
+    /// are the likeliest to still be in cache), else a new one.
     fn take(self: &Arc<Self>, len: usize) -> Pooled {
         let reused = {
             let mut free = self.free.lock().unwrap_or_else(|e| e.into_inner());
-            let best = free
-                .iter()
-                .enumerate()
-                .filter(|(_, b)| b.len() >= len)
-                .min_by_key(|(_, b)| b.len())
-                .map(|(i, _)| i);
-            best.map(|i| free.swap_remove(i))
+            let last = free.iter().rposition(|b| b.len() >= len);
+            last.map(|i| free.remove(i))
         };
         Pooled {
             buf: reused.unwrap_or_else(|| vec![0; len]),
