@@ -3,11 +3,14 @@
 //! in two shapes of the same arithmetic, because the compiler vectorises each well on different
 //! instruction sets (`docs/operators.md`, "Throughput"):
 //!
-//! - `Shape::Loop`: one pixel (or word) per iteration; the loop vectoriser interleaves. Best at the
-//!   SSE2 baseline and with AVX-512's two-source permutes.
+//! - `Shape::Loop`: one pixel (or word) per iteration; the loop vectoriser interleaves. Best with
+//!   AVX-512's two-source permutes.
+//! - `Shape::Staged`: as `Loop`, but each term is decoded into an L1 buffer and added by the f32
+//!   kernel, which SSE2 runs faster for `rgb9e5x2` than one fused loop.
 //! - `Shape::Lanes`: a group of `GROUP` pixels as 48 straight-line lanes, lane `k` being pixel
 //!   `k / 6`, channel `k % 6`, already in the band's order; the straight-line vectoriser packs
-//!   them into permutes, masks, conversions and multiplies. Best with AVX2.
+//!   them into permutes, masks, conversions and multiplies. Best with AVX2, and for `seed64` at
+//!   SSE2.
 //!
 //! In the lanes a field is masked where it lies in its 32-bit word instead of being shifted down
 //! (that would need a different shift per lane): the code at bit `p` converts exactly to
@@ -15,6 +18,7 @@
 //! product, so the rounded result is `unpack`'s `code as f32 · factor` whenever `factor·2^-p` is
 //! itself exact, which `Decoder::of` checks once per band.
 
+use crate::ops::Isa;
 use lightfold_protocol::PixelFormat;
 
 /// Pixels per lanes group: 48 floats, whole 4-, 8- and 16-lane vectors.
@@ -28,6 +32,20 @@ pub(super) const BPP: usize = 8;
 pub(super) enum Shape {
     Loop,
     Lanes,
+    /// As `Loop`, but a term is decoded into a buffer and then added by the f32 kernel (the
+    /// caller does that; `madd` is never called with it). Best for `rgb9e5x2` at SSE2.
+    Staged,
+}
+
+impl Shape {
+    /// The shape measured fastest for `isa` and this decoder (docs/operators.md).
+    pub(super) fn best(isa: Isa, decoder: &Decoder) -> Shape {
+        match (isa, decoder) {
+            (Isa::Baseline, Decoder::Rgb9e5x2) => Shape::Staged,
+            (Isa::Baseline, Decoder::Seed64 { .. }) | (Isa::Avx2, _) => Shape::Lanes,
+            (Isa::Avx512, _) => Shape::Loop,
+        }
+    }
 }
 
 /// `rgb9e5x2` lane `c` (channel within a triple): where the 9-bit mantissa lies in its word and
@@ -82,7 +100,7 @@ impl Decoder {
     /// `o = decode(bytes)` over a block (`bytes.len() / BPP` pixels).
     #[inline(always)]
     pub(super) fn load(&self, shape: Shape, o: &mut [f32], bytes: &[u8]) {
-        if shape == Shape::Loop
+        if shape != Shape::Lanes
             && let Decoder::Rgb9e5x2 = self
         {
             // Word by word: the triples interleave with one shuffle pattern.
@@ -179,7 +197,7 @@ fn blocks<C: Codec, const MODE: u8>(
     c: &[f32; GROUP * 6],
 ) {
     let (o, bytes) = match shape {
-        Shape::Loop => (o, bytes),
+        Shape::Loop | Shape::Staged => (o, bytes),
         Shape::Lanes => {
             let (og, orest) = o.as_chunks_mut::<{ GROUP * 6 }>();
             let (bg, brest) = bytes.as_chunks::<{ GROUP * BPP }>();

@@ -67,12 +67,6 @@ impl Kernel for Span<'_, '_> {
 
     #[inline(always)]
     fn run(self, isa: Isa) -> Result<(), OpError> {
-        // Measured per instruction set (docs/operators.md): AVX2 packs the straight-line lanes
-        // best; SSE2 and AVX-512 vectorise the per-pixel loops better.
-        let shape = match isa {
-            Isa::Avx2 => Shape::Lanes,
-            Isa::Baseline | Isa::Avx512 => Shape::Loop,
-        };
         let mut buf = [0f32; BLOCK * 6];
         for (b, o) in self.out.chunks_mut(BLOCK * 6).enumerate() {
             let (px, n) = (self.first + b * BLOCK, o.len() / 6);
@@ -80,7 +74,7 @@ impl Kernel for Span<'_, '_> {
             match &self.band.up {
                 // Decoded values are finite and non-negative: the clamp is the identity.
                 Some(Source::Direct(d, bytes)) => {
-                    d.load(shape, o, &bytes[px * BPP..(px + n) * BPP])
+                    d.load(Shape::best(isa, d), o, &bytes[px * BPP..(px + n) * BPP])
                 }
                 Some(Source::Staged(p)) => {
                     unpack_block(p, px, x).map_err(|e| packed_error(0, e))?;
@@ -93,10 +87,16 @@ impl Kernel for Span<'_, '_> {
                     (None, _) => t.add(o, None, None),
                     (Some(Source::Direct(d, bytes)), kind) => {
                         let bytes = &bytes[px * BPP..(px + n) * BPP];
-                        match kind {
-                            Kind::Plain => d.madd::<false>(shape, o, bytes, &t.cg),
-                            Kind::Uniform => d.madd::<true>(shape, o, bytes, &t.cg),
-                            Kind::Masked => unreachable!("apply_packed refuses masked folding"),
+                        match (Shape::best(isa, d), kind) {
+                            (Shape::Staged, _) => {
+                                d.load(Shape::Staged, x, bytes);
+                                t.add(o, Some(x), None);
+                            }
+                            (shape, Kind::Plain) => d.madd::<false>(shape, o, bytes, &t.cg),
+                            (shape, Kind::Uniform) => d.madd::<true>(shape, o, bytes, &t.cg),
+                            (_, Kind::Masked) => {
+                                unreachable!("apply_packed refuses masked folding")
+                            }
                         }
                     }
                     (Some(Source::Staged(p)), _) => {
