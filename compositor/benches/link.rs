@@ -4,14 +4,17 @@
 //!    sum and a node's rgb9e5x2 illumination) and by `depth` (f16x6 illumination + f32 depth per
 //!    input), one frame at a time: ms per frame (median, best) against the time the same bytes
 //!    take over raw TCP sockets in the same topology (two senders → a relay that forwards a band's
-//!    worth of bytes per band pair → a receiver), measured in the same run, frames alternating.
+//!    worth of bytes per band pair → a receiver), measured in the same run, frames alternating;
+//!    the raw path runs once on one thread (the target's baseline) and once with its relay on a
+//!    runtime worker, where the stage's tasks run (what threads alone cost).
 //! 2. Pipelining: a chain of stages, each fed by a rate-paced synthetic source with its own
 //!    period (one frame per period, never bursting to catch up); the steady-state frame interval
 //!    at the sink against the slowest period, and the latency from the last source starting to
 //!    stream a frame to the sink holding all of it.
 //!
 //! `cargo bench -p lightfold-compositor --bench link` (add `-- --frames N` for more link samples,
-//! `--only link` or `--only pipeline` for one half).
+//! `--only link` or `--only pipeline` for one half, `--case NAME` for one link case, `--no-raw` to
+//! profile the stage path alone).
 
 #[path = "link/raw.rs"]
 mod raw;
@@ -115,7 +118,7 @@ struct LinkCase {
     outputs: Vec<(Layer, PixelFormat)>,
 }
 
-async fn link_cost(case: &LinkCase, frames: usize) {
+async fn link_cost(case: &LinkCase, frames: usize, with_raw: bool) {
     let (width, height, band_height) = (1920u32, 1080u32, 64u32);
     let (stage_addr, stop) = stage("stage").await;
     let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
@@ -193,11 +196,15 @@ async fn link_cost(case: &LinkCase, frames: usize) {
         .map(|bs| bs.iter().map(|(_, p)| p.len() + FRAMING).collect())
         .collect();
     let mut raw = RawRelay::new(in_sizes.clone(), out_sizes.clone()).await;
+    let mut spawned = RawRelay::new(in_sizes.clone(), out_sizes.clone())
+        .await
+        .spawn_relay();
 
     // Stage and raw frames alternate, so both see the same machine.
     let mut times = Vec::new();
     let mut raw_times = Vec::new();
-    let mut cpu = (0.0, 0.0);
+    let mut spawned_times = Vec::new();
+    let mut cpu = (0.0, 0.0, 0.0);
     let mut work = Vec::new();
     let mut out_bytes = 0usize;
     for f in 0..frames as u64 + 3 {
@@ -221,14 +228,26 @@ async fn link_cost(case: &LinkCase, frames: usize) {
         let cpu1 = cpu_ms();
         let done = ctl.frame_done(f, WAIT).await.unwrap();
         let cpu2 = cpu_ms();
-        let r = raw.frame().await;
+        let r = if with_raw {
+            raw.frame().await
+        } else {
+            f64::NAN
+        };
         let cpu3 = cpu_ms();
+        let r2 = if with_raw {
+            spawned.frame().await
+        } else {
+            f64::NAN
+        };
+        let cpu4 = cpu_ms();
         out_bytes = bytes;
         if f >= 3 {
             times.push(t);
             raw_times.push(r);
+            spawned_times.push(r2);
             cpu.0 += cpu1 - cpu0;
             cpu.1 += cpu3 - cpu2;
+            cpu.2 += cpu4 - cpu3;
             work.push((
                 done.composite_us as f64 / 1e3,
                 done.pack_us as f64 / 1e3,
@@ -247,6 +266,7 @@ async fn link_cost(case: &LinkCase, frames: usize) {
     let in_bytes: usize = in_sizes.iter().flatten().sum();
     let (med, best) = stats(times);
     let (rmed, rbest) = stats(raw);
+    let (smed, sbest) = stats(spawned_times);
     let (combine, _) = stats(work.iter().map(|w| w.0).collect());
     let (pack, _) = stats(work.iter().map(|w| w.1).collect());
     let (send, _) = stats(work.iter().map(|w| w.2).collect());
@@ -263,10 +283,17 @@ async fn link_cost(case: &LinkCase, frames: usize) {
         best / rbest
     );
     println!(
-        "     {:<10} stage work per frame (median): unpack+operate {combine:.1} ms, pack {pack:.1} ms, writing {send:.1} ms; process CPU per frame: stage path {:.1} ms, raw {:.1} ms",
+        "     {:<10} raw TCP, relay on a runtime worker: median {smed:>6.1} ms best {sbest:>6.1} ms | stage ratio to it {:.2} (best {:.2})",
+        case.name,
+        med / smed,
+        best / sbest
+    );
+    println!(
+        "     {:<10} stage work per frame (median): unpack+operate {combine:.1} ms, pack {pack:.1} ms, writing {send:.1} ms; process CPU per frame: stage path {:.1} ms, raw {:.1} ms, raw relay on a worker {:.1} ms",
         case.name,
         cpu.0 / frames as f64,
-        cpu.1 / frames as f64
+        cpu.1 / frames as f64,
+        cpu.2 / frames as f64
     );
 }
 
@@ -439,6 +466,13 @@ fn main() {
         .and_then(|i| args.get(i + 1).cloned())
         .unwrap_or_default();
     let (links, pipes) = (only != "pipeline", only != "link");
+    // For profiling the stage path alone: no raw frames (the ratios then read NaN).
+    let with_raw = !args.iter().any(|a| a == "--no-raw");
+    // One link case by name: `--case accumulate`, `--case depth`, ….
+    let case_filter = args
+        .iter()
+        .position(|a| a == "--case")
+        .and_then(|i| args.get(i + 1).cloned());
     rt.block_on(async {
         let accumulate = LinkCase {
             name: "accumulate",
@@ -472,9 +506,11 @@ fn main() {
             outputs: vec![(ILL, PixelFormat::F32x6)],
         };
         if links {
-            link_cost(&accumulate, frames).await;
-            link_cost(&floats, frames).await;
-            link_cost(&depth, frames).await;
+            for case in [&accumulate, &floats, &depth] {
+                if case_filter.as_deref().is_none_or(|c| c == case.name) {
+                    link_cost(case, frames, with_raw).await;
+                }
+            }
         }
         if pipes {
             pipelining(&[40, 60, 50, 45], 80).await;
