@@ -10,7 +10,7 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use lightfold_compositor::ops::{
-    self, Accumulate, BandMut, BandView, Operator, Output, PackedIllumination,
+    self, Accumulate, BandMut, BandView, Isa, Operator, Output, PackedIllumination,
 };
 use lightfold_protocol::format::pack;
 use lightfold_protocol::{Layer, PixelFormat};
@@ -162,12 +162,22 @@ fn operators(c: &mut Criterion) {
                     })
                 };
                 let inputs = [p(pu.as_slice()), p(pl.as_slice())];
-                g.bench_function(format!("accumulate_{}_fused", f.name()), |b| {
-                    b.iter(|| {
-                        let mut o = BandMut::new(px).with(Layer::Illumination, &mut out);
-                        pool.install(|| acc.apply_packed(&inputs, &mut o)).unwrap();
-                    })
-                });
+                // `_fused` runs on the widest instruction set (what `apply_packed` picks), the
+                // suffixed ones on each narrower set this CPU has.
+                for isa in Isa::ALL.into_iter().filter(|i| i.available()) {
+                    let name = if isa == Isa::best() {
+                        format!("accumulate_{}_fused", f.name())
+                    } else {
+                        format!("accumulate_{}_fused_{isa}", f.name())
+                    };
+                    g.bench_function(name, |b| {
+                        b.iter(|| {
+                            let mut o = BandMut::new(px).with(Layer::Illumination, &mut out);
+                            pool.install(|| acc.apply_packed_on(isa, &inputs, &mut o))
+                                .unwrap();
+                        })
+                    });
+                }
                 g.bench_function(format!("accumulate_{}_unpack_then_apply", f.name()), |b| {
                     b.iter(|| {
                         pool.install(|| {
