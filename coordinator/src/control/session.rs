@@ -240,6 +240,18 @@ impl Session {
                 addr: "sink".into(),
                 source,
             })?;
+        if sink_advertise.is_none() && local.ip().is_unspecified() {
+            let remote = map.values().find(|d| !is_loopback(&d.address));
+            if let Some(d) = remote {
+                tracing::warn!(
+                    sink = %local,
+                    daemon = %d.address,
+                    "the sink listens on a wildcard address and no sink advertise address was \
+                     given: compositors on other hosts will dial {local} and fail \
+                     (pass --sink-advertise HOST:PORT)"
+                );
+            }
+        }
         let sink_address = sink_advertise.unwrap_or_else(|| local.to_string());
         let (sink_tx, sink_events) = mpsc::channel(16);
         let (sink_geometry, geometry_rx) = watch::channel(SinkGeometry {
@@ -659,4 +671,14 @@ async fn register(
         });
     }
     Ok((caps, d.address, link))
+}
+
+/// Whether `address` (`host:port`) names this machine's loopback interface.
+fn is_loopback(address: &str) -> bool {
+    let host = address.rsplit_once(':').map_or(address, |(h, _)| h);
+    let host = host.trim_start_matches('[').trim_end_matches(']');
+    host == "localhost"
+        || host
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
 }

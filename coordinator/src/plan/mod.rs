@@ -285,7 +285,7 @@ pub fn plan(
         daemons
             .iter()
             .find(|d| d.id == id)
-            .map_or_else(String::new, |d| d.data_address().to_string())
+            .map_or_else(String::new, |d| d.data_address())
     };
     let mut addresses: Vec<(String, String)> = used
         .iter()

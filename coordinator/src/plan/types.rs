@@ -14,13 +14,35 @@ pub struct DaemonSpec {
 }
 
 impl DaemonSpec {
-    /// The address other daemons dial for data: the advertised one when reported.
-    pub fn data_address(&self) -> &str {
-        match &self.capabilities {
+    /// The address other daemons dial for data: the advertised one when reported. A daemon bound
+    /// to a wildcard address (`0.0.0.0:7300`, `[::]:7300`) without `--advertise` reports that
+    /// wildcard, which no other host can dial: its host is replaced by the host the coordinator
+    /// reached the daemon at, keeping the advertised port.
+    pub fn data_address(&self) -> String {
+        let advertised = match &self.capabilities {
             Some(c) if !c.advertise.is_empty() => &c.advertise,
-            _ => &self.address,
+            _ => return self.address.clone(),
+        };
+        match advertised.parse::<std::net::SocketAddr>() {
+            Ok(a) if a.ip().is_unspecified() => match host_of(&self.address) {
+                Some(host) if host.contains(':') => format!("[{host}]:{}", a.port()),
+                Some(host) => format!("{host}:{}", a.port()),
+                None => advertised.clone(),
+            },
+            _ => advertised.clone(),
         }
     }
+}
+
+/// The host part of `host:port` or `[v6]:port`, without brackets.
+fn host_of(address: &str) -> Option<&str> {
+    let (host, port) = address.rsplit_once(':')?;
+    port.parse::<u16>().ok()?;
+    let host = host
+        .strip_prefix('[')
+        .and_then(|h| h.strip_suffix(']'))
+        .unwrap_or(host);
+    (!host.is_empty()).then_some(host)
 }
 
 /// The daemons available to a plan.
@@ -367,4 +389,58 @@ pub struct Plan {
     pub est_frame_us: u64,
     /// Data addresses of the daemons the plan uses, by id.
     pub addresses: Vec<(String, String)>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::DaemonSpec;
+    use lightfold_protocol::{Capabilities, Role};
+
+    fn spec(dialled: &str, advertise: &str) -> DaemonSpec {
+        DaemonSpec {
+            id: "node-0".into(),
+            address: dialled.into(),
+            capabilities: Some(Capabilities {
+                role: Role::Node,
+                daemon_id: "node-0".into(),
+                advertise: advertise.into(),
+                adapter: String::new(),
+                backend: String::new(),
+                max_lights: 16,
+                max_texture_size: 4096,
+                formats: Vec::new(),
+                cost_per_light_us: 0,
+                fixed_cost_us: 0,
+                threads: 1,
+                version: String::new(),
+            }),
+        }
+    }
+
+    #[test]
+    fn wildcard_advertisements_take_the_dialled_host() {
+        let cases = [
+            (
+                "render-3.lightfold:7300",
+                "0.0.0.0:7301",
+                "render-3.lightfold:7301",
+            ),
+            ("10.0.0.7:7300", "[::]:7300", "10.0.0.7:7300"),
+            ("[fd00::7]:7300", "0.0.0.0:7300", "[fd00::7]:7300"),
+            (
+                "10.0.0.7:7300",
+                "node-a.example:7300",
+                "node-a.example:7300",
+            ),
+            ("10.0.0.7:7300", "192.168.1.4:7300", "192.168.1.4:7300"),
+            ("10.0.0.7:7300", "", "10.0.0.7:7300"),
+        ];
+        for (dialled, advertised, want) in cases {
+            assert_eq!(
+                spec(dialled, advertised).data_address(),
+                want,
+                "{advertised}"
+            );
+        }
+    }
 }
