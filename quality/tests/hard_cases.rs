@@ -63,8 +63,13 @@ fn depth_range() {
 }
 
 #[test]
+fn banding() {
+    check("banding");
+}
+
+#[test]
 fn every_case_is_tested_and_unknown_names_fail() {
     let names = case_names();
-    assert_eq!(names.len(), 10, "{names:?}: add a test per case");
+    assert_eq!(names.len(), 11, "{names:?}: add a test per case");
     assert!(run_case("no-such-case", false).is_err());
 }

@@ -5,6 +5,7 @@
 //!
 //! Each case has a small version (the CI tests) and a full-size one (`lightfold accuracy --hard`).
 
+mod banding;
 mod chain;
 mod degenerate;
 mod depth_range;
@@ -117,6 +118,7 @@ const CASES: &[(&str, CaseFn)] = &[
     ("contact", shadow::contact),
     ("terminator", shadow::terminator),
     ("depth-range", depth_range::depth_range),
+    ("banding", banding::banding_case),
 ];
 
 /// Names of the hard cases `run_case` knows.
