@@ -68,8 +68,18 @@ fn banding() {
 }
 
 #[test]
+fn subtexel_leaves() {
+    check("subtexel-leaves");
+}
+
+#[test]
+fn subtexel_fence() {
+    check("subtexel-fence");
+}
+
+#[test]
 fn every_case_is_tested_and_unknown_names_fail() {
     let names = case_names();
-    assert_eq!(names.len(), 11, "{names:?}: add a test per case");
+    assert_eq!(names.len(), 13, "{names:?}: add a test per case");
     assert!(run_case("no-such-case", false).is_err());
 }

@@ -10,6 +10,8 @@ mod chain;
 mod degenerate;
 mod depth_range;
 mod shadow;
+mod subtexel;
+mod subtexel_scene;
 mod support;
 
 use std::fmt;
@@ -119,6 +121,8 @@ const CASES: &[(&str, CaseFn)] = &[
     ("terminator", shadow::terminator),
     ("depth-range", depth_range::depth_range),
     ("banding", banding::banding_case),
+    ("subtexel-leaves", subtexel::subtexel_leaves),
+    ("subtexel-fence", subtexel::subtexel_fence),
 ];
 
 /// Names of the hard cases `run_case` knows.
