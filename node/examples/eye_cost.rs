@@ -3,7 +3,8 @@
 //! `lightfold bench node` drives a node but without the daemon, so shader changes can be timed in
 //! a minute. Set `LP_NUM_THREADS` as the bench does (1) before running.
 //!
-//! `cargo run --release -p lightfold-node --example eye_cost -- [--forward] [--rounds N] [K…]`
+//! `cargo run --release -p lightfold-node --example eye_cost -- [--forward] [--rounds N]
+//! [--frames N] [--sums] [K…]`
 
 use lightfold_node::gpu::{EyeVariant, Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
 use lightfold_scene::Camera;
@@ -46,6 +47,7 @@ fn median(v: &mut [f64]) -> f64 {
 
 fn main() -> anyhow::Result<()> {
     let mut forward = false;
+    let mut sums = false;
     let mut rounds = 3u32;
     let mut frames = 4u32;
     let mut ks: Vec<usize> = Vec::new();
@@ -53,6 +55,9 @@ fn main() -> anyhow::Result<()> {
     while let Some(a) = args.next() {
         match a.as_str() {
             "--forward" => forward = true,
+            // The last frame's illumination sum and lit pixels per K: a quick check that a
+            // faster variant still renders the same image.
+            "--sums" => sums = true,
             "--rounds" => rounds = args.next().unwrap_or_default().parse()?,
             "--frames" => frames = args.next().unwrap_or_default().parse()?,
             k => ks.push(k.parse()?),
@@ -88,6 +93,16 @@ fn main() -> anyhow::Result<()> {
                 let c0 = cpu_ms();
                 let out = r.render(&gpu, &lights, None, [1.0; 3], LayerSet::illumination())?;
                 let c1 = cpu_ms();
+                if f == 1 + frames && sums {
+                    let il = out.illumination.as_ref().expect("illumination");
+                    let sum: f64 = il.data.iter().map(|&v| f64::from(v)).sum();
+                    let lit = il
+                        .data
+                        .chunks(6)
+                        .filter(|p| p.iter().any(|&v| v > 0.0))
+                        .count();
+                    eprintln!("K={k} sum {sum:.3} lit px {lit}");
+                }
                 if f >= 2 {
                     eye[slot].push(out.stats.eye_us as f64 / 1000.0);
                     cpu[slot].push(c1 - c0);

@@ -46,8 +46,10 @@ pub const CHUNK_LIGHTS: usize = 64;
 pub const CHUNK_VIEWS: usize = 384;
 
 /// Pipeline-overridable constants of the eye modules: the sample kinds handled (bit mask of
-/// `KIND_*`), the shadow filter (`FILTER_*`) and its taps per axis.
+/// `KIND_*`), the ways lights pick their view (bit mask of `MODE_*`), the shadow filter
+/// (`FILTER_*`) and its taps per axis.
 pub const OVERRIDE_LIGHT_KINDS: &str = "LIGHT_KINDS";
+pub const OVERRIDE_VIEW_MODES: &str = "VIEW_MODES";
 pub const OVERRIDE_SHADOW_FILTER: &str = "SHADOW_FILTER";
 pub const OVERRIDE_SHADOW_TAPS: &str = "SHADOW_TAPS";
 

@@ -74,28 +74,73 @@ fn shadow_filter(uv: vec2f, layer: u32, ref_depth: f32) -> f32 {
     return sum / f32(taps * taps);
 }
 
-// The view of light s that holds p: its only one, the cube face of p's direction, or the side
-// of its split plane.
-fn view_for(s: Light, p: vec3f) -> u32 {
-    if s.view_count == 0u {
-        return NO_VIEW;
-    }
-    if s.cube == 0u {
-        return s.first_view;
-    }
+// How lights pick their view (`Light::cube`), one bit per mode in VIEW_MODES: the light pass is
+// compiled for the modes its lights use, like LIGHT_KINDS.
+const MODE_SINGLE: u32 = 0u;
+const MODE_CUBE: u32 = 1u;
+const MODE_SPLIT: u32 = 2u;
+override VIEW_MODES: u32 = 7u;
+
+fn uses_mode(mode: u32) -> bool {
+    return (VIEW_MODES & (1u << mode)) != 0u;
+}
+
+// A vector in cube face `face`'s view frame (right, up, −forward) from its coordinates c in the
+// light's cube frame (`scene::shadow_views::cube_frame`, left-handed: r × u = −axis). Rounding
+// aside this is the face's view matrix, without reading it (`lights.rs` tests the two agree).
+fn cube_face_coords(face: u32, c: vec3f) -> vec3f {
+    var q = vec3f(-c.x, c.y, c.z);
+    q = select(q, vec3f(c.x, c.y, -c.z), face == 4u);
+    q = select(q, vec3f(-c.z, c.x, c.y), face == 3u);
+    q = select(q, vec3f(-c.z, -c.x, -c.y), face == 2u);
+    q = select(q, vec3f(c.z, c.y, c.x), face == 1u);
+    q = select(q, vec3f(-c.z, c.y, -c.x), face == 0u);
+    return q;
+}
+
+// A point and a normal in the frame of the light's view that holds the point.
+struct Placed {
+    // The view, NO_VIEW where the light has none there.
+    index: u32,
+    q: vec3f,
+    n: vec3f,
+}
+
+// The view of light s that holds p (its only one, the side of its split plane, or the cube face
+// of p's direction), with p and the geometric normal ng in that view's frame.
+fn place(s: Light, p: vec3f, ng: vec3f) -> Placed {
+    var out = Placed(NO_VIEW, vec3f(0.0), vec3f(0.0));
     let d = p - s.position;
-    if s.cube == 2u {
-        return select(s.faces_a.y, s.faces_a.x, dot(d, s.cube_x) >= 0.0);
+    if uses_mode(MODE_SINGLE) || uses_mode(MODE_SPLIT) {
+        var index = s.first_view;
+        if uses_mode(MODE_SPLIT) {
+            let side = select(s.faces_a.y, s.faces_a.x, dot(d, s.cube_x) >= 0.0);
+            index = select(index, side, s.cube == MODE_SPLIT);
+        }
+        let v = view_at(index);
+        out = Placed(index, (v.view * vec4f(p, 1.0)).xyz, (v.view * vec4f(ng, 0.0)).xyz);
     }
-    let c = vec3f(dot(d, s.cube_x), dot(d, s.cube_y), dot(d, s.cube_z));
-    let a = abs(c);
-    if a.x >= a.y && a.x >= a.z {
-        return select(s.faces_a.y, s.faces_a.x, c.x >= 0.0);
+    if uses_mode(MODE_CUBE) && s.cube == MODE_CUBE {
+        let c = vec3f(dot(d, s.cube_x), dot(d, s.cube_y), dot(d, s.cube_z));
+        let cn = vec3f(dot(ng, s.cube_x), dot(ng, s.cube_y), dot(ng, s.cube_z));
+        // The dominant axis, ties to x before y before z; its sign picks +/−.
+        let a = abs(c);
+        let on_x = a.x >= a.y && a.x >= a.z;
+        let on_y = !on_x && a.y >= a.z;
+        let positive = select(select(c.z >= 0.0, c.y >= 0.0, on_y), c.x >= 0.0, on_x);
+        let face = select(select(4u, 2u, on_y), 0u, on_x) + select(1u, 0u, positive);
+        var index = s.faces_b.y;
+        index = select(index, s.faces_b.x, face == 4u);
+        index = select(index, s.faces_a.w, face == 3u);
+        index = select(index, s.faces_a.z, face == 2u);
+        index = select(index, s.faces_a.y, face == 1u);
+        index = select(index, s.faces_a.x, face == 0u);
+        out = Placed(index, cube_face_coords(face, c), cube_face_coords(face, cn));
     }
-    if a.y >= a.z {
-        return select(s.faces_a.w, s.faces_a.z, c.y >= 0.0);
+    if s.view_count == 0u {
+        out.index = NO_VIEW;
     }
-    return select(s.faces_b.y, s.faces_b.x, c.z >= 0.0);
+    return out;
 }
 
 // Only directional samples have orthographic views.
@@ -118,12 +163,12 @@ fn project(v: View, q: vec3f) -> vec4f {
 // receiver's own plane: how much its view-axis depth D changes across the filter footprint in the
 // map, |∂D/∂x| + |∂D/∂y| per texel (exact for a plane, also off-axis in wide frusta and cube faces).
 fn visibility(s: Light, p: vec3f, ng: vec3f) -> f32 {
-    let index = view_for(s, p);
-    if index == NO_VIEW {
+    let placed = place(s, p, ng);
+    if placed.index == NO_VIEW {
         return 1.0;
     }
-    let v = view_at(index);
-    let q = (v.view * vec4f(p, 1.0)).xyz;
+    let v = view_at(placed.index);
+    let q = placed.q;
     let clip = project(v, q);
     if !(clip.w > 0.0) {
         return 1.0;
@@ -133,7 +178,7 @@ fn visibility(s: Light, p: vec3f, ng: vec3f) -> f32 {
     if any(uv < vec2f(0.0)) || any(uv > vec2f(1.0)) {
         return 1.0;
     }
-    let n = (v.view * vec4f(ng, 0.0)).xyz;
+    let n = placed.n;
     let depth = max(-q.z, 0.0);
     // Depth change per texel: slope · texel_m, with texel_m the texel width in metres.
     // Perspective: the plane through q with normal n has depth D = (n·q) / (n·(x, y, −1)) at

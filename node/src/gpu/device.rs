@@ -75,8 +75,14 @@ const REQUIRED_FEATURES: &[(wgpu::Features, &str)] =
     &[(wgpu::Features::DEPTH_CLIP_CONTROL, "DEPTH_CLIP_CONTROL")];
 
 /// Limits below which the renderer cannot run at all: (name, needed, adapter value).
-fn required_limits(l: &wgpu::Limits) -> [(&'static str, u64, u64); 5] {
+fn required_limits(l: &wgpu::Limits) -> [(&'static str, u64, u64); 6] {
     [
+        // One chunk of the deferred light pass's views.
+        (
+            "max_uniform_buffer_binding_size",
+            (lightfold_shaders::CHUNK_VIEWS * std::mem::size_of::<super::lights::GpuView>()) as u64,
+            l.max_uniform_buffer_binding_size,
+        ),
         (
             "max_storage_buffers_per_shader_stage",
             4,

@@ -422,6 +422,62 @@ mod tests {
         assert!(none[0].lights.is_empty());
     }
 
+    /// `cube_face_coords` of `lighting.wgsl`: keep the two in step.
+    fn cube_face_coords(face: usize, c: V3) -> V3 {
+        match face {
+            0 => [-c[2], c[1], -c[0]],
+            1 => [c[2], c[1], c[0]],
+            2 => [-c[2], -c[0], -c[1]],
+            3 => [-c[2], c[0], c[1]],
+            4 => [c[0], c[1], -c[2]],
+            _ => [-c[0], c[1], c[2]],
+        }
+    }
+
+    #[test]
+    fn cube_faces_are_signed_permutations_of_the_cube_frame() {
+        // The shader places points in a cube face by permuting their cube-frame coordinates
+        // instead of reading the face's view matrix; every face of every axis must agree.
+        let closed = [([-3.0, -3.0, -3.0], [3.0, 3.0, 3.0])];
+        let axes = [
+            [0.0, -1.0, 0.0],
+            [0.3, -0.8, 0.5],
+            [1.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ];
+        let dot = |a: V3, b: V3| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        for axis in axes {
+            let s = LightSample {
+                kind: SampleKind::Isotropic,
+                direction: lightfold_scene::shading::normalize(axis),
+                ..lobe([0.2, 0.1, -0.3])
+            };
+            let views = shadow_views(&s, &closed);
+            assert_eq!(views.len(), 6, "a point inside a box sees all six faces");
+            let frame = cube_frame(&s);
+            for v in &views {
+                let ShadowViewKind::CubeFace(face) = v.kind else {
+                    panic!("{:?} is not a cube face", v.kind);
+                };
+                for d in [[0.3, -1.0, 0.2], [1.0, 0.5, -0.4], [-0.7, 0.2, 0.9]] {
+                    let p: V3 = std::array::from_fn(|k| s.position[k] + d[k]);
+                    let m = &v.view;
+                    let q: V3 = std::array::from_fn(|r| {
+                        m[0][r] * p[0] + m[1][r] * p[1] + m[2][r] * p[2] + m[3][r]
+                    });
+                    let c = [dot(d, frame[0]), dot(d, frame[1]), dot(d, frame[2])];
+                    let want = cube_face_coords(face.index(), c);
+                    for k in 0..3 {
+                        assert!(
+                            (q[k] - want[k]).abs() < 1e-5,
+                            "axis {axis:?} face {face:?}: view {q:?}, permuted {want:?}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
     #[test]
     fn boxes_outside_a_view_are_culled() {
         let s = lobe([0.0, 3.0, 0.0]);

@@ -5,7 +5,9 @@
 //! fixed per renderer and compiled in as a pipeline constant.
 
 use lightfold_scene::ShadowFilter;
-use lightfold_shaders::{OVERRIDE_LIGHT_KINDS, OVERRIDE_SHADOW_FILTER, OVERRIDE_SHADOW_TAPS};
+use lightfold_shaders::{
+    OVERRIDE_LIGHT_KINDS, OVERRIDE_SHADOW_FILTER, OVERRIDE_SHADOW_TAPS, OVERRIDE_VIEW_MODES,
+};
 use std::collections::HashMap;
 
 use super::scene_data::Vertex;
@@ -53,8 +55,8 @@ pub struct Pipelines {
     deferred_module: wgpu::ShaderModule,
     deferred_pl: wgpu::PipelineLayout,
     filter: [(&'static str, f64); 2],
-    /// `cs_lights` per bit mask of the sample kinds it handles.
-    light_passes: HashMap<u32, wgpu::ComputePipeline>,
+    /// `cs_lights` per bit masks of the sample kinds and view modes it handles.
+    light_passes: HashMap<(u32, u32), wgpu::ComputePipeline>,
 }
 
 /// G-buffer targets: position + material, shading normal, geometric normal (f32 bits).
@@ -380,17 +382,24 @@ impl Pipelines {
         }
     }
 
-    /// The deferred light pass for lights whose kinds (`GpuLight::kind`) are the set bits of
-    /// `kinds`, compiled on first use (a handle: clones share the pipeline).
-    pub fn light_pass(&mut self, device: &wgpu::Device, kinds: u32) -> wgpu::ComputePipeline {
+    /// The deferred light pass for lights whose kinds (`GpuLight::kind`) and view modes
+    /// (`GpuLight::cube`) are the set bits of `kinds` and `modes`, compiled on first use (a
+    /// handle: clones share the pipeline).
+    pub fn light_pass(
+        &mut self,
+        device: &wgpu::Device,
+        kinds: u32,
+        modes: u32,
+    ) -> wgpu::ComputePipeline {
         let (module, layout, filter) = (&self.deferred_module, &self.deferred_pl, self.filter);
         self.light_passes
-            .entry(kinds)
+            .entry((kinds, modes))
             .or_insert_with(|| {
                 let constants = [
                     filter[0],
                     filter[1],
                     (OVERRIDE_LIGHT_KINDS, f64::from(kinds)),
+                    (OVERRIDE_VIEW_MODES, f64::from(modes)),
                 ];
                 device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                     label: Some("cs_lights"),
