@@ -104,6 +104,21 @@ pub enum NetError {
 }
 
 impl NetError {
+    /// Whether the peer just went away (closed or reset the connection) without sending anything
+    /// malformed: a TCP health probe or a port scan looks like this before the handshake, and is
+    /// not worth a warning.
+    pub fn is_disconnect(&self) -> bool {
+        use std::io::ErrorKind::{BrokenPipe, ConnectionAborted, ConnectionReset, UnexpectedEof};
+        match self {
+            NetError::Closed { .. } => true,
+            NetError::Io { source, .. } => matches!(
+                source.kind(),
+                UnexpectedEof | ConnectionReset | ConnectionAborted | BrokenPipe
+            ),
+            _ => false,
+        }
+    }
+
     fn from_codec(addr: &str, e: CodecError) -> NetError {
         match e {
             CodecError::Protocol(ProtocolError::Handshake(source)) => NetError::Handshake {

@@ -137,3 +137,22 @@ async fn garbage_instead_of_a_hello_is_a_clear_error() {
         "{e}"
     );
 }
+
+/// A health probe (connect, then close without a byte) is a disconnect, not an attack; garbage
+/// is not.
+#[tokio::test]
+async fn a_probe_is_a_disconnect_and_garbage_is_not() {
+    use tokio::io::AsyncWriteExt;
+    let (addr, server) = serve_once(b"secret").await;
+    drop(tokio::net::TcpStream::connect(&addr).await.unwrap());
+    let e = server.await.unwrap().expect_err("no handshake");
+    assert!(e.is_disconnect(), "{e}");
+
+    let (addr, server) = serve_once(b"secret").await;
+    let mut s = tokio::net::TcpStream::connect(&addr).await.unwrap();
+    s.write_all(b"GET / HTTP/1.1\r\nHost: x\r\n\r\n")
+        .await
+        .unwrap();
+    let e = server.await.unwrap().expect_err("not a lightfold peer");
+    assert!(!e.is_disconnect(), "{e}");
+}

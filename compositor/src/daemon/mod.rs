@@ -192,6 +192,10 @@ impl Connection {
             _ = self.shutdown.cancelled() => return,
             l = lightfold_net::accept(stream, &self.identity, self.timeouts) => match l {
                 Ok(l) => l,
+                Err(e) if e.is_disconnect() => {
+                    tracing::debug!("a connection closed before its handshake: {e}");
+                    return;
+                }
                 Err(e) => {
                     tracing::warn!("refused a connection: {e}");
                     return;

@@ -159,6 +159,9 @@ pub async fn run(
                         stop.cancel();
                     }
                 }
+                Err(e) if e.is_disconnect() => {
+                    tracing::debug!(%peer, error = %e, "closed before its handshake")
+                }
                 Err(e) => tracing::warn!(%peer, error = %e, "handshake failed"),
             }
         });
