@@ -29,6 +29,10 @@ pub struct Args {
     /// Sweep: `full`, `reduced` (samples ≤ 64, maps ≤ 2048, fewer K) or `tiny`.
     #[arg(long, default_value = "full")]
     sweep: String,
+    /// Vary only these knobs of the sweep, comma-separated: samples, pattern, map, filter,
+    /// format, K, grid (default: all).
+    #[arg(long, value_delimiter = ',')]
+    knobs: Vec<String>,
     /// Where ground truths are cached by scene hash.
     #[arg(long, default_value = "target/lightfold-cache/accuracy")]
     cache_dir: PathBuf,
@@ -56,6 +60,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "reduced" => SweepPlan::reduced(),
         "tiny" => SweepPlan::tiny(),
         other => anyhow::bail!("unknown --sweep {other:?}: full, reduced or tiny"),
+    };
+    let plan = if args.knobs.is_empty() {
+        plan
+    } else {
+        let knobs = args
+            .knobs
+            .iter()
+            .map(|k| {
+                accuracy::Knob::from_name(k).with_context(|| {
+                    format!("unknown knob {k:?}: samples, pattern, map, filter, format, K or grid")
+                })
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        plan.only(&knobs)
     };
     let mut scene = lightfold_scene::load(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;
@@ -113,15 +131,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let threads = std::env::var("LP_NUM_THREADS").unwrap_or_else(|_| "unset".into());
     let command = format!(
         "LP_NUM_THREADS={threads} NODEVICE_SELECT=1 lightfold accuracy --scene {} --size {} \
-         --truth-samples {} --sweep {} --repeats {} --out {}",
+         --truth-samples {} --sweep {}{} --repeats {} --out {}",
         args.scene,
         args.size,
         args.truth_samples,
         args.sweep,
+        if args.knobs.is_empty() {
+            String::new()
+        } else {
+            format!(" --knobs {}", args.knobs.join(","))
+        },
         args.repeats,
         out.display()
     );
-    let title = format!("{label} ({w}×{h}, {} on {})", args.sweep, gpu.info.name);
+    let knobs = if args.knobs.is_empty() {
+        String::new()
+    } else {
+        format!(" ({})", args.knobs.join(", "))
+    };
+    let title = format!(
+        "{label} ({w}×{h}, {}{knobs} on {})",
+        args.sweep, gpu.info.name
+    );
     report::write_csv(&out.join("sweep.csv"), &points)?;
     report::write_markdown(
         &out.join("README.md"),
@@ -133,8 +164,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )?;
     report::write_svg(&out.join("frontier.svg"), &title, &truth, &points)?;
     let md = report::markdown(&title, &command, &truth, &points, args.target_db);
-    // The headline paragraphs (everything before the table).
-    for line in md.lines().take_while(|l| !l.starts_with('|')) {
+    // The headline paragraphs and the pattern table (everything before the table of points).
+    for line in md.lines().take_while(|l| !l.starts_with("| knob")) {
         println!("{line}");
     }
     println!(

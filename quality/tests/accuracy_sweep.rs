@@ -60,9 +60,14 @@ fn a_tiny_sweep_runs_and_writes_the_expected_columns() -> anyhow::Result<()> {
     assert_eq!(header, CSV_COLUMNS);
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
     assert_eq!(rows.len(), 3);
+    let cost_col = CSV_COLUMNS
+        .iter()
+        .position(|&c| c == "node_seconds")
+        .expect("node_seconds column");
     for r in &rows {
         assert_eq!(r.len(), CSV_COLUMNS.len());
-        let cost: f64 = r[9].parse()?;
+        assert_eq!(r[2], "grid", "the default pattern");
+        let cost: f64 = r[cost_col].parse()?;
         assert!(cost > 0.0);
     }
     std::fs::create_dir_all(&dir)?;

@@ -37,6 +37,7 @@ pub fn measure_group(
     };
     let mut scene = scene.clone();
     scene.quality.samples_per_area_light = Some(first.samples.max(1));
+    scene.quality.pattern = first.pattern;
     scene.quality.shadow_map_size = first.map_size;
     scene.quality.filter = first.filter;
     let samples = scene_samples(&scene);

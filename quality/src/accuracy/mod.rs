@@ -1,6 +1,6 @@
 //! The speed-against-error sweep behind `lightfold accuracy`: one knob at a time around the
-//! scene's defaults (samples per area light, shadow-map size, filter, illumination link format,
-//! K) plus a small grid of the knobs that matter most; for each point the node cost and the error
+//! scene's defaults (samples per area light, their pattern, shadow-map size, filter, illumination
+//! link format, K) plus a small grid of the knobs that matter most; for each point the node cost and the error
 //! against the cached area-light ground truth, and the Pareto frontier of error against cost.
 //!
 //! Cost is measured, not modelled: each batch of K samples is one node's frame, rendered alone on
@@ -19,7 +19,7 @@ pub use truth::{CachedTruth, TruthOptions, load_or_render_truth};
 
 use lightfold_compositor::ops::{LinkKind, recommended_link_format};
 use lightfold_protocol::format::PixelFormat;
-use lightfold_scene::{Scene, ShadowFilter};
+use lightfold_scene::{SamplePattern, Scene, ShadowFilter};
 use std::fmt;
 
 /// Errors of the sweep.
@@ -48,6 +48,8 @@ pub enum AccuracyError {
 pub struct Setting {
     /// Point samples per area light.
     pub samples: u32,
+    /// How an area light's samples are placed.
+    pub pattern: SamplePattern,
     pub map_size: u32,
     pub filter: ShadowFilter,
     /// Illumination node → compositor link format.
@@ -72,6 +74,7 @@ impl Setting {
         });
         Setting {
             samples,
+            pattern: q.pattern,
             map_size: q.shadow_map_size,
             filter: q.filter,
             format: recommended_link_format(LinkKind::NodeToCompositor),
@@ -88,6 +91,15 @@ impl Setting {
     }
 }
 
+/// Short name of a sample pattern (`grid`, `jittered`, `halton`).
+pub fn pattern_name(p: SamplePattern) -> &'static str {
+    match p {
+        SamplePattern::Grid => "grid",
+        SamplePattern::Jittered => "jittered",
+        SamplePattern::Halton => "halton",
+    }
+}
+
 /// Short name of a filter (`none`, `pcf2x2`, `pcf3x3`, `pcf5x5`).
 pub fn filter_name(f: ShadowFilter) -> String {
     match f {
@@ -101,12 +113,13 @@ impl fmt::Display for Setting {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(
             f,
-            "n={} map={} {} {} K={}",
+            "n={} map={} {} {} K={} {}",
             self.samples,
             self.map_size,
             filter_name(self.filter),
             self.format.name(),
-            self.k
+            self.k,
+            pattern_name(self.pattern)
         )
     }
 }
@@ -116,6 +129,7 @@ impl fmt::Display for Setting {
 pub enum Knob {
     Default,
     Samples,
+    Pattern,
     MapSize,
     Filter,
     Format,
@@ -128,6 +142,7 @@ impl Knob {
         match self {
             Knob::Default => "default",
             Knob::Samples => "samples",
+            Knob::Pattern => "pattern",
             Knob::MapSize => "map",
             Knob::Filter => "filter",
             Knob::Format => "format",
@@ -135,12 +150,33 @@ impl Knob {
             Knob::Grid => "grid",
         }
     }
+
+    /// Every knob a sweep varies (not `Default`), in sweep order.
+    pub const SWEPT: [Knob; 7] = [
+        Knob::Samples,
+        Knob::Pattern,
+        Knob::MapSize,
+        Knob::Filter,
+        Knob::Format,
+        Knob::K,
+        Knob::Grid,
+    ];
+
+    /// The knob named `name` (as [`Knob::name`] spells it, any case).
+    pub fn from_name(name: &str) -> Option<Knob> {
+        Knob::SWEPT
+            .into_iter()
+            .find(|k| k.name().eq_ignore_ascii_case(name.trim()))
+    }
 }
 
 /// The values each knob takes.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SweepPlan {
     pub samples: Vec<u32>,
+    /// Every pattern at the default sample count and at each of `pattern_samples`.
+    pub patterns: Vec<SamplePattern>,
+    pub pattern_samples: Vec<u32>,
     pub map_sizes: Vec<u32>,
     pub filters: Vec<ShadowFilter>,
     pub formats: Vec<PixelFormat>,
@@ -160,11 +196,18 @@ pub fn illumination_formats() -> Vec<PixelFormat> {
 }
 
 impl SweepPlan {
-    /// The full sweep: samples 1…256, maps 256…4096, four filters, every illumination format,
+    /// The full sweep: samples 1…256, the three patterns at the default count and at 4 and 64
+    /// samples, maps 256…4096, four filters, every illumination format,
     /// K 1…16, and a grid of samples {64, 256} × maps {1024, 2048} × {PCF 2×2, PCF 5×5}.
     pub fn full() -> SweepPlan {
         SweepPlan {
             samples: vec![1, 4, 16, 64, 256],
+            patterns: vec![
+                SamplePattern::Grid,
+                SamplePattern::Jittered,
+                SamplePattern::Halton,
+            ],
+            pattern_samples: vec![4, 64],
             map_sizes: vec![256, 512, 1024, 2048, 4096],
             filters: vec![
                 ShadowFilter::None,
@@ -196,6 +239,8 @@ impl SweepPlan {
     pub fn tiny() -> SweepPlan {
         SweepPlan {
             samples: vec![2],
+            patterns: vec![],
+            pattern_samples: vec![],
             map_sizes: vec![],
             filters: vec![],
             formats: vec![PixelFormat::F16x6],
@@ -204,6 +249,36 @@ impl SweepPlan {
             grid_map_sizes: vec![],
             grid_filters: vec![],
         }
+    }
+
+    /// This plan with only `knobs` varied (the others keep the defaults).
+    pub fn only(mut self, knobs: &[Knob]) -> SweepPlan {
+        let keep = |k: Knob| knobs.contains(&k);
+        if !keep(Knob::Samples) {
+            self.samples.clear();
+        }
+        if !keep(Knob::Pattern) {
+            self.patterns.clear();
+            self.pattern_samples.clear();
+        }
+        if !keep(Knob::MapSize) {
+            self.map_sizes.clear();
+        }
+        if !keep(Knob::Filter) {
+            self.filters.clear();
+        }
+        if !keep(Knob::Format) {
+            self.formats.clear();
+        }
+        if !keep(Knob::K) {
+            self.ks.clear();
+        }
+        if !keep(Knob::Grid) {
+            self.grid_samples.clear();
+            self.grid_map_sizes.clear();
+            self.grid_filters.clear();
+        }
+        self
     }
 
     /// The points around `base`, defaults first, without duplicates (a duplicate keeps the first
@@ -217,6 +292,20 @@ impl SweepPlan {
         };
         for &samples in &self.samples {
             push(Knob::Samples, Setting { samples, ..base });
+        }
+        let pattern_counts =
+            std::iter::once(base.samples).chain(self.pattern_samples.iter().copied());
+        for samples in pattern_counts {
+            for &pattern in &self.patterns {
+                push(
+                    Knob::Pattern,
+                    Setting {
+                        samples,
+                        pattern,
+                        ..base
+                    },
+                );
+            }
         }
         for &map_size in &self.map_sizes {
             push(Knob::MapSize, Setting { map_size, ..base });
@@ -349,4 +438,76 @@ pub fn run_sweep(
         points[i].pareto = true;
     }
     Ok(points)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn base() -> Setting {
+        Setting {
+            samples: 16,
+            pattern: SamplePattern::Grid,
+            map_size: 512,
+            filter: ShadowFilter::Pcf2x2,
+            format: PixelFormat::F16x6,
+            k: 4,
+        }
+    }
+
+    #[test]
+    fn the_pattern_knob_puts_every_pattern_at_three_sample_counts() {
+        let points = SweepPlan::full().points(base());
+        let pattern_points: Vec<Setting> = points
+            .iter()
+            .filter(|(k, _)| *k == Knob::Pattern)
+            .map(|(_, s)| *s)
+            .collect();
+        // Grid at 16 is the default and grid at 4 and 64 are samples points already.
+        assert_eq!(pattern_points.len(), 6);
+        for n in [4, 16, 64] {
+            for pattern in [
+                SamplePattern::Grid,
+                SamplePattern::Jittered,
+                SamplePattern::Halton,
+            ] {
+                let want = Setting {
+                    samples: n,
+                    pattern,
+                    ..base()
+                };
+                assert_eq!(
+                    points.iter().filter(|(_, s)| *s == want).count(),
+                    1,
+                    "{want}"
+                );
+            }
+        }
+        // Other knobs keep the default pattern.
+        assert!(
+            points
+                .iter()
+                .filter(|(k, _)| *k != Knob::Pattern)
+                .all(|(_, s)| s.pattern == SamplePattern::Grid)
+        );
+    }
+
+    #[test]
+    fn a_plan_can_vary_only_some_knobs() {
+        let plan = SweepPlan::full().only(&[Knob::Samples, Knob::Pattern]);
+        let points = plan.points(base());
+        assert!(
+            points
+                .iter()
+                .all(|(k, _)| matches!(k, Knob::Default | Knob::Samples | Knob::Pattern))
+        );
+        // Defaults, samples 1, 4, 64, 256 and the six pattern points.
+        assert_eq!(points.len(), 1 + 4 + 6);
+        assert_eq!(SweepPlan::full().only(&[]).points(base()).len(), 1);
+        for knob in Knob::SWEPT {
+            assert_eq!(Knob::from_name(knob.name()), Some(knob));
+        }
+        assert_eq!(Knob::from_name(" Pattern"), Some(Knob::Pattern));
+        assert_eq!(Knob::from_name("default"), None);
+    }
 }

@@ -1,15 +1,16 @@
 //! The sweep's outputs: CSV (one row per point), a Markdown table with the headline figures, and
 //! an SVG plot of penumbra PSNR against node-seconds with the Pareto frontier drawn through.
 
-use super::{AccuracyError, CachedTruth, Knob, Point, filter_name};
+use super::{AccuracyError, CachedTruth, Knob, Point, filter_name, pattern_name};
 use plotters::prelude::*;
 use std::fmt::Write as _;
 use std::path::Path;
 
 /// The CSV header, in order.
-pub const CSV_COLUMNS: [&str; 19] = [
+pub const CSV_COLUMNS: [&str; 20] = [
     "knob",
     "samples",
+    "pattern",
     "map_size",
     "filter",
     "format",
@@ -44,9 +45,10 @@ pub fn csv(points: &[Point]) -> String {
         let st = &p.setting;
         let _ = writeln!(
             s,
-            "{},{},{},{},{},{},{},{},{},{:.6},{:.6},{:.6e},{:.3},{:.5},{:.6e},{:.3},{:.5},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{:.6},{:.6},{:.6e},{:.3},{:.5},{:.6e},{:.3},{:.5},{},{}",
             p.knob.name(),
             st.samples,
+            pattern_name(st.pattern),
             st.map_size,
             filter_name(st.filter),
             st.format.name(),
@@ -166,21 +168,23 @@ pub fn markdown(
             (None, None) => {}
         }
     }
+    s.push_str(&pattern_table(points));
     s.push_str(
-        "| knob | samples | map | filter | format | K (run) | lights | nodes | node-s | frame s \
-         | PSNR dB | FLIP | pen. RMSE | pen. PSNR dB | pen. FLIP | at floor | Pareto |\n",
+        "| knob | samples | pattern | map | filter | format | K (run) | lights | nodes | node-s \
+         | frame s | PSNR dB | FLIP | pen. RMSE | pen. PSNR dB | pen. FLIP | at floor | Pareto |\n",
     );
     s.push_str(
-        "|---|---:|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---|\n",
+        "|---|---:|---|---:|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---|\n",
     );
     for p in points {
         let st = &p.setting;
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {} ({}) | {} | {} | {:.3} | {:.3} | {:.2} | {:.4} | {:.3e} | \
-             {:.2} | {:.4} | {} | {} |",
+            "| {} | {} | {} | {} | {} | {} | {} ({}) | {} | {} | {:.3} | {:.3} | {:.2} | {:.4} | \
+             {:.3e} | {:.2} | {:.4} | {} | {} |",
             p.knob.name(),
             st.samples,
+            pattern_name(st.pattern),
             st.map_size,
             filter_name(st.filter),
             st.format.name(),
@@ -202,6 +206,70 @@ pub fn markdown(
     s
 }
 
+/// The patterns side by side: one row per sample count at which the sweep has more than one
+/// pattern (all other knobs at their defaults), penumbra PSNR / penumbra FLIP / node-seconds per
+/// pattern. Empty when the sweep compared no patterns.
+pub fn pattern_table(points: &[Point]) -> String {
+    let Some(base) = points.iter().find(|p| p.knob == Knob::Default) else {
+        return String::new();
+    };
+    let b = base.setting;
+    let around: Vec<&Point> = points
+        .iter()
+        .filter(|p| {
+            let s = p.setting;
+            (s.map_size, s.filter, s.format, s.k) == (b.map_size, b.filter, b.format, b.k)
+        })
+        .collect();
+    let mut patterns = Vec::new();
+    let mut counts = Vec::new();
+    for p in around.iter().filter(|p| p.knob == Knob::Pattern) {
+        if !patterns.contains(&p.setting.pattern) {
+            patterns.push(p.setting.pattern);
+        }
+        if !counts.contains(&p.setting.samples) {
+            counts.push(p.setting.samples);
+        }
+    }
+    if patterns.len() < 2 {
+        return String::new();
+    }
+    counts.sort_unstable();
+    let mut s = String::from(
+        "Sample patterns (other knobs at their defaults): penumbra PSNR dB / penumbra FLIP / \
+         node-s.\n\n| samples |",
+    );
+    for &pat in &patterns {
+        let _ = write!(s, " {} |", pattern_name(pat));
+    }
+    s.push_str("\n|---:|");
+    s.push_str(&"---|".repeat(patterns.len()));
+    s.push('\n');
+    for &n in &counts {
+        let _ = write!(s, "| {n} |");
+        for &pat in &patterns {
+            match around
+                .iter()
+                .find(|p| p.setting.samples == n && p.setting.pattern == pat)
+            {
+                Some(p) => {
+                    let _ = write!(
+                        s,
+                        " {:.2} / {:.4} / {:.3} |",
+                        p.penumbra_psnr(),
+                        p.penumbra_flip(),
+                        p.node_seconds
+                    );
+                }
+                None => s.push_str(" – |"),
+            }
+        }
+        s.push('\n');
+    }
+    s.push('\n');
+    s
+}
+
 pub fn write_markdown(
     path: &Path,
     title: &str,
@@ -218,6 +286,7 @@ fn knob_color(k: Knob) -> RGBColor {
     match k {
         Knob::Default => BLACK,
         Knob::Samples => RGBColor(0x1f, 0x77, 0xb4),
+        Knob::Pattern => RGBColor(0x17, 0xbe, 0xcf),
         Knob::MapSize => RGBColor(0xff, 0x7f, 0x0e),
         Knob::Filter => RGBColor(0x2c, 0xa0, 0x2c),
         Knob::Format => RGBColor(0xd6, 0x27, 0x28),
@@ -290,15 +359,7 @@ pub fn write_svg(
             ))?
             .label("Pareto frontier")
             .legend(|(x, y)| PathElement::new([(x, y), (x + 16, y)], BLACK.stroke_width(2)));
-        for knob in [
-            Knob::Default,
-            Knob::Samples,
-            Knob::MapSize,
-            Knob::Filter,
-            Knob::Format,
-            Knob::K,
-            Knob::Grid,
-        ] {
+        for knob in std::iter::once(Knob::Default).chain(Knob::SWEPT) {
             let c = knob_color(knob);
             let pts: Vec<(f64, f64)> = finite
                 .iter()

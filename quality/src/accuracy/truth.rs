@@ -31,13 +31,17 @@ pub struct CachedTruth {
     pub render_seconds: f64,
 }
 
-const CACHE_VERSION: &[u8] = b"lightfold-accuracy-truth-v1";
+const CACHE_VERSION: &[u8] = b"lightfold-accuracy-truth-v2";
 
-/// The cache key: scene content, image size, samples.
+/// The cache key: scene content, image size, samples. The scene's quality options are left out
+/// (hashed at their defaults): the truth integrates the area lights itself and never reads them,
+/// so a change of a default (e.g. the sample pattern) keeps the cached truths.
 pub fn truth_key(scene: &Scene, samples_per_light: u32) -> String {
     let mut h = Sha256::new();
     h.update(CACHE_VERSION);
-    h.update(scene.content_hash());
+    let mut content = scene.clone();
+    content.quality = lightfold_scene::Quality::default();
+    h.update(content.content_hash());
     h.update(scene.camera.width.to_le_bytes());
     h.update(scene.camera.height.to_le_bytes());
     h.update(samples_per_light.to_le_bytes());
