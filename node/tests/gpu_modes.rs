@@ -98,6 +98,16 @@ fn point_spot_and_directional_samples_match_the_reference() {
             SampleKind::TwoSidedLobe,
             [1.0; 3],
         ),
+        // A range window (the light pass leaves it out when no light has one).
+        LightSample {
+            range: Some(2.5),
+            ..sample(
+                [-0.8, 1.6, -0.2],
+                [0.2, -1.0, 0.1],
+                SampleKind::CosineLobe,
+                [0.8, 1.0, 0.9],
+            )
+        },
     ];
     let passes = assert_matches(&samples, [1.0; 3], "kinds");
     // Alone, each kind gets a light pass compiled for that kind only.

@@ -50,6 +50,8 @@ pub const CHUNK_VIEWS: usize = 384;
 /// (`FILTER_*`) and its taps per axis.
 pub const OVERRIDE_LIGHT_KINDS: &str = "LIGHT_KINDS";
 pub const OVERRIDE_VIEW_MODES: &str = "VIEW_MODES";
+/// Whether any light has a range window (`bool`).
+pub const OVERRIDE_LIGHT_RANGES: &str = "LIGHT_RANGES";
 pub const OVERRIDE_SHADOW_FILTER: &str = "SHADOW_FILTER";
 pub const OVERRIDE_SHADOW_TAPS: &str = "SHADOW_TAPS";
 
@@ -112,16 +114,16 @@ mod tests {
             let decl = format!("const {name}: u32 = {value}u;");
             assert!(DEFERRED_WGSL.contains(&decl), "{decl} missing");
         }
-        for name in [
-            OVERRIDE_LIGHT_KINDS,
-            OVERRIDE_SHADOW_FILTER,
-            OVERRIDE_SHADOW_TAPS,
+        for (name, ty) in [
+            (OVERRIDE_LIGHT_KINDS, "u32"),
+            (OVERRIDE_VIEW_MODES, "u32"),
+            (OVERRIDE_LIGHT_RANGES, "bool"),
+            (OVERRIDE_SHADOW_FILTER, "u32"),
+            (OVERRIDE_SHADOW_TAPS, "u32"),
         ] {
             for (module, src) in [("forward", FORWARD_WGSL), ("deferred", DEFERRED_WGSL)] {
-                assert!(
-                    src.contains(&format!("override {name}: u32")),
-                    "{module}: {name}"
-                );
+                let decl = format!("override {name}: {ty}");
+                assert!(src.contains(&decl), "{module}: {decl}");
             }
         }
     }

@@ -85,6 +85,11 @@ fn uses_mode(mode: u32) -> bool {
     return (VIEW_MODES & (1u << mode)) != 0u;
 }
 
+// Whether s picks its view by `mode`; when the pipeline has that mode only, without reading s.
+fn is_mode(s: Light, mode: u32) -> bool {
+    return uses_mode(mode) && (VIEW_MODES == (1u << mode) || s.cube == mode);
+}
+
 // A vector in cube face `face`'s view frame (right, up, −forward) from its coordinates c in the
 // light's cube frame (`scene::shadow_views::cube_frame`, left-handed: r × u = −axis). Rounding
 // aside this is the face's view matrix, without reading it (`lights.rs` tests the two agree).
@@ -115,12 +120,12 @@ fn place(s: Light, p: vec3f, ng: vec3f) -> Placed {
         var index = s.first_view;
         if uses_mode(MODE_SPLIT) {
             let side = select(s.faces_a.y, s.faces_a.x, dot(d, s.cube_x) >= 0.0);
-            index = select(index, side, s.cube == MODE_SPLIT);
+            index = select(index, side, is_mode(s, MODE_SPLIT));
         }
         let v = view_at(index);
         out = Placed(index, (v.view * vec4f(p, 1.0)).xyz, (v.view * vec4f(ng, 0.0)).xyz);
     }
-    if uses_mode(MODE_CUBE) && s.cube == MODE_CUBE {
+    if is_mode(s, MODE_CUBE) {
         let c = vec3f(dot(d, s.cube_x), dot(d, s.cube_y), dot(d, s.cube_z));
         let cn = vec3f(dot(ng, s.cube_x), dot(ng, s.cube_y), dot(ng, s.cube_z));
         // The dominant axis, ties to x before y before z; its sign picks +/−.
@@ -137,7 +142,8 @@ fn place(s: Light, p: vec3f, ng: vec3f) -> Placed {
         index = select(index, s.faces_a.x, face == 0u);
         out = Placed(index, cube_face_coords(face, c), cube_face_coords(face, cn));
     }
-    if s.view_count == 0u {
+    // Cube-mode lights always have a view; others may have none.
+    if VIEW_MODES != (1u << MODE_CUBE) && s.view_count == 0u {
         out.index = NO_VIEW;
     }
     return out;

@@ -54,6 +54,14 @@ fn handles(kind: u32) -> bool {
     return (LIGHT_KINDS & (1u << kind)) != 0u;
 }
 
+// Whether s is of `kind`; when the pipeline handles that kind only, without reading s.kind.
+fn is_kind(s: Light, kind: u32) -> bool {
+    return handles(kind) && (LIGHT_KINDS == (1u << kind) || s.kind == kind);
+}
+
+// Whether any light of the pipeline has a range window (else it is 1 and `range` is not read).
+override LIGHT_RANGES: bool = true;
+
 fn range_window(r: f32, range: f32) -> f32 {
     let q = r / range;
     let w = clamp(1.0 - q * q * q * q, 0.0, 1.0);
@@ -66,14 +74,14 @@ fn sample_intensity(s: Light, to_point: vec3f) -> f32 {
     // Isotropic and directional samples radiate `intensity` every way.
     var i = s.intensity;
     if handles(KIND_COSINE_LOBE) {
-        i = select(i, s.intensity * max(c, 0.0), s.kind == KIND_COSINE_LOBE);
+        i = select(i, s.intensity * max(c, 0.0), is_kind(s, KIND_COSINE_LOBE));
     }
     if handles(KIND_TWO_SIDED_LOBE) {
-        i = select(i, s.intensity * abs(c), s.kind == KIND_TWO_SIDED_LOBE);
+        i = select(i, s.intensity * abs(c), is_kind(s, KIND_TWO_SIDED_LOBE));
     }
     if handles(KIND_SPOT) {
         let t = clamp((c - s.cos_outer) / max(s.cos_inner - s.cos_outer, 1e-4), 0.0, 1.0);
-        i = select(i, s.intensity * t * t, s.kind == KIND_SPOT);
+        i = select(i, s.intensity * t * t, is_kind(s, KIND_SPOT));
     }
     return i;
 }
@@ -84,7 +92,7 @@ fn to_light(s: Light, p: vec3f) -> vec4f {
     var lr = vec4f(safe_normalize(d), length(d));
     if handles(KIND_DIRECTIONAL) {
         let travel = vec4f(-safe_normalize(s.direction), 3.0e38);
-        lr = select(lr, travel, s.kind == KIND_DIRECTIONAL);
+        lr = select(lr, travel, is_kind(s, KIND_DIRECTIONAL));
     }
     return lr;
 }
@@ -94,10 +102,13 @@ fn irradiance(s: Light, lr: vec4f, n: vec3f) -> f32 {
     let l = lr.xyz;
     let r = lr.w;
     let cos_n = dot(n, l);
-    var e = sample_intensity(s, -l) * cos_n / (r * r) * range_window(r, s.range);
+    var e = sample_intensity(s, -l) * cos_n / (r * r);
+    if LIGHT_RANGES {
+        e *= range_window(r, s.range);
+    }
     var reached = r > 0.0;
     if handles(KIND_DIRECTIONAL) {
-        let directional = s.kind == KIND_DIRECTIONAL;
+        let directional = is_kind(s, KIND_DIRECTIONAL);
         e = select(e, s.intensity * cos_n, directional);
         reached = reached || directional;
     }

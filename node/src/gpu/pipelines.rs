@@ -6,10 +6,12 @@
 
 use lightfold_scene::ShadowFilter;
 use lightfold_shaders::{
-    OVERRIDE_LIGHT_KINDS, OVERRIDE_SHADOW_FILTER, OVERRIDE_SHADOW_TAPS, OVERRIDE_VIEW_MODES,
+    OVERRIDE_LIGHT_KINDS, OVERRIDE_LIGHT_RANGES, OVERRIDE_SHADOW_FILTER, OVERRIDE_SHADOW_TAPS,
+    OVERRIDE_VIEW_MODES,
 };
 use std::collections::HashMap;
 
+use super::lights::GpuLight;
 use super::scene_data::Vertex;
 
 /// Depth format of shadow maps and of the eye pass.
@@ -55,8 +57,8 @@ pub struct Pipelines {
     deferred_module: wgpu::ShaderModule,
     deferred_pl: wgpu::PipelineLayout,
     filter: [(&'static str, f64); 2],
-    /// `cs_lights` per bit masks of the sample kinds and view modes it handles.
-    light_passes: HashMap<(u32, u32), wgpu::ComputePipeline>,
+    /// `cs_lights` per set of lights it handles.
+    light_passes: HashMap<LightSet, wgpu::ComputePipeline>,
 }
 
 /// G-buffer targets: position + material, shading normal, geometric normal (f32 bits).
@@ -95,6 +97,27 @@ fn depth_state(write: bool) -> wgpu::DepthStencilState {
         depth_compare: Some(wgpu::CompareFunction::Greater),
         stencil: wgpu::StencilState::default(),
         bias: wgpu::DepthBiasState::default(),
+    }
+}
+
+/// What a light pass is compiled for: bit masks of the sample kinds (`GpuLight::kind`) and view
+/// modes (`GpuLight::cube`) of its lights, and whether any has a range window. Code for what a
+/// frame lacks folds away (a CPU rasteriser would run it, masked).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct LightSet {
+    pub kinds: u32,
+    pub modes: u32,
+    pub ranges: bool,
+}
+
+impl LightSet {
+    pub fn of(lights: &[GpuLight]) -> LightSet {
+        let bit = |v: u32| 1u32 << v.min(31);
+        LightSet {
+            kinds: lights.iter().fold(0, |m, l| m | bit(l.kind)),
+            modes: lights.iter().fold(0, |m, l| m | bit(l.cube)),
+            ranges: lights.iter().any(|l| l.range > 0.0),
+        }
     }
 }
 
@@ -382,24 +405,19 @@ impl Pipelines {
         }
     }
 
-    /// The deferred light pass for lights whose kinds (`GpuLight::kind`) and view modes
-    /// (`GpuLight::cube`) are the set bits of `kinds` and `modes`, compiled on first use (a
-    /// handle: clones share the pipeline).
-    pub fn light_pass(
-        &mut self,
-        device: &wgpu::Device,
-        kinds: u32,
-        modes: u32,
-    ) -> wgpu::ComputePipeline {
+    /// The deferred light pass for `lights`, compiled on first use (a handle: clones share the
+    /// pipeline).
+    pub fn light_pass(&mut self, device: &wgpu::Device, lights: LightSet) -> wgpu::ComputePipeline {
         let (module, layout, filter) = (&self.deferred_module, &self.deferred_pl, self.filter);
         self.light_passes
-            .entry((kinds, modes))
+            .entry(lights)
             .or_insert_with(|| {
                 let constants = [
                     filter[0],
                     filter[1],
-                    (OVERRIDE_LIGHT_KINDS, f64::from(kinds)),
-                    (OVERRIDE_VIEW_MODES, f64::from(modes)),
+                    (OVERRIDE_LIGHT_KINDS, f64::from(lights.kinds)),
+                    (OVERRIDE_VIEW_MODES, f64::from(lights.modes)),
+                    (OVERRIDE_LIGHT_RANGES, f64::from(u8::from(lights.ranges))),
                 ];
                 device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                     label: Some("cs_lights"),

@@ -8,8 +8,8 @@ use super::deferred::{DeferredTargets, read_illumination, render_deferred};
 use super::device::Gpu;
 use super::eye_pass::{EyeInputs, EyeTargets, GpuFrame, render_eye};
 use super::frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
-use super::lights::{Fault, GpuLight, LightPlan, plan_lights};
-use super::pipelines::{DrawContext, Pipelines};
+use super::lights::{Fault, LightPlan, plan_lights};
+use super::pipelines::{DrawContext, LightSet, Pipelines};
 use super::readback::{ReadRequest, read_targets};
 use super::scene_data::SceneData;
 use super::shadow_pass::{ShadowMaps, layer_count, render_shadow_maps};
@@ -300,12 +300,10 @@ impl Renderer {
                 self.pipelines.illumination_format,
             ));
         }
-        // The light pass is specialised to the kinds of samples this frame has and to how they
-        // pick their views.
-        let bits =
-            |f: fn(&GpuLight) -> u32| plan.lights.iter().fold(0u32, |m, l| m | 1 << f(l).min(31));
-        let (kinds, modes) = (bits(|l| l.kind), bits(|l| l.cube));
-        let light_pass = self.pipelines.light_pass(&gpu.device, kinds, modes);
+        // The light pass is specialised to what this frame's lights are.
+        let light_pass = self
+            .pipelines
+            .light_pass(&gpu.device, LightSet::of(&plan.lights));
         let targets = self.targets.as_ref().expect("allocated above");
         let frame = self.frame_uniform(&plan);
         let maps = self.maps.as_ref().expect("allocated with the shadow maps");
