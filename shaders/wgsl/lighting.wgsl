@@ -119,28 +119,23 @@ fn place(s: Light, p: vec3f, ng: vec3f) -> Placed {
     if uses_mode(MODE_SINGLE) || uses_mode(MODE_SPLIT) {
         var index = s.first_view;
         if uses_mode(MODE_SPLIT) {
-            let side = select(s.faces_a.y, s.faces_a.x, dot(d, s.cube_x) >= 0.0);
+            let side = select(face_view(s, 1u), face_view(s, 0u), dot(d, s.cube_x) >= 0.0);
             index = select(index, side, is_mode(s, MODE_SPLIT));
         }
         let v = view_at(index);
         out = Placed(index, (v.view * vec4f(p, 1.0)).xyz, (v.view * vec4f(ng, 0.0)).xyz);
     }
     if is_mode(s, MODE_CUBE) {
-        let c = vec3f(dot(d, s.cube_x), dot(d, s.cube_y), dot(d, s.cube_z));
-        let cn = vec3f(dot(ng, s.cube_x), dot(ng, s.cube_y), dot(ng, s.cube_z));
+        let cube_y = cross(s.cube_x, s.cube_z);
+        let c = vec3f(dot(d, s.cube_x), dot(d, cube_y), dot(d, s.cube_z));
+        let cn = vec3f(dot(ng, s.cube_x), dot(ng, cube_y), dot(ng, s.cube_z));
         // The dominant axis, ties to x before y before z; its sign picks +/−.
         let a = abs(c);
         let on_x = a.x >= a.y && a.x >= a.z;
         let on_y = !on_x && a.y >= a.z;
         let positive = select(select(c.z >= 0.0, c.y >= 0.0, on_y), c.x >= 0.0, on_x);
         let face = select(select(4u, 2u, on_y), 0u, on_x) + select(1u, 0u, positive);
-        var index = s.faces_b.y;
-        index = select(index, s.faces_b.x, face == 4u);
-        index = select(index, s.faces_a.w, face == 3u);
-        index = select(index, s.faces_a.z, face == 2u);
-        index = select(index, s.faces_a.y, face == 1u);
-        index = select(index, s.faces_a.x, face == 0u);
-        out = Placed(index, cube_face_coords(face, c), cube_face_coords(face, cn));
+        out = Placed(face_view(s, face), cube_face_coords(face, c), cube_face_coords(face, cn));
     }
     // Cube-mode lights always have a view; others may have none.
     if VIEW_MODES != (1u << MODE_CUBE) && s.view_count == 0u {

@@ -24,17 +24,25 @@ struct Light {
     first_view: u32,
     view_count: u32,
     // How a point picks its view: `cube` 0 = the only view; 1 = cube faces, by the dominant axis
-    // of its direction in the frame cube_x/y/z (`scene::shadow_views::cube_frame`); 2 = two
-    // frusta split by the plane with normal cube_x (faces_a.x on its positive side, else .y).
+    // of its direction in the frame (cube_x, cube_x × cube_z, cube_z)
+    // (`scene::shadow_views::cube_frame`); 2 = two frusta split by the plane with normal cube_x
+    // (face 0 on its positive side, else face 1).
     cube_x: vec3f,
     cube: u32,
-    cube_y: vec3f,
-    _pad0: u32,
     cube_z: vec3f,
-    _pad1: u32,
-    // View index per face: +x, −x, +y, −y, +z, −z (then two unused); NO_VIEW where none.
-    faces_a: vec4<u32>,
-    faces_b: vec4<u32>,
+    _pad: u32,
+    // View index per face, two faces to a word (low 16 bits, high 16 bits): +x −x, +y −y, +z −z;
+    // FACE_NONE where none.
+    faces: vec4<u32>,
+}
+
+const FACE_NONE: u32 = 0xffffu;
+
+// The view of cube face `face` (0..6 as +x −x +y −y +z −z), or NO_VIEW.
+fn face_view(s: Light, face: u32) -> u32 {
+    let word = select(select(s.faces.z, s.faces.y, face < 4u), s.faces.x, face < 2u);
+    let v = select(word & 0xffffu, word >> 16u, (face & 1u) == 1u);
+    return select(v, NO_VIEW, v == FACE_NONE);
 }
 
 const NO_VIEW: u32 = 0xffffffffu;

@@ -37,20 +37,44 @@ pub struct GpuLight {
     pub first_view: u32,
     pub view_count: u32,
     /// How a point picks its view: [`MODE_SINGLE`], [`MODE_CUBE`] (dominant axis of its direction
-    /// in the frame `cube_x/y/z`, then `faces`) or [`MODE_SPLIT`] (side of the plane with normal
-    /// `cube_x`: `faces[0]` where `cube_x·d ≥ 0`, else `faces[1]`).
+    /// in the frame `cube_x`, `cube_x × cube_z`, `cube_z`, then its face) or [`MODE_SPLIT`] (side
+    /// of the plane with normal `cube_x`: face 0 where `cube_x·d ≥ 0`, else face 1).
     pub cube_x: [f32; 3],
     pub cube: u32,
-    pub cube_y: [f32; 3],
-    pub _pad0: u32,
     pub cube_z: [f32; 3],
-    pub _pad1: u32,
-    /// View index of each cube face (`CubeFace::index` order), [`NO_VIEW`] where none.
-    pub faces: [u32; 8],
+    pub _pad: u32,
+    /// View index of each face (`CubeFace::index` order), two to a word, low half first; see
+    /// [`GpuLight::face`].
+    pub faces: [u32; 4],
 }
 
 /// A cube face with no receivers, hence no view.
 pub const NO_VIEW: u32 = u32::MAX;
+/// [`NO_VIEW`] as stored in [`GpuLight::faces`].
+const FACE_NONE: u32 = 0xffff;
+
+impl GpuLight {
+    /// View of face `face` (0..6), [`NO_VIEW`] where none.
+    pub fn face(&self, face: usize) -> u32 {
+        let v = (self.faces[face / 2] >> (16 * (face % 2))) & 0xffff;
+        if v == FACE_NONE { NO_VIEW } else { v }
+    }
+
+    /// Sets face `face` (0..6) to view `view` (below 65 535, or [`NO_VIEW`]). Views are layers of
+    /// one texture array, so a frame with more is refused before it renders (`TooManyViews`;
+    /// devices offer 2 048 layers or fewer).
+    pub fn set_face(&mut self, face: usize, view: u32) {
+        let v = if view == NO_VIEW {
+            FACE_NONE
+        } else {
+            view.min(FACE_NONE - 1)
+        };
+        let shift = 16 * (face % 2);
+        let w = &mut self.faces[face / 2];
+        *w = (*w & !(0xffff << shift)) | (v << shift);
+    }
+}
+
 /// View selection modes of [`GpuLight::cube`].
 pub const MODE_SINGLE: u32 = 0;
 pub const MODE_CUBE: u32 = 1;
@@ -119,7 +143,7 @@ pub fn plan_lights(
             views = vec![best];
         }
         let first_view = plan.views.len() as u32;
-        let mut faces = [NO_VIEW; 8];
+        let mut faces = [NO_VIEW; 6];
         for v in &views {
             let e = v.extent;
             let p = &v.proj;
@@ -149,15 +173,17 @@ pub fn plan_lights(
             .iter()
             .any(|v| matches!(v.kind, ShadowViewKind::CubeFace(_)))
         {
-            let [x, y, z] = cube_frame(s);
-            (light.cube, light.cube_x, light.cube_y, light.cube_z) = (MODE_CUBE, x, y, z);
-            light.faces = faces;
+            let [x, _, z] = cube_frame(s);
+            (light.cube, light.cube_x, light.cube_z) = (MODE_CUBE, x, z);
+            for (f, v) in faces.into_iter().enumerate() {
+                light.set_face(f, v);
+            }
         } else if views.len() == 2
             && let Some(n) = views[0].half_space
         {
             (light.cube, light.cube_x) = (MODE_SPLIT, n);
-            light.faces[0] = first_view;
-            light.faces[1] = first_view + 1;
+            light.set_face(0, first_view);
+            light.set_face(1, first_view + 1);
         }
         plan.lights.push(light);
     }
@@ -191,11 +217,9 @@ fn gpu_light(s: &LightSample, weight: V3, first_view: u32, view_count: u32) -> G
         view_count,
         cube_x: [0.0; 3],
         cube: 0,
-        cube_y: [0.0; 3],
-        _pad0: 0,
         cube_z: [0.0; 3],
-        _pad1: 0,
-        faces: [NO_VIEW; 8],
+        _pad: 0,
+        faces: [u32::MAX; 4],
     }
 }
 
@@ -230,9 +254,10 @@ pub fn chunk_lights(lights: &[GpuLight], views: &[GpuView], max_lights: usize) -
                 .map(|l| {
                     let mut l = *l;
                     l.first_view -= first;
-                    for f in &mut l.faces {
-                        if *f != NO_VIEW {
-                            *f -= first;
+                    for f in 0..6 {
+                        let v = l.face(f);
+                        if v != NO_VIEW {
+                            l.set_face(f, v - first);
                         }
                     }
                     l
@@ -306,7 +331,7 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(std::mem::size_of::<GpuLight>(), 144);
+        assert_eq!(std::mem::size_of::<GpuLight>(), 112);
         assert_eq!(std::mem::size_of::<GpuView>(), 112);
     }
 
@@ -326,10 +351,8 @@ mod tests {
         assert_eq!(p.lights[1].first_view, p.passes_per_light[0]);
         // The multi-view light maps each view it needs to its layer.
         assert_ne!(p.lights[0].cube, MODE_SINGLE);
-        let mapped: Vec<u32> = p.lights[0]
-            .faces
-            .iter()
-            .copied()
+        let mapped: Vec<u32> = (0..6)
+            .map(|f| p.lights[0].face(f))
             .filter(|&f| f != NO_VIEW)
             .collect();
         assert_eq!(mapped.len() as u32, p.passes_per_light[0]);
@@ -361,9 +384,25 @@ mod tests {
         let p = plan_lights(&[lobe([0.0, 2.9, 0.0])], &walls, [1.0; 3], 512, None);
         assert_eq!(p.lights[0].cube, MODE_CUBE);
         assert_eq!(p.passes_per_light[0], 5);
-        let faces = &p.lights[0].faces;
+        let faces: Vec<u32> = (0..6).map(|f| p.lights[0].face(f)).collect();
         assert_eq!(faces.iter().filter(|&&f| f != NO_VIEW).count(), 5);
         assert_eq!(faces[5], NO_VIEW, "nothing behind the lobe");
+    }
+
+    #[test]
+    fn faces_pack_two_to_a_word() {
+        let mut l = GpuLight::zeroed();
+        l.faces = [u32::MAX; 4];
+        assert!((0..6).all(|f| l.face(f) == NO_VIEW));
+        for (f, v) in [(0, 7), (1, 0), (2, 65_534), (5, 300)] {
+            l.set_face(f, v);
+        }
+        assert_eq!(
+            (0..6).map(|f| l.face(f)).collect::<Vec<_>>(),
+            [7, 0, 65_534, NO_VIEW, NO_VIEW, 300]
+        );
+        l.set_face(0, NO_VIEW);
+        assert_eq!((l.face(0), l.face(1)), (NO_VIEW, 0));
     }
 
     #[test]
@@ -403,11 +442,12 @@ mod tests {
                     let global = &p.views[(whole.first_view + j) as usize];
                     assert_eq!(local.layer, global.layer);
                 }
-                for (f, g) in l.faces.iter().zip(&whole.faces) {
-                    if *g == NO_VIEW {
-                        assert_eq!(*f, NO_VIEW);
+                for face in 0..6 {
+                    let (f, g) = (l.face(face), whole.face(face));
+                    if g == NO_VIEW {
+                        assert_eq!(f, NO_VIEW);
                     } else {
-                        assert_eq!(c.views[*f as usize].layer, p.views[*g as usize].layer);
+                        assert_eq!(c.views[f as usize].layer, p.views[g as usize].layer);
                     }
                 }
             }
