@@ -221,7 +221,9 @@ pub fn pattern_table(points: &[Point]) -> String {
             (s.map_size, s.filter, s.format, s.k) == (b.map_size, b.filter, b.format, b.k)
         })
         .collect();
-    let mut patterns = Vec::new();
+    // The default pattern's points belong to other knobs (default, samples): the column is
+    // filled from whichever knob measured them.
+    let mut patterns = vec![b.pattern];
     let mut counts = Vec::new();
     for p in around.iter().filter(|p| p.knob == Knob::Pattern) {
         if !patterns.contains(&p.setting.pattern) {
