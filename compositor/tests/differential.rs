@@ -96,6 +96,73 @@ fn depth_matches_reference() {
     );
 }
 
+/// Every instruction-set path of the depth select (`ops::dispatch`) gives the reference bits:
+/// one to five inputs, forward and reversed Z, carried layers of 3 and 6 channels, hostile depths
+/// and colours, ties (depths drawn from a handful of values, empty pixels included).
+#[test]
+fn depth_every_isa_matches_reference() {
+    use lightfold_compositor::ops::{Depth, Isa, OpError};
+    use lightfold_protocol::Layer;
+    use rand::Rng;
+
+    let available: Vec<Isa> = Isa::ALL.into_iter().filter(|i| i.available()).collect();
+    for isa in Isa::ALL.into_iter().filter(|i| !i.available()) {
+        eprintln!("this cpu lacks {isa}: that path is not tested here");
+        let op = Depth::new(&json!({"inputs": 1})).unwrap();
+        let src = Owned::zeros(1, &[Layer::Depth, Layer::Illumination]);
+        let mut out = Owned::zeros(1, &[Layer::Depth, Layer::Illumination]);
+        let e = op.apply_on(isa, &[src.view()], &mut out.view_mut());
+        assert!(matches!(e, Err(OpError::IsaUnavailable { .. })), "{e:?}");
+    }
+    assert!(available.contains(&Isa::Baseline) && available.contains(&Isa::best()));
+    let few = [
+        f32::NAN,
+        f32::INFINITY,
+        0.0,
+        -0.0,
+        1.0,
+        2.0,
+        -1.0,
+        f32::NEG_INFINITY,
+    ];
+    for inputs in 1..=5usize {
+        for reversed in [false, true] {
+            let layers = if inputs % 2 == 0 {
+                vec!["illumination", "diffuse"]
+            } else {
+                vec!["radiance", "illumination", "specular"]
+            };
+            let params = json!({"inputs": inputs, "layers": layers, "reversed_z": reversed});
+            let op = Depth::new(&params).unwrap();
+            for (n, pixels) in widths().into_iter().enumerate() {
+                let mut all = inputs_for(&op, pixels, 500 + n as u64);
+                // Half the cases draw depths from a few values, so ties are common.
+                if n % 2 == 1 {
+                    let mut r = rng(n as u64);
+                    for o in &mut all {
+                        for (l, d) in &mut o.layers {
+                            if *l == Layer::Depth {
+                                d.iter_mut()
+                                    .for_each(|z| *z = few[r.random_range(0..few.len())]);
+                            }
+                        }
+                    }
+                }
+                let want = run(&op, &all, pixels, true);
+                for &isa in &available {
+                    let views: Vec<_> = all.iter().map(|o| o.view()).collect();
+                    let mut got = Owned::zeros(
+                        pixels,
+                        &want.layers.iter().map(|(l, _)| *l).collect::<Vec<_>>(),
+                    );
+                    op.apply_on(isa, &views, &mut got.view_mut()).unwrap();
+                    assert_same_bits(&got, &want, &format!("{params} w={pixels} on {isa}"));
+                }
+            }
+        }
+    }
+}
+
 #[test]
 fn join_matches_reference() {
     differential("join", json!({"inputs": 1}));
