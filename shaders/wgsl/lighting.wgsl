@@ -23,7 +23,9 @@ struct Frame {
     slope_bias: f32,
     // Deferred light pass: nonzero when this dispatch adds to what an earlier one lit.
     accumulate: u32,
-    _pad0: u32,
+    // Layer of view 0 in the shadow-map array: view i is layer view_base + i (views of a chunk
+    // are numbered from its first).
+    view_base: u32,
     // Half-width of the filter footprint in texels (the slope bias scales with it).
     kernel_radius: f32,
     // Image size (the deferred variant's compute pass needs it).
@@ -150,12 +152,14 @@ fn is_ortho(v: View) -> bool {
 }
 
 fn project(v: View, q: vec3f) -> vec4f {
-    return vec4f(
-        v.proj_a.x * q.x + v.proj_a.y * q.z + v.proj_a.z,
-        v.proj_a.w * q.y + v.proj_b.x * q.z + v.proj_b.y,
-        v.proj_b.z * q.z + v.proj_b.w,
-        select(-q.z, 1.0, is_ortho(v)),
-    );
+    var x = v.proj_a.x * q.x + v.proj_a.y * q.z;
+    var y = v.proj_a.w * q.y + v.proj_b.x * q.z;
+    // Only orthographic views have offsets here (a perspective view's are 0: not read).
+    if handles(KIND_DIRECTIONAL) {
+        x += v.proj_a.z;
+        y += v.proj_b.y;
+    }
+    return vec4f(x, y, v.proj_b.z * q.z + v.proj_b.w, select(-q.z, 1.0, is_ortho(v)));
 }
 
 // s_λ at world point p with geometric normal ng; 1 where no view of the light holds p.
@@ -199,7 +203,7 @@ fn visibility(s: Light, p: vec3f, ng: vec3f) -> f32 {
     // Move the receiver towards the light along the map's axis, then take its depth.
     let cb = project(v, vec3f(q.xy, q.z + bias));
     let ref_depth = select(1.0, clamp(cb.z / cb.w, 0.0, 1.0), cb.w > 0.0);
-    return shadow_filter(uv, v.layer, ref_depth);
+    return shadow_filter(uv, frame.view_base + placed.index, ref_depth);
 }
 
 // A visible surface point: position, unit shading and geometric normals facing the viewer, and

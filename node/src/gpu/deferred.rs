@@ -78,6 +78,7 @@ fn chunk_groups(cx: &DrawContext<'_>, inputs: &EyeInputs<'_>) -> Vec<wgpu::BindG
             let frame = GpuFrame {
                 light_count: chunk.lights.len() as u32,
                 accumulate: u32::from(i > 0),
+                view_base: chunk.first_view,
                 ..inputs.frame
             };
             chunk.lights.resize(CHUNK_LIGHTS, GpuLight::zeroed());

@@ -22,7 +22,8 @@ pub struct GpuFrame {
     pub slope_bias: f32,
     /// Deferred light pass: nonzero when this dispatch adds to an earlier one's result.
     pub accumulate: u32,
-    pub _pad0: u32,
+    /// Layer of view 0 (views of a deferred chunk are numbered from the chunk's first).
+    pub view_base: u32,
     pub kernel_radius: f32,
     pub width: u32,
     pub height: u32,
@@ -42,7 +43,7 @@ impl GpuFrame {
             depth_bias: 0.0,
             slope_bias: 0.0,
             accumulate: 0,
-            _pad0: 0,
+            view_base: 0,
             kernel_radius: 1.0,
             width: camera.width,
             height: camera.height,

@@ -229,6 +229,8 @@ fn gpu_light(s: &LightSample, weight: V3, first_view: u32, view_count: u32) -> G
 pub struct LightChunk {
     pub lights: Vec<GpuLight>,
     pub views: Vec<GpuView>,
+    /// Index (and layer) in the whole plan of the chunk's view 0.
+    pub first_view: u32,
 }
 
 /// Splits `lights` (with `views`, numbered across all lights as [`plan_lights`] does) into chunks
@@ -238,6 +240,7 @@ pub fn chunk_lights(lights: &[GpuLight], views: &[GpuView], max_lights: usize) -
         return vec![LightChunk {
             lights: Vec::new(),
             views: Vec::new(),
+            first_view: 0,
         }];
     }
     lights
@@ -270,6 +273,7 @@ pub fn chunk_lights(lights: &[GpuLight], views: &[GpuView], max_lights: usize) -
                     .get(range)
                     .map(<[GpuView]>::to_vec)
                     .unwrap_or_default(),
+                first_view: first,
             }
         })
         .collect()
@@ -441,6 +445,8 @@ mod tests {
                     let local = &c.views[(l.first_view + j) as usize];
                     let global = &p.views[(whole.first_view + j) as usize];
                     assert_eq!(local.layer, global.layer);
+                    // The shader takes view i's layer as first_view + i.
+                    assert_eq!(c.first_view + l.first_view + j, global.layer);
                 }
                 for face in 0..6 {
                     let (f, g) = (l.face(face), whole.face(face));
