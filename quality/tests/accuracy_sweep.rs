@@ -1,10 +1,12 @@
 //! The sweep end to end on a tiny image: three points (defaults, another sample count, another
-//! link format) against a coarse truth, the CSV columns, the frontier flags and the outputs.
+//! link format) against a coarse truth, the CSV columns, the frontier flags and the outputs; then
+//! the pattern knob alone and its table.
 
 use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_quality::accuracy::{
     CSV_COLUMNS, Knob, SweepPlan, TruthOptions, load_or_render_truth, report, run_sweep,
 };
+use lightfold_scene::SamplePattern;
 
 #[test]
 fn a_tiny_sweep_runs_and_writes_the_expected_columns() -> anyhow::Result<()> {
@@ -70,6 +72,22 @@ fn a_tiny_sweep_runs_and_writes_the_expected_columns() -> anyhow::Result<()> {
         let cost: f64 = r[cost_col].parse()?;
         assert!(cost > 0.0);
     }
+    // The pattern knob: the default (grid) beside jittered at the default count, tabled.
+    let plan = SweepPlan {
+        patterns: vec![SamplePattern::Grid, SamplePattern::Jittered],
+        ..SweepPlan::tiny().only(&[Knob::Pattern])
+    };
+    let pts = run_sweep(&gpu, &scene, &truth, &plan, 1, |_, _| {})?;
+    assert_eq!(pts.len(), 2, "defaults, jittered");
+    assert_eq!(pts[1].knob, Knob::Pattern);
+    assert_eq!(pts[1].setting.pattern, SamplePattern::Jittered);
+    assert_eq!(pts[1].lights, pts[0].lights);
+    assert_ne!(pts[1].metrics.whole.rmse, pts[0].metrics.whole.rmse);
+    let table = report::pattern_table(&pts);
+    assert!(table.contains("| samples | grid | jittered |"), "{table}");
+    assert!(table.contains("| 16 | "), "{table}");
+    assert!(!table.contains('–'), "a cell is missing: {table}");
+
     std::fs::create_dir_all(&dir)?;
     report::write_svg(&dir.join("frontier.svg"), "test", &truth, &points)?;
     let svg = std::fs::read_to_string(dir.join("frontier.svg"))?;
