@@ -205,16 +205,17 @@ impl Slot {
             } else {
                 "no link from it is connected"
             };
-            let timed_out = InputError::Timeout {
-                input: self.index,
-                peer: self.peer.clone(),
+            // Built when the deadline fires, so it reports the whole wait.
+            let timed_out = |index: usize, peer: &str| InputError::Timeout {
+                input: index,
+                peer: peer.to_string(),
                 waited_ms: start.elapsed().as_millis(),
                 link,
             };
             let Some(rx) = self.rx.as_mut() else {
                 tokio::select! {
                     _ = &mut arrived => continue,
-                    _ = tokio::time::sleep_until(deadline) => return Err(timed_out),
+                    _ = tokio::time::sleep_until(deadline) => return Err(timed_out(self.index, &self.peer)),
                 }
             };
             tokio::select! {
@@ -227,7 +228,7 @@ impl Slot {
                     None => self.rx = None,
                 },
                 _ = &mut arrived => continue,
-                _ = tokio::time::sleep_until(deadline) => return Err(timed_out),
+                _ = tokio::time::sleep_until(deadline) => return Err(timed_out(self.index, &self.peer)),
             }
         }
     }
