@@ -7,7 +7,7 @@ use super::check::{Expect, Mismatch, Verdict, judge};
 use super::config::BAND_OVERHEAD;
 use super::metrics::{Held, StageMetrics};
 use bytes::Bytes;
-use lightfold_net::LinkReader;
+use lightfold_net::{LinkReader, LinkWriter};
 use lightfold_protocol::{BandHeader, Frame};
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
@@ -28,17 +28,26 @@ pub(crate) struct InBand {
     _permit: OwnedSemaphorePermit,
 }
 
+/// A producer's link. Nothing is sent to a producer, but the writing half stays open while the
+/// link is held: dropping it would send a FIN, and a producer watches for end-of-stream to learn
+/// that the stage has let its link go (so it dials afresh before its next frame).
+#[derive(Debug)]
+pub(crate) struct ProducerLink {
+    pub reader: LinkReader,
+    pub writer: LinkWriter,
+}
+
 /// Links accepted from producers, by authenticated daemon id, not yet claimed by an input slot.
 #[derive(Debug, Default)]
 pub(crate) struct Registry {
-    parked: Mutex<HashMap<String, LinkReader>>,
+    parked: Mutex<HashMap<String, ProducerLink>>,
     arrived: Notify,
 }
 
 impl Registry {
     /// Parks a producer's link, replacing an older one from the same daemon (it reconnected).
     /// Returns false when too many links are parked.
-    pub fn offer(&self, peer: String, link: LinkReader) -> bool {
+    pub fn offer(&self, peer: String, link: ProducerLink) -> bool {
         {
             let mut parked = self.parked.lock().unwrap_or_else(|e| e.into_inner());
             if parked.len() >= MAX_PARKED && !parked.contains_key(&peer) {
@@ -50,7 +59,7 @@ impl Registry {
         true
     }
 
-    fn take(&self, peer: &str) -> Option<LinkReader> {
+    fn take(&self, peer: &str) -> Option<ProducerLink> {
         self.parked
             .lock()
             .unwrap_or_else(|e| e.into_inner())
@@ -234,7 +243,7 @@ impl Slot {
     }
 
     /// Starts reading `link` into this slot's queue (replacing any previous link).
-    fn attach(&mut self, link: LinkReader, ctx: &SlotContext) {
+    fn attach(&mut self, link: ProducerLink, ctx: &SlotContext) {
         self.pump.cancel();
         self.pump = ctx.shutdown.child_token();
         self.peeked = None;
@@ -243,7 +252,7 @@ impl Slot {
         let capacity = (self.budget_total / BAND_OVERHEAD).clamp(1, 1 << 16) as usize;
         let (tx, rx) = mpsc::channel(capacity);
         self.rx = Some(rx);
-        tracing::info!(input = self.index, peer = %self.peer, addr = %link.addr, "input link attached");
+        tracing::info!(input = self.index, peer = %self.peer, addr = %link.reader.addr, "input link attached");
         ctx.tracker.spawn(pump(
             link,
             tx,
@@ -279,13 +288,18 @@ fn budget_permits(bytes: u64) -> usize {
 /// Reads bands from one producer link into the slot's queue. Waiting for budget stops the reads,
 /// which is what makes TCP push back on the producer.
 async fn pump(
-    mut link: LinkReader,
+    link: ProducerLink,
     tx: mpsc::Sender<Event>,
     budget: Arc<Semaphore>,
     total: u64,
     metrics: Arc<StageMetrics>,
     cancel: CancellationToken,
 ) {
+    // `_writer` lives until the pump ends, then the whole connection closes.
+    let ProducerLink {
+        reader: mut link,
+        writer: _writer,
+    } = link;
     loop {
         let frame = tokio::select! {
             _ = cancel.cancelled() => return,

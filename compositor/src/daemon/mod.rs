@@ -206,8 +206,11 @@ impl Connection {
             Role::Coordinator => self.hub.session(link, &self.shutdown).await,
             Role::Node | Role::Compositor => {
                 let peer = link.peer.daemon_id.clone();
-                let (reader, _) = link.split();
-                if self.registry.offer(peer.clone(), reader) {
+                let (reader, writer) = link.split();
+                if self
+                    .registry
+                    .offer(peer.clone(), inputs::ProducerLink { reader, writer })
+                {
                     tracing::info!(%peer, "producer connected");
                 } else {
                     tracing::warn!(%peer, "refused a producer: too many unclaimed links");

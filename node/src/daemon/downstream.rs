@@ -1,17 +1,23 @@
 //! The data link to this node's compositor. It is dialled (with retry until a deadline) as soon as
 //! a configuration names the address, so configuration order does not matter and the first frame
 //! does not pay for the connection; it is kept while the address stays the same, and dropped on
-//! any send error so the next frame dials afresh (a DNS name is then resolved again).
+//! any send error so the next frame dials afresh (a DNS name is then resolved again). A
+//! compositor that closes the link (a re-plan that left this node out of its inputs for a while)
+//! is noticed by a task that watches the link's reading half, so the next frame dials afresh
+//! instead of writing into a closed connection.
 
 use lightfold_net::{Identity, LinkWriter, NetError, Timeouts, dial_retry};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 use tokio::task::JoinHandle;
 
 #[derive(Debug)]
 enum State {
     None,
-    Dialling(JoinHandle<Result<LinkWriter, NetError>>),
-    Ready(Box<LinkWriter>),
+    Dialling(JoinHandle<Result<(LinkWriter, Arc<AtomicBool>), NetError>>),
+    /// The writer, and whether the compositor has closed the connection.
+    Ready(Box<LinkWriter>, Arc<AtomicBool>),
 }
 
 /// The node's one downstream data link.
@@ -46,7 +52,7 @@ impl Downstream {
         self.state = State::Dialling(self.spawn_dial());
     }
 
-    fn spawn_dial(&self) -> JoinHandle<Result<LinkWriter, NetError>> {
+    fn spawn_dial(&self) -> JoinHandle<Result<(LinkWriter, Arc<AtomicBool>), NetError>> {
         let (addr, me, t, total) = (
             self.addr.clone(),
             self.me.clone(),
@@ -56,14 +62,27 @@ impl Downstream {
         tokio::spawn(async move {
             let link = dial_retry(&addr, &me, t, total).await?;
             tracing::info!(addr = %addr, peer = %link.peer.daemon_id, "data link up");
-            // Nothing is read from a compositor: its reading half is dropped.
-            let (_reader, writer) = link.split();
-            Ok(writer)
+            // A compositor sends nothing on a data link: its reading half only tells when the
+            // compositor has closed the connection.
+            let (mut reader, writer) = link.split();
+            let closed = Arc::new(AtomicBool::new(false));
+            let flag = closed.clone();
+            tokio::spawn(async move {
+                while let Some(Ok(_)) = reader.next().await {}
+                tracing::debug!(addr = %reader.addr, "the compositor closed the data link");
+                flag.store(true, Ordering::Release);
+            });
+            Ok((writer, closed))
         })
     }
 
     /// The connected writer, waiting for a dial in progress (or starting one after an error).
     pub async fn writer(&mut self) -> Result<&mut LinkWriter, NetError> {
+        if let State::Ready(_, closed) = &self.state
+            && closed.load(Ordering::Acquire)
+        {
+            self.state = State::None;
+        }
         if matches!(self.state, State::None) {
             self.state = State::Dialling(self.spawn_dial());
         }
@@ -76,7 +95,7 @@ impl Downstream {
                 }),
             };
             match result {
-                Ok(w) => self.state = State::Ready(Box::new(w)),
+                Ok((w, closed)) => self.state = State::Ready(Box::new(w), closed),
                 Err(e) => {
                     self.state = State::None;
                     return Err(e);
@@ -84,7 +103,7 @@ impl Downstream {
             }
         }
         match &mut self.state {
-            State::Ready(w) => Ok(w),
+            State::Ready(w, _) => Ok(w),
             _ => Err(NetError::Closed {
                 addr: self.addr.clone(),
             }),
