@@ -196,3 +196,38 @@ async fn walkthrough_frames_reuse_what_did_not_change() {
     drop(coord);
     node.stop().await;
 }
+
+/// A compositor that lets the node's data link go between frames (a re-plan left the node out of
+/// its inputs for an epoch) does not cost the next frame: the node sees the link closed and
+/// dials afresh instead of writing into it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_link_the_compositor_let_go_is_dialled_again() {
+    let mut node = start_node("node-r", None).await;
+    let mut comp = start_compositor().await;
+    let mut coord = node.coordinator().await;
+    let hash = coord.send_scene(&scene()).await;
+    let config = node_config(
+        1,
+        hash,
+        &lights(1),
+        vec![(Layer::Illumination, PixelFormat::F16x6)],
+        &comp.addr,
+    );
+    assert_eq!(
+        coord.request(Message::ConfigureNode(config.clone())).await,
+        Message::Configured { epoch: 1 }
+    );
+    let n = band_count(&config);
+    for frame in 1..=3 {
+        match coord.frame(1, frame).await {
+            Message::FrameDone(_) => {}
+            other => panic!("frame {frame}: expected FrameDone, got {other:?}"),
+        }
+        let bands = comp.take(n).await;
+        assert!(bands.iter().all(|(_, h, _)| h.frame == frame));
+        comp.let_go();
+        // The close reaches the node well before the next frame is asked for.
+        tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+    }
+    node.stop().await;
+}

@@ -186,31 +186,48 @@ impl Coordinator {
 pub struct Compositor {
     pub addr: String,
     pub bands: mpsc::Receiver<(String, BandHeader, Bytes)>,
+    /// Bumped by [`Compositor::let_go`]: every link accepted so far is closed.
+    generation: tokio::sync::watch::Sender<u64>,
 }
 
 pub async fn start_compositor() -> Compositor {
     let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap().to_string();
     let (tx, bands) = mpsc::channel(4096);
+    let (generation, watch) = tokio::sync::watch::channel(0u64);
     tokio::spawn(async move {
         let me = Identity::new(TOKEN, Role::Compositor, "test-compositor");
         while let Ok((stream, _)) = listener.accept().await {
-            let (me, tx) = (me.clone(), tx.clone());
+            let (me, tx, mut watch) = (me.clone(), tx.clone(), watch.clone());
             tokio::spawn(async move {
                 let Ok(link) = accept(stream, &me, quick()).await else {
                     return;
                 };
+                watch.mark_unchanged();
                 let peer = link.peer.daemon_id.clone();
+                // Like a stage, keep the writing half open while the link is held.
                 let (mut reader, _writer) = link.split();
-                while let Some(Ok(Frame::Band(h, payload))) = reader.next().await {
-                    if tx.send((peer.clone(), h, payload)).await.is_err() {
-                        return;
+                loop {
+                    tokio::select! {
+                        _ = watch.changed() => return,
+                        f = reader.next() => match f {
+                            Some(Ok(Frame::Band(h, payload))) => {
+                                if tx.send((peer.clone(), h, payload)).await.is_err() {
+                                    return;
+                                }
+                            }
+                            _ => return,
+                        },
                     }
                 }
             });
         }
     });
-    Compositor { addr, bands }
+    Compositor {
+        addr,
+        bands,
+        generation,
+    }
 }
 
 impl Compositor {
@@ -225,6 +242,12 @@ impl Compositor {
             out.push(b);
         }
         out
+    }
+
+    /// Closes every link accepted so far, as a stage does with the links of producers a new
+    /// configuration leaves out.
+    pub fn let_go(&self) {
+        self.generation.send_modify(|g| *g += 1);
     }
 
     /// True if no band is waiting.
