@@ -20,6 +20,9 @@ pub enum Fault {
     MissingFace,
     /// The light colour is multiplied in as `c_λ` instead of `c_λ ⊘ c_n` (applied twice downstream).
     ColourNotDivided,
+    /// One pipeline is created from an entry point the shader lacks: the device's validation
+    /// error must come back as a `RenderError`, not a panic.
+    InvalidPipeline,
 }
 
 /// `Light` in `shading.wgsl` (std430).

@@ -11,6 +11,7 @@ use lightfold_shaders::{
 };
 use std::collections::HashMap;
 
+use super::frame::RenderError;
 use super::lights::GpuLight;
 use super::scene_data::Vertex;
 
@@ -406,12 +407,19 @@ impl Pipelines {
     }
 
     /// The deferred light pass for `lights`, compiled on first use (a handle: clones share the
-    /// pipeline).
-    pub fn light_pass(&mut self, device: &wgpu::Device, lights: LightSet) -> wgpu::ComputePipeline {
+    /// pipeline). A pipeline the device rejects is an error and is not kept.
+    pub fn light_pass(
+        &mut self,
+        device: &wgpu::Device,
+        lights: LightSet,
+    ) -> Result<wgpu::ComputePipeline, RenderError> {
         let (module, layout, filter) = (&self.deferred_module, &self.deferred_pl, self.filter);
-        self.light_passes
-            .entry(lights)
-            .or_insert_with(|| {
+        if let Some(p) = self.light_passes.get(&lights) {
+            return Ok(p.clone());
+        }
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let pipeline = {
+            {
                 let constants = [
                     filter[0],
                     filter[1],
@@ -430,7 +438,27 @@ impl Pipelines {
                     },
                     cache: None,
                 })
-            })
-            .clone()
+            }
+        };
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(RenderError::Gpu(format!(
+                "compiling the light pass failed: {e}"
+            )));
+        }
+        self.light_passes.insert(lights, pipeline.clone());
+        Ok(pipeline)
+    }
+
+    /// A compute pipeline naming an entry point the deferred shader lacks
+    /// (`Fault::InvalidPipeline`).
+    pub fn invalid_pipeline(&self, device: &wgpu::Device) {
+        let _ = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some("deliberately invalid"),
+            layout: Some(&self.deferred_pl),
+            module: &self.deferred_module,
+            entry_point: Some("no_such_entry_point"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
     }
 }

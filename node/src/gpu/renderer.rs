@@ -86,7 +86,18 @@ impl Renderer {
                 maximum: gpu.limits.max_buffer_size,
             });
         }
+        // Validation errors (a shader the driver rejects, a limit) come back as errors: wgpu's
+        // default handler for errors nobody captured panics.
+        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let pipelines = Pipelines::new(device, opts.filter);
+        if opts.fault == Some(Fault::InvalidPipeline) {
+            pipelines.invalid_pipeline(device);
+        }
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(RenderError::Gpu(format!(
+                "creating the pipelines failed: {e}"
+            )));
+        }
         let init = |label: &str, contents: &[u8], usage| {
             device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
                 label: Some(label),
@@ -303,7 +314,7 @@ impl Renderer {
         // The light pass is specialised to what this frame's lights are.
         let light_pass = self
             .pipelines
-            .light_pass(&gpu.device, LightSet::of(&plan.lights));
+            .light_pass(&gpu.device, LightSet::of(&plan.lights))?;
         let targets = self.targets.as_ref().expect("allocated above");
         let frame = self.frame_uniform(&plan);
         let maps = self.maps.as_ref().expect("allocated with the shadow maps");
