@@ -2,7 +2,9 @@
 //! are about) minus a dilated silhouette mask (where a raster and a ray tracer legitimately
 //! disagree about which surface a pixel centre sees).
 
-use lightfold_scene::Image;
+use crate::trace::Tracer;
+use lightfold_scene::shading::coefficients;
+use lightfold_scene::{Image, LightSample, Scene};
 
 /// Penumbra bounds on `shadowed / unoccluded` radiance.
 pub const PENUMBRA_LOW: f32 = 0.02;
@@ -146,4 +148,66 @@ pub fn comparable(depth: &Image, coverage: &[bool], states: &[u64]) -> Vec<bool>
         }
     }
     out
+}
+
+/// Per pixel (ray traced): bit k of `lit` when sample k would light it, of `visible` when it also
+/// reaches it unblocked; `covered` when the primary ray hit something. Only the first 64 samples
+/// have bits: callers with more pass the 64 they judge.
+#[derive(Debug, Clone)]
+pub struct ShadowStates {
+    pub lit: Vec<u64>,
+    pub visible: Vec<u64>,
+    pub covered: Vec<bool>,
+}
+
+impl ShadowStates {
+    /// Fraction of all pixels where some sample that would light the pixel is blocked.
+    pub fn shadowed_fraction(&self) -> f64 {
+        let n = self
+            .lit
+            .iter()
+            .zip(&self.visible)
+            .filter(|(l, v)| l != v)
+            .count();
+        n as f64 / self.lit.len().max(1) as f64
+    }
+}
+
+/// The [`ShadowStates`] of `scene`'s camera view for the first 64 of `samples`.
+pub fn shadow_states(scene: &Scene, samples: &[LightSample]) -> ShadowStates {
+    let tracer = Tracer::new(scene);
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let n = (w * h) as usize;
+    let mut st = ShadowStates {
+        lit: vec![0; n],
+        visible: vec![0; n],
+        covered: vec![false; n],
+    };
+    for y in 0..h {
+        for x in 0..w {
+            let i = (y * w + x) as usize;
+            let Some(hit) = tracer.primary(x, y) else {
+                continue;
+            };
+            st.covered[i] = true;
+            let mat = tracer.material(&hit);
+            for (k, s) in samples.iter().enumerate().take(64) {
+                let (id, is) = coefficients(
+                    s,
+                    hit.position_f32(),
+                    hit.normal,
+                    hit.to_viewer,
+                    mat.shininess,
+                    mat.has_specular(),
+                );
+                if id > 0.0 || is > 0.0 {
+                    st.lit[i] |= 1 << k;
+                    if tracer.visible(&hit, s) {
+                        st.visible[i] |= 1 << k;
+                    }
+                }
+            }
+        }
+    }
+    st
 }

@@ -10,9 +10,8 @@
 #![allow(dead_code)]
 
 use lightfold_node::gpu::{Gpu, GpuOptions, NodeFrame};
-use lightfold_reference::{Layers, Tracer};
+use lightfold_reference::Layers;
 use lightfold_scene::primitives::{cuboid, plane, sphere};
-use lightfold_scene::shading::coefficients;
 use lightfold_scene::{
     AlphaMode, Camera, Image, Light, LightSample, LightShape, Material, Scene, Texture, sampling,
 };
@@ -128,65 +127,12 @@ pub fn samples(scene: &Scene) -> Vec<LightSample> {
     sampling::scene_samples(scene)
 }
 
-/// Per pixel (ray traced): which samples would light it, which of those are visible, and whether
-/// a primary ray hit anything.
-#[derive(Debug, Clone)]
-pub struct ShadowStates {
-    pub lit: Vec<u64>,
-    pub visible: Vec<u64>,
-    pub covered: Vec<bool>,
-}
+pub use lightfold_reference::masks::ShadowStates;
 
-impl ShadowStates {
-    /// Fraction of all pixels where some sample that would light the pixel is blocked.
-    pub fn shadowed_fraction(&self) -> f64 {
-        let n = self
-            .lit
-            .iter()
-            .zip(&self.visible)
-            .filter(|(l, v)| l != v)
-            .count();
-        n as f64 / self.lit.len().max(1) as f64
-    }
-}
-
+/// The reference's shadow states; these tests judge at most 64 samples, each with its own bit.
 pub fn shadow_states(scene: &Scene, samples: &[LightSample]) -> ShadowStates {
     assert!(samples.len() <= 64, "shadow states hold 64 samples");
-    let tracer = Tracer::new(scene);
-    let (w, h) = (scene.camera.width, scene.camera.height);
-    let n = (w * h) as usize;
-    let mut st = ShadowStates {
-        lit: vec![0; n],
-        visible: vec![0; n],
-        covered: vec![false; n],
-    };
-    for y in 0..h {
-        for x in 0..w {
-            let i = (y * w + x) as usize;
-            let Some(hit) = tracer.primary(x, y) else {
-                continue;
-            };
-            st.covered[i] = true;
-            let mat = tracer.material(&hit);
-            for (k, s) in samples.iter().enumerate() {
-                let (id, is) = coefficients(
-                    s,
-                    hit.position_f32(),
-                    hit.normal,
-                    hit.to_viewer,
-                    mat.shininess,
-                    mat.has_specular(),
-                );
-                if id > 0.0 || is > 0.0 {
-                    st.lit[i] |= 1 << k;
-                    if tracer.visible(&hit, s) {
-                        st.visible[i] |= 1 << k;
-                    }
-                }
-            }
-        }
-    }
-    st
+    lightfold_reference::masks::shadow_states(scene, samples)
 }
 
 /// Outcome of comparing a GPU layer with the reference.

@@ -8,8 +8,6 @@
 
 use super::{CaseReport, HardCaseError};
 use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
-use lightfold_reference::Tracer;
-use lightfold_scene::shading::coefficients;
 use lightfold_scene::{Camera, Image, LightSample, Scene};
 use std::path::PathBuf;
 
@@ -72,51 +70,7 @@ pub fn gpu_illumination(
     })
 }
 
-/// Per pixel: bit k of `lit` when sample k would light it (k < 64), of `visible` when it also
-/// reaches it unblocked; `covered` when the primary ray hit.
-pub struct ShadowStates {
-    pub lit: Vec<u64>,
-    pub visible: Vec<u64>,
-    pub covered: Vec<bool>,
-}
-
-pub fn shadow_states(scene: &Scene, samples: &[LightSample]) -> ShadowStates {
-    let tracer = Tracer::new(scene);
-    let (w, h) = (scene.camera.width, scene.camera.height);
-    let n = (w * h) as usize;
-    let mut st = ShadowStates {
-        lit: vec![0; n],
-        visible: vec![0; n],
-        covered: vec![false; n],
-    };
-    for y in 0..h {
-        for x in 0..w {
-            let i = (y * w + x) as usize;
-            let Some(hit) = tracer.primary(x, y) else {
-                continue;
-            };
-            st.covered[i] = true;
-            let mat = tracer.material(&hit);
-            for (k, s) in samples.iter().enumerate().take(64) {
-                let (id, is) = coefficients(
-                    s,
-                    hit.position_f32(),
-                    hit.normal,
-                    hit.to_viewer,
-                    mat.shininess,
-                    mat.has_specular(),
-                );
-                if id > 0.0 || is > 0.0 {
-                    st.lit[i] |= 1 << k;
-                    if tracer.visible(&hit, s) {
-                        st.visible[i] |= 1 << k;
-                    }
-                }
-            }
-        }
-    }
-    st
-}
+pub use lightfold_reference::masks::{ShadowStates, shadow_states};
 
 /// Whether every channel of pixel `i` agrees within the per-pixel tolerance.
 pub fn pixel_agrees(a: &Image, b: &Image, i: usize) -> bool {
