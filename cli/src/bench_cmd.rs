@@ -353,17 +353,7 @@ async fn measure(
 /// The scene camera turned `f` half-degrees about the vertical through its target: a walkthrough
 /// that needs a new eye pass every frame.
 fn orbit(c: &Camera, f: u32) -> Camera {
-    let angle = (f as f32 * 0.5).to_radians();
-    let (s, co) = angle.sin_cos();
-    let d = [c.position[0] - c.target[0], c.position[2] - c.target[2]];
-    Camera {
-        position: [
-            c.target[0] + d[0] * co - d[1] * s,
-            c.position[1],
-            c.target[2] + d[0] * s + d[1] * co,
-        ],
-        ..*c
-    }
+    c.orbited(-0.5 * f as f32)
 }
 
 async fn send_scene(

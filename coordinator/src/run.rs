@@ -133,25 +133,7 @@ pub fn participants(plan: &Plan) -> Participants {
 pub fn camera_at(base: &Camera, path: FramePath, i: u32) -> Camera {
     match path {
         FramePath::Still => *base,
-        FramePath::Orbit { degrees } => {
-            let a = (degrees * i as f32).to_radians();
-            let (s, c) = a.sin_cos();
-            let d = [
-                base.position[0] - base.target[0],
-                base.position[1] - base.target[1],
-                base.position[2] - base.target[2],
-            ];
-            // Rotation about +Y (the scene's up).
-            let r = [c * d[0] + s * d[2], d[1], -s * d[0] + c * d[2]];
-            Camera {
-                position: [
-                    base.target[0] + r[0],
-                    base.target[1] + r[1],
-                    base.target[2] + r[2],
-                ],
-                ..*base
-            }
-        }
+        FramePath::Orbit { degrees } => base.orbited(degrees * i as f32),
     }
 }
 

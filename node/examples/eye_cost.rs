@@ -10,16 +10,7 @@ use lightfold_node::gpu::{EyeVariant, Gpu, GpuOptions, LayerSet, RenderOptions, 
 use lightfold_scene::Camera;
 
 fn orbit(c: &Camera, f: u32) -> Camera {
-    let (s, co) = (f as f32 * 0.5).to_radians().sin_cos();
-    let d = [c.position[0] - c.target[0], c.position[2] - c.target[2]];
-    Camera {
-        position: [
-            c.target[0] + d[0] * co - d[1] * s,
-            c.position[1],
-            c.target[2] + d[0] * s + d[1] * co,
-        ],
-        ..*c
-    }
+    c.orbited(-0.5 * f as f32)
 }
 
 /// CPU time of this process so far (all live threads, from `/proc/self/task/*/schedstat`), ms.

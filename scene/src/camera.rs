@@ -13,6 +13,21 @@ pub struct Frame {
 }
 
 impl Camera {
+    /// The camera turned `degrees` about the vertical (+Y) through its target, counter-clockwise
+    /// seen from above: the orbit of walkthrough frames and benchmarks.
+    pub fn orbited(&self, degrees: f32) -> Camera {
+        let (s, c) = degrees.to_radians().sin_cos();
+        let d = sub(self.position, self.target);
+        Camera {
+            position: [
+                self.target[0] + (c * d[0] + s * d[2]),
+                self.position[1],
+                self.target[2] + (-s * d[0] + c * d[2]),
+            ],
+            ..*self
+        }
+    }
+
     pub fn aspect(&self) -> f32 {
         self.width as f32 / self.height.max(1) as f32
     }
