@@ -14,6 +14,9 @@ mod rgba8;
 mod seed64;
 
 pub use rgb9e5::MAX as RGB9E5_MAX;
+/// One little-endian half of `f16x6`/`f16x4` as `unpack` reads it (finite values exactly, +Inf →
+/// 65504, NaN and negatives → 0): for kernels that decode halves inside their own loops.
+pub use halfs::decode as decode_half;
 
 /// A packed pixel format. Illumination formats carry six channels (diffuse RGB, specular RGB);
 /// material formats three (RGB); depth one.

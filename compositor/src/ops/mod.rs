@@ -18,6 +18,7 @@ pub mod dispatch;
 pub mod join;
 pub mod material;
 pub mod output;
+pub mod packed_out;
 pub(crate) mod params;
 pub mod precision;
 
@@ -32,6 +33,7 @@ pub use dispatch::Isa;
 pub use join::Join;
 pub use material::{Material, MaterialStage};
 pub use output::Output;
+pub use packed_out::{PackSummary, PackedOut};
 pub use params::{layer_from_name, layer_name};
 pub use precision::{LinkFormat, LinkKind, chain_bound, recommended_link_format};
 
@@ -166,6 +168,22 @@ pub enum OpError {
     Packed {
         op: &'static str,
         input: usize,
+        source: lightfold_protocol::format::FormatError,
+    },
+    #[error(
+        "operator {op}: packed output {layer:?} ({format:?}) holds {actual} bytes, expected {expected}"
+    )]
+    PackedOut {
+        op: &'static str,
+        layer: Layer,
+        format: lightfold_protocol::PixelFormat,
+        expected: usize,
+        actual: usize,
+    },
+    #[error("operator {op}: cannot pack output {layer:?}: {source}")]
+    Pack {
+        op: &'static str,
+        layer: Layer,
         source: lightfold_protocol::format::FormatError,
     },
     #[error("this cpu lacks the {isa} instruction set")]

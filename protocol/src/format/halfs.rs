@@ -117,7 +117,7 @@ fn pack_padded<const IN: usize, const OUT: usize>(src: &[f32], dst: &mut [u8]) -
 /// One half (its bits) as the clamped f32 unpack yields: finite positive values exactly, +Inf →
 /// 65504, NaN and everything with the sign bit (−0 included) → 0.
 #[inline(always)]
-fn decode(bits: u16) -> f32 {
+pub fn decode(bits: u16) -> f32 {
     let h = u32::from(bits);
     // Exponent and mantissa moved to the f32 positions: the value is then 2^−112 of the half's,
     // subnormals included (they become f32 subnormals), and the multiplication is exact.
