@@ -5,7 +5,7 @@
 use super::config::{Operators, StagePlan};
 use super::inputs::InBand;
 use super::pixels::{pack, unpack};
-use crate::ops::{BandMut, BandView, OpError, PackedIllumination};
+use crate::ops::{BandMut, BandView, OpError, PackedIllumination, PackedOut};
 use crate::pipeline::{PipelineError, Scratch as PipelineScratch};
 use bytes::Bytes;
 use lightfold_protocol::{BandHeader, Layer, PixelFormat};
@@ -147,6 +147,34 @@ pub(crate) fn combine(
                 })
             })
             .collect();
+        if let [(Layer::Illumination, format)] = cfg.outputs[..] {
+            // The sum is packed block by block as it is made (`ops::packed_out`): composite and
+            // pack are one pass, timed as composite.
+            let mut header = header(plan, frame, Layer::Illumination, format, y0, rows, scale);
+            let mut bytes = scratch.pool.take(pixels * format.bytes_per_pixel());
+            let target = PackedOut {
+                layer: Layer::Illumination,
+                format,
+                scale,
+                bytes: &mut bytes,
+            };
+            let summary = acc
+                .apply_packed_to(&packed, pixels, target)
+                .map_err(ComputeError::Fused)?;
+            let mut out = out;
+            out.composite = start.elapsed();
+            if !summary.nonzero {
+                scratch.pool.put(bytes);
+                let band = empty_band(header, &mut out);
+                out.bands.push(band);
+                return Ok(out);
+            }
+            header.payload_len = u32::try_from(bytes.len()).unwrap_or(u32::MAX);
+            header.checksum = summary.checksum();
+            let band = pooled_band(header, bytes, summary.saturated, &mut out, &scratch.pool);
+            out.bands.push(band);
+            return Ok(out);
+        }
         scratch.outs.resize_with(1, Vec::new);
         scratch.outs[0].resize(pixels * Layer::Illumination.channels(), 0.0);
         let mut band_mut = BandMut::new(pixels).with(Layer::Illumination, &mut scratch.outs[0]);
@@ -264,10 +292,8 @@ fn relay(
         };
         let mut h = header(plan, frame, layer, format, y0, rows, scale);
         if band.header.empty {
-            h.empty = true;
-            h.seal(&[]);
-            out.empty += 1;
-            out.bands.push((h, Bytes::new()));
+            let empty = empty_band(h, &mut out);
+            out.bands.push(empty);
         } else if band.header.format == format {
             h.scale = band.header.scale;
             h.saturated = band.header.saturated;
@@ -329,10 +355,7 @@ fn pack_band(
     pool: &Arc<BufferPool>,
 ) -> Result<(BandHeader, Bytes), ComputeError> {
     if values.iter().all(|v| *v == 0.0) {
-        header.empty = true;
-        header.seal(&[]);
-        out.empty += 1;
-        return Ok((header, Bytes::new()));
+        return Ok(empty_band(header, out));
     }
     let len = values.len() / header.format.channels() * header.format.bytes_per_pixel();
     let mut bytes = pool.take(len);
@@ -343,12 +366,31 @@ fn pack_band(
             reason,
         }
     })?;
+    header.seal(&bytes);
+    Ok(pooled_band(header, bytes, saturated, out, pool))
+}
+
+/// An all-zero band: sent as an empty band with no payload.
+fn empty_band(mut header: BandHeader, out: &mut BandOut) -> (BandHeader, Bytes) {
+    header.empty = true;
+    header.seal(&[]);
+    out.empty += 1;
+    (header, Bytes::new())
+}
+
+/// A packed and sealed payload from `pool`, which gets the buffer back when the band is sent.
+fn pooled_band(
+    mut header: BandHeader,
+    bytes: Vec<u8>,
+    saturated: u64,
+    out: &mut BandOut,
+    pool: &Arc<BufferPool>,
+) -> (BandHeader, Bytes) {
     header.saturated = u32::try_from(saturated).unwrap_or(u32::MAX);
     out.saturated += saturated;
-    header.seal(&bytes);
     let pooled = Pooled {
         buf: bytes,
         pool: Arc::clone(pool),
     };
-    Ok((header, Bytes::from_owner(pooled)))
+    (header, Bytes::from_owner(pooled))
 }

@@ -9,7 +9,10 @@ use super::decode::{BPP, Decoder, Shape};
 use super::fast::{Kind, Term, finish, init, terms};
 use super::{Accumulate, AmbientMask, NAME};
 use crate::ops::dispatch::{self, Isa, Kernel};
-use crate::ops::{BLOCK, BandMut, OpError, Operator, Signature, check_band, for_spans};
+use crate::ops::packed_out::{SpanOut, check_outs, for_packed_spans, pack_block};
+use crate::ops::{
+    BLOCK, BandMut, OpError, Operator, PackSummary, PackedOut, Signature, check_band, for_spans,
+};
 use lightfold_protocol::format::{self, FormatError};
 use lightfold_protocol::{Layer, PixelFormat};
 use std::sync::Mutex;
@@ -28,6 +31,9 @@ pub struct PackedIllumination<'a> {
 enum Source<'a> {
     /// Decoded by `decode` straight into the sum.
     Direct(Decoder, &'a [u8]),
+    /// `f16x6`, decoded inside the block loop (`format::decode_half`, so compiled for the
+    /// kernel's instruction set) into the sum or the block buffer.
+    Halves(&'a [u8]),
     /// Unpacked by `protocol::format::unpack` into the block buffer, then added.
     Staged(PackedIllumination<'a>),
 }
@@ -36,8 +42,19 @@ impl<'a> Source<'a> {
     fn of(p: PackedIllumination<'a>) -> Source<'a> {
         match Decoder::of(p.format, p.scale) {
             Some(d) => Source::Direct(d, p.bytes),
+            None if p.format == PixelFormat::F16x6 => Source::Halves(p.bytes),
             None => Source::Staged(p),
         }
+    }
+}
+
+/// Decodes the `f16x6` pixels `px..px + o.len() / 6` of `bytes` into `o`. The values are
+/// finite and in [0, 65504], so the clamp `init` and the terms apply is the identity on them.
+#[inline(always)]
+fn decode_halves(bytes: &[u8], px: usize, o: &mut [f32]) {
+    let bytes = &bytes[px * 12..px * 12 + o.len() * 2];
+    for (o, h) in o.iter_mut().zip(bytes.as_chunks::<2>().0) {
+        *o = format::decode_half(u16::from_le_bytes(*h));
     }
 }
 
@@ -55,57 +72,97 @@ struct Band<'a> {
     locals: Vec<(Term, Option<Source<'a>>, usize)>,
 }
 
-/// The block loop over one span of the output, starting at pixel `first`.
-struct Span<'s, 'a> {
-    band: &'s Band<'a>,
-    first: usize,
-    out: &'s mut [f32],
+/// Where a span's blocks go: f32 values, or packed at once into the outgoing payload.
+enum Dest<'s, 'b> {
+    Values(&'s mut [f32]),
+    Packed(&'s mut SpanOut<'b>),
 }
 
-impl Kernel for Span<'_, '_> {
+/// The block loop over one span of the output, starting at pixel `first`.
+struct Span<'s, 'a, 'b> {
+    band: &'s Band<'a>,
+    first: usize,
+    out: Dest<'s, 'b>,
+}
+
+impl Span<'_, '_, '_> {
+    /// Block `o` (whole pixels from `px`) of the sum; `x` is a block buffer as long.
+    #[inline(always)]
+    fn block(&self, isa: Isa, px: usize, o: &mut [f32], x: &mut [f32]) -> Result<(), OpError> {
+        let n = o.len() / 6;
+        match &self.band.up {
+            // Decoded values are finite and non-negative: the clamp is the identity.
+            Some(Source::Direct(d, bytes)) => {
+                d.load(Shape::best(isa, d), o, &bytes[px * BPP..(px + n) * BPP])
+            }
+            Some(Source::Halves(bytes)) => decode_halves(bytes, px, o),
+            Some(Source::Staged(p)) => {
+                unpack_block(p, px, x).map_err(|e| packed_error(0, e))?;
+                init(o, Some(x));
+            }
+            None => init(o, None),
+        }
+        for (t, src, input) in &self.band.locals {
+            match (src, t.kind) {
+                (None, _) => t.add(o, None, None),
+                (Some(Source::Direct(d, bytes)), kind) => {
+                    let bytes = &bytes[px * BPP..(px + n) * BPP];
+                    match (Shape::best(isa, d), kind) {
+                        (Shape::Staged, _) => {
+                            d.load(Shape::Staged, x, bytes);
+                            t.add(o, Some(x), None);
+                        }
+                        (shape, Kind::Plain) => d.madd::<false>(shape, o, bytes, &t.cg),
+                        (shape, Kind::Uniform) => d.madd::<true>(shape, o, bytes, &t.cg),
+                        (_, Kind::Masked) => {
+                            unreachable!("apply_packed refuses masked folding")
+                        }
+                    }
+                }
+                (Some(Source::Halves(bytes)), _) => {
+                    decode_halves(bytes, px, x);
+                    t.add(o, Some(x), None);
+                }
+                (Some(Source::Staged(p)), _) => {
+                    unpack_block(p, px, x).map_err(|e| packed_error(*input, e))?;
+                    t.add(o, Some(x), None);
+                }
+            }
+        }
+        finish(o);
+        Ok(())
+    }
+}
+
+impl Kernel for Span<'_, '_, '_> {
     type Output = Result<(), OpError>;
 
     #[inline(always)]
-    fn run(self, isa: Isa) -> Result<(), OpError> {
+    fn run(mut self, isa: Isa) -> Result<(), OpError> {
         let mut buf = [0f32; BLOCK * 6];
-        for (b, o) in self.out.chunks_mut(BLOCK * 6).enumerate() {
-            let (px, n) = (self.first + b * BLOCK, o.len() / 6);
-            let x = &mut buf[..n * 6];
-            match &self.band.up {
-                // Decoded values are finite and non-negative: the clamp is the identity.
-                Some(Source::Direct(d, bytes)) => {
-                    d.load(Shape::best(isa, d), o, &bytes[px * BPP..(px + n) * BPP])
-                }
-                Some(Source::Staged(p)) => {
-                    unpack_block(p, px, x).map_err(|e| packed_error(0, e))?;
-                    init(o, Some(x));
-                }
-                None => init(o, None),
-            }
-            for (t, src, input) in &self.band.locals {
-                match (src, t.kind) {
-                    (None, _) => t.add(o, None, None),
-                    (Some(Source::Direct(d, bytes)), kind) => {
-                        let bytes = &bytes[px * BPP..(px + n) * BPP];
-                        match (Shape::best(isa, d), kind) {
-                            (Shape::Staged, _) => {
-                                d.load(Shape::Staged, x, bytes);
-                                t.add(o, Some(x), None);
-                            }
-                            (shape, Kind::Plain) => d.madd::<false>(shape, o, bytes, &t.cg),
-                            (shape, Kind::Uniform) => d.madd::<true>(shape, o, bytes, &t.cg),
-                            (_, Kind::Masked) => {
-                                unreachable!("apply_packed refuses masked folding")
-                            }
-                        }
-                    }
-                    (Some(Source::Staged(p)), _) => {
-                        unpack_block(p, px, x).map_err(|e| packed_error(*input, e))?;
-                        t.add(o, Some(x), None);
-                    }
+        match std::mem::replace(&mut self.out, Dest::Values(&mut [])) {
+            Dest::Values(out) => {
+                for (b, o) in out.chunks_mut(BLOCK * 6).enumerate() {
+                    let x = &mut buf[..o.len()];
+                    self.block(isa, self.first + b * BLOCK, o, x)?;
                 }
             }
-            finish(o);
+            Dest::Packed(out) => {
+                let mut sum = [0f32; BLOCK * 6];
+                let bpp = out.format.bytes_per_pixel();
+                for (b, bytes) in out.bytes.chunks_mut(BLOCK * bpp).enumerate() {
+                    let n = bytes.len() / bpp;
+                    let (o, x) = (&mut sum[..n * 6], &mut buf[..n * 6]);
+                    self.block(isa, self.first + b * BLOCK, o, x)?;
+                    pack_block(out.format, out.scale, o, bytes, &mut out.summary).map_err(
+                        |source| OpError::Pack {
+                            op: NAME,
+                            layer: Layer::Illumination,
+                            source,
+                        },
+                    )?;
+                }
+            }
         }
         Ok(())
     }
@@ -146,6 +203,79 @@ impl Accumulate {
         inputs: &[Option<PackedIllumination<'_>>],
         out: &mut BandMut<'_>,
     ) -> Result<(), OpError> {
+        let sig = self.signature();
+        let outputs_only = Signature {
+            inputs: vec![],
+            outputs: sig.outputs,
+        };
+        check_band(NAME, &outputs_only, &[], out)?;
+        let pixels = out.pixels;
+        let band = self.packed_band(isa, inputs, pixels)?;
+        let failure: Mutex<Option<OpError>> = Mutex::new(None);
+        let dst = out.layer_mut(Layer::Illumination).expect("checked");
+        for_spans(pixels, vec![(6, dst)], |first, outs| {
+            let span = Span {
+                band: &band,
+                first,
+                out: Dest::Values(&mut *outs[0]),
+            };
+            if let Err(e) = dispatch::run(isa, span) {
+                fail(&failure, e);
+            }
+        });
+        match failure.into_inner().unwrap_or_else(|p| p.into_inner()) {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
+    /// `apply_packed` with the sum packed as it is made: `out` is the outgoing illumination
+    /// band's payload for `pixels` pixels. Gives the bytes, checksum and counts of packing
+    /// `apply_packed`'s result with `protocol::format::pack` (`ops::packed_out`).
+    pub fn apply_packed_to(
+        &self,
+        inputs: &[Option<PackedIllumination<'_>>],
+        pixels: usize,
+        out: PackedOut<'_>,
+    ) -> Result<PackSummary, OpError> {
+        self.apply_packed_to_on(Isa::best(), inputs, pixels, out)
+    }
+
+    /// `apply_packed_to` on the instruction set `isa` (as `apply_packed_on`).
+    pub fn apply_packed_to_on(
+        &self,
+        isa: Isa,
+        inputs: &[Option<PackedIllumination<'_>>],
+        pixels: usize,
+        out: PackedOut<'_>,
+    ) -> Result<PackSummary, OpError> {
+        if out.layer != Layer::Illumination {
+            return Err(OpError::MissingOutput {
+                op: NAME,
+                layer: Layer::Illumination,
+            });
+        }
+        let mut outs = [out];
+        check_outs(NAME, pixels, &outs)?;
+        let band = self.packed_band(isa, inputs, pixels)?;
+        let mut done = for_packed_spans(pixels, &mut outs, |first, outs| {
+            let span = Span {
+                band: &band,
+                first,
+                out: Dest::Packed(&mut outs[0]),
+            };
+            dispatch::run(isa, span)
+        })?;
+        Ok(done.pop().unwrap_or_default())
+    }
+
+    /// Checks the packed inputs of a band of `pixels` pixels and says how the kernel reads them.
+    fn packed_band<'a>(
+        &self,
+        isa: Isa,
+        inputs: &[Option<PackedIllumination<'a>>],
+        pixels: usize,
+    ) -> Result<Band<'a>, OpError> {
         if !isa.available() {
             return Err(OpError::IsaUnavailable { isa });
         }
@@ -157,11 +287,6 @@ impl Accumulate {
                 got: inputs.len(),
             });
         }
-        let outputs_only = Signature {
-            inputs: vec![],
-            outputs: sig.outputs,
-        };
-        check_band(NAME, &outputs_only, &[], out)?;
         if let Some(j) =
             (0..self.coeffs.len()).find(|&j| matches!(self.fold_of(j), Some(AmbientMask::Layer)))
         {
@@ -171,7 +296,6 @@ impl Accumulate {
                 layer: Layer::Ambient,
             });
         }
-        let pixels = out.pixels;
         for (i, p) in inputs.iter().enumerate() {
             let Some(p) = p else { continue };
             if p.format.channels() != 6 {
@@ -195,7 +319,7 @@ impl Accumulate {
             }
         }
         let first_local = usize::from(self.params.upstream);
-        let band = Band {
+        Ok(Band {
             up: inputs[0].filter(|_| self.params.upstream).map(Source::of),
             locals: terms(self)
                 .into_iter()
@@ -203,22 +327,6 @@ impl Accumulate {
                 .enumerate()
                 .map(|(j, (t, p))| (t, p.map(Source::of), first_local + j))
                 .collect(),
-        };
-        let failure: Mutex<Option<OpError>> = Mutex::new(None);
-        let dst = out.layer_mut(Layer::Illumination).expect("checked");
-        for_spans(pixels, vec![(6, dst)], |first, outs| {
-            let span = Span {
-                band: &band,
-                first,
-                out: &mut *outs[0],
-            };
-            if let Err(e) = dispatch::run(isa, span) {
-                fail(&failure, e);
-            }
-        });
-        match failure.into_inner().unwrap_or_else(|p| p.into_inner()) {
-            Some(e) => Err(e),
-            None => Ok(()),
-        }
+        })
     }
 }
