@@ -28,7 +28,7 @@ use serde_json::Value;
 use std::fmt;
 
 pub use accumulate::{Accumulate, PackedIllumination};
-pub use depth::Depth;
+pub use depth::{Depth, PackedLayer};
 pub use dispatch::Isa;
 pub use join::Join;
 pub use material::{Material, MaterialStage};
@@ -185,6 +185,12 @@ pub enum OpError {
         op: &'static str,
         layer: Layer,
         source: lightfold_protocol::format::FormatError,
+    },
+    #[error("operator {op}: no packed path for layer {layer:?} as {format:?} in this band")]
+    PackedFormat {
+        op: &'static str,
+        layer: Layer,
+        format: lightfold_protocol::PixelFormat,
     },
     #[error("this cpu lacks the {isa} instruction set")]
     IsaUnavailable { isa: Isa },

@@ -63,6 +63,15 @@ pub(crate) fn pack_block(
     Ok(())
 }
 
+/// Adds `bytes`, already packed in place by a kernel that selects packed values instead of packing
+/// f32 (`depth`), to `summary`: their `saturated` pixels and whether any value was not zero.
+#[inline]
+pub(crate) fn add_packed(summary: &mut PackSummary, bytes: &[u8], saturated: u64, nonzero: bool) {
+    summary.nonzero |= nonzero;
+    summary.saturated += saturated;
+    summary.hasher.update(bytes);
+}
+
 /// Checks that every output's payload holds exactly `pixels` pixels of its format.
 pub(crate) fn check_outs(op: &'static str, pixels: usize, outs: &[PackedOut<'_>]) -> Result<(), OpError> {
     for o in outs {

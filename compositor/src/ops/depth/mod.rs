@@ -11,6 +11,11 @@
 //! input, the winner is repeated per value of a 3- or 6-channel layer, and every carried layer is
 //! then a flat select between the inputs' values, so no loop has a per-pixel branch, broadcast or
 //! gather. The block loop is a dispatched kernel (`ops::dispatch`, the same bits on every path).
+//! `apply_packed` (`packed.rs`) selects straight from the link bytes into the outgoing payloads.
+
+mod packed;
+
+pub use packed::PackedLayer;
 
 use super::dispatch::{self, Isa, Kernel};
 use super::params::{self, de_layers, ser_layers};

@@ -1,0 +1,502 @@
+//! `Depth::apply_packed`: the nearest-z select from the bands as they arrived on their links
+//! straight into the outgoing payloads, for the link formats where selecting a value's bits is
+//! exactly what unpacking, `apply` and packing would do to it. Unpack maps every depth to a finite
+//! value and every colour value into its format's range, the colour policy leaves such values
+//! alone, and packing a value already in range gives back its bits; so the round trip of a
+//! selected colour word is a fixed map of its bits (`Word::clean`: finite non-negative values
+//! travel unchanged, +Inf becomes the largest finite value, NaN and everything with the sign bit,
+//! −0 included, becomes +0), and nothing ever counts as saturated (pack sees no value beyond the
+//! range). Per block of `BLOCK` pixels one pass over the depth words finds each pixel's winner,
+//! the winner is repeated per word of each colour layer, every word is a flat select of cleaned
+//! words, and the checksum and zero test are folded in while the block is in L1
+//! (`ops::packed_out`). The block loop is a dispatched kernel (`ops::dispatch`).
+
+use super::{Depth, NAME, widen};
+use crate::ops::dispatch::{self, Isa, Kernel};
+use crate::ops::packed_out::{SpanOut, add_packed, check_outs, for_packed_spans};
+use crate::ops::{BLOCK, OpError, PackSummary, PackedOut};
+use lightfold_protocol::format::FormatError;
+use lightfold_protocol::{Layer, PixelFormat};
+
+/// One layer of one input's band as it arrived on its link.
+#[derive(Debug, Clone, Copy)]
+pub struct PackedLayer<'a> {
+    pub layer: Layer,
+    pub format: PixelFormat,
+    /// The band header's scale (no format the packed path takes uses it).
+    pub scale: f32,
+    /// The payload; `None`: the band arrived empty, which reads as all zeros.
+    pub bytes: Option<&'a [u8]>,
+}
+
+/// Whether a carried colour layer in `format` can be selected as bits: formats whose unpack maps
+/// every word into a range that their pack reproduces exactly (no quantisation, no shared
+/// exponent, no scale, no sRGB curve).
+fn selectable(format: PixelFormat) -> bool {
+    matches!(
+        format,
+        PixelFormat::F16x6 | PixelFormat::F16x4 | PixelFormat::F32x6 | PixelFormat::F32x3
+    )
+}
+
+fn refuse(layer: Layer, format: PixelFormat) -> OpError {
+    OpError::PackedFormat {
+        op: NAME,
+        layer,
+        format,
+    }
+}
+
+impl Depth {
+    /// Whether `apply_packed` gives the general path's bytes (unpack, `apply`, pack) for a band
+    /// with these layers per input (`inputs[i]`, link order) and these outputs: depth is
+    /// `depth32` everywhere, every input carries exactly the depth and the carried layers, each
+    /// carried layer travels in one of `f16x6`, `f16x4`, `f32x6`, `f32x3` and in the same format
+    /// on every input and on the output, and no output is listed twice.
+    pub fn packed_supported(
+        &self,
+        inputs: &[Vec<(Layer, PixelFormat)>],
+        outputs: &[(Layer, PixelFormat)],
+    ) -> bool {
+        self.check_packed(inputs, outputs).is_ok()
+    }
+
+    /// `packed_supported` with the reason for a refusal.
+    fn check_packed(
+        &self,
+        inputs: &[Vec<(Layer, PixelFormat)>],
+        outputs: &[(Layer, PixelFormat)],
+    ) -> Result<(), OpError> {
+        let p = &self.params;
+        if inputs.len() != p.inputs {
+            return Err(OpError::InputCount {
+                op: NAME,
+                expected: p.inputs,
+                got: inputs.len(),
+            });
+        }
+        // The format of each carried layer, fixed by the first input that has it.
+        let mut carried: Vec<Option<PixelFormat>> = vec![None; p.layers.len()];
+        for (i, layers) in inputs.iter().enumerate() {
+            for (k, &(layer, format)) in layers.iter().enumerate() {
+                let twice = layers[..k].iter().any(|(l, _)| *l == layer);
+                let fits = if layer == Layer::Depth {
+                    format == PixelFormat::DepthF32
+                } else if let Some(j) = p.layers.iter().position(|l| *l == layer) {
+                    selectable(format)
+                        && format.channels() == layer.channels()
+                        && *carried[j].get_or_insert(format) == format
+                } else {
+                    // A layer the operator does not read: the general path would still unpack
+                    // it (and could fail on it), so the two paths could differ.
+                    false
+                };
+                if twice || !fits {
+                    return Err(refuse(layer, format));
+                }
+            }
+            for &layer in std::iter::once(&Layer::Depth).chain(&p.layers) {
+                if !layers.iter().any(|(l, _)| *l == layer) {
+                    return Err(OpError::MissingLayer {
+                        op: NAME,
+                        input: i,
+                        layer,
+                    });
+                }
+            }
+        }
+        for (k, &(layer, format)) in outputs.iter().enumerate() {
+            let want = if layer == Layer::Depth {
+                Some(PixelFormat::DepthF32)
+            } else {
+                let j = p.layers.iter().position(|l| *l == layer);
+                j.and_then(|j| carried[j])
+            };
+            if want != Some(format) || outputs[..k].iter().any(|(l, _)| *l == layer) {
+                return Err(refuse(layer, format));
+            }
+        }
+        Ok(())
+    }
+
+    /// Nearest-z select from packed inputs into packed outputs. `inputs[i]` holds input i's
+    /// layers as they arrived (any order), `outs` the outgoing payloads, all of the same pixel
+    /// count: any of the operator's output layers, in any order. Gives each output the bytes,
+    /// checksum, saturation count and zero test of unpacking every input layer (zeros for an
+    /// empty band), `apply`, and packing the output with `protocol::format::pack`, for the
+    /// formats `packed_supported` accepts; refuses the others (`OpError::PackedFormat`). Runs on
+    /// the widest instruction set this CPU has (`Isa::best`).
+    pub fn apply_packed(
+        &self,
+        inputs: &[Vec<PackedLayer<'_>>],
+        outs: &mut [PackedOut<'_>],
+    ) -> Result<Vec<PackSummary>, OpError> {
+        self.apply_packed_on(Isa::best(), inputs, outs)
+    }
+
+    /// `apply_packed` on the instruction set `isa` (the same bits on every one), which this CPU
+    /// must have (`Isa::available`); for tests and benchmarks of each path.
+    pub fn apply_packed_on(
+        &self,
+        isa: Isa,
+        inputs: &[Vec<PackedLayer<'_>>],
+        outs: &mut [PackedOut<'_>],
+    ) -> Result<Vec<PackSummary>, OpError> {
+        if !isa.available() {
+            return Err(OpError::IsaUnavailable { isa });
+        }
+        let formats: Vec<Vec<(Layer, PixelFormat)>> = inputs
+            .iter()
+            .map(|ls| ls.iter().map(|l| (l.layer, l.format)).collect())
+            .collect();
+        let out_formats: Vec<(Layer, PixelFormat)> =
+            outs.iter().map(|o| (o.layer, o.format)).collect();
+        self.check_packed(&formats, &out_formats)?;
+        let Some(first) = outs.first() else {
+            return Ok(Vec::new());
+        };
+        let pixels = first.bytes.len() / first.format.bytes_per_pixel();
+        check_outs(NAME, pixels, outs)?;
+        for (i, layers) in inputs.iter().enumerate() {
+            for l in layers {
+                let bpp = l.format.bytes_per_pixel();
+                match l.bytes {
+                    Some(b) if b.len() != pixels * bpp => {
+                        return Err(OpError::Packed {
+                            op: NAME,
+                            input: i,
+                            source: FormatError::PixelCount {
+                                format: l.format,
+                                expected: pixels,
+                                actual: b.len() / bpp,
+                            },
+                        });
+                    }
+                    _ => {}
+                }
+            }
+        }
+        // Checked above: every input has each layer once, so `find` is its band.
+        let of = |layer: Layer| -> Vec<Option<&[u8]>> {
+            inputs
+                .iter()
+                .map(|ls| ls.iter().find(|l| l.layer == layer).and_then(|l| l.bytes))
+                .collect()
+        };
+        let band = Band {
+            depth: of(Layer::Depth),
+            outs: outs
+                .iter()
+                .map(|o| match o.layer {
+                    Layer::Depth => Role::Depth,
+                    layer => Role::Colour(o.format, of(layer)),
+                })
+                .collect(),
+        };
+        let reversed = self.params.reversed_z;
+        for_packed_spans(pixels, outs, |first, outs| {
+            let span = Span {
+                band: &band,
+                first,
+                outs,
+            };
+            if reversed {
+                dispatch::run(isa, Select::<true>(span));
+            } else {
+                dispatch::run(isa, Select::<false>(span));
+            }
+            Ok(())
+        })
+    }
+}
+
+/// A band's payloads as the kernel reads them (`None`: an empty band).
+struct Band<'a> {
+    /// Each input's depth.
+    depth: Vec<Option<&'a [u8]>>,
+    /// What each output is, in `outs` order.
+    outs: Vec<Role<'a>>,
+}
+
+enum Role<'a> {
+    Depth,
+    /// A carried layer in its format (the same on every input and the output), per input.
+    Colour(PixelFormat, Vec<Option<&'a [u8]>>),
+}
+
+/// One span of every output, from pixel `first` of the band.
+struct Span<'s, 'a, 'o> {
+    band: &'s Band<'a>,
+    first: usize,
+    outs: &'s mut [SpanOut<'o>],
+}
+
+/// The block loop of `apply_packed`, with the depth reading fixed (`REVERSED`).
+struct Select<'s, 'a, 'o, const REVERSED: bool>(Span<'s, 'a, 'o>);
+
+/// Zero bytes standing in for an empty band: the largest block of words a source can give.
+static ZEROS: [u8; BLOCK * 24] = [0; BLOCK * 24];
+
+/// A packed little-endian word of a link format: a half or an f32, as its bits.
+trait Word: Copy + PartialEq {
+    type Le: Copy;
+    const ZERO: Self;
+    /// The pad of a padded format (1.0).
+    const ONE: Self;
+    fn from_le(b: Self::Le) -> Self;
+    fn to_le(self) -> Self::Le;
+    /// The word after unpack and pack (see the module documentation).
+    fn clean(self) -> Self;
+    fn words(b: &[u8]) -> &[Self::Le];
+    fn words_mut(b: &mut [u8]) -> &mut [Self::Le];
+}
+
+impl Word for u16 {
+    type Le = [u8; 2];
+    const ZERO: u16 = 0;
+    const ONE: u16 = 0x3C00;
+    #[inline(always)]
+    fn from_le(b: [u8; 2]) -> u16 {
+        u16::from_le_bytes(b)
+    }
+    #[inline(always)]
+    fn to_le(self) -> [u8; 2] {
+        self.to_le_bytes()
+    }
+    /// `decode_half` gives finite non-negative halves exactly, +Inf (0x7C00) as 65504 (0x7BFF),
+    /// NaN and the sign bit as 0; pack converts a half's exact value back to its bits.
+    #[inline(always)]
+    fn clean(self) -> u16 {
+        let kept = if self < 0x7C00 { self } else { 0 };
+        if self == 0x7C00 { 0x7BFF } else { kept }
+    }
+    #[inline(always)]
+    fn words(b: &[u8]) -> &[[u8; 2]] {
+        b.as_chunks::<2>().0
+    }
+    #[inline(always)]
+    fn words_mut(b: &mut [u8]) -> &mut [[u8; 2]] {
+        b.as_chunks_mut::<2>().0
+    }
+}
+
+impl Word for u32 {
+    type Le = [u8; 4];
+    const ZERO: u32 = 0;
+    const ONE: u32 = 0x3F80_0000;
+    #[inline(always)]
+    fn from_le(b: [u8; 4]) -> u32 {
+        u32::from_le_bytes(b)
+    }
+    #[inline(always)]
+    fn to_le(self) -> [u8; 4] {
+        self.to_le_bytes()
+    }
+    /// The f32 clamp to [0, `f32::MAX`] on the bits: positive finite values (subnormals too)
+    /// unchanged, +Inf to `f32::MAX`, NaN and the sign bit to +0.
+    #[inline(always)]
+    fn clean(self) -> u32 {
+        let kept = if self < 0x7F80_0000 { self } else { 0 };
+        if self == 0x7F80_0000 {
+            0x7F7F_FFFF
+        } else {
+            kept
+        }
+    }
+    #[inline(always)]
+    fn words(b: &[u8]) -> &[[u8; 4]] {
+        b.as_chunks::<4>().0
+    }
+    #[inline(always)]
+    fn words_mut(b: &mut [u8]) -> &mut [[u8; 4]] {
+        b.as_chunks_mut::<4>().0
+    }
+}
+
+/// Words `at..at + len` of a source, zeros for an empty band.
+#[inline(always)]
+fn part<W: Word>(src: Option<&[u8]>, at: usize, len: usize) -> &[W::Le] {
+    match src {
+        Some(b) => &W::words(b)[at..at + len],
+        None => &W::words(&ZEROS)[..len],
+    }
+}
+
+/// Words per pixel of a selectable format.
+fn words_of(format: PixelFormat) -> usize {
+    match format {
+        PixelFormat::F16x6 | PixelFormat::F16x4 => format.bytes_per_pixel() / 2,
+        _ => format.bytes_per_pixel() / 4,
+    }
+}
+
+impl<const REVERSED: bool> Kernel for Select<'_, '_, '_, REVERSED> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run(self, _isa: Isa) {
+        let Span { band, first, outs } = self.0;
+        let Some(o) = outs.first() else { return };
+        let pixels = o.bytes.len() / o.format.bytes_per_pixel();
+        let mut zo = [0f32; BLOCK];
+        let mut win = [0u32; BLOCK];
+        let mut wide = [0u32; BLOCK * 6];
+        let mut halves = [0u16; BLOCK * 6];
+        let mut floats = [0u32; BLOCK * 6];
+        for start in (0..pixels).step_by(BLOCK) {
+            let (n, lo) = (BLOCK.min(pixels - start), first + start);
+            nearest::<REVERSED>(&mut zo[..n], &mut win[..n], &band.depth, lo);
+            // Words per pixel `wide` holds the winners for in this block (0: none yet).
+            let mut widened = 0;
+            for (role, out) in band.outs.iter().zip(outs.iter_mut()) {
+                let bpp = out.format.bytes_per_pixel();
+                let bytes = &mut out.bytes[start * bpp..(start + n) * bpp];
+                let nonzero = match role {
+                    Role::Depth => store_depth(&zo[..n], bytes),
+                    Role::Colour(format, srcs) => {
+                        let words = words_of(*format);
+                        let wins = &mut wide[..n * words];
+                        if widened != words {
+                            match words {
+                                3 => widen::<3>(&win[..n], wins),
+                                4 => widen::<4>(&win[..n], wins),
+                                _ => widen::<6>(&win[..n], wins),
+                            }
+                            widened = words;
+                        }
+                        let at = lo * words;
+                        match format {
+                            PixelFormat::F16x4 => {
+                                let buf = &mut halves[..n * words];
+                                select(buf, srcs, at, wins);
+                                store_padded::<u16, 4>(buf, bytes)
+                            }
+                            PixelFormat::F16x6 => {
+                                let buf = &mut halves[..n * words];
+                                select(buf, srcs, at, wins);
+                                store(buf, bytes)
+                            }
+                            _ => {
+                                let buf = &mut floats[..n * words];
+                                select(buf, srcs, at, wins);
+                                store(buf, bytes)
+                            }
+                        }
+                    }
+                };
+                // Unpacked values are all inside the format's range: pack saturates none.
+                add_packed(&mut out.summary, bytes, 0, nonzero);
+            }
+        }
+    }
+}
+
+/// The reading of a `depth32` word as unpack (NaN → 0, ±Inf → ±`f32::MAX`) and then
+/// `Depth::read_ref` (reversed-Z: not positive → 0) leave it, as selects.
+#[inline(always)]
+fn key<const REVERSED: bool>(b: [u8; 4]) -> f32 {
+    let v = f32::from_le_bytes(b);
+    let x = if REVERSED {
+        if v > 0.0 { v } else { 0.0 }
+    } else {
+        let x = if v.is_nan() { 0.0 } else { v };
+        if x > -f32::MAX { x } else { -f32::MAX }
+    };
+    if x < f32::MAX { x } else { f32::MAX }
+}
+
+/// The nearest input of each pixel of a block (pixels `lo..`) into `win`, its depth as read into
+/// `zo`. Ties keep the lower input (strict comparison in input order), as `apply`.
+#[inline(always)]
+fn nearest<const REVERSED: bool>(
+    zo: &mut [f32],
+    win: &mut [u32],
+    depth: &[Option<&[u8]>],
+    lo: usize,
+) {
+    let n = zo.len();
+    for (o, z) in zo.iter_mut().zip(part::<u32>(depth[0], lo, n)) {
+        *o = key::<REVERSED>(*z);
+    }
+    win.fill(0);
+    for (i, d) in depth.iter().enumerate().skip(1) {
+        let i = i as u32;
+        let zs = part::<u32>(*d, lo, n);
+        for ((o, w), z) in zo.iter_mut().zip(win.iter_mut()).zip(zs) {
+            let z = key::<REVERSED>(*z);
+            let nearer = if REVERSED { z > *o } else { z < *o };
+            *o = if nearer { z } else { *o };
+            *w = if nearer { i } else { *w };
+        }
+    }
+}
+
+/// The cleaned word of the winning input for each word of a block (words `at..` of every
+/// source, `wins` the winner per word). Each word is cleaned before the select, so the select
+/// is between two computed values: a select between two plain loads becomes a load through a
+/// selected pointer, which vectorises only as a gather (see `carry` in `depth/mod.rs`).
+#[inline(always)]
+fn select<W: Word>(buf: &mut [W], srcs: &[Option<&[u8]>], at: usize, wins: &[u32]) {
+    let len = buf.len();
+    match srcs {
+        [s0] => {
+            for (d, a) in buf.iter_mut().zip(part::<W>(*s0, at, len)) {
+                *d = W::from_le(*a).clean();
+            }
+        }
+        [s0, s1, rest @ ..] => {
+            let (s0, s1) = (part::<W>(*s0, at, len), part::<W>(*s1, at, len));
+            for (((d, a), b), w) in buf.iter_mut().zip(s0).zip(s1).zip(wins) {
+                let (a, b) = (W::from_le(*a).clean(), W::from_le(*b).clean());
+                *d = if *w == 1 { b } else { a };
+            }
+            for (i, src) in rest.iter().enumerate() {
+                let i = i as u32 + 2;
+                for ((d, s), w) in buf.iter_mut().zip(part::<W>(*src, at, len)).zip(wins) {
+                    let s = W::from_le(*s).clean();
+                    *d = if *w == i { s } else { *d };
+                }
+            }
+        }
+        [] => {}
+    }
+}
+
+/// Writes a block of words little-endian; returns whether any is not zero.
+#[inline(always)]
+fn store<W: Word>(buf: &[W], bytes: &mut [u8]) -> bool {
+    // A flat OR (no early exit), so it vectorises.
+    let mut nonzero = false;
+    for (o, w) in W::words_mut(bytes).iter_mut().zip(buf) {
+        *o = w.to_le();
+        nonzero |= *w != W::ZERO;
+    }
+    nonzero
+}
+
+/// `store` for a padded format of `E` words per pixel: the last word of each pixel is written as
+/// the pad (as pack writes it, whatever the input's pad was) and is not a value.
+#[inline(always)]
+fn store_padded<W: Word, const E: usize>(buf: &[W], bytes: &mut [u8]) -> bool {
+    let mut nonzero = false;
+    let pixels = W::words_mut(bytes).as_chunks_mut::<E>().0;
+    for (o, p) in pixels.iter_mut().zip(buf.as_chunks::<E>().0) {
+        for c in 0..E - 1 {
+            o[c] = p[c].to_le();
+            nonzero |= p[c] != W::ZERO;
+        }
+        o[E - 1] = W::ONE.to_le();
+    }
+    nonzero
+}
+
+/// Writes a block of depths as read; returns whether any is not zero (−0 is zero).
+#[inline(always)]
+fn store_depth(zo: &[f32], bytes: &mut [u8]) -> bool {
+    let mut nonzero = false;
+    for (o, z) in bytes.as_chunks_mut::<4>().0.iter_mut().zip(zo) {
+        *o = z.to_le_bytes();
+        nonzero |= *z != 0.0;
+    }
+    nonzero
+}
