@@ -10,7 +10,8 @@
 
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
 use lightfold_compositor::ops::{
-    self, Accumulate, BandMut, BandView, Isa, Operator, Output, PackedIllumination,
+    self, Accumulate, BandMut, BandView, Depth, Isa, Operator, Output, PAR_SPAN,
+    PackedIllumination, PackedLayer, PackedOut,
 };
 use lightfold_protocol::format::pack;
 use lightfold_protocol::{Layer, PixelFormat};
@@ -41,6 +42,9 @@ struct Data {
     radiance: Vec<f32>,
     packed: Vec<(PixelFormat, Vec<u8>, Vec<u8>)>,
     f16_up: Vec<u8>,
+    f16_local: Vec<u8>,
+    /// `z` as `depth32` payloads.
+    z32: [Vec<u8>; 2],
 }
 
 impl Data {
@@ -48,6 +52,12 @@ impl Data {
         let mut r = ChaCha8Rng::seed_from_u64(1);
         let up = random(pixels * 6, &mut r);
         let local = random(pixels * 6, &mut r);
+        let z = [random(pixels, &mut r), random(pixels, &mut r)];
+        let z32 = z.clone().map(|z| {
+            let mut b = vec![0u8; pixels * 4];
+            pack(PixelFormat::DepthF32, &z, 1.0, &mut b).expect("valid band");
+            b
+        });
         let bands = [PixelFormat::Rgb9e5x2, PixelFormat::Seed64]
             .into_iter()
             .map(|f| (f, packed(f, &up, 4.0), packed(f, &local, 4.0)))
@@ -55,9 +65,11 @@ impl Data {
         Data {
             pixels,
             f16_up: packed(PixelFormat::F16x6, &up, 1.0),
+            f16_local: packed(PixelFormat::F16x6, &local, 1.0),
+            z32,
             up,
             local,
-            z: [random(pixels, &mut r), random(pixels, &mut r)],
+            z,
             diffuse: random(pixels * 3, &mut r),
             radiance: random(pixels * 3, &mut r),
             packed: bands,
@@ -122,6 +134,92 @@ fn bench_memcpy(
                     .for_each(|(d, s)| d.copy_from_slice(s));
             });
             black_box(&mut dst);
+        })
+    });
+}
+
+/// `depth` from two packed links (`f16x6` illumination + `depth32`) to the packed outgoing bands:
+/// `apply_packed` (`_packed` on the widest instruction set, suffixed on each narrower one) against
+/// the general path a stage runs without it in the same run: unpack every layer (split across the
+/// pool as the stage does), `apply`, and per output the all-zero test, pack and checksum.
+fn bench_depth_packed(
+    g: &mut criterion::BenchmarkGroup<'_, criterion::measurement::WallTime>,
+    pool: &rayon::ThreadPool,
+    d: &Data,
+) {
+    use Layer::{Depth as Z, Illumination as Ill};
+    use PixelFormat::{DepthF32, F16x6};
+    let px = d.pixels;
+    let op = Depth::new(&json!({"inputs": 2})).unwrap();
+    let ill = [&d.f16_up, &d.f16_local];
+    fn layer(layer: Layer, format: PixelFormat, bytes: &[u8]) -> PackedLayer<'_> {
+        PackedLayer {
+            layer,
+            format,
+            scale: 1.0,
+            bytes: Some(bytes),
+        }
+    }
+    let inputs: Vec<Vec<PackedLayer<'_>>> = (0..2)
+        .map(|i| vec![layer(Ill, F16x6, ill[i]), layer(Z, DepthF32, &d.z32[i])])
+        .collect();
+    let (mut zout, mut iout) = (vec![0u8; px * 4], vec![0u8; px * 12]);
+    for isa in Isa::ALL.into_iter().filter(|i| i.available()) {
+        let name = if isa == Isa::best() {
+            "depth_f16x6_packed".to_string()
+        } else {
+            format!("depth_f16x6_packed_{isa}")
+        };
+        g.bench_function(name, |b| {
+            b.iter(|| {
+                let out = |layer, format, bytes| PackedOut {
+                    layer,
+                    format,
+                    scale: 1.0,
+                    bytes,
+                };
+                let mut outs = [out(Z, DepthF32, &mut zout), out(Ill, F16x6, &mut iout)];
+                let sums = pool.install(|| op.apply_packed_on(isa, &inputs, &mut outs));
+                black_box(sums.unwrap());
+            })
+        });
+    }
+    let mut zs = [vec![0f32; px], vec![0f32; px]];
+    let mut ills = [vec![0f32; px * 6], vec![0f32; px * 6]];
+    let (mut zo, mut io) = (vec![0f32; px], vec![0f32; px * 6]);
+    g.bench_function("depth_f16x6_unpack_apply_pack", |b| {
+        b.iter(|| {
+            pool.install(|| {
+                fn unpack(f: PixelFormat, bytes: &[u8], v: &mut [f32]) {
+                    let (bpp, ch) = (f.bytes_per_pixel(), f.channels());
+                    v.par_chunks_mut(PAR_SPAN * ch)
+                        .zip(bytes.par_chunks(PAR_SPAN * bpp))
+                        .for_each(|(v, b)| {
+                            lightfold_protocol::format::unpack(f, b, 1.0, v).unwrap()
+                        });
+                }
+                fn pack_band(f: PixelFormat, v: &[f32], bytes: &mut [u8]) -> (bool, u64, u32) {
+                    let nonzero = !v.iter().all(|v| *v == 0.0);
+                    let (bpp, ch) = (f.bytes_per_pixel(), f.channels());
+                    let saturated = v
+                        .par_chunks(PAR_SPAN * ch)
+                        .zip(bytes.par_chunks_mut(PAR_SPAN * bpp))
+                        .map(|(v, b)| pack(f, v, 1.0, b).unwrap().saturated)
+                        .sum();
+                    (nonzero, saturated, crc32fast::hash(bytes))
+                }
+                for i in 0..2 {
+                    unpack(F16x6, ill[i], &mut ills[i]);
+                    unpack(DepthF32, &d.z32[i], &mut zs[i]);
+                }
+                let views: Vec<BandView<'_>> = (0..2)
+                    .map(|i| BandView::new(px).with(Ill, &ills[i]).with(Z, &zs[i]))
+                    .collect();
+                let mut o = BandMut::new(px).with(Z, &mut zo).with(Ill, &mut io);
+                op.apply(&views, &mut o).unwrap();
+                black_box(pack_band(DepthF32, &zo, &mut zout));
+                black_box(pack_band(F16x6, &io, &mut iout));
+            })
         })
     });
 }
@@ -237,6 +335,8 @@ fn operators(c: &mut Criterion) {
             if scalar_too {
                 bench_op(&mut g, &pool, "depth_scalar", &*depth, &inputs, px, true);
             }
+
+            bench_depth_packed(&mut g, &pool, &d);
 
             let join = ops::create("join", &json!({"inputs": 2})).unwrap();
             bench_op(&mut g, &pool, "join", &*join, &two, px, false);
