@@ -412,3 +412,70 @@ async fn two_operators_fold_three_inputs_band_by_band() {
     assert_eq!(stats.empty_bands, 2);
     stage.stop().await;
 }
+
+/// A lone `depth` over `f16x6` colour and `depth32` z runs the stage's packed select path
+/// (`Depth::apply_packed`); the sink must get the in-memory operator's bits, ties, an empty
+/// colour band and an empty depth band (zeros: the nearest surface) included.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_depth_stage_selects_from_packed_bands_bit_for_bit() {
+    use lightfold_compositor::ops::{BandMut, BandView, Depth, Operator};
+    let size = (29, 17, 4);
+    let (w, h, _) = size;
+    let (f_ill, f_z) = (PixelFormat::F16x6, PixelFormat::DepthF32);
+    let z = Layer::Depth;
+    let stage = start_stage("z1").await;
+    let (mut sink, sink_addr) = sink().await;
+    let mut ctl = stage.control().await;
+    let params = r#"{"inputs": 2, "layers": ["illumination"]}"#;
+    let ops = [("depth", params)];
+    let layers = [(ILL, f_ill), (z, f_z)];
+    let out = [(z, f_z), (ILL, f_ill)];
+    let ins = vec![input("a", &layers), input("b", &layers)];
+    ctl.configure(config(1, size, ins, &ops, &out, &sink_addr), WAIT)
+        .await
+        .unwrap();
+    // Input b: no light in band 0 (an empty band); input a: no depth in band 1; rows 12..14
+    // of b copy a's depth (ties go to input 0).
+    let ill = [
+        quantised(f_ill, ILL, hdr(21, w, h, ILL, 0..0)),
+        quantised(f_ill, ILL, hdr(22, w, h, ILL, 0..4)),
+    ];
+    let za = hdr(23, w, h, z, 4..8);
+    let mut zb = hdr(24, w, h, z, 0..0);
+    let row = w as usize;
+    zb[12 * row..14 * row].copy_from_slice(&za[12 * row..14 * row]);
+    let imgs = [
+        [image(ILL, f_ill, ill[0].clone()), image(z, f_z, za.clone())],
+        [image(ILL, f_ill, ill[1].clone()), image(z, f_z, zb.clone())],
+    ];
+    let mut producers = [stage.producer("a").await, stage.producer("b").await];
+    ctl.render(1, 1, no_params()).await.unwrap();
+    for (p, img) in producers.iter_mut().zip(&imgs) {
+        p.send_frame(&shape(1, 1, size), img).await.unwrap();
+    }
+    let got = sink
+        .recv_frame(&shape(1, 1, size), &out, WAIT)
+        .await
+        .unwrap();
+    let stats = ctl.frame_done(1, WAIT).await.unwrap();
+
+    let pixels = (w * h) as usize;
+    let op = Depth::new(&serde_json::from_str(params).unwrap()).unwrap();
+    let views = [
+        BandView::new(pixels).with(ILL, &ill[0]).with(z, &za),
+        BandView::new(pixels).with(ILL, &ill[1]).with(z, &zb),
+    ];
+    let (mut want_z, mut want_ill) = (vec![0.0; pixels], vec![0.0; pixels * 6]);
+    let mut m = BandMut::new(pixels)
+        .with(z, &mut want_z)
+        .with(ILL, &mut want_ill);
+    op.apply(&views, &mut m).unwrap();
+    assert_eq!(got[0].data, want_z, "nearest depth");
+    assert_eq!(
+        got[1].data, want_ill,
+        "the nearest input's colour, bit for bit"
+    );
+    // Band 1's depth is all zeros (input a sent none and wins every pixel): sent empty.
+    assert_eq!(stats.empty_bands, 1);
+    stage.stop().await;
+}

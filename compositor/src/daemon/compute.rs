@@ -5,7 +5,9 @@
 use super::config::{Operators, StagePlan};
 use super::inputs::InBand;
 use super::pixels::{pack, unpack};
-use crate::ops::{BandMut, BandView, OpError, PackedIllumination, PackedOut};
+use crate::ops::{
+    BandMut, BandView, Depth, OpError, PackSummary, PackedIllumination, PackedLayer, PackedOut,
+};
 use crate::pipeline::{PipelineError, Scratch as PipelineScratch};
 use bytes::Bytes;
 use lightfold_protocol::{BandHeader, Layer, PixelFormat};
@@ -134,6 +136,18 @@ pub(crate) fn combine(
     let Some(pipeline) = ops.pipeline.as_ref() else {
         return relay(plan, frame, y0, rows, &received[0], scale, scratch, out);
     };
+    if let Some(depth) = &ops.depth {
+        return depth_packed(
+            plan,
+            depth,
+            frame,
+            (y0, rows),
+            received,
+            scale,
+            scratch,
+            out,
+        );
+    }
     if let Some(acc) = &ops.fused {
         // One accumulate over illumination-only inputs: add straight from the packed bytes.
         let packed: Vec<Option<PackedIllumination<'_>>> = received
@@ -150,7 +164,7 @@ pub(crate) fn combine(
         if let [(Layer::Illumination, format)] = cfg.outputs[..] {
             // The sum is packed block by block as it is made (`ops::packed_out`): composite and
             // pack are one pass, timed as composite.
-            let mut header = header(plan, frame, Layer::Illumination, format, y0, rows, scale);
+            let header = header(plan, frame, Layer::Illumination, format, y0, rows, scale);
             let mut bytes = scratch.pool.take(pixels * format.bytes_per_pixel());
             let target = PackedOut {
                 layer: Layer::Illumination,
@@ -163,15 +177,7 @@ pub(crate) fn combine(
                 .map_err(ComputeError::Fused)?;
             let mut out = out;
             out.composite = start.elapsed();
-            if !summary.nonzero {
-                scratch.pool.put(bytes);
-                let band = empty_band(header, &mut out);
-                out.bands.push(band);
-                return Ok(out);
-            }
-            header.payload_len = u32::try_from(bytes.len()).unwrap_or(u32::MAX);
-            header.checksum = summary.checksum();
-            let band = pooled_band(header, bytes, summary.saturated, &mut out, &scratch.pool);
+            let band = packed_band(header, bytes, &summary, &mut out, &scratch.pool);
             out.bands.push(band);
             return Ok(out);
         }
@@ -237,6 +243,81 @@ pub(crate) fn combine(
         .run(&views, &mut band_mut, &mut scratch.pipeline)
         .map_err(ComputeError::Pipeline)?;
     finish(plan, frame, y0, rows, scale, scratch, out, start)
+}
+
+/// A lone `depth` over layers it selects as bits (`Operators::depth`): every output is selected
+/// and packed in one pass from the packed inputs (`Depth::apply_packed`), timed as composite.
+#[allow(clippy::too_many_arguments)]
+fn depth_packed(
+    plan: &StagePlan,
+    depth: &Depth,
+    frame: u64,
+    (y0, rows): (u32, u32),
+    received: &[Vec<InBand>],
+    scale: f32,
+    scratch: &mut Scratch,
+    mut out: BandOut,
+) -> Result<BandOut, ComputeError> {
+    let start = Instant::now();
+    let pixels = plan.config.width as usize * rows as usize;
+    let inputs: Vec<Vec<PackedLayer<'_>>> = received
+        .iter()
+        .map(|layers| {
+            layers
+                .iter()
+                .map(|b| PackedLayer {
+                    layer: b.header.layer,
+                    format: b.header.format,
+                    scale: b.header.scale,
+                    bytes: (!b.header.empty).then_some(&b.payload[..]),
+                })
+                .collect()
+        })
+        .collect();
+    let outputs = &plan.config.outputs;
+    let mut buffers: Vec<Vec<u8>> = outputs
+        .iter()
+        .map(|(_, f)| scratch.pool.take(pixels * f.bytes_per_pixel()))
+        .collect();
+    let mut targets: Vec<PackedOut<'_>> = outputs
+        .iter()
+        .zip(buffers.iter_mut())
+        .map(|(&(layer, format), bytes)| PackedOut {
+            layer,
+            format,
+            scale,
+            bytes,
+        })
+        .collect();
+    let summaries = depth
+        .apply_packed(&inputs, &mut targets)
+        .map_err(ComputeError::Fused)?;
+    drop(targets);
+    out.composite = start.elapsed();
+    for ((&(layer, format), bytes), summary) in outputs.iter().zip(buffers).zip(&summaries) {
+        let header = header(plan, frame, layer, format, y0, rows, scale);
+        let band = packed_band(header, bytes, summary, &mut out, &scratch.pool);
+        out.bands.push(band);
+    }
+    Ok(out)
+}
+
+/// A payload a fused kernel packed (`ops::packed_out`), sealed with its summary: an empty band
+/// if every value was zero.
+fn packed_band(
+    mut header: BandHeader,
+    bytes: Vec<u8>,
+    summary: &PackSummary,
+    out: &mut BandOut,
+    pool: &Arc<BufferPool>,
+) -> (BandHeader, Bytes) {
+    if !summary.nonzero {
+        pool.put(bytes);
+        return empty_band(header, out);
+    }
+    header.payload_len = u32::try_from(bytes.len()).unwrap_or(u32::MAX);
+    header.checksum = summary.checksum();
+    pooled_band(header, bytes, summary.saturated, out, pool)
 }
 
 /// Packs the combined layers (`scratch.outs`, in `plan.produced` order) as the stage's outputs.

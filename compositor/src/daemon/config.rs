@@ -7,7 +7,7 @@
 //! unused stage inputs. Every stage input is read by exactly one operator. With no operator the
 //! stage relays its one input.
 
-use crate::ops::{Accumulate, OpError};
+use crate::ops::{Accumulate, Depth, OpError};
 use crate::pipeline::{Pipeline, PipelineError, Source};
 use lightfold_protocol::{CompositorConfig, ErrorCode, Layer, PixelFormat};
 
@@ -82,11 +82,14 @@ impl ConfigError {
 
 /// The operators of a stage: the pipeline (`None` for a relay) and, when the stage is one
 /// `accumulate` over illumination-only inputs, the same operator for the fused unpack-and-add
-/// path (`Accumulate::apply_packed`, bit-identical to unpacking and running the pipeline).
+/// path (`Accumulate::apply_packed`, bit-identical to unpacking and running the pipeline); a lone
+/// `depth` whose layers travel in formats it selects as bits, the same operator for its packed
+/// path (`Depth::apply_packed`, likewise bit-identical).
 #[derive(Debug, Default)]
 pub struct Operators {
     pub pipeline: Option<Pipeline>,
     pub fused: Option<Accumulate>,
+    pub depth: Option<Depth>,
 }
 
 /// A checked configuration, ready to run.
@@ -198,6 +201,17 @@ impl StagePlan {
             }
             _ => None,
         };
+        let depth = match c.ops.as_slice() {
+            [(name, params)] if name == crate::ops::depth::NAME => {
+                let params: serde_json::Value = serde_json::from_str(params).unwrap_or_default();
+                let layers: Vec<Vec<(Layer, PixelFormat)>> =
+                    c.inputs.iter().map(|i| i.layers.clone()).collect();
+                Depth::new(&params)
+                    .ok()
+                    .filter(|d| d.packed_supported(&layers, &c.outputs))
+            }
+            _ => None,
+        };
         let bands = c.height.div_ceil(c.band_height);
         let input_budget = c
             .inputs
@@ -222,7 +236,14 @@ impl StagePlan {
             input_budget,
             config,
         };
-        Ok((plan, Operators { pipeline, fused }))
+        Ok((
+            plan,
+            Operators {
+                pipeline,
+                fused,
+                depth,
+            },
+        ))
     }
 
     pub fn epoch(&self) -> u64 {
@@ -327,6 +348,26 @@ mod tests {
         assert_eq!(plan.produced, vec![Layer::Radiance]);
         let frame = 33 * 17 * 12 + 4 * BAND_OVERHEAD;
         assert_eq!(plan.input_budget[0], 2 * frame);
+    }
+
+    #[test]
+    fn a_lone_depth_takes_the_packed_path_only_for_formats_it_selects_as_bits() {
+        let depth = |ill: PixelFormat| {
+            let layers = [
+                (Layer::Illumination, ill),
+                (Layer::Depth, PixelFormat::DepthF32),
+            ];
+            let mut c = config();
+            c.inputs = vec![input("a", &layers), input("b", &layers)];
+            c.ops = vec![("depth".into(), r#"{"inputs": 2}"#.into())];
+            c.outputs = layers.to_vec();
+            StagePlan::new(c, 1 << 20).unwrap().1
+        };
+        let ops = depth(PixelFormat::F16x6);
+        assert!(ops.depth.is_some() && ops.pipeline.is_some() && ops.fused.is_none());
+        // rgb9e5x2 shares an exponent per triple: the select is not a copy of bits.
+        assert!(depth(PixelFormat::Rgb9e5x2).depth.is_none());
+        assert!(StagePlan::new(config(), 1 << 20).unwrap().1.depth.is_none());
     }
 
     #[test]
