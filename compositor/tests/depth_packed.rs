@@ -333,6 +333,27 @@ fn zero_outputs_match_general_path() {
         got[0].0, minus_zero,
         "the tie goes to input 0, whose -0 travels as read"
     );
+
+    // `f16x4` material whose channels are all −0 still carries a pad of 1.0: not a value.
+    let op = depth_op(json!({"inputs": 2, "layers": ["diffuse"]}));
+    let pads: Vec<u8> = (0..px)
+        .flat_map(|_| [0x8000u16, 0x8000, 0x8000, 0x3C00])
+        .flat_map(u16::to_le_bytes)
+        .collect();
+    let input = || {
+        vec![
+            Band {
+                layer: Diffuse,
+                format: F16x4,
+                bytes: Some(pads.clone()),
+            },
+            empty(Z, DepthF32),
+        ]
+    };
+    let outs = [(Diffuse, F16x4)];
+    compare(&op, &[input(), input()], &outs, px, "pads only");
+    let got = fused(&op, Isa::best(), &[input(), input()], &outs, px).expect("supported");
+    assert!(!got[0].3, "a pad counted as a value");
 }
 
 #[test]

@@ -11,7 +11,7 @@
 //! words, and the checksum and zero test are folded in while the block is in L1
 //! (`ops::packed_out`). The block loop is a dispatched kernel (`ops::dispatch`).
 
-use super::{Depth, NAME, widen};
+use super::{Depth, NAME, bad};
 use crate::ops::dispatch::{self, Isa, Kernel};
 use crate::ops::packed_out::{SpanOut, add_packed, check_outs, for_packed_spans};
 use crate::ops::{BLOCK, OpError, PackSummary, PackedOut};
@@ -38,6 +38,9 @@ fn selectable(format: PixelFormat) -> bool {
         PixelFormat::F16x6 | PixelFormat::F16x4 | PixelFormat::F32x6 | PixelFormat::F32x3
     )
 }
+
+/// Most inputs `apply_packed` takes (winners are 16-bit input indices).
+const MAX_INPUTS: usize = 1 << 16;
 
 fn refuse(layer: Layer, format: PixelFormat) -> OpError {
     OpError::PackedFormat {
@@ -74,6 +77,12 @@ impl Depth {
                 expected: p.inputs,
                 got: inputs.len(),
             });
+        }
+        // Winners share vector lanes with halves, as 16-bit input indices.
+        if p.inputs > MAX_INPUTS {
+            return Err(bad(format!(
+                "the packed path takes at most {MAX_INPUTS} inputs"
+            )));
         }
         // The format of each carried layer, fixed by the first input that has it.
         let mut carried: Vec<Option<PixelFormat>> = vec![None; p.layers.len()];
@@ -238,80 +247,66 @@ struct Select<'s, 'a, 'o, const REVERSED: bool>(Span<'s, 'a, 'o>);
 static ZEROS: [u8; BLOCK * 24] = [0; BLOCK * 24];
 
 /// A packed little-endian word of a link format: a half or an f32, as its bits.
-trait Word: Copy + PartialEq {
+trait Word: Copy + PartialEq + PartialOrd {
     type Le: Copy;
     const ZERO: Self;
+    /// +Inf, and the largest finite value, which unpack reads +Inf as.
+    const INF: Self;
+    const MAX: Self;
     /// The pad of a padded format (1.0).
     const ONE: Self;
     fn from_le(b: Self::Le) -> Self;
     fn to_le(self) -> Self::Le;
-    /// The word after unpack and pack (see the module documentation).
-    fn clean(self) -> Self;
+    /// Input index `i` as a winner of this width (`check_packed` bounds the input count).
+    fn input(i: u32) -> Self;
     fn words(b: &[u8]) -> &[Self::Le];
     fn words_mut(b: &mut [u8]) -> &mut [Self::Le];
-}
 
-impl Word for u16 {
-    type Le = [u8; 2];
-    const ZERO: u16 = 0;
-    const ONE: u16 = 0x3C00;
+    /// The word after unpack and pack. Unpack keeps finite non-negative values exactly (f16
+    /// subnormals and f32 subnormals too), reads +Inf as the largest finite value and NaN and
+    /// everything with the sign bit (−0 too) as +0; pack gives an in-range value its bits back.
+    /// As unsigned integers, the kept words are exactly those below +Inf.
     #[inline(always)]
-    fn from_le(b: [u8; 2]) -> u16 {
-        u16::from_le_bytes(b)
-    }
-    #[inline(always)]
-    fn to_le(self) -> [u8; 2] {
-        self.to_le_bytes()
-    }
-    /// `decode_half` gives finite non-negative halves exactly, +Inf (0x7C00) as 65504 (0x7BFF),
-    /// NaN and the sign bit as 0; pack converts a half's exact value back to its bits.
-    #[inline(always)]
-    fn clean(self) -> u16 {
-        let kept = if self < 0x7C00 { self } else { 0 };
-        if self == 0x7C00 { 0x7BFF } else { kept }
-    }
-    #[inline(always)]
-    fn words(b: &[u8]) -> &[[u8; 2]] {
-        b.as_chunks::<2>().0
-    }
-    #[inline(always)]
-    fn words_mut(b: &mut [u8]) -> &mut [[u8; 2]] {
-        b.as_chunks_mut::<2>().0
+    fn clean(self) -> Self {
+        let kept = if self < Self::INF { self } else { Self::ZERO };
+        if self == Self::INF { Self::MAX } else { kept }
     }
 }
 
-impl Word for u32 {
-    type Le = [u8; 4];
-    const ZERO: u32 = 0;
-    const ONE: u32 = 0x3F80_0000;
-    #[inline(always)]
-    fn from_le(b: [u8; 4]) -> u32 {
-        u32::from_le_bytes(b)
-    }
-    #[inline(always)]
-    fn to_le(self) -> [u8; 4] {
-        self.to_le_bytes()
-    }
-    /// The f32 clamp to [0, `f32::MAX`] on the bits: positive finite values (subnormals too)
-    /// unchanged, +Inf to `f32::MAX`, NaN and the sign bit to +0.
-    #[inline(always)]
-    fn clean(self) -> u32 {
-        let kept = if self < 0x7F80_0000 { self } else { 0 };
-        if self == 0x7F80_0000 {
-            0x7F7F_FFFF
-        } else {
-            kept
+macro_rules! word {
+    ($t:ty, $n:literal, inf: $inf:literal, max: $max:literal, one: $one:literal) => {
+        impl Word for $t {
+            type Le = [u8; $n];
+            const ZERO: $t = 0;
+            const INF: $t = $inf;
+            const MAX: $t = $max;
+            const ONE: $t = $one;
+            #[inline(always)]
+            fn from_le(b: [u8; $n]) -> $t {
+                <$t>::from_le_bytes(b)
+            }
+            #[inline(always)]
+            fn to_le(self) -> [u8; $n] {
+                self.to_le_bytes()
+            }
+            #[inline(always)]
+            fn input(i: u32) -> $t {
+                i as $t
+            }
+            #[inline(always)]
+            fn words(b: &[u8]) -> &[[u8; $n]] {
+                b.as_chunks::<$n>().0
+            }
+            #[inline(always)]
+            fn words_mut(b: &mut [u8]) -> &mut [[u8; $n]] {
+                b.as_chunks_mut::<$n>().0
+            }
         }
-    }
-    #[inline(always)]
-    fn words(b: &[u8]) -> &[[u8; 4]] {
-        b.as_chunks::<4>().0
-    }
-    #[inline(always)]
-    fn words_mut(b: &mut [u8]) -> &mut [[u8; 4]] {
-        b.as_chunks_mut::<4>().0
-    }
+    };
 }
+
+word!(u16, 2, inf: 0x7C00, max: 0x7BFF, one: 0x3C00);
+word!(u32, 4, inf: 0x7F80_0000, max: 0x7F7F_FFFF, one: 0x3F80_0000);
 
 /// Words `at..at + len` of a source, zeros for an empty band.
 #[inline(always)]
@@ -340,14 +335,16 @@ impl<const REVERSED: bool> Kernel for Select<'_, '_, '_, REVERSED> {
         let pixels = o.bytes.len() / o.format.bytes_per_pixel();
         let mut zo = [0f32; BLOCK];
         let mut win = [0u32; BLOCK];
-        let mut wide = [0u32; BLOCK * 6];
-        let mut halves = [0u16; BLOCK * 6];
-        let mut floats = [0u32; BLOCK * 6];
+        // The winners repeated per word, as words of the layer's width so the select compares
+        // lanes of one width.
+        let mut wide16 = [0u16; BLOCK * 6];
+        let mut wide32 = [0u32; BLOCK * 6];
         for start in (0..pixels).step_by(BLOCK) {
             let (n, lo) = (BLOCK.min(pixels - start), first + start);
-            nearest::<REVERSED>(&mut zo[..n], &mut win[..n], &band.depth, lo);
-            // Words per pixel `wide` holds the winners for in this block (0: none yet).
-            let mut widened = 0;
+            let win = &mut win[..n];
+            nearest::<REVERSED>(&mut zo[..n], win, &band.depth, lo);
+            // Words per pixel the wide winners hold for this block (0: not yet).
+            let (mut held16, mut held32) = (0, 0);
             for (role, out) in band.outs.iter().zip(outs.iter_mut()) {
                 let bpp = out.format.bytes_per_pixel();
                 let bytes = &mut out.bytes[start * bpp..(start + n) * bpp];
@@ -355,32 +352,26 @@ impl<const REVERSED: bool> Kernel for Select<'_, '_, '_, REVERSED> {
                     Role::Depth => store_depth(&zo[..n], bytes),
                     Role::Colour(format, srcs) => {
                         let words = words_of(*format);
-                        let wins = &mut wide[..n * words];
-                        if widened != words {
-                            match words {
-                                3 => widen::<3>(&win[..n], wins),
-                                4 => widen::<4>(&win[..n], wins),
-                                _ => widen::<6>(&win[..n], wins),
-                            }
-                            widened = words;
-                        }
                         let at = lo * words;
-                        match format {
-                            PixelFormat::F16x4 => {
-                                let buf = &mut halves[..n * words];
-                                select(buf, srcs, at, wins);
-                                store_padded::<u16, 4>(buf, bytes)
+                        if matches!(format, PixelFormat::F16x6 | PixelFormat::F16x4) {
+                            let wins = &mut wide16[..n * words];
+                            if held16 != words {
+                                widen_as(words, win, wins);
+                                held16 = words;
                             }
-                            PixelFormat::F16x6 => {
-                                let buf = &mut halves[..n * words];
-                                select(buf, srcs, at, wins);
-                                store(buf, bytes)
+                            let nonzero = select::<u16>(u16::words_mut(bytes), srcs, at, wins);
+                            if *format == PixelFormat::F16x4 {
+                                pad::<u16, 4>(u16::words_mut(bytes))
+                            } else {
+                                nonzero
                             }
-                            _ => {
-                                let buf = &mut floats[..n * words];
-                                select(buf, srcs, at, wins);
-                                store(buf, bytes)
+                        } else {
+                            let wins = &mut wide32[..n * words];
+                            if held32 != words {
+                                widen_as(words, win, wins);
+                                held32 = words;
                             }
+                            select::<u32>(u32::words_mut(bytes), srcs, at, wins)
                         }
                     }
                 };
@@ -388,6 +379,22 @@ impl<const REVERSED: bool> Kernel for Select<'_, '_, '_, REVERSED> {
                 add_packed(&mut out.summary, bytes, 0, nonzero);
             }
         }
+    }
+}
+
+/// Repeats each pixel's winner for its `words` words (3, 4 or 6).
+#[inline(always)]
+fn widen_as<W: Word>(words: usize, win: &[u32], wide: &mut [W]) {
+    #[inline(always)]
+    fn each<W: Word, const CH: usize>(win: &[u32], wide: &mut [W]) {
+        for (w, o) in win.iter().zip(wide.as_chunks_mut::<CH>().0) {
+            *o = [W::input(*w); CH];
+        }
+    }
+    match words {
+        3 => each::<W, 3>(win, wide),
+        4 => each::<W, 4>(win, wide),
+        _ => each::<W, 6>(win, wide),
     }
 }
 
@@ -432,60 +439,61 @@ fn nearest<const REVERSED: bool>(
 }
 
 /// The cleaned word of the winning input for each word of a block (words `at..` of every
-/// source, `wins` the winner per word). Each word is cleaned before the select, so the select
-/// is between two computed values: a select between two plain loads becomes a load through a
-/// selected pointer, which vectorises only as a gather (see `carry` in `depth/mod.rs`).
+/// source, `wins` the winner per word) into `dst`; returns whether any is not zero. Each word is
+/// cleaned before the select, so the select is between two computed values: a select between two
+/// plain loads becomes a load through a selected pointer, which vectorises only as a gather (see
+/// `carry` in `depth/mod.rs`).
 #[inline(always)]
-fn select<W: Word>(buf: &mut [W], srcs: &[Option<&[u8]>], at: usize, wins: &[u32]) {
-    let len = buf.len();
+fn select<W: Word>(dst: &mut [W::Le], srcs: &[Option<&[u8]>], at: usize, wins: &[W]) -> bool {
+    let len = dst.len();
     match srcs {
         [s0] => {
-            for (d, a) in buf.iter_mut().zip(part::<W>(*s0, at, len)) {
-                *d = W::from_le(*a).clean();
+            let mut nonzero = false;
+            for (d, a) in dst.iter_mut().zip(part::<W>(*s0, at, len)) {
+                let a = W::from_le(*a).clean();
+                *d = a.to_le();
+                nonzero |= a != W::ZERO;
             }
+            nonzero
         }
         [s0, s1, rest @ ..] => {
             let (s0, s1) = (part::<W>(*s0, at, len), part::<W>(*s1, at, len));
-            for (((d, a), b), w) in buf.iter_mut().zip(s0).zip(s1).zip(wins) {
+            // A flat OR (no early exit), so it vectorises.
+            let mut nonzero = false;
+            for (((d, a), b), w) in dst.iter_mut().zip(s0).zip(s1).zip(wins) {
                 let (a, b) = (W::from_le(*a).clean(), W::from_le(*b).clean());
-                *d = if *w == 1 { b } else { a };
+                let v = if *w == W::input(1) { b } else { a };
+                *d = v.to_le();
+                nonzero |= v != W::ZERO;
+            }
+            if rest.is_empty() {
+                return nonzero;
             }
             for (i, src) in rest.iter().enumerate() {
-                let i = i as u32 + 2;
-                for ((d, s), w) in buf.iter_mut().zip(part::<W>(*src, at, len)).zip(wins) {
+                let i = W::input(i as u32 + 2);
+                for ((d, s), w) in dst.iter_mut().zip(part::<W>(*src, at, len)).zip(wins) {
                     let s = W::from_le(*s).clean();
-                    *d = if *w == i { s } else { *d };
+                    *d = if *w == i { s.to_le() } else { *d };
                 }
             }
+            dst.iter()
+                .fold(false, |a, d| a | (W::from_le(*d) != W::ZERO))
         }
-        [] => {}
+        [] => false,
     }
 }
 
-/// Writes a block of words little-endian; returns whether any is not zero.
+/// Writes the pad of a padded format of `E` words per pixel (as pack writes it, whatever the
+/// input's pad was) over the last word of each pixel; returns whether any value (not pad) is not
+/// zero.
 #[inline(always)]
-fn store<W: Word>(buf: &[W], bytes: &mut [u8]) -> bool {
-    // A flat OR (no early exit), so it vectorises.
+fn pad<W: Word, const E: usize>(dst: &mut [W::Le]) -> bool {
     let mut nonzero = false;
-    for (o, w) in W::words_mut(bytes).iter_mut().zip(buf) {
-        *o = w.to_le();
-        nonzero |= *w != W::ZERO;
-    }
-    nonzero
-}
-
-/// `store` for a padded format of `E` words per pixel: the last word of each pixel is written as
-/// the pad (as pack writes it, whatever the input's pad was) and is not a value.
-#[inline(always)]
-fn store_padded<W: Word, const E: usize>(buf: &[W], bytes: &mut [u8]) -> bool {
-    let mut nonzero = false;
-    let pixels = W::words_mut(bytes).as_chunks_mut::<E>().0;
-    for (o, p) in pixels.iter_mut().zip(buf.as_chunks::<E>().0) {
-        for c in 0..E - 1 {
-            o[c] = p[c].to_le();
-            nonzero |= p[c] != W::ZERO;
+    for p in dst.as_chunks_mut::<E>().0 {
+        for v in &p[..E - 1] {
+            nonzero |= W::from_le(*v) != W::ZERO;
         }
-        o[E - 1] = W::ONE.to_le();
+        p[E - 1] = W::ONE.to_le();
     }
     nonzero
 }
