@@ -73,7 +73,11 @@ pub(crate) fn add_packed(summary: &mut PackSummary, bytes: &[u8], saturated: u64
 }
 
 /// Checks that every output's payload holds exactly `pixels` pixels of its format.
-pub(crate) fn check_outs(op: &'static str, pixels: usize, outs: &[PackedOut<'_>]) -> Result<(), OpError> {
+pub(crate) fn check_outs(
+    op: &'static str,
+    pixels: usize,
+    outs: &[PackedOut<'_>],
+) -> Result<(), OpError> {
     for o in outs {
         let expected = pixels * o.format.bytes_per_pixel();
         if o.bytes.len() != expected || o.format.channels() != o.layer.channels() {
@@ -126,12 +130,19 @@ where
         f(i * PAR_SPAN, &mut task)?;
         Ok(task.into_iter().map(|s| s.summary).collect::<Vec<_>>())
     };
-    let done: Vec<Vec<PackSummary>> =
-        if pixels < 2 * PAR_SPAN || rayon::current_num_threads() < 2 {
-            tasks.into_iter().enumerate().map(run).collect::<Result<_, OpError>>()?
-        } else {
-            tasks.into_par_iter().enumerate().map(run).collect::<Result<_, OpError>>()?
-        };
+    let done: Vec<Vec<PackSummary>> = if pixels < 2 * PAR_SPAN || rayon::current_num_threads() < 2 {
+        tasks
+            .into_iter()
+            .enumerate()
+            .map(run)
+            .collect::<Result<_, OpError>>()?
+    } else {
+        tasks
+            .into_par_iter()
+            .enumerate()
+            .map(run)
+            .collect::<Result<_, OpError>>()?
+    };
     let mut total = vec![PackSummary::default(); outs.len()];
     for span in &done {
         for (t, s) in total.iter_mut().zip(span) {
