@@ -18,6 +18,10 @@ pub struct Args {
     /// How long to keep dialing the downstream stage, in seconds.
     #[arg(long, default_value_t = 10.0)]
     pub dial_timeout: f64,
+    /// Threads that combine bands (a band is split across them). Raise it where the stage has
+    /// cores to itself; on a machine shared with other daemons one is faster.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=256))]
+    pub compute_threads: u16,
 }
 
 fn seconds(what: &str, s: f64) -> anyhow::Result<Duration> {
@@ -39,6 +43,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let mut opts = CompositorOptions::new(id, advertise, &token);
         opts.input_timeout = input_timeout;
         opts.dial_timeout = dial_timeout;
+        opts.compute_threads = usize::from(args.compute_threads);
         let shutdown = crate::lifecycle::shutdown_token(args.daemon.parent_pid);
         daemon::run(listener, opts, shutdown).await
     })

@@ -14,7 +14,7 @@
 //!
 //! `cargo bench -p lightfold-compositor --bench link` (add `-- --frames N` for more link samples,
 //! `--only link` or `--only pipeline` for one half, `--case NAME` for one link case, `--no-raw` to
-//! profile the stage path alone).
+//! profile the stage path alone, `--compute-threads N` for the stages' compute threads).
 
 #[path = "link/raw.rs"]
 mod raw;
@@ -35,6 +35,8 @@ use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 const TOKEN: &[u8] = b"bench-token";
+/// `--compute-threads N`: the stages' compute threads (default: `CompositorOptions`'s).
+static COMPUTE_THREADS: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
 const WAIT: Duration = Duration::from_secs(60);
 const ILL: Layer = Layer::Illumination;
 /// Bytes of framing around a band payload: length prefix, kind byte, header.
@@ -56,6 +58,9 @@ async fn stage(id: &str) -> (String, CancellationToken) {
     let addr = listener.local_addr().unwrap().to_string();
     let mut opts = CompositorOptions::new(id, addr.clone(), TOKEN);
     opts.timeouts = timeouts();
+    if let Some(&n) = COMPUTE_THREADS.get() {
+        opts.compute_threads = n;
+    }
     let token = CancellationToken::new();
     tokio::spawn(run(listener, opts, token.clone()));
     (addr, token)
@@ -454,6 +459,14 @@ fn main() {
             .get(i + 1)
             .and_then(|v| v.parse().ok())
             .unwrap_or(frames);
+    }
+    if let Some(n) = args
+        .iter()
+        .position(|a| a == "--compute-threads")
+        .and_then(|i| args.get(i + 1))
+        .and_then(|v| v.parse().ok())
+    {
+        let _ = COMPUTE_THREADS.set(n);
     }
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)

@@ -14,8 +14,8 @@ use lightfold_protocol::{ErrorCode, FrameParams, FrameStats, Message};
 use serde_json::json;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
+use tokio::sync::oneshot;
 use tokio::sync::{mpsc, watch};
-use tokio::task::JoinHandle;
 use tokio::time::Instant;
 
 /// Frame requests and configurations, in the order the coordinator sent them.
@@ -46,7 +46,7 @@ enum FrameError {
 }
 
 type Ops = Arc<Mutex<Operators>>;
-type Pending = JoinHandle<(Scratch, Result<BandOut, String>)>;
+type Pending = oneshot::Receiver<(Scratch, Result<BandOut, String>)>;
 
 pub(crate) struct Engine {
     pub ctx: SlotContext,
@@ -63,6 +63,8 @@ pub(crate) struct Engine {
     scale: f32,
     spare: Vec<Scratch>,
     pool: Arc<BufferPool>,
+    /// The threads bands are combined on (`CompositorOptions::compute_threads`).
+    compute: Arc<rayon::ThreadPool>,
 }
 
 impl Engine {
@@ -73,6 +75,7 @@ impl Engine {
         generation: watch::Receiver<u64>,
         input_timeout: Duration,
         daemon_id: String,
+        compute: Arc<rayon::ThreadPool>,
     ) -> Engine {
         Engine {
             ctx,
@@ -88,6 +91,7 @@ impl Engine {
             scale: 1.0,
             spare: Vec::new(),
             pool: Arc::default(),
+            compute,
         }
     }
 
@@ -338,12 +342,19 @@ impl Engine {
             .pop()
             .unwrap_or_else(|| Scratch::new(Arc::clone(&self.pool)));
         let scale = self.scale;
-        tokio::task::spawn_blocking(move || {
+        let (done, pending) = oneshot::channel();
+        // On the stage's compute pool: inside it a band splits across that pool's threads only.
+        self.compute.spawn(move || {
             let ops = ops.lock().unwrap_or_else(|e| e.into_inner());
-            let r = combine(&plan, &ops, frame, b, &received, scale, &mut scratch)
-                .map_err(|e| e.to_string());
-            (scratch, r)
-        })
+            let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                combine(&plan, &ops, frame, b, &received, scale, &mut scratch)
+                    .map_err(|e| e.to_string())
+            }))
+            .unwrap_or_else(|_| Err("the combine panicked".to_string()));
+            // The engine may have given up on this band (a reconfiguration, shutdown).
+            let _ = done.send((scratch, r));
+        });
+        pending
     }
 
     /// Waits for a combine whose result is no longer wanted, keeping its scratch.

@@ -56,6 +56,10 @@ pub struct CompositorOptions {
     pub dial_timeout: Duration,
     /// Counters the caller may read while the stage runs.
     pub metrics: Arc<StageMetrics>,
+    /// Threads that combine bands (a band is split across them). One by default: a stage's
+    /// links need CPU too, and on a machine shared with other stages and nodes a second compute
+    /// thread slowed the link benchmark (docs/compositor.md, "Link cost").
+    pub compute_threads: usize,
 }
 
 impl std::fmt::Debug for CompositorOptions {
@@ -66,6 +70,7 @@ impl std::fmt::Debug for CompositorOptions {
             .field("timeouts", &self.timeouts)
             .field("input_timeout", &self.input_timeout)
             .field("dial_timeout", &self.dial_timeout)
+            .field("compute_threads", &self.compute_threads)
             .finish_non_exhaustive()
     }
 }
@@ -81,6 +86,7 @@ impl CompositorOptions {
             input_timeout: Duration::from_secs(30),
             dial_timeout: Duration::from_secs(10),
             metrics: StageMetrics::new(),
+            compute_threads: 1,
         }
     }
 }
@@ -98,6 +104,11 @@ pub async fn run(
         anyhow::bail!("the cluster token is empty");
     }
     let identity = Identity::new(&opts.token, Role::Compositor, opts.daemon_id.clone());
+    let compute = rayon::ThreadPoolBuilder::new()
+        .num_threads(opts.compute_threads.max(1))
+        .thread_name(|i| format!("lightfold-compute-{i}"))
+        .build()
+        .map_err(|e| anyhow::anyhow!("cannot start the compute threads: {e}"))?;
     let tracker = TaskTracker::new();
     let (cmd_tx, cmd_rx) = mpsc::channel(QUEUED_FRAMES);
     let (out_tx, out_rx) = mpsc::channel(output::OUT_QUEUE);
@@ -123,6 +134,7 @@ pub async fn run(
         gen_rx,
         opts.input_timeout,
         opts.daemon_id.clone(),
+        Arc::new(compute),
     );
     tracker.spawn(engine.run(cmd_rx));
     let settings = output::WriterSettings {
