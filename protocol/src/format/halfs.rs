@@ -114,6 +114,30 @@ fn pack_padded<const IN: usize, const OUT: usize>(src: &[f32], dst: &mut [u8]) -
     saturated
 }
 
+/// The half nearest `v` (ties to even) as bits, for `v` in [0, 65504] (what `pack` clamps to):
+/// integer arithmetic and one f32 addition, no branch and no table, so a kernel's loop compiled
+/// for any instruction set vectorises it. Gives F16C's bits for every such `v`
+/// (`tests/halfs.rs` checks all of them). Normal results round by adding 0xFFF plus the kept
+/// mantissa's lowest bit below the cut; subnormal ones by adding 0.5, whose exponent puts the
+/// f32 rounding point at the half's last subnormal bit.
+#[inline(always)]
+pub fn encode(v: f32) -> u16 {
+    const HALF_MIN_NORMAL: u32 = 113 << 23;
+    const REBIAS: u32 = ((15 - 127i32) << 23) as u32;
+    const SUBNORMAL_MAGIC: u32 = 126 << 23;
+    let u = v.to_bits();
+    let odd = (u >> 13) & 1;
+    let normal = u.wrapping_add(REBIAS).wrapping_add(0xFFF + odd) >> 13;
+    let subnormal = (v + f32::from_bits(SUBNORMAL_MAGIC))
+        .to_bits()
+        .wrapping_sub(SUBNORMAL_MAGIC);
+    (if u < HALF_MIN_NORMAL {
+        subnormal
+    } else {
+        normal
+    }) as u16
+}
+
 /// One half (its bits) as the clamped f32 unpack yields: finite positive values exactly, +Inf →
 /// 65504, NaN and everything with the sign bit (−0 included) → 0.
 #[inline(always)]

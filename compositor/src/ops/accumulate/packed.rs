@@ -154,7 +154,7 @@ impl Kernel for Span<'_, '_, '_> {
                     let n = bytes.len() / bpp;
                     let (o, x) = (&mut sum[..n * 6], &mut buf[..n * 6]);
                     self.block(isa, self.first + b * BLOCK, o, x)?;
-                    pack_block(out.format, out.scale, o, bytes, &mut out.summary).map_err(
+                    pack_block(isa, out.format, out.scale, o, bytes, &mut out.summary).map_err(
                         |source| OpError::Pack {
                             op: NAME,
                             layer: Layer::Illumination,
