@@ -1,13 +1,16 @@
 //! `Accumulate::apply_packed`: unpack and accumulate fused, from the bands as they arrived on
 //! their links. Per block of `BLOCK` pixels, `rgb9e5x2` and `seed64` inputs are decoded straight
-//! into the sum (`decode.rs`) and other formats are unpacked into an L1 buffer just before they
-//! are added, so a packed band is read once and never expanded to a full f32 band. The block loop
-//! is a dispatched kernel (`ops::dispatch`): the decode is limited by arithmetic, which wider
-//! vectors speed up.
+//! into the sum (`decode.rs`), `f16x6` and `f32x6` are decoded inside the loop, and other formats
+//! are unpacked into an L1 buffer just before they are added, so a packed band is read once and
+//! never expanded to a full f32 band. `apply_packed_to` also packs each finished block into the
+//! outgoing payload (`ops::packed_out`), so the sum never leaves L1 either. The block loop is a
+//! dispatched kernel (`ops::dispatch`): the decode is limited by arithmetic, which wider vectors
+//! speed up.
 
 use super::decode::{BPP, Decoder, Shape};
 use super::fast::{Kind, Term, finish, init, terms};
 use super::{Accumulate, AmbientMask, NAME};
+use crate::ops::clamp_fast;
 use crate::ops::dispatch::{self, Isa, Kernel};
 use crate::ops::packed_out::{SpanOut, check_outs, for_packed_spans, pack_block};
 use crate::ops::{
@@ -34,6 +37,9 @@ enum Source<'a> {
     /// `f16x6`, decoded inside the block loop (`format::decode_half`, so compiled for the
     /// kernel's instruction set) into the sum or the block buffer.
     Halves(&'a [u8]),
+    /// `f32x6`, read inside the block loop with `unpack`'s clamp, which is also the clamp the
+    /// sum applies to every term, so the bits are those of unpacking first.
+    Floats(&'a [u8]),
     /// Unpacked by `protocol::format::unpack` into the block buffer, then added.
     Staged(PackedIllumination<'a>),
 }
@@ -43,6 +49,7 @@ impl<'a> Source<'a> {
         match Decoder::of(p.format, p.scale) {
             Some(d) => Source::Direct(d, p.bytes),
             None if p.format == PixelFormat::F16x6 => Source::Halves(p.bytes),
+            None if p.format == PixelFormat::F32x6 => Source::Floats(p.bytes),
             None => Source::Staged(p),
         }
     }
@@ -55,6 +62,16 @@ fn decode_halves(bytes: &[u8], px: usize, o: &mut [f32]) {
     let bytes = &bytes[px * 12..px * 12 + o.len() * 2];
     for (o, h) in o.iter_mut().zip(bytes.as_chunks::<2>().0) {
         *o = format::decode_half(u16::from_le_bytes(*h));
+    }
+}
+
+/// Reads the `f32x6` pixels `px..px + o.len() / 6` of `bytes` into `o`, clamped as `unpack` and
+/// `init` clamp (NaN and negatives → 0, +Inf → `MAX_VALUE`).
+#[inline(always)]
+fn decode_floats(bytes: &[u8], px: usize, o: &mut [f32]) {
+    let bytes = &bytes[px * 24..px * 24 + o.len() * 4];
+    for (o, b) in o.iter_mut().zip(bytes.as_chunks::<4>().0) {
+        *o = clamp_fast(f32::from_le_bytes(*b));
     }
 }
 
@@ -96,6 +113,7 @@ impl Span<'_, '_, '_> {
                 d.load(Shape::best(isa, d), o, &bytes[px * BPP..(px + n) * BPP])
             }
             Some(Source::Halves(bytes)) => decode_halves(bytes, px, o),
+            Some(Source::Floats(bytes)) => decode_floats(bytes, px, o),
             Some(Source::Staged(p)) => {
                 unpack_block(p, px, x).map_err(|e| packed_error(0, e))?;
                 init(o, Some(x));
@@ -121,6 +139,10 @@ impl Span<'_, '_, '_> {
                 }
                 (Some(Source::Halves(bytes)), _) => {
                     decode_halves(bytes, px, x);
+                    t.add(o, Some(x), None);
+                }
+                (Some(Source::Floats(bytes)), _) => {
+                    decode_floats(bytes, px, x);
                     t.add(o, Some(x), None);
                 }
                 (Some(Source::Staged(p)), _) => {
