@@ -1,5 +1,5 @@
 //! The stage's frame loop: applies configurations in order, and for each requested frame gathers
-//! band b from every input, combines it on a blocking thread while band b+1 is being gathered,
+//! band b from every input, combines it on the stage's compute pool while band b+1 is gathered,
 //! and queues the packed result for the writer. A band that does not match the configuration
 //! fails its frame with a report to the coordinator; the loop goes on to the next frame.
 
