@@ -4,11 +4,13 @@
 //! Must not depend on wgpu, the scene, or any daemon crate.
 
 mod codec;
+mod downstream;
 mod link;
 mod token;
 mod wire;
 
 pub use codec::LinkCodec;
+pub use downstream::Downstream;
 pub use link::{
     Identity, Link, LinkReader, LinkWriter, NetError, Timeouts, accept, describe, dial, dial_retry,
 };

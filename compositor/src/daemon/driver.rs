@@ -327,7 +327,9 @@ pub struct Sink {
     listener: TcpListener,
     me: Identity,
     timeouts: Timeouts,
-    link: Option<LinkReader>,
+    /// The stage's link; the writing half is held open (never written) so that end-of-stream on
+    /// the stage's side means this sink let the link go (`lightfold_net::Downstream`).
+    link: Option<(LinkReader, LinkWriter)>,
 }
 
 impl Sink {
@@ -338,6 +340,12 @@ impl Sink {
             timeouts,
             link: None,
         }
+    }
+
+    /// Closes the stage's link, as a consumer does when a re-plan leaves that stage out; the
+    /// stage dials again before its next band, and the next `next_band` accepts that link.
+    pub fn let_go(&mut self) {
+        self.link = None;
     }
 
     pub fn local_addr(&self) -> std::io::Result<std::net::SocketAddr> {
@@ -421,9 +429,9 @@ impl Sink {
                     source,
                 })?;
             let link = lightfold_net::accept(stream, &self.me, self.timeouts).await?;
-            self.link = Some(link.split().0);
+            self.link = Some(link.split());
         }
-        let link = self.link.as_mut().ok_or_else(|| timeout("link"))?;
+        let (link, _) = self.link.as_mut().ok_or_else(|| timeout("link"))?;
         loop {
             let frame = tokio::time::timeout_at(deadline, link.next())
                 .await

@@ -2,12 +2,14 @@
 //! sink), dials it with retry until a deadline, writes bands as the engine produces them and
 //! reports `FrameDone` once a frame's last band is on the wire. A slow consumer blocks `send`,
 //! which blocks the engine through the bounded queue, which stops the input reads: backpressure
-//! end to end.
+//! end to end. The link is a `lightfold_net::Downstream`: a consumer that lets it go (a re-plan
+//! that left this stage out of its inputs for a while) is redialled before the next band instead
+//! of failing a frame on a closed connection.
 
 use super::control::ControlOut;
 use super::metrics::{Held, StageMetrics, peak_rss_bytes};
 use bytes::Bytes;
-use lightfold_net::{Identity, LinkWriter, NetError, Timeouts, dial_retry};
+use lightfold_net::{Downstream, Identity, NetError, Timeouts};
 use lightfold_protocol::{BandHeader, ErrorCode, Frame, FrameStats, Message};
 use std::sync::Arc;
 use std::time::Duration;
@@ -44,11 +46,9 @@ pub(crate) struct WriterSettings {
 }
 
 struct Writer {
-    settings: WriterSettings,
     control: ControlOut,
     metrics: Arc<StageMetrics>,
-    addr: Option<String>,
-    link: Option<LinkWriter>,
+    link: Downstream,
     /// Frame whose output failed: its remaining bands are discarded.
     failed: Option<u64>,
     bytes_out: u64,
@@ -63,12 +63,15 @@ pub(crate) async fn run(
     mut rx: mpsc::Receiver<Out>,
     shutdown: CancellationToken,
 ) {
+    let link = Downstream::new(
+        settings.identity.clone(),
+        settings.timeouts,
+        settings.dial_timeout,
+    );
     let mut w = Writer {
-        settings,
         control,
         metrics,
-        addr: None,
-        link: None,
+        link,
         failed: None,
         bytes_out: 0,
         send_time: Duration::ZERO,
@@ -92,11 +95,8 @@ impl Writer {
     async fn handle(&mut self, item: Out) {
         match item {
             Out::Connect { addr } => {
-                if self.addr.as_deref() != Some(addr.as_str()) {
-                    self.link = None;
-                    self.addr = Some(addr);
-                }
-                if let Err(e) = self.ensure_link().await {
+                self.link.set_address(&addr);
+                if let Err(e) = self.link.writer().await {
                     self.control
                         .error(ErrorCode::PeerLost, format!("cannot reach downstream: {e}"));
                 }
@@ -151,21 +151,13 @@ impl Writer {
         }
     }
 
-    async fn ensure_link(&mut self) -> Result<&mut LinkWriter, NetError> {
-        if self.link.is_none() {
-            let addr = self.addr.clone().ok_or_else(|| NetError::Closed {
+    async fn ensure_link(&mut self) -> Result<&mut lightfold_net::LinkWriter, NetError> {
+        if self.link.address().is_empty() {
+            return Err(NetError::Closed {
                 addr: "(no downstream configured)".into(),
-            })?;
-            let s = &self.settings;
-            let link = dial_retry(&addr, &s.identity, s.timeouts, s.dial_timeout).await?;
-            tracing::info!(%addr, peer = %link.peer.daemon_id, "downstream connected");
-            // Data links are one-way; the consumer never writes, so the read half is not kept.
-            let (_, writer) = link.split();
-            self.link = Some(writer);
+            });
         }
-        self.link.as_mut().ok_or_else(|| NetError::Closed {
-            addr: "downstream".into(),
-        })
+        self.link.writer().await
     }
 
     fn fail(&mut self, frame: u64, e: NetError) {
@@ -176,7 +168,7 @@ impl Writer {
         self.control
             .error(code, format!("frame {frame}: downstream write failed: {e}"));
         self.metrics.frame_failed();
-        self.link = None;
+        self.link.close();
         self.failed = Some(frame);
     }
 }

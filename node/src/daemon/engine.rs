@@ -5,11 +5,11 @@
 
 use super::bands::{BandLayout, LayerImages, PackedBand, pack_frame, restamp};
 use super::config::{self, Checked};
-use super::downstream::Downstream;
 use super::render_thread::{DeviceReport, RenderHandle, RenderSetup};
 use super::scene_cache::{self, SceneCache, SceneCacheError, hex};
 use super::sys::peak_rss_bytes;
 use crate::gpu::device::max_lights_for;
+use lightfold_net::Downstream;
 use lightfold_net::NetError;
 use lightfold_protocol::frame::Frame;
 use lightfold_protocol::{

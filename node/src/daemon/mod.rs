@@ -6,7 +6,6 @@
 pub mod bands;
 pub mod calibrate;
 pub mod config;
-mod downstream;
 mod engine;
 pub mod render_thread;
 pub mod scene_cache;
@@ -123,7 +122,7 @@ pub async fn run(
         render,
         report,
         SceneCache::new(opts.cache_dir.clone(), opts.max_scene_bytes),
-        downstream::Downstream::new(me.clone(), opts.timeouts, opts.dial_deadline),
+        lightfold_net::Downstream::new(me.clone(), opts.timeouts, opts.dial_deadline),
         opts.timeouts.max_frame,
     )));
     let stop = shutdown.child_token();

@@ -1,12 +1,14 @@
-//! The data link to this node's compositor. It is dialled (with retry until a deadline) as soon as
-//! a configuration names the address, so configuration order does not matter and the first frame
+//! A producer's data link to its consumer (a node's to its compositor, a compositor's to the next
+//! stage or the coordinator's sink). It is dialled (with retry until a deadline) as soon as a
+//! configuration names the address, so configuration order does not matter and the first frame
 //! does not pay for the connection; it is kept while the address stays the same, and dropped on
-//! any send error so the next frame dials afresh (a DNS name is then resolved again). A
-//! compositor that closes the link (a re-plan that left this node out of its inputs for a while)
-//! is noticed by a task that watches the link's reading half, so the next frame dials afresh
-//! instead of writing into a closed connection.
+//! any send error so the next frame dials afresh (a DNS name is then resolved again). A consumer
+//! that closes the link (a re-plan that left this producer out of its inputs for a while) is
+//! noticed by a task that watches the link's reading half, so the next frame dials afresh instead
+//! of writing into a closed connection. Consumers keep their writing half open while they hold a
+//! link, so end-of-stream on the reading half means "let go" (ARCHITECTURE.md, Decisions).
 
-use lightfold_net::{Identity, LinkWriter, NetError, Timeouts, dial_retry};
+use crate::{Identity, LinkWriter, NetError, Timeouts, dial_retry};
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -20,7 +22,7 @@ enum State {
     Ready(Box<LinkWriter>, Arc<AtomicBool>),
 }
 
-/// The node's one downstream data link.
+/// A producer's one downstream data link.
 #[derive(Debug)]
 pub struct Downstream {
     me: Identity,
@@ -39,6 +41,11 @@ impl Downstream {
             addr: String::new(),
             state: State::None,
         }
+    }
+
+    /// The address the link points at (empty before the first `set_address`).
+    pub fn address(&self) -> &str {
+        &self.addr
     }
 
     /// Points the link at `addr`, dialling in the background unless it is already connected (or
@@ -62,14 +69,14 @@ impl Downstream {
         tokio::spawn(async move {
             let link = dial_retry(&addr, &me, t, total).await?;
             tracing::info!(addr = %addr, peer = %link.peer.daemon_id, "data link up");
-            // A compositor sends nothing on a data link: its reading half only tells when the
-            // compositor has closed the connection.
+            // A consumer sends nothing on a data link: its reading half only tells when the
+            // consumer has closed the connection.
             let (mut reader, writer) = link.split();
             let closed = Arc::new(AtomicBool::new(false));
             let flag = closed.clone();
             tokio::spawn(async move {
                 while let Some(Ok(_)) = reader.next().await {}
-                tracing::debug!(addr = %reader.addr, "the compositor closed the data link");
+                tracing::debug!(addr = %reader.addr, "the consumer closed the data link");
                 flag.store(true, Ordering::Release);
             });
             Ok((writer, closed))
