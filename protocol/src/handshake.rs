@@ -14,7 +14,8 @@ use thiserror::Error;
 use crate::message::Role;
 
 pub const MAGIC: [u8; 4] = *b"LFLD";
-pub const PROTOCOL_VERSION: u16 = 1;
+/// 2: `CompositorConfig::wiring`.
+pub const PROTOCOL_VERSION: u16 = 2;
 /// Longest daemon id a hello may carry (its wire length is one byte).
 pub const MAX_DAEMON_ID: usize = 255;
 

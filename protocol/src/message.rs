@@ -155,6 +155,16 @@ pub struct StageInput {
     pub layers: Vec<(Layer, crate::format::PixelFormat)>,
 }
 
+/// Where one input of a stage's operator comes from, when a configuration wires its operators
+/// explicitly (`CompositorConfig::wiring`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum OpSource {
+    /// Stage input `i` (`CompositorConfig::inputs[i]`).
+    Input(u32),
+    /// The output of an earlier operator `k` (`CompositorConfig::ops[k]`).
+    Op(u32),
+}
+
 /// A compositor's configuration for one plan epoch.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CompositorConfig {
@@ -166,6 +176,11 @@ pub struct CompositorConfig {
     pub inputs: Vec<StageInput>,
     /// Operators applied in order to each band: (registry name, parameters as JSON object text).
     pub ops: Vec<(String, String)>,
+    /// Per operator, where each of its inputs comes from. Empty: the fold (operator 0 reads the
+    /// first stage inputs, each next one the previous output and then the next inputs). Explicit
+    /// wiring lets two operators read the same input (a node's illumination into `accumulate`,
+    /// its material layers into `material`).
+    pub wiring: Vec<Vec<OpSource>>,
     /// Layers and formats this stage emits downstream.
     pub outputs: Vec<(Layer, crate::format::PixelFormat)>,
     /// Downstream address (next compositor or the coordinator's sink listener).

@@ -222,13 +222,23 @@ pub fn compositor_config() -> impl Strategy<Value = CompositorConfig> {
         (
             prop::collection::vec(input, 0..3),
             prop::collection::vec((text(), text()), 0..3),
+            prop::collection::vec(
+                prop::collection::vec(
+                    prop_oneof![
+                        any::<u32>().prop_map(OpSource::Input),
+                        any::<u32>().prop_map(OpSource::Op)
+                    ],
+                    0..3,
+                ),
+                0..3,
+            ),
         ),
         (layers(), text(), any::<u32>(), any::<u32>()),
     )
         .prop_map(
             |(
                 (epoch, width, height, band_height),
-                (inputs, ops),
+                (inputs, ops, wiring),
                 (outputs, downstream, input_index, frames_in_flight),
             )| CompositorConfig {
                 epoch,
@@ -237,6 +247,7 @@ pub fn compositor_config() -> impl Strategy<Value = CompositorConfig> {
                 band_height,
                 inputs,
                 ops,
+                wiring,
                 outputs,
                 downstream,
                 input_index,
