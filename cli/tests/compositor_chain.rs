@@ -154,6 +154,7 @@ fn stage_config(
         outputs: vec![(ILL, out)],
         downstream: downstream.into(),
         input_index: 0,
+        wiring: Vec::new(),
         frames_in_flight: 2,
     }
 }

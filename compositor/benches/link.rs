@@ -154,6 +154,7 @@ async fn link_cost(case: &LinkCase, frames: usize, with_raw: bool) {
         outputs: case.outputs.clone(),
         downstream: sink_addr,
         input_index: 0,
+        wiring: Vec::new(),
         frames_in_flight: 2,
     };
     ctl.configure(cfg, WAIT).await.unwrap();
@@ -353,6 +354,7 @@ async fn pipelining(periods: &[u64], frames: u64) {
                 stages[k + 1].0.clone()
             },
             input_index: 0,
+            wiring: Vec::new(),
             frames_in_flight: 2,
         };
         ctl.configure(cfg, WAIT).await.unwrap();

@@ -23,7 +23,7 @@
 
 use crate::ops::params::de_layers;
 use crate::ops::{self, BandMut, BandView, OpError, Operator};
-use lightfold_protocol::Layer;
+use lightfold_protocol::{Layer, OpSource};
 use serde::Deserialize;
 use serde_json::Value;
 
@@ -186,7 +186,7 @@ impl Pipeline {
     /// (`CompositorConfig::ops`: name and JSON parameter text). The first operator takes the first
     /// link inputs, as many as it has; each later operator takes the previous output as its input
     /// 0 and the next unused link inputs after it. Every link input must be used. Wiring beyond
-    /// this convention (one link feeding two operators) needs a pipeline file.
+    /// this convention (one link feeding two operators) needs `from_wiring` or a pipeline file.
     pub fn from_ops(
         ops: &[(String, String)],
         inputs: &[Vec<Layer>],
@@ -194,18 +194,7 @@ impl Pipeline {
         let mut stages: Vec<Stage> = Vec::new();
         let mut next = 0;
         for (k, (name, text)) in ops.iter().enumerate() {
-            let stage = k.to_string();
-            let params: Value = if text.trim().is_empty() {
-                Value::Null
-            } else {
-                serde_json::from_str(text).map_err(|e| PipelineError::Parse {
-                    reason: format!("parameters of operator {k} ({name}): {e}"),
-                })?
-            };
-            let op = ops::create(name, &params).map_err(|source| PipelineError::Operator {
-                stage: stage.clone(),
-                source,
-            })?;
+            let (stage, op) = op_stage(k, name, text)?;
             let wanted = op.signature().inputs.len();
             let mut sources = Vec::with_capacity(wanted);
             if k > 0 && wanted > 0 {
@@ -225,6 +214,55 @@ impl Pipeline {
             return Err(PipelineError::UnusedInputs {
                 unused: (next..inputs.len()).collect(),
             });
+        }
+        Pipeline::validate(inputs.to_vec(), stages)
+    }
+
+    /// `from_ops` with each operator's inputs wired explicitly (`CompositorConfig::wiring`): an
+    /// input may feed several operators, an operator may read any earlier one. Empty `wiring`
+    /// is the fold of `from_ops`. Every stage input must be read.
+    pub fn from_wiring(
+        ops: &[(String, String)],
+        wiring: &[Vec<OpSource>],
+        inputs: &[Vec<Layer>],
+    ) -> Result<Pipeline, PipelineError> {
+        if wiring.is_empty() {
+            return Pipeline::from_ops(ops, inputs);
+        }
+        if wiring.len() != ops.len() {
+            return Err(PipelineError::Parse {
+                reason: format!("{} operators but wiring for {}", ops.len(), wiring.len()),
+            });
+        }
+        let mut read = vec![false; inputs.len()];
+        let mut stages: Vec<Stage> = Vec::new();
+        for (k, ((name, text), wires)) in ops.iter().zip(wiring).enumerate() {
+            let (stage, op) = op_stage(k, name, text)?;
+            let sources = wires
+                .iter()
+                .map(|w| match *w {
+                    OpSource::Input(i) if (i as usize) < inputs.len() => {
+                        read[i as usize] = true;
+                        Ok(Source::Input(i as usize))
+                    }
+                    OpSource::Op(j) if (j as usize) < k => Ok(Source::Stage(j as usize)),
+                    OpSource::Input(i) => Err(format!("input:{i}")),
+                    OpSource::Op(j) => Err(format!("operator {j}")),
+                })
+                .collect::<Result<Vec<_>, String>>()
+                .map_err(|reference| PipelineError::UnknownRef {
+                    stage: stage.clone(),
+                    reference,
+                })?;
+            stages.push(Stage {
+                name: stage,
+                op,
+                sources,
+            });
+        }
+        let unused: Vec<usize> = (0..inputs.len()).filter(|&i| !read[i]).collect();
+        if !unused.is_empty() {
+            return Err(PipelineError::UnusedInputs { unused });
         }
         Pipeline::validate(inputs.to_vec(), stages)
     }
@@ -397,6 +435,27 @@ fn resolve(reference: &str, inputs: usize, earlier: &[Stage]) -> Option<Source> 
         .iter()
         .position(|s| s.name == reference)
         .map(Source::Stage)
+}
+
+/// Operator `k` of an operator list, named by its index, with its JSON parameters parsed.
+fn op_stage(
+    k: usize,
+    name: &str,
+    text: &str,
+) -> Result<(String, Box<dyn Operator>), PipelineError> {
+    let stage = k.to_string();
+    let params: Value = if text.trim().is_empty() {
+        Value::Null
+    } else {
+        serde_json::from_str(text).map_err(|e| PipelineError::Parse {
+            reason: format!("parameters of operator {k} ({name}): {e}"),
+        })?
+    };
+    let op = ops::create(name, &params).map_err(|source| PipelineError::Operator {
+        stage: stage.clone(),
+        source,
+    })?;
+    Ok((stage, op))
 }
 
 fn describe(src: Source, stages: &[Stage]) -> String {

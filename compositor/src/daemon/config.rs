@@ -165,13 +165,19 @@ impl StagePlan {
             required[0] = input_layers[0].clone();
             (None, input_layers[0].clone())
         } else {
-            let p = Pipeline::from_ops(&c.ops, &input_layers)?;
+            let p = Pipeline::from_wiring(&c.ops, &c.wiring, &input_layers)?;
             for (k, stage) in p.stages().iter().enumerate() {
                 let sig = stage.op.signature();
                 for (j, src) in stage.sources.iter().enumerate() {
                     if let Source::Input(n) = *src {
-                        readers[n] = Some((k, j));
-                        required[n] = sig.inputs[j].required.clone();
+                        // An input read by two operators (explicit wiring): its colour belongs to
+                        // the first (the `accumulate`), and it needs what either requires.
+                        readers[n].get_or_insert((k, j));
+                        for &l in &sig.inputs[j].required {
+                            if !required[n].contains(&l) {
+                                required[n].push(l);
+                            }
+                        }
                     }
                 }
             }
@@ -189,9 +195,13 @@ impl StagePlan {
                 });
             }
         }
+        // The fused paths read the stage inputs in order, as the fold does; explicit wiring may
+        // not, so it keeps the general path.
+        let fold = c.wiring.is_empty();
         let fused = match c.ops.as_slice() {
             [(name, params)]
-                if name == crate::ops::accumulate::NAME
+                if fold
+                    && name == crate::ops::accumulate::NAME
                     && c.inputs
                         .iter()
                         .all(|i| i.layers.len() == 1 && i.layers[0].0 == Layer::Illumination) =>
@@ -202,7 +212,7 @@ impl StagePlan {
             _ => None,
         };
         let depth = match c.ops.as_slice() {
-            [(name, params)] if name == crate::ops::depth::NAME => {
+            [(name, params)] if fold && name == crate::ops::depth::NAME => {
                 let params: serde_json::Value = serde_json::from_str(params).unwrap_or_default();
                 let layers: Vec<Vec<(Layer, PixelFormat)>> =
                     c.inputs.iter().map(|i| i.layers.clone()).collect();
@@ -332,6 +342,7 @@ mod tests {
             outputs: vec![(Layer::Radiance, PixelFormat::F32x3)],
             downstream: "127.0.0.1:1".into(),
             input_index: 0,
+            wiring: Vec::new(),
             frames_in_flight: 2,
         }
     }

@@ -137,6 +137,7 @@ pub fn config(
         outputs: outputs.to_vec(),
         downstream: downstream.into(),
         input_index: 0,
+        wiring: Vec::new(),
         frames_in_flight: 2,
     }
 }
