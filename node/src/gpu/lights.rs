@@ -2,6 +2,7 @@
 //! shadow views (from `scene::shadow_views`) packed as layers of one depth-texture array. Pure CPU
 //! code, so the packing and the deliberate faults of the negative controls are testable alone.
 
+use super::shadow_depth::ShadowDepth;
 use bytemuck::{Pod, Zeroable};
 use lightfold_scene::shading::V3;
 use lightfold_scene::shadow_views::{ShadowView, ShadowViewKind, cube_frame, shadow_views};
@@ -23,6 +24,11 @@ pub enum Fault {
     /// One pipeline is created from an entry point the shader lacks: the device's validation
     /// error must come back as a `RenderError`, not a panic.
     InvalidPipeline,
+    /// Shadow maps in `Depth16Unorm` (still reversed-Z): depth steps of 2^-16 instead of a
+    /// float's relative 2^-24.
+    Depth16,
+    /// Shadow maps with conventional Z (near 0, far 1) in `Depth32Float`.
+    ConventionalZ,
 }
 
 /// `Light` in `shading.wgsl` (std430).
@@ -149,7 +155,7 @@ pub fn plan_lights(
         let mut faces = [NO_VIEW; 6];
         for v in &views {
             let e = v.extent;
-            let p = &v.proj;
+            let p = &ShadowDepth::of(fault).projection(&v.proj);
             if let ShadowViewKind::CubeFace(f) = v.kind {
                 faces[f.index()] = plan.views.len() as u32;
             }

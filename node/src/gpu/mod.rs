@@ -10,6 +10,7 @@ mod pipelines;
 mod readback;
 pub mod renderer;
 pub mod scene_data;
+mod shadow_depth;
 mod shadow_pass;
 
 pub use device::{DeviceError, Gpu, GpuOptions};

@@ -14,8 +14,9 @@ use std::collections::HashMap;
 use super::frame::RenderError;
 use super::lights::GpuLight;
 use super::scene_data::Vertex;
+use super::shadow_depth::ShadowDepth;
 
-/// Depth format of shadow maps and of the eye pass.
+/// Depth format of the eye pass (and of shadow maps, but for the depth negative controls).
 pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// Material layers as render targets (f16 keeps 4 of them within the per-sample byte limit).
 pub const MATERIAL_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
@@ -136,7 +137,7 @@ fn filter_constants(filter: ShadowFilter) -> [(&'static str, f64); 2] {
 }
 
 impl Pipelines {
-    pub fn new(device: &wgpu::Device, filter: ShadowFilter) -> Pipelines {
+    pub fn new(device: &wgpu::Device, filter: ShadowFilter, depth: ShadowDepth) -> Pipelines {
         let filter = filter_constants(filter);
         // Lighting runs in fragment shaders (forward) and in a compute shader (deferred).
         let fragment = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
@@ -257,7 +258,11 @@ impl Pipelines {
                     buffers: &[Some(vertex_layout())],
                 },
                 primitive: shadow_primitive,
-                depth_stencil: Some(depth_state(true)),
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: depth.format(),
+                    depth_compare: Some(depth.write_compare()),
+                    ..depth_state(true)
+                }),
                 multisample: Default::default(),
                 fragment: fs.map(|fs| wgpu::FragmentState {
                     module: &shadow_module,

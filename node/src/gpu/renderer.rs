@@ -12,6 +12,7 @@ use super::lights::{Fault, LightPlan, plan_lights};
 use super::pipelines::{DrawContext, LightSet, Pipelines};
 use super::readback::{ReadRequest, read_targets};
 use super::scene_data::SceneData;
+use super::shadow_depth::ShadowDepth;
 use super::shadow_pass::{ShadowMaps, layer_count, render_shadow_maps};
 use lightfold_scene::shadow_views::visible_receivers;
 use lightfold_scene::{Camera, Image, LightSample, Scene, ShadowFilter};
@@ -89,7 +90,8 @@ impl Renderer {
         // Validation errors (a shader the driver rejects, a limit) come back as errors: wgpu's
         // default handler for errors nobody captured panics.
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let pipelines = Pipelines::new(device, opts.filter);
+        let depth = ShadowDepth::of(opts.fault);
+        let pipelines = Pipelines::new(device, opts.filter, depth);
         if opts.fault == Some(Fault::InvalidPipeline) {
             pipelines.invalid_pipeline(device);
         }
@@ -145,12 +147,13 @@ impl Renderer {
                 },
             ],
         });
-        // Reversed-Z: a receiver is lit where its depth is at least the stored one.
+        // Reversed-Z: a receiver is lit where its depth is at least the stored one (the depth
+        // negative controls aside).
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
             label: Some("shadow comparison"),
             mag_filter: wgpu::FilterMode::Linear,
             min_filter: wgpu::FilterMode::Linear,
-            compare: Some(wgpu::CompareFunction::GreaterEqual),
+            compare: Some(depth.lookup_compare()),
             ..Default::default()
         });
         let near = (data.diagonal * 1e-4).clamp(1e-4, 1e-2);
@@ -282,7 +285,13 @@ impl Renderer {
                 .is_some_and(|m| m.fits(opts.shadow_map_size, plan.views.len()))
             {
                 let layers = layer_count(plan.views.len());
-                self.maps = Some(ShadowMaps::new(&gpu.device, opts.shadow_map_size, layers));
+                let depth = ShadowDepth::of(opts.fault);
+                self.maps = Some(ShadowMaps::new(
+                    &gpu.device,
+                    opts.shadow_map_size,
+                    layers,
+                    depth,
+                ));
             }
             let maps = self.maps.as_ref().expect("allocated above");
             stats.shadow_passes = render_shadow_maps(

@@ -1,10 +1,12 @@
 //! Shadow maps: one Depth32Float texture array holding every view of every light of a frame (one
 //! layer per view), and the depth passes that fill it, drawing per view only the casters the
-//! caller allows that can reach the view's frustum.
+//! caller allows that can reach the view's frustum. (The depth negative controls change the
+//! encoding: `ShadowDepth`.)
 
 use super::lights::{LightPlan, box_in_view, mat_mul};
-use super::pipelines::{DEPTH_FORMAT, DrawContext, VIEW_UNIFORM_STRIDE};
+use super::pipelines::{DrawContext, VIEW_UNIFORM_STRIDE};
 use super::scene_data::MeshRange;
+use super::shadow_depth::ShadowDepth;
 use wgpu::util::DeviceExt;
 
 /// The shadow-map array and a render view per layer.
@@ -12,6 +14,7 @@ use wgpu::util::DeviceExt;
 pub struct ShadowMaps {
     pub size: u32,
     pub layers: u32,
+    pub depth: ShadowDepth,
     _texture: wgpu::Texture,
     pub array_view: wgpu::TextureView,
     layer_views: Vec<wgpu::TextureView>,
@@ -30,7 +33,7 @@ pub fn layer_count(views: usize) -> u32 {
 }
 
 impl ShadowMaps {
-    pub fn new(device: &wgpu::Device, size: u32, layers: u32) -> ShadowMaps {
+    pub fn new(device: &wgpu::Device, size: u32, layers: u32, depth: ShadowDepth) -> ShadowMaps {
         let texture = device.create_texture(&wgpu::TextureDescriptor {
             label: Some("shadow maps"),
             size: wgpu::Extent3d {
@@ -41,7 +44,7 @@ impl ShadowMaps {
             mip_level_count: 1,
             sample_count: 1,
             dimension: wgpu::TextureDimension::D2,
-            format: DEPTH_FORMAT,
+            format: depth.format(),
             usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
             view_formats: &[],
         });
@@ -64,6 +67,7 @@ impl ShadowMaps {
         ShadowMaps {
             size,
             layers,
+            depth,
             _texture: texture,
             array_view,
             layer_views,
@@ -90,7 +94,7 @@ pub fn render_shadow_maps(
     }
     let mut uniforms = vec![0u8; VIEW_UNIFORM_STRIDE as usize * plan.views.len()];
     for (i, v) in plan.geometry.iter().enumerate() {
-        let vp = mat_mul(&v.proj, &v.view);
+        let vp = mat_mul(&maps.depth.projection(&v.proj), &v.view);
         let at = i * VIEW_UNIFORM_STRIDE as usize;
         uniforms[at..at + 64].copy_from_slice(bytemuck::cast_slice(&vp));
     }
@@ -136,8 +140,8 @@ pub fn render_shadow_maps(
             depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                 view: &maps.layer_views[plan.views[i].layer as usize],
                 depth_ops: Some(wgpu::Operations {
-                    // Reversed-Z: 0 is "nothing in front", so uncovered texels are lit.
-                    load: wgpu::LoadOp::Clear(0.0),
+                    // "Nothing in front" (0 in reversed-Z), so uncovered texels are lit.
+                    load: wgpu::LoadOp::Clear(maps.depth.clear()),
                     store: wgpu::StoreOp::Store,
                 }),
                 stencil_ops: None,
