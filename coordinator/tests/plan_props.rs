@@ -7,7 +7,7 @@ mod plan_scenes;
 use lightfold_coordinator::plan::{
     ClusterSpec, Downstream, DropReason, MaterialMode, PlanOptions, Source, Topology, plan,
 };
-use lightfold_protocol::Layer;
+use lightfold_protocol::{Layer, OpSource};
 use lightfold_scene::shading::irradiance;
 use proptest::prelude::*;
 
@@ -135,8 +135,14 @@ proptest! {
         let base = plan(&scene, &ClusterSpec::local(NODES, comps), &o).unwrap();
         for cluster in [ClusterSpec::local(NODES, comps + 1), ClusterSpec::local(NODES + 1, comps)] {
             let more = plan(&scene, &cluster, &o).unwrap();
-            prop_assert_eq!(base.nodes.len(), more.nodes.len());
-            for (a, b) in base.nodes.iter().zip(&more.nodes) {
+            // The illumination nodes; a tree that gains a second leaf also gains a material node
+            // of its own (its last stage no longer reads nodes that could carry the layers).
+            let lit = |p: &lightfold_coordinator::plan::Plan| -> Vec<lightfold_coordinator::plan::NodePlan> {
+                p.nodes.iter().filter(|n| n.layers.iter().any(|l| l.0 == Layer::Illumination)).cloned().collect()
+            };
+            let (base_lit, more_lit) = (lit(&base), lit(&more));
+            prop_assert_eq!(base_lit.len(), more_lit.len());
+            for (a, b) in base_lit.iter().zip(&more_lit) {
                 prop_assert_eq!(&a.node, &b.node);
                 prop_assert_eq!(&a.lights, &b.lights);
                 prop_assert_eq!(a.color, b.color);
@@ -181,7 +187,11 @@ proptest! {
         for s in &p.stages {
             // Operator 0 reads its inputs from the stage; each later one the previous output
             // plus the rest (compositor/src/daemon/config.rs).
+            // With explicit wiring, each operator's wires match its input count, name earlier
+            // operators only, and read every stage input at least once.
             let mut read = 0;
+            let mut wired = vec![false; s.inputs.len()];
+            prop_assert!(s.wiring.is_empty() || s.wiring.len() == s.ops.len());
             for (j, (name, params)) in s.ops.iter().enumerate() {
                 let wanted = match name.as_str() {
                     "accumulate" => params["colors"].as_array().unwrap().len() + usize::from(params["upstream"].as_bool().unwrap()),
@@ -191,8 +201,21 @@ proptest! {
                     other => panic!("unknown operator {other}"),
                 };
                 read += wanted - usize::from(j > 0);
+                if let Some(wires) = s.wiring.get(j) {
+                    prop_assert_eq!(wires.len(), wanted);
+                    for w in wires {
+                        match *w {
+                            OpSource::Input(i) => wired[i as usize] = true,
+                            OpSource::Op(k) => prop_assert!((k as usize) < j),
+                        }
+                    }
+                }
             }
-            prop_assert_eq!(read, s.inputs.len(), "stage {}", s.compositor);
+            if s.wiring.is_empty() {
+                prop_assert_eq!(read, s.inputs.len(), "stage {}", s.compositor);
+            } else {
+                prop_assert!(wired.iter().all(|w| *w), "stage {}", s.compositor);
+            }
             for (i, input) in s.inputs.iter().enumerate() {
                 let producer = match &input.source {
                     Source::Node(id) => {

@@ -4,10 +4,10 @@
 mod plan_scenes;
 
 use lightfold_coordinator::plan::{
-    ClusterSpec, Downstream, DropReason, MapSizing, MaterialMode, PlanError, PlanOptions, Topology,
-    plan,
+    ClusterSpec, Downstream, DropReason, MapSizing, MaterialMode, MaterialPlacement, PlanError,
+    PlanOptions, Topology, plan,
 };
-use lightfold_protocol::{Capabilities, Layer, Role};
+use lightfold_protocol::{Capabilities, Layer, OpSource, Role};
 use lightfold_scene::primitives::cuboid;
 use lightfold_scene::{Light, LightShape, Material, Scene};
 use plan_scenes::{rect, stage};
@@ -44,12 +44,19 @@ fn reasons(scene: &Scene, o: &PlanOptions) -> Vec<DropReason> {
 fn the_stage_scene_plans_one_group_and_one_material_node() {
     let p = plan(&stage(), &local(), &opts()).unwrap();
     assert_eq!(p.active, vec![0, 1, 2, 3]);
-    assert_eq!(p.nodes.len(), 2);
+    // The material layers are extra targets of the one illumination node the last stage reads.
+    assert_eq!(p.nodes.len(), 1);
     assert_eq!(p.nodes[0].lights, vec![0, 1, 2, 3]);
     assert_eq!(p.nodes[0].color, [1.0; 3]);
     assert_eq!(
-        p.nodes[1].layers.iter().map(|l| l.0).collect::<Vec<_>>(),
-        vec![Layer::Diffuse]
+        p.nodes[0].layers.iter().map(|l| l.0).collect::<Vec<_>>(),
+        vec![Layer::Illumination, Layer::Diffuse]
+    );
+    assert_eq!(
+        p.material.placement,
+        MaterialPlacement::ExtraTargets {
+            node: "node-0".into()
+        }
     );
     assert_eq!(
         p.material.mode,
@@ -58,7 +65,16 @@ fn the_stage_scene_plans_one_group_and_one_material_node() {
     assert_eq!(p.stages.len(), 1);
     let ops: Vec<&str> = p.stages[0].ops.iter().map(|o| o.0.as_str()).collect();
     assert_eq!(ops, ["accumulate", "material", "output"]);
-    assert_eq!(p.idle_nodes.len(), 14);
+    // accumulate reads the node, material the sum and the same node, output the material.
+    assert_eq!(
+        p.stages[0].wiring,
+        vec![
+            vec![OpSource::Input(0)],
+            vec![OpSource::Op(0), OpSource::Input(0)],
+            vec![OpSource::Op(1)],
+        ]
+    );
+    assert_eq!(p.idle_nodes.len(), 15);
     assert!(p.node_config("node-5").is_none());
     assert!(p.compositor_config("comp-3").is_none());
     let text = p.to_string();
@@ -67,9 +83,29 @@ fn the_stage_scene_plans_one_group_and_one_material_node() {
         "stages:",
         "links (bytes per frame):",
         "accumulate",
+        "extra targets of node-0",
     ] {
         assert!(text.contains(part), "missing {part:?} in\n{text}");
     }
+
+    // The paper's layout on request: a material node of its own, read by the fold.
+    let own = plan(
+        &stage(),
+        &local(),
+        &PlanOptions {
+            material_own_node: true,
+            ..opts()
+        },
+    )
+    .unwrap();
+    assert_eq!(own.nodes.len(), 2);
+    assert_eq!(
+        own.nodes[1].layers.iter().map(|l| l.0).collect::<Vec<_>>(),
+        vec![Layer::Diffuse]
+    );
+    assert!(own.stages[0].wiring.is_empty());
+    assert_eq!(own.stages[0].inputs.len(), 2);
+    assert!(own.nodes[0].est_cost_us < p.nodes[0].est_cost_us);
 }
 
 #[test]
@@ -181,7 +217,11 @@ fn nothing_in_view_drops_every_light_but_keeps_a_pipeline() {
             .iter()
             .all(|d| d.1 == DropReason::NoVisibleReceiver)
     );
-    assert_eq!(p.nodes.len(), 2);
+    assert_eq!(
+        p.nodes.len(),
+        1,
+        "one node with no light, carrying the material layers"
+    );
     assert!(p.nodes[0].lights.is_empty());
     assert!(p.compositor_config(&p.stages[0].compositor).is_some());
 }
@@ -309,20 +349,20 @@ fn short_clusters_raise_k_to_the_device_limit_or_say_how_many_nodes_they_need() 
             active: 32,
             k: 4,
             limit: 4,
-            needed: 9,
+            needed: 8,
             available: 3
         }
     );
-    assert!(err.to_string().contains("need 9 render nodes"), "{err}");
+    assert!(err.to_string().contains("need 8 render nodes"), "{err}");
     let mut cluster = ClusterSpec::local(3, 3);
     for n in &mut cluster.nodes {
         n.capabilities = caps(16, 0, 0);
     }
     let p = plan(&s, &cluster, &opts()).unwrap();
-    assert_eq!(p.k, 16);
+    assert_eq!(p.k, 11);
     assert_eq!(
         p.nodes.iter().map(|n| n.lights.len()).collect::<Vec<_>>(),
-        [16, 16, 0]
+        [11, 11, 10]
     );
 }
 
@@ -334,7 +374,11 @@ fn the_costliest_group_goes_to_the_fastest_node() {
     cluster.nodes[0].capabilities = caps(8, 30_000, 90_000);
     cluster.nodes[1].capabilities = caps(8, 6_000, 20_000);
     cluster.nodes[2].capabilities = caps(8, 12_000, 60_000);
-    let p = plan(&s, &cluster, &opts()).unwrap();
+    let own = PlanOptions {
+        material_own_node: true,
+        ..opts()
+    };
+    let p = plan(&s, &cluster, &own).unwrap();
     let four = p.nodes.iter().find(|n| n.lights.len() == 4).unwrap();
     let two = p.nodes.iter().find(|n| n.lights.len() == 2).unwrap();
     assert_eq!(four.node, "node-1");
@@ -377,6 +421,11 @@ fn a_tree_joins_pairs_and_a_chain_links_stages() {
         .unwrap();
     let ops: Vec<&str> = root.ops.iter().map(|o| o.0.as_str()).collect();
     assert_eq!(ops, ["join", "material", "output"]);
+    // A join reads no node: the material layers have a node of their own.
+    assert!(matches!(
+        tree.material.placement,
+        MaterialPlacement::OwnNode { .. }
+    ));
     let chain = plan(&s, &ClusterSpec::local(9, 3), &opts()).unwrap();
     assert_eq!(chain.stages.len(), 3);
     assert_eq!(
@@ -388,8 +437,9 @@ fn a_tree_joins_pairs_and_a_chain_links_stages() {
         chain.stages[0].ops[0].1["colors"].as_array().unwrap().len(),
         3
     );
-    // Bytes: 8 node links at rgb9e5x2, 2 chain links at f16x6, 1 material link, 1 sink link.
-    assert_eq!(chain.links.len(), 8 + 2 + 1 + 1);
+    // Bytes: 8 node links at rgb9e5x2 (one also carrying the material layers), 2 chain links at
+    // f16x6, 1 sink link.
+    assert_eq!(chain.links.len(), 8 + 2 + 1);
 }
 
 #[test]
@@ -440,7 +490,8 @@ fn configurations_carry_the_plan() {
     assert_eq!(n.downstream, "127.0.0.1:7500");
     assert_eq!(n.scene, p.scene_hash);
     let c = p.compositor_config("comp-0").unwrap();
-    assert_eq!(c.inputs.len(), 2);
+    assert_eq!(c.inputs.len(), 1);
+    assert_eq!(c.wiring, p.stages[0].wiring);
     assert_eq!(c.downstream, "127.0.0.1:7400");
     for (_, params) in &c.ops {
         assert!(

@@ -69,6 +69,7 @@ impl Plan {
                 .iter()
                 .map(|(name, p)| (name.clone(), p.to_string()))
                 .collect(),
+            wiring: s.wiring.clone(),
             outputs: s.outputs.clone(),
             downstream: match &s.downstream {
                 Downstream::Stage(id) => self.address(id),

@@ -127,18 +127,25 @@ pub fn plan(
         }
         g
     };
+    // Nodes a plan of `g` groups needs: one more when the material layers cannot be extra
+    // targets of a node the last stage reads.
+    let compositors = cluster.compositors.len();
+    let own_node = |g: usize| {
+        options.material_own_node || !topology::root_reads_nodes(g, compositors, options.topology)
+    };
+    let needed = |g: usize| g + usize::from(own_node(g));
     let mut k_used = k;
     let mut groups = groups_for(k);
-    while groups.len() + 1 > available && k_used < limit {
+    while needed(groups.len()) > available && k_used < limit {
         k_used += 1;
         groups = groups_for(k_used);
     }
-    if groups.len() + 1 > available {
+    if needed(groups.len()) > available {
         return Err(PlanError::NotEnoughNodes {
             active: culling.active.len(),
             k,
             limit,
-            needed: groups_for(k).len() + 1,
+            needed: needed(groups_for(k).len()),
             available,
         });
     }
@@ -202,15 +209,17 @@ pub fn plan(
         })
         .collect();
     let on_node = group::assign(&group_costs);
-    let material_node = (0..available)
-        .filter(|n| !on_node.contains(n))
-        .min_by(|&a, &b| {
-            costs[a]
-                .fixed_us
-                .total_cmp(&costs[b].fixed_us)
-                .then(a.cmp(&b))
-        })
-        .expect("checked: one node more than groups");
+    let material_node = own_node(groups.len()).then(|| {
+        (0..available)
+            .filter(|n| !on_node.contains(n))
+            .min_by(|&a, &b| {
+                costs[a]
+                    .fixed_us
+                    .total_cmp(&costs[b].fixed_us)
+                    .then(a.cmp(&b))
+            })
+            .expect("checked: one node more than groups")
+    });
 
     let illum: Vec<topology::IllumInput> = groups
         .iter()
@@ -219,6 +228,7 @@ pub fn plan(
             node: cluster.nodes[n].id.clone(),
             color: g.color,
             layers: vec![(Layer::Illumination, options.formats.node)],
+            cost: costs[n].frame(&group_shadows(g), 0),
         })
         .collect();
     let finish = topology::Finish {
@@ -226,14 +236,12 @@ pub fn plan(
         ambient: scene.ambient,
         ambient_layer: material_layers.iter().any(|l| l.0 == Layer::Ambient),
         emissive: material_layers.iter().any(|l| l.0 == Layer::Emissive),
-        material_node: (
-            cluster.nodes[material_node].id.clone(),
-            material_layers.clone(),
-        ),
+        material_layers: material_layers.clone(),
+        material_node: material_node.map(|m| cluster.nodes[m].id.clone()),
         fold,
         exposure: scene.exposure,
     };
-    let (stages, node_dst, material_dst) = topology::stages(
+    let (stages, node_dst, site) = topology::stages(
         &illum,
         &finish,
         &cluster.compositors,
@@ -260,18 +268,38 @@ pub fn plan(
             est_cost_us: costs[n].frame(&group_shadows(g), 0).round() as u64,
         })
         .collect();
-    nodes.push(NodePlan {
-        node: cluster.nodes[material_node].id.clone(),
-        lights: Vec::new(),
-        color: [1.0; 3],
-        shadows: Vec::new(),
-        layers: material_layers.clone(),
-        downstream: material_dst.0,
-        input_index: material_dst.1,
-        est_cost_us: costs[material_node]
-            .frame(&[], material_layers.len())
-            .round() as u64,
-    });
+    let placement = match (&site, material_node) {
+        (topology::MaterialSite::Host(h), _) => {
+            // Extra targets: the host's eye pass writes the material layers too.
+            let host = &mut nodes[*h];
+            host.layers.extend(material_layers.iter().copied());
+            let g = &groups[*h];
+            host.est_cost_us = costs[on_node[*h]]
+                .frame(&group_shadows(g), material_layers.len())
+                .round() as u64;
+            MaterialPlacement::ExtraTargets {
+                node: host.node.clone(),
+            }
+        }
+        (topology::MaterialSite::OwnNode((stage, input)), Some(m)) => {
+            nodes.push(NodePlan {
+                node: cluster.nodes[m].id.clone(),
+                lights: Vec::new(),
+                color: [1.0; 3],
+                shadows: Vec::new(),
+                layers: material_layers.clone(),
+                downstream: stage.clone(),
+                input_index: *input,
+                est_cost_us: costs[m].frame(&[], material_layers.len()).round() as u64,
+            });
+            MaterialPlacement::OwnNode {
+                node: cluster.nodes[m].id.clone(),
+            }
+        }
+        (topology::MaterialSite::OwnNode(_), None) => {
+            unreachable!("the topology hosts the material layers whenever no own node is chosen")
+        }
+    };
     let used: Vec<&str> = nodes.iter().map(|n| n.node.as_str()).collect();
     let idle_nodes = cluster
         .nodes
@@ -312,9 +340,7 @@ pub fn plan(
         layers: material_layers,
         ambient: scene.ambient,
         fold_ambient: fold.is_some(),
-        placement: MaterialPlacement::OwnNode {
-            node: cluster.nodes[material_node].id.clone(),
-        },
+        placement,
         notes,
     };
     Ok(Plan {

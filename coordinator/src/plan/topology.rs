@@ -6,7 +6,7 @@
 
 use super::types::{DaemonSpec, Topology};
 use super::types::{Downstream, FormatChoice, InputRef, LinkPlan, MaterialMode, Source, StagePlan};
-use lightfold_protocol::{Layer, PixelFormat};
+use lightfold_protocol::{Layer, OpSource, PixelFormat};
 use serde_json::{Value, json};
 
 /// Framing cost of one band on a link: the band header plus the frame's kind and length.
@@ -24,6 +24,8 @@ pub(crate) struct IllumInput {
     pub node: String,
     pub color: [f32; 3],
     pub layers: Vec<(Layer, PixelFormat)>,
+    /// Estimated frame cost (µs): the cheapest node at the last stage hosts the material layers.
+    pub cost: f64,
 }
 
 /// What the last stage does after the illumination sum.
@@ -33,8 +35,10 @@ pub(crate) struct Finish {
     pub ambient: [f32; 3],
     pub ambient_layer: bool,
     pub emissive: bool,
-    /// The material node and its layers.
-    pub material_node: (String, Vec<(Layer, PixelFormat)>),
+    /// The material layers, and the node of their own that renders them (`None`: extra targets
+    /// of an illumination node at the last stage, which `stages` picks).
+    pub material_layers: Vec<(Layer, PixelFormat)>,
+    pub material_node: Option<String>,
     /// Index into the illumination nodes of the node whose `c_n = c^a` folds the ambient term.
     pub fold: Option<usize>,
     pub exposure: f32,
@@ -43,15 +47,33 @@ pub(crate) struct Finish {
 /// Where a node streams: `(stage id, input index)`.
 pub(crate) type Dest = (String, u32);
 
-/// Builds the stages. Returns them with, per illumination node, its destination, and the
-/// material node's.
+/// Where the material layers are rendered.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) enum MaterialSite {
+    /// The material node of its own, streaming to this stage input.
+    OwnNode(Dest),
+    /// Extra targets of illumination node `nodes[i]` at the last stage.
+    Host(usize),
+}
+
+/// Whether the last stage of this topology reads nodes directly (a chain's last stage, or a
+/// tree with a single leaf), so one of them can carry the material layers too.
+pub(crate) fn root_reads_nodes(groups: usize, compositors: usize, topology: Topology) -> bool {
+    match topology {
+        Topology::Chain => true,
+        Topology::Tree => groups.max(1).min(compositors.max(1).div_ceil(2)) == 1,
+    }
+}
+
+/// Builds the stages. Returns them with, per illumination node, its destination, and where the
+/// material layers are rendered.
 pub(crate) fn stages(
     nodes: &[IllumInput],
     finish: &Finish,
     compositors: &[DaemonSpec],
     topology: Topology,
     formats: &FormatChoice,
-) -> (Vec<StagePlan>, Vec<Dest>, Dest) {
+) -> (Vec<StagePlan>, Vec<Dest>, MaterialSite) {
     let n = nodes.len().max(1);
     let c = compositors.len().max(1);
     let leaves = match topology {
@@ -111,6 +133,7 @@ pub(crate) fn stages(
         stages.push(StagePlan {
             compositor: id,
             ops,
+            wiring: Vec::new(),
             inputs,
             outputs: ill(chain_fmt),
             downstream: Downstream::Sink,
@@ -141,6 +164,7 @@ pub(crate) fn stages(
                 }
                 stages.push(StagePlan {
                     compositor: id,
+                    wiring: Vec::new(),
                     ops: vec![(
                         "join".to_string(),
                         json!({ "inputs": 2, "layer": "illumination" }),
@@ -157,12 +181,46 @@ pub(crate) fn stages(
     }
     // The last stage built is the root: material and output follow its sum.
     let root = stages.last_mut().expect("at least one stage");
-    let (mnode, mlayers) = &finish.material_node;
-    let material_dst = (root.compositor.clone(), root.inputs.len() as u32);
-    root.inputs.push(InputRef {
-        source: Source::Node(mnode.clone()),
-        layers: mlayers.clone(),
+    let sum_inputs = root.inputs.len() as u32;
+    // Extra targets of the cheapest node the root reads, unless a node of their own is given.
+    let host = finish.material_node.is_none().then(|| {
+        root.inputs
+            .iter()
+            .enumerate()
+            .filter_map(|(j, i)| match &i.source {
+                Source::Node(id) => nodes.iter().position(|n| &n.node == id).map(|k| (j, k)),
+                Source::Stage(_) => None,
+            })
+            .min_by(|a, b| {
+                nodes[a.1]
+                    .cost
+                    .total_cmp(&nodes[b.1].cost)
+                    .then(a.1.cmp(&b.1))
+            })
     });
+    let site = match (host.flatten(), &finish.material_node) {
+        (Some((j, k)), _) => {
+            root.inputs[j]
+                .layers
+                .extend(finish.material_layers.iter().copied());
+            // The sum reads every input as before; `material` reads the sum and the host's
+            // material layers, `output` the material's radiance.
+            root.wiring = vec![
+                (0..sum_inputs).map(OpSource::Input).collect(),
+                vec![OpSource::Op(0), OpSource::Input(j as u32)],
+                vec![OpSource::Op(1)],
+            ];
+            MaterialSite::Host(k)
+        }
+        (None, material_node) => {
+            let node = material_node.clone().unwrap_or_default();
+            root.inputs.push(InputRef {
+                source: Source::Node(node),
+                layers: finish.material_layers.clone(),
+            });
+            MaterialSite::OwnNode((root.compositor.clone(), sum_inputs))
+        }
+    };
     let mut mp = json!({
         "stage": "single",
         "specular": matches!(finish.mode, MaterialMode::General),
@@ -176,7 +234,7 @@ pub(crate) fn stages(
         .push(("output".to_string(), json!({ "exposure": finish.exposure })));
     root.outputs = vec![(Layer::Radiance, formats.sink)];
     root.downstream = Downstream::Sink;
-    (stages, node_dst, material_dst)
+    (stages, node_dst, site)
 }
 
 /// Bytes of one frame of these layers at this size and band height, band framing included.

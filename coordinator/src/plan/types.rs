@@ -159,6 +159,10 @@ pub struct PlanOptions {
     pub map_sizing: MapSizing,
     /// Frames each compositor input buffers before backpressure.
     pub frames_in_flight: u32,
+    /// Render the material layers on a node of their own (the paper's layout, one more eye
+    /// pass) even where they could be extra targets of an illumination node at the last stage.
+    #[serde(default)]
+    pub material_own_node: bool,
 }
 
 /// Default ε: about a quarter of one 8-bit sRGB code value at mid-grey (a step there is ≈ 4e-3
@@ -192,6 +196,7 @@ impl Default for PlanOptions {
                 target: DEFAULT_TARGET_MISMATCH,
             },
             frames_in_flight: 2,
+            material_own_node: false,
         }
     }
 }
@@ -296,6 +301,9 @@ pub struct StagePlan {
     pub compositor: String,
     /// Operators in order: registry name and JSON parameters.
     pub ops: Vec<(String, serde_json::Value)>,
+    /// Per operator, where each input comes from; empty: the fold (`CompositorConfig::wiring`).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub wiring: Vec<Vec<lightfold_protocol::OpSource>>,
     pub inputs: Vec<InputRef>,
     pub outputs: Vec<(Layer, PixelFormat)>,
     pub downstream: Downstream,
