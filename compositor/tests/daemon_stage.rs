@@ -339,16 +339,6 @@ async fn a_new_coordinator_and_a_reconnected_producer_take_over() {
     stage.stop().await;
 }
 
-/// Values as they come out of a link format (so the in-memory reference sees what the stage sees).
-fn quantised(format: PixelFormat, layer: Layer, data: Vec<f32>) -> Vec<f32> {
-    let px = data.len() / layer.channels();
-    let mut bytes = vec![0u8; px * format.bytes_per_pixel()];
-    lightfold_protocol::format::pack(format, &data, 1.0, &mut bytes).unwrap();
-    let mut out = vec![0.0; data.len()];
-    lightfold_protocol::format::unpack(format, &bytes, 1.0, &mut out).unwrap();
-    out
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_operators_fold_three_inputs_band_by_band() {
     let size = (23, 14, 4);

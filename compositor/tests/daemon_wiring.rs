@@ -12,15 +12,6 @@ use support::*;
 
 const ILL: Layer = Layer::Illumination;
 
-fn quantised(format: PixelFormat, layer: Layer, data: Vec<f32>) -> Vec<f32> {
-    let px = data.len() / layer.channels();
-    let mut bytes = vec![0u8; px * format.bytes_per_pixel()];
-    lightfold_protocol::format::pack(format, &data, 1.0, &mut bytes).unwrap();
-    let mut out = vec![0.0; data.len()];
-    lightfold_protocol::format::unpack(format, &bytes, 1.0, &mut out).unwrap();
-    out
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn one_input_feeds_accumulate_and_material() {
     let size = (23, 14, 4);

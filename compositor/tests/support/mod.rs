@@ -185,6 +185,16 @@ pub fn image(layer: Layer, format: PixelFormat, data: Vec<f32>) -> LayerImage {
     }
 }
 
+/// Values as they come out of a link format (so the in-memory reference sees what the stage sees).
+pub fn quantised(format: PixelFormat, layer: Layer, data: Vec<f32>) -> Vec<f32> {
+    let px = data.len() / layer.channels();
+    let mut bytes = vec![0u8; px * format.bytes_per_pixel()];
+    lightfold_protocol::format::pack(format, &data, 1.0, &mut bytes).unwrap();
+    let mut out = vec![0.0; data.len()];
+    lightfold_protocol::format::unpack(format, &bytes, 1.0, &mut out).unwrap();
+    out
+}
+
 /// The operators of `ops` applied to whole frames in memory (no quantisation).
 pub fn reference(
     ops: &[(&str, &str)],
