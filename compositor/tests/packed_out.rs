@@ -154,3 +154,51 @@ fn an_all_empty_sum_is_reported_zero_and_bad_targets_are_errors() {
     let e = op.apply_packed_to(&[None, None], pixels, target);
     assert!(matches!(e, Err(OpError::Pack { .. })), "{e:?}");
 }
+
+/// The stage runs a lone `join` of illumination sums as the fused accumulate of white local terms
+/// (`daemon/config.rs`): that must give the join's bits, on arbitrary packed inputs (NaN, infinite
+/// and negative halves and floats), with an empty band among them.
+#[test]
+fn a_white_accumulate_gives_the_bits_of_join() {
+    use lightfold_compositor::ops::{BandView, Join, Operator};
+    use lightfold_protocol::format::unpack;
+    let join = Join::new(&json!({"inputs": 3})).unwrap();
+    let white =
+        Accumulate::new(&json!({"upstream": false, "colors": [[1, 1, 1], [1, 1, 1], [1, 1, 1]]}))
+            .unwrap();
+    for pixels in [1, 255, 1023, 2 * PAR_SPAN + 77] {
+        let seed = pixels as u64;
+        let formats = [PixelFormat::F16x6, PixelFormat::F32x6, PixelFormat::F16x6];
+        let packed: Vec<Vec<u8>> = formats
+            .iter()
+            .enumerate()
+            .map(|(i, &f)| bytes(f, pixels, seed + i as u64, false))
+            .collect();
+        let values: Vec<Vec<f32>> = formats
+            .iter()
+            .zip(&packed)
+            .map(|(&f, b)| {
+                let mut v = vec![0f32; pixels * 6];
+                unpack(f, b, 1.0, &mut v).unwrap();
+                v
+            })
+            .collect();
+        // Input 2 arrives empty: join leaves it out, the fused path reads it as `None`.
+        let views: Vec<BandView<'_>> = values[..2]
+            .iter()
+            .map(|v| BandView::new(pixels).with(Layer::Illumination, v))
+            .chain([BandView::new(pixels)])
+            .collect();
+        let mut want = Owned::zeros(pixels, &[Layer::Illumination]);
+        join.apply(&views, &mut want.view_mut()).unwrap();
+        let inputs = [p(formats[0], &packed[0]), p(formats[1], &packed[1]), None];
+        let mut got = Owned::zeros(pixels, &[Layer::Illumination]);
+        white.apply_packed(&inputs, &mut got.view_mut()).unwrap();
+        let same = got.layers[0]
+            .1
+            .iter()
+            .zip(&want.layers[0].1)
+            .all(|(a, b)| a.to_bits() == b.to_bits());
+        assert!(same, "{pixels} px: the white accumulate differs from join");
+    }
+}

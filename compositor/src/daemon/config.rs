@@ -198,16 +198,26 @@ impl StagePlan {
         // The fused paths read the stage inputs in order, as the fold does; explicit wiring may
         // not, so it keeps the general path.
         let fold = c.wiring.is_empty();
+        let illumination_only = c
+            .inputs
+            .iter()
+            .all(|i| i.layers.len() == 1 && i.layers[0].0 == Layer::Illumination);
         let fused = match c.ops.as_slice() {
-            [(name, params)]
-                if fold
-                    && name == crate::ops::accumulate::NAME
-                    && c.inputs
-                        .iter()
-                        .all(|i| i.layers.len() == 1 && i.layers[0].0 == Layer::Illumination) =>
-            {
+            [(name, params)] if fold && illumination_only => {
                 let params: serde_json::Value = serde_json::from_str(params).unwrap_or_default();
-                Accumulate::new(&params).ok()
+                if name == crate::ops::accumulate::NAME {
+                    Accumulate::new(&params).ok()
+                } else if name == crate::ops::join::NAME
+                    && p_layer(&params) == Some(Layer::Illumination)
+                {
+                    // A join of illumination sums is an accumulate of white, non-folding local
+                    // terms: 0 + 1·x is x, added in input order, saturated once, so the fused
+                    // path gives the join's bits (tests compare the two).
+                    let white: Vec<[f32; 3]> = vec![[1.0; 3]; c.inputs.len()];
+                    Accumulate::new(&serde_json::json!({ "upstream": false, "colors": white })).ok()
+                } else {
+                    None
+                }
             }
             _ => None,
         };
@@ -314,10 +324,18 @@ fn check_formats(layers: &[(Layer, PixelFormat)], place: &str) -> Result<(), Con
     Ok(())
 }
 
+/// The layer a `join`'s parameters name (illumination when they name none).
+fn p_layer(params: &serde_json::Value) -> Option<Layer> {
+    match params.get("layer") {
+        None => Some(Layer::Illumination),
+        Some(v) => v.as_str().and_then(crate::ops::layer_from_name),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use lightfold_protocol::StageInput;
+    use lightfold_protocol::{OpSource, StageInput};
 
     fn input(peer: &str, layers: &[(Layer, PixelFormat)]) -> StageInput {
         StageInput {
@@ -359,6 +377,31 @@ mod tests {
         assert_eq!(plan.produced, vec![Layer::Radiance]);
         let frame = 33 * 17 * 12 + 4 * BAND_OVERHEAD;
         assert_eq!(plan.input_budget[0], 2 * frame);
+    }
+
+    #[test]
+    fn a_lone_join_of_illumination_takes_the_fused_accumulate() {
+        let ill = [(Layer::Illumination, PixelFormat::F16x6)];
+        let mut c = config();
+        c.inputs = vec![input("a", &ill), input("b", &ill)];
+        c.ops = vec![("join".into(), r#"{"inputs": 2}"#.into())];
+        c.outputs = ill.to_vec();
+        assert!(
+            StagePlan::new(c.clone(), 1 << 20)
+                .unwrap()
+                .1
+                .fused
+                .is_some()
+        );
+        // Another layer, or explicit wiring, keeps the general path.
+        let dif = [(Layer::Diffuse, PixelFormat::F16x4)];
+        let mut d = c.clone();
+        d.inputs = vec![input("a", &dif), input("b", &dif)];
+        d.ops = vec![("join".into(), r#"{"inputs": 2, "layer": "diffuse"}"#.into())];
+        d.outputs = dif.to_vec();
+        assert!(StagePlan::new(d, 1 << 20).unwrap().1.fused.is_none());
+        c.wiring = vec![vec![OpSource::Input(1), OpSource::Input(0)]];
+        assert!(StagePlan::new(c, 1 << 20).unwrap().1.fused.is_none());
     }
 
     #[test]
