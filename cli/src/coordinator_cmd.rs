@@ -81,6 +81,10 @@ pub struct JobArgs {
     /// resolution mismatch).
     #[arg(long)]
     pub shadow_map_size: Option<u32>,
+    /// Render the material layers on a node of their own (the paper's layout) instead of as
+    /// extra targets of an illumination node at the last stage.
+    #[arg(long)]
+    pub material_own_node: bool,
     /// PNG output (sRGB at the scene's exposure).
     #[arg(long, default_value = "out.png")]
     pub out: PathBuf,
@@ -111,6 +115,7 @@ impl JobArgs {
                 Some(n) => lightfold_coordinator::plan::MapSizing::Fixed(n),
                 None => PlanOptions::default().map_sizing,
             },
+            material_own_node: self.material_own_node,
             ..PlanOptions::default()
         }
     }

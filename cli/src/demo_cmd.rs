@@ -172,7 +172,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     print_cpu(&cpu, args.job.frames);
     if !args.no_compare {
-        crate::compare_reference::report(&scene, &args.job.exr)?;
+        // The image written is the last frame's: on a camera path, compare it with the
+        // reference seen from that frame's camera.
+        let mut last = scene.clone();
+        let frames = args.job.frames.max(1);
+        last.camera =
+            lightfold_coordinator::run::camera_at(&scene.camera, args.job.path(), frames - 1);
+        crate::compare_reference::report(&last, &args.job.exr)?;
     }
     Ok(())
 }

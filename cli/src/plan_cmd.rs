@@ -43,6 +43,9 @@ pub struct Args {
     /// Print the plan as JSON instead of text.
     #[arg(long)]
     pub json: bool,
+    /// Render the material layers on a node of their own (the paper's layout).
+    #[arg(long)]
+    pub material_own_node: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -61,6 +64,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         topology: args.topology,
         force_all: args.force_all,
         epsilon: args.epsilon,
+        material_own_node: args.material_own_node,
         ..PlanOptions::default()
     };
     if let Some(n) = args.shadow_map_size {

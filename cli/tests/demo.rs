@@ -113,3 +113,40 @@ fn demo_renders_and_leaves_no_process_behind() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// On a camera path the image written is the last frame's, and the demo's error report compares
+/// it with the reference seen from that frame's camera (it once used the first camera, and a
+/// correct image scored 9 dB).
+#[test]
+fn the_error_report_follows_the_camera_path() {
+    let dir = std::env::temp_dir().join(format!("lightfold-orbit-test-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = lightfold()
+        .args(["demo", "--size", "96x72", "--frames", "2", "--orbit", "25"])
+        .arg("--work-dir")
+        .arg(&dir)
+        .arg("--out")
+        .arg(dir.join("out.png"))
+        .arg("--exr")
+        .arg(dir.join("out.exr"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "demo failed:\n{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let psnr: f64 = stdout
+        .lines()
+        .find(|l| l.starts_with("whole"))
+        .and_then(|l| l.split("psnr").nth(1))
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no whole-image psnr in:\n{stdout}"));
+    assert!(
+        psnr > 35.0,
+        "whole-image PSNR {psnr} dB on an orbit:\n{stdout}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
