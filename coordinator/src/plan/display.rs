@@ -167,13 +167,13 @@ impl Display for Plan {
             MaterialMode::General => "single stage with a specular layer".to_string(),
         };
         let place = match &m.placement {
-            MaterialPlacement::None => "none".to_string(),
+            MaterialPlacement::None => "rendered nowhere".to_string(),
             MaterialPlacement::ExtraTargets { node } => format!("extra targets of {node}"),
-            MaterialPlacement::OwnNode { node } => format!("own node {node}"),
+            MaterialPlacement::OwnNode { node } => format!("on {node}, a node of their own"),
         };
         writeln!(
             f,
-            "material: {mode} · layers {} · on {place}",
+            "material: {mode} · layers {} · {place}",
             layers(&m.layers)
         )?;
         if m.fold_ambient {
