@@ -85,6 +85,10 @@ pub struct JobArgs {
     /// extra targets of an illumination node at the last stage.
     #[arg(long)]
     pub material_own_node: bool,
+    /// Frame-time budget in milliseconds: K becomes the largest whose slowest node fits it (by
+    /// the nodes' cost model), so the plan uses as few nodes as it allows; overrides -K.
+    #[arg(long, value_parser = crate::coordinator_cmd::positive_ms)]
+    pub frame_budget: Option<f64>,
     /// PNG output (sRGB at the scene's exposure).
     #[arg(long, default_value = "out.png")]
     pub out: PathBuf,
@@ -116,6 +120,7 @@ impl JobArgs {
                 None => PlanOptions::default().map_sizing,
             },
             material_own_node: self.material_own_node,
+            frame_budget_us: self.frame_budget.map(|b| (b * 1000.0).round() as u64),
             ..PlanOptions::default()
         }
     }
@@ -125,6 +130,14 @@ impl JobArgs {
             Some(d) => FramePath::Orbit { degrees: d },
             None => FramePath::Still,
         }
+    }
+}
+
+/// A duration in milliseconds that must be finite and positive (`--frame-budget`).
+pub fn positive_ms(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 && v < 1e9 => Ok(v),
+        _ => Err(format!("{s:?} is not a positive number of milliseconds")),
     }
 }
 

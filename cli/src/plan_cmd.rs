@@ -46,6 +46,10 @@ pub struct Args {
     /// Render the material layers on a node of their own (the paper's layout).
     #[arg(long)]
     pub material_own_node: bool,
+    /// Frame-time budget in milliseconds: K becomes the largest whose slowest node fits it (by
+    /// the nodes' cost model), so the plan uses as few nodes as it allows; overrides -K.
+    #[arg(long, value_parser = crate::coordinator_cmd::positive_ms)]
+    pub frame_budget: Option<f64>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -65,6 +69,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         force_all: args.force_all,
         epsilon: args.epsilon,
         material_own_node: args.material_own_node,
+        frame_budget_us: args.frame_budget.map(|b| (b * 1000.0).round() as u64),
         ..PlanOptions::default()
     };
     if let Some(n) = args.shadow_map_size {

@@ -540,3 +540,46 @@ fn bad_inputs_give_clear_errors() {
     let e = plan(&bad, &local(), &opts()).unwrap_err();
     assert!(e.to_string().contains("names material 99"), "{e}");
 }
+
+#[test]
+fn a_frame_budget_picks_the_largest_k_that_fits_it() {
+    let s = many_lights();
+    let big = ClusterSpec::local(64, 64);
+    let at_k = |k: u32| {
+        plan(
+            &s,
+            &big,
+            &PlanOptions {
+                lights_per_node: k,
+                ..opts()
+            },
+        )
+        .unwrap()
+    };
+    let with = |budget_us: u64, cluster: &ClusterSpec| {
+        plan(
+            &s,
+            cluster,
+            &PlanOptions {
+                frame_budget_us: Some(budget_us),
+                ..opts()
+            },
+        )
+        .unwrap()
+    };
+    // Budgets exactly at the estimates of K = 2 and K = 8 (the estimate grows with K here).
+    let (two, eight) = (at_k(2).est_frame_us, at_k(8).est_frame_us);
+    assert!(at_k(3).est_frame_us > two && at_k(9).est_frame_us > eight);
+    let (tight, loose) = (with(two, &big), with(eight, &big));
+    assert_eq!((tight.k, loose.k), (2, 8));
+    assert_eq!((tight.est_frame_us, loose.est_frame_us), (two, eight));
+    assert!(loose.nodes.len() < tight.nodes.len());
+    assert!(tight.to_string().contains("within the"), "{tight}");
+    // No K fits 1 ms: the fastest estimate (K = 1), said plainly.
+    let impossible = with(1000, &big);
+    assert_eq!(impossible.k, 1);
+    assert!(impossible.to_string().contains("over the 1.0 ms budget"));
+    // A short cluster still raises K until the lights fit on its nodes.
+    let short = with(two, &ClusterSpec::local(3, 3));
+    assert!(short.nodes.len() <= 3 && short.k >= 11, "K = {}", short.k);
+}

@@ -113,10 +113,15 @@ impl Display for Plan {
             .sum();
         writeln!(
             f,
-            "nodes: {} used, {} idle · {passes} shadow passes per frame · est. frame {}",
+            "nodes: {} used, {} idle · {passes} shadow passes per frame · est. frame {}{}",
             self.nodes.len(),
             self.idle_nodes.len(),
-            ms(self.est_frame_us)
+            ms(self.est_frame_us),
+            match self.frame_budget_us {
+                Some(b) if self.est_frame_us <= b => format!(" (within the {} budget)", ms(b)),
+                Some(b) => format!(" (over the {} budget)", ms(b)),
+                None => String::new(),
+            }
         )?;
         for n in &self.nodes {
             write!(

@@ -20,6 +20,9 @@ pub use topology::BAND_OVERHEAD_BYTES;
 pub use types::*;
 
 use group::{Group, NodeCost};
+
+/// The largest K a frame budget may choose when no node reports its device limit.
+pub const BUDGET_MAX_K: u32 = 32;
 use lightfold_protocol::Layer;
 use lightfold_scene::Scene;
 use sha2::{Digest, Sha256};
@@ -113,9 +116,23 @@ pub fn plan(
 
     // Groups: K per node, raised towards the device limit when nodes are short. One node more
     // renders the material layers.
-    let k = options.lights_per_node;
-    let limit = group::device_limit(&cluster.nodes, k);
     let available = cluster.nodes.len();
+    let pixels = u64::from(cam.width) * u64::from(cam.height);
+    let costs: Vec<NodeCost> = cluster
+        .nodes
+        .iter()
+        .map(|n| NodeCost::of(n, pixels))
+        .collect();
+    let (k, limit) = match options.frame_budget_us {
+        None => {
+            let k = options.lights_per_node;
+            (k, group::device_limit(&cluster.nodes, k))
+        }
+        Some(_) => {
+            let limit = group::device_limit(&cluster.nodes, BUDGET_MAX_K);
+            (limit, limit)
+        }
+    };
     let groups_for = |k: u32| {
         let mut g = group::form_groups(&culling.active, &samples, k);
         if g.is_empty() {
@@ -134,6 +151,49 @@ pub fn plan(
         options.material_own_node || !topology::root_reads_nodes(g, compositors, options.topology)
     };
     let needed = |g: usize| g + usize::from(own_node(g));
+    // With a frame budget: the largest K (fewest nodes) whose slowest node fits it, among the K
+    // the cluster has nodes for; the fastest estimate when none fits.
+    let k = match options.frame_budget_us {
+        None => k,
+        Some(budget) => {
+            let estimate = |g: &[Group]| -> f64 {
+                let group_costs: Vec<Vec<f64>> = g
+                    .iter()
+                    .map(|g| {
+                        let views: Vec<&ShadowPlan> = g
+                            .lights
+                            .iter()
+                            .filter_map(|&i| shadows[i].as_ref())
+                            .collect();
+                        costs.iter().map(|c| c.frame(&views, 0)).collect()
+                    })
+                    .collect();
+                let on = group::assign(&group_costs);
+                group_costs
+                    .iter()
+                    .zip(&on)
+                    .map(|(c, &n)| c[n])
+                    .fold(0.0, f64::max)
+            };
+            let mut best: Option<(f64, u32)> = None;
+            let mut fit = None;
+            for kk in (1..=limit).rev() {
+                let g = groups_for(kk);
+                if needed(g.len()) > available {
+                    break;
+                }
+                let est = estimate(&g);
+                if est <= budget as f64 {
+                    fit = Some(kk);
+                    break;
+                }
+                if best.is_none_or(|(b, _)| est < b) {
+                    best = Some((est, kk));
+                }
+            }
+            fit.or(best.map(|b| b.1)).unwrap_or(limit)
+        }
+    };
     let mut k_used = k;
     let mut groups = groups_for(k);
     while needed(groups.len()) > available && k_used < limit {
@@ -187,12 +247,6 @@ pub fn plan(
     let (mode, material_layers) = material::layers(&needs, fold.is_some(), &options.formats);
 
     // Assignment: group → node by cost; the material node is the cheapest node left.
-    let pixels = u64::from(cam.width) * u64::from(cam.height);
-    let costs: Vec<NodeCost> = cluster
-        .nodes
-        .iter()
-        .map(|n| NodeCost::of(n, pixels))
-        .collect();
     let group_shadows = |g: &Group| -> Vec<&ShadowPlan> {
         g.lights
             .iter()
@@ -371,6 +425,7 @@ pub fn plan(
         depth_bias: scene.quality.depth_bias,
         slope_bias: scene.quality.slope_bias,
         est_frame_us,
+        frame_budget_us: options.frame_budget_us,
         addresses,
     })
 }

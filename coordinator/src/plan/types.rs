@@ -163,6 +163,11 @@ pub struct PlanOptions {
     /// pass) even where they could be extra targets of an illumination node at the last stage.
     #[serde(default)]
     pub material_own_node: bool,
+    /// A frame-time budget (µs, by the nodes' cost model): K becomes the largest that keeps the
+    /// slowest node within it, so the plan uses as few nodes as the budget allows (K from
+    /// `lights_per_node` is then ignored). The nearest K when no K fits.
+    #[serde(default)]
+    pub frame_budget_us: Option<u64>,
 }
 
 /// Default ε: about a quarter of one 8-bit sRGB code value at mid-grey (a step there is ≈ 4e-3
@@ -197,6 +202,7 @@ impl Default for PlanOptions {
             },
             frames_in_flight: 2,
             material_own_node: false,
+            frame_budget_us: None,
         }
     }
 }
@@ -395,6 +401,9 @@ pub struct Plan {
     pub slope_bias: f32,
     /// Estimated frame time: the slowest node.
     pub est_frame_us: u64,
+    /// The frame budget the plan was asked to meet (`PlanOptions::frame_budget_us`).
+    #[serde(default)]
+    pub frame_budget_us: Option<u64>,
     /// Data addresses of the daemons the plan uses, by id.
     pub addresses: Vec<(String, String)>,
 }
