@@ -143,15 +143,9 @@ fn general(
         .collect()
 }
 
-/// `apply_packed_on(isa, …)` into payloads filled with garbage first (every byte must be written).
-fn fused(
-    op: &Depth,
-    isa: Isa,
-    inputs: &[Vec<Band>],
-    outs: &[(Layer, PixelFormat)],
-    px: usize,
-) -> Result<Vec<Packed>, OpError> {
-    let layers: Vec<Vec<PackedLayer<'_>>> = inputs
+/// The inputs as the stage hands them to `apply_packed`.
+fn packed_layers(inputs: &[Vec<Band>]) -> Vec<Vec<PackedLayer<'_>>> {
+    inputs
         .iter()
         .map(|ls| {
             ls.iter()
@@ -163,7 +157,18 @@ fn fused(
                 })
                 .collect()
         })
-        .collect();
+        .collect()
+}
+
+/// `apply_packed_on(isa, …)` into payloads filled with garbage first (every byte must be written).
+fn fused(
+    op: &Depth,
+    isa: Isa,
+    inputs: &[Vec<Band>],
+    outs: &[(Layer, PixelFormat)],
+    px: usize,
+) -> Result<Vec<Packed>, OpError> {
+    let layers = packed_layers(inputs);
     let mut bufs: Vec<Vec<u8>> = outs
         .iter()
         .map(|(_, f)| vec![0xA5; px * f.bytes_per_pixel()])
@@ -441,19 +446,7 @@ fn apply_packed_refuses_what_it_cannot_do() {
     assert!(matches!(err, OpError::Packed { input: 1, .. }), "{err}");
 
     // Outputs of different pixel counts.
-    let layers: Vec<Vec<PackedLayer<'_>>> = inputs
-        .iter()
-        .map(|ls| {
-            ls.iter()
-                .map(|b| PackedLayer {
-                    layer: b.layer,
-                    format: b.format,
-                    scale: 1.0,
-                    bytes: b.bytes.as_deref(),
-                })
-                .collect()
-        })
-        .collect();
+    let layers = packed_layers(&inputs);
     let (mut z, mut ill) = (vec![0u8; px * 4], vec![0u8; (px + 1) * 12]);
     let mut bad = [
         PackedOut {
