@@ -420,12 +420,27 @@ fn a_tree_joins_pairs_and_a_chain_links_stages() {
         .find(|st| st.downstream == Downstream::Sink)
         .unwrap();
     let ops: Vec<&str> = root.ops.iter().map(|o| o.0.as_str()).collect();
-    assert_eq!(ops, ["join", "material", "output"]);
-    // A join reads no node: the material layers have a node of their own.
-    assert!(matches!(
+    // The root joins the two halves, adds the one node it reads itself, and shades with that
+    // node's material layers.
+    assert_eq!(ops, ["join", "accumulate", "material", "output"]);
+    assert_eq!(
+        root.wiring,
+        vec![
+            vec![OpSource::Input(0), OpSource::Input(1)],
+            vec![OpSource::Op(0), OpSource::Input(2)],
+            vec![OpSource::Op(1), OpSource::Input(2)],
+            vec![OpSource::Op(2)],
+        ]
+    );
+    let host = tree.nodes.last().unwrap();
+    assert_eq!(
         tree.material.placement,
-        MaterialPlacement::OwnNode { .. }
-    ));
+        MaterialPlacement::ExtraTargets {
+            node: host.node.clone()
+        }
+    );
+    assert_eq!((host.downstream.as_str(), host.input_index), (root.compositor.as_str(), 2));
+    assert_eq!(tree.nodes.len(), 8);
     let chain = plan(&s, &ClusterSpec::local(9, 3), &opts()).unwrap();
     assert_eq!(chain.stages.len(), 3);
     assert_eq!(

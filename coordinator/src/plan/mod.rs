@@ -144,13 +144,10 @@ pub fn plan(
         }
         g
     };
-    // Nodes a plan of `g` groups needs: one more when the material layers cannot be extra
-    // targets of a node the last stage reads.
-    let compositors = cluster.compositors.len();
-    let own_node = |g: usize| {
-        options.material_own_node || !topology::root_reads_nodes(g, compositors, options.topology)
-    };
-    let needed = |g: usize| g + usize::from(own_node(g));
+    // Nodes a plan of `g` groups needs: one more when the material layers have a node of their
+    // own (on request; otherwise they are extra targets of a node the last stage reads).
+    let own_node = options.material_own_node;
+    let needed = |g: usize| g + usize::from(own_node);
     // With a frame budget: the largest K (fewest nodes) whose slowest node fits it, among the K
     // the cluster has nodes for; the fastest estimate when none fits.
     let k = match options.frame_budget_us {
@@ -263,7 +260,7 @@ pub fn plan(
         })
         .collect();
     let on_node = group::assign(&group_costs);
-    let material_node = own_node(groups.len()).then(|| {
+    let material_node = own_node.then(|| {
         (0..available)
             .filter(|n| !on_node.contains(n))
             .min_by(|&a, &b| {

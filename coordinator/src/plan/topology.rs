@@ -1,7 +1,8 @@
 //! Compositor stages and data links: a chain like the paper's (each stage adds its nodes to the
 //! upstream sum) or a tree (leaf stages accumulate nodes, stages above `join` pairs), with the
-//! material and output operators at the last stage. Operator names and JSON parameters are those
-//! of the compositor's registry (`compositor/src/ops/`); a stage's operators read its inputs as a
+//! material and output operators at the last stage, which reads the node carrying the material
+//! layers (a tree's root reads one node of its own for that, after its `join`). Operator names
+//! and JSON parameters are those of the compositor's registry (`compositor/src/ops/`); a stage's operators read its inputs as a
 //! fold: operator 0 the first inputs, each next one the previous output plus the next inputs.
 
 use super::types::{DaemonSpec, Topology};
@@ -56,15 +57,6 @@ pub(crate) enum MaterialSite {
     Host(usize),
 }
 
-/// Whether the last stage of this topology reads nodes directly (a chain's last stage, or a
-/// tree with a single leaf), so one of them can carry the material layers too.
-pub(crate) fn root_reads_nodes(groups: usize, compositors: usize, topology: Topology) -> bool {
-    match topology {
-        Topology::Chain => true,
-        Topology::Tree => groups.max(1).min(compositors.max(1).div_ceil(2)) == 1,
-    }
-}
-
 /// Builds the stages. Returns them with, per illumination node, its destination, and where the
 /// material layers are rendered.
 pub(crate) fn stages(
@@ -74,8 +66,15 @@ pub(crate) fn stages(
     topology: Topology,
     formats: &FormatChoice,
 ) -> (Vec<StagePlan>, Vec<Dest>, MaterialSite) {
-    let n = nodes.len().max(1);
     let c = compositors.len().max(1);
+    // A tree whose root is a `join` reads no node, so its root also reads the last node itself
+    // (`join` → `accumulate` → `material`), which carries the material layers.
+    let tree_host = (topology == Topology::Tree
+        && finish.material_node.is_none()
+        && nodes.len().min(c.div_ceil(2)) >= 2)
+        .then(|| nodes.len() - 1);
+    let spread = nodes.len() - usize::from(tree_host.is_some());
+    let n = spread.max(1);
     let leaves = match topology {
         Topology::Chain => n.min(c),
         Topology::Tree => n.min(c.div_ceil(2)),
@@ -84,7 +83,7 @@ pub(crate) fn stages(
     let mut chunks = Vec::with_capacity(leaves);
     let mut start = 0;
     for i in 0..leaves {
-        let len = nodes.len() / leaves + usize::from(i < nodes.len() % leaves);
+        let len = spread / leaves + usize::from(i < spread % leaves);
         chunks.push(start..start + len);
         start += len;
     }
@@ -182,6 +181,27 @@ pub(crate) fn stages(
     // The last stage built is the root: material and output follow its sum.
     let root = stages.last_mut().expect("at least one stage");
     let sum_inputs = root.inputs.len() as u32;
+    if let Some(h) = tree_host {
+        // The root joins the two partial sums, adds its own node, then shades with that node's
+        // material layers.
+        let mut layers = nodes[h].layers.clone();
+        layers.extend(finish.material_layers.iter().copied());
+        root.inputs.push(InputRef {
+            source: Source::Node(nodes[h].node.clone()),
+            layers,
+        });
+        node_dst[h] = (root.compositor.clone(), sum_inputs);
+        root.ops
+            .push(("accumulate".to_string(), accumulate(&(h..h + 1), true)));
+        root.wiring = vec![
+            (0..sum_inputs).map(OpSource::Input).collect(),
+            vec![OpSource::Op(0), OpSource::Input(sum_inputs)],
+            vec![OpSource::Op(1), OpSource::Input(sum_inputs)],
+            vec![OpSource::Op(2)],
+        ];
+        finish_root(root, finish, formats);
+        return (stages, node_dst, MaterialSite::Host(h));
+    }
     // Extra targets of the cheapest node the root reads, unless a node of their own is given.
     let host = finish.material_node.is_none().then(|| {
         root.inputs
@@ -221,6 +241,12 @@ pub(crate) fn stages(
             MaterialSite::OwnNode((root.compositor.clone(), sum_inputs))
         }
     };
+    finish_root(root, finish, formats);
+    (stages, node_dst, site)
+}
+
+/// Appends `material` and `output` to the root stage, which sends radiance to the sink.
+fn finish_root(root: &mut StagePlan, finish: &Finish, formats: &FormatChoice) {
     let mut mp = json!({
         "stage": "single",
         "specular": matches!(finish.mode, MaterialMode::General),
@@ -234,7 +260,6 @@ pub(crate) fn stages(
         .push(("output".to_string(), json!({ "exposure": finish.exposure })));
     root.outputs = vec![(Layer::Radiance, formats.sink)];
     root.downstream = Downstream::Sink;
-    (stages, node_dst, site)
 }
 
 /// Bytes of one frame of these layers at this size and band height, band framing included.
