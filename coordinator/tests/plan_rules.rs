@@ -439,7 +439,10 @@ fn a_tree_joins_pairs_and_a_chain_links_stages() {
             node: host.node.clone()
         }
     );
-    assert_eq!((host.downstream.as_str(), host.input_index), (root.compositor.as_str(), 2));
+    assert_eq!(
+        (host.downstream.as_str(), host.input_index),
+        (root.compositor.as_str(), 2)
+    );
     assert_eq!(tree.nodes.len(), 8);
     let chain = plan(&s, &ClusterSpec::local(9, 3), &opts()).unwrap();
     assert_eq!(chain.stages.len(), 3);
