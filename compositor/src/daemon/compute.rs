@@ -1,9 +1,9 @@
 //! One band through the stage: unpack every input layer to f32, run the operator fold, pack the
 //! outputs and seal their headers; or, for a lone `accumulate` (a `join` runs as one) or `depth`
-//! over formats they read packed, one fused pass from the input payloads straight into the output payloads
-//! (`ops::packed_out`). Synchronous and allocation-free in steady state (scratch and payload
-//! buffers are reused), so the engine runs it on the stage's compute pool while the next band
-//! arrives.
+//! over formats they read packed, one fused pass from the input payloads straight into the output
+//! payloads (`ops::packed_out`). Synchronous and allocation-free in steady state (scratch and
+//! payload buffers are reused), so the engine runs it on the stage's compute pool while the next
+//! band arrives.
 
 use super::config::{Operators, StagePlan};
 use super::inputs::InBand;
