@@ -118,6 +118,58 @@ impl NodeCost {
     }
 }
 
+/// The largest K a frame budget may choose when no node reports its device limit.
+pub const BUDGET_MAX_K: u32 = 32;
+
+/// The slowest node's estimated frame (µs) when `groups` are assigned by cost.
+fn slowest<'s>(
+    groups: &[Group],
+    costs: &[NodeCost],
+    views: &impl Fn(&Group) -> Vec<&'s ShadowPlan>,
+) -> f64 {
+    let group_costs: Vec<Vec<f64>> = groups
+        .iter()
+        .map(|g| {
+            let v = views(g);
+            costs.iter().map(|c| c.frame(&v, 0)).collect()
+        })
+        .collect();
+    assign(&group_costs)
+        .iter()
+        .zip(&group_costs)
+        .map(|(&n, c)| c[n])
+        .fold(0.0, f64::max)
+}
+
+/// With a frame budget: the largest K up to `limit` (the fewest nodes) whose slowest node fits
+/// `budget_us`, among the K whose groups `fit` the cluster; the fastest estimate when none fits.
+/// The estimate leaves out extra targets and per-node map-size rounding (`docs/planner.md`).
+pub(crate) fn budget_k<'s>(
+    budget_us: f64,
+    limit: u32,
+    costs: &[NodeCost],
+    groups_for: impl Fn(u32) -> Vec<Group>,
+    fit: impl Fn(&[Group]) -> bool,
+    views: impl Fn(&Group) -> Vec<&'s ShadowPlan>,
+) -> u32 {
+    let mut best: Option<(f64, u32)> = None;
+    for k in (1..=limit).rev() {
+        let groups = groups_for(k);
+        if !fit(&groups) {
+            // Smaller K only makes more groups.
+            break;
+        }
+        let est = slowest(&groups, costs, &views);
+        if est <= budget_us {
+            return k;
+        }
+        if best.is_none_or(|(b, _)| est < b) {
+            best = Some((est, k));
+        }
+    }
+    best.map_or(limit, |b| b.1)
+}
+
 /// Largest K the nodes' devices take (the smallest reported limit; `k` when none reported).
 pub(crate) fn device_limit(nodes: &[DaemonSpec], k: u32) -> u32 {
     nodes

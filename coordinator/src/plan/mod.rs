@@ -20,9 +20,6 @@ pub use topology::BAND_OVERHEAD_BYTES;
 pub use types::*;
 
 use group::{Group, NodeCost};
-
-/// The largest K a frame budget may choose when no node reports its device limit.
-pub const BUDGET_MAX_K: u32 = 32;
 use lightfold_protocol::Layer;
 use lightfold_scene::Scene;
 use sha2::{Digest, Sha256};
@@ -114,8 +111,8 @@ pub fn plan(
         v
     };
 
-    // Groups: K per node, raised towards the device limit when nodes are short. One node more
-    // renders the material layers.
+    // Groups: K per node (or as a frame budget allows), raised towards the device limit when
+    // nodes are short.
     let available = cluster.nodes.len();
     let pixels = u64::from(cam.width) * u64::from(cam.height);
     let costs: Vec<NodeCost> = cluster
@@ -129,7 +126,7 @@ pub fn plan(
             (k, group::device_limit(&cluster.nodes, k))
         }
         Some(_) => {
-            let limit = group::device_limit(&cluster.nodes, BUDGET_MAX_K);
+            let limit = group::device_limit(&cluster.nodes, group::BUDGET_MAX_K);
             (limit, limit)
         }
     };
@@ -148,47 +145,17 @@ pub fn plan(
     // own (on request; otherwise they are extra targets of a node the last stage reads).
     let own_node = options.material_own_node;
     let needed = |g: usize| g + usize::from(own_node);
-    // With a frame budget: the largest K (fewest nodes) whose slowest node fits it, among the K
-    // the cluster has nodes for; the fastest estimate when none fits.
     let k = match options.frame_budget_us {
         None => k,
         Some(budget) => {
-            let estimate = |g: &[Group]| -> f64 {
-                let group_costs: Vec<Vec<f64>> = g
+            let views = |g: &Group| -> Vec<&ShadowPlan> {
+                g.lights
                     .iter()
-                    .map(|g| {
-                        let views: Vec<&ShadowPlan> = g
-                            .lights
-                            .iter()
-                            .filter_map(|&i| shadows[i].as_ref())
-                            .collect();
-                        costs.iter().map(|c| c.frame(&views, 0)).collect()
-                    })
-                    .collect();
-                let on = group::assign(&group_costs);
-                group_costs
-                    .iter()
-                    .zip(&on)
-                    .map(|(c, &n)| c[n])
-                    .fold(0.0, f64::max)
+                    .filter_map(|&i| shadows[i].as_ref())
+                    .collect()
             };
-            let mut best: Option<(f64, u32)> = None;
-            let mut fit = None;
-            for kk in (1..=limit).rev() {
-                let g = groups_for(kk);
-                if needed(g.len()) > available {
-                    break;
-                }
-                let est = estimate(&g);
-                if est <= budget as f64 {
-                    fit = Some(kk);
-                    break;
-                }
-                if best.is_none_or(|(b, _)| est < b) {
-                    best = Some((est, kk));
-                }
-            }
-            fit.or(best.map(|b| b.1)).unwrap_or(limit)
+            let fits = |g: &[Group]| needed(g.len()) <= available;
+            group::budget_k(budget as f64, limit, &costs, groups_for, fits, views)
         }
     };
     let mut k_used = k;
