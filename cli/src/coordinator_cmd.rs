@@ -6,9 +6,10 @@ use anyhow::{Context, bail};
 use lightfold_coordinator::cluster::ClusterFile;
 use lightfold_coordinator::control::Session;
 use lightfold_coordinator::control::{ControlOptions, DaemonAddr};
+use lightfold_coordinator::control::{FrameResult, IncidentKind, LiveSummary};
 use lightfold_coordinator::plan::{PlanOptions, Topology};
 use lightfold_coordinator::report::Report;
-use lightfold_coordinator::run::{FramePath, RunOptions, apply, participants, requests};
+use lightfold_coordinator::run::{FramePath, RunOptions};
 use lightfold_net::{Identity, Timeouts};
 use lightfold_protocol::Role;
 use std::path::PathBuf;
@@ -42,9 +43,22 @@ pub struct Args {
     /// their devices answer late).
     #[arg(long, default_value_t = 10.0)]
     pub connect_timeout: f64,
-    /// Seconds a frame may take end to end.
+    /// Seconds a frame may take end to end; a daemon that answers its heartbeats but has not
+    /// finished a frame by then is treated as lost.
     #[arg(long, default_value_t = 120.0)]
     pub frame_timeout: f64,
+    /// Seconds a daemon may leave heartbeats unanswered before it is treated as lost (stopped,
+    /// hung or cut off) and the cluster is re-planned without it.
+    #[arg(long, default_value_t = 1.0)]
+    pub heartbeat_timeout: f64,
+    /// Claim daemons that another coordinator is running a job on (that coordinator is told it
+    /// was taken over and stops).
+    #[arg(long)]
+    pub take_over: bool,
+    /// When too few daemons are left for any plan, wait this many seconds for lost ones to come
+    /// back (they are redialled all along) instead of failing.
+    #[arg(long, default_value_t = 0.0)]
+    pub wait_for_daemons: f64,
     /// Exit when this process is no longer our parent (set by launchers).
     #[arg(long)]
     pub parent_pid: Option<u32>,
@@ -95,6 +109,10 @@ pub struct JobArgs {
     /// EXR output (linear radiance).
     #[arg(long, default_value = "out.exr")]
     pub exr: PathBuf,
+    /// Also keep every frame, as DIR/frame-NNNNN.exr and .png, written as it completes (`--out`
+    /// and `--exr` always hold the latest complete frame).
+    #[arg(long)]
+    pub frame_dir: Option<PathBuf>,
 }
 
 impl JobArgs {
@@ -205,6 +223,9 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
             },
             register: Duration::from_secs_f64(args.connect_timeout),
             frame: Duration::from_secs_f64(args.frame_timeout),
+            heartbeat_timeout: seconds(args.heartbeat_timeout, "--heartbeat-timeout")?,
+            wait_for_daemons: seconds(args.wait_for_daemons, "--wait-for-daemons")?,
+            take_over: args.take_over,
             ..ControlOptions::default()
         };
         let opts = RunOptions {
@@ -227,8 +248,16 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
     })
 }
 
-/// Runs the job on a connected session and prints the plan, frames, timing table and summary;
-/// writes the last image.
+fn seconds(v: f64, what: &str) -> anyhow::Result<Duration> {
+    if !(v.is_finite() && (0.0..1e7).contains(&v)) {
+        bail!("{what} {v} is not a number of seconds");
+    }
+    Ok(Duration::from_secs_f64(v))
+}
+
+/// Runs the job on a connected session through the coordinator's event loop: prints the plan,
+/// writes each frame as it completes, then prints the frames, timing table, failover summary
+/// and totals. A run that cannot go on keeps what it wrote and fails naming the daemon and why.
 pub async fn execute(
     mut session: Session,
     scene: &lightfold_scene::Scene,
@@ -237,11 +266,11 @@ pub async fn execute(
     shutdown: bool,
 ) -> anyhow::Result<()> {
     let start = std::time::Instant::now();
-    let plan = apply(&mut session, scene, &opts.plan).await?;
-    println!("{plan}");
-    let reqs = requests(&plan, opts, 1)?;
+    if let Some(dir) = &job.frame_dir {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot create the frame directory {}", dir.display()))?;
+    }
     let mut report = Report::default();
-    let mut last: Option<lightfold_scene::Image> = None;
     let progress = (opts.frames > 1).then(|| {
         let pb = indicatif::ProgressBar::new(opts.frames as u64);
         pb.set_style(
@@ -252,36 +281,185 @@ pub async fn execute(
         );
         pb
     });
-    session
-        .drive(plan.epoch, &participants(&plan), &reqs, |frame| {
-            report.record(&frame);
-            if let Some(pb) = &progress {
-                pb.inc(1);
-            }
-            last = Some(frame.image);
-        })
-        .await?;
+    let writer = FrameWriter::start(job, scene.exposure);
+    let outcome = lightfold_coordinator::run::render(&mut session, scene, opts, |frame| {
+        report.record(&frame);
+        if let Some(pb) = &progress {
+            pb.inc(1);
+        }
+        writer.send(frame);
+    })
+    .await;
     if let Some(pb) = progress {
         pb.finish_and_clear();
     }
-    let image = last.context("no frame was rendered")?;
-    image.write_exr(&job.exr)?;
-    image.write_png(&job.out, scene.exposure)?;
-    println!("{}", report.frame_lines());
-    println!("{}", report.table(&plan));
-    println!("{}", report.summary(&plan));
-    println!(
-        "wrote {} and {} ({}x{}) in {:.2} s",
-        job.out.display(),
-        job.exr.display(),
-        image.width,
-        image.height,
-        start.elapsed().as_secs_f64()
-    );
+    let written = writer.finish();
+    if let Some(plan) = &outcome.summary.plan {
+        println!("{plan}");
+    }
+    if !report.frames.is_empty() {
+        println!("{}", report.frame_lines());
+    }
+    if let (Some(plan), false) = (&outcome.summary.plan, report.frames.is_empty()) {
+        println!("{}", report.table(plan));
+        println!("{}", report.summary(plan));
+    }
+    println!("{}", failover_summary(&outcome.summary, start));
     if shutdown {
         session.shutdown().await;
     } else {
         session.detach();
     }
+    let (image_size, write_error) = written;
+    if let Some(e) = write_error {
+        return Err(e.context("writing frames"));
+    }
+    if let Some(e) = outcome.error {
+        bail!(
+            "the run stopped after {} of {} frame(s): {e}",
+            outcome.summary.delivered,
+            opts.frames
+        );
+    }
+    let (w, h) = image_size.context("no frame was rendered")?;
+    println!(
+        "wrote {} and {} ({w}x{h}) in {:.2} s",
+        job.out.display(),
+        job.exr.display(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
+}
+
+/// What the run survived: one line per lost, stalled, slow or rejoined daemon and per re-plan.
+pub fn failover_summary(s: &LiveSummary, start: std::time::Instant) -> String {
+    let mut out = String::new();
+    let at = |t: std::time::Instant| t.saturating_duration_since(start).as_secs_f64();
+    let lost = s
+        .incidents
+        .iter()
+        .filter(|i| matches!(i.kind, IncidentKind::Lost { .. }))
+        .count();
+    out.push_str(&format!(
+        "failover: {} frame(s) delivered, {} daemon(s) lost, {} re-plan(s), {} frame request(s) sent again",
+        s.delivered,
+        lost,
+        s.epochs.len().saturating_sub(1),
+        s.rerequested
+    ));
+    for i in &s.incidents {
+        let what = match &i.kind {
+            IncidentKind::Lost { reason } => format!("lost: {reason}"),
+            IncidentKind::Slow { frame, waited } => {
+                format!("slow: frame {frame} waited {} ms on it", waited.as_millis())
+            }
+            IncidentKind::Rejoined => "rejoined".to_string(),
+        };
+        out.push_str(&format!("\n  {:>7.2} s  {}  {what}", at(i.at), i.daemon));
+    }
+    for e in s.epochs.iter().skip(1) {
+        out.push_str(&format!(
+            "\n  {:>7.2} s  epoch {}: {} node(s), {} stage(s), K = {}, {} light(s) moved, configured in {} ms ({})",
+            at(e.at),
+            e.epoch,
+            e.nodes,
+            e.stages,
+            e.k,
+            e.lights_moved,
+            e.configure.as_millis(),
+            e.reason
+        ));
+    }
+    out
+}
+
+/// Writes frames off the event loop as they complete: `--out`/`--exr` get the newest (replaced
+/// atomically), `--frame-dir` every one.
+struct FrameWriter {
+    tx: Option<std::sync::mpsc::Sender<FrameResult>>,
+    thread: Option<std::thread::JoinHandle<(Option<(u32, u32)>, Option<anyhow::Error>)>>,
+}
+
+impl FrameWriter {
+    fn start(job: &JobArgs, exposure: f32) -> FrameWriter {
+        let (tx, rx) = std::sync::mpsc::channel::<FrameResult>();
+        let (png, exr, dir) = (job.out.clone(), job.exr.clone(), job.frame_dir.clone());
+        let thread = std::thread::spawn(move || {
+            let mut size = None;
+            let mut error = None;
+            while let Ok(mut f) = rx.recv() {
+                // Every frame into the frame directory; only the newest queued into --out.
+                let mut newest = Vec::new();
+                loop {
+                    if let Some(d) = &dir {
+                        let stem = d.join(format!("frame-{:05}", f.frame));
+                        let r = f
+                            .image
+                            .write_exr(&stem.with_extension("exr"))
+                            .and_then(|()| {
+                                f.image.write_png(&stem.with_extension("png"), exposure)
+                            });
+                        if let Err(e) = r {
+                            error.get_or_insert(e.into());
+                        }
+                    }
+                    newest.push(f);
+                    match rx.try_recv() {
+                        Ok(next) => f = next,
+                        Err(_) => break,
+                    }
+                }
+                if let Some(last) = newest.pop() {
+                    size = Some((last.image.width, last.image.height));
+                    if let Err(e) = write_atomically(&last.image, &png, &exr, exposure) {
+                        error.get_or_insert(e);
+                    }
+                }
+            }
+            (size, error)
+        });
+        FrameWriter {
+            tx: Some(tx),
+            thread: Some(thread),
+        }
+    }
+
+    fn send(&self, f: FrameResult) {
+        if let Some(tx) = &self.tx {
+            let _ = tx.send(f);
+        }
+    }
+
+    /// Waits for every frame to be written; the last frame's size, and the first error.
+    fn finish(mut self) -> (Option<(u32, u32)>, Option<anyhow::Error>) {
+        drop(self.tx.take());
+        match self.thread.take().map(|t| t.join()) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => (None, Some(anyhow::anyhow!("the frame writer panicked"))),
+            None => (None, None),
+        }
+    }
+}
+
+/// Writes beside the target and renames over it, so a reader (or a crash) never sees half a file.
+fn write_atomically(
+    image: &lightfold_scene::Image,
+    png: &std::path::Path,
+    exr: &std::path::Path,
+    exposure: f32,
+) -> anyhow::Result<()> {
+    let tmp = |p: &std::path::Path| {
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        // Keep the extension last: the writers pick the format from it.
+        p.with_file_name(format!(".partial-{name}"))
+    };
+    let (tp, te) = (tmp(png), tmp(exr));
+    image.write_exr(&te)?;
+    std::fs::rename(&te, exr).with_context(|| format!("cannot write {}", exr.display()))?;
+    image.write_png(&tp, exposure)?;
+    std::fs::rename(&tp, png).with_context(|| format!("cannot write {}", png.display()))?;
     Ok(())
 }

@@ -261,6 +261,9 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
         cmd.arg("--shadow-map-size").arg(n.to_string());
     }
     cmd.arg("--out").arg(&job.out).arg("--exr").arg(&job.exr);
+    if let Some(d) = &job.frame_dir {
+        cmd.arg("--frame-dir").arg(d);
+    }
 }
 
 /// CPU seconds (user + system) a process has used so far, from `/proc/<pid>/stat`; 0 if unknown.

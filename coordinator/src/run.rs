@@ -1,11 +1,12 @@
-//! One coordinator run: connect the cluster, plan the scene, send it, configure every daemon,
-//! drive the frames and collect the images with their per-frame reports.
+//! What a coordinator run is made of: its options and errors, the cluster spec of a session, and
+//! the frame requests of a scripted run (a camera path, light colour changes) with the per-frame
+//! parameters they need under a plan. The event loop that runs them is `control::live`.
 
 use crate::control::{
-    ControlError, ControlOptions, FrameRequest, Participants, Session, SinkGeometry,
+    ControlError, ControlOptions, FrameResult, FrameSpec, Live, LiveSummary, Session,
 };
-use crate::plan::{ClusterSpec, DaemonSpec, Plan, PlanError, PlanOptions, plan};
-use lightfold_protocol::{FrameParams, Message, Role};
+use crate::plan::{ClusterSpec, DaemonSpec, Plan, PlanError, PlanOptions};
+use lightfold_protocol::{FrameParams, Role};
 use lightfold_scene::{Camera, Scene};
 use std::collections::HashMap;
 
@@ -59,6 +60,8 @@ pub enum RunError {
         "light colour change at frame {frame} splits the colour group of node {node}: re-plan needed"
     )]
     ColorSplit { frame: u64, node: String },
+    #[error("no plan fits the daemons left ({error}); lost: {lost}")]
+    TooFewDaemons { error: PlanError, lost: String },
 }
 
 /// The cluster spec of a connected session.
@@ -82,53 +85,6 @@ pub fn cluster_spec(session: &Session) -> ClusterSpec {
     }
 }
 
-/// Plans `scene` for the connected cluster, sends it and configures every daemon the plan uses.
-pub async fn apply(
-    session: &mut Session,
-    scene: &Scene,
-    opts: &PlanOptions,
-) -> Result<Plan, RunError> {
-    let spec = cluster_spec(session);
-    let mut plan = plan(scene, &spec, opts)?;
-    let bytes = scene
-        .to_bytes()
-        .map_err(|e| RunError::Scene(e.to_string()))?;
-    // Nodes decode what they receive and check it against this.
-    let hash = scene.content_hash();
-    plan.scene_hash = hash;
-    let nodes: Vec<String> = plan.nodes.iter().map(|n| n.node.clone()).collect();
-    session.distribute_scene(&nodes, hash, &bytes).await?;
-    let mut configs = Vec::new();
-    for stage in &plan.stages {
-        let cfg = plan
-            .compositor_config(&stage.compositor)
-            .ok_or_else(|| ControlError::UnknownDaemon(stage.compositor.clone()))?;
-        configs.push((stage.compositor.clone(), Message::ConfigureCompositor(cfg)));
-    }
-    for node in &plan.nodes {
-        let cfg = plan
-            .node_config(&node.node)
-            .ok_or_else(|| ControlError::UnknownDaemon(node.node.clone()))?;
-        configs.push((node.node.clone(), Message::ConfigureNode(cfg)));
-    }
-    let geometry = SinkGeometry {
-        epoch: plan.epoch,
-        width: plan.width,
-        height: plan.height,
-        band_height: plan.band_height,
-    };
-    session.configure(configs, plan.epoch, geometry).await?;
-    Ok(plan)
-}
-
-/// The daemons `plan` uses.
-pub fn participants(plan: &Plan) -> Participants {
-    Participants {
-        compositors: plan.stages.iter().map(|s| s.compositor.clone()).collect(),
-        nodes: plan.nodes.iter().map(|n| n.node.clone()).collect(),
-    }
-}
-
 /// The camera of frame `i` along `path`.
 pub fn camera_at(base: &Camera, path: FramePath, i: u32) -> Camera {
     match path {
@@ -137,53 +93,64 @@ pub fn camera_at(base: &Camera, path: FramePath, i: u32) -> Camera {
     }
 }
 
-/// Frame requests for a plan: cameras along the path, and per-frame colour overrides for the
-/// stages whose inputs' node colours change.
-pub fn requests(
+/// The frame requests of a scripted run: cameras along the path (frame `i` of `opts.frames`
+/// at `camera_at(.., i)`), and the light colours in effect at each frame (a change stays until
+/// changed again). Frame numbers start at 1, like `FrameResult::frame`.
+pub fn frame_specs(scene: &Scene, opts: &RunOptions) -> Vec<FrameSpec> {
+    let mut colors: Vec<(u32, [f32; 3])> = Vec::new();
+    (0..opts.frames)
+        .map(|i| {
+            let frame = u64::from(i) + 1;
+            for ch in opts.color_changes.iter().filter(|c| c.frame == frame) {
+                colors.retain(|(l, _)| *l != ch.light);
+                colors.push((ch.light, ch.color));
+            }
+            let camera = (opts.path != FramePath::Still).then(|| {
+                lightfold_scene::wire::camera_to_wire(&camera_at(&scene.camera, opts.path, i))
+            });
+            FrameSpec {
+                camera,
+                light_colors: colors.clone(),
+            }
+        })
+        .collect()
+}
+
+/// Per-daemon frame parameters for light colours `colors` (source light → colour) under
+/// `plan`: for every stage input whose node's colour changes, the new `c_n`. Empty when no colour
+/// differs from the plan's (the compositors then use the configured colours).
+pub fn frame_params(
     plan: &Plan,
-    opts: &RunOptions,
-    first_frame: u64,
-) -> Result<Vec<FrameRequest>, RunError> {
-    let mut colors: Vec<[f32; 3]> = plan.samples.iter().map(|s| s.color).collect();
-    let mut out = Vec::new();
-    for i in 0..opts.frames {
-        let frame = first_frame + i as u64;
-        let mut changed = false;
-        for ch in opts.color_changes.iter().filter(|c| c.frame == frame) {
-            for (k, s) in plan.samples.iter().enumerate() {
-                if s.light == ch.light {
-                    colors[k] = ch.color;
-                    changed = true;
-                }
-            }
+    colors: &[(u32, [f32; 3])],
+    frame: u64,
+) -> Result<HashMap<String, FrameParams>, RunError> {
+    let mut params: HashMap<String, FrameParams> = HashMap::new();
+    let mut per_sample: Vec<[f32; 3]> = plan.samples.iter().map(|s| s.color).collect();
+    let mut changed = false;
+    for (k, s) in plan.samples.iter().enumerate() {
+        if let Some((_, c)) = colors.iter().find(|(l, _)| *l == s.light) {
+            changed |= c.map(f32::to_bits) != s.color.map(f32::to_bits);
+            per_sample[k] = *c;
         }
-        let mut params: HashMap<String, FrameParams> = HashMap::new();
-        if changed || opts.color_changes.iter().any(|c| c.frame < frame) {
-            for node in plan.nodes.iter().filter(|n| !n.lights.is_empty()) {
-                let new_c =
-                    group_color(plan, node, &colors).ok_or_else(|| RunError::ColorSplit {
-                        frame,
-                        node: node.node.clone(),
-                    })?;
-                params
-                    .entry(node.downstream.clone())
-                    .or_insert_with(|| FrameParams {
-                        colors: Vec::new(),
-                        scale: None,
-                    })
-                    .colors
-                    .push((node.input_index, new_c));
-            }
-        }
-        let camera = (opts.path != FramePath::Still)
-            .then(|| lightfold_scene::wire::camera_to_wire(&camera_at(&plan.camera, opts.path, i)));
-        out.push(FrameRequest {
-            frame,
-            camera,
-            params,
-        });
     }
-    Ok(out)
+    if !changed {
+        return Ok(params);
+    }
+    for node in plan.nodes.iter().filter(|n| !n.lights.is_empty()) {
+        let new_c = group_color(plan, node, &per_sample).ok_or_else(|| RunError::ColorSplit {
+            frame,
+            node: node.node.clone(),
+        })?;
+        params
+            .entry(node.downstream.clone())
+            .or_insert_with(|| FrameParams {
+                colors: Vec::new(),
+                scale: None,
+            })
+            .colors
+            .push((node.input_index, new_c));
+    }
+    Ok(params)
 }
 
 /// The node colour that keeps the node's output unchanged under new light colours: the new
@@ -218,4 +185,47 @@ fn group_color(plan: &Plan, node: &crate::plan::NodePlan, colors: &[[f32; 3]]) -
         node.color[1] * f[1],
         node.color[2] * f[2],
     ])
+}
+
+/// What a run produced: the summary, and the error that ended it early, if any (the frames
+/// delivered before it were handed over).
+#[derive(Debug)]
+pub struct RunOutcome {
+    pub summary: LiveSummary,
+    pub error: Option<RunError>,
+}
+
+/// Renders the frames of `opts` (a camera path, colour changes) on a connected session through
+/// the event loop, handing each finished frame to `on_frame` in order.
+pub async fn render(
+    session: &mut Session,
+    scene: &Scene,
+    opts: &RunOptions,
+    on_frame: impl FnMut(FrameResult),
+) -> RunOutcome {
+    let specs = frame_specs(scene, opts);
+    let (tx, rx) = tokio::sync::mpsc::channel(opts.control.frames_in_flight.max(1));
+    let feeder = tokio::spawn(async move {
+        for s in specs {
+            if tx.send(s).await.is_err() {
+                return;
+            }
+        }
+    });
+    let mut live = match Live::new(session, scene, &opts.plan) {
+        Ok(l) => l,
+        Err(e) => {
+            feeder.abort();
+            return RunOutcome {
+                summary: LiveSummary::default(),
+                error: Some(e),
+            };
+        }
+    };
+    let error = live.run(rx, on_frame).await.err();
+    feeder.abort();
+    RunOutcome {
+        summary: std::mem::take(&mut live.summary),
+        error,
+    }
 }

@@ -231,6 +231,10 @@ pub enum ErrorCode {
     Timeout,
     PeerLost,
     Internal,
+    /// A `Claim` refused: another coordinator session holds this daemon (pass `take_over`).
+    Busy,
+    /// Sent to a coordinator whose session another coordinator has taken over.
+    TakenOver,
 }
 
 /// Every control message.
@@ -284,4 +288,18 @@ pub enum Message {
         seq: u64,
     },
     Shutdown,
+    /// Coordinator → daemon, right after `Register`: the coordinator session this control link
+    /// belongs to (random per coordinator start). A daemon held by another session's open control
+    /// link refuses with `Error { code: Busy }` unless `take_over` is set; then the old session
+    /// is told `Error { code: TakenOver }` and closed. A link of the same session (a coordinator
+    /// re-dialling a daemon it lost) replaces the old link. Links that never claim (test drivers,
+    /// `lightfold bench`) hold nothing.
+    Claim {
+        session: u64,
+        take_over: bool,
+    },
+    /// Daemon → coordinator: the claim is granted.
+    Claimed {
+        session: u64,
+    },
 }

@@ -4,9 +4,11 @@
 
 use anyhow::Context;
 use lightfold_compositor::daemon::{self as stage, CompositorOptions};
-use lightfold_coordinator::control::{ControlOptions, DaemonAddr, FrameResult, Session};
+use lightfold_coordinator::control::{
+    ControlOptions, DaemonAddr, FrameResult, LiveSummary, Session,
+};
 use lightfold_coordinator::plan::Plan;
-use lightfold_coordinator::run::{RunOptions, apply, participants, requests};
+use lightfold_coordinator::run::RunOptions;
 use lightfold_net::{Identity, Timeouts};
 use lightfold_node::daemon::{self as node, NodeOptions};
 use lightfold_protocol::Role;
@@ -19,6 +21,16 @@ use tokio_util::sync::CancellationToken;
 /// Deadline for a whole in-process run (connect, plan, frames).
 pub const RUN_DEADLINE: Duration = Duration::from_secs(300);
 
+/// One daemon task: its id, address, its own stop token, and the task.
+#[derive(Debug)]
+struct Running {
+    id: String,
+    addr: String,
+    node: bool,
+    stop: CancellationToken,
+    task: Option<JoinHandle<anyhow::Result<()>>>,
+}
+
 /// Daemons running as tasks of this process.
 #[derive(Debug)]
 pub struct InProcessCluster {
@@ -27,7 +39,7 @@ pub struct InProcessCluster {
     pub token: Vec<u8>,
     pub stage_metrics: Vec<std::sync::Arc<lightfold_compositor::daemon::StageMetrics>>,
     cancel: CancellationToken,
-    tasks: Vec<JoinHandle<anyhow::Result<()>>>,
+    daemons: Vec<Running>,
 }
 
 /// What one coordinator run produced.
@@ -35,6 +47,7 @@ pub struct InProcessCluster {
 pub struct RunOutput {
     pub plan: Plan,
     pub frames: Vec<FrameResult>,
+    pub summary: LiveSummary,
 }
 
 impl InProcessCluster {
@@ -48,31 +61,74 @@ impl InProcessCluster {
             token: token.clone(),
             stage_metrics: Vec::new(),
             cancel: cancel.clone(),
-            tasks: Vec::new(),
+            daemons: Vec::new(),
         };
         for i in 0..nodes {
             let listener = TcpListener::bind("127.0.0.1:0").await?;
-            c.nodes.push(listener.local_addr()?.to_string());
-            let opts = NodeOptions::new(format!("node-{i}"), &token);
-            c.tasks.push(tokio::spawn(node::run(
-                listener,
-                opts,
-                cancel.child_token(),
-            )));
+            let addr = listener.local_addr()?.to_string();
+            c.nodes.push(addr.clone());
+            c.spawn(format!("node-{i}"), addr, true, listener);
         }
         for i in 0..compositors {
             let listener = TcpListener::bind("127.0.0.1:0").await?;
             let addr = listener.local_addr()?.to_string();
-            let opts = CompositorOptions::new(format!("comp-{i}"), addr.clone(), &token);
-            c.stage_metrics.push(opts.metrics.clone());
-            c.compositors.push(addr);
-            c.tasks.push(tokio::spawn(stage::run(
-                listener,
-                opts,
-                cancel.child_token(),
-            )));
+            c.compositors.push(addr.clone());
+            c.spawn(format!("comp-{i}"), addr, false, listener);
         }
         Ok(c)
+    }
+
+    fn spawn(&mut self, id: String, addr: String, node: bool, listener: TcpListener) {
+        let stop = self.cancel.child_token();
+        let task = if node {
+            let opts = NodeOptions::new(id.clone(), &self.token);
+            tokio::spawn(node::run(listener, opts, stop.clone()))
+        } else {
+            let opts = CompositorOptions::new(id.clone(), addr.clone(), &self.token);
+            self.stage_metrics.push(opts.metrics.clone());
+            tokio::spawn(stage::run(listener, opts, stop.clone()))
+        };
+        self.daemons.retain(|d| d.id != id);
+        self.daemons.push(Running {
+            id,
+            addr,
+            node,
+            stop,
+            task: Some(task),
+        });
+    }
+
+    /// Stops daemon `id` at once: its links close as a killed process's would (the coordinator
+    /// sees its control link end). Returns once it has stopped.
+    pub async fn kill(&mut self, id: &str) -> anyhow::Result<()> {
+        let d = self
+            .daemons
+            .iter_mut()
+            .find(|d| d.id == id)
+            .with_context(|| format!("no daemon {id}"))?;
+        d.stop.cancel();
+        if let Some(t) = d.task.take() {
+            tokio::time::timeout(Duration::from_secs(20), t)
+                .await
+                .with_context(|| format!("{id} did not stop within 20 s"))???;
+        }
+        Ok(())
+    }
+
+    /// Starts daemon `id` again on its old address (after `kill`), as a supervisor restarting
+    /// a crashed process would.
+    pub async fn restart(&mut self, id: &str) -> anyhow::Result<()> {
+        let d = self
+            .daemons
+            .iter()
+            .find(|d| d.id == id)
+            .with_context(|| format!("no daemon {id}"))?;
+        let (addr, node) = (d.addr.clone(), d.node);
+        let listener = TcpListener::bind(&addr)
+            .await
+            .with_context(|| format!("cannot bind {addr} again"))?;
+        self.spawn(id.to_string(), addr, node, listener);
+        Ok(())
     }
 
     pub fn daemons(&self) -> Vec<DaemonAddr> {
@@ -106,10 +162,12 @@ impl InProcessCluster {
     /// Stops every daemon and waits for them (with a deadline).
     pub async fn stop(self) -> anyhow::Result<()> {
         self.cancel.cancel();
-        for t in self.tasks {
-            tokio::time::timeout(Duration::from_secs(20), t)
-                .await
-                .context("a daemon did not stop within 20 s")???;
+        for d in self.daemons {
+            if let Some(t) = d.task {
+                tokio::time::timeout(Duration::from_secs(20), t)
+                    .await
+                    .with_context(|| format!("{} did not stop within 20 s", d.id))???;
+            }
         }
         Ok(())
     }
@@ -122,13 +180,22 @@ pub async fn render_on(
     opts: &RunOptions,
 ) -> anyhow::Result<RunOutput> {
     let work = async {
-        let plan = apply(session, scene, &opts.plan).await?;
-        let reqs = requests(&plan, opts, 1)?;
         let mut frames = Vec::new();
-        session
-            .drive(plan.epoch, &participants(&plan), &reqs, |f| frames.push(f))
-            .await?;
-        anyhow::Ok(RunOutput { plan, frames })
+        let outcome =
+            lightfold_coordinator::run::render(session, scene, opts, |f| frames.push(f)).await;
+        if let Some(e) = outcome.error {
+            return Err(anyhow::Error::from(e).context(format!(
+                "after {} frame(s); incidents: {:?}",
+                frames.len(),
+                outcome.summary.incidents
+            )));
+        }
+        let plan = outcome.summary.plan.clone().context("no plan")?;
+        anyhow::Ok(RunOutput {
+            plan,
+            frames,
+            summary: outcome.summary,
+        })
     };
     tokio::time::timeout(RUN_DEADLINE, work)
         .await
@@ -148,5 +215,8 @@ pub fn test_control() -> ControlOptions {
         configure: Duration::from_secs(120),
         frame: Duration::from_secs(120),
         frames_in_flight: 2,
+        // Generous: these machines are shared, and a false loss costs a re-plan, not a frame.
+        heartbeat_timeout: Duration::from_secs(3),
+        ..ControlOptions::default()
     }
 }

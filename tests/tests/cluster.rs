@@ -105,20 +105,17 @@ async fn cluster_matches_single_device_render() {
     let mut session = cluster.connect(test_control()).await.unwrap();
     let gpu = Gpu::new(&GpuOptions::default())
         .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
-    let mut epoch = 0;
     for name in ["box", "balls"] {
         let scene = small(name);
         let want = single_device(&gpu, &scene, false);
         for topology in [Topology::Chain, Topology::Tree] {
             for k in [2, 4] {
-                epoch += 1;
                 let mut opts = RunOptions {
                     control: test_control(),
                     ..RunOptions::default()
                 };
                 opts.plan.lights_per_node = k;
                 opts.plan.topology = topology;
-                opts.plan.epoch = epoch;
                 opts.plan.map_sizing = MapSizing::Fixed(scene.quality.shadow_map_size);
                 let out = render_on(&mut session, &scene, &opts).await.unwrap();
                 let what = format!("{name} {topology} K={k}");

@@ -1,10 +1,13 @@
-//! The coordinator's runtime: connect daemons, apply plans, drive frames, receive final images.
+//! The coordinator's runtime: a session of connected daemons (`session`), the sink that
+//! assembles final images (`sink`), and the event loop that plans, configures and drives frames
+//! over them and survives lost daemons (`live`).
 
+mod live;
 mod session;
 mod sink;
 
+pub use live::{EpochRecord, FrameSpec, Incident, IncidentKind, Live, LiveSummary};
 pub use session::{
-    ControlError, ControlOptions, Daemon, DaemonAddr, FrameRequest, FrameResult, Participants,
-    SCENE_CHUNK, Session,
+    ControlError, ControlOptions, Daemon, DaemonAddr, FrameResult, SCENE_CHUNK, Session,
 };
 pub use sink::{SinkEvent, SinkFrame, SinkGeometry};

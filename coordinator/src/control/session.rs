@@ -1,15 +1,16 @@
-//! The coordinator's control loop: dial and register daemons, distribute the scene, apply a plan,
-//! drive frames and collect the final images. Every wait has a deadline; a daemon that never
-//! answers is named (with its address) in the error.
+//! A coordinator session: dial, authenticate, register and claim daemons, keep one reader task
+//! per control link (its messages, tagged with the link's generation, arrive on one channel), run
+//! the sink, and redial lost daemons in the background. The event loop that drives frames over it
+//! is `super::live`. Every wait has a deadline; a daemon that never answers is named (with its
+//! address) in the error.
 
-use super::sink::{SinkEvent, SinkFrame, SinkGeometry, run_sink};
+use super::sink::{SinkEvent, SinkGeometry, run_sink};
 use lightfold_net::{Identity, LinkWriter, NetError, Timeouts};
 use lightfold_protocol::frame::Frame;
-use lightfold_protocol::{
-    Capabilities, ErrorCode, FrameParams, FrameStats, Message, Role, WireCamera,
-};
-use std::collections::{BTreeMap, HashMap};
-use std::time::{Duration, Instant};
+use lightfold_protocol::{Capabilities, ErrorCode, FrameStats, Message, Role};
+use std::collections::BTreeMap;
+use std::hash::{BuildHasher, Hasher};
+use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 use tokio_util::sync::CancellationToken;
@@ -29,6 +30,22 @@ pub struct ControlOptions {
     pub frame: Duration,
     /// Frames requested before the first one is received.
     pub frames_in_flight: usize,
+    /// Every daemon is pinged this often.
+    pub heartbeat: Duration,
+    /// A daemon silent for this long (no message, no `Pong`) is lost: stopped, hung or cut off.
+    pub heartbeat_timeout: Duration,
+    /// A frame not finished after `slow_factor` × the plan's estimate (at least `slow_floor`) is
+    /// reported slow, naming the daemons it waits on. Slow is not lost: a daemon that answers its
+    /// heartbeats is waited for until `frame`.
+    pub slow_factor: f64,
+    pub slow_floor: Duration,
+    /// Lost daemons are redialled this often (DNS names re-resolved) and folded into the next
+    /// plan epoch when they answer; zero disables rejoining.
+    pub redial: Duration,
+    /// With too few daemons for any plan, wait this long for lost ones to come back.
+    pub wait_for_daemons: Duration,
+    /// Claim daemons another coordinator session holds (that session is told it was taken over).
+    pub take_over: bool,
 }
 
 impl Default for ControlOptions {
@@ -39,6 +56,13 @@ impl Default for ControlOptions {
             configure: Duration::from_secs(120),
             frame: Duration::from_secs(120),
             frames_in_flight: 2,
+            heartbeat: Duration::from_millis(250),
+            heartbeat_timeout: Duration::from_secs(1),
+            slow_factor: 3.0,
+            slow_floor: Duration::from_secs(1),
+            redial: Duration::from_millis(500),
+            wait_for_daemons: Duration::ZERO,
+            take_over: false,
         }
     }
 }
@@ -87,6 +111,18 @@ pub enum ControlError {
     },
     #[error("the plan names daemon {0:?} which is not connected")]
     UnknownDaemon(String),
+    #[error(
+        "daemon at {address} is held by another coordinator session ({message}); pass --take-over to claim it"
+    )]
+    Busy { address: String, message: String },
+    #[error("daemon {id} ({address}) was taken over by another coordinator: {message}")]
+    TakenOver {
+        id: String,
+        address: String,
+        message: String,
+    },
+    #[error("the cluster cannot go on: {0}")]
+    Stuck(String),
     #[error("sink: {0}")]
     Sink(String),
     #[error("cannot bind the sink listener on {addr}: {source}")]
@@ -99,27 +135,57 @@ pub enum ControlError {
 /// A connected, registered daemon.
 #[derive(Debug)]
 pub struct Daemon {
+    /// The address it was dialled at.
     pub address: String,
     pub caps: Capabilities,
+    /// The cluster file's (or caller's) entry, for redialling.
+    pub(crate) entry: DaemonAddr,
+    /// Which control link of this daemon is current (events of older links are ignored).
+    pub(crate) link: u64,
+    /// When anything last arrived on its control link (set by the reader task, so a busy loop
+    /// never mistakes a queued answer for silence).
+    pub(crate) seen: std::sync::Arc<std::sync::Mutex<Instant>>,
+    /// The first heartbeat sent since it last said anything.
+    pub(crate) ping_pending: Option<Instant>,
     writer: LinkWriter,
 }
 
-type Event = (String, Result<Message, NetError>);
+/// A message (or the end) of one control link: daemon id, link generation, what arrived.
+pub(crate) type Event = (String, u64, Result<Message, NetError>);
+
+/// A daemon that answered a redial: ready to be folded into the next plan.
+#[derive(Debug)]
+pub(crate) struct Joined {
+    pub entry: DaemonAddr,
+    pub caps: Capabilities,
+    pub link: lightfold_net::Link,
+}
 
 /// A live cluster.
 #[derive(Debug)]
 pub struct Session {
+    /// The daemons connected now (lost ones are removed and redialled).
     pub daemons: BTreeMap<String, Daemon>,
-    events: mpsc::Receiver<Event>,
+    pub(crate) events: mpsc::Receiver<Event>,
     event_tx: mpsc::Sender<Event>,
-    sink_events: mpsc::Receiver<SinkEvent>,
-    sink_geometry: watch::Sender<SinkGeometry>,
+    pub(crate) sink_events: mpsc::Receiver<SinkEvent>,
+    pub(crate) sink_geometry: watch::Sender<SinkGeometry>,
+    pub(crate) joined: mpsc::Receiver<Joined>,
+    joined_tx: mpsc::Sender<Joined>,
     /// Address the sink compositor must dial.
     pub sink_address: String,
     cancel: CancellationToken,
     pub opts: ControlOptions,
-    /// Frame stats and errors that arrived while waiting for something else.
-    backlog: Vec<(String, Message)>,
+    me: Identity,
+    /// This coordinator session's identity, random per start (sent in every `Claim`).
+    pub id: u64,
+    /// Epochs and frame ids of this session start here: milliseconds since the Unix epoch times
+    /// 2¹⁶, so they never restart at values an earlier session used.
+    pub base: u64,
+    epochs: u64,
+    links: u64,
+    /// Nodes known to hold a scene, by hash.
+    pub(crate) scenes: BTreeMap<String, [u8; 32]>,
 }
 
 /// One daemon to connect to: its address, the role the cluster file gives it, and optionally its id.
@@ -148,6 +214,13 @@ impl DaemonAddr {
     }
 }
 
+impl Daemon {
+    /// When anything last arrived from it.
+    pub(crate) fn last_seen(&self) -> Instant {
+        *self.seen.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
 impl Session {
     /// Dials every daemon concurrently, authenticates it and collects its registration; binds the
     /// sink listener.
@@ -158,76 +231,39 @@ impl Session {
         me: Identity,
         opts: ControlOptions,
     ) -> Result<Session, ControlError> {
+        let id = session_id();
         let mut joins = Vec::new();
         for d in daemons {
             let (d, me) = (d.clone(), me.clone());
-            joins.push(tokio::spawn(async move { register(d, me, opts).await }));
+            joins.push(tokio::spawn(async move { register(d, me, opts, id).await }));
         }
         let (event_tx, events) = mpsc::channel(1024);
-        let mut map = BTreeMap::new();
+        let (joined_tx, joined) = mpsc::channel(64);
+        let mut registered: Vec<Joined> = Vec::new();
         let mut first_error = None;
         for j in joins {
-            match j.await.expect("registration task") {
-                Ok((caps, address, link)) => {
-                    let id = caps.daemon_id.clone();
-                    if let Some(prev) = map.get(&id) {
-                        let prev: &Daemon = prev;
+            match j.await {
+                Ok(Ok(r)) => {
+                    if let Some(prev) = registered
+                        .iter()
+                        .find(|p| p.caps.daemon_id == r.caps.daemon_id)
+                    {
                         first_error.get_or_insert(ControlError::DuplicateId {
-                            id,
-                            a: prev.address.clone(),
-                            b: address,
+                            id: r.caps.daemon_id.clone(),
+                            a: prev.entry.address.clone(),
+                            b: r.entry.address.clone(),
                         });
                         continue;
                     }
-                    let (mut reader, writer) = link.split();
-                    let tx = event_tx.clone();
-                    let rid = id.clone();
-                    tokio::spawn(async move {
-                        loop {
-                            match reader.next().await {
-                                None => {
-                                    let _ = tx
-                                        .send((
-                                            rid.clone(),
-                                            Err(NetError::Closed {
-                                                addr: reader.addr.clone(),
-                                            }),
-                                        ))
-                                        .await;
-                                    return;
-                                }
-                                Some(Ok(Frame::Control(m))) => {
-                                    if tx.send((rid.clone(), Ok(m))).await.is_err() {
-                                        return;
-                                    }
-                                }
-                                Some(Ok(other)) => {
-                                    let e = NetError::Unexpected {
-                                        addr: reader.addr.clone(),
-                                        expected: "a control message",
-                                        got: lightfold_net::describe(&other),
-                                    };
-                                    let _ = tx.send((rid.clone(), Err(e))).await;
-                                    return;
-                                }
-                                Some(Err(e)) => {
-                                    let _ = tx.send((rid.clone(), Err(e))).await;
-                                    return;
-                                }
-                            }
-                        }
-                    });
-                    map.insert(
-                        id,
-                        Daemon {
-                            address,
-                            caps,
-                            writer,
-                        },
-                    );
+                    registered.push(r);
+                }
+                Ok(Err(e)) => {
+                    first_error.get_or_insert(e);
                 }
                 Err(e) => {
-                    first_error.get_or_insert(e);
+                    first_error.get_or_insert(ControlError::Sink(format!(
+                        "registration task failed: {e}"
+                    )));
                 }
             }
         }
@@ -241,11 +277,11 @@ impl Session {
                 source,
             })?;
         if sink_advertise.is_none() && local.ip().is_unspecified() {
-            let remote = map.values().find(|d| !is_loopback(&d.address));
+            let remote = registered.iter().find(|d| !is_loopback(&d.entry.address));
             if let Some(d) = remote {
                 tracing::warn!(
                     sink = %local,
-                    daemon = %d.address,
+                    daemon = %d.entry.address,
                     "the sink listens on a wildcard address and no sink advertise address was \
                      given: compositors on other hosts will dial {local} and fail \
                      (pass --sink-advertise HOST:PORT)"
@@ -263,23 +299,113 @@ impl Session {
         let cancel = CancellationToken::new();
         tokio::spawn(run_sink(
             sink_listener,
-            me,
+            me.clone(),
             opts.link,
             geometry_rx,
             sink_tx,
             cancel.clone(),
         ));
-        Ok(Session {
-            daemons: map,
+        let base = unix_ms() << 16;
+        let mut session = Session {
+            daemons: BTreeMap::new(),
             events,
             event_tx,
             sink_events,
             sink_geometry,
+            joined,
+            joined_tx,
             sink_address,
             cancel,
             opts,
-            backlog: Vec::new(),
-        })
+            me,
+            id,
+            base,
+            epochs: 0,
+            links: 0,
+            scenes: BTreeMap::new(),
+        };
+        for r in registered {
+            session.admit(r);
+        }
+        tracing::info!(session = %format!("{id:016x}"), daemons = session.daemons.len(), "coordinator session connected");
+        Ok(session)
+    }
+
+    /// A new plan epoch of this session: above every epoch this session or an earlier one used.
+    pub fn next_epoch(&mut self) -> u64 {
+        self.epochs += 1;
+        self.base + self.epochs
+    }
+
+    /// Takes a registered daemon into the session: its reader task starts feeding `events`.
+    pub(crate) fn admit(&mut self, j: Joined) {
+        let Joined { entry, caps, link } = j;
+        let id = caps.daemon_id.clone();
+        self.links += 1;
+        let generation = self.links;
+        let (reader, writer) = link.split();
+        let seen = std::sync::Arc::new(std::sync::Mutex::new(Instant::now()));
+        tokio::spawn(read_control(
+            reader,
+            id.clone(),
+            generation,
+            std::sync::Arc::clone(&seen),
+            self.event_tx.clone(),
+            self.cancel.child_token(),
+        ));
+        let address = entry.address.clone();
+        self.scenes.remove(&id);
+        self.daemons.insert(
+            id,
+            Daemon {
+                address,
+                caps,
+                entry,
+                link: generation,
+                seen,
+                ping_pending: None,
+                writer,
+            },
+        );
+    }
+
+    /// Drops a daemon's link and, unless rejoining is off, redials it in the background until it
+    /// answers (or the session ends); it then arrives on `joined`.
+    pub(crate) fn lose(&mut self, id: &str) -> Option<Daemon> {
+        let d = self.daemons.remove(id)?;
+        self.scenes.remove(id);
+        if !self.opts.redial.is_zero() {
+            let mut entry = d.entry.clone();
+            entry.id.get_or_insert_with(|| id.to_string());
+            let (me, opts, session, tx, cancel) = (
+                self.me.clone(),
+                self.opts,
+                self.id,
+                self.joined_tx.clone(),
+                self.cancel.child_token(),
+            );
+            tokio::spawn(async move {
+                loop {
+                    let attempt = register(entry.clone(), me.clone(), opts, session);
+                    let result = tokio::select! {
+                        _ = cancel.cancelled() => return,
+                        r = attempt => r,
+                    };
+                    match result {
+                        Ok(j) => {
+                            let _ = tx.send(j).await;
+                            return;
+                        }
+                        Err(e) => tracing::debug!(address = %entry.address, "redial: {e}"),
+                    }
+                    tokio::select! {
+                        _ = cancel.cancelled() => return,
+                        _ = tokio::time::sleep(opts.redial) => {}
+                    }
+                }
+            });
+        }
+        Some(d)
     }
 
     /// Ids of registered daemons of a role, in id order.
@@ -305,274 +431,11 @@ impl Session {
             })
     }
 
-    fn address(&self, id: &str) -> String {
+    pub(crate) fn address(&self, id: &str) -> String {
         self.daemons
             .get(id)
             .map(|d| d.address.clone())
             .unwrap_or_default()
-    }
-
-    /// Waits for the next control message from any daemon, at most until `deadline`.
-    async fn next_event(
-        &mut self,
-        deadline: Instant,
-        what: &'static str,
-        pending: &dyn Fn() -> String,
-    ) -> Result<(String, Message), ControlError> {
-        let left = deadline.saturating_duration_since(Instant::now());
-        match tokio::time::timeout(left, self.events.recv()).await {
-            Err(_) => Err(ControlError::Timeout {
-                what,
-                after: self.opts.configure.min(left.max(Duration::from_millis(1))),
-                pending: pending(),
-            }),
-            Ok(None) => Err(ControlError::Sink("event channel closed".into())),
-            Ok(Some((id, Err(source)))) => Err(ControlError::Link {
-                address: self.address(&id),
-                source,
-            }),
-            Ok(Some((id, Ok(Message::Error { code, message })))) => Err(ControlError::Remote {
-                address: self.address(&id),
-                id,
-                code,
-                message,
-            }),
-            Ok(Some((id, Ok(m)))) => Ok((id, m)),
-        }
-    }
-
-    /// Sends the scene to every node that does not have it cached. `bytes` is the scene's
-    /// network encoding and `hash` its content hash.
-    pub async fn distribute_scene(
-        &mut self,
-        nodes: &[String],
-        hash: [u8; 32],
-        bytes: &[u8],
-    ) -> Result<(), ControlError> {
-        for id in nodes {
-            self.send(
-                id,
-                Message::SceneOffer {
-                    hash,
-                    size: bytes.len() as u64,
-                },
-            )
-            .await?;
-        }
-        let deadline = Instant::now() + self.opts.configure;
-        let mut waiting: Vec<String> = nodes.to_vec();
-        let mut need_send: Vec<String> = Vec::new();
-        let mut answered = 0;
-        while answered < nodes.len() {
-            let pending = waiting.join(", ");
-            let (id, m) = self
-                .next_event(deadline, "scene offers to be answered", &|| pending.clone())
-                .await?;
-            match m {
-                Message::SceneNeed { hash: h, need } if h == hash => {
-                    answered += 1;
-                    if need {
-                        need_send.push(id.clone());
-                    } else {
-                        waiting.retain(|w| *w != id);
-                    }
-                    if need {
-                        // Keep waiting for its SceneReady.
-                    }
-                }
-                other => self.backlog_or_unexpected(id, other, "SceneNeed")?,
-            }
-        }
-        for id in &need_send {
-            let chunks = bytes.chunks(SCENE_CHUNK).count().max(1);
-            for (i, chunk) in bytes.chunks(SCENE_CHUNK).enumerate() {
-                let msg = Message::SceneChunk {
-                    hash,
-                    offset: (i * SCENE_CHUNK) as u64,
-                    data: chunk.to_vec(),
-                    last: i + 1 == chunks,
-                };
-                self.send(id, msg).await?;
-            }
-            if bytes.is_empty() {
-                self.send(
-                    id,
-                    Message::SceneChunk {
-                        hash,
-                        offset: 0,
-                        data: Vec::new(),
-                        last: true,
-                    },
-                )
-                .await?;
-            }
-        }
-        let mut ready = 0;
-        while ready < need_send.len() {
-            let pending = waiting.join(", ");
-            let (id, m) = self
-                .next_event(deadline, "scenes to load", &|| pending.clone())
-                .await?;
-            match m {
-                Message::SceneReady { hash: h, .. } if h == hash => {
-                    ready += 1;
-                    waiting.retain(|w| *w != id);
-                }
-                other => self.backlog_or_unexpected(id, other, "SceneReady")?,
-            }
-        }
-        Ok(())
-    }
-
-    /// Sends configurations (compositors first) and waits for every `Configured { epoch }`.
-    pub async fn configure(
-        &mut self,
-        configs: Vec<(String, Message)>,
-        epoch: u64,
-        geometry: SinkGeometry,
-    ) -> Result<(), ControlError> {
-        self.sink_geometry.send_replace(geometry);
-        let mut waiting: Vec<String> = Vec::new();
-        for (id, msg) in configs {
-            self.send(&id, msg).await?;
-            waiting.push(id);
-        }
-        let deadline = Instant::now() + self.opts.configure;
-        while !waiting.is_empty() {
-            let pending = waiting.join(", ");
-            let (id, m) = self
-                .next_event(deadline, "configurations to be applied", &|| {
-                    pending.clone()
-                })
-                .await?;
-            match m {
-                Message::Configured { epoch: e } if e == epoch => waiting.retain(|w| *w != id),
-                Message::Configured { .. } => {}
-                other => self.backlog_or_unexpected(id, other, "Configured")?,
-            }
-        }
-        Ok(())
-    }
-
-    fn backlog_or_unexpected(
-        &mut self,
-        id: String,
-        m: Message,
-        expected: &'static str,
-    ) -> Result<(), ControlError> {
-        match m {
-            Message::FrameDone(_) | Message::Pong { .. } => {
-                self.backlog.push((id, m));
-                Ok(())
-            }
-            other => Err(ControlError::Unexpected {
-                address: self.address(&id),
-                id,
-                expected,
-                got: format!("{other:?}").chars().take(80).collect(),
-            }),
-        }
-    }
-
-    /// Drives `frames`: keeps up to `frames_in_flight` requested ahead of the sink, collects each
-    /// final image with every daemon's `FrameDone` for it. `requests` gives, per frame, the
-    /// messages to send (compositors first, then nodes).
-    pub async fn drive(
-        &mut self,
-        epoch: u64,
-        participants: &Participants,
-        frames: &[FrameRequest],
-        mut on_frame: impl FnMut(FrameResult),
-    ) -> Result<(), ControlError> {
-        let all: Vec<String> = participants
-            .compositors
-            .iter()
-            .chain(&participants.nodes)
-            .cloned()
-            .collect();
-        let mut sent_at: HashMap<u64, Instant> = HashMap::new();
-        let mut stats: HashMap<u64, Vec<FrameStats>> = HashMap::new();
-        let mut images: HashMap<u64, SinkFrame> = HashMap::new();
-        for (id, m) in std::mem::take(&mut self.backlog) {
-            if let Message::FrameDone(s) = m {
-                let _ = id;
-                stats.entry(s.frame).or_default().push(s);
-            }
-        }
-        let mut next_send = 0usize;
-        let mut done = 0usize;
-        let mut requested_seq: Vec<u64> = Vec::new();
-        while done < frames.len() {
-            while next_send < frames.len() && next_send < done + self.opts.frames_in_flight.max(1) {
-                let req = &frames[next_send];
-                for id in &all {
-                    let params = req.params.get(id).cloned().unwrap_or(FrameParams {
-                        colors: Vec::new(),
-                        scale: None,
-                    });
-                    self.send(
-                        id,
-                        Message::RenderFrame {
-                            epoch,
-                            frame: req.frame,
-                            camera: req.camera,
-                            params,
-                        },
-                    )
-                    .await?;
-                }
-                sent_at.insert(req.frame, Instant::now());
-                requested_seq.push(req.frame);
-                next_send += 1;
-            }
-            let current = frames[done].frame;
-            let deadline = sent_at[&current] + self.opts.frame;
-            let complete = |images: &HashMap<u64, SinkFrame>,
-                            stats: &HashMap<u64, Vec<FrameStats>>| {
-                images.contains_key(&current)
-                    && stats.get(&current).map_or(0, |s| s.len()) >= all.len()
-            };
-            while !complete(&images, &stats) {
-                let left = deadline.saturating_duration_since(Instant::now());
-                tokio::select! {
-                    ev = self.events.recv() => match ev {
-                        None => return Err(ControlError::Sink("event channel closed".into())),
-                        Some((id, Err(source))) => return Err(ControlError::Link { address: self.address(&id), source }),
-                        Some((id, Ok(Message::Error { code, message }))) => {
-                            return Err(ControlError::Remote { address: self.address(&id), id, code, message });
-                        }
-                        Some((_, Ok(Message::FrameDone(s)))) => stats.entry(s.frame).or_default().push(s),
-                        Some((_, Ok(_))) => {}
-                    },
-                    sink = self.sink_events.recv() => match sink {
-                        None => return Err(ControlError::Sink("sink stopped".into())),
-                        Some(SinkEvent::Error(e)) => return Err(ControlError::Sink(e)),
-                        Some(SinkEvent::Frame(f)) => { if f.epoch == epoch { images.insert(f.frame, f); } }
-                    },
-                    _ = tokio::time::sleep(left) => {
-                        let have: Vec<String> = stats.get(&current).map(|s| s.iter().map(|s| s.daemon_id.clone()).collect()).unwrap_or_default();
-                        let mut pending: Vec<String> = all.iter().filter(|p| !have.contains(p)).cloned().collect();
-                        if !images.contains_key(&current) { pending.push(format!("the sink (frame {current})")); }
-                        return Err(ControlError::Timeout { what: "a frame", after: self.opts.frame, pending: pending.join(", ") });
-                    }
-                }
-            }
-            let image = images.remove(&current).expect("complete");
-            let s = stats.remove(&current).unwrap_or_default();
-            // Frames received after this request was sent measure the pipeline's depth.
-            let latency_frames = requested_seq.iter().filter(|&&f| f > current).count() as u32;
-            on_frame(FrameResult {
-                frame: current,
-                requested_at: sent_at[&current],
-                received_at: image.received_at,
-                latency_frames,
-                image: image.image,
-                sink_bytes: image.bytes,
-                stats: s,
-            });
-            done += 1;
-        }
-        Ok(())
     }
 
     /// Asks every daemon to stop and closes the sink.
@@ -591,26 +454,14 @@ impl Session {
     }
 }
 
-/// The daemons a plan uses: frames are requested from these (compositors first).
-#[derive(Debug, Clone, Default)]
-pub struct Participants {
-    pub compositors: Vec<String>,
-    pub nodes: Vec<String>,
-}
-
-/// What to send for one frame.
-#[derive(Debug, Clone)]
-pub struct FrameRequest {
-    pub frame: u64,
-    pub camera: Option<WireCamera>,
-    /// Per-daemon frame parameters (compositors: per-input colour overrides).
-    pub params: HashMap<String, FrameParams>,
-}
-
 /// A finished frame and every daemon's report of it.
 #[derive(Debug)]
 pub struct FrameResult {
+    /// The frame's number in the run (1, 2, …, in request order).
     pub frame: u64,
+    /// Its id on the wire and the plan epoch that rendered it.
+    pub wire_frame: u64,
+    pub epoch: u64,
     pub requested_at: Instant,
     pub received_at: Instant,
     pub latency_frames: u32,
@@ -619,11 +470,12 @@ pub struct FrameResult {
     pub stats: Vec<FrameStats>,
 }
 
-async fn register(
+pub(crate) async fn register(
     d: DaemonAddr,
     me: Identity,
     opts: ControlOptions,
-) -> Result<(Capabilities, String, lightfold_net::Link), ControlError> {
+    session: u64,
+) -> Result<Joined, ControlError> {
     // Daemons started by an engine at the same time may not listen yet: retry refused dials.
     let mut link = lightfold_net::dial_retry(&d.address, &me, opts.link, opts.register)
         .await
@@ -670,7 +522,97 @@ async fn register(
             got: caps.daemon_id,
         });
     }
-    Ok((caps, d.address, link))
+    let link_err = |source| ControlError::Link {
+        address: d.address.clone(),
+        source,
+    };
+    link.send_msg(Message::Claim {
+        session,
+        take_over: opts.take_over,
+    })
+    .await
+    .map_err(link_err)?;
+    match link.recv_msg(opts.register).await.map_err(link_err)? {
+        Message::Claimed { session: s } if s == session => {}
+        Message::Error {
+            code: ErrorCode::Busy,
+            message,
+        } => {
+            return Err(ControlError::Busy {
+                address: d.address,
+                message,
+            });
+        }
+        other => {
+            return Err(ControlError::Unexpected {
+                id: caps.daemon_id,
+                address: d.address,
+                expected: "Claimed",
+                got: format!("{other:?}").chars().take(80).collect(),
+            });
+        }
+    }
+    Ok(Joined {
+        entry: d,
+        caps,
+        link,
+    })
+}
+
+/// Forwards one control link's messages to the session until it ends, then says how it ended.
+async fn read_control(
+    mut reader: lightfold_net::LinkReader,
+    id: String,
+    generation: u64,
+    seen: std::sync::Arc<std::sync::Mutex<Instant>>,
+    tx: mpsc::Sender<Event>,
+    cancel: CancellationToken,
+) {
+    loop {
+        let next = tokio::select! {
+            _ = cancel.cancelled() => return,
+            n = reader.next() => n,
+        };
+        *seen.lock().unwrap_or_else(|e| e.into_inner()) = Instant::now();
+        let end = match next {
+            None => NetError::Closed {
+                addr: reader.addr.clone(),
+            },
+            Some(Ok(Frame::Control(m))) => {
+                if tx.send((id.clone(), generation, Ok(m))).await.is_err() {
+                    return;
+                }
+                continue;
+            }
+            Some(Ok(other)) => NetError::Unexpected {
+                addr: reader.addr.clone(),
+                expected: "a control message",
+                got: lightfold_net::describe(&other),
+            },
+            Some(Err(e)) => e,
+        };
+        let _ = tx.send((id, generation, Err(end))).await;
+        return;
+    }
+}
+
+/// A random id for this coordinator session (the standard library's per-process random hash
+/// keys, mixed with the clock and the process id).
+fn session_id() -> u64 {
+    let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+    h.write_u128(
+        SystemTime::now()
+            .duration_since(UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos()),
+    );
+    h.write_u32(std::process::id());
+    h.finish()
+}
+
+fn unix_ms() -> u64 {
+    SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .map_or(0, |d| d.as_millis() as u64)
 }
 
 /// Whether `address` (`host:port`) names this machine's loopback interface.

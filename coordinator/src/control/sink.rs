@@ -25,7 +25,14 @@ pub struct SinkFrame {
 #[derive(Debug)]
 pub enum SinkEvent {
     Frame(SinkFrame),
-    Error(String),
+    /// A frame of the current epoch cannot complete (a band that does not fit, one missing).
+    Failed {
+        frame: u64,
+        reason: String,
+    },
+    /// A connection that is not the sink compositor's (a port scan, a wrong token, a probe), or a
+    /// link that ended: logged, never fatal.
+    Warning(String),
 }
 
 /// The frame geometry the sink expects (set by the coordinator for each plan epoch).
@@ -62,8 +69,10 @@ pub async fn run_sink(
             Ok((s, _)) => s,
             Err(e) => {
                 let _ = out
-                    .send(SinkEvent::Error(format!("sink accept failed: {e}")))
+                    .send(SinkEvent::Warning(format!("sink accept failed: {e}")))
                     .await;
+                // Out of descriptors and the like: back off instead of spinning.
+                tokio::time::sleep(std::time::Duration::from_millis(100)).await;
                 continue;
             }
         };
@@ -75,13 +84,15 @@ pub async fn run_sink(
                     let addr = link.addr.clone();
                     if let Err(e) = receive(link, geometry, &out, cancel).await {
                         let _ = out
-                            .send(SinkEvent::Error(format!("sink link from {addr}: {e}")))
+                            .send(SinkEvent::Warning(format!("sink link from {addr}: {e}")))
                             .await;
                     }
                 }
                 Err(e) => {
                     let _ = out
-                        .send(SinkEvent::Error(format!("sink handshake: {e}")))
+                        .send(SinkEvent::Warning(format!(
+                            "sink refused a connection: {e}"
+                        )))
                         .await;
                 }
             }
@@ -96,7 +107,8 @@ async fn receive(
     cancel: CancellationToken,
 ) -> Result<(), NetError> {
     let (mut reader, _writer) = link.split();
-    let mut partial: BTreeMap<u64, Partial> = BTreeMap::new();
+    // By (epoch, frame): a frame re-requested under a new epoch keeps its id.
+    let mut partial: BTreeMap<(u64, u64), Partial> = BTreeMap::new();
     loop {
         let next = tokio::select! {
             _ = cancel.cancelled() => return Ok(()),
@@ -110,7 +122,7 @@ async fn receive(
             Frame::Band(h, p) => (h, p),
             other => {
                 let _ = out
-                    .send(SinkEvent::Error(format!(
+                    .send(SinkEvent::Warning(format!(
                         "sink got {} instead of a band",
                         lightfold_net::describe(&other)
                     )))
@@ -122,6 +134,8 @@ async fn receive(
         if h.epoch != g.epoch {
             continue; // a band of an old plan
         }
+        // Frames of older epochs will never complete.
+        partial.retain(|k, _| k.0 == g.epoch);
         let bands = g.height.div_ceil(g.band_height.max(1));
         let expect_y0 = h.y0;
         let ok = h.layer == Layer::Radiance
@@ -132,46 +146,57 @@ async fn receive(
             && h.height > 0;
         if !ok {
             let _ = out
-                .send(SinkEvent::Error(format!(
-                    "sink rejected band of frame {} (layer {:?}, rect {}x{}+{}+{}): does not match {}x{} bands of {}",
-                    h.frame, h.layer, h.width, h.height, h.x0, h.y0, g.width, g.height, g.band_height
-                )))
+                .send(SinkEvent::Failed {
+                    frame: h.frame,
+                    reason: format!(
+                        "sink rejected band of frame {} (layer {:?}, rect {}x{}+{}+{}): does not match {}x{} bands of {}",
+                        h.frame, h.layer, h.width, h.height, h.x0, h.y0, g.width, g.height, g.band_height
+                    ),
+                })
                 .await;
-            partial.remove(&h.frame);
+            partial.remove(&(h.epoch, h.frame));
             continue;
         }
-        let p = partial.entry(h.frame).or_insert_with(|| Partial {
-            image: Image::new(g.width, g.height, 3),
-            bands: 0,
-            bytes: 0,
-        });
+        let p = partial
+            .entry((h.epoch, h.frame))
+            .or_insert_with(|| Partial {
+                image: Image::new(g.width, g.height, 3),
+                bands: 0,
+                bytes: 0,
+            });
         if !h.empty {
             let start = h.y0 as usize * g.width as usize * 3;
             let len = h.height as usize * g.width as usize * 3;
             let dst = &mut p.image.data[start..start + len];
             if let Err(e) = unpack_into(h.format, &payload, h.scale, dst) {
                 let _ = out
-                    .send(SinkEvent::Error(format!(
-                        "sink cannot unpack frame {}: {e}",
-                        h.frame
-                    )))
+                    .send(SinkEvent::Failed {
+                        frame: h.frame,
+                        reason: format!("sink cannot unpack frame {}: {e}", h.frame),
+                    })
                     .await;
-                partial.remove(&h.frame);
+                partial.remove(&(h.epoch, h.frame));
                 continue;
             }
         }
         p.bands += 1;
         p.bytes += payload.len() as u64;
         if p.bands == bands {
-            let done = partial.remove(&h.frame).expect("present");
+            let Some(done) = partial.remove(&(h.epoch, h.frame)) else {
+                continue;
+            };
             // Older incomplete frames will never complete once a newer one has.
-            let stale: Vec<u64> = partial.range(..h.frame).map(|(k, _)| *k).collect();
+            let stale: Vec<u64> = partial
+                .range((h.epoch, 0)..(h.epoch, h.frame))
+                .map(|(k, _)| k.1)
+                .collect();
             for k in stale {
-                partial.remove(&k);
+                partial.remove(&(h.epoch, k));
                 let _ = out
-                    .send(SinkEvent::Error(format!(
-                        "frame {k} incomplete at the sink"
-                    )))
+                    .send(SinkEvent::Failed {
+                        frame: k,
+                        reason: format!("frame {k} incomplete at the sink"),
+                    })
                     .await;
             }
             let _ = out

@@ -217,3 +217,64 @@ pub(crate) fn assign(group_costs: &[Vec<f64>]) -> Vec<usize> {
     }
     out
 }
+
+/// Slack a re-plan may add to the slowest node's estimate to keep lights where they were.
+pub const STICKY_SLACK: f64 = 1.05;
+
+/// Re-plans move few lights: each group goes to the node that already rendered most of its
+/// lights (`had`, per node), largest overlaps first, as long as that node's cost for the group
+/// stays within `STICKY_SLACK` of the slowest node `fresh` (the cost-balanced assignment) gives;
+/// groups left over take the cheapest free node. Returns, per group, the node index.
+pub(crate) fn sticky(
+    group_costs: &[Vec<f64>],
+    fresh: &[usize],
+    lights: &[&[usize]],
+    had: &[Vec<usize>],
+) -> Vec<usize> {
+    let nodes = had.len();
+    let slowest = fresh
+        .iter()
+        .zip(group_costs)
+        .filter_map(|(&n, c)| c.get(n))
+        .fold(0.0f64, |a, &b| a.max(b));
+    let cap = slowest * STICKY_SLACK;
+    let mut pairs: Vec<(usize, usize, usize)> = Vec::new();
+    for (g, ls) in lights.iter().enumerate() {
+        for (n, h) in had.iter().enumerate() {
+            let overlap = ls.iter().filter(|l| h.contains(l)).count();
+            if overlap > 0 && group_costs[g][n] <= cap {
+                pairs.push((overlap, g, n));
+            }
+        }
+    }
+    // Largest overlap first; ties in group then node order (deterministic).
+    pairs.sort_by(|a, b| b.0.cmp(&a.0).then(a.1.cmp(&b.1)).then(a.2.cmp(&b.2)));
+    let mut out = vec![usize::MAX; lights.len()];
+    let mut free = vec![true; nodes];
+    for (_, g, n) in pairs {
+        if out[g] == usize::MAX && free[n] {
+            out[g] = n;
+            free[n] = false;
+        }
+    }
+    for g in 0..lights.len() {
+        if out[g] != usize::MAX {
+            continue;
+        }
+        // Prefer the fresh choice when it is free, else the cheapest free node.
+        let pick = Some(fresh[g])
+            .filter(|&n| n < nodes && free[n])
+            .or_else(|| {
+                (0..nodes).filter(|&n| free[n]).min_by(|&a, &b| {
+                    group_costs[g][a]
+                        .total_cmp(&group_costs[g][b])
+                        .then(a.cmp(&b))
+                })
+            });
+        if let Some(n) = pick {
+            out[g] = n;
+            free[n] = false;
+        }
+    }
+    out
+}

@@ -63,6 +63,43 @@ pub fn plan(
     cluster: &ClusterSpec,
     options: &PlanOptions,
 ) -> Result<Plan, PlanError> {
+    plan_with(scene, cluster, options, None)
+}
+
+/// Plans `scene` again on a changed cluster (a daemon lost or joined), moving as few lights as
+/// it can: the groups are those `plan` would make, but each goes to the node that rendered most of
+/// its lights in `previous` unless that makes the slowest node slower (`group::sticky`). Pure,
+/// like `plan`.
+pub fn replan(
+    scene: &Scene,
+    cluster: &ClusterSpec,
+    options: &PlanOptions,
+    previous: &Plan,
+) -> Result<Plan, PlanError> {
+    plan_with(scene, cluster, options, Some(previous))
+}
+
+/// Lights of `previous` that `next` renders on another node (or not at all).
+pub fn lights_moved(previous: &Plan, next: &Plan) -> usize {
+    let owner = |p: &Plan, l: usize| {
+        p.nodes
+            .iter()
+            .find(|n| n.lights.contains(&l))
+            .map(|n| n.node.clone())
+    };
+    previous
+        .active
+        .iter()
+        .filter(|&&l| owner(previous, l) != owner(next, l))
+        .count()
+}
+
+fn plan_with(
+    scene: &Scene,
+    cluster: &ClusterSpec,
+    options: &PlanOptions,
+    previous: Option<&Plan>,
+) -> Result<Plan, PlanError> {
     validate(scene, cluster, options)?;
     let cam = &scene.camera;
     let samples = lightfold_scene::sampling::scene_samples(scene);
@@ -226,7 +263,21 @@ pub fn plan(
                 .collect()
         })
         .collect();
-    let on_node = group::assign(&group_costs);
+    let mut on_node = group::assign(&group_costs);
+    if let Some(prev) = previous {
+        let had: Vec<Vec<usize>> = cluster
+            .nodes
+            .iter()
+            .map(|n| {
+                prev.nodes
+                    .iter()
+                    .find(|p| p.node == n.id)
+                    .map_or_else(Vec::new, |p| p.lights.clone())
+            })
+            .collect();
+        let lights: Vec<&[usize]> = groups.iter().map(|g| g.lights.as_slice()).collect();
+        on_node = group::sticky(&group_costs, &on_node, &lights, &had);
+    }
     let material_node = own_node.then(|| {
         (0..available)
             .filter(|n| !on_node.contains(n))

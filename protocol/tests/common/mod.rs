@@ -43,6 +43,8 @@ pub fn variant(m: &Message) -> &'static str {
         Message::Ping { .. } => "Ping",
         Message::Pong { .. } => "Pong",
         Message::Shutdown => "Shutdown",
+        Message::Claim { .. } => "Claim",
+        Message::Claimed { .. } => "Claimed",
     }
 }
 
@@ -299,6 +301,8 @@ pub fn error_code() -> impl Strategy<Value = ErrorCode> {
         ErrorCode::Timeout,
         ErrorCode::PeerLost,
         ErrorCode::Internal,
+        ErrorCode::Busy,
+        ErrorCode::TakenOver,
     ])
 }
 
@@ -360,6 +364,12 @@ pub fn message() -> impl Strategy<Value = Message> {
         any::<u64>().prop_map(|seq| Message::Ping { seq }).boxed(),
         any::<u64>().prop_map(|seq| Message::Pong { seq }).boxed(),
         Just(Message::Shutdown).boxed(),
+        (any::<u64>(), any::<bool>())
+            .prop_map(|(session, take_over)| Message::Claim { session, take_over })
+            .boxed(),
+        any::<u64>()
+            .prop_map(|session| Message::Claimed { session })
+            .boxed(),
     ]
 }
 
