@@ -10,12 +10,14 @@ mod display;
 mod geom;
 mod group;
 mod material;
+mod replan;
 mod shadow;
 mod topology;
 mod types;
 pub mod wire;
 
 pub use group::{DEFAULT_FIXED_US, DEFAULT_LIGHT_US};
+pub use replan::{lights_moved, replan};
 pub use topology::BAND_OVERHEAD_BYTES;
 pub use types::*;
 
@@ -66,35 +68,7 @@ pub fn plan(
     plan_with(scene, cluster, options, None)
 }
 
-/// Plans `scene` again on a changed cluster (a daemon lost or joined), moving as few lights as
-/// it can: the groups are those `plan` would make, but each goes to the node that rendered most of
-/// its lights in `previous` unless that makes the slowest node slower (`group::sticky`). Pure,
-/// like `plan`.
-pub fn replan(
-    scene: &Scene,
-    cluster: &ClusterSpec,
-    options: &PlanOptions,
-    previous: &Plan,
-) -> Result<Plan, PlanError> {
-    plan_with(scene, cluster, options, Some(previous))
-}
-
-/// Lights of `previous` that `next` renders on another node (or not at all).
-pub fn lights_moved(previous: &Plan, next: &Plan) -> usize {
-    let owner = |p: &Plan, l: usize| {
-        p.nodes
-            .iter()
-            .find(|n| n.lights.contains(&l))
-            .map(|n| n.node.clone())
-    };
-    previous
-        .active
-        .iter()
-        .filter(|&&l| owner(previous, l) != owner(next, l))
-        .count()
-}
-
-fn plan_with(
+pub(crate) fn plan_with(
     scene: &Scene,
     cluster: &ClusterSpec,
     options: &PlanOptions,

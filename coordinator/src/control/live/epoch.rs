@@ -1,0 +1,356 @@
+//! Plan epochs: planning over the daemons connected now, sending the scene and the
+//! configurations, and waiting for every daemon of the new plan to apply them.
+
+use super::{EpochRecord, Halt, Live, MAX_REPLANS_WITHOUT_PROGRESS, TICK};
+use crate::control::session::{ControlError, SCENE_CHUNK};
+use crate::control::sink::SinkGeometry;
+use crate::plan::{Plan, PlanError, lights_moved, plan, replan};
+use crate::run::{RunError, cluster_spec};
+use lightfold_protocol::{ErrorCode, Message};
+use std::collections::BTreeSet;
+use std::time::Instant;
+
+impl Live<'_> {
+    /// Plans a new epoch over the daemons connected now and configures it, planning again while
+    /// daemons of the new plan are lost on the way.
+    pub(super) async fn replan(&mut self, reason: String) -> Result<(), RunError> {
+        self.salvage();
+        self.reset_at = None;
+        self.need_replan = None;
+        self.replans_without_progress += 1;
+        if self.replans_without_progress > MAX_REPLANS_WITHOUT_PROGRESS {
+            return Err(ControlError::Stuck(format!(
+                "{MAX_REPLANS_WITHOUT_PROGRESS} re-plans in a row delivered no frame; the last: {reason}"
+            ))
+            .into());
+        }
+        let mut reason = reason;
+        let mut waited_since: Option<Instant> = None;
+        loop {
+            let epoch = self.session.next_epoch();
+            let mut o = self.opts.clone();
+            o.epoch = epoch;
+            let cluster = cluster_spec(self.session);
+            let next = match &self.plan {
+                Some(prev) => replan(self.scene, &cluster, &o, prev),
+                None => plan(self.scene, &cluster, &o),
+            };
+            let next = match next {
+                Ok(p) => p,
+                Err(e) if too_few(&e) => {
+                    let since = *waited_since.get_or_insert_with(Instant::now);
+                    let left = self
+                        .session
+                        .opts
+                        .wait_for_daemons
+                        .saturating_sub(since.elapsed());
+                    if left.is_zero() {
+                        return Err(RunError::TooFewDaemons {
+                            error: e,
+                            lost: self.lost_list(),
+                        });
+                    }
+                    tracing::warn!(
+                        "no plan fits the daemons left ({e}); waiting up to {} s for lost daemons",
+                        left.as_secs()
+                    );
+                    self.wait_for_join(Instant::now() + left).await?;
+                    reason = format!("{reason}; then a daemon rejoined");
+                    continue;
+                }
+                Err(e) => return Err(e.into()),
+            };
+            match self.establish(next, &reason).await {
+                Ok(()) => return Ok(()),
+                Err(Halt::Interrupted) => {
+                    reason = format!("{reason}; then {} lost", self.just_lost.join(", "));
+                    continue;
+                }
+                Err(Halt::Fatal(e)) => return Err(e),
+            }
+        }
+    }
+
+    pub(super) fn lost_list(&self) -> String {
+        if self.lost.is_empty() {
+            return "none".to_string();
+        }
+        self.lost
+            .iter()
+            .map(|(id, why)| format!("{id} ({why})"))
+            .collect::<Vec<_>>()
+            .join("; ")
+    }
+
+    pub(super) async fn wait_for_join(&mut self, deadline: Instant) -> Result<(), RunError> {
+        let mut tick = tokio::time::interval(TICK);
+        loop {
+            tokio::select! {
+                j = self.session.joined.recv() => if let Some(j) = j {
+                    self.on_join(j);
+                    self.pending_join = None;
+                    return Ok(());
+                },
+                ev = self.session.events.recv() => if let Some(ev) = ev { self.accept(ev)?; },
+                s = self.session.sink_events.recv() => if let Some(s) = s { self.on_sink(s) },
+                _ = tick.tick() => self.heartbeat().await,
+                _ = tokio::time::sleep_until(deadline.into()) => {
+                    return Err(RunError::TooFewDaemons {
+                        error: PlanError::NoNodes,
+                        lost: self.lost_list(),
+                    });
+                }
+            }
+        }
+    }
+
+    /// Sends the scene to the plan's nodes that lack it and every configuration, and waits for
+    /// each `Configured`.
+    pub(super) async fn establish(&mut self, next: Plan, reason: &str) -> Result<(), Halt> {
+        let started = Instant::now();
+        let deadline = started + self.session.opts.configure;
+        let members: BTreeSet<String> = next
+            .nodes
+            .iter()
+            .map(|n| n.node.clone())
+            .chain(next.stages.iter().map(|s| s.compositor.clone()))
+            .collect();
+        self.just_lost.clear();
+        let hash = self.hash;
+        let needing: Vec<String> = next
+            .nodes
+            .iter()
+            .map(|n| n.node.clone())
+            .filter(|id| self.session.scenes.get(id) != Some(&hash))
+            .collect();
+        let mut offered: BTreeSet<String> = BTreeSet::new();
+        for id in &needing {
+            let size = self.bytes.len() as u64;
+            self.send_or_lose(id, Message::SceneOffer { hash, size })
+                .await;
+            offered.insert(id.clone());
+        }
+        let mut loading: BTreeSet<String> = BTreeSet::new();
+        while !offered.is_empty() || !loading.is_empty() {
+            self.check_interrupted(&members)?;
+            let pending: Vec<String> = offered.iter().chain(&loading).cloned().collect();
+            let Some((id, m)) = self
+                .wait_message(deadline, "the scene to load", &pending, &members)
+                .await?
+            else {
+                continue;
+            };
+            match m {
+                Message::SceneNeed { hash: h, need } if h == hash && offered.remove(&id) => {
+                    if need {
+                        self.send_scene(&id).await;
+                        loading.insert(id);
+                    } else {
+                        self.session.scenes.insert(id, hash);
+                    }
+                }
+                Message::SceneReady { hash: h, .. } if h == hash && loading.remove(&id) => {
+                    self.session.scenes.insert(id, hash);
+                }
+                Message::Error { code, message } if pending.contains(&id) => {
+                    return Err(Halt::Fatal(
+                        ControlError::Remote {
+                            address: self.session.address(&id),
+                            id,
+                            code,
+                            message,
+                        }
+                        .into(),
+                    ));
+                }
+                other => self.ignore(&id, other),
+            }
+        }
+        let mut configs = Vec::new();
+        for stage in &next.stages {
+            let cfg = next
+                .compositor_config(&stage.compositor)
+                .ok_or_else(|| ControlError::UnknownDaemon(stage.compositor.clone()))?;
+            configs.push((stage.compositor.clone(), Message::ConfigureCompositor(cfg)));
+        }
+        for node in &next.nodes {
+            let cfg = next
+                .node_config(&node.node)
+                .ok_or_else(|| ControlError::UnknownDaemon(node.node.clone()))?;
+            configs.push((node.node.clone(), Message::ConfigureNode(cfg)));
+        }
+        self.session.sink_geometry.send_replace(SinkGeometry {
+            epoch: next.epoch,
+            width: next.width,
+            height: next.height,
+            band_height: next.band_height,
+        });
+        let mut waiting: BTreeSet<String> = BTreeSet::new();
+        for (id, msg) in configs {
+            self.send_or_lose(&id, msg).await;
+            waiting.insert(id);
+        }
+        while !waiting.is_empty() {
+            self.check_interrupted(&members)?;
+            let pending: Vec<String> = waiting.iter().cloned().collect();
+            let Some((id, m)) = self
+                .wait_message(deadline, "configurations to be applied", &pending, &members)
+                .await?
+            else {
+                continue;
+            };
+            match m {
+                Message::Configured { epoch } if epoch == next.epoch => {
+                    waiting.remove(&id);
+                }
+                Message::Error { code, message }
+                    if waiting.contains(&id) && refuses_configuration(code, &message) =>
+                {
+                    return Err(Halt::Fatal(
+                        ControlError::Remote {
+                            address: self.session.address(&id),
+                            id,
+                            code,
+                            message,
+                        }
+                        .into(),
+                    ));
+                }
+                other => self.ignore(&id, other),
+            }
+        }
+        let moved = self.plan.as_ref().map_or(0, |p| lights_moved(p, &next));
+        let record = EpochRecord {
+            epoch: next.epoch,
+            reason: reason.to_string(),
+            at: Instant::now(),
+            configure: started.elapsed(),
+            nodes: next.nodes.len(),
+            stages: next.stages.len(),
+            k: next.k,
+            lights_moved: moved,
+        };
+        tracing::info!(
+            epoch = next.epoch,
+            nodes = record.nodes,
+            stages = record.stages,
+            k = record.k,
+            lights_moved = moved,
+            configure_ms = record.configure.as_millis() as u64,
+            "plan epoch configured ({reason})"
+        );
+        self.summary.epochs.push(record);
+        self.participants = next
+            .stages
+            .iter()
+            .map(|s| s.compositor.clone())
+            .chain(next.nodes.iter().map(|n| n.node.clone()))
+            .collect();
+        self.summary.plan = Some(next.clone());
+        self.plan = Some(next);
+        self.established_at = Instant::now();
+        Ok(())
+    }
+
+    pub(super) fn check_interrupted(&self, members: &BTreeSet<String>) -> Result<(), Halt> {
+        if self.just_lost.iter().any(|id| members.contains(id)) {
+            Err(Halt::Interrupted)
+        } else {
+            Ok(())
+        }
+    }
+
+    pub(super) fn ignore(&mut self, id: &str, m: Message) {
+        match m {
+            Message::Error { code, message } => tracing::warn!(daemon = %id, ?code, "{message}"),
+            other => tracing::debug!(daemon = %id, "ignored while configuring: {other:?}"),
+        }
+    }
+
+    pub(super) async fn send_or_lose(&mut self, id: &str, msg: Message) {
+        if let Err(e) = self.session.send(id, msg).await {
+            self.lose(id, format!("cannot send to it: {e}"));
+        }
+    }
+
+    pub(super) async fn send_scene(&mut self, id: &str) {
+        const CHUNK: usize = SCENE_CHUNK;
+        let hash = self.hash;
+        let total = self.bytes.len();
+        let chunks = total.div_ceil(CHUNK).max(1);
+        for i in 0..chunks {
+            let range = (i * CHUNK).min(total)..((i + 1) * CHUNK).min(total);
+            let msg = Message::SceneChunk {
+                hash,
+                offset: range.start as u64,
+                data: self.bytes[range].to_vec(),
+                last: i + 1 == chunks,
+            };
+            if let Err(e) = self.session.send(id, msg).await {
+                self.lose(id, format!("cannot send the scene: {e}"));
+                return;
+            }
+        }
+    }
+
+    /// The next message for the configuring phase; `None` after an event it handled itself.
+    /// Daemons of the new plan that do not answer by `deadline` are lost.
+    pub(super) async fn wait_message(
+        &mut self,
+        deadline: Instant,
+        what: &str,
+        pending: &[String],
+        members: &BTreeSet<String>,
+    ) -> Result<Option<(String, Message)>, Halt> {
+        let mut tick = tokio::time::interval(TICK);
+        tick.reset();
+        tokio::select! {
+            ev = self.session.events.recv() => match ev {
+                Some(ev) => Ok(self.accept(ev)?),
+                None => Err(ControlError::Sink("event channel closed".into()).into()),
+            },
+            s = self.session.sink_events.recv() => {
+                if let Some(s) = s { self.on_sink(s) }
+                Ok(None)
+            }
+            j = self.session.joined.recv() => {
+                if let Some(j) = j { self.on_join(j) }
+                Ok(None)
+            }
+            _ = tick.tick() => {
+                self.heartbeat().await;
+                self.check_interrupted(members)?;
+                Ok(None)
+            }
+            _ = tokio::time::sleep_until(deadline.into()) => {
+                let after = self.session.opts.configure;
+                for id in pending {
+                    self.lose(id, format!("did not answer within {} s while waiting for {what}", after.as_secs()));
+                }
+                Err(Halt::Interrupted)
+            }
+        }
+    }
+}
+
+/// Whether a plan error means the cluster is too small (rather than a bad scene or options).
+fn too_few(e: &PlanError) -> bool {
+    matches!(
+        e,
+        PlanError::NoNodes | PlanError::NoCompositors | PlanError::NotEnoughNodes { .. }
+    )
+}
+
+/// Whether an error answering a configuration refuses it (rather than reporting on a frame of
+/// the epoch before).
+fn refuses_configuration(code: ErrorCode, message: &str) -> bool {
+    !message.starts_with("frame ")
+        && matches!(
+            code,
+            ErrorCode::BadConfig
+                | ErrorCode::UnknownScene
+                | ErrorCode::UnsupportedFormat
+                | ErrorCode::UnknownOperator
+                | ErrorCode::RenderFailed
+        )
+}

@@ -1,0 +1,159 @@
+//! The frames of the loop: sending requests, collecting images and reports, delivering in
+//! order, and putting back what a re-plan interrupts.
+
+use super::{InFlight, Live};
+use crate::control::session::FrameResult;
+use crate::plan::{Plan, Source};
+use crate::run::{RunError, frame_params};
+use lightfold_protocol::{FrameParams, Message};
+use std::time::Instant;
+
+impl Live<'_> {
+    /// Moves frames whose image and reports are all in to `done`.
+    pub(super) fn collect(&mut self) {
+        let all = self.participants.len();
+        let mut i = 0;
+        while i < self.inflight.len() {
+            let f = &self.inflight[i];
+            if f.image.is_some() && f.stats.len() >= all {
+                let f = self.inflight.remove(i);
+                let later = self.inflight.iter().filter(|x| x.index > f.index).count();
+                self.finish(f, later as u32);
+            } else {
+                i += 1;
+            }
+        }
+    }
+
+    pub(super) fn finish(&mut self, f: InFlight, latency_frames: u32) {
+        let Some(image) = f.image else {
+            return;
+        };
+        self.done.insert(
+            f.index,
+            FrameResult {
+                frame: f.index,
+                wire_frame: f.wire,
+                epoch: image.epoch,
+                requested_at: f.sent_at,
+                received_at: image.received_at,
+                latency_frames,
+                image: image.image,
+                sink_bytes: image.bytes,
+                stats: f.stats,
+            },
+        );
+    }
+
+    pub(super) fn deliver(&mut self, on_frame: &mut impl FnMut(FrameResult)) {
+        while let Some(r) = self.done.remove(&self.next_deliver) {
+            self.next_deliver += 1;
+            self.summary.delivered += 1;
+            self.replans_without_progress = 0;
+            on_frame(r);
+        }
+    }
+
+    /// Sends frame requests up to the in-flight limit (none while a re-plan is due).
+    pub(super) async fn issue(&mut self) -> Result<(), RunError> {
+        if self.pending_join.is_some() || self.need_replan.is_some() || self.reset_at.is_some() {
+            return Ok(());
+        }
+        let Some(plan) = &self.plan else {
+            return Ok(());
+        };
+        let limit = self.session.opts.frames_in_flight.max(1);
+        let epoch = plan.epoch;
+        while self.inflight.len() < limit {
+            let Some((index, spec)) = self.queue.pop_front() else {
+                break;
+            };
+            let Some(plan) = &self.plan else {
+                break;
+            };
+            let wire = self.session.base + index;
+            let params = frame_params(plan, &spec.light_colors, index)?;
+            let mut failed = None;
+            for id in &self.participants {
+                let msg = Message::RenderFrame {
+                    epoch,
+                    frame: wire,
+                    camera: spec.camera,
+                    params: params.get(id).cloned().unwrap_or(FrameParams {
+                        colors: Vec::new(),
+                        scale: None,
+                    }),
+                };
+                if let Err(e) = self.session.send(id, msg).await {
+                    failed = Some((id.clone(), e));
+                    break;
+                }
+            }
+            if let Some((id, e)) = failed {
+                self.queue.push_front((index, spec));
+                self.lose(&id, format!("cannot send to it: {e}"));
+                break;
+            }
+            self.inflight.push(InFlight {
+                index,
+                spec,
+                wire,
+                sent_at: Instant::now(),
+                image: None,
+                stats: Vec::new(),
+                slow_warned: false,
+            });
+        }
+        Ok(())
+    }
+
+    /// Keeps the frames in flight that reached the sink (their image is complete) and puts the
+    /// others back at the head of the queue, in order.
+    pub(super) fn salvage(&mut self) {
+        let mut again = Vec::new();
+        for f in std::mem::take(&mut self.inflight) {
+            if f.image.is_some() {
+                self.finish(f, 0);
+            } else {
+                again.push((f.index, f.spec));
+            }
+        }
+        self.summary.rerequested += again.len() as u64;
+        for item in again.into_iter().rev() {
+            self.queue.push_front(item);
+        }
+    }
+}
+
+/// The daemons frame `f` waits on: those of the plan that have not reported it while everything
+/// upstream of them has (nodes have nothing upstream); the last stage when every daemon reported
+/// and only the image is missing.
+pub(super) fn waiting_on(plan: &Plan, f: &InFlight) -> Vec<String> {
+    let reported = |id: &str| f.stats.iter().any(|s| s.daemon_id == id);
+    let mut out: Vec<String> = plan
+        .nodes
+        .iter()
+        .map(|n| n.node.clone())
+        .filter(|id| !reported(id))
+        .collect();
+    for s in &plan.stages {
+        if reported(&s.compositor) {
+            continue;
+        }
+        let upstream_done = s.inputs.iter().all(|i| match &i.source {
+            Source::Node(n) | Source::Stage(n) => reported(n),
+        });
+        if upstream_done {
+            out.push(s.compositor.clone());
+        }
+    }
+    if out.is_empty()
+        && let Some(last) = plan.stages.last()
+    {
+        out.push(format!(
+            "{} (its link to the coordinator's sink)",
+            last.compositor
+        ));
+    }
+    out
+}

@@ -1,0 +1,512 @@
+//! The coordinator's event loop: one task owns the plan, the membership and the frames in
+//! flight, and reacts to events — frame requests (a channel: a scripted path today, a viewer
+//! later), daemon messages and the end of their control links, the sink's frames, daemons that
+//! answer a redial, and a 50 ms tick for heartbeats and deadlines (`docs/failover.md`).
+//!
+//! - **Lost** (control link closed or broken, heartbeats unanswered for
+//!   `ControlOptions::heartbeat_timeout`, a frame not finished within `ControlOptions::frame`):
+//!   the daemon is dropped and redialled in the background; if the plan used it, a new epoch is
+//!   planned over the daemons left (`plan::replan`, moving as few lights as it can), configured,
+//!   and the frames of the old epoch that had not reached the sink are requested again.
+//! - **Slow** (a frame past `slow_factor` × the plan's estimate): reported, naming the daemons
+//!   the frame waits on; a daemon that answers its heartbeats is waited for.
+//! - **Joined** (a lost daemon answered its redial): folded into the next epoch once the frames in
+//!   flight are done.
+//! - **Frame failures** reported by daemons or the sink: the frames in flight are requested again
+//!   under a new epoch over the same daemons.
+//!
+//! Frames are handed to `on_frame` complete, in request order, exactly once.
+
+mod epoch;
+mod frames;
+
+use super::session::{ControlError, Event, FrameResult, Joined, Session};
+use super::sink::{SinkEvent, SinkFrame};
+use crate::plan::{Plan, PlanOptions};
+use crate::run::RunError;
+use frames::waiting_on;
+use lightfold_protocol::{ErrorCode, FrameStats, Message, WireCamera};
+use lightfold_scene::Scene;
+use std::collections::{BTreeMap, VecDeque};
+use std::time::{Duration, Instant};
+use tokio::sync::mpsc;
+
+/// How often the loop looks at heartbeats and deadlines.
+const TICK: Duration = Duration::from_millis(50);
+/// Frame failures reported this soon after an epoch was configured are taken to belong to the
+/// frames of the epoch before (daemon errors carry no epoch).
+const ERROR_GRACE: Duration = Duration::from_millis(300);
+/// A frame failure waits this long before the frames are requested again, so that the loss
+/// behind it (which usually arrives at the same time) makes one re-plan, not two.
+const RESET_DEBOUNCE: Duration = Duration::from_millis(300);
+/// Re-plans in a row without a frame delivered before the run gives up.
+const MAX_REPLANS_WITHOUT_PROGRESS: u32 = 8;
+/// Sink warnings (stray connections) logged at most this often.
+const WARNING_EVERY: Duration = Duration::from_secs(1);
+
+/// One frame to render: its camera (`None`: the plan's) and the light colours in effect
+/// (source light → colour; lights not named keep the scene's colour).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FrameSpec {
+    pub camera: Option<WireCamera>,
+    pub light_colors: Vec<(u32, [f32; 3])>,
+}
+
+/// Something that happened to a daemon during the run.
+#[derive(Debug, Clone, PartialEq)]
+pub enum IncidentKind {
+    Lost { reason: String },
+    Slow { frame: u64, waited: Duration },
+    Rejoined,
+}
+
+#[derive(Debug, Clone)]
+pub struct Incident {
+    pub daemon: String,
+    pub kind: IncidentKind,
+    pub at: Instant,
+}
+
+/// One plan epoch the run used.
+#[derive(Debug, Clone)]
+pub struct EpochRecord {
+    pub epoch: u64,
+    /// Why it was planned ("start", "node-3 lost: …", "node-3 rejoined", …).
+    pub reason: String,
+    /// When it was configured everywhere, and how long configuring took.
+    pub at: Instant,
+    pub configure: Duration,
+    pub nodes: usize,
+    pub stages: usize,
+    pub k: u32,
+    /// Lights of the previous epoch that moved to another node.
+    pub lights_moved: usize,
+}
+
+/// What a run did, also when it failed.
+#[derive(Debug, Default)]
+pub struct LiveSummary {
+    pub plan: Option<Plan>,
+    pub epochs: Vec<EpochRecord>,
+    pub incidents: Vec<Incident>,
+    pub delivered: u64,
+    /// Frame requests sent again after a re-plan.
+    pub rerequested: u64,
+}
+
+struct InFlight {
+    index: u64,
+    spec: FrameSpec,
+    wire: u64,
+    sent_at: Instant,
+    image: Option<SinkFrame>,
+    stats: Vec<FrameStats>,
+    slow_warned: bool,
+}
+
+/// Why establishing an epoch stopped.
+enum Halt {
+    /// A daemon of the new plan was lost: plan again.
+    Interrupted,
+    Fatal(RunError),
+}
+
+impl From<RunError> for Halt {
+    fn from(e: RunError) -> Halt {
+        Halt::Fatal(e)
+    }
+}
+
+impl From<ControlError> for Halt {
+    fn from(e: ControlError) -> Halt {
+        Halt::Fatal(e.into())
+    }
+}
+
+/// The loop's state over one session.
+pub struct Live<'s> {
+    session: &'s mut Session,
+    scene: &'s Scene,
+    opts: PlanOptions,
+    bytes: Vec<u8>,
+    hash: [u8; 32],
+    plan: Option<Plan>,
+    /// The plan's daemons, compositors first.
+    participants: Vec<String>,
+    established_at: Instant,
+    next_index: u64,
+    queue: VecDeque<(u64, FrameSpec)>,
+    inflight: Vec<InFlight>,
+    done: BTreeMap<u64, FrameResult>,
+    next_deliver: u64,
+    source_open: bool,
+    /// Why the next re-plan is due now (a participant was lost).
+    need_replan: Option<String>,
+    /// A daemon joined: re-plan once the frames in flight are done.
+    pending_join: Option<String>,
+    /// A frame failed: re-request at this time.
+    reset_at: Option<(Instant, String)>,
+    /// Daemons lost since the last look, and why each lost daemon was lost.
+    just_lost: Vec<String>,
+    lost: BTreeMap<String, String>,
+    replans_without_progress: u32,
+    last_ping: Option<Instant>,
+    last_warning: Option<Instant>,
+    pub summary: LiveSummary,
+}
+
+impl std::fmt::Debug for Live<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Live")
+            .field("epoch", &self.plan.as_ref().map(|p| p.epoch))
+            .field("queued", &self.queue.len())
+            .field("in_flight", &self.inflight.len())
+            .field("delivered", &self.summary.delivered)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<'s> Live<'s> {
+    pub fn new(
+        session: &'s mut Session,
+        scene: &'s Scene,
+        opts: &PlanOptions,
+    ) -> Result<Live<'s>, RunError> {
+        let bytes = scene
+            .to_bytes()
+            .map_err(|e| RunError::Scene(e.to_string()))?;
+        Ok(Live {
+            session,
+            scene,
+            opts: opts.clone(),
+            bytes,
+            // Nodes decode what they receive and check it against this.
+            hash: scene.content_hash(),
+            plan: None,
+            participants: Vec::new(),
+            established_at: Instant::now(),
+            next_index: 1,
+            queue: VecDeque::new(),
+            inflight: Vec::new(),
+            done: BTreeMap::new(),
+            next_deliver: 1,
+            source_open: true,
+            need_replan: None,
+            pending_join: None,
+            reset_at: None,
+            just_lost: Vec::new(),
+            lost: BTreeMap::new(),
+            replans_without_progress: 0,
+            last_ping: None,
+            last_warning: None,
+            summary: LiveSummary::default(),
+        })
+    }
+
+    /// The plan in use.
+    pub fn plan(&self) -> Option<&Plan> {
+        self.plan.as_ref()
+    }
+
+    /// Plans, configures and renders every frame `requests` yields until it closes, handing
+    /// each finished frame to `on_frame` in order. On an error the frames delivered so far have
+    /// been handed over and `summary` says what happened.
+    pub async fn run(
+        &mut self,
+        mut requests: mpsc::Receiver<FrameSpec>,
+        mut on_frame: impl FnMut(FrameResult),
+    ) -> Result<(), RunError> {
+        self.replan("start".to_string()).await?;
+        let mut tick = tokio::time::interval(TICK);
+        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        loop {
+            self.collect();
+            self.deliver(&mut on_frame);
+            if let Some(reason) = self.due_replan() {
+                self.replan(reason).await?;
+                continue;
+            }
+            self.issue().await?;
+            if !self.source_open && self.queue.is_empty() && self.inflight.is_empty() {
+                self.deliver(&mut on_frame);
+                return Ok(());
+            }
+            let lookahead = self.session.opts.frames_in_flight.max(1);
+            let want = self.source_open && self.queue.len() < lookahead;
+            tokio::select! {
+                ev = self.session.events.recv() => match ev {
+                    Some(ev) => self.on_run_event(ev)?,
+                    None => return Err(ControlError::Sink("event channel closed".into()).into()),
+                },
+                s = self.session.sink_events.recv() => match s {
+                    Some(s) => self.on_sink(s),
+                    None => return Err(ControlError::Sink("the sink stopped".into()).into()),
+                },
+                j = self.session.joined.recv() => if let Some(j) = j { self.on_join(j) },
+                spec = requests.recv(), if want => match spec {
+                    Some(spec) => {
+                        self.queue.push_back((self.next_index, spec));
+                        self.next_index += 1;
+                    }
+                    None => self.source_open = false,
+                },
+                _ = tick.tick() => self.on_tick().await?,
+            }
+        }
+    }
+
+    /// Takes one daemon event: liveness bookkeeping, losses, take-overs. Returns the message for
+    /// the caller's phase, if any.
+    fn accept(&mut self, (id, link, result): Event) -> Result<Option<(String, Message)>, RunError> {
+        let Some(d) = self.session.daemons.get(&id) else {
+            return Ok(None); // a daemon already lost
+        };
+        if d.link != link {
+            return Ok(None); // an older link of a daemon that rejoined
+        }
+        match result {
+            Err(e) => {
+                self.lose(&id, format!("its control link ended: {e}"));
+                Ok(None)
+            }
+            Ok(Message::Pong { .. }) => Ok(None),
+            Ok(Message::Error {
+                code: ErrorCode::TakenOver,
+                message,
+            }) => Err(ControlError::TakenOver {
+                address: self.session.address(&id),
+                id,
+                message,
+            }
+            .into()),
+            Ok(m) => Ok(Some((id, m))),
+        }
+    }
+
+    fn on_run_event(&mut self, ev: Event) -> Result<(), RunError> {
+        let Some((id, m)) = self.accept(ev)? else {
+            return Ok(());
+        };
+        let epoch = self.plan.as_ref().map(|p| p.epoch);
+        match m {
+            Message::FrameDone(s) if Some(s.epoch) == epoch => {
+                if let Some(f) = self.inflight.iter_mut().find(|f| f.wire == s.frame)
+                    && !f.stats.iter().any(|x| x.daemon_id == s.daemon_id)
+                {
+                    f.stats.push(s);
+                }
+            }
+            Message::FrameDone(_) => {} // of an older epoch
+            Message::Error { code, message } => self.daemon_error(&id, code, &message),
+            other => tracing::debug!(daemon = %id, "ignored {other:?}"),
+        }
+        Ok(())
+    }
+
+    fn daemon_error(&mut self, id: &str, code: ErrorCode, message: &str) {
+        tracing::warn!(daemon = %id, ?code, "{message}");
+        let frame_failure = matches!(
+            code,
+            ErrorCode::BandMismatch
+                | ErrorCode::Timeout
+                | ErrorCode::PeerLost
+                | ErrorCode::RenderFailed
+                | ErrorCode::Internal
+        );
+        if frame_failure
+            && !self.inflight.is_empty()
+            && self.established_at.elapsed() > ERROR_GRACE
+            && self.reset_at.is_none()
+        {
+            self.reset_at = Some((
+                Instant::now() + RESET_DEBOUNCE,
+                format!("{id} reported {code:?}: {message}"),
+            ));
+        }
+    }
+
+    fn on_sink(&mut self, ev: SinkEvent) {
+        let epoch = self.plan.as_ref().map(|p| p.epoch);
+        match ev {
+            SinkEvent::Frame(f) if Some(f.epoch) == epoch => {
+                if let Some(x) = self.inflight.iter_mut().find(|x| x.wire == f.frame) {
+                    x.image = Some(f);
+                }
+            }
+            SinkEvent::Frame(_) => {}
+            SinkEvent::Failed { frame, reason } => {
+                tracing::warn!(frame, "{reason}");
+                if self.inflight.iter().any(|f| f.wire == frame) && self.reset_at.is_none() {
+                    self.reset_at = Some((Instant::now() + RESET_DEBOUNCE, reason));
+                }
+            }
+            SinkEvent::Warning(w) => self.warn_rate_limited(&w),
+        }
+    }
+
+    fn warn_rate_limited(&mut self, w: &str) {
+        let now = Instant::now();
+        if self
+            .last_warning
+            .is_none_or(|t| now.duration_since(t) >= WARNING_EVERY)
+        {
+            self.last_warning = Some(now);
+            tracing::warn!("{w}");
+        } else {
+            tracing::debug!("{w}");
+        }
+    }
+
+    fn on_join(&mut self, j: Joined) {
+        let id = j.caps.daemon_id.clone();
+        tracing::info!(daemon = %id, address = %j.entry.address, "rejoined");
+        self.session.admit(j);
+        self.lost.remove(&id);
+        self.summary.incidents.push(Incident {
+            daemon: id.clone(),
+            kind: IncidentKind::Rejoined,
+            at: Instant::now(),
+        });
+        self.pending_join.get_or_insert(format!("{id} rejoined"));
+    }
+
+    /// Drops a daemon; a re-plan is due if the plan used it.
+    fn lose(&mut self, id: &str, reason: String) {
+        let Some(d) = self.session.lose(id) else {
+            return;
+        };
+        let used = self.participants.iter().any(|p| p == id);
+        tracing::warn!(daemon = %id, address = %d.address, in_plan = used, "lost: {reason}");
+        self.summary.incidents.push(Incident {
+            daemon: id.to_string(),
+            kind: IncidentKind::Lost {
+                reason: reason.clone(),
+            },
+            at: Instant::now(),
+        });
+        self.lost.insert(id.to_string(), reason.clone());
+        self.just_lost.push(id.to_string());
+        if used {
+            self.need_replan
+                .get_or_insert(format!("{id} lost: {reason}"));
+        }
+    }
+
+    /// Sends heartbeats and judges silence; a heartbeat counts as unanswered only from when it
+    /// was sent, so a loop that was busy never mistakes its own delay for a daemon's silence.
+    async fn heartbeat(&mut self) {
+        let now = Instant::now();
+        let opts = self.session.opts;
+        let mut silent = Vec::new();
+        for (id, d) in &mut self.session.daemons {
+            if let Some(t) = d.ping_pending
+                && d.last_seen() >= t
+            {
+                d.ping_pending = None;
+            }
+            if let Some(t) = d.ping_pending
+                && now.duration_since(t) > opts.heartbeat_timeout
+            {
+                silent.push((id.clone(), now.duration_since(t)));
+            }
+        }
+        for (id, waited) in silent {
+            self.lose(
+                &id,
+                format!(
+                    "no answer to heartbeats for {} ms (stopped, hung or cut off)",
+                    waited.as_millis()
+                ),
+            );
+        }
+        if self
+            .last_ping
+            .is_some_and(|t| now.duration_since(t) < opts.heartbeat)
+        {
+            return;
+        }
+        self.last_ping = Some(now);
+        let ids: Vec<String> = self.session.daemons.keys().cloned().collect();
+        for id in ids {
+            match self.session.send(&id, Message::Ping { seq: 0 }).await {
+                Ok(()) => {
+                    if let Some(d) = self.session.daemons.get_mut(&id) {
+                        d.ping_pending.get_or_insert(now);
+                    }
+                }
+                Err(e) => self.lose(&id, format!("cannot send to it: {e}")),
+            }
+        }
+    }
+
+    async fn on_tick(&mut self) -> Result<(), RunError> {
+        self.heartbeat().await;
+        let Some(plan) = &self.plan else {
+            return Ok(());
+        };
+        let now = Instant::now();
+        let opts = self.session.opts;
+        let predicted = Duration::from_micros(plan.est_frame_us);
+        let slow = predicted.mul_f64(opts.slow_factor).max(opts.slow_floor);
+        let mut slow_frames = Vec::new();
+        let mut hung = Vec::new();
+        for f in &mut self.inflight {
+            let waited = now.duration_since(f.sent_at);
+            if waited > opts.frame {
+                hung.push((f.index, waiting_on(plan, f)));
+            } else if waited > slow && !f.slow_warned {
+                f.slow_warned = true;
+                slow_frames.push((f.index, waited, waiting_on(plan, f)));
+            }
+        }
+        for (index, waited, culprits) in slow_frames {
+            tracing::warn!(
+                frame = index,
+                "frame {index} is slow: {} ms so far (the plan estimates {} ms); waiting on {}",
+                waited.as_millis(),
+                predicted.as_millis(),
+                culprits.join(", ")
+            );
+            for c in culprits {
+                self.summary.incidents.push(Incident {
+                    daemon: c,
+                    kind: IncidentKind::Slow {
+                        frame: index,
+                        waited,
+                    },
+                    at: now,
+                });
+            }
+        }
+        for (index, culprits) in hung {
+            for c in culprits {
+                self.lose(
+                    &c,
+                    format!(
+                        "frame {index} not finished after {} s",
+                        opts.frame.as_secs_f64()
+                    ),
+                );
+            }
+        }
+        Ok(())
+    }
+
+    fn due_replan(&mut self) -> Option<String> {
+        if let Some(r) = self.need_replan.take() {
+            return Some(r);
+        }
+        if let Some((at, _)) = &self.reset_at
+            && Instant::now() >= *at
+        {
+            return self
+                .reset_at
+                .take()
+                .map(|(_, r)| format!("frame failure: {r}"));
+        }
+        if self.pending_join.is_some() && self.inflight.is_empty() {
+            return self.pending_join.take();
+        }
+        None
+    }
+}
