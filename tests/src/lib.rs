@@ -11,8 +11,9 @@ use lightfold_coordinator::plan::Plan;
 use lightfold_coordinator::run::RunOptions;
 use lightfold_net::{Identity, Timeouts};
 use lightfold_node::daemon::{self as node, NodeOptions};
+use lightfold_node::gpu::{Gpu, LayerSet, RenderOptions, Renderer};
 use lightfold_protocol::Role;
-use lightfold_scene::Scene;
+use lightfold_scene::{Image, Scene};
 use std::time::Duration;
 use tokio::net::TcpListener;
 use tokio::task::JoinHandle;
@@ -96,6 +97,15 @@ impl InProcessCluster {
             stop,
             task: Some(task),
         });
+    }
+
+    /// A token that stops daemon `id` when cancelled (for tests that stop a daemon mid-run from
+    /// another task).
+    pub fn stop_token(&self, id: &str) -> Option<CancellationToken> {
+        self.daemons
+            .iter()
+            .find(|d| d.id == id)
+            .map(|d| d.stop.clone())
     }
 
     /// Stops daemon `id` at once: its links close as a killed process's would (the coordinator
@@ -219,4 +229,91 @@ pub fn test_control() -> ControlOptions {
         heartbeat_timeout: Duration::from_secs(3),
         ..ControlOptions::default()
     }
+}
+
+/// Small versions of built-in scenes: 2 area lights × 4 samples, 64×48.
+pub fn small(name: &str) -> Scene {
+    let mut s = lightfold_scene::builtin(name).unwrap();
+    s.quality.samples_per_area_light = Some(4);
+    s.camera.width = 64;
+    s.camera.height = 48;
+    s
+}
+
+/// Final radiance of all the scene's samples rendered on one device (paper eq. 2). `walkthrough`
+/// fits the shadow maps to every receiver, as walkthrough nodes must (their maps outlive camera
+/// moves); otherwise to the receivers the camera sees. The two differ at shadow edges (other
+/// texel grids: ≈ 0.4 % of channels of `small("balls")`, up to 0.025), so each cluster mode is
+/// compared with the single-device render that fits its maps the same way.
+pub fn single_device(gpu: &Gpu, scene: &Scene, walkthrough: bool) -> Image {
+    let samples = lightfold_scene::sampling::scene_samples(scene);
+    let mut r = Renderer::new(gpu, scene, RenderOptions::from_quality(&scene.quality)).unwrap();
+    r.set_camera(&scene.camera);
+    r.set_fit_to_camera(!walkthrough);
+    let f = r
+        .render(gpu, &samples, None, [1.0; 3], LayerSet::all())
+        .unwrap();
+    let (il, md, ms, ma, e) = (
+        f.illumination.unwrap(),
+        f.diffuse.unwrap(),
+        f.specular.unwrap(),
+        f.ambient.unwrap(),
+        f.emissive.unwrap(),
+    );
+    let mut out = Image::new(il.width, il.height, 3);
+    for i in 0..out.pixel_count() {
+        for c in 0..3 {
+            out.data[i * 3 + c] = e.data[i * 3 + c]
+                + ma.data[i * 3 + c] * scene.ambient[c]
+                + md.data[i * 3 + c] * il.data[i * 6 + c]
+                + ms.data[i * 3 + c] * il.data[i * 6 + 3 + c];
+        }
+    }
+    out
+}
+
+/// Per-pixel agreement within the link formats' bound: rgb9e5x2 from nodes (2⁻⁹ relative),
+/// f16 between stages (2⁻¹¹ per hop), sRGB8 material colours (≤ 1.3 % relative at the dark end),
+/// so 2.5 % relative + 1e-3 absolute; and mean energy within 1 %.
+pub fn assert_close(test: &Image, want: &Image, what: &str) {
+    assert_close_within(test, want, what, 1000);
+}
+
+/// As [`assert_close`], allowing one channel in `per` outside the bound.
+pub fn assert_close_within(test: &Image, want: &Image, what: &str, per: usize) {
+    assert_eq!(
+        (test.width, test.height),
+        (want.width, want.height),
+        "{what}: size"
+    );
+    let mut bad = 0;
+    for (a, b) in test.data.iter().zip(&want.data) {
+        assert!(a.is_finite(), "{what}: non-finite pixel");
+        if (a - b).abs() > 0.025 * b.abs() + 1e-3 {
+            bad += 1;
+        }
+    }
+    let (ea, eb): (f64, f64) = (
+        test.data.iter().map(|&v| v as f64).sum(),
+        want.data.iter().map(|&v| v as f64).sum(),
+    );
+    assert!(eb > 0.0, "{what}: reference is black");
+    if bad > 0 {
+        let worst = test
+            .data
+            .iter()
+            .zip(&want.data)
+            .map(|(a, b)| ((a - b).abs(), *b))
+            .fold((0.0f32, 0.0f32), |m, x| if x.0 > m.0 { x } else { m });
+        eprintln!(
+            "{what}: {bad} channels outside; worst |diff| {} at value {}",
+            worst.0, worst.1
+        );
+    }
+    assert!(
+        bad * per <= test.data.len(),
+        "{what}: {bad} of {} channels outside the bound",
+        test.data.len()
+    );
+    assert!((ea / eb - 1.0).abs() < 0.01, "{what}: energy {ea} vs {eb}");
 }

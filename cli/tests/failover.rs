@@ -1,0 +1,189 @@
+//! Failover with real processes (issue 18): during `lightfold demo --frames N --orbit …`, a render
+//! node is SIGKILLed and restarted on its address the way systemd would restart it, and a
+//! compositor is SIGKILLed; in another run a node is stopped (SIGSTOP) for 3 s. Every run exits 0
+//! with all N frames written as they completed, and its report names the daemons it lost and the
+//! one that came back.
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+fn lightfold() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_lightfold"));
+    c.env("NODEVICE_SELECT", "1");
+    c
+}
+
+fn work_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("lightfold-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(dir.join("frames")).unwrap();
+    dir
+}
+
+/// Starts `lightfold demo` on a small orbit, keeping every frame in `dir/frames`.
+fn start_demo(dir: &Path, frames: u32) -> Child {
+    lightfold()
+        .args([
+            "demo",
+            "--size",
+            "96x72",
+            "--shadow-map-size",
+            "512",
+            "--no-compare",
+            "--orbit",
+            "3",
+            "--frames",
+        ])
+        .arg(frames.to_string())
+        .arg("--work-dir")
+        .arg(dir)
+        .arg("--frame-dir")
+        .arg(dir.join("frames"))
+        .arg("--out")
+        .arg(dir.join("out.png"))
+        .arg("--exr")
+        .arg(dir.join("out.exr"))
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+/// Polls until `f` holds, failing after `within`.
+fn wait_for(what: &str, within: Duration, mut f: impl FnMut() -> bool) {
+    let start = Instant::now();
+    while !f() {
+        assert!(start.elapsed() < within, "timed out waiting for {what}");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+fn frames_written(dir: &Path) -> usize {
+    std::fs::read_dir(dir.join("frames"))
+        .map(|d| {
+            d.filter_map(Result::ok)
+                .filter(|e| e.path().extension().is_some_and(|x| x == "exr"))
+                .count()
+        })
+        .unwrap_or(0)
+}
+
+/// The pid of daemon `name` from the demo's `pids` file.
+fn pid_of(dir: &Path, name: &str) -> String {
+    let path = dir.join("pids");
+    wait_for("the pids file", Duration::from_secs(120), || {
+        std::fs::read_to_string(&path).is_ok_and(|p| p.contains("coordinator"))
+    });
+    let pids = std::fs::read_to_string(&path).unwrap();
+    pids.lines()
+        .find_map(|l| l.strip_prefix(&format!("{name} ")))
+        .unwrap_or_else(|| panic!("{name} not in {pids}"))
+        .trim()
+        .to_string()
+}
+
+/// The address daemon `id` listens on, from the demo's cluster file.
+fn address_of(dir: &Path, id: &str) -> String {
+    let text = std::fs::read_to_string(dir.join("cluster.toml")).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    let at = lines
+        .iter()
+        .position(|l| l.trim() == format!("id = \"{id}\""))
+        .unwrap_or_else(|| panic!("{id} not in {text}"));
+    lines[at - 1]
+        .trim()
+        .strip_prefix("address = \"")
+        .and_then(|a| a.strip_suffix('"'))
+        .unwrap()
+        .to_string()
+}
+
+fn signal(sig: &str, pid: &str) {
+    let ok = Command::new("kill").arg(sig).arg(pid).status().unwrap();
+    assert!(ok.success(), "kill {sig} {pid}");
+}
+
+fn finish(demo: Child) -> (String, String) {
+    let out = demo.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(
+        out.status.success(),
+        "demo failed ({}):\n{stdout}\n{stderr}",
+        out.status
+    );
+    (stdout, stderr)
+}
+
+#[test]
+fn killed_daemons_cost_no_frame_and_a_restarted_one_comes_back() {
+    const FRAMES: u32 = 24;
+    let dir = work_dir("failover-kill");
+    let demo = start_demo(&dir, FRAMES);
+    wait_for("frame 2", Duration::from_secs(300), || {
+        frames_written(&dir) >= 2
+    });
+    let node = pid_of(&dir, "node-1");
+    let addr = address_of(&dir, "node-1");
+    signal("-KILL", &node);
+    // A supervisor restarts it on the same address under the same id.
+    std::thread::sleep(Duration::from_millis(500));
+    let mut restarted = lightfold()
+        .args([
+            "--log",
+            "warn",
+            "node",
+            "--listen",
+            &addr,
+            "--id",
+            "node-1",
+            "--token-file",
+        ])
+        .arg(dir.join("token"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::inherit())
+        .spawn()
+        .unwrap();
+    let seen = frames_written(&dir);
+    wait_for("two more frames", Duration::from_secs(300), || {
+        frames_written(&dir) >= seen + 2
+    });
+    signal("-KILL", &pid_of(&dir, "comp-1"));
+    let (stdout, _) = finish(demo);
+    let _ = restarted.kill();
+    let _ = restarted.wait();
+    assert_eq!(frames_written(&dir), FRAMES as usize, "{stdout}");
+    for line in ["node-1  lost", "node-1  rejoined", "comp-1  lost"] {
+        assert!(
+            stdout.contains(line),
+            "no {line:?} in the report:\n{stdout}"
+        );
+    }
+    assert!(
+        stdout.contains(&format!("failover: {FRAMES} frame(s) delivered")),
+        "{stdout}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn a_stopped_node_is_named_and_every_frame_arrives() {
+    const FRAMES: u32 = 8;
+    let dir = work_dir("failover-stop");
+    let demo = start_demo(&dir, FRAMES);
+    wait_for("frame 2", Duration::from_secs(300), || {
+        frames_written(&dir) >= 2
+    });
+    let node = pid_of(&dir, "node-2");
+    signal("-STOP", &node);
+    std::thread::sleep(Duration::from_secs(3));
+    signal("-CONT", &node);
+    let (stdout, _) = finish(demo);
+    assert_eq!(frames_written(&dir), FRAMES as usize, "{stdout}");
+    assert!(
+        stdout.contains("node-2  lost: no answer to heartbeats"),
+        "the report does not name the stalled node:\n{stdout}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -1,0 +1,257 @@
+//! Failover in the in-process cluster (issue 18): a render node, a middle compositor and the sink
+//! compositor each stop mid-run; every frame is still delivered, once, in order, equal to the
+//! single-device render of its camera within the link formats' bound; the loss is detected
+//! within a generous bound; a restarted daemon is folded back into the plan; a session left
+//! behind by an aborted coordinator does not break the next one; a second coordinator is refused
+//! while one holds the cluster, unless it takes over.
+
+use lightfold_coordinator::control::{ControlError, IncidentKind, LiveSummary};
+use lightfold_coordinator::plan::MapSizing;
+use lightfold_coordinator::run::{FramePath, RunError, RunOptions, camera_at};
+use lightfold_node::gpu::{Gpu, GpuOptions};
+use lightfold_scene::Scene;
+use lightfold_tests::{
+    InProcessCluster, RunOutput, assert_close, single_device, small, test_control,
+};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+const FRAMES: u32 = 6;
+
+/// `balls` at 64×48 with 8 samples, K = 2: four render nodes and four stages in a chain.
+fn setup() -> (Scene, RunOptions) {
+    let scene = small("balls");
+    let mut opts = RunOptions {
+        control: test_control(),
+        frames: FRAMES,
+        path: FramePath::Orbit { degrees: 4.0 },
+        ..RunOptions::default()
+    };
+    opts.plan.lights_per_node = 2;
+    opts.plan.map_sizing = MapSizing::Fixed(scene.quality.shadow_map_size);
+    (scene, opts)
+}
+
+/// Every frame of the run, in order, against the single-device render of its camera.
+fn assert_every_frame(out: &RunOutput, scene: &Scene, opts: &RunOptions, what: &str) {
+    let gpu = Gpu::new(&GpuOptions::default())
+        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let numbers: Vec<u64> = out.frames.iter().map(|f| f.frame).collect();
+    let want: Vec<u64> = (1..=u64::from(opts.frames)).collect();
+    assert_eq!(numbers, want, "{what}: every frame once, in order");
+    for f in &out.frames {
+        let mut s = scene.clone();
+        s.camera = camera_at(&scene.camera, opts.path, (f.frame - 1) as u32);
+        let truth = single_device(&gpu, &s, false);
+        assert_close(&f.image, &truth, &format!("{what}: frame {}", f.frame));
+    }
+}
+
+/// When `id` was reported lost.
+fn lost_at(summary: &LiveSummary, id: &str) -> Option<Instant> {
+    summary
+        .incidents
+        .iter()
+        .find(|i| i.daemon == id && matches!(i.kind, IncidentKind::Lost { .. }))
+        .map(|i| i.at)
+}
+
+/// Renders the orbit on `cluster`, stopping daemon `victim` as frame `at` is delivered.
+async fn run_losing(
+    cluster: &InProcessCluster,
+    scene: &Scene,
+    opts: &RunOptions,
+    victim: &str,
+    at: u64,
+) -> (RunOutput, Instant) {
+    let stop = cluster.stop_token(victim).expect("victim exists");
+    let killed: Arc<Mutex<Option<Instant>>> = Arc::default();
+    let mut session = cluster.connect(opts.control).await.unwrap();
+    let mut frames = Vec::new();
+    let k = Arc::clone(&killed);
+    let outcome = tokio::time::timeout(
+        lightfold_tests::RUN_DEADLINE,
+        lightfold_coordinator::run::render(&mut session, scene, opts, |f| {
+            if f.frame == at {
+                stop.cancel();
+                *k.lock().unwrap() = Some(Instant::now());
+            }
+            frames.push(f);
+        }),
+    )
+    .await
+    .expect("the run timed out");
+    session.detach();
+    if let Some(e) = outcome.error {
+        panic!(
+            "the run failed after {} frames: {e}; incidents {:?}",
+            frames.len(),
+            outcome.summary.incidents
+        );
+    }
+    let killed_at = killed.lock().unwrap().expect("the victim was stopped");
+    let out = RunOutput {
+        plan: outcome.summary.plan.clone().expect("a plan"),
+        frames,
+        summary: outcome.summary,
+    };
+    (out, killed_at)
+}
+
+async fn survives_losing(victim: &str) {
+    let (scene, opts) = setup();
+    let cluster = InProcessCluster::start(4, 4).await.unwrap();
+    let (out, killed_at) = run_losing(&cluster, &scene, &opts, victim, 2).await;
+    let first = &out.summary.epochs[0];
+    assert_eq!(first.nodes, 4, "the first plan uses every node");
+    let lost = lost_at(&out.summary, victim)
+        .unwrap_or_else(|| panic!("{victim} was never reported lost: {:?}", out.summary));
+    let detected = lost.saturating_duration_since(killed_at);
+    eprintln!(
+        "{victim}: lost detected after {detected:?}; epochs {:?}",
+        out.summary.epochs
+    );
+    assert!(
+        detected < Duration::from_secs(5),
+        "{victim}: detection took {detected:?}"
+    );
+    assert!(out.summary.epochs.len() >= 2, "a re-plan happened");
+    let uses = |id: &str| {
+        out.plan.nodes.iter().any(|n| n.node == id)
+            || out.plan.stages.iter().any(|s| s.compositor == id)
+    };
+    assert!(!uses(victim), "the final plan leaves {victim} out");
+    assert_every_frame(&out, &scene, &opts, &format!("without {victim}"));
+    cluster.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_lost_render_node_costs_no_frame() {
+    survives_losing("node-1").await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_lost_middle_compositor_costs_no_frame() {
+    survives_losing("comp-1").await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_lost_sink_compositor_costs_no_frame() {
+    survives_losing("comp-3").await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_restarted_node_is_folded_back_in() {
+    let (scene, mut opts) = setup();
+    opts.frames = 10;
+    let mut cluster = InProcessCluster::start(4, 4).await.unwrap();
+    let stop = cluster.stop_token("node-2").unwrap();
+    let mut session = cluster.connect(opts.control).await.unwrap();
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<()>();
+    let mut frames = Vec::new();
+    let render = lightfold_coordinator::run::render(&mut session, &scene, &opts, |f| {
+        if f.frame == 2 {
+            stop.cancel();
+            let _ = tx.send(());
+        }
+        frames.push(f);
+    });
+    let supervisor = async {
+        // Like systemd restarting a crashed unit: the same id on the same address.
+        rx.recv().await;
+        cluster.kill("node-2").await.unwrap();
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        cluster.restart("node-2").await.unwrap();
+    };
+    let (outcome, ()) = tokio::time::timeout(lightfold_tests::RUN_DEADLINE, async {
+        tokio::join!(render, supervisor)
+    })
+    .await
+    .expect("the run timed out");
+    session.detach();
+    assert!(outcome.error.is_none(), "{:?}", outcome.error);
+    let s = &outcome.summary;
+    eprintln!("epochs {:?}\nincidents {:?}", s.epochs, s.incidents);
+    assert!(lost_at(s, "node-2").is_some(), "node-2 was lost");
+    assert!(
+        s.incidents
+            .iter()
+            .any(|i| i.daemon == "node-2" && i.kind == IncidentKind::Rejoined),
+        "node-2 rejoined"
+    );
+    let plan = s.plan.clone().unwrap();
+    assert!(
+        plan.nodes.iter().any(|n| n.node == "node-2"),
+        "the final plan uses node-2 again"
+    );
+    assert_eq!(plan.nodes.len(), 4);
+    let out = RunOutput {
+        plan,
+        frames,
+        summary: outcome.summary,
+    };
+    assert_every_frame(&out, &scene, &opts, "with node-2 restarted");
+    cluster.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn an_aborted_session_does_not_break_the_next() {
+    let (scene, mut opts) = setup();
+    let cluster = InProcessCluster::start(4, 4).await.unwrap();
+    // A coordinator that dies with frames in flight: its bands stay in the pipeline.
+    opts.frames = 40;
+    let mut session = cluster.connect(opts.control).await.unwrap();
+    let mut seen = 0;
+    let run = lightfold_coordinator::run::render(&mut session, &scene, &opts, |_| seen += 1);
+    assert!(
+        tokio::time::timeout(Duration::from_secs(4), run)
+            .await
+            .is_err(),
+        "40 frames take longer than 4 s here"
+    );
+    session.detach();
+    // At once, a new coordinator: its epochs and frame ids are above the old session's.
+    opts.frames = 3;
+    let out = cluster.render(&scene, &opts).await.unwrap();
+    assert_every_frame(&out, &scene, &opts, "after an aborted session");
+    cluster.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_second_coordinator_is_refused_unless_it_takes_over() {
+    let (scene, mut opts) = setup();
+    opts.frames = 200;
+    let cluster = InProcessCluster::start(4, 4).await.unwrap();
+    let mut first = cluster.connect(opts.control).await.unwrap();
+    let mut delivered = 0u64;
+    let run = lightfold_coordinator::run::render(&mut first, &scene, &opts, |_| delivered += 1);
+    let second = async {
+        tokio::time::sleep(Duration::from_secs(2)).await;
+        let refused = cluster.connect(opts.control).await.unwrap_err();
+        let msg = format!("{refused:#}");
+        assert!(msg.contains("take-over"), "{msg}");
+        let mut control = opts.control;
+        control.take_over = true;
+        let mut second = cluster.connect(control).await.unwrap();
+        let mut quick = opts.clone();
+        quick.frames = 2;
+        quick.control = control;
+        let outcome = lightfold_coordinator::run::render(&mut second, &scene, &quick, |_| {}).await;
+        second.detach();
+        outcome
+    };
+    let (first_outcome, second_outcome) =
+        tokio::time::timeout(lightfold_tests::RUN_DEADLINE, async {
+            tokio::join!(run, second)
+        })
+        .await
+        .expect("timed out");
+    first.detach();
+    assert!(second_outcome.error.is_none(), "{:?}", second_outcome.error);
+    assert_eq!(second_outcome.summary.delivered, 2);
+    match first_outcome.error {
+        Some(RunError::Control(ControlError::TakenOver { .. })) => {}
+        other => panic!("the first coordinator should be told it was taken over: {other:?}"),
+    }
+    cluster.stop().await.unwrap();
+}
