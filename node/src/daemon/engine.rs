@@ -1,7 +1,10 @@
 //! The node's state between messages and what each control message does to it: scenes by hash,
-//! the active configuration, the downstream link and the last frame's packed bands. Every request
-//! is answered with exactly one message (or, for a scene chunk that is not the last, none); a
-//! failure is an `Error` with a code and the node stays ready for the next request.
+//! the active configuration, the downstream link and the last frame's packed bands. Each call
+//! returns the one answer to its request (or, for a scene chunk that is not the last, none); a
+//! failure is an `Error` with a code and the node stays ready for the next request. A frame may
+//! also be abandoned half-way (its future dropped: a new configuration, a shutdown, a lost
+//! control link); it is then not answered, and [`Engine::abandon`] (called by the session, or by
+//! the next request if nobody did) closes the data link it may have left a partial frame on.
 
 use super::bands::{BandLayout, LayerImages, PackedBand, pack_frame, restamp};
 use super::config::{self, Checked};
@@ -83,6 +86,9 @@ pub struct Engine {
     downstream: Downstream,
     cached: Option<CachedFrame>,
     max_frame: usize,
+    /// A frame has started and not returned: if its future was dropped, the data link may hold
+    /// part of it.
+    in_frame: bool,
 }
 
 impl Engine {
@@ -103,6 +109,7 @@ impl Engine {
             downstream,
             cached: None,
             max_frame,
+            in_frame: false,
         }
     }
 
@@ -172,10 +179,29 @@ impl Engine {
         }
     }
 
+    /// Forgets a frame whose future was dropped half-way: its bands may be half on the data link
+    /// (a cancelled write leaves the rest queued), so the link is closed and the next frame dials
+    /// afresh; the walkthrough cache is cleared. The render thread needs nothing: it finishes the
+    /// render it was given and its answer is discarded.
+    pub fn abandon(&mut self) {
+        self.downstream.close();
+        self.cached = None;
+        self.in_frame = false;
+    }
+
+    /// Abandons a frame dropped half-way that nobody has abandoned yet.
+    fn recover(&mut self) {
+        if self.in_frame {
+            tracing::info!("the previous frame was abandoned half-way: closing the data link");
+            self.abandon();
+        }
+    }
+
     /// `ConfigureNode`: checks the configuration, hands it to the render thread (which rebuilds
     /// the renderer only for a new scene or new build options) and points the data link at the
     /// new downstream. A refused configuration leaves the node unconfigured.
     pub async fn configure(&mut self, config: NodeConfig) -> Message {
+        self.recover();
         self.active = None;
         self.cached = None;
         let epoch = config.epoch;
@@ -224,8 +250,23 @@ impl Engine {
     }
 
     /// `RenderFrame`: renders (or, in walkthrough mode with nothing changed, reuses the last
-    /// frame's bands), streams the bands downstream and answers `FrameDone`.
+    /// frame's bands), streams the bands downstream and answers `FrameDone`. Dropping the future
+    /// abandons the frame (see [`Engine::abandon`]).
     pub async fn render_frame(
+        &mut self,
+        epoch: u64,
+        frame: u64,
+        camera: Option<WireCamera>,
+        params: FrameParams,
+    ) -> Message {
+        self.recover();
+        self.in_frame = true;
+        let answer = self.frame(epoch, frame, camera, params).await;
+        self.in_frame = false;
+        answer
+    }
+
+    async fn frame(
         &mut self,
         epoch: u64,
         frame: u64,

@@ -5,6 +5,7 @@
 
 pub mod bands;
 pub mod calibrate;
+mod claim;
 pub mod config;
 mod engine;
 pub mod render_thread;
@@ -14,6 +15,7 @@ pub mod sys;
 
 use crate::gpu::GpuOptions;
 use crate::gpu::device::max_lights_for;
+use claim::Claims;
 use engine::Engine;
 use lightfold_net::{Identity, Timeouts, accept};
 use lightfold_protocol::{Capabilities, Role};
@@ -125,6 +127,8 @@ pub async fn run(
         lightfold_net::Downstream::new(me.clone(), opts.timeouts, opts.dial_deadline),
         opts.timeouts.max_frame,
     )));
+    // Unclaimed links (test drivers, `lightfold bench`) may run side by side, sharing the engine.
+    let claims = Claims::new(&opts.daemon_id, false);
     let stop = shutdown.child_token();
     let tracker = TaskTracker::new();
     loop {
@@ -140,10 +144,11 @@ pub async fn run(
                 }
             },
         };
-        let (me, caps, engine, stop, t) = (
+        let (me, caps, engine, claims, stop, t) = (
             me.clone(),
             caps.clone(),
             engine.clone(),
+            claims.clone(),
             stop.clone(),
             opts.timeouts,
         );
@@ -154,7 +159,8 @@ pub async fn run(
             };
             match link {
                 Ok(link) => {
-                    if session::serve(link, caps, engine, stop.clone()).await == Ended::Shutdown {
+                    let ended = session::serve(link, caps, engine, claims, stop.clone()).await;
+                    if ended == Ended::Shutdown {
                         stop.cancel();
                     }
                 }

@@ -2,6 +2,9 @@
 //! (`device.poll` blocks); the tokio side sends commands over a bounded channel and awaits each
 //! answer on a oneshot. The renderer is rebuilt only when the scene or a build-time option changes;
 //! a new light set, colour or camera reuses it (and, in walkthrough mode, its shadow maps).
+//! A caller may stop waiting (a frame abandoned for a new configuration drops its future): the
+//! thread finishes the command it has, its answer goes nowhere (`reply.send` fails and is
+//! ignored), and it serves the next command as usual.
 
 use super::calibrate::{self, Calibration};
 use super::config::Checked;

@@ -1,20 +1,40 @@
-//! One control link from a coordinator: send `Register`, then answer each message in order until
-//! the coordinator leaves, says `Shutdown`, or the daemon is cancelled. A coordinator that
-//! disconnects without `Shutdown` leaves the node running for the next one; a peer that is not a
-//! coordinator, or that breaks the protocol, is logged and dropped.
+//! One control link from a coordinator. The node sends `Register`, reads the first message (a
+//! `Claim`, answered `Claimed` or refused `Busy`, see `claim.rs`; anything else is the first
+//! request of an unclaimed link), then serves the link in three parts:
+//!
+//! - a reader that answers `Ping` with `Pong` at once, whatever the node is doing (a coordinator
+//!   takes a node that does not answer within a second for lost), stops on `Shutdown`, and queues
+//!   every other message for the worker;
+//! - a worker that applies the queued messages in order (one reply each, or none for a scene
+//!   chunk that is not the last);
+//! - one writer through which every reply goes.
+//!
+//! A `ConfigureNode` (or `Shutdown`) preempts frames: the frame in progress is abandoned at once
+//! and frames queued before the configuration are skipped; neither is answered. The session ends
+//! when the coordinator leaves (the node keeps running for the next one), says `Shutdown`,
+//! another coordinator takes the node over (`TakenOver` is sent first), or the daemon stops; a
+//! frame in progress is then abandoned too. A peer that is not a coordinator is logged and
+//! dropped.
 
+use super::claim::{Claims, FAREWELL, Ticket};
 use super::engine::Engine;
-use lightfold_net::{Link, LinkWriter, NetError};
+use lightfold_net::{Link, LinkReader, LinkWriter};
 use lightfold_protocol::frame::Frame;
 use lightfold_protocol::{Capabilities, ErrorCode, Message, Role};
 use std::sync::Arc;
-use tokio::sync::Mutex;
+use tokio::sync::{Mutex, mpsc, watch};
 use tokio_util::sync::CancellationToken;
+
+/// Requests waiting for the worker. When this many are queued the reader stops reading (and
+/// answering pings) until the worker catches up: a coordinator waits for its answers long before.
+const REQUESTS: usize = 16;
+/// Replies waiting for the socket.
+const REPLIES: usize = 64;
 
 /// How a control session ended.
 #[derive(Debug, PartialEq, Eq)]
 pub enum Ended {
-    /// The coordinator left (cleanly or not); the node keeps serving.
+    /// The coordinator left (cleanly or not), or another took over; the node keeps serving.
     Left,
     /// The coordinator asked the daemon to stop.
     Shutdown,
@@ -22,11 +42,20 @@ pub enum Ended {
     Cancelled,
 }
 
+/// A queued request and the number of frame-preempting messages (`ConfigureNode`) the reader
+/// had seen when it arrived: a frame whose count is behind the reader's is stale.
+#[derive(Debug)]
+struct Request {
+    msg: Message,
+    fence: u64,
+}
+
 /// Serves one authenticated control link.
 pub async fn serve(
     link: Link,
     caps: Capabilities,
     engine: Arc<Mutex<Engine>>,
+    claims: Arc<Claims>,
     stop: CancellationToken,
 ) -> Ended {
     let addr = link.addr.clone();
@@ -41,55 +70,216 @@ pub async fn serve(
         return Ended::Left;
     }
     tracing::info!(%addr, %peer, "coordinator connected");
+    let first = tokio::select! {
+        _ = stop.cancelled() => return Ended::Cancelled,
+        f = reader.next() => f,
+    };
+    let first = match first {
+        None => {
+            tracing::info!(%addr, "coordinator disconnected");
+            return Ended::Left;
+        }
+        Some(Err(e)) => {
+            tracing::warn!(%addr, error = %e, "control link failed");
+            return Ended::Left;
+        }
+        Some(Ok(f)) => f,
+    };
+    let claim = match &first {
+        Frame::Control(Message::Claim { session, take_over }) => Some((*session, *take_over)),
+        _ => None,
+    };
+    let ticket = tokio::select! {
+        _ = stop.cancelled() => return Ended::Cancelled,
+        t = claims.enter(claim, &addr) => t,
+    };
+    let ticket = match ticket {
+        Ok(t) => t,
+        Err(refusal) => {
+            let _ = writer.send_msg(refusal).await;
+            return Ended::Left;
+        }
+    };
+    let first = match claim {
+        Some((session, _)) => {
+            if let Err(e) = writer.send_msg(Message::Claimed { session }).await {
+                tracing::warn!(%addr, error = %e, "cannot answer the claim");
+                return Ended::Left;
+            }
+            None
+        }
+        None => Some(first),
+    };
+    let (ended, farewell) = run(&mut reader, &mut writer, first, &engine, &ticket, &stop).await;
+    if let Some(msg) = farewell {
+        let _ = tokio::time::timeout(FAREWELL, writer.send_msg(msg)).await;
+    }
+    // Close the link before letting go of the claim: whoever displaced it waits for this.
+    drop((reader, writer));
+    drop(ticket);
+    ended
+}
+
+/// The reader, worker and writer of a granted link, until one of them ends, the link is
+/// displaced (then with the message to send it last) or the daemon stops.
+async fn run(
+    reader: &mut LinkReader,
+    writer: &mut LinkWriter,
+    first: Option<Frame>,
+    engine: &Mutex<Engine>,
+    ticket: &Ticket,
+    stop: &CancellationToken,
+) -> (Ended, Option<Message>) {
+    let (out, replies) = mpsc::channel(REPLIES);
+    let (queue, requests) = mpsc::channel(REQUESTS);
+    let (fence, fence_rx) = watch::channel(0u64);
+    let read = read(reader, first, &out, &queue, &fence);
+    let work = work(engine, requests, fence_rx, out.clone());
+    let write = write(writer, replies);
+    tokio::select! {
+        _ = stop.cancelled() => (Ended::Cancelled, None),
+        farewell = ticket.revoked() => (Ended::Left, farewell),
+        ended = read => (ended, None),
+        () = work => (Ended::Left, None),
+        () = write => (Ended::Left, None),
+    }
+}
+
+/// Reads the link: pings are answered here, `Shutdown` ends the session, the rest is queued.
+async fn read(
+    reader: &mut LinkReader,
+    mut next: Option<Frame>,
+    out: &mpsc::Sender<Message>,
+    queue: &mpsc::Sender<Request>,
+    fence: &watch::Sender<u64>,
+) -> Ended {
+    let addr = reader.addr.clone();
     loop {
-        let frame = tokio::select! {
-            _ = stop.cancelled() => return Ended::Cancelled,
-            f = reader.next() => f,
+        let frame = match next.take() {
+            Some(f) => f,
+            None => match reader.next().await {
+                None => {
+                    tracing::info!(%addr, "coordinator disconnected");
+                    return Ended::Left;
+                }
+                Some(Err(e)) => {
+                    tracing::warn!(%addr, error = %e, "control link failed");
+                    return Ended::Left;
+                }
+                Some(Ok(f)) => f,
+            },
         };
         let msg = match frame {
-            None => {
-                tracing::info!(%addr, "coordinator disconnected");
-                return Ended::Left;
-            }
-            Some(Err(e)) => {
-                tracing::warn!(%addr, error = %e, "control link failed");
-                return Ended::Left;
-            }
-            Some(Ok(Frame::Control(m))) => m,
-            Some(Ok(other)) => {
+            Frame::Control(m) => m,
+            other => {
                 let got = lightfold_net::describe(&other);
-                let _ = reply(
-                    &mut writer,
-                    Message::Error {
-                        code: ErrorCode::BadConfig,
-                        message: format!("control link carries control messages only, got {got}"),
-                    },
-                )
-                .await;
+                let refusal = Message::Error {
+                    code: ErrorCode::BadConfig,
+                    message: format!("control link carries control messages only, got {got}"),
+                };
+                if out.send(refusal).await.is_err() {
+                    return Ended::Left;
+                }
                 continue;
             }
         };
-        if msg == Message::Shutdown {
-            tracing::info!(%addr, "shutdown requested by the coordinator");
-            return Ended::Shutdown;
-        }
-        // The engine is shared with other control links; each message is handled whole, and a
-        // cancellation interrupts a long render or transfer.
-        let answer = tokio::select! {
-            _ = stop.cancelled() => return Ended::Cancelled,
-            a = handle(&engine, msg) => a,
-        };
-        if let Some(answer) = answer
-            && let Err(e) = reply(&mut writer, answer).await
-        {
-            tracing::warn!(%addr, error = %e, "cannot answer the coordinator");
-            return Ended::Left;
+        match msg {
+            Message::Ping { seq } => {
+                if out.send(Message::Pong { seq }).await.is_err() {
+                    return Ended::Left;
+                }
+            }
+            Message::Shutdown => {
+                tracing::info!(%addr, "shutdown requested by the coordinator");
+                return Ended::Shutdown;
+            }
+            msg => {
+                if matches!(msg, Message::ConfigureNode(_)) {
+                    fence.send_modify(|f| *f += 1);
+                }
+                let request = Request {
+                    fence: *fence.borrow(),
+                    msg,
+                };
+                if queue.send(request).await.is_err() {
+                    return Ended::Left;
+                }
+            }
         }
     }
 }
 
-async fn reply(writer: &mut LinkWriter, msg: Message) -> Result<(), NetError> {
-    writer.send_msg(msg).await
+/// Applies queued requests in order and queues their answers.
+async fn work(
+    engine: &Mutex<Engine>,
+    mut requests: mpsc::Receiver<Request>,
+    mut fence: watch::Receiver<u64>,
+    out: mpsc::Sender<Message>,
+) {
+    while let Some(Request { msg, fence: seen }) = requests.recv().await {
+        let answer = match msg {
+            Message::RenderFrame {
+                epoch,
+                frame,
+                camera,
+                params,
+            } => {
+                if *fence.borrow() > seen {
+                    tracing::info!(
+                        frame,
+                        epoch,
+                        "frame skipped: a new configuration follows it"
+                    );
+                    continue;
+                }
+                // The engine is shared with other (unclaimed) links; each request is handled
+                // whole, except that a new configuration abandons a frame.
+                let mut engine = engine.lock().await;
+                let done = tokio::select! {
+                    biased;
+                    () = preempted(&mut fence, seen) => None,
+                    a = engine.render_frame(epoch, frame, camera, params) => Some(a),
+                };
+                match done {
+                    Some(answer) => answer,
+                    None => {
+                        engine.abandon();
+                        tracing::info!(
+                            frame,
+                            epoch,
+                            "frame abandoned: a new configuration arrived"
+                        );
+                        continue;
+                    }
+                }
+            }
+            other => match handle(engine, other).await {
+                Some(answer) => answer,
+                None => continue,
+            },
+        };
+        if out.send(answer).await.is_err() {
+            return;
+        }
+    }
+}
+
+/// Resolves once the reader has seen a frame-preempting message after `seen` of them.
+async fn preempted(fence: &mut watch::Receiver<u64>, seen: u64) {
+    if fence.wait_for(|f| *f > seen).await.is_err() {
+        // The reader is gone: the session is ending anyway.
+        std::future::pending::<()>().await;
+    }
+}
+
+/// Writes replies in order.
+async fn write(writer: &mut LinkWriter, mut replies: mpsc::Receiver<Message>) {
+    while let Some(msg) = replies.recv().await {
+        if let Err(e) = writer.send_msg(msg).await {
+            tracing::warn!(addr = %writer.addr, error = %e, "cannot answer the coordinator");
+            return;
+        }
+    }
 }
 
 async fn handle(engine: &Mutex<Engine>, msg: Message) -> Option<Message> {
@@ -103,13 +293,6 @@ async fn handle(engine: &Mutex<Engine>, msg: Message) -> Option<Message> {
             last,
         } => engine.scene_chunk(hash, offset, data, last).await,
         Message::ConfigureNode(config) => Some(engine.configure(config).await),
-        Message::RenderFrame {
-            epoch,
-            frame,
-            camera,
-            params,
-        } => Some(engine.render_frame(epoch, frame, camera, params).await),
-        Message::Ping { seq } => Some(Message::Pong { seq }),
         other => {
             let name = format!("{other:?}");
             let name = name.split(['(', ' ', '{']).next().unwrap_or("?");

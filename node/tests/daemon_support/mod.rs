@@ -3,7 +3,7 @@
 #![allow(dead_code)]
 
 use bytes::Bytes;
-use lightfold_net::{Identity, Link, Timeouts, accept, dial};
+use lightfold_net::{Identity, Link, NetError, Timeouts, accept, dial};
 use lightfold_node::daemon::calibrate::{calibration_lights, calibration_scene};
 use lightfold_node::daemon::{NodeOptions, run};
 use lightfold_protocol::frame::Frame;
@@ -54,12 +54,17 @@ pub struct TestNode {
 }
 
 pub async fn start_node(id: &str, cache_dir: Option<PathBuf>) -> TestNode {
+    start_node_with(id, |opts| opts.cache_dir = cache_dir).await
+}
+
+/// A node with the test defaults, then `tweak` applied to its options.
+pub async fn start_node_with(id: &str, tweak: impl FnOnce(&mut NodeOptions)) -> TestNode {
     let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap().to_string();
     let mut opts = NodeOptions::new(id, TOKEN);
     opts.timeouts = quick();
-    opts.cache_dir = cache_dir;
     opts.dial_deadline = Duration::from_secs(10);
+    tweak(&mut opts);
     let shutdown = CancellationToken::new();
     let handle = tokio::spawn(run(listener, opts, shutdown.clone()));
     TestNode {
@@ -111,6 +116,19 @@ impl Coordinator {
             Message::Register(caps) => Ok(Coordinator { link, caps }),
             other => Err(format!("expected Register, got {other:?}")),
         }
+    }
+
+    /// Connects and claims the node for `session`; returns the node's answer (`Claimed`, or an
+    /// `Error`) with the link.
+    pub async fn claim(addr: &str, session: u64, take_over: bool) -> (Coordinator, Message) {
+        let mut c = Coordinator::try_connect(addr).await.expect("connect");
+        let answer = c.request(Message::Claim { session, take_over }).await;
+        (c, answer)
+    }
+
+    /// The next message within `within`, or the link's error (closed, timed out).
+    pub async fn recv_within(&mut self, within: Duration) -> Result<Message, NetError> {
+        self.link.recv_msg(within).await
     }
 
     pub async fn send(&mut self, msg: Message) {
