@@ -1,12 +1,17 @@
-//! The coordinator's control link: `Register` first, then configurations (checked here, applied
-//! by the engine in order), per-frame requests, pings and shutdown. One coordinator at a time; a
-//! new one replaces the old, and a coordinator that goes away leaves the stage running.
+//! The coordinator's control link: `Register` first, then the first message decides who holds
+//! the stage (`claim.rs`: a `Claim` is answered `Claimed` or refused `Busy`; anything else makes
+//! the link unclaimed), then configurations (checked here, applied by the engine in order),
+//! per-frame requests, pings and shutdown. One coordinator at a time (the control queue has one
+//! reader): a claimed session holds the stage until its link closes or another session takes it
+//! over; while none does, a new unclaimed link replaces the old. A coordinator that goes away
+//! leaves the stage running.
 
+use super::claim::{Claims, FAREWELL, Ticket};
 use super::config::{Operators, StagePlan};
 use super::engine::{Command, FrameRequest};
-use lightfold_net::Link;
+use lightfold_net::{Link, LinkReader, LinkWriter};
 use lightfold_protocol::{Capabilities, ErrorCode, Frame, Message, PixelFormat, Role};
-use std::sync::Mutex;
+use std::sync::Arc;
 use tokio::sync::{mpsc, watch};
 use tokio_util::sync::CancellationToken;
 
@@ -37,7 +42,7 @@ impl ControlOut {
 pub(crate) struct ControlHub {
     out: ControlOut,
     rx: tokio::sync::Mutex<mpsc::Receiver<Message>>,
-    session: Mutex<Option<CancellationToken>>,
+    claims: Arc<Claims>,
     commands: mpsc::Sender<Command>,
     generation: watch::Sender<u64>,
     capabilities: Capabilities,
@@ -64,7 +69,7 @@ impl ControlHub {
         ControlHub {
             out: ControlOut { tx },
             rx: tokio::sync::Mutex::new(rx),
-            session: Mutex::new(None),
+            claims: Claims::new(daemon_id, true),
             commands,
             generation,
             capabilities: Capabilities {
@@ -89,27 +94,13 @@ impl ControlHub {
         self.out.clone()
     }
 
-    /// Serves one coordinator until it leaves, a newer one arrives, or the stage shuts down.
+    /// Serves one coordinator until it leaves, another takes the stage over (it is told
+    /// `TakenOver` first), or the stage shuts down.
     pub async fn session(&self, link: Link, shutdown: &CancellationToken) {
-        let token = shutdown.child_token();
-        if let Some(old) = self
-            .session
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .replace(token.clone())
-        {
-            tracing::info!("a new coordinator replaces the previous one");
-            old.cancel();
-        }
         let coordinator = link.peer.daemon_id.clone();
-        tracing::info!(%coordinator, addr = %link.addr, "coordinator connected");
+        let addr = link.addr.clone();
+        tracing::info!(%coordinator, %addr, "coordinator connected");
         let (mut reader, mut writer) = link.split();
-        let mut rx = tokio::select! {
-            _ = token.cancelled() => return,
-            rx = self.rx.lock() => rx,
-        };
-        // What was queued for an earlier coordinator means nothing to this one.
-        while rx.try_recv().is_ok() {}
         if let Err(e) = writer
             .send_msg(Message::Register(self.capabilities.clone()))
             .await
@@ -117,10 +108,88 @@ impl ControlHub {
             tracing::warn!(%coordinator, "cannot register: {e}");
             return;
         }
+        let first = tokio::select! {
+            _ = shutdown.cancelled() => return,
+            f = reader.next() => f,
+        };
+        let first = match first {
+            None => {
+                tracing::info!(%coordinator, "coordinator disconnected");
+                return;
+            }
+            Some(Err(e)) => {
+                tracing::warn!(%coordinator, "control link failed: {e}");
+                return;
+            }
+            Some(Ok(f)) => f,
+        };
+        let claim = match &first {
+            Frame::Control(Message::Claim { session, take_over }) => Some((*session, *take_over)),
+            _ => None,
+        };
+        let ticket = tokio::select! {
+            _ = shutdown.cancelled() => return,
+            t = self.claims.enter(claim, &addr) => t,
+        };
+        let ticket = match ticket {
+            Ok(t) => t,
+            Err(refusal) => {
+                let _ = writer.send_msg(refusal).await;
+                return;
+            }
+        };
+        let first = match claim {
+            Some((session, _)) => Err(session),
+            None => Ok(first),
+        };
+        let farewell = self
+            .serve(&mut reader, &mut writer, first, &ticket, shutdown)
+            .await;
+        if let Some(msg) = farewell {
+            let _ = tokio::time::timeout(FAREWELL, writer.send_msg(msg)).await;
+        }
+        // Close the link before letting go of the claim: whoever displaced it waits for this.
+        drop((reader, writer));
+        drop(ticket);
+    }
+
+    /// Serves a granted link: `first` is its first frame, or the session its `Claim` named
+    /// (answered `Claimed` here, once this link has the control queue). Returns what to send
+    /// the link last when another one displaced it.
+    async fn serve(
+        &self,
+        reader: &mut LinkReader,
+        writer: &mut LinkWriter,
+        first: Result<Frame, u64>,
+        ticket: &Ticket,
+        shutdown: &CancellationToken,
+    ) -> Option<Message> {
+        let addr = reader.addr.clone();
+        let mut rx = tokio::select! {
+            biased;
+            _ = shutdown.cancelled() => return None,
+            farewell = ticket.revoked() => return farewell,
+            rx = self.rx.lock() => rx,
+        };
+        // What was queued for an earlier coordinator means nothing to this one.
+        while rx.try_recv().is_ok() {}
+        match first {
+            Err(session) => {
+                if let Err(e) = writer.send_msg(Message::Claimed { session }).await {
+                    tracing::warn!(%addr, "cannot answer the claim: {e}");
+                    return None;
+                }
+            }
+            Ok(frame) => {
+                if !self.frame(frame, shutdown).await {
+                    return None;
+                }
+            }
+        }
         let write = async {
             while let Some(msg) = rx.recv().await {
                 if let Err(e) = writer.send_msg(msg).await {
-                    tracing::warn!(%coordinator, "control write failed: {e}");
+                    tracing::warn!(%addr, "control write failed: {e}");
                     return;
                 }
             }
@@ -129,33 +198,41 @@ impl ControlHub {
             loop {
                 match reader.next().await {
                     None => {
-                        tracing::info!(%coordinator, "coordinator disconnected");
+                        tracing::info!(%addr, "coordinator disconnected");
                         return;
                     }
                     Some(Err(e)) => {
-                        tracing::warn!(%coordinator, "control link failed: {e}");
+                        tracing::warn!(%addr, "control link failed: {e}");
                         return;
                     }
-                    Some(Ok(Frame::Control(msg))) => {
-                        if !self.handle(msg, shutdown).await {
+                    Some(Ok(frame)) => {
+                        if !self.frame(frame, shutdown).await {
                             return;
                         }
-                    }
-                    Some(Ok(_)) => {
-                        self.out.error(
-                            ErrorCode::BadConfig,
-                            "the control link carries control messages only".into(),
-                        );
                     }
                 }
             }
         };
         tokio::select! {
-            _ = token.cancelled() => {}
-            _ = write => {}
-            _ = read => {}
+            _ = shutdown.cancelled() => None,
+            farewell = ticket.revoked() => farewell,
+            _ = write => None,
+            _ = read => None,
         }
-        token.cancel();
+    }
+
+    /// Handles one frame from the control link; false ends the session.
+    async fn frame(&self, frame: Frame, shutdown: &CancellationToken) -> bool {
+        match frame {
+            Frame::Control(msg) => self.handle(msg, shutdown).await,
+            _ => {
+                self.out.error(
+                    ErrorCode::BadConfig,
+                    "the control link carries control messages only".into(),
+                );
+                true
+            }
+        }
     }
 
     /// Handles one message; false ends the session.
@@ -242,5 +319,7 @@ fn message_name(m: &Message) -> &'static str {
         Message::Ping { .. } => "Ping",
         Message::Pong { .. } => "Pong",
         Message::Shutdown => "Shutdown",
+        Message::Claim { .. } => "Claim",
+        Message::Claimed { .. } => "Claimed",
     }
 }

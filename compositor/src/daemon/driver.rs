@@ -76,6 +76,27 @@ impl ControlClient {
         })
     }
 
+    /// Claims the stage for coordinator `session` (the first message after `Register`) and waits
+    /// for `Claimed`; a refusal (`Busy`) becomes `Refused`, and the stage then closes the link.
+    pub async fn claim(
+        &mut self,
+        session: u64,
+        take_over: bool,
+        within: Duration,
+    ) -> Result<(), DriverError> {
+        self.link
+            .send_msg(Message::Claim { session, take_over })
+            .await?;
+        match self.read(Instant::now() + within, "Claimed").await? {
+            Message::Claimed { session: s } if s == session => Ok(()),
+            Message::Error { code, message } => Err(DriverError::Refused { code, message }),
+            other => Err(DriverError::Unexpected {
+                expected: "Claimed",
+                got: format!("{other:?}"),
+            }),
+        }
+    }
+
     /// Sends a configuration and waits for `Configured` (an `Error` becomes `Refused`).
     pub async fn configure(
         &mut self,

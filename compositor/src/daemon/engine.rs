@@ -8,7 +8,7 @@ use super::compute::{BandOut, BufferPool, Scratch, combine};
 use super::config::{Operators, StagePlan};
 use super::control::{ControlOut, NewConfig};
 use super::inputs::{InBand, InputError, Slot, SlotContext};
-use super::output::Out;
+use super::output::{Feed, Out, Queued, Target};
 use crate::ops::Operator;
 use lightfold_protocol::{ErrorCode, FrameParams, FrameStats, Message};
 use serde_json::json;
@@ -51,7 +51,10 @@ type Pending = oneshot::Receiver<(Scratch, Result<BandOut, String>)>;
 pub(crate) struct Engine {
     pub ctx: SlotContext,
     pub control: ControlOut,
-    pub out: mpsc::Sender<Out>,
+    /// To the writer: bands and frame ends, and the configuration applied last (a watch, which
+    /// never waits for the writer).
+    pub out: Feed,
+    /// Configurations received (bumped by the control link before the engine applies them).
     pub generation: watch::Receiver<u64>,
     pub input_timeout: Duration,
     pub daemon_id: String,
@@ -71,7 +74,7 @@ impl Engine {
     pub fn new(
         ctx: SlotContext,
         control: ControlOut,
-        out: mpsc::Sender<Out>,
+        out: Feed,
         generation: watch::Receiver<u64>,
         input_timeout: Duration,
         daemon_id: String,
@@ -108,7 +111,7 @@ impl Engine {
             match cmd {
                 Command::Configure(new) => self.apply(*new).await,
                 Command::Frame(req) => {
-                    let frame = req.frame;
+                    let (frame, req_epoch) = (req.frame, req.epoch);
                     if *self.generation.borrow() > self.applied {
                         tracing::info!(frame, "frame skipped: a newer configuration follows it");
                         continue;
@@ -117,8 +120,13 @@ impl Engine {
                         Ok(()) => {}
                         Err(FrameError::Shutdown) => return,
                         Err(FrameError::Reconfigured) => {
-                            tracing::info!(frame, "frame abandoned: reconfigured");
-                            let _ = self.out.send(Out::Abort { frame }).await;
+                            // The writer drops what it still has of this frame once the new
+                            // configuration is applied.
+                            tracing::info!(
+                                frame,
+                                epoch = req_epoch,
+                                "frame abandoned: reconfigured"
+                            );
                         }
                         Err(e) => {
                             self.ctx.metrics.frame_failed();
@@ -133,7 +141,7 @@ impl Engine {
                             };
                             self.control
                                 .error(code, format!("frame {frame} dropped: {e}"));
-                            let _ = self.out.send(Out::Abort { frame }).await;
+                            let _ = self.send_out(Out::Abort { frame }).await;
                         }
                     }
                 }
@@ -169,8 +177,10 @@ impl Engine {
         self.plan = Some(Arc::new(plan));
         self.applied = generation;
         tracing::info!(epoch, "configured");
+        // The writer gives up on whatever it was doing for the old configuration and dials the
+        // new downstream; a watch, so a writer stuck on a dead downstream never holds this up.
+        self.out.target.send_replace(Target { generation, addr });
         self.control.send(Message::Configured { epoch });
-        let _ = self.out.send(Out::Connect { addr }).await;
     }
 
     async fn run_frame(&mut self, req: FrameRequest) -> Result<(), FrameError> {
@@ -400,7 +410,9 @@ impl Engine {
             biased;
             _ = self.ctx.shutdown.cancelled() => Err(FrameError::Shutdown),
             _ = self.generation.wait_for(|g| *g > applied) => Err(FrameError::Reconfigured),
-            r = self.out.send(item) => r.map_err(|_| FrameError::Shutdown),
+            r = self.out.queue.send(Queued { generation: applied, item }) => {
+                r.map_err(|_| FrameError::Shutdown)
+            }
         }
     }
 }

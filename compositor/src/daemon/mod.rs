@@ -8,6 +8,7 @@
 //! 0) and owns the cancellation token (the CLI wires SIGTERM and Ctrl-C to it).
 
 mod check;
+mod claim;
 mod compute;
 mod config;
 mod control;
@@ -111,8 +112,8 @@ pub async fn run(
         .map_err(|e| anyhow::anyhow!("cannot start the compute threads: {e}"))?;
     let tracker = TaskTracker::new();
     let (cmd_tx, cmd_rx) = mpsc::channel(QUEUED_FRAMES);
-    let (out_tx, out_rx) = mpsc::channel(output::OUT_QUEUE);
     let (gen_tx, gen_rx) = watch::channel(0u64);
+    let (feed, out_rx, target_rx) = output::feed();
     let hub = Arc::new(ControlHub::new(
         cmd_tx,
         gen_tx,
@@ -130,7 +131,7 @@ pub async fn run(
     let engine = Engine::new(
         ctx,
         hub.out(),
-        out_tx,
+        feed,
         gen_rx,
         opts.input_timeout,
         opts.daemon_id.clone(),
@@ -147,6 +148,7 @@ pub async fn run(
         hub.out(),
         Arc::clone(&opts.metrics),
         out_rx,
+        target_rx,
         shutdown.clone(),
     ));
     tracing::info!(id = %opts.daemon_id, addr = ?listener.local_addr().ok(), "compositor listening");

@@ -5,6 +5,12 @@
 //! end to end. The link is a `lightfold_net::Downstream`: a consumer that lets it go (a re-plan
 //! that left this stage out of its inputs for a while) is redialled before the next band instead
 //! of failing a frame on a closed connection.
+//!
+//! The writer follows the engine's newest configuration (`Target`, a watch, so `Engine::apply`
+//! never waits for it): when one is applied, whatever the writer was doing for an older one (a
+//! dial of a dead downstream, a send to a stalled one) is abandoned at once, that link is closed,
+//! the new downstream is dialled, and queued bands and frame ends of older configurations are
+//! dropped (the frame is not reported done).
 
 use super::control::ControlOut;
 use super::metrics::{Held, StageMetrics, peak_rss_bytes};
@@ -13,19 +19,45 @@ use lightfold_net::{Downstream, Identity, NetError, Timeouts};
 use lightfold_protocol::{BandHeader, ErrorCode, Frame, FrameStats, Message};
 use std::sync::Arc;
 use std::time::Duration;
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 /// Bands queued between the engine and the writer: enough to keep the socket busy while the
 /// next band is combined, small enough to bound memory.
-pub(crate) const OUT_QUEUE: usize = 4;
+const OUT_QUEUE: usize = 4;
 
-/// What the engine tells the writer, in order.
+/// The newest configuration the engine has applied: its ordinal (`NewConfig::generation`) and
+/// downstream address, which the writer dials at once so the first frame does not wait.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Target {
+    pub generation: u64,
+    pub addr: String,
+}
+
+/// The engine's side of the writer: the queue of what to write and the newest configuration.
+#[derive(Debug)]
+pub(crate) struct Feed {
+    pub queue: mpsc::Sender<Queued>,
+    pub target: watch::Sender<Target>,
+}
+
+/// The engine's `Feed` and the writer's ends of it.
+pub(crate) fn feed() -> (Feed, mpsc::Receiver<Queued>, watch::Receiver<Target>) {
+    let (queue, rx) = mpsc::channel(OUT_QUEUE);
+    let (target, target_rx) = watch::channel(Target::default());
+    (Feed { queue, target }, rx, target_rx)
+}
+
+/// What the engine tells the writer, in order, with the configuration it belongs to.
+#[derive(Debug)]
+pub(crate) struct Queued {
+    pub generation: u64,
+    pub item: Out,
+}
+
 #[derive(Debug)]
 pub(crate) enum Out {
-    /// A configuration names this downstream; dial it now so the first frame does not wait.
-    Connect { addr: String },
     Band {
         header: BandHeader,
         payload: Bytes,
@@ -49,6 +81,10 @@ struct Writer {
     control: ControlOut,
     metrics: Arc<StageMetrics>,
     link: Downstream,
+    /// The configuration the writer serves (`Target::generation`).
+    generation: u64,
+    /// A dial of the configured downstream has started and nobody has waited for it yet.
+    dialling: bool,
     /// Frame whose output failed: its remaining bands are discarded.
     failed: Option<u64>,
     bytes_out: u64,
@@ -60,7 +96,8 @@ pub(crate) async fn run(
     settings: WriterSettings,
     control: ControlOut,
     metrics: Arc<StageMetrics>,
-    mut rx: mpsc::Receiver<Out>,
+    mut rx: mpsc::Receiver<Queued>,
+    mut target: watch::Receiver<Target>,
     shutdown: CancellationToken,
 ) {
     let link = Downstream::new(
@@ -72,35 +109,91 @@ pub(crate) async fn run(
         control,
         metrics,
         link,
+        generation: 0,
+        dialling: false,
         failed: None,
         bytes_out: 0,
         send_time: Duration::ZERO,
     };
     loop {
-        let item = tokio::select! {
+        let queued = tokio::select! {
+            biased;
             _ = shutdown.cancelled() => break,
-            item = rx.recv() => match item {
-                Some(item) => item,
+            changed = target.changed() => {
+                if changed.is_err() {
+                    break;
+                }
+                let t = target.borrow_and_update().clone();
+                w.retarget(t);
+                continue;
+            }
+            dialled = w.link.writer(), if w.dialling => {
+                w.dialling = false;
+                if let Err(e) = dialled {
+                    w.control
+                        .error(ErrorCode::PeerLost, format!("cannot reach downstream: {e}"));
+                }
+                continue;
+            }
+            queued = rx.recv() => match queued {
+                Some(q) => q,
                 None => break,
             },
         };
+        if target.has_changed().unwrap_or(false) {
+            let t = target.borrow_and_update().clone();
+            w.retarget(t);
+        }
         tokio::select! {
+            biased;
             _ = shutdown.cancelled() => break,
-            _ = w.handle(item) => {}
+            changed = target.changed() => {
+                if changed.is_err() {
+                    break;
+                }
+                // A newer configuration: give up on this item (and on the link it may have
+                // left a partial band on, or was still dialling).
+                tracing::info!("downstream write abandoned: reconfigured");
+                w.link.close();
+                let t = target.borrow_and_update().clone();
+                w.retarget(t);
+            }
+            _ = w.handle(queued) => {}
         }
     }
 }
 
 impl Writer {
-    async fn handle(&mut self, item: Out) {
-        match item {
-            Out::Connect { addr } => {
-                self.link.set_address(&addr);
-                if let Err(e) = self.link.writer().await {
-                    self.control
-                        .error(ErrorCode::PeerLost, format!("cannot reach downstream: {e}"));
-                }
+    /// Follows a newly applied configuration: points the link at its downstream (kept if it is
+    /// the same and still up, dialled otherwise) and forgets the older configuration's frame.
+    fn retarget(&mut self, t: Target) {
+        self.generation = t.generation;
+        self.failed = None;
+        self.bytes_out = 0;
+        self.send_time = Duration::ZERO;
+        if t.addr.is_empty() {
+            self.link.close();
+            self.dialling = false;
+        } else {
+            self.link.set_address(&t.addr);
+            self.dialling = true;
+        }
+    }
+
+    async fn handle(&mut self, queued: Queued) {
+        let Queued { generation, item } = queued;
+        if generation < self.generation {
+            // Of a configuration older than the newest one: its frame was abandoned.
+            if let Out::End { stats, .. } = &item {
+                tracing::info!(
+                    frame = stats.frame,
+                    epoch = stats.epoch,
+                    "frame abandoned: reconfigured"
+                );
             }
+            return;
+        }
+        match item {
             Out::Band {
                 header,
                 payload,
@@ -152,6 +245,7 @@ impl Writer {
     }
 
     async fn ensure_link(&mut self) -> Result<&mut lightfold_net::LinkWriter, NetError> {
+        self.dialling = false;
         if self.link.address().is_empty() {
             return Err(NetError::Closed {
                 addr: "(no downstream configured)".into(),
