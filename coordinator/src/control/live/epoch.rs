@@ -1,7 +1,7 @@
 //! Plan epochs: planning over the daemons connected now, sending the scene and the
 //! configurations, and waiting for every daemon of the new plan to apply them.
 
-use super::{EpochRecord, Halt, Live, MAX_REPLANS_WITHOUT_PROGRESS, TICK};
+use super::{EpochRecord, Halt, Live, MAX_REPLANS_WITHOUT_PROGRESS};
 use crate::control::session::{ControlError, SCENE_CHUNK};
 use crate::control::sink::SinkGeometry;
 use crate::plan::{Plan, PlanError, lights_moved, plan, replan};
@@ -83,7 +83,6 @@ impl Live<'_> {
     }
 
     pub(super) async fn wait_for_join(&mut self, deadline: Instant) -> Result<(), RunError> {
-        let mut tick = tokio::time::interval(TICK);
         loop {
             tokio::select! {
                 j = self.session.joined.recv() => if let Some(j) = j {
@@ -93,7 +92,7 @@ impl Live<'_> {
                 },
                 ev = self.session.events.recv() => if let Some(ev) = ev { self.accept(ev)?; },
                 s = self.session.sink_events.recv() => if let Some(s) = s { self.on_sink(s) },
-                _ = tick.tick() => self.heartbeat().await,
+                _ = self.tick.tick() => self.heartbeat().await,
                 _ = tokio::time::sleep_until(deadline.into()) => {
                     return Err(RunError::TooFewDaemons {
                         error: PlanError::NoNodes,
@@ -302,8 +301,6 @@ impl Live<'_> {
         pending: &[String],
         members: &BTreeSet<String>,
     ) -> Result<Option<(String, Message)>, Halt> {
-        let mut tick = tokio::time::interval(TICK);
-        tick.reset();
         tokio::select! {
             ev = self.session.events.recv() => match ev {
                 Some(ev) => Ok(self.accept(ev)?),
@@ -317,7 +314,7 @@ impl Live<'_> {
                 if let Some(j) = j { self.on_join(j) }
                 Ok(None)
             }
-            _ = tick.tick() => {
+            _ = self.tick.tick() => {
                 self.heartbeat().await;
                 self.check_interrupted(members)?;
                 Ok(None)

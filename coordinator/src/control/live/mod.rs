@@ -152,6 +152,8 @@ pub struct Live<'s> {
     replans_without_progress: u32,
     last_ping: Option<Instant>,
     last_warning: Option<Instant>,
+    /// One tick for every phase, so heartbeats go out however busy the event channels are.
+    tick: tokio::time::Interval,
     pub summary: LiveSummary,
 }
 
@@ -199,6 +201,11 @@ impl<'s> Live<'s> {
             replans_without_progress: 0,
             last_ping: None,
             last_warning: None,
+            tick: {
+                let mut t = tokio::time::interval(TICK);
+                t.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+                t
+            },
             summary: LiveSummary::default(),
         })
     }
@@ -217,8 +224,6 @@ impl<'s> Live<'s> {
         mut on_frame: impl FnMut(FrameResult),
     ) -> Result<(), RunError> {
         self.replan("start".to_string()).await?;
-        let mut tick = tokio::time::interval(TICK);
-        tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
         loop {
             self.collect();
             self.deliver(&mut on_frame);
@@ -250,7 +255,7 @@ impl<'s> Live<'s> {
                     }
                     None => self.source_open = false,
                 },
-                _ = tick.tick() => self.on_tick().await?,
+                _ = self.tick.tick() => self.on_tick().await?,
             }
         }
     }
