@@ -105,8 +105,10 @@ impl Live<'_> {
 
     /// Sends the scene to the plan's nodes that lack it and every configuration, and waits for
     /// each `Configured`.
-    pub(super) async fn establish(&mut self, next: Plan, reason: &str) -> Result<(), Halt> {
+    pub(super) async fn establish(&mut self, mut next: Plan, reason: &str) -> Result<(), Halt> {
         let started = Instant::now();
+        // Nodes know the scene by the hash of the bytes they are sent.
+        next.scene_hash = self.hash;
         let deadline = started + self.session.opts.configure;
         let members: BTreeSet<String> = next
             .nodes
