@@ -347,15 +347,28 @@ pub fn failover_summary(s: &LiveSummary, start: std::time::Instant) -> String {
         s.epochs.len().saturating_sub(1),
         s.rerequested
     ));
+    // Slow frames: one line per frame, naming every daemon it waited on.
+    let mut slow: Vec<(std::time::Instant, u64, u128, Vec<&str>)> = Vec::new();
     for i in &s.incidents {
         let what = match &i.kind {
             IncidentKind::Lost { reason } => format!("lost: {reason}"),
             IncidentKind::Slow { frame, waited } => {
-                format!("slow: frame {frame} waited {} ms on it", waited.as_millis())
+                match slow.iter_mut().find(|x| x.1 == *frame) {
+                    Some(x) => x.3.push(&i.daemon),
+                    None => slow.push((i.at, *frame, waited.as_millis(), vec![&i.daemon])),
+                }
+                continue;
             }
             IncidentKind::Rejoined => "rejoined".to_string(),
         };
         out.push_str(&format!("\n  {:>7.2} s  {}  {what}", at(i.at), i.daemon));
+    }
+    for (t, frame, ms, who) in slow {
+        out.push_str(&format!(
+            "\n  {:>7.2} s  slow: frame {frame} waited {ms} ms on {}",
+            at(t),
+            who.join(", ")
+        ));
     }
     for e in s.epochs.iter().skip(1) {
         out.push_str(&format!(
@@ -373,11 +386,14 @@ pub fn failover_summary(s: &LiveSummary, start: std::time::Instant) -> String {
     out
 }
 
+/// What the frame writer's thread ends with: the size of the frames written, and the first error.
+type WriterEnd = (Option<(u32, u32)>, Option<anyhow::Error>);
+
 /// Writes frames off the event loop as they complete: `--out`/`--exr` get the newest (replaced
 /// atomically), `--frame-dir` every one.
 struct FrameWriter {
     tx: Option<std::sync::mpsc::Sender<FrameResult>>,
-    thread: Option<std::thread::JoinHandle<(Option<(u32, u32)>, Option<anyhow::Error>)>>,
+    thread: Option<std::thread::JoinHandle<WriterEnd>>,
 }
 
 impl FrameWriter {

@@ -118,7 +118,7 @@ fn finish(demo: Child) -> (String, String) {
 
 #[test]
 fn killed_daemons_cost_no_frame_and_a_restarted_one_comes_back() {
-    const FRAMES: u32 = 24;
+    const FRAMES: u32 = 40;
     let dir = work_dir("failover-kill");
     let demo = start_demo(&dir, FRAMES);
     wait_for("frame 2", Duration::from_secs(300), || {
@@ -146,8 +146,8 @@ fn killed_daemons_cost_no_frame_and_a_restarted_one_comes_back() {
         .spawn()
         .unwrap();
     let seen = frames_written(&dir);
-    wait_for("two more frames", Duration::from_secs(300), || {
-        frames_written(&dir) >= seen + 2
+    wait_for("six more frames", Duration::from_secs(300), || {
+        frames_written(&dir) >= seen + 6
     });
     signal("-KILL", &pid_of(&dir, "comp-1"));
     let (stdout, _) = finish(demo);

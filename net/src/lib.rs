@@ -3,6 +3,7 @@
 //!
 //! Must not depend on wgpu, the scene, or any daemon crate.
 
+pub mod claim;
 mod codec;
 mod downstream;
 mod link;

@@ -6,9 +6,9 @@
 //! over; while none does, a new unclaimed link replaces the old. A coordinator that goes away
 //! leaves the stage running.
 
-use super::claim::{Claims, FAREWELL, Ticket};
 use super::config::{Operators, StagePlan};
 use super::engine::{Command, FrameRequest};
+use lightfold_net::claim::{Claims, FAREWELL, Ticket};
 use lightfold_net::{Link, LinkReader, LinkWriter};
 use lightfold_protocol::{Capabilities, ErrorCode, Frame, Message, PixelFormat, Role};
 use std::sync::Arc;

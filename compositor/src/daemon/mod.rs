@@ -8,7 +8,6 @@
 //! 0) and owns the cancellation token (the CLI wires SIGTERM and Ctrl-C to it).
 
 mod check;
-mod claim;
 mod compute;
 mod config;
 mod control;

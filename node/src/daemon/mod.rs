@@ -5,7 +5,6 @@
 
 pub mod bands;
 pub mod calibrate;
-mod claim;
 pub mod config;
 mod engine;
 pub mod render_thread;
@@ -15,8 +14,8 @@ pub mod sys;
 
 use crate::gpu::GpuOptions;
 use crate::gpu::device::max_lights_for;
-use claim::Claims;
 use engine::Engine;
+use lightfold_net::claim::Claims;
 use lightfold_net::{Identity, Timeouts, accept};
 use lightfold_protocol::{Capabilities, Role};
 use render_thread::{DeviceReport, RenderHandle};

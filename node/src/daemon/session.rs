@@ -16,8 +16,8 @@
 //! frame in progress is then abandoned too. A peer that is not a coordinator is logged and
 //! dropped.
 
-use super::claim::{Claims, FAREWELL, Ticket};
 use super::engine::Engine;
+use lightfold_net::claim::{Claims, FAREWELL, Ticket};
 use lightfold_net::{Link, LinkReader, LinkWriter};
 use lightfold_protocol::frame::Frame;
 use lightfold_protocol::{Capabilities, ErrorCode, Message, Role};

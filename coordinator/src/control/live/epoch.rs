@@ -250,6 +250,7 @@ impl Live<'_> {
         self.summary.plan = Some(next.clone());
         self.plan = Some(next);
         self.established_at = Instant::now();
+        self.sent_in_epoch = 0;
         Ok(())
     }
 

@@ -94,6 +94,7 @@ impl Live<'_> {
                 self.lose(&id, format!("cannot send to it: {e}"));
                 break;
             }
+            self.sent_in_epoch += 1;
             self.inflight.push(InFlight {
                 index,
                 spec,
@@ -102,6 +103,7 @@ impl Live<'_> {
                 image: None,
                 stats: Vec::new(),
                 slow_warned: false,
+                warming: self.sent_in_epoch <= limit as u64,
             });
         }
         Ok(())

@@ -41,6 +41,8 @@ const ERROR_GRACE: Duration = Duration::from_millis(300);
 const RESET_DEBOUNCE: Duration = Duration::from_millis(300);
 /// Re-plans in a row without a frame delivered before the run gives up.
 const MAX_REPLANS_WITHOUT_PROGRESS: u32 = 8;
+/// How much longer the first frames of an epoch may take before they count as slow.
+const WARM_UP: f64 = 3.0;
 /// Sink warnings (stray connections) logged at most this often.
 const WARNING_EVERY: Duration = Duration::from_secs(1);
 
@@ -102,6 +104,9 @@ struct InFlight {
     image: Option<SinkFrame>,
     stats: Vec<FrameStats>,
     slow_warned: bool,
+    /// Among the first frames of its epoch (they also pay for shadow maps, pipelines and links
+    /// the epoch sets up, so they get `WARM_UP` × the time before they count as slow).
+    warming: bool,
 }
 
 /// Why establishing an epoch stopped.
@@ -134,6 +139,8 @@ pub struct Live<'s> {
     /// The plan's daemons, compositors first.
     participants: Vec<String>,
     established_at: Instant,
+    /// Frame requests sent in the current epoch.
+    sent_in_epoch: u64,
     next_index: u64,
     queue: VecDeque<(u64, FrameSpec)>,
     inflight: Vec<InFlight>,
@@ -187,6 +194,7 @@ impl<'s> Live<'s> {
             plan: None,
             participants: Vec::new(),
             established_at: Instant::now(),
+            sent_in_epoch: 0,
             next_index: 1,
             queue: VecDeque::new(),
             inflight: Vec::new(),
@@ -459,7 +467,8 @@ impl<'s> Live<'s> {
             let waited = now.duration_since(f.sent_at);
             if waited > opts.frame {
                 hung.push((f.index, waiting_on(plan, f)));
-            } else if waited > slow && !f.slow_warned {
+            } else if waited > slow.mul_f64(if f.warming { WARM_UP } else { 1.0 }) && !f.slow_warned
+            {
                 f.slow_warned = true;
                 slow_frames.push((f.index, waited, waiting_on(plan, f)));
             }

@@ -10,8 +10,7 @@
 //!   session holds the daemon.
 //! - When the holder's link closes, the daemon is free again.
 //!
-//! The render node has the same module (`node/src/daemon/claim.rs`): the two daemons may not
-//! depend on each other.
+//! Render nodes and compositors share it (they may not depend on each other, so it lives here).
 
 use lightfold_protocol::{ErrorCode, Message};
 use std::sync::{Arc, Mutex};
@@ -21,11 +20,11 @@ use tokio_util::sync::CancellationToken;
 /// How long a new holder waits for a displaced link to send its last message and close.
 const RELEASE: Duration = Duration::from_secs(2);
 /// How long a displaced link may take to write its last message.
-pub(crate) const FAREWELL: Duration = Duration::from_secs(1);
+pub const FAREWELL: Duration = Duration::from_secs(1);
 
 /// The claims on one daemon.
 #[derive(Debug)]
-pub(crate) struct Claims {
+pub struct Claims {
     daemon_id: String,
     /// Whether an unclaimed link displaces the other unclaimed links (a compositor serves one
     /// coordinator at a time) or runs beside them (a node).
@@ -60,7 +59,7 @@ struct LinkState {
 
 /// A control link's place among the claims; dropping it (after closing the link) lets go.
 #[derive(Debug)]
-pub(crate) struct Ticket {
+pub struct Ticket {
     claims: Arc<Claims>,
     serial: u64,
     link: Arc<LinkState>,
