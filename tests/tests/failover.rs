@@ -5,7 +5,7 @@
 //! behind by an aborted coordinator does not break the next one; a second coordinator is refused
 //! while one holds the cluster, unless it takes over.
 
-use lightfold_coordinator::control::{ControlError, IncidentKind, LiveSummary};
+use lightfold_coordinator::control::{ControlError, IncidentKind, Live, LiveSummary};
 use lightfold_coordinator::plan::MapSizing;
 use lightfold_coordinator::run::{FramePath, RunError, RunOptions, camera_at};
 use lightfold_node::gpu::{Gpu, GpuOptions};
@@ -13,6 +13,7 @@ use lightfold_scene::Scene;
 use lightfold_tests::{
     InProcessCluster, RunOutput, assert_close, single_device, small, test_control,
 };
+use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -143,52 +144,86 @@ async fn a_lost_sink_compositor_costs_no_frame() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_restarted_node_is_folded_back_in() {
     let (scene, mut opts) = setup();
-    opts.frames = 10;
+    // Frames keep coming until node-2 renders again (or this many have been requested).
+    opts.frames = 400;
+    let specs = lightfold_coordinator::run::frame_specs(&scene, &opts);
     let mut cluster = InProcessCluster::start(4, 4).await.unwrap();
     let stop = cluster.stop_token("node-2").unwrap();
     let mut session = cluster.connect(opts.control).await.unwrap();
-    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<()>();
+    let (killed_tx, mut killed_rx) = tokio::sync::mpsc::unbounded_channel::<()>();
+    let back = Arc::new(std::sync::atomic::AtomicU64::new(0));
+    let (req_tx, req_rx) = tokio::sync::mpsc::channel(1);
     let mut frames = Vec::new();
-    let render = lightfold_coordinator::run::render(&mut session, &scene, &opts, |f| {
+    let mut live = Live::new(&mut session, &scene, &opts.plan).unwrap();
+    let seen_back = Arc::clone(&back);
+    let render = live.run(req_rx, |f| {
         if f.frame == 2 {
             stop.cancel();
-            let _ = tx.send(());
+            let _ = killed_tx.send(());
+        }
+        let rendered_by_node_2 = f.stats.iter().any(|s| s.daemon_id == "node-2");
+        if f.frame > 2 && rendered_by_node_2 && seen_back.load(Ordering::Relaxed) == 0 {
+            seen_back.store(f.frame, Ordering::Relaxed);
         }
         frames.push(f);
     });
+    let feed = async {
+        for (i, spec) in specs.into_iter().enumerate() {
+            let b = back.load(Ordering::Relaxed);
+            if b > 0 && i as u64 >= b + 2 {
+                break;
+            }
+            if req_tx.send(spec).await.is_err() {
+                break;
+            }
+        }
+        drop(req_tx);
+    };
     let supervisor = async {
         // Like systemd restarting a crashed unit: the same id on the same address.
-        rx.recv().await;
+        killed_rx.recv().await;
         cluster.kill("node-2").await.unwrap();
         tokio::time::sleep(Duration::from_millis(500)).await;
         cluster.restart("node-2").await.unwrap();
     };
-    let (outcome, ()) = tokio::time::timeout(lightfold_tests::RUN_DEADLINE, async {
-        tokio::join!(render, supervisor)
+    let (result, (), ()) = tokio::time::timeout(lightfold_tests::RUN_DEADLINE, async {
+        tokio::join!(render, feed, supervisor)
     })
     .await
     .expect("the run timed out");
+    let summary = std::mem::take(&mut live.summary);
+    drop(live);
     session.detach();
-    assert!(outcome.error.is_none(), "{:?}", outcome.error);
-    let s = &outcome.summary;
-    eprintln!("epochs {:?}\nincidents {:?}", s.epochs, s.incidents);
-    assert!(lost_at(s, "node-2").is_some(), "node-2 was lost");
+    assert!(result.is_ok(), "{result:?}");
+    eprintln!(
+        "epochs {:?}\nincidents {:?}",
+        summary.epochs, summary.incidents
+    );
+    assert!(lost_at(&summary, "node-2").is_some(), "node-2 was lost");
     assert!(
-        s.incidents
+        summary
+            .incidents
             .iter()
             .any(|i| i.daemon == "node-2" && i.kind == IncidentKind::Rejoined),
         "node-2 rejoined"
     );
-    let plan = s.plan.clone().unwrap();
+    let back = back.load(Ordering::Relaxed);
+    assert!(
+        back > 0,
+        "node-2 never rendered again in {} frames",
+        frames.len()
+    );
+    let plan = summary.plan.clone().unwrap();
     assert!(
         plan.nodes.iter().any(|n| n.node == "node-2"),
         "the final plan uses node-2 again"
     );
     assert_eq!(plan.nodes.len(), 4);
+    opts.frames = frames.len() as u32;
     let out = RunOutput {
         plan,
         frames,
-        summary: outcome.summary,
+        summary,
     };
     assert_every_frame(&out, &scene, &opts, "with node-2 restarted");
     cluster.stop().await.unwrap();
