@@ -162,6 +162,10 @@ pub struct Link {
     pub timeouts: Timeouts,
 }
 
+/// The largest frame read from a peer before it is authenticated: a hello (magic, version, role,
+/// a daemon id of at most 255 bytes, a nonce) or a proof, with their framing, fit in far less.
+pub const PRE_AUTH_MAX_FRAME: usize = 1024;
+
 /// Dials `addr` (a DNS name is resolved on every call) and authenticates.
 pub async fn dial(addr: &str, me: &Identity, t: Timeouts) -> Result<Link, NetError> {
     let stream = match timeout(t.connect, TcpStream::connect(addr)).await {
@@ -231,7 +235,9 @@ async fn handshake(
 ) -> Result<Link, NetError> {
     let _ = stream.set_nodelay(true);
     let (read, write) = stream.into_split();
-    let mut reader = FrameReader::new(read, t.max_frame);
+    // Until the peer has proved it holds the token, only hello- and proof-sized frames are read:
+    // a larger length prefix fails the handshake before anything is allocated.
+    let mut reader = FrameReader::new(read, PRE_AUTH_MAX_FRAME.min(t.max_frame));
     let mut writer = FrameWriter::new(write, t.max_frame);
     let mut nonce = [0u8; 32];
     rand::rng().fill_bytes(&mut nonce);
@@ -280,6 +286,7 @@ async fn handshake(
         }
         Ok(r) => r?,
     };
+    reader.set_max_frame(t.max_frame);
     Ok(Link {
         reader,
         writer,

@@ -147,6 +147,12 @@ impl FrameReader {
         }
     }
 
+    /// Changes the largest frame accepted from here on (a link reads hello-sized frames until it
+    /// is authenticated).
+    pub fn set_max_frame(&mut self, max_frame: usize) {
+        self.codec.max_frame = max_frame;
+    }
+
     /// The next frame; `None` when the peer closed cleanly between frames.
     pub async fn next(&mut self) -> Option<Result<Frame, CodecError>> {
         loop {

@@ -37,26 +37,80 @@ pub(crate) struct ProducerLink {
     pub writer: LinkWriter,
 }
 
-/// Links accepted from producers, by authenticated daemon id, not yet claimed by an input slot.
+/// Links accepted from producers, by authenticated daemon id, not yet claimed by an input slot,
+/// and the state of each producer's attached link (so a second link claiming a live producer's
+/// id is refused instead of displacing it).
 #[derive(Debug, Default)]
 pub(crate) struct Registry {
     parked: Mutex<HashMap<String, ProducerLink>>,
+    attached: Mutex<HashMap<String, Arc<LinkState>>>,
     arrived: Notify,
 }
 
+/// What became of an offered producer link.
+#[derive(Debug, PartialEq, Eq)]
+pub(crate) enum Offer {
+    Parked,
+    /// Too many links are parked.
+    Full,
+    /// The producer's attached link (from `live`) is alive and streaming.
+    Duplicate {
+        live: String,
+    },
+}
+
+/// An attached producer link as its pump sees it.
+#[derive(Debug)]
+pub(crate) struct LinkState {
+    pub addr: String,
+    /// Cancelled when the pump stops (the link ended or was let go).
+    pub ended: CancellationToken,
+    last_band: Mutex<Instant>,
+}
+
+/// A producer that reconnects has closed its old link: its end reaches us this soon.
+const RECONNECT_GRACE: std::time::Duration = std::time::Duration::from_millis(500);
+/// An attached link that delivered nothing for this long is not defended (it may be half-open:
+/// a producer whose host went away without closing its connections). Long enough that a slow
+/// frame on a loaded machine does not make a live producer look idle.
+const IDLE: std::time::Duration = std::time::Duration::from_secs(10);
+
 impl Registry {
-    /// Parks a producer's link, replacing an older one from the same daemon (it reconnected).
-    /// Returns false when too many links are parked.
-    pub fn offer(&self, peer: String, link: ProducerLink) -> bool {
+    /// Parks a producer's link, replacing an older parked one from the same daemon (it
+    /// reconnected). A link claiming a producer whose attached link is alive and streaming is
+    /// refused, unless that link ends within `RECONNECT_GRACE`.
+    pub async fn offer(&self, peer: String, link: ProducerLink) -> Offer {
+        let live = self
+            .attached
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(&peer)
+            .cloned();
+        if let Some(old) = live
+            && !old.ended.is_cancelled()
+        {
+            let ended = tokio::time::timeout(RECONNECT_GRACE, old.ended.cancelled()).await;
+            let idle = old
+                .last_band
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .elapsed()
+                >= IDLE;
+            if ended.is_err() && !idle {
+                return Offer::Duplicate {
+                    live: old.addr.clone(),
+                };
+            }
+        }
         {
             let mut parked = self.parked.lock().unwrap_or_else(|e| e.into_inner());
             if parked.len() >= MAX_PARKED && !parked.contains_key(&peer) {
-                return false;
+                return Offer::Full;
             }
             parked.insert(peer, link);
         }
         self.arrived.notify_waiters();
-        true
+        Offer::Parked
     }
 
     fn take(&self, peer: &str) -> Option<ProducerLink> {
@@ -64,6 +118,13 @@ impl Registry {
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .remove(peer)
+    }
+
+    fn attach(&self, peer: &str, state: Arc<LinkState>) {
+        self.attached
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(peer.to_string(), state);
     }
 }
 
@@ -253,6 +314,12 @@ impl Slot {
         let (tx, rx) = mpsc::channel(capacity);
         self.rx = Some(rx);
         tracing::info!(input = self.index, peer = %self.peer, addr = %link.reader.addr, "input link attached");
+        let state = Arc::new(LinkState {
+            addr: link.reader.addr.clone(),
+            ended: CancellationToken::new(),
+            last_band: Mutex::new(Instant::now()),
+        });
+        ctx.registry.attach(&self.peer, Arc::clone(&state));
         ctx.tracker.spawn(pump(
             link,
             tx,
@@ -260,6 +327,7 @@ impl Slot {
             self.budget_total,
             Arc::clone(&ctx.metrics),
             self.pump.clone(),
+            state,
         ));
     }
 }
@@ -294,7 +362,10 @@ async fn pump(
     total: u64,
     metrics: Arc<StageMetrics>,
     cancel: CancellationToken,
+    state: Arc<LinkState>,
 ) {
+    // Whatever ends the pump, the link counts as ended from then on.
+    let _ended = state.ended.clone().drop_guard();
     // `_writer` lives until the pump ends, then the whole connection closes.
     let ProducerLink {
         reader: mut link,
@@ -311,7 +382,10 @@ async fn pump(
                 let _ = tx.send(Event::Failed(e.to_string())).await;
                 return;
             }
-            Some(Ok(Frame::Band(h, p))) => (h, p),
+            Some(Ok(Frame::Band(h, p))) => {
+                *state.last_band.lock().unwrap_or_else(|e| e.into_inner()) = Instant::now();
+                (h, p)
+            }
             Some(Ok(Frame::Control(m))) => {
                 tracing::debug!(addr = %link.addr, ?m, "ignored control message on a data link");
                 continue;

@@ -151,6 +151,7 @@ pub async fn run(
         shutdown.clone(),
     ));
     tracing::info!(id = %opts.daemon_id, addr = ?listener.local_addr().ok(), "compositor listening");
+    let gate = lightfold_net::gate::Gate::new(lightfold_net::gate::MAX_HANDSHAKES);
 
     loop {
         let accepted = tokio::select! {
@@ -158,8 +159,18 @@ pub async fn run(
             a = listener.accept() => a,
         };
         match accepted {
-            Ok((stream, _)) => {
+            Ok((stream, peer)) => {
+                let Some(slot) = gate.admit() else {
+                    gate.refused(
+                        &peer.to_string(),
+                        &"too many connections are authenticating",
+                    );
+                    drop(stream);
+                    continue;
+                };
                 let conn = Connection {
+                    gate: gate.clone(),
+                    slot,
                     identity: identity.clone(),
                     timeouts: opts.timeouts,
                     hub: Arc::clone(&hub),
@@ -192,6 +203,9 @@ pub async fn run(
 
 /// One accepted connection, before we know who it is.
 struct Connection {
+    gate: lightfold_net::gate::Gate,
+    /// Its handshake slot, given back once it is authenticated.
+    slot: tokio::sync::OwnedSemaphorePermit,
     identity: Identity,
     timeouts: Timeouts,
     hub: Arc<ControlHub>,
@@ -201,6 +215,9 @@ struct Connection {
 
 impl Connection {
     async fn serve(self, stream: TcpStream) {
+        let peer_addr = stream
+            .peer_addr()
+            .map_or_else(|_| "unknown peer".to_string(), |a| a.to_string());
         let link: Link = tokio::select! {
             _ = self.shutdown.cancelled() => return,
             l = lightfold_net::accept(stream, &self.identity, self.timeouts) => match l {
@@ -210,23 +227,31 @@ impl Connection {
                     return;
                 }
                 Err(e) => {
-                    tracing::warn!("refused a connection: {e}");
+                    self.gate.refused(&peer_addr, &e);
                     return;
                 }
             },
         };
+        drop(self.slot);
         match link.peer.role {
             Role::Coordinator => self.hub.session(link, &self.shutdown).await,
             Role::Node | Role::Compositor => {
                 let peer = link.peer.daemon_id.clone();
+                let addr = link.addr.clone();
                 let (reader, writer) = link.split();
-                if self
+                let offer = self
                     .registry
                     .offer(peer.clone(), inputs::ProducerLink { reader, writer })
-                {
-                    tracing::info!(%peer, "producer connected");
-                } else {
-                    tracing::warn!(%peer, "refused a producer: too many unclaimed links");
+                    .await;
+                match offer {
+                    inputs::Offer::Parked => tracing::info!(%peer, %addr, "producer connected"),
+                    inputs::Offer::Full => {
+                        tracing::warn!(%peer, %addr, "refused a producer: too many unclaimed links")
+                    }
+                    inputs::Offer::Duplicate { live } => tracing::warn!(
+                        %peer, %addr, live = %live,
+                        "refused a second link claiming producer {peer}: its link from {live} is live"
+                    ),
                 }
             }
             Role::Viewer => {

@@ -60,13 +60,14 @@ pub async fn run_sink(
     out: mpsc::Sender<SinkEvent>,
     cancel: CancellationToken,
 ) {
+    let gate = lightfold_net::gate::Gate::new(lightfold_net::gate::MAX_HANDSHAKES);
     loop {
         let accepted = tokio::select! {
             _ = cancel.cancelled() => return,
             a = listener.accept() => a,
         };
-        let stream = match accepted {
-            Ok((s, _)) => s,
+        let (stream, peer) = match accepted {
+            Ok(x) => x,
             Err(e) => {
                 let _ = out
                     .send(SinkEvent::Warning(format!("sink accept failed: {e}")))
@@ -76,10 +77,17 @@ pub async fn run_sink(
                 continue;
             }
         };
+        // A stray connection (a port scan, a probe) is refused and logged; it never ends the job.
+        let Some(slot) = gate.admit() else {
+            gate.refused(&peer.to_string(), &"too many connections are authenticating");
+            continue;
+        };
         let (me, out, geometry, cancel) =
             (me.clone(), out.clone(), geometry.clone(), cancel.clone());
         tokio::spawn(async move {
-            match lightfold_net::accept(stream, &me, timeouts).await {
+            let link = lightfold_net::accept(stream, &me, timeouts).await;
+            drop(slot);
+            match link {
                 Ok(link) => {
                     let addr = link.addr.clone();
                     if let Err(e) = receive(link, geometry, &out, cancel).await {

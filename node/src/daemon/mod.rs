@@ -130,6 +130,7 @@ pub async fn run(
     let claims = Claims::new(&opts.daemon_id, false);
     let stop = shutdown.child_token();
     let tracker = TaskTracker::new();
+    let gate = lightfold_net::gate::Gate::new(lightfold_net::gate::MAX_HANDSHAKES);
     loop {
         let (stream, peer) = tokio::select! {
             _ = stop.cancelled() => break,
@@ -143,19 +144,26 @@ pub async fn run(
                 }
             },
         };
-        let (me, caps, engine, claims, stop, t) = (
+        let Some(slot) = gate.admit() else {
+            gate.refused(&peer.to_string(), &"too many connections are authenticating");
+            drop(stream);
+            continue;
+        };
+        let (me, caps, engine, claims, stop, t, gate) = (
             me.clone(),
             caps.clone(),
             engine.clone(),
             claims.clone(),
             stop.clone(),
             opts.timeouts,
+            gate.clone(),
         );
         tracker.spawn(async move {
             let link = tokio::select! {
                 _ = stop.cancelled() => return,
                 l = accept(stream, &me, t) => l,
             };
+            drop(slot);
             match link {
                 Ok(link) => {
                     let ended = session::serve(link, caps, engine, claims, stop.clone()).await;
@@ -166,7 +174,7 @@ pub async fn run(
                 Err(e) if e.is_disconnect() => {
                     tracing::debug!(%peer, error = %e, "closed before its handshake")
                 }
-                Err(e) => tracing::warn!(%peer, error = %e, "handshake failed"),
+                Err(e) => gate.refused(&peer.to_string(), &format!("handshake failed: {e}")),
             }
         });
     }
