@@ -15,8 +15,8 @@ use sha2::{Digest, Sha256};
 const MAGIC: &[u8; 4] = b"LFSC";
 /// Version of the byte layout of `to_bytes` (bump when `Scene` changes shape).
 pub const SCENE_BYTES_VERSION: u32 = 1;
-/// Largest scene `from_bytes` accepts.
-pub const MAX_SCENE_BYTES: usize = 1 << 30;
+/// Largest scene `from_bytes` accepts ([`crate::limits::MAX_SCENE_BYTES`]).
+pub const MAX_SCENE_BYTES: usize = crate::limits::MAX_SCENE_BYTES as usize;
 
 /// Feeds canonical little-endian bytes into a hasher.
 struct Canon(Sha256);
@@ -333,7 +333,8 @@ impl Scene {
     }
 
     /// Decodes [`Scene::to_bytes`]; rejects other versions, trailing bytes, more than
-    /// [`MAX_SCENE_BYTES`], and any scene that does not validate clean.
+    /// [`MAX_SCENE_BYTES`], any scene that does not validate clean and any beyond
+    /// [`crate::limits`].
     pub fn from_bytes(bytes: &[u8]) -> Result<Scene, SceneError> {
         let bad = |message: String| SceneError::Decode { message };
         if bytes.len() > MAX_SCENE_BYTES {
@@ -364,6 +365,9 @@ impl Scene {
                 scene.name
             )));
         }
+        scene
+            .check_limits()
+            .map_err(|e| bad(format!("scene {:?}: {e}", scene.name)))?;
         Ok(scene)
     }
 }

@@ -30,6 +30,11 @@ pub enum SceneError {
     },
     #[error("scene {scene:?} is unusable: {message}")]
     Invalid { scene: String, message: String },
+    #[error("{input}: {source} (see `lightfold defaults`)")]
+    Limit {
+        input: String,
+        source: crate::limits::LimitError,
+    },
     #[error("cannot decode scene bytes: {message}")]
     Decode { message: String },
     #[error("cannot encode scene {scene:?}: {message}")]
@@ -37,6 +42,13 @@ pub enum SceneError {
 }
 
 impl SceneError {
+    pub(crate) fn limit(input: &str, source: crate::limits::LimitError) -> Self {
+        SceneError::Limit {
+            input: input.to_string(),
+            source,
+        }
+    }
+
     pub(crate) fn file(path: &str, message: String) -> Self {
         SceneError::SceneFile {
             path: path.to_string(),

@@ -14,6 +14,8 @@ pub mod file;
 pub mod framing;
 pub mod gltf_load;
 pub mod image;
+mod input;
+pub mod limits;
 pub mod model;
 pub mod primitives;
 pub mod sampling;

@@ -37,6 +37,8 @@ pub enum WireError {
     NonFinite { sample: u32 },
     #[error("camera is invalid: {0}")]
     Camera(&'static str),
+    #[error("camera is invalid: {0}")]
+    Limit(#[from] crate::limits::LimitError),
 }
 
 /// The scene form of a wire sample, validated (input from the network).
@@ -91,9 +93,6 @@ pub fn camera_to_wire(c: &Camera) -> WireCamera {
     }
 }
 
-/// Largest image side accepted from the network.
-pub const MAX_IMAGE_SIDE: u32 = 16384;
-
 pub fn camera_from_wire(w: &WireCamera) -> Result<Camera, WireError> {
     let finite = w
         .position
@@ -110,11 +109,8 @@ pub fn camera_from_wire(w: &WireCamera) -> Result<Camera, WireError> {
             "vertical field of view must be in (0, 180) degrees",
         ));
     }
-    if w.width == 0 || w.height == 0 || w.width > MAX_IMAGE_SIDE || w.height > MAX_IMAGE_SIDE {
-        return Err(WireError::Camera(
-            "image size must be 1..=16384 on each side",
-        ));
-    }
+    // The same limits as every other place that takes an image size.
+    crate::limits::check_image_size(w.width, w.height)?;
     if w.position == w.target {
         return Err(WireError::Camera("position equals target"));
     }
@@ -201,5 +197,12 @@ mod tests {
         let mut w = camera_to_wire(&c);
         w.fov_y_deg = f32::INFINITY;
         assert!(camera_from_wire(&w).is_err());
+        // 16384 per side used to pass here and then panic in wgpu.
+        let mut w = camera_to_wire(&c);
+        (w.width, w.height) = (16384, 16384);
+        let e = camera_from_wire(&w).unwrap_err();
+        assert!(e.to_string().contains("at most 8192 per side"), "{e}");
+        (w.width, w.height) = (4096, 4096);
+        assert!(camera_from_wire(&w).is_ok());
     }
 }

@@ -1,6 +1,6 @@
 //! Scene files: the simple case is expressed exactly, files round-trip through TOML, unknown
-//! fields and versions are rejected, every example in `scenes/` loads clean, and `load` dispatches
-//! on built-in names and extensions.
+//! fields and versions are rejected, every example in `scenes/` (and `assets/fox.toml`) loads
+//! clean, and `load` dispatches on built-in names and extensions.
 
 mod support;
 
@@ -15,6 +15,11 @@ fn scenes_dir() -> PathBuf {
 
 fn example(name: &str) -> String {
     scenes_dir().join(name).display().to_string()
+}
+
+/// `assets/fox.toml`: beside its model, since a scene file reads only inside its own folder.
+fn fox() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../assets/fox.toml")
 }
 
 #[test]
@@ -85,14 +90,19 @@ fn the_simple_case_is_expressed_exactly() {
 
 #[test]
 fn scene_files_round_trip_through_toml() {
-    for name in ["simple.toml", "lights.toml", "fox.toml"] {
-        let text = std::fs::read_to_string(example(name)).unwrap();
+    for path in [
+        PathBuf::from(example("simple.toml")),
+        PathBuf::from(example("lights.toml")),
+        fox(),
+    ] {
+        let name = path.file_name().unwrap().to_str().unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
         let file = parse(&text, name).unwrap();
         let again = parse(&to_toml(&file).unwrap(), name).unwrap();
         assert_eq!(file, again, "{name}");
-        let base = scenes_dir();
-        let a = parse_scene_file(&text, name, Some(&base)).unwrap();
-        let b = parse_scene_file(&to_toml(&file).unwrap(), name, Some(&base)).unwrap();
+        let base = path.parent().unwrap();
+        let a = parse_scene_file(&text, name, Some(base)).unwrap();
+        let b = parse_scene_file(&to_toml(&file).unwrap(), name, Some(base)).unwrap();
         assert_eq!(a, b, "{name}");
     }
 }
@@ -100,8 +110,8 @@ fn scene_files_round_trip_through_toml() {
 #[test]
 fn every_example_loads_clean() {
     let mut n = 0;
-    for entry in std::fs::read_dir(scenes_dir()).unwrap() {
-        let path = entry.unwrap().path();
+    let examples = std::fs::read_dir(scenes_dir()).unwrap();
+    for path in examples.map(|e| e.unwrap().path()).chain([fox()]) {
         if path.extension().is_some_and(|e| e == "toml") {
             let s = load(&path.display().to_string()).unwrap_or_else(|e| panic!("{e}"));
             assert!(
@@ -158,7 +168,7 @@ fn every_light_kind_is_read() {
 
 #[test]
 fn a_gltf_reference_is_relative_to_the_file() {
-    let s = load(&example("fox.toml")).unwrap();
+    let s = load(&fox().display().to_string()).unwrap();
     assert_eq!(s.lights.len(), 2, "the file's lights, no framing light");
     assert_eq!(s.camera.position, [2.0, 1.0, 2.0]);
     let (_, hi) = s.bounds().unwrap();

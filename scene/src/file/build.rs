@@ -29,24 +29,36 @@ pub(super) fn build(
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "scene".into())
     });
-    let (mut scene, gltf_camera) = match &file.gltf {
-        Some(g) => {
-            let path = base.map_or_else(|| Path::new(&g.path).to_path_buf(), |b| b.join(&g.path));
-            let bytes = std::fs::read(&path).map_err(|e| SceneError::Io {
-                path: path.display().to_string(),
-                message: e.to_string(),
-            })?;
-            let opts = GltfOptions {
-                scale: g.scale,
-                translation: g.translation,
-                complete: false,
-            };
-            let label = path.display().to_string();
-            let imported = gltf_load::import(&bytes, &label, &name, path.parent(), &opts)?;
-            (imported.scene, imported.has_camera)
-        }
-        None => (Scene::new(&name), false),
-    };
+    let (mut scene, gltf_camera) =
+        match &file.gltf {
+            Some(g) => {
+                let folder = base.unwrap_or(Path::new("."));
+                let path = crate::input::resolve_inside(folder, &g.path, "the scene file's")
+                    .map_err(|e| match e.io {
+                        Some(path) => SceneError::Io {
+                            path: path.display().to_string(),
+                            message: e.message,
+                        },
+                        None => err(format!("gltf.path: {}", e.message)),
+                    })?;
+                let bytes = gltf_load::read_model(&path)?;
+                let opts = GltfOptions {
+                    scale: g.scale,
+                    translation: g.translation,
+                    complete: false,
+                };
+                let label = path.display().to_string();
+                let imported = gltf_load::import(
+                    &bytes,
+                    &label,
+                    &name,
+                    Some(gltf_load::model_folder(&path)),
+                    &opts,
+                )?;
+                (imported.scene, imported.has_camera)
+            }
+            None => (Scene::new(&name), false),
+        };
     scene.name = name;
 
     let mut by_name: HashMap<&str, usize> = HashMap::new();
@@ -69,7 +81,12 @@ pub(super) fn build(
         by_name.insert(&m.name, k);
     }
     let mut objects: HashMap<String, usize> = HashMap::new();
+    let mut triangles = scene.triangle_count() as u64;
     for (i, o) in file.objects.iter().enumerate() {
+        // Counted before each object is built: each is bounded (segments, rings and divisions
+        // are clamped), their number is not.
+        triangles += object_triangles(o);
+        crate::limits::check_triangles(triangles).map_err(|e| SceneError::limit(label, e))?;
         let (mesh, obj_name) = object_mesh(o, i, &mut scene, &by_name).map_err(err)?;
         if objects.insert(obj_name.clone(), mesh).is_some() {
             return Err(err(format!("object name {obj_name:?} is used twice")));
@@ -130,6 +147,18 @@ fn look(
             .copied()
             .ok_or_else(|| format!("object {object:?} uses unknown material {m:?}")),
         (None, d) => Ok(scene.add_material(Material::diffuse(object, d.unwrap_or([0.8; 3])))),
+    }
+}
+
+/// At most how many triangles `o` builds (with the clamps of [`object_mesh`]).
+fn object_triangles(o: &ObjectSpec) -> u64 {
+    match o {
+        ObjectSpec::Plane { divisions, .. } => 2 * u64::from((*divisions).clamp(1, 256)).pow(2),
+        ObjectSpec::Box { .. } => 12,
+        ObjectSpec::Sphere {
+            segments, rings, ..
+        } => 2 * u64::from((*segments).clamp(3, 1024)) * u64::from((*rings).clamp(2, 512)),
+        ObjectSpec::Cylinder { segments, .. } => 4 * u64::from((*segments).clamp(3, 1024)),
     }
 }
 

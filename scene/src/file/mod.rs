@@ -37,26 +37,43 @@ pub fn load(path_or_builtin: &str) -> Result<Scene, SceneError> {
     }
 }
 
-/// Reads and builds a scene file; a referenced glTF is resolved relative to the file's folder.
+/// Reads and builds a scene file (a regular file of at most
+/// [`crate::limits::MAX_SCENE_FILE_BYTES`]); a referenced glTF is resolved relative to the file's
+/// folder and must lie inside it.
 pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
     let label = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|e| SceneError::Io {
+    let io = |message: String| SceneError::Io {
         path: label.clone(),
-        message: e.to_string(),
-    })?;
-    let base = path.parent().filter(|p| !p.as_os_str().is_empty());
-    parse_scene_file(&text, &label, Some(base.unwrap_or(Path::new("."))))
+        message,
+    };
+    let bytes =
+        crate::input::read_bounded(path, crate::limits::MAX_SCENE_FILE_BYTES).map_err(io)?;
+    let text = String::from_utf8(bytes).map_err(|_| io("the file is not UTF-8 text".into()))?;
+    parse_scene_file(&text, &label, Some(crate::gltf_load::model_folder(path)))
 }
 
-/// Builds a scene from scene-file text; `label` names it in errors, `base` resolves the glTF path.
+/// Builds a scene from scene-file text; `label` names it in errors, `base` is the folder the
+/// glTF path is resolved in (and must stay inside; the current folder when `None`). The scene is
+/// checked against [`crate::limits`].
 pub fn parse_scene_file(text: &str, label: &str, base: Option<&Path>) -> Result<Scene, SceneError> {
     let file = parse(text, label)?;
-    build::build(&file, label, base)
+    let scene = build::build(&file, label, base)?;
+    scene
+        .check_limits()
+        .map_err(|e| SceneError::limit(label, e))?;
+    Ok(scene)
 }
 
 /// Parses and version-checks scene-file text without building it.
 pub fn parse(text: &str, label: &str) -> Result<SceneFile, SceneError> {
     let err = |m: String| SceneError::file(label, m);
+    if text.len() as u64 > crate::limits::MAX_SCENE_FILE_BYTES {
+        return Err(err(format!(
+            "{} bytes exceed the {}-byte limit of a scene file",
+            text.len(),
+            crate::limits::MAX_SCENE_FILE_BYTES
+        )));
+    }
     // The version is read first so that a newer file gets a version error, not a field error.
     let table: toml::Table = toml::from_str(text).map_err(|e| err(e.to_string()))?;
     match table.get("version") {

@@ -2,14 +2,19 @@
 //! naming the accessor instead of a panic or an out-of-bounds slice (the `gltf` crate's own reader
 //! trusts byte ranges and strides).
 
+use crate::limits::Budget;
 use gltf::accessor::{DataType, Dimensions, sparse::IndexType};
 
 /// Most elements an accessor may declare: guards allocations driven by untrusted counts.
 const MAX_ELEMENTS: usize = 1 << 26;
 
-/// The decoded buffers of a document, indexed like `document.buffers()`.
+/// The decoded buffers of a document, indexed like `document.buffers()`, with what the model may
+/// still read from files (`files`: buffers and images) and decode (`decoded`: accessors and
+/// images).
 pub(super) struct Buffers {
     pub data: Vec<Vec<u8>>,
+    pub files: Budget,
+    pub decoded: Budget,
 }
 
 /// A reading failure; the loader wraps it with the file name.
@@ -95,6 +100,13 @@ impl Buffers {
             return Err(format!("accessor {id} ({what}) declares {count} elements"));
         }
         let elem = acc.size();
+        // What this read keeps (4 bytes per component, at least the dense copy's size), charged
+        // before anything is allocated: an accessor is read once per use, and a small file can
+        // name a large sparse accessor many times.
+        let kept = (count as u64) * (acc.dimensions().multiplicity() as u64) * 4;
+        self.decoded
+            .take(kept.max(count as u64 * elem as u64))
+            .map_err(|e| format!("accessor {id} ({what}): {e}"))?;
         if matches!(acc.dimensions(), Dimensions::Mat2 | Dimensions::Mat3)
             && acc.data_type().size() < 4
         {

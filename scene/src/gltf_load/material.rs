@@ -7,6 +7,7 @@
 //! contributes its mean metallic and roughness (the Blinn-Phong terms are per material).
 
 use super::accessor::Buffers;
+use crate::limits::{Budget, MAX_TEXTURE_SIDE};
 use crate::model::{AlphaMode, Material, Texture};
 use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
@@ -161,21 +162,37 @@ impl<'a> MaterialLoader<'a> {
             .unwrap_or_else(|| format!("image {}", image.index()));
         let bytes = match image.source() {
             gltf::image::Source::View { view, .. } => self.bufs.view_bytes(&view)?.to_vec(),
-            gltf::image::Source::Uri { uri, .. } => read_uri(uri, self.base)?,
+            gltf::image::Source::Uri { uri, .. } => read_uri(uri, self.base, &self.bufs.files)
+                .map_err(|e| format!("texture {name} ({uri}): {e}"))?,
         };
-        let decoded = image::load_from_memory(&bytes)
-            .map_err(|e| format!("texture {name}: cannot decode: {e}"))?
-            .to_rgba8();
+        let cannot = |e: &dyn std::fmt::Display| format!("texture {name}: cannot decode: {e}");
+        let mut reader = image::ImageReader::new(std::io::Cursor::new(&bytes))
+            .with_guessed_format()
+            .map_err(|e| cannot(&e))?;
+        // Sides and memory checked from the header, before the image is decoded.
+        let mut limits = image::Limits::default();
+        limits.max_image_width = Some(MAX_TEXTURE_SIDE);
+        limits.max_image_height = Some(MAX_TEXTURE_SIDE);
+        limits.max_alloc = Some(self.bufs.decoded.left());
+        reader.limits(limits);
+        let decoded = reader.decode().map_err(|e| cannot(&e))?.to_rgba8();
+        self.bufs
+            .decoded
+            .take(decoded.len() as u64)
+            .map_err(|e| format!("texture {name}: {e}"))?;
         Ok((name, decoded))
     }
 }
 
-/// The bytes behind a buffer or image URI: a base64 data URI or a path relative to `base`.
-pub(super) fn read_uri(uri: &str, base: Option<&Path>) -> Result<Vec<u8>, String> {
+/// The bytes behind a buffer or image URI: a base64 data URI, or a path relative to `base` that
+/// stays inside it (a regular file, read within what `files` has left).
+pub(super) fn read_uri(uri: &str, base: Option<&Path>, files: &Budget) -> Result<Vec<u8>, String> {
     if uri.starts_with("data:") {
-        return gltf::buffer::Data::from_source(gltf::buffer::Source::Uri(uri), None)
+        let bytes = gltf::buffer::Data::from_source(gltf::buffer::Source::Uri(uri), None)
             .map(|d| d.0)
-            .map_err(|e| format!("bad data URI: {e}"));
+            .map_err(|e| format!("bad data URI: {e}"))?;
+        files.take(bytes.len() as u64).map_err(|e| e.to_string())?;
+        return Ok(bytes);
     }
     if uri.contains(':') {
         return Err(format!("unsupported URI scheme in {uri:?}"));
@@ -184,8 +201,10 @@ pub(super) fn read_uri(uri: &str, base: Option<&Path>) -> Result<Vec<u8>, String
     let base = base.ok_or_else(|| {
         format!("{rel:?} is an external file but the glTF was given as bytes without a folder")
     })?;
-    let path = base.join(&rel);
-    std::fs::read(&path).map_err(|e| format!("cannot read {}: {e}", path.display()))
+    let path = crate::input::resolve_inside(base, &rel, "the model's")?;
+    let bytes = crate::input::read_bounded(&path, files.left())?;
+    files.take(bytes.len() as u64).map_err(|e| e.to_string())?;
+    Ok(bytes)
 }
 
 /// RFC 3986 percent-decoding of a relative URI (the `gltf` crate's own decoder panics on bad

@@ -17,6 +17,8 @@ pub(super) struct NodeContext<'a> {
     /// World matrix of every node.
     pub world: &'a [Mat4],
     pub ignored: &'a mut BTreeSet<String>,
+    /// Triangles of the model so far (instances counted each time), for the scene limit.
+    pub triangles: u64,
 }
 
 /// The meshes of one node's primitives; `material` maps a glTF material index (None = default).
@@ -44,6 +46,14 @@ pub(super) fn node_meshes(
         let pos_acc = prim
             .get(&Semantic::Positions)
             .ok_or_else(|| format!("{at} has no POSITION attribute"))?;
+        // The triangles this primitive declares, counted before anything is read (instances
+        // count each time: one mesh placed by many nodes is many meshes).
+        let declared = prim.indices().map_or(pos_acc.count(), |a| a.count()) as u64;
+        ctx.triangles += match mode {
+            Mode::Triangles => declared / 3,
+            _ => declared.saturating_sub(2),
+        };
+        crate::limits::check_triangles(ctx.triangles).map_err(|e| format!("{at}: {e}"))?;
         let (pos, _) = ctx
             .bufs
             .read_f32(&pos_acc, &[Dimensions::Vec3], "POSITION")?;

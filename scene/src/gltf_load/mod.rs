@@ -5,7 +5,10 @@
 //!
 //! Untrusted input: every index and byte range is checked here; the `gltf` crate is known to
 //! panic on some malformed input (URI decoding, its accessor reader), so the walk over the
-//! document is additionally guarded and a panic becomes an error naming the file.
+//! document is additionally guarded and a panic becomes an error naming the file. Buffer and
+//! image URIs are read only inside the model's folder and only from regular files; the files of
+//! one model together, what their accessors and images decode to, and its triangles are bounded
+//! by [`crate::limits`].
 
 mod accessor;
 mod material;
@@ -15,6 +18,7 @@ pub use material::shininess_from_roughness;
 
 use crate::error::SceneError;
 use crate::framing;
+use crate::limits::{self, Budget};
 use crate::model::{Camera, Light, LightShape, Material, Scene};
 use crate::shading::normalize;
 use accessor::Buffers;
@@ -59,29 +63,43 @@ pub fn load_gltf(path: &Path) -> Result<Scene, SceneError> {
 /// Loads a `.gltf` or `.glb` file.
 pub fn load_gltf_with(path: &Path, opts: &GltfOptions) -> Result<Scene, SceneError> {
     let label = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|e| SceneError::Io {
-        path: label.clone(),
-        message: e.to_string(),
-    })?;
+    let bytes = read_model(path)?;
     let name = path
         .file_stem()
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "gltf".into());
-    let imported = import(&bytes, &label, &name, path.parent(), opts)?;
-    Ok(finish(imported, opts))
+    let imported = import(&bytes, &label, &name, Some(model_folder(path)), opts)?;
+    finish(imported, &label, opts)
 }
 
-/// Loads glTF or GLB bytes; `label` names them in errors, `base` resolves relative URIs.
+/// The bytes of a `.gltf` or `.glb` file: a regular file of at most
+/// [`limits::MAX_SCENE_BYTES`].
+pub(crate) fn read_model(path: &Path) -> Result<Vec<u8>, SceneError> {
+    crate::input::read_bounded(path, limits::MAX_SCENE_BYTES).map_err(|message| SceneError::Io {
+        path: path.display().to_string(),
+        message,
+    })
+}
+
+/// The folder a model's relative URIs are resolved in (`.` for a bare file name).
+pub(crate) fn model_folder(path: &Path) -> &Path {
+    path.parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."))
+}
+
+/// Loads glTF or GLB bytes; `label` names them in errors, `base` resolves relative URIs (which
+/// must stay inside it); without `base` only embedded and data URIs are read.
 pub fn load_gltf_slice(
     bytes: &[u8],
     label: &str,
     base: Option<&Path>,
     opts: &GltfOptions,
 ) -> Result<Scene, SceneError> {
-    Ok(finish(import(bytes, label, label, base, opts)?, opts))
+    finish(import(bytes, label, label, base, opts)?, label, opts)
 }
 
-fn finish(mut imported: Imported, opts: &GltfOptions) -> Scene {
+fn finish(mut imported: Imported, label: &str, opts: &GltfOptions) -> Result<Scene, SceneError> {
     if opts.complete {
         framing::complete(&mut imported.scene, imported.has_camera);
     }
@@ -89,7 +107,11 @@ fn finish(mut imported: Imported, opts: &GltfOptions) -> Scene {
     if !report.is_clean() {
         tracing::warn!(scene = %imported.scene.name, %report, "glTF geometry sanitised");
     }
-    imported.scene
+    imported
+        .scene
+        .check_limits()
+        .map_err(|e| SceneError::limit(label, e))?;
+    Ok(imported.scene)
 }
 
 pub(crate) fn import(
@@ -103,11 +125,29 @@ pub(crate) fn import(
         path: label.to_string(),
         message,
     };
+    if bytes.len() as u64 > limits::MAX_SCENE_BYTES {
+        return Err(SceneError::limit(
+            label,
+            limits::LimitError::Bytes {
+                what: "the model's files",
+                bytes: bytes.len() as u64,
+            },
+        ));
+    }
     let parsed = catch_unwind(|| gltf::Gltf::from_slice(bytes))
         .map_err(|p| err(format!("the glTF parser panicked: {}", panic_text(&p))))?;
     let gltf = parsed.map_err(|e| err(describe(&e)))?;
     let walk = catch_unwind(AssertUnwindSafe(|| {
-        convert(&gltf.document, gltf.blob.as_deref(), name, base, opts)
+        let files = Budget::new("the model's files");
+        files.take(bytes.len() as u64).map_err(|e| e.to_string())?;
+        convert(
+            &gltf.document,
+            gltf.blob.as_deref(),
+            name,
+            base,
+            files,
+            opts,
+        )
     }));
     match walk {
         Ok(r) => r.map_err(err),
@@ -143,10 +183,11 @@ fn convert(
     blob: Option<&[u8]>,
     name: &str,
     base: Option<&Path>,
+    files: Budget,
     opts: &GltfOptions,
 ) -> Result<Imported, String> {
     let mut ignored = BTreeSet::new();
-    let bufs = load_buffers(doc, blob, base)?;
+    let bufs = load_buffers(doc, blob, base, files)?;
     let root = Mat4::from_scale_rotation_translation(
         Vec3::splat(opts.scale),
         Quat::IDENTITY,
@@ -168,6 +209,7 @@ fn convert(
         bufs: &bufs,
         world: &world,
         ignored: &mut ignored,
+        triangles: 0,
     };
     for node in scene_nodes(doc)? {
         let w = world[node.index()];
@@ -225,19 +267,30 @@ fn load_buffers(
     doc: &gltf::Document,
     blob: Option<&[u8]>,
     base: Option<&Path>,
+    files: Budget,
 ) -> Result<Buffers, String> {
+    let decoded = Budget::new("the model's decoded buffers, accessors and images");
     let mut data = Vec::new();
+    let mut blob_copies = 0;
     for b in doc.buffers() {
         let bytes = match b.source() {
-            gltf::buffer::Source::Bin => blob
-                .ok_or_else(|| {
+            gltf::buffer::Source::Bin => {
+                let blob = blob.ok_or_else(|| {
                     format!(
                         "buffer {} refers to a GLB binary chunk the file lacks",
                         b.index()
                     )
-                })?
-                .to_vec(),
-            gltf::buffer::Source::Uri(uri) => material::read_uri(uri, base)
+                })?;
+                // The first copy is the file's own bytes again; any further one is new memory.
+                blob_copies += 1;
+                if blob_copies > 1 {
+                    decoded
+                        .take(blob.len() as u64)
+                        .map_err(|e| format!("buffer {}: {e}", b.index()))?;
+                }
+                blob.to_vec()
+            }
+            gltf::buffer::Source::Uri(uri) => material::read_uri(uri, base, &files)
                 .map_err(|e| format!("buffer {} ({uri}): {e}", b.index()))?,
         };
         if bytes.len() < b.length() {
@@ -250,7 +303,11 @@ fn load_buffers(
         }
         data.push(bytes);
     }
-    Ok(Buffers { data })
+    Ok(Buffers {
+        data,
+        files,
+        decoded,
+    })
 }
 
 /// World matrix of every node: `root · parent chain · local`. Rejects nodes with two parents and
