@@ -237,14 +237,14 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
         };
         let me = Identity::new(&token, Role::Coordinator, "coordinator");
         let cancel = crate::lifecycle::shutdown_token(args.parent_pid);
-        let work = async {
-            let session = Session::connect(&daemons, listener, sink_advertise, me, control).await?;
-            execute(session, &scene, &opts, &args.job, args.shutdown).await
-        };
-        tokio::select! {
-            r = work => r,
+        let connect = Session::connect(&daemons, listener, sink_advertise, me, control);
+        let session = tokio::select! {
+            r = connect => r?,
             _ = cancel.cancelled() => bail!("interrupted"),
-        }
+        };
+        // Ctrl-C from here on: no new frame is requested, the frames in flight are finished and
+        // written, and the summary is printed.
+        execute(session, &scene, &opts, &args.job, args.shutdown, cancel).await
     })
 }
 
@@ -264,6 +264,7 @@ pub async fn execute(
     opts: &RunOptions,
     job: &JobArgs,
     shutdown: bool,
+    stop: tokio_util::sync::CancellationToken,
 ) -> anyhow::Result<()> {
     let start = std::time::Instant::now();
     if let Some(dir) = &job.frame_dir {
@@ -282,13 +283,19 @@ pub async fn execute(
         pb
     });
     let writer = FrameWriter::start(job, scene.exposure);
-    let outcome = lightfold_coordinator::run::render(&mut session, scene, opts, |frame| {
-        report.record(&frame);
-        if let Some(pb) = &progress {
-            pb.inc(1);
-        }
-        writer.send(frame);
-    })
+    let outcome = lightfold_coordinator::run::render_until(
+        &mut session,
+        scene,
+        opts,
+        stop.clone(),
+        |frame| {
+            report.record(&frame);
+            if let Some(pb) = &progress {
+                pb.inc(1);
+            }
+            writer.send(frame);
+        },
+    )
     .await;
     if let Some(pb) = progress {
         pb.finish_and_clear();
@@ -317,6 +324,13 @@ pub async fn execute(
     if let Some(e) = outcome.error {
         bail!(
             "the run stopped after {} of {} frame(s): {e}",
+            outcome.summary.delivered,
+            opts.frames
+        );
+    }
+    if stop.is_cancelled() {
+        bail!(
+            "interrupted after {} of {} frame(s); the frames done are written",
             outcome.summary.delivered,
             opts.frames
         );

@@ -187,3 +187,36 @@ fn a_stopped_node_is_named_and_every_frame_arrives() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn an_interrupted_run_keeps_every_frame_it_finished() {
+    let dir = work_dir("failover-int");
+    let demo = start_demo(&dir, 500);
+    wait_for("frame 3", Duration::from_secs(300), || {
+        frames_written(&dir) >= 3
+    });
+    // Ctrl-C reaches the coordinator: it requests nothing more and finishes what is in flight.
+    signal("-INT", &pid_of(&dir, "coordinator"));
+    let out = demo.wait_with_output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "an interrupted run is not a success");
+    assert!(
+        stderr.contains("interrupted after"),
+        "no interruption message:\n{stdout}\n{stderr}"
+    );
+    let kept = frames_written(&dir);
+    assert!((3..500).contains(&kept), "{kept} frames kept");
+    // Every frame on disk is whole, in order from 1.
+    for i in 1..=kept {
+        let path = dir.join("frames").join(format!("frame-{i:05}.exr"));
+        let img = lightfold_scene::Image::read_exr(&path)
+            .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        assert_eq!((img.width, img.height), (96, 72));
+    }
+    assert!(
+        stdout.contains(&format!("failover: {kept} frame(s) delivered")),
+        "{stdout}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -9,6 +9,7 @@ use crate::plan::{ClusterSpec, DaemonSpec, Plan, PlanError, PlanOptions};
 use lightfold_protocol::{FrameParams, Role};
 use lightfold_scene::{Camera, Scene};
 use std::collections::HashMap;
+use tokio_util::sync::CancellationToken;
 
 /// The frames to render.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -203,12 +204,25 @@ pub async fn render(
     opts: &RunOptions,
     on_frame: impl FnMut(FrameResult),
 ) -> RunOutcome {
+    render_until(session, scene, opts, CancellationToken::new(), on_frame).await
+}
+
+/// As `render`, but when `stop` is cancelled (Ctrl-C) no further frame is requested: the frames
+/// in flight are finished and handed over, and the run ends early without an error.
+pub async fn render_until(
+    session: &mut Session,
+    scene: &Scene,
+    opts: &RunOptions,
+    stop: CancellationToken,
+    on_frame: impl FnMut(FrameResult),
+) -> RunOutcome {
     let specs = frame_specs(scene, opts);
     let (tx, rx) = tokio::sync::mpsc::channel(opts.control.frames_in_flight.max(1));
     let feeder = tokio::spawn(async move {
         for s in specs {
-            if tx.send(s).await.is_err() {
-                return;
+            tokio::select! {
+                _ = stop.cancelled() => return,
+                r = tx.send(s) => if r.is_err() { return },
             }
         }
     });
