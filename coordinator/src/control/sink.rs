@@ -79,7 +79,10 @@ pub async fn run_sink(
         };
         // A stray connection (a port scan, a probe) is refused and logged; it never ends the job.
         let Some(slot) = gate.admit() else {
-            gate.refused(&peer.to_string(), &"too many connections are authenticating");
+            gate.refused(
+                &peer.to_string(),
+                &"too many connections are authenticating",
+            );
             continue;
         };
         let (me, out, geometry, cancel) =
