@@ -212,6 +212,21 @@ pub async fn render_on(
         .context("the run timed out")?
 }
 
+/// A small orbit (4° per frame) over `frames` frames at K = `k` with fixed-size shadow maps, so
+/// re-plans that change K do not change the maps: the failover and hostile-peer runs.
+pub fn orbit_options(frames: u32, k: u32) -> RunOptions {
+    let mut opts = RunOptions {
+        control: test_control(),
+        frames,
+        path: lightfold_coordinator::run::FramePath::Orbit { degrees: 4.0 },
+        ..RunOptions::default()
+    };
+    opts.plan.lights_per_node = k;
+    opts.plan.map_sizing =
+        lightfold_coordinator::plan::MapSizing::Fixed(lightfold_scene::defaults::SHADOW_MAP_SIZE);
+    opts
+}
+
 /// Control deadlines for tests: short enough to fail fast, long enough for lavapipe.
 pub fn test_control() -> ControlOptions {
     ControlOptions {

@@ -7,11 +7,11 @@
 
 use lightfold_coordinator::control::{ControlError, IncidentKind, Live, LiveSummary};
 use lightfold_coordinator::plan::MapSizing;
-use lightfold_coordinator::run::{FramePath, RunError, RunOptions, camera_at};
+use lightfold_coordinator::run::{RunError, RunOptions, camera_at};
 use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_scene::Scene;
 use lightfold_tests::{
-    InProcessCluster, RunOutput, assert_close, single_device, small, test_control,
+    InProcessCluster, RunOutput, assert_close, orbit_options, single_device, small,
 };
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
@@ -22,13 +22,7 @@ const FRAMES: u32 = 6;
 /// `balls` at 64×48 with 8 samples, K = 2: four render nodes and four stages in a chain.
 fn setup() -> (Scene, RunOptions) {
     let scene = small("balls");
-    let mut opts = RunOptions {
-        control: test_control(),
-        frames: FRAMES,
-        path: FramePath::Orbit { degrees: 4.0 },
-        ..RunOptions::default()
-    };
-    opts.plan.lights_per_node = 2;
+    let mut opts = orbit_options(FRAMES, 2);
     opts.plan.map_sizing = MapSizing::Fixed(scene.quality.shadow_map_size);
     (scene, opts)
 }
@@ -292,5 +286,68 @@ async fn a_second_coordinator_is_refused_unless_it_takes_over() {
         Some(RunError::Control(ControlError::TakenOver { .. })) => {}
         other => panic!("the first coordinator should be told it was taken over: {other:?}"),
     }
+    cluster.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn too_few_daemons_is_a_clear_error_unless_told_to_wait() {
+    let (scene, mut opts) = setup();
+    opts.plan.lights_per_node = 8;
+    opts.control.redial = Duration::from_millis(200);
+    // One stage only: losing it leaves no plan.
+    let mut cluster = InProcessCluster::start(1, 1).await.unwrap();
+    let (out, _) = {
+        let stop = cluster.stop_token("comp-0").unwrap();
+        let mut session = cluster.connect(opts.control).await.unwrap();
+        let mut frames = Vec::new();
+        let outcome = lightfold_coordinator::run::render(&mut session, &scene, &opts, |f| {
+            if f.frame == 2 {
+                stop.cancel();
+            }
+            frames.push(f);
+        })
+        .await;
+        session.detach();
+        (outcome, frames.len())
+    };
+    let msg = out.error.expect("the run cannot go on").to_string();
+    assert!(
+        msg.contains("no plan fits the daemons left") && msg.contains("comp-0"),
+        "{msg}"
+    );
+    assert!(
+        out.summary.delivered >= 2,
+        "the frames before the loss were delivered"
+    );
+    cluster.kill("comp-0").await.unwrap();
+
+    // Told to wait, the run picks the stage up again when it is restarted.
+    cluster.restart("comp-0").await.unwrap();
+    let stop = cluster.stop_token("comp-0").unwrap();
+    opts.control.wait_for_daemons = Duration::from_secs(60);
+    let mut session = cluster.connect(opts.control).await.unwrap();
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<()>();
+    let mut frames = Vec::new();
+    let run = lightfold_coordinator::run::render(&mut session, &scene, &opts, |f| {
+        if f.frame == 2 {
+            stop.cancel();
+            let _ = tx.send(());
+        }
+        frames.push(f);
+    });
+    let supervisor = async {
+        rx.recv().await;
+        cluster.kill("comp-0").await.unwrap();
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        cluster.restart("comp-0").await.unwrap();
+    };
+    let (outcome, ()) = tokio::time::timeout(lightfold_tests::RUN_DEADLINE, async {
+        tokio::join!(run, supervisor)
+    })
+    .await
+    .expect("timed out");
+    session.detach();
+    assert!(outcome.error.is_none(), "{:?}", outcome.error);
+    assert_eq!(frames.len(), FRAMES as usize);
     cluster.stop().await.unwrap();
 }

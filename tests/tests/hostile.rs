@@ -3,11 +3,10 @@
 //! daemon, and a second link claiming a live producer's id. Every frame still arrives, with no
 //! re-plan, and the daemons' memory does not follow the hostile frames.
 
-use lightfold_coordinator::plan::MapSizing;
-use lightfold_coordinator::run::{FramePath, RunOptions};
+use lightfold_coordinator::run::RunOptions;
 use lightfold_net::Identity;
 use lightfold_protocol::Role;
-use lightfold_tests::{InProcessCluster, RunOutput, small, test_control};
+use lightfold_tests::{InProcessCluster, RunOutput, orbit_options, small};
 use std::time::Duration;
 use tokio::io::AsyncWriteExt;
 
@@ -17,15 +16,7 @@ const FRAMES: u32 = 30;
 static ONE_AT_A_TIME: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
 
 fn options() -> RunOptions {
-    let mut opts = RunOptions {
-        control: test_control(),
-        frames: FRAMES,
-        path: FramePath::Orbit { degrees: 4.0 },
-        ..RunOptions::default()
-    };
-    opts.plan.lights_per_node = 2;
-    opts.plan.map_sizing = MapSizing::Fixed(512);
-    opts
+    orbit_options(FRAMES, 2)
 }
 
 /// This process's peak resident memory (VmHWM), bytes.

@@ -39,7 +39,7 @@ pub(crate) struct ProducerLink {
 
 /// Links accepted from producers, by authenticated daemon id, not yet claimed by an input slot,
 /// and the state of each producer's attached link (so a second link claiming a live producer's
-/// id is refused instead of displacing it).
+/// id is refused instead of displacing it, where the stage can tell the old link is alive).
 #[derive(Debug, Default)]
 pub(crate) struct Registry {
     parked: Mutex<HashMap<String, ProducerLink>>,
@@ -66,6 +66,9 @@ pub(crate) struct LinkState {
     /// Cancelled when the pump stops (the link ended or was let go).
     pub ended: CancellationToken,
     last_band: Mutex<Instant>,
+    /// Whether the pump is waiting on the socket (it would see the link end at once), rather than
+    /// on the stage (backpressure: then an ended link goes unnoticed until the stage catches up).
+    reading: std::sync::atomic::AtomicBool,
 }
 
 /// A producer that reconnects has closed its old link: its end reaches us this soon.
@@ -96,7 +99,10 @@ impl Registry {
                 .unwrap_or_else(|e| e.into_inner())
                 .elapsed()
                 >= IDLE;
-            if ended.is_err() && !idle {
+            // Only a pump that is reading would have seen the old link end: one held back by
+            // the stage cannot tell, so the newer link (a producer that reconnected) wins.
+            let watching = old.reading.load(std::sync::atomic::Ordering::Acquire);
+            if ended.is_err() && !idle && watching {
                 return Offer::Duplicate {
                     live: old.addr.clone(),
                 };
@@ -318,6 +324,7 @@ impl Slot {
             addr: link.reader.addr.clone(),
             ended: CancellationToken::new(),
             last_band: Mutex::new(Instant::now()),
+            reading: std::sync::atomic::AtomicBool::new(false),
         });
         ctx.registry.attach(&self.peer, Arc::clone(&state));
         ctx.tracker.spawn(pump(
@@ -372,10 +379,16 @@ async fn pump(
         writer: _writer,
     } = link;
     loop {
+        state
+            .reading
+            .store(true, std::sync::atomic::Ordering::Release);
         let frame = tokio::select! {
             _ = cancel.cancelled() => return,
             f = link.next() => f,
         };
+        state
+            .reading
+            .store(false, std::sync::atomic::Ordering::Release);
         let (header, payload) = match frame {
             None => return,
             Some(Err(e)) => {

@@ -154,15 +154,7 @@ impl Live<'_> {
                     self.session.scenes.insert(id, hash);
                 }
                 Message::Error { code, message } if pending.contains(&id) => {
-                    return Err(Halt::Fatal(
-                        ControlError::Remote {
-                            address: self.session.address(&id),
-                            id,
-                            code,
-                            message,
-                        }
-                        .into(),
-                    ));
+                    return Err(self.refused(id, code, message));
                 }
                 other => self.ignore(&id, other),
             }
@@ -207,15 +199,7 @@ impl Live<'_> {
                 Message::Error { code, message }
                     if waiting.contains(&id) && refuses_configuration(code, &message) =>
                 {
-                    return Err(Halt::Fatal(
-                        ControlError::Remote {
-                            address: self.session.address(&id),
-                            id,
-                            code,
-                            message,
-                        }
-                        .into(),
-                    ));
+                    return Err(self.refused(id, code, message));
                 }
                 other => self.ignore(&id, other),
             }
@@ -252,6 +236,19 @@ impl Live<'_> {
         self.established_at = Instant::now();
         self.sent_in_epoch = 0;
         Ok(())
+    }
+
+    /// A daemon of the new plan refused it: the run cannot go on.
+    fn refused(&self, id: String, code: ErrorCode, message: String) -> Halt {
+        Halt::Fatal(
+            ControlError::Remote {
+                address: self.session.address(&id),
+                id,
+                code,
+                message,
+            }
+            .into(),
+        )
     }
 
     pub(super) fn check_interrupted(&self, members: &BTreeSet<String>) -> Result<(), Halt> {
