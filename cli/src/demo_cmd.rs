@@ -31,12 +31,16 @@ pub struct Args {
 }
 
 /// Spawned daemons, killed and reaped on drop (so every exit path, panics included, cleans up).
-struct Children(Vec<(String, Child)>);
+/// `soak` replaces entries when it restarts a daemon.
+pub(crate) struct Children(pub(crate) Vec<(String, Child)>);
 
 impl Drop for Children {
     fn drop(&mut self) {
         for (_, c) in &mut self.0 {
-            terminate(c);
+            // A child already reaped may have passed its pid on to another process.
+            if matches!(c.try_wait(), Ok(None)) {
+                terminate(c);
+            }
         }
         let deadline = Instant::now() + Duration::from_secs(5);
         for (name, c) in &mut self.0 {
@@ -96,7 +100,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut children = Children(Vec::new());
     for i in 0..nodes {
         let id = format!("node-{i}");
-        let mut cmd = daemon_command(&exe, "node", &id, &token_path, &args.daemon_log);
+        let mut cmd = daemon_command(&exe, "node", &id, &token_path, &args.daemon_log, ANY_PORT);
         if args.gpu_threads > 0 {
             cmd.env("LP_NUM_THREADS", args.gpu_threads.to_string());
         }
@@ -105,7 +109,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     for i in 0..compositors {
         let id = format!("comp-{i}");
-        let mut cmd = daemon_command(&exe, "compositor", &id, &token_path, &args.daemon_log);
+        let mut cmd = daemon_command(
+            &exe,
+            "compositor",
+            &id,
+            &token_path,
+            &args.daemon_log,
+            ANY_PORT,
+        );
         let child = cmd.spawn().with_context(|| format!("cannot start {id}"))?;
         children.0.push((id, child));
     }
@@ -183,7 +194,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn write_token(path: &Path) -> anyhow::Result<()> {
+pub(crate) fn write_token(path: &Path) -> anyhow::Result<()> {
     use std::io::{Read, Write};
     let mut bytes = [0u8; 32];
     std::fs::File::open("/dev/urandom")?.read_exact(&mut bytes)?;
@@ -196,13 +207,25 @@ fn write_token(path: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn daemon_command(exe: &Path, role: &str, id: &str, token: &Path, log: &str) -> Command {
+/// Where the demo's daemons listen: loopback, a port the kernel picks.
+pub(crate) const ANY_PORT: &str = "127.0.0.1:0";
+
+/// The command line of one daemon of a local cluster, listening on `listen` (`ANY_PORT`, or a
+/// port it had before when a daemon is restarted); stdout is piped for `read_listening`.
+pub(crate) fn daemon_command(
+    exe: &Path,
+    role: &str,
+    id: &str,
+    token: &Path,
+    log: &str,
+    listen: &str,
+) -> Command {
     let mut cmd = Command::new(exe);
     cmd.arg("--log")
         .arg(log)
         .arg(role)
         .arg("--listen")
-        .arg("127.0.0.1:0")
+        .arg(listen)
         .arg("--id")
         .arg(id)
         .arg("--token-file")
@@ -216,7 +239,11 @@ fn daemon_command(exe: &Path, role: &str, id: &str, token: &Path, log: &str) -> 
 }
 
 /// Reads the daemon's `listening <addr>` line from its stdout.
-fn read_listening(child: &mut Child, name: &str, deadline: Instant) -> anyhow::Result<String> {
+pub(crate) fn read_listening(
+    child: &mut Child,
+    name: &str,
+    deadline: Instant,
+) -> anyhow::Result<String> {
     let stdout = child
         .stdout
         .take()
@@ -236,7 +263,10 @@ fn read_listening(child: &mut Child, name: &str, deadline: Instant) -> anyhow::R
             None => bail!("{name} printed {line:?} instead of its address"),
         },
         Ok(_) => bail!("{name} exited before it was listening"),
-        Err(_) => bail!("{name} did not start listening within 30 s"),
+        Err(_) => bail!(
+            "{name} did not start listening within {:.0} s",
+            left.as_secs_f64()
+        ),
     }
 }
 
@@ -267,7 +297,7 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
 }
 
 /// CPU seconds (user + system) a process has used so far, from `/proc/<pid>/stat`; 0 if unknown.
-fn cpu_seconds(pid: u32) -> f64 {
+pub(crate) fn cpu_seconds(pid: u32) -> f64 {
     let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
         return 0.0;
     };

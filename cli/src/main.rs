@@ -1,4 +1,4 @@
-//! The one `lightfold` binary: every daemon role and every tool (render, plan, demo, bench,
+//! The one `lightfold` binary: every daemon role and every tool (render, plan, demo, soak, bench,
 //! accuracy) as a subcommand. Each subcommand lives in its own module with an `Args` struct and a
 //! `run` function; this file only dispatches.
 
@@ -16,6 +16,7 @@ mod lifecycle;
 mod node_cmd;
 mod plan_cmd;
 mod render_cmd;
+mod soak_cmd;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -56,6 +57,9 @@ enum Command {
     Plan(plan_cmd::Args),
     /// Render one image to EXR + PNG (`--reference`: on the CPU with ray-traced shadows).
     Render(render_cmd::Args),
+    /// Failover soak: a local cluster under random daemon faults (kill, stop, terminate and
+    /// restart); every frame checked; detection and recovery times, re-plans, peak RSS.
+    Soak(soak_cmd::Args),
 }
 
 #[derive(Debug, Subcommand)]
@@ -78,6 +82,7 @@ fn main() -> anyhow::Result<()> {
         Command::Node(args) => node_cmd::run(args),
         Command::Plan(args) => plan_cmd::run(args),
         Command::Render(args) => render_cmd::run(args),
+        Command::Soak(args) => soak_cmd::run(args),
     }
 }
 

@@ -1,0 +1,1760 @@
+//! `lightfold soak`: the failover soak measurement. Starts a local cluster of daemon processes as
+//! `demo` does, each on a fixed loopback port (so that a restarted daemon comes back on its
+//! address with its id, as under a supervisor), runs the coordinator's event loop in this process
+//! over an endless camera orbit, and injects random faults into the daemons: SIGKILL and a
+//! restart after a short delay, SIGSTOP for 0.2–3 s then SIGCONT, SIGTERM and a restart — at
+//! most two daemons at once, each fault after a frame requested since the last one came back.
+//! Every delivered frame is checked, in another thread, against the single-device GPU render of
+//! its camera. Reports frames requested / delivered / lost / duplicated / wrong, detection and
+//! recovery times, re-plans and each daemon's peak RSS, on stdout and as CSV and Markdown under
+//! `--out`; fails if a frame was lost, duplicated, delivered out of order or wrong.
+
+use crate::demo_cmd::{
+    ANY_PORT, Children, cpu_seconds, daemon_command, read_listening, write_token,
+};
+use anyhow::{Context, bail};
+use lightfold_coordinator::control::{
+    ControlOptions, DaemonAddr, FrameResult, FrameSpec, Incident, IncidentKind, Live, LiveSummary,
+    Session,
+};
+use lightfold_coordinator::plan::{ClusterSpec, MapSizing, PlanOptions, plan};
+use lightfold_coordinator::run::{FramePath, camera_at};
+use lightfold_net::{Identity, Timeouts};
+use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+use lightfold_protocol::Role;
+use lightfold_scene::{Image, Scene};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+use tokio_util::sync::CancellationToken;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Built-in scene name, scene file (.toml) or glTF (.gltf/.glb).
+    #[arg(long, default_value = "balls")]
+    pub scene: String,
+    /// Image size as WIDTHxHEIGHT.
+    #[arg(long, default_value = "160x120")]
+    pub size: String,
+    /// Samples per area light (0: the scene's own).
+    #[arg(long, default_value_t = 4)]
+    pub samples: u32,
+    /// Lights per node (K).
+    #[arg(short = 'K', long, default_value_t = 2)]
+    pub lights_per_node: u32,
+    /// Faults to inject.
+    #[arg(long, default_value_t = 100)]
+    pub faults: u32,
+    /// Seed of the fault schedule (victims, kinds, durations, delays).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Directory for the report (soak.md, soak.csv, daemons.csv, faults.csv, epochs.csv) and the
+    /// daemons' logs (logs/ID.log).
+    #[arg(long, default_value = "soak-out")]
+    pub out: PathBuf,
+    /// Degrees the camera orbits per frame.
+    #[arg(long, default_value_t = 2.0)]
+    pub orbit: f32,
+    /// Seconds a daemon may leave heartbeats unanswered before it is lost.
+    #[arg(long, default_value_t = 1.0)]
+    pub heartbeat_timeout: f64,
+    /// Frames delivered before the first fault, and with every daemon back after the last one.
+    #[arg(long, default_value_t = 10)]
+    pub settle_frames: usize,
+    /// Stop injecting after this many seconds (the report covers what happened until then).
+    #[arg(long, default_value_t = 3600.0)]
+    pub max_seconds: f64,
+    /// Lavapipe threads per render node (LP_NUM_THREADS); 0 leaves Mesa's default.
+    #[arg(long, default_value_t = 1)]
+    pub gpu_threads: u32,
+    /// Log filter of the daemons (their logs go to OUT/logs/ID.log).
+    #[arg(long, default_value = "info")]
+    pub daemon_log: String,
+}
+
+/// A SIGSTOP lasts this long at least and at most.
+const STALL: (f64, f64) = (0.2, 3.0);
+/// A killed or terminated daemon is restarted after a delay in this range (seconds).
+const RESTART_DELAY: (f64, f64) = (0.1, 1.0);
+/// Faults are this far apart at least (seconds, drawn), besides waiting for progress.
+const GAP: (f64, f64) = (0.3, 2.5);
+/// At most this many daemons are faulted at once.
+const MAX_CONCURRENT: usize = 2;
+/// A daemon running again that is not back in a delivered frame after this long is given up on.
+const BACK_TIMEOUT: Duration = Duration::from_secs(60);
+/// A daemon told SIGTERM that has not exited after this long is killed (and that is noted).
+const TERM_TIMEOUT: Duration = Duration::from_secs(10);
+/// A restart whose bind fails is tried again this often, this many times.
+const RESTART_RETRY: Duration = Duration::from_millis(250);
+const RESTART_TRIES: u32 = 40;
+
+/// One daemon of the cluster (its process is `children.0[i]` at the same index).
+#[derive(Debug, Clone)]
+struct DaemonInfo {
+    id: String,
+    role: &'static str,
+    addr: String,
+    /// Processes started for it.
+    starts: u32,
+    /// Largest VmHWM (KiB) of its processes so far.
+    hwm_kib: u64,
+    /// CPU seconds of its processes that ended.
+    cpu_done: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Kind {
+    Kill,
+    Stop(Duration),
+    Term,
+}
+
+impl Kind {
+    fn name(&self) -> &'static str {
+        match self {
+            Kind::Kill => "SIGKILL",
+            Kind::Stop(_) => "SIGSTOP",
+            Kind::Term => "SIGTERM",
+        }
+    }
+}
+
+/// One injected fault and what the injector saw of it.
+#[derive(Debug, Clone)]
+struct Fault {
+    daemon: usize,
+    kind: Kind,
+    /// When the signal was sent.
+    at: Instant,
+    /// SIGKILL / SIGTERM: when the process had exited.
+    exited: Option<Instant>,
+    /// When it runs again: restarted and listening, or continued.
+    resumed: Option<Instant>,
+    /// The next action (restart or SIGCONT) is due then.
+    due: Option<Instant>,
+    /// When a frame requested after `resumed` came back with this daemon's report.
+    back: Option<Instant>,
+    restart_tries: u32,
+    gave_up: bool,
+    notes: Vec<String>,
+}
+
+impl Fault {
+    fn active(&self) -> bool {
+        self.back.is_none() && !self.gave_up
+    }
+}
+
+/// A frame handed over by the event loop.
+#[derive(Debug, Clone)]
+struct Delivery {
+    frame: u64,
+    at: Instant,
+    requested_at: Instant,
+    daemons: Vec<String>,
+}
+
+/// What the event loop's callback shares with the injector.
+#[derive(Debug, Default)]
+struct Progress {
+    deliveries: Vec<Delivery>,
+}
+
+/// The check of one frame against the single-device render of its camera.
+#[derive(Debug, Clone)]
+struct Check {
+    frame: u64,
+    ok: bool,
+    outside: usize,
+    channels: usize,
+    energy_ratio: f64,
+    worst: f32,
+    error: Option<String>,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let started = Instant::now();
+    let mut scene = lightfold_scene::load(&args.scene)
+        .with_context(|| format!("cannot load scene {:?}", args.scene))?;
+    let (w, h) = crate::coordinator_cmd::parse_size(&args.size)?;
+    scene.camera.width = w;
+    scene.camera.height = h;
+    if args.samples > 0 {
+        scene.quality.samples_per_area_light = Some(args.samples);
+    }
+    if args.faults > 0 && args.settle_frames == 0 {
+        bail!("--settle-frames must be at least 1");
+    }
+    let path = FramePath::Orbit {
+        degrees: args.orbit,
+    };
+    // Fixed map sizes, so nodes render the maps the single-device check renders.
+    let plan_opts = PlanOptions {
+        lights_per_node: args.lights_per_node,
+        map_sizing: MapSizing::Fixed(scene.quality.shadow_map_size),
+        ..PlanOptions::default()
+    };
+    let probe = plan(&scene, &ClusterSpec::local(256, 256), &plan_opts)?;
+    let (nodes, compositors) = (probe.nodes.len(), probe.stages.len());
+    println!(
+        "soak: scene {:?} {w}x{h}, {} light samples, K = {}: {nodes} render node(s) and \
+         {compositors} compositor(s) on loopback; {} faults, seed {}",
+        scene.name,
+        probe.active.len(),
+        probe.k,
+        args.faults,
+        args.seed
+    );
+    let logs = args.out.join("logs");
+    std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
+    let work = std::env::temp_dir().join(format!("lightfold-soak-{}", std::process::id()));
+    std::fs::create_dir_all(&work)?;
+    let token_path = work.join("token");
+    write_token(&token_path)?;
+    let token = lightfold_net::load_token(Some(&token_path))?;
+
+    let Checker {
+        queue: check_tx,
+        thread: checker,
+        adapter,
+    } = spawn_checker(scene.clone(), path)?;
+    let mut machine = Machine::probe(adapter);
+
+    let exe = std::env::current_exe().context("cannot find the lightfold executable")?;
+    let launcher = Launcher {
+        exe,
+        token: token_path.clone(),
+        log: args.daemon_log.clone(),
+        logs: logs.clone(),
+        gpu_threads: args.gpu_threads,
+    };
+    let mut children = Children(Vec::new());
+    let mut daemons = Vec::new();
+    let roles = (0..nodes)
+        .map(|i| (format!("node-{i}"), "node"))
+        .chain((0..compositors).map(|i| (format!("comp-{i}"), "compositor")));
+    for (id, role) in roles {
+        let (child, addr) = launcher.start(&id, role, ANY_PORT, Duration::from_secs(30))?;
+        children.0.push((id.clone(), child));
+        daemons.push(DaemonInfo {
+            id,
+            role,
+            addr,
+            starts: 1,
+            hwm_kib: 0,
+            cpu_done: 0.0,
+        });
+    }
+    let addrs: Vec<DaemonAddr> = daemons
+        .iter()
+        .map(|d| DaemonAddr {
+            address: d.addr.clone(),
+            role: if d.role == "node" {
+                Role::Node
+            } else {
+                Role::Compositor
+            },
+            id: Some(d.id.clone()),
+        })
+        .collect();
+    let heartbeat_timeout = Duration::try_from_secs_f64(args.heartbeat_timeout)
+        .ok()
+        .filter(|d| !d.is_zero())
+        .context("--heartbeat-timeout is not a positive number of seconds")?;
+    let control = ControlOptions {
+        link: Timeouts {
+            connect: Duration::from_secs(5),
+            handshake: Duration::from_secs(10),
+            send: Duration::from_secs(30),
+            ..Timeouts::default()
+        },
+        // Daemons opening their devices at once on few cores register slowly.
+        register: Duration::from_secs(120),
+        configure: Duration::from_secs(60),
+        frame: Duration::from_secs(60),
+        heartbeat_timeout,
+        // Two daemons may be down at once; wait for one to come back rather than fail.
+        wait_for_daemons: Duration::from_secs(60),
+        ..ControlOptions::default()
+    };
+
+    let progress: Arc<Mutex<Progress>> = Arc::default();
+    let run_over = Arc::new(AtomicBool::new(false));
+    let interrupted = Arc::new(AtomicBool::new(false));
+    let stop_feeding = CancellationToken::new();
+    let requested = Arc::new(AtomicU64::new(0));
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+
+    let me = Identity::new(&token, Role::Coordinator, "coordinator");
+    let mut session = rt.block_on(async {
+        let sink = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+        anyhow::Ok(Session::connect(&addrs, sink, None, me, control).await?)
+    })?;
+    println!(
+        "soak: cluster connected after {:.1} s; injecting faults",
+        started.elapsed().as_secs_f64()
+    );
+
+    let injector = {
+        let cfg = InjectorConfig {
+            faults: args.faults as usize,
+            settle_frames: args.settle_frames,
+            deadline: Instant::now() + Duration::from_secs_f64(args.max_seconds.max(0.0)),
+            seed: args.seed,
+        };
+        let shared = Shared {
+            progress: Arc::clone(&progress),
+            run_over: Arc::clone(&run_over),
+            interrupted: Arc::clone(&interrupted),
+            stop_feeding: stop_feeding.clone(),
+        };
+        std::thread::Builder::new()
+            .name("soak-faults".into())
+            .spawn(move || {
+                let mut inj = Injector {
+                    cfg,
+                    shared,
+                    launcher,
+                    children,
+                    daemons,
+                    faults: Vec::new(),
+                    rng: ChaCha8Rng::seed_from_u64(args.seed),
+                    seen: 0,
+                    notes: Vec::new(),
+                    loads: Vec::new(),
+                };
+                inj.run();
+                inj
+            })?
+    };
+
+    let run_started = Instant::now();
+    let (run_error, summary) = rt.block_on(async {
+        let (tx, rx) = tokio::sync::mpsc::channel::<FrameSpec>(2);
+        let base = scene.camera;
+        let (stop, req) = (stop_feeding.clone(), Arc::clone(&requested));
+        let feeder = tokio::spawn(async move {
+            for i in 0u32.. {
+                let camera = lightfold_scene::wire::camera_to_wire(&camera_at(&base, path, i));
+                let spec = FrameSpec {
+                    camera: Some(camera),
+                    light_colors: Vec::new(),
+                };
+                tokio::select! {
+                    biased;
+                    _ = stop.cancelled() => break,
+                    r = tx.send(spec) => if r.is_err() { break },
+                }
+                req.fetch_add(1, Ordering::SeqCst);
+            }
+        });
+        let int = Arc::clone(&interrupted);
+        let ctrl_c = tokio::spawn(async move {
+            if tokio::signal::ctrl_c().await.is_ok() {
+                eprintln!("soak: interrupted: no more faults; finishing the frames in flight");
+                int.store(true, Ordering::SeqCst);
+            }
+        });
+        let mut live = match Live::new(&mut session, &scene, &plan_opts) {
+            Ok(l) => l,
+            Err(e) => {
+                feeder.abort();
+                ctrl_c.abort();
+                return (Some(e.to_string()), LiveSummary::default());
+            }
+        };
+        let p = Arc::clone(&progress);
+        let on_frame = move |f: FrameResult| {
+            let daemons = f.stats.iter().map(|s| s.daemon_id.clone()).collect();
+            p.lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .deliveries
+                .push(Delivery {
+                    frame: f.frame,
+                    at: Instant::now(),
+                    requested_at: f.requested_at,
+                    daemons,
+                });
+            let _ = check_tx.send((f.frame, f.image));
+        };
+        let result = live.run(rx, on_frame).await;
+        feeder.abort();
+        ctrl_c.abort();
+        let summary = std::mem::take(&mut live.summary);
+        (result.err().map(|e| e.to_string()), summary)
+    });
+    let run_time = run_started.elapsed();
+    run_over.store(true, Ordering::SeqCst);
+    stop_feeding.cancel();
+    let inj = match injector.join() {
+        Ok(inj) => inj,
+        Err(_) => bail!("the fault injector panicked"),
+    };
+    let Injector {
+        mut children,
+        mut daemons,
+        faults,
+        notes,
+        loads,
+        ..
+    } = inj;
+    machine.load = loads;
+    // Every daemon runs (none is stopped): read what each used before shutting them down.
+    for (d, (_, c)) in daemons.iter_mut().zip(children.0.iter_mut()) {
+        if matches!(c.try_wait(), Ok(None)) {
+            d.hwm_kib = d.hwm_kib.max(vm_hwm_kib(c.id()));
+            d.cpu_done += cpu_seconds(c.id());
+        }
+    }
+    rt.block_on(session.shutdown());
+    drop(children);
+    drop(rt);
+    let _ = std::fs::remove_dir_all(&work);
+    eprintln!("soak: cluster stopped; waiting for the frame checks");
+    let checks = checker
+        .join()
+        .map_err(|_| anyhow::anyhow!("the frame checker panicked"))??;
+
+    let deliveries = std::mem::take(
+        &mut progress
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .deliveries,
+    );
+    let report = Report::build(&ReportInput {
+        args: &args,
+        scene: &scene,
+        nodes,
+        compositors,
+        control,
+        machine: &machine,
+        requested: requested.load(Ordering::SeqCst),
+        deliveries: &deliveries,
+        checks: &checks,
+        summary: &summary,
+        faults: &faults,
+        daemons: &daemons,
+        run_error: run_error.as_deref(),
+        run_time,
+        notes: &notes,
+        interrupted: interrupted.load(Ordering::SeqCst),
+    });
+    report.print();
+    report.write(&args.out)?;
+    println!("soak: report written to {}", args.out.display());
+    if !report.failures.is_empty() {
+        bail!("soak failed: {}", report.failures.join("; "));
+    }
+    Ok(())
+}
+
+/// Starts daemon processes the way `demo` does, their stderr appended to OUT/logs/ID.log.
+#[derive(Debug)]
+struct Launcher {
+    exe: PathBuf,
+    token: PathBuf,
+    log: String,
+    logs: PathBuf,
+    gpu_threads: u32,
+}
+
+impl Launcher {
+    /// Starts daemon `id` listening on `listen`; returns it once it printed its address.
+    fn start(
+        &self,
+        id: &str,
+        role: &str,
+        listen: &str,
+        within: Duration,
+    ) -> anyhow::Result<(Child, String)> {
+        let mut cmd = daemon_command(&self.exe, role, id, &self.token, &self.log, listen);
+        if role == "node" && self.gpu_threads > 0 {
+            cmd.env("LP_NUM_THREADS", self.gpu_threads.to_string());
+        }
+        let log = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(self.logs.join(format!("{id}.log")))?;
+        cmd.stderr(Stdio::from(log));
+        // A process group of its own: Ctrl-C at the terminal interrupts the soak, not the
+        // daemons (they still exit when the soak does, by `--parent-pid`).
+        std::os::unix::process::CommandExt::process_group(&mut cmd, 0);
+        let mut child = cmd.spawn().with_context(|| format!("cannot start {id}"))?;
+        match read_listening(&mut child, id, Instant::now() + within) {
+            Ok(addr) => Ok((child, addr)),
+            Err(e) => {
+                let _ = child.kill();
+                let _ = child.wait();
+                Err(e)
+            }
+        }
+    }
+}
+
+/// Sends `signal` (e.g. `-STOP`) to `pid` through the `kill` utility (no unsafe code here).
+fn signal(pid: u32, signal: &str) -> bool {
+    Command::new("kill")
+        .arg(signal)
+        .arg(pid.to_string())
+        .stderr(Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
+/// Peak resident set (VmHWM, KiB) of a process; 0 if unknown.
+fn vm_hwm_kib(pid: u32) -> u64 {
+    std::fs::read_to_string(format!("/proc/{pid}/status"))
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find_map(|l| l.strip_prefix("VmHWM:"))
+                .and_then(|v| v.split_whitespace().next()?.parse().ok())
+        })
+        .unwrap_or(0)
+}
+
+#[derive(Debug)]
+struct InjectorConfig {
+    faults: usize,
+    settle_frames: usize,
+    deadline: Instant,
+    seed: u64,
+}
+
+#[derive(Debug)]
+struct Shared {
+    progress: Arc<Mutex<Progress>>,
+    run_over: Arc<AtomicBool>,
+    interrupted: Arc<AtomicBool>,
+    stop_feeding: CancellationToken,
+}
+
+/// The fault injector: a thread that polls every 10 ms, signals and restarts processes, and
+/// follows the frames delivered to know when a faulted daemon is back.
+struct Injector {
+    cfg: InjectorConfig,
+    shared: Shared,
+    launcher: Launcher,
+    children: Children,
+    daemons: Vec<DaemonInfo>,
+    faults: Vec<Fault>,
+    rng: ChaCha8Rng,
+    /// Deliveries looked at so far.
+    seen: usize,
+    notes: Vec<String>,
+    /// The machine's 1-minute load average, every second.
+    loads: Vec<f64>,
+}
+
+impl std::fmt::Debug for Injector {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Injector")
+            .field("faults", &self.faults.len())
+            .field("seed", &self.cfg.seed)
+            .finish_non_exhaustive()
+    }
+}
+
+impl Injector {
+    fn run(&mut self) {
+        let poll = Duration::from_millis(10);
+        let all: Vec<String> = self.daemons.iter().map(|d| d.id.clone()).collect();
+        let mut next_fault_at = Instant::now();
+        // A frame requested after the last fault has come back (faults wait for progress).
+        let mut progressed = true;
+        let mut delivered = 0usize;
+        let mut last_sample = Instant::now();
+        let mut stopping = false;
+        // After the last fault: since when, how many frames with every daemon, until when.
+        let mut settle: Option<(Instant, usize, Instant)> = None;
+        while !self.shared.run_over.load(Ordering::SeqCst) {
+            let now = Instant::now();
+            let interrupted = self.shared.interrupted.load(Ordering::SeqCst);
+            if (interrupted || now >= self.cfg.deadline) && !stopping {
+                stopping = true;
+                if !interrupted {
+                    self.notes.push(format!(
+                        "--max-seconds reached after {} fault(s)",
+                        self.faults.len()
+                    ));
+                }
+                self.end_faults_now();
+            }
+            if interrupted {
+                self.shared.stop_feeding.cancel();
+            }
+            if now.duration_since(last_sample) >= Duration::from_secs(1) {
+                last_sample = now;
+                self.sample();
+                self.loads.extend(load_average());
+            }
+            self.advance(now);
+            let new: Vec<Delivery> = {
+                let p = self
+                    .shared
+                    .progress
+                    .lock()
+                    .unwrap_or_else(|e| e.into_inner());
+                p.deliveries[self.seen..].to_vec()
+            };
+            self.seen += new.len();
+            let last_fault = self.faults.last().map(|f| f.at);
+            for d in &new {
+                delivered += 1;
+                for f in self.faults.iter_mut().filter(|f| f.active()) {
+                    let id = &self.daemons[f.daemon].id;
+                    if f.resumed.is_some_and(|r| d.requested_at > r) && d.daemons.contains(id) {
+                        f.back = Some(d.at);
+                    }
+                }
+                if last_fault.is_none_or(|t| d.requested_at > t) {
+                    progressed = true;
+                }
+                if let Some((since, n, _)) = &mut settle
+                    && d.requested_at > *since
+                    && all.iter().all(|id| d.daemons.contains(id))
+                {
+                    *n += 1;
+                }
+            }
+            let active = self.faults.iter().filter(|f| f.active()).count();
+            let injected = self.faults.len();
+            if !stopping
+                && injected < self.cfg.faults
+                && delivered >= self.cfg.settle_frames
+                && active < MAX_CONCURRENT
+                && now >= next_fault_at
+                && progressed
+            {
+                self.inject();
+                progressed = false;
+                let gap = self.rng.random_range(GAP.0..GAP.1);
+                next_fault_at = Instant::now() + Duration::from_secs_f64(gap);
+                continue;
+            }
+            if (stopping || injected >= self.cfg.faults) && active == 0 && settle.is_none() {
+                settle = Some((now, 0, now + BACK_TIMEOUT));
+            }
+            if let Some((_, n, until)) = settle {
+                if n >= self.cfg.settle_frames.max(1) {
+                    self.shared.stop_feeding.cancel();
+                } else if now >= until && !self.shared.stop_feeding.is_cancelled() {
+                    self.notes.push(format!(
+                        "the cluster did not settle (every daemon in {} frames) within {} s of the last fault",
+                        self.cfg.settle_frames,
+                        BACK_TIMEOUT.as_secs()
+                    ));
+                    self.shared.stop_feeding.cancel();
+                }
+            }
+            std::thread::sleep(poll);
+        }
+        self.end_faults_now();
+        self.sample();
+    }
+
+    /// Reads the peak RSS of every running daemon.
+    fn sample(&mut self) {
+        for (d, (_, c)) in self.daemons.iter_mut().zip(self.children.0.iter_mut()) {
+            // A reaped child's pid may belong to another process by now.
+            if matches!(c.try_wait(), Ok(None)) {
+                d.hwm_kib = d.hwm_kib.max(vm_hwm_kib(c.id()));
+            }
+        }
+    }
+
+    fn inject(&mut self) {
+        let busy: Vec<usize> = self
+            .faults
+            .iter()
+            .filter(|f| f.active())
+            .map(|f| f.daemon)
+            .collect();
+        let free: Vec<usize> = (0..self.daemons.len())
+            .filter(|i| !busy.contains(i))
+            .collect();
+        let daemon = free[self.rng.random_range(0..free.len())];
+        let kind = match self.rng.random_range(0..3u32) {
+            0 => Kind::Kill,
+            1 => Kind::Stop(Duration::from_secs_f64(
+                self.rng.random_range(STALL.0..STALL.1),
+            )),
+            _ => Kind::Term,
+        };
+        let pid = self.children.0[daemon].1.id();
+        let d = &mut self.daemons[daemon];
+        // What this process used, before it goes.
+        d.hwm_kib = d.hwm_kib.max(vm_hwm_kib(pid));
+        if !matches!(kind, Kind::Stop(_)) {
+            d.cpu_done += cpu_seconds(pid);
+        }
+        let sig = match kind {
+            Kind::Kill => "-KILL",
+            Kind::Stop(_) => "-STOP",
+            Kind::Term => "-TERM",
+        };
+        let at = Instant::now();
+        let mut f = Fault {
+            daemon,
+            kind,
+            at,
+            exited: None,
+            resumed: None,
+            due: None,
+            back: None,
+            restart_tries: 0,
+            gave_up: false,
+            notes: Vec::new(),
+        };
+        if !signal(pid, sig) {
+            f.notes.push(format!("kill {sig} {pid} failed"));
+        }
+        match kind {
+            Kind::Kill => {
+                let _ = self.children.0[daemon].1.wait();
+                f.exited = Some(Instant::now());
+                f.due = Some(at + self.restart_delay());
+            }
+            Kind::Stop(d) => f.due = Some(at + d),
+            Kind::Term => {}
+        }
+        let n = self.faults.len() + 1;
+        let extra = match kind {
+            Kind::Stop(d) => format!(" for {:.2} s", d.as_secs_f64()),
+            _ => String::new(),
+        };
+        tracing::info!(
+            "soak: fault {n}/{}: {} {}{extra}",
+            self.cfg.faults,
+            kind.name(),
+            self.daemons[daemon].id
+        );
+        if n.is_multiple_of(10) || n == self.cfg.faults {
+            eprintln!(
+                "soak: {n}/{} faults injected, {} frames delivered so far",
+                self.cfg.faults, self.seen
+            );
+        }
+        self.faults.push(f);
+    }
+
+    fn restart_delay(&mut self) -> Duration {
+        Duration::from_secs_f64(self.rng.random_range(RESTART_DELAY.0..RESTART_DELAY.1))
+    }
+
+    /// Moves every active fault on: SIGTERM exits, restarts and SIGCONTs due, give-ups.
+    fn advance(&mut self, now: Instant) {
+        for i in 0..self.faults.len() {
+            if !self.faults[i].active() {
+                continue;
+            }
+            let daemon = self.faults[i].daemon;
+            let f = &self.faults[i];
+            match (f.kind, f.exited, f.resumed, f.due) {
+                (Kind::Term, None, _, _) => {
+                    let child = &mut self.children.0[daemon].1;
+                    match child.try_wait() {
+                        Ok(Some(_)) => {
+                            let delay = self.restart_delay();
+                            let f = &mut self.faults[i];
+                            f.exited = Some(now);
+                            f.due = Some(now + delay);
+                        }
+                        Ok(None) if now.duration_since(f.at) > TERM_TIMEOUT => {
+                            let _ = child.kill();
+                            let _ = child.wait();
+                            let delay = self.restart_delay();
+                            let f = &mut self.faults[i];
+                            f.notes.push(format!(
+                                "did not exit within {} s of SIGTERM; killed",
+                                TERM_TIMEOUT.as_secs()
+                            ));
+                            f.exited = Some(Instant::now());
+                            f.due = Some(now + delay);
+                        }
+                        _ => {}
+                    }
+                }
+                (Kind::Stop(_), _, None, Some(due)) if now >= due => {
+                    let pid = self.children.0[daemon].1.id();
+                    let f = &mut self.faults[i];
+                    if !signal(pid, "-CONT") {
+                        f.notes.push("SIGCONT failed".into());
+                    }
+                    f.resumed = Some(Instant::now());
+                }
+                (Kind::Kill | Kind::Term, Some(_), None, Some(due)) if now >= due => {
+                    self.restart(i);
+                }
+                (_, _, Some(r), _) if now.duration_since(r) > BACK_TIMEOUT => {
+                    let f = &mut self.faults[i];
+                    f.gave_up = true;
+                    f.notes.push(format!(
+                        "not back in a delivered frame {} s after it ran again",
+                        BACK_TIMEOUT.as_secs()
+                    ));
+                }
+                _ => {}
+            }
+        }
+    }
+
+    /// Starts fault `i`'s daemon again on its address (retrying while the port is busy).
+    fn restart(&mut self, i: usize) {
+        let daemon = self.faults[i].daemon;
+        let (id, role, addr) = {
+            let d = &self.daemons[daemon];
+            (d.id.clone(), d.role, d.addr.clone())
+        };
+        match self
+            .launcher
+            .start(&id, role, &addr, Duration::from_secs(10))
+        {
+            Ok((child, got)) => {
+                if got != addr {
+                    self.faults[i]
+                        .notes
+                        .push(format!("restarted on {got}, not {addr}"));
+                }
+                self.children.0[daemon].1 = child;
+                self.daemons[daemon].starts += 1;
+                self.faults[i].resumed = Some(Instant::now());
+            }
+            Err(e) => {
+                let f = &mut self.faults[i];
+                f.restart_tries += 1;
+                f.notes.push(format!("restart {}: {e:#}", f.restart_tries));
+                if f.restart_tries >= RESTART_TRIES {
+                    f.gave_up = true;
+                } else {
+                    f.due = Some(Instant::now() + RESTART_RETRY);
+                }
+            }
+        }
+    }
+
+    /// Ends every fault at once: stopped daemons continue, killed ones restart now.
+    fn end_faults_now(&mut self) {
+        for i in 0..self.faults.len() {
+            let f = &self.faults[i];
+            if f.resumed.is_some() || f.gave_up {
+                continue;
+            }
+            let daemon = f.daemon;
+            match f.kind {
+                Kind::Stop(_) => {
+                    let pid = self.children.0[daemon].1.id();
+                    signal(pid, "-CONT");
+                    self.faults[i].resumed = Some(Instant::now());
+                }
+                Kind::Term if f.exited.is_none() => {
+                    let child = &mut self.children.0[daemon].1;
+                    let deadline = Instant::now() + TERM_TIMEOUT;
+                    while matches!(child.try_wait(), Ok(None)) && Instant::now() < deadline {
+                        std::thread::sleep(Duration::from_millis(20));
+                    }
+                    if matches!(child.try_wait(), Ok(None)) {
+                        let _ = child.kill();
+                    }
+                    let _ = child.wait();
+                    self.faults[i].exited = Some(Instant::now());
+                    self.restart(i);
+                }
+                _ => self.restart(i),
+            }
+        }
+    }
+}
+
+/// The thread that checks every delivered frame against the single-device render of its camera:
+/// its queue, the thread, and its adapter (name and backend).
+struct Checker {
+    queue: std::sync::mpsc::Sender<(u64, Image)>,
+    thread: std::thread::JoinHandle<anyhow::Result<Vec<Check>>>,
+    adapter: String,
+}
+
+fn spawn_checker(scene: Scene, path: FramePath) -> anyhow::Result<Checker> {
+    let (tx, rx) = std::sync::mpsc::channel::<(u64, Image)>();
+    let (ready_tx, ready_rx) = std::sync::mpsc::channel::<anyhow::Result<String>>();
+    let handle = std::thread::Builder::new()
+        .name("soak-check".into())
+        .spawn(move || {
+            let setup = (|| {
+                let gpu = Gpu::new(&GpuOptions::default())
+                    .context("the frame check needs a GPU adapter (install mesa-vulkan-drivers)")?;
+                let mut r =
+                    Renderer::new(&gpu, &scene, RenderOptions::from_quality(&scene.quality))?;
+                // Cluster nodes fit their maps to what the camera sees (not walkthrough).
+                r.set_fit_to_camera(true);
+                anyhow::Ok((gpu, r))
+            })();
+            let (gpu, mut renderer) = match setup {
+                Ok(x) => {
+                    let _ =
+                        ready_tx.send(Ok(format!("{} ({:?})", x.0.info.name, x.0.info.backend)));
+                    x
+                }
+                Err(e) => {
+                    let msg = format!("{e:#}");
+                    let _ = ready_tx.send(Err(e));
+                    bail!("{msg}");
+                }
+            };
+            let samples = lightfold_scene::sampling::scene_samples(&scene);
+            let mut checks = Vec::new();
+            for (frame, image) in rx {
+                let mut s = scene.clone();
+                s.camera = camera_at(&scene.camera, path, (frame - 1) as u32);
+                let check = match single_device(&gpu, &mut renderer, &s, &samples) {
+                    Ok(truth) => compare(frame, &image, &truth),
+                    Err(e) => Check {
+                        frame,
+                        ok: false,
+                        outside: 0,
+                        channels: image.data.len(),
+                        energy_ratio: f64::NAN,
+                        worst: f32::NAN,
+                        error: Some(format!("the reference render failed: {e:#}")),
+                    },
+                };
+                checks.push(check);
+            }
+            Ok(checks)
+        })?;
+    match ready_rx.recv() {
+        Ok(Ok(adapter)) => Ok(Checker {
+            queue: tx,
+            thread: handle,
+            adapter,
+        }),
+        Ok(Err(e)) => Err(e),
+        Err(_) => match handle.join() {
+            Ok(Err(e)) => Err(e),
+            _ => bail!("the frame checker stopped before it was ready"),
+        },
+    }
+}
+
+/// Final radiance of every sample on one device (paper eq. 2), as `lightfold-tests`'s
+/// `single_device` computes it, reusing one renderer across cameras.
+fn single_device(
+    gpu: &Gpu,
+    r: &mut Renderer,
+    scene: &Scene,
+    samples: &[lightfold_scene::LightSample],
+) -> anyhow::Result<Image> {
+    r.set_camera(&scene.camera);
+    let f = r.render(gpu, samples, None, [1.0; 3], LayerSet::all())?;
+    let (Some(il), Some(md), Some(ms), Some(ma), Some(e)) =
+        (f.illumination, f.diffuse, f.specular, f.ambient, f.emissive)
+    else {
+        bail!("the renderer left out a layer");
+    };
+    let mut out = Image::new(il.width, il.height, 3);
+    for i in 0..out.pixel_count() {
+        for c in 0..3 {
+            out.data[i * 3 + c] = e.data[i * 3 + c]
+                + ma.data[i * 3 + c] * scene.ambient[c]
+                + md.data[i * 3 + c] * il.data[i * 6 + c]
+                + ms.data[i * 3 + c] * il.data[i * 6 + 3 + c];
+        }
+    }
+    Ok(out)
+}
+
+/// The link formats' bound of `lightfold-tests`' `assert_close_within(.., 1000)`: 2.5 % relative
+/// + 1e-3 absolute per channel, at most one channel in 1000 outside, mean energy within 1 %.
+fn compare(frame: u64, test: &Image, want: &Image) -> Check {
+    let mut check = Check {
+        frame,
+        ok: false,
+        outside: 0,
+        channels: test.data.len(),
+        energy_ratio: f64::NAN,
+        worst: 0.0,
+        error: None,
+    };
+    if (test.width, test.height, test.channels) != (want.width, want.height, want.channels) {
+        check.error = Some(format!(
+            "size {}x{}x{}, expected {}x{}x{}",
+            test.width, test.height, test.channels, want.width, want.height, want.channels
+        ));
+        return check;
+    }
+    let mut finite = true;
+    for (a, b) in test.data.iter().zip(&want.data) {
+        finite &= a.is_finite();
+        let d = (a - b).abs();
+        // NaN differences count as outside.
+        if d.is_nan() || d > 0.025 * b.abs() + 1e-3 {
+            check.outside += 1;
+        }
+        if d > check.worst || d.is_nan() {
+            check.worst = d;
+        }
+    }
+    let ea: f64 = test.data.iter().map(|&v| f64::from(v)).sum();
+    let eb: f64 = want.data.iter().map(|&v| f64::from(v)).sum();
+    check.energy_ratio = ea / eb;
+    check.ok = finite
+        && eb > 0.0
+        && check.outside * 1000 <= check.channels
+        && (check.energy_ratio - 1.0).abs() < 0.01;
+    if !finite {
+        check.error = Some("non-finite pixel".into());
+    }
+    check
+}
+
+/// Where the soak ran.
+#[derive(Debug, Clone, Default)]
+struct Machine {
+    cpu: String,
+    cores: usize,
+    memory_gib: f64,
+    /// The frame checker's adapter and backend.
+    checker: String,
+    /// 1-minute load averages sampled every second during the run.
+    load: Vec<f64>,
+}
+
+impl Machine {
+    fn probe(checker: String) -> Machine {
+        let cpuinfo = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+        let cpu = cpuinfo
+            .lines()
+            .find_map(|l| l.strip_prefix("model name"))
+            .map(|v| v.trim_start_matches([' ', '\t', ':']).trim().to_string())
+            .unwrap_or_else(|| "unknown CPU".into());
+        let memory_kib: f64 = std::fs::read_to_string("/proc/meminfo")
+            .ok()
+            .and_then(|m| {
+                m.lines()
+                    .find_map(|l| l.strip_prefix("MemTotal:"))
+                    .and_then(|v| v.split_whitespace().next()?.parse().ok())
+            })
+            .unwrap_or(0.0);
+        Machine {
+            cpu,
+            cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            memory_gib: memory_kib / (1024.0 * 1024.0),
+            checker,
+            load: Vec::new(),
+        }
+    }
+}
+
+/// The 1-minute load average.
+fn load_average() -> Option<f64> {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
+struct ReportInput<'a> {
+    args: &'a Args,
+    scene: &'a Scene,
+    nodes: usize,
+    compositors: usize,
+    control: ControlOptions,
+    machine: &'a Machine,
+    requested: u64,
+    deliveries: &'a [Delivery],
+    checks: &'a [Check],
+    summary: &'a LiveSummary,
+    faults: &'a [Fault],
+    daemons: &'a [DaemonInfo],
+    run_error: Option<&'a str>,
+    run_time: Duration,
+    notes: &'a [String],
+    interrupted: bool,
+}
+
+/// What a fault led to, as measured after the run.
+#[derive(Debug)]
+struct Outcome {
+    /// Signal → the coordinator's `Lost` incident for the daemon.
+    lost: Option<Duration>,
+    next_frame: Option<Duration>,
+    fresh_frame: Option<Duration>,
+    back: Option<Duration>,
+}
+
+/// How long a SIGSTOP lasted against the heartbeat timeout.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Stall {
+    /// Shorter than the timeout: must not be declared lost.
+    Short,
+    /// At least the timeout but shorter than `sure`: the first unanswered heartbeat may go out
+    /// up to one interval after the stop, so either outcome is right.
+    Window,
+    /// At least the timeout + one heartbeat interval + two loop ticks: must be declared lost.
+    Long,
+}
+
+/// The soak's figures: one table of (metric, value) rows, the per-daemon table, and the
+/// per-fault and per-epoch rows for the CSV files.
+#[derive(Debug, Default)]
+struct Report {
+    title: String,
+    rows: Vec<(String, String)>,
+    daemons: Vec<[String; 6]>,
+    faults: Vec<Vec<String>>,
+    epochs: Vec<Vec<String>>,
+    failures: Vec<String>,
+}
+
+fn ms(d: Duration) -> String {
+    format!("{:.0}", d.as_secs_f64() * 1000.0)
+}
+
+/// Nearest-rank percentile.
+fn pct(sorted: &[Duration], p: f64) -> Option<Duration> {
+    if sorted.is_empty() {
+        return None;
+    }
+    let rank = ((p * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len());
+    Some(sorted[rank - 1])
+}
+
+/// "p50 / p95 / max ms (n = …)" of some durations.
+fn spread(v: &[Duration]) -> String {
+    let mut s = v.to_vec();
+    s.sort_unstable();
+    match (pct(&s, 0.5), pct(&s, 0.95), s.last()) {
+        (Some(a), Some(b), Some(m)) => {
+            format!("{} / {} / {} ms (n = {})", ms(a), ms(b), ms(*m), s.len())
+        }
+        _ => "– (n = 0)".into(),
+    }
+}
+
+/// What an epoch was planned for: the first cause in its reason ("X lost: …", "X rejoined",
+/// "frame failure: …", each maybe followed by "; then …").
+fn replan_cause(reason: &str) -> &'static str {
+    let first = reason.split("; then").next().unwrap_or(reason);
+    if first.starts_with("frame failure") {
+        "frame failure"
+    } else if first.contains(" lost: ") {
+        "loss"
+    } else if first.trim_end().ends_with(" rejoined") {
+        "rejoin"
+    } else {
+        "other"
+    }
+}
+
+impl Report {
+    fn build(i: &ReportInput<'_>) -> Report {
+        let mut r = Report::default();
+        let end = Instant::now();
+        let hb = i.control.heartbeat_timeout;
+        let sure = hb + i.control.heartbeat + Duration::from_millis(100);
+        let stall = |k: &Kind| match k {
+            Kind::Stop(d) if *d < hb => Some(Stall::Short),
+            Kind::Stop(d) if *d < sure => Some(Stall::Window),
+            Kind::Stop(_) => Some(Stall::Long),
+            _ => None,
+        };
+        let lost_incidents: Vec<&Incident> = i
+            .summary
+            .incidents
+            .iter()
+            .filter(|x| matches!(x.kind, IncidentKind::Lost { .. }))
+            .collect();
+        let id_of = |f: &Fault| i.daemons[f.daemon].id.as_str();
+        let outcomes: Vec<Outcome> = (0..i.faults.len())
+            .map(|k| {
+                let f = &i.faults[k];
+                // The fault's window on its daemon: from the signal to the next fault on it.
+                let until = i.faults[k + 1..]
+                    .iter()
+                    .find(|g| g.daemon == f.daemon)
+                    .map_or(end, |g| g.at);
+                let lost_at = lost_incidents
+                    .iter()
+                    .find(|x| x.daemon == id_of(f) && x.at >= f.at && x.at < until)
+                    .map(|x| x.at);
+                let first = |p: &dyn Fn(&Delivery) -> bool| {
+                    i.deliveries
+                        .iter()
+                        .find(|d| p(d))
+                        .map(|d| d.at.duration_since(f.at))
+                };
+                Outcome {
+                    lost: lost_at.map(|t| t.duration_since(f.at)),
+                    next_frame: first(&|d| d.at > f.at),
+                    fresh_frame: first(&|d| d.requested_at > f.at),
+                    back: f
+                        .back
+                        .zip(f.resumed)
+                        .map(|(b, r)| b.saturating_duration_since(r)),
+                }
+            })
+            .collect();
+        let pick = |pred: &dyn Fn(&Kind) -> bool, get: &dyn Fn(&Outcome) -> Option<Duration>| {
+            i.faults
+                .iter()
+                .zip(&outcomes)
+                .filter(|(f, _)| pred(&f.kind))
+                .filter_map(|(_, o)| get(o))
+                .collect::<Vec<Duration>>()
+        };
+        let count =
+            |pred: &dyn Fn(&Kind) -> bool| i.faults.iter().filter(|f| pred(&f.kind)).count();
+        let kill = |k: &Kind| *k == Kind::Kill;
+        let term = |k: &Kind| *k == Kind::Term;
+        let stop = |k: &Kind| matches!(k, Kind::Stop(_));
+        let is = |c: Stall| move |k: &Kind| stall(k) == Some(c);
+        let any = |_: &Kind| true;
+        let lost = |o: &Outcome| o.lost;
+        let must_lose = |k: &Kind| !matches!(stall(k), Some(Stall::Short | Stall::Window));
+        let missed: Vec<usize> = i
+            .faults
+            .iter()
+            .zip(&outcomes)
+            .enumerate()
+            .filter(|(_, (f, o))| must_lose(&f.kind) && o.lost.is_none())
+            .map(|(k, _)| k + 1)
+            .collect();
+        let lost_count = |pred: &dyn Fn(&Kind) -> bool| pick(pred, &|o: &Outcome| o.lost).len();
+        // Losses no fault explains: outside [signal, back in a frame] of every fault on it.
+        let explained = |x: &Incident| {
+            i.faults
+                .iter()
+                .any(|f| id_of(f) == x.daemon && x.at >= f.at && x.at <= f.back.unwrap_or(end))
+        };
+        let stray: Vec<&str> = lost_incidents
+            .iter()
+            .filter(|x| !explained(x))
+            .map(|x| x.daemon.as_str())
+            .collect();
+
+        // Frames.
+        let mut numbers: Vec<u64> = i.deliveries.iter().map(|d| d.frame).collect();
+        let out_of_order = numbers.windows(2).filter(|w| w[1] <= w[0]).count();
+        numbers.sort_unstable();
+        let before = numbers.len();
+        numbers.dedup();
+        let duplicated = before - numbers.len();
+        let in_range = numbers.iter().filter(|&&n| n <= i.requested).count() as u64;
+        let lost_frames = i.requested.saturating_sub(in_range);
+        let wrong: Vec<&Check> = i.checks.iter().filter(|c| !c.ok).collect();
+        let unchecked = i.deliveries.len().saturating_sub(i.checks.len());
+        let worst_outside = i
+            .checks
+            .iter()
+            .map(|c| c.outside as f64 / c.channels.max(1) as f64)
+            .fold(0.0f64, f64::max);
+        let worst_energy = i
+            .checks
+            .iter()
+            .map(|c| (c.energy_ratio - 1.0).abs())
+            .fold(0.0f64, f64::max);
+        let causes = |c: &str| {
+            i.summary
+                .epochs
+                .iter()
+                .skip(1)
+                .filter(|e| replan_cause(&e.reason) == c)
+                .count()
+        };
+        let incidents = |p: &dyn Fn(&IncidentKind) -> bool| {
+            i.summary.incidents.iter().filter(|x| p(&x.kind)).count()
+        };
+
+        let (w, h) = (i.scene.camera.width, i.scene.camera.height);
+        let m = i.machine;
+        let load_mean = m.load.iter().sum::<f64>() / m.load.len().max(1) as f64;
+        let load_max = m.load.iter().copied().fold(0.0f64, f64::max);
+        r.title = format!(
+            "`lightfold soak --faults {} --seed {}`: scene {} {w}x{h}, {} light samples, K = {}, \
+             {} render nodes + {} compositors, heartbeat {} ms / timeout {} ms; {} ({} cores, \
+             {:.0} GiB), frames checked on {}",
+            i.args.faults,
+            i.args.seed,
+            i.scene.name,
+            i.summary.plan.as_ref().map_or(0, |p| p.active.len()),
+            i.args.lights_per_node,
+            i.nodes,
+            i.compositors,
+            i.control.heartbeat.as_millis(),
+            hb.as_millis(),
+            m.cpu,
+            m.cores,
+            m.memory_gib,
+            m.checker
+        );
+        let secs = |d: Duration| format!("{:.2} s", d.as_secs_f64());
+        let mut row = |k: String, v: String| r.rows.push((k, v));
+        row(
+            "faults injected".into(),
+            format!(
+                "{} ({} SIGKILL, {} SIGSTOP, {} SIGTERM)",
+                i.faults.len(),
+                count(&kill),
+                count(&stop),
+                count(&term)
+            ),
+        );
+        row(
+            "SIGSTOP lengths".into(),
+            format!(
+                "{} shorter than {}, {} from {} to {}, {} of {} or more",
+                count(&is(Stall::Short)),
+                secs(hb),
+                count(&is(Stall::Window)),
+                secs(hb),
+                secs(sure),
+                count(&is(Stall::Long)),
+                secs(sure)
+            ),
+        );
+        row(
+            "run time".into(),
+            format!(
+                "{:.1} s{}; load average {load_mean:.1} mean, {load_max:.1} max",
+                i.run_time.as_secs_f64(),
+                if i.interrupted { " (interrupted)" } else { "" }
+            ),
+        );
+        row("frames requested".into(), i.requested.to_string());
+        row("frames delivered".into(), i.deliveries.len().to_string());
+        row("frames lost".into(), lost_frames.to_string());
+        row("frames duplicated".into(), duplicated.to_string());
+        row("frames out of order".into(), out_of_order.to_string());
+        row(
+            "frames wrong".into(),
+            format!(
+                "{} of {} checked (worst frame: {:.3} % of channels outside the bound; energy \
+                 off by {:.3} %)",
+                wrong.len(),
+                i.checks.len(),
+                worst_outside * 100.0,
+                worst_energy * 100.0
+            ),
+        );
+        row(
+            "frame rate".into(),
+            format!(
+                "{:.2} frames/s over the run",
+                numbers.len() as f64 / i.run_time.as_secs_f64().max(1e-9)
+            ),
+        );
+        row(
+            "detection (p50 / p95 / max): SIGKILL".into(),
+            spread(&pick(&kill, &lost)),
+        );
+        row("detection: SIGTERM".into(), spread(&pick(&term, &lost)));
+        row(
+            format!("detection: SIGSTOP ≥ {}", secs(sure)),
+            spread(&pick(&is(Stall::Long), &lost)),
+        );
+        row(
+            format!("detection: SIGSTOP {}–{}", secs(hb), secs(sure)),
+            format!(
+                "{} ({} of {} declared lost)",
+                spread(&pick(&is(Stall::Window), &lost)),
+                lost_count(&is(Stall::Window)),
+                count(&is(Stall::Window))
+            ),
+        );
+        let exits = |pred: &dyn Fn(&Kind) -> bool| {
+            i.faults
+                .iter()
+                .filter(|f| pred(&f.kind))
+                .filter_map(|f| f.exited.map(|e| e.saturating_duration_since(f.at)))
+                .collect::<Vec<Duration>>()
+        };
+        row(
+            "process exit (signal → reaped): SIGKILL".into(),
+            spread(&exits(&kill)),
+        );
+        row("process exit: SIGTERM".into(), spread(&exits(&term)));
+        row(
+            format!("SIGSTOP < {} ridden out (not declared lost)", secs(hb)),
+            format!(
+                "{} of {} ({} declared lost)",
+                count(&is(Stall::Short)) - lost_count(&is(Stall::Short)),
+                count(&is(Stall::Short)),
+                lost_count(&is(Stall::Short))
+            ),
+        );
+        row(
+            "losses expected but not detected".into(),
+            if missed.is_empty() {
+                "0".into()
+            } else {
+                format!("{} (faults {missed:?})", missed.len())
+            },
+        );
+        row(
+            "losses no fault explains".into(),
+            if stray.is_empty() {
+                "0".into()
+            } else {
+                format!("{} ({})", stray.len(), stray.join(", "))
+            },
+        );
+        row(
+            "recovery (p50 / p95 / max): fault → next frame delivered".into(),
+            spread(&pick(&any, &|o| o.next_frame)),
+        );
+        let fresh = |o: &Outcome| o.fresh_frame;
+        row(
+            "recovery: fault → first frame requested after it delivered".into(),
+            spread(&pick(&any, &fresh)),
+        );
+        row(
+            "recovery to a new frame: SIGKILL".into(),
+            spread(&pick(&kill, &fresh)),
+        );
+        row(
+            "recovery to a new frame: SIGTERM".into(),
+            spread(&pick(&term, &fresh)),
+        );
+        row(
+            format!("recovery to a new frame: SIGSTOP < {}", secs(hb)),
+            spread(&pick(&is(Stall::Short), &fresh)),
+        );
+        row(
+            format!("recovery to a new frame: SIGSTOP ≥ {}", secs(hb)),
+            spread(&pick(
+                &|k| matches!(stall(k), Some(Stall::Window | Stall::Long)),
+                &fresh,
+            )),
+        );
+        row(
+            "fold-back: daemon running again → in a delivered frame".into(),
+            spread(&pick(&any, &|o| o.back)),
+        );
+        row(
+            "faults whose daemon was not folded back".into(),
+            i.faults
+                .iter()
+                .filter(|f| f.back.is_none())
+                .count()
+                .to_string(),
+        );
+        row(
+            "re-plans".into(),
+            format!(
+                "{} ({} after a loss, {} after a rejoin, {} after a frame failure, {} other)",
+                i.summary.epochs.len().saturating_sub(1),
+                causes("loss"),
+                causes("rejoin"),
+                causes("frame failure"),
+                causes("other")
+            ),
+        );
+        row(
+            "frame requests sent again".into(),
+            i.summary.rerequested.to_string(),
+        );
+        row(
+            "incidents: Lost / Slow / Rejoined".into(),
+            format!(
+                "{} / {} / {}",
+                lost_incidents.len(),
+                incidents(&|k| matches!(k, IncidentKind::Slow { .. })),
+                incidents(&|k| *k == IncidentKind::Rejoined)
+            ),
+        );
+        row(
+            "restarts that failed (port busy, …)".into(),
+            i.faults
+                .iter()
+                .map(|f| f.restart_tries)
+                .sum::<u32>()
+                .to_string(),
+        );
+        if let Some(e) = i.run_error {
+            row("run error".into(), e.to_string());
+        }
+        for n in i.notes {
+            row("note".into(), n.clone());
+        }
+
+        for d in i.daemons {
+            let faults = i.faults.iter().filter(|f| id_of(f) == d.id).count();
+            r.daemons.push([
+                d.id.clone(),
+                d.role.to_string(),
+                d.starts.to_string(),
+                faults.to_string(),
+                format!("{:.1}", d.hwm_kib as f64 / 1024.0),
+                format!("{:.1}", d.cpu_done),
+            ]);
+        }
+        let t0 = i.faults.first().map_or(end, |f| f.at);
+        let since = |t: Instant| format!("{:.3}", t.saturating_duration_since(t0).as_secs_f64());
+        for (k, (f, o)) in i.faults.iter().zip(&outcomes).enumerate() {
+            let opt = |d: Option<Duration>| d.map_or(String::new(), ms);
+            r.faults.push(vec![
+                (k + 1).to_string(),
+                since(f.at),
+                id_of(f).to_string(),
+                f.kind.name().to_string(),
+                match f.kind {
+                    Kind::Stop(d) => ms(d),
+                    _ => String::new(),
+                },
+                opt(f.exited.map(|e| e.saturating_duration_since(f.at))),
+                opt(f.resumed.map(|e| e.saturating_duration_since(f.at))),
+                opt(o.lost),
+                opt(o.next_frame),
+                opt(o.fresh_frame),
+                opt(o.back),
+                f.notes.join(" | "),
+            ]);
+        }
+        for e in &i.summary.epochs {
+            r.epochs.push(vec![
+                e.epoch.to_string(),
+                since(e.at),
+                ms(e.configure),
+                e.nodes.to_string(),
+                e.stages.to_string(),
+                e.k.to_string(),
+                e.lights_moved.to_string(),
+                e.reason.clone(),
+            ]);
+        }
+
+        let mut fail = |n: usize, what: &str| {
+            if n > 0 {
+                r.failures.push(format!("{n} frame(s) {what}"));
+            }
+        };
+        fail(lost_frames as usize, "lost");
+        fail(duplicated, "delivered twice");
+        fail(out_of_order, "out of order");
+        fail(unchecked, "delivered but not checked");
+        if !wrong.is_empty() {
+            let list: Vec<String> = wrong
+                .iter()
+                .take(5)
+                .map(|c| {
+                    format!(
+                        "frame {}: {} of {} channels outside, energy ratio {:.4}, worst |diff| {}{}",
+                        c.frame,
+                        c.outside,
+                        c.channels,
+                        c.energy_ratio,
+                        c.worst,
+                        c.error.as_deref().map_or(String::new(), |e| format!(", {e}"))
+                    )
+                })
+                .collect();
+            r.failures.push(format!(
+                "{} frame(s) wrong ({})",
+                wrong.len(),
+                list.join("; ")
+            ));
+        }
+        if let Some(e) = i.run_error {
+            r.failures.push(format!("the run failed: {e}"));
+        }
+        r
+    }
+
+    fn print(&self) {
+        println!("\n{}\n", self.title);
+        let wk = self
+            .rows
+            .iter()
+            .map(|(k, _)| k.chars().count())
+            .max()
+            .unwrap_or(0);
+        for (k, v) in &self.rows {
+            println!("{k:<wk$}  {v}");
+        }
+        println!(
+            "\n{:<8} {:<10} {:>9} {:>6} {:>13} {:>8}",
+            "daemon", "role", "processes", "faults", "peak RSS MiB", "CPU s"
+        );
+        for d in &self.daemons {
+            println!(
+                "{:<8} {:<10} {:>9} {:>6} {:>13} {:>8}",
+                d[0], d[1], d[2], d[3], d[4], d[5]
+            );
+        }
+        for f in &self.failures {
+            println!("FAILED: {f}");
+        }
+    }
+
+    fn write(&self, dir: &Path) -> anyhow::Result<()> {
+        let mut csv = String::from("metric,value\n");
+        for (k, v) in &self.rows {
+            let _ = writeln!(csv, "{},{}", csv_field(k), csv_field(v));
+        }
+        std::fs::write(dir.join("soak.csv"), csv)?;
+        write_csv(
+            &dir.join("daemons.csv"),
+            &[
+                "daemon",
+                "role",
+                "processes",
+                "faults",
+                "peak_rss_mib",
+                "cpu_s",
+            ],
+            self.daemons.iter().map(|d| d.to_vec()),
+        )?;
+        write_csv(
+            &dir.join("faults.csv"),
+            &[
+                "fault",
+                "at_s",
+                "daemon",
+                "signal",
+                "stall_ms",
+                "exited_ms",
+                "running_again_ms",
+                "detected_ms",
+                "next_frame_ms",
+                "first_new_frame_ms",
+                "folded_back_ms",
+                "notes",
+            ],
+            self.faults.iter().cloned(),
+        )?;
+        write_csv(
+            &dir.join("epochs.csv"),
+            &[
+                "epoch",
+                "at_s",
+                "configure_ms",
+                "nodes",
+                "stages",
+                "k",
+                "lights_moved",
+                "reason",
+            ],
+            self.epochs.iter().cloned(),
+        )?;
+        let mut md = format!("{}\n\n| metric | value |\n|---|---|\n", self.title);
+        for (k, v) in &self.rows {
+            let _ = writeln!(md, "| {} | {} |", md_cell(k), md_cell(v));
+        }
+        md.push_str(
+            "\n| daemon | role | processes | faults | peak RSS (VmHWM, MiB) | CPU s |\n\
+             |---|---|---:|---:|---:|---:|\n",
+        );
+        for d in &self.daemons {
+            let _ = writeln!(md, "| {} |", d.join(" | "));
+        }
+        for f in &self.failures {
+            let _ = writeln!(md, "\n**FAILED:** {}", md_cell(f));
+        }
+        std::fs::write(dir.join("soak.md"), md)?;
+        Ok(())
+    }
+}
+
+fn csv_field(s: &str) -> String {
+    if s.contains([',', '"', '\n']) {
+        format!("\"{}\"", s.replace('"', "\"\""))
+    } else {
+        s.to_string()
+    }
+}
+
+fn write_csv(
+    path: &Path,
+    header: &[&str],
+    rows: impl Iterator<Item = Vec<String>>,
+) -> anyhow::Result<()> {
+    let mut out = header.join(",");
+    out.push('\n');
+    for r in rows {
+        let fields: Vec<String> = r.iter().map(|f| csv_field(f)).collect();
+        out.push_str(&fields.join(","));
+        out.push('\n');
+    }
+    std::fs::write(path, out).with_context(|| format!("cannot write {}", path.display()))
+}
+
+fn md_cell(s: &str) -> String {
+    s.replace('|', "\\|").replace('\n', " ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn percentiles_are_nearest_rank() {
+        let v: Vec<Duration> = (1..=20).map(Duration::from_millis).collect();
+        assert_eq!(pct(&v, 0.5), Some(Duration::from_millis(10)));
+        assert_eq!(pct(&v, 0.95), Some(Duration::from_millis(19)));
+        assert_eq!(pct(&v, 1.0), Some(Duration::from_millis(20)));
+        assert_eq!(pct(&[], 0.5), None);
+        assert_eq!(spread(&[]), "– (n = 0)");
+        assert_eq!(spread(&v), "10 / 19 / 20 ms (n = 20)");
+    }
+
+    #[test]
+    fn replans_are_classified_by_their_first_cause() {
+        assert_eq!(
+            replan_cause("node-1 lost: its control link ended: x"),
+            "loss"
+        );
+        assert_eq!(
+            replan_cause("node-1 lost: no answer; then a daemon rejoined"),
+            "loss"
+        );
+        assert_eq!(replan_cause("comp-2 rejoined"), "rejoin");
+        assert_eq!(replan_cause("comp-2 rejoined; then node-1 lost"), "rejoin");
+        assert_eq!(
+            replan_cause("frame failure: comp-1 reported Timeout"),
+            "frame failure"
+        );
+    }
+
+    #[test]
+    fn csv_fields_are_quoted_when_needed() {
+        assert_eq!(csv_field("plain"), "plain");
+        assert_eq!(csv_field("a, b"), "\"a, b\"");
+        assert_eq!(csv_field("say \"hi\""), "\"say \"\"hi\"\"\"");
+    }
+
+    #[test]
+    fn the_comparison_follows_the_link_bound() {
+        let mut want = Image::new(10, 10, 3);
+        want.data.iter_mut().for_each(|v| *v = 1.0);
+        let mut test = want.clone();
+        assert!(compare(1, &test, &want).ok);
+        // 2 % off everywhere: inside the per-channel bound, but the energy is off by 2 %.
+        test.data.iter_mut().for_each(|v| *v = 1.02);
+        let c = compare(1, &test, &want);
+        assert_eq!(c.outside, 0);
+        assert!(!c.ok, "energy");
+        // One channel in 300 far off: too many outside.
+        let mut test = want.clone();
+        test.data[0] = 2.0;
+        let c = compare(1, &test, &want);
+        assert_eq!(c.outside, 1);
+        assert!(!c.ok);
+        test.data[0] = f32::NAN;
+        assert!(!compare(1, &test, &want).ok);
+    }
+
+    #[test]
+    fn vm_hwm_reads_this_process() {
+        assert!(vm_hwm_kib(std::process::id()) > 0);
+    }
+}
