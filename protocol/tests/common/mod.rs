@@ -10,7 +10,7 @@ use lightfold_protocol::*;
 use proptest::prelude::*;
 
 /// Every `Message` variant, in declaration order.
-pub const VARIANTS: [&str; 14] = [
+pub const VARIANTS: [&str; 16] = [
     "Register",
     "SceneOffer",
     "SceneNeed",
@@ -25,6 +25,8 @@ pub const VARIANTS: [&str; 14] = [
     "Ping",
     "Pong",
     "Shutdown",
+    "Claim",
+    "Claimed",
 ];
 
 pub fn variant(m: &Message) -> &'static str {
