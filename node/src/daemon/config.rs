@@ -268,11 +268,10 @@ fn check_shadows(
         *slot = Some(s.casters.clone());
     }
     let size = size.unwrap_or(default_size);
-    if size == 0 || size > max_texture {
-        return Err(ConfigError::BadMapSize {
-            size,
-            max: max_texture,
-        });
+    // The device's limit, and the one every input shares (`lightfold_scene::limits`).
+    let max = max_texture.min(lightfold_scene::limits::MAX_SHADOW_MAP_SIZE);
+    if size == 0 || size > max {
+        return Err(ConfigError::BadMapSize { size, max });
     }
     if shadows.is_empty() {
         return Ok((size, None));
@@ -352,6 +351,33 @@ mod tests {
         ))
         .unwrap();
         assert_eq!((c.lights.len(), c.map_size, c.casters), (2, 512, None));
+    }
+
+    #[test]
+    fn sizes_beyond_the_shared_limits_are_refused() {
+        // A device that takes 16384² textures still gets at most the limits' image and maps:
+        // 16384 × 16384 used to pass here and then panic in wgpu.
+        let big = |c: NodeConfig| check(c, &scene(2), |_| 8, 16384, usize::MAX);
+        let mut c = config(vec![(Layer::Illumination, PixelFormat::Rgb9e5x2)], 1);
+        (c.camera.width, c.camera.height) = (16384, 16384);
+        let e = big(c).unwrap_err();
+        assert!(
+            e.to_string().contains("image 16384x16384 is too large"),
+            "{e}"
+        );
+        let mut c = config(vec![(Layer::Illumination, PixelFormat::Rgb9e5x2)], 1);
+        c.shadows = vec![WireShadow {
+            light: 0,
+            map_size: 8192,
+            casters: Vec::new(),
+        }];
+        assert_eq!(
+            big(c).unwrap_err(),
+            ConfigError::BadMapSize {
+                size: 8192,
+                max: 4096
+            }
+        );
     }
 
     #[test]

@@ -224,6 +224,28 @@ impl Gpu {
         max_lights_for(&self.limits, shadow_map_size)
     }
 
+    /// Runs `make`, which creates device objects, and turns what the device refuses — memory it
+    /// cannot allocate, a size beyond its limits — into an error naming `what` (wgpu's handler
+    /// for errors nobody captures panics).
+    pub fn allocate<T>(
+        &self,
+        what: &'static str,
+        make: impl FnOnce(&wgpu::Device) -> T,
+    ) -> Result<T, super::frame::RenderError> {
+        let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let made = make(&self.device);
+        let invalid = pollster::block_on(validation.pop());
+        let out_of_memory = pollster::block_on(oom.pop());
+        match invalid.or(out_of_memory) {
+            Some(e) => Err(super::frame::RenderError::Allocation {
+                what,
+                message: e.to_string(),
+            }),
+            None => Ok(made),
+        }
+    }
+
     /// True on the GL backend, whose texture arrays need padding (PLATFORM.md).
     pub fn is_gl(&self) -> bool {
         self.info.backend == wgpu::Backend::Gl

@@ -136,6 +136,8 @@ pub enum RenderError {
         bytes: u64,
         maximum: u64,
     },
+    #[error("the device cannot allocate {what}: {message}")]
+    Allocation { what: &'static str, message: String },
     #[error("gpu: {0}")]
     Gpu(String),
 }

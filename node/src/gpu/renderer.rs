@@ -113,22 +113,26 @@ impl Renderer {
         } else {
             bytemuck::cast_slice(&data.vertices)
         };
-        let vertices = init("vertices", vbytes, wgpu::BufferUsages::VERTEX);
-        let materials = init(
-            "materials",
-            bytemuck::cast_slice(&data.materials),
-            wgpu::BufferUsages::STORAGE,
-        );
-        let textures = init(
-            "textures",
-            bytemuck::cast_slice(&data.textures),
-            wgpu::BufferUsages::STORAGE,
-        );
-        let texels = init(
-            "texels",
-            bytemuck::cast_slice(&data.texels),
-            wgpu::BufferUsages::STORAGE,
-        );
+        let (vertices, materials, textures, texels) = allocate(gpu, "the scene buffers", || {
+            (
+                init("vertices", vbytes, wgpu::BufferUsages::VERTEX),
+                init(
+                    "materials",
+                    bytemuck::cast_slice(&data.materials),
+                    wgpu::BufferUsages::STORAGE,
+                ),
+                init(
+                    "textures",
+                    bytemuck::cast_slice(&data.textures),
+                    wgpu::BufferUsages::STORAGE,
+                ),
+                init(
+                    "texels",
+                    bytemuck::cast_slice(&data.texels),
+                    wgpu::BufferUsages::STORAGE,
+                ),
+            )
+        })?;
         let scene_bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("scene"),
             layout: &pipelines.scene_layout,
@@ -200,9 +204,55 @@ impl Renderer {
         &self.options
     }
 
+    /// The eye pass a `w`×`h` frame uses: the chosen variant, except that the deferred pass
+    /// falls back to the forward pass (the same image within f32 rounding) when its lit buffer
+    /// (32 bytes per pixel, one storage binding) exceeds the device's limits — on lavapipe,
+    /// whose storage bindings stop at 128 MiB, above 2048 × 2048.
+    pub fn frame_variant(&self, gpu: &Gpu, w: u32, h: u32) -> EyeVariant {
+        let lit = u64::from(w) * u64::from(h) * 32;
+        let fits =
+            lit <= gpu.limits.max_storage_buffer_binding_size && lit <= gpu.limits.max_buffer_size;
+        if self.variant == EyeVariant::Deferred && !fits {
+            EyeVariant::Forward
+        } else {
+            self.variant
+        }
+    }
+
     /// Renders `lights` (shadowed) for node colour `c_n`. `casters[λ]` lists the mesh indices that
-    /// cast into light λ's maps (`None`: every mesh).
+    /// cast into light λ's maps (`None`: every mesh). Whatever the device refuses (a size beyond
+    /// its limits, memory it cannot allocate) is an error, never a panic.
     pub fn render(
+        &mut self,
+        gpu: &Gpu,
+        lights: &[LightSample],
+        casters: Option<&[Vec<u32>]>,
+        c_n: [f32; 3],
+        layers: LayerSet,
+    ) -> Result<NodeFrame, RenderError> {
+        // wgpu's handler for errors nobody captures panics: capture every one of this frame.
+        let oom = gpu.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation = gpu.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let frame = self.render_frame(gpu, lights, casters, c_n, layers);
+        let invalid = pollster::block_on(validation.pop());
+        let out_of_memory = pollster::block_on(oom.pop());
+        match (frame, invalid.or(out_of_memory)) {
+            (Err(e), _) => Err(e),
+            (Ok(_), Some(e)) => {
+                // Targets and maps may be half made: allocate them afresh next frame.
+                self.targets = None;
+                self.deferred = None;
+                self.maps = None;
+                self.map_key = None;
+                Err(RenderError::Gpu(format!(
+                    "the device refused the frame: {e}"
+                )))
+            }
+            (Ok(f), None) => Ok(f),
+        }
+    }
+
+    fn render_frame(
         &mut self,
         gpu: &Gpu,
         lights: &[LightSample],
@@ -232,6 +282,29 @@ impl Renderer {
                 height: h,
                 maximum: max_side,
             });
+        }
+        // The largest buffer a frame needs besides the lit buffer: the readback of a 16-byte
+        // target. Checked here so the device is never asked for it.
+        let readback = u64::from(super::readback::padded_row(w, 16)) * u64::from(h);
+        if readback > gpu.limits.max_buffer_size {
+            return Err(RenderError::BindingTooLarge {
+                what: "the readback of an illumination target",
+                bytes: readback,
+                maximum: gpu.limits.max_buffer_size,
+            });
+        }
+        let variant = self.frame_variant(gpu, w, h);
+        if variant != self.variant
+            && self
+                .targets
+                .as_ref()
+                .is_none_or(|t| (t.width, t.height) != (w, h))
+        {
+            tracing::info!(
+                width = w,
+                height = h,
+                "deferred lit buffer exceeds the device's storage-binding limit: forward eye pass"
+            );
         }
         let opts = self.options;
         let lit = layers.illumination;
@@ -286,12 +359,10 @@ impl Renderer {
             {
                 let layers = layer_count(plan.views.len());
                 let depth = ShadowDepth::of(opts.fault);
-                self.maps = Some(ShadowMaps::new(
-                    &gpu.device,
-                    opts.shadow_map_size,
-                    layers,
-                    depth,
-                ));
+                self.maps = None;
+                self.maps = Some(allocate(gpu, "the shadow maps", || {
+                    ShadowMaps::new(&gpu.device, opts.shadow_map_size, layers, depth)
+                })?);
             }
             let maps = self.maps.as_ref().expect("allocated above");
             stats.shadow_passes = render_shadow_maps(
@@ -313,12 +384,11 @@ impl Renderer {
             .as_ref()
             .is_some_and(|t| t.width == w && t.height == h)
         {
-            self.targets = Some(EyeTargets::new(
-                &gpu.device,
-                w,
-                h,
-                self.pipelines.illumination_format,
-            ));
+            self.targets = None;
+            let format = self.pipelines.illumination_format;
+            self.targets = Some(allocate(gpu, "the eye-pass targets", || {
+                EyeTargets::new(&gpu.device, w, h, format)
+            })?);
         }
         // The light pass is specialised to what this frame's lights are.
         let light_pass = self
@@ -336,13 +406,16 @@ impl Renderer {
             material_layers: layers.any_material(),
         };
         let vertex_count = self.scene.vertices.len() as u32;
-        if self.variant == EyeVariant::Deferred {
+        if variant == EyeVariant::Deferred {
             if !self
                 .deferred
                 .as_ref()
                 .is_some_and(|d| d.width == w && d.height == h)
             {
-                self.deferred = Some(DeferredTargets::new(&gpu.device, w, h));
+                self.deferred = None;
+                self.deferred = Some(allocate(gpu, "the deferred G-buffer", || {
+                    DeferredTargets::new(&gpu.device, w, h)
+                })?);
             }
             let deferred = self.deferred.as_ref().expect("allocated above");
             render_deferred(
@@ -362,7 +435,7 @@ impl Renderer {
         // Readback of the requested layers.
         let t2 = Instant::now();
         let mut requests: Vec<(ReadRequest<'_>, &str)> = Vec::new();
-        let lit_buffer = match (&self.deferred, self.variant) {
+        let lit_buffer = match (&self.deferred, variant) {
             (Some(d), EyeVariant::Deferred) if lit => {
                 Some(read_illumination(&gpu.device, &gpu.queue, d)?)
             }
@@ -474,6 +547,10 @@ fn req(texture: &wgpu::Texture, keep_channels: usize) -> ReadRequest<'_> {
         texture,
         keep_channels,
     }
+}
+
+fn allocate<T>(gpu: &Gpu, what: &'static str, make: impl FnOnce() -> T) -> Result<T, RenderError> {
+    gpu.allocate(what, |_| make())
 }
 
 fn wait(gpu: &Gpu) -> Result<(), RenderError> {
