@@ -392,3 +392,22 @@ fn scene_bytes_beyond_the_limits_are_refused() {
     let s: Scene = builtin("balls").unwrap();
     assert_eq!(Scene::from_bytes(&s.to_bytes().unwrap()).unwrap(), s);
 }
+
+#[test]
+fn a_primitive_naming_a_missing_accessor_is_an_error_not_a_panic() {
+    // Found by fuzzing (`fuzz/fuzz_targets/gltf.rs`): the gltf crate's validation indexed the
+    // POSITION accessor unchecked and panicked (caught, but a panic all the same).
+    let dir = scratch("missing-accessor");
+    std::fs::write(dir.join("tri.bin"), tri_bin()).unwrap();
+    let path = triangle(&dir, "tri.bin", "");
+    let json = std::fs::read_to_string(&path)
+        .unwrap()
+        .replace(r#""POSITION": 0"#, r#""POSITION": 7"#);
+    std::fs::write(&path, json).unwrap();
+    let e = load_err(&path);
+    has(
+        &e,
+        &["mesh 0 primitive 0 names accessor 7 but the file has 2"],
+    );
+    assert!(!e.contains("panicked"), "{e}");
+}

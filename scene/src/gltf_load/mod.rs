@@ -134,9 +134,9 @@ pub(crate) fn import(
             },
         ));
     }
-    let parsed = catch_unwind(|| gltf::Gltf::from_slice(bytes))
+    let parsed = catch_unwind(|| parse(bytes))
         .map_err(|p| err(format!("the glTF parser panicked: {}", panic_text(&p))))?;
-    let gltf = parsed.map_err(|e| err(describe(&e)))?;
+    let gltf = parsed.map_err(err)?;
     let walk = catch_unwind(AssertUnwindSafe(|| {
         let files = Budget::new("the model's files");
         files.take(bytes.len() as u64).map_err(|e| e.to_string())?;
@@ -153,6 +153,32 @@ pub(crate) fn import(
         Ok(r) => r.map_err(err),
         Err(p) => Err(err(format!("the glTF walk panicked: {}", panic_text(&p)))),
     }
+}
+
+/// Parses and validates a glTF or GLB. The `gltf` crate's validation indexes the accessor a
+/// primitive's POSITION names without a bounds check (a panic, found by fuzzing), so attribute
+/// indices are checked before it runs.
+fn parse(bytes: &[u8]) -> Result<gltf::Gltf, String> {
+    let raw = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| describe(&e))?;
+    let root = raw.document.as_json();
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            for index in prim.attributes.values() {
+                if index.value() >= root.accessors.len() {
+                    return Err(format!(
+                        "mesh {m} primitive {p} names accessor {} but the file has {}",
+                        index.value(),
+                        root.accessors.len()
+                    ));
+                }
+            }
+        }
+    }
+    let document = gltf::Document::from_json(raw.document.into_json()).map_err(|e| describe(&e))?;
+    Ok(gltf::Gltf {
+        document,
+        blob: raw.blob,
+    })
 }
 
 fn panic_text(p: &Box<dyn std::any::Any + Send>) -> String {
