@@ -5,8 +5,8 @@
 
 pub mod claim;
 mod codec;
-pub mod gate;
 mod downstream;
+pub mod gate;
 mod link;
 mod token;
 mod wire;
@@ -14,7 +14,7 @@ mod wire;
 pub use codec::LinkCodec;
 pub use downstream::Downstream;
 pub use link::{
-    Identity, Link, LinkReader, LinkWriter, NetError, PRE_AUTH_MAX_FRAME, Timeouts, accept, describe,
-    dial, dial_retry,
+    Identity, Link, LinkReader, LinkWriter, NetError, PRE_AUTH_MAX_FRAME, Timeouts, accept,
+    describe, dial, dial_retry,
 };
 pub use token::{TokenError, load_token};

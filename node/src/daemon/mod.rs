@@ -145,7 +145,10 @@ pub async fn run(
             },
         };
         let Some(slot) = gate.admit() else {
-            gate.refused(&peer.to_string(), &"too many connections are authenticating");
+            gate.refused(
+                &peer.to_string(),
+                &"too many connections are authenticating",
+            );
             drop(stream);
             continue;
         };
