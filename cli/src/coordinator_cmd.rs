@@ -124,6 +124,10 @@ impl JobArgs {
             scene.camera.width = w;
             scene.camera.height = h;
         }
+        if let Some(n) = self.shadow_map_size {
+            lightfold_scene::limits::check_shadow_map_size(n)
+                .map_err(|e| anyhow::anyhow!("bad --shadow-map-size: {e}"))?;
+        }
         Ok(scene)
     }
 
@@ -159,15 +163,11 @@ pub fn positive_ms(s: &str) -> Result<f64, String> {
     }
 }
 
+/// `--size WIDTHxHEIGHT`, within the image limits every input shares
+/// (`lightfold_scene::limits`, printed by `lightfold defaults`).
 pub fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
-    let (w, h) = s
-        .split_once(['x', 'X'])
-        .with_context(|| format!("size {s:?} is not WIDTHxHEIGHT"))?;
-    let (w, h): (u32, u32) = (w.parse()?, h.parse()?);
-    if w == 0 || h == 0 || w > 16384 || h > 16384 {
-        bail!("size {s:?} out of range (1..=16384 per side)");
-    }
-    Ok((w, h))
+    lightfold_scene::limits::parse_image_size(s)
+        .map_err(|e| anyhow::anyhow!("bad --size: {e} (see `lightfold defaults`)"))
 }
 
 pub fn run_cmd(args: Args) -> anyhow::Result<()> {

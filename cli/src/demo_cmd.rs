@@ -6,7 +6,7 @@
 
 use crate::coordinator_cmd::JobArgs;
 use anyhow::{Context, bail};
-use lightfold_coordinator::plan::{ClusterSpec, plan};
+use lightfold_coordinator::plan::{ClusterSpec, Plan, plan};
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -28,6 +28,85 @@ pub struct Args {
     /// Directory for the token and cluster file (default: a fresh temporary directory).
     #[arg(long)]
     pub work_dir: Option<PathBuf>,
+    /// Most processes the demo may start: render nodes, compositors and the coordinator. A
+    /// scene that needs more is refused before anything starts, with the -K that would fit.
+    /// Default: 4 per CPU core, at least 32 (the default scene needs 17: 8 nodes, 8
+    /// compositors and the coordinator).
+    #[arg(long, value_name = "N")]
+    pub max_processes: Option<usize>,
+}
+
+/// Processes per core `--max-processes` allows by default, and the floor.
+const PROCESSES_PER_CORE: usize = 4;
+const MIN_MAX_PROCESSES: usize = 32;
+
+/// The default of `--max-processes` on this machine.
+pub(crate) fn default_max_processes() -> usize {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    (PROCESSES_PER_CORE * cores).max(MIN_MAX_PROCESSES)
+}
+
+/// Refuses a plan needing more than `max` processes (nodes, stages and the coordinator), naming
+/// the smallest K that would fit.
+fn check_processes(
+    scene: &lightfold_scene::Scene,
+    job: &JobArgs,
+    probe: &Plan,
+    max_processes: Option<usize>,
+) -> anyhow::Result<()> {
+    let (max, why) = match max_processes {
+        Some(n) => (n, format!("--max-processes allows {n}")),
+        None => (
+            default_max_processes(),
+            format!(
+                "this machine holds {} ({PROCESSES_PER_CORE} per core, at least \
+                 {MIN_MAX_PROCESSES}; --max-processes N to change)",
+                default_max_processes()
+            ),
+        ),
+    };
+    let count = |p: &Plan| p.nodes.len() + p.stages.len() + 1;
+    let needed = count(probe);
+    if needed <= max {
+        return Ok(());
+    }
+    let cluster = ClusterSpec::local(256, 256);
+    // The planner's node count falls as K grows: the smallest K that fits, by bisection.
+    let at = |k: u32| {
+        let mut opts = job.plan_options();
+        opts.lights_per_node = k;
+        opts.frame_budget_us = None;
+        plan(scene, &cluster, &opts).ok()
+    };
+    let (mut lo, mut hi) = (probe.k + 1, 256);
+    let mut fits = None;
+    while lo <= hi {
+        let k = lo + (hi - lo) / 2;
+        match at(k).filter(|p| count(p) <= max) {
+            Some(p) => {
+                fits = Some((p.k, p.nodes.len(), p.stages.len(), count(&p)));
+                hi = k - 1;
+            }
+            None => lo = k + 1,
+        }
+    }
+    let hint = match fits {
+        Some((k, n, c, total)) => format!(
+            "-K {k} fits ({n} render node(s), {c} compositor(s), {total} processes), as does a \
+             --frame-budget loose enough for K ≥ {k}"
+        ),
+        None => "no K up to 256 fits: the scene has too many light samples for this many \
+                 processes"
+            .into(),
+    };
+    bail!(
+        "demo: scene {:?} at K = {} needs {} render node(s) and {} compositor(s), {needed} \
+         processes with the coordinator; {why}. {hint}",
+        scene.name,
+        probe.k,
+        probe.nodes.len(),
+        probe.stages.len(),
+    )
 }
 
 /// Spawned daemons, killed and reaped on drop (so every exit path, panics included, cleans up).
@@ -82,6 +161,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )?;
     let nodes = probe.nodes.len();
     let compositors = probe.stages.len();
+    check_processes(&scene, &args.job, &probe, args.max_processes)?;
     println!(
         "demo: scene {:?} needs {} render node(s) and {} compositor(s); starting them on loopback",
         scene.name, nodes, compositors
@@ -330,4 +410,57 @@ fn print_cpu(cpu: &[(String, f64)], frames: u32) {
         total / frames / cores,
         cores
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        job: JobArgs,
+    }
+
+    #[test]
+    fn a_scene_needing_too_many_processes_is_refused_with_a_k_that_fits() {
+        // 2 area lights × 500 samples: at K = 4 it used to start 250 nodes and 250 compositors.
+        let mut scene = lightfold_scene::builtin("balls").unwrap();
+        scene.quality.samples_per_area_light = Some(500);
+        let job = Cli::parse_from(["demo"]).job;
+        let probe = plan(&scene, &ClusterSpec::local(256, 256), &job.plan_options()).unwrap();
+        assert!(probe.nodes.len() > 200, "{} nodes", probe.nodes.len());
+        let e = check_processes(&scene, &job, &probe, Some(32))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("at K = 4 needs"), "{e}");
+        assert!(e.contains("--max-processes allows 32"), "{e}");
+        let k: u32 = e
+            .split("-K ")
+            .nth(1)
+            .and_then(|r| r.split(' ').next())
+            .and_then(|k| k.parse().ok())
+            .unwrap_or_else(|| panic!("no -K in {e}"));
+        assert!(
+            e.contains(&format!("--frame-budget loose enough for K ≥ {k}")),
+            "{e}"
+        );
+        let mut opts = job.plan_options();
+        opts.lights_per_node = k;
+        let fits = plan(&scene, &ClusterSpec::local(256, 256), &opts).unwrap();
+        assert!(fits.nodes.len() + fits.stages.len() < 32, "{e}");
+        opts.lights_per_node = k - 1;
+        let short = plan(&scene, &ClusterSpec::local(256, 256), &opts).unwrap();
+        assert!(
+            short.nodes.len() + short.stages.len() >= 32,
+            "K {k} is not the smallest"
+        );
+        // The default scene fits the default on any machine; a larger limit admits the scene.
+        let small = lightfold_scene::builtin("balls").unwrap();
+        let p = plan(&small, &ClusterSpec::local(256, 256), &job.plan_options()).unwrap();
+        check_processes(&small, &job, &p, None).unwrap();
+        check_processes(&scene, &job, &probe, Some(1000)).unwrap();
+        assert!(default_max_processes() >= MIN_MAX_PROCESSES);
+    }
 }

@@ -49,7 +49,8 @@ enum Command {
     /// Local cluster commands (`cluster up` is `demo`).
     #[command(subcommand)]
     Cluster(ClusterCommand),
-    /// Print the built-in defaults (image size, samples, K, shadow-map size).
+    /// Print the built-in defaults (image size, samples, K, shadow-map size) and the limits every
+    /// input is checked against.
     Defaults(defaults_cmd::Args),
     /// Run a render-node daemon.
     Node(node_cmd::Args),

@@ -56,10 +56,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut scene = lightfold_scene::builtin(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;
     if let Some(size) = &args.size {
-        let (w, h) = size
-            .split_once('x')
-            .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
-            .with_context(|| format!("size {size:?} is not WIDTHxHEIGHT"))?;
+        let (w, h) = crate::coordinator_cmd::parse_size(size)?;
         scene.camera.width = w;
         scene.camera.height = h;
     }

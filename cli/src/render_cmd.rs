@@ -7,6 +7,7 @@ use lightfold_reference::output::{
     Outputs, ReferenceMode, png_next_to, retain_lights, select_lights,
 };
 use lightfold_reference::{AreaOptions, render_to_files};
+use lightfold_scene::limits;
 use lightfold_scene::sampling::scene_samples;
 use std::path::PathBuf;
 
@@ -58,10 +59,12 @@ pub struct Args {
     /// Seed of the area-truth jitter.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Point samples per area light (overrides the scene).
+    /// Point samples per area light (overrides the scene; at most
+    /// `lightfold_scene::limits::MAX_SAMPLES_PER_AREA_LIGHT`, see `lightfold defaults`).
     #[arg(long)]
     pub samples: Option<u32>,
-    /// Image size as WIDTHxHEIGHT (default: the scene's).
+    /// Image size as WIDTHxHEIGHT (default: the scene's; at most 8192 per side and 4096x4096
+    /// pixels, see `lightfold defaults`).
     #[arg(long)]
     pub size: Option<String>,
     /// Also write the radiance without shadows (EXR), for `compare --unoccluded`.
@@ -79,17 +82,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut scene = lightfold_scene::load(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;
     if let Some(size) = &args.size {
-        let (w, h) = size
-            .split_once('x')
-            .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
-            .filter(|&(w, h): &(u32, u32)| w > 0 && h > 0)
-            .with_context(|| format!("bad --size {size:?}: expected WIDTHxHEIGHT"))?;
+        let (w, h) = limits::parse_image_size(size)
+            .map_err(|e| anyhow::anyhow!("bad --size: {e} (see `lightfold defaults`)"))?;
         scene.camera.width = w;
         scene.camera.height = h;
     }
     if let Some(n) = args.samples {
+        limits::check_samples_per_area_light("--samples", n)
+            .map_err(|e| anyhow::anyhow!("{e} (see `lightfold defaults`)"))?;
         scene.quality.samples_per_area_light = Some(n.max(1));
     }
+    if let Some(n) = args.shadow_map_size {
+        scene.quality.shadow_map_size = n;
+    }
+    // The same limits as scene files and the network: samples, image and maps with the
+    // overrides applied, before anything is allocated.
+    scene
+        .check_limits()
+        .map_err(|e| anyhow::anyhow!("{}: {e} (see `lightfold defaults`)", args.scene))?;
     let (mode, samples) = match args.area_truth {
         Some(spp) => {
             if !args.lights.is_empty() {

@@ -46,10 +46,8 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
         adapter_name: args.adapter.clone(),
     })
     .context("no usable GPU (try --backend gl, or --reference for the CPU)")?;
+    // `--shadow-map-size` is in the scene's quality already (checked against the limits).
     let mut opts = RenderOptions::from_quality(&scene.quality);
-    if let Some(size) = args.shadow_map_size {
-        opts.shadow_map_size = size;
-    }
     opts.walkthrough = args.walkthrough;
     let k = args
         .k
