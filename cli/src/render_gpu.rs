@@ -63,7 +63,7 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
             "adapter {} ({:?}), {:?} eye pass, {}x{}, {} samples, K = {k}, {}² maps, {} batch(es)",
             gpu.info.name,
             gpu.info.backend,
-            renderer.variant(),
+            renderer.frame_variant(&gpu, scene.camera.width, scene.camera.height),
             scene.camera.width,
             scene.camera.height,
             samples.len(),

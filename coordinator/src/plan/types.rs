@@ -177,7 +177,8 @@ pub const DEFAULT_EPSILON: f32 = 1e-3;
 pub const DEFAULT_BAND_HEIGHT: u32 = 32;
 /// Shadow-map size bounds and the size used when the mismatch factor has nothing to measure.
 pub const MIN_MAP_SIZE: u32 = 256;
-pub const MAX_MAP_SIZE: u32 = 4096;
+/// The shared limit of every input (`lightfold_scene::limits`).
+pub const MAX_MAP_SIZE: u32 = lightfold_scene::limits::MAX_SHADOW_MAP_SIZE;
 pub const DEFAULT_MAP_SIZE: u32 = 512;
 /// Default target mismatch: a shadow texel may span two image pixels. The bilinear 2×2 PCF lookup
 /// turns a texel step into a ramp one texel wide, so this blurs an edge over at most two pixels —
