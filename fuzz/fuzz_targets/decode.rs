@@ -54,7 +54,9 @@ fuzz_target!(|data: &[u8]| {
                     let length = u32::from_be_bytes(buf[..4].try_into().unwrap()) as usize;
                     let mut whole = buf.clone();
                     whole.resize(4 + length, 0);
-                    let e = codec.decode(&mut whole).expect_err("decode_head rejected it");
+                    let e = codec
+                        .decode(&mut whole)
+                        .expect_err("decode_head rejected it");
                     assert_eq!(format!("{h:?}"), format!("{e:?}"), "completed frame");
                 }
                 break;
