@@ -77,12 +77,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let mut scene = lightfold_scene::load(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;
-    let (w, h) = args
-        .size
-        .split_once('x')
-        .and_then(|(w, h)| Some((w.parse().ok()?, h.parse().ok()?)))
-        .filter(|&(w, h): &(u32, u32)| w > 0 && h > 0)
-        .with_context(|| format!("bad --size {:?}: expected WIDTHxHEIGHT", args.size))?;
+    let (w, h) = crate::coordinator_cmd::parse_size(&args.size)?;
     scene.camera.width = w;
     scene.camera.height = h;
     let label = scene_label(&args.scene);
