@@ -411,3 +411,36 @@ fn a_primitive_naming_a_missing_accessor_is_an_error_not_a_panic() {
     );
     assert!(!e.contains("panicked"), "{e}");
 }
+
+#[test]
+fn an_image_without_a_source_is_an_error_not_a_panic() {
+    // Found by fuzzing (`gltf` and `glb` targets): the gltf crate unwraps an image's `uri`, and a
+    // buffer-view image's `mimeType`, without its validation having checked they are there.
+    let dir = scratch("image-source");
+    std::fs::write(dir.join("tri.bin"), tri_bin()).unwrap();
+    for (image, words) in [
+        (
+            r#"{"name": "nothing"}"#,
+            "image 0 has neither a uri nor a bufferView",
+        ),
+        (
+            r#"{"bufferView": 0}"#,
+            "image 0 is stored in a buffer view but has no mimeType",
+        ),
+    ] {
+        let extra = format!(
+            r#",
+  "images": [{image}],
+  "textures": [{{"source": 0}}],
+  "materials": [{{"pbrMetallicRoughness": {{"baseColorTexture": {{"index": 0}}}}}}]"#
+        );
+        let path = triangle(&dir, "tri.bin", &extra);
+        let json = std::fs::read_to_string(&path)
+            .unwrap()
+            .replace(r#""indices": 1}"#, r#""indices": 1, "material": 0}"#);
+        std::fs::write(&path, json).unwrap();
+        let e = load_err(&path);
+        has(&e, &[words]);
+        assert!(!e.contains("panicked"), "{e}");
+    }
+}

@@ -155,9 +155,10 @@ pub(crate) fn import(
     }
 }
 
-/// Parses and validates a glTF or GLB. The `gltf` crate's validation indexes the accessor a
-/// primitive's POSITION names without a bounds check (a panic, found by fuzzing), so attribute
-/// indices are checked before it runs.
+/// Parses and validates a glTF or GLB. Found by fuzzing, the `gltf` crate panics where its
+/// validation does not look: it indexes the accessor a primitive's POSITION names without a
+/// bounds check, and `Image::source` unwraps an image's `uri`, or a buffer-view image's
+/// `mimeType`, when they are missing. Both are checked here first.
 fn parse(bytes: &[u8]) -> Result<gltf::Gltf, String> {
     let raw = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| describe(&e))?;
     let root = raw.document.as_json();
@@ -172,6 +173,17 @@ fn parse(bytes: &[u8]) -> Result<gltf::Gltf, String> {
                     ));
                 }
             }
+        }
+    }
+    for (i, image) in root.images.iter().enumerate() {
+        match (&image.buffer_view, &image.uri) {
+            (Some(_), _) if image.mime_type.is_none() => {
+                return Err(format!(
+                    "image {i} is stored in a buffer view but has no mimeType"
+                ));
+            }
+            (None, None) => return Err(format!("image {i} has neither a uri nor a bufferView")),
+            _ => {}
         }
     }
     let document = gltf::Document::from_json(raw.document.into_json()).map_err(|e| describe(&e))?;
