@@ -74,6 +74,28 @@ impl Image {
         })
     }
 
+    /// The first three channels as linear RGB (float) EXR file bytes.
+    pub fn exr_bytes(&self) -> Result<Vec<u8>, ImageError> {
+        use exr::prelude::{SpecificChannels, Vec2, WritableImage};
+        self.need(3, "EXR output")?;
+        let c = self.channels;
+        let w = self.width as usize;
+        let channels = SpecificChannels::rgb(|p: Vec2<usize>| {
+            let i = (p.y() * w + p.x()) * c;
+            (self.data[i], self.data[i + 1], self.data[i + 2])
+        });
+        let image = exr::image::Image::from_channels((w, self.height as usize), channels);
+        let mut out = std::io::Cursor::new(Vec::new());
+        image
+            .write()
+            .to_buffered(&mut out)
+            .map_err(|e| ImageError::Write {
+                path: "(memory)".to_string(),
+                message: e.to_string(),
+            })?;
+        Ok(out.into_inner())
+    }
+
     /// Reads the first RGB(A) layer of an EXR file as a 3-channel image.
     pub fn read_exr(path: &Path) -> Result<Image, ImageError> {
         let img = exr::prelude::read_first_rgba_layer_from_file(

@@ -6,7 +6,9 @@ mod live;
 mod session;
 mod sink;
 
-pub use live::{EpochRecord, FrameSpec, Incident, IncidentKind, Live, LiveSummary};
+pub use live::{
+    EpochRecord, FrameSpec, Incident, IncidentKind, Live, LiveState, LiveStatus, LiveSummary,
+};
 pub use session::{
     ControlError, ControlOptions, Daemon, DaemonAddr, FrameResult, SCENE_CHUNK, Session,
 };

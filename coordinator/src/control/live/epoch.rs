@@ -24,6 +24,7 @@ impl Live<'_> {
             ))
             .into());
         }
+        self.publish(true);
         let mut reason = reason;
         let mut waited_since: Option<Instant> = None;
         loop {
@@ -32,8 +33,8 @@ impl Live<'_> {
             o.epoch = epoch;
             let cluster = cluster_spec(self.session);
             let next = match &self.plan {
-                Some(prev) => replan(self.scene, &cluster, &o, prev),
-                None => plan(self.scene, &cluster, &o),
+                Some(prev) => replan(&self.scene, &cluster, &o, prev),
+                None => plan(&self.scene, &cluster, &o),
             };
             let next = match next {
                 Ok(p) => p,
@@ -61,7 +62,10 @@ impl Live<'_> {
                 Err(e) => return Err(e.into()),
             };
             match self.establish(next, &reason).await {
-                Ok(()) => return Ok(()),
+                Ok(()) => {
+                    self.publish(false);
+                    return Ok(());
+                }
                 Err(Halt::Interrupted) => {
                     reason = format!("{reason}; then {} lost", self.just_lost.join(", "));
                     continue;

@@ -72,7 +72,22 @@ impl Live<'_> {
                 break;
             };
             let wire = self.session.base + index;
-            let params = frame_params(plan, &spec.light_colors, index)?;
+            let params = match frame_params(plan, &spec.light_colors, index) {
+                Ok(p) => p,
+                Err(RunError::ColorSplit { node, .. }) => {
+                    // The nodes must render with the new colours themselves: re-plan over a
+                    // recoloured scene, then send this frame under the new epoch.
+                    self.recolour(&spec.light_colors)?;
+                    self.queue.push_front((index, spec));
+                    let why = format!(
+                        "new light colours at frame {index} split the colour group of {node}: re-planning"
+                    );
+                    self.notice(why.clone());
+                    self.need_replan = Some(why);
+                    break;
+                }
+                Err(e) => return Err(e),
+            };
             let mut failed = None;
             for id in &self.participants {
                 let msg = Message::RenderFrame {
@@ -106,6 +121,22 @@ impl Live<'_> {
                 warming: self.sent_in_epoch <= limit as u64,
             });
         }
+        Ok(())
+    }
+
+    /// Gives the scene's lights the colours of `colors` (source light → colour), as the next plan
+    /// and the nodes will have them.
+    fn recolour(&mut self, colors: &[(u32, [f32; 3])]) -> Result<(), RunError> {
+        for &(light, color) in colors {
+            if let Some(l) = self.scene.lights.get_mut(light as usize) {
+                l.color = color;
+            }
+        }
+        self.bytes = self
+            .scene
+            .to_bytes()
+            .map_err(|e| RunError::Scene(e.to_string()))?;
+        self.hash = self.scene.content_hash();
         Ok(())
     }
 

@@ -28,9 +28,12 @@ use frames::waiting_on;
 use lightfold_protocol::{ErrorCode, FrameStats, Message, WireCamera};
 use lightfold_scene::Scene;
 use std::collections::{BTreeMap, VecDeque};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 
+/// Incidents kept in `LiveStatus` (the newest).
+const STATUS_INCIDENTS: usize = 50;
 /// How often the loop looks at heartbeats and deadlines.
 const TICK: Duration = Duration::from_millis(50);
 /// Frame failures reported this soon after an epoch was configured are taken to belong to the
@@ -96,6 +99,35 @@ pub struct LiveSummary {
     pub rerequested: u64,
 }
 
+/// What the loop is doing, for a watcher.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum LiveState {
+    /// Before the first plan is configured.
+    #[default]
+    Starting,
+    /// Rendering with every daemon it has ever had.
+    Running,
+    /// Planning and configuring a new epoch.
+    Replanning,
+    /// Rendering, with daemons lost.
+    Degraded,
+}
+
+/// The loop's state as a watcher sees it (`Live::observe`), published whenever it changes.
+#[derive(Debug, Clone, Default)]
+pub struct LiveStatus {
+    pub state: LiveState,
+    pub plan: Option<Arc<Plan>>,
+    pub epochs: Vec<EpochRecord>,
+    /// The newest incidents (at most 50).
+    pub incidents: Vec<Incident>,
+    /// Lost daemons and why.
+    pub lost: Vec<(String, String)>,
+    /// The latest notice (a re-plan the user caused, …), numbered from 1.
+    pub notice: Option<(u64, String)>,
+    pub delivered: u64,
+}
+
 struct InFlight {
     index: u64,
     spec: FrameSpec,
@@ -131,7 +163,9 @@ impl From<ControlError> for Halt {
 /// The loop's state over one session.
 pub struct Live<'s> {
     session: &'s mut Session,
-    scene: &'s Scene,
+    /// The scene as the nodes have it (light colours change when a colour change splits a
+    /// node's colour group, which re-plans).
+    scene: Scene,
     opts: PlanOptions,
     bytes: Vec<u8>,
     hash: [u8; 32],
@@ -161,6 +195,8 @@ pub struct Live<'s> {
     last_warning: Option<Instant>,
     /// One tick for every phase, so heartbeats go out however busy the event channels are.
     tick: tokio::time::Interval,
+    observer: watch::Sender<LiveStatus>,
+    notices: u64,
     pub summary: LiveSummary,
 }
 
@@ -178,7 +214,7 @@ impl std::fmt::Debug for Live<'_> {
 impl<'s> Live<'s> {
     pub fn new(
         session: &'s mut Session,
-        scene: &'s Scene,
+        scene: &Scene,
         opts: &PlanOptions,
     ) -> Result<Live<'s>, RunError> {
         let bytes = scene
@@ -186,7 +222,7 @@ impl<'s> Live<'s> {
             .map_err(|e| RunError::Scene(e.to_string()))?;
         Ok(Live {
             session,
-            scene,
+            scene: scene.clone(),
             opts: opts.clone(),
             bytes,
             // Nodes decode what they receive and check it against this.
@@ -214,8 +250,56 @@ impl<'s> Live<'s> {
                 t.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
                 t
             },
+            observer: watch::Sender::new(LiveStatus::default()),
+            notices: 0,
             summary: LiveSummary::default(),
         })
+    }
+
+    /// A watcher of the loop's state (plan, epochs, incidents, lost daemons, notices).
+    pub fn observe(&self) -> watch::Receiver<LiveStatus> {
+        self.observer.subscribe()
+    }
+
+    /// Publishes the state to watchers.
+    pub(super) fn publish(&self, replanning: bool) {
+        let state = if replanning {
+            LiveState::Replanning
+        } else if self.plan.is_none() {
+            LiveState::Starting
+        } else if self.lost.is_empty() {
+            LiveState::Running
+        } else {
+            LiveState::Degraded
+        };
+        let skip = self
+            .summary
+            .incidents
+            .len()
+            .saturating_sub(STATUS_INCIDENTS);
+        let plan = self.plan.clone().map(Arc::new);
+        self.observer.send_modify(|s| {
+            s.state = state;
+            if plan.as_ref().map(|p| p.epoch) != s.plan.as_ref().map(|p| p.epoch) {
+                s.plan = plan;
+            }
+            s.epochs.clone_from(&self.summary.epochs);
+            s.incidents = self.summary.incidents[skip..].to_vec();
+            s.lost = self
+                .lost
+                .iter()
+                .map(|(a, b)| (a.clone(), b.clone()))
+                .collect();
+            s.delivered = self.summary.delivered;
+        });
+    }
+
+    /// Tells watchers something the user should see (and logs it).
+    pub(super) fn notice(&mut self, text: String) {
+        tracing::info!("{text}");
+        self.notices += 1;
+        let n = self.notices;
+        self.observer.send_modify(|s| s.notice = Some((n, text)));
     }
 
     /// The plan in use.
@@ -381,6 +465,7 @@ impl<'s> Live<'s> {
             at: Instant::now(),
         });
         self.pending_join.get_or_insert(format!("{id} rejoined"));
+        self.publish(false);
     }
 
     /// Drops a daemon; a re-plan is due if the plan used it.
@@ -403,6 +488,7 @@ impl<'s> Live<'s> {
             self.need_replan
                 .get_or_insert(format!("{id} lost: {reason}"));
         }
+        self.publish(self.need_replan.is_some());
     }
 
     /// Sends heartbeats and judges silence; a heartbeat counts as unanswered only from when it

@@ -1,0 +1,161 @@
+//! What the view's tasks share: the steering state, the newest encoded frame, the cluster status
+//! as the page shows it, and counters of what serving costs.
+
+use crate::ViewOptions;
+use crate::camera::Steer;
+use bytes::Bytes;
+use lightfold_coordinator::control::LiveStatus;
+use lightfold_scene::{Image, Scene};
+use sha2::{Digest, Sha256};
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+use tokio::sync::{Notify, watch};
+use tokio_util::sync::CancellationToken;
+
+/// Viewers served at once; more are refused (503).
+pub const MAX_VIEWERS: usize = 64;
+
+/// What serving the view has cost, for the figures in `docs/live-view.md`.
+#[derive(Debug, Default)]
+pub struct ViewCounters {
+    /// Frames the loop delivered, and those encoded for the view (the encoder skips frames
+    /// when it falls behind).
+    pub frames_delivered: AtomicU64,
+    pub frames_encoded: AtomicU64,
+    /// Time spent converting and encoding frames, microseconds.
+    pub encode_us: AtomicU64,
+    /// JPEG bytes encoded.
+    pub jpeg_bytes: AtomicU64,
+    /// Frame messages sent to viewers, their bytes, and frames a viewer skipped because a newer
+    /// one was ready before it could take the older.
+    pub frames_sent: AtomicU64,
+    pub bytes_sent: AtomicU64,
+    pub frames_skipped: AtomicU64,
+    /// Viewers dropped because a send did not finish within the deadline.
+    pub viewers_dropped: AtomicU64,
+}
+
+/// One encoded frame, ready to send: the binary WebSocket message and its JPEG part.
+#[derive(Debug)]
+pub struct ViewFrame {
+    pub frame: u64,
+    pub message: Bytes,
+    pub jpeg: Bytes,
+}
+
+#[derive(Debug)]
+pub struct Hub {
+    pub started: Instant,
+    pub continuous: bool,
+    pub jpeg_quality: u8,
+    pub send_timeout: std::time::Duration,
+    pub scene: serde_json::Value,
+    token: Option<[u8; 32]>,
+    pub steer: watch::Sender<Steer>,
+    /// A viewer asked for a frame although nothing changed.
+    pub render_now: Notify,
+    /// The number of the last frame the loop delivered.
+    pub delivered: watch::Sender<u64>,
+    /// The steering revision each frame was requested at, by frame number (pruned as frames
+    /// are delivered).
+    pub revisions: Mutex<BTreeMap<u64, u64>>,
+    pub frames: watch::Sender<Option<Arc<ViewFrame>>>,
+    /// The newest frame, linear (for `/frame.exr`).
+    pub image: Mutex<Option<Arc<Image>>>,
+    live: watch::Receiver<LiveStatus>,
+    /// The status as the page gets it, and the newest notice.
+    pub status: watch::Sender<Option<Arc<serde_json::Value>>>,
+    pub notice: watch::Sender<Option<(u64, String)>>,
+    pub viewers: AtomicUsize,
+    pub counters: Arc<ViewCounters>,
+    /// Cancelled when the view stops serving.
+    pub stop: CancellationToken,
+}
+
+impl Hub {
+    pub fn new(
+        scene: &Scene,
+        opts: &ViewOptions,
+        counters: Arc<ViewCounters>,
+        live: watch::Receiver<LiveStatus>,
+        stop: CancellationToken,
+    ) -> Hub {
+        Hub {
+            started: Instant::now(),
+            continuous: opts.continuous,
+            jpeg_quality: opts.jpeg_quality.clamp(1, 100),
+            send_timeout: opts.send_timeout,
+            scene: crate::json::scene(scene),
+            token: opts.token.as_deref().map(digest),
+            steer: watch::Sender::new(Steer::new(scene)),
+            render_now: Notify::new(),
+            delivered: watch::Sender::new(0),
+            revisions: Mutex::new(BTreeMap::new()),
+            frames: watch::Sender::new(None),
+            image: Mutex::new(None),
+            live,
+            status: watch::Sender::new(None),
+            notice: watch::Sender::new(None),
+            viewers: AtomicUsize::new(0),
+            counters,
+            stop,
+        }
+    }
+
+    /// Whether `presented` is the view's token (compared as digests: no early exit on the
+    /// first differing byte of the token itself).
+    pub fn token_matches(&self, presented: &str) -> bool {
+        self.token.is_some_and(|t| t == digest(presented))
+    }
+
+    /// The plan in use.
+    pub fn plan(&self) -> Option<Arc<lightfold_coordinator::plan::Plan>> {
+        self.live.borrow().plan.clone()
+    }
+
+    /// The loop delivered frame `frame`.
+    pub fn delivered(&self, frame: u64) {
+        self.counters
+            .frames_delivered
+            .fetch_add(1, Ordering::Relaxed);
+        self.delivered.send_replace(frame);
+    }
+
+    /// The steering revision frame `frame` was requested at (and forgets older frames).
+    pub fn revision_of(&self, frame: u64) -> u64 {
+        let mut r = self.revisions.lock().unwrap_or_else(|e| e.into_inner());
+        let rev = r.get(&frame).copied().unwrap_or(0);
+        r.retain(|&f, _| f > frame);
+        rev
+    }
+
+    /// Turns the loop's status into the page's, whenever it changes, until the view stops.
+    pub async fn relay_status(self: Arc<Self>) {
+        let mut live = self.live.clone();
+        live.mark_changed();
+        loop {
+            let (value, notice) = {
+                let s = live.borrow_and_update();
+                (crate::json::status(&s, self.started), s.notice.clone())
+            };
+            self.status.send_replace(Some(Arc::new(value)));
+            if notice.is_some() && *self.notice.borrow() != notice {
+                self.notice.send_replace(notice);
+            }
+            tokio::select! {
+                _ = self.stop.cancelled() => return,
+                r = live.changed() => if r.is_err() {
+                    // The loop ended; keep the last status until the view stops.
+                    self.stop.cancelled().await;
+                    return;
+                },
+            }
+        }
+    }
+}
+
+fn digest(s: &str) -> [u8; 32] {
+    Sha256::digest(s.as_bytes()).into()
+}

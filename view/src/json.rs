@@ -1,0 +1,198 @@
+//! The JSON the page reads (`docs/live-view.md`): the scene, the cluster status and plan, the
+//! camera and lights, and frame headers.
+
+use crate::camera::Steer;
+use lightfold_coordinator::control::{FrameResult, IncidentKind, LiveState, LiveStatus};
+use lightfold_coordinator::plan::{Downstream, Plan};
+use lightfold_scene::{Camera, LightShape, Scene};
+use serde_json::{Value, json};
+use std::time::Instant;
+
+pub fn scene(s: &Scene) -> Value {
+    let lights: Vec<Value> = s
+        .lights
+        .iter()
+        .enumerate()
+        .map(|(i, l)| {
+            json!({
+                "index": i,
+                "name": l.name,
+                "kind": shape_name(&l.shape),
+                "color": l.color,
+                "power": l.power,
+                "samples": if l.is_area() { l.samples } else { 1 },
+            })
+        })
+        .collect();
+    json!({
+        "name": s.name,
+        "width": s.camera.width,
+        "height": s.camera.height,
+        "exposure": s.exposure,
+        "lights": lights,
+    })
+}
+
+fn shape_name(s: &LightShape) -> &'static str {
+    match s {
+        LightShape::Point { .. } => "point",
+        LightShape::Spot { .. } => "spot",
+        LightShape::Directional { .. } => "directional",
+        LightShape::Rect { .. } => "rect",
+        LightShape::Disk { .. } => "disk",
+        LightShape::Sphere { .. } => "sphere",
+        LightShape::EmissiveMesh { .. } => "emissive mesh",
+    }
+}
+
+pub fn camera(c: &Camera) -> Value {
+    json!({
+        "position": c.position,
+        "target": c.target,
+        "up": c.up,
+        "fov_y_deg": c.fov_y_deg,
+    })
+}
+
+pub fn camera_message(s: &Steer) -> Value {
+    json!({"type": "camera", "camera": camera(&s.camera), "revision": s.revision})
+}
+
+pub fn lights_message(s: &Steer) -> Value {
+    let lights: Vec<Value> = s
+        .lights
+        .iter()
+        .enumerate()
+        .map(|(i, l)| json!({"index": i, "color": l.color, "intensity": l.intensity}))
+        .collect();
+    json!({"type": "lights", "lights": lights, "revision": s.revision})
+}
+
+pub fn status(s: &LiveStatus, started: Instant) -> Value {
+    let at =
+        |t: Instant| (t.saturating_duration_since(started).as_secs_f64() * 1000.0).round() / 1000.0;
+    let state = match s.state {
+        LiveState::Starting => "starting",
+        LiveState::Running => "running",
+        LiveState::Replanning => "replanning",
+        LiveState::Degraded => "degraded",
+    };
+    let incidents: Vec<Value> = s
+        .incidents
+        .iter()
+        .map(|i| {
+            let text = match &i.kind {
+                IncidentKind::Lost { reason } => format!("lost: {reason}"),
+                IncidentKind::Slow { frame, waited } => {
+                    format!("slow: frame {frame} waited {} ms", waited.as_millis())
+                }
+                IncidentKind::Rejoined => "rejoined".to_string(),
+            };
+            json!({"at_s": at(i.at), "daemon": i.daemon, "text": text})
+        })
+        .collect();
+    let epochs: Vec<Value> = s
+        .epochs
+        .iter()
+        .map(|e| {
+            json!({
+                "epoch": e.epoch, "at_s": at(e.at), "reason": e.reason, "nodes": e.nodes,
+                "stages": e.stages, "k": e.k, "lights_moved": e.lights_moved,
+                "configure_ms": e.configure.as_millis() as u64,
+            })
+        })
+        .collect();
+    let lost: Vec<Value> = s
+        .lost
+        .iter()
+        .map(|(id, why)| json!({"id": id, "reason": why}))
+        .collect();
+    json!({
+        "type": "status",
+        "state": state,
+        "epoch": s.plan.as_ref().map(|p| p.epoch),
+        "plan": s.plan.as_deref().map(plan),
+        "lost": lost,
+        "incidents": incidents,
+        "epochs": epochs,
+        "delivered": s.delivered,
+    })
+}
+
+pub fn plan(p: &Plan) -> Value {
+    let downstream = |d: &Downstream| match d {
+        Downstream::Stage(s) => s.clone(),
+        Downstream::Sink => "sink".to_string(),
+    };
+    let nodes: Vec<Value> = p
+        .nodes
+        .iter()
+        .map(|n| {
+            json!({
+                "id": n.node, "lights": n.lights.len(), "color": n.color,
+                "downstream": n.downstream, "est_ms": n.est_cost_us as f64 / 1000.0,
+            })
+        })
+        .collect();
+    let stages: Vec<Value> = p
+        .stages
+        .iter()
+        .map(|s| {
+            let ops: Vec<&str> = s.ops.iter().map(|(name, _)| name.as_str()).collect();
+            json!({"id": s.compositor, "ops": ops, "downstream": downstream(&s.downstream)})
+        })
+        .collect();
+    let links: Vec<Value> = p
+        .links
+        .iter()
+        .map(|l| {
+            let layers: Vec<String> = l
+                .layers
+                .iter()
+                .map(|(layer, f)| format!("{layer:?}:{f:?}"))
+                .collect();
+            json!({"from": l.from, "to": l.to, "layers": layers, "bytes_per_frame": l.bytes_per_frame})
+        })
+        .collect();
+    json!({
+        "nodes": nodes, "stages": stages, "links": links, "sink": p.sink, "k": p.k,
+        "idle": p.idle_nodes, "est_frame_ms": p.est_frame_us as f64 / 1000.0,
+        "walkthrough": p.walkthrough,
+    })
+}
+
+/// The header of a frame message.
+pub fn frame_header(
+    f: &FrameResult,
+    revision: u64,
+    interval_ms: Option<f64>,
+    plan: Option<&Plan>,
+) -> Value {
+    let is_node = |id: &str| plan.is_some_and(|p| p.nodes.iter().any(|n| n.node == id));
+    let daemons: Vec<Value> = f
+        .stats
+        .iter()
+        .map(|s| {
+            json!({
+                "id": s.daemon_id,
+                "role": if is_node(&s.daemon_id) { "node" } else { "compositor" },
+                "shadow_us": s.shadow_us, "eye_us": s.eye_us, "readback_us": s.readback_us,
+                "pack_us": s.pack_us, "send_us": s.send_us, "composite_us": s.composite_us,
+                "total_us": s.total_us, "bytes_out": s.bytes_out,
+                "lights_rendered": s.lights_rendered.len(),
+            })
+        })
+        .collect();
+    let latency = f.received_at.saturating_duration_since(f.requested_at);
+    json!({
+        "frame": f.frame,
+        "epoch": f.epoch,
+        "revision": revision,
+        "width": f.image.width,
+        "height": f.image.height,
+        "interval_ms": interval_ms,
+        "latency_ms": latency.as_secs_f64() * 1000.0,
+        "sink_bytes": f.sink_bytes,
+        "daemons": daemons,
+    })
+}

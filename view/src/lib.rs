@@ -1,0 +1,179 @@
+//! The live view (`docs/live-view.md`): an HTTP server on the coordinator's runtime that serves a
+//! web page showing the newest frame as frames complete, and lets the people watching steer the
+//! cluster — the camera of the next frame requested, the lights' colours and powers (the
+//! compositors' per-frame `c_n`, with no node re-rendering) — while it shows per-daemon timings,
+//! the plan as a graph and the cluster's state (re-planning, degraded, who was lost).
+//!
+//! The view drives the coordinator's event loop (`control::Live`) itself: frame requests come from
+//! the steering state, one at a time as room frees up (so a change reaches the next frame
+//! requested), and only when something changed unless `continuous`. Frames are encoded off the
+//! loop; every viewer gets the newest frame when it can take one, so a slow viewer drops frames
+//! and never slows the cluster.
+//!
+//! Security: a viewer connecting from loopback may steer; any other may only watch until it
+//! presents the token (`ViewOptions::token`, the cluster's or a separate viewer token).
+
+mod camera;
+mod encode;
+mod feed;
+mod http;
+mod hub;
+mod json;
+mod ws;
+
+pub use camera::{Steer, SteerError};
+pub use hub::ViewCounters;
+
+use lightfold_coordinator::control::{FrameResult, Live, LiveSummary, Session};
+use lightfold_coordinator::plan::PlanOptions;
+use lightfold_coordinator::run::RunOutcome;
+use lightfold_scene::Scene;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use tokio_util::sync::CancellationToken;
+
+/// How the view is served.
+#[derive(Debug, Clone)]
+pub struct ViewOptions {
+    /// Address to listen on (`127.0.0.1:8080` by default: loopback only).
+    pub listen: String,
+    /// Token a viewer beyond loopback must present to steer; `None`: such viewers only watch.
+    pub token: Option<String>,
+    /// Render frame after frame even when nothing changed (else only after a change).
+    pub continuous: bool,
+    /// JPEG quality of the frames pushed to viewers (1–100).
+    pub jpeg_quality: u8,
+    /// Kernel send buffer of each viewer's socket, bytes: small, so that a slow viewer's queue
+    /// holds a frame or two, not seconds of them (it gets the newest frame when it catches up).
+    pub send_buffer: u32,
+    /// A viewer that takes longer than this to take one message is dropped.
+    pub send_timeout: std::time::Duration,
+}
+
+impl Default for ViewOptions {
+    fn default() -> Self {
+        ViewOptions {
+            listen: DEFAULT_LISTEN.to_string(),
+            token: None,
+            continuous: false,
+            jpeg_quality: 85,
+            send_buffer: 256 << 10,
+            send_timeout: std::time::Duration::from_secs(10),
+        }
+    }
+}
+
+/// Where the view listens unless told otherwise.
+pub const DEFAULT_LISTEN: &str = "127.0.0.1:8080";
+
+/// A bound view server, ready to drive a session.
+#[derive(Debug)]
+pub struct View {
+    listener: tokio::net::TcpListener,
+    addr: SocketAddr,
+    opts: ViewOptions,
+    counters: Arc<ViewCounters>,
+}
+
+impl View {
+    /// Binds the HTTP listener.
+    pub async fn bind(opts: ViewOptions) -> anyhow::Result<View> {
+        use anyhow::Context;
+        let addr: SocketAddr = tokio::net::lookup_host(&opts.listen)
+            .await
+            .with_context(|| format!("cannot resolve the view's address {}", opts.listen))?
+            .next()
+            .with_context(|| format!("{} names no address", opts.listen))?;
+        let socket = if addr.is_ipv4() {
+            tokio::net::TcpSocket::new_v4()?
+        } else {
+            tokio::net::TcpSocket::new_v6()?
+        };
+        socket.set_reuseaddr(true)?;
+        // Accepted sockets inherit it.
+        socket.set_send_buffer_size(opts.send_buffer.max(4096))?;
+        socket
+            .bind(addr)
+            .with_context(|| format!("cannot listen for the view on {}", opts.listen))?;
+        let listener = socket.listen(128)?;
+        let addr = listener.local_addr()?;
+        Ok(View {
+            listener,
+            addr,
+            opts,
+            counters: Arc::default(),
+        })
+    }
+
+    pub fn local_addr(&self) -> SocketAddr {
+        self.addr
+    }
+
+    /// What serving the view has cost so far (encoding time, bytes sent, frames dropped).
+    pub fn counters(&self) -> Arc<ViewCounters> {
+        Arc::clone(&self.counters)
+    }
+
+    /// Serves the page and drives the session's event loop until `stop` is cancelled (the
+    /// frames in flight are then finished) or the loop fails.
+    pub async fn run(
+        self,
+        session: &mut Session,
+        scene: &Scene,
+        plan: &PlanOptions,
+        stop: CancellationToken,
+    ) -> RunOutcome {
+        self.run_with(session, scene, plan, stop, |_| {}).await
+    }
+
+    /// As `run`, handing every finished frame to `on_frame` as well (in order, once).
+    pub async fn run_with(
+        self,
+        session: &mut Session,
+        scene: &Scene,
+        plan: &PlanOptions,
+        stop: CancellationToken,
+        mut on_frame: impl FnMut(FrameResult),
+    ) -> RunOutcome {
+        let in_flight = session.opts.frames_in_flight.max(1) as u64;
+        let mut live = match Live::new(session, scene, plan) {
+            Ok(l) => l,
+            Err(e) => {
+                return RunOutcome {
+                    summary: LiveSummary::default(),
+                    error: Some(e),
+                };
+            }
+        };
+        let serving = CancellationToken::new();
+        let hub = Arc::new(hub::Hub::new(
+            scene,
+            &self.opts,
+            self.counters,
+            live.observe(),
+            serving.clone(),
+        ));
+        let server = tokio::spawn(http::serve(self.listener, Arc::clone(&hub)));
+        let relay = tokio::spawn(Arc::clone(&hub).relay_status());
+        let (tx, rx) = tokio::sync::mpsc::channel(1);
+        let feeder = tokio::spawn(feed::run(Arc::clone(&hub), tx, in_flight, stop));
+        let mut encoder = encode::Encoder::start(Arc::clone(&hub), scene.exposure);
+        let error = live
+            .run(rx, |f| {
+                hub.delivered(f.frame);
+                encoder.send(&f);
+                on_frame(f);
+            })
+            .await
+            .err();
+        feeder.abort();
+        encoder.finish();
+        serving.cancel();
+        let _ = server.await;
+        let _ = relay.await;
+        RunOutcome {
+            summary: std::mem::take(&mut live.summary),
+            error,
+        }
+    }
+}

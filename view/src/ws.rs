@@ -1,0 +1,263 @@
+//! One viewer's WebSocket: the welcome, then the newest frame whenever one is ready and the
+//! viewer has taken the one before, the status, camera and lights when they change, and the
+//! viewer's steering messages (`docs/live-view.md`).
+
+use crate::camera::SteerError;
+use crate::hub::Hub;
+use crate::json;
+use axum::extract::ws::{Message, WebSocket};
+use futures::{SinkExt, StreamExt};
+use serde::Deserialize;
+use serde_json::{Value, json};
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::sync::atomic::Ordering;
+
+#[derive(Debug, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+enum Input {
+    Hello {
+        token: String,
+    },
+    Orbit {
+        yaw_deg: f32,
+        pitch_deg: f32,
+    },
+    Pan {
+        x: f32,
+        y: f32,
+    },
+    Zoom {
+        factor: f32,
+    },
+    Camera {
+        camera: CameraIn,
+    },
+    Reset,
+    Light {
+        index: u32,
+        color: [f32; 3],
+        intensity: f32,
+    },
+    Render,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CameraIn {
+    position: [f32; 3],
+    target: [f32; 3],
+    up: [f32; 3],
+    fov_y_deg: f32,
+}
+
+struct Viewer {
+    hub: Arc<Hub>,
+    can_steer: bool,
+}
+
+/// Counts a viewer while it is connected.
+struct Present(Arc<Hub>);
+
+impl Drop for Present {
+    fn drop(&mut self) {
+        self.0.viewers.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
+pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
+    hub.viewers.fetch_add(1, Ordering::Relaxed);
+    let _present = Present(Arc::clone(&hub));
+    let mut v = Viewer {
+        can_steer: peer.ip().is_loopback(),
+        hub: Arc::clone(&hub),
+    };
+    tracing::info!(%peer, steer = v.can_steer, "viewer connected");
+    let (mut tx, mut rx) = socket.split();
+    let mut frames = hub.frames.subscribe();
+    let mut status = hub.status.subscribe();
+    let mut steer = hub.steer.subscribe();
+    let mut notices = hub.notice.subscribe();
+    notices.borrow_and_update(); // only notices from now on
+    frames.mark_changed();
+    status.mark_changed();
+    let mut outbox = vec![
+        v.welcome(),
+        json::lights_message(&steer.borrow_and_update()),
+    ];
+    let mut last_sent: Option<u64> = None;
+    loop {
+        for m in outbox.drain(..) {
+            if !send(&mut tx, &hub, Message::Text(m.to_string().into())).await {
+                return;
+            }
+        }
+        tokio::select! {
+            _ = hub.stop.cancelled() => {
+                let _ = tx.send(Message::Close(None)).await;
+                return;
+            }
+            m = rx.next() => match m {
+                Some(Ok(Message::Text(t))) => outbox.extend(v.handle(&t)),
+                Some(Ok(Message::Binary(_))) => {
+                    outbox.push(error("the view takes JSON text messages only"));
+                }
+                Some(Ok(Message::Ping(_) | Message::Pong(_))) => {}
+                Some(Ok(Message::Close(_))) | None => return,
+                Some(Err(e)) => {
+                    tracing::debug!(%peer, "viewer link failed: {e}");
+                    return;
+                }
+            },
+            r = frames.changed() => {
+                if r.is_err() { return; }
+                let f = frames.borrow_and_update().clone();
+                if let Some(f) = f {
+                    if let Some(prev) = last_sent {
+                        let skipped = f.frame.saturating_sub(prev + 1);
+                        hub.counters.frames_skipped.fetch_add(skipped, Ordering::Relaxed);
+                    }
+                    last_sent = Some(f.frame);
+                    let n = f.message.len() as u64;
+                    if !send(&mut tx, &hub, Message::Binary(f.message.clone())).await {
+                        return;
+                    }
+                    hub.counters.frames_sent.fetch_add(1, Ordering::Relaxed);
+                    hub.counters.bytes_sent.fetch_add(n, Ordering::Relaxed);
+                }
+            }
+            r = status.changed() => {
+                if r.is_err() { return; }
+                let s = status.borrow_and_update().clone();
+                if let Some(s) = s {
+                    let mut s = (*s).clone();
+                    s["viewers"] = hub.viewers.load(Ordering::Relaxed).into();
+                    outbox.push(s);
+                }
+            }
+            r = steer.changed() => {
+                if r.is_err() { return; }
+                let s = steer.borrow_and_update().clone();
+                outbox.push(json::camera_message(&s));
+                outbox.push(json::lights_message(&s));
+            }
+            r = notices.changed() => {
+                if r.is_err() { return; }
+                if let Some((_, text)) = notices.borrow_and_update().clone() {
+                    outbox.push(json!({"type": "notice", "text": text}));
+                }
+            }
+        }
+    }
+}
+
+/// Sends one message within the deadline; false when the viewer is gone or too slow.
+async fn send(
+    tx: &mut futures::stream::SplitSink<WebSocket, Message>,
+    hub: &Hub,
+    m: Message,
+) -> bool {
+    match tokio::time::timeout(hub.send_timeout, tx.send(m)).await {
+        Ok(Ok(())) => true,
+        Ok(Err(_)) => false,
+        Err(_) => {
+            hub.counters.viewers_dropped.fetch_add(1, Ordering::Relaxed);
+            tracing::warn!(
+                "a viewer took over {} s to take a message: dropped",
+                hub.send_timeout.as_secs_f64()
+            );
+            false
+        }
+    }
+}
+
+fn error(text: impl std::fmt::Display) -> Value {
+    json!({"type": "error", "text": text.to_string()})
+}
+
+impl Viewer {
+    fn welcome(&self) -> Value {
+        let s = self.hub.steer.borrow();
+        json!({
+            "type": "welcome",
+            "can_steer": self.can_steer,
+            "scene": self.hub.scene,
+            "camera": json::camera(&s.camera),
+            "revision": s.revision,
+            "walkthrough": self.hub.plan().is_some_and(|p| p.walkthrough),
+            "continuous": self.hub.continuous,
+        })
+    }
+
+    /// Applies one message from the page; what to answer.
+    fn handle(&mut self, text: &str) -> Vec<Value> {
+        let value: Value = match serde_json::from_str(text) {
+            Ok(v) => v,
+            Err(e) => return vec![error(format!("not JSON: {e}"))],
+        };
+        let mut value = value;
+        let id = value.as_object_mut().and_then(|o| o.remove("id"));
+        if id.as_ref().is_some_and(|i| !i.is_number()) {
+            return vec![error("\"id\" must be a number")];
+        }
+        let input: Input = match serde_json::from_value(value) {
+            Ok(i) => i,
+            Err(e) => return vec![error(format!("unknown or malformed message: {e}"))],
+        };
+        let mut out = Vec::new();
+        if let Input::Hello { token } = &input {
+            if self.hub.token_matches(token) {
+                self.can_steer = true;
+                out.push(self.welcome());
+            } else {
+                out.push(error("wrong token: this view can only watch"));
+            }
+        } else if !self.can_steer {
+            out.push(error(
+                "this view can only watch: present the cluster's token to steer",
+            ));
+        } else if let Input::Render = input {
+            self.hub.render_now.notify_one();
+        } else if let Err(e) = self.steer(input) {
+            out.push(error(e));
+        }
+        if let Some(id) = id {
+            let revision = self.hub.steer.borrow().revision;
+            out.push(json!({"type": "ack", "id": id, "revision": revision}));
+        }
+        out
+    }
+
+    fn steer(&self, input: Input) -> Result<(), SteerError> {
+        let mut result = Ok(());
+        self.hub.steer.send_if_modified(|s| {
+            let mut next = s.clone();
+            result = match input {
+                Input::Orbit { yaw_deg, pitch_deg } => next.orbit(yaw_deg, pitch_deg),
+                Input::Pan { x, y } => next.pan(x, y),
+                Input::Zoom { factor } => next.zoom(factor),
+                Input::Camera { camera: c } => {
+                    next.set_camera(c.position, c.target, c.up, c.fov_y_deg)
+                }
+                Input::Reset => {
+                    next.reset();
+                    Ok(())
+                }
+                Input::Light {
+                    index,
+                    color,
+                    intensity,
+                } => next.set_light(index, color, intensity),
+                Input::Hello { .. } | Input::Render => Ok(()),
+            };
+            if result.is_ok() && next != *s {
+                next.revision += 1;
+                *s = next;
+                true
+            } else {
+                false
+            }
+        });
+        result
+    }
+}
