@@ -1,0 +1,510 @@
+// lightfold live view: the page side of docs/live-view.md. Plain script, no dependencies.
+'use strict';
+
+(() => {
+  const ORBIT_DEG_PER_PX = 0.3;
+  const KEY_ORBIT_DEG = 5;
+  const ZOOM_PER_NOTCH = 1.1;
+  const LIGHT_THROTTLE_MS = 100;
+  const NOTICE_MS = 6000;
+  const SEGMENTS = [
+    ['shadow', 'shadow_us'], ['eye', 'eye_us'], ['readback', 'readback_us'],
+    ['pack', 'pack_us'], ['send', 'send_us'], ['composite', 'composite_us'],
+  ];
+
+  // State for people and for automated tests.
+  const view = (window.lightfoldView = {
+    connected: false, frames: 0, header: null, displayed: null, revision: null,
+    camera: null, canSteer: false, status: null, scene: null, lights: [],
+  });
+
+  const $ = (id) => document.getElementById(id);
+  const el = (tag, attrs, ...kids) => {
+    const e = document.createElement(tag);
+    for (const [k, v] of Object.entries(attrs || {})) {
+      if (k === 'class') e.className = v;
+      else if (k === 'text') e.textContent = v;
+      else if (k.startsWith('on')) e.addEventListener(k.slice(2), v);
+      else e.setAttribute(k, v);
+    }
+    for (const k of kids) if (k != null) e.append(k);
+    return e;
+  };
+  const SVGNS = 'http://www.w3.org/2000/svg';
+  const svg = (tag, attrs, text) => {
+    const e = document.createElementNS(SVGNS, tag);
+    for (const [k, v] of Object.entries(attrs || {})) e.setAttribute(k, v);
+    if (text != null) e.textContent = text;
+    return e;
+  };
+  const ms = (v) => (v == null || !isFinite(v) ? '–' : v >= 100 ? `${v.toFixed(0)} ms` : `${v.toFixed(1)} ms`);
+  const bytes = (b) => {
+    if (b == null) return '–';
+    if (b < 1024) return `${b} B`;
+    if (b < 1048576) return `${(b / 1024).toFixed(1)} KiB`;
+    return `${(b / 1048576).toFixed(2)} MiB`;
+  };
+  const fmtVec = (v) => (Array.isArray(v) ? v.map((x) => Number(x).toFixed(2)).join(', ') : '–');
+
+  // ---- sRGB <-> linear --------------------------------------------------------------------
+  const toLinear = (c) => (c <= 0.04045 ? c / 12.92 : Math.pow((c + 0.055) / 1.055, 2.4));
+  const toSrgb = (c) => (c <= 0.0031308 ? c * 12.92 : 1.055 * Math.pow(c, 1 / 2.4) - 0.055);
+  const linearToHex = (rgb) => '#' + rgb.map((c) => {
+    const v = Math.round(Math.min(1, Math.max(0, toSrgb(Math.max(0, c)))) * 255);
+    return v.toString(16).padStart(2, '0');
+  }).join('');
+  const hexToLinear = (hex) => [1, 3, 5].map((i) => toLinear(parseInt(hex.slice(i, i + 2), 16) / 255));
+
+  // ---- socket -----------------------------------------------------------------------------
+  let ws = null;
+  let backoff = 500;
+  let nextId = 1;
+  let firstFrameTimer = null;
+
+  function connect() {
+    const proto = location.protocol === 'https:' ? 'wss:' : 'ws:';
+    const sock = new WebSocket(`${proto}//${location.host}/ws`);
+    sock.binaryType = 'arraybuffer';
+    ws = sock;
+    setConn('connecting…', 'off');
+    sock.onopen = () => { view.connected = true; setConn('connected', 'on'); };
+    sock.onmessage = (ev) => {
+      if (typeof ev.data === 'string') onText(ev.data);
+      else onFrame(ev.data);
+    };
+    sock.onclose = () => {
+      if (ws !== sock) return;
+      view.connected = false;
+      ws = null;
+      const wait = Math.round(backoff * (0.75 + Math.random() * 0.5));
+      setConn(`reconnecting in ${(wait / 1000).toFixed(1)} s`, 'off');
+      backoff = Math.min(backoff * 2, 15000);
+      setTimeout(connect, wait);
+    };
+    sock.onerror = () => { /* onclose follows */ };
+  }
+
+  function setConn(text, cls) {
+    const c = $('conn');
+    c.textContent = text;
+    c.className = `pill ${cls}`;
+  }
+
+  /// Sends a message; steering messages get an id, answered by an ack.
+  function send(msg, steer = true) {
+    if (!ws || ws.readyState !== WebSocket.OPEN) return false;
+    if (steer) {
+      if (!view.canSteer) { toast('watch only: present the token to steer', 'error'); return false; }
+      msg.id = nextId++;
+    }
+    ws.send(JSON.stringify(msg));
+    return true;
+  }
+
+  function onText(data) {
+    let m;
+    try { m = JSON.parse(data); } catch (e) { log(`bad message: ${data.slice(0, 80)}`); return; }
+    switch (m.type) {
+      case 'welcome': return onWelcome(m);
+      case 'camera': view.camera = m.camera; showCamera(); return;
+      case 'lights': return onLights(m.lights || []);
+      case 'status': view.status = m; return showStatus(m);
+      case 'ack':
+        if (typeof m.revision === 'number') view.revision = Math.max(view.revision ?? m.revision, m.revision);
+        return;
+      case 'notice': log(m.text); return toast(m.text, 'notice');
+      case 'error': log(`error: ${m.text}`); return toast(m.text, 'error');
+      default: log(`unknown message ${m.type}`);
+    }
+  }
+
+  function onWelcome(m) {
+    backoff = 500;
+    view.canSteer = !!m.can_steer;
+    view.scene = m.scene || null;
+    view.camera = m.camera || null;
+    if (typeof m.revision === 'number') view.revision = m.revision;
+    $('watch-only').hidden = view.canSteer;
+    document.body.classList.toggle('watch', !view.canSteer);
+    const s = m.scene || {};
+    $('scene-name').textContent = s.name ? `${s.name} · ${s.width}×${s.height}${m.continuous ? ' · continuous' : ''}${m.walkthrough ? ' · walkthrough' : ''}` : '';
+    buildLights(s.lights || []);
+    showCamera();
+    fitFrame();
+    // Ask for a frame if none comes of its own accord (the view renders only on change).
+    clearTimeout(firstFrameTimer);
+    if (view.canSteer && !view.displayed) {
+      firstFrameTimer = setTimeout(() => { if (!view.frames) send({ type: 'render' }); }, 1500);
+    }
+  }
+
+  // ---- frames -----------------------------------------------------------------------------
+  const img = $('frame');
+  const urls = [];
+  let lastArrival = 0;
+  let fps = null;
+
+  function onFrame(buf) {
+    if (buf.byteLength < 4) return;
+    const n = new DataView(buf).getUint32(0, false);
+    if (4 + n > buf.byteLength) { log('truncated frame'); return; }
+    let header;
+    try { header = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n))); } catch (e) { log('bad frame header'); return; }
+    const url = URL.createObjectURL(new Blob([new Uint8Array(buf, 4 + n)], { type: 'image/jpeg' }));
+    urls.push(url);
+    img.onload = () => {
+      // Revoke every URL older than the one now shown.
+      while (urls.length && urls[0] !== url) URL.revokeObjectURL(urls.shift());
+      img.style.visibility = 'visible';
+      $('placeholder').hidden = true;
+      view.displayed = header;
+      fitFrame();
+    };
+    img.onerror = () => log(`frame ${header.frame}: JPEG did not decode`);
+    img.src = url;
+    view.frames += 1;
+    view.header = header;
+    const now = performance.now();
+    if (lastArrival) {
+      const inst = 1000 / Math.max(1, now - lastArrival);
+      fps = fps == null ? inst : fps * 0.8 + inst * 0.2;
+    }
+    lastArrival = now;
+    $('st-frame').textContent = header.frame;
+    $('st-epoch').textContent = header.epoch;
+    $('st-interval').textContent = ms(header.interval_ms);
+    $('st-latency').textContent = ms(header.latency_ms);
+    $('st-fps').textContent = fps == null ? '–' : fps.toFixed(1);
+    scheduleTimings(header);
+  }
+
+  // Sizes the frame to fill the viewport at the scene's aspect ratio.
+  function fitFrame() {
+    const vp = $('viewport');
+    const w = img.naturalWidth || view.scene?.width;
+    const h = img.naturalHeight || view.scene?.height;
+    if (!w || !h) return;
+    const s = Math.min(vp.clientWidth / w, vp.clientHeight / h);
+    img.style.width = `${Math.floor(w * s)}px`;
+    img.style.height = `${Math.floor(h * s)}px`;
+  }
+  new ResizeObserver(fitFrame).observe($('viewport'));
+
+  // ---- camera control ---------------------------------------------------------------------
+  const vp = $('viewport');
+  const pending = { yaw: 0, pitch: 0, px: 0, py: 0, zoom: 1 };
+  let drag = null;
+  let flushQueued = false;
+
+  function queueFlush() {
+    if (flushQueued) return;
+    flushQueued = true;
+    requestAnimationFrame(flush);
+  }
+
+  // At most one message of each kind per animation frame.
+  function flush() {
+    flushQueued = false;
+    if (pending.yaw || pending.pitch) send({ type: 'orbit', yaw_deg: pending.yaw, pitch_deg: pending.pitch });
+    if (pending.px || pending.py) send({ type: 'pan', x: pending.px, y: pending.py });
+    if (pending.zoom !== 1) send({ type: 'zoom', factor: pending.zoom });
+    Object.assign(pending, { yaw: 0, pitch: 0, px: 0, py: 0, zoom: 1 });
+  }
+
+  vp.addEventListener('contextmenu', (e) => e.preventDefault());
+  vp.addEventListener('mousedown', (e) => {
+    if (e.button !== 0 && e.button !== 2) return;
+    e.preventDefault();
+    vp.focus();
+    drag = { x: e.clientX, y: e.clientY, pan: e.button === 2 || e.shiftKey };
+    vp.classList.add(drag.pan ? 'panning' : 'orbiting');
+  });
+  window.addEventListener('mousemove', (e) => {
+    if (!drag) return;
+    const dx = e.clientX - drag.x;
+    const dy = e.clientY - drag.y;
+    drag.x = e.clientX;
+    drag.y = e.clientY;
+    if (!dx && !dy) return;
+    if (drag.pan) {
+      const r = img.getBoundingClientRect();
+      pending.px -= dx / Math.max(1, r.width);
+      pending.py += dy / Math.max(1, r.height);
+    } else {
+      pending.yaw -= dx * ORBIT_DEG_PER_PX;
+      pending.pitch += dy * ORBIT_DEG_PER_PX;
+    }
+    queueFlush();
+  });
+  window.addEventListener('mouseup', () => {
+    if (!drag) return;
+    drag = null;
+    vp.classList.remove('panning', 'orbiting');
+  });
+  vp.addEventListener('wheel', (e) => {
+    e.preventDefault();
+    const notches = e.deltaMode === 1 ? e.deltaY / 3 : e.deltaMode === 2 ? e.deltaY : e.deltaY / 100;
+    pending.zoom *= Math.pow(ZOOM_PER_NOTCH, notches);
+    queueFlush();
+  }, { passive: false });
+
+  window.addEventListener('keydown', (e) => {
+    const t = e.target;
+    if (t && (t.tagName === 'INPUT' || t.tagName === 'TEXTAREA' || t.tagName === 'SELECT' || t.isContentEditable)) return;
+    if (e.ctrlKey || e.metaKey || e.altKey) return;
+    const k = e.key.length === 1 ? e.key.toLowerCase() : e.key;
+    const orbit = {
+      ArrowLeft: [KEY_ORBIT_DEG, 0], a: [KEY_ORBIT_DEG, 0],
+      ArrowRight: [-KEY_ORBIT_DEG, 0], d: [-KEY_ORBIT_DEG, 0],
+      ArrowUp: [0, -KEY_ORBIT_DEG], w: [0, -KEY_ORBIT_DEG],
+      ArrowDown: [0, KEY_ORBIT_DEG], s: [0, KEY_ORBIT_DEG],
+    }[k];
+    if (orbit) { pending.yaw += orbit[0]; pending.pitch += orbit[1]; queueFlush(); }
+    else if (k === '+' || k === '=') { pending.zoom /= ZOOM_PER_NOTCH; queueFlush(); }
+    else if (k === '-' || k === '_') { pending.zoom *= ZOOM_PER_NOTCH; queueFlush(); }
+    else if (k === 'r') send({ type: 'reset' });
+    else if (k === ' ') send({ type: 'render' });
+    else return;
+    e.preventDefault();
+  });
+  $('btn-reset').addEventListener('click', () => send({ type: 'reset' }));
+  $('btn-render').addEventListener('click', () => send({ type: 'render' }));
+  $('token-form').addEventListener('submit', (e) => {
+    e.preventDefault();
+    const token = $('token').value;
+    if (token) send({ type: 'hello', token }, false);
+  });
+
+  function showCamera() {
+    const c = view.camera;
+    $('camera').textContent = c ? `camera  position ${fmtVec(c.position)}  target ${fmtVec(c.target)}  fov ${Number(c.fov_y_deg).toFixed(1)}°` : '';
+  }
+
+  // ---- lights -----------------------------------------------------------------------------
+  // Per light: {index, color (linear), intensity, inputs, timer, last}.
+  const controls = [];
+  const publish = (st) => {
+    const l = view.lights.find((x) => x.index === st.index);
+    if (l) Object.assign(l, { color: st.color.slice(), intensity: st.intensity });
+  };
+  function buildLights(lights) {
+    const box = $('lights');
+    box.replaceChildren();
+    controls.length = 0;
+    view.lights = [];
+    if (!lights.length) { box.append(el('div', { class: 'dim', text: 'the scene has no lights' })); return; }
+    for (const l of lights) {
+      const st = { index: l.index, color: (l.color || [1, 1, 1]).slice(), intensity: 1, timer: null, last: 0 };
+      const color = el('input', { type: 'color', value: linearToHex(st.color), title: 'colour (sRGB; sent linear)' });
+      const slider = el('input', { type: 'range', min: '0', max: '4', step: '0.05', value: '1', title: 'intensity multiplier' });
+      const val = el('span', { class: 'mono val', text: '1.00×' });
+      color.addEventListener('input', () => { st.color = hexToLinear(color.value); sendLight(st); });
+      slider.addEventListener('input', () => {
+        st.intensity = Number(slider.value);
+        val.textContent = `${st.intensity.toFixed(2)}×`;
+        sendLight(st);
+      });
+      slider.addEventListener('dblclick', () => { slider.value = '1'; slider.dispatchEvent(new Event('input')); });
+      Object.assign(st, { colorInput: color, slider, val });
+      controls.push(st);
+      view.lights.push({ index: st.index, color: st.color, intensity: st.intensity });
+      const meta = [l.kind, l.power != null ? `${Number(l.power).toPrecision(3)} W` : null, l.samples > 1 ? `${l.samples} samples` : null]
+        .filter(Boolean).join(' · ');
+      box.append(el('div', { class: 'light' },
+        color,
+        el('div', { class: 'light-name' }, el('div', { text: l.name || `light ${l.index}` }), el('div', { class: 'dim small', text: meta })),
+        slider, val));
+    }
+  }
+
+  // Throttled: at most one message per light per LIGHT_THROTTLE_MS, the last value always sent.
+  function sendLight(st) {
+    const now = performance.now();
+    const go = () => {
+      st.timer = null;
+      st.last = performance.now();
+      publish(st);
+      send({ type: 'light', index: st.index, color: st.color, intensity: st.intensity });
+    };
+    if (st.timer) return;
+    const wait = LIGHT_THROTTLE_MS - (now - st.last);
+    if (wait <= 0) go();
+    else st.timer = setTimeout(go, wait);
+  }
+
+  function onLights(lights) {
+    for (const l of lights) {
+      const st = controls.find((s) => s.index === l.index);
+      if (!st || st.timer) continue; // a change of ours is on its way
+      if (Array.isArray(l.color)) { st.color = l.color.slice(); st.colorInput.value = linearToHex(st.color); }
+      if (typeof l.intensity === 'number') {
+        st.intensity = l.intensity;
+        if (document.activeElement !== st.slider) st.slider.value = String(l.intensity);
+        st.val.textContent = `${l.intensity.toFixed(2)}×`;
+      }
+      publish(st);
+    }
+  }
+
+  // ---- timings ----------------------------------------------------------------------------
+  $('legend').append(...SEGMENTS.map(([name], i) => el('span', { class: 'key' }, el('i', { class: `seg s${i}` }), name)));
+  let timingsQueued = null;
+  function scheduleTimings(h) {
+    if (timingsQueued) { timingsQueued = h; return; }
+    timingsQueued = h;
+    requestAnimationFrame(() => { const x = timingsQueued; timingsQueued = null; showTimings(x); });
+  }
+
+  function showTimings(h) {
+    const ds = h.daemons || [];
+    const box = $('timings');
+    if (!ds.length) { box.replaceChildren(el('div', { class: 'dim', text: 'no timings in this frame' })); return; }
+    const sum = (d) => SEGMENTS.reduce((a, [, k]) => a + (d[k] || 0), 0);
+    const scale = Math.max(1, ...ds.map((d) => Math.max(sum(d), d.total_us || 0)));
+    const rows = ds.map((d) => {
+      const bar = el('div', { class: 'bar' });
+      SEGMENTS.forEach(([name, k], i) => {
+        const v = d[k] || 0;
+        if (v <= 0) return;
+        bar.append(el('i', { class: `seg s${i}`, style: `width:${(100 * v / scale).toFixed(2)}%`, title: `${name} ${ms(v / 1000)}` }));
+      });
+      const parts = SEGMENTS.filter(([, k]) => d[k] > 0).map(([name, k]) => `${name} ${ms(d[k] / 1000)}`).join(' · ');
+      const extra = [d.role === 'node' && d.lights_rendered != null ? `${d.lights_rendered} lights` : null,
+        d.bytes_out != null ? `${bytes(d.bytes_out)} out` : null].filter(Boolean).join(' · ');
+      return el('div', { class: `trow ${d.role}` },
+        el('div', { class: 'tname', title: `${d.id} (${d.role})` }, el('b', { text: d.id })),
+        bar,
+        el('div', { class: 'tms mono', text: ms((d.total_us || sum(d)) / 1000) }),
+        el('div', { class: 'tparts dim small', text: [parts, extra].filter(Boolean).join('  |  ') }));
+    });
+    box.replaceChildren(...rows);
+    $('timing-total').textContent = `frame ${h.frame} · ${bytes(h.jpeg_bytes)} JPEG · ${bytes(h.sink_bytes)} at the sink`;
+  }
+
+  // ---- plan graph -------------------------------------------------------------------------
+  let planKey = '';
+  function showPlan(plan) {
+    const key = JSON.stringify(plan || null);
+    if (key === planKey) return;
+    planKey = key;
+    const box = $('plan');
+    if (!plan || !plan.nodes) { box.replaceChildren(el('div', { class: 'dim', text: 'no plan yet' })); return; }
+    $('plan-summary').textContent = `K ${plan.k ?? '–'} · est. ${ms(plan.est_frame_ms)}/frame`;
+    const items = new Map(); // id -> {kind, col, lines}
+    for (const n of plan.nodes) {
+      const lights = Array.isArray(n.lights) ? n.lights.length : n.lights;
+      items.set(n.id, { kind: 'node', col: 0, lines: [n.id, `${lights} light${lights === 1 ? '' : 's'}${n.est_ms != null ? ` · ${ms(n.est_ms)}` : ''}`], color: n.color });
+    }
+    for (const s of plan.stages || []) items.set(s.id, { kind: 'stage', col: 1, lines: [s.id, (s.ops || []).join(' + ')] });
+    const sink = plan.sink ?? 'sink';
+    if (!items.has(sink)) items.set(sink, { kind: 'sink', col: 2, lines: ['sink', sink === 'sink' ? 'coordinator' : String(sink)] });
+    let links = plan.links || [];
+    if (!links.length) {
+      links = [...plan.nodes, ...(plan.stages || [])].filter((x) => x.downstream != null).map((x) => ({ from: x.id, to: x.downstream }));
+    }
+    for (const l of links) if (!items.has(l.to)) items.set(l.to, { kind: 'stage', col: 1, lines: [String(l.to), ''] });
+    // Stages feeding stages go further right: column = longest path from the nodes.
+    for (let pass = 0; pass < items.size; pass++) {
+      let moved = false;
+      for (const l of links) {
+        const a = items.get(l.from); const b = items.get(l.to);
+        if (a && b && b.kind !== 'node' && b.col <= a.col) { b.col = a.col + 1; moved = true; }
+      }
+      if (!moved) break;
+    }
+    const last = Math.max(...[...items.values()].filter((x) => x.kind !== 'sink').map((x) => x.col)) + 1;
+    items.get(sink).col = Math.max(last, 2);
+    const cols = [];
+    for (const [id, it] of items) (cols[it.col] ||= []).push(id);
+    const BW = 132, BH = 44, GAP = 150, CW = BW + GAP, RH = 62, PAD = 12;
+    const rows = Math.max(...cols.map((c) => (c ? c.length : 0)));
+    const H = rows * RH + PAD * 2, W = (cols.length - 1) * CW + BW + PAD * 2;
+    cols.forEach((ids, c) => (ids || []).forEach((id, r) => {
+      const it = items.get(id);
+      it.x = PAD + c * CW;
+      it.y = PAD + (H - PAD * 2 - ids.length * RH) / 2 + r * RH + (RH - BH) / 2;
+    }));
+    const root = svg('svg', { viewBox: `0 0 ${W} ${H}`, width: W, height: H, style: 'max-width:100%;height:auto', role: 'img', 'aria-label': 'the plan' });
+    root.append(svg('defs', {}));
+    root.firstChild.innerHTML = '<marker id="arrow" viewBox="0 0 10 10" refX="9" refY="5" markerWidth="6" markerHeight="6" orient="auto"><path d="M0,0 L10,5 L0,10 z" fill="#7d8aa5"/></marker>';
+    for (const l of links) {
+      const a = items.get(l.from), b = items.get(l.to);
+      if (!a || !b) continue;
+      const x1 = a.x + BW, y1 = a.y + BH / 2, x2 = b.x, y2 = b.y + BH / 2, mx = (x1 + x2) / 2;
+      root.append(svg('path', { d: `M${x1},${y1} C${mx},${y1} ${mx},${y2} ${x2},${y2}`, class: 'edge', 'marker-end': 'url(#arrow)' }));
+      const layers = (l.layers || []).join(', ');
+      // The label sits over the edge's midpoint, its layers wrapped to the gap's width.
+      const lines = [];
+      for (const name of l.layers || []) {
+        if (lines.length && (lines[lines.length - 1] + ', ' + name).length <= 24) lines[lines.length - 1] += ', ' + name;
+        else lines.push(name);
+      }
+      if (lines.length > 3) lines.splice(2, lines.length, `+${(l.layers || []).length - lines.slice(0, 2).join(', ').split(', ').length} more`);
+      // On the curve, early in its first gap (so labels of converging edges stay apart).
+      const bz = (t, a, b, c, d) => (1 - t) ** 3 * a + 3 * (1 - t) ** 2 * t * b + 3 * (1 - t) * t * t * c + t ** 3 * d;
+      let lo = 0, hi = 1;
+      for (let i = 0; i < 20; i++) { const m = (lo + hi) / 2; if (bz(m, x1, mx, mx, x2) < x1 + GAP * 0.45) lo = m; else hi = m; }
+      const tx = bz(lo, x1, mx, mx, x2), ty = bz(lo, y1, y1, y2, y2) - 6 * lines.length;
+      const label = svg('text', { x: tx, y: ty, class: 'elabel', 'text-anchor': 'middle' });
+      lines.forEach((t, i) => label.append(svg('tspan', { x: tx, dy: i ? 11 : 0 }, t)));
+      if (l.bytes_per_frame != null) label.append(svg('tspan', { x: tx, dy: lines.length ? 11 : 0, class: 'ebytes' }, `${bytes(l.bytes_per_frame)}/frame`));
+      const t = svg('title', {}, `${l.from} → ${l.to}\n${layers}\n${bytes(l.bytes_per_frame)} per frame`);
+      label.append(t);
+      root.append(label);
+    }
+    for (const [id, it] of items) {
+      const g = svg('g', { class: `box ${it.kind}` });
+      g.append(svg('rect', { x: it.x, y: it.y, width: BW, height: BH, rx: 6 }));
+      if (it.color != null) g.append(svg('title', {}, `${id}: colour group ${JSON.stringify(it.color)}`));
+      g.append(svg('text', { x: it.x + BW / 2, y: it.y + 18, 'text-anchor': 'middle', class: 'bname' }, it.lines[0]));
+      g.append(svg('text', { x: it.x + BW / 2, y: it.y + 34, 'text-anchor': 'middle', class: 'bsub' }, it.lines[1]));
+      root.append(g);
+    }
+    box.replaceChildren(root);
+  }
+
+  // ---- cluster state ----------------------------------------------------------------------
+  function showStatus(s) {
+    const st = $('state');
+    st.textContent = s.state || '–';
+    st.className = `pill state-${s.state}`;
+    const kv = $('cluster');
+    kv.replaceChildren();
+    const row = (k, v) => kv.append(el('dt', { text: k }), el('dd', { text: v }));
+    row('state', s.state ?? '–');
+    row('epoch', s.epoch ?? '–');
+    row('viewers', s.viewers ?? '–');
+    if (s.plan) {
+      row('nodes / stages', `${(s.plan.nodes || []).length} / ${(s.plan.stages || []).length}`);
+      row('lights per node (K)', s.plan.k ?? '–');
+    }
+    const list = (id, items, f) => {
+      const ul = $(id);
+      ul.replaceChildren(...(items && items.length ? items.map(f) : [el('li', { class: 'dim', text: 'none' })]));
+    };
+    list('lost', s.lost, (l) => el('li', { class: 'bad' }, el('b', { text: l.id }), ` — ${l.reason}`));
+    list('incidents', (s.incidents || []).slice(-12).reverse(), (i) =>
+      el('li', {}, el('span', { class: 'mono dim', text: `${Number(i.at_s).toFixed(1)} s ` }), el('b', { text: i.daemon ?? '' }), ` ${i.text}`));
+    const tb = $('epochs').tBodies[0];
+    tb.replaceChildren(...(s.epochs || []).slice().reverse().map((e) => el('tr', {},
+      ...[e.epoch, `${Number(e.at_s).toFixed(1)} s`, e.reason, e.nodes, e.stages, e.k, e.lights_moved, ms(e.configure_ms)]
+        .map((v) => el('td', { text: v ?? '–' })))));
+    showPlan(s.plan);
+  }
+
+  // ---- notices ----------------------------------------------------------------------------
+  function toast(text, kind) {
+    const t = el('div', { class: `toast ${kind}`, text });
+    $('toasts').append(t);
+    setTimeout(() => t.classList.add('fade'), NOTICE_MS - 600);
+    setTimeout(() => t.remove(), NOTICE_MS);
+  }
+  function log(text) {
+    const ul = $('log');
+    ul.prepend(el('li', {}, el('span', { class: 'mono dim', text: `${new Date().toLocaleTimeString()} ` }), text));
+    while (ul.children.length > 100) ul.lastChild.remove();
+  }
+
+  img.style.visibility = 'hidden';
+  connect();
+})();
