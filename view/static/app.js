@@ -12,9 +12,12 @@
     ['pack', 'pack_us'], ['send', 'send_us'], ['composite', 'composite_us'],
   ];
 
-  // State for people and for automated tests.
+  // The page's state, for automated tests: frames received, the last header received and the
+  // one on screen (`displayed`), the last acked steering revision, steering messages awaiting
+  // their ack (`unacked`), the server's error messages, the camera, whether this viewer may
+  // steer, the last status.
   const view = (window.lightfoldView = {
-    connected: false, frames: 0, header: null, displayed: null, revision: null,
+    connected: false, frames: 0, header: null, displayed: null, revision: null, unacked: 0, errors: [],
     camera: null, canSteer: false, status: null, scene: null, lights: [],
   });
 
@@ -43,6 +46,14 @@
     if (b < 1024) return `${b} B`;
     if (b < 1048576) return `${(b / 1024).toFixed(1)} KiB`;
     return `${(b / 1048576).toFixed(2)} MiB`;
+  };
+  // Epochs are 64-bit ids beyond a double's exact range: parsed as strings, shown as their
+  // ordinal among the epochs the status lists (the full id in the tooltip).
+  const parseJson = (text) => JSON.parse(text.replace(/("epoch"\s*:\s*)(\d{16,})/g, '$1"$2"'));
+  const epochLabel = (e) => {
+    if (e == null) return '–';
+    const i = (view.status?.epochs || []).findIndex((x) => String(x.epoch) === String(e));
+    return i >= 0 ? `#${i + 1}` : `…${String(e).slice(-4)}`;
   };
   const fmtVec = (v) => (Array.isArray(v) ? v.map((x) => Number(x).toFixed(2)).join(', ') : '–');
 
@@ -75,6 +86,7 @@
     sock.onclose = () => {
       if (ws !== sock) return;
       view.connected = false;
+      view.unacked = 0;
       ws = null;
       const wait = Math.round(backoff * (0.75 + Math.random() * 0.5));
       setConn(`reconnecting in ${(wait / 1000).toFixed(1)} s`, 'off');
@@ -96,6 +108,7 @@
     if (steer) {
       if (!view.canSteer) { toast('watch only: present the token to steer', 'error'); return false; }
       msg.id = nextId++;
+      view.unacked += 1;
     }
     ws.send(JSON.stringify(msg));
     return true;
@@ -103,17 +116,22 @@
 
   function onText(data) {
     let m;
-    try { m = JSON.parse(data); } catch (e) { log(`bad message: ${data.slice(0, 80)}`); return; }
+    try { m = parseJson(data); } catch (e) { log(`bad message: ${data.slice(0, 80)}`); return; }
     switch (m.type) {
       case 'welcome': return onWelcome(m);
       case 'camera': view.camera = m.camera; showCamera(); return;
       case 'lights': return onLights(m.lights || []);
       case 'status': view.status = m; return showStatus(m);
       case 'ack':
+        view.unacked = Math.max(0, view.unacked - 1);
         if (typeof m.revision === 'number') view.revision = Math.max(view.revision ?? m.revision, m.revision);
         return;
       case 'notice': log(m.text); return toast(m.text, 'notice');
-      case 'error': log(`error: ${m.text}`); return toast(m.text, 'error');
+      case 'error':
+        view.errors.push(m.text);
+        if (view.errors.length > 50) view.errors.shift();
+        log(`error: ${m.text}`);
+        return toast(m.text, 'error');
       default: log(`unknown message ${m.type}`);
     }
   }
@@ -149,7 +167,7 @@
     const n = new DataView(buf).getUint32(0, false);
     if (4 + n > buf.byteLength) { log('truncated frame'); return; }
     let header;
-    try { header = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, n))); } catch (e) { log('bad frame header'); return; }
+    try { header = parseJson(new TextDecoder().decode(new Uint8Array(buf, 4, n))); } catch (e) { log('bad frame header'); return; }
     const url = URL.createObjectURL(new Blob([new Uint8Array(buf, 4 + n)], { type: 'image/jpeg' }));
     urls.push(url);
     img.onload = () => {
@@ -171,7 +189,8 @@
     }
     lastArrival = now;
     $('st-frame').textContent = header.frame;
-    $('st-epoch').textContent = header.epoch;
+    $('st-epoch').textContent = epochLabel(header.epoch);
+    $('st-epoch').title = `epoch ${header.epoch}`;
     $('st-interval').textContent = ms(header.interval_ms);
     $('st-latency').textContent = ms(header.latency_ms);
     $('st-fps').textContent = fps == null ? '–' : fps.toFixed(1);
@@ -356,7 +375,8 @@
   }
 
   function showTimings(h) {
-    const ds = h.daemons || [];
+    const order = (d) => (d.role === 'node' ? 0 : 1);
+    const ds = (h.daemons || []).slice().sort((a, b) => order(a) - order(b) || String(a.id).localeCompare(String(b.id), undefined, { numeric: true }));
     const box = $('timings');
     if (!ds.length) { box.replaceChildren(el('div', { class: 'dim', text: 'no timings in this frame' })); return; }
     const sum = (d) => SEGMENTS.reduce((a, [, k]) => a + (d[k] || 0), 0);
@@ -396,13 +416,14 @@
       items.set(n.id, { kind: 'node', col: 0, lines: [n.id, `${lights} light${lights === 1 ? '' : 's'}${n.est_ms != null ? ` · ${ms(n.est_ms)}` : ''}`], color: n.color });
     }
     for (const s of plan.stages || []) items.set(s.id, { kind: 'stage', col: 1, lines: [s.id, (s.ops || []).join(' + ')] });
-    const sink = plan.sink ?? 'sink';
-    if (!items.has(sink)) items.set(sink, { kind: 'sink', col: 2, lines: ['sink', sink === 'sink' ? 'coordinator' : String(sink)] });
+    // Whatever no node or stage is called is the sink ("sink", or the sink's address).
+    const sink = ' sink';
+    items.set(sink, { kind: 'sink', col: 2, lines: ['sink', plan.sink != null && plan.sink !== 'sink' ? String(plan.sink) : 'coordinator'] });
     let links = plan.links || [];
     if (!links.length) {
       links = [...plan.nodes, ...(plan.stages || [])].filter((x) => x.downstream != null).map((x) => ({ from: x.id, to: x.downstream }));
     }
-    for (const l of links) if (!items.has(l.to)) items.set(l.to, { kind: 'stage', col: 1, lines: [String(l.to), ''] });
+    links = links.map((l) => (items.has(l.to) && l.to !== sink ? l : { ...l, to: sink }));
     // Stages feeding stages go further right: column = longest path from the nodes.
     for (let pass = 0; pass < items.size; pass++) {
       let moved = false;
@@ -448,16 +469,17 @@
       const label = svg('text', { x: tx, y: ty, class: 'elabel', 'text-anchor': 'middle' });
       lines.forEach((t, i) => label.append(svg('tspan', { x: tx, dy: i ? 11 : 0 }, t)));
       if (l.bytes_per_frame != null) label.append(svg('tspan', { x: tx, dy: lines.length ? 11 : 0, class: 'ebytes' }, `${bytes(l.bytes_per_frame)}/frame`));
-      const t = svg('title', {}, `${l.from} → ${l.to}\n${layers}\n${bytes(l.bytes_per_frame)} per frame`);
+      const t = svg('title', {}, `${l.from} → ${b.lines[0]}\n${layers}\n${bytes(l.bytes_per_frame)} per frame`);
       label.append(t);
       root.append(label);
     }
     for (const [id, it] of items) {
       const g = svg('g', { class: `box ${it.kind}` });
       g.append(svg('rect', { x: it.x, y: it.y, width: BW, height: BH, rx: 6 }));
-      if (it.color != null) g.append(svg('title', {}, `${id}: colour group ${JSON.stringify(it.color)}`));
-      g.append(svg('text', { x: it.x + BW / 2, y: it.y + 18, 'text-anchor': 'middle', class: 'bname' }, it.lines[0]));
-      g.append(svg('text', { x: it.x + BW / 2, y: it.y + 34, 'text-anchor': 'middle', class: 'bsub' }, it.lines[1]));
+      const fit = (t, n) => (t.length > n ? `${t.slice(0, n - 1)}…` : t);
+      g.append(svg('title', {}, it.lines.join('\n') + (it.color != null ? `\ncolour group ${JSON.stringify(it.color)}` : '')));
+      g.append(svg('text', { x: it.x + BW / 2, y: it.y + 18, 'text-anchor': 'middle', class: 'bname' }, fit(it.lines[0], 18)));
+      g.append(svg('text', { x: it.x + BW / 2, y: it.y + 34, 'text-anchor': 'middle', class: 'bsub' }, fit(it.lines[1], 24)));
       root.append(g);
     }
     box.replaceChildren(root);
@@ -472,7 +494,7 @@
     kv.replaceChildren();
     const row = (k, v) => kv.append(el('dt', { text: k }), el('dd', { text: v }));
     row('state', s.state ?? '–');
-    row('epoch', s.epoch ?? '–');
+    row('epoch', s.epoch == null ? '–' : `${epochLabel(s.epoch)} (${s.epoch})`);
     row('viewers', s.viewers ?? '–');
     if (s.plan) {
       row('nodes / stages', `${(s.plan.nodes || []).length} / ${(s.plan.stages || []).length}`);
@@ -486,18 +508,22 @@
     list('incidents', (s.incidents || []).slice(-12).reverse(), (i) =>
       el('li', {}, el('span', { class: 'mono dim', text: `${Number(i.at_s).toFixed(1)} s ` }), el('b', { text: i.daemon ?? '' }), ` ${i.text}`));
     const tb = $('epochs').tBodies[0];
-    tb.replaceChildren(...(s.epochs || []).slice().reverse().map((e) => el('tr', {},
-      ...[e.epoch, `${Number(e.at_s).toFixed(1)} s`, e.reason, e.nodes, e.stages, e.k, e.lights_moved, ms(e.configure_ms)]
-        .map((v) => el('td', { text: v ?? '–' })))));
+    tb.replaceChildren(...(s.epochs || []).map((e, i) => el('tr', { title: `epoch ${e.epoch}` },
+      ...[`#${i + 1}`, `${Number(e.at_s).toFixed(1)} s`, e.reason, e.nodes, e.stages, e.k, e.lights_moved, ms(e.configure_ms)]
+        .map((v) => el('td', { text: v ?? '–' })))).reverse());
     showPlan(s.plan);
   }
 
   // ---- notices ----------------------------------------------------------------------------
+  // Shown for NOTICE_MS; a repeat of a message on screen extends it instead of stacking.
   function toast(text, kind) {
-    const t = el('div', { class: `toast ${kind}`, text });
-    $('toasts').append(t);
-    setTimeout(() => t.classList.add('fade'), NOTICE_MS - 600);
-    setTimeout(() => t.remove(), NOTICE_MS);
+    let t = [...$('toasts').children].find((x) => x.textContent === text);
+    if (!t) { t = el('div', { class: `toast ${kind}`, text }); $('toasts').append(t); }
+    clearTimeout(t.fadeTimer);
+    clearTimeout(t.removeTimer);
+    t.classList.remove('fade');
+    t.fadeTimer = setTimeout(() => t.classList.add('fade'), NOTICE_MS - 600);
+    t.removeTimer = setTimeout(() => t.remove(), NOTICE_MS);
   }
   function log(text) {
     const ul = $('log');
