@@ -1,0 +1,351 @@
+//! The live page in a real browser: headless Chromium (Debian's `chromium`, installed by
+//! `scripts/install-deps.sh`) opens the view of an in-process cluster over the DevTools protocol,
+//! must show a frame that is not blank, and a mouse drag across the frame must orbit the camera:
+//! the steering revision rises, a frame requested at it arrives, and the picture changes.
+//! Without Chromium the test fails, naming the install step.
+
+mod cdp;
+
+use anyhow::{Context, anyhow, ensure};
+use cdp::Browser;
+use image::RgbImage;
+use lightfold_coordinator::plan::PlanOptions;
+use lightfold_tests::{InProcessCluster, small, test_control};
+use lightfold_view::{View, ViewOptions};
+use serde_json::Value;
+use std::time::Duration;
+use tokio_util::sync::CancellationToken;
+
+/// The browser's viewport, CSS pixels at device scale 1.
+const WIDTH: u32 = 1280;
+const HEIGHT: u32 = 800;
+/// Lavapipe on two shared cores renders the small scene in a few hundred ms; be generous.
+const WAIT: Duration = Duration::from_secs(60);
+/// The whole test, cluster start to stop.
+const TEST_DEADLINE: Duration = Duration::from_secs(300);
+/// A rendered frame region varies far more than this (standard deviation of a channel's 8-bit
+/// values over the region); a blank or uniform one does not vary at all.
+const MIN_STD_DEV: f64 = 10.0;
+/// Mean absolute difference (8-bit channel values) that a large orbit must exceed.
+const MIN_DIFF: f64 = 8.0;
+
+/// What the page showed.
+#[derive(Debug)]
+struct Figures {
+    std_dev: f64,
+    diff: f64,
+    region: (u32, u32),
+    first: Value,
+    after: Value,
+    revision_before: i64,
+    revision_after: i64,
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn the_page_shows_frames_and_a_drag_orbits_the_camera() {
+    // Fail at once, before the cluster starts, when the browser is missing.
+    cdp::chromium_path();
+    let scene = small("balls");
+    let cluster = InProcessCluster::start(2, 1).await.unwrap();
+    let mut session = cluster.connect(test_control()).await.unwrap();
+    let plan = PlanOptions {
+        lights_per_node: 4,
+        ..PlanOptions::default()
+    };
+    let view = View::bind(ViewOptions {
+        listen: "127.0.0.1:0".into(),
+        ..ViewOptions::default()
+    })
+    .await
+    .unwrap();
+    let url = format!("http://{}/", view.local_addr());
+    let stop = CancellationToken::new();
+    let ended = CancellationToken::new();
+    let run = async {
+        let outcome = view.run(&mut session, &scene, &plan, stop.clone()).await;
+        ended.cancel();
+        outcome
+    };
+    let drive = async {
+        let r = tokio::select! {
+            r = browse(&url) => r,
+            _ = ended.cancelled() => Err(anyhow!("the view stopped before the page was checked")),
+        };
+        stop.cancel();
+        r
+    };
+    let (outcome, figures) =
+        tokio::time::timeout(TEST_DEADLINE, async { tokio::join!(run, drive) })
+            .await
+            .expect("the browser test timed out");
+    let figures = figures.unwrap_or_else(|e| panic!("{e:#}"));
+    assert!(
+        outcome.error.is_none(),
+        "the view's event loop failed: {:?}",
+        outcome.error
+    );
+    println!(
+        "frame region {}x{} px: std-dev {:.2} (> {MIN_STD_DEV}), difference after the drag \
+         {:.2} (> {MIN_DIFF}); revision {} -> {}; first frame {}, after the drag {}",
+        figures.region.0,
+        figures.region.1,
+        figures.std_dev,
+        figures.diff,
+        figures.revision_before,
+        figures.revision_after,
+        figures.first,
+        figures.after,
+    );
+    session.shutdown().await;
+    cluster.stop().await.unwrap();
+}
+
+/// Drives the page at `url`: a frame, not blank; a drag; a changed frame.
+async fn browse(url: &str) -> anyhow::Result<Figures> {
+    let mut b = Browser::launch(WIDTH, HEIGHT).await?;
+    let r = steps(&mut b, url).await;
+    let r = r.map_err(|e| {
+        e.context(format!(
+            "page exceptions: {:?}\npage console: {:?}\nchromium stderr (tail):\n{}",
+            b.exceptions,
+            b.console,
+            tail(&b.stderr_tail(), 30)
+        ))
+    });
+    b.close().await;
+    r
+}
+
+async fn steps(b: &mut Browser, url: &str) -> anyhow::Result<Figures> {
+    b.open_page(WIDTH, HEIGHT).await?;
+    b.navigate(url).await?;
+    let state = "(() => { const v = window.lightfoldView; return v ? { connected: v.connected, \
+        frames: v.frames, canSteer: v.canSteer, revision: v.revision, unacked: v.unacked, \
+        header: v.header, shown: v.displayed, errors: v.errors, lights: v.lights } : null; })()";
+    let first = b
+        .wait_for("a first frame on screen", state, WAIT, |v| {
+            v["frames"].as_u64().unwrap_or(0) >= 1 && v["shown"].is_object()
+        })
+        .await?;
+    ensure!(
+        first["canSteer"] == Value::Bool(true),
+        "a page served to loopback may steer: {first}"
+    );
+    let shown = &first["shown"];
+    ensure!(
+        shown["daemons"].as_array().is_some_and(|d| !d.is_empty()),
+        "the frame header names no daemons: {shown}"
+    );
+
+    let rect = frame_rect(b).await?;
+    let before_png = b.screenshot().await?;
+    let before = crop(&before_png, rect)?;
+    save(&before_png, "browser-before.png");
+    let std_dev = not_blank(&before).context("the first frame on screen")?;
+    // Negative control: the same check refuses a uniform picture of the region's size.
+    let uniform = RgbImage::from_pixel(before.width(), before.height(), mean_pixel(&before));
+    ensure!(
+        not_blank(&uniform).is_err(),
+        "the blank check passed a uniform image"
+    );
+
+    let revision_before = first["revision"].as_i64().unwrap_or(-1);
+    // Drag left to right across the middle of the frame, left button held.
+    let (x0, x1, y) = (
+        rect.0 + rect.2 * 0.3,
+        rect.0 + rect.2 * 0.7,
+        rect.1 + rect.3 * 0.5,
+    );
+    b.mouse("mousePressed", x0, y, 1).await?;
+    let moves = 12;
+    for i in 1..=moves {
+        let x = x0 + (x1 - x0) * i as f64 / moves as f64;
+        b.mouse("mouseMoved", x, y + (i % 3) as f64, 1).await?;
+        tokio::time::sleep(Duration::from_millis(25)).await;
+    }
+    b.mouse("mouseReleased", x1, y, 0).await?;
+    let acked = b
+        .wait_for("the drag's steering acknowledged", state, WAIT, |v| {
+            v["revision"].as_i64().unwrap_or(-1) > revision_before
+                && v["unacked"].as_u64() == Some(0)
+        })
+        .await?;
+    let revision_after = acked["revision"].as_i64().context("no revision")?;
+    let after = b
+        .wait_for("a frame at the new revision on screen", state, WAIT, |v| {
+            v["shown"]["revision"].as_i64().unwrap_or(-1) >= revision_after
+        })
+        .await?;
+
+    let rect2 = frame_rect(b).await?;
+    ensure!(rect2 == rect, "the frame moved: {rect:?} then {rect2:?}");
+    let after_png = b.screenshot().await?;
+    save(&after_png, "browser-after.png");
+    let moved = crop(&after_png, rect)?;
+    not_blank(&moved).context("the frame after the drag")?;
+    let diff = mean_abs_diff(&before, &moved);
+    ensure!(
+        mean_abs_diff(&before, &before) < MIN_DIFF,
+        "the difference check passed identical images"
+    );
+    ensure!(
+        diff > MIN_DIFF,
+        "the frame did not change after the drag: mean |difference| {diff:.3} <= {MIN_DIFF}"
+    );
+
+    // The other controls: a wheel notch zooms, a key orbits, a slider sets a light's power; the
+    // server accepts them all (no `error` message) and echoes the light.
+    b.call(
+        "Input.dispatchMouseEvent",
+        serde_json::json!({"type": "mouseWheel", "x": x0, "y": y, "deltaX": 0, "deltaY": 100}),
+    )
+    .await?;
+    b.call(
+        "Input.dispatchKeyEvent",
+        serde_json::json!({"type": "keyDown", "key": "ArrowLeft", "code": "ArrowLeft",
+                           "windowsVirtualKeyCode": 37}),
+    )
+    .await?;
+    b.call(
+        "Input.dispatchKeyEvent",
+        serde_json::json!({"type": "keyUp", "key": "ArrowLeft", "code": "ArrowLeft",
+                           "windowsVirtualKeyCode": 37}),
+    )
+    .await?;
+    b.eval(
+        "(() => { const s = document.querySelector('#lights input[type=range]'); \
+         s.value = '2'; s.dispatchEvent(new Event('input')); return true; })()",
+    )
+    .await?;
+    let steered = b
+        .wait_for("zoom, key and light acknowledged", state, WAIT, |v| {
+            v["revision"].as_i64().unwrap_or(-1) >= revision_after + 3
+                && v["unacked"].as_u64() == Some(0)
+                && v["lights"][0]["intensity"].as_f64() == Some(2.0)
+        })
+        .await?;
+    ensure!(
+        steered["errors"].as_array().is_some_and(|e| e.is_empty()),
+        "the server refused the page's messages: {}",
+        steered["errors"]
+    );
+    ensure!(
+        b.exceptions.is_empty(),
+        "the page threw: {:?}",
+        b.exceptions
+    );
+    Ok(Figures {
+        std_dev,
+        diff,
+        region: (before.width(), before.height()),
+        first: first["shown"]["frame"].clone(),
+        after: after["shown"]["frame"].clone(),
+        revision_before,
+        revision_after,
+    })
+}
+
+/// The `#frame` element's box (x, y, width, height) in CSS pixels.
+async fn frame_rect(b: &mut Browser) -> anyhow::Result<(f64, f64, f64, f64)> {
+    let r = b
+        .eval(
+            "(() => { const r = document.getElementById('frame').getBoundingClientRect(); \
+             return [r.x, r.y, r.width, r.height]; })()",
+        )
+        .await?;
+    let n = |i: usize| r[i].as_f64().with_context(|| format!("bad rect {r}"));
+    let rect = (n(0)?, n(1)?, n(2)?, n(3)?);
+    ensure!(
+        rect.2 >= 32.0 && rect.3 >= 32.0,
+        "the frame is too small to judge: {rect:?}"
+    );
+    Ok(rect)
+}
+
+/// The region of the screenshot inside `rect`, 2 px in from its edges.
+fn crop(png: &[u8], rect: (f64, f64, f64, f64)) -> anyhow::Result<RgbImage> {
+    let img = image::load_from_memory_with_format(png, image::ImageFormat::Png)
+        .context("decoding the screenshot")?
+        .to_rgb8();
+    let x = (rect.0.ceil() as u32 + 2).min(img.width());
+    let y = (rect.1.ceil() as u32 + 2).min(img.height());
+    let x1 = ((rect.0 + rect.2).floor() as u32)
+        .saturating_sub(2)
+        .min(img.width());
+    let y1 = ((rect.1 + rect.3).floor() as u32)
+        .saturating_sub(2)
+        .min(img.height());
+    ensure!(
+        x1 > x + 8 && y1 > y + 8,
+        "the frame region {rect:?} lies outside the {}x{} screenshot",
+        img.width(),
+        img.height()
+    );
+    Ok(image::imageops::crop_imm(&img, x, y, x1 - x, y1 - y).to_image())
+}
+
+/// The standard deviation of the region's channel values if it is above `MIN_STD_DEV`.
+fn not_blank(img: &RgbImage) -> anyhow::Result<f64> {
+    let s = std_dev(img);
+    ensure!(
+        s > MIN_STD_DEV,
+        "the frame region looks blank: channel std-dev {s:.3} <= {MIN_STD_DEV}"
+    );
+    Ok(s)
+}
+
+/// The largest of the three channels' standard deviations over the region's pixels.
+fn std_dev(img: &RgbImage) -> f64 {
+    let n = (img.width() as f64 * img.height() as f64).max(1.0);
+    (0..3)
+        .map(|c| {
+            let values = || img.pixels().map(move |p| p[c] as f64);
+            let mean = values().sum::<f64>() / n;
+            (values().map(|x| (x - mean).powi(2)).sum::<f64>() / n).sqrt()
+        })
+        .fold(0.0, f64::max)
+}
+
+fn mean_pixel(img: &RgbImage) -> image::Rgb<u8> {
+    let mut sum = [0u64; 3];
+    for p in img.pixels() {
+        for (s, &v) in sum.iter_mut().zip(&p.0) {
+            *s += v as u64;
+        }
+    }
+    let n = (img.width() as u64 * img.height() as u64).max(1);
+    image::Rgb(sum.map(|s| (s / n) as u8))
+}
+
+fn mean_abs_diff(a: &RgbImage, b: &RgbImage) -> f64 {
+    let (a, b) = (a.as_raw(), b.as_raw());
+    let total: u64 = a.iter().zip(b).map(|(&x, &y)| x.abs_diff(y) as u64).sum();
+    total as f64 / a.len().max(1) as f64
+}
+
+/// Keeps a screenshot beside the build for a person to look at.
+fn save(png: &[u8], name: &str) {
+    let path = std::path::Path::new(env!("CARGO_TARGET_TMPDIR")).join(name);
+    if std::fs::write(&path, png).is_ok() {
+        println!("screenshot: {}", path.display());
+    }
+}
+
+fn tail(text: &str, lines: usize) -> String {
+    let v: Vec<&str> = text.lines().collect();
+    v[v.len().saturating_sub(lines)..].join("\n")
+}
+
+/// The image checks themselves, without a browser: a picture passes, a uniform one fails, and
+/// the difference of a picture with itself is zero.
+#[test]
+fn the_image_checks_tell_pictures_from_blanks() {
+    let picture = RgbImage::from_fn(64, 48, |x, y| {
+        image::Rgb([(x * 4) as u8, (y * 5) as u8, ((x + y) * 2) as u8])
+    });
+    assert!(not_blank(&picture).is_ok());
+    assert!(not_blank(&RgbImage::from_pixel(64, 48, image::Rgb([20, 24, 30]))).is_err());
+    assert_eq!(mean_abs_diff(&picture, &picture), 0.0);
+    let shifted = RgbImage::from_fn(64, 48, |x, y| *picture.get_pixel((x + 16) % 64, y));
+    assert!(mean_abs_diff(&picture, &shifted) > MIN_DIFF);
+}
