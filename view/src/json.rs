@@ -96,7 +96,7 @@ pub fn status(s: &LiveStatus, started: Instant) -> Value {
         .iter()
         .map(|e| {
             json!({
-                "epoch": e.epoch, "at_s": at(e.at), "reason": e.reason, "nodes": e.nodes,
+                "epoch": e.epoch.to_string(), "at_s": at(e.at), "reason": e.reason, "nodes": e.nodes,
                 "stages": e.stages, "k": e.k, "lights_moved": e.lights_moved,
                 "configure_ms": e.configure.as_millis() as u64,
             })
@@ -110,7 +110,7 @@ pub fn status(s: &LiveStatus, started: Instant) -> Value {
     json!({
         "type": "status",
         "state": state,
-        "epoch": s.plan.as_ref().map(|p| p.epoch),
+        "epoch": s.plan.as_ref().map(|p| p.epoch.to_string()),
         "plan": s.plan.as_deref().map(plan),
         "lost": lost,
         "incidents": incidents,
@@ -186,7 +186,7 @@ pub fn frame_header(
     let latency = f.received_at.saturating_duration_since(f.requested_at);
     json!({
         "frame": f.frame,
-        "epoch": f.epoch,
+        "epoch": f.epoch.to_string(),
         "revision": revision,
         "width": f.image.width,
         "height": f.image.height,

@@ -98,7 +98,13 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
                 return;
             }
             m = rx.next() => match m {
-                Some(Ok(Message::Text(t))) => outbox.extend(v.handle(&t)),
+                Some(Ok(Message::Text(t))) => {
+                    let could = v.can_steer;
+                    outbox.extend(v.handle(&t));
+                    if v.can_steer && !could {
+                        outbox.push(v.welcome());
+                    }
+                }
                 Some(Ok(Message::Binary(_))) => {
                     outbox.push(error("the view takes JSON text messages only"));
                 }
@@ -189,43 +195,52 @@ impl Viewer {
         })
     }
 
-    /// Applies one message from the page; what to answer.
+    /// Applies one message from the page; what to answer (an error if it was refused, then its
+    /// ack if it carried an id).
     fn handle(&mut self, text: &str) -> Vec<Value> {
-        let value: Value = match serde_json::from_str(text) {
+        let mut value: Value = match serde_json::from_str(text) {
             Ok(v) => v,
             Err(e) => return vec![error(format!("not JSON: {e}"))],
         };
-        let mut value = value;
-        let id = value.as_object_mut().and_then(|o| o.remove("id"));
-        if id.as_ref().is_some_and(|i| !i.is_number()) {
-            return vec![error("\"id\" must be a number")];
-        }
-        let input: Input = match serde_json::from_value(value) {
-            Ok(i) => i,
-            Err(e) => return vec![error(format!("unknown or malformed message: {e}"))],
-        };
+        let id = value
+            .as_object_mut()
+            .and_then(|o| o.remove("id"))
+            .filter(Value::is_number);
         let mut out = Vec::new();
-        if let Input::Hello { token } = &input {
-            if self.hub.token_matches(token) {
-                self.can_steer = true;
-                out.push(self.welcome());
-            } else {
-                out.push(error("wrong token: this view can only watch"));
+        match serde_json::from_value::<Input>(value) {
+            Ok(input) => {
+                if let Err(e) = self.apply(input) {
+                    out.push(e);
+                }
             }
-        } else if !self.can_steer {
-            out.push(error(
-                "this view can only watch: present the cluster's token to steer",
-            ));
-        } else if let Input::Render = input {
-            self.hub.render_now.notify_one();
-        } else if let Err(e) = self.steer(input) {
-            out.push(error(e));
+            Err(e) => out.push(error(format!("unknown or malformed message: {e}"))),
         }
         if let Some(id) = id {
             let revision = self.hub.steer.borrow().revision;
             out.push(json!({"type": "ack", "id": id, "revision": revision}));
         }
         out
+    }
+
+    fn apply(&mut self, input: Input) -> Result<(), Value> {
+        match input {
+            Input::Hello { token } => {
+                if self.hub.token_matches(&token) {
+                    self.can_steer = true;
+                    Ok(())
+                } else {
+                    Err(error("wrong token: this view can only watch"))
+                }
+            }
+            _ if !self.can_steer => Err(error(
+                "this view can only watch: present the cluster's token to steer",
+            )),
+            Input::Render => {
+                self.hub.render_now.notify_one();
+                Ok(())
+            }
+            input => self.steer(input).map_err(error),
+        }
     }
 
     fn steer(&self, input: Input) -> Result<(), SteerError> {

@@ -1,0 +1,385 @@
+//! The live view over an in-process cluster: frames reach a WebSocket client, a camera change is
+//! in the next frame requested and matches the single-device render from the new camera, a
+//! colour change re-renders no node, a colour that splits a node's colour group re-plans and the
+//! page is told, and a stalled viewer does not hold the cluster back.
+
+mod client;
+
+use client::{Client, Frame};
+use lightfold_coordinator::control::FrameResult;
+use lightfold_coordinator::plan::{MapSizing, PlanOptions};
+use lightfold_node::gpu::{Gpu, GpuOptions};
+use lightfold_scene::Scene;
+use lightfold_tests::{InProcessCluster, assert_close, single_device, small, test_control};
+use lightfold_view::{Steer, View, ViewOptions};
+use serde_json::json;
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+use tokio_util::sync::CancellationToken;
+
+type Delivered = Arc<Mutex<Vec<FrameResult>>>;
+
+fn plan_options(scene: &Scene, k: u32) -> PlanOptions {
+    PlanOptions {
+        lights_per_node: k,
+        walkthrough: true,
+        map_sizing: MapSizing::Fixed(scene.quality.shadow_map_size),
+        ..PlanOptions::default()
+    }
+}
+
+fn loopback() -> ViewOptions {
+    ViewOptions {
+        listen: "127.0.0.1:0".into(),
+        ..ViewOptions::default()
+    }
+}
+
+/// Runs the view over a fresh cluster while `body(address, delivered frames, counters)` runs,
+/// then stops it.
+async fn with_view<F, Fut>(scene: Scene, plan: PlanOptions, opts: ViewOptions, body: F)
+where
+    F: FnOnce(std::net::SocketAddr, Delivered, Arc<lightfold_view::ViewCounters>) -> Fut,
+    Fut: std::future::Future<Output = ()>,
+{
+    let cluster = InProcessCluster::start(3, 3).await.unwrap();
+    let mut session = cluster.connect(test_control()).await.unwrap();
+    let view = View::bind(opts).await.unwrap();
+    let addr = view.local_addr();
+    let counters = view.counters();
+    let stop = CancellationToken::new();
+    let delivered: Delivered = Arc::default();
+    let d = Arc::clone(&delivered);
+    let run = view.run_with(&mut session, &scene, &plan, stop.clone(), move |f| {
+        d.lock().unwrap().push(f)
+    });
+    let test = async {
+        body(addr, Arc::clone(&delivered), counters).await;
+        stop.cancel();
+    };
+    let (outcome, ()) = tokio::time::timeout(lightfold_tests::RUN_DEADLINE, async {
+        tokio::join!(run, test)
+    })
+    .await
+    .expect("the view run timed out");
+    assert!(outcome.error.is_none(), "{:?}", outcome.error);
+    session.detach();
+    cluster.stop().await.unwrap();
+}
+
+fn delivered_frame(d: &Delivered, frame: u64) -> lightfold_scene::Image {
+    d.lock()
+        .unwrap()
+        .iter()
+        .find(|f| f.frame == frame)
+        .map(|f| f.image.clone())
+        .expect("the frame was delivered")
+}
+
+fn frame_number(f: &Frame) -> u64 {
+    f.header["frame"].as_u64().unwrap()
+}
+
+/// Frames until one shows `revision`; how many came before it.
+async fn until_revision(c: &mut Client, revision: u64) -> (Frame, usize) {
+    let mut before = 0;
+    loop {
+        let f = c.frame().await;
+        if f.header["revision"].as_u64().unwrap() >= revision {
+            return (f, before);
+        }
+        before += 1;
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_camera_change_reaches_the_next_frame_and_matches_the_single_device_render() {
+    let scene = small("balls");
+    let plan = plan_options(&scene, 4);
+    let s2 = scene.clone();
+    with_view(scene, plan, loopback(), |addr, delivered, _| async move {
+        let mut c = Client::connect(addr).await;
+        let welcome = c.expect("welcome").await;
+        assert_eq!(welcome["can_steer"], true, "a loopback viewer steers");
+        let first = c.frame().await;
+        assert_eq!(first.header["revision"], 0);
+        assert!(first.jpeg.starts_with(&[0xFF, 0xD8]), "a JPEG");
+        let img = image::load_from_memory(&first.jpeg).unwrap();
+        assert_eq!((img.width(), img.height()), (64, 48));
+
+        let revision = c
+            .steer(json!({"type": "orbit", "yaw_deg": 35.0, "pitch_deg": 10.0}))
+            .await;
+        assert_eq!(revision, 1);
+        let (moved, before) = until_revision(&mut c, revision).await;
+        assert!(
+            before <= 1,
+            "{before} frames came before the camera change showed"
+        );
+
+        let mut want = Steer::new(&s2);
+        want.orbit(35.0, 10.0).unwrap();
+        let mut moved_scene = s2.clone();
+        moved_scene.camera = want.camera;
+        let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
+        let truth = single_device(&gpu, &moved_scene, true);
+        assert_close(
+            &delivered_frame(&delivered, frame_number(&moved)),
+            &truth,
+            "the frame after the orbit",
+        );
+        // Negative control: the frame before the move is not the moved view.
+        let old = delivered_frame(&delivered, frame_number(&first));
+        let differs = old
+            .data
+            .iter()
+            .zip(&truth.data)
+            .filter(|(a, b)| (*a - *b).abs() > 0.05)
+            .count();
+        assert!(differs > 100, "the orbit changed only {differs} channels");
+    })
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_colour_change_rerenders_no_node() {
+    let scene = small("balls");
+    // K = 4: one node per area light, each with its own colour group.
+    let plan = plan_options(&scene, 4);
+    let s2 = scene.clone();
+    with_view(scene, plan, loopback(), |addr, delivered, _| async move {
+        let mut c = Client::connect(addr).await;
+        c.expect("welcome").await;
+        let first = c.frame().await;
+        // Light 0 at half power in another colour: one factor per node, so c_n alone changes.
+        let color = [0.3, 0.6, 1.0];
+        let revision = c
+            .steer(json!({"type": "light", "index": 0, "color": color, "intensity": 0.5}))
+            .await;
+        let (f, _) = until_revision(&mut c, revision).await;
+        let rendered: Vec<(String, u64)> = f.header["daemons"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|d| d["role"] == "node")
+            .map(|d| {
+                let id = d["id"].as_str().unwrap().to_string();
+                (id, d["lights_rendered"].as_u64().unwrap())
+            })
+            .collect();
+        assert!(!rendered.is_empty(), "the header names the nodes");
+        assert!(
+            rendered.iter().all(|(_, n)| *n == 0),
+            "a colour change re-rendered: {rendered:?}"
+        );
+        let mut recoloured = s2.clone();
+        recoloured.lights[0].color = color.map(|v| v * 0.5);
+        let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
+        assert_close(
+            &delivered_frame(&delivered, frame_number(&f)),
+            &single_device(&gpu, &recoloured, true),
+            "the recoloured frame",
+        );
+        assert_eq!(f.header["epoch"], first.header["epoch"], "no re-plan");
+    })
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_colour_that_splits_a_colour_group_replans_and_the_page_is_told() {
+    let scene = small("balls");
+    // K = 8: one node carries both area lights, so recolouring one of them splits its group.
+    let plan = plan_options(&scene, 8);
+    let s2 = scene.clone();
+    with_view(scene, plan, loopback(), |addr, delivered, _| async move {
+        let mut c = Client::connect(addr).await;
+        c.expect("welcome").await;
+        c.frame().await;
+        let color = [1.0, 0.2, 0.1];
+        let revision = c
+            .steer(json!({"type": "light", "index": 1, "color": color, "intensity": 1.0}))
+            .await;
+        let notice = c.expect("notice").await;
+        assert!(
+            notice["text"].as_str().unwrap().contains("split"),
+            "{notice}"
+        );
+        let (f, _) = until_revision(&mut c, revision).await;
+        let mut recoloured = s2.clone();
+        recoloured.lights[1].color = color;
+        let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
+        assert_close(
+            &delivered_frame(&delivered, frame_number(&f)),
+            &single_device(&gpu, &recoloured, true),
+            "the frame after the split",
+        );
+        let status = c
+            .status_where(|s| s["epochs"].as_array().is_some_and(|e| e.len() >= 2))
+            .await;
+        let reason = status["epochs"][1]["reason"].as_str().unwrap().to_string();
+        assert!(reason.contains("split"), "{reason}");
+    })
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_stalled_viewer_drops_frames_and_never_holds_the_cluster() {
+    let mut scene = small("balls");
+    scene.camera.width = 320;
+    scene.camera.height = 240;
+    let plan = plan_options(&scene, 4);
+    let opts = ViewOptions {
+        continuous: true,
+        jpeg_quality: 100,
+        send_buffer: 16 << 10,
+        send_timeout: Duration::from_secs(2),
+        ..loopback()
+    };
+    with_view(scene, plan, opts, |addr, delivered, counters| async move {
+        let mut active = Client::connect(addr).await;
+        active.expect("welcome").await;
+        // A viewer that connects and then reads nothing, with a tiny receive window.
+        let stalled = Client::connect_stalled(addr).await;
+        let start = delivered.lock().unwrap().len();
+        let mut got = 0;
+        while counters.viewers_dropped.load(Ordering::Relaxed) == 0 {
+            active.frame().await;
+            got += 1;
+            assert!(got < 5000, "the stalled viewer was never dropped");
+        }
+        // The active viewer keeps getting frames after the stalled one is dropped.
+        for _ in 0..3 {
+            active.frame().await;
+        }
+        let during = delivered.lock().unwrap().len() - start;
+        eprintln!(
+            "stalled viewer dropped after {during} frames delivered; the active viewer took {got}; \
+             viewers skipped {} frame(s)",
+            counters.frames_skipped.load(Ordering::Relaxed)
+        );
+        assert!(
+            got >= 5,
+            "the active viewer got {got} frames while the other stalled"
+        );
+        drop(stalled);
+    })
+    .await;
+}
+
+/// This machine's address on its default route (not loopback), to connect as a remote viewer.
+fn non_loopback_address() -> std::net::IpAddr {
+    let probe = std::net::UdpSocket::bind("0.0.0.0:0").unwrap();
+    // No packet is sent: connecting a UDP socket only picks the route and source address.
+    probe
+        .connect("192.0.2.1:9")
+        .expect("this test needs a non-loopback interface with a route (none found)");
+    let ip = probe.local_addr().unwrap().ip();
+    assert!(
+        !ip.is_loopback() && !ip.is_unspecified(),
+        "no non-loopback address: {ip}"
+    );
+    ip
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_viewer_beyond_loopback_only_watches_until_it_presents_the_token() {
+    let scene = small("balls");
+    let plan = plan_options(&scene, 4);
+    let ip = non_loopback_address();
+    let opts = ViewOptions {
+        listen: "0.0.0.0:0".into(),
+        token: Some("viewer-secret".into()),
+        ..ViewOptions::default()
+    };
+    with_view(scene, plan, opts, |addr, _, _| async move {
+        let remote = std::net::SocketAddr::new(ip, addr.port());
+        let mut c = Client::connect(remote).await;
+        let welcome = c.expect("welcome").await;
+        assert_eq!(welcome["can_steer"], false, "{welcome}");
+        c.frame().await; // watching works
+        let refused = c
+            .try_steer(json!({"type": "orbit", "yaw_deg": 10.0, "pitch_deg": 0.0}))
+            .await
+            .expect("steering is refused");
+        assert!(
+            refused["text"].as_str().unwrap().contains("only watch"),
+            "{refused}"
+        );
+        let wrong = c
+            .try_steer(json!({"type": "hello", "token": "guess"}))
+            .await
+            .expect("a wrong token is refused");
+        assert!(
+            wrong["text"].as_str().unwrap().contains("wrong token"),
+            "{wrong}"
+        );
+        assert!(
+            c.try_steer(json!({"type": "hello", "token": "viewer-secret"}))
+                .await
+                .is_none()
+        );
+        let welcome = c.expect("welcome").await;
+        assert_eq!(welcome["can_steer"], true);
+        let revision = c
+            .steer(json!({"type": "orbit", "yaw_deg": 10.0, "pitch_deg": 0.0}))
+            .await;
+        assert_eq!(
+            revision, 1,
+            "the refused orbit changed nothing; this one did"
+        );
+        // The same view from loopback steers without a token.
+        let mut local =
+            Client::connect(std::net::SocketAddr::from(([127, 0, 0, 1], addr.port()))).await;
+        assert_eq!(local.expect("welcome").await["can_steer"], true);
+    })
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn malformed_and_hostile_messages_get_errors_and_change_nothing() {
+    let scene = small("balls");
+    let plan = plan_options(&scene, 4);
+    with_view(scene, plan, loopback(), |addr, _, _| async move {
+        let mut c = Client::connect(addr).await;
+        c.expect("welcome").await;
+        let bad = [
+            json!({"type": "teleport"}),
+            json!({"type": "orbit", "yaw_deg": "left"}),
+            json!({"type": "orbit", "yaw_deg": 1e39, "pitch_deg": 0}),
+            json!({"type": "orbit", "yaw_deg": 1.0, "pitch_deg": 0, "extra": 1}),
+            json!({"type": "zoom", "factor": 0.0}),
+            json!({"type": "zoom", "factor": -2.0}),
+            json!({"type": "pan", "x": 1e30, "y": 0}),
+            json!({"type": "light", "index": 99, "color": [1, 1, 1], "intensity": 1}),
+            json!({"type": "light", "index": 0, "color": [-1, 1, 1], "intensity": 1}),
+            json!({"type": "light", "index": 0, "color": [1, 1, 1], "intensity": 1e9}),
+            json!({"type": "camera", "camera": {"position": [0, 0, 0], "target": [0, 0, 0],
+                   "up": [0, 1, 0], "fov_y_deg": 45}}),
+            json!({"type": "camera", "camera": {"position": [0, 5, 0], "target": [0, 0, 0],
+                   "up": [0, 1, 0], "fov_y_deg": 45}}),
+            json!({"type": "camera", "camera": {"position": [0, 0, 5], "target": [0, 0, 0],
+                   "up": [0, 1, 0], "fov_y_deg": 500}}),
+        ];
+        for m in bad {
+            let e = c.try_steer(m.clone()).await;
+            assert!(e.is_some(), "accepted {m}");
+        }
+        c.send(&json!("not an object")).await;
+        assert_eq!(c.expect("error").await["type"], "error");
+        // Nothing changed: the next valid change is revision 1.
+        let revision = c.steer(json!({"type": "zoom", "factor": 0.9})).await;
+        assert_eq!(revision, 1);
+        // An oversized message closes the socket; the view goes on for others.
+        let huge = "x".repeat(64 << 10);
+        c.send(&json!({"type": "hello", "token": huge})).await;
+        assert!(
+            c.closed_within(Duration::from_secs(30)).await,
+            "an oversized message was read"
+        );
+        let mut other = Client::connect(addr).await;
+        assert_eq!(other.expect("welcome").await["revision"], 1);
+        other.frame().await;
+    })
+    .await;
+}
