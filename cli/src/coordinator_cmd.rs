@@ -2,6 +2,7 @@
 //! line), plan the scene, drive frames, write the final image (EXR linear, PNG sRGB) and print the
 //! plan and timing tables.
 
+use crate::frames_out::{FramePattern, FrameWriter};
 use anyhow::{Context, bail};
 use lightfold_coordinator::cluster::ClusterFile;
 use lightfold_coordinator::control::Session;
@@ -62,6 +63,60 @@ pub struct Args {
     /// Exit when this process is no longer our parent (set by launchers).
     #[arg(long)]
     pub parent_pid: Option<u32>,
+    #[command(flatten)]
+    pub view: ViewArgs,
+}
+
+/// The live view (`docs/live-view.md`).
+#[derive(Debug, Clone, clap::Args)]
+pub struct ViewArgs {
+    /// Serve the live view on ADDR and run until stopped (Ctrl-C) instead of rendering
+    /// `--frames`: a web page that shows frames as they complete and steers camera and lights.
+    /// Viewers beyond loopback only watch unless they present the token.
+    #[arg(long, value_name = "ADDR")]
+    pub http: Option<String>,
+    /// With `--http`: render frame after frame even when nothing changed.
+    #[arg(long)]
+    pub continuous: bool,
+    /// With `--http`: the token viewers beyond loopback present to steer (default: the
+    /// cluster's token).
+    #[arg(long, value_name = "FILE")]
+    pub view_token_file: Option<PathBuf>,
+    /// With `--http`: JPEG quality of the frames pushed to viewers.
+    #[arg(long, default_value_t = 85, value_parser = clap::value_parser!(u8).range(1..=100))]
+    pub jpeg_quality: u8,
+}
+
+impl ViewArgs {
+    /// Binds the view's listener, if asked for, and says where it is.
+    pub async fn bind(&self, cluster_token: &[u8]) -> anyhow::Result<Option<lightfold_view::View>> {
+        let Some(listen) = &self.http else {
+            return Ok(None);
+        };
+        let token = match &self.view_token_file {
+            Some(f) => lightfold_net::load_token(Some(f))?,
+            None => cluster_token.to_vec(),
+        };
+        let view = lightfold_view::View::bind(lightfold_view::ViewOptions {
+            listen: listen.clone(),
+            token: Some(token),
+            continuous: self.continuous,
+            jpeg_quality: self.jpeg_quality,
+            ..lightfold_view::ViewOptions::default()
+        })
+        .await?;
+        let addr = view.local_addr();
+        if addr.ip().is_loopback() {
+            println!("view: http://{addr}/");
+        } else {
+            println!(
+                "view: http://{addr}/ (viewers beyond loopback watch; to steer they present the \
+                 token, in the page or as http://HOST:{}/#token=TOKEN)",
+                addr.port()
+            );
+        }
+        Ok(Some(view))
+    }
 }
 
 /// What to render and how: shared by `coordinator` and `demo`.
@@ -109,10 +164,24 @@ pub struct JobArgs {
     /// EXR output (linear radiance).
     #[arg(long, default_value = "out.exr")]
     pub exr: PathBuf,
-    /// Also keep every frame, as DIR/frame-NNNNN.exr and .png, written as it completes (`--out`
-    /// and `--exr` always hold the latest complete frame).
-    #[arg(long)]
+    /// Where every frame of a camera path (`--frames` > 1) is written as it completes, PNG and
+    /// EXR: a path with `%d` or `%0Nd` for the frame number, without extension (`--out` and
+    /// `--exr` always hold the newest complete frame). Given explicitly, also for one frame and
+    /// for the live view.
+    #[arg(long, value_name = "PATTERN", conflicts_with = "frame_dir")]
+    pub frame_pattern: Option<String>,
+    /// Shorthand for `--frame-pattern DIR/frame-%04d`.
+    #[arg(long, value_name = "DIR")]
     pub frame_dir: Option<PathBuf>,
+    /// Keep only `--out`/`--exr`, not every frame.
+    #[arg(long, conflicts_with_all = ["frame_pattern", "frame_dir"])]
+    pub no_frame_files: bool,
+    /// After the run, assemble the frames' PNGs into this video with `ffmpeg` (on the PATH).
+    #[arg(long, value_name = "FILE", conflicts_with = "no_frame_files")]
+    pub video: Option<PathBuf>,
+    /// Frames per second of `--video`.
+    #[arg(long, default_value_t = 24, value_parser = clap::value_parser!(u32).range(1..=240))]
+    pub video_fps: u32,
 }
 
 impl JobArgs {
@@ -145,6 +214,27 @@ impl JobArgs {
             frame_budget_us: self.frame_budget.map(|b| (b * 1000.0).round() as u64),
             ..PlanOptions::default()
         }
+    }
+
+    /// Where every frame goes, if anywhere: the pattern given, or the default for a camera path
+    /// (`serving`: the live view keeps every frame only when asked to).
+    pub fn frame_files(&self, serving: bool) -> anyhow::Result<Option<FramePattern>> {
+        if self.no_frame_files {
+            return Ok(None);
+        }
+        let given = match (&self.frame_pattern, &self.frame_dir) {
+            (Some(p), _) => Some(p.clone()),
+            (None, Some(d)) => Some(d.join("frame-%04d").to_string_lossy().into_owned()),
+            (None, None) => None,
+        };
+        let pattern = match given {
+            Some(p) => p,
+            None if (self.frames > 1 && !serving) || self.video.is_some() => {
+                crate::frames_out::DEFAULT_PATTERN.to_string()
+            }
+            None => return Ok(None),
+        };
+        FramePattern::parse(&pattern).map(Some)
     }
 
     pub fn path(&self) -> FramePath {
@@ -235,6 +325,7 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
             color_changes: Vec::new(),
             control,
         };
+        let view = args.view.bind(&token).await?;
         let me = Identity::new(&token, Role::Coordinator, "coordinator");
         let cancel = crate::lifecycle::shutdown_token(args.parent_pid);
         let connect = Session::connect(&daemons, listener, sink_advertise, me, control);
@@ -244,7 +335,16 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
         };
         // Ctrl-C from here on: no new frame is requested, the frames in flight are finished and
         // written, and the summary is printed.
-        execute(session, &scene, &opts, &args.job, args.shutdown, cancel).await
+        execute(
+            session,
+            &scene,
+            &opts,
+            &args.job,
+            view,
+            args.shutdown,
+            cancel,
+        )
+        .await
     })
 }
 
@@ -255,24 +355,27 @@ fn seconds(v: f64, what: &str) -> anyhow::Result<Duration> {
     Ok(Duration::from_secs_f64(v))
 }
 
-/// Runs the job on a connected session through the coordinator's event loop: prints the plan,
-/// writes each frame as it completes, then prints the frames, timing table, failover summary
-/// and totals. A run that cannot go on keeps what it wrote and fails naming the daemon and why.
+/// Runs the job on a connected session through the coordinator's event loop — the scripted
+/// frames, or the live view's until stopped: prints the plan, writes each frame as it completes,
+/// then prints the frames, timing table, failover summary and totals. A run that cannot go on
+/// keeps what it wrote and fails naming the daemon and why.
 pub async fn execute(
     mut session: Session,
     scene: &lightfold_scene::Scene,
     opts: &RunOptions,
     job: &JobArgs,
+    view: Option<lightfold_view::View>,
     shutdown: bool,
     stop: tokio_util::sync::CancellationToken,
 ) -> anyhow::Result<()> {
     let start = std::time::Instant::now();
-    if let Some(dir) = &job.frame_dir {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("cannot create the frame directory {}", dir.display()))?;
+    let serving = view.is_some();
+    let every = job.frame_files(serving)?;
+    if let Some(p) = &every {
+        p.create_dir()?;
     }
     let mut report = Report::default();
-    let progress = (opts.frames > 1).then(|| {
+    let progress = (opts.frames > 1 && !serving).then(|| {
         let pb = indicatif::ProgressBar::new(opts.frames as u64);
         pb.set_style(
             indicatif::ProgressStyle::with_template(
@@ -282,21 +385,35 @@ pub async fn execute(
         );
         pb
     });
-    let writer = FrameWriter::start(job, scene.exposure);
-    let outcome = lightfold_coordinator::run::render_until(
-        &mut session,
-        scene,
-        opts,
-        stop.clone(),
-        |frame| {
-            report.record(&frame);
-            if let Some(pb) = &progress {
-                pb.inc(1);
-            }
-            writer.send(frame);
-        },
-    )
-    .await;
+    let writer = FrameWriter::start(
+        job.out.clone(),
+        job.exr.clone(),
+        every.clone(),
+        scene.exposure,
+    );
+    let on_frame = |frame: FrameResult| {
+        report.record(&frame);
+        if let Some(pb) = &progress {
+            pb.inc(1);
+        }
+        writer.send(frame);
+    };
+    let outcome = match view {
+        None => {
+            lightfold_coordinator::run::render_until(
+                &mut session,
+                scene,
+                opts,
+                stop.clone(),
+                on_frame,
+            )
+            .await
+        }
+        Some(v) => {
+            v.run_with(&mut session, scene, &opts.plan, stop.clone(), on_frame)
+                .await
+        }
+    };
     if let Some(pb) = progress {
         pb.finish_and_clear();
     }
@@ -317,30 +434,37 @@ pub async fn execute(
     } else {
         session.detach();
     }
-    let (image_size, write_error) = written;
-    if let Some(e) = write_error {
+    if let Some(e) = written.error {
         return Err(e.context("writing frames"));
     }
+    let delivered = outcome.summary.delivered;
     if let Some(e) = outcome.error {
+        bail!("the run stopped after {delivered} frame(s): {e}");
+    }
+    if let (Some(p), true) = (&every, written.frames > 0) {
+        println!(
+            "wrote {} frame(s) as {}",
+            written.frames,
+            p.ffmpeg_input().replace(".png", ".{png,exr}")
+        );
+    }
+    if stop.is_cancelled() && !serving {
         bail!(
-            "the run stopped after {} of {} frame(s): {e}",
-            outcome.summary.delivered,
+            "interrupted after {delivered} of {} frame(s); the frames done are written",
             opts.frames
         );
     }
-    if stop.is_cancelled() {
-        bail!(
-            "interrupted after {} of {} frame(s); the frames done are written",
-            outcome.summary.delivered,
-            opts.frames
-        );
+    if let (Some(video), Some(p)) = (&job.video, &every) {
+        crate::frames_out::assemble_video(p, video, job.video_fps)?;
+        println!("wrote {}", video.display());
     }
-    let (w, h) = image_size.context("no frame was rendered")?;
+    let (w, h) = written.size.context("no frame was rendered")?;
     println!(
-        "wrote {} and {} ({w}x{h}) in {:.2} s",
+        "wrote {} and {} ({w}x{h}) in {:.2} s{}",
         job.out.display(),
         job.exr.display(),
-        start.elapsed().as_secs_f64()
+        start.elapsed().as_secs_f64(),
+        if serving { " (the view stopped)" } else { "" }
     );
     Ok(())
 }
@@ -398,98 +522,4 @@ pub fn failover_summary(s: &LiveSummary, start: std::time::Instant) -> String {
         ));
     }
     out
-}
-
-/// What the frame writer's thread ends with: the size of the frames written, and the first error.
-type WriterEnd = (Option<(u32, u32)>, Option<anyhow::Error>);
-
-/// Writes frames off the event loop as they complete: `--out`/`--exr` get the newest (replaced
-/// atomically), `--frame-dir` every one.
-struct FrameWriter {
-    tx: Option<std::sync::mpsc::Sender<FrameResult>>,
-    thread: Option<std::thread::JoinHandle<WriterEnd>>,
-}
-
-impl FrameWriter {
-    fn start(job: &JobArgs, exposure: f32) -> FrameWriter {
-        let (tx, rx) = std::sync::mpsc::channel::<FrameResult>();
-        let (png, exr, dir) = (job.out.clone(), job.exr.clone(), job.frame_dir.clone());
-        let thread = std::thread::spawn(move || {
-            let mut size = None;
-            let mut error = None;
-            while let Ok(mut f) = rx.recv() {
-                // Every frame into the frame directory; only the newest queued into --out.
-                let mut newest = Vec::new();
-                loop {
-                    if let Some(d) = &dir {
-                        let stem = d.join(format!("frame-{:05}", f.frame));
-                        let r = f
-                            .image
-                            .write_exr(&stem.with_extension("exr"))
-                            .and_then(|()| {
-                                f.image.write_png(&stem.with_extension("png"), exposure)
-                            });
-                        if let Err(e) = r {
-                            error.get_or_insert(e.into());
-                        }
-                    }
-                    newest.push(f);
-                    match rx.try_recv() {
-                        Ok(next) => f = next,
-                        Err(_) => break,
-                    }
-                }
-                if let Some(last) = newest.pop() {
-                    size = Some((last.image.width, last.image.height));
-                    if let Err(e) = write_atomically(&last.image, &png, &exr, exposure) {
-                        error.get_or_insert(e);
-                    }
-                }
-            }
-            (size, error)
-        });
-        FrameWriter {
-            tx: Some(tx),
-            thread: Some(thread),
-        }
-    }
-
-    fn send(&self, f: FrameResult) {
-        if let Some(tx) = &self.tx {
-            let _ = tx.send(f);
-        }
-    }
-
-    /// Waits for every frame to be written; the last frame's size, and the first error.
-    fn finish(mut self) -> (Option<(u32, u32)>, Option<anyhow::Error>) {
-        drop(self.tx.take());
-        match self.thread.take().map(|t| t.join()) {
-            Some(Ok(r)) => r,
-            Some(Err(_)) => (None, Some(anyhow::anyhow!("the frame writer panicked"))),
-            None => (None, None),
-        }
-    }
-}
-
-/// Writes beside the target and renames over it, so a reader (or a crash) never sees half a file.
-fn write_atomically(
-    image: &lightfold_scene::Image,
-    png: &std::path::Path,
-    exr: &std::path::Path,
-    exposure: f32,
-) -> anyhow::Result<()> {
-    let tmp = |p: &std::path::Path| {
-        let name = p
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
-        // Keep the extension last: the writers pick the format from it.
-        p.with_file_name(format!(".partial-{name}"))
-    };
-    let (tp, te) = (tmp(png), tmp(exr));
-    image.write_exr(&te)?;
-    std::fs::rename(&te, exr).with_context(|| format!("cannot write {}", exr.display()))?;
-    image.write_png(&tp, exposure)?;
-    std::fs::rename(&tp, png).with_context(|| format!("cannot write {}", png.display()))?;
-    Ok(())
 }

@@ -34,6 +34,14 @@ pub struct Args {
     /// compositors and the coordinator).
     #[arg(long, value_name = "N")]
     pub max_processes: Option<usize>,
+    /// Serve the live view on ADDR (default 127.0.0.1:8080) and run until stopped (Ctrl-C):
+    /// open the printed address in a browser to watch and steer the cluster.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1,
+          default_missing_value = lightfold_view::DEFAULT_LISTEN)]
+    pub serve: Option<String>,
+    /// With `--serve`: render frame after frame even when nothing changed.
+    #[arg(long, requires = "serve")]
+    pub continuous: bool,
 }
 
 /// Processes per core `--max-processes` allows by default, and the floor.
@@ -230,6 +238,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .arg("--connect-timeout")
         .arg("180");
     job_args(&mut coord, &args.job);
+    if let Some(addr) = &args.serve {
+        coord.arg("--http").arg(addr);
+        if args.continuous {
+            coord.arg("--continuous");
+        }
+    }
     coord
         .arg("--parent-pid")
         .arg(std::process::id().to_string());
@@ -246,6 +260,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .chain(std::iter::once(format!("coordinator {}\n", child.id())))
         .collect();
     std::fs::write(dir.join("pids"), pids)?;
+    // Ctrl-C reaches the coordinator too (one process group); this process waits for it to
+    // finish its frames and print its summary, then stops the daemons. A SIGINT sent to this
+    // process alone is passed on.
+    let coordinator_pid = child.id();
+    std::thread::spawn(move || {
+        let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+        else {
+            return;
+        };
+        if rt.block_on(tokio::signal::ctrl_c()).is_ok() {
+            let _ = Command::new("kill")
+                .arg("-INT")
+                .arg(coordinator_pid.to_string())
+                .stderr(Stdio::null())
+                .status();
+        }
+    });
     let status = child.wait()?;
     // Daemons are still up (the coordinator detached): read what CPU time they used.
     let cpu: Vec<(String, f64)> = children
@@ -262,6 +295,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         started.elapsed().as_secs_f64()
     );
     print_cpu(&cpu, args.job.frames);
+    if args.serve.is_some() {
+        return Ok(());
+    }
     if !args.no_compare {
         // The image written is the last frame's: on a camera path, compare it with the
         // reference seen from that frame's camera.
@@ -370,10 +406,26 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
     if let Some(n) = job.shadow_map_size {
         cmd.arg("--shadow-map-size").arg(n.to_string());
     }
+    if job.material_own_node {
+        cmd.arg("--material-own-node");
+    }
+    if let Some(b) = job.frame_budget {
+        cmd.arg("--frame-budget").arg(b.to_string());
+    }
     cmd.arg("--out").arg(&job.out).arg("--exr").arg(&job.exr);
+    if let Some(p) = &job.frame_pattern {
+        cmd.arg("--frame-pattern").arg(p);
+    }
     if let Some(d) = &job.frame_dir {
         cmd.arg("--frame-dir").arg(d);
     }
+    if job.no_frame_files {
+        cmd.arg("--no-frame-files");
+    }
+    if let Some(v) = &job.video {
+        cmd.arg("--video").arg(v);
+    }
+    cmd.arg("--video-fps").arg(job.video_fps.to_string());
 }
 
 /// CPU seconds (user + system) a process has used so far, from `/proc/<pid>/stat`; 0 if unknown.

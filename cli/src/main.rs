@@ -12,6 +12,7 @@ mod compositor_cmd;
 mod coordinator_cmd;
 mod defaults_cmd;
 mod demo_cmd;
+mod frames_out;
 mod lifecycle;
 mod node_cmd;
 mod plan_cmd;

@@ -209,7 +209,7 @@ fn an_interrupted_run_keeps_every_frame_it_finished() {
     assert!((3..500).contains(&kept), "{kept} frames kept");
     // Every frame on disk is whole, in order from 1.
     for i in 1..=kept {
-        let path = dir.join("frames").join(format!("frame-{i:05}.exr"));
+        let path = dir.join("frames").join(format!("frame-{i:04}.exr"));
         let img = lightfold_scene::Image::read_exr(&path)
             .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         assert_eq!((img.width, img.height), (96, 72));

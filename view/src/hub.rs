@@ -107,7 +107,8 @@ impl Hub {
     /// Whether `presented` is the view's token (compared as digests: no early exit on the
     /// first differing byte of the token itself).
     pub fn token_matches(&self, presented: &str) -> bool {
-        self.token.is_some_and(|t| t == digest(presented))
+        self.token
+            .is_some_and(|t| t == digest(presented.as_bytes()))
     }
 
     /// The plan in use.
@@ -156,6 +157,6 @@ impl Hub {
     }
 }
 
-fn digest(s: &str) -> [u8; 32] {
-    Sha256::digest(s.as_bytes()).into()
+fn digest(s: &[u8]) -> [u8; 32] {
+    Sha256::digest(s).into()
 }

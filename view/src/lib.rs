@@ -37,8 +37,9 @@ use tokio_util::sync::CancellationToken;
 pub struct ViewOptions {
     /// Address to listen on (`127.0.0.1:8080` by default: loopback only).
     pub listen: String,
-    /// Token a viewer beyond loopback must present to steer; `None`: such viewers only watch.
-    pub token: Option<String>,
+    /// Token a viewer beyond loopback must present to steer (its bytes, as typed in the page or
+    /// held in a token file); `None`: such viewers only watch.
+    pub token: Option<Vec<u8>>,
     /// Render frame after frame even when nothing changed (else only after a change).
     pub continuous: bool,
     /// JPEG quality of the frames pushed to viewers (1–100).

@@ -136,6 +136,7 @@
     }
   }
 
+  let tokenTried = false;
   function onWelcome(m) {
     backoff = 500;
     view.canSteer = !!m.can_steer;
@@ -149,6 +150,13 @@
     buildLights(s.lights || []);
     showCamera();
     fitFrame();
+    // A token in the address (`#token=…`, never sent to the server in a request line) is
+    // presented once, so a link printed by the coordinator opens a view that steers.
+    const fromUrl = new URLSearchParams(location.hash.slice(1)).get('token');
+    if (!view.canSteer && fromUrl && !tokenTried) {
+      tokenTried = true;
+      send({ type: 'hello', token: fromUrl }, false);
+    }
     // Ask for a frame if none comes of its own accord (the view renders only on change).
     clearTimeout(firstFrameTimer);
     if (view.canSteer && !view.displayed) {

@@ -1,0 +1,244 @@
+//! Writing frames as they complete: `--out`/`--exr` always hold the newest complete frame
+//! (written beside the target and renamed over it), and a camera path keeps every frame under
+//! `--frame-pattern` (`out/frame-%04d` → `out/frame-0001.png` and `.exr`, …); `--video` then
+//! assembles the PNGs with `ffmpeg` when it is on the PATH.
+
+use anyhow::{Context, bail};
+use lightfold_coordinator::control::FrameResult;
+use std::path::{Path, PathBuf};
+
+/// The default `--frame-pattern`.
+pub const DEFAULT_PATTERN: &str = "out/frame-%04d";
+
+/// Where each frame goes: a path with one `%d` or `%0Nd` (the frame number, from 1), without an
+/// extension (`.png` and `.exr` are added) — the pattern `ffmpeg -i` takes.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FramePattern {
+    prefix: String,
+    width: usize,
+    suffix: String,
+}
+
+impl FramePattern {
+    pub fn parse(s: &str) -> anyhow::Result<FramePattern> {
+        let Some(at) = s.find('%') else {
+            bail!("frame pattern {s:?} has no %d (or %04d) for the frame number");
+        };
+        let rest = &s[at + 1..];
+        let digits: String = rest.chars().take_while(char::is_ascii_digit).collect();
+        let after = &rest[digits.len()..];
+        let Some(suffix) = after.strip_prefix('d') else {
+            bail!("frame pattern {s:?}: only %d or %0Nd may follow the %");
+        };
+        if suffix.contains('%') {
+            bail!("frame pattern {s:?} has more than one %");
+        }
+        let width: usize = if digits.is_empty() {
+            0
+        } else {
+            digits
+                .parse()
+                .ok()
+                .filter(|w| *w <= 12)
+                .with_context(|| format!("frame pattern {s:?}: a width of at most 12 digits"))?
+        };
+        if s[..at].is_empty() && suffix.is_empty() {
+            bail!("frame pattern {s:?} names no file");
+        }
+        Ok(FramePattern {
+            prefix: s[..at].to_string(),
+            width,
+            suffix: suffix.to_string(),
+        })
+    }
+
+    /// Frame `n`'s path, with `extension`.
+    pub fn path(&self, n: u64, extension: &str) -> PathBuf {
+        PathBuf::from(format!(
+            "{}{:0w$}{}.{extension}",
+            self.prefix,
+            n,
+            self.suffix,
+            w = self.width
+        ))
+    }
+
+    /// The pattern for `ffmpeg -i` (the PNGs).
+    pub fn ffmpeg_input(&self) -> String {
+        let spec = if self.width > 0 {
+            format!("%0{}d", self.width)
+        } else {
+            "%d".to_string()
+        };
+        format!("{}{spec}{}.png", self.prefix, self.suffix)
+    }
+
+    /// Creates the folder the frames go to.
+    pub fn create_dir(&self) -> anyhow::Result<()> {
+        if let Some(dir) = self.path(1, "png").parent()
+            && !dir.as_os_str().is_empty()
+        {
+            std::fs::create_dir_all(dir)
+                .with_context(|| format!("cannot create the frame folder {}", dir.display()))?;
+        }
+        Ok(())
+    }
+}
+
+/// What the frame writer's thread ends with: the size of the frames written, how many frame
+/// files it wrote, and the first error.
+pub struct Written {
+    pub size: Option<(u32, u32)>,
+    pub frames: u64,
+    pub error: Option<anyhow::Error>,
+}
+
+/// Writes frames off the event loop as they complete.
+pub struct FrameWriter {
+    tx: Option<std::sync::mpsc::Sender<FrameResult>>,
+    thread: Option<std::thread::JoinHandle<Written>>,
+}
+
+impl FrameWriter {
+    pub fn start(
+        out: PathBuf,
+        exr: PathBuf,
+        every: Option<FramePattern>,
+        exposure: f32,
+    ) -> FrameWriter {
+        let (tx, rx) = std::sync::mpsc::channel::<FrameResult>();
+        let thread = std::thread::spawn(move || {
+            let mut w = Written {
+                size: None,
+                frames: 0,
+                error: None,
+            };
+            while let Ok(mut f) = rx.recv() {
+                // Every frame under the pattern; only the newest queued into --out.
+                let mut newest = Vec::new();
+                loop {
+                    if let Some(p) = &every {
+                        let r = f
+                            .image
+                            .write_exr(&p.path(f.frame, "exr"))
+                            .and_then(|()| f.image.write_png(&p.path(f.frame, "png"), exposure));
+                        match r {
+                            Ok(()) => w.frames += 1,
+                            Err(e) => {
+                                w.error.get_or_insert(e.into());
+                            }
+                        }
+                    }
+                    newest.push(f);
+                    match rx.try_recv() {
+                        Ok(next) => f = next,
+                        Err(_) => break,
+                    }
+                }
+                if let Some(last) = newest.pop() {
+                    w.size = Some((last.image.width, last.image.height));
+                    if let Err(e) = write_atomically(&last.image, &out, &exr, exposure) {
+                        w.error.get_or_insert(e);
+                    }
+                }
+            }
+            w
+        });
+        FrameWriter {
+            tx: Some(tx),
+            thread: Some(thread),
+        }
+    }
+
+    pub fn send(&self, f: FrameResult) {
+        if let Some(tx) = &self.tx {
+            let _ = tx.send(f);
+        }
+    }
+
+    /// Waits for every frame to be written.
+    pub fn finish(mut self) -> Written {
+        drop(self.tx.take());
+        match self.thread.take().map(|t| t.join()) {
+            Some(Ok(r)) => r,
+            Some(Err(_)) => Written {
+                size: None,
+                frames: 0,
+                error: Some(anyhow::anyhow!("the frame writer panicked")),
+            },
+            None => Written {
+                size: None,
+                frames: 0,
+                error: None,
+            },
+        }
+    }
+}
+
+/// Writes beside the target and renames over it, so a reader (or a crash) never sees half a file.
+fn write_atomically(
+    image: &lightfold_scene::Image,
+    png: &Path,
+    exr: &Path,
+    exposure: f32,
+) -> anyhow::Result<()> {
+    let tmp = |p: &Path| {
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        // Keep the extension last: the writers pick the format from it.
+        p.with_file_name(format!(".partial-{name}"))
+    };
+    let (tp, te) = (tmp(png), tmp(exr));
+    image.write_exr(&te)?;
+    std::fs::rename(&te, exr).with_context(|| format!("cannot write {}", exr.display()))?;
+    image.write_png(&tp, exposure)?;
+    std::fs::rename(&tp, png).with_context(|| format!("cannot write {}", png.display()))?;
+    Ok(())
+}
+
+/// Assembles the frames' PNGs into `video` with `ffmpeg` (H.264, `fps` frames per second).
+pub fn assemble_video(pattern: &FramePattern, video: &Path, fps: u32) -> anyhow::Result<()> {
+    let out = std::process::Command::new("ffmpeg")
+        .args(["-y", "-loglevel", "error", "-framerate"])
+        .arg(fps.to_string())
+        .arg("-i")
+        .arg(pattern.ffmpeg_input())
+        .args(["-c:v", "libx264", "-pix_fmt", "yuv420p"])
+        // H.264 wants even dimensions.
+        .args(["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2"])
+        .arg(video)
+        .output();
+    match out {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => bail!(
+            "--video needs ffmpeg on the PATH (Debian: apt install ffmpeg); the frames are in {}",
+            pattern.ffmpeg_input()
+        ),
+        Err(e) => bail!("cannot run ffmpeg: {e}"),
+        Ok(o) if !o.status.success() => bail!(
+            "ffmpeg failed ({}): {}",
+            o.status,
+            String::from_utf8_lossy(&o.stderr).trim()
+        ),
+        Ok(_) => Ok(()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn patterns_number_frames_like_printf_and_ffmpeg() {
+        let p = FramePattern::parse("out/frame-%04d").unwrap();
+        assert_eq!(p.path(1, "png"), PathBuf::from("out/frame-0001.png"));
+        assert_eq!(p.path(12345, "exr"), PathBuf::from("out/frame-12345.exr"));
+        assert_eq!(p.ffmpeg_input(), "out/frame-%04d.png");
+        let q = FramePattern::parse("shot_%d_final").unwrap();
+        assert_eq!(q.path(7, "png"), PathBuf::from("shot_7_final.png"));
+        for bad in ["out/frame", "a%s", "a%04d%d", "%d%", "a%99d", "%d"] {
+            assert!(FramePattern::parse(bad).is_err(), "{bad}");
+        }
+    }
+}
