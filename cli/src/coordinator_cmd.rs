@@ -158,6 +158,10 @@ pub struct JobArgs {
     /// the nodes' cost model), so the plan uses as few nodes as it allows; overrides -K.
     #[arg(long, value_parser = crate::coordinator_cmd::positive_ms)]
     pub frame_budget: Option<f64>,
+    /// Frames requested ahead of the one being finished: 2 keeps every stage busy (the
+    /// pipelined rate of the slowest stage), 1 shortens the live view's latency at lower rate.
+    #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=8))]
+    pub frames_in_flight: u32,
     /// PNG output (sRGB at the scene's exposure).
     #[arg(long, default_value = "out.png")]
     pub out: PathBuf,
@@ -212,6 +216,7 @@ impl JobArgs {
             },
             material_own_node: self.material_own_node,
             frame_budget_us: self.frame_budget.map(|b| (b * 1000.0).round() as u64),
+            frames_in_flight: self.frames_in_flight,
             ..PlanOptions::default()
         }
     }
@@ -316,6 +321,7 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
             heartbeat_timeout: seconds(args.heartbeat_timeout, "--heartbeat-timeout")?,
             wait_for_daemons: seconds(args.wait_for_daemons, "--wait-for-daemons")?,
             take_over: args.take_over,
+            frames_in_flight: args.job.frames_in_flight as usize,
             ..ControlOptions::default()
         };
         let opts = RunOptions {

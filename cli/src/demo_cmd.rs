@@ -394,6 +394,8 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
     cmd.arg("-K").arg(job.lights_per_node.to_string());
     cmd.arg("--topology").arg(job.topology.to_string());
     cmd.arg("--frames").arg(job.frames.to_string());
+    cmd.arg("--frames-in-flight")
+        .arg(job.frames_in_flight.to_string());
     if let Some(o) = job.orbit {
         cmd.arg("--orbit").arg(o.to_string());
     }

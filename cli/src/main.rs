@@ -18,6 +18,7 @@ mod node_cmd;
 mod plan_cmd;
 mod render_cmd;
 mod soak_cmd;
+mod view_probe_cmd;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -62,6 +63,9 @@ enum Command {
     /// Failover soak: a local cluster under random daemon faults (kill, stop, terminate and
     /// restart); every frame checked; detection and recovery times, re-plans, peak RSS.
     Soak(soak_cmd::Args),
+    /// Measure a live view as a viewer sees it: interaction latency, frame interval and what
+    /// serving costs (`docs/live-view.md`).
+    ViewProbe(view_probe_cmd::Args),
 }
 
 #[derive(Debug, Subcommand)]
@@ -85,6 +89,7 @@ fn main() -> anyhow::Result<()> {
         Command::Plan(args) => plan_cmd::run(args),
         Command::Render(args) => render_cmd::run(args),
         Command::Soak(args) => soak_cmd::run(args),
+        Command::ViewProbe(args) => view_probe_cmd::run(args),
     }
 }
 

@@ -76,11 +76,16 @@ fn encode_loop(hub: &Hub, rx: &mpsc::Receiver<Job>, exposure: f32) {
             job = next;
         }
         let started = Instant::now();
+        let cpu_before = thread_cpu_ns();
         match encode(&job, exposure, hub.jpeg_quality) {
             Ok(frame) => {
                 let c = &hub.counters;
                 c.encode_us
                     .fetch_add(started.elapsed().as_micros() as u64, Ordering::Relaxed);
+                if let (Some(a), Some(b)) = (cpu_before, thread_cpu_ns()) {
+                    c.encode_cpu_us
+                        .fetch_add(b.saturating_sub(a) / 1000, Ordering::Relaxed);
+                }
                 c.frames_encoded.fetch_add(1, Ordering::Relaxed);
                 c.jpeg_bytes
                     .fetch_add(frame.jpeg.len() as u64, Ordering::Relaxed);
@@ -93,6 +98,16 @@ fn encode_loop(hub: &Hub, rx: &mpsc::Receiver<Job>, exposure: f32) {
             ),
         }
     }
+}
+
+/// CPU time this thread has run, nanoseconds (Linux: the first field of its schedstat).
+fn thread_cpu_ns() -> Option<u64> {
+    std::fs::read_to_string("/proc/thread-self/schedstat")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
 }
 
 fn encode(job: &Job, exposure: f32, quality: u8) -> anyhow::Result<ViewFrame> {

@@ -40,6 +40,7 @@ enum Input {
         intensity: f32,
     },
     Render,
+    Stats,
 }
 
 #[derive(Debug, Deserialize)]
@@ -222,6 +223,7 @@ impl Viewer {
         out
     }
 
+    /// Applies a message; `Err` holds the answer to send (an error, or the stats asked for).
     fn apply(&mut self, input: Input) -> Result<(), Value> {
         match input {
             Input::Hello { token } => {
@@ -232,6 +234,7 @@ impl Viewer {
                     Err(error("wrong token: this view can only watch"))
                 }
             }
+            Input::Stats => Err(self.hub.stats()),
             _ if !self.can_steer => Err(error(
                 "this view can only watch: present the cluster's token to steer",
             )),
@@ -263,7 +266,7 @@ impl Viewer {
                     color,
                     intensity,
                 } => next.set_light(index, color, intensity),
-                Input::Hello { .. } | Input::Render => Ok(()),
+                Input::Hello { .. } | Input::Render | Input::Stats => Ok(()),
             };
             if result.is_ok() && next != *s {
                 next.revision += 1;

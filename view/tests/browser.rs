@@ -1,5 +1,5 @@
 //! The live page in a real browser: headless Chromium (Debian's `chromium`, installed by
-//! `scripts/install-deps.sh`) opens the view of an in-process cluster over the DevTools protocol,
+//! `scripts/install-deps.sh --test`) opens the view of an in-process cluster over the DevTools protocol,
 //! must show a frame that is not blank, and a mouse drag across the frame must orbit the camera:
 //! the steering revision rises, a frame requested at it arrives, and the picture changes.
 //! Without Chromium the test fails, naming the install step.

@@ -15,7 +15,7 @@ use tokio::time::{Instant, sleep, timeout, timeout_at};
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
-/// Where Debian installs Chromium (`scripts/install-deps.sh`); `LIGHTFOLD_CHROMIUM` overrides.
+/// Where Debian installs Chromium (`scripts/install-deps.sh --test`); `LIGHTFOLD_CHROMIUM` overrides.
 pub const CHROMIUM: &str = "/usr/bin/chromium";
 
 /// How long the browser may take to start and to answer one command.
@@ -28,7 +28,7 @@ pub fn chromium_path() -> String {
     assert!(
         std::path::Path::new(&path).is_file(),
         "Chromium is not installed at {path}: the browser test needs it; run \
-         scripts/install-deps.sh (Debian package `chromium`) or set LIGHTFOLD_CHROMIUM"
+         scripts/install-deps.sh --test (Debian package `chromium`) or set LIGHTFOLD_CHROMIUM"
     );
     path
 }

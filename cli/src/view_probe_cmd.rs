@@ -1,0 +1,287 @@
+//! `lightfold view-probe`: measures a live view as a viewer sees it — interaction latency (an
+//! input sent → the first frame showing it arrives), the frame interval, and what serving costs
+//! (encoding time and bytes per frame from the view's `stats`, the coordinator's CPU per frame
+//! with `--pid`). Inputs are orbit steps, sent as a drag (`--rate` per second, whatever the
+//! frames do) or one at a time after the frame showing the previous one (`--steps`).
+
+use anyhow::{Context, bail};
+use futures::{SinkExt, StreamExt};
+use serde_json::{Value, json};
+use std::time::{Duration, Instant};
+use tokio_tungstenite::tungstenite::Message;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// The view's address (HOST:PORT, as `demo --serve` prints it).
+    #[arg(long, default_value = lightfold_view::DEFAULT_LISTEN)]
+    pub addr: String,
+    /// How long to send inputs, seconds.
+    #[arg(long, default_value_t = 20.0)]
+    pub seconds: f64,
+    /// Drag inputs per second.
+    #[arg(long, default_value_t = 30.0)]
+    pub rate: f64,
+    /// One input at a time: send the next 100 ms after the frame showing the last arrived.
+    #[arg(long)]
+    pub steps: bool,
+    /// Degrees each input orbits the camera by.
+    #[arg(long, default_value_t = 1.0)]
+    pub yaw: f32,
+    /// The coordinator's pid, to report its CPU time per frame.
+    #[arg(long)]
+    pub pid: Option<u32>,
+}
+
+type Socket =
+    tokio_tungstenite::WebSocketStream<tokio_tungstenite::MaybeTlsStream<tokio::net::TcpStream>>;
+
+/// What the probe saw.
+#[derive(Default)]
+struct Seen {
+    /// Per input: when it was sent and the revision its ack named.
+    inputs: Vec<(Instant, Option<u64>)>,
+    /// Per frame: arrival, revision, message bytes.
+    frames: Vec<(Instant, u64, usize)>,
+    stats: Option<Value>,
+}
+
+impl Seen {
+    fn take(&mut self, m: Message) -> anyhow::Result<()> {
+        match m {
+            Message::Binary(b) => {
+                if b.len() < 4 {
+                    bail!("a frame message of {} bytes", b.len());
+                }
+                let n = u32::from_be_bytes([b[0], b[1], b[2], b[3]]) as usize;
+                let header: Value = serde_json::from_slice(b.get(4..4 + n).context("header")?)?;
+                let revision = header["revision"].as_u64().unwrap_or(0);
+                self.frames.push((Instant::now(), revision, b.len()));
+            }
+            Message::Text(t) => {
+                let v: Value = serde_json::from_str(&t)?;
+                match v["type"].as_str() {
+                    Some("ack") => {
+                        let id = v["id"].as_u64().unwrap_or(u64::MAX) as usize;
+                        if let Some(i) = self.inputs.get_mut(id) {
+                            i.1 = v["revision"].as_u64();
+                        }
+                    }
+                    Some("stats") => self.stats = Some(v),
+                    Some("error") => bail!("the view refused an input: {}", v["text"]),
+                    _ => {}
+                }
+            }
+            Message::Close(_) => bail!("the view closed the socket"),
+            _ => {}
+        }
+        Ok(())
+    }
+
+    /// Latency of each input whose frame arrived, ms.
+    fn latencies(&self) -> Vec<f64> {
+        self.inputs
+            .iter()
+            .filter_map(|(sent, rev)| {
+                let rev = (*rev)?;
+                self.frames
+                    .iter()
+                    .find(|(at, r, _)| *r >= rev && at >= sent)
+                    .map(|(at, _, _)| at.duration_since(*sent).as_secs_f64() * 1000.0)
+            })
+            .collect()
+    }
+}
+
+async fn next(ws: &mut Socket, within: Duration) -> anyhow::Result<Option<Message>> {
+    match tokio::time::timeout(within, ws.next()).await {
+        Err(_) => Ok(None),
+        Ok(None) => bail!("the view closed the socket"),
+        Ok(Some(m)) => Ok(Some(m?)),
+    }
+}
+
+async fn stats(ws: &mut Socket, seen: &mut Seen) -> anyhow::Result<Value> {
+    seen.stats = None;
+    ws.send(Message::Text(json!({"type": "stats"}).to_string().into()))
+        .await?;
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while seen.stats.is_none() {
+        let left = deadline.saturating_duration_since(Instant::now());
+        if left.is_zero() {
+            bail!("no stats from the view");
+        }
+        if let Some(m) = next(ws, left).await? {
+            seen.take(m)?;
+        }
+    }
+    seen.stats.take().context("stats")
+}
+
+fn percentile(v: &[f64], p: f64) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    s[((s.len() - 1) as f64 * p).round() as usize]
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    if !(args.seconds > 0.0 && args.rate > 0.0 && args.seconds.is_finite() && args.rate < 1000.0) {
+        bail!("--seconds and --rate must be positive");
+    }
+    let rt = tokio::runtime::Runtime::new()?;
+    rt.block_on(probe(args))
+}
+
+async fn probe(args: Args) -> anyhow::Result<()> {
+    let url = format!("ws://{}/ws", args.addr);
+    let (mut ws, _) = tokio::time::timeout(
+        Duration::from_secs(30),
+        tokio_tungstenite::connect_async(&url),
+    )
+    .await
+    .context("connecting timed out")?
+    .with_context(|| format!("cannot open {url}"))?;
+    let mut seen = Seen::default();
+    // The welcome, then a first frame (asked for if none comes).
+    let mut welcome = None;
+    while welcome.is_none() {
+        let m = next(&mut ws, Duration::from_secs(30))
+            .await?
+            .context("no welcome")?;
+        if let Message::Text(t) = &m {
+            let v: Value = serde_json::from_str(t)?;
+            if v["type"] == "welcome" {
+                welcome = Some(v);
+                continue;
+            }
+        }
+        seen.take(m)?;
+    }
+    let welcome = welcome.context("no welcome")?;
+    if welcome["can_steer"] != true {
+        bail!("this view only lets us watch: run the probe from loopback");
+    }
+    ws.send(Message::Text(json!({"type": "render"}).to_string().into()))
+        .await?;
+    while seen.frames.is_empty() {
+        let m = next(&mut ws, Duration::from_secs(120))
+            .await?
+            .context("no frame")?;
+        seen.take(m)?;
+    }
+    let before = stats(&mut ws, &mut seen).await?;
+    let cpu_before = args.pid.map(crate::demo_cmd::cpu_seconds);
+    seen.frames.clear();
+    let start = Instant::now();
+    let end = start + Duration::from_secs_f64(args.seconds);
+    let period = Duration::from_secs_f64(1.0 / args.rate);
+    let mut tick = tokio::time::interval(period);
+    let mut waiting_since: Option<Instant> = None;
+    while Instant::now() < end {
+        let send_now = if args.steps {
+            // Next input 100 ms after the frame showing the last one.
+            let shown = seen
+                .inputs
+                .last()
+                .is_none_or(|(_, r)| r.is_some_and(|r| seen.frames.iter().any(|f| f.1 >= r)));
+            if shown && waiting_since.is_none() {
+                waiting_since = Some(Instant::now());
+            }
+            waiting_since.is_some_and(|t| t.elapsed() >= Duration::from_millis(100))
+        } else {
+            false
+        };
+        if send_now || !args.steps {
+            if !args.steps {
+                tick.tick().await;
+            }
+            waiting_since = None;
+            let id = seen.inputs.len();
+            let m = json!({"type": "orbit", "yaw_deg": args.yaw, "pitch_deg": 0.0, "id": id});
+            seen.inputs.push((Instant::now(), None));
+            ws.send(Message::Text(m.to_string().into())).await?;
+        }
+        // Take what arrived, briefly.
+        while let Some(m) = next(&mut ws, Duration::from_millis(2)).await? {
+            seen.take(m)?;
+        }
+    }
+    let sent_for = start.elapsed();
+    // The last inputs' frames.
+    let last = seen.inputs.iter().filter_map(|i| i.1).max().unwrap_or(0);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while !seen.frames.iter().any(|f| f.1 >= last) && Instant::now() < deadline {
+        if let Some(m) = next(&mut ws, Duration::from_millis(200)).await? {
+            seen.take(m)?;
+        }
+    }
+    let after = stats(&mut ws, &mut seen).await?;
+    let cpu = args
+        .pid
+        .zip(cpu_before)
+        .map(|(p, b)| crate::demo_cmd::cpu_seconds(p) - b);
+    report(&args, &seen, sent_for, &before, &after, cpu);
+    let _ = ws.close(None).await;
+    Ok(())
+}
+
+fn report(
+    args: &Args,
+    seen: &Seen,
+    sent_for: Duration,
+    before: &Value,
+    after: &Value,
+    cpu: Option<f64>,
+) {
+    let lat = seen.latencies();
+    let intervals: Vec<f64> = seen
+        .frames
+        .windows(2)
+        .map(|w| w[1].0.duration_since(w[0].0).as_secs_f64() * 1000.0)
+        .collect();
+    let d = |k: &str| after[k].as_f64().unwrap_or(0.0) - before[k].as_f64().unwrap_or(0.0);
+    let (encoded, sent) = (d("frames_encoded").max(1.0), d("frames_sent").max(1.0));
+    let delivered = d("frames_delivered");
+    println!(
+        "view-probe: {} inputs ({}) over {:.1} s, {} frames received, {} delivered by the cluster",
+        seen.inputs.len(),
+        if args.steps {
+            "one at a time".to_string()
+        } else {
+            format!("a drag at {} /s", args.rate)
+        },
+        sent_for.as_secs_f64(),
+        seen.frames.len(),
+        delivered
+    );
+    println!(
+        "  interaction latency (input -> first frame showing it): p50 {:.1} ms, p95 {:.1} ms, max {:.1} ms ({} inputs shown)",
+        percentile(&lat, 0.5),
+        percentile(&lat, 0.95),
+        percentile(&lat, 1.0),
+        lat.len()
+    );
+    println!(
+        "  frame interval at the viewer: p50 {:.1} ms, p95 {:.1} ms; latency p50 = {:.2} frame intervals",
+        percentile(&intervals, 0.5),
+        percentile(&intervals, 0.95),
+        percentile(&lat, 0.5) / percentile(&intervals, 0.5)
+    );
+    println!(
+        "  serving: {:.2} ms encoding per frame ({:.2} ms of CPU), {:.0} JPEG bytes per frame, {:.0} bytes sent per frame per viewer, {} frames skipped by viewers",
+        d("encode_us") / encoded / 1000.0,
+        d("encode_cpu_us") / encoded / 1000.0,
+        d("jpeg_bytes") / encoded,
+        d("bytes_sent") / sent,
+        d("frames_skipped")
+    );
+    if let Some(c) = cpu {
+        println!(
+            "  coordinator CPU: {:.2} ms per frame delivered ({:.2} s in all)",
+            c * 1000.0 / delivered.max(1.0),
+            c
+        );
+    }
+}
