@@ -383,3 +383,69 @@ async fn malformed_and_hostile_messages_get_errors_and_change_nothing() {
     })
     .await;
 }
+
+/// `GET path` over HTTP/1.0 (test-side only): status line and body.
+async fn http_get(addr: std::net::SocketAddr, path: &str) -> (String, Vec<u8>) {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+    s.write_all(format!("GET {path} HTTP/1.0\r\nHost: {addr}\r\n\r\n").as_bytes())
+        .await
+        .unwrap();
+    let mut all = Vec::new();
+    tokio::time::timeout(client::WAIT, s.read_to_end(&mut all))
+        .await
+        .expect("the response in time")
+        .unwrap();
+    let split = all
+        .windows(4)
+        .position(|w| w == b"\r\n\r\n")
+        .expect("a header");
+    let head = String::from_utf8_lossy(&all[..split]).into_owned();
+    (head, all[split + 4..].to_vec())
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn the_page_and_the_current_frame_as_exr_and_jpeg_are_served() {
+    let scene = small("balls");
+    let plan = plan_options(&scene, 4);
+    with_view(scene, plan, loopback(), |addr, delivered, _| async move {
+        let (head, body) = http_get(addr, "/").await;
+        assert!(
+            head.starts_with("HTTP/1.0 200") || head.starts_with("HTTP/1.1 200"),
+            "{head}"
+        );
+        let page = String::from_utf8(body).unwrap();
+        assert!(
+            page.contains("app.js") && page.contains("id=\"frame\""),
+            "{page}"
+        );
+        let mut c = Client::connect(addr).await;
+        c.expect("welcome").await;
+        let f = c.frame().await;
+        let (head, exr) = http_get(addr, "/frame.exr").await;
+        assert!(
+            head.contains("200") && head.contains("image/x-exr"),
+            "{head}"
+        );
+        let dir = std::env::temp_dir().join(format!("lightfold-view-exr-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("frame.exr");
+        std::fs::write(&path, &exr).unwrap();
+        let got = lightfold_scene::Image::read_exr(&path).unwrap();
+        let want = delivered_frame(&delivered, frame_number(&f));
+        assert_eq!((got.width, got.height), (want.width, want.height));
+        let want_rgb: Vec<f32> = want
+            .data
+            .chunks(want.channels)
+            .flat_map(|p| p[..3].to_vec())
+            .collect();
+        assert_eq!(got.data, want_rgb, "the EXR is the frame, bit for bit");
+        let (head, jpeg) = http_get(addr, "/frame.jpg").await;
+        assert!(head.contains("image/jpeg"), "{head}");
+        assert_eq!(jpeg, f.jpeg, "the JPEG is the one pushed");
+        let (head, _) = http_get(addr, "/nothing-here").await;
+        assert!(head.contains("404"), "{head}");
+        let _ = std::fs::remove_dir_all(&dir);
+    })
+    .await;
+}
