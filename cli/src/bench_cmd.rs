@@ -4,6 +4,7 @@
 //! few frames with a slowly orbiting camera and reports the node's own per-phase timings, the
 //! node-seconds a frame of L lights costs, and the nodes L lights need under a frame budget.
 
+use crate::out::outln;
 use anyhow::{Context, bail};
 use lightfold_net::{Identity, Link, Timeouts, accept, dial};
 use lightfold_protocol::frame::Frame;
@@ -34,13 +35,18 @@ enum What {
 
 #[derive(Debug, clap::Args)]
 pub struct NodeArgs {
-    /// Built-in scene name.
+    /// Built-in scene name, scene file (.toml) or glTF (.gltf/.glb).
     #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
     scene: String,
-    #[arg(long, default_value_t = 800)]
-    width: u32,
-    #[arg(long, default_value_t = 600)]
-    height: u32,
+    /// Image size as WIDTHxHEIGHT.
+    #[arg(long, default_value = "800x600", value_parser = parse_size)]
+    size: (u32, u32),
+    /// Image width (the same as the first half of `--size`).
+    #[arg(long, hide = true, conflicts_with = "size")]
+    width: Option<u32>,
+    /// Image height (the same as the second half of `--size`).
+    #[arg(long, hide = true, conflicts_with = "size")]
+    height: Option<u32>,
     /// Shadow-map size per face.
     #[arg(long, default_value_t = 512)]
     map: u32,
@@ -78,9 +84,27 @@ pub struct NodeArgs {
     backend: String,
 }
 
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    lightfold_scene::limits::parse_image_size(s)
+        .map_err(|e| format!("{e} (see `lightfold defaults`)"))
+}
+
+impl NodeArgs {
+    /// The image size: `--size`, or the older `--width`/`--height` over its default.
+    fn image_size(&self) -> (u32, u32) {
+        (
+            self.width.unwrap_or(self.size.0),
+            self.height.unwrap_or(self.size.1),
+        )
+    }
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     match args.what {
-        What::Node(a) => {
+        What::Node(mut a) => {
+            a.size = a.image_size();
+            lightfold_scene::limits::check_image_size(a.size.0, a.size.1)
+                .map_err(|e| anyhow::anyhow!("bad image size: {e} (see `lightfold defaults`)"))?;
             let rt = tokio::runtime::Builder::new_multi_thread()
                 .worker_threads(2)
                 .enable_all()
@@ -147,9 +171,9 @@ impl Row {
 async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
     let format = PixelFormat::from_name(&a.format)
         .with_context(|| format!("unknown pixel format {:?}", a.format))?;
-    let mut scene = lightfold_scene::builtin(&a.scene)?;
-    scene.camera.width = a.width;
-    scene.camera.height = a.height;
+    let mut scene = lightfold_scene::load(&a.scene)
+        .with_context(|| format!("cannot load scene {:?}", a.scene))?;
+    (scene.camera.width, scene.camera.height) = a.size;
     scene.quality.shadow_map_size = a.map;
     let samples = scene_samples(&scene);
     if samples.is_empty() {
@@ -170,8 +194,8 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
         a.scene,
         scene.triangle_count(),
         samples.len(),
-        a.width,
-        a.height,
+        a.size.0,
+        a.size.1,
         a.map,
         a.threads
     );
@@ -424,14 +448,19 @@ async fn drain(listener: TcpListener, token: String, count: Arc<AtomicU64>) {
 
 fn print_tables(a: &NodeArgs, rows: &[Row]) {
     let l = a.lights;
-    println!(
+    outln!(
         "\n### Frame time per node ({}x{}, {}² maps, LP_NUM_THREADS={}, {} rounds × {} frames, phases are medians, ms)\n",
-        a.width, a.height, a.map, a.threads, a.rounds, a.frames
+        a.size.0,
+        a.size.1,
+        a.map,
+        a.threads,
+        a.rounds,
+        a.frames
     );
-    println!(
+    outln!(
         "| mode | K | fastest | median | CPU | shadow | eye | readback | pack | send | shadow passes | MB out | peak RSS MB |"
     );
-    println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    outln!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
     for r in rows {
         let passes = median(
             r.frames
@@ -441,7 +470,7 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
         );
         let mb = median(r.frames.iter().map(|s| s.bytes_out).collect()) / 1e6;
         let rss = r.frames.iter().map(|s| s.peak_rss_bytes).max().unwrap_or(0) as f64 / 1e6;
-        println!(
+        outln!(
             "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.2} | {:.0} |",
             r.mode,
             r.k,
@@ -458,13 +487,11 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
             rss
         );
     }
-    println!(
-        "\n### L = {l}: node-seconds per frame (fastest wall time, and CPU time of the node)\n"
-    );
-    println!(
+    outln!("\n### L = {l}: node-seconds per frame (fastest wall time, and CPU time of the node)\n");
+    outln!(
         "| mode | K | nodes ⌈L/K⌉ | node-s / frame | vs K = 1 | CPU node-s / frame | vs K = 1 |"
     );
-    println!("|---|---:|---:|---:|---:|---:|---:|");
+    outln!("|---|---:|---:|---:|---:|---:|---:|");
     for r in rows {
         let nodes = f64::from(l.div_ceil(r.k));
         let base = rows.iter().find(|b| b.mode == r.mode && b.k == 1);
@@ -477,7 +504,7 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
                 "—".to_string()
             }
         };
-        println!(
+        outln!(
             "| {} | {} | {nodes} | {:.2} | {} | {:.2} | {} |",
             r.mode,
             r.k,
@@ -487,10 +514,8 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
             ratio(&|x: &Row| x.cpu_ms()),
         );
     }
-    println!(
-        "\n### L = {l}: illumination nodes needed within a frame budget (fastest wall time)\n"
-    );
-    println!(
+    outln!("\n### L = {l}: illumination nodes needed within a frame budget (fastest wall time)\n");
+    outln!(
         "| mode | {} |",
         a.budget_ms
             .iter()
@@ -498,7 +523,7 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
             .collect::<Vec<_>>()
             .join(" | ")
     );
-    println!("|---|{}", "---|".repeat(a.budget_ms.len()));
+    outln!("|---|{}", "---|".repeat(a.budget_ms.len()));
     for mode in &a.modes {
         let cells: Vec<String> = a
             .budget_ms
@@ -512,6 +537,6 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
                     })
             })
             .collect();
-        println!("| {mode} | {} |", cells.join(" | "));
+        outln!("| {mode} | {} |", cells.join(" | "));
     }
 }

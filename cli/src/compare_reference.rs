@@ -1,6 +1,7 @@
 //! The error summary of a cluster image: compared with the CPU reference's exact sum over the same
 //! point samples (ray-traced shadows), so what remains is shadow-map and link-precision error.
 
+use crate::out::outln;
 use anyhow::Context;
 use lightfold_reference::masks::penumbra_mask;
 use lightfold_reference::metrics::compare;
@@ -26,11 +27,11 @@ pub fn report(scene: &Scene, exr: &Path) -> anyhow::Result<()> {
     let unoccluded = open.radiance([1.0; 3], scene.ambient);
     let mask = penumbra_mask(&reference, &unoccluded, &shadowed.depth, &shadowed.coverage);
     let m = compare(&test, &reference, scene.exposure, Some(&mask))?;
-    println!(
+    outln!(
         "error against the CPU reference (exact sum over the same {} point samples, ray-traced shadows; {:.1} s on the CPU):",
         samples.len(),
         t.elapsed().as_secs_f64()
     );
-    println!("{m}");
+    outln!("{m}");
     Ok(())
 }

@@ -15,6 +15,7 @@ mod demo_cmd;
 mod frames_out;
 mod lifecycle;
 mod node_cmd;
+mod out;
 mod plan_cmd;
 mod render_cmd;
 mod soak_cmd;
@@ -40,7 +41,8 @@ enum Command {
     Accuracy(accuracy_cmd::Args),
     /// Benchmarks that print figures (`bench node`: what K lights per node cost).
     Bench(bench_cmd::Args),
-    /// Image metrics of a test EXR against a reference EXR (RMSE, PSNR, FLIP, penumbra).
+    /// Image metrics of a test EXR against a reference EXR (RMSE, PSNR, FLIP, penumbra);
+    /// `--min-psnr`/`--max-flip` fail the command when not met (a CI gate).
     Compare(compare_cmd::Args),
     /// Run a compositor stage daemon.
     Compositor(compositor_cmd::Args),
@@ -77,7 +79,7 @@ enum ClusterCommand {
 fn main() -> anyhow::Result<()> {
     let cli = Cli::parse();
     init_logging(&cli.log);
-    match cli.command {
+    let result = match cli.command {
         Command::Accuracy(args) => accuracy_cmd::run(args),
         Command::Bench(args) => bench_cmd::run(args),
         Command::Compare(args) => compare_cmd::run(args),
@@ -90,7 +92,14 @@ fn main() -> anyhow::Result<()> {
         Command::Render(args) => render_cmd::run(args),
         Command::Soak(args) => soak_cmd::run(args),
         Command::ViewProbe(args) => view_probe_cmd::run(args),
+    };
+    // A reader that went away (`lightfold plan | head`) is not a failure of the command.
+    if let Err(e) = &result
+        && out::is_broken_pipe(e)
+    {
+        out::reader_gone();
     }
+    result
 }
 
 fn init_logging(default: &str) {

@@ -1,31 +1,50 @@
 //! `lightfold plan`: print what the planner decides for a scene — stages, lights per node, dropped
 //! lights and why, shadow passes, bytes per frame per link — on a cluster file's daemons or on a
-//! synthetic cluster of local daemons.
+//! synthetic cluster of local daemons. Nodes are assumed to take at most `--max-lights` lights,
+//! and K is raised towards it when the cluster has too few nodes, as the coordinator does with
+//! the limits its nodes report.
 
+use crate::out::{out, outln};
 use anyhow::Context;
 use lightfold_coordinator::cluster::ClusterFile;
 use lightfold_coordinator::plan::{
-    ClusterSpec, DaemonSpec, MapSizing, PlanOptions, Topology, plan,
+    ClusterSpec, DaemonSpec, MapSizing, PlanError, PlanOptions, Topology, plan,
 };
+use lightfold_protocol::{Capabilities, Role};
 use std::path::PathBuf;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Built-in scene name.
-    #[arg(default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
-    pub scene: String,
+    /// Built-in scene name, scene file (.toml) or glTF (.gltf/.glb) [default: balls].
+    #[arg(
+        long = "scene",
+        value_name = "SCENE",
+        conflicts_with = "scene_positional"
+    )]
+    pub scene: Option<String>,
+    /// The scene as a positional argument (the same as `--scene`).
+    #[arg(value_name = "SCENE", hide = true)]
+    pub scene_positional: Option<String>,
     /// Cluster file (TOML) listing the daemons; without it a synthetic local cluster is used.
     #[arg(long)]
     pub cluster: Option<PathBuf>,
-    /// Render nodes of the synthetic cluster (default: as many as the plan needs).
+    /// Render nodes of the synthetic cluster (default: as many as the plan needs at -K). With
+    /// fewer, K is raised as the coordinator raises it, up to --max-lights.
     #[arg(long)]
     pub nodes: Option<usize>,
     /// Compositors of the synthetic cluster (default: as many as the plan uses).
     #[arg(long)]
     pub compositors: Option<usize>,
-    /// Lights per node (the paper's K).
+    /// Lights per node (the paper's K); raised when the cluster has too few nodes.
     #[arg(short = 'K', long, default_value_t = lightfold_scene::defaults::LIGHTS_PER_NODE)]
     pub lights_per_node: u32,
+    /// The most lights one node's device takes, the ceiling K is raised to. A real node reports
+    /// its own at registration (see its "render node ready" log line); the default is what
+    /// every device takes (wgpu's default limits, the default shadow-map size).
+    #[arg(long, value_name = "K")]
+    pub max_lights: Option<u32>,
+    /// Compositor topology: `chain` (a linear pipeline, each stage adds its nodes to the upstream
+    /// sum) or `tree` (leaf stages sum nodes, the stages above join pairs of partial sums).
     #[arg(long, default_value = "chain")]
     pub topology: Topology,
     /// No culling: every light, material layer and caster.
@@ -52,9 +71,28 @@ pub struct Args {
     pub frame_budget: Option<f64>,
 }
 
+impl Args {
+    fn scene(&self) -> &str {
+        self.scene
+            .as_deref()
+            .or(self.scene_positional.as_deref())
+            .unwrap_or(lightfold_scene::defaults::DEFAULT_SCENE)
+    }
+}
+
+/// The largest K every device takes: `max_lights_for` at wgpu's default limits and the shadow-map
+/// size nodes report their limit at.
+fn default_max_lights() -> u32 {
+    lightfold_node::gpu::device::max_lights_for(
+        &Default::default(),
+        lightfold_scene::defaults::SHADOW_MAP_SIZE,
+    )
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let mut scene = lightfold_scene::builtin(&args.scene)
-        .with_context(|| format!("cannot load scene {:?}", args.scene))?;
+    let name = args.scene();
+    let mut scene =
+        lightfold_scene::load(name).with_context(|| format!("cannot load scene {name:?}"))?;
     if let Some(size) = &args.size {
         let (w, h) = crate::coordinator_cmd::parse_size(size)?;
         scene.camera.width = w;
@@ -72,23 +110,78 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(n) = args.shadow_map_size {
         options.map_sizing = MapSizing::Fixed(n);
     }
+    let max_lights = args.max_lights.unwrap_or_else(default_max_lights);
     let cluster = match &args.cluster {
         Some(path) => from_file(&ClusterFile::load(path)?),
         None => {
-            // Learn what the scene needs on an ample cluster, then plan on exactly that.
-            let probe = plan(&scene, &ClusterSpec::local(1024, 1024), &options)?;
+            // Learn what the scene needs on an ample cluster, then plan on exactly that (or on
+            // the nodes asked for, with the compositors a plan on them uses).
+            let ample = |nodes: usize| with_devices(ClusterSpec::local(nodes, 1024), max_lights);
+            let probe = plan(&scene, &ample(1024), &options)?;
             let nodes = args.nodes.unwrap_or(probe.nodes.len());
-            let compositors = args.compositors.unwrap_or(probe.stages.len());
+            let compositors = match args.compositors {
+                Some(c) => c,
+                None if nodes == probe.nodes.len() => probe.stages.len(),
+                None => match plan(&scene, &ample(nodes), &options) {
+                    Ok(p) => p.stages.len(),
+                    Err(_) => probe.stages.len(),
+                },
+            };
             ClusterSpec::local(nodes, compositors)
         }
     };
-    let p = plan(&scene, &cluster, &options)?;
+    let cluster = with_devices(cluster, max_lights);
+    let p = plan(&scene, &cluster, &options).map_err(|e| match e {
+        PlanError::NotEnoughNodes { .. } => anyhow::anyhow!(
+            "{e} (assuming nodes that take at most K = {max_lights}; --max-lights N to change)"
+        ),
+        e => e.into(),
+    })?;
+    let raised = (options.frame_budget_us.is_none() && p.k > args.lights_per_node).then(|| {
+        format!(
+            "K raised from {} to {}: {} render node(s) are too few for {} active light samples at \
+             K = {} (the coordinator does the same on a cluster this size)",
+            args.lights_per_node,
+            p.k,
+            cluster.nodes.len(),
+            p.active.len(),
+            args.lights_per_node
+        )
+    });
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&p)?);
+        if let Some(note) = &raised {
+            eprintln!("{note}");
+        }
+        outln!("{}", serde_json::to_string_pretty(&p)?);
     } else {
-        print!("{p}");
+        if let Some(note) = &raised {
+            outln!("{note}");
+        }
+        out!("{p}");
     }
     Ok(())
+}
+
+/// `cluster` with every render node reporting a device that takes at most `max_lights` lights
+/// (what a real node reports at registration; the planner raises K only up to it).
+fn with_devices(mut cluster: ClusterSpec, max_lights: u32) -> ClusterSpec {
+    for n in &mut cluster.nodes {
+        n.capabilities.get_or_insert_with(|| Capabilities {
+            role: Role::Node,
+            daemon_id: n.id.clone(),
+            advertise: String::new(),
+            adapter: String::new(),
+            backend: String::new(),
+            max_lights,
+            max_texture_size: 0,
+            formats: Vec::new(),
+            cost_per_light_us: 0,
+            fixed_cost_us: 0,
+            threads: 0,
+            version: String::new(),
+        });
+    }
+    cluster
 }
 
 fn from_file(file: &ClusterFile) -> ClusterSpec {

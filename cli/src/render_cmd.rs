@@ -1,7 +1,9 @@
 //! `lightfold render`: one image of a scene to EXR (linear) and PNG (sRGB at the scene's
 //! exposure), on the local GPU (shadow maps, K samples per pass), or with `--reference` on the CPU:
 //! the exact sum over the scene's point samples, or with `--area-truth SPP` the true area lights.
+//! `-K` is lights per node, as in every other command.
 
+use crate::out::outln;
 use anyhow::{Context, bail};
 use lightfold_reference::output::{
     Outputs, ReferenceMode, png_next_to, retain_lights, select_lights,
@@ -25,8 +27,10 @@ pub struct Args {
     /// Render with the CPU reference (ray-traced visibility) instead of the GPU.
     #[arg(long)]
     pub reference: bool,
-    /// GPU: point samples per shadow-map set and eye pass (default: the scene's K).
-    #[arg(short = 'K', long = "lights-per-pass")]
+    /// GPU: lights per node (the paper's K, as in every other command): the samples are rendered
+    /// in batches of K, each what one node renders in a frame (one shadow-map set and one eye
+    /// pass), and summed (default: the scene's K).
+    #[arg(short = 'K', long = "lights-per-node", alias = "lights-per-pass")]
     pub k: Option<u32>,
     /// GPU: shadow-map resolution per view (default: the scene's).
     #[arg(long)]
@@ -43,7 +47,8 @@ pub struct Args {
     /// GPU: keep shadow maps between frames (lights and geometry are static).
     #[arg(long)]
     pub walkthrough: bool,
-    /// GPU: print shadow passes and shadow / eye / readback time per frame.
+    /// GPU: print shadow passes and shadow / eye / readback time per frame, then the median cost
+    /// of one node frame (a batch of K) over the frames after the first.
     #[arg(long)]
     pub timings: bool,
     /// GPU: light pixels in the forward eye pass instead of the deferred G-buffer + compute pass.
@@ -141,7 +146,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         mrays_per_s = format_args!("{:.2}", report.rays_per_second() / 1e6),
         "rendered on the CPU"
     );
-    println!(
+    outln!(
         "wrote {} and {} ({:.2} s, ≤ {:.1} M rays, {:.2} M rays/s)",
         outputs.exr.display(),
         png_next_to(&args.out).display(),

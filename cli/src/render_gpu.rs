@@ -4,6 +4,7 @@
 //! exposure (PNG). `--timings` prints the per-phase cost of every frame.
 
 use super::Args;
+use crate::out::outln;
 use anyhow::Context;
 use lightfold_node::gpu::device::parse_backend;
 use lightfold_node::gpu::{
@@ -59,7 +60,7 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
     }
     let frames = args.frames.max(1);
     if args.timings {
-        println!(
+        outln!(
             "adapter {} ({:?}), {:?} eye pass, {}x{}, {} samples, K = {k}, {}² maps, {} batch(es)",
             gpu.info.name,
             gpu.info.backend,
@@ -70,15 +71,18 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
             opts.shadow_map_size,
             samples.len().div_ceil(k).max(1)
         );
-        println!("frame  shadow_passes  shadow_ms  eye_ms  readback_ms  total_ms");
+        outln!("frame  shadow_passes  shadow_ms  eye_ms  readback_ms  total_ms");
     }
     let mut image = None;
-    // Per-batch costs after the first frame (which also compiles shaders and allocates).
+    // Per-batch costs after the first frame (which also compiles shaders and allocates), without
+    // each frame's first batch (which also renders the material layers).
     let mut steady: Vec<[u64; 3]> = Vec::new();
+    let mut steady_frames = 0;
+    let mut views_per_light = Vec::new();
     for f in 0..frames {
         let (radiance, times) = render_frame(&gpu, &mut renderer, scene, samples, k, None)?;
         if args.timings {
-            println!(
+            outln!(
                 "{f:>5}  {:>13}  {:>9.1}  {:>6.1}  {:>11.1}  {:>8.1}",
                 times.shadow_passes,
                 times.shadow_us as f64 / 1e3,
@@ -89,25 +93,41 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
         }
         if f > 0 || frames == 1 {
             steady.extend(times.batches.iter().skip(1));
+            steady_frames += 1;
         }
-        if args.timings && f == 0 {
-            let p = &times.passes_per_light;
-            let sum: u32 = p.iter().sum();
-            println!(
-                "shadow views per light: min {}, mean {:.2}, max {} ({sum} in all)",
-                p.iter().min().unwrap_or(&0),
-                sum as f64 / p.len().max(1) as f64,
-                p.iter().max().unwrap_or(&0)
-            );
+        if f == 0 {
+            views_per_light = times.passes_per_light;
         }
         image = Some(radiance);
     }
+    if args.timings {
+        let p = &views_per_light;
+        let sum: u32 = p.iter().sum();
+        outln!(
+            "shadow views per light: min {}, mean {:.2}, max {} ({sum} in all)",
+            p.iter().min().unwrap_or(&0),
+            sum as f64 / p.len().max(1) as f64,
+            p.iter().max().unwrap_or(&0)
+        );
+    }
     if args.timings && !steady.is_empty() {
         let [s, e, r] = medians(&steady);
-        println!(
-            "node frame (K = {k}, illumination only), median of {}: shadow {:.1} ms, eye {:.1} ms, \
-             readback {:.1} ms, total {:.1} ms",
+        let which = match frames {
+            1 => "the only frame".to_string(),
+            2 => "frame 1".to_string(),
+            n => format!("each of frames 1–{}", n - 1),
+        };
+        let warm = if frames == 1 {
+            ""
+        } else {
+            "frame 0 warms up; "
+        };
+        outln!(
+            "node frame (K = {k}, illumination only): median of {} batches, {} in {which} \
+             ({warm}each frame's first batch, which also renders the materials, is left out): \
+             shadow {:.1} ms, eye {:.1} ms, readback {:.1} ms, total {:.1} ms",
             steady.len(),
+            steady.len() / steady_frames.max(1),
             s as f64 / 1e3,
             e as f64 / 1e3,
             r as f64 / 1e3,
@@ -130,7 +150,7 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
         let ((open, _), _) = render_frame(&gpu, &mut renderer, scene, samples, k, Some(&none))?;
         open.write_exr(path)?;
     }
-    println!(
+    outln!(
         "wrote {} and {} on {} ({} samples, K = {k})",
         args.out.display(),
         png.display(),
