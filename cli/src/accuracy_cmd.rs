@@ -20,7 +20,9 @@ pub struct Args {
     /// Image size as WIDTHxHEIGHT.
     #[arg(long, default_value = "400x300")]
     size: String,
-    /// Output folder (default: docs/accuracy/<scene>).
+    /// Output folder (default: lightfold-accuracy/<scene>, or lightfold-accuracy/hard, in the
+    /// current directory; the committed results live in docs/accuracy/ and are rewritten only
+    /// when named here).
     #[arg(long)]
     out: Option<PathBuf>,
     /// Points per area light per pixel of the ground truth.
@@ -33,15 +35,30 @@ pub struct Args {
     /// format, K, grid (default: all).
     #[arg(long, value_delimiter = ',')]
     knobs: Vec<String>,
-    /// Where ground truths are cached by scene hash.
-    #[arg(long, default_value = "target/lightfold-cache/accuracy")]
-    cache_dir: PathBuf,
+    /// Where ground truths are cached by scene hash (default: the user's cache folder,
+    /// e.g. ~/.cache/lightfold/accuracy).
+    #[arg(long)]
+    cache_dir: Option<PathBuf>,
     /// Timed frames per point (each node's fastest counts).
     #[arg(long, default_value_t = 2)]
     repeats: u32,
     /// The penumbra PSNR the report looks for the cheapest setting to reach.
     #[arg(long, default_value_t = 45.0)]
     target_db: f64,
+}
+
+/// Where results go unless `--out` says otherwise: a folder of their own in the current
+/// directory.
+const DEFAULT_OUT: &str = "lightfold-accuracy";
+
+/// The truth cache: `--cache-dir`, else the user's cache folder, else beside the results.
+fn cache_dir(args: &Args) -> PathBuf {
+    args.cache_dir.clone().unwrap_or_else(|| {
+        dirs::cache_dir().map_or_else(
+            || PathBuf::from(DEFAULT_OUT).join("truth-cache"),
+            |d| d.join("lightfold").join("accuracy"),
+        )
+    })
 }
 
 fn scene_label(scene: &str) -> String {
@@ -73,7 +90,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 })
             })
             .collect::<anyhow::Result<Vec<_>>>()?;
-        plan.only(&knobs)
+        let plan = plan.only(&knobs);
+        let idle: Vec<&str> = knobs
+            .iter()
+            .filter(|k| !plan.varies(**k))
+            .map(|k| k.name())
+            .collect();
+        if !idle.is_empty() {
+            anyhow::bail!(
+                "--sweep {} does not vary {}: use --sweep reduced or full for {}",
+                args.sweep,
+                idle.join(", "),
+                if idle.len() == 1 { "it" } else { "them" }
+            );
+        }
+        plan
     };
     let mut scene = lightfold_scene::load(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;
@@ -84,7 +115,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let out = args
         .out
         .clone()
-        .unwrap_or_else(|| PathBuf::from("docs/accuracy").join(&label));
+        .unwrap_or_else(|| PathBuf::from(DEFAULT_OUT).join(&label));
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
 
     eprintln!(
@@ -95,7 +126,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &scene,
         &TruthOptions {
             samples_per_light: args.truth_samples,
-            cache_dir: Some(args.cache_dir.clone()),
+            cache_dir: Some(cache_dir(&args)),
         },
     )?;
     eprintln!(
@@ -123,9 +154,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     })?;
     bar.finish_and_clear();
 
-    let threads = std::env::var("LP_NUM_THREADS").unwrap_or_else(|_| "unset".into());
+    let threads = std::env::var("LP_NUM_THREADS")
+        .map(|t| format!("LP_NUM_THREADS={t} "))
+        .unwrap_or_default();
     let command = format!(
-        "LP_NUM_THREADS={threads} NODEVICE_SELECT=1 lightfold accuracy --scene {} --size {} \
+        "{threads}NODEVICE_SELECT=1 lightfold accuracy --scene {} --size {} \
          --truth-samples {} --sweep {}{} --repeats {} --out {}",
         args.scene,
         args.size,
@@ -175,7 +208,7 @@ fn run_hard(args: &Args) -> anyhow::Result<()> {
     let out = args
         .out
         .clone()
-        .unwrap_or_else(|| PathBuf::from("docs/accuracy/hard"));
+        .unwrap_or_else(|| PathBuf::from(DEFAULT_OUT).join("hard"));
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
     let mut text = String::from(
         "# Hard cases at full size\n\nReproduce: `lightfold accuracy --hard`\n\n```\n",

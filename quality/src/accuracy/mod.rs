@@ -251,6 +251,20 @@ impl SweepPlan {
         }
     }
 
+    /// Whether this plan has any point that varies `knob`.
+    pub fn varies(&self, knob: Knob) -> bool {
+        match knob {
+            Knob::Default => true,
+            Knob::Samples => !self.samples.is_empty(),
+            Knob::Pattern => !self.patterns.is_empty(),
+            Knob::MapSize => !self.map_sizes.is_empty(),
+            Knob::Filter => !self.filters.is_empty(),
+            Knob::Format => !self.formats.is_empty(),
+            Knob::K => !self.ks.is_empty(),
+            Knob::Grid => !self.grid_samples.is_empty(),
+        }
+    }
+
     /// This plan with only `knobs` varied (the others keep the defaults).
     pub fn only(mut self, knobs: &[Knob]) -> SweepPlan {
         let keep = |k: Knob| knobs.contains(&k);

@@ -39,36 +39,35 @@ fn out_err(path: &Path, e: impl ToString) -> AccuracyError {
 
 /// The CSV text of `points`.
 pub fn csv(points: &[Point]) -> String {
-    let mut s = CSV_COLUMNS.join(",");
-    s.push('\n');
+    let mut w = csv::Writer::from_writer(Vec::new());
+    let _ = w.write_record(CSV_COLUMNS);
     for p in points {
         let st = &p.setting;
-        let _ = writeln!(
-            s,
-            "{},{},{},{},{},{},{},{},{},{},{:.6},{:.6},{:.6e},{:.3},{:.5},{:.6e},{:.3},{:.5},{},{}",
-            p.knob.name(),
-            st.samples,
-            pattern_name(st.pattern),
-            st.map_size,
-            filter_name(st.filter),
-            st.format.name(),
-            st.k,
-            p.k_run,
-            p.lights,
-            p.nodes,
-            p.node_seconds,
-            p.frame_seconds,
-            p.metrics.whole.rmse,
-            p.metrics.whole.psnr,
-            p.metrics.flip,
-            p.penumbra_rmse(),
-            p.penumbra_psnr(),
-            p.penumbra_flip(),
-            p.at_floor,
-            p.pareto
-        );
+        let _ = w.write_record([
+            p.knob.name().to_string(),
+            st.samples.to_string(),
+            pattern_name(st.pattern).to_string(),
+            st.map_size.to_string(),
+            filter_name(st.filter).to_string(),
+            st.format.name().to_string(),
+            st.k.to_string(),
+            p.k_run.to_string(),
+            p.lights.to_string(),
+            p.nodes.to_string(),
+            format!("{:.6}", p.node_seconds),
+            format!("{:.6}", p.frame_seconds),
+            format!("{:.6e}", p.metrics.whole.rmse),
+            format!("{:.3}", p.metrics.whole.psnr),
+            format!("{:.5}", p.metrics.flip),
+            format!("{:.6e}", p.penumbra_rmse()),
+            format!("{:.3}", p.penumbra_psnr()),
+            format!("{:.5}", p.penumbra_flip()),
+            p.at_floor.to_string(),
+            p.pareto.to_string(),
+        ]);
     }
-    s
+    let bytes = w.into_inner().unwrap_or_default();
+    String::from_utf8(bytes).unwrap_or_default()
 }
 
 pub fn write_csv(path: &Path, points: &[Point]) -> Result<(), AccuracyError> {
@@ -288,12 +287,46 @@ fn knob_color(k: Knob) -> RGBColor {
     match k {
         Knob::Default => BLACK,
         Knob::Samples => RGBColor(0x1f, 0x77, 0xb4),
-        Knob::Pattern => RGBColor(0x17, 0xbe, 0xcf),
+        Knob::Pattern => RGBColor(0xe3, 0x77, 0xc2),
         Knob::MapSize => RGBColor(0xff, 0x7f, 0x0e),
         Knob::Filter => RGBColor(0x2c, 0xa0, 0x2c),
         Knob::Format => RGBColor(0xd6, 0x27, 0x28),
         Knob::K => RGBColor(0x94, 0x67, 0xbd),
         Knob::Grid => RGBColor(0x8c, 0x56, 0x4b),
+    }
+}
+
+/// An axis tick without float noise: at most three significant digits.
+fn tick(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    let digits = (2 - v.abs().log10().floor() as i32).max(0) as usize;
+    let s = format!("{v:.digits$}");
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        s
+    }
+}
+
+/// What a point varies, as a chart label.
+fn point_label(p: &Point) -> String {
+    let st = &p.setting;
+    match p.knob {
+        Knob::Default => "default".to_string(),
+        Knob::Samples => format!("{} samples", st.samples),
+        Knob::Pattern => format!("{} ×{}", pattern_name(st.pattern), st.samples),
+        Knob::MapSize => format!("map {}", st.map_size),
+        Knob::Filter => filter_name(st.filter).to_string(),
+        Knob::Format => st.format.name().to_string(),
+        Knob::K => format!("K {}", st.k),
+        Knob::Grid => format!(
+            "{} × {} {}",
+            st.samples,
+            st.map_size,
+            filter_name(st.filter)
+        ),
     }
 }
 
@@ -340,6 +373,8 @@ pub fn write_svg(
             .configure_mesh()
             .x_desc("node-seconds per frame (log)")
             .y_desc("penumbra PSNR vs truth (dB)")
+            .x_label_formatter(&|v| tick(*v))
+            .y_label_formatter(&|v| format!("{v:.0}"))
             .draw()?;
         if floor_db.is_finite() {
             chart
@@ -377,12 +412,20 @@ pub fn write_svg(
                 .label(knob.name())
                 .legend(move |(x, y)| Circle::new((x + 8, y), 4, c.filled()));
         }
-        // Frontier points ringed so they read without the legend.
+        // Frontier points ringed and labelled with their setting, so they read without the
+        // legend.
         chart.draw_series(front.iter().map(|p| {
             Circle::new(
                 (p.node_seconds, p.penumbra_psnr()),
                 8,
                 BLACK.stroke_width(1),
+            )
+        }))?;
+        chart.draw_series(front.iter().map(|p| {
+            Text::new(
+                point_label(p),
+                (p.node_seconds * 1.04, p.penumbra_psnr() + 0.6),
+                ("sans-serif", 12),
             )
         }))?;
         chart
