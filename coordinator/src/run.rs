@@ -218,6 +218,7 @@ pub async fn render_until(
 ) -> RunOutcome {
     let specs = frame_specs(scene, opts);
     let (tx, rx) = tokio::sync::mpsc::channel(opts.control.frames_in_flight.max(1));
+    let stopped = stop.clone();
     let feeder = tokio::spawn(async move {
         for s in specs {
             tokio::select! {
@@ -236,6 +237,7 @@ pub async fn render_until(
             };
         }
     };
+    live.stop_on(stopped);
     let error = live.run(rx, on_frame).await.err();
     feeder.abort();
     RunOutcome {

@@ -28,6 +28,10 @@ impl Live<'_> {
         let mut reason = reason;
         let mut waited_since: Option<Instant> = None;
         loop {
+            if self.abandon {
+                // Daemons stopped with the run: nothing more is rendered.
+                return Ok(());
+            }
             let epoch = self.session.next_epoch();
             let mut o = self.opts.clone();
             o.epoch = epoch;
@@ -38,6 +42,11 @@ impl Live<'_> {
             };
             let next = match next {
                 Ok(p) => p,
+                Err(_) if self.stopping() => {
+                    // Stopping anyway: waiting for lost daemons would only delay it.
+                    self.abandon = true;
+                    return Ok(());
+                }
                 Err(e) if too_few(&e) => {
                     let since = *waited_since.get_or_insert_with(Instant::now);
                     let left = self
@@ -256,7 +265,7 @@ impl Live<'_> {
     }
 
     pub(super) fn check_interrupted(&self, members: &BTreeSet<String>) -> Result<(), Halt> {
-        if self.just_lost.iter().any(|id| members.contains(id)) {
+        if self.abandon || self.just_lost.iter().any(|id| members.contains(id)) {
             Err(Halt::Interrupted)
         } else {
             Ok(())

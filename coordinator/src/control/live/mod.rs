@@ -14,6 +14,11 @@
 //!   flight are done.
 //! - **Frame failures** reported by daemons or the sink: the frames in flight are requested again
 //!   under a new epoch over the same daemons.
+//! - **Stopping** (the run's stop token, `Live::stop_on`, was cancelled — Ctrl-C): no frame is
+//!   requested any more and the frames in flight are finished; a daemon whose link ends from then
+//!   on is taken to be stopping with the run (a Ctrl-C at a terminal reaches every process of its
+//!   group), not lost: nothing is re-planned, the frames that waited on it are abandoned, and the
+//!   run ends with what was delivered (`LiveSummary::stopped`).
 //!
 //! Frames are handed to `on_frame` complete, in request order, exactly once.
 
@@ -31,6 +36,7 @@ use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
+use tokio_util::sync::CancellationToken;
 
 /// Incidents kept in `LiveStatus` (the newest).
 const STATUS_INCIDENTS: usize = 50;
@@ -97,6 +103,10 @@ pub struct LiveSummary {
     pub delivered: u64,
     /// Frame requests sent again after a re-plan.
     pub rerequested: u64,
+    /// Daemons whose links ended after the run was told to stop (stopping with it, not lost).
+    pub stopped: Vec<String>,
+    /// Frames requested but not finished because daemons stopped with the run.
+    pub abandoned: u64,
 }
 
 /// What the loop is doing, for a watcher.
@@ -197,6 +207,10 @@ pub struct Live<'s> {
     tick: tokio::time::Interval,
     observer: watch::Sender<LiveStatus>,
     notices: u64,
+    /// Cancelled when the run is to stop (`stop_on`).
+    stop: Option<CancellationToken>,
+    /// A daemon of the plan stopped with the run: the frames in flight cannot finish.
+    abandon: bool,
     pub summary: LiveSummary,
 }
 
@@ -252,6 +266,8 @@ impl<'s> Live<'s> {
             },
             observer: watch::Sender::new(LiveStatus::default()),
             notices: 0,
+            stop: None,
+            abandon: false,
             summary: LiveSummary::default(),
         })
     }
@@ -302,6 +318,34 @@ impl<'s> Live<'s> {
         self.observer.send_modify(|s| s.notice = Some((n, text)));
     }
 
+    /// The token that stops the run (Ctrl-C): once it is cancelled, daemons whose links end are
+    /// stopping with the run, not lost (see the module docs). The caller still closes the
+    /// request channel to stop new frames.
+    pub fn stop_on(&mut self, stop: CancellationToken) {
+        self.stop = Some(stop);
+    }
+
+    /// Whether the run was told to stop.
+    pub(super) fn stopping(&self) -> bool {
+        self.stop.as_ref().is_some_and(|t| t.is_cancelled())
+    }
+
+    /// Gives up the frames not yet finished (daemons stopped with the run).
+    fn abandon_frames(&mut self) {
+        let left = self.inflight.len();
+        self.summary.abandoned += left as u64;
+        if left > 0 {
+            tracing::info!(
+                frames = left,
+                stopped = %self.summary.stopped.join(", "),
+                "stopping: frames not finished are abandoned (daemons stopped with the run)"
+            );
+        }
+        self.inflight.clear();
+        self.queue.clear();
+        self.source_open = false;
+    }
+
     /// The plan in use.
     pub fn plan(&self) -> Option<&Plan> {
         self.plan.as_ref()
@@ -319,6 +363,10 @@ impl<'s> Live<'s> {
         loop {
             self.collect();
             self.deliver(&mut on_frame);
+            if self.abandon {
+                self.abandon_frames();
+                return Ok(());
+            }
             if let Some(reason) = self.due_replan() {
                 self.replan(reason).await?;
                 continue;
@@ -330,7 +378,10 @@ impl<'s> Live<'s> {
             }
             let lookahead = self.session.opts.frames_in_flight.max(1);
             let want = self.source_open && self.queue.len() < lookahead;
+            let stop = self.stop.clone().filter(|t| !t.is_cancelled());
             tokio::select! {
+                // Only to wake the loop: losses from now on are read as stopping.
+                () = async { if let Some(t) = &stop { t.cancelled().await } }, if stop.is_some() => {}
                 ev = self.session.events.recv() => match ev {
                     Some(ev) => self.on_run_event(ev)?,
                     None => return Err(ControlError::Sink("event channel closed".into()).into()),
@@ -468,12 +519,20 @@ impl<'s> Live<'s> {
         self.publish(false);
     }
 
-    /// Drops a daemon; a re-plan is due if the plan used it.
+    /// Drops a daemon; a re-plan is due if the plan used it. Once the run is stopping, the daemon
+    /// is taken to be stopping too: no incident, no re-plan, and the frames that need it are
+    /// abandoned.
     fn lose(&mut self, id: &str, reason: String) {
         let Some(d) = self.session.lose(id) else {
             return;
         };
         let used = self.participants.iter().any(|p| p == id);
+        if self.stopping() {
+            tracing::info!(daemon = %id, address = %d.address, "stopped with the run ({reason})");
+            self.summary.stopped.push(id.to_string());
+            self.abandon |= used;
+            return;
+        }
         tracing::warn!(daemon = %id, address = %d.address, in_plan = used, "lost: {reason}");
         self.summary.incidents.push(Incident {
             daemon: id.to_string(),
