@@ -1,6 +1,7 @@
 //! `lightfold coordinator`: connect a cluster (from a cluster file or addresses on the command
 //! line), plan the scene, drive frames, write the final image (EXR linear, PNG sRGB) and print the
-//! plan and timing tables.
+//! plan (in a few lines; in full with `--verbose`) and timing tables. While frames run, a
+//! terminal shows a progress bar; a log (stderr not a terminal) gets a line per frame.
 
 use crate::frames_out::{FramePattern, FrameWriter};
 use anyhow::{Context, bail};
@@ -30,6 +31,8 @@ pub struct Args {
     /// Where the sink compositor sends final bands (overrides the cluster file).
     #[arg(long)]
     pub sink_listen: Option<String>,
+    /// Address the sink compositor dials to reach this coordinator (default: the bound sink
+    /// address), e.g. a routable address when the coordinator listens on `0.0.0.0`.
     #[arg(long)]
     pub sink_advertise: Option<String>,
     /// File holding the cluster token (else LIGHTFOLD_TOKEN).
@@ -134,8 +137,8 @@ pub struct JobArgs {
     /// Compositor topology: chain or tree.
     #[arg(long, default_value = "chain")]
     pub topology: Topology,
-    /// Frames to render.
-    #[arg(long, default_value_t = 1)]
+    /// Frames to render (at least 1).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     pub frames: u32,
     /// Orbit the camera by this many degrees per frame (a camera path).
     #[arg(long)]
@@ -186,6 +189,10 @@ pub struct JobArgs {
     /// Frames per second of `--video`.
     #[arg(long, default_value_t = 24, value_parser = clap::value_parser!(u32).range(1..=240))]
     pub video_fps: u32,
+    /// Print the full plan (every node, light, stage and link) and one line per frame after the
+    /// run, instead of the plan in a few lines.
+    #[arg(long, short = 'v')]
+    pub verbose: bool,
 }
 
 impl JobArgs {
@@ -381,16 +388,10 @@ pub async fn execute(
         p.create_dir()?;
     }
     let mut report = Report::default();
-    let progress = (opts.frames > 1 && !serving).then(|| {
-        let pb = indicatif::ProgressBar::new(opts.frames as u64);
-        pb.set_style(
-            indicatif::ProgressStyle::with_template(
-                "{bar:40} {pos}/{len} frames {per_sec} eta {eta}",
-            )
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        pb
-    });
+    let mut progress = Progress::new(
+        (!serving).then_some(opts.frames),
+        std::io::IsTerminal::is_terminal(&std::io::stderr()),
+    );
     let writer = FrameWriter::start(
         job.out.clone(),
         job.exr.clone(),
@@ -398,10 +399,7 @@ pub async fn execute(
         scene.exposure,
     );
     let on_frame = |frame: FrameResult| {
-        report.record(&frame);
-        if let Some(pb) = &progress {
-            pb.inc(1);
-        }
+        progress.frame(report.record(&frame));
         writer.send(frame);
     };
     let outcome = match view {
@@ -420,14 +418,14 @@ pub async fn execute(
                 .await
         }
     };
-    if let Some(pb) = progress {
-        pb.finish_and_clear();
-    }
+    progress.finish();
     let written = writer.finish();
-    if let Some(plan) = &outcome.summary.plan {
-        println!("{plan}");
+    match &outcome.summary.plan {
+        Some(plan) if job.verbose => println!("{plan}"),
+        Some(plan) => println!("{}", plan.brief()),
+        None => {}
     }
-    if !report.frames.is_empty() {
+    if job.verbose && !report.frames.is_empty() {
         println!("{}", report.frame_lines());
     }
     if let (Some(plan), false) = (&outcome.summary.plan, report.frames.is_empty()) {
@@ -444,7 +442,18 @@ pub async fn execute(
         return Err(e.context("writing frames"));
     }
     let delivered = outcome.summary.delivered;
+    let of = if serving {
+        String::new()
+    } else {
+        format!(" of {}", opts.frames)
+    };
     if let Some(e) = outcome.error {
+        if stop.is_cancelled() {
+            bail!(
+                "interrupted after {delivered}{of} frame(s); the frames done are written \
+                 (while stopping: {e})"
+            );
+        }
         bail!("the run stopped after {delivered} frame(s): {e}");
     }
     if let (Some(p), true) = (&every, written.frames > 0) {
@@ -455,10 +464,7 @@ pub async fn execute(
         );
     }
     if stop.is_cancelled() && !serving {
-        bail!(
-            "interrupted after {delivered} of {} frame(s); the frames done are written",
-            opts.frames
-        );
+        bail!("interrupted after {delivered}{of} frame(s); the frames done are written");
     }
     if let (Some(video), Some(p)) = (&job.video, &every) {
         crate::frames_out::assemble_video(p, video, job.video_fps)?;
@@ -514,6 +520,16 @@ pub fn failover_summary(s: &LiveSummary, start: std::time::Instant) -> String {
             who.join(", ")
         ));
     }
+    if !s.stopped.is_empty() {
+        out.push_str(&format!(
+            "\n  stopping: {} stopped with the run (not lost){}",
+            s.stopped.join(", "),
+            match s.abandoned {
+                0 => String::new(),
+                n => format!("; {n} frame(s) not finished"),
+            }
+        ));
+    }
     for e in s.epochs.iter().skip(1) {
         out.push_str(&format!(
             "\n  {:>7.2} s  epoch {}: {} node(s), {} stage(s), K = {}, {} light(s) moved, configured in {} ms ({})",
@@ -528,4 +544,60 @@ pub fn failover_summary(s: &LiveSummary, start: std::time::Instant) -> String {
         ));
     }
     out
+}
+
+/// How a run shows its frames while they come: a progress bar on a terminal; on a log (stderr
+/// not a terminal) one line per frame, at most one a second for fast runs (the first and the
+/// last frame always).
+enum Progress {
+    Bar(indicatif::ProgressBar),
+    Lines {
+        of: Option<u32>,
+        last: Option<std::time::Instant>,
+    },
+    Quiet,
+}
+
+/// The least time between two frame lines on a log.
+const LINE_EVERY: Duration = Duration::from_secs(1);
+
+impl Progress {
+    /// `frames`: how many the run renders (`None`: until stopped, the live view).
+    fn new(frames: Option<u32>, terminal: bool) -> Progress {
+        match frames {
+            Some(n) if terminal && n > 1 => {
+                let pb = indicatif::ProgressBar::new(n as u64);
+                pb.set_style(
+                    indicatif::ProgressStyle::with_template(
+                        "{bar:40} {pos}/{len} frames {per_sec} eta {eta}",
+                    )
+                    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+                );
+                Progress::Bar(pb)
+            }
+            _ if terminal => Progress::Quiet,
+            of => Progress::Lines { of, last: None },
+        }
+    }
+
+    fn frame(&mut self, f: &lightfold_coordinator::report::FrameRecord) {
+        match self {
+            Progress::Bar(pb) => pb.inc(1),
+            Progress::Lines { of, last } => {
+                let due = last.is_none_or(|t| t.elapsed() >= LINE_EVERY)
+                    || of.is_some_and(|n| f.frame >= n as u64);
+                if due {
+                    *last = Some(std::time::Instant::now());
+                    eprintln!("{}", f.line(*of));
+                }
+            }
+            Progress::Quiet => {}
+        }
+    }
+
+    fn finish(self) {
+        if let Progress::Bar(pb) = self {
+            pb.finish_and_clear();
+        }
+    }
 }

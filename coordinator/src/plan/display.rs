@@ -1,5 +1,6 @@
-//! The plan printed for people (`lightfold plan`): stages, lights per node, dropped samples and
-//! why, shadow passes, and bytes per frame per link.
+//! The plan printed for people: in full (`lightfold plan`, `--verbose`: stages, lights per node,
+//! dropped samples and why, shadow passes, and bytes per frame per link, with a key to its
+//! terms), or in a few lines ([`Plan::brief`], what a run prints by default).
 
 use super::types::{
     Downstream, DropReason, MaterialMode, MaterialPlacement, Plan, ShadowViews, Source,
@@ -61,7 +62,8 @@ impl Display for ShadowViews {
             }
             ShadowViews::Ortho => f.write_str("1 orthographic view"),
             ShadowViews::Cube { faces } => {
-                let names = ["+x", "-x", "+y", "-y", "+axis", "-axis"];
+                // In the sample's own frame: +z along its axis (see the key).
+                let names = ["+x", "-x", "+y", "-y", "+z", "-z"];
                 let on: Vec<&str> = (0..6)
                     .filter(|i| faces & (1 << i) != 0)
                     .map(|i| names[i])
@@ -141,7 +143,7 @@ impl Display for Plan {
             let ids: Vec<String> = n.lights.iter().map(|i| format!("#{i}")).collect();
             writeln!(
                 f,
-                "c_n = {} · {} lights [{}] · est. {}",
+                "colour {} · {} lights [{}] · est. {}",
                 rgb(n.color),
                 n.lights.len(),
                 ids.join(" "),
@@ -184,7 +186,7 @@ impl Display for Plan {
         if m.fold_ambient {
             writeln!(
                 f,
-                "  c^a = {} folded into the diffuse sum (eq. 6–7)",
+                "  ambient colour {} folded into the diffuse sum (eq. 6–7)",
                 rgb(m.ambient)
             )?;
         }
@@ -223,6 +225,78 @@ impl Display for Plan {
                 mb(l.bytes_per_frame)
             )?;
         }
-        writeln!(f, "  total {} per frame", mb(total))
+        writeln!(f, "  total {} per frame", mb(total))?;
+        write!(f, "{KEY}")
+    }
+}
+
+/// What the full plan's terms mean.
+const KEY: &str = "\
+key: #N is light sample N (an area light is split into point samples); a node's colour is the \
+colour its lights share (c_n in the paper: the node renders their shadowed sum divided by it, \
+the compositor multiplies it back); cube faces are named in the sample's own frame, +z along its \
+axis; N² is the shadow map's size in texels; casters are mesh indices; ε is the most a dropped \
+sample may add to any pixel; est. is the cost model's time per frame.
+";
+
+/// The plan in a few lines: what runs where, what a frame costs and moves ([`Plan::brief`]).
+#[derive(Debug, Clone, Copy)]
+pub struct Brief<'a>(&'a Plan);
+
+impl Plan {
+    /// The plan in a few lines, for a run's default output (the full plan is `Display`).
+    pub fn brief(&self) -> Brief<'_> {
+        Brief(self)
+    }
+}
+
+impl Display for Brief<'_> {
+    fn fmt(&self, f: &mut Formatter<'_>) -> fmt::Result {
+        let p = self.0;
+        let passes: usize = p
+            .nodes
+            .iter()
+            .flat_map(|n| &n.shadows)
+            .map(|s| s.views.count())
+            .sum();
+        let bytes: u64 = p.links.iter().map(|l| l.bytes_per_frame).sum();
+        writeln!(
+            f,
+            "plan: scene {} at {}×{}, K = {} lights per render node, {} of {} compositor stage(s)",
+            p.scene_name,
+            p.width,
+            p.height,
+            p.k,
+            p.topology,
+            p.stages.len()
+        )?;
+        writeln!(
+            f,
+            "  {} light sample(s): {} rendered on {} render node(s){}, {}",
+            p.samples.len(),
+            p.active.len(),
+            p.nodes.len(),
+            if p.idle_nodes.is_empty() {
+                String::new()
+            } else {
+                format!(" ({} idle)", p.idle_nodes.len())
+            },
+            match p.dropped.len() {
+                0 => "none dropped".to_string(),
+                n => format!("{n} dropped (culled: the full plan says why)"),
+            }
+        )?;
+        write!(
+            f,
+            "  {passes} shadow-map pass(es) per frame · estimated {} per frame{} · links carry {} \
+             per frame\n  (the full plan: --verbose, or `lightfold plan`)",
+            ms(p.est_frame_us),
+            match p.frame_budget_us {
+                Some(b) if p.est_frame_us <= b => format!(" (within the {} budget)", ms(b)),
+                Some(b) => format!(" (over the {} budget)", ms(b)),
+                None => String::new(),
+            },
+            mb(bytes)
+        )
     }
 }
