@@ -2,14 +2,22 @@
 //! scene to learn how many nodes and compositors it needs, spawns them as separate processes on
 //! loopback, runs the coordinator as another process, then compares the image with the CPU
 //! reference and shuts every process down — also on Ctrl-C; children also exit on their own if
-//! this process dies (`--parent-pid`).
+//! this process dies (`--parent-pid`). The token, cluster file and pid list live in a temporary
+//! directory removed on the way out (kept with `--work-dir`).
+//!
+//! The daemons run in a process group of their own, so a Ctrl-C at the terminal reaches this
+//! process and the coordinator only: the coordinator finishes the frames in flight with every
+//! daemon still up and prints its summary, then this process stops the daemons.
 
 use crate::coordinator_cmd::JobArgs;
+use crate::lifecycle::{cpu_seconds, send_signal};
 use anyhow::{Context, bail};
 use lightfold_coordinator::plan::{ClusterSpec, Plan, plan};
+use rustix::process::Signal;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 #[derive(Debug, clap::Args)]
@@ -25,7 +33,8 @@ pub struct Args {
     /// Log filter for the spawned daemons and coordinator (their logs go to stderr).
     #[arg(long, default_value = "warn")]
     pub daemon_log: String,
-    /// Directory for the token and cluster file (default: a fresh temporary directory).
+    /// Directory for the token, cluster file and pid list, kept afterwards (default: a fresh
+    /// temporary directory, removed when the demo ends).
     #[arg(long)]
     pub work_dir: Option<PathBuf>,
     /// Most processes the demo may start: render nodes, compositors and the coordinator. A
@@ -150,17 +159,58 @@ impl Drop for Children {
 }
 
 fn terminate(c: &Child) {
-    // SIGTERM through the `kill` utility keeps this crate free of unsafe code.
-    let _ = Command::new("kill")
-        .arg("-TERM")
-        .arg(c.id().to_string())
-        .stderr(Stdio::null())
-        .status();
+    send_signal(c.id(), Signal::TERM);
+}
+
+/// What the Ctrl-C handler needs: the coordinator once it runs (SIGINT is passed on to it), and
+/// before that the temporary directory to remove on the way out.
+#[derive(Debug, Default)]
+struct Interrupt {
+    coordinator: Option<u32>,
+    temp: Option<PathBuf>,
+}
+
+/// Watches for Ctrl-C for the whole demo. Once the coordinator runs, SIGINT is passed on to it
+/// (it finishes its frames and this process cleans up as it returns); before that, the temporary
+/// directory is removed and the demo exits (the daemons follow by `--parent-pid`).
+fn watch_interrupt(state: Arc<Mutex<Interrupt>>) {
+    std::thread::spawn(move || {
+        let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+        else {
+            return;
+        };
+        rt.block_on(async {
+            while tokio::signal::ctrl_c().await.is_ok() {
+                let s = state.lock().unwrap_or_else(|e| e.into_inner());
+                match s.coordinator {
+                    Some(pid) => {
+                        send_signal(pid, Signal::INT);
+                    }
+                    None => {
+                        if let Some(dir) = &s.temp {
+                            let _ = std::fs::remove_dir_all(dir);
+                        }
+                        eprintln!("demo: interrupted");
+                        std::process::exit(130);
+                    }
+                }
+            }
+        });
+    });
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let started = Instant::now();
-    let scene = args.job.load_scene()?;
+    let interrupt = Arc::new(Mutex::new(Interrupt::default()));
+    watch_interrupt(Arc::clone(&interrupt));
+    // The coordinator loads the scene again and says what it makes of it (a glTF's ignored
+    // features, geometry sanitised): loaded quietly here, so it is said once.
+    let scene =
+        tracing::subscriber::with_default(tracing::subscriber::NoSubscriber::default(), || {
+            args.job.load_scene()
+        })?;
     // Plan against a large synthetic cluster to learn what this scene needs.
     let probe = plan(
         &scene,
@@ -174,14 +224,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "demo: scene {:?} needs {} render node(s) and {} compositor(s); starting them on loopback",
         scene.name, nodes, compositors
     );
-    let dir = match &args.work_dir {
+    // Removed when dropped: on every way out of this function, errors and panics included.
+    let (temp, dir) = match &args.work_dir {
         Some(d) => {
-            std::fs::create_dir_all(d)?;
-            d.clone()
+            std::fs::create_dir_all(d).with_context(|| format!("cannot create {}", d.display()))?;
+            (None, d.clone())
         }
-        None => std::env::temp_dir().join(format!("lightfold-demo-{}", std::process::id())),
+        None => {
+            let t = tempfile::Builder::new()
+                .prefix("lightfold-demo-")
+                .tempdir()
+                .context("cannot create a temporary directory")?;
+            let path = t.path().to_path_buf();
+            (Some(t), path)
+        }
     };
-    std::fs::create_dir_all(&dir)?;
+    interrupt.lock().unwrap_or_else(|e| e.into_inner()).temp = temp.as_ref().map(|_| dir.clone());
     let token_path = dir.join("token");
     write_token(&token_path)?;
     let exe = std::env::current_exe().context("cannot find the lightfold executable")?;
@@ -260,26 +318,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .chain(std::iter::once(format!("coordinator {}\n", child.id())))
         .collect();
     std::fs::write(dir.join("pids"), pids)?;
-    // Ctrl-C reaches the coordinator too (one process group); this process waits for it to
-    // finish its frames and print its summary, then stops the daemons. A SIGINT sent to this
-    // process alone is passed on.
-    let coordinator_pid = child.id();
-    std::thread::spawn(move || {
-        let Ok(rt) = tokio::runtime::Builder::new_current_thread()
-            .enable_all()
-            .build()
-        else {
-            return;
-        };
-        if rt.block_on(tokio::signal::ctrl_c()).is_ok() {
-            let _ = Command::new("kill")
-                .arg("-INT")
-                .arg(coordinator_pid.to_string())
-                .stderr(Stdio::null())
-                .status();
-        }
-    });
+    // Ctrl-C at the terminal reaches the coordinator too (this process's group, not the
+    // daemons'); this process waits for it to finish its frames and print its summary, then
+    // stops the daemons. A SIGINT sent to this process alone is passed on.
+    interrupt
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .coordinator = Some(child.id());
     let status = child.wait()?;
+    // From here a Ctrl-C ends the demo (the daemons follow by `--parent-pid`).
+    interrupt
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .coordinator = None;
     // Daemons are still up (the coordinator detached): read what CPU time they used.
     let cpu: Vec<(String, f64)> = children
         .0
@@ -287,6 +338,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map(|(n, c)| (n.clone(), cpu_seconds(c.id())))
         .collect();
     drop(children);
+    if let Some(t) = temp {
+        let path = t.path().display().to_string();
+        t.close().with_context(|| format!("cannot remove {path}"))?;
+    }
     if !status.success() {
         bail!("the coordinator failed ({status})");
     }
@@ -351,6 +406,10 @@ pub(crate) fn daemon_command(
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit());
+    // A process group of its own: a Ctrl-C at the terminal interrupts the launcher and its
+    // coordinator, which stop the daemons once the frames in flight are done (they still exit
+    // when the launcher does, by `--parent-pid`).
+    std::os::unix::process::CommandExt::process_group(&mut cmd, 0);
     cmd
 }
 
@@ -428,19 +487,9 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
         cmd.arg("--video").arg(v);
     }
     cmd.arg("--video-fps").arg(job.video_fps.to_string());
-}
-
-/// CPU seconds (user + system) a process has used so far, from `/proc/<pid>/stat`; 0 if unknown.
-pub(crate) fn cpu_seconds(pid: u32) -> f64 {
-    let Ok(stat) = std::fs::read_to_string(format!("/proc/{pid}/stat")) else {
-        return 0.0;
-    };
-    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
-    let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    let ticks = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
-    // Linux reports in USER_HZ, which is 100 on every mainstream configuration.
-    (ticks(11) + ticks(12)) / 100.0
+    if job.verbose {
+        cmd.arg("--verbose");
+    }
 }
 
 /// Daemon CPU per frame and the frame interval it implies on this machine's cores (start-up and
@@ -455,14 +504,12 @@ fn print_cpu(cpu: &[(String, f64)], frames: u32) {
         .map(|(_, s)| s)
         .sum();
     println!(
-        "demo: daemon CPU {:.2} s ({:.2} s render nodes, {:.2} s compositors) over {} frame(s): {:.3} s per frame, {:.3} s per frame over {} cores",
-        total,
-        nodes,
+        "demo: daemon CPU {total:.2} s ({nodes:.2} s render nodes, {:.2} s compositors) over \
+         {frames} frame(s): {:.3} CPU-s per frame, at least {:.3} s per frame on this machine's \
+         {cores} core(s) (start-up included)",
         total - nodes,
-        frames,
         total / frames,
         total / frames / cores,
-        cores
     );
 }
 

@@ -1,6 +1,7 @@
 //! Process lifecycle shared by every daemon subcommand: a cancellation token fired by SIGTERM,
 //! Ctrl-C, or the death of the launching process (`--parent-pid`, so a killed launcher leaves no
-//! orphans).
+//! orphans) — and what launchers (`demo`, `soak`) need to signal and measure the processes they
+//! start.
 
 use anyhow::Context;
 use std::io::Write;
@@ -94,4 +95,63 @@ pub fn shutdown_token(parent_pid: Option<u32>) -> CancellationToken {
         });
     }
     token
+}
+
+/// Sends `signal` to process `pid`; false if it is gone or may not be signalled.
+pub(crate) fn send_signal(pid: u32, signal: rustix::process::Signal) -> bool {
+    i32::try_from(pid)
+        .ok()
+        .and_then(rustix::process::Pid::from_raw)
+        .is_some_and(|p| rustix::process::kill_process(p, signal).is_ok())
+}
+
+/// CPU seconds (user + system, all threads) process `pid` has used so far; 0 if unknown.
+pub(crate) fn cpu_seconds(pid: u32) -> f64 {
+    i32::try_from(pid)
+        .ok()
+        .and_then(|p| procfs::process::Process::new(p).ok())
+        .and_then(|p| p.stat().ok())
+        .map_or(0.0, |s| {
+            (s.utime + s.stime) as f64 / procfs::ticks_per_second().max(1) as f64
+        })
+}
+
+/// Peak resident set (`VmHWM`) of process `pid` in KiB; 0 if unknown.
+pub(crate) fn peak_rss_kib(pid: u32) -> u64 {
+    i32::try_from(pid)
+        .ok()
+        .and_then(|p| procfs::process::Process::new(p).ok())
+        .and_then(|p| p.status().ok())
+        .and_then(|s| s.vmhwm)
+        .unwrap_or(0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn this_process_is_measured_and_signalled() {
+        let me = std::process::id();
+        assert!(peak_rss_kib(me) > 0);
+        // Spin until the CPU clock has ticked at least once.
+        let start = std::time::Instant::now();
+        while cpu_seconds(me) == 0.0 && start.elapsed() < Duration::from_secs(5) {
+            std::hint::black_box((0..10_000u64).sum::<u64>());
+        }
+        assert!(cpu_seconds(me) > 0.0);
+        assert_eq!(cpu_seconds(u32::MAX), 0.0);
+        // A child ended by the signal shows that it arrived.
+        let mut child = std::process::Command::new("sleep")
+            .arg("30")
+            .spawn()
+            .unwrap();
+        assert!(send_signal(child.id(), rustix::process::Signal::TERM));
+        let status = child.wait().unwrap();
+        assert_eq!(
+            std::os::unix::process::ExitStatusExt::signal(&status),
+            Some(rustix::process::Signal::TERM.as_raw())
+        );
+        assert!(!send_signal(u32::MAX, rustix::process::Signal::TERM));
+    }
 }

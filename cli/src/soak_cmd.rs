@@ -9,9 +9,8 @@
 //! recovery times, re-plans and each daemon's peak RSS, on stdout and as CSV and Markdown under
 //! `--out`; fails if a frame was lost, duplicated, delivered out of order or wrong.
 
-use crate::demo_cmd::{
-    ANY_PORT, Children, cpu_seconds, daemon_command, read_listening, write_token,
-};
+use crate::demo_cmd::{ANY_PORT, Children, daemon_command, read_listening, write_token};
+use crate::lifecycle::{cpu_seconds, peak_rss_kib, send_signal};
 use anyhow::{Context, bail};
 use lightfold_coordinator::control::{
     ControlOptions, DaemonAddr, FrameResult, FrameSpec, Incident, IncidentKind, Live, LiveSummary,
@@ -25,9 +24,10 @@ use lightfold_protocol::Role;
 use lightfold_scene::{Image, Scene};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rustix::process::Signal;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -212,9 +212,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     );
     let logs = args.out.join("logs");
     std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
-    let work = std::env::temp_dir().join(format!("lightfold-soak-{}", std::process::id()));
-    std::fs::create_dir_all(&work)?;
-    let token_path = work.join("token");
+    // Removed when dropped, also when the soak fails on the way.
+    let work = tempfile::Builder::new()
+        .prefix("lightfold-soak-")
+        .tempdir()
+        .context("cannot create a temporary directory")?;
+    let token_path = work.path().join("token");
     write_token(&token_path)?;
     let token = lightfold_net::load_token(Some(&token_path))?;
 
@@ -410,14 +413,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // Every daemon runs (none is stopped): read what each used before shutting them down.
     for (d, (_, c)) in daemons.iter_mut().zip(children.0.iter_mut()) {
         if matches!(c.try_wait(), Ok(None)) {
-            d.hwm_kib = d.hwm_kib.max(vm_hwm_kib(c.id()));
+            d.hwm_kib = d.hwm_kib.max(peak_rss_kib(c.id()));
             d.cpu_done += cpu_seconds(c.id());
         }
     }
     rt.block_on(session.shutdown());
     drop(children);
     drop(rt);
-    let _ = std::fs::remove_dir_all(&work);
+    let _ = work.close();
     eprintln!("soak: cluster stopped; waiting for the frame checks");
     let checks = checker
         .join()
@@ -484,9 +487,8 @@ impl Launcher {
             .append(true)
             .open(self.logs.join(format!("{id}.log")))?;
         cmd.stderr(Stdio::from(log));
-        // A process group of its own: Ctrl-C at the terminal interrupts the soak, not the
-        // daemons (they still exit when the soak does, by `--parent-pid`).
-        std::os::unix::process::CommandExt::process_group(&mut cmd, 0);
+        // `daemon_command` gives it a process group of its own: Ctrl-C at the terminal
+        // interrupts the soak, not the daemons (they still exit when the soak does).
         let mut child = cmd.spawn().with_context(|| format!("cannot start {id}"))?;
         match read_listening(&mut child, id, Instant::now() + within) {
             Ok(addr) => Ok((child, addr)),
@@ -497,28 +499,6 @@ impl Launcher {
             }
         }
     }
-}
-
-/// Sends `signal` (e.g. `-STOP`) to `pid` through the `kill` utility (no unsafe code here).
-fn signal(pid: u32, signal: &str) -> bool {
-    Command::new("kill")
-        .arg(signal)
-        .arg(pid.to_string())
-        .stderr(Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success())
-}
-
-/// Peak resident set (VmHWM, KiB) of a process; 0 if unknown.
-fn vm_hwm_kib(pid: u32) -> u64 {
-    std::fs::read_to_string(format!("/proc/{pid}/status"))
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find_map(|l| l.strip_prefix("VmHWM:"))
-                .and_then(|v| v.split_whitespace().next()?.parse().ok())
-        })
-        .unwrap_or(0)
 }
 
 #[derive(Debug)]
@@ -666,7 +646,7 @@ impl Injector {
         for (d, (_, c)) in self.daemons.iter_mut().zip(self.children.0.iter_mut()) {
             // A reaped child's pid may belong to another process by now.
             if matches!(c.try_wait(), Ok(None)) {
-                d.hwm_kib = d.hwm_kib.max(vm_hwm_kib(c.id()));
+                d.hwm_kib = d.hwm_kib.max(peak_rss_kib(c.id()));
             }
         }
     }
@@ -692,14 +672,14 @@ impl Injector {
         let pid = self.children.0[daemon].1.id();
         let d = &mut self.daemons[daemon];
         // What this process used, before it goes.
-        d.hwm_kib = d.hwm_kib.max(vm_hwm_kib(pid));
+        d.hwm_kib = d.hwm_kib.max(peak_rss_kib(pid));
         if !matches!(kind, Kind::Stop(_)) {
             d.cpu_done += cpu_seconds(pid);
         }
-        let sig = match kind {
-            Kind::Kill => "-KILL",
-            Kind::Stop(_) => "-STOP",
-            Kind::Term => "-TERM",
+        let (sig, name) = match kind {
+            Kind::Kill => (Signal::KILL, "KILL"),
+            Kind::Stop(_) => (Signal::STOP, "STOP"),
+            Kind::Term => (Signal::TERM, "TERM"),
         };
         let at = Instant::now();
         let mut f = Fault {
@@ -714,8 +694,8 @@ impl Injector {
             gave_up: false,
             notes: Vec::new(),
         };
-        if !signal(pid, sig) {
-            f.notes.push(format!("kill {sig} {pid} failed"));
+        if !send_signal(pid, sig) {
+            f.notes.push(format!("SIG{name} to {pid} failed"));
         }
         match kind {
             Kind::Kill => {
@@ -786,7 +766,7 @@ impl Injector {
                 (Kind::Stop(_), _, None, Some(due)) if now >= due => {
                     let pid = self.children.0[daemon].1.id();
                     let f = &mut self.faults[i];
-                    if !signal(pid, "-CONT") {
+                    if !send_signal(pid, Signal::CONT) {
                         f.notes.push("SIGCONT failed".into());
                     }
                     f.resumed = Some(Instant::now());
@@ -852,7 +832,7 @@ impl Injector {
             match f.kind {
                 Kind::Stop(_) => {
                     let pid = self.children.0[daemon].1.id();
-                    signal(pid, "-CONT");
+                    send_signal(pid, Signal::CONT);
                     self.faults[i].resumed = Some(Instant::now());
                 }
                 Kind::Term if f.exited.is_none() => {
@@ -1751,10 +1731,5 @@ mod tests {
         assert!(!c.ok);
         test.data[0] = f32::NAN;
         assert!(!compare(1, &test, &want).ok);
-    }
-
-    #[test]
-    fn vm_hwm_reads_this_process() {
-        assert!(vm_hwm_kib(std::process::id()) > 0);
     }
 }

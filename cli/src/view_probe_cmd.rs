@@ -172,7 +172,7 @@ async fn probe(args: Args) -> anyhow::Result<()> {
         seen.take(m)?;
     }
     let before = stats(&mut ws, &mut seen).await?;
-    let cpu_before = args.pid.map(crate::demo_cmd::cpu_seconds);
+    let cpu_before = args.pid.map(crate::lifecycle::cpu_seconds);
     seen.frames.clear();
     let start = Instant::now();
     let end = start + Duration::from_secs_f64(args.seconds);
@@ -221,7 +221,7 @@ async fn probe(args: Args) -> anyhow::Result<()> {
     let cpu = args
         .pid
         .zip(cpu_before)
-        .map(|(p, b)| crate::demo_cmd::cpu_seconds(p) - b);
+        .map(|(p, b)| crate::lifecycle::cpu_seconds(p) - b);
     report(&args, &seen, sent_for, &before, &after, cpu);
     let _ = ws.close(None).await;
     Ok(())

@@ -101,12 +101,9 @@ impl Drop for Held {
 
 /// Peak resident set of this process in bytes (`VmHWM`), 0 where unavailable.
 pub fn peak_rss_bytes() -> u64 {
-    std::fs::read_to_string("/proc/self/status")
+    procfs::process::Process::myself()
+        .and_then(|p| p.status())
         .ok()
-        .and_then(|s| {
-            s.lines()
-                .find_map(|l| l.strip_prefix("VmHWM:"))
-                .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<u64>().ok())
-        })
-        .map_or(0, |kb| kb * 1024)
+        .and_then(|s| s.vmhwm)
+        .map_or(0, |kib| kib * 1024)
 }

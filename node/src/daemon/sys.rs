@@ -1,11 +1,12 @@
-//! What the process costs the machine: its peak resident set size, read from `/proc` (no unsafe
-//! `getrusage` call; 0 where `/proc` does not exist).
+//! What the process costs the machine: its peak resident set size, read from `/proc` through
+//! `procfs` (no unsafe `getrusage` call; 0 where `/proc` does not exist).
 
 /// Peak resident set size of this process in bytes (`VmHWM`), 0 when unknown.
 pub fn peak_rss_bytes() -> u64 {
-    std::fs::read_to_string("/proc/self/status")
+    procfs::process::Process::myself()
+        .and_then(|p| p.status())
         .ok()
-        .and_then(|s| parse_status_kib(&s, "VmHWM:"))
+        .and_then(|s| s.vmhwm)
         .map_or(0, |kib| kib * 1024)
 }
 
@@ -19,21 +20,9 @@ pub fn threads() -> u32 {
         .unwrap_or(available)
 }
 
-fn parse_status_kib(status: &str, key: &str) -> Option<u64> {
-    let line = status.lines().find(|l| l.starts_with(key))?;
-    line[key.len()..].split_whitespace().next()?.parse().ok()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn status_lines_parse() {
-        let s = "Name:\tx\nVmHWM:\t  123456 kB\nVmRSS:\t 1 kB\n";
-        assert_eq!(parse_status_kib(s, "VmHWM:"), Some(123456));
-        assert_eq!(parse_status_kib(s, "VmSwap:"), None);
-    }
 
     #[test]
     fn this_process_has_a_peak() {
