@@ -154,3 +154,41 @@ fn demo_serve_streams_steers_and_stops_on_ctrl_c() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn video_without_ffmpeg_says_what_it_needs_and_keeps_the_frames() {
+    let dir = work_dir("video");
+    let empty = dir.join("empty-path");
+    std::fs::create_dir_all(&empty).unwrap();
+    let out = lightfold()
+        .env("PATH", &empty)
+        .args([
+            "demo",
+            "--size",
+            "64x48",
+            "--no-compare",
+            "--orbit",
+            "20",
+            "--frames",
+            "3",
+        ])
+        .arg("--work-dir")
+        .arg(&dir)
+        .arg("--frame-pattern")
+        .arg(dir.join("f-%02d"))
+        .arg("--video")
+        .arg(dir.join("out.mp4"))
+        .arg("--out")
+        .arg(dir.join("out.png"))
+        .arg("--exr")
+        .arg(dir.join("out.exr"))
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "a video was asked for and not made");
+    assert!(stderr.contains("needs ffmpeg on the PATH"), "{stderr}");
+    for i in 1..=3 {
+        assert!(dir.join(format!("f-{i:02}.png")).is_file(), "frame {i}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
