@@ -39,10 +39,10 @@ pub struct Args {
     #[arg(short = 'K', long, default_value_t = lightfold_scene::defaults::LIGHTS_PER_NODE)]
     pub lights_per_node: u32,
     /// The most lights one node's device takes, the ceiling K is raised to. A real node reports
-    /// its own at registration (see its "render node ready" log line); the default is what
-    /// every device takes (wgpu's default limits, the default shadow-map size).
-    #[arg(long, value_name = "K")]
-    pub max_lights: Option<u32>,
+    /// its own at registration (its "render node ready" log line; lavapipe's is 170); the default
+    /// is what every device takes (wgpu's default limits at the default shadow-map size).
+    #[arg(long, value_name = "K", default_value_t = default_max_lights())]
+    pub max_lights: u32,
     /// Compositor topology: `chain` (a linear pipeline, each stage adds its nodes to the upstream
     /// sum) or `tree` (leaf stages sum nodes, the stages above join pairs of partial sums).
     #[arg(long, default_value = "chain")]
@@ -110,7 +110,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(n) = args.shadow_map_size {
         options.map_sizing = MapSizing::Fixed(n);
     }
-    let max_lights = args.max_lights.unwrap_or_else(default_max_lights);
+    let max_lights = args.max_lights;
     let cluster = match &args.cluster {
         Some(path) => from_file(&ClusterFile::load(path)?),
         None => {
