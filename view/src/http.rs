@@ -6,9 +6,15 @@ use axum::extract::{ConnectInfo, State};
 use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
+use hyper::body::Incoming;
+use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
+use hyper_util::server::conn::auto::Builder;
+use hyper_util::service::TowerToHyperService;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
+use std::time::Duration;
+use tower::Service;
 
 const INDEX: &str = include_str!("../static/index.html");
 const APP: &str = include_str!("../static/app.js");
@@ -16,6 +22,16 @@ const STYLE: &str = include_str!("../static/style.css");
 /// Largest message a page may send (steering messages are a few hundred bytes).
 pub const MAX_MESSAGE: usize = 16 << 10;
 
+/// Connections served at once (page loads, frame downloads, WebSocket handshakes); more are
+/// closed unread. Upgraded WebSockets count against `MAX_VIEWERS` instead.
+pub const MAX_CONNECTIONS: usize = 128;
+/// A request's header must arrive within this (a peer that trickles bytes is closed).
+pub const HEADER_TIMEOUT: Duration = Duration::from_secs(10);
+/// How long open requests get to finish when the view stops.
+const DRAIN: Duration = Duration::from_secs(2);
+
+/// Accepts connections until the view stops: at most `MAX_CONNECTIONS` at once, each with a
+/// deadline on its request header (hyper's, with a timer: `axum::serve` sets none).
 pub async fn serve(listener: tokio::net::TcpListener, hub: Arc<Hub>) {
     let stop = hub.stop.clone();
     let app = axum::Router::new()
@@ -35,14 +51,57 @@ pub async fn serve(listener: tokio::net::TcpListener, hub: Arc<Hub>) {
         .route("/frame.exr", get(exr))
         .route("/ws", get(websocket))
         .with_state(hub);
-    let served = axum::serve(
-        listener,
-        app.into_make_service_with_connect_info::<SocketAddr>(),
-    )
-    .with_graceful_shutdown(async move { stop.cancelled().await })
-    .await;
-    if let Err(e) = served {
-        tracing::error!("the view's HTTP server stopped: {e}");
+    let slots = Arc::new(tokio::sync::Semaphore::new(MAX_CONNECTIONS));
+    let mut refused_last: Option<std::time::Instant> = None;
+    loop {
+        let (stream, peer) = tokio::select! {
+            _ = stop.cancelled() => return,
+            r = listener.accept() => match r {
+                Ok(x) => x,
+                Err(e) => {
+                    // Out of file descriptors and the like: wait instead of spinning.
+                    tracing::warn!("the view cannot accept a connection: {e}");
+                    tokio::time::sleep(Duration::from_millis(100)).await;
+                    continue;
+                }
+            },
+        };
+        let Ok(permit) = Arc::clone(&slots).try_acquire_owned() else {
+            if refused_last.is_none_or(|t| t.elapsed() > Duration::from_secs(1)) {
+                refused_last = Some(std::time::Instant::now());
+                tracing::warn!(%peer, "the view has {MAX_CONNECTIONS} connections open: refused");
+            }
+            continue;
+        };
+        let app = app.clone();
+        let stop = stop.clone();
+        tokio::spawn(async move {
+            let _permit = permit;
+            let service = tower::service_fn(move |mut req: axum::extract::Request<Incoming>| {
+                req.extensions_mut().insert(ConnectInfo(peer));
+                let mut app = app.clone();
+                async move { app.call(req.map(axum::body::Body::new)).await }
+            });
+            let mut builder = Builder::new(TokioExecutor::new());
+            builder
+                .http1()
+                .timer(TokioTimer::new())
+                .header_read_timeout(HEADER_TIMEOUT);
+            let conn = builder.serve_connection_with_upgrades(
+                TokioIo::new(stream),
+                TowerToHyperService::new(service),
+            );
+            tokio::pin!(conn);
+            tokio::select! {
+                r = conn.as_mut() => if let Err(e) = r {
+                    tracing::debug!(%peer, "view connection ended: {e}");
+                },
+                _ = stop.cancelled() => {
+                    conn.as_mut().graceful_shutdown();
+                    let _ = tokio::time::timeout(DRAIN, conn).await;
+                }
+            }
+        });
     }
 }
 

@@ -449,3 +449,35 @@ async fn the_page_and_the_current_frame_as_exr_and_jpeg_are_served() {
     })
     .await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_peer_that_trickles_its_request_header_is_closed() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let scene = small("balls");
+    let plan = plan_options(&scene, 4);
+    with_view(scene, plan, loopback(), |addr, _, _| async move {
+        let mut s = tokio::net::TcpStream::connect(addr).await.unwrap();
+        // Half a request header, then nothing.
+        s.write_all(b"GET / HTTP/1.1\r\nHost: x\r\n").await.unwrap();
+        let started = std::time::Instant::now();
+        let mut buf = [0u8; 256];
+        let n = tokio::time::timeout(Duration::from_secs(60), s.read(&mut buf))
+            .await
+            .expect("the view kept a trickling peer open for a minute");
+        // Closed (0 bytes) or answered with a timeout status and then closed.
+        let text = String::from_utf8_lossy(&buf[..n.unwrap_or(0)]).into_owned();
+        assert!(
+            text.is_empty() || text.starts_with("HTTP/1.1 408"),
+            "{text}"
+        );
+        assert!(
+            started.elapsed() >= Duration::from_secs(5),
+            "closed before the header deadline: {:?}",
+            started.elapsed()
+        );
+        // The view still serves others.
+        let mut c = Client::connect(addr).await;
+        c.expect("welcome").await;
+    })
+    .await;
+}
