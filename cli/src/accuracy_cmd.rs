@@ -1,6 +1,7 @@
 //! `lightfold accuracy`: the speed-against-error sweep of one scene (CSV, Markdown, SVG under
 //! `--out`), or with `--hard` the full-size hard cases of numerical stability.
 
+use crate::out::outln;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use lightfold_node::gpu::{Gpu, GpuOptions};
@@ -194,9 +195,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let md = report::markdown(&title, &command, &truth, &points, args.target_db);
     // The headline paragraphs and the pattern table (everything before the table of points).
     for line in md.lines().take_while(|l| !l.starts_with("| knob")) {
-        println!("{line}");
+        outln!("{line}");
     }
-    println!(
+    outln!(
         "wrote {}/{{sweep.csv,README.md,frontier.svg}}",
         out.display()
     );
@@ -216,7 +217,7 @@ fn run_hard(args: &Args) -> anyhow::Result<()> {
     let mut failed = Vec::new();
     for name in case_names() {
         let report = run_case(name, true).with_context(|| format!("hard case {name}"))?;
-        println!("{report}");
+        outln!("{report}");
         text.push_str(&format!("{report}\n"));
         if !report.passes() {
             failed.push(name);
