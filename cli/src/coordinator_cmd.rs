@@ -134,7 +134,8 @@ pub struct JobArgs {
     /// Lights per node (K).
     #[arg(short = 'K', long, default_value_t = lightfold_scene::defaults::LIGHTS_PER_NODE)]
     pub lights_per_node: u32,
-    /// Compositor topology: chain or tree.
+    /// Compositor topology: `chain` (a linear pipeline, each stage adds its nodes to the upstream
+    /// sum) or `tree` (leaf stages sum nodes, the stages above join pairs of partial sums).
     #[arg(long, default_value = "chain")]
     pub topology: Topology,
     /// Frames to render (at least 1).
