@@ -123,6 +123,7 @@ fn the_error_report_follows_the_camera_path() {
     std::fs::create_dir_all(&dir).unwrap();
     let out = lightfold()
         .args(["demo", "--size", "96x72", "--frames", "2", "--orbit", "25"])
+        .arg("--no-frame-files")
         .arg("--work-dir")
         .arg(&dir)
         .arg("--out")

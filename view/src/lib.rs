@@ -146,6 +146,8 @@ impl View {
                 };
             }
         };
+        // Daemons whose links end once the view is told to stop are stopping with it, not lost.
+        live.stop_on(stop.clone());
         let serving = CancellationToken::new();
         let hub = Arc::new(hub::Hub::new(
             scene,
