@@ -124,19 +124,6 @@ struct Row {
     cpu_ms_total: f64,
 }
 
-/// User + system CPU time of process `pid` so far, in clock ticks (`/proc/<pid>/stat`).
-fn cpu_ticks(pid: u32) -> Option<u64> {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
-    // The command name may hold spaces and parentheses: fields are counted after the last ')'.
-    let rest = &stat[stat.rfind(')')? + 1..];
-    let fields: Vec<&str> = rest.split_whitespace().collect();
-    // utime and stime are fields 14 and 15 of the whole line, 12 and 13 after the name.
-    Some(fields.get(11)?.parse::<u64>().ok()? + fields.get(12)?.parse::<u64>().ok()?)
-}
-
-/// Linux reports CPU times in USER_HZ ticks, 100 per second on every mainstream architecture.
-const TICKS_PER_SECOND: f64 = 100.0;
-
 fn median(mut v: Vec<u64>) -> f64 {
     if v.is_empty() {
         return 0.0;
@@ -339,7 +326,7 @@ async fn measure(
     let mut cpu_start = None;
     for f in 0..a.warmup + a.frames {
         if f == a.warmup {
-            cpu_start = cpu_ticks(pid);
+            cpu_start = Some(crate::lifecycle::cpu_seconds(pid));
         }
         let camera = if still {
             scene.camera
@@ -360,9 +347,10 @@ async fn measure(
             stats.push(s);
         }
     }
-    let cpu_ms = match (cpu_start, cpu_ticks(pid)) {
-        (Some(a0), Some(a1)) => (a1 - a0) as f64 / TICKS_PER_SECOND * 1000.0 / f64::from(a.frames),
-        _ => f64::NAN,
+    // CPU time of the node process over the timed frames (0 where /proc cannot tell).
+    let cpu_ms = match cpu_start {
+        Some(a0) => (crate::lifecycle::cpu_seconds(pid) - a0) * 1000.0 / f64::from(a.frames),
+        None => f64::NAN,
     };
     link.send_msg(Message::Shutdown).await?;
     if tokio::time::timeout(Duration::from_secs(30), child.wait())

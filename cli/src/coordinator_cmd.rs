@@ -4,6 +4,7 @@
 //! terminal shows a progress bar; a log (stderr not a terminal) gets a line per frame.
 
 use crate::frames_out::{FramePattern, FrameWriter};
+use crate::out::outln;
 use anyhow::{Context, bail};
 use lightfold_coordinator::cluster::ClusterFile;
 use lightfold_coordinator::control::Session;
@@ -110,9 +111,9 @@ impl ViewArgs {
         .await?;
         let addr = view.local_addr();
         if addr.ip().is_loopback() {
-            println!("view: http://{addr}/");
+            outln!("view: http://{addr}/");
         } else {
-            println!(
+            outln!(
                 "view: http://{addr}/ (viewers beyond loopback watch; to steer they present the \
                  token, in the page or as http://HOST:{}/#token=TOKEN)",
                 addr.port()
@@ -422,18 +423,18 @@ pub async fn execute(
     progress.finish();
     let written = writer.finish();
     match &outcome.summary.plan {
-        Some(plan) if job.verbose => println!("{plan}"),
-        Some(plan) => println!("{}", plan.brief()),
+        Some(plan) if job.verbose => outln!("{plan}"),
+        Some(plan) => outln!("{}", plan.brief()),
         None => {}
     }
     if job.verbose && !report.frames.is_empty() {
-        println!("{}", report.frame_lines());
+        outln!("{}", report.frame_lines());
     }
     if let (Some(plan), false) = (&outcome.summary.plan, report.frames.is_empty()) {
-        println!("{}", report.table(plan));
-        println!("{}", report.summary(plan));
+        outln!("{}", report.table(plan));
+        outln!("{}", report.summary(plan));
     }
-    println!("{}", failover_summary(&outcome.summary, start));
+    outln!("{}", failover_summary(&outcome.summary, start));
     if shutdown {
         session.shutdown().await;
     } else {
@@ -458,7 +459,7 @@ pub async fn execute(
         bail!("the run stopped after {delivered} frame(s): {e}");
     }
     if let (Some(p), true) = (&every, written.frames > 0) {
-        println!(
+        outln!(
             "wrote {} frame(s) as {}",
             written.frames,
             p.ffmpeg_input().replace(".png", ".{png,exr}")
@@ -469,10 +470,10 @@ pub async fn execute(
     }
     if let (Some(video), Some(p)) = (&job.video, &every) {
         crate::frames_out::assemble_video(p, video, job.video_fps)?;
-        println!("wrote {}", video.display());
+        outln!("wrote {}", video.display());
     }
     let (w, h) = written.size.context("no frame was rendered")?;
-    println!(
+    outln!(
         "wrote {} and {} ({w}x{h}) in {:.2} s{}",
         job.out.display(),
         job.exr.display(),

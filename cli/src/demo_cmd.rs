@@ -11,6 +11,7 @@
 
 use crate::coordinator_cmd::JobArgs;
 use crate::lifecycle::{cpu_seconds, send_signal};
+use crate::out::outln;
 use anyhow::{Context, bail};
 use lightfold_coordinator::plan::{ClusterSpec, Plan, plan};
 use rustix::process::Signal;
@@ -220,9 +221,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let nodes = probe.nodes.len();
     let compositors = probe.stages.len();
     check_processes(&scene, &args.job, &probe, args.max_processes)?;
-    println!(
+    outln!(
         "demo: scene {:?} needs {} render node(s) and {} compositor(s); starting them on loopback",
-        scene.name, nodes, compositors
+        scene.name,
+        nodes,
+        compositors
     );
     // Removed when dropped: on every way out of this function, errors and panics included.
     let (temp, dir) = match &args.work_dir {
@@ -345,7 +348,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !status.success() {
         bail!("the coordinator failed ({status})");
     }
-    println!(
+    outln!(
         "demo: cluster finished in {:.2} s (all daemons stopped)",
         started.elapsed().as_secs_f64()
     );
@@ -369,7 +372,7 @@ pub(crate) fn write_token(path: &Path) -> anyhow::Result<()> {
     use std::io::{Read, Write};
     let mut bytes = [0u8; 32];
     std::fs::File::open("/dev/urandom")?.read_exact(&mut bytes)?;
-    let hex: String = bytes.iter().map(|b| format!("{b:02x}")).collect();
+    let hex = hex::encode(bytes);
     let mut f = std::fs::File::create(path)?;
     let mut perms = f.metadata()?.permissions();
     std::os::unix::fs::PermissionsExt::set_mode(&mut perms, 0o600);
@@ -503,7 +506,7 @@ fn print_cpu(cpu: &[(String, f64)], frames: u32) {
         .filter(|(n, _)| n.starts_with("node"))
         .map(|(_, s)| s)
         .sum();
-    println!(
+    outln!(
         "demo: daemon CPU {total:.2} s ({nodes:.2} s render nodes, {:.2} s compositors) over \
          {frames} frame(s): {:.3} CPU-s per frame, at least {:.3} s per frame on this machine's \
          {cores} core(s) (start-up included)",

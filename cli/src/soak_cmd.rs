@@ -11,6 +11,7 @@
 
 use crate::demo_cmd::{ANY_PORT, Children, daemon_command, read_listening, write_token};
 use crate::lifecycle::{cpu_seconds, peak_rss_kib, send_signal};
+use crate::out::outln;
 use anyhow::{Context, bail};
 use lightfold_coordinator::control::{
     ControlOptions, DaemonAddr, FrameResult, FrameSpec, Incident, IncidentKind, Live, LiveSummary,
@@ -201,7 +202,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let probe = plan(&scene, &ClusterSpec::local(256, 256), &plan_opts)?;
     let (nodes, compositors) = (probe.nodes.len(), probe.stages.len());
-    println!(
+    outln!(
         "soak: scene {:?} {w}x{h}, {} light samples, K = {}: {nodes} render node(s) and \
          {compositors} compositor(s) on loopback; {} faults, seed {}",
         scene.name,
@@ -301,7 +302,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let sink = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
         anyhow::Ok(Session::connect(&addrs, sink, None, me, control).await?)
     })?;
-    println!(
+    outln!(
         "soak: cluster connected after {:.1} s; injecting faults",
         started.elapsed().as_secs_f64()
     );
@@ -452,7 +453,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     });
     report.print();
     report.write(&args.out)?;
-    println!("soak: report written to {}", args.out.display());
+    outln!("soak: report written to {}", args.out.display());
     if !report.failures.is_empty() {
         bail!("soak failed: {}", report.failures.join("; "));
     }
@@ -1551,7 +1552,7 @@ impl Report {
     }
 
     fn print(&self) {
-        println!("\n{}\n", self.title);
+        outln!("\n{}\n", self.title);
         let wk = self
             .rows
             .iter()
@@ -1559,29 +1560,39 @@ impl Report {
             .max()
             .unwrap_or(0);
         for (k, v) in &self.rows {
-            println!("{k:<wk$}  {v}");
+            outln!("{k:<wk$}  {v}");
         }
-        println!(
+        outln!(
             "\n{:<8} {:<10} {:>9} {:>6} {:>13} {:>8}",
-            "daemon", "role", "processes", "faults", "peak RSS MiB", "CPU s"
+            "daemon",
+            "role",
+            "processes",
+            "faults",
+            "peak RSS MiB",
+            "CPU s"
         );
         for d in &self.daemons {
-            println!(
+            outln!(
                 "{:<8} {:<10} {:>9} {:>6} {:>13} {:>8}",
-                d[0], d[1], d[2], d[3], d[4], d[5]
+                d[0],
+                d[1],
+                d[2],
+                d[3],
+                d[4],
+                d[5]
             );
         }
         for f in &self.failures {
-            println!("FAILED: {f}");
+            outln!("FAILED: {f}");
         }
     }
 
     fn write(&self, dir: &Path) -> anyhow::Result<()> {
-        let mut csv = String::from("metric,value\n");
-        for (k, v) in &self.rows {
-            let _ = writeln!(csv, "{},{}", csv_field(k), csv_field(v));
-        }
-        std::fs::write(dir.join("soak.csv"), csv)?;
+        write_csv(
+            &dir.join("soak.csv"),
+            &["metric", "value"],
+            self.rows.iter().map(|(k, v)| vec![k.clone(), v.clone()]),
+        )?;
         write_csv(
             &dir.join("daemons.csv"),
             &[
@@ -1645,27 +1656,19 @@ impl Report {
     }
 }
 
-fn csv_field(s: &str) -> String {
-    if s.contains([',', '"', '\n']) {
-        format!("\"{}\"", s.replace('"', "\"\""))
-    } else {
-        s.to_string()
-    }
-}
-
 fn write_csv(
     path: &Path,
     header: &[&str],
     rows: impl Iterator<Item = Vec<String>>,
 ) -> anyhow::Result<()> {
-    let mut out = header.join(",");
-    out.push('\n');
+    let mut w =
+        csv::Writer::from_path(path).with_context(|| format!("cannot write {}", path.display()))?;
+    w.write_record(header)?;
     for r in rows {
-        let fields: Vec<String> = r.iter().map(|f| csv_field(f)).collect();
-        out.push_str(&fields.join(","));
-        out.push('\n');
+        w.write_record(&r)?;
     }
-    std::fs::write(path, out).with_context(|| format!("cannot write {}", path.display()))
+    w.flush()
+        .with_context(|| format!("cannot write {}", path.display()))
 }
 
 fn md_cell(s: &str) -> String {
@@ -1703,13 +1706,6 @@ mod tests {
             replan_cause("frame failure: comp-1 reported Timeout"),
             "frame failure"
         );
-    }
-
-    #[test]
-    fn csv_fields_are_quoted_when_needed() {
-        assert_eq!(csv_field("plain"), "plain");
-        assert_eq!(csv_field("a, b"), "\"a, b\"");
-        assert_eq!(csv_field("say \"hi\""), "\"say \"\"hi\"\"\"");
     }
 
     #[test]
