@@ -24,7 +24,16 @@ fn cluster_across_network_namespaces() {
         "/../scripts/netns-cluster.sh"
     ))
     .args([
-        "2", "2", "--scene", "box", "--size", "96x72", "-K", "16", "--out",
+        "2",
+        "2",
+        "--scene",
+        "box",
+        "--size",
+        "96x72",
+        "-K",
+        "16",
+        "--verbose",
+        "--out",
     ])
     .arg(&png)
     .arg("--exr")
@@ -39,7 +48,7 @@ fn cluster_across_network_namespaces() {
         "netns cluster failed:\n{stdout}\n{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    // The plan's links name the namespace addresses, not loopback.
+    // The full plan's links (`--verbose`) name the namespace addresses, not loopback.
     assert!(stdout.contains("10.77.0."), "{stdout}");
     assert!(png.exists());
     let _ = std::fs::remove_dir_all(&dir);
