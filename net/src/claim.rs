@@ -3,7 +3,8 @@
 //! the daemon for that coordinator session; anything else makes the link unclaimed (test drivers,
 //! `lightfold bench`), which holds nothing.
 //!
-//! - A claim while another session holds the daemon is refused `Busy` unless `take_over` is set;
+//! - A claim while another session holds the daemon is refused `Busy` (after waiting 500 ms for
+//!   the holder's link to close) unless `take_over` is set;
 //!   with it the old link is sent `TakenOver` and closed first. A claim of the holder's own session
 //!   (a coordinator re-dialling a daemon it had lost) replaces the old link without a message.
 //! - A granted claim closes every unclaimed link; an unclaimed link is refused `Busy` while a
@@ -17,6 +18,10 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 use tokio_util::sync::CancellationToken;
 
+/// How long a claim (or an unclaimed link) waits for another session's link to close before it
+/// is refused `Busy`: a coordinator started right after its predecessor went away is not refused
+/// for the moment the daemon takes to notice the old link's end.
+const HANDOVER: Duration = Duration::from_millis(500);
 /// How long a new holder waits for a displaced link to send its last message and close.
 const RELEASE: Duration = Duration::from_secs(2);
 /// How long a displaced link may take to write its last message.
@@ -87,7 +92,31 @@ impl Claims {
         addr: &str,
     ) -> Result<Ticket, Message> {
         let link = Arc::new(LinkState::default());
-        let (serial, displaced) = {
+        let handover = tokio::time::Instant::now() + HANDOVER;
+        let (serial, displaced) = loop {
+            // A holder of another session whose link is closing (its coordinator just went
+            // away) is waited for briefly instead of refusing at once.
+            let holder_link = {
+                let st = self.state();
+                match (&claim, &st.holder) {
+                    (None, Some(h)) => Some((h.link.clone(), self.busy_message(h))),
+                    (Some((session, false)), Some(h)) if h.session != *session => {
+                        Some((h.link.clone(), self.busy_message(h)))
+                    }
+                    _ => None,
+                }
+            };
+            if let Some((holder, message)) = holder_link {
+                let closed = tokio::time::timeout_at(handover, holder.closed.cancelled()).await;
+                if closed.is_err() {
+                    tracing::info!(%addr, "control link refused: {message}");
+                    return Err(Message::Error {
+                        code: ErrorCode::Busy,
+                        message,
+                    });
+                }
+                continue;
+            }
             let mut st = self.state();
             let serial = st.next;
             st.next += 1;
@@ -100,8 +129,8 @@ impl Claims {
             let mut displaced = Vec::new();
             match claim {
                 None => {
-                    if let Some(h) = &st.holder {
-                        return Err(self.busy(h, addr));
+                    if st.holder.is_some() {
+                        continue; // a holder appeared meanwhile: wait for it as above
                     }
                     if self.exclusive {
                         displaced.append(&mut st.unclaimed);
@@ -116,7 +145,7 @@ impl Claims {
                         && h.session != session
                         && !take_over
                     {
-                        return Err(self.busy(h, addr));
+                        continue; // a holder appeared meanwhile: wait for it as above
                     }
                     if let Some(old) = st.holder.take() {
                         if old.session == session {
@@ -146,7 +175,7 @@ impl Claims {
                     st.holder = Some(entry(session));
                 }
             }
-            (serial, displaced)
+            break (serial, displaced);
         };
         // From here on, dropping this future (the daemon stopping) lets go of the entry.
         let ticket = Ticket {
@@ -171,16 +200,11 @@ impl Claims {
         Ok(ticket)
     }
 
-    fn busy(&self, holder: &Entry, addr: &str) -> Message {
-        let message = format!(
+    fn busy_message(&self, holder: &Entry) -> String {
+        format!(
             "{} is held by the coordinator at {} (session {:016x}); pass --take-over to take it over",
             self.daemon_id, holder.addr, holder.session
-        );
-        tracing::info!(%addr, "control link refused: {message}");
-        Message::Error {
-            code: ErrorCode::Busy,
-            message,
-        }
+        )
     }
 }
 
