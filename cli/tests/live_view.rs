@@ -22,28 +22,26 @@ fn work_dir(name: &str) -> PathBuf {
     dir
 }
 
-#[test]
-fn five_frames_of_a_camera_path_are_five_distinct_files() {
-    let dir = work_dir("frames5");
-    let out = lightfold()
-        .args([
-            "demo",
-            "--size",
-            "64x48",
-            "--no-compare",
-            "--orbit",
-            "20",
-            "--frames",
-            "5",
-        ])
+/// `lightfold demo` on a small image whose work dir, `--out` and `--exr` live in `dir`.
+fn demo_in(dir: &std::path::Path) -> Command {
+    let mut c = lightfold();
+    c.args(["demo", "--size", "64x48"])
         .arg("--work-dir")
-        .arg(&dir)
-        .arg("--frame-pattern")
-        .arg(dir.join("shots/shot-%03d"))
+        .arg(dir)
         .arg("--out")
         .arg(dir.join("out.png"))
         .arg("--exr")
-        .arg(dir.join("out.exr"))
+        .arg(dir.join("out.exr"));
+    c
+}
+
+#[test]
+fn five_frames_of_a_camera_path_are_five_distinct_files() {
+    let dir = work_dir("frames5");
+    let out = demo_in(&dir)
+        .args(["--no-compare", "--orbit", "20", "--frames", "5"])
+        .arg("--frame-pattern")
+        .arg(dir.join("shots/shot-%03d"))
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -70,14 +68,8 @@ fn five_frames_of_a_camera_path_are_five_distinct_files() {
 #[test]
 fn demo_serve_streams_steers_and_stops_on_ctrl_c() {
     let dir = work_dir("serve");
-    let mut demo = lightfold()
-        .args(["demo", "--size", "64x48", "--serve", "127.0.0.1:0"])
-        .arg("--work-dir")
-        .arg(&dir)
-        .arg("--out")
-        .arg(dir.join("out.png"))
-        .arg("--exr")
-        .arg(dir.join("out.exr"))
+    let mut demo = demo_in(&dir)
+        .args(["--serve", "127.0.0.1:0"])
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
         .spawn()
@@ -160,28 +152,13 @@ fn video_without_ffmpeg_says_what_it_needs_and_keeps_the_frames() {
     let dir = work_dir("video");
     let empty = dir.join("empty-path");
     std::fs::create_dir_all(&empty).unwrap();
-    let out = lightfold()
+    let out = demo_in(&dir)
         .env("PATH", &empty)
-        .args([
-            "demo",
-            "--size",
-            "64x48",
-            "--no-compare",
-            "--orbit",
-            "20",
-            "--frames",
-            "3",
-        ])
-        .arg("--work-dir")
-        .arg(&dir)
+        .args(["--no-compare", "--orbit", "20", "--frames", "3"])
         .arg("--frame-pattern")
         .arg(dir.join("f-%02d"))
         .arg("--video")
         .arg(dir.join("out.mp4"))
-        .arg("--out")
-        .arg(dir.join("out.png"))
-        .arg("--exr")
-        .arg(dir.join("out.exr"))
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&out.stderr);

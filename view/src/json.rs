@@ -115,7 +115,6 @@ pub fn status(s: &LiveStatus, started: Instant) -> Value {
         "lost": lost,
         "incidents": incidents,
         "epochs": epochs,
-        "delivered": s.delivered,
     })
 }
 

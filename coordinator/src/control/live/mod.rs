@@ -135,7 +135,6 @@ pub struct LiveStatus {
     pub lost: Vec<(String, String)>,
     /// The latest notice (a re-plan the user caused, …), numbered from 1.
     pub notice: Option<(u64, String)>,
-    pub delivered: u64,
 }
 
 struct InFlight {
@@ -306,7 +305,6 @@ impl<'s> Live<'s> {
                 .iter()
                 .map(|(a, b)| (a.clone(), b.clone()))
                 .collect();
-            s.delivered = self.summary.delivered;
         });
     }
 
