@@ -127,5 +127,6 @@ fn synthetic_scene() -> Scene {
         ambient: [0.0; 3],
         exposure: 1.0,
         quality: Quality::default(),
+        animation: None,
     }
 }

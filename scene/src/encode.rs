@@ -14,7 +14,7 @@ use sha2::{Digest, Sha256};
 
 const MAGIC: &[u8; 4] = b"LFSC";
 /// Version of the byte layout of `to_bytes` (bump when `Scene` changes shape).
-pub const SCENE_BYTES_VERSION: u32 = 1;
+pub const SCENE_BYTES_VERSION: u32 = 2;
 /// Largest scene `from_bytes` accepts ([`crate::limits::MAX_SCENE_BYTES`]).
 pub const MAX_SCENE_BYTES: usize = crate::limits::MAX_SCENE_BYTES as usize;
 
@@ -296,6 +296,7 @@ impl Scene {
             ambient,
             exposure,
             quality,
+            animation,
         } = self;
         let mut c = Canon::new("lightfold scene content v1");
         c.assets(meshes, materials, textures);
@@ -305,6 +306,18 @@ impl Scene {
         c.f32s(ambient);
         c.f32(*exposure);
         c.quality(quality);
+        // A still scene hashes as it always did; an animated one adds its animation.
+        match animation {
+            None => {}
+            Some(a) => {
+                // Validated animations hold only finite values, so their bincode bytes are
+                // canonical.
+                c.u8(1);
+                let bytes = bincode::serde::encode_to_vec(a, bincode::config::standard())
+                    .unwrap_or_default();
+                c.bytes(&bytes);
+            }
+        }
         c.finish()
     }
 

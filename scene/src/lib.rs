@@ -5,6 +5,7 @@
 //! Must not depend on tokio, wgpu or any networking: the GPU node, the CPU reference, the planner
 //! and the tests all read scenes through this crate.
 
+pub mod animation;
 pub mod builtin;
 pub mod camera;
 pub mod defaults;

@@ -20,6 +20,9 @@ pub struct Scene {
     /// Exposure applied before the sRGB transfer for PNG output (`sRGB(clamp(exposure·L))`).
     pub exposure: f32,
     pub quality: Quality,
+    /// What moves over time (`None`: a still scene). `meshes` and `lights` are the rest pose;
+    /// [`Scene::pose`] gives the scene at a time.
+    pub animation: Option<crate::animation::Animation>,
 }
 
 /// A triangle mesh in world space. `normals` and `uvs` are either empty or one per position.

@@ -26,6 +26,7 @@ impl Scene {
             ambient: [0.0; 3],
             exposure: 1.0,
             quality: defaults::quality(),
+            animation: None,
         }
     }
 

@@ -32,6 +32,7 @@ pub fn scene(
         ambient: [0.0; 3],
         exposure: 1.0,
         quality: Quality::default(),
+        animation: None,
     }
 }
 

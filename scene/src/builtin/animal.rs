@@ -16,6 +16,7 @@ pub(super) fn build() -> Result<Scene, SceneError> {
         scale: 0.01,
         translation: [0.0; 3],
         complete: false,
+        animation: None,
     };
     let mut s = load_gltf_slice(FOX_GLB, "assets/Fox/Fox.glb", None, &opts)?;
     s.name = "animal".into();

@@ -1,5 +1,6 @@
 //! Built-in scenes generated in code, echoing the paper's Fig. 3: "balls" (the default), "box",
-//! "plant", "animal" — each lit by 32 point samples — and a Cornell box.
+//! "plant", "animal" — each lit by 32 point samples — a Cornell box, and "carousel", where an
+//! object spins and an area light travels (a scene file compiled into the crate).
 //!
 //! They need no files: the Fox model of "animal" is compiled into the crate.
 
@@ -14,7 +15,10 @@ use crate::error::SceneError;
 use crate::model::{Camera, Light, LightShape, Material, Scene};
 use crate::shading::{V3, normalize, sub};
 
-const NAMES: &[&str] = &["balls", "box", "plant", "animal", "cornell"];
+const NAMES: &[&str] = &["balls", "box", "plant", "animal", "cornell", "carousel"];
+
+/// The "carousel" scene file.
+const CAROUSEL: &str = include_str!("carousel.toml");
 
 /// The names [`builtin`] accepts; the first is the default scene.
 pub fn builtin_names() -> &'static [&'static str] {
@@ -29,6 +33,7 @@ pub fn builtin(name: &str) -> Result<Scene, SceneError> {
         "plant" => plant::build(),
         "animal" => animal::build()?,
         "cornell" => cornell::build(),
+        "carousel" => crate::file::parse_scene_file(CAROUSEL, "built-in scene carousel", None)?,
         _ => {
             return Err(SceneError::UnknownBuiltin {
                 name: name.to_string(),

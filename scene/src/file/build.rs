@@ -46,6 +46,7 @@ pub(super) fn build(
                     scale: g.scale,
                     translation: g.translation,
                     complete: false,
+                    animation: g.animation.clone(),
                 };
                 let label = path.display().to_string();
                 let imported = gltf_load::import(
@@ -96,6 +97,7 @@ pub(super) fn build(
         let light = light(l, i, &mut scene, &objects).map_err(err)?;
         scene.lights.push(light);
     }
+    crate::animation::apply_motions(&mut scene, &file.motions, &objects).map_err(err)?;
     if let Some(c) = &file.camera {
         scene.camera = camera(c);
     }

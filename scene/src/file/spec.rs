@@ -76,6 +76,9 @@ pub struct SceneFile {
     pub objects: Vec<ObjectSpec>,
     #[serde(default, rename = "light", skip_serializing_if = "Vec::is_empty")]
     pub lights: Vec<LightSpec>,
+    /// Objects and lights that move (`docs/scenes.md`, "Motion").
+    #[serde(default, rename = "motion", skip_serializing_if = "Vec::is_empty")]
+    pub motions: Vec<crate::animation::MotionSpec>,
 }
 
 /// A glTF / GLB model, its path relative to the scene file.
@@ -88,6 +91,9 @@ pub struct GltfRef {
     pub scale: f32,
     #[serde(default)]
     pub translation: V3,
+    /// The animation to play (name or index); the first when not given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub animation: Option<String>,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -3,6 +3,7 @@
 //! their authored transforms), triangle strips and fans, and flat normals where none are given.
 
 use super::accessor::{Buffers, ReadResult};
+use crate::animation::{MeshRig, MorphTarget, SkinRig};
 use crate::model::Mesh;
 use crate::shading::{cross, normalize, sub};
 use glam::{Mat3, Mat4, Vec3};
@@ -19,15 +20,19 @@ pub(super) struct NodeContext<'a> {
     pub ignored: &'a mut BTreeSet<String>,
     /// Triangles of the model so far (instances counted each time), for the scene limit.
     pub triangles: u64,
+    /// Keep what posing needs (the document is animated): each mesh comes with its rig.
+    pub rig: bool,
 }
 
 /// The meshes of one node's primitives; `material` maps a glTF material index (None = default).
+/// With `ctx.rig`, each comes with its rig (`mesh` 0 and `node` the glTF node index, for the
+/// caller to renumber).
 pub(super) fn node_meshes(
     node: &gltf::Node,
     mesh: &gltf::Mesh,
     ctx: &mut NodeContext,
     material: &mut dyn FnMut(Option<usize>) -> usize,
-) -> ReadResult<Vec<Mesh>> {
+) -> ReadResult<Vec<(Mesh, Option<MeshRig>)>> {
     let mut out = Vec::new();
     let name = node.name().or(mesh.name()).unwrap_or("mesh");
     for prim in mesh.primitives() {
@@ -40,7 +45,7 @@ pub(super) fn node_meshes(
             ctx.ignored.insert("point and line primitives".into());
             continue;
         }
-        if prim.morph_targets().len() > 0 {
+        if prim.morph_targets().len() > 0 && !ctx.rig {
             ctx.ignored.insert("morph targets (base shape used)".into());
         }
         let pos_acc = prim
@@ -91,6 +96,25 @@ pub(super) fn node_meshes(
             Some(skin) => skin_matrices(&skin, &prim, n, ctx, &at)?,
             None => None,
         };
+        let mut rig = if ctx.rig {
+            Some(MeshRig {
+                mesh: 0,
+                node: node.index() as u32,
+                positions: pos.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+                normals: normals
+                    .as_ref()
+                    .map(|v| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+                    .unwrap_or_default(),
+                vertex_map: Vec::new(),
+                skin: match node.skin() {
+                    Some(skin) => skin_rig(&skin, &prim, n, ctx, &at)?,
+                    None => None,
+                },
+                targets: morph_targets(&prim, n, normals.is_some(), ctx, &at)?,
+            })
+        } else {
+            None
+        };
         let mut m = Mesh {
             name: format!("{name}#{}", prim.index()),
             positions: Vec::with_capacity(n),
@@ -128,9 +152,13 @@ pub(super) fn node_meshes(
             }
         }
         if normals.is_none() {
-            m = flat_shaded(m);
+            let (flat, map) = flat_shaded(m);
+            m = flat;
+            if let Some(r) = rig.as_mut() {
+                r.vertex_map = map;
+            }
         }
-        out.push(m);
+        out.push((m, rig));
     }
     Ok(out)
 }
@@ -238,8 +266,121 @@ fn skin_matrices(
     Ok(Some(out))
 }
 
-/// Unwelds the mesh so every triangle gets its own vertices with the face normal.
-fn flat_shaded(m: Mesh) -> Mesh {
+/// A skin's joints (glTF node indices), inverse bind matrices and per-vertex influences, or `None`
+/// when the primitive carries no joints/weights.
+fn skin_rig(
+    skin: &gltf::Skin,
+    prim: &gltf::Primitive,
+    n: usize,
+    ctx: &NodeContext,
+    at: &str,
+) -> ReadResult<Option<SkinRig>> {
+    let (Some(ja), Some(wa)) = (
+        prim.get(&Semantic::Joints(0)),
+        prim.get(&Semantic::Weights(0)),
+    ) else {
+        return Ok(None);
+    };
+    let (joints, _) = ctx.bufs.read_u32(&ja, &[Dimensions::Vec4], "JOINTS_0")?;
+    let (weights, _) = ctx.bufs.read_f32(&wa, &[Dimensions::Vec4], "WEIGHTS_0")?;
+    if joints.len() != 4 * n || weights.len() != 4 * n {
+        return Err(format!(
+            "{at}: JOINTS_0/WEIGHTS_0 counts differ from POSITION ({n})"
+        ));
+    }
+    let joint_nodes: Vec<u32> = skin.joints().map(|j| j.index() as u32).collect();
+    let inverse_bind: Vec<[f32; 16]> = match skin.inverse_bind_matrices() {
+        Some(acc) => {
+            let (v, _) = ctx
+                .bufs
+                .read_f32(&acc, &[Dimensions::Mat4], "inverseBindMatrices")?;
+            v.chunks_exact(16)
+                .take(joint_nodes.len())
+                .map(|c| std::array::from_fn(|i| c[i]))
+                .collect()
+        }
+        None => vec![Mat4::IDENTITY.to_cols_array(); joint_nodes.len()],
+    };
+    let mut vertex_joints = Vec::with_capacity(n);
+    for (v, j) in joints.chunks_exact(4).enumerate() {
+        let mut out = [0u16; 4];
+        for k in 0..4 {
+            // A zero weight may name any joint; keep it in range.
+            let jk = if weights[4 * v + k] == 0.0 { 0 } else { j[k] };
+            if jk as usize >= joint_nodes.len() {
+                return Err(format!(
+                    "{at}: joint {jk} is out of range (skin has {})",
+                    joint_nodes.len()
+                ));
+            }
+            out[k] = jk as u16;
+        }
+        vertex_joints.push(out);
+    }
+    Ok(Some(SkinRig {
+        joints: joint_nodes,
+        inverse_bind,
+        vertex_joints,
+        vertex_weights: weights
+            .chunks_exact(4)
+            .map(|w| [w[0], w[1], w[2], w[3]])
+            .collect(),
+    }))
+}
+
+/// The primitive's morph targets (position and, where the mesh has normals, normal deltas).
+fn morph_targets(
+    prim: &gltf::Primitive,
+    n: usize,
+    with_normals: bool,
+    ctx: &NodeContext,
+    at: &str,
+) -> ReadResult<Vec<MorphTarget>> {
+    let mut out = Vec::new();
+    for (k, t) in prim.morph_targets().enumerate() {
+        if k >= crate::animation::MAX_TARGETS {
+            return Err(format!(
+                "{at}: more than {} morph targets",
+                crate::animation::MAX_TARGETS
+            ));
+        }
+        let read = |acc: Option<gltf::Accessor>, what: &str| -> ReadResult<Vec<[f32; 3]>> {
+            match acc {
+                None => Ok(Vec::new()),
+                Some(acc) => {
+                    let (v, _) = ctx.bufs.read_f32(&acc, &[Dimensions::Vec3], what)?;
+                    if v.len() != 3 * n {
+                        return Err(format!(
+                            "{at}: morph target {k} {what} has {} of {n} vertices",
+                            v.len() / 3
+                        ));
+                    }
+                    Ok(v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+                }
+            }
+        };
+        let mut positions = read(t.positions(), "POSITION")?;
+        if positions.is_empty() {
+            positions = vec![[0.0; 3]; n];
+        }
+        let normals = if with_normals {
+            let nrm = read(t.normals(), "NORMAL")?;
+            if nrm.is_empty() {
+                vec![[0.0; 3]; n]
+            } else {
+                nrm
+            }
+        } else {
+            Vec::new()
+        };
+        out.push(MorphTarget { positions, normals });
+    }
+    Ok(out)
+}
+
+/// Unwelds the mesh so every triangle gets its own vertices with the face normal; also returns
+/// each new vertex's old index.
+fn flat_shaded(m: Mesh) -> (Mesh, Vec<u32>) {
     let Mesh {
         name,
         positions,
@@ -256,7 +397,9 @@ fn flat_shaded(m: Mesh) -> Mesh {
         indices: Vec::with_capacity(indices.len()),
         material,
     };
+    let mut map = Vec::with_capacity(indices.len());
     for t in indices.chunks_exact(3) {
+        map.extend_from_slice(t);
         let p = [0, 1, 2].map(|k| positions[t[k] as usize]);
         let nrm = normalize(cross(sub(p[1], p[0]), sub(p[2], p[0])));
         for (k, &i) in t.iter().enumerate() {
@@ -268,5 +411,5 @@ fn flat_shaded(m: Mesh) -> Mesh {
             }
         }
     }
-    out
+    (out, map)
 }

@@ -11,6 +11,7 @@
 //! by [`crate::limits`].
 
 mod accessor;
+mod animate;
 mod material;
 mod mesh;
 
@@ -37,6 +38,8 @@ pub struct GltfOptions {
     /// Add a framed camera when the file has none, and a ground plane and area light when it has
     /// no lights ([`crate::framing::complete`]).
     pub complete: bool,
+    /// The animation to play (its name or index); `None`: the first, when there is one.
+    pub animation: Option<String>,
 }
 
 impl Default for GltfOptions {
@@ -45,6 +48,7 @@ impl Default for GltfOptions {
             scale: 1.0,
             translation: [0.0; 3],
             complete: true,
+            animation: None,
         }
     }
 }
@@ -243,11 +247,15 @@ fn convert(
     let mut default_material = None;
     let mut has_camera = false;
 
+    let clip = animate::choose(doc, opts.animation.as_deref())?;
+    let mut mesh_rigs = Vec::new();
+    let mut light_rigs = Vec::new();
     let mut ctx = mesh::NodeContext {
         bufs: &bufs,
         world: &world,
         ignored: &mut ignored,
         triangles: 0,
+        rig: clip.is_some(),
     };
     for node in scene_nodes(doc)? {
         let w = world[node.index()];
@@ -259,10 +267,18 @@ fn convert(
                     scene.materials.len() - 1
                 }),
             };
-            let meshes = mesh::node_meshes(&node, &m, &mut ctx, &mut pick)?;
-            scene.meshes.extend(meshes);
+            for (mesh, rig) in mesh::node_meshes(&node, &m, &mut ctx, &mut pick)? {
+                if let Some(mut rig) = rig {
+                    rig.mesh = scene.meshes.len() as u32;
+                    mesh_rigs.push(rig);
+                }
+                scene.meshes.push(mesh);
+            }
         }
         if let Some(light) = node.light() {
+            if clip.is_some() {
+                light_rigs.push((scene.lights.len() as u32, node.index(), w));
+            }
             scene.lights.push(convert_light(&light, &w));
         }
         if let Some(cam) = node.camera() {
@@ -280,8 +296,18 @@ fn convert(
             }
         }
     }
-    if doc.animations().len() > 0 {
-        ignored.insert("animations (rest pose used)".into());
+    if let Some(clip) = &clip {
+        if doc.animations().len() > 1 {
+            ignored.insert(format!(
+                "animations other than {:?} (choose with `animation`)",
+                clip.name().unwrap_or("the first")
+            ));
+        }
+        let anim = animate::build(doc, clip, &bufs, root, mesh_rigs, light_rigs)?;
+        let vertices: Vec<usize> = scene.meshes.iter().map(|m| m.positions.len()).collect();
+        anim.check(&vertices, scene.lights.len())
+            .map_err(|e| format!("animation {:?}: {e}", anim.name))?;
+        scene.animation = Some(anim);
     }
     if doc.scenes().len() > 1 {
         ignored.insert("scenes other than the default".into());

@@ -63,6 +63,11 @@ pub enum Issue {
     BadQuality {
         problem: &'static str,
     },
+    /// The animation does not fit the scene or holds bad values; it is dropped (the scene stays
+    /// in its rest pose).
+    BadAnimation {
+        problem: String,
+    },
 }
 
 impl fmt::Display for Issue {
@@ -118,6 +123,7 @@ impl fmt::Display for Issue {
             Issue::BadCamera { problem } => write!(f, "camera: {problem}"),
             Issue::BadExposure => write!(f, "exposure is not a positive finite number"),
             Issue::BadQuality { problem } => write!(f, "quality: {problem}"),
+            Issue::BadAnimation { problem } => write!(f, "animation dropped: {problem}"),
         }
     }
 }

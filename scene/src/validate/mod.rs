@@ -26,6 +26,7 @@ impl Scene {
         copy.ambient = self.ambient;
         copy.exposure = self.exposure;
         copy.quality = self.quality;
+        copy.animation = self.animation.clone();
         let mut issues = texture_issues(&self.textures);
         issues.extend(copy.sanitize_without_textures(self.textures.len()));
         ValidationReport { issues }
@@ -78,8 +79,22 @@ impl Scene {
             }
         }
         self.meshes = kept;
-        self.lights
-            .retain_mut(|l| sanitize_light(l, &new_index, &mut issues));
+        let mut light_index = Vec::with_capacity(self.lights.len());
+        let mut next = 0;
+        self.lights.retain_mut(|l| {
+            let keep = sanitize_light(l, &new_index, &mut issues);
+            light_index.push(keep.then_some(next));
+            next += usize::from(keep);
+            keep
+        });
+        if let Some(anim) = &mut self.animation {
+            anim.renumber(&new_index, &light_index);
+            let vertices: Vec<usize> = self.meshes.iter().map(|m| m.positions.len()).collect();
+            if let Err(problem) = anim.check(&vertices, self.lights.len()) {
+                issues.push(Issue::BadAnimation { problem });
+                self.animation = None;
+            }
+        }
         sanitize_camera(&mut self.camera, &mut issues);
         if !(self.exposure.is_finite() && self.exposure > 0.0) {
             issues.push(Issue::BadExposure);
