@@ -29,6 +29,9 @@ fn seconds(what: &str, s: f64) -> anyhow::Result<Duration> {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if let Some(id) = &args.daemon.id {
+        crate::logging::set_daemon(id);
+    }
     let token = lightfold_net::load_token(args.daemon.token_file.as_deref())?;
     let input_timeout = seconds("input-timeout", args.input_timeout)?;
     let dial_timeout = seconds("dial-timeout", args.dial_timeout)?;
@@ -40,11 +43,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let (listener, id) = args.daemon.bind("compositor").await?;
         let local = listener.local_addr()?;
         let advertise = args.daemon.advertise.unwrap_or_else(|| local.to_string());
-        let mut opts = CompositorOptions::new(id, advertise, &token);
+        let mut opts = CompositorOptions::new(id.clone(), advertise, &token);
         opts.input_timeout = input_timeout;
         opts.dial_timeout = dial_timeout;
         opts.compute_threads = usize::from(args.compute_threads);
         let shutdown = crate::lifecycle::shutdown_token(args.daemon.parent_pid);
+        crate::metrics_http::start(&args.daemon.metrics, "compositor", &id, shutdown.clone())
+            .await?;
         daemon::run(listener, opts, shutdown).await
     })
 }

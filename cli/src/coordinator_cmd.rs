@@ -69,6 +69,8 @@ pub struct Args {
     pub parent_pid: Option<u32>,
     #[command(flatten)]
     pub view: ViewArgs,
+    #[command(flatten)]
+    pub metrics: crate::metrics_http::MetricsArgs,
 }
 
 /// The live view (`docs/live-view.md`).
@@ -195,6 +197,10 @@ pub struct JobArgs {
     /// run, instead of the plan in a few lines.
     #[arg(long, short = 'v')]
     pub verbose: bool,
+    /// Write one JSON line per frame here as frames arrive: latency, interval and each daemon's
+    /// phase times (ms), bytes and memory (`docs/operations.md`).
+    #[arg(long, value_name = "FILE")]
+    pub stats: Option<PathBuf>,
 }
 
 impl JobArgs {
@@ -343,6 +349,9 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
         let view = args.view.bind(&token).await?;
         let me = Identity::new(&token, Role::Coordinator, "coordinator");
         let cancel = crate::lifecycle::shutdown_token(args.parent_pid);
+        crate::metrics_http::start(&args.metrics, "coordinator", "coordinator", cancel.clone())
+            .await?;
+        lightfold_ops::health::set_live(true);
         let connect = Session::connect(&daemons, listener, sink_advertise, me, control);
         let session = tokio::select! {
             r = connect => r?,
@@ -390,6 +399,9 @@ pub async fn execute(
         p.create_dir()?;
     }
     let mut report = Report::default();
+    outln!("{}", crate::cluster_ops::adapters(&session, job.verbose));
+    let mut stats = crate::cluster_ops::StatsFile::create(job.stats.as_deref(), start)?;
+    lightfold_ops::health::set_serving(true);
     let mut progress = Progress::new(
         (!serving).then_some(opts.frames),
         std::io::IsTerminal::is_terminal(&std::io::stderr()),
@@ -401,7 +413,9 @@ pub async fn execute(
         scene.exposure,
     );
     let on_frame = |frame: FrameResult| {
-        progress.frame(report.record(&frame));
+        let record = report.record(&frame);
+        stats.frame(&frame, record);
+        progress.frame(record);
         writer.send(frame);
     };
     let outcome = match view {
@@ -421,6 +435,7 @@ pub async fn execute(
         }
     };
     progress.finish();
+    lightfold_ops::health::set_serving(false);
     let written = writer.finish();
     match &outcome.summary.plan {
         Some(plan) if job.verbose => outln!("{plan}"),
@@ -590,7 +605,16 @@ impl Progress {
                     || of.is_some_and(|n| f.frame >= n as u64);
                 if due {
                     *last = Some(std::time::Instant::now());
-                    eprintln!("{}", f.line(*of));
+                    if crate::logging::json() {
+                        tracing::info!(
+                            frame = f.frame,
+                            latency_ms = f.latency_ms,
+                            "{}",
+                            f.line(*of)
+                        );
+                    } else {
+                        eprintln!("{}", f.line(*of));
+                    }
                 }
             }
             Progress::Quiet => {}

@@ -473,6 +473,9 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
     if job.material_own_node {
         cmd.arg("--material-own-node");
     }
+    if let Some(p) = &job.stats {
+        cmd.arg("--stats").arg(p);
+    }
     if let Some(b) = job.frame_budget {
         cmd.arg("--frame-budget").arg(b.to_string());
     }

@@ -28,6 +28,8 @@ pub struct DaemonArgs {
     /// Stop when this process is no longer our parent (set by launchers such as `demo`).
     #[arg(long)]
     pub parent_pid: Option<u32>,
+    #[command(flatten)]
+    pub metrics: crate::metrics_http::MetricsArgs,
 }
 
 impl DaemonArgs {

@@ -6,6 +6,7 @@ use clap::{Parser, Subcommand};
 
 mod accuracy_cmd;
 mod bench_cmd;
+mod cluster_ops;
 mod compare_cmd;
 mod compare_reference;
 mod compositor_cmd;
@@ -13,7 +14,10 @@ mod coordinator_cmd;
 mod defaults_cmd;
 mod demo_cmd;
 mod frames_out;
+mod healthcheck_cmd;
 mod lifecycle;
+mod logging;
+mod metrics_http;
 mod node_cmd;
 mod out;
 mod plan_cmd;
@@ -31,6 +35,16 @@ struct Cli {
     /// Log filter (tracing `EnvFilter` syntax); `RUST_LOG` overrides it.
     #[arg(long, global = true, default_value = "info")]
     log: String,
+    /// Log lines as text (coloured only on a terminal, never with `NO_COLOR` set) or as one JSON
+    /// object per line (for collectors: daemon id, level, message, fields, span fields).
+    #[arg(
+        long,
+        global = true,
+        value_enum,
+        default_value = "text",
+        env = "LIGHTFOLD_LOG_FORMAT"
+    )]
+    log_format: logging::LogFormat,
     #[command(subcommand)]
     command: Command,
 }
@@ -56,6 +70,9 @@ enum Command {
     /// Print the built-in defaults (image size, samples, K, shadow-map size) and the limits every
     /// input is checked against.
     Defaults(defaults_cmd::Args),
+    /// Ask a daemon's `/healthz` (or `/readyz`) on its `--metrics-listen` address; exit 0 on 200
+    /// (a container's `HEALTHCHECK`).
+    Healthcheck(healthcheck_cmd::Args),
     /// Run a render-node daemon.
     Node(node_cmd::Args),
     /// Print the plan for a scene: stages, lights per node, culled lights, shadow passes, bytes.
@@ -77,8 +94,9 @@ enum ClusterCommand {
 }
 
 fn main() -> anyhow::Result<()> {
+    mesa_environment();
     let cli = Cli::parse();
-    init_logging(&cli.log);
+    logging::init(&cli.log, cli.log_format);
     let result = match cli.command {
         Command::Accuracy(args) => accuracy_cmd::run(args),
         Command::Bench(args) => bench_cmd::run(args),
@@ -87,6 +105,7 @@ fn main() -> anyhow::Result<()> {
         Command::Coordinator(args) => coordinator_cmd::run_cmd(args),
         Command::Defaults(args) => defaults_cmd::run(args),
         Command::Demo(args) | Command::Cluster(ClusterCommand::Up(args)) => demo_cmd::run(args),
+        Command::Healthcheck(args) => healthcheck_cmd::run(args),
         Command::Node(args) => node_cmd::run(args),
         Command::Plan(args) => plan_cmd::run(args),
         Command::Render(args) => render_cmd::run(args),
@@ -99,15 +118,32 @@ fn main() -> anyhow::Result<()> {
     {
         out::reader_gone();
     }
+    // A collector reading JSON lines gets the error as one too, not anyhow's text.
+    if let Err(e) = &result
+        && cli.log_format == logging::LogFormat::Json
+    {
+        tracing::error!(error = %format!("{e:#}"), "exiting: {e}");
+        std::process::exit(1);
+    }
     result
 }
 
-fn init_logging(default: &str) {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_target(false)
-        .try_init();
+/// Mesa's device-select Vulkan layer, installed with Debian's Vulkan drivers, complains twice
+/// per process that opens a device ("XDG_RUNTIME_DIR is invalid") when there is no login
+/// session, as for daemons, and reorders devices, where the node ranks adapters itself
+/// (`lightfold_node::gpu::device`). `NODEVICE_SELECT=1` turns the layer off; children (the
+/// demo's daemons) inherit it. Left alone when set, and when `MESA_VK_DEVICE_SELECT` asks the
+/// layer for a device.
+///
+/// `set_var` is `unsafe` in edition 2024 because another thread may read the environment at the
+/// same time; this runs first thing in `main`, when the process has only its main thread (no
+/// runtime, logger or GPU instance exists yet), which is the one sound place for it.
+#[allow(unsafe_code)]
+fn mesa_environment() {
+    if std::env::var_os("NODEVICE_SELECT").is_none()
+        && std::env::var_os("MESA_VK_DEVICE_SELECT").is_none()
+    {
+        // SAFETY: single-threaded here (see above); nothing else touches the environment yet.
+        unsafe { std::env::set_var("NODEVICE_SELECT", "1") };
+    }
 }

@@ -22,9 +22,17 @@ pub struct Args {
     /// Keep received scenes here by content hash, across restarts.
     #[arg(long)]
     pub cache_dir: Option<PathBuf>,
+    /// Refuse to start unless the adapter is a hardware GPU (not lavapipe, llvmpipe or another
+    /// software rasteriser): a GPU node whose driver is missing fails instead of rendering on
+    /// the CPU.
+    #[arg(long, env = "LIGHTFOLD_REQUIRE_GPU")]
+    pub require_gpu: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if let Some(id) = &args.daemon.id {
+        crate::logging::set_daemon(id);
+    }
     let token = lightfold_net::load_token(args.daemon.token_file.as_deref())?;
     let backend = args.backend.as_deref().map(parse_backend).transpose()?;
     let rt = tokio::runtime::Builder::new_multi_thread()
@@ -33,14 +41,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .build()?;
     rt.block_on(async move {
         let (listener, id) = args.daemon.bind("node").await?;
-        let mut opts = NodeOptions::new(id, &token);
+        let mut opts = NodeOptions::new(id.clone(), &token);
         opts.advertise = args.daemon.advertise;
         opts.cache_dir = args.cache_dir;
         opts.gpu = GpuOptions {
             backend,
             adapter_name: args.adapter,
         };
+        opts.require_gpu = args.require_gpu;
         let shutdown = crate::lifecycle::shutdown_token(args.daemon.parent_pid);
+        crate::metrics_http::start(&args.daemon.metrics, "node", &id, shutdown.clone()).await?;
         daemon::run(listener, opts, shutdown).await
     })
 }

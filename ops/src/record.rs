@@ -9,6 +9,7 @@ pub const FRAMES_FAILED: &str = "lightfold_frames_failed_total";
 pub const PHASE_SECONDS: &str = "lightfold_frame_phase_seconds";
 pub const BYTES_IN: &str = "lightfold_bytes_in_total";
 pub const BYTES_OUT: &str = "lightfold_bytes_out_total";
+pub const STALE_BANDS: &str = "lightfold_stale_bands_total";
 pub const BUFFERED_BYTES: &str = "lightfold_buffered_bytes";
 pub const PEAK_RSS_BYTES: &str = "lightfold_peak_rss_bytes";
 pub const ADAPTER_INFO: &str = "lightfold_adapter_info";
@@ -45,6 +46,10 @@ pub fn describe() {
         "bytes received, by kind (bands, scene, sink)"
     );
     describe_counter!(BYTES_OUT, Unit::Bytes, "bytes sent downstream (bands)");
+    describe_counter!(
+        STALE_BANDS,
+        "bands dropped as belonging to an older plan epoch or an abandoned frame"
+    );
     describe_gauge!(
         BUFFERED_BYTES,
         Unit::Bytes,
@@ -143,6 +148,10 @@ pub fn frame_failed(reason: &'static str) {
 /// `sink` (the coordinator's final bands).
 pub fn bytes_in(kind: &'static str, n: u64) {
     metrics::counter!(BYTES_IN, "kind" => kind).increment(n);
+}
+
+pub fn stale_band() {
+    metrics::counter!(STALE_BANDS).increment(1);
 }
 
 pub fn buffered_bytes(n: u64) {

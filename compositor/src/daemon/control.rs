@@ -186,8 +186,18 @@ impl ControlHub {
                 }
             }
         }
+        // Registered; ready (`/readyz`) once this link has configured the stage.
+        let mut registered = lightfold_ops::health::ControlLink::open();
         let write = async {
             while let Some(msg) = rx.recv().await {
+                match &msg {
+                    Message::FrameDone(stats) => lightfold_ops::record::frame_done(stats),
+                    Message::Configured { epoch } => {
+                        registered.configured();
+                        lightfold_ops::record::plan_epoch(*epoch);
+                    }
+                    _ => {}
+                }
                 if let Err(e) = writer.send_msg(msg).await {
                     tracing::warn!(%addr, "control write failed: {e}");
                     return;

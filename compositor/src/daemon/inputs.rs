@@ -418,6 +418,7 @@ async fn pump(
                 Err(_) => return,
             },
         };
+        lightfold_ops::record::bytes_in("bands", payload.len() as u64);
         let band = InBand {
             header,
             _held: metrics.hold(payload.len() as u64),

@@ -1,6 +1,6 @@
 //! Counters a running stage exposes: bytes it holds (input queues, bands being combined, the output
 //! queue) with their peak, and frame outcomes. Tests read them to prove memory stays bounded under
-//! backpressure; the CLI could export them as metrics.
+//! backpressure; they are also recorded as the daemon's metrics (`lightfold_ops::record`).
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -61,6 +61,7 @@ impl StageMetrics {
     pub(crate) fn hold(self: &Arc<Self>, bytes: u64) -> Held {
         let now = self.buffered.fetch_add(bytes, Ordering::Relaxed) + bytes;
         self.peak_buffered.fetch_max(now, Ordering::Relaxed);
+        lightfold_ops::record::buffered_bytes(now);
         Held {
             bytes,
             metrics: Arc::clone(self),
@@ -73,10 +74,12 @@ impl StageMetrics {
 
     pub(crate) fn frame_failed(&self) {
         self.frames_failed.fetch_add(1, Ordering::Relaxed);
+        lightfold_ops::record::frame_failed("abandoned");
     }
 
     pub(crate) fn stale_band(&self) {
         self.stale_bands.fetch_add(1, Ordering::Relaxed);
+        lightfold_ops::record::stale_band();
     }
 
     pub(crate) fn mismatch(&self) {
@@ -93,9 +96,11 @@ pub(crate) struct Held {
 
 impl Drop for Held {
     fn drop(&mut self) {
-        self.metrics
+        let before = self
+            .metrics
             .buffered
             .fetch_sub(self.bytes, Ordering::Relaxed);
+        lightfold_ops::record::buffered_bytes(before.saturating_sub(self.bytes));
     }
 }
 

@@ -151,6 +151,7 @@ pub async fn run(
         shutdown.clone(),
     ));
     tracing::info!(id = %opts.daemon_id, addr = ?listener.local_addr().ok(), "compositor listening");
+    lightfold_ops::health::set_live(true);
     let gate = lightfold_net::gate::Gate::new(lightfold_net::gate::MAX_HANDSHAKES);
 
     loop {
@@ -189,6 +190,7 @@ pub async fn run(
             }
         }
     }
+    lightfold_ops::health::set_live(false);
     drop(listener);
     tracker.close();
     if tokio::time::timeout(SHUTDOWN_GRACE, tracker.wait())

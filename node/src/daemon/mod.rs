@@ -46,6 +46,9 @@ pub struct NodeOptions {
     pub max_scene_bytes: u64,
     /// How long the data link keeps dialling a compositor that is not up yet.
     pub dial_deadline: Duration,
+    /// Refuse to start on a software rasteriser (lavapipe, llvmpipe): a GPU node whose driver
+    /// is missing fails instead of rendering on the CPU.
+    pub require_gpu: bool,
 }
 
 impl std::fmt::Debug for NodeOptions {
@@ -58,6 +61,7 @@ impl std::fmt::Debug for NodeOptions {
             .field("cache_dir", &self.cache_dir)
             .field("max_scene_bytes", &self.max_scene_bytes)
             .field("dial_deadline", &self.dial_deadline)
+            .field("require_gpu", &self.require_gpu)
             .finish_non_exhaustive()
     }
 }
@@ -74,6 +78,7 @@ impl NodeOptions {
             cache_dir: None,
             max_scene_bytes: lightfold_scene::MAX_SCENE_BYTES as u64,
             dial_deadline: Duration::from_secs(30),
+            require_gpu: false,
         }
     }
 }
@@ -108,11 +113,29 @@ pub async fn run(
     let local = listener.local_addr()?;
     let advertise = opts.advertise.clone().unwrap_or_else(|| local.to_string());
     let (render, report) = RenderHandle::start(opts.gpu.clone()).await?;
+    if report.software && opts.require_gpu {
+        render.stop().await;
+        anyhow::bail!(
+            "--require-gpu: the only usable adapter is {:?} ({}), a software rasteriser; no \
+             hardware GPU was found (is its Vulkan driver installed and the device visible to \
+             this process? `vulkaninfo --summary` lists what the loader sees)",
+            report.adapter,
+            report.backend
+        );
+    }
+    if report.software {
+        tracing::warn!(
+            adapter = %report.adapter, backend = %report.backend,
+            "rendering on a software rasteriser (the CPU), not a GPU"
+        );
+    }
+    lightfold_ops::record::adapter(&report.adapter, &report.backend, report.software);
     let caps = capabilities(&opts, advertise, &report);
     tracing::info!(
         id = %opts.daemon_id, %local, adapter = %caps.adapter, backend = %caps.backend,
-        max_lights = caps.max_lights, "render node ready"
+        software = report.software, max_lights = caps.max_lights, "render node ready"
     );
+    lightfold_ops::health::set_live(true);
     let me = Identity {
         token: opts.token.clone(),
         role: Role::Node,
@@ -181,6 +204,7 @@ pub async fn run(
             }
         });
     }
+    lightfold_ops::health::set_live(false);
     tracker.close();
     tracker.wait().await;
     drop(listener);

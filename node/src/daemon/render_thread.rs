@@ -27,6 +27,8 @@ const QUEUE: usize = 4;
 pub struct DeviceReport {
     pub adapter: String,
     pub backend: String,
+    /// The adapter renders in software (lavapipe, llvmpipe, `DeviceType::Cpu`).
+    pub software: bool,
     pub limits: wgpu::Limits,
     pub calibration: Calibration,
 }
@@ -161,6 +163,10 @@ fn thread_main(
     let report = DeviceReport {
         adapter: gpu.info.name.clone(),
         backend: format!("{:?}", gpu.info.backend).to_lowercase(),
+        software: lightfold_ops::is_software_rasteriser(
+            &gpu.info.name,
+            gpu.info.device_type == wgpu::DeviceType::Cpu,
+        ),
         limits: gpu.limits.clone(),
         calibration,
     };

@@ -19,11 +19,14 @@
 use super::engine::Engine;
 use lightfold_net::claim::{Claims, FAREWELL, Ticket};
 use lightfold_net::{Link, LinkReader, LinkWriter};
+use lightfold_ops::health::ControlLink;
+use lightfold_ops::record;
 use lightfold_protocol::frame::Frame;
 use lightfold_protocol::{Capabilities, ErrorCode, Message, Role};
 use std::sync::Arc;
 use tokio::sync::{Mutex, mpsc, watch};
 use tokio_util::sync::CancellationToken;
+use tracing::Instrument;
 
 /// Requests waiting for the worker. When this many are queued the reader stops reading (and
 /// answering pings) until the worker catches up: a coordinator waits for its answers long before.
@@ -70,6 +73,8 @@ pub async fn serve(
         return Ended::Left;
     }
     tracing::info!(%addr, %peer, "coordinator connected");
+    // Registered from here; ready (`/readyz`) once this link has configured the node.
+    let mut registered = ControlLink::open();
     let first = tokio::select! {
         _ = stop.cancelled() => return Ended::Cancelled,
         f = reader.next() => f,
@@ -110,7 +115,16 @@ pub async fn serve(
         }
         None => Some(first),
     };
-    let (ended, farewell) = run(&mut reader, &mut writer, first, &engine, &ticket, &stop).await;
+    let (ended, farewell) = run(
+        &mut reader,
+        &mut writer,
+        first,
+        &engine,
+        &ticket,
+        &stop,
+        &mut registered,
+    )
+    .await;
     if let Some(msg) = farewell {
         let _ = tokio::time::timeout(FAREWELL, writer.send_msg(msg)).await;
     }
@@ -129,13 +143,14 @@ async fn run(
     engine: &Mutex<Engine>,
     ticket: &Ticket,
     stop: &CancellationToken,
+    registered: &mut ControlLink,
 ) -> (Ended, Option<Message>) {
     let (out, replies) = mpsc::channel(REPLIES);
     let (queue, requests) = mpsc::channel(REQUESTS);
     let (fence, fence_rx) = watch::channel(0u64);
     let read = read(reader, first, &out, &queue, &fence);
     let work = work(engine, requests, fence_rx, out.clone());
-    let write = write(writer, replies);
+    let write = write(writer, replies, registered);
     tokio::select! {
         _ = stop.cancelled() => (Ended::Cancelled, None),
         farewell = ticket.revoked() => (Ended::Left, farewell),
@@ -225,6 +240,7 @@ async fn work(
                 params,
             } => {
                 if *fence.borrow() > seen {
+                    record::frame_failed("preempted");
                     tracing::info!(
                         frame,
                         epoch,
@@ -238,11 +254,19 @@ async fn work(
                 let done = tokio::select! {
                     biased;
                     () = preempted(&mut fence, seen) => None,
-                    a = engine.render_frame(epoch, frame, camera, params) => Some(a),
+                    a = engine
+                        .render_frame(epoch, frame, camera, params)
+                        .instrument(tracing::info_span!("frame", epoch, frame)) => Some(a),
                 };
                 match done {
-                    Some(answer) => answer,
+                    Some(answer) => {
+                        if matches!(answer, Message::Error { .. }) {
+                            record::frame_failed("refused");
+                        }
+                        answer
+                    }
                     None => {
+                        record::frame_failed("preempted");
                         engine.abandon();
                         tracing::info!(
                             frame,
@@ -272,9 +296,21 @@ async fn preempted(fence: &mut watch::Receiver<u64>, seen: u64) {
     }
 }
 
-/// Writes replies in order.
-async fn write(writer: &mut LinkWriter, mut replies: mpsc::Receiver<Message>) {
+/// Writes replies in order, and counts what they report (frames done, configurations applied).
+async fn write(
+    writer: &mut LinkWriter,
+    mut replies: mpsc::Receiver<Message>,
+    registered: &mut ControlLink,
+) {
     while let Some(msg) = replies.recv().await {
+        match &msg {
+            Message::FrameDone(stats) => record::frame_done(stats),
+            Message::Configured { epoch } => {
+                registered.configured();
+                record::plan_epoch(*epoch);
+            }
+            _ => {}
+        }
         if let Err(e) = writer.send_msg(msg).await {
             tracing::warn!(addr = %writer.addr, error = %e, "cannot answer the coordinator");
             return;
@@ -291,7 +327,10 @@ async fn handle(engine: &Mutex<Engine>, msg: Message) -> Option<Message> {
             offset,
             data,
             last,
-        } => engine.scene_chunk(hash, offset, data, last).await,
+        } => {
+            record::bytes_in("scene", data.len() as u64);
+            engine.scene_chunk(hash, offset, data, last).await
+        }
         Message::ConfigureNode(config) => Some(engine.configure(config).await),
         other => {
             let name = format!("{other:?}");

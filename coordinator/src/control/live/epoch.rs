@@ -238,6 +238,10 @@ impl Live<'_> {
             "plan epoch configured ({reason})"
         );
         self.summary.epochs.push(record);
+        lightfold_ops::record::plan_epoch(next.epoch);
+        if self.summary.epochs.len() > 1 {
+            lightfold_ops::record::replanned();
+        }
         self.participants = next
             .stages
             .iter()

@@ -506,6 +506,7 @@ impl<'s> Live<'s> {
     fn on_join(&mut self, j: Joined) {
         let id = j.caps.daemon_id.clone();
         tracing::info!(daemon = %id, address = %j.entry.address, "rejoined");
+        lightfold_ops::record::daemon_rejoined();
         self.session.admit(j);
         self.lost.remove(&id);
         self.summary.incidents.push(Incident {
@@ -532,6 +533,7 @@ impl<'s> Live<'s> {
             return;
         }
         tracing::warn!(daemon = %id, address = %d.address, in_plan = used, "lost: {reason}");
+        lightfold_ops::record::daemon_lost();
         self.summary.incidents.push(Incident {
             daemon: id.to_string(),
             kind: IncidentKind::Lost {

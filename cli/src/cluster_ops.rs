@@ -1,0 +1,184 @@
+//! What the coordinator tells its operator about the cluster it drives: the adapter every node
+//! renders on (a warning when one renders in software), the cluster's metrics, and one JSON line
+//! per frame (`--stats FILE`).
+
+use anyhow::Context;
+use lightfold_coordinator::control::{FrameResult, Session};
+use lightfold_coordinator::report::FrameRecord;
+use lightfold_protocol::{Capabilities, Role};
+use std::io::Write;
+use std::path::Path;
+use std::time::Instant;
+
+/// Whether a registered node renders on a software rasteriser. Nodes report only the adapter's
+/// name, which names every software rasteriser wgpu can land on (`lightfold_ops::adapter`).
+pub fn is_software(caps: &Capabilities) -> bool {
+    caps.role == Role::Node && lightfold_ops::is_software_rasteriser(&caps.adapter, false)
+}
+
+/// The nodes' adapters: a table with `verbose`, else one line per kind of adapter; then a
+/// warning when any node renders on the CPU. Also sets the `lightfold_daemons` gauges.
+pub fn adapters(session: &Session, verbose: bool) -> String {
+    let nodes: Vec<&Capabilities> = session
+        .daemons
+        .values()
+        .map(|d| &d.caps)
+        .filter(|c| c.role == Role::Node)
+        .collect();
+    let compositors = session.daemons.len() - nodes.len();
+    let software = nodes.iter().filter(|c| is_software(c)).count();
+    lightfold_ops::record::daemons("node", true, software);
+    lightfold_ops::record::daemons("node", false, nodes.len() - software);
+    lightfold_ops::record::daemons("compositor", false, compositors);
+    let mut out = String::new();
+    if verbose {
+        let mut t = comfy_table::Table::new();
+        t.load_style(comfy_table::presets::NOTHING);
+        t.set_header(["node", "adapter", "backend", "renders on", "threads"]);
+        for c in &nodes {
+            let on = if is_software(c) {
+                "CPU (software)"
+            } else {
+                "GPU"
+            };
+            t.add_row([
+                c.daemon_id.clone(),
+                c.adapter.clone(),
+                c.backend.clone(),
+                on.to_string(),
+                c.threads.to_string(),
+            ]);
+        }
+        out.push_str(&format!("adapters:\n{t}"));
+    } else {
+        // One line per kind of adapter, most common first.
+        let mut kinds: Vec<((&str, &str), usize)> = Vec::new();
+        for c in &nodes {
+            let k = (c.adapter.as_str(), c.backend.as_str());
+            match kinds.iter_mut().find(|(x, _)| *x == k) {
+                Some((_, n)) => *n += 1,
+                None => kinds.push((k, 1)),
+            }
+        }
+        kinds.sort_by_key(|k| std::cmp::Reverse(k.1));
+        let parts: Vec<String> = kinds
+            .iter()
+            .map(|((adapter, backend), n)| format!("{n} × {adapter} ({backend})"))
+            .collect();
+        out.push_str(&format!("adapters: {}", parts.join(", ")));
+    }
+    if software > 0 {
+        let names: Vec<&str> = nodes
+            .iter()
+            .filter(|c| is_software(c))
+            .map(|c| c.daemon_id.as_str())
+            .collect();
+        let who = if software == nodes.len() {
+            format!("all {software} node(s)")
+        } else {
+            format!(
+                "{software} of {} node(s) ({})",
+                nodes.len(),
+                names.join(", ")
+            )
+        };
+        tracing::warn!(nodes = %names.join(","), "{who} render on a software rasteriser");
+        out.push_str(&format!(
+            "\nwarning: {who} render on a software rasteriser (the CPU), not a GPU: install the \
+             GPU's Vulkan driver where one is meant to be used, or start nodes with \
+             --require-gpu to refuse this"
+        ));
+    }
+    out
+}
+
+/// `--stats FILE`: one JSON object per frame, flushed as each frame arrives (so a run that is
+/// stopped keeps every frame it finished).
+pub struct StatsFile {
+    out: Option<std::io::BufWriter<std::fs::File>>,
+    start: Instant,
+    path: String,
+}
+
+impl StatsFile {
+    pub fn create(path: Option<&Path>, start: Instant) -> anyhow::Result<StatsFile> {
+        let out = match path {
+            Some(p) => Some(std::io::BufWriter::new(
+                std::fs::File::create(p)
+                    .with_context(|| format!("cannot create --stats {}", p.display()))?,
+            )),
+            None => None,
+        };
+        Ok(StatsFile {
+            out,
+            start,
+            path: path.map(|p| p.display().to_string()).unwrap_or_default(),
+        })
+    }
+
+    /// Records a frame in the metrics and, with `--stats`, as a line. A write error is logged
+    /// once and ends the file, not the run.
+    pub fn frame(&mut self, r: &FrameResult, rec: &FrameRecord) {
+        let latency = r.received_at.saturating_duration_since(r.requested_at);
+        lightfold_ops::record::frame_delivered(latency, r.sink_bytes, &r.stats);
+        let Some(out) = &mut self.out else {
+            return;
+        };
+        let line = frame_line(r, rec, self.start);
+        let written = serde_json::to_writer(&mut *out, &line)
+            .map_err(std::io::Error::other)
+            .and_then(|()| out.write_all(b"\n"))
+            .and_then(|()| out.flush());
+        if let Err(e) = written {
+            tracing::warn!(
+                "cannot write --stats {}: {e}; no more frames go there",
+                self.path
+            );
+            self.out = None;
+        }
+    }
+}
+
+fn ms(us: u64) -> f64 {
+    us as f64 / 1e3
+}
+
+/// One frame as a JSON object (field names carry their units).
+pub fn frame_line(r: &FrameResult, rec: &FrameRecord, start: Instant) -> serde_json::Value {
+    let daemons: Vec<serde_json::Value> = rec
+        .stats
+        .iter()
+        .map(|s| {
+            serde_json::json!({
+                "daemon": s.daemon_id,
+                "shadow_ms": ms(s.shadow_us),
+                "eye_ms": ms(s.eye_us),
+                "readback_ms": ms(s.readback_us),
+                "pack_ms": ms(s.pack_us),
+                "send_ms": ms(s.send_us),
+                "composite_ms": ms(s.composite_us),
+                "total_ms": ms(s.total_us),
+                "shadow_passes": s.shadow_passes,
+                "lights": s.lights_rendered.len(),
+                "bytes_out": s.bytes_out,
+                "empty_bands": s.empty_bands,
+                "saturated": s.saturated,
+                "peak_rss_bytes": s.peak_rss_bytes,
+            })
+        })
+        .collect();
+    serde_json::json!({
+        "frame": rec.frame,
+        "wire_frame": r.wire_frame,
+        "epoch": r.epoch,
+        "requested_s": r.requested_at.saturating_duration_since(start).as_secs_f64(),
+        "received_s": r.received_at.saturating_duration_since(start).as_secs_f64(),
+        "latency_ms": rec.latency_ms,
+        "interval_ms": rec.interval_ms,
+        "latency_frames": rec.latency_frames,
+        "sink_bytes": rec.sink_bytes,
+        "width": r.image.width,
+        "height": r.image.height,
+        "daemons": daemons,
+    })
+}

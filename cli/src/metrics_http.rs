@@ -1,0 +1,233 @@
+//! What a daemon shows its operator over HTTP, on a listener of its own (`--metrics-listen`):
+//! Prometheus text at `/metrics`, `/healthz` (live: the daemon's runtime answers and its service
+//! loop runs) and `/readyz` (ready: registered and configured by a coordinator, or serving) —
+//! and the same states to systemd (`sd_notify`: `READY=1`, watchdog pings, `STOPPING=1`).
+//!
+//! The server runs on the daemon's own runtime, so a wedged runtime fails its liveness probe. It
+//! reads no request body, answers GET only, and holds at most `MAX_CONNECTIONS` at once, each
+//! with a deadline on its request header.
+
+use anyhow::Context;
+use axum::http::{StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use axum::routing::get;
+use hyper::body::Incoming;
+use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
+use hyper_util::server::conn::auto::Builder;
+use hyper_util::service::TowerToHyperService;
+use lightfold_ops::health;
+use metrics_exporter_prometheus::{Matcher, PrometheusBuilder, PrometheusHandle};
+use std::io::Write;
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio_util::sync::CancellationToken;
+use tower::Service;
+
+/// Scrapes served at once; more connections are closed unread.
+const MAX_CONNECTIONS: usize = 16;
+/// A request's header must arrive within this.
+const HEADER_TIMEOUT: Duration = Duration::from_secs(5);
+/// A connection is closed after this, whatever it is doing.
+const CONNECTION_LIFETIME: Duration = Duration::from_secs(30);
+/// Histogram buckets of every `_seconds` metric: 1 ms to 60 s (frames here take 50 ms–2 s on a
+/// software rasteriser, a few ms on a GPU).
+const BUCKETS: &[f64] = &[
+    0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0,
+];
+/// How often histograms are drained and idle series aged when nobody scrapes.
+const UPKEEP_EVERY: Duration = Duration::from_secs(5);
+
+/// The `--metrics-listen` flag every daemon takes.
+#[derive(Debug, Clone, clap::Args)]
+pub struct MetricsArgs {
+    /// Serve `/metrics` (Prometheus text), `/healthz` and `/readyz` on this address, e.g.
+    /// `127.0.0.1:9300` (port 0: any; the address is printed as `metrics <addr>` on stdout).
+    /// Off by default.
+    #[arg(long, value_name = "ADDR", env = "LIGHTFOLD_METRICS_LISTEN")]
+    pub metrics_listen: Option<String>,
+}
+
+/// Installs the exporter as this process's recorder, labelling every series with `role` and
+/// `daemon`. Call once, before the daemon records anything.
+pub fn install(role: &str, daemon: &str) -> anyhow::Result<PrometheusHandle> {
+    let recorder = PrometheusBuilder::new()
+        .add_global_label("role", role)
+        .add_global_label("daemon", daemon)
+        .set_buckets_for_metric(Matcher::Suffix("_seconds".into()), BUCKETS)
+        .context("histogram buckets")?
+        .build_recorder();
+    let handle = recorder.handle();
+    metrics::set_global_recorder(recorder)
+        .map_err(|e| anyhow::anyhow!("cannot install the metrics recorder: {e}"))?;
+    lightfold_ops::record::describe();
+    Ok(handle)
+}
+
+/// Starts what `args` asks for on the current runtime: with `--metrics-listen`, the exporter and
+/// the server (printing `metrics <addr>` on stdout once bound); in any case the systemd
+/// notifications. Everything stops with `stop`.
+pub async fn start(
+    args: &MetricsArgs,
+    role: &str,
+    daemon: &str,
+    stop: CancellationToken,
+) -> anyhow::Result<Option<SocketAddr>> {
+    crate::logging::set_daemon(daemon);
+    tokio::spawn(systemd(stop.clone()));
+    let Some(listen) = &args.metrics_listen else {
+        return Ok(None);
+    };
+    let handle = install(role, daemon)?;
+    let listener = tokio::net::TcpListener::bind(listen)
+        .await
+        .with_context(|| format!("cannot listen for metrics on {listen}"))?;
+    let local = listener.local_addr()?;
+    {
+        let mut out = std::io::stdout().lock();
+        writeln!(out, "metrics {local}")?;
+        out.flush()?;
+    }
+    tracing::info!(%local, "serving /metrics, /healthz and /readyz");
+    let upkeep = handle.clone();
+    let s = stop.clone();
+    tokio::spawn(async move {
+        loop {
+            tokio::select! {
+                _ = s.cancelled() => return,
+                _ = tokio::time::sleep(UPKEEP_EVERY) => upkeep.run_upkeep(),
+            }
+        }
+    });
+    tokio::spawn(serve(listener, handle, stop));
+    Ok(Some(local))
+}
+
+/// Tells systemd (when it started us with `NOTIFY_SOCKET`) that the daemon is ready once its
+/// service loop runs, pings the watchdog at half its period from this runtime, and says
+/// `STOPPING=1` on the way out. Without systemd every call is a no-op.
+async fn systemd(stop: CancellationToken) {
+    if std::env::var_os("NOTIFY_SOCKET").is_none() {
+        return;
+    }
+    while !health::is_live() {
+        tokio::select! {
+            _ = stop.cancelled() => return,
+            _ = tokio::time::sleep(Duration::from_millis(100)) => {}
+        }
+    }
+    if let Err(e) = sd_notify::notify(&[sd_notify::NotifyState::Ready]) {
+        tracing::warn!("cannot tell systemd the daemon is ready: {e}");
+    }
+    let period = sd_notify::watchdog_enabled().map(|d| (d / 2).max(Duration::from_millis(100)));
+    loop {
+        let tick = async {
+            match period {
+                Some(p) => tokio::time::sleep(p).await,
+                None => std::future::pending().await,
+            }
+        };
+        tokio::select! {
+            _ = stop.cancelled() => break,
+            _ = tick => {
+                let _ = sd_notify::notify(&[sd_notify::NotifyState::Watchdog]);
+            }
+        }
+    }
+    let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
+}
+
+/// Accepts scrapes until `stop`.
+pub async fn serve(
+    listener: tokio::net::TcpListener,
+    handle: PrometheusHandle,
+    stop: CancellationToken,
+) {
+    let app = router(handle);
+    let slots = Arc::new(tokio::sync::Semaphore::new(MAX_CONNECTIONS));
+    loop {
+        let (stream, peer) = tokio::select! {
+            _ = stop.cancelled() => return,
+            r = listener.accept() => match r {
+                Ok(x) => x,
+                Err(e) => {
+                    tracing::warn!("the metrics listener cannot accept: {e}");
+                    tokio::time::sleep(Duration::from_millis(100)).await;
+                    continue;
+                }
+            },
+        };
+        let Ok(permit) = Arc::clone(&slots).try_acquire_owned() else {
+            tracing::debug!(%peer, "{MAX_CONNECTIONS} scrapes open: refused");
+            continue;
+        };
+        let app = app.clone();
+        let stop = stop.clone();
+        tokio::spawn(async move {
+            let _permit = permit;
+            let service = tower::service_fn(move |req: axum::extract::Request<Incoming>| {
+                let mut app = app.clone();
+                async move { app.call(req.map(axum::body::Body::new)).await }
+            });
+            let mut builder = Builder::new(TokioExecutor::new());
+            builder
+                .http1()
+                .timer(TokioTimer::new())
+                .header_read_timeout(HEADER_TIMEOUT);
+            let conn =
+                builder.serve_connection(TokioIo::new(stream), TowerToHyperService::new(service));
+            tokio::select! {
+                r = tokio::time::timeout(CONNECTION_LIFETIME, conn) => match r {
+                    Ok(Err(e)) => tracing::debug!(%peer, "metrics connection ended: {e}"),
+                    Err(_) => tracing::debug!(%peer, "metrics connection closed after {CONNECTION_LIFETIME:?}"),
+                    Ok(Ok(())) => {}
+                },
+                _ = stop.cancelled() => {}
+            }
+        });
+    }
+}
+
+fn router(handle: PrometheusHandle) -> axum::Router {
+    axum::Router::new()
+        .route(
+            "/metrics",
+            get(move || {
+                let handle = handle.clone();
+                async move { metrics_text(&handle) }
+            }),
+        )
+        .route("/healthz", get(|| async { healthz() }))
+        .route("/readyz", get(|| async { readyz() }))
+}
+
+fn metrics_text(handle: &PrometheusHandle) -> Response {
+    lightfold_ops::record::peak_rss_bytes(lightfold_compositor::daemon::peak_rss_bytes());
+    lightfold_ops::record::ready(health::readiness().ready);
+    (
+        [(
+            header::CONTENT_TYPE,
+            "text/plain; version=0.0.4; charset=utf-8",
+        )],
+        handle.render(),
+    )
+        .into_response()
+}
+
+fn healthz() -> Response {
+    if health::is_live() {
+        (StatusCode::OK, "ok\n").into_response()
+    } else {
+        (StatusCode::SERVICE_UNAVAILABLE, "starting\n").into_response()
+    }
+}
+
+fn readyz() -> Response {
+    let r = health::readiness();
+    let code = if r.ready {
+        StatusCode::OK
+    } else {
+        StatusCode::SERVICE_UNAVAILABLE
+    };
+    (code, format!("{}\n", r.why)).into_response()
+}
