@@ -340,6 +340,7 @@ async fn measure(
             params: FrameParams {
                 colors: Vec::new(),
                 scale: None,
+                time: None,
             },
         };
         let m = expect(&mut link, msg, wait, |m| matches!(m, Message::FrameDone(_))).await?;

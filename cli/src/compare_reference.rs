@@ -6,23 +6,17 @@ use anyhow::Context;
 use lightfold_reference::masks::penumbra_mask;
 use lightfold_reference::metrics::compare;
 use lightfold_reference::point_sum::{PointSumOptions, render_point_sum_with};
-use lightfold_scene::{Image, Scene};
+use lightfold_scene::{Image, LightSample, Scene};
 use std::path::Path;
 use std::time::Instant;
 
 /// Renders the reference for `scene` and prints the metrics of the image in `exr` against it.
-pub fn report(scene: &Scene, exr: &Path) -> anyhow::Result<()> {
+pub fn report(scene: &Scene, samples: &[LightSample], exr: &Path) -> anyhow::Result<()> {
     let test = Image::read_exr(exr).with_context(|| format!("cannot read {}", exr.display()))?;
     let t = Instant::now();
-    let samples = lightfold_scene::sampling::scene_samples(scene);
     let shadowed =
-        render_point_sum_with(scene, &samples, [1.0; 3], PointSumOptions { shadows: true });
-    let open = render_point_sum_with(
-        scene,
-        &samples,
-        [1.0; 3],
-        PointSumOptions { shadows: false },
-    );
+        render_point_sum_with(scene, samples, [1.0; 3], PointSumOptions { shadows: true });
+    let open = render_point_sum_with(scene, samples, [1.0; 3], PointSumOptions { shadows: false });
     let reference = shadowed.radiance([1.0; 3], scene.ambient);
     let unoccluded = open.radiance([1.0; 3], scene.ambient);
     let mask = penumbra_mask(&reference, &unoccluded, &shadowed.depth, &shadowed.coverage);

@@ -147,6 +147,14 @@ pub struct JobArgs {
     /// Orbit the camera by this many degrees per frame (a camera path).
     #[arg(long)]
     pub orbit: Option<f32>,
+    /// Scene time of the first frame in seconds: an animated scene (glTF clip, scene-file
+    /// motions) is posed at it (default: its rest pose; 0 with `--fps`).
+    #[arg(long, value_parser = crate::coordinator_cmd::finite_seconds)]
+    pub time: Option<f32>,
+    /// Animation frames per second: frame i is at `--time` + i / fps, so the scene moves with
+    /// the frames.
+    #[arg(long, value_parser = crate::coordinator_cmd::positive_fps)]
+    pub fps: Option<f32>,
     /// Keep shadow maps between frames (static lights and geometry).
     #[arg(long)]
     pub walkthrough: bool,
@@ -265,6 +273,24 @@ impl JobArgs {
     }
 }
 
+/// A scene time in seconds: any finite number (`--time`).
+pub fn finite_seconds(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(t) if t.is_finite() => Ok(t),
+        _ => Err(format!("{s:?} is not a finite number of seconds")),
+    }
+}
+
+/// Frames per second: finite and positive (`--fps`).
+pub fn positive_fps(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(f) if f.is_finite() && f > 0.0 => Ok(f),
+        _ => Err(format!(
+            "{s:?} is not a positive number of frames per second"
+        )),
+    }
+}
+
 /// A duration in milliseconds that must be finite and positive (`--frame-budget`).
 pub fn positive_ms(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
@@ -345,6 +371,8 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
             path: args.job.path(),
             color_changes: Vec::new(),
             control,
+            time: args.job.time,
+            fps: args.job.fps,
         };
         let view = args.view.bind(&token).await?;
         let me = Identity::new(&token, Role::Coordinator, "coordinator");

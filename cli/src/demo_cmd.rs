@@ -359,11 +359,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !args.no_compare {
         // The image written is the last frame's: on a camera path, compare it with the
         // reference seen from that frame's camera.
-        let mut last = scene.clone();
+        // On an animation, the scene posed at that frame's time.
         let frames = args.job.frames.max(1);
+        let clock = lightfold_coordinator::run::RunOptions {
+            time: args.job.time,
+            fps: args.job.fps,
+            ..Default::default()
+        };
+        let (mut last, samples) = match clock.time_of(frames - 1) {
+            Some(t) => (scene.still_at(t), scene.samples_at(t)),
+            None => (
+                scene.clone(),
+                lightfold_scene::sampling::scene_samples(&scene),
+            ),
+        };
         last.camera =
             lightfold_coordinator::run::camera_at(&scene.camera, args.job.path(), frames - 1);
-        crate::compare_reference::report(&last, &args.job.exr)?;
+        crate::compare_reference::report(&last, &samples, &args.job.exr)?;
     }
     Ok(())
 }
@@ -460,6 +472,12 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
         .arg(job.frames_in_flight.to_string());
     if let Some(o) = job.orbit {
         cmd.arg("--orbit").arg(o.to_string());
+    }
+    if let Some(t) = job.time {
+        cmd.arg("--time").arg(t.to_string());
+    }
+    if let Some(f) = job.fps {
+        cmd.arg("--fps").arg(f.to_string());
     }
     if job.walkthrough {
         cmd.arg("--walkthrough");

@@ -78,6 +78,10 @@ pub struct Args {
     /// Also write eye depth (EXR, 0 = background), for `compare --depth`.
     #[arg(long)]
     pub depth_out: Option<PathBuf>,
+    /// Scene time in seconds: an animated scene (glTF clip, scene-file motions) is posed at it
+    /// (default: its rest pose).
+    #[arg(long, value_parser = crate::coordinator_cmd::finite_seconds)]
+    pub time: Option<f32>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -107,6 +111,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("{}: {e} (see `lightfold defaults`)", args.scene))?;
     let (mode, samples) = match args.area_truth {
         Some(spp) => {
+            if let Some(t) = args.time {
+                scene = scene.still_at(t);
+            }
             if !args.lights.is_empty() {
                 scene = retain_lights(&scene, &args.lights)?;
             }
@@ -118,7 +125,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             (ReferenceMode::AreaTruth(opts), Vec::new())
         }
         None => {
-            let all = scene_samples(&scene);
+            let all = match args.time {
+                Some(t) => {
+                    let all = scene.samples_at(t);
+                    scene = scene.still_at(t);
+                    all
+                }
+                None => scene_samples(&scene),
+            };
             let samples = if args.lights.is_empty() {
                 all
             } else {

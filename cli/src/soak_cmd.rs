@@ -351,6 +351,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 let spec = FrameSpec {
                     camera: Some(camera),
                     light_colors: Vec::new(),
+                    time: None,
                 };
                 tokio::select! {
                     biased;

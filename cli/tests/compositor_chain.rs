@@ -298,6 +298,7 @@ async fn eight_processes_as_a_chain_then_a_tree_match_the_in_memory_result() {
     let no_params = || FrameParams {
         colors: vec![],
         scale: None,
+        time: None,
     };
 
     // Epoch 1: c0 → c1 → … → c7 → sink, node k feeding stage k.

@@ -248,3 +248,65 @@ fn render_timings_print_a_clean_table_and_an_honest_median() {
     assert!(t.contains(&median), "{median:?} missing:\n{t}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// Scene time on the command line: `render --time` poses an animated scene (two times give two
+/// images, and the CPU reference of a pose is what the GPU renders of it); bad times and rates
+/// are refused before anything runs.
+#[test]
+fn render_poses_an_animated_scene_at_its_time() {
+    let dir = scratch("time");
+    let out = |name: &str| dir.join(name).display().to_string();
+    for (t, name) in [("0.5", "a.exr"), ("2.5", "b.exr")] {
+        ok(&[
+            "render",
+            "--scene",
+            "carousel",
+            "--size",
+            "64x48",
+            "--samples",
+            "4",
+            "--time",
+            t,
+            "--out",
+            &out(name),
+        ]);
+    }
+    ok(&[
+        "render",
+        "--scene",
+        "carousel",
+        "--size",
+        "64x48",
+        "--samples",
+        "4",
+        "--time",
+        "2.5",
+        "--reference",
+        "--out",
+        &out("ref.exr"),
+    ]);
+    let read = |n: &str| lightfold_scene::Image::read_exr(&dir.join(n)).unwrap();
+    let (a, b, r) = (read("a.exr"), read("b.exr"), read("ref.exr"));
+    let moved = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .filter(|(x, y)| (*x - *y).abs() > 0.02)
+        .count();
+    assert!(
+        moved * 50 > a.data.len(),
+        "two times, nearly the same image ({moved} channels)"
+    );
+    let m = lightfold_reference::metrics::compare(&b, &r, 1.0, None).unwrap();
+    println!("GPU against the CPU reference at t = 2.5: {m}");
+    assert!(m.whole.psnr > 30.0, "{m}");
+    for bad in [
+        vec!["render", "--scene", "carousel", "--time", "nan"],
+        vec!["demo", "--fps", "0"],
+        vec!["coordinator", "--fps", "-3"],
+    ] {
+        let e = fails(&bad);
+        assert!(e.contains("not a"), "{bad:?}: {e}");
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

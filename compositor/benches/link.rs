@@ -70,6 +70,7 @@ fn no_params() -> FrameParams {
     FrameParams {
         colors: vec![],
         scale: None,
+        time: None,
     }
 }
 

@@ -35,6 +35,21 @@ pub struct RunOptions {
     pub path: FramePath,
     pub color_changes: Vec<ColorChange>,
     pub control: ControlOptions,
+    /// Scene time of the first frame (seconds); `None` with no `fps`: the rest pose.
+    pub time: Option<f32>,
+    /// Animation frames per second: frame `i` is at `time + i / fps`.
+    pub fps: Option<f32>,
+}
+
+impl RunOptions {
+    /// The scene time of frame `i` (0-based), `None` for the rest pose.
+    pub fn time_of(&self, i: u32) -> Option<f32> {
+        match (self.time, self.fps) {
+            (None, None) => None,
+            (t, None) => t,
+            (t, Some(fps)) => Some(t.unwrap_or(0.0) + i as f32 / fps),
+        }
+    }
 }
 
 impl Default for RunOptions {
@@ -45,6 +60,8 @@ impl Default for RunOptions {
             path: FramePath::Still,
             color_changes: Vec::new(),
             control: ControlOptions::default(),
+            time: None,
+            fps: None,
         }
     }
 }
@@ -112,6 +129,7 @@ pub fn frame_specs(scene: &Scene, opts: &RunOptions) -> Vec<FrameSpec> {
             FrameSpec {
                 camera,
                 light_colors: colors.clone(),
+                time: opts.time_of(i),
             }
         })
         .collect()
@@ -147,6 +165,7 @@ pub fn frame_params(
             .or_insert_with(|| FrameParams {
                 colors: Vec::new(),
                 scale: None,
+                time: None,
             })
             .colors
             .push((node.input_index, new_c));

@@ -158,6 +158,7 @@ async fn walkthrough_frames_reuse_what_did_not_change() {
             params: FrameParams {
                 colors: Vec::new(),
                 scale: None,
+                time: None,
             },
         })
         .await
@@ -186,6 +187,7 @@ async fn walkthrough_frames_reuse_what_did_not_change() {
             params: FrameParams {
                 colors: Vec::new(),
                 scale: None,
+                time: None,
             },
         })
         .await;

@@ -25,6 +25,7 @@ fn frame(epoch: u64, frame: u64) -> Message {
         params: FrameParams {
             colors: Vec::new(),
             scale: None,
+            time: None,
         },
     }
 }

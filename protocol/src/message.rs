@@ -190,12 +190,16 @@ pub struct CompositorConfig {
     pub frames_in_flight: u32,
 }
 
-/// Per-frame parameters that may change without re-rendering.
+/// Per-frame parameters: colours and scale change without re-rendering; the scene time poses
+/// an animated scene.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FrameParams {
     /// New node colour `c_n` per compositor input, if changed (compositors apply it).
     pub colors: Vec<(u32, [f32; 3])>,
     pub scale: Option<f32>,
+    /// Scene time in seconds: nodes pose their cached copy of an animated scene at it
+    /// (`Scene::pose`); `None` is the rest pose.
+    pub time: Option<f32>,
 }
 
 /// Per-frame timing a daemon reports back.
@@ -212,6 +216,10 @@ pub struct FrameStats {
     pub composite_us: u64,
     pub total_us: u64,
     pub shadow_passes: u32,
+    /// Lights whose shadow maps were kept from the previous frame (walkthrough mode).
+    pub maps_kept: u32,
+    /// Posing an animated scene at the frame's time, microseconds.
+    pub pose_us: u64,
     pub lights_rendered: Vec<u32>,
     pub bytes_out: u64,
     pub empty_bands: u32,

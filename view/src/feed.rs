@@ -29,8 +29,12 @@ pub async fn run(
         }
         // Something to show.
         loop {
-            let revision = steer.borrow_and_update().revision;
-            if hub.continuous || last_revision != Some(revision) {
+            let (revision, playing) = {
+                let s = steer.borrow_and_update();
+                (s.revision, s.clock.playing())
+            };
+            // A playing animation always has a new frame to show.
+            if hub.continuous || playing || last_revision != Some(revision) {
                 break;
             }
             tokio::select! {

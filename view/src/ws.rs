@@ -41,6 +41,12 @@ enum Input {
     },
     Render,
     Stats,
+    /// Jump to a scene time (seconds).
+    Time {
+        t: f32,
+    },
+    Play,
+    Pause,
 }
 
 #[derive(Debug, Deserialize)]
@@ -193,6 +199,11 @@ impl Viewer {
             "revision": s.revision,
             "walkthrough": self.hub.plan().is_some_and(|p| p.walkthrough),
             "continuous": self.hub.continuous,
+            "animation": {
+                "span": s.clock.span,
+                "time": s.clock.now(),
+                "playing": s.clock.playing(),
+            },
         })
     }
 
@@ -266,6 +277,15 @@ impl Viewer {
                     color,
                     intensity,
                 } => next.set_light(index, color, intensity),
+                Input::Time { t } => next.seek(t),
+                Input::Play => {
+                    next.play(true);
+                    Ok(())
+                }
+                Input::Pause => {
+                    next.play(false);
+                    Ok(())
+                }
                 Input::Hello { .. } | Input::Render | Input::Stats => Ok(()),
             };
             if result.is_ok() && next != *s {

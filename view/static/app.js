@@ -137,6 +137,37 @@
   }
 
   let tokenTried = false;
+  // Scene time: the server plays the clock; the page follows it locally between messages.
+  const anim = { span: 0, time: 0, playing: false, at: 0 };
+  function animTime() {
+    return anim.playing ? anim.time + (performance.now() - anim.at) / 1000 : anim.time;
+  }
+  function showAnimation(a) {
+    anim.span = a.span || 0;
+    anim.time = a.time || 0;
+    anim.playing = !!a.playing;
+    anim.at = performance.now();
+    $('anim').hidden = !(anim.span > 0);
+    $('time').max = String(anim.span || 1);
+    tickAnimation();
+  }
+  function tickAnimation() {
+    if (!(anim.span > 0)) return;
+    const t = animTime();
+    const wrapped = ((t % anim.span) + anim.span) % anim.span;
+    $('time').value = String(wrapped);
+    $('time-label').textContent = `${t.toFixed(2)} s`;
+    $('btn-play').textContent = anim.playing ? 'pause' : 'play';
+  }
+  setInterval(tickAnimation, 100);
+  function togglePlay() {
+    anim.time = animTime();
+    anim.at = performance.now();
+    anim.playing = !anim.playing;
+    send({ type: anim.playing ? 'play' : 'pause' });
+    tickAnimation();
+  }
+
   function onWelcome(m) {
     backoff = 500;
     view.canSteer = !!m.can_steer;
@@ -148,6 +179,7 @@
     const s = m.scene || {};
     $('scene-name').textContent = s.name ? `${s.name} · ${s.width}×${s.height}${m.continuous ? ' · continuous' : ''}${m.walkthrough ? ' · walkthrough' : ''}` : '';
     buildLights(s.lights || []);
+    showAnimation(m.animation || {});
     showCamera();
     fitFrame();
     // A token in the address (`#token=…`, never sent to the server in a request line) is
@@ -290,11 +322,19 @@
     else if (k === '+' || k === '=') { pending.zoom /= ZOOM_PER_NOTCH; queueFlush(); }
     else if (k === '-' || k === '_') { pending.zoom *= ZOOM_PER_NOTCH; queueFlush(); }
     else if (k === 'r') send({ type: 'reset' });
+    else if (k === 'p' && anim.span > 0) togglePlay();
     else if (k === ' ') send({ type: 'render' });
     else return;
     e.preventDefault();
   });
   $('btn-reset').addEventListener('click', () => send({ type: 'reset' }));
+  $('btn-play').addEventListener('click', togglePlay);
+  $('time').addEventListener('input', () => {
+    anim.time = Number($('time').value);
+    anim.at = performance.now();
+    send({ type: 'time', t: anim.time });
+    tickAnimation();
+  });
   $('btn-render').addEventListener('click', () => send({ type: 'render' }));
   $('token-form').addEventListener('submit', (e) => {
     e.preventDefault();

@@ -491,3 +491,43 @@ async fn a_peer_that_trickles_its_request_header_is_closed() {
     })
     .await;
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_time_seek_poses_the_next_frame_as_the_single_device_render_of_that_pose() {
+    let scene = small("carousel");
+    let plan = plan_options(&scene, 4);
+    let s2 = scene.clone();
+    with_view(scene, plan, loopback(), |addr, delivered, _| async move {
+        let mut c = Client::connect(addr).await;
+        let welcome = c.expect("welcome").await;
+        let span = welcome["animation"]["span"].as_f64().unwrap();
+        assert!(span >= 8.0, "the carousel's longest motion is 8 s: {span}");
+        assert_eq!(welcome["animation"]["playing"], false);
+        let first = c.frame().await;
+        let revision = c.steer(json!({"type": "time", "t": 2.0})).await;
+        let (posed, _) = until_revision(&mut c, revision).await;
+        let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
+        let truth = single_device(&gpu, &s2.still_at(2.0), true);
+        assert_close(
+            &delivered_frame(&delivered, frame_number(&posed)),
+            &truth,
+            "the frame after the seek to 2 s",
+        );
+        // Negative control: the first frame (t = 0) is not that pose.
+        let old = delivered_frame(&delivered, frame_number(&first));
+        let differs = old
+            .data
+            .iter()
+            .zip(&truth.data)
+            .filter(|(a, b)| (*a - *b).abs() > 0.05)
+            .count();
+        assert!(differs > 50, "the seek changed only {differs} channels");
+        // Playing requests frames on its own: more arrive without further steering.
+        c.steer(json!({"type": "play"})).await;
+        let a = frame_number(&c.frame().await);
+        let b = frame_number(&c.frame().await);
+        assert!(b > a);
+        c.steer(json!({"type": "pause"})).await;
+    })
+    .await;
+}

@@ -274,5 +274,6 @@ pub fn no_params() -> lightfold_protocol::FrameParams {
     lightfold_protocol::FrameParams {
         colors: Vec::new(),
         scale: None,
+        time: None,
     }
 }

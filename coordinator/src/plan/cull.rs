@@ -152,6 +152,32 @@ pub(crate) fn cull(
     }
 }
 
+/// Re-activates the samples `moving[i]` dropped for what they miss (not for emitting nothing):
+/// they move, so what they reach at rest says nothing of other times. Active or not, each then
+/// lights every one of the `receivers`.
+pub(crate) fn keep_moving(c: &mut Culling, moving: &[bool], receivers: usize) {
+    let mut kept = Vec::new();
+    c.dropped.retain(|(i, reason)| {
+        let drop = !moving[*i]
+            || matches!(reason, DropReason::ZeroEmission | DropReason::NonFinite);
+        if !drop {
+            if let DropReason::BelowEpsilon { bound } = reason {
+                c.epsilon_used -= bound;
+            }
+            kept.push(*i);
+        }
+        drop
+    });
+    c.active.extend(kept);
+    c.active.sort_unstable();
+    c.epsilon_used = c.epsilon_used.max(0.0);
+    for (i, lit) in c.lit.iter_mut().enumerate() {
+        if moving[i] && c.active.binary_search(&i).is_ok() {
+            *lit = (0..receivers).collect();
+        }
+    }
+}
+
 /// A sample that emits nothing whatever the receivers: zero or non-finite parameters.
 fn emits_nothing(s: &LightSample) -> Option<DropReason> {
     let finite3 = |v: [f32; 3]| v.iter().all(|c| c.is_finite());

@@ -103,10 +103,11 @@ impl Aabb {
 
 /// Bounds of every mesh (`None` for meshes without finite positions).
 pub(crate) fn mesh_bounds(scene: &Scene) -> Vec<Option<Aabb>> {
+    // Over an animation: boxes that hold each mesh at every time (`Scene::swept_bounds`).
     scene
-        .meshes
-        .iter()
-        .map(|m| m.bounds().map(|(lo, hi)| Aabb { lo, hi }))
+        .swept_bounds()
+        .into_iter()
+        .map(|b| b.map(|(lo, hi)| Aabb { lo, hi }))
         .collect()
 }
 

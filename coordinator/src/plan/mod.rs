@@ -79,13 +79,28 @@ pub(crate) fn plan_with(
     let samples = lightfold_scene::sampling::scene_samples(scene);
     let bounds = geom::mesh_bounds(scene);
     let receivers = cull::receivers(scene, &bounds);
-    let culling = cull::cull(
+    let mut culling = cull::cull(
         &samples,
         &receivers,
         scene.exposure,
         options.epsilon,
         options.force_all,
     );
+    // A moving light's samples reach other receivers at other times: none is culled for what
+    // it misses at rest, and every mesh may cast into its maps.
+    let moving_sample: Vec<bool> = match &scene.animation {
+        None => vec![false; samples.len()],
+        Some(a) => {
+            let moving = a.moving_lights(scene.lights.len());
+            samples
+                .iter()
+                .map(|s| moving.get(s.light as usize).copied().unwrap_or(false))
+                .collect()
+        }
+    };
+    if moving_sample.contains(&true) {
+        cull::keep_moving(&mut culling, &moving_sample, receivers.len());
+    }
     let probes = shadow::probes(cam, &receivers);
     // The boxes nodes fit shadow views to: every mesh with triangles (node/src/gpu/scene_data.rs).
     let scene_receivers: Vec<_> = bounds
@@ -111,7 +126,7 @@ pub(crate) fn plan_with(
             &probes,
             cam,
             options.map_sizing,
-            options.force_all,
+            options.force_all || moving_sample[i],
         )
     };
     let shadows: Vec<Option<ShadowPlan>> = {

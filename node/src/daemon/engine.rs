@@ -59,6 +59,10 @@ struct Active {
     checked: Checked,
     camera: Camera,
     scale: f32,
+    /// Scene time of the last frame (kept for frames that give none, like the camera).
+    time: Option<f32>,
+    /// Whether the configured scene moves over time (otherwise the time changes nothing).
+    animated: bool,
 }
 
 /// What makes two frames identical: in walkthrough mode the same key means the same bands.
@@ -67,6 +71,7 @@ struct FrameKey {
     epoch: u64,
     camera: Camera,
     scale: u32,
+    time: Option<u32>,
 }
 
 #[derive(Debug)]
@@ -210,6 +215,7 @@ impl Engine {
             let e = SceneCacheError::Unknown { hash: hex(&hash) };
             return error(e.code(), e.to_string());
         };
+        let animated = scene.is_animated();
         let limits = self.report.limits.clone();
         let checked = match config::check(
             config,
@@ -245,6 +251,8 @@ impl Engine {
             camera: checked.camera,
             scale: checked.config.scale,
             checked,
+            time: None,
+            animated,
         });
         Message::Configured { epoch }
     }
@@ -345,10 +353,20 @@ impl Engine {
                 .map_err(|e| refuse(ErrorCode::BadConfig, format!("frame {frame}: {e}")))?;
             active.scale = s;
         }
+        if let Some(t) = params.time {
+            if !t.is_finite() {
+                return Err(refuse(
+                    ErrorCode::BadConfig,
+                    format!("frame {frame}: scene time {t} is not finite"),
+                ));
+            }
+            active.time = Some(t);
+        }
         Ok(FrameKey {
             epoch,
             camera: active.camera,
             scale: active.scale.to_bits(),
+            time: active.time.filter(|_| active.animated).map(f32::to_bits),
         })
     }
 
@@ -391,13 +409,15 @@ impl Engine {
         let lights: Vec<u32> = cfg.lights.iter().map(|l| l.sample).collect();
         let rendered = self
             .render
-            .render(active.camera)
+            .render(active.camera, active.time)
             .await
             .map_err(|e| refuse(ErrorCode::RenderFailed, format!("frame {frame}: {e}")))?;
         stats.shadow_us = rendered.stats.shadow_us;
         stats.eye_us = rendered.stats.eye_us;
         stats.readback_us = rendered.stats.readback_us;
         stats.shadow_passes = rendered.stats.shadow_passes;
+        stats.maps_kept = rendered.stats.maps_kept;
+        stats.pose_us = rendered.stats.pose_us;
         stats.lights_rendered = lights;
         let images: LayerImages = rendered
             .images

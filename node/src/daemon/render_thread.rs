@@ -66,7 +66,11 @@ pub enum RenderFailure {
 
 enum Command {
     Configure(Box<RenderSetup>, oneshot::Sender<Result<(), RenderFailure>>),
-    Render(Camera, oneshot::Sender<Result<Rendered, RenderFailure>>),
+    Render(
+        Camera,
+        Option<f32>,
+        oneshot::Sender<Result<Rendered, RenderFailure>>,
+    ),
 }
 
 /// The async side's handle on the render thread.
@@ -114,10 +118,15 @@ impl RenderHandle {
         answer.await.map_err(|_| RenderFailure::Stopped)?
     }
 
-    pub async fn render(&self, camera: Camera) -> Result<Rendered, RenderFailure> {
+    /// Renders at `camera`, an animated scene posed at `time` (`None`: its rest pose).
+    pub async fn render(
+        &self,
+        camera: Camera,
+        time: Option<f32>,
+    ) -> Result<Rendered, RenderFailure> {
         let (reply, answer) = oneshot::channel();
         self.tx
-            .send(Command::Render(camera, reply))
+            .send(Command::Render(camera, time, reply))
             .await
             .map_err(|_| RenderFailure::Stopped)?;
         answer.await.map_err(|_| RenderFailure::Stopped)?
@@ -137,6 +146,10 @@ struct Current {
     renderer: Renderer,
     setup: RenderSetup,
     camera: Option<Camera>,
+    /// The scene time the renderer's geometry is posed at (`None`: rest).
+    time: Option<f32>,
+    /// The configured light samples posed at `time`.
+    lights: Vec<lightfold_scene::LightSample>,
 }
 
 fn thread_main(
@@ -183,8 +196,8 @@ fn thread_main(
                 }
                 let _ = reply.send(r);
             }
-            Command::Render(camera, reply) => {
-                let r = guarded(|| render(&gpu, &mut current, camera));
+            Command::Render(camera, time, reply) => {
+                let r = guarded(|| render(&gpu, &mut current, camera, time));
                 if matches!(r, Err(RenderFailure::Panic(_))) {
                     current = None;
                 }
@@ -242,21 +255,32 @@ fn configure(
     let reuse = matches!(&*current, Some(c) if c.hash == setup.scene_hash && c.options == options);
     if reuse {
         if let Some(c) = current.as_mut() {
+            c.lights = match c.time {
+                Some(t) => setup.scene.pose_samples(&setup.checked.lights, t),
+                None => setup.checked.lights.clone(),
+            };
             c.setup = setup;
         }
         return Ok(());
     }
     *current = None;
     let start = Instant::now();
-    let renderer = Renderer::new(gpu, &setup.scene, options)
+    let mut renderer = Renderer::new(gpu, &setup.scene, options)
         .map_err(|e: RenderError| RenderFailure::Build(e.to_string()))?;
+    if setup.scene.is_animated() {
+        // Views fitted to where meshes go over the motion (as the planner fits them), so a
+        // moving mesh re-renders only the maps it may cast into.
+        renderer.set_fit_bounds(setup.scene.swept_bounds());
+    }
     tracing::info!(ms = start.elapsed().as_millis() as u64, "renderer built");
     *current = Some(Current {
         hash: setup.scene_hash,
         options,
         renderer,
+        lights: setup.checked.lights.clone(),
         setup,
         camera: None,
+        time: None,
     });
     Ok(())
 }
@@ -265,6 +289,7 @@ fn render(
     gpu: &Gpu,
     current: &mut Option<Current>,
     camera: Camera,
+    time: Option<f32>,
 ) -> Result<Rendered, RenderFailure> {
     let c = current.as_mut().ok_or(RenderFailure::NotConfigured)?;
     let start = Instant::now();
@@ -272,19 +297,40 @@ fn render(
         c.renderer.set_camera(&camera);
         c.camera = Some(camera);
     }
+    let mut pose_us = 0;
+    // A still scene ignores the time; an animated one is posed here, from the node's own copy.
+    let time = time.filter(|_| c.setup.scene.animation.is_some());
+    if c.time != time {
+        let t = Instant::now();
+        let scene = &c.setup.scene;
+        let meshes = match time {
+            Some(t) => scene.pose_meshes(t),
+            None => scene.meshes.clone(),
+        };
+        c.renderer
+            .set_meshes(gpu, &meshes)
+            .map_err(|e| RenderFailure::Render(e.to_string()))?;
+        c.lights = match time {
+            Some(t) => scene.pose_samples(&c.setup.checked.lights, t),
+            None => c.setup.checked.lights.clone(),
+        };
+        c.time = time;
+        pose_us = t.elapsed().as_micros() as u64;
+    }
     let checked = &c.setup.checked;
     let layers: Vec<Layer> = checked.config.layers.iter().map(|(l, _)| *l).collect();
     let frame = c
         .renderer
         .render(
             gpu,
-            &checked.lights,
+            &c.lights,
             checked.casters.as_deref(),
             checked.config.color,
             layer_set(&layers),
         )
         .map_err(|e| RenderFailure::Render(e.to_string()))?;
-    let stats = frame.stats.clone();
+    let mut stats = frame.stats.clone();
+    stats.pose_us = pose_us;
     let images = take_layers(frame, &layers)?;
     Ok(Rendered {
         images,

@@ -107,6 +107,10 @@ pub struct NodeFrame {
 pub struct RenderStats {
     /// Depth passes rendered this frame (0 when walkthrough mode reused the maps).
     pub shadow_passes: u32,
+    /// Lights whose maps walkthrough mode kept from the previous frame.
+    pub maps_kept: u32,
+    /// Posing an animated scene at the frame's time and uploading its vertices, microseconds.
+    pub pose_us: u64,
     /// Views (maps) each light needs, whether or not they were re-rendered.
     pub passes_per_light: Vec<u32>,
     pub shadow_us: u64,

@@ -2,7 +2,9 @@
 //! K light samples and one eye pass that emits `Σ_λ (c_λ ⊘ c_n)·(i^d_λ, i^s_λ)·s_λ`, eye depth and,
 //! on request, the material layers; reads them back as `scene::Image`s with per-phase timings.
 //! Shadow maps cover the receivers the camera sees; in walkthrough mode they cover every receiver
-//! and are kept while the lights, casters and map size stay the same, whatever the camera does.
+//! and each light's are kept while that light, its views and every mesh it may draw stay the
+//! same, whatever the camera does: an animated scene re-renders only the maps of lights that
+//! moved or whose casters moved ([`Renderer::set_meshes`] poses the geometry).
 
 use super::deferred::{DeferredTargets, read_illumination, render_deferred};
 use super::device::Gpu;
@@ -14,19 +16,28 @@ use super::readback::{ReadRequest, read_targets};
 use super::scene_data::SceneData;
 use super::shadow_depth::ShadowDepth;
 use super::shadow_pass::{ShadowMaps, layer_count, render_shadow_maps};
-use lightfold_scene::shadow_views::visible_receivers;
-use lightfold_scene::{Camera, Image, LightSample, Scene, ShadowFilter};
+use lightfold_scene::shadow_views::{ShadowView, visible_receivers};
+use lightfold_scene::{Camera, Image, LightSample, Mesh, Scene, ShadowFilter};
 use std::time::Instant;
 use wgpu::util::DeviceExt;
 
 /// Constant bias the [`Fault::HugeBias`] negative control forces, in metres.
 const HUGE_BIAS: f32 = 0.5;
 
-/// What the cached shadow maps were rendered from (walkthrough mode).
+/// What one light's cached shadow-map layers were rendered from (walkthrough mode).
 #[derive(Debug, Clone, PartialEq)]
-struct MapKey {
-    lights: Vec<LightSample>,
-    casters: Option<Vec<Vec<u32>>>,
+struct LightMapKey {
+    sample: LightSample,
+    views: Vec<ShadowView>,
+    first_layer: u32,
+    casters: Option<Vec<u32>>,
+    /// Revision of each mesh it may draw (its casters, or every mesh).
+    revisions: Vec<u64>,
+}
+
+/// What the whole map array was made for.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct MapConfig {
     size: u32,
     fault: Option<Fault>,
 }
@@ -44,7 +55,13 @@ pub struct Renderer {
     options: RenderOptions,
     sampler: wgpu::Sampler,
     maps: Option<ShadowMaps>,
-    map_key: Option<MapKey>,
+    map_config: Option<MapConfig>,
+    map_keys: Vec<LightMapKey>,
+    /// Per mesh, bumped whenever [`Renderer::set_meshes`] changes its triangles.
+    revisions: Vec<u64>,
+    /// Boxes shadow views are fitted to instead of the meshes' own (an animation's swept
+    /// bounds: views that hold over the motion, so only what moves is rendered again).
+    fit_bounds: Option<Vec<([f32; 3], [f32; 3])>>,
     targets: Option<EyeTargets>,
     variant: EyeVariant,
     deferred: Option<DeferredTargets>,
@@ -115,7 +132,11 @@ impl Renderer {
         };
         let (vertices, materials, textures, texels) = allocate(gpu, "the scene buffers", || {
             (
-                init("vertices", vbytes, wgpu::BufferUsages::VERTEX),
+                init(
+                    "vertices",
+                    vbytes,
+                    wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+                ),
                 init(
                     "materials",
                     bytemuck::cast_slice(&data.materials),
@@ -172,7 +193,10 @@ impl Renderer {
             near,
             options: opts,
             maps: None,
-            map_key: None,
+            map_config: None,
+            map_keys: Vec::new(),
+            revisions: vec![0; scene.meshes.len()],
+            fit_bounds: None,
             targets: None,
             max_lights: gpu.max_lights(opts.shadow_map_size),
             fit_to_camera: true,
@@ -183,6 +207,87 @@ impl Renderer {
 
     pub fn set_camera(&mut self, camera: &Camera) {
         self.camera = *camera;
+    }
+
+    /// Replaces the triangles of the scene's meshes with `meshes` (the same meshes posed: same
+    /// count, materials and indices; `Scene::pose_meshes`) and marks the ones that changed, so
+    /// only the shadow maps they may reach are rendered again.
+    pub fn set_meshes(&mut self, gpu: &Gpu, meshes: &[Mesh]) -> Result<(), RenderError> {
+        if meshes.len() != self.scene.meshes.len() {
+            return Err(RenderError::Gpu(format!(
+                "posed scene has {} meshes, the renderer {}",
+                meshes.len(),
+                self.scene.meshes.len()
+            )));
+        }
+        let (vertices, ranges) = self.scene.geometry(meshes);
+        let same_layout = vertices.len() == self.scene.vertices.len()
+            && ranges
+                .iter()
+                .zip(&self.scene.meshes)
+                .all(|(a, b)| (a.first_vertex, a.vertex_count) == (b.first_vertex, b.vertex_count));
+        for (m, (new, old)) in ranges.iter().zip(&self.scene.meshes).enumerate() {
+            let span = |r: &super::scene_data::MeshRange, v: &[super::scene_data::Vertex]| {
+                bytemuck::cast_slice::<_, u8>(
+                    &v[r.first_vertex as usize..(r.first_vertex + r.vertex_count) as usize],
+                )
+                .to_vec()
+            };
+            if !same_layout
+                || new.bounds != old.bounds
+                || span(new, &vertices) != span(old, &self.scene.vertices)
+            {
+                self.revisions[m] += 1;
+            }
+        }
+        if same_layout {
+            if !vertices.is_empty() {
+                gpu.queue
+                    .write_buffer(&self.vertices, 0, bytemuck::cast_slice(&vertices));
+            }
+        } else {
+            let bytes: &[u8] = if vertices.is_empty() {
+                &[0; 48]
+            } else {
+                bytemuck::cast_slice(&vertices)
+            };
+            let size = bytes.len() as u64;
+            if size > gpu.limits.max_buffer_size {
+                return Err(RenderError::BindingTooLarge {
+                    what: "vertices",
+                    bytes: size,
+                    maximum: gpu.limits.max_buffer_size,
+                });
+            }
+            self.vertices = allocate(gpu, "the posed vertices", || {
+                gpu.device
+                    .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                        label: Some("vertices"),
+                        contents: bytes,
+                        usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+                    })
+            })?;
+        }
+        self.scene.vertices = vertices;
+        self.scene.meshes = ranges;
+        if self.fit_bounds.is_none() {
+            self.receivers = self.scene.receivers();
+        }
+        Ok(())
+    }
+
+    /// Fits shadow views to these boxes (one per mesh, `None` for a mesh without triangles)
+    /// rather than to the meshes as posed: `Scene::swept_bounds` for an animation, as the
+    /// planner does.
+    pub fn set_fit_bounds(&mut self, bounds: Vec<Option<([f32; 3], [f32; 3])>>) {
+        let boxes: Vec<_> = bounds
+            .into_iter()
+            .zip(&self.scene.meshes)
+            .filter(|(_, m)| m.vertex_count > 0)
+            .filter_map(|(b, _)| b)
+            .collect();
+        self.receivers = boxes.clone();
+        self.fit_bounds = Some(boxes);
     }
 
     /// Whether moving-light frames fit shadow views to the receivers the camera sees (the
@@ -243,7 +348,8 @@ impl Renderer {
                 self.targets = None;
                 self.deferred = None;
                 self.maps = None;
-                self.map_key = None;
+                self.map_config = None;
+                self.map_keys.clear();
                 Err(RenderError::Gpu(format!(
                     "the device refused the frame: {e}"
                 )))
@@ -337,44 +443,49 @@ impl Renderer {
             ..Default::default()
         };
 
-        // Shadow maps (skipped in walkthrough mode when nothing they depend on changed).
+        // Shadow maps: in walkthrough mode a light's are kept while nothing they depend on
+        // changed (the light, its views, the meshes it may draw, the map size).
         let t0 = Instant::now();
-        let key = MapKey {
-            lights: frame_lights.to_vec(),
-            casters: casters.map(|c| c.to_vec()),
+        let config = MapConfig {
             size: opts.shadow_map_size,
             fault: opts.fault,
         };
-        let reuse = opts.walkthrough
-            && self.map_key.as_ref() == Some(&key)
-            && self
-                .maps
-                .as_ref()
-                .is_some_and(|m| m.fits(opts.shadow_map_size, plan.views.len()));
-        if !reuse {
-            if !self
-                .maps
-                .as_ref()
-                .is_some_and(|m| m.fits(opts.shadow_map_size, plan.views.len()))
-            {
+        let keys = self.light_keys(&plan, frame_lights, casters);
+        let fits = self
+            .maps
+            .as_ref()
+            .is_some_and(|m| m.fits(opts.shadow_map_size, plan.views.len()));
+        let kept_array = fits && self.map_config == Some(config);
+        let fresh: Vec<bool> = keys
+            .iter()
+            .enumerate()
+            .map(|(i, k)| !(opts.walkthrough && kept_array && self.map_keys.get(i) == Some(k)))
+            .collect();
+        if fresh.contains(&true) {
+            if !fits {
                 let layers = layer_count(plan.views.len());
                 let depth = ShadowDepth::of(opts.fault);
                 self.maps = None;
+                self.map_keys.clear();
                 self.maps = Some(allocate(gpu, "the shadow maps", || {
                     ShadowMaps::new(&gpu.device, opts.shadow_map_size, layers, depth)
                 })?);
             }
             let maps = self.maps.as_ref().expect("allocated above");
+            let views: Vec<bool> = plan.view_light.iter().map(|&l| fresh[l as usize]).collect();
             stats.shadow_passes = render_shadow_maps(
                 &self.draw_context(gpu),
                 &self.scene.meshes,
                 maps,
                 &plan,
                 casters,
+                &views,
             );
             wait(gpu)?;
-            self.map_key = Some(key);
         }
+        stats.maps_kept = fresh.iter().filter(|f| !**f).count() as u32;
+        self.map_config = Some(config);
+        self.map_keys = keys;
         stats.shadow_us = t0.elapsed().as_micros() as u64;
 
         // Eye pass.
@@ -505,6 +616,41 @@ impl Renderer {
         stats.readback_us = t2.elapsed().as_micros() as u64;
         out.stats = stats;
         Ok(out)
+    }
+
+    /// What each light's maps are rendered from this frame.
+    fn light_keys(
+        &self,
+        plan: &LightPlan,
+        lights: &[LightSample],
+        casters: Option<&[Vec<u32>]>,
+    ) -> Vec<LightMapKey> {
+        let mut first = 0usize;
+        lights
+            .iter()
+            .enumerate()
+            .map(|(i, s)| {
+                let count = plan.passes_per_light.get(i).copied().unwrap_or(0) as usize;
+                let views = plan.geometry[first..first + count].to_vec();
+                let first_layer = plan.views.get(first).map_or(u32::MAX, |v| v.layer);
+                first += count;
+                let own = casters.and_then(|c| c.get(i)).cloned();
+                let revisions = match &own {
+                    Some(c) => c
+                        .iter()
+                        .map(|&m| self.revisions.get(m as usize).copied().unwrap_or(0))
+                        .collect(),
+                    None => self.revisions.clone(),
+                };
+                LightMapKey {
+                    sample: *s,
+                    views,
+                    first_layer,
+                    casters: own,
+                    revisions,
+                }
+            })
+            .collect()
     }
 
     fn draw_context<'a>(&'a self, gpu: &'a Gpu) -> DrawContext<'a> {

@@ -5,7 +5,7 @@
 
 use bytemuck::{Pod, Zeroable};
 use lightfold_scene::shading::V3;
-use lightfold_scene::{AlphaMode, Material, Scene};
+use lightfold_scene::{AlphaMode, Material, Mesh, Scene};
 
 /// Marks a vertex whose mesh has no UVs (the shaders then ignore texture alpha, as the reference).
 pub const NO_UV_BIT: u32 = 0x8000_0000;
@@ -89,62 +89,13 @@ impl SceneData {
             scene.textures.len(),
         ));
 
-        let mut vertices = Vec::new();
-        let mut meshes = Vec::with_capacity(scene.meshes.len());
+        let (vertices, meshes) = triangles(&scene.meshes, &materials, fallback);
         let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-        for mesh in &scene.meshes {
-            let first_vertex = vertices.len() as u32;
-            let material = if mesh.material < scene.materials.len() {
-                mesh.material as u32
-            } else {
-                fallback
-            };
-            let masked = materials[material as usize].alpha_mode == 1;
-            let has_normals = mesh.normals.len() == mesh.positions.len();
-            let has_uvs = mesh.uvs.len() == mesh.positions.len();
-            let word = material | if has_uvs { 0 } else { NO_UV_BIT };
-            let (mut mlo, mut mhi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-            for tri in mesh.indices.chunks_exact(3) {
-                let idx = [tri[0] as usize, tri[1] as usize, tri[2] as usize];
-                let Some(p) = idx
-                    .iter()
-                    .map(|&i| mesh.positions.get(i).copied())
-                    .collect::<Option<Vec<V3>>>()
-                else {
-                    continue; // out-of-range index: the reference skips the triangle too
-                };
-                if p.iter().flatten().any(|c| !c.is_finite()) {
-                    continue;
-                }
-                let ng = geometric_normal(p[0], p[1], p[2]);
-                for (k, &i) in idx.iter().enumerate() {
-                    for a in 0..3 {
-                        mlo[a] = mlo[a].min(p[k][a]);
-                        mhi[a] = mhi[a].max(p[k][a]);
-                    }
-                    vertices.push(Vertex {
-                        position: p[k],
-                        normal: if has_normals { mesh.normals[i] } else { ng },
-                        geometric_normal: ng,
-                        uv: if has_uvs { mesh.uvs[i] } else { [0.0; 2] },
-                        material: word,
-                    });
-                }
+        for (a, b) in meshes.iter().filter_map(|m| m.bounds) {
+            for k in 0..3 {
+                lo[k] = lo[k].min(a[k]);
+                hi[k] = hi[k].max(b[k]);
             }
-            let vertex_count = vertices.len() as u32 - first_vertex;
-            let bounds = (vertex_count > 0).then_some((mlo, mhi));
-            if let Some((a, b)) = bounds {
-                for k in 0..3 {
-                    lo[k] = lo[k].min(a[k]);
-                    hi[k] = hi[k].max(b[k]);
-                }
-            }
-            meshes.push(MeshRange {
-                first_vertex,
-                vertex_count,
-                masked,
-                bounds,
-            });
         }
         let diagonal = if lo[0] <= hi[0] {
             let d = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
@@ -190,10 +141,77 @@ impl SceneData {
         }
     }
 
+    /// The expanded vertices and mesh ranges of `meshes` (this scene's meshes, posed), with this
+    /// scene's materials.
+    pub fn geometry(&self, meshes: &[Mesh]) -> (Vec<Vertex>, Vec<MeshRange>) {
+        let fallback = self.materials.len() as u32 - 1;
+        triangles(meshes, &self.materials, fallback)
+    }
+
     /// Receivers for `shadow_views`: the bounds of every mesh with triangles.
     pub fn receivers(&self) -> Vec<(V3, V3)> {
         self.meshes.iter().filter_map(|m| m.bounds).collect()
     }
+}
+
+/// Triangles expanded to one vertex each, and where each mesh's lie; `materials` ends with the
+/// `fallback` for out-of-range indices.
+fn triangles(
+    scene_meshes: &[Mesh],
+    materials: &[GpuMaterial],
+    fallback: u32,
+) -> (Vec<Vertex>, Vec<MeshRange>) {
+    let mut vertices = Vec::new();
+    let mut meshes = Vec::with_capacity(scene_meshes.len());
+    for mesh in scene_meshes {
+        let first_vertex = vertices.len() as u32;
+        let material = if mesh.material < fallback as usize {
+            mesh.material as u32
+        } else {
+            fallback
+        };
+        let masked = materials[material as usize].alpha_mode == 1;
+        let has_normals = mesh.normals.len() == mesh.positions.len();
+        let has_uvs = mesh.uvs.len() == mesh.positions.len();
+        let word = material | if has_uvs { 0 } else { NO_UV_BIT };
+        let (mut mlo, mut mhi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        for tri in mesh.indices.chunks_exact(3) {
+            let idx = [tri[0] as usize, tri[1] as usize, tri[2] as usize];
+            let Some(p) = idx
+                .iter()
+                .map(|&i| mesh.positions.get(i).copied())
+                .collect::<Option<Vec<V3>>>()
+            else {
+                continue; // out-of-range index: the reference skips the triangle too
+            };
+            if p.iter().flatten().any(|c| !c.is_finite()) {
+                continue;
+            }
+            let ng = geometric_normal(p[0], p[1], p[2]);
+            for (k, &i) in idx.iter().enumerate() {
+                for a in 0..3 {
+                    mlo[a] = mlo[a].min(p[k][a]);
+                    mhi[a] = mhi[a].max(p[k][a]);
+                }
+                vertices.push(Vertex {
+                    position: p[k],
+                    normal: if has_normals { mesh.normals[i] } else { ng },
+                    geometric_normal: ng,
+                    uv: if has_uvs { mesh.uvs[i] } else { [0.0; 2] },
+                    material: word,
+                });
+            }
+        }
+        let vertex_count = vertices.len() as u32 - first_vertex;
+        let bounds = (vertex_count > 0).then_some((mlo, mhi));
+        meshes.push(MeshRange {
+            first_vertex,
+            vertex_count,
+            masked,
+            bounds,
+        });
+    }
+    (vertices, meshes)
 }
 
 fn gpu_material(m: &Material, texture_count: usize) -> GpuMaterial {
@@ -281,6 +299,7 @@ mod tests {
             ambient: [0.0; 3],
             exposure: 1.0,
             quality: Default::default(),
+            animation: None,
         };
         let d = SceneData::new(&scene);
         assert_eq!(d.vertices.len(), 6);

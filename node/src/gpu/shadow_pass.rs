@@ -80,16 +80,18 @@ impl ShadowMaps {
     }
 }
 
-/// Records and submits one depth pass per view of `plan`. `casters[λ]` lists the meshes that may
-/// cast into light λ's maps (`None`: all). Returns the number of passes.
+/// Records and submits one depth pass per view of `plan` that `render[view]` asks for (the others
+/// keep their layers). `casters[λ]` lists the meshes that may cast into light λ's maps (`None`:
+/// all). Returns the number of passes.
 pub fn render_shadow_maps(
     cx: &DrawContext<'_>,
     meshes: &[MeshRange],
     maps: &ShadowMaps,
     plan: &LightPlan,
     casters: Option<&[Vec<u32>]>,
+    render: &[bool],
 ) -> u32 {
-    if plan.views.is_empty() {
+    if plan.views.is_empty() || !render.contains(&true) {
         return 0;
     }
     let mut uniforms = vec![0u8; VIEW_UNIFORM_STRIDE as usize * plan.views.len()];
@@ -123,7 +125,12 @@ pub fn render_shadow_maps(
             label: Some("shadow passes"),
         });
     let all: Vec<u32> = (0..meshes.len() as u32).collect();
+    let mut passes = 0;
     for (i, geometry) in plan.geometry.iter().enumerate() {
+        if !render.get(i).copied().unwrap_or(true) {
+            continue;
+        }
+        passes += 1;
         let light = plan.view_light[i] as usize;
         let allowed: &[u32] = casters.and_then(|c| c.get(light)).map_or(&all, |c| c);
         let drawn: Vec<&MeshRange> = allowed
@@ -169,5 +176,5 @@ pub fn render_shadow_maps(
         }
     }
     cx.queue.submit([encoder.finish()]);
-    plan.views.len() as u32
+    passes
 }

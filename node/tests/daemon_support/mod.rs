@@ -194,6 +194,7 @@ impl Coordinator {
             params: FrameParams {
                 colors: Vec::new(),
                 scale: None,
+                time: None,
             },
         })
         .await

@@ -283,6 +283,8 @@ pub fn frame_stats() -> impl Strategy<Value = FrameStats> {
                 composite_us: t[5],
                 total_us: t[6],
                 shadow_passes,
+                maps_kept: shadow_passes / 2,
+                pose_us: t[0] / 3,
                 lights_rendered,
                 bytes_out,
                 empty_bands,
@@ -314,7 +316,11 @@ pub fn message() -> impl Strategy<Value = Message> {
         prop::collection::vec((any::<u32>(), v3()), 0..3),
         prop::option::of(num()),
     )
-        .prop_map(|(colors, scale)| FrameParams { colors, scale });
+        .prop_map(|(colors, scale)| FrameParams {
+            colors,
+            scale,
+            time: None,
+        });
     prop_oneof![
         capabilities().prop_map(Message::Register).boxed(),
         (hash(), any::<u64>())

@@ -305,6 +305,14 @@ impl Scene {
         out
     }
 
+    /// The scene posed at `t` as a still scene (no animation left): what a single image at that
+    /// time is rendered from. Its lights sample to [`Scene::samples_at`]`(t)` (rigid moves).
+    pub fn still_at(&self, t: f32) -> Scene {
+        let mut s = self.pose(t);
+        s.animation = None;
+        s
+    }
+
     /// The meshes at time `t` (what a renderer that keeps materials and textures re-uploads).
     pub fn pose_meshes(&self, t: f32) -> Vec<Mesh> {
         match &self.animation {
@@ -375,5 +383,76 @@ impl Scene {
                 )
             })
             .collect()
+    }
+}
+
+/// Steps [`Scene::swept_bounds`] poses the scene at (besides every key time).
+const SWEEP_STEPS: usize = 256;
+
+impl Scene {
+    /// Per mesh, a box that holds it whenever the scene is posed (`None`: no vertex): the bounds
+    /// of its poses at every key time and at [`SWEEP_STEPS`] even steps over the animation
+    /// (four spans when channels repeat on periods of their own, so their phases mix), widened
+    /// by the farthest any vertex moves between neighbouring steps. A still mesh keeps its own
+    /// bounds. This is what the planner culls and fits with, so culling holds over the motion.
+    pub fn swept_bounds(&self) -> Vec<Option<([f32; 3], [f32; 3])>> {
+        let own = |m: &Mesh| m.bounds();
+        let Some(anim) = &self.animation else {
+            return self.meshes.iter().map(own).collect();
+        };
+        let moving = anim.moving_meshes(self.meshes.len());
+        if !moving.contains(&true) {
+            return self.meshes.iter().map(own).collect();
+        }
+        let repeats = anim.channels.iter().any(|c| c.repeat);
+        let span = anim.span() * if repeats { 4.0 } else { 1.0 };
+        let mut times: Vec<f32> = (0..=SWEEP_STEPS)
+            .map(|i| span * i as f32 / SWEEP_STEPS as f32)
+            .collect();
+        times.extend(anim.key_times());
+        times.sort_by(f32::total_cmp);
+        times.dedup();
+        let mut out: Vec<Option<([f32; 3], [f32; 3])>> = self.meshes.iter().map(own).collect();
+        let mut widen = vec![0.0f32; self.meshes.len()];
+        let mut previous: Option<Vec<Mesh>> = None;
+        for &t in &times {
+            let posed = self.pose_meshes(t);
+            for (i, m) in posed.iter().enumerate() {
+                if !moving[i] {
+                    continue;
+                }
+                if let Some((lo, hi)) = m.bounds() {
+                    out[i] = Some(match out[i] {
+                        None => (lo, hi),
+                        Some((a, b)) => (
+                            std::array::from_fn(|k| a[k].min(lo[k])),
+                            std::array::from_fn(|k| b[k].max(hi[k])),
+                        ),
+                    });
+                }
+                if let Some(prev) = &previous {
+                    let step = m
+                        .positions
+                        .iter()
+                        .zip(&prev[i].positions)
+                        .map(|(p, q)| {
+                            ((p[0] - q[0]).powi(2) + (p[1] - q[1]).powi(2) + (p[2] - q[2]).powi(2))
+                                .sqrt()
+                        })
+                        .fold(0.0f32, f32::max);
+                    widen[i] = widen[i].max(step);
+                }
+            }
+            previous = Some(posed);
+        }
+        for (b, w) in out.iter_mut().zip(widen) {
+            if let Some((lo, hi)) = b {
+                for k in 0..3 {
+                    lo[k] -= w;
+                    hi[k] += w;
+                }
+            }
+        }
+        out
     }
 }

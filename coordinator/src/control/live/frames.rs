@@ -90,14 +90,17 @@ impl Live<'_> {
             };
             let mut failed = None;
             for id in &self.participants {
+                let mut frame_params = params.get(id).cloned().unwrap_or(FrameParams {
+                    colors: Vec::new(),
+                    scale: None,
+                    time: None,
+                });
+                frame_params.time = spec.time;
                 let msg = Message::RenderFrame {
                     epoch,
                     frame: wire,
                     camera: spec.camera,
-                    params: params.get(id).cloned().unwrap_or(FrameParams {
-                        colors: Vec::new(),
-                        scale: None,
-                    }),
+                    params: frame_params,
                 };
                 if let Err(e) = self.session.send(id, msg).await {
                     failed = Some((id.clone(), e));

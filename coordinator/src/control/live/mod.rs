@@ -61,6 +61,8 @@ const WARNING_EVERY: Duration = Duration::from_secs(1);
 pub struct FrameSpec {
     pub camera: Option<WireCamera>,
     pub light_colors: Vec<(u32, [f32; 3])>,
+    /// Scene time (seconds) an animated scene is posed at; `None`: the rest pose.
+    pub time: Option<f32>,
 }
 
 /// Something that happened to a daemon during the run.
