@@ -7,7 +7,14 @@ Every command line in compose, Kubernetes and the systemd units uses flags the s
 listen and advertised ports agree, each daemon advertises the name the others resolve, the
 cluster files list exactly the advertised daemons (and ids) with a reachable sink, tokens come from
 mounted secrets or credentials, and the coordinator's images (also its default out.png/out.exr,
-relative to the image's WORKDIR) land on a writable volume. Needs Python 3.11 with PyYAML.
+relative to the image's WORKDIR) land on a writable volume. Operations: Kubernetes probes ask
+/healthz and /readyz on the port the daemon serves metrics on, every container has requests and
+limits and a restricted securityContext, headless services publish daemons that are not ready yet
+(the coordinator makes them ready), the GPU patch asks for a GPU and refuses a CPU rasteriser;
+systemd units are Type=notify with a watchdog, an EnvironmentFile and distinct metrics ports; the
+image asks NVIDIA's toolkit for `graphics` and has a HEALTHCHECK the binary answers; the Slurm
+script has no fixed ports and asks for GPUs when allocated; the Prometheus example passes
+`promtool check config` (where promtool is installed). Needs Python 3.11 with PyYAML.
 deploy/emulate.py runs the same files.
 """
 
@@ -28,6 +35,9 @@ COMPOSE = os.path.join(HERE, "compose", "compose.yaml")
 KUBE = os.path.join(HERE, "kubernetes", "lightfold.yaml")
 UNITS = [os.path.join(HERE, "systemd", f) for f in ("lightfold-node@.service", "lightfold-compositor@.service")]
 CONTAINERFILE = os.path.join(HERE, "container", "Containerfile")
+GPU_PATCH = os.path.join(HERE, "kubernetes", "render-gpu.patch.yaml")
+SBATCH = os.path.join(HERE, "slurm", "lightfold.sbatch")
+PROMETHEUS = os.path.join(HERE, "prometheus", "prometheus.yml")
 ROLES = ("node", "compositor", "coordinator")
 errors = []
 
@@ -234,6 +244,7 @@ def lint_kubernetes(flags):
                     err(where, f"no PersistentVolumeClaim {v['persistentVolumeClaim']['claimName']}")
             env_names = {e["name"] for e in c.get("env", [])}
             expose = {str(p["containerPort"]) for p in c.get("ports", [])}
+            check_pod_ops(where, d, spec, c, flags)
             for pod in pods:
                 env = {"POD_NAME": pod} if pod and "POD_NAME" in env_names else {}
                 argv = [expand(a, env) for a in c.get("args", [])]
@@ -243,6 +254,12 @@ def lint_kubernetes(flags):
                     svc = d["spec"]["serviceName"]
                     if ("Service", svc) not in kinds or kinds[("Service", svc)]["spec"].get("clusterIP") != "None":
                         err(where, f"serviceName {svc} is not a headless Service")
+                    elif not kinds[("Service", svc)]["spec"].get("publishNotReadyAddresses"):
+                        err(
+                            where,
+                            f"Service {svc} does not publish addresses that are not ready: daemons are ready "
+                            "only once the coordinator configured them, which it cannot do without their names",
+                        )
                     adv = check_daemon(where, opts, f"{pod}.{svc}", expose)
                     if adv:
                         advertised[role].add(adv)
@@ -260,6 +277,155 @@ def lint_kubernetes(flags):
         check_cluster("kubernetes/ConfigMap", cluster_text, advertised, sink_name, ids)
 
 
+def probe_port(c, probe):
+    """The containerPort number an httpGet probe asks, and its path."""
+    get = (c.get(probe) or {}).get("httpGet")
+    if not get:
+        return None, None
+    port = get.get("port")
+    for p in c.get("ports", []):
+        if port in (p.get("name"), p["containerPort"]):
+            return str(p["containerPort"]), get.get("path")
+    return "undeclared", get.get("path")
+
+
+def check_pod_ops(where, d, spec, c, flags):
+    """Probes on the metrics listener, resources, and a restricted securityContext."""
+    argv = c.get("args", [])
+    role = argv[0] if argv else None
+    metrics = argv[argv.index("--metrics-listen") + 1] if "--metrics-listen" in argv else None
+    if metrics is None:
+        err(where, "no --metrics-listen: no /metrics, /healthz or /readyz to probe")
+        return
+    want = {"livenessProbe": "/healthz"}
+    if d["kind"] == "StatefulSet":
+        want.update({"startupProbe": "/healthz", "readinessProbe": "/readyz"})
+    for probe, path in want.items():
+        port, asked = probe_port(c, probe)
+        if port is None:
+            err(where, f"no {probe} (httpGet {path})")
+        elif port != port_of(metrics) or asked != path:
+            err(where, f"{probe} asks {asked} on port {port}; the daemon serves {path} on {port_of(metrics)}")
+    res = c.get("resources", {})
+    for k in ("requests", "limits"):
+        for r in ("cpu", "memory"):
+            if r not in res.get(k, {}):
+                err(where, f"no resources.{k}.{r}")
+    sc, psc = c.get("securityContext", {}), spec.get("securityContext", {})
+    if sc.get("allowPrivilegeEscalation") is not False:
+        err(where, "securityContext.allowPrivilegeEscalation is not false")
+    if "ALL" not in sc.get("capabilities", {}).get("drop", []):
+        err(where, "securityContext does not drop ALL capabilities")
+    if not (sc.get("runAsNonRoot") or psc.get("runAsNonRoot")):
+        err(where, "runAsNonRoot is not set")
+    seccomp = sc.get("seccompProfile") or psc.get("seccompProfile") or {}
+    if seccomp.get("type") not in ("RuntimeDefault", "Localhost"):
+        err(where, "no seccompProfile RuntimeDefault")
+    if sc.get("readOnlyRootFilesystem") is not True:
+        err(where, "the root file system is writable (readOnlyRootFilesystem)")
+    if role == "node" and "XDG_CACHE_HOME" not in {e["name"] for e in c.get("env", [])}:
+        err(where, "a node on a read-only root needs XDG_CACHE_HOME on a volume (the driver's shader cache)")
+
+
+def lint_gpu_patch(flags):
+    """The GPU patch, merged over the render StatefulSet the way `kubectl patch` merges it."""
+    where = "kubernetes/render-gpu.patch.yaml"
+    patch = yaml.safe_load(read(GPU_PATCH))
+    docs = [d for d in yaml.safe_load_all(read(KUBE)) if d]
+    base = next((d for d in docs if d["kind"] == "StatefulSet" and d["metadata"]["name"] == "render"), None)
+    if base is None:
+        err(where, "no render StatefulSet to patch")
+        return
+    spec = base["spec"]["template"]["spec"]
+    for pc in patch["spec"]["template"]["spec"]["containers"]:
+        c = next((x for x in spec["containers"] if x["name"] == pc["name"]), None)
+        if c is None:
+            err(where, f"patches container {pc['name']}, which the StatefulSet does not have")
+            continue
+        merged = dict(c)
+        merged.update({k: v for k, v in pc.items() if k != "name"})
+        role, opts = parse_cmd(where, merged.get("args", []), flags)
+        if role != "node" or "--require-gpu" not in opts:
+            err(where, "a GPU node without --require-gpu renders on the CPU when its GPU is missing")
+        if opts.get("--metrics-listen") != "0.0.0.0:9300":
+            err(where, "the patch changes the metrics port the probes ask")
+        for k in ("requests", "limits"):
+            if "nvidia.com/gpu" not in merged.get("resources", {}).get(k, {}):
+                err(where, f"no nvidia.com/gpu in resources.{k}")
+        env = {e["name"]: e.get("value") for e in merged.get("env", [])}
+        if "graphics" not in (env.get("NVIDIA_DRIVER_CAPABILITIES") or ""):
+            err(where, "NVIDIA_DRIVER_CAPABILITIES lacks graphics: no Vulkan driver in the container")
+        if "POD_NAME" not in env:
+            err(where, "the patch's env (a list, replaced whole) drops POD_NAME")
+
+
+def lint_container(binary):
+    where = "container/Containerfile"
+    text = read(CONTAINERFILE)
+    last = re.split(r"^FROM .*$", text, flags=re.MULTILINE)[-1]
+    caps = re.search(r"NVIDIA_DRIVER_CAPABILITIES=(\S+)", last)
+    if not caps or "graphics" not in caps.group(1).split(","):
+        err(where, "NVIDIA_DRIVER_CAPABILITIES does not include graphics (the Vulkan driver)")
+    hc = re.search(r"^HEALTHCHECK .*?CMD (\[.*?\])", last, re.MULTILINE | re.DOTALL)
+    if not hc:
+        err(where, "no HEALTHCHECK")
+    else:
+        argv = yaml.safe_load(hc.group(1))
+        sub = argv[1] if len(argv) > 1 else None
+        if argv[0] != "/usr/local/bin/lightfold" or subprocess.run(
+            [binary, sub, "--help"], capture_output=True
+        ).returncode != 0:
+            err(where, f"HEALTHCHECK runs {argv}, which the binary does not have")
+    listen = re.search(r"LIGHTFOLD_METRICS_LISTEN=(\S+)", last)
+    if not listen or port_of(listen.group(1)) not in re.findall(r"^EXPOSE (.*)$", last, re.MULTILINE)[-1].split():
+        err(where, "the metrics port (LIGHTFOLD_METRICS_LISTEN) is not set or not exposed")
+
+
+def lint_slurm():
+    where = "slurm/lightfold.sbatch"
+    text = read(SBATCH)
+    if subprocess.run(["bash", "-n", SBATCH]).returncode != 0:
+        err(where, "bash -n fails")
+    code = "\n".join(l for l in text.splitlines() if not l.lstrip().startswith("#"))
+    fixed = re.findall(r":(7[0-9]{3})\b", code)
+    if fixed:
+        err(where, f"fixed ports {sorted(set(fixed))}: two jobs on one host collide")
+    if "SLURM_JOB_ID" not in code:
+        err(where, "ports do not depend on the job")
+    if "--gpus-per-task" not in code or "--require-gpu" not in code:
+        err(where, "does not give render nodes the allocation's GPUs (--gpus-per-task, --require-gpu)")
+    if "--metrics-listen" not in code:
+        err(where, "daemons serve no metrics")
+
+
+def lint_prometheus():
+    where = "prometheus/prometheus.yml"
+    doc = yaml.safe_load(read(PROMETHEUS))
+    if not any(
+        r.get("regex") == "metrics" and "__meta_kubernetes_pod_container_port_name" in r.get("source_labels", [])
+        for j in doc.get("scrape_configs", [])
+        for r in j.get("relabel_configs", [])
+    ):
+        err(where, "the Kubernetes job does not keep the `metrics` container port")
+    try:
+        r = subprocess.run(["promtool", "check", "config", PROMETHEUS], capture_output=True, text=True)
+    except FileNotFoundError:
+        print("lint: SKIPPED promtool check config (promtool not installed: Debian's prometheus package)")
+        return
+    if r.returncode != 0 and "field kubernetes_sd_configs not found" in r.stdout + r.stderr:
+        # Debian's prometheus is built without Kubernetes discovery: check the rest, say so.
+        print("lint: this promtool has no kubernetes_sd_configs (Debian's build); checking the other jobs")
+        doc["scrape_configs"] = [j for j in doc["scrape_configs"] if "kubernetes_sd_configs" not in j]
+        rest = os.path.join(HERE, "prometheus", ".without-kubernetes.yml")
+        write(rest, yaml.safe_dump(doc))
+        try:
+            r = subprocess.run(["promtool", "check", "config", rest], capture_output=True, text=True)
+        finally:
+            os.remove(rest)
+    if r.returncode != 0:
+        err(where, f"promtool check config: {r.stdout}{r.stderr}")
+
+
 def unit_exec(path, instance, host):
     """ExecStart of a template unit with %i/%H and the credential and cache variables expanded."""
     text = read(path)
@@ -275,6 +441,7 @@ def unit_port(path, instance):
 
 
 def lint_systemd(flags):
+    all_metrics = set()
     for path in UNITS:
         where = f"systemd/{os.path.basename(path)}"
         argv, creds, text = unit_exec(path, 0, "render1")
@@ -288,6 +455,22 @@ def lint_systemd(flags):
         ports = {unit_port(path, i) for i in range(10)}
         if len(ports) != 10:
             err(where, "instances 0-9 do not get distinct ports")
+        for key, want in (("Type", "notify"), ("NotifyAccess", "main")):
+            if not re.search(rf"^{key}={want}$", text, re.MULTILINE):
+                err(where, f"not {key}={want}: systemd does not wait for READY=1")
+        if not re.search(r"^WatchdogSec=\d+", text, re.MULTILINE):
+            err(where, "no WatchdogSec: a wedged daemon is not restarted")
+        if not re.search(r"^EnvironmentFile=-?/etc/lightfold/", text, re.MULTILINE):
+            err(where, "no EnvironmentFile under /etc/lightfold")
+        metrics = {
+            port_of(re.search(r"^Environment=LIGHTFOLD_METRICS_LISTEN=(\S+)$", unit_exec(path, i, "h")[2].replace("%i", str(i)), re.MULTILINE).group(1))
+            for i in range(10)
+        } if "LIGHTFOLD_METRICS_LISTEN=" in text else set()
+        if len(metrics) != 10:
+            err(where, "instances 0-9 do not get distinct metrics ports (LIGHTFOLD_METRICS_LISTEN)")
+        all_metrics.update(metrics)
+    if all_metrics & {unit_port(p, i) for p in UNITS for i in range(10)} or len(all_metrics) != 20:
+        err("systemd", "metrics ports collide with each other or with daemon ports")
     a, b = (unit_port(p, 0) for p in UNITS)
     if a == b or "7400" in (a, b):
         err("systemd", f"instance 0 ports {a} and {b} collide with each other or with the sink (7400)")
@@ -298,9 +481,13 @@ def lint(args):
     lint_compose(flags)
     lint_kubernetes(flags)
     lint_systemd(flags)
-    for e in errors:
+    lint_gpu_patch(flags)
+    lint_container(args.bin)
+    lint_slurm()
+    lint_prometheus()
+    for e in dict.fromkeys(errors):  # a problem of a StatefulSet's template is found once per pod
         print("error:", e)
-    print(f"lint: {len(errors)} problems")
+    print(f"lint: {len(dict.fromkeys(errors))} problems")
     return 1 if errors else 0
 
 

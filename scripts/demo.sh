@@ -4,6 +4,5 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/install-deps.sh
-export NODEVICE_SELECT=1
 cargo build --release -p lightfold-cli
 exec target/release/lightfold demo "$@"

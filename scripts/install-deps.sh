@@ -1,10 +1,11 @@
 #!/usr/bin/env bash
 # Installs the system packages lightfold needs at run time (Mesa's software Vulkan and GL), if
 # missing; with --test also those its tests need (Chromium, which the live view's browser test
-# drives headless). No -dev packages are needed to build.
+# drives headless, and Prometheus, whose promtool checks the daemons' /metrics). No -dev packages
+# are needed to build.
 set -euo pipefail
 pkgs=(iproute2 mesa-vulkan-drivers libvulkan1 libegl1 libegl-mesa0 libgl1-mesa-dri)
-[ "${1:-}" = --test ] && pkgs+=(chromium)
+[ "${1:-}" = --test ] && pkgs+=(chromium prometheus)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -3,5 +3,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/install-deps.sh --test
+# The lightfold binary turns off Mesa's device-select layer itself; the GPU tests of the library
+# crates open devices from their own test binaries, which do not.
 export NODEVICE_SELECT=1
 cargo test --workspace --all-targets
