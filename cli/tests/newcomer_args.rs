@@ -303,7 +303,7 @@ fn render_poses_an_animated_scene_at_its_time() {
     for bad in [
         vec!["render", "--scene", "carousel", "--time", "nan"],
         vec!["demo", "--fps", "0"],
-        vec!["coordinator", "--fps", "-3"],
+        vec!["coordinator", "--fps=-3"],
     ] {
         let e = fails(&bad);
         assert!(e.contains("not a"), "{bad:?}: {e}");
