@@ -52,6 +52,10 @@ pub struct Args {
     /// With `--serve`: render frame after frame even when nothing changed.
     #[arg(long, requires = "serve")]
     pub continuous: bool,
+    /// Every daemon and the coordinator serve `/metrics`, `/healthz` and `/readyz` on a loopback
+    /// port of its own (`--metrics-listen`; the addresses are printed).
+    #[arg(long)]
+    pub metrics: bool,
 }
 
 /// Processes per core `--max-processes` allows by default, and the floor.
@@ -253,6 +257,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if args.gpu_threads > 0 {
             cmd.env("LP_NUM_THREADS", args.gpu_threads.to_string());
         }
+        if args.metrics {
+            cmd.args(["--metrics-listen", ANY_PORT]);
+        }
         let child = cmd.spawn().with_context(|| format!("cannot start {id}"))?;
         children.0.push((id, child));
     }
@@ -266,6 +273,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             &args.daemon_log,
             ANY_PORT,
         );
+        if args.metrics {
+            cmd.args(["--metrics-listen", ANY_PORT]);
+        }
         let child = cmd.spawn().with_context(|| format!("cannot start {id}"))?;
         children.0.push((id, child));
     }
@@ -304,6 +314,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if args.continuous {
             coord.arg("--continuous");
         }
+    }
+    if args.metrics {
+        coord.args(["--metrics-listen", ANY_PORT]);
     }
     coord
         .arg("--parent-pid")
@@ -439,12 +452,17 @@ pub(crate) fn read_listening(
         .take()
         .with_context(|| format!("{name} has no stdout"))?;
     let (tx, rx) = std::sync::mpsc::channel();
+    let who = name.to_string();
     std::thread::spawn(move || {
         let mut lines = BufReader::new(stdout).lines();
         let first = lines.next();
         let _ = tx.send(first);
-        // Keep draining so the daemon never blocks on a full pipe.
-        for _ in lines {}
+        // Keep draining so the daemon never blocks on a full pipe; say where its metrics are.
+        for line in lines.map_while(Result::ok) {
+            if let Some(a) = line.strip_prefix("metrics ") {
+                eprintln!("{who}: metrics on http://{}/metrics", a.trim());
+            }
+        }
     });
     let left = deadline.saturating_duration_since(Instant::now());
     match rx.recv_timeout(left) {

@@ -78,6 +78,7 @@ pub fn shutdown_token(parent_pid: Option<u32>) -> CancellationToken {
             _ = tokio::signal::ctrl_c() => tracing::info!("interrupted: shutting down"),
             _ = t.cancelled() => {}
         }
+        crate::metrics_http::notify_stopping();
         t.cancel();
     });
     if let Some(pid) = parent_pid {
@@ -86,6 +87,7 @@ pub fn shutdown_token(parent_pid: Option<u32>) -> CancellationToken {
             loop {
                 if std::os::unix::process::parent_id() != pid {
                     tracing::info!(parent = pid, "launcher exited: shutting down");
+                    crate::metrics_http::notify_stopping();
                     t.cancel();
                     return;
                 }

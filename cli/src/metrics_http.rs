@@ -104,8 +104,8 @@ pub async fn start(
 }
 
 /// Tells systemd (when it started us with `NOTIFY_SOCKET`) that the daemon is ready once its
-/// service loop runs, pings the watchdog at half its period from this runtime, and says
-/// `STOPPING=1` on the way out. Without systemd every call is a no-op.
+/// service loop runs and pings the watchdog at half its period from this runtime (`STOPPING=1`
+/// comes from `notify_stopping`). Without systemd every call is a no-op.
 async fn systemd(stop: CancellationToken) {
     if std::env::var_os("NOTIFY_SOCKET").is_none() {
         return;
@@ -134,7 +134,14 @@ async fn systemd(stop: CancellationToken) {
             }
         }
     }
-    let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
+}
+
+/// Tells systemd the daemon is stopping (`STOPPING=1`): called where the stop is decided, since
+/// the runtime may drop its tasks before they run again. A no-op without systemd.
+pub fn notify_stopping() {
+    if std::env::var_os("NOTIFY_SOCKET").is_some() {
+        let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
+    }
 }
 
 /// Accepts scrapes until `stop`.

@@ -574,3 +574,57 @@ fn no_colour_in_files_and_json_on_request() {
         "{messages:?}"
     );
 }
+
+/// Under systemd (`Type=notify`, `WatchdogSec=`): `READY=1` once live, watchdog pings at half
+/// the period, `STOPPING=1` on SIGTERM — read from a notify socket of the test's own.
+#[test]
+fn systemd_hears_ready_watchdog_and_stopping() {
+    use std::os::unix::net::UnixDatagram;
+    let d = dir("ops-notify");
+    let socket_path = d.join("notify.sock");
+    let socket = UnixDatagram::bind(&socket_path).unwrap();
+    socket
+        .set_read_timeout(Some(Duration::from_secs(60)))
+        .unwrap();
+    let child = Command::new(env!("CARGO_BIN_EXE_lightfold"))
+        .args(["compositor", "--listen", "127.0.0.1:0", "--id", "comp-sd"])
+        .env("LIGHTFOLD_TOKEN", TOKEN)
+        .env("NOTIFY_SOCKET", &socket_path)
+        .env("WATCHDOG_USEC", "400000")
+        .env_remove("WATCHDOG_PID")
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(d.join("comp-sd.log")).unwrap())
+        .spawn()
+        .unwrap();
+    let mut procs = Procs(vec![child]);
+    let next = || {
+        let mut buf = [0u8; 256];
+        let n = socket.recv(&mut buf).expect("a notification within 60 s");
+        String::from_utf8_lossy(&buf[..n]).trim().to_string()
+    };
+    assert_eq!(next(), "READY=1");
+    let start = Instant::now();
+    assert_eq!(next(), "WATCHDOG=1");
+    assert_eq!(next(), "WATCHDOG=1");
+    // Two pings at half of 400 ms: about 400 ms, never much faster.
+    assert!(
+        start.elapsed() >= Duration::from_millis(300),
+        "{:?}",
+        start.elapsed()
+    );
+    let pid = rustix::process::Pid::from_raw(procs.0[0].id() as i32).unwrap();
+    rustix::process::kill_process(pid, rustix::process::Signal::TERM).unwrap();
+    loop {
+        match next().as_str() {
+            "WATCHDOG=1" => continue,
+            other => {
+                assert_eq!(other, "STOPPING=1");
+                break;
+            }
+        }
+    }
+    let c = procs.0.pop().unwrap();
+    let status = c.wait_with_output().unwrap().status;
+    assert!(status.success());
+}
