@@ -104,6 +104,21 @@ fn carousel_moving(light: Option<bool>) -> Scene {
     if light != Some(true) {
         anim.lights.clear();
     }
+    // A wall washer in front of the back wall, facing it: the spinner is behind its samples, so
+    // it casts into none of their maps (the planner's caster lists say so).
+    s.lights.push(lightfold_scene::Light {
+        name: "wall washer".into(),
+        shape: lightfold_scene::LightShape::Rect {
+            center: [0.0, 1.5, -2.6],
+            normal: [0.0, 0.0, -1.0],
+            u_axis: [1.0, 0.0, 0.0],
+            size: [0.4, 0.4],
+        },
+        color: [0.6, 1.0, 0.6],
+        power: 10.0,
+        range: None,
+        samples: 4,
+    });
     s
 }
 
@@ -171,6 +186,28 @@ async fn only_what_moved_is_rendered_again() {
                     node.node
                 );
                 assert_eq!(st.shadow_passes == 0, redraw == 0, "{what}: {}", node.node);
+            }
+        }
+        if !light {
+            // The wall washer's node keeps its maps while the box spins.
+            let washer = scene.lights.len() as u32 - 1;
+            let node = out
+                .plan
+                .nodes
+                .iter()
+                .find(|n| {
+                    n.lights
+                        .iter()
+                        .any(|&l| out.plan.samples[l].light == washer)
+                })
+                .unwrap();
+            assert!(
+                node.shadows.iter().all(|s| !s.casters.contains(&spinner)),
+                "the spinner is no caster of the wall washer"
+            );
+            for f in &out.frames[1..] {
+                let st = f.stats.iter().find(|s| s.daemon_id == node.node).unwrap();
+                assert!(st.maps_kept >= 4, "{}: {st:?}", node.node);
             }
         }
         if light {
