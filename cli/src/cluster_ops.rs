@@ -82,7 +82,8 @@ pub fn adapters(session: &Session, verbose: bool) -> String {
                 names.join(", ")
             )
         };
-        tracing::warn!(nodes = %names.join(","), "{who} render on a software rasteriser");
+        // The warning itself is printed below; the log gets the same as an event.
+        tracing::info!(nodes = %names.join(","), "{who} render on a software rasteriser");
         out.push_str(&format!(
             "\nwarning: {who} render on a software rasteriser (the CPU), not a GPU: install the \
              GPU's Vulkan driver where one is meant to be used, or start nodes with \

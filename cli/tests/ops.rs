@@ -344,6 +344,10 @@ fn a_cluster_is_scraped_while_it_renders() {
     });
     let (during, samples) = scrape(&nodes[1].1);
     let running = procs.0[coord].try_wait().unwrap().is_none();
+    // A stage finishes its first frame after the nodes do.
+    wait_for("a stage to finish a frame", START, || {
+        done(&comps[0].1) >= 1.0
+    });
     let (comp_text, comp_samples) = scrape(&comps[0].1);
     promtool("a node's /metrics", &during);
     promtool("a compositor's /metrics", &comp_text);

@@ -124,7 +124,9 @@ pub async fn run(
         );
     }
     if report.software {
-        tracing::warn!(
+        // Info, not a warning: the coordinator warns once for the whole cluster, and on a
+        // machine without a GPU every node would say it.
+        tracing::info!(
             adapter = %report.adapter, backend = %report.backend,
             "rendering on a software rasteriser (the CPU), not a GPU"
         );
