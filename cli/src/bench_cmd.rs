@@ -57,7 +57,9 @@ pub struct NodeArgs {
     #[arg(long, default_value_t = 32)]
     lights: u32,
     /// Modes to measure: `moving` (shadow maps every frame), `walkthrough` (maps kept, the camera
-    /// orbits) and `static` (walkthrough with a still camera: cached bands are resent).
+    /// orbits), `static` (walkthrough with a still camera: cached bands are resent) and
+    /// `noshadows` (every light's caster list empty: its map passes draw nothing, the paper's "no
+    /// shadows" column).
     #[arg(long, value_delimiter = ',', default_value = "moving,walkthrough")]
     modes: Vec<String>,
     /// Timed frames per configuration (after the warm-up frames).
@@ -188,10 +190,11 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
     );
     let mut plan = Vec::new();
     for mode in &a.modes {
-        let walkthrough = match mode.as_str() {
-            "moving" => false,
-            "walkthrough" | "static" => true,
-            other => bail!("unknown mode {other:?} (moving, walkthrough, static)"),
+        let (walkthrough, shadows) = match mode.as_str() {
+            "moving" => (false, true),
+            "walkthrough" | "static" => (true, true),
+            "noshadows" => (false, false),
+            other => bail!("unknown mode {other:?} (moving, walkthrough, static, noshadows)"),
         };
         for &k in &a.ks {
             let lights: Vec<_> = (0..k as usize)
@@ -207,7 +210,11 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
                     .map(|light| WireShadow {
                         light,
                         map_size: a.map,
-                        casters: (0..scene.meshes.len() as u32).collect(),
+                        casters: if shadows {
+                            (0..scene.meshes.len() as u32).collect()
+                        } else {
+                            Vec::new()
+                        },
                     })
                     .collect(),
                 lights,

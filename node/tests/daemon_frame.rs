@@ -195,6 +195,25 @@ async fn walkthrough_frames_reuse_what_did_not_change() {
         matches!(&refused, Message::Error { code: ErrorCode::BadConfig, message } if message.contains("161x120")),
         "{refused:?}"
     );
+    // A scene time that is not a number is refused, and the node still renders.
+    let refused = coord
+        .request(Message::RenderFrame {
+            epoch: 1,
+            frame: 5,
+            camera: None,
+            params: FrameParams {
+                colors: Vec::new(),
+                scale: None,
+                time: Some(f32::NAN),
+            },
+        })
+        .await;
+    assert!(
+        matches!(&refused, Message::Error { code: ErrorCode::BadConfig, message } if message.contains("not finite")),
+        "{refused:?}"
+    );
+    assert!(matches!(coord.frame(1, 6).await, Message::FrameDone(_)));
+    comp.take(n).await;
     drop(coord);
     node.stop().await;
 }

@@ -461,16 +461,16 @@ impl Renderer {
             .enumerate()
             .map(|(i, k)| !(opts.walkthrough && kept_array && self.map_keys.get(i) == Some(k)))
             .collect();
+        if !fits {
+            let layers = layer_count(plan.views.len());
+            let depth = ShadowDepth::of(opts.fault);
+            self.maps = None;
+            self.map_keys.clear();
+            self.maps = Some(allocate(gpu, "the shadow maps", || {
+                ShadowMaps::new(&gpu.device, opts.shadow_map_size, layers, depth)
+            })?);
+        }
         if fresh.contains(&true) {
-            if !fits {
-                let layers = layer_count(plan.views.len());
-                let depth = ShadowDepth::of(opts.fault);
-                self.maps = None;
-                self.map_keys.clear();
-                self.maps = Some(allocate(gpu, "the shadow maps", || {
-                    ShadowMaps::new(&gpu.device, opts.shadow_map_size, layers, depth)
-                })?);
-            }
             let maps = self.maps.as_ref().expect("allocated above");
             let views: Vec<bool> = plan.view_light.iter().map(|&l| fresh[l as usize]).collect();
             stats.shadow_passes = render_shadow_maps(
