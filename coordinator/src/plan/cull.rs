@@ -158,8 +158,8 @@ pub(crate) fn cull(
 pub(crate) fn keep_moving(c: &mut Culling, moving: &[bool], receivers: usize) {
     let mut kept = Vec::new();
     c.dropped.retain(|(i, reason)| {
-        let drop = !moving[*i]
-            || matches!(reason, DropReason::ZeroEmission | DropReason::NonFinite);
+        let drop =
+            !moving[*i] || matches!(reason, DropReason::ZeroEmission | DropReason::NonFinite);
         if !drop {
             if let DropReason::BelowEpsilon { bound } = reason {
                 c.epsilon_used -= bound;
