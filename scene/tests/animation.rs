@@ -370,7 +370,8 @@ fn broken_animations_are_dropped_and_refused_on_the_wire() {
     assert!(s.validate().is_clean());
     let bytes = s.to_bytes().unwrap();
     assert_eq!(Scene::from_bytes(&bytes).unwrap(), s);
-    let breakers: Vec<(&str, Box<dyn Fn(&mut Animation)>)> = vec![
+    type Breaker = Box<dyn Fn(&mut Animation)>;
+    let breakers: Vec<(&str, Breaker)> = vec![
         ("node", Box::new(|a| a.channels[0].node = 1_000_000)),
         ("times", Box::new(|a| a.channels[0].times.reverse())),
         (
