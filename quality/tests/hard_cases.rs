@@ -78,8 +78,32 @@ fn subtexel_fence() {
 }
 
 #[test]
+#[ignore = "issue 22 is open: fails with the cascades alone (32.3 dB, 134 dark pixels lit); docs/hard-cases.md"]
+fn corner_leak() {
+    check("corner-leak");
+}
+
+#[test]
+#[ignore = "issue 22 is open: fails with the cascades alone (23.7 dB, 1 421 dark pixels lit); docs/hard-cases.md"]
+fn grazing_fin() {
+    check("grazing-fin");
+}
+
+#[test]
+#[ignore = "issue 22 is open: fails with the cascades alone (47.2 dB but 3 dark pixels lit); docs/hard-cases.md"]
+fn deep_near() {
+    check("deep-near");
+}
+
+#[test]
+#[ignore = "issue 22 is open: fails with the cascades alone (34.3 dB); docs/hard-cases.md"]
+fn thin_poles() {
+    check("thin-poles");
+}
+
+#[test]
 fn every_case_is_tested_and_unknown_names_fail() {
     let names = case_names();
-    assert_eq!(names.len(), 13, "{names:?}: add a test per case");
+    assert_eq!(names.len(), 17, "{names:?}: add a test per case");
     assert!(run_case("no-such-case", false).is_err());
 }

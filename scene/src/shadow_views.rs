@@ -9,10 +9,12 @@
 //! Matrices are column-major (like [`crate::Camera::view_matrix`]); views look down −Z; the
 //! projection is reversed-Z (depth 1 at `near`, 0 at `far`) with wgpu clip conventions.
 
+mod cascades;
 mod geometry;
 
 use crate::model::{Camera, LightSample, SampleKind};
 use crate::shading::{V3, cross, dot, length, normalize, scale, sub};
+pub use cascades::{CASCADE_RATIO, MAX_CASCADES, camera_views, fitted_views};
 pub use geometry::perpendicular_frame;
 use geometry::{Poly, add3, box_corners, box_distance, box_faces, clip, clip_all, look_view};
 
@@ -63,6 +65,11 @@ pub struct ShadowView {
     /// plane's normal, pointing to this view's side (a point `p` belongs to the view whose
     /// `half_space·(p − sample)` is ≥ 0).
     pub half_space: Option<V3>,
+    /// For one of the cascades [`camera_views`] splits a light's frustum into: the eye depths
+    /// (distance along the camera's forward axis) of the receivers it holds, `[from, to)`; the
+    /// last cascade's `to` is infinite. A point takes the first cascade whose `to` exceeds its
+    /// eye depth.
+    pub eye_depth: Option<[f32; 2]>,
 }
 
 impl ShadowView {
@@ -101,48 +108,10 @@ pub fn mesh_receivers(scene: &crate::Scene) -> Vec<(V3, V3)> {
 /// plane) and re-boxed; boxes out of view are dropped. Shadow maps only need to cover these, so
 /// with a fixed camera fewer lights need more than one fitted frustum.
 pub fn visible_receivers(camera: &Camera, receivers: &[(V3, V3)]) -> Vec<(V3, V3)> {
-    let (w, h) = (camera.width as f32, camera.height as f32);
-    let corners = [
-        camera.ray_dir(0.0, 0.0),
-        camera.ray_dir(w, 0.0),
-        camera.ray_dir(w, h),
-        camera.ray_dir(0.0, h),
-    ];
-    let forward = camera.frame().forward;
-    let planes: Vec<V3> = (0..4)
-        .map(|i| {
-            let n = normalize(cross(corners[i], corners[(i + 1) % 4]));
-            if dot(n, forward) < 0.0 {
-                scale(n, -1.0)
-            } else {
-                n
-            }
-        })
-        .collect();
-    let eye = camera.position;
-    let mut out = Vec::new();
-    for &(lo, hi) in receivers {
-        let mut b = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-        let mut grow = |p: V3| {
-            b.0 = std::array::from_fn(|k| b.0[k].min(p[k]));
-            b.1 = std::array::from_fn(|k| b.1[k].max(p[k]));
-        };
-        if box_distance(eye, lo, hi) <= 0.0 {
-            grow(eye);
-        }
-        for face in box_faces(lo, hi) {
-            let rel: Poly = face.iter().map(|p| sub(*p, eye)).collect();
-            for p in clip_all(rel, &planes) {
-                grow(add3(p, eye));
-            }
-        }
-        if b.0[0] <= b.1[0] {
-            // Clipping never leaves the box; rounding must not either.
-            let clamp = |v: V3| std::array::from_fn(|k| v[k].clamp(lo[k], hi[k]));
-            out.push((clamp(b.0), clamp(b.1)));
-        }
-    }
-    out
+    cascades::clip_to_view(camera, receivers, None)
+        .into_iter()
+        .map(|c| c.bounds)
+        .collect()
 }
 
 /// The frame of a sample's cube faces, `[x, y, z]` with `z` the sample's axis (−Y without one):
@@ -450,6 +419,7 @@ fn perspective_view(
         far,
         extent: e,
         half_space: None,
+        eye_depth: None,
     }
 }
 
@@ -499,6 +469,7 @@ fn ortho_view(dir: V3, boxes: &[(V3, V3)]) -> Option<ShadowView> {
         far,
         extent: [l, r, b, t],
         half_space: None,
+        eye_depth: None,
     })
 }
 

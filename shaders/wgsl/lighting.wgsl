@@ -45,7 +45,8 @@ struct View {
     texel: f32,
     ortho: u32,
     layer: u32,
-    _pad: u32,
+    // A cascade's end: the eye depth where the light's next view takes over (MODE_CASCADE).
+    cascade_to: f32,
 }
 
 @group(1) @binding(0) var<uniform> frame: Frame;
@@ -81,7 +82,11 @@ fn shadow_filter(uv: vec2f, layer: u32, ref_depth: f32) -> f32 {
 const MODE_SINGLE: u32 = 0u;
 const MODE_CUBE: u32 = 1u;
 const MODE_SPLIT: u32 = 2u;
-override VIEW_MODES: u32 = 7u;
+// Not a value of Light::cube: the bit of lights with near cascades (Light::cascades).
+const MODE_CASCADE: u32 = 3u;
+override VIEW_MODES: u32 = 15u;
+// Most cascades of one light (`scene::shadow_views::MAX_CASCADES`).
+const MAX_CASCADES: u32 = 4u;
 
 fn uses_mode(mode: u32) -> bool {
     return (VIEW_MODES & (1u << mode)) != 0u;
@@ -118,11 +123,15 @@ struct Placed {
 fn place(s: Light, p: vec3f, ng: vec3f) -> Placed {
     var out = Placed(NO_VIEW, vec3f(0.0), vec3f(0.0));
     let d = p - s.position;
-    if uses_mode(MODE_SINGLE) || uses_mode(MODE_SPLIT) {
+    if uses_mode(MODE_SINGLE) || uses_mode(MODE_SPLIT) || uses_mode(MODE_CASCADE) {
         var index = s.first_view;
         if uses_mode(MODE_SPLIT) {
             let side = select(face_view(s, 1u), face_view(s, 0u), dot(d, s.cube_x) >= 0.0);
             index = select(index, side, is_mode(s, MODE_SPLIT));
+        }
+        if uses_mode(MODE_CASCADE) && s.cascades > 0u && !is_mode(s, MODE_SPLIT) {
+            // A single base view comes after the near cascades.
+            index += s.cascades;
         }
         let v = view_at(index);
         out = Placed(index, (v.view * vec4f(p, 1.0)).xyz, (v.view * vec4f(ng, 0.0)).xyz);
@@ -138,6 +147,18 @@ fn place(s: Light, p: vec3f, ng: vec3f) -> Placed {
         let positive = select(select(c.z >= 0.0, c.y >= 0.0, on_y), c.x >= 0.0, on_x);
         let face = select(select(4u, 2u, on_y), 0u, on_x) + select(1u, 0u, positive);
         out = Placed(face_view(s, face), cube_face_coords(face, c), cube_face_coords(face, cn));
+    }
+    // Near cascades first: the first whose end lies beyond p's eye depth, if any does.
+    if uses_mode(MODE_CASCADE) && s.cascades > 0u {
+        let z = dot(p - frame.camera, frame.forward);
+        var k = 0u;
+        for (var i = 0u; i < min(s.cascades, MAX_CASCADES); i++) {
+            k += select(0u, 1u, z >= view_at(s.first_view + i).cascade_to);
+        }
+        if k < s.cascades {
+            let v = view_at(s.first_view + k);
+            out = Placed(s.first_view + k, (v.view * vec4f(p, 1.0)).xyz, (v.view * vec4f(ng, 0.0)).xyz);
+        }
     }
     // Cube-mode lights always have a view; others may have none.
     if VIEW_MODES != (1u << MODE_CUBE) && s.view_count == 0u {

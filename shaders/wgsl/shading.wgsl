@@ -30,7 +30,9 @@ struct Light {
     cube_x: vec3f,
     cube: u32,
     cube_z: vec3f,
-    _pad: u32,
+    // Near cascades (views first_view.. first_view + cascades, nearest first) tried before `cube`
+    // picks among the rest: the first whose View::cascade_to exceeds the point's eye depth.
+    cascades: u32,
     // View index per face, two faces to a word (low 16 bits, high 16 bits): +x −x, +y −y, +z −z;
     // FACE_NONE where none.
     faces: vec4<u32>,

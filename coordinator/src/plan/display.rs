@@ -61,6 +61,9 @@ impl Display for ShadowViews {
                 write!(f, "{count} fitted frusta, widest {fov_deg:.0}°")
             }
             ShadowViews::Ortho => f.write_str("1 orthographic view"),
+            ShadowViews::Cascaded { cascades, base } => {
+                write!(f, "{cascades} near cascades, then {base} fitted views")
+            }
             ShadowViews::Cube { faces } => {
                 // In the sample's own frame: +z along its axis (see the key).
                 let names = ["+x", "-x", "+y", "-y", "+z", "-z"];

@@ -109,13 +109,10 @@ pub(crate) fn plan_with(
         .filter(|(_, m)| m.indices.len() >= 3)
         .filter_map(|(b, _)| b.map(|b| (b.lo, b.hi)))
         .collect();
-    // Like the node's renderer: moving-light maps cover only what the camera sees; walkthrough
-    // maps outlive camera moves, so they cover every receiver.
-    let scene_receivers = if options.walkthrough {
-        scene_receivers
-    } else {
-        lightfold_scene::shadow_views::visible_receivers(cam, &scene_receivers)
-    };
+    // Like the node's renderer: moving-light maps are fitted to what the camera sees (cascades
+    // where that spans a deep range); walkthrough maps outlive camera moves, so they cover every
+    // receiver.
+    let fit_camera = (!options.walkthrough).then_some(cam);
     let shadow_of = |i: usize| {
         let lit: Vec<&cull::Receiver> = culling.lit[i].iter().map(|&r| &receivers[r]).collect();
         shadow::shadow_plan(
@@ -123,6 +120,7 @@ pub(crate) fn plan_with(
             &lit,
             &bounds,
             &scene_receivers,
+            fit_camera,
             &probes,
             cam,
             options.map_sizing,

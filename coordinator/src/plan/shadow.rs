@@ -8,7 +8,7 @@ use super::cull::Receiver;
 use super::geom::{Aabb, lights_point, reach};
 use super::types::{DEFAULT_MAP_SIZE, MAX_MAP_SIZE, MapSizing, ShadowPlan, ShadowViews};
 use lightfold_scene::shading::{V3, dot};
-use lightfold_scene::shadow_views::{ShadowView, ShadowViewKind, shadow_views};
+use lightfold_scene::shadow_views::{ShadowView, ShadowViewKind, fitted_views};
 use lightfold_scene::{Camera, LightSample, SampleKind};
 
 /// Grazing angles are capped so one nearly edge-on surface does not ask for a huge map.
@@ -84,6 +84,14 @@ pub(crate) fn summarize(views: &[ShadowView]) -> ShadowViews {
     let Some(first) = views.first() else {
         return ShadowViews::None;
     };
+    let cascades = views.iter().take_while(|v| v.eye_depth.is_some()).count();
+    if cascades > 0 {
+        let byte = |n: usize| n.min(u8::MAX as usize) as u8;
+        return ShadowViews::Cascaded {
+            cascades: byte(cascades),
+            base: byte(views.len() - cascades),
+        };
+    }
     match first.kind {
         ShadowViewKind::Ortho => ShadowViews::Ortho,
         ShadowViewKind::Fitted => {
@@ -140,6 +148,7 @@ pub(crate) fn map_size(
     let hi = hi.max(lo);
     // Angular size of an image pixel at the centre of the view (d_i per unit distance).
     let d_i = 2.0 * (cam.fov_y_deg.to_radians() * 0.5).tan() / cam.height.max(1) as f32;
+    let forward = cam.frame().forward;
     let mut need: Vec<f32> = Vec::new();
     for p in probes {
         if !lights_point(s, p.point) {
@@ -149,7 +158,17 @@ pub(crate) fn map_size(
         let cos_alpha = dot(p.normal, l).abs().max(MIN_COS_ALPHA);
         // The view holding the point; a texel there spans `span·depth / N` metres (`span / N`
         // for orthographic views).
+        let eye_depth = dot(
+            lightfold_scene::shading::sub(p.point, cam.position),
+            forward,
+        );
         let held = views.iter().find_map(|v| {
+            // A cascade holds only the eye depths it serves.
+            if v.eye_depth
+                .is_some_and(|[a, b]| !(a..b).contains(&eye_depth))
+            {
+                return None;
+            }
             let q = to_view(&v.view, p.point);
             let e = v.extent;
             let span = (e[1] - e[0]).max(e[3] - e[2]);
@@ -189,13 +208,14 @@ fn prev_power_of_two(n: u32) -> u32 {
 }
 
 /// The whole shadow plan of one active sample. `scene_receivers` are the boxes the node fits
-/// views to (every mesh with triangles).
+/// views to (every mesh with triangles), to what `fit_camera` sees of them when there is one.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn shadow_plan(
     s: &LightSample,
     lit: &[&Receiver],
     bounds: &[Option<Aabb>],
     scene_receivers: &[(V3, V3)],
+    fit_camera: Option<&Camera>,
     probes: &[Probe],
     cam: &Camera,
     sizing: MapSizing,
@@ -206,7 +226,7 @@ pub(crate) fn shadow_plan(
     } else {
         casters(s, lit, bounds)
     };
-    let views = shadow_views(s, scene_receivers);
+    let views = fitted_views(s, scene_receivers, fit_camera);
     let map_size = map_size(s, &views, probes, cam, sizing);
     ShadowPlan {
         views: summarize(&views),

@@ -241,6 +241,9 @@ pub enum ShadowViews {
     /// Cube-map faces in the sample's frame (+Z its axis), bit i for face i in the order
     /// +X, −X, +Y, −Y, +Z, −Z.
     Cube { faces: u8 },
+    /// `cascades` near frusta, each fitted to a slice of the eye depths the camera sees
+    /// (`scene::shadow_views::camera_views`), then `base` views fitted to all it sees.
+    Cascaded { cascades: u8, base: u8 },
 }
 
 impl ShadowViews {
@@ -251,6 +254,7 @@ impl ShadowViews {
             ShadowViews::Frustum { count, .. } => *count as usize,
             ShadowViews::Ortho => 1,
             ShadowViews::Cube { faces } => faces.count_ones() as usize,
+            ShadowViews::Cascaded { cascades, base } => *cascades as usize + *base as usize,
         }
     }
 }

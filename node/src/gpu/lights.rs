@@ -5,8 +5,10 @@
 use super::shadow_depth::ShadowDepth;
 use bytemuck::{Pod, Zeroable};
 use lightfold_scene::shading::V3;
-use lightfold_scene::shadow_views::{ShadowView, ShadowViewKind, cube_frame, shadow_views};
-use lightfold_scene::{LightSample, SampleKind};
+use lightfold_scene::shadow_views::{
+    ShadowView, ShadowViewKind, camera_views, cube_frame, shadow_views, visible_receivers,
+};
+use lightfold_scene::{Camera, LightSample, SampleKind};
 
 /// Deliberate mistakes for negative-control tests: each must make the comparison with the CPU
 /// reference fail. Never set outside tests.
@@ -51,7 +53,10 @@ pub struct GpuLight {
     pub cube_x: [f32; 3],
     pub cube: u32,
     pub cube_z: [f32; 3],
-    pub _pad: u32,
+    /// Near cascades before the views picked by `cube`: views `first_view..first_view +
+    /// cascades`, nearest first, a point taking the first whose [`GpuView::cascade_to`] exceeds
+    /// its eye depth; past the last, `cube` picks among the rest.
+    pub cascades: u32,
     /// View index of each face (`CubeFace::index` order), two to a word, low half first; see
     /// [`GpuLight::face`].
     pub faces: [u32; 4],
@@ -88,6 +93,9 @@ impl GpuLight {
 pub const MODE_SINGLE: u32 = 0;
 pub const MODE_CUBE: u32 = 1;
 pub const MODE_SPLIT: u32 = 2;
+/// Not a value of [`GpuLight::cube`]: the bit a light pass compiles in for lights with near
+/// cascades ([`GpuLight::cascades`]).
+pub const MODE_CASCADE: u32 = 3;
 
 /// `View` in `eye.wgsl` (std430). The projection is stored as its eight non-zero entries:
 /// `clip = (p00·x + p20·z + p30, p11·y + p21·z + p31, p22·z + p32, ortho ? 1 : −z)`.
@@ -102,7 +110,9 @@ pub struct GpuView {
     pub texel: f32,
     pub ortho: u32,
     pub layer: u32,
-    pub _pad: u32,
+    /// For a near cascade ([`GpuLight::cascades`]): the eye depth where it ends; infinite (and
+    /// unread) for other views.
+    pub cascade_to: f32,
 }
 
 /// Everything the shadow and eye passes need to know about this frame's lights.
@@ -127,17 +137,45 @@ pub fn colour_weight(c: V3, c_n: V3) -> V3 {
     })
 }
 
-/// Packs `samples` and their shadow views for receivers `receivers` on `map_size`² maps.
+/// What a frame's shadow views are fitted to.
+#[derive(Debug, Clone, Copy)]
+pub enum Fit<'a> {
+    /// Every receiver: walkthrough maps, which outlive camera moves.
+    All,
+    /// What the camera sees, one frustum (or split pair, or cube faces) per light: the fit
+    /// before issue 22, kept to measure against.
+    Visible(&'a Camera),
+    /// What the camera sees, split into cascades by eye depth where that spans a deep range
+    /// (`scene::shadow_views::camera_views`): the default, as the planner counts passes.
+    Cascaded(&'a Camera),
+}
+
+impl Fit<'_> {
+    fn views(self, sample: &LightSample, receivers: &[(V3, V3)]) -> Vec<ShadowView> {
+        match self {
+            Fit::All => shadow_views(sample, receivers),
+            Fit::Visible(c) => shadow_views(sample, &visible_receivers(c, receivers)),
+            Fit::Cascaded(c) => camera_views(sample, receivers, c),
+        }
+    }
+}
+
+/// Packs `samples` and their shadow views, fitted by `fit` to `receivers` (every mesh's box), on
+/// `map_size`² maps.
 pub fn plan_lights(
     samples: &[LightSample],
     receivers: &[(V3, V3)],
+    fit: Fit<'_>,
     c_n: V3,
     map_size: u32,
     fault: Option<Fault>,
 ) -> LightPlan {
     let mut plan = LightPlan::default();
     for (i, s) in samples.iter().enumerate() {
-        let mut views = shadow_views(s, receivers);
+        let mut views = fit.views(s, receivers);
+        if fault == Some(Fault::MissingFace) {
+            views.retain(|v| v.eye_depth.is_none());
+        }
         if fault == Some(Fault::MissingFace) && views.len() > 1 {
             // Keep the view looking most along the sample's axis: a single frustum's coverage.
             let axis = cube_frame(s)[2];
@@ -166,7 +204,7 @@ pub fn plan_lights(
                 texel: (e[1] - e[0]).max(e[3] - e[2]) / map_size.max(1) as f32,
                 ortho: v.is_ortho() as u32,
                 layer: plan.views.len() as u32,
-                _pad: 0,
+                cascade_to: v.eye_depth.map_or(f32::INFINITY, |d| d[1]),
             });
             plan.geometry.push(*v);
             plan.view_light.push(i as u32);
@@ -178,7 +216,11 @@ pub fn plan_lights(
             colour_weight(s.color, c_n)
         };
         let mut light = gpu_light(s, weight, first_view, views.len() as u32);
-        if views
+        // Near cascades come first; the views fitted to everything (`base`) pick as before.
+        let cascades = views.iter().take_while(|v| v.eye_depth.is_some()).count();
+        let base = &views[cascades..];
+        let cascades = cascades as u32;
+        if base
             .iter()
             .any(|v| matches!(v.kind, ShadowViewKind::CubeFace(_)))
         {
@@ -187,13 +229,15 @@ pub fn plan_lights(
             for (f, v) in faces.into_iter().enumerate() {
                 light.set_face(f, v);
             }
-        } else if views.len() == 2
-            && let Some(n) = views[0].half_space
+        } else if let [a, _] = base
+            && let Some(n) = a.half_space
         {
+            let first = first_view + cascades;
             (light.cube, light.cube_x) = (MODE_SPLIT, n);
-            light.set_face(0, first_view);
-            light.set_face(1, first_view + 1);
+            light.set_face(0, first);
+            light.set_face(1, first + 1);
         }
+        light.cascades = cascades;
         plan.lights.push(light);
     }
     plan
@@ -227,7 +271,7 @@ fn gpu_light(s: &LightSample, weight: V3, first_view: u32, view_count: u32) -> G
         cube_x: [0.0; 3],
         cube: 0,
         cube_z: [0.0; 3],
-        _pad: 0,
+        cascades: 0,
         faces: [u32::MAX; 4],
     }
 }
@@ -351,7 +395,7 @@ mod tests {
     #[test]
     fn views_are_numbered_across_lights_and_weights_divide_by_c_n() {
         let samples = [lobe([0.0, 2.9, 0.0]), lobe([0.0, 10.0, 5.0])];
-        let p = plan_lights(&samples, &ROOM, [2.0, 1.0, 0.0], 512, None);
+        let p = plan_lights(&samples, &ROOM, Fit::All, [2.0, 1.0, 0.0], 512, None);
         assert_eq!(p.lights.len(), 2);
         assert_eq!(
             p.passes_per_light.iter().sum::<u32>() as usize,
@@ -376,12 +420,20 @@ mod tests {
         let bad = plan_lights(
             &samples,
             &ROOM,
+            Fit::All,
             [2.0, 1.0, 0.0],
             512,
             Some(Fault::ColourNotDivided),
         );
         assert_eq!(bad.lights[0].weight, [1.0, 0.5, 0.25]);
-        let dropped = plan_lights(&samples, &ROOM, [1.0; 3], 512, Some(Fault::MissingFace));
+        let dropped = plan_lights(
+            &samples,
+            &ROOM,
+            Fit::All,
+            [1.0; 3],
+            512,
+            Some(Fault::MissingFace),
+        );
         assert_eq!(dropped.passes_per_light[0], 1);
     }
 
@@ -394,7 +446,14 @@ mod tests {
             ([-2.0, 0.0, -2.0], [-2.0, 3.0, 2.0]),
             ([2.0, 0.0, -2.0], [2.0, 3.0, 2.0]),
         ];
-        let p = plan_lights(&[lobe([0.0, 2.9, 0.0])], &walls, [1.0; 3], 512, None);
+        let p = plan_lights(
+            &[lobe([0.0, 2.9, 0.0])],
+            &walls,
+            Fit::All,
+            [1.0; 3],
+            512,
+            None,
+        );
         assert_eq!(p.lights[0].cube, MODE_CUBE);
         assert_eq!(p.passes_per_light[0], 5);
         let faces: Vec<u32> = (0..6).map(|f| p.lights[0].face(f)).collect();
@@ -421,15 +480,22 @@ mod tests {
     #[test]
     fn degenerate_samples_do_not_panic() {
         let mut bad = lobe([f32::NAN, 1.0, 0.0]);
-        let p = plan_lights(&[bad], &ROOM, [1.0; 3], 512, Some(Fault::MissingFace));
+        let p = plan_lights(
+            &[bad],
+            &ROOM,
+            Fit::All,
+            [1.0; 3],
+            512,
+            Some(Fault::MissingFace),
+        );
         assert_eq!(p.lights.len(), 1);
         bad.position = [0.0, 1.0, 0.0];
         bad.direction = [0.0; 3];
         bad.intensity = f32::INFINITY;
-        let p = plan_lights(&[bad], &ROOM, [0.0, f32::NAN, 1.0], 0, None);
+        let p = plan_lights(&[bad], &ROOM, Fit::All, [0.0, f32::NAN, 1.0], 0, None);
         assert_eq!(p.lights[0].weight[..2], [0.0, 0.0]);
         assert!(
-            plan_lights(&[bad], &[], [1.0; 3], 512, None)
+            plan_lights(&[bad], &[], Fit::All, [1.0; 3], 512, None)
                 .views
                 .is_empty()
         );
@@ -440,7 +506,7 @@ mod tests {
         let samples: Vec<LightSample> = (0..5)
             .map(|i| lobe([i as f32 * 0.3 - 0.6, 2.9, 0.0]))
             .collect();
-        let p = plan_lights(&samples, &ROOM, [1.0; 3], 512, None);
+        let p = plan_lights(&samples, &ROOM, Fit::All, [1.0; 3], 512, None);
         let chunks = chunk_lights(&p.lights, &p.views, 2);
         assert_eq!(
             chunks.iter().map(|c| c.lights.len()).collect::<Vec<_>>(),

@@ -12,7 +12,7 @@ use lightfold_shaders::{
 use std::collections::HashMap;
 
 use super::frame::RenderError;
-use super::lights::GpuLight;
+use super::lights::{GpuLight, MODE_CASCADE};
 use super::scene_data::Vertex;
 use super::shadow_depth::ShadowDepth;
 
@@ -117,7 +117,9 @@ impl LightSet {
         let bit = |v: u32| 1u32 << v.min(31);
         LightSet {
             kinds: lights.iter().fold(0, |m, l| m | bit(l.kind)),
-            modes: lights.iter().fold(0, |m, l| m | bit(l.cube)),
+            modes: lights.iter().fold(0, |m, l| {
+                m | bit(l.cube) | if l.cascades > 0 { bit(MODE_CASCADE) } else { 0 }
+            }),
             ranges: lights.iter().any(|l| l.range > 0.0),
         }
     }

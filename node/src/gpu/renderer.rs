@@ -10,13 +10,13 @@ use super::deferred::{DeferredTargets, read_illumination, render_deferred};
 use super::device::Gpu;
 use super::eye_pass::{EyeInputs, EyeTargets, GpuFrame, render_eye};
 use super::frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
-use super::lights::{Fault, LightPlan, plan_lights};
+use super::lights::{Fault, Fit, LightPlan, plan_lights};
 use super::pipelines::{DrawContext, LightSet, Pipelines};
 use super::readback::{ReadRequest, read_targets};
 use super::scene_data::SceneData;
 use super::shadow_depth::ShadowDepth;
 use super::shadow_pass::{ShadowMaps, layer_count, render_shadow_maps};
-use lightfold_scene::shadow_views::{ShadowView, visible_receivers};
+use lightfold_scene::shadow_views::ShadowView;
 use lightfold_scene::{Camera, Image, LightSample, Mesh, Scene, ShadowFilter};
 use std::time::Instant;
 use wgpu::util::DeviceExt;
@@ -67,6 +67,7 @@ pub struct Renderer {
     deferred: Option<DeferredTargets>,
     max_lights: u32,
     fit_to_camera: bool,
+    cascades: bool,
 }
 
 impl Renderer {
@@ -200,6 +201,7 @@ impl Renderer {
             targets: None,
             max_lights: gpu.max_lights(opts.shadow_map_size),
             fit_to_camera: true,
+            cascades: true,
             variant: EyeVariant::default(),
             deferred: None,
         })
@@ -294,6 +296,12 @@ impl Renderer {
     /// default: fewer cube faces) or to the whole scene, as walkthrough mode always does.
     pub fn set_fit_to_camera(&mut self, on: bool) {
         self.fit_to_camera = on;
+    }
+
+    /// Whether maps fitted to what the camera sees are split into cascades by eye depth where
+    /// that range is deep (the default; `false` gives one frustum per light, as before issue 22).
+    pub fn set_cascades(&mut self, on: bool) {
+        self.cascades = on;
     }
 
     /// Chooses how the eye pass lights pixels (same images either way, within f32 rounding).
@@ -417,16 +425,15 @@ impl Renderer {
         let frame_lights: &[LightSample] = if lit { lights } else { &[] };
         // Moving lights: maps cover only what the camera sees. Walkthrough: the maps must outlive
         // camera moves, so they cover every receiver.
-        let visible;
-        let receivers: &[([f32; 3], [f32; 3])] = if opts.walkthrough || !self.fit_to_camera {
-            &self.receivers
-        } else {
-            visible = visible_receivers(&self.camera, &self.receivers);
-            &visible
+        let fit = match (opts.walkthrough || !self.fit_to_camera, self.cascades) {
+            (true, _) => Fit::All,
+            (false, true) => Fit::Cascaded(&self.camera),
+            (false, false) => Fit::Visible(&self.camera),
         };
         let plan = plan_lights(
             frame_lights,
-            receivers,
+            &self.receivers,
+            fit,
             c_n,
             opts.shadow_map_size,
             opts.fault,

@@ -10,6 +10,7 @@ mod chain;
 mod degenerate;
 mod depth_range;
 mod shadow;
+pub mod shadow_maps;
 mod subtexel;
 mod subtexel_scene;
 mod support;
@@ -123,6 +124,10 @@ const CASES: &[(&str, CaseFn)] = &[
     ("banding", banding::banding_case),
     ("subtexel-leaves", subtexel::subtexel_leaves),
     ("subtexel-fence", subtexel::subtexel_fence),
+    ("corner-leak", shadow_maps::corner_leak),
+    ("grazing-fin", shadow_maps::grazing_fin),
+    ("deep-near", shadow_maps::deep_near),
+    ("thin-poles", shadow_maps::thin_poles),
 ];
 
 /// Names of the hard cases `run_case` knows.

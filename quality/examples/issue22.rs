@@ -1,0 +1,91 @@
+//! Issue 22's shadow-map cases with and without the fixes, and what the fixes cost on built-in
+//! scenes, for docs/hard-cases.md:
+//!
+//! ```sh
+//! cargo run --profile test -p lightfold-quality --example issue22 -- [--full] [--before] [NAME...]
+//! cargo run --profile test -p lightfold-quality --example issue22 -- --cost balls animal
+//! ```
+//!
+//! `--cost`: per scene, the GPU renderer's shadow + eye time (median of 5 frames after a warm-up)
+//! and shadow passes with the fixes off and on, and each render's whole-image and penumbra PSNR
+//! against the exact point sum of the same samples (penumbra: `reference::masks::penumbra`).
+use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+use lightfold_quality::hard::shadow_maps::{Fixes, run_with};
+use lightfold_reference::metrics::error_stats;
+use lightfold_reference::{PointSumOptions, masks, render_point_sum, render_point_sum_with};
+use lightfold_scene::sampling;
+
+fn cost(name: &str) -> anyhow::Result<()> {
+    let gpu = Gpu::new(&GpuOptions::default())?;
+    let scene = lightfold_scene::builtin(name)?;
+    let samples = sampling::scene_samples(&scene);
+    let truth = render_point_sum(&scene, &samples, [1.0; 3]).radiance([1.0; 3], scene.ambient);
+    let open = render_point_sum_with(
+        &scene,
+        &samples,
+        [1.0; 3],
+        PointSumOptions { shadows: false },
+    )
+    .radiance([1.0; 3], scene.ambient);
+    let penumbra = masks::penumbra(&truth, &open);
+    for fixes in [Fixes::NONE, Fixes::ALL] {
+        let mut r = Renderer::new(&gpu, &scene, RenderOptions::from_quality(&scene.quality))?;
+        r.set_cascades(fixes.cascades);
+        let mut times = Vec::new();
+        let mut last = None;
+        for _ in 0..6 {
+            let f = r.render(&gpu, &samples, None, [1.0; 3], LayerSet::all())?;
+            times.push(f.stats.shadow_us + f.stats.eye_us);
+            last = Some(f);
+        }
+        let f = last.expect("rendered");
+        times.remove(0);
+        times.sort_unstable();
+        let illum = f.illumination.clone().expect("illumination");
+        let img = f.radiance(&illum, scene.ambient)?;
+        let whole = error_stats(&img, &truth, scene.exposure, None)?;
+        let pen = error_stats(&img, &truth, scene.exposure, Some(&penumbra))?;
+        println!(
+            "{name} {fixes:?}: {} samples, {} shadow passes, shadow+eye {:.1} ms (median of 5), \
+             PSNR whole {:.2} dB, penumbra {:.2} dB ({} px)",
+            samples.len(),
+            f.stats.passes_per_light.iter().sum::<u32>(),
+            times[times.len() / 2] as f64 / 1e3,
+            whole.psnr,
+            pen.psnr,
+            pen.pixels
+        );
+    }
+    Ok(())
+}
+
+fn main() -> anyhow::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let full = args.iter().any(|a| a == "--full");
+    let fixes = if args.iter().any(|a| a == "--before") {
+        Fixes::NONE
+    } else {
+        Fixes::ALL
+    };
+    let mut names: Vec<&str> = args
+        .iter()
+        .filter(|a| !a.starts_with("--"))
+        .map(String::as_str)
+        .collect();
+    if args.iter().any(|a| a == "--cost") {
+        for name in names {
+            cost(name)?;
+        }
+        return Ok(());
+    }
+    if names.is_empty() {
+        names = vec!["corner-leak", "grazing-fin", "deep-near", "thin-poles"];
+    }
+    for name in names {
+        let t = std::time::Instant::now();
+        let r = run_with(name, full, fixes)
+            .ok_or_else(|| anyhow::anyhow!("{name} is not one of issue 22's cases"))??;
+        println!("{fixes:?}\n{r}\n  ({:.1} s)", t.elapsed().as_secs_f64());
+    }
+    Ok(())
+}
