@@ -342,6 +342,10 @@ fn a_cluster_is_scraped_while_it_renders() {
     wait_for("frames done to increase", START, || {
         done(&nodes[0].1) > first
     });
+    // The node read below may not have finished a frame yet when node 0 has.
+    wait_for("the second node to finish a frame", START, || {
+        done(&nodes[1].1) >= 1.0
+    });
     let (during, samples) = scrape(&nodes[1].1);
     let running = procs.0[coord].try_wait().unwrap().is_none();
     // A stage finishes its first frame after the nodes do.
@@ -377,6 +381,18 @@ fn a_cluster_is_scraped_while_it_renders() {
             "lightfold_frame_phase_seconds_count",
             &[("phase", "total")]
         ) >= 1.0
+    );
+    // Bytes per input link, labelled by the producing daemon: every link counts its own.
+    let links: Vec<&Sample> = comp_samples
+        .iter()
+        .filter(|s| s.name == "lightfold_link_bytes_in_total")
+        .collect();
+    assert!(!links.is_empty(), "no per-link counter:\n{comp_text}");
+    assert!(
+        links
+            .iter()
+            .all(|s| s.labels.contains_key("peer") && s.value > 0.0),
+        "{comp_text}"
     );
     eprintln!("scraped while the coordinator was running: {running}");
     let (coord_text, c) = scrape(&coord_metrics);

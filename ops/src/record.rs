@@ -9,6 +9,7 @@ pub const FRAMES_FAILED: &str = "lightfold_frames_failed_total";
 pub const PHASE_SECONDS: &str = "lightfold_frame_phase_seconds";
 pub const BYTES_IN: &str = "lightfold_bytes_in_total";
 pub const BYTES_OUT: &str = "lightfold_bytes_out_total";
+pub const LINK_BYTES_IN: &str = "lightfold_link_bytes_in_total";
 pub const STALE_BANDS: &str = "lightfold_stale_bands_total";
 pub const BUFFERED_BYTES: &str = "lightfold_buffered_bytes";
 pub const PEAK_RSS_BYTES: &str = "lightfold_peak_rss_bytes";
@@ -46,6 +47,11 @@ pub fn describe() {
         "bytes received, by kind (bands, scene, sink)"
     );
     describe_counter!(BYTES_OUT, Unit::Bytes, "bytes sent downstream (bands)");
+    describe_counter!(
+        LINK_BYTES_IN,
+        Unit::Bytes,
+        "band payload bytes received per input link, by the producer's daemon id"
+    );
     describe_counter!(
         STALE_BANDS,
         "bands dropped as belonging to an older plan epoch or an abandoned frame"
@@ -150,6 +156,11 @@ pub fn bytes_in(kind: &'static str, n: u64) {
     metrics::counter!(BYTES_IN, "kind" => kind).increment(n);
 }
 
+/// Band payload bytes received on the input link from `peer`.
+pub fn link_bytes_in(peer: &str, n: u64) {
+    metrics::counter!(LINK_BYTES_IN, "peer" => peer.to_string()).increment(n);
+}
+
 pub fn stale_band() {
     metrics::counter!(STALE_BANDS).increment(1);
 }
@@ -246,6 +257,8 @@ mod tests {
             };
             frame_done(&s);
             frame_done(&s);
+            link_bytes_in("node-3", 700);
+            link_bytes_in("node-3", 300);
             frame_failed("timeout");
             plan_epoch((1_700_000_000_123 << 16) + 3);
             adapter("llvmpipe (LLVM 15.0.6, 256 bits)", "vulkan", true);
@@ -254,6 +267,10 @@ mod tests {
         let text = handle.render();
         assert!(text.contains("lightfold_frames_done_total 2"), "{text}");
         assert!(text.contains("lightfold_bytes_out_total 8192"), "{text}");
+        assert!(
+            text.contains("lightfold_link_bytes_in_total{peer=\"node-3\"} 1000"),
+            "{text}"
+        );
         assert!(text.contains("lightfold_frames_failed_total{reason=\"timeout\"} 1"));
         assert!(text.contains("lightfold_plan_epoch 3"), "{text}");
         assert!(text.contains("lightfold_plan_session_start_seconds 1700000000.123"));

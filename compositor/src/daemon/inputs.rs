@@ -63,6 +63,8 @@ pub(crate) enum Offer {
 #[derive(Debug)]
 pub(crate) struct LinkState {
     pub addr: String,
+    /// The producer's daemon id (the metrics' per-link label).
+    pub peer: String,
     /// Cancelled when the pump stops (the link ended or was let go).
     pub ended: CancellationToken,
     last_band: Mutex<Instant>,
@@ -322,6 +324,7 @@ impl Slot {
         tracing::info!(input = self.index, peer = %self.peer, addr = %link.reader.addr, "input link attached");
         let state = Arc::new(LinkState {
             addr: link.reader.addr.clone(),
+            peer: self.peer.clone(),
             ended: CancellationToken::new(),
             last_band: Mutex::new(Instant::now()),
             reading: std::sync::atomic::AtomicBool::new(false),
@@ -419,6 +422,7 @@ async fn pump(
             },
         };
         lightfold_ops::record::bytes_in("bands", payload.len() as u64);
+        lightfold_ops::record::link_bytes_in(&state.peer, payload.len() as u64);
         let band = InBand {
             header,
             _held: metrics.hold(payload.len() as u64),
