@@ -201,60 +201,24 @@ fn skin_matrices(
     ctx: &NodeContext,
     at: &str,
 ) -> ReadResult<Option<Vec<Mat4>>> {
-    let (Some(ja), Some(wa)) = (
-        prim.get(&Semantic::Joints(0)),
-        prim.get(&Semantic::Weights(0)),
-    ) else {
+    let Some(rig) = skin_rig(skin, prim, n, ctx, at)? else {
         return Ok(None);
     };
-    let (joints, _) = ctx.bufs.read_u32(&ja, &[Dimensions::Vec4], "JOINTS_0")?;
-    let (weights, _) = ctx.bufs.read_f32(&wa, &[Dimensions::Vec4], "WEIGHTS_0")?;
-    if joints.len() != 4 * n || weights.len() != 4 * n {
-        return Err(format!(
-            "{at}: JOINTS_0/WEIGHTS_0 counts differ from POSITION ({n})"
-        ));
-    }
-    let joint_nodes: Vec<usize> = skin.joints().map(|j| j.index()).collect();
-    let ibm: Vec<Mat4> = match skin.inverse_bind_matrices() {
-        Some(acc) => {
-            let (v, _) = ctx
-                .bufs
-                .read_f32(&acc, &[Dimensions::Mat4], "inverseBindMatrices")?;
-            v.chunks_exact(16).map(Mat4::from_cols_slice).collect()
-        }
-        None => vec![Mat4::IDENTITY; joint_nodes.len()],
-    };
-    if ibm.len() < joint_nodes.len() {
-        return Err(format!(
-            "skin {}: {} inverse bind matrices for {} joints",
-            skin.index(),
-            ibm.len(),
-            joint_nodes.len()
-        ));
-    }
-    let joint_mats: Vec<Mat4> = joint_nodes
+    let joint_mats: Vec<Mat4> = rig
+        .joints
         .iter()
-        .zip(&ibm)
-        .map(|(&j, ib)| ctx.world[j] * *ib)
+        .zip(&rig.inverse_bind)
+        .map(|(&j, ib)| ctx.world[j as usize] * Mat4::from_cols_array(ib))
         .collect();
     let mut out = Vec::with_capacity(n);
-    for v in 0..n {
+    for (joints, weights) in rig.vertex_joints.iter().zip(&rig.vertex_weights) {
         let mut m = Mat4::ZERO;
         let mut total = 0.0;
         for k in 0..4 {
-            let w = weights[4 * v + k];
-            if w == 0.0 {
-                continue;
+            if weights[k] != 0.0 {
+                m += joint_mats[joints[k] as usize] * weights[k];
+                total += weights[k];
             }
-            let j = joints[4 * v + k] as usize;
-            let jm = joint_mats.get(j).ok_or_else(|| {
-                format!(
-                    "{at}: joint {j} is out of range (skin has {})",
-                    joint_mats.len()
-                )
-            })?;
-            m += *jm * w;
-            total += w;
         }
         // Weights should sum to one; renormalise small drift, fall back to the first joint.
         out.push(if total > 1e-6 {
@@ -301,6 +265,14 @@ fn skin_rig(
         }
         None => vec![Mat4::IDENTITY.to_cols_array(); joint_nodes.len()],
     };
+    if inverse_bind.len() < joint_nodes.len() {
+        return Err(format!(
+            "skin {}: {} inverse bind matrices for {} joints",
+            skin.index(),
+            inverse_bind.len(),
+            joint_nodes.len()
+        ));
+    }
     let mut vertex_joints = Vec::with_capacity(n);
     for (v, j) in joints.chunks_exact(4).enumerate() {
         let mut out = [0u16; 4];
