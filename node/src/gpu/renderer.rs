@@ -229,12 +229,15 @@ impl Renderer {
                 .zip(&self.scene.meshes)
                 .all(|(a, b)| (a.first_vertex, a.vertex_count) == (b.first_vertex, b.vertex_count));
         for (m, (new, old)) in ranges.iter().zip(&self.scene.meshes).enumerate() {
-            let span = |r: &super::scene_data::MeshRange, v: &[super::scene_data::Vertex]| {
-                bytemuck::cast_slice::<_, u8>(
+            // Compared in place as bytes (no copy per mesh per frame).
+            fn span<'v>(
+                r: &super::scene_data::MeshRange,
+                v: &'v [super::scene_data::Vertex],
+            ) -> &'v [u8] {
+                bytemuck::cast_slice(
                     &v[r.first_vertex as usize..(r.first_vertex + r.vertex_count) as usize],
                 )
-                .to_vec()
-            };
+            }
             if !same_layout
                 || new.bounds != old.bounds
                 || span(new, &vertices) != span(old, &self.scene.vertices)
