@@ -137,6 +137,8 @@ pub struct JobArgs {
     /// Lights per node (K).
     #[arg(short = 'K', long, default_value_t = lightfold_scene::defaults::LIGHTS_PER_NODE)]
     pub lights_per_node: u32,
+    #[command(flatten)]
+    pub indirect: crate::indirect_args::IndirectArgs,
     /// Compositor topology: `chain` (a linear pipeline, each stage adds its nodes to the upstream
     /// sum) or `tree` (leaf stages sum nodes, the stages above join pairs of partial sums).
     #[arg(long, default_value = "chain")]
@@ -224,6 +226,7 @@ impl JobArgs {
             lightfold_scene::limits::check_shadow_map_size(n)
                 .map_err(|e| anyhow::anyhow!("bad --shadow-map-size: {e}"))?;
         }
+        self.indirect.apply(&mut scene)?;
         Ok(scene)
     }
 

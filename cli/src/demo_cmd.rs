@@ -383,7 +383,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Some(t) => (scene.still_at(t), scene.samples_at(t)),
             None => (
                 scene.clone(),
-                lightfold_scene::sampling::scene_samples(&scene),
+                lightfold_reference::indirect::scene_samples(&scene),
             ),
         };
         last.camera =

@@ -15,6 +15,7 @@ mod defaults_cmd;
 mod demo_cmd;
 mod frames_out;
 mod healthcheck_cmd;
+mod indirect_args;
 mod lifecycle;
 mod logging;
 mod metrics_http;

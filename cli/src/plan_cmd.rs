@@ -38,6 +38,8 @@ pub struct Args {
     /// Lights per node (the paper's K); raised when the cluster has too few nodes.
     #[arg(short = 'K', long, default_value_t = lightfold_scene::defaults::LIGHTS_PER_NODE)]
     pub lights_per_node: u32,
+    #[command(flatten)]
+    pub indirect: crate::indirect_args::IndirectArgs,
     /// The most lights one node's device takes, the ceiling K is raised to. A real node reports
     /// its own at registration (its "render node ready" log line; lavapipe's is 170); the default
     /// is what every device takes (wgpu's default limits at the default shadow-map size).
@@ -98,6 +100,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         scene.camera.width = w;
         scene.camera.height = h;
     }
+    args.indirect.apply(&mut scene)?;
     let mut options = PlanOptions {
         lights_per_node: args.lights_per_node,
         topology: args.topology,

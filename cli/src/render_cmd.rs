@@ -10,7 +10,6 @@ use lightfold_reference::output::{
 };
 use lightfold_reference::{AreaOptions, render_to_files};
 use lightfold_scene::limits;
-use lightfold_scene::sampling::scene_samples;
 use std::path::PathBuf;
 
 #[path = "render_gpu.rs"]
@@ -82,6 +81,8 @@ pub struct Args {
     /// (default: its rest pose).
     #[arg(long, value_parser = crate::coordinator_cmd::finite_seconds)]
     pub time: Option<f32>,
+    #[command(flatten)]
+    pub indirect: crate::indirect_args::IndirectArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -104,6 +105,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(n) = args.shadow_map_size {
         scene.quality.shadow_map_size = n;
     }
+    args.indirect.apply(&mut scene)?;
     // The same limits as scene files and the network: samples, image and maps with the
     // overrides applied, before anything is allocated.
     scene
@@ -131,7 +133,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     scene = scene.still_at(t);
                     all
                 }
-                None => scene_samples(&scene),
+                None => lightfold_reference::indirect::scene_samples(&scene),
             };
             let samples = if args.lights.is_empty() {
                 all

@@ -148,8 +148,30 @@ pub fn frame_params(
     let mut changed = false;
     for (k, s) in plan.samples.iter().enumerate() {
         if let Some((_, c)) = colors.iter().find(|(l, _)| *l == s.light) {
-            changed |= c.map(f32::to_bits) != s.color.map(f32::to_bits);
-            per_sample[k] = *c;
+            // A virtual point light's colour is its source's times the albedo it bounced off:
+            // it changes by the source's ratio.
+            let new = match s.kind {
+                lightfold_scene::SampleKind::Bounce { .. } => {
+                    let source = plan
+                        .samples
+                        .iter()
+                        .find(|d| {
+                            d.light == s.light
+                                && !matches!(d.kind, lightfold_scene::SampleKind::Bounce { .. })
+                        })
+                        .map_or([1.0; 3], |d| d.color);
+                    std::array::from_fn(|i| {
+                        if source[i] != 0.0 {
+                            s.color[i] * c[i] / source[i]
+                        } else {
+                            0.0
+                        }
+                    })
+                }
+                _ => *c,
+            };
+            changed |= new.map(f32::to_bits) != s.color.map(f32::to_bits);
+            per_sample[k] = new;
         }
     }
     if !changed {

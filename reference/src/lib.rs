@@ -6,6 +6,7 @@
 
 pub mod area;
 pub mod bvh;
+pub mod indirect;
 pub mod masks;
 pub mod metrics;
 pub mod output;
@@ -14,6 +15,7 @@ pub mod trace;
 pub mod truth;
 
 pub use area::{AreaOptions, direct_at, radiance_area, render_area};
+pub use indirect::{IndirectOptions, OneBounceOptions, render_one_bounce};
 pub use metrics::{ErrorStats, Metrics, MetricsError, compare};
 pub use output::{ReferenceError, ReferenceMode, render_to_files};
 pub use point_sum::{

@@ -110,10 +110,30 @@ impl<'a> Tracer<'a> {
     /// Closest visible surface along an eye ray; `depth_scale` converts ray distance to depth.
     pub fn eye_ray(&self, origin: V3, dir: V3, depth_scale: f32) -> Option<SurfaceHit> {
         let o = origin.map(f64::from);
+        self.hit_along(o, dir, depth_scale, true).map(|(hit, _)| hit)
+    }
+
+    /// The first opaque surface a light ray from `o` along unit `dir` meets, whatever its
+    /// sidedness (every triangle casts shadows), and whether that is the back of a single-sided
+    /// material (which nothing sees, so it reflects nothing). Normals face the ray's origin.
+    pub fn light_ray(&self, o: [f64; 3], dir: V3) -> Option<(SurfaceHit, bool)> {
+        self.hit_along(o, dir, 1.0, false)
+    }
+
+    fn hit_along(
+        &self,
+        o: [f64; 3],
+        dir: V3,
+        depth_scale: f32,
+        skip_single_sided_backs: bool,
+    ) -> Option<(SurfaceHit, bool)> {
         let d = dir.map(f64::from);
         let hit = self.bvh.closest(o, d, 0.0, f64::INFINITY, |id, u, v| {
             let mat = self.triangle_material(id);
-            if !mat.double_sided && dot(self.geometric_normal(id), dir) >= 0.0 {
+            if skip_single_sided_backs
+                && !mat.double_sided
+                && dot(self.geometric_normal(id), dir) >= 0.0
+            {
                 return false;
             }
             !self.masked_out(id, mat, u, v)
@@ -134,8 +154,9 @@ impl<'a> Tracer<'a> {
             ng_raw
         };
         let mut ng = ng_raw;
-        if dot(ng, dir) > 0.0 {
-            // Back face of a double-sided material (single-sided back faces were rejected).
+        let back = dot(ng, dir) > 0.0;
+        if back {
+            // Back face of a double-sided material (eye rays rejected single-sided back faces).
             ng = shading::scale(ng, -1.0);
             n = shading::scale(n, -1.0);
         }
@@ -147,7 +168,7 @@ impl<'a> Tracer<'a> {
             [0.0; 2]
         };
         let position = [0, 1, 2].map(|k| o[k] + hit.t * d[k]);
-        Some(SurfaceHit {
+        let surface = SurfaceHit {
             position,
             geometric_normal: ng,
             normal: n,
@@ -155,7 +176,9 @@ impl<'a> Tracer<'a> {
             depth: (hit.t as f32) * depth_scale,
             uv,
             material: mesh.material,
-        })
+        };
+        let mat = material_of(self.scene, mesh.material);
+        Some((surface, back && !mat.double_sided))
     }
 
     /// Whether `sample` is visible from the surface point (`s_λ ∈ {0, 1}`). The ray starts

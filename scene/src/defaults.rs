@@ -11,6 +11,9 @@ pub const SAMPLES_PER_AREA_LIGHT: u32 = 16;
 pub const SHADOW_MAP_SIZE: u32 = 512;
 /// Lights per render node (the paper's K).
 pub const LIGHTS_PER_NODE: u32 = 4;
+/// Clamp distance of the `1/r²` falloff of virtual point lights, as a fraction of the scene's
+/// bounding diagonal, when the scene sets none (`docs/indirect.md`).
+pub const INDIRECT_CLAMP_REL: f32 = 0.02;
 /// The built-in scene `lightfold demo` renders.
 pub const DEFAULT_SCENE: &str = "balls";
 
@@ -24,5 +27,7 @@ pub fn quality() -> Quality {
         depth_bias: 0.002,
         slope_bias: 1.5,
         lights_per_node: LIGHTS_PER_NODE,
+        indirect: 0,
+        indirect_clamp: None,
     }
 }

@@ -14,7 +14,7 @@ use sha2::{Digest, Sha256};
 
 const MAGIC: &[u8; 4] = b"LFSC";
 /// Version of the byte layout of `to_bytes` (bump when `Scene` changes shape).
-pub const SCENE_BYTES_VERSION: u32 = 2;
+pub const SCENE_BYTES_VERSION: u32 = 3;
 /// Largest scene `from_bytes` accepts ([`crate::limits::MAX_SCENE_BYTES`]).
 pub const MAX_SCENE_BYTES: usize = crate::limits::MAX_SCENE_BYTES as usize;
 
@@ -244,6 +244,8 @@ impl Canon {
             depth_bias,
             slope_bias,
             lights_per_node,
+            indirect,
+            indirect_clamp,
         } = q;
         match samples_per_area_light {
             None => self.u8(0),
@@ -270,6 +272,19 @@ impl Canon {
         self.f32(*depth_bias);
         self.f32(*slope_bias);
         self.u32(*lights_per_node);
+        // Written only when on, so a direct-light scene keeps the content hash it had before
+        // indirect light existed.
+        if *indirect > 0 {
+            self.u8(1);
+            self.u32(*indirect);
+            match indirect_clamp {
+                None => self.u8(0),
+                Some(c) => {
+                    self.u8(1);
+                    self.f32(*c);
+                }
+            }
+        }
     }
 
     fn assets(&mut self, meshes: &[Mesh], materials: &[Material], textures: &[Texture]) {

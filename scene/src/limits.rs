@@ -58,7 +58,10 @@ pub enum LimitError {
          {MAX_SAMPLES_PER_AREA_LIGHT}"
     )]
     SamplesPerLight { what: String, samples: u32 },
-    #[error("{samples} light samples in all; a scene may have at most {MAX_LIGHT_SAMPLES}")]
+    #[error(
+        "{samples} light samples in all (virtual point lights included); a scene may have at \
+         most {MAX_LIGHT_SAMPLES}"
+    )]
     TotalSamples { samples: u64 },
     #[error("{triangles} triangles; a scene may have at most {MAX_TRIANGLES}")]
     Triangles { triangles: u64 },
@@ -136,7 +139,7 @@ impl crate::model::Scene {
                 }
             }
         }
-        let samples = self.sample_count() as u64;
+        let samples = self.sample_count() as u64 + u64::from(self.quality.indirect);
         if samples > MAX_LIGHT_SAMPLES {
             return Err(LimitError::TotalSamples { samples });
         }

@@ -168,6 +168,10 @@ pub enum SampleKind {
     Spot { cos_outer: f32, cos_inner: f32 },
     /// Parallel light travelling along `direction`; `intensity` is irradiance (W/m²).
     Directional,
+    /// A virtual point light of one-bounce indirect light (`docs/indirect.md`): a cosine lobe
+    /// `I(θ) = intensity·max(0, cos θ)` about the surface normal `direction`, whose `1/r²` falloff
+    /// is clamped to `1/max(r², clamp²)` (`clamp` in metres; 0 is no clamp).
+    Bounce { clamp: f32 },
 }
 
 /// One point-light sample `λ`: what the plan carries and what nodes render. Nodes never resample.
@@ -238,6 +242,12 @@ pub struct Quality {
     pub slope_bias: f32,
     /// Lights per render node (the paper's K).
     pub lights_per_node: u32,
+    /// Virtual point lights of one-bounce indirect light over the whole scene (0: direct light
+    /// only; `docs/indirect.md`).
+    pub indirect: u32,
+    /// Clamp distance of those lights' `1/r²` falloff, metres (0: none; `None`:
+    /// [`crate::defaults::INDIRECT_CLAMP_REL`] of the scene's bounding diagonal).
+    pub indirect_clamp: Option<f32>,
 }
 
 impl Default for Quality {

@@ -163,7 +163,7 @@ fn mesh_samples(
 /// Radiant power (W, scalar) of one sample: `π·I` for a cosine lobe, `2π·I` two-sided.
 pub fn sample_power(s: &LightSample) -> Option<f64> {
     match s.kind {
-        SampleKind::CosineLobe => Some(PI as f64 * s.intensity as f64),
+        SampleKind::CosineLobe | SampleKind::Bounce { .. } => Some(PI as f64 * s.intensity as f64),
         SampleKind::TwoSidedLobe => Some(2.0 * PI as f64 * s.intensity as f64),
         _ => None,
     }

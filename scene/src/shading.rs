@@ -78,7 +78,7 @@ pub fn sample_intensity(s: &LightSample, to_point: V3) -> f32 {
     let c = dot(s.direction, to_point);
     match s.kind {
         SampleKind::Isotropic => s.intensity,
-        SampleKind::CosineLobe => s.intensity * c.max(0.0),
+        SampleKind::CosineLobe | SampleKind::Bounce { .. } => s.intensity * c.max(0.0),
         SampleKind::TwoSidedLobe => s.intensity * c.abs(),
         SampleKind::Spot {
             cos_outer,
@@ -104,6 +104,15 @@ pub fn to_light(s: &LightSample, p: V3) -> (V3, f32) {
     }
 }
 
+/// The `r²` of the inverse-square law, clamped for a virtual point light to `max(r², clamp²)`.
+#[inline]
+pub fn falloff(s: &LightSample, r: f32) -> f32 {
+    match s.kind {
+        SampleKind::Bounce { clamp } => (r * r).max(clamp * clamp),
+        _ => r * r,
+    }
+}
+
 /// Unshadowed irradiance `E_λ` (W/m², scalar; colour applied separately) at `p` with normal `n`.
 /// Finite for every input: a point on the light gives 0.
 #[inline]
@@ -119,7 +128,7 @@ pub fn irradiance(s: &LightSample, p: V3, n: V3) -> f32 {
             if r.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
                 return 0.0;
             }
-            sample_intensity(s, scale(l, -1.0)) * cos_n / (r * r) * range_window(r, s.range)
+            sample_intensity(s, scale(l, -1.0)) * cos_n / falloff(s, r) * range_window(r, s.range)
         }
     };
     if e.is_finite() { e } else { 0.0 }

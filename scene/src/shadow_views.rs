@@ -142,7 +142,7 @@ fn perspective_views(sample: &LightSample, boxes: &[(V3, V3)]) -> Vec<ShadowView
     // Half-spaces through the sample bounding its lit region.
     let mut region: Vec<V3> = Vec::new();
     match sample.kind {
-        SampleKind::CosineLobe => region.push(axis),
+        SampleKind::CosineLobe | SampleKind::Bounce { .. } => region.push(axis),
         SampleKind::Spot { cos_outer, .. } if cos_outer > 0.0 => {
             region.push(axis);
             // The square pyramid around the cone, when the cone is narrow enough to have one.

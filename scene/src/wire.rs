@@ -15,6 +15,7 @@ pub fn light_to_wire(s: &LightSample, sample: u32) -> WireLight {
             cos_inner,
         } => (3, [cos_outer, cos_inner]),
         SampleKind::Directional => (4, [0.0, 0.0]),
+        SampleKind::Bounce { clamp } => (5, [clamp, 0.0]),
     };
     WireLight {
         position: s.position,
@@ -64,6 +65,9 @@ pub fn light_from_wire(w: &WireLight) -> Result<LightSample, WireError> {
             cos_inner: w.cone[1],
         },
         4 => SampleKind::Directional,
+        5 => SampleKind::Bounce {
+            clamp: w.cone[0].max(0.0),
+        },
         kind => {
             return Err(WireError::UnknownKind {
                 sample: w.sample,
@@ -139,6 +143,7 @@ mod tests {
                 cos_inner: 0.9,
             },
             SampleKind::Directional,
+            SampleKind::Bounce { clamp: 0.25 },
         ];
         for (i, kind) in kinds.into_iter().enumerate() {
             let s = LightSample {

@@ -7,6 +7,9 @@ const KIND_COSINE_LOBE: u32 = 1u;
 const KIND_TWO_SIDED_LOBE: u32 = 2u;
 const KIND_SPOT: u32 = 3u;
 const KIND_DIRECTIONAL: u32 = 4u;
+// A virtual point light: a cosine lobe whose 1/r² is clamped to 1/max(r², clamp²), the clamp
+// distance stored in `cos_outer`.
+const KIND_BOUNCE: u32 = 5u;
 
 // One point-light sample λ as the node renders it.
 struct Light {
@@ -19,6 +22,7 @@ struct Light {
     weight: vec3f,
     // Range window; 0 means unbounded.
     range: f32,
+    // Spot cone cosines; for KIND_BOUNCE `cos_outer` is the falloff clamp distance.
     cos_outer: f32,
     cos_inner: f32,
     first_view: u32,
@@ -58,7 +62,7 @@ fn safe_normalize(a: vec3f) -> vec3f {
 // The sample kinds a pipeline is built for, one bit per KIND_* (all by default). A CPU rasteriser
 // runs every side of every branch, so the eye pass is specialised to the kinds its lights have:
 // the code of the others folds away. The maths below is branch-free for the same reason.
-override LIGHT_KINDS: u32 = 0x1fu;
+override LIGHT_KINDS: u32 = 0x3fu;
 
 fn handles(kind: u32) -> bool {
     return (LIGHT_KINDS & (1u << kind)) != 0u;
@@ -89,6 +93,9 @@ fn sample_intensity(s: Light, to_point: vec3f) -> f32 {
     if handles(KIND_TWO_SIDED_LOBE) {
         i = select(i, s.intensity * abs(c), is_kind(s, KIND_TWO_SIDED_LOBE));
     }
+    if handles(KIND_BOUNCE) {
+        i = select(i, s.intensity * max(c, 0.0), is_kind(s, KIND_BOUNCE));
+    }
     if handles(KIND_SPOT) {
         let t = clamp((c - s.cos_outer) / max(s.cos_inner - s.cos_outer, 1e-4), 0.0, 1.0);
         i = select(i, s.intensity * t * t, is_kind(s, KIND_SPOT));
@@ -112,7 +119,11 @@ fn irradiance(s: Light, lr: vec4f, n: vec3f) -> f32 {
     let l = lr.xyz;
     let r = lr.w;
     let cos_n = dot(n, l);
-    var e = sample_intensity(s, -l) * cos_n / (r * r);
+    var r2 = r * r;
+    if handles(KIND_BOUNCE) {
+        r2 = select(r2, max(r2, s.cos_outer * s.cos_outer), is_kind(s, KIND_BOUNCE));
+    }
+    var e = sample_intensity(s, -l) * cos_n / r2;
     if LIGHT_RANGES {
         e *= range_window(r, s.range);
     }

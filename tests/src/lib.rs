@@ -261,7 +261,8 @@ pub fn small(name: &str) -> Scene {
 /// texel grids: ≈ 0.4 % of channels of `small("balls")`, up to 0.025), so each cluster mode is
 /// compared with the single-device render that fits its maps the same way.
 pub fn single_device(gpu: &Gpu, scene: &Scene, walkthrough: bool) -> Image {
-    let samples = lightfold_scene::sampling::scene_samples(scene);
+    // Direct samples and, where the scene asks for indirect light, its VPLs (as the planner).
+    let samples = lightfold_reference::indirect::scene_samples(scene);
     let mut r = Renderer::new(gpu, scene, RenderOptions::from_quality(&scene.quality)).unwrap();
     r.set_camera(&scene.camera);
     r.set_fit_to_camera(!walkthrough);

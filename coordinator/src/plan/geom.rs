@@ -191,7 +191,7 @@ pub(crate) fn reach(s: &LightSample, b: &Aabb) -> Result<f32, Miss> {
         (phi - rho).max(0.0).cos()
     };
     let peak = match s.kind {
-        SampleKind::CosineLobe => {
+        SampleKind::CosineLobe | SampleKind::Bounce { .. } => {
             if unit
                 && b.corners()
                     .iter()
@@ -220,10 +220,11 @@ pub(crate) fn reach(s: &LightSample, b: &Aabb) -> Result<f32, Miss> {
         }
         _ => s.intensity.abs(),
     };
-    if dmin <= 1e-6 {
+    let falloff = lightfold_scene::shading::falloff(s, dmin);
+    if falloff <= 1e-12 {
         return Ok(f32::INFINITY);
     }
-    Ok(peak * window / (dmin * dmin))
+    Ok(peak * window / falloff)
 }
 
 /// Whether the sample lights point `p` at all (range, cone, lobe), for the mismatch estimate.

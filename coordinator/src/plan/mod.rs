@@ -76,7 +76,8 @@ pub(crate) fn plan_with(
 ) -> Result<Plan, PlanError> {
     validate(scene, cluster, options)?;
     let cam = &scene.camera;
-    let samples = lightfold_scene::sampling::scene_samples(scene);
+    // Direct samples, then the virtual point lights of indirect light (planned like the rest).
+    let samples = lightfold_reference::indirect::scene_samples(scene);
     let bounds = geom::mesh_bounds(scene);
     let receivers = cull::receivers(scene, &bounds);
     let mut culling = cull::cull(
@@ -453,6 +454,13 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
     }
     if let MapSizing::Fixed(0) = o.map_sizing {
         return bad_options("a fixed shadow-map size must be at least 1");
+    }
+    if scene.quality.indirect > 0 && scene.animation.is_some() {
+        return bad_scene(
+            "indirect light (virtual point lights) is traced for still scenes, and this one is \
+             animated: render it without indirect light, or a still pose of it"
+                .to_string(),
+        );
     }
     if cluster.nodes.is_empty() {
         return Err(PlanError::NoNodes);

@@ -253,6 +253,7 @@ fn gpu_light(s: &LightSample, weight: V3, first_view: u32, view_count: u32) -> G
             cos_inner,
         } => (3, cos_outer, cos_inner),
         SampleKind::Directional => (4, 0.0, 0.0),
+        SampleKind::Bounce { clamp } => (5, clamp, 0.0),
     };
     GpuLight {
         position: s.position,

@@ -443,4 +443,6 @@ fn apply_quality(q: &mut Quality, s: &super::spec::QualitySpec) {
     q.depth_bias = s.depth_bias.unwrap_or(q.depth_bias);
     q.slope_bias = s.slope_bias.unwrap_or(q.slope_bias);
     q.lights_per_node = s.lights_per_node.unwrap_or(q.lights_per_node);
+    q.indirect = s.indirect.unwrap_or(q.indirect);
+    q.indirect_clamp = s.indirect_clamp.or(q.indirect_clamp);
 }

@@ -131,6 +131,12 @@ pub struct QualitySpec {
     pub slope_bias: Option<f32>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub lights_per_node: Option<u32>,
+    /// Virtual point lights of one-bounce indirect light (0: none).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub indirect: Option<u32>,
+    /// Their falloff clamp, metres.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub indirect_clamp: Option<f32>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

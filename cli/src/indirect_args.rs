@@ -1,0 +1,43 @@
+//! `--indirect` and `--indirect-clamp`: one-bounce indirect light from virtual point lights
+//! (`docs/indirect.md`), shared by `render`, `plan`, `demo` and `coordinator`.
+
+use anyhow::bail;
+use lightfold_scene::Scene;
+
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct IndirectArgs {
+    /// One-bounce indirect light from this many virtual point lights, planned like any light
+    /// sample (0: direct light only; default: the scene's `[quality] indirect`).
+    #[arg(long, value_name = "M")]
+    pub indirect: Option<u32>,
+    /// Clamp distance of the virtual point lights' 1/r² falloff, in metres (0: none; default:
+    /// the scene's, or 2 % of its bounding diagonal).
+    #[arg(long, value_name = "METRES")]
+    pub indirect_clamp: Option<f32>,
+}
+
+impl IndirectArgs {
+    /// Sets the scene's indirect-light options; refuses a non-finite or negative clamp, and
+    /// indirect light on an animated scene (its virtual point lights are traced for one pose).
+    pub fn apply(&self, scene: &mut Scene) -> anyhow::Result<()> {
+        if let Some(c) = self.indirect_clamp {
+            if !(c.is_finite() && c >= 0.0) {
+                bail!("--indirect-clamp must be a finite distance ≥ 0 (metres), not {c}");
+            }
+            scene.quality.indirect_clamp = Some(c);
+        }
+        if let Some(m) = self.indirect {
+            scene.quality.indirect = m;
+        }
+        if scene.quality.indirect > 0 && scene.animation.is_some() {
+            bail!(
+                "indirect light (virtual point lights) is traced for still scenes, and {:?} is \
+                 animated: drop --indirect, or render it without its animation",
+                scene.name
+            );
+        }
+        scene
+            .check_limits()
+            .map_err(|e| anyhow::anyhow!("{e} (see `lightfold defaults`)"))
+    }
+}

@@ -1,0 +1,401 @@
+//! One-bounce indirect light from virtual point lights (issue 25, `docs/indirect.md`).
+//!
+//! - **Closed form.** Inside a diffuse sphere of albedo ρ and radius R lit by an isotropic point
+//!   light of intensity I at its centre, the one-bounce radiance of the wall is `ρ²·I/(π·R²)`
+//!   everywhere (the direct light is uniform, and a sphere's `cos·cos/r²` is `1/(4R²)` for every
+//!   pair of points); a falloff clamp `c` removes the fraction `c²/(8R²)` of it (the points within
+//!   chord `c` of a point cover a cap of area `π·c²`, where the clamped term falls as `r²/c²`). The
+//!   exact VPL sum, the path-traced truth and the GPU render each meet it.
+//! - **No leak.** A point light in one of two closed rooms: the other room stays black through
+//!   the GPU's shadow-mapped VPLs, while the same VPLs without visibility (seed 003's method) light
+//!   it: the negative control.
+//! - **Cluster.** The Cornell box with VPLs through the in-process cluster equals the single-device
+//!   render within the link formats' bound, and that equals the CPU's exact VPL sum within the
+//!   shadow maps' error.
+
+use lightfold_coordinator::plan::MapSizing;
+use lightfold_coordinator::run::RunOptions;
+use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+use lightfold_reference::indirect::{self, IndirectOptions, OneBounceOptions};
+use lightfold_reference::{
+    PointSumOptions, Tracer, compare, render_one_bounce, render_point_sum_with,
+};
+use lightfold_scene::{Camera, Image, Light, LightSample, LightShape, Material, SampleKind, Scene};
+use lightfold_tests::{InProcessCluster, assert_close, render_on, single_device, test_control};
+
+const RHO: f32 = 0.5;
+const R: f32 = 1.0;
+const I: f32 = 1.0;
+
+fn gpu() -> Gpu {
+    Gpu::new(&GpuOptions::default())
+        .expect("a GPU adapter is required (install mesa-vulkan-drivers)")
+}
+
+fn camera(position: [f32; 3], target: [f32; 3], w: u32, h: u32) -> Camera {
+    Camera {
+        position,
+        target,
+        up: [0.0, 1.0, 0.0],
+        fov_y_deg: 50.0,
+        width: w,
+        height: h,
+    }
+}
+
+fn point_light(position: [f32; 3], power: f32) -> Light {
+    Light {
+        name: "point".into(),
+        shape: LightShape::Point { position },
+        color: [1.0; 3],
+        power,
+        range: None,
+        samples: 1,
+    }
+}
+
+/// The furnace: a finely tessellated sphere of albedo ρ seen from near its centre, where the
+/// point light is.
+fn sphere_scene(vpls: u32, clamp: f32) -> Scene {
+    let mut s = Scene::new("sphere furnace");
+    let m = s.add_material(Material::diffuse("white", [RHO; 3]));
+    s.add_mesh(lightfold_scene::primitives::sphere(
+        "sphere", [0.0; 3], R, 96, 48, m,
+    ));
+    s.lights.push(point_light([0.0; 3], I));
+    s.camera = camera([0.0, 0.0, 0.3], [0.0, -0.2, -1.0], 48, 36);
+    s.quality.indirect = vpls;
+    s.quality.indirect_clamp = Some(clamp);
+    s.quality.shadow_map_size = 256;
+    s
+}
+
+fn mean_rgb(img: &Image) -> f64 {
+    img.data.iter().map(|&v| f64::from(v)).sum::<f64>() / img.data.len() as f64
+}
+
+fn vpls_of(scene: &Scene) -> (Vec<LightSample>, Vec<LightSample>) {
+    let all = indirect::scene_samples(scene);
+    all.into_iter()
+        .partition(|s| !matches!(s.kind, SampleKind::Bounce { .. }))
+}
+
+fn radiance_of(scene: &Scene, samples: &[LightSample], shadows: bool) -> Image {
+    render_point_sum_with(scene, samples, [1.0; 3], PointSumOptions { shadows })
+        .radiance([1.0; 3], scene.ambient)
+}
+
+/// GPU radiance of `samples` (paper eq. 2 with no ambient).
+fn gpu_radiance(gpu: &Gpu, scene: &Scene, samples: &[LightSample]) -> Image {
+    let mut r = Renderer::new(gpu, scene, RenderOptions::from_quality(&scene.quality)).unwrap();
+    r.set_camera(&scene.camera);
+    let batch = gpu.max_lights(scene.quality.shadow_map_size).clamp(1, 64) as usize;
+    let mut out = Image::new(scene.camera.width, scene.camera.height, 3);
+    for chunk in samples.chunks(batch) {
+        let f = r
+            .render(gpu, chunk, None, [1.0; 3], LayerSet::all())
+            .unwrap();
+        let (il, md) = (f.illumination.unwrap(), f.diffuse.unwrap());
+        for i in 0..out.pixel_count() {
+            for c in 0..3 {
+                out.data[i * 3 + c] += md.data[i * 3 + c] * il.data[i * 6 + c];
+            }
+        }
+    }
+    out
+}
+
+fn closed_form(clamp: f32) -> f64 {
+    let (rho, r, i) = (f64::from(RHO), f64::from(R), f64::from(I));
+    let c = f64::from(clamp);
+    rho * rho * i / (std::f64::consts::PI * r * r) * (1.0 - c * c / (8.0 * r * r))
+}
+
+#[test]
+fn vpls_are_deterministic_and_carry_the_reflected_power() {
+    let scene = sphere_scene(512, 0.0);
+    let (direct, vpls) = vpls_of(&scene);
+    assert_eq!(direct.len(), 1);
+    // Inside a closed sphere every path lands: one VPL per path.
+    assert_eq!(vpls.len(), 512);
+    assert_eq!(
+        vpls,
+        vpls_of(&scene).1,
+        "the same scene gives the same VPLs"
+    );
+    let mut other = scene.clone();
+    other.quality.seed += 1;
+    assert_ne!(vpls, vpls_of(&other).1, "another seed gives other VPLs");
+    // Power: each VPL re-emits π·I_v; together ρ times the light's 4π·I.
+    let power: f64 = vpls
+        .iter()
+        .map(|v| std::f64::consts::PI * f64::from(v.intensity * v.color[0]))
+        .sum();
+    let want = f64::from(RHO) * 4.0 * std::f64::consts::PI * f64::from(I);
+    assert!(
+        (power / want - 1.0).abs() < 1e-3,
+        "VPL power {power}, want {want}"
+    );
+    for v in &vpls {
+        let d = lightfold_scene::shading::length(v.position);
+        assert!(d < R && d > 0.99 * R, "a VPL on the wall, inside: {d}");
+        // The lobe faces the centre.
+        assert!(lightfold_scene::shading::dot(v.direction, v.position) < 0.0);
+    }
+}
+
+#[test]
+fn furnace_exact_vpl_sum_and_truth_meet_the_closed_form() {
+    let scene = sphere_scene(1024, 0.0);
+    let (direct, vpls) = vpls_of(&scene);
+    let want = closed_form(0.0);
+    let vpl = mean_rgb(&radiance_of(&scene, &vpls, true));
+    let truth = mean_rgb(
+        &render_one_bounce(&scene, &direct, &OneBounceOptions { paths: 16, seed: 3 })
+            .radiance([1.0; 3], [0.0; 3]),
+    );
+    eprintln!("furnace one bounce: closed form {want:.5}, VPL sum {vpl:.5}, truth {truth:.5}");
+    assert!((vpl / want - 1.0).abs() < 0.01, "VPL sum {vpl} vs {want}");
+    assert!((truth / want - 1.0).abs() < 0.01, "truth {truth} vs {want}");
+}
+
+#[test]
+fn furnace_clamp_bias_is_the_documented_one() {
+    let clamp = 0.5 * R;
+    let scene = sphere_scene(2048, clamp);
+    let (_, vpls) = vpls_of(&scene);
+    assert!(vpls.iter().all(|v| v.kind == SampleKind::Bounce { clamp }));
+    let got = mean_rgb(&radiance_of(&scene, &vpls, true));
+    let want = closed_form(clamp);
+    let unclamped = closed_form(0.0);
+    eprintln!("furnace clamp {clamp}: {got:.5}, want {want:.5} (unclamped {unclamped:.5})");
+    assert!(
+        (got / want - 1.0).abs() < 0.01,
+        "clamped sum {got} vs {want}"
+    );
+    // Negative control: the bias is larger than the tolerance, so the test sees it.
+    assert!((got / unclamped - 1.0).abs() > 0.02);
+}
+
+#[test]
+fn furnace_on_the_gpu() {
+    let gpu = gpu();
+    let scene = sphere_scene(256, 0.0);
+    let (_, vpls) = vpls_of(&scene);
+    let got = mean_rgb(&gpu_radiance(&gpu, &scene, &vpls));
+    let want = closed_form(0.0);
+    eprintln!("furnace on the GPU: {got:.5}, want {want:.5}");
+    assert!(
+        (got / want - 1.0).abs() < 0.02,
+        "GPU VPL sum {got} vs {want}"
+    );
+}
+
+/// Two closed rooms side by side, x < 0 and x > 0, a 0.2 m wall between; the light in the first,
+/// the camera in the second.
+fn two_rooms(vpls: u32) -> Scene {
+    let mut s = Scene::new("two rooms");
+    let m = s.add_material(Material::diffuse("white", [0.8; 3]));
+    let cuboid = lightfold_scene::primitives::cuboid;
+    let t = 0.1;
+    // Floor, ceiling, outer walls (enclosing x ∈ [-3, 3], y ∈ [0, 2], z ∈ [-1.5, 1.5]), middle.
+    s.add_mesh(cuboid(
+        "floor",
+        [0.0, -t, 0.0],
+        [3.0 + 2.0 * t, t, 1.5 + 2.0 * t],
+        m,
+    ));
+    s.add_mesh(cuboid(
+        "ceiling",
+        [0.0, 2.0 + t, 0.0],
+        [3.0 + 2.0 * t, t, 1.5 + 2.0 * t],
+        m,
+    ));
+    s.add_mesh(cuboid(
+        "west",
+        [-3.0 - t, 1.0, 0.0],
+        [t, 1.0 + 2.0 * t, 1.5 + 2.0 * t],
+        m,
+    ));
+    s.add_mesh(cuboid(
+        "east",
+        [3.0 + t, 1.0, 0.0],
+        [t, 1.0 + 2.0 * t, 1.5 + 2.0 * t],
+        m,
+    ));
+    s.add_mesh(cuboid(
+        "north",
+        [0.0, 1.0, -1.5 - t],
+        [3.0 + 2.0 * t, 1.0 + 2.0 * t, t],
+        m,
+    ));
+    s.add_mesh(cuboid(
+        "south",
+        [0.0, 1.0, 1.5 + t],
+        [3.0 + 2.0 * t, 1.0 + 2.0 * t, t],
+        m,
+    ));
+    s.add_mesh(cuboid(
+        "middle",
+        [0.0, 1.0, 0.0],
+        [t, 1.0 + 2.0 * t, 1.5 + 2.0 * t],
+        m,
+    ));
+    // A box in the lit room, so its light bounces off more than walls.
+    s.add_mesh(cuboid("box", [-1.5, 0.4, 0.3], [0.4, 0.4, 0.4], m));
+    s.lights.push(point_light([-2.0, 1.5, -0.5], 10.0));
+    s.camera = camera([2.8, 1.6, 1.3], [0.2, 0.3, -0.5], 48, 36);
+    s.quality.indirect = vpls;
+    s.quality.shadow_map_size = 512;
+    s
+}
+
+#[test]
+fn indirect_light_does_not_leak_through_walls() {
+    let gpu = gpu();
+    let scene = two_rooms(256);
+    let (direct, vpls) = vpls_of(&scene);
+    assert!(vpls.len() > 200, "{} VPLs", vpls.len());
+    assert!(
+        vpls.iter().all(|v| v.position[0] < 0.0),
+        "every VPL is in the lit room"
+    );
+    // How bright the lit room's bounce is, for scale: its wall seen from inside.
+    let mut lit = scene.clone();
+    lit.camera = camera([-0.3, 1.0, 1.2], [-2.5, 0.8, -1.0], 48, 36);
+    let lit_level = mean_rgb(&radiance_of(&lit, &vpls, true));
+    assert!(lit_level > 1e-3, "the lit room is lit: {lit_level}");
+
+    let gpu_dark = gpu_radiance(&gpu, &scene, &[direct.clone(), vpls.clone()].concat());
+    let peak = gpu_dark.data.iter().copied().fold(0.0f32, f32::max);
+    let cpu_dark = radiance_of(&scene, &vpls, true);
+    let cpu_peak = cpu_dark.data.iter().copied().fold(0.0f32, f32::max);
+    // Negative control: the same VPLs without visibility light the dark room.
+    let leak = radiance_of(&scene, &vpls, false);
+    let leak_mean = mean_rgb(&leak);
+    eprintln!(
+        "dark room: GPU peak {peak:.2e}, CPU peak {cpu_peak:.2e}; without visibility mean \
+         {leak_mean:.2e}; lit room mean {lit_level:.2e}"
+    );
+    assert_eq!(
+        cpu_peak, 0.0,
+        "the exact VPL sum leaves the dark room black"
+    );
+    assert!(
+        f64::from(peak) < 1e-3 * lit_level,
+        "light leaked into the dark room through the GPU's VPLs: peak {peak}"
+    );
+    // And the GPU does light the lit room with those VPLs.
+    let gpu_lit = mean_rgb(&gpu_radiance(&gpu, &lit, &vpls));
+    eprintln!("lit room through the GPU's VPLs: {gpu_lit:.3e}");
+    assert!(
+        (gpu_lit / lit_level - 1.0).abs() < 0.05,
+        "{gpu_lit} vs {lit_level}"
+    );
+    assert!(
+        leak_mean > 0.02 * lit_level,
+        "without visibility the VPLs must leak (seed 003's method): {leak_mean}"
+    );
+}
+
+fn cornell(vpls: u32) -> Scene {
+    let mut s = lightfold_scene::builtin("cornell").unwrap();
+    s.quality.samples_per_area_light = Some(4);
+    s.quality.indirect = vpls;
+    s.camera.width = 64;
+    s.camera.height = 48;
+    s
+}
+
+#[test]
+fn cornell_vpls_on_the_gpu_match_the_exact_vpl_sum() {
+    let gpu = gpu();
+    let scene = cornell(64);
+    let samples = indirect::scene_samples(&scene);
+    let got = single_device(&gpu, &scene, false);
+    let want = radiance_of(&scene, &samples, true);
+    let m = compare(&got, &want, scene.exposure, None).unwrap();
+    let (direct, _) = vpls_of(&scene);
+    let direct_only = radiance_of(&scene, &direct, true);
+    let gain = mean_rgb(&want) / mean_rgb(&direct_only) - 1.0;
+    eprintln!(
+        "cornell, 64 VPLs: GPU vs exact VPL sum PSNR {:.2} dB, energy bias {:+.4}; indirect adds \
+         {:+.1} % energy",
+        m.whole.psnr,
+        m.whole.energy_bias,
+        gain * 100.0
+    );
+    assert!(gain > 0.05, "indirect light adds energy: {gain}");
+    assert!(m.whole.psnr > 40.0, "PSNR {}", m.whole.psnr);
+    assert!(m.whole.energy_bias.abs() < 0.01);
+    // The ceiling, black with direct light only, is lit.
+    let ceiling = |img: &Image| img.rgb(32, 1)[0];
+    assert_eq!(ceiling(&direct_only), 0.0);
+    assert!(ceiling(&got) > 0.0);
+}
+
+#[test]
+fn tracer_light_rays_see_single_sided_backs() {
+    // A single-sided quad seen from behind: eye rays pass, light rays stop (it casts shadows)
+    // and report the unseen back.
+    let mut s = Scene::new("quad");
+    let mut mat = Material::diffuse("one-sided", [0.5; 3]);
+    mat.double_sided = false;
+    let m = s.add_material(mat);
+    s.add_mesh(lightfold_scene::primitives::plane(
+        "quad",
+        [0.0; 3],
+        [0.0, 1.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [2.0, 2.0],
+        1,
+        m,
+    ));
+    let t = Tracer::new(&s);
+    let up = [0.0f32, 1.0, 0.0];
+    assert!(t.eye_ray([0.0, -1.0, 0.0], up, 1.0).is_none());
+    let (hit, back) = t.light_ray([0.0, -1.0, 0.0], up).unwrap();
+    assert!(back);
+    assert!((hit.position[1]).abs() < 1e-6);
+    let (_, back) = t.light_ray([0.0, 1.0, 0.0], [0.0, -1.0, 0.0]).unwrap();
+    assert!(!back);
+    // No VPL on an unseen back: a light under the quad, pointing up, makes none there.
+    s.lights.push(point_light([0.0, -0.5, 0.0], 1.0));
+    let direct = lightfold_scene::sampling::scene_samples(&s);
+    let opts = IndirectOptions {
+        count: 64,
+        clamp: 0.0,
+        seed: 1,
+    };
+    assert!(indirect::vpls(&Tracer::new(&s), &direct, &opts).is_empty());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn cluster_with_vpls_matches_single_device_render() {
+    let gpu = gpu();
+    let scene = cornell(48);
+    let want = single_device(&gpu, &scene, false);
+    let cluster = InProcessCluster::start(4, 4).await.unwrap();
+    let mut session = cluster.connect(test_control()).await.unwrap();
+    let mut opts = RunOptions {
+        control: test_control(),
+        ..RunOptions::default()
+    };
+    opts.plan.lights_per_node = 16;
+    opts.plan.map_sizing = MapSizing::Fixed(scene.quality.shadow_map_size);
+    let out = render_on(&mut session, &scene, &opts).await.unwrap();
+    let bounces = out
+        .plan
+        .samples
+        .iter()
+        .filter(|s| matches!(s.kind, SampleKind::Bounce { .. }))
+        .count();
+    assert!(bounces > 40, "the plan carries the VPLs: {bounces}");
+    assert_close(
+        &out.frames[0].image,
+        &want,
+        "cornell with VPLs through the cluster",
+    );
+    session.detach();
+    cluster.stop().await.unwrap();
+}
