@@ -163,8 +163,7 @@ pub struct JobArgs {
     /// No culling: every light, stage and caster.
     #[arg(long)]
     pub force_all: bool,
-    /// One shadow-map size for every light (default: sized per node from the eye/light
-    /// resolution mismatch).
+    /// One shadow-map size for every light (default: the scene's, as `lightfold render` uses).
     #[arg(long)]
     pub shadow_map_size: Option<u32>,
     /// Render the material layers on a node of their own (the paper's layout) instead of as
@@ -236,10 +235,8 @@ impl JobArgs {
             topology: self.topology,
             force_all: self.force_all,
             walkthrough: self.walkthrough,
-            map_sizing: match self.shadow_map_size {
-                Some(n) => lightfold_coordinator::plan::MapSizing::Fixed(n),
-                None => PlanOptions::default().map_sizing,
-            },
+            // The rule `lightfold render` applies too: the size asked for, else the scene's.
+            map_sizing: lightfold_coordinator::plan::MapSizing::from_request(self.shadow_map_size),
             material_own_node: self.material_own_node,
             frame_budget_us: self.frame_budget.map(|b| (b * 1000.0).round() as u64),
             frames_in_flight: self.frames_in_flight,

@@ -47,8 +47,12 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
         adapter_name: args.adapter.clone(),
     })
     .context("no usable GPU (try --backend gl, or --reference for the CPU)")?;
-    // `--shadow-map-size` is in the scene's quality already (checked against the limits).
+    // `--shadow-map-size` is in the scene's quality already (checked against the limits); the
+    // size comes from the rule the cluster's planner applies, so both render the same maps.
     let mut opts = RenderOptions::from_quality(&scene.quality);
+    if let Some(n) = lightfold_coordinator::plan::MapSizing::Scene.uniform_size(&scene.quality) {
+        opts.shadow_map_size = n;
+    }
     opts.walkthrough = args.walkthrough;
     let k = args
         .k

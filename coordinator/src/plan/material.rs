@@ -2,7 +2,9 @@
 //! layer; no global ambient `c^a` or no ambient material → no ambient layer; one specular colour
 //! over the visible materials → eq. 4–5 (specular pre-multiplied in `accumulate`, a single
 //! material stage); eq. 6–7 folding of `c^a` into the diffuse sum when every visible material has
-//! `m^a = m^d`.
+//! `m^a = m^d`. Each [0, 1] layer travels in the plan's material format (half floats by default,
+//! exact against the node's `Rgba16Float` targets), or in 4-byte 8-bit sRGB where every value the
+//! layer can take survives it exactly.
 
 use super::cull::Receiver;
 use super::types::{FormatChoice, MaterialMode};
@@ -21,6 +23,9 @@ pub(crate) struct Needs {
     pub foldable: bool,
     /// Layers whose visible values exceed 1 (they need the HDR material format).
     pub hdr: Vec<Layer>,
+    /// Layers whose every visible value 8-bit sRGB holds exactly (untextured, each channel 0, 1
+    /// or another value an sRGB code decodes to once rounded to the nodes' half floats).
+    pub srgb8_exact: Vec<Layer>,
     pub notes: Vec<String>,
 }
 
@@ -35,6 +40,7 @@ pub(crate) fn needs(scene: &Scene, receivers: &[Receiver], force_all: bool) -> N
     let nonzero = |c: [f32; 3]| c.iter().any(|&v| v != 0.0);
     let over_one = |c: [f32; 3]| c.iter().any(|&v| v > 1.0);
     let mut hdr = Vec::new();
+    let mut srgb8_exact = Vec::new();
     for (layer, get) in [
         (
             Layer::Diffuse,
@@ -46,6 +52,11 @@ pub(crate) fn needs(scene: &Scene, receivers: &[Receiver], force_all: bool) -> N
         if mats.iter().any(|m| over_one(get(m))) {
             hdr.push(layer);
         }
+        // Only the diffuse layer is textured (`material_layers` in `eye.wgsl`).
+        let textured = |m: &Material| layer == Layer::Diffuse && m.diffuse_texture.is_some();
+        if mats.iter().all(|m| !textured(m) && srgb8_holds(get(m))) {
+            srgb8_exact.push(layer);
+        }
     }
     let mut notes = Vec::new();
     if force_all {
@@ -56,6 +67,7 @@ pub(crate) fn needs(scene: &Scene, receivers: &[Receiver], force_all: bool) -> N
             ambient: true,
             foldable: false,
             hdr,
+            srgb8_exact,
             notes,
         };
     }
@@ -98,8 +110,22 @@ pub(crate) fn needs(scene: &Scene, receivers: &[Receiver], force_all: bool) -> N
         ambient,
         foldable,
         hdr,
+        srgb8_exact,
         notes,
     }
+}
+
+/// Whether 8-bit sRGB carries colour `c` exactly as a node renders it: rounded to the half
+/// floats of its material targets, every channel is a value an sRGB code decodes to.
+fn srgb8_holds(c: [f32; 3]) -> bool {
+    use lightfold_protocol::format::{pack, unpack};
+    let (mut h, mut b) = ([0u8; 8], [0u8; 4]);
+    let (mut rendered, mut back) = ([0f32; 3], [0f32; 3]);
+    let round_trips = pack(PixelFormat::F16x4, &c, 1.0, &mut h).is_ok()
+        && unpack(PixelFormat::F16x4, &h, 1.0, &mut rendered).is_ok()
+        && pack(PixelFormat::Rgba8Srgb, &rendered, 1.0, &mut b).is_ok()
+        && unpack(PixelFormat::Rgba8Srgb, &b, 1.0, &mut back).is_ok();
+    round_trips && rendered.map(f32::to_bits) == back.map(f32::to_bits)
 }
 
 /// The material mode and the layers the material node renders, given whether `c^a` is folded.
@@ -111,6 +137,11 @@ pub(crate) fn layers(
     let format = |l: Layer| {
         if l == Layer::Emissive || needs.hdr.contains(&l) {
             formats.material_hdr
+        } else if needs.srgb8_exact.contains(&l)
+            && formats.material.bytes_per_pixel() > PixelFormat::Rgba8Srgb.bytes_per_pixel()
+        {
+            // As exact as the wider format, in fewer bytes.
+            PixelFormat::Rgba8Srgb
         } else {
             formats.material
         }

@@ -124,7 +124,7 @@ pub(crate) fn plan_with(
             fit_camera,
             &probes,
             cam,
-            options.map_sizing,
+            options.map_sizing.resolve(&scene.quality),
             options.force_all || moving_sample[i],
         )
     };

@@ -135,6 +135,8 @@ pub(crate) fn map_size(
 ) -> u32 {
     let (lo, hi, target) = match sizing {
         MapSizing::Fixed(n) => return n.clamp(1, super::types::MAX_MAP_SIZE),
+        // `plan()` resolves `Scene` into the scene's size before sizing maps.
+        MapSizing::Scene => return DEFAULT_MAP_SIZE,
         MapSizing::Mismatch { min, max, target } => (
             min.clamp(1, MAX_MAP_SIZE).next_power_of_two(),
             prev_power_of_two(max.clamp(1, MAX_MAP_SIZE)),

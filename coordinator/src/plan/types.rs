@@ -110,35 +110,76 @@ pub struct FormatChoice {
     pub chain: PixelFormat,
     /// Sink compositor → coordinator (final radiance).
     pub sink: PixelFormat,
-    /// Material colours `m^d`, `m^s`, `m^a` in [0, 1].
+    /// Material colours `m^d`, `m^s`, `m^a` in [0, 1] (a layer whose every value 8-bit sRGB
+    /// holds exactly travels as `rgba8srgb` instead: `plan/material.rs`).
     pub material: PixelFormat,
     /// Material layers that may exceed 1 (emissive radiance, colours above 1).
     pub material_hdr: PixelFormat,
 }
 
 impl Default for FormatChoice {
-    /// Link formats from the compositor's precision study (`docs/precision.md`); material colours
-    /// in [0, 1] as 8-bit sRGB, anything brighter as half floats.
+    /// Link formats from the compositor's precision study (`docs/precision.md`); material layers
+    /// as half floats, the format nodes render them in (`Rgba16Float` targets), so they arrive
+    /// exactly as `lightfold render` multiplies them. 8-bit sRGB scaled a constant colour by up
+    /// to 0.8 % (0.5 grey: ×1.0058), a bias of the whole image that `render` does not have.
     fn default() -> Self {
         use lightfold_compositor::ops::{LinkKind, recommended_link_format};
         FormatChoice {
             node: recommended_link_format(LinkKind::NodeToCompositor),
             chain: recommended_link_format(LinkKind::CompositorToCompositor),
             sink: recommended_link_format(LinkKind::SinkToCoordinator),
-            material: PixelFormat::Rgba8Srgb,
+            material: PixelFormat::F16x4,
             material_hdr: PixelFormat::F16x4,
         }
     }
 }
 
 /// How shadow-map sizes are chosen.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, Default)]
 pub enum MapSizing {
+    /// The scene's own size (`Quality::shadow_map_size`, 512² unless the scene sets it) for
+    /// every map: what `lightfold render` uses, so the cluster and `render` agree by default.
+    #[default]
+    Scene,
     /// From the eye/light resolution mismatch factor `m` (seed 002): the power of two in
     /// `[min, max]` nearest (in log₂) to the size giving `m = target` at the median lit point.
     Mismatch { min: u32, max: u32, target: f32 },
     /// The same size for every map.
     Fixed(u32),
+}
+
+impl MapSizing {
+    /// `--shadow-map-size`: the size asked for, else the scene's.
+    pub fn from_request(requested: Option<u32>) -> MapSizing {
+        requested.map_or(MapSizing::Scene, MapSizing::Fixed)
+    }
+
+    /// The one rule `lightfold render` and the planner share: the size every shadow map gets,
+    /// or `None` where the mismatch factor sizes each light's maps.
+    pub fn uniform_size(self, quality: &lightfold_scene::Quality) -> Option<u32> {
+        match self {
+            MapSizing::Scene => Some(quality.shadow_map_size),
+            MapSizing::Fixed(n) => Some(n),
+            MapSizing::Mismatch { .. } => None,
+        }
+    }
+
+    /// `Scene` replaced by the scene's size (what the per-light sizing in `plan/shadow.rs` reads).
+    pub fn resolve(self, quality: &lightfold_scene::Quality) -> MapSizing {
+        match self.uniform_size(quality) {
+            Some(n) => MapSizing::Fixed(n),
+            None => self,
+        }
+    }
+
+    /// The mismatch rule with its default bounds and target (opt-in, through `PlanOptions`).
+    pub fn mismatch() -> MapSizing {
+        MapSizing::Mismatch {
+            min: MIN_MAP_SIZE,
+            max: MAX_MAP_SIZE,
+            target: DEFAULT_TARGET_MISMATCH,
+        }
+    }
 }
 
 /// What the planner is asked for.
@@ -196,11 +237,7 @@ impl Default for PlanOptions {
             formats: FormatChoice::default(),
             epoch: 1,
             walkthrough: false,
-            map_sizing: MapSizing::Mismatch {
-                min: MIN_MAP_SIZE,
-                max: MAX_MAP_SIZE,
-                target: DEFAULT_TARGET_MISMATCH,
-            },
+            map_sizing: MapSizing::Scene,
             frames_in_flight: 2,
             material_own_node: false,
             frame_budget_us: None,

@@ -1,0 +1,136 @@
+//! A cluster frame equals `lightfold render` (issue 23): the in-process cluster with the plan's
+//! own choices (shadow-map sizes, material and illumination link formats) against the
+//! single-device render of the same samples, within 0.05 % image bias on a grey scene and on
+//! coloured ones. A negative control shows the check can fail: the plan options the cluster had
+//! before (material layers in 8-bit sRGB, map sizes from the mismatch factor) bias the grey
+//! scene beyond it.
+
+use lightfold_coordinator::plan::{MapSizing, PlanOptions};
+use lightfold_coordinator::run::RunOptions;
+use lightfold_node::gpu::{Gpu, GpuOptions};
+use lightfold_protocol::PixelFormat;
+use lightfold_scene::{Image, Scene};
+use lightfold_tests::{InProcessCluster, render_on, single_device, small, test_control};
+
+/// The largest image bias `|Σ cluster / Σ render − 1|` a cluster frame may have.
+const MAX_BIAS: f64 = 5e-4;
+
+/// Image bias and relative RMS difference of `test` against `want`.
+fn compare(test: &Image, want: &Image) -> (f64, f64) {
+    assert_eq!((test.width, test.height), (want.width, want.height));
+    let (mut st, mut sw, mut se, mut sq) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
+    for (&a, &b) in test.data.iter().zip(&want.data) {
+        assert!(a.is_finite(), "non-finite pixel");
+        st += f64::from(a);
+        sw += f64::from(b);
+        se += f64::from(a - b).powi(2);
+        sq += f64::from(b).powi(2);
+    }
+    assert!(sw > 0.0, "the render is black");
+    (st / sw - 1.0, (se / sq).sqrt())
+}
+
+/// `small("balls")` with every material a 0.5 grey diffuse (0.5 has no exact 8-bit sRGB code:
+/// its nearest decodes to 0.50289, ×1.0058).
+fn grey_balls() -> Scene {
+    let mut s = small("balls");
+    for m in &mut s.materials {
+        m.diffuse = [0.5; 3];
+        m.ambient = [0.5; 3];
+    }
+    s.name = "grey balls".into();
+    s
+}
+
+/// The cluster's image bias against the single-device render, with the default plan options
+/// changed by `change`.
+async fn bias_of(
+    cluster: &InProcessCluster,
+    gpu: &Gpu,
+    scene: &Scene,
+    change: impl FnOnce(&mut PlanOptions),
+) -> f64 {
+    let mut session = cluster.connect(test_control()).await.unwrap();
+    let mut opts = RunOptions {
+        control: test_control(),
+        ..RunOptions::default()
+    };
+    change(&mut opts.plan);
+    let out = render_on(&mut session, scene, &opts).await.unwrap();
+    session.detach();
+    let want = single_device(gpu, scene, false);
+    let (bias, rms) = compare(&out.frames[0].image, &want);
+    let maps: Vec<u32> = out
+        .plan
+        .nodes
+        .iter()
+        .flat_map(|n| n.shadows.iter().map(|s| s.map_size))
+        .collect();
+    let layers: Vec<String> = out
+        .plan
+        .nodes
+        .iter()
+        .flat_map(|n| n.layers.iter().map(|(l, f)| format!("{l:?}:{}", f.name())))
+        .collect();
+    eprintln!(
+        "{}: bias {:+.4} %, relative RMS {:.4} %, render maps {}², cluster maps {maps:?}, layers {layers:?}",
+        scene.name,
+        bias * 100.0,
+        rms * 100.0,
+        scene.quality.shadow_map_size
+    );
+    bias
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn cluster_frame_equals_render_within_bias() {
+    let cluster = InProcessCluster::start(3, 3).await.unwrap();
+    let gpu = Gpu::new(&GpuOptions::default())
+        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let mut failed = Vec::new();
+    for scene in [grey_balls(), small("balls"), small("cornell")] {
+        let bias = bias_of(&cluster, &gpu, &scene, |_| {}).await;
+        if bias.abs() > MAX_BIAS {
+            failed.push(format!("{}: {:+.4} %", scene.name, bias * 100.0));
+        }
+    }
+    cluster.stop().await.unwrap();
+    assert!(
+        failed.is_empty(),
+        "image bias beyond {} %: {failed:?}",
+        MAX_BIAS * 100.0
+    );
+}
+
+/// The negative control: the check above catches the cluster as it was configured before
+/// (8-bit sRGB material layers; shadow maps sized by the mismatch factor), and 8-bit sRGB
+/// material layers alone.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn former_plan_options_fail_the_bias_check() {
+    let cluster = InProcessCluster::start(3, 3).await.unwrap();
+    let gpu = Gpu::new(&GpuOptions::default())
+        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let former = |p: &mut PlanOptions| {
+        p.formats.material = PixelFormat::Rgba8Srgb;
+        p.map_sizing = MapSizing::mismatch();
+    };
+    let srgb8 = |p: &mut PlanOptions| p.formats.material = PixelFormat::Rgba8Srgb;
+    let grey = grey_balls();
+    let before = bias_of(&cluster, &gpu, &grey, former).await;
+    let material_only = bias_of(&cluster, &gpu, &grey, srgb8).await;
+    for scene in [small("balls"), small("cornell")] {
+        bias_of(&cluster, &gpu, &scene, former).await;
+    }
+    cluster.stop().await.unwrap();
+    for (what, bias) in [
+        ("former options", before),
+        ("8-bit sRGB materials", material_only),
+    ] {
+        assert!(
+            bias > MAX_BIAS,
+            "{what} should bias the grey scene by more than {} %, got {:+.4} %",
+            MAX_BIAS * 100.0,
+            bias * 100.0
+        );
+    }
+}
