@@ -1,14 +1,18 @@
 //! `lightfold accuracy`: the speed-against-error sweep of one scene (CSV, Markdown, SVG under
-//! `--out`), or with `--hard` the full-size hard cases of numerical stability.
+//! `--out`), on one device or with `--cluster` through an in-process cluster, or with `--hard`
+//! the full-size hard cases of numerical stability.
 
 use crate::out::outln;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_quality::accuracy::{
-    self, SweepPlan, TruthOptions, load_or_render_truth, report, run_sweep,
+    self, SweepPlan, TruthOptions, load_or_render_truth, report, run_sweep, run_sweep_with,
 };
 use std::path::PathBuf;
+
+#[path = "accuracy_cluster.rs"]
+mod cluster;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -46,6 +50,17 @@ pub struct Args {
     /// The penumbra PSNR the report looks for the cheapest setting to reach.
     #[arg(long, default_value_t = 45.0)]
     target_db: f64,
+    /// Render every point through a cluster in this process (render nodes, compositors and a
+    /// coordinator on loopback links: every link format, the material layers and the planner's
+    /// choices) instead of one device with the node link simulated.
+    #[arg(long)]
+    cluster: bool,
+    /// `--cluster`: render nodes (the planner raises K where a point needs more).
+    #[arg(long, default_value_t = 8, requires = "cluster")]
+    cluster_nodes: usize,
+    /// `--cluster`: compositors.
+    #[arg(long, default_value_t = 8, requires = "cluster")]
+    cluster_compositors: usize,
 }
 
 /// Where results go unless `--out` says otherwise: a folder of their own in the current
@@ -149,10 +164,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ProgressStyle::with_template("{bar:40} {pos}/{len} points, {elapsed} {msg}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    let points = run_sweep(&gpu, &scene, &truth, &plan, args.repeats, |done, what| {
+    let progress = |done: usize, what: &str| {
         bar.set_position(done as u64);
         bar.set_message(what.to_string());
-    })?;
+    };
+    let points = if args.cluster {
+        let mut c = cluster::LocalCluster::start(args.cluster_nodes, args.cluster_compositors)?;
+        let points = run_sweep_with(&scene, &truth, &plan, progress, |scene, settings| {
+            c.measure(scene, settings, args.repeats)
+        });
+        c.stop()?;
+        points?
+    } else {
+        run_sweep(&gpu, &scene, &truth, &plan, args.repeats, progress)?
+    };
     bar.finish_and_clear();
 
     let threads = std::env::var("LP_NUM_THREADS")
@@ -160,7 +185,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .unwrap_or_default();
     let command = format!(
         "{threads}NODEVICE_SELECT=1 lightfold accuracy --scene {} --size {} \
-         --truth-samples {} --sweep {}{} --repeats {} --out {}",
+         --truth-samples {} --sweep {}{}{} --repeats {} --out {}",
         args.scene,
         args.size,
         args.truth_samples,
@@ -170,6 +195,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         } else {
             format!(" --knobs {}", args.knobs.join(","))
         },
+        if args.cluster {
+            format!(
+                " --cluster --cluster-nodes {} --cluster-compositors {}",
+                args.cluster_nodes, args.cluster_compositors
+            )
+        } else {
+            String::new()
+        },
         args.repeats,
         out.display()
     );
@@ -178,8 +211,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         format!(" ({})", args.knobs.join(", "))
     };
+    let path = if args.cluster {
+        format!(
+            ", through a cluster of {} nodes and {} compositors",
+            args.cluster_nodes, args.cluster_compositors
+        )
+    } else {
+        String::new()
+    };
     let title = format!(
-        "{label} ({w}×{h}, {}{knobs} on {})",
+        "{label} ({w}×{h}, {}{knobs}{path} on {})",
         args.sweep, gpu.info.name
     );
     report::write_csv(&out.join("sweep.csv"), &points)?;

@@ -36,10 +36,7 @@ pub fn measure_group(
         message,
     };
     let mut scene = scene.clone();
-    scene.quality.samples_per_area_light = Some(first.samples.max(1));
-    scene.quality.pattern = first.pattern;
-    scene.quality.shadow_map_size = first.map_size;
-    scene.quality.filter = first.filter;
+    first.apply(&mut scene);
     let samples = scene_samples(&scene);
     let opts = RenderOptions::from_quality(&scene.quality);
     let k_run = first.k.clamp(1, gpu.max_lights(first.map_size).max(1));

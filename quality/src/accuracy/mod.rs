@@ -82,6 +82,15 @@ impl Setting {
         }
     }
 
+    /// Writes the knobs a scene holds (samples, pattern, map size, filter) into `scene`.
+    pub fn apply(&self, scene: &mut Scene) {
+        let q = &mut scene.quality;
+        q.samples_per_area_light = Some(self.samples.max(1));
+        q.pattern = self.pattern;
+        q.shadow_map_size = self.map_size;
+        q.filter = self.filter;
+    }
+
     /// Whether two settings render the same images before the link (they differ in format only).
     fn same_render(&self, other: &Setting) -> bool {
         Setting {
@@ -414,7 +423,22 @@ pub fn run_sweep(
     truth: &CachedTruth,
     plan: &SweepPlan,
     repeats: u32,
+    progress: impl FnMut(usize, &str),
+) -> Result<Vec<Point>, AccuracyError> {
+    run_sweep_with(scene, truth, plan, progress, |scene, settings| {
+        measure_group(gpu, scene, settings, repeats)
+    })
+}
+
+/// [`run_sweep`] with another way to render: `measure(scene, settings)` returns one
+/// [`Measured`] per setting of a render group (settings that differ in link format only), e.g.
+/// through a real cluster (`lightfold accuracy --cluster`).
+pub fn run_sweep_with(
+    scene: &Scene,
+    truth: &CachedTruth,
+    plan: &SweepPlan,
     mut progress: impl FnMut(usize, &str),
+    mut measure: impl FnMut(&Scene, &[Setting]) -> Result<Vec<Measured>, AccuracyError>,
 ) -> Result<Vec<Point>, AccuracyError> {
     let points = plan.points(Setting::defaults(scene));
     let mut out: Vec<Option<Point>> = vec![None; points.len()];
@@ -422,7 +446,7 @@ pub fn run_sweep(
     for group in render_groups(&points) {
         let settings: Vec<Setting> = group.iter().map(|&i| points[i].1).collect();
         progress(done, &settings[0].to_string());
-        let measured = measure_group(gpu, scene, &settings, repeats)?;
+        let measured = measure(scene, &settings)?;
         for (&i, m) in group.iter().zip(measured) {
             let metrics = truth.truth.compare(&m.image)?;
             out[i] = Some(Point {

@@ -1,0 +1,209 @@
+//! `lightfold accuracy --cluster`: every point of the sweep rendered by a real cluster in this
+//! process — render nodes and compositors running the daemons' own code as tasks, on loopback
+//! TCP links, and a coordinator session that plans, drives and collects — so each image measured
+//! has been through every link (node → compositor, the compositor chain, sink → coordinator),
+//! the material layers' link and the planner's own choices (map sizes, formats, K), where the
+//! default sweep renders on one device and simulates only the node → compositor link.
+
+use anyhow::Context;
+use lightfold_compositor::daemon::{self as stage, CompositorOptions};
+use lightfold_coordinator::control::{ControlOptions, DaemonAddr, Session};
+use lightfold_coordinator::plan::MapSizing;
+use lightfold_coordinator::run::RunOptions;
+use lightfold_net::{Identity, Timeouts};
+use lightfold_node::daemon::{self as node, NodeOptions};
+use lightfold_protocol::Role;
+use lightfold_quality::accuracy::{AccuracyError, Measured, Setting};
+use lightfold_scene::Scene;
+use std::time::Duration;
+use tokio::net::TcpListener;
+use tokio::task::JoinHandle;
+use tokio_util::sync::CancellationToken;
+
+/// Deadline of a frame, a band and a configuration: generous, since frames of hundreds of
+/// lights per node take long on a software rasteriser.
+const DEADLINE: Duration = Duration::from_secs(600);
+
+/// Daemons as tasks of this process and the coordinator session over them.
+pub struct LocalCluster {
+    rt: tokio::runtime::Runtime,
+    session: Option<Session>,
+    stop: CancellationToken,
+    tasks: Vec<(String, JoinHandle<anyhow::Result<()>>)>,
+    control: ControlOptions,
+}
+
+impl LocalCluster {
+    /// Starts `nodes` render nodes and `compositors` compositors on loopback port 0 and
+    /// connects a coordinator session to them.
+    pub fn start(nodes: usize, compositors: usize) -> anyhow::Result<LocalCluster> {
+        let rt = tokio::runtime::Builder::new_multi_thread()
+            .enable_all()
+            .build()
+            .context("cannot start the async runtime")?;
+        let secret: [u8; 32] = rand::random();
+        let stop = CancellationToken::new();
+        let control = ControlOptions {
+            link: Timeouts {
+                send: DEADLINE,
+                ..Timeouts::default()
+            },
+            register: Duration::from_secs(60),
+            configure: DEADLINE,
+            frame: DEADLINE,
+            // A software-rendered frame keeps a node's device busy for seconds; a false loss
+            // would re-plan in the middle of a measurement.
+            heartbeat_timeout: Duration::from_secs(30),
+            redial: Duration::ZERO,
+            ..ControlOptions::default()
+        };
+        let (tasks, addrs) = rt.block_on(async {
+            let mut tasks = Vec::new();
+            let (mut node_addrs, mut comp_addrs) = (Vec::new(), Vec::new());
+            for i in 0..nodes + compositors {
+                let listener = TcpListener::bind("127.0.0.1:0").await?;
+                let addr = listener.local_addr()?.to_string();
+                let halt = stop.child_token();
+                let task = if i < nodes {
+                    node_addrs.push(addr);
+                    let id = format!("node-{i}");
+                    let opts = NodeOptions::new(id.clone(), &secret);
+                    (id, tokio::spawn(node::run(listener, opts, halt)))
+                } else {
+                    comp_addrs.push(addr.clone());
+                    let id = format!("comp-{}", i - nodes);
+                    let mut opts = CompositorOptions::new(id.clone(), addr, &secret);
+                    opts.input_timeout = DEADLINE;
+                    (id, tokio::spawn(stage::run(listener, opts, halt)))
+                };
+                tasks.push(task);
+            }
+            anyhow::Ok((tasks, DaemonAddr::list(&node_addrs, &comp_addrs)))
+        })?;
+        let me = Identity::new(&secret, Role::Coordinator, "coordinator");
+        let session = rt.block_on(async {
+            let sink = TcpListener::bind("127.0.0.1:0").await?;
+            Session::connect(&addrs, sink, None, me, control)
+                .await
+                .context("cannot connect the in-process cluster")
+        });
+        let mut cluster = LocalCluster {
+            rt,
+            session: None,
+            stop,
+            tasks,
+            control,
+        };
+        match session {
+            Ok(s) => cluster.session = Some(s),
+            Err(e) => {
+                let _ = cluster.stop();
+                return Err(e);
+            }
+        }
+        Ok(cluster)
+    }
+
+    /// Renders each setting as one cluster run of `repeats` + 1 frames (the first warms up):
+    /// the plan's own options (`MapSizing::Scene`, so the setting's map size; material and
+    /// chain formats as planned) with K and the node link format from the setting. The image
+    /// is the last frame's; each node's time is its fastest frame after the first, as reported
+    /// by the node (`FrameStats::total_us`: shadow, eye, readback, pack and send).
+    pub fn measure(
+        &mut self,
+        scene: &Scene,
+        settings: &[Setting],
+        repeats: u32,
+    ) -> Result<Vec<Measured>, AccuracyError> {
+        settings
+            .iter()
+            .map(|s| self.measure_one(scene, s, repeats))
+            .collect()
+    }
+
+    fn measure_one(
+        &mut self,
+        scene: &Scene,
+        s: &Setting,
+        repeats: u32,
+    ) -> Result<Measured, AccuracyError> {
+        let err = |message: String| AccuracyError::Render {
+            setting: s.to_string(),
+            message,
+        };
+        let session = self
+            .session
+            .as_mut()
+            .ok_or_else(|| err("the cluster is stopped".into()))?;
+        let mut scene = scene.clone();
+        s.apply(&mut scene);
+        let mut opts = RunOptions {
+            control: self.control,
+            frames: repeats.max(1) + 1,
+            ..RunOptions::default()
+        };
+        opts.plan.lights_per_node = s.k;
+        opts.plan.formats.node = s.format;
+        opts.plan.map_sizing = MapSizing::Scene;
+        let mut frames = Vec::new();
+        let outcome = self.rt.block_on(lightfold_coordinator::run::render(
+            session,
+            &scene,
+            &opts,
+            |f| frames.push(f),
+        ));
+        if let Some(e) = outcome.error {
+            return Err(err(format!(
+                "{e} (incidents: {:?})",
+                outcome.summary.incidents
+            )));
+        }
+        let plan = outcome
+            .summary
+            .plan
+            .ok_or_else(|| err("the run made no plan".into()))?;
+        let (first, timed) = match frames.split_first() {
+            Some((f, rest)) if !rest.is_empty() => (f, rest),
+            Some((f, _)) => (f, std::slice::from_ref(f)),
+            None => return Err(err("no frame arrived".into())),
+        };
+        let node_seconds = plan
+            .nodes
+            .iter()
+            .map(|n| {
+                timed
+                    .iter()
+                    .filter_map(|f| f.stats.iter().find(|st| st.daemon_id == n.node))
+                    .map(|st| st.total_us as f64 / 1e6)
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .map(|t| if t.is_finite() { t } else { 0.0 })
+            .collect();
+        let last = timed.last().unwrap_or(first);
+        Ok(Measured {
+            image: last.image.clone(),
+            node_seconds,
+            k_run: plan.k,
+            lights: plan.active.len(),
+        })
+    }
+
+    /// Ends the session and stops every daemon, waiting for each (with a deadline).
+    pub fn stop(mut self) -> anyhow::Result<()> {
+        if let Some(s) = self.session.take() {
+            s.detach();
+        }
+        self.stop.cancel();
+        let tasks = std::mem::take(&mut self.tasks);
+        self.rt.block_on(async {
+            for (id, t) in tasks {
+                tokio::time::timeout(Duration::from_secs(20), t)
+                    .await
+                    .with_context(|| format!("{id} did not stop within 20 s"))?
+                    .with_context(|| format!("{id} panicked"))?
+                    .with_context(|| format!("{id} failed"))?;
+            }
+            anyhow::Ok(())
+        })
+    }
+}
