@@ -42,14 +42,14 @@ fn grey_balls() -> Scene {
     s
 }
 
-/// The cluster's image bias against the single-device render, with the default plan options
-/// changed by `change`.
+/// The cluster's image bias and relative RMS difference against the single-device render, with
+/// the default plan options changed by `change`.
 async fn bias_of(
     cluster: &InProcessCluster,
     gpu: &Gpu,
     scene: &Scene,
     change: impl FnOnce(&mut PlanOptions),
-) -> f64 {
+) -> (f64, f64) {
     let mut session = cluster.connect(test_control()).await.unwrap();
     let mut opts = RunOptions {
         control: test_control(),
@@ -79,7 +79,7 @@ async fn bias_of(
         rms * 100.0,
         scene.quality.shadow_map_size
     );
-    bias
+    (bias, rms)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
@@ -89,7 +89,7 @@ async fn cluster_frame_equals_render_within_bias() {
         .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
     let mut failed = Vec::new();
     for scene in [grey_balls(), small("balls"), small("cornell")] {
-        let bias = bias_of(&cluster, &gpu, &scene, |_| {}).await;
+        let (bias, _) = bias_of(&cluster, &gpu, &scene, |_| {}).await;
         if bias.abs() > MAX_BIAS {
             failed.push(format!("{}: {:+.4} %", scene.name, bias * 100.0));
         }
@@ -116,8 +116,8 @@ async fn former_plan_options_fail_the_bias_check() {
     };
     let srgb8 = |p: &mut PlanOptions| p.formats.material = PixelFormat::Rgba8Srgb;
     let grey = grey_balls();
-    let before = bias_of(&cluster, &gpu, &grey, former).await;
-    let material_only = bias_of(&cluster, &gpu, &grey, srgb8).await;
+    let (before, _) = bias_of(&cluster, &gpu, &grey, former).await;
+    let (material_only, _) = bias_of(&cluster, &gpu, &grey, srgb8).await;
     for scene in [small("balls"), small("cornell")] {
         bias_of(&cluster, &gpu, &scene, former).await;
     }
@@ -132,5 +132,46 @@ async fn former_plan_options_fail_the_bias_check() {
             MAX_BIAS * 100.0,
             bias * 100.0
         );
+    }
+}
+
+/// The figures of `docs/accuracy/README.md` ("Cluster against `render`"): image bias and
+/// relative RMS of a cluster frame against the single-device render for every built-in scene
+/// at 400×300, 4 samples per area light, with the plan options as they are and as they were.
+/// `cargo test -p lightfold-tests --test render_parity -- --ignored --nocapture`
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+#[ignore = "a measurement (about a minute on lavapipe), not a check"]
+async fn bias_per_built_in_scene() {
+    let cluster = InProcessCluster::start(4, 4).await.unwrap();
+    let gpu = Gpu::new(&GpuOptions::default())
+        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let former = |p: &mut PlanOptions| {
+        p.formats.material = PixelFormat::Rgba8Srgb;
+        p.map_sizing = MapSizing::mismatch();
+    };
+    let mut scenes = vec![grey_balls()];
+    scenes.extend(lightfold_scene::builtin_names().iter().map(|n| small(n)));
+    let mut rows = Vec::new();
+    for mut scene in scenes {
+        scene.camera.width = 400;
+        scene.camera.height = 300;
+        let now = bias_of(&cluster, &gpu, &scene, |_| {}).await;
+        let before = bias_of(&cluster, &gpu, &scene, former).await;
+        rows.push(format!(
+            "| `{}` | {:+.3} % | {:.3} % | {:+.4} % | {:.4} % |",
+            scene.name,
+            before.0 * 100.0,
+            before.1 * 100.0,
+            now.0 * 100.0,
+            now.1 * 100.0
+        ));
+        assert!(now.0.abs() <= MAX_BIAS, "{}: {now:?}", scene.name);
+    }
+    cluster.stop().await.unwrap();
+    println!(
+        "| scene | bias before | rel. RMS before | bias now | rel. RMS now |\n|---|---:|---:|---:|---:|"
+    );
+    for r in rows {
+        println!("{r}");
     }
 }
