@@ -274,8 +274,9 @@ pub struct OneBounceOptions {
 }
 
 /// The one-bounce indirect illumination of `direct` as layers (`illumination` holds the
-/// indirect `(I^d, I^s)` for `c_n` = white; the material layers are the visible surfaces', as
-/// [`crate::render_point_sum`] gives them), path-traced with exact next-event estimation.
+/// indirect `(I^d, I^s)` for `c_n` = white; the diffuse and specular layers are the visible
+/// surfaces', as [`crate::render_point_sum`] gives them, the emissive and ambient layers zero, so
+/// that [`Layers::radiance`] is the bounce alone), path-traced with exact next-event estimation.
 pub fn render_one_bounce(
     scene: &Scene,
     direct: &[LightSample],
@@ -319,7 +320,11 @@ pub fn render_one_bounce(
         }
     });
     let cam = &scene.camera;
-    Layers::from_pixels(cam.width, cam.height, &pixels)
+    let mut layers = Layers::from_pixels(cam.width, cam.height, &pixels);
+    // Only the bounce: what the visible surfaces emit or take from ambient light is direct.
+    layers.emissive.data.fill(0.0);
+    layers.ambient.data.fill(0.0);
+    layers
 }
 
 /// Diffuse radiance towards the visible point of the surface a ray from it along `d` meets, lit

@@ -399,3 +399,80 @@ async fn cluster_with_vpls_matches_single_device_render() {
     session.detach();
     cluster.stop().await.unwrap();
 }
+
+#[test]
+fn plans_carry_vpls_and_refuse_them_on_animated_scenes() {
+    use lightfold_coordinator::plan::{ClusterSpec, PlanError, PlanOptions, plan};
+    let scene = cornell(64);
+    let p = plan(&scene, &ClusterSpec::local(64, 8), &PlanOptions::default()).unwrap();
+    let direct = lightfold_scene::sampling::scene_samples(&scene).len();
+    let bounces: Vec<_> = p
+        .samples
+        .iter()
+        .filter(|s| matches!(s.kind, SampleKind::Bounce { .. }))
+        .collect();
+    assert_eq!(p.samples.len(), direct + bounces.len());
+    assert!(bounces.len() > 40);
+    // Culled and shadowed like any sample: the VPLs on the box's hidden faces or facing away from
+    // everything the camera sees may go, but most light something it sees.
+    let active_bounces = p.active.iter().filter(|&&i| i >= direct).count();
+    assert!(
+        active_bounces * 2 > bounces.len(),
+        "{active_bounces} active"
+    );
+    // Direct light only: the plan has no VPL.
+    let still = plan(
+        &cornell(0),
+        &ClusterSpec::local(64, 8),
+        &PlanOptions::default(),
+    )
+    .unwrap();
+    assert_eq!(still.samples.len(), direct);
+
+    let mut moving = lightfold_scene::builtin("carousel").unwrap();
+    moving.quality.indirect = 16;
+    let err = plan(&moving, &ClusterSpec::local(64, 8), &PlanOptions::default()).unwrap_err();
+    assert!(
+        matches!(&err, PlanError::InvalidScene { reason } if reason.contains("animated")),
+        "{err}"
+    );
+}
+
+#[test]
+fn scene_files_set_indirect_light() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("room.toml");
+    std::fs::write(
+        &path,
+        r#"
+version = 1
+name = "room"
+[camera]
+position = [0.0, 1.0, 3.0]
+target = [0.0, 0.5, 0.0]
+fov_y_deg = 45.0
+[quality]
+indirect = 128
+indirect_clamp = 0.05
+[[object]]
+type = "plane"
+center = [0.0, 0.0, 0.0]
+size = [4.0, 4.0]
+[[light]]
+type = "point"
+position = [0.0, 2.0, 0.0]
+intensity = 10.0
+"#,
+    )
+    .unwrap();
+    let scene = lightfold_scene::load(path.to_str().unwrap()).unwrap();
+    assert_eq!(scene.quality.indirect, 128);
+    assert_eq!(scene.quality.indirect_clamp, Some(0.05));
+    let bounces = indirect::scene_samples(&scene)
+        .iter()
+        .filter(|s| s.kind == SampleKind::Bounce { clamp: 0.05 })
+        .count();
+    // The 4 m square 2 m below the light subtends 4·asin(1/2) = 2π/3 sr, a sixth of the sphere:
+    // the other paths leave the scene (128/6 ≈ 21 VPLs).
+    assert!((15..=28).contains(&bounces), "{bounces} VPLs");
+}

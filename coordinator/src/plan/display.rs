@@ -103,6 +103,18 @@ impl Display for Plan {
             self.epsilon,
             self.epsilon_used
         )?;
+        let bounces = self
+            .samples
+            .iter()
+            .filter(|s| matches!(s.kind, lightfold_scene::SampleKind::Bounce { .. }))
+            .count();
+        if bounces > 0 {
+            writeln!(
+                f,
+                "indirect light: {bounces} of the samples are virtual point lights (#{} on)",
+                self.samples.len() - bounces
+            )?;
+        }
         for (i, why) in &self.dropped {
             writeln!(
                 f,
