@@ -85,3 +85,37 @@ fn map_sizes_follow_the_scene_like_render() {
             .all(|sh| sh.map_size.is_power_of_two() && (256..=4096).contains(&sh.map_size))
     }));
 }
+
+#[test]
+fn larger_maps_take_fewer_lights_per_node() {
+    use lightfold_protocol::{Capabilities, Role};
+    // Nodes report their limit at 512² maps (lavapipe: 170, by its 1 GiB shadow budget); at
+    // 4096² the same budget holds 2 lights of six views, and a plan of K = 4 was refused.
+    let mut cluster = ClusterSpec::local(16, 16);
+    for n in &mut cluster.nodes {
+        n.capabilities = Some(Capabilities {
+            role: Role::Node,
+            daemon_id: n.id.clone(),
+            advertise: String::new(),
+            adapter: String::new(),
+            backend: String::new(),
+            max_lights: 170,
+            max_texture_size: 8192,
+            formats: Vec::new(),
+            cost_per_light_us: 0,
+            fixed_cost_us: 0,
+            threads: 1,
+            version: String::new(),
+        });
+    }
+    let s = stage();
+    for (size, most) in [(512, 4), (2048, 4), (4096, 2)] {
+        let o = PlanOptions {
+            map_sizing: MapSizing::Fixed(size),
+            ..PlanOptions::default()
+        };
+        let p = plan(&s, &cluster, &o).unwrap();
+        assert!(p.k <= most, "K = {} at {size}²", p.k);
+        assert!(p.nodes.iter().all(|n| n.lights.len() <= most as usize));
+    }
+}

@@ -181,6 +181,27 @@ pub(crate) fn device_limit(nodes: &[DaemonSpec], k: u32) -> u32 {
         .max(k)
 }
 
+/// The map size nodes report `Capabilities::max_lights` at.
+pub(crate) const REPORTED_MAP_SIZE: u32 = lightfold_scene::defaults::SHADOW_MAP_SIZE;
+
+/// Largest K every node's device takes with `map`² shadow maps, `None` when no node reports a
+/// limit. A node's limit is the smaller of a layer count (independent of the size) and a memory
+/// budget (∝ 1/map²), reported at 512²: above 512² the reported limit scaled by (512/map)² is
+/// never more than the node's own, so a plan within it is never refused (`TooManyLights`).
+pub(crate) fn device_limit_at(nodes: &[DaemonSpec], map: u32) -> Option<u32> {
+    let reported = nodes
+        .iter()
+        .filter_map(|n| n.capabilities.as_ref().map(|c| c.max_lights))
+        .filter(|&m| m > 0)
+        .min()?;
+    if map <= REPORTED_MAP_SIZE {
+        return Some(reported);
+    }
+    let r = u64::from(REPORTED_MAP_SIZE).pow(2);
+    let scaled = u64::from(reported) * r / u64::from(map).pow(2);
+    Some(scaled.clamp(1, u64::from(reported)) as u32)
+}
+
 /// Assigns each group to its own node: the costliest group first, each to the free node that
 /// finishes it soonest (ties: cluster order). Returns, per group, the node index (`usize::MAX`
 /// when nodes ran out, which the caller rules out first).

@@ -145,13 +145,20 @@ pub(crate) fn plan_with(
         .iter()
         .map(|n| NodeCost::of(n, pixels))
         .collect();
+    // Nodes report their limit at 512² maps: larger maps take fewer lights per node.
+    let largest_map = shadows.iter().flatten().map(|s| s.map_size).max();
+    let at_map = largest_map.and_then(|m| group::device_limit_at(&cluster.nodes, m));
     let (k, limit) = match options.frame_budget_us {
         None => {
             let k = options.lights_per_node;
-            (k, group::device_limit(&cluster.nodes, k))
+            match at_map {
+                Some(l) => (k.min(l), l),
+                None => (k, group::device_limit(&cluster.nodes, k)),
+            }
         }
         Some(_) => {
-            let limit = group::device_limit(&cluster.nodes, group::BUDGET_MAX_K);
+            let limit = at_map
+                .unwrap_or_else(|| group::device_limit(&cluster.nodes, group::BUDGET_MAX_K));
             (limit, limit)
         }
     };
