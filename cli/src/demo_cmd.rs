@@ -484,6 +484,12 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
         cmd.arg("--size").arg(s);
     }
     cmd.arg("-K").arg(job.lights_per_node.to_string());
+    if let Some(m) = job.indirect.indirect {
+        cmd.arg("--indirect").arg(m.to_string());
+    }
+    if let Some(c) = job.indirect.indirect_clamp {
+        cmd.arg("--indirect-clamp").arg(c.to_string());
+    }
     cmd.arg("--topology").arg(job.topology.to_string());
     cmd.arg("--frames").arg(job.frames.to_string());
     cmd.arg("--frames-in-flight")
@@ -505,6 +511,10 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
     }
     if let Some(n) = job.shadow_map_size {
         cmd.arg("--shadow-map-size").arg(n.to_string());
+    }
+    for (class, format) in &job.link_format {
+        cmd.arg("--link-format")
+            .arg(format!("{}={}", class.name(), format.name()));
     }
     if job.material_own_node {
         cmd.arg("--material-own-node");
@@ -564,6 +574,41 @@ mod tests {
     struct Cli {
         #[command(flatten)]
         job: JobArgs,
+    }
+
+    #[test]
+    fn the_coordinator_gets_the_job_it_was_given() {
+        let given = [
+            "demo",
+            "--scene",
+            "cornell",
+            "--size",
+            "64x48",
+            "-K",
+            "8",
+            "--indirect",
+            "96",
+            "--indirect-clamp",
+            "0.125",
+            "--topology",
+            "tree",
+            "--frames",
+            "3",
+            "--walkthrough",
+            "--force-all",
+            "--shadow-map-size",
+            "256",
+            "--frame-budget",
+            "250",
+        ];
+        let job = Cli::parse_from(given).job;
+        let mut cmd = Command::new("lightfold");
+        job_args(&mut cmd, &job);
+        let forwarded: Vec<String> = std::iter::once("coordinator".to_string())
+            .chain(cmd.get_args().map(|a| a.to_string_lossy().into_owned()))
+            .collect();
+        let back = Cli::parse_from(forwarded).job;
+        assert_eq!(format!("{back:?}"), format!("{job:?}"));
     }
 
     #[test]
