@@ -315,8 +315,8 @@ pub fn render_one_bounce(
             }
         }
         let n = f64::from(nx * ny);
-        for k in 0..6 {
-            px.illum[k] += sum[k] / n;
+        for (out, v) in px.illum.iter_mut().zip(sum) {
+            *out += v / n;
         }
     });
     let cam = &scene.camera;
@@ -353,8 +353,8 @@ fn bounce_radiance(tracer: &Tracer<'_>, from: &SurfaceHit, d: V3, direct: &[Ligh
         if irr == 0.0 || !tracer.visible(&y, s) {
             continue;
         }
-        for k in 0..3 {
-            e[k] += irr * s.color[k];
+        for (e, c) in e.iter_mut().zip(s.color) {
+            *e += irr * c;
         }
     }
     [0, 1, 2].map(|k| albedo[k] * e[k] / PI)
@@ -363,7 +363,7 @@ fn bounce_radiance(tracer: &Tracer<'_>, from: &SurfaceHit, d: V3, direct: &[Ligh
 /// `a×b = n` as square as possible (a ≥ b).
 fn grid_shape(n: u32) -> (u32, u32) {
     let mut b = (n as f64).sqrt() as u32;
-    while b > 1 && n % b != 0 {
+    while b > 1 && !n.is_multiple_of(b) {
         b -= 1;
     }
     (n / b.max(1), b.max(1))
