@@ -166,6 +166,12 @@ pub struct JobArgs {
     /// One shadow-map size for every light (default: the scene's, as `lightfold render` uses).
     #[arg(long)]
     pub shadow_map_size: Option<u32>,
+    /// Pixel format of one class of link, as CLASS=FORMAT, repeatable or comma-separated:
+    /// `node` (illumination, node → compositor; default rgb9e5x2), `chain` (compositor →
+    /// compositor; f16x6), `sink` (final radiance to the coordinator; f32x3), `material`
+    /// (material colours in [0, 1]; f16x4). See `docs/precision.md` for what each costs.
+    #[arg(long, value_name = "CLASS=FORMAT", value_delimiter = ',', value_parser = parse_link_format)]
+    pub link_format: Vec<(LinkClass, lightfold_protocol::PixelFormat)>,
     /// Render the material layers on a node of their own (the paper's layout) instead of as
     /// extra targets of an illumination node at the last stage.
     #[arg(long)]
@@ -240,8 +246,23 @@ impl JobArgs {
             material_own_node: self.material_own_node,
             frame_budget_us: self.frame_budget.map(|b| (b * 1000.0).round() as u64),
             frames_in_flight: self.frames_in_flight,
+            formats: self.formats(),
             ..PlanOptions::default()
         }
+    }
+
+    /// The planner's formats with `--link-format` applied (the last given per class wins).
+    pub fn formats(&self) -> lightfold_coordinator::plan::FormatChoice {
+        let mut f = lightfold_coordinator::plan::FormatChoice::default();
+        for &(class, format) in &self.link_format {
+            match class {
+                LinkClass::Node => f.node = format,
+                LinkClass::Chain => f.chain = format,
+                LinkClass::Sink => f.sink = format,
+                LinkClass::Material => f.material = format,
+            }
+        }
+        f
     }
 
     /// Where every frame goes, if anywhere: the pattern given, or the default for a camera path
@@ -270,6 +291,68 @@ impl JobArgs {
             Some(d) => FramePath::Orbit { degrees: d },
             None => FramePath::Still,
         }
+    }
+}
+
+/// A class of link whose format `--link-format` sets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LinkClass {
+    Node,
+    Chain,
+    Sink,
+    Material,
+}
+
+impl LinkClass {
+    pub fn name(self) -> &'static str {
+        match self {
+            LinkClass::Node => "node",
+            LinkClass::Chain => "chain",
+            LinkClass::Sink => "sink",
+            LinkClass::Material => "material",
+        }
+    }
+}
+
+/// `CLASS=FORMAT` (`--link-format`): a format that carries what the class's links carry —
+/// six illumination channels on `node` and `chain` links, three colour channels on `sink` links,
+/// and for `material` links the 8-bit formats or half floats (what nodes emit).
+pub fn parse_link_format(s: &str) -> Result<(LinkClass, lightfold_protocol::PixelFormat), String> {
+    use lightfold_protocol::PixelFormat;
+    let (class, format) = s
+        .split_once('=')
+        .ok_or_else(|| format!("{s:?} is not CLASS=FORMAT (e.g. chain=f32x6)"))?;
+    let class = match class.trim() {
+        "node" => LinkClass::Node,
+        "chain" => LinkClass::Chain,
+        "sink" => LinkClass::Sink,
+        "material" => LinkClass::Material,
+        other => {
+            return Err(format!(
+                "unknown link class {other:?}: node, chain, sink or material"
+            ));
+        }
+    };
+    let fits = |f: PixelFormat| match class {
+        LinkClass::Node | LinkClass::Chain => f.channels() == 6,
+        LinkClass::Sink => f.channels() == 3,
+        LinkClass::Material => matches!(
+            f,
+            PixelFormat::Rgba8Linear | PixelFormat::Rgba8Srgb | PixelFormat::F16x4
+        ),
+    };
+    let allowed: Vec<&str> = PixelFormat::ALL
+        .into_iter()
+        .filter(|&f| fits(f))
+        .map(PixelFormat::name)
+        .collect();
+    match PixelFormat::from_name(format.trim()) {
+        Some(f) if fits(f) => Ok((class, f)),
+        _ => Err(format!(
+            "{format:?} is not a format for {} links: {}",
+            class.name(),
+            allowed.join(", ")
+        )),
     }
 }
 
@@ -653,5 +736,48 @@ impl Progress {
         if let Progress::Bar(pb) = self {
             pb.finish_and_clear();
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{LinkClass, parse_link_format};
+    use lightfold_protocol::PixelFormat;
+
+    #[test]
+    fn link_formats_parse_per_class() {
+        assert_eq!(
+            parse_link_format("chain=f32x6"),
+            Ok((LinkClass::Chain, PixelFormat::F32x6))
+        );
+        assert_eq!(
+            parse_link_format("node=seed64"),
+            Ok((LinkClass::Node, PixelFormat::Seed64))
+        );
+        assert_eq!(
+            parse_link_format("material=rgba8srgb"),
+            Ok((LinkClass::Material, PixelFormat::Rgba8Srgb))
+        );
+        assert_eq!(
+            parse_link_format("sink=f16x4"),
+            Ok((LinkClass::Sink, PixelFormat::F16x4))
+        );
+        // A format that cannot carry the class's channels, an unknown class or format.
+        for bad in [
+            "node=f16x4",
+            "material=f32x6",
+            "sink=depth32",
+            "edge=f16x6",
+            "chain=f8",
+            "f16x6",
+        ] {
+            let e = parse_link_format(bad).unwrap_err();
+            assert!(!e.is_empty(), "{bad}");
+        }
+        assert!(
+            parse_link_format("node=f16x4")
+                .unwrap_err()
+                .contains("rgb9e5x2")
+        );
     }
 }

@@ -598,6 +598,8 @@ mod tests {
             "--force-all",
             "--shadow-map-size",
             "256",
+            "--link-format",
+            "chain=f32x6,material=rgba8srgb",
             "--frame-budget",
             "250",
         ];
