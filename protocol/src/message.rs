@@ -224,6 +224,13 @@ pub struct FrameStats {
     pub bytes_out: u64,
     pub empty_bands: u32,
     pub saturated: u64,
+    /// Largest finite value of the illumination a node packed this frame, before packing (0
+    /// when it sent none, and from compositors): what the coordinator sets the node's next
+    /// `seed64` scale from.
+    pub peak: f32,
+    /// The scale a node's bands carried this frame (`seed64`'s range; ignored by the other
+    /// formats); 0 from compositors.
+    pub scale: f32,
     pub peak_rss_bytes: u64,
 }
 

@@ -21,12 +21,14 @@ pub struct PackedBand {
 }
 
 /// What packing a whole frame cost and found.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct PackTotals {
     pub pack_us: u64,
     pub empty_bands: u32,
     pub saturated: u64,
     pub bands: u32,
+    /// Largest finite value of the illumination layer (`FrameStats::peak`).
+    pub peak: f32,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -153,7 +155,10 @@ pub fn pack_frame(
     out: &mpsc::Sender<PackedBand>,
 ) -> Result<PackTotals, PackError> {
     check_images(layout, images)?;
-    let mut totals = PackTotals::default();
+    let mut totals = PackTotals {
+        peak: illumination_peak(images),
+        ..PackTotals::default()
+    };
     for band in 0..layout.bands() {
         for (layer, format, image) in images {
             let start = Instant::now();
@@ -168,6 +173,16 @@ pub fn pack_frame(
         }
     }
     Ok(totals)
+}
+
+/// Largest finite value of the frame's illumination layer, 0 without one.
+pub fn illumination_peak(images: &LayerImages) -> f32 {
+    images
+        .iter()
+        .filter(|(layer, _, _)| *layer == Layer::Illumination)
+        .flat_map(|(_, _, image)| image.data.iter().copied())
+        .filter(|v| v.is_finite())
+        .fold(0.0, f32::max)
 }
 
 /// The same bands stamped with another frame number (checksums cover payloads only, so they

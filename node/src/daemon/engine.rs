@@ -78,6 +78,7 @@ struct FrameKey {
 struct CachedFrame {
     key: FrameKey,
     bands: Vec<PackedBand>,
+    peak: f32,
 }
 
 /// The node's state.
@@ -381,6 +382,8 @@ impl Engine {
             .iter()
             .map(|b| u64::from(b.header.saturated))
             .sum();
+        stats.peak = cached.peak;
+        stats.scale = f32::from_bits(cached.key.scale);
         self.cached = Some(cached);
         result
     }
@@ -397,6 +400,7 @@ impl Engine {
             return Err(refuse(ErrorCode::BadConfig, "not configured"));
         };
         let cfg = &active.checked.config;
+        let layout_scale = active.scale;
         let layout = BandLayout {
             epoch: cfg.epoch,
             frame,
@@ -466,8 +470,14 @@ impl Engine {
         stats.bytes_out = bytes;
         stats.empty_bands = totals.empty_bands;
         stats.saturated = totals.saturated;
+        stats.peak = totals.peak;
+        stats.scale = layout_scale;
         if walkthrough {
-            self.cached = Some(CachedFrame { key, bands: kept });
+            self.cached = Some(CachedFrame {
+                key,
+                bands: kept,
+                peak: totals.peak,
+            });
         }
         Ok(())
     }

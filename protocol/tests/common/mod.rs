@@ -289,6 +289,8 @@ pub fn frame_stats() -> impl Strategy<Value = FrameStats> {
                 bytes_out,
                 empty_bands,
                 saturated,
+                peak: (t[1] % 4096) as f32 / 8.0,
+                scale: (t[2] % 4096) as f32 / 4.0 + 1.0,
                 peak_rss_bytes,
             },
         )

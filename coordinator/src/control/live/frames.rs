@@ -96,6 +96,9 @@ impl Live<'_> {
                     time: None,
                 });
                 frame_params.time = spec.time;
+                if let Some(s) = seed64_node(plan, id).and_then(|_| self.peaks.get(id)) {
+                    frame_params.scale = seed64_scale(*s);
+                }
                 let msg = Message::RenderFrame {
                     epoch,
                     frame: wire,
@@ -192,4 +195,30 @@ pub(super) fn waiting_on(plan: &Plan, f: &InFlight) -> Vec<String> {
         ));
     }
     out
+}
+
+/// How far above the latest measured maximum a `seed64` link's next scale is set: room for a
+/// scene that brightens by up to 25 % between the measured frame and the next (with frames in
+/// flight the measurement is that many frames old), at a cost of 1.25× the quantisation step.
+pub const SEED64_HEADROOM: f32 = 1.25;
+
+/// The `seed64` scale a link gets after a frame whose illumination peaked at `peak`
+/// (`FrameStats::peak`): `peak × SEED64_HEADROOM`; `None` (keep the current scale) for a black
+/// or non-finite peak.
+pub fn seed64_scale(peak: f32) -> Option<f32> {
+    let s = peak * SEED64_HEADROOM;
+    (s.is_finite() && s > 0.0).then_some(s)
+}
+
+/// Whether node `id` sends a `seed64` layer in `plan`.
+fn seed64_node(plan: &crate::plan::Plan, id: &str) -> Option<()> {
+    plan.nodes
+        .iter()
+        .find(|n| n.node == id)
+        .filter(|n| {
+            n.layers
+                .iter()
+                .any(|(_, f)| *f == lightfold_protocol::PixelFormat::Seed64)
+        })
+        .map(|_| ())
 }

@@ -30,6 +30,7 @@ use super::sink::{SinkEvent, SinkFrame};
 use crate::plan::{Plan, PlanOptions};
 use crate::run::RunError;
 use frames::waiting_on;
+pub use frames::{SEED64_HEADROOM, seed64_scale};
 use lightfold_protocol::{ErrorCode, FrameStats, Message, WireCamera};
 use lightfold_scene::Scene;
 use std::collections::{BTreeMap, VecDeque};
@@ -109,6 +110,10 @@ pub struct LiveSummary {
     pub stopped: Vec<String>,
     /// Frames requested but not finished because daemons stopped with the run.
     pub abandoned: u64,
+    /// Values the daemons' links clamped to their format's range, over the run
+    /// (`FrameStats::saturated`), and the frames in which any were.
+    pub saturated: u64,
+    pub saturated_frames: u64,
 }
 
 /// What the loop is doing, for a watcher.
@@ -212,6 +217,8 @@ pub struct Live<'s> {
     stop: Option<CancellationToken>,
     /// A daemon of the plan stopped with the run: the frames in flight cannot finish.
     abandon: bool,
+    /// Each node's latest `FrameStats::peak` in this epoch: the next `seed64` scale's input.
+    peaks: std::collections::HashMap<String, f32>,
     pub summary: LiveSummary,
 }
 
@@ -256,6 +263,7 @@ impl<'s> Live<'s> {
             pending_join: None,
             reset_at: None,
             just_lost: Vec::new(),
+            peaks: std::collections::HashMap::new(),
             lost: BTreeMap::new(),
             replans_without_progress: 0,
             last_ping: None,
@@ -438,9 +446,27 @@ impl<'s> Live<'s> {
         let epoch = self.plan.as_ref().map(|p| p.epoch);
         match m {
             Message::FrameDone(s) if Some(s.epoch) == epoch => {
+                if s.peak.is_finite() && s.peak > 0.0 {
+                    self.peaks.insert(s.daemon_id.clone(), s.peak);
+                }
                 if let Some(f) = self.inflight.iter_mut().find(|f| f.wire == s.frame)
                     && !f.stats.iter().any(|x| x.daemon_id == s.daemon_id)
                 {
+                    if s.saturated > 0 {
+                        if self.summary.saturated == 0 {
+                            tracing::warn!(
+                                daemon = %s.daemon_id,
+                                frame = f.index,
+                                saturated = s.saturated,
+                                "values above the link format's range were clamped (counted in \
+                                 the frame stats and the run summary)"
+                            );
+                        }
+                        if !f.stats.iter().any(|x| x.saturated > 0) {
+                            self.summary.saturated_frames += 1;
+                        }
+                        self.summary.saturated += s.saturated;
+                    }
                     f.stats.push(s);
                 }
             }
