@@ -625,6 +625,13 @@ pub fn failover_summary(s: &LiveSummary, start: std::time::Instant) -> String {
         s.epochs.len().saturating_sub(1),
         s.rerequested
     ));
+    if s.saturated > 0 {
+        out.push_str(&format!(
+            "\nsaturated: {} value(s) in {} frame(s) were clamped to their link format's range \
+             (per daemon in --stats; a seed64 link's scale follows its measured maximum once a frame's reports are back, after --frames-in-flight frames)",
+            s.saturated, s.saturated_frames
+        ));
+    }
     // Slow frames: one line per frame, naming every daemon it waited on.
     let mut slow: Vec<(std::time::Instant, u64, u128, Vec<&str>)> = Vec::new();
     for i in &s.incidents {
