@@ -380,8 +380,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ..Default::default()
         };
         let (mut last, samples) = match clock.time_of(frames - 1) {
-            Some(t) => (scene.still_at(t), scene.samples_at(t)),
-            None => (
+            // (A scene with indirect light is still: its samples include its VPLs.)
+            Some(t) if scene.animation.is_some() => (scene.still_at(t), scene.samples_at(t)),
+            _ => (
                 scene.clone(),
                 lightfold_reference::indirect::scene_samples(&scene),
             ),
@@ -490,6 +491,9 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
     if let Some(c) = job.indirect.indirect_clamp {
         cmd.arg("--indirect-clamp").arg(c.to_string());
     }
+    if job.indirect.still {
+        cmd.arg("--still");
+    }
     cmd.arg("--topology").arg(job.topology.to_string());
     cmd.arg("--frames").arg(job.frames.to_string());
     cmd.arg("--frames-in-flight")
@@ -590,6 +594,7 @@ mod tests {
             "96",
             "--indirect-clamp",
             "0.125",
+            "--still",
             "--topology",
             "tree",
             "--frames",

@@ -14,6 +14,9 @@ pub struct IndirectArgs {
     /// the scene's, or 2 % of its bounding diagonal).
     #[arg(long, value_name = "METRES")]
     pub indirect_clamp: Option<f32>,
+    /// Drop the scene's animation and render its rest pose (indirect light needs a still scene).
+    #[arg(long)]
+    pub still: bool,
 }
 
 impl IndirectArgs {
@@ -29,10 +32,14 @@ impl IndirectArgs {
         if let Some(m) = self.indirect {
             scene.quality.indirect = m;
         }
+        if self.still {
+            scene.animation = None;
+        }
         if scene.quality.indirect > 0 && scene.animation.is_some() {
             bail!(
                 "indirect light (virtual point lights) is traced for still scenes, and {:?} is \
-                 animated: drop --indirect, or render it without its animation",
+                 animated: add --still to render its rest pose (or, with `render`, --time to pose \
+                 it), or drop --indirect",
                 scene.name
             );
         }

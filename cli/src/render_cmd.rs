@@ -105,6 +105,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(n) = args.shadow_map_size {
         scene.quality.shadow_map_size = n;
     }
+    // Indirect light is traced for one pose: with --time, that pose.
+    let mut time = args.time;
+    let wants_indirect = args.indirect.indirect.unwrap_or(scene.quality.indirect) > 0;
+    if let (Some(t), true) = (time, wants_indirect && scene.animation.is_some()) {
+        scene = scene.still_at(t);
+        time = None;
+    }
     args.indirect.apply(&mut scene)?;
     // The same limits as scene files and the network: samples, image and maps with the
     // overrides applied, before anything is allocated.
@@ -113,7 +120,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("{}: {e} (see `lightfold defaults`)", args.scene))?;
     let (mode, samples) = match args.area_truth {
         Some(spp) => {
-            if let Some(t) = args.time {
+            if let Some(t) = time {
                 scene = scene.still_at(t);
             }
             if !args.lights.is_empty() {
@@ -127,7 +134,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             (ReferenceMode::AreaTruth(opts), Vec::new())
         }
         None => {
-            let all = match args.time {
+            let all = match time {
                 Some(t) => {
                     let all = scene.samples_at(t);
                     scene = scene.still_at(t);

@@ -310,3 +310,26 @@ fn render_poses_an_animated_scene_at_its_time() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn indirect_light_on_an_animated_scene_says_how_to_get_it() {
+    let dir = scratch("indirect");
+    let out = dir.join("still.exr").display().to_string();
+    let base = ["--scene", "carousel", "--size", "32x24"];
+    let e = fails(&[&["plan"][..], &base, &["--indirect", "16"]].concat());
+    assert!(e.contains("animated") && e.contains("--still"), "{e}");
+    let plan = ok(&[&["plan"][..], &base, &["--indirect", "16", "--still"]].concat());
+    assert!(plan.contains("virtual point lights"), "{plan}");
+    // `render --time` poses it, and traces the VPLs for that pose.
+    ok(&[
+        &["render"][..],
+        &base,
+        &["--indirect", "16", "--time", "1.0", "--out", &out],
+    ]
+    .concat());
+    assert!(Path::new(&out).exists());
+    assert!(
+        fails(&[&["render"][..], &base, &["--indirect-clamp=-1"]].concat())
+            .contains("--indirect-clamp")
+    );
+}
