@@ -22,9 +22,7 @@
 
 use crate::point_sum::{Layers, render_pixels};
 use crate::trace::{SurfaceHit, Tracer};
-use lightfold_scene::shading::{
-    self, V3, add, blinn_phong, cross, dot, normalize, range_window, scale,
-};
+use lightfold_scene::shading::{self, V3, add, blinn_phong, dot, normalize, range_window, scale};
 use lightfold_scene::{LightSample, SampleKind, Scene, sampling};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -205,7 +203,7 @@ fn emit(tracer: &Tracer<'_>, s: &LightSample, rng: &mut ChaCha8Rng) -> Option<([
         SampleKind::Directional => {
             let (centre, radius) = scene_sphere(tracer);
             let d = axis;
-            let (u, v) = perpendicular(d);
+            let (u, v) = sampling::basis(d);
             let r = (a as f64).sqrt() * radius;
             let phi = 2.0 * PI_F64 * f64::from(b);
             let back = 2.0 * radius + 1.0;
@@ -235,19 +233,9 @@ fn luminance(c: V3) -> f64 {
     f64::from(0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2])
 }
 
-fn perpendicular(n: V3) -> (V3, V3) {
-    let helper = if n[0].abs() < 0.9 {
-        [1.0, 0.0, 0.0]
-    } else {
-        [0.0, 1.0, 0.0]
-    };
-    let u = normalize(cross(helper, n));
-    (u, cross(n, u))
-}
-
 /// The unit direction at cosine `z` from `axis`, azimuth `b` (a fraction of a turn).
 fn around(axis: V3, z: f32, b: f32) -> V3 {
-    let (u, v) = perpendicular(axis);
+    let (u, v) = sampling::basis(axis);
     let r = (1.0 - z * z).max(0.0).sqrt();
     let phi = 2.0 * PI * b;
     normalize(add(

@@ -6,7 +6,7 @@
 use crate::model::{LightSample, LightShape, Quality, SampleKind, SamplePattern, Scene};
 use crate::shading::{V3, add, cross, normalize, scale};
 
-pub use crate::sampling_shapes::sample_power;
+pub use crate::sampling_shapes::{basis, sample_power};
 pub use crate::scene_ops::mesh_area;
 
 /// All point samples of a scene, in light order, with the scene's quality options.

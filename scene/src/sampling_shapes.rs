@@ -71,7 +71,7 @@ pub(crate) fn samples(
 }
 
 /// An orthonormal pair spanning the plane perpendicular to unit `n` (deterministic).
-pub(crate) fn basis(n: V3) -> (V3, V3) {
+pub fn basis(n: V3) -> (V3, V3) {
     let helper = if n[0].abs() < 0.9 {
         [1.0, 0.0, 0.0]
     } else {
