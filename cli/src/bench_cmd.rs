@@ -314,9 +314,35 @@ async fn measure(
         .with_context(|| format!("unexpected node output {line:?}"))?
         .to_string();
 
+    match drive(a, token, scene, bytes, config, still, &mut child, &addr).await {
+        Ok(r) => Ok(r),
+        Err(e) => {
+            // A node that died (no device, a crash) shows only as a broken link here: say so.
+            match tokio::time::timeout(Duration::from_secs(5), child.wait()).await {
+                Ok(Ok(status)) => Err(e.context(format!(
+                    "the node process exited ({status}); its own messages are above"
+                ))),
+                _ => Err(e),
+            }
+        }
+    }
+}
+
+/// One node process's run: configure it, render the frames, shut it down.
+#[allow(clippy::too_many_arguments)]
+async fn drive(
+    a: &NodeArgs,
+    token: &str,
+    scene: &Scene,
+    bytes: &[u8],
+    config: NodeConfig,
+    still: bool,
+    child: &mut tokio::process::Child,
+    addr: &str,
+) -> anyhow::Result<(Vec<FrameStats>, f64)> {
     let me = Identity::new(token.as_bytes(), Role::Coordinator, "bench");
     let t = Timeouts::default();
-    let mut link = dial(&addr, &me, t).await?;
+    let mut link = dial(addr, &me, t).await?;
     let wait = Duration::from_secs(600);
     match link.recv_msg(wait).await? {
         Message::Register(_) => {}
