@@ -110,7 +110,8 @@ impl<'a> Tracer<'a> {
     /// Closest visible surface along an eye ray; `depth_scale` converts ray distance to depth.
     pub fn eye_ray(&self, origin: V3, dir: V3, depth_scale: f32) -> Option<SurfaceHit> {
         let o = origin.map(f64::from);
-        self.hit_along(o, dir, depth_scale, true).map(|(hit, _)| hit)
+        self.hit_along(o, dir, depth_scale, true)
+            .map(|(hit, _)| hit)
     }
 
     /// The first opaque surface a light ray from `o` along unit `dir` meets, whatever its

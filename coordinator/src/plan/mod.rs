@@ -157,8 +157,8 @@ pub(crate) fn plan_with(
             }
         }
         Some(_) => {
-            let limit = at_map
-                .unwrap_or_else(|| group::device_limit(&cluster.nodes, group::BUDGET_MAX_K));
+            let limit =
+                at_map.unwrap_or_else(|| group::device_limit(&cluster.nodes, group::BUDGET_MAX_K));
             (limit, limit)
         }
     };

@@ -165,7 +165,9 @@ pub(super) fn sanitize_quality(s: &mut Scene, issues: &mut Vec<Issue>) {
         bad("non-finite depth bias (defaults used)");
         (q.depth_bias, q.slope_bias) = (d.depth_bias, d.slope_bias);
     }
-    if q.indirect_clamp.is_some_and(|c| !(c.is_finite() && c >= 0.0)) {
+    if q.indirect_clamp
+        .is_some_and(|c| !(c.is_finite() && c >= 0.0))
+    {
         bad("indirect clamp is not a finite distance ≥ 0 (default used)");
         q.indirect_clamp = d.indirect_clamp;
     }
