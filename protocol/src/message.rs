@@ -86,9 +86,11 @@ pub struct Capabilities {
 pub struct WireLight {
     pub position: [f32; 3],
     pub direction: [f32; 3],
-    /// 0 isotropic, 1 cosine lobe, 2 two-sided lobe, 3 spot, 4 directional.
+    /// 0 isotropic, 1 cosine lobe, 2 two-sided lobe, 3 spot, 4 directional, 5 bounce (a
+    /// virtual point light of indirect light).
     pub kind: u8,
-    /// Spot cosines (outer, inner); zero otherwise.
+    /// Spot cosines (outer, inner); for a bounce light, its falloff clamp (metres) and 0; zero
+    /// otherwise.
     pub cone: [f32; 2],
     pub intensity: f32,
     pub color: [f32; 3],
