@@ -476,3 +476,63 @@ intensity = 10.0
     // the other paths leave the scene (128/6 ≈ 21 VPLs).
     assert!((15..=28).contains(&bounces), "{bounces} VPLs");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_light_colour_change_recolours_its_vpls() {
+    use lightfold_coordinator::run::ColorChange;
+    let gpu = gpu();
+    let scene = cornell(24);
+    let cluster = InProcessCluster::start(3, 3).await.unwrap();
+    let mut opts = RunOptions {
+        control: test_control(),
+        frames: 2,
+        ..RunOptions::default()
+    };
+    opts.plan.lights_per_node = 16;
+    opts.plan.map_sizing = MapSizing::Fixed(scene.quality.shadow_map_size);
+    let new_color = [0.3, 0.6, 1.0];
+    opts.color_changes = vec![ColorChange {
+        frame: 2,
+        light: 0,
+        color: new_color,
+    }];
+    let out = cluster.render(&scene, &opts).await.unwrap();
+    assert_eq!(out.frames.len(), 2);
+    assert_close(
+        &out.frames[0].image,
+        &single_device(&gpu, &scene, false),
+        "frame 1",
+    );
+    // The truth of frame 2: the scene with the new colour, its VPLs traced again (they carry the
+    // light's colour times the albedo they bounced off).
+    let mut recoloured = scene.clone();
+    recoloured.lights[0].color = new_color;
+    let want = single_device(&gpu, &recoloured, false);
+    assert_close(&out.frames[1].image, &want, "frame 2 (new colour)");
+    // Negative control: recolouring only the direct light is visibly wrong.
+    let stale = {
+        let (_, vpls) = vpls_of(&scene);
+        let (new_direct, _) = vpls_of(&recoloured);
+        let mut r =
+            Renderer::new(&gpu, &scene, RenderOptions::from_quality(&scene.quality)).unwrap();
+        r.set_camera(&scene.camera);
+        let samples = [new_direct, vpls].concat();
+        let f = r
+            .render(&gpu, &samples, None, [1.0; 3], LayerSet::all())
+            .unwrap();
+        let il = f.illumination.clone().unwrap();
+        f.radiance(&il, scene.ambient).unwrap()
+    };
+    let d = |a: &Image, b: &Image| {
+        a.data
+            .iter()
+            .zip(&b.data)
+            .map(|(x, y)| f64::from((x - y).abs()))
+            .sum::<f64>()
+            / a.data.len() as f64
+    };
+    let (good, bad) = (d(&out.frames[1].image, &want), d(&stale, &want));
+    eprintln!("frame 2 mean |diff|: {good:.2e}; with the VPLs' old colour {bad:.2e}");
+    assert!(bad > 5.0 * good, "the control must differ: {bad} vs {good}");
+    cluster.stop().await.unwrap();
+}
