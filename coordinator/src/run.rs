@@ -146,29 +146,36 @@ pub fn frame_params(
     let mut params: HashMap<String, FrameParams> = HashMap::new();
     let mut per_sample: Vec<[f32; 3]> = plan.samples.iter().map(|s| s.color).collect();
     let mut changed = false;
+    let bounce = |s: &lightfold_scene::LightSample| {
+        matches!(s.kind, lightfold_scene::SampleKind::Bounce { .. })
+    };
+    // Per changed light: its new colour and its colour in the plan (that of its direct samples),
+    // looked up once.
+    let changes: Vec<(u32, [f32; 3], [f32; 3])> = colors
+        .iter()
+        .map(|&(l, c)| {
+            let source = plan
+                .samples
+                .iter()
+                .find(|d| d.light == l && !bounce(d))
+                .map_or([1.0; 3], |d| d.color);
+            (l, c, source)
+        })
+        .collect();
     for (k, s) in plan.samples.iter().enumerate() {
-        if let Some((_, c)) = colors.iter().find(|(l, _)| *l == s.light) {
+        if let Some(&(_, c, source)) = changes.iter().find(|(l, _, _)| *l == s.light) {
             // A virtual point light's colour is its source's times the albedo it bounced off:
             // it changes by the source's ratio.
-            let new = match s.kind {
-                lightfold_scene::SampleKind::Bounce { .. } => {
-                    let source = plan
-                        .samples
-                        .iter()
-                        .find(|d| {
-                            d.light == s.light
-                                && !matches!(d.kind, lightfold_scene::SampleKind::Bounce { .. })
-                        })
-                        .map_or([1.0; 3], |d| d.color);
-                    std::array::from_fn(|i| {
-                        if source[i] != 0.0 {
-                            s.color[i] * c[i] / source[i]
-                        } else {
-                            0.0
-                        }
-                    })
-                }
-                _ => *c,
+            let new = if bounce(s) {
+                std::array::from_fn(|i| {
+                    if source[i] != 0.0 {
+                        s.color[i] * c[i] / source[i]
+                    } else {
+                        0.0
+                    }
+                })
+            } else {
+                c
             };
             changed |= new.map(f32::to_bits) != s.color.map(f32::to_bits);
             per_sample[k] = new;

@@ -280,7 +280,7 @@ pub fn render_one_bounce(
         );
         let mat = tracer.material(hit);
         let specular = mat.has_specular();
-        let (nx, ny) = grid_shape(paths);
+        let (nx, ny) = sampling::grid_shape(paths);
         let mut sum = [0.0f64; 6];
         for j in 0..ny {
             for i in 0..nx {
@@ -348,15 +348,6 @@ fn bounce_radiance(tracer: &Tracer<'_>, from: &SurfaceHit, d: V3, direct: &[Ligh
     [0, 1, 2].map(|k| albedo[k] * e[k] / PI)
 }
 
-/// `a×b = n` as square as possible (a ≥ b).
-fn grid_shape(n: u32) -> (u32, u32) {
-    let mut b = (n as f64).sqrt() as u32;
-    while b > 1 && !n.is_multiple_of(b) {
-        b -= 1;
-    }
-    (n / b.max(1), b.max(1))
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -364,7 +355,7 @@ mod tests {
     #[test]
     fn grid_shapes_cover_n() {
         for n in [1, 2, 7, 16, 64, 100, 256] {
-            let (a, b) = grid_shape(n);
+            let (a, b) = sampling::grid_shape(n);
             assert_eq!(a * b, n);
             assert!(a >= b);
         }
