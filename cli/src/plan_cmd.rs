@@ -41,7 +41,7 @@ pub struct Args {
     #[command(flatten)]
     pub indirect: crate::indirect_args::IndirectArgs,
     /// The most lights one node's device takes, the ceiling K is raised to. A real node reports
-    /// its own at registration (its "render node ready" log line; lavapipe's is 170); the default
+    /// its own at registration (its "render node ready" log line; lavapipe's is 85); the default
     /// is what every device takes (wgpu's default limits at the default shadow-map size).
     #[arg(long, value_name = "K", default_value_t = default_max_lights())]
     pub max_lights: u32,

@@ -2,11 +2,12 @@
 //! scenes, for docs/hard-cases.md:
 //!
 //! ```sh
-//! cargo run --profile test -p lightfold-quality --example issue22 -- [--full] [--before] [NAME...]
+//! cargo run --profile test -p lightfold-quality --example issue22 -- [--full] [--before | --no-ids] [--map N] [NAME...]
 //! cargo run --profile test -p lightfold-quality --example issue22 -- --cost balls animal
 //! ```
 //!
-//! `--cost`: per scene, the GPU renderer's shadow + eye time (median of 5 frames after a warm-up)
+//! `--before`: neither fix (one frustum per light, one bias for every caster); `--no-ids`: the
+//! cascades without the object-ID test; `--map N`: N² maps instead of the scene's. `--cost`: per scene, the GPU renderer's shadow + eye time (median of 5 frames after a warm-up)
 //! and shadow passes with the fixes off and on, and each render's whole-image and penumbra PSNR
 //! against the exact point sum of the same samples (penumbra: `reference::masks::penumbra`).
 use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
@@ -28,9 +29,14 @@ fn cost(name: &str) -> anyhow::Result<()> {
     )
     .radiance([1.0; 3], scene.ambient);
     let penumbra = masks::penumbra(&truth, &open);
-    for fixes in [Fixes::NONE, Fixes::ALL] {
+    let cascades_only = Fixes {
+        object_ids: false,
+        ..Fixes::ALL
+    };
+    for fixes in [Fixes::NONE, cascades_only, Fixes::ALL] {
         let mut r = Renderer::new(&gpu, &scene, RenderOptions::from_quality(&scene.quality))?;
         r.set_cascades(fixes.cascades);
+        r.set_object_ids(fixes.object_ids);
         let mut times = Vec::new();
         let mut last = None;
         for _ in 0..6 {
@@ -62,14 +68,29 @@ fn cost(name: &str) -> anyhow::Result<()> {
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let full = args.iter().any(|a| a == "--full");
-    let fixes = if args.iter().any(|a| a == "--before") {
+    let map_size = args
+        .iter()
+        .position(|a| a == "--map")
+        .map(|i| {
+            args.get(i + 1)
+                .and_then(|v| v.parse::<u32>().ok())
+                .ok_or_else(|| anyhow::anyhow!("--map takes a map size"))
+        })
+        .transpose()?;
+    let mut fixes = if args.iter().any(|a| a == "--before") {
         Fixes::NONE
+    } else if args.iter().any(|a| a == "--no-ids") {
+        Fixes {
+            object_ids: false,
+            ..Fixes::ALL
+        }
     } else {
         Fixes::ALL
     };
+    fixes.map_size = map_size;
     let mut names: Vec<&str> = args
         .iter()
-        .filter(|a| !a.starts_with("--"))
+        .filter(|a| !a.starts_with("--") && a.parse::<u32>().is_err())
         .map(String::as_str)
         .collect();
     if args.iter().any(|a| a == "--cost") {

@@ -95,7 +95,7 @@ mod tests {
                 .collect()
         };
         let shadow = names(SHADOW_WGSL, "shadow");
-        for e in ["vs_depth", "vs_masked", "fs_masked"] {
+        for e in ["vs_depth", "fs_depth", "vs_masked", "fs_masked"] {
             assert!(shadow.iter().any(|n| n == e), "shadow lacks {e}");
         }
         let forward = names(FORWARD_WGSL, "forward");

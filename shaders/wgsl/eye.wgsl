@@ -8,6 +8,7 @@ struct VsIn {
     @location(2) geometric_normal: vec3f,
     @location(3) uv: vec2f,
     @location(4) material: u32,
+    @location(5) object: u32,
 }
 
 struct VsOut {
@@ -17,6 +18,7 @@ struct VsOut {
     @location(2) geometric_normal: vec3f,
     @location(3) uv: vec2f,
     @location(4) @interpolate(flat) material: u32,
+    @location(5) @interpolate(flat) object: u32,
 }
 
 @vertex
@@ -28,6 +30,7 @@ fn vs_eye(in: VsIn) -> VsOut {
     out.geometric_normal = in.geometric_normal;
     out.uv = in.uv;
     out.material = in.material;
+    out.object = in.object;
     return out;
 }
 
@@ -43,7 +46,7 @@ fn surface(in: VsOut, front: bool) -> Surface {
         ng = -ng;
         n = -n;
     }
-    return Surface(in.world, n, ng, in.material & ~NO_UV_BIT);
+    return Surface(in.world, n, ng, in.material & ~NO_UV_BIT, in.object);
 }
 
 // The material layers m^d (texture applied), m^s, m^a, e at a fragment.

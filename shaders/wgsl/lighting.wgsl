@@ -31,8 +31,15 @@ struct Frame {
     // Image size (the deferred variant's compute pass needs it).
     width: u32,
     height: u32,
-    _pad1: u32,
+    // FLAG_OBJECT_IDS, FLAG_CONVENTIONAL_Z.
+    flags: u32,
 }
+
+// The object-ID test (on by default): each texel of a map also holds the object (mesh index + 1)
+// whose depth it stores.
+const FLAG_OBJECT_IDS: u32 = 1u;
+// Maps store conventional Z (near 0, far 1): a depth negative control.
+const FLAG_CONVENTIONAL_Z: u32 = 2u;
 
 // One shadow map: a layer of `shadow_maps` and how world points land in it. The projection keeps
 // its eight non-zero entries: clip = (a.x·x + a.y·z + a.z, a.w·y + b.x·z + b.y, b.z·z + b.w, w)
@@ -54,6 +61,7 @@ struct View {
 // One linear comparison sampler (GL cannot pair one texture with two samplers); the nearest
 // filter reads it at texel centres, where the bilinear weights select a single texel.
 @group(1) @binding(4) var shadow_linear: sampler_comparison;
+@group(1) @binding(5) var shadow_ids: texture_2d_array<u32>;
 
 // Comparison lookups: `ref` passes where it is at least the stored (reversed-Z) depth.
 fn shadow_filter(uv: vec2f, layer: u32, ref_depth: f32) -> f32 {
@@ -183,12 +191,93 @@ fn project(v: View, q: vec3f) -> vec4f {
     return vec4f(x, y, v.proj_b.z * q.z + v.proj_b.w, select(-q.z, 1.0, is_ortho(v)));
 }
 
-// s_λ at world point p with geometric normal ng; 1 where no view of the light holds p.
+// The depth a receiver at q (view frame) is compared with, moved `bias` metres towards the light
+// along the map's axis.
+fn reference_depth(v: View, q: vec3f, bias: f32) -> f32 {
+    let cb = project(v, vec3f(q.xy, q.z + bias));
+    return select(1.0, clamp(cb.z / cb.w, 0.0, 1.0), cb.w > 0.0);
+}
+
+// A receiver as the object-ID lookups see it.
+struct Receiver {
+    v: View,
+    q: vec3f,
+    // Its position in the map, in texels.
+    at: vec2f,
+    layer: u32,
+    object: u32,
+    // Reference depth against texels of its own object (under the slope bias).
+    own: f32,
+    // Bias against other objects' texels: metres at the receiver, plus metres per texel of the
+    // texel centre's offset from it.
+    base: f32,
+    per_texel: f32,
+}
+
+// 1 where the receiver is at least as near the light as texel t's caster, else 0. A texel of the
+// receiver's own object is compared under the slope bias (a surface cannot shadow itself within
+// its own depth slope); any other object's caster is compared under a bias that only covers
+// where the receiver's plane lies at that texel's centre (slope capped at 2), so a caster thinner
+// than the slope bias (a roof, a fin's foot) still shadows.
+fn texel_lit(r: Receiver, t: vec2i) -> f32 {
+    let c = clamp(t, vec2i(0), vec2i(i32(frame.map_size) - 1));
+    let stored = textureLoad(shadow_maps, c, r.layer, 0);
+    var ref_depth = r.own;
+    if textureLoad(shadow_ids, c, r.layer, 0).x != r.object {
+        let off = abs(vec2f(c) + vec2f(0.5) - r.at);
+        ref_depth = reference_depth(r.v, r.q, r.base + r.per_texel * max(off.x, off.y));
+    }
+    var lit = ref_depth >= stored;
+    if (frame.flags & FLAG_CONVENTIONAL_Z) != 0u {
+        lit = ref_depth <= stored;
+    }
+    return select(0.0, 1.0, lit);
+}
+
+// a + (b − a)·w: exactly a where a = b (fully lit stays exactly 1).
+fn lerp(a: f32, b: f32, w: f32) -> f32 {
+    return a + (b - a) * w;
+}
+
+// The bilinear 2×2 footprint around `at` (texels), as the comparison sampler weighs it.
+fn texel_bilinear(r: Receiver, at: vec2f) -> f32 {
+    let p = at - vec2f(0.5);
+    let b = floor(p);
+    let f = p - b;
+    let t = vec2i(b);
+    let top = lerp(texel_lit(r, t), texel_lit(r, t + vec2i(1, 0)), f.x);
+    let bottom = lerp(texel_lit(r, t + vec2i(0, 1)), texel_lit(r, t + vec2i(1, 1)), f.x);
+    return lerp(top, bottom, f.y);
+}
+
+// `shadow_filter` with the object-ID test: the same footprints and weights, one comparison per
+// texel.
+fn object_filter(r: Receiver) -> f32 {
+    if SHADOW_FILTER == FILTER_NEAREST {
+        return texel_lit(r, vec2i(floor(r.at)));
+    }
+    if SHADOW_FILTER == FILTER_PCF2X2 {
+        return texel_bilinear(r, r.at);
+    }
+    let taps = max(SHADOW_TAPS, 1u);
+    let half = 0.5 * f32(taps - 1u);
+    var sum = 0.0;
+    for (var j = 0u; j < taps; j++) {
+        for (var i = 0u; i < taps; i++) {
+            sum += texel_bilinear(r, r.at + vec2f(f32(i), f32(j)) - vec2f(half));
+        }
+    }
+    return sum / f32(taps * taps);
+}
+
+// s_λ at world point p with geometric normal ng on object `object`; 1 where no view of the light
+// holds p.
 //
 // Bias: the constant part is `depth_bias` metres along the light ray; the slope part follows the
 // receiver's own plane: how much its view-axis depth D changes across the filter footprint in the
 // map, |∂D/∂x| + |∂D/∂y| per texel (exact for a plane, also off-axis in wide frusta and cube faces).
-fn visibility(s: Light, p: vec3f, ng: vec3f) -> f32 {
+// With the object-ID test the slope part applies to the receiver's own object only (`texel_lit`).
+fn visibility(s: Light, p: vec3f, ng: vec3f, object: u32) -> f32 {
     let placed = place(s, p, ng);
     if placed.index == NO_VIEW {
         return 1.0;
@@ -221,19 +310,32 @@ fn visibility(s: Light, p: vec3f, ng: vec3f) -> f32 {
     // Grazing receivers cannot ask for more than ten texels' worth of depth per texel.
     let bias = frame.depth_bias * along_axis
         + frame.slope_bias * frame.kernel_radius * min(slope, 10.0) * texel_m;
-    // Move the receiver towards the light along the map's axis, then take its depth.
-    let cb = project(v, vec3f(q.xy, q.z + bias));
-    let ref_depth = select(1.0, clamp(cb.z / cb.w, 0.0, 1.0), cb.w > 0.0);
-    return shadow_filter(uv, frame.view_base + placed.index, ref_depth);
+    let own = reference_depth(v, q, bias);
+    let layer = frame.view_base + placed.index;
+    if (frame.flags & FLAG_OBJECT_IDS) == 0u {
+        return shadow_filter(uv, layer, own);
+    }
+    let r = Receiver(
+        v,
+        q,
+        uv * frame.map_size,
+        layer,
+        object,
+        own,
+        frame.depth_bias * along_axis,
+        frame.slope_bias * min(slope, 2.0) * texel_m,
+    );
+    return object_filter(r);
 }
 
-// A visible surface point: position, unit shading and geometric normals facing the viewer, and
-// its material index.
+// A visible surface point: position, unit shading and geometric normals facing the viewer, its
+// material index and its object (mesh index + 1).
 struct Surface {
     p: vec3f,
     n: vec3f,
     ng: vec3f,
     material: u32,
+    object: u32,
 }
 
 struct Shaded {
@@ -254,7 +356,7 @@ fn illuminate(sf: Surface, start: Shaded) -> Shaded {
         if c.x == 0.0 && c.y == 0.0 {
             continue;
         }
-        let vis = visibility(s, sf.p, sf.ng);
+        let vis = visibility(s, sf.p, sf.ng, sf.object);
         out.diffuse += s.weight * (c.x * vis);
         out.specular += s.weight * (c.y * vis);
     }

@@ -1,5 +1,6 @@
-// Shadow pass: depth only (reversed-Z, cleared to 0), one draw per caster mesh. Alpha-masked
-// casters run `fs_masked`, which discards texels below their material's cutoff.
+// Shadow pass: depth (reversed-Z, cleared to 0) and the object ID of the nearest caster (mesh
+// index + 1, cleared to 0), one draw per caster mesh. Alpha-masked casters run `fs_masked`, which
+// discards texels below their material's cutoff.
 
 struct ShadowPass {
     view_proj: mat4x4f,
@@ -7,15 +8,26 @@ struct ShadowPass {
 
 @group(1) @binding(0) var<uniform> pass_view: ShadowPass;
 
+struct DepthOut {
+    @builtin(position) clip: vec4f,
+    @location(0) @interpolate(flat) object: u32,
+}
+
 @vertex
-fn vs_depth(@location(0) position: vec3f) -> @builtin(position) vec4f {
-    return pass_view.view_proj * vec4f(position, 1.0);
+fn vs_depth(@location(0) position: vec3f, @location(5) object: u32) -> DepthOut {
+    return DepthOut(pass_view.view_proj * vec4f(position, 1.0), object);
+}
+
+@fragment
+fn fs_depth(in: DepthOut) -> @location(0) u32 {
+    return in.object;
 }
 
 struct MaskedOut {
     @builtin(position) clip: vec4f,
     @location(0) uv: vec2f,
     @location(1) @interpolate(flat) material: u32,
+    @location(2) @interpolate(flat) object: u32,
 }
 
 @vertex
@@ -23,18 +35,21 @@ fn vs_masked(
     @location(0) position: vec3f,
     @location(3) uv: vec2f,
     @location(4) material: u32,
+    @location(5) object: u32,
 ) -> MaskedOut {
     var out: MaskedOut;
     out.clip = pass_view.view_proj * vec4f(position, 1.0);
     out.uv = uv;
     out.material = material;
+    out.object = object;
     return out;
 }
 
 @fragment
-fn fs_masked(in: MaskedOut) {
+fn fs_masked(in: MaskedOut) -> @location(0) u32 {
     let m = materials[in.material & ~NO_UV_BIT];
     if masked_out(m, in.uv, (in.material & NO_UV_BIT) == 0u) {
         discard;
     }
+    return in.object;
 }

@@ -8,8 +8,8 @@ use std::fmt;
 /// Environment variable naming the backend (`vulkan` or `gl`) when no flag is given.
 pub const BACKEND_ENV: &str = "LIGHTFOLD_BACKEND";
 
-/// Bytes of one shadow-map texel (Depth32Float).
-pub const SHADOW_TEXEL_BYTES: u64 = 4;
+/// Bytes of one shadow-map texel: Depth32Float and its R32Uint object ID.
+pub const SHADOW_TEXEL_BYTES: u64 = 8;
 /// Most shadow views one light can need: the six faces of a cube map.
 pub const MAX_VIEWS_PER_LIGHT: u32 = 6;
 /// Device memory we allow shadow maps to take (lavapipe allocates them in host memory).

@@ -27,8 +27,16 @@ pub struct GpuFrame {
     pub kernel_radius: f32,
     pub width: u32,
     pub height: u32,
-    pub _pad1: u32,
+    /// [`FLAG_OBJECT_IDS`], [`FLAG_CONVENTIONAL_Z`].
+    pub flags: u32,
 }
+
+/// `Frame::flags`: shadow lookups compare against other objects' casters with a bias sized for
+/// their offset from the receiver (the object-ID test), and against the receiver's own surface
+/// with the slope bias.
+pub const FLAG_OBJECT_IDS: u32 = 1;
+/// `Frame::flags`: shadow depths are conventional Z (near 0), a depth negative control.
+pub const FLAG_CONVENTIONAL_Z: u32 = 2;
 
 impl GpuFrame {
     /// Camera part of the frame; light and filter fields are filled by the caller.
@@ -47,7 +55,7 @@ impl GpuFrame {
             kernel_radius: 1.0,
             width: camera.width,
             height: camera.height,
-            _pad1: 0,
+            flags: 0,
         }
     }
 }
@@ -189,6 +197,10 @@ pub fn light_group(
             wgpu::BindGroupEntry {
                 binding: 4,
                 resource: wgpu::BindingResource::Sampler(inputs.sampler),
+            },
+            wgpu::BindGroupEntry {
+                binding: 5,
+                resource: wgpu::BindingResource::TextureView(&inputs.maps.id_view),
             },
         ],
     })

@@ -1,5 +1,6 @@
-//! Bind-group layouts and pipelines, built once per renderer from the `shaders` crate: depth-only
-//! and alpha-masked shadow pipelines (reversed-Z, depth clamp, no culling: every triangle casts),
+//! Bind-group layouts and pipelines, built once per renderer from the `shaders` crate: opaque and
+//! alpha-masked shadow pipelines writing depth and object ID (reversed-Z, depth clamp, no
+//! culling: every triangle casts),
 //! the forward and G-buffer eye rasters with or without the material-layer targets, and the
 //! deferred light pass, compiled per set of sample kinds on first use. The shadow filter is
 //! fixed per renderer and compiled in as a pipeline constant.
@@ -15,6 +16,7 @@ use super::frame::RenderError;
 use super::lights::{GpuLight, MODE_CASCADE};
 use super::scene_data::Vertex;
 use super::shadow_depth::ShadowDepth;
+use super::shadow_pass::OBJECT_ID_FORMAT;
 
 /// Depth format of the eye pass (and of shadow maps, but for the depth negative controls).
 pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
@@ -79,8 +81,8 @@ fn storage_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::BindGrou
     }
 }
 
-const VERTEX_ATTRIBUTES: [wgpu::VertexAttribute; 5] = wgpu::vertex_attr_array![
-    0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Float32x2, 4 => Uint32
+const VERTEX_ATTRIBUTES: [wgpu::VertexAttribute; 6] = wgpu::vertex_attr_array![
+    0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Float32x2, 4 => Uint32, 5 => Uint32
 ];
 
 fn vertex_layout() -> wgpu::VertexBufferLayout<'static> {
@@ -208,6 +210,16 @@ impl Pipelines {
                         count: None,
                     },
                     comparison(4),
+                    wgpu::BindGroupLayoutEntry {
+                        binding: 5,
+                        visibility: fragment,
+                        ty: wgpu::BindingType::Texture {
+                            sample_type: wgpu::TextureSampleType::Uint,
+                            view_dimension: wgpu::TextureViewDimension::D2Array,
+                            multisampled: false,
+                        },
+                        count: None,
+                    },
                 ],
             })
         };
@@ -249,7 +261,7 @@ impl Pipelines {
             unclipped_depth: true,
             ..Default::default()
         };
-        let shadow = |vs: &str, fs: Option<&str>| {
+        let shadow = |vs: &str, fs: &str| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(vs),
                 layout: Some(&shadow_pl),
@@ -266,18 +278,22 @@ impl Pipelines {
                     ..depth_state(true)
                 }),
                 multisample: Default::default(),
-                fragment: fs.map(|fs| wgpu::FragmentState {
+                fragment: Some(wgpu::FragmentState {
                     module: &shadow_module,
                     entry_point: Some(fs),
                     compilation_options: Default::default(),
-                    targets: &[],
+                    targets: &[Some(wgpu::ColorTargetState {
+                        format: OBJECT_ID_FORMAT,
+                        blend: None,
+                        write_mask: wgpu::ColorWrites::ALL,
+                    })],
                 }),
                 multiview_mask: None,
                 cache: None,
             })
         };
-        let shadow_opaque = shadow("vs_depth", None);
-        let shadow_masked = shadow("vs_masked", Some("fs_masked"));
+        let shadow_opaque = shadow("vs_depth", "fs_depth");
+        let shadow_masked = shadow("vs_masked", "fs_masked");
 
         let illumination_format = ILLUMINATION_FORMAT;
         let target = |f: wgpu::TextureFormat| {

@@ -8,7 +8,9 @@
 
 use super::deferred::{DeferredTargets, read_illumination, render_deferred};
 use super::device::Gpu;
-use super::eye_pass::{EyeInputs, EyeTargets, GpuFrame, render_eye};
+use super::eye_pass::{
+    EyeInputs, EyeTargets, FLAG_CONVENTIONAL_Z, FLAG_OBJECT_IDS, GpuFrame, render_eye,
+};
 use super::frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
 use super::lights::{Fault, Fit, LightPlan, plan_lights};
 use super::pipelines::{DrawContext, LightSet, Pipelines};
@@ -68,6 +70,7 @@ pub struct Renderer {
     max_lights: u32,
     fit_to_camera: bool,
     cascades: bool,
+    object_ids: bool,
 }
 
 impl Renderer {
@@ -202,6 +205,7 @@ impl Renderer {
             max_lights: gpu.max_lights(opts.shadow_map_size),
             fit_to_camera: true,
             cascades: true,
+            object_ids: true,
             variant: EyeVariant::default(),
             deferred: None,
         })
@@ -305,6 +309,15 @@ impl Renderer {
     /// that range is deep (the default; `false` gives one frustum per light, as before issue 22).
     pub fn set_cascades(&mut self, on: bool) {
         self.cascades = on;
+    }
+
+    /// Whether shadow lookups use the object-ID test (the default): a receiver compares with its
+    /// own object's stored depth under the slope bias, and with other objects' under a bias
+    /// sized for the texel's offset only, so thin casters cannot hide inside the bias and
+    /// shadows start at their casters' feet. `false` gives one bias for every caster, as before
+    /// issue 22.
+    pub fn set_object_ids(&mut self, on: bool) {
+        self.object_ids = on;
     }
 
     /// Chooses how the eye pass lights pixels (same images either way, within f32 rounding).
@@ -687,12 +700,20 @@ impl Renderer {
             ShadowFilter::Pcf2x2 => 1.0,
             ShadowFilter::Pcf { taps } => (taps.clamp(1, 15) - 1) as f32 * 0.5 + 1.0,
         };
+        let mut flags = 0;
+        if self.object_ids {
+            flags |= FLAG_OBJECT_IDS;
+        }
+        if ShadowDepth::of(o.fault) == ShadowDepth::Conventional32 {
+            flags |= FLAG_CONVENTIONAL_Z;
+        }
         GpuFrame {
             light_count: plan.lights.len() as u32,
             map_size: o.shadow_map_size as f32,
             depth_bias,
             slope_bias,
             kernel_radius,
+            flags,
             ..GpuFrame::for_camera(&self.camera, self.near)
         }
     }

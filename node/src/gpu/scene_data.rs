@@ -22,6 +22,9 @@ pub struct Vertex {
     pub uv: [f32; 2],
     /// Material index, with [`NO_UV_BIT`] when the mesh has no UVs.
     pub material: u32,
+    /// The mesh's index + 1: the object ID shadow maps store beside depth, so a receiver tells
+    /// its own surface from other casters (0 is "no caster").
+    pub object: u32,
 }
 
 /// `Material` in `materials.wgsl` (std430).
@@ -163,8 +166,9 @@ fn triangles(
 ) -> (Vec<Vertex>, Vec<MeshRange>) {
     let mut vertices = Vec::new();
     let mut meshes = Vec::with_capacity(scene_meshes.len());
-    for mesh in scene_meshes {
+    for (index, mesh) in scene_meshes.iter().enumerate() {
         let first_vertex = vertices.len() as u32;
+        let object = u32::try_from(index + 1).unwrap_or(u32::MAX);
         let material = if mesh.material < fallback as usize {
             mesh.material as u32
         } else {
@@ -199,6 +203,7 @@ fn triangles(
                     geometric_normal: ng,
                     uv: if has_uvs { mesh.uvs[i] } else { [0.0; 2] },
                     material: word,
+                    object,
                 });
             }
         }
@@ -264,7 +269,7 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(std::mem::size_of::<Vertex>(), 48);
+        assert_eq!(std::mem::size_of::<Vertex>(), 52);
         assert_eq!(std::mem::size_of::<GpuMaterial>(), 80);
         assert_eq!(std::mem::size_of::<GpuTexture>(), 16);
     }

@@ -1,7 +1,8 @@
 //! Shadow maps: one Depth32Float texture array holding every view of every light of a frame (one
-//! layer per view), and the depth passes that fill it, drawing per view only the casters the
-//! caller allows that can reach the view's frustum. (The depth negative controls change the
-//! encoding: `ShadowDepth`.)
+//! layer per view), beside it an R32Uint array of the object (mesh index + 1) each texel's depth
+//! belongs to, and the depth passes that fill both, drawing per view only the casters the caller
+//! allows that can reach the view's frustum. (The depth negative controls change the encoding:
+//! `ShadowDepth`.)
 
 use super::lights::{LightPlan, box_in_view, mat_mul};
 use super::pipelines::{DrawContext, VIEW_UNIFORM_STRIDE};
@@ -18,6 +19,37 @@ pub struct ShadowMaps {
     _texture: wgpu::Texture,
     pub array_view: wgpu::TextureView,
     layer_views: Vec<wgpu::TextureView>,
+    _ids: wgpu::Texture,
+    /// The object IDs, layer for layer with `array_view`.
+    pub id_view: wgpu::TextureView,
+    id_layer_views: Vec<wgpu::TextureView>,
+}
+
+/// Format of the object-ID layers: mesh index + 1, 0 where no caster drew.
+pub const OBJECT_ID_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
+
+fn array_views(
+    texture: &wgpu::Texture,
+    layers: u32,
+    label: &str,
+) -> (wgpu::TextureView, Vec<wgpu::TextureView>) {
+    let array = texture.create_view(&wgpu::TextureViewDescriptor {
+        label: Some(label),
+        dimension: Some(wgpu::TextureViewDimension::D2Array),
+        ..Default::default()
+    });
+    let layer_views = (0..layers)
+        .map(|l| {
+            texture.create_view(&wgpu::TextureViewDescriptor {
+                label: Some(label),
+                dimension: Some(wgpu::TextureViewDimension::D2),
+                base_array_layer: l,
+                array_layer_count: Some(1),
+                ..Default::default()
+            })
+        })
+        .collect();
+    (array, layer_views)
 }
 
 /// Layers to allocate for `views` maps. GL turns arrays of 1 layer or a multiple of 6 layers into
@@ -34,43 +66,37 @@ pub fn layer_count(views: usize) -> u32 {
 
 impl ShadowMaps {
     pub fn new(device: &wgpu::Device, size: u32, layers: u32, depth: ShadowDepth) -> ShadowMaps {
-        let texture = device.create_texture(&wgpu::TextureDescriptor {
-            label: Some("shadow maps"),
-            size: wgpu::Extent3d {
-                width: size,
-                height: size,
-                depth_or_array_layers: layers,
-            },
-            mip_level_count: 1,
-            sample_count: 1,
-            dimension: wgpu::TextureDimension::D2,
-            format: depth.format(),
-            usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
-            view_formats: &[],
-        });
-        let array_view = texture.create_view(&wgpu::TextureViewDescriptor {
-            label: Some("shadow maps array"),
-            dimension: Some(wgpu::TextureViewDimension::D2Array),
-            ..Default::default()
-        });
-        let layer_views = (0..layers)
-            .map(|l| {
-                texture.create_view(&wgpu::TextureViewDescriptor {
-                    label: Some("shadow map layer"),
-                    dimension: Some(wgpu::TextureViewDimension::D2),
-                    base_array_layer: l,
-                    array_layer_count: Some(1),
-                    ..Default::default()
-                })
+        let texture = |label, format| {
+            device.create_texture(&wgpu::TextureDescriptor {
+                label: Some(label),
+                size: wgpu::Extent3d {
+                    width: size,
+                    height: size,
+                    depth_or_array_layers: layers,
+                },
+                mip_level_count: 1,
+                sample_count: 1,
+                dimension: wgpu::TextureDimension::D2,
+                format,
+                usage: wgpu::TextureUsages::RENDER_ATTACHMENT
+                    | wgpu::TextureUsages::TEXTURE_BINDING,
+                view_formats: &[],
             })
-            .collect();
+        };
+        let depth_texture = texture("shadow maps", depth.format());
+        let ids = texture("shadow map object ids", OBJECT_ID_FORMAT);
+        let (array_view, layer_views) = array_views(&depth_texture, layers, "shadow maps");
+        let (id_view, id_layer_views) = array_views(&ids, layers, "shadow map object ids");
         ShadowMaps {
             size,
             layers,
             depth,
-            _texture: texture,
+            _texture: depth_texture,
             array_view,
             layer_views,
+            _ids: ids,
+            id_view,
+            id_layer_views,
         }
     }
 
@@ -141,11 +167,20 @@ pub fn render_shadow_maps(
                     .is_some_and(|(lo, hi)| m.vertex_count > 0 && box_in_view(geometry, lo, hi))
             })
             .collect();
+        let layer = plan.views[i].layer as usize;
         let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
             label: Some("shadow pass"),
-            color_attachments: &[],
+            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                view: &maps.id_layer_views[layer],
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                    store: wgpu::StoreOp::Store,
+                },
+            })],
             depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                view: &maps.layer_views[plan.views[i].layer as usize],
+                view: &maps.layer_views[layer],
                 depth_ops: Some(wgpu::Operations {
                     // "Nothing in front" (0 in reversed-Z), so uncovered texels are lit.
                     load: wgpu::LoadOp::Clear(maps.depth.clear()),

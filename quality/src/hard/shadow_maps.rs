@@ -126,13 +126,25 @@ fn thin_poles_with(full: bool, fixes: Fixes) -> Result<CaseReport, HardCaseError
 pub struct Fixes {
     /// Maps fitted to what the camera sees split into cascades by eye depth.
     pub cascades: bool,
+    /// The object-ID test: other objects' casters compared without the receiver's slope bias.
+    pub object_ids: bool,
+    /// Shadow maps of this size instead of the scene's (to measure what resolution buys).
+    pub map_size: Option<u32>,
 }
 
 impl Fixes {
     /// The renderer as it is.
-    pub const ALL: Fixes = Fixes { cascades: true };
+    pub const ALL: Fixes = Fixes {
+        cascades: true,
+        object_ids: true,
+        map_size: None,
+    };
     /// The renderer before issue 22.
-    pub const NONE: Fixes = Fixes { cascades: false };
+    pub const NONE: Fixes = Fixes {
+        cascades: false,
+        object_ids: false,
+        map_size: None,
+    };
 }
 
 /// The truth of one case: the point sum's radiance and illumination, and the judged dark pixels.
@@ -211,6 +223,7 @@ fn render_radiance(
     let err = |e: String| HardCaseError::Render { case, message: e };
     let mut r = Renderer::new(gpu, scene, opts).map_err(|e| err(e.to_string()))?;
     r.set_cascades(fixes.cascades);
+    r.set_object_ids(fixes.object_ids);
     let frame = r
         .render(gpu, samples, None, C_N, LayerSet::all())
         .map_err(|e| err(e.to_string()))?;
@@ -285,7 +298,10 @@ fn whole_image_case(
     let scene = super::support::load_case_scene(case, file, full, small)?;
     let samples = sampling::scene_samples(&scene);
     let t = truth(&scene, &samples);
-    let opts = RenderOptions::from_quality(&scene.quality);
+    let mut opts = RenderOptions::from_quality(&scene.quality);
+    if let Some(size) = fixes.map_size {
+        opts.shadow_map_size = size;
+    }
     let (illum, radiance, passes) = render_radiance(case, &gpu, &scene, &samples, opts, fixes)?;
     let s = score(case, &scene, &t, &illum, &radiance)?;
     // For looking at a case: LIGHTFOLD_HARD_DUMP=DIR writes both images as PNG.
