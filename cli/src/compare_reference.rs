@@ -20,8 +20,12 @@ pub fn report(scene: &Scene, samples: &[LightSample], exr: &Path, aa: u32) -> an
     scene.camera = scene.camera.supersampled(aa)?;
     let shadowed =
         render_point_sum_with(&scene, samples, [1.0; 3], PointSumOptions { shadows: true });
-    let open =
-        render_point_sum_with(&scene, samples, [1.0; 3], PointSumOptions { shadows: false });
+    let open = render_point_sum_with(
+        &scene,
+        samples,
+        [1.0; 3],
+        PointSumOptions { shadows: false },
+    );
     let reference = shadowed.radiance([1.0; 3], scene.ambient).box_resolve(aa)?;
     let unoccluded = open.radiance([1.0; 3], scene.ambient).box_resolve(aa)?;
     let depth = shadowed.depth.nearest_depth_resolve(aa)?;

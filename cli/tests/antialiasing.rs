@@ -48,7 +48,8 @@ fn aa_1_is_the_default_image_bit_for_bit_and_aa_2_is_not() {
             "{mode:?}: --aa 1 changed the EXR"
         );
         assert!(
-            bytes(&path("default").with_extension("png")) == bytes(&path("aa1").with_extension("png")),
+            bytes(&path("default").with_extension("png"))
+                == bytes(&path("aa1").with_extension("png")),
             "{mode:?}: --aa 1 changed the PNG"
         );
         assert!(

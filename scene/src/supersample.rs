@@ -27,7 +27,11 @@ pub enum SupersampleError {
         limit: LimitError,
     },
     #[error("cannot resolve a {width}x{height} image by {factor}: not a multiple of it")]
-    NotMultiple { factor: u32, width: u32, height: u32 },
+    NotMultiple {
+        factor: u32,
+        width: u32,
+        height: u32,
+    },
 }
 
 /// The internal size of a `width × height` image supersampled `factor × factor`, checked against
@@ -129,9 +133,8 @@ impl Image {
     /// foreground and background distances that no surface has.
     pub fn nearest_depth_resolve(&self, factor: u32) -> Result<Image, SupersampleError> {
         resolve_with(self, factor, |v| {
-            v.filter(|z| *z > 0.0).fold(0.0, |m: f32, z| {
-                if m == 0.0 || z < m { z } else { m }
-            })
+            v.filter(|z| *z > 0.0)
+                .fold(0.0, |m: f32, z| if m == 0.0 || z < m { z } else { m })
         })
     }
 }
@@ -148,6 +151,16 @@ mod tests {
         img
     }
 
+    /// A 4x2 single-channel image: blocks of 2x2 are `[0, 1, 4, 5]` and `[2, 3, 6, 7]`.
+    fn four_by_two(data: [f32; 8]) -> Image {
+        Image {
+            width: 4,
+            height: 2,
+            channels: 1,
+            data: data.to_vec(),
+        }
+    }
+
     #[test]
     fn factor_one_is_the_same_bits() {
         let img = ramp(5, 3, 3);
@@ -157,20 +170,15 @@ mod tests {
 
     #[test]
     fn box_resolve_averages_each_block() {
-        // 4x2, one channel, factor 2: blocks [0,1,4,5] and [2,3,6,7].
-        let img = Image {
-            width: 4,
-            height: 2,
-            channels: 1,
-            data: vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0],
-        };
+        let img = four_by_two([0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]);
         let r = img.box_resolve(2).unwrap();
         assert_eq!((r.width, r.height), (2, 1));
         assert_eq!(r.data, vec![2.5, 4.5]);
         // Channels stay apart, and the mean is preserved.
         let img = ramp(6, 9, 3);
         let r = img.box_resolve(3).unwrap();
-        let mean = |i: &Image| i.data.iter().map(|&v| f64::from(v)).sum::<f64>() / i.data.len() as f64;
+        let mean =
+            |i: &Image| i.data.iter().map(|&v| f64::from(v)).sum::<f64>() / i.data.len() as f64;
         assert!((mean(&r) - mean(&img)).abs() < 1e-5);
         assert_eq!(r.pixel(1, 2)[1], {
             let mut s = 0.0f64;
@@ -185,12 +193,7 @@ mod tests {
 
     #[test]
     fn depth_takes_the_nearest_covered_sample() {
-        let img = Image {
-            width: 4,
-            height: 2,
-            channels: 1,
-            data: vec![0.0, 3.0, 0.0, 0.0, 2.0, 5.0, 0.0, 0.0],
-        };
+        let img = four_by_two([0.0, 3.0, 0.0, 0.0, 2.0, 5.0, 0.0, 0.0]);
         let r = img.nearest_depth_resolve(2).unwrap();
         assert_eq!(r.data, vec![2.0, 0.0]);
     }

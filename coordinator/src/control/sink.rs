@@ -214,8 +214,8 @@ async fn receive(
                     })
                     .await;
             }
-            // The resolve of `--aa N`: after the material stage, on final radiance (off the
-            // runtime: a 3200x2400 frame takes tens of milliseconds).
+            // The resolve of `--aa N`: after the material stage, on final radiance (on a
+            // blocking thread: one pass over N² × the delivered pixels).
             let image = match resolve(done.image, g.supersample.max(1)).await {
                 Ok(image) => image,
                 Err(e) => {
