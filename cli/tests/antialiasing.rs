@@ -33,11 +33,9 @@ fn aa_1_is_the_default_image_bit_for_bit_and_aa_2_is_not() {
     let dir = tempdir();
     for mode in [&[][..], &["--reference"][..]] {
         let path = |name: &str| dir.join(format!("{name}.exr"));
-        let with = |aa: Option<&str>| {
+        let with = |aa: Option<&'static str>| -> Vec<&'static str> {
             let mut a = mode.to_vec();
-            if let Some(n) = aa {
-                a.extend(["--aa", n]);
-            }
+            a.extend(aa.map(|n| ["--aa", n]).into_iter().flatten());
             a
         };
         render(&path("default"), &with(None));
