@@ -80,7 +80,7 @@ fn check_multiple(img: &Image, factor: u32) -> Result<(u32, u32), SupersampleErr
     if factor == 0 {
         return Err(SupersampleError::Zero);
     }
-    if img.width % factor != 0 || img.height % factor != 0 {
+    if !img.width.is_multiple_of(factor) || !img.height.is_multiple_of(factor) {
         return Err(SupersampleError::NotMultiple {
             factor,
             width: img.width,
