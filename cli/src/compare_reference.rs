@@ -11,18 +11,33 @@ use std::path::Path;
 use std::time::Instant;
 
 /// Renders the reference for `scene` and prints the metrics of the image in `exr` against it.
-pub fn report(scene: &Scene, samples: &[LightSample], exr: &Path) -> anyhow::Result<()> {
+/// With `aa` > 1 (the image's `--aa`) the reference is traced with `aa × aa` rays per pixel and
+/// resolved the same way (radiance box-filtered, depth nearest; coverage where a block has any).
+pub fn report(scene: &Scene, samples: &[LightSample], exr: &Path, aa: u32) -> anyhow::Result<()> {
     let test = Image::read_exr(exr).with_context(|| format!("cannot read {}", exr.display()))?;
     let t = Instant::now();
+    let mut scene = scene.clone();
+    scene.camera = scene.camera.supersampled(aa)?;
     let shadowed =
-        render_point_sum_with(scene, samples, [1.0; 3], PointSumOptions { shadows: true });
-    let open = render_point_sum_with(scene, samples, [1.0; 3], PointSumOptions { shadows: false });
-    let reference = shadowed.radiance([1.0; 3], scene.ambient);
-    let unoccluded = open.radiance([1.0; 3], scene.ambient);
-    let mask = penumbra_mask(&reference, &unoccluded, &shadowed.depth, &shadowed.coverage);
+        render_point_sum_with(&scene, samples, [1.0; 3], PointSumOptions { shadows: true });
+    let open = render_point_sum_with(
+        &scene,
+        samples,
+        [1.0; 3],
+        PointSumOptions { shadows: false },
+    );
+    let reference = shadowed.radiance([1.0; 3], scene.ambient).box_resolve(aa)?;
+    let unoccluded = open.radiance([1.0; 3], scene.ambient).box_resolve(aa)?;
+    let depth = shadowed.depth.nearest_depth_resolve(aa)?;
+    let coverage: Vec<bool> = if aa > 1 {
+        depth.data.iter().map(|&z| z > 0.0).collect()
+    } else {
+        shadowed.coverage
+    };
+    let mask = penumbra_mask(&reference, &unoccluded, &depth, &coverage);
     let m = compare(&test, &reference, scene.exposure, Some(&mask))?;
     outln!(
-        "error against the CPU reference (exact sum over the same {} point samples, ray-traced shadows; {:.1} s on the CPU):",
+        "error against the CPU reference (exact sum over the same {} point samples, ray-traced shadows, {aa}×{aa} rays per pixel; {:.1} s on the CPU):",
         samples.len(),
         t.elapsed().as_secs_f64()
     );

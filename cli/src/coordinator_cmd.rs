@@ -137,6 +137,11 @@ pub struct JobArgs {
     /// Lights per node (K).
     #[arg(short = 'K', long, default_value_t = lightfold_scene::defaults::LIGHTS_PER_NODE)]
     pub lights_per_node: u32,
+    /// Antialiasing: N×N samples per pixel. The cluster renders N·width × N·height (within the
+    /// image limits of `lightfold defaults`) and the coordinator's sink box-filters the final
+    /// radiance back to the image size; the sink link carries N² times the pixels.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub aa: u32,
     #[command(flatten)]
     pub indirect: crate::indirect_args::IndirectArgs,
     /// Compositor topology: `chain` (a linear pipeline, each stage adds its nodes to the upstream
@@ -232,6 +237,11 @@ impl JobArgs {
                 .map_err(|e| anyhow::anyhow!("bad --shadow-map-size: {e}"))?;
         }
         self.indirect.apply(&mut scene)?;
+        // Refused here, before any daemon is started or dialled, when N·size is over the limits.
+        scene
+            .camera
+            .supersampled(self.aa)
+            .map_err(|e| anyhow::anyhow!("{e} (see `lightfold defaults`)"))?;
         Ok(scene)
     }
 
@@ -247,6 +257,7 @@ impl JobArgs {
             frame_budget_us: self.frame_budget.map(|b| (b * 1000.0).round() as u64),
             frames_in_flight: self.frames_in_flight,
             formats: self.formats(),
+            supersample: self.aa,
             ..PlanOptions::default()
         }
     }

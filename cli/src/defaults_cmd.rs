@@ -26,6 +26,7 @@ fn text() -> String {
     line("lights per node", q.lights_per_node.to_string());
     line("shadow map", format!("{}²", q.shadow_map_size));
     line("filter", format!("{:?}", q.filter));
+    line("antialiasing", "--aa 1 (one sample per pixel)".to_string());
     line("limits:", String::new());
     line(
         "  image",
@@ -34,6 +35,10 @@ fn text() -> String {
             limits::MAX_IMAGE_SIDE,
             limits::MAX_IMAGE_PIXELS
         ),
+    );
+    line(
+        "  --aa N",
+        "N·width x N·height within the image limit (rendered, then resolved)".to_string(),
     );
     line(
         "  shadow map",
@@ -81,6 +86,7 @@ mod tests {
             "at most 8192 per side and 16777216 pixels (4096x4096)",
             "at most 4096²",
             "samples/area light",
+            "N·width x N·height within the image limit",
             "at most 16384 per scene",
             "at most 10000000 per scene",
             "at most 1024 MiB of files read",

@@ -389,7 +389,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         };
         last.camera =
             lightfold_coordinator::run::camera_at(&scene.camera, args.job.path(), frames - 1);
-        crate::compare_reference::report(&last, &samples, &args.job.exr)?;
+        crate::compare_reference::report(&last, &samples, &args.job.exr, args.job.aa)?;
     }
     Ok(())
 }
@@ -485,6 +485,7 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
         cmd.arg("--size").arg(s);
     }
     cmd.arg("-K").arg(job.lights_per_node.to_string());
+    cmd.arg("--aa").arg(job.aa.to_string());
     if let Some(m) = job.indirect.indirect {
         cmd.arg("--indirect").arg(m.to_string());
     }
@@ -590,6 +591,8 @@ mod tests {
             "64x48",
             "-K",
             "8",
+            "--aa",
+            "3",
             "--indirect",
             "96",
             "--indirect-clamp",

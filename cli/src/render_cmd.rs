@@ -77,6 +77,12 @@ pub struct Args {
     /// Also write eye depth (EXR, 0 = background), for `compare --depth`.
     #[arg(long)]
     pub depth_out: Option<PathBuf>,
+    /// Antialiasing: N×N samples per pixel (the image is rendered at N·width × N·height, within
+    /// the image limits of `lightfold defaults`) box-filtered into each pixel after the material
+    /// stage; with `--reference`, N×N primary rays per pixel (the area-averaged truth). Depth
+    /// takes each pixel's nearest covered sample.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    pub aa: u32,
     /// Scene time in seconds: an animated scene (glTF clip, scene-file motions) is posed at it
     /// (default: its rest pose).
     #[arg(long, value_parser = crate::coordinator_cmd::finite_seconds)]
@@ -118,6 +124,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     scene
         .check_limits()
         .map_err(|e| anyhow::anyhow!("{}: {e} (see `lightfold defaults`)", args.scene))?;
+    // From here on the scene's camera is the internal (supersampled) image; the outputs are
+    // resolved back to the requested size after the material stage.
+    scene.camera = scene
+        .camera
+        .supersampled(args.aa)
+        .map_err(|e| anyhow::anyhow!("{e} (see `lightfold defaults`)"))?;
     let (mode, samples) = match args.area_truth {
         Some(spp) => {
             if let Some(t) = time {
@@ -158,12 +170,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         png: Some(png_next_to(&args.out)),
         unoccluded: args.unoccluded_out.clone(),
         depth: args.depth_out.clone(),
+        supersample: args.aa,
     };
     let report = render_to_files(&scene, &samples, mode, &outputs)?;
     tracing::info!(
         scene = %scene.name,
-        width = scene.camera.width,
-        height = scene.camera.height,
+        width = scene.camera.width / args.aa,
+        height = scene.camera.height / args.aa,
+        aa = args.aa,
         samples = samples.len(),
         seconds = format_args!("{:.2}", report.seconds),
         mrays_per_s = format_args!("{:.2}", report.rays_per_second() / 1e6),

@@ -1,7 +1,8 @@
 //! `lightfold render` on one local GPU: the scene's samples in batches of K (one shadow-map set and
 //! one eye pass per batch), illumination summed over batches with `c_n` = white, material layers
 //! from the first batch, then paper eq. 2 into linear radiance (EXR) and sRGB at the scene's
-//! exposure (PNG). `--timings` prints the per-phase cost of every frame.
+//! exposure (PNG). With `--aa N` the scene's camera is already N·W × N·H and the radiance is
+//! box-resolved after that combine. `--timings` prints the per-phase cost of every frame.
 
 use super::Args;
 use crate::out::outln;
@@ -65,12 +66,14 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
     let frames = args.frames.max(1);
     if args.timings {
         outln!(
-            "adapter {} ({:?}), {:?} eye pass, {}x{}, {} samples, K = {k}, {}² maps, {} batch(es)",
+            "adapter {} ({:?}), {:?} eye pass, {}x{} (--aa {}), {} samples, K = {k}, {}² maps, \
+             {} batch(es)",
             gpu.info.name,
             gpu.info.backend,
             renderer.frame_variant(&gpu, scene.camera.width, scene.camera.height),
             scene.camera.width,
             scene.camera.height,
+            args.aa,
             samples.len(),
             opts.shadow_map_size,
             samples.len().div_ceil(k).max(1)
@@ -139,6 +142,10 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
         );
     }
     let (radiance, depth) = image.expect("at least one frame");
+    // `--aa N`: the frame is N·W × N·H; resolve the final radiance (after the material
+    // combine) and the depth to the requested size. N = 1 leaves both as rendered.
+    let radiance = radiance.box_resolve(args.aa)?;
+    let depth = depth.nearest_depth_resolve(args.aa)?;
     radiance.write_exr(&args.out)?;
     let png = png_next_to(&args.out);
     radiance.write_png(&png, scene.exposure)?;
@@ -152,7 +159,7 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
     if let Some(path) = &args.unoccluded_out {
         let none = vec![Vec::new(); samples.len()];
         let ((open, _), _) = render_frame(&gpu, &mut renderer, scene, samples, k, Some(&none))?;
-        open.write_exr(path)?;
+        open.box_resolve(args.aa)?.write_exr(path)?;
     }
     outln!(
         "wrote {} and {} on {} ({} samples, K = {k})",

@@ -80,6 +80,44 @@ fn render_refuses_sizes_and_samples_beyond_the_limits() {
 }
 
 #[test]
+fn aa_beyond_the_image_limits_is_refused() {
+    let dir = std::env::temp_dir().join(format!("lightfold-limits-aa-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let out = dir.join("x.exr").display().to_string();
+    // 800x600 at 8×8 samples per pixel is 6400x4800: over 4096x4096 pixels in all.
+    for extra in [&[][..], &["--reference"][..]] {
+        let mut args = vec!["render", "--aa", "8", "--out", &out];
+        args.extend_from_slice(extra);
+        let e = refused(&args);
+        has(
+            &e,
+            &[
+                "--aa 8 renders 800x600 as 6400x4800 internally",
+                "4096x4096",
+                "lightfold defaults",
+            ],
+        );
+    }
+    let e = refused(&["render", "--size", "5000x10", "--aa", "2", "--out", &out]);
+    has(&e, &["as 10000x20 internally", "at most 8192 per side"]);
+    let e = refused(&["render", "--aa", "0", "--out", &out]);
+    has(&e, &["--aa must be at least 1"]);
+    // `demo` refuses before it starts a daemon.
+    let work = dir.join("work");
+    let e = refused(&[
+        "demo",
+        "--aa",
+        "8",
+        "--no-compare",
+        "--work-dir",
+        work.to_str().unwrap(),
+    ]);
+    has(&e, &["--aa 8 renders 800x600 as 6400x4800 internally"]);
+    assert!(!std::path::Path::new(&out).exists(), "nothing is written");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
 fn demo_refuses_more_processes_than_allowed_and_says_what_fits() {
     let dir = std::env::temp_dir().join(format!("lightfold-limits-demo-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();

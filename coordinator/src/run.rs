@@ -78,6 +78,8 @@ pub enum RunError {
         "light colour change at frame {frame} splits the colour group of node {node}: re-plan needed"
     )]
     ColorSplit { frame: u64, node: String },
+    #[error(transparent)]
+    Supersample(#[from] lightfold_scene::supersample::SupersampleError),
     #[error("no plan fits the daemons left ({error}); lost: {lost}")]
     TooFewDaemons { error: PlanError, lost: String },
 }

@@ -14,6 +14,8 @@ pub enum ReferenceError {
     Image(#[from] ImageError),
     #[error(transparent)]
     Metrics(#[from] crate::metrics::MetricsError),
+    #[error(transparent)]
+    Supersample(#[from] lightfold_scene::supersample::SupersampleError),
     #[error("cannot write {path}: {message}")]
     Write { path: String, message: String },
     #[error("light {name:?} is not in scene {scene:?} (lights: {available})")]
@@ -43,6 +45,11 @@ pub struct Outputs {
     pub unoccluded: Option<PathBuf>,
     /// Eye depth in every channel (linear EXR, 0 = background), for silhouette masks.
     pub depth: Option<PathBuf>,
+    /// The scene's camera is this many times the output size per side (`--aa N`): every
+    /// N × N block is resolved into one output pixel after the radiance is composed — a box
+    /// average of radiance, the nearest covered depth (`lightfold_scene::supersample`). 0 and 1
+    /// write the image as rendered.
+    pub supersample: u32,
 }
 
 /// How long a render took and how many rays it traced at most.
@@ -148,18 +155,20 @@ pub fn render_to_files(
         seconds: start.elapsed().as_secs_f64(),
         max_rays: pixels * (1.0 + per_pixel),
     };
-    let radiance = layers.radiance([1.0; 3], scene.ambient);
+    let n = outputs.supersample.max(1);
+    let radiance = layers.radiance([1.0; 3], scene.ambient).box_resolve(n)?;
     radiance.write_exr(&outputs.exr)?;
     if let Some(png) = &outputs.png {
         radiance.write_png(png, scene.exposure)?;
     }
     if let Some(path) = &outputs.depth {
-        depth_rgb(&layers.depth).write_exr(path)?;
+        depth_rgb(&layers.depth.nearest_depth_resolve(n)?).write_exr(path)?;
     }
     if let Some(path) = &outputs.unoccluded {
         render(false)
             .0
             .radiance([1.0; 3], scene.ambient)
+            .box_resolve(n)?
             .write_exr(path)?;
     }
     Ok(report)

@@ -24,6 +24,7 @@ mod sampling_shapes;
 mod scene_ops;
 pub mod shading;
 pub mod shadow_views;
+pub mod supersample;
 pub mod validate;
 pub mod wire;
 

@@ -255,6 +255,16 @@ pub fn small(name: &str) -> Scene {
     s
 }
 
+/// The silhouette scene of antialiasing (`scenes/silhouettes.toml`: lit objects against black,
+/// thin poles) at `width × height`.
+pub fn silhouettes(width: u32, height: u32) -> Scene {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/silhouettes.toml");
+    let mut s = lightfold_scene::load(path).unwrap();
+    s.camera.width = width;
+    s.camera.height = height;
+    s
+}
+
 /// Final radiance of all the scene's samples rendered on one device (paper eq. 2). `walkthrough`
 /// fits the shadow maps to every receiver, as walkthrough nodes must (their maps outlive camera
 /// moves); otherwise to the receivers the camera sees. The two differ at shadow edges (other
@@ -286,6 +296,15 @@ pub fn single_device(gpu: &Gpu, scene: &Scene, walkthrough: bool) -> Image {
         }
     }
     out
+}
+
+/// [`single_device`] with `--aa factor`: rendered at `factor` × the camera's width and height,
+/// the final radiance box-resolved to the camera's size (what `lightfold render --aa N` does, and
+/// the cluster's sink). `factor = 1` is [`single_device`] itself.
+pub fn single_device_aa(gpu: &Gpu, scene: &Scene, factor: u32) -> Image {
+    let mut s = scene.clone();
+    s.camera = s.camera.supersampled(factor).unwrap();
+    single_device(gpu, &s, false).box_resolve(factor).unwrap()
 }
 
 /// Per-pixel agreement within the link formats' bound: rgb9e5x2 from nodes (2⁻⁹ relative),

@@ -10,10 +10,16 @@ use lightfold_coordinator::run::RunOptions;
 use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_protocol::PixelFormat;
 use lightfold_scene::{Image, Scene};
-use lightfold_tests::{InProcessCluster, render_on, single_device, small, test_control};
+use lightfold_tests::{
+    InProcessCluster, assert_close, render_on, silhouettes, single_device_aa, small, test_control,
+};
 
 /// The largest image bias `|Σ cluster / Σ render − 1|` a cluster frame may have.
 const MAX_BIAS: f64 = 5e-4;
+
+/// A cluster frame at `--aa 2` must be at least this many times further (relative RMS) from the
+/// one-sample render than from the supersampled one.
+const AA_CONTROL_FACTOR: f64 = 5.0;
 
 /// Image bias and relative RMS difference of `test` against `want`.
 fn compare(test: &Image, want: &Image) -> (f64, f64) {
@@ -50,6 +56,17 @@ async fn bias_of(
     scene: &Scene,
     change: impl FnOnce(&mut PlanOptions),
 ) -> (f64, f64) {
+    cluster_and_render(cluster, gpu, scene, change).await.0
+}
+
+/// As [`bias_of`], also returning the cluster's frame. The render is at the plan's `--aa`
+/// (`PlanOptions::supersample`).
+async fn cluster_and_render(
+    cluster: &InProcessCluster,
+    gpu: &Gpu,
+    scene: &Scene,
+    change: impl FnOnce(&mut PlanOptions),
+) -> ((f64, f64), Image) {
     let mut session = cluster.connect(test_control()).await.unwrap();
     let mut opts = RunOptions {
         control: test_control(),
@@ -58,7 +75,7 @@ async fn bias_of(
     change(&mut opts.plan);
     let out = render_on(&mut session, scene, &opts).await.unwrap();
     session.detach();
-    let want = single_device(gpu, scene, false);
+    let want = single_device_aa(gpu, scene, opts.plan.supersample);
     let (bias, rms) = compare(&out.frames[0].image, &want);
     let maps: Vec<u32> = out
         .plan
@@ -73,13 +90,15 @@ async fn bias_of(
         .flat_map(|n| n.layers.iter().map(|(l, f)| format!("{l:?}:{}", f.name())))
         .collect();
     eprintln!(
-        "{}: bias {:+.4} %, relative RMS {:.4} %, render maps {}², cluster maps {maps:?}, layers {layers:?}",
+        "{} (--aa {}): bias {:+.4} %, relative RMS {:.4} %, render maps {}², cluster maps {maps:?}, layers {layers:?}",
         scene.name,
+        opts.plan.supersample,
         bias * 100.0,
         rms * 100.0,
         scene.quality.shadow_map_size
     );
-    (bias, rms)
+    let frame = out.frames.into_iter().next().unwrap().image;
+    ((bias, rms), frame)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
@@ -100,6 +119,50 @@ async fn cluster_frame_equals_render_within_bias() {
         "image bias beyond {} %: {failed:?}",
         MAX_BIAS * 100.0
     );
+}
+
+/// Antialiasing through the cluster: at `--aa 2` the nodes and compositors work at twice the
+/// width and height and the coordinator's sink resolves the final radiance; the frame delivered
+/// equals `render --aa 2` (render at 2×, resolve after the material combine) within the same
+/// bias and the per-pixel bound of the link formats. The control: the same frame against the
+/// one-sample render differs by far more than it does from the supersampled one.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn cluster_frame_with_aa_equals_render_with_aa() {
+    let cluster = InProcessCluster::start(3, 3).await.unwrap();
+    let gpu = Gpu::new(&GpuOptions::default())
+        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let mut failed = Vec::new();
+    for scene in [small("balls"), silhouettes(64, 48)] {
+        let ((bias, rms), frame) =
+            cluster_and_render(&cluster, &gpu, &scene, |p| p.supersample = 2).await;
+        assert_eq!(
+            (frame.width, frame.height),
+            (scene.camera.width, scene.camera.height),
+            "{}: the frame is delivered at the camera's size",
+            scene.name
+        );
+        assert_close(&frame, &single_device_aa(&gpu, &scene, 2), &scene.name);
+        let (_, rms_aa1) = compare(&frame, &single_device_aa(&gpu, &scene, 1));
+        eprintln!(
+            "{}: relative RMS against render --aa 2 {:.4} %, against --aa 1 {:.4} %",
+            scene.name,
+            rms * 100.0,
+            rms_aa1 * 100.0
+        );
+        if bias.abs() > MAX_BIAS {
+            failed.push(format!("{}: bias {:+.4} %", scene.name, bias * 100.0));
+        }
+        if rms_aa1 < AA_CONTROL_FACTOR * rms {
+            failed.push(format!(
+                "{}: against --aa 1 only {:.4} % RMS, against --aa 2 {:.4} %",
+                scene.name,
+                rms_aa1 * 100.0,
+                rms * 100.0
+            ));
+        }
+    }
+    cluster.stop().await.unwrap();
+    assert!(failed.is_empty(), "{failed:?}");
 }
 
 /// The negative control: the check above catches the cluster as it was configured before

@@ -295,6 +295,7 @@ impl Session {
             width: 0,
             height: 0,
             band_height: 1,
+            supersample: 1,
         });
         let cancel = CancellationToken::new();
         tokio::spawn(run_sink(

@@ -11,7 +11,8 @@ use tokio::net::TcpListener;
 use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 
-/// A finished frame as received from the sink compositor.
+/// A finished frame as received from the sink compositor (resolved to the delivered size when
+/// the cluster supersamples).
 #[derive(Debug)]
 pub struct SinkFrame {
     pub epoch: u64,
@@ -42,6 +43,9 @@ pub struct SinkGeometry {
     pub width: u32,
     pub height: u32,
     pub band_height: u32,
+    /// `--aa N`: the frame is N × the delivered size per side; each N × N block of radiance is
+    /// averaged (box filter) when the frame completes. 1: delivered as received.
+    pub supersample: u32,
 }
 
 struct Partial {
@@ -210,16 +214,41 @@ async fn receive(
                     })
                     .await;
             }
+            // The resolve of `--aa N`: after the material stage, on final radiance (on a
+            // blocking thread: one pass over N² × the delivered pixels).
+            let image = match resolve(done.image, g.supersample.max(1)).await {
+                Ok(image) => image,
+                Err(e) => {
+                    let _ = out
+                        .send(SinkEvent::Failed {
+                            frame: h.frame,
+                            reason: format!("sink cannot resolve frame {}: {e}", h.frame),
+                        })
+                        .await;
+                    continue;
+                }
+            };
             let _ = out
                 .send(SinkEvent::Frame(SinkFrame {
                     epoch: h.epoch,
                     frame: h.frame,
-                    image: done.image,
+                    image,
                     bytes: done.bytes,
                     received_at: Instant::now(),
                 }))
                 .await;
         }
+    }
+}
+
+/// The frame at its delivered size: `image` box-resolved by `factor` (itself when 1).
+async fn resolve(image: Image, factor: u32) -> Result<Image, String> {
+    if factor == 1 {
+        return Ok(image);
+    }
+    match tokio::task::spawn_blocking(move || image.box_resolve(factor)).await {
+        Ok(r) => r.map_err(|e| e.to_string()),
+        Err(e) => Err(format!("the resolve task failed: {e}")),
     }
 }
 

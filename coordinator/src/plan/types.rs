@@ -209,6 +209,17 @@ pub struct PlanOptions {
     /// `lights_per_node` is then ignored). The nearest K when no K fits.
     #[serde(default)]
     pub frame_budget_us: Option<u64>,
+    /// Antialiasing (`--aa N`): the control loop (`control::Live`) plans and renders the scene at
+    /// N × its camera's width and height, and the coordinator's sink box-resolves every N × N
+    /// block of the final radiance (after the material stage) as a frame completes, so frames
+    /// are delivered at the camera's size. 1 (the default) renders one sample per pixel; the
+    /// planner itself (`plan()`) plans the camera it is given.
+    #[serde(default = "one")]
+    pub supersample: u32,
+}
+
+fn one() -> u32 {
+    1
 }
 
 /// Default ε: about a quarter of one 8-bit sRGB code value at mid-grey (a step there is ≈ 4e-3
@@ -241,6 +252,7 @@ impl Default for PlanOptions {
             frames_in_flight: 2,
             material_own_node: false,
             frame_budget_us: None,
+            supersample: 1,
         }
     }
 }

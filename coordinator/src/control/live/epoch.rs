@@ -190,6 +190,7 @@ impl Live<'_> {
             width: next.width,
             height: next.height,
             band_height: next.band_height,
+            supersample: self.opts.supersample.max(1),
         });
         let mut waiting: BTreeSet<String> = BTreeSet::new();
         for (id, msg) in configs {

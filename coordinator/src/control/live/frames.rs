@@ -5,8 +5,15 @@ use super::{InFlight, Live};
 use crate::control::session::FrameResult;
 use crate::plan::{Plan, Source};
 use crate::run::{RunError, frame_params};
-use lightfold_protocol::{FrameParams, Message};
+use lightfold_protocol::{FrameParams, Message, WireCamera};
 use std::time::Instant;
+
+/// A frame's camera (at the delivered size) as the nodes render it under `--aa factor`.
+fn supersampled(mut c: WireCamera, factor: u32) -> WireCamera {
+    let n = factor.max(1);
+    (c.width, c.height) = (c.width.saturating_mul(n), c.height.saturating_mul(n));
+    c
+}
 
 impl Live<'_> {
     /// Moves frames whose image and reports are all in to `done`.
@@ -102,7 +109,7 @@ impl Live<'_> {
                 let msg = Message::RenderFrame {
                     epoch,
                     frame: wire,
-                    camera: spec.camera,
+                    camera: spec.camera.map(|c| supersampled(c, self.opts.supersample)),
                     params: frame_params,
                 };
                 if let Err(e) = self.session.send(id, msg).await {

@@ -239,16 +239,20 @@ impl<'s> Live<'s> {
         scene: &Scene,
         opts: &PlanOptions,
     ) -> Result<Live<'s>, RunError> {
+        // `--aa N`: everything the cluster renders is N × the camera's size; the sink resolves.
+        let mut scene = scene.clone();
+        scene.camera = scene.camera.supersampled(opts.supersample)?;
         let bytes = scene
             .to_bytes()
             .map_err(|e| RunError::Scene(e.to_string()))?;
+        let scene_hash = scene.content_hash();
         Ok(Live {
             session,
-            scene: scene.clone(),
+            scene,
             opts: opts.clone(),
             bytes,
             // Nodes decode what they receive and check it against this.
-            hash: scene.content_hash(),
+            hash: scene_hash,
             plan: None,
             participants: Vec::new(),
             established_at: Instant::now(),
