@@ -63,28 +63,6 @@ struct View {
 @group(1) @binding(4) var shadow_linear: sampler_comparison;
 @group(1) @binding(5) var shadow_ids: texture_2d_array<u32>;
 
-// Comparison lookups: `ref` passes where it is at least the stored (reversed-Z) depth.
-fn shadow_filter(uv: vec2f, layer: u32, ref_depth: f32) -> f32 {
-    if SHADOW_FILTER == FILTER_NEAREST {
-        let centre = (floor(uv * frame.map_size) + vec2f(0.5)) / frame.map_size;
-        return textureSampleCompareLevel(shadow_maps, shadow_linear, centre, layer, ref_depth);
-    }
-    if SHADOW_FILTER == FILTER_PCF2X2 {
-        return textureSampleCompareLevel(shadow_maps, shadow_linear, uv, layer, ref_depth);
-    }
-    let taps = max(SHADOW_TAPS, 1u);
-    let step = 1.0 / frame.map_size;
-    let half = 0.5 * f32(taps - 1u);
-    var sum = 0.0;
-    for (var j = 0u; j < taps; j++) {
-        for (var i = 0u; i < taps; i++) {
-            let o = (vec2f(f32(i), f32(j)) - vec2f(half)) * step;
-            sum += textureSampleCompareLevel(shadow_maps, shadow_linear, uv + o, layer, ref_depth);
-        }
-    }
-    return sum / f32(taps * taps);
-}
-
 // How lights pick their view (`Light::cube`), one bit per mode in VIEW_MODES: the light pass is
 // compiled for the modes its lights use, like LIGHT_KINDS.
 const MODE_SINGLE: u32 = 0u;
@@ -202,7 +180,8 @@ fn reference_depth(v: View, q: vec3f, bias: f32) -> f32 {
 struct Receiver {
     v: View,
     q: vec3f,
-    // Its position in the map, in texels.
+    // Its position in the map: texture coordinates, and texels.
+    uv: vec2f,
     at: vec2f,
     layer: u32,
     object: u32,
@@ -250,21 +229,41 @@ fn texel_bilinear(r: Receiver, at: vec2f) -> f32 {
     return lerp(top, bottom, f.y);
 }
 
-// `shadow_filter` with the object-ID test: the same footprints and weights, one comparison per
-// texel.
-fn object_filter(r: Receiver) -> f32 {
+fn uses_object_ids() -> bool {
+    return (frame.flags & FLAG_OBJECT_IDS) != 0u;
+}
+
+// One bilinear 2×2 footprint `offset` texels from the receiver: per texel with the object-ID
+// test, else one hardware comparison lookup (`ref` passes where it is at least the stored
+// reversed-Z depth).
+fn footprint(r: Receiver, offset: vec2f) -> f32 {
+    if uses_object_ids() {
+        return texel_bilinear(r, r.at + offset);
+    }
+    let step = 1.0 / frame.map_size;
+    return textureSampleCompareLevel(shadow_maps, shadow_linear, r.uv + offset * step, r.layer, r.own);
+}
+
+// The filter's lookups for receiver r: the texel under it, one footprint, or a taps×taps grid
+// of footprints one texel apart.
+fn shadow_filter(r: Receiver) -> f32 {
     if SHADOW_FILTER == FILTER_NEAREST {
-        return texel_lit(r, vec2i(floor(r.at)));
+        if uses_object_ids() {
+            return texel_lit(r, vec2i(floor(r.at)));
+        }
+        // The linear sampler read at a texel centre selects that texel alone.
+        let centre = (floor(r.uv * frame.map_size) + vec2f(0.5)) / frame.map_size;
+        return textureSampleCompareLevel(shadow_maps, shadow_linear, centre, r.layer, r.own);
     }
     if SHADOW_FILTER == FILTER_PCF2X2 {
-        return texel_bilinear(r, r.at);
+        return footprint(r, vec2f(0.0));
     }
     let taps = max(SHADOW_TAPS, 1u);
     let half = 0.5 * f32(taps - 1u);
     var sum = 0.0;
     for (var j = 0u; j < taps; j++) {
         for (var i = 0u; i < taps; i++) {
-            sum += texel_bilinear(r, r.at + vec2f(f32(i), f32(j)) - vec2f(half));
+            sum += footprint(r, vec2f(f32(i), f32(j)) - vec2f(half));
         }
     }
     return sum / f32(taps * taps);
@@ -310,22 +309,18 @@ fn visibility(s: Light, p: vec3f, ng: vec3f, object: u32) -> f32 {
     // Grazing receivers cannot ask for more than ten texels' worth of depth per texel.
     let bias = frame.depth_bias * along_axis
         + frame.slope_bias * frame.kernel_radius * min(slope, 10.0) * texel_m;
-    let own = reference_depth(v, q, bias);
-    let layer = frame.view_base + placed.index;
-    if (frame.flags & FLAG_OBJECT_IDS) == 0u {
-        return shadow_filter(uv, layer, own);
-    }
     let r = Receiver(
         v,
         q,
+        uv,
         uv * frame.map_size,
-        layer,
+        frame.view_base + placed.index,
         object,
-        own,
+        reference_depth(v, q, bias),
         frame.depth_bias * along_axis,
         frame.slope_bias * min(slope, 2.0) * texel_m,
     );
-    return object_filter(r);
+    return shadow_filter(r);
 }
 
 // A visible surface point: position, unit shading and geometric normals facing the viewer, its
