@@ -164,6 +164,7 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
         .with_context(|| format!("cannot load scene {:?}", a.scene))?;
     (scene.camera.width, scene.camera.height) = a.size;
     scene.quality.shadow_map_size = a.map;
+    scene.quality.map_sizing = lightfold_scene::MapSizing::Fixed;
     let samples = scene_samples(&scene);
     if samples.is_empty() {
         bail!("scene {} has no lights", a.scene);

@@ -24,7 +24,17 @@ fn text() -> String {
     line("image", format!("{}x{}", defaults::WIDTH, defaults::HEIGHT));
     line("samples/area", defaults::SAMPLES_PER_AREA_LIGHT.to_string());
     line("lights per node", q.lights_per_node.to_string());
-    line("shadow map", format!("{}²", q.shadow_map_size));
+    line(
+        "shadow map",
+        match q.map_sizing {
+            lightfold_scene::MapSizing::Fixed => format!("{}²", q.shadow_map_size),
+            lightfold_scene::MapSizing::Mismatch(m) => format!(
+                "per light from the mismatch factor: m = {} at the median lit point, {}² to {}² \
+                 ({}² where nothing seen is lit; --shadow-map-size N fixes every map)",
+                m.target, m.min, m.max, q.shadow_map_size
+            ),
+        },
+    );
     line("filter", format!("{:?}", q.filter));
     line("antialiasing", "--aa 1 (one sample per pixel)".to_string());
     line("limits:", String::new());

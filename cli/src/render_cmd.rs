@@ -110,6 +110,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     if let Some(n) = args.shadow_map_size {
         scene.quality.shadow_map_size = n;
+        scene.quality.map_sizing = lightfold_scene::MapSizing::Fixed;
     }
     // Indirect light is traced for one pose: with --time, that pose.
     let mut time = args.time;

@@ -66,7 +66,7 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
     let frames = args.frames.max(1);
     if args.timings {
         outln!(
-            "adapter {} ({:?}), {:?} eye pass, {}x{} (--aa {}), {} samples, K = {k}, {}² maps, \
+            "adapter {} ({:?}), {:?} eye pass, {}x{} (--aa {}), {} samples, K = {k}, {} maps, \
              {} batch(es)",
             gpu.info.name,
             gpu.info.backend,
@@ -75,7 +75,11 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
             scene.camera.height,
             args.aa,
             samples.len(),
-            opts.shadow_map_size,
+            match opts.map_sizing {
+                lightfold_scene::MapSizing::Fixed => format!("{}²", opts.shadow_map_size),
+                lightfold_scene::MapSizing::Mismatch(m) =>
+                    format!("mismatch-sized (m = {}, {}²–{}²)", m.target, m.min, m.max),
+            },
             samples.len().div_ceil(k).max(1)
         );
         outln!("frame  shadow_passes  shadow_ms  eye_ms  readback_ms  total_ms");

@@ -52,6 +52,7 @@ fn map_sizes_follow_the_scene_like_render() {
     let mut s = stage();
     for size in [512, 1024] {
         s.quality.shadow_map_size = size;
+        s.quality.map_sizing = lightfold_scene::MapSizing::Fixed;
         let p = plan(&s, &local, &PlanOptions::default()).unwrap();
         let sizes: Vec<u32> = p
             .nodes

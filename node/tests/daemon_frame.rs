@@ -65,6 +65,7 @@ async fn a_streamed_frame_equals_a_direct_render() {
     let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter (install lavapipe)");
     let options = RenderOptions {
         shadow_map_size: scene.quality.shadow_map_size,
+        map_sizing: scene.quality.map_sizing,
         filter: shadow_filter(config.filter),
         depth_bias: config.depth_bias,
         slope_bias: config.slope_bias,

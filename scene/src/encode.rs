@@ -7,14 +7,14 @@
 
 use crate::error::SceneError;
 use crate::model::{
-    AlphaMode, Camera, Light, LightShape, Material, Mesh, Quality, SamplePattern, Scene,
+    AlphaMode, Camera, Light, LightShape, MapSizing, Material, Mesh, Quality, SamplePattern, Scene,
     ShadowFilter, Texture,
 };
 use sha2::{Digest, Sha256};
 
 const MAGIC: &[u8; 4] = b"LFSC";
 /// Version of the byte layout of `to_bytes` (bump when `Scene` changes shape).
-pub const SCENE_BYTES_VERSION: u32 = 3;
+pub const SCENE_BYTES_VERSION: u32 = 4;
 /// Largest scene `from_bytes` accepts ([`crate::limits::MAX_SCENE_BYTES`]).
 pub const MAX_SCENE_BYTES: usize = crate::limits::MAX_SCENE_BYTES as usize;
 
@@ -240,6 +240,7 @@ impl Canon {
             pattern,
             seed,
             shadow_map_size,
+            map_sizing,
             filter,
             depth_bias,
             slope_bias,
@@ -261,6 +262,15 @@ impl Canon {
         });
         self.u64(*seed);
         self.u32(*shadow_map_size);
+        match map_sizing {
+            MapSizing::Fixed => self.u8(0),
+            MapSizing::Mismatch(m) => {
+                self.u8(1);
+                self.u32(m.min);
+                self.u32(m.max);
+                self.f32(m.target);
+            }
+        }
         match filter {
             ShadowFilter::None => self.u8(0),
             ShadowFilter::Pcf2x2 => self.u8(1),

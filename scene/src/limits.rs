@@ -131,6 +131,10 @@ impl crate::model::Scene {
     pub fn check_limits(&self) -> Result<(), LimitError> {
         check_image_size(self.camera.width, self.camera.height)?;
         check_shadow_map_size(self.quality.shadow_map_size)?;
+        if let crate::model::MapSizing::Mismatch(m) = self.quality.map_sizing {
+            check_shadow_map_size(m.min)?;
+            check_shadow_map_size(m.max)?;
+        }
         match self.quality.samples_per_area_light {
             Some(n) => check_samples_per_area_light("quality.samples_per_area_light", n)?,
             None => {

@@ -227,6 +227,16 @@ pub enum ShadowFilter {
     Pcf { taps: u32 },
 }
 
+/// How shadow maps are sized (`Quality::map_sizing`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum MapSizing {
+    /// Every map `Quality::shadow_map_size`².
+    Fixed,
+    /// Each light's maps from the eye/light mismatch factor where the camera sees its light
+    /// (`shadow_views::sizing`): the renderer and the planner size them alike.
+    Mismatch(crate::shadow_views::Mismatch),
+}
+
 /// Quality options that a scene file may set and `lightfold accuracy` varies.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Quality {
@@ -234,7 +244,11 @@ pub struct Quality {
     pub samples_per_area_light: Option<u32>,
     pub pattern: SamplePattern,
     pub seed: u64,
+    /// Side of every shadow map under [`MapSizing::Fixed`]; the size of a light no probe of the
+    /// mismatch rule finds lit under [`MapSizing::Mismatch`].
     pub shadow_map_size: u32,
+    /// How each light's shadow maps are sized.
+    pub map_sizing: MapSizing,
     pub filter: ShadowFilter,
     /// Constant depth bias in light-space depth units (metres along the light ray).
     pub depth_bias: f32,

@@ -11,12 +11,14 @@
 
 mod cascades;
 mod geometry;
+pub mod sizing;
 
 use crate::model::{Camera, LightSample, SampleKind};
 use crate::shading::{V3, cross, dot, length, normalize, scale, sub};
 pub use cascades::{CASCADE_RATIO, MAX_CASCADES, camera_views, fitted_views};
 pub use geometry::perpendicular_frame;
 use geometry::{Poly, add3, box_corners, box_distance, box_faces, clip, clip_all, look_view};
+pub use sizing::{Mismatch, Probe, mismatch_size, probes};
 
 /// Widest field of view (per axis) of a single fitted frustum before cube faces are used: wider
 /// frusta waste resolution at their edges (texels grow as `1/cos²`).

@@ -17,14 +17,14 @@ struct Frame {
     camera: vec3f,
     light_count: u32,
     forward: vec3f,
+    // Side of the shadow-map array's layers, texels.
     map_size: f32,
     // Constant bias in metres along the light ray, and the slope factor.
     depth_bias: f32,
     slope_bias: f32,
     // Deferred light pass: nonzero when this dispatch adds to what an earlier one lit.
     accumulate: u32,
-    // Layer of view 0 in the shadow-map array: view i is layer view_base + i (views of a chunk
-    // are numbered from its first).
+    // Index in the frame's views of this chunk's view 0 (lookups read each view's own layer).
     view_base: u32,
     // Half-width of the filter footprint in texels (the slope bias scales with it).
     kernel_radius: f32,
@@ -41,7 +41,7 @@ const FLAG_OBJECT_IDS: u32 = 1u;
 // Maps store conventional Z (near 0, far 1): a depth negative control.
 const FLAG_CONVENTIONAL_Z: u32 = 2u;
 
-// One shadow map: a layer of `shadow_maps` and how world points land in it. The projection keeps
+// One shadow map: a square of a layer of `shadow_maps` and how world points land in it. The projection keeps
 // its eight non-zero entries: clip = (a.x·x + a.y·z + a.z, a.w·y + b.x·z + b.y, b.z·z + b.w, w)
 // with w = 1 (orthographic) or −z (perspective).
 struct View {
@@ -54,6 +54,9 @@ struct View {
     layer: u32,
     // A cascade's end: the eye depth where the light's next view takes over (MODE_CASCADE).
     cascade_to: f32,
+    // The map's square in its layer, in texels: (x, y, side, 0). Maps of several sizes share
+    // the array's layers (node/src/gpu/atlas.rs); every lookup stays inside its square.
+    rect: vec4f,
 }
 
 @group(1) @binding(0) var<uniform> frame: Frame;
@@ -180,8 +183,7 @@ fn reference_depth(v: View, q: vec3f, bias: f32) -> f32 {
 struct Receiver {
     v: View,
     q: vec3f,
-    // Its position in the map: texture coordinates, and texels.
-    uv: vec2f,
+    // Its position in the layer, in texels.
     at: vec2f,
     layer: u32,
     object: u32,
@@ -199,7 +201,8 @@ struct Receiver {
 // where the receiver's plane lies at that texel's centre (slope capped at 2), so a caster thinner
 // than the slope bias (a roof, a fin's foot) still shadows.
 fn texel_lit(r: Receiver, t: vec2i) -> f32 {
-    let c = clamp(t, vec2i(0), vec2i(i32(frame.map_size) - 1));
+    let lo = vec2i(r.v.rect.xy);
+    let c = clamp(t, lo, lo + vec2i(i32(r.v.rect.z) - 1));
     let stored = textureLoad(shadow_maps, c, r.layer, 0);
     var ref_depth = r.own;
     if textureLoad(shadow_ids, c, r.layer, 0).x != r.object {
@@ -240,8 +243,9 @@ fn footprint(r: Receiver, offset: vec2f) -> f32 {
     if uses_object_ids() {
         return texel_bilinear(r, r.at + offset);
     }
-    let step = 1.0 / frame.map_size;
-    return textureSampleCompareLevel(shadow_maps, shadow_linear, r.uv + offset * step, r.layer, r.own);
+    // Clamped to the square's outer texel centres, so the 2×2 footprint never reads a neighbour.
+    let at = clamp(r.at + offset, r.v.rect.xy + vec2f(0.5), r.v.rect.xy + vec2f(r.v.rect.z - 0.5));
+    return textureSampleCompareLevel(shadow_maps, shadow_linear, at / frame.map_size, r.layer, r.own);
 }
 
 // The filter's lookups for receiver r: the texel under it, one footprint, or a taps×taps grid
@@ -252,7 +256,8 @@ fn shadow_filter(r: Receiver) -> f32 {
             return texel_lit(r, vec2i(floor(r.at)));
         }
         // The linear sampler read at a texel centre selects that texel alone.
-        let centre = (floor(r.uv * frame.map_size) + vec2f(0.5)) / frame.map_size;
+        let t = clamp(floor(r.at), r.v.rect.xy, r.v.rect.xy + vec2f(r.v.rect.z - 1.0));
+        let centre = (t + vec2f(0.5)) / frame.map_size;
         return textureSampleCompareLevel(shadow_maps, shadow_linear, centre, r.layer, r.own);
     }
     if SHADOW_FILTER == FILTER_PCF2X2 {
@@ -312,9 +317,8 @@ fn visibility(s: Light, p: vec3f, ng: vec3f, object: u32) -> f32 {
     let r = Receiver(
         v,
         q,
-        uv,
-        uv * frame.map_size,
-        frame.view_base + placed.index,
+        v.rect.xy + uv * v.rect.z,
+        v.layer,
         object,
         reference_depth(v, q, bias),
         frame.depth_bias * along_axis,

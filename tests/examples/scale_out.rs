@@ -44,6 +44,7 @@ async fn main() -> anyhow::Result<()> {
         scene.camera.width = 64;
         scene.camera.height = 48;
         scene.quality.shadow_map_size = 128;
+        scene.quality.map_sizing = lightfold_scene::MapSizing::Fixed;
         let cluster = InProcessCluster::start(n, n).await?;
         // Warm-up: the nodes open their devices, take the scene and compile their pipelines.
         {

@@ -67,6 +67,7 @@ fn sphere_scene(vpls: u32, clamp: f32) -> Scene {
     s.quality.indirect = vpls;
     s.quality.indirect_clamp = Some(clamp);
     s.quality.shadow_map_size = 256;
+    s.quality.map_sizing = lightfold_scene::MapSizing::Fixed;
     s
 }
 
@@ -247,6 +248,7 @@ fn two_rooms(vpls: u32) -> Scene {
     s.camera = camera([2.8, 1.6, 1.3], [0.2, 0.3, -0.5], 48, 36);
     s.quality.indirect = vpls;
     s.quality.shadow_map_size = 512;
+    s.quality.map_sizing = lightfold_scene::MapSizing::Fixed;
     s
 }
 

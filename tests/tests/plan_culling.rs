@@ -282,6 +282,7 @@ fn planned_casters_give_the_same_gpu_image_as_every_caster() {
                 ..RenderOptions::from_quality(&scene.quality)
             };
             let mut r = Renderer::new(&gpu, &scene, opts).unwrap();
+            r.set_map_sides(Some(n.shadows.iter().map(|s| s.map_size).collect()));
             let mut image = |c: Option<&[Vec<u32>]>| {
                 r.render(&gpu, &lights, c, n.color, LayerSet::illumination())
                     .unwrap()

@@ -28,6 +28,7 @@ fn planned_passes_equal_the_renderers() {
                     ..RenderOptions::from_quality(&scene.quality)
                 };
                 let mut r = Renderer::new(&gpu, &scene, opts).unwrap();
+                r.set_map_sides(Some(n.shadows.iter().map(|s| s.map_size).collect()));
                 let frame = r
                     .render(&gpu, &lights, None, n.color, LayerSet::illumination())
                     .unwrap();

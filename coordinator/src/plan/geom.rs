@@ -69,36 +69,6 @@ impl Aabb {
         }
         t0 <= t1
     }
-
-    /// Nearest intersection `t ≥ 0` of the ray `o + t·d` with the box and the normal of the face
-    /// it enters through.
-    pub fn ray_hit(&self, o: V3, d: V3) -> Option<(f32, V3)> {
-        let (mut t0, mut t1, mut axis) = (0.0f32, f32::INFINITY, None);
-        for k in 0..3 {
-            if d[k].abs() < 1e-12 {
-                if o[k] < self.lo[k] || o[k] > self.hi[k] {
-                    return None;
-                }
-                continue;
-            }
-            let a = (self.lo[k] - o[k]) / d[k];
-            let b = (self.hi[k] - o[k]) / d[k];
-            let near = a.min(b);
-            if near > t0 {
-                t0 = near;
-                axis = Some(k);
-            }
-            t1 = t1.min(a.max(b));
-        }
-        if t0 > t1 {
-            return None;
-        }
-        let mut n = [0.0; 3];
-        if let Some(k) = axis {
-            n[k] = -d[k].signum();
-        }
-        Some((t0, n))
-    }
 }
 
 /// Bounds of every mesh (`None` for meshes without finite positions).
@@ -225,10 +195,4 @@ pub(crate) fn reach(s: &LightSample, b: &Aabb) -> Result<f32, Miss> {
         return Ok(f32::INFINITY);
     }
     Ok(peak * window / falloff)
-}
-
-/// Whether the sample lights point `p` at all (range, cone, lobe), for the mismatch estimate.
-pub(crate) fn lights_point(s: &LightSample, p: V3) -> bool {
-    let b = Aabb { lo: p, hi: p };
-    matches!(reach(s, &b), Ok(e) if e > 0.0)
 }

@@ -102,7 +102,6 @@ pub(crate) fn plan_with(
     if moving_sample.contains(&true) {
         cull::keep_moving(&mut culling, &moving_sample, receivers.len());
     }
-    let probes = shadow::probes(cam, &receivers);
     // The boxes nodes fit shadow views to: every mesh with triangles (node/src/gpu/scene_data.rs).
     let scene_receivers: Vec<_> = bounds
         .iter()
@@ -110,6 +109,8 @@ pub(crate) fn plan_with(
         .filter(|(_, m)| m.indices.len() >= 3)
         .filter_map(|(b, _)| b.map(|b| (b.lo, b.hi)))
         .collect();
+    // Where the mismatch rule measures, as the renderer does (`shadow_views::sizing`).
+    let probes = lightfold_scene::shadow_views::probes(cam, &scene_receivers);
     // Like the node's renderer: moving-light maps are fitted to what the camera sees (cascades
     // where that spans a deep range); walkthrough maps outlive camera moves, so they cover every
     // receiver.
@@ -125,6 +126,7 @@ pub(crate) fn plan_with(
             &probes,
             cam,
             options.map_sizing.resolve(&scene.quality),
+            scene.quality.shadow_map_size,
             options.force_all || moving_sample[i],
         )
     };
@@ -204,23 +206,6 @@ pub(crate) fn plan_with(
             needed: needed(groups_for(k).len()),
             available,
         });
-    }
-
-    // A node renders every map at one size (its shadow maps are layers of one texture array):
-    // the largest its lights ask for.
-    let mut shadows = shadows;
-    for g in &groups {
-        let size = g
-            .lights
-            .iter()
-            .filter_map(|&i| shadows[i].as_ref())
-            .map(|s| s.map_size)
-            .max();
-        for &i in &g.lights {
-            if let (Some(s), Some(size)) = (shadows[i].as_mut(), size) {
-                s.map_size = size;
-            }
-        }
     }
 
     // Materials, and the eq. 6–7 folding when a node can carry c_n = c^a.

@@ -137,8 +137,9 @@ impl Default for FormatChoice {
 /// How shadow-map sizes are chosen.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, Default)]
 pub enum MapSizing {
-    /// The scene's own size (`Quality::shadow_map_size`, 512² unless the scene sets it) for
-    /// every map: what `lightfold render` uses, so the cluster and `render` agree by default.
+    /// The scene's own rule (`Quality::map_sizing`: by default each light's maps from the
+    /// mismatch factor, `Quality::shadow_map_size` for every map when the scene fixes it): what
+    /// `lightfold render` uses, so the cluster and `render` agree by default.
     #[default]
     Scene,
     /// From the eye/light resolution mismatch factor `m` (seed 002): the power of two in
@@ -157,18 +158,25 @@ impl MapSizing {
     /// The one rule `lightfold render` and the planner share: the size every shadow map gets,
     /// or `None` where the mismatch factor sizes each light's maps.
     pub fn uniform_size(self, quality: &lightfold_scene::Quality) -> Option<u32> {
-        match self {
-            MapSizing::Scene => Some(quality.shadow_map_size),
+        match self.resolve(quality) {
             MapSizing::Fixed(n) => Some(n),
-            MapSizing::Mismatch { .. } => None,
+            _ => None,
         }
     }
 
-    /// `Scene` replaced by the scene's size (what the per-light sizing in `plan/shadow.rs` reads).
+    /// `Scene` replaced by the scene's rule (what the per-light sizing in `plan/shadow.rs`
+    /// reads): its fixed size, or its mismatch bounds and target.
     pub fn resolve(self, quality: &lightfold_scene::Quality) -> MapSizing {
-        match self.uniform_size(quality) {
-            Some(n) => MapSizing::Fixed(n),
-            None => self,
+        match (self, quality.map_sizing) {
+            (MapSizing::Scene, lightfold_scene::MapSizing::Fixed) => {
+                MapSizing::Fixed(quality.shadow_map_size)
+            }
+            (MapSizing::Scene, lightfold_scene::MapSizing::Mismatch(m)) => MapSizing::Mismatch {
+                min: m.min,
+                max: m.max,
+                target: m.target,
+            },
+            (other, _) => other,
         }
     }
 

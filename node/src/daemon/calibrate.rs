@@ -53,6 +53,7 @@ pub fn calibration_scene() -> Scene {
         height: HEIGHT,
     };
     s.quality.shadow_map_size = MAP_SIZE;
+    s.quality.map_sizing = lightfold_scene::MapSizing::Fixed;
     s
 }
 
@@ -79,10 +80,7 @@ pub fn calibration_lights(n: usize) -> Vec<LightSample> {
 pub fn run(gpu: &Gpu) -> Result<Calibration, RenderError> {
     let start = Instant::now();
     let scene = calibration_scene();
-    let options = RenderOptions {
-        shadow_map_size: MAP_SIZE,
-        ..RenderOptions::default()
-    };
+    let options = RenderOptions::default().fixed_maps(MAP_SIZE);
     let mut renderer = Renderer::new(gpu, &scene, options)?;
     renderer.set_camera(&scene.camera);
     let layers = LayerSet::illumination();

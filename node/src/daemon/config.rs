@@ -82,8 +82,6 @@ pub enum ConfigError {
     DuplicateShadow(u32),
     #[error("light {0} has no shadow entry (give every light one, or none at all)")]
     MissingShadow(usize),
-    #[error("shadow maps of {0}² and {1}² in one configuration (a node uses one map size)")]
-    MixedMapSizes(u32, u32),
     #[error("shadow map size {size} is outside 1..={max}")]
     BadMapSize { size: u32, max: u32 },
     #[error("light {light} lists caster mesh {mesh}, but the scene has {meshes} meshes")]
@@ -121,7 +119,11 @@ pub struct Checked {
     /// Caster meshes per light (index = light), or `None` for "every mesh casts".
     pub casters: Option<Casters>,
     pub camera: Camera,
+    /// The largest map side (the scene's `shadow_map_size` when the plan gives none).
     pub map_size: u32,
+    /// Each light's map side as the plan gives it (index = light); `None` when the plan gives
+    /// none: the renderer sizes maps by the scene's `map_sizing`.
+    pub map_sides: Option<Vec<u32>>,
 }
 
 /// Checks a fixed-point scale (from a configuration or a frame request) for these layers.
@@ -203,7 +205,7 @@ pub fn check(
             max: max_frame,
         });
     }
-    let (map_size, casters) = check_shadows(
+    let (map_size, map_sides, casters) = check_shadows(
         &config.shadows,
         lights.len(),
         scene,
@@ -224,18 +226,23 @@ pub fn check(
         casters,
         camera,
         map_size,
+        map_sides,
     })
 }
 
-/// One map size for the node and, when the plan gives caster lists, one list per light.
+/// The largest map side and, when the plan gives shadow entries, each light's side and caster
+/// list.
+#[allow(clippy::type_complexity)]
 fn check_shadows(
     shadows: &[WireShadow],
     lights: usize,
     scene: &Scene,
     default_size: u32,
     max_texture: u32,
-) -> Result<(u32, Option<Casters>), ConfigError> {
-    let mut size = None;
+) -> Result<(u32, Option<Vec<u32>>, Option<Casters>), ConfigError> {
+    // The device's limit, and the one every input shares (`lightfold_scene::limits`).
+    let max = max_texture.min(lightfold_scene::limits::MAX_SHADOW_MAP_SIZE);
+    let mut sides = vec![0u32; lights];
     let mut per_light: Vec<Option<Vec<u32>>> = vec![None; lights];
     for (entry, s) in shadows.iter().enumerate() {
         let slot = per_light
@@ -259,29 +266,31 @@ fn check_shadows(
                 meshes: scene.meshes.len(),
             });
         }
-        match size {
-            Some(prev) if prev != s.map_size => {
-                return Err(ConfigError::MixedMapSizes(prev, s.map_size));
-            }
-            _ => size = Some(s.map_size),
+        if s.map_size == 0 || s.map_size > max {
+            return Err(ConfigError::BadMapSize {
+                size: s.map_size,
+                max,
+            });
         }
+        sides[s.light as usize] = s.map_size;
         *slot = Some(s.casters.clone());
     }
-    let size = size.unwrap_or(default_size);
-    // The device's limit, and the one every input shares (`lightfold_scene::limits`).
-    let max = max_texture.min(lightfold_scene::limits::MAX_SHADOW_MAP_SIZE);
-    if size == 0 || size > max {
-        return Err(ConfigError::BadMapSize { size, max });
-    }
     if shadows.is_empty() {
-        return Ok((size, None));
+        if default_size == 0 || default_size > max {
+            return Err(ConfigError::BadMapSize {
+                size: default_size,
+                max,
+            });
+        }
+        return Ok((default_size, None, None));
     }
     let casters = per_light
         .into_iter()
         .enumerate()
         .map(|(i, c)| c.ok_or(ConfigError::MissingShadow(i)))
         .collect::<Result<Vec<_>, _>>()?;
-    Ok((size, Some(casters)))
+    let largest = sides.iter().copied().max().unwrap_or(default_size);
+    Ok((largest, Some(sides), Some(casters)))
 }
 
 #[cfg(test)]
@@ -504,6 +513,25 @@ mod tests {
         })
         .unwrap();
         assert_eq!(c.map_size, 256);
+        assert_eq!(c.map_sides, Some(vec![256, 256]));
         assert_eq!(c.casters, Some(vec![vec![0], vec![1]]));
+        // Each light keeps its own side; the largest bounds the device's light limit.
+        let c = run(NodeConfig {
+            shadows: vec![
+                WireShadow {
+                    light: 0,
+                    map_size: 2048,
+                    casters: vec![0],
+                },
+                WireShadow {
+                    light: 1,
+                    map_size: 256,
+                    casters: vec![1],
+                },
+            ],
+            ..config(vec![(Layer::Illumination, PixelFormat::F16x6)], 2)
+        })
+        .unwrap();
+        assert_eq!((c.map_size, c.map_sides), (2048, Some(vec![2048, 256])));
     }
 }

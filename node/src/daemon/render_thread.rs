@@ -229,6 +229,9 @@ fn options_for(setup: &RenderSetup) -> RenderOptions {
     let c = &setup.checked.config;
     RenderOptions {
         shadow_map_size: setup.checked.map_size,
+        // The plan's per-light sides where it gives them (`Renderer::set_map_sides`), else the
+        // scene's own rule, as `lightfold render` sizes them.
+        map_sizing: setup.scene.quality.map_sizing,
         filter: shadow_filter(c.filter),
         depth_bias: c.depth_bias,
         slope_bias: c.slope_bias,
@@ -259,6 +262,7 @@ fn configure(
                 Some(t) => setup.scene.pose_samples(&setup.checked.lights, t),
                 None => setup.checked.lights.clone(),
             };
+            c.renderer.set_map_sides(setup.checked.map_sides.clone());
             c.setup = setup;
         }
         return Ok(());
@@ -272,6 +276,7 @@ fn configure(
         // moving mesh re-renders only the maps it may cast into.
         renderer.set_fit_bounds(setup.scene.swept_bounds());
     }
+    renderer.set_map_sides(setup.checked.map_sides.clone());
     tracing::info!(ms = start.elapsed().as_millis() as u64, "renderer built");
     *current = Some(Current {
         hash: setup.scene_hash,

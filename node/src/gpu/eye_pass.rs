@@ -22,7 +22,7 @@ pub struct GpuFrame {
     pub slope_bias: f32,
     /// Deferred light pass: nonzero when this dispatch adds to an earlier one's result.
     pub accumulate: u32,
-    /// Layer of view 0 (views of a deferred chunk are numbered from the chunk's first).
+    /// Index in the frame's views of a deferred chunk's view 0 (each view carries its layer).
     pub view_base: u32,
     pub kernel_radius: f32,
     pub width: u32,

@@ -3,12 +3,16 @@
 //! renderer's errors.
 
 use super::lights::Fault;
-use lightfold_scene::{Image, Quality, ShadowFilter};
+use lightfold_scene::{Image, MapSizing, Quality, ShadowFilter};
 
 /// How a renderer draws shadows.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RenderOptions {
+    /// Every map's side under [`MapSizing::Fixed`]; the side of a light the mismatch rule finds
+    /// nothing lit for under [`MapSizing::Mismatch`].
     pub shadow_map_size: u32,
+    /// How each light's maps are sized (`Quality::map_sizing`).
+    pub map_sizing: MapSizing,
     pub filter: ShadowFilter,
     /// Constant bias in metres along the light ray.
     pub depth_bias: f32,
@@ -22,9 +26,19 @@ pub struct RenderOptions {
 }
 
 impl RenderOptions {
+    /// Every map `side`², whatever the scene's sizing.
+    pub fn fixed_maps(self, side: u32) -> RenderOptions {
+        RenderOptions {
+            shadow_map_size: side,
+            map_sizing: MapSizing::Fixed,
+            ..self
+        }
+    }
+
     pub fn from_quality(q: &Quality) -> RenderOptions {
         RenderOptions {
             shadow_map_size: q.shadow_map_size,
+            map_sizing: q.map_sizing,
             filter: q.filter,
             depth_bias: q.depth_bias,
             slope_bias: q.slope_bias,
@@ -113,6 +127,10 @@ pub struct RenderStats {
     pub pose_us: u64,
     /// Views (maps) each light needs, whether or not they were re-rendered.
     pub passes_per_light: Vec<u32>,
+    /// Side of each view's map, in view order (lights in order, each light's views in order).
+    pub map_sides: Vec<u32>,
+    /// Maps halved to keep the frame's maps within the device's shadow budget.
+    pub maps_halved: u32,
     pub shadow_us: u64,
     pub eye_us: u64,
     pub readback_us: u64,

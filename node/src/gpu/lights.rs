@@ -2,11 +2,14 @@
 //! shadow views (from `scene::shadow_views`) packed as layers of one depth-texture array. Pure CPU
 //! code, so the packing and the deliberate faults of the negative controls are testable alone.
 
+use super::atlas::{Atlas, fit_budget};
+use super::device::{SHADOW_MEMORY_BUDGET, SHADOW_TEXEL_BYTES};
 use super::shadow_depth::ShadowDepth;
 use bytemuck::{Pod, Zeroable};
 use lightfold_scene::shading::V3;
 use lightfold_scene::shadow_views::{
-    ShadowView, ShadowViewKind, camera_views, cube_frame, shadow_views, visible_receivers,
+    Mismatch, ShadowView, ShadowViewKind, camera_views, cube_frame, mismatch_size, probes,
+    shadow_views, visible_receivers,
 };
 use lightfold_scene::{Camera, LightSample, SampleKind};
 
@@ -113,6 +116,8 @@ pub struct GpuView {
     /// For a near cascade ([`GpuLight::cascades`]): the eye depth where it ends; infinite (and
     /// unread) for other views.
     pub cascade_to: f32,
+    /// The map's square in its layer, in texels: `(x, y, side, 0)` (`atlas::Slot`).
+    pub rect: [f32; 4],
 }
 
 /// Everything the shadow and eye passes need to know about this frame's lights.
@@ -124,6 +129,10 @@ pub struct LightPlan {
     pub geometry: Vec<ShadowView>,
     pub view_light: Vec<u32>,
     pub passes_per_light: Vec<u32>,
+    /// Where each view's map lies in the texture array (slots in view order).
+    pub atlas: Atlas,
+    /// Maps halved to keep the array within [`MAP_TEXEL_BUDGET`].
+    pub maps_halved: u32,
 }
 
 /// `c_λ / c_n` per channel; a channel the node colour lacks contributes nothing (as the reference).
@@ -160,17 +169,43 @@ impl Fit<'_> {
     }
 }
 
-/// Packs `samples` and their shadow views, fitted by `fit` to `receivers` (every mesh's box), on
-/// `map_size`² maps.
+/// How big each light's maps are.
+#[derive(Debug, Clone, Copy)]
+pub enum Sides<'a> {
+    /// Every map `n`².
+    Uniform(u32),
+    /// Sample λ's maps `sides[λ]`² (a plan's per-light sizes; the last size past the end).
+    Given(&'a [u32]),
+    /// From the mismatch factor where `camera` sees each light's receivers
+    /// (`scene::shadow_views::mismatch_size`), `fallback` where it sees none lit.
+    Mismatch {
+        rule: Mismatch,
+        camera: &'a Camera,
+        fallback: u32,
+    },
+}
+
+/// Texels the shadow maps of one frame may take ([`SHADOW_MEMORY_BUDGET`] at
+/// [`SHADOW_TEXEL_BYTES`] each): above it the largest maps are halved ([`atlas::fit_budget`]).
+pub const MAP_TEXEL_BUDGET: u64 = SHADOW_MEMORY_BUDGET / SHADOW_TEXEL_BYTES;
+
+/// Packs `samples` and their shadow views, fitted by `fit` to `receivers` (every mesh's box),
+/// each light's views on maps of the side `sides` gives it, all packed into one texture array
+/// ([`Atlas`]) of at most `budget` texels.
 pub fn plan_lights(
     samples: &[LightSample],
     receivers: &[(V3, V3)],
     fit: Fit<'_>,
     c_n: V3,
-    map_size: u32,
+    sides: Sides<'_>,
     fault: Option<Fault>,
 ) -> LightPlan {
     let mut plan = LightPlan::default();
+    let mut view_sides = Vec::new();
+    let probes = match sides {
+        Sides::Mismatch { camera, .. } => probes(camera, receivers),
+        _ => Vec::new(),
+    };
     for (i, s) in samples.iter().enumerate() {
         let mut views = fit.views(s, receivers);
         if fault == Some(Fault::MissingFace) {
@@ -189,6 +224,16 @@ pub fn plan_lights(
                 .expect("more than one view");
             views = vec![best];
         }
+        let map_size = match sides {
+            Sides::Uniform(n) => n,
+            Sides::Given(given) => given.get(i).or(given.last()).copied().unwrap_or(1),
+            Sides::Mismatch {
+                rule,
+                camera,
+                fallback,
+            } => mismatch_size(s, &views, &probes, receivers, camera, rule, fallback),
+        }
+        .max(1);
         let first_view = plan.views.len() as u32;
         let mut faces = [NO_VIEW; 6];
         for v in &views {
@@ -201,11 +246,14 @@ pub fn plan_lights(
                 view: v.view,
                 proj_a: [p[0][0], p[2][0], p[3][0], p[1][1]],
                 proj_b: [p[2][1], p[3][1], p[2][2], p[3][2]],
-                texel: (e[1] - e[0]).max(e[3] - e[2]) / map_size.max(1) as f32,
+                // The extent's span, divided by the side the atlas gives below.
+                texel: (e[1] - e[0]).max(e[3] - e[2]),
                 ortho: v.is_ortho() as u32,
-                layer: plan.views.len() as u32,
+                layer: 0,
                 cascade_to: v.eye_depth.map_or(f32::INFINITY, |d| d[1]),
+                rect: [0.0; 4],
             });
+            view_sides.push(map_size);
             plan.geometry.push(*v);
             plan.view_light.push(i as u32);
         }
@@ -239,6 +287,13 @@ pub fn plan_lights(
         }
         light.cascades = cascades;
         plan.lights.push(light);
+    }
+    plan.maps_halved = fit_budget(&mut view_sides, MAP_TEXEL_BUDGET, 1);
+    plan.atlas = Atlas::pack(&view_sides);
+    for (v, slot) in plan.views.iter_mut().zip(&plan.atlas.slots) {
+        v.layer = slot.layer;
+        v.rect = [slot.x as f32, slot.y as f32, slot.side as f32, 0.0];
+        v.texel /= slot.side as f32;
     }
     plan
 }
@@ -390,13 +445,20 @@ mod tests {
     #[test]
     fn layouts_match_the_wgsl_structs() {
         assert_eq!(std::mem::size_of::<GpuLight>(), 112);
-        assert_eq!(std::mem::size_of::<GpuView>(), 112);
+        assert_eq!(std::mem::size_of::<GpuView>(), 128);
     }
 
     #[test]
     fn views_are_numbered_across_lights_and_weights_divide_by_c_n() {
         let samples = [lobe([0.0, 2.9, 0.0]), lobe([0.0, 10.0, 5.0])];
-        let p = plan_lights(&samples, &ROOM, Fit::All, [2.0, 1.0, 0.0], 512, None);
+        let p = plan_lights(
+            &samples,
+            &ROOM,
+            Fit::All,
+            [2.0, 1.0, 0.0],
+            Sides::Uniform(512),
+            None,
+        );
         assert_eq!(p.lights.len(), 2);
         assert_eq!(
             p.passes_per_light.iter().sum::<u32>() as usize,
@@ -423,7 +485,7 @@ mod tests {
             &ROOM,
             Fit::All,
             [2.0, 1.0, 0.0],
-            512,
+            Sides::Uniform(512),
             Some(Fault::ColourNotDivided),
         );
         assert_eq!(bad.lights[0].weight, [1.0, 0.5, 0.25]);
@@ -432,7 +494,7 @@ mod tests {
             &ROOM,
             Fit::All,
             [1.0; 3],
-            512,
+            Sides::Uniform(512),
             Some(Fault::MissingFace),
         );
         assert_eq!(dropped.passes_per_light[0], 1);
@@ -452,7 +514,7 @@ mod tests {
             &walls,
             Fit::All,
             [1.0; 3],
-            512,
+            Sides::Uniform(512),
             None,
         );
         assert_eq!(p.lights[0].cube, MODE_CUBE);
@@ -486,17 +548,24 @@ mod tests {
             &ROOM,
             Fit::All,
             [1.0; 3],
-            512,
+            Sides::Uniform(512),
             Some(Fault::MissingFace),
         );
         assert_eq!(p.lights.len(), 1);
         bad.position = [0.0, 1.0, 0.0];
         bad.direction = [0.0; 3];
         bad.intensity = f32::INFINITY;
-        let p = plan_lights(&[bad], &ROOM, Fit::All, [0.0, f32::NAN, 1.0], 0, None);
+        let p = plan_lights(
+            &[bad],
+            &ROOM,
+            Fit::All,
+            [0.0, f32::NAN, 1.0],
+            Sides::Uniform(0),
+            None,
+        );
         assert_eq!(p.lights[0].weight[..2], [0.0, 0.0]);
         assert!(
-            plan_lights(&[bad], &[], Fit::All, [1.0; 3], 512, None)
+            plan_lights(&[bad], &[], Fit::All, [1.0; 3], Sides::Uniform(512), None)
                 .views
                 .is_empty()
         );
@@ -507,7 +576,14 @@ mod tests {
         let samples: Vec<LightSample> = (0..5)
             .map(|i| lobe([i as f32 * 0.3 - 0.6, 2.9, 0.0]))
             .collect();
-        let p = plan_lights(&samples, &ROOM, Fit::All, [1.0; 3], 512, None);
+        let p = plan_lights(
+            &samples,
+            &ROOM,
+            Fit::All,
+            [1.0; 3],
+            Sides::Uniform(512),
+            None,
+        );
         let chunks = chunk_lights(&p.lights, &p.views, 2);
         assert_eq!(
             chunks.iter().map(|c| c.lights.len()).collect::<Vec<_>>(),

@@ -6,20 +6,21 @@
 //! same, whatever the camera does: an animated scene re-renders only the maps of lights that
 //! moved or whose casters moved ([`Renderer::set_meshes`] poses the geometry).
 
+use super::atlas::Slot;
 use super::deferred::{DeferredTargets, read_illumination, render_deferred};
 use super::device::Gpu;
 use super::eye_pass::{
     EyeInputs, EyeTargets, FLAG_CONVENTIONAL_Z, FLAG_OBJECT_IDS, GpuFrame, render_eye,
 };
 use super::frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
-use super::lights::{Fault, Fit, LightPlan, plan_lights};
+use super::lights::{Fault, Fit, LightPlan, Sides, plan_lights};
 use super::pipelines::{DrawContext, LightSet, Pipelines};
 use super::readback::{ReadRequest, read_targets};
 use super::scene_data::SceneData;
 use super::shadow_depth::ShadowDepth;
 use super::shadow_pass::{ShadowMaps, layer_count, render_shadow_maps};
 use lightfold_scene::shadow_views::ShadowView;
-use lightfold_scene::{Camera, Image, LightSample, Mesh, Scene, ShadowFilter};
+use lightfold_scene::{Camera, Image, LightSample, MapSizing, Mesh, Scene, ShadowFilter};
 use std::time::Instant;
 use wgpu::util::DeviceExt;
 
@@ -31,7 +32,8 @@ const HUGE_BIAS: f32 = 0.5;
 struct LightMapKey {
     sample: LightSample,
     views: Vec<ShadowView>,
-    first_layer: u32,
+    /// Where its maps lie in the array (layer, square).
+    slots: Vec<Slot>,
     casters: Option<Vec<u32>>,
     /// Revision of each mesh it may draw (its casters, or every mesh).
     revisions: Vec<u64>,
@@ -71,6 +73,7 @@ pub struct Renderer {
     fit_to_camera: bool,
     cascades: bool,
     object_ids: bool,
+    map_sides: Option<Vec<u32>>,
 }
 
 impl Renderer {
@@ -206,6 +209,7 @@ impl Renderer {
             fit_to_camera: true,
             cascades: true,
             object_ids: true,
+            map_sides: None,
             variant: EyeVariant::default(),
             deferred: None,
         })
@@ -318,6 +322,13 @@ impl Renderer {
     /// issue 22.
     pub fn set_object_ids(&mut self, on: bool) {
         self.object_ids = on;
+    }
+
+    /// Each light's map side as a plan gives it (`WireShadow::map_size`), in the order of the
+    /// lights [`Renderer::render`] gets; `None` (the default) sizes maps by
+    /// [`RenderOptions::map_sizing`].
+    pub fn set_map_sides(&mut self, sides: Option<Vec<u32>>) {
+        self.map_sides = sides;
     }
 
     /// Chooses how the eye pass lights pixels (same images either way, within f32 rounding).
@@ -446,23 +457,33 @@ impl Renderer {
             (false, true) => Fit::Cascaded(&self.camera),
             (false, false) => Fit::Visible(&self.camera),
         };
-        let plan = plan_lights(
-            frame_lights,
-            &self.receivers,
-            fit,
-            c_n,
-            opts.shadow_map_size,
-            opts.fault,
-        );
+        let sides = match (&self.map_sides, opts.map_sizing) {
+            (Some(given), _) => Sides::Given(given),
+            (None, MapSizing::Fixed) => Sides::Uniform(opts.shadow_map_size),
+            (None, MapSizing::Mismatch(rule)) => Sides::Mismatch {
+                rule,
+                camera: &self.camera,
+                fallback: opts.shadow_map_size,
+            },
+        };
+        let plan = plan_lights(frame_lights, &self.receivers, fit, c_n, sides, opts.fault);
         let max_layers = gpu.limits.max_texture_array_layers;
-        if layer_count(plan.views.len()) > max_layers {
+        if layer_count(plan.atlas.layers as usize) > max_layers {
             return Err(RenderError::TooManyViews {
                 views: plan.views.len(),
                 maximum: max_layers,
             });
         }
+        if plan.atlas.side > gpu.limits.max_texture_dimension_2d {
+            return Err(RenderError::ShadowMapSize {
+                size: plan.atlas.side,
+                maximum: gpu.limits.max_texture_dimension_2d,
+            });
+        }
         let mut stats = RenderStats {
             passes_per_light: plan.passes_per_light.clone(),
+            map_sides: plan.atlas.slots.iter().map(|s| s.side).collect(),
+            maps_halved: plan.maps_halved,
             ..Default::default()
         };
 
@@ -470,14 +491,14 @@ impl Renderer {
         // changed (the light, its views, the meshes it may draw, the map size).
         let t0 = Instant::now();
         let config = MapConfig {
-            size: opts.shadow_map_size,
+            size: plan.atlas.side.max(1),
             fault: opts.fault,
         };
         let keys = self.light_keys(&plan, frame_lights, casters);
         let fits = self
             .maps
             .as_ref()
-            .is_some_and(|m| m.fits(opts.shadow_map_size, plan.views.len()));
+            .is_some_and(|m| m.fits(config.size, plan.atlas.layers));
         let kept_array = fits && self.map_config == Some(config);
         let fresh: Vec<bool> = keys
             .iter()
@@ -485,12 +506,12 @@ impl Renderer {
             .map(|(i, k)| !(opts.walkthrough && kept_array && self.map_keys.get(i) == Some(k)))
             .collect();
         if !fits {
-            let layers = layer_count(plan.views.len());
+            let layers = layer_count(plan.atlas.layers as usize);
             let depth = ShadowDepth::of(opts.fault);
             self.maps = None;
             self.map_keys.clear();
             self.maps = Some(allocate(gpu, "the shadow maps", || {
-                ShadowMaps::new(&gpu.device, opts.shadow_map_size, layers, depth)
+                ShadowMaps::new(&gpu.device, config.size, layers, depth)
             })?);
         }
         if fresh.contains(&true) {
@@ -655,7 +676,7 @@ impl Renderer {
             .map(|(i, s)| {
                 let count = plan.passes_per_light.get(i).copied().unwrap_or(0) as usize;
                 let views = plan.geometry[first..first + count].to_vec();
-                let first_layer = plan.views.get(first).map_or(u32::MAX, |v| v.layer);
+                let slots = plan.atlas.slots[first..first + count].to_vec();
                 first += count;
                 let own = casters.and_then(|c| c.get(i)).cloned();
                 let revisions = match &own {
@@ -668,7 +689,7 @@ impl Renderer {
                 LightMapKey {
                     sample: *s,
                     views,
-                    first_layer,
+                    slots,
                     casters: own,
                     revisions,
                 }
@@ -709,7 +730,7 @@ impl Renderer {
         }
         GpuFrame {
             light_count: plan.lights.len() as u32,
-            map_size: o.shadow_map_size as f32,
+            map_size: plan.atlas.side.max(1) as f32,
             depth_bias,
             slope_bias,
             kernel_radius,

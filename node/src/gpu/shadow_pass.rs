@@ -1,5 +1,5 @@
-//! Shadow maps: one Depth32Float texture array holding every view of every light of a frame (one
-//! layer per view), beside it an R32Uint array of the object (mesh index + 1) each texel's depth
+//! Shadow maps: one Depth32Float texture array holding every view of every light of a frame (each
+//! view a square of a layer, `atlas`), beside it an R32Uint array of the object (mesh index + 1) each texel's depth
 //! belongs to, and the depth passes that fill both, drawing per view only the casters the caller
 //! allows that can reach the view's frustum. (The depth negative controls change the encoding:
 //! `ShadowDepth`.)
@@ -52,7 +52,7 @@ fn array_views(
     (array, layer_views)
 }
 
-/// Layers to allocate for `views` maps. GL turns arrays of 1 layer or a multiple of 6 layers into
+/// Layers to allocate for `views` layers of maps. GL turns arrays of 1 layer or a multiple of 6 layers into
 /// a 2D texture or a cube map and misreads them (PLATFORM.md), so those counts get one spare layer
 /// on every backend.
 pub fn layer_count(views: usize) -> u32 {
@@ -100,15 +100,16 @@ impl ShadowMaps {
         }
     }
 
-    /// Whether this array can hold `views` maps of `size`².
-    pub fn fits(&self, size: u32, views: usize) -> bool {
-        self.size == size && self.layers >= layer_count(views)
+    /// Whether this array has `layers` layers (before padding) of `size`².
+    pub fn fits(&self, size: u32, layers: u32) -> bool {
+        self.size == size && self.layers >= layer_count(layers as usize)
     }
 }
 
-/// Records and submits one depth pass per view of `plan` that `render[view]` asks for (the others
-/// keep their layers). `casters[λ]` lists the meshes that may cast into light λ's maps (`None`:
-/// all). Returns the number of passes.
+/// Records and submits one render pass per layer holding a view of `plan` that `render[view]`
+/// asks for, drawing every view of that layer into its square (the other layers are kept).
+/// `casters[λ]` lists the meshes that may cast into light λ's maps (`None`: all). Returns the
+/// number of views drawn.
 pub fn render_shadow_maps(
     cx: &DrawContext<'_>,
     meshes: &[MeshRange],
@@ -151,27 +152,27 @@ pub fn render_shadow_maps(
             label: Some("shadow passes"),
         });
     let all: Vec<u32> = (0..meshes.len() as u32).collect();
+    // A pass clears its whole layer, so every view in a layer that holds one to render is drawn
+    // again (the others are what they were: same light, views and casters).
+    let mut layers: Vec<u32> = plan
+        .views
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| render.get(*i).copied().unwrap_or(true))
+        .map(|(_, v)| v.layer)
+        .collect();
+    layers.sort_unstable();
+    layers.dedup();
     let mut passes = 0;
-    for (i, geometry) in plan.geometry.iter().enumerate() {
-        if !render.get(i).copied().unwrap_or(true) {
+    for layer in layers {
+        let Some(target) = maps.layer_views.get(layer as usize) else {
             continue;
-        }
-        passes += 1;
-        let light = plan.view_light[i] as usize;
-        let allowed: &[u32] = casters.and_then(|c| c.get(light)).map_or(&all, |c| c);
-        let drawn: Vec<&MeshRange> = allowed
-            .iter()
-            .filter_map(|&m| meshes.get(m as usize))
-            .filter(|m| {
-                m.bounds
-                    .is_some_and(|(lo, hi)| m.vertex_count > 0 && box_in_view(geometry, lo, hi))
-            })
-            .collect();
-        let layer = plan.views[i].layer as usize;
+        };
+        let ids = &maps.id_layer_views[layer as usize];
         let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
             label: Some("shadow pass"),
             color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: &maps.id_layer_views[layer],
+                view: ids,
                 depth_slice: None,
                 resolve_target: None,
                 ops: wgpu::Operations {
@@ -180,7 +181,7 @@ pub fn render_shadow_maps(
                 },
             })],
             depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                view: &maps.layer_views[layer],
+                view: target,
                 depth_ops: Some(wgpu::Operations {
                     // "Nothing in front" (0 in reversed-Z), so uncovered texels are lit.
                     load: wgpu::LoadOp::Clear(maps.depth.clear()),
@@ -193,20 +194,41 @@ pub fn render_shadow_maps(
             multiview_mask: None,
         });
         pass.set_bind_group(0, cx.scene_bind_group, &[]);
-        pass.set_bind_group(
-            1,
-            &view_bind_group,
-            &[(i as u64 * VIEW_UNIFORM_STRIDE) as u32],
-        );
         pass.set_vertex_buffer(0, cx.vertices.slice(..));
-        for masked in [false, true] {
-            pass.set_pipeline(if masked {
-                &cx.pipelines.shadow_masked
-            } else {
-                &cx.pipelines.shadow_opaque
-            });
-            for m in drawn.iter().filter(|m| m.masked == masked) {
-                pass.draw(m.first_vertex..m.first_vertex + m.vertex_count, 0..1);
+        for (i, geometry) in plan.geometry.iter().enumerate() {
+            let v = &plan.views[i];
+            if v.layer != layer {
+                continue;
+            }
+            passes += 1;
+            let light = plan.view_light[i] as usize;
+            let allowed: &[u32] = casters.and_then(|c| c.get(light)).map_or(&all, |c| c);
+            let drawn: Vec<&MeshRange> = allowed
+                .iter()
+                .filter_map(|&m| meshes.get(m as usize))
+                .filter(|m| {
+                    m.bounds
+                        .is_some_and(|(lo, hi)| m.vertex_count > 0 && box_in_view(geometry, lo, hi))
+                })
+                .collect();
+            // The view's square of the layer (`atlas::Slot`): clip space maps onto it alone.
+            let [x, y, side, _] = v.rect;
+            pass.set_viewport(x, y, side, side, 0.0, 1.0);
+            pass.set_scissor_rect(x as u32, y as u32, side as u32, side as u32);
+            pass.set_bind_group(
+                1,
+                &view_bind_group,
+                &[(i as u64 * VIEW_UNIFORM_STRIDE) as u32],
+            );
+            for masked in [false, true] {
+                pass.set_pipeline(if masked {
+                    &cx.pipelines.shadow_masked
+                } else {
+                    &cx.pipelines.shadow_opaque
+                });
+                for m in drawn.iter().filter(|m| m.masked == masked) {
+                    pass.draw(m.first_vertex..m.first_vertex + m.vertex_count, 0..1);
+                }
             }
         }
     }

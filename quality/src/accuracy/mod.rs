@@ -88,6 +88,7 @@ impl Setting {
         q.samples_per_area_light = Some(self.samples.max(1));
         q.pattern = self.pattern;
         q.shadow_map_size = self.map_size;
+        q.map_sizing = lightfold_scene::MapSizing::Fixed;
         q.filter = self.filter;
     }
 

@@ -52,10 +52,7 @@ impl Control {
                 fault: Some(f),
                 ..opts
             },
-            Control::MapSize(size) => RenderOptions {
-                shadow_map_size: size,
-                ..opts
-            },
+            Control::MapSize(size) => opts.fixed_maps(size),
         }
     }
 }
@@ -300,7 +297,7 @@ fn whole_image_case(
     let t = truth(&scene, &samples);
     let mut opts = RenderOptions::from_quality(&scene.quality);
     if let Some(size) = fixes.map_size {
-        opts.shadow_map_size = size;
+        opts = opts.fixed_maps(size);
     }
     let (illum, radiance, passes) = render_radiance(case, &gpu, &scene, &samples, opts, fixes)?;
     let s = score(case, &scene, &t, &illum, &radiance)?;

@@ -325,10 +325,7 @@ fn subtexel_case(
         fault: Some(Fault::NoBias),
         ..base
     };
-    let coarse = RenderOptions {
-        shadow_map_size: 64,
-        ..base
-    };
+    let coarse = base.fixed_maps(64);
     let (nb, _) = gpu_sequences(case, &gpu, &s, no_bias)?;
     let (cm, _) = gpu_sequences(case, &gpu, &s, coarse)?;
     let (m, a, b) = (figures(&s, &seq), figures(&s, &nb), figures(&s, &cm));

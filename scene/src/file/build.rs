@@ -2,14 +2,18 @@
 //! their materials, lights, camera, ambient, exposure and quality; then completion of whatever is
 //! missing (camera, lights) exactly as for a bare glTF.
 
-use super::spec::{CameraSpec, FilterSpec, LightSpec, ObjectSpec, PatternSpec, SceneFile};
+use super::spec::{
+    CameraSpec, FilterSpec, LightSpec, ObjectSpec, PatternSpec, SceneFile, SizingSpec, SizingWord,
+};
 use crate::error::SceneError;
 use crate::framing;
 use crate::gltf_load::{self, GltfOptions};
 use crate::model::{
-    Camera, Light, LightShape, Material, Mesh, Quality, SamplePattern, Scene, ShadowFilter,
+    Camera, Light, LightShape, MapSizing, Material, Mesh, Quality, SamplePattern, Scene,
+    ShadowFilter,
 };
 use crate::primitives;
+use crate::shadow_views::Mismatch;
 use glam::{Affine3A, Quat, Vec3};
 use std::collections::HashMap;
 use std::path::Path;
@@ -440,6 +444,17 @@ fn apply_quality(q: &mut Quality, s: &super::spec::QualitySpec) {
     }
     q.seed = s.seed.unwrap_or(q.seed);
     q.shadow_map_size = s.shadow_map_size.unwrap_or(q.shadow_map_size);
+    let d = crate::defaults::MAP_MISMATCH;
+    q.map_sizing = match (s.shadow_map_sizing, s.shadow_map_size) {
+        (Some(SizingSpec::Word(SizingWord::Fixed)), _) | (None, Some(_)) => MapSizing::Fixed,
+        (Some(SizingSpec::Word(SizingWord::Mismatch)), _) => MapSizing::Mismatch(d),
+        (Some(SizingSpec::Mismatch(m)), _) => MapSizing::Mismatch(Mismatch {
+            target: m.target.unwrap_or(d.target),
+            min: m.min.unwrap_or(d.min),
+            max: m.max.unwrap_or(d.max),
+        }),
+        (None, None) => q.map_sizing,
+    };
     q.depth_bias = s.depth_bias.unwrap_or(q.depth_bias);
     q.slope_bias = s.slope_bias.unwrap_or(q.slope_bias);
     q.lights_per_node = s.lights_per_node.unwrap_or(q.lights_per_node);

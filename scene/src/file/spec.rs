@@ -121,8 +121,13 @@ pub struct QualitySpec {
     pub pattern: Option<PatternSpec>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub seed: Option<u64>,
+    /// Every map's side; setting it alone fixes every map at it (`shadow_map_sizing = "fixed"`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shadow_map_size: Option<u32>,
+    /// `"fixed"`, `"mismatch"` (the default bounds and target) or `{ target = 1.0, min = 256,
+    /// max = 2048 }`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub shadow_map_sizing: Option<SizingSpec>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub filter: Option<FilterSpec>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -145,6 +150,33 @@ pub enum PatternSpec {
     Grid,
     Jittered,
     Halton,
+}
+
+/// How a scene file sizes shadow maps (`Quality::map_sizing`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum SizingSpec {
+    Word(SizingWord),
+    Mismatch(MismatchSpec),
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SizingWord {
+    Fixed,
+    Mismatch,
+}
+
+/// The mismatch rule with any of its defaults replaced.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MismatchSpec {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target: Option<f32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub min: Option<u32>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max: Option<u32>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

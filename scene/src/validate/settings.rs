@@ -157,6 +157,19 @@ pub(super) fn sanitize_quality(s: &mut Scene, issues: &mut Vec<Issue>) {
         bad("zero shadow-map size (default used)");
         q.shadow_map_size = d.shadow_map_size;
     }
+    if let crate::model::MapSizing::Mismatch(m) = q.map_sizing {
+        let bounds = crate::limits::MAX_SHADOW_MAP_SIZE;
+        if !(m.target.is_finite() && m.target > 0.0)
+            || m.min == 0
+            || m.min > m.max
+            || m.max > bounds
+        {
+            bad(
+                "shadow-map sizing needs a finite target > 0 and 1 ≤ min ≤ max ≤ 4096 (default used)",
+            );
+            q.map_sizing = d.map_sizing;
+        }
+    }
     if q.lights_per_node == 0 {
         bad("zero lights per node (default used)");
         q.lights_per_node = d.lights_per_node;
