@@ -246,3 +246,47 @@ fn a_file_without_lights_or_camera_is_completed() {
         lightfold_scene::Scene::new("x").camera.position
     );
 }
+
+/// `shadow_map_sizing`: per light from the mismatch factor by default; a `shadow_map_size` alone
+/// fixes every map; the rule's bounds and target can be set; bad ones are refused or replaced
+/// with a reported issue.
+#[test]
+fn shadow_map_sizing_parses_and_fixed_sizes_stay_fixed() {
+    use lightfold_scene::{MapSizing, defaults};
+    let base = "version = 1\n[[object]]\ntype = \"sphere\"\ncenter = [0, 1, 0]\nradius = 1.0\n";
+    let with = |q: &str| parse_scene_file(&format!("{base}[quality]\n{q}\n"), "t.toml", None);
+    let s = parse_scene_file(base, "t.toml", None).unwrap();
+    assert_eq!(
+        s.quality.map_sizing,
+        MapSizing::Mismatch(defaults::MAP_MISMATCH)
+    );
+    let s = with("shadow_map_size = 1024").unwrap();
+    assert_eq!(
+        (s.quality.shadow_map_size, s.quality.map_sizing),
+        (1024, MapSizing::Fixed)
+    );
+    let s = with("shadow_map_sizing = \"fixed\"").unwrap();
+    assert_eq!(s.quality.map_sizing, MapSizing::Fixed);
+    let s = with("shadow_map_size = 256\nshadow_map_sizing = \"mismatch\"").unwrap();
+    assert_eq!(
+        (s.quality.shadow_map_size, s.quality.map_sizing),
+        (256, MapSizing::Mismatch(defaults::MAP_MISMATCH))
+    );
+    let s = with("shadow_map_sizing = { target = 1.0, max = 4096 }").unwrap();
+    let MapSizing::Mismatch(m) = s.quality.map_sizing else {
+        panic!("{:?}", s.quality.map_sizing)
+    };
+    assert_eq!((m.target, m.min, m.max), (1.0, defaults::MAP_MISMATCH.min, 4096));
+    // Above the shared limit, or no target: the default rule replaces it (a validation issue).
+    for bad in ["{ max = 16384 }", "{ target = 0.0 }", "{ min = 2048, max = 512 }"] {
+        let s = with(&format!("shadow_map_sizing = {bad}")).map_err(|e| e.to_string());
+        assert_eq!(
+            s.map(|s| s.quality.map_sizing),
+            Ok(MapSizing::Mismatch(defaults::MAP_MISMATCH)),
+            "{bad}"
+        );
+    }
+    // Unknown keys and words are refused.
+    assert!(with("shadow_map_sizing = { tarket = 1.0 }").is_err());
+    assert!(with("shadow_map_sizing = \"huge\"").is_err());
+}

@@ -255,3 +255,59 @@ fn receivers_spread_one_way_get_two_fitted_frusta() {
     );
     assert!(assert_covered(&s, &[strip]) > 100);
 }
+
+/// Issue 22's per-light map sizes (`shadow_views::sizing`): larger images and thin casters the
+/// maps hold ask for larger maps; the rule stays within its bounds and falls back when nothing
+/// it probes is lit.
+#[test]
+fn map_sizes_follow_the_image_and_thin_casters() {
+    use lightfold_scene::shadow_views::{Mismatch, camera_views, mismatch_size, probes};
+    let yard = ([-20.0, 0.0, -20.0], [20.0, 0.0, 20.0]);
+    let pole = ([-0.04, 0.0, -2.04], [0.04, 2.5, -1.96]);
+    let lamp = sample([0.0, 4.0, 0.0], [0.0, -1.0, 0.0], SampleKind::CosineLobe);
+    let rule = Mismatch {
+        min: 16,
+        max: 4096,
+        target: 2.0,
+    };
+    let size = |w: u32, h: u32, boxes: &[(V3, V3)]| {
+        let camera = Camera {
+            position: [1.0, 1.5, 0.5],
+            target: [1.5, 0.0, -3.0],
+            up: [0.0, 1.0, 0.0],
+            fov_y_deg: 45.0,
+            width: w,
+            height: h,
+        };
+        let views = camera_views(&lamp, boxes, &camera);
+        let p = probes(&camera, boxes);
+        assert!(!p.is_empty());
+        mismatch_size(&lamp, &views, &p, boxes, &camera, rule, 512)
+    };
+    let small = size(160, 120, &[yard]);
+    let large = size(640, 480, &[yard]);
+    assert!(
+        large >= 4 * small,
+        "four times the pixels per side asks for about four times the texels: {small} → {large}"
+    );
+    // An 8 cm pole asks for more than the yard alone: its width must span texels.
+    let with_pole = size(640, 480, &[yard, pole]);
+    assert!(with_pole > large, "{large} → {with_pole}");
+    for s in [small, large, with_pole] {
+        assert!(s.is_power_of_two() && (16..=4096).contains(&s), "{s}");
+    }
+    // A light that reaches nothing the camera sees gets the fallback within the bounds.
+    let away = sample([0.0, 4.0, 0.0], [0.0, 1.0, 0.0], SampleKind::CosineLobe);
+    let camera = Camera {
+        position: [1.0, 1.5, 0.5],
+        target: [1.5, 0.0, -3.0],
+        up: [0.0, 1.0, 0.0],
+        fov_y_deg: 45.0,
+        width: 640,
+        height: 480,
+    };
+    let p = probes(&camera, &[yard]);
+    assert_eq!(mismatch_size(&away, &[], &p, &[yard], &camera, rule, 100), 100);
+    let floor = Mismatch { min: 256, ..rule };
+    assert_eq!(mismatch_size(&away, &[], &p, &[yard], &camera, floor, 100), 256);
+}
