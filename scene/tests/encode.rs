@@ -27,10 +27,11 @@ fn small() -> Scene {
 
 #[test]
 fn content_hash_is_pinned() {
-    // A change here means every cached scene is invalidated: do it on purpose only.
+    // A change here means every cached scene is invalidated: do it on purpose only (last:
+    // `Quality::map_sizing`, per-light shadow-map sizes).
     assert_eq!(
         hex::encode(small().content_hash()),
-        "af8e287d1c4d5e8f70b1d5b1c124875ab4d4b098e46547e5bd2a74345a16ee60"
+        "6e48c3d9a1a0d49e2700ec4c3783403d3ec656696173a350c2657b58a20e20e4"
     );
 }
 

@@ -276,9 +276,16 @@ fn shadow_map_sizing_parses_and_fixed_sizes_stay_fixed() {
     let MapSizing::Mismatch(m) = s.quality.map_sizing else {
         panic!("{:?}", s.quality.map_sizing)
     };
-    assert_eq!((m.target, m.min, m.max), (1.0, defaults::MAP_MISMATCH.min, 4096));
+    assert_eq!(
+        (m.target, m.min, m.max),
+        (1.0, defaults::MAP_MISMATCH.min, 4096)
+    );
     // Above the shared limit, or no target: the default rule replaces it (a validation issue).
-    for bad in ["{ max = 16384 }", "{ target = 0.0 }", "{ min = 2048, max = 512 }"] {
+    for bad in [
+        "{ max = 16384 }",
+        "{ target = 0.0 }",
+        "{ min = 2048, max = 512 }",
+    ] {
         let s = with(&format!("shadow_map_sizing = {bad}")).map_err(|e| e.to_string());
         assert_eq!(
             s.map(|s| s.quality.map_sizing),

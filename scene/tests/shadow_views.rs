@@ -307,7 +307,13 @@ fn map_sizes_follow_the_image_and_thin_casters() {
         height: 480,
     };
     let p = probes(&camera, &[yard]);
-    assert_eq!(mismatch_size(&away, &[], &p, &[yard], &camera, rule, 100), 100);
+    assert_eq!(
+        mismatch_size(&away, &[], &p, &[yard], &camera, rule, 100),
+        100
+    );
     let floor = Mismatch { min: 256, ..rule };
-    assert_eq!(mismatch_size(&away, &[], &p, &[yard], &camera, floor, 100), 256);
+    assert_eq!(
+        mismatch_size(&away, &[], &p, &[yard], &camera, floor, 100),
+        256
+    );
 }

@@ -149,7 +149,14 @@ pub(crate) fn plan_with(
         .collect();
     // Nodes report their limit at 512² maps: larger maps take fewer lights per node.
     let largest_map = shadows.iter().flatten().map(|s| s.map_size).max();
-    let at_map = largest_map.and_then(|m| group::device_limit_at(&cluster.nodes, m));
+    // Maps the mismatch rule sizes above the scene's base size share a node's shadow budget (it
+    // halves the largest to fit, as `render` does: docs/gpu.md), so its limit counts them at that
+    // size; fixed sizes count as they are.
+    let limit_map = match options.map_sizing.resolve(&scene.quality) {
+        MapSizing::Mismatch { .. } => largest_map.map(|m| m.min(scene.quality.shadow_map_size)),
+        _ => largest_map,
+    };
+    let at_map = limit_map.and_then(|m| group::device_limit_at(&cluster.nodes, m));
     let (k, limit) = match options.frame_budget_us {
         None => {
             let k = options.lights_per_node;

@@ -212,12 +212,18 @@ pub fn check(
         scene.quality.shadow_map_size,
         max_texture,
     )?;
-    let max = max_lights(map_size);
+    // Maps sized by the scene's mismatch rule above its base size share the shadow budget (the
+    // renderer halves the largest to fit), so the limit counts them at that size.
+    let limit_size = match scene.quality.map_sizing {
+        lightfold_scene::MapSizing::Mismatch(_) => map_size.min(scene.quality.shadow_map_size),
+        lightfold_scene::MapSizing::Fixed => map_size,
+    };
+    let max = max_lights(limit_size);
     if lights.len() > max as usize {
         return Err(ConfigError::TooManyLights {
             count: lights.len(),
             max,
-            map_size,
+            map_size: limit_size,
         });
     }
     Ok(Checked {
