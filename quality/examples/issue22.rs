@@ -7,14 +7,16 @@
 //! ```
 //!
 //! `--before`: neither fix (one frustum per light, one bias for every caster); `--no-ids`: the
-//! cascades without the object-ID test; `--map N`: N² maps instead of the scene's. `--cost`: per scene, the GPU renderer's shadow + eye time (median of 5 frames after a warm-up)
-//! and shadow passes with the fixes off and on, and each render's whole-image and penumbra PSNR
+//! cascades without the object-ID test; `--map N`: N² maps instead of the scene's. `--cost`: per scene, the GPU renderer's shadow + eye time (median of 5 frames after a warm-up),
+//! shadow passes and map sizes before the fixes, with the fixes at 512², at the default's per-light
+//! sizes and at fixed 1024² and 2048², and each render's whole-image and penumbra PSNR
 //! against the exact point sum of the same samples (penumbra: `reference::masks::penumbra`).
 use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
 use lightfold_quality::hard::shadow_maps::{Fixes, run_with};
 use lightfold_reference::metrics::error_stats;
 use lightfold_reference::{PointSumOptions, masks, render_point_sum, render_point_sum_with};
-use lightfold_scene::sampling;
+use lightfold_scene::shadow_views::Mismatch;
+use lightfold_scene::{MapSizing, defaults, sampling};
 
 fn cost(name: &str) -> anyhow::Result<()> {
     let gpu = Gpu::new(&GpuOptions::default())?;
@@ -29,12 +31,34 @@ fn cost(name: &str) -> anyhow::Result<()> {
     )
     .radiance([1.0; 3], scene.ambient);
     let penumbra = masks::penumbra(&truth, &open);
-    let cascades_only = Fixes {
-        object_ids: false,
-        ..Fixes::ALL
+    // (label, fixes, map rule): the state before issue 22, the two shading fixes at the old
+    // default (every map 512²), the default now (the scene's rule: per-light sizes), and fixed
+    // larger maps for the resolution curve.
+    let fixed = |n| RenderOptions::from_quality(&scene.quality).fixed_maps(n);
+    // Every map n² through the atlas, which halves the largest maps where a frame's maps pass the
+    // device's budget (a fixed size above 512² refuses 32 lights of six views outright).
+    let pinned = |n| RenderOptions {
+        map_sizing: MapSizing::Mismatch(Mismatch {
+            min: n,
+            max: n,
+            ..defaults::MAP_MISMATCH
+        }),
+        ..RenderOptions::from_quality(&scene.quality)
     };
-    for fixes in [Fixes::NONE, cascades_only, Fixes::ALL] {
-        let mut r = Renderer::new(&gpu, &scene, RenderOptions::from_quality(&scene.quality))?;
+    let configs = [
+        ("before, 512²", Fixes::NONE, fixed(512)),
+        ("fixes, 512²", Fixes::ALL, fixed(512)),
+        (
+            "default (per-light sizes)",
+            Fixes::ALL,
+            RenderOptions::from_quality(&scene.quality),
+        ),
+        ("fixes, every map 1024²", Fixes::ALL, pinned(1024)),
+        ("fixes, every map 2048²", Fixes::ALL, pinned(2048)),
+    ];
+    let mut baseline = None;
+    for (label, fixes, options) in configs {
+        let mut r = Renderer::new(&gpu, &scene, options)?;
         r.set_cascades(fixes.cascades);
         r.set_object_ids(fixes.object_ids);
         let mut times = Vec::new();
@@ -47,16 +71,37 @@ fn cost(name: &str) -> anyhow::Result<()> {
         let f = last.expect("rendered");
         times.remove(0);
         times.sort_unstable();
+        let median = times[times.len() / 2] as f64 / 1e3;
+        let base = *baseline.get_or_insert(median);
         let illum = f.illumination.clone().expect("illumination");
         let img = f.radiance(&illum, scene.ambient)?;
         let whole = error_stats(&img, &truth, scene.exposure, None)?;
         let pen = error_stats(&img, &truth, scene.exposure, Some(&penumbra))?;
+        // LIGHTFOLD_HARD_DUMP=DIR: the render, the truth and 8× their absolute difference as PNG.
+        if let Some(dir) = std::env::var_os("LIGHTFOLD_HARD_DUMP") {
+            let dir = std::path::Path::new(&dir);
+            std::fs::create_dir_all(dir)?;
+            let tag = label.replace([' ', ',', '(', ')', '²'], "");
+            img.write_png(&dir.join(format!("{name}-{tag}.png")), scene.exposure)?;
+            truth.write_png(&dir.join(format!("{name}-truth.png")), scene.exposure)?;
+            let mut diff = img.clone();
+            for (d, t) in diff.data.iter_mut().zip(&truth.data) {
+                *d = 8.0 * (*d - t).abs();
+            }
+            diff.write_png(&dir.join(format!("{name}-{tag}-diff8.png")), scene.exposure)?;
+        }
+        let (lo, hi) = f
+            .stats
+            .map_sides
+            .iter()
+            .fold((u32::MAX, 0), |(lo, hi), &s| (lo.min(s), hi.max(s)));
         println!(
-            "{name} {fixes:?}: {} samples, {} shadow passes, shadow+eye {:.1} ms (median of 5), \
-             PSNR whole {:.2} dB, penumbra {:.2} dB ({} px)",
+            "{name} {label}: {} samples, {} shadow passes, maps {lo}²–{hi}² ({} halved), shadow+eye {median:.1} ms \
+             (median of 5; ×{:.2} of the first line), PSNR whole {:.2} dB, penumbra {:.2} dB ({} px)",
             samples.len(),
             f.stats.passes_per_light.iter().sum::<u32>(),
-            times[times.len() / 2] as f64 / 1e3,
+            f.stats.maps_halved,
+            median / base,
             whole.psnr,
             pen.psnr,
             pen.pixels
