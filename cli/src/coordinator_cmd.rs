@@ -182,7 +182,9 @@ pub struct JobArgs {
     #[arg(long)]
     pub material_own_node: bool,
     /// Frame-time budget in milliseconds: K becomes the largest whose slowest node fits it (by
-    /// the nodes' cost model), so the plan uses as few nodes as it allows; overrides -K.
+    /// the nodes' cost model), so the plan uses as few nodes as it allows; overrides -K. When no
+    /// K fits, larger shadow maps, then samples per area light, then the least important samples
+    /// are given up until it does (the plan says what it gave up).
     #[arg(long, value_parser = crate::coordinator_cmd::positive_ms)]
     pub frame_budget: Option<f64>,
     /// Frames requested ahead of the one being finished: 2 keeps every stage busy (the

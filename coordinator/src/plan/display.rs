@@ -3,7 +3,7 @@
 //! terms), or in a few lines ([`Plan::brief`], what a run prints by default).
 
 use super::types::{
-    Downstream, DropReason, MaterialMode, MaterialPlacement, Plan, ShadowViews, Source,
+    Downstream, DropReason, Knob, MaterialMode, MaterialPlacement, Plan, ShadowViews, Source,
 };
 use lightfold_protocol::{Layer, PixelFormat};
 use std::fmt::{self, Display, Formatter};
@@ -140,6 +140,9 @@ impl Display for Plan {
                 None => String::new(),
             }
         )?;
+        if let Some(text) = gave_up(self) {
+            writeln!(f, "{text}")?;
+        }
         for n in &self.nodes {
             write!(
                 f,
@@ -312,6 +315,47 @@ impl Display for Brief<'_> {
                 None => String::new(),
             },
             mb(bytes)
-        )
+        )?;
+        if let Some(text) = gave_up(p) {
+            write!(f, "\n  {text}")?;
+        }
+        Ok(())
     }
+}
+
+/// What the plan gave up to meet its frame budget, one line, or `None` when nothing was.
+fn gave_up(p: &Plan) -> Option<String> {
+    if p.concessions.is_empty() {
+        return None;
+    }
+    let mut steps: Vec<String> = Vec::new();
+    for c in &p.concessions {
+        let name = match c.knob {
+            Knob::ShadowMaps => "shadow maps",
+            Knob::SamplesPerAreaLight => "samples per area light",
+            Knob::Epsilon => "ε",
+        };
+        // Consecutive steps of one knob read as one change.
+        match steps.last_mut() {
+            Some(last) if last.starts_with(name) => {
+                if let Some(at) = last.rfind(" → ") {
+                    last.replace_range(at.., &format!(" → {}", c.to));
+                }
+            }
+            _ => steps.push(format!("{name} {} → {}", c.from, c.to)),
+        }
+    }
+    let db: f32 = p.concessions.iter().filter_map(|c| c.expected_db).sum();
+    let bound = if p.concessions.iter().any(|c| c.knob == Knob::Epsilon) {
+        format!(
+            "; dropped samples add at most {:.1e} to a pixel",
+            p.epsilon_used
+        )
+    } else {
+        String::new()
+    };
+    Some(format!(
+        "gave up for the budget: {} (expected penumbra PSNR {db:+.1} dB by the error model{bound})",
+        steps.join(", ")
+    ))
 }

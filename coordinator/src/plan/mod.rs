@@ -4,6 +4,7 @@
 //! the bytes of every link (ARCHITECTURE §9). No I/O, no clock, no randomness: the same inputs give
 //! the same plan, so the control loop can diff plans and tests can state properties of them.
 
+mod budget;
 mod config;
 mod cull;
 mod display;
@@ -16,6 +17,7 @@ mod topology;
 mod types;
 pub mod wire;
 
+pub use budget::{MAX_EPSILON, expected_penumbra_db};
 pub use group::{DEFAULT_FIXED_US, DEFAULT_LIGHT_US};
 pub use replan::{lights_moved, replan};
 pub use topology::BAND_OVERHEAD_BYTES;
@@ -75,6 +77,16 @@ pub(crate) fn plan_with(
     previous: Option<&Plan>,
 ) -> Result<Plan, PlanError> {
     validate(scene, cluster, options)?;
+    budget::within_budget(scene, cluster, options, previous, plan_once)
+}
+
+/// One plan of `scene` at the quality it asks for (a frame budget only picks K here).
+fn plan_once(
+    scene: &Scene,
+    cluster: &ClusterSpec,
+    options: &PlanOptions,
+    previous: Option<&Plan>,
+) -> Result<Plan, PlanError> {
     let cam = &scene.camera;
     // Direct samples, then the virtual point lights of indirect light (planned like the rest).
     let samples = lightfold_reference::indirect::scene_samples(scene);
@@ -428,6 +440,7 @@ pub(crate) fn plan_with(
         slope_bias: scene.quality.slope_bias,
         est_frame_us,
         frame_budget_us: options.frame_budget_us,
+        concessions: Vec::new(),
         addresses,
     })
 }

@@ -214,7 +214,9 @@ pub struct PlanOptions {
     pub material_own_node: bool,
     /// A frame-time budget (µs, by the nodes' cost model): K becomes the largest that keeps the
     /// slowest node within it, so the plan uses as few nodes as the budget allows (K from
-    /// `lights_per_node` is then ignored). The nearest K when no K fits.
+    /// `lights_per_node` is then ignored). When no K fits, quality is lowered step by step
+    /// (`plan/budget.rs`: map sizes, samples per area light, ε) and `Plan::concessions` says
+    /// what was given up; the fastest estimate, over the budget, when nothing more helps.
     #[serde(default)]
     pub frame_budget_us: Option<u64>,
     /// Antialiasing (`--aa N`): the control loop (`control::Live`) plans and renders the scene at
@@ -427,6 +429,33 @@ pub struct LinkPlan {
     pub bytes_per_frame: u64,
 }
 
+/// One step of accuracy a plan gave up to meet its frame budget (`plan/budget.rs`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Concession {
+    pub knob: Knob,
+    /// The knob's setting before and after the step, as printed (`16`, `8`; `512²–2048²`).
+    pub from: String,
+    pub to: String,
+    /// The plan's estimated frame time after the step (µs).
+    pub est_frame_us: u64,
+    /// Expected change of penumbra PSNR against the area-light truth by the planner's error
+    /// model (dB, ≤ 0; `None` where the model has no figure: ε's loss is a bound instead).
+    pub expected_db: Option<f32>,
+}
+
+/// The quality knobs a frame budget can lower, in the order the planner lowers them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Knob {
+    /// The largest shadow map the mismatch rule may give, halved down to its floor (or a larger
+    /// fixed size halved down to the default).
+    ShadowMaps,
+    /// Point samples per area light, halved down to one.
+    SamplesPerAreaLight,
+    /// ε, the radiance culled samples may add to a pixel, ×4 up to `budget::MAX_EPSILON`: the
+    /// least important samples (by their bound on what the camera sees) are dropped.
+    Epsilon,
+}
+
 /// Everything the cluster does for one scene and view.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Plan {
@@ -466,6 +495,10 @@ pub struct Plan {
     /// The frame budget the plan was asked to meet (`PlanOptions::frame_budget_us`).
     #[serde(default)]
     pub frame_budget_us: Option<u64>,
+    /// What the plan gave up to meet the frame budget, in the order given up (empty without a
+    /// budget, or when the requested quality fits it; `plan/budget.rs`).
+    #[serde(default)]
+    pub concessions: Vec<Concession>,
     /// Data addresses of the daemons the plan uses, by id.
     pub addresses: Vec<(String, String)>,
 }

@@ -1,0 +1,213 @@
+//! Meeting a frame budget by the cheapest loss of accuracy (`docs/planner.md` § Frame budgets).
+//!
+//! With `PlanOptions::frame_budget_us` the planner first picks K (the largest whose slowest node
+//! fits: fewest nodes, no accuracy lost). When even the fastest K is over the budget it lowers
+//! quality one step at a time, planning again after each, until the estimate fits or nothing is
+//! left to lower. Steps are kept only when they lower the estimate (once every node carries one
+//! light, fewer samples would only idle nodes), so a budget no plan meets gets the fastest
+//! estimate at the least loss, said to be over the budget:
+//!
+//! 1. **shadow maps**: the largest map the mismatch rule may give is halved down to the rule's
+//!    floor (a fixed size above the default is halved down to the default). Against the
+//!    area-light truth this costs nothing measurable on `balls` (`docs/accuracy/balls`: 1024² →
+//!    512² → 256² maps gave 46.70 → 47.53 → 48.46 dB penumbra PSNR at 16 samples, the wider PCF
+//!    footprint blurring like a penumbra), but the thin casters and near shadows of the
+//!    shadow-map hard cases need the larger maps (`docs/hard-cases.md`), so it stops at the floor;
+//! 2. **samples per area light**, halved down to one: the error model below, about −4 to −5 dB a
+//!    halving for half the lights' cost;
+//! 3. **ε**, ×4 a step up to [`MAX_EPSILON`]: the least important samples — those whose bound on
+//!    any visible pixel is smallest — are dropped, each step adding at most ε to a pixel (a bias
+//!    bound, not a PSNR figure).
+//!
+//! The plan records each step (`Plan::concessions`) with the estimate after it; the same inputs
+//! give the same steps, so a live session re-planning with nothing changed keeps its plan.
+
+use super::{ClusterSpec, Concession, Knob, MapSizing, Plan, PlanError, PlanOptions, scene_hash};
+use lightfold_scene::Scene;
+
+/// The most ε a frame budget raises the culling bound to (display units: about 4 8-bit sRGB
+/// steps at mid-grey).
+pub const MAX_EPSILON: f32 = 1.6e-2;
+
+/// The error model: penumbra PSNR (dB) against the area-light truth by point samples per area
+/// light, fitted to `docs/accuracy/balls` (grid pattern, 512² maps, PCF 2×2, 400×300):
+/// 1 → 27.39, 4 → 37.34, 16 → 47.53, 64 → 55.51, 256 → 58.09 dB. Piecewise linear in log₂ of
+/// the count, the last slope beyond 256. Only differences of it are used (a scene's own level
+/// differs; its slope is what the model claims).
+const SWEEP: [(f32, f32); 5] = [
+    (1.0, 27.39),
+    (4.0, 37.34),
+    (16.0, 47.53),
+    (64.0, 55.51),
+    (256.0, 58.09),
+];
+
+/// The model's penumbra PSNR at `n` samples per area light (see [`SWEEP`]).
+pub fn expected_penumbra_db(n: u32) -> f32 {
+    let x = (n.max(1) as f32).log2();
+    let pts: Vec<(f32, f32)> = SWEEP.iter().map(|&(n, db)| (n.log2(), db)).collect();
+    let seg = pts
+        .windows(2)
+        .find(|w| x <= w[1].0)
+        .unwrap_or(&pts[pts.len() - 2..]);
+    let (x0, y0) = seg[0];
+    let (x1, y1) = seg[1];
+    y0 + (x - x0) * (y1 - y0) / (x1 - x0)
+}
+
+/// The largest sample count of the scene's area lights (the count their samples come from).
+fn area_samples(scene: &Scene) -> Option<u32> {
+    let q = &scene.quality;
+    scene
+        .lights
+        .iter()
+        .filter(|l| l.is_area())
+        .map(|l| q.samples_per_area_light.unwrap_or(l.samples).max(1))
+        .max()
+}
+
+fn maps_text(m: MapSizing) -> String {
+    match m {
+        MapSizing::Fixed(n) => format!("{n}²"),
+        MapSizing::Mismatch { min, max, .. } => format!("{min}²–{max}²"),
+        MapSizing::Scene => "the scene's".to_string(),
+    }
+}
+
+/// One step down of `knob` from `(scene, options)`, or `None` when it is at its floor.
+fn lower(
+    knob: Knob,
+    scene: &Scene,
+    options: &PlanOptions,
+) -> Option<(Scene, PlanOptions, String, String, Option<f32>)> {
+    match knob {
+        Knob::ShadowMaps => {
+            let floor = lightfold_scene::defaults::SHADOW_MAP_SIZE;
+            let now = options.map_sizing.resolve(&scene.quality);
+            let next = match now {
+                MapSizing::Mismatch { min, max, target } if max > min => MapSizing::Mismatch {
+                    min,
+                    max: (max / 2).max(min),
+                    target,
+                },
+                MapSizing::Fixed(n) if n > floor => MapSizing::Fixed((n / 2).max(floor)),
+                _ => return None,
+            };
+            let o = PlanOptions {
+                map_sizing: next,
+                ..options.clone()
+            };
+            Some((scene.clone(), o, maps_text(now), maps_text(next), Some(0.0)))
+        }
+        Knob::SamplesPerAreaLight => {
+            let n = area_samples(scene)?;
+            if n <= 1 {
+                return None;
+            }
+            let mut s = scene.clone();
+            let half = |c: u32| (c / 2).max(1);
+            s.quality.samples_per_area_light = s.quality.samples_per_area_light.map(half);
+            for l in s.lights.iter_mut().filter(|l| l.is_area()) {
+                l.samples = half(l.samples.max(1));
+            }
+            let m = area_samples(&s)?;
+            let db = expected_penumbra_db(m) - expected_penumbra_db(n);
+            Some((s, options.clone(), n.to_string(), m.to_string(), Some(db)))
+        }
+        Knob::Epsilon => {
+            if options.force_all || options.epsilon >= MAX_EPSILON {
+                return None;
+            }
+            let next = if options.epsilon > 0.0 {
+                (options.epsilon * 4.0).min(MAX_EPSILON)
+            } else {
+                super::DEFAULT_EPSILON
+            };
+            let o = PlanOptions {
+                epsilon: next,
+                ..options.clone()
+            };
+            let text = |e: f32| format!("{e:.1e}");
+            Some((scene.clone(), o, text(options.epsilon), text(next), None))
+        }
+    }
+}
+
+/// The ladder's order (the module documentation says why).
+const LADDER: [Knob; 3] = [Knob::ShadowMaps, Knob::SamplesPerAreaLight, Knob::Epsilon];
+
+/// Plans `scene`, lowering quality step by step while a frame budget is not met (module
+/// documentation). `plan_once` plans one setting.
+pub(crate) fn within_budget(
+    scene: &Scene,
+    cluster: &ClusterSpec,
+    options: &PlanOptions,
+    previous: Option<&Plan>,
+    plan_once: fn(&Scene, &ClusterSpec, &PlanOptions, Option<&Plan>) -> Result<Plan, PlanError>,
+) -> Result<Plan, PlanError> {
+    let first = plan_once(scene, cluster, options, previous)?;
+    let Some(budget) = options.frame_budget_us else {
+        return Ok(first);
+    };
+    let (mut scene_now, mut options_now) = (scene.clone(), options.clone());
+    let mut best = first;
+    let mut concessions = Vec::new();
+    for knob in LADDER {
+        'knob: while best.est_frame_us > budget {
+            // The fewest further steps of this knob that lower the estimate (one ε step may
+            // drop nothing; the next may drop a light and free a node).
+            let (mut s, mut o) = (scene_now.clone(), options_now.clone());
+            let mut steps = Vec::new();
+            loop {
+                let Some((s2, o2, from, to, db)) = lower(knob, &s, &o) else {
+                    break 'knob;
+                };
+                let p = match plan_once(&s2, cluster, &o2, previous) {
+                    Ok(p) => p,
+                    // Only a lowered setting fails here (e.g. ε drops every sample of a group
+                    // the cluster cannot spare): the knob stops where it is.
+                    Err(_) => break 'knob,
+                };
+                steps.push(Concession {
+                    knob,
+                    from,
+                    to,
+                    est_frame_us: p.est_frame_us,
+                    expected_db: db,
+                });
+                (s, o) = (s2, o2);
+                if p.est_frame_us < best.est_frame_us {
+                    concessions.append(&mut steps);
+                    (scene_now, options_now, best) = (s, o, p);
+                    break;
+                }
+            }
+        }
+    }
+    // Nodes hold the scene they were sent: the plan names it, not the lowered copy the samples
+    // were drawn from (the samples travel in the configurations).
+    best.scene_hash = scene_hash(scene);
+    best.concessions = concessions;
+    Ok(best)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_model_goes_through_the_sweep_and_rises_with_samples() {
+        for (n, db) in SWEEP {
+            assert!((expected_penumbra_db(n as u32) - db).abs() < 1e-4, "{n}");
+        }
+        let mut last = f32::MIN;
+        for n in 1..=1024 {
+            let db = expected_penumbra_db(n);
+            assert!(db > last, "{n}: {db} after {last}");
+            last = db;
+        }
+        // Halving 16 costs the 8 → 16 slope: about 5 dB.
+        let d = expected_penumbra_db(8) - expected_penumbra_db(16);
+        assert!((-5.2..=-5.0).contains(&d), "{d}");
+    }
+}
