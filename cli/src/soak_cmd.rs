@@ -352,6 +352,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     camera: Some(camera),
                     light_colors: Vec::new(),
                     time: None,
+                    frame_budget_us: None,
                 };
                 tokio::select! {
                     biased;

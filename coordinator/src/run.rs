@@ -132,6 +132,7 @@ pub fn frame_specs(scene: &Scene, opts: &RunOptions) -> Vec<FrameSpec> {
                 camera,
                 light_colors: colors.clone(),
                 time: opts.time_of(i),
+                frame_budget_us: None,
             }
         })
         .collect()

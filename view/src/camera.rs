@@ -15,6 +15,9 @@ const MAX_TURN_DEG: f32 = 360.0;
 const MAX_ZOOM_STEP: f32 = 10.0;
 /// Largest colour component and power multiplier a viewer may set.
 pub const MAX_LIGHT_VALUE: f32 = 1000.0;
+/// Frame budgets a viewer may set, milliseconds.
+pub const MIN_BUDGET_MS: f32 = 1.0;
+pub const MAX_BUDGET_MS: f32 = 600_000.0;
 /// Coordinates beyond this are refused (the scene's own bounds are far smaller).
 const MAX_COORDINATE: f32 = 1e7;
 
@@ -49,6 +52,9 @@ pub struct Steer {
     pub lights: Vec<LightSetting>,
     /// Scene time of an animated scene.
     pub clock: Clock,
+    /// The frame budget a viewer set (µs; `Some(None)`: none); `None` until one does (the
+    /// session's own, `--frame-budget`, holds).
+    pub frame_budget_us: Option<Option<u64>>,
     /// Counts changes, from 0 (the scene as loaded).
     pub revision: u64,
 }
@@ -104,8 +110,27 @@ impl Steer {
                     0.0
                 },
             },
+            frame_budget_us: None,
             revision: 0,
         }
+    }
+
+    /// Sets the frame budget the planner meets (`None`: none, planning at the scene's quality).
+    pub fn set_budget(&mut self, ms: Option<f32>) -> Result<(), SteerError> {
+        let us = match ms {
+            None => None,
+            Some(ms) => {
+                finite(&[ms], "frame budget")?;
+                if !(MIN_BUDGET_MS..=MAX_BUDGET_MS).contains(&ms) {
+                    return Err(SteerError::OutOfRange(format!(
+                        "a frame budget is between {MIN_BUDGET_MS} and {MAX_BUDGET_MS} ms"
+                    )));
+                }
+                Some((f64::from(ms) * 1e3).round() as u64)
+            }
+        };
+        self.frame_budget_us = Some(us);
+        Ok(())
     }
 
     /// Jumps to scene time `t` (playing on from there if playing).
@@ -148,6 +173,7 @@ impl Steer {
                 .map(|(i, l)| (i as u32, l.color.map(|c| c * l.intensity)))
                 .collect(),
             time: self.clock.animated().then(|| self.clock.now()),
+            frame_budget_us: self.frame_budget_us,
         }
     }
 

@@ -157,6 +157,8 @@ pub fn plan(p: &Plan) -> Value {
         "nodes": nodes, "stages": stages, "links": links, "sink": p.sink, "k": p.k,
         "idle": p.idle_nodes, "est_frame_ms": p.est_frame_us as f64 / 1000.0,
         "walkthrough": p.walkthrough,
+        "frame_budget_ms": p.frame_budget_us.map(|b| b as f64 / 1000.0),
+        "samples": p.samples.len(), "gave_up": p.gave_up(),
     })
 }
 

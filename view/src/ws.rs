@@ -47,6 +47,10 @@ enum Input {
     },
     Play,
     Pause,
+    /// The frame budget the planner meets, milliseconds (`null`: none).
+    Budget {
+        ms: Option<f32>,
+    },
 }
 
 #[derive(Debug, Deserialize)]
@@ -286,6 +290,7 @@ impl Viewer {
                     next.play(false);
                     Ok(())
                 }
+                Input::Budget { ms } => next.set_budget(ms),
                 Input::Hello { .. } | Input::Render | Input::Stats => Ok(()),
             };
             if result.is_ok() && next != *s {

@@ -336,6 +336,11 @@
     tickAnimation();
   });
   $('btn-render').addEventListener('click', () => send({ type: 'render' }));
+  $('budget-form').addEventListener('submit', (e) => {
+    e.preventDefault();
+    const v = $('budget').value.trim();
+    send({ type: 'budget', ms: v === '' ? null : Number(v) });
+  });
   $('token-form').addEventListener('submit', (e) => {
     e.preventDefault();
     const token = $('token').value;
@@ -457,7 +462,10 @@
     planKey = key;
     const box = $('plan');
     if (!plan || !plan.nodes) { box.replaceChildren(el('div', { class: 'dim', text: 'no plan yet' })); return; }
-    $('plan-summary').textContent = `K ${plan.k ?? '–'} · est. ${ms(plan.est_frame_ms)}/frame`;
+    const budget = plan.frame_budget_ms != null ? ` · budget ${ms(plan.frame_budget_ms)}` : '';
+    $('plan-summary').textContent = `K ${plan.k ?? '–'} · ${plan.samples ?? '–'} samples · est. ${ms(plan.est_frame_ms)}/frame${budget}`;
+    $('gave-up').hidden = !plan.gave_up;
+    $('gave-up').textContent = plan.gave_up || '';
     const items = new Map(); // id -> {kind, col, lines}
     for (const n of plan.nodes) {
       const lights = Array.isArray(n.lights) ? n.lights.length : n.lights;

@@ -1,7 +1,8 @@
 //! The live view over an in-process cluster: frames reach a WebSocket client, a camera change is
 //! in the next frame requested and matches the single-device render from the new camera, a
 //! colour change re-renders no node, a colour that splits a node's colour group re-plans and the
-//! page is told, and a stalled viewer does not hold the cluster back.
+//! page is told, a frame budget from the page re-plans at a lowered quality that the frames then
+//! match, and a stalled viewer does not hold the cluster back.
 
 mod client;
 
@@ -219,6 +220,71 @@ async fn a_colour_that_splits_a_colour_group_replans_and_the_page_is_told() {
             .await;
         let reason = status["epochs"][1]["reason"].as_str().unwrap().to_string();
         assert!(reason.contains("split"), "{reason}");
+    })
+    .await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_budget_from_the_page_replans_and_frames_match_the_lowered_quality() {
+    let scene = small("balls");
+    let plan = plan_options(&scene, 4);
+    let s2 = scene.clone();
+    with_view(scene, plan, loopback(), |addr, delivered, _| async move {
+        let mut c = Client::connect(addr).await;
+        c.expect("welcome").await;
+        c.frame().await;
+        for bad in [json!(-5.0), json!(0.0), json!(1e9), json!("fast")] {
+            let e = c.try_steer(json!({"type": "budget", "ms": bad})).await;
+            assert!(e.is_some(), "budget {bad} was taken");
+        }
+        // 1 ms: no plan meets it; the samples of both area lights go down to one each (K = 1),
+        // maps stay at the scene's fixed size.
+        let revision = c.steer(json!({"type": "budget", "ms": 1.0})).await;
+        let notice = c.expect("notice").await;
+        assert!(
+            notice["text"]
+                .as_str()
+                .unwrap()
+                .contains("frame budget 1.0 ms"),
+            "{notice}"
+        );
+        let (f, _) = until_revision(&mut c, revision).await;
+        let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
+        let mut lowered = s2.clone();
+        lowered.quality.samples_per_area_light = Some(1);
+        let got = delivered_frame(&delivered, frame_number(&f));
+        assert_close(
+            &got,
+            &single_device(&gpu, &lowered, true),
+            "the frame under the budget",
+        );
+        // Negative control: the scene's own quality is another image.
+        let full = single_device(&gpu, &s2, true);
+        let diff = got
+            .data
+            .iter()
+            .zip(&full.data)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(diff > 0.05, "one sample per light looks like four ({diff})");
+        let status = c.status_where(|s| s["plan"]["gave_up"].is_string()).await;
+        let gave_up = status["plan"]["gave_up"].as_str().unwrap();
+        assert!(
+            gave_up.contains("samples per area light 4 → 1"),
+            "{gave_up}"
+        );
+        assert_eq!(status["plan"]["frame_budget_ms"], 1.0);
+        assert_eq!(status["plan"]["samples"], 2);
+        // No budget again: the scene's quality.
+        let revision = c.steer(json!({"type": "budget", "ms": null})).await;
+        let (f, _) = until_revision(&mut c, revision).await;
+        assert_close(
+            &delivered_frame(&delivered, frame_number(&f)),
+            &full,
+            "the frame without a budget",
+        );
+        let status = c.status_where(|s| s["plan"]["samples"] == 8).await;
+        assert!(status["plan"]["gave_up"].is_null(), "{status}");
     })
     .await;
 }

@@ -323,7 +323,13 @@ impl Display for Brief<'_> {
     }
 }
 
-/// What the plan gave up to meet its frame budget, one line, or `None` when nothing was.
+impl Plan {
+    /// What the plan gave up to meet its frame budget, one line, or `None` when nothing was.
+    pub fn gave_up(&self) -> Option<String> {
+        gave_up(self)
+    }
+}
+
 fn gave_up(p: &Plan) -> Option<String> {
     if p.concessions.is_empty() {
         return None;

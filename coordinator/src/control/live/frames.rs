@@ -78,6 +78,23 @@ impl Live<'_> {
             let Some(plan) = &self.plan else {
                 break;
             };
+            if let Some(budget) = spec.frame_budget_us
+                && budget != self.opts.frame_budget_us
+            {
+                // Plan under the new budget, then send this frame under the new epoch.
+                self.opts.frame_budget_us = budget;
+                self.queue.push_front((index, spec));
+                let why = match budget {
+                    Some(us) => format!(
+                        "frame budget {:.1} ms from frame {index}: re-planning",
+                        us as f64 / 1e3
+                    ),
+                    None => format!("no frame budget from frame {index}: re-planning"),
+                };
+                self.notice(why.clone());
+                self.need_replan = Some(why);
+                break;
+            }
             let wire = self.session.base + index;
             let params = match frame_params(plan, &spec.light_colors, index) {
                 Ok(p) => p,

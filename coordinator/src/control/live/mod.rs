@@ -64,6 +64,10 @@ pub struct FrameSpec {
     pub light_colors: Vec<(u32, [f32; 3])>,
     /// Scene time (seconds) an animated scene is posed at; `None`: the rest pose.
     pub time: Option<f32>,
+    /// The frame budget to plan under from this frame on (µs; `Some(None)`: none), where it
+    /// differs from the session's: the loop re-plans before sending the frame
+    /// (`plan/budget.rs`). `None` keeps the session's.
+    pub frame_budget_us: Option<Option<u64>>,
 }
 
 /// Something that happened to a daemon during the run.
