@@ -106,6 +106,14 @@ impl NodeCost {
         }
     }
 
+    /// Both parts × `k` (the live loop's correction from measured frames).
+    pub fn scaled(self, k: f64) -> NodeCost {
+        NodeCost {
+            light_us: self.light_us * k,
+            fixed_us: self.fixed_us * k,
+        }
+    }
+
     /// One light: half eye-pass share, half shadow passes (per view, growing with the map side).
     pub fn light(&self, shadow: &ShadowPlan) -> f64 {
         let views = shadow.views.count() as f64 * shadow.map_size as f64 / 512.0;

@@ -157,7 +157,7 @@ fn plan_once(
     let costs: Vec<NodeCost> = cluster
         .nodes
         .iter()
-        .map(|n| NodeCost::of(n, pixels))
+        .map(|n| NodeCost::of(n, pixels).scaled(options.cost_scale))
         .collect();
     // Nodes report their limit at 512² maps: larger maps take fewer lights per node.
     let largest_map = shadows.iter().flatten().map(|s| s.map_size).max();
@@ -460,6 +460,9 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
     }
     if o.frames_in_flight == 0 {
         return bad_options("frames in flight must be at least 1");
+    }
+    if !(o.cost_scale > 0.0 && o.cost_scale <= 1e6) {
+        return bad_options("cost scale must be positive and at most 1e6");
     }
     if !(o.epsilon >= 0.0 && o.epsilon.is_finite()) {
         return bad_options("epsilon must be finite and non-negative");

@@ -226,10 +226,19 @@ pub struct PlanOptions {
     /// planner itself (`plan()`) plans the camera it is given.
     #[serde(default = "one")]
     pub supersample: u32,
+    /// Multiplies every node's cost model (1: as the nodes registered it, or the defaults). The
+    /// live loop sets it from measured frames under a frame budget (`control::Live`,
+    /// `docs/planner.md` § Frame budgets), so the budget is met by what frames take.
+    #[serde(default = "unit")]
+    pub cost_scale: f64,
 }
 
 fn one() -> u32 {
     1
+}
+
+fn unit() -> f64 {
+    1.0
 }
 
 /// Default ε: about a quarter of one 8-bit sRGB code value at mid-grey (a step there is ≈ 4e-3
@@ -263,6 +272,7 @@ impl Default for PlanOptions {
             material_own_node: false,
             frame_budget_us: None,
             supersample: 1,
+            cost_scale: 1.0,
         }
     }
 }

@@ -36,6 +36,23 @@ impl Live<'_> {
         let Some(image) = f.image else {
             return;
         };
+        if let Some(plan) = &self.plan
+            && self.opts.frame_budget_us.is_some()
+            && !f.warming
+            && plan.epoch == image.epoch
+            && plan.est_frame_us > 0
+        {
+            // The slowest node's own work (sending waits on the pipeline, not on the model).
+            let slowest = f
+                .stats
+                .iter()
+                .filter(|s| plan.nodes.iter().any(|n| n.node == s.daemon_id))
+                .map(|s| s.pose_us + s.shadow_us + s.eye_us + s.readback_us + s.pack_us)
+                .max();
+            if let Some(t) = slowest {
+                self.measured.push(t as f64);
+            }
+        }
         self.done.insert(
             f.index,
             FrameResult {
@@ -83,6 +100,7 @@ impl Live<'_> {
             {
                 // Plan under the new budget, then send this frame under the new epoch.
                 self.opts.frame_budget_us = budget;
+                self.over_budget.clear();
                 self.queue.push_front((index, spec));
                 let why = match budget {
                     Some(us) => format!(

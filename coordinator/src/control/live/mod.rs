@@ -53,6 +53,12 @@ const RESET_DEBOUNCE: Duration = Duration::from_millis(300);
 const MAX_REPLANS_WITHOUT_PROGRESS: u32 = 8;
 /// How much longer the first frames of an epoch may take before they count as slow.
 const WARM_UP: f64 = 3.0;
+/// Settled frames an epoch measures before the cost model is checked against them, and how far
+/// (as a factor either way) the median may stray from the estimate before it is corrected.
+const ADAPT_FRAMES: usize = 6;
+const ADAPT_BAND: f64 = 1.25;
+/// Frames under this share of the budget may re-plan for more quality.
+const RAISE_BELOW: f64 = 0.8;
 /// Sink warnings (stray connections) logged at most this often.
 const WARNING_EVERY: Duration = Duration::from_secs(1);
 
@@ -190,6 +196,12 @@ pub struct Live<'s> {
     bytes: Vec<u8>,
     hash: [u8; 32],
     plan: Option<Plan>,
+    /// Under a frame budget: each settled frame of this epoch, its slowest node's measured
+    /// render time (µs; `adapt_costs`), and the cost model's estimate of it at its current scale.
+    measured: Vec<f64>,
+    model_est_us: u64,
+    /// Plans (`choices`) whose frames were measured over the current budget.
+    over_budget: std::collections::HashSet<String>,
     /// The plan's daemons, compositors first.
     participants: Vec<String>,
     established_at: Instant,
@@ -258,6 +270,9 @@ impl<'s> Live<'s> {
             // Nodes decode what they receive and check it against this.
             hash: scene_hash,
             plan: None,
+            measured: Vec::new(),
+            model_est_us: 0,
+            over_budget: std::collections::HashSet::new(),
             participants: Vec::new(),
             established_at: Instant::now(),
             sent_in_epoch: 0,
@@ -702,6 +717,72 @@ impl<'s> Live<'s> {
         if self.pending_join.is_some() && self.inflight.is_empty() {
             return self.pending_join.take();
         }
-        None
+        self.adapt_costs()
     }
+
+    /// Under a frame budget, once `ADAPT_FRAMES` settled frames of an epoch are measured: when
+    /// their median slowest node differs from the cost model's estimate by more than
+    /// `ADAPT_BAND`×, the model is scaled by it (`PlanOptions::cost_scale`). A re-plan is due only
+    /// when the corrected model changes the plan's choices (K, samples, what was given up,
+    /// lights per node) and the frames are over the budget, or under `RAISE_BELOW` of it; a plan
+    /// whose frames were measured over this budget is never chosen again (no oscillation
+    /// between two plans the model cannot tell apart).
+    fn adapt_costs(&mut self) -> Option<String> {
+        let budget = self.opts.frame_budget_us?;
+        if self.measured.len() < ADAPT_FRAMES || self.model_est_us == 0 {
+            return None;
+        }
+        let mut m = std::mem::take(&mut self.measured);
+        m.sort_by(f64::total_cmp);
+        let took = m[m.len() / 2];
+        let current = self.plan.as_ref()?;
+        let over = took > budget as f64;
+        if over {
+            self.over_budget.insert(choices(current));
+        }
+        let factor = took / self.model_est_us as f64;
+        if !(factor.is_finite() && factor > 0.0) || factor.ln().abs() <= ADAPT_BAND.ln() {
+            return None;
+        }
+        let mut o = self.opts.clone();
+        o.cost_scale = (o.cost_scale * factor).clamp(1e-4, 1e4);
+        let cluster = crate::run::cluster_spec(self.session);
+        let candidate = crate::plan::replan(&self.scene, &cluster, &o, current).ok()?;
+        let text = format!(
+            "measured frames take {factor:.3}× the cost model's estimate ({:.2} ms against {:.2} ms)",
+            took / 1e3,
+            self.model_est_us as f64 / 1e3
+        );
+        self.opts.cost_scale = o.cost_scale;
+        let key = choices(&candidate);
+        let act = over || took < RAISE_BELOW * budget as f64;
+        if key == choices(current) || !act || self.over_budget.contains(&key) {
+            tracing::info!("{text}: the corrected cost model keeps the plan");
+            self.model_est_us = candidate.est_frame_us;
+            return None;
+        }
+        let why = format!(
+            "{text}: re-planning for the {:.1} ms budget",
+            budget as f64 / 1e3
+        );
+        self.notice(why.clone());
+        Some(why)
+    }
+}
+
+/// What a plan chose, estimates aside: K, what it gave up, the active samples and each node's
+/// lights (two plans with the same key render the same frames at the same cost).
+fn choices(p: &Plan) -> String {
+    let given: Vec<(crate::plan::Knob, &str)> = p
+        .concessions
+        .iter()
+        .map(|c| (c.knob, c.to.as_str()))
+        .collect();
+    let lights: Vec<&[usize]> = p.nodes.iter().map(|n| n.lights.as_slice()).collect();
+    format!(
+        "K {} · {given:?} · {} samples, active {:?} · {lights:?}",
+        p.k,
+        p.samples.len(),
+        p.active
+    )
 }

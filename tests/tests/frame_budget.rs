@@ -1,0 +1,100 @@
+//! A frame budget in a live session is checked against measured frames: a cost model that is
+//! 1000× too optimistic plans the scene at full quality, the loop measures the frames, corrects
+//! the model and re-plans once at the quality the budget allows, and then stays (no
+//! oscillation); one 1000× too pessimistic starts at the lowest quality and is raised once.
+//! Without a budget the same wrong model changes nothing.
+
+use lightfold_coordinator::control::{FrameSpec, Live, LiveSummary};
+use lightfold_coordinator::plan::{Knob, MapSizing, PlanOptions};
+use lightfold_tests::{InProcessCluster, small, test_control};
+
+/// Runs `frames` frames of small balls (two area lights of 4 samples) on three nodes.
+async fn run(opts: PlanOptions, frames: usize) -> LiveSummary {
+    let scene = small("balls");
+    let cluster = InProcessCluster::start(3, 3).await.unwrap();
+    let mut session = cluster.connect(test_control()).await.unwrap();
+    let (tx, rx) = tokio::sync::mpsc::channel(2);
+    let mut live = Live::new(&mut session, &scene, &opts).unwrap();
+    let feed = async {
+        for _ in 0..frames {
+            if tx.send(FrameSpec::default()).await.is_err() {
+                break;
+            }
+        }
+        drop(tx);
+    };
+    let mut delivered = 0;
+    let (r, ()) = tokio::time::timeout(lightfold_tests::RUN_DEADLINE, async {
+        tokio::join!(live.run(rx, |_| delivered += 1), feed)
+    })
+    .await
+    .expect("the run timed out");
+    r.unwrap();
+    assert_eq!(delivered, frames);
+    let summary = std::mem::take(&mut live.summary);
+    drop(live);
+    cluster.stop().await.unwrap();
+    summary
+}
+
+/// The model believes the nodes 1000× faster than they are.
+fn options(budget_us: Option<u64>) -> PlanOptions {
+    PlanOptions {
+        frame_budget_us: budget_us,
+        map_sizing: MapSizing::Fixed(512),
+        cost_scale: 1e-3,
+        ..PlanOptions::default()
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn measured_frames_correct_the_cost_model_once_and_the_plan_stays() {
+    // 1 ms: met by the wrong model at full quality, by no plan once the model is corrected.
+    let s = run(options(Some(1000)), 40).await;
+    let reasons: Vec<&str> = s.epochs.iter().map(|e| e.reason.as_str()).collect();
+    eprintln!("epochs: {reasons:?}");
+    assert_eq!(reasons.len(), 2, "{reasons:?}");
+    assert!(
+        reasons[1].contains("measured frames take") && reasons[1].contains("1.0 ms budget"),
+        "{reasons:?}"
+    );
+    let first = &s.epochs[0];
+    let plan = s.plan.as_ref().unwrap();
+    assert!(plan.k < first.k || plan.samples.len() < 8, "{plan}");
+    let given: Vec<(Knob, &str)> = plan
+        .concessions
+        .iter()
+        .map(|c| (c.knob, c.to.as_str()))
+        .collect();
+    assert!(
+        given.contains(&(Knob::SamplesPerAreaLight, "1")),
+        "{given:?}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn without_a_budget_measured_frames_change_nothing() {
+    let s = run(options(None), 20).await;
+    assert_eq!(s.epochs.len(), 1, "{:?}", s.epochs);
+    assert!(s.plan.unwrap().concessions.is_empty());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_pessimistic_model_starts_low_and_measured_frames_raise_the_quality_once() {
+    // 10 s: missed by every plan of a model 1000× too slow, met at full quality by the frames.
+    let o = PlanOptions {
+        cost_scale: 1e3,
+        ..options(Some(10_000_000))
+    };
+    let s = run(o, 40).await;
+    let reasons: Vec<&str> = s.epochs.iter().map(|e| e.reason.as_str()).collect();
+    eprintln!("epochs: {reasons:?}");
+    assert_eq!(reasons.len(), 2, "{reasons:?}");
+    assert!(
+        reasons[1].contains("measured frames take 0.00"),
+        "{reasons:?}"
+    );
+    let plan = s.plan.as_ref().unwrap();
+    assert!(plan.concessions.is_empty(), "{plan}");
+    assert_eq!(plan.samples.len(), 8);
+}
