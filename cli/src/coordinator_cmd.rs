@@ -187,6 +187,11 @@ pub struct JobArgs {
     /// are given up until it does (the plan says what it gave up).
     #[arg(long, value_parser = crate::coordinator_cmd::positive_ms)]
     pub frame_budget: Option<f64>,
+    /// Error target: penumbra PSNR in dB against the area-light truth. The area lights' samples
+    /// are halved or doubled to the fewest the planner's error model (fitted to the default
+    /// scene's accuracy sweep) expects to reach it; `lightfold accuracy` measures what it gives.
+    #[arg(long, value_parser = crate::coordinator_cmd::target_db)]
+    pub target_psnr: Option<f32>,
     /// Frames requested ahead of the one being finished: 2 keeps every stage busy (the
     /// pipelined rate of the slowest stage), 1 shortens the live view's latency at lower rate.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=8))]
@@ -257,6 +262,7 @@ impl JobArgs {
             map_sizing: lightfold_coordinator::plan::MapSizing::from_request(self.shadow_map_size),
             material_own_node: self.material_own_node,
             frame_budget_us: self.frame_budget.map(|b| (b * 1000.0).round() as u64),
+            target_penumbra_db: self.target_psnr,
             frames_in_flight: self.frames_in_flight,
             formats: self.formats(),
             supersample: self.aa,
@@ -384,6 +390,14 @@ pub fn positive_fps(s: &str) -> Result<f32, String> {
         _ => Err(format!(
             "{s:?} is not a positive number of frames per second"
         )),
+    }
+}
+
+/// A penumbra PSNR target in dB (`--target-psnr`): finite, in (0, 200).
+pub fn target_db(s: &str) -> Result<f32, String> {
+    match s.parse::<f32>() {
+        Ok(v) if v > 0.0 && v < 200.0 => Ok(v),
+        _ => Err(format!("{s:?} is not a PSNR in dB between 0 and 200")),
     }
 }
 

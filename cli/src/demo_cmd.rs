@@ -530,6 +530,9 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
     if let Some(b) = job.frame_budget {
         cmd.arg("--frame-budget").arg(b.to_string());
     }
+    if let Some(t) = job.target_psnr {
+        cmd.arg("--target-psnr").arg(t.to_string());
+    }
     cmd.arg("--out").arg(&job.out).arg("--exr").arg(&job.exr);
     if let Some(p) = &job.frame_pattern {
         cmd.arg("--frame-pattern").arg(p);
@@ -610,6 +613,8 @@ mod tests {
             "chain=f32x6,material=rgba8srgb",
             "--frame-budget",
             "250",
+            "--target-psnr",
+            "42.5",
         ];
         let job = Cli::parse_from(given).job;
         let mut cmd = Command::new("lightfold");

@@ -73,6 +73,11 @@ pub struct Args {
     /// are given up until it does (the plan says what it gave up).
     #[arg(long, value_parser = crate::coordinator_cmd::positive_ms)]
     pub frame_budget: Option<f64>,
+    /// Error target: penumbra PSNR in dB against the area-light truth. The area lights' samples
+    /// are halved or doubled to the fewest the planner's error model (fitted to the default
+    /// scene's accuracy sweep) expects to reach it; `lightfold accuracy` measures what it gives.
+    #[arg(long, value_parser = crate::coordinator_cmd::target_db)]
+    pub target_psnr: Option<f32>,
 }
 
 impl Args {
@@ -110,6 +115,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         epsilon: args.epsilon,
         material_own_node: args.material_own_node,
         frame_budget_us: args.frame_budget.map(|b| (b * 1000.0).round() as u64),
+        target_penumbra_db: args.target_psnr,
         ..PlanOptions::default()
     };
     if let Some(n) = args.shadow_map_size {

@@ -200,3 +200,76 @@ proptest! {
         prop_assert_eq!(&again.nodes, &p.nodes);
     }
 }
+
+#[test]
+fn an_error_target_picks_the_fewest_samples_the_model_expects_to_reach_it() {
+    let s = balls();
+    let with_target = |t: f32| {
+        plan(
+            &s,
+            &ClusterSpec::local(64, 64),
+            &PlanOptions {
+                target_penumbra_db: Some(t),
+                ..PlanOptions::default()
+            },
+        )
+        .unwrap()
+    };
+    let free = with_budget(&s, None);
+    // balls has two area lights of 16: the model's 8 → 42.4, 16 → 47.5, 32 → 51.5 dB.
+    for (target, per_light) in [(40.0, 8u32), (47.0, 16), (50.0, 32), (20.0, 1)] {
+        let p = with_target(target);
+        let t = p.target.clone().unwrap();
+        assert_eq!((t.from, t.to), (16, per_light), "target {target}");
+        assert!(t.reachable && t.expected_db >= target, "{t:?}");
+        // One fewer halving would miss it (or it is already one sample).
+        assert!(per_light == 1 || expected_penumbra_db(per_light / 2) < target);
+        assert_eq!(p.samples.len(), 2 * per_light as usize);
+        for (a, b) in energy(&p).iter().zip(energy(&free)) {
+            assert!((a - b).abs() <= 1e-4 * b.abs(), "{a} against {b}");
+        }
+        assert!(
+            p.to_string()
+                .contains(&format!("error target {target:.1} dB"))
+        );
+        assert_eq!(p.scene_hash, scene_hash(&s));
+    }
+    // Beyond what the model expects of any count it measured: its last (256), out of reach.
+    let p = plan(
+        &s,
+        &ClusterSpec::local(256, 256),
+        &PlanOptions {
+            target_penumbra_db: Some(90.0),
+            ..PlanOptions::default()
+        },
+    )
+    .unwrap();
+    let t = p.target.clone().unwrap();
+    assert!(!t.reachable && t.to == 256, "{t:?}");
+    assert!(p.to_string().contains("out of reach"));
+    // A budget lowers from the target's choice, not from the scene's.
+    let both = plan(
+        &s,
+        &eight(),
+        &PlanOptions {
+            target_penumbra_db: Some(50.0),
+            frame_budget_us: Some(free.est_frame_us),
+            ..PlanOptions::default()
+        },
+    )
+    .unwrap();
+    let first = both
+        .concessions
+        .iter()
+        .find(|c| c.knob == Knob::SamplesPerAreaLight)
+        .unwrap();
+    assert_eq!(first.from, "32");
+    // Bad targets are refused.
+    for bad in [0.0, -3.0, f32::NAN, 250.0] {
+        let o = PlanOptions {
+            target_penumbra_db: Some(bad),
+            ..PlanOptions::default()
+        };
+        assert!(plan(&s, &eight(), &o).is_err(), "{bad}");
+    }
+}

@@ -19,10 +19,17 @@
 //!    any visible pixel is smallest — are dropped, each step adding at most ε to a pixel (a bias
 //!    bound, not a PSNR figure).
 //!
+//! An error target (`PlanOptions::target_penumbra_db`) comes first: the area lights' sample
+//! counts are halved or doubled to the fewest the error model below expects to reach it
+//! (`Plan::target`); the budget's ladder then starts from there.
+//!
 //! The plan records each step (`Plan::concessions`) with the estimate after it; the same inputs
 //! give the same steps, so a live session re-planning with nothing changed keeps its plan.
 
-use super::{ClusterSpec, Concession, Knob, MapSizing, Plan, PlanError, PlanOptions, scene_hash};
+use super::{
+    ClusterSpec, Concession, Knob, MapSizing, Plan, PlanError, PlanOptions, TargetChoice,
+    scene_hash,
+};
 use lightfold_scene::Scene;
 
 /// The most ε a frame budget raises the culling bound to (display units: about 4 8-bit sRGB
@@ -145,11 +152,17 @@ pub(crate) fn within_budget(
     previous: Option<&Plan>,
     plan_once: fn(&Scene, &ClusterSpec, &PlanOptions, Option<&Plan>) -> Result<Plan, PlanError>,
 ) -> Result<Plan, PlanError> {
-    let first = plan_once(scene, cluster, options, previous)?;
+    let targeted = options.target_penumbra_db.and_then(|t| to_target(scene, t));
+    let start = targeted.as_ref().map_or(scene, |(s, _)| s);
+    let fit = |s: &Scene, o: &PlanOptions| fit_budget(s, cluster, o, previous, plan_once);
+    let mut first = fit(start, options)?;
+    first.scene_hash = scene_hash(scene);
+    first.target = targeted.as_ref().map(|(_, t)| t.clone());
     let Some(budget) = options.frame_budget_us else {
         return Ok(first);
     };
-    let (mut scene_now, mut options_now) = (scene.clone(), options.clone());
+    let target = first.target.clone();
+    let (mut scene_now, mut options_now) = (start.clone(), options.clone());
     let mut best = first;
     let mut concessions = Vec::new();
     for knob in LADDER {
@@ -162,7 +175,7 @@ pub(crate) fn within_budget(
                 let Some((s2, o2, from, to, db)) = lower(knob, &s, &o) else {
                     break 'knob;
                 };
-                let p = match plan_once(&s2, cluster, &o2, previous) {
+                let p = match fit(&s2, &o2) {
                     Ok(p) => p,
                     // Only a lowered setting fails here (e.g. ε drops every sample of a group
                     // the cluster cannot spare): the knob stops where it is.
@@ -188,7 +201,86 @@ pub(crate) fn within_budget(
     // were drawn from (the samples travel in the configurations).
     best.scene_hash = scene_hash(scene);
     best.concessions = concessions;
+    best.target = target;
     Ok(best)
+}
+
+/// One plan under the budget. K is chosen by an estimate without the material host's extra
+/// targets, so the plan can come out a little over a budget its K was chosen to meet; then K is
+/// chosen again against the budget less that overshoot (doubled up to 3 times), and the first
+/// such plan that fits is kept.
+fn fit_budget(
+    scene: &Scene,
+    cluster: &ClusterSpec,
+    options: &PlanOptions,
+    previous: Option<&Plan>,
+    plan_once: fn(&Scene, &ClusterSpec, &PlanOptions, Option<&Plan>) -> Result<Plan, PlanError>,
+) -> Result<Plan, PlanError> {
+    let p = plan_once(scene, cluster, options, previous)?;
+    let Some(budget) = options.frame_budget_us else {
+        return Ok(p);
+    };
+    if p.est_frame_us <= budget || p.est_frame_us > budget + budget / 5 {
+        return Ok(p);
+    }
+    // The overshoot, doubled each try, is taken off the budget K is chosen against.
+    let mut cut = p.est_frame_us - budget;
+    for _ in 0..4 {
+        let tighter = PlanOptions {
+            frame_budget_us: Some(budget.saturating_sub(cut).max(1)),
+            ..options.clone()
+        };
+        if let Ok(mut q) = plan_once(scene, cluster, &tighter, previous)
+            && q.est_frame_us <= budget
+        {
+            q.frame_budget_us = Some(budget);
+            return Ok(q);
+        }
+        cut *= 2;
+    }
+    Ok(p)
+}
+
+/// The scene with its area lights' sample counts halved or doubled (each by the same factor) to
+/// the fewest whose expected penumbra PSNR reaches `target_db`, and what was chosen; `None` for
+/// a scene without area lights.
+fn to_target(scene: &Scene, target_db: f32) -> Option<(Scene, TargetChoice)> {
+    let from = area_samples(scene)?;
+    let max = lightfold_scene::limits::MAX_SAMPLES_PER_AREA_LIGHT;
+    let mut n = from;
+    while n > 1 && expected_penumbra_db(n / 2) >= target_db {
+        n /= 2;
+    }
+    // Raised no further than the sweep measured (its last count): beyond it the model would be
+    // a guess, and a target it does not reach there is out of reach.
+    let measured_up_to = SWEEP[SWEEP.len() - 1].0 as u32;
+    while expected_penumbra_db(n) < target_db && n * 2 <= measured_up_to.max(from) {
+        n *= 2;
+    }
+    let mut s = scene.clone();
+    let set = |c: u32| -> u32 {
+        let c = c.max(1);
+        if n >= from {
+            (c * (n / from)).min(max)
+        } else {
+            (c / (from / n)).max(1)
+        }
+    };
+    s.quality.samples_per_area_light = s.quality.samples_per_area_light.map(set);
+    for l in s.lights.iter_mut().filter(|l| l.is_area()) {
+        l.samples = set(l.samples);
+    }
+    let expected = expected_penumbra_db(n);
+    Some((
+        s,
+        TargetChoice {
+            target_db,
+            from,
+            to: n,
+            expected_db: expected,
+            reachable: expected >= target_db,
+        },
+    ))
 }
 
 #[cfg(test)]

@@ -140,6 +140,9 @@ impl Display for Plan {
                 None => String::new(),
             }
         )?;
+        if let Some(text) = self.target_line() {
+            writeln!(f, "{text}")?;
+        }
         if let Some(text) = gave_up(self) {
             writeln!(f, "{text}")?;
         }
@@ -316,6 +319,9 @@ impl Display for Brief<'_> {
             },
             mb(bytes)
         )?;
+        if let Some(text) = p.target_line() {
+            write!(f, "\n  {text}")?;
+        }
         if let Some(text) = gave_up(p) {
             write!(f, "\n  {text}")?;
         }
@@ -327,6 +333,24 @@ impl Plan {
     /// What the plan gave up to meet its frame budget, one line, or `None` when nothing was.
     pub fn gave_up(&self) -> Option<String> {
         gave_up(self)
+    }
+
+    /// How an error target chose the samples, one line, or `None` without a target.
+    pub fn target_line(&self) -> Option<String> {
+        let t = self.target.as_ref()?;
+        Some(format!(
+            "error target {:.1} dB penumbra PSNR: samples per area light {} → {} (expected {:.1} dB \
+             by the error model{}; `lightfold accuracy` measures it)",
+            t.target_db,
+            t.from,
+            t.to,
+            t.expected_db,
+            if t.reachable {
+                ""
+            } else {
+                ", the most its sweep measured: the target is out of reach"
+            }
+        ))
     }
 }
 

@@ -441,6 +441,7 @@ fn plan_once(
         est_frame_us,
         frame_budget_us: options.frame_budget_us,
         concessions: Vec::new(),
+        target: None,
         addresses,
     })
 }
@@ -460,6 +461,11 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
     }
     if o.frames_in_flight == 0 {
         return bad_options("frames in flight must be at least 1");
+    }
+    if let Some(t) = o.target_penumbra_db
+        && !(t > 0.0 && t < 200.0)
+    {
+        return bad_options("the error target must be a penumbra PSNR between 0 and 200 dB");
     }
     if !(o.cost_scale > 0.0 && o.cost_scale <= 1e6) {
         return bad_options("cost scale must be positive and at most 1e6");

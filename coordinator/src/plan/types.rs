@@ -231,6 +231,11 @@ pub struct PlanOptions {
     /// `docs/planner.md` § Frame budgets), so the budget is met by what frames take.
     #[serde(default = "unit")]
     pub cost_scale: f64,
+    /// An error target (`--target-psnr`, penumbra PSNR in dB against the area-light truth): the
+    /// area lights' sample counts are halved or doubled to the fewest the planner's error model
+    /// expects to reach it (`plan/budget.rs`); a frame budget may then lower them further.
+    #[serde(default)]
+    pub target_penumbra_db: Option<f32>,
 }
 
 fn one() -> u32 {
@@ -273,6 +278,7 @@ impl Default for PlanOptions {
             frame_budget_us: None,
             supersample: 1,
             cost_scale: 1.0,
+            target_penumbra_db: None,
         }
     }
 }
@@ -453,6 +459,21 @@ pub struct Concession {
     pub expected_db: Option<f32>,
 }
 
+/// The sample count an error target chose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TargetChoice {
+    /// The target, penumbra PSNR (dB) against the area-light truth.
+    pub target_db: f32,
+    /// Largest samples per area light before and after.
+    pub from: u32,
+    pub to: u32,
+    /// The error model's penumbra PSNR at `to` (`budget::expected_penumbra_db`).
+    pub expected_db: f32,
+    /// Whether the model expects the target at all (else `to` is the most its sweep measured,
+    /// 256, or the scene's own count when that is more).
+    pub reachable: bool,
+}
+
 /// The quality knobs a frame budget can lower, in the order the planner lowers them.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Knob {
@@ -505,10 +526,13 @@ pub struct Plan {
     /// The frame budget the plan was asked to meet (`PlanOptions::frame_budget_us`).
     #[serde(default)]
     pub frame_budget_us: Option<u64>,
-    /// What the plan gave up to meet the frame budget, in the order given up (empty without a
+    /// What the plan gave up to meet its frame budget, in the order given up (empty without a
     /// budget, or when the requested quality fits it; `plan/budget.rs`).
     #[serde(default)]
     pub concessions: Vec<Concession>,
+    /// How an error target set the samples per area light (`PlanOptions::target_penumbra_db`).
+    #[serde(default)]
+    pub target: Option<TargetChoice>,
     /// Data addresses of the daemons the plan uses, by id.
     pub addresses: Vec<(String, String)>,
 }
