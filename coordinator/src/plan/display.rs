@@ -340,7 +340,7 @@ impl Plan {
         let t = self.target.as_ref()?;
         Some(format!(
             "error target {:.1} dB penumbra PSNR: samples per area light {} → {} (expected {:.1} dB \
-             by the error model{}; `lightfold accuracy` measures it)",
+             by the error model{}; `lightfold accuracy --knobs samples --target-db` measures it)",
             t.target_db,
             t.from,
             t.to,
