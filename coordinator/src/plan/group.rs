@@ -106,18 +106,17 @@ impl NodeCost {
         }
     }
 
-    /// Both parts × `k` (the live loop's correction from measured frames).
-    pub fn scaled(self, k: f64) -> NodeCost {
+    /// The live loop's correction from measured frames.
+    pub fn scaled(self, k: super::CostScale) -> NodeCost {
         NodeCost {
-            light_us: self.light_us * k,
-            fixed_us: self.fixed_us * k,
+            light_us: self.light_us * k.light,
+            fixed_us: self.fixed_us * k.fixed,
         }
     }
 
     /// One light: half eye-pass share, half shadow passes (per view, growing with the map side).
     pub fn light(&self, shadow: &ShadowPlan) -> f64 {
-        let views = shadow.views.count() as f64 * shadow.map_size as f64 / 512.0;
-        self.light_us * (0.5 + 0.5 * views)
+        self.light_us * super::light_weight(shadow).0
     }
 
     pub fn frame(&self, shadows: &[&ShadowPlan], extra_targets: usize) -> f64 {

@@ -61,6 +61,22 @@ pub fn scene_hash(scene: &Scene) -> [u8; 32] {
     Sha256::digest(&bytes).into()
 }
 
+/// Node `spec`'s cost model for `plan`'s image, unscaled (`PlanOptions::cost_scale` aside):
+/// `(fixed µs per frame, µs per light before its views' weight)`, and per light sample the
+/// weights the model multiplies the per-light cost by (`light_weight`: all of it;
+/// `shadow_weight`: the shadow passes' half). The live loop fits measured frames to it.
+pub fn node_cost(spec: &DaemonSpec, plan: &Plan) -> (f64, f64) {
+    let pixels = u64::from(plan.width) * u64::from(plan.height);
+    let c = NodeCost::of(spec, pixels);
+    (c.fixed_us, c.light_us)
+}
+
+/// The cost model's weight of one light's maps: `(whole light, its shadow passes)`.
+pub fn light_weight(shadow: &ShadowPlan) -> (f64, f64) {
+    let views = shadow.views.count() as f64 * shadow.map_size as f64 / 512.0;
+    (0.5 + 0.5 * views, 0.5 * views)
+}
+
 /// Plans `scene` on `cluster` (see the module documentation and `docs/planner.md`).
 pub fn plan(
     scene: &Scene,
@@ -467,7 +483,8 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
     {
         return bad_options("the error target must be a penumbra PSNR between 0 and 200 dB");
     }
-    if !(o.cost_scale > 0.0 && o.cost_scale <= 1e6) {
+    let scale_ok = |k: f64| k > 0.0 && k <= 1e6;
+    if !(scale_ok(o.cost_scale.fixed) && scale_ok(o.cost_scale.light)) {
         return bad_options("cost scale must be positive and at most 1e6");
     }
     if !(o.epsilon >= 0.0 && o.epsilon.is_finite()) {

@@ -226,11 +226,12 @@ pub struct PlanOptions {
     /// planner itself (`plan()`) plans the camera it is given.
     #[serde(default = "one")]
     pub supersample: u32,
-    /// Multiplies every node's cost model (1: as the nodes registered it, or the defaults). The
-    /// live loop sets it from measured frames under a frame budget (`control::Live`,
-    /// `docs/planner.md` § Frame budgets), so the budget is met by what frames take.
-    #[serde(default = "unit")]
-    pub cost_scale: f64,
+    /// Multiplies every node's cost model: its fixed cost per frame and its cost per light (1:
+    /// as the nodes registered them, or the defaults). The live loop sets both from measured
+    /// frames under a frame budget (`control::Live`, `docs/planner.md` § Frame budgets), so the
+    /// budget is met by what frames take.
+    #[serde(default)]
+    pub cost_scale: CostScale,
     /// An error target (`--target-psnr`, penumbra PSNR in dB against the area-light truth): the
     /// area lights' sample counts are halved or doubled to the fewest the planner's error model
     /// expects to reach it (`plan/budget.rs`); a frame budget may then lower them further.
@@ -242,8 +243,27 @@ fn one() -> u32 {
     1
 }
 
-fn unit() -> f64 {
-    1.0
+/// Factors on the nodes' registered cost model (`PlanOptions::cost_scale`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct CostScale {
+    pub fixed: f64,
+    pub light: f64,
+}
+
+impl Default for CostScale {
+    fn default() -> Self {
+        CostScale {
+            fixed: 1.0,
+            light: 1.0,
+        }
+    }
+}
+
+impl CostScale {
+    /// Both parts × `k`.
+    pub fn uniform(k: f64) -> CostScale {
+        CostScale { fixed: k, light: k }
+    }
 }
 
 /// Default ε: about a quarter of one 8-bit sRGB code value at mid-grey (a step there is ≈ 4e-3
@@ -277,7 +297,7 @@ impl Default for PlanOptions {
             material_own_node: false,
             frame_budget_us: None,
             supersample: 1,
-            cost_scale: 1.0,
+            cost_scale: CostScale::default(),
             target_penumbra_db: None,
         }
     }

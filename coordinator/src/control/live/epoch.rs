@@ -250,9 +250,10 @@ impl Live<'_> {
             .chain(next.nodes.iter().map(|n| n.node.clone()))
             .collect();
         self.summary.plan = Some(next.clone());
-        self.model_est_us = next.est_frame_us;
+        self.set_model(&next);
         self.plan = Some(next);
         self.measured.clear();
+        self.scales.clear();
         self.established_at = Instant::now();
         self.sent_in_epoch = 0;
         Ok(())

@@ -36,22 +36,8 @@ impl Live<'_> {
         let Some(image) = f.image else {
             return;
         };
-        if let Some(plan) = &self.plan
-            && self.opts.frame_budget_us.is_some()
-            && !f.warming
-            && plan.epoch == image.epoch
-            && plan.est_frame_us > 0
-        {
-            // The slowest node's own work (sending waits on the pipeline, not on the model).
-            let slowest = f
-                .stats
-                .iter()
-                .filter(|s| plan.nodes.iter().any(|n| n.node == s.daemon_id))
-                .map(|s| s.pose_us + s.shadow_us + s.eye_us + s.readback_us + s.pack_us)
-                .max();
-            if let Some(t) = slowest {
-                self.measured.push(t as f64);
-            }
+        if !f.warming {
+            self.measure(image.epoch, &f.stats);
         }
         self.done.insert(
             f.index,

@@ -197,9 +197,13 @@ pub struct Live<'s> {
     hash: [u8; 32],
     plan: Option<Plan>,
     /// Under a frame budget: each settled frame of this epoch, its slowest node's measured
-    /// render time (µs; `adapt_costs`), and the cost model's estimate of it at its current scale.
+    /// render time (µs), and per node and frame the fixed and per-light costs measured over the
+    /// registered model's (`adapt_costs`).
     measured: Vec<f64>,
-    model_est_us: u64,
+    scales: Vec<(f64, f64)>,
+    /// Per render node of the plan: its registered model (fixed µs, µs per light) and the
+    /// model's weights of its lights (whole, shadow passes).
+    model: std::collections::HashMap<String, [f64; 4]>,
     /// Plans (`choices`) whose frames were measured over the current budget.
     over_budget: std::collections::HashSet<String>,
     /// The plan's daemons, compositors first.
@@ -271,7 +275,8 @@ impl<'s> Live<'s> {
             hash: scene_hash,
             plan: None,
             measured: Vec::new(),
-            model_est_us: 0,
+            scales: Vec::new(),
+            model: std::collections::HashMap::new(),
             over_budget: std::collections::HashSet::new(),
             participants: Vec::new(),
             established_at: Instant::now(),
@@ -720,45 +725,57 @@ impl<'s> Live<'s> {
         self.adapt_costs()
     }
 
-    /// Under a frame budget, once `ADAPT_FRAMES` settled frames of an epoch are measured: when
-    /// their median slowest node differs from the cost model's estimate by more than
-    /// `ADAPT_BAND`×, the model is scaled by it (`PlanOptions::cost_scale`). A re-plan is due only
-    /// when the corrected model changes the plan's choices (K, samples, what was given up,
-    /// lights per node) and the frames are over the budget, or under `RAISE_BELOW` of it; a plan
-    /// whose frames were measured over this budget is never chosen again (no oscillation
-    /// between two plans the model cannot tell apart).
+    /// Under a frame budget, once `ADAPT_FRAMES` settled frames of an epoch are measured: each
+    /// node's shadow passes give its cost per light (over the model's shadow weight of its
+    /// lights), the rest of its work its fixed cost. When the medians stray from the scales in
+    /// use by more than `ADAPT_BAND`×, the model takes them (`PlanOptions::cost_scale`). A
+    /// re-plan is due only when the corrected model changes the plan's choices (K, samples,
+    /// what was given up, lights per node) and the frames are over the budget, or under
+    /// `RAISE_BELOW` of it with a candidate of more quality (more samples or fewer concessions;
+    /// never only to free nodes); a plan whose frames were measured over this budget is never
+    /// chosen again (no oscillation between two plans the model cannot tell apart).
     fn adapt_costs(&mut self) -> Option<String> {
         let budget = self.opts.frame_budget_us?;
-        if self.measured.len() < ADAPT_FRAMES || self.model_est_us == 0 {
+        if self.measured.len() < ADAPT_FRAMES || self.scales.is_empty() {
             return None;
         }
-        let mut m = std::mem::take(&mut self.measured);
-        m.sort_by(f64::total_cmp);
-        let took = m[m.len() / 2];
+        let took = median(std::mem::take(&mut self.measured));
+        let scales = std::mem::take(&mut self.scales);
+        let fixed = median(scales.iter().map(|s| s.0).collect());
+        let light = median(scales.iter().map(|s| s.1).collect());
         let current = self.plan.as_ref()?;
         let over = took > budget as f64;
         if over {
             self.over_budget.insert(choices(current));
         }
-        let factor = took / self.model_est_us as f64;
-        if !(factor.is_finite() && factor > 0.0) || factor.ln().abs() <= ADAPT_BAND.ln() {
+        let now = self.opts.cost_scale;
+        let strays = |measured: f64, used: f64| (measured / used).ln().abs() > ADAPT_BAND.ln();
+        if !(fixed.is_finite() && light.is_finite() && fixed > 0.0 && light > 0.0)
+            || !(strays(fixed, now.fixed) || strays(light, now.light))
+        {
             return None;
         }
         let mut o = self.opts.clone();
-        o.cost_scale = (o.cost_scale * factor).clamp(1e-4, 1e4);
+        o.cost_scale = crate::plan::CostScale {
+            fixed: fixed.clamp(1e-4, 1e4),
+            light: light.clamp(1e-4, 1e4),
+        };
         let cluster = crate::run::cluster_spec(self.session);
         let candidate = crate::plan::replan(&self.scene, &cluster, &o, current).ok()?;
         let text = format!(
-            "measured frames take {factor:.3}× the cost model's estimate ({:.2} ms against {:.2} ms)",
+            "measured frames ({:.1} ms, the model's estimate {:.1} ms) put the nodes' fixed cost \
+             at {fixed:.3}× and their cost per light at {light:.3}× what they registered",
             took / 1e3,
-            self.model_est_us as f64 / 1e3
+            current.est_frame_us as f64 / 1e3
         );
         self.opts.cost_scale = o.cost_scale;
         let key = choices(&candidate);
-        let act = over || took < RAISE_BELOW * budget as f64;
+        // Under the budget, only for more quality (not to free nodes: the frames fit as they are).
+        let better = candidate.samples.len() > current.samples.len()
+            || candidate.concessions.len() < current.concessions.len();
+        let act = over || (took < RAISE_BELOW * budget as f64 && better);
         if key == choices(current) || !act || self.over_budget.contains(&key) {
             tracing::info!("{text}: the corrected cost model keeps the plan");
-            self.model_est_us = candidate.est_frame_us;
             return None;
         }
         let why = format!(
@@ -767,6 +784,51 @@ impl<'s> Live<'s> {
         );
         self.notice(why.clone());
         Some(why)
+    }
+
+    /// Records a settled frame's measurements for `adapt_costs` (under a frame budget).
+    pub(super) fn measure(&mut self, epoch: u64, stats: &[FrameStats]) {
+        let Some(plan) = &self.plan else { return };
+        if self.opts.frame_budget_us.is_none() || plan.epoch != epoch {
+            return;
+        }
+        let mut slowest = None::<u64>;
+        for s in stats {
+            let Some(&[fixed_us, light_us, w_all, w_shadow]) = self.model.get(&s.daemon_id) else {
+                continue;
+            };
+            let work = s.pose_us + s.shadow_us + s.eye_us + s.readback_us + s.pack_us;
+            slowest = Some(slowest.map_or(work, |w| w.max(work)));
+            // Kept maps (walkthrough) hide the shadow passes' cost: no per-light figure.
+            if w_shadow <= 0.0 || s.maps_kept > 0 || fixed_us <= 0.0 || light_us <= 0.0 {
+                continue;
+            }
+            let per_light = s.shadow_us as f64 / w_shadow;
+            let rest = (work as f64 - per_light * w_all).max(0.05 * work as f64);
+            self.scales.push((rest / fixed_us, per_light / light_us));
+        }
+        if let Some(w) = slowest {
+            self.measured.push(w as f64);
+        }
+    }
+
+    /// The registered cost model of each render node of `plan` (`measure`).
+    pub(super) fn set_model(&mut self, plan: &Plan) {
+        let cluster = crate::run::cluster_spec(self.session);
+        self.model = plan
+            .nodes
+            .iter()
+            .filter_map(|n| {
+                let spec = cluster.nodes.iter().find(|d| d.id == n.node)?;
+                let (fixed, light) = crate::plan::node_cost(spec, plan);
+                let (w_all, w_shadow) = n
+                    .shadows
+                    .iter()
+                    .map(crate::plan::light_weight)
+                    .fold((0.0, 0.0), |a, w| (a.0 + w.0, a.1 + w.1));
+                Some((n.node.clone(), [fixed, light, w_all, w_shadow]))
+            })
+            .collect();
     }
 }
 
@@ -785,4 +847,12 @@ fn choices(p: &Plan) -> String {
         p.samples.len(),
         p.active
     )
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
 }
