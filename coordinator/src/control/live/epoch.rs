@@ -251,6 +251,7 @@ impl Live<'_> {
             .collect();
         self.summary.plan = Some(next.clone());
         self.set_model(&next);
+        self.plan_scale = self.opts.cost_scale;
         self.plan = Some(next);
         self.measured.clear();
         self.scales.clear();

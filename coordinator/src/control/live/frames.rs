@@ -87,6 +87,7 @@ impl Live<'_> {
                 // Plan under the new budget, then send this frame under the new epoch.
                 self.opts.frame_budget_us = budget;
                 self.over_budget.clear();
+                self.known_good = None;
                 self.queue.push_front((index, spec));
                 let why = match budget {
                     Some(us) => format!(

@@ -206,6 +206,10 @@ pub struct Live<'s> {
     model: std::collections::HashMap<String, [f64; 4]>,
     /// Plans (`choices`) whose frames were measured over the current budget.
     over_budget: std::collections::HashSet<String>,
+    /// The best plan measured within the current budget: its quality and the cost factors it
+    /// was planned under; and the factors the current plan was planned under.
+    known_good: Option<((usize, std::cmp::Reverse<usize>), crate::plan::CostScale)>,
+    plan_scale: crate::plan::CostScale,
     /// The plan's daemons, compositors first.
     participants: Vec<String>,
     established_at: Instant,
@@ -278,6 +282,8 @@ impl<'s> Live<'s> {
             scales: Vec::new(),
             model: std::collections::HashMap::new(),
             over_budget: std::collections::HashSet::new(),
+            known_good: None,
+            plan_scale: crate::plan::CostScale::default(),
             participants: Vec::new(),
             established_at: Instant::now(),
             sent_in_epoch: 0,
@@ -747,6 +753,25 @@ impl<'s> Live<'s> {
         let over = took > budget as f64;
         if over {
             self.over_budget.insert(choices(current));
+        } else if self.known_good.is_none_or(|(q, _)| quality(current) > q) {
+            self.known_good = Some((quality(current), self.plan_scale));
+        }
+        // Over the budget where a plan of more quality was measured within it: back to that one
+        // (the factors it was planned under give it again on the same cluster).
+        if over
+            && let Some((q, scale)) = self.known_good
+            && q > quality(current)
+        {
+            self.known_good = None;
+            self.opts.cost_scale = scale;
+            let why = format!(
+                "measured frames take {:.1} ms, over the {:.1} ms budget: back to the last plan \
+                 measured within it",
+                took / 1e3,
+                budget as f64 / 1e3
+            );
+            self.notice(why.clone());
+            return Some(why);
         }
         let now = self.opts.cost_scale;
         let strays = |measured: f64, used: f64| (measured / used).ln().abs() > ADAPT_BAND.ln();
@@ -771,8 +796,7 @@ impl<'s> Live<'s> {
         self.opts.cost_scale = o.cost_scale;
         let key = choices(&candidate);
         // Under the budget, only for more quality (not to free nodes: the frames fit as they are).
-        let better = candidate.samples.len() > current.samples.len()
-            || candidate.concessions.len() < current.concessions.len();
+        let better = quality(&candidate) > quality(current);
         let act = over || (took < RAISE_BELOW * budget as f64 && better);
         if key == choices(current) || !act || self.over_budget.contains(&key) {
             tracing::info!("{text}: the corrected cost model keeps the plan");
@@ -855,4 +879,9 @@ fn median(mut v: Vec<f64>) -> f64 {
     }
     v.sort_by(f64::total_cmp);
     v[v.len() / 2]
+}
+
+/// A plan's quality for the budget's purposes: more samples, then fewer concessions.
+fn quality(p: &Plan) -> (usize, std::cmp::Reverse<usize>) {
+    (p.samples.len(), std::cmp::Reverse(p.concessions.len()))
 }
