@@ -140,6 +140,9 @@ fn lower(
     }
 }
 
+/// Plans one setting (the planner's `plan_once`).
+type PlanOnce = fn(&Scene, &ClusterSpec, &PlanOptions, Option<&Plan>) -> Result<Plan, PlanError>;
+
 /// The ladder's order (the module documentation says why).
 const LADDER: [Knob; 3] = [Knob::ShadowMaps, Knob::SamplesPerAreaLight, Knob::Epsilon];
 
@@ -150,7 +153,7 @@ pub(crate) fn within_budget(
     cluster: &ClusterSpec,
     options: &PlanOptions,
     previous: Option<&Plan>,
-    plan_once: fn(&Scene, &ClusterSpec, &PlanOptions, Option<&Plan>) -> Result<Plan, PlanError>,
+    plan_once: PlanOnce,
 ) -> Result<Plan, PlanError> {
     let targeted = options.target_penumbra_db.and_then(|t| to_target(scene, t));
     let start = targeted.as_ref().map_or(scene, |(s, _)| s);
@@ -214,7 +217,7 @@ fn fit_budget(
     cluster: &ClusterSpec,
     options: &PlanOptions,
     previous: Option<&Plan>,
-    plan_once: fn(&Scene, &ClusterSpec, &PlanOptions, Option<&Plan>) -> Result<Plan, PlanError>,
+    plan_once: PlanOnce,
 ) -> Result<Plan, PlanError> {
     let p = plan_once(scene, cluster, options, previous)?;
     let Some(budget) = options.frame_budget_us else {
