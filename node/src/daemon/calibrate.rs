@@ -13,10 +13,10 @@ use std::time::Instant;
 pub const WIDTH: u32 = 320;
 pub const HEIGHT: u32 = 240;
 pub const MAP_SIZE: u32 = 256;
-/// Lights of the second calibration render.
-const MANY: usize = 4;
+/// Lights of the second calibration render (more lights, more signal over the machine's noise).
+const MANY: usize = 8;
 /// Timed repetitions of each render (the fastest counts: the machine is shared and noisy).
-const REPEATS: usize = 2;
+const REPEATS: usize = 3;
 
 /// What one frame costs on this device, measured.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -76,6 +76,23 @@ pub fn calibration_lights(n: usize) -> Vec<LightSample> {
         .collect()
 }
 
+/// The calibration from the fastest frame with one light (`t1`, µs) and with `many` (`tk`): the
+/// difference per extra light, and the rest as the fixed cost. When `many` lights took no longer
+/// than one (noise: nodes calibrating at once on a loaded machine), the cost per light is taken
+/// as a fifth of the frame (the default model's 12 ms per light to 60 ms per frame), not as
+/// nothing: a cost per light of zero made a frame budget put every light on one node.
+pub fn from_times(t1: u64, tk: u64, many: u64) -> Calibration {
+    let per_light = if tk > t1 && many > 1 {
+        (tk - t1) / (many - 1)
+    } else {
+        t1 / 5
+    };
+    Calibration {
+        cost_per_light_us: per_light.max(1),
+        fixed_cost_us: t1.saturating_sub(per_light).max(1),
+    }
+}
+
 /// Measures this device. Shadow maps are recomputed every frame (moving-light cost).
 pub fn run(gpu: &Gpu) -> Result<Calibration, RenderError> {
     let start = Instant::now();
@@ -98,11 +115,15 @@ pub fn run(gpu: &Gpu) -> Result<Calibration, RenderError> {
         t1 = t1.min(time(&few)?);
         tk = tk.min(time(&many)?);
     }
-    let per_light = tk.saturating_sub(t1) / (MANY as u64 - 1);
-    let c = Calibration {
-        cost_per_light_us: per_light.max(1),
-        fixed_cost_us: t1.saturating_sub(per_light),
-    };
+    let c = from_times(t1, tk, MANY as u64);
+    if tk <= t1 {
+        tracing::warn!(
+            one_light_us = t1,
+            many_lights_us = tk,
+            "calibration could not tell {MANY} lights from one (a loaded machine?): cost per \
+             light taken as a fifth of the one-light frame"
+        );
+    }
     tracing::info!(
         per_light_us = c.cost_per_light_us,
         fixed_us = c.fixed_cost_us,
@@ -110,4 +131,26 @@ pub fn run(gpu: &Gpu) -> Result<Calibration, RenderError> {
         "calibrated"
     );
     Ok(c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::from_times;
+
+    #[test]
+    fn the_cost_per_light_is_the_difference_or_a_fifth_of_the_frame_never_zero() {
+        let c = from_times(20_000, 48_000, 8);
+        assert_eq!((c.cost_per_light_us, c.fixed_cost_us), (4_000, 16_000));
+        // Noise: eight lights no slower than one.
+        for tk in [20_000, 19_000, 0] {
+            let c = from_times(20_000, tk, 8);
+            assert_eq!(
+                (c.cost_per_light_us, c.fixed_cost_us),
+                (4_000, 16_000),
+                "{tk}"
+            );
+        }
+        let c = from_times(0, 0, 8);
+        assert!(c.cost_per_light_us >= 1 && c.fixed_cost_us >= 1);
+    }
 }
