@@ -149,14 +149,29 @@ impl Gpu {
                 _ => wgpu::Backends::VULKAN | wgpu::Backends::GL,
             },
         };
-        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
-        desc.backends = backends;
-        // Debian's validation layers flag every SPIR-V module with a false "source language" error
-        // when DEBUG is on (PLATFORM.md); keep validation, drop the debug labels.
-        desc.flags =
-            (wgpu::InstanceFlags::from_build_config() - wgpu::InstanceFlags::DEBUG).with_env();
-        let instance = wgpu::Instance::new(desc);
-        let mut adapters = pollster::block_on(instance.enumerate_adapters(backends));
+        let enumerate = |backends: wgpu::Backends| {
+            let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+            desc.backends = backends;
+            // Debian's validation layers flag every SPIR-V module with a false "source language"
+            // error when DEBUG is on (PLATFORM.md); keep validation, drop the debug labels.
+            desc.flags =
+                (wgpu::InstanceFlags::from_build_config() - wgpu::InstanceFlags::DEBUG).with_env();
+            let instance = wgpu::Instance::new(desc);
+            pollster::block_on(instance.enumerate_adapters(backends))
+        };
+        // Vulkan first, GL only where Vulkan has no adapter: probing GL on a machine without a
+        // display driver logs EGL errors on every start although Vulkan serves.
+        let mut adapters =
+            if backends.contains(wgpu::Backends::VULKAN) && backends != wgpu::Backends::VULKAN {
+                let vulkan = enumerate(wgpu::Backends::VULKAN);
+                if vulkan.is_empty() {
+                    enumerate(backends - wgpu::Backends::VULKAN)
+                } else {
+                    vulkan
+                }
+            } else {
+                enumerate(backends)
+            };
         if let Some(name) = &opts.adapter_name {
             let needle = name.to_ascii_lowercase();
             adapters.retain(|a| a.get_info().name.to_ascii_lowercase().contains(&needle));
