@@ -73,6 +73,17 @@ fn area_samples(scene: &Scene) -> Option<u32> {
         .max()
 }
 
+/// The scene with every area light's sample count (and the quality's override, if any) mapped
+/// by `f` (given counts of at least one).
+fn with_area_samples(scene: &Scene, f: impl Fn(u32) -> u32) -> Scene {
+    let mut s = scene.clone();
+    s.quality.samples_per_area_light = s.quality.samples_per_area_light.map(|c| f(c.max(1)));
+    for l in s.lights.iter_mut().filter(|l| l.is_area()) {
+        l.samples = f(l.samples.max(1));
+    }
+    s
+}
+
 fn maps_text(m: MapSizing) -> String {
     match m {
         MapSizing::Fixed(n) => format!("{n}²"),
@@ -111,12 +122,7 @@ fn lower(
             if n <= 1 {
                 return None;
             }
-            let mut s = scene.clone();
-            let half = |c: u32| (c / 2).max(1);
-            s.quality.samples_per_area_light = s.quality.samples_per_area_light.map(half);
-            for l in s.lights.iter_mut().filter(|l| l.is_area()) {
-                l.samples = half(l.samples.max(1));
-            }
+            let s = with_area_samples(scene, |c| (c / 2).max(1));
             let m = area_samples(&s)?;
             let db = expected_penumbra_db(m) - expected_penumbra_db(n);
             Some((s, options.clone(), n.to_string(), m.to_string(), Some(db)))
@@ -260,19 +266,13 @@ fn to_target(scene: &Scene, target_db: f32) -> Option<(Scene, TargetChoice)> {
     while expected_penumbra_db(n) < target_db && n * 2 <= measured_up_to.max(from) {
         n *= 2;
     }
-    let mut s = scene.clone();
-    let set = |c: u32| -> u32 {
-        let c = c.max(1);
+    let s = with_area_samples(scene, |c| {
         if n >= from {
             (c * (n / from)).min(max)
         } else {
             (c / (from / n)).max(1)
         }
-    };
-    s.quality.samples_per_area_light = s.quality.samples_per_area_light.map(set);
-    for l in s.lights.iter_mut().filter(|l| l.is_area()) {
-        l.samples = set(l.samples);
-    }
+    });
     let expected = expected_penumbra_db(n);
     Some((
         s,

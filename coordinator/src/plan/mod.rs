@@ -61,10 +61,9 @@ pub fn scene_hash(scene: &Scene) -> [u8; 32] {
     Sha256::digest(&bytes).into()
 }
 
-/// Node `spec`'s cost model for `plan`'s image, unscaled (`PlanOptions::cost_scale` aside):
-/// `(fixed µs per frame, µs per light before its views' weight)`, and per light sample the
-/// weights the model multiplies the per-light cost by (`light_weight`: all of it;
-/// `shadow_weight`: the shadow passes' half). The live loop fits measured frames to it.
+/// Node `spec`'s cost model for `plan`'s image, without `PlanOptions::cost_scale`: `(fixed µs
+/// per frame, µs per light before its weight)`; [`light_weight`] gives each light's weight. The
+/// live loop fits measured frames to it.
 pub fn node_cost(spec: &DaemonSpec, plan: &Plan) -> (f64, f64) {
     let pixels = u64::from(plan.width) * u64::from(plan.height);
     let c = NodeCost::of(spec, pixels);

@@ -149,6 +149,12 @@ impl Gpu {
                 _ => wgpu::Backends::VULKAN | wgpu::Backends::GL,
             },
         };
+        let named = |a: &wgpu::Adapter| {
+            opts.adapter_name.as_ref().is_none_or(|name| {
+                let needle = name.to_ascii_lowercase();
+                a.get_info().name.to_ascii_lowercase().contains(&needle)
+            })
+        };
         let enumerate = |backends: wgpu::Backends| {
             let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
             desc.backends = backends;
@@ -157,10 +163,12 @@ impl Gpu {
             desc.flags =
                 (wgpu::InstanceFlags::from_build_config() - wgpu::InstanceFlags::DEBUG).with_env();
             let instance = wgpu::Instance::new(desc);
-            pollster::block_on(instance.enumerate_adapters(backends))
+            let mut adapters = pollster::block_on(instance.enumerate_adapters(backends));
+            adapters.retain(named);
+            adapters
         };
-        // Vulkan first, GL only where Vulkan has no adapter: probing GL on a machine without a
-        // display driver logs EGL errors on every start although Vulkan serves.
+        // Vulkan first, GL only where Vulkan has no (matching) adapter: probing GL on a machine
+        // without a display driver logs EGL errors on every start although Vulkan serves.
         let mut adapters =
             if backends.contains(wgpu::Backends::VULKAN) && backends != wgpu::Backends::VULKAN {
                 let vulkan = enumerate(wgpu::Backends::VULKAN);
@@ -172,10 +180,6 @@ impl Gpu {
             } else {
                 enumerate(backends)
             };
-        if let Some(name) = &opts.adapter_name {
-            let needle = name.to_ascii_lowercase();
-            adapters.retain(|a| a.get_info().name.to_ascii_lowercase().contains(&needle));
-        }
         adapters.sort_by_key(|a| {
             let i = a.get_info();
             (backend_rank(i.backend), device_rank(i.device_type))
