@@ -116,3 +116,129 @@ async fn one_input_feeds_accumulate_and_material() {
     assert!(want.iter().any(|v| *v > 0.0));
     stage.stop().await;
 }
+
+/// The penumbra filter at the last stage, band by band: each band is combined with `halo` rows
+/// of its neighbours, so the sink gets the bits of the in-memory pipeline run on the whole frame
+/// at once (bands of 4 rows and a short last band of 2, radius 3). A band height below the halo,
+/// and a filter told another width, are refused.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn penumbra_filters_across_band_edges() {
+    let size = (23, 14, 4);
+    let (w, h, _) = size;
+    let (dif, dep) = (Layer::Diffuse, Layer::Depth);
+    let (f_up, f_ill, f_mat, f_dep) = (
+        PixelFormat::F16x6,
+        PixelFormat::Rgb9e5x2,
+        PixelFormat::F16x4,
+        PixelFormat::DepthF32,
+    );
+    let filter = format!(r#"{{"width": {w}, "radius": 3, "specular": true}}"#);
+    let ops = [
+        ("accumulate", r#"{"colors": [[2.0, 1.0, 0.5]]}"#),
+        ("penumbra", filter.as_str()),
+        ("material", r#"{"stage": "single", "specular": false}"#),
+        ("output", r#"{"exposure": 1.0}"#),
+    ];
+    let wiring = vec![
+        vec![OpSource::Input(0), OpSource::Input(1)],
+        vec![OpSource::Op(0), OpSource::Input(1)],
+        vec![OpSource::Op(1), OpSource::Input(1)],
+        vec![OpSource::Op(2)],
+    ];
+    let node_layers = [(ILL, f_ill), (dif, f_mat), (dep, f_dep)];
+    let ins = vec![input("up", &[(ILL, f_up)]), input("n", &node_layers)];
+    let out = [(Layer::Radiance, PixelFormat::F32x3)];
+    let mut cfg = config(1, size, ins, &ops, &out, "");
+    cfg.wiring = wiring.clone();
+
+    let stage = start_stage("filtered").await;
+    let (mut sink, sink_addr) = sink().await;
+    cfg.downstream = sink_addr;
+    let mut ctl = stage.control().await;
+    let mut short = cfg.clone();
+    short.band_height = 2;
+    let e = ctl.configure(short, WAIT).await.unwrap_err();
+    assert!(e.to_string().contains("needs 3 rows"), "{e}");
+    let mut narrow = cfg.clone();
+    narrow.ops[1].1 = r#"{"width": 22}"#.into();
+    let e = ctl.configure(narrow, WAIT).await.unwrap_err();
+    assert!(e.to_string().contains("22 pixels wide"), "{e}");
+    ctl.configure(cfg, WAIT).await.unwrap();
+
+    // The upstream sum has a block of empty rows (an empty band inside the halo of others).
+    let up = quantised(f_up, ILL, hdr(41, w, h, ILL, 4..8));
+    let ill = quantised(f_ill, ILL, hdr(42, w, h, ILL, 0..0));
+    let d: Vec<f32> = hdr(43, w, h, dif, 0..0)
+        .iter()
+        .map(|v| (v / 100.0).min(1.0))
+        .collect();
+    let d = quantised(f_mat, dif, d);
+    // Depth: a slanted plane with a nearer box over part of it and a background corner.
+    let depth: Vec<f32> = (0..w * h)
+        .map(|p| {
+            let (x, y) = (p % w, p / w);
+            if x + y < 3 {
+                0.0
+            } else if (8..15).contains(&x) && (3..11).contains(&y) {
+                2.0
+            } else {
+                1.0 / (0.2 + 0.004 * y as f32)
+            }
+        })
+        .collect();
+    let mut producers = [stage.producer("up").await, stage.producer("n").await];
+    ctl.render(1, 1, no_params()).await.unwrap();
+    producers[0]
+        .send_frame(&shape(1, 1, size), &[image(ILL, f_up, up.clone())])
+        .await
+        .unwrap();
+    let node_frame = [
+        image(ILL, f_ill, ill.clone()),
+        image(dif, f_mat, d.clone()),
+        image(dep, f_dep, depth.clone()),
+    ];
+    producers[1]
+        .send_frame(&shape(1, 1, size), &node_frame)
+        .await
+        .unwrap();
+    let got = sink
+        .recv_frame(&shape(1, 1, size), &out, WAIT)
+        .await
+        .unwrap();
+    ctl.frame_done(1, WAIT).await.unwrap();
+
+    let ops: Vec<(String, String)> = ops
+        .iter()
+        .map(|(n, p)| (n.to_string(), p.to_string()))
+        .collect();
+    let layers = vec![vec![ILL], vec![ILL, dif, dep]];
+    let p = Pipeline::from_wiring(&ops, &wiring, &layers).unwrap();
+    let pixels = (w * h) as usize;
+    let views = [
+        BandView::new(pixels).with(ILL, &up),
+        BandView::new(pixels)
+            .with(ILL, &ill)
+            .with(dif, &d)
+            .with(dep, &depth),
+    ];
+    let mut want = vec![0.0; pixels * 3];
+    let mut m = BandMut::new(pixels).with(Layer::Radiance, &mut want);
+    p.run(&views, &mut m, &mut Default::default()).unwrap();
+    assert_eq!(
+        got[0].data, want,
+        "band by band with halos gives the whole frame's bits"
+    );
+    // And the filter did something: without it the frame differs.
+    let plain: Vec<(String, String)> = [ops[0].clone(), ops[2].clone(), ops[3].clone()].into();
+    let plain_wiring = vec![
+        vec![OpSource::Input(0), OpSource::Input(1)],
+        vec![OpSource::Op(0), OpSource::Input(1)],
+        vec![OpSource::Op(1)],
+    ];
+    let q = Pipeline::from_wiring(&plain, &plain_wiring, &layers).unwrap();
+    let mut unfiltered = vec![0.0; pixels * 3];
+    let mut m = BandMut::new(pixels).with(Layer::Radiance, &mut unfiltered);
+    q.run(&views, &mut m, &mut Default::default()).unwrap();
+    assert_ne!(unfiltered, want);
+    stage.stop().await;
+}

@@ -298,11 +298,21 @@ fn output_linear_and_srgb8() {
 #[test]
 fn registry_and_errors() {
     let names: Vec<&str> = ops::registry().iter().map(|(n, _)| *n).collect();
-    assert_eq!(names, ["accumulate", "material", "depth", "join", "output"]);
+    assert_eq!(
+        names,
+        [
+            "accumulate",
+            "material",
+            "depth",
+            "join",
+            "output",
+            "penumbra"
+        ]
+    );
     let err = ops::create("blend", &json!({})).unwrap_err();
     assert_eq!(
         err.to_string(),
-        "unknown operator \"blend\" (known: accumulate, material, depth, join, output)"
+        "unknown operator \"blend\" (known: accumulate, material, depth, join, output, penumbra)"
     );
     for (name, params) in [
         ("accumulate", json!({"colors": [[1, -1, 1]]})),

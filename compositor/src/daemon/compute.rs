@@ -120,17 +120,30 @@ pub(crate) struct BandOut {
     pub empty: u32,
 }
 
-/// Combines band `b` of `frame`. `received[i][j]` is stage input i's layer j (configuration
-/// order). `scale` is the fixed-point scale of this frame's outgoing bands.
+/// What one band is combined from: `centre[i][j]` is stage input i's layer j (configuration
+/// order) for the band itself; `above` and `below` are the neighbouring bands, given where the
+/// stage has a halo (`StagePlan::halo`) and the band has that neighbour.
+pub(crate) struct Window {
+    pub above: Option<Arc<Received>>,
+    pub centre: Arc<Received>,
+    pub below: Option<Arc<Received>>,
+}
+
+/// One band of every input layer, in configuration order.
+pub(crate) type Received = Vec<Vec<InBand>>;
+
+/// Combines band `b` of `frame` from `window`. `scale` is the fixed-point scale of this frame's
+/// outgoing bands.
 pub(crate) fn combine(
     plan: &StagePlan,
     ops: &Operators,
     frame: u64,
     b: u32,
-    received: &[Vec<InBand>],
+    window: &Window,
     scale: f32,
     scratch: &mut Scratch,
 ) -> Result<BandOut, ComputeError> {
+    let received: &[Vec<InBand>] = &window.centre;
     let cfg = &plan.config;
     let (y0, rows) = plan.band_rows(b);
     let pixels = cfg.width as usize * rows as usize;
@@ -189,63 +202,103 @@ pub(crate) fn combine(
         let mut band_mut = BandMut::new(pixels).with(Layer::Illumination, &mut scratch.outs[0]);
         acc.apply_packed(&packed, &mut band_mut)
             .map_err(ComputeError::Fused)?;
-        return finish(plan, frame, y0, rows, scale, scratch, out, start);
+        return finish(plan, frame, y0, rows, 0, scale, scratch, out, start);
     }
 
+    // The band and, for a neighbourhood filter, `halo` rows of each neighbouring band.
+    let top = if window.above.is_some() {
+        plan.halo.min(y0) as usize
+    } else {
+        0
+    };
+    let bottom = if window.below.is_some() {
+        plan.halo.min(cfg.height - (y0 + rows)) as usize
+    } else {
+        0
+    };
+    let w = cfg.width as usize;
+    let extended = pixels + (top + bottom) * w;
     scratch.inputs.resize_with(received.len(), Vec::new);
+    let mut present: Vec<Vec<bool>> = Vec::with_capacity(received.len());
     for (i, layers) in received.iter().enumerate() {
         scratch.inputs[i].resize_with(layers.len(), Vec::new);
+        let mut here = Vec::with_capacity(layers.len());
         for (j, band) in layers.iter().enumerate() {
             let buf = &mut scratch.inputs[i][j];
             let layer = band.header.layer;
-            if band.header.empty {
-                // Only required layers need the zeros; optional ones are left out of the view.
-                if plan.required[i].contains(&layer) {
-                    buf.clear();
-                    buf.resize(pixels * layer.channels(), 0.0);
-                }
+            let ch = layer.channels();
+            let above = window.above.as_ref().map(|a| &a[i][j]).filter(|_| top > 0);
+            let below = window
+                .below
+                .as_ref()
+                .map(|a| &a[i][j])
+                .filter(|_| bottom > 0);
+            let parts = [(above, top), (Some(band), rows as usize), (below, bottom)];
+            let any = parts
+                .iter()
+                .any(|(b, _)| b.is_some_and(|b| !b.header.empty));
+            // Only required layers need zeros; optional ones are left out of the view.
+            let keep = any || plan.required[i].contains(&layer);
+            here.push(keep);
+            if !keep {
                 continue;
             }
-            buf.resize(pixels * layer.channels(), 0.0);
-            unpack(band.header.format, &band.payload, band.header.scale, buf).map_err(
-                |reason| ComputeError::Unpack {
-                    input: i,
-                    layer,
-                    format: band.header.format,
-                    reason,
-                },
-            )?;
+            buf.resize(extended * ch, 0.0);
+            let mut at = 0;
+            for (k, (part, part_rows)) in parts.into_iter().enumerate() {
+                let len = part_rows * w * ch;
+                let dst = &mut buf[at..at + len];
+                at += len;
+                let Some(part) = part.filter(|p| !p.header.empty) else {
+                    dst.fill(0.0);
+                    continue;
+                };
+                let format = part.header.format;
+                let row_bytes = w * format.bytes_per_pixel();
+                let have = part.header.height as usize;
+                // The rows next to the band: the last ones above it, the first ones below.
+                let first = if k == 0 { have - part_rows } else { 0 };
+                let bytes = &part.payload[first * row_bytes..(first + part_rows) * row_bytes];
+                unpack(format, bytes, part.header.scale, dst).map_err(|reason| {
+                    ComputeError::Unpack {
+                        input: i,
+                        layer,
+                        format,
+                        reason,
+                    }
+                })?;
+            }
         }
+        present.push(here);
     }
     let views: Vec<BandView<'_>> = received
         .iter()
         .zip(&scratch.inputs)
-        .enumerate()
-        .map(|(i, (layers, bufs))| {
+        .zip(&present)
+        .map(|((layers, bufs), here)| {
             layers
                 .iter()
                 .zip(bufs)
-                .filter(|(band, _)| {
-                    !band.header.empty || plan.required[i].contains(&band.header.layer)
-                })
-                .fold(BandView::new(pixels), |v, (band, data)| {
+                .zip(here)
+                .filter(|(_, keep)| **keep)
+                .fold(BandView::new(extended), |v, ((band, data), _)| {
                     v.with(band.header.layer, data)
                 })
         })
         .collect();
     scratch.outs.resize_with(plan.produced.len(), Vec::new);
     for (buf, layer) in scratch.outs.iter_mut().zip(&plan.produced) {
-        buf.resize(pixels * layer.channels(), 0.0);
+        buf.resize(extended * layer.channels(), 0.0);
     }
     let mut band_mut = plan
         .produced
         .iter()
         .zip(scratch.outs.iter_mut())
-        .fold(BandMut::new(pixels), |m, (l, d)| m.with(*l, d));
+        .fold(BandMut::new(extended), |m, (l, d)| m.with(*l, d));
     pipeline
         .run(&views, &mut band_mut, &mut scratch.pipeline)
         .map_err(ComputeError::Pipeline)?;
-    finish(plan, frame, y0, rows, scale, scratch, out, start)
+    finish(plan, frame, y0, rows, top * w, scale, scratch, out, start)
 }
 
 /// A lone `depth` over layers it selects as bits (`Operators::depth`): every output is selected
@@ -330,6 +383,7 @@ fn finish(
     frame: u64,
     y0: u32,
     rows: u32,
+    skip: usize,
     scale: f32,
     scratch: &mut Scratch,
     mut out: BandOut,
@@ -346,7 +400,11 @@ fn finish(
             .position(|l| *l == layer)
             .unwrap_or_default();
         let header = header(plan, frame, layer, format, y0, rows, scale);
-        let packed = pack_band(header, &scratch.outs[idx], &mut out, &scratch.pool)?;
+        // The band's own rows (`skip` pixels of halo above them).
+        let ch = layer.channels();
+        let own = cfg.width as usize * rows as usize * ch;
+        let values = &scratch.outs[idx][skip * ch..skip * ch + own];
+        let packed = pack_band(header, values, &mut out, &scratch.pool)?;
         out.bands.push(packed);
     }
     out.pack = packing.elapsed();

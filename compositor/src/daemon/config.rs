@@ -64,6 +64,12 @@ pub enum ConfigError {
     BandTooLarge { bytes: u64, max: usize },
     #[error("downstream address is empty")]
     NoDownstream,
+    #[error("operator {op} reads rows {width} pixels wide, the image is {image} wide")]
+    FilterWidth { op: usize, width: u32, image: u32 },
+    #[error(
+        "operator {op} needs {radius} rows of each neighbouring band, bands here are {rows} rows"
+    )]
+    FilterBands { op: usize, radius: u32, rows: u32 },
 }
 
 impl ConfigError {
@@ -106,6 +112,44 @@ pub struct StagePlan {
     pub produced: Vec<Layer>,
     /// Queue budget of each input in bytes: `frames_in_flight` whole frames of its layers.
     pub input_budget: Vec<u64>,
+    /// Rows of each neighbouring band a band is combined with (the largest `penumbra` radius; 0
+    /// without one): the stage runs its operators over the band and this halo, then sends the
+    /// band's own rows (`compute::combine`).
+    pub halo: u32,
+}
+
+/// The halo the stage's `penumbra` operators need, checked against the image and its bands.
+fn filter_halo(c: &CompositorConfig, band_rows: u32, bands: u32) -> Result<u32, ConfigError> {
+    let mut halo = 0;
+    for (op, (name, params)) in c.ops.iter().enumerate() {
+        if name != crate::ops::penumbra::NAME {
+            continue;
+        }
+        // The pipeline built it from the same text, so it parses.
+        let params: serde_json::Value = serde_json::from_str(params).unwrap_or_default();
+        let filter = crate::ops::Penumbra::new(&params).map_err(|e| {
+            ConfigError::Pipeline(PipelineError::Operator {
+                stage: op.to_string(),
+                source: e,
+            })
+        })?;
+        if filter.width() != c.width {
+            return Err(ConfigError::FilterWidth {
+                op,
+                width: filter.width(),
+                image: c.width,
+            });
+        }
+        if bands > 1 && band_rows < filter.halo() {
+            return Err(ConfigError::FilterBands {
+                op,
+                radius: filter.halo(),
+                rows: band_rows,
+            });
+        }
+        halo = halo.max(filter.halo());
+    }
+    Ok(halo)
 }
 
 impl StagePlan {
@@ -233,6 +277,7 @@ impl StagePlan {
             _ => None,
         };
         let bands = c.height.div_ceil(c.band_height);
+        let halo = filter_halo(c, band_rows, bands)?;
         let input_budget = c
             .inputs
             .iter()
@@ -254,6 +299,7 @@ impl StagePlan {
             required,
             produced,
             input_budget,
+            halo,
             config,
         };
         Ok((

@@ -4,7 +4,7 @@
 //! fails its frame with a report to the coordinator; the loop goes on to the next frame.
 
 use super::check::Expect;
-use super::compute::{BandOut, BufferPool, Scratch, combine};
+use super::compute::{BandOut, BufferPool, Received, Scratch, Window, combine};
 use super::config::{Operators, StagePlan};
 use super::control::{ControlOut, NewConfig};
 use super::inputs::{InBand, InputError, Slot, SlotContext};
@@ -218,10 +218,13 @@ impl Engine {
             .map(|i| vec![None; i.layers.len()])
             .collect();
         let mut pending: Option<(u32, Pending)> = None;
+        // With a halo, band b is combined once band b + 1 is here: (band, its inputs, the
+        // band above's).
+        let mut held: Option<(u32, Arc<Received>, Option<Arc<Received>>)> = None;
         for b in 0..plan.bands {
             let received = self.gather(&plan, req.frame, b, &mut scales).await;
             let received = match received {
-                Ok(r) => r,
+                Ok(r) => Arc::new(r),
                 Err(e) => {
                     if let Some((_, p)) = pending.take() {
                         self.reclaim(p).await;
@@ -229,10 +232,47 @@ impl Engine {
                     return Err(e);
                 }
             };
+            let window = if plan.halo == 0 {
+                Some((
+                    b,
+                    Window {
+                        above: None,
+                        centre: received,
+                        below: None,
+                    },
+                ))
+            } else {
+                let ready = held.take().map(|(hb, centre, above)| {
+                    (
+                        hb,
+                        Window {
+                            above,
+                            centre: Arc::clone(&centre),
+                            below: Some(Arc::clone(&received)),
+                        },
+                    )
+                });
+                let above = ready.as_ref().map(|(_, w)| Arc::clone(&w.centre));
+                held = Some((b, received, above));
+                ready
+            };
             if let Some((pb, p)) = pending.take() {
                 self.forward(pb, p, &mut stats).await?;
             }
-            pending = Some((b, self.spawn_combine(&plan, req.frame, b, received)));
+            if let Some((wb, window)) = window {
+                pending = Some((wb, self.spawn_combine(&plan, req.frame, wb, window)));
+            }
+        }
+        if let Some((hb, centre, above)) = held.take() {
+            if let Some((pb, p)) = pending.take() {
+                self.forward(pb, p, &mut stats).await?;
+            }
+            let window = Window {
+                above,
+                centre,
+                below: None,
+            };
+            pending = Some((hb, self.spawn_combine(&plan, req.frame, hb, window)));
         }
         if let Some((pb, p)) = pending.take() {
             self.forward(pb, p, &mut stats).await?;
@@ -343,7 +383,7 @@ impl Engine {
         plan: &Arc<StagePlan>,
         frame: u64,
         b: u32,
-        received: Vec<Vec<InBand>>,
+        window: Window,
     ) -> Pending {
         let plan = Arc::clone(plan);
         let ops = Arc::clone(&self.ops);
@@ -357,7 +397,7 @@ impl Engine {
         self.compute.spawn(move || {
             let ops = ops.lock().unwrap_or_else(|e| e.into_inner());
             let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                combine(&plan, &ops, frame, b, &received, scale, &mut scratch)
+                combine(&plan, &ops, frame, b, &window, scale, &mut scratch)
                     .map_err(|e| e.to_string())
             }))
             .unwrap_or_else(|_| Err("the combine panicked".to_string()));

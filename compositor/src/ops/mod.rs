@@ -1,4 +1,4 @@
-//! Per-pixel compositing operators (paper §3, ARCHITECTURE §8): the `Operator` trait, the band
+//! Compositing operators (per pixel, and one neighbourhood filter, `penumbra`) (paper §3, ARCHITECTURE §8): the `Operator` trait, the band
 //! views they read and write, the registry by name, and the value policy they all share.
 //!
 //! Bands are rectangles of rows held as interleaved f32 per layer (`Layer::channels()` values a
@@ -20,6 +20,7 @@ pub mod material;
 pub mod output;
 pub mod packed_out;
 pub(crate) mod params;
+pub mod penumbra;
 pub mod precision;
 
 use lightfold_protocol::Layer;
@@ -35,6 +36,7 @@ pub use material::{Material, MaterialStage};
 pub use output::Output;
 pub use packed_out::{PackSummary, PackedOut};
 pub use params::{layer_from_name, layer_name};
+pub use penumbra::Penumbra;
 pub use precision::{LinkFormat, LinkKind, chain_bound, recommended_link_format};
 
 /// The largest colour value an operator emits: sums saturate here instead of reaching +Inf, so a
@@ -220,12 +222,13 @@ pub trait Operator: Send + Sync + fmt::Debug {
 /// Builds an operator from its JSON parameters.
 pub type Constructor = fn(&Value) -> Result<Box<dyn Operator>, OpError>;
 
-static REGISTRY: [(&str, Constructor); 5] = [
+static REGISTRY: [(&str, Constructor); 6] = [
     (accumulate::NAME, |p| Ok(Box::new(Accumulate::new(p)?))),
     (material::NAME, |p| Ok(Box::new(Material::new(p)?))),
     (depth::NAME, |p| Ok(Box::new(Depth::new(p)?))),
     (join::NAME, |p| Ok(Box::new(Join::new(p)?))),
     (output::NAME, |p| Ok(Box::new(Output::new(p)?))),
+    (penumbra::NAME, |p| Ok(Box::new(Penumbra::new(p)?))),
 ];
 
 /// Every operator by name.

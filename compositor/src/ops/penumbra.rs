@@ -1,0 +1,356 @@
+//! `penumbra`: the screen-space penumbra filter (seed 003's 7×7 average of the shadow image, seed
+//! 001's selective filtering), run on the illumination sum before the material multiply, so a
+//! few point samples per area light give a smooth penumbra instead of one visible step per
+//! sample.
+//!
+//! Each pixel becomes the plain average of the pixels of its (2r+1)² window that lie on its own
+//! surface, and only those: a neighbour counts when its inverse eye depth 1/z lies within
+//! `depth_tolerance · (1/z_p)` of the plane through the pixel. For a perspective camera 1/z is
+//! affine in screen space over a plane, so a plane's own pixels fit its prediction exactly,
+//! whatever its slope; a silhouette (another object behind or in front) misses it by the depth
+//! gap, and a crease (another face of the same object) by its change of slope times the
+//! distance. The plane's slope at a pixel is, per axis, the one-sided difference of 1/z on the side
+//! where the surface goes on as a plane (two pixels each way, the smaller second difference), so
+//! a pixel on a silhouette or a crease takes its slope from its own side.
+//! This is the normal-aware part: the plane is the surface's tangent plane as the depth layer
+//! gives it, so no normal layer travels. Background pixels (depth 0, or not finite and positive)
+//! are left as they are and never counted.
+//!
+//! Input 0 carries the illumination (diffuse RGB, specular RGB), input 1 the depth layer (eye
+//! depth along the camera's forward axis, ARCHITECTURE §3). The band is read as an image `width`
+//! pixels wide; taps beyond its first or last row are not counted, so a stage that runs it band
+//! by band gives it `halo()` rows (the radius, at least 2) of each neighbouring band above and
+//! below and keeps
+//! only the rows in between (`compositor/src/daemon/engine.rs`): those come out exactly as if the
+//! whole frame had been filtered at once.
+//!
+//! Diffuse channels are always filtered; specular ones only with `specular: true` (highlights are
+//! sharp by design, and most of the penumbra's energy is diffuse). Colour values follow the value
+//! policy (`sanitize` on read, saturating at `MAX_VALUE`); both versions sum a window's taps in
+//! row-major order and give the same bits.
+
+use super::params;
+use super::{
+    BandMut, BandView, InputSpec, MAX_VALUE, OpError, Operator, Signature, check_band, clamp_fast,
+    sanitize, saturate,
+};
+use lightfold_protocol::Layer;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+pub const NAME: &str = "penumbra";
+/// Largest radius accepted: a 17×17 window.
+pub const MAX_RADIUS: u32 = 8;
+/// Default radius: seed 003's 7×7 window.
+pub const DEFAULT_RADIUS: u32 = 3;
+/// Default tolerance on the plane prediction, relative to the pixel's inverse depth.
+pub const DEFAULT_DEPTH_TOLERANCE: f32 = 0.002;
+/// Rows below which a band is filtered on the calling thread.
+const PAR_ROWS: usize = 64;
+
+fn default_radius() -> u32 {
+    DEFAULT_RADIUS
+}
+
+fn default_tolerance() -> f32 {
+    DEFAULT_DEPTH_TOLERANCE
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Params {
+    /// Pixels per row of the bands this operator sees (the image width).
+    width: u32,
+    #[serde(default = "default_radius")]
+    radius: u32,
+    #[serde(default = "default_tolerance")]
+    depth_tolerance: f32,
+    #[serde(default)]
+    specular: bool,
+}
+
+/// The penumbra filter (see the module documentation).
+#[derive(Debug, Clone)]
+pub struct Penumbra {
+    params: Params,
+}
+
+fn bad(reason: String) -> OpError {
+    OpError::BadParam { op: NAME, reason }
+}
+
+impl Penumbra {
+    pub fn new(params: &Value) -> Result<Self, OpError> {
+        let p: Params = params::parse(NAME, params)?;
+        if p.width == 0 {
+            return Err(bad("width must be at least 1".into()));
+        }
+        if !(1..=MAX_RADIUS).contains(&p.radius) {
+            return Err(bad(format!(
+                "radius must be in 1..={MAX_RADIUS}, got {}",
+                p.radius
+            )));
+        }
+        if !(p.depth_tolerance.is_finite() && p.depth_tolerance > 0.0) {
+            return Err(bad(format!(
+                "depth_tolerance must be finite and positive, got {}",
+                p.depth_tolerance
+            )));
+        }
+        Ok(Penumbra { params: p })
+    }
+
+    /// The window's radius.
+    pub fn radius(&self) -> u32 {
+        self.params.radius
+    }
+
+    /// Rows of each neighbouring band a band needs to be filtered as the whole frame would be:
+    /// the radius, and at least the two rows the plane's slope is read from.
+    pub fn halo(&self) -> u32 {
+        self.params.radius.max(2)
+    }
+
+    /// The row length this operator reads bands with.
+    pub fn width(&self) -> u32 {
+        self.params.width
+    }
+
+    /// Channels filtered per pixel (3: diffuse only; 6: diffuse and specular).
+    fn filtered(&self) -> usize {
+        if self.params.specular { 6 } else { 3 }
+    }
+
+    /// Checks the band and that it is whole rows; returns the rows.
+    fn rows(&self, inputs: &[BandView<'_>], out: &BandMut<'_>) -> Result<usize, OpError> {
+        check_band(NAME, &self.signature(), inputs, out)?;
+        let w = self.params.width as usize;
+        if !out.pixels.is_multiple_of(w) {
+            return Err(bad(format!(
+                "a band of {} pixels is not whole rows of {w}",
+                out.pixels
+            )));
+        }
+        Ok(out.pixels / w)
+    }
+}
+
+/// Inverse eye depth: 0 for background and for a value that is not finite and positive.
+#[inline]
+fn inverse(z: f32) -> f32 {
+    if z.is_finite() && z > 0.0 {
+        1.0 / z
+    } else {
+        0.0
+    }
+}
+
+/// The plane's slope along one axis at a pixel of inverse depth `c`, from its neighbours one and
+/// two pixels before (`a`, `aa`) and after (`b`, `bb`) on that axis (0: absent or background).
+/// Each side offers its one-sided difference; the side whose surface goes on along it (the
+/// smaller second difference, `|2a − aa − c|`) is taken, so a pixel next to a silhouette or on
+/// one face of a crease takes its own surface's slope. A side with one neighbour only is judged
+/// by its difference; with no neighbour the slope is 0.
+#[inline]
+fn slope(c: f32, a: f32, aa: f32, b: f32, bb: f32) -> f32 {
+    let side = |n: f32, nn: f32, d: f32| -> Option<(f32, f32)> {
+        (n > 0.0).then(|| {
+            let bend = if nn > 0.0 {
+                (2.0 * n - nn - c).abs()
+            } else {
+                d.abs()
+            };
+            (d, bend)
+        })
+    };
+    match (side(a, aa, c - a), side(b, bb, b - c)) {
+        (Some(l), Some(r)) => {
+            if r.1 < l.1 {
+                r.0
+            } else {
+                l.0
+            }
+        }
+        (Some(l), None) => l.0,
+        (None, Some(r)) => r.0,
+        (None, None) => 0.0,
+    }
+}
+
+impl Operator for Penumbra {
+    fn name(&self) -> &'static str {
+        NAME
+    }
+
+    fn signature(&self) -> Signature {
+        Signature {
+            inputs: vec![
+                InputSpec {
+                    required: vec![Layer::Illumination],
+                    optional: vec![],
+                },
+                InputSpec {
+                    required: vec![Layer::Depth],
+                    optional: vec![],
+                },
+            ],
+            outputs: vec![Layer::Illumination],
+        }
+    }
+
+    fn apply_scalar(&self, inputs: &[BandView<'_>], out: &mut BandMut<'_>) -> Result<(), OpError> {
+        let rows = self.rows(inputs, out)?;
+        let il = inputs[0].layer(Layer::Illumination).expect("checked");
+        let depth = inputs[1].layer(Layer::Depth).expect("checked");
+        let dst = out.layer_mut(Layer::Illumination).expect("checked");
+        let (w, r) = (self.params.width as usize, self.params.radius as i64);
+        let tol = self.params.depth_tolerance;
+        let nf = self.filtered();
+        let at = |x: i64, y: i64| -> f32 {
+            if x < 0 || y < 0 || x >= w as i64 || y >= rows as i64 {
+                0.0
+            } else {
+                inverse(depth[y as usize * w + x as usize])
+            }
+        };
+        for y in 0..rows as i64 {
+            for x in 0..w as i64 {
+                let p = y as usize * w + x as usize;
+                for c in 0..6 {
+                    dst[p * 6 + c] = sanitize(il[p * 6 + c]);
+                }
+                let c = at(x, y);
+                if c <= 0.0 {
+                    continue;
+                }
+                let gx = slope(c, at(x - 1, y), at(x - 2, y), at(x + 1, y), at(x + 2, y));
+                let gy = slope(c, at(x, y - 1), at(x, y - 2), at(x, y + 1), at(x, y + 2));
+                let limit = tol * c;
+                let mut sum = [0.0f32; 6];
+                let mut count = 0u32;
+                for dy in -r..=r {
+                    for dx in -r..=r {
+                        let q = at(x + dx, y + dy);
+                        if q <= 0.0 {
+                            continue;
+                        }
+                        let predicted = c + gx * dx as f32 + gy * dy as f32;
+                        if (q - predicted).abs() > limit {
+                            continue;
+                        }
+                        let k = ((y + dy) as usize * w + (x + dx) as usize) * 6;
+                        for (s, v) in sum.iter_mut().zip(&il[k..k + nf]) {
+                            *s += sanitize(*v);
+                        }
+                        count += 1;
+                    }
+                }
+                let n = count as f32;
+                for (ch, s) in sum.iter().enumerate().take(nf) {
+                    dst[p * 6 + ch] = (s / n).min(MAX_VALUE);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn apply(&self, inputs: &[BandView<'_>], out: &mut BandMut<'_>) -> Result<(), OpError> {
+        let rows = self.rows(inputs, out)?;
+        let il = inputs[0].layer(Layer::Illumination).expect("checked");
+        let depth = inputs[1].layer(Layer::Depth).expect("checked");
+        let w = self.params.width as usize;
+        let r = self.params.radius as usize;
+        let tol = self.params.depth_tolerance;
+        let nf = self.filtered();
+        // Inverse depth and the plane's slopes, once per pixel.
+        let inv: Vec<f32> = depth.iter().map(|z| inverse(*z)).collect();
+        let grad: Vec<(f32, f32)> = (0..rows * w)
+            .map(|p| {
+                let (x, y) = (p % w, p / w);
+                // Inverse depth `k` pixels along x or y (0 off the band).
+                let along_x = |k: isize| {
+                    let q = x as isize + k;
+                    if (0..w as isize).contains(&q) {
+                        inv[p - x + q as usize]
+                    } else {
+                        0.0
+                    }
+                };
+                let along_y = |k: isize| {
+                    let q = y as isize + k;
+                    if (0..rows as isize).contains(&q) {
+                        inv[q as usize * w + x]
+                    } else {
+                        0.0
+                    }
+                };
+                let c = inv[p];
+                (
+                    slope(c, along_x(-1), along_x(-2), along_x(1), along_x(2)),
+                    slope(c, along_y(-1), along_y(-2), along_y(1), along_y(2)),
+                )
+            })
+            .collect();
+        let dst = out.layer_mut(Layer::Illumination).expect("checked");
+        let row = |y: usize, line: &mut [f32]| {
+            let y0 = y.saturating_sub(r);
+            let y1 = (y + r).min(rows - 1);
+            for x in 0..w {
+                let p = y * w + x;
+                let o = &mut line[x * 6..x * 6 + 6];
+                for (o, v) in o.iter_mut().zip(&il[p * 6..p * 6 + 6]) {
+                    *o = clamp_fast(*v);
+                }
+                let c = inv[p];
+                if c <= 0.0 {
+                    continue;
+                }
+                let (gx, gy) = grad[p];
+                let limit = tol * c;
+                let x0 = x.saturating_sub(r);
+                let x1 = (x + r).min(w - 1);
+                let mut sum = [0.0f32; 6];
+                let mut count = 0u32;
+                for qy in y0..=y1 {
+                    let dy = qy as f32 - y as f32;
+                    let qrow = &inv[qy * w..qy * w + w];
+                    for (qx, &q) in qrow.iter().enumerate().take(x1 + 1).skip(x0) {
+                        let dx = qx as f32 - x as f32;
+                        // The reference's `c + gx·dx + gy·dy`, in the same order of operations.
+                        let predicted = c + gx * dx + gy * dy;
+                        if q <= 0.0 || (q - predicted).abs() > limit {
+                            continue;
+                        }
+                        let k = (qy * w + qx) * 6;
+                        for (s, v) in sum.iter_mut().zip(&il[k..k + nf]) {
+                            *s += clamp_fast(*v);
+                        }
+                        count += 1;
+                    }
+                }
+                let n = count as f32;
+                for (o, s) in o.iter_mut().zip(&sum).take(nf) {
+                    *o = saturate(s / n);
+                }
+            }
+        };
+        if rows < PAR_ROWS || rayon::current_num_threads() < 2 {
+            for (y, line) in dst.chunks_mut(w * 6).enumerate() {
+                row(y, line);
+            }
+        } else {
+            dst.par_chunks_mut(w * 6)
+                .enumerate()
+                .for_each(|(y, line)| row(y, line));
+        }
+        Ok(())
+    }
+
+    fn set_params(&mut self, params: &Value) -> Result<(), OpError> {
+        let current = serde_json::to_value(&self.params).map_err(|e| bad(e.to_string()))?;
+        let next = Penumbra::new(&params::merge(NAME, &current, params)?)?;
+        *self = next;
+        Ok(())
+    }
+}

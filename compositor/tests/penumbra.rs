@@ -1,0 +1,339 @@
+//! The penumbra filter (`ops::penumbra`): it averages a surface's own pixels and nothing across a
+//! silhouette or a crease, a plain box filter (the same operator told to ignore depth) fails the
+//! same checks, background is left alone, a band filtered with its halo gives the rows of the
+//! whole frame's filter bit for bit, and the fast version gives the reference's bits on hostile
+//! values.
+
+mod common;
+
+use common::{Owned, assert_same_bits, hostile, ordinary, rng, run};
+use lightfold_compositor::ops::{self, BandMut, BandView, OpError, Operator};
+use lightfold_protocol::Layer;
+use rand::Rng;
+use serde_json::json;
+
+const ILL: Layer = Layer::Illumination;
+const DEPTH: Layer = Layer::Depth;
+
+fn filter(width: usize, extra: serde_json::Value) -> Box<dyn Operator> {
+    let mut p = json!({ "width": width });
+    if let serde_json::Value::Object(m) = extra {
+        for (k, v) in m {
+            p[k] = v;
+        }
+    }
+    ops::create("penumbra", &p).unwrap()
+}
+
+/// A plain 7×7 box filter: the same operator with a depth tolerance no surface misses.
+fn box_filter(width: usize) -> Box<dyn Operator> {
+    filter(width, json!({ "depth_tolerance": 1e30 }))
+}
+
+fn inputs(il: Vec<f32>, depth: Vec<f32>) -> Vec<Owned> {
+    let pixels = depth.len();
+    vec![
+        Owned {
+            pixels,
+            layers: vec![(ILL, il)],
+        },
+        Owned {
+            pixels,
+            layers: vec![(DEPTH, depth)],
+        },
+    ]
+}
+
+fn filtered(op: &dyn Operator, ins: &[Owned]) -> Vec<f32> {
+    let pixels = ins[0].pixels;
+    let fast = run(op, ins, pixels, false);
+    let reference = run(op, ins, pixels, true);
+    assert_same_bits(&fast, &reference, "penumbra fast vs reference");
+    fast.layer(ILL).to_vec()
+}
+
+/// Illumination from a function of (x, y): diffuse = f, specular = 2f.
+fn illumination(w: usize, h: usize, f: impl Fn(usize, usize) -> f32) -> Vec<f32> {
+    let mut v = Vec::with_capacity(w * h * 6);
+    for y in 0..h {
+        for x in 0..w {
+            let d = f(x, y);
+            v.extend_from_slice(&[d, d, d, 2.0 * d, 2.0 * d, 2.0 * d]);
+        }
+    }
+    v
+}
+
+/// A pinhole camera's eye depth over the plane n·p = 1 (n in camera space, the image plane at
+/// distance `f` pixels): 1/z is affine in the pixel coordinates.
+fn plane_depth(w: usize, h: usize, n: [f32; 3], f: f32) -> Vec<f32> {
+    let mut v = Vec::with_capacity(w * h);
+    for y in 0..h {
+        for x in 0..w {
+            let (u, t) = (x as f32 - w as f32 / 2.0, y as f32 - h as f32 / 2.0);
+            // p = z·(u/f, t/f, 1): n·p = 1 gives 1/z = n·(u/f, t/f, 1).
+            let inv = n[0] * u / f + n[1] * t / f + n[2];
+            v.push(1.0 / inv);
+        }
+    }
+    v
+}
+
+/// Equal but for the rounding of a mean of equal values.
+fn close(a: f32, b: f32) -> bool {
+    (a - b).abs() <= 1e-6 * b.abs().max(1.0)
+}
+
+/// The surface checks: where every pixel of a pixel's window lies on its surface the output is
+/// the window's mean; a pixel next to another surface keeps only its own surface's values.
+/// Returns the first failure.
+fn check_edges(op: &dyn Operator) -> Result<(), String> {
+    let (w, h) = (24, 20);
+    // Silhouette: a near object (z = 2) on the left, a far wall (z = 3) on the right. Each side
+    // is lit uniformly, differently: a filter that keeps to surfaces changes nothing.
+    let il = illumination(w, h, |x, _| if x < 12 { 0.2 } else { 1.0 });
+    let depth: Vec<f32> = (0..w * h)
+        .map(|p| if p % w < 12 { 2.0 } else { 3.0 })
+        .collect();
+    let out = filtered(op, &inputs(il.clone(), depth));
+    if let Some(k) = (0..il.len()).find(|&k| !close(out[k], il[k])) {
+        return Err(format!(
+            "silhouette: value {k} (pixel {}) became {} from {}",
+            k / 6,
+            out[k],
+            il[k]
+        ));
+    }
+    // Crease: two faces of one object meeting along x = 12 at the same depth there (a concave
+    // corner, lit differently on each face): continuous depth, a kink in its slope.
+    // 1/z = 0.4 ± 0.001·u, the faces meeting between pixels 11 and 12 (u = -0.5): the slope
+    // changes by 0.5 % of 1/z a pixel there.
+    let (left, right) = (
+        plane_depth(w, h, [0.05, 0.0, 0.4], 50.0),
+        plane_depth(w, h, [-0.05, 0.0, 0.399], 50.0),
+    );
+    let depth: Vec<f32> = (0..w * h)
+        .map(|p| {
+            let x = p % w;
+            if x < 12 { left[p] } else { right[p] }
+        })
+        .collect();
+    let il = illumination(w, h, |x, _| if x < 12 { 0.3 } else { 0.9 });
+    let out = filtered(op, &inputs(il.clone(), depth));
+    if let Some(k) = (0..il.len()).find(|&k| !close(out[k], il[k])) {
+        return Err(format!(
+            "crease: value {k} (pixel {}) became {} from {}",
+            k / 6,
+            out[k],
+            il[k]
+        ));
+    }
+    Ok(())
+}
+
+#[test]
+fn no_blur_across_silhouettes_or_creases_and_a_box_filter_fails() {
+    check_edges(&*filter(24, json!({}))).unwrap();
+    // Negative control: a plain box filter blurs both edges.
+    let e = check_edges(&*box_filter(24)).expect_err("a box filter blurs the silhouette");
+    assert!(e.starts_with("silhouette"), "{e}");
+}
+
+#[test]
+fn a_tilted_plane_is_averaged_over_the_whole_window() {
+    // A receiver seen at a slant (1/z changes by 3 % a pixel across): every tap of a 7×7
+    // window lies on it, so the output is the plain mean of the window's diffuse values, and
+    // specular is left alone (`specular: false`).
+    let (w, h) = (21, 15);
+    let depth = plane_depth(w, h, [0.0, 0.05, 0.3], 40.0);
+    // Penumbra banding: one step every 3 columns.
+    let step = |x: usize, _y: usize| (x / 3) as f32 * 0.125;
+    let il = illumination(w, h, step);
+    let op = filter(w, json!({}));
+    let out = filtered(&*op, &inputs(il.clone(), depth.clone()));
+    for y in 3..h - 3 {
+        for x in 3..w - 3 {
+            let mut sum = 0.0f32;
+            for qy in y - 3..=y + 3 {
+                for qx in x - 3..=x + 3 {
+                    sum += step(qx, qy);
+                }
+            }
+            let p = (y * w + x) * 6;
+            let want = sum / 49.0;
+            assert!(
+                (out[p] - want).abs() <= 1e-6,
+                "({x},{y}): {} vs {want}",
+                out[p]
+            );
+            assert_eq!(out[p + 3], il[p + 3], "specular kept");
+        }
+    }
+    // With `specular: true` the specular channels are averaged too.
+    let op = filter(w, json!({ "specular": true }));
+    let out = filtered(&*op, &inputs(il, depth));
+    let p = (7 * w + 10) * 6;
+    assert!((out[p + 3] - 2.0 * out[p]).abs() <= 1e-6);
+}
+
+#[test]
+fn background_is_left_alone_and_never_counted() {
+    let (w, h) = (9, 9);
+    let il = illumination(w, h, |x, y| (x + y) as f32 * 0.1);
+    // Background (0, NaN, -1, +Inf) in a ring around a flat surface at z = 5.
+    let mut depth = vec![5.0f32; w * h];
+    for (p, d) in depth.iter_mut().enumerate() {
+        let (x, y) = (p % w, p / w);
+        if x == 0 || y == 0 || x == w - 1 || y == h - 1 {
+            *d = [0.0, f32::NAN, -1.0, f32::INFINITY][p % 4];
+        }
+    }
+    let op = filter(w, json!({ "radius": 1 }));
+    let out = filtered(&*op, &inputs(il.clone(), depth.clone()));
+    for p in 0..w * h {
+        let (x, y) = (p % w, p / w);
+        if depth[p] != 5.0 {
+            assert_eq!(&out[p * 6..p * 6 + 6], &il[p * 6..p * 6 + 6], "background");
+            continue;
+        }
+        // Mean of the 3×3 neighbours that are on the surface.
+        let (mut sum, mut n) = (0.0f32, 0.0f32);
+        for qy in y - 1..=y + 1 {
+            for qx in x - 1..=x + 1 {
+                if depth[qy * w + qx] == 5.0 {
+                    sum += il[(qy * w + qx) * 6];
+                    n += 1.0;
+                }
+            }
+        }
+        assert!((out[p * 6] - sum / n).abs() <= 1e-6, "({x},{y})");
+    }
+}
+
+/// Rows `y0..y0 + rows` of a band of `il`/`depth` extended by up to `halo` rows each side.
+fn banded(
+    op: &dyn Operator,
+    il: &[f32],
+    depth: &[f32],
+    w: usize,
+    band: usize,
+    halo: usize,
+) -> Vec<f32> {
+    let h = depth.len() / w;
+    let mut out = Vec::with_capacity(il.len());
+    let mut y0 = 0;
+    while y0 < h {
+        let rows = band.min(h - y0);
+        let (a, b) = (y0.saturating_sub(halo), (y0 + rows + halo).min(h));
+        let ins = inputs(
+            il[a * w * 6..b * w * 6].to_vec(),
+            depth[a * w..b * w].to_vec(),
+        );
+        let got = filtered(op, &ins);
+        out.extend_from_slice(&got[(y0 - a) * w * 6..(y0 - a + rows) * w * 6]);
+        y0 += rows;
+    }
+    out
+}
+
+#[test]
+fn bands_with_their_halo_give_the_whole_frames_bits() {
+    let (w, h) = (17, 23);
+    let mut r = rng(7);
+    let il: Vec<f32> = (0..w * h * 6).map(|_| ordinary(&mut r)).collect();
+    // Two planes and a gap: silhouettes and slopes in every band.
+    let a = plane_depth(w, h, [0.01, 0.03, 0.3], 30.0);
+    let depth: Vec<f32> = (0..w * h)
+        .map(|p| {
+            if (p % w + p / w) % 11 < 4 {
+                a[p] * 1.5
+            } else if p % 13 == 0 {
+                0.0
+            } else {
+                a[p]
+            }
+        })
+        .collect();
+    for radius in [1, 3, 5] {
+        let op = filter(w, json!({ "radius": radius, "specular": true }));
+        let whole = filtered(&*op, &inputs(il.clone(), depth.clone()));
+        let halo = radius.max(2);
+        for band in [halo, 4, 7, 16] {
+            if band < halo {
+                continue;
+            }
+            let got = banded(&*op, &il, &depth, w, band, halo as usize);
+            assert_eq!(got.len(), whole.len());
+            for (k, (g, x)) in got.iter().zip(&whole).enumerate() {
+                assert_eq!(g.to_bits(), x.to_bits(), "r={radius} band={band} value {k}");
+            }
+            // Negative control: without the halo the band edges differ.
+            let cut = banded(&*op, &il, &depth, w, band, 0);
+            assert!(
+                cut.iter().zip(&whole).any(|(a, b)| a != b),
+                "r={radius} band={band}"
+            );
+        }
+    }
+}
+
+#[test]
+fn fast_matches_reference_on_hostile_values() {
+    for (w, h) in [(1, 1), (1, 9), (7, 1), (13, 11), (64, 70), (33, 130)] {
+        for seed in 0..3u64 {
+            let mut r = rng(seed * 31 + w as u64);
+            let il: Vec<f32> = (0..w * h * 6).map(|_| hostile(&mut r)).collect();
+            // Depths: mostly a noisy plane, with hostile values mixed in.
+            let depth: Vec<f32> = (0..w * h)
+                .map(|_| {
+                    if r.random_range(0..5) == 0 {
+                        hostile(&mut r)
+                    } else {
+                        r.random_range(4.0..4.2f32)
+                    }
+                })
+                .collect();
+            for params in [
+                json!({ "width": w }),
+                json!({ "width": w, "radius": 8, "specular": true, "depth_tolerance": 0.5 }),
+            ] {
+                let op = ops::create("penumbra", &params).unwrap();
+                let out = filtered(&*op, &inputs(il.clone(), depth.clone()));
+                assert!(out.iter().all(|v| v.is_finite() && *v >= 0.0), "{params}");
+            }
+        }
+    }
+}
+
+#[test]
+fn parameters_and_band_shape_are_checked() {
+    for bad in [
+        json!({}),
+        json!({ "width": 0 }),
+        json!({ "width": 8, "radius": 0 }),
+        json!({ "width": 8, "radius": 9 }),
+        json!({ "width": 8, "depth_tolerance": 0.0 }),
+        json!({ "width": 8, "depth_tolerance": -1.0 }),
+        json!({ "width": 8, "blur": 1 }),
+    ] {
+        let e = ops::create("penumbra", &bad).expect_err(&bad.to_string());
+        assert!(matches!(e, OpError::BadParam { .. }), "{bad}: {e}");
+    }
+    // A band that is not whole rows is refused, not misread.
+    let op = filter(8, json!({}));
+    let (il, depth) = (vec![0.5f32; 12 * 6], vec![1.0f32; 12]);
+    let views = [
+        BandView::new(12).with(ILL, &il),
+        BandView::new(12).with(DEPTH, &depth),
+    ];
+    let mut o = vec![0.0f32; 12 * 6];
+    let mut out = BandMut::new(12).with(ILL, &mut o);
+    assert!(matches!(
+        op.apply(&views, &mut out),
+        Err(OpError::BadParam { .. })
+    ));
+    assert!(matches!(
+        op.apply_scalar(&views, &mut out),
+        Err(OpError::BadParam { .. })
+    ));
+}
