@@ -262,7 +262,7 @@ fn bands_with_their_halo_give_the_whole_frames_bits() {
             if band < halo {
                 continue;
             }
-            let got = banded(&*op, &il, &depth, w, band, halo as usize);
+            let got = banded(&*op, &il, &depth, w, band, halo);
             assert_eq!(got.len(), whole.len());
             for (k, (g, x)) in got.iter().zip(&whole).enumerate() {
                 assert_eq!(g.to_bits(), x.to_bits(), "r={radius} band={band} value {k}");
