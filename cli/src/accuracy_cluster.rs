@@ -144,6 +144,7 @@ impl LocalCluster {
         };
         opts.plan.lights_per_node = s.k;
         opts.plan.formats.node = s.format;
+        opts.plan.penumbra_filter = s.penumbra;
         opts.plan.map_sizing = MapSizing::Scene;
         let mut frames = Vec::new();
         let outcome = self.rt.block_on(lightfold_coordinator::run::render(

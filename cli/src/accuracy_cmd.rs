@@ -37,7 +37,7 @@ pub struct Args {
     #[arg(long, default_value = "full")]
     sweep: String,
     /// Vary only these knobs of the sweep, comma-separated: samples, pattern, map, filter,
-    /// format, K, grid (default: all).
+    /// format, K, grid, penumbra (default: all).
     #[arg(long, value_delimiter = ',')]
     knobs: Vec<String>,
     /// Where ground truths are cached by scene hash (default: the user's cache folder,
@@ -102,7 +102,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .iter()
             .map(|k| {
                 accuracy::Knob::from_name(k).with_context(|| {
-                    format!("unknown knob {k:?}: samples, pattern, map, filter, format, K or grid")
+                    format!("unknown knob {k:?}: samples, pattern, map, filter, format, K, grid or penumbra")
                 })
             })
             .collect::<anyhow::Result<Vec<_>>>()?;

@@ -192,6 +192,12 @@ pub struct JobArgs {
     /// scene's accuracy sweep) expects to reach it; `lightfold accuracy` measures what it gives.
     #[arg(long, value_parser = crate::coordinator_cmd::target_db)]
     pub target_psnr: Option<f32>,
+    /// Screen-space penumbra filter of this radius (pixels; 0: none, at most 8): the last stage
+    /// averages the illumination sum over each pixel's (2R+1)² window, on its own surface only
+    /// (the eye depth travels with the material layers), before the material multiply, so few
+    /// samples per area light give a smooth penumbra (docs/operators.md).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=8))]
+    pub penumbra_filter: u32,
     /// Frames requested ahead of the one being finished: 2 keeps every stage busy (the
     /// pipelined rate of the slowest stage), 1 shortens the live view's latency at lower rate.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=8))]
@@ -263,6 +269,7 @@ impl JobArgs {
             material_own_node: self.material_own_node,
             frame_budget_us: self.frame_budget.map(|b| (b * 1000.0).round() as u64),
             target_penumbra_db: self.target_psnr,
+            penumbra_filter: self.penumbra_filter,
             frames_in_flight: self.frames_in_flight,
             formats: self.formats(),
             supersample: self.aa,

@@ -78,6 +78,12 @@ pub struct Args {
     /// scene's accuracy sweep) expects to reach it; `lightfold accuracy` measures what it gives.
     #[arg(long, value_parser = crate::coordinator_cmd::target_db)]
     pub target_psnr: Option<f32>,
+    /// Screen-space penumbra filter of this radius (pixels; 0: none, at most 8): the last stage
+    /// averages the illumination sum over each pixel's (2R+1)² window, on its own surface only
+    /// (the eye depth travels with the material layers), before the material multiply, so few
+    /// samples per area light give a smooth penumbra (docs/operators.md).
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=8))]
+    pub penumbra_filter: u32,
 }
 
 impl Args {
@@ -116,6 +122,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         material_own_node: args.material_own_node,
         frame_budget_us: args.frame_budget.map(|b| (b * 1000.0).round() as u64),
         target_penumbra_db: args.target_psnr,
+        penumbra_filter: args.penumbra_filter,
         ..PlanOptions::default()
     };
     if let Some(n) = args.shadow_map_size {

@@ -87,6 +87,11 @@ pub struct Args {
     /// (default: its rest pose).
     #[arg(long, value_parser = crate::coordinator_cmd::finite_seconds)]
     pub time: Option<f32>,
+    /// Screen-space penumbra filter of this radius on the summed illumination before the
+    /// material multiply (0: none; the GPU render only): what a cluster planned with
+    /// `--penumbra-filter R` does at its last stage.
+    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=8))]
+    pub penumbra_filter: u32,
     #[command(flatten)]
     pub indirect: crate::indirect_args::IndirectArgs,
 }
@@ -94,6 +99,9 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     if !args.reference && args.area_truth.is_some() {
         bail!("--area-truth renders true area lights on the CPU: add --reference");
+    }
+    if args.reference && args.penumbra_filter > 0 {
+        bail!("--penumbra-filter filters a GPU render's point-sampled penumbra: drop --reference");
     }
     let mut scene = lightfold_scene::load(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;

@@ -91,7 +91,15 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
     let mut steady_frames = 0;
     let mut views_per_light = Vec::new();
     for f in 0..frames {
-        let (radiance, times) = render_frame(&gpu, &mut renderer, scene, samples, k, None)?;
+        let (radiance, times) = render_frame(
+            &gpu,
+            &mut renderer,
+            scene,
+            samples,
+            k,
+            None,
+            args.penumbra_filter,
+        )?;
         if args.timings {
             outln!(
                 "{f:>5}  {:>13}  {:>9.1}  {:>6.1}  {:>11.1}  {:>8.1}",
@@ -162,7 +170,7 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
     }
     if let Some(path) = &args.unoccluded_out {
         let none = vec![Vec::new(); samples.len()];
-        let ((open, _), _) = render_frame(&gpu, &mut renderer, scene, samples, k, Some(&none))?;
+        let ((open, _), _) = render_frame(&gpu, &mut renderer, scene, samples, k, Some(&none), 0)?;
         open.box_resolve(args.aa)?.write_exr(path)?;
     }
     outln!(
@@ -184,6 +192,7 @@ fn render_frame(
     samples: &[LightSample],
     k: usize,
     casters: Option<&[Vec<u32>]>,
+    penumbra: u32,
 ) -> anyhow::Result<((Image, Image), FrameTimes)> {
     let t = Instant::now();
     let (w, h) = (scene.camera.width, scene.camera.height);
@@ -231,6 +240,15 @@ fn render_frame(
         img.clone().with_context(|| format!("{name} layer missing"))
     };
     let depth = layer(&m.depth, "depth")?;
+    if penumbra > 0 {
+        // The last stage's filter, as a cluster planned with the same radius applies it.
+        illumination.data = lightfold_compositor::ops::penumbra::filter_frame(
+            w,
+            penumbra,
+            &illumination.data,
+            &depth.data,
+        )?;
+    }
     let radiance = m.radiance(&illumination, scene.ambient)?;
     times.total_us = t.elapsed().as_micros() as u64;
     Ok(((radiance, depth), times))

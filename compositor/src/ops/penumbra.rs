@@ -136,6 +136,27 @@ impl Penumbra {
     }
 }
 
+/// The filter over one whole frame `width` pixels wide: `illumination` (6 channels a pixel) and
+/// `depth` (1) in, the filtered illumination out, as a last stage gives it band by band. What
+/// `lightfold render` and the accuracy sweep apply after a single-device render.
+pub fn filter_frame(
+    width: u32,
+    radius: u32,
+    illumination: &[f32],
+    depth: &[f32],
+) -> Result<Vec<f32>, OpError> {
+    let op = Penumbra::new(&serde_json::json!({ "width": width, "radius": radius }))?;
+    let pixels = depth.len();
+    let mut out = vec![0.0; pixels * 6];
+    let views = [
+        BandView::new(pixels).with(Layer::Illumination, illumination),
+        BandView::new(pixels).with(Layer::Depth, depth),
+    ];
+    let mut o = BandMut::new(pixels).with(Layer::Illumination, &mut out);
+    op.apply(&views, &mut o)?;
+    Ok(out)
+}
+
 /// Inverse eye depth: 0 for background and for a value that is not finite and positive.
 #[inline]
 fn inverse(z: f32) -> f32 {

@@ -24,7 +24,8 @@ pub use topology::BAND_OVERHEAD_BYTES;
 pub use types::*;
 
 use group::{Group, NodeCost};
-use lightfold_protocol::Layer;
+use lightfold_compositor::ops::penumbra::MAX_RADIUS as PENUMBRA_MAX_RADIUS;
+use lightfold_protocol::{Layer, PixelFormat};
 use lightfold_scene::Scene;
 use sha2::{Digest, Sha256};
 
@@ -259,7 +260,17 @@ fn plan_once(
             groups[f].color = ca;
         }
     }
-    let (mode, material_layers) = material::layers(&needs, fold.is_some(), &options.formats);
+    let (mode, mut material_layers) = material::layers(&needs, fold.is_some(), &options.formats);
+    // The penumbra filter reads the eye depth beside the material layers.
+    let penumbra = (options.penumbra_filter > 0).then(|| {
+        material_layers.push((Layer::Depth, PixelFormat::DepthF32));
+        serde_json::json!({ "width": cam.width, "radius": options.penumbra_filter })
+    });
+    let band_height = if penumbra.is_some() {
+        options.band_height.max(options.penumbra_filter.max(2))
+    } else {
+        options.band_height
+    };
 
     // Assignment: group → node by cost; the material node is the cheapest node left.
     let group_shadows = |g: &Group| -> Vec<&ShadowPlan> {
@@ -323,6 +334,7 @@ fn plan_once(
         material_node: material_node.map(|m| cluster.nodes[m].id.clone()),
         fold,
         exposure: scene.exposure,
+        penumbra,
     };
     let (stages, node_dst, site) = topology::stages(
         &illum,
@@ -411,7 +423,7 @@ fn plan_once(
         &stages,
         address_of,
         &cluster.sink,
-        (cam.width, cam.height, options.band_height),
+        (cam.width, cam.height, band_height),
     );
     let est_frame_us = nodes.iter().map(|n| n.est_cost_us).max().unwrap_or(0);
     let mut notes = needs.notes;
@@ -432,7 +444,7 @@ fn plan_once(
         scene_name: scene.name.clone(),
         width: cam.width,
         height: cam.height,
-        band_height: options.band_height,
+        band_height,
         camera: *cam,
         exposure: scene.exposure,
         topology: options.topology,
@@ -473,6 +485,9 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
     }
     if o.band_height == 0 {
         return bad_options("band height must be at least 1");
+    }
+    if o.penumbra_filter > PENUMBRA_MAX_RADIUS {
+        return bad_options("the penumbra filter's radius must be at most 8 (a 17×17 window)");
     }
     if o.frames_in_flight == 0 {
         return bad_options("frames in flight must be at least 1");

@@ -43,6 +43,9 @@ pub(crate) struct Finish {
     /// Index into the illumination nodes of the node whose `c_n = c^a` folds the ambient term.
     pub fold: Option<usize>,
     pub exposure: f32,
+    /// The `penumbra` operator's parameters when the last stage filters the illumination sum
+    /// (the depth layer travels with the material layers).
+    pub penumbra: Option<Value>,
 }
 
 /// Where a node streams: `(stage id, input index)`.
@@ -260,6 +263,44 @@ fn finish_root(root: &mut StagePlan, finish: &Finish, formats: &FormatChoice) {
         .push(("output".to_string(), json!({ "exposure": finish.exposure })));
     root.outputs = vec![(Layer::Radiance, formats.sink)];
     root.downstream = Downstream::Sink;
+    if let Some(params) = &finish.penumbra {
+        insert_penumbra(root, params.clone());
+    }
+}
+
+/// Puts the `penumbra` operator between the illumination sum and `material`: it reads what
+/// `material` read (the sum, and the input with the material layers, whose depth it needs), and
+/// `material` reads its output.
+fn insert_penumbra(root: &mut StagePlan, params: Value) {
+    let Some(mi) = root.ops.iter().position(|(n, _)| n == "material") else {
+        return;
+    };
+    if root.wiring.is_empty() {
+        // The fold made explicit (the material layers' own node is the last input):
+        // `accumulate` reads the others, `material` its sum and that node, `output` the rest.
+        let last = root.inputs.len() as u32 - 1;
+        root.wiring = vec![
+            (0..last).map(OpSource::Input).collect(),
+            vec![OpSource::Op(0), OpSource::Input(last)],
+            vec![OpSource::Op(1)],
+        ];
+    }
+    let reads = root.wiring[mi].clone();
+    let Some(&material_input) = reads.get(1) else {
+        return;
+    };
+    for sources in root.wiring.iter_mut().skip(mi + 1) {
+        for s in sources.iter_mut() {
+            if let OpSource::Op(k) = s
+                && *k >= mi as u32
+            {
+                *k += 1;
+            }
+        }
+    }
+    root.ops.insert(mi, ("penumbra".to_string(), params));
+    root.wiring.insert(mi, reads);
+    root.wiring[mi + 1] = vec![OpSource::Op(mi as u32), material_input];
 }
 
 /// Bytes of one frame of these layers at this size and band height, band framing included.

@@ -237,6 +237,12 @@ pub struct PlanOptions {
     /// expects to reach it (`plan/budget.rs`); a frame budget may then lower them further.
     #[serde(default)]
     pub target_penumbra_db: Option<f32>,
+    /// The screen-space penumbra filter (`--penumbra-filter R`, the compositor's `penumbra`
+    /// operator): its radius, 0 for none. The last stage filters the illumination sum before
+    /// the material multiply, with the eye depth the material layers' node adds (`depth32`);
+    /// bands are raised to at least the filter's halo.
+    #[serde(default)]
+    pub penumbra_filter: u32,
 }
 
 fn one() -> u32 {
@@ -299,6 +305,7 @@ impl Default for PlanOptions {
             supersample: 1,
             cost_scale: CostScale::default(),
             target_penumbra_db: None,
+            penumbra_filter: 0,
         }
     }
 }

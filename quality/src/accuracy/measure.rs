@@ -89,6 +89,12 @@ pub fn measure_group(
                 *a += b;
             }
         }
+        if s.penumbra > 0 {
+            // The compositor's filter, timed as one more node's work.
+            let t = Instant::now();
+            illumination = penumbra_filter(&frames[0].0, &illumination, s.penumbra).map_err(err)?;
+            node_seconds.push(t.elapsed().as_secs_f64());
+        }
         let image = radiance(&scene, &frames[0].0, &illumination).map_err(err)?;
         out.push(Measured {
             image,
@@ -119,6 +125,19 @@ fn through_link(
     let mut back = vec![0.0; v.len()];
     format::unpack(format, bytes, scale, &mut back).map_err(map)?;
     Ok(back)
+}
+
+/// The compositor's `penumbra` operator of `radius` over a whole frame of illumination, with the
+/// first node's depth layer.
+fn penumbra_filter(m: &NodeFrame, il: &Image, radius: u32) -> Result<Image, String> {
+    let depth = m.depth.as_ref().ok_or("depth layer missing")?;
+    let data =
+        lightfold_compositor::ops::penumbra::filter_frame(il.width, radius, &il.data, &depth.data)
+            .map_err(|e| e.to_string())?;
+    Ok(Image {
+        data,
+        ..Image::new(il.width, il.height, 6)
+    })
 }
 
 /// Paper eq. 2 from the first node's material layers and the summed illumination (`c_n` white).

@@ -56,6 +56,9 @@ pub struct Setting {
     pub format: PixelFormat,
     /// Lights per node.
     pub k: u32,
+    /// Radius of the screen-space penumbra filter on the illumination sum (the compositor's
+    /// `penumbra` operator; 0: none).
+    pub penumbra: u32,
 }
 
 impl Setting {
@@ -79,6 +82,7 @@ impl Setting {
             filter: q.filter,
             format: recommended_link_format(LinkKind::NodeToCompositor),
             k: q.lights_per_node,
+            penumbra: 0,
         }
     }
 
@@ -92,10 +96,12 @@ impl Setting {
         q.filter = self.filter;
     }
 
-    /// Whether two settings render the same images before the link (they differ in format only).
+    /// Whether two settings render the same images before the link (they differ in format and
+    /// penumbra filter only).
     fn same_render(&self, other: &Setting) -> bool {
         Setting {
             format: other.format,
+            penumbra: other.penumbra,
             ..*self
         } == *other
     }
@@ -130,7 +136,11 @@ impl fmt::Display for Setting {
             self.format.name(),
             self.k,
             pattern_name(self.pattern)
-        )
+        )?;
+        if self.penumbra > 0 {
+            write!(f, " penumbra r={}", self.penumbra)?;
+        }
+        Ok(())
     }
 }
 
@@ -145,6 +155,7 @@ pub enum Knob {
     Format,
     K,
     Grid,
+    Penumbra,
 }
 
 impl Knob {
@@ -158,11 +169,12 @@ impl Knob {
             Knob::Format => "format",
             Knob::K => "K",
             Knob::Grid => "grid",
+            Knob::Penumbra => "penumbra",
         }
     }
 
     /// Every knob a sweep varies (not `Default`), in sweep order.
-    pub const SWEPT: [Knob; 7] = [
+    pub const SWEPT: [Knob; 8] = [
         Knob::Samples,
         Knob::Pattern,
         Knob::MapSize,
@@ -170,6 +182,7 @@ impl Knob {
         Knob::Format,
         Knob::K,
         Knob::Grid,
+        Knob::Penumbra,
     ];
 
     /// The knob named `name` (as [`Knob::name`] spells it, any case).
@@ -195,6 +208,10 @@ pub struct SweepPlan {
     pub grid_samples: Vec<u32>,
     pub grid_map_sizes: Vec<u32>,
     pub grid_filters: Vec<ShadowFilter>,
+    /// The screen-space penumbra filter's radii, each at the default sample count and at each of
+    /// `penumbra_samples`.
+    pub penumbras: Vec<u32>,
+    pub penumbra_samples: Vec<u32>,
 }
 
 /// The illumination link formats (six channels: what a node sends).
@@ -208,7 +225,8 @@ pub fn illumination_formats() -> Vec<PixelFormat> {
 impl SweepPlan {
     /// The full sweep: samples 1…256, the three patterns at the default count and at 4 and 64
     /// samples, maps 256…4096, four filters, every illumination format,
-    /// K 1…16, and a grid of samples {64, 256} × maps {1024, 2048} × {PCF 2×2, PCF 5×5}.
+    /// K 1…16, a grid of samples {64, 256} × maps {1024, 2048} × {PCF 2×2, PCF 5×5}, and the
+    /// penumbra filter at radius 2, 3 and 5 at the default count and at 4 and 64 samples.
     pub fn full() -> SweepPlan {
         SweepPlan {
             samples: vec![1, 4, 16, 64, 256],
@@ -230,6 +248,8 @@ impl SweepPlan {
             grid_samples: vec![64, 256],
             grid_map_sizes: vec![1024, 2048],
             grid_filters: vec![ShadowFilter::Pcf2x2, ShadowFilter::Pcf { taps: 5 }],
+            penumbras: vec![2, 3, 5],
+            penumbra_samples: vec![4, 64],
         }
     }
 
@@ -258,6 +278,8 @@ impl SweepPlan {
             grid_samples: vec![],
             grid_map_sizes: vec![],
             grid_filters: vec![],
+            penumbras: vec![],
+            penumbra_samples: vec![],
         }
     }
 
@@ -272,6 +294,7 @@ impl SweepPlan {
             Knob::Format => !self.formats.is_empty(),
             Knob::K => !self.ks.is_empty(),
             Knob::Grid => !self.grid_samples.is_empty(),
+            Knob::Penumbra => !self.penumbras.is_empty(),
         }
     }
 
@@ -301,6 +324,10 @@ impl SweepPlan {
             self.grid_samples.clear();
             self.grid_map_sizes.clear();
             self.grid_filters.clear();
+        }
+        if !keep(Knob::Penumbra) {
+            self.penumbras.clear();
+            self.penumbra_samples.clear();
         }
         self
     }
@@ -356,6 +383,20 @@ impl SweepPlan {
                         },
                     );
                 }
+            }
+        }
+        let penumbra_counts =
+            std::iter::once(base.samples).chain(self.penumbra_samples.iter().copied());
+        for samples in penumbra_counts {
+            for &penumbra in &self.penumbras {
+                push(
+                    Knob::Penumbra,
+                    Setting {
+                        samples,
+                        penumbra,
+                        ..base
+                    },
+                );
             }
         }
         out

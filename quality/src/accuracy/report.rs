@@ -7,7 +7,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 /// The CSV header, in order.
-pub const CSV_COLUMNS: [&str; 20] = [
+pub const CSV_COLUMNS: [&str; 21] = [
     "knob",
     "samples",
     "pattern",
@@ -16,6 +16,7 @@ pub const CSV_COLUMNS: [&str; 20] = [
     "format",
     "k",
     "k_run",
+    "penumbra_filter",
     "lights",
     "nodes",
     "node_seconds",
@@ -52,6 +53,7 @@ pub fn csv(points: &[Point]) -> String {
             st.format.name().to_string(),
             st.k.to_string(),
             p.k_run.to_string(),
+            st.penumbra.to_string(),
             p.lights.to_string(),
             p.nodes.to_string(),
             format!("{:.6}", p.node_seconds),
@@ -185,7 +187,7 @@ pub fn markdown(
             st.samples,
             pattern_name(st.pattern),
             st.map_size,
-            filter_name(st.filter),
+            shadow_filters(st),
             st.format.name(),
             st.k,
             p.k_run,
@@ -283,6 +285,15 @@ pub fn write_markdown(
         .map_err(|e| out_err(path, e))
 }
 
+/// The shadow-map filter, and the screen-space penumbra filter where there is one.
+fn shadow_filters(st: &super::Setting) -> String {
+    if st.penumbra > 0 {
+        format!("{} + penumbra r{}", filter_name(st.filter), st.penumbra)
+    } else {
+        filter_name(st.filter)
+    }
+}
+
 fn knob_color(k: Knob) -> RGBColor {
     match k {
         Knob::Default => BLACK,
@@ -293,6 +304,7 @@ fn knob_color(k: Knob) -> RGBColor {
         Knob::Format => RGBColor(0xd6, 0x27, 0x28),
         Knob::K => RGBColor(0x94, 0x67, 0xbd),
         Knob::Grid => RGBColor(0x8c, 0x56, 0x4b),
+        Knob::Penumbra => RGBColor(0x17, 0xbe, 0xcf),
     }
 }
 
@@ -327,6 +339,7 @@ fn point_label(p: &Point) -> String {
             st.map_size,
             filter_name(st.filter)
         ),
+        Knob::Penumbra => format!("{} + filter r{}", st.samples, st.penumbra),
     }
 }
 

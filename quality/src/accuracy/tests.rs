@@ -10,6 +10,7 @@ fn base() -> Setting {
         filter: ShadowFilter::Pcf2x2,
         format: PixelFormat::F16x6,
         k: 4,
+        penumbra: 0,
     }
 }
 
@@ -67,4 +68,30 @@ fn a_plan_can_vary_only_some_knobs() {
     }
     assert_eq!(Knob::from_name(" Pattern"), Some(Knob::Pattern));
     assert_eq!(Knob::from_name("default"), None);
+}
+
+#[test]
+fn the_penumbra_knob_shares_renders_with_the_unfiltered_points() {
+    let points = SweepPlan::full()
+        .only(&[Knob::Samples, Knob::Penumbra])
+        .points(base());
+    let filtered: Vec<Setting> = points
+        .iter()
+        .filter(|(k, _)| *k == Knob::Penumbra)
+        .map(|(_, s)| *s)
+        .collect();
+    // Radii 2, 3, 5 at 16 (the default), 4 and 64 samples.
+    assert_eq!(filtered.len(), 9);
+    for group in render_groups(&points) {
+        let samples = points[group[0]].1.samples;
+        assert!(group.iter().all(|&i| points[i].1.samples == samples));
+    }
+    // Each filtered point renders with the unfiltered point of its sample count.
+    let groups = render_groups(&points);
+    for s in &filtered {
+        let unfiltered = Setting { penumbra: 0, ..*s };
+        assert!(groups.iter().any(|g| {
+            g.iter().any(|&i| points[i].1 == *s) && g.iter().any(|&i| points[i].1 == unfiltered)
+        }));
+    }
 }
