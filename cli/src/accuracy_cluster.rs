@@ -144,7 +144,10 @@ impl LocalCluster {
         };
         opts.plan.lights_per_node = s.k;
         opts.plan.formats.node = s.format;
-        opts.plan.penumbra_filter = s.penumbra;
+        opts.plan.penumbra_filter = match s.penumbra {
+            0 => lightfold_coordinator::plan::PenumbraFilter::Off,
+            r => lightfold_coordinator::plan::PenumbraFilter::Radius(r),
+        };
         opts.plan.map_sizing = MapSizing::Scene;
         let mut frames = Vec::new();
         let outcome = self.rt.block_on(lightfold_coordinator::run::render(

@@ -192,12 +192,15 @@ pub struct JobArgs {
     /// scene's accuracy sweep) expects to reach it; `lightfold accuracy` measures what it gives.
     #[arg(long, value_parser = crate::coordinator_cmd::target_db)]
     pub target_psnr: Option<f32>,
-    /// Screen-space penumbra filter of this radius (pixels; 0: none, at most 8): the last stage
-    /// averages the illumination sum over each pixel's (2R+1)² window, on its own surface only
-    /// (the eye depth travels with the material layers), before the material multiply, so few
-    /// samples per area light give a smooth penumbra (docs/operators.md).
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=8))]
-    pub penumbra_filter: u32,
+    /// Screen-space penumbra filter at the last stage: a tent average of the illumination sum
+    /// over each pixel's (2R+1)² window, on its own surface only (the eye depth travels with the
+    /// material layers), before the material multiply, so few samples per area light give a
+    /// smooth penumbra. `budget` (the default): where a frame budget or an error target lowers
+    /// the samples per area light, at the radius the error model gains most with; `auto`: at
+    /// every count where the model expects a gain (16 samples or fewer); `off`; or a radius
+    /// 1–8 (docs/operators.md, docs/planner.md).
+    #[arg(long, default_value = "budget", value_parser = crate::coordinator_cmd::penumbra_filter)]
+    pub penumbra_filter: lightfold_coordinator::plan::PenumbraFilter,
     /// Frames requested ahead of the one being finished: 2 keeps every stage busy (the
     /// pipelined rate of the slowest stage), 1 shortens the live view's latency at lower rate.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=8))]
@@ -418,6 +421,33 @@ pub fn positive_ms(s: &str) -> Result<f64, String> {
 
 /// `--size WIDTHxHEIGHT`, within the image limits every input shares
 /// (`lightfold_scene::limits`, printed by `lightfold defaults`).
+/// `--penumbra-filter`: `off`, `budget`, `auto` or a radius 1–8.
+pub fn penumbra_filter(s: &str) -> Result<lightfold_coordinator::plan::PenumbraFilter, String> {
+    use lightfold_coordinator::plan::PenumbraFilter;
+    match s.trim() {
+        "off" | "0" => Ok(PenumbraFilter::Off),
+        "budget" => Ok(PenumbraFilter::Budget),
+        "auto" => Ok(PenumbraFilter::Auto),
+        r => match r.parse::<u32>() {
+            Ok(r @ 1..=8) => Ok(PenumbraFilter::Radius(r)),
+            _ => Err(format!(
+                "{s:?}: off, budget, auto or a radius from 1 to 8 (pixels)"
+            )),
+        },
+    }
+}
+
+/// The `--penumbra-filter` argument that gives `f` (what `demo` passes on).
+pub fn penumbra_filter_arg(f: lightfold_coordinator::plan::PenumbraFilter) -> String {
+    use lightfold_coordinator::plan::PenumbraFilter;
+    match f {
+        PenumbraFilter::Off => "off".into(),
+        PenumbraFilter::Budget => "budget".into(),
+        PenumbraFilter::Auto => "auto".into(),
+        PenumbraFilter::Radius(r) => r.to_string(),
+    }
+}
+
 pub fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
     lightfold_scene::limits::parse_image_size(s)
         .map_err(|e| anyhow::anyhow!("bad --size: {e} (see `lightfold defaults`)"))

@@ -533,10 +533,10 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
     if let Some(t) = job.target_psnr {
         cmd.arg("--target-psnr").arg(t.to_string());
     }
-    if job.penumbra_filter > 0 {
-        cmd.arg("--penumbra-filter")
-            .arg(job.penumbra_filter.to_string());
-    }
+    cmd.arg("--penumbra-filter")
+        .arg(crate::coordinator_cmd::penumbra_filter_arg(
+            job.penumbra_filter,
+        ));
     cmd.arg("--out").arg(&job.out).arg("--exr").arg(&job.exr);
     if let Some(p) = &job.frame_pattern {
         cmd.arg("--frame-pattern").arg(p);

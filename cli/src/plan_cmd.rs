@@ -78,12 +78,15 @@ pub struct Args {
     /// scene's accuracy sweep) expects to reach it; `lightfold accuracy` measures what it gives.
     #[arg(long, value_parser = crate::coordinator_cmd::target_db)]
     pub target_psnr: Option<f32>,
-    /// Screen-space penumbra filter of this radius (pixels; 0: none, at most 8): the last stage
-    /// averages the illumination sum over each pixel's (2R+1)² window, on its own surface only
-    /// (the eye depth travels with the material layers), before the material multiply, so few
-    /// samples per area light give a smooth penumbra (docs/operators.md).
-    #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=8))]
-    pub penumbra_filter: u32,
+    /// Screen-space penumbra filter at the last stage: a tent average of the illumination sum
+    /// over each pixel's (2R+1)² window, on its own surface only (the eye depth travels with the
+    /// material layers), before the material multiply, so few samples per area light give a
+    /// smooth penumbra. `budget` (the default): where a frame budget or an error target lowers
+    /// the samples per area light, at the radius the error model gains most with; `auto`: at
+    /// every count where the model expects a gain (16 samples or fewer); `off`; or a radius
+    /// 1–8 (docs/operators.md, docs/planner.md).
+    #[arg(long, default_value = "budget", value_parser = crate::coordinator_cmd::penumbra_filter)]
+    pub penumbra_filter: lightfold_coordinator::plan::PenumbraFilter,
 }
 
 impl Args {

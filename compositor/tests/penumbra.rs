@@ -27,7 +27,7 @@ fn filter(width: usize, extra: serde_json::Value) -> Box<dyn Operator> {
 
 /// A plain 7×7 box filter: the same operator with a depth tolerance no surface misses.
 fn box_filter(width: usize) -> Box<dyn Operator> {
-    filter(width, json!({ "depth_tolerance": 1e30 }))
+    filter(width, json!({ "depth_tolerance": 1e30, "kernel": "box" }))
 }
 
 fn inputs(il: Vec<f32>, depth: Vec<f32>) -> Vec<Owned> {
@@ -149,7 +149,7 @@ fn a_tilted_plane_is_averaged_over_the_whole_window() {
     // Penumbra banding: one step every 3 columns.
     let step = |x: usize, _y: usize| (x / 3) as f32 * 0.125;
     let il = illumination(w, h, step);
-    let op = filter(w, json!({}));
+    let op = filter(w, json!({ "kernel": "box" }));
     let out = filtered(&*op, &inputs(il.clone(), depth.clone()));
     for y in 3..h - 3 {
         for x in 3..w - 3 {
@@ -169,6 +169,19 @@ fn a_tilted_plane_is_averaged_over_the_whole_window() {
             assert_eq!(out[p + 3], il[p + 3], "specular kept");
         }
     }
+    // The tent weighs tap (dx, dy) by (4 − |dx|)(4 − |dy|).
+    let op = filter(w, json!({}));
+    let out = filtered(&*op, &inputs(il.clone(), depth.clone()));
+    let (x, y) = (10, 7);
+    let (mut sum, mut n) = (0.0f32, 0.0f32);
+    for dy in -3i32..=3 {
+        for dx in -3i32..=3 {
+            let wt = ((4 - dx.abs()) * (4 - dy.abs())) as f32;
+            sum += wt * step((x as i32 + dx) as usize, 0);
+            n += wt;
+        }
+    }
+    assert!((out[(y * w + x) * 6] - sum / n).abs() <= 1e-6);
     // With `specular: true` the specular channels are averaged too.
     let op = filter(w, json!({ "specular": true }));
     let out = filtered(&*op, &inputs(il, depth));
@@ -188,7 +201,7 @@ fn background_is_left_alone_and_never_counted() {
             *d = [0.0, f32::NAN, -1.0, f32::INFINITY][p % 4];
         }
     }
-    let op = filter(w, json!({ "radius": 1 }));
+    let op = filter(w, json!({ "radius": 1, "kernel": "box" }));
     let out = filtered(&*op, &inputs(il.clone(), depth.clone()));
     for p in 0..w * h {
         let (x, y) = (p % w, p / w);
@@ -295,6 +308,7 @@ fn fast_matches_reference_on_hostile_values() {
                 .collect();
             for params in [
                 json!({ "width": w }),
+                json!({ "width": w, "kernel": "box", "radius": 2 }),
                 json!({ "width": w, "radius": 8, "specular": true, "depth_tolerance": 0.5 }),
             ] {
                 let op = ops::create("penumbra", &params).unwrap();
@@ -315,6 +329,7 @@ fn parameters_and_band_shape_are_checked() {
         json!({ "width": 8, "depth_tolerance": 0.0 }),
         json!({ "width": 8, "depth_tolerance": -1.0 }),
         json!({ "width": 8, "blur": 1 }),
+        json!({ "width": 8, "kernel": "gauss" }),
     ] {
         let e = ops::create("penumbra", &bad).expect_err(&bad.to_string());
         assert!(matches!(e, OpError::BadParam { .. }), "{bad}: {e}");

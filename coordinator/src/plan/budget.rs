@@ -23,12 +23,19 @@
 //! counts are halved or doubled to the fewest the error model below expects to reach it
 //! (`Plan::target`); the budget's ladder then starts from there.
 //!
+//! **The screen-space penumbra filter** (`PlanOptions::penumbra_filter`, by default `Budget`)
+//! rides on the samples: wherever the budget or the target lowers the samples per area light
+//! below the scene's, the last stage filters the illumination sum at the radius the filtered
+//! error model ([`FILTERED`]) gains most at that count (16 or fewer samples: +2.6 to +5.2 dB on
+//! `balls` for under 2 % of the frame), and the step's expected figure includes it. The
+//! filter's cost is the last stage's, not a node's, so it does not enter the frame estimate.
+//!
 //! The plan records each step (`Plan::concessions`) with the estimate after it; the same inputs
 //! give the same steps, so a live session re-planning with nothing changed keeps its plan.
 
 use super::{
-    ClusterSpec, Concession, Knob, MapSizing, Plan, PlanError, PlanOptions, TargetChoice,
-    scene_hash,
+    ClusterSpec, Concession, Knob, MapSizing, PenumbraFilter, Plan, PlanError, PlanOptions,
+    TargetChoice, scene_hash,
 };
 use lightfold_scene::Scene;
 
@@ -62,6 +69,93 @@ pub fn expected_penumbra_db(n: u32) -> f32 {
     y0 + (x - x0) * (y1 - y0) / (x1 - x0)
 }
 
+/// The error model with the screen-space penumbra filter (tent kernel) at its best radius, from
+/// the same sweep (`docs/accuracy/balls-penumbra`): (samples per area light, radius, penumbra
+/// PSNR dB) — 1 → 32.54 (r 4), 2 → 35.57 (r 3), 4 → 42.40 (r 2), 8 → 44.21 (r 1), 16 → 50.94
+/// (r 1). From 32 samples on the filter measured no better than none (+0.5 dB at 32 for −2.7 dB
+/// over the whole image, −2.5 dB at 64), so the model adds it up to 16 only.
+const FILTERED: [(f32, u32, f32); 5] = [
+    (1.0, 4, 32.54),
+    (2.0, 3, 35.57),
+    (4.0, 2, 42.40),
+    (8.0, 1, 44.21),
+    (16.0, 1, 50.94),
+];
+
+/// The penumbra filter's radius the error model expects to gain the most at `n` samples per area
+/// light (that of the nearest measured count, in log₂), 0 above the counts where it measured a
+/// gain.
+pub fn filter_radius(n: u32) -> u32 {
+    let last = FILTERED[FILTERED.len() - 1].0;
+    if n.max(1) as f32 > last {
+        return 0;
+    }
+    let x = (n.max(1) as f32).log2();
+    FILTERED
+        .iter()
+        .min_by(|a, b| (a.0.log2() - x).abs().total_cmp(&(b.0.log2() - x).abs()))
+        .map_or(0, |f| f.1)
+}
+
+/// The model's penumbra PSNR at `n` samples per area light with the filter at
+/// [`filter_radius`]`(n)` (piecewise linear in log₂ n through [`FILTERED`]); without a filter
+/// there, [`expected_penumbra_db`].
+fn expected_filtered_db(n: u32) -> f32 {
+    if filter_radius(n) == 0 {
+        return expected_penumbra_db(n);
+    }
+    let x = (n.max(1) as f32).log2();
+    let pts: Vec<(f32, f32)> = FILTERED.iter().map(|&(n, _, db)| (n.log2(), db)).collect();
+    let seg = pts
+        .windows(2)
+        .find(|w| x <= w[1].0)
+        .unwrap_or(&pts[pts.len() - 2..]);
+    let (x0, y0) = seg[0];
+    let (x1, y1) = seg[1];
+    y0 + (x - x0) * (y1 - y0) / (x1 - x0)
+}
+
+/// The filter's radius at `n` samples per area light when the scene asks for `from`: what
+/// `filter` resolves to (`Budget` filters only counts lowered below the scene's).
+fn resolve_radius(filter: PenumbraFilter, from: Option<u32>, n: Option<u32>) -> u32 {
+    match (filter, n) {
+        (PenumbraFilter::Off, _) | (_, None) => 0,
+        (PenumbraFilter::Radius(r), _) => r,
+        (PenumbraFilter::Auto, Some(n)) => filter_radius(n),
+        (PenumbraFilter::Budget, Some(n)) => {
+            if from.is_some_and(|f| n < f) {
+                filter_radius(n)
+            } else {
+                0
+            }
+        }
+    }
+}
+
+/// The model's figure at `n` samples with the filter at `radius`: the filtered model where the
+/// radius is its own, else the unfiltered one (a radius it did not measure is not claimed).
+fn expected_db(n: u32, radius: u32) -> f32 {
+    if radius > 0 && radius == filter_radius(n) {
+        expected_filtered_db(n)
+    } else {
+        expected_penumbra_db(n)
+    }
+}
+
+/// `options` with the penumbra filter resolved for `scene` (a count lowered from `from`): a
+/// radius, or off, which is all `plan_once` reads.
+fn resolved(options: &PlanOptions, from: Option<u32>, scene: &Scene) -> PlanOptions {
+    let r = resolve_radius(options.penumbra_filter, from, area_samples(scene));
+    PlanOptions {
+        penumbra_filter: if r > 0 {
+            PenumbraFilter::Radius(r)
+        } else {
+            PenumbraFilter::Off
+        },
+        ..options.clone()
+    }
+}
+
 /// The largest sample count of the scene's area lights (the count their samples come from).
 fn area_samples(scene: &Scene) -> Option<u32> {
     let q = &scene.quality;
@@ -92,11 +186,13 @@ fn maps_text(m: MapSizing) -> String {
     }
 }
 
-/// One step down of `knob` from `(scene, options)`, or `None` when it is at its floor.
+/// One step down of `knob` from `(scene, options)`, or `None` when it is at its floor. `from` is
+/// the scene's own count of samples per area light (what `Budget` filters below).
 fn lower(
     knob: Knob,
     scene: &Scene,
     options: &PlanOptions,
+    from: Option<u32>,
 ) -> Option<(Scene, PlanOptions, String, String, Option<f32>)> {
     match knob {
         Knob::ShadowMaps => {
@@ -124,8 +220,17 @@ fn lower(
             }
             let s = with_area_samples(scene, |c| (c / 2).max(1));
             let m = area_samples(&s)?;
-            let db = expected_penumbra_db(m) - expected_penumbra_db(n);
-            Some((s, options.clone(), n.to_string(), m.to_string(), Some(db)))
+            let radius = |k| resolve_radius(options.penumbra_filter, from, Some(k));
+            let (rn, rm) = (radius(n), radius(m));
+            let db = expected_db(m, rm) - expected_db(n, rn);
+            let text = |k: u32, r: u32| {
+                if r > 0 {
+                    format!("{k} + penumbra filter r{r}")
+                } else {
+                    k.to_string()
+                }
+            };
+            Some((s, options.clone(), text(n, rn), text(m, rm), Some(db)))
         }
         Knob::Epsilon => {
             if options.force_all || options.epsilon >= MAX_EPSILON {
@@ -161,9 +266,14 @@ pub(crate) fn within_budget(
     previous: Option<&Plan>,
     plan_once: PlanOnce,
 ) -> Result<Plan, PlanError> {
-    let targeted = options.target_penumbra_db.and_then(|t| to_target(scene, t));
+    let from = area_samples(scene);
+    let targeted = options
+        .target_penumbra_db
+        .and_then(|t| to_target(scene, t, options.penumbra_filter));
     let start = targeted.as_ref().map_or(scene, |(s, _)| s);
-    let fit = |s: &Scene, o: &PlanOptions| fit_budget(s, cluster, o, previous, plan_once);
+    let fit = |s: &Scene, o: &PlanOptions| {
+        fit_budget(s, cluster, &resolved(o, from, s), previous, plan_once)
+    };
     let mut first = fit(start, options)?;
     first.scene_hash = scene_hash(scene);
     first.target = targeted.as_ref().map(|(_, t)| t.clone());
@@ -181,7 +291,7 @@ pub(crate) fn within_budget(
             let (mut s, mut o) = (scene_now.clone(), options_now.clone());
             let mut steps = Vec::new();
             loop {
-                let Some((s2, o2, from, to, db)) = lower(knob, &s, &o) else {
+                let Some((s2, o2, was, to, db)) = lower(knob, &s, &o, from) else {
                     break 'knob;
                 };
                 let p = match fit(&s2, &o2) {
@@ -192,7 +302,7 @@ pub(crate) fn within_budget(
                 };
                 steps.push(Concession {
                     knob,
-                    from,
+                    from: was,
                     to,
                     est_frame_us: p.est_frame_us,
                     expected_db: db,
@@ -251,19 +361,25 @@ fn fit_budget(
 }
 
 /// The scene with its area lights' sample counts halved or doubled (each by the same factor) to
-/// the fewest whose expected penumbra PSNR reaches `target_db`, and what was chosen; `None` for
-/// a scene without area lights.
-fn to_target(scene: &Scene, target_db: f32) -> Option<(Scene, TargetChoice)> {
+/// the fewest whose expected penumbra PSNR reaches `target_db` (with the penumbra filter where
+/// `filter` lets the planner add it and the model expects a gain), and what was chosen; `None`
+/// for a scene without area lights.
+fn to_target(
+    scene: &Scene,
+    target_db: f32,
+    filter: PenumbraFilter,
+) -> Option<(Scene, TargetChoice)> {
     let from = area_samples(scene)?;
     let max = lightfold_scene::limits::MAX_SAMPLES_PER_AREA_LIGHT;
+    let expect = |n: u32| expected_db(n, resolve_radius(filter, Some(from), Some(n)));
     let mut n = from;
-    while n > 1 && expected_penumbra_db(n / 2) >= target_db {
+    while n > 1 && expect(n / 2) >= target_db {
         n /= 2;
     }
     // Raised no further than the sweep measured (its last count): beyond it the model would be
     // a guess, and a target it does not reach there is out of reach.
     let measured_up_to = SWEEP[SWEEP.len() - 1].0 as u32;
-    while expected_penumbra_db(n) < target_db && n * 2 <= measured_up_to.max(from) {
+    while expect(n) < target_db && n * 2 <= measured_up_to.max(from) {
         n *= 2;
     }
     let s = with_area_samples(scene, |c| {
@@ -273,7 +389,7 @@ fn to_target(scene: &Scene, target_db: f32) -> Option<(Scene, TargetChoice)> {
             (c / (from / n)).max(1)
         }
     });
-    let expected = expected_penumbra_db(n);
+    let expected = expect(n);
     Some((
         s,
         TargetChoice {
@@ -282,6 +398,7 @@ fn to_target(scene: &Scene, target_db: f32) -> Option<(Scene, TargetChoice)> {
             to: n,
             expected_db: expected,
             reachable: expected >= target_db,
+            penumbra_radius: resolve_radius(filter, Some(from), Some(n)),
         },
     ))
 }
@@ -304,5 +421,35 @@ mod tests {
         // Halving 16 costs the 8 → 16 slope: about 5 dB.
         let d = expected_penumbra_db(8) - expected_penumbra_db(16);
         assert!((-5.2..=-5.0).contains(&d), "{d}");
+    }
+
+    #[test]
+    fn the_filter_model_goes_through_its_sweep_and_stops_where_it_stopped_helping() {
+        for (n, r, db) in FILTERED {
+            assert_eq!(filter_radius(n as u32), r, "{n}");
+            assert!((expected_filtered_db(n as u32) - db).abs() < 1e-4, "{n}");
+            assert!(
+                expected_filtered_db(n as u32) > expected_penumbra_db(n as u32),
+                "{n}"
+            );
+        }
+        for n in [17, 32, 64, 256] {
+            assert_eq!(filter_radius(n), 0, "{n}");
+            assert_eq!(expected_filtered_db(n), expected_penumbra_db(n));
+        }
+        assert_eq!(filter_radius(3), 2);
+        assert_eq!(filter_radius(12), 1);
+        // `Budget` filters only counts lowered below the scene's; `Auto` any it helps.
+        let b = PenumbraFilter::Budget;
+        assert_eq!(resolve_radius(b, Some(16), Some(16)), 0);
+        assert_eq!(resolve_radius(b, Some(16), Some(4)), 2);
+        assert_eq!(resolve_radius(PenumbraFilter::Auto, Some(16), Some(16)), 1);
+        assert_eq!(resolve_radius(PenumbraFilter::Off, Some(16), Some(4)), 0);
+        assert_eq!(
+            resolve_radius(PenumbraFilter::Radius(5), Some(16), Some(64)),
+            5
+        );
+        // A radius the model did not measure is not claimed.
+        assert_eq!(expected_db(16, 3), expected_penumbra_db(16));
     }
 }

@@ -143,6 +143,9 @@ impl Display for Plan {
         if let Some(text) = self.target_line() {
             writeln!(f, "{text}")?;
         }
+        if let Some(text) = self.penumbra_line() {
+            writeln!(f, "{text}")?;
+        }
         if let Some(text) = gave_up(self) {
             writeln!(f, "{text}")?;
         }
@@ -325,6 +328,9 @@ impl Display for Brief<'_> {
         if let Some(text) = gave_up(p) {
             write!(f, "\n  {text}")?;
         }
+        if let Some(text) = p.penumbra_line() {
+            write!(f, "\n  {text}")?;
+        }
         Ok(())
     }
 }
@@ -335,12 +341,29 @@ impl Plan {
         gave_up(self)
     }
 
+    /// The penumbra filter at the last stage, one line, or `None` without one.
+    pub fn penumbra_line(&self) -> Option<String> {
+        let r = self.penumbra_radius;
+        (r > 0).then(|| {
+            format!(
+                "penumbra filter: radius {r} ({0}×{0} tent on the illumination sum, on each \
+                 pixel's own surface, before the material multiply)",
+                2 * r + 1
+            )
+        })
+    }
+
     /// How an error target chose the samples, one line, or `None` without a target.
     pub fn target_line(&self) -> Option<String> {
         let t = self.target.as_ref()?;
+        let filter = match t.penumbra_radius {
+            0 => String::new(),
+            r => format!(" + penumbra filter r{r}"),
+        };
         Some(format!(
-            "error target {:.1} dB penumbra PSNR: samples per area light {} → {} (expected {:.1} dB \
-             by the error model{}; `lightfold accuracy --knobs samples --target-db` measures it)",
+            "error target {:.1} dB penumbra PSNR: samples per area light {} → {}{filter} (expected \
+             {:.1} dB by the error model{}; `lightfold accuracy --knobs samples,penumbra \
+             --target-db` measures it)",
             t.target_db,
             t.from,
             t.to,

@@ -17,7 +17,7 @@ mod topology;
 mod types;
 pub mod wire;
 
-pub use budget::{MAX_EPSILON, expected_penumbra_db};
+pub use budget::{MAX_EPSILON, expected_penumbra_db, filter_radius};
 pub use group::{DEFAULT_FIXED_US, DEFAULT_LIGHT_US};
 pub use replan::{lights_moved, replan};
 pub use topology::BAND_OVERHEAD_BYTES;
@@ -261,13 +261,18 @@ fn plan_once(
         }
     }
     let (mode, mut material_layers) = material::layers(&needs, fold.is_some(), &options.formats);
-    // The penumbra filter reads the eye depth beside the material layers.
-    let penumbra = (options.penumbra_filter > 0).then(|| {
+    // The penumbra filter reads the eye depth beside the material layers. `within_budget` has
+    // resolved `Budget` and `Auto` to a radius (or `Off`) before this.
+    let radius = match options.penumbra_filter {
+        PenumbraFilter::Radius(r) => r,
+        _ => 0,
+    };
+    let penumbra = (radius > 0).then(|| {
         material_layers.push((Layer::Depth, PixelFormat::DepthF32));
-        serde_json::json!({ "width": cam.width, "radius": options.penumbra_filter })
+        serde_json::json!({ "width": cam.width, "radius": radius })
     });
     let band_height = if penumbra.is_some() {
-        options.band_height.max(options.penumbra_filter.max(2))
+        options.band_height.max(radius.max(2))
     } else {
         options.band_height
     };
@@ -439,6 +444,7 @@ fn plan_once(
         notes,
     };
     Ok(Plan {
+        penumbra_radius: radius,
         epoch: options.epoch,
         scene_hash: scene_hash(scene),
         scene_name: scene.name.clone(),
@@ -486,8 +492,10 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
     if o.band_height == 0 {
         return bad_options("band height must be at least 1");
     }
-    if o.penumbra_filter > PENUMBRA_MAX_RADIUS {
-        return bad_options("the penumbra filter's radius must be at most 8 (a 17×17 window)");
+    if let PenumbraFilter::Radius(r) = o.penumbra_filter
+        && !(1..=PENUMBRA_MAX_RADIUS).contains(&r)
+    {
+        return bad_options("the penumbra filter's radius must be 1 to 8 (a 3×3 to 17×17 window)");
     }
     if o.frames_in_flight == 0 {
         return bad_options("frames in flight must be at least 1");

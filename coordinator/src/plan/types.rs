@@ -237,12 +237,30 @@ pub struct PlanOptions {
     /// expects to reach it (`plan/budget.rs`); a frame budget may then lower them further.
     #[serde(default)]
     pub target_penumbra_db: Option<f32>,
-    /// The screen-space penumbra filter (`--penumbra-filter R`, the compositor's `penumbra`
-    /// operator): its radius, 0 for none. The last stage filters the illumination sum before
-    /// the material multiply, with the eye depth the material layers' node adds (`depth32`);
-    /// bands are raised to at least the filter's halo.
+    /// The screen-space penumbra filter (`--penumbra-filter`, the compositor's `penumbra`
+    /// operator): the last stage filters the illumination sum before the material multiply,
+    /// with the eye depth the material layers' node adds (`depth32`); bands are raised to at
+    /// least the filter's halo. `Plan::penumbra_radius` is what was chosen.
     #[serde(default)]
-    pub penumbra_filter: u32,
+    pub penumbra_filter: PenumbraFilter,
+}
+
+/// When the planner adds the screen-space penumbra filter, and its radius.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum PenumbraFilter {
+    /// Never.
+    Off,
+    /// Where a frame budget or an error target lowers the samples per area light below the
+    /// scene's, at the radius the error model expects to give back the most
+    /// (`budget::filter_radius`); otherwise the scene renders as it asks.
+    #[default]
+    Budget,
+    /// At every sample count where the error model expects a gain (16 or fewer samples per area
+    /// light on the sweep it was fitted to), at its radius.
+    Auto,
+    /// This radius (1 to 8), always.
+    Radius(u32),
 }
 
 fn one() -> u32 {
@@ -305,7 +323,7 @@ impl Default for PlanOptions {
             supersample: 1,
             cost_scale: CostScale::default(),
             target_penumbra_db: None,
-            penumbra_filter: 0,
+            penumbra_filter: PenumbraFilter::Budget,
         }
     }
 }
@@ -499,6 +517,9 @@ pub struct TargetChoice {
     /// Whether the model expects the target at all (else `to` is the most its sweep measured,
     /// 256, or the scene's own count when that is more).
     pub reachable: bool,
+    /// The penumbra filter's radius the model's figure assumes (0: none).
+    #[serde(default)]
+    pub penumbra_radius: u32,
 }
 
 /// The quality knobs a frame budget can lower, in the order the planner lowers them.
@@ -517,6 +538,10 @@ pub enum Knob {
 /// Everything the cluster does for one scene and view.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Plan {
+    /// The penumbra filter's radius at the last stage (0: none), as `PlanOptions::penumbra_filter`
+    /// and the budget resolved it.
+    #[serde(default)]
+    pub penumbra_radius: u32,
     pub epoch: u64,
     pub scene_hash: [u8; 32],
     pub scene_name: String,

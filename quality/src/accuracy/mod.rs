@@ -226,7 +226,7 @@ impl SweepPlan {
     /// The full sweep: samples 1…256, the three patterns at the default count and at 4 and 64
     /// samples, maps 256…4096, four filters, every illumination format,
     /// K 1…16, a grid of samples {64, 256} × maps {1024, 2048} × {PCF 2×2, PCF 5×5}, and the
-    /// penumbra filter at radius 2, 3 and 5 at the default count and at 4 and 64 samples.
+    /// penumbra filter at radius 1, 2 and 4 at the default count and at 1, 4 and 64 samples.
     pub fn full() -> SweepPlan {
         SweepPlan {
             samples: vec![1, 4, 16, 64, 256],
@@ -248,8 +248,8 @@ impl SweepPlan {
             grid_samples: vec![64, 256],
             grid_map_sizes: vec![1024, 2048],
             grid_filters: vec![ShadowFilter::Pcf2x2, ShadowFilter::Pcf { taps: 5 }],
-            penumbras: vec![2, 3, 5],
-            penumbra_samples: vec![4, 64],
+            penumbras: vec![1, 2, 4],
+            penumbra_samples: vec![1, 4, 64],
         }
     }
 

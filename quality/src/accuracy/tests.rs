@@ -80,8 +80,8 @@ fn the_penumbra_knob_shares_renders_with_the_unfiltered_points() {
         .filter(|(k, _)| *k == Knob::Penumbra)
         .map(|(_, s)| *s)
         .collect();
-    // Radii 2, 3, 5 at 16 (the default), 4 and 64 samples.
-    assert_eq!(filtered.len(), 9);
+    // Radii 1, 2, 4 at 16 (the default), 1, 4 and 64 samples.
+    assert_eq!(filtered.len(), 12);
     for group in render_groups(&points) {
         let samples = points[group[0]].1.samples;
         assert!(group.iter().all(|&i| points[i].1.samples == samples));
