@@ -3,9 +3,10 @@
 //! gives the same plan for the same inputs.
 
 use lightfold_coordinator::plan::{
-    ClusterSpec, Knob, MAX_EPSILON, Plan, PlanOptions, expected_penumbra_db, plan, replan,
-    scene_hash,
+    ClusterSpec, Knob, MAX_EPSILON, PenumbraFilter, Plan, PlanOptions, expected_penumbra_db, plan,
+    replan, scene_hash,
 };
+use lightfold_protocol::{Layer, OpSource};
 use lightfold_scene::Scene;
 use proptest::prelude::*;
 
@@ -108,14 +109,16 @@ fn an_impossible_budget_stops_where_no_step_lowers_the_estimate() {
         .rev()
         .find(|c| c.knob == Knob::SamplesPerAreaLight)
         .unwrap();
-    assert_eq!(samples.to, "4");
+    // The default `Budget` filter rides on the lowered samples (radius 2 at 4).
+    assert_eq!(samples.to, "4 + penumbra filter r2");
     let mut fewer = s.clone();
     fewer.quality.samples_per_area_light = Some(2);
     fewer.quality.map_sizing = lightfold_scene::MapSizing::Fixed;
     assert!(with_budget(&fewer, None).est_frame_us >= p.est_frame_us);
     assert!(p.concessions.iter().all(|c| c.knob != Knob::Epsilon));
+    // 16 → 4 with the filter: the filtered model's 42.40 dB at 4 against 47.53 at 16.
     let db: f32 = p.concessions.iter().filter_map(|c| c.expected_db).sum();
-    let want = expected_penumbra_db(4) - expected_penumbra_db(16);
+    let want = 42.40 - expected_penumbra_db(16);
     assert!((db - want).abs() < 1e-3, "{db} against {want}");
 }
 
@@ -210,6 +213,7 @@ fn an_error_target_picks_the_fewest_samples_the_model_expects_to_reach_it() {
             &ClusterSpec::local(64, 64),
             &PlanOptions {
                 target_penumbra_db: Some(t),
+                penumbra_filter: PenumbraFilter::Off,
                 ..PlanOptions::default()
             },
         )
@@ -240,6 +244,7 @@ fn an_error_target_picks_the_fewest_samples_the_model_expects_to_reach_it() {
         &ClusterSpec::local(256, 256),
         &PlanOptions {
             target_penumbra_db: Some(90.0),
+            penumbra_filter: PenumbraFilter::Off,
             ..PlanOptions::default()
         },
     )
@@ -254,6 +259,7 @@ fn an_error_target_picks_the_fewest_samples_the_model_expects_to_reach_it() {
         &PlanOptions {
             target_penumbra_db: Some(50.0),
             frame_budget_us: Some(free.est_frame_us),
+            penumbra_filter: PenumbraFilter::Off,
             ..PlanOptions::default()
         },
     )
@@ -271,5 +277,154 @@ fn an_error_target_picks_the_fewest_samples_the_model_expects_to_reach_it() {
             ..PlanOptions::default()
         };
         assert!(plan(&s, &eight(), &o).is_err(), "{bad}");
+    }
+}
+
+/// The last stage with the penumbra filter at `radius`: `penumbra` between the sum and
+/// `material`, reading what `material` read (the sum, and the input with the material layers,
+/// which carries the eye depth), `material` reading its output; bands at least the halo; and a
+/// compositor accepts the configuration.
+fn assert_filtered(p: &Plan, radius: u32) {
+    assert_eq!(p.penumbra_radius, radius, "{p}");
+    let root = p.stages.last().unwrap();
+    let names: Vec<&str> = root.ops.iter().map(|(n, _)| n.as_str()).collect();
+    let k = names
+        .iter()
+        .position(|n| *n == "penumbra")
+        .expect("a penumbra stage");
+    assert_eq!(&names[k..], ["penumbra", "material", "output"], "{names:?}");
+    assert_eq!(root.ops[k].1["radius"], radius);
+    assert_eq!(root.ops[k].1["width"], p.width);
+    let w = &root.wiring;
+    assert_eq!(w[k][0], OpSource::Op(k as u32 - 1));
+    let OpSource::Input(m) = w[k][1] else {
+        panic!("{w:?}")
+    };
+    assert_eq!(w[k + 1], vec![OpSource::Op(k as u32), OpSource::Input(m)]);
+    assert_eq!(w[k + 2], vec![OpSource::Op(k as u32 + 1)]);
+    let layers: Vec<Layer> = root.inputs[m as usize].layers.iter().map(|l| l.0).collect();
+    assert!(
+        layers.contains(&Layer::Depth) && layers.contains(&Layer::Diffuse),
+        "{layers:?}"
+    );
+    assert!(p.band_height >= radius.max(2));
+    let cfg = p.compositor_config(&root.compositor).unwrap();
+    lightfold_compositor::daemon::StagePlan::new(cfg, 64 << 20).expect("the stage accepts it");
+}
+
+fn unfiltered(p: &Plan) {
+    assert_eq!(p.penumbra_radius, 0);
+    for s in &p.stages {
+        assert!(s.ops.iter().all(|(n, _)| n != "penumbra"), "{p}");
+        assert!(
+            s.inputs
+                .iter()
+                .all(|i| i.layers.iter().all(|l| l.0 != Layer::Depth))
+        );
+    }
+}
+
+#[test]
+fn the_penumbra_filter_rides_on_lowered_samples_and_error_targets() {
+    let s = balls();
+    let with = |filter: PenumbraFilter, budget: Option<u64>, target: Option<f32>| {
+        // Enough nodes for a target's 32 samples per light (eight set the budget's ladder).
+        let nodes = if target.is_some() { 64 } else { 8 };
+        plan(
+            &s,
+            &ClusterSpec::local(nodes, nodes),
+            &PlanOptions {
+                penumbra_filter: filter,
+                frame_budget_us: budget,
+                target_penumbra_db: target,
+                ..PlanOptions::default()
+            },
+        )
+        .unwrap()
+    };
+    // Nothing lowered: the scene as it asks (Budget, the default), or filtered by request.
+    let free = with(PenumbraFilter::Budget, None, None);
+    unfiltered(&free);
+    unfiltered(&with(PenumbraFilter::Budget, Some(10_000_000), None));
+    assert_filtered(&with(PenumbraFilter::Auto, None, None), 1);
+    assert_filtered(&with(PenumbraFilter::Radius(3), None, None), 3);
+    // A budget that halves the samples adds the filter at the model's radius for the count it
+    // reached, and says so; with `Off` the same budget gives the same samples unfiltered.
+    let tight = free.est_frame_us / 2;
+    let p = with(PenumbraFilter::Budget, Some(tight), None);
+    let per_light = p.samples.len() as u32 / 2;
+    assert!(per_light < 16, "{p}");
+    let radius = lightfold_coordinator::plan::filter_radius(per_light);
+    assert!(radius > 0);
+    assert_filtered(&p, radius);
+    let step = p
+        .concessions
+        .iter()
+        .rfind(|c| c.knob == Knob::SamplesPerAreaLight)
+        .unwrap();
+    assert!(
+        step.to.ends_with(&format!("penumbra filter r{radius}")),
+        "{step:?}"
+    );
+    assert!(p.brief().to_string().contains("penumbra filter: radius"));
+    let off = with(PenumbraFilter::Off, Some(tight), None);
+    unfiltered(&off);
+    assert_eq!(off.samples.len(), p.samples.len());
+    // The filtered model's figure is higher than the unfiltered one's for the same step.
+    let gain: f32 = p.concessions.iter().filter_map(|c| c.expected_db).sum();
+    let plain: f32 = off.concessions.iter().filter_map(|c| c.expected_db).sum();
+    assert!(gain > plain, "{gain} vs {plain}");
+    // Error targets: the filter lets fewer samples reach them (50 dB: 16 + r1 against 32
+    // unfiltered; 40 dB: 4 + r2 against 8).
+    for (target, per_light, radius) in [(50.0, 16, 1), (40.0, 4, 2), (47.0, 16, 1), (20.0, 1, 4)] {
+        let p = with(PenumbraFilter::Budget, None, Some(target));
+        let t = p.target.clone().unwrap();
+        assert_eq!(
+            (t.to, t.penumbra_radius),
+            (per_light, radius),
+            "{target}: {t:?}"
+        );
+        assert!(t.reachable && t.expected_db >= target, "{t:?}");
+        assert_filtered(&p, radius);
+        assert!(
+            p.to_string()
+                .contains(&format!("+ penumbra filter r{radius}"))
+        );
+    }
+    let plain = with(PenumbraFilter::Off, None, Some(50.0));
+    assert_eq!(plain.target.unwrap().to, 32);
+    // A radius out of range is refused.
+    for bad in [0, 9] {
+        let o = PlanOptions {
+            penumbra_filter: PenumbraFilter::Radius(bad),
+            ..PlanOptions::default()
+        };
+        assert!(plan(&s, &eight(), &o).is_err(), "{bad}");
+    }
+}
+
+#[test]
+fn the_last_stage_filters_between_the_sum_and_the_material_in_every_layout() {
+    use lightfold_coordinator::plan::Topology;
+    let s = balls();
+    for (topology, own_node) in [
+        (Topology::Chain, false),
+        (Topology::Chain, true),
+        (Topology::Tree, false),
+        (Topology::Tree, true),
+    ] {
+        for radius in [1, 4] {
+            let o = PlanOptions {
+                topology,
+                material_own_node: own_node,
+                penumbra_filter: PenumbraFilter::Radius(radius),
+                band_height: 2,
+                ..PlanOptions::default()
+            };
+            let p = plan(&s, &ClusterSpec::local(16, 16), &o).unwrap();
+            assert_filtered(&p, radius);
+            // Bands are raised to the halo (the radius, at least 2 rows) and no further.
+            assert_eq!(p.band_height, radius.max(2), "{topology:?} {own_node}");
+        }
     }
 }

@@ -24,8 +24,8 @@
 //! (`Plan::target`); the budget's ladder then starts from there.
 //!
 //! **The screen-space penumbra filter** (`PlanOptions::penumbra_filter`, by default `Budget`)
-//! rides on the samples: wherever the budget or the target lowers the samples per area light
-//! below the scene's, the last stage filters the illumination sum at the radius the filtered
+//! rides on the samples: wherever the budget lowers the samples per area light below the
+//! scene's, or an error target chooses them (at any count), the last stage filters the illumination sum at the radius the filtered
 //! error model ([`FILTERED`]) gains most at that count (16 or fewer samples: +2.6 to +5.2 dB on
 //! `balls` for under 2 % of the frame), and the step's expected figure includes it. The
 //! filter's cost is the last stage's, not a node's, so it does not enter the frame estimate.
@@ -116,14 +116,16 @@ fn expected_filtered_db(n: u32) -> f32 {
 }
 
 /// The filter's radius at `n` samples per area light when the scene asks for `from`: what
-/// `filter` resolves to (`Budget` filters only counts lowered below the scene's).
+/// `filter` resolves to. `Budget` filters counts lowered below the scene's, and any count where
+/// an error target chose the samples (`from` is `None` then: the target asked for the cheapest
+/// plan that reaches it).
 fn resolve_radius(filter: PenumbraFilter, from: Option<u32>, n: Option<u32>) -> u32 {
     match (filter, n) {
         (PenumbraFilter::Off, _) | (_, None) => 0,
         (PenumbraFilter::Radius(r), _) => r,
         (PenumbraFilter::Auto, Some(n)) => filter_radius(n),
         (PenumbraFilter::Budget, Some(n)) => {
-            if from.is_some_and(|f| n < f) {
+            if from.is_none_or(|f| n < f) {
                 filter_radius(n)
             } else {
                 0
@@ -266,10 +268,15 @@ pub(crate) fn within_budget(
     previous: Option<&Plan>,
     plan_once: PlanOnce,
 ) -> Result<Plan, PlanError> {
-    let from = area_samples(scene);
     let targeted = options
         .target_penumbra_db
         .and_then(|t| to_target(scene, t, options.penumbra_filter));
+    // What `Budget` filters below: the scene's count, or any count an error target chose.
+    let from = if targeted.is_some() {
+        None
+    } else {
+        area_samples(scene)
+    };
     let start = targeted.as_ref().map_or(scene, |(s, _)| s);
     let fit = |s: &Scene, o: &PlanOptions| {
         fit_budget(s, cluster, &resolved(o, from, s), previous, plan_once)
@@ -371,7 +378,7 @@ fn to_target(
 ) -> Option<(Scene, TargetChoice)> {
     let from = area_samples(scene)?;
     let max = lightfold_scene::limits::MAX_SAMPLES_PER_AREA_LIGHT;
-    let expect = |n: u32| expected_db(n, resolve_radius(filter, Some(from), Some(n)));
+    let expect = |n: u32| expected_db(n, resolve_radius(filter, None, Some(n)));
     let mut n = from;
     while n > 1 && expect(n / 2) >= target_db {
         n /= 2;
@@ -398,7 +405,7 @@ fn to_target(
             to: n,
             expected_db: expected,
             reachable: expected >= target_db,
-            penumbra_radius: resolve_radius(filter, Some(from), Some(n)),
+            penumbra_radius: resolve_radius(filter, None, Some(n)),
         },
     ))
 }
@@ -443,6 +450,7 @@ mod tests {
         let b = PenumbraFilter::Budget;
         assert_eq!(resolve_radius(b, Some(16), Some(16)), 0);
         assert_eq!(resolve_radius(b, Some(16), Some(4)), 2);
+        assert_eq!(resolve_radius(b, None, Some(16)), 1);
         assert_eq!(resolve_radius(PenumbraFilter::Auto, Some(16), Some(16)), 1);
         assert_eq!(resolve_radius(PenumbraFilter::Off, Some(16), Some(4)), 0);
         assert_eq!(
