@@ -271,6 +271,12 @@ pub fn silhouettes(width: u32, height: u32) -> Scene {
 /// texel grids: ≈ 0.4 % of channels of `small("balls")`, up to 0.025), so each cluster mode is
 /// compared with the single-device render that fits its maps the same way.
 pub fn single_device(gpu: &Gpu, scene: &Scene, walkthrough: bool) -> Image {
+    single_device_filtered(gpu, scene, walkthrough, 0)
+}
+
+/// [`single_device`] with the penumbra filter of `radius` (0: none) on the summed illumination
+/// before the material multiply, as a last stage planned with that radius applies it.
+pub fn single_device_filtered(gpu: &Gpu, scene: &Scene, walkthrough: bool, radius: u32) -> Image {
     // Direct samples and, where the scene asks for indirect light, its VPLs (as the planner).
     let samples = lightfold_reference::indirect::scene_samples(scene);
     let mut r = Renderer::new(gpu, scene, RenderOptions::from_quality(&scene.quality)).unwrap();
@@ -279,13 +285,23 @@ pub fn single_device(gpu: &Gpu, scene: &Scene, walkthrough: bool) -> Image {
     let f = r
         .render(gpu, &samples, None, [1.0; 3], LayerSet::all())
         .unwrap();
-    let (il, md, ms, ma, e) = (
+    let (mut il, md, ms, ma, e) = (
         f.illumination.unwrap(),
         f.diffuse.unwrap(),
         f.specular.unwrap(),
         f.ambient.unwrap(),
         f.emissive.unwrap(),
     );
+    if radius > 0 {
+        let depth = f.depth.unwrap();
+        il.data = lightfold_compositor::ops::penumbra::filter_frame(
+            il.width,
+            radius,
+            &il.data,
+            &depth.data,
+        )
+        .unwrap();
+    }
     let mut out = Image::new(il.width, il.height, 3);
     for i in 0..out.pixel_count() {
         for c in 0..3 {
