@@ -338,6 +338,18 @@ fn operators(c: &mut Criterion) {
 
             bench_depth_packed(&mut g, &pool, &d);
 
+            // The penumbra filter over a receding plane (every tap on the surface: its
+            // costliest case), radius 1 and 2.
+            let plane: Vec<f32> = (0..px)
+                .map(|p| 1.0 / (0.05 + 1e-4 * (p / w) as f32 + 2e-5 * (p % w) as f32))
+                .collect();
+            for radius in [1, 2] {
+                let op = ops::create("penumbra", &json!({"width": w, "radius": radius})).unwrap();
+                let inputs = [ill(px, &d.up), BandView::new(px).with(Layer::Depth, &plane)];
+                let name = format!("penumbra_r{radius}");
+                bench_op(&mut g, &pool, &name, &*op, &inputs, px, false);
+            }
+
             let join = ops::create("join", &json!({"inputs": 2})).unwrap();
             bench_op(&mut g, &pool, "join", &*join, &two, px, false);
             if scalar_too {

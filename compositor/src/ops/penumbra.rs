@@ -310,33 +310,41 @@ impl Operator for Penumbra {
         let r = self.params.radius as usize;
         let tol = self.params.depth_tolerance;
         let nf = self.filtered();
-        // Inverse depth and the plane's slopes, once per pixel.
-        let inv: Vec<f32> = depth.iter().map(|z| inverse(*z)).collect();
-        let grad: Vec<(f32, f32)> = (0..rows * w)
-            .map(|p| {
-                let (x, y) = (p % w, p / w);
-                // Inverse depth `k` pixels along x or y (0 off the band).
-                let along_x = |k: isize| {
-                    let q = x as isize + k;
-                    if (0..w as isize).contains(&q) {
-                        inv[p - x + q as usize]
-                    } else {
-                        0.0
-                    }
-                };
-                let along_y = |k: isize| {
-                    let q = y as isize + k;
-                    if (0..rows as isize).contains(&q) {
-                        inv[q as usize * w + x]
-                    } else {
-                        0.0
-                    }
-                };
-                let c = inv[p];
-                (
-                    slope(c, along_x(-1), along_x(-2), along_x(1), along_x(2)),
-                    slope(c, along_y(-1), along_y(-2), along_y(1), along_y(2)),
-                )
+        // Inverse depth with a border of `pad` zeros (background: never counted), so neighbours
+        // and taps read without bounds tests; and the plane's slopes, once per pixel.
+        let pad = r.max(2);
+        let pw = w + 2 * pad;
+        let mut inv = vec![0.0f32; pw * (rows + 2 * pad)];
+        for (y, zs) in depth.chunks_exact(w).enumerate() {
+            let start = (y + pad) * pw + pad;
+            for (o, z) in inv[start..start + w].iter_mut().zip(zs) {
+                *o = inverse(*z);
+            }
+        }
+        let mut gxs = vec![0.0f32; rows * w];
+        let mut gys = vec![0.0f32; rows * w];
+        for y in 0..rows {
+            for x in 0..w {
+                let i = (y + pad) * pw + x + pad;
+                let c = inv[i];
+                gxs[y * w + x] = slope(c, inv[i - 1], inv[i - 2], inv[i + 1], inv[i + 2]);
+                gys[y * w + x] = slope(
+                    c,
+                    inv[i - pw],
+                    inv[i - 2 * pw],
+                    inv[i + pw],
+                    inv[i + 2 * pw],
+                );
+            }
+        }
+        // The filtered channels, read by the value policy, one plane each (contiguous taps).
+        let planes: Vec<Vec<f32>> = (0..nf)
+            .map(|ch| {
+                il.iter()
+                    .skip(ch)
+                    .step_by(6)
+                    .map(|v| clamp_fast(*v))
+                    .collect()
             })
             .collect();
         let dst = out.layer_mut(Layer::Illumination).expect("checked");
@@ -344,45 +352,56 @@ impl Operator for Penumbra {
         let weights: Vec<f32> = (0..side * side)
             .map(|k| self.weight((k % side) as i64 - r as i64, (k / side) as i64 - r as i64))
             .collect();
+        // One output row, tap by tap across the whole row: first which pixels keep the tap (its
+        // weight or 0; contiguous, vectorised), then its values added. Each pixel still adds its
+        // taps in the reference's row-major order, and a tap not kept adds 0 (x + 0 is x for
+        // the non-negative sums), so the bits are the reference's.
         let row = |y: usize, line: &mut [f32]| {
-            let y0 = y.saturating_sub(r);
-            let y1 = (y + r).min(rows - 1);
-            for x in 0..w {
-                let p = y * w + x;
-                let o = &mut line[x * 6..x * 6 + 6];
-                for (o, v) in o.iter_mut().zip(&il[p * 6..p * 6 + 6]) {
-                    *o = clamp_fast(*v);
-                }
-                let c = inv[p];
-                if c <= 0.0 {
-                    continue;
-                }
-                let (gx, gy) = grad[p];
-                let limit = tol * c;
-                let x0 = x.saturating_sub(r);
-                let x1 = (x + r).min(w - 1);
-                let mut sum = [0.0f32; 6];
-                let mut n = 0.0f32;
-                for qy in y0..=y1 {
-                    let dy = qy as f32 - y as f32;
-                    let qrow = &inv[qy * w..qy * w + w];
-                    for (qx, &q) in qrow.iter().enumerate().take(x1 + 1).skip(x0) {
-                        let dx = qx as f32 - x as f32;
-                        // The reference's `c + gx·dx + gy·dy`, in the same order of operations.
-                        let predicted = c + gx * dx + gy * dy;
-                        if q <= 0.0 || (q - predicted).abs() > limit {
-                            continue;
+            let at = y * w;
+            let (gx, gy) = (&gxs[at..at + w], &gys[at..at + w]);
+            let c = &inv[(y + pad) * pw + pad..(y + pad) * pw + pad + w];
+            let mut n = vec![0.0f32; w];
+            let mut m = vec![0.0f32; w];
+            let mut sums = vec![vec![0.0f32; w]; nf];
+            for qy in y.saturating_sub(r)..=(y + r).min(rows - 1) {
+                let dy = qy as f32 - y as f32;
+                for dxi in -(r as isize)..=r as isize {
+                    let wt = weights[(qy + r - y) * side + (dxi + r as isize) as usize];
+                    let dx = dxi as f32;
+                    let start = ((qy + pad) * pw) as isize + pad as isize + dxi;
+                    let qinv = &inv[start as usize..start as usize + w];
+                    for x in 0..w {
+                        let q = qinv[x];
+                        // The reference's `c + gx·dx + gy·dy` and its test, as written there.
+                        let predicted = c[x] + gx[x] * dx + gy[x] * dy;
+                        let keep = q > 0.0 && !((q - predicted).abs() > tol * c[x]);
+                        m[x] = if keep { wt } else { 0.0 };
+                        n[x] += m[x];
+                    }
+                    // The pixels whose tap dxi lies in the row (off it, m is 0: the padding).
+                    let xa = (-dxi).max(0) as usize;
+                    let xb = (w as isize - dxi).clamp(0, w as isize) as usize;
+                    if xa >= xb {
+                        continue;
+                    }
+                    let first = (qy * w) as isize + xa as isize + dxi;
+                    for (sum, plane) in sums.iter_mut().zip(&planes) {
+                        let v = &plane[first as usize..first as usize + (xb - xa)];
+                        for ((s, m), v) in sum[xa..xb].iter_mut().zip(&m[xa..xb]).zip(v) {
+                            *s += m * v;
                         }
-                        let k = (qy * w + qx) * 6;
-                        let wt = weights[(qy + r - y) * side + (qx + r - x)];
-                        for (s, v) in sum.iter_mut().zip(&il[k..k + nf]) {
-                            *s += wt * clamp_fast(*v);
-                        }
-                        n += wt;
                     }
                 }
-                for (o, s) in o.iter_mut().zip(&sum).take(nf) {
-                    *o = saturate(s / n);
+            }
+            for x in 0..w {
+                let o = &mut line[x * 6..x * 6 + 6];
+                for (o, v) in o.iter_mut().zip(&il[(at + x) * 6..(at + x) * 6 + 6]) {
+                    *o = clamp_fast(*v);
+                }
+                if c[x] > 0.0 {
+                    for (o, sum) in o.iter_mut().zip(&sums) {
+                        *o = saturate(sum[x] / n[x]);
+                    }
                 }
             }
         };

@@ -6,7 +6,6 @@
 //! fragment of a hidden surface is ever lit.
 
 use super::eye_pass::{EyeInputs, EyeTargets, GpuFrame, light_group, record_raster};
-use super::frame::RenderError;
 use super::lights::{GpuLight, GpuView, chunk_lights};
 use super::pipelines::{DrawContext, GBUFFER_FORMAT};
 use bytemuck::Zeroable;
@@ -171,47 +170,4 @@ pub fn render_deferred(
         }
     }
     cx.queue.submit([encoder.finish()]);
-}
-
-/// Reads the lit buffer back as (diffuse RGB, specular RGB) per pixel.
-pub fn read_illumination(
-    device: &wgpu::Device,
-    queue: &wgpu::Queue,
-    deferred: &DeferredTargets,
-) -> Result<(Vec<f32>, Vec<f32>), RenderError> {
-    let size = deferred.illumination.size();
-    let staging = device.create_buffer(&wgpu::BufferDescriptor {
-        label: Some("deferred readback"),
-        size,
-        usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-        mapped_at_creation: false,
-    });
-    let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
-        label: Some("deferred readback"),
-    });
-    encoder.copy_buffer_to_buffer(&deferred.illumination, 0, &staging, 0, size);
-    queue.submit([encoder.finish()]);
-    let (tx, rx) = std::sync::mpsc::channel();
-    staging.map_async(wgpu::MapMode::Read, .., move |r| {
-        let _ = tx.send(r);
-    });
-    device
-        .poll(wgpu::PollType::wait_indefinitely())
-        .map_err(|e| RenderError::Gpu(format!("readback wait: {e}")))?;
-    rx.recv()
-        .map_err(|e| RenderError::Gpu(format!("map callback lost: {e}")))?
-        .map_err(|e| RenderError::Gpu(format!("map of the lit buffer: {e}")))?;
-    let mapped = staging
-        .get_mapped_range(..)
-        .map_err(|e| RenderError::Gpu(format!("mapped range: {e}")))?;
-    let values: &[f32] = bytemuck::cast_slice(&mapped);
-    let n = (deferred.width * deferred.height) as usize;
-    let (mut diffuse, mut specular) = (Vec::with_capacity(n * 3), Vec::with_capacity(n * 3));
-    for px in values.chunks_exact(8) {
-        diffuse.extend_from_slice(&px[0..3]);
-        specular.extend_from_slice(&px[4..7]);
-    }
-    drop(mapped);
-    staging.unmap();
-    Ok((diffuse, specular))
 }

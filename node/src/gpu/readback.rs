@@ -1,5 +1,6 @@
-//! Reading render targets back to the CPU: one copy per texture into a mappable buffer whose rows
-//! are padded to wgpu's 256-byte alignment, then unpadded and converted to f32 channels.
+//! Reading render targets back to the CPU: one copy per texture (or the deferred lit buffer) into
+//! a mappable buffer kept from frame to frame, rows padded to wgpu's 256-byte alignment, all in
+//! one submission and one wait, then unpadded and converted to f32 channels.
 
 use super::frame::RenderError;
 
@@ -8,6 +9,42 @@ use super::frame::RenderError;
 pub struct ReadRequest<'a> {
     pub texture: &'a wgpu::Texture,
     pub keep_channels: usize,
+}
+
+/// What one frame reads back: the deferred pass's lit buffer (two vec4<f32> a pixel, read as
+/// six channels: diffuse RGB then specular RGB), and textures.
+#[derive(Debug, Clone, Copy)]
+pub enum ReadSource<'a> {
+    Lit(&'a wgpu::Buffer),
+    Texture(ReadRequest<'a>),
+}
+
+/// Mappable buffers kept from frame to frame, one per read of a frame, so a steady stream of
+/// frames allocates none (a fresh host-visible buffer per target and frame was most of the
+/// readback on a discrete GPU, `docs/gpu.md`).
+#[derive(Debug, Default)]
+pub struct Staging {
+    buffers: Vec<wgpu::Buffer>,
+}
+
+impl Staging {
+    /// Buffer `i`, of exactly `size` bytes (made again when the size changes).
+    fn buffer(&mut self, device: &wgpu::Device, i: usize, size: u64) -> wgpu::Buffer {
+        if self.buffers.get(i).is_none_or(|b| b.size() != size) {
+            let b = device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("readback"),
+                size,
+                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
+                mapped_at_creation: false,
+            });
+            if i < self.buffers.len() {
+                self.buffers[i] = b;
+            } else {
+                self.buffers.push(b);
+            }
+        }
+        self.buffers[i].clone()
+    }
 }
 
 /// Bytes per row of a `width`-pixel copy, padded to `COPY_BYTES_PER_ROW_ALIGNMENT`.
@@ -28,53 +65,58 @@ fn format_info(f: wgpu::TextureFormat) -> Result<(u32, usize, bool), RenderError
     }
 }
 
-/// Copies every requested target and returns, per request, `keep_channels` f32 values per pixel
-/// (row 0 at the top).
-pub fn read_targets(
+/// Copies every source into `staging` in one submission, waits once, and returns per source its
+/// f32 values (the lit buffer: 6 a pixel; a texture: `keep_channels` a pixel, row 0 at the top).
+pub fn read(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
-    requests: &[ReadRequest<'_>],
+    staging: &mut Staging,
+    sources: &[ReadSource<'_>],
 ) -> Result<Vec<Vec<f32>>, RenderError> {
     let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
         label: Some("readback"),
     });
-    let mut staging = Vec::with_capacity(requests.len());
-    for r in requests {
-        let size = r.texture.size();
-        let (bpp, _, _) = format_info(r.texture.format())?;
-        let row = padded_row(size.width, bpp);
-        let buffer = device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("readback"),
-            size: row as u64 * size.height as u64,
-            usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-            mapped_at_creation: false,
-        });
-        encoder.copy_texture_to_buffer(
-            wgpu::TexelCopyTextureInfo {
-                texture: r.texture,
-                mip_level: 0,
-                origin: wgpu::Origin3d::ZERO,
-                aspect: wgpu::TextureAspect::All,
-            },
-            wgpu::TexelCopyBufferInfo {
-                buffer: &buffer,
-                layout: wgpu::TexelCopyBufferLayout {
-                    offset: 0,
-                    bytes_per_row: Some(row),
-                    rows_per_image: Some(size.height),
-                },
-            },
-            wgpu::Extent3d {
-                width: size.width,
-                height: size.height,
-                depth_or_array_layers: 1,
-            },
-        );
-        staging.push((buffer, row));
+    let mut buffers = Vec::with_capacity(sources.len());
+    for (i, source) in sources.iter().enumerate() {
+        match source {
+            ReadSource::Lit(lit) => {
+                let buffer = staging.buffer(device, i, lit.size());
+                encoder.copy_buffer_to_buffer(lit, 0, &buffer, 0, lit.size());
+                buffers.push((buffer, 0));
+            }
+            ReadSource::Texture(r) => {
+                let size = r.texture.size();
+                let (bpp, _, _) = format_info(r.texture.format())?;
+                let row = padded_row(size.width, bpp);
+                let buffer = staging.buffer(device, i, row as u64 * size.height as u64);
+                encoder.copy_texture_to_buffer(
+                    wgpu::TexelCopyTextureInfo {
+                        texture: r.texture,
+                        mip_level: 0,
+                        origin: wgpu::Origin3d::ZERO,
+                        aspect: wgpu::TextureAspect::All,
+                    },
+                    wgpu::TexelCopyBufferInfo {
+                        buffer: &buffer,
+                        layout: wgpu::TexelCopyBufferLayout {
+                            offset: 0,
+                            bytes_per_row: Some(row),
+                            rows_per_image: Some(size.height),
+                        },
+                    },
+                    wgpu::Extent3d {
+                        width: size.width,
+                        height: size.height,
+                        depth_or_array_layers: 1,
+                    },
+                );
+                buffers.push((buffer, row));
+            }
+        }
     }
     queue.submit([encoder.finish()]);
     let (tx, rx) = std::sync::mpsc::channel();
-    for (i, (buffer, _)) in staging.iter().enumerate() {
+    for (i, (buffer, _)) in buffers.iter().enumerate() {
         let tx = tx.clone();
         buffer.map_async(wgpu::MapMode::Read, .., move |r| {
             let _ = tx.send((i, r));
@@ -84,36 +126,85 @@ pub fn read_targets(
     device
         .poll(wgpu::PollType::wait_indefinitely())
         .map_err(|e| RenderError::Gpu(format!("readback wait: {e}")))?;
+    let mut failed = None;
+    let mut mapped = vec![false; buffers.len()];
     for (i, r) in rx.iter() {
-        r.map_err(|e| RenderError::Gpu(format!("map of target {i}: {e}")))?;
-    }
-    let mut out = Vec::with_capacity(requests.len());
-    for (r, (buffer, row)) in requests.iter().zip(&staging) {
-        let size = r.texture.size();
-        let (bpp, channels, half) = format_info(r.texture.format())?;
-        let keep = r.keep_channels.min(channels);
-        let mapped = buffer
-            .get_mapped_range(..)
-            .map_err(|e| RenderError::Gpu(format!("mapped range: {e}")))?;
-        let mut data = Vec::with_capacity(size.width as usize * size.height as usize * keep);
-        for y in 0..size.height as usize {
-            let line = &mapped[y * *row as usize..][..(size.width * bpp) as usize];
-            for px in line.chunks_exact(bpp as usize) {
-                for c in 0..keep {
-                    let v = if half {
-                        half::f16::from_le_bytes([px[c * 2], px[c * 2 + 1]]).to_f32()
-                    } else {
-                        f32::from_le_bytes([px[c * 4], px[c * 4 + 1], px[c * 4 + 2], px[c * 4 + 3]])
-                    };
-                    data.push(v);
-                }
+        match r {
+            Ok(()) => mapped[i] = true,
+            Err(e) => {
+                failed.get_or_insert(RenderError::Gpu(format!("map of target {i}: {e}")));
             }
         }
-        drop(mapped);
-        buffer.unmap();
-        out.push(data);
     }
-    Ok(out)
+    let result = match failed {
+        Some(e) => Err(e),
+        None => sources
+            .iter()
+            .zip(&buffers)
+            .map(|(source, (buffer, row))| convert(source, buffer, *row))
+            .collect(),
+    };
+    for ((buffer, _), mapped) in buffers.iter().zip(mapped) {
+        if mapped {
+            buffer.unmap();
+        }
+    }
+    result
+}
+
+/// The mapped `buffer` of `source` as f32 values.
+fn convert(
+    source: &ReadSource<'_>,
+    buffer: &wgpu::Buffer,
+    row: u32,
+) -> Result<Vec<f32>, RenderError> {
+    let mapped = buffer
+        .get_mapped_range(..)
+        .map_err(|e| RenderError::Gpu(format!("mapped range: {e}")))?;
+    let bytes: &[u8] = &mapped;
+    let f32s = |b: &[u8], out: &mut Vec<f32>| match bytemuck::try_cast_slice::<u8, f32>(b) {
+        Ok(v) => out.extend_from_slice(v),
+        // Mapped memory is aligned in practice; read it bytewise if it ever is not.
+        Err(_) => out.extend(
+            b.chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])),
+        ),
+    };
+    match source {
+        ReadSource::Lit(_) => {
+            // vec4 diffuse, vec4 specular: keep xyz of each.
+            let mut out = Vec::with_capacity(bytes.len() / 32 * 6);
+            for px in bytes.chunks_exact(32) {
+                f32s(&px[0..12], &mut out);
+                f32s(&px[16..28], &mut out);
+            }
+            Ok(out)
+        }
+        ReadSource::Texture(r) => {
+            let size = r.texture.size();
+            let (bpp, channels, half) = format_info(r.texture.format())?;
+            let keep = r.keep_channels.min(channels);
+            let (w, h) = (size.width as usize, size.height as usize);
+            let mut out = Vec::with_capacity(w * h * keep);
+            for y in 0..h {
+                let line = &bytes[y * row as usize..][..w * bpp as usize];
+                if half {
+                    for px in line.chunks_exact(bpp as usize) {
+                        for c in px.chunks_exact(2).take(keep) {
+                            out.push(half::f16::from_le_bytes([c[0], c[1]]).to_f32());
+                        }
+                    }
+                } else if keep == channels {
+                    f32s(line, &mut out);
+                } else {
+                    for px in line.chunks_exact(bpp as usize) {
+                        f32s(&px[..keep * 4], &mut out);
+                    }
+                }
+            }
+            Ok(out)
+        }
+    }
 }
 
 #[cfg(test)]

@@ -7,7 +7,7 @@
 //! moved or whose casters moved ([`Renderer::set_meshes`] poses the geometry).
 
 use super::atlas::Slot;
-use super::deferred::{DeferredTargets, read_illumination, render_deferred};
+use super::deferred::{DeferredTargets, render_deferred};
 use super::device::Gpu;
 use super::eye_pass::{
     EyeInputs, EyeTargets, FLAG_CONVENTIONAL_Z, FLAG_OBJECT_IDS, GpuFrame, render_eye,
@@ -15,7 +15,7 @@ use super::eye_pass::{
 use super::frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
 use super::lights::{Fault, Fit, LightPlan, Sides, plan_lights};
 use super::pipelines::{DrawContext, LightSet, Pipelines};
-use super::readback::{ReadRequest, read_targets};
+use super::readback::{ReadRequest, ReadSource, Staging, read};
 use super::scene_data::SceneData;
 use super::shadow_depth::ShadowDepth;
 use super::shadow_pass::{ShadowMaps, layer_count, render_shadow_maps};
@@ -74,6 +74,8 @@ pub struct Renderer {
     cascades: bool,
     object_ids: bool,
     map_sides: Option<Vec<u32>>,
+    /// Readback buffers kept from frame to frame.
+    staging: Staging,
 }
 
 impl Renderer {
@@ -210,6 +212,7 @@ impl Renderer {
             cascades: true,
             object_ids: true,
             map_sides: None,
+            staging: Staging::default(),
             variant: EyeVariant::default(),
             deferred: None,
         })
@@ -589,31 +592,31 @@ impl Renderer {
 
         // Readback of the requested layers.
         let t2 = Instant::now();
-        let mut requests: Vec<(ReadRequest<'_>, &str)> = Vec::new();
+        let mut sources: Vec<ReadSource<'_>> = Vec::new();
         let lit_buffer = match (&self.deferred, variant) {
             (Some(d), EyeVariant::Deferred) if lit => {
-                Some(read_illumination(&gpu.device, &gpu.queue, d)?)
+                sources.push(ReadSource::Lit(&d.illumination));
+                true
             }
-            _ => None,
+            _ => false,
         };
-        if lit && lit_buffer.is_none() {
-            requests.push((req(&targets.diffuse, 3), "diffuse illumination"));
-            requests.push((req(&targets.specular, 3), "specular illumination"));
+        if lit && !lit_buffer {
+            sources.push(ReadSource::Texture(req(&targets.diffuse, 3)));
+            sources.push(ReadSource::Texture(req(&targets.specular, 3)));
         }
         let m = &targets.materials;
-        for (want, tex, name) in [
-            (layers.diffuse, &m[0], "m^d"),
-            (layers.specular, &m[1], "m^s"),
-            (layers.ambient, &m[2], "m^a"),
-            (layers.emissive, &m[3], "e"),
-            (layers.depth, &targets.depth, "depth"),
+        for (want, tex, channels) in [
+            (layers.diffuse, &m[0], 3),
+            (layers.specular, &m[1], 3),
+            (layers.ambient, &m[2], 3),
+            (layers.emissive, &m[3], 3),
+            (layers.depth, &targets.depth, 1),
         ] {
             if want {
-                requests.push((req(tex, if name == "depth" { 1 } else { 3 }), name));
+                sources.push(ReadSource::Texture(req(tex, channels)));
             }
         }
-        let reqs: Vec<ReadRequest<'_>> = requests.iter().map(|(r, _)| *r).collect();
-        let mut data = read_targets(&gpu.device, &gpu.queue, &reqs)?.into_iter();
+        let mut data = read(&gpu.device, &gpu.queue, &mut self.staging, &sources)?.into_iter();
         let image = |data: Vec<f32>, channels| Image {
             width: w,
             height: h,
@@ -630,18 +633,20 @@ impl Renderer {
             stats: RenderStats::default(),
         };
         if lit {
-            let (d, s) = match lit_buffer {
-                Some(ds) => ds,
-                None => (
+            let il = if lit_buffer {
+                data.next().unwrap_or_default()
+            } else {
+                let (d, s) = (
                     data.next().unwrap_or_default(),
                     data.next().unwrap_or_default(),
-                ),
+                );
+                let mut il = Vec::with_capacity(d.len() * 2);
+                for (a, b) in d.chunks_exact(3).zip(s.chunks_exact(3)) {
+                    il.extend_from_slice(a);
+                    il.extend_from_slice(b);
+                }
+                il
             };
-            let mut il = Vec::with_capacity(d.len() * 2);
-            for (a, b) in d.chunks_exact(3).zip(s.chunks_exact(3)) {
-                il.extend_from_slice(a);
-                il.extend_from_slice(b);
-            }
             out.illumination = Some(image(il, 6));
         }
         for (want, slot) in [
