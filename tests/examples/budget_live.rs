@@ -3,14 +3,56 @@
 //! nodes and N compositors from the nodes' registered costs; the table gives the first plan's
 //! choices, the plan the loop settled on after checking the budget against measured frames, the
 //! measured median frame time (the slowest node's own work) and frame interval over the last
-//! frames, and the penumbra PSNR the accuracy sweep measured (`docs/accuracy/balls`) for the
-//! chosen sample count, beside the error model's figure.
+//! frames, the penumbra PSNR of the last frame against the area-light truth (256 points per area
+//! light per pixel, from the accuracy sweep's cache or rendered), and the best penumbra PSNR any
+//! point of the committed sweeps (`docs/accuracy/balls`, `docs/accuracy/balls-penumbra`) measured
+//! with its slowest node within the budget.
 //!
 //! `cargo run --profile test -p lightfold-tests --example budget_live [-- MS,MS,... NODES FRAMES]`
 
 use lightfold_coordinator::control::{FrameSpec, Live};
-use lightfold_coordinator::plan::{MapSizing, Plan, PlanOptions, expected_penumbra_db};
+use lightfold_coordinator::plan::{MapSizing, Plan, PlanOptions};
+use lightfold_quality::accuracy::{TruthOptions, load_or_render_truth};
 use lightfold_tests::{InProcessCluster, test_control};
+
+/// The best point of the committed `balls` sweeps whose slowest node took at most `budget_ms`:
+/// (its description, penumbra PSNR, frame ms).
+fn best_swept(budget_ms: f64) -> anyhow::Result<Option<(String, f64, f64)>> {
+    let mut best: Option<(String, f64, f64)> = None;
+    for dir in ["balls", "balls-penumbra"] {
+        let path = format!(
+            "{}/../docs/accuracy/{dir}/sweep.csv",
+            env!("CARGO_MANIFEST_DIR")
+        );
+        let mut r = csv::Reader::from_path(&path)?;
+        let head = r.headers()?.clone();
+        let col = |name: &str| head.iter().position(|h| h == name);
+        let (Some(frame), Some(db)) = (col("frame_seconds"), col("penumbra_psnr_db")) else {
+            anyhow::bail!("{path}: no frame_seconds or penumbra_psnr_db column");
+        };
+        for row in r.records() {
+            let row = row?;
+            let (ms, psnr): (f64, f64) = (row[frame].parse::<f64>()? * 1e3, row[db].parse()?);
+            if ms > budget_ms || best.as_ref().is_some_and(|b| b.1 >= psnr) {
+                continue;
+            }
+            let get = |n: &str| col(n).map_or("?", |i| &row[i]).to_string();
+            let filter = match get("penumbra_filter").as_str() {
+                "0" | "?" => String::new(),
+                r => format!(" + penumbra r{r}"),
+            };
+            let what = format!(
+                "{} per light{filter}, map {}, {}, K {}",
+                get("samples"),
+                get("map_size"),
+                get("filter"),
+                get("k")
+            );
+            best = Some((what, psnr, ms));
+        }
+    }
+    Ok(best)
+}
 
 fn median(mut v: Vec<f64>) -> f64 {
     if v.is_empty() {
@@ -37,19 +79,6 @@ fn choices(p: &Plan) -> String {
     )
 }
 
-/// Penumbra PSNR `docs/accuracy/balls` measured at n samples per area light (grid, 512²),
-/// where it measured it.
-fn swept(n: usize) -> Option<f64> {
-    match n {
-        1 => Some(27.39),
-        4 => Some(37.34),
-        16 => Some(47.53),
-        64 => Some(55.51),
-        256 => Some(58.09),
-        _ => None,
-    }
-}
-
 #[tokio::main(flavor = "multi_thread", worker_threads = 4)]
 async fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
@@ -64,15 +93,23 @@ async fn main() -> anyhow::Result<()> {
     let mut scene = lightfold_scene::builtin("balls")?;
     scene.camera.width = 400;
     scene.camera.height = 300;
+    // The accuracy sweep's truth (and its cache, so a committed sweep's truth is reused).
+    let truth = load_or_render_truth(
+        &scene,
+        &TruthOptions {
+            samples_per_light: 256,
+            cache_dir: dirs::cache_dir().map(|d| d.join("lightfold").join("accuracy")),
+        },
+    )?;
     println!(
         "balls 400×300, {nodes} render nodes + {nodes} compositors in one process, {frames} frames \
          per budget"
     );
     println!(
         "| budget | first plan | settled plan | epochs | measured frame (p50) | interval (p50) | \
-         penumbra PSNR: sweep / model |"
+         penumbra PSNR of the last frame | best sweep point within the budget |"
     );
-    println!("|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|");
     for budget in budgets {
         let cluster = InProcessCluster::start(nodes, nodes).await?;
         let mut session = cluster.connect(test_control()).await?;
@@ -95,6 +132,7 @@ async fn main() -> anyhow::Result<()> {
         let mut last_epoch = 0;
         let mut work = Vec::new();
         let mut done = Vec::new();
+        let mut last = None;
         let observer = live.observe();
         let (r, ()) = tokio::join!(
             live.run(rx, |f| {
@@ -115,6 +153,7 @@ async fn main() -> anyhow::Result<()> {
                     .unwrap_or(0);
                 work.push(slowest as f64 / 1e3);
                 done.push(f.received_at);
+                last = Some(f.image);
             }),
             feed
         );
@@ -133,15 +172,23 @@ async fn main() -> anyhow::Result<()> {
             .windows(2)
             .map(|w| w[1].duration_since(w[0]).as_secs_f64() * 1e3)
             .collect();
-        let n = per_light(&plan);
+        let measured = match &last {
+            Some(image) => truth
+                .truth
+                .compare(image)?
+                .penumbra
+                .map_or(f64::NAN, |p| p.psnr),
+            None => f64::NAN,
+        };
+        let best = best_swept(budget)?.map_or("none".to_string(), |(what, db, ms)| {
+            format!("{db:.2} dB ({what}; {ms:.0} ms)")
+        });
         println!(
-            "| {budget} ms | {} | {} | {epochs} | {:.1} ms | {:.1} ms | {} / {:.1} dB |",
+            "| {budget} ms | {} | {} | {epochs} | {:.1} ms | {:.1} ms | {measured:.2} dB | {best} |",
             first.unwrap_or_default(),
             choices(&plan),
             median(work),
             median(intervals),
-            swept(n).map_or("–".into(), |d| format!("{d:.2}")),
-            expected_penumbra_db(n as u32)
         );
     }
     Ok(())
