@@ -6,7 +6,7 @@
 //! frames, the penumbra PSNR of the last frame against the area-light truth (256 points per area
 //! light per pixel, from the accuracy sweep's cache or rendered), and the best penumbra PSNR any
 //! point of the committed sweeps (`docs/accuracy/balls`, `docs/accuracy/balls-penumbra`) measured
-//! with its slowest node within the budget.
+//! on at most as many nodes with its slowest node within the budget.
 //!
 //! `cargo run --profile test -p lightfold-tests --example budget_live [-- MS,MS,... NODES FRAMES]`
 
@@ -15,9 +15,10 @@ use lightfold_coordinator::plan::{MapSizing, Plan, PlanOptions};
 use lightfold_quality::accuracy::{TruthOptions, load_or_render_truth};
 use lightfold_tests::{InProcessCluster, test_control};
 
-/// The best point of the committed `balls` sweeps whose slowest node took at most `budget_ms`:
-/// (its description, penumbra PSNR, frame ms).
-fn best_swept(budget_ms: f64) -> anyhow::Result<Option<(String, f64, f64)>> {
+/// The best point of the committed `balls` sweeps whose slowest node took at most `budget_ms` on
+/// at most `nodes` nodes: (its description, penumbra PSNR, frame ms). The sweep times each node's
+/// batch on one device in turn, so its frame is what that many nodes of their own would take.
+fn best_swept(budget_ms: f64, nodes: usize) -> anyhow::Result<Option<(String, f64, f64)>> {
     let mut best: Option<(String, f64, f64)> = None;
     for dir in ["balls", "balls-penumbra"] {
         let path = format!(
@@ -27,13 +28,18 @@ fn best_swept(budget_ms: f64) -> anyhow::Result<Option<(String, f64, f64)>> {
         let mut r = csv::Reader::from_path(&path)?;
         let head = r.headers()?.clone();
         let col = |name: &str| head.iter().position(|h| h == name);
-        let (Some(frame), Some(db)) = (col("frame_seconds"), col("penumbra_psnr_db")) else {
-            anyhow::bail!("{path}: no frame_seconds or penumbra_psnr_db column");
+        let (Some(frame), Some(db), Some(used)) = (
+            col("frame_seconds"),
+            col("penumbra_psnr_db"),
+            col("nodes"),
+        ) else {
+            anyhow::bail!("{path}: no frame_seconds, penumbra_psnr_db or nodes column");
         };
         for row in r.records() {
             let row = row?;
             let (ms, psnr): (f64, f64) = (row[frame].parse::<f64>()? * 1e3, row[db].parse()?);
-            if ms > budget_ms || best.as_ref().is_some_and(|b| b.1 >= psnr) {
+            let used: usize = row[used].parse()?;
+            if ms > budget_ms || used > nodes || best.as_ref().is_some_and(|b| b.1 >= psnr) {
                 continue;
             }
             let get = |n: &str| col(n).map_or("?", |i| &row[i]).to_string();
@@ -42,7 +48,7 @@ fn best_swept(budget_ms: f64) -> anyhow::Result<Option<(String, f64, f64)>> {
                 r => format!(" + penumbra r{r}"),
             };
             let what = format!(
-                "{} per light{filter}, map {}, {}, K {}",
+                "{} per light{filter}, map {}, {}, K {}, {used} nodes",
                 get("samples"),
                 get("map_size"),
                 get("filter"),
@@ -180,7 +186,7 @@ async fn main() -> anyhow::Result<()> {
                 .map_or(f64::NAN, |p| p.psnr),
             None => f64::NAN,
         };
-        let best = best_swept(budget)?.map_or("none".to_string(), |(what, db, ms)| {
+        let best = best_swept(budget, nodes)?.map_or("none".to_string(), |(what, db, ms)| {
             format!("{db:.2} dB ({what}; {ms:.0} ms)")
         });
         println!(
