@@ -28,11 +28,9 @@ fn best_swept(budget_ms: f64, nodes: usize) -> anyhow::Result<Option<(String, f6
         let mut r = csv::Reader::from_path(&path)?;
         let head = r.headers()?.clone();
         let col = |name: &str| head.iter().position(|h| h == name);
-        let (Some(frame), Some(db), Some(used)) = (
-            col("frame_seconds"),
-            col("penumbra_psnr_db"),
-            col("nodes"),
-        ) else {
+        let (Some(frame), Some(db), Some(used)) =
+            (col("frame_seconds"), col("penumbra_psnr_db"), col("nodes"))
+        else {
             anyhow::bail!("{path}: no frame_seconds, penumbra_psnr_db or nodes column");
         };
         for row in r.records() {
