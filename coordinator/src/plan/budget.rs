@@ -58,8 +58,14 @@ const SWEEP: [(f32, f32); 5] = [
 
 /// The model's penumbra PSNR at `n` samples per area light (see [`SWEEP`]).
 pub fn expected_penumbra_db(n: u32) -> f32 {
+    through_log2(&SWEEP, n)
+}
+
+/// Piecewise linear in log₂ of the count through `(count, dB)` points (at least two, in rising
+/// order), the last slope beyond them and the first before.
+fn through_log2(points: &[(f32, f32)], n: u32) -> f32 {
     let x = (n.max(1) as f32).log2();
-    let pts: Vec<(f32, f32)> = SWEEP.iter().map(|&(n, db)| (n.log2(), db)).collect();
+    let pts: Vec<(f32, f32)> = points.iter().map(|&(n, db)| (n.log2(), db)).collect();
     let seg = pts
         .windows(2)
         .find(|w| x <= w[1].0)
@@ -104,15 +110,8 @@ fn expected_filtered_db(n: u32) -> f32 {
     if filter_radius(n) == 0 {
         return expected_penumbra_db(n);
     }
-    let x = (n.max(1) as f32).log2();
-    let pts: Vec<(f32, f32)> = FILTERED.iter().map(|&(n, _, db)| (n.log2(), db)).collect();
-    let seg = pts
-        .windows(2)
-        .find(|w| x <= w[1].0)
-        .unwrap_or(&pts[pts.len() - 2..]);
-    let (x0, y0) = seg[0];
-    let (x1, y1) = seg[1];
-    y0 + (x - x0) * (y1 - y0) / (x1 - x0)
+    let points: Vec<(f32, f32)> = FILTERED.iter().map(|&(n, _, db)| (n, db)).collect();
+    through_log2(&points, n)
 }
 
 /// The filter's radius at `n` samples per area light when the scene asks for `from`: what
