@@ -159,6 +159,7 @@ pub fn plan(p: &Plan) -> Value {
         "walkthrough": p.walkthrough,
         "frame_budget_ms": p.frame_budget_us.map(|b| b as f64 / 1000.0),
         "samples": p.samples.len(), "gave_up": p.gave_up(),
+        "penumbra_radius": p.penumbra_radius, "penumbra": p.penumbra_line(),
     })
 }
 

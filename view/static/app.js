@@ -464,8 +464,9 @@
     if (!plan || !plan.nodes) { box.replaceChildren(el('div', { class: 'dim', text: 'no plan yet' })); return; }
     const budget = plan.frame_budget_ms != null ? ` · budget ${ms(plan.frame_budget_ms)}` : '';
     $('plan-summary').textContent = `K ${plan.k ?? '–'} · ${plan.samples ?? '–'} samples · est. ${ms(plan.est_frame_ms)}/frame${budget}`;
-    $('gave-up').hidden = !plan.gave_up;
-    $('gave-up').textContent = plan.gave_up || '';
+    const gave = [plan.gave_up, plan.penumbra].filter(Boolean).join(' · ');
+    $('gave-up').hidden = !gave;
+    $('gave-up').textContent = gave;
     const items = new Map(); // id -> {kind, col, lines}
     for (const n of plan.nodes) {
       const lights = Array.isArray(n.lights) ? n.lights.length : n.lights;

@@ -274,6 +274,10 @@ async fn a_budget_from_the_page_replans_and_frames_match_the_lowered_quality() {
             "{gave_up}"
         );
         assert_eq!(status["plan"]["frame_budget_ms"], 1.0);
+        // No penumbra filter here: no plan meets 1 ms, and the fastest is without the filter's
+        // eye depth (the page gets the radius all the same).
+        assert_eq!(status["plan"]["penumbra_radius"], 0, "{status}");
+        assert!(status["plan"]["penumbra"].is_null(), "{status}");
         assert_eq!(status["plan"]["samples"], 2);
         // No budget again: the scene's quality.
         let revision = c.steer(json!({"type": "budget", "ms": null})).await;

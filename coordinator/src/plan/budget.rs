@@ -145,8 +145,8 @@ fn expected_db(n: u32, radius: u32) -> f32 {
 
 /// `options` with the penumbra filter resolved for `scene` (a count lowered from `from`): a
 /// radius, or off, which is all `plan_once` reads.
-fn resolved(options: &PlanOptions, from: Option<u32>, scene: &Scene) -> PlanOptions {
-    let r = resolve_radius(options.penumbra_filter, from, area_samples(scene));
+fn resolved(options: &PlanOptions, from: Option<u32>, scene: &Scene, threads: u32) -> PlanOptions {
+    let r = capped_radius(options, from, scene, area_samples(scene), threads);
     PlanOptions {
         penumbra_filter: if r > 0 {
             PenumbraFilter::Radius(r)
@@ -155,6 +155,63 @@ fn resolved(options: &PlanOptions, from: Option<u32>, scene: &Scene) -> PlanOpti
         },
         ..options.clone()
     }
+}
+
+/// [`resolve_radius`] for `scene` at `n` samples per area light, and under a frame budget no
+/// larger than the last stage can filter within it (on `threads` cores): a smaller radius, or
+/// none. An explicit radius is kept: it was asked for.
+fn capped_radius(
+    options: &PlanOptions,
+    from: Option<u32>,
+    scene: &Scene,
+    n: Option<u32>,
+    threads: u32,
+) -> u32 {
+    let mut r = resolve_radius(options.penumbra_filter, from, n);
+    if let (Some(budget), false) = (
+        options.frame_budget_us,
+        matches!(options.penumbra_filter, PenumbraFilter::Radius(_)),
+    ) {
+        let cam = &scene.camera;
+        while r > 0
+            && filter_cost_us(r, cam.width, cam.height, options.band_height, threads)
+                > budget as f64
+        {
+            r -= 1;
+        }
+    }
+    r
+}
+
+/// The fewest cores a compositor of `cluster` reports (1 when none does): what the last stage
+/// is assumed to filter on.
+fn stage_threads(cluster: &ClusterSpec) -> u32 {
+    cluster
+        .compositors
+        .iter()
+        .filter_map(|c| c.capabilities.as_ref().map(|c| c.threads))
+        .min()
+        .unwrap_or(1)
+        .max(1)
+}
+
+/// The penumbra filter's time per pixel on one core, `a + b·(2r+1)²` nanoseconds, fitted to the
+/// operator's benchmark (`docs/operators.md`: radius 1 at 42 ns a pixel, radius 2 at 75 ns, at
+/// 800×600 and 1080p on the 2-core development machine).
+const FILTER_NS: (f64, f64) = (23.4, 2.06);
+
+/// The filter's estimated time a frame at the last stage, microseconds: every pixel of a
+/// `width × height` image, bands of `band_height` rows re-run with their halo, over `threads`
+/// cores of the stage's pool.
+pub fn filter_cost_us(radius: u32, width: u32, height: u32, band_height: u32, threads: u32) -> f64 {
+    if radius == 0 {
+        return 0.0;
+    }
+    let side = f64::from(2 * radius + 1);
+    let band = f64::from(band_height.max(radius.max(2)));
+    let halo = 1.0 + 2.0 * f64::from(radius.max(2)) / band;
+    let pixels = f64::from(width) * f64::from(height);
+    pixels * (FILTER_NS.0 + FILTER_NS.1 * side * side) * halo / 1e3 / f64::from(threads.max(1))
 }
 
 /// The largest sample count of the scene's area lights (the count their samples come from).
@@ -194,6 +251,7 @@ fn lower(
     scene: &Scene,
     options: &PlanOptions,
     from: Option<u32>,
+    threads: u32,
 ) -> Option<(Scene, PlanOptions, String, String, Option<f32>)> {
     match knob {
         Knob::ShadowMaps => {
@@ -221,7 +279,7 @@ fn lower(
             }
             let s = with_area_samples(scene, |c| (c / 2).max(1));
             let m = area_samples(&s)?;
-            let radius = |k| resolve_radius(options.penumbra_filter, from, Some(k));
+            let radius = |k| capped_radius(options, from, scene, Some(k), threads);
             let (rn, rm) = (radius(n), radius(m));
             let db = expected_db(m, rm) - expected_db(n, rn);
             let text = |k: u32, r: u32| {
@@ -270,6 +328,7 @@ pub(crate) fn within_budget(
     let targeted = options
         .target_penumbra_db
         .and_then(|t| to_target(scene, t, options.penumbra_filter));
+    let threads = stage_threads(cluster);
     // What `Budget` filters below: the scene's count, or any count an error target chose.
     let from = if targeted.is_some() {
         None
@@ -278,7 +337,13 @@ pub(crate) fn within_budget(
     };
     let start = targeted.as_ref().map_or(scene, |(s, _)| s);
     let fit = |s: &Scene, o: &PlanOptions| {
-        fit_budget(s, cluster, &resolved(o, from, s), previous, plan_once)
+        fit_budget(
+            s,
+            cluster,
+            &resolved(o, from, s, threads),
+            previous,
+            plan_once,
+        )
     };
     let mut first = fit(start, options)?;
     first.scene_hash = scene_hash(scene);
@@ -297,7 +362,7 @@ pub(crate) fn within_budget(
             let (mut s, mut o) = (scene_now.clone(), options_now.clone());
             let mut steps = Vec::new();
             loop {
-                let Some((s2, o2, was, to, db)) = lower(knob, &s, &o, from) else {
+                let Some((s2, o2, was, to, db)) = lower(knob, &s, &o, from, threads) else {
                     break 'knob;
                 };
                 let p = match fit(&s2, &o2) {
@@ -322,12 +387,45 @@ pub(crate) fn within_budget(
             }
         }
     }
+    // Over the budget with nothing left to lower, the plan is the fastest estimate: the filter's
+    // eye depth is one more target on the material host, so it goes where a plan without it is
+    // faster (an explicit radius stays).
+    if best.est_frame_us > budget
+        && best.penumbra_radius > 0
+        && !matches!(options.penumbra_filter, PenumbraFilter::Radius(_))
+    {
+        let off = PlanOptions {
+            penumbra_filter: PenumbraFilter::Off,
+            ..options_now.clone()
+        };
+        if let Ok(p) = fit_budget(&scene_now, cluster, &off, previous, plan_once)
+            && p.est_frame_us < best.est_frame_us
+        {
+            best = p;
+            unfilter(&mut concessions);
+        }
+    }
     // Nodes hold the scene they were sent: the plan names it, not the lowered copy the samples
     // were drawn from (the samples travel in the configurations).
     best.scene_hash = scene_hash(scene);
     best.concessions = concessions;
     best.target = target;
     Ok(best)
+}
+
+/// The concessions of samples per area light as they read without the penumbra filter: the
+/// counts alone, and the unfiltered model's figures.
+fn unfilter(concessions: &mut [Concession]) {
+    let count = |t: &str| t.split(" + ").next().unwrap_or(t).to_string();
+    for c in concessions
+        .iter_mut()
+        .filter(|c| c.knob == Knob::SamplesPerAreaLight)
+    {
+        (c.from, c.to) = (count(&c.from), count(&c.to));
+        if let (Ok(n), Ok(m)) = (c.from.parse::<u32>(), c.to.parse::<u32>()) {
+            c.expected_db = Some(expected_penumbra_db(m) - expected_penumbra_db(n));
+        }
+    }
 }
 
 /// One plan under the budget. K is chosen by an estimate without the material host's extra
@@ -458,5 +556,25 @@ mod tests {
         );
         // A radius the model did not measure is not claimed.
         assert_eq!(expected_db(16, 3), expected_penumbra_db(16));
+    }
+
+    #[test]
+    fn the_filter_cost_follows_the_benchmark_and_its_inputs() {
+        // 800×600 in one band: 42 ns a pixel at radius 1, 75 at radius 2 (the bench).
+        let one = |r| filter_cost_us(r, 800, 600, 600, 1) / (800.0 * 600.0) * 1e3;
+        assert!((one(1) - 42.0).abs() < 0.5, "{}", one(1));
+        assert!((one(2) - 75.0).abs() < 0.5, "{}", one(2));
+        assert_eq!(filter_cost_us(0, 800, 600, 16, 1), 0.0);
+        // Halos of 2 rows on bands of 16 add a quarter; threads divide.
+        let banded = filter_cost_us(1, 800, 600, 16, 1) / filter_cost_us(1, 800, 600, 600, 1);
+        assert!(
+            (banded - 1.25 / (1.0 + 4.0 / 600.0)).abs() < 1e-9,
+            "{banded}"
+        );
+        let (t1, t4) = (
+            filter_cost_us(2, 1920, 1080, 16, 1),
+            filter_cost_us(2, 1920, 1080, 16, 4),
+        );
+        assert!((t1 / t4 - 4.0).abs() < 1e-9);
     }
 }

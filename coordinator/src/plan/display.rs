@@ -345,10 +345,13 @@ impl Plan {
     pub fn penumbra_line(&self) -> Option<String> {
         let r = self.penumbra_radius;
         (r > 0).then(|| {
+            let us = super::budget::filter_cost_us(r, self.width, self.height, self.band_height, 1);
             format!(
                 "penumbra filter: radius {r} ({0}×{0} tent on the illumination sum, on each \
-                 pixel's own surface, before the material multiply)",
-                2 * r + 1
+                 pixel's own surface, before the material multiply; about {1} a frame on one core \
+                 of the last stage)",
+                2 * r + 1,
+                ms(us.round() as u64)
             )
         })
     }
