@@ -6,6 +6,8 @@
 pub enum SceneError {
     #[error("unknown built-in scene {name:?} (built-ins: {known})")]
     UnknownBuiltin { name: String, known: String },
+    #[error("built-in scene {0}")]
+    BuiltinSize(String),
     #[error("{input:?} is neither a built-in scene ({known}) nor a .toml, .gltf or .glb file")]
     UnknownInput { input: String, known: String },
     #[error("cannot read {path}: {message}")]

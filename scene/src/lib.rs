@@ -28,7 +28,7 @@ pub mod supersample;
 pub mod validate;
 pub mod wire;
 
-pub use builtin::{builtin, builtin_names};
+pub use builtin::{builtin, builtin_names, is_builtin};
 pub use encode::{MAX_SCENE_BYTES, SCENE_BYTES_VERSION};
 pub use error::SceneError;
 pub use file::{SceneFile, load, load_scene_file, parse_scene_file};

@@ -1,12 +1,14 @@
 //! Built-in scenes generated in code, echoing the paper's Fig. 3: "balls" (the default), "box",
-//! "plant", "animal" — each lit by 32 point samples — a Cornell box, and "carousel", where an
-//! object spins and an area light travels (a scene file compiled into the crate).
+//! "plant", "animal" — each lit by 32 point samples — a Cornell box, "carousel", where an
+//! object spins and an area light travels (a scene file compiled into the crate), and "city", a
+//! procedural city of a chosen number of triangles (`city:4M`) for scaling measurements.
 //!
 //! They need no files: the Fox model of "animal" is compiled into the crate.
 
 mod animal;
 mod balls;
 mod boxes;
+mod city;
 mod cornell;
 mod plant;
 
@@ -15,7 +17,9 @@ use crate::error::SceneError;
 use crate::model::{Camera, Light, LightShape, Material, Scene};
 use crate::shading::{V3, normalize, sub};
 
-const NAMES: &[&str] = &["balls", "box", "plant", "animal", "cornell", "carousel"];
+const NAMES: &[&str] = &[
+    "balls", "box", "plant", "animal", "cornell", "carousel", "city",
+];
 
 /// The "carousel" scene file.
 const CAROUSEL: &str = include_str!("carousel.toml");
@@ -25,8 +29,18 @@ pub fn builtin_names() -> &'static [&'static str] {
     NAMES
 }
 
+/// Whether `name` names a built-in scene: one of [`builtin_names`], or `city:N` (a city of N
+/// triangles).
+pub fn is_builtin(name: &str) -> bool {
+    NAMES.contains(&name) || city::requested(name).is_some()
+}
+
 /// Builds the built-in scene `name`.
 pub fn builtin(name: &str) -> Result<Scene, SceneError> {
+    if let Some(triangles) = city::requested(name) {
+        let triangles = triangles.map_err(SceneError::BuiltinSize)?;
+        return Ok(city::build(triangles));
+    }
     let scene = match name {
         "balls" => balls::build(),
         "box" => boxes::build(),

@@ -11,7 +11,7 @@ pub mod spec;
 
 pub use spec::SceneFile;
 
-use crate::builtin::{builtin, builtin_names};
+use crate::builtin::{builtin, builtin_names, is_builtin};
 use crate::error::SceneError;
 use crate::gltf_load::load_gltf;
 use crate::model::Scene;
@@ -19,7 +19,7 @@ use std::path::Path;
 
 /// Loads a built-in scene by name, a `.toml` scene file, or a `.gltf` / `.glb` model.
 pub fn load(path_or_builtin: &str) -> Result<Scene, SceneError> {
-    if builtin_names().contains(&path_or_builtin) {
+    if is_builtin(path_or_builtin) {
         return builtin(path_or_builtin);
     }
     let path = Path::new(path_or_builtin);
