@@ -242,7 +242,12 @@ mod tests {
         }
         // The limit holds at the top.
         assert!(build(MAX_TRIANGLES).triangle_count() as u64 <= MAX_TRIANGLES);
-        // Deterministic.
+        // Deterministic, and loaded by name like the other built-ins.
         assert_eq!(build(20_000).content_hash(), build(20_000).content_hash());
+        let loaded = crate::load("city:20k").unwrap();
+        assert_eq!(loaded.content_hash(), build(20_000).content_hash());
+        let e = crate::load("city:0").unwrap_err();
+        assert!(e.to_string().contains("city:250k"), "{e}");
+        assert!(crate::is_builtin("city") && !crate::builtin_names().contains(&"city"));
     }
 }

@@ -17,9 +17,9 @@ use crate::error::SceneError;
 use crate::model::{Camera, Light, LightShape, Material, Scene};
 use crate::shading::{V3, normalize, sub};
 
-const NAMES: &[&str] = &[
-    "balls", "box", "plant", "animal", "cornell", "carousel", "city",
-];
+/// The fixed built-ins. The generated `city` / `city:N` is accepted by name too ([`is_builtin`])
+/// but not listed: at a million triangles it is no scene to run every test over.
+const NAMES: &[&str] = &["balls", "box", "plant", "animal", "cornell", "carousel"];
 
 /// The "carousel" scene file.
 const CAROUSEL: &str = include_str!("carousel.toml");
@@ -51,7 +51,7 @@ pub fn builtin(name: &str) -> Result<Scene, SceneError> {
         _ => {
             return Err(SceneError::UnknownBuiltin {
                 name: name.to_string(),
-                known: NAMES.join(", "),
+                known: format!("{}, city[:N]", NAMES.join(", ")),
             });
         }
     };

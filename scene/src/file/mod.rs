@@ -32,7 +32,7 @@ pub fn load(path_or_builtin: &str) -> Result<Scene, SceneError> {
         "gltf" | "glb" => load_gltf(path),
         _ => Err(SceneError::UnknownInput {
             input: path_or_builtin.to_string(),
-            known: builtin_names().join(", "),
+            known: format!("{}, city[:N]", builtin_names().join(", ")),
         }),
     }
 }
