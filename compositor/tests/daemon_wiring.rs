@@ -12,6 +12,32 @@ use support::*;
 
 const ILL: Layer = Layer::Illumination;
 
+/// The radiance of `ops` wired as `wiring` over whole-frame `inputs` (each a list of layers), in
+/// memory: what the stage must give.
+fn in_memory(
+    ops: &[(String, String)],
+    wiring: &[Vec<OpSource>],
+    inputs: &[Vec<(Layer, &[f32])>],
+    pixels: usize,
+) -> Vec<f32> {
+    let layers: Vec<Vec<Layer>> = inputs
+        .iter()
+        .map(|i| i.iter().map(|(l, _)| *l).collect())
+        .collect();
+    let p = Pipeline::from_wiring(ops, wiring, &layers).unwrap();
+    let views: Vec<BandView<'_>> = inputs
+        .iter()
+        .map(|i| {
+            i.iter()
+                .fold(BandView::new(pixels), |v, (l, d)| v.with(*l, d))
+        })
+        .collect();
+    let mut want = vec![0.0; pixels * 3];
+    let mut m = BandMut::new(pixels).with(Layer::Radiance, &mut want);
+    p.run(&views, &mut m, &mut Default::default()).unwrap();
+    want
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn one_input_feeds_accumulate_and_material() {
     let size = (23, 14, 4);
@@ -96,19 +122,11 @@ async fn one_input_feeds_accumulate_and_material() {
         .iter()
         .map(|(n, p)| (n.to_string(), p.to_string()))
         .collect();
-    let layers = vec![vec![ILL], vec![ILL, dif, spe]];
-    let p = Pipeline::from_wiring(&ops, &wiring, &layers).unwrap();
-    let pixels = (w * h) as usize;
-    let views = [
-        BandView::new(pixels).with(ILL, &up),
-        BandView::new(pixels)
-            .with(ILL, &ill)
-            .with(dif, &d)
-            .with(spe, &s),
+    let inputs = [
+        vec![(ILL, &up[..])],
+        vec![(ILL, &ill[..]), (dif, &d[..]), (spe, &s[..])],
     ];
-    let mut want = vec![0.0; pixels * 3];
-    let mut m = BandMut::new(pixels).with(Layer::Radiance, &mut want);
-    p.run(&views, &mut m, &mut Default::default()).unwrap();
+    let want = in_memory(&ops, &wiring, &inputs, (w * h) as usize);
     assert_eq!(
         got[0].data, want,
         "the stage gives the wired pipeline's bits"
@@ -211,19 +229,12 @@ async fn penumbra_filters_across_band_edges() {
         .iter()
         .map(|(n, p)| (n.to_string(), p.to_string()))
         .collect();
-    let layers = vec![vec![ILL], vec![ILL, dif, dep]];
-    let p = Pipeline::from_wiring(&ops, &wiring, &layers).unwrap();
-    let pixels = (w * h) as usize;
-    let views = [
-        BandView::new(pixels).with(ILL, &up),
-        BandView::new(pixels)
-            .with(ILL, &ill)
-            .with(dif, &d)
-            .with(dep, &depth),
+    let inputs = [
+        vec![(ILL, &up[..])],
+        vec![(ILL, &ill[..]), (dif, &d[..]), (dep, &depth[..])],
     ];
-    let mut want = vec![0.0; pixels * 3];
-    let mut m = BandMut::new(pixels).with(Layer::Radiance, &mut want);
-    p.run(&views, &mut m, &mut Default::default()).unwrap();
+    let pixels = (w * h) as usize;
+    let want = in_memory(&ops, &wiring, &inputs, pixels);
     assert_eq!(
         got[0].data, want,
         "band by band with halos gives the whole frame's bits"
@@ -235,10 +246,6 @@ async fn penumbra_filters_across_band_edges() {
         vec![OpSource::Op(0), OpSource::Input(1)],
         vec![OpSource::Op(1)],
     ];
-    let q = Pipeline::from_wiring(&plain, &plain_wiring, &layers).unwrap();
-    let mut unfiltered = vec![0.0; pixels * 3];
-    let mut m = BandMut::new(pixels).with(Layer::Radiance, &mut unfiltered);
-    q.run(&views, &mut m, &mut Default::default()).unwrap();
-    assert_ne!(unfiltered, want);
+    assert_ne!(in_memory(&plain, &plain_wiring, &inputs, pixels), want);
     stage.stop().await;
 }
