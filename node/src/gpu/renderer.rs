@@ -191,6 +191,13 @@ impl Renderer {
             ..Default::default()
         });
         let near = (data.diagonal * 1e-4).clamp(1e-4, 1e-2);
+        // The GPU holds the vertices now; only an animated scene needs them again on the CPU
+        // (`set_meshes` compares the posed ones with them). A still scene's would be the largest
+        // copy of its geometry left in the node (`docs/scaling.md` § Triangles).
+        let mut data = data;
+        if scene.animation.is_none() {
+            data.vertices = Vec::new();
+        }
         Ok(Renderer {
             sampler,
             receivers: data.receivers(),
@@ -234,7 +241,9 @@ impl Renderer {
             )));
         }
         let (vertices, ranges) = self.scene.geometry(meshes);
-        let same_layout = vertices.len() == self.scene.vertices.len()
+        // Without the CPU copy (a still scene) every mesh counts as changed.
+        let kept = self.scene.vertices.len() as u32 == self.scene.vertex_count;
+        let same_layout = vertices.len() as u32 == self.scene.vertex_count
             && ranges
                 .iter()
                 .zip(&self.scene.meshes)
@@ -250,6 +259,7 @@ impl Renderer {
                 )
             }
             if !same_layout
+                || !kept
                 || new.bounds != old.bounds
                 || span(new, &vertices) != span(old, &self.scene.vertices)
             {
@@ -284,6 +294,7 @@ impl Renderer {
                     })
             })?;
         }
+        self.scene.vertex_count = vertices.len() as u32;
         self.scene.vertices = vertices;
         self.scene.meshes = ranges;
         if self.fit_bounds.is_none() {
@@ -563,7 +574,7 @@ impl Renderer {
             sampler: &self.sampler,
             material_layers: layers.any_material(),
         };
-        let vertex_count = self.scene.vertices.len() as u32;
+        let vertex_count = self.scene.vertex_count;
         if variant == EyeVariant::Deferred {
             if !self
                 .deferred

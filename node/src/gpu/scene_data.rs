@@ -69,7 +69,11 @@ pub struct MeshRange {
 /// The CPU-side arrays uploaded once per scene.
 #[derive(Debug, Clone)]
 pub struct SceneData {
+    /// The expanded vertices, while they are needed on the CPU: an animated scene's, which
+    /// `Renderer::set_meshes` compares against the posed ones. A still scene's are dropped once
+    /// uploaded (`vertex_count` still says how many there are).
     pub vertices: Vec<Vertex>,
+    pub vertex_count: u32,
     pub meshes: Vec<MeshRange>,
     pub materials: Vec<GpuMaterial>,
     pub textures: Vec<GpuTexture>,
@@ -135,6 +139,7 @@ impl SceneData {
             texels.push(0);
         }
         SceneData {
+            vertex_count: vertices.len() as u32,
             vertices,
             meshes,
             materials,
