@@ -5,12 +5,36 @@
 
 mod support;
 
+use lightfold_compositor::daemon::driver::{ControlClient, LayerImage, Sink};
 use lightfold_compositor::ops::{BandMut, BandView};
 use lightfold_compositor::pipeline::Pipeline;
 use lightfold_protocol::{Layer, OpSource, PixelFormat};
 use support::*;
 
 const ILL: Layer = Layer::Illumination;
+
+/// Frame 1 of epoch 1 from the producers "up" and "n" (their layers in `frames`), as the sink
+/// receives the stage's `out`.
+async fn one_frame(
+    stage: &Stage,
+    ctl: &mut ControlClient,
+    sink: &mut Sink,
+    size: (u32, u32, u32),
+    frames: [&[LayerImage]; 2],
+    out: &[(Layer, PixelFormat)],
+) -> Vec<LayerImage> {
+    let mut producers = [stage.producer("up").await, stage.producer("n").await];
+    ctl.render(1, 1, no_params()).await.unwrap();
+    for (p, f) in producers.iter_mut().zip(frames) {
+        p.send_frame(&shape(1, 1, size), f).await.unwrap();
+    }
+    let got = sink
+        .recv_frame(&shape(1, 1, size), out, WAIT)
+        .await
+        .unwrap();
+    ctl.frame_done(1, WAIT).await.unwrap();
+    got
+}
 
 /// The radiance of `ops` wired as `wiring` over whole-frame `inputs` (each a list of layers), in
 /// memory: what the stage must give.
@@ -97,26 +121,21 @@ async fn one_input_feeds_accumulate_and_material() {
         quantised(f_mat, dif, v)
     };
     let (d, s) = (albedo(33), albedo(34));
-    let mut producers = [stage.producer("up").await, stage.producer("n").await];
-    ctl.render(1, 1, no_params()).await.unwrap();
-    producers[0]
-        .send_frame(&shape(1, 1, size), &[image(ILL, f_up, up.clone())])
-        .await
-        .unwrap();
     let node_frame = [
         image(ILL, f_ill, ill.clone()),
         image(dif, f_mat, d.clone()),
         image(spe, f_mat, s.clone()),
     ];
-    producers[1]
-        .send_frame(&shape(1, 1, size), &node_frame)
-        .await
-        .unwrap();
-    let got = sink
-        .recv_frame(&shape(1, 1, size), &out, WAIT)
-        .await
-        .unwrap();
-    ctl.frame_done(1, WAIT).await.unwrap();
+    let up_frame = [image(ILL, f_up, up.clone())];
+    let got = one_frame(
+        &stage,
+        &mut ctl,
+        &mut sink,
+        size,
+        [&up_frame, &node_frame],
+        &out,
+    )
+    .await;
 
     let ops: Vec<(String, String)> = ops
         .iter()
@@ -204,26 +223,21 @@ async fn penumbra_filters_across_band_edges() {
             }
         })
         .collect();
-    let mut producers = [stage.producer("up").await, stage.producer("n").await];
-    ctl.render(1, 1, no_params()).await.unwrap();
-    producers[0]
-        .send_frame(&shape(1, 1, size), &[image(ILL, f_up, up.clone())])
-        .await
-        .unwrap();
     let node_frame = [
         image(ILL, f_ill, ill.clone()),
         image(dif, f_mat, d.clone()),
         image(dep, f_dep, depth.clone()),
     ];
-    producers[1]
-        .send_frame(&shape(1, 1, size), &node_frame)
-        .await
-        .unwrap();
-    let got = sink
-        .recv_frame(&shape(1, 1, size), &out, WAIT)
-        .await
-        .unwrap();
-    ctl.frame_done(1, WAIT).await.unwrap();
+    let up_frame = [image(ILL, f_up, up.clone())];
+    let got = one_frame(
+        &stage,
+        &mut ctl,
+        &mut sink,
+        size,
+        [&up_frame, &node_frame],
+        &out,
+    )
+    .await;
 
     let ops: Vec<(String, String)> = ops
         .iter()
