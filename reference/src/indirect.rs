@@ -338,11 +338,12 @@ fn bounce_radiance(tracer: &Tracer<'_>, from: &SurfaceHit, d: V3, direct: &[Ligh
             continue;
         }
         let irr = shading::irradiance(s, p, y.geometric_normal);
-        if irr == 0.0 || !tracer.visible(&y, s) {
+        if irr == 0.0 {
             continue;
         }
-        for (e, c) in e.iter_mut().zip(s.color) {
-            *e += irr * c;
+        let t = tracer.transmittance(&y, s);
+        for k in 0..3 {
+            e[k] += irr * s.color[k] * t[k];
         }
     }
     [0, 1, 2].map(|k| albedo[k] * e[k] / PI)

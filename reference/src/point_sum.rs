@@ -201,6 +201,16 @@ impl Shade {
         if id == 0.0 && is == 0.0 {
             return;
         }
+        if shadows && tracer.has_translucent() {
+            // s_λ is RGB: what translucent casters let through (`docs/translucency.md`).
+            let t = tracer.transmittance(hit, s);
+            for k in 0..3 {
+                let t = f64::from(t[k]);
+                illum[k] += w[k] * f64::from(id) * t;
+                illum[3 + k] += w[k] * f64::from(is) * t;
+            }
+            return;
+        }
         if shadows && !tracer.visible(hit, s) {
             return;
         }

@@ -52,6 +52,8 @@ pub struct Tracer<'a> {
     tris: Vec<TriInfo>,
     /// Absolute epsilon for shadow-ray offsets (scene diagonal × `EPSILON_REL`).
     epsilon: f64,
+    /// Whether any material lets light through (shadow rays then carry a transmittance).
+    translucent: bool,
 }
 
 impl<'a> Tracer<'a> {
@@ -83,6 +85,7 @@ impl<'a> Tracer<'a> {
             bvh,
             tris,
             epsilon,
+            translucent: scene.materials.iter().any(|m| m.is_translucent()),
         }
     }
 
@@ -182,18 +185,70 @@ impl<'a> Tracer<'a> {
         Some((surface, back && !mat.double_sided))
     }
 
-    /// Whether `sample` is visible from the surface point (`s_λ ∈ {0, 1}`). The ray starts
-    /// `epsilon` off the surface on the light's side of the geometric normal and, measured from
-    /// that origin, stops `epsilon` short of the sample, so geometry the sample lies on (an
-    /// emissive mesh, a ceiling a rectangle light sits on) does not shadow it.
+    /// Whether `sample` is visible from the surface point (`s_λ ∈ {0, 1}`): no opaque triangle
+    /// blocks the way (translucent ones let light through: [`Tracer::transmittance`] says how
+    /// much). The ray starts `epsilon` off the surface on the light's side of the geometric
+    /// normal and, measured from that origin, stops `epsilon` short of the sample, so geometry
+    /// the sample lies on (an emissive mesh, a ceiling a rectangle light sits on) does not shadow
+    /// it.
     pub fn visible(&self, hit: &SurfaceHit, sample: &LightSample) -> bool {
+        match self.shadow_ray(hit, sample) {
+            Some((o, d, tmax)) => self.clear(o, d, tmax),
+            None => true,
+        }
+    }
+
+    /// Whether any material of the scene lets light through.
+    pub fn has_translucent(&self) -> bool {
+        self.translucent
+    }
+
+    /// `s_λ` as RGB along the ray [`Tracer::visible`] traces: 0 where an opaque triangle blocks
+    /// it, else the product of the transmittance (`scene::shading::transmittance`) of every
+    /// translucent texel it passes; 1 where nothing is in the way.
+    pub fn transmittance(&self, hit: &SurfaceHit, sample: &LightSample) -> V3 {
+        let Some((o, dir, tmax)) = self.shadow_ray(hit, sample) else {
+            return [1.0; 3];
+        };
+        let mut t = [1.0f64; 3];
+        let blocked = self.bvh.occluded(o, dir, 0.0, tmax, |id, u, v| {
+            let mat = self.triangle_material(id);
+            let Some(tr) = &mat.transmission else {
+                return !self.masked_out(id, mat, u, v);
+            };
+            if !tr.coverage && self.masked_out(id, mat, u, v) {
+                return false;
+            }
+            let texel = self.texel_at(id, mat, u, v);
+            let x =
+                shading::transmittance(tr, mat.alpha * texel[3], [texel[0], texel[1], texel[2]]);
+            for k in 0..3 {
+                t[k] *= f64::from(x[k]);
+            }
+            // Nothing left to let through: the rest of the way cannot matter.
+            t == [0.0; 3]
+        });
+        if blocked {
+            [0.0; 3]
+        } else {
+            t.map(|c| c as f32)
+        }
+    }
+
+    /// The shadow ray of `visible` (origin, unit direction, length), `None` where there is
+    /// nothing to trace.
+    fn shadow_ray(
+        &self,
+        hit: &SurfaceHit,
+        sample: &LightSample,
+    ) -> Option<([f64; 3], [f64; 3], f64)> {
         let p = hit.position;
         let ng = hit.geometric_normal.map(f64::from);
         match sample.kind {
             SampleKind::Directional => {
                 let l = normalize(shading::scale(sample.direction, -1.0)).map(f64::from);
                 let o = self.offset(p, ng, l);
-                self.clear(o, l, f64::INFINITY)
+                Some((o, l, f64::INFINITY))
             }
             _ => {
                 let q = sample.position.map(f64::from);
@@ -203,9 +258,9 @@ impl<'a> Tracer<'a> {
                 let r = dot64(d, d).sqrt();
                 // Also catches a NaN distance: nothing sensible to trace.
                 if r.is_nan() || r <= 2.0 * self.epsilon {
-                    return true;
+                    return None;
                 }
-                self.clear(o, d.map(|c| c / r), r - self.epsilon)
+                Some((o, d.map(|c| c / r), r - self.epsilon))
             }
         }
     }
@@ -216,10 +271,12 @@ impl<'a> Tracer<'a> {
         [0, 1, 2].map(|k| p[k] + side * self.epsilon * ng[k])
     }
 
-    /// Whether the ray from `o` along unit `dir` meets no opaque triangle before `tmax`.
+    /// Whether the ray from `o` along unit `dir` meets no opaque triangle before `tmax`
+    /// (translucent triangles let it through).
     pub fn clear(&self, o: [f64; 3], dir: [f64; 3], tmax: f64) -> bool {
         !self.bvh.occluded(o, dir, 0.0, tmax, |id, u, v| {
-            !self.masked_out(id, self.triangle_material(id), u, v)
+            let mat = self.triangle_material(id);
+            !mat.is_translucent() && !self.masked_out(id, mat, u, v)
         })
     }
 
@@ -280,21 +337,27 @@ impl<'a> Tracer<'a> {
         let AlphaMode::Mask { cutoff } = mat.alpha_mode else {
             return false;
         };
-        let mut alpha = mat.alpha;
-        if let Some(tex) = mat.diffuse_texture.and_then(|t| self.scene.textures.get(t)) {
-            let info = self.tris[id as usize];
-            let mesh = &self.scene.meshes[info.mesh as usize];
-            if mesh.uvs.len() == mesh.positions.len() {
-                let idx = self.indices(id);
-                let t = |i: u32| mesh.uvs[i as usize];
-                let (a, b, c) = (t(idx[0]), t(idx[1]), t(idx[2]));
-                let (u, v) = (u as f32, v as f32);
-                let w = 1.0 - u - v;
-                let uv = [0, 1].map(|k| w * a[k] + u * b[k] + v * c[k]);
-                alpha *= sample_texture(tex, uv)[3];
-            }
+        mat.alpha * self.texel_at(id, mat, u, v)[3] < cutoff
+    }
+
+    /// The diffuse texture's linear RGBA at barycentrics `(u, v)` of triangle `id`; white where
+    /// the material has no texture or the mesh no UVs (as the GPU reads it).
+    fn texel_at(&self, id: u32, mat: &Material, u: f64, v: f64) -> [f32; 4] {
+        let Some(tex) = mat.diffuse_texture.and_then(|t| self.scene.textures.get(t)) else {
+            return [1.0; 4];
+        };
+        let info = self.tris[id as usize];
+        let mesh = &self.scene.meshes[info.mesh as usize];
+        if mesh.uvs.len() != mesh.positions.len() {
+            return [1.0; 4];
         }
-        alpha < cutoff
+        let idx = self.indices(id);
+        let t = |i: u32| mesh.uvs[i as usize];
+        let (a, b, c) = (t(idx[0]), t(idx[1]), t(idx[2]));
+        let (u, v) = (u as f32, v as f32);
+        let w = 1.0 - u - v;
+        let uv = [0, 1].map(|k| w * a[k] + u * b[k] + v * c[k]);
+        sample_texture(tex, uv)
     }
 }
 

@@ -14,7 +14,7 @@ use sha2::{Digest, Sha256};
 
 const MAGIC: &[u8; 4] = b"LFSC";
 /// Version of the byte layout of `to_bytes` (bump when `Scene` changes shape).
-pub const SCENE_BYTES_VERSION: u32 = 4;
+pub const SCENE_BYTES_VERSION: u32 = 5;
 /// Largest scene `from_bytes` accepts ([`crate::limits::MAX_SCENE_BYTES`]).
 pub const MAX_SCENE_BYTES: usize = crate::limits::MAX_SCENE_BYTES as usize;
 
@@ -111,6 +111,7 @@ impl Canon {
             alpha,
             alpha_mode,
             double_sided,
+            transmission,
         } = m;
         self.f32s(diffuse);
         match diffuse_texture {
@@ -133,6 +134,14 @@ impl Canon {
             }
         }
         self.u8(*double_sided as u8);
+        match transmission {
+            None => self.u8(0),
+            Some(t) => {
+                self.u8(1);
+                self.f32s(&t.color);
+                self.u8(t.coverage as u8);
+            }
+        }
     }
 
     fn texture(&mut self, t: &Texture) {

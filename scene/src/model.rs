@@ -36,7 +36,8 @@ pub struct Mesh {
     pub material: usize,
 }
 
-/// How a material's alpha is used. BLEND from glTF becomes `Mask { cutoff: 0.5 }`.
+/// How a material's alpha is used by eye rays. BLEND from glTF becomes `Mask { cutoff: 0.5 }`
+/// for the eye and a [`Transmission`] with `coverage` for shadows (`docs/translucency.md`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub enum AlphaMode {
     Opaque,
@@ -59,6 +60,21 @@ pub struct Material {
     pub alpha: f32,
     pub alpha_mode: AlphaMode,
     pub double_sided: bool,
+    /// Light the surface lets through to what lies behind it, for shadows: `None` for an
+    /// opaque caster (`docs/translucency.md`).
+    pub transmission: Option<Transmission>,
+}
+
+/// How a translucent caster filters light (seed 001's shadows of transparent occluders):
+/// a shadow ray through one of its texels keeps [`crate::shading::transmittance`] of its light.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Transmission {
+    /// Linear RGB transmittance where the surface covers, multiplied by the diffuse texture's
+    /// colour where the material has one (a red glass pane: `[0.9, 0.1, 0.1]`).
+    pub color: [f32; 3],
+    /// Alpha (× texture alpha) is coverage, as glTF BLEND means it: the uncovered `1 − α`
+    /// passes untinted. Otherwise the alpha mask, if any, decides which texels cast.
+    pub coverage: bool,
 }
 
 impl Material {
@@ -75,7 +91,13 @@ impl Material {
             alpha: 1.0,
             alpha_mode: AlphaMode::Opaque,
             double_sided: true,
+            transmission: None,
         }
+    }
+
+    /// Whether light passes through it (it casts into transmittance maps, not depth maps).
+    pub fn is_translucent(&self) -> bool {
+        self.transmission.is_some()
     }
 
     pub fn has_specular(&self) -> bool {

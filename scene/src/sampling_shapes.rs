@@ -191,6 +191,7 @@ mod tests {
         let mut s = Scene::new("sampling");
         let one = s.add_material(Material {
             double_sided: false,
+            transmission: None,
             ..Material::diffuse("one-sided", [0.5; 3])
         });
         let two = s.add_material(Material::diffuse("two-sided", [0.5; 3]));

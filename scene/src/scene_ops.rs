@@ -30,6 +30,15 @@ impl Scene {
         }
     }
 
+    /// Whether mesh `m`'s material lets light through (it casts into transmittance maps). A mesh
+    /// or material index out of range is opaque.
+    pub fn is_translucent_mesh(&self, m: usize) -> bool {
+        self.meshes
+            .get(m)
+            .and_then(|mesh| self.materials.get(mesh.material))
+            .is_some_and(Material::is_translucent)
+    }
+
     /// Appends a material and returns its index.
     pub fn add_material(&mut self, material: Material) -> usize {
         self.materials.push(material);

@@ -239,3 +239,26 @@ pub fn sample_texture(t: &Texture, uv: [f32; 2]) -> [f32; 4] {
     }
     out
 }
+
+/// Transmittance `t` (RGB in [0, 1]) of one texel of a translucent caster: `(1 − a) + a·c⊙x`
+/// under coverage (`a` = material alpha × texture alpha, clamped to [0, 1]), else `c⊙x`; `c` is
+/// the transmission colour and `x` the diffuse texture's colour (white without one). A shadow
+/// ray keeps the product of the `t` of the translucent texels it passes (`docs/translucency.md`).
+/// Non-finite inputs count as 0: opaque.
+#[inline]
+pub fn transmittance(tr: &crate::model::Transmission, alpha: f32, texture_rgb: V3) -> V3 {
+    let unit = |x: f32| {
+        if x.is_finite() {
+            x.clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    };
+    let covered = [0, 1, 2].map(|k| unit(tr.color[k]) * unit(texture_rgb[k]));
+    if tr.coverage {
+        let a = unit(alpha);
+        covered.map(|c| (1.0 - a) + a * c)
+    } else {
+        covered
+    }
+}

@@ -9,8 +9,9 @@ pub const SHADING_WGSL: &str = include_str!("../wgsl/shading.wgsl");
 /// Materials, textures and alpha masking (group 0), shared by every pass.
 pub const MATERIALS_WGSL: &str = include_str!("../wgsl/materials.wgsl");
 
-/// Shadow pass: entry points `vs_depth` (opaque casters, no fragment stage) and
-/// `vs_masked`/`fs_masked` (alpha-masked casters).
+/// Shadow pass: entry points `vs_depth` (opaque casters, no fragment stage),
+/// `vs_masked`/`fs_masked` (alpha-masked casters), and `vs_masked` with `fs_translucent_depth` /
+/// `fs_transmit` (translucent casters' depth and transmittance maps).
 pub const SHADOW_WGSL: &str = concat!(
     include_str!("../wgsl/shading.wgsl"),
     include_str!("../wgsl/materials.wgsl"),
@@ -54,6 +55,9 @@ pub const OVERRIDE_VIEW_MODES: &str = "VIEW_MODES";
 pub const OVERRIDE_LIGHT_RANGES: &str = "LIGHT_RANGES";
 pub const OVERRIDE_SHADOW_FILTER: &str = "SHADOW_FILTER";
 pub const OVERRIDE_SHADOW_TAPS: &str = "SHADOW_TAPS";
+/// Whether the pipeline reads transmittance maps (`bool`): only a scene with translucent casters
+/// needs it (`docs/translucency.md`).
+pub const OVERRIDE_TRANSLUCENT: &str = "TRANSLUCENT";
 
 /// Every complete shader module with a name, for validation and diagnostics.
 pub const MODULES: &[(&str, &str)] = &[
@@ -95,7 +99,14 @@ mod tests {
                 .collect()
         };
         let shadow = names(SHADOW_WGSL, "shadow");
-        for e in ["vs_depth", "fs_depth", "vs_masked", "fs_masked"] {
+        for e in [
+            "vs_depth",
+            "fs_depth",
+            "vs_masked",
+            "fs_masked",
+            "fs_translucent_depth",
+            "fs_transmit",
+        ] {
             assert!(shadow.iter().any(|n| n == e), "shadow lacks {e}");
         }
         let forward = names(FORWARD_WGSL, "forward");
@@ -120,6 +131,7 @@ mod tests {
             (OVERRIDE_LIGHT_RANGES, "bool"),
             (OVERRIDE_SHADOW_FILTER, "u32"),
             (OVERRIDE_SHADOW_TAPS, "u32"),
+            (OVERRIDE_TRANSLUCENT, "bool"),
         ] {
             for (module, src) in [("forward", FORWARD_WGSL), ("deferred", DEFERRED_WGSL)] {
                 let decl = format!("override {name}: {ty}");

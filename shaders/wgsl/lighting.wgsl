@@ -54,8 +54,9 @@ struct View {
     layer: u32,
     // A cascade's end: the eye depth where the light's next view takes over (MODE_CASCADE).
     cascade_to: f32,
-    // The map's square in its layer, in texels: (x, y, side, 0). Maps of several sizes share
-    // the array's layers (node/src/gpu/atlas.rs); every lookup stays inside its square.
+    // The map's square in its layer, in texels: (x, y, side, transmit). Maps of several sizes
+    // share the array's layers (node/src/gpu/atlas.rs); every lookup stays inside its square.
+    // transmit = 1 where the view also has transmittance maps.
     rect: vec4f,
 }
 
@@ -65,6 +66,13 @@ struct View {
 // filter reads it at texel centres, where the bilinear weights select a single texel.
 @group(1) @binding(4) var shadow_linear: sampler_comparison;
 @group(1) @binding(5) var shadow_ids: texture_2d_array<u32>;
+// Translucent casters (`docs/translucency.md`), layer for layer with `shadow_maps`: the product of
+// the transmittance of the translucent casters in front of the nearest opaque one, and the
+// nearest translucent caster's depth. Read only by pipelines compiled with TRANSLUCENT, only for
+// views whose light has such maps (`View::rect.w` = 1).
+@group(1) @binding(6) var transmit_maps: texture_2d_array<f32>;
+@group(1) @binding(7) var translucent_depth: texture_depth_2d_array;
+override TRANSLUCENT: bool = false;
 
 // How lights pick their view (`Light::cube`), one bit per mode in VIEW_MODES: the light pass is
 // compiled for the modes its lights use, like LIGHT_KINDS.
@@ -274,28 +282,82 @@ fn shadow_filter(r: Receiver) -> f32 {
     return sum / f32(taps * taps);
 }
 
-// s_λ at world point p with geometric normal ng on object `object`; 1 where no view of the light
-// holds p.
+// What translucent casters let through to a receiver at texel t: the stored transmittance
+// where the receiver lies behind the nearest translucent caster (under the bias of another
+// object's texel, as `texel_lit`), else 1.
+fn texel_transmit(r: Receiver, t: vec2i) -> vec3f {
+    let lo = vec2i(r.v.rect.xy);
+    let c = clamp(t, lo, lo + vec2i(i32(r.v.rect.z) - 1));
+    let stored = textureLoad(translucent_depth, c, r.layer, 0);
+    let off = abs(vec2f(c) + vec2f(0.5) - r.at);
+    let ref_depth = reference_depth(r.v, r.q, r.base + r.per_texel * max(off.x, off.y));
+    var in_front = ref_depth >= stored;
+    if (frame.flags & FLAG_CONVENTIONAL_Z) != 0u {
+        in_front = ref_depth <= stored;
+    }
+    if in_front {
+        return vec3f(1.0);
+    }
+    return textureLoad(transmit_maps, c, r.layer, 0).rgb;
+}
+
+fn lerp3(a: vec3f, b: vec3f, w: f32) -> vec3f {
+    return a + (b - a) * w;
+}
+
+// The bilinear 2×2 footprint of `texel_transmit` around `at` (texels).
+fn transmit_bilinear(r: Receiver, at: vec2f) -> vec3f {
+    let p = at - vec2f(0.5);
+    let b = floor(p);
+    let f = p - b;
+    let t = vec2i(b);
+    let top = lerp3(texel_transmit(r, t), texel_transmit(r, t + vec2i(1, 0)), f.x);
+    let bottom = lerp3(texel_transmit(r, t + vec2i(0, 1)), texel_transmit(r, t + vec2i(1, 1)), f.x);
+    return lerp3(top, bottom, f.y);
+}
+
+// The shadow filter's footprint over the transmittance maps (`shadow_filter`).
+fn transmit_filter(r: Receiver) -> vec3f {
+    if SHADOW_FILTER == FILTER_NEAREST {
+        return texel_transmit(r, vec2i(floor(r.at)));
+    }
+    if SHADOW_FILTER == FILTER_PCF2X2 {
+        return transmit_bilinear(r, r.at);
+    }
+    let taps = max(SHADOW_TAPS, 1u);
+    let half = 0.5 * f32(taps - 1u);
+    var sum = vec3f(0.0);
+    for (var j = 0u; j < taps; j++) {
+        for (var i = 0u; i < taps; i++) {
+            sum += transmit_bilinear(r, r.at + vec2f(f32(i), f32(j)) - vec2f(half));
+        }
+    }
+    return sum / f32(taps * taps);
+}
+
+// s_λ (RGB) at world point p with geometric normal ng on object `object`: the opaque casters'
+// filtered visibility times, where the view has transmittance maps, what translucent casters
+// let through; 1 where no view of the light holds p.
 //
 // Bias: the constant part is `depth_bias` metres along the light ray; the slope part follows the
 // receiver's own plane: how much its view-axis depth D changes across the filter footprint in the
 // map, |∂D/∂x| + |∂D/∂y| per texel (exact for a plane, also off-axis in wide frusta and cube faces).
 // With the object-ID test the slope part applies to the receiver's own object only (`texel_lit`).
-fn visibility(s: Light, p: vec3f, ng: vec3f, object: u32) -> f32 {
+fn visibility(s: Light, p: vec3f, ng: vec3f, object: u32) -> vec3f {
     let placed = place(s, p, ng);
     if placed.index == NO_VIEW {
-        return 1.0;
+        return vec3f(1.0);
     }
     let v = view_at(placed.index);
     let q = placed.q;
     let clip = project(v, q);
     if !(clip.w > 0.0) {
-        return 1.0;
+        return vec3f(1.0);
     }
     let ndc = clip.xy / clip.w;
     let uv = vec2f(ndc.x * 0.5 + 0.5, 0.5 - ndc.y * 0.5);
     if any(uv < vec2f(0.0)) || any(uv > vec2f(1.0)) {
-        return 1.0;
+        return vec3f(1.0);
     }
     let n = placed.n;
     let depth = max(-q.z, 0.0);
@@ -324,7 +386,11 @@ fn visibility(s: Light, p: vec3f, ng: vec3f, object: u32) -> f32 {
         frame.depth_bias * along_axis,
         frame.slope_bias * min(slope, 2.0) * texel_m,
     );
-    return shadow_filter(r);
+    let lit = shadow_filter(r);
+    if TRANSLUCENT && v.rect.w != 0.0 && lit > 0.0 {
+        return lit * transmit_filter(r);
+    }
+    return vec3f(lit);
 }
 
 // A visible surface point: position, unit shading and geometric normals facing the viewer, its

@@ -19,7 +19,16 @@ struct Material {
     double_sided: u32,
     has_specular: u32,
     _pad: u32,
+    // Translucent casters (`scene::Transmission`): RGB transmittance where the surface covers,
+    // and `transmits` = TRANSMITS_* (none: an opaque caster).
+    transmission: vec3f,
+    transmits: u32,
 }
+
+const TRANSMITS_NONE: u32 = 0u;
+const TRANSMITS_FILTER: u32 = 1u;
+// Alpha is coverage (glTF BLEND): the uncovered 1 − α passes untinted.
+const TRANSMITS_COVERAGE: u32 = 2u;
 
 struct TextureInfo {
     // First texel in `texels`, size, and whether colour channels are sRGB-encoded.
@@ -82,4 +91,23 @@ fn material_alpha(m: Material, uv: vec2f, has_uv: bool) -> f32 {
 // the material alpha counts, as in the CPU reference.
 fn masked_out(m: Material, uv: vec2f, has_uv: bool) -> bool {
     return m.alpha_mode == ALPHA_MASK && material_alpha(m, uv, has_uv) < m.cutoff;
+}
+
+// Transmittance of one texel of a translucent caster (`scene::shading::transmittance`):
+// (1 − a) + a·c⊙x under coverage, else c⊙x; x the diffuse texture's colour (with UVs only).
+// A masked-out texel of a filter lets everything through.
+fn texel_transmittance(m: Material, uv: vec2f, has_uv: bool) -> vec3f {
+    var texel = vec4f(1.0);
+    if m.diffuse_texture != NO_TEXTURE && has_uv {
+        texel = sample_texture(m.diffuse_texture, uv);
+    }
+    let covered = clamp(m.transmission, vec3f(0.0), vec3f(1.0)) * clamp(texel.rgb, vec3f(0.0), vec3f(1.0));
+    if m.transmits == TRANSMITS_COVERAGE {
+        let a = clamp(m.alpha * texel.a, 0.0, 1.0);
+        return vec3f(1.0 - a) + a * covered;
+    }
+    if m.alpha_mode == ALPHA_MASK && m.alpha * texel.a < m.cutoff {
+        return vec3f(1.0);
+    }
+    return covered;
 }

@@ -1,6 +1,8 @@
 // Shadow pass: depth (reversed-Z, cleared to 0) and the object ID of the nearest caster (mesh
 // index + 1, cleared to 0), one draw per caster mesh. Alpha-masked casters run `fs_masked`, which
-// discards texels below their material's cutoff.
+// discards texels below their material's cutoff. Translucent casters (`docs/translucency.md`)
+// draw into their own two maps instead: `fs_translucent_depth` the nearest one's depth,
+// `fs_transmit` the product of their transmittance in front of the nearest opaque caster.
 
 struct ShadowPass {
     view_proj: mat4x4f,
@@ -52,4 +54,21 @@ fn fs_masked(in: MaskedOut) -> @location(0) u32 {
         discard;
     }
     return in.object;
+}
+
+// The nearest translucent caster's depth: texels that let everything through do not count.
+@fragment
+fn fs_translucent_depth(in: MaskedOut) {
+    let m = materials[in.material & ~NO_UV_BIT];
+    if all(texel_transmittance(m, in.uv, (in.material & NO_UV_BIT) == 0u) >= vec3f(1.0)) {
+        discard;
+    }
+}
+
+// Multiplied into the transmittance map by the blend state (dst·src), behind the opaque depth
+// test: only translucent casters in front of the nearest opaque one count.
+@fragment
+fn fs_transmit(in: MaskedOut) -> @location(0) vec4f {
+    let m = materials[in.material & ~NO_UV_BIT];
+    return vec4f(texel_transmittance(m, in.uv, (in.material & NO_UV_BIT) == 0u), 1.0);
 }

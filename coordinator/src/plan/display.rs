@@ -176,11 +176,16 @@ impl Display for Plan {
             for (i, s) in n.lights.iter().zip(&n.shadows) {
                 writeln!(
                     f,
-                    "      #{i}: {} · {}² · {} casters {:?}",
+                    "      #{i}: {} · {}² · {} casters {:?}{}",
                     s.views,
                     s.map_size,
                     s.casters.len(),
-                    s.casters
+                    s.casters,
+                    if s.transmittance {
+                        " · transmittance maps"
+                    } else {
+                        ""
+                    }
                 )?;
             }
         }

@@ -145,7 +145,7 @@ fn plan_once(
     let fit_camera = (!options.walkthrough).then_some(cam);
     let shadow_of = |i: usize| {
         let lit: Vec<&cull::Receiver> = culling.lit[i].iter().map(|&r| &receivers[r]).collect();
-        shadow::shadow_plan(
+        let mut plan = shadow::shadow_plan(
             &samples[i],
             &lit,
             &bounds,
@@ -156,7 +156,13 @@ fn plan_once(
             options.map_sizing.resolve(&scene.quality),
             scene.quality.shadow_map_size,
             options.force_all || moving_sample[i],
-        )
+        );
+        // Model only what the scene needs: transmittance maps where a caster lets light through.
+        plan.transmittance = plan
+            .casters
+            .iter()
+            .any(|&m| scene.is_translucent_mesh(m as usize));
+        plan
     };
     let shadows: Vec<Option<ShadowPlan>> = {
         let mut v = vec![None; samples.len()];

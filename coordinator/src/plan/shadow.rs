@@ -132,5 +132,6 @@ pub(crate) fn shadow_plan(
         views: summarize(&views),
         map_size,
         casters,
+        transmittance: false,
     }
 }

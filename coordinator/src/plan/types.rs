@@ -386,6 +386,10 @@ pub struct ShadowPlan {
     pub map_size: u32,
     /// Mesh indices drawn into the map.
     pub casters: Vec<u32>,
+    /// Whether the light also gets transmittance maps: some of its casters are translucent
+    /// (`docs/translucency.md`). The node decides the same from the casters and the scene.
+    #[serde(default)]
+    pub transmittance: bool,
 }
 
 /// One render node's work.

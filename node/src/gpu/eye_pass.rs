@@ -202,6 +202,16 @@ pub fn light_group(
                 binding: 5,
                 resource: wgpu::BindingResource::TextureView(&inputs.maps.id_view),
             },
+            wgpu::BindGroupEntry {
+                binding: 6,
+                resource: wgpu::BindingResource::TextureView(
+                    &inputs.maps.translucent.transmit_view,
+                ),
+            },
+            wgpu::BindGroupEntry {
+                binding: 7,
+                resource: wgpu::BindingResource::TextureView(&inputs.maps.translucent.depth_view),
+            },
         ],
     })
 }

@@ -131,6 +131,9 @@ pub struct RenderStats {
     pub map_sides: Vec<u32>,
     /// Maps halved to keep the frame's maps within the device's shadow budget.
     pub maps_halved: u32,
+    /// Views whose transmittance maps were rendered this frame (their lights have translucent
+    /// casters; `docs/translucency.md`).
+    pub transmit_passes: u32,
     pub shadow_us: u64,
     pub eye_us: u64,
     pub readback_us: u64,

@@ -8,7 +8,7 @@
 use lightfold_scene::ShadowFilter;
 use lightfold_shaders::{
     OVERRIDE_LIGHT_KINDS, OVERRIDE_LIGHT_RANGES, OVERRIDE_SHADOW_FILTER, OVERRIDE_SHADOW_TAPS,
-    OVERRIDE_VIEW_MODES,
+    OVERRIDE_TRANSLUCENT, OVERRIDE_VIEW_MODES,
 };
 use std::collections::HashMap;
 
@@ -16,7 +16,7 @@ use super::frame::RenderError;
 use super::lights::{GpuLight, MODE_CASCADE};
 use super::scene_data::Vertex;
 use super::shadow_depth::ShadowDepth;
-use super::shadow_pass::OBJECT_ID_FORMAT;
+use super::shadow_pass::{OBJECT_ID_FORMAT, TRANSMIT_FORMAT};
 
 /// Depth format of the eye pass (and of shadow maps, but for the depth negative controls).
 pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
@@ -51,6 +51,12 @@ pub struct Pipelines {
     pub chunk_layout: wgpu::BindGroupLayout,
     pub shadow_opaque: wgpu::RenderPipeline,
     pub shadow_masked: wgpu::RenderPipeline,
+    /// Translucent casters: their nearest depth, and their transmittance multiplied into the
+    /// transmittance map behind the opaque depth test (`docs/translucency.md`).
+    pub shadow_translucent_depth: wgpu::RenderPipeline,
+    pub shadow_transmit: wgpu::RenderPipeline,
+    /// Whether the eye pipelines read transmittance maps (the scene has translucent casters).
+    pub translucent: bool,
     pub eye_illumination: wgpu::RenderPipeline,
     pub eye_layers: wgpu::RenderPipeline,
     pub illumination_format: wgpu::TextureFormat,
@@ -60,7 +66,8 @@ pub struct Pipelines {
     pub gbuffer_layers: wgpu::RenderPipeline,
     deferred_module: wgpu::ShaderModule,
     deferred_pl: wgpu::PipelineLayout,
-    filter: [(&'static str, f64); 2],
+    /// The shadow filter's constants and `TRANSLUCENT`.
+    filter: [(&'static str, f64); 3],
     /// `cs_lights` per set of lights it handles.
     light_passes: HashMap<LightSet, wgpu::ComputePipeline>,
 }
@@ -127,8 +134,9 @@ impl LightSet {
     }
 }
 
-/// The filter's pipeline constants: `FILTER_*` of `lighting.wgsl` and taps per axis.
-fn filter_constants(filter: ShadowFilter) -> [(&'static str, f64); 2] {
+/// The filter's pipeline constants: `FILTER_*` of `lighting.wgsl` and taps per axis; and whether
+/// lookups read transmittance maps.
+fn filter_constants(filter: ShadowFilter, translucent: bool) -> [(&'static str, f64); 3] {
     let (mode, taps) = match filter {
         ShadowFilter::None => (0, 1),
         ShadowFilter::Pcf2x2 => (1, 1),
@@ -137,12 +145,20 @@ fn filter_constants(filter: ShadowFilter) -> [(&'static str, f64); 2] {
     [
         (OVERRIDE_SHADOW_FILTER, f64::from(mode)),
         (OVERRIDE_SHADOW_TAPS, f64::from(taps)),
+        (OVERRIDE_TRANSLUCENT, f64::from(u8::from(translucent))),
     ]
 }
 
 impl Pipelines {
-    pub fn new(device: &wgpu::Device, filter: ShadowFilter, depth: ShadowDepth) -> Pipelines {
-        let filter = filter_constants(filter);
+    /// `translucent`: the scene has translucent casters, so lookups read transmittance maps
+    /// (a scene without compiles them out and renders as before they existed).
+    pub fn new(
+        device: &wgpu::Device,
+        filter: ShadowFilter,
+        depth: ShadowDepth,
+        translucent: bool,
+    ) -> Pipelines {
+        let filter = filter_constants(filter, translucent);
         // Lighting runs in fragment shaders (forward) and in a compute shader (deferred).
         let fragment = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
         let vf = wgpu::ShaderStages::VERTEX_FRAGMENT | wgpu::ShaderStages::COMPUTE;
@@ -220,6 +236,26 @@ impl Pipelines {
                         },
                         count: None,
                     },
+                    wgpu::BindGroupLayoutEntry {
+                        binding: 6,
+                        visibility: fragment,
+                        ty: wgpu::BindingType::Texture {
+                            sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                            view_dimension: wgpu::TextureViewDimension::D2Array,
+                            multisampled: false,
+                        },
+                        count: None,
+                    },
+                    wgpu::BindGroupLayoutEntry {
+                        binding: 7,
+                        visibility: fragment,
+                        ty: wgpu::BindingType::Texture {
+                            sample_type: wgpu::TextureSampleType::Depth,
+                            view_dimension: wgpu::TextureViewDimension::D2Array,
+                            multisampled: false,
+                        },
+                        count: None,
+                    },
                 ],
             })
         };
@@ -261,9 +297,11 @@ impl Pipelines {
             unclipped_depth: true,
             ..Default::default()
         };
-        let shadow = |vs: &str, fs: &str| {
+        // `write`: the pass writes depth (else it only tests against the opaque casters');
+        // `target`: its colour target, if any, and how fragments blend into it.
+        let shadow = |vs: &str, fs: &str, write: bool, target: Option<wgpu::ColorTargetState>| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some(vs),
+                label: Some(fs),
                 layout: Some(&shadow_pl),
                 vertex: wgpu::VertexState {
                     module: &shadow_module,
@@ -275,25 +313,47 @@ impl Pipelines {
                 depth_stencil: Some(wgpu::DepthStencilState {
                     format: depth.format(),
                     depth_compare: Some(depth.write_compare()),
-                    ..depth_state(true)
+                    ..depth_state(write)
                 }),
                 multisample: Default::default(),
                 fragment: Some(wgpu::FragmentState {
                     module: &shadow_module,
                     entry_point: Some(fs),
                     compilation_options: Default::default(),
-                    targets: &[Some(wgpu::ColorTargetState {
-                        format: OBJECT_ID_FORMAT,
-                        blend: None,
-                        write_mask: wgpu::ColorWrites::ALL,
-                    })],
+                    targets: &target.into_iter().map(Some).collect::<Vec<_>>(),
                 }),
                 multiview_mask: None,
                 cache: None,
             })
         };
-        let shadow_opaque = shadow("vs_depth", "fs_depth");
-        let shadow_masked = shadow("vs_masked", "fs_masked");
+        let ids = Some(wgpu::ColorTargetState {
+            format: OBJECT_ID_FORMAT,
+            blend: None,
+            write_mask: wgpu::ColorWrites::ALL,
+        });
+        let shadow_opaque = shadow("vs_depth", "fs_depth", true, ids.clone());
+        let shadow_masked = shadow("vs_masked", "fs_masked", true, ids);
+        let shadow_translucent_depth = shadow("vs_masked", "fs_translucent_depth", true, None);
+        // dst·src: the map starts at 1 and each translucent fragment multiplies its
+        // transmittance in, in any order.
+        let multiply = wgpu::BlendComponent {
+            src_factor: wgpu::BlendFactor::Zero,
+            dst_factor: wgpu::BlendFactor::Src,
+            operation: wgpu::BlendOperation::Add,
+        };
+        let shadow_transmit = shadow(
+            "vs_masked",
+            "fs_transmit",
+            false,
+            Some(wgpu::ColorTargetState {
+                format: TRANSMIT_FORMAT,
+                blend: Some(wgpu::BlendState {
+                    color: multiply,
+                    alpha: multiply,
+                }),
+                write_mask: wgpu::ColorWrites::ALL,
+            }),
+        );
 
         let illumination_format = ILLUMINATION_FORMAT;
         let target = |f: wgpu::TextureFormat| {
@@ -416,6 +476,9 @@ impl Pipelines {
             chunk_layout,
             shadow_opaque,
             shadow_masked,
+            shadow_translucent_depth,
+            shadow_transmit,
+            translucent: filter[2].1 != 0.0,
             eye_illumination,
             eye_layers,
             illumination_format,
@@ -446,6 +509,7 @@ impl Pipelines {
                 let constants = [
                     filter[0],
                     filter[1],
+                    filter[2],
                     (OVERRIDE_LIGHT_KINDS, f64::from(lights.kinds)),
                     (OVERRIDE_VIEW_MODES, f64::from(lights.modes)),
                     (OVERRIDE_LIGHT_RANGES, f64::from(u8::from(lights.ranges))),

@@ -117,7 +117,8 @@ impl Renderer {
         // default handler for errors nobody captured panics.
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let depth = ShadowDepth::of(opts.fault);
-        let pipelines = Pipelines::new(device, opts.filter, depth);
+        let translucent = data.meshes.iter().any(|m| m.translucent);
+        let pipelines = Pipelines::new(device, opts.filter, depth, translucent);
         if opts.fault == Some(Fault::InvalidPipeline) {
             pipelines.invalid_pipeline(device);
         }
@@ -480,7 +481,19 @@ impl Renderer {
                 fallback: opts.shadow_map_size,
             },
         };
-        let plan = plan_lights(frame_lights, &self.receivers, fit, c_n, sides, opts.fault);
+        let mut plan = plan_lights(frame_lights, &self.receivers, fit, c_n, sides, opts.fault);
+        // Views of lights with translucent casters also get transmittance maps, and say so to
+        // the lookups (`View::rect.w`).
+        let transmit_light = self.transmit_lights(frame_lights.len(), casters);
+        let transmit: Vec<bool> = plan
+            .view_light
+            .iter()
+            .map(|&l| transmit_light.get(l as usize).copied().unwrap_or(false))
+            .collect();
+        for (v, &t) in plan.views.iter_mut().zip(&transmit) {
+            v.rect[3] = if t { 1.0 } else { 0.0 };
+        }
+        let any_transmit = transmit.contains(&true);
         let max_layers = gpu.limits.max_texture_array_layers;
         if layer_count(plan.atlas.layers as usize) > max_layers {
             return Err(RenderError::TooManyViews {
@@ -512,7 +525,7 @@ impl Renderer {
         let fits = self
             .maps
             .as_ref()
-            .is_some_and(|m| m.fits(config.size, plan.atlas.layers));
+            .is_some_and(|m| m.fits(config.size, plan.atlas.layers, any_transmit));
         let kept_array = fits && self.map_config == Some(config);
         let fresh: Vec<bool> = keys
             .iter()
@@ -525,19 +538,20 @@ impl Renderer {
             self.maps = None;
             self.map_keys.clear();
             self.maps = Some(allocate(gpu, "the shadow maps", || {
-                ShadowMaps::new(&gpu.device, config.size, layers, depth)
+                ShadowMaps::new(&gpu.device, config.size, layers, depth, any_transmit)
             })?);
         }
         if fresh.contains(&true) {
             let maps = self.maps.as_ref().expect("allocated above");
             let views: Vec<bool> = plan.view_light.iter().map(|&l| fresh[l as usize]).collect();
-            stats.shadow_passes = render_shadow_maps(
+            (stats.shadow_passes, stats.transmit_passes) = render_shadow_maps(
                 &self.draw_context(gpu),
                 &self.scene.meshes,
                 maps,
                 &plan,
                 casters,
                 &views,
+                &transmit,
             );
             wait(gpu)?;
         }
@@ -676,6 +690,27 @@ impl Renderer {
         stats.readback_us = t2.elapsed().as_micros() as u64;
         out.stats = stats;
         Ok(out)
+    }
+
+    /// Per light of the frame, whether it has translucent casters (`casters[λ]`, or any mesh
+    /// when `None`), so its views get transmittance maps. None without translucent meshes.
+    fn transmit_lights(&self, lights: usize, casters: Option<&[Vec<u32>]>) -> Vec<bool> {
+        let translucent = |m: &u32| {
+            self.scene
+                .meshes
+                .get(*m as usize)
+                .is_some_and(|r| r.translucent && r.vertex_count > 0)
+        };
+        if !self.pipelines.translucent {
+            return vec![false; lights];
+        }
+        match casters {
+            Some(c) => c.iter().map(|c| c.iter().any(translucent)).collect(),
+            None => {
+                let any = (0..self.scene.meshes.len() as u32).any(|m| translucent(&m));
+                vec![any; lights]
+            }
+        }
     }
 
     /// What each light's maps are rendered from this frame.

@@ -43,7 +43,18 @@ pub struct GpuMaterial {
     pub double_sided: u32,
     pub has_specular: u32,
     pub _pad: u32,
+    /// Transmittance where a translucent caster covers (`scene::Transmission::color`).
+    pub transmission: [f32; 3],
+    /// [`TRANSMITS_NONE`], [`TRANSMITS_FILTER`] or [`TRANSMITS_COVERAGE`].
+    pub transmits: u32,
 }
+
+/// `Material::transmits` in `materials.wgsl`: an opaque caster.
+pub const TRANSMITS_NONE: u32 = 0;
+/// A translucent caster filtering by its transmission colour (× texture).
+pub const TRANSMITS_FILTER: u32 = 1;
+/// A translucent caster whose alpha is coverage (glTF BLEND).
+pub const TRANSMITS_COVERAGE: u32 = 2;
 
 /// `TextureInfo` in `materials.wgsl`.
 #[repr(C)]
@@ -62,6 +73,9 @@ pub struct MeshRange {
     pub vertex_count: u32,
     /// Whether its material discards masked texels (needs the masked shadow pipeline).
     pub masked: bool,
+    /// Whether its material lets light through: it casts into the transmittance maps, not the
+    /// depth maps (`docs/translucency.md`).
+    pub translucent: bool,
     /// Bounds of the mesh's referenced positions, `None` when it has no valid triangle.
     pub bounds: Option<(V3, V3)>,
 }
@@ -180,6 +194,7 @@ fn triangles(
             fallback
         };
         let masked = materials[material as usize].alpha_mode == 1;
+        let translucent = materials[material as usize].transmits != TRANSMITS_NONE;
         let has_normals = mesh.normals.len() == mesh.positions.len();
         let has_uvs = mesh.uvs.len() == mesh.positions.len();
         let word = material | if has_uvs { 0 } else { NO_UV_BIT };
@@ -218,6 +233,7 @@ fn triangles(
             first_vertex,
             vertex_count,
             masked,
+            translucent,
             bounds,
         });
     }
@@ -245,6 +261,12 @@ fn gpu_material(m: &Material, texture_count: usize) -> GpuMaterial {
         double_sided: m.double_sided as u32,
         has_specular: m.has_specular() as u32,
         _pad: 0,
+        transmission: m.transmission.map_or([0.0; 3], |t| t.color),
+        transmits: match m.transmission {
+            None => TRANSMITS_NONE,
+            Some(t) if t.coverage => TRANSMITS_COVERAGE,
+            Some(_) => TRANSMITS_FILTER,
+        },
     }
 }
 
@@ -275,7 +297,7 @@ mod tests {
     #[test]
     fn layouts_match_the_wgsl_structs() {
         assert_eq!(std::mem::size_of::<Vertex>(), 52);
-        assert_eq!(std::mem::size_of::<GpuMaterial>(), 80);
+        assert_eq!(std::mem::size_of::<GpuMaterial>(), 96);
         assert_eq!(std::mem::size_of::<GpuTexture>(), 16);
     }
 

@@ -2,7 +2,9 @@
 //! view a square of a layer, `atlas`), beside it an R32Uint array of the object (mesh index + 1) each texel's depth
 //! belongs to, and the depth passes that fill both, drawing per view only the casters the caller
 //! allows that can reach the view's frustum. (The depth negative controls change the encoding:
-//! `ShadowDepth`.)
+//! `ShadowDepth`.) Translucent casters draw into two more arrays instead (`docs/translucency.md`):
+//! the nearest translucent caster's depth, and the product of the transmittance of those in front
+//! of the nearest opaque caster (seed 001's separate transparent and opaque depths).
 
 use super::lights::{LightPlan, box_in_view, mat_mul};
 use super::pipelines::{DrawContext, VIEW_UNIFORM_STRIDE};
@@ -23,6 +25,79 @@ pub struct ShadowMaps {
     /// The object IDs, layer for layer with `array_view`.
     pub id_view: wgpu::TextureView,
     id_layer_views: Vec<wgpu::TextureView>,
+    /// Translucent casters' maps, layer for layer with `array_view` where the frame needs them;
+    /// otherwise 1 × 1 stand-ins the lookups never read (the bindings need something).
+    pub translucent: TranslucentMaps,
+}
+
+/// The transmittance maps and the nearest translucent caster's depth.
+#[derive(Debug)]
+pub struct TranslucentMaps {
+    /// Whether these are full-size maps (else the 1 × 1 stand-ins).
+    pub full: bool,
+    _transmit: wgpu::Texture,
+    pub transmit_view: wgpu::TextureView,
+    transmit_layer_views: Vec<wgpu::TextureView>,
+    _depth: wgpu::Texture,
+    pub depth_view: wgpu::TextureView,
+    depth_layer_views: Vec<wgpu::TextureView>,
+}
+
+/// Format of the transmittance maps: the RGB product of the translucent casters' transmittance
+/// in front of the nearest opaque one. f16 blends on every backend and keeps a red pane's
+/// 0.1 to 0.05 % (8 bits would round it to 0.102: a 2 % darker or lighter tint).
+pub const TRANSMIT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
+
+fn array_texture(
+    device: &wgpu::Device,
+    label: &str,
+    size: u32,
+    layers: u32,
+    format: wgpu::TextureFormat,
+) -> wgpu::Texture {
+    device.create_texture(&wgpu::TextureDescriptor {
+        label: Some(label),
+        size: wgpu::Extent3d {
+            width: size,
+            height: size,
+            depth_or_array_layers: layers,
+        },
+        mip_level_count: 1,
+        sample_count: 1,
+        dimension: wgpu::TextureDimension::D2,
+        format,
+        usage: wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING,
+        view_formats: &[],
+    })
+}
+
+impl TranslucentMaps {
+    /// Full-size maps of `size`² × `layers` (`full`), or the 1 × 1 stand-ins.
+    fn new(
+        device: &wgpu::Device,
+        size: u32,
+        layers: u32,
+        depth: ShadowDepth,
+        full: bool,
+    ) -> TranslucentMaps {
+        let (size, layers) = if full { (size, layers) } else { (1, 2) };
+        let transmit = array_texture(device, "transmittance maps", size, layers, TRANSMIT_FORMAT);
+        let depth_texture =
+            array_texture(device, "translucent depth", size, layers, depth.format());
+        let (transmit_view, transmit_layer_views) =
+            array_views(&transmit, layers, "transmittance maps");
+        let (depth_view, depth_layer_views) =
+            array_views(&depth_texture, layers, "translucent depth");
+        TranslucentMaps {
+            full,
+            _transmit: transmit,
+            transmit_view,
+            transmit_layer_views,
+            _depth: depth_texture,
+            depth_view,
+            depth_layer_views,
+        }
+    }
 }
 
 /// Format of the object-ID layers: mesh index + 1, 0 where no caster drew.
@@ -65,26 +140,22 @@ pub fn layer_count(views: usize) -> u32 {
 }
 
 impl ShadowMaps {
-    pub fn new(device: &wgpu::Device, size: u32, layers: u32, depth: ShadowDepth) -> ShadowMaps {
-        let texture = |label, format| {
-            device.create_texture(&wgpu::TextureDescriptor {
-                label: Some(label),
-                size: wgpu::Extent3d {
-                    width: size,
-                    height: size,
-                    depth_or_array_layers: layers,
-                },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage: wgpu::TextureUsages::RENDER_ATTACHMENT
-                    | wgpu::TextureUsages::TEXTURE_BINDING,
-                view_formats: &[],
-            })
-        };
-        let depth_texture = texture("shadow maps", depth.format());
-        let ids = texture("shadow map object ids", OBJECT_ID_FORMAT);
+    /// `translucent`: also allocate the translucent casters' maps at full size.
+    pub fn new(
+        device: &wgpu::Device,
+        size: u32,
+        layers: u32,
+        depth: ShadowDepth,
+        translucent: bool,
+    ) -> ShadowMaps {
+        let depth_texture = array_texture(device, "shadow maps", size, layers, depth.format());
+        let ids = array_texture(
+            device,
+            "shadow map object ids",
+            size,
+            layers,
+            OBJECT_ID_FORMAT,
+        );
         let (array_view, layer_views) = array_views(&depth_texture, layers, "shadow maps");
         let (id_view, id_layer_views) = array_views(&ids, layers, "shadow map object ids");
         ShadowMaps {
@@ -97,19 +168,25 @@ impl ShadowMaps {
             _ids: ids,
             id_view,
             id_layer_views,
+            translucent: TranslucentMaps::new(device, size, layers, depth, translucent),
         }
     }
 
-    /// Whether this array has `layers` layers (before padding) of `size`².
-    pub fn fits(&self, size: u32, layers: u32) -> bool {
-        self.size == size && self.layers >= layer_count(layers as usize)
+    /// Whether this array has `layers` layers (before padding) of `size`², with the
+    /// translucent casters' maps where `translucent` asks for them.
+    pub fn fits(&self, size: u32, layers: u32, translucent: bool) -> bool {
+        self.size == size
+            && self.layers >= layer_count(layers as usize)
+            && (self.translucent.full || !translucent)
     }
 }
 
 /// Records and submits one render pass per layer holding a view of `plan` that `render[view]`
 /// asks for, drawing every view of that layer into its square (the other layers are kept).
-/// `casters[λ]` lists the meshes that may cast into light λ's maps (`None`: all). Returns the
-/// number of views drawn.
+/// `casters[λ]` lists the meshes that may cast into light λ's maps (`None`: all); translucent
+/// ones draw into the translucent maps, in two more passes per layer, for the views
+/// `transmit[view]` marks (those of lights with translucent casters). Returns the number of
+/// views drawn and of those with transmittance maps.
 pub fn render_shadow_maps(
     cx: &DrawContext<'_>,
     meshes: &[MeshRange],
@@ -117,9 +194,10 @@ pub fn render_shadow_maps(
     plan: &LightPlan,
     casters: Option<&[Vec<u32>]>,
     render: &[bool],
-) -> u32 {
+    transmit: &[bool],
+) -> (u32, u32) {
     if plan.views.is_empty() || !render.contains(&true) {
-        return 0;
+        return (0, 0);
     }
     let mut uniforms = vec![0u8; VIEW_UNIFORM_STRIDE as usize * plan.views.len()];
     for (i, v) in plan.geometry.iter().enumerate() {
@@ -152,6 +230,49 @@ pub fn render_shadow_maps(
             label: Some("shadow passes"),
         });
     let all: Vec<u32> = (0..meshes.len() as u32).collect();
+    // The meshes view i draws: its light's casters that can reach its frustum.
+    let drawn = |i: usize| -> Vec<&MeshRange> {
+        let light = plan.view_light[i] as usize;
+        let allowed: &[u32] = casters.and_then(|c| c.get(light)).map_or(&all, |c| c);
+        allowed
+            .iter()
+            .filter_map(|&m| meshes.get(m as usize))
+            .filter(|m| {
+                m.bounds.is_some_and(|(lo, hi)| {
+                    m.vertex_count > 0 && box_in_view(&plan.geometry[i], lo, hi)
+                })
+            })
+            .collect()
+    };
+    // Each view of `layer` (those `include` allows) in its square of the layer (`atlas::Slot`):
+    // clip space maps onto it alone; `draw` records its meshes.
+    let views_of = |pass: &mut wgpu::RenderPass<'_>,
+                    layer: u32,
+                    include: &dyn Fn(usize) -> bool,
+                    draw: &dyn Fn(&mut wgpu::RenderPass<'_>, &[&MeshRange])| {
+        let mut count = 0;
+        pass.set_bind_group(0, cx.scene_bind_group, &[]);
+        pass.set_vertex_buffer(0, cx.vertices.slice(..));
+        for (i, v) in plan.views.iter().enumerate() {
+            if v.layer != layer || !include(i) {
+                continue;
+            }
+            count += 1;
+            let [x, y, side, _] = v.rect;
+            pass.set_viewport(x, y, side, side, 0.0, 1.0);
+            pass.set_scissor_rect(x as u32, y as u32, side as u32, side as u32);
+            pass.set_bind_group(
+                1,
+                &view_bind_group,
+                &[(i as u64 * VIEW_UNIFORM_STRIDE) as u32],
+            );
+            draw(pass, &drawn(i));
+        }
+        count
+    };
+    let draw_range = |pass: &mut wgpu::RenderPass<'_>, m: &MeshRange| {
+        pass.draw(m.first_vertex..m.first_vertex + m.vertex_count, 0..1);
+    };
     // A pass clears its whole layer, so every view in a layer that holds one to render is drawn
     // again (the others are what they were: same light, views and casters).
     let mut layers: Vec<u32> = plan
@@ -163,28 +284,111 @@ pub fn render_shadow_maps(
         .collect();
     layers.sort_unstable();
     layers.dedup();
-    let mut passes = 0;
+    let has_transmit = |i: usize| transmit.get(i).copied().unwrap_or(false);
+    let (mut passes, mut transmitted) = (0, 0);
     for layer in layers {
-        let Some(target) = maps.layer_views.get(layer as usize) else {
+        let (Some(target), Some(ids)) = (
+            maps.layer_views.get(layer as usize),
+            maps.id_layer_views.get(layer as usize),
+        ) else {
             continue;
         };
-        let ids = &maps.id_layer_views[layer as usize];
+        {
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("shadow pass"),
+                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
+                    view: ids,
+                    depth_slice: None,
+                    resolve_target: None,
+                    ops: wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                        store: wgpu::StoreOp::Store,
+                    },
+                })],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: target,
+                    depth_ops: Some(wgpu::Operations {
+                        // "Nothing in front" (0 in reversed-Z), so uncovered texels are lit.
+                        load: wgpu::LoadOp::Clear(maps.depth.clear()),
+                        store: wgpu::StoreOp::Store,
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            passes += views_of(&mut pass, layer, &|_| true, &|pass, drawn| {
+                for masked in [false, true] {
+                    pass.set_pipeline(if masked {
+                        &cx.pipelines.shadow_masked
+                    } else {
+                        &cx.pipelines.shadow_opaque
+                    });
+                    for m in drawn
+                        .iter()
+                        .filter(|m| m.masked == masked && !m.translucent)
+                    {
+                        draw_range(pass, m);
+                    }
+                }
+            });
+        }
+        let tm = &maps.translucent;
+        let in_layer = |i: usize| plan.views[i].layer == layer && has_transmit(i);
+        if !tm.full || !(0..plan.views.len()).any(in_layer) {
+            continue;
+        }
+        let (Some(transmit_target), Some(translucent_depth)) = (
+            tm.transmit_layer_views.get(layer as usize),
+            tm.depth_layer_views.get(layer as usize),
+        ) else {
+            continue;
+        };
+        let translucent_only = |pass: &mut wgpu::RenderPass<'_>, drawn: &[&MeshRange]| {
+            for m in drawn.iter().filter(|m| m.translucent) {
+                draw_range(pass, m);
+            }
+        };
+        // The nearest translucent caster's depth.
+        {
+            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+                label: Some("translucent depth pass"),
+                color_attachments: &[],
+                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+                    view: translucent_depth,
+                    depth_ops: Some(wgpu::Operations {
+                        load: wgpu::LoadOp::Clear(maps.depth.clear()),
+                        store: wgpu::StoreOp::Store,
+                    }),
+                    stencil_ops: None,
+                }),
+                timestamp_writes: None,
+                occlusion_query_set: None,
+                multiview_mask: None,
+            });
+            pass.set_pipeline(&cx.pipelines.shadow_translucent_depth);
+            transmitted += views_of(&mut pass, layer, &has_transmit, &|pass, drawn| {
+                pass.set_pipeline(&cx.pipelines.shadow_translucent_depth);
+                translucent_only(pass, drawn);
+            });
+        }
+        // Their transmittance, multiplied in behind the opaque casters' depth (tested, kept).
         let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("shadow pass"),
+            label: Some("transmittance pass"),
             color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: ids,
+                view: transmit_target,
                 depth_slice: None,
                 resolve_target: None,
                 ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
+                    load: wgpu::LoadOp::Clear(wgpu::Color::WHITE),
                     store: wgpu::StoreOp::Store,
                 },
             })],
             depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
                 view: target,
                 depth_ops: Some(wgpu::Operations {
-                    // "Nothing in front" (0 in reversed-Z), so uncovered texels are lit.
-                    load: wgpu::LoadOp::Clear(maps.depth.clear()),
+                    load: wgpu::LoadOp::Load,
                     store: wgpu::StoreOp::Store,
                 }),
                 stencil_ops: None,
@@ -193,45 +397,11 @@ pub fn render_shadow_maps(
             occlusion_query_set: None,
             multiview_mask: None,
         });
-        pass.set_bind_group(0, cx.scene_bind_group, &[]);
-        pass.set_vertex_buffer(0, cx.vertices.slice(..));
-        for (i, geometry) in plan.geometry.iter().enumerate() {
-            let v = &plan.views[i];
-            if v.layer != layer {
-                continue;
-            }
-            passes += 1;
-            let light = plan.view_light[i] as usize;
-            let allowed: &[u32] = casters.and_then(|c| c.get(light)).map_or(&all, |c| c);
-            let drawn: Vec<&MeshRange> = allowed
-                .iter()
-                .filter_map(|&m| meshes.get(m as usize))
-                .filter(|m| {
-                    m.bounds
-                        .is_some_and(|(lo, hi)| m.vertex_count > 0 && box_in_view(geometry, lo, hi))
-                })
-                .collect();
-            // The view's square of the layer (`atlas::Slot`): clip space maps onto it alone.
-            let [x, y, side, _] = v.rect;
-            pass.set_viewport(x, y, side, side, 0.0, 1.0);
-            pass.set_scissor_rect(x as u32, y as u32, side as u32, side as u32);
-            pass.set_bind_group(
-                1,
-                &view_bind_group,
-                &[(i as u64 * VIEW_UNIFORM_STRIDE) as u32],
-            );
-            for masked in [false, true] {
-                pass.set_pipeline(if masked {
-                    &cx.pipelines.shadow_masked
-                } else {
-                    &cx.pipelines.shadow_opaque
-                });
-                for m in drawn.iter().filter(|m| m.masked == masked) {
-                    pass.draw(m.first_vertex..m.first_vertex + m.vertex_count, 0..1);
-                }
-            }
-        }
+        views_of(&mut pass, layer, &has_transmit, &|pass, drawn| {
+            pass.set_pipeline(&cx.pipelines.shadow_transmit);
+            translucent_only(pass, drawn);
+        });
     }
     cx.queue.submit([encoder.finish()]);
-    passes
+    (passes, transmitted)
 }

@@ -76,6 +76,7 @@ pub(super) fn build() -> Scene {
             RADIANCE * LIGHT_COLOR[2],
         ],
         double_sided: false,
+        transmission: None,
         ..Material::diffuse("light panel", [0.0; 3])
     });
     s.add_mesh(primitives::plane(

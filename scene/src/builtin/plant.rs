@@ -49,6 +49,7 @@ pub(super) fn build() -> Scene {
         shininess: 20.0,
         alpha_mode: AlphaMode::Mask { cutoff: 0.5 },
         double_sided: true,
+        transmission: None,
         ..Material::diffuse("leaf", [1.0, 1.0, 1.0])
     });
 

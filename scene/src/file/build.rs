@@ -82,6 +82,10 @@ pub(super) fn build(
             alpha: 1.0,
             alpha_mode: crate::model::AlphaMode::Opaque,
             double_sided: m.double_sided,
+            transmission: m.transmission.map(|color| crate::model::Transmission {
+                color,
+                coverage: false,
+            }),
         });
         by_name.insert(&m.name, k);
     }
@@ -408,6 +412,7 @@ fn light(
                 name: format!("{} (emissive)", base.name),
                 emissive: color.map(|c| c * radiance),
                 double_sided: *two_sided,
+                transmission: None,
                 ..base
             });
             scene.meshes[mesh].material = glow;

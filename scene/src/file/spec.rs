@@ -205,6 +205,10 @@ pub struct MaterialSpec {
     pub emissive: V3,
     #[serde(default = "yes")]
     pub double_sided: bool,
+    /// Linear RGB transmittance of a translucent caster (a red glass pane: `[0.9, 0.1, 0.1]`):
+    /// its shadows are tinted, not black (`docs/translucency.md`). Absent: opaque.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub transmission: Option<V3>,
 }
 
 /// A primitive object.

@@ -8,7 +8,7 @@
 
 use super::accessor::Buffers;
 use crate::limits::{Budget, MAX_TEXTURE_SIDE};
-use crate::model::{AlphaMode, Material, Texture};
+use crate::model::{AlphaMode, Material, Texture, Transmission};
 use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
 
@@ -68,7 +68,18 @@ impl<'a> MaterialLoader<'a> {
         let metallic = (pbr.metallic_factor() * mean_metallic).clamp(0.0, 1.0);
         let roughness = pbr.roughness_factor() * mean_roughness;
         let rgb = [base[0], base[1], base[2]];
-        let diffuse = rgb.map(|c| c * (1.0 - metallic));
+        // KHR_materials_transmission: the dielectric's diffuse share goes through instead,
+        // tinted by the base colour (thin-walled; no refraction).
+        let tau = m
+            .transmission()
+            .map_or(0.0, |t| t.transmission_factor().clamp(0.0, 1.0));
+        if m.transmission()
+            .is_some_and(|t| t.transmission_texture().is_some())
+        {
+            self.ignored
+                .insert("transmission textures (transmission factor used alone)".into());
+        }
+        let diffuse = rgb.map(|c| c * (1.0 - metallic) * (1.0 - tau));
         let specular = rgb.map(|c| 0.04 + (c - 0.04) * metallic);
         let alpha_mode = match m.alpha_mode() {
             gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
@@ -77,6 +88,17 @@ impl<'a> MaterialLoader<'a> {
             },
             gltf::material::AlphaMode::Blend => AlphaMode::Mask { cutoff: 0.5 },
         };
+        // Shadows: a BLEND surface filters by its base colour where it covers and lets the
+        // uncovered 1 − α through; a transmissive one lets τ of the light through, tinted.
+        let blend = m.alpha_mode() == gltf::material::AlphaMode::Blend;
+        let transmission = (blend || tau > 0.0).then(|| Transmission {
+            color: if tau > 0.0 {
+                rgb.map(|c| c * (1.0 - metallic) * tau)
+            } else {
+                rgb
+            },
+            coverage: blend,
+        });
         let strength = m.emissive_strength().unwrap_or(1.0);
         let diffuse_texture = match pbr.base_color_texture() {
             Some(info) => {
@@ -109,6 +131,7 @@ impl<'a> MaterialLoader<'a> {
             alpha: base[3],
             alpha_mode,
             double_sided: m.double_sided(),
+            transmission,
         })
     }
 

@@ -315,7 +315,9 @@ fn convert(
     for ext in doc.extensions_used() {
         if !matches!(
             ext,
-            "KHR_lights_punctual" | "KHR_materials_emissive_strength"
+            "KHR_lights_punctual"
+                | "KHR_materials_emissive_strength"
+                | "KHR_materials_transmission"
         ) {
             ignored.insert(format!("extension {ext}"));
         }

@@ -135,7 +135,9 @@ fn sanitize_material(m: &mut Material, texture_count: usize, issues: &mut Vec<Is
         AlphaMode::Opaque => true,
         AlphaMode::Mask { cutoff } => cutoff.is_finite(),
     };
+    let transmission_ok = m.transmission.is_none_or(|t| colour_ok(&t.color));
     if !(colour_ok(&m.diffuse)
+        && transmission_ok
         && colour_ok(&m.specular)
         && colour_ok(&m.ambient)
         && colour_ok(&m.emissive)
@@ -160,6 +162,16 @@ fn sanitize_material(m: &mut Material, texture_count: usize, issues: &mut Vec<Is
         }
         if !m.alpha.is_finite() {
             m.alpha = 1.0;
+        }
+        if let Some(t) = &mut m.transmission {
+            // Transmittance is at most 1: a bad one blocks light (opaque), never brightens it.
+            t.color = t.color.map(|x| {
+                if x.is_finite() {
+                    x.clamp(0.0, 1.0)
+                } else {
+                    0.0
+                }
+            });
         }
         if !cutoff_ok {
             m.alpha_mode = AlphaMode::Mask { cutoff: 0.5 };
