@@ -609,3 +609,34 @@ fn a_frame_budget_picks_the_largest_k_that_fits_it() {
         "{short}"
     );
 }
+
+#[test]
+fn transmittance_maps_only_where_a_caster_lets_light_through() {
+    // An opaque scene plans none.
+    let p = plan(&stage(), &local(), &opts()).unwrap();
+    assert!(
+        p.nodes
+            .iter()
+            .flat_map(|n| &n.shadows)
+            .all(|s| !s.transmittance)
+    );
+    // A red pane under the light: a sample gets transmittance maps exactly when its casters
+    // include the pane.
+    let mut s = stage();
+    let glass = s.add_material(Material {
+        transmission: Some(lightfold_scene::Transmission {
+            color: [0.9, 0.1, 0.1],
+            coverage: false,
+        }),
+        ..Material::diffuse("glass", [0.1; 3])
+    });
+    let pane = s.add_mesh(cuboid("pane", [0.0, 1.6, 0.0], [0.4, 0.01, 0.4], glass)) as u32;
+    let p = plan(&s, &local(), &opts()).unwrap();
+    let shadows: Vec<_> = p.nodes.iter().flat_map(|n| &n.shadows).collect();
+    assert!(!shadows.is_empty());
+    for sh in &shadows {
+        assert_eq!(sh.transmittance, sh.casters.contains(&pane), "{sh:?}");
+    }
+    assert!(shadows.iter().any(|sh| sh.transmittance));
+    assert!(p.to_string().contains("transmittance maps"));
+}

@@ -305,3 +305,82 @@ fn depth_is_distance_along_view_axis_and_zero_for_background() {
         "depth",
     );
 }
+
+/// A pane at height `y` over the ground, of `material`, covering the whole view.
+fn pane(y: f32, material: usize) -> lightfold_scene::Mesh {
+    lightfold_scene::primitives::plane(
+        "pane",
+        [0.0, y, 0.0],
+        [0.0, 1.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [40.0, 40.0],
+        1,
+        material,
+    )
+}
+
+#[test]
+fn translucent_casters_tint_shadows_by_the_product_of_their_transmittance() {
+    use lightfold_scene::Transmission;
+    // The camera sits under the panes looking down at the ground: it sees only the ground,
+    // whose every point the panes (40 m wide) stand between it and the light.
+    let light = [0.3, 5.0, -0.2];
+    let cam = camera(
+        [0.0, 0.5, 0.0],
+        [0.0, 0.0, 0.0],
+        [0.0, 0.0, -1.0],
+        60.0,
+        12,
+        10,
+    );
+    let glass = |color: [f32; 3], coverage: bool, alpha: f32| Material {
+        alpha,
+        transmission: Some(Transmission { color, coverage }),
+        ..Material::diffuse("glass", [0.3; 3])
+    };
+    let materials = vec![
+        Material::diffuse("white", [1.0; 3]),
+        glass([0.9, 0.1, 0.2], false, 1.0),
+        glass([0.2, 0.4, 1.0], true, 0.25),
+        Material::diffuse("opaque", [0.5; 3]),
+    ];
+    let lit = |meshes: Vec<lightfold_scene::Mesh>| {
+        let s = scene(
+            meshes,
+            materials.clone(),
+            vec![point_light(light, 12.0)],
+            cam,
+        );
+        render_point_sum(&s, &scene_samples(&s), [1.0; 3]).illumination
+    };
+    let open = lit(vec![ground(0)]);
+    let red = lit(vec![ground(0), pane(2.0, 1)]);
+    let both = lit(vec![ground(0), pane(2.0, 1), pane(3.0, 2)]);
+    let blocked = lit(vec![ground(0), pane(2.0, 1), pane(1.0, 3)]);
+    // Coverage 0.25 of a [0.2, 0.4, 1.0] filter: (1 − a) + a·c.
+    let blue = [0.75 + 0.25 * 0.2, 0.75 + 0.25 * 0.4, 1.0];
+    let red_t = [0.9, 0.1, 0.2];
+    for y in 0..10 {
+        for x in 0..12 {
+            let (o, r, b, k) = (
+                open.pixel(x, y),
+                red.pixel(x, y),
+                both.pixel(x, y),
+                blocked.pixel(x, y),
+            );
+            assert!(o[0] > 0.0);
+            for c in 0..3 {
+                let what = format!("pixel ({x},{y}) ch {c}");
+                assert_close(f64::from(r[c]), f64::from(o[c] * red_t[c]), 1e-6, &what);
+                assert_close(
+                    f64::from(b[c]),
+                    f64::from(o[c] * red_t[c] * blue[c]),
+                    1e-6,
+                    &what,
+                );
+                // An opaque caster behind the pane (nearer the receiver) still blocks it all.
+                assert_eq!(k[c], 0.0, "{what}");
+            }
+        }
+    }
+}

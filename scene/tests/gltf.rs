@@ -273,3 +273,55 @@ fn fox_is_scaled_and_skinned_upright() {
     );
     assert!((1.0..2.0).contains(&(hi[2] - lo[2])), "{lo:?} {hi:?}");
 }
+
+#[test]
+fn blend_and_transmission_make_translucent_casters() {
+    // BLEND: the eye keeps its 0.5 cut-out; shadows filter by the base colour where it covers.
+    let s = load_gltf(&shared("AlphaBlendModeTest", "AlphaBlendModeTest.gltf")).unwrap();
+    let blend = s
+        .materials
+        .iter()
+        .find(|m| m.name == "MatBlend")
+        .expect("MatBlend");
+    assert_eq!(blend.alpha_mode, AlphaMode::Mask { cutoff: 0.5 });
+    let t = blend.transmission.expect("BLEND lets light through");
+    assert!(t.coverage);
+    assert!(
+        s.materials
+            .iter()
+            .filter(|m| m.name != "MatBlend")
+            .all(|m| m.transmission.is_none()),
+        "OPAQUE and MASK materials stay opaque casters"
+    );
+    // KHR_materials_transmission: τ of the light passes, tinted by the base colour; the diffuse
+    // share that passes is no longer reflected.
+    let path = triangle_case("transmission", [0, 1, 2], |j| {
+        j.replacen(
+            r#""asset": {"version": "2.0"},"#,
+            r#""asset": {"version": "2.0"},
+  "extensionsUsed": ["KHR_materials_transmission"],
+  "materials": [{"pbrMetallicRoughness": {"baseColorFactor": [0.5, 1.0, 0.25, 1.0],
+    "metallicFactor": 0.0},
+    "extensions": {"KHR_materials_transmission": {"transmissionFactor": 0.8}}}],"#,
+            1,
+        )
+        .replace(
+            r#""attributes": {"POSITION": 0}, "indices": 1"#,
+            r#""attributes": {"POSITION": 0}, "indices": 1, "material": 0"#,
+        )
+    });
+    let opts = GltfOptions {
+        complete: false,
+        ..GltfOptions::default()
+    };
+    let s = load_gltf_with(&path, &opts).unwrap();
+    let m = &s.materials[s.meshes[0].material];
+    let t = m.transmission.expect("transmissive");
+    assert!(!t.coverage);
+    for (got, want) in t.color.iter().zip([0.4, 0.8, 0.2]) {
+        assert!((got - want).abs() < 1e-6, "{:?}", t.color);
+    }
+    for (got, want) in m.diffuse.iter().zip([0.1, 0.2, 0.05]) {
+        assert!((got - want).abs() < 1e-6, "{:?}", m.diffuse);
+    }
+}

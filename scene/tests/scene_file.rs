@@ -297,3 +297,38 @@ fn shadow_map_sizing_parses_and_fixed_sizes_stay_fixed() {
     assert!(with("shadow_map_sizing = { tarket = 1.0 }").is_err());
     assert!(with("shadow_map_sizing = \"huge\"").is_err());
 }
+
+#[test]
+fn transmission_makes_a_translucent_caster() {
+    let s = load(&example("glass.toml")).unwrap();
+    let red = s
+        .materials
+        .iter()
+        .find(|m| m.name == "red glass")
+        .expect("red glass");
+    assert_eq!(
+        red.transmission,
+        Some(lightfold_scene::Transmission {
+            color: [0.9, 0.1, 0.1],
+            coverage: false,
+        })
+    );
+    let floor = s.materials.iter().find(|m| m.name == "floor").unwrap();
+    assert!(!floor.is_translucent());
+    let translucent = (0..s.meshes.len())
+        .filter(|&m| s.is_translucent_mesh(m))
+        .count();
+    assert_eq!(translucent, 3, "three panes");
+    // Out of range is clamped by validation, never brightens.
+    let mut bad = s.clone();
+    bad.materials[1].transmission = Some(lightfold_scene::Transmission {
+        color: [2.0, f32::NAN, -1.0],
+        coverage: false,
+    });
+    let report = bad.sanitize();
+    assert!(!report.is_clean());
+    assert_eq!(
+        bad.materials[1].transmission.unwrap().color,
+        [1.0, 0.0, 0.0]
+    );
+}
