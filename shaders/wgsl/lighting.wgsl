@@ -283,14 +283,12 @@ fn shadow_filter(r: Receiver) -> f32 {
 }
 
 // What translucent casters let through to a receiver at texel t: the stored transmittance
-// where the receiver lies behind the nearest translucent caster (under the bias of another
-// object's texel, as `texel_lit`), else 1.
-fn texel_transmit(r: Receiver, t: vec2i) -> vec3f {
+// where the receiver, at reference depth `ref_depth`, lies behind the nearest translucent caster,
+// else 1.
+fn texel_transmit(r: Receiver, t: vec2i, ref_depth: f32) -> vec3f {
     let lo = vec2i(r.v.rect.xy);
     let c = clamp(t, lo, lo + vec2i(i32(r.v.rect.z) - 1));
     let stored = textureLoad(translucent_depth, c, r.layer, 0);
-    let off = abs(vec2f(c) + vec2f(0.5) - r.at);
-    let ref_depth = reference_depth(r.v, r.q, r.base + r.per_texel * max(off.x, off.y));
     var in_front = ref_depth >= stored;
     if (frame.flags & FLAG_CONVENTIONAL_Z) != 0u {
         in_front = ref_depth <= stored;
@@ -301,35 +299,53 @@ fn texel_transmit(r: Receiver, t: vec2i) -> vec3f {
     return textureLoad(transmit_maps, c, r.layer, 0).rgb;
 }
 
+// The receiver's reference depth against translucent casters' texels up to `reach` texels from
+// it: under the bias of another object's texel (`texel_lit`) at that offset, one projection for
+// a whole footprint.
+fn transmit_reference(r: Receiver, reach: f32) -> f32 {
+    return reference_depth(r.v, r.q, r.base + r.per_texel * reach);
+}
+
 fn lerp3(a: vec3f, b: vec3f, w: f32) -> vec3f {
     return a + (b - a) * w;
 }
 
-// The bilinear 2×2 footprint of `texel_transmit` around `at` (texels).
-fn transmit_bilinear(r: Receiver, at: vec2f) -> vec3f {
-    let p = at - vec2f(0.5);
+// The bilinear 2×2 footprint of `texel_transmit` around `at` (texels), `offset` texels from the
+// receiver (its texel centres lie within max(|offset|) + 1 of it).
+fn transmit_bilinear(r: Receiver, offset: vec2f) -> vec3f {
+    let reach = max(abs(offset.x), abs(offset.y)) + 1.0;
+    let ref_depth = transmit_reference(r, reach);
+    let p = r.at + offset - vec2f(0.5);
     let b = floor(p);
     let f = p - b;
     let t = vec2i(b);
-    let top = lerp3(texel_transmit(r, t), texel_transmit(r, t + vec2i(1, 0)), f.x);
-    let bottom = lerp3(texel_transmit(r, t + vec2i(0, 1)), texel_transmit(r, t + vec2i(1, 1)), f.x);
+    let top = lerp3(
+        texel_transmit(r, t, ref_depth),
+        texel_transmit(r, t + vec2i(1, 0), ref_depth),
+        f.x,
+    );
+    let bottom = lerp3(
+        texel_transmit(r, t + vec2i(0, 1), ref_depth),
+        texel_transmit(r, t + vec2i(1, 1), ref_depth),
+        f.x,
+    );
     return lerp3(top, bottom, f.y);
 }
 
 // The shadow filter's footprint over the transmittance maps (`shadow_filter`).
 fn transmit_filter(r: Receiver) -> vec3f {
     if SHADOW_FILTER == FILTER_NEAREST {
-        return texel_transmit(r, vec2i(floor(r.at)));
+        return texel_transmit(r, vec2i(floor(r.at)), transmit_reference(r, 0.5));
     }
     if SHADOW_FILTER == FILTER_PCF2X2 {
-        return transmit_bilinear(r, r.at);
+        return transmit_bilinear(r, vec2f(0.0));
     }
     let taps = max(SHADOW_TAPS, 1u);
     let half = 0.5 * f32(taps - 1u);
     var sum = vec3f(0.0);
     for (var j = 0u; j < taps; j++) {
         for (var i = 0u; i < taps; i++) {
-            sum += transmit_bilinear(r, r.at + vec2f(f32(i), f32(j)) - vec2f(half));
+            sum += transmit_bilinear(r, vec2f(f32(i), f32(j)) - vec2f(half));
         }
     }
     return sum / f32(taps * taps);
