@@ -12,7 +12,7 @@
 mod gpu_support;
 
 use gpu_support::*;
-use lightfold_node::gpu::{Gpu, LayerSet, NodeFrame, RenderOptions, Renderer};
+use lightfold_node::gpu::{EyeVariant, Gpu, LayerSet, NodeFrame, RenderOptions, Renderer};
 use lightfold_reference::{Layers, Tracer, render_point_sum};
 use lightfold_scene::primitives::{cuboid, plane};
 use lightfold_scene::{
@@ -385,4 +385,68 @@ fn alpha_blend_mode_test_casts_tinted_shadows() {
     );
     let opaque = render(&gpu, &without_transmission(&scene), &samples);
     assert_eq!(tinted(opaque.illumination.as_ref().expect("il")), 0);
+}
+
+#[test]
+fn the_eye_sees_through_glass_tinted_in_both_variants() {
+    // Filters are seen through: the material layers and depth are the floor's behind the red
+    // pane, times the pane's transmittance (the CPU reference traces the same rule).
+    let gpu = gpu();
+    let e = expected();
+    let sil = lightfold_reference::masks::silhouettes(&e.reference.depth, &e.reference.coverage, 1);
+    let mask: Vec<bool> = sil.iter().map(|&s| !s).collect();
+    // Pixels seen through the red pane: the floor's grey tinted red.
+    let through: Vec<usize> = (0..(W * H) as usize)
+        .filter(|&i| {
+            let d = &e.reference.diffuse.data[i * 3..i * 3 + 3];
+            mask[i] && (d[0] - 0.7 * 0.9).abs() < 1e-4 && (d[1] - 0.7 * 0.1).abs() < 1e-4
+        })
+        .collect();
+    assert!(
+        through.len() > 300,
+        "{} pixels through the pane",
+        through.len()
+    );
+    for variant in [EyeVariant::Forward, EyeVariant::Deferred] {
+        let opts = RenderOptions::from_quality(&e.scene.quality);
+        let mut r = Renderer::new(&gpu, &e.scene, opts).expect("renderer");
+        r.set_variant(variant);
+        let frame = r
+            .render(&gpu, &e.samples, None, [1.0; 3], LayerSet::all())
+            .expect("render");
+        for (name, got, want) in [
+            ("m^d", &frame.diffuse, &e.reference.diffuse),
+            ("depth", &frame.depth, &e.reference.depth),
+        ] {
+            let got = got.as_ref().unwrap_or_else(|| panic!("{name} missing"));
+            let c = compare(got, want, &mask);
+            eprintln!("{variant:?} {name}: {c:?}");
+            assert!(c.passes(), "{variant:?} {name}: {c:?}");
+        }
+        let il = compare(
+            frame.illumination.as_ref().expect("illumination"),
+            &e.reference.illumination,
+            &e.mask,
+        );
+        assert!(il.passes(), "{variant:?} with layers: {il:?}");
+    }
+    // Negative control: glass the eye cannot see through (coverage, alpha 1: drawn as a
+    // surface) puts the pane's own colour where the reference has the tinted floor.
+    let mut solid = e.scene.clone();
+    for m in &mut solid.materials {
+        if let Some(t) = &mut m.transmission {
+            t.coverage = true;
+        }
+    }
+    let opts = RenderOptions::from_quality(&solid.quality);
+    let mut r = Renderer::new(&gpu, &solid, opts).expect("renderer");
+    let frame = r
+        .render(&gpu, &e.samples, None, [1.0; 3], LayerSet::all())
+        .expect("render");
+    let got = frame.diffuse.as_ref().expect("m^d");
+    let wrong = through
+        .iter()
+        .filter(|&&i| (got.data[i * 3] - e.reference.diffuse.data[i * 3]).abs() > 1e-3)
+        .count();
+    assert!(wrong * 2 > through.len(), "{wrong} of {}", through.len());
 }

@@ -237,12 +237,14 @@ pub(crate) fn render_pixels(
                     let mut px = PixelLayers::default();
                     if let Some(hit) = tracer.primary(x, y) {
                         let mat = tracer.material(&hit);
+                        // Filters in front tint every material layer alike.
+                        let t = tracer.eye_transmittance(x, y, &hit);
                         px.covered = true;
                         px.depth = hit.depth;
-                        px.diffuse = tracer.diffuse(&hit);
-                        px.specular = mat.specular;
-                        px.ambient = mat.ambient;
-                        px.emissive = mat.emissive;
+                        px.diffuse = shading::mul(tracer.diffuse(&hit), t);
+                        px.specular = shading::mul(mat.specular, t);
+                        px.ambient = shading::mul(mat.ambient, t);
+                        px.emissive = shading::mul(mat.emissive, t);
                         light(x, y, &hit, &mut px);
                     }
                     px

@@ -54,6 +54,8 @@ pub struct Tracer<'a> {
     epsilon: f64,
     /// Whether any material lets light through (shadow rays then carry a transmittance).
     translucent: bool,
+    /// Whether any is a filter, which eye rays see through (`docs/translucency.md`).
+    filters: bool,
 }
 
 impl<'a> Tracer<'a> {
@@ -86,6 +88,7 @@ impl<'a> Tracer<'a> {
             tris,
             epsilon,
             translucent: scene.materials.iter().any(|m| m.is_translucent()),
+            filters: scene.materials.iter().any(is_filter),
         }
     }
 
@@ -108,6 +111,44 @@ impl<'a> Tracer<'a> {
         let dir = cam.ray_dir(x as f32 + 0.5, y as f32 + 0.5);
         let forward = cam.frame().forward;
         self.eye_ray(cam.position, dir, dot(dir, forward))
+    }
+
+    /// What the filters in front of the primary hit of pixel `(x, y)` let through (RGB): the
+    /// product of their transmittance, 1 without any. The pixel's radiance is this times what
+    /// the hit surface sends (`docs/translucency.md`); a pixel no surface covers has none.
+    pub fn eye_transmittance(&self, x: u32, y: u32, hit: &SurfaceHit) -> V3 {
+        if !self.filters {
+            return [1.0; 3];
+        }
+        let cam = &self.scene.camera;
+        let dir = cam.ray_dir(x as f32 + 0.5, y as f32 + 0.5);
+        let o = cam.position.map(f64::from);
+        let d = dir.map(f64::from);
+        let to_hit = [0, 1, 2].map(|k| hit.position[k] - o[k]);
+        let tmax = dot64(to_hit, d) / dot64(d, d).max(1e-30);
+        let mut t = [1.0f64; 3];
+        self.bvh.occluded(o, d, 0.0, tmax, |id, u, v| {
+            let mat = self.triangle_material(id);
+            // Eye rays skip single-sided back faces (`hit_along`).
+            if !is_filter(mat) || (!mat.double_sided && dot(self.geometric_normal(id), dir) >= 0.0)
+            {
+                return false;
+            }
+            let Some(tr) = &mat.transmission else {
+                return false;
+            };
+            let texel = self.texel_at(id, mat, u, v);
+            if mat.alpha_mode != AlphaMode::Opaque && self.masked_out(id, mat, u, v) {
+                return false;
+            }
+            let x =
+                shading::transmittance(tr, mat.alpha * texel[3], [texel[0], texel[1], texel[2]]);
+            for k in 0..3 {
+                t[k] *= f64::from(x[k]);
+            }
+            false
+        });
+        t.map(|c| c as f32)
     }
 
     /// Closest visible surface along an eye ray; `depth_scale` converts ray distance to depth.
@@ -135,8 +176,8 @@ impl<'a> Tracer<'a> {
         let hit = self.bvh.closest(o, d, 0.0, f64::INFINITY, |id, u, v| {
             let mat = self.triangle_material(id);
             if skip_single_sided_backs
-                && !mat.double_sided
-                && dot(self.geometric_normal(id), dir) >= 0.0
+                && (is_filter(mat)
+                    || (!mat.double_sided && dot(self.geometric_normal(id), dir) >= 0.0))
             {
                 return false;
             }
@@ -359,6 +400,11 @@ impl<'a> Tracer<'a> {
         let uv = [0, 1].map(|k| w * a[k] + u * b[k] + v * c[k]);
         sample_texture(tex, uv)
     }
+}
+
+/// A filter: a translucent material without coverage (glass), which eye rays see through.
+fn is_filter(m: &Material) -> bool {
+    m.transmission.is_some_and(|t| !t.coverage)
 }
 
 /// A fallback for meshes whose material index is out of range: mid-grey diffuse.

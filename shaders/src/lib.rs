@@ -110,11 +110,17 @@ mod tests {
             assert!(shadow.iter().any(|n| n == e), "shadow lacks {e}");
         }
         let forward = names(FORWARD_WGSL, "forward");
-        for e in ["vs_eye", "fs_illumination", "fs_layers"] {
+        for e in ["vs_eye", "fs_illumination", "fs_layers", "fs_eye_filter"] {
             assert!(forward.iter().any(|n| n == e), "forward lacks {e}");
         }
         let deferred = names(DEFERRED_WGSL, "deferred");
-        for e in ["vs_eye", "fs_gbuffer", "fs_gbuffer_layers", "cs_lights"] {
+        for e in [
+            "vs_eye",
+            "fs_gbuffer",
+            "fs_gbuffer_layers",
+            "fs_eye_filter",
+            "cs_lights",
+        ] {
             assert!(deferred.iter().any(|n| n == e), "deferred lacks {e}");
         }
     }

@@ -71,9 +71,32 @@ fn material_layers(in: VsOut) -> MaterialLayers {
     );
 }
 
-// Eye rays skip single-sided back faces and transparent masked texels (CPU reference rules).
+// Eye rays skip single-sided back faces, transparent masked texels and filters (translucent
+// casters without coverage, seen through: `fs_eye_filter`) (CPU reference rules).
 fn rejected(in: VsOut, front: bool) -> bool {
     let m = materials[in.material & ~NO_UV_BIT];
     return (!front && m.double_sided == 0u)
+        || m.transmits == TRANSMITS_FILTER
         || masked_out(m, in.uv, (in.material & NO_UV_BIT) == 0u);
+}
+
+// The filters in front of the visible surface (`docs/translucency.md`): each multiplies its
+// transmittance into the four material layers (the blend state: dst·src), behind the eye depth
+// test, so the pixel becomes T ⊙ (e + m^a⊙… + m^d⊙I^d + m^s⊙I^s). Other fragments, and
+// single-sided back faces, are skipped.
+struct FilterOut {
+    @location(0) m_diffuse: vec4f,
+    @location(1) m_specular: vec4f,
+    @location(2) m_ambient: vec4f,
+    @location(3) emissive: vec4f,
+}
+
+@fragment
+fn fs_eye_filter(in: VsOut, @builtin(front_facing) front: bool) -> FilterOut {
+    let m = materials[in.material & ~NO_UV_BIT];
+    if m.transmits != TRANSMITS_FILTER || (!front && m.double_sided == 0u) {
+        discard;
+    }
+    let t = vec4f(texel_transmittance(m, in.uv, (in.material & NO_UV_BIT) == 0u), 1.0);
+    return FilterOut(t, t, t, t);
 }

@@ -5,7 +5,9 @@
 //! storage buffers), each adding to the last in light order. Same maths as the forward pass; no
 //! fragment of a hidden surface is ever lit.
 
-use super::eye_pass::{EyeInputs, EyeTargets, GpuFrame, light_group, record_raster};
+use super::eye_pass::{
+    EyeInputs, EyeTargets, GpuFrame, light_group, record_filters, record_raster,
+};
 use super::lights::{GpuLight, GpuView, chunk_lights};
 use super::pipelines::{DrawContext, GBUFFER_FORMAT};
 use bytemuck::Zeroable;
@@ -128,6 +130,9 @@ pub fn render_deferred(
         &targets.depth_buffer,
         vertex_count,
     );
+    if inputs.material_layers {
+        record_filters(cx, &mut encoder, 1, &groups[0], targets, vertex_count);
+    }
     let view = |t: &wgpu::Texture| t.create_view(&Default::default());
     let views = [view(&g[0]), view(&g[1]), view(&g[2])];
     let gbuffer_group = cx.device.create_bind_group(&wgpu::BindGroupDescriptor {

@@ -217,7 +217,7 @@ pub fn light_group(
 }
 
 /// Records one raster of the scene from the camera into `colour` (cleared to zero) with a
-/// reversed-Z depth buffer.
+/// reversed-Z depth buffer (kept for the filters' pass, [`record_filters`], where there is one).
 pub fn record_raster(
     cx: &DrawContext<'_>,
     encoder: &mut wgpu::CommandEncoder,
@@ -251,7 +251,11 @@ pub fn record_raster(
             view: &depth_view,
             depth_ops: Some(wgpu::Operations {
                 load: wgpu::LoadOp::Clear(0.0),
-                store: wgpu::StoreOp::Discard,
+                store: if cx.pipelines.eye_filter.is_some() {
+                    wgpu::StoreOp::Store
+                } else {
+                    wgpu::StoreOp::Discard
+                },
             }),
             stencil_ops: None,
         }),
@@ -299,5 +303,63 @@ pub fn render_eye(
         &targets.depth_buffer,
         vertex_count,
     );
+    if inputs.material_layers {
+        record_filters(cx, &mut encoder, 0, &bind_group, targets, vertex_count);
+    }
     cx.queue.submit([encoder.finish()]);
+}
+
+/// Records the filters' pass over the material layers (`fs_eye_filter`: each filter in front of
+/// the visible surface multiplies its transmittance in), when the scene has filters. `variant`
+/// 0 is the forward pass's group layout, 1 the deferred raster's.
+pub fn record_filters(
+    cx: &DrawContext<'_>,
+    encoder: &mut wgpu::CommandEncoder,
+    variant: usize,
+    bind_group: &wgpu::BindGroup,
+    targets: &EyeTargets,
+    vertex_count: u32,
+) {
+    let Some(pipelines) = &cx.pipelines.eye_filter else {
+        return;
+    };
+    let view = |t: &wgpu::Texture| t.create_view(&Default::default());
+    let views: Vec<wgpu::TextureView> = targets.materials.iter().map(view).collect();
+    let attachments: Vec<Option<wgpu::RenderPassColorAttachment<'_>>> = views
+        .iter()
+        .map(|v| {
+            Some(wgpu::RenderPassColorAttachment {
+                view: v,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load: wgpu::LoadOp::Load,
+                    store: wgpu::StoreOp::Store,
+                },
+            })
+        })
+        .collect();
+    let depth_view = view(&targets.depth_buffer);
+    let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+        label: Some("eye filters"),
+        color_attachments: &attachments,
+        depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+            view: &depth_view,
+            depth_ops: Some(wgpu::Operations {
+                load: wgpu::LoadOp::Load,
+                store: wgpu::StoreOp::Discard,
+            }),
+            stencil_ops: None,
+        }),
+        timestamp_writes: None,
+        occlusion_query_set: None,
+        multiview_mask: None,
+    });
+    pass.set_pipeline(&pipelines[variant.min(1)]);
+    pass.set_bind_group(0, cx.scene_bind_group, &[]);
+    pass.set_bind_group(1, bind_group, &[]);
+    pass.set_vertex_buffer(0, cx.vertices.slice(..));
+    if vertex_count > 0 {
+        pass.draw(0..vertex_count, 0..1);
+    }
 }

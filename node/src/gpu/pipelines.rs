@@ -59,6 +59,9 @@ pub struct Pipelines {
     pub translucent: bool,
     pub eye_illumination: wgpu::RenderPipeline,
     pub eye_layers: wgpu::RenderPipeline,
+    /// The filters' eye pass over the material layers (forward, deferred group layouts), where
+    /// the scene has filters (`docs/translucency.md`).
+    pub eye_filter: Option<[wgpu::RenderPipeline; 2]>,
     pub illumination_format: wgpu::TextureFormat,
     /// Deferred variant: G-buffer rasters (without / with material layers) and the light pass.
     pub deferred_layout: wgpu::BindGroupLayout,
@@ -151,12 +154,14 @@ fn filter_constants(filter: ShadowFilter, translucent: bool) -> [(&'static str, 
 
 impl Pipelines {
     /// `translucent`: the scene has translucent casters, so lookups read transmittance maps
-    /// (a scene without compiles them out and renders as before they existed).
+    /// (a scene without compiles them out and renders as before they existed); `filters`: some
+    /// are filters, which eye rays see through (`docs/translucency.md`).
     pub fn new(
         device: &wgpu::Device,
         filter: ShadowFilter,
         depth: ShadowDepth,
         translucent: bool,
+        filters: bool,
     ) -> Pipelines {
         let filter = filter_constants(filter, translucent);
         // Lighting runs in fragment shaders (forward) and in a compute shader (deferred).
@@ -432,6 +437,58 @@ impl Pipelines {
             "fs_gbuffer_layers",
             &gbuffer_targets,
         );
+        // dst·src into each material layer, behind the eye depth test (kept, not written).
+        let multiply = wgpu::BlendComponent {
+            src_factor: wgpu::BlendFactor::Zero,
+            dst_factor: wgpu::BlendFactor::Src,
+            operation: wgpu::BlendOperation::Add,
+        };
+        let filter_target = Some(wgpu::ColorTargetState {
+            format: MATERIAL_FORMAT,
+            blend: Some(wgpu::BlendState {
+                color: multiply,
+                alpha: multiply,
+            }),
+            write_mask: wgpu::ColorWrites::ALL,
+        });
+        let filter_targets = [
+            filter_target.clone(),
+            filter_target.clone(),
+            filter_target.clone(),
+            filter_target,
+        ];
+        let eye_filter_pipeline = |module: &wgpu::ShaderModule, layout: &wgpu::PipelineLayout| {
+            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some("fs_eye_filter"),
+                layout: Some(layout),
+                vertex: wgpu::VertexState {
+                    module,
+                    entry_point: Some("vs_eye"),
+                    compilation_options: Default::default(),
+                    buffers: &[Some(vertex_layout())],
+                },
+                primitive: wgpu::PrimitiveState::default(),
+                depth_stencil: Some(depth_state(false)),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module,
+                    entry_point: Some("fs_eye_filter"),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants: &filter,
+                        ..Default::default()
+                    },
+                    targets: &filter_targets,
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+        };
+        let eye_filter = filters.then(|| {
+            [
+                eye_filter_pipeline(&forward_module, &forward_pl),
+                eye_filter_pipeline(&deferred_module, &gbuffer_pl),
+            ]
+        });
         let gbuffer_entry = |binding| wgpu::BindGroupLayoutEntry {
             binding,
             visibility: wgpu::ShaderStages::COMPUTE,
@@ -481,6 +538,7 @@ impl Pipelines {
             translucent: filter[2].1 != 0.0,
             eye_illumination,
             eye_layers,
+            eye_filter,
             illumination_format,
             deferred_layout,
             gbuffer,

@@ -118,7 +118,11 @@ impl Renderer {
         let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
         let depth = ShadowDepth::of(opts.fault);
         let translucent = data.meshes.iter().any(|m| m.translucent);
-        let pipelines = Pipelines::new(device, opts.filter, depth, translucent);
+        let filters = data
+            .materials
+            .iter()
+            .any(|m| m.transmits == super::scene_data::TRANSMITS_FILTER);
+        let pipelines = Pipelines::new(device, opts.filter, depth, translucent, filters);
         if opts.fault == Some(Fault::InvalidPipeline) {
             pipelines.invalid_pipeline(device);
         }
