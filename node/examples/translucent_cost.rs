@@ -73,6 +73,9 @@ fn main() -> anyhow::Result<()> {
     // Moving lights: every frame renders every map (a light moved by nothing is still redrawn,
     // as walkthrough mode is off).
     let (mut shadow_t, mut shadow_o, mut eye_t, mut eye_o) = (vec![], vec![], vec![], vec![]);
+    // The eye pass with the material layers: the glass is seen through (its filter pass) where
+    // the opaque copy draws it as a surface.
+    let (mut layers_t, mut layers_o) = (vec![], vec![]);
     let (mut transmit_views, mut views) = (0, 0);
     let mut last = None;
     for f in 0..2 + frames {
@@ -84,6 +87,12 @@ fn main() -> anyhow::Result<()> {
             eye_t.push(a.stats.eye_us as f64 / 1000.0);
             eye_o.push(b.stats.eye_us as f64 / 1000.0);
         }
+        let c = translucent.render(&gpu, &lights, None, [1.0; 3], LayerSet::all())?;
+        let d = plain.render(&gpu, &lights, None, [1.0; 3], LayerSet::all())?;
+        if f >= 2 {
+            layers_t.push(c.stats.eye_us as f64 / 1000.0);
+            layers_o.push(d.stats.eye_us as f64 / 1000.0);
+        }
         transmit_views = a.stats.transmit_passes;
         views = a.stats.shadow_passes;
         last = Some((a, b));
@@ -91,6 +100,7 @@ fn main() -> anyhow::Result<()> {
     let (a, b) = last.expect("frames ran");
     let (st, so) = (median(&mut shadow_t), median(&mut shadow_o));
     let (et, eo) = (median(&mut eye_t), median(&mut eye_o));
+    let (lt, lo) = (median(&mut layers_t), median(&mut layers_o));
     println!(
         "scene {} at {}×{}, K = {k}, {views} views of which {transmit_views} with transmittance \
          maps; medians of {frames} frames on {}",
@@ -98,7 +108,11 @@ fn main() -> anyhow::Result<()> {
     );
     println!("| phase | opaque casters ms | translucent ms | ratio | per light ms |");
     println!("|---|---|---|---|---|");
-    for (what, t, o) in [("shadow", st, so), ("eye", et, eo)] {
+    for (what, t, o) in [
+        ("shadow", st, so),
+        ("eye", et, eo),
+        ("eye + material layers", lt, lo),
+    ] {
         println!(
             "| {what} | {o:.1} | {t:.1} | {:.2} | {:+.2} |",
             t / o,

@@ -28,10 +28,10 @@ fn small() -> Scene {
 #[test]
 fn content_hash_is_pinned() {
     // A change here means every cached scene is invalidated: do it on purpose only (last:
-    // `Quality::map_sizing`, per-light shadow-map sizes).
+    // `Material::transmission`, translucent casters).
     assert_eq!(
         hex::encode(small().content_hash()),
-        "6e48c3d9a1a0d49e2700ec4c3783403d3ec656696173a350c2657b58a20e20e4"
+        "5927825d37560d998a7d055c65195fd455c4e0eda40ffbd43532912e2d5a5f60"
     );
 }
 
@@ -63,6 +63,18 @@ fn content_hash_ignores_names_and_sees_everything_else() {
         |s| s.ambient = [0.1; 3],
         |s| s.quality.seed = 7,
         |s| s.meshes[0].indices.swap(0, 1),
+        |s| {
+            s.materials[0].transmission = Some(lightfold_scene::Transmission {
+                color: [0.5; 3],
+                coverage: false,
+            })
+        },
+        |s| {
+            s.materials[0].transmission = Some(lightfold_scene::Transmission {
+                color: [0.5; 3],
+                coverage: true,
+            })
+        },
     ];
     for (i, change) in changes.iter().enumerate() {
         let mut s = small();
