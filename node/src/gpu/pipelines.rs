@@ -382,10 +382,12 @@ impl Pipelines {
             target(MATERIAL_FORMAT),
             target(MATERIAL_FORMAT),
         ];
-        let eye = |module: &wgpu::ShaderModule,
-                   layout: &wgpu::PipelineLayout,
-                   fs: &str,
-                   targets: &[Option<wgpu::ColorTargetState>]| {
+        // `write`: the raster writes depth (the filters' pass only tests against it).
+        let eye_with = |module: &wgpu::ShaderModule,
+                        layout: &wgpu::PipelineLayout,
+                        fs: &str,
+                        targets: &[Option<wgpu::ColorTargetState>],
+                        write: bool| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(fs),
                 layout: Some(layout),
@@ -397,7 +399,7 @@ impl Pipelines {
                 },
                 // Sidedness is decided per material in the shader (single-sided back faces discard).
                 primitive: wgpu::PrimitiveState::default(),
-                depth_stencil: Some(depth_state(true)),
+                depth_stencil: Some(depth_state(write)),
                 multisample: Default::default(),
                 fragment: Some(wgpu::FragmentState {
                     module,
@@ -411,6 +413,12 @@ impl Pipelines {
                 multiview_mask: None,
                 cache: None,
             })
+        };
+        let eye = |module: &wgpu::ShaderModule,
+                   layout: &wgpu::PipelineLayout,
+                   fs: &str,
+                   targets: &[Option<wgpu::ColorTargetState>]| {
+            eye_with(module, layout, fs, targets, true)
         };
         let forward = |fs, targets: &[_]| eye(&forward_module, &forward_pl, fs, targets);
         let eye_illumination = forward("fs_illumination", &illum_targets);
@@ -457,36 +465,22 @@ impl Pipelines {
             filter_target.clone(),
             filter_target,
         ];
-        let eye_filter_pipeline = |module: &wgpu::ShaderModule, layout: &wgpu::PipelineLayout| {
-            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some("fs_eye_filter"),
-                layout: Some(layout),
-                vertex: wgpu::VertexState {
-                    module,
-                    entry_point: Some("vs_eye"),
-                    compilation_options: Default::default(),
-                    buffers: &[Some(vertex_layout())],
-                },
-                primitive: wgpu::PrimitiveState::default(),
-                depth_stencil: Some(depth_state(false)),
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module,
-                    entry_point: Some("fs_eye_filter"),
-                    compilation_options: wgpu::PipelineCompilationOptions {
-                        constants: &filter,
-                        ..Default::default()
-                    },
-                    targets: &filter_targets,
-                }),
-                multiview_mask: None,
-                cache: None,
-            })
-        };
         let eye_filter = filters.then(|| {
             [
-                eye_filter_pipeline(&forward_module, &forward_pl),
-                eye_filter_pipeline(&deferred_module, &gbuffer_pl),
+                eye_with(
+                    &forward_module,
+                    &forward_pl,
+                    "fs_eye_filter",
+                    &filter_targets,
+                    false,
+                ),
+                eye_with(
+                    &deferred_module,
+                    &gbuffer_pl,
+                    "fs_eye_filter",
+                    &filter_targets,
+                    false,
+                ),
             ]
         });
         let gbuffer_entry = |binding| wgpu::BindGroupLayoutEntry {

@@ -181,6 +181,45 @@ impl ShadowMaps {
     }
 }
 
+/// One render pass over a layer: `colour` cleared to the given colour (if any), `depth` loaded by
+/// `depth_load` and kept.
+fn layer_pass<'e>(
+    encoder: &'e mut wgpu::CommandEncoder,
+    label: &str,
+    colour: Option<(&wgpu::TextureView, wgpu::Color)>,
+    depth: &wgpu::TextureView,
+    depth_load: wgpu::LoadOp<f32>,
+) -> wgpu::RenderPass<'e> {
+    let colour: Vec<_> = colour
+        .map(|(view, clear)| wgpu::RenderPassColorAttachment {
+            view,
+            depth_slice: None,
+            resolve_target: None,
+            ops: wgpu::Operations {
+                load: wgpu::LoadOp::Clear(clear),
+                store: wgpu::StoreOp::Store,
+            },
+        })
+        .into_iter()
+        .map(Some)
+        .collect();
+    encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+        label: Some(label),
+        color_attachments: &colour,
+        depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+            view: depth,
+            depth_ops: Some(wgpu::Operations {
+                load: depth_load,
+                store: wgpu::StoreOp::Store,
+            }),
+            stencil_ops: None,
+        }),
+        timestamp_writes: None,
+        occlusion_query_set: None,
+        multiview_mask: None,
+    })
+}
+
 /// Records and submits one render pass per layer holding a view of `plan` that `render[view]`
 /// asks for, drawing every view of that layer into its square (the other layers are kept).
 /// `casters[λ]` lists the meshes that may cast into light λ's maps (`None`: all); translucent
@@ -294,30 +333,14 @@ pub fn render_shadow_maps(
             continue;
         };
         {
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("shadow pass"),
-                color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                    view: ids,
-                    depth_slice: None,
-                    resolve_target: None,
-                    ops: wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                        store: wgpu::StoreOp::Store,
-                    },
-                })],
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: target,
-                    depth_ops: Some(wgpu::Operations {
-                        // "Nothing in front" (0 in reversed-Z), so uncovered texels are lit.
-                        load: wgpu::LoadOp::Clear(maps.depth.clear()),
-                        store: wgpu::StoreOp::Store,
-                    }),
-                    stencil_ops: None,
-                }),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
+            // "Nothing in front" (0 in reversed-Z), so uncovered texels are lit.
+            let mut pass = layer_pass(
+                &mut encoder,
+                "shadow pass",
+                Some((ids, wgpu::Color::TRANSPARENT)),
+                target,
+                wgpu::LoadOp::Clear(maps.depth.clear()),
+            );
             passes += views_of(&mut pass, layer, &|_| true, &|pass, drawn| {
                 for masked in [false, true] {
                     pass.set_pipeline(if masked {
@@ -352,21 +375,13 @@ pub fn render_shadow_maps(
         };
         // The nearest translucent caster's depth.
         {
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("translucent depth pass"),
-                color_attachments: &[],
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: translucent_depth,
-                    depth_ops: Some(wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(maps.depth.clear()),
-                        store: wgpu::StoreOp::Store,
-                    }),
-                    stencil_ops: None,
-                }),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
+            let mut pass = layer_pass(
+                &mut encoder,
+                "translucent depth pass",
+                None,
+                translucent_depth,
+                wgpu::LoadOp::Clear(maps.depth.clear()),
+            );
             pass.set_pipeline(&cx.pipelines.shadow_translucent_depth);
             transmitted += views_of(&mut pass, layer, &has_transmit, &|pass, drawn| {
                 pass.set_pipeline(&cx.pipelines.shadow_translucent_depth);
@@ -374,29 +389,13 @@ pub fn render_shadow_maps(
             });
         }
         // Their transmittance, multiplied in behind the opaque casters' depth (tested, kept).
-        let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-            label: Some("transmittance pass"),
-            color_attachments: &[Some(wgpu::RenderPassColorAttachment {
-                view: transmit_target,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(wgpu::Color::WHITE),
-                    store: wgpu::StoreOp::Store,
-                },
-            })],
-            depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                view: target,
-                depth_ops: Some(wgpu::Operations {
-                    load: wgpu::LoadOp::Load,
-                    store: wgpu::StoreOp::Store,
-                }),
-                stencil_ops: None,
-            }),
-            timestamp_writes: None,
-            occlusion_query_set: None,
-            multiview_mask: None,
-        });
+        let mut pass = layer_pass(
+            &mut encoder,
+            "transmittance pass",
+            Some((transmit_target, wgpu::Color::WHITE)),
+            target,
+            wgpu::LoadOp::Load,
+        );
         views_of(&mut pass, layer, &has_transmit, &|pass, drawn| {
             pass.set_pipeline(&cx.pipelines.shadow_transmit);
             translucent_only(pass, drawn);
