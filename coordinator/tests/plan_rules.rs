@@ -639,4 +639,12 @@ fn transmittance_maps_only_where_a_caster_lets_light_through() {
     }
     assert!(shadows.iter().any(|sh| sh.transmittance));
     assert!(p.to_string().contains("transmittance maps"));
+    // The cost model knows they cost more: the same pane cast opaque estimates less.
+    let mut opaque = s.clone();
+    opaque.materials[glass].transmission = None;
+    let q = plan(&opaque, &local(), &opts()).unwrap();
+    let cost = |p: &lightfold_coordinator::plan::Plan| -> u64 {
+        p.nodes.iter().map(|n| n.est_cost_us).sum()
+    };
+    assert!(cost(&p) > cost(&q), "{} vs {}", cost(&p), cost(&q));
 }

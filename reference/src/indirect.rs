@@ -120,7 +120,8 @@ pub fn vpls(
             let p = w / total;
             let s = &direct[index];
             let (origin, dir, weight) = emit(tracer, s, &mut rng)?;
-            let (hit, unseen_back) = tracer.light_ray(origin, dir)?;
+            // Through glass: the light that reaches the bounce is tinted by it.
+            let (hit, unseen_back, tint) = tracer.light_ray_tinted(origin, dir)?;
             if unseen_back {
                 return None;
             }
@@ -131,8 +132,8 @@ pub fn vpls(
             };
             let albedo = tracer.diffuse(&hit);
             let scale_path = weight * f64::from(window) / (p * m as f64);
-            let flux: V3 =
-                [0, 1, 2].map(|c| (f64::from(s.color[c] * albedo[c]) * scale_path) as f32);
+            let flux: V3 = [0, 1, 2]
+                .map(|c| (f64::from(s.color[c] * albedo[c] * tint[c]) * scale_path) as f32);
             let peak = flux.iter().copied().fold(0.0f32, f32::max);
             if !(peak > 0.0 && peak.is_finite()) {
                 return None;
@@ -321,7 +322,7 @@ pub fn render_one_bounce(
 fn bounce_radiance(tracer: &Tracer<'_>, from: &SurfaceHit, d: V3, direct: &[LightSample]) -> V3 {
     let side = from.geometric_normal.map(f64::from);
     let o = [0, 1, 2].map(|k| from.position[k] + tracer.epsilon() * side[k]);
-    let Some((y, unseen_back)) = tracer.light_ray(o, d) else {
+    let Some((y, unseen_back, tint)) = tracer.light_ray_tinted(o, d) else {
         return [0.0; 3];
     };
     if unseen_back {
@@ -346,7 +347,7 @@ fn bounce_radiance(tracer: &Tracer<'_>, from: &SurfaceHit, d: V3, direct: &[Ligh
             e[k] += irr * s.color[k] * t[k];
         }
     }
-    [0, 1, 2].map(|k| albedo[k] * e[k] / PI)
+    [0, 1, 2].map(|k| albedo[k] * e[k] * tint[k] / PI)
 }
 
 #[cfg(test)]

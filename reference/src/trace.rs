@@ -122,33 +122,36 @@ impl<'a> Tracer<'a> {
         }
         let cam = &self.scene.camera;
         let dir = cam.ray_dir(x as f32 + 0.5, y as f32 + 0.5);
-        let o = cam.position.map(f64::from);
+        self.filters_along(cam.position.map(f64::from), dir, hit, true)
+    }
+
+    /// The product of the transmittance of the filters a ray from `o` along `dir` passes before
+    /// `hit` (1 without any); `eye`: single-sided back faces do not count, as eye rays skip them.
+    fn filters_along(&self, o: [f64; 3], dir: V3, hit: &SurfaceHit, eye: bool) -> V3 {
+        if !self.filters {
+            return [1.0; 3];
+        }
         let d = dir.map(f64::from);
         let to_hit = [0, 1, 2].map(|k| hit.position[k] - o[k]);
         let tmax = dot64(to_hit, d) / dot64(d, d).max(1e-30);
-        let mut t = [1.0f64; 3];
-        self.bvh.occluded(o, d, 0.0, tmax, |id, u, v| {
+        let walked = self.walk(o, d, tmax, |id, u, v| {
             let mat = self.triangle_material(id);
-            // Eye rays skip single-sided back faces (`hit_along`).
-            if !is_filter(mat) || (!mat.double_sided && dot(self.geometric_normal(id), dir) >= 0.0)
-            {
-                return false;
-            }
-            let Some(tr) = &mat.transmission else {
-                return false;
+            let Some(tr) = mat.transmission.filter(|t| !t.coverage) else {
+                return Step::Skip;
             };
+            if (eye && !mat.double_sided && dot(self.geometric_normal(id), dir) >= 0.0)
+                || self.masked_out(id, mat, u, v)
+            {
+                return Step::Skip;
+            }
             let texel = self.texel_at(id, mat, u, v);
-            if mat.alpha_mode != AlphaMode::Opaque && self.masked_out(id, mat, u, v) {
-                return false;
-            }
-            let x =
-                shading::transmittance(tr, mat.alpha * texel[3], [texel[0], texel[1], texel[2]]);
-            for k in 0..3 {
-                t[k] *= f64::from(x[k]);
-            }
-            false
+            Step::Tint(shading::transmittance(
+                &tr,
+                mat.alpha * texel[3],
+                [texel[0], texel[1], texel[2]],
+            ))
         });
-        t.map(|c| c as f32)
+        walked.map_or([0.0; 3], |t| t.map(|c| c as f32))
     }
 
     /// Closest visible surface along an eye ray; `depth_scale` converts ray distance to depth.
@@ -165,6 +168,14 @@ impl<'a> Tracer<'a> {
         self.hit_along(o, dir, 1.0, false)
     }
 
+    /// [`Tracer::light_ray`] and what the filters (glass) it passes on the way let through: the
+    /// light that reaches the hit is that product times what left `o`.
+    pub fn light_ray_tinted(&self, o: [f64; 3], dir: V3) -> Option<(SurfaceHit, bool, V3)> {
+        let (hit, back) = self.light_ray(o, dir)?;
+        let t = self.filters_along(o, dir, &hit, false);
+        Some((hit, back, t))
+    }
+
     fn hit_along(
         &self,
         o: [f64; 3],
@@ -175,9 +186,13 @@ impl<'a> Tracer<'a> {
         let d = dir.map(f64::from);
         let hit = self.bvh.closest(o, d, 0.0, f64::INFINITY, |id, u, v| {
             let mat = self.triangle_material(id);
+            // Filters (glass) are seen and lit through (`filters_along` tints the way).
+            if is_filter(mat) {
+                return false;
+            }
             if skip_single_sided_backs
-                && (is_filter(mat)
-                    || (!mat.double_sided && dot(self.geometric_normal(id), dir) >= 0.0))
+                && !mat.double_sided
+                && dot(self.geometric_normal(id), dir) >= 0.0
             {
                 return false;
             }
@@ -251,29 +266,62 @@ impl<'a> Tracer<'a> {
         let Some((o, dir, tmax)) = self.shadow_ray(hit, sample) else {
             return [1.0; 3];
         };
-        let mut t = [1.0f64; 3];
-        let blocked = self.bvh.occluded(o, dir, 0.0, tmax, |id, u, v| {
+        let walked = self.walk(o, dir, tmax, |id, u, v| {
             let mat = self.triangle_material(id);
             let Some(tr) = &mat.transmission else {
-                return !self.masked_out(id, mat, u, v);
+                return if self.masked_out(id, mat, u, v) {
+                    Step::Skip
+                } else {
+                    Step::Block
+                };
             };
             if !tr.coverage && self.masked_out(id, mat, u, v) {
-                return false;
+                return Step::Skip;
             }
             let texel = self.texel_at(id, mat, u, v);
-            let x =
-                shading::transmittance(tr, mat.alpha * texel[3], [texel[0], texel[1], texel[2]]);
-            for k in 0..3 {
-                t[k] *= f64::from(x[k]);
-            }
-            // Nothing left to let through: the rest of the way cannot matter.
-            t == [0.0; 3]
+            Step::Tint(shading::transmittance(
+                tr,
+                mat.alpha * texel[3],
+                [texel[0], texel[1], texel[2]],
+            ))
         });
-        if blocked {
-            [0.0; 3]
-        } else {
-            t.map(|c| c as f32)
+        walked.map_or([0.0; 3], |t| t.map(|c| c as f32))
+    }
+
+    /// Walks the ray from `o` along unit `d` over `(0, tmax)`, nearest hit first: `None` at the
+    /// first texel `step` blocks, else the product of the tints of those it passes. Hits within
+    /// `epsilon` of the previous one count once (the shared edge of two triangles of one surface).
+    fn walk(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        tmax: f64,
+        mut step: impl FnMut(u32, f64, f64) -> Step,
+    ) -> Option<[f64; 3]> {
+        let mut t = [1.0f64; 3];
+        let mut tmin = 0.0;
+        // Bounded: each hit moves `tmin` on by at least `epsilon`.
+        for _ in 0..MAX_LAYERS {
+            let Some(hit) = self.bvh.closest(o, d, tmin, tmax, |id, u, v| {
+                !matches!(step(id, u, v), Step::Skip)
+            }) else {
+                return Some(t);
+            };
+            match step(hit.id, hit.u, hit.v) {
+                Step::Block => return None,
+                Step::Tint(x) => {
+                    for k in 0..3 {
+                        t[k] *= f64::from(x[k]);
+                    }
+                    if t == [0.0; 3] {
+                        return None;
+                    }
+                }
+                Step::Skip => {}
+            }
+            tmin = hit.t + self.epsilon;
         }
+        Some(t)
     }
 
     /// The shadow ray of `visible` (origin, unit direction, length), `None` where there is
@@ -401,6 +449,17 @@ impl<'a> Tracer<'a> {
         sample_texture(tex, uv)
     }
 }
+
+/// What a texel does to a ray that carries a transmittance.
+enum Step {
+    /// Lets it through untouched (not a caster of this kind, a masked-out texel).
+    Skip,
+    Block,
+    Tint(V3),
+}
+
+/// Most translucent layers one ray is walked through (a bound, not a limit any scene meets).
+const MAX_LAYERS: usize = 4096;
 
 /// A filter: a translucent material without coverage (glass), which eye rays see through.
 fn is_filter(m: &Material) -> bool {

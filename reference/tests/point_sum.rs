@@ -384,3 +384,66 @@ fn translucent_casters_tint_shadows_by_the_product_of_their_transmittance() {
         }
     }
 }
+
+#[test]
+fn glass_is_seen_and_lit_through_tinted() {
+    use lightfold_reference::Tracer;
+    use lightfold_scene::Transmission;
+    let cam = camera(
+        [0.0, 5.0, 0.0],
+        [0.0, 0.0, 0.0],
+        [0.0, 0.0, -1.0],
+        40.0,
+        8,
+        8,
+    );
+    let glass = Material {
+        transmission: Some(Transmission {
+            color: [0.9, 0.1, 0.2],
+            coverage: false,
+        }),
+        ..Material::diffuse("glass", [0.3; 3])
+    };
+    let film = Material {
+        alpha: 0.5,
+        transmission: Some(Transmission {
+            color: [0.2, 0.4, 1.0],
+            coverage: true,
+        }),
+        ..Material::diffuse("film", [0.2, 0.4, 1.0])
+    };
+    let materials = vec![Material::diffuse("white", [1.0; 3]), glass, film];
+    let s = scene(
+        vec![ground(0), pane(2.0, 1)],
+        materials.clone(),
+        vec![point_light([0.0, 4.0, 0.0], 10.0)],
+        cam,
+    );
+    let t = Tracer::new(&s);
+    // A light path down through the glass reaches the ground, tinted.
+    let (hit, back, tint) = t
+        .light_ray_tinted([0.0, 3.0, 0.0], [0.0, -1.0, 0.0])
+        .unwrap();
+    assert!(!back);
+    assert!(hit.position[1].abs() < 1e-6, "{:?}", hit.position);
+    assert_eq!(tint, [0.9, 0.1, 0.2]);
+    // The eye sees the ground through it: its layers tinted, its depth the ground's.
+    let layers = render_point_sum(&s, &scene_samples(&s), [1.0; 3]);
+    for k in 0..3 {
+        assert!((layers.diffuse.rgb(4, 4)[k] - [0.9, 0.1, 0.2][k]).abs() < 1e-6);
+    }
+    assert!((layers.depth.pixel(4, 4)[0] - 5.0).abs() < 1e-4);
+    // A coverage film (glTF BLEND) is a surface to rays: the path stops on it.
+    let s = scene(
+        vec![ground(0), pane(2.0, 2)],
+        materials,
+        vec![point_light([0.0, 4.0, 0.0], 10.0)],
+        cam,
+    );
+    let t = Tracer::new(&s);
+    let (hit, _, tint) = t
+        .light_ray_tinted([0.0, 3.0, 0.0], [0.0, -1.0, 0.0])
+        .unwrap();
+    assert!((hit.position[1] - 2.0).abs() < 1e-6);
+    assert_eq!(tint, [1.0; 3]);
+}

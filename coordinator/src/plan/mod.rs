@@ -71,10 +71,23 @@ pub fn node_cost(spec: &DaemonSpec, plan: &Plan) -> (f64, f64) {
     (c.fixed_us, c.light_us)
 }
 
+/// A light with transmittance maps against the same light without, measured on one node
+/// (`docs/translucency.md`): its shadow passes and its eye-pass lookups.
+pub const TRANSMIT_SHADOW_FACTOR: f64 = 2.3;
+pub const TRANSMIT_EYE_FACTOR: f64 = 1.4;
+
 /// The cost model's weight of one light's maps: `(whole light, its shadow passes)`.
 pub fn light_weight(shadow: &ShadowPlan) -> (f64, f64) {
     let views = shadow.views.count() as f64 * shadow.map_size as f64 / 512.0;
-    (0.5 + 0.5 * views, 0.5 * views)
+    let (eye, maps) = if shadow.transmittance {
+        (
+            0.5 * TRANSMIT_EYE_FACTOR,
+            0.5 * views * TRANSMIT_SHADOW_FACTOR,
+        )
+    } else {
+        (0.5, 0.5 * views)
+    };
+    (eye + maps, maps)
 }
 
 /// Plans `scene` on `cluster` (see the module documentation and `docs/planner.md`).

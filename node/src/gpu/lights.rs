@@ -189,6 +189,10 @@ pub enum Sides<'a> {
 /// [`SHADOW_TEXEL_BYTES`] each): above it the largest maps are halved ([`atlas::fit_budget`]).
 pub const MAP_TEXEL_BUDGET: u64 = SHADOW_MEMORY_BUDGET / SHADOW_TEXEL_BYTES;
 
+/// Bytes of one texel when the frame also has transmittance maps: the depth and object ID, a
+/// translucent depth (4) and an `Rgba16Float` transmittance (8) (`shadow_pass::TranslucentMaps`).
+pub const TRANSLUCENT_TEXEL_BYTES: u64 = SHADOW_TEXEL_BYTES + 12;
+
 /// Packs `samples` and their shadow views, fitted by `fit` to `receivers` (every mesh's box),
 /// each light's views on maps of the side `sides` gives it, all packed into one texture array
 /// ([`Atlas`]) of at most `budget` texels.
@@ -199,6 +203,20 @@ pub fn plan_lights(
     c_n: V3,
     sides: Sides<'_>,
     fault: Option<Fault>,
+) -> LightPlan {
+    plan_lights_within(samples, receivers, fit, c_n, sides, fault, MAP_TEXEL_BUDGET)
+}
+
+/// [`plan_lights`] with maps of at most `budget` texels (a frame with transmittance maps spends
+/// more bytes per texel: [`TRANSLUCENT_TEXEL_BYTES`]).
+pub fn plan_lights_within(
+    samples: &[LightSample],
+    receivers: &[(V3, V3)],
+    fit: Fit<'_>,
+    c_n: V3,
+    sides: Sides<'_>,
+    fault: Option<Fault>,
+    budget: u64,
 ) -> LightPlan {
     let mut plan = LightPlan::default();
     let mut view_sides = Vec::new();
@@ -288,7 +306,7 @@ pub fn plan_lights(
         light.cascades = cascades;
         plan.lights.push(light);
     }
-    plan.maps_halved = fit_budget(&mut view_sides, MAP_TEXEL_BUDGET, 1);
+    plan.maps_halved = fit_budget(&mut view_sides, budget, 1);
     plan.atlas = Atlas::pack(&view_sides);
     for (v, slot) in plan.views.iter_mut().zip(&plan.atlas.slots) {
         v.layer = slot.layer;

@@ -8,12 +8,12 @@
 
 use super::atlas::Slot;
 use super::deferred::{DeferredTargets, render_deferred};
-use super::device::Gpu;
+use super::device::{Gpu, SHADOW_MEMORY_BUDGET, SHADOW_TEXEL_BYTES};
 use super::eye_pass::{
     EyeInputs, EyeTargets, FLAG_CONVENTIONAL_Z, FLAG_OBJECT_IDS, GpuFrame, render_eye,
 };
 use super::frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
-use super::lights::{Fault, Fit, LightPlan, Sides, plan_lights};
+use super::lights::{Fault, Fit, LightPlan, Sides, TRANSLUCENT_TEXEL_BYTES, plan_lights_within};
 use super::pipelines::{DrawContext, LightSet, Pipelines};
 use super::readback::{ReadRequest, ReadSource, Staging, read};
 use super::scene_data::SceneData;
@@ -485,10 +485,23 @@ impl Renderer {
                 fallback: opts.shadow_map_size,
             },
         };
-        let mut plan = plan_lights(frame_lights, &self.receivers, fit, c_n, sides, opts.fault);
         // Views of lights with translucent casters also get transmittance maps, and say so to
-        // the lookups (`View::rect.w`).
+        // the lookups (`View::rect.w`); the whole array then takes more bytes per texel.
         let transmit_light = self.transmit_lights(frame_lights.len(), casters);
+        let texel_bytes = if transmit_light.contains(&true) {
+            TRANSLUCENT_TEXEL_BYTES
+        } else {
+            SHADOW_TEXEL_BYTES
+        };
+        let mut plan = plan_lights_within(
+            frame_lights,
+            &self.receivers,
+            fit,
+            c_n,
+            sides,
+            opts.fault,
+            SHADOW_MEMORY_BUDGET / texel_bytes,
+        );
         let transmit: Vec<bool> = plan
             .view_light
             .iter()
