@@ -1,7 +1,7 @@
 //! A cluster frame equals `lightfold render` (issue 23): the in-process cluster with the plan's
 //! own choices (shadow-map sizes, material and illumination link formats) against the
 //! single-device render of the same samples, within 0.05 % image bias on a grey scene and on
-//! coloured ones. A negative control shows the check can fail: the plan options the cluster had
+//! coloured ones (one with glass: coloured shadows, tinted layers behind the glass). A negative control shows the check can fail: the plan options the cluster had
 //! before (material layers in 8-bit sRGB, map sizes from the mismatch factor) bias the grey
 //! scene beyond it.
 
@@ -45,6 +45,16 @@ fn grey_balls() -> Scene {
         m.ambient = [0.5; 3];
     }
     s.name = "grey balls".into();
+    s
+}
+
+/// `scenes/glass.toml` (coloured shadows, glass seen through: `docs/translucency.md`) small.
+fn glass() -> Scene {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/glass.toml");
+    let mut s = lightfold_scene::load(path).unwrap();
+    s.quality.samples_per_area_light = Some(4);
+    s.camera.width = 64;
+    s.camera.height = 48;
     s
 }
 
@@ -107,7 +117,7 @@ async fn cluster_frame_equals_render_within_bias() {
     let gpu = Gpu::new(&GpuOptions::default())
         .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
     let mut failed = Vec::new();
-    for scene in [grey_balls(), small("balls"), small("cornell")] {
+    for scene in [grey_balls(), small("balls"), small("cornell"), glass()] {
         let (bias, _) = bias_of(&cluster, &gpu, &scene, |_| {}).await;
         if bias.abs() > MAX_BIAS {
             failed.push(format!("{}: {:+.4} %", scene.name, bias * 100.0));

@@ -140,6 +140,21 @@ impl Display for Plan {
                 None => String::new(),
             }
         )?;
+        let transmitting: Vec<usize> = self
+            .nodes
+            .iter()
+            .flat_map(|n| &n.shadows)
+            .filter(|s| s.transmittance)
+            .map(|s| s.views.count())
+            .collect();
+        if !transmitting.is_empty() {
+            writeln!(
+                f,
+                "transmittance maps: {} light(s), {} view(s) — translucent casters tint their shadows (docs/translucency.md)",
+                transmitting.len(),
+                transmitting.iter().sum::<usize>()
+            )?;
+        }
         if let Some(text) = self.target_line() {
             writeln!(f, "{text}")?;
         }
