@@ -116,3 +116,29 @@ fn images_beyond_the_device_buffers_are_errors_or_fall_back() {
         assert_eq!(r.frame_variant(&gpu, 4096, 4096), EyeVariant::Deferred);
     }
 }
+
+#[test]
+fn an_opengl_adapter_is_refused_with_what_to_install() {
+    // lightfold's shadow lookups need Vulkan (or Metal, DX12): a GL adapter, where the machine
+    // has one, is refused with an error naming the driver to install, never opened to panic
+    // later on a pipeline GL cannot compile.
+    let opts = lightfold_node::gpu::GpuOptions {
+        backend: Some(wgpu::Backends::GL),
+        adapter_name: None,
+    };
+    match lightfold_node::gpu::Gpu::new(&opts) {
+        Ok(g) => panic!("a GL device opened: {}", g.info.name),
+        Err(e) => {
+            let text = e.to_string();
+            eprintln!("{text}");
+            assert!(
+                matches!(
+                    e,
+                    lightfold_node::gpu::DeviceError::GlUnsupported { .. }
+                        | lightfold_node::gpu::DeviceError::NoAdapter { .. }
+                ),
+                "{text}"
+            );
+        }
+    }
+}

@@ -57,6 +57,12 @@ pub enum DeviceError {
         requested: u64,
         maximum: u64,
     },
+    #[error(
+        "adapter {adapter} is OpenGL, which cannot run lightfold's shadow lookups (WGSL \
+         `textureLoad` on depth textures has no GLSL form): use Vulkan — install the GPU's \
+         Vulkan driver, or mesa-vulkan-drivers for lavapipe on the CPU"
+    )]
+    GlUnsupported { adapter: String },
     #[error("device request failed: {0}")]
     RequestDevice(String),
 }
@@ -191,6 +197,13 @@ impl Gpu {
             });
         };
         let info = adapter.get_info();
+        // Refused here with what to install, rather than as a pipeline the GL driver cannot
+        // compile (wgpu's handler for that panics).
+        if info.backend == wgpu::Backend::Gl {
+            return Err(DeviceError::GlUnsupported {
+                adapter: info.name.clone(),
+            });
+        }
         let features = adapter.features();
         for (f, name) in REQUIRED_FEATURES {
             if !features.contains(*f) {
