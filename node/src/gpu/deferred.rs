@@ -99,7 +99,7 @@ fn chunk_groups(cx: &DrawContext<'_>, inputs: &EyeInputs<'_>) -> Vec<wgpu::BindG
 /// Records and submits the G-buffer raster and the light dispatches of `light_pass`.
 pub fn render_deferred(
     cx: &DrawContext<'_>,
-    vertex_count: u32,
+    draws: &[std::ops::Range<u32>],
     targets: &EyeTargets,
     deferred: &DeferredTargets,
     inputs: &EyeInputs<'_>,
@@ -128,10 +128,10 @@ pub fn render_deferred(
         &groups[0],
         &colour,
         &targets.depth_buffer,
-        vertex_count,
+        draws,
     );
     if inputs.material_layers {
-        record_filters(cx, &mut encoder, 1, &groups[0], targets, vertex_count);
+        record_filters(cx, &mut encoder, 1, &groups[0], targets, draws);
     }
     let view = |t: &wgpu::Texture| t.create_view(&Default::default());
     let views = [view(&g[0]), view(&g[1]), view(&g[2])];

@@ -7,6 +7,7 @@ use super::pipelines::{DEPTH_FORMAT, DrawContext, EYE_DEPTH_FORMAT, MATERIAL_FOR
 use super::shadow_pass::ShadowMaps;
 use bytemuck::{Pod, Zeroable};
 use lightfold_scene::Camera;
+use std::ops::Range;
 use wgpu::util::DeviceExt;
 
 /// `Frame` in `eye.wgsl` (uniform layout).
@@ -225,7 +226,7 @@ pub fn record_raster(
     bind_group: &wgpu::BindGroup,
     colour: &[&wgpu::Texture],
     depth_buffer: &wgpu::Texture,
-    vertex_count: u32,
+    draws: &[Range<u32>],
 ) {
     let view = |t: &wgpu::Texture| t.create_view(&Default::default());
     let views: Vec<wgpu::TextureView> = colour.iter().map(|t| view(t)).collect();
@@ -267,15 +268,16 @@ pub fn record_raster(
     pass.set_bind_group(0, cx.scene_bind_group, &[]);
     pass.set_bind_group(1, bind_group, &[]);
     pass.set_vertex_buffer(0, cx.vertices.slice(..));
-    if vertex_count > 0 {
-        pass.draw(0..vertex_count, 0..1);
+    for r in draws.iter().filter(|r| !r.is_empty()) {
+        pass.draw(r.clone(), 0..1);
     }
 }
 
-/// Records and submits the forward eye pass over all `vertex_count` vertices.
+/// Records and submits the forward eye pass over the vertex ranges `draws` (every mesh, or a
+/// partition's: [`super::Renderer::set_eye_meshes`]).
 pub fn render_eye(
     cx: &DrawContext<'_>,
-    vertex_count: u32,
+    draws: &[Range<u32>],
     targets: &EyeTargets,
     inputs: &EyeInputs<'_>,
 ) {
@@ -301,10 +303,10 @@ pub fn render_eye(
         &bind_group,
         &colour,
         &targets.depth_buffer,
-        vertex_count,
+        draws,
     );
     if inputs.material_layers {
-        record_filters(cx, &mut encoder, 0, &bind_group, targets, vertex_count);
+        record_filters(cx, &mut encoder, 0, &bind_group, targets, draws);
     }
     cx.queue.submit([encoder.finish()]);
 }
@@ -318,7 +320,7 @@ pub fn record_filters(
     variant: usize,
     bind_group: &wgpu::BindGroup,
     targets: &EyeTargets,
-    vertex_count: u32,
+    draws: &[Range<u32>],
 ) {
     let Some(pipelines) = &cx.pipelines.eye_filter else {
         return;
@@ -359,7 +361,7 @@ pub fn record_filters(
     pass.set_bind_group(0, cx.scene_bind_group, &[]);
     pass.set_bind_group(1, bind_group, &[]);
     pass.set_vertex_buffer(0, cx.vertices.slice(..));
-    if vertex_count > 0 {
-        pass.draw(0..vertex_count, 0..1);
+    for r in draws.iter().filter(|r| !r.is_empty()) {
+        pass.draw(r.clone(), 0..1);
     }
 }

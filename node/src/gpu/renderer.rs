@@ -76,6 +76,8 @@ pub struct Renderer {
     map_sides: Option<Vec<u32>>,
     /// Readback buffers kept from frame to frame.
     staging: Staging,
+    /// The meshes the eye pass draws (`None`: every mesh): a sort-last partition.
+    eye_meshes: Option<Vec<u32>>,
 }
 
 impl Renderer {
@@ -227,6 +229,7 @@ impl Renderer {
             staging: Staging::default(),
             variant: EyeVariant::default(),
             deferred: None,
+            eye_meshes: None,
         })
     }
 
@@ -348,6 +351,14 @@ impl Renderer {
     /// [`RenderOptions::map_sizing`].
     pub fn set_map_sides(&mut self, sides: Option<Vec<u32>>) {
         self.map_sides = sides;
+    }
+
+    /// Draws only `meshes` in the eye pass (`None`: every mesh), a sort-last partition of the
+    /// scene (issue 24): pixels show the nearest surface of those meshes, lit by the frame's
+    /// lights with shadows from every caster the frame allows, and are empty (0, depth 0)
+    /// where none covers them. Shadow maps are unchanged. Indices out of range are ignored.
+    pub fn set_eye_meshes(&mut self, meshes: Option<Vec<u32>>) {
+        self.eye_meshes = meshes;
     }
 
     /// Chooses how the eye pass lights pixels (same images either way, within f32 rounding).
@@ -605,7 +616,7 @@ impl Renderer {
             sampler: &self.sampler,
             material_layers: layers.any_material(),
         };
-        let vertex_count = self.scene.vertex_count;
+        let draws = self.eye_draws();
         if variant == EyeVariant::Deferred {
             if !self
                 .deferred
@@ -620,14 +631,14 @@ impl Renderer {
             let deferred = self.deferred.as_ref().expect("allocated above");
             render_deferred(
                 &self.draw_context(gpu),
-                vertex_count,
+                &draws,
                 targets,
                 deferred,
                 &inputs,
                 &light_pass,
             );
         } else {
-            render_eye(&self.draw_context(gpu), vertex_count, targets, &inputs);
+            render_eye(&self.draw_context(gpu), &draws, targets, &inputs);
         }
         wait(gpu)?;
         stats.eye_us = t1.elapsed().as_micros() as u64;
@@ -707,6 +718,29 @@ impl Renderer {
         stats.readback_us = t2.elapsed().as_micros() as u64;
         out.stats = stats;
         Ok(out)
+    }
+
+    /// The vertex ranges the eye pass draws: every vertex, or the meshes of
+    /// [`Renderer::set_eye_meshes`] (contiguous ones merged into one draw).
+    fn eye_draws(&self) -> Vec<std::ops::Range<u32>> {
+        let Some(meshes) = &self.eye_meshes else {
+            return vec![0..self.scene.vertex_count];
+        };
+        let mut ranges: Vec<std::ops::Range<u32>> = meshes
+            .iter()
+            .filter_map(|&m| self.scene.meshes.get(m as usize))
+            .filter(|r| r.vertex_count > 0)
+            .map(|r| r.first_vertex..r.first_vertex + r.vertex_count)
+            .collect();
+        ranges.sort_by_key(|r| r.start);
+        let mut merged: Vec<std::ops::Range<u32>> = Vec::with_capacity(ranges.len());
+        for r in ranges {
+            match merged.last_mut() {
+                Some(last) if r.start <= last.end => last.end = last.end.max(r.end),
+                _ => merged.push(r),
+            }
+        }
+        merged
     }
 
     /// Per light of the frame, whether it has translucent casters (`casters[λ]`, or any mesh
