@@ -92,6 +92,13 @@ pub struct Args {
     /// `--penumbra-filter R` does at its last stage.
     #[arg(long, default_value_t = 0, value_parser = clap::value_parser!(u32).range(0..=8))]
     pub penumbra_filter: u32,
+    /// Sort-last partitions on this one device (issue 24; the GPU render only): the meshes are
+    /// split into P spatially coherent parts balanced by triangles (`scene::partition`), each
+    /// part's eye pass is drawn alone (shadows still from every caster) and each pixel takes the
+    /// part with the nearest surface. The image equals the unpartitioned one; `--timings` shows
+    /// what the P eye passes cost.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=64))]
+    pub partitions: u32,
     #[command(flatten)]
     pub indirect: crate::indirect_args::IndirectArgs,
 }
@@ -102,6 +109,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     if args.reference && args.penumbra_filter > 0 {
         bail!("--penumbra-filter filters a GPU render's point-sampled penumbra: drop --reference");
+    }
+    if args.partitions > 1 && (args.reference || args.penumbra_filter > 0) {
+        bail!(
+            "--partitions splits a GPU render's eye pass: drop --reference and --penumbra-filter \
+             (the filter reads neighbours across the parts' seams)"
+        );
     }
     let mut scene = lightfold_scene::load(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;

@@ -27,6 +27,21 @@ struct FrameTimes {
     passes_per_light: Vec<u32>,
 }
 
+impl FrameTimes {
+    /// Adds another pass over the same lights (a partition's): its phases and batches; the views
+    /// per light are the same, kept once.
+    fn add(&mut self, other: &FrameTimes) {
+        self.shadow_passes += other.shadow_passes;
+        self.shadow_us += other.shadow_us;
+        self.eye_us += other.eye_us;
+        self.readback_us += other.readback_us;
+        self.batches.extend_from_slice(&other.batches);
+        if self.passes_per_light.is_empty() {
+            self.passes_per_light = other.passes_per_light.clone();
+        }
+    }
+}
+
 /// Median of each column.
 fn medians(rows: &[[u64; 3]]) -> [u64; 3] {
     std::array::from_fn(|c| {
@@ -47,7 +62,10 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
         backend,
         adapter_name: args.adapter.clone(),
     })
-    .context("no usable GPU (try --backend gl, or --reference for the CPU)")?;
+    .context(
+        "no usable GPU (install a Vulkan driver: mesa-vulkan-drivers gives lavapipe on the CPU; \
+         or render with --reference on the CPU)",
+    )?;
     // `--shadow-map-size` is in the scene's quality already (checked against the limits); the
     // size comes from the rule the cluster's planner applies, so both render the same maps.
     let mut opts = RenderOptions::from_quality(&scene.quality);
@@ -90,16 +108,30 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
     let mut steady: Vec<[u64; 3]> = Vec::new();
     let mut steady_frames = 0;
     let mut views_per_light = Vec::new();
+    let parts = (args.partitions > 1)
+        .then(|| lightfold_scene::partition::partition_meshes(scene, args.partitions as usize));
+    if let (Some(parts), true) = (&parts, args.timings) {
+        for (i, p) in parts.iter().enumerate() {
+            let tris: usize = p
+                .iter()
+                .map(|&m| scene.meshes[m as usize].triangle_count())
+                .sum();
+            outln!("partition {i}: {} meshes, {tris} triangles", p.len());
+        }
+    }
     for f in 0..frames {
-        let (radiance, times) = render_frame(
-            &gpu,
-            &mut renderer,
-            scene,
-            samples,
-            k,
-            None,
-            args.penumbra_filter,
-        )?;
+        let (radiance, times) = match &parts {
+            None => render_frame(
+                &gpu,
+                &mut renderer,
+                scene,
+                samples,
+                k,
+                None,
+                args.penumbra_filter,
+            )?,
+            Some(parts) => render_partitioned(&gpu, &mut renderer, scene, samples, k, parts)?,
+        };
         if args.timings {
             outln!(
                 "{f:>5}  {:>13}  {:>9.1}  {:>6.1}  {:>11.1}  {:>8.1}",
@@ -181,6 +213,44 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
         samples.len()
     );
     Ok(())
+}
+
+/// One image over sort-last partitions: each part's image alone ([`Renderer::set_eye_meshes`]),
+/// then per pixel the part whose surface is nearest (eye depth > 0; ties to the lower part, as
+/// the compositor's `depth` operator breaks them). Times add up over the parts.
+fn render_partitioned(
+    gpu: &Gpu,
+    renderer: &mut Renderer,
+    scene: &Scene,
+    samples: &[LightSample],
+    k: usize,
+    parts: &[Vec<u32>],
+) -> anyhow::Result<((Image, Image), FrameTimes)> {
+    let t = Instant::now();
+    let mut best: Option<(Image, Image)> = None;
+    let mut times = FrameTimes::default();
+    for part in parts {
+        renderer.set_eye_meshes(Some(part.clone()));
+        let ((radiance, depth), part_times) =
+            render_frame(gpu, renderer, scene, samples, k, None, 0)?;
+        times.add(&part_times);
+        best = Some(match best {
+            None => (radiance, depth),
+            Some((mut r, mut d)) => {
+                let c = r.channels;
+                for (i, &z) in depth.data.iter().enumerate() {
+                    if z > 0.0 && (d.data[i] == 0.0 || z < d.data[i]) {
+                        d.data[i] = z;
+                        r.data[i * c..i * c + c].copy_from_slice(&radiance.data[i * c..i * c + c]);
+                    }
+                }
+                (r, d)
+            }
+        });
+    }
+    renderer.set_eye_meshes(None);
+    times.total_us = t.elapsed().as_micros() as u64;
+    Ok((best.context("no partition rendered")?, times))
 }
 
 /// One image: every batch of `k` samples, summed, composed with the material layers. Returns the

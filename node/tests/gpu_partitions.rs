@@ -62,7 +62,7 @@ fn composed(frames: &[NodeFrame], pick: &[Option<usize>]) -> Vec<Vec<u32>> {
     (0..6)
         .map(|l| {
             let imgs: Vec<Image> = frames.iter().map(|f| layer(f, l)).collect();
-            let c = imgs[0].channels as usize;
+            let c = imgs[0].channels;
             let mut bits = Vec::with_capacity((W * H) as usize * c);
             for (i, p) in pick.iter().enumerate() {
                 for k in 0..c {

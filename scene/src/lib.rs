@@ -18,6 +18,7 @@ pub mod image;
 mod input;
 pub mod limits;
 pub mod model;
+pub mod partition;
 pub mod primitives;
 pub mod sampling;
 mod sampling_shapes;

@@ -131,7 +131,14 @@ pub fn render_deferred(
         draws,
     );
     if inputs.material_layers {
-        record_filters(cx, &mut encoder, 1, &groups[0], targets, draws);
+        record_filters(
+            cx,
+            &mut encoder,
+            1,
+            &groups[0],
+            targets,
+            inputs.vertex_count,
+        );
     }
     let view = |t: &wgpu::Texture| t.create_view(&Default::default());
     let views = [view(&g[0]), view(&g[1]), view(&g[2])];

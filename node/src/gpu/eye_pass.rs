@@ -126,6 +126,9 @@ pub struct EyeInputs<'a> {
     pub maps: &'a ShadowMaps,
     pub sampler: &'a wgpu::Sampler,
     pub material_layers: bool,
+    /// Every vertex of the scene: the filters' pass draws every filter in front of this pass's
+    /// surfaces, whichever partition they belong to, so sort-last parts tint alike.
+    pub vertex_count: u32,
 }
 
 /// The forward pass's uniform, light and view buffers bound as group 1 (storage buffers).
@@ -306,13 +309,21 @@ pub fn render_eye(
         draws,
     );
     if inputs.material_layers {
-        record_filters(cx, &mut encoder, 0, &bind_group, targets, draws);
+        record_filters(
+            cx,
+            &mut encoder,
+            0,
+            &bind_group,
+            targets,
+            inputs.vertex_count,
+        );
     }
     cx.queue.submit([encoder.finish()]);
 }
 
 /// Records the filters' pass over the material layers (`fs_eye_filter`: each filter in front of
-/// the visible surface multiplies its transmittance in), when the scene has filters. `variant`
+/// the visible surface multiplies its transmittance in), when the scene has filters: over every
+/// vertex, so every filter in front counts whichever sort-last part drew the surface. `variant`
 /// 0 is the forward pass's group layout, 1 the deferred raster's.
 pub fn record_filters(
     cx: &DrawContext<'_>,
@@ -320,7 +331,7 @@ pub fn record_filters(
     variant: usize,
     bind_group: &wgpu::BindGroup,
     targets: &EyeTargets,
-    draws: &[Range<u32>],
+    vertex_count: u32,
 ) {
     let Some(pipelines) = &cx.pipelines.eye_filter else {
         return;
@@ -361,7 +372,7 @@ pub fn record_filters(
     pass.set_bind_group(0, cx.scene_bind_group, &[]);
     pass.set_bind_group(1, bind_group, &[]);
     pass.set_vertex_buffer(0, cx.vertices.slice(..));
-    for r in draws.iter().filter(|r| !r.is_empty()) {
-        pass.draw(r.clone(), 0..1);
+    if vertex_count > 0 {
+        pass.draw(0..vertex_count, 0..1);
     }
 }

@@ -356,7 +356,8 @@ impl Renderer {
     /// Draws only `meshes` in the eye pass (`None`: every mesh), a sort-last partition of the
     /// scene (issue 24): pixels show the nearest surface of those meshes, lit by the frame's
     /// lights with shadows from every caster the frame allows, and are empty (0, depth 0)
-    /// where none covers them. Shadow maps are unchanged. Indices out of range are ignored.
+    /// where none covers them; glass of every part in front of them tints their material
+    /// layers. Shadow maps are unchanged. Indices out of range are ignored.
     pub fn set_eye_meshes(&mut self, meshes: Option<Vec<u32>>) {
         self.eye_meshes = meshes;
     }
@@ -615,6 +616,7 @@ impl Renderer {
             maps,
             sampler: &self.sampler,
             material_layers: layers.any_material(),
+            vertex_count: self.scene.vertex_count,
         };
         let draws = self.eye_draws();
         if variant == EyeVariant::Deferred {
@@ -724,7 +726,7 @@ impl Renderer {
     /// [`Renderer::set_eye_meshes`] (contiguous ones merged into one draw).
     fn eye_draws(&self) -> Vec<std::ops::Range<u32>> {
         let Some(meshes) = &self.eye_meshes else {
-            return vec![0..self.scene.vertex_count];
+            return std::iter::once(0..self.scene.vertex_count).collect();
         };
         let mut ranges: Vec<std::ops::Range<u32>> = meshes
             .iter()
