@@ -233,9 +233,9 @@ fn sizes() -> [usize; 6] {
 #[test]
 fn illumination_matches_general_path() {
     let mut seed = 0;
-    for reversed in [false, true] {
+    for (reversed, zero) in [(false, false), (true, false), (false, true)] {
         for n in [2usize, 3] {
-            let op = depth_op(json!({"inputs": n, "reversed_z": reversed}));
+            let op = depth_op(json!({"inputs": n, "reversed_z": reversed, "zero_is_empty": zero}));
             for colour in [F16x6, F32x6] {
                 for px in sizes() {
                     seed += 1;
@@ -244,7 +244,7 @@ fn illumination_matches_general_path() {
                         .map(|_| vec![band(Ill, colour, px, &mut r), band(Z, DepthF32, px, &mut r)])
                         .collect();
                     let outs = [(Z, DepthF32), (Ill, colour)];
-                    let what = format!("{n} inputs {colour:?} reversed={reversed}");
+                    let what = format!("{n} inputs {colour:?} reversed={reversed} zero={zero}");
                     compare(&op, &inputs, &outs, px, &what);
                 }
             }
@@ -255,10 +255,9 @@ fn illumination_matches_general_path() {
 #[test]
 fn several_layers_in_any_order_match_general_path() {
     let mut seed = 1000;
-    for reversed in [false, true] {
-        let op = depth_op(
-            json!({"inputs": 3, "layers": ["illumination", "diffuse"], "reversed_z": reversed}),
-        );
+    for (reversed, zero) in [(false, false), (true, false), (false, true)] {
+        let op = depth_op(json!({"inputs": 3, "layers": ["illumination", "diffuse"],
+            "reversed_z": reversed, "zero_is_empty": zero}));
         for (ill, dif) in [(F16x6, F16x4), (F32x6, F32x3), (F16x6, F32x3)] {
             for px in [7, 513, 2 * PAR_SPAN + 77] {
                 seed += 1;

@@ -126,13 +126,14 @@ fn depth_every_isa_matches_reference() {
         f32::NEG_INFINITY,
     ];
     for inputs in 1..=5usize {
-        for reversed in [false, true] {
+        for (reversed, zero_is_empty) in [(false, false), (true, false), (false, true)] {
             let layers = if inputs % 2 == 0 {
                 vec!["illumination", "diffuse"]
             } else {
                 vec!["radiance", "illumination", "specular"]
             };
-            let params = json!({"inputs": inputs, "layers": layers, "reversed_z": reversed});
+            let params = json!({"inputs": inputs, "layers": layers, "reversed_z": reversed,
+                "zero_is_empty": zero_is_empty});
             let op = Depth::new(&params).unwrap();
             for (n, pixels) in widths().into_iter().enumerate() {
                 let mut all = inputs_for(&op, pixels, 500 + n as u64);

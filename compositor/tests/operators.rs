@@ -260,6 +260,53 @@ fn depth_nearest_and_ties() {
 }
 
 #[test]
+fn depth_with_zero_empty_reads_a_node_eye_depth() {
+    // Render nodes write eye depth with 0 where no surface covers the pixel (a sort-last part's
+    // background): under `zero_is_empty` that never wins, and a pixel no input covers leaves 0.
+    let op = ops::create("depth", &json!({"inputs": 2, "zero_is_empty": true})).unwrap();
+    // Pixel 0: 0 (empty), 4 → input 1; pixel 1: 2, 0 → input 0; pixel 2: both empty → input 0,
+    // depth 0; pixel 3: 3, 3 → input 0 (tie).
+    let z = [[0.0, 2.0, 0.0, 3.0], [4.0, 0.0, 0.0, 3.0]];
+    let inputs: Vec<Owned> = (0..2)
+        .map(|i| {
+            let ill: Vec<f32> = (0..24).map(|k| (i * 100 + k) as f32).collect();
+            band(&[(Layer::Depth, &z[i]), (Layer::Illumination, &ill)])
+        })
+        .collect();
+    let mut ill: Vec<f32> = (0..6).map(|k| (100 + k) as f32).collect();
+    ill.extend((6..24).map(|k| k as f32));
+    check(
+        &*op,
+        &inputs,
+        &[
+            (Layer::Depth, &[4.0, 2.0, 0.0, 3.0]),
+            (Layer::Illumination, &ill),
+        ],
+    );
+    // The control: read linearly, an empty 0 is the nearest and wins pixels 0 and 1.
+    let linear = ops::create("depth", &json!({"inputs": 2})).unwrap();
+    let out: Vec<f32> = (0..24)
+        .map(|k| if (6..12).contains(&k) { 100 + k } else { k } as f32)
+        .collect();
+    check(
+        &*linear,
+        &inputs,
+        &[
+            (Layer::Depth, &[0.0, 0.0, 0.0, 3.0]),
+            (Layer::Illumination, &out),
+        ],
+    );
+    // It reads linear depth only.
+    assert!(
+        ops::create(
+            "depth",
+            &json!({"inputs": 2, "zero_is_empty": true, "reversed_z": true})
+        )
+        .is_err()
+    );
+}
+
+#[test]
 fn join_sums_in_order() {
     let op = ops::create("join", &json!({"inputs": 3, "layer": "radiance"})).unwrap();
     let inputs = [

@@ -4,8 +4,11 @@
 //!
 //! Depth is linear eye distance by default (smaller is nearer; NaN reads as +Inf, no surface), or
 //! reversed-Z with `reversed_z` (larger is nearer; NaN, negative and −Inf read as 0, the far
-//! plane). Ties, including two empty pixels, go to the lower input index. The winning depth is
-//! emitted as read; carried colour layers follow the shared colour policy.
+//! plane), or linear with `zero_is_empty`, as render nodes write eye depth (0 where no surface
+//! covers the pixel: 0, negative, NaN and +Inf read as +Inf, and an empty winner is emitted as 0,
+//! so a sort-last partition's background never wins). Ties, including two empty pixels, go to
+//! the lower input index. The winning depth is emitted as read (but for `zero_is_empty`'s empty
+//! pixels); carried colour layers follow the shared colour policy.
 //!
 //! The fast path works per block of pixels: one pass over the depths finds each pixel's nearest
 //! input, the winner is repeated per value of a 3- or 6-channel layer, and every carried layer is
@@ -46,6 +49,9 @@ struct Params {
     layers: Vec<Layer>,
     #[serde(default)]
     reversed_z: bool,
+    /// Linear depth where 0 marks an empty pixel (a node's eye depth; see the module docs).
+    #[serde(default)]
+    zero_is_empty: bool,
 }
 
 /// The depth operator (see the module documentation).
@@ -69,15 +75,39 @@ impl Depth {
                 return Err(bad(format!("layers lists {l:?} twice or carries depth")));
             }
         }
+        if p.reversed_z && p.zero_is_empty {
+            return Err(bad(
+                "zero_is_empty reads linear depth: it excludes reversed_z".into(),
+            ));
+        }
         Ok(Depth { params: p })
+    }
+
+    /// The depth reading as the kernels' mode: [`LINEAR`], [`REVERSED`] or [`ZERO_EMPTY`].
+    fn mode(&self) -> u8 {
+        match (self.params.reversed_z, self.params.zero_is_empty) {
+            (true, _) => REVERSED,
+            (false, true) => ZERO_EMPTY,
+            (false, false) => LINEAR,
+        }
     }
 
     /// The reference reading of a depth value (see the module documentation).
     fn read_ref(&self, z: f32) -> f32 {
         if self.params.reversed_z {
             if z.is_nan() || z <= 0.0 { 0.0 } else { z }
-        } else if z.is_nan() {
+        } else if z.is_nan() || (self.params.zero_is_empty && !(z > 0.0 && z < f32::INFINITY)) {
             f32::INFINITY
+        } else {
+            z
+        }
+    }
+
+    /// The depth emitted for a winner read as `z`: as read, but an empty `zero_is_empty` pixel
+    /// is 0 again.
+    fn emit_ref(&self, z: f32) -> f32 {
+        if self.params.zero_is_empty && z == f32::INFINITY {
+            0.0
         } else {
             z
         }
@@ -123,7 +153,7 @@ impl Operator for Depth {
                 }
                 let (w, z) = best.expect("at least one input");
                 winners[px] = w;
-                zout[px] = z;
+                zout[px] = self.emit_ref(z);
             }
         }
         for &layer in &self.params.layers {
@@ -183,7 +213,7 @@ impl Depth {
                 (l.channels(), srcs)
             })
             .collect();
-        let reversed = self.params.reversed_z;
+        let mode = self.mode();
         let pixels = out.pixels;
         let mut slots: Vec<Option<(Layer, &mut [f32])>> = out
             .layers
@@ -207,10 +237,10 @@ impl Depth {
                 first,
                 outs,
             };
-            if reversed {
-                dispatch::run(isa, Select::<true>(span));
-            } else {
-                dispatch::run(isa, Select::<false>(span));
+            match mode {
+                REVERSED => dispatch::run(isa, Select::<REVERSED>(span)),
+                ZERO_EMPTY => dispatch::run(isa, Select::<ZERO_EMPTY>(span)),
+                _ => dispatch::run(isa, Select::<LINEAR>(span)),
             }
         });
         Ok(())
@@ -226,22 +256,53 @@ struct Span<'s, 'a, 'o> {
     outs: &'s mut [&'o mut [f32]],
 }
 
-/// The block loop of `apply`, with the depth reading fixed (`REVERSED`) so no loop tests it.
-struct Select<'s, 'a, 'o, const REVERSED: bool>(Span<'s, 'a, 'o>);
+/// Depth readings, as the kernels' `MODE`: linear, reversed-Z, linear with 0 empty.
+pub(super) const LINEAR: u8 = 0;
+pub(super) const REVERSED: u8 = 1;
+pub(super) const ZERO_EMPTY: u8 = 2;
+
+/// The block loop of `apply`, with the depth reading fixed (`MODE`) so no loop tests it.
+struct Select<'s, 'a, 'o, const MODE: u8>(Span<'s, 'a, 'o>);
 
 /// The fast reading of a depth value: `Depth::read_ref` as selects (NaN fails every comparison).
 #[inline(always)]
-fn read<const REVERSED: bool>(z: f32) -> f32 {
-    if REVERSED {
-        if z > 0.0 { z } else { 0.0 }
-    } else if !z.is_nan() {
-        z
-    } else {
-        f32::INFINITY
+fn read<const MODE: u8>(z: f32) -> f32 {
+    match MODE {
+        REVERSED => {
+            if z > 0.0 {
+                z
+            } else {
+                0.0
+            }
+        }
+        ZERO_EMPTY => {
+            if z > 0.0 && z < f32::INFINITY {
+                z
+            } else {
+                f32::INFINITY
+            }
+        }
+        _ => {
+            if !z.is_nan() {
+                z
+            } else {
+                f32::INFINITY
+            }
+        }
     }
 }
 
-impl<const REVERSED: bool> Kernel for Select<'_, '_, '_, REVERSED> {
+/// `Depth::emit_ref` over a block of read depths.
+#[inline(always)]
+pub(super) fn emit<const MODE: u8>(zo: &mut [f32]) {
+    if MODE == ZERO_EMPTY {
+        for z in zo {
+            *z = if *z == f32::INFINITY { 0.0 } else { *z };
+        }
+    }
+}
+
+impl<const MODE: u8> Kernel for Select<'_, '_, '_, MODE> {
     type Output = ();
 
     #[inline(always)]
@@ -266,7 +327,8 @@ impl<const REVERSED: bool> Kernel for Select<'_, '_, '_, REVERSED> {
             let lo = first + b * BLOCK;
             let n = zo.len();
             let win = &mut win[..n];
-            nearest::<REVERSED>(zo, win, zs, lo);
+            nearest::<MODE>(zo, win, zs, lo);
+            emit::<MODE>(zo);
             if need3 {
                 widen::<3>(win, &mut win3[..n * 3]);
             }
@@ -289,17 +351,17 @@ impl<const REVERSED: bool> Kernel for Select<'_, '_, '_, REVERSED> {
 /// The nearest input of each pixel of a block (pixels `lo..`) into `win`, its depth as read into
 /// `zo`. Ties keep the lower input (strict comparison in input order).
 #[inline(always)]
-fn nearest<const REVERSED: bool>(zo: &mut [f32], win: &mut [u32], zs: &[&[f32]], lo: usize) {
+fn nearest<const MODE: u8>(zo: &mut [f32], win: &mut [u32], zs: &[&[f32]], lo: usize) {
     let n = zo.len();
     for (o, z) in zo.iter_mut().zip(&zs[0][lo..lo + n]) {
-        *o = read::<REVERSED>(*z);
+        *o = read::<MODE>(*z);
     }
     win.fill(0);
     for (i, z) in zs.iter().enumerate().skip(1) {
         let i = i as u32;
         for ((o, w), z) in zo.iter_mut().zip(win.iter_mut()).zip(&z[lo..lo + n]) {
-            let z = read::<REVERSED>(*z);
-            let nearer = if REVERSED { z > *o } else { z < *o };
+            let z = read::<MODE>(*z);
+            let nearer = if MODE == REVERSED { z > *o } else { z < *o };
             *o = if nearer { z } else { *o };
             *w = if nearer { i } else { *w };
         }

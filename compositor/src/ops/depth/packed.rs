@@ -11,7 +11,7 @@
 //! words, and the checksum and zero test are folded in while the block is in L1
 //! (`ops::packed_out`). The block loop is a dispatched kernel (`ops::dispatch`).
 
-use super::{Depth, NAME, bad};
+use super::{Depth, LINEAR, NAME, REVERSED, ZERO_EMPTY, bad, emit};
 use crate::ops::dispatch::{self, Isa, Kernel};
 use crate::ops::packed_out::{SpanOut, add_packed, check_outs, for_packed_spans};
 use crate::ops::{BLOCK, OpError, PackSummary, PackedOut};
@@ -202,17 +202,17 @@ impl Depth {
                 })
                 .collect(),
         };
-        let reversed = self.params.reversed_z;
+        let mode = self.mode();
         for_packed_spans(pixels, outs, |first, outs| {
             let span = Span {
                 band: &band,
                 first,
                 outs,
             };
-            if reversed {
-                dispatch::run(isa, Select::<true>(span));
-            } else {
-                dispatch::run(isa, Select::<false>(span));
+            match mode {
+                REVERSED => dispatch::run(isa, Select::<REVERSED>(span)),
+                ZERO_EMPTY => dispatch::run(isa, Select::<ZERO_EMPTY>(span)),
+                _ => dispatch::run(isa, Select::<LINEAR>(span)),
             }
             Ok(())
         })
@@ -240,8 +240,8 @@ struct Span<'s, 'a, 'o> {
     outs: &'s mut [SpanOut<'o>],
 }
 
-/// The block loop of `apply_packed`, with the depth reading fixed (`REVERSED`).
-struct Select<'s, 'a, 'o, const REVERSED: bool>(Span<'s, 'a, 'o>);
+/// The block loop of `apply_packed`, with the depth reading fixed (`MODE`).
+struct Select<'s, 'a, 'o, const MODE: u8>(Span<'s, 'a, 'o>);
 
 /// Zero bytes standing in for an empty band: the largest block of words a source can give.
 static ZEROS: [u8; BLOCK * 24] = [0; BLOCK * 24];
@@ -325,7 +325,7 @@ fn words_of(format: PixelFormat) -> usize {
     }
 }
 
-impl<const REVERSED: bool> Kernel for Select<'_, '_, '_, REVERSED> {
+impl<const MODE: u8> Kernel for Select<'_, '_, '_, MODE> {
     type Output = ();
 
     #[inline(always)]
@@ -342,7 +342,8 @@ impl<const REVERSED: bool> Kernel for Select<'_, '_, '_, REVERSED> {
         for start in (0..pixels).step_by(BLOCK) {
             let (n, lo) = (BLOCK.min(pixels - start), first + start);
             let win = &mut win[..n];
-            nearest::<REVERSED>(&mut zo[..n], win, &band.depth, lo);
+            nearest::<MODE>(&mut zo[..n], win, &band.depth, lo);
+            emit::<MODE>(&mut zo[..n]);
             // Words per pixel the wide winners hold for this block (0: not yet).
             let (mut held16, mut held32) = (0, 0);
             for (role, out) in band.outs.iter().zip(outs.iter_mut()) {
@@ -399,39 +400,47 @@ fn widen_as<W: Word>(words: usize, win: &[u32], wide: &mut [W]) {
 }
 
 /// The reading of a `depth32` word as unpack (NaN → 0, ±Inf → ±`f32::MAX`) and then
-/// `Depth::read_ref` (reversed-Z: not positive → 0) leave it, as selects.
+/// `Depth::read_ref` (reversed-Z: not positive → 0; zero-empty: not positive → +Inf) leave it,
+/// as selects.
 #[inline(always)]
-fn key<const REVERSED: bool>(b: [u8; 4]) -> f32 {
+fn key<const MODE: u8>(b: [u8; 4]) -> f32 {
     let v = f32::from_le_bytes(b);
-    let x = if REVERSED {
-        if v > 0.0 { v } else { 0.0 }
-    } else {
-        let x = if v.is_nan() { 0.0 } else { v };
-        if x > -f32::MAX { x } else { -f32::MAX }
+    let x = match MODE {
+        REVERSED => {
+            if v > 0.0 {
+                v
+            } else {
+                0.0
+            }
+        }
+        _ => {
+            let x = if v.is_nan() { 0.0 } else { v };
+            if x > -f32::MAX { x } else { -f32::MAX }
+        }
     };
-    if x < f32::MAX { x } else { f32::MAX }
+    let x = if x < f32::MAX { x } else { f32::MAX };
+    if MODE == ZERO_EMPTY && x <= 0.0 {
+        f32::INFINITY
+    } else {
+        x
+    }
 }
 
 /// The nearest input of each pixel of a block (pixels `lo..`) into `win`, its depth as read into
 /// `zo`. Ties keep the lower input (strict comparison in input order), as `apply`.
 #[inline(always)]
-fn nearest<const REVERSED: bool>(
-    zo: &mut [f32],
-    win: &mut [u32],
-    depth: &[Option<&[u8]>],
-    lo: usize,
-) {
+fn nearest<const MODE: u8>(zo: &mut [f32], win: &mut [u32], depth: &[Option<&[u8]>], lo: usize) {
     let n = zo.len();
     for (o, z) in zo.iter_mut().zip(part::<u32>(depth[0], lo, n)) {
-        *o = key::<REVERSED>(*z);
+        *o = key::<MODE>(*z);
     }
     win.fill(0);
     for (i, d) in depth.iter().enumerate().skip(1) {
         let i = i as u32;
         let zs = part::<u32>(*d, lo, n);
         for ((o, w), z) in zo.iter_mut().zip(win.iter_mut()).zip(zs) {
-            let z = key::<REVERSED>(*z);
-            let nearer = if REVERSED { z > *o } else { z < *o };
+            let z = key::<MODE>(*z);
+            let nearer = if MODE == REVERSED { z > *o } else { z < *o };
             *o = if nearer { z } else { *o };
             *w = if nearer { i } else { *w };
         }
