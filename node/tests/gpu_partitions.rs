@@ -84,17 +84,22 @@ fn whole(f: &NodeFrame) -> Vec<Vec<u32>> {
     composed(std::slice::from_ref(f), &pick)
 }
 
+/// Two parts of alternate meshes.
+fn interleaved(scene: &Scene) -> Vec<Vec<u32>> {
+    let n = scene.meshes.len() as u32;
+    vec![
+        (0..n).filter(|m| m % 2 == 0).collect(),
+        (0..n).filter(|m| m % 2 == 1).collect(),
+    ]
+}
+
 #[test]
 fn partitions_depth_selected_equal_the_whole_scene_bit_for_bit() {
     let gpu = gpu();
     let scene = shadow_scene(W, H);
     let samples = samples(&scene);
-    let n = scene.meshes.len() as u32;
     // Two interleaved partitions: every caster of the other partition shadows this one.
-    let parts: Vec<Vec<u32>> = vec![
-        (0..n).filter(|m| m % 2 == 0).collect(),
-        (0..n).filter(|m| m % 2 == 1).collect(),
-    ];
+    let parts = interleaved(&scene);
     for variant in [EyeVariant::Forward, EyeVariant::Deferred] {
         let all = frame(&gpu, &scene, &samples, variant, None, None);
         let frames: Vec<NodeFrame> = parts
@@ -122,11 +127,7 @@ fn negative_control_own_casters_only_differ() {
     let gpu = gpu();
     let scene = shadow_scene(W, H);
     let samples = samples(&scene);
-    let n = scene.meshes.len() as u32;
-    let parts: Vec<Vec<u32>> = vec![
-        (0..n).filter(|m| m % 2 == 0).collect(),
-        (0..n).filter(|m| m % 2 == 1).collect(),
-    ];
+    let parts = interleaved(&scene);
     let all = frame(&gpu, &scene, &samples, EyeVariant::Deferred, None, None);
     let frames: Vec<NodeFrame> = parts
         .iter()

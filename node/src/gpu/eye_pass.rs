@@ -220,6 +220,27 @@ pub fn light_group(
     })
 }
 
+/// Colour attachments over `views`, each loaded by `load` and stored.
+fn attachments(
+    views: &[wgpu::TextureView],
+    load: wgpu::LoadOp<wgpu::Color>,
+) -> Vec<Option<wgpu::RenderPassColorAttachment<'_>>> {
+    views
+        .iter()
+        .map(|v| {
+            Some(wgpu::RenderPassColorAttachment {
+                view: v,
+                depth_slice: None,
+                resolve_target: None,
+                ops: wgpu::Operations {
+                    load,
+                    store: wgpu::StoreOp::Store,
+                },
+            })
+        })
+        .collect()
+}
+
 /// Records one raster of the scene from the camera into `colour` (cleared to zero) with a
 /// reversed-Z depth buffer (kept for the filters' pass, [`record_filters`], where there is one).
 pub fn record_raster(
@@ -233,20 +254,7 @@ pub fn record_raster(
 ) {
     let view = |t: &wgpu::Texture| t.create_view(&Default::default());
     let views: Vec<wgpu::TextureView> = colour.iter().map(|t| view(t)).collect();
-    let attachments: Vec<Option<wgpu::RenderPassColorAttachment<'_>>> = views
-        .iter()
-        .map(|v| {
-            Some(wgpu::RenderPassColorAttachment {
-                view: v,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT),
-                    store: wgpu::StoreOp::Store,
-                },
-            })
-        })
-        .collect();
+    let attachments = attachments(&views, wgpu::LoadOp::Clear(wgpu::Color::TRANSPARENT));
     let depth_view = view(depth_buffer);
     let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
         label: Some("eye raster"),
@@ -338,20 +346,7 @@ pub fn record_filters(
     };
     let view = |t: &wgpu::Texture| t.create_view(&Default::default());
     let views: Vec<wgpu::TextureView> = targets.materials.iter().map(view).collect();
-    let attachments: Vec<Option<wgpu::RenderPassColorAttachment<'_>>> = views
-        .iter()
-        .map(|v| {
-            Some(wgpu::RenderPassColorAttachment {
-                view: v,
-                depth_slice: None,
-                resolve_target: None,
-                ops: wgpu::Operations {
-                    load: wgpu::LoadOp::Load,
-                    store: wgpu::StoreOp::Store,
-                },
-            })
-        })
-        .collect();
+    let attachments = attachments(&views, wgpu::LoadOp::Load);
     let depth_view = view(&targets.depth_buffer);
     let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
         label: Some("eye filters"),
