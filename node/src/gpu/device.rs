@@ -264,12 +264,8 @@ impl Gpu {
         what: &'static str,
         make: impl FnOnce(&wgpu::Device) -> T,
     ) -> Result<T, super::frame::RenderError> {
-        let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let made = make(&self.device);
-        let invalid = pollster::block_on(validation.pop());
-        let out_of_memory = pollster::block_on(oom.pop());
-        match invalid.or(out_of_memory) {
+        let (made, error) = captured(&self.device, || make(&self.device));
+        match error {
             Some(e) => Err(super::frame::RenderError::Allocation {
                 what,
                 message: e.to_string(),
@@ -282,6 +278,21 @@ impl Gpu {
     pub fn is_gl(&self) -> bool {
         self.info.backend == wgpu::Backend::Gl
     }
+}
+
+/// Runs `make` with every kind of device error captured — validation, out of memory, and
+/// internal ones (a shader the backend cannot translate is one): wgpu's handler for errors
+/// nobody captures panics. Returns what `make` made and the first error, if any.
+pub fn captured<T>(device: &wgpu::Device, make: impl FnOnce() -> T) -> (T, Option<wgpu::Error>) {
+    let internal = device.push_error_scope(wgpu::ErrorFilter::Internal);
+    let oom = device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+    let validation = device.push_error_scope(wgpu::ErrorFilter::Validation);
+    let made = make();
+    // Scopes pop in the reverse order of their pushes.
+    let invalid = pollster::block_on(validation.pop());
+    let out_of_memory = pollster::block_on(oom.pop());
+    let broken = pollster::block_on(internal.pop());
+    (made, invalid.or(out_of_memory).or(broken))
 }
 
 /// [`Gpu::max_lights`] for given limits (pure, so the planner can reason about other devices).

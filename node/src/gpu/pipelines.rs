@@ -555,31 +555,28 @@ impl Pipelines {
         if let Some(p) = self.light_passes.get(&lights) {
             return Ok(p.clone());
         }
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let pipeline = {
-            {
-                let constants = [
-                    filter[0],
-                    filter[1],
-                    filter[2],
-                    (OVERRIDE_LIGHT_KINDS, f64::from(lights.kinds)),
-                    (OVERRIDE_VIEW_MODES, f64::from(lights.modes)),
-                    (OVERRIDE_LIGHT_RANGES, f64::from(u8::from(lights.ranges))),
-                ];
-                device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some("cs_lights"),
-                    layout: Some(layout),
-                    module,
-                    entry_point: Some("cs_lights"),
-                    compilation_options: wgpu::PipelineCompilationOptions {
-                        constants: &constants,
-                        ..Default::default()
-                    },
-                    cache: None,
-                })
-            }
-        };
-        if let Some(e) = pollster::block_on(scope.pop()) {
+        let (pipeline, error) = super::device::captured(device, || {
+            let constants = [
+                filter[0],
+                filter[1],
+                filter[2],
+                (OVERRIDE_LIGHT_KINDS, f64::from(lights.kinds)),
+                (OVERRIDE_VIEW_MODES, f64::from(lights.modes)),
+                (OVERRIDE_LIGHT_RANGES, f64::from(u8::from(lights.ranges))),
+            ];
+            device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some("cs_lights"),
+                layout: Some(layout),
+                module,
+                entry_point: Some("cs_lights"),
+                compilation_options: wgpu::PipelineCompilationOptions {
+                    constants: &constants,
+                    ..Default::default()
+                },
+                cache: None,
+            })
+        });
+        if let Some(e) = error {
             return Err(RenderError::Gpu(format!(
                 "compiling the light pass failed: {e}"
             )));

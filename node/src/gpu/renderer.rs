@@ -8,7 +8,7 @@
 
 use super::atlas::Slot;
 use super::deferred::{DeferredTargets, render_deferred};
-use super::device::{Gpu, SHADOW_MEMORY_BUDGET, SHADOW_TEXEL_BYTES};
+use super::device::{Gpu, SHADOW_MEMORY_BUDGET, SHADOW_TEXEL_BYTES, captured};
 use super::eye_pass::{
     EyeInputs, EyeTargets, FLAG_CONVENTIONAL_Z, FLAG_OBJECT_IDS, GpuFrame, render_eye,
 };
@@ -115,20 +115,22 @@ impl Renderer {
                 maximum: gpu.limits.max_buffer_size,
             });
         }
-        // Validation errors (a shader the driver rejects, a limit) come back as errors: wgpu's
-        // default handler for errors nobody captured panics.
-        let scope = device.push_error_scope(wgpu::ErrorFilter::Validation);
+        // Validation and internal errors (a shader the driver rejects or cannot translate, a
+        // limit) come back as errors: wgpu's default handler for errors nobody captured panics.
         let depth = ShadowDepth::of(opts.fault);
         let translucent = data.meshes.iter().any(|m| m.translucent);
         let filters = data
             .materials
             .iter()
             .any(|m| m.transmits == super::scene_data::TRANSMITS_FILTER);
-        let pipelines = Pipelines::new(device, opts.filter, depth, translucent, filters);
-        if opts.fault == Some(Fault::InvalidPipeline) {
-            pipelines.invalid_pipeline(device);
-        }
-        if let Some(e) = pollster::block_on(scope.pop()) {
+        let (pipelines, error) = captured(device, || {
+            let pipelines = Pipelines::new(device, opts.filter, depth, translucent, filters);
+            if opts.fault == Some(Fault::InvalidPipeline) {
+                pipelines.invalid_pipeline(device);
+            }
+            pipelines
+        });
+        if let Some(e) = error {
             return Err(RenderError::Gpu(format!(
                 "creating the pipelines failed: {e}"
             )));
@@ -402,12 +404,11 @@ impl Renderer {
         layers: LayerSet,
     ) -> Result<NodeFrame, RenderError> {
         // wgpu's handler for errors nobody captures panics: capture every one of this frame.
-        let oom = gpu.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
-        let validation = gpu.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let frame = self.render_frame(gpu, lights, casters, c_n, layers);
-        let invalid = pollster::block_on(validation.pop());
-        let out_of_memory = pollster::block_on(oom.pop());
-        match (frame, invalid.or(out_of_memory)) {
+        let device = gpu.device.clone();
+        let (frame, error) = captured(&device, || {
+            self.render_frame(gpu, lights, casters, c_n, layers)
+        });
+        match (frame, error) {
             (Err(e), _) => Err(e),
             (Ok(_), Some(e)) => {
                 // Targets and maps may be half made: allocate them afresh next frame.
