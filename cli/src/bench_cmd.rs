@@ -230,6 +230,7 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
                 filter: 1,
                 depth_bias: scene.quality.depth_bias,
                 slope_bias: scene.quality.slope_bias,
+                eye_meshes: None,
             };
             plan.push((mode.clone(), k, config));
         }

@@ -253,3 +253,91 @@ async fn a_link_the_compositor_let_go_is_dialled_again() {
     }
     node.stop().await;
 }
+
+/// A sort-last part (issue 24): a node configured with `eye_meshes` streams what a direct render
+/// of those meshes alone gives (shadows still from every caster), and a mesh the scene lacks is
+/// refused with a clear error.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_draws_only_its_part_of_the_scene() {
+    let mut node = start_node("node-p", None).await;
+    let mut comp = start_compositor().await;
+    let mut coord = node.coordinator().await;
+    let scene = scene();
+    assert!(
+        scene.meshes.len() >= 2,
+        "the test scene has a part to leave out"
+    );
+    let hash = coord.send_scene(&scene).await;
+    let lights = lights(2);
+    let layers = vec![
+        (Layer::Illumination, PixelFormat::F32x6),
+        (Layer::Depth, PixelFormat::DepthF32),
+    ];
+    let part = vec![0u32];
+    let mut config = node_config(3, hash, &lights, layers.clone(), &comp.addr);
+    config.eye_meshes = Some(part.clone());
+    assert_eq!(
+        coord.request(Message::ConfigureNode(config.clone())).await,
+        Message::Configured { epoch: 3 }
+    );
+    match coord.frame(3, 1).await {
+        Message::FrameDone(_) => {}
+        other => panic!("expected FrameDone, got {other:?}"),
+    }
+    let bands = comp.take(band_count(&config)).await;
+
+    let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter (install lavapipe)");
+    let options = RenderOptions {
+        shadow_map_size: scene.quality.shadow_map_size,
+        map_sizing: scene.quality.map_sizing,
+        filter: shadow_filter(config.filter),
+        depth_bias: config.depth_bias,
+        slope_bias: config.slope_bias,
+        ..RenderOptions::default()
+    };
+    let render = |eye: Option<Vec<u32>>| {
+        let mut r = Renderer::new(&gpu, &scene, options).expect("renderer");
+        r.set_camera(&scene.camera);
+        r.set_eye_meshes(eye);
+        r.render(
+            &gpu,
+            &lights,
+            None,
+            config.color,
+            layer_set(&[Layer::Illumination, Layer::Depth]),
+        )
+        .expect("direct render")
+    };
+    let mut direct = render(Some(part));
+    let mut whole = render(None);
+    let got = assemble(&bands, Layer::Depth, WIDTH, HEIGHT);
+    let want = take_layer(&mut direct, Layer::Depth).expect("depth");
+    assert!(worst_excess(PixelFormat::DepthF32, &got, &want, 1.0) <= 0.0);
+    let all = take_layer(&mut whole, Layer::Depth).expect("depth");
+    let left_out = all
+        .data
+        .iter()
+        .zip(&got.data)
+        .filter(|(a, b)| **a > 0.0 && **b == 0.0)
+        .count();
+    assert!(
+        left_out > 100,
+        "only {left_out} pixels left to the other part"
+    );
+    let got = assemble(&bands, Layer::Illumination, WIDTH, HEIGHT);
+    let want = take_layer(&mut direct, Layer::Illumination).expect("illumination");
+    assert!(worst_excess(PixelFormat::F32x6, &got, &want, 1.0) <= 0.0);
+
+    // A mesh the scene does not have.
+    let mut bad = node_config(4, hash, &lights, layers, &comp.addr);
+    bad.eye_meshes = Some(vec![scene.meshes.len() as u32]);
+    match coord.request(Message::ConfigureNode(bad)).await {
+        Message::Error { code, message } => {
+            assert_eq!(code, lightfold_protocol::ErrorCode::BadConfig);
+            assert!(message.contains("eye pass"), "{message}");
+        }
+        other => panic!("expected an error, got {other:?}"),
+    }
+    drop(coord);
+    node.stop().await;
+}

@@ -147,6 +147,9 @@ pub struct NodeConfig {
     pub filter: u32,
     pub depth_bias: f32,
     pub slope_bias: f32,
+    /// The meshes this node draws in its eye pass, a sort-last part of the scene (protocol
+    /// version 6); `None`: every mesh. Shadows still come from each light's casters.
+    pub eye_meshes: Option<Vec<u32>>,
 }
 
 /// One input of a compositor stage.

@@ -90,6 +90,8 @@ pub enum ConfigError {
         mesh: u32,
         meshes: usize,
     },
+    #[error("the eye pass lists mesh {mesh}, but the scene has {meshes} meshes")]
+    BadEyeMesh { mesh: u32, meshes: usize },
     #[error("a band of {bytes} bytes does not fit the link's maximum frame of {max} bytes")]
     BandTooLarge { bytes: u64, max: usize },
     #[error("downstream address is empty")]
@@ -203,6 +205,17 @@ pub fn check(
         return Err(ConfigError::BandTooLarge {
             bytes,
             max: max_frame,
+        });
+    }
+    if let Some(m) = config
+        .eye_meshes
+        .iter()
+        .flatten()
+        .find(|&&m| m as usize >= scene.meshes.len())
+    {
+        return Err(ConfigError::BadEyeMesh {
+            mesh: *m,
+            meshes: scene.meshes.len(),
         });
     }
     let (map_size, map_sides, casters) = check_shadows(
@@ -339,6 +352,7 @@ mod tests {
             filter: 1,
             depth_bias: 0.0,
             slope_bias: 0.0,
+            eye_meshes: None,
         }
     }
 

@@ -263,6 +263,8 @@ fn configure(
                 None => setup.checked.lights.clone(),
             };
             c.renderer.set_map_sides(setup.checked.map_sides.clone());
+            c.renderer
+                .set_eye_meshes(setup.checked.config.eye_meshes.clone());
             c.setup = setup;
         }
         return Ok(());
@@ -277,6 +279,7 @@ fn configure(
         renderer.set_fit_bounds(setup.scene.swept_bounds());
     }
     renderer.set_map_sides(setup.checked.map_sides.clone());
+    renderer.set_eye_meshes(setup.checked.config.eye_meshes.clone());
     tracing::info!(ms = start.elapsed().as_millis() as u64, "renderer built");
     *current = Some(Current {
         hash: setup.scene_hash,

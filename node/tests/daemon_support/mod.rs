@@ -304,6 +304,7 @@ pub fn node_config(
         filter: 1,
         depth_bias: s.quality.depth_bias,
         slope_bias: s.quality.slope_bias,
+        eye_meshes: None,
     }
 }
 

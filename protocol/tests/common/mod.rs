@@ -193,12 +193,14 @@ pub fn node_config() -> impl Strategy<Value = NodeConfig> {
             num(),
             num(),
         ),
+        prop::option::of(prop::collection::vec(any::<u32>(), 0..4)),
     )
         .prop_map(
             |(
                 (epoch, scene, lights),
                 (shadows, color, layers, scale, band_height),
                 (camera, walkthrough, downstream, input_index, filter, depth_bias, slope_bias),
+                eye_meshes,
             )| NodeConfig {
                 epoch,
                 scene,
@@ -215,6 +217,7 @@ pub fn node_config() -> impl Strategy<Value = NodeConfig> {
                 filter,
                 depth_bias,
                 slope_bias,
+                eye_meshes,
             },
         )
 }
