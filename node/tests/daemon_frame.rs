@@ -8,8 +8,20 @@ mod daemon_support;
 use daemon_support::*;
 use lightfold_node::daemon::render_thread::{layer_set, shadow_filter, take_layer};
 use lightfold_node::gpu::{Gpu, GpuOptions, RenderOptions, Renderer};
-use lightfold_protocol::{ErrorCode, FrameParams, Layer, Message, PixelFormat, Role};
+use lightfold_protocol::{ErrorCode, FrameParams, Layer, Message, NodeConfig, PixelFormat, Role};
 use lightfold_scene::wire::camera_to_wire;
+
+/// The options a direct render of what `config` asks of a node renders with.
+fn direct_options(scene: &lightfold_scene::Scene, config: &NodeConfig) -> RenderOptions {
+    RenderOptions {
+        shadow_map_size: scene.quality.shadow_map_size,
+        map_sizing: scene.quality.map_sizing,
+        filter: shadow_filter(config.filter),
+        depth_bias: config.depth_bias,
+        slope_bias: config.slope_bias,
+        ..RenderOptions::default()
+    }
+}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_streamed_frame_equals_a_direct_render() {
@@ -63,14 +75,7 @@ async fn a_streamed_frame_equals_a_direct_render() {
 
     // The same lights rendered directly on this process's own device.
     let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter (install lavapipe)");
-    let options = RenderOptions {
-        shadow_map_size: scene.quality.shadow_map_size,
-        map_sizing: scene.quality.map_sizing,
-        filter: shadow_filter(config.filter),
-        depth_bias: config.depth_bias,
-        slope_bias: config.slope_bias,
-        ..RenderOptions::default()
-    };
+    let options = direct_options(&scene, &config);
     let mut renderer = Renderer::new(&gpu, &scene, options).expect("renderer");
     renderer.set_camera(&scene.camera);
     let wanted: Vec<Layer> = layers.iter().map(|(l, _)| *l).collect();
@@ -287,14 +292,7 @@ async fn a_node_draws_only_its_part_of_the_scene() {
     let bands = comp.take(band_count(&config)).await;
 
     let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter (install lavapipe)");
-    let options = RenderOptions {
-        shadow_map_size: scene.quality.shadow_map_size,
-        map_sizing: scene.quality.map_sizing,
-        filter: shadow_filter(config.filter),
-        depth_bias: config.depth_bias,
-        slope_bias: config.slope_bias,
-        ..RenderOptions::default()
-    };
+    let options = direct_options(&scene, &config);
     let render = |eye: Option<Vec<u32>>| {
         let mut r = Renderer::new(&gpu, &scene, options).expect("renderer");
         r.set_camera(&scene.camera);
@@ -333,7 +331,7 @@ async fn a_node_draws_only_its_part_of_the_scene() {
     bad.eye_meshes = Some(vec![scene.meshes.len() as u32]);
     match coord.request(Message::ConfigureNode(bad)).await {
         Message::Error { code, message } => {
-            assert_eq!(code, lightfold_protocol::ErrorCode::BadConfig);
+            assert_eq!(code, ErrorCode::BadConfig);
             assert!(message.contains("eye pass"), "{message}");
         }
         other => panic!("expected an error, got {other:?}"),

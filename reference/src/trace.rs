@@ -88,7 +88,7 @@ impl<'a> Tracer<'a> {
             tris,
             epsilon,
             translucent: scene.materials.iter().any(|m| m.is_translucent()),
-            filters: scene.materials.iter().any(is_filter),
+            filters: scene.materials.iter().any(Material::is_filter),
         }
     }
 
@@ -117,9 +117,6 @@ impl<'a> Tracer<'a> {
     /// product of their transmittance, 1 without any. The pixel's radiance is this times what
     /// the hit surface sends (`docs/translucency.md`); a pixel no surface covers has none.
     pub fn eye_transmittance(&self, x: u32, y: u32, hit: &SurfaceHit) -> V3 {
-        if !self.filters {
-            return [1.0; 3];
-        }
         let cam = &self.scene.camera;
         let dir = cam.ray_dir(x as f32 + 0.5, y as f32 + 0.5);
         self.filters_along(cam.position.map(f64::from), dir, hit, true)
@@ -136,20 +133,12 @@ impl<'a> Tracer<'a> {
         let tmax = dot64(to_hit, d) / dot64(d, d).max(1e-30);
         let walked = self.walk(o, d, tmax, |id, u, v| {
             let mat = self.triangle_material(id);
-            let Some(tr) = mat.transmission.filter(|t| !t.coverage) else {
-                return Step::Skip;
-            };
-            if (eye && !mat.double_sided && dot(self.geometric_normal(id), dir) >= 0.0)
-                || self.masked_out(id, mat, u, v)
+            if !mat.is_filter()
+                || (eye && !mat.double_sided && dot(self.geometric_normal(id), dir) >= 0.0)
             {
                 return Step::Skip;
             }
-            let texel = self.texel_at(id, mat, u, v);
-            Step::Tint(shading::transmittance(
-                &tr,
-                mat.alpha * texel[3],
-                [texel[0], texel[1], texel[2]],
-            ))
+            self.tint(id, mat, u, v)
         });
         walked.map_or([0.0; 3], |t| t.map(|c| c as f32))
     }
@@ -187,7 +176,7 @@ impl<'a> Tracer<'a> {
         let hit = self.bvh.closest(o, d, 0.0, f64::INFINITY, |id, u, v| {
             let mat = self.triangle_material(id);
             // Filters (glass) are seen and lit through (`filters_along` tints the way).
-            if is_filter(mat) {
+            if mat.is_filter() {
                 return false;
             }
             if skip_single_sided_backs
@@ -268,24 +257,32 @@ impl<'a> Tracer<'a> {
         };
         let walked = self.walk(o, dir, tmax, |id, u, v| {
             let mat = self.triangle_material(id);
-            let Some(tr) = &mat.transmission else {
-                return if self.masked_out(id, mat, u, v) {
-                    Step::Skip
-                } else {
-                    Step::Block
-                };
-            };
-            if !tr.coverage && self.masked_out(id, mat, u, v) {
-                return Step::Skip;
+            if mat.is_translucent() {
+                self.tint(id, mat, u, v)
+            } else if self.masked_out(id, mat, u, v) {
+                Step::Skip
+            } else {
+                Step::Block
             }
-            let texel = self.texel_at(id, mat, u, v);
-            Step::Tint(shading::transmittance(
-                tr,
-                mat.alpha * texel[3],
-                [texel[0], texel[1], texel[2]],
-            ))
         });
         walked.map_or([0.0; 3], |t| t.map(|c| c as f32))
+    }
+
+    /// What a texel of translucent `mat` does to a ray: a filter's masked-out texel lets it
+    /// through untouched, any other tints it by `shading::transmittance`.
+    fn tint(&self, id: u32, mat: &Material, u: f64, v: f64) -> Step {
+        let Some(tr) = &mat.transmission else {
+            return Step::Skip;
+        };
+        if !tr.coverage && self.masked_out(id, mat, u, v) {
+            return Step::Skip;
+        }
+        let texel = self.texel_at(id, mat, u, v);
+        Step::Tint(shading::transmittance(
+            tr,
+            mat.alpha * texel[3],
+            [texel[0], texel[1], texel[2]],
+        ))
     }
 
     /// Walks the ray from `o` along unit `d` over `(0, tmax)`, nearest hit first: `None` at the
@@ -460,11 +457,6 @@ enum Step {
 
 /// Most translucent layers one ray is walked through (a bound, not a limit any scene meets).
 const MAX_LAYERS: usize = 4096;
-
-/// A filter: a translucent material without coverage (glass), which eye rays see through.
-fn is_filter(m: &Material) -> bool {
-    m.transmission.is_some_and(|t| !t.coverage)
-}
 
 /// A fallback for meshes whose material index is out of range: mid-grey diffuse.
 fn material_of(scene: &Scene, index: usize) -> &Material {

@@ -100,6 +100,12 @@ impl Material {
         self.transmission.is_some()
     }
 
+    /// Whether it is a filter (glass: transmission without coverage), which eye rays see
+    /// through, tinting what lies behind (`docs/translucency.md`).
+    pub fn is_filter(&self) -> bool {
+        self.transmission.is_some_and(|t| !t.coverage)
+    }
+
     pub fn has_specular(&self) -> bool {
         self.specular.iter().any(|&c| c > 0.0)
     }

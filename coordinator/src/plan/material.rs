@@ -87,9 +87,7 @@ pub(crate) fn needs(scene: &Scene, receivers: &[Receiver], force_all: bool) -> N
     // Filters seen through (`docs/translucency.md`) multiply every layer of what lies behind
     // them by their transmittance: no layer keeps values 8-bit sRGB holds exactly, and a common
     // specular colour is no longer common per pixel (but zero stays zero).
-    let filters = mats
-        .iter()
-        .any(|m| m.transmission.is_some_and(|t| !t.coverage));
+    let filters = mats.iter().any(|m| m.is_filter());
     let (srgb8_exact, uniform_specular) = if filters {
         notes.push(
             "filters: a visible glass tints the layers behind it → half-float layers, the specular layer unless no material has one"

@@ -529,7 +529,7 @@ impl Pipelines {
             shadow_masked,
             shadow_translucent_depth,
             shadow_transmit,
-            translucent: filter[2].1 != 0.0,
+            translucent,
             eye_illumination,
             eye_layers,
             eye_filter,

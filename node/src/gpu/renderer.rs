@@ -20,7 +20,7 @@ use super::scene_data::SceneData;
 use super::shadow_depth::ShadowDepth;
 use super::shadow_pass::{ShadowMaps, layer_count, render_shadow_maps};
 use lightfold_scene::shadow_views::ShadowView;
-use lightfold_scene::{Camera, Image, LightSample, MapSizing, Mesh, Scene, ShadowFilter};
+use lightfold_scene::{Camera, Image, LightSample, MapSizing, Material, Mesh, Scene, ShadowFilter};
 use std::time::Instant;
 use wgpu::util::DeviceExt;
 
@@ -119,10 +119,7 @@ impl Renderer {
         // limit) come back as errors: wgpu's default handler for errors nobody captured panics.
         let depth = ShadowDepth::of(opts.fault);
         let translucent = data.meshes.iter().any(|m| m.translucent);
-        let filters = data
-            .materials
-            .iter()
-            .any(|m| m.transmits == super::scene_data::TRANSMITS_FILTER);
+        let filters = scene.materials.iter().any(Material::is_filter);
         let (pipelines, error) = captured(device, || {
             let pipelines = Pipelines::new(device, opts.filter, depth, translucent, filters);
             if opts.fault == Some(Fault::InvalidPipeline) {
@@ -404,8 +401,7 @@ impl Renderer {
         layers: LayerSet,
     ) -> Result<NodeFrame, RenderError> {
         // wgpu's handler for errors nobody captures panics: capture every one of this frame.
-        let device = gpu.device.clone();
-        let (frame, error) = captured(&device, || {
+        let (frame, error) = captured(&gpu.device, || {
             self.render_frame(gpu, lights, casters, c_n, layers)
         });
         match (frame, error) {
