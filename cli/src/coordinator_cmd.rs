@@ -177,6 +177,12 @@ pub struct JobArgs {
     /// (material colours in [0, 1]; f16x4). See `docs/precision.md` for what each costs.
     #[arg(long, value_name = "CLASS=FORMAT", value_delimiter = ',', value_parser = parse_link_format)]
     pub link_format: Vec<(LinkClass, lightfold_protocol::PixelFormat)>,
+    /// Sort-last partitions: split the scene's meshes into P spatially coherent parts; every
+    /// light group is rendered once per part by a node drawing only that part's eye pass (its
+    /// shadows still see every caster), and the compositor chain depth-composes the parts
+    /// (docs/planner.md § Partitions). Needs P × the render nodes.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=i64::from(lightfold_coordinator::plan::MAX_PARTITIONS)))]
+    pub partitions: u32,
     /// Render the material layers on a node of their own (the paper's layout) instead of as
     /// extra targets of an illumination node at the last stage.
     #[arg(long)]
@@ -276,6 +282,7 @@ impl JobArgs {
             frames_in_flight: self.frames_in_flight,
             formats: self.formats(),
             supersample: self.aa,
+            partitions: self.partitions,
             ..PlanOptions::default()
         }
     }

@@ -524,6 +524,9 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
     if job.material_own_node {
         cmd.arg("--material-own-node");
     }
+    if job.partitions > 1 {
+        cmd.arg("--partitions").arg(job.partitions.to_string());
+    }
     if let Some(p) = &job.stats {
         cmd.arg("--stats").arg(p);
     }

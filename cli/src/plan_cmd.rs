@@ -64,6 +64,12 @@ pub struct Args {
     /// Print the plan as JSON instead of text.
     #[arg(long)]
     pub json: bool,
+    /// Sort-last partitions: split the scene's meshes into P spatially coherent parts; every
+    /// light group is rendered once per part by a node drawing only that part's eye pass (its
+    /// shadows still see every caster), and the compositor chain depth-composes the parts
+    /// (docs/planner.md § Partitions). Needs P × the render nodes.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=i64::from(lightfold_coordinator::plan::MAX_PARTITIONS)))]
+    pub partitions: u32,
     /// Render the material layers on a node of their own (the paper's layout).
     #[arg(long)]
     pub material_own_node: bool,
@@ -126,6 +132,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         frame_budget_us: args.frame_budget.map(|b| (b * 1000.0).round() as u64),
         target_penumbra_db: args.target_psnr,
         penumbra_filter: args.penumbra_filter,
+        partitions: args.partitions,
         ..PlanOptions::default()
     };
     if let Some(n) = args.shadow_map_size {

@@ -307,6 +307,68 @@ fn depth_with_zero_empty_reads_a_node_eye_depth() {
 }
 
 #[test]
+fn merge_puts_layers_of_inputs_together() {
+    // Input 0 gives its illumination (and carries a diffuse layer merge does not take); input 1
+    // its depth (bit for bit, NaN and 0 included) and diffuse.
+    let op = ops::create(
+        "merge",
+        &json!({"inputs": [["illumination"], ["depth", "diffuse"]]}),
+    )
+    .unwrap();
+    let sig = op.signature();
+    assert_eq!(
+        sig.outputs,
+        [Layer::Illumination, Layer::Depth, Layer::Diffuse]
+    );
+    let z = [f32::NAN, 0.0];
+    let d = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6];
+    let il: [f32; 12] = [
+        1.0,
+        f32::NAN,
+        -2.0,
+        f32::INFINITY,
+        5.0,
+        6.0,
+        7.0,
+        8.0,
+        9.0,
+        10.0,
+        11.0,
+        12.0,
+    ];
+    let inputs = [
+        band(&[(Layer::Illumination, &il), (Layer::Diffuse, &[9.0; 6])]),
+        band(&[(Layer::Depth, &z), (Layer::Diffuse, &d)]),
+    ];
+    let mut want_il = il;
+    want_il[1] = 0.0;
+    want_il[2] = 0.0;
+    want_il[3] = MAX_VALUE;
+    check(
+        &*op,
+        &inputs,
+        &[(Layer::Illumination, &want_il), (Layer::Diffuse, &d)],
+    );
+    for scalar in [true, false] {
+        let out = run(&*op, &inputs, 2, scalar);
+        let bits: Vec<u32> = out
+            .layer(Layer::Depth)
+            .iter()
+            .map(|v| v.to_bits())
+            .collect();
+        assert_eq!(bits, z.map(f32::to_bits), "scalar={scalar}");
+    }
+    // An input without a layer it should give is refused.
+    let mut out = Owned::zeros(2, &sig.outputs);
+    let swapped = [inputs[1].clone(), inputs[0].clone()];
+    let views: Vec<_> = swapped.iter().map(Owned::view).collect();
+    assert!(matches!(
+        op.apply(&views, &mut out.view_mut()),
+        Err(OpError::MissingLayer { input: 0, .. })
+    ));
+}
+
+#[test]
 fn join_sums_in_order() {
     let op = ops::create("join", &json!({"inputs": 3, "layer": "radiance"})).unwrap();
     let inputs = [
@@ -352,6 +414,7 @@ fn registry_and_errors() {
             "material",
             "depth",
             "join",
+            "merge",
             "output",
             "penumbra"
         ]
@@ -359,7 +422,7 @@ fn registry_and_errors() {
     let err = ops::create("blend", &json!({})).unwrap_err();
     assert_eq!(
         err.to_string(),
-        "unknown operator \"blend\" (known: accumulate, material, depth, join, output, penumbra)"
+        "unknown operator \"blend\" (known: accumulate, material, depth, join, merge, output, penumbra)"
     );
     for (name, params) in [
         ("accumulate", json!({"colors": [[1, -1, 1]]})),
@@ -375,6 +438,14 @@ fn registry_and_errors() {
         ("join", json!({"inputs": 2, "layer": "depth"})),
         ("output", json!({"exposure": -1.0})),
         ("output", json!([1, 2])),
+        ("merge", json!({"inputs": []})),
+        ("merge", json!({"inputs": [["illumination"], []]})),
+        (
+            "merge",
+            json!({"inputs": [["illumination"], ["illumination"]]}),
+        ),
+        ("merge", json!({"inputs": [["albedo"]]})),
+        ("merge", json!({"inputs": [["depth"]], "layer": "depth"})),
     ] {
         let e = ops::create(name, &params).expect_err(&params.to_string());
         assert!(

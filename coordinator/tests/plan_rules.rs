@@ -648,3 +648,157 @@ fn transmittance_maps_only_where_a_caster_lets_light_through() {
     };
     assert!(cost(&p) > cost(&q), "{} vs {}", cost(&p), cost(&q));
 }
+
+/// Every stage of `p` as the compositor builds it from its configuration: the wiring validates
+/// against the operators' signatures, and the stage emits the layers it says it sends.
+fn assert_stages_build(p: &lightfold_coordinator::plan::Plan) {
+    for s in &p.stages {
+        let c = p.compositor_config(&s.compositor).unwrap();
+        let inputs: Vec<Vec<Layer>> = c
+            .inputs
+            .iter()
+            .map(|i| i.layers.iter().map(|l| l.0).collect())
+            .collect();
+        let pipeline =
+            lightfold_compositor::pipeline::Pipeline::from_wiring(&c.ops, &c.wiring, &inputs)
+                .unwrap_or_else(|e| panic!("stage {}: {e}", s.compositor));
+        let out = pipeline.output_layers();
+        for (l, _) in &c.outputs {
+            assert!(
+                out.contains(l),
+                "stage {} sends {l:?} it does not make",
+                s.compositor
+            );
+        }
+    }
+}
+
+#[test]
+fn partitions_plan_a_grid_of_parts_by_light_groups() {
+    // The stage scene at K = 2: two groups of its four samples, three meshes in two parts.
+    let scene = stage();
+    let o = PlanOptions {
+        lights_per_node: 2,
+        partitions: 2,
+        ..opts()
+    };
+    let p = plan(&scene, &local(), &o).unwrap();
+    assert_eq!(p.partitions.len(), 2);
+    let mut meshes: Vec<u32> = p.partitions.concat();
+    meshes.sort_unstable();
+    assert_eq!(meshes, vec![0, 1, 2], "every mesh in exactly one part");
+    // 2 parts × 2 groups: each (part, group) on its own node, every light twice (once a part).
+    assert_eq!(p.nodes.len(), 4);
+    for part in 0..2 {
+        let mut lights: Vec<usize> = p
+            .nodes
+            .iter()
+            .filter(|n| n.part == Some(part))
+            .flat_map(|n| n.lights.clone())
+            .collect();
+        lights.sort_unstable();
+        assert_eq!(lights, vec![0, 1, 2, 3], "part {part}");
+        // Exactly one node of the part carries its eye depth and material layers.
+        let hosts: Vec<_> = p
+            .nodes
+            .iter()
+            .filter(|n| n.part == Some(part) && n.layers.iter().any(|l| l.0 == Layer::Depth))
+            .collect();
+        assert_eq!(hosts.len(), 1, "part {part}");
+        assert!(hosts[0].layers.iter().any(|l| l.0 == Layer::Diffuse));
+    }
+    // Each node is configured to draw its part, with every caster its lights need.
+    for n in &p.nodes {
+        let c = p.node_config(&n.node).unwrap();
+        assert_eq!(c.eye_meshes.as_ref(), Some(&p.partitions[n.part.unwrap()]));
+        assert!(
+            c.shadows.iter().all(|s| s.casters.len() == 3),
+            "{:?}",
+            c.shadows
+        );
+    }
+    // Ambient is not folded into one node's colour: each part sums its own groups.
+    assert!(!p.material.fold_ambient);
+    assert!(
+        matches!(p.material.placement, MaterialPlacement::PerPart { ref nodes } if nodes.len() == 2)
+    );
+    // Two stages along a chain: part 0's sum, then part 1's, depth-composed with it and shaded.
+    assert_eq!(p.stages.len(), 2);
+    let names = |s: &lightfold_coordinator::plan::StagePlan| -> Vec<String> {
+        s.ops.iter().map(|o| o.0.clone()).collect()
+    };
+    assert_eq!(names(&p.stages[0]), ["accumulate", "merge"]);
+    assert_eq!(
+        names(&p.stages[1]),
+        ["accumulate", "merge", "depth", "material", "output"]
+    );
+    assert_eq!(p.stages[1].ops[2].1["zero_is_empty"], true);
+    assert_eq!(p.stages[0].downstream, Downstream::Stage("comp-1".into()));
+    assert_stages_build(&p);
+    let text = p.to_string();
+    assert!(
+        text.contains("partitions: 2 parts × 2 light group(s) = 4 nodes"),
+        "{text}"
+    );
+    // With one compositor, both parts compose in one stage.
+    let one = plan(&scene, &ClusterSpec::local(16, 1), &o).unwrap();
+    assert_eq!(one.stages.len(), 1);
+    assert_eq!(
+        names(&one.stages[0]),
+        [
+            "accumulate",
+            "merge",
+            "accumulate",
+            "merge",
+            "depth",
+            "material",
+            "output"
+        ]
+    );
+    assert_stages_build(&one);
+    // Short of nodes (these report no device limit, so K stays), parts × groups are counted.
+    assert!(matches!(
+        plan(&scene, &ClusterSpec::local(3, 2), &o),
+        Err(PlanError::NotEnoughNodes {
+            needed: 4,
+            available: 3,
+            ..
+        })
+    ));
+}
+
+#[test]
+fn partitions_are_refused_where_they_cannot_be_planned() {
+    let scene = stage();
+    let refused = |change: &dyn Fn(&mut PlanOptions)| {
+        let mut o = PlanOptions {
+            partitions: 2,
+            ..opts()
+        };
+        change(&mut o);
+        match plan(&scene, &local(), &o) {
+            Err(PlanError::InvalidOptions { reason }) => reason,
+            other => panic!("expected a refusal, got {other:?}"),
+        }
+    };
+    assert!(refused(&|o| o.partitions = 4).contains("at most 3 partitions"));
+    assert!(refused(&|o| o.partitions = 0).contains("partitions must be 1 to"));
+    assert!(refused(&|o| o.topology = Topology::Tree).contains("chain"));
+    assert!(refused(&|o| o.material_own_node = true).contains("material"));
+    assert!(
+        refused(&|o| o.penumbra_filter = lightfold_coordinator::plan::PenumbraFilter::Radius(2))
+            .contains("penumbra")
+    );
+    // The default filter choice is simply off with partitions.
+    let p = plan(
+        &scene,
+        &local(),
+        &PlanOptions {
+            partitions: 2,
+            penumbra_filter: lightfold_coordinator::plan::PenumbraFilter::Auto,
+            ..opts()
+        },
+    )
+    .unwrap();
+    assert_eq!(p.penumbra_radius, 0);
+}

@@ -302,6 +302,11 @@ pub fn single_device_filtered(gpu: &Gpu, scene: &Scene, walkthrough: bool, radiu
         )
         .unwrap();
     }
+    shade(scene, &il, [&md, &ms, &ma, &e])
+}
+
+/// The material stage on one device: `m^e + m^a·c^a + m^d·I^d + m^s·I^s` per pixel.
+fn shade(scene: &Scene, il: &Image, [md, ms, ma, e]: [&Image; 4]) -> Image {
     let mut out = Image::new(il.width, il.height, 3);
     for i in 0..out.pixel_count() {
         for c in 0..3 {
@@ -312,6 +317,69 @@ pub fn single_device_filtered(gpu: &Gpu, scene: &Scene, walkthrough: bool, radiu
         }
     }
     out
+}
+
+/// [`single_device`] over sort-last parts: each part's eye pass alone (every caster still in
+/// the shadow maps), then per pixel every layer of the part whose surface is nearest (eye depth
+/// above 0). Exact depth ties go to the lower part, or to the higher one with `ties_to_higher`
+/// (a negative control of the compositor's rule).
+pub fn single_device_parts(
+    gpu: &Gpu,
+    scene: &Scene,
+    parts: &[Vec<u32>],
+    ties_to_higher: bool,
+) -> Image {
+    let samples = lightfold_reference::indirect::scene_samples(scene);
+    let mut r = Renderer::new(gpu, scene, RenderOptions::from_quality(&scene.quality)).unwrap();
+    r.set_camera(&scene.camera);
+    let mut won: Vec<Option<(f32, usize)>> = Vec::new();
+    let mut frames = Vec::new();
+    for part in parts {
+        r.set_eye_meshes(Some(part.clone()));
+        let f = r
+            .render(gpu, &samples, None, [1.0; 3], LayerSet::all())
+            .unwrap();
+        frames.push(f);
+    }
+    let depth = |p: usize| frames[p].depth.as_ref().unwrap();
+    for i in 0..depth(0).pixel_count() {
+        let mut best: Option<(f32, usize)> = None;
+        for p in 0..parts.len() {
+            let z = depth(p).data[i];
+            let nearer = match best {
+                None => true,
+                Some((b, _)) => z < b || (ties_to_higher && z == b),
+            };
+            if z > 0.0 && z.is_finite() && nearer {
+                best = Some((z, p));
+            }
+        }
+        won.push(best);
+    }
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let mut layers: Vec<Image> = (0..5)
+        .map(|k| Image::new(w, h, if k == 0 { 6 } else { 3 }))
+        .collect();
+    for (i, winner) in won.iter().enumerate() {
+        let Some((_, p)) = *winner else { continue };
+        let f = &frames[p];
+        let from = [
+            f.illumination.as_ref(),
+            f.diffuse.as_ref(),
+            f.specular.as_ref(),
+            f.ambient.as_ref(),
+            f.emissive.as_ref(),
+        ];
+        for (dst, src) in layers.iter_mut().zip(from) {
+            let c = dst.channels;
+            dst.data[i * c..i * c + c].copy_from_slice(&src.unwrap().data[i * c..i * c + c]);
+        }
+    }
+    shade(
+        scene,
+        &layers[0],
+        [&layers[1], &layers[2], &layers[3], &layers[4]],
+    )
 }
 
 /// [`single_device`] with `--aa factor`: rendered at `factor` × the camera's width and height,

@@ -17,6 +17,7 @@ pub mod depth;
 pub mod dispatch;
 pub mod join;
 pub mod material;
+pub mod merge;
 pub mod output;
 pub mod packed_out;
 pub(crate) mod params;
@@ -33,6 +34,7 @@ pub use depth::{Depth, PackedLayer};
 pub use dispatch::Isa;
 pub use join::Join;
 pub use material::{Material, MaterialStage};
+pub use merge::Merge;
 pub use output::Output;
 pub use packed_out::{PackSummary, PackedOut};
 pub use params::{layer_from_name, layer_name};
@@ -222,11 +224,12 @@ pub trait Operator: Send + Sync + fmt::Debug {
 /// Builds an operator from its JSON parameters.
 pub type Constructor = fn(&Value) -> Result<Box<dyn Operator>, OpError>;
 
-static REGISTRY: [(&str, Constructor); 6] = [
+static REGISTRY: [(&str, Constructor); 7] = [
     (accumulate::NAME, |p| Ok(Box::new(Accumulate::new(p)?))),
     (material::NAME, |p| Ok(Box::new(Material::new(p)?))),
     (depth::NAME, |p| Ok(Box::new(Depth::new(p)?))),
     (join::NAME, |p| Ok(Box::new(Join::new(p)?))),
+    (merge::NAME, |p| Ok(Box::new(Merge::new(p)?))),
     (output::NAME, |p| Ok(Box::new(Output::new(p)?))),
     (penumbra::NAME, |p| Ok(Box::new(Penumbra::new(p)?))),
 ];

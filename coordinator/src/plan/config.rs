@@ -43,8 +43,7 @@ impl Plan {
             },
             depth_bias: self.depth_bias,
             slope_bias: self.slope_bias,
-            // The planner does not partition the scene yet (issue 24): every node draws it all.
-            eye_meshes: None,
+            eye_meshes: n.part.and_then(|p| self.partitions.get(p).cloned()),
         })
     }
 

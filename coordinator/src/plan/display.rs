@@ -155,6 +155,9 @@ impl Display for Plan {
                 transmitting.iter().sum::<usize>()
             )?;
         }
+        if let Some(text) = self.partition_line() {
+            writeln!(f, "{text}")?;
+        }
         if let Some(text) = self.target_line() {
             writeln!(f, "{text}")?;
         }
@@ -170,6 +173,9 @@ impl Display for Plan {
                 "  {} → {} input {} · ",
                 n.node, n.downstream, n.input_index
             )?;
+            if let Some(p) = n.part {
+                write!(f, "part {p} · ")?;
+            }
             if n.lights.is_empty() && n.layers.iter().all(|l| l.0 != Layer::Illumination) {
                 writeln!(
                     f,
@@ -221,6 +227,12 @@ impl Display for Plan {
             MaterialPlacement::None => "rendered nowhere".to_string(),
             MaterialPlacement::ExtraTargets { node } => format!("extra targets of {node}"),
             MaterialPlacement::OwnNode { node } => format!("on {node}, a node of their own"),
+            MaterialPlacement::PerPart { nodes } => {
+                format!(
+                    "extra targets of each part's first node ({})",
+                    nodes.join(", ")
+                )
+            }
         };
         writeln!(
             f,
@@ -294,6 +306,29 @@ impl Plan {
     }
 }
 
+impl Plan {
+    /// The sort-last grid in one line (`None` without partitions): parts × light groups, the
+    /// meshes of each part.
+    pub fn partition_line(&self) -> Option<String> {
+        if self.partitions.is_empty() {
+            return None;
+        }
+        let groups = self.nodes.iter().filter(|n| n.part == Some(0)).count();
+        let meshes: Vec<String> = self
+            .partitions
+            .iter()
+            .enumerate()
+            .map(|(i, m)| format!("part {i}: {} mesh(es)", m.len()))
+            .collect();
+        Some(format!(
+            "partitions: {} parts × {groups} light group(s) = {} nodes, depth-composed along the chain ({})",
+            self.partitions.len(),
+            self.nodes.len(),
+            meshes.join(", ")
+        ))
+    }
+}
+
 impl Display for Brief<'_> {
     fn fmt(&self, f: &mut Formatter<'_>) -> fmt::Result {
         let p = self.0;
@@ -349,6 +384,9 @@ impl Display for Brief<'_> {
             write!(f, "\n  {text}")?;
         }
         if let Some(text) = p.penumbra_line() {
+            write!(f, "\n  {text}")?;
+        }
+        if let Some(text) = p.partition_line() {
             write!(f, "\n  {text}")?;
         }
         Ok(())

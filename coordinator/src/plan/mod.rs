@@ -29,6 +29,9 @@ use lightfold_protocol::{Layer, PixelFormat};
 use lightfold_scene::Scene;
 use sha2::{Digest, Sha256};
 
+/// The most sort-last partitions a plan may ask for.
+pub const MAX_PARTITIONS: u32 = 64;
+
 /// Why no plan could be made.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum PlanError {
@@ -106,6 +109,15 @@ pub(crate) fn plan_with(
     previous: Option<&Plan>,
 ) -> Result<Plan, PlanError> {
     validate(scene, cluster, options)?;
+    if options.partitions > 1 && !matches!(options.penumbra_filter, PenumbraFilter::Off) {
+        // Checked: no radius is asked for. The budget's filter needs a depth of the whole
+        // image at the last stage, which partitions do not send there yet.
+        let options = PlanOptions {
+            penumbra_filter: PenumbraFilter::Off,
+            ..options.clone()
+        };
+        return budget::within_budget(scene, cluster, &options, previous, plan_once);
+    }
     budget::within_budget(scene, cluster, options, previous, plan_once)
 }
 
@@ -229,10 +241,31 @@ fn plan_once(
         }
         g
     };
-    // Nodes a plan of `g` groups needs: one more when the material layers have a node of their
-    // own (on request; otherwise they are extra targets of a node the last stage reads).
+    // Sort-last parts: every group is rendered once per part.
+    let parts = if options.partitions > 1 {
+        let parts =
+            lightfold_scene::partition::partition_meshes(scene, options.partitions as usize);
+        if parts.iter().any(Vec::is_empty) {
+            return Err(PlanError::InvalidOptions {
+                reason: format!(
+                    "{} partitions of a scene with {} meshes leave a part empty (meshes are not \
+                     split into chunks): ask for at most {} partitions",
+                    options.partitions,
+                    scene.meshes.len(),
+                    parts.iter().filter(|p| !p.is_empty()).count()
+                ),
+            });
+        }
+        parts
+    } else {
+        Vec::new()
+    };
+    let per_group = parts.len().max(1);
+    // Nodes a plan of `g` groups needs: one per group and part, and one more when the material
+    // layers have a node of their own (on request; otherwise they are extra targets of a node
+    // the last stage reads).
     let own_node = options.material_own_node;
-    let needed = |g: usize| g + usize::from(own_node);
+    let needed = |g: usize| g * per_group + usize::from(own_node);
     let k = match options.frame_budget_us {
         None => k,
         Some(budget) => {
@@ -265,7 +298,8 @@ fn plan_once(
     // Materials, and the eq. 6–7 folding when a node can carry c_n = c^a.
     let needs = material::needs(scene, &receivers, options.force_all);
     let mut fold = None;
-    if needs.foldable {
+    // Parts each sum their own light groups, so no one input of theirs can carry c^a for all.
+    if needs.foldable && parts.is_empty() {
         let ca = scene.ambient;
         let positive = ca.iter().all(|&c| c > 0.0);
         // A group of colour c^a folds as is; otherwise any group can take c_n = c^a (the node
@@ -312,8 +346,19 @@ fn plan_once(
                 .collect()
         })
         .collect();
-    let mut on_node = group::assign(&group_costs);
+    // Work units: one per group, or per part and group (part-major) with partitions.
+    let units: Vec<(Option<usize>, usize)> = if parts.is_empty() {
+        (0..groups.len()).map(|g| (None, g)).collect()
+    } else {
+        (0..parts.len())
+            .flat_map(|p| (0..groups.len()).map(move |g| (Some(p), g)))
+            .collect()
+    };
+    let unit_costs: Vec<Vec<f64>> = units.iter().map(|&(_, g)| group_costs[g].clone()).collect();
+    let mut on_node = group::assign(&unit_costs);
     if let Some(prev) = previous {
+        // A light keeps its node when the node keeps its part.
+        let key = |part: Option<usize>, l: usize| part.map_or(l, |p| (p + 1) * samples.len() + l);
         let had: Vec<Vec<usize>> = cluster
             .nodes
             .iter()
@@ -321,11 +366,17 @@ fn plan_once(
                 prev.nodes
                     .iter()
                     .find(|p| p.node == n.id)
-                    .map_or_else(Vec::new, |p| p.lights.clone())
+                    .map_or_else(Vec::new, |p| {
+                        p.lights.iter().map(|&l| key(p.part, l)).collect()
+                    })
             })
             .collect();
-        let lights: Vec<&[usize]> = groups.iter().map(|g| g.lights.as_slice()).collect();
-        on_node = group::sticky(&group_costs, &on_node, &lights, &had);
+        let lights: Vec<Vec<usize>> = units
+            .iter()
+            .map(|&(p, g)| groups[g].lights.iter().map(|&l| key(p, l)).collect())
+            .collect();
+        let lights: Vec<&[usize]> = lights.iter().map(Vec::as_slice).collect();
+        on_node = group::sticky(&unit_costs, &on_node, &lights, &had);
     }
     let material_node = own_node.then(|| {
         (0..available)
@@ -339,16 +390,6 @@ fn plan_once(
             .expect("checked: one node more than groups")
     });
 
-    let illum: Vec<topology::IllumInput> = groups
-        .iter()
-        .zip(&on_node)
-        .map(|(g, &n)| topology::IllumInput {
-            node: cluster.nodes[n].id.clone(),
-            color: g.color,
-            layers: vec![(Layer::Illumination, options.formats.node)],
-            cost: costs[n].frame(&group_shadows(g), 0),
-        })
-        .collect();
     let finish = topology::Finish {
         mode,
         ambient: scene.ambient,
@@ -360,65 +401,87 @@ fn plan_once(
         exposure: scene.exposure,
         penumbra,
     };
-    let (stages, node_dst, site) = topology::stages(
-        &illum,
-        &finish,
-        &cluster.compositors,
-        options.topology,
-        &options.formats,
-    );
+    let (stages, nodes, placement) = if parts.is_empty() {
+        let illum: Vec<topology::IllumInput> = groups
+            .iter()
+            .zip(&on_node)
+            .map(|(g, &n)| topology::IllumInput {
+                node: cluster.nodes[n].id.clone(),
+                color: g.color,
+                layers: vec![(Layer::Illumination, options.formats.node)],
+                cost: costs[n].frame(&group_shadows(g), 0),
+            })
+            .collect();
+        let (stages, node_dst, site) = topology::stages(
+            &illum,
+            &finish,
+            &cluster.compositors,
+            options.topology,
+            &options.formats,
+        );
 
-    let mut nodes: Vec<NodePlan> = groups
-        .iter()
-        .zip(&on_node)
-        .zip(node_dst)
-        .map(|((g, &n), (stage, input))| NodePlan {
-            node: cluster.nodes[n].id.clone(),
-            lights: g.lights.clone(),
-            color: g.color,
-            shadows: g
-                .lights
-                .iter()
-                .filter_map(|&i| shadows[i].clone())
-                .collect(),
-            layers: vec![(Layer::Illumination, options.formats.node)],
-            downstream: stage,
-            input_index: input,
-            est_cost_us: costs[n].frame(&group_shadows(g), 0).round() as u64,
-        })
-        .collect();
-    let placement = match (&site, material_node) {
-        (topology::MaterialSite::Host(h), _) => {
-            // Extra targets: the host's eye pass writes the material layers too.
-            let host = &mut nodes[*h];
-            host.layers.extend(material_layers.iter().copied());
-            let g = &groups[*h];
-            host.est_cost_us = costs[on_node[*h]]
-                .frame(&group_shadows(g), material_layers.len())
-                .round() as u64;
-            MaterialPlacement::ExtraTargets {
-                node: host.node.clone(),
+        let mut nodes: Vec<NodePlan> = groups
+            .iter()
+            .zip(&on_node)
+            .zip(node_dst)
+            .map(|((g, &n), (stage, input))| NodePlan {
+                node: cluster.nodes[n].id.clone(),
+                lights: g.lights.clone(),
+                color: g.color,
+                shadows: g
+                    .lights
+                    .iter()
+                    .filter_map(|&i| shadows[i].clone())
+                    .collect(),
+                layers: vec![(Layer::Illumination, options.formats.node)],
+                downstream: stage,
+                input_index: input,
+                est_cost_us: costs[n].frame(&group_shadows(g), 0).round() as u64,
+                part: None,
+            })
+            .collect();
+        let placement = match (&site, material_node) {
+            (topology::MaterialSite::Host(h), _) => {
+                // Extra targets: the host's eye pass writes the material layers too.
+                let host = &mut nodes[*h];
+                host.layers.extend(material_layers.iter().copied());
+                let g = &groups[*h];
+                host.est_cost_us = costs[on_node[*h]]
+                    .frame(&group_shadows(g), material_layers.len())
+                    .round() as u64;
+                MaterialPlacement::ExtraTargets {
+                    node: host.node.clone(),
+                }
             }
-        }
-        (topology::MaterialSite::OwnNode((stage, input)), Some(m)) => {
-            nodes.push(NodePlan {
-                node: cluster.nodes[m].id.clone(),
-                lights: Vec::new(),
-                color: [1.0; 3],
-                shadows: Vec::new(),
-                layers: material_layers.clone(),
-                downstream: stage.clone(),
-                input_index: *input,
-                est_cost_us: costs[m].frame(&[], material_layers.len()).round() as u64,
-            });
-            MaterialPlacement::OwnNode {
-                node: cluster.nodes[m].id.clone(),
+            (topology::MaterialSite::OwnNode((stage, input)), Some(m)) => {
+                nodes.push(NodePlan {
+                    node: cluster.nodes[m].id.clone(),
+                    lights: Vec::new(),
+                    color: [1.0; 3],
+                    shadows: Vec::new(),
+                    layers: material_layers.clone(),
+                    downstream: stage.clone(),
+                    input_index: *input,
+                    est_cost_us: costs[m].frame(&[], material_layers.len()).round() as u64,
+                    part: None,
+                });
+                MaterialPlacement::OwnNode {
+                    node: cluster.nodes[m].id.clone(),
+                }
             }
-        }
-        (topology::MaterialSite::OwnNode(_), None) => {
-            unreachable!("the topology hosts the material layers whenever no own node is chosen")
-        }
+            (topology::MaterialSite::OwnNode(_), None) => {
+                unreachable!(
+                    "the topology hosts the material layers whenever no own node is chosen"
+                )
+            }
+        };
+        (stages, nodes, placement)
+    } else {
+        partitioned(
+            &parts, &units, &on_node, &groups, &shadows, &costs, cluster, &finish, options,
+        )
     };
+    let plan_parts = parts.len();
     let used: Vec<&str> = nodes.iter().map(|n| n.node.as_str()).collect();
     let idle_nodes = cluster
         .nodes
@@ -452,7 +515,11 @@ fn plan_once(
     let est_frame_us = nodes.iter().map(|n| n.est_cost_us).max().unwrap_or(0);
     let mut notes = needs.notes;
     if needs.foldable && fold.is_none() {
-        notes.push("ambient: no node can carry c_n = c^a → ambient layer instead".to_string());
+        notes.push(if plan_parts > 0 {
+            "ambient: each part sums its own groups, so no one node carries c_n = c^a → ambient layer instead".to_string()
+        } else {
+            "ambient: no node can carry c_n = c^a → ambient layer instead".to_string()
+        });
     }
     let material = MaterialPlan {
         mode,
@@ -495,7 +562,105 @@ fn plan_once(
         concessions: Vec::new(),
         target: None,
         addresses,
+        partitions: parts,
     })
+}
+
+/// The nodes and stages of a sort-last grid: `units[u] = (part, group)` on node `on_node[u]`;
+/// each part's cheapest node also renders its part's eye depth and material layers.
+#[allow(clippy::too_many_arguments)]
+fn partitioned(
+    parts: &[Vec<u32>],
+    units: &[(Option<usize>, usize)],
+    on_node: &[usize],
+    groups: &[Group],
+    shadows: &[Option<ShadowPlan>],
+    costs: &[NodeCost],
+    cluster: &ClusterSpec,
+    finish: &topology::Finish,
+    options: &PlanOptions,
+) -> (Vec<StagePlan>, Vec<NodePlan>, MaterialPlacement) {
+    let group_shadows = |g: usize| -> Vec<&ShadowPlan> {
+        groups[g]
+            .lights
+            .iter()
+            .filter_map(|&i| shadows[i].as_ref())
+            .collect()
+    };
+    let mut host_layers = vec![
+        (Layer::Illumination, options.formats.node),
+        (Layer::Depth, PixelFormat::DepthF32),
+    ];
+    host_layers.extend(finish.material_layers.iter().copied());
+    let extra = host_layers.len() - 1;
+    // Per part, its units with the cheapest first (it hosts the part's depth and materials).
+    let mut part_units: Vec<Vec<usize>> = vec![Vec::new(); parts.len()];
+    for (u, &(p, _)) in units.iter().enumerate() {
+        part_units[p.expect("partitioned units name their part")].push(u);
+    }
+    let cost_of =
+        |u: usize, layers: usize| costs[on_node[u]].frame(&group_shadows(units[u].1), layers);
+    for list in &mut part_units {
+        if let Some(first) = list
+            .iter()
+            .enumerate()
+            .min_by(|a, b| {
+                cost_of(*a.1, extra)
+                    .total_cmp(&cost_of(*b.1, extra))
+                    .then(a.0.cmp(&b.0))
+            })
+            .map(|(i, _)| i)
+        {
+            let host = list.remove(first);
+            list.insert(0, host);
+        }
+    }
+    let inputs: Vec<Vec<topology::IllumInput>> = part_units
+        .iter()
+        .map(|list| {
+            list.iter()
+                .enumerate()
+                .map(|(j, &u)| topology::IllumInput {
+                    node: cluster.nodes[on_node[u]].id.clone(),
+                    color: groups[units[u].1].color,
+                    layers: if j == 0 {
+                        host_layers.clone()
+                    } else {
+                        vec![(Layer::Illumination, options.formats.node)]
+                    },
+                    cost: cost_of(u, 0),
+                })
+                .collect()
+        })
+        .collect();
+    let (stages, dst) =
+        topology::partition_stages(&inputs, finish, &cluster.compositors, &options.formats);
+    let mut nodes = Vec::with_capacity(units.len());
+    for (p, list) in part_units.iter().enumerate() {
+        for (j, &u) in list.iter().enumerate() {
+            let g = &groups[units[u].1];
+            let (stage, input) = dst[p][j].clone();
+            nodes.push(NodePlan {
+                node: inputs[p][j].node.clone(),
+                lights: g.lights.clone(),
+                color: g.color,
+                shadows: g
+                    .lights
+                    .iter()
+                    .filter_map(|&i| shadows[i].clone())
+                    .collect(),
+                layers: inputs[p][j].layers.clone(),
+                downstream: stage,
+                input_index: input,
+                est_cost_us: cost_of(u, if j == 0 { extra } else { 0 }).round() as u64,
+                part: Some(p),
+            });
+        }
+    }
+    let placement = MaterialPlacement::PerPart {
+        nodes: inputs.iter().map(|p| p[0].node.clone()).collect(),
+    };
+    (stages, nodes, placement)
 }
 
 fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(), PlanError> {
@@ -515,6 +680,29 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
         && !(1..=PENUMBRA_MAX_RADIUS).contains(&r)
     {
         return bad_options("the penumbra filter's radius must be 1 to 8 (a 3×3 to 17×17 window)");
+    }
+    if o.partitions == 0 || o.partitions > MAX_PARTITIONS {
+        return bad_options(&format!(
+            "partitions must be 1 to {MAX_PARTITIONS}, got {}",
+            o.partitions
+        ));
+    }
+    if o.partitions > 1 {
+        if o.topology != Topology::Chain {
+            return bad_options(
+                "partitions are depth-composed along a chain: drop --topology tree",
+            );
+        }
+        if o.material_own_node {
+            return bad_options(
+                "with partitions each part's first node renders its material layers: drop the material node of its own",
+            );
+        }
+        if matches!(o.penumbra_filter, PenumbraFilter::Radius(_)) {
+            return bad_options(
+                "the penumbra filter is not planned with partitions yet: drop --penumbra-filter or --partitions",
+            );
+        }
     }
     if o.frames_in_flight == 0 {
         return bad_options("frames in flight must be at least 1");

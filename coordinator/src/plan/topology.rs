@@ -95,16 +95,11 @@ pub(crate) fn stages(
     let mut stages: Vec<StagePlan> = Vec::new();
     let mut node_dst = vec![(String::new(), 0u32); nodes.len()];
     let accumulate = |range: &std::ops::Range<usize>, upstream: bool| -> Value {
-        let colors: Vec<Value> = nodes[range.clone()].iter().map(|n| rgb(n.color)).collect();
-        let mut p = json!({ "colors": colors, "upstream": upstream });
-        if let MaterialMode::UniformSpecular { specular } = finish.mode {
-            p["specular_color"] = rgb(specular);
-        }
-        if let Some(f) = finish.fold.filter(|f| range.contains(f)) {
-            p["ambient"] =
-                json!({ "input": f - range.start + usize::from(upstream), "mask": "uniform" });
-        }
-        p
+        let fold = finish
+            .fold
+            .filter(|f| range.contains(f))
+            .map(|f| f - range.start);
+        accumulate_params(&nodes[range.clone()], finish, upstream, fold)
     };
     for (i, range) in chunks.iter().enumerate() {
         let id = compositors[i].id.clone();
@@ -246,6 +241,142 @@ pub(crate) fn stages(
     };
     finish_root(root, finish, formats);
     (stages, node_dst, site)
+}
+
+/// `accumulate`'s parameters over `nodes` (after the upstream sum when `upstream`), with the
+/// ambient term folded into `nodes[fold]`'s input when given.
+fn accumulate_params(
+    nodes: &[IllumInput],
+    finish: &Finish,
+    upstream: bool,
+    fold: Option<usize>,
+) -> Value {
+    let colors: Vec<Value> = nodes.iter().map(|n| rgb(n.color)).collect();
+    let mut p = json!({ "colors": colors, "upstream": upstream });
+    if let MaterialMode::UniformSpecular { specular } = finish.mode {
+        p["specular_color"] = rgb(specular);
+    }
+    if let Some(f) = fold {
+        p["ambient"] = json!({ "input": f + usize::from(upstream), "mask": "uniform" });
+    }
+    p
+}
+
+/// The stages of a sort-last grid (`docs/planner.md` § Partitions): `parts[q]` are the nodes
+/// drawing part q, one per light group, the first of them also carrying the eye depth and the
+/// material layers of its part. A part's illumination is summed over its light groups
+/// (`accumulate`) and put beside its first node's depth and material layers (`merge`); parts are
+/// then depth-composed (`depth`, reading node eye depth: `zero_is_empty`), lower parts first, so
+/// ties go to the lower part. Stages take contiguous runs of parts along a chain, each
+/// depth-composing the upstream stream with its own parts; the last stage shades. Returns the
+/// stages and, per part and node, where the node streams.
+pub(crate) fn partition_stages(
+    parts: &[Vec<IllumInput>],
+    finish: &Finish,
+    compositors: &[DaemonSpec],
+    formats: &FormatChoice,
+) -> (Vec<StagePlan>, Vec<Vec<Dest>>) {
+    use lightfold_compositor::ops::{Merge, layer_name};
+    let count = parts.len().min(compositors.len()).max(1);
+    let mut chunks = Vec::with_capacity(count);
+    let mut start = 0;
+    for i in 0..count {
+        let len = parts.len() / count + usize::from(i < parts.len() % count);
+        chunks.push(start..start + len);
+        start += len;
+    }
+    // What travels between stages: the eye depth with every layer it selects.
+    let material_kinds: Vec<Layer> = finish.material_layers.iter().map(|l| l.0).collect();
+    let mut carried = vec![Layer::Illumination];
+    carried.extend(&material_kinds);
+    let mut own = vec![Layer::Depth];
+    own.extend(&material_kinds);
+    let format_of = |l: Layer| match l {
+        Layer::Illumination => formats.chain,
+        Layer::Depth => PixelFormat::DepthF32,
+        other => finish
+            .material_layers
+            .iter()
+            .find(|m| m.0 == other)
+            .map_or(formats.material, |m| m.1),
+    };
+    let depth_params = |inputs: usize| {
+        let names: Vec<&str> = carried.iter().map(|&l| layer_name(l)).collect();
+        json!({ "inputs": inputs, "layers": names, "zero_is_empty": true })
+    };
+    let mut stages: Vec<StagePlan> = Vec::with_capacity(count);
+    let mut dst: Vec<Vec<Dest>> = parts
+        .iter()
+        .map(|p| vec![(String::new(), 0); p.len()])
+        .collect();
+    for (i, chunk) in chunks.iter().enumerate() {
+        let id = compositors[i].id.clone();
+        let mut inputs = Vec::new();
+        let mut ops: Vec<(String, Value)> = Vec::new();
+        let mut wiring: Vec<Vec<OpSource>> = Vec::new();
+        let mut composed = Vec::new();
+        if let Some(prev) = stages.last_mut() {
+            prev.downstream = Downstream::Stage(id.clone());
+            prev.input_index = 0;
+            inputs.push(InputRef {
+                source: Source::Stage(prev.compositor.clone()),
+                layers: prev.outputs.clone(),
+            });
+            composed.push(OpSource::Input(0));
+        }
+        for q in chunk.clone() {
+            let first = inputs.len() as u32;
+            for (j, n) in parts[q].iter().enumerate() {
+                dst[q][j] = (id.clone(), inputs.len() as u32);
+                inputs.push(InputRef {
+                    source: Source::Node(n.node.clone()),
+                    layers: n.layers.clone(),
+                });
+            }
+            let last = inputs.len() as u32;
+            ops.push((
+                "accumulate".to_string(),
+                accumulate_params(&parts[q], finish, false, None),
+            ));
+            wiring.push((first..last).map(OpSource::Input).collect());
+            ops.push((
+                "merge".to_string(),
+                Merge::params(&[vec![Layer::Illumination], own.clone()]),
+            ));
+            wiring.push(vec![
+                OpSource::Op(ops.len() as u32 - 2),
+                OpSource::Input(first),
+            ]);
+            composed.push(OpSource::Op(ops.len() as u32 - 1));
+        }
+        let outputs: Vec<Layer> = if composed.len() > 1 {
+            ops.push(("depth".to_string(), depth_params(composed.len())));
+            wiring.push(composed);
+            std::iter::once(Layer::Depth)
+                .chain(carried.iter().copied())
+                .collect()
+        } else {
+            std::iter::once(Layer::Illumination)
+                .chain(own.iter().copied())
+                .collect()
+        };
+        stages.push(StagePlan {
+            compositor: id,
+            ops,
+            wiring,
+            inputs,
+            outputs: outputs.into_iter().map(|l| (l, format_of(l))).collect(),
+            downstream: Downstream::Sink,
+            input_index: 0,
+        });
+    }
+    let root = stages.last_mut().expect("at least one stage");
+    // `material` reads the sum and the material layers, both in the composed stream.
+    let composed = OpSource::Op(root.ops.len() as u32 - 1);
+    root.wiring.push(vec![composed, composed]);
+    root.wiring.push(vec![OpSource::Op(root.ops.len() as u32)]);
+    finish_root(root, finish, formats);
+    (stages, dst)
 }
 
 /// Appends `material` and `output` to the root stage, which sends radiance to the sink.

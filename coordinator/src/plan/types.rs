@@ -243,6 +243,13 @@ pub struct PlanOptions {
     /// least the filter's halo. `Plan::penumbra_radius` is what was chosen.
     #[serde(default)]
     pub penumbra_filter: PenumbraFilter,
+    /// Sort-last partitions (`--partitions P`, `docs/planner.md` § Partitions): the meshes are
+    /// split into P spatially coherent parts (`scene::partition`), every light group is rendered
+    /// once per part by a node drawing only that part's eye pass (shadows still from every
+    /// caster), and the stages depth-compose the parts. 1 (the default) draws the whole scene on
+    /// every node.
+    #[serde(default = "one")]
+    pub partitions: u32,
 }
 
 /// When the planner adds the screen-space penumbra filter, and its radius.
@@ -324,6 +331,7 @@ impl Default for PlanOptions {
             cost_scale: CostScale::default(),
             target_penumbra_db: None,
             penumbra_filter: PenumbraFilter::Budget,
+            partitions: 1,
         }
     }
 }
@@ -407,6 +415,10 @@ pub struct NodePlan {
     pub downstream: String,
     pub input_index: u32,
     pub est_cost_us: u64,
+    /// The sort-last part whose eye pass this node draws (an index into `Plan::partitions`);
+    /// `None`: the whole scene.
+    #[serde(default)]
+    pub part: Option<usize>,
 }
 
 /// Where an input of a stage comes from.
@@ -463,6 +475,9 @@ pub enum MaterialPlacement {
     None,
     /// Extra render targets of this illumination node.
     ExtraTargets { node: String },
+    /// Sort-last partitions: extra render targets of each part's first node, which also sends
+    /// its part's eye depth (in part order).
+    PerPart { nodes: Vec<String> },
     /// A node of its own (one eye pass, no shadows).
     OwnNode { node: String },
 }
@@ -591,6 +606,10 @@ pub struct Plan {
     pub target: Option<TargetChoice>,
     /// Data addresses of the daemons the plan uses, by id.
     pub addresses: Vec<(String, String)>,
+    /// The sort-last parts (mesh indices, ascending) when the plan partitions the scene; empty
+    /// when every node draws it whole.
+    #[serde(default)]
+    pub partitions: Vec<Vec<u32>>,
 }
 
 #[cfg(test)]

@@ -1,0 +1,175 @@
+//! Sort-last partitions through the cluster (issue 24, `docs/planner.md` § Partitions): the
+//! planner splits the meshes into parts, every light group is rendered once per part by a node
+//! drawing only that part, and the compositor chain depth-composes the parts. The frame equals
+//! the single-device render of the whole scene within the link formats' bound, and where two
+//! parts' surfaces tie exactly in depth the lower part wins, frame after frame. Negative
+//! controls: the other tie rule, and the whole render without one of the parts.
+
+use lightfold_coordinator::plan::PlanOptions;
+use lightfold_coordinator::run::RunOptions;
+use lightfold_node::gpu::{Gpu, GpuOptions};
+use lightfold_scene::primitives::plane;
+use lightfold_scene::{Image, Light, LightShape, Material, Scene};
+use lightfold_tests::{
+    InProcessCluster, assert_close, render_on, single_device, single_device_parts, small,
+    test_control,
+};
+
+/// The largest image bias `|Σ cluster / Σ render − 1|` (as `render_parity.rs`).
+const MAX_BIAS: f64 = 5e-4;
+
+fn gpu() -> Gpu {
+    Gpu::new(&GpuOptions::default())
+        .expect("a GPU adapter is required (install mesa-vulkan-drivers)")
+}
+
+fn bias(test: &Image, want: &Image) -> f64 {
+    let s = |i: &Image| i.data.iter().map(|&v| f64::from(v)).sum::<f64>();
+    s(test) / s(want) - 1.0
+}
+
+/// Renders `scene` on the cluster with `partitions` parts at K = `k`: the first frame and the
+/// plan.
+async fn cluster_frame(
+    cluster: &InProcessCluster,
+    scene: &Scene,
+    partitions: u32,
+    k: u32,
+    frames: u32,
+) -> (Vec<Image>, lightfold_coordinator::plan::Plan) {
+    let mut session = cluster.connect(test_control()).await.unwrap();
+    let opts = RunOptions {
+        control: test_control(),
+        frames,
+        plan: PlanOptions {
+            partitions,
+            lights_per_node: k,
+            ..PlanOptions::default()
+        },
+        ..RunOptions::default()
+    };
+    let out = render_on(&mut session, scene, &opts).await.unwrap();
+    session.detach();
+    (out.frames.into_iter().map(|f| f.image).collect(), out.plan)
+}
+
+/// `scenes/glass.toml` small (glass of one part tints surfaces of another).
+fn glass() -> Scene {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/glass.toml");
+    let mut s = lightfold_scene::load(path).unwrap();
+    s.quality.samples_per_area_light = Some(4);
+    s.camera.width = 64;
+    s.camera.height = 48;
+    s
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_partitioned_cluster_frame_equals_the_whole_render() {
+    let cluster = InProcessCluster::start(6, 3).await.unwrap();
+    let gpu = gpu();
+    for (scene, parts) in [(small("balls"), 2), (small("balls"), 3), (glass(), 2)] {
+        let (frames, plan) = cluster_frame(&cluster, &scene, parts, 4, 1).await;
+        assert_eq!(plan.partitions.len(), parts as usize, "{}", scene.name);
+        assert!(
+            plan.nodes.iter().all(|n| n.part.is_some()),
+            "every node draws a part"
+        );
+        let want = single_device(&gpu, &scene, false);
+        let b = bias(&frames[0], &want);
+        eprintln!(
+            "{} with {parts} parts on {} nodes: bias {:+.4} %",
+            scene.name,
+            plan.nodes.len(),
+            b * 100.0
+        );
+        assert_close(&frames[0], &want, &format!("{} P={parts}", scene.name));
+        assert!(b.abs() <= MAX_BIAS, "{}: bias {b}", scene.name);
+        // Negative control: the whole render without the last part's surfaces.
+        let mut without = plan.partitions.clone();
+        without.pop();
+        let partial = single_device_parts(&gpu, &scene, &without, false);
+        assert!(
+            bias(&frames[0], &partial).abs() > 10.0 * MAX_BIAS,
+            "{}: a part's surfaces make no difference",
+            scene.name
+        );
+    }
+    cluster.stop().await.unwrap();
+}
+
+/// Two identical floors (one red, one green) in the same place: every visible pixel is an
+/// exact depth tie between the two parts.
+fn twin_floors() -> Scene {
+    let mut s = Scene::new("twin floors");
+    let red = s.add_material(Material::diffuse("red", [0.8, 0.1, 0.1]));
+    let green = s.add_material(Material::diffuse("green", [0.1, 0.8, 0.1]));
+    for (name, m) in [("red floor", red), ("green floor", green)] {
+        s.add_mesh(plane(
+            name,
+            [0.0; 3],
+            [0.0, 1.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [6.0, 6.0],
+            4,
+            m,
+        ));
+    }
+    s.lights.push(Light {
+        name: "bulb".into(),
+        shape: LightShape::Point {
+            position: [0.5, 3.0, 0.5],
+        },
+        color: [1.0; 3],
+        power: 30.0,
+        range: None,
+        samples: 1,
+    });
+    s.camera.position = [0.0, 3.0, 5.0];
+    s.camera.target = [0.0, 0.0, 0.0];
+    s.camera.width = 48;
+    s.camera.height = 32;
+    s
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn exact_depth_ties_go_to_the_lower_part_every_frame() {
+    let cluster = InProcessCluster::start(2, 2).await.unwrap();
+    let gpu = gpu();
+    let scene = twin_floors();
+    let (frames, plan) = cluster_frame(&cluster, &scene, 2, 1, 2).await;
+    cluster.stop().await.unwrap();
+    assert_eq!(plan.partitions.len(), 2);
+    let lower = &scene.materials[scene.meshes[plan.partitions[0][0] as usize].material];
+    let want = single_device_parts(&gpu, &scene, &plan.partitions, false);
+    let other = single_device_parts(&gpu, &scene, &plan.partitions, true);
+    for (i, frame) in frames.iter().enumerate() {
+        assert_close(frame, &want, &format!("frame {i}"));
+    }
+    assert_eq!(
+        frames[0].data, frames[1].data,
+        "the winner of a tie is the same every frame"
+    );
+    // The lower part's colour is what shows: its dominant channel carries the light.
+    let sum = |img: &Image, c: usize| img.data.iter().skip(c).step_by(3).sum::<f32>();
+    let dominant = if lower.diffuse[0] > lower.diffuse[1] {
+        0
+    } else {
+        1
+    };
+    assert!(
+        sum(&frames[0], dominant) > 4.0 * sum(&frames[0], 1 - dominant),
+        "the lower part ({}) does not show",
+        lower.name
+    );
+    // Negative control: ties to the higher part give the other floor.
+    let far: usize = frames[0]
+        .data
+        .iter()
+        .zip(&other.data)
+        .filter(|(a, b)| (*a - *b).abs() > 0.025 * b.abs() + 1e-3)
+        .count();
+    assert!(
+        far > frames[0].data.len() / 4,
+        "the tie rule makes no difference ({far})"
+    );
+}
