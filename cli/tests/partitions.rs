@@ -75,3 +75,43 @@ fn partitions_refuse_the_reference_and_the_penumbra_filter() {
         );
     }
 }
+
+/// `lightfold plan --partitions P` prints the grid: parts × light groups, each node's part, the
+/// depth compose along the chain; an impossible count is refused with the largest that works.
+#[test]
+fn plan_prints_the_partition_grid() {
+    let plan = |extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_lightfold"))
+            .args([
+                "plan",
+                "--scene",
+                SCENE,
+                "--nodes",
+                "16",
+                "--compositors",
+                "4",
+                "-K",
+                "4",
+            ])
+            .args(extra)
+            .output()
+            .expect("runs")
+    };
+    let out = plan(&["--partitions", "2"]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("partitions: 2 parts × "), "{text}");
+    assert!(
+        text.contains("part 0 · ") && text.contains("part 1 · "),
+        "{text}"
+    );
+    assert!(text.contains("merge") && text.contains("depth"), "{text}");
+    let out = plan(&["--partitions", "64"]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(err.contains("leave a part empty"), "{err}");
+}

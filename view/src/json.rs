@@ -130,6 +130,7 @@ pub fn plan(p: &Plan) -> Value {
             json!({
                 "id": n.node, "lights": n.lights.len(), "color": n.color,
                 "downstream": n.downstream, "est_ms": n.est_cost_us as f64 / 1000.0,
+                "part": n.part,
             })
         })
         .collect();
@@ -160,6 +161,7 @@ pub fn plan(p: &Plan) -> Value {
         "frame_budget_ms": p.frame_budget_us.map(|b| b as f64 / 1000.0),
         "samples": p.samples.len(), "gave_up": p.gave_up(),
         "penumbra_radius": p.penumbra_radius, "penumbra": p.penumbra_line(),
+        "partitions": p.partitions.len(), "partition": p.partition_line(),
     })
 }
 
@@ -197,4 +199,39 @@ pub fn frame_header(
         "sink_bytes": f.sink_bytes,
         "daemons": daemons,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use lightfold_coordinator::plan::{ClusterSpec, PlanOptions, plan};
+
+    #[test]
+    fn the_plan_graph_names_each_node_s_part() {
+        let scene = lightfold_scene::builtin("balls").unwrap();
+        let options = PlanOptions {
+            partitions: 2,
+            ..PlanOptions::default()
+        };
+        let p = plan(&scene, &ClusterSpec::local(32, 8), &options).unwrap();
+        let v = super::plan(&p);
+        assert_eq!(v["partitions"], 2);
+        assert!(
+            v["partition"]
+                .as_str()
+                .unwrap()
+                .starts_with("partitions: 2 parts")
+        );
+        let parts: Vec<u64> = v["nodes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|n| n["part"].as_u64().unwrap())
+            .collect();
+        assert!(parts.contains(&0) && parts.contains(&1), "{parts:?}");
+        // Without partitions there is no part.
+        let whole = super::plan(
+            &plan(&scene, &ClusterSpec::local(32, 8), &PlanOptions::default()).unwrap(),
+        );
+        assert!(whole["nodes"][0]["part"].is_null() && whole["partition"].is_null());
+    }
 }

@@ -464,13 +464,14 @@
     if (!plan || !plan.nodes) { box.replaceChildren(el('div', { class: 'dim', text: 'no plan yet' })); return; }
     const budget = plan.frame_budget_ms != null ? ` · budget ${ms(plan.frame_budget_ms)}` : '';
     $('plan-summary').textContent = `K ${plan.k ?? '–'} · ${plan.samples ?? '–'} samples · est. ${ms(plan.est_frame_ms)}/frame${budget}`;
-    const gave = [plan.gave_up, plan.penumbra].filter(Boolean).join(' · ');
+    const gave = [plan.gave_up, plan.penumbra, plan.partition].filter(Boolean).join(' · ');
     $('gave-up').hidden = !gave;
     $('gave-up').textContent = gave;
     const items = new Map(); // id -> {kind, col, lines}
     for (const n of plan.nodes) {
       const lights = Array.isArray(n.lights) ? n.lights.length : n.lights;
-      items.set(n.id, { kind: 'node', col: 0, lines: [n.id, `${lights} light${lights === 1 ? '' : 's'}${n.est_ms != null ? ` · ${ms(n.est_ms)}` : ''}`], color: n.color });
+      const part = n.part != null ? ` · part ${n.part}` : '';
+      items.set(n.id, { kind: 'node', col: 0, lines: [n.id, `${lights} light${lights === 1 ? '' : 's'}${part}${n.est_ms != null ? ` · ${ms(n.est_ms)}` : ''}`], color: n.color });
     }
     for (const s of plan.stages || []) items.set(s.id, { kind: 'stage', col: 1, lines: [s.id, (s.ops || []).join(' + ')] });
     // Whatever no node or stage is called is the sink ("sink", or the sink's address).
@@ -556,6 +557,7 @@
     if (s.plan) {
       row('nodes / stages', `${(s.plan.nodes || []).length} / ${(s.plan.stages || []).length}`);
       row('lights per node (K)', s.plan.k ?? '–');
+      if (s.plan.partitions) row('sort-last parts', s.plan.partitions);
     }
     const list = (id, items, f) => {
       const ul = $(id);

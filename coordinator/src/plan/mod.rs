@@ -42,7 +42,7 @@ pub enum PlanError {
     #[error("daemon id {id:?} appears twice in the cluster")]
     DuplicateDaemon { id: String },
     #[error(
-        "{active} active light samples need {needed} render nodes at K = {k} (including one for the material layers) and the devices take at most K = {limit}; the cluster has {available}"
+        "{active} active light samples need {needed} render nodes at K = {k} (one per group of K lights and sort-last part, plus the material layers' node when they have one of their own) and the devices take at most K = {limit}; the cluster has {available}"
     )]
     NotEnoughNodes {
         active: usize,
