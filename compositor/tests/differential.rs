@@ -6,6 +6,7 @@ mod common;
 
 use common::{Owned, assert_same_bits, hostile, rng, run};
 use lightfold_compositor::ops::{self, Operator, Output, PAR_SPAN};
+use lightfold_protocol::Layer;
 use serde_json::{Value, json};
 
 /// Widths that exercise the vector remainders, one pixel, and a band large enough to be split

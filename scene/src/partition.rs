@@ -6,7 +6,7 @@
 //! level of bisection, since meshes are not split. Deterministic: the same scene gives the same
 //! parts. Pure CPU code.
 
-use crate::model::Scene;
+use crate::model::{Mesh, Scene};
 
 /// Partitions the meshes of `scene` into `parts` groups (mesh indices, ascending in each).
 /// Every mesh is in exactly one group; meshes without a finite position go to the first group;
@@ -78,4 +78,92 @@ fn longest_axis(items: &[(u32, [f32; 3], u64)]) -> usize {
     (0..3)
         .max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b])).then(b.cmp(&a)))
         .unwrap_or(0)
+}
+
+/// The scene one sort-last node needs (`docs/planner.md` § Partitions): the meshes `keep` marks
+/// whole, every other mesh with triangles replaced by a stand-in, one triangle spanning the
+/// bounds of the mesh's triangles with the mesh's material. A node never draws a stand-in (it is
+/// in no eye part, no light's casters and no glass pass of that node), but it fits shadow views
+/// to the bounds of every mesh, as the planner does, so the stand-ins keep its maps, depth
+/// bias and image those of the whole scene. Mesh indices, materials, textures, lights and camera
+/// are unchanged. A mesh whose bounds no triangle can span without failing validation (flat in
+/// two axes, which a clean mesh is not) is kept whole. Meshes past `keep`'s end are replaced.
+pub fn keep_meshes(scene: &Scene, keep: &[bool]) -> Scene {
+    let meshes = scene
+        .meshes
+        .iter()
+        .enumerate()
+        .map(|(i, m)| {
+            if keep.get(i).copied().unwrap_or(false) {
+                m.clone()
+            } else {
+                stand_in(m).unwrap_or_else(|| m.clone())
+            }
+        })
+        .collect();
+    Scene {
+        name: scene.name.clone(),
+        meshes,
+        materials: scene.materials.clone(),
+        textures: scene.textures.clone(),
+        lights: scene.lights.clone(),
+        camera: scene.camera,
+        ambient: scene.ambient,
+        exposure: scene.exposure,
+        quality: scene.quality.clone(),
+        animation: scene.animation.clone(),
+    }
+}
+
+/// One triangle over the bounds of `m`'s triangles: its two extreme corners and the box corner
+/// that makes the largest triangle with them. `None` for a mesh without triangles (kept as it is)
+/// or one too flat to span.
+fn stand_in(m: &Mesh) -> Option<Mesh> {
+    let mut lo = [f32::INFINITY; 3];
+    let mut hi = [f32::NEG_INFINITY; 3];
+    for t in m.indices.chunks_exact(3) {
+        for &i in t {
+            let p = m.positions.get(i as usize)?;
+            for k in 0..3 {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+    }
+    if !lo.iter().chain(&hi).all(|c| c.is_finite()) {
+        return None;
+    }
+    let corners = [
+        [lo[0], lo[1], hi[2]],
+        [lo[0], hi[1], lo[2]],
+        [hi[0], lo[1], lo[2]],
+    ];
+    let area = |c: &[f32; 3]| {
+        let e1 = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
+        let e2 = [c[0] - lo[0], c[1] - lo[1], c[2] - lo[2]];
+        let x = [
+            e1[1] * e2[2] - e1[2] * e2[1],
+            e1[2] * e2[0] - e1[0] * e2[2],
+            e1[0] * e2[1] - e1[1] * e2[0],
+        ];
+        let c2 = (x[0] * x[0] + x[1] * x[1] + x[2] * x[2]).sqrt();
+        let scale2 = e1.iter().chain(&e2).map(|v| v * v).sum::<f32>();
+        (c2, scale2)
+    };
+    let third = corners
+        .iter()
+        .max_by(|a, b| area(a).0.total_cmp(&area(b).0))?;
+    // The validation's rule for a degenerate triangle (`validate`), with a margin.
+    let (c, scale2) = area(third);
+    if !(c.is_finite() && c > 1e-6 * scale2) {
+        return None;
+    }
+    Some(Mesh {
+        name: m.name.clone(),
+        positions: vec![lo, hi, *third],
+        normals: Vec::new(),
+        uvs: Vec::new(),
+        indices: vec![0, 1, 2],
+        material: m.material,
+    })
 }

@@ -105,3 +105,59 @@ fn two_parts_split_along_the_longest_axis() {
     assert!(p[0].contains(&10));
     assert_eq!(p.iter().map(Vec::len).sum::<usize>(), 11);
 }
+
+/// `keep_meshes`: kept meshes are unchanged, the others become one-triangle stand-ins over the
+/// same triangle bounds with the same material, and the result validates clean through the
+/// scene encoding (what a node decodes), with fewer bytes.
+#[test]
+fn stand_ins_keep_every_mesh_s_bounds_and_validate() {
+    use lightfold_scene::partition::keep_meshes;
+    let mut s = scene(&[([0.0; 3], 4), ([2.0, 0.0, 0.0], 2), ([0.0, 0.0, 3.0], 1)]);
+    let grey = s.meshes[0].material;
+    // A flat floor too: its bounds are flat in one axis, and a stand-in still spans them.
+    s.add_mesh(plane(
+        "floor",
+        [0.0; 3],
+        [0.0, 1.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [8.0, 6.0],
+        4,
+        grey,
+    ));
+    let keep = [true, false, false, false];
+    let sub = keep_meshes(&s, &keep);
+    assert_eq!(sub.meshes.len(), s.meshes.len());
+    assert_eq!(sub.meshes[0], s.meshes[0]);
+    let tri_bounds = |m: &lightfold_scene::Mesh| {
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for &i in &m.indices {
+            let p = m.positions[i as usize];
+            for k in 0..3 {
+                lo[k] = lo[k].min(p[k]);
+                hi[k] = hi[k].max(p[k]);
+            }
+        }
+        (lo, hi)
+    };
+    for i in 1..4 {
+        assert_eq!(sub.meshes[i].triangle_count(), 1, "mesh {i}");
+        assert_eq!(
+            tri_bounds(&sub.meshes[i]),
+            tri_bounds(&s.meshes[i]),
+            "mesh {i}"
+        );
+        assert_eq!(sub.meshes[i].material, s.meshes[i].material);
+    }
+    let (whole, part) = (s.to_bytes().unwrap(), sub.to_bytes().unwrap());
+    assert!(
+        part.len() < whole.len(),
+        "{} of {} bytes",
+        part.len(),
+        whole.len()
+    );
+    let decoded = Scene::from_bytes(&part).expect("a stand-in scene decodes clean");
+    assert_eq!(decoded, sub);
+    // Keeping everything is the scene itself.
+    assert_eq!(keep_meshes(&s, &[true; 4]), s);
+}

@@ -97,6 +97,88 @@ async fn a_partitioned_cluster_frame_equals_the_whole_render() {
     cluster.stop().await.unwrap();
 }
 
+/// A 4 × 4 grid of floor tiles with a box on each, lit by two short-range lamps at opposite
+/// corners: each lamp's shadow casters are the few meshes near it, so a sort-last node is sent
+/// its part and its lamps' casters whole and every other mesh as a stand-in.
+fn lamp_lit_tiles() -> Scene {
+    let mut s = Scene::new("lamp-lit tiles");
+    let grey = s.add_material(Material::diffuse("grey", [0.6; 3]));
+    let tan = s.add_material(Material::diffuse("tan", [0.8, 0.6, 0.4]));
+    for i in 0..4 {
+        for j in 0..4 {
+            let (x, z) = (-3.0 + 2.0 * i as f32, -3.0 + 2.0 * j as f32);
+            s.add_mesh(plane(
+                &format!("tile {i},{j}"),
+                [x, 0.0, z],
+                [0.0, 1.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [2.0, 2.0],
+                2,
+                grey,
+            ));
+            s.add_mesh(lightfold_scene::primitives::cuboid(
+                &format!("box {i},{j}"),
+                [x + 0.3, 0.3, z - 0.2],
+                [0.25, 0.3, 0.25],
+                tan,
+            ));
+        }
+    }
+    for (name, p) in [("lamp a", [-3.0, 1.2, -3.0]), ("lamp b", [3.0, 1.2, 3.0])] {
+        s.lights.push(Light {
+            name: name.into(),
+            shape: LightShape::Point { position: p },
+            color: [1.0; 3],
+            power: 12.0,
+            range: Some(2.5),
+            samples: 1,
+        });
+    }
+    s.camera.position = [0.0, 7.0, 7.0];
+    s.camera.target = [0.0, 0.0, 0.0];
+    s.camera.width = 64;
+    s.camera.height = 48;
+    s
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn sort_last_nodes_are_sent_only_what_they_draw() {
+    let cluster = InProcessCluster::start(4, 2).await.unwrap();
+    let gpu = gpu();
+    let scene = lamp_lit_tiles();
+    let (frames, plan) = cluster_frame(&cluster, &scene, 2, 1, 1).await;
+    cluster.stop().await.unwrap();
+    // Each node's scene: its part and its lamp's casters whole, the rest stand-ins.
+    let whole = scene.to_bytes().unwrap().len();
+    let mut smaller = 0;
+    for n in &plan.nodes {
+        let hash = n.scene.expect("a partition node of a still scene gets its own scene");
+        assert_ne!(hash, plan.scene_hash, "{}", n.node);
+        let part = &plan.partitions[n.part.unwrap()];
+        let mut keep = vec![false; scene.meshes.len()];
+        for &m in part.iter().chain(n.shadows.iter().flat_map(|s| &s.casters)) {
+            keep[m as usize] = true;
+        }
+        let sub = lightfold_scene::partition::keep_meshes(&scene, &keep);
+        assert_eq!(sub.content_hash(), hash, "{}", n.node);
+        let bytes = sub.to_bytes().unwrap().len();
+        eprintln!(
+            "{}: part {} ({} meshes), {} casters: {bytes} of {whole} scene bytes",
+            n.node,
+            n.part.unwrap(),
+            part.len(),
+            n.shadows.iter().map(|s| s.casters.len()).sum::<usize>()
+        );
+        smaller += usize::from(bytes < whole * 3 / 4);
+    }
+    assert_eq!(smaller, plan.nodes.len(), "every node is sent less than the scene");
+    // And the frame is the whole scene's.
+    let want = single_device(&gpu, &scene, false);
+    assert_close(&frames[0], &want, "stand-in scenes");
+    let b = bias(&frames[0], &want);
+    assert!(b.abs() <= MAX_BIAS, "bias {b}");
+}
+
 /// Two identical floors (one red, one green) in the same place: every visible pixel is an
 /// exact depth tie between the two parts.
 fn twin_floors() -> Scene {

@@ -12,7 +12,7 @@ impl Plan {
         let n = self.nodes.iter().find(|n| n.node == node_id)?;
         Some(NodeConfig {
             epoch: self.epoch,
-            scene: self.scene_hash,
+            scene: n.scene.unwrap_or(self.scene_hash),
             lights: n
                 .lights
                 .iter()

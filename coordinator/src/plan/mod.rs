@@ -438,6 +438,7 @@ fn plan_once(
                 input_index: input,
                 est_cost_us: costs[n].frame(&group_shadows(g), 0).round() as u64,
                 part: None,
+                scene: None,
             })
             .collect();
         let placement = match (&site, material_node) {
@@ -464,6 +465,7 @@ fn plan_once(
                     input_index: *input,
                     est_cost_us: costs[m].frame(&[], material_layers.len()).round() as u64,
                     part: None,
+                    scene: None,
                 });
                 MaterialPlacement::OwnNode {
                     node: cluster.nodes[m].id.clone(),
@@ -654,6 +656,7 @@ fn partitioned(
                 input_index: input,
                 est_cost_us: cost_of(u, if j == 0 { extra } else { 0 }).round() as u64,
                 part: Some(p),
+                scene: None,
             });
         }
     }

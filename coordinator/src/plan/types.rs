@@ -419,6 +419,10 @@ pub struct NodePlan {
     /// `None`: the whole scene.
     #[serde(default)]
     pub part: Option<usize>,
+    /// The content hash of the scene this node is sent when it is not the plan's (a sort-last
+    /// node gets only what it draws: `scene::partition::keep_meshes`); set by the control loop.
+    #[serde(default)]
+    pub scene: Option<[u8; 32]>,
 }
 
 /// Where an input of a stage comes from.

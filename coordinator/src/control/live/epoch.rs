@@ -7,7 +7,8 @@ use crate::control::sink::SinkGeometry;
 use crate::plan::{Plan, PlanError, lights_moved, plan, replan};
 use crate::run::{RunError, cluster_spec};
 use lightfold_protocol::{ErrorCode, Message};
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
 use std::time::Instant;
 
 impl Live<'_> {
@@ -130,16 +131,21 @@ impl Live<'_> {
             .chain(next.stages.iter().map(|s| s.compositor.clone()))
             .collect();
         self.just_lost.clear();
-        let hash = self.hash;
-        let needing: Vec<String> = next
-            .nodes
-            .iter()
-            .map(|n| n.node.clone())
-            .filter(|id| self.session.scenes.get(id) != Some(&hash))
-            .collect();
+        // What each node is sent: the scene, or with partitions only what it draws.
+        let mut wants: BTreeMap<String, ([u8; 32], Arc<Vec<u8>>)> = BTreeMap::new();
+        for i in 0..next.nodes.len() {
+            let (hash, bytes) = self
+                .scene_for(&next, i)
+                .map_err(|e| Halt::Fatal(RunError::Scene(e)))?;
+            next.nodes[i].scene = (hash != self.hash).then_some(hash);
+            wants.insert(next.nodes[i].node.clone(), (hash, bytes));
+        }
         let mut offered: BTreeSet<String> = BTreeSet::new();
-        for id in &needing {
-            let size = self.bytes.len() as u64;
+        for (id, (hash, bytes)) in &wants {
+            if self.session.scenes.get(id) == Some(hash) {
+                continue;
+            }
+            let (hash, size) = (*hash, bytes.len() as u64);
             self.send_or_lose(id, Message::SceneOffer { hash, size })
                 .await;
             offered.insert(id.clone());
@@ -154,17 +160,21 @@ impl Live<'_> {
             else {
                 continue;
             };
+            let wanted = wants.get(&id).map(|w| w.0);
             match m {
-                Message::SceneNeed { hash: h, need } if h == hash && offered.remove(&id) => {
+                Message::SceneNeed { hash: h, need }
+                    if Some(h) == wanted && offered.remove(&id) =>
+                {
                     if need {
-                        self.send_scene(&id).await;
+                        let bytes = Arc::clone(&wants[&id].1);
+                        self.send_scene(&id, h, &bytes).await;
                         loading.insert(id);
                     } else {
-                        self.session.scenes.insert(id, hash);
+                        self.session.scenes.insert(id, h);
                     }
                 }
-                Message::SceneReady { hash: h, .. } if h == hash && loading.remove(&id) => {
-                    self.session.scenes.insert(id, hash);
+                Message::SceneReady { hash: h, .. } if Some(h) == wanted && loading.remove(&id) => {
+                    self.session.scenes.insert(id, h);
                 }
                 Message::Error { code, message } if pending.contains(&id) => {
                     return Err(self.refused(id, code, message));
@@ -294,17 +304,66 @@ impl Live<'_> {
         }
     }
 
-    pub(super) async fn send_scene(&mut self, id: &str) {
+    /// The scene bytes node `next.nodes[i]` is sent, and their content hash: the whole scene,
+    /// or with sort-last partitions (of a still scene) its part, its lights' casters and every
+    /// glass mesh whole and the other meshes as stand-ins (`scene::partition::keep_meshes`).
+    fn scene_for(&mut self, next: &Plan, i: usize) -> Result<([u8; 32], Arc<Vec<u8>>), String> {
+        let whole = (self.hash, Arc::clone(&self.bytes));
+        let n = &next.nodes[i];
+        let Some(part) = n.part.and_then(|p| next.partitions.get(p)) else {
+            return Ok(whole);
+        };
+        if self.scene.animation.is_some() {
+            // Posing moves every mesh; stand-ins would not follow their meshes' bounds.
+            return Ok(whole);
+        }
+        let scene = &self.scene;
+        let mut keep = vec![false; scene.meshes.len()];
+        let mut mark = |m: u32| {
+            if let Some(k) = keep.get_mut(m as usize) {
+                *k = true;
+            }
+        };
+        part.iter().copied().for_each(&mut mark);
+        n.shadows
+            .iter()
+            .flat_map(|s| s.casters.iter().copied())
+            .for_each(&mut mark);
+        for (m, mesh) in scene.meshes.iter().enumerate() {
+            if scene
+                .materials
+                .get(mesh.material)
+                .is_some_and(|mat| mat.is_filter())
+            {
+                keep[m] = true;
+            }
+        }
+        if keep.iter().all(|&k| k) {
+            return Ok(whole);
+        }
+        let kept: Vec<u32> = (0..keep.len() as u32)
+            .filter(|&m| keep[m as usize])
+            .collect();
+        if let Some(hit) = self.subsets.get(&kept) {
+            return Ok(hit.clone());
+        }
+        let sub = lightfold_scene::partition::keep_meshes(scene, &keep);
+        let bytes = Arc::new(sub.to_bytes().map_err(|e| e.to_string())?);
+        let entry = (sub.content_hash(), bytes);
+        self.subsets.insert(kept, entry.clone());
+        Ok(entry)
+    }
+
+    pub(super) async fn send_scene(&mut self, id: &str, hash: [u8; 32], bytes: &[u8]) {
         const CHUNK: usize = SCENE_CHUNK;
-        let hash = self.hash;
-        let total = self.bytes.len();
+        let total = bytes.len();
         let chunks = total.div_ceil(CHUNK).max(1);
         for i in 0..chunks {
             let range = (i * CHUNK).min(total)..((i + 1) * CHUNK).min(total);
             let msg = Message::SceneChunk {
                 hash,
                 offset: range.start as u64,
-                data: self.bytes[range].to_vec(),
+                data: bytes[range].to_vec(),
                 last: i + 1 == chunks,
             };
             if let Err(e) = self.session.send(id, msg).await {

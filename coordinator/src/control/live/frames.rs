@@ -167,11 +167,13 @@ impl Live<'_> {
                 l.color = color;
             }
         }
-        self.bytes = self
-            .scene
-            .to_bytes()
-            .map_err(|e| RunError::Scene(e.to_string()))?;
+        self.bytes = std::sync::Arc::new(
+            self.scene
+                .to_bytes()
+                .map_err(|e| RunError::Scene(e.to_string()))?,
+        );
         self.hash = self.scene.content_hash();
+        self.subsets.clear();
         Ok(())
     }
 

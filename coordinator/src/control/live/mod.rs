@@ -193,8 +193,11 @@ pub struct Live<'s> {
     /// node's colour group, which re-plans).
     scene: Scene,
     opts: PlanOptions,
-    bytes: Vec<u8>,
+    bytes: std::sync::Arc<Vec<u8>>,
     hash: [u8; 32],
+    /// Sort-last partitions: the scene each node needs (`scene::partition::keep_meshes`), by
+    /// the meshes it keeps whole; cleared when the scene changes.
+    subsets: std::collections::HashMap<Vec<u32>, ([u8; 32], std::sync::Arc<Vec<u8>>)>,
     plan: Option<Plan>,
     /// Under a frame budget: each settled frame of this epoch, its slowest node's measured
     /// render time (µs), and per node and frame the fixed and per-light costs measured over the
@@ -274,7 +277,8 @@ impl<'s> Live<'s> {
             session,
             scene,
             opts: opts.clone(),
-            bytes,
+            bytes: std::sync::Arc::new(bytes),
+            subsets: std::collections::HashMap::new(),
             // Nodes decode what they receive and check it against this.
             hash: scene_hash,
             plan: None,
