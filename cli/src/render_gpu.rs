@@ -215,7 +215,8 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
     Ok(())
 }
 
-/// One image over sort-last partitions: each part's image alone ([`Renderer::set_eye_meshes`]),
+/// One image over sort-last partitions: each part's image alone ([`Renderer::set_eye_meshes`],
+/// its shadow maps fitted to the part: [`Renderer::set_fit_to_eye_meshes`]),
 /// then per pixel the part whose surface is nearest (eye depth > 0; ties to the lower part, as
 /// the compositor's `depth` operator breaks them). Times add up over the parts.
 fn render_partitioned(
@@ -229,6 +230,8 @@ fn render_partitioned(
     let t = Instant::now();
     let mut best: Option<(Image, Image)> = None;
     let mut times = FrameTimes::default();
+    // As a sort-last node of the cluster: its part's eye pass, maps fitted to its part.
+    renderer.set_fit_to_eye_meshes(true);
     for part in parts {
         renderer.set_eye_meshes(Some(part.clone()));
         let ((radiance, depth), part_times) =
@@ -249,6 +252,7 @@ fn render_partitioned(
         });
     }
     renderer.set_eye_meshes(None);
+    renderer.set_fit_to_eye_meshes(false);
     times.total_us = t.elapsed().as_micros() as u64;
     Ok((best.context("no partition rendered")?, times))
 }

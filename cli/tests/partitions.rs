@@ -1,6 +1,7 @@
 //! `lightfold render --partitions P` end to end (issue 24's sort-last partitions on one device):
-//! the parts' eye passes drawn alone and selected per pixel by the nearest surface give the
-//! unpartitioned image bit for bit; combinations that cannot hold are refused.
+//! the parts' eye passes drawn alone, each with maps fitted to its part, and selected per pixel
+//! by the nearest surface give the unpartitioned image; combinations that cannot hold are
+//! refused.
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -33,8 +34,12 @@ fn pixels(p: &Path) -> Vec<u8> {
         .into_raw()
 }
 
+/// Each part's maps are fitted to that part's receivers (as a sort-last node of the cluster
+/// fits them), so shadow edges fall on other texel grids than the whole scene's maps: the image
+/// agrees with the unpartitioned one within what texel placement moves (the CPU reference is
+/// as close to either: `docs/scaling.md`), with no bias.
 #[test]
-fn partitions_render_the_unpartitioned_image_bit_for_bit() {
+fn partitions_render_the_unpartitioned_image() {
     let dir = tempfile::tempdir().unwrap();
     let path = |n: &str| dir.path().join(format!("{n}.exr"));
     for (name, extra) in [("one", &[][..]), ("three", &["--partitions", "3"][..])] {
@@ -45,13 +50,36 @@ fn partitions_render_the_unpartitioned_image_bit_for_bit() {
             String::from_utf8_lossy(&o.stderr)
         );
     }
-    let png = |n: &str| pixels(&path(n).with_extension("png"));
-    let (one, three) = (png("one"), png("three"));
-    let differ = one.iter().zip(&three).filter(|(a, b)| a != b).count();
-    assert_eq!(differ, 0, "{differ} PNG values differ");
+    let exr = |n: &str| lightfold_scene::Image::read_exr(&path(n)).unwrap();
+    let (one, three) = (exr("one"), exr("three"));
+    let (mut sum1, mut sum3, mut err, mut peak) = (0.0f64, 0.0f64, 0.0f64, 0.0f32);
+    for (&a, &b) in three.data.iter().zip(&one.data) {
+        sum3 += f64::from(a);
+        sum1 += f64::from(b);
+        err += f64::from(a - b).powi(2);
+        peak = peak.max(b);
+    }
+    let rmse = (err / one.data.len() as f64).sqrt();
+    let psnr = 20.0 * (f64::from(peak) / rmse).log10();
     assert!(
-        std::fs::read(path("one")).unwrap() == std::fs::read(path("three")).unwrap(),
-        "EXR differs"
+        psnr > 50.0,
+        "PSNR {psnr:.1} dB against the unpartitioned image"
+    );
+    assert!(
+        (sum3 / sum1 - 1.0).abs() < 5e-4,
+        "bias {}",
+        sum3 / sum1 - 1.0
+    );
+    // The PNGs differ only at a few shadow-edge pixels.
+    let png = |n: &str| pixels(&path(n).with_extension("png"));
+    let differ = png("one")
+        .iter()
+        .zip(&png("three"))
+        .filter(|(a, b)| a.abs_diff(**b) > 2)
+        .count();
+    assert!(
+        differ * 100 < one.data.len(),
+        "{differ} PNG values differ by more than 2"
     );
     let mut o = render(&path("timed"), &["--partitions", "3", "--timings"]);
     assert!(o.status.success());

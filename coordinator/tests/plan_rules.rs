@@ -707,15 +707,37 @@ fn partitions_plan_a_grid_of_parts_by_light_groups() {
         assert_eq!(hosts.len(), 1, "part {part}");
         assert!(hosts[0].layers.iter().any(|l| l.0 == Layer::Diffuse));
     }
-    // Each node is configured to draw its part, with every caster its lights need.
+    // Each node is configured to draw its part, with the casters its lights need there: maps
+    // fitted to the part's receivers see no more casters than the whole scene's maps.
+    let whole = plan(
+        &scene,
+        &local(),
+        &PlanOptions {
+            lights_per_node: 2,
+            ..opts()
+        },
+    )
+    .unwrap();
+    let whole_casters = |light: usize| {
+        let n = whole
+            .nodes
+            .iter()
+            .find(|n| n.lights.contains(&light))
+            .unwrap();
+        let j = n.lights.iter().position(|&l| l == light).unwrap();
+        n.shadows[j].casters.clone()
+    };
     for n in &p.nodes {
         let c = p.node_config(&n.node).unwrap();
         assert_eq!(c.eye_meshes.as_ref(), Some(&p.partitions[n.part.unwrap()]));
-        assert!(
-            c.shadows.iter().all(|s| s.casters.len() == 3),
-            "{:?}",
-            c.shadows
-        );
+        for (&l, s) in n.lights.iter().zip(&n.shadows) {
+            let all = whole_casters(l);
+            assert!(
+                s.casters.iter().all(|m| all.contains(m)),
+                "{:?} ⊄ {all:?}",
+                s.casters
+            );
+        }
     }
     // Ambient is not folded into one node's colour: each part sums its own groups.
     assert!(!p.material.fold_ambient);

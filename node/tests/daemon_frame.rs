@@ -296,6 +296,8 @@ async fn a_node_draws_only_its_part_of_the_scene() {
     let render = |eye: Option<Vec<u32>>| {
         let mut r = Renderer::new(&gpu, &scene, options).expect("renderer");
         r.set_camera(&scene.camera);
+        // As the daemon: a part's maps are fitted to the part.
+        r.set_fit_to_eye_meshes(eye.is_some());
         r.set_eye_meshes(eye);
         r.render(
             &gpu,

@@ -319,8 +319,8 @@ fn shade(scene: &Scene, il: &Image, [md, ms, ma, e]: [&Image; 4]) -> Image {
     out
 }
 
-/// [`single_device`] over sort-last parts: each part's eye pass alone (every caster still in
-/// the shadow maps), then per pixel every layer of the part whose surface is nearest (eye depth
+/// [`single_device`] over sort-last parts: each part's eye pass alone with its shadow maps
+/// fitted to the part (as a sort-last node renders it), then per pixel every layer of the part whose surface is nearest (eye depth
 /// above 0). Exact depth ties go to the lower part, or to the higher one with `ties_to_higher`
 /// (a negative control of the compositor's rule).
 pub fn single_device_parts(
@@ -332,6 +332,8 @@ pub fn single_device_parts(
     let samples = lightfold_reference::indirect::scene_samples(scene);
     let mut r = Renderer::new(gpu, scene, RenderOptions::from_quality(&scene.quality)).unwrap();
     r.set_camera(&scene.camera);
+    // Each part's maps fitted to the part, as a sort-last node fits them.
+    r.set_fit_to_eye_meshes(true);
     let mut won: Vec<Option<(f32, usize)>> = Vec::new();
     let mut frames = Vec::new();
     for part in parts {

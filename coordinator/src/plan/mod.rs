@@ -27,6 +27,7 @@ use group::{Group, NodeCost};
 use lightfold_compositor::ops::penumbra::MAX_RADIUS as PENUMBRA_MAX_RADIUS;
 use lightfold_protocol::{Layer, PixelFormat};
 use lightfold_scene::Scene;
+use lightfold_scene::shading::V3;
 use sha2::{Digest, Sha256};
 
 /// The most sort-last partitions a plan may ask for.
@@ -167,16 +168,70 @@ fn plan_once(
     // Like the node's renderer: moving-light maps are fitted to what the camera sees (cascades
     // where that spans a deep range); walkthrough maps outlive camera moves, so they cover every
     // receiver.
+    // Sort-last parts: every group is rendered once per part.
+    let parts = if options.partitions > 1 {
+        let parts =
+            lightfold_scene::partition::partition_meshes(scene, options.partitions as usize);
+        if parts.iter().any(Vec::is_empty) {
+            return Err(PlanError::InvalidOptions {
+                reason: format!(
+                    "{} partitions of a scene with {} meshes leave a part empty (meshes are not \
+                     split into chunks): ask for at most {} partitions",
+                    options.partitions,
+                    scene.meshes.len(),
+                    parts.iter().filter(|p| !p.is_empty()).count()
+                ),
+            });
+        }
+        parts
+    } else {
+        Vec::new()
+    };
+    // A part's nodes fit their maps to the part's own receivers (`Renderer::
+    // set_fit_to_eye_meshes`): per part, its meshes, their boxes and where the mismatch rule
+    // measures on them.
+    let part_fit: Vec<(
+        Vec<bool>,
+        Vec<(V3, V3)>,
+        Vec<lightfold_scene::shadow_views::Probe>,
+    )> = parts
+        .iter()
+        .map(|part| {
+            let mut mask = vec![false; scene.meshes.len()];
+            for &m in part {
+                mask[m as usize] = true;
+            }
+            let boxes: Vec<(V3, V3)> = bounds
+                .iter()
+                .zip(&scene.meshes)
+                .enumerate()
+                .filter(|(m, (_, mesh))| mask[*m] && mesh.indices.len() >= 3)
+                .filter_map(|(_, (b, _))| b.map(|b| (b.lo, b.hi)))
+                .collect();
+            let probes = lightfold_scene::shadow_views::probes(cam, &boxes);
+            (mask, boxes, probes)
+        })
+        .collect();
     let fit_camera = (!options.walkthrough).then_some(cam);
-    let shadow_of = |i: usize| {
-        let lit: Vec<&cull::Receiver> = culling.lit[i].iter().map(|&r| &receivers[r]).collect();
+    // Sample i's shadow plan for the whole scene, or for part `p`'s receivers only.
+    let shadow_in = |i: usize, p: Option<usize>| {
+        let in_part = |m: usize| p.is_none_or(|p| part_fit[p].0[m]);
+        let lit: Vec<&cull::Receiver> = culling.lit[i]
+            .iter()
+            .map(|&r| &receivers[r])
+            .filter(|r| in_part(r.mesh))
+            .collect();
+        let (fit_boxes, fit_probes) = match p {
+            Some(p) => (&part_fit[p].1, &part_fit[p].2),
+            None => (&scene_receivers, &probes),
+        };
         let mut plan = shadow::shadow_plan(
             &samples[i],
             &lit,
             &bounds,
-            &scene_receivers,
+            fit_boxes,
             fit_camera,
-            &probes,
+            fit_probes,
             cam,
             options.map_sizing.resolve(&scene.quality),
             scene.quality.shadow_map_size,
@@ -189,13 +244,16 @@ fn plan_once(
             .any(|&m| scene.is_translucent_mesh(m as usize));
         plan
     };
-    let shadows: Vec<Option<ShadowPlan>> = {
+    let shadows_of = |p: Option<usize>| -> Vec<Option<ShadowPlan>> {
         let mut v = vec![None; samples.len()];
         for &i in &culling.active {
-            v[i] = Some(shadow_of(i));
+            v[i] = Some(shadow_in(i, p));
         }
         v
     };
+    let shadows = shadows_of(None);
+    let part_shadows: Vec<Vec<Option<ShadowPlan>>> =
+        (0..parts.len()).map(|p| shadows_of(Some(p))).collect();
 
     // Groups: K per node (or as a frame budget allows), raised towards the device limit when
     // nodes are short.
@@ -240,25 +298,6 @@ fn plan_once(
             });
         }
         g
-    };
-    // Sort-last parts: every group is rendered once per part.
-    let parts = if options.partitions > 1 {
-        let parts =
-            lightfold_scene::partition::partition_meshes(scene, options.partitions as usize);
-        if parts.iter().any(Vec::is_empty) {
-            return Err(PlanError::InvalidOptions {
-                reason: format!(
-                    "{} partitions of a scene with {} meshes leave a part empty (meshes are not \
-                     split into chunks): ask for at most {} partitions",
-                    options.partitions,
-                    scene.meshes.len(),
-                    parts.iter().filter(|p| !p.is_empty()).count()
-                ),
-            });
-        }
-        parts
-    } else {
-        Vec::new()
     };
     let per_group = parts.len().max(1);
     // Nodes a plan of `g` groups needs: one per group and part, and one more when the material
@@ -354,7 +393,21 @@ fn plan_once(
             .flat_map(|p| (0..groups.len()).map(move |g| (Some(p), g)))
             .collect()
     };
-    let unit_costs: Vec<Vec<f64>> = units.iter().map(|&(_, g)| group_costs[g].clone()).collect();
+    // A part's nodes render the part's maps (fitted to its receivers).
+    let unit_costs: Vec<Vec<f64>> = units
+        .iter()
+        .map(|&(p, g)| match p {
+            None => group_costs[g].clone(),
+            Some(p) => {
+                let maps: Vec<&ShadowPlan> = groups[g]
+                    .lights
+                    .iter()
+                    .filter_map(|&i| part_shadows[p][i].as_ref())
+                    .collect();
+                costs.iter().map(|c| c.frame(&maps, 0)).collect()
+            }
+        })
+        .collect();
     let mut on_node = group::assign(&unit_costs);
     if let Some(prev) = previous {
         // A light keeps its node when the node keeps its part.
@@ -480,7 +533,15 @@ fn plan_once(
         (stages, nodes, placement)
     } else {
         partitioned(
-            &parts, &units, &on_node, &groups, &shadows, &costs, cluster, &finish, options,
+            &parts,
+            &units,
+            &on_node,
+            &groups,
+            &part_shadows,
+            &costs,
+            cluster,
+            &finish,
+            options,
         )
     };
     let plan_parts = parts.len();
@@ -576,17 +637,19 @@ fn partitioned(
     units: &[(Option<usize>, usize)],
     on_node: &[usize],
     groups: &[Group],
-    shadows: &[Option<ShadowPlan>],
+    part_shadows: &[Vec<Option<ShadowPlan>>],
     costs: &[NodeCost],
     cluster: &ClusterSpec,
     finish: &topology::Finish,
     options: &PlanOptions,
 ) -> (Vec<StagePlan>, Vec<NodePlan>, MaterialPlacement) {
-    let group_shadows = |g: usize| -> Vec<&ShadowPlan> {
+    let unit_shadows = |u: usize| -> Vec<&ShadowPlan> {
+        let (p, g) = units[u];
+        let p = p.expect("partitioned units name their part");
         groups[g]
             .lights
             .iter()
-            .filter_map(|&i| shadows[i].as_ref())
+            .filter_map(|&i| part_shadows[p][i].as_ref())
             .collect()
     };
     let mut host_layers = vec![
@@ -600,8 +663,7 @@ fn partitioned(
     for (u, &(p, _)) in units.iter().enumerate() {
         part_units[p.expect("partitioned units name their part")].push(u);
     }
-    let cost_of =
-        |u: usize, layers: usize| costs[on_node[u]].frame(&group_shadows(units[u].1), layers);
+    let cost_of = |u: usize, layers: usize| costs[on_node[u]].frame(&unit_shadows(u), layers);
     for list in &mut part_units {
         if let Some(first) = list
             .iter()
@@ -646,11 +708,7 @@ fn partitioned(
                 node: inputs[p][j].node.clone(),
                 lights: g.lights.clone(),
                 color: g.color,
-                shadows: g
-                    .lights
-                    .iter()
-                    .filter_map(|&i| shadows[i].clone())
-                    .collect(),
+                shadows: unit_shadows(u).into_iter().cloned().collect(),
                 layers: inputs[p][j].layers.clone(),
                 downstream: stage,
                 input_index: input,

@@ -265,6 +265,8 @@ fn configure(
             c.renderer.set_map_sides(setup.checked.map_sides.clone());
             c.renderer
                 .set_eye_meshes(setup.checked.config.eye_meshes.clone());
+            c.renderer
+                .set_fit_to_eye_meshes(setup.checked.config.eye_meshes.is_some());
             c.setup = setup;
         }
         return Ok(());
@@ -279,7 +281,9 @@ fn configure(
         renderer.set_fit_bounds(setup.scene.swept_bounds());
     }
     renderer.set_map_sides(setup.checked.map_sides.clone());
+    // A sort-last node fits its maps to its part, as the planner does.
     renderer.set_eye_meshes(setup.checked.config.eye_meshes.clone());
+    renderer.set_fit_to_eye_meshes(setup.checked.config.eye_meshes.is_some());
     tracing::info!(ms = start.elapsed().as_millis() as u64, "renderer built");
     *current = Some(Current {
         hash: setup.scene_hash,

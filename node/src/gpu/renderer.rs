@@ -65,7 +65,10 @@ pub struct Renderer {
     revisions: Vec<u64>,
     /// Boxes shadow views are fitted to instead of the meshes' own (an animation's swept
     /// bounds: views that hold over the motion, so only what moves is rendered again).
-    fit_bounds: Option<Vec<([f32; 3], [f32; 3])>>,
+    /// One per mesh, `None` for one without triangles.
+    fit_bounds: Option<Vec<Option<([f32; 3], [f32; 3])>>>,
+    /// Shadow views fitted to the eye meshes only ([`Renderer::set_fit_to_eye_meshes`]).
+    fit_eye_only: bool,
     targets: Option<EyeTargets>,
     variant: EyeVariant,
     deferred: Option<DeferredTargets>,
@@ -219,6 +222,7 @@ impl Renderer {
             map_keys: Vec::new(),
             revisions: vec![0; scene.meshes.len()],
             fit_bounds: None,
+            fit_eye_only: false,
             targets: None,
             max_lights: gpu.max_lights(opts.shadow_map_size),
             fit_to_camera: true,
@@ -304,24 +308,55 @@ impl Renderer {
         self.scene.vertex_count = vertices.len() as u32;
         self.scene.vertices = vertices;
         self.scene.meshes = ranges;
-        if self.fit_bounds.is_none() {
-            self.receivers = self.scene.receivers();
-        }
+        self.refresh_receivers();
         Ok(())
+    }
+
+    /// The boxes shadow views are fitted to: every mesh with triangles (or only the eye
+    /// meshes, with [`Renderer::set_fit_to_eye_meshes`]), as posed or as `set_fit_bounds` gave.
+    fn refresh_receivers(&mut self) {
+        let eye: Option<Vec<bool>> =
+            self.eye_meshes
+                .as_ref()
+                .filter(|_| self.fit_eye_only)
+                .map(|e| {
+                    let mut mask = vec![false; self.scene.meshes.len()];
+                    for &m in e {
+                        if let Some(k) = mask.get_mut(m as usize) {
+                            *k = true;
+                        }
+                    }
+                    mask
+                });
+        self.receivers = self
+            .scene
+            .meshes
+            .iter()
+            .enumerate()
+            .filter(|(i, m)| m.vertex_count > 0 && eye.as_ref().is_none_or(|e| e[*i]))
+            .filter_map(|(i, m)| match &self.fit_bounds {
+                Some(b) => b.get(i).copied().flatten(),
+                None => m.bounds,
+            })
+            .collect();
+    }
+
+    /// Fits shadow views to the eye meshes' boxes only (`on`), or to every mesh's (the
+    /// default). A sort-last node draws only its part, so maps fitted to that part's receivers
+    /// hold every lookup it makes, with fewer texels spent elsewhere and only the casters
+    /// between the light and that part drawn (the planner fits the same views:
+    /// `docs/planner.md` § Partitions).
+    pub fn set_fit_to_eye_meshes(&mut self, on: bool) {
+        self.fit_eye_only = on;
+        self.refresh_receivers();
     }
 
     /// Fits shadow views to these boxes (one per mesh, `None` for a mesh without triangles)
     /// rather than to the meshes as posed: `Scene::swept_bounds` for an animation, as the
     /// planner does.
     pub fn set_fit_bounds(&mut self, bounds: Vec<Option<([f32; 3], [f32; 3])>>) {
-        let boxes: Vec<_> = bounds
-            .into_iter()
-            .zip(&self.scene.meshes)
-            .filter(|(_, m)| m.vertex_count > 0)
-            .filter_map(|(b, _)| b)
-            .collect();
-        self.receivers = boxes.clone();
-        self.fit_bounds = Some(boxes);
+        self.fit_bounds = Some(bounds);
+        self.refresh_receivers();
     }
 
     /// Whether moving-light frames fit shadow views to the receivers the camera sees (the
@@ -356,9 +391,11 @@ impl Renderer {
     /// scene (issue 24): pixels show the nearest surface of those meshes, lit by the frame's
     /// lights with shadows from every caster the frame allows, and are empty (0, depth 0)
     /// where none covers them; glass of every part in front of them tints their material
-    /// layers. Shadow maps are unchanged. Indices out of range are ignored.
+    /// layers. Shadow maps are unchanged unless [`Renderer::set_fit_to_eye_meshes`] is on.
+    /// Indices out of range are ignored.
     pub fn set_eye_meshes(&mut self, meshes: Option<Vec<u32>>) {
         self.eye_meshes = meshes;
+        self.refresh_receivers();
     }
 
     /// Chooses how the eye pass lights pixels (same images either way, within f32 rounding).
