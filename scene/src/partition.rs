@@ -110,7 +110,7 @@ pub fn keep_meshes(scene: &Scene, keep: &[bool]) -> Scene {
         camera: scene.camera,
         ambient: scene.ambient,
         exposure: scene.exposure,
-        quality: scene.quality.clone(),
+        quality: scene.quality,
         animation: scene.animation.clone(),
     }
 }
