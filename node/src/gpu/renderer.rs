@@ -46,6 +46,9 @@ struct MapConfig {
     fault: Option<Fault>,
 }
 
+/// A mesh's axis-aligned box `(min, max)`.
+type MeshBox = ([f32; 3], [f32; 3]);
+
 /// One node's renderer: pipelines and scene buffers built once, targets and maps reused.
 #[derive(Debug)]
 pub struct Renderer {
@@ -66,7 +69,7 @@ pub struct Renderer {
     /// Boxes shadow views are fitted to instead of the meshes' own (an animation's swept
     /// bounds: views that hold over the motion, so only what moves is rendered again).
     /// One per mesh, `None` for one without triangles.
-    fit_bounds: Option<Vec<Option<([f32; 3], [f32; 3])>>>,
+    fit_bounds: Option<Vec<Option<MeshBox>>>,
     /// Shadow views fitted to the eye meshes only ([`Renderer::set_fit_to_eye_meshes`]).
     fit_eye_only: bool,
     targets: Option<EyeTargets>,
@@ -354,7 +357,7 @@ impl Renderer {
     /// Fits shadow views to these boxes (one per mesh, `None` for a mesh without triangles)
     /// rather than to the meshes as posed: `Scene::swept_bounds` for an animation, as the
     /// planner does.
-    pub fn set_fit_bounds(&mut self, bounds: Vec<Option<([f32; 3], [f32; 3])>>) {
+    pub fn set_fit_bounds(&mut self, bounds: Vec<Option<MeshBox>>) {
         self.fit_bounds = Some(bounds);
         self.refresh_receivers();
     }
