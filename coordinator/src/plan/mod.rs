@@ -94,6 +94,13 @@ pub fn light_weight(shadow: &ShadowPlan) -> (f64, f64) {
     (eye + maps, maps)
 }
 
+/// A part's meshes (by index), their boxes and the points the mismatch rule measures on them.
+type PartFit = (
+    Vec<bool>,
+    Vec<(V3, V3)>,
+    Vec<lightfold_scene::shadow_views::Probe>,
+);
+
 /// Plans `scene` on `cluster` (see the module documentation and `docs/planner.md`).
 pub fn plan(
     scene: &Scene,
@@ -190,11 +197,7 @@ fn plan_once(
     // A part's nodes fit their maps to the part's own receivers (`Renderer::
     // set_fit_to_eye_meshes`): per part, its meshes, their boxes and where the mismatch rule
     // measures on them.
-    let part_fit: Vec<(
-        Vec<bool>,
-        Vec<(V3, V3)>,
-        Vec<lightfold_scene::shadow_views::Probe>,
-    )> = parts
+    let part_fit: Vec<PartFit> = parts
         .iter()
         .map(|part| {
             let mut mask = vec![false; scene.meshes.len()];

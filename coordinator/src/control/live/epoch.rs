@@ -1,7 +1,7 @@
 //! Plan epochs: planning over the daemons connected now, sending the scene and the
 //! configurations, and waiting for every daemon of the new plan to apply them.
 
-use super::{EpochRecord, Halt, Live, MAX_REPLANS_WITHOUT_PROGRESS};
+use super::{EpochRecord, Halt, Live, MAX_REPLANS_WITHOUT_PROGRESS, SceneBytes};
 use crate::control::session::{ControlError, SCENE_CHUNK};
 use crate::control::sink::SinkGeometry;
 use crate::plan::{Plan, PlanError, lights_moved, plan, replan};
@@ -132,7 +132,7 @@ impl Live<'_> {
             .collect();
         self.just_lost.clear();
         // What each node is sent: the scene, or with partitions only what it draws.
-        let mut wants: BTreeMap<String, ([u8; 32], Arc<Vec<u8>>)> = BTreeMap::new();
+        let mut wants: BTreeMap<String, SceneBytes> = BTreeMap::new();
         for i in 0..next.nodes.len() {
             let (hash, bytes) = self
                 .scene_for(&next, i)
@@ -307,7 +307,7 @@ impl Live<'_> {
     /// The scene bytes node `next.nodes[i]` is sent, and their content hash: the whole scene,
     /// or with sort-last partitions (of a still scene) its part, its lights' casters and every
     /// glass mesh whole and the other meshes as stand-ins (`scene::partition::keep_meshes`).
-    fn scene_for(&mut self, next: &Plan, i: usize) -> Result<([u8; 32], Arc<Vec<u8>>), String> {
+    fn scene_for(&mut self, next: &Plan, i: usize) -> Result<SceneBytes, String> {
         let whole = (self.hash, Arc::clone(&self.bytes));
         let n = &next.nodes[i];
         let Some(part) = n.part.and_then(|p| next.partitions.get(p)) else {

@@ -186,6 +186,9 @@ impl From<ControlError> for Halt {
     }
 }
 
+/// A scene's content hash and encoding, shared by the nodes it is sent to.
+pub(super) type SceneBytes = ([u8; 32], std::sync::Arc<Vec<u8>>);
+
 /// The loop's state over one session.
 pub struct Live<'s> {
     session: &'s mut Session,
@@ -197,7 +200,7 @@ pub struct Live<'s> {
     hash: [u8; 32],
     /// Sort-last partitions: the scene each node needs (`scene::partition::keep_meshes`), by
     /// the meshes it keeps whole; cleared when the scene changes.
-    subsets: std::collections::HashMap<Vec<u32>, ([u8; 32], std::sync::Arc<Vec<u8>>)>,
+    subsets: std::collections::HashMap<Vec<u32>, SceneBytes>,
     plan: Option<Plan>,
     /// Under a frame budget: each settled frame of this epoch, its slowest node's measured
     /// render time (µs), and per node and frame the fixed and per-light costs measured over the
