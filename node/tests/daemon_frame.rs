@@ -341,3 +341,46 @@ async fn a_node_draws_only_its_part_of_the_scene() {
     drop(coord);
     node.stop().await;
 }
+
+/// Maps the scene's mismatch rule sizes above its base size share the node's shadow budget: a
+/// configuration within the light limit at the base size renders even when each light's map is
+/// 2048² (the renderer halves the largest to fit), where the device's limit at 2048² alone is
+/// lower. Before, the configuration was accepted and every frame then failed.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn maps_above_the_base_size_share_the_budget() {
+    let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter (install lavapipe)");
+    let mut scene = scene();
+    scene.quality.map_sizing =
+        lightfold_scene::MapSizing::Mismatch(lightfold_scene::defaults::MAP_MISMATCH);
+    scene.quality.shadow_map_size = 512;
+    let n = gpu.max_lights(2048) as usize + 1;
+    assert!(
+        n <= gpu.max_lights(512) as usize,
+        "the base size takes {n} lights"
+    );
+    let mut node = start_node("node-m", None).await;
+    let mut comp = start_compositor().await;
+    let mut coord = node.coordinator().await;
+    let hash = coord.send_scene(&scene).await;
+    let lights = lights(n);
+    let layers = vec![(Layer::Illumination, PixelFormat::Rgb9e5x2)];
+    let mut config = node_config(3, hash, &lights, layers, &comp.addr);
+    let all: Vec<u32> = (0..scene.meshes.len() as u32).collect();
+    config.shadows = (0..n as u32)
+        .map(|light| lightfold_protocol::WireShadow {
+            light,
+            map_size: 2048,
+            casters: all.clone(),
+        })
+        .collect();
+    assert_eq!(
+        coord.request(Message::ConfigureNode(config.clone())).await,
+        Message::Configured { epoch: 3 }
+    );
+    match coord.frame(3, 1).await {
+        Message::FrameDone(s) => assert_eq!(s.lights_rendered.len(), n),
+        other => panic!("expected FrameDone, got {other:?}"),
+    }
+    comp.take(band_count(&config)).await;
+    node.stop().await;
+}

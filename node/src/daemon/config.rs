@@ -123,6 +123,10 @@ pub struct Checked {
     pub camera: Camera,
     /// The largest map side (the scene's `shadow_map_size` when the plan gives none).
     pub map_size: u32,
+    /// The side the device's light limit counts maps at, which the renderer is built for: the
+    /// largest, or under the scene's mismatch rule at most its base size (the renderer halves
+    /// larger maps to fit its shadow budget, as `lightfold render` does).
+    pub budget_size: u32,
     /// Each light's map side as the plan gives it (index = light); `None` when the plan gives
     /// none: the renderer sizes maps by the scene's `map_sizing`.
     pub map_sides: Option<Vec<u32>>,
@@ -245,6 +249,7 @@ pub fn check(
         casters,
         camera,
         map_size,
+        budget_size: limit_size,
         map_sides,
     })
 }

@@ -228,7 +228,8 @@ fn guarded<T>(f: impl FnOnce() -> Result<T, RenderFailure>) -> Result<T, RenderF
 fn options_for(setup: &RenderSetup) -> RenderOptions {
     let c = &setup.checked.config;
     RenderOptions {
-        shadow_map_size: setup.checked.map_size,
+        // Maps above the scene's base size share its budget: the light limit counts them there.
+        shadow_map_size: setup.checked.budget_size,
         // The plan's per-light sides where it gives them (`Renderer::set_map_sides`), else the
         // scene's own rule, as `lightfold render` sizes them.
         map_sizing: setup.scene.quality.map_sizing,
