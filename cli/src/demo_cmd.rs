@@ -216,11 +216,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         tracing::subscriber::with_default(tracing::subscriber::NoSubscriber::default(), || {
             args.job.load_scene()
         })?;
-    // Plan against a large synthetic cluster to learn what this scene needs.
+    // Plan against a large synthetic cluster to learn what this scene needs (the scene the
+    // coordinator will plan: large meshes in chunks with partitions).
+    let options = args.job.plan_options();
     let probe = plan(
-        &scene,
+        &lightfold_coordinator::plan::scene_for(&scene, &options),
         &ClusterSpec::local(256, 256),
-        &args.job.plan_options(),
+        &options,
     )?;
     let nodes = probe.nodes.len();
     let compositors = probe.stages.len();

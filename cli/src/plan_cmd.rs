@@ -138,6 +138,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(n) = args.shadow_map_size {
         options.map_sizing = MapSizing::Fixed(n);
     }
+    // The scene the coordinator plans: with partitions, meshes too large for a part in chunks.
+    let scene = lightfold_coordinator::plan::scene_for(&scene, &options).into_owned();
     let max_lights = args.max_lights;
     let cluster = match &args.cluster {
         Some(path) => from_file(&ClusterFile::load(path)?),

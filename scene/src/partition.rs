@@ -167,3 +167,108 @@ fn stand_in(m: &Mesh) -> Option<Mesh> {
         material: m.material,
     })
 }
+
+/// `scene` with every mesh too large for `parts` parts split into chunks (`None` when no mesh
+/// is): a mesh of more triangles than a part's share (`total / parts`) becomes chunks of at most
+/// half a share, by recursive bisection of its triangles' centroids along their longest axis, so
+/// [`partition_meshes`] can balance the parts. The first chunk keeps the mesh's index and the
+/// others are appended, so every other mesh keeps its index. Each chunk copies the vertices its
+/// triangles use and is named `name#k`. An animated scene, or a mesh an emissive-mesh light
+/// samples, is left whole (tracks and lights name meshes by index). Deterministic.
+pub fn chunk_for_parts(scene: &Scene, parts: usize) -> Option<Scene> {
+    if parts <= 1 || scene.animation.is_some() {
+        return None;
+    }
+    let total: usize = scene.meshes.iter().map(Mesh::triangle_count).sum();
+    let share = total.div_ceil(parts);
+    let emissive: Vec<usize> = scene
+        .lights
+        .iter()
+        .filter_map(|l| match l.shape {
+            crate::model::LightShape::EmissiveMesh { mesh } => Some(mesh),
+            _ => None,
+        })
+        .collect();
+    let too_large = |(i, m): &(usize, &Mesh)| m.triangle_count() > share && !emissive.contains(i);
+    if !scene.meshes.iter().enumerate().any(|im| too_large(&im)) {
+        return None;
+    }
+    let mut out = scene.clone();
+    let mut appended = Vec::new();
+    for (i, m) in scene.meshes.iter().enumerate() {
+        if !too_large(&(i, m)) {
+            continue;
+        }
+        let pieces = m.triangle_count().div_ceil((share / 2).max(1));
+        let mut chunks = split_mesh(m, pieces).into_iter();
+        if let Some(first) = chunks.next() {
+            out.meshes[i] = first;
+        }
+        appended.extend(chunks);
+    }
+    out.meshes.extend(appended);
+    Some(out)
+}
+
+/// `m` split into `pieces` chunks of its triangles (fewer when it has fewer triangles).
+fn split_mesh(m: &Mesh, pieces: usize) -> Vec<Mesh> {
+    let mut tris: Vec<(u32, [f32; 3], u64)> = m
+        .indices
+        .chunks_exact(3)
+        .enumerate()
+        .map(|(t, tri)| {
+            let mut c = [0.0f32; 3];
+            for &v in tri {
+                let p = m.positions.get(v as usize).copied().unwrap_or([0.0; 3]);
+                for k in 0..3 {
+                    c[k] += p[k] / 3.0;
+                }
+            }
+            let c = c.map(|x| if x.is_finite() { x } else { 0.0 });
+            (t as u32, c, 1)
+        })
+        .collect();
+    let pieces = pieces.clamp(1, tris.len().max(1));
+    let mut groups = vec![Vec::new(); pieces];
+    bisect(&mut tris, 0, pieces, &mut groups);
+    groups
+        .iter_mut()
+        .enumerate()
+        .map(|(k, g)| {
+            // Triangles in their original order within a chunk.
+            g.sort_unstable();
+            let mut remap = vec![u32::MAX; m.positions.len()];
+            let mut chunk = Mesh {
+                name: format!("{}#{k}", m.name),
+                positions: Vec::new(),
+                normals: Vec::new(),
+                uvs: Vec::new(),
+                indices: Vec::with_capacity(g.len() * 3),
+                material: m.material,
+            };
+            let has_normals = m.normals.len() == m.positions.len();
+            let has_uvs = m.uvs.len() == m.positions.len();
+            for &t in g.iter() {
+                let tri = &m.indices[t as usize * 3..t as usize * 3 + 3];
+                if tri.iter().any(|&v| v as usize >= m.positions.len()) {
+                    continue; // out of range: no renderer draws it either
+                }
+                for &v in tri {
+                    let v = v as usize;
+                    if remap[v] == u32::MAX {
+                        remap[v] = chunk.positions.len() as u32;
+                        chunk.positions.push(m.positions[v]);
+                        if has_normals {
+                            chunk.normals.push(m.normals[v]);
+                        }
+                        if has_uvs {
+                            chunk.uvs.push(m.uvs[v]);
+                        }
+                    }
+                    chunk.indices.push(remap[v]);
+                }
+            }
+            chunk
+        })
+        .collect()
+}

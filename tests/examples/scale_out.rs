@@ -9,20 +9,8 @@
 
 use lightfold_coordinator::plan::{ClusterSpec, MapSizing, PlanOptions, Topology, plan};
 use lightfold_coordinator::run::RunOptions;
-use lightfold_tests::{InProcessCluster, render_on, test_control};
-use std::time::{Duration, Instant};
-
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(|a, b| a.total_cmp(b));
-    v[v.len() / 2]
-}
-
-fn ms(d: Duration) -> f64 {
-    d.as_secs_f64() * 1e3
-}
+use lightfold_tests::{InProcessCluster, latency_and_interval, ms, render_on, test_control};
+use std::time::Instant;
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 4)]
 async fn main() -> anyhow::Result<()> {
@@ -89,19 +77,7 @@ async fn main() -> anyhow::Result<()> {
             session.detach();
             let first = out.frames.first().map(|f| f.received_at);
             let configure_ms = first.map_or(f64::NAN, |at| ms(at.duration_since(t).min(total)));
-            let later = &out.frames[1.min(out.frames.len())..];
-            let latency = median(
-                later
-                    .iter()
-                    .map(|f| ms(f.received_at - f.requested_at))
-                    .collect(),
-            );
-            let interval = median(
-                later
-                    .windows(2)
-                    .map(|w| ms(w[1].received_at - w[0].received_at))
-                    .collect(),
-            );
+            let (latency, interval) = latency_and_interval(&out.frames);
             println!(
                 "| {} | {n} | {topology} | {stages} | {plan_ms:.2} | {register_ms:.0} | \
                  {configure_ms:.0} | {latency:.1} | {interval:.1} |",

@@ -255,6 +255,50 @@ pub fn small(name: &str) -> Scene {
     s
 }
 
+/// `scenes/glass.toml` (coloured shadows, glass seen through: `docs/translucency.md`) small: 4
+/// samples per area light, 64×48.
+pub fn small_glass() -> Scene {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/glass.toml");
+    let mut s = lightfold_scene::load(path).unwrap();
+    s.quality.samples_per_area_light = Some(4);
+    s.camera.width = 64;
+    s.camera.height = 48;
+    s
+}
+
+/// The median of `v` (NaN when empty).
+pub fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    v.sort_by(|a, b| a.total_cmp(b));
+    v[v.len() / 2]
+}
+
+/// `d` in milliseconds.
+pub fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+/// The median latency (request to complete image) and interval of the frames after the first,
+/// in milliseconds: what the scaling examples report (`docs/scaling.md`).
+pub fn latency_and_interval(frames: &[FrameResult]) -> (f64, f64) {
+    let later = &frames[1.min(frames.len())..];
+    let latency = median(
+        later
+            .iter()
+            .map(|f| ms(f.received_at - f.requested_at))
+            .collect(),
+    );
+    let interval = median(
+        later
+            .windows(2)
+            .map(|w| ms(w[1].received_at - w[0].received_at))
+            .collect(),
+    );
+    (latency, interval)
+}
+
 /// The silhouette scene of antialiasing (`scenes/silhouettes.toml`: lit objects against black,
 /// thin poles) at `width × height`.
 pub fn silhouettes(width: u32, height: u32) -> Scene {

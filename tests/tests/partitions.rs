@@ -13,7 +13,7 @@ use lightfold_scene::primitives::plane;
 use lightfold_scene::{Image, Light, LightShape, Material, Scene};
 use lightfold_tests::{
     InProcessCluster, assert_close, render_on, single_device, single_device_parts, small,
-    test_control,
+    small_glass, test_control,
 };
 
 /// The largest image bias `|Σ cluster / Σ render − 1|` (as `render_parity.rs`).
@@ -54,21 +54,11 @@ async fn cluster_frame(
     (out.frames.into_iter().map(|f| f.image).collect(), out.plan)
 }
 
-/// `scenes/glass.toml` small (glass of one part tints surfaces of another).
-fn glass() -> Scene {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/glass.toml");
-    let mut s = lightfold_scene::load(path).unwrap();
-    s.quality.samples_per_area_light = Some(4);
-    s.camera.width = 64;
-    s.camera.height = 48;
-    s
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_partitioned_cluster_frame_equals_the_whole_render() {
     let cluster = InProcessCluster::start(6, 3).await.unwrap();
     let gpu = gpu();
-    for (scene, parts) in [(small("balls"), 2), (small("balls"), 3), (glass(), 2)] {
+    for (scene, parts) in [(small("balls"), 2), (small("balls"), 3), (small_glass(), 2)] {
         let (frames, plan) = cluster_frame(&cluster, &scene, parts, 4, 1).await;
         assert_eq!(plan.partitions.len(), parts as usize, "{}", scene.name);
         assert!(
@@ -266,4 +256,98 @@ async fn exact_depth_ties_go_to_the_lower_part_every_frame() {
         far > frames[0].data.len() / 4,
         "the tie rule makes no difference ({far})"
     );
+}
+
+/// A floor and one large ball under a lamp: the ball holds most triangles, more than a part's
+/// share at P = 4, so it is split into chunks.
+fn big_ball() -> Scene {
+    let mut s = Scene::new("big ball");
+    let grey = s.add_material(Material::diffuse("grey", [0.6; 3]));
+    let red = s.add_material(Material::diffuse("red", [0.8, 0.2, 0.2]));
+    s.add_mesh(plane(
+        "floor",
+        [0.0; 3],
+        [0.0, 1.0, 0.0],
+        [1.0, 0.0, 0.0],
+        [8.0, 8.0],
+        4,
+        grey,
+    ));
+    s.add_mesh(lightfold_scene::primitives::sphere(
+        "ball",
+        [0.0, 1.0, 0.0],
+        1.0,
+        64,
+        32,
+        red,
+    ));
+    s.lights.push(Light {
+        name: "lamp".into(),
+        shape: LightShape::Point {
+            position: [1.5, 3.5, 1.0],
+        },
+        color: [1.0; 3],
+        power: 40.0,
+        range: None,
+        samples: 1,
+    });
+    s.camera.position = [0.0, 3.0, 5.0];
+    s.camera.target = [0.0, 0.8, 0.0];
+    s.camera.width = 96;
+    s.camera.height = 64;
+    s
+}
+
+/// A mesh too large for a part is split into chunks so the parts balance, and the frame over
+/// chunked parts equals the same parts on one device and the whole unchunked scene within the
+/// image-bias bound: chunks of one surface do not shadow each other along their seams.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_mesh_larger_than_a_part_is_split_into_chunks() {
+    let scene = big_ball();
+    let chunked = lightfold_scene::partition::chunk_for_parts(&scene, 4)
+        .expect("the ball holds more than a quarter of the triangles");
+    assert!(chunked.meshes.len() > 4, "{} meshes", chunked.meshes.len());
+    assert_eq!(chunked.triangle_count(), scene.triangle_count());
+    let cluster = InProcessCluster::start(4, 2).await.unwrap();
+    let gpu = gpu();
+    let (frames, plan) = cluster_frame(&cluster, &scene, 4, 1, 1).await;
+    cluster.stop().await.unwrap();
+    assert_eq!(plan.partitions.len(), 4);
+    let sizes: Vec<usize> = plan
+        .partitions
+        .iter()
+        .map(|p| {
+            p.iter()
+                .map(|&m| chunked.meshes[m as usize].triangle_count())
+                .sum()
+        })
+        .collect();
+    let (lo, hi) = (sizes.iter().min().unwrap(), sizes.iter().max().unwrap());
+    assert!(
+        hi - lo <= scene.triangle_count() / 4,
+        "parts of {sizes:?} triangles"
+    );
+    let same_parts = single_device_parts(&gpu, &chunked, &plan.partitions, false);
+    assert_close(&frames[0], &same_parts, "chunked parts");
+    // The chunked scene whole, against the ball as one mesh: seams add no shadow.
+    let (whole, one_mesh) = (
+        single_device(&gpu, &chunked, false),
+        single_device(&gpu, &scene, false),
+    );
+    let differ = whole
+        .data
+        .iter()
+        .zip(&one_mesh.data)
+        .filter(|(a, b)| (*a - *b).abs() > 0.025 * b.abs() + 1e-3)
+        .count();
+    eprintln!(
+        "chunked vs one mesh: {differ} of {} channels differ; cluster bias {:+.4} %",
+        whole.data.len(),
+        bias(&frames[0], &one_mesh) * 100.0
+    );
+    assert!(
+        differ * 1000 <= whole.data.len(),
+        "{differ} channels differ at seams"
+    );
+    assert!(bias(&frames[0], &one_mesh).abs() <= MAX_BIAS);
 }

@@ -11,7 +11,8 @@ use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_protocol::PixelFormat;
 use lightfold_scene::{Image, Scene};
 use lightfold_tests::{
-    InProcessCluster, assert_close, render_on, silhouettes, single_device_aa, small, test_control,
+    InProcessCluster, assert_close, render_on, silhouettes, single_device_aa, small, small_glass,
+    test_control,
 };
 
 /// The largest image bias `|Σ cluster / Σ render − 1|` a cluster frame may have.
@@ -45,16 +46,6 @@ fn grey_balls() -> Scene {
         m.ambient = [0.5; 3];
     }
     s.name = "grey balls".into();
-    s
-}
-
-/// `scenes/glass.toml` (coloured shadows, glass seen through: `docs/translucency.md`) small.
-fn glass() -> Scene {
-    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/glass.toml");
-    let mut s = lightfold_scene::load(path).unwrap();
-    s.quality.samples_per_area_light = Some(4);
-    s.camera.width = 64;
-    s.camera.height = 48;
     s
 }
 
@@ -117,7 +108,12 @@ async fn cluster_frame_equals_render_within_bias() {
     let gpu = Gpu::new(&GpuOptions::default())
         .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
     let mut failed = Vec::new();
-    for scene in [grey_balls(), small("balls"), small("cornell"), glass()] {
+    for scene in [
+        grey_balls(),
+        small("balls"),
+        small("cornell"),
+        small_glass(),
+    ] {
         let (bias, _) = bias_of(&cluster, &gpu, &scene, |_| {}).await;
         if bias.abs() > MAX_BIAS {
             failed.push(format!("{}: {:+.4} %", scene.name, bias * 100.0));

@@ -101,6 +101,16 @@ type PartFit = (
     Vec<lightfold_scene::shadow_views::Probe>,
 );
 
+/// The scene a plan with `options` renders: with partitions, meshes too large for a part split
+/// into chunks (`scene::partition::chunk_for_parts`); otherwise `scene` itself. The control loop
+/// plans and ships this scene, and `lightfold plan` prints its plan.
+pub fn scene_for<'s>(scene: &'s Scene, options: &PlanOptions) -> std::borrow::Cow<'s, Scene> {
+    match lightfold_scene::partition::chunk_for_parts(scene, options.partitions as usize) {
+        Some(chunked) => std::borrow::Cow::Owned(chunked),
+        None => std::borrow::Cow::Borrowed(scene),
+    }
+}
+
 /// Plans `scene` on `cluster` (see the module documentation and `docs/planner.md`).
 pub fn plan(
     scene: &Scene,

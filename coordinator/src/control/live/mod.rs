@@ -270,7 +270,8 @@ impl<'s> Live<'s> {
         opts: &PlanOptions,
     ) -> Result<Live<'s>, RunError> {
         // `--aa N`: everything the cluster renders is N × the camera's size; the sink resolves.
-        let mut scene = scene.clone();
+        // With partitions, meshes too large for a part are split into chunks first.
+        let mut scene = crate::plan::scene_for(scene, opts).into_owned();
         scene.camera = scene.camera.supersampled(opts.supersample)?;
         let bytes = scene
             .to_bytes()
