@@ -161,3 +161,65 @@ fn stand_ins_keep_every_mesh_s_bounds_and_validate() {
     // Keeping everything is the scene itself.
     assert_eq!(keep_meshes(&s, &[true; 4]), s);
 }
+
+/// `chunk_for_parts`: a mesh holding more than a part's share of the triangles becomes chunks of
+/// at most half a share, each a copy of the triangles (same corners, same order within it) it
+/// takes; the other meshes keep their indices; the parts then balance. Nothing changes when no
+/// mesh is too large, and a mesh an emissive-mesh light samples stays whole.
+#[test]
+fn meshes_too_large_for_a_part_are_split_into_chunks() {
+    use lightfold_scene::partition::chunk_for_parts;
+    // Box 0 holds 12 · 40 = 480 of 504 triangles.
+    let s = scene(&[([0.0; 3], 40), ([2.0, 0.0, 0.0], 1), ([0.0, 0.0, 3.0], 1)]);
+    let c = chunk_for_parts(&s, 2).expect("box 0 is over half the triangles");
+    assert_eq!(c, chunk_for_parts(&s, 2).unwrap(), "deterministic");
+    assert_eq!(c.meshes[1], s.meshes[1]);
+    assert_eq!(c.meshes[2], s.meshes[2]);
+    let share = s.triangle_count().div_ceil(2);
+    // Every chunk holds at most half a share, and together the chunks hold box 0's triangles.
+    let chunks: Vec<&lightfold_scene::Mesh> = std::iter::once(&c.meshes[0])
+        .chain(&c.meshes[3..])
+        .collect();
+    assert!(chunks.iter().all(|m| m.triangle_count() <= share / 2 + 1));
+    let corners = |m: &lightfold_scene::Mesh| -> Vec<[u32; 9]> {
+        let mut t: Vec<[u32; 9]> = m
+            .indices
+            .chunks_exact(3)
+            .map(|t| {
+                let p = [0, 1, 2].map(|k| m.positions[t[k] as usize]);
+                std::array::from_fn(|i| p[i / 3][i % 3].to_bits())
+            })
+            .collect();
+        t.sort_unstable();
+        t
+    };
+    let mut all: Vec<[u32; 9]> = chunks.iter().flat_map(|m| corners(m)).collect();
+    all.sort_unstable();
+    assert_eq!(all, corners(&s.meshes[0]));
+    assert!(c.meshes[3].name.starts_with("box0#"));
+    let parts = partition_meshes(&c, 2);
+    let tris = |p: &Vec<u32>| -> usize {
+        p.iter()
+            .map(|&m| c.meshes[m as usize].triangle_count())
+            .sum()
+    };
+    assert!(
+        tris(&parts[0]).abs_diff(tris(&parts[1])) <= share / 2,
+        "{parts:?}"
+    );
+    // Nothing to split.
+    assert!(chunk_for_parts(&s, 1).is_none());
+    let even = scene(&[([0.0; 3], 1), ([2.0, 0.0, 0.0], 1)]);
+    assert!(chunk_for_parts(&even, 2).is_none());
+    // An emissive mesh is sampled by index: it stays whole.
+    let mut lit = s.clone();
+    lit.lights.push(lightfold_scene::Light {
+        name: "glow".into(),
+        shape: lightfold_scene::LightShape::EmissiveMesh { mesh: 0 },
+        color: [1.0; 3],
+        power: 1.0,
+        range: None,
+        samples: 4,
+    });
+    assert!(chunk_for_parts(&lit, 2).is_none());
+}
