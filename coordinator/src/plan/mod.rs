@@ -192,8 +192,9 @@ fn plan_once(
         if parts.iter().any(Vec::is_empty) {
             return Err(PlanError::InvalidOptions {
                 reason: format!(
-                    "{} partitions of a scene with {} meshes leave a part empty (meshes are not \
-                     split into chunks): ask for at most {} partitions",
+                    "{} partitions of a scene with {} meshes leave a part empty (`scene_for` \
+                     splits meshes too large for a part, but not an animated scene's, nor one an \
+                     emissive-mesh light samples): ask for at most {} partitions",
                     options.partitions,
                     scene.meshes.len(),
                     parts.iter().filter(|p| !p.is_empty()).count()
