@@ -52,6 +52,11 @@ fn medians(rows: &[[u64; 3]]) -> [u64; 3] {
 }
 
 pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Result<()> {
+    // With partitions, meshes too large for a part in chunks, as the cluster splits them.
+    let chunked = (args.partitions > 1)
+        .then(|| lightfold_scene::partition::chunk_for_parts(scene, args.partitions as usize))
+        .flatten();
+    let scene = chunked.as_ref().unwrap_or(scene);
     let backend = args
         .backend
         .as_deref()

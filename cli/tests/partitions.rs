@@ -105,7 +105,8 @@ fn partitions_refuse_the_reference_and_the_penumbra_filter() {
 }
 
 /// `lightfold plan --partitions P` prints the grid: parts × light groups, each node's part, the
-/// depth compose along the chain; an impossible count is refused with the largest that works.
+/// depth compose along the chain; more parts than meshes split the large meshes; more than the
+/// limit is refused.
 #[test]
 fn plan_prints_the_partition_grid() {
     let plan = |extra: &[&str]| {
@@ -138,8 +139,16 @@ fn plan_prints_the_partition_grid() {
         "{text}"
     );
     assert!(text.contains("merge") && text.contains("depth"), "{text}");
-    let out = plan(&["--partitions", "64"]);
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success());
-    assert!(err.contains("leave a part empty"), "{err}");
+    // More parts than meshes: the large meshes are split into chunks (`plan::scene_for`).
+    let out = plan(&["--partitions", "16"]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("partitions: 16 parts × "), "{text}");
+    assert!(text.contains("part 15 · "), "{text}");
+    let out = plan(&["--partitions", "65"]);
+    assert!(!out.status.success(), "65 partitions were accepted");
 }

@@ -24,6 +24,16 @@ fn gpu() -> Gpu {
         .expect("a GPU adapter is required (install mesa-vulkan-drivers)")
 }
 
+/// The scene the cluster renders with `parts` partitions (`plan::scene_for`: meshes too large
+/// for a part in chunks), which the plan's mesh indices name.
+fn rendered(scene: &Scene, parts: u32) -> Scene {
+    let options = PlanOptions {
+        partitions: parts,
+        ..PlanOptions::default()
+    };
+    lightfold_coordinator::plan::scene_for(scene, &options).into_owned()
+}
+
 fn bias(test: &Image, want: &Image) -> f64 {
     let s = |i: &Image| i.data.iter().map(|&v| f64::from(v)).sum::<f64>();
     s(test) / s(want) - 1.0
@@ -65,7 +75,8 @@ async fn a_partitioned_cluster_frame_equals_the_whole_render() {
             plan.nodes.iter().all(|n| n.part.is_some()),
             "every node draws a part"
         );
-        let same_parts = single_device_parts(&gpu, &scene, &plan.partitions, false);
+        let same_parts =
+            single_device_parts(&gpu, &rendered(&scene, parts), &plan.partitions, false);
         assert_close(
             &frames[0],
             &same_parts,
@@ -83,7 +94,7 @@ async fn a_partitioned_cluster_frame_equals_the_whole_render() {
         // Negative control: the whole render without the last part's surfaces.
         let mut without = plan.partitions.clone();
         without.pop();
-        let partial = single_device_parts(&gpu, &scene, &without, false);
+        let partial = single_device_parts(&gpu, &rendered(&scene, parts), &without, false);
         assert!(
             bias(&frames[0], &partial).abs() > 10.0 * MAX_BIAS,
             "{}: a part's surfaces make no difference",
@@ -175,7 +186,7 @@ async fn sort_last_nodes_are_sent_only_what_they_draw() {
         "every node is sent less than the scene"
     );
     // And the frame is the one the whole scene gives those parts.
-    let same_parts = single_device_parts(&gpu, &scene, &plan.partitions, false);
+    let same_parts = single_device_parts(&gpu, &rendered(&scene, 2), &plan.partitions, false);
     assert_close(&frames[0], &same_parts, "stand-in scenes");
     let b = bias(&frames[0], &single_device(&gpu, &scene, false));
     assert!(b.abs() <= MAX_BIAS, "bias {b}");
@@ -224,8 +235,8 @@ async fn exact_depth_ties_go_to_the_lower_part_every_frame() {
     cluster.stop().await.unwrap();
     assert_eq!(plan.partitions.len(), 2);
     let lower = &scene.materials[scene.meshes[plan.partitions[0][0] as usize].material];
-    let want = single_device_parts(&gpu, &scene, &plan.partitions, false);
-    let other = single_device_parts(&gpu, &scene, &plan.partitions, true);
+    let want = single_device_parts(&gpu, &rendered(&scene, 2), &plan.partitions, false);
+    let other = single_device_parts(&gpu, &rendered(&scene, 2), &plan.partitions, true);
     for (i, frame) in frames.iter().enumerate() {
         assert_close(frame, &want, &format!("frame {i}"));
     }
