@@ -178,10 +178,11 @@ pub struct JobArgs {
     #[arg(long, value_name = "CLASS=FORMAT", value_delimiter = ',', value_parser = parse_link_format)]
     pub link_format: Vec<(LinkClass, lightfold_protocol::PixelFormat)>,
     /// Sort-last partitions: split the scene's meshes into P spatially coherent parts; every
-    /// light group is rendered once per part by a node drawing only that part's eye pass (its
-    /// shadows still see every caster), and the compositor chain depth-composes the parts
-    /// (docs/planner.md § Partitions). Needs P × the render nodes.
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=i64::from(lightfold_coordinator::plan::MAX_PARTITIONS)))]
+    /// light group is rendered once per part by a node drawing only that part's eye pass, with
+    /// maps fitted to it, and the compositor chain depth-composes the parts (docs/planner.md §
+    /// Partitions). Needs P × the render nodes. `auto` (the default): 1, unless the scene's
+    /// geometry would not fit the memory the render nodes report.
+    #[arg(long, default_value = "auto", value_parser = crate::coordinator_cmd::partitions_arg)]
     pub partitions: u32,
     /// Render the material layers on a node of their own (the paper's layout) instead of as
     /// extra targets of an illumination node at the last stage.
@@ -429,6 +430,18 @@ pub fn positive_ms(s: &str) -> Result<f64, String> {
 /// `--size WIDTHxHEIGHT`, within the image limits every input shares
 /// (`lightfold_scene::limits`, printed by `lightfold defaults`).
 /// `--penumbra-filter`: `off`, `budget`, `auto` or a radius 1–8.
+/// `--partitions`: `auto` (0) or 1 to `MAX_PARTITIONS`.
+pub fn partitions_arg(s: &str) -> Result<u32, String> {
+    let max = lightfold_coordinator::plan::MAX_PARTITIONS;
+    match s {
+        "auto" => Ok(0),
+        n => match n.parse::<u32>() {
+            Ok(p) if (1..=max).contains(&p) => Ok(p),
+            _ => Err(format!("expected auto or 1 to {max}, got {n:?}")),
+        },
+    }
+}
+
 pub fn penumbra_filter(s: &str) -> Result<lightfold_coordinator::plan::PenumbraFilter, String> {
     use lightfold_coordinator::plan::PenumbraFilter;
     match s.trim() {

@@ -58,6 +58,29 @@ pub struct Args {
     pub metrics: bool,
 }
 
+/// `cluster` with every render node reporting this machine's memory, as the demo's nodes will.
+fn with_memory(mut cluster: ClusterSpec) -> ClusterSpec {
+    let memory_bytes = lightfold_node::daemon::sys::memory_bytes();
+    for n in &mut cluster.nodes {
+        n.capabilities = Some(lightfold_protocol::Capabilities {
+            role: lightfold_protocol::Role::Node,
+            daemon_id: n.id.clone(),
+            advertise: String::new(),
+            adapter: String::new(),
+            backend: String::new(),
+            max_lights: 0,
+            max_texture_size: 0,
+            formats: Vec::new(),
+            cost_per_light_us: 0,
+            fixed_cost_us: 0,
+            threads: 0,
+            version: String::new(),
+            memory_bytes,
+        });
+    }
+    cluster
+}
+
 /// Processes per core `--max-processes` allows by default, and the floor.
 const PROCESSES_PER_CORE: usize = 4;
 const MIN_MAX_PROCESSES: usize = 32;
@@ -216,12 +239,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         tracing::subscriber::with_default(tracing::subscriber::NoSubscriber::default(), || {
             args.job.load_scene()
         })?;
-    // Plan against a large synthetic cluster to learn what this scene needs (the scene the
-    // coordinator will plan: large meshes in chunks with partitions).
-    let options = args.job.plan_options();
+    // Plan against a large synthetic cluster to learn what this scene needs: partitioned as the
+    // coordinator will partition it (its nodes, all on this machine, report this machine's
+    // memory), large meshes in chunks.
+    let mut options = args.job.plan_options();
+    options.partitions = lightfold_coordinator::plan::partitions_for(
+        &scene,
+        &with_memory(ClusterSpec::local(256, 256)),
+        &options,
+    );
+    let probe_cluster = ClusterSpec::local(256, 256);
     let probe = plan(
-        &lightfold_coordinator::plan::scene_for(&scene, &options),
-        &ClusterSpec::local(256, 256),
+        &lightfold_coordinator::plan::scene_for(&scene, &probe_cluster, &options),
+        &probe_cluster,
         &options,
     )?;
     let nodes = probe.nodes.len();
@@ -526,9 +556,10 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
     if job.material_own_node {
         cmd.arg("--material-own-node");
     }
-    if job.partitions > 1 {
-        cmd.arg("--partitions").arg(job.partitions.to_string());
-    }
+    cmd.arg("--partitions").arg(match job.partitions {
+        0 => "auto".to_string(),
+        p => p.to_string(),
+    });
     if let Some(p) = &job.stats {
         cmd.arg("--stats").arg(p);
     }

@@ -65,10 +65,11 @@ pub struct Args {
     #[arg(long)]
     pub json: bool,
     /// Sort-last partitions: split the scene's meshes into P spatially coherent parts; every
-    /// light group is rendered once per part by a node drawing only that part's eye pass (its
-    /// shadows still see every caster), and the compositor chain depth-composes the parts
-    /// (docs/planner.md § Partitions). Needs P × the render nodes.
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=i64::from(lightfold_coordinator::plan::MAX_PARTITIONS)))]
+    /// light group is rendered once per part by a node drawing only that part's eye pass, with
+    /// maps fitted to it, and the compositor chain depth-composes the parts (docs/planner.md §
+    /// Partitions). Needs P × the render nodes. `auto` (the default): 1, unless the scene's
+    /// geometry would not fit the memory the render nodes report.
+    #[arg(long, default_value = "auto", value_parser = crate::coordinator_cmd::partitions_arg)]
     pub partitions: u32,
     /// Render the material layers on a node of their own (the paper's layout).
     #[arg(long)]
@@ -138,9 +139,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(n) = args.shadow_map_size {
         options.map_sizing = MapSizing::Fixed(n);
     }
-    // The scene the coordinator plans: with partitions, meshes too large for a part in chunks.
-    let scene = lightfold_coordinator::plan::scene_for(&scene, &options).into_owned();
     let max_lights = args.max_lights;
+    // The scene the coordinator plans: with partitions, meshes too large for a part in chunks
+    // (clusters here report no memory, so `auto` is 1).
+    let scene = lightfold_coordinator::plan::scene_for(&scene, &ClusterSpec::local(1, 1), &options)
+        .into_owned();
     let cluster = match &args.cluster {
         Some(path) => from_file(&ClusterFile::load(path)?),
         None => {
@@ -209,6 +212,7 @@ fn with_devices(mut cluster: ClusterSpec, max_lights: u32) -> ClusterSpec {
             fixed_cost_us: 0,
             threads: 0,
             version: String::new(),
+            memory_bytes: 0,
         });
     }
     cluster

@@ -447,6 +447,7 @@ fn with_threads(mut cluster: ClusterSpec, threads: u32) -> ClusterSpec {
             fixed_cost_us: 0,
             threads,
             version: String::new(),
+            memory_bytes: 0,
         });
     }
     cluster

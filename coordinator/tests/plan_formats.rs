@@ -108,6 +108,7 @@ fn larger_maps_take_fewer_lights_per_node() {
             fixed_cost_us: 0,
             threads: 1,
             version: String::new(),
+            memory_bytes: 0,
         });
     }
     let s = stage();

@@ -330,6 +330,7 @@ fn caps(max_lights: u32, light_us: u64, fixed_us: u64) -> Option<Capabilities> {
         fixed_cost_us: fixed_us,
         threads: 2,
         version: "0".into(),
+        memory_bytes: 0,
     })
 }
 
@@ -804,7 +805,7 @@ fn partitions_are_refused_where_they_cannot_be_planned() {
         }
     };
     assert!(refused(&|o| o.partitions = 4).contains("at most 3 partitions"));
-    assert!(refused(&|o| o.partitions = 0).contains("partitions must be 1 to"));
+    assert!(refused(&|o| o.partitions = 65).contains("0 (automatic) or 1 to 64"));
     assert!(refused(&|o| o.topology = Topology::Tree).contains("chain"));
     assert!(refused(&|o| o.material_own_node = true).contains("material"));
     assert!(
@@ -823,4 +824,58 @@ fn partitions_are_refused_where_they_cannot_be_planned() {
     )
     .unwrap();
     assert_eq!(p.penumbra_radius, 0);
+}
+
+#[test]
+fn automatic_partitions_follow_the_nodes_memory() {
+    use lightfold_coordinator::plan::{
+        NODE_BYTES_PER_TRIANGLE, PenumbraFilter, SCENE_MEMORY_SHARE, partitions_for,
+    };
+    let scene = stage();
+    let need = scene.triangle_count() as u64 * NODE_BYTES_PER_TRIANGLE;
+    let with_memory = |nodes: usize, memory: u64| {
+        let mut c = ClusterSpec::local(nodes, 4);
+        for n in &mut c.nodes {
+            let mut cap = caps(16, 0, 0).unwrap();
+            cap.memory_bytes = memory;
+            n.capabilities = Some(cap);
+        }
+        c
+    };
+    let auto = opts();
+    assert_eq!(auto.partitions, 0, "automatic is the default");
+    // Unknown memory, or enough of it: the whole scene.
+    assert_eq!(partitions_for(&scene, &local(), &auto), 1);
+    assert_eq!(partitions_for(&scene, &with_memory(8, 0), &auto), 1);
+    let fits = (need as f64 / SCENE_MEMORY_SHARE).ceil() as u64;
+    // A third of that, rounded up: three parts fit it.
+    let third = fits / 3 + 2;
+    assert_eq!(partitions_for(&scene, &with_memory(8, fits), &auto), 1);
+    // Three times too little: three parts; the smallest node decides.
+    assert_eq!(partitions_for(&scene, &with_memory(8, third), &auto), 3);
+    let mut mixed = with_memory(8, 10 * fits);
+    mixed.nodes[5].capabilities.as_mut().unwrap().memory_bytes = third;
+    assert_eq!(partitions_for(&scene, &mixed, &auto), 3);
+    // At most one part per node, and none where partitions cannot be planned.
+    assert_eq!(partitions_for(&scene, &with_memory(2, third), &auto), 2);
+    for change in [
+        &(|o: &mut PlanOptions| o.topology = Topology::Tree) as &dyn Fn(&mut PlanOptions),
+        &|o| o.material_own_node = true,
+        &|o| o.penumbra_filter = PenumbraFilter::Radius(2),
+    ] {
+        let mut o = opts();
+        change(&mut o);
+        assert_eq!(partitions_for(&scene, &with_memory(8, third), &o), 1);
+    }
+    // Asked for: as asked.
+    let two = PlanOptions {
+        partitions: 2,
+        ..opts()
+    };
+    assert_eq!(partitions_for(&scene, &local(), &two), 2);
+    // The plan follows: three parts on nodes three times short.
+    let p = plan(&scene, &with_memory(8, third), &auto).unwrap();
+    assert_eq!(p.partitions.len(), 3);
+    let whole = plan(&scene, &with_memory(8, fits), &auto).unwrap();
+    assert!(whole.partitions.is_empty() && whole.nodes.iter().all(|n| n.part.is_none()));
 }

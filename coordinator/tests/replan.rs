@@ -22,6 +22,7 @@ fn registered(nodes: usize, compositors: usize) -> ClusterSpec {
             fixed_cost_us: 0,
             threads: 1,
             version: String::new(),
+            memory_bytes: 0,
         });
     }
     c

@@ -37,6 +37,10 @@ async fn a_streamed_frame_equals_a_direct_render() {
         "{caps:?}"
     );
     assert!(caps.formats.contains(&PixelFormat::Rgb9e5x2));
+    assert!(
+        caps.memory_bytes > 0,
+        "the node reports its memory: {caps:?}"
+    );
 
     let scene = scene();
     let hash = coord.send_scene(&scene).await;

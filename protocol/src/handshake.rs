@@ -15,7 +15,7 @@ use crate::message::Role;
 
 pub const MAGIC: [u8; 4] = *b"LFLD";
 /// 2: `CompositorConfig::wiring`. 4: `FrameParams::time` (scene time).
-pub const PROTOCOL_VERSION: u16 = 6;
+pub const PROTOCOL_VERSION: u16 = 7;
 /// Longest daemon id a hello may carry (its wire length is one byte).
 pub const MAX_DAEMON_ID: usize = 255;
 

@@ -79,6 +79,10 @@ pub struct Capabilities {
     pub fixed_cost_us: u64,
     pub threads: u32,
     pub version: String,
+    /// Memory a render node can give a scene and its maps, bytes (the machine's, or its
+    /// container's limit, or what the node was told); 0 unknown, and for compositors. The
+    /// planner partitions scenes too large for it (`docs/planner.md` § Partitions).
+    pub memory_bytes: u64,
 }
 
 /// A point-light sample as carried by the plan (mirrors `scene::LightSample`).

@@ -51,7 +51,6 @@ async fn main() -> anyhow::Result<()> {
         scene.quality.map_sizing = lightfold_scene::MapSizing::Fixed;
         let nodes = lights.div_ceil(k) as usize;
         let compositors = nodes.min(16);
-        let cluster = InProcessCluster::start(nodes, compositors).await?;
         let mut opts = RunOptions {
             control: test_control(),
             frames,
@@ -77,6 +76,9 @@ async fn main() -> anyhow::Result<()> {
             stages = p.stages.len();
         }
         let plan_ms = ms(t.elapsed()) / f64::from(reps);
+        // Started after planning: the nodes calibrate their cost on start, which would load
+        // the cores the planner is timed on.
+        let cluster = InProcessCluster::start(nodes, compositors).await?;
         let mut session = cluster.connect(opts.control).await?;
         let cpu0 = cpu_seconds();
         let t = Instant::now();

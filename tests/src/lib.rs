@@ -41,6 +41,8 @@ pub struct InProcessCluster {
     pub stage_metrics: Vec<std::sync::Arc<lightfold_compositor::daemon::StageMetrics>>,
     cancel: CancellationToken,
     daemons: Vec<Running>,
+    /// The memory render nodes report (`NodeOptions::memory_bytes`; `None`: the machine's).
+    node_memory: Option<u64>,
 }
 
 /// What one coordinator run produced.
@@ -54,6 +56,16 @@ pub struct RunOutput {
 impl InProcessCluster {
     /// Starts `nodes` render nodes and `compositors` compositors on loopback port 0.
     pub async fn start(nodes: usize, compositors: usize) -> anyhow::Result<Self> {
+        Self::start_with_node_memory(nodes, compositors, None).await
+    }
+
+    /// [`InProcessCluster::start`] with render nodes that report `memory` bytes at
+    /// registration (what automatic partitioning plans for).
+    pub async fn start_with_node_memory(
+        nodes: usize,
+        compositors: usize,
+        memory: Option<u64>,
+    ) -> anyhow::Result<Self> {
         let token = b"in-process cluster token".to_vec();
         let cancel = CancellationToken::new();
         let mut c = InProcessCluster {
@@ -63,6 +75,7 @@ impl InProcessCluster {
             stage_metrics: Vec::new(),
             cancel: cancel.clone(),
             daemons: Vec::new(),
+            node_memory: memory,
         };
         for i in 0..nodes {
             let listener = TcpListener::bind("127.0.0.1:0").await?;
@@ -82,7 +95,8 @@ impl InProcessCluster {
     fn spawn(&mut self, id: String, addr: String, node: bool, listener: TcpListener) {
         let stop = self.cancel.child_token();
         let task = if node {
-            let opts = NodeOptions::new(id.clone(), &self.token);
+            let mut opts = NodeOptions::new(id.clone(), &self.token);
+            opts.memory_bytes = self.node_memory;
             tokio::spawn(node::run(listener, opts, stop.clone()))
         } else {
             let opts = CompositorOptions::new(id.clone(), addr.clone(), &self.token);

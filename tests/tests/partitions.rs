@@ -31,7 +31,8 @@ fn rendered(scene: &Scene, parts: u32) -> Scene {
         partitions: parts,
         ..PlanOptions::default()
     };
-    lightfold_coordinator::plan::scene_for(scene, &options).into_owned()
+    let cluster = lightfold_coordinator::plan::ClusterSpec::local(1, 1);
+    lightfold_coordinator::plan::scene_for(scene, &cluster, &options).into_owned()
 }
 
 fn bias(test: &Image, want: &Image) -> f64 {
@@ -364,4 +365,29 @@ async fn a_mesh_larger_than_a_part_is_split_into_chunks() {
     );
     assert!(e_cluster <= 1.25 * e_one, "{e_cluster} against {e_one}");
     assert!(bias(&frames[0], &one_mesh).abs() <= MAX_BIAS);
+}
+
+/// Automatic partitioning (`--partitions auto`, the default): nodes that report too little
+/// memory for the whole scene's geometry get it in parts. Here each node reports the bytes the
+/// whole scene needs (`NODE_BYTES_PER_TRIANGLE` a triangle), which is twice what the planner
+/// lets a scene take (`SCENE_MEMORY_SHARE`), so the scene is split in 2; the frame is the
+/// whole scene's within the image-bias bound. The control: nodes with ample memory draw it
+/// whole.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn nodes_short_of_memory_get_the_scene_in_parts() {
+    use lightfold_coordinator::plan::NODE_BYTES_PER_TRIANGLE;
+    let scene = small("balls");
+    let need = scene.triangle_count() as u64 * NODE_BYTES_PER_TRIANGLE;
+    let gpu = gpu();
+    let whole = single_device(&gpu, &scene, false);
+    for (memory, parts) in [(need, 2), (100 * need, 0)] {
+        let cluster = InProcessCluster::start_with_node_memory(4, 2, Some(memory))
+            .await
+            .unwrap();
+        // K = 4: two groups of the 8 samples, so 2 parts take all 4 nodes.
+        let (frames, plan) = cluster_frame(&cluster, &scene, 0, 4, 1).await;
+        cluster.stop().await.unwrap();
+        assert_eq!(plan.partitions.len(), parts, "nodes of {memory} bytes");
+        assert!(bias(&frames[0], &whole).abs() <= MAX_BIAS);
+    }
 }

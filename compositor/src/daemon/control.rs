@@ -85,6 +85,7 @@ impl ControlHub {
                 fixed_cost_us: 0,
                 threads: std::thread::available_parallelism().map_or(1, |n| n.get() as u32),
                 version: env!("CARGO_PKG_VERSION").to_string(),
+                memory_bytes: 0,
             },
             max_frame,
         }

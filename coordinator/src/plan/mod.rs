@@ -101,11 +101,55 @@ type PartFit = (
     Vec<lightfold_scene::shadow_views::Probe>,
 );
 
-/// The scene a plan with `options` renders: with partitions, meshes too large for a part split
-/// into chunks (`scene::partition::chunk_for_parts`); otherwise `scene` itself. The control loop
-/// plans and ships this scene, and `lightfold plan` prints its plan.
-pub fn scene_for<'s>(scene: &'s Scene, options: &PlanOptions) -> std::borrow::Cow<'s, Scene> {
-    match lightfold_scene::partition::chunk_for_parts(scene, options.partitions as usize) {
+/// Bytes a render node holds per triangle it is sent: peak RSS of one node at 4 M triangles
+/// (scene, uploaded buffers, the driver's copy; `docs/scaling.md`), 430 bytes.
+pub const NODE_BYTES_PER_TRIANGLE: u64 = 430;
+/// The share of a node's reported memory a scene's geometry may take before automatic
+/// partitioning splits it (the rest: shadow maps, targets, frames in flight).
+pub const SCENE_MEMORY_SHARE: f64 = 0.5;
+
+/// The partitions `options` asks for, resolved: as given, or for 0 (automatic) the fewest parts
+/// whose share of the scene's triangles fits the smallest memory a render node reported
+/// (`Capabilities::memory_bytes`, [`NODE_BYTES_PER_TRIANGLE`] each, within
+/// [`SCENE_MEMORY_SHARE`]), at most the nodes there are and [`MAX_PARTITIONS`]. Automatic
+/// partitioning is 1 where no node reports its memory, and where the options exclude partitions
+/// (tree topology, a material node of its own, a penumbra filter radius).
+pub fn partitions_for(scene: &Scene, cluster: &ClusterSpec, options: &PlanOptions) -> u32 {
+    if options.partitions > 0 {
+        return options.partitions;
+    }
+    let excluded = options.topology != Topology::Chain
+        || options.material_own_node
+        || matches!(options.penumbra_filter, PenumbraFilter::Radius(_));
+    let memory = cluster
+        .nodes
+        .iter()
+        .filter_map(|n| n.capabilities.as_ref().map(|c| c.memory_bytes))
+        .filter(|&m| m > 0)
+        .min();
+    let (Some(memory), false) = (memory, excluded) else {
+        return 1;
+    };
+    let need = scene.triangle_count() as f64 * NODE_BYTES_PER_TRIANGLE as f64;
+    let parts = (need / (memory as f64 * SCENE_MEMORY_SHARE))
+        .ceil()
+        .max(1.0);
+    (parts as u32)
+        .min(MAX_PARTITIONS)
+        .min(cluster.nodes.len().max(1) as u32)
+}
+
+/// The scene a plan with `options` on `cluster` renders: with partitions (as
+/// [`partitions_for`] resolves them), meshes too large for a part split into chunks
+/// (`scene::partition::chunk_for_parts`); otherwise `scene` itself. The control loop plans and
+/// ships this scene, and `lightfold plan` prints its plan.
+pub fn scene_for<'s>(
+    scene: &'s Scene,
+    cluster: &ClusterSpec,
+    options: &PlanOptions,
+) -> std::borrow::Cow<'s, Scene> {
+    let parts = partitions_for(scene, cluster, options) as usize;
+    match lightfold_scene::partition::chunk_for_parts(scene, parts) {
         Some(chunked) => std::borrow::Cow::Owned(chunked),
         None => std::borrow::Cow::Borrowed(scene),
     }
@@ -127,6 +171,13 @@ pub(crate) fn plan_with(
     previous: Option<&Plan>,
 ) -> Result<Plan, PlanError> {
     validate(scene, cluster, options)?;
+    if options.partitions == 0 {
+        let options = PlanOptions {
+            partitions: partitions_for(scene, cluster, options),
+            ..options.clone()
+        };
+        return plan_with(scene, cluster, &options, previous);
+    }
     if options.partitions > 1 && !matches!(options.penumbra_filter, PenumbraFilter::Off) {
         // Checked: no radius is asked for. The budget's filter needs a depth of the whole
         // image at the last stage, which partitions do not send there yet.
@@ -756,9 +807,9 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
     {
         return bad_options("the penumbra filter's radius must be 1 to 8 (a 3×3 to 17×17 window)");
     }
-    if o.partitions == 0 || o.partitions > MAX_PARTITIONS {
+    if o.partitions > MAX_PARTITIONS {
         return bad_options(&format!(
-            "partitions must be 1 to {MAX_PARTITIONS}, got {}",
+            "partitions must be 0 (automatic) or 1 to {MAX_PARTITIONS}, got {}",
             o.partitions
         ));
     }

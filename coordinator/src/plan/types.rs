@@ -246,9 +246,10 @@ pub struct PlanOptions {
     /// Sort-last partitions (`--partitions P`, `docs/planner.md` § Partitions): the meshes are
     /// split into P spatially coherent parts (`scene::partition`), every light group is rendered
     /// once per part by a node drawing only that part's eye pass (shadows still from every
-    /// caster), and the stages depth-compose the parts. 1 (the default) draws the whole scene on
-    /// every node.
-    #[serde(default = "one")]
+    /// caster), and the stages depth-compose the parts. 1 draws the whole scene on every node;
+    /// 0 (the default) chooses: more than 1 only when the scene's geometry would not fit the
+    /// memory the nodes reported (`plan::partitions_for`).
+    #[serde(default)]
     pub partitions: u32,
 }
 
@@ -331,7 +332,7 @@ impl Default for PlanOptions {
             cost_scale: CostScale::default(),
             target_penumbra_db: None,
             penumbra_filter: PenumbraFilter::Budget,
-            partitions: 1,
+            partitions: 0,
         }
     }
 }
@@ -638,6 +639,7 @@ mod tests {
                 fixed_cost_us: 0,
                 threads: 1,
                 version: String::new(),
+                memory_bytes: 0,
             }),
         }
     }

@@ -49,6 +49,9 @@ pub struct NodeOptions {
     /// Refuse to start on a software rasteriser (lavapipe, llvmpipe): a GPU node whose driver
     /// is missing fails instead of rendering on the CPU.
     pub require_gpu: bool,
+    /// The memory registration reports (`Capabilities::memory_bytes`); `None`: what the machine
+    /// or its control group has.
+    pub memory_bytes: Option<u64>,
 }
 
 impl std::fmt::Debug for NodeOptions {
@@ -62,6 +65,7 @@ impl std::fmt::Debug for NodeOptions {
             .field("max_scene_bytes", &self.max_scene_bytes)
             .field("dial_deadline", &self.dial_deadline)
             .field("require_gpu", &self.require_gpu)
+            .field("memory_bytes", &self.memory_bytes)
             .finish_non_exhaustive()
     }
 }
@@ -79,6 +83,7 @@ impl NodeOptions {
             max_scene_bytes: lightfold_scene::MAX_SCENE_BYTES as u64,
             dial_deadline: Duration::from_secs(30),
             require_gpu: false,
+            memory_bytes: None,
         }
     }
 }
@@ -99,6 +104,7 @@ fn capabilities(opts: &NodeOptions, advertise: String, report: &DeviceReport) ->
         fixed_cost_us: report.calibration.fixed_cost_us,
         threads: sys::threads(),
         version: env!("CARGO_PKG_VERSION").to_string(),
+        memory_bytes: opts.memory_bytes.unwrap_or_else(sys::memory_bytes),
     }
 }
 

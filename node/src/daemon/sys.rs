@@ -10,6 +10,21 @@ pub fn peak_rss_bytes() -> u64 {
         .map_or(0, |kib| kib * 1024)
 }
 
+/// Memory this process may use, bytes: the machine's total (`MemTotal`), or its control group's
+/// limit (`memory.max`, cgroup v2: a container's or a Slurm job's) where that is lower; 0 when
+/// unknown.
+pub fn memory_bytes() -> u64 {
+    use procfs::Current;
+    let total = procfs::Meminfo::current().map_or(0, |m| m.mem_total);
+    let limit = std::fs::read_to_string("/sys/fs/cgroup/memory.max")
+        .ok()
+        .and_then(|s| s.trim().parse::<u64>().ok());
+    match limit {
+        Some(l) if total == 0 || l < total => l,
+        _ => total,
+    }
+}
+
 /// Threads available to this process (what lavapipe will use unless `LP_NUM_THREADS` says less).
 pub fn threads() -> u32 {
     let available = std::thread::available_parallelism().map_or(1, |n| n.get() as u32);
@@ -23,6 +38,13 @@ pub fn threads() -> u32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn this_machine_has_memory() {
+        if std::path::Path::new("/proc/meminfo").exists() {
+            assert!(memory_bytes() > 0);
+        }
+    }
 
     #[test]
     fn this_process_has_a_peak() {

@@ -136,13 +136,19 @@ pub fn capabilities() -> impl Strategy<Value = Capabilities> {
             any::<u32>(),
             prop::collection::vec(format(), 0..9),
         ),
-        (any::<u64>(), any::<u64>(), any::<u32>(), text()),
+        (
+            any::<u64>(),
+            any::<u64>(),
+            any::<u32>(),
+            text(),
+            any::<u64>(),
+        ),
     )
         .prop_map(
             |(
                 (role, daemon_id, advertise, adapter, backend),
                 (max_lights, max_texture_size, formats),
-                (cost_per_light_us, fixed_cost_us, threads, version),
+                (cost_per_light_us, fixed_cost_us, threads, version, memory_bytes),
             )| Capabilities {
                 role,
                 daemon_id,
@@ -156,6 +162,7 @@ pub fn capabilities() -> impl Strategy<Value = Capabilities> {
                 fixed_cost_us,
                 threads,
                 version,
+                memory_bytes,
             },
         )
 }

@@ -270,8 +270,14 @@ impl<'s> Live<'s> {
         opts: &PlanOptions,
     ) -> Result<Live<'s>, RunError> {
         // `--aa N`: everything the cluster renders is N × the camera's size; the sink resolves.
-        // With partitions, meshes too large for a part are split into chunks first.
-        let mut scene = crate::plan::scene_for(scene, opts).into_owned();
+        // Partitions resolved once for the run (automatic ones from the nodes' memory), and
+        // meshes too large for a part split into chunks first.
+        let cluster = crate::run::cluster_spec(session);
+        let opts = &PlanOptions {
+            partitions: crate::plan::partitions_for(scene, &cluster, opts),
+            ..opts.clone()
+        };
+        let mut scene = crate::plan::scene_for(scene, &cluster, opts).into_owned();
         scene.camera = scene.camera.supersampled(opts.supersample)?;
         let bytes = scene
             .to_bytes()
