@@ -808,28 +808,32 @@ fn partitions_are_refused_where_they_cannot_be_planned() {
     assert!(refused(&|o| o.partitions = 65).contains("0 (automatic) or 1 to 64"));
     assert!(refused(&|o| o.topology = Topology::Tree).contains("chain"));
     assert!(refused(&|o| o.material_own_node = true).contains("material"));
-    assert!(
-        refused(&|o| o.penumbra_filter = lightfold_coordinator::plan::PenumbraFilter::Radius(2))
-            .contains("penumbra")
-    );
-    // The default filter choice is simply off with partitions.
+    // The penumbra filter runs at the last stage on the composed stream, which carries the
+    // nearest surface's depth: between `depth` and `material`.
     let p = plan(
         &scene,
         &local(),
         &PlanOptions {
             partitions: 2,
-            penumbra_filter: lightfold_coordinator::plan::PenumbraFilter::Auto,
+            penumbra_filter: lightfold_coordinator::plan::PenumbraFilter::Radius(2),
             ..opts()
         },
     )
     .unwrap();
-    assert_eq!(p.penumbra_radius, 0);
+    assert_eq!(p.penumbra_radius, 2);
+    let root = p.stages.last().unwrap();
+    let names: Vec<&str> = root.ops.iter().map(|o| o.0.as_str()).collect();
+    assert_eq!(
+        &names[names.len() - 4..],
+        ["depth", "penumbra", "material", "output"]
+    );
+    assert_stages_build(&p);
 }
 
 #[test]
 fn automatic_partitions_follow_the_nodes_memory() {
     use lightfold_coordinator::plan::{
-        NODE_BYTES_PER_TRIANGLE, PenumbraFilter, SCENE_MEMORY_SHARE, partitions_for,
+        NODE_BYTES_PER_TRIANGLE, SCENE_MEMORY_SHARE, partitions_for,
     };
     let scene = stage();
     let need = scene.triangle_count() as u64 * NODE_BYTES_PER_TRIANGLE;
@@ -861,7 +865,6 @@ fn automatic_partitions_follow_the_nodes_memory() {
     for change in [
         &(|o: &mut PlanOptions| o.topology = Topology::Tree) as &dyn Fn(&mut PlanOptions),
         &|o| o.material_own_node = true,
-        &|o| o.penumbra_filter = PenumbraFilter::Radius(2),
     ] {
         let mut o = opts();
         change(&mut o);

@@ -391,3 +391,53 @@ async fn nodes_short_of_memory_get_the_scene_in_parts() {
         assert!(bias(&frames[0], &whole).abs() <= MAX_BIAS);
     }
 }
+
+/// The penumbra filter with partitions: the last stage filters the composed illumination with
+/// the composed (nearest) depth. The frame is the filtered whole render's within the image-bias
+/// bound, and nearer to it than to the unfiltered render (the control).
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn the_penumbra_filter_runs_on_the_composed_parts() {
+    let scene = small("balls");
+    let cluster = InProcessCluster::start(4, 2).await.unwrap();
+    let mut session = cluster.connect(test_control()).await.unwrap();
+    let opts = RunOptions {
+        control: test_control(),
+        frames: 1,
+        plan: PlanOptions {
+            partitions: 2,
+            lights_per_node: 4,
+            penumbra_filter: lightfold_coordinator::plan::PenumbraFilter::Radius(2),
+            ..PlanOptions::default()
+        },
+        ..RunOptions::default()
+    };
+    let out = render_on(&mut session, &scene, &opts).await.unwrap();
+    session.detach();
+    cluster.stop().await.unwrap();
+    assert_eq!(
+        (out.plan.partitions.len(), out.plan.penumbra_radius),
+        (2, 2)
+    );
+    let gpu = gpu();
+    let filtered = lightfold_tests::single_device_filtered(&gpu, &scene, false, 2);
+    let unfiltered = single_device(&gpu, &scene, false);
+    let frame = &out.frames[0].image;
+    let rms = |a: &Image, b: &Image| {
+        let e: f64 = a
+            .data
+            .iter()
+            .zip(&b.data)
+            .map(|(x, y)| f64::from(x - y).powi(2))
+            .sum();
+        (e / a.data.len() as f64).sqrt()
+    };
+    let (to_filtered, to_unfiltered) = (rms(frame, &filtered), rms(frame, &unfiltered));
+    eprintln!(
+        "RMS to the filtered render {to_filtered:.3e}, to the unfiltered {to_unfiltered:.3e}"
+    );
+    assert!(bias(frame, &filtered).abs() <= MAX_BIAS);
+    assert!(
+        to_filtered < 0.5 * to_unfiltered,
+        "{to_filtered} against {to_unfiltered}"
+    );
+}

@@ -113,14 +113,12 @@ pub const SCENE_MEMORY_SHARE: f64 = 0.5;
 /// (`Capabilities::memory_bytes`, [`NODE_BYTES_PER_TRIANGLE`] each, within
 /// [`SCENE_MEMORY_SHARE`]), at most the nodes there are and [`MAX_PARTITIONS`]. Automatic
 /// partitioning is 1 where no node reports its memory, and where the options exclude partitions
-/// (tree topology, a material node of its own, a penumbra filter radius).
+/// (tree topology, a material node of its own).
 pub fn partitions_for(scene: &Scene, cluster: &ClusterSpec, options: &PlanOptions) -> u32 {
     if options.partitions > 0 {
         return options.partitions;
     }
-    let excluded = options.topology != Topology::Chain
-        || options.material_own_node
-        || matches!(options.penumbra_filter, PenumbraFilter::Radius(_));
+    let excluded = options.topology != Topology::Chain || options.material_own_node;
     let memory = cluster
         .nodes
         .iter()
@@ -177,15 +175,6 @@ pub(crate) fn plan_with(
             ..options.clone()
         };
         return plan_with(scene, cluster, &options, previous);
-    }
-    if options.partitions > 1 && !matches!(options.penumbra_filter, PenumbraFilter::Off) {
-        // Checked: no radius is asked for. The budget's filter needs a depth of the whole
-        // image at the last stage, which partitions do not send there yet.
-        let options = PlanOptions {
-            penumbra_filter: PenumbraFilter::Off,
-            ..options.clone()
-        };
-        return budget::within_budget(scene, cluster, &options, previous, plan_once);
     }
     budget::within_budget(scene, cluster, options, previous, plan_once)
 }
@@ -717,11 +706,19 @@ fn partitioned(
             .filter_map(|&i| part_shadows[p][i].as_ref())
             .collect()
     };
+    // The eye depth (which the penumbra filter's material layers may already name) and the
+    // material layers.
     let mut host_layers = vec![
         (Layer::Illumination, options.formats.node),
         (Layer::Depth, PixelFormat::DepthF32),
     ];
-    host_layers.extend(finish.material_layers.iter().copied());
+    host_layers.extend(
+        finish
+            .material_layers
+            .iter()
+            .copied()
+            .filter(|l| l.0 != Layer::Depth),
+    );
     let extra = host_layers.len() - 1;
     // Per part, its units with the cheapest first (it hosts the part's depth and materials).
     let mut part_units: Vec<Vec<usize>> = vec![Vec::new(); parts.len()];
@@ -822,11 +819,6 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
         if o.material_own_node {
             return bad_options(
                 "with partitions each part's first node renders its material layers: drop the material node of its own",
-            );
-        }
-        if matches!(o.penumbra_filter, PenumbraFilter::Radius(_)) {
-            return bad_options(
-                "the penumbra filter is not planned with partitions yet: drop --penumbra-filter or --partitions",
             );
         }
     }

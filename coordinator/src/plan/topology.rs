@@ -286,7 +286,13 @@ pub(crate) fn partition_stages(
         start += len;
     }
     // What travels between stages: the eye depth with every layer it selects.
-    let material_kinds: Vec<Layer> = finish.material_layers.iter().map(|l| l.0).collect();
+    // (The depth the penumbra filter reads is the composed one.)
+    let material_kinds: Vec<Layer> = finish
+        .material_layers
+        .iter()
+        .map(|l| l.0)
+        .filter(|&l| l != Layer::Depth)
+        .collect();
     let mut carried = vec![Layer::Illumination];
     carried.extend(&material_kinds);
     let mut own = vec![Layer::Depth];
