@@ -763,6 +763,28 @@ fn partitions_plan_a_grid_of_parts_by_light_groups() {
         text.contains("partitions: 2 parts × 2 light group(s) = 4 nodes"),
         "{text}"
     );
+    // A tree: leaves take runs of parts, `depth` joins pairs above (parts in order, so ties
+    // still go to the lower part), the root shades.
+    let tree = PlanOptions {
+        topology: Topology::Tree,
+        partitions: 3,
+        ..o.clone()
+    };
+    let t = plan(&scene, &ClusterSpec::local(16, 5), &tree).unwrap();
+    assert_eq!(t.stages.len(), 5, "3 leaves and 2 joins");
+    let root = t.stages.last().unwrap();
+    assert_eq!(names(root), ["depth", "material", "output"]);
+    assert_eq!(
+        root.inputs
+            .iter()
+            .map(|i| match &i.source {
+                lightfold_coordinator::plan::Source::Stage(s) => s.clone(),
+                other => panic!("{other:?}"),
+            })
+            .collect::<Vec<_>>(),
+        ["comp-3", "comp-2"]
+    );
+    assert_stages_build(&t);
     // With one compositor, both parts compose in one stage.
     let one = plan(&scene, &ClusterSpec::local(16, 1), &o).unwrap();
     assert_eq!(one.stages.len(), 1);
@@ -806,7 +828,6 @@ fn partitions_are_refused_where_they_cannot_be_planned() {
     };
     assert!(refused(&|o| o.partitions = 4).contains("at most 3 partitions"));
     assert!(refused(&|o| o.partitions = 65).contains("0 (automatic) or 1 to 64"));
-    assert!(refused(&|o| o.topology = Topology::Tree).contains("chain"));
     assert!(refused(&|o| o.material_own_node = true).contains("material"));
     // The penumbra filter runs at the last stage on the composed stream, which carries the
     // nearest surface's depth: between `depth` and `material`.
@@ -862,14 +883,14 @@ fn automatic_partitions_follow_the_nodes_memory() {
     assert_eq!(partitions_for(&scene, &mixed, &auto), 3);
     // At most one part per node, and none where partitions cannot be planned.
     assert_eq!(partitions_for(&scene, &with_memory(2, third), &auto), 2);
-    for change in [
-        &(|o: &mut PlanOptions| o.topology = Topology::Tree) as &dyn Fn(&mut PlanOptions),
-        &|o| o.material_own_node = true,
-    ] {
-        let mut o = opts();
-        change(&mut o);
-        assert_eq!(partitions_for(&scene, &with_memory(8, third), &o), 1);
-    }
+    let own_material_node = PlanOptions {
+        material_own_node: true,
+        ..opts()
+    };
+    assert_eq!(
+        partitions_for(&scene, &with_memory(8, third), &own_material_node),
+        1
+    );
     // Asked for: as asked.
     let two = PlanOptions {
         partitions: 2,

@@ -441,3 +441,30 @@ async fn the_penumbra_filter_runs_on_the_composed_parts() {
         "{to_filtered} against {to_unfiltered}"
     );
 }
+
+/// Partitions composed in a tree (leaves compose runs of parts, `depth` joins pairs above, lower
+/// parts first): the frame equals the same parts on one device.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn partitions_compose_in_a_tree() {
+    let scene = small("balls");
+    let cluster = InProcessCluster::start(6, 5).await.unwrap();
+    let mut session = cluster.connect(test_control()).await.unwrap();
+    let opts = RunOptions {
+        control: test_control(),
+        frames: 1,
+        plan: PlanOptions {
+            partitions: 3,
+            lights_per_node: 4,
+            topology: lightfold_coordinator::plan::Topology::Tree,
+            ..PlanOptions::default()
+        },
+        ..RunOptions::default()
+    };
+    let out = render_on(&mut session, &scene, &opts).await.unwrap();
+    session.detach();
+    cluster.stop().await.unwrap();
+    assert_eq!((out.plan.partitions.len(), out.plan.stages.len()), (3, 5));
+    let gpu = gpu();
+    let same_parts = single_device_parts(&gpu, &rendered(&scene, 3), &out.plan.partitions, false);
+    assert_close(&out.frames[0].image, &same_parts, "tree of parts");
+}

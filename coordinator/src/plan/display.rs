@@ -321,9 +321,13 @@ impl Plan {
             .map(|(i, m)| format!("part {i}: {} mesh(es)", m.len()))
             .collect();
         Some(format!(
-            "partitions: {} parts × {groups} light group(s) = {} nodes, depth-composed along the chain ({})",
+            "partitions: {} parts × {groups} light group(s) = {} nodes, depth-composed {} ({})",
             self.partitions.len(),
             self.nodes.len(),
+            match self.topology {
+                super::types::Topology::Chain => "along the chain",
+                super::types::Topology::Tree => "in a tree",
+            },
             meshes.join(", ")
         ))
     }

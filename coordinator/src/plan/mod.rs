@@ -113,12 +113,12 @@ pub const SCENE_MEMORY_SHARE: f64 = 0.5;
 /// (`Capabilities::memory_bytes`, [`NODE_BYTES_PER_TRIANGLE`] each, within
 /// [`SCENE_MEMORY_SHARE`]), at most the nodes there are and [`MAX_PARTITIONS`]. Automatic
 /// partitioning is 1 where no node reports its memory, and where the options exclude partitions
-/// (tree topology, a material node of its own).
+/// (a material node of its own).
 pub fn partitions_for(scene: &Scene, cluster: &ClusterSpec, options: &PlanOptions) -> u32 {
     if options.partitions > 0 {
         return options.partitions;
     }
-    let excluded = options.topology != Topology::Chain || options.material_own_node;
+    let excluded = options.material_own_node;
     let memory = cluster
         .nodes
         .iter()
@@ -759,8 +759,13 @@ fn partitioned(
                 .collect()
         })
         .collect();
-    let (stages, dst) =
-        topology::partition_stages(&inputs, finish, &cluster.compositors, &options.formats);
+    let (stages, dst) = topology::partition_stages(
+        &inputs,
+        finish,
+        &cluster.compositors,
+        options.topology,
+        &options.formats,
+    );
     let mut nodes = Vec::with_capacity(units.len());
     for (p, list) in part_units.iter().enumerate() {
         for (j, &u) in list.iter().enumerate() {
@@ -811,11 +816,6 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
         ));
     }
     if o.partitions > 1 {
-        if o.topology != Topology::Chain {
-            return bad_options(
-                "partitions are depth-composed along a chain: drop --topology tree",
-            );
-        }
         if o.material_own_node {
             return bad_options(
                 "with partitions each part's first node renders its material layers: drop the material node of its own",

@@ -267,17 +267,26 @@ fn accumulate_params(
 /// material layers of its part. A part's illumination is summed over its light groups
 /// (`accumulate`) and put beside its first node's depth and material layers (`merge`); parts are
 /// then depth-composed (`depth`, reading node eye depth: `zero_is_empty`), lower parts first, so
-/// ties go to the lower part. Stages take contiguous runs of parts along a chain, each
-/// depth-composing the upstream stream with its own parts; the last stage shades. Returns the
-/// stages and, per part and node, where the node streams.
+/// ties go to the lower part. Stages take contiguous runs of parts: along a chain, each
+/// depth-composing the upstream stream with its own parts; in a tree, leaves compose their own
+/// parts and stages above `depth`-join pairs of them. The last stage shades. Returns the stages
+/// and, per part and node, where the node streams.
 pub(crate) fn partition_stages(
     parts: &[Vec<IllumInput>],
     finish: &Finish,
     compositors: &[DaemonSpec],
+    topology: Topology,
     formats: &FormatChoice,
 ) -> (Vec<StagePlan>, Vec<Vec<Dest>>) {
     use lightfold_compositor::ops::{Merge, layer_name};
-    let count = parts.len().min(compositors.len()).max(1);
+    let chain = topology == Topology::Chain;
+    // A tree's leaves take runs of parts and `depth` joins pairs of them level by level (2·leaves
+    // − 1 stages); a chain's stages each take a run and the upstream stream.
+    let count = if chain {
+        parts.len().min(compositors.len()).max(1)
+    } else {
+        parts.len().min(compositors.len().div_ceil(2)).max(1)
+    };
     let mut chunks = Vec::with_capacity(count);
     let mut start = 0;
     for i in 0..count {
@@ -321,7 +330,7 @@ pub(crate) fn partition_stages(
         let mut ops: Vec<(String, Value)> = Vec::new();
         let mut wiring: Vec<Vec<OpSource>> = Vec::new();
         let mut composed = Vec::new();
-        if let Some(prev) = stages.last_mut() {
+        if let Some(prev) = stages.last_mut().filter(|_| chain) {
             prev.downstream = Downstream::Stage(id.clone());
             prev.input_index = 0;
             inputs.push(InputRef {
@@ -375,6 +384,46 @@ pub(crate) fn partition_stages(
             downstream: Downstream::Sink,
             input_index: 0,
         });
+    }
+    if !chain {
+        // Join adjacent pairs level by level, the lower parts first (ties go to them); an odd
+        // stage moves up unchanged.
+        let joined: Vec<Layer> = std::iter::once(Layer::Depth)
+            .chain(carried.iter().copied())
+            .collect();
+        let mut level: Vec<usize> = (0..stages.len()).collect();
+        let mut next = stages.len();
+        while level.len() > 1 {
+            let mut up = Vec::new();
+            for pair in level.chunks(2) {
+                if pair.len() == 1 {
+                    up.push(pair[0]);
+                    continue;
+                }
+                let id = compositors[next].id.clone();
+                next += 1;
+                let mut inputs = Vec::new();
+                for (j, &k) in pair.iter().enumerate() {
+                    stages[k].downstream = Downstream::Stage(id.clone());
+                    stages[k].input_index = j as u32;
+                    inputs.push(InputRef {
+                        source: Source::Stage(stages[k].compositor.clone()),
+                        layers: stages[k].outputs.clone(),
+                    });
+                }
+                stages.push(StagePlan {
+                    compositor: id,
+                    ops: vec![("depth".to_string(), depth_params(2))],
+                    wiring: vec![vec![OpSource::Input(0), OpSource::Input(1)]],
+                    inputs,
+                    outputs: joined.iter().map(|&l| (l, format_of(l))).collect(),
+                    downstream: Downstream::Sink,
+                    input_index: 0,
+                });
+                up.push(stages.len() - 1);
+            }
+            level = up;
+        }
     }
     let root = stages.last_mut().expect("at least one stage");
     // `material` reads the sum and the material layers, both in the composed stream.
