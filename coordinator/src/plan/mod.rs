@@ -815,12 +815,10 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
             o.partitions
         ));
     }
-    if o.partitions > 1 {
-        if o.material_own_node {
-            return bad_options(
-                "with partitions each part's first node renders its material layers: drop the material node of its own",
-            );
-        }
+    if o.partitions > 1 && o.material_own_node {
+        return bad_options(
+            "with partitions each part's first node renders its material layers: drop the material node of its own",
+        );
     }
     if o.frames_in_flight == 0 {
         return bad_options("frames in flight must be at least 1");
