@@ -62,21 +62,7 @@ pub struct Args {
 fn with_memory(mut cluster: ClusterSpec) -> ClusterSpec {
     let memory_bytes = lightfold_node::daemon::sys::memory_bytes();
     for n in &mut cluster.nodes {
-        n.capabilities = Some(lightfold_protocol::Capabilities {
-            role: lightfold_protocol::Role::Node,
-            daemon_id: n.id.clone(),
-            advertise: String::new(),
-            adapter: String::new(),
-            backend: String::new(),
-            max_lights: 0,
-            max_texture_size: 0,
-            formats: Vec::new(),
-            cost_per_light_us: 0,
-            fixed_cost_us: 0,
-            threads: 0,
-            version: String::new(),
-            memory_bytes,
-        });
+        n.capabilities = Some(crate::plan_cmd::synthetic_node(&n.id, 0, memory_bytes));
     }
     cluster
 }

@@ -199,23 +199,30 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 /// (what a real node reports at registration; the planner raises K only up to it).
 fn with_devices(mut cluster: ClusterSpec, max_lights: u32) -> ClusterSpec {
     for n in &mut cluster.nodes {
-        n.capabilities.get_or_insert_with(|| Capabilities {
-            role: Role::Node,
-            daemon_id: n.id.clone(),
-            advertise: String::new(),
-            adapter: String::new(),
-            backend: String::new(),
-            max_lights,
-            max_texture_size: 0,
-            formats: Vec::new(),
-            cost_per_light_us: 0,
-            fixed_cost_us: 0,
-            threads: 0,
-            version: String::new(),
-            memory_bytes: 0,
-        });
+        n.capabilities
+            .get_or_insert_with(|| synthetic_node(&n.id, max_lights, 0));
     }
     cluster
+}
+
+/// What a synthetic render node `id` reports: a device taking at most `max_lights` lights and
+/// `memory_bytes` of memory (0 unknown); nothing measured.
+pub(crate) fn synthetic_node(id: &str, max_lights: u32, memory_bytes: u64) -> Capabilities {
+    Capabilities {
+        role: Role::Node,
+        daemon_id: id.to_string(),
+        advertise: String::new(),
+        adapter: String::new(),
+        backend: String::new(),
+        max_lights,
+        max_texture_size: 0,
+        formats: Vec::new(),
+        cost_per_light_us: 0,
+        fixed_cost_us: 0,
+        threads: 0,
+        version: String::new(),
+        memory_bytes,
+    }
 }
 
 fn from_file(file: &ClusterFile) -> ClusterSpec {

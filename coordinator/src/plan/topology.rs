@@ -138,43 +138,20 @@ pub(crate) fn stages(
         });
     }
     if topology == Topology::Tree {
-        // Join adjacent pairs level by level; an odd stage moves up unchanged.
-        let mut level: Vec<usize> = (0..stages.len()).collect();
-        let mut next_comp = leaves;
-        while level.len() > 1 {
-            let mut up = Vec::new();
-            for pair in level.chunks(2) {
-                if pair.len() == 1 {
-                    up.push(pair[0]);
-                    continue;
-                }
-                let id = compositors[next_comp].id.clone();
-                next_comp += 1;
-                let mut inputs = Vec::new();
-                for (j, &s) in pair.iter().enumerate() {
-                    stages[s].downstream = Downstream::Stage(id.clone());
-                    stages[s].input_index = j as u32;
-                    inputs.push(InputRef {
-                        source: Source::Stage(stages[s].compositor.clone()),
-                        layers: ill(chain_fmt),
-                    });
-                }
-                stages.push(StagePlan {
-                    compositor: id,
-                    wiring: Vec::new(),
-                    ops: vec![(
-                        "join".to_string(),
-                        json!({ "inputs": 2, "layer": "illumination" }),
-                    )],
-                    inputs,
-                    outputs: ill(chain_fmt),
-                    downstream: Downstream::Sink,
-                    input_index: 0,
-                });
-                up.push(stages.len() - 1);
-            }
-            level = up;
-        }
+        // The leaves' partial sums joined pair by pair.
+        let join = StagePlan {
+            compositor: String::new(),
+            wiring: Vec::new(),
+            ops: vec![(
+                "join".to_string(),
+                json!({ "inputs": 2, "layer": "illumination" }),
+            )],
+            inputs: Vec::new(),
+            outputs: ill(chain_fmt),
+            downstream: Downstream::Sink,
+            input_index: 0,
+        };
+        join_pairs(&mut stages, compositors, &join);
     }
     // The last stage built is the root: material and output follow its sum.
     let root = stages.last_mut().expect("at least one stage");
@@ -391,39 +368,16 @@ pub(crate) fn partition_stages(
         let joined: Vec<Layer> = std::iter::once(Layer::Depth)
             .chain(carried.iter().copied())
             .collect();
-        let mut level: Vec<usize> = (0..stages.len()).collect();
-        let mut next = stages.len();
-        while level.len() > 1 {
-            let mut up = Vec::new();
-            for pair in level.chunks(2) {
-                if pair.len() == 1 {
-                    up.push(pair[0]);
-                    continue;
-                }
-                let id = compositors[next].id.clone();
-                next += 1;
-                let mut inputs = Vec::new();
-                for (j, &k) in pair.iter().enumerate() {
-                    stages[k].downstream = Downstream::Stage(id.clone());
-                    stages[k].input_index = j as u32;
-                    inputs.push(InputRef {
-                        source: Source::Stage(stages[k].compositor.clone()),
-                        layers: stages[k].outputs.clone(),
-                    });
-                }
-                stages.push(StagePlan {
-                    compositor: id,
-                    ops: vec![("depth".to_string(), depth_params(2))],
-                    wiring: vec![vec![OpSource::Input(0), OpSource::Input(1)]],
-                    inputs,
-                    outputs: joined.iter().map(|&l| (l, format_of(l))).collect(),
-                    downstream: Downstream::Sink,
-                    input_index: 0,
-                });
-                up.push(stages.len() - 1);
-            }
-            level = up;
-        }
+        let join = StagePlan {
+            compositor: String::new(),
+            ops: vec![("depth".to_string(), depth_params(2))],
+            wiring: vec![vec![OpSource::Input(0), OpSource::Input(1)]],
+            inputs: Vec::new(),
+            outputs: joined.iter().map(|&l| (l, format_of(l))).collect(),
+            downstream: Downstream::Sink,
+            input_index: 0,
+        };
+        join_pairs(&mut stages, compositors, &join);
     }
     let root = stages.last_mut().expect("at least one stage");
     // `material` reads the sum and the material layers, both in the composed stream.
@@ -432,6 +386,41 @@ pub(crate) fn partition_stages(
     root.wiring.push(vec![OpSource::Op(root.ops.len() as u32)]);
     finish_root(root, finish, formats);
     (stages, dst)
+}
+
+/// Joins `stages` (the leaves) pair by pair, level by level, on the next compositors: each join
+/// is `join` with the pair as its inputs 0 and 1 (each carrying what that stage sends), on a
+/// compositor of its own; an odd stage moves up unchanged. The last stage is the root.
+fn join_pairs(stages: &mut Vec<StagePlan>, compositors: &[DaemonSpec], join: &StagePlan) {
+    let mut level: Vec<usize> = (0..stages.len()).collect();
+    let mut next = stages.len();
+    while level.len() > 1 {
+        let mut up = Vec::new();
+        for pair in level.chunks(2) {
+            if pair.len() == 1 {
+                up.push(pair[0]);
+                continue;
+            }
+            let id = compositors[next].id.clone();
+            next += 1;
+            let mut inputs = Vec::new();
+            for (j, &k) in pair.iter().enumerate() {
+                stages[k].downstream = Downstream::Stage(id.clone());
+                stages[k].input_index = j as u32;
+                inputs.push(InputRef {
+                    source: Source::Stage(stages[k].compositor.clone()),
+                    layers: stages[k].outputs.clone(),
+                });
+            }
+            stages.push(StagePlan {
+                compositor: id,
+                inputs,
+                ..join.clone()
+            });
+            up.push(stages.len() - 1);
+        }
+        level = up;
+    }
 }
 
 /// Appends `material` and `output` to the root stage, which sends radiance to the sink.
