@@ -235,12 +235,17 @@ fn render_partitioned(
     let t = Instant::now();
     let mut best: Option<(Image, Image)> = None;
     let mut times = FrameTimes::default();
-    // As a sort-last node of the cluster: its part's eye pass, maps fitted to its part.
+    // As a sort-last node of the cluster: its part's eye pass, maps fitted to its part, with the
+    // casters that can shadow it (for a still scene; an animated one casts every mesh).
     renderer.set_fit_to_eye_meshes(true);
     for part in parts {
         renderer.set_eye_meshes(Some(part.clone()));
+        let casters = scene
+            .animation
+            .is_none()
+            .then(|| lightfold_coordinator::plan::part_casters(scene, samples, part));
         let ((radiance, depth), part_times) =
-            render_frame(gpu, renderer, scene, samples, k, None, 0)?;
+            render_frame(gpu, renderer, scene, samples, k, casters.as_deref(), 0)?;
         times.add(&part_times);
         best = Some(match best {
             None => (radiance, depth),

@@ -26,7 +26,7 @@ pub use types::*;
 use group::{Group, NodeCost};
 use lightfold_compositor::ops::penumbra::MAX_RADIUS as PENUMBRA_MAX_RADIUS;
 use lightfold_protocol::{Layer, PixelFormat};
-use lightfold_scene::Scene;
+use lightfold_scene::{LightSample, Scene};
 use lightfold_scene::shading::V3;
 use sha2::{Digest, Sha256};
 
@@ -151,6 +151,28 @@ pub fn scene_for<'s>(
         Some(chunked) => std::borrow::Cow::Owned(chunked),
         None => std::borrow::Cow::Borrowed(scene),
     }
+}
+
+/// Per sample, the meshes that can shadow the part `part` (mesh indices) of a still `scene`: the
+/// casters a sort-last node of that part draws for it, by the planner's rule (meshes in the
+/// sample's reach between it and a visible receiver of the part it reaches). What
+/// `lightfold render --partitions` gives each part's shadow passes, as the cluster does.
+pub fn part_casters(scene: &Scene, samples: &[LightSample], part: &[u32]) -> Vec<Vec<u32>> {
+    let bounds = geom::mesh_bounds(scene);
+    let receivers: Vec<cull::Receiver> = cull::receivers(scene, &bounds)
+        .into_iter()
+        .filter(|r| part.contains(&(r.mesh as u32)))
+        .collect();
+    samples
+        .iter()
+        .map(|s| {
+            let lit: Vec<&cull::Receiver> = receivers
+                .iter()
+                .filter(|r| geom::reach(s, &r.bounds).is_ok())
+                .collect();
+            shadow::casters(s, &lit, &bounds)
+        })
+        .collect()
 }
 
 /// Plans `scene` on `cluster` (see the module documentation and `docs/planner.md`).
