@@ -145,7 +145,9 @@ pub struct JobArgs {
     #[command(flatten)]
     pub indirect: crate::indirect_args::IndirectArgs,
     /// Compositor topology: `chain` (a linear pipeline, each stage adds its nodes to the upstream
-    /// sum) or `tree` (leaf stages sum nodes, the stages above join pairs of partial sums).
+    /// sum), `tree` (leaf stages sum nodes, the stages above join pairs of partial sums) or
+    /// `auto` (a tree where a chain would have 8 stages or more: lower latency there,
+    /// docs/scaling.md).
     #[arg(long, default_value = "chain")]
     pub topology: Topology,
     /// Frames to render (at least 1).

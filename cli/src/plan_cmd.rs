@@ -46,7 +46,9 @@ pub struct Args {
     #[arg(long, value_name = "K", default_value_t = default_max_lights())]
     pub max_lights: u32,
     /// Compositor topology: `chain` (a linear pipeline, each stage adds its nodes to the upstream
-    /// sum) or `tree` (leaf stages sum nodes, the stages above join pairs of partial sums).
+    /// sum), `tree` (leaf stages sum nodes, the stages above join pairs of partial sums) or
+    /// `auto` (a tree where a chain would have 8 stages or more: lower latency there,
+    /// docs/scaling.md).
     #[arg(long, default_value = "chain")]
     pub topology: Topology,
     /// No culling: every light, material layer and caster.

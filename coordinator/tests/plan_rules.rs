@@ -903,3 +903,26 @@ fn automatic_partitions_follow_the_nodes_memory() {
     let whole = plan(&scene, &with_memory(8, fits), &auto).unwrap();
     assert!(whole.partitions.is_empty() && whole.nodes.iter().all(|n| n.part.is_none()));
 }
+
+#[test]
+fn automatic_topology_is_a_tree_from_eight_chain_stages() {
+    use lightfold_coordinator::plan::AUTO_TREE_STAGES;
+    let s = many_lights(); // 32 samples
+    let auto = |k: u32, compositors: usize| {
+        let o = PlanOptions {
+            lights_per_node: k,
+            topology: Topology::Auto,
+            ..opts()
+        };
+        plan(&s, &ClusterSpec::local(16, compositors), &o).unwrap()
+    };
+    // 8 nodes on 16 compositors: a chain would have 8 stages, so a tree (plans say which).
+    let p = auto(4, 16);
+    assert_eq!((p.nodes.len(), p.topology), (8, Topology::Tree));
+    assert!(p.to_string().contains(" · tree · "), "{p}");
+    // 4 nodes: a chain; 8 nodes on 4 compositors: a chain of 4.
+    assert_eq!(auto(8, 16).topology, Topology::Chain);
+    assert_eq!(auto(4, 4).topology, Topology::Chain);
+    assert_eq!(AUTO_TREE_STAGES, 8);
+    assert_eq!("auto".parse::<Topology>(), Ok(Topology::Auto));
+}

@@ -325,8 +325,8 @@ impl Plan {
             self.partitions.len(),
             self.nodes.len(),
             match self.topology {
-                super::types::Topology::Chain => "along the chain",
                 super::types::Topology::Tree => "in a tree",
+                _ => "along the chain",
             },
             meshes.join(", ")
         ))

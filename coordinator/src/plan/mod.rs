@@ -26,8 +26,8 @@ pub use types::*;
 use group::{Group, NodeCost};
 use lightfold_compositor::ops::penumbra::MAX_RADIUS as PENUMBRA_MAX_RADIUS;
 use lightfold_protocol::{Layer, PixelFormat};
-use lightfold_scene::{LightSample, Scene};
 use lightfold_scene::shading::V3;
+use lightfold_scene::{LightSample, Scene};
 use sha2::{Digest, Sha256};
 
 /// The most sort-last partitions a plan may ask for.
@@ -470,6 +470,14 @@ fn plan_once(
             .collect()
     };
     // A part's nodes render the part's maps (fitted to its receivers).
+    // `Auto` chooses by the number of stages a chain would have.
+    let options = &PlanOptions {
+        topology: options.topology.resolve(
+            units.len() + usize::from(own_node),
+            cluster.compositors.len(),
+        ),
+        ..options.clone()
+    };
     let unit_costs: Vec<Vec<f64>> = units
         .iter()
         .map(|&(p, g)| match p {

@@ -78,9 +78,10 @@ pub(crate) fn stages(
         .then(|| nodes.len() - 1);
     let spread = nodes.len() - usize::from(tree_host.is_some());
     let n = spread.max(1);
+    // (`Auto` is resolved before stages are built: `Topology::resolve`.)
     let leaves = match topology {
-        Topology::Chain => n.min(c),
         Topology::Tree => n.min(c.div_ceil(2)),
+        Topology::Chain | Topology::Auto => n.min(c),
     };
     // Contiguous, even chunks of nodes per leaf (earlier leaves take the extra ones).
     let mut chunks = Vec::with_capacity(leaves);

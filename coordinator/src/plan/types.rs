@@ -79,6 +79,26 @@ pub enum Topology {
     Chain,
     /// Leaf stages accumulate nodes; stages above join pairs of partial sums.
     Tree,
+    /// The planner chooses: a tree where a chain would have [`AUTO_TREE_STAGES`] stages or more
+    /// (there the tree's fewer hops gave the lower latency: `docs/scaling.md`), else a chain.
+    /// Plans record what was chosen.
+    Auto,
+}
+
+/// The fewest chain stages at which [`Topology::Auto`] builds a tree instead. Measured with
+/// `tests/examples/scale_out.rs` (`docs/scaling.md`): the tree's latency was lower at 8, 16 and
+/// 32 nodes, the chain's at 4.
+pub const AUTO_TREE_STAGES: usize = 8;
+
+impl Topology {
+    /// `Auto` resolved for a plan of `nodes` render nodes on `compositors` compositors.
+    pub fn resolve(self, nodes: usize, compositors: usize) -> Topology {
+        match self {
+            Topology::Auto if nodes.min(compositors) >= AUTO_TREE_STAGES => Topology::Tree,
+            Topology::Auto => Topology::Chain,
+            t => t,
+        }
+    }
 }
 
 impl std::str::FromStr for Topology {
@@ -87,7 +107,8 @@ impl std::str::FromStr for Topology {
         match s {
             "chain" => Ok(Topology::Chain),
             "tree" => Ok(Topology::Tree),
-            other => Err(format!("unknown topology {other:?} (chain or tree)")),
+            "auto" => Ok(Topology::Auto),
+            other => Err(format!("unknown topology {other:?} (chain, tree or auto)")),
         }
     }
 }
@@ -97,6 +118,7 @@ impl std::fmt::Display for Topology {
         f.write_str(match self {
             Topology::Chain => "chain",
             Topology::Tree => "tree",
+            Topology::Auto => "auto",
         })
     }
 }
