@@ -224,6 +224,7 @@ pub(crate) fn synthetic_node(id: &str, max_lights: u32, memory_bytes: u64) -> Ca
         threads: 0,
         version: String::new(),
         memory_bytes,
+        eye_ns_per_triangle: 0,
     }
 }
 

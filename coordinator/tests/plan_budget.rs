@@ -448,6 +448,7 @@ fn with_threads(mut cluster: ClusterSpec, threads: u32) -> ClusterSpec {
             threads,
             version: String::new(),
             memory_bytes: 0,
+            eye_ns_per_triangle: 0,
         });
     }
     cluster

@@ -109,6 +109,7 @@ fn larger_maps_take_fewer_lights_per_node() {
             threads: 1,
             version: String::new(),
             memory_bytes: 0,
+            eye_ns_per_triangle: 0,
         });
     }
     let s = stage();

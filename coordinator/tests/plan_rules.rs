@@ -331,6 +331,7 @@ fn caps(max_lights: u32, light_us: u64, fixed_us: u64) -> Option<Capabilities> {
         threads: 2,
         version: "0".into(),
         memory_bytes: 0,
+        eye_ns_per_triangle: 0,
     })
 }
 
@@ -891,6 +892,30 @@ fn automatic_partitions_follow_the_nodes_memory() {
         partitions_for(&scene, &with_memory(8, third), &own_material_node),
         1
     );
+    // Under a frame budget, a scene whose eye pass would not fit half the budget on the
+    // fastest node is split too: here 3 ms of eye pass against a 2 ms budget, so 3 parts.
+    let with_eye_cost = |ns: u64| {
+        let mut c = with_memory(8, 10 * fits);
+        for n in &mut c.nodes {
+            n.capabilities.as_mut().unwrap().eye_ns_per_triangle = ns;
+        }
+        c
+    };
+    let ns = 3_000_000 / scene.triangle_count() as u64;
+    let budget = PlanOptions {
+        frame_budget_us: Some(2_000),
+        ..opts()
+    };
+    assert_eq!(partitions_for(&scene, &with_eye_cost(ns), &budget), 3);
+    // Without a budget, or without a measured eye cost, the eye pass decides nothing.
+    assert_eq!(partitions_for(&scene, &with_eye_cost(ns), &auto), 1);
+    assert_eq!(partitions_for(&scene, &with_eye_cost(0), &budget), 1);
+    // Nor where a node's fixed cost alone is over the budget: no split would meet it.
+    let mut slow = with_eye_cost(ns);
+    for n in &mut slow.nodes {
+        n.capabilities.as_mut().unwrap().fixed_cost_us = 2_500;
+    }
+    assert_eq!(partitions_for(&scene, &slow, &budget), 1);
     // Asked for: as asked.
     let two = PlanOptions {
         partitions: 2,

@@ -23,6 +23,7 @@ fn registered(nodes: usize, compositors: usize) -> ClusterSpec {
             threads: 1,
             version: String::new(),
             memory_bytes: 0,
+            eye_ns_per_triangle: 0,
         });
     }
     c

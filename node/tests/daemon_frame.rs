@@ -41,6 +41,9 @@ async fn a_streamed_frame_equals_a_direct_render() {
         caps.memory_bytes > 0,
         "the node reports its memory: {caps:?}"
     );
+    // Measured at start-up (0 where the dense ball's frame was no slower); a triangle cannot
+    // cost a millisecond.
+    assert!(caps.eye_ns_per_triangle < 1_000_000, "{caps:?}");
 
     let scene = scene();
     let hash = coord.send_scene(&scene).await;

@@ -83,6 +83,10 @@ pub struct Capabilities {
     /// container's limit, or what the node was told); 0 unknown, and for compositors. The
     /// planner partitions scenes too large for it (`docs/planner.md` § Partitions).
     pub memory_bytes: u64,
+    /// Measured cost of the eye pass per triangle drawn, nanoseconds; 0 unknown (and for
+    /// compositors). The planner partitions a scene whose eye pass alone would not fit a frame
+    /// budget (`docs/planner.md` § Partitions).
+    pub eye_ns_per_triangle: u64,
 }
 
 /// A point-light sample as carried by the plan (mirrors `scene::LightSample`).

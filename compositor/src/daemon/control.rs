@@ -86,6 +86,7 @@ impl ControlHub {
                 threads: std::thread::available_parallelism().map_or(1, |n| n.get() as u32),
                 version: env!("CARGO_PKG_VERSION").to_string(),
                 memory_bytes: 0,
+                eye_ns_per_triangle: 0,
             },
             max_frame,
         }

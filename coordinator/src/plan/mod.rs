@@ -108,31 +108,53 @@ pub const NODE_BYTES_PER_TRIANGLE: u64 = 430;
 /// partitioning splits it (the rest: shadow maps, targets, frames in flight).
 pub const SCENE_MEMORY_SHARE: f64 = 0.5;
 
+/// The share of a frame budget one node's eye pass may take before automatic partitioning
+/// splits the scene (the rest: its shadow passes, readback, packing).
+pub const EYE_BUDGET_SHARE: f64 = 0.5;
+
 /// The partitions `options` asks for, resolved: as given, or for 0 (automatic) the fewest parts
-/// whose share of the scene's triangles fits the smallest memory a render node reported
-/// (`Capabilities::memory_bytes`, [`NODE_BYTES_PER_TRIANGLE`] each, within
-/// [`SCENE_MEMORY_SHARE`]), at most the nodes there are and [`MAX_PARTITIONS`]. Automatic
-/// partitioning is 1 where no node reports its memory, and where the options exclude partitions
-/// (a material node of its own).
+/// such that
+/// - a part's share of the scene's triangles fits the smallest memory a render node reported
+///   (`Capabilities::memory_bytes`, [`NODE_BYTES_PER_TRIANGLE`] each, within
+///   [`SCENE_MEMORY_SHARE`]), and
+/// - under a frame budget, a part's eye pass fits [`EYE_BUDGET_SHARE`] of the budget on the
+///   fastest node (`Capabilities::eye_ns_per_triangle`, measured at start-up),
+///
+/// at most the nodes there are and [`MAX_PARTITIONS`]. The eye pass decides nothing where the
+/// fastest node's fixed cost per frame alone is over the budget (no split meets it). What no
+/// node reports does not count:
+/// automatic partitioning is 1 without reports, and where a material node of its own is asked
+/// for (partitions exclude it).
 pub fn partitions_for(scene: &Scene, cluster: &ClusterSpec, options: &PlanOptions) -> u32 {
     if options.partitions > 0 {
         return options.partitions;
     }
-    let excluded = options.material_own_node;
-    let memory = cluster
-        .nodes
-        .iter()
-        .filter_map(|n| n.capabilities.as_ref().map(|c| c.memory_bytes))
-        .filter(|&m| m > 0)
-        .min();
-    let (Some(memory), false) = (memory, excluded) else {
+    if options.material_own_node {
         return 1;
+    }
+    let reported = |f: fn(&lightfold_protocol::Capabilities) -> u64| {
+        cluster
+            .nodes
+            .iter()
+            .filter_map(|n| n.capabilities.as_ref().map(f))
+            .filter(|&v| v > 0)
+            .min()
     };
-    let need = scene.triangle_count() as f64 * NODE_BYTES_PER_TRIANGLE as f64;
-    let parts = (need / (memory as f64 * SCENE_MEMORY_SHARE))
-        .ceil()
-        .max(1.0);
-    (parts as u32)
+    let triangles = scene.triangle_count() as f64;
+    let by_memory = reported(|c| c.memory_bytes).map_or(1.0, |memory| {
+        triangles * NODE_BYTES_PER_TRIANGLE as f64 / (memory as f64 * SCENE_MEMORY_SHARE)
+    });
+    // (Where even the fastest node's fixed cost per frame is over the budget, no split meets it:
+    // the budget's own concessions decide.)
+    let fixed = reported(|c| c.fixed_cost_us);
+    let by_cost = match (options.frame_budget_us, reported(|c| c.eye_ns_per_triangle)) {
+        (Some(budget), Some(ns)) if fixed.is_none_or(|f| f < budget) => {
+            triangles * ns as f64 / 1000.0 / (budget.max(1) as f64 * EYE_BUDGET_SHARE)
+        }
+        _ => 1.0,
+    };
+    let parts = by_memory.max(by_cost).ceil().max(1.0);
+    (parts.min(f64::from(MAX_PARTITIONS)) as u32)
         .min(MAX_PARTITIONS)
         .min(cluster.nodes.len().max(1) as u32)
 }

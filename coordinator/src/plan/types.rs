@@ -662,6 +662,7 @@ mod tests {
                 threads: 1,
                 version: String::new(),
                 memory_bytes: 0,
+                eye_ns_per_triangle: 0,
             }),
         }
     }

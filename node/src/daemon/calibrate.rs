@@ -23,6 +23,23 @@ const REPEATS: usize = 3;
 pub struct Calibration {
     pub cost_per_light_us: u64,
     pub fixed_cost_us: u64,
+    /// The eye pass's cost per triangle drawn, nanoseconds (0: not measurable here).
+    pub eye_ns_per_triangle: u64,
+}
+
+/// Segments of the dense ball the eye cost per triangle is measured with (`DENSE_SEGMENTS`
+/// around, half as many rings: about 40 000 triangles).
+const DENSE_SEGMENTS: u32 = 200;
+
+/// Nanoseconds per triangle from the fastest one-light frame drawing the small ball in the eye
+/// pass (`small_us`) and the dense one (`dense_us`), `extra` triangles more: 0 when the dense
+/// frame was no slower (a fast device, or noise).
+pub fn eye_ns_per_triangle(small_us: u64, dense_us: u64, extra: u64) -> u64 {
+    if dense_us > small_us && extra > 0 {
+        (dense_us - small_us) * 1000 / extra
+    } else {
+        0
+    }
 }
 
 /// A ground plane and a ball: shadows to cast, little geometry.
@@ -90,32 +107,54 @@ pub fn from_times(t1: u64, tk: u64, many: u64) -> Calibration {
     Calibration {
         cost_per_light_us: per_light.max(1),
         fixed_cost_us: t1.saturating_sub(per_light).max(1),
+        eye_ns_per_triangle: 0,
     }
 }
 
 /// Measures this device. Shadow maps are recomputed every frame (moving-light cost).
 pub fn run(gpu: &Gpu) -> Result<Calibration, RenderError> {
     let start = Instant::now();
-    let scene = calibration_scene();
+    // The calibration scene with a dense ball in the small one's place (mesh 2), which only the
+    // eye-cost frames draw, in the eye pass alone: every frame's shadows come from the floor and
+    // the small ball (meshes 0 and 1).
+    let mut scene = calibration_scene();
+    let red = scene.meshes[1].material;
+    let small = scene.meshes[1].triangle_count() as u64;
+    scene.add_mesh(sphere(
+        "dense ball",
+        [0.0, 0.6, 0.0],
+        0.6,
+        DENSE_SEGMENTS,
+        DENSE_SEGMENTS / 2,
+        red,
+    ));
+    let dense = scene.meshes[2].triangle_count() as u64;
     let options = RenderOptions::default().fixed_maps(MAP_SIZE);
     let mut renderer = Renderer::new(gpu, &scene, options)?;
     renderer.set_camera(&scene.camera);
     let layers = LayerSet::illumination();
     let few = calibration_lights(1);
     let many = calibration_lights(MANY);
-    let mut time = |lights: &[LightSample]| -> Result<u64, RenderError> {
+    let mut time = |lights: &[LightSample], ball: u32| -> Result<u64, RenderError> {
+        renderer.set_eye_meshes(Some(vec![0, ball]));
+        let casters = vec![vec![0, 1]; lights.len()];
         let t = Instant::now();
-        renderer.render(gpu, lights, None, [1.0; 3], layers)?;
+        renderer.render(gpu, lights, Some(&casters), [1.0; 3], layers)?;
         Ok(t.elapsed().as_micros() as u64)
     };
-    // The first render compiles shaders: not part of any frame's cost.
-    time(&many)?;
-    let (mut t1, mut tk) = (u64::MAX, u64::MAX);
+    // The first renders compile shaders: not part of any frame's cost.
+    time(&many, 1)?;
+    time(&few, 2)?;
+    let (mut t1, mut tk, mut td) = (u64::MAX, u64::MAX, u64::MAX);
     for _ in 0..REPEATS {
-        t1 = t1.min(time(&few)?);
-        tk = tk.min(time(&many)?);
+        t1 = t1.min(time(&few, 1)?);
+        tk = tk.min(time(&many, 1)?);
+        td = td.min(time(&few, 2)?);
     }
-    let c = from_times(t1, tk, MANY as u64);
+    let c = Calibration {
+        eye_ns_per_triangle: eye_ns_per_triangle(t1, td, dense.saturating_sub(small)),
+        ..from_times(t1, tk, MANY as u64)
+    };
     if tk <= t1 {
         tracing::warn!(
             one_light_us = t1,
@@ -127,6 +166,7 @@ pub fn run(gpu: &Gpu) -> Result<Calibration, RenderError> {
     tracing::info!(
         per_light_us = c.cost_per_light_us,
         fixed_us = c.fixed_cost_us,
+        eye_ns_per_triangle = c.eye_ns_per_triangle,
         ms = start.elapsed().as_millis() as u64,
         "calibrated"
     );
@@ -135,7 +175,14 @@ pub fn run(gpu: &Gpu) -> Result<Calibration, RenderError> {
 
 #[cfg(test)]
 mod tests {
-    use super::from_times;
+    use super::{eye_ns_per_triangle, from_times};
+
+    #[test]
+    fn the_eye_cost_per_triangle_is_the_difference_or_unknown() {
+        assert_eq!(eye_ns_per_triangle(10_000, 14_000, 40_000), 100);
+        assert_eq!(eye_ns_per_triangle(10_000, 9_000, 40_000), 0);
+        assert_eq!(eye_ns_per_triangle(10_000, 14_000, 0), 0);
+    }
 
     #[test]
     fn the_cost_per_light_is_the_difference_or_a_fifth_of_the_frame_never_zero() {

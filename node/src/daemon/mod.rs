@@ -105,6 +105,7 @@ fn capabilities(opts: &NodeOptions, advertise: String, report: &DeviceReport) ->
         threads: sys::threads(),
         version: env!("CARGO_PKG_VERSION").to_string(),
         memory_bytes: opts.memory_bytes.unwrap_or_else(sys::memory_bytes),
+        eye_ns_per_triangle: report.calibration.eye_ns_per_triangle,
     }
 }
 

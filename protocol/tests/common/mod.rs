@@ -142,13 +142,14 @@ pub fn capabilities() -> impl Strategy<Value = Capabilities> {
             any::<u32>(),
             text(),
             any::<u64>(),
+            any::<u64>(),
         ),
     )
         .prop_map(
             |(
                 (role, daemon_id, advertise, adapter, backend),
                 (max_lights, max_texture_size, formats),
-                (cost_per_light_us, fixed_cost_us, threads, version, memory_bytes),
+                (cost_per_light_us, fixed_cost_us, threads, version, memory_bytes, eye_ns),
             )| Capabilities {
                 role,
                 daemon_id,
@@ -163,6 +164,7 @@ pub fn capabilities() -> impl Strategy<Value = Capabilities> {
                 threads,
                 version,
                 memory_bytes,
+                eye_ns_per_triangle: eye_ns,
             },
         )
 }
