@@ -1,6 +1,8 @@
-//! Start-up calibration: a few renders of a tiny scene with one and with four lights, so that
+//! Start-up calibration: a few renders of a tiny scene with one and with eight lights, so that
 //! registration reports a measured cost per light and a fixed cost per frame for this device
-//! (the planner sizes K from them on heterogeneous machines). Takes well under a second on
+//! (the planner sizes K from them on heterogeneous machines), and one-light renders drawing a
+//! dense ball in the eye pass instead of the small one, for the eye pass's cost per triangle
+//! (automatic partitioning reads it). Takes well under a second on
 //! lavapipe; the figures are for the calibration scene at its small size, so they rank devices and
 //! K choices rather than predict a big scene's frame time.
 
