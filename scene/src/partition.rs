@@ -83,9 +83,9 @@ fn longest_axis(items: &[(u32, [f32; 3], u64)]) -> usize {
 /// The scene one sort-last node needs (`docs/planner.md` § Partitions): the meshes `keep` marks
 /// whole, every other mesh with triangles replaced by a stand-in, one triangle spanning the
 /// bounds of the mesh's triangles with the mesh's material. A node never draws a stand-in (it is
-/// in no eye part, no light's casters and no glass pass of that node), but it fits shadow views
-/// to the bounds of every mesh, as the planner does, so the stand-ins keep its maps, depth
-/// bias and image those of the whole scene. Mesh indices, materials, textures, lights and camera
+/// in no eye part, no light's casters and no glass pass of that node). Stand-ins keep every
+/// mesh's box, hence the scene's extent (which sets the shadow views' near plane) and what views
+/// fitted to every mesh would cover, so the node's maps and image are those of the whole scene. Mesh indices, materials, textures, lights and camera
 /// are unchanged. A mesh whose bounds no triangle can span without failing validation (flat in
 /// two axes, which a clean mesh is not) is kept whole. Meshes past `keep`'s end are replaced.
 pub fn keep_meshes(scene: &Scene, keep: &[bool]) -> Scene {
