@@ -347,9 +347,17 @@ impl Live<'_> {
         if let Some(hit) = self.subsets.get(&kept) {
             return Ok(hit.clone());
         }
-        let sub = lightfold_scene::partition::keep_meshes(scene, &keep);
-        let bytes = Arc::new(sub.to_bytes().map_err(|e| e.to_string())?);
-        let entry = (sub.content_hash(), bytes);
+        // Encoding a large scene takes seconds: on a multi-threaded runtime the loop's other
+        // tasks (the sink, the live view) move to other workers meanwhile.
+        let encode = || -> Result<SceneBytes, String> {
+            let sub = lightfold_scene::partition::keep_meshes(scene, &keep);
+            let bytes = Arc::new(sub.to_bytes().map_err(|e| e.to_string())?);
+            Ok((sub.content_hash(), bytes))
+        };
+        let entry = match tokio::runtime::Handle::try_current().map(|h| h.runtime_flavor()) {
+            Ok(tokio::runtime::RuntimeFlavor::MultiThread) => tokio::task::block_in_place(encode)?,
+            _ => encode()?,
+        };
         self.subsets.insert(kept, entry.clone());
         Ok(entry)
     }
