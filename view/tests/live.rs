@@ -238,7 +238,10 @@ async fn a_budget_from_the_page_replans_and_frames_match_the_lowered_quality() {
             assert!(e.is_some(), "budget {bad} was taken");
         }
         // 1 ms: no plan meets it; the samples of both area lights go down to one each (K = 1),
-        // maps stay at the scene's fixed size.
+        // maps stay at the scene's fixed size. The penumbra filter stays only where the plan
+        // without it is estimated no faster (the material host is not the slowest node: it
+        // depends on how the nodes calibrated), so the frame is compared with the single-device
+        // render at the radius of the plan that rendered it.
         let revision = c.steer(json!({"type": "budget", "ms": 1.0})).await;
         let notice = c.expect("notice").await;
         assert!(
@@ -249,13 +252,18 @@ async fn a_budget_from_the_page_replans_and_frames_match_the_lowered_quality() {
             "{notice}"
         );
         let (f, _) = until_revision(&mut c, revision).await;
+        let epoch = f.header["epoch"].clone();
+        let status = c
+            .status_where(|s| s["epoch"] == epoch && s["plan"]["gave_up"].is_string())
+            .await;
+        let radius = status["plan"]["penumbra_radius"].as_u64().unwrap() as u32;
         let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
         let mut lowered = s2.clone();
         lowered.quality.samples_per_area_light = Some(1);
         let got = delivered_frame(&delivered, frame_number(&f));
         assert_close(
             &got,
-            &single_device(&gpu, &lowered, true),
+            &lightfold_tests::single_device_filtered(&gpu, &lowered, true, radius),
             "the frame under the budget",
         );
         // Negative control: the scene's own quality is another image.
@@ -267,17 +275,18 @@ async fn a_budget_from_the_page_replans_and_frames_match_the_lowered_quality() {
             .map(|(a, b)| (a - b).abs())
             .fold(0.0f32, f32::max);
         assert!(diff > 0.05, "one sample per light looks like four ({diff})");
-        let status = c.status_where(|s| s["plan"]["gave_up"].is_string()).await;
         let gave_up = status["plan"]["gave_up"].as_str().unwrap();
         assert!(
             gave_up.contains("samples per area light 4 → 1"),
             "{gave_up}"
         );
         assert_eq!(status["plan"]["frame_budget_ms"], 1.0);
-        // No penumbra filter here: no plan meets 1 ms, and the fastest is without the filter's
-        // eye depth (the page gets the radius all the same).
-        assert_eq!(status["plan"]["penumbra_radius"], 0, "{status}");
-        assert!(status["plan"]["penumbra"].is_null(), "{status}");
+        // The page gets the plan's radius, with its line where there is a filter.
+        assert_eq!(
+            status["plan"]["penumbra"].is_null(),
+            radius == 0,
+            "{status}"
+        );
         assert_eq!(status["plan"]["samples"], 2);
         // No budget again: the scene's quality.
         let revision = c.steer(json!({"type": "budget", "ms": null})).await;
