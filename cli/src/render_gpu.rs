@@ -115,6 +115,12 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
     let mut views_per_light = Vec::new();
     let parts = (args.partitions > 1)
         .then(|| lightfold_scene::partition::partition_meshes(scene, args.partitions as usize));
+    // Each part's casters per sample, once for every frame (a still scene; an animated one casts
+    // every mesh).
+    let casters = parts
+        .as_ref()
+        .filter(|_| scene.animation.is_none())
+        .map(|p| lightfold_coordinator::plan::part_casters(scene, samples, p));
     if let (Some(parts), true) = (&parts, args.timings) {
         for (i, p) in parts.iter().enumerate() {
             let tris: usize = p
@@ -135,7 +141,15 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
                 None,
                 args.penumbra_filter,
             )?,
-            Some(parts) => render_partitioned(&gpu, &mut renderer, scene, samples, k, parts)?,
+            Some(parts) => render_partitioned(
+                &gpu,
+                &mut renderer,
+                scene,
+                samples,
+                k,
+                parts,
+                casters.as_deref(),
+            )?,
         };
         if args.timings {
             outln!(
@@ -231,21 +245,19 @@ fn render_partitioned(
     samples: &[LightSample],
     k: usize,
     parts: &[Vec<u32>],
+    casters: Option<&[Vec<Vec<u32>>]>,
 ) -> anyhow::Result<((Image, Image), FrameTimes)> {
     let t = Instant::now();
     let mut best: Option<(Image, Image)> = None;
     let mut times = FrameTimes::default();
     // As a sort-last node of the cluster: its part's eye pass, maps fitted to its part, with the
-    // casters that can shadow it (for a still scene; an animated one casts every mesh).
+    // casters `casters[part]` that can shadow it (`None`: every mesh casts).
     renderer.set_fit_to_eye_meshes(true);
-    for part in parts {
+    for (p, part) in parts.iter().enumerate() {
         renderer.set_eye_meshes(Some(part.clone()));
-        let casters = scene
-            .animation
-            .is_none()
-            .then(|| lightfold_coordinator::plan::part_casters(scene, samples, part));
+        let part_casters = casters.map(|c| c[p].as_slice());
         let ((radiance, depth), part_times) =
-            render_frame(gpu, renderer, scene, samples, k, casters.as_deref(), 0)?;
+            render_frame(gpu, renderer, scene, samples, k, part_casters, 0)?;
         times.add(&part_times);
         best = Some(match best {
             None => (radiance, depth),

@@ -153,10 +153,11 @@ pub fn partitions_for(scene: &Scene, cluster: &ClusterSpec, options: &PlanOption
         }
         _ => 1.0,
     };
-    let parts = by_memory.max(by_cost).ceil().max(1.0);
-    (parts.min(f64::from(MAX_PARTITIONS)) as u32)
-        .min(MAX_PARTITIONS)
-        .min(cluster.nodes.len().max(1) as u32)
+    let parts = by_memory
+        .max(by_cost)
+        .ceil()
+        .clamp(1.0, f64::from(MAX_PARTITIONS)) as u32;
+    parts.min(cluster.nodes.len().max(1) as u32)
 }
 
 /// The scene a plan with `options` on `cluster` renders: with partitions (as
@@ -175,24 +176,36 @@ pub fn scene_for<'s>(
     }
 }
 
-/// Per sample, the meshes that can shadow the part `part` (mesh indices) of a still `scene`: the
-/// casters a sort-last node of that part draws for it, by the planner's rule (meshes in the
-/// sample's reach between it and a visible receiver of the part it reaches). What
-/// `lightfold render --partitions` gives each part's shadow passes, as the cluster does.
-pub fn part_casters(scene: &Scene, samples: &[LightSample], part: &[u32]) -> Vec<Vec<u32>> {
+/// Per part and sample, the meshes that can shadow the part (mesh indices, ascending, as
+/// `scene::partition` gives them) of a still `scene`: the casters a sort-last node of that part
+/// draws for the sample, by the planner's rule (meshes in the sample's reach between it and a
+/// visible receiver of the part it reaches). What `lightfold render --partitions` gives each
+/// part's shadow passes, as the cluster does.
+pub fn part_casters(
+    scene: &Scene,
+    samples: &[LightSample],
+    parts: &[Vec<u32>],
+) -> Vec<Vec<Vec<u32>>> {
     let bounds = geom::mesh_bounds(scene);
-    let receivers: Vec<cull::Receiver> = cull::receivers(scene, &bounds)
-        .into_iter()
-        .filter(|r| part.contains(&(r.mesh as u32)))
-        .collect();
-    samples
+    let receivers = cull::receivers(scene, &bounds);
+    parts
         .iter()
-        .map(|s| {
-            let lit: Vec<&cull::Receiver> = receivers
+        .map(|part| {
+            let in_part: Vec<&cull::Receiver> = receivers
                 .iter()
-                .filter(|r| geom::reach(s, &r.bounds).is_ok())
+                .filter(|r| part.binary_search(&(r.mesh as u32)).is_ok())
                 .collect();
-            shadow::casters(s, &lit, &bounds)
+            samples
+                .iter()
+                .map(|s| {
+                    let lit: Vec<&cull::Receiver> = in_part
+                        .iter()
+                        .copied()
+                        .filter(|r| geom::reach(s, &r.bounds).is_ok())
+                        .collect();
+                    shadow::casters(s, &lit, &bounds)
+                })
+                .collect()
         })
         .collect()
 }
@@ -257,18 +270,20 @@ fn plan_once(
     if moving_sample.contains(&true) {
         cull::keep_moving(&mut culling, &moving_sample, receivers.len());
     }
-    // The boxes nodes fit shadow views to: every mesh with triangles (node/src/gpu/scene_data.rs).
-    let scene_receivers: Vec<_> = bounds
-        .iter()
-        .zip(&scene.meshes)
-        .filter(|(_, m)| m.indices.len() >= 3)
-        .filter_map(|(b, _)| b.map(|b| (b.lo, b.hi)))
-        .collect();
+    // The boxes nodes fit shadow views to: every mesh with triangles (node/src/gpu/scene_data.rs),
+    // or a sort-last node's part of them.
+    let boxes_where = |keep: &dyn Fn(usize) -> bool| -> Vec<(V3, V3)> {
+        bounds
+            .iter()
+            .zip(&scene.meshes)
+            .enumerate()
+            .filter(|(m, (_, mesh))| keep(*m) && mesh.indices.len() >= 3)
+            .filter_map(|(_, (b, _))| b.map(|b| (b.lo, b.hi)))
+            .collect()
+    };
+    let scene_receivers = boxes_where(&|_| true);
     // Where the mismatch rule measures, as the renderer does (`shadow_views::sizing`).
     let probes = lightfold_scene::shadow_views::probes(cam, &scene_receivers);
-    // Like the node's renderer: moving-light maps are fitted to what the camera sees (cascades
-    // where that spans a deep range); walkthrough maps outlive camera moves, so they cover every
-    // receiver.
     // Sort-last parts: every group is rendered once per part.
     let parts = if options.partitions > 1 {
         let parts =
@@ -299,17 +314,14 @@ fn plan_once(
             for &m in part {
                 mask[m as usize] = true;
             }
-            let boxes: Vec<(V3, V3)> = bounds
-                .iter()
-                .zip(&scene.meshes)
-                .enumerate()
-                .filter(|(m, (_, mesh))| mask[*m] && mesh.indices.len() >= 3)
-                .filter_map(|(_, (b, _))| b.map(|b| (b.lo, b.hi)))
-                .collect();
+            let boxes = boxes_where(&|m| mask[m]);
             let probes = lightfold_scene::shadow_views::probes(cam, &boxes);
             (mask, boxes, probes)
         })
         .collect();
+    // Like the node's renderer: moving-light maps are fitted to what the camera sees (cascades
+    // where that spans a deep range); walkthrough maps outlive camera moves, so they cover every
+    // receiver.
     let fit_camera = (!options.walkthrough).then_some(cam);
     // Sample i's shadow plan for the whole scene, or for part `p`'s receivers only.
     let shadow_in = |i: usize, p: Option<usize>| {
@@ -474,15 +486,6 @@ fn plan_once(
             .filter_map(|&i| shadows[i].as_ref())
             .collect()
     };
-    let group_costs: Vec<Vec<f64>> = groups
-        .iter()
-        .map(|g| {
-            costs
-                .iter()
-                .map(|c| c.frame(&group_shadows(g), 0))
-                .collect()
-        })
-        .collect();
     // Work units: one per group, or per part and group (part-major) with partitions.
     let units: Vec<(Option<usize>, usize)> = if parts.is_empty() {
         (0..groups.len()).map(|g| (None, g)).collect()
@@ -491,7 +494,6 @@ fn plan_once(
             .flat_map(|p| (0..groups.len()).map(move |g| (Some(p), g)))
             .collect()
     };
-    // A part's nodes render the part's maps (fitted to its receivers).
     // `Auto` chooses by the number of stages a chain would have.
     let options = &PlanOptions {
         topology: options.topology.resolve(
@@ -500,18 +502,20 @@ fn plan_once(
         ),
         ..options.clone()
     };
+    // A part's nodes render the part's maps (fitted to its receivers).
+    let unit_maps = |(p, g): (Option<usize>, usize)| -> Vec<&ShadowPlan> {
+        let maps = p.map_or(&shadows, |p| &part_shadows[p]);
+        groups[g]
+            .lights
+            .iter()
+            .filter_map(|&i| maps[i].as_ref())
+            .collect()
+    };
     let unit_costs: Vec<Vec<f64>> = units
         .iter()
-        .map(|&(p, g)| match p {
-            None => group_costs[g].clone(),
-            Some(p) => {
-                let maps: Vec<&ShadowPlan> = groups[g]
-                    .lights
-                    .iter()
-                    .filter_map(|&i| part_shadows[p][i].as_ref())
-                    .collect();
-                costs.iter().map(|c| c.frame(&maps, 0)).collect()
-            }
+        .map(|&u| {
+            let maps = unit_maps(u);
+            costs.iter().map(|c| c.frame(&maps, 0)).collect()
         })
         .collect();
     let mut on_node = group::assign(&unit_costs);
@@ -639,15 +643,7 @@ fn plan_once(
         (stages, nodes, placement)
     } else {
         partitioned(
-            &parts,
-            &units,
-            &on_node,
-            &groups,
-            &part_shadows,
-            &costs,
-            cluster,
-            &finish,
-            options,
+            &parts, &units, &on_node, &groups, &unit_maps, &costs, cluster, &finish, options,
         )
     };
     let plan_parts = parts.len();
@@ -738,26 +734,18 @@ fn plan_once(
 /// The nodes and stages of a sort-last grid: `units[u] = (part, group)` on node `on_node[u]`;
 /// each part's cheapest node also renders its part's eye depth and material layers.
 #[allow(clippy::too_many_arguments)]
-fn partitioned(
+fn partitioned<'a>(
     parts: &[Vec<u32>],
     units: &[(Option<usize>, usize)],
     on_node: &[usize],
     groups: &[Group],
-    part_shadows: &[Vec<Option<ShadowPlan>>],
+    unit_maps: &dyn Fn((Option<usize>, usize)) -> Vec<&'a ShadowPlan>,
     costs: &[NodeCost],
     cluster: &ClusterSpec,
     finish: &topology::Finish,
     options: &PlanOptions,
 ) -> (Vec<StagePlan>, Vec<NodePlan>, MaterialPlacement) {
-    let unit_shadows = |u: usize| -> Vec<&ShadowPlan> {
-        let (p, g) = units[u];
-        let p = p.expect("partitioned units name their part");
-        groups[g]
-            .lights
-            .iter()
-            .filter_map(|&i| part_shadows[p][i].as_ref())
-            .collect()
-    };
+    let unit_shadows = |u: usize| unit_maps(units[u]);
     // The eye depth (which the penumbra filter's material layers may already name) and the
     // material layers.
     let mut host_layers = vec![

@@ -135,7 +135,7 @@ impl Live<'_> {
         let mut wants: BTreeMap<String, SceneBytes> = BTreeMap::new();
         for i in 0..next.nodes.len() {
             let (hash, bytes) = self
-                .scene_for(&next, i)
+                .node_scene(&next, i)
                 .map_err(|e| Halt::Fatal(RunError::Scene(e)))?;
             next.nodes[i].scene = (hash != self.hash).then_some(hash);
             wants.insert(next.nodes[i].node.clone(), (hash, bytes));
@@ -307,7 +307,7 @@ impl Live<'_> {
     /// The scene bytes node `next.nodes[i]` is sent, and their content hash: the whole scene,
     /// or with sort-last partitions (of a still scene) its part, its lights' casters and every
     /// glass mesh whole and the other meshes as stand-ins (`scene::partition::keep_meshes`).
-    fn scene_for(&mut self, next: &Plan, i: usize) -> Result<SceneBytes, String> {
+    fn node_scene(&mut self, next: &Plan, i: usize) -> Result<SceneBytes, String> {
         let whole = (self.hash, Arc::clone(&self.bytes));
         let n = &next.nodes[i];
         let Some(part) = n.part.and_then(|p| next.partitions.get(p)) else {
