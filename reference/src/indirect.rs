@@ -22,7 +22,9 @@
 
 use crate::point_sum::{Layers, render_pixels};
 use crate::trace::{SurfaceHit, Tracer};
-use lightfold_scene::shading::{self, V3, add, blinn_phong, dot, normalize, range_window, scale};
+use lightfold_scene::shading::{
+    self, Lobe, V3, add, blinn_phong, dot, ggx_terms, normalize, range_window, scale,
+};
 use lightfold_scene::{LightSample, SampleKind, Scene, sampling};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -279,8 +281,7 @@ pub fn render_one_bounce(
         let mut rng = ChaCha8Rng::seed_from_u64(
             options.seed ^ 0x4F4E_455F_424F_554E ^ pixel.wrapping_mul(0xD1B5_4A32_D192_ED03),
         );
-        let mat = tracer.material(hit);
-        let specular = mat.has_specular();
+        let lobe = tracer.surface(hit).lobe;
         let (nx, ny) = sampling::grid_shape(paths);
         let mut sum = [0.0f64; 6];
         for j in 0..ny {
@@ -292,14 +293,28 @@ pub fn render_one_bounce(
                     continue;
                 }
                 let l = bounce_radiance(&tracer, hit, d, direct);
-                let bp = if specular {
-                    PI * blinn_phong(hit.normal, d, hit.to_viewer, mat.shininess)
-                } else {
-                    0.0
+                // Per unit of L·cos/π (the cosine-weighted estimate): the lobe's diffuse and
+                // specular weights, as `shading::lobe_coefficients` weighs irradiance.
+                let (kd, ks) = match lobe {
+                    Lobe::BlinnPhong {
+                        shininess,
+                        specular,
+                    } => {
+                        let bp = if specular {
+                            PI * blinn_phong(hit.normal, d, hit.to_viewer, shininess)
+                        } else {
+                            0.0
+                        };
+                        (1.0, [bp; 3])
+                    }
+                    Lobe::Ggx { alpha, f0 } => {
+                        let (id, dv, w) = ggx_terms(hit.normal, d, hit.to_viewer, alpha);
+                        (PI * id, f0.map(|f| PI * dv * (f + (1.0 - f) * w)))
+                    }
                 };
                 for k in 0..3 {
-                    sum[k] += f64::from(l[k]);
-                    sum[3 + k] += f64::from(l[k] * bp);
+                    sum[k] += f64::from(l[k] * kd);
+                    sum[3 + k] += f64::from(l[k] * ks[k]);
                 }
             }
         }

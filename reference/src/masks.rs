@@ -3,7 +3,7 @@
 //! disagree about which surface a pixel centre sees).
 
 use crate::trace::Tracer;
-use lightfold_scene::shading::coefficients;
+use lightfold_scene::shading::lobe_coefficients;
 use lightfold_scene::{Image, LightSample, Scene};
 
 /// Penumbra bounds on `shadowed / unoccluded` radiance.
@@ -190,17 +190,11 @@ pub fn shadow_states(scene: &Scene, samples: &[LightSample]) -> ShadowStates {
                 continue;
             };
             st.covered[i] = true;
-            let mat = tracer.material(&hit);
+            let lobe = tracer.surface(&hit).lobe;
             for (k, s) in samples.iter().enumerate().take(64) {
-                let (id, is) = coefficients(
-                    s,
-                    hit.position_f32(),
-                    hit.normal,
-                    hit.to_viewer,
-                    mat.shininess,
-                    mat.has_specular(),
-                );
-                if id > 0.0 || is > 0.0 {
+                let (id, is) =
+                    lobe_coefficients(s, hit.position_f32(), hit.normal, hit.to_viewer, &lobe);
+                if id > 0.0 || is.iter().any(|&c| c > 0.0) {
                     st.lit[i] |= 1 << k;
                     if tracer.visible(&hit, s) {
                         st.visible[i] |= 1 << k;

@@ -165,17 +165,14 @@ fn accumulate_samples(
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Shade {
     position: V3,
-    shininess: f32,
-    specular: bool,
+    lobe: shading::Lobe,
 }
 
 impl Shade {
     pub(crate) fn new(tracer: &Tracer<'_>, hit: &SurfaceHit) -> Shade {
-        let mat = tracer.material(hit);
         Shade {
             position: hit.position_f32(),
-            shininess: mat.shininess,
-            specular: mat.has_specular(),
+            lobe: tracer.surface(hit).lobe,
         }
     }
 
@@ -190,15 +187,9 @@ impl Shade {
         shadows: bool,
         illum: &mut [f64; 6],
     ) {
-        let (id, is) = shading::coefficients(
-            s,
-            self.position,
-            hit.normal,
-            hit.to_viewer,
-            self.shininess,
-            self.specular,
-        );
-        if id == 0.0 && is == 0.0 {
+        let (id, is) =
+            shading::lobe_coefficients(s, self.position, hit.normal, hit.to_viewer, &self.lobe);
+        if id == 0.0 && is == [0.0; 3] {
             return;
         }
         if shadows && tracer.has_translucent() {
@@ -207,7 +198,7 @@ impl Shade {
             for k in 0..3 {
                 let t = f64::from(t[k]);
                 illum[k] += w[k] * f64::from(id) * t;
-                illum[3 + k] += w[k] * f64::from(is) * t;
+                illum[3 + k] += w[k] * f64::from(is[k]) * t;
             }
             return;
         }
@@ -216,7 +207,7 @@ impl Shade {
         }
         for k in 0..3 {
             illum[k] += w[k] * f64::from(id);
-            illum[3 + k] += w[k] * f64::from(is);
+            illum[3 + k] += w[k] * f64::from(is[k]);
         }
     }
 }
@@ -236,15 +227,15 @@ pub(crate) fn render_pixels(
                 .map(|x| {
                     let mut px = PixelLayers::default();
                     if let Some(hit) = tracer.primary(x, y) {
-                        let mat = tracer.material(&hit);
+                        let sp = tracer.surface(&hit);
                         // Filters in front tint every material layer alike.
                         let t = tracer.eye_transmittance(x, y, &hit);
                         px.covered = true;
                         px.depth = hit.depth;
-                        px.diffuse = shading::mul(tracer.diffuse(&hit), t);
-                        px.specular = shading::mul(mat.specular, t);
-                        px.ambient = shading::mul(mat.ambient, t);
-                        px.emissive = shading::mul(mat.emissive, t);
+                        px.diffuse = shading::mul(sp.diffuse, t);
+                        px.specular = shading::mul(sp.specular, t);
+                        px.ambient = shading::mul(sp.ambient, t);
+                        px.emissive = shading::mul(sp.emissive, t);
                         light(x, y, &hit, &mut px);
                     }
                     px

@@ -4,7 +4,8 @@
 //! Conventions the GPU renderer must match: eye rays skip the back faces of single-sided
 //! materials; a back-face hit on a double-sided material negates both normals (like WGSL's
 //! `front_facing`); the shading normal is the interpolated vertex normal, or the geometric normal
-//! when that is missing or degenerate; alpha-masked texels below the cutoff are transparent to eye
+//! when that is missing or degenerate, then bent by a metallic-roughness material's normal map
+//! (`shading::mapped_normal`, on the front face before the flip); alpha-masked texels below the cutoff are transparent to eye
 //! and shadow rays alike; every other triangle casts shadows whatever its sidedness.
 
 use crate::bvh::Bvh;
@@ -202,6 +203,22 @@ impl<'a> Tracer<'a> {
         } else {
             ng_raw
         };
+        let uv = if mesh.uvs.len() == mesh.positions.len() {
+            let t = |i: u32| mesh.uvs[i as usize];
+            let (a, b, c) = (t(idx[0]), t(idx[1]), t(idx[2]));
+            let p = |i: u32| mesh.positions[i as usize];
+            n = shading::mapped_normal(
+                material_of(self.scene, mesh.material),
+                &self.scene.textures,
+                n,
+                [p(idx[0]), p(idx[1]), p(idx[2])],
+                [a, b, c],
+                [0, 1].map(|k| w * a[k] + u * b[k] + v * c[k]),
+            );
+            [0, 1].map(|k| w * a[k] + u * b[k] + v * c[k])
+        } else {
+            [0.0; 2]
+        };
         let mut ng = ng_raw;
         let back = dot(ng, dir) > 0.0;
         if back {
@@ -209,13 +226,6 @@ impl<'a> Tracer<'a> {
             ng = shading::scale(ng, -1.0);
             n = shading::scale(n, -1.0);
         }
-        let uv = if mesh.uvs.len() == mesh.positions.len() {
-            let t = |i: u32| mesh.uvs[i as usize];
-            let (a, b, c) = (t(idx[0]), t(idx[1]), t(idx[2]));
-            [0, 1].map(|k| w * a[k] + u * b[k] + v * c[k])
-        } else {
-            [0.0; 2]
-        };
         let position = [0, 1, 2].map(|k| o[k] + hit.t * d[k]);
         let surface = SurfaceHit {
             position,
@@ -371,16 +381,14 @@ impl<'a> Tracer<'a> {
         material_of(self.scene, hit.material)
     }
 
+    /// The material layers and lobe at the hit (`shading::surface_point`).
+    pub fn surface(&self, hit: &SurfaceHit) -> shading::SurfacePoint {
+        shading::surface_point(self.material(hit), &self.scene.textures, hit.uv)
+    }
+
     /// Diffuse albedo `m^d` at the hit: material colour times texture colour.
     pub fn diffuse(&self, hit: &SurfaceHit) -> V3 {
-        let mat = self.material(hit);
-        match mat.diffuse_texture.and_then(|t| self.scene.textures.get(t)) {
-            Some(tex) => {
-                let c = sample_texture(tex, hit.uv);
-                [0, 1, 2].map(|k| mat.diffuse[k] * c[k])
-            }
-            None => mat.diffuse,
-        }
+        self.surface(hit).diffuse
     }
 
     fn indices(&self, id: u32) -> [u32; 3] {

@@ -7,14 +7,14 @@
 
 use crate::error::SceneError;
 use crate::model::{
-    AlphaMode, Camera, Light, LightShape, MapSizing, Material, Mesh, Quality, SamplePattern, Scene,
-    ShadowFilter, Texture,
+    AlphaMode, Camera, Light, LightShape, MapSizing, Material, Mesh, MetallicRoughness, Quality,
+    SamplePattern, Scene, ShadowFilter, Texture,
 };
 use sha2::{Digest, Sha256};
 
 const MAGIC: &[u8; 4] = b"LFSC";
 /// Version of the byte layout of `to_bytes` (bump when `Scene` changes shape).
-pub const SCENE_BYTES_VERSION: u32 = 5;
+pub const SCENE_BYTES_VERSION: u32 = 6;
 /// Largest scene `from_bytes` accepts ([`crate::limits::MAX_SCENE_BYTES`]).
 pub const MAX_SCENE_BYTES: usize = crate::limits::MAX_SCENE_BYTES as usize;
 
@@ -112,6 +112,7 @@ impl Canon {
             alpha_mode,
             double_sided,
             transmission,
+            pbr,
         } = m;
         self.f32s(diffuse);
         match diffuse_texture {
@@ -142,6 +143,48 @@ impl Canon {
                 self.u8(t.coverage as u8);
             }
         }
+        match pbr {
+            None => self.u8(0),
+            Some(p) => {
+                self.u8(1);
+                self.metallic_roughness(p);
+            }
+        }
+    }
+
+    fn metallic_roughness(&mut self, p: &MetallicRoughness) {
+        let MetallicRoughness {
+            base_color,
+            metallic,
+            roughness,
+            metallic_roughness_texture,
+            normal_texture,
+            normal_scale,
+            occlusion_texture,
+            occlusion_strength,
+            emissive_texture,
+            transmission,
+        } = p;
+        self.f32s(base_color);
+        self.f32(*metallic);
+        self.f32(*roughness);
+        for t in [
+            metallic_roughness_texture,
+            normal_texture,
+            occlusion_texture,
+            emissive_texture,
+        ] {
+            match t {
+                None => self.u8(0),
+                Some(t) => {
+                    self.u8(1);
+                    self.len(*t);
+                }
+            }
+        }
+        self.f32(*normal_scale);
+        self.f32(*occlusion_strength);
+        self.f32(*transmission);
     }
 
     fn texture(&mut self, t: &Texture) {

@@ -63,6 +63,73 @@ pub struct Material {
     /// Light the surface lets through to what lies behind it, for shadows: `None` for an
     /// opaque caster (`docs/translucency.md`).
     pub transmission: Option<Transmission>,
+    /// glTF 2.0 metallic-roughness, shaded with the glTF specification's reference BRDF
+    /// (`docs/shading.md`); `None` for the paper's Blinn-Phong (scene files, built-ins). When set,
+    /// `diffuse`, `specular`, `shininess`, `ambient` and `emissive` hold what the material layers
+    /// and the planner see at the factors (textures multiply them per texel):
+    /// [`MetallicRoughness::summary`].
+    pub pbr: Option<MetallicRoughness>,
+}
+
+/// A glTF metallic-roughness material (glTF 2.0 §3.9, Appendix B). The base-colour texture is
+/// `Material::diffuse_texture`; every texture here is read with the same sampling rules, at
+/// TEXCOORD_0.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct MetallicRoughness {
+    /// Linear base colour factor (its alpha is `Material::alpha`).
+    pub base_color: [f32; 3],
+    pub metallic: f32,
+    pub roughness: f32,
+    /// Roughness in green, metallic in blue (linear), multiplying the factors.
+    pub metallic_roughness_texture: Option<usize>,
+    /// Tangent-space normal map (linear), and its `scale` on X and Y.
+    pub normal_texture: Option<usize>,
+    pub normal_scale: f32,
+    /// Ambient occlusion in red (linear): `1 + strength·(r − 1)` multiplies `m^a`.
+    pub occlusion_texture: Option<usize>,
+    pub occlusion_strength: f32,
+    /// sRGB emissive texture multiplying `Material::emissive` (factor × strength).
+    pub emissive_texture: Option<usize>,
+    /// KHR_materials_transmission factor `τ`: the dielectric's diffuse share that passes through
+    /// instead (thin-walled), so the diffuse colour is scaled by `1 − τ`.
+    pub transmission: f32,
+}
+
+impl MetallicRoughness {
+    /// A material of this kind with no textures.
+    pub fn new(base_color: [f32; 3], metallic: f32, roughness: f32) -> Self {
+        MetallicRoughness {
+            base_color,
+            metallic,
+            roughness,
+            metallic_roughness_texture: None,
+            normal_texture: None,
+            normal_scale: 1.0,
+            occlusion_texture: None,
+            occlusion_strength: 1.0,
+            emissive_texture: None,
+            transmission: 0.0,
+        }
+    }
+
+    /// The layer values at the factors, untextured (`crate::shading::metallic_roughness_at`
+    /// with white textures): `(m^d, m^s, m^a)` = `(c_diff ⊙ (1 − F0), 1, m^d)`.
+    pub fn summary(&self) -> ([f32; 3], [f32; 3], [f32; 3]) {
+        let at = crate::shading::metallic_roughness_point(self, [1.0; 4], [1.0; 4]);
+        (at.diffuse, [1.0; 3], at.diffuse)
+    }
+
+    /// The textures it reads, beside the base colour's.
+    pub fn textures(&self) -> impl Iterator<Item = usize> {
+        [
+            self.metallic_roughness_texture,
+            self.normal_texture,
+            self.occlusion_texture,
+            self.emissive_texture,
+        ]
+        .into_iter()
+        .flatten()
+    }
 }
 
 /// How a translucent caster filters light (seed 001's shadows of transparent occluders):
@@ -92,6 +159,26 @@ impl Material {
             alpha_mode: AlphaMode::Opaque,
             double_sided: true,
             transmission: None,
+            pbr: None,
+        }
+    }
+
+    /// A glTF metallic-roughness material with no textures, opaque and double-sided.
+    pub fn metallic_roughness(name: &str, pbr: MetallicRoughness) -> Self {
+        let (diffuse, specular, ambient) = pbr.summary();
+        Material {
+            name: name.to_string(),
+            diffuse,
+            diffuse_texture: None,
+            specular,
+            shininess: crate::shading::shininess_from_roughness(pbr.roughness),
+            ambient,
+            emissive: [0.0; 3],
+            alpha: 1.0,
+            alpha_mode: AlphaMode::Opaque,
+            double_sided: true,
+            transmission: None,
+            pbr: Some(pbr),
         }
     }
 

@@ -11,7 +11,7 @@
 //! - pixel `p = e + m^a ⊙ (c^a + I^a) + m^d ⊙ I^d + m^s ⊙ I^s` (paper eq. 2),
 //!   `I^d = Σ c_λ·i^d_λ·s_λ`, `I^s = Σ c_λ·i^s_λ·s_λ`, `s_λ ∈ [0, 1]` the shadow coefficient.
 
-use crate::model::{LightSample, SampleKind, Texture};
+use crate::model::{LightSample, Material, MetallicRoughness, SampleKind, Texture};
 use std::f32::consts::PI;
 
 pub type V3 = [f32; 3];
@@ -164,6 +164,332 @@ pub fn coefficients(
         0.0
     };
     (id, is)
+}
+
+/// How a surface reflects one light sample: the paper's Blinn-Phong lobe, or the glTF 2.0
+/// metallic-roughness reference BRDF at one surface point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Lobe {
+    /// `i^s` from [`blinn_phong`] at `shininess` where `specular` (the material has `m^s ≠ 0`).
+    BlinnPhong { shininess: f32, specular: bool },
+    /// GGX with `alpha` = roughness² and normal-incidence reflectance `f0` (RGB).
+    Ggx { alpha: f32, f0: V3 },
+}
+
+/// Unshadowed `(i^d, i^s)` of one sample under `lobe`; `i^s` is RGB (the glTF BRDF's Fresnel
+/// term carries the surface's colour), `i^d` is scalar.
+///
+/// Under [`Lobe::Ggx`], with `w = (1 − |v·h|)⁵` (Schlick), `D` GGX and `V` the height-correlated
+/// Smith visibility of the glTF specification's Appendix B:
+/// `i^d = E·(1 − w)/π` and `i^s = E·D·V·(F0 + (1 − F0)·w)`. The material layer
+/// `m^d = c_diff ⊙ (1 − F0)` and `m^s = 1` ([`metallic_roughness_point`]) then make
+/// `m^d⊙i^d + m^s⊙i^s = E·((1 − F)⊙c_diff/π + F·D·V)`, `F = F0 + (1 − F0)·w`: the
+/// specification's `f_diffuse + f_specular` times `E`.
+#[inline]
+pub fn lobe_coefficients(s: &LightSample, p: V3, n: V3, v: V3, lobe: &Lobe) -> (f32, V3) {
+    match *lobe {
+        Lobe::BlinnPhong {
+            shininess,
+            specular,
+        } => {
+            let (id, is) = coefficients(s, p, n, v, shininess, specular);
+            (id, [is; 3])
+        }
+        Lobe::Ggx { alpha, f0 } => ggx_coefficients(s, p, n, v, alpha, f0),
+    }
+}
+
+/// Smallest GGX `α`: a perfect mirror's `D` is a delta no point sample can meet.
+pub const MIN_ALPHA: f32 = 1e-3;
+
+/// GGX `α = roughness²` (roughness clamped to [0, 1], NaN as 1), at least [`MIN_ALPHA`].
+#[inline]
+pub fn ggx_alpha(roughness: f32) -> f32 {
+    let r = if roughness.is_nan() {
+        1.0
+    } else {
+        roughness.clamp(0.0, 1.0)
+    };
+    (r * r).max(MIN_ALPHA)
+}
+
+/// GGX (Trowbridge-Reitz) normal distribution `D = α²/(π((n·h)²(α² − 1) + 1)²)`.
+#[inline]
+pub fn ggx_d(nh: f32, alpha: f32) -> f32 {
+    let a2 = alpha * alpha;
+    let d = nh * nh * (a2 - 1.0) + 1.0;
+    a2 / (PI * d * d)
+}
+
+/// Height-correlated Smith visibility `V = G/(4|n·l||n·v|)`
+/// `= 0.5/(n·l·√((n·v)²(1 − α²) + α²) + n·v·√((n·l)²(1 − α²) + α²))`, cosines clamped at 0.
+#[inline]
+pub fn smith_visibility(nl: f32, nv: f32, alpha: f32) -> f32 {
+    let a2 = alpha * alpha;
+    let gv = nl * (nv * nv * (1.0 - a2) + a2).sqrt();
+    let gl = nv * (nl * nl * (1.0 - a2) + a2).sqrt();
+    let sum = gv + gl;
+    if sum > 0.0 { 0.5 / sum } else { 0.0 }
+}
+
+/// Schlick's weight `w = (1 − |v·h|)⁵`: `F = F0 + (1 − F0)·w`.
+#[inline]
+pub fn schlick_weight(vh: f32) -> f32 {
+    let x = 1.0 - vh.abs().min(1.0);
+    let x2 = x * x;
+    x2 * x2 * x
+}
+
+/// The glTF reference BRDF's coefficients (see [`lobe_coefficients`]).
+#[inline]
+pub fn ggx_coefficients(s: &LightSample, p: V3, n: V3, v: V3, alpha: f32, f0: V3) -> (f32, V3) {
+    let e = irradiance(s, p, n);
+    if e == 0.0 {
+        return (0.0, [0.0; 3]);
+    }
+    let (l, _) = to_light(s, p);
+    let (id, dv, w) = ggx_terms(n, l, v, alpha);
+    let is = f0.map(|f| {
+        let x = e * dv * (f + (1.0 - f) * w);
+        if x.is_finite() { x } else { 0.0 }
+    });
+    (e * id, is)
+}
+
+/// Per unit irradiance: the diffuse weight `(1 − w)/π`, the specular `D·V` and Schlick's `w`
+/// for light from unit direction `l`.
+#[inline]
+pub fn ggx_terms(n: V3, l: V3, v: V3, alpha: f32) -> (f32, f32, f32) {
+    let h = normalize(add(l, v));
+    let w = schlick_weight(dot(v, h));
+    let nl = dot(n, l).max(0.0);
+    let nv = dot(n, v).max(0.0);
+    let nh = dot(n, h).max(0.0);
+    let dv = ggx_d(nh, alpha) * smith_visibility(nl, nv, alpha);
+    ((1.0 - w) / PI, if dv.is_finite() { dv } else { 0.0 }, w)
+}
+
+/// A metallic-roughness surface at one point: the material layers and the lobe.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MetallicRoughnessPoint {
+    /// `m^d = c_diff ⊙ (1 − F0)`, `c_diff = base·(1 − metallic)·(1 − τ)`.
+    pub diffuse: V3,
+    pub f0: V3,
+    pub alpha: f32,
+}
+
+/// The glTF metallic-roughness parameters at a point from its base-colour texel (linear RGBA,
+/// white without a texture) and metallic-roughness texel (linear; G roughness, B metallic):
+/// `base = factor ⊙ texel`, `F0 = mix(0.04, base, metallic)`.
+#[inline]
+pub fn metallic_roughness_point(
+    m: &MetallicRoughness,
+    base_texel: [f32; 4],
+    mr_texel: [f32; 4],
+) -> MetallicRoughnessPoint {
+    let unit = |x: f32| if x.is_nan() { 0.0 } else { x.clamp(0.0, 1.0) };
+    let metallic = unit(m.metallic * mr_texel[2]);
+    let roughness = m.roughness * mr_texel[1];
+    let keep = (1.0 - metallic) * (1.0 - unit(m.transmission));
+    let mut diffuse = [0.0; 3];
+    let mut f0 = [0.0; 3];
+    for k in 0..3 {
+        let base = m.base_color[k] * base_texel[k];
+        let base = if base.is_finite() { base.max(0.0) } else { 0.0 };
+        f0[k] = 0.04 + (base - 0.04) * metallic;
+        diffuse[k] = base * keep * (1.0 - f0[k]);
+    }
+    MetallicRoughnessPoint {
+        diffuse,
+        f0,
+        alpha: ggx_alpha(roughness),
+    }
+}
+
+/// What a material is at one surface point: its four material layers and its lobe.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SurfacePoint {
+    /// `m^d`, `m^s`, `m^a`, `e`.
+    pub diffuse: V3,
+    pub specular: V3,
+    pub ambient: V3,
+    pub emissive: V3,
+    pub lobe: Lobe,
+}
+
+/// A material at texture coordinates `uv`, its textures from `textures` (a missing one reads
+/// white). Blinn-Phong: `m^d` = diffuse × base texture, the rest as authored. Metallic-roughness
+/// (every texture read at [`shading_uv`]): `m^d = c_diff ⊙ (1 − F0)`, `m^s = 1`,
+/// `m^a = m^d · occlusion`, `e` = emissive × emissive texture.
+pub fn surface_point(m: &Material, textures: &[Texture], uv: [f32; 2]) -> SurfacePoint {
+    let read = |t: Option<usize>, uv: [f32; 2]| {
+        t.and_then(|t| textures.get(t))
+            .map_or([1.0; 4], |t| sample_texture(t, uv))
+    };
+    let Some(p) = &m.pbr else {
+        let c = read(m.diffuse_texture, uv);
+        return SurfacePoint {
+            diffuse: [0, 1, 2].map(|k| m.diffuse[k] * c[k]),
+            specular: m.specular,
+            ambient: m.ambient,
+            emissive: m.emissive,
+            lobe: Lobe::BlinnPhong {
+                shininess: m.shininess,
+                specular: m.has_specular(),
+            },
+        };
+    };
+    let suv = shading_uv(uv);
+    let at = metallic_roughness_point(
+        p,
+        read(m.diffuse_texture, suv),
+        read(p.metallic_roughness_texture, suv),
+    );
+    let occ = match p.occlusion_texture {
+        Some(_) => occlusion(p.occlusion_strength, read(p.occlusion_texture, suv)[0]),
+        None => 1.0,
+    };
+    let e = read(p.emissive_texture, suv);
+    SurfacePoint {
+        diffuse: at.diffuse,
+        specular: [1.0; 3],
+        ambient: scale(at.diffuse, occ),
+        emissive: [0, 1, 2].map(|k| m.emissive[k] * e[k]),
+        lobe: Lobe::Ggx {
+            alpha: at.alpha,
+            f0: at.f0,
+        },
+    }
+}
+
+/// The shading normal at a point of a triangle with corners `p` and UVs `uv` (front face, unit
+/// `n` interpolated): the normal map's where the material has one, else `n`.
+pub fn mapped_normal(
+    m: &Material,
+    textures: &[Texture],
+    n: V3,
+    p: [V3; 3],
+    corner_uvs: [[f32; 2]; 3],
+    uv: [f32; 2],
+) -> V3 {
+    let Some(pbr) = &m.pbr else { return n };
+    let Some(t) = pbr.normal_texture.and_then(|t| textures.get(t)) else {
+        return n;
+    };
+    let texel = sample_texture(t, shading_uv(uv));
+    perturb_normal(
+        n,
+        triangle_tangent(p, corner_uvs),
+        [texel[0], texel[1], texel[2]],
+        pbr.normal_scale,
+    )
+}
+
+/// The occlusion a texel's red channel gives at `strength`: `1 + strength·(r − 1)`.
+#[inline]
+pub fn occlusion(strength: f32, r: f32) -> f32 {
+    let unit = |x: f32| if x.is_nan() { 0.0 } else { x.clamp(0.0, 1.0) };
+    1.0 + unit(strength) * (unit(r) - 1.0)
+}
+
+/// The Blinn-Phong exponent matched to a GGX roughness (`s = 2/α² − 2`, the Beckmann match,
+/// clamped to [1, 2048]): a metallic-roughness material's `shininess` summary, which the
+/// planner's light culling and the indirect light's bounce read.
+pub fn shininess_from_roughness(roughness: f32) -> f32 {
+    let r = if roughness.is_finite() {
+        roughness.clamp(0.0, 1.0)
+    } else {
+        1.0
+    };
+    let alpha = r * r;
+    let s = 2.0 / (alpha * alpha).max(1e-12) - 2.0;
+    s.clamp(1.0, 2048.0)
+}
+
+/// The texture coordinates metallic-roughness shading reads its textures at: each coordinate's
+/// fraction (repeat wrapping makes it the same texel) to 16 bits, as a G-buffer word holds them
+/// (`pack2x16unorm`): `⌊0.5 + 65535·fract(u)⌋/65535`. A 4096-texel texture is read within 1/16
+/// texel of the exact coordinate.
+#[inline]
+pub fn shading_uv(uv: [f32; 2]) -> [f32; 2] {
+    uv.map(|x| {
+        let x = if x.is_finite() { x } else { 0.0 };
+        let f = (x - x.floor()).clamp(0.0, 1.0);
+        (0.5 + 65535.0 * f).floor() / 65535.0
+    })
+}
+
+/// A triangle's tangent for normal mapping: the unit `∂p/∂u` (xyz) and the handedness `w` = ±1
+/// with which the bitangent is `w·(n × t)` along `−∂p/∂v` (glTF's V runs down the image, a
+/// normal map's +Y up), from its corners and their UVs, in f64; zero where the UVs are
+/// degenerate (no normal mapping there).
+pub fn triangle_tangent(p: [V3; 3], uv: [[f32; 2]; 3]) -> [f32; 4] {
+    let f = |a: V3| a.map(f64::from);
+    let (p0, p1, p2) = (f(p[0]), f(p[1]), f(p[2]));
+    let e1 = [0, 1, 2].map(|k| p1[k] - p0[k]);
+    let e2 = [0, 1, 2].map(|k| p2[k] - p0[k]);
+    let (du1, dv1) = (
+        f64::from(uv[1][0]) - f64::from(uv[0][0]),
+        f64::from(uv[1][1]) - f64::from(uv[0][1]),
+    );
+    let (du2, dv2) = (
+        f64::from(uv[2][0]) - f64::from(uv[0][0]),
+        f64::from(uv[2][1]) - f64::from(uv[0][1]),
+    );
+    let det = du1 * dv2 - du2 * dv1;
+    if !(det.abs() > 1e-20) || !det.is_finite() {
+        return [0.0; 4];
+    }
+    let t = [0, 1, 2].map(|k| (e1[k] * dv2 - e2[k] * dv1) / det);
+    let b = [0, 1, 2].map(|k| (e2[k] * du1 - e1[k] * du2) / det);
+    let ng = [
+        e1[1] * e2[2] - e1[2] * e2[1],
+        e1[2] * e2[0] - e1[0] * e2[2],
+        e1[0] * e2[1] - e1[1] * e2[0],
+    ];
+    let len = (t[0] * t[0] + t[1] * t[1] + t[2] * t[2]).sqrt();
+    if !(len > 0.0 && len.is_finite()) {
+        return [0.0; 4];
+    }
+    let nt = [
+        ng[1] * t[2] - ng[2] * t[1],
+        ng[2] * t[0] - ng[0] * t[2],
+        ng[0] * t[1] - ng[1] * t[0],
+    ];
+    let w = if nt[0] * b[0] + nt[1] * b[1] + nt[2] * b[2] > 0.0 {
+        -1.0
+    } else {
+        1.0
+    };
+    [
+        (t[0] / len) as f32,
+        (t[1] / len) as f32,
+        (t[2] / len) as f32,
+        w,
+    ]
+}
+
+/// The shading normal a normal-map texel (linear RGB) gives on the front face with unit shading
+/// normal `n` and [`triangle_tangent`] `tangent`: `normalize(T·x + B·y + n·z)` with
+/// `(x, y, z) = (2·texel − 1) ⊙ (scale, scale, 1)`, `T` the tangent made orthogonal to `n`,
+/// `B = w·(n × T)`. Unchanged where the tangent is zero or the result degenerate.
+#[inline]
+pub fn perturb_normal(n: V3, tangent: [f32; 4], texel: V3, scale_xy: f32) -> V3 {
+    let w = tangent[3];
+    if w == 0.0 {
+        return n;
+    }
+    let t3 = [tangent[0], tangent[1], tangent[2]];
+    let t = normalize(sub(t3, scale(n, dot(n, t3))));
+    if t == [0.0; 3] {
+        return n;
+    }
+    let b = scale(cross(n, t), w);
+    let x = (2.0 * texel[0] - 1.0) * scale_xy;
+    let y = (2.0 * texel[1] - 1.0) * scale_xy;
+    let z = 2.0 * texel[2] - 1.0;
+    let m = normalize(add(add(scale(t, x), scale(b, y)), scale(n, z)));
+    if m == [0.0; 3] { n } else { m }
 }
 
 /// The final pixel of paper eq. 2: `e + m^a⊙(c^a + I^a) + m^d⊙I^d + m^s⊙I^s`.

@@ -58,6 +58,8 @@ pub const OVERRIDE_SHADOW_TAPS: &str = "SHADOW_TAPS";
 /// Whether the pipeline reads transmittance maps (`bool`): only a scene with translucent casters
 /// needs it (`docs/translucency.md`).
 pub const OVERRIDE_TRANSLUCENT: &str = "TRANSLUCENT";
+/// Whether any material is glTF metallic-roughness (`bool`).
+pub const OVERRIDE_METALLIC_ROUGHNESS: &str = "METALLIC_ROUGHNESS";
 
 /// Every complete shader module with a name, for validation and diagnostics.
 pub const MODULES: &[(&str, &str)] = &[
@@ -138,6 +140,7 @@ mod tests {
             (OVERRIDE_SHADOW_FILTER, "u32"),
             (OVERRIDE_SHADOW_TAPS, "u32"),
             (OVERRIDE_TRANSLUCENT, "bool"),
+            (OVERRIDE_METALLIC_ROUGHNESS, "bool"),
         ] {
             for (module, src) in [("forward", FORWARD_WGSL), ("deferred", DEFERRED_WGSL)] {
                 let decl = format!("override {name}: {ty}");

@@ -3,7 +3,8 @@
 // lights (`lights_uniform.wgsl`), each adding to the last. Same maths as the forward eye pass
 // (`illuminate`), no shading of hidden fragments. Needs `eye.wgsl` before it.
 
-// Material index + 1 in `position.w`; 0 marks background. The object ID in `normal.w`.
+// Material index + 1 in `position.w`; 0 marks background. The object ID in `normal.w`; the
+// shading texture coordinates (`shading_uv`, exactly) in `geometric_normal.w`.
 struct GBufferOut {
     @location(0) position: vec4<u32>,
     @location(1) normal: vec4<u32>,
@@ -16,7 +17,7 @@ fn gbuffer(in: VsOut, front: bool) -> GBufferOut {
     var out: GBufferOut;
     out.position = vec4<u32>(bitcast<vec3<u32>>(sf.p), sf.material + 1u);
     out.normal = vec4<u32>(bitcast<vec3<u32>>(sf.n), sf.object);
-    out.geometric_normal = vec4<u32>(bitcast<vec3<u32>>(sf.ng), 0u);
+    out.geometric_normal = vec4<u32>(bitcast<vec3<u32>>(sf.ng), pack2x16unorm(sf.uv));
     out.depth = bitcast<u32>(eye_depth(in.world));
     return out;
 }
@@ -86,6 +87,7 @@ fn cs_lights(@builtin(global_invocation_id) id: vec3<u32>) {
             bitcast<vec3f>(ng.xyz),
             g.w - 1u,
             n.w,
+            unpack2x16unorm(ng.w),
         ), s);
     }
     illumination[i] = vec4f(s.diffuse, 0.0);

@@ -9,6 +9,7 @@ struct VsIn {
     @location(3) uv: vec2f,
     @location(4) material: u32,
     @location(5) object: u32,
+    @location(6) tangent: vec4f,
 }
 
 struct VsOut {
@@ -19,6 +20,8 @@ struct VsOut {
     @location(3) uv: vec2f,
     @location(4) @interpolate(flat) material: u32,
     @location(5) @interpolate(flat) object: u32,
+    // The triangle's normal-map tangent (the same at its three vertices).
+    @location(6) @interpolate(flat) tangent: vec4f,
 }
 
 @vertex
@@ -31,22 +34,34 @@ fn vs_eye(in: VsIn) -> VsOut {
     out.uv = in.uv;
     out.material = in.material;
     out.object = in.object;
+    out.tangent = in.tangent;
     return out;
 }
 
-// The surface under a fragment, normals turned towards the viewer on back faces.
+// The surface under a fragment, normals turned towards the viewer on back faces; a
+// metallic-roughness material's normal map bends the shading normal (on the front face, then
+// turned with it).
 fn surface(in: VsOut, front: bool) -> Surface {
     var ng = safe_normalize(in.geometric_normal);
     var n = safe_normalize(in.normal);
     if all(n == vec3f(0.0)) {
         n = ng;
     }
+    let material = in.material & ~NO_UV_BIT;
+    let suv = shading_uv(in.uv);
+    if METALLIC_ROUGHNESS {
+        let m = materials[material];
+        if m.model == MODEL_METALLIC_ROUGHNESS && m.normal_texture != NO_TEXTURE {
+            let texel = sample_texture(m.normal_texture, suv).rgb;
+            n = perturb_normal(n, in.tangent, texel, m.normal_scale);
+        }
+    }
     if !front {
         // Back face of a double-sided material: both normals face the viewer.
         ng = -ng;
         n = -n;
     }
-    return Surface(in.world, n, ng, in.material & ~NO_UV_BIT, in.object);
+    return Surface(in.world, n, ng, material, in.object, suv);
 }
 
 // The material layers m^d (texture applied), m^s, m^a, e at a fragment.
@@ -57,8 +72,25 @@ struct MaterialLayers {
     emissive: vec4f,
 }
 
+// Metallic-roughness (`scene::shading::surface_point`): m^d = c_diff ⊙ (1 − F0), m^s = 1,
+// m^a = m^d · occlusion, e = emissive × emissive texture, every texture at `shading_uv`.
 fn material_layers(in: VsOut) -> MaterialLayers {
     let m = materials[in.material & ~NO_UV_BIT];
+    if METALLIC_ROUGHNESS && m.model == MODEL_METALLIC_ROUGHNESS {
+        let suv = shading_uv(in.uv);
+        let p = metallic_roughness_point(m, suv);
+        var occ = 1.0;
+        if m.occlusion_texture != NO_TEXTURE {
+            occ = occlusion(m.occlusion_strength, sample_texture(m.occlusion_texture, suv).r);
+        }
+        let e = m.emissive * read_texture(m.emissive_texture, suv).rgb;
+        return MaterialLayers(
+            vec4f(p.diffuse, 1.0),
+            vec4f(1.0),
+            vec4f(p.diffuse * occ, 1.0),
+            vec4f(e, 1.0),
+        );
+    }
     var md = m.diffuse;
     if m.diffuse_texture != NO_TEXTURE {
         md = md * sample_texture(m.diffuse_texture, in.uv).rgb;

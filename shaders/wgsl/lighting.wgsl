@@ -410,14 +410,18 @@ fn visibility(s: Light, p: vec3f, ng: vec3f, object: u32) -> vec3f {
 }
 
 // A visible surface point: position, unit shading and geometric normals facing the viewer, its
-// material index and its object (mesh index + 1).
+// material index, its object (mesh index + 1) and its shading texture coordinates.
 struct Surface {
     p: vec3f,
     n: vec3f,
     ng: vec3f,
     material: u32,
     object: u32,
+    uv: vec2f,
 }
+
+// Whether any material is metallic-roughness (else its code folds away).
+override METALLIC_ROUGHNESS: bool = true;
 
 struct Shaded {
     diffuse: vec3f,
@@ -426,20 +430,44 @@ struct Shaded {
 
 // `start` + Σ_λ (c_λ ⊘ c_n)·(i^d_λ, i^s_λ)·s_λ at a surface point, in light order (a deferred
 // pass split into dispatches adds in the same order as one dispatch).
+// Metallic-roughness materials take the glTF reference BRDF's coefficients
+// (`scene::shading::lobe_coefficients`): i^d = E·(1 − w)/π, i^s = E·D·V·(F0 + (1 − F0)·w).
 fn illuminate(sf: Surface, start: Shaded) -> Shaded {
     let m = materials[sf.material];
     let v = safe_normalize(frame.camera - sf.p);
     let specular = m.has_specular != 0u;
+    var ggx = false;
+    var f0 = vec3f(0.0);
+    var alpha = 1.0;
+    if METALLIC_ROUGHNESS && m.model == MODEL_METALLIC_ROUGHNESS {
+        let p = metallic_roughness_point(m, sf.uv);
+        ggx = true;
+        f0 = p.f0;
+        alpha = p.alpha;
+    }
     var out = start;
     for (var i = 0u; i < frame.light_count; i++) {
         let s = light_at(i);
-        let c = coefficients(s, sf.p, sf.n, v, m.shininess, specular);
-        if c.x == 0.0 && c.y == 0.0 {
+        var id = 0.0;
+        var is = vec3f(0.0);
+        if METALLIC_ROUGHNESS && ggx {
+            let lr = to_light(s, sf.p);
+            let e = irradiance(s, lr, sf.n);
+            let t = ggx_terms(sf.n, lr.xyz, v, alpha);
+            id = e * t.x;
+            let x = e * t.y * (f0 + (vec3f(1.0) - f0) * t.z);
+            is = select(vec3f(0.0), x, abs(x) < vec3f(3.0e38));
+        } else {
+            let c = coefficients(s, sf.p, sf.n, v, m.shininess, specular);
+            id = c.x;
+            is = vec3f(c.y);
+        }
+        if id == 0.0 && all(is == vec3f(0.0)) {
             continue;
         }
         let vis = visibility(s, sf.p, sf.ng, sf.object);
-        out.diffuse += s.weight * (c.x * vis);
-        out.specular += s.weight * (c.y * vis);
+        out.diffuse += s.weight * (id * vis);
+        out.specular += s.weight * (is * vis);
     }
     return out;
 }

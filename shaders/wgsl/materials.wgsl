@@ -23,7 +23,23 @@ struct Material {
     // and `transmits` = TRANSMITS_* (none: an opaque caster).
     transmission: vec3f,
     transmits: u32,
+    // glTF metallic-roughness (`scene::MetallicRoughness`), read where model is
+    // MODEL_METALLIC_ROUGHNESS; the base-colour texture is `diffuse_texture`.
+    base_color: vec3f,
+    model: u32,
+    metallic: f32,
+    roughness: f32,
+    metallic_roughness_texture: u32,
+    normal_texture: u32,
+    normal_scale: f32,
+    occlusion_texture: u32,
+    occlusion_strength: f32,
+    emissive_texture: u32,
+    pbr_transmission: f32,
 }
+
+const MODEL_BLINN_PHONG: u32 = 0u;
+const MODEL_METALLIC_ROUGHNESS: u32 = 1u;
 
 const TRANSMITS_NONE: u32 = 0u;
 const TRANSMITS_FILTER: u32 = 1u;
@@ -110,4 +126,31 @@ fn texel_transmittance(m: Material, uv: vec2f, has_uv: bool) -> vec3f {
         return vec3f(1.0);
     }
     return covered;
+}
+
+// A texture's texel at uv, white where there is none.
+fn read_texture(index: u32, uv: vec2f) -> vec4f {
+    if index == NO_TEXTURE {
+        return vec4f(1.0);
+    }
+    return sample_texture(index, uv);
+}
+
+// A metallic-roughness surface at shading coordinates suv (`shading_uv`):
+// m^d = c_diff ⊙ (1 − F0), F0 and α (`scene::shading::metallic_roughness_point`).
+struct MrPoint {
+    diffuse: vec3f,
+    f0: vec3f,
+    alpha: f32,
+}
+
+fn metallic_roughness_point(m: Material, suv: vec2f) -> MrPoint {
+    let base_texel = read_texture(m.diffuse_texture, suv);
+    let mr = read_texture(m.metallic_roughness_texture, suv);
+    let metallic = clamp(m.metallic * mr.b, 0.0, 1.0);
+    let roughness = m.roughness * mr.g;
+    let keep = (1.0 - metallic) * (1.0 - clamp(m.pbr_transmission, 0.0, 1.0));
+    let base = max(m.base_color * base_texel.rgb, vec3f(0.0));
+    let f0 = vec3f(0.04) + (base - vec3f(0.04)) * metallic;
+    return MrPoint(base * keep * (vec3f(1.0) - f0), f0, ggx_alpha(roughness));
 }

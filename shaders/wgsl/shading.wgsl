@@ -153,6 +153,75 @@ fn coefficients(s: Light, p: vec3f, n: vec3f, v: vec3f, shininess: f32, specular
     return vec2f(e / PI, is);
 }
 
+// The glTF metallic-roughness reference BRDF (`scene::shading::lobe_coefficients`, Lobe::Ggx).
+const MIN_ALPHA: f32 = 1e-3;
+
+fn ggx_alpha(roughness: f32) -> f32 {
+    let r = clamp(roughness, 0.0, 1.0);
+    return max(r * r, MIN_ALPHA);
+}
+
+fn ggx_d(nh: f32, alpha: f32) -> f32 {
+    let a2 = alpha * alpha;
+    let d = nh * nh * (a2 - 1.0) + 1.0;
+    return a2 / (PI * d * d);
+}
+
+// Height-correlated Smith visibility G/(4|n·l||n·v|).
+fn smith_visibility(nl: f32, nv: f32, alpha: f32) -> f32 {
+    let a2 = alpha * alpha;
+    let gv = nl * sqrt(nv * nv * (1.0 - a2) + a2);
+    let gl = nv * sqrt(nl * nl * (1.0 - a2) + a2);
+    let sum = gv + gl;
+    return select(0.0, 0.5 / sum, sum > 0.0);
+}
+
+// Schlick's weight (1 − |v·h|)⁵.
+fn schlick_weight(vh: f32) -> f32 {
+    let x = 1.0 - min(abs(vh), 1.0);
+    let x2 = x * x;
+    return x2 * x2 * x;
+}
+
+// Per unit irradiance: the diffuse weight (1 − w)/π, the specular D·V, and w.
+fn ggx_terms(n: vec3f, l: vec3f, v: vec3f, alpha: f32) -> vec3f {
+    let h = safe_normalize(l + v);
+    let w = schlick_weight(dot(v, h));
+    let nl = max(dot(n, l), 0.0);
+    let nv = max(dot(n, v), 0.0);
+    let nh = max(dot(n, h), 0.0);
+    let dv = ggx_d(nh, alpha) * smith_visibility(nl, nv, alpha);
+    return vec3f((1.0 - w) / PI, select(0.0, dv, abs(dv) < 3.0e38), w);
+}
+
+// 1 + strength·(r − 1).
+fn occlusion(strength: f32, r: f32) -> f32 {
+    return 1.0 + clamp(strength, 0.0, 1.0) * (clamp(r, 0.0, 1.0) - 1.0);
+}
+
+// The normal a normal-map texel gives (`scene::shading::perturb_normal`).
+fn perturb_normal(n: vec3f, tangent: vec4f, texel: vec3f, scale_xy: f32) -> vec3f {
+    if tangent.w == 0.0 {
+        return n;
+    }
+    let t = safe_normalize(tangent.xyz - n * dot(n, tangent.xyz));
+    if all(t == vec3f(0.0)) {
+        return n;
+    }
+    let b = cross(n, t) * tangent.w;
+    let x = (2.0 * texel.x - 1.0) * scale_xy;
+    let y = (2.0 * texel.y - 1.0) * scale_xy;
+    let z = 2.0 * texel.z - 1.0;
+    let m = safe_normalize(t * x + b * y + n * z);
+    return select(m, n, all(m == vec3f(0.0)));
+}
+
+// The texture coordinates metallic-roughness shading reads (`scene::shading::shading_uv`):
+// what a G-buffer word keeps of them.
+fn shading_uv(uv: vec2f) -> vec2f {
+    return unpack2x16unorm(pack2x16unorm(fract(uv)));
+}
+
 fn srgb_to_linear(x: f32) -> f32 {
     if x <= 0.04045 {
         return x / 12.92;

@@ -42,6 +42,9 @@ fn brdf_max(scene: &Scene, material: usize) -> f32 {
         return f32::INFINITY;
     };
     let cmax = |c: [f32; 3]| c.iter().fold(0.0f32, |a, &v| a.max(v.abs()));
+    if let Some(p) = &m.pbr {
+        return metallic_roughness_max(p);
+    }
     // A diffuse texture multiplies `diffuse` by at most 1.
     let d = cmax(m.diffuse) / PI;
     let s = if m.has_specular() || m.specular.iter().any(|&v| v != 0.0) {
@@ -53,6 +56,22 @@ fn brdf_max(scene: &Scene, material: usize) -> f32 {
         0.0
     };
     let v = d + s;
+    if v.is_finite() { v } else { f32::INFINITY }
+}
+
+/// A bound of a metallic-roughness material's `f·(n·l)` per unit of `E/(n·l)` (the irradiance
+/// a surface facing the light gets): diffuse `c_diff·(1 − F0)/π ≤ base/π`; specular
+/// `F·D·V·(n·l) ≤ 1/(πα²) · 0.5/α` (`D ≤ 1/(πα²)`, and `V·(n·l) ≤ 0.5/α`), at the smallest `α`
+/// its roughness texture allows.
+fn metallic_roughness_max(p: &lightfold_scene::MetallicRoughness) -> f32 {
+    let base = p.base_color.iter().fold(0.0f32, |a, &v| a.max(v.abs()));
+    let roughness = if p.metallic_roughness_texture.is_some() {
+        0.0
+    } else {
+        p.roughness
+    };
+    let alpha = lightfold_scene::shading::ggx_alpha(roughness);
+    let v = base / PI + 0.5 / (PI * alpha * alpha * alpha);
     if v.is_finite() { v } else { f32::INFINITY }
 }
 

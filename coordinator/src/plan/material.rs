@@ -29,6 +29,13 @@ pub(crate) struct Needs {
     pub notes: Vec<String>,
 }
 
+/// Whether a metallic-roughness material's diffuse layer varies per texel beyond the base-colour
+/// texture (its metallic-roughness texture moves `c_diff` and `F0`).
+fn pbr_varies(m: &Material) -> bool {
+    m.pbr
+        .is_some_and(|p| p.metallic_roughness_texture.is_some())
+}
+
 pub(crate) fn needs(scene: &Scene, receivers: &[Receiver], force_all: bool) -> Needs {
     let mut ids: Vec<usize> = receivers
         .iter()
@@ -52,8 +59,16 @@ pub(crate) fn needs(scene: &Scene, receivers: &[Receiver], force_all: bool) -> N
         if mats.iter().any(|m| over_one(get(m))) {
             hdr.push(layer);
         }
-        // Only the diffuse layer is textured (`material_layers` in `eye.wgsl`).
-        let textured = |m: &Material| layer == Layer::Diffuse && m.diffuse_texture.is_some();
+        // Blinn-Phong textures only the diffuse layer (`material_layers` in `eye.wgsl`);
+        // metallic-roughness's base-colour and metallic-roughness textures vary the diffuse
+        // and ambient layers, its occlusion the ambient (`scene::shading::surface_point`).
+        let textured = |m: &Material| match (&m.pbr, layer) {
+            (_, Layer::Diffuse) => m.diffuse_texture.is_some() || pbr_varies(m),
+            (Some(p), Layer::Ambient) => {
+                m.diffuse_texture.is_some() || pbr_varies(m) || p.occlusion_texture.is_some()
+            }
+            _ => false,
+        };
         if mats.iter().all(|m| !textured(m) && srgb8_holds(get(m))) {
             srgb8_exact.push(layer);
         }
@@ -75,9 +90,11 @@ pub(crate) fn needs(scene: &Scene, receivers: &[Receiver], force_all: bool) -> N
     let ambient_light = nonzero(scene.ambient);
     let ambient = ambient_light && mats.iter().any(|m| nonzero(m.ambient));
     let foldable = ambient
-        && mats
-            .iter()
-            .all(|m| m.ambient == m.diffuse && m.diffuse_texture.is_none());
+        && mats.iter().all(|m| {
+            m.ambient == m.diffuse
+                && m.diffuse_texture.is_none()
+                && m.pbr.is_none_or(|p| p.occlusion_texture.is_none())
+        });
     let first_spec = mats.first().map(|m| m.specular);
     let uniform_specular = match first_spec {
         Some(s) if mats.iter().all(|m| m.specular == s) => Some(s),

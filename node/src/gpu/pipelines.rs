@@ -7,8 +7,8 @@
 
 use lightfold_scene::ShadowFilter;
 use lightfold_shaders::{
-    OVERRIDE_LIGHT_KINDS, OVERRIDE_LIGHT_RANGES, OVERRIDE_SHADOW_FILTER, OVERRIDE_SHADOW_TAPS,
-    OVERRIDE_TRANSLUCENT, OVERRIDE_VIEW_MODES,
+    OVERRIDE_LIGHT_KINDS, OVERRIDE_LIGHT_RANGES, OVERRIDE_METALLIC_ROUGHNESS,
+    OVERRIDE_SHADOW_FILTER, OVERRIDE_SHADOW_TAPS, OVERRIDE_TRANSLUCENT, OVERRIDE_VIEW_MODES,
 };
 use std::collections::HashMap;
 
@@ -69,8 +69,8 @@ pub struct Pipelines {
     pub gbuffer_layers: wgpu::RenderPipeline,
     deferred_module: wgpu::ShaderModule,
     deferred_pl: wgpu::PipelineLayout,
-    /// The shadow filter's constants and `TRANSLUCENT`.
-    filter: [(&'static str, f64); 3],
+    /// The shadow filter's constants, `TRANSLUCENT` and `METALLIC_ROUGHNESS`.
+    filter: [(&'static str, f64); 4],
     /// `cs_lights` per set of lights it handles.
     light_passes: HashMap<LightSet, wgpu::ComputePipeline>,
 }
@@ -91,8 +91,9 @@ fn storage_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::BindGrou
     }
 }
 
-const VERTEX_ATTRIBUTES: [wgpu::VertexAttribute; 6] = wgpu::vertex_attr_array![
-    0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Float32x2, 4 => Uint32, 5 => Uint32
+const VERTEX_ATTRIBUTES: [wgpu::VertexAttribute; 7] = wgpu::vertex_attr_array![
+    0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Float32x2, 4 => Uint32, 5 => Uint32,
+    6 => Float32x4
 ];
 
 fn vertex_layout() -> wgpu::VertexBufferLayout<'static> {
@@ -137,9 +138,13 @@ impl LightSet {
     }
 }
 
-/// The filter's pipeline constants: `FILTER_*` of `lighting.wgsl` and taps per axis; and whether
-/// lookups read transmittance maps.
-fn filter_constants(filter: ShadowFilter, translucent: bool) -> [(&'static str, f64); 3] {
+/// The filter's pipeline constants: `FILTER_*` of `lighting.wgsl` and taps per axis; whether
+/// lookups read transmittance maps; whether any material is metallic-roughness.
+fn filter_constants(
+    filter: ShadowFilter,
+    translucent: bool,
+    metallic_roughness: bool,
+) -> [(&'static str, f64); 4] {
     let (mode, taps) = match filter {
         ShadowFilter::None => (0, 1),
         ShadowFilter::Pcf2x2 => (1, 1),
@@ -149,21 +154,27 @@ fn filter_constants(filter: ShadowFilter, translucent: bool) -> [(&'static str, 
         (OVERRIDE_SHADOW_FILTER, f64::from(mode)),
         (OVERRIDE_SHADOW_TAPS, f64::from(taps)),
         (OVERRIDE_TRANSLUCENT, f64::from(u8::from(translucent))),
+        (
+            OVERRIDE_METALLIC_ROUGHNESS,
+            f64::from(u8::from(metallic_roughness)),
+        ),
     ]
 }
 
 impl Pipelines {
     /// `translucent`: the scene has translucent casters, so lookups read transmittance maps
     /// (a scene without compiles them out and renders as before they existed); `filters`: some
-    /// are filters, which eye rays see through (`docs/translucency.md`).
+    /// are filters, which eye rays see through (`docs/translucency.md`); `metallic_roughness`:
+    /// some material is (else the glTF BRDF's code is compiled out).
     pub fn new(
         device: &wgpu::Device,
         filter: ShadowFilter,
         depth: ShadowDepth,
         translucent: bool,
         filters: bool,
+        metallic_roughness: bool,
     ) -> Pipelines {
-        let filter = filter_constants(filter, translucent);
+        let filter = filter_constants(filter, translucent, metallic_roughness);
         // Lighting runs in fragment shaders (forward) and in a compute shader (deferred).
         let fragment = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
         let vf = wgpu::ShaderStages::VERTEX_FRAGMENT | wgpu::ShaderStages::COMPUTE;

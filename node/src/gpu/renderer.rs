@@ -126,8 +126,16 @@ impl Renderer {
         let depth = ShadowDepth::of(opts.fault);
         let translucent = data.meshes.iter().any(|m| m.translucent);
         let filters = scene.materials.iter().any(Material::is_filter);
+        let metallic_roughness = scene.materials.iter().any(|m| m.pbr.is_some());
         let (pipelines, error) = captured(device, || {
-            let pipelines = Pipelines::new(device, opts.filter, depth, translucent, filters);
+            let pipelines = Pipelines::new(
+                device,
+                opts.filter,
+                depth,
+                translucent,
+                filters,
+                metallic_roughness,
+            );
             if opts.fault == Some(Fault::InvalidPipeline) {
                 pipelines.invalid_pipeline(device);
             }

@@ -4,8 +4,8 @@
 //! themselves (bit-for-bit the `scene::shading::sample_texture` rules).
 
 use bytemuck::{Pod, Zeroable};
-use lightfold_scene::shading::V3;
-use lightfold_scene::{AlphaMode, Material, Mesh, Scene};
+use lightfold_scene::shading::{V3, triangle_tangent};
+use lightfold_scene::{AlphaMode, Material, Mesh, MetallicRoughness, Scene};
 
 /// Marks a vertex whose mesh has no UVs (the shaders then ignore texture alpha, as the reference).
 pub const NO_UV_BIT: u32 = 0x8000_0000;
@@ -25,6 +25,9 @@ pub struct Vertex {
     /// The mesh's index + 1: the object ID shadow maps store beside depth, so a receiver tells
     /// its own surface from other casters (0 is "no caster").
     pub object: u32,
+    /// The triangle's normal-map tangent (`scene::shading::triangle_tangent`); zero unless its
+    /// material has a normal texture and the mesh UVs.
+    pub tangent: [f32; 4],
 }
 
 /// `Material` in `materials.wgsl` (std430).
@@ -47,7 +50,27 @@ pub struct GpuMaterial {
     pub transmission: [f32; 3],
     /// [`TRANSMITS_NONE`], [`TRANSMITS_FILTER`] or [`TRANSMITS_COVERAGE`].
     pub transmits: u32,
+    /// glTF metallic-roughness (`scene::MetallicRoughness`), read where `model` is
+    /// [`MODEL_METALLIC_ROUGHNESS`]; textures [`NO_TEXTURE`] where none.
+    pub base_color: [f32; 3],
+    pub model: u32,
+    pub metallic: f32,
+    pub roughness: f32,
+    pub metallic_roughness_texture: u32,
+    pub normal_texture: u32,
+    pub normal_scale: f32,
+    pub occlusion_texture: u32,
+    pub occlusion_strength: f32,
+    pub emissive_texture: u32,
+    /// KHR_materials_transmission's factor τ.
+    pub pbr_transmission: f32,
+    pub _pad2: [u32; 3],
 }
+
+/// `Material::model` in `materials.wgsl`: the paper's Blinn-Phong.
+pub const MODEL_BLINN_PHONG: u32 = 0;
+/// The glTF metallic-roughness reference BRDF.
+pub const MODEL_METALLIC_ROUGHNESS: u32 = 1;
 
 /// `Material::transmits` in `materials.wgsl`: an opaque caster.
 pub const TRANSMITS_NONE: u32 = 0;
@@ -198,6 +221,7 @@ fn triangles(
         let has_normals = mesh.normals.len() == mesh.positions.len();
         let has_uvs = mesh.uvs.len() == mesh.positions.len();
         let word = material | if has_uvs { 0 } else { NO_UV_BIT };
+        let normal_mapped = has_uvs && materials[material as usize].normal_texture != NO_TEXTURE;
         let (mut mlo, mut mhi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
         for tri in mesh.indices.chunks_exact(3) {
             let idx = [tri[0] as usize, tri[1] as usize, tri[2] as usize];
@@ -212,6 +236,12 @@ fn triangles(
                 continue;
             }
             let ng = geometric_normal(p[0], p[1], p[2]);
+            let tangent = if normal_mapped {
+                let uv = |k: usize| mesh.uvs[idx[k]];
+                triangle_tangent([p[0], p[1], p[2]], [uv(0), uv(1), uv(2)])
+            } else {
+                [0.0; 4]
+            };
             for (k, &i) in idx.iter().enumerate() {
                 for a in 0..3 {
                     mlo[a] = mlo[a].min(p[k][a]);
@@ -224,6 +254,7 @@ fn triangles(
                     uv: if has_uvs { mesh.uvs[i] } else { [0.0; 2] },
                     material: word,
                     object,
+                    tangent,
                 });
             }
         }
@@ -245,12 +276,14 @@ fn gpu_material(m: &Material, texture_count: usize) -> GpuMaterial {
         AlphaMode::Opaque => (0, 0.0),
         AlphaMode::Mask { cutoff } => (1, cutoff),
     };
+    let texture = |t: Option<usize>| match t {
+        Some(t) if t < texture_count => t as u32,
+        _ => NO_TEXTURE,
+    };
+    let pbr = m.pbr.unwrap_or(MetallicRoughness::new([0.0; 3], 0.0, 1.0));
     GpuMaterial {
         diffuse: m.diffuse,
-        diffuse_texture: match m.diffuse_texture {
-            Some(t) if t < texture_count => t as u32,
-            _ => NO_TEXTURE,
-        },
+        diffuse_texture: texture(m.diffuse_texture),
         specular: m.specular,
         shininess: m.shininess,
         ambient: m.ambient,
@@ -267,6 +300,22 @@ fn gpu_material(m: &Material, texture_count: usize) -> GpuMaterial {
             Some(t) if t.coverage => TRANSMITS_COVERAGE,
             Some(_) => TRANSMITS_FILTER,
         },
+        base_color: pbr.base_color,
+        model: if m.pbr.is_some() {
+            MODEL_METALLIC_ROUGHNESS
+        } else {
+            MODEL_BLINN_PHONG
+        },
+        metallic: pbr.metallic,
+        roughness: pbr.roughness,
+        metallic_roughness_texture: texture(pbr.metallic_roughness_texture),
+        normal_texture: texture(pbr.normal_texture),
+        normal_scale: pbr.normal_scale,
+        occlusion_texture: texture(pbr.occlusion_texture),
+        occlusion_strength: pbr.occlusion_strength,
+        emissive_texture: texture(pbr.emissive_texture),
+        pbr_transmission: pbr.transmission,
+        _pad2: [0; 3],
     }
 }
 
@@ -296,8 +345,8 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(std::mem::size_of::<Vertex>(), 52);
-        assert_eq!(std::mem::size_of::<GpuMaterial>(), 96);
+        assert_eq!(std::mem::size_of::<Vertex>(), 68);
+        assert_eq!(std::mem::size_of::<GpuMaterial>(), 160);
         assert_eq!(std::mem::size_of::<GpuTexture>(), 16);
     }
 

@@ -86,6 +86,7 @@ pub(super) fn build(
                 color,
                 coverage: false,
             }),
+            pbr: None,
         });
         by_name.insert(&m.name, k);
     }

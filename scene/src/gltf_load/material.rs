@@ -1,40 +1,25 @@
-//! glTF materials and base-colour textures → lightfold materials.
+//! glTF materials and their textures → lightfold materials.
 //!
-//! Metallic-roughness maps onto the paper's Blinn-Phong terms (documented in `docs/scenes.md`):
-//! `m^d = baseColor·(1 − metallic)`, `m^s = mix(0.04, baseColor, metallic)`, and with
-//! `α = roughness²` the exponent `s = 2/α² − 2` (the Beckmann-matched Blinn-Phong exponent),
-//! clamped to `[1, 2048]`. The base-colour texture multiplies `m^d`; a metallic-roughness texture
-//! contributes its mean metallic and roughness (the Blinn-Phong terms are per material).
+//! Metallic-roughness is shaded as the glTF 2.0 specification's reference BRDF
+//! (`Material::pbr`, `docs/shading.md`): base colour, metallic-roughness, normal, occlusion and
+//! emissive textures, `KHR_materials_emissive_strength` and `KHR_materials_transmission`'s factor.
 
 use super::accessor::Buffers;
 use crate::limits::{Budget, MAX_TEXTURE_SIDE};
-use crate::model::{AlphaMode, Material, Texture, Transmission};
+use crate::model::{AlphaMode, Material, MetallicRoughness, Texture, Transmission};
 use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
 
-pub(super) const MIN_SHININESS: f32 = 1.0;
-pub(super) const MAX_SHININESS: f32 = 2048.0;
+pub use crate::shading::shininess_from_roughness;
 
-/// The Blinn-Phong exponent for a glTF roughness (see the module comment).
-pub fn shininess_from_roughness(roughness: f32) -> f32 {
-    let r = if roughness.is_finite() {
-        roughness.clamp(0.0, 1.0)
-    } else {
-        1.0
-    };
-    let alpha = r * r;
-    let s = 2.0 / (alpha * alpha).max(1e-12) - 2.0;
-    s.clamp(MIN_SHININESS, MAX_SHININESS)
-}
-
-/// Converts materials and decodes the base-colour textures they use (each image once).
+/// Converts materials and decodes the textures they use (each image once per colour space).
 pub(super) struct MaterialLoader<'a> {
     pub bufs: &'a Buffers,
     pub base: Option<&'a Path>,
     pub ignored: &'a mut BTreeSet<String>,
     pub textures: Vec<Texture>,
-    cache: HashMap<usize, usize>,
-    means: HashMap<usize, (f32, f32)>,
+    /// (image index, sRGB) → texture index.
+    cache: HashMap<(usize, bool), usize>,
 }
 
 impl<'a> MaterialLoader<'a> {
@@ -49,25 +34,14 @@ impl<'a> MaterialLoader<'a> {
             ignored,
             textures: Vec::new(),
             cache: HashMap::new(),
-            means: HashMap::new(),
         }
     }
 
     pub fn convert(&mut self, m: &gltf::Material) -> Result<Material, String> {
         let pbr = m.pbr_metallic_roughness();
         let base = pbr.base_color_factor();
-        // Without the texture's mean, a model relying on it (default factor 1) turns black.
-        let (mean_roughness, mean_metallic) = match pbr.metallic_roughness_texture() {
-            Some(info) => {
-                self.ignored
-                    .insert("metallic-roughness texture detail (its mean used)".into());
-                self.mean_roughness_metallic(&info.texture())?
-            }
-            None => (1.0, 1.0),
-        };
-        let metallic = (pbr.metallic_factor() * mean_metallic).clamp(0.0, 1.0);
-        let roughness = pbr.roughness_factor() * mean_roughness;
         let rgb = [base[0], base[1], base[2]];
+        let metallic = pbr.metallic_factor().clamp(0.0, 1.0);
         // KHR_materials_transmission: the dielectric's diffuse share goes through instead,
         // tinted by the base colour (thin-walled; no refraction).
         let tau = m
@@ -79,8 +53,44 @@ impl<'a> MaterialLoader<'a> {
             self.ignored
                 .insert("transmission textures (transmission factor used alone)".into());
         }
-        let diffuse = rgb.map(|c| c * (1.0 - metallic) * (1.0 - tau));
-        let specular = rgb.map(|c| 0.04 + (c - 0.04) * metallic);
+        let diffuse_texture = match pbr.base_color_texture() {
+            Some(info) => Some(self.info(info.tex_coord(), &info.texture(), true)?),
+            None => None,
+        };
+        let metallic_roughness_texture = match pbr.metallic_roughness_texture() {
+            Some(info) => Some(self.info(info.tex_coord(), &info.texture(), false)?),
+            None => None,
+        };
+        let (normal_texture, normal_scale) = match m.normal_texture() {
+            Some(info) => (
+                Some(self.info(info.tex_coord(), &info.texture(), false)?),
+                info.scale(),
+            ),
+            None => (None, 1.0),
+        };
+        let (occlusion_texture, occlusion_strength) = match m.occlusion_texture() {
+            Some(info) => (
+                Some(self.info(info.tex_coord(), &info.texture(), false)?),
+                info.strength(),
+            ),
+            None => (None, 1.0),
+        };
+        let emissive_texture = match m.emissive_texture() {
+            Some(info) => Some(self.info(info.tex_coord(), &info.texture(), true)?),
+            None => None,
+        };
+        let model = MetallicRoughness {
+            base_color: rgb,
+            metallic,
+            roughness: pbr.roughness_factor(),
+            metallic_roughness_texture,
+            normal_texture,
+            normal_scale,
+            occlusion_texture,
+            occlusion_strength,
+            emissive_texture,
+            transmission: tau,
+        };
         let alpha_mode = match m.alpha_mode() {
             gltf::material::AlphaMode::Opaque => AlphaMode::Opaque,
             gltf::material::AlphaMode::Mask => AlphaMode::Mask {
@@ -100,42 +110,33 @@ impl<'a> MaterialLoader<'a> {
             coverage: blend,
         });
         let strength = m.emissive_strength().unwrap_or(1.0);
-        let diffuse_texture = match pbr.base_color_texture() {
-            Some(info) => {
-                if info.tex_coord() != 0 {
-                    self.ignored
-                        .insert("base-colour textures on TEXCOORD_1+ (TEXCOORD_0 used)".into());
-                }
-                Some(self.texture(&info.texture())?)
-            }
-            None => None,
-        };
-        if m.normal_texture().is_some() {
-            self.ignored.insert("normal textures".into());
-        }
-        if m.occlusion_texture().is_some() {
-            self.ignored.insert("occlusion textures".into());
-        }
-        if m.emissive_texture().is_some() {
-            self.ignored
-                .insert("emissive textures (emissive factor used alone)".into());
-        }
+        let (diffuse, specular, ambient) = model.summary();
         Ok(Material {
             name: m.name().unwrap_or("material").to_string(),
             diffuse,
             diffuse_texture,
             specular,
-            shininess: shininess_from_roughness(roughness),
-            ambient: [0.0; 3],
+            shininess: shininess_from_roughness(model.roughness),
+            ambient,
             emissive: m.emissive_factor().map(|c| c * strength),
             alpha: base[3],
             alpha_mode,
             double_sided: m.double_sided(),
             transmission,
+            pbr: Some(model),
         })
     }
 
-    fn texture(&mut self, t: &gltf::Texture) -> Result<usize, String> {
+    /// A material's texture (read at TEXCOORD_0: another set is reported and read at 0).
+    fn info(&mut self, tex_coord: u32, t: &gltf::Texture, srgb: bool) -> Result<usize, String> {
+        if tex_coord != 0 {
+            self.ignored
+                .insert("textures on TEXCOORD_1+ (TEXCOORD_0 used)".into());
+        }
+        self.texture(t, srgb)
+    }
+
+    fn texture(&mut self, t: &gltf::Texture, srgb: bool) -> Result<usize, String> {
         let sampler = t.sampler();
         if sampler.wrap_s() != gltf::texture::WrappingMode::Repeat
             || sampler.wrap_t() != gltf::texture::WrappingMode::Repeat
@@ -144,7 +145,7 @@ impl<'a> MaterialLoader<'a> {
                 .insert("texture wrap modes other than REPEAT".into());
         }
         let image = t.source();
-        if let Some(&k) = self.cache.get(&image.index()) {
+        if let Some(&k) = self.cache.get(&(image.index(), srgb)) {
             return Ok(k);
         }
         let (name, decoded) = self.decode(&image)?;
@@ -152,30 +153,12 @@ impl<'a> MaterialLoader<'a> {
             name,
             width: decoded.width(),
             height: decoded.height(),
-            srgb: true,
+            srgb,
             rgba8: decoded.into_raw(),
         });
         let k = self.textures.len() - 1;
-        self.cache.insert(image.index(), k);
+        self.cache.insert((image.index(), srgb), k);
         Ok(k)
-    }
-
-    /// Mean (roughness, metallic) of a metallic-roughness texture (green and blue channels).
-    fn mean_roughness_metallic(&mut self, t: &gltf::Texture) -> Result<(f32, f32), String> {
-        let image = t.source();
-        if let Some(&m) = self.means.get(&image.index()) {
-            return Ok(m);
-        }
-        let (_, decoded) = self.decode(&image)?;
-        let (mut g, mut b) = (0u64, 0u64);
-        for px in decoded.pixels() {
-            g += px.0[1] as u64;
-            b += px.0[2] as u64;
-        }
-        let n = (decoded.width() as u64 * decoded.height() as u64).max(1) as f32 * 255.0;
-        let m = (g as f32 / n, b as f32 / n);
-        self.means.insert(image.index(), m);
-        Ok(m)
     }
 
     fn decode(&self, image: &gltf::Image) -> Result<(String, image::RgbaImage), String> {
@@ -259,11 +242,11 @@ mod tests {
 
     #[test]
     fn roughness_maps_to_a_clamped_exponent() {
-        assert_eq!(shininess_from_roughness(1.0), MIN_SHININESS);
-        assert_eq!(shininess_from_roughness(0.0), MAX_SHININESS);
+        assert_eq!(shininess_from_roughness(1.0), 1.0);
+        assert_eq!(shininess_from_roughness(0.0), 2048.0);
         // roughness 0.5: α = 0.25, s = 2/0.0625 − 2 = 30.
         assert!((shininess_from_roughness(0.5) - 30.0).abs() < 1e-4);
-        assert_eq!(shininess_from_roughness(f32::NAN), MIN_SHININESS);
+        assert_eq!(shininess_from_roughness(f32::NAN), 1.0);
     }
 
     #[test]

@@ -136,8 +136,21 @@ fn sanitize_material(m: &mut Material, texture_count: usize, issues: &mut Vec<Is
         AlphaMode::Mask { cutoff } => cutoff.is_finite(),
     };
     let transmission_ok = m.transmission.is_none_or(|t| colour_ok(&t.color));
+    let pbr_ok = m.pbr.is_none_or(|p| {
+        colour_ok(&p.base_color)
+            && [
+                p.metallic,
+                p.roughness,
+                p.normal_scale,
+                p.occlusion_strength,
+                p.transmission,
+            ]
+            .iter()
+            .all(|x| x.is_finite())
+    });
     if !(colour_ok(&m.diffuse)
         && transmission_ok
+        && pbr_ok
         && colour_ok(&m.specular)
         && colour_ok(&m.ambient)
         && colour_ok(&m.emissive)
@@ -175,6 +188,41 @@ fn sanitize_material(m: &mut Material, texture_count: usize, issues: &mut Vec<Is
         }
         if !cutoff_ok {
             m.alpha_mode = AlphaMode::Mask { cutoff: 0.5 };
+        }
+        if let Some(p) = &mut m.pbr {
+            // A bad metallic-roughness factor falls back to its glTF default.
+            p.base_color = p
+                .base_color
+                .map(|x| if x.is_finite() { x.max(0.0) } else { 1.0 });
+            for (x, default) in [
+                (&mut p.metallic, 1.0),
+                (&mut p.roughness, 1.0),
+                (&mut p.normal_scale, 1.0),
+                (&mut p.occlusion_strength, 1.0),
+                (&mut p.transmission, 0.0),
+            ] {
+                if !x.is_finite() {
+                    *x = default;
+                }
+            }
+        }
+    }
+    if let Some(p) = &mut m.pbr {
+        for t in [
+            &mut p.metallic_roughness_texture,
+            &mut p.normal_texture,
+            &mut p.occlusion_texture,
+            &mut p.emissive_texture,
+        ] {
+            if let Some(k) = *t
+                && k >= texture_count
+            {
+                issues.push(Issue::TextureOutOfRange {
+                    material: m.name.clone(),
+                    texture: k,
+                });
+                *t = None;
+            }
         }
     }
     if let Some(t) = m.diffuse_texture
