@@ -28,10 +28,10 @@ fn small() -> Scene {
 #[test]
 fn content_hash_is_pinned() {
     // A change here means every cached scene is invalidated: do it on purpose only (last:
-    // `Material::transmission`, translucent casters).
+    // `Material::pbr`, glTF metallic-roughness).
     assert_eq!(
         hex::encode(small().content_hash()),
-        "5927825d37560d998a7d055c65195fd455c4e0eda40ffbd43532912e2d5a5f60"
+        "fdbf92447abfa816ca390538bc7b0f946270f51b7024a78717d247e3cb96eb5c"
     );
 }
 
@@ -74,6 +74,17 @@ fn content_hash_ignores_names_and_sees_everything_else() {
                 color: [0.5; 3],
                 coverage: true,
             })
+        },
+        |s| s.materials[0].pbr = Some(lightfold_scene::MetallicRoughness::new([0.5; 3], 0.0, 1.0)),
+        |s| {
+            let mut p = lightfold_scene::MetallicRoughness::new([0.5; 3], 0.0, 1.0);
+            p.roughness = 0.5;
+            s.materials[0].pbr = Some(p)
+        },
+        |s| {
+            let mut p = lightfold_scene::MetallicRoughness::new([0.5; 3], 0.0, 1.0);
+            p.occlusion_strength = 0.5;
+            s.materials[0].pbr = Some(p)
         },
     ];
     for (i, change) in changes.iter().enumerate() {

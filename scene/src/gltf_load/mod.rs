@@ -57,6 +57,16 @@ impl Default for GltfOptions {
 pub(crate) struct Imported {
     pub scene: Scene,
     pub has_camera: bool,
+    /// The features it uses that are not rendered (also logged as one warning).
+    pub ignored: Vec<String>,
+}
+
+/// The glTF features a model uses that lightfold does not render, as the loader's warning
+/// lists them (empty when everything it uses is rendered).
+pub fn ignored_features(path: &Path, opts: &GltfOptions) -> Result<Vec<String>, SceneError> {
+    let label = path.display().to_string();
+    let bytes = read_model(path)?;
+    Ok(import(&bytes, &label, &label, Some(model_folder(path)), opts)?.ignored)
 }
 
 /// Loads a `.gltf` or `.glb` file with default options.
@@ -322,11 +332,15 @@ fn convert(
             ignored.insert(format!("extension {ext}"));
         }
     }
+    let ignored: Vec<String> = ignored.into_iter().collect();
     if !ignored.is_empty() {
-        let list: Vec<String> = ignored.into_iter().collect();
-        tracing::warn!(scene = name, ignored = %list.join(", "), "glTF features ignored");
+        tracing::warn!(scene = name, ignored = %ignored.join(", "), "glTF features ignored");
     }
-    Ok(Imported { scene, has_camera })
+    Ok(Imported {
+        scene,
+        has_camera,
+        ignored,
+    })
 }
 
 fn load_buffers(
