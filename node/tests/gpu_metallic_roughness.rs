@@ -148,10 +148,9 @@ fn closed_form_errors(
             }
             let want = gltf_brdf_cos(base, metallic, roughness, n, l, v);
             let i = (y * cam.width + x) as usize;
-            for k in 0..3 {
-                let w = want[k] * f64::from(E0);
-                let g = f64::from(got.data[i * 3 + k]);
-                errors.push((g - w).abs() / w.max(1e-3));
+            for (w, &g) in want.iter().zip(&got.data[i * 3..i * 3 + 3]) {
+                let w = w * f64::from(E0);
+                errors.push((f64::from(g) - w).abs() / w.max(1e-3));
             }
         }
     }

@@ -13,8 +13,8 @@
 //! node-seconds of the frame: the sum of the batches' wall times) and reports the total error
 //! against the truth, split into the VPL error (the CPU's exact VPL sum against the truth) and
 //! the shadow-map error (the GPU against that exact sum).
-use anyhow::Context;
-use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+use lightfold_node::gpu::{Gpu, GpuOptions};
+use lightfold_quality::gpu_radiance;
 use lightfold_reference::indirect::{self, OneBounceOptions, default_clamp};
 use lightfold_reference::metrics::error_stats;
 use lightfold_reference::{render_one_bounce, render_point_sum};
@@ -22,9 +22,6 @@ use lightfold_scene::{Image, SampleKind, Scene, sampling};
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-
-/// Lights per GPU batch: the K the node-seconds are measured at.
-const K: usize = 16;
 
 struct Row {
     scene: String,
@@ -47,49 +44,6 @@ fn add(a: &Image, b: &Image) -> Image {
         *o += v;
     }
     out
-}
-
-fn gpu_render(
-    gpu: &Gpu,
-    scene: &Scene,
-    samples: &[lightfold_scene::LightSample],
-) -> anyhow::Result<(Image, f64)> {
-    let mut r = Renderer::new(gpu, scene, RenderOptions::from_quality(&scene.quality))?;
-    r.set_camera(&scene.camera);
-    // A warm-up frame: pipelines compile on first use.
-    r.render(
-        gpu,
-        &samples[..samples.len().min(K)],
-        None,
-        [1.0; 3],
-        LayerSet::all(),
-    )?;
-    let mut total: Option<Image> = None;
-    let mut seconds = 0.0;
-    for chunk in samples.chunks(K) {
-        let t = Instant::now();
-        let f = r.render(gpu, chunk, None, [1.0; 3], LayerSet::all())?;
-        seconds += t.elapsed().as_secs_f64();
-        let illum = f.illumination.clone().context("illumination")?;
-        // The ambient and emissive terms once, with the first batch.
-        let ambient = if total.is_none() {
-            scene.ambient
-        } else {
-            [0.0; 3]
-        };
-        let mut img = f.radiance(&illum, ambient)?;
-        if total.is_some() {
-            let e = f.emissive.clone().context("emissive")?;
-            for (o, v) in img.data.iter_mut().zip(&e.data) {
-                *o -= v;
-            }
-        }
-        total = Some(match total {
-            None => img,
-            Some(t) => add(&t, &img),
-        });
-    }
-    Ok((total.context("no samples")?, seconds))
 }
 
 fn sweep(
@@ -130,8 +84,8 @@ fn sweep(
             .count();
         let exact = render_point_sum(&s, &samples, [1.0; 3]).radiance([1.0; 3], s.ambient);
         // The faster of two frames: these machines are shared.
-        let (img, first) = gpu_render(gpu, &s, &samples)?;
-        let (_, second) = gpu_render(gpu, &s, &samples)?;
+        let (img, first) = gpu_radiance(gpu, &s, &samples)?;
+        let (_, second) = gpu_radiance(gpu, &s, &samples)?;
         let seconds = first.min(second);
         let total = error_stats(&img, &truth, s.exposure, None)?;
         let vpl = error_stats(&exact, &truth, s.exposure, None)?;

@@ -437,7 +437,7 @@ pub fn triangle_tangent(p: [V3; 3], uv: [[f32; 2]; 3]) -> [f32; 4] {
         f64::from(uv[2][1]) - f64::from(uv[0][1]),
     );
     let det = du1 * dv2 - du2 * dv1;
-    if !(det.abs() > 1e-20) || !det.is_finite() {
+    if !det.is_finite() || det.abs() <= 1e-20 {
         return [0.0; 4];
     }
     let t = [0, 1, 2].map(|k| (e1[k] * dv2 - e2[k] * dv1) / det);
