@@ -280,6 +280,21 @@ pub fn small_glass() -> Scene {
     s
 }
 
+/// The Khronos FlightHelmet (glTF metallic-roughness with base-colour, metallic-roughness,
+/// normal and occlusion textures, metal and dielectric parts) small: its framing light at 4
+/// samples, 96×72.
+pub fn small_helmet() -> Scene {
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../assets/FlightHelmet/FlightHelmet.gltf"
+    );
+    let mut s = lightfold_scene::load(path).unwrap();
+    s.quality.samples_per_area_light = Some(4);
+    s.camera.width = 96;
+    s.camera.height = 72;
+    s
+}
+
 /// The median of `v` (NaN when empty).
 pub fn median(mut v: Vec<f64>) -> f64 {
     if v.is_empty() {

@@ -1,7 +1,8 @@
 //! A cluster frame equals `lightfold render` (issue 23): the in-process cluster with the plan's
 //! own choices (shadow-map sizes, material and illumination link formats) against the
 //! single-device render of the same samples, within 0.05 % image bias on a grey scene and on
-//! coloured ones (one with glass: coloured shadows, tinted layers behind the glass). A negative control shows the check can fail: the plan options the cluster had
+//! coloured ones (one with glass: coloured shadows, tinted layers behind the glass; one of glTF
+//! metallic-roughness materials with every texture: the FlightHelmet). A negative control shows the check can fail: the plan options the cluster had
 //! before (material layers in 8-bit sRGB, map sizes from the mismatch factor) bias the grey
 //! scene beyond it.
 
@@ -12,7 +13,7 @@ use lightfold_protocol::PixelFormat;
 use lightfold_scene::{Image, Scene};
 use lightfold_tests::{
     InProcessCluster, assert_close, render_on, silhouettes, single_device_aa, small, small_glass,
-    test_control,
+    small_helmet, test_control,
 };
 
 /// The largest image bias `|Σ cluster / Σ render − 1|` a cluster frame may have.
@@ -113,6 +114,7 @@ async fn cluster_frame_equals_render_within_bias() {
         small("balls"),
         small("cornell"),
         small_glass(),
+        small_helmet(),
     ] {
         let (bias, _) = bias_of(&cluster, &gpu, &scene, |_| {}).await;
         if bias.abs() > MAX_BIAS {
