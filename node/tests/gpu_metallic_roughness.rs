@@ -248,8 +248,36 @@ fn texture(name: &str, n: u32, srgb: bool, texel: impl Fn(u32, u32) -> [u8; 4]) 
     }
 }
 
+/// Per-vertex tangents as a model would ship them: each vertex's adjacent triangles' tangents
+/// summed and normalised, the handedness of the first (a sphere's UVs are not mirrored).
+fn smooth_tangents(mesh: &lightfold_scene::Mesh) -> Vec<[f32; 4]> {
+    let mut acc = vec![[0.0f32; 4]; mesh.positions.len()];
+    for t in mesh.indices.chunks_exact(3) {
+        let i = [t[0], t[1], t[2]].map(|i| i as usize);
+        let tt = lightfold_scene::shading::triangle_tangent(
+            i.map(|i| mesh.positions[i]),
+            i.map(|i| mesh.uvs[i]),
+        );
+        for &v in &i {
+            for k in 0..3 {
+                acc[v][k] += tt[k];
+            }
+            if acc[v][3] == 0.0 {
+                acc[v][3] = tt[3];
+            }
+        }
+    }
+    acc.iter()
+        .map(|a| {
+            let [x, y, z] = lightfold_scene::shading::normalize([a[0], a[1], a[2]]);
+            [x, y, z, a[3]]
+        })
+        .collect()
+}
+
 /// A floor, a gold sphere, a rough red dielectric sphere, and a sphere and a tile with every
-/// texture; two lights (a 4-sample panel and a point).
+/// texture (the sphere with per-vertex tangents, the tile with its triangles' own); two lights
+/// (a 4-sample panel and a point).
 fn spheres(normal_map: bool) -> Scene {
     let mut s = Scene::new("metallic-roughness spheres");
     let floor = s.add_material(Material::diffuse("floor", [0.6, 0.6, 0.6]));
@@ -311,7 +339,9 @@ fn spheres(normal_map: bool) -> Scene {
     s.add_mesh(plane("floor", [0.0; 3], y, x, [8.0, 8.0], 4, floor));
     s.add_mesh(sphere("gold", [-1.3, 0.6, 0.0], 0.6, 96, 48, gold));
     s.add_mesh(sphere("red", [0.0, 0.6, -0.4], 0.6, 96, 48, red));
-    s.add_mesh(sphere("textured", [1.3, 0.6, 0.0], 0.6, 96, 48, textured));
+    let mut ball = sphere("textured", [1.3, 0.6, 0.0], 0.6, 96, 48, textured);
+    ball.tangents = smooth_tangents(&ball);
+    s.add_mesh(ball);
     s.add_mesh(plane(
         "tile",
         [0.2, 0.01, 1.2],
@@ -386,5 +416,25 @@ fn metallic_dielectric_and_textured_spheres_match_the_reference() {
         &mask,
     );
     eprintln!("without the normal map: {c:?}");
+    assert!(!c.passes(), "{c:?}");
+    // Control: the sphere's own tangents are what bends its normals: turned a quarter about
+    // the normal, the frame no longer matches.
+    let mut turned = scene.clone();
+    let ball = turned
+        .meshes
+        .iter_mut()
+        .find(|m| m.name == "textured")
+        .expect("the textured sphere");
+    for (t, n) in ball.tangents.iter_mut().zip(&ball.normals) {
+        let [x, y, z] = lightfold_scene::shading::cross(*n, [t[0], t[1], t[2]]);
+        *t = [x, y, z, t[3]];
+    }
+    let frame = render(&gpu, &turned, &samples, EyeVariant::Deferred);
+    let c = compare(
+        frame.illumination.as_ref().expect("illumination"),
+        &reference.illumination,
+        &mask,
+    );
+    eprintln!("tangents turned: {c:?}");
     assert!(!c.passes(), "{c:?}");
 }

@@ -206,13 +206,20 @@ impl<'a> Tracer<'a> {
         let uv = if mesh.uvs.len() == mesh.positions.len() {
             let t = |i: u32| mesh.uvs[i as usize];
             let (a, b, c) = (t(idx[0]), t(idx[1]), t(idx[2]));
-            let p = |i: u32| mesh.positions[i as usize];
+            let tangent = || {
+                if mesh.tangents.len() == mesh.positions.len() {
+                    let t = |i: u32| mesh.tangents[i as usize];
+                    shading::interpolated_tangent([t(idx[0]), t(idx[1]), t(idx[2])], [w, u, v])
+                } else {
+                    let p = |i: u32| mesh.positions[i as usize];
+                    shading::triangle_tangent([p(idx[0]), p(idx[1]), p(idx[2])], [a, b, c])
+                }
+            };
             n = shading::mapped_normal(
                 material_of(self.scene, mesh.material),
                 &self.scene.textures,
                 n,
-                [p(idx[0]), p(idx[1]), p(idx[2])],
-                [a, b, c],
+                tangent,
                 [0, 1].map(|k| w * a[k] + u * b[k] + v * c[k]),
             );
             [0, 1].map(|k| w * a[k] + u * b[k] + v * c[k])

@@ -83,6 +83,7 @@ impl Canon {
             positions,
             normals,
             uvs,
+            tangents,
             indices,
             material,
         } = m;
@@ -91,6 +92,10 @@ impl Canon {
         self.len(uvs.len());
         for uv in uvs {
             self.f32s(uv);
+        }
+        self.len(tangents.len());
+        for t in tangents {
+            self.f32s(t);
         }
         self.len(indices.len());
         for &i in indices {

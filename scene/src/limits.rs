@@ -154,6 +154,7 @@ impl crate::model::Scene {
             .map(|m| {
                 (m.positions.len() as u64 + m.normals.len() as u64) * 12
                     + m.uvs.len() as u64 * 8
+                    + m.tangents.len() as u64 * 16
                     + m.indices.len() as u64 * 4
             })
             .sum();

@@ -25,13 +25,18 @@ pub struct Scene {
     pub animation: Option<crate::animation::Animation>,
 }
 
-/// A triangle mesh in world space. `normals` and `uvs` are either empty or one per position.
+/// A triangle mesh in world space. `normals`, `uvs` and `tangents` are either empty or one per
+/// position.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Mesh {
     pub name: String,
     pub positions: Vec<[f32; 3]>,
     pub normals: Vec<[f32; 3]>,
     pub uvs: Vec<[f32; 2]>,
+    /// Normal-map tangents as glTF gives them (xyz along +u, w the handedness ±1 of the
+    /// bitangent `w·(n × t)`); where empty, a normal map uses each triangle's own
+    /// ([`crate::shading::triangle_tangent`]).
+    pub tangents: Vec<[f32; 4]>,
     pub indices: Vec<u32>,
     pub material: usize,
 }

@@ -163,6 +163,7 @@ fn stand_in(m: &Mesh) -> Option<Mesh> {
         positions: vec![lo, hi, *third],
         normals: Vec::new(),
         uvs: Vec::new(),
+        tangents: Vec::new(),
         indices: vec![0, 1, 2],
         material: m.material,
     })
@@ -243,11 +244,13 @@ fn split_mesh(m: &Mesh, pieces: usize) -> Vec<Mesh> {
                 positions: Vec::new(),
                 normals: Vec::new(),
                 uvs: Vec::new(),
+                tangents: Vec::new(),
                 indices: Vec::with_capacity(g.len() * 3),
                 material: m.material,
             };
             let has_normals = m.normals.len() == m.positions.len();
             let has_uvs = m.uvs.len() == m.positions.len();
+            let has_tangents = m.tangents.len() == m.positions.len();
             for &t in g.iter() {
                 let tri = &m.indices[t as usize * 3..t as usize * 3 + 3];
                 if tri.iter().any(|&v| v as usize >= m.positions.len()) {
@@ -263,6 +266,9 @@ fn split_mesh(m: &Mesh, pieces: usize) -> Vec<Mesh> {
                         }
                         if has_uvs {
                             chunk.uvs.push(m.uvs[v]);
+                        }
+                        if has_tangents {
+                            chunk.tangents.push(m.tangents[v]);
                         }
                     }
                     chunk.indices.push(remap[v]);

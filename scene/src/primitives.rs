@@ -118,6 +118,7 @@ fn empty(name: &str, material: usize) -> Mesh {
         positions: Vec::new(),
         normals: Vec::new(),
         uvs: Vec::new(),
+        tangents: Vec::new(),
         indices: Vec::new(),
         material,
     }

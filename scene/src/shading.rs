@@ -362,14 +362,14 @@ pub fn surface_point(m: &Material, textures: &[Texture], uv: [f32; 2]) -> Surfac
     }
 }
 
-/// The shading normal at a point of a triangle with corners `p` and UVs `uv` (front face, unit
-/// `n` interpolated): the normal map's where the material has one, else `n`.
+/// The shading normal at a point (front face, unit `n` interpolated) with texture coordinates
+/// `uv`: the normal map's where the material has one, else `n`. `tangent` gives the point's
+/// tangent (the mesh's, interpolated, or its triangle's), asked for only when a map is applied.
 pub fn mapped_normal(
     m: &Material,
     textures: &[Texture],
     n: V3,
-    p: [V3; 3],
-    corner_uvs: [[f32; 2]; 3],
+    tangent: impl FnOnce() -> [f32; 4],
     uv: [f32; 2],
 ) -> V3 {
     let Some(pbr) = &m.pbr else { return n };
@@ -379,10 +379,18 @@ pub fn mapped_normal(
     let texel = sample_texture(t, shading_uv(uv));
     perturb_normal(
         n,
-        triangle_tangent(p, corner_uvs),
+        tangent(),
         [texel[0], texel[1], texel[2]],
         pbr.normal_scale,
     )
+}
+
+/// A mesh's tangents at barycentric weights `b` of a triangle with corner tangents `corners`:
+/// xyz interpolated, `w` the interpolated handedness (±1 at every corner of a glTF mesh), as the
+/// GPU interpolates its vertex attribute.
+#[inline]
+pub fn interpolated_tangent(corners: [[f32; 4]; 3], b: [f32; 3]) -> [f32; 4] {
+    std::array::from_fn(|k| b[0] * corners[0][k] + b[1] * corners[1][k] + b[2] * corners[2][k])
 }
 
 /// The occlusion a texel's red channel gives at `strength`: `1 + strength·(r − 1)`.
@@ -472,13 +480,13 @@ pub fn triangle_tangent(p: [V3; 3], uv: [[f32; 2]; 3]) -> [f32; 4] {
 /// The shading normal a normal-map texel (linear RGB) gives on the front face with unit shading
 /// normal `n` and [`triangle_tangent`] `tangent`: `normalize(T·x + B·y + n·z)` with
 /// `(x, y, z) = (2·texel − 1) ⊙ (scale, scale, 1)`, `T` the tangent made orthogonal to `n`,
-/// `B = w·(n × T)`. Unchanged where the tangent is zero or the result degenerate.
+/// `B = sign(w)·(n × T)`. Unchanged where the tangent is zero or the result degenerate.
 #[inline]
 pub fn perturb_normal(n: V3, tangent: [f32; 4], texel: V3, scale_xy: f32) -> V3 {
-    let w = tangent[3];
-    if w == 0.0 {
+    if tangent[3] == 0.0 || tangent[3].is_nan() {
         return n;
     }
+    let w = if tangent[3] < 0.0 { -1.0 } else { 1.0 };
     let t3 = [tangent[0], tangent[1], tangent[2]];
     let t = normalize(sub(t3, scale(n, dot(n, t3))));
     if t == [0.0; 3] {

@@ -28,10 +28,10 @@ fn small() -> Scene {
 #[test]
 fn content_hash_is_pinned() {
     // A change here means every cached scene is invalidated: do it on purpose only (last:
-    // `Material::pbr`, glTF metallic-roughness).
+    // `Material::pbr` and `Mesh::tangents`, glTF metallic-roughness).
     assert_eq!(
         hex::encode(small().content_hash()),
-        "fdbf92447abfa816ca390538bc7b0f946270f51b7024a78717d247e3cb96eb5c"
+        "4f0fd480b60f5d7932f1cccd5a5eb0bc5477ec269c7c81dbd8ae854c5d4579e3"
     );
 }
 

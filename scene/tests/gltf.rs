@@ -260,6 +260,35 @@ fn the_khronos_models_use_nothing_that_is_not_rendered() {
     assert!(pbr.iter().all(|p| p.normal_texture.is_some()
         && p.metallic_roughness_texture.is_some()
         && p.occlusion_texture.is_some()));
+    // TANGENT is read: unit, handedness ±1, and (placed by the same world matrices) along the
+    // direction of +u and with the handedness each triangle's UVs give, nearly everywhere.
+    let (mut agree, mut total) = (0usize, 0usize);
+    for m in helmet.meshes.iter().filter(|m| !m.tangents.is_empty()) {
+        assert_eq!(m.tangents.len(), m.positions.len(), "{}", m.name);
+        for t in m.indices.chunks_exact(3) {
+            let i = [t[0], t[1], t[2]].map(|i| i as usize);
+            let own = lightfold_scene::shading::triangle_tangent(
+                i.map(|i| m.positions[i]),
+                i.map(|i| m.uvs[i]),
+            );
+            if own[3] == 0.0 {
+                continue;
+            }
+            total += 1;
+            let v = m.tangents[i[0]];
+            let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            assert!((len - 1.0).abs() < 1e-4 && v[3].abs() == 1.0, "{v:?}");
+            let cos = v[0] * own[0] + v[1] * own[1] + v[2] * own[2];
+            if cos > 0.7 && v[3] == own[3] {
+                agree += 1;
+            }
+        }
+    }
+    eprintln!("FlightHelmet tangents agreeing with their triangles: {agree} of {total}");
+    assert!(
+        total > 10_000 && agree as f64 > 0.95 * total as f64,
+        "{agree} of {total}"
+    );
     // Data textures are linear, colour textures sRGB.
     for p in &pbr {
         for t in [

@@ -29,6 +29,7 @@ fn messy() -> Scene {
         positions: vec![[0.0; 3]; 3],
         normals: vec![],
         uvs: vec![[0.0; 2]; 2],
+        tangents: Vec::new(),
         indices: vec![0, 0, 0],
         material: m,
     });

@@ -20,8 +20,8 @@ struct VsOut {
     @location(3) uv: vec2f,
     @location(4) @interpolate(flat) material: u32,
     @location(5) @interpolate(flat) object: u32,
-    // The triangle's normal-map tangent (the same at its three vertices).
-    @location(6) @interpolate(flat) tangent: vec4f,
+    // The normal-map tangent (the mesh's, or the triangle's own at all three vertices).
+    @location(6) tangent: vec4f,
 }
 
 @vertex

@@ -204,11 +204,12 @@ fn perturb_normal(n: vec3f, tangent: vec4f, texel: vec3f, scale_xy: f32) -> vec3
     if tangent.w == 0.0 {
         return n;
     }
+    let w = select(1.0, -1.0, tangent.w < 0.0);
     let t = safe_normalize(tangent.xyz - n * dot(n, tangent.xyz));
     if all(t == vec3f(0.0)) {
         return n;
     }
-    let b = cross(n, t) * tangent.w;
+    let b = cross(n, t) * w;
     let x = (2.0 * texel.x - 1.0) * scale_xy;
     let y = (2.0 * texel.y - 1.0) * scale_xy;
     let z = 2.0 * texel.z - 1.0;

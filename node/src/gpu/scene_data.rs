@@ -25,8 +25,9 @@ pub struct Vertex {
     /// The mesh's index + 1: the object ID shadow maps store beside depth, so a receiver tells
     /// its own surface from other casters (0 is "no caster").
     pub object: u32,
-    /// The triangle's normal-map tangent (`scene::shading::triangle_tangent`); zero unless its
-    /// material has a normal texture and the mesh UVs.
+    /// The normal-map tangent: the mesh's (glTF `TANGENT`), else the triangle's own
+    /// (`scene::shading::triangle_tangent`); zero unless its material has a normal texture and
+    /// the mesh UVs.
     pub tangent: [f32; 4],
 }
 
@@ -222,6 +223,7 @@ fn triangles(
         let has_uvs = mesh.uvs.len() == mesh.positions.len();
         let word = material | if has_uvs { 0 } else { NO_UV_BIT };
         let normal_mapped = has_uvs && materials[material as usize].normal_texture != NO_TEXTURE;
+        let has_tangents = mesh.tangents.len() == mesh.positions.len();
         let (mut mlo, mut mhi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
         for tri in mesh.indices.chunks_exact(3) {
             let idx = [tri[0] as usize, tri[1] as usize, tri[2] as usize];
@@ -236,11 +238,13 @@ fn triangles(
                 continue;
             }
             let ng = geometric_normal(p[0], p[1], p[2]);
-            let tangent = if normal_mapped {
-                let uv = |k: usize| mesh.uvs[idx[k]];
-                triangle_tangent([p[0], p[1], p[2]], [uv(0), uv(1), uv(2)])
-            } else {
-                [0.0; 4]
+            let tangent = |k: usize| match (normal_mapped, has_tangents) {
+                (false, _) => [0.0; 4],
+                (true, true) => mesh.tangents[idx[k]],
+                (true, false) => {
+                    let uv = |k: usize| mesh.uvs[idx[k]];
+                    triangle_tangent([p[0], p[1], p[2]], [uv(0), uv(1), uv(2)])
+                }
             };
             for (k, &i) in idx.iter().enumerate() {
                 for a in 0..3 {
@@ -254,7 +258,7 @@ fn triangles(
                     uv: if has_uvs { mesh.uvs[i] } else { [0.0; 2] },
                     material: word,
                     object,
-                    tangent,
+                    tangent: tangent(k),
                 });
             }
         }

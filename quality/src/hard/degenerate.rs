@@ -44,6 +44,7 @@ fn junk_mesh(material: usize) -> Mesh {
             [0.0, 0.0, 0.0],
         ],
         uvs: Vec::new(),
+        tangents: Vec::new(),
         indices: vec![0, 1, 2, 0, 2, 3, 4, 5, 6, 1, 7, 2, 3, 3, 3],
         material,
     }

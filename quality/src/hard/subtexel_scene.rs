@@ -72,6 +72,7 @@ fn leaves(material: usize) -> Mesh {
         positions: Vec::new(),
         normals: Vec::new(),
         uvs: Vec::new(),
+        tangents: Vec::new(),
         indices: Vec::new(),
         material,
     };
@@ -136,6 +137,7 @@ fn fence(material: usize) -> Mesh {
         positions: Vec::new(),
         normals: Vec::new(),
         uvs: Vec::new(),
+        tangents: Vec::new(),
         indices: Vec::new(),
         material,
     };

@@ -130,6 +130,9 @@ fn normal_matrix(m: &Mat4) -> Mat3 {
 
 /// Poses one mesh in place.
 fn pose_mesh(mesh: &mut Mesh, rig: &MeshRig, pose: &NodePose) {
+    // Rigs carry no tangents: a posed mesh's normal map uses each triangle's own
+    // (`shading::triangle_tangent`) rather than rest-pose tangents pointing elsewhere.
+    mesh.tangents.clear();
     let weights = &pose.weights[rig.node as usize];
     let n = rig.positions.len();
     let mut positions = rig.positions.clone();

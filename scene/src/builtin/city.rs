@@ -59,6 +59,7 @@ fn append(into: &mut Mesh, m: Mesh) {
     into.positions.extend(m.positions);
     into.normals.extend(m.normals);
     into.uvs.extend(m.uvs);
+    into.tangents.extend(m.tangents);
     into.indices.extend(m.indices.iter().map(|i| i + base));
 }
 
@@ -158,6 +159,7 @@ pub(super) fn build(triangles: u64) -> Scene {
                 positions: Vec::new(),
                 normals: Vec::new(),
                 uvs: Vec::new(),
+                tangents: Vec::new(),
                 indices: Vec::new(),
                 material,
             };

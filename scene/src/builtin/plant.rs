@@ -170,6 +170,7 @@ fn empty_mesh(name: &str, material: usize) -> Mesh {
         positions: Vec::new(),
         normals: Vec::new(),
         uvs: Vec::new(),
+        tangents: Vec::new(),
         indices: Vec::new(),
         material,
     }

@@ -80,6 +80,12 @@ pub(super) fn node_meshes(
         };
         let normals = attr(Semantic::Normals, Dimensions::Vec3, "NORMAL")?;
         let uvs = attr(Semantic::TexCoords(0), Dimensions::Vec2, "TEXCOORD_0")?;
+        // Provided tangents go with provided normals (without, the specification has flat
+        // normals computed and tangents ignored); a normal map needs UVs too.
+        let tangents = match (&normals, &uvs) {
+            (Some(_), Some(_)) => attr(Semantic::Tangents, Dimensions::Vec4, "TANGENT")?,
+            _ => None,
+        };
         if prim.get(&Semantic::Colors(0)).is_some() {
             ctx.ignored.insert("vertex colours".into());
         }
@@ -122,6 +128,7 @@ pub(super) fn node_meshes(
             uvs: uvs
                 .map(|u| u.chunks_exact(2).map(|c| [c[0], c[1]]).collect())
                 .unwrap_or_default(),
+            tangents: Vec::new(),
             indices: tris,
             material: material(prim.material().index()),
         };
@@ -129,6 +136,7 @@ pub(super) fn node_meshes(
         let rigid_normal = normal_matrix(&rigid);
         let mut mirrored = vec![false; n];
         let mut world_normals = Vec::with_capacity(if normals.is_some() { n } else { 0 });
+        let mut world_tangents = Vec::with_capacity(if tangents.is_some() { n } else { 0 });
         for v in 0..n {
             let p = Vec3::new(pos[3 * v], pos[3 * v + 1], pos[3 * v + 2]);
             let mat = skinning.as_ref().map_or(rigid, |s| s[v]);
@@ -143,8 +151,18 @@ pub(super) fn node_meshes(
                 let nv = Vec3::new(nrm[3 * v], nrm[3 * v + 1], nrm[3 * v + 2]);
                 world_normals.push(normalize((nm * nv).to_array()));
             }
+            if let Some(t) = &tangents {
+                // A direction in the surface: transformed as positions are; a mirroring
+                // transform turns the bitangent w·(n × t) over, so w changes sign with it.
+                let tv = Vec3::new(t[4 * v], t[4 * v + 1], t[4 * v + 2]);
+                let [x, y, z] = normalize((Mat3::from_mat4(mat) * tv).to_array());
+                let w = if t[4 * v + 3] < 0.0 { -1.0 } else { 1.0 };
+                let w = if mirrored[v] { -w } else { w };
+                world_tangents.push([x, y, z, w]);
+            }
         }
         m.normals = world_normals;
+        m.tangents = world_tangents;
         // Mirroring transforms turn counter-clockwise into clockwise: swap to keep CCW front.
         for t in m.indices.chunks_exact_mut(3) {
             if mirrored[t[0] as usize] {
@@ -366,6 +384,7 @@ fn flat_shaded(m: Mesh) -> (Mesh, Vec<u32>) {
         positions: Vec::with_capacity(indices.len()),
         normals: Vec::with_capacity(indices.len()),
         uvs: Vec::new(),
+        tangents: Vec::new(),
         indices: Vec::with_capacity(indices.len()),
         material,
     };

@@ -45,6 +45,9 @@ pub enum Issue {
     BadMaterial {
         material: String,
     },
+    BadTangents {
+        mesh: String,
+    },
     TextureOutOfRange {
         material: String,
         texture: usize,
@@ -112,6 +115,9 @@ impl fmt::Display for Issue {
             }
             Issue::BadMaterial { material } => {
                 write!(f, "material {material:?} has non-finite or negative values")
+            }
+            Issue::BadTangents { mesh } => {
+                write!(f, "mesh {mesh:?} has non-finite tangents (dropped)")
             }
             Issue::TextureOutOfRange { material, texture } => {
                 write!(f, "material {material:?} names missing texture {texture}")

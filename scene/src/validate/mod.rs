@@ -239,7 +239,11 @@ fn sanitize_material(m: &mut Material, texture_count: usize, issues: &mut Vec<Is
 fn sanitize_mesh(m: &mut Mesh, issues: &mut Vec<Issue>) {
     let n = m.positions.len();
     let name = m.name.clone();
-    for (attribute, len) in [("normals", m.normals.len()), ("uvs", m.uvs.len())] {
+    for (attribute, len) in [
+        ("normals", m.normals.len()),
+        ("uvs", m.uvs.len()),
+        ("tangents", m.tangents.len()),
+    ] {
         if len != 0 && len != n {
             issues.push(Issue::AttributeCount {
                 mesh: name.clone(),
@@ -247,12 +251,17 @@ fn sanitize_mesh(m: &mut Mesh, issues: &mut Vec<Issue>) {
                 found: len,
                 expected: n,
             });
-            if attribute == "normals" {
-                m.normals.clear();
-            } else {
-                m.uvs.clear();
+            match attribute {
+                "normals" => m.normals.clear(),
+                "uvs" => m.uvs.clear(),
+                _ => m.tangents.clear(),
             }
         }
+    }
+    if m.tangents.iter().any(|t| !t.iter().all(|c| c.is_finite())) {
+        // A normal map then uses each triangle's own tangent.
+        issues.push(Issue::BadTangents { mesh: name.clone() });
+        m.tangents.clear();
     }
     if !m.indices.len().is_multiple_of(3) {
         issues.push(Issue::TruncatedIndices {
