@@ -38,6 +38,8 @@ pub struct DrawContext<'a> {
     pub pipelines: &'a Pipelines,
     pub scene_bind_group: &'a wgpu::BindGroup,
     pub vertices: &'a wgpu::Buffer,
+    /// The eye pipelines' tangents (`tangent_layout`).
+    pub tangents: &'a wgpu::Buffer,
 }
 
 /// Everything built from the shader sources.
@@ -91,10 +93,25 @@ fn storage_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::BindGrou
     }
 }
 
-const VERTEX_ATTRIBUTES: [wgpu::VertexAttribute; 7] = wgpu::vertex_attr_array![
-    0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Float32x2, 4 => Uint32, 5 => Uint32,
-    6 => Float32x4
+const VERTEX_ATTRIBUTES: [wgpu::VertexAttribute; 6] = wgpu::vertex_attr_array![
+    0 => Float32x3, 1 => Float32x3, 2 => Float32x3, 3 => Float32x2, 4 => Uint32, 5 => Uint32
 ];
+
+const TANGENT_ATTRIBUTES: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![6 => Float32x4];
+
+/// The eye pipelines' second vertex buffer, the tangents: one per vertex where the scene is
+/// normal-mapped, else one for every vertex (a single zero tangent read per instance).
+fn tangent_layout(per_vertex: bool) -> wgpu::VertexBufferLayout<'static> {
+    wgpu::VertexBufferLayout {
+        array_stride: std::mem::size_of::<super::scene_data::Tangent>() as u64,
+        step_mode: if per_vertex {
+            wgpu::VertexStepMode::Vertex
+        } else {
+            wgpu::VertexStepMode::Instance
+        },
+        attributes: &TANGENT_ATTRIBUTES,
+    }
+}
 
 fn vertex_layout() -> wgpu::VertexBufferLayout<'static> {
     wgpu::VertexBufferLayout {
@@ -165,7 +182,8 @@ impl Pipelines {
     /// `translucent`: the scene has translucent casters, so lookups read transmittance maps
     /// (a scene without compiles them out and renders as before they existed); `filters`: some
     /// are filters, which eye rays see through (`docs/translucency.md`); `metallic_roughness`:
-    /// some material is (else the glTF BRDF's code is compiled out).
+    /// some material is (else the glTF BRDF's code is compiled out); `normal_mapped`: the eye
+    /// pipelines read a tangent per vertex (else one for all).
     pub fn new(
         device: &wgpu::Device,
         filter: ShadowFilter,
@@ -173,6 +191,7 @@ impl Pipelines {
         translucent: bool,
         filters: bool,
         metallic_roughness: bool,
+        normal_mapped: bool,
     ) -> Pipelines {
         let filter = filter_constants(filter, translucent, metallic_roughness);
         // Lighting runs in fragment shaders (forward) and in a compute shader (deferred).
@@ -406,7 +425,7 @@ impl Pipelines {
                     module,
                     entry_point: Some("vs_eye"),
                     compilation_options: Default::default(),
-                    buffers: &[Some(vertex_layout())],
+                    buffers: &[Some(vertex_layout()), Some(tangent_layout(normal_mapped))],
                 },
                 // Sidedness is decided per material in the shader (single-sided back faces discard).
                 primitive: wgpu::PrimitiveState::default(),

@@ -56,6 +56,8 @@ pub struct Renderer {
     scene: SceneData,
     receivers: Vec<([f32; 3], [f32; 3])>,
     vertices: wgpu::Buffer,
+    /// The eye pipelines' tangents: one per vertex where the scene is normal-mapped, else one.
+    tangents: wgpu::Buffer,
     scene_bind_group: wgpu::BindGroup,
     camera: Camera,
     near: f32,
@@ -135,6 +137,7 @@ impl Renderer {
                 translucent,
                 filters,
                 metallic_roughness,
+                data.normal_mapped,
             );
             if opts.fault == Some(Fault::InvalidPipeline) {
                 pipelines.invalid_pipeline(device);
@@ -159,30 +162,37 @@ impl Renderer {
         } else {
             bytemuck::cast_slice(&data.vertices)
         };
-        let (vertices, materials, textures, texels) = allocate(gpu, "the scene buffers", || {
-            (
-                init(
-                    "vertices",
-                    vbytes,
-                    wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
-                ),
-                init(
-                    "materials",
-                    bytemuck::cast_slice(&data.materials),
-                    wgpu::BufferUsages::STORAGE,
-                ),
-                init(
-                    "textures",
-                    bytemuck::cast_slice(&data.textures),
-                    wgpu::BufferUsages::STORAGE,
-                ),
-                init(
-                    "texels",
-                    bytemuck::cast_slice(&data.texels),
-                    wgpu::BufferUsages::STORAGE,
-                ),
-            )
-        })?;
+        let tbytes = tangent_bytes(&data.tangents);
+        let (vertices, tangents, materials, textures, texels) =
+            allocate(gpu, "the scene buffers", || {
+                (
+                    init(
+                        "vertices",
+                        vbytes,
+                        wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+                    ),
+                    init(
+                        "tangents",
+                        tbytes,
+                        wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+                    ),
+                    init(
+                        "materials",
+                        bytemuck::cast_slice(&data.materials),
+                        wgpu::BufferUsages::STORAGE,
+                    ),
+                    init(
+                        "textures",
+                        bytemuck::cast_slice(&data.textures),
+                        wgpu::BufferUsages::STORAGE,
+                    ),
+                    init(
+                        "texels",
+                        bytemuck::cast_slice(&data.texels),
+                        wgpu::BufferUsages::STORAGE,
+                    ),
+                )
+            })?;
         let scene_bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("scene"),
             layout: &pipelines.scene_layout,
@@ -218,12 +228,14 @@ impl Renderer {
         if scene.animation.is_none() {
             data.vertices = Vec::new();
         }
+        data.tangents = Vec::new();
         Ok(Renderer {
             sampler,
             receivers: data.receivers(),
             pipelines,
             scene: data,
             vertices,
+            tangents,
             scene_bind_group,
             camera: scene.camera,
             near,
@@ -262,7 +274,7 @@ impl Renderer {
                 self.scene.meshes.len()
             )));
         }
-        let (vertices, ranges) = self.scene.geometry(meshes);
+        let (vertices, tangents, ranges) = self.scene.geometry(meshes);
         // Without the CPU copy (a still scene) every mesh counts as changed.
         let kept = self.scene.vertices.len() as u32 == self.scene.vertex_count;
         let same_layout = vertices.len() as u32 == self.scene.vertex_count
@@ -293,6 +305,10 @@ impl Renderer {
                 gpu.queue
                     .write_buffer(&self.vertices, 0, bytemuck::cast_slice(&vertices));
             }
+            if !tangents.is_empty() {
+                gpu.queue
+                    .write_buffer(&self.tangents, 0, bytemuck::cast_slice(&tangents));
+            }
         } else {
             let bytes: &[u8] = if vertices.is_empty() {
                 &[0; 48]
@@ -307,13 +323,17 @@ impl Renderer {
                     maximum: gpu.limits.max_buffer_size,
                 });
             }
-            self.vertices = allocate(gpu, "the posed vertices", || {
-                gpu.device
-                    .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                        label: Some("vertices"),
-                        contents: bytes,
-                        usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
-                    })
+            let tbytes = tangent_bytes(&tangents);
+            (self.vertices, self.tangents) = allocate(gpu, "the posed vertices", || {
+                let init = |label, contents| {
+                    gpu.device
+                        .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                            label: Some(label),
+                            contents,
+                            usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+                        })
+                };
+                (init("vertices", bytes), init("tangents", tbytes))
             })?;
         }
         self.scene.vertex_count = vertices.len() as u32;
@@ -853,6 +873,7 @@ impl Renderer {
             pipelines: &self.pipelines,
             scene_bind_group: &self.scene_bind_group,
             vertices: &self.vertices,
+            tangents: &self.tangents,
         }
     }
 
@@ -905,4 +926,14 @@ fn wait(gpu: &Gpu) -> Result<(), RenderError> {
         .poll(wgpu::PollType::wait_indefinitely())
         .map(|_| ())
         .map_err(|e| RenderError::Gpu(format!("device wait: {e}")))
+}
+
+/// The bytes of the tangent buffer: the tangents, or one zero tangent (the pipelines then read
+/// it for every vertex: `pipelines::tangent_layout`).
+fn tangent_bytes(tangents: &[super::scene_data::Tangent]) -> &[u8] {
+    if tangents.is_empty() {
+        &[0; 16]
+    } else {
+        bytemuck::cast_slice(tangents)
+    }
 }

@@ -25,11 +25,13 @@ pub struct Vertex {
     /// The mesh's index + 1: the object ID shadow maps store beside depth, so a receiver tells
     /// its own surface from other casters (0 is "no caster").
     pub object: u32,
-    /// The normal-map tangent: the mesh's (glTF `TANGENT`), else the triangle's own
-    /// (`scene::shading::triangle_tangent`); zero unless its material has a normal texture and
-    /// the mesh UVs.
-    pub tangent: [f32; 4],
 }
+
+/// A vertex's normal-map tangent, in its own buffer (`@location(6)` of `VsIn`, read by the eye
+/// pipelines only, so shadow passes and scenes without normal maps fetch no more than before):
+/// the mesh's (glTF `TANGENT`), else the triangle's own (`scene::shading::triangle_tangent`);
+/// zero unless its material has a normal texture and the mesh UVs.
+pub type Tangent = [f32; 4];
 
 /// `Material` in `materials.wgsl` (std430).
 #[repr(C)]
@@ -112,6 +114,12 @@ pub struct SceneData {
     /// uploaded (`vertex_count` still says how many there are).
     pub vertices: Vec<Vertex>,
     pub vertex_count: u32,
+    /// One per vertex where some mesh is normal-mapped (`normal_mapped`), else empty; dropped
+    /// once uploaded.
+    pub tangents: Vec<Tangent>,
+    /// Whether some mesh with UVs has a material with a normal texture: the eye pipelines then
+    /// read a tangent per vertex (else one zero tangent for every vertex).
+    pub normal_mapped: bool,
     pub meshes: Vec<MeshRange>,
     pub materials: Vec<GpuMaterial>,
     pub textures: Vec<GpuTexture>,
@@ -134,7 +142,14 @@ impl SceneData {
             scene.textures.len(),
         ));
 
-        let (vertices, meshes) = triangles(&scene.meshes, &materials, fallback);
+        let normal_mapped = scene.meshes.iter().any(|m| {
+            m.uvs.len() == m.positions.len()
+                && materials
+                    .get(m.material)
+                    .is_some_and(|g| g.normal_texture != NO_TEXTURE)
+        });
+        let (vertices, tangents, meshes) =
+            triangles(&scene.meshes, &materials, fallback, normal_mapped);
         let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
         for (a, b) in meshes.iter().filter_map(|m| m.bounds) {
             for k in 0..3 {
@@ -178,6 +193,8 @@ impl SceneData {
         }
         SceneData {
             vertex_count: vertices.len() as u32,
+            tangents,
+            normal_mapped,
             vertices,
             meshes,
             materials,
@@ -187,11 +204,11 @@ impl SceneData {
         }
     }
 
-    /// The expanded vertices and mesh ranges of `meshes` (this scene's meshes, posed), with this
-    /// scene's materials.
-    pub fn geometry(&self, meshes: &[Mesh]) -> (Vec<Vertex>, Vec<MeshRange>) {
+    /// The expanded vertices, their tangents (where the scene is normal-mapped) and mesh ranges
+    /// of `meshes` (this scene's meshes, posed), with this scene's materials.
+    pub fn geometry(&self, meshes: &[Mesh]) -> (Vec<Vertex>, Vec<Tangent>, Vec<MeshRange>) {
         let fallback = self.materials.len() as u32 - 1;
-        triangles(meshes, &self.materials, fallback)
+        triangles(meshes, &self.materials, fallback, self.normal_mapped)
     }
 
     /// Receivers for `shadow_views`: the bounds of every mesh with triangles.
@@ -200,14 +217,17 @@ impl SceneData {
     }
 }
 
-/// Triangles expanded to one vertex each, and where each mesh's lie; `materials` ends with the
-/// `fallback` for out-of-range indices.
+/// Triangles expanded to one vertex each, their tangents (`with_tangents`: one per vertex, else
+/// none), and where each mesh's lie; `materials` ends with the `fallback` for out-of-range
+/// indices.
 fn triangles(
     scene_meshes: &[Mesh],
     materials: &[GpuMaterial],
     fallback: u32,
-) -> (Vec<Vertex>, Vec<MeshRange>) {
+    with_tangents: bool,
+) -> (Vec<Vertex>, Vec<Tangent>, Vec<MeshRange>) {
     let mut vertices = Vec::new();
+    let mut tangents = Vec::new();
     let mut meshes = Vec::with_capacity(scene_meshes.len());
     for (index, mesh) in scene_meshes.iter().enumerate() {
         let first_vertex = vertices.len() as u32;
@@ -258,8 +278,10 @@ fn triangles(
                     uv: if has_uvs { mesh.uvs[i] } else { [0.0; 2] },
                     material: word,
                     object,
-                    tangent: tangent(k),
                 });
+                if with_tangents {
+                    tangents.push(tangent(k));
+                }
             }
         }
         let vertex_count = vertices.len() as u32 - first_vertex;
@@ -272,7 +294,7 @@ fn triangles(
             bounds,
         });
     }
-    (vertices, meshes)
+    (vertices, tangents, meshes)
 }
 
 fn gpu_material(m: &Material, texture_count: usize) -> GpuMaterial {
@@ -349,7 +371,7 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(std::mem::size_of::<Vertex>(), 68);
+        assert_eq!(std::mem::size_of::<Vertex>(), 52);
         assert_eq!(std::mem::size_of::<GpuMaterial>(), 160);
         assert_eq!(std::mem::size_of::<GpuTexture>(), 16);
     }
