@@ -26,6 +26,19 @@ pub const FORWARD_WGSL: &str = concat!(
     include_str!("../wgsl/materials.wgsl"),
     include_str!("../wgsl/lighting.wgsl"),
     include_str!("../wgsl/lights_storage.wgsl"),
+    include_str!("../wgsl/eye_vertex.wgsl"),
+    include_str!("../wgsl/eye.wgsl"),
+    include_str!("../wgsl/forward.wgsl"),
+);
+
+/// [`FORWARD_WGSL`] for a scene with normal maps: `vs_eye` also takes each vertex's tangent
+/// (`@location(6)`, a second vertex buffer).
+pub const FORWARD_MAPPED_WGSL: &str = concat!(
+    include_str!("../wgsl/shading.wgsl"),
+    include_str!("../wgsl/materials.wgsl"),
+    include_str!("../wgsl/lighting.wgsl"),
+    include_str!("../wgsl/lights_storage.wgsl"),
+    include_str!("../wgsl/eye_vertex_mapped.wgsl"),
     include_str!("../wgsl/eye.wgsl"),
     include_str!("../wgsl/forward.wgsl"),
 );
@@ -37,6 +50,18 @@ pub const DEFERRED_WGSL: &str = concat!(
     include_str!("../wgsl/materials.wgsl"),
     include_str!("../wgsl/lighting.wgsl"),
     include_str!("../wgsl/lights_uniform.wgsl"),
+    include_str!("../wgsl/eye_vertex.wgsl"),
+    include_str!("../wgsl/eye.wgsl"),
+    include_str!("../wgsl/deferred.wgsl"),
+);
+
+/// [`DEFERRED_WGSL`] for a scene with normal maps (see [`FORWARD_MAPPED_WGSL`]).
+pub const DEFERRED_MAPPED_WGSL: &str = concat!(
+    include_str!("../wgsl/shading.wgsl"),
+    include_str!("../wgsl/materials.wgsl"),
+    include_str!("../wgsl/lighting.wgsl"),
+    include_str!("../wgsl/lights_uniform.wgsl"),
+    include_str!("../wgsl/eye_vertex_mapped.wgsl"),
     include_str!("../wgsl/eye.wgsl"),
     include_str!("../wgsl/deferred.wgsl"),
 );
@@ -65,7 +90,9 @@ pub const OVERRIDE_METALLIC_ROUGHNESS: &str = "METALLIC_ROUGHNESS";
 pub const MODULES: &[(&str, &str)] = &[
     ("shadow", SHADOW_WGSL),
     ("forward", FORWARD_WGSL),
+    ("forward, normal-mapped", FORWARD_MAPPED_WGSL),
     ("deferred", DEFERRED_WGSL),
+    ("deferred, normal-mapped", DEFERRED_MAPPED_WGSL),
 ];
 
 #[cfg(test)]
@@ -111,19 +138,23 @@ mod tests {
         ] {
             assert!(shadow.iter().any(|n| n == e), "shadow lacks {e}");
         }
-        let forward = names(FORWARD_WGSL, "forward");
-        for e in ["vs_eye", "fs_illumination", "fs_layers", "fs_eye_filter"] {
-            assert!(forward.iter().any(|n| n == e), "forward lacks {e}");
+        for src in [FORWARD_WGSL, FORWARD_MAPPED_WGSL] {
+            let forward = names(src, "forward");
+            for e in ["vs_eye", "fs_illumination", "fs_layers", "fs_eye_filter"] {
+                assert!(forward.iter().any(|n| n == e), "forward lacks {e}");
+            }
         }
-        let deferred = names(DEFERRED_WGSL, "deferred");
-        for e in [
-            "vs_eye",
-            "fs_gbuffer",
-            "fs_gbuffer_layers",
-            "fs_eye_filter",
-            "cs_lights",
-        ] {
-            assert!(deferred.iter().any(|n| n == e), "deferred lacks {e}");
+        for src in [DEFERRED_WGSL, DEFERRED_MAPPED_WGSL] {
+            let deferred = names(src, "deferred");
+            for e in [
+                "vs_eye",
+                "fs_gbuffer",
+                "fs_gbuffer_layers",
+                "fs_eye_filter",
+                "cs_lights",
+            ] {
+                assert!(deferred.iter().any(|n| n == e), "deferred lacks {e}");
+            }
         }
     }
 

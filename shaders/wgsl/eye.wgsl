@@ -1,42 +1,7 @@
-// The eye raster's common part: the vertex stage, the visible surface under a fragment, its
-// material layers, and which fragments eye rays skip. The forward (`forward.wgsl`) and deferred
-// (`deferred.wgsl`) variants build on it; needs `lighting.wgsl` before it.
-
-struct VsIn {
-    @location(0) position: vec3f,
-    @location(1) normal: vec3f,
-    @location(2) geometric_normal: vec3f,
-    @location(3) uv: vec2f,
-    @location(4) material: u32,
-    @location(5) object: u32,
-    @location(6) tangent: vec4f,
-}
-
-struct VsOut {
-    @builtin(position) clip: vec4f,
-    @location(0) world: vec3f,
-    @location(1) normal: vec3f,
-    @location(2) geometric_normal: vec3f,
-    @location(3) uv: vec2f,
-    @location(4) @interpolate(flat) material: u32,
-    @location(5) @interpolate(flat) object: u32,
-    // The normal-map tangent (the mesh's, or the triangle's own at all three vertices).
-    @location(6) tangent: vec4f,
-}
-
-@vertex
-fn vs_eye(in: VsIn) -> VsOut {
-    var out: VsOut;
-    out.clip = frame.view_proj * vec4f(in.position, 1.0);
-    out.world = in.position;
-    out.normal = in.normal;
-    out.geometric_normal = in.geometric_normal;
-    out.uv = in.uv;
-    out.material = in.material;
-    out.object = in.object;
-    out.tangent = in.tangent;
-    return out;
-}
+// The eye raster's common part: the visible surface under a fragment, its material layers, and
+// which fragments eye rays skip. The forward (`forward.wgsl`) and deferred (`deferred.wgsl`)
+// variants build on it; needs `lighting.wgsl` and a vertex stage (`eye_vertex.wgsl`, or
+// `eye_vertex_mapped.wgsl` where the scene has normal maps) before it.
 
 // The surface under a fragment, normals turned towards the viewer on back faces; a
 // metallic-roughness material's normal map bends the shading normal (on the front face, then
@@ -48,12 +13,14 @@ fn surface(in: VsOut, front: bool) -> Surface {
         n = ng;
     }
     let material = in.material & ~NO_UV_BIT;
-    let suv = shading_uv(in.uv);
+    // Only metallic-roughness shading reads texture coordinates after the raster.
+    var suv = vec2f(0.0);
     if METALLIC_ROUGHNESS {
+        suv = shading_uv(in.uv);
         let m = materials[material];
         if m.model == MODEL_METALLIC_ROUGHNESS && m.normal_texture != NO_TEXTURE {
             let texel = sample_texture(m.normal_texture, suv).rgb;
-            n = perturb_normal(n, in.tangent, texel, m.normal_scale);
+            n = perturb_normal(n, vertex_tangent(in), texel, m.normal_scale);
         }
     }
     if !front {

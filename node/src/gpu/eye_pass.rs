@@ -279,7 +279,9 @@ pub fn record_raster(
     pass.set_bind_group(0, cx.scene_bind_group, &[]);
     pass.set_bind_group(1, bind_group, &[]);
     pass.set_vertex_buffer(0, cx.vertices.slice(..));
-    pass.set_vertex_buffer(1, cx.tangents.slice(..));
+    if let Some(t) = cx.tangents {
+        pass.set_vertex_buffer(1, t.slice(..));
+    }
     for r in draws.iter().filter(|r| !r.is_empty()) {
         pass.draw(r.clone(), 0..1);
     }
@@ -368,7 +370,9 @@ pub fn record_filters(
     pass.set_bind_group(0, cx.scene_bind_group, &[]);
     pass.set_bind_group(1, bind_group, &[]);
     pass.set_vertex_buffer(0, cx.vertices.slice(..));
-    pass.set_vertex_buffer(1, cx.tangents.slice(..));
+    if let Some(t) = cx.tangents {
+        pass.set_vertex_buffer(1, t.slice(..));
+    }
     if vertex_count > 0 {
         pass.draw(0..vertex_count, 0..1);
     }

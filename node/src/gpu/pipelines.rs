@@ -38,8 +38,8 @@ pub struct DrawContext<'a> {
     pub pipelines: &'a Pipelines,
     pub scene_bind_group: &'a wgpu::BindGroup,
     pub vertices: &'a wgpu::Buffer,
-    /// The eye pipelines' tangents (`tangent_layout`).
-    pub tangents: &'a wgpu::Buffer,
+    /// The eye pipelines' tangents where the scene is normal-mapped (`tangent_layout`).
+    pub tangents: Option<&'a wgpu::Buffer>,
 }
 
 /// Everything built from the shader sources.
@@ -99,16 +99,12 @@ const VERTEX_ATTRIBUTES: [wgpu::VertexAttribute; 6] = wgpu::vertex_attr_array![
 
 const TANGENT_ATTRIBUTES: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![6 => Float32x4];
 
-/// The eye pipelines' second vertex buffer, the tangents: one per vertex where the scene is
-/// normal-mapped, else one for every vertex (a single zero tangent read per instance).
-fn tangent_layout(per_vertex: bool) -> wgpu::VertexBufferLayout<'static> {
+/// The eye pipelines' second vertex buffer where the scene is normal-mapped: a tangent per
+/// vertex (`eye_vertex_mapped.wgsl`).
+fn tangent_layout() -> wgpu::VertexBufferLayout<'static> {
     wgpu::VertexBufferLayout {
         array_stride: std::mem::size_of::<super::scene_data::Tangent>() as u64,
-        step_mode: if per_vertex {
-            wgpu::VertexStepMode::Vertex
-        } else {
-            wgpu::VertexStepMode::Instance
-        },
+        step_mode: wgpu::VertexStepMode::Vertex,
         attributes: &TANGENT_ATTRIBUTES,
     }
 }
@@ -183,7 +179,7 @@ impl Pipelines {
     /// (a scene without compiles them out and renders as before they existed); `filters`: some
     /// are filters, which eye rays see through (`docs/translucency.md`); `metallic_roughness`:
     /// some material is (else the glTF BRDF's code is compiled out); `normal_mapped`: the eye
-    /// pipelines read a tangent per vertex (else one for all).
+    /// pipelines read a tangent per vertex (`eye_vertex_mapped.wgsl`; else none).
     pub fn new(
         device: &wgpu::Device,
         filter: ShadowFilter,
@@ -303,11 +299,25 @@ impl Pipelines {
         });
         let forward_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("forward eye pass"),
-            source: wgpu::ShaderSource::Wgsl(lightfold_shaders::FORWARD_WGSL.into()),
+            source: wgpu::ShaderSource::Wgsl(
+                if normal_mapped {
+                    lightfold_shaders::FORWARD_MAPPED_WGSL
+                } else {
+                    lightfold_shaders::FORWARD_WGSL
+                }
+                .into(),
+            ),
         });
         let deferred_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("deferred eye pass"),
-            source: wgpu::ShaderSource::Wgsl(lightfold_shaders::DEFERRED_WGSL.into()),
+            source: wgpu::ShaderSource::Wgsl(
+                if normal_mapped {
+                    lightfold_shaders::DEFERRED_MAPPED_WGSL
+                } else {
+                    lightfold_shaders::DEFERRED_WGSL
+                }
+                .into(),
+            ),
         });
         let shadow_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("shadow"),
@@ -413,6 +423,7 @@ impl Pipelines {
             target(MATERIAL_FORMAT),
         ];
         // `write`: the raster writes depth (the filters' pass only tests against it).
+        let eye_buffers = [Some(vertex_layout()), Some(tangent_layout())];
         let eye_with = |module: &wgpu::ShaderModule,
                         layout: &wgpu::PipelineLayout,
                         fs: &str,
@@ -425,7 +436,11 @@ impl Pipelines {
                     module,
                     entry_point: Some("vs_eye"),
                     compilation_options: Default::default(),
-                    buffers: &[Some(vertex_layout()), Some(tangent_layout(normal_mapped))],
+                    buffers: if normal_mapped {
+                        &eye_buffers[..]
+                    } else {
+                        &eye_buffers[..1]
+                    },
                 },
                 // Sidedness is decided per material in the shader (single-sided back faces discard).
                 primitive: wgpu::PrimitiveState::default(),

@@ -56,7 +56,8 @@ pub struct Renderer {
     scene: SceneData,
     receivers: Vec<([f32; 3], [f32; 3])>,
     vertices: wgpu::Buffer,
-    /// The eye pipelines' tangents: one per vertex where the scene is normal-mapped, else one.
+    /// The eye pipelines' tangents, one per vertex where the scene is normal-mapped (else a
+    /// placeholder no pipeline reads).
     tangents: wgpu::Buffer,
     scene_bind_group: wgpu::BindGroup,
     camera: Camera,
@@ -873,7 +874,7 @@ impl Renderer {
             pipelines: &self.pipelines,
             scene_bind_group: &self.scene_bind_group,
             vertices: &self.vertices,
-            tangents: &self.tangents,
+            tangents: self.scene.normal_mapped.then_some(&self.tangents),
         }
     }
 
@@ -928,8 +929,8 @@ fn wait(gpu: &Gpu) -> Result<(), RenderError> {
         .map_err(|e| RenderError::Gpu(format!("device wait: {e}")))
 }
 
-/// The bytes of the tangent buffer: the tangents, or one zero tangent (the pipelines then read
-/// it for every vertex: `pipelines::tangent_layout`).
+/// The bytes of the tangent buffer: the tangents, or a placeholder where the scene has none
+/// (a buffer cannot be empty; no pipeline reads it then).
 fn tangent_bytes(tangents: &[super::scene_data::Tangent]) -> &[u8] {
     if tangents.is_empty() {
         &[0; 16]
