@@ -18,53 +18,89 @@ pub const SHADOW_WGSL: &str = concat!(
     include_str!("../wgsl/shadow.wgsl"),
 );
 
+/// An eye module: `const METALLIC_ROUGHNESS` (`$mr`: some material is glTF metallic-roughness),
+/// the shared pieces, the lights' binding (`$lights`), the vertex stage (`$vertex`: with or
+/// without tangents) and the pass (`$pass`).
+macro_rules! eye_module {
+    ($mr:literal, $lights:literal, $vertex:literal, $pass:literal) => {
+        concat!(
+            "const METALLIC_ROUGHNESS: bool = ",
+            $mr,
+            ";\n",
+            include_str!("../wgsl/shading.wgsl"),
+            include_str!("../wgsl/materials.wgsl"),
+            include_str!("../wgsl/lighting.wgsl"),
+            include_str!(concat!("../wgsl/", $lights)),
+            include_str!(concat!("../wgsl/", $vertex)),
+            include_str!("../wgsl/eye.wgsl"),
+            include_str!(concat!("../wgsl/", $pass)),
+        )
+    };
+}
+
 /// Forward eye pass: `vs_eye` with `fs_illumination` (illumination + depth) or `fs_layers` (plus
 /// the material layers m^d, m^s, m^a, e as extra render targets); lights and views in storage
-/// buffers.
-pub const FORWARD_WGSL: &str = concat!(
-    include_str!("../wgsl/shading.wgsl"),
-    include_str!("../wgsl/materials.wgsl"),
-    include_str!("../wgsl/lighting.wgsl"),
-    include_str!("../wgsl/lights_storage.wgsl"),
-    include_str!("../wgsl/eye_vertex.wgsl"),
-    include_str!("../wgsl/eye.wgsl"),
-    include_str!("../wgsl/forward.wgsl"),
+/// buffers. For scenes without metallic-roughness materials.
+pub const FORWARD_WGSL: &str = eye_module!(
+    "false",
+    "lights_storage.wgsl",
+    "eye_vertex.wgsl",
+    "forward.wgsl"
 );
 
-/// [`FORWARD_WGSL`] for a scene with normal maps: `vs_eye` also takes each vertex's tangent
+/// [`FORWARD_WGSL`] with glTF metallic-roughness shading.
+pub const FORWARD_MR_WGSL: &str = eye_module!(
+    "true",
+    "lights_storage.wgsl",
+    "eye_vertex.wgsl",
+    "forward.wgsl"
+);
+
+/// [`FORWARD_MR_WGSL`] for a scene with normal maps: `vs_eye` also takes each vertex's tangent
 /// (`@location(6)`, a second vertex buffer).
-pub const FORWARD_MAPPED_WGSL: &str = concat!(
-    include_str!("../wgsl/shading.wgsl"),
-    include_str!("../wgsl/materials.wgsl"),
-    include_str!("../wgsl/lighting.wgsl"),
-    include_str!("../wgsl/lights_storage.wgsl"),
-    include_str!("../wgsl/eye_vertex_mapped.wgsl"),
-    include_str!("../wgsl/eye.wgsl"),
-    include_str!("../wgsl/forward.wgsl"),
+pub const FORWARD_MR_MAPPED_WGSL: &str = eye_module!(
+    "true",
+    "lights_storage.wgsl",
+    "eye_vertex_mapped.wgsl",
+    "forward.wgsl"
 );
 
 /// Deferred variant: `vs_eye` with `fs_gbuffer` / `fs_gbuffer_layers`, then the compute pass
-/// `cs_lights` once per chunk of [`CHUNK_LIGHTS`] lights held in uniform buffers.
-pub const DEFERRED_WGSL: &str = concat!(
-    include_str!("../wgsl/shading.wgsl"),
-    include_str!("../wgsl/materials.wgsl"),
-    include_str!("../wgsl/lighting.wgsl"),
-    include_str!("../wgsl/lights_uniform.wgsl"),
-    include_str!("../wgsl/eye_vertex.wgsl"),
-    include_str!("../wgsl/eye.wgsl"),
-    include_str!("../wgsl/deferred.wgsl"),
+/// `cs_lights` once per chunk of [`CHUNK_LIGHTS`] lights held in uniform buffers. For scenes
+/// without metallic-roughness materials.
+pub const DEFERRED_WGSL: &str = eye_module!(
+    "false",
+    "lights_uniform.wgsl",
+    "eye_vertex.wgsl",
+    "deferred.wgsl"
 );
 
-/// [`DEFERRED_WGSL`] for a scene with normal maps (see [`FORWARD_MAPPED_WGSL`]).
-pub const DEFERRED_MAPPED_WGSL: &str = concat!(
-    include_str!("../wgsl/shading.wgsl"),
-    include_str!("../wgsl/materials.wgsl"),
-    include_str!("../wgsl/lighting.wgsl"),
-    include_str!("../wgsl/lights_uniform.wgsl"),
-    include_str!("../wgsl/eye_vertex_mapped.wgsl"),
-    include_str!("../wgsl/eye.wgsl"),
-    include_str!("../wgsl/deferred.wgsl"),
+/// [`DEFERRED_WGSL`] with glTF metallic-roughness shading.
+pub const DEFERRED_MR_WGSL: &str = eye_module!(
+    "true",
+    "lights_uniform.wgsl",
+    "eye_vertex.wgsl",
+    "deferred.wgsl"
 );
+
+/// [`DEFERRED_MR_WGSL`] for a scene with normal maps (see [`FORWARD_MR_MAPPED_WGSL`]).
+pub const DEFERRED_MR_MAPPED_WGSL: &str = eye_module!(
+    "true",
+    "lights_uniform.wgsl",
+    "eye_vertex_mapped.wgsl",
+    "deferred.wgsl"
+);
+
+/// The eye modules (forward, deferred) a scene's pipelines are built from: with glTF
+/// metallic-roughness shading where some material is, with per-vertex tangents where some
+/// normal-mapped mesh is (only metallic-roughness materials have normal maps).
+pub fn eye_modules(metallic_roughness: bool, normal_mapped: bool) -> (&'static str, &'static str) {
+    match (metallic_roughness, normal_mapped) {
+        (false, _) => (FORWARD_WGSL, DEFERRED_WGSL),
+        (true, false) => (FORWARD_MR_WGSL, DEFERRED_MR_WGSL),
+        (true, true) => (FORWARD_MR_MAPPED_WGSL, DEFERRED_MR_MAPPED_WGSL),
+    }
+}
 
 /// Lights one `cs_lights` dispatch takes (`CHUNK_LIGHTS` in `lights_uniform.wgsl`).
 pub const CHUNK_LIGHTS: usize = 64;
@@ -83,16 +119,22 @@ pub const OVERRIDE_SHADOW_TAPS: &str = "SHADOW_TAPS";
 /// Whether the pipeline reads transmittance maps (`bool`): only a scene with translucent casters
 /// needs it (`docs/translucency.md`).
 pub const OVERRIDE_TRANSLUCENT: &str = "TRANSLUCENT";
-/// Whether any material is glTF metallic-roughness (`bool`).
-pub const OVERRIDE_METALLIC_ROUGHNESS: &str = "METALLIC_ROUGHNESS";
 
 /// Every complete shader module with a name, for validation and diagnostics.
 pub const MODULES: &[(&str, &str)] = &[
     ("shadow", SHADOW_WGSL),
     ("forward", FORWARD_WGSL),
-    ("forward, normal-mapped", FORWARD_MAPPED_WGSL),
+    ("forward, metallic-roughness", FORWARD_MR_WGSL),
+    (
+        "forward, metallic-roughness, normal-mapped",
+        FORWARD_MR_MAPPED_WGSL,
+    ),
     ("deferred", DEFERRED_WGSL),
-    ("deferred, normal-mapped", DEFERRED_MAPPED_WGSL),
+    ("deferred, metallic-roughness", DEFERRED_MR_WGSL),
+    (
+        "deferred, metallic-roughness, normal-mapped",
+        DEFERRED_MR_MAPPED_WGSL,
+    ),
 ];
 
 #[cfg(test)]
@@ -138,13 +180,13 @@ mod tests {
         ] {
             assert!(shadow.iter().any(|n| n == e), "shadow lacks {e}");
         }
-        for src in [FORWARD_WGSL, FORWARD_MAPPED_WGSL] {
+        for src in [FORWARD_WGSL, FORWARD_MR_WGSL, FORWARD_MR_MAPPED_WGSL] {
             let forward = names(src, "forward");
             for e in ["vs_eye", "fs_illumination", "fs_layers", "fs_eye_filter"] {
                 assert!(forward.iter().any(|n| n == e), "forward lacks {e}");
             }
         }
-        for src in [DEFERRED_WGSL, DEFERRED_MAPPED_WGSL] {
+        for src in [DEFERRED_WGSL, DEFERRED_MR_WGSL, DEFERRED_MR_MAPPED_WGSL] {
             let deferred = names(src, "deferred");
             for e in [
                 "vs_eye",
@@ -171,7 +213,6 @@ mod tests {
             (OVERRIDE_SHADOW_FILTER, "u32"),
             (OVERRIDE_SHADOW_TAPS, "u32"),
             (OVERRIDE_TRANSLUCENT, "bool"),
-            (OVERRIDE_METALLIC_ROUGHNESS, "bool"),
         ] {
             for (module, src) in [("forward", FORWARD_WGSL), ("deferred", DEFERRED_WGSL)] {
                 let decl = format!("override {name}: {ty}");

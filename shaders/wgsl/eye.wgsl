@@ -17,10 +17,12 @@ fn surface(in: VsOut, front: bool) -> Surface {
     var suv = vec2f(0.0);
     if METALLIC_ROUGHNESS {
         suv = shading_uv(in.uv);
-        let m = materials[material];
-        if m.model == MODEL_METALLIC_ROUGHNESS && m.normal_texture != NO_TEXTURE {
-            let texel = sample_texture(m.normal_texture, suv).rgb;
-            n = perturb_normal(n, vertex_tangent(in), texel, m.normal_scale);
+        if materials[material].model == MODEL_METALLIC_ROUGHNESS {
+            let p = pbr[material];
+            if p.normal_texture != NO_TEXTURE {
+                let texel = sample_texture(p.normal_texture, suv).rgb;
+                n = perturb_normal(n, vertex_tangent(in), texel, p.normal_scale);
+            }
         }
     }
     if !front {
@@ -42,15 +44,17 @@ struct MaterialLayers {
 // Metallic-roughness (`scene::shading::surface_point`): m^d = c_diff ⊙ (1 − F0), m^s = 1,
 // m^a = m^d · occlusion, e = emissive × emissive texture, every texture at `shading_uv`.
 fn material_layers(in: VsOut) -> MaterialLayers {
-    let m = materials[in.material & ~NO_UV_BIT];
+    let index = in.material & ~NO_UV_BIT;
+    let m = materials[index];
     if METALLIC_ROUGHNESS && m.model == MODEL_METALLIC_ROUGHNESS {
         let suv = shading_uv(in.uv);
-        let p = metallic_roughness_point(m, suv);
+        let p = metallic_roughness_point(index, suv);
+        let q = pbr[index];
         var occ = 1.0;
-        if m.occlusion_texture != NO_TEXTURE {
-            occ = occlusion(m.occlusion_strength, sample_texture(m.occlusion_texture, suv).r);
+        if q.occlusion_texture != NO_TEXTURE {
+            occ = occlusion(q.occlusion_strength, sample_texture(q.occlusion_texture, suv).r);
         }
-        let e = m.emissive * read_texture(m.emissive_texture, suv).rgb;
+        let e = m.emissive * read_texture(q.emissive_texture, suv).rgb;
         return MaterialLayers(
             vec4f(p.diffuse, 1.0),
             vec4f(1.0),

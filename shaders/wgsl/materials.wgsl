@@ -18,15 +18,19 @@ struct Material {
     cutoff: f32,
     double_sided: u32,
     has_specular: u32,
-    _pad: u32,
+    // MODEL_*: a metallic-roughness material's parameters are `pbr` at the same index.
+    model: u32,
     // Translucent casters (`scene::Transmission`): RGB transmittance where the surface covers,
     // and `transmits` = TRANSMITS_* (none: an opaque caster).
     transmission: vec3f,
     transmits: u32,
-    // glTF metallic-roughness (`scene::MetallicRoughness`), read where model is
-    // MODEL_METALLIC_ROUGHNESS; the base-colour texture is `diffuse_texture`.
+}
+
+// glTF metallic-roughness (`scene::MetallicRoughness`), read where the material's model is
+// MODEL_METALLIC_ROUGHNESS; the base-colour texture is the material's `diffuse_texture`. Its own
+// array, so Blinn-Phong shading reads no more per pixel than the Material above.
+struct Pbr {
     base_color: vec3f,
-    model: u32,
     metallic: f32,
     roughness: f32,
     metallic_roughness_texture: u32,
@@ -35,7 +39,7 @@ struct Material {
     occlusion_texture: u32,
     occlusion_strength: f32,
     emissive_texture: u32,
-    pbr_transmission: f32,
+    transmission: f32,
 }
 
 const MODEL_BLINN_PHONG: u32 = 0u;
@@ -58,6 +62,7 @@ struct TextureInfo {
 @group(0) @binding(1) var<storage, read> textures: array<TextureInfo>;
 // RGBA8 texels packed little-endian into u32 (R in the low byte).
 @group(0) @binding(2) var<storage, read> texels: array<u32>;
+@group(0) @binding(3) var<storage, read> pbr: array<Pbr>;
 
 fn texel(t: TextureInfo, x: i32, y: i32) -> vec4f {
     let w = i32(t.width);
@@ -144,13 +149,29 @@ struct MrPoint {
     alpha: f32,
 }
 
-fn metallic_roughness_point(m: Material, suv: vec2f) -> MrPoint {
-    let base_texel = read_texture(m.diffuse_texture, suv);
-    let mr = read_texture(m.metallic_roughness_texture, suv);
-    let metallic = clamp(m.metallic * mr.b, 0.0, 1.0);
-    let roughness = m.roughness * mr.g;
-    let keep = (1.0 - metallic) * (1.0 - clamp(m.pbr_transmission, 0.0, 1.0));
-    let base = max(m.base_color * base_texel.rgb, vec3f(0.0));
+fn metallic_roughness_point(material: u32, suv: vec2f) -> MrPoint {
+    let p = pbr[material];
+    let base_texel = read_texture(materials[material].diffuse_texture, suv);
+    let mr = read_texture(p.metallic_roughness_texture, suv);
+    let metallic = clamp(p.metallic * mr.b, 0.0, 1.0);
+    let roughness = p.roughness * mr.g;
+    let keep = (1.0 - metallic) * (1.0 - clamp(p.transmission, 0.0, 1.0));
+    let base = max(p.base_color * base_texel.rgb, vec3f(0.0));
     let f0 = vec3f(0.04) + (base - vec3f(0.04)) * metallic;
     return MrPoint(base * keep * (vec3f(1.0) - f0), f0, ggx_alpha(roughness));
+}
+
+// F0 (xyz) and α (w) of a metallic-roughness surface, all its lights need
+// (`metallic_roughness_point` without m^d): a dielectric's F0 is 0.04 whatever its base colour,
+// so the base-colour texture is read only where the surface is metallic (exactly the same F0).
+fn metallic_roughness_lobe(material: u32, suv: vec2f) -> vec4f {
+    let p = pbr[material];
+    let mr = read_texture(p.metallic_roughness_texture, suv);
+    let metallic = clamp(p.metallic * mr.b, 0.0, 1.0);
+    var base = max(p.base_color, vec3f(0.0));
+    if metallic > 0.0 {
+        base = max(p.base_color * read_texture(materials[material].diffuse_texture, suv).rgb, vec3f(0.0));
+    }
+    let f0 = vec3f(0.04) + (base - vec3f(0.04)) * metallic;
+    return vec4f(f0, ggx_alpha(p.roughness * mr.g));
 }

@@ -7,8 +7,8 @@
 
 use lightfold_scene::ShadowFilter;
 use lightfold_shaders::{
-    OVERRIDE_LIGHT_KINDS, OVERRIDE_LIGHT_RANGES, OVERRIDE_METALLIC_ROUGHNESS,
-    OVERRIDE_SHADOW_FILTER, OVERRIDE_SHADOW_TAPS, OVERRIDE_TRANSLUCENT, OVERRIDE_VIEW_MODES,
+    OVERRIDE_LIGHT_KINDS, OVERRIDE_LIGHT_RANGES, OVERRIDE_SHADOW_FILTER, OVERRIDE_SHADOW_TAPS,
+    OVERRIDE_TRANSLUCENT, OVERRIDE_VIEW_MODES,
 };
 use std::collections::HashMap;
 
@@ -71,8 +71,8 @@ pub struct Pipelines {
     pub gbuffer_layers: wgpu::RenderPipeline,
     deferred_module: wgpu::ShaderModule,
     deferred_pl: wgpu::PipelineLayout,
-    /// The shadow filter's constants, `TRANSLUCENT` and `METALLIC_ROUGHNESS`.
-    filter: [(&'static str, f64); 4],
+    /// The shadow filter's constants and `TRANSLUCENT`.
+    filter: [(&'static str, f64); 3],
     /// `cs_lights` per set of lights it handles.
     light_passes: HashMap<LightSet, wgpu::ComputePipeline>,
 }
@@ -151,13 +151,9 @@ impl LightSet {
     }
 }
 
-/// The filter's pipeline constants: `FILTER_*` of `lighting.wgsl` and taps per axis; whether
-/// lookups read transmittance maps; whether any material is metallic-roughness.
-fn filter_constants(
-    filter: ShadowFilter,
-    translucent: bool,
-    metallic_roughness: bool,
-) -> [(&'static str, f64); 4] {
+/// The filter's pipeline constants: `FILTER_*` of `lighting.wgsl` and taps per axis; and whether
+/// lookups read transmittance maps.
+fn filter_constants(filter: ShadowFilter, translucent: bool) -> [(&'static str, f64); 3] {
     let (mode, taps) = match filter {
         ShadowFilter::None => (0, 1),
         ShadowFilter::Pcf2x2 => (1, 1),
@@ -167,10 +163,6 @@ fn filter_constants(
         (OVERRIDE_SHADOW_FILTER, f64::from(mode)),
         (OVERRIDE_SHADOW_TAPS, f64::from(taps)),
         (OVERRIDE_TRANSLUCENT, f64::from(u8::from(translucent))),
-        (
-            OVERRIDE_METALLIC_ROUGHNESS,
-            f64::from(u8::from(metallic_roughness)),
-        ),
     ]
 }
 
@@ -178,7 +170,7 @@ impl Pipelines {
     /// `translucent`: the scene has translucent casters, so lookups read transmittance maps
     /// (a scene without compiles them out and renders as before they existed); `filters`: some
     /// are filters, which eye rays see through (`docs/translucency.md`); `metallic_roughness`:
-    /// some material is (else the glTF BRDF's code is compiled out); `normal_mapped`: the eye
+    /// some material is (else the eye modules hold none of the glTF BRDF's code); `normal_mapped`: the eye
     /// pipelines read a tangent per vertex (`eye_vertex_mapped.wgsl`; else none).
     pub fn new(
         device: &wgpu::Device,
@@ -189,7 +181,9 @@ impl Pipelines {
         metallic_roughness: bool,
         normal_mapped: bool,
     ) -> Pipelines {
-        let filter = filter_constants(filter, translucent, metallic_roughness);
+        let filter = filter_constants(filter, translucent);
+        let (forward_wgsl, deferred_wgsl) =
+            lightfold_shaders::eye_modules(metallic_roughness, normal_mapped);
         // Lighting runs in fragment shaders (forward) and in a compute shader (deferred).
         let fragment = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
         let vf = wgpu::ShaderStages::VERTEX_FRAGMENT | wgpu::ShaderStages::COMPUTE;
@@ -199,6 +193,7 @@ impl Pipelines {
                 storage_entry(0, fragment),
                 storage_entry(1, fragment),
                 storage_entry(2, fragment),
+                storage_entry(3, fragment),
             ],
         });
         let shadow_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -299,25 +294,11 @@ impl Pipelines {
         });
         let forward_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("forward eye pass"),
-            source: wgpu::ShaderSource::Wgsl(
-                if normal_mapped {
-                    lightfold_shaders::FORWARD_MAPPED_WGSL
-                } else {
-                    lightfold_shaders::FORWARD_WGSL
-                }
-                .into(),
-            ),
+            source: wgpu::ShaderSource::Wgsl(forward_wgsl.into()),
         });
         let deferred_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("deferred eye pass"),
-            source: wgpu::ShaderSource::Wgsl(
-                if normal_mapped {
-                    lightfold_shaders::DEFERRED_MAPPED_WGSL
-                } else {
-                    lightfold_shaders::DEFERRED_WGSL
-                }
-                .into(),
-            ),
+            source: wgpu::ShaderSource::Wgsl(deferred_wgsl.into()),
         });
         let shadow_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some("shadow"),

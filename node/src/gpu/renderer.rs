@@ -107,6 +107,10 @@ impl Renderer {
                 "materials",
                 std::mem::size_of_val(&data.materials[..]) as u64,
             ),
+            (
+                "metallic-roughness parameters",
+                std::mem::size_of_val(&data.pbr[..]) as u64,
+            ),
         ] {
             if bytes > storage_max {
                 return Err(RenderError::BindingTooLarge {
@@ -164,7 +168,7 @@ impl Renderer {
             bytemuck::cast_slice(&data.vertices)
         };
         let tbytes = tangent_bytes(&data.tangents);
-        let (vertices, tangents, materials, textures, texels) =
+        let (vertices, tangents, materials, pbr, textures, texels) =
             allocate(gpu, "the scene buffers", || {
                 (
                     init(
@@ -180,6 +184,11 @@ impl Renderer {
                     init(
                         "materials",
                         bytemuck::cast_slice(&data.materials),
+                        wgpu::BufferUsages::STORAGE,
+                    ),
+                    init(
+                        "metallic-roughness",
+                        bytemuck::cast_slice(&data.pbr),
                         wgpu::BufferUsages::STORAGE,
                     ),
                     init(
@@ -209,6 +218,10 @@ impl Renderer {
                 wgpu::BindGroupEntry {
                     binding: 2,
                     resource: texels.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: pbr.as_entire_binding(),
                 },
             ],
         });

@@ -48,15 +48,22 @@ pub struct GpuMaterial {
     pub cutoff: f32,
     pub double_sided: u32,
     pub has_specular: u32,
-    pub _pad: u32,
+    /// [`MODEL_BLINN_PHONG`] or [`MODEL_METALLIC_ROUGHNESS`] (whose parameters are the same
+    /// index of [`SceneData::pbr`]).
+    pub model: u32,
     /// Transmittance where a translucent caster covers (`scene::Transmission::color`).
     pub transmission: [f32; 3],
     /// [`TRANSMITS_NONE`], [`TRANSMITS_FILTER`] or [`TRANSMITS_COVERAGE`].
     pub transmits: u32,
-    /// glTF metallic-roughness (`scene::MetallicRoughness`), read where `model` is
-    /// [`MODEL_METALLIC_ROUGHNESS`]; textures [`NO_TEXTURE`] where none.
+}
+
+/// `Pbr` in `materials.wgsl` (std430): a material's glTF metallic-roughness parameters
+/// (`scene::MetallicRoughness`), in their own array so the Blinn-Phong path reads no more per
+/// pixel than before; textures [`NO_TEXTURE`] where none.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+pub struct GpuPbr {
     pub base_color: [f32; 3],
-    pub model: u32,
     pub metallic: f32,
     pub roughness: f32,
     pub metallic_roughness_texture: u32,
@@ -66,8 +73,7 @@ pub struct GpuMaterial {
     pub occlusion_strength: f32,
     pub emissive_texture: u32,
     /// KHR_materials_transmission's factor τ.
-    pub pbr_transmission: f32,
-    pub _pad2: [u32; 3],
+    pub transmission: f32,
 }
 
 /// `Material::model` in `materials.wgsl`: the paper's Blinn-Phong.
@@ -122,6 +128,9 @@ pub struct SceneData {
     pub normal_mapped: bool,
     pub meshes: Vec<MeshRange>,
     pub materials: Vec<GpuMaterial>,
+    /// Each material's metallic-roughness parameters (zero for Blinn-Phong ones), index for
+    /// index with `materials`.
+    pub pbr: Vec<GpuPbr>,
     pub textures: Vec<GpuTexture>,
     pub texels: Vec<u32>,
     /// Length of the scene's bounding-box diagonal (1 for an empty scene).
@@ -130,26 +139,25 @@ pub struct SceneData {
 
 impl SceneData {
     pub fn new(scene: &Scene) -> SceneData {
-        let mut materials: Vec<GpuMaterial> = scene
+        // Out-of-range material indices get the reference's mid-grey diffuse fallback, last.
+        let fallback_material = Material::diffuse("fallback", [0.5; 3]);
+        let (materials, pbr): (Vec<GpuMaterial>, Vec<GpuPbr>) = scene
             .materials
             .iter()
+            .chain(std::iter::once(&fallback_material))
             .map(|m| gpu_material(m, scene.textures.len()))
-            .collect();
-        // Out-of-range material indices get the reference's mid-grey diffuse fallback.
-        let fallback = materials.len() as u32;
-        materials.push(gpu_material(
-            &Material::diffuse("fallback", [0.5; 3]),
-            scene.textures.len(),
-        ));
+            .unzip();
+        let fallback = materials.len() as u32 - 1;
 
         let normal_mapped = scene.meshes.iter().any(|m| {
             m.uvs.len() == m.positions.len()
-                && materials
-                    .get(m.material)
-                    .is_some_and(|g| g.normal_texture != NO_TEXTURE)
+                && materials.get(m.material).is_some_and(|g| {
+                    g.model == MODEL_METALLIC_ROUGHNESS
+                        && pbr[m.material].normal_texture != NO_TEXTURE
+                })
         });
         let (vertices, tangents, meshes) =
-            triangles(&scene.meshes, &materials, fallback, normal_mapped);
+            triangles(&scene.meshes, &materials, &pbr, fallback, normal_mapped);
         let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
         for (a, b) in meshes.iter().filter_map(|m| m.bounds) {
             for k in 0..3 {
@@ -198,6 +206,7 @@ impl SceneData {
             vertices,
             meshes,
             materials,
+            pbr,
             textures,
             texels,
             diagonal,
@@ -208,7 +217,13 @@ impl SceneData {
     /// of `meshes` (this scene's meshes, posed), with this scene's materials.
     pub fn geometry(&self, meshes: &[Mesh]) -> (Vec<Vertex>, Vec<Tangent>, Vec<MeshRange>) {
         let fallback = self.materials.len() as u32 - 1;
-        triangles(meshes, &self.materials, fallback, self.normal_mapped)
+        triangles(
+            meshes,
+            &self.materials,
+            &self.pbr,
+            fallback,
+            self.normal_mapped,
+        )
     }
 
     /// Receivers for `shadow_views`: the bounds of every mesh with triangles.
@@ -223,6 +238,7 @@ impl SceneData {
 fn triangles(
     scene_meshes: &[Mesh],
     materials: &[GpuMaterial],
+    pbr: &[GpuPbr],
     fallback: u32,
     with_tangents: bool,
 ) -> (Vec<Vertex>, Vec<Tangent>, Vec<MeshRange>) {
@@ -242,7 +258,9 @@ fn triangles(
         let has_normals = mesh.normals.len() == mesh.positions.len();
         let has_uvs = mesh.uvs.len() == mesh.positions.len();
         let word = material | if has_uvs { 0 } else { NO_UV_BIT };
-        let normal_mapped = has_uvs && materials[material as usize].normal_texture != NO_TEXTURE;
+        let normal_mapped = has_uvs
+            && materials[material as usize].model == MODEL_METALLIC_ROUGHNESS
+            && pbr[material as usize].normal_texture != NO_TEXTURE;
         let has_tangents = mesh.tangents.len() == mesh.positions.len();
         let (mut mlo, mut mhi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
         for tri in mesh.indices.chunks_exact(3) {
@@ -297,7 +315,7 @@ fn triangles(
     (vertices, tangents, meshes)
 }
 
-fn gpu_material(m: &Material, texture_count: usize) -> GpuMaterial {
+fn gpu_material(m: &Material, texture_count: usize) -> (GpuMaterial, GpuPbr) {
     let (alpha_mode, cutoff) = match m.alpha_mode {
         AlphaMode::Opaque => (0, 0.0),
         AlphaMode::Mask { cutoff } => (1, cutoff),
@@ -307,7 +325,7 @@ fn gpu_material(m: &Material, texture_count: usize) -> GpuMaterial {
         _ => NO_TEXTURE,
     };
     let pbr = m.pbr.unwrap_or(MetallicRoughness::new([0.0; 3], 0.0, 1.0));
-    GpuMaterial {
+    let material = GpuMaterial {
         diffuse: m.diffuse,
         diffuse_texture: texture(m.diffuse_texture),
         specular: m.specular,
@@ -319,19 +337,20 @@ fn gpu_material(m: &Material, texture_count: usize) -> GpuMaterial {
         cutoff,
         double_sided: m.double_sided as u32,
         has_specular: m.has_specular() as u32,
-        _pad: 0,
+        model: if m.pbr.is_some() {
+            MODEL_METALLIC_ROUGHNESS
+        } else {
+            MODEL_BLINN_PHONG
+        },
         transmission: m.transmission.map_or([0.0; 3], |t| t.color),
         transmits: match m.transmission {
             None => TRANSMITS_NONE,
             Some(t) if t.coverage => TRANSMITS_COVERAGE,
             Some(_) => TRANSMITS_FILTER,
         },
+    };
+    let pbr = GpuPbr {
         base_color: pbr.base_color,
-        model: if m.pbr.is_some() {
-            MODEL_METALLIC_ROUGHNESS
-        } else {
-            MODEL_BLINN_PHONG
-        },
         metallic: pbr.metallic,
         roughness: pbr.roughness,
         metallic_roughness_texture: texture(pbr.metallic_roughness_texture),
@@ -340,9 +359,9 @@ fn gpu_material(m: &Material, texture_count: usize) -> GpuMaterial {
         occlusion_texture: texture(pbr.occlusion_texture),
         occlusion_strength: pbr.occlusion_strength,
         emissive_texture: texture(pbr.emissive_texture),
-        pbr_transmission: pbr.transmission,
-        _pad2: [0; 3],
-    }
+        transmission: pbr.transmission,
+    };
+    (material, pbr)
 }
 
 /// Unit counter-clockwise normal computed in f64 (zero for a degenerate triangle).
@@ -372,7 +391,8 @@ mod tests {
     #[test]
     fn layouts_match_the_wgsl_structs() {
         assert_eq!(std::mem::size_of::<Vertex>(), 52);
-        assert_eq!(std::mem::size_of::<GpuMaterial>(), 160);
+        assert_eq!(std::mem::size_of::<GpuMaterial>(), 96);
+        assert_eq!(std::mem::size_of::<GpuPbr>(), 48);
         assert_eq!(std::mem::size_of::<GpuTexture>(), 16);
     }
 
