@@ -321,6 +321,79 @@ fn the_khronos_models_use_nothing_that_is_not_rendered() {
 }
 
 #[test]
+fn missing_tangents_are_generated_by_mikktspace() {
+    // The FlightHelmet with its TANGENT attributes taken out: the loader computes MikkTSpace
+    // tangents, which must agree with the ones the model ships (its exporter's MikkTSpace).
+    // Control: each triangle's own tangent, the fallback before, agrees less.
+    let folder = shared("FlightHelmet", "FlightHelmet.gltf");
+    let json = std::fs::read_to_string(&folder).unwrap();
+    let stripped = regex_free_strip(&json);
+    assert!(!stripped.contains("TANGENT") && json.contains("TANGENT"));
+    let opts = GltfOptions::default();
+    let base = folder.parent().unwrap();
+    let shipped = load_gltf(&folder).unwrap();
+    let made =
+        lightfold_scene::load_gltf_slice(stripped.as_bytes(), "helmet", Some(base), &opts).unwrap();
+    let (mut agree, mut total, mut own_agree) = (0usize, 0usize, 0usize);
+    for (a, b) in shipped.meshes.iter().zip(&made.meshes) {
+        if a.tangents.is_empty() {
+            continue;
+        }
+        assert_eq!(b.tangents.len(), b.positions.len(), "{}", b.name);
+        assert!(b.positions.len() >= a.positions.len());
+        // Corners compared through the indices (split vertices are appended copies).
+        for (t, (&ia, &ib)) in a.indices.iter().zip(&b.indices).enumerate() {
+            let (ta, tb) = (a.tangents[ia as usize], b.tangents[ib as usize]);
+            assert_eq!(a.positions[ia as usize], b.positions[ib as usize]);
+            total += 1;
+            let cos = |u: [f32; 4]| ta[0] * u[0] + ta[1] * u[1] + ta[2] * u[2];
+            if cos(tb) > 0.9 && ta[3] == tb[3] {
+                agree += 1;
+            }
+            let tri = t / 3 * 3;
+            let i = [0, 1, 2].map(|k| a.indices[tri + k] as usize);
+            let own = lightfold_scene::shading::triangle_tangent(
+                i.map(|i| a.positions[i]),
+                i.map(|i| a.uvs[i]),
+            );
+            if cos(own) > 0.9 && ta[3] == own[3] {
+                own_agree += 1;
+            }
+        }
+    }
+    eprintln!(
+        "FlightHelmet corners whose MikkTSpace tangent agrees with the shipped one: {agree} of {total}; triangles' own: {own_agree}"
+    );
+    assert!(
+        total > 200_000 && agree as f64 > 0.97 * total as f64,
+        "{agree} of {total}"
+    );
+    assert!(own_agree < agree, "{own_agree} vs {agree}");
+}
+
+/// The glTF text without its `"TANGENT": N` attribute entries.
+fn regex_free_strip(json: &str) -> String {
+    let mut out = String::with_capacity(json.len());
+    let mut rest = json;
+    while let Some(at) = rest.find("\"TANGENT\"") {
+        let (head, tail) = rest.split_at(at);
+        // Drop a separating comma before it, then the key and its number.
+        let head = head.trim_end();
+        let head = head.strip_suffix(',').unwrap_or(head);
+        out.push_str(head);
+        let after_key = &tail["\"TANGENT\"".len()..];
+        let value_end = after_key.find([',', '}']).unwrap_or(after_key.len());
+        let mut next = &after_key[value_end..];
+        if head.ends_with('{') {
+            next = next.strip_prefix(',').unwrap_or(next);
+        }
+        rest = next;
+    }
+    out.push_str(rest);
+    out
+}
+
+#[test]
 fn alpha_modes_and_textures_are_read() {
     let s = load_gltf(&shared("AlphaBlendModeTest", "AlphaBlendModeTest.gltf")).unwrap();
     let masks = s

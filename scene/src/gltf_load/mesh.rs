@@ -176,6 +176,15 @@ pub(super) fn node_meshes(
                 r.vertex_map = map;
             }
         }
+        // A normal map without the model's tangents: MikkTSpace's, as the specification asks.
+        // (A posed mesh uses its triangles' own: rigs carry no tangents.)
+        if m.tangents.is_empty()
+            && normals.is_some()
+            && rig.is_none()
+            && prim.material().normal_texture().is_some()
+        {
+            super::tangents::generate(&mut m);
+        }
         out.push((m, rig));
     }
     Ok(out)

@@ -14,6 +14,7 @@ mod accessor;
 mod animate;
 mod material;
 mod mesh;
+mod tangents;
 
 pub use material::shininess_from_roughness;
 
