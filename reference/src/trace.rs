@@ -5,8 +5,9 @@
 //! materials; a back-face hit on a double-sided material negates both normals (like WGSL's
 //! `front_facing`); the shading normal is the interpolated vertex normal, or the geometric normal
 //! when that is missing or degenerate, then bent by a metallic-roughness material's normal map
-//! (`shading::mapped_normal`, on the front face before the flip); alpha-masked texels below the cutoff are transparent to eye
-//! and shadow rays alike; every other triangle casts shadows whatever its sidedness.
+//! (`shading::mapped_normal`, on the front face before the flip); alpha-masked texels below the
+//! cutoff are transparent to eye and shadow rays alike; every other triangle casts shadows
+//! whatever its sidedness.
 
 use crate::bvh::Bvh;
 use lightfold_scene::shading::{self, V3, dot, normalize, sample_texture};

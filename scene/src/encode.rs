@@ -120,13 +120,7 @@ impl Canon {
             pbr,
         } = m;
         self.f32s(diffuse);
-        match diffuse_texture {
-            None => self.u8(0),
-            Some(t) => {
-                self.u8(1);
-                self.len(*t);
-            }
-        }
+        self.index(*diffuse_texture);
         self.f32s(specular);
         self.f32(*shininess);
         self.f32s(ambient);
@@ -157,6 +151,17 @@ impl Canon {
         }
     }
 
+    /// An optional index: 0, or 1 and the index.
+    fn index(&mut self, t: Option<usize>) {
+        match t {
+            None => self.u8(0),
+            Some(t) => {
+                self.u8(1);
+                self.len(t);
+            }
+        }
+    }
+
     fn metallic_roughness(&mut self, p: &MetallicRoughness) {
         let MetallicRoughness {
             base_color,
@@ -179,13 +184,7 @@ impl Canon {
             occlusion_texture,
             emissive_texture,
         ] {
-            match t {
-                None => self.u8(0),
-                Some(t) => {
-                    self.u8(1);
-                    self.len(*t);
-                }
-            }
+            self.index(*t);
         }
         self.f32(*normal_scale);
         self.f32(*occlusion_strength);

@@ -117,23 +117,11 @@ impl MetallicRoughness {
         }
     }
 
-    /// The layer values at the factors, untextured (`crate::shading::metallic_roughness_at`
+    /// The layer values at the factors, untextured (`crate::shading::metallic_roughness_point`
     /// with white textures): `(m^d, m^s, m^a)` = `(c_diff ⊙ (1 − F0), 1, m^d)`.
     pub fn summary(&self) -> ([f32; 3], [f32; 3], [f32; 3]) {
         let at = crate::shading::metallic_roughness_point(self, [1.0; 4], [1.0; 4]);
         (at.diffuse, [1.0; 3], at.diffuse)
-    }
-
-    /// The textures it reads, beside the base colour's.
-    pub fn textures(&self) -> impl Iterator<Item = usize> {
-        [
-            self.metallic_roughness_texture,
-            self.normal_texture,
-            self.occlusion_texture,
-            self.emissive_texture,
-        ]
-        .into_iter()
-        .flatten()
     }
 }
 

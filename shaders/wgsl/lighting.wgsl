@@ -434,10 +434,10 @@ struct Shaded {
 // materials take the glTF reference BRDF's coefficients (`scene::shading::lobe_coefficients`):
 // i^d = E·(1 − w)/π, i^s = E·D·V·(F0 + (1 − F0)·w), RGB.
 fn illuminate(sf: Surface, start: Shaded) -> Shaded {
-    if METALLIC_ROUGHNESS && materials[sf.material].model == MODEL_METALLIC_ROUGHNESS {
+    let m = materials[sf.material];
+    if METALLIC_ROUGHNESS && m.model == MODEL_METALLIC_ROUGHNESS {
         return illuminate_metallic_roughness(sf, start);
     }
-    let m = materials[sf.material];
     let v = safe_normalize(frame.camera - sf.p);
     let specular = m.has_specular != 0u;
     var out = start;

@@ -27,8 +27,8 @@ struct Material {
 }
 
 // glTF metallic-roughness (`scene::MetallicRoughness`), read where the material's model is
-// MODEL_METALLIC_ROUGHNESS; the base-colour texture is the material's `diffuse_texture`. Its own
-// array, so Blinn-Phong shading reads no more per pixel than the Material above.
+// MODEL_METALLIC_ROUGHNESS; the base-colour texture is the material's `diffuse_texture`. In its own
+// array (binding 3), index for index with `materials`.
 struct Pbr {
     base_color: vec3f,
     metallic: f32,

@@ -58,8 +58,8 @@ pub struct GpuMaterial {
 }
 
 /// `Pbr` in `materials.wgsl` (std430): a material's glTF metallic-roughness parameters
-/// (`scene::MetallicRoughness`), in their own array so the Blinn-Phong path reads no more per
-/// pixel than before; textures [`NO_TEXTURE`] where none.
+/// (`scene::MetallicRoughness`), in their own array index for index with the materials (which
+/// stay 96 bytes); textures [`NO_TEXTURE`] where none.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 pub struct GpuPbr {
@@ -149,13 +149,10 @@ impl SceneData {
             .unzip();
         let fallback = materials.len() as u32 - 1;
 
-        let normal_mapped = scene.meshes.iter().any(|m| {
-            m.uvs.len() == m.positions.len()
-                && materials.get(m.material).is_some_and(|g| {
-                    g.model == MODEL_METALLIC_ROUGHNESS
-                        && pbr[m.material].normal_texture != NO_TEXTURE
-                })
-        });
+        let normal_mapped = scene
+            .meshes
+            .iter()
+            .any(|m| is_normal_mapped(m, material_of(m, fallback), &materials, &pbr));
         let (vertices, tangents, meshes) =
             triangles(&scene.meshes, &materials, &pbr, fallback, normal_mapped);
         let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
@@ -248,19 +245,13 @@ fn triangles(
     for (index, mesh) in scene_meshes.iter().enumerate() {
         let first_vertex = vertices.len() as u32;
         let object = u32::try_from(index + 1).unwrap_or(u32::MAX);
-        let material = if mesh.material < fallback as usize {
-            mesh.material as u32
-        } else {
-            fallback
-        };
+        let material = material_of(mesh, fallback);
         let masked = materials[material as usize].alpha_mode == 1;
         let translucent = materials[material as usize].transmits != TRANSMITS_NONE;
         let has_normals = mesh.normals.len() == mesh.positions.len();
         let has_uvs = mesh.uvs.len() == mesh.positions.len();
         let word = material | if has_uvs { 0 } else { NO_UV_BIT };
-        let normal_mapped = has_uvs
-            && materials[material as usize].model == MODEL_METALLIC_ROUGHNESS
-            && pbr[material as usize].normal_texture != NO_TEXTURE;
+        let normal_mapped = is_normal_mapped(mesh, material, materials, pbr);
         let has_tangents = mesh.tangents.len() == mesh.positions.len();
         let (mut mlo, mut mhi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
         for tri in mesh.indices.chunks_exact(3) {
@@ -276,13 +267,15 @@ fn triangles(
                 continue;
             }
             let ng = geometric_normal(p[0], p[1], p[2]);
-            let tangent = |k: usize| match (normal_mapped, has_tangents) {
+            // A mesh without tangents gets its triangle's own, once for the three vertices.
+            let own = (normal_mapped && !has_tangents).then(|| {
+                let uv = |k: usize| mesh.uvs[idx[k]];
+                triangle_tangent([p[0], p[1], p[2]], [uv(0), uv(1), uv(2)])
+            });
+            let tangent = |k: usize| match (normal_mapped, own) {
                 (false, _) => [0.0; 4],
-                (true, true) => mesh.tangents[idx[k]],
-                (true, false) => {
-                    let uv = |k: usize| mesh.uvs[idx[k]];
-                    triangle_tangent([p[0], p[1], p[2]], [uv(0), uv(1), uv(2)])
-                }
+                (true, Some(t)) => t,
+                (true, None) => mesh.tangents[idx[k]],
             };
             for (k, &i) in idx.iter().enumerate() {
                 for a in 0..3 {
@@ -362,6 +355,23 @@ fn gpu_material(m: &Material, texture_count: usize) -> (GpuMaterial, GpuPbr) {
         transmission: pbr.transmission,
     };
     (material, pbr)
+}
+
+/// The material index a mesh draws with: its own, or `fallback` where that is out of range.
+fn material_of(mesh: &Mesh, fallback: u32) -> u32 {
+    if mesh.material < fallback as usize {
+        mesh.material as u32
+    } else {
+        fallback
+    }
+}
+
+/// Whether a mesh's normal map applies: it has UVs and its material (`material`, in range) is
+/// metallic-roughness with a normal texture.
+fn is_normal_mapped(mesh: &Mesh, material: u32, materials: &[GpuMaterial], pbr: &[GpuPbr]) -> bool {
+    mesh.uvs.len() == mesh.positions.len()
+        && materials[material as usize].model == MODEL_METALLIC_ROUGHNESS
+        && pbr[material as usize].normal_texture != NO_TEXTURE
 }
 
 /// Unit counter-clockwise normal computed in f64 (zero for a degenerate triangle).

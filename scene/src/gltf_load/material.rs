@@ -10,7 +10,7 @@ use crate::model::{AlphaMode, Material, MetallicRoughness, Texture, Transmission
 use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
 
-pub use crate::shading::shininess_from_roughness;
+use crate::shading::shininess_from_roughness;
 
 /// Converts materials and decodes the textures they use (each image once per colour space).
 pub(super) struct MaterialLoader<'a> {

@@ -16,8 +16,6 @@ mod material;
 mod mesh;
 mod tangents;
 
-pub use material::shininess_from_roughness;
-
 use crate::error::SceneError;
 use crate::framing;
 use crate::limits::{self, Budget};

@@ -207,32 +207,29 @@ fn sanitize_material(m: &mut Material, texture_count: usize, issues: &mut Vec<Is
             }
         }
     }
-    if let Some(p) = &mut m.pbr {
-        for t in [
+    // Every texture slot: the metallic-roughness ones, then the diffuse (base-colour) one.
+    let pbr_slots = m.pbr.as_mut().map(|p| {
+        [
             &mut p.metallic_roughness_texture,
             &mut p.normal_texture,
             &mut p.occlusion_texture,
             &mut p.emissive_texture,
-        ] {
-            if let Some(k) = *t
-                && k >= texture_count
-            {
-                issues.push(Issue::TextureOutOfRange {
-                    material: m.name.clone(),
-                    texture: k,
-                });
-                *t = None;
-            }
-        }
-    }
-    if let Some(t) = m.diffuse_texture
-        && t >= texture_count
+        ]
+    });
+    for t in pbr_slots
+        .into_iter()
+        .flatten()
+        .chain(std::iter::once(&mut m.diffuse_texture))
     {
-        issues.push(Issue::TextureOutOfRange {
-            material: m.name.clone(),
-            texture: t,
-        });
-        m.diffuse_texture = None;
+        if let Some(k) = *t
+            && k >= texture_count
+        {
+            issues.push(Issue::TextureOutOfRange {
+                material: m.name.clone(),
+                texture: k,
+            });
+            *t = None;
+        }
     }
 }
 
