@@ -86,7 +86,7 @@ async fn one_coordinator_session_holds_a_stage() {
     // An unclaimed link is refused too.
     let mut other = stage.control().await;
     match ping(&mut other, 2).await {
-        Message::Error { code, message } => {
+        Message::Error { code, message, .. } => {
             expect_error(code, &message, ErrorCode::Busy, &["00000000000000a1"])
         }
         m => panic!("expected Busy, got {m:?}"),
@@ -97,7 +97,7 @@ async fn one_coordinator_session_holds_a_stage() {
     // B takes over: A is told who took it and closed; B has the control queue.
     let mut b = claimed(&stage, B, true).await;
     match a.next_message(WAIT).await {
-        Ok(Message::Error { code, message }) => expect_error(
+        Ok(Message::Error { code, message, .. }) => expect_error(
             code,
             &message,
             ErrorCode::TakenOver,

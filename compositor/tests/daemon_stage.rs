@@ -151,7 +151,7 @@ async fn a_new_epoch_reconfigures_without_restart_and_drops_old_bands() {
     // A frame requested for an epoch the stage is not in is refused, clearly.
     ctl.render(1, 9, no_params()).await.unwrap();
     match ctl.next_message(WAIT).await.unwrap() {
-        Message::Error { code, message } => {
+        Message::Error { code, message, .. } => {
             assert_eq!(code, ErrorCode::BadConfig);
             assert!(
                 message.contains("epoch 1") && message.contains("epoch 2"),

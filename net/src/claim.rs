@@ -110,10 +110,7 @@ impl Claims {
                 let closed = tokio::time::timeout_at(handover, holder.closed.cancelled()).await;
                 if closed.is_err() {
                     tracing::info!(%addr, "control link refused: {message}");
-                    return Err(Message::Error {
-                        code: ErrorCode::Busy,
-                        message,
-                    });
+                    return Err(Message::error(ErrorCode::Busy, message));
                 }
                 continue;
             }
@@ -160,13 +157,13 @@ impl Claims {
                                 "taken over"
                             );
                             *old.link.farewell.lock().unwrap_or_else(|e| e.into_inner()) = Some(
-                                Message::Error {
-                                    code: ErrorCode::TakenOver,
-                                    message: format!(
+                                Message::error(
+                                    ErrorCode::TakenOver,
+                                    format!(
                                         "{} was taken over by the coordinator at {addr} (session {session:016x})",
                                         self.daemon_id
                                     ),
-                                },
+                                ),
                             );
                         }
                         displaced.push(old);

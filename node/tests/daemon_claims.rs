@@ -16,7 +16,9 @@ const B: u64 = 0xb2;
 
 fn expect_error(m: &Message, code: ErrorCode, needles: &[&str]) {
     match m {
-        Message::Error { code: c, message } if *c == code => {
+        Message::Error {
+            code: c, message, ..
+        } if *c == code => {
             for n in needles {
                 assert!(message.contains(n), "{message:?} should mention {n:?}");
             }

@@ -11,7 +11,9 @@ use lightfold_protocol::{ErrorCode, Layer, Message, PixelFormat, Role};
 
 fn expect_error(m: Message, code: ErrorCode, needle: &str) {
     match &m {
-        Message::Error { code: c, message } if *c == code && message.contains(needle) => {}
+        Message::Error {
+            code: c, message, ..
+        } if *c == code && message.contains(needle) => {}
         _ => panic!("expected {code:?} mentioning {needle:?}, got {m:?}"),
     }
 }

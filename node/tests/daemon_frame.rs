@@ -205,7 +205,7 @@ async fn walkthrough_frames_reuse_what_did_not_change() {
         })
         .await;
     assert!(
-        matches!(&refused, Message::Error { code: ErrorCode::BadConfig, message } if message.contains("161x120")),
+        matches!(&refused, Message::Error { code: ErrorCode::BadConfig, message, .. } if message.contains("161x120")),
         "{refused:?}"
     );
     // A scene time that is not a number is refused, and the node still renders.
@@ -222,7 +222,7 @@ async fn walkthrough_frames_reuse_what_did_not_change() {
         })
         .await;
     assert!(
-        matches!(&refused, Message::Error { code: ErrorCode::BadConfig, message } if message.contains("not finite")),
+        matches!(&refused, Message::Error { code: ErrorCode::BadConfig, message, .. } if message.contains("not finite")),
         "{refused:?}"
     );
     assert!(matches!(coord.frame(1, 6).await, Message::FrameDone(_)));
@@ -339,7 +339,7 @@ async fn a_node_draws_only_its_part_of_the_scene() {
     let mut bad = node_config(4, hash, &lights, layers, &comp.addr);
     bad.eye_meshes = Some(vec![scene.meshes.len() as u32]);
     match coord.request(Message::ConfigureNode(bad)).await {
-        Message::Error { code, message } => {
+        Message::Error { code, message, .. } => {
             assert_eq!(code, ErrorCode::BadConfig);
             assert!(message.contains("eye pass"), "{message}");
         }

@@ -305,9 +305,15 @@ pub enum Message {
         params: FrameParams,
     },
     FrameDone(FrameStats),
+    /// Daemon → coordinator: something was refused or failed. `epoch` and `frame` say what it is
+    /// about — a configuration (`epoch`), a frame of an epoch (both), or the link itself (neither:
+    /// a claim, a message the daemon does not take) — so a coordinator never takes the failure
+    /// of a frame of an epoch it has left for one of the epoch it runs.
     Error {
         code: ErrorCode,
         message: String,
+        epoch: Option<u64>,
+        frame: Option<u64>,
     },
     Ping {
         seq: u64,
@@ -330,4 +336,41 @@ pub enum Message {
     Claimed {
         session: u64,
     },
+}
+
+impl Message {
+    /// An error about the link itself (neither a configuration nor a frame).
+    pub fn error(code: ErrorCode, message: impl Into<String>) -> Message {
+        Message::Error {
+            code,
+            message: message.into(),
+            epoch: None,
+            frame: None,
+        }
+    }
+
+    /// An error about the configuration of `epoch`.
+    pub fn epoch_error(epoch: u64, code: ErrorCode, message: impl Into<String>) -> Message {
+        Message::Error {
+            code,
+            message: message.into(),
+            epoch: Some(epoch),
+            frame: None,
+        }
+    }
+
+    /// An error about `frame` of `epoch`.
+    pub fn frame_error(
+        epoch: u64,
+        frame: u64,
+        code: ErrorCode,
+        message: impl Into<String>,
+    ) -> Message {
+        Message::Error {
+            code,
+            message: message.into(),
+            epoch: Some(epoch),
+            frame: Some(frame),
+        }
+    }
 }

@@ -54,3 +54,115 @@ fn planned_passes_equal_the_renderers() {
         total[0], total[1]
     );
 }
+
+/// What the planner plans, the daemons take: over random light colours (saturated ones with zero
+/// channels, black, HDR), frame budgets, partitions, topologies and clusters that lose daemons
+/// (re-plans), every node configuration passes the render node's own check
+/// (`node::daemon::config::check`) and every compositor configuration the stage's
+/// (`StagePlan::new`). A configuration a daemon refuses used to end a live session: a pure-red
+/// light (`[1, 0, 0]`) was such a colour.
+mod daemons_take_every_plan {
+    use lightfold_coordinator::plan::{ClusterSpec, PlanOptions, Topology, plan, replan};
+    use lightfold_protocol::frame::DEFAULT_MAX_FRAME;
+    use lightfold_scene::primitives::{cuboid, plane, sphere};
+    use lightfold_scene::{Light, LightShape, Material, Scene};
+    use proptest::prelude::*;
+
+    const COLOURS: [[f32; 3]; 7] = [
+        [1.0, 0.0, 0.0],
+        [1.0, 0.125, 0.0],
+        [0.0, 0.0, 1.0],
+        [0.0, 0.0, 0.0],
+        [1.0, 1.0, 1.0],
+        [3.0, 0.5, 0.0],
+        [0.25, 0.8, 0.6],
+    ];
+
+    fn scene(colours: &[usize], samples: u32) -> Scene {
+        let mut s = Scene::new("colours");
+        let grey = s.add_material(Material::diffuse("grey", [0.7, 0.7, 0.7]));
+        let red = s.add_material(Material::diffuse("red", [0.8, 0.2, 0.2]));
+        s.add_mesh(plane(
+            "floor",
+            [0.0; 3],
+            [0.0, 1.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [8.0, 8.0],
+            1,
+            grey,
+        ));
+        s.add_mesh(cuboid("box", [-0.8, 0.5, 0.0], [0.5, 0.5, 0.5], red));
+        s.add_mesh(sphere("ball", [0.8, 0.6, 0.3], 0.6, 12, 6, grey));
+        for (i, &c) in colours.iter().enumerate() {
+            s.lights.push(Light {
+                name: format!("light-{i}"),
+                shape: LightShape::Rect {
+                    center: [i as f32 - 1.0, 3.0, 0.5 * i as f32],
+                    normal: [0.0, -1.0, 0.0],
+                    u_axis: [1.0, 0.0, 0.0],
+                    size: [1.0, 1.0],
+                },
+                color: COLOURS[c],
+                power: 20.0,
+                range: None,
+                samples,
+            });
+        }
+        s.camera.width = 96;
+        s.camera.height = 64;
+        s
+    }
+
+    fn check_plan(scene: &Scene, p: &lightfold_coordinator::plan::Plan) -> Result<(), String> {
+        for n in &p.nodes {
+            let cfg = p.node_config(&n.node).ok_or("no node config")?;
+            lightfold_node::daemon::config::check(cfg, scene, |_| 256, 8192, DEFAULT_MAX_FRAME)
+                .map_err(|e| format!("{} refuses its configuration: {e}", n.node))?;
+        }
+        for s in &p.stages {
+            let cfg = p
+                .compositor_config(&s.compositor)
+                .ok_or("no stage config")?;
+            lightfold_compositor::daemon::StagePlan::new(cfg, DEFAULT_MAX_FRAME)
+                .map_err(|e| format!("{} refuses its configuration: {e}", s.compositor))?;
+        }
+        Ok(())
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 48, failure_persistence: None, ..ProptestConfig::default() })]
+
+        #[test]
+        fn over_colours_budgets_partitions_and_losses(
+            colours in proptest::collection::vec(0usize..COLOURS.len(), 1..4),
+            samples in prop_oneof![Just(1u32), Just(4), Just(8)],
+            k in 1u32..5,
+            budget_ms in proptest::option::of(5u64..400),
+            partitions in 1u32..3,
+            tree in any::<bool>(),
+            lose in 0usize..3,
+        ) {
+            let scene = scene(&colours, samples);
+            let opts = PlanOptions {
+                lights_per_node: k,
+                topology: if tree { Topology::Tree } else { Topology::Chain },
+                frame_budget_us: budget_ms.map(|ms| ms * 1000),
+                partitions,
+                ..PlanOptions::default()
+            };
+            let cluster = ClusterSpec::local(64, 6);
+            let first = plan(&scene, &cluster, &opts).map_err(|e| TestCaseError::fail(e.to_string()))?;
+            check_plan(&scene, &first).map_err(TestCaseError::fail)?;
+            // Failover: the same scene over the daemons left.
+            let left = ClusterSpec {
+                nodes: cluster.nodes[lose..].to_vec(),
+                compositors: cluster.compositors[lose.min(2)..].to_vec(),
+                sink: cluster.sink.clone(),
+            };
+            let again = PlanOptions { epoch: 2, ..opts };
+            if let Ok(next) = replan(&scene, &left, &again, &first) {
+                check_plan(&scene, &next).map_err(TestCaseError::fail)?;
+            }
+        }
+    }
+}

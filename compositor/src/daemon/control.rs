@@ -31,9 +31,22 @@ impl ControlOut {
         }
     }
 
+    /// An error about the link itself (a message the stage does not take).
     pub fn error(&self, code: ErrorCode, message: String) {
         tracing::warn!(?code, "{message}");
-        self.send(Message::Error { code, message });
+        self.send(Message::error(code, message));
+    }
+
+    /// An error about the configuration of `epoch`.
+    pub fn epoch_error(&self, epoch: u64, code: ErrorCode, message: String) {
+        tracing::warn!(?code, epoch, "{message}");
+        self.send(Message::epoch_error(epoch, code, message));
+    }
+
+    /// An error about `frame` of `epoch`.
+    pub fn frame_error(&self, epoch: u64, frame: u64, code: ErrorCode, message: String) {
+        tracing::warn!(?code, epoch, frame, "{message}");
+        self.send(Message::frame_error(epoch, frame, code, message));
     }
 }
 
@@ -270,7 +283,8 @@ impl ControlHub {
                             return false;
                         }
                     }
-                    Err(e) => self.out.error(
+                    Err(e) => self.out.epoch_error(
+                        epoch,
                         e.code(),
                         format!("configuration of epoch {epoch} refused: {e}"),
                     ),
@@ -292,8 +306,12 @@ impl ControlHub {
                         mpsc::error::TrySendError::Full(_) => "too many frames are queued",
                         mpsc::error::TrySendError::Closed(_) => "the stage is stopping",
                     };
-                    self.out
-                        .error(ErrorCode::Internal, format!("frame {frame} refused: {why}"));
+                    self.out.frame_error(
+                        epoch,
+                        frame,
+                        ErrorCode::Internal,
+                        format!("frame {frame} refused: {why}"),
+                    );
                 }
             }
             Message::Ping { seq } => self.out.send(Message::Pong { seq }),

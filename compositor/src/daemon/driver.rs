@@ -89,7 +89,7 @@ impl ControlClient {
             .await?;
         match self.read(Instant::now() + within, "Claimed").await? {
             Message::Claimed { session: s } if s == session => Ok(()),
-            Message::Error { code, message } => Err(DriverError::Refused { code, message }),
+            Message::Error { code, message, .. } => Err(DriverError::Refused { code, message }),
             other => Err(DriverError::Unexpected {
                 expected: "Claimed",
                 got: format!("{other:?}"),
@@ -111,7 +111,7 @@ impl ControlClient {
         loop {
             match self.read(deadline, "Configured").await? {
                 Message::Configured { epoch: e } if e == epoch => return Ok(()),
-                Message::Error { code, message } => {
+                Message::Error { code, message, .. } => {
                     return Err(DriverError::Refused { code, message });
                 }
                 other => self.backlog.push_back(other),
@@ -198,7 +198,7 @@ fn is_done_or_error(m: &Message, frame: u64) -> bool {
 fn done_or_refused(m: Message) -> Result<FrameStats, DriverError> {
     match m {
         Message::FrameDone(s) => Ok(s),
-        Message::Error { code, message } => Err(DriverError::Refused { code, message }),
+        Message::Error { code, message, .. } => Err(DriverError::Refused { code, message }),
         other => Err(DriverError::Unexpected {
             expected: "FrameDone",
             got: format!("{other:?}"),

@@ -139,8 +139,12 @@ impl Engine {
                                 FrameError::Input(InputError::Link { .. }) => ErrorCode::PeerLost,
                                 _ => ErrorCode::Internal,
                             };
-                            self.control
-                                .error(code, format!("frame {frame} dropped: {e}"));
+                            self.control.frame_error(
+                                req_epoch,
+                                frame,
+                                code,
+                                format!("frame {frame} dropped: {e}"),
+                            );
                             let _ = self.send_out(Out::Abort { frame }).await;
                         }
                     }
@@ -179,20 +183,28 @@ impl Engine {
         tracing::info!(epoch, "configured");
         // The writer gives up on whatever it was doing for the old configuration and dials the
         // new downstream; a watch, so a writer stuck on a dead downstream never holds this up.
-        self.out.target.send_replace(Target { generation, addr });
+        self.out.target.send_replace(Target {
+            generation,
+            epoch,
+            addr,
+        });
         self.control.send(Message::Configured { epoch });
     }
 
     async fn run_frame(&mut self, req: FrameRequest) -> Result<(), FrameError> {
         let Some(plan) = self.plan.clone() else {
-            self.control.error(
+            self.control.frame_error(
+                req.epoch,
+                req.frame,
                 ErrorCode::BadConfig,
                 format!("frame {} refused: the stage is not configured", req.frame),
             );
             return Ok(());
         };
         if req.epoch != plan.epoch() {
-            self.control.error(
+            self.control.frame_error(
+                req.epoch,
+                req.frame,
                 ErrorCode::BadConfig,
                 format!(
                     "frame {} refused: it is for epoch {} but the stage is configured for epoch {}",
@@ -203,7 +215,7 @@ impl Engine {
             );
             return Ok(());
         }
-        self.apply_params(&plan, &req.params);
+        self.apply_params(&plan, &req);
         let started = Instant::now();
         let mut stats = FrameStats {
             epoch: req.epoch,
@@ -281,12 +293,15 @@ impl Engine {
     }
 
     /// Sets this frame's light colours (`(stage input, c_n)`) on the operators that read them.
-    fn apply_params(&mut self, plan: &StagePlan, params: &FrameParams) {
+    fn apply_params(&mut self, plan: &StagePlan, req: &FrameRequest) {
+        let params = &req.params;
         if let Some(scale) = params.scale {
             if scale.is_finite() && scale > 0.0 {
                 self.scale = scale;
             } else {
-                self.control.error(
+                self.control.frame_error(
+                    req.epoch,
+                    req.frame,
                     ErrorCode::BadConfig,
                     format!("ignored scale {scale}: not finite and positive"),
                 );
@@ -326,7 +341,8 @@ impl Engine {
             }
         }
         for why in refused {
-            self.control.error(ErrorCode::BadConfig, why);
+            self.control
+                .frame_error(req.epoch, req.frame, ErrorCode::BadConfig, why);
         }
     }
 

@@ -32,6 +32,8 @@ const OUT_QUEUE: usize = 4;
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Target {
     pub generation: u64,
+    /// The plan epoch of that configuration (what the writer's errors are about).
+    pub epoch: u64,
     pub addr: String,
 }
 
@@ -83,6 +85,8 @@ struct Writer {
     link: Downstream,
     /// The configuration the writer serves (`Target::generation`).
     generation: u64,
+    /// Its plan epoch.
+    epoch: u64,
     /// A dial of the configured downstream has started and nobody has waited for it yet.
     dialling: bool,
     /// Frame whose output failed: its remaining bands are discarded.
@@ -110,6 +114,7 @@ pub(crate) async fn run(
         metrics,
         link,
         generation: 0,
+        epoch: 0,
         dialling: false,
         failed: None,
         bytes_out: 0,
@@ -130,8 +135,11 @@ pub(crate) async fn run(
             dialled = w.link.writer(), if w.dialling => {
                 w.dialling = false;
                 if let Err(e) = dialled {
-                    w.control
-                        .error(ErrorCode::PeerLost, format!("cannot reach downstream: {e}"));
+                    w.control.epoch_error(
+                        w.epoch,
+                        ErrorCode::PeerLost,
+                        format!("cannot reach downstream: {e}"),
+                    );
                 }
                 continue;
             }
@@ -168,6 +176,7 @@ impl Writer {
     /// the same and still up, dialled otherwise) and forgets the older configuration's frame.
     fn retarget(&mut self, t: Target) {
         self.generation = t.generation;
+        self.epoch = t.epoch;
         self.failed = None;
         self.bytes_out = 0;
         self.send_time = Duration::ZERO;
@@ -259,8 +268,12 @@ impl Writer {
             NetError::Timeout { .. } => ErrorCode::Timeout,
             _ => ErrorCode::PeerLost,
         };
-        self.control
-            .error(code, format!("frame {frame}: downstream write failed: {e}"));
+        self.control.frame_error(
+            self.epoch,
+            frame,
+            code,
+            format!("frame {frame}: downstream write failed: {e}"),
+        );
         self.metrics.frame_failed();
         self.link.close();
         self.failed = Some(frame);

@@ -538,6 +538,7 @@ pub(crate) async fn register(
         Message::Error {
             code: ErrorCode::Busy,
             message,
+            ..
         } => {
             return Err(ControlError::Busy {
                 address: d.address,

@@ -64,7 +64,7 @@ pub enum ConfigError {
     Light { index: usize, source: WireError },
     #[error("camera: {0}")]
     Camera(WireError),
-    #[error("node colour {0:?} must be finite and positive in every channel")]
+    #[error("node colour {0:?} must be finite and non-negative in every channel")]
     BadColor([f32; 3]),
     #[error("scale {0} must be finite and non-negative, and positive for seed64")]
     BadScale(f32),
@@ -176,7 +176,9 @@ pub fn check(
         .enumerate()
         .map(|(index, w)| light_from_wire(w).map_err(|source| ConfigError::Light { index, source }))
         .collect::<Result<Vec<_>, _>>()?;
-    if !config.color.iter().all(|c| c.is_finite() && *c > 0.0) {
+    // A zero channel is a saturated light colour (pure red is `[1, 0, 0]`): the node's lights
+    // carry nothing in it (`gpu::lights::colour_weight`) and the compositor multiplies it by 0.
+    if !config.color.iter().all(|c| c.is_finite() && *c >= 0.0) {
         return Err(ConfigError::BadColor(config.color));
     }
     check_scale(config.scale, &config.layers)?;
@@ -388,6 +390,19 @@ mod tests {
     }
 
     #[test]
+    fn saturated_node_colours_pass() {
+        // A pure-red light's colour group: the planner sends its colour as `c_n`. Refusing a zero
+        // channel ended live sessions whose user picked #ff0000.
+        for color in [[1.0, 0.0, 0.0], [3.0, 0.375, 0.0], [0.0; 3]] {
+            let c = NodeConfig {
+                color,
+                ..config(vec![(Layer::Illumination, PixelFormat::Rgb9e5x2)], 1)
+            };
+            assert!(run(c).is_ok(), "{color:?}");
+        }
+    }
+
+    #[test]
     fn sizes_beyond_the_shared_limits_are_refused() {
         // A device that takes 16384² textures still gets at most the limits' image and maps:
         // 16384 × 16384 used to pass here and then panic in wgpu.
@@ -472,7 +487,14 @@ mod tests {
             ),
             (
                 NodeConfig {
-                    color: [1.0, 0.0, 1.0],
+                    color: [1.0, -0.5, 1.0],
+                    ..config(illum.clone(), 1)
+                },
+                |e| matches!(e, ConfigError::BadColor(_)),
+            ),
+            (
+                NodeConfig {
+                    color: [1.0, f32::NAN, 0.0],
                     ..config(illum.clone(), 1)
                 },
                 |e| matches!(e, ConfigError::BadColor(_)),

@@ -35,12 +35,21 @@ struct Refusal {
     message: String,
 }
 
+impl Refusal {
+    /// The refusal as the error of the configuration of `epoch`.
+    fn of_epoch(self, epoch: u64) -> Message {
+        Message::epoch_error(epoch, self.code, self.message)
+    }
+
+    /// The refusal as the error of `frame` of `epoch`.
+    fn of_frame(self, epoch: u64, frame: u64) -> Message {
+        Message::frame_error(epoch, frame, self.code, self.message)
+    }
+}
+
 impl From<Refusal> for Message {
     fn from(r: Refusal) -> Message {
-        Message::Error {
-            code: r.code,
-            message: r.message,
-        }
+        Message::error(r.code, r.message)
     }
 }
 
@@ -214,7 +223,7 @@ impl Engine {
         let hash = config.scene;
         let Some(scene) = self.scenes.get(&hash) else {
             let e = SceneCacheError::Unknown { hash: hex(&hash) };
-            return error(e.code(), e.to_string());
+            return Message::epoch_error(epoch, e.code(), e.to_string());
         };
         let animated = scene.is_animated();
         let limits = self.report.limits.clone();
@@ -226,7 +235,10 @@ impl Engine {
             self.max_frame,
         ) {
             Ok(c) => c,
-            Err(e) => return error(e.code(), format!("configuration {epoch}: {e}")),
+            Err(e) => {
+                let message = format!("configuration {epoch}: {e}");
+                return refuse(e.code(), message).of_epoch(epoch);
+            }
         };
         let setup = RenderSetup {
             scene_hash: hash,
@@ -234,10 +246,11 @@ impl Engine {
             checked: checked.clone(),
         };
         if let Err(e) = self.render.configure(setup).await {
-            return error(
+            return refuse(
                 ErrorCode::RenderFailed,
                 format!("configuration {epoch}: {e}"),
-            );
+            )
+            .of_epoch(epoch);
         }
         self.downstream.set_address(&checked.config.downstream);
         tracing::info!(
@@ -285,10 +298,10 @@ impl Engine {
         let start = Instant::now();
         let key = match self.frame_key(epoch, frame, camera, &params) {
             Ok(k) => k,
-            Err(r) => return r.into(),
+            Err(r) => return r.of_frame(epoch, frame),
         };
         let Some(active) = &self.active else {
-            return error(ErrorCode::BadConfig, "not configured");
+            return refuse(ErrorCode::BadConfig, "not configured").of_frame(epoch, frame);
         };
         let walkthrough = active.checked.config.walkthrough;
         let mut stats = FrameStats {
@@ -305,7 +318,7 @@ impl Engine {
                 .await
         };
         if let Err(r) = sent {
-            return r.into();
+            return r.of_frame(epoch, frame);
         }
         stats.total_us = start.elapsed().as_micros() as u64;
         stats.peak_rss_bytes = peak_rss_bytes();

@@ -188,10 +188,10 @@ async fn read(
             Frame::Control(m) => m,
             other => {
                 let got = lightfold_net::describe(&other);
-                let refusal = Message::Error {
-                    code: ErrorCode::BadConfig,
-                    message: format!("control link carries control messages only, got {got}"),
-                };
+                let refusal = Message::error(
+                    ErrorCode::BadConfig,
+                    format!("control link carries control messages only, got {got}"),
+                );
                 if out.send(refusal).await.is_err() {
                     return Ended::Left;
                 }
@@ -335,10 +335,10 @@ async fn handle(engine: &Mutex<Engine>, msg: Message) -> Option<Message> {
         other => {
             let name = format!("{other:?}");
             let name = name.split(['(', ' ', '{']).next().unwrap_or("?");
-            Some(Message::Error {
-                code: ErrorCode::BadConfig,
-                message: format!("a render node does not handle {name}"),
-            })
+            Some(Message::error(
+                ErrorCode::BadConfig,
+                format!("a render node does not handle {name}"),
+            ))
         }
     }
 }

@@ -380,8 +380,18 @@ pub fn message() -> impl Strategy<Value = Message> {
             })
             .boxed(),
         frame_stats().prop_map(Message::FrameDone).boxed(),
-        (error_code(), text())
-            .prop_map(|(code, message)| Message::Error { code, message })
+        (
+            error_code(),
+            text(),
+            proptest::option::of(any::<u64>()),
+            proptest::option::of(any::<u64>())
+        )
+            .prop_map(|(code, message, epoch, frame)| Message::Error {
+                code,
+                message,
+                epoch,
+                frame
+            })
             .boxed(),
         any::<u64>().prop_map(|seq| Message::Ping { seq }).boxed(),
         any::<u64>().prop_map(|seq| Message::Pong { seq }).boxed(),

@@ -1,7 +1,7 @@
 //! Plan epochs: planning over the daemons connected now, sending the scene and the
 //! configurations, and waiting for every daemon of the new plan to apply them.
 
-use super::{EpochRecord, Halt, Live, MAX_REPLANS_WITHOUT_PROGRESS, SceneBytes};
+use super::{EpochRecord, Halt, Live, MAX_REPLANS_WITHOUT_PROGRESS, SceneBytes, Settings};
 use crate::control::session::{ControlError, SCENE_CHUNK};
 use crate::control::sink::SinkGeometry;
 use crate::plan::{Plan, PlanError, lights_moved, plan, replan};
@@ -78,6 +78,10 @@ impl Live<'_> {
                 }
                 Err(Halt::Interrupted) => {
                     reason = format!("{reason}; then {} lost", self.just_lost.join(", "));
+                    continue;
+                }
+                Err(Halt::Refused { id, code, message }) => {
+                    reason = self.absorb_refusal(&id, code, &message)?;
                     continue;
                 }
                 Err(Halt::Fatal(e)) => return Err(e),
@@ -176,8 +180,8 @@ impl Live<'_> {
                 Message::SceneReady { hash: h, .. } if Some(h) == wanted && loading.remove(&id) => {
                     self.session.scenes.insert(id, h);
                 }
-                Message::Error { code, message } if pending.contains(&id) => {
-                    return Err(self.refused(id, code, message));
+                Message::Error { code, message, .. } if pending.contains(&id) => {
+                    return Err(Halt::Refused { id, code, message });
                 }
                 other => self.ignore(&id, other),
             }
@@ -220,10 +224,13 @@ impl Live<'_> {
                 Message::Configured { epoch } if epoch == next.epoch => {
                     waiting.remove(&id);
                 }
-                Message::Error { code, message }
-                    if waiting.contains(&id) && refuses_configuration(code, &message) =>
-                {
-                    return Err(self.refused(id, code, message));
+                Message::Error {
+                    code,
+                    message,
+                    epoch: Some(e),
+                    frame: None,
+                } if e == next.epoch && waiting.contains(&id) => {
+                    return Err(Halt::Refused { id, code, message });
                 }
                 other => self.ignore(&id, other),
             }
@@ -262,25 +269,73 @@ impl Live<'_> {
         self.summary.plan = Some(next.clone());
         self.set_model(&next);
         self.plan_scale = self.opts.cost_scale;
+        self.good = Some(Settings {
+            epoch: next.epoch,
+            colors: self.scene.lights.iter().map(|l| l.color).collect(),
+            opts: self.opts.clone(),
+        });
+        self.refusals = 0;
         self.plan = Some(next);
         self.measured.clear();
         self.scales.clear();
-        self.established_at = Instant::now();
         self.sent_in_epoch = 0;
         Ok(())
     }
 
-    /// A daemon of the new plan refused it: the run cannot go on.
-    fn refused(&self, id: String, code: ErrorCode, message: String) -> Halt {
-        Halt::Fatal(
-            ControlError::Remote {
-                address: self.session.address(&id),
-                id,
+    /// A daemon refused the scene or configuration of a new epoch. The coordinator planned what
+    /// the daemon's own checks refuse, which is the coordinator's to absorb: the settings that
+    /// changed since the last epoch every daemon took (light colours, the frame budget, the
+    /// cost model) go back to what they were, the viewers are told why, and frames asking for
+    /// the refused settings again are sent without them. Where nothing changed, the daemon cannot
+    /// take its part under settings that worked: it is left out (lost). Only a refusal of the very first plan ends the run: nothing has
+    /// worked yet to go back to. Returns the reason of the next plan.
+    ///
+    /// A daemon left out is redialled like any lost one; when it answers it is folded in at the
+    /// next re-plan something else causes, not at once, so a daemon that refuses every plan
+    /// costs one re-plan per other event rather than a loop.
+    fn absorb_refusal(
+        &mut self,
+        id: &str,
+        code: ErrorCode,
+        message: &str,
+    ) -> Result<String, RunError> {
+        let Some(good) = self.good.clone() else {
+            return Err(ControlError::Remote {
+                address: self.session.address(id),
+                id: id.to_string(),
                 code,
-                message,
+                message: message.to_string(),
             }
-            .into(),
-        )
+            .into());
+        };
+        self.refusals += 1;
+        if self.refusals > MAX_REPLANS_WITHOUT_PROGRESS {
+            return Err(ControlError::Stuck(format!(
+                "{MAX_REPLANS_WITHOUT_PROGRESS} configurations in a row were refused; the last: \
+                 {id} reported {code:?}: {message}"
+            ))
+            .into());
+        }
+        let undone = self.restore(&good)?;
+        let why = if undone.is_empty() {
+            self.lose(
+                id,
+                format!("refused its configuration ({code:?}: {message})"),
+            );
+            self.shunned.insert(id.to_string());
+            format!(
+                "{id} refused its part of the plan ({code:?}: {message}): re-planning without it"
+            )
+        } else {
+            format!(
+                "{id} refused the new configuration ({code:?}: {message}): {} kept as in epoch \
+                 {}, re-planning",
+                undone.join(", "),
+                good.epoch
+            )
+        };
+        self.notice(why.clone());
+        Ok(why)
     }
 
     pub(super) fn check_interrupted(&self, members: &BTreeSet<String>) -> Result<(), Halt> {
@@ -293,9 +348,54 @@ impl Live<'_> {
 
     pub(super) fn ignore(&mut self, id: &str, m: Message) {
         match m {
-            Message::Error { code, message } => tracing::warn!(daemon = %id, ?code, "{message}"),
+            Message::Error {
+                code,
+                message,
+                epoch,
+                frame,
+            } => tracing::warn!(daemon = %id, ?code, ?epoch, ?frame, "{message}"),
             other => tracing::debug!(daemon = %id, "ignored while configuring: {other:?}"),
         }
+    }
+
+    /// Puts back the settings of an epoch every daemon took; what changed is named in the
+    /// returned list (empty: nothing had changed) and remembered as refused
+    /// (`Refused::strip`).
+    fn restore(&mut self, good: &Settings) -> Result<Vec<String>, RunError> {
+        let mut undone = Vec::new();
+        let back: Vec<(u32, [f32; 3])> = self
+            .scene
+            .lights
+            .iter()
+            .zip(&good.colors)
+            .enumerate()
+            .filter(|(_, (l, c))| l.color.map(f32::to_bits) != c.map(f32::to_bits))
+            .map(|(i, (l, c))| {
+                self.refused.colors.push((i as u32, l.color));
+                (i as u32, *c)
+            })
+            .collect();
+        if !back.is_empty() {
+            undone.push(format!(
+                "the colours of light(s) {:?}",
+                back.iter().map(|b| b.0).collect::<Vec<_>>()
+            ));
+            self.recolour(&back)?;
+        }
+        if self.opts.frame_budget_us != good.opts.frame_budget_us {
+            self.refused.budget = Some(self.opts.frame_budget_us);
+            undone.push(match good.opts.frame_budget_us {
+                Some(us) => format!("the frame budget ({:.1} ms)", us as f64 / 1e3),
+                None => "no frame budget".to_string(),
+            });
+        }
+        if self.opts.cost_scale != good.opts.cost_scale {
+            undone.push("the cost model".to_string());
+        }
+        if !undone.is_empty() {
+            self.opts = good.opts.clone();
+        }
+        Ok(undone)
     }
 
     pub(super) async fn send_or_lose(&mut self, id: &str, msg: Message) {
@@ -425,18 +525,4 @@ fn too_few(e: &PlanError) -> bool {
         e,
         PlanError::NoNodes | PlanError::NoCompositors | PlanError::NotEnoughNodes { .. }
     )
-}
-
-/// Whether an error answering a configuration refuses it (rather than reporting on a frame of
-/// the epoch before).
-fn refuses_configuration(code: ErrorCode, message: &str) -> bool {
-    !message.starts_with("frame ")
-        && matches!(
-            code,
-            ErrorCode::BadConfig
-                | ErrorCode::UnknownScene
-                | ErrorCode::UnsupportedFormat
-                | ErrorCode::UnknownOperator
-                | ErrorCode::RenderFailed
-        )
 }

@@ -75,9 +75,10 @@ impl Live<'_> {
         let limit = self.session.opts.frames_in_flight.max(1);
         let epoch = plan.epoch;
         while self.inflight.len() < limit {
-            let Some((index, spec)) = self.queue.pop_front() else {
+            let Some((index, mut spec)) = self.queue.pop_front() else {
                 break;
             };
+            self.refused.strip(&mut spec);
             let Some(plan) = &self.plan else {
                 break;
             };
@@ -161,7 +162,7 @@ impl Live<'_> {
 
     /// Gives the scene's lights the colours of `colors` (source light → colour), as the next plan
     /// and the nodes will have them.
-    fn recolour(&mut self, colors: &[(u32, [f32; 3])]) -> Result<(), RunError> {
+    pub(super) fn recolour(&mut self, colors: &[(u32, [f32; 3])]) -> Result<(), RunError> {
         for &(light, color) in colors {
             if let Some(l) = self.scene.lights.get_mut(light as usize) {
                 l.color = color;

@@ -43,9 +43,6 @@ use tokio_util::sync::CancellationToken;
 const STATUS_INCIDENTS: usize = 50;
 /// How often the loop looks at heartbeats and deadlines.
 const TICK: Duration = Duration::from_millis(50);
-/// Frame failures reported this soon after an epoch was configured are taken to belong to the
-/// frames of the epoch before (daemon errors carry no epoch).
-const ERROR_GRACE: Duration = Duration::from_millis(300);
 /// A frame failure waits this long before the frames are requested again, so that the loss
 /// behind it (which usually arrives at the same time) makes one re-plan, not two.
 const RESET_DEBOUNCE: Duration = Duration::from_millis(300);
@@ -171,6 +168,12 @@ struct InFlight {
 enum Halt {
     /// A daemon of the new plan was lost: plan again.
     Interrupted,
+    /// A daemon refused the new plan's scene or configuration (`Live::absorb_refusal`).
+    Refused {
+        id: String,
+        code: ErrorCode,
+        message: String,
+    },
     Fatal(RunError),
 }
 
@@ -183,6 +186,39 @@ impl From<RunError> for Halt {
 impl From<ControlError> for Halt {
     fn from(e: ControlError) -> Halt {
         Halt::Fatal(e.into())
+    }
+}
+
+/// The settings of an epoch every daemon took: what a refused configuration goes back to.
+#[derive(Debug, Clone)]
+struct Settings {
+    epoch: u64,
+    /// Each scene light's colour.
+    colors: Vec<[f32; 3]>,
+    opts: PlanOptions,
+}
+
+/// Settings daemons refused: frame requests asking for them again are sent without them.
+#[derive(Debug, Default)]
+struct Refused {
+    /// (scene light, colour) pairs.
+    colors: Vec<(u32, [f32; 3])>,
+    /// A frame budget (`FrameSpec::frame_budget_us`).
+    budget: Option<Option<u64>>,
+}
+
+impl Refused {
+    /// Takes out of `spec` what was refused: those lights keep their colour, the budget stays.
+    fn strip(&self, spec: &mut FrameSpec) {
+        spec.light_colors.retain(|(l, c)| {
+            !self
+                .colors
+                .iter()
+                .any(|(rl, rc)| rl == l && rc.map(f32::to_bits) == c.map(f32::to_bits))
+        });
+        if spec.frame_budget_us.is_some() && spec.frame_budget_us == self.budget {
+            spec.frame_budget_us = None;
+        }
     }
 }
 
@@ -218,7 +254,12 @@ pub struct Live<'s> {
     plan_scale: crate::plan::CostScale,
     /// The plan's daemons, compositors first.
     participants: Vec<String>,
-    established_at: Instant,
+    /// The settings of the newest epoch every daemon took, refusals since, what was refused,
+    /// and daemons left out for refusing their part (`Live::absorb_refusal`).
+    good: Option<Settings>,
+    refusals: u32,
+    refused: Refused,
+    shunned: std::collections::BTreeSet<String>,
     /// Frame requests sent in the current epoch.
     sent_in_epoch: u64,
     next_index: u64,
@@ -299,7 +340,10 @@ impl<'s> Live<'s> {
             known_good: None,
             plan_scale: crate::plan::CostScale::default(),
             participants: Vec::new(),
-            established_at: Instant::now(),
+            good: None,
+            refusals: 0,
+            refused: Refused::default(),
+            shunned: std::collections::BTreeSet::new(),
             sent_in_epoch: 0,
             next_index: 1,
             queue: VecDeque::new(),
@@ -477,6 +521,7 @@ impl<'s> Live<'s> {
             Ok(Message::Error {
                 code: ErrorCode::TakenOver,
                 message,
+                ..
             }) => Err(ControlError::TakenOver {
                 address: self.session.address(&id),
                 id,
@@ -519,27 +564,38 @@ impl<'s> Live<'s> {
                 }
             }
             Message::FrameDone(_) => {} // of an older epoch
-            Message::Error { code, message } => self.daemon_error(&id, code, &message),
+            Message::Error {
+                code,
+                message,
+                epoch: about,
+                frame,
+            } => self.daemon_error(&id, code, &message, about, frame),
             other => tracing::debug!(daemon = %id, "ignored {other:?}"),
         }
         Ok(())
     }
 
-    fn daemon_error(&mut self, id: &str, code: ErrorCode, message: &str) {
+    /// A daemon's error while frames run. Errors name the epoch (and frame) they are about: one
+    /// of an epoch the loop has left, or of a frame no longer in flight, is history and changes
+    /// nothing; errors about the link alone (no epoch) are logged.
+    fn daemon_error(
+        &mut self,
+        id: &str,
+        code: ErrorCode,
+        message: &str,
+        about: Option<u64>,
+        frame: Option<u64>,
+    ) {
+        let current = self.plan.as_ref().map(|p| p.epoch);
+        if about.is_none() || about != current {
+            tracing::info!(daemon = %id, ?code, epoch = ?about, "{message} (not about the current epoch: ignored)");
+            return;
+        }
         tracing::warn!(daemon = %id, ?code, "{message}");
-        let frame_failure = matches!(
-            code,
-            ErrorCode::BandMismatch
-                | ErrorCode::Timeout
-                | ErrorCode::PeerLost
-                | ErrorCode::RenderFailed
-                | ErrorCode::Internal
-        );
-        if frame_failure
-            && !self.inflight.is_empty()
-            && self.established_at.elapsed() > ERROR_GRACE
-            && self.reset_at.is_none()
-        {
+        if frame.is_some_and(|w| !self.inflight.iter().any(|f| f.wire == w)) {
+            return;
+        }
+        if is_frame_failure(code) && !self.inflight.is_empty() && self.reset_at.is_none() {
             self.reset_at = Some((
                 Instant::now() + RESET_DEBOUNCE,
                 format!("{id} reported {code:?}: {message}"),
@@ -590,7 +646,12 @@ impl<'s> Live<'s> {
             kind: IncidentKind::Rejoined,
             at: Instant::now(),
         });
-        self.pending_join.get_or_insert(format!("{id} rejoined"));
+        if self.shunned.remove(&id) {
+            // It refused its part: it takes part again when something else re-plans.
+            tracing::info!(daemon = %id, "rejoined after refusing its configuration: folded in at the next re-plan");
+        } else {
+            self.pending_join.get_or_insert(format!("{id} rejoined"));
+        }
         self.publish(false);
     }
 
@@ -868,6 +929,19 @@ impl<'s> Live<'s> {
             })
             .collect();
     }
+}
+
+/// Whether a daemon's error means the frames of its epoch cannot complete (rather than a value
+/// it ignored, say).
+fn is_frame_failure(code: ErrorCode) -> bool {
+    matches!(
+        code,
+        ErrorCode::BandMismatch
+            | ErrorCode::Timeout
+            | ErrorCode::PeerLost
+            | ErrorCode::RenderFailed
+            | ErrorCode::Internal
+    )
 }
 
 /// What a plan chose, estimates aside: K, what it gave up, the active samples and each node's
