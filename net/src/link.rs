@@ -187,8 +187,9 @@ pub async fn dial(addr: &str, me: &Identity, t: Timeouts) -> Result<Link, NetErr
     handshake(stream, addr.to_string(), me, true, t).await
 }
 
-/// Dials until it succeeds or `total` has passed (for peers that are still starting). Handshake
-/// failures are not retried: a wrong token or version stays wrong.
+/// Dials until it succeeds or `total` has passed (for peers that are still starting, or whose
+/// handshake slots are full). Handshake failures are not retried: a wrong token or version stays
+/// wrong.
 pub async fn dial_retry(
     addr: &str,
     me: &Identity,
@@ -200,12 +201,19 @@ pub async fn dial_retry(
     loop {
         match dial(addr, me, t).await {
             Ok(link) => return Ok(link),
-            Err(
-                e @ (NetError::Connect { .. }
-                | NetError::Timeout {
-                    what: "connect", ..
-                }),
-            ) => {
+            // Refused, unanswered, or closed before the handshake: a listener whose handshake
+            // slots are all taken (`gate`) closes new connections at once, and frees a slot
+            // within its handshake deadline.
+            Err(e)
+                if matches!(
+                    e,
+                    NetError::Connect { .. }
+                        | NetError::Timeout {
+                            what: "connect",
+                            ..
+                        }
+                ) || e.is_disconnect() =>
+            {
                 if start.elapsed() + wait >= total {
                     return Err(e);
                 }

@@ -351,3 +351,58 @@ async fn too_few_daemons_is_a_clear_error_unless_told_to_wait() {
     assert_eq!(frames.len(), FRAMES as usize);
     cluster.stop().await.unwrap();
 }
+
+/// Seventy silent TCP connections to the coordinator's sink (no token, nothing sent), opened
+/// under a coordinator that waits three minutes for its own dials (`demo`'s
+/// `--connect-timeout`), then the sink compositor lost: the new last stage still gets its link to
+/// the sink. The sink's handshake slots used to stay held for the coordinator's connect timeout,
+/// so every re-plan failed to reach the sink and the run ended with frames never rendered.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn silent_connections_to_the_sink_do_not_keep_the_sink_stage_out() {
+    let (scene, mut opts) = setup();
+    opts.control.link.connect = Duration::from_secs(180);
+    opts.control.link.handshake = Duration::from_secs(180);
+    let cluster = InProcessCluster::start(4, 4).await.unwrap();
+    let stop = cluster.stop_token("comp-3").unwrap();
+    let mut session = cluster.connect(opts.control).await.unwrap();
+    let mut silent = Vec::new();
+    for _ in 0..70 {
+        silent.push(
+            tokio::net::TcpStream::connect(&session.sink_address)
+                .await
+                .unwrap(),
+        );
+    }
+    let mut frames = Vec::new();
+    let outcome = tokio::time::timeout(
+        lightfold_tests::RUN_DEADLINE,
+        lightfold_coordinator::run::render(&mut session, &scene, &opts, |f| {
+            if f.frame == 2 {
+                stop.cancel();
+            }
+            frames.push(f);
+        }),
+    )
+    .await
+    .expect("the run timed out");
+    session.detach();
+    drop(silent);
+    assert!(
+        outcome.error.is_none(),
+        "{:?} after {} frames; epochs {:?}",
+        outcome.error,
+        frames.len(),
+        outcome.summary.epochs
+    );
+    let out = RunOutput {
+        plan: outcome.summary.plan.clone().expect("a plan"),
+        frames,
+        summary: outcome.summary,
+    };
+    assert!(
+        !out.plan.stages.iter().any(|s| s.compositor == "comp-3"),
+        "the final plan leaves the lost sink stage out"
+    );
+    assert_every_frame(&out, &scene, &opts, "with silent connections at the sink");
+    cluster.stop().await.unwrap();
+}

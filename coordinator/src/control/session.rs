@@ -301,7 +301,7 @@ impl Session {
         tokio::spawn(run_sink(
             sink_listener,
             me.clone(),
-            opts.link,
+            sink_timeouts(opts.link),
             geometry_rx,
             sink_tx,
             cancel.clone(),
@@ -595,6 +595,18 @@ async fn read_control(
         };
         let _ = tx.send((id, generation, Err(end))).await;
         return;
+    }
+}
+
+/// The sink's deadlines: those of the control links, but a peer must finish its handshake as
+/// soon as a daemon's listener asks (`Timeouts::default`, 5 s), however long the coordinator
+/// waits for daemons to answer its own dials (`--connect-timeout`). Unauthenticated connections
+/// then hold the sink's handshake slots for seconds, not minutes, and the sink compositor, whose
+/// dials retry a listener that closed at once (`lightfold_net::dial_retry`), gets in.
+fn sink_timeouts(link: Timeouts) -> Timeouts {
+    Timeouts {
+        handshake: link.handshake.min(Timeouts::default().handshake),
+        ..link
     }
 }
 

@@ -587,15 +587,14 @@ impl<'s> Live<'s> {
         frame: Option<u64>,
     ) {
         let current = self.plan.as_ref().map(|p| p.epoch);
-        if about.is_none() || about != current {
-            tracing::info!(daemon = %id, ?code, epoch = ?about, "{message} (not about the current epoch: ignored)");
+        let inflight: Vec<u64> = self.inflight.iter().map(|f| f.wire).collect();
+        let verdict = judge_error(current, &inflight, code, about, frame);
+        if verdict == ErrorVerdict::History {
+            tracing::info!(daemon = %id, ?code, epoch = ?about, frame = ?frame, "{message} (of an epoch or frame no longer run: ignored)");
             return;
         }
         tracing::warn!(daemon = %id, ?code, "{message}");
-        if frame.is_some_and(|w| !self.inflight.iter().any(|f| f.wire == w)) {
-            return;
-        }
-        if is_frame_failure(code) && !self.inflight.is_empty() && self.reset_at.is_none() {
+        if verdict == ErrorVerdict::FramesFail && self.reset_at.is_none() {
             self.reset_at = Some((
                 Instant::now() + RESET_DEBOUNCE,
                 format!("{id} reported {code:?}: {message}"),
@@ -931,17 +930,44 @@ impl<'s> Live<'s> {
     }
 }
 
-/// Whether a daemon's error means the frames of its epoch cannot complete (rather than a value
-/// it ignored, say).
-fn is_frame_failure(code: ErrorCode) -> bool {
-    matches!(
+/// What a daemon's error means to the loop while frames run.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum ErrorVerdict {
+    /// About an epoch the loop has left, a frame no longer in flight, or the link alone (no
+    /// epoch): nothing to do beyond a log line.
+    History,
+    /// About the current epoch, but nothing that stops its frames (a value it ignored, say).
+    Logged,
+    /// The frames in flight of the current epoch cannot complete: request them again.
+    FramesFail,
+}
+
+/// Judges an error about epoch `about` (and `frame`, a wire frame id) while the loop runs epoch
+/// `current` with the wire frames `inflight`. Pure, so the rule that nothing of an old epoch can
+/// fail a new one is tested without a cluster.
+fn judge_error(
+    current: Option<u64>,
+    inflight: &[u64],
+    code: ErrorCode,
+    about: Option<u64>,
+    frame: Option<u64>,
+) -> ErrorVerdict {
+    if about.is_none() || about != current || frame.is_some_and(|w| !inflight.contains(&w)) {
+        return ErrorVerdict::History;
+    }
+    let fails = matches!(
         code,
         ErrorCode::BandMismatch
             | ErrorCode::Timeout
             | ErrorCode::PeerLost
             | ErrorCode::RenderFailed
             | ErrorCode::Internal
-    )
+    );
+    if fails && !inflight.is_empty() {
+        ErrorVerdict::FramesFail
+    } else {
+        ErrorVerdict::Logged
+    }
 }
 
 /// What a plan chose, estimates aside: K, what it gave up, the active samples and each node's
@@ -972,4 +998,37 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// A plan's quality for the budget's purposes: more samples, then fewer concessions.
 fn quality(p: &Plan) -> (usize, std::cmp::Reverse<usize>) {
     (p.samples.len(), std::cmp::Reverse(p.concessions.len()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{ErrorVerdict, judge_error};
+    use lightfold_protocol::ErrorCode;
+
+    #[test]
+    fn a_stale_timeout_after_a_re_plan_fails_nothing() {
+        // The loss of a node re-planned epoch 7 into 8; a stage the new plan dropped reports its
+        // old frame's input timeout 30 s later, when frames 41 and 42 of epoch 8 are in flight.
+        let inflight = [41, 42];
+        let stale = judge_error(Some(8), &inflight, ErrorCode::Timeout, Some(7), Some(12));
+        assert_eq!(stale, ErrorVerdict::History);
+        // The same report about epoch 8's frame 41 is a failure of the frames in flight.
+        let fresh = judge_error(Some(8), &inflight, ErrorCode::Timeout, Some(8), Some(41));
+        assert_eq!(fresh, ErrorVerdict::FramesFail);
+        // A frame of the current epoch already delivered, and errors without an epoch (a
+        // message the daemon does not take), change nothing either.
+        let done = judge_error(Some(8), &inflight, ErrorCode::PeerLost, Some(8), Some(40));
+        assert_eq!(done, ErrorVerdict::History);
+        let link = judge_error(Some(8), &inflight, ErrorCode::Internal, None, None);
+        assert_eq!(link, ErrorVerdict::History);
+        // A downstream the current epoch cannot reach (epoch, no frame) fails its frames; an
+        // ignored colour does not.
+        let unreachable = judge_error(Some(8), &inflight, ErrorCode::PeerLost, Some(8), None);
+        assert_eq!(unreachable, ErrorVerdict::FramesFail);
+        let ignored = judge_error(Some(8), &inflight, ErrorCode::BadConfig, Some(8), Some(42));
+        assert_eq!(ignored, ErrorVerdict::Logged);
+        // With nothing in flight there is nothing to request again.
+        let idle = judge_error(Some(8), &[], ErrorCode::PeerLost, Some(8), None);
+        assert_eq!(idle, ErrorVerdict::Logged);
+    }
 }
