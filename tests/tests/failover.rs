@@ -406,3 +406,74 @@ async fn silent_connections_to_the_sink_do_not_keep_the_sink_stage_out() {
     assert_every_frame(&out, &scene, &opts, "with silent connections at the sink");
     cluster.stop().await.unwrap();
 }
+
+/// The live view's sequence that ended sessions: a saturated light colour (pure red, whose node
+/// colour `[1, 0, 0]` render nodes refused), a frame budget set, then cleared — each a re-plan
+/// over the red scene. Every frame is delivered, equal to the single-device render of its camera
+/// under the colours it asked for.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_pure_red_light_and_a_budget_change_do_not_end_the_session() {
+    let (scene, mut opts) = setup();
+    let red = [1.0, 0.0, 0.0];
+    opts.color_changes = vec![lightfold_coordinator::run::ColorChange {
+        frame: 2,
+        light: 0,
+        color: red,
+    }];
+    let mut specs = lightfold_coordinator::run::frame_specs(&scene, &opts);
+    // A budget the default plan fits (no concession changes the image), then none.
+    specs[2].frame_budget_us = Some(Some(60_000_000));
+    specs[4].frame_budget_us = Some(None);
+    let cluster = InProcessCluster::start(4, 4).await.unwrap();
+    let mut session = cluster.connect(opts.control).await.unwrap();
+    let (req_tx, req_rx) = tokio::sync::mpsc::channel(1);
+    let mut frames = Vec::new();
+    let mut live = Live::new(&mut session, &scene, &opts.plan).unwrap();
+    let notices = live.observe();
+    let render = live.run(req_rx, |f| frames.push(f));
+    let feed = async {
+        for spec in specs {
+            if req_tx.send(spec).await.is_err() {
+                break;
+            }
+        }
+        drop(req_tx);
+    };
+    let (result, ()) = tokio::time::timeout(lightfold_tests::RUN_DEADLINE, async {
+        tokio::join!(render, feed)
+    })
+    .await
+    .expect("the run timed out");
+    let summary = std::mem::take(&mut live.summary);
+    drop(live);
+    session.detach();
+    assert!(result.is_ok(), "{result:?}; epochs {:?}", summary.epochs);
+    let reasons: Vec<&str> = summary.epochs.iter().map(|e| e.reason.as_str()).collect();
+    eprintln!("epochs: {reasons:?}; last notice {:?}", notices.borrow().notice);
+    assert!(
+        reasons.iter().any(|r| r.contains("colour group")),
+        "the red light re-planned: {reasons:?}"
+    );
+    assert!(
+        reasons.iter().any(|r| r.contains("no frame budget")),
+        "clearing the budget re-planned: {reasons:?}"
+    );
+    assert!(
+        !reasons.iter().any(|r| r.contains("refused")),
+        "no daemon refused a plan: {reasons:?}"
+    );
+    let gpu = Gpu::new(&GpuOptions::default())
+        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let numbers: Vec<u64> = frames.iter().map(|f| f.frame).collect();
+    assert_eq!(numbers, (1..=u64::from(FRAMES)).collect::<Vec<_>>());
+    for f in &frames {
+        let mut s = scene.clone();
+        s.camera = camera_at(&scene.camera, opts.path, (f.frame - 1) as u32);
+        if f.frame >= 2 {
+            s.lights[0].color = red;
+        }
+        let truth = lightfold_tests::single_device(&gpu, &s, false);
+        lightfold_tests::assert_close(&f.image, &truth, &format!("frame {}", f.frame));
+    }
+    cluster.stop().await.unwrap();
+}
