@@ -35,6 +35,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let token = lightfold_net::load_token(args.daemon.token_file.as_deref())?;
     let input_timeout = seconds("input-timeout", args.input_timeout)?;
     let dial_timeout = seconds("dial-timeout", args.dial_timeout)?;
+    let silence = args.daemon.coordinator_silence()?;
     let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .enable_all()
@@ -46,6 +47,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let mut opts = CompositorOptions::new(id.clone(), advertise, &token);
         opts.input_timeout = input_timeout;
         opts.dial_timeout = dial_timeout;
+        opts.coordinator_silence = silence;
         opts.compute_threads = usize::from(args.compute_threads);
         let shutdown = crate::lifecycle::shutdown_token(args.daemon.parent_pid);
         crate::metrics_http::start(&args.daemon.metrics, "compositor", &id, shutdown.clone())

@@ -28,11 +28,25 @@ pub struct DaemonArgs {
     /// Stop when this process is no longer our parent (set by launchers such as `demo`).
     #[arg(long)]
     pub parent_pid: Option<u32>,
+    /// Release a coordinator's claim when its control link brings nothing (its keepalives come
+    /// every 250 ms) for this many seconds: a stopped, hung or cut-off coordinator then holds
+    /// this daemon no longer. 0: never.
+    #[arg(long, default_value_t = 5.0, value_name = "SECONDS")]
+    pub coordinator_silence: f64,
     #[command(flatten)]
     pub metrics: crate::metrics_http::MetricsArgs,
 }
 
 impl DaemonArgs {
+    /// `--coordinator-silence` as a duration.
+    pub fn coordinator_silence(&self) -> anyhow::Result<std::time::Duration> {
+        let s = self.coordinator_silence;
+        if !(s.is_finite() && (0.0..=86_400.0).contains(&s)) {
+            anyhow::bail!("--coordinator-silence {s} is not a number of seconds from 0 to 86400");
+        }
+        Ok(std::time::Duration::from_secs_f64(s))
+    }
+
     /// Binds the listener, prints `listening <addr>` (flushed) for launchers, and returns the
     /// listener with the daemon id (`<role>-<host>-<port>` unless given).
     pub async fn bind(&self, role: &str) -> anyhow::Result<(TcpListener, String)> {

@@ -42,6 +42,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     rt.block_on(async move {
         let (listener, id) = args.daemon.bind("node").await?;
         let mut opts = NodeOptions::new(id.clone(), &token);
+        opts.coordinator_silence = args.daemon.coordinator_silence()?;
         opts.advertise = args.daemon.advertise;
         opts.cache_dir = args.cache_dir;
         opts.gpu = GpuOptions {

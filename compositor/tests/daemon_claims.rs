@@ -136,3 +136,56 @@ async fn one_coordinator_session_holds_a_stage() {
     u2.configure(cfg(4), WAIT).await.unwrap();
     stage.stop().await;
 }
+
+/// A coordinator that falls silent (stopped, hung, cut off, its link still open) is released
+/// after the stage's `coordinator_silence`: another session then claims the stage without
+/// `take_over`. One that keeps talking (the coordinator's keepalives) holds it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_silent_coordinator_is_released() {
+    let silence = Duration::from_millis(600);
+    let stage = start_stage_with("silent-stage", |o| o.coordinator_silence = silence).await;
+
+    // A speaks every 100 ms (as a coordinator's keepalives) for three silences, while B tries:
+    // B is refused.
+    let mut a = claimed(&stage, A, false).await;
+    let (quiet_tx, mut quiet) = tokio::sync::oneshot::channel::<()>();
+    let talker = tokio::spawn(async move {
+        let mut seq = 10;
+        loop {
+            seq += 1;
+            let sent = Instant::now();
+            assert_eq!(ping(&mut a, seq).await, Message::Pong { seq });
+            tokio::select! {
+                _ = &mut quiet => return (a, sent),
+                () = tokio::time::sleep(Duration::from_millis(100)) => {}
+            }
+        }
+    });
+    tokio::time::sleep(3 * silence).await;
+    let mut b = stage.control().await;
+    match b.claim(B, false, WAIT).await {
+        Err(DriverError::Refused { code, .. }) => assert_eq!(code, ErrorCode::Busy),
+        other => panic!("a coordinator that talks keeps its claim: {other:?}"),
+    }
+    quiet_tx.send(()).unwrap();
+    let (mut a, fell_silent) = talker.await.unwrap();
+
+    // Then A falls silent with its link open: the stage closes it, and B gets the stage.
+    expect_closed_within(&mut a, 4 * silence).await;
+    let released = fell_silent.elapsed();
+    assert!(
+        released >= silence,
+        "released after {released:?}, before the {silence:?} of silence"
+    );
+    let mut b = claimed(&stage, B, false).await;
+    assert_eq!(ping(&mut b, 1).await, Message::Pong { seq: 1 });
+    stage.stop().await;
+}
+
+/// The stage closes the link within `within` (not by this side timing out).
+async fn expect_closed_within(c: &mut ControlClient, within: Duration) {
+    match c.next_message(within).await {
+        Err(DriverError::Net(e)) if e.is_disconnect() => {}
+        other => panic!("expected the stage to close the link within {within:?}, got {other:?}"),
+    }
+}

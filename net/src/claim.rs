@@ -13,6 +13,11 @@
 //!
 //! Render nodes and compositors share it (they may not depend on each other, so it lives here).
 
+/// How long a claimed control link may bring nothing before its daemon releases it (the
+/// daemons' `coordinator_silence` default): twenty of the coordinator's keepalive intervals
+/// (250 ms), so a stopped, hung or cut-off coordinator holds no daemon for long.
+pub const COORDINATOR_SILENCE: std::time::Duration = std::time::Duration::from_secs(5);
+
 use lightfold_protocol::{ErrorCode, Message};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;

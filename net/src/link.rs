@@ -407,6 +407,26 @@ impl LinkReader {
             .map(|r| r.map_err(|e| NetError::from_codec(&self.addr, e)))
     }
 
+    /// [`LinkReader::next`], or a `Timeout { what: "silence" }` error when `silence` (if given)
+    /// passes with nothing read: how a daemon notices a coordinator that stopped, hung or was
+    /// cut off without closing its link (coordinators send keepalives well within it).
+    pub async fn next_within(
+        &mut self,
+        silence: Option<Duration>,
+    ) -> Option<Result<Frame, NetError>> {
+        let Some(after) = silence.filter(|d| !d.is_zero()) else {
+            return self.next().await;
+        };
+        match timeout(after, self.next()).await {
+            Ok(next) => next,
+            Err(_) => Some(Err(NetError::Timeout {
+                what: "silence",
+                addr: self.addr.clone(),
+                after,
+            })),
+        }
+    }
+
     pub async fn recv(&mut self, within: Duration) -> Result<Frame, NetError> {
         match timeout(within, self.next()).await {
             Err(_) => Err(NetError::Timeout {

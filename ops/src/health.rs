@@ -11,6 +11,15 @@ static LIVE: AtomicBool = AtomicBool::new(false);
 static SERVING: AtomicBool = AtomicBool::new(false);
 static CONFIGURED_LINKS: AtomicUsize = AtomicUsize::new(0);
 static OPEN_LINKS: AtomicUsize = AtomicUsize::new(0);
+/// The last claimed control link ended because its coordinator fell silent (cleared when a
+/// coordinator connects again).
+static RELEASED_SILENT: AtomicBool = AtomicBool::new(false);
+
+/// A claimed control link was released because its coordinator fell silent: `/readyz` says so
+/// until a coordinator connects again.
+pub fn released_silent_coordinator() {
+    RELEASED_SILENT.store(true, Ordering::Relaxed);
+}
 
 /// The daemon's service loop runs (or, with false, has stopped).
 pub fn set_live(live: bool) {
@@ -43,6 +52,11 @@ pub fn readiness() -> Readiness {
         (true, "registered and configured")
     } else if OPEN_LINKS.load(Ordering::Relaxed) > 0 {
         (false, "registered, not configured yet")
+    } else if RELEASED_SILENT.load(Ordering::Relaxed) {
+        (
+            false,
+            "released a coordinator that fell silent; waiting for a coordinator",
+        )
     } else {
         (false, "waiting for a coordinator")
     };
@@ -58,6 +72,7 @@ pub struct ControlLink {
 impl ControlLink {
     pub fn open() -> ControlLink {
         OPEN_LINKS.fetch_add(1, Ordering::Relaxed);
+        RELEASED_SILENT.store(false, Ordering::Relaxed);
         ControlLink { configured: false }
     }
 
@@ -101,6 +116,14 @@ mod tests {
         assert!(readiness().ready, "b still configures it");
         drop(b);
         assert!(!readiness().ready);
+        released_silent_coordinator();
+        assert!(
+            readiness()
+                .why
+                .starts_with("released a coordinator that fell silent")
+        );
+        drop(ControlLink::open());
+        assert_eq!(readiness().why, "waiting for a coordinator");
         set_serving(true);
         assert_eq!(readiness().why, "serving");
         set_serving(false);

@@ -449,7 +449,10 @@ async fn a_pure_red_light_and_a_budget_change_do_not_end_the_session() {
     session.detach();
     assert!(result.is_ok(), "{result:?}; epochs {:?}", summary.epochs);
     let reasons: Vec<&str> = summary.epochs.iter().map(|e| e.reason.as_str()).collect();
-    eprintln!("epochs: {reasons:?}; last notice {:?}", notices.borrow().notice);
+    eprintln!(
+        "epochs: {reasons:?}; last notice {:?}",
+        notices.borrow().notice
+    );
     assert!(
         reasons.iter().any(|r| r.contains("colour group")),
         "the red light re-planned: {reasons:?}"

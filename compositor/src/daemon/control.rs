@@ -9,9 +9,10 @@
 use super::config::{Operators, StagePlan};
 use super::engine::{Command, FrameRequest};
 use lightfold_net::claim::{Claims, FAREWELL, Ticket};
-use lightfold_net::{Link, LinkReader, LinkWriter};
+use lightfold_net::{Link, LinkReader, LinkWriter, NetError};
 use lightfold_protocol::{Capabilities, ErrorCode, Frame, Message, PixelFormat, Role};
 use std::sync::Arc;
+use std::time::Duration;
 use tokio::sync::{mpsc, watch};
 use tokio_util::sync::CancellationToken;
 
@@ -60,6 +61,8 @@ pub(crate) struct ControlHub {
     generation: watch::Sender<u64>,
     capabilities: Capabilities,
     max_frame: usize,
+    /// How long a claimed link may bring nothing before it is released (zero: never).
+    silence: Duration,
 }
 
 /// A configuration the engine should apply, and the ordinal of that configuration.
@@ -77,6 +80,7 @@ impl ControlHub {
         daemon_id: &str,
         advertise: &str,
         max_frame: usize,
+        silence: Duration,
     ) -> ControlHub {
         let (tx, rx) = mpsc::channel(CONTROL_QUEUE);
         ControlHub {
@@ -102,6 +106,7 @@ impl ControlHub {
                 eye_ns_per_triangle: 0,
             },
             max_frame,
+            silence,
         }
     }
 
@@ -153,12 +158,14 @@ impl ControlHub {
                 return;
             }
         };
+        // Only a claimed link is released when its coordinator falls silent.
+        let silence = claim.map(|_| self.silence);
         let first = match claim {
             Some((session, _)) => Err(session),
             None => Ok(first),
         };
         let farewell = self
-            .serve(&mut reader, &mut writer, first, &ticket, shutdown)
+            .serve(&mut reader, &mut writer, first, silence, &ticket, shutdown)
             .await;
         if let Some(msg) = farewell {
             let _ = tokio::time::timeout(FAREWELL, writer.send_msg(msg)).await;
@@ -176,6 +183,7 @@ impl ControlHub {
         reader: &mut LinkReader,
         writer: &mut LinkWriter,
         first: Result<Frame, u64>,
+        silence: Option<Duration>,
         ticket: &Ticket,
         shutdown: &CancellationToken,
     ) -> Option<Message> {
@@ -221,9 +229,19 @@ impl ControlHub {
         };
         let read = async {
             loop {
-                match reader.next().await {
+                match reader.next_within(silence).await {
                     None => {
                         tracing::info!(%addr, "coordinator disconnected");
+                        return;
+                    }
+                    Some(Err(NetError::Timeout { after, .. })) => {
+                        lightfold_ops::health::released_silent_coordinator();
+                        tracing::warn!(
+                            %addr,
+                            "no word from the coordinator for {} s (stopped, hung or cut off): \
+                             releasing its claim",
+                            after.as_secs_f64()
+                        );
                         return;
                     }
                     Some(Err(e)) => {

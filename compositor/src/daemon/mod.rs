@@ -56,6 +56,9 @@ pub struct CompositorOptions {
     pub dial_timeout: Duration,
     /// Counters the caller may read while the stage runs.
     pub metrics: Arc<StageMetrics>,
+    /// A claimed control link that brings nothing (not even a keepalive) for this long is
+    /// released, so a stopped or hung coordinator does not hold the stage. Zero: never.
+    pub coordinator_silence: Duration,
     /// Threads that combine bands (a band is split across them). One by default: a stage's
     /// links need CPU too, and on a machine shared with other stages and nodes a second compute
     /// thread slowed the link benchmark (docs/compositor.md, "Link cost").
@@ -71,6 +74,7 @@ impl std::fmt::Debug for CompositorOptions {
             .field("input_timeout", &self.input_timeout)
             .field("dial_timeout", &self.dial_timeout)
             .field("compute_threads", &self.compute_threads)
+            .field("coordinator_silence", &self.coordinator_silence)
             .finish_non_exhaustive()
     }
 }
@@ -86,6 +90,7 @@ impl CompositorOptions {
             input_timeout: Duration::from_secs(30),
             dial_timeout: Duration::from_secs(10),
             metrics: StageMetrics::new(),
+            coordinator_silence: lightfold_net::claim::COORDINATOR_SILENCE,
             compute_threads: 1,
         }
     }
@@ -119,6 +124,7 @@ pub async fn run(
         &opts.daemon_id,
         &opts.advertise,
         opts.timeouts.max_frame,
+        opts.coordinator_silence,
     ));
     let registry = Arc::new(Registry::default());
     let ctx = SlotContext {

@@ -15,6 +15,9 @@ use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 use tokio_util::sync::CancellationToken;
 
+/// How long `Session::shutdown` waits for its `Shutdown` messages to be written.
+const SHUTDOWN_FLUSH: Duration = Duration::from_secs(2);
+
 /// Largest scene chunk sent in one message.
 pub const SCENE_CHUNK: usize = 4 << 20;
 
@@ -123,6 +126,12 @@ pub enum ControlError {
     },
     #[error("the cluster cannot go on: {0}")]
     Stuck(String),
+    #[error("no daemon could be reached ({count} tried); {address}: {why}")]
+    Unreachable {
+        count: usize,
+        address: String,
+        why: String,
+    },
     #[error("sink: {0}")]
     Sink(String),
     #[error("cannot bind the sink listener on {addr}: {source}")]
@@ -130,6 +139,21 @@ pub enum ControlError {
         addr: String,
         source: std::io::Error,
     },
+}
+
+impl ControlError {
+    /// Whether a daemon failed to register for want of an answer (not listening, closed,
+    /// silent) rather than by answering wrongly: such a daemon is redialled like a lost one.
+    pub fn is_unreachable(&self) -> bool {
+        match self {
+            ControlError::NoRegister { .. } => true,
+            ControlError::Link { source, .. } => {
+                matches!(source, NetError::Connect { .. } | NetError::Timeout { .. })
+                    || source.is_disconnect()
+            }
+            _ => false,
+        }
+    }
 }
 
 /// A connected, registered daemon.
@@ -147,19 +171,31 @@ pub struct Daemon {
     pub(crate) seen: std::sync::Arc<std::sync::Mutex<Instant>>,
     /// The first heartbeat sent since it last said anything.
     pub(crate) ping_pending: Option<Instant>,
-    writer: LinkWriter,
+    /// Its writer task's queue (`write_control`): the loop never waits on a daemon's socket.
+    out: mpsc::Sender<Message>,
+    writer: tokio::task::JoinHandle<()>,
 }
 
 /// A message (or the end) of one control link: daemon id, link generation, what arrived.
 pub(crate) type Event = (String, u64, Result<Message, NetError>);
 
-/// A daemon that answered a redial: ready to be folded into the next plan.
+/// A registered and claimed daemon (at the start, or answering a redial): ready to be folded
+/// into the next plan. Its writer task runs from the claim on, so the daemon hears the
+/// coordinator's keepalives while the session waits for the others.
 #[derive(Debug)]
 pub(crate) struct Joined {
     pub entry: DaemonAddr,
     pub caps: Capabilities,
-    pub link: lightfold_net::Link,
+    reader: lightfold_net::LinkReader,
+    out: mpsc::Sender<Message>,
+    writer: tokio::task::JoinHandle<()>,
 }
+
+/// Messages queued for one daemon's socket. A daemon this far behind is stalled: the loop loses
+/// it rather than wait (scene chunks wait for room up to the link's send deadline).
+const CONTROL_QUEUE: usize = 64;
+/// The `seq` of the writer tasks' keepalive pings (the loop's heartbeats use 0).
+pub(crate) const KEEPALIVE_SEQ: u64 = u64::MAX;
 
 /// A live cluster.
 #[derive(Debug)]
@@ -174,6 +210,9 @@ pub struct Session {
     joined_tx: mpsc::Sender<Joined>,
     /// Address the sink compositor must dial.
     pub sink_address: String,
+    /// Daemons that did not answer while the session connected, and why: redialled in the
+    /// background like lost ones, and folded in when they answer.
+    pub unreachable: Vec<(String, String)>,
     cancel: CancellationToken,
     pub opts: ControlOptions,
     me: Identity,
@@ -223,7 +262,11 @@ impl Daemon {
 
 impl Session {
     /// Dials every daemon concurrently, authenticates it and collects its registration; binds the
-    /// sink listener.
+    /// sink listener. The session starts with the daemons that answered within
+    /// `ControlOptions::register`: one that cannot be reached (not listening, closed, silent) is
+    /// a loss like any later one — redialled in the background and folded in when it answers
+    /// (`unreachable`). A daemon that answers wrongly (another role or id, a duplicate id, held by
+    /// another session, a wrong token) fails the connect, as does reaching none.
     pub async fn connect(
         daemons: &[DaemonAddr],
         sink_listener: TcpListener,
@@ -232,63 +275,20 @@ impl Session {
         opts: ControlOptions,
     ) -> Result<Session, ControlError> {
         let id = session_id();
-        let mut joins = Vec::new();
+        let mut joins = tokio::task::JoinSet::new();
         for d in daemons {
             let (d, me) = (d.clone(), me.clone());
-            joins.push(tokio::spawn(async move { register(d, me, opts, id).await }));
+            joins.spawn(async move { (d.clone(), register(d, me, opts, id).await) });
         }
         let (event_tx, events) = mpsc::channel(1024);
         let (joined_tx, joined) = mpsc::channel(64);
-        let mut registered: Vec<Joined> = Vec::new();
-        let mut first_error = None;
-        for j in joins {
-            match j.await {
-                Ok(Ok(r)) => {
-                    if let Some(prev) = registered
-                        .iter()
-                        .find(|p| p.caps.daemon_id == r.caps.daemon_id)
-                    {
-                        first_error.get_or_insert(ControlError::DuplicateId {
-                            id: r.caps.daemon_id.clone(),
-                            a: prev.entry.address.clone(),
-                            b: r.entry.address.clone(),
-                        });
-                        continue;
-                    }
-                    registered.push(r);
-                }
-                Ok(Err(e)) => {
-                    first_error.get_or_insert(e);
-                }
-                Err(e) => {
-                    first_error.get_or_insert(ControlError::Sink(format!(
-                        "registration task failed: {e}"
-                    )));
-                }
-            }
-        }
-        if let Some(e) = first_error {
-            return Err(e);
-        }
         let local = sink_listener
             .local_addr()
             .map_err(|source| ControlError::SinkBind {
                 addr: "sink".into(),
                 source,
             })?;
-        if sink_advertise.is_none() && local.ip().is_unspecified() {
-            let remote = registered.iter().find(|d| !is_loopback(&d.entry.address));
-            if let Some(d) = remote {
-                tracing::warn!(
-                    sink = %local,
-                    daemon = %d.entry.address,
-                    "the sink listens on a wildcard address and no sink advertise address was \
-                     given: compositors on other hosts will dial {local} and fail \
-                     (pass --sink-advertise HOST:PORT)"
-                );
-            }
-        }
-        let sink_address = sink_advertise.unwrap_or_else(|| local.to_string());
+        let sink_address = sink_advertise.clone().unwrap_or_else(|| local.to_string());
         let (sink_tx, sink_events) = mpsc::channel(16);
         let (sink_geometry, geometry_rx) = watch::channel(SinkGeometry {
             epoch: u64::MAX,
@@ -298,14 +298,6 @@ impl Session {
             supersample: 1,
         });
         let cancel = CancellationToken::new();
-        tokio::spawn(run_sink(
-            sink_listener,
-            me.clone(),
-            sink_timeouts(opts.link),
-            geometry_rx,
-            sink_tx,
-            cancel.clone(),
-        ));
         let base = unix_ms() << 16;
         let mut session = Session {
             daemons: BTreeMap::new(),
@@ -316,19 +308,88 @@ impl Session {
             joined,
             joined_tx,
             sink_address,
-            cancel,
+            unreachable: Vec::new(),
+            cancel: cancel.clone(),
             opts,
-            me,
+            me: me.clone(),
             id,
             base,
             epochs: 0,
             links: 0,
             scenes: BTreeMap::new(),
         };
-        for r in registered {
-            session.admit(r);
+        // Each daemon is taken in as it registers: its writer task keeps it hearing from this
+        // coordinator while the others are waited for.
+        let mut first_error = None;
+        let mut addresses: BTreeMap<String, String> = BTreeMap::new();
+        while let Some(done) = joins.join_next().await {
+            match done {
+                Ok((_, Ok(r))) => {
+                    let id = r.caps.daemon_id.clone();
+                    if let Some(a) = addresses.get(&id) {
+                        first_error.get_or_insert(ControlError::DuplicateId {
+                            id,
+                            a: a.clone(),
+                            b: r.entry.address.clone(),
+                        });
+                        continue;
+                    }
+                    addresses.insert(id, r.entry.address.clone());
+                    session.admit(r);
+                }
+                Ok((d, Err(e))) if e.is_unreachable() => {
+                    tracing::warn!(address = %d.address, "not reached while connecting ({e}): starting without it, redialling");
+                    session.unreachable.push((d.address.clone(), e.to_string()));
+                    session.redial(d);
+                }
+                Ok((_, Err(e))) => {
+                    first_error.get_or_insert(e);
+                }
+                Err(e) => {
+                    first_error.get_or_insert(ControlError::Sink(format!(
+                        "registration task failed: {e}"
+                    )));
+                }
+            }
         }
-        tracing::info!(session = %format!("{id:016x}"), daemons = session.daemons.len(), "coordinator session connected");
+        if let Some(e) = first_error {
+            cancel.cancel();
+            return Err(e);
+        }
+        if session.daemons.is_empty()
+            && let Some((address, why)) = session.unreachable.first()
+        {
+            cancel.cancel();
+            return Err(ControlError::Unreachable {
+                count: session.unreachable.len(),
+                address: address.clone(),
+                why: why.clone(),
+            });
+        }
+        if sink_advertise.is_none() && local.ip().is_unspecified() {
+            let remote = session
+                .daemons
+                .values()
+                .find(|d| !is_loopback(&d.entry.address));
+            if let Some(d) = remote {
+                tracing::warn!(
+                    sink = %local,
+                    daemon = %d.entry.address,
+                    "the sink listens on a wildcard address and no sink advertise address was \
+                     given: compositors on other hosts will dial {local} and fail \
+                     (pass --sink-advertise HOST:PORT)"
+                );
+            }
+        }
+        tokio::spawn(run_sink(
+            sink_listener,
+            me,
+            sink_timeouts(opts.link),
+            geometry_rx,
+            sink_tx,
+            cancel,
+        ));
+        tracing::info!(session = %format!("{id:016x}"), daemons = session.daemons.len(), unreachable = session.unreachable.len(), "coordinator session connected");
         Ok(session)
     }
 
@@ -340,11 +401,16 @@ impl Session {
 
     /// Takes a registered daemon into the session: its reader task starts feeding `events`.
     pub(crate) fn admit(&mut self, j: Joined) {
-        let Joined { entry, caps, link } = j;
+        let Joined {
+            entry,
+            caps,
+            reader,
+            out,
+            writer,
+        } = j;
         let id = caps.daemon_id.clone();
         self.links += 1;
         let generation = self.links;
-        let (reader, writer) = link.split();
         let seen = std::sync::Arc::new(std::sync::Mutex::new(Instant::now()));
         tokio::spawn(read_control(
             reader,
@@ -365,6 +431,7 @@ impl Session {
                 link: generation,
                 seen,
                 ping_pending: None,
+                out,
                 writer,
             },
         );
@@ -375,9 +442,16 @@ impl Session {
     pub(crate) fn lose(&mut self, id: &str) -> Option<Daemon> {
         let d = self.daemons.remove(id)?;
         self.scenes.remove(id);
+        let mut entry = d.entry.clone();
+        entry.id.get_or_insert_with(|| id.to_string());
+        self.redial(entry);
+        Some(d)
+    }
+
+    /// Redials `entry` in the background until it answers (then it arrives on `joined`) or the
+    /// session ends; nothing when rejoining is off.
+    fn redial(&self, entry: DaemonAddr) {
         if !self.opts.redial.is_zero() {
-            let mut entry = d.entry.clone();
-            entry.id.get_or_insert_with(|| id.to_string());
             let (me, opts, session, tx, cancel) = (
                 self.me.clone(),
                 self.opts,
@@ -406,7 +480,6 @@ impl Session {
                 }
             });
         }
-        Some(d)
     }
 
     /// Ids of registered daemons of a role, in id order.
@@ -418,18 +491,56 @@ impl Session {
             .collect()
     }
 
+    /// Queues `msg` for daemon `id`'s writer task: never waits on its socket. A daemon whose
+    /// writer has failed (its link is broken) or that is `CONTROL_QUEUE` messages behind
+    /// (stalled) is an error, which the loop takes for a loss.
     pub async fn send(&mut self, id: &str, msg: Message) -> Result<(), ControlError> {
         let d = self
             .daemons
-            .get_mut(id)
+            .get(id)
             .ok_or_else(|| ControlError::UnknownDaemon(id.to_string()))?;
-        d.writer
-            .send_msg(msg)
-            .await
-            .map_err(|source| ControlError::Link {
+        d.out.try_send(msg).map_err(|e| {
+            let why = match e {
+                mpsc::error::TrySendError::Full(_) => {
+                    format!("{CONTROL_QUEUE} messages to it are still unwritten (stalled)")
+                }
+                mpsc::error::TrySendError::Closed(_) => "its control link broke".to_string(),
+            };
+            ControlError::Link {
                 address: d.address.clone(),
-                source,
-            })
+                source: NetError::Closed {
+                    addr: format!("{} ({why})", d.address),
+                },
+            }
+        })
+    }
+
+    /// Queues `msg` (a scene chunk) for daemon `id`, waiting for room up to the link's send
+    /// deadline: a large scene is more than the queue holds.
+    pub(crate) async fn send_bulk(&mut self, id: &str, msg: Message) -> Result<(), ControlError> {
+        let d = self
+            .daemons
+            .get(id)
+            .ok_or_else(|| ControlError::UnknownDaemon(id.to_string()))?;
+        let after = self.opts.link.send;
+        let address = d.address.clone();
+        match tokio::time::timeout(after, d.out.send(msg)).await {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(_)) => Err(ControlError::Link {
+                source: NetError::Closed {
+                    addr: address.clone(),
+                },
+                address,
+            }),
+            Err(_) => Err(ControlError::Link {
+                source: NetError::Timeout {
+                    what: "send",
+                    addr: address.clone(),
+                    after,
+                },
+                address,
+            }),
+        }
     }
 
     pub(crate) fn address(&self, id: &str) -> String {
@@ -439,12 +550,18 @@ impl Session {
             .unwrap_or_default()
     }
 
-    /// Asks every daemon to stop and closes the sink.
+    /// Asks every daemon to stop, waits (briefly) for the writer tasks to deliver it, and closes
+    /// the sink.
     pub async fn shutdown(mut self) {
         let ids: Vec<String> = self.daemons.keys().cloned().collect();
         for id in ids {
             let _ = self.send(&id, Message::Shutdown).await;
         }
+        let writers: Vec<_> = std::mem::take(&mut self.daemons)
+            .into_values()
+            .map(|d| d.writer)
+            .collect();
+        let _ = tokio::time::timeout(SHUTDOWN_FLUSH, futures::future::join_all(writers)).await;
         self.cancel.cancel();
         drop(self.event_tx);
     }
@@ -554,11 +671,40 @@ pub(crate) async fn register(
             });
         }
     }
+    let (reader, writer) = link.split();
+    let (out, rx) = mpsc::channel(CONTROL_QUEUE);
+    let writer = tokio::spawn(write_control(writer, rx, opts.heartbeat));
     Ok(Joined {
         entry: d,
         caps,
-        link,
+        reader,
+        out,
+        writer,
     })
+}
+
+/// One daemon's writer task: writes what the session queues, in order, and a keepalive `Ping`
+/// whenever nothing was written for `keepalive`, so a claimed daemon hears from its coordinator
+/// however long the loop is busy elsewhere (daemons release a coordinator that falls silent).
+/// Ends when the queue's sender is dropped (the daemon lost, the session over) or a write fails
+/// (the queue then refuses further messages: `Session::send` reports it).
+async fn write_control(
+    mut writer: LinkWriter,
+    mut rx: mpsc::Receiver<Message>,
+    keepalive: Duration,
+) {
+    let keepalive = keepalive.max(Duration::from_millis(10));
+    loop {
+        let msg = match tokio::time::timeout(keepalive, rx.recv()).await {
+            Ok(Some(m)) => m,
+            Ok(None) => return,
+            Err(_) => Message::Ping { seq: KEEPALIVE_SEQ },
+        };
+        if let Err(e) = writer.send_msg(msg).await {
+            tracing::debug!(addr = %writer.addr, "control write failed: {e}");
+            return;
+        }
+    }
 }
 
 /// Forwards one control link's messages to the session until it ends, then says how it ended.

@@ -52,6 +52,10 @@ pub struct NodeOptions {
     /// The memory registration reports (`Capabilities::memory_bytes`); `None`: what the machine
     /// or its control group has.
     pub memory_bytes: Option<u64>,
+    /// A claimed control link that brings nothing (not even a keepalive) for this long is
+    /// released: the coordinator stopped, hung or was cut off, and the node is free for the next
+    /// one. Zero: never.
+    pub coordinator_silence: Duration,
 }
 
 impl std::fmt::Debug for NodeOptions {
@@ -66,6 +70,7 @@ impl std::fmt::Debug for NodeOptions {
             .field("dial_deadline", &self.dial_deadline)
             .field("require_gpu", &self.require_gpu)
             .field("memory_bytes", &self.memory_bytes)
+            .field("coordinator_silence", &self.coordinator_silence)
             .finish_non_exhaustive()
     }
 }
@@ -84,6 +89,7 @@ impl NodeOptions {
             dial_deadline: Duration::from_secs(30),
             require_gpu: false,
             memory_bytes: None,
+            coordinator_silence: lightfold_net::claim::COORDINATOR_SILENCE,
         }
     }
 }
@@ -184,7 +190,7 @@ pub async fn run(
             drop(stream);
             continue;
         };
-        let (me, caps, engine, claims, stop, t, gate) = (
+        let (me, caps, engine, claims, stop, t, gate, silence) = (
             me.clone(),
             caps.clone(),
             engine.clone(),
@@ -192,6 +198,7 @@ pub async fn run(
             stop.clone(),
             opts.timeouts,
             gate.clone(),
+            opts.coordinator_silence,
         );
         tracker.spawn(async move {
             let link = tokio::select! {
@@ -201,7 +208,8 @@ pub async fn run(
             drop(slot);
             match link {
                 Ok(link) => {
-                    let ended = session::serve(link, caps, engine, claims, stop.clone()).await;
+                    let ended =
+                        session::serve(link, caps, engine, claims, silence, stop.clone()).await;
                     if ended == Ended::Shutdown {
                         stop.cancel();
                     }

@@ -18,7 +18,7 @@
 
 use super::engine::Engine;
 use lightfold_net::claim::{Claims, FAREWELL, Ticket};
-use lightfold_net::{Link, LinkReader, LinkWriter};
+use lightfold_net::{Link, LinkReader, LinkWriter, NetError};
 use lightfold_ops::health::ControlLink;
 use lightfold_ops::record;
 use lightfold_protocol::frame::Frame;
@@ -59,6 +59,7 @@ pub async fn serve(
     caps: Capabilities,
     engine: Arc<Mutex<Engine>>,
     claims: Arc<Claims>,
+    silence: std::time::Duration,
     stop: CancellationToken,
 ) -> Ended {
     let addr = link.addr.clone();
@@ -105,6 +106,9 @@ pub async fn serve(
             return Ended::Left;
         }
     };
+    // Only a claimed link is released when its coordinator falls silent (test drivers and
+    // `lightfold bench` hold nothing and may pause).
+    let silence = claim.map(|_| silence);
     let first = match claim {
         Some((session, _)) => {
             if let Err(e) = writer.send_msg(Message::Claimed { session }).await {
@@ -118,7 +122,7 @@ pub async fn serve(
     let (ended, farewell) = run(
         &mut reader,
         &mut writer,
-        first,
+        Incoming { first, silence },
         &engine,
         &ticket,
         &stop,
@@ -139,7 +143,7 @@ pub async fn serve(
 async fn run(
     reader: &mut LinkReader,
     writer: &mut LinkWriter,
-    first: Option<Frame>,
+    incoming: Incoming,
     engine: &Mutex<Engine>,
     ticket: &Ticket,
     stop: &CancellationToken,
@@ -148,7 +152,7 @@ async fn run(
     let (out, replies) = mpsc::channel(REPLIES);
     let (queue, requests) = mpsc::channel(REQUESTS);
     let (fence, fence_rx) = watch::channel(0u64);
-    let read = read(reader, first, &out, &queue, &fence);
+    let read = read(reader, incoming, &out, &queue, &fence);
     let work = work(engine, requests, fence_rx, out.clone());
     let write = write(writer, replies, registered);
     tokio::select! {
@@ -160,21 +164,42 @@ async fn run(
     }
 }
 
+/// What the reader starts from: the link's first frame when it was not a claim, and how long a
+/// claimed link may bring nothing before it is released (`None`: unclaimed, never).
+struct Incoming {
+    first: Option<Frame>,
+    silence: Option<std::time::Duration>,
+}
+
 /// Reads the link: pings are answered here, `Shutdown` ends the session, the rest is queued.
 async fn read(
     reader: &mut LinkReader,
-    mut next: Option<Frame>,
+    incoming: Incoming,
     out: &mpsc::Sender<Message>,
     queue: &mpsc::Sender<Request>,
     fence: &watch::Sender<u64>,
 ) -> Ended {
     let addr = reader.addr.clone();
+    let Incoming {
+        first: mut next,
+        silence,
+    } = incoming;
     loop {
         let frame = match next.take() {
             Some(f) => f,
-            None => match reader.next().await {
+            None => match reader.next_within(silence).await {
                 None => {
                     tracing::info!(%addr, "coordinator disconnected");
+                    return Ended::Left;
+                }
+                Some(Err(NetError::Timeout { after, .. })) => {
+                    lightfold_ops::health::released_silent_coordinator();
+                    tracing::warn!(
+                        %addr,
+                        "no word from the coordinator for {} s (stopped, hung or cut off): \
+                         releasing its claim",
+                        after.as_secs_f64()
+                    );
                     return Ended::Left;
                 }
                 Some(Err(e)) => {

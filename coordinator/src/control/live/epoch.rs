@@ -474,7 +474,7 @@ impl Live<'_> {
                 data: bytes[range].to_vec(),
                 last: i + 1 == chunks,
             };
-            if let Err(e) = self.session.send(id, msg).await {
+            if let Err(e) = self.session.send_bulk(id, msg).await {
                 self.lose(id, format!("cannot send the scene: {e}"));
                 return;
             }

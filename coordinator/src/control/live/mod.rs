@@ -324,6 +324,8 @@ impl<'s> Live<'s> {
             .to_bytes()
             .map_err(|e| RunError::Scene(e.to_string()))?;
         let scene_hash = scene.content_hash();
+        // Daemons not reached while connecting are lost from the start (and redialled).
+        let lost = session.unreachable.iter().cloned().collect();
         Ok(Live {
             session,
             scene,
@@ -356,7 +358,7 @@ impl<'s> Live<'s> {
             reset_at: None,
             just_lost: Vec::new(),
             peaks: std::collections::HashMap::new(),
-            lost: BTreeMap::new(),
+            lost,
             replans_without_progress: 0,
             last_ping: None,
             last_warning: None,
@@ -638,6 +640,8 @@ impl<'s> Live<'s> {
         let id = j.caps.daemon_id.clone();
         tracing::info!(daemon = %id, address = %j.entry.address, "rejoined");
         lightfold_ops::record::daemon_rejoined();
+        // Lost under its id, or under its address when it was not reached at the start.
+        self.lost.remove(&j.entry.address);
         self.session.admit(j);
         self.lost.remove(&id);
         self.summary.incidents.push(Incident {
