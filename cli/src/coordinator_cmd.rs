@@ -246,9 +246,29 @@ pub struct JobArgs {
     /// phase times (ms), bytes and memory (`docs/operations.md`).
     #[arg(long, value_name = "FILE")]
     pub stats: Option<PathBuf>,
+    /// Go on with a camera path or animation a coordinator did not finish: the frames whose PNG
+    /// and EXR are already under the frame pattern are skipped (frames are renamed into place
+    /// complete), the others rendered with their own numbers, cameras and times; nothing written
+    /// is overwritten.
+    #[arg(long, conflicts_with = "no_frame_files")]
+    pub resume: bool,
 }
 
 impl JobArgs {
+    /// The frames `--resume` skips: those already complete under the frame pattern.
+    pub fn resumed(&self, serving: bool) -> anyhow::Result<Vec<u64>> {
+        if !self.resume {
+            return Ok(Vec::new());
+        }
+        if serving {
+            bail!("--resume goes on with a camera path; the live view has none");
+        }
+        let Some(pattern) = self.frame_files(serving)? else {
+            bail!("--resume needs the frames' files (--frame-dir or --frame-pattern)");
+        };
+        Ok(pattern.complete(self.frames))
+    }
+
     pub fn load_scene(&self) -> anyhow::Result<lightfold_scene::Scene> {
         let mut scene = lightfold_scene::load(&self.scene)
             .with_context(|| format!("cannot load scene {:?}", self.scene))?;
@@ -542,7 +562,19 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
             control,
             time: args.job.time,
             fps: args.job.fps,
+            skip: args.job.resumed(args.view.http.is_some())?,
         };
+        if args.job.resume {
+            outln!(
+                "resuming: {} of {} frame(s) already written; rendering the other {}",
+                opts.skip.len(),
+                opts.frames,
+                opts.frames as usize - opts.skip.len()
+            );
+            if opts.skip.len() == opts.frames as usize {
+                return Ok(());
+            }
+        }
         let view = args.view.bind(&token).await?;
         let me = Identity::new(&token, Role::Coordinator, "coordinator");
         let cancel = crate::lifecycle::shutdown_token(args.parent_pid);
@@ -600,7 +632,7 @@ pub async fn execute(
     let mut stats = crate::cluster_ops::StatsFile::create(job.stats.as_deref(), start)?;
     lightfold_ops::health::set_serving(true);
     let mut progress = Progress::new(
-        (!serving).then_some(opts.frames),
+        (!serving).then_some(opts.frames - opts.skip.len() as u32),
         std::io::IsTerminal::is_terminal(&std::io::stderr()),
     );
     let writer = FrameWriter::start(

@@ -515,6 +515,9 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
     }
     cmd.arg("--topology").arg(job.topology.to_string());
     cmd.arg("--frames").arg(job.frames.to_string());
+    if job.resume {
+        cmd.arg("--resume");
+    }
     cmd.arg("--frames-in-flight")
         .arg(job.frames_in_flight.to_string());
     if let Some(o) = job.orbit {

@@ -73,6 +73,15 @@ impl FramePattern {
         format!("{}{spec}{}.png", self.prefix, self.suffix)
     }
 
+    /// The frames of `1..=frames` whose PNG and EXR are both written (`--resume`). Frames are
+    /// written beside their name and renamed into it, so a file under its name is complete; a
+    /// frame with one of its two files is rendered again.
+    pub fn complete(&self, frames: u32) -> Vec<u64> {
+        (1..=u64::from(frames))
+            .filter(|&n| self.path(n, "exr").is_file() && self.path(n, "png").is_file())
+            .collect()
+    }
+
     /// Creates the folder the frames go to.
     pub fn create_dir(&self) -> anyhow::Result<()> {
         if let Some(dir) = self.path(1, "png").parent()
@@ -118,14 +127,12 @@ impl FrameWriter {
                 let mut newest = Vec::new();
                 loop {
                     if let Some(p) = &every {
-                        let r = f
-                            .image
-                            .write_exr(&p.path(f.frame, "exr"))
-                            .and_then(|()| f.image.write_png(&p.path(f.frame, "png"), exposure));
-                        match r {
+                        // Complete or absent, whenever the process dies (`--resume` relies on it).
+                        let (png, exr) = (p.path(f.frame, "png"), p.path(f.frame, "exr"));
+                        match write_atomically(&f.image, &png, &exr, exposure) {
                             Ok(()) => w.frames += 1,
                             Err(e) => {
-                                w.error.get_or_insert(e.into());
+                                w.error.get_or_insert(e);
                             }
                         }
                     }
@@ -240,5 +247,19 @@ mod tests {
         for bad in ["out/frame", "a%s", "a%04d%d", "%d%", "a%99d", "%d"] {
             assert!(FramePattern::parse(bad).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn complete_frames_have_both_files_under_their_names() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = FramePattern::parse(&dir.path().join("f-%03d").to_string_lossy()).unwrap();
+        let image = lightfold_scene::Image::new(2, 2, 3);
+        write_atomically(&image, &p.path(1, "png"), &p.path(1, "exr"), 1.0).unwrap();
+        write_atomically(&image, &p.path(3, "png"), &p.path(3, "exr"), 1.0).unwrap();
+        // Frame 2 died between its files; frame 4 died half-way, beside its name.
+        image.write_exr(&p.path(2, "exr")).unwrap();
+        std::fs::write(dir.path().join(".partial-f-004.exr"), b"half").unwrap();
+        assert_eq!(p.complete(5), vec![1, 3]);
+        assert!(p.complete(0).is_empty());
     }
 }

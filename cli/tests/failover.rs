@@ -23,6 +23,10 @@ fn work_dir(name: &str) -> PathBuf {
 
 /// Starts `lightfold demo` on a small orbit, keeping every frame in `dir/frames`.
 fn start_demo(dir: &Path, frames: u32) -> Child {
+    start_demo_with(dir, frames, &[])
+}
+
+fn start_demo_with(dir: &Path, frames: u32, extra: &[&str]) -> Child {
     lightfold()
         .args([
             "demo",
@@ -44,6 +48,7 @@ fn start_demo(dir: &Path, frames: u32) -> Child {
         .arg(dir.join("out.png"))
         .arg("--exr")
         .arg(dir.join("out.exr"))
+        .args(extra)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
@@ -64,6 +69,8 @@ fn frames_written(dir: &Path) -> usize {
         .map(|d| {
             d.filter_map(Result::ok)
                 .filter(|e| e.path().extension().is_some_and(|x| x == "exr"))
+                // Not a frame being written (beside its name, renamed when complete).
+                .filter(|e| e.file_name().to_string_lossy().starts_with("frame-"))
                 .count()
         })
         .unwrap_or(0)
@@ -233,5 +240,59 @@ fn an_interrupted_run_keeps_every_frame_it_finished() {
         stdout.contains(&format!("failover: {kept} frame(s) delivered")),
         "{stdout}"
     );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The coordinator SIGKILLed at frame 3 or so of a 12-frame path, then the run started again with
+/// `--resume` over the same frame folder: every frame is on disk exactly once, whole, and the
+/// frames written before the kill were neither rendered again nor rewritten.
+#[test]
+fn a_killed_coordinator_is_resumed_without_rewriting_a_frame() {
+    const FRAMES: u32 = 12;
+    let dir = work_dir("failover-resume");
+    let demo = start_demo(&dir, FRAMES);
+    wait_for("frame 3", Duration::from_secs(300), || {
+        frames_written(&dir) >= 3
+    });
+    signal("-KILL", &pid_of(&dir, "coordinator"));
+    let out = demo.wait_with_output().unwrap();
+    assert!(
+        !out.status.success(),
+        "a run whose coordinator died is not a success"
+    );
+    let frame = |i: u32| dir.join("frames").join(format!("frame-{i:04}.exr"));
+    let before: Vec<(u32, std::time::SystemTime)> = (1..=FRAMES)
+        .filter(|&i| frame(i).is_file() && frame(i).with_extension("png").is_file())
+        .map(|i| (i, std::fs::metadata(frame(i)).unwrap().modified().unwrap()))
+        .collect();
+    assert!(
+        (1..FRAMES as usize).contains(&before.len()),
+        "{} frames before the kill",
+        before.len()
+    );
+    let _ = std::fs::remove_file(dir.join("pids"));
+    let (stdout, _) = finish(start_demo_with(&dir, FRAMES, &["--resume"]));
+    assert!(
+        stdout.contains(&format!(
+            "resuming: {} of {FRAMES} frame(s) already written",
+            before.len()
+        )),
+        "{stdout}"
+    );
+    let rendered = FRAMES as usize - before.len();
+    assert!(
+        stdout.contains(&format!("failover: {rendered} frame(s) delivered")),
+        "only the missing frames are rendered:\n{stdout}"
+    );
+    assert_eq!(frames_written(&dir), FRAMES as usize, "every frame once");
+    for i in 1..=FRAMES {
+        let img = lightfold_scene::Image::read_exr(&frame(i))
+            .unwrap_or_else(|e| panic!("frame {i}: {e}"));
+        assert_eq!((img.width, img.height), (96, 72));
+    }
+    for (i, at) in before {
+        let now = std::fs::metadata(frame(i)).unwrap().modified().unwrap();
+        assert_eq!(now, at, "frame {i} was written again");
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -39,6 +39,10 @@ pub struct RunOptions {
     pub time: Option<f32>,
     /// Animation frames per second: frame `i` is at `time + i / fps`.
     pub fps: Option<f32>,
+    /// Frames of the path (numbered from 1) already done, not rendered again: a run resumed
+    /// after its coordinator died (`--resume`). The others keep their numbers, cameras and
+    /// scene times.
+    pub skip: Vec<u64>,
 }
 
 impl RunOptions {
@@ -62,6 +66,7 @@ impl Default for RunOptions {
             control: ControlOptions::default(),
             time: None,
             fps: None,
+            skip: Vec::new(),
         }
     }
 }
@@ -265,9 +270,27 @@ pub async fn render_until(
     scene: &Scene,
     opts: &RunOptions,
     stop: CancellationToken,
-    on_frame: impl FnMut(FrameResult),
+    mut on_frame: impl FnMut(FrameResult),
 ) -> RunOutcome {
-    let specs = frame_specs(scene, opts);
+    // Frames of `opts.skip` are not requested; the loop numbers what it delivers 1, 2, …, which
+    // is put back to the path's numbers here.
+    let (numbers, specs): (Vec<u64>, Vec<FrameSpec>) = frame_specs(scene, opts)
+        .into_iter()
+        .zip(1u64..)
+        .filter(|(_, n)| !opts.skip.contains(n))
+        .map(|(s, n)| (n, s))
+        .unzip();
+    let on_frame = move |mut f: FrameResult| {
+        if let Some(&n) = f
+            .frame
+            .checked_sub(1)
+            .and_then(|i| usize::try_from(i).ok())
+            .and_then(|i| numbers.get(i))
+        {
+            f.frame = n;
+        }
+        on_frame(f)
+    };
     let (tx, rx) = tokio::sync::mpsc::channel(opts.control.frames_in_flight.max(1));
     let stopped = stop.clone();
     let feeder = tokio::spawn(async move {

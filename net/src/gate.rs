@@ -1,14 +1,20 @@
-//! Admission of accepted connections before they authenticate: at most `MAX_HANDSHAKES` at once
-//! per listener (more are closed at once, before anything is read), and refused peers logged at
-//! most once a second with a count of the others, so a port scan or a connect loop neither
-//! exhausts a daemon's memory nor floods its log.
+//! Admission of accepted connections before they authenticate (or, on the HTTP listeners, before
+//! their request is read): at most `MAX_HANDSHAKES` at once per listener, and at most a share of
+//! them from any one address (more are closed at once, before anything is read), with refused
+//! peers logged at most once a second with a count of the others — so a port scan or a connect
+//! loop neither exhausts a daemon's memory nor floods its log, and one address holding
+//! connections open leaves room for everyone else.
 
+use std::collections::HashMap;
+use std::net::IpAddr;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 
 /// Connections a listener authenticates at once.
 pub const MAX_HANDSHAKES: usize = 64;
+/// Of those, from one address.
+pub const MAX_HANDSHAKES_PER_ADDRESS: usize = 16;
 /// Refusals are logged at most this often.
 const LOG_EVERY: Duration = Duration::from_secs(1);
 
@@ -16,7 +22,39 @@ const LOG_EVERY: Duration = Duration::from_secs(1);
 #[derive(Debug, Clone)]
 pub struct Gate {
     slots: Arc<Semaphore>,
+    limit: usize,
+    per_address: usize,
+    open: Arc<Mutex<HashMap<IpAddr, usize>>>,
     log: Arc<Mutex<LogState>>,
+}
+
+/// A connection's place in a [`Gate`], given back when dropped.
+#[derive(Debug)]
+pub struct Slot {
+    _permit: OwnedSemaphorePermit,
+    peer: IpAddr,
+    open: Arc<Mutex<HashMap<IpAddr, usize>>>,
+}
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        let mut open = self.open.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(n) = open.get_mut(&self.peer) {
+            *n -= 1;
+            if *n == 0 {
+                open.remove(&self.peer);
+            }
+        }
+    }
+}
+
+/// Why a connection was not admitted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+pub enum Full {
+    #[error("{0} connections are open")]
+    Listener(usize),
+    #[error("{0} connections from this address are open")]
+    Address(usize),
 }
 
 #[derive(Debug, Default)]
@@ -26,17 +64,40 @@ struct LogState {
 }
 
 impl Gate {
-    pub fn new(limit: usize) -> Gate {
+    /// A gate of `limit` connections, at most `per_address` of them from one address.
+    pub fn new(limit: usize, per_address: usize) -> Gate {
         Gate {
             slots: Arc::new(Semaphore::new(limit.max(1))),
+            limit: limit.max(1),
+            per_address: per_address.max(1),
+            open: Arc::default(),
             log: Arc::default(),
         }
     }
 
-    /// A slot for one handshake, or `None` when `MAX_HANDSHAKES` are under way (the caller
-    /// closes the connection and reports it with `refused`).
-    pub fn admit(&self) -> Option<OwnedSemaphorePermit> {
-        Arc::clone(&self.slots).try_acquire_owned().ok()
+    /// The gate of a daemon's (or the sink's) listener: `MAX_HANDSHAKES`, at most
+    /// `MAX_HANDSHAKES_PER_ADDRESS` from one address.
+    pub fn handshakes() -> Gate {
+        Gate::new(MAX_HANDSHAKES, MAX_HANDSHAKES_PER_ADDRESS)
+    }
+
+    /// A slot for one connection from `peer`, or why not (the caller closes the connection and
+    /// reports it with `refused`).
+    pub fn admit(&self, peer: IpAddr) -> Result<Slot, Full> {
+        let mut open = self.open.lock().unwrap_or_else(|e| e.into_inner());
+        let from = open.get(&peer).copied().unwrap_or(0);
+        if from >= self.per_address {
+            return Err(Full::Address(from));
+        }
+        let permit = Arc::clone(&self.slots)
+            .try_acquire_owned()
+            .map_err(|_| Full::Listener(self.limit))?;
+        *open.entry(peer).or_insert(0) += 1;
+        Ok(Slot {
+            _permit: permit,
+            peer,
+            open: Arc::clone(&self.open),
+        })
     }
 
     /// Logs a refused peer (WARN), at most once a second; refusals in between are counted and
@@ -70,15 +131,29 @@ mod tests {
 
     #[test]
     fn admits_up_to_the_limit_and_counts_quiet_refusals() {
-        let g = Gate::new(2);
-        let a = g.admit().unwrap();
-        let _b = g.admit().unwrap();
-        assert!(g.admit().is_none());
+        let ip = |n: u8| IpAddr::from([10, 0, 0, n]);
+        let g = Gate::new(2, 2);
+        let a = g.admit(ip(1)).unwrap();
+        let _b = g.admit(ip(2)).unwrap();
+        assert_eq!(g.admit(ip(3)).unwrap_err(), Full::Listener(2));
         drop(a);
-        assert!(g.admit().is_some());
+        assert!(g.admit(ip(3)).is_ok());
         for _ in 0..5 {
             g.refused("p", &"no");
         }
         assert_eq!(g.unreported(), 4, "the first is logged, the others wait");
+    }
+
+    #[test]
+    fn one_address_leaves_room_for_the_others() {
+        let ip = |n: u8| IpAddr::from([10, 0, 0, n]);
+        let g = Gate::new(4, 2);
+        let a = g.admit(ip(1)).unwrap();
+        let _a2 = g.admit(ip(1)).unwrap();
+        assert_eq!(g.admit(ip(1)).unwrap_err(), Full::Address(2));
+        let _b = g.admit(ip(2)).unwrap();
+        drop(a);
+        let _a3 = g.admit(ip(1)).unwrap();
+        assert_eq!(g.open.lock().unwrap().get(&ip(1)), Some(&2));
     }
 }

@@ -480,3 +480,24 @@ async fn a_pure_red_light_and_a_budget_change_do_not_end_the_session() {
     }
     cluster.stop().await.unwrap();
 }
+
+/// A run resumed after its coordinator died (`--resume`): the frames already written are not
+/// requested again, and the others arrive under their own numbers with their own cameras.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_resumed_run_renders_only_the_missing_frames() {
+    let (scene, mut opts) = setup();
+    opts.skip = vec![1, 2, 4];
+    let cluster = InProcessCluster::start(4, 4).await.unwrap();
+    let out = cluster.render(&scene, &opts).await.unwrap();
+    let numbers: Vec<u64> = out.frames.iter().map(|f| f.frame).collect();
+    assert_eq!(numbers, vec![3, 5, 6], "the missing frames, in order, once");
+    let gpu = Gpu::new(&GpuOptions::default())
+        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    for f in &out.frames {
+        let mut s = scene.clone();
+        s.camera = camera_at(&scene.camera, opts.path, (f.frame - 1) as u32);
+        let truth = lightfold_tests::single_device(&gpu, &s, false);
+        lightfold_tests::assert_close(&f.image, &truth, &format!("resumed frame {}", f.frame));
+    }
+    cluster.stop().await.unwrap();
+}

@@ -158,7 +158,7 @@ pub async fn run(
     ));
     tracing::info!(id = %opts.daemon_id, addr = ?listener.local_addr().ok(), "compositor listening");
     lightfold_ops::health::set_live(true);
-    let gate = lightfold_net::gate::Gate::new(lightfold_net::gate::MAX_HANDSHAKES);
+    let gate = lightfold_net::gate::Gate::handshakes();
 
     loop {
         let accepted = tokio::select! {
@@ -167,13 +167,13 @@ pub async fn run(
         };
         match accepted {
             Ok((stream, peer)) => {
-                let Some(slot) = gate.admit() else {
-                    gate.refused(
-                        &peer.to_string(),
-                        &"too many connections are authenticating",
-                    );
-                    drop(stream);
-                    continue;
+                let slot = match gate.admit(peer.ip()) {
+                    Ok(slot) => slot,
+                    Err(full) => {
+                        gate.refused(&peer.to_string(), &format!("handshakes: {full}"));
+                        drop(stream);
+                        continue;
+                    }
                 };
                 let conn = Connection {
                     gate: gate.clone(),
@@ -213,7 +213,7 @@ pub async fn run(
 struct Connection {
     gate: lightfold_net::gate::Gate,
     /// Its handshake slot, given back once it is authenticated.
-    slot: tokio::sync::OwnedSemaphorePermit,
+    slot: lightfold_net::gate::Slot,
     identity: Identity,
     timeouts: Timeouts,
     hub: Arc<ControlHub>,

@@ -64,7 +64,7 @@ pub async fn run_sink(
     out: mpsc::Sender<SinkEvent>,
     cancel: CancellationToken,
 ) {
-    let gate = lightfold_net::gate::Gate::new(lightfold_net::gate::MAX_HANDSHAKES);
+    let gate = lightfold_net::gate::Gate::handshakes();
     loop {
         let accepted = tokio::select! {
             _ = cancel.cancelled() => return,
@@ -82,12 +82,12 @@ pub async fn run_sink(
             }
         };
         // A stray connection (a port scan, a probe) is refused and logged; it never ends the job.
-        let Some(slot) = gate.admit() else {
-            gate.refused(
-                &peer.to_string(),
-                &"too many connections are authenticating",
-            );
-            continue;
+        let slot = match gate.admit(peer.ip()) {
+            Ok(slot) => slot,
+            Err(full) => {
+                gate.refused(&peer.to_string(), &format!("handshakes: {full}"));
+                continue;
+            }
         };
         let (me, out, geometry, cancel) =
             (me.clone(), out.clone(), geometry.clone(), cancel.clone());

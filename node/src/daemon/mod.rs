@@ -168,7 +168,7 @@ pub async fn run(
     let claims = Claims::new(&opts.daemon_id, false);
     let stop = shutdown.child_token();
     let tracker = TaskTracker::new();
-    let gate = lightfold_net::gate::Gate::new(lightfold_net::gate::MAX_HANDSHAKES);
+    let gate = lightfold_net::gate::Gate::handshakes();
     loop {
         let (stream, peer) = tokio::select! {
             _ = stop.cancelled() => break,
@@ -182,13 +182,13 @@ pub async fn run(
                 }
             },
         };
-        let Some(slot) = gate.admit() else {
-            gate.refused(
-                &peer.to_string(),
-                &"too many connections are authenticating",
-            );
-            drop(stream);
-            continue;
+        let slot = match gate.admit(peer.ip()) {
+            Ok(slot) => slot,
+            Err(full) => {
+                gate.refused(&peer.to_string(), &format!("handshakes: {full}"));
+                drop(stream);
+                continue;
+            }
         };
         let (me, caps, engine, claims, stop, t, gate, silence) = (
             me.clone(),
