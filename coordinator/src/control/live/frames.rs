@@ -1,7 +1,7 @@
 //! The frames of the loop: sending requests, collecting images and reports, delivering in
 //! order, and putting back what a re-plan interrupts.
 
-use super::{InFlight, Live};
+use super::{InFlight, Live, ledger};
 use crate::control::session::FrameResult;
 use crate::plan::{Plan, Source};
 use crate::run::{RunError, frame_params};
@@ -16,48 +16,26 @@ fn supersampled(mut c: WireCamera, factor: u32) -> WireCamera {
 }
 
 impl Live<'_> {
-    /// Moves frames whose image and reports are all in to `done`.
+    /// Moves frames whose image and reports are all in to the ledger's complete frames.
     pub(super) fn collect(&mut self) {
-        let all = self.participants.len();
-        let mut i = 0;
-        while i < self.inflight.len() {
-            let f = &self.inflight[i];
-            if f.image.is_some() && f.stats.len() >= all {
-                let f = self.inflight.remove(i);
-                let later = self.inflight.iter().filter(|x| x.index > f.index).count();
-                self.finish(f, later as u32);
-            } else {
-                i += 1;
-            }
+        for (f, later) in self.frames.complete(self.participants.len()) {
+            self.finish(f, later);
         }
     }
 
     pub(super) fn finish(&mut self, f: InFlight, latency_frames: u32) {
-        let Some(image) = f.image else {
+        let warming = f.warming;
+        let Some(r) = ledger::result(f, latency_frames) else {
             return;
         };
-        if !f.warming {
-            self.measure(image.epoch, &f.stats);
+        if !warming {
+            self.measure(r.epoch, &r.stats);
         }
-        self.done.insert(
-            f.index,
-            FrameResult {
-                frame: f.index,
-                wire_frame: f.wire,
-                epoch: image.epoch,
-                requested_at: f.sent_at,
-                received_at: image.received_at,
-                latency_frames,
-                image: image.image,
-                sink_bytes: image.bytes,
-                stats: f.stats,
-            },
-        );
+        self.frames.finished(r);
     }
 
     pub(super) fn deliver(&mut self, on_frame: &mut impl FnMut(FrameResult)) {
-        while let Some(r) = self.done.remove(&self.next_deliver) {
-            self.next_deliver += 1;
+        for r in self.frames.deliverable() {
             self.summary.delivered += 1;
             self.replans_without_progress = 0;
             on_frame(r);
@@ -74,8 +52,8 @@ impl Live<'_> {
         };
         let limit = self.session.opts.frames_in_flight.max(1);
         let epoch = plan.epoch;
-        while self.inflight.len() < limit {
-            let Some((index, mut spec)) = self.queue.pop_front() else {
+        while self.frames.inflight.len() < limit {
+            let Some((index, mut spec)) = self.frames.queue.pop_front() else {
                 break;
             };
             self.refused.strip(&mut spec);
@@ -89,7 +67,7 @@ impl Live<'_> {
                 self.opts.frame_budget_us = budget;
                 self.over_budget.clear();
                 self.known_good = None;
-                self.queue.push_front((index, spec));
+                self.frames.queue.push_front((index, spec));
                 let why = match budget {
                     Some(us) => format!(
                         "frame budget {:.1} ms from frame {index}: re-planning",
@@ -108,7 +86,7 @@ impl Live<'_> {
                     // The nodes must render with the new colours themselves: re-plan over a
                     // recoloured scene, then send this frame under the new epoch.
                     self.recolour(&spec.light_colors)?;
-                    self.queue.push_front((index, spec));
+                    self.frames.queue.push_front((index, spec));
                     let why = format!(
                         "new light colours at frame {index} split the colour group of {node}: re-planning"
                     );
@@ -141,12 +119,12 @@ impl Live<'_> {
                 }
             }
             if let Some((id, e)) = failed {
-                self.queue.push_front((index, spec));
+                self.frames.queue.push_front((index, spec));
                 self.lose(&id, format!("cannot send to it: {e}"));
                 break;
             }
             self.sent_in_epoch += 1;
-            self.inflight.push(InFlight {
+            self.frames.inflight.push(InFlight {
                 index,
                 spec,
                 wire,
@@ -181,18 +159,11 @@ impl Live<'_> {
     /// Keeps the frames in flight that reached the sink (their image is complete) and puts the
     /// others back at the head of the queue, in order.
     pub(super) fn salvage(&mut self) {
-        let mut again = Vec::new();
-        for f in std::mem::take(&mut self.inflight) {
-            if f.image.is_some() {
-                self.finish(f, 0);
-            } else {
-                again.push((f.index, f.spec));
-            }
+        let (kept, again) = self.frames.salvage();
+        for f in kept {
+            self.finish(f, 0);
         }
-        self.summary.rerequested += again.len() as u64;
-        for item in again.into_iter().rev() {
-            self.queue.push_front(item);
-        }
+        self.summary.rerequested += again;
     }
 }
 

@@ -24,6 +24,7 @@
 
 mod epoch;
 mod frames;
+mod ledger;
 
 use super::session::{ControlError, Event, FrameResult, Joined, Session};
 use super::sink::{SinkEvent, SinkFrame};
@@ -33,7 +34,7 @@ use frames::waiting_on;
 pub use frames::{SEED64_HEADROOM, seed64_scale};
 use lightfold_protocol::{ErrorCode, FrameStats, Message, WireCamera};
 use lightfold_scene::Scene;
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
@@ -151,6 +152,7 @@ pub struct LiveStatus {
     pub notice: Option<(u64, String)>,
 }
 
+#[derive(Debug)]
 struct InFlight {
     index: u64,
     spec: FrameSpec,
@@ -262,11 +264,8 @@ pub struct Live<'s> {
     shunned: std::collections::BTreeSet<String>,
     /// Frame requests sent in the current epoch.
     sent_in_epoch: u64,
-    next_index: u64,
-    queue: VecDeque<(u64, FrameSpec)>,
-    inflight: Vec<InFlight>,
-    done: BTreeMap<u64, FrameResult>,
-    next_deliver: u64,
+    /// The frames from request to delivery.
+    frames: ledger::Ledger,
     source_open: bool,
     /// Why the next re-plan is due now (a participant was lost).
     need_replan: Option<String>,
@@ -297,8 +296,8 @@ impl std::fmt::Debug for Live<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Live")
             .field("epoch", &self.plan.as_ref().map(|p| p.epoch))
-            .field("queued", &self.queue.len())
-            .field("in_flight", &self.inflight.len())
+            .field("queued", &self.frames.queue.len())
+            .field("in_flight", &self.frames.inflight.len())
             .field("delivered", &self.summary.delivered)
             .finish_non_exhaustive()
     }
@@ -347,11 +346,7 @@ impl<'s> Live<'s> {
             refused: Refused::default(),
             shunned: std::collections::BTreeSet::new(),
             sent_in_epoch: 0,
-            next_index: 1,
-            queue: VecDeque::new(),
-            inflight: Vec::new(),
-            done: BTreeMap::new(),
-            next_deliver: 1,
+            frames: ledger::Ledger::default(),
             source_open: true,
             need_replan: None,
             pending_join: None,
@@ -434,7 +429,7 @@ impl<'s> Live<'s> {
 
     /// Gives up the frames not yet finished (daemons stopped with the run).
     fn abandon_frames(&mut self) {
-        let left = self.inflight.len();
+        let left = self.frames.abandon();
         self.summary.abandoned += left as u64;
         if left > 0 {
             tracing::info!(
@@ -443,8 +438,6 @@ impl<'s> Live<'s> {
                 "stopping: frames not finished are abandoned (daemons stopped with the run)"
             );
         }
-        self.inflight.clear();
-        self.queue.clear();
         self.source_open = false;
     }
 
@@ -474,12 +467,12 @@ impl<'s> Live<'s> {
                 continue;
             }
             self.issue().await?;
-            if !self.source_open && self.queue.is_empty() && self.inflight.is_empty() {
+            if !self.source_open && self.frames.idle() {
                 self.deliver(&mut on_frame);
                 return Ok(());
             }
             let lookahead = self.session.opts.frames_in_flight.max(1);
-            let want = self.source_open && self.queue.len() < lookahead;
+            let want = self.source_open && self.frames.queue.len() < lookahead;
             let stop = self.stop.clone().filter(|t| !t.is_cancelled());
             tokio::select! {
                 // Only to wake the loop: losses from now on are read as stopping.
@@ -494,10 +487,7 @@ impl<'s> Live<'s> {
                 },
                 j = self.session.joined.recv() => if let Some(j) = j { self.on_join(j) },
                 spec = requests.recv(), if want => match spec {
-                    Some(spec) => {
-                        self.queue.push_back((self.next_index, spec));
-                        self.next_index += 1;
-                    }
+                    Some(spec) => self.frames.request(spec),
                     None => self.source_open = false,
                 },
                 _ = self.tick.tick() => self.on_tick().await?,
@@ -544,7 +534,7 @@ impl<'s> Live<'s> {
                 if s.peak.is_finite() && s.peak > 0.0 {
                     self.peaks.insert(s.daemon_id.clone(), s.peak);
                 }
-                if let Some(f) = self.inflight.iter_mut().find(|f| f.wire == s.frame)
+                if let Some(f) = self.frames.inflight.iter_mut().find(|f| f.wire == s.frame)
                     && !f.stats.iter().any(|x| x.daemon_id == s.daemon_id)
                 {
                     if s.saturated > 0 {
@@ -589,7 +579,7 @@ impl<'s> Live<'s> {
         frame: Option<u64>,
     ) {
         let current = self.plan.as_ref().map(|p| p.epoch);
-        let inflight: Vec<u64> = self.inflight.iter().map(|f| f.wire).collect();
+        let inflight: Vec<u64> = self.frames.inflight.iter().map(|f| f.wire).collect();
         let verdict = judge_error(current, &inflight, code, about, frame);
         if verdict == ErrorVerdict::History {
             tracing::info!(daemon = %id, ?code, epoch = ?about, frame = ?frame, "{message} (of an epoch or frame no longer run: ignored)");
@@ -608,14 +598,14 @@ impl<'s> Live<'s> {
         let epoch = self.plan.as_ref().map(|p| p.epoch);
         match ev {
             SinkEvent::Frame(f) if Some(f.epoch) == epoch => {
-                if let Some(x) = self.inflight.iter_mut().find(|x| x.wire == f.frame) {
+                if let Some(x) = self.frames.inflight.iter_mut().find(|x| x.wire == f.frame) {
                     x.image = Some(f);
                 }
             }
             SinkEvent::Frame(_) => {}
             SinkEvent::Failed { frame, reason } => {
                 tracing::warn!(frame, "{reason}");
-                if self.inflight.iter().any(|f| f.wire == frame) && self.reset_at.is_none() {
+                if self.frames.inflight.iter().any(|f| f.wire == frame) && self.reset_at.is_none() {
                     self.reset_at = Some((Instant::now() + RESET_DEBOUNCE, reason));
                 }
             }
@@ -748,7 +738,7 @@ impl<'s> Live<'s> {
         let slow = predicted.mul_f64(opts.slow_factor).max(opts.slow_floor);
         let mut slow_frames = Vec::new();
         let mut hung = Vec::new();
-        for f in &mut self.inflight {
+        for f in &mut self.frames.inflight {
             let waited = now.duration_since(f.sent_at);
             if waited > opts.frame {
                 hung.push((f.index, waiting_on(plan, f)));
@@ -803,7 +793,7 @@ impl<'s> Live<'s> {
                 .take()
                 .map(|(_, r)| format!("frame failure: {r}"));
         }
-        if self.pending_join.is_some() && self.inflight.is_empty() {
+        if self.pending_join.is_some() && self.frames.inflight.is_empty() {
             return self.pending_join.take();
         }
         self.adapt_costs()
