@@ -155,7 +155,8 @@ fn wrong_version_and_bad_magic_are_typed() {
     let mut codec = Codec::default();
     let mut buf = BytesMut::new();
     hello.magic = MAGIC;
-    hello.version = 9;
+    // The release before this one.
+    hello.version = PROTOCOL_VERSION - 1;
     codec
         .encode(&Frame::Hello(hello.clone()), &mut buf)
         .unwrap();
@@ -163,7 +164,7 @@ fn wrong_version_and_bad_magic_are_typed() {
         codec.decode(&mut buf),
         Err(ProtocolError::VersionMismatch {
             ours: PROTOCOL_VERSION,
-            theirs: 9
+            theirs: PROTOCOL_VERSION - 1
         })
     );
     let mut buf = BytesMut::new();

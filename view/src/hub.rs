@@ -74,6 +74,8 @@ pub struct Hub {
     /// The status as the page gets it, and the newest notice.
     pub status: watch::Sender<Option<Arc<serde_json::Value>>>,
     pub notice: watch::Sender<Option<(u64, String)>>,
+    /// Why the session ended, once it has: every viewer is told before the view stops.
+    pub ended: watch::Sender<Option<String>>,
     pub viewers: AtomicUsize,
     pub counters: Arc<ViewCounters>,
     /// Cancelled when the view stops serving.
@@ -105,6 +107,7 @@ impl Hub {
             live,
             status: watch::Sender::new(None),
             notice: watch::Sender::new(None),
+            ended: watch::Sender::new(None),
             viewers: AtomicUsize::new(0),
             counters,
             stop,

@@ -66,6 +66,8 @@ impl Default for ViewOptions {
 
 /// Where the view listens unless told otherwise.
 pub const DEFAULT_LISTEN: &str = "127.0.0.1:8080";
+/// How long viewers get to receive why the session ended before the view stops serving.
+const ENDED_GRACE: std::time::Duration = std::time::Duration::from_millis(500);
 
 /// A bound view server, ready to drive a session.
 #[derive(Debug)]
@@ -171,6 +173,13 @@ impl View {
             .err();
         feeder.abort();
         encoder.finish();
+        // Every viewer is told why before the page loses its connection.
+        let why = match &error {
+            Some(e) => format!("the session ended: {e}"),
+            None => "the session ended: the coordinator was stopped".to_string(),
+        };
+        hub.ended.send_replace(Some(why));
+        tokio::time::sleep(ENDED_GRACE).await;
         serving.cancel();
         let _ = server.await;
         let _ = relay.await;

@@ -90,6 +90,8 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
     let mut steer = hub.steer.subscribe();
     let mut notices = hub.notice.subscribe();
     notices.borrow_and_update(); // only notices from now on
+    let mut ended = hub.ended.subscribe();
+    ended.mark_changed();
     frames.mark_changed();
     status.mark_changed();
     let mut outbox = vec![
@@ -162,6 +164,18 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
                 if r.is_err() { return; }
                 if let Some((_, text)) = notices.borrow_and_update().clone() {
                     outbox.push(json!({"type": "notice", "text": text}));
+                }
+            }
+            r = ended.changed() => {
+                if r.is_err() { return; }
+                let why = ended.borrow_and_update().clone();
+                if let Some(why) = why {
+                    // The page shows why instead of looping on "reconnecting" with no reason.
+                    let m = json!({"type": "ended", "text": why});
+                    if send(&mut tx, &hub, Message::Text(m.to_string().into())).await {
+                        let _ = tx.send(Message::Close(None)).await;
+                    }
+                    return;
                 }
             }
         }

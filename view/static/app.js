@@ -18,6 +18,7 @@
   // steer, the last status.
   const view = (window.lightfoldView = {
     connected: false, frames: 0, header: null, displayed: null, revision: null, unacked: 0, errors: [],
+    ended: null,
     camera: null, canSteer: false, status: null, scene: null, lights: [],
   });
 
@@ -78,7 +79,7 @@
     sock.binaryType = 'arraybuffer';
     ws = sock;
     setConn('connecting…', 'off');
-    sock.onopen = () => { view.connected = true; setConn('connected', 'on'); };
+    sock.onopen = () => { view.connected = true; view.ended = null; setConn('connected', 'on'); };
     sock.onmessage = (ev) => {
       if (typeof ev.data === 'string') onText(ev.data);
       else onFrame(ev.data);
@@ -89,7 +90,8 @@
       view.unacked = 0;
       ws = null;
       const wait = Math.round(backoff * (0.75 + Math.random() * 0.5));
-      setConn(`reconnecting in ${(wait / 1000).toFixed(1)} s`, 'off');
+      const again = `reconnecting in ${(wait / 1000).toFixed(1)} s`;
+      setConn(view.ended ? `${view.ended} (${again})` : again, 'off');
       backoff = Math.min(backoff * 2, 15000);
       setTimeout(connect, wait);
     };
@@ -127,6 +129,12 @@
         if (typeof m.revision === 'number') view.revision = Math.max(view.revision ?? m.revision, m.revision);
         return;
       case 'notice': log(m.text); return toast(m.text, 'notice');
+      case 'ended':
+        // The cluster's session is over: say why, and keep saying it while reconnecting.
+        view.ended = m.text;
+        log(m.text);
+        setConn(m.text, 'off');
+        return toast(m.text, 'error');
       case 'error':
         view.errors.push(m.text);
         if (view.errors.length > 50) view.errors.shift();

@@ -2,7 +2,8 @@
 //! in the next frame requested and matches the single-device render from the new camera, a
 //! colour change re-renders no node, a colour that splits a node's colour group re-plans and the
 //! page is told, a frame budget from the page re-plans at a lowered quality that the frames then
-//! match, and a stalled viewer does not hold the cluster back.
+//! match, and a stalled viewer does not hold the cluster back; a pure-red light with a budget set
+//! and cleared keeps the session, and a session that ends tells the page why.
 
 mod client;
 
@@ -609,4 +610,79 @@ async fn a_time_seek_poses_the_next_frame_as_the_single_device_render_of_that_po
         c.steer(json!({"type": "pause"})).await;
     })
     .await;
+}
+
+/// The page's sequence that ended sessions: a pure-red light (its node colour `[1, 0, 0]` was
+/// refused by render nodes), a frame budget, then none. Every step re-plans and frames keep
+/// coming; the last one matches the single-device render of the red scene.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_pure_red_light_and_a_budget_change_over_the_page_keep_the_session() {
+    let scene = small("balls");
+    // K = 8: one node carries both area lights, so a red light 1 splits its colour group.
+    let plan = plan_options(&scene, 8);
+    let s2 = scene.clone();
+    with_view(scene, plan, loopback(), |addr, delivered, _| async move {
+        let mut c = Client::connect(addr).await;
+        c.expect("welcome").await;
+        c.frame().await;
+        let red = [1.0, 0.0, 0.0];
+        let revision = c
+            .steer(json!({"type": "light", "index": 1, "color": red, "intensity": 1.0}))
+            .await;
+        until_revision(&mut c, revision).await;
+        let revision = c.steer(json!({"type": "budget", "ms": 60000.0})).await;
+        until_revision(&mut c, revision).await;
+        let revision = c.steer(json!({"type": "budget", "ms": null})).await;
+        let (f, _) = until_revision(&mut c, revision).await;
+        let ended = c.texts_of("ended");
+        assert!(ended.is_empty(), "the session ended: {ended:?}");
+        let mut recoloured = s2.clone();
+        recoloured.lights[1].color = red;
+        let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
+        assert_close(
+            &delivered_frame(&delivered, frame_number(&f)),
+            &single_device(&gpu, &recoloured, true),
+            "the red frame after the budget was cleared",
+        );
+    })
+    .await;
+}
+
+/// A session that cannot go on (its only compositor lost, nothing to wait for) tells every
+/// viewer why before the page loses its connection, instead of leaving it reconnecting with no
+/// reason shown.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn the_page_is_told_why_a_session_ended() {
+    let scene = small("balls");
+    let plan = plan_options(&scene, 8);
+    let cluster = InProcessCluster::start(1, 1).await.unwrap();
+    let stage = cluster.stop_token("comp-0").unwrap();
+    let mut session = cluster.connect(test_control()).await.unwrap();
+    let view = View::bind(loopback()).await.unwrap();
+    let addr = view.local_addr();
+    let run = view.run(&mut session, &scene, &plan, CancellationToken::new());
+    let test = async {
+        let mut c = Client::connect(addr).await;
+        c.expect("welcome").await;
+        c.frame().await;
+        stage.cancel();
+        let ended = c.expect("ended").await;
+        let text = ended["text"].as_str().unwrap().to_string();
+        assert!(
+            text.starts_with("the session ended") && text.contains("comp-0"),
+            "{text}"
+        );
+        assert!(
+            c.closed_within(Duration::from_secs(10)).await,
+            "the view closed the page's link"
+        );
+    };
+    let (outcome, ()) = tokio::time::timeout(lightfold_tests::RUN_DEADLINE, async {
+        tokio::join!(run, test)
+    })
+    .await
+    .expect("the view run timed out");
+    assert!(outcome.error.is_some(), "the session could not go on");
+    session.detach();
+    cluster.stop().await.unwrap();
 }

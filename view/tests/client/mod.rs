@@ -146,6 +146,15 @@ impl Client {
         }
     }
 
+    /// The text messages of type `kind` read but not yet taken.
+    pub fn texts_of(&self, kind: &str) -> Vec<Value> {
+        self.texts
+            .iter()
+            .filter(|t| t["type"] == kind)
+            .cloned()
+            .collect()
+    }
+
     /// Whether the view closes the socket within `within`.
     pub async fn closed_within(&mut self, within: Duration) -> bool {
         let deadline = tokio::time::Instant::now() + within;
