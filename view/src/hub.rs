@@ -16,6 +16,10 @@ use tokio_util::sync::CancellationToken;
 
 /// Viewers served at once; more are refused (503).
 pub const MAX_VIEWERS: usize = 64;
+/// Of those, viewers that only watch (beyond loopback, no token presented): the rest are kept for
+/// viewers who steer, so watchers cannot fill the view and lock its operator out (64 watch-only
+/// viewers used to take every slot).
+pub const MAX_WATCHERS: usize = 48;
 
 /// What serving the view has cost, for the figures in `docs/live-view.md`.
 #[derive(Debug, Default)]
@@ -77,6 +81,8 @@ pub struct Hub {
     /// Why the session ended, once it has: every viewer is told before the view stops.
     pub ended: watch::Sender<Option<String>>,
     pub viewers: AtomicUsize,
+    /// Viewers that only watch (`MAX_WATCHERS`).
+    pub watchers: AtomicUsize,
     pub counters: Arc<ViewCounters>,
     /// Cancelled when the view stops serving.
     pub stop: CancellationToken,
@@ -109,6 +115,7 @@ impl Hub {
             notice: watch::Sender::new(None),
             ended: watch::Sender::new(None),
             viewers: AtomicUsize::new(0),
+            watchers: AtomicUsize::new(0),
             counters,
             stop,
         }

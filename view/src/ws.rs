@@ -67,6 +67,30 @@ struct Viewer {
     can_steer: bool,
 }
 
+/// How long a viewer arriving when the watching slots are full has to present the token.
+const HELLO_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
+
+/// Counts a watch-only viewer while it watches.
+struct Watching(Arc<Hub>);
+
+impl Watching {
+    /// A watching slot, if one is free.
+    fn take(hub: &Arc<Hub>) -> Option<Watching> {
+        let before = hub.watchers.fetch_add(1, Ordering::Relaxed);
+        if before >= crate::hub::MAX_WATCHERS {
+            hub.watchers.fetch_sub(1, Ordering::Relaxed);
+            return None;
+        }
+        Some(Watching(Arc::clone(hub)))
+    }
+}
+
+impl Drop for Watching {
+    fn drop(&mut self) {
+        self.0.watchers.fetch_sub(1, Ordering::Relaxed);
+    }
+}
+
 /// Counts a viewer while it is connected.
 struct Present(Arc<Hub>);
 
@@ -83,8 +107,30 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
         can_steer: peer.ip().is_loopback(),
         hub: Arc::clone(&hub),
     };
-    tracing::info!(%peer, steer = v.can_steer, "viewer connected");
     let (mut tx, mut rx) = socket.split();
+    let mut first_answers = Vec::new();
+    let mut watching = if v.can_steer {
+        None
+    } else {
+        Watching::take(&hub)
+    };
+    if !v.can_steer && watching.is_none() {
+        // The watching slots are full: only a viewer who presents the token takes one of
+        // the slots kept for steering.
+        if let Ok(Some(Ok(Message::Text(t)))) = tokio::time::timeout(HELLO_WAIT, rx.next()).await {
+            first_answers = v.handle(&t);
+        }
+        if !v.can_steer {
+            let m = error(format!(
+                "{} viewers are watching already: present the token to steer, or try later",
+                crate::hub::MAX_WATCHERS
+            ));
+            let _ = send(&mut tx, &hub, Message::Text(m.to_string().into())).await;
+            let _ = tx.send(Message::Close(None)).await;
+            return;
+        }
+    }
+    tracing::info!(%peer, steer = v.can_steer, "viewer connected");
     let mut frames = hub.frames.subscribe();
     let mut status = hub.status.subscribe();
     let mut steer = hub.steer.subscribe();
@@ -98,6 +144,7 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
         v.welcome(),
         json::lights_message(&steer.borrow_and_update()),
     ];
+    outbox.extend(first_answers);
     let mut last_sent: Option<u64> = None;
     loop {
         for m in outbox.drain(..) {
@@ -115,6 +162,8 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
                     let could = v.can_steer;
                     outbox.extend(v.handle(&t));
                     if v.can_steer && !could {
+                        // A steering viewer now: its watching slot is free again.
+                        drop(watching.take());
                         outbox.push(v.welcome());
                     }
                 }
@@ -316,5 +365,35 @@ impl Viewer {
             }
         });
         result
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::hub::MAX_WATCHERS;
+
+    #[test]
+    fn watchers_leave_slots_for_viewers_who_steer() {
+        let scene = lightfold_scene::builtin("balls").unwrap();
+        let (_, live) = tokio::sync::watch::channel(Default::default());
+        let hub = Arc::new(Hub::new(
+            &scene,
+            &crate::ViewOptions::default(),
+            Arc::default(),
+            live,
+            tokio_util::sync::CancellationToken::new(),
+        ));
+        let held: Vec<Watching> = (0..MAX_WATCHERS)
+            .map(|_| Watching::take(&hub).expect("a watching slot"))
+            .collect();
+        assert!(Watching::take(&hub).is_none(), "watchers are capped");
+        assert!(
+            MAX_WATCHERS < crate::hub::MAX_VIEWERS,
+            "slots are kept for steering"
+        );
+        drop(held);
+        assert_eq!(hub.watchers.load(Ordering::Relaxed), 0);
+        assert!(Watching::take(&hub).is_some());
     }
 }
