@@ -1318,6 +1318,28 @@ impl Report {
         row("frames lost".into(), lost_frames.to_string());
         row("frames duplicated".into(), duplicated.to_string());
         row("frames out of order".into(), out_of_order.to_string());
+        // The session's target: no gap between delivered frames above 2 s plus one frame interval.
+        let gaps: Vec<Duration> = i
+            .deliveries
+            .windows(2)
+            .map(|w| w[1].at.saturating_duration_since(w[0].at))
+            .collect();
+        let typical = {
+            let mut g = gaps.clone();
+            g.sort();
+            g.get(g.len() / 2).copied().unwrap_or_default()
+        };
+        let bar = Duration::from_secs(2) + typical;
+        let largest = gaps.iter().max().copied().unwrap_or_default();
+        row(
+            "largest gap between delivered frames".into(),
+            format!(
+                "{:.2} s (median interval {:.3} s; {} gap(s) over 2 s + one interval)",
+                largest.as_secs_f64(),
+                typical.as_secs_f64(),
+                gaps.iter().filter(|g| **g > bar).count()
+            ),
+        );
         row(
             "frames wrong".into(),
             format!(
