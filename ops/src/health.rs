@@ -15,9 +15,14 @@ static OPEN_LINKS: AtomicUsize = AtomicUsize::new(0);
 /// coordinator connects again).
 static RELEASED_SILENT: AtomicBool = AtomicBool::new(false);
 
-/// A claimed control link was released because its coordinator fell silent: `/readyz` says so
-/// until a coordinator connects again.
-pub fn released_silent_coordinator() {
+/// A claimed control link from the coordinator at `addr` was released because it brought nothing
+/// for `after`: logged, and `/readyz` says so until a coordinator connects again.
+pub fn released_silent_coordinator(addr: &str, after: std::time::Duration) {
+    tracing::warn!(
+        %addr,
+        "no word from the coordinator for {} s (stopped, hung or cut off): releasing its claim",
+        after.as_secs_f64()
+    );
     RELEASED_SILENT.store(true, Ordering::Relaxed);
 }
 
@@ -116,7 +121,7 @@ mod tests {
         assert!(readiness().ready, "b still configures it");
         drop(b);
         assert!(!readiness().ready);
-        released_silent_coordinator();
+        released_silent_coordinator("127.0.0.1:1", std::time::Duration::from_secs(5));
         assert!(
             readiness()
                 .why

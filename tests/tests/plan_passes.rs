@@ -64,8 +64,7 @@ fn planned_passes_equal_the_renderers() {
 mod daemons_take_every_plan {
     use lightfold_coordinator::plan::{ClusterSpec, PlanOptions, Topology, plan, replan};
     use lightfold_protocol::frame::DEFAULT_MAX_FRAME;
-    use lightfold_scene::primitives::{cuboid, plane, sphere};
-    use lightfold_scene::{Light, LightShape, Material, Scene};
+    use lightfold_scene::{Light, Scene};
     use proptest::prelude::*;
 
     const COLOURS: [[f32; 3]; 7] = [
@@ -78,36 +77,20 @@ mod daemons_take_every_plan {
         [0.25, 0.8, 0.6],
     ];
 
+    /// `balls` with one to three of its area lights, recoloured, of `samples` samples each.
     fn scene(colours: &[usize], samples: u32) -> Scene {
-        let mut s = Scene::new("colours");
-        let grey = s.add_material(Material::diffuse("grey", [0.7, 0.7, 0.7]));
-        let red = s.add_material(Material::diffuse("red", [0.8, 0.2, 0.2]));
-        s.add_mesh(plane(
-            "floor",
-            [0.0; 3],
-            [0.0, 1.0, 0.0],
-            [1.0, 0.0, 0.0],
-            [8.0, 8.0],
-            1,
-            grey,
-        ));
-        s.add_mesh(cuboid("box", [-0.8, 0.5, 0.0], [0.5, 0.5, 0.5], red));
-        s.add_mesh(sphere("ball", [0.8, 0.6, 0.3], 0.6, 12, 6, grey));
-        for (i, &c) in colours.iter().enumerate() {
-            s.lights.push(Light {
+        let mut s = lightfold_scene::builtin("balls").unwrap();
+        let base = std::mem::take(&mut s.lights);
+        s.lights = colours
+            .iter()
+            .enumerate()
+            .map(|(i, &c)| Light {
                 name: format!("light-{i}"),
-                shape: LightShape::Rect {
-                    center: [i as f32 - 1.0, 3.0, 0.5 * i as f32],
-                    normal: [0.0, -1.0, 0.0],
-                    u_axis: [1.0, 0.0, 0.0],
-                    size: [1.0, 1.0],
-                },
                 color: COLOURS[c],
-                power: 20.0,
-                range: None,
                 samples,
-            });
-        }
+                ..base[i % base.len()].clone()
+            })
+            .collect();
         s.camera.width = 96;
         s.camera.height = 64;
         s

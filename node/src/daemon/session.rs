@@ -192,14 +192,12 @@ async fn read(
                     tracing::info!(%addr, "coordinator disconnected");
                     return Ended::Left;
                 }
-                Some(Err(NetError::Timeout { after, .. })) => {
-                    lightfold_ops::health::released_silent_coordinator();
-                    tracing::warn!(
-                        %addr,
-                        "no word from the coordinator for {} s (stopped, hung or cut off): \
-                         releasing its claim",
-                        after.as_secs_f64()
-                    );
+                Some(Err(NetError::Timeout {
+                    what: "silence",
+                    after,
+                    ..
+                })) => {
+                    lightfold_ops::health::released_silent_coordinator(&addr, after);
                     return Ended::Left;
                 }
                 Some(Err(e)) => {
