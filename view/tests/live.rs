@@ -3,7 +3,8 @@
 //! colour change re-renders no node, a colour that splits a node's colour group re-plans and the
 //! page is told, a frame budget from the page re-plans at a lowered quality that the frames then
 //! match, and a stalled viewer does not hold the cluster back; a pure-red light with a budget set
-//! and cleared keeps the session, and a session that ends tells the page why.
+//! and cleared keeps the session (the colour-split test), and a session that ends tells the page
+//! why.
 
 mod client;
 
@@ -188,6 +189,9 @@ async fn a_colour_change_rerenders_no_node() {
     .await;
 }
 
+/// A pure-red light (its node colour `[1, 0, 0]` was refused by render nodes, which ended the
+/// session) splits a node's colour group: the cluster re-plans and the page is told; then a frame
+/// budget set and cleared from the page re-plan over the red scene, and the session goes on.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_colour_that_splits_a_colour_group_replans_and_the_page_is_told() {
     let scene = small("balls");
@@ -198,7 +202,7 @@ async fn a_colour_that_splits_a_colour_group_replans_and_the_page_is_told() {
         let mut c = Client::connect(addr).await;
         c.expect("welcome").await;
         c.frame().await;
-        let color = [1.0, 0.2, 0.1];
+        let color = [1.0, 0.0, 0.0];
         let revision = c
             .steer(json!({"type": "light", "index": 1, "color": color, "intensity": 1.0}))
             .await;
@@ -221,6 +225,18 @@ async fn a_colour_that_splits_a_colour_group_replans_and_the_page_is_told() {
             .await;
         let reason = status["epochs"][1]["reason"].as_str().unwrap().to_string();
         assert!(reason.contains("split"), "{reason}");
+        // A budget set and cleared: two more re-plans over the red scene.
+        let revision = c.steer(json!({"type": "budget", "ms": 60000.0})).await;
+        until_revision(&mut c, revision).await;
+        let revision = c.steer(json!({"type": "budget", "ms": null})).await;
+        let (f, _) = until_revision(&mut c, revision).await;
+        let ended = c.texts_of("ended");
+        assert!(ended.is_empty(), "the session ended: {ended:?}");
+        assert_close(
+            &delivered_frame(&delivered, frame_number(&f)),
+            &single_device(&gpu, &recoloured, true),
+            "the red frame after the budget was cleared",
+        );
     })
     .await;
 }
@@ -608,42 +624,6 @@ async fn a_time_seek_poses_the_next_frame_as_the_single_device_render_of_that_po
         let b = frame_number(&c.frame().await);
         assert!(b > a);
         c.steer(json!({"type": "pause"})).await;
-    })
-    .await;
-}
-
-/// The page's sequence that ended sessions: a pure-red light (its node colour `[1, 0, 0]` was
-/// refused by render nodes), a frame budget, then none. Every step re-plans and frames keep
-/// coming; the last one matches the single-device render of the red scene.
-#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
-async fn a_pure_red_light_and_a_budget_change_over_the_page_keep_the_session() {
-    let scene = small("balls");
-    // K = 8: one node carries both area lights, so a red light 1 splits its colour group.
-    let plan = plan_options(&scene, 8);
-    let s2 = scene.clone();
-    with_view(scene, plan, loopback(), |addr, delivered, _| async move {
-        let mut c = Client::connect(addr).await;
-        c.expect("welcome").await;
-        c.frame().await;
-        let red = [1.0, 0.0, 0.0];
-        let revision = c
-            .steer(json!({"type": "light", "index": 1, "color": red, "intensity": 1.0}))
-            .await;
-        until_revision(&mut c, revision).await;
-        let revision = c.steer(json!({"type": "budget", "ms": 60000.0})).await;
-        until_revision(&mut c, revision).await;
-        let revision = c.steer(json!({"type": "budget", "ms": null})).await;
-        let (f, _) = until_revision(&mut c, revision).await;
-        let ended = c.texts_of("ended");
-        assert!(ended.is_empty(), "the session ended: {ended:?}");
-        let mut recoloured = s2.clone();
-        recoloured.lights[1].color = red;
-        let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
-        assert_close(
-            &delivered_frame(&delivered, frame_number(&f)),
-            &single_device(&gpu, &recoloured, true),
-            "the red frame after the budget was cleared",
-        );
     })
     .await;
 }
