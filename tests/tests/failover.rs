@@ -501,3 +501,71 @@ async fn a_resumed_run_renders_only_the_missing_frames() {
     }
     cluster.stop().await.unwrap();
 }
+
+/// A render node dead while the coordinator connects (killed, or not up yet) does not fail the
+/// start: the session starts with the daemons that answered, every frame is rendered, and the
+/// node, once it is back on its address, is folded in.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_node_dead_at_the_start_is_folded_in_when_it_comes_back() {
+    let (scene, mut opts) = setup();
+    // Frames keep coming until node-1 renders one (or this many have been requested).
+    opts.frames = 1000;
+    let mut cluster = InProcessCluster::start(4, 4).await.unwrap();
+    cluster.kill("node-1").await.unwrap();
+    let started = Instant::now();
+    let mut session = cluster.connect(opts.control).await.unwrap();
+    let waited = started.elapsed();
+    assert_eq!(session.unreachable.len(), 1, "{:?}", session.unreachable);
+    assert_eq!(session.daemons.len(), 7);
+    assert!(
+        waited < Duration::from_secs(40),
+        "the start waited {waited:?} for a dead node"
+    );
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<()>();
+    let mut frames = Vec::new();
+    let stop = tokio_util::sync::CancellationToken::new();
+    let enough = stop.clone();
+    let run = lightfold_coordinator::run::render_until(&mut session, &scene, &opts, stop, |f| {
+        if f.frame == 2 {
+            let _ = tx.send(());
+        }
+        if f.stats.iter().any(|s| s.daemon_id == "node-1") {
+            enough.cancel();
+        }
+        frames.push(f);
+    });
+    let supervisor = async {
+        rx.recv().await;
+        cluster.restart("node-1").await.unwrap();
+    };
+    let (outcome, ()) = tokio::time::timeout(lightfold_tests::RUN_DEADLINE, async {
+        tokio::join!(run, supervisor)
+    })
+    .await
+    .expect("the run timed out");
+    session.detach();
+    assert!(outcome.error.is_none(), "{:?}", outcome.error);
+    assert_eq!(outcome.summary.epochs[0].nodes, 3, "the start plans without node-1");
+    assert!(
+        outcome
+            .summary
+            .incidents
+            .iter()
+            .any(|i| i.daemon == "node-1" && i.kind == IncidentKind::Rejoined),
+        "node-1 was folded in: {:?}",
+        outcome.summary.epochs
+    );
+    assert!(
+        frames.iter().any(|f| f.stats.iter().any(|s| s.daemon_id == "node-1")),
+        "node-1 never rendered in {} frames",
+        frames.len()
+    );
+    opts.frames = frames.len() as u32;
+    let out = RunOutput {
+        plan: outcome.summary.plan.clone().expect("a plan"),
+        frames,
+        summary: outcome.summary,
+    };
+    assert_every_frame(&out, &scene, &opts, "with node-1 dead at the start");
+    cluster.stop().await.unwrap();
+}

@@ -15,6 +15,10 @@ use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 use tokio_util::sync::CancellationToken;
 
+/// How long the daemons still registering are waited for after the latest one registered
+/// (`Session::connect`).
+const STRAGGLERS: Duration = Duration::from_secs(15);
+
 /// How long `Session::shutdown` waits for its `Shutdown` messages to be written.
 const SHUTDOWN_FLUSH: Duration = Duration::from_secs(2);
 
@@ -276,9 +280,12 @@ impl Session {
     ) -> Result<Session, ControlError> {
         let id = session_id();
         let mut joins = tokio::task::JoinSet::new();
+        let mut pending: BTreeMap<tokio::task::Id, DaemonAddr> = BTreeMap::new();
         for d in daemons {
-            let (d, me) = (d.clone(), me.clone());
-            joins.spawn(async move { (d.clone(), register(d, me, opts, id).await) });
+            let (entry, me) = (d.clone(), me.clone());
+            let task =
+                joins.spawn(async move { (entry.clone(), register(entry, me, opts, id).await) });
+            pending.insert(task.id(), d.clone());
         }
         let (event_tx, events) = mpsc::channel(1024);
         let (joined_tx, joined) = mpsc::channel(64);
@@ -322,9 +329,26 @@ impl Session {
         // coordinator while the others are waited for.
         let mut first_error = None;
         let mut addresses: BTreeMap<String, String> = BTreeMap::new();
-        while let Some(done) = joins.join_next().await {
+        // Once some daemon has registered, the others get `STRAGGLERS` more after the latest
+        // registration: a daemon killed while the coordinator connects is redialled after that,
+        // not waited for until the register deadline (`--connect-timeout`, minutes in `demo`).
+        let mut cut_off: Option<tokio::time::Instant> = None;
+        loop {
+            let next = match cut_off {
+                Some(at) => match tokio::time::timeout_at(at, joins.join_next_with_id()).await {
+                    Ok(n) => n,
+                    Err(_) => break,
+                },
+                None => joins.join_next_with_id().await,
+            };
+            let Some(done) = next else { break };
+            let done = done.map(|(task, r)| {
+                pending.remove(&task);
+                r
+            });
             match done {
                 Ok((_, Ok(r))) => {
+                    cut_off = Some(tokio::time::Instant::now() + STRAGGLERS);
                     let id = r.caps.daemon_id.clone();
                     if let Some(a) = addresses.get(&id) {
                         first_error.get_or_insert(ControlError::DuplicateId {
@@ -351,6 +375,16 @@ impl Session {
                     )));
                 }
             }
+        }
+        joins.abort_all();
+        for d in pending.into_values() {
+            let why = format!(
+                "did not register within {} s of the others",
+                STRAGGLERS.as_secs()
+            );
+            tracing::warn!(address = %d.address, "{why}: starting without it, redialling");
+            session.unreachable.push((d.address.clone(), why));
+            session.redial(d);
         }
         if let Some(e) = first_error {
             cancel.cancel();
