@@ -545,7 +545,10 @@ async fn a_node_dead_at_the_start_is_folded_in_when_it_comes_back() {
     .expect("the run timed out");
     session.detach();
     assert!(outcome.error.is_none(), "{:?}", outcome.error);
-    assert_eq!(outcome.summary.epochs[0].nodes, 3, "the start plans without node-1");
+    assert_eq!(
+        outcome.summary.epochs[0].nodes, 3,
+        "the start plans without node-1"
+    );
     assert!(
         outcome
             .summary
@@ -556,7 +559,9 @@ async fn a_node_dead_at_the_start_is_folded_in_when_it_comes_back() {
         outcome.summary.epochs
     );
     assert!(
-        frames.iter().any(|f| f.stats.iter().any(|s| s.daemon_id == "node-1")),
+        frames
+            .iter()
+            .any(|f| f.stats.iter().any(|s| s.daemon_id == "node-1")),
         "node-1 never rendered in {} frames",
         frames.len()
     );
