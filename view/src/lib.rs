@@ -22,7 +22,7 @@ mod json;
 mod ws;
 
 pub use camera::{Steer, SteerError};
-pub use hub::ViewCounters;
+pub use hub::{MAX_VIEWERS, MAX_WATCHERS, ViewCounters};
 
 use lightfold_coordinator::control::{FrameResult, Live, LiveSummary, Session};
 use lightfold_coordinator::plan::PlanOptions;

@@ -666,3 +666,51 @@ async fn the_page_is_told_why_a_session_ended() {
     session.detach();
     cluster.stop().await.unwrap();
 }
+
+/// Watch-only viewers cannot lock the operator out: once `MAX_WATCHERS` of them watch, the next
+/// is told why and closed, and a viewer who presents the token still gets in and steers (64
+/// watch-only viewers used to take every slot, and the operator got 503).
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn watchers_leave_room_for_the_operator() {
+    let scene = small("balls");
+    let plan = plan_options(&scene, 4);
+    let ip = non_loopback_address();
+    let opts = ViewOptions {
+        listen: "0.0.0.0:0".into(),
+        token: Some("viewer-secret".into()),
+        ..ViewOptions::default()
+    };
+    with_view(scene, plan, opts, |addr, _, _| async move {
+        let remote = std::net::SocketAddr::new(ip, addr.port());
+        let mut watchers = Vec::new();
+        for _ in 0..lightfold_view::MAX_WATCHERS {
+            let mut c = Client::connect(remote).await;
+            let welcome = c.expect("welcome").await;
+            assert_eq!(welcome["can_steer"], false, "{welcome}");
+            watchers.push(c);
+        }
+        // One more watcher: it has a few seconds to present the token, then is told why.
+        let mut late = Client::connect(remote).await;
+        let refused = late.expect("error").await;
+        assert!(
+            refused["text"]
+                .as_str()
+                .unwrap()
+                .contains("watching already"),
+            "{refused}"
+        );
+        assert!(late.closed_within(Duration::from_secs(10)).await);
+        // The operator presents the token at once and steers.
+        let mut op = Client::connect(remote).await;
+        op.send(&json!({"type": "hello", "token": "viewer-secret"}))
+            .await;
+        let welcome = op.expect("welcome").await;
+        assert_eq!(welcome["can_steer"], true, "{welcome}");
+        let revision = op
+            .steer(json!({"type": "orbit", "yaw_deg": 10.0, "pitch_deg": 0.0}))
+            .await;
+        until_revision(&mut op, revision).await;
+        drop(watchers);
+    })
+    .await;
+}
