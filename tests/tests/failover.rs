@@ -574,3 +574,52 @@ async fn a_node_dead_at_the_start_is_folded_in_when_it_comes_back() {
     assert_every_frame(&out, &scene, &opts, "with node-1 dead at the start");
     cluster.stop().await.unwrap();
 }
+
+/// Told to stop (Ctrl-C) while it waits for lost daemons to come back, the run stops at once with
+/// what it delivered, instead of waiting out `--wait-for-daemons`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_stop_ends_the_wait_for_lost_daemons() {
+    let (scene, mut opts) = setup();
+    opts.plan.lights_per_node = 8;
+    opts.frames = 1000;
+    opts.control.redial = Duration::from_millis(200);
+    opts.control.wait_for_daemons = Duration::from_secs(120);
+    // One stage only: losing it leaves no plan, and nothing brings it back.
+    let cluster = InProcessCluster::start(1, 1).await.unwrap();
+    let stage = cluster.stop_token("comp-0").unwrap();
+    let mut session = cluster.connect(opts.control).await.unwrap();
+    let stop = tokio_util::sync::CancellationToken::new();
+    let ctrl_c = stop.clone();
+    let (lost_tx, mut lost_rx) = tokio::sync::mpsc::unbounded_channel::<()>();
+    let mut delivered = 0u64;
+    let run = lightfold_coordinator::run::render_until(&mut session, &scene, &opts, stop, |f| {
+        if f.frame == 2 {
+            stage.cancel();
+            let _ = lost_tx.send(());
+        }
+        delivered += 1;
+    });
+    let stopped_at = Arc::new(Mutex::new(None::<Instant>));
+    let at = Arc::clone(&stopped_at);
+    let user = async move {
+        lost_rx.recv().await;
+        // Well into the wait for lost daemons.
+        tokio::time::sleep(Duration::from_secs(3)).await;
+        *at.lock().unwrap() = Some(Instant::now());
+        ctrl_c.cancel();
+    };
+    let (outcome, ()) = tokio::time::timeout(lightfold_tests::RUN_DEADLINE, async {
+        tokio::join!(run, user)
+    })
+    .await
+    .expect("the run timed out");
+    let ended = stopped_at.lock().unwrap().expect("stopped").elapsed();
+    session.detach();
+    assert!(outcome.error.is_none(), "{:?}", outcome.error);
+    assert!(delivered >= 2, "the frames before the loss were delivered");
+    assert!(
+        ended < Duration::from_secs(10),
+        "the run went on {ended:?} after it was told to stop"
+    );
+    cluster.stop().await.unwrap();
+}

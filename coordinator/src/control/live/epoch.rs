@@ -102,6 +102,7 @@ impl Live<'_> {
 
     pub(super) async fn wait_for_join(&mut self, deadline: Instant) -> Result<(), RunError> {
         loop {
+            let stopped = self.stopped();
             tokio::select! {
                 j = self.session.joined.recv() => if let Some(j) = j {
                     self.on_join(j);
@@ -111,6 +112,11 @@ impl Live<'_> {
                 ev = self.session.events.recv() => if let Some(ev) = ev { self.accept(ev)?; },
                 s = self.session.sink_events.recv() => if let Some(s) = s { self.on_sink(s) },
                 _ = self.tick.tick() => self.heartbeat().await,
+                () = stopped => {
+                    // Told to stop while waiting for daemons: nothing more can be rendered.
+                    self.abandon = true;
+                    return Ok(());
+                }
                 _ = tokio::time::sleep_until(deadline.into()) => {
                     return Err(RunError::TooFewDaemons {
                         error: PlanError::NoNodes,
@@ -490,6 +496,7 @@ impl Live<'_> {
         pending: &[String],
         members: &BTreeSet<String>,
     ) -> Result<Option<(String, Message)>, Halt> {
+        let stopped = self.stopped();
         tokio::select! {
             ev = self.session.events.recv() => match ev {
                 Some(ev) => Ok(self.accept(ev)?),
@@ -507,6 +514,12 @@ impl Live<'_> {
                 self.heartbeat().await;
                 self.check_interrupted(members)?;
                 Ok(None)
+            }
+            () = stopped => {
+                // Told to stop while configuring: the frames of the old epoch were put back,
+                // so what is not delivered is abandoned.
+                self.abandon = true;
+                Err(Halt::Interrupted)
             }
             _ = tokio::time::sleep_until(deadline.into()) => {
                 let after = self.session.opts.configure;

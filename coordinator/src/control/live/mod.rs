@@ -427,6 +427,19 @@ impl<'s> Live<'s> {
         self.stop.as_ref().is_some_and(|t| t.is_cancelled())
     }
 
+    /// Resolves once the run is told to stop (never without a stop token): the waits of a
+    /// re-plan (`wait_for_join`, `wait_message`) end on it, so Ctrl-C is not held up by a wait
+    /// for lost daemons or configurations.
+    pub(super) fn stopped(&self) -> impl std::future::Future<Output = ()> + use<> {
+        let stop = self.stop.clone();
+        async move {
+            match stop {
+                Some(t) => t.cancelled_owned().await,
+                None => std::future::pending().await,
+            }
+        }
+    }
+
     /// Gives up the frames not yet finished (daemons stopped with the run).
     fn abandon_frames(&mut self) {
         let left = self.frames.abandon();
