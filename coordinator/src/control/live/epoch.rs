@@ -186,7 +186,14 @@ impl Live<'_> {
                 Message::SceneReady { hash: h, .. } if Some(h) == wanted && loading.remove(&id) => {
                     self.session.scenes.insert(id, h);
                 }
-                Message::Error { code, message, .. } if pending.contains(&id) => {
+                // A refusal of the scene (no frame; scene errors name no epoch): a frame's error of
+                // the epoch before is not one.
+                Message::Error {
+                    code,
+                    message,
+                    epoch,
+                    frame: None,
+                } if pending.contains(&id) && epoch.is_none_or(|e| e == next.epoch) => {
                     return Err(Halt::Refused { id, code, message });
                 }
                 other => self.ignore(&id, other),
@@ -293,8 +300,9 @@ impl Live<'_> {
     /// changed since the last epoch every daemon took (light colours, the frame budget, the
     /// cost model) go back to what they were, the viewers are told why, and frames asking for
     /// the refused settings again are sent without them. Where nothing changed, the daemon cannot
-    /// take its part under settings that worked: it is left out (lost). Only a refusal of the very first plan ends the run: nothing has
-    /// worked yet to go back to. Returns the reason of the next plan.
+    /// take its part under settings that worked: it is left out (lost). Only a refusal of the
+    /// very first plan ends the run: nothing has worked yet to go back to. Returns the reason of
+    /// the next plan.
     ///
     /// A daemon left out is redialled like any lost one; when it answers it is folded in at the
     /// next re-plan something else causes, not at once, so a daemon that refuses every plan
