@@ -222,3 +222,53 @@ async fn a_missing_input_times_out_and_the_next_frame_is_served() {
     ctl.frame_done(2, WAIT).await.unwrap();
     stage.stop().await;
 }
+
+/// A stage that a re-plan leaves out (`Message::Release`) drops the frame it waits on at once:
+/// no input timeout comes 300 ms later (it used to, 30 s later under the default deadline, and a
+/// coordinator that took it for a fresh failure re-planned a healthy cluster). The stage then
+/// serves a new configuration.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_released_stage_drops_its_frame_without_a_timeout() {
+    let (w, h, _) = SIZE;
+    let timeout = std::time::Duration::from_millis(300);
+    let stage = start_stage_with("c3", |o| o.input_timeout = timeout).await;
+    let (_first_sink, first_addr) = sink().await;
+    let mut ctl = stage.control().await;
+    let out = [(ILL, PixelFormat::F32x6)];
+    let ins = || vec![input("a", &[(ILL, PixelFormat::F32x6)])];
+    ctl.configure(config(1, SIZE, ins(), &[], &out, &first_addr), WAIT)
+        .await
+        .unwrap();
+    // Nobody feeds frame 1, and the plan of epoch 2 leaves the stage out.
+    ctl.render(1, 1, no_params()).await.unwrap();
+    ctl.release(2).await.unwrap();
+    ctl.send_ping(7).await.unwrap();
+    let quiet_until = tokio::time::Instant::now() + 4 * timeout;
+    loop {
+        let left = quiet_until.saturating_duration_since(tokio::time::Instant::now());
+        match ctl.next_message(left).await {
+            Ok(lightfold_protocol::Message::Pong { seq: 7 }) => {}
+            Ok(m) => panic!("a released stage said {m:?}"),
+            Err(DriverError::Timeout { .. }) => break, // quiet until the deadline
+            Err(e) => panic!("{e}"),
+        }
+    }
+    // Configured again (epoch 3, to another consumer), it serves frames.
+    let (mut sink, sink_addr) = sink().await;
+    ctl.configure(config(3, SIZE, ins(), &[], &out, &sink_addr), WAIT)
+        .await
+        .unwrap();
+    let img = image(ILL, PixelFormat::F32x6, hdr(3, w, h, ILL, 0..0));
+    let mut a = stage.producer("a").await;
+    ctl.render(3, 2, no_params()).await.unwrap();
+    a.send_frame(&shape(3, 2, SIZE), std::slice::from_ref(&img))
+        .await
+        .unwrap();
+    let got = sink
+        .recv_frame(&shape(3, 2, SIZE), &out, WAIT)
+        .await
+        .unwrap();
+    assert_eq!(got[0].data, img.data);
+    ctl.frame_done(2, WAIT).await.unwrap();
+    stage.stop().await;
+}

@@ -336,6 +336,13 @@ pub enum Message {
     Claimed {
         session: u64,
     },
+    /// Coordinator → daemon: the plan of `epoch` leaves this daemon out. It drops what it holds
+    /// of earlier epochs — a frame in progress or queued, its data links — and waits, registered,
+    /// for a configuration; it answers nothing. (A stage dropped by a re-plan used to wait out its
+    /// input deadline on the old epoch's frame.)
+    Release {
+        epoch: u64,
+    },
 }
 
 impl Message {

@@ -330,6 +330,19 @@ impl ControlHub {
                     );
                 }
             }
+            Message::Release { epoch } => {
+                // Preempts whatever the engine does for an older configuration, as a new one
+                // would (`Engine::apply`), then leaves the stage unconfigured.
+                let mut generation = 0;
+                self.generation.send_modify(|g| {
+                    *g += 1;
+                    generation = *g;
+                });
+                let cmd = Command::Release { generation, epoch };
+                if self.commands.send(cmd).await.is_err() {
+                    return false;
+                }
+            }
             Message::Ping { seq } => self.out.send(Message::Pong { seq }),
             Message::Shutdown => {
                 tracing::info!("shutdown requested by the coordinator");
@@ -367,5 +380,6 @@ fn message_name(m: &Message) -> &'static str {
         Message::Shutdown => "Shutdown",
         Message::Claim { .. } => "Claim",
         Message::Claimed { .. } => "Claimed",
+        Message::Release { .. } => "Release",
     }
 }

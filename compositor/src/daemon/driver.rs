@@ -135,6 +135,11 @@ impl ControlClient {
         Ok(self.link.send_msg(msg).await?)
     }
 
+    /// Tells the stage the plan of `epoch` leaves it out (`Message::Release`; no answer).
+    pub async fn release(&mut self, epoch: u64) -> Result<(), DriverError> {
+        Ok(self.link.send_msg(Message::Release { epoch }).await?)
+    }
+
     /// The next message from the stage (backlog first).
     pub async fn next_message(&mut self, within: Duration) -> Result<Message, DriverError> {
         if let Some(m) = self.backlog.pop_front() {

@@ -23,6 +23,11 @@ use tokio::time::Instant;
 pub(crate) enum Command {
     Configure(Box<NewConfig>),
     Frame(FrameRequest),
+    /// Left out of the plan of `epoch` (`Message::Release`): the ordinal of that change.
+    Release {
+        generation: u64,
+        epoch: u64,
+    },
 }
 
 #[derive(Debug)]
@@ -110,6 +115,7 @@ impl Engine {
             };
             match cmd {
                 Command::Configure(new) => self.apply(*new).await,
+                Command::Release { generation, epoch } => self.release(generation, epoch),
                 Command::Frame(req) => {
                     let (frame, req_epoch) = (req.frame, req.epoch);
                     if *self.generation.borrow() > self.applied {
@@ -151,6 +157,23 @@ impl Engine {
                 }
             }
         }
+    }
+
+    /// Leaves the stage unconfigured: its input links close, the writer lets its downstream go
+    /// and drops what it holds of the old configuration's frame.
+    fn release(&mut self, generation: u64, epoch: u64) {
+        self.slots.clear();
+        self.plan = None;
+        self.applied = generation;
+        self.out.target.send_replace(Target {
+            generation,
+            epoch,
+            addr: String::new(),
+        });
+        tracing::info!(
+            epoch,
+            "released: the plan of this epoch leaves the stage out"
+        );
     }
 
     /// Switches to a new configuration, keeping the links of inputs that stay.

@@ -212,6 +212,18 @@ impl Engine {
         }
     }
 
+    /// `Release`: the plan of `epoch` leaves this node out. It drops its configuration, its
+    /// walkthrough frame and its data link (a frame in progress was abandoned by the preempting
+    /// reader), and waits for the next configuration.
+    pub fn release(&mut self, epoch: u64) {
+        self.abandon();
+        self.active = None;
+        tracing::info!(
+            epoch,
+            "released: the plan of this epoch leaves the node out"
+        );
+    }
+
     /// `ConfigureNode`: checks the configuration, hands it to the render thread (which rebuilds
     /// the renderer only for a new scene or new build options) and points the data link at the
     /// new downstream. A refused configuration leaves the node unconfigured.

@@ -9,7 +9,7 @@
 //!   chunk that is not the last);
 //! - one writer through which every reply goes.
 //!
-//! A `ConfigureNode` (or `Shutdown`) preempts frames: the frame in progress is abandoned at once
+//! A `ConfigureNode`, `Release` (or `Shutdown`) preempts frames: the frame in progress is abandoned at once
 //! and frames queued before the configuration are skipped; neither is answered. The session ends
 //! when the coordinator leaves (the node keeps running for the next one), says `Shutdown`,
 //! another coordinator takes the node over (`TakenOver` is sent first), or the daemon stops; a
@@ -232,7 +232,7 @@ async fn read(
                 return Ended::Shutdown;
             }
             msg => {
-                if matches!(msg, Message::ConfigureNode(_)) {
+                if matches!(msg, Message::ConfigureNode(_) | Message::Release { .. }) {
                     fence.send_modify(|f| *f += 1);
                 }
                 let request = Request {
@@ -355,6 +355,10 @@ async fn handle(engine: &Mutex<Engine>, msg: Message) -> Option<Message> {
             engine.scene_chunk(hash, offset, data, last).await
         }
         Message::ConfigureNode(config) => Some(engine.configure(config).await),
+        Message::Release { epoch } => {
+            engine.release(epoch);
+            None
+        }
         other => {
             let name = format!("{other:?}");
             let name = name.split(['(', ' ', '{']).next().unwrap_or("?");

@@ -42,6 +42,7 @@ pub fn variant(m: &Message) -> &'static str {
         Message::RenderFrame { .. } => "RenderFrame",
         Message::FrameDone(_) => "FrameDone",
         Message::Error { .. } => "Error",
+        Message::Release { .. } => "Release",
         Message::Ping { .. } => "Ping",
         Message::Pong { .. } => "Pong",
         Message::Shutdown => "Shutdown",
@@ -396,6 +397,9 @@ pub fn message() -> impl Strategy<Value = Message> {
         any::<u64>().prop_map(|seq| Message::Ping { seq }).boxed(),
         any::<u64>().prop_map(|seq| Message::Pong { seq }).boxed(),
         Just(Message::Shutdown).boxed(),
+        any::<u64>()
+            .prop_map(|epoch| Message::Release { epoch })
+            .boxed(),
         (any::<u64>(), any::<bool>())
             .prop_map(|(session, take_over)| Message::Claim { session, take_over })
             .boxed(),

@@ -273,6 +273,18 @@ impl Live<'_> {
         if self.summary.epochs.len() > 1 {
             lightfold_ops::record::replanned();
         }
+        // Daemons the new plan leaves out drop what they hold of the old epoch (a stage would
+        // otherwise wait out its input deadline on a frame that can no longer come).
+        let left_out: Vec<String> = self
+            .participants
+            .iter()
+            .filter(|p| !members.contains(*p) && self.session.daemons.contains_key(*p))
+            .cloned()
+            .collect();
+        for id in left_out {
+            self.send_or_lose(&id, Message::Release { epoch: next.epoch })
+                .await;
+        }
         self.participants = next
             .stages
             .iter()
