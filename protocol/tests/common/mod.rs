@@ -10,7 +10,7 @@ use lightfold_protocol::*;
 use proptest::prelude::*;
 
 /// Every `Message` variant, in declaration order.
-pub const VARIANTS: [&str; 16] = [
+pub const VARIANTS: [&str; 17] = [
     "Register",
     "SceneOffer",
     "SceneNeed",
@@ -27,6 +27,7 @@ pub const VARIANTS: [&str; 16] = [
     "Shutdown",
     "Claim",
     "Claimed",
+    "Release",
 ];
 
 pub fn variant(m: &Message) -> &'static str {
