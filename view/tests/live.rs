@@ -388,16 +388,22 @@ fn non_loopback_address() -> std::net::IpAddr {
         .expect("this test needs a non-loopback IPv4 address (none found)")
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
-async fn a_viewer_beyond_loopback_only_watches_until_it_presents_the_token() {
-    let scene = small("balls");
-    let plan = plan_options(&scene, 4);
-    let ip = non_loopback_address();
+/// A view on every address with the token `viewer-secret`, and this machine's non-loopback
+/// address to reach it as a viewer beyond loopback.
+fn beyond_loopback() -> (std::net::IpAddr, ViewOptions) {
     let opts = ViewOptions {
         listen: "0.0.0.0:0".into(),
         token: Some("viewer-secret".into()),
         ..ViewOptions::default()
     };
+    (non_loopback_address(), opts)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_viewer_beyond_loopback_only_watches_until_it_presents_the_token() {
+    let scene = small("balls");
+    let plan = plan_options(&scene, 4);
+    let (ip, opts) = beyond_loopback();
     with_view(scene, plan, opts, |addr, _, _| async move {
         let remote = std::net::SocketAddr::new(ip, addr.port());
         let mut c = Client::connect(remote).await;
@@ -674,12 +680,7 @@ async fn the_page_is_told_why_a_session_ended() {
 async fn watchers_leave_room_for_the_operator() {
     let scene = small("balls");
     let plan = plan_options(&scene, 4);
-    let ip = non_loopback_address();
-    let opts = ViewOptions {
-        listen: "0.0.0.0:0".into(),
-        token: Some("viewer-secret".into()),
-        ..ViewOptions::default()
-    };
+    let (ip, opts) = beyond_loopback();
     with_view(scene, plan, opts, |addr, _, _| async move {
         let remote = std::net::SocketAddr::new(ip, addr.port());
         let mut watchers = Vec::new();
