@@ -274,10 +274,11 @@ pub async fn render_until(
 ) -> RunOutcome {
     // Frames of `opts.skip` are not requested; the loop numbers what it delivers 1, 2, …, which
     // is put back to the path's numbers here.
+    let skip: std::collections::HashSet<u64> = opts.skip.iter().copied().collect();
     let (numbers, specs): (Vec<u64>, Vec<FrameSpec>) = frame_specs(scene, opts)
         .into_iter()
         .zip(1u64..)
-        .filter(|(_, n)| !opts.skip.contains(n))
+        .filter(|(_, n)| !skip.contains(n))
         .map(|(s, n)| (n, s))
         .unzip();
     let on_frame = move |mut f: FrameResult| {

@@ -9,7 +9,6 @@ use std::collections::HashMap;
 use std::net::IpAddr;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 
 /// Connections a listener authenticates at once.
 pub const MAX_HANDSHAKES: usize = 64;
@@ -21,28 +20,34 @@ const LOG_EVERY: Duration = Duration::from_secs(1);
 /// One listener's gate (cheap to clone).
 #[derive(Debug, Clone)]
 pub struct Gate {
-    slots: Arc<Semaphore>,
     limit: usize,
     per_address: usize,
-    open: Arc<Mutex<HashMap<IpAddr, usize>>>,
+    open: Arc<Mutex<Open>>,
     log: Arc<Mutex<LogState>>,
+}
+
+/// The connections a gate has admitted and not yet given back, in all and by address.
+#[derive(Debug, Default)]
+struct Open {
+    total: usize,
+    by_address: HashMap<IpAddr, usize>,
 }
 
 /// A connection's place in a [`Gate`], given back when dropped.
 #[derive(Debug)]
 pub struct Slot {
-    _permit: OwnedSemaphorePermit,
     peer: IpAddr,
-    open: Arc<Mutex<HashMap<IpAddr, usize>>>,
+    open: Arc<Mutex<Open>>,
 }
 
 impl Drop for Slot {
     fn drop(&mut self) {
         let mut open = self.open.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(n) = open.get_mut(&self.peer) {
+        open.total -= 1;
+        if let Some(n) = open.by_address.get_mut(&self.peer) {
             *n -= 1;
             if *n == 0 {
-                open.remove(&self.peer);
+                open.by_address.remove(&self.peer);
             }
         }
     }
@@ -67,7 +72,6 @@ impl Gate {
     /// A gate of `limit` connections, at most `per_address` of them from one address.
     pub fn new(limit: usize, per_address: usize) -> Gate {
         Gate {
-            slots: Arc::new(Semaphore::new(limit.max(1))),
             limit: limit.max(1),
             per_address: per_address.max(1),
             open: Arc::default(),
@@ -85,19 +89,31 @@ impl Gate {
     /// reports it with `refused`).
     pub fn admit(&self, peer: IpAddr) -> Result<Slot, Full> {
         let mut open = self.open.lock().unwrap_or_else(|e| e.into_inner());
-        let from = open.get(&peer).copied().unwrap_or(0);
+        let from = open.by_address.get(&peer).copied().unwrap_or(0);
         if from >= self.per_address {
             return Err(Full::Address(from));
         }
-        let permit = Arc::clone(&self.slots)
-            .try_acquire_owned()
-            .map_err(|_| Full::Listener(self.limit))?;
-        *open.entry(peer).or_insert(0) += 1;
+        if open.total >= self.limit {
+            return Err(Full::Listener(self.limit));
+        }
+        open.total += 1;
+        *open.by_address.entry(peer).or_insert(0) += 1;
         Ok(Slot {
-            _permit: permit,
             peer,
             open: Arc::clone(&self.open),
         })
+    }
+
+    /// [`Gate::admit`], logging a refusal (`refused`) as `what` (`"handshakes"`, `"the view"`):
+    /// `None` when the caller is to close the connection.
+    pub fn admit_or_refuse(&self, peer: std::net::SocketAddr, what: &str) -> Option<Slot> {
+        match self.admit(peer.ip()) {
+            Ok(slot) => Some(slot),
+            Err(full) => {
+                self.refused(&peer.to_string(), &format!("{what}: {full}"));
+                None
+            }
+        }
     }
 
     /// Logs a refused peer (WARN), at most once a second; refusals in between are counted and
@@ -154,6 +170,6 @@ mod tests {
         let _b = g.admit(ip(2)).unwrap();
         drop(a);
         let _a3 = g.admit(ip(1)).unwrap();
-        assert_eq!(g.open.lock().unwrap().get(&ip(1)), Some(&2));
+        assert_eq!(g.open.lock().unwrap().by_address.get(&ip(1)), Some(&2));
     }
 }

@@ -69,12 +69,8 @@ pub async fn serve(listener: tokio::net::TcpListener, hub: Arc<Hub>) {
                 }
             },
         };
-        let permit = match gate.admit(peer.ip()) {
-            Ok(p) => p,
-            Err(full) => {
-                gate.refused(&peer.to_string(), &format!("the view: {full}"));
-                continue;
-            }
+        let Some(permit) = gate.admit_or_refuse(peer, "the view") else {
+            continue;
         };
         let app = app.clone();
         let stop = stop.clone();

@@ -167,13 +167,9 @@ pub async fn run(
         };
         match accepted {
             Ok((stream, peer)) => {
-                let slot = match gate.admit(peer.ip()) {
-                    Ok(slot) => slot,
-                    Err(full) => {
-                        gate.refused(&peer.to_string(), &format!("handshakes: {full}"));
-                        drop(stream);
-                        continue;
-                    }
+                let Some(slot) = gate.admit_or_refuse(peer, "handshakes") else {
+                    drop(stream);
+                    continue;
                 };
                 let conn = Connection {
                     gate: gate.clone(),

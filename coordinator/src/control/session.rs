@@ -199,7 +199,7 @@ pub(crate) struct Joined {
 /// it rather than wait (scene chunks wait for room up to the link's send deadline).
 const CONTROL_QUEUE: usize = 64;
 /// The `seq` of the writer tasks' keepalive pings (the loop's heartbeats use 0).
-pub(crate) const KEEPALIVE_SEQ: u64 = u64::MAX;
+const KEEPALIVE_SEQ: u64 = u64::MAX;
 
 /// A live cluster.
 #[derive(Debug)]
@@ -328,7 +328,6 @@ impl Session {
         // Each daemon is taken in as it registers: its writer task keeps it hearing from this
         // coordinator while the others are waited for.
         let mut first_error = None;
-        let mut addresses: BTreeMap<String, String> = BTreeMap::new();
         // Once some daemon has registered, the others get `STRAGGLERS` more after the latest
         // registration: a daemon killed while the coordinator connects is redialled after that,
         // not waited for until the register deadline (`--connect-timeout`, minutes in `demo`).
@@ -349,22 +348,18 @@ impl Session {
             match done {
                 Ok((_, Ok(r))) => {
                     cut_off = Some(tokio::time::Instant::now() + STRAGGLERS);
-                    let id = r.caps.daemon_id.clone();
-                    if let Some(a) = addresses.get(&id) {
+                    if let Some(prev) = session.daemons.get(&r.caps.daemon_id) {
                         first_error.get_or_insert(ControlError::DuplicateId {
-                            id,
-                            a: a.clone(),
+                            id: r.caps.daemon_id.clone(),
+                            a: prev.address.clone(),
                             b: r.entry.address.clone(),
                         });
                         continue;
                     }
-                    addresses.insert(id, r.entry.address.clone());
                     session.admit(r);
                 }
                 Ok((d, Err(e))) if e.is_unreachable() => {
-                    tracing::warn!(address = %d.address, "not reached while connecting ({e}): starting without it, redialling");
-                    session.unreachable.push((d.address.clone(), e.to_string()));
-                    session.redial(d);
+                    session.start_without(d, format!("not reached while connecting ({e})"));
                 }
                 Ok((_, Err(e))) => {
                     first_error.get_or_insert(e);
@@ -382,9 +377,7 @@ impl Session {
                 "did not register within {} s of the others",
                 STRAGGLERS.as_secs()
             );
-            tracing::warn!(address = %d.address, "{why}: starting without it, redialling");
-            session.unreachable.push((d.address.clone(), why));
-            session.redial(d);
+            session.start_without(d, why);
         }
         if let Some(e) = first_error {
             cancel.cancel();
@@ -482,6 +475,14 @@ impl Session {
         Some(d)
     }
 
+    /// A daemon of the cluster that did not register while the session connected: listed as
+    /// unreachable (`why`) and redialled like a lost one.
+    fn start_without(&mut self, d: DaemonAddr, why: String) {
+        tracing::warn!(address = %d.address, "{why}: starting without it, redialling");
+        self.unreachable.push((d.address.clone(), why));
+        self.redial(d);
+    }
+
     /// Redials `entry` in the background until it answers (then it arrives on `joined`) or the
     /// session ends; nothing when rejoining is off.
     fn redial(&self, entry: DaemonAddr) {
@@ -528,7 +529,7 @@ impl Session {
     /// Queues `msg` for daemon `id`'s writer task: never waits on its socket. A daemon whose
     /// writer has failed (its link is broken) or that is `CONTROL_QUEUE` messages behind
     /// (stalled) is an error, which the loop takes for a loss.
-    pub async fn send(&mut self, id: &str, msg: Message) -> Result<(), ControlError> {
+    pub fn send(&mut self, id: &str, msg: Message) -> Result<(), ControlError> {
         let d = self
             .daemons
             .get(id)
@@ -557,24 +558,20 @@ impl Session {
             .get(id)
             .ok_or_else(|| ControlError::UnknownDaemon(id.to_string()))?;
         let after = self.opts.link.send;
-        let address = d.address.clone();
-        match tokio::time::timeout(after, d.out.send(msg)).await {
-            Ok(Ok(())) => Ok(()),
-            Ok(Err(_)) => Err(ControlError::Link {
-                source: NetError::Closed {
-                    addr: address.clone(),
-                },
-                address,
-            }),
-            Err(_) => Err(ControlError::Link {
-                source: NetError::Timeout {
-                    what: "send",
-                    addr: address.clone(),
-                    after,
-                },
-                address,
-            }),
-        }
+        let addr = d.address.clone();
+        let source = match tokio::time::timeout(after, d.out.send(msg)).await {
+            Ok(Ok(())) => return Ok(()),
+            Ok(Err(_)) => NetError::Closed { addr: addr.clone() },
+            Err(_) => NetError::Timeout {
+                what: "send",
+                addr: addr.clone(),
+                after,
+            },
+        };
+        Err(ControlError::Link {
+            address: addr,
+            source,
+        })
     }
 
     pub(crate) fn address(&self, id: &str) -> String {
@@ -589,7 +586,7 @@ impl Session {
     pub async fn shutdown(mut self) {
         let ids: Vec<String> = self.daemons.keys().cloned().collect();
         for id in ids {
-            let _ = self.send(&id, Message::Shutdown).await;
+            let _ = self.send(&id, Message::Shutdown);
         }
         let writers: Vec<_> = std::mem::take(&mut self.daemons)
             .into_values()

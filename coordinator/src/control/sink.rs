@@ -82,12 +82,8 @@ pub async fn run_sink(
             }
         };
         // A stray connection (a port scan, a probe) is refused and logged; it never ends the job.
-        let slot = match gate.admit(peer.ip()) {
-            Ok(slot) => slot,
-            Err(full) => {
-                gate.refused(&peer.to_string(), &format!("handshakes: {full}"));
-                continue;
-            }
+        let Some(slot) = gate.admit_or_refuse(peer, "handshakes") else {
+            continue;
         };
         let (me, out, geometry, cancel) =
             (me.clone(), out.clone(), geometry.clone(), cancel.clone());

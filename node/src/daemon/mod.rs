@@ -182,13 +182,9 @@ pub async fn run(
                 }
             },
         };
-        let slot = match gate.admit(peer.ip()) {
-            Ok(slot) => slot,
-            Err(full) => {
-                gate.refused(&peer.to_string(), &format!("handshakes: {full}"));
-                drop(stream);
-                continue;
-            }
+        let Some(slot) = gate.admit_or_refuse(peer, "handshakes") else {
+            drop(stream);
+            continue;
         };
         let (me, caps, engine, claims, stop, t, gate, silence) = (
             me.clone(),

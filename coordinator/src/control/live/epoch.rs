@@ -111,7 +111,7 @@ impl Live<'_> {
                 },
                 ev = self.session.events.recv() => if let Some(ev) = ev { self.accept(ev)?; },
                 s = self.session.sink_events.recv() => if let Some(s) = s { self.on_sink(s) },
-                _ = self.tick.tick() => self.heartbeat().await,
+                _ = self.tick.tick() => self.heartbeat(),
                 () = stopped => {
                     // Told to stop while waiting for daemons: nothing more can be rendered.
                     self.abandon = true;
@@ -156,8 +156,7 @@ impl Live<'_> {
                 continue;
             }
             let (hash, size) = (*hash, bytes.len() as u64);
-            self.send_or_lose(id, Message::SceneOffer { hash, size })
-                .await;
+            self.send_or_lose(id, Message::SceneOffer { hash, size });
             offered.insert(id.clone());
         }
         let mut loading: BTreeSet<String> = BTreeSet::new();
@@ -221,7 +220,7 @@ impl Live<'_> {
         });
         let mut waiting: BTreeSet<String> = BTreeSet::new();
         for (id, msg) in configs {
-            self.send_or_lose(&id, msg).await;
+            self.send_or_lose(&id, msg);
             waiting.insert(id);
         }
         while !waiting.is_empty() {
@@ -282,8 +281,7 @@ impl Live<'_> {
             .cloned()
             .collect();
         for id in left_out {
-            self.send_or_lose(&id, Message::Release { epoch: next.epoch })
-                .await;
+            self.send_or_lose(&id, Message::Release { epoch: next.epoch });
         }
         self.participants = next
             .stages
@@ -424,8 +422,8 @@ impl Live<'_> {
         Ok(undone)
     }
 
-    pub(super) async fn send_or_lose(&mut self, id: &str, msg: Message) {
-        if let Err(e) = self.session.send(id, msg).await {
+    pub(super) fn send_or_lose(&mut self, id: &str, msg: Message) {
+        if let Err(e) = self.session.send(id, msg) {
             self.lose(id, format!("cannot send to it: {e}"));
         }
     }
@@ -531,7 +529,7 @@ impl Live<'_> {
                 Ok(None)
             }
             _ = self.tick.tick() => {
-                self.heartbeat().await;
+                self.heartbeat();
                 self.check_interrupted(members)?;
                 Ok(None)
             }

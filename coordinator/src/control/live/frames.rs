@@ -43,7 +43,7 @@ impl Live<'_> {
     }
 
     /// Sends frame requests up to the in-flight limit (none while a re-plan is due).
-    pub(super) async fn issue(&mut self) -> Result<(), RunError> {
+    pub(super) fn issue(&mut self) -> Result<(), RunError> {
         if self.pending_join.is_some() || self.need_replan.is_some() || self.reset_at.is_some() {
             return Ok(());
         }
@@ -113,7 +113,7 @@ impl Live<'_> {
                     camera: spec.camera.map(|c| supersampled(c, self.opts.supersample)),
                     params: frame_params,
                 };
-                if let Err(e) = self.session.send(id, msg).await {
+                if let Err(e) = self.session.send(id, msg) {
                     failed = Some((id.clone(), e));
                     break;
                 }

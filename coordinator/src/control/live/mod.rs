@@ -479,17 +479,17 @@ impl<'s> Live<'s> {
                 self.replan(reason).await?;
                 continue;
             }
-            self.issue().await?;
+            self.issue()?;
             if !self.source_open && self.frames.idle() {
                 self.deliver(&mut on_frame);
                 return Ok(());
             }
             let lookahead = self.session.opts.frames_in_flight.max(1);
             let want = self.source_open && self.frames.queue.len() < lookahead;
-            let stop = self.stop.clone().filter(|t| !t.is_cancelled());
+            let (stopped, running) = (self.stopped(), !self.stopping());
             tokio::select! {
                 // Only to wake the loop: losses from now on are read as stopping.
-                () = async { if let Some(t) = &stop { t.cancelled().await } }, if stop.is_some() => {}
+                () = stopped, if running => {}
                 ev = self.session.events.recv() => match ev {
                     Some(ev) => self.on_run_event(ev)?,
                     None => return Err(ControlError::Sink("event channel closed".into()).into()),
@@ -503,7 +503,7 @@ impl<'s> Live<'s> {
                     Some(spec) => self.frames.request(spec),
                     None => self.source_open = false,
                 },
-                _ = self.tick.tick() => self.on_tick().await?,
+                _ = self.tick.tick() => self.on_tick()?,
             }
         }
     }
@@ -695,7 +695,7 @@ impl<'s> Live<'s> {
 
     /// Sends heartbeats and judges silence; a heartbeat counts as unanswered only from when it
     /// was sent, so a loop that was busy never mistakes its own delay for a daemon's silence.
-    async fn heartbeat(&mut self) {
+    fn heartbeat(&mut self) {
         let now = Instant::now();
         let opts = self.session.opts;
         let mut silent = Vec::new();
@@ -729,7 +729,7 @@ impl<'s> Live<'s> {
         self.last_ping = Some(now);
         let ids: Vec<String> = self.session.daemons.keys().cloned().collect();
         for id in ids {
-            match self.session.send(&id, Message::Ping { seq: 0 }).await {
+            match self.session.send(&id, Message::Ping { seq: 0 }) {
                 Ok(()) => {
                     if let Some(d) = self.session.daemons.get_mut(&id) {
                         d.ping_pending.get_or_insert(now);
@@ -740,8 +740,8 @@ impl<'s> Live<'s> {
         }
     }
 
-    async fn on_tick(&mut self) -> Result<(), RunError> {
-        self.heartbeat().await;
+    fn on_tick(&mut self) -> Result<(), RunError> {
+        self.heartbeat();
         let Some(plan) = &self.plan else {
             return Ok(());
         };
