@@ -91,22 +91,37 @@ pub enum RunError {
 
 /// The cluster spec of a connected session.
 pub fn cluster_spec(session: &Session) -> ClusterSpec {
-    let spec = |role: Role| -> Vec<DaemonSpec> {
+    cluster_of(
         session
             .daemons
             .iter()
-            .filter(|(_, d)| d.caps.role == role)
-            .map(|(id, d)| DaemonSpec {
-                id: id.clone(),
-                address: d.address.clone(),
-                capabilities: Some(d.caps.clone()),
-            })
-            .collect()
-    };
+            .map(|(id, d)| (id.as_str(), d.address.as_str(), &d.caps)),
+        &session.sink_address,
+    )
+}
+
+/// The cluster spec of registered daemons (id, dialled address, capabilities) and a sink address.
+pub fn cluster_of<'a>(
+    daemons: impl IntoIterator<Item = (&'a str, &'a str, &'a lightfold_protocol::Capabilities)>,
+    sink: &str,
+) -> ClusterSpec {
+    let (mut nodes, mut compositors) = (Vec::new(), Vec::new());
+    for (id, address, caps) in daemons {
+        let spec = DaemonSpec {
+            id: id.to_string(),
+            address: address.to_string(),
+            capabilities: Some(caps.clone()),
+        };
+        match caps.role {
+            Role::Node => nodes.push(spec),
+            Role::Compositor => compositors.push(spec),
+            _ => {}
+        }
+    }
     ClusterSpec {
-        nodes: spec(Role::Node),
-        compositors: spec(Role::Compositor),
-        sink: session.sink_address.clone(),
+        nodes,
+        compositors,
+        sink: sink.to_string(),
     }
 }
 

@@ -170,18 +170,24 @@ pub struct Daemon {
     pub(crate) entry: DaemonAddr,
     /// Which control link of this daemon is current (events of older links are ignored).
     pub(crate) link: u64,
-    /// When anything last arrived on its control link (set by the reader task, so a busy loop
-    /// never mistakes a queued answer for silence).
-    pub(crate) seen: std::sync::Arc<std::sync::Mutex<Instant>>,
-    /// The first heartbeat sent since it last said anything.
-    pub(crate) ping_pending: Option<Instant>,
-    /// Its writer task's queue (`write_control`): the loop never waits on a daemon's socket.
-    out: mpsc::Sender<Message>,
+    /// Its writer task's queues (`write_control`): control messages, and scene chunks behind
+    /// them. The loop never waits on a daemon's socket.
+    out: Queues,
     writer: tokio::task::JoinHandle<()>,
 }
 
-/// A message (or the end) of one control link: daemon id, link generation, what arrived.
-pub(crate) type Event = (String, u64, Result<Message, NetError>);
+/// A message (or the end) of one control link: daemon id, link generation, when the reader task
+/// took it off the socket, what arrived.
+pub(crate) type Event = (String, u64, Instant, Result<Message, NetError>);
+
+/// The two queues of a daemon's writer task: control messages (bounded at `CONTROL_QUEUE`;
+/// `Session::send` never waits) and scene chunks (`Session::send_scene`, written only when no
+/// control message waits, so heartbeats and frame requests never queue behind a scene).
+#[derive(Debug, Clone)]
+struct Queues {
+    control: mpsc::Sender<Message>,
+    bulk: mpsc::Sender<Message>,
+}
 
 /// A registered and claimed daemon (at the start, or answering a redial): ready to be folded
 /// into the next plan. Its writer task runs from the claim on, so the daemon hears the
@@ -191,13 +197,15 @@ pub(crate) struct Joined {
     pub entry: DaemonAddr,
     pub caps: Capabilities,
     reader: lightfold_net::LinkReader,
-    out: mpsc::Sender<Message>,
+    out: Queues,
     writer: tokio::task::JoinHandle<()>,
 }
 
 /// Messages queued for one daemon's socket. A daemon this far behind is stalled: the loop loses
 /// it rather than wait (scene chunks wait for room up to the link's send deadline).
 const CONTROL_QUEUE: usize = 64;
+/// Scene chunks queued for one daemon's writer task ahead of its socket.
+const BULK_QUEUE: usize = 2;
 /// The `seq` of the writer tasks' keepalive pings (the loop's heartbeats use 0).
 const KEEPALIVE_SEQ: u64 = u64::MAX;
 
@@ -227,8 +235,6 @@ pub struct Session {
     pub base: u64,
     epochs: u64,
     links: u64,
-    /// Nodes known to hold a scene, by hash.
-    pub(crate) scenes: BTreeMap<String, [u8; 32]>,
 }
 
 /// One daemon to connect to: its address, the role the cluster file gives it, and optionally its id.
@@ -254,13 +260,6 @@ impl DaemonAddr {
             .map(with(Role::Node))
             .chain(compositors.iter().map(with(Role::Compositor)))
             .collect()
-    }
-}
-
-impl Daemon {
-    /// When anything last arrived from it.
-    pub(crate) fn last_seen(&self) -> Instant {
-        *self.seen.lock().unwrap_or_else(|e| e.into_inner())
     }
 }
 
@@ -323,7 +322,6 @@ impl Session {
             base,
             epochs: 0,
             links: 0,
-            scenes: BTreeMap::new(),
         };
         // Each daemon is taken in as it registers: its writer task keeps it hearing from this
         // coordinator while the others are waited for.
@@ -420,14 +418,18 @@ impl Session {
         Ok(session)
     }
 
-    /// A new plan epoch of this session: above every epoch this session or an earlier one used.
-    pub fn next_epoch(&mut self) -> u64 {
-        self.epochs += 1;
-        self.base + self.epochs
+    /// Reserves the plan epochs of one run over this session (`Live`): the run numbers its
+    /// epochs from the returned value + 1, above every epoch this session or an earlier one used,
+    /// and never uses more than `count`.
+    pub(crate) fn reserve_epochs(&mut self, count: u64) -> u64 {
+        let first = self.base + self.epochs;
+        self.epochs += count;
+        first
     }
 
     /// Takes a registered daemon into the session: its reader task starts feeding `events`.
-    pub(crate) fn admit(&mut self, j: Joined) {
+    /// Returns its id and the generation of its control link.
+    pub(crate) fn admit(&mut self, j: Joined) -> (String, u64) {
         let Joined {
             entry,
             caps,
@@ -438,37 +440,32 @@ impl Session {
         let id = caps.daemon_id.clone();
         self.links += 1;
         let generation = self.links;
-        let seen = std::sync::Arc::new(std::sync::Mutex::new(Instant::now()));
         tokio::spawn(read_control(
             reader,
             id.clone(),
             generation,
-            std::sync::Arc::clone(&seen),
             self.event_tx.clone(),
             self.cancel.child_token(),
         ));
         let address = entry.address.clone();
-        self.scenes.remove(&id);
         self.daemons.insert(
-            id,
+            id.clone(),
             Daemon {
                 address,
                 caps,
                 entry,
                 link: generation,
-                seen,
-                ping_pending: None,
                 out,
                 writer,
             },
         );
+        (id, generation)
     }
 
     /// Drops a daemon's link and, unless rejoining is off, redials it in the background until it
     /// answers (or the session ends); it then arrives on `joined`.
     pub(crate) fn lose(&mut self, id: &str) -> Option<Daemon> {
         let d = self.daemons.remove(id)?;
-        self.scenes.remove(id);
         let mut entry = d.entry.clone();
         entry.id.get_or_insert_with(|| id.to_string());
         self.redial(entry);
@@ -534,7 +531,7 @@ impl Session {
             .daemons
             .get(id)
             .ok_or_else(|| ControlError::UnknownDaemon(id.to_string()))?;
-        d.out.try_send(msg).map_err(|e| {
+        d.out.control.try_send(msg).map_err(|e| {
             let why = match e {
                 mpsc::error::TrySendError::Full(_) => {
                     format!("{CONTROL_QUEUE} messages to it are still unwritten (stalled)")
@@ -550,35 +547,44 @@ impl Session {
         })
     }
 
-    /// Queues `msg` (a scene chunk) for daemon `id`, waiting for room up to the link's send
-    /// deadline: a large scene is more than the queue holds.
-    pub(crate) async fn send_bulk(&mut self, id: &str, msg: Message) -> Result<(), ControlError> {
-        let d = self
-            .daemons
-            .get(id)
-            .ok_or_else(|| ControlError::UnknownDaemon(id.to_string()))?;
-        let after = self.opts.link.send;
-        let addr = d.address.clone();
-        let source = match tokio::time::timeout(after, d.out.send(msg)).await {
-            Ok(Ok(())) => return Ok(()),
-            Ok(Err(_)) => NetError::Closed { addr: addr.clone() },
-            Err(_) => NetError::Timeout {
-                what: "send",
-                addr: addr.clone(),
-                after,
-            },
+    /// Sends a scene to daemon `id` in chunks of `SCENE_CHUNK`, from a task of its own: the
+    /// loop goes on meanwhile. A chunk the writer does not take within the link's send deadline
+    /// (the daemon does not read) ends the daemon's control link: the loop hears it as the link's
+    /// end and loses the daemon.
+    pub(crate) fn send_scene(&self, id: &str, hash: [u8; 32], bytes: std::sync::Arc<Vec<u8>>) {
+        let Some(d) = self.daemons.get(id) else {
+            return;
         };
-        Err(ControlError::Link {
-            address: addr,
-            source,
-        })
-    }
-
-    pub(crate) fn address(&self, id: &str) -> String {
-        self.daemons
-            .get(id)
-            .map(|d| d.address.clone())
-            .unwrap_or_default()
+        let (bulk, tx, after) = (
+            d.out.bulk.clone(),
+            self.event_tx.clone(),
+            self.opts.link.send,
+        );
+        let (id, link, addr) = (id.to_string(), d.link, d.address.clone());
+        tokio::spawn(async move {
+            let total = bytes.len();
+            let chunks = total.div_ceil(SCENE_CHUNK).max(1);
+            for i in 0..chunks {
+                let range = (i * SCENE_CHUNK).min(total)..((i + 1) * SCENE_CHUNK).min(total);
+                let msg = Message::SceneChunk {
+                    hash,
+                    offset: range.start as u64,
+                    data: bytes[range].to_vec(),
+                    last: i + 1 == chunks,
+                };
+                let error = match tokio::time::timeout(after, bulk.send(msg)).await {
+                    Ok(Ok(())) => continue,
+                    Ok(Err(_)) => NetError::Closed { addr },
+                    Err(_) => NetError::Timeout {
+                        what: "scene send",
+                        addr,
+                        after,
+                    },
+                };
+                let _ = tx.send((id, link, Instant::now(), Err(error))).await;
+                return;
+            }
+        });
     }
 
     /// Asks every daemon to stop, waits (briefly) for the writer tasks to deliver it, and closes
@@ -703,8 +709,10 @@ pub(crate) async fn register(
         }
     }
     let (reader, writer) = link.split();
-    let (out, rx) = mpsc::channel(CONTROL_QUEUE);
-    let writer = tokio::spawn(write_control(writer, rx, opts.heartbeat));
+    let (control, rx) = mpsc::channel(CONTROL_QUEUE);
+    let (bulk, bulk_rx) = mpsc::channel(BULK_QUEUE);
+    let writer = tokio::spawn(write_control(writer, rx, bulk_rx, opts.heartbeat));
+    let out = Queues { control, bulk };
     Ok(Joined {
         entry: d,
         caps,
@@ -714,22 +722,35 @@ pub(crate) async fn register(
     })
 }
 
-/// One daemon's writer task: writes what the session queues, in order, and a keepalive `Ping`
-/// whenever nothing was written for `keepalive`, so a claimed daemon hears from its coordinator
-/// however long the loop is busy elsewhere (daemons release a coordinator that falls silent).
-/// Ends when the queue's sender is dropped (the daemon lost, the session over) or a write fails
-/// (the queue then refuses further messages: `Session::send` reports it).
+/// One daemon's writer task: writes what the session queues, control messages in order and
+/// ahead of any scene chunk waiting, and a keepalive `Ping` whenever nothing was written for
+/// `keepalive`, so a claimed daemon hears from its coordinator however long the loop is busy
+/// elsewhere (daemons release a coordinator that falls silent). Ends when the control queue's
+/// sender is dropped (the daemon lost, the session over) or a write fails (the queues then refuse
+/// further messages: `Session::send` reports it).
 async fn write_control(
     mut writer: LinkWriter,
     mut rx: mpsc::Receiver<Message>,
+    mut bulk: mpsc::Receiver<Message>,
     keepalive: Duration,
 ) {
     let keepalive = keepalive.max(Duration::from_millis(10));
+    let mut bulk_open = true;
     loop {
-        let msg = match tokio::time::timeout(keepalive, rx.recv()).await {
-            Ok(Some(m)) => m,
-            Ok(None) => return,
-            Err(_) => Message::Ping { seq: KEEPALIVE_SEQ },
+        let msg = tokio::select! {
+            biased;
+            m = rx.recv() => match m {
+                Some(m) => m,
+                None => return,
+            },
+            m = bulk.recv(), if bulk_open => match m {
+                Some(m) => m,
+                None => {
+                    bulk_open = false;
+                    continue;
+                }
+            },
+            _ = tokio::time::sleep(keepalive) => Message::Ping { seq: KEEPALIVE_SEQ },
         };
         if let Err(e) = writer.send_msg(msg).await {
             tracing::debug!(addr = %writer.addr, "control write failed: {e}");
@@ -743,7 +764,6 @@ async fn read_control(
     mut reader: lightfold_net::LinkReader,
     id: String,
     generation: u64,
-    seen: std::sync::Arc<std::sync::Mutex<Instant>>,
     tx: mpsc::Sender<Event>,
     cancel: CancellationToken,
 ) {
@@ -752,13 +772,13 @@ async fn read_control(
             _ = cancel.cancelled() => return,
             n = reader.next() => n,
         };
-        *seen.lock().unwrap_or_else(|e| e.into_inner()) = Instant::now();
+        let at = Instant::now();
         let end = match next {
             None => NetError::Closed {
                 addr: reader.addr.clone(),
             },
             Some(Ok(Frame::Control(m))) => {
-                if tx.send((id.clone(), generation, Ok(m))).await.is_err() {
+                if tx.send((id.clone(), generation, at, Ok(m))).await.is_err() {
                     return;
                 }
                 continue;
@@ -770,7 +790,7 @@ async fn read_control(
             },
             Some(Err(e)) => e,
         };
-        let _ = tx.send((id, generation, Err(end))).await;
+        let _ = tx.send((id, generation, at, Err(end))).await;
         return;
     }
 }

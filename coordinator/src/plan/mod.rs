@@ -4,6 +4,7 @@
 //! the bytes of every link (ARCHITECTURE §9). No I/O, no clock, no randomness: the same inputs give
 //! the same plan, so the control loop can diff plans and tests can state properties of them.
 
+pub mod adapt;
 mod budget;
 mod config;
 mod cull;

@@ -1,139 +1,147 @@
 //! Plan epochs: planning over the daemons connected now, sending the scene and the
-//! configurations, and waiting for every daemon of the new plan to apply them.
+//! configurations, and taking the answers of every daemon of the new plan — a phase of the
+//! session core (`Phase::Configuring`), advanced by each input like any other: a loss of one of
+//! the new plan's daemons plans again, a refusal is absorbed (`Core::absorb_refusal`), and frame
+//! requests, joins and heartbeats go on meanwhile.
 
-use super::{EpochRecord, Halt, Live, MAX_REPLANS_WITHOUT_PROGRESS, SceneBytes, Settings};
-use crate::control::session::{ControlError, SCENE_CHUNK};
+use super::core::{Command, Core, Phase, SceneBytes};
+use super::{EpochRecord, MAX_REPLANS_WITHOUT_PROGRESS, Settings};
+use crate::control::session::ControlError;
 use crate::control::sink::SinkGeometry;
 use crate::plan::{Plan, PlanError, lights_moved, plan, replan};
-use crate::run::{RunError, cluster_spec};
+use crate::run::RunError;
 use lightfold_protocol::{ErrorCode, Message};
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 use std::time::Instant;
 
-impl Live<'_> {
-    /// Plans a new epoch over the daemons connected now and configures it, planning again while
-    /// daemons of the new plan are lost on the way.
-    pub(super) async fn replan(&mut self, reason: String) -> Result<(), RunError> {
+/// A new epoch being configured.
+#[derive(Debug)]
+pub(in crate::control) struct Establishing {
+    next: Plan,
+    /// Why it was planned (the re-plans it took on the way included).
+    reason: String,
+    started: Instant,
+    /// Daemons of the plan that have not answered by then are lost.
+    deadline: Instant,
+    /// The plan's daemons.
+    members: BTreeSet<String>,
+    /// What each node is sent: the scene, or with partitions only what it draws.
+    wants: BTreeMap<String, SceneBytes>,
+    /// Nodes offered their scene (no answer yet), and those loading it.
+    offered: BTreeSet<String>,
+    loading: BTreeSet<String>,
+    /// Configurations sent (once every node holds its scene), and the daemons yet to apply them.
+    configs_sent: bool,
+    waiting: BTreeSet<String>,
+}
+
+impl Establishing {
+    /// The daemons it waits on now, and for what.
+    fn pending(&self) -> (Vec<String>, &'static str) {
+        if self.configs_sent {
+            (
+                self.waiting.iter().cloned().collect(),
+                "configurations to be applied",
+            )
+        } else {
+            (
+                self.offered.iter().chain(&self.loading).cloned().collect(),
+                "the scene to load",
+            )
+        }
+    }
+}
+
+impl Core {
+    /// Plans a new epoch over the daemons connected now and starts configuring it; the frames in
+    /// flight that had not reached the sink are put back to be requested under it. Re-plans for
+    /// a `failure` with no frame delivered since the last one are counted: past
+    /// `MAX_REPLANS_WITHOUT_PROGRESS` the cluster cannot go on (a daemon that fails every plan);
+    /// those for a change (a daemon joined, the user steered, the cost model) are not.
+    pub(super) fn replan(
+        &mut self,
+        reason: String,
+        failure: bool,
+        now: Instant,
+    ) -> Result<(), RunError> {
         self.salvage();
         self.reset_at = None;
         self.need_replan = None;
-        self.replans_without_progress += 1;
+        self.failed = false;
+        self.waited_since = None;
+        self.replans_without_progress += u32::from(failure);
         if self.replans_without_progress > MAX_REPLANS_WITHOUT_PROGRESS {
             return Err(ControlError::Stuck(format!(
                 "{MAX_REPLANS_WITHOUT_PROGRESS} re-plans in a row delivered no frame; the last: {reason}"
             ))
             .into());
         }
-        self.publish(true);
-        let mut reason = reason;
-        let mut waited_since: Option<Instant> = None;
-        loop {
-            if self.abandon {
-                // Daemons stopped with the run: nothing more is rendered.
-                return Ok(());
-            }
-            let epoch = self.session.next_epoch();
-            let mut o = self.opts.clone();
-            o.epoch = epoch;
-            let cluster = cluster_spec(self.session);
-            let next = match &self.plan {
-                Some(prev) => replan(&self.scene, &cluster, &o, prev),
-                None => plan(&self.scene, &cluster, &o),
-            };
-            let next = match next {
-                Ok(p) => p,
-                Err(_) if self.stopping() => {
-                    // Stopping anyway: waiting for lost daemons would only delay it.
-                    self.abandon = true;
-                    return Ok(());
-                }
-                Err(e) if too_few(&e) => {
-                    let since = *waited_since.get_or_insert_with(Instant::now);
-                    let left = self
-                        .session
-                        .opts
-                        .wait_for_daemons
-                        .saturating_sub(since.elapsed());
-                    if left.is_zero() {
-                        return Err(RunError::TooFewDaemons {
-                            error: e,
-                            lost: self.lost_list(),
-                        });
-                    }
-                    tracing::warn!(
-                        "no plan fits the daemons left ({e}); waiting up to {} s for lost daemons",
-                        left.as_secs()
-                    );
-                    self.wait_for_join(Instant::now() + left).await?;
-                    reason = format!("{reason}; then a daemon rejoined");
-                    continue;
-                }
-                Err(e) => return Err(e.into()),
-            };
-            match self.establish(next, &reason).await {
-                Ok(()) => {
-                    self.publish(false);
-                    return Ok(());
-                }
-                Err(Halt::Interrupted) => {
-                    reason = format!("{reason}; then {} lost", self.just_lost.join(", "));
-                    continue;
-                }
-                Err(Halt::Refused { id, code, message }) => {
-                    reason = self.absorb_refusal(&id, code, &message)?;
-                    continue;
-                }
-                Err(Halt::Fatal(e)) => return Err(e),
-            }
-        }
+        self.plan_next(reason, now)
     }
 
-    pub(super) fn lost_list(&self) -> String {
-        if self.lost.is_empty() {
-            return "none".to_string();
+    /// Plans an epoch over the daemons connected now and sends what it needs; with too few
+    /// daemons for any plan, waits for lost ones (`Phase::Waiting`) up to
+    /// `ControlOptions::wait_for_daemons` from the first failed attempt.
+    pub(super) fn plan_next(&mut self, reason: String, now: Instant) -> Result<(), RunError> {
+        self.phase = Phase::Running;
+        if self.abandon {
+            // Daemons stopped with the run: nothing more is rendered.
+            return Ok(());
         }
-        self.lost
-            .iter()
-            .map(|(id, why)| format!("{id} ({why})"))
-            .collect::<Vec<_>>()
-            .join("; ")
-    }
-
-    pub(super) async fn wait_for_join(&mut self, deadline: Instant) -> Result<(), RunError> {
-        loop {
-            let stopped = self.stopped();
-            tokio::select! {
-                j = self.session.joined.recv() => if let Some(j) = j {
-                    self.on_join(j);
-                    self.pending_join = None;
-                    return Ok(());
-                },
-                ev = self.session.events.recv() => if let Some(ev) = ev { self.accept(ev)?; },
-                s = self.session.sink_events.recv() => if let Some(s) = s { self.on_sink(s) },
-                _ = self.tick.tick() => self.heartbeat(),
-                () = stopped => {
-                    // Told to stop while waiting for daemons: nothing more can be rendered.
-                    self.abandon = true;
-                    return Ok(());
-                }
-                _ = tokio::time::sleep_until(deadline.into()) => {
+        if self.epochs_used >= super::EPOCHS_PER_RUN {
+            return Err(ControlError::Stuck(format!(
+                "{} plan epochs in one run; the last: {reason}",
+                super::EPOCHS_PER_RUN
+            ))
+            .into());
+        }
+        self.epochs_used += 1;
+        let mut o = self.opts.clone();
+        o.epoch = self.first_epoch + self.epochs_used;
+        let cluster = self.cluster();
+        let next = match &self.plan {
+            Some(prev) => replan(&self.scene, &cluster, &o, prev),
+            None => plan(&self.scene, &cluster, &o),
+        };
+        match next {
+            Ok(next) => self.begin(next, reason, now),
+            Err(_) if self.stopping => {
+                // Stopping anyway: waiting for lost daemons would only delay it.
+                self.abandon = true;
+                Ok(())
+            }
+            Err(e) if too_few(&e) => {
+                let since = *self.waited_since.get_or_insert(now);
+                let left = self
+                    .control
+                    .wait_for_daemons
+                    .saturating_sub(now.saturating_duration_since(since));
+                if left.is_zero() {
                     return Err(RunError::TooFewDaemons {
-                        error: PlanError::NoNodes,
+                        error: e,
                         lost: self.lost_list(),
                     });
                 }
+                tracing::warn!(
+                    "no plan fits the daemons left ({e}); waiting up to {} s for lost daemons",
+                    left.as_secs()
+                );
+                self.phase = Phase::Waiting {
+                    reason,
+                    deadline: now + left,
+                };
+                self.publish();
+                Ok(())
             }
+            Err(e) => Err(e.into()),
         }
     }
 
-    /// Sends the scene to the plan's nodes that lack it and every configuration, and waits for
-    /// each `Configured`.
-    pub(super) async fn establish(&mut self, mut next: Plan, reason: &str) -> Result<(), Halt> {
-        let started = Instant::now();
+    /// Offers each node of `next` the scene it needs (nodes holding it already skip it).
+    fn begin(&mut self, mut next: Plan, reason: String, now: Instant) -> Result<(), RunError> {
         // Nodes know the scene by the hash of the bytes they are sent.
         next.scene_hash = self.hash;
-        let deadline = started + self.session.opts.configure;
         let members: BTreeSet<String> = next
             .nodes
             .iter()
@@ -141,118 +149,206 @@ impl Live<'_> {
             .chain(next.stages.iter().map(|s| s.compositor.clone()))
             .collect();
         self.just_lost.clear();
-        // What each node is sent: the scene, or with partitions only what it draws.
         let mut wants: BTreeMap<String, SceneBytes> = BTreeMap::new();
         for i in 0..next.nodes.len() {
-            let (hash, bytes) = self
-                .node_scene(&next, i)
-                .map_err(|e| Halt::Fatal(RunError::Scene(e)))?;
+            let (hash, bytes) = self.node_scene(&next, i).map_err(RunError::Scene)?;
             next.nodes[i].scene = (hash != self.hash).then_some(hash);
             wants.insert(next.nodes[i].node.clone(), (hash, bytes));
         }
-        let mut offered: BTreeSet<String> = BTreeSet::new();
+        let mut offered = BTreeSet::new();
         for (id, (hash, bytes)) in &wants {
-            if self.session.scenes.get(id) == Some(hash) {
+            if self.members.get(id).and_then(|m| m.scene) == Some(*hash) {
                 continue;
             }
             let (hash, size) = (*hash, bytes.len() as u64);
-            self.send_or_lose(id, Message::SceneOffer { hash, size });
+            self.send(id, Message::SceneOffer { hash, size });
             offered.insert(id.clone());
         }
-        let mut loading: BTreeSet<String> = BTreeSet::new();
-        while !offered.is_empty() || !loading.is_empty() {
-            self.check_interrupted(&members)?;
-            let pending: Vec<String> = offered.iter().chain(&loading).cloned().collect();
-            let Some((id, m)) = self
-                .wait_message(deadline, "the scene to load", &pending, &members)
-                .await?
-            else {
-                continue;
-            };
-            let wanted = wants.get(&id).map(|w| w.0);
-            match m {
-                Message::SceneNeed { hash: h, need }
-                    if Some(h) == wanted && offered.remove(&id) =>
-                {
-                    if need {
-                        let bytes = Arc::clone(&wants[&id].1);
-                        self.send_scene(&id, h, &bytes).await;
-                        loading.insert(id);
-                    } else {
-                        self.session.scenes.insert(id, h);
-                    }
-                }
-                Message::SceneReady { hash: h, .. } if Some(h) == wanted && loading.remove(&id) => {
-                    self.session.scenes.insert(id, h);
-                }
-                // A refusal of the scene (no frame; scene errors name no epoch): a frame's error of
-                // the epoch before is not one.
-                Message::Error {
-                    code,
-                    message,
-                    epoch,
-                    frame: None,
-                } if pending.contains(&id) && epoch.is_none_or(|e| e == next.epoch) => {
-                    return Err(Halt::Refused { id, code, message });
-                }
-                other => self.ignore(&id, other),
+        self.phase = Phase::Configuring(Box::new(Establishing {
+            next,
+            reason,
+            started: now,
+            deadline: now + self.control.configure,
+            members,
+            wants,
+            offered,
+            loading: BTreeSet::new(),
+            configs_sent: false,
+            waiting: BTreeSet::new(),
+        }));
+        self.publish();
+        Ok(())
+    }
+
+    /// Moves the epoch being configured on: plans again when one of its daemons was lost, sends
+    /// the configurations once every node holds its scene, and makes it the plan once every
+    /// daemon applied its configuration. Returns whether it changed anything.
+    pub(super) fn advance(&mut self, now: Instant) -> Result<bool, RunError> {
+        let Phase::Configuring(est) = &mut self.phase else {
+            return Ok(false);
+        };
+        if self.abandon {
+            self.phase = Phase::Running;
+            return Ok(true);
+        }
+        let lost: Vec<&String> = self
+            .just_lost
+            .iter()
+            .filter(|id| est.members.contains(*id))
+            .collect();
+        if !lost.is_empty() {
+            let names: Vec<&str> = self.just_lost.iter().map(String::as_str).collect();
+            let reason = format!("{}; then {} lost", est.reason, names.join(", "));
+            self.plan_next(reason, now)?;
+            return Ok(true);
+        }
+        if !est.configs_sent && est.offered.is_empty() && est.loading.is_empty() {
+            let next = &est.next;
+            let mut configs = Vec::new();
+            for stage in &next.stages {
+                let cfg = next
+                    .compositor_config(&stage.compositor)
+                    .ok_or_else(|| ControlError::UnknownDaemon(stage.compositor.clone()))?;
+                configs.push((stage.compositor.clone(), Message::ConfigureCompositor(cfg)));
             }
-        }
-        let mut configs = Vec::new();
-        for stage in &next.stages {
-            let cfg = next
-                .compositor_config(&stage.compositor)
-                .ok_or_else(|| ControlError::UnknownDaemon(stage.compositor.clone()))?;
-            configs.push((stage.compositor.clone(), Message::ConfigureCompositor(cfg)));
-        }
-        for node in &next.nodes {
-            let cfg = next
-                .node_config(&node.node)
-                .ok_or_else(|| ControlError::UnknownDaemon(node.node.clone()))?;
-            configs.push((node.node.clone(), Message::ConfigureNode(cfg)));
-        }
-        self.session.sink_geometry.send_replace(SinkGeometry {
-            epoch: next.epoch,
-            width: next.width,
-            height: next.height,
-            band_height: next.band_height,
-            supersample: self.opts.supersample.max(1),
-        });
-        let mut waiting: BTreeSet<String> = BTreeSet::new();
-        for (id, msg) in configs {
-            self.send_or_lose(&id, msg);
-            waiting.insert(id);
-        }
-        while !waiting.is_empty() {
-            self.check_interrupted(&members)?;
-            let pending: Vec<String> = waiting.iter().cloned().collect();
-            let Some((id, m)) = self
-                .wait_message(deadline, "configurations to be applied", &pending, &members)
-                .await?
-            else {
-                continue;
-            };
-            match m {
-                Message::Configured { epoch } if epoch == next.epoch => {
-                    waiting.remove(&id);
-                }
-                Message::Error {
-                    code,
-                    message,
-                    epoch: Some(e),
-                    frame: None,
-                } if e == next.epoch && waiting.contains(&id) => {
-                    return Err(Halt::Refused { id, code, message });
-                }
-                other => self.ignore(&id, other),
+            for node in &next.nodes {
+                let cfg = next
+                    .node_config(&node.node)
+                    .ok_or_else(|| ControlError::UnknownDaemon(node.node.clone()))?;
+                configs.push((node.node.clone(), Message::ConfigureNode(cfg)));
             }
+            let geometry = SinkGeometry {
+                epoch: next.epoch,
+                width: next.width,
+                height: next.height,
+                band_height: next.band_height,
+                supersample: self.opts.supersample.max(1),
+            };
+            est.configs_sent = true;
+            est.waiting = configs.iter().map(|(id, _)| id.clone()).collect();
+            self.command(Command::SinkGeometry(geometry));
+            for (id, msg) in configs {
+                self.send(&id, msg);
+            }
+            return Ok(true);
         }
+        if est.configs_sent && est.waiting.is_empty() {
+            let Phase::Configuring(est) = std::mem::replace(&mut self.phase, Phase::Running) else {
+                return Ok(false);
+            };
+            self.complete(*est, now);
+            return Ok(true);
+        }
+        Ok(false)
+    }
+
+    /// A daemon's message while an epoch is configured.
+    pub(super) fn configuring_message(
+        &mut self,
+        id: &str,
+        m: Message,
+        now: Instant,
+    ) -> Result<(), RunError> {
+        let Phase::Configuring(est) = &mut self.phase else {
+            return Ok(());
+        };
+        let wanted = est.wants.get(id).map(|w| w.0);
+        let scene_phase = est.offered.contains(id) || est.loading.contains(id);
+        let refusal = match m {
+            Message::SceneNeed { hash, need } if Some(hash) == wanted && est.offered.remove(id) => {
+                if need {
+                    let bytes = Arc::clone(&est.wants[id].1);
+                    est.loading.insert(id.to_string());
+                    self.command(Command::SendScene {
+                        to: id.to_string(),
+                        hash,
+                        bytes,
+                    });
+                } else if let Some(m) = self.members.get_mut(id) {
+                    m.scene = Some(hash);
+                }
+                None
+            }
+            Message::SceneReady { hash, .. } if Some(hash) == wanted && est.loading.remove(id) => {
+                if let Some(m) = self.members.get_mut(id) {
+                    m.scene = Some(hash);
+                }
+                None
+            }
+            Message::Configured { epoch } if epoch == est.next.epoch => {
+                est.waiting.remove(id);
+                None
+            }
+            // A refusal of the scene (no frame; scene errors name no epoch), or of the
+            // configuration (this epoch, no frame): a frame's error of the epoch before is not
+            // one.
+            Message::Error {
+                code,
+                message,
+                epoch,
+                frame: None,
+            } if (scene_phase && epoch.is_none_or(|e| e == est.next.epoch))
+                || (epoch == Some(est.next.epoch) && est.waiting.contains(id)) =>
+            {
+                Some((code, message))
+            }
+            Message::Error {
+                code,
+                message,
+                epoch,
+                frame,
+            } => {
+                tracing::warn!(daemon = %id, ?code, ?epoch, ?frame, "{message}");
+                None
+            }
+            other => {
+                tracing::debug!(daemon = %id, "ignored while configuring: {other:?}");
+                None
+            }
+        };
+        if let Some((code, message)) = refusal {
+            let reason = self.absorb_refusal(id, code, &message, now)?;
+            return self.plan_next(reason, now);
+        }
+        Ok(())
+    }
+
+    /// The configuring phase's deadline: daemons of the new plan that have not answered by then
+    /// are lost (and the epoch planned again without them).
+    pub(super) fn configuring_tick(&mut self, now: Instant) -> Result<(), RunError> {
+        let Phase::Configuring(est) = &self.phase else {
+            return Ok(());
+        };
+        if now < est.deadline {
+            return Ok(());
+        }
+        let (pending, what) = est.pending();
+        let after = self.control.configure.as_secs();
+        for id in pending {
+            self.lose(
+                &id,
+                format!("did not answer within {after} s while waiting for {what}"),
+                now,
+            );
+        }
+        Ok(())
+    }
+
+    /// Every daemon of the new plan applied it: it is the plan from now on.
+    fn complete(&mut self, est: Establishing, now: Instant) {
+        let Establishing {
+            next,
+            reason,
+            started,
+            members,
+            ..
+        } = est;
         let moved = self.plan.as_ref().map_or(0, |p| lights_moved(p, &next));
         let record = EpochRecord {
             epoch: next.epoch,
-            reason: reason.to_string(),
-            at: Instant::now(),
-            configure: started.elapsed(),
+            reason: reason.clone(),
+            at: now,
+            configure: now.saturating_duration_since(started),
             nodes: next.nodes.len(),
             stages: next.stages.len(),
             k: next.k,
@@ -277,11 +373,11 @@ impl Live<'_> {
         let left_out: Vec<String> = self
             .participants
             .iter()
-            .filter(|p| !members.contains(*p) && self.session.daemons.contains_key(*p))
+            .filter(|p| !members.contains(*p) && self.members.contains_key(*p))
             .cloned()
             .collect();
         for id in left_out {
-            self.send_or_lose(&id, Message::Release { epoch: next.epoch });
+            self.send(&id, Message::Release { epoch: next.epoch });
         }
         self.participants = next
             .stages
@@ -290,8 +386,8 @@ impl Live<'_> {
             .chain(next.nodes.iter().map(|n| n.node.clone()))
             .collect();
         self.summary.plan = Some(next.clone());
-        self.set_model(&next);
-        self.plan_scale = self.opts.cost_scale;
+        let cluster = self.cluster();
+        self.adapt.epoch(&next, &cluster, &self.opts);
         self.good = Some(Settings {
             epoch: next.epoch,
             colors: self.scene.lights.iter().map(|l| l.color).collect(),
@@ -299,10 +395,8 @@ impl Live<'_> {
         });
         self.refusals = 0;
         self.plan = Some(next);
-        self.measured.clear();
-        self.scales.clear();
         self.sent_in_epoch = 0;
-        Ok(())
+        self.publish();
     }
 
     /// A daemon refused the scene or configuration of a new epoch. The coordinator planned what
@@ -322,10 +416,11 @@ impl Live<'_> {
         id: &str,
         code: ErrorCode,
         message: &str,
+        now: Instant,
     ) -> Result<String, RunError> {
         let Some(good) = self.good.clone() else {
             return Err(ControlError::Remote {
-                address: self.session.address(id),
+                address: self.address(id),
                 id: id.to_string(),
                 code,
                 message: message.to_string(),
@@ -345,6 +440,7 @@ impl Live<'_> {
             self.lose(
                 id,
                 format!("refused its configuration ({code:?}: {message})"),
+                now,
             );
             self.shunned.insert(id.to_string());
             format!(
@@ -360,26 +456,6 @@ impl Live<'_> {
         };
         self.notice(why.clone());
         Ok(why)
-    }
-
-    pub(super) fn check_interrupted(&self, members: &BTreeSet<String>) -> Result<(), Halt> {
-        if self.abandon || self.just_lost.iter().any(|id| members.contains(id)) {
-            Err(Halt::Interrupted)
-        } else {
-            Ok(())
-        }
-    }
-
-    pub(super) fn ignore(&mut self, id: &str, m: Message) {
-        match m {
-            Message::Error {
-                code,
-                message,
-                epoch,
-                frame,
-            } => tracing::warn!(daemon = %id, ?code, ?epoch, ?frame, "{message}"),
-            other => tracing::debug!(daemon = %id, "ignored while configuring: {other:?}"),
-        }
     }
 
     /// Puts back the settings of an epoch every daemon took; what changed is named in the
@@ -420,12 +496,6 @@ impl Live<'_> {
             self.opts = good.opts.clone();
         }
         Ok(undone)
-    }
-
-    pub(super) fn send_or_lose(&mut self, id: &str, msg: Message) {
-        if let Err(e) = self.session.send(id, msg) {
-            self.lose(id, format!("cannot send to it: {e}"));
-        }
     }
 
     /// The scene bytes node `next.nodes[i]` is sent, and their content hash: the whole scene,
@@ -484,69 +554,6 @@ impl Live<'_> {
         };
         self.subsets.insert(kept, entry.clone());
         Ok(entry)
-    }
-
-    pub(super) async fn send_scene(&mut self, id: &str, hash: [u8; 32], bytes: &[u8]) {
-        const CHUNK: usize = SCENE_CHUNK;
-        let total = bytes.len();
-        let chunks = total.div_ceil(CHUNK).max(1);
-        for i in 0..chunks {
-            let range = (i * CHUNK).min(total)..((i + 1) * CHUNK).min(total);
-            let msg = Message::SceneChunk {
-                hash,
-                offset: range.start as u64,
-                data: bytes[range].to_vec(),
-                last: i + 1 == chunks,
-            };
-            if let Err(e) = self.session.send_bulk(id, msg).await {
-                self.lose(id, format!("cannot send the scene: {e}"));
-                return;
-            }
-        }
-    }
-
-    /// The next message for the configuring phase; `None` after an event it handled itself.
-    /// Daemons of the new plan that do not answer by `deadline` are lost.
-    pub(super) async fn wait_message(
-        &mut self,
-        deadline: Instant,
-        what: &str,
-        pending: &[String],
-        members: &BTreeSet<String>,
-    ) -> Result<Option<(String, Message)>, Halt> {
-        let stopped = self.stopped();
-        tokio::select! {
-            ev = self.session.events.recv() => match ev {
-                Some(ev) => Ok(self.accept(ev)?),
-                None => Err(ControlError::Sink("event channel closed".into()).into()),
-            },
-            s = self.session.sink_events.recv() => {
-                if let Some(s) = s { self.on_sink(s) }
-                Ok(None)
-            }
-            j = self.session.joined.recv() => {
-                if let Some(j) = j { self.on_join(j) }
-                Ok(None)
-            }
-            _ = self.tick.tick() => {
-                self.heartbeat();
-                self.check_interrupted(members)?;
-                Ok(None)
-            }
-            () = stopped => {
-                // Told to stop while configuring: the frames of the old epoch were put back,
-                // so what is not delivered is abandoned.
-                self.abandon = true;
-                Err(Halt::Interrupted)
-            }
-            _ = tokio::time::sleep_until(deadline.into()) => {
-                let after = self.session.opts.configure;
-                for id in pending {
-                    self.lose(id, format!("did not answer within {} s while waiting for {what}", after.as_secs()));
-                }
-                Err(Halt::Interrupted)
-            }
-        }
     }
 }
 

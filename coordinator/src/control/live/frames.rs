@@ -1,8 +1,8 @@
 //! The frames of the loop: sending requests, collecting images and reports, delivering in
 //! order, and putting back what a re-plan interrupts.
 
-use super::{InFlight, Live, ledger};
-use crate::control::session::FrameResult;
+use super::core::{Command, Core};
+use super::{InFlight, ledger};
 use crate::plan::{Plan, Source};
 use crate::run::{RunError, frame_params};
 use lightfold_protocol::{FrameParams, Message, WireCamera};
@@ -15,7 +15,7 @@ fn supersampled(mut c: WireCamera, factor: u32) -> WireCamera {
     c
 }
 
-impl Live<'_> {
+impl Core {
     /// Moves frames whose image and reports are all in to the ledger's complete frames.
     pub(super) fn collect(&mut self) {
         for (f, later) in self.frames.complete(self.participants.len()) {
@@ -28,29 +28,29 @@ impl Live<'_> {
         let Some(r) = ledger::result(f, latency_frames) else {
             return;
         };
-        if !warming {
-            self.measure(r.epoch, &r.stats);
+        if !warming && self.plan.as_ref().is_some_and(|p| p.epoch == r.epoch) {
+            self.adapt.measure(&self.opts, &r.stats);
         }
         self.frames.finished(r);
     }
 
-    pub(super) fn deliver(&mut self, on_frame: &mut impl FnMut(FrameResult)) {
+    pub(super) fn deliver(&mut self) {
         for r in self.frames.deliverable() {
             self.summary.delivered += 1;
             self.replans_without_progress = 0;
-            on_frame(r);
+            self.command(Command::Deliver(r));
         }
     }
 
     /// Sends frame requests up to the in-flight limit (none while a re-plan is due).
-    pub(super) fn issue(&mut self) -> Result<(), RunError> {
+    pub(super) fn issue(&mut self, now: Instant) -> Result<(), RunError> {
         if self.pending_join.is_some() || self.need_replan.is_some() || self.reset_at.is_some() {
             return Ok(());
         }
         let Some(plan) = &self.plan else {
             return Ok(());
         };
-        let limit = self.session.opts.frames_in_flight.max(1);
+        let limit = self.control.frames_in_flight.max(1);
         let epoch = plan.epoch;
         while self.frames.inflight.len() < limit {
             let Some((index, mut spec)) = self.frames.queue.pop_front() else {
@@ -65,8 +65,7 @@ impl Live<'_> {
             {
                 // Plan under the new budget, then send this frame under the new epoch.
                 self.opts.frame_budget_us = budget;
-                self.over_budget.clear();
-                self.known_good = None;
+                self.adapt.budget_changed();
                 self.frames.queue.push_front((index, spec));
                 let why = match budget {
                     Some(us) => format!(
@@ -79,7 +78,7 @@ impl Live<'_> {
                 self.need_replan = Some(why);
                 break;
             }
-            let wire = self.session.base + index;
+            let wire = self.base + index;
             let params = match frame_params(plan, &spec.light_colors, index) {
                 Ok(p) => p,
                 Err(RunError::ColorSplit { node, .. }) => {
@@ -96,7 +95,7 @@ impl Live<'_> {
                 }
                 Err(e) => return Err(e),
             };
-            let mut failed = None;
+            let mut sends = Vec::with_capacity(self.participants.len());
             for id in &self.participants {
                 let mut frame_params = params.get(id).cloned().unwrap_or(FrameParams {
                     colors: Vec::new(),
@@ -113,22 +112,20 @@ impl Live<'_> {
                     camera: spec.camera.map(|c| supersampled(c, self.opts.supersample)),
                     params: frame_params,
                 };
-                if let Err(e) = self.session.send(id, msg) {
-                    failed = Some((id.clone(), e));
-                    break;
-                }
+                sends.push(Command::Send {
+                    to: id.clone(),
+                    msg,
+                });
             }
-            if let Some((id, e)) = failed {
-                self.frames.queue.push_front((index, spec));
-                self.lose(&id, format!("cannot send to it: {e}"));
-                break;
-            }
+            // A send that fails comes back as a loss, which re-plans and requests this frame
+            // again.
+            sends.into_iter().for_each(|c| self.command(c));
             self.sent_in_epoch += 1;
             self.frames.inflight.push(InFlight {
                 index,
                 spec,
                 wire,
-                sent_at: Instant::now(),
+                sent_at: now,
                 image: None,
                 stats: Vec::new(),
                 slow_warned: false,

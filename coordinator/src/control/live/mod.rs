@@ -1,7 +1,10 @@
-//! The coordinator's event loop: one task owns the plan, the membership and the frames in
-//! flight, and reacts to events — frame requests (a channel: a scripted path today, a viewer
-//! later), daemon messages and the end of their control links, the sink's frames, daemons that
-//! answer a redial, and a 50 ms tick for heartbeats and deadlines (`docs/failover.md`).
+//! The coordinator's event loop, in two parts: the session core (`core::Core`, no I/O: the plan,
+//! the membership, the frames in flight and the phase, changed by `handle(input, now)`, which
+//! queues commands) and its driver (`Live::run`: one task, the only `select!`, over frame
+//! requests (a scripted path or a viewer), daemon messages and the end of their control links,
+//! the sink's frames, daemons that answer a redial, the stop token and a 50 ms tick for
+//! heartbeats and deadlines; it carries out the core's commands through the `Session`, whose
+//! per-daemon writer tasks never let a daemon hold the loop up) (`docs/failover.md`).
 //!
 //! - **Lost** (control link closed or broken, heartbeats unanswered for
 //!   `ControlOptions::heartbeat_timeout`, a frame not finished within `ControlOptions::frame`):
@@ -22,19 +25,20 @@
 //!
 //! Frames are handed to `on_frame` complete, in request order, exactly once.
 
+mod core;
 mod epoch;
 mod frames;
 mod ledger;
+#[cfg(test)]
+mod tests;
 
-use super::session::{ControlError, Event, FrameResult, Joined, Session};
-use super::sink::{SinkEvent, SinkFrame};
+use super::session::{ControlError, FrameResult, Session};
+use super::sink::SinkFrame;
 use crate::plan::{Plan, PlanOptions};
 use crate::run::RunError;
-use frames::waiting_on;
+use core::{Command, Core, CoreSetup, Input, Member};
 pub use frames::{SEED64_HEADROOM, seed64_scale};
-use lightfold_protocol::{ErrorCode, FrameStats, Message, WireCamera};
-use lightfold_scene::Scene;
-use std::collections::BTreeMap;
+use lightfold_protocol::{ErrorCode, FrameStats, WireCamera};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
@@ -51,12 +55,6 @@ const RESET_DEBOUNCE: Duration = Duration::from_millis(300);
 const MAX_REPLANS_WITHOUT_PROGRESS: u32 = 8;
 /// How much longer the first frames of an epoch may take before they count as slow.
 const WARM_UP: f64 = 3.0;
-/// Settled frames an epoch measures before the cost model is checked against them, and how far
-/// (as a factor either way) the median may stray from the estimate before it is corrected.
-const ADAPT_FRAMES: usize = 6;
-const ADAPT_BAND: f64 = 1.25;
-/// Frames under this share of the budget may re-plan for more quality.
-const RAISE_BELOW: f64 = 0.8;
 /// Sink warnings (stray connections) logged at most this often.
 const WARNING_EVERY: Duration = Duration::from_secs(1);
 
@@ -166,31 +164,6 @@ struct InFlight {
     warming: bool,
 }
 
-/// Why establishing an epoch stopped.
-enum Halt {
-    /// A daemon of the new plan was lost: plan again.
-    Interrupted,
-    /// A daemon refused the new plan's scene or configuration (`Live::absorb_refusal`).
-    Refused {
-        id: String,
-        code: ErrorCode,
-        message: String,
-    },
-    Fatal(RunError),
-}
-
-impl From<RunError> for Halt {
-    fn from(e: RunError) -> Halt {
-        Halt::Fatal(e)
-    }
-}
-
-impl From<ControlError> for Halt {
-    fn from(e: ControlError) -> Halt {
-        Halt::Fatal(e.into())
-    }
-}
-
 /// The settings of an epoch every daemon took: what a refused configuration goes back to.
 #[derive(Debug, Clone)]
 struct Settings {
@@ -224,195 +197,78 @@ impl Refused {
     }
 }
 
-/// A scene's content hash and encoding, shared by the nodes it is sent to.
-pub(super) type SceneBytes = ([u8; 32], std::sync::Arc<Vec<u8>>);
+/// The epochs one run may use (`Session::reserve_epochs`).
+const EPOCHS_PER_RUN: u64 = 1 << 15;
 
-/// The loop's state over one session.
+/// The loop over one session: the core and the driver that feeds it.
 pub struct Live<'s> {
     session: &'s mut Session,
-    /// The scene as the nodes have it (light colours change when a colour change splits a
-    /// node's colour group, which re-plans).
-    scene: Scene,
-    opts: PlanOptions,
-    bytes: std::sync::Arc<Vec<u8>>,
-    hash: [u8; 32],
-    /// Sort-last partitions: the scene each node needs (`scene::partition::keep_meshes`), by
-    /// the meshes it keeps whole; cleared when the scene changes.
-    subsets: std::collections::HashMap<Vec<u32>, SceneBytes>,
-    plan: Option<Plan>,
-    /// Under a frame budget: each settled frame of this epoch, its slowest node's measured
-    /// render time (µs), and per node and frame the fixed and per-light costs measured over the
-    /// registered model's (`adapt_costs`).
-    measured: Vec<f64>,
-    scales: Vec<(f64, f64)>,
-    /// Per render node of the plan: its registered model (fixed µs, µs per light) and the
-    /// model's weights of its lights (whole, shadow passes).
-    model: std::collections::HashMap<String, [f64; 4]>,
-    /// Plans (`choices`) whose frames were measured over the current budget.
-    over_budget: std::collections::HashSet<String>,
-    /// The best plan measured within the current budget: its quality and the cost factors it
-    /// was planned under; and the factors the current plan was planned under.
-    known_good: Option<((usize, std::cmp::Reverse<usize>), crate::plan::CostScale)>,
-    plan_scale: crate::plan::CostScale,
-    /// The plan's daemons, compositors first.
-    participants: Vec<String>,
-    /// The settings of the newest epoch every daemon took, refusals since, what was refused,
-    /// and daemons left out for refusing their part (`Live::absorb_refusal`).
-    good: Option<Settings>,
-    refusals: u32,
-    refused: Refused,
-    shunned: std::collections::BTreeSet<String>,
-    /// Frame requests sent in the current epoch.
-    sent_in_epoch: u64,
-    /// The frames from request to delivery.
-    frames: ledger::Ledger,
-    source_open: bool,
-    /// Why the next re-plan is due now (a participant was lost).
-    need_replan: Option<String>,
-    /// A daemon joined: re-plan once the frames in flight are done.
-    pending_join: Option<String>,
-    /// A frame failed: re-request at this time.
-    reset_at: Option<(Instant, String)>,
-    /// Daemons lost since the last look, and why each lost daemon was lost.
-    just_lost: Vec<String>,
-    lost: BTreeMap<String, String>,
-    replans_without_progress: u32,
-    last_ping: Option<Instant>,
-    last_warning: Option<Instant>,
+    core: Core,
     /// One tick for every phase, so heartbeats go out however busy the event channels are.
     tick: tokio::time::Interval,
-    observer: watch::Sender<LiveStatus>,
-    notices: u64,
     /// Cancelled when the run is to stop (`stop_on`).
     stop: Option<CancellationToken>,
-    /// A daemon of the plan stopped with the run: the frames in flight cannot finish.
-    abandon: bool,
-    /// Each node's latest `FrameStats::peak` in this epoch: the next `seed64` scale's input.
-    peaks: std::collections::HashMap<String, f32>,
     pub summary: LiveSummary,
 }
 
 impl std::fmt::Debug for Live<'_> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Live")
-            .field("epoch", &self.plan.as_ref().map(|p| p.epoch))
-            .field("queued", &self.frames.queue.len())
-            .field("in_flight", &self.frames.inflight.len())
-            .field("delivered", &self.summary.delivered)
-            .finish_non_exhaustive()
+        self.core.fmt(f)
     }
 }
 
 impl<'s> Live<'s> {
     pub fn new(
         session: &'s mut Session,
-        scene: &Scene,
+        scene: &lightfold_scene::Scene,
         opts: &PlanOptions,
     ) -> Result<Live<'s>, RunError> {
         // `--aa N`: everything the cluster renders is N × the camera's size; the sink resolves.
         // Partitions resolved once for the run (automatic ones from the nodes' memory), and
         // meshes too large for a part split into chunks first.
         let cluster = crate::run::cluster_spec(session);
-        let opts = &PlanOptions {
+        let opts = PlanOptions {
             partitions: crate::plan::partitions_for(scene, &cluster, opts),
             ..opts.clone()
         };
-        let mut scene = crate::plan::scene_for(scene, &cluster, opts).into_owned();
+        let mut scene = crate::plan::scene_for(scene, &cluster, &opts).into_owned();
         scene.camera = scene.camera.supersampled(opts.supersample)?;
-        let bytes = scene
-            .to_bytes()
-            .map_err(|e| RunError::Scene(e.to_string()))?;
-        let scene_hash = scene.content_hash();
-        // Daemons not reached while connecting are lost from the start (and redialled).
-        let lost = session.unreachable.iter().cloned().collect();
+        let now = Instant::now();
+        let members = session
+            .daemons
+            .iter()
+            .map(|(id, d)| {
+                let m = Member::new(d.address.clone(), d.caps.clone(), d.link, now);
+                (id.clone(), m)
+            })
+            .collect();
+        let core = Core::new(CoreSetup {
+            scene,
+            opts,
+            control: session.opts,
+            members,
+            // Daemons not reached while connecting are lost from the start (and redialled).
+            unreachable: session.unreachable.clone(),
+            sink_address: session.sink_address.clone(),
+            base: session.base,
+            first_epoch: session.reserve_epochs(EPOCHS_PER_RUN),
+        })?;
         Ok(Live {
             session,
-            scene,
-            opts: opts.clone(),
-            bytes: std::sync::Arc::new(bytes),
-            subsets: std::collections::HashMap::new(),
-            // Nodes decode what they receive and check it against this.
-            hash: scene_hash,
-            plan: None,
-            measured: Vec::new(),
-            scales: Vec::new(),
-            model: std::collections::HashMap::new(),
-            over_budget: std::collections::HashSet::new(),
-            known_good: None,
-            plan_scale: crate::plan::CostScale::default(),
-            participants: Vec::new(),
-            good: None,
-            refusals: 0,
-            refused: Refused::default(),
-            shunned: std::collections::BTreeSet::new(),
-            sent_in_epoch: 0,
-            frames: ledger::Ledger::default(),
-            source_open: true,
-            need_replan: None,
-            pending_join: None,
-            reset_at: None,
-            just_lost: Vec::new(),
-            peaks: std::collections::HashMap::new(),
-            lost,
-            replans_without_progress: 0,
-            last_ping: None,
-            last_warning: None,
+            core,
             tick: {
                 let mut t = tokio::time::interval(TICK);
                 t.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
                 t
             },
-            observer: watch::Sender::new(LiveStatus::default()),
-            notices: 0,
             stop: None,
-            abandon: false,
             summary: LiveSummary::default(),
         })
     }
 
     /// A watcher of the loop's state (plan, epochs, incidents, lost daemons, notices).
     pub fn observe(&self) -> watch::Receiver<LiveStatus> {
-        self.observer.subscribe()
-    }
-
-    /// Publishes the state to watchers.
-    pub(super) fn publish(&self, replanning: bool) {
-        let state = if replanning {
-            LiveState::Replanning
-        } else if self.plan.is_none() {
-            LiveState::Starting
-        } else if self.lost.is_empty() {
-            LiveState::Running
-        } else {
-            LiveState::Degraded
-        };
-        let skip = self
-            .summary
-            .incidents
-            .len()
-            .saturating_sub(STATUS_INCIDENTS);
-        let plan = self.plan.clone().map(Arc::new);
-        self.observer.send_modify(|s| {
-            s.state = state;
-            if plan.as_ref().map(|p| p.epoch) != s.plan.as_ref().map(|p| p.epoch) {
-                s.plan = plan;
-            }
-            s.epochs.clone_from(&self.summary.epochs);
-            s.incidents = self.summary.incidents[skip..].to_vec();
-            s.lost = self
-                .lost
-                .iter()
-                .map(|(a, b)| (a.clone(), b.clone()))
-                .collect();
-        });
-    }
-
-    /// Tells watchers something the user should see (and logs it).
-    pub(super) fn notice(&mut self, text: String) {
-        tracing::info!("{text}");
-        self.notices += 1;
-        let n = self.notices;
-        self.observer.send_modify(|s| s.notice = Some((n, text)));
+        self.core.observe()
     }
 
     /// The token that stops the run (Ctrl-C): once it is cancelled, daemons whose links end are
@@ -422,41 +278,9 @@ impl<'s> Live<'s> {
         self.stop = Some(stop);
     }
 
-    /// Whether the run was told to stop.
-    pub(super) fn stopping(&self) -> bool {
-        self.stop.as_ref().is_some_and(|t| t.is_cancelled())
-    }
-
-    /// Resolves once the run is told to stop (never without a stop token): the waits of a
-    /// re-plan (`wait_for_join`, `wait_message`) end on it, so Ctrl-C is not held up by a wait
-    /// for lost daemons or configurations.
-    pub(super) fn stopped(&self) -> impl std::future::Future<Output = ()> + use<> {
-        let stop = self.stop.clone();
-        async move {
-            match stop {
-                Some(t) => t.cancelled_owned().await,
-                None => std::future::pending().await,
-            }
-        }
-    }
-
-    /// Gives up the frames not yet finished (daemons stopped with the run).
-    fn abandon_frames(&mut self) {
-        let left = self.frames.abandon();
-        self.summary.abandoned += left as u64;
-        if left > 0 {
-            tracing::info!(
-                frames = left,
-                stopped = %self.summary.stopped.join(", "),
-                "stopping: frames not finished are abandoned (daemons stopped with the run)"
-            );
-        }
-        self.source_open = false;
-    }
-
     /// The plan in use.
     pub fn plan(&self) -> Option<&Plan> {
-        self.plan.as_ref()
+        self.core.plan()
     }
 
     /// Plans, configures and renders every frame `requests` yields until it closes, handing
@@ -464,476 +288,90 @@ impl<'s> Live<'s> {
     /// been handed over and `summary` says what happened.
     pub async fn run(
         &mut self,
+        requests: mpsc::Receiver<FrameSpec>,
+        on_frame: impl FnMut(FrameResult),
+    ) -> Result<(), RunError> {
+        let result = self.drive(requests, on_frame).await;
+        self.summary = std::mem::take(&mut self.core.summary);
+        result
+    }
+
+    async fn drive(
+        &mut self,
         mut requests: mpsc::Receiver<FrameSpec>,
         mut on_frame: impl FnMut(FrameResult),
     ) -> Result<(), RunError> {
-        self.replan("start".to_string()).await?;
+        self.core.start(Instant::now())?;
+        let stop = self.stop.clone().unwrap_or_default();
+        let mut stop_seen = false;
         loop {
-            self.collect();
-            self.deliver(&mut on_frame);
-            if self.abandon {
-                self.abandon_frames();
+            self.execute(&mut on_frame)?;
+            if self.core.finished() {
                 return Ok(());
             }
-            if let Some(reason) = self.due_replan() {
-                self.replan(reason).await?;
-                continue;
-            }
-            self.issue()?;
-            if !self.source_open && self.frames.idle() {
-                self.deliver(&mut on_frame);
-                return Ok(());
-            }
-            let lookahead = self.session.opts.frames_in_flight.max(1);
-            let want = self.source_open && self.frames.queue.len() < lookahead;
-            let (stopped, running) = (self.stopped(), !self.stopping());
-            tokio::select! {
-                // Only to wake the loop: losses from now on are read as stopping.
-                () = stopped, if running => {}
+            let want = self.core.wants_requests();
+            let input = tokio::select! {
+                () = stop.cancelled(), if !stop_seen && self.stop.is_some() => {
+                    stop_seen = true;
+                    Input::Stop
+                }
                 ev = self.session.events.recv() => match ev {
-                    Some(ev) => self.on_run_event(ev)?,
+                    Some((id, link, at, msg)) => Input::Daemon { id, link, at, msg },
                     None => return Err(ControlError::Sink("event channel closed".into()).into()),
                 },
                 s = self.session.sink_events.recv() => match s {
-                    Some(s) => self.on_sink(s),
+                    Some(s) => Input::Sink(s),
                     None => return Err(ControlError::Sink("the sink stopped".into()).into()),
                 },
-                j = self.session.joined.recv() => if let Some(j) = j { self.on_join(j) },
-                spec = requests.recv(), if want => match spec {
-                    Some(spec) => self.frames.request(spec),
-                    None => self.source_open = false,
+                j = self.session.joined.recv() => match j {
+                    Some(j) => {
+                        let dialled = j.entry.address.clone();
+                        let caps = j.caps.clone();
+                        let (id, link) = self.session.admit(j);
+                        Input::Joined { id, dialled, caps, link }
+                    }
+                    None => continue,
                 },
-                _ = self.tick.tick() => self.on_tick()?,
-            }
-        }
-    }
-
-    /// Takes one daemon event: liveness bookkeeping, losses, take-overs. Returns the message for
-    /// the caller's phase, if any.
-    fn accept(&mut self, (id, link, result): Event) -> Result<Option<(String, Message)>, RunError> {
-        let Some(d) = self.session.daemons.get(&id) else {
-            return Ok(None); // a daemon already lost
-        };
-        if d.link != link {
-            return Ok(None); // an older link of a daemon that rejoined
-        }
-        match result {
-            Err(e) => {
-                self.lose(&id, format!("its control link ended: {e}"));
-                Ok(None)
-            }
-            Ok(Message::Pong { .. }) => Ok(None),
-            Ok(Message::Error {
-                code: ErrorCode::TakenOver,
-                message,
-                ..
-            }) => Err(ControlError::TakenOver {
-                address: self.session.address(&id),
-                id,
-                message,
-            }
-            .into()),
-            Ok(m) => Ok(Some((id, m))),
-        }
-    }
-
-    fn on_run_event(&mut self, ev: Event) -> Result<(), RunError> {
-        let Some((id, m)) = self.accept(ev)? else {
-            return Ok(());
-        };
-        let epoch = self.plan.as_ref().map(|p| p.epoch);
-        match m {
-            Message::FrameDone(s) if Some(s.epoch) == epoch => {
-                if s.peak.is_finite() && s.peak > 0.0 {
-                    self.peaks.insert(s.daemon_id.clone(), s.peak);
-                }
-                if let Some(f) = self.frames.inflight.iter_mut().find(|f| f.wire == s.frame)
-                    && !f.stats.iter().any(|x| x.daemon_id == s.daemon_id)
-                {
-                    if s.saturated > 0 {
-                        if self.summary.saturated == 0 {
-                            tracing::warn!(
-                                daemon = %s.daemon_id,
-                                frame = f.index,
-                                saturated = s.saturated,
-                                "values above the link format's range were clamped (counted in \
-                                 the frame stats and the run summary)"
-                            );
-                        }
-                        if !f.stats.iter().any(|x| x.saturated > 0) {
-                            self.summary.saturated_frames += 1;
-                        }
-                        self.summary.saturated += s.saturated;
+                spec = requests.recv(), if want => match spec {
+                    Some(spec) => Input::Request(spec),
+                    None => Input::RequestsClosed,
+                },
+                _ = self.tick.tick() => {
+                    // Every message already read goes to the core before it judges silence.
+                    while let Ok((id, link, at, msg)) = self.session.events.try_recv() {
+                        self.core.handle(Input::Daemon { id, link, at, msg }, Instant::now())?;
+                        self.execute(&mut on_frame)?;
                     }
-                    f.stats.push(s);
+                    Input::Tick
                 }
-            }
-            Message::FrameDone(_) => {} // of an older epoch
-            Message::Error {
-                code,
-                message,
-                epoch: about,
-                frame,
-            } => self.daemon_error(&id, code, &message, about, frame),
-            other => tracing::debug!(daemon = %id, "ignored {other:?}"),
-        }
-        Ok(())
-    }
-
-    /// A daemon's error while frames run. Errors name the epoch (and frame) they are about: one
-    /// of an epoch the loop has left, or of a frame no longer in flight, is history and changes
-    /// nothing; errors about the link alone (no epoch) are logged.
-    fn daemon_error(
-        &mut self,
-        id: &str,
-        code: ErrorCode,
-        message: &str,
-        about: Option<u64>,
-        frame: Option<u64>,
-    ) {
-        let current = self.plan.as_ref().map(|p| p.epoch);
-        let inflight: Vec<u64> = self.frames.inflight.iter().map(|f| f.wire).collect();
-        let verdict = judge_error(current, &inflight, code, about, frame);
-        if verdict == ErrorVerdict::History {
-            tracing::info!(daemon = %id, ?code, epoch = ?about, frame = ?frame, "{message} (of an epoch or frame no longer run: ignored)");
-            return;
-        }
-        tracing::warn!(daemon = %id, ?code, "{message}");
-        if verdict == ErrorVerdict::FramesFail && self.reset_at.is_none() {
-            self.reset_at = Some((
-                Instant::now() + RESET_DEBOUNCE,
-                format!("{id} reported {code:?}: {message}"),
-            ));
-        }
-    }
-
-    fn on_sink(&mut self, ev: SinkEvent) {
-        let epoch = self.plan.as_ref().map(|p| p.epoch);
-        match ev {
-            SinkEvent::Frame(f) if Some(f.epoch) == epoch => {
-                if let Some(x) = self.frames.inflight.iter_mut().find(|x| x.wire == f.frame) {
-                    x.image = Some(f);
-                }
-            }
-            SinkEvent::Frame(_) => {}
-            SinkEvent::Failed { frame, reason } => {
-                tracing::warn!(frame, "{reason}");
-                if self.frames.inflight.iter().any(|f| f.wire == frame) && self.reset_at.is_none() {
-                    self.reset_at = Some((Instant::now() + RESET_DEBOUNCE, reason));
-                }
-            }
-            SinkEvent::Warning(w) => self.warn_rate_limited(&w),
-        }
-    }
-
-    fn warn_rate_limited(&mut self, w: &str) {
-        let now = Instant::now();
-        if self
-            .last_warning
-            .is_none_or(|t| now.duration_since(t) >= WARNING_EVERY)
-        {
-            self.last_warning = Some(now);
-            tracing::warn!("{w}");
-        } else {
-            tracing::debug!("{w}");
-        }
-    }
-
-    fn on_join(&mut self, j: Joined) {
-        let id = j.caps.daemon_id.clone();
-        tracing::info!(daemon = %id, address = %j.entry.address, "rejoined");
-        lightfold_ops::record::daemon_rejoined();
-        // Lost under its id, or under its address when it was not reached at the start.
-        self.lost.remove(&j.entry.address);
-        self.session.admit(j);
-        self.lost.remove(&id);
-        self.summary.incidents.push(Incident {
-            daemon: id.clone(),
-            kind: IncidentKind::Rejoined,
-            at: Instant::now(),
-        });
-        if self.shunned.remove(&id) {
-            // It refused its part: it takes part again when something else re-plans.
-            tracing::info!(daemon = %id, "rejoined after refusing its configuration: folded in at the next re-plan");
-        } else {
-            self.pending_join.get_or_insert(format!("{id} rejoined"));
-        }
-        self.publish(false);
-    }
-
-    /// Drops a daemon; a re-plan is due if the plan used it. Once the run is stopping, the daemon
-    /// is taken to be stopping too: no incident, no re-plan, and the frames that need it are
-    /// abandoned.
-    fn lose(&mut self, id: &str, reason: String) {
-        let Some(d) = self.session.lose(id) else {
-            return;
-        };
-        let used = self.participants.iter().any(|p| p == id);
-        if self.stopping() {
-            tracing::info!(daemon = %id, address = %d.address, "stopped with the run ({reason})");
-            self.summary.stopped.push(id.to_string());
-            self.abandon |= used;
-            return;
-        }
-        tracing::warn!(daemon = %id, address = %d.address, in_plan = used, "lost: {reason}");
-        lightfold_ops::record::daemon_lost();
-        self.summary.incidents.push(Incident {
-            daemon: id.to_string(),
-            kind: IncidentKind::Lost {
-                reason: reason.clone(),
-            },
-            at: Instant::now(),
-        });
-        self.lost.insert(id.to_string(), reason.clone());
-        self.just_lost.push(id.to_string());
-        if used {
-            self.need_replan
-                .get_or_insert(format!("{id} lost: {reason}"));
-        }
-        self.publish(self.need_replan.is_some());
-    }
-
-    /// Sends heartbeats and judges silence; a heartbeat counts as unanswered only from when it
-    /// was sent, so a loop that was busy never mistakes its own delay for a daemon's silence.
-    fn heartbeat(&mut self) {
-        let now = Instant::now();
-        let opts = self.session.opts;
-        let mut silent = Vec::new();
-        for (id, d) in &mut self.session.daemons {
-            if let Some(t) = d.ping_pending
-                && d.last_seen() >= t
-            {
-                d.ping_pending = None;
-            }
-            if let Some(t) = d.ping_pending
-                && now.duration_since(t) > opts.heartbeat_timeout
-            {
-                silent.push((id.clone(), now.duration_since(t)));
-            }
-        }
-        for (id, waited) in silent {
-            self.lose(
-                &id,
-                format!(
-                    "no answer to heartbeats for {} ms (stopped, hung or cut off)",
-                    waited.as_millis()
-                ),
-            );
-        }
-        if self
-            .last_ping
-            .is_some_and(|t| now.duration_since(t) < opts.heartbeat)
-        {
-            return;
-        }
-        self.last_ping = Some(now);
-        let ids: Vec<String> = self.session.daemons.keys().cloned().collect();
-        for id in ids {
-            match self.session.send(&id, Message::Ping { seq: 0 }) {
-                Ok(()) => {
-                    if let Some(d) = self.session.daemons.get_mut(&id) {
-                        d.ping_pending.get_or_insert(now);
-                    }
-                }
-                Err(e) => self.lose(&id, format!("cannot send to it: {e}")),
-            }
-        }
-    }
-
-    fn on_tick(&mut self) -> Result<(), RunError> {
-        self.heartbeat();
-        let Some(plan) = &self.plan else {
-            return Ok(());
-        };
-        let now = Instant::now();
-        let opts = self.session.opts;
-        let predicted = Duration::from_micros(plan.est_frame_us);
-        let slow = predicted.mul_f64(opts.slow_factor).max(opts.slow_floor);
-        let mut slow_frames = Vec::new();
-        let mut hung = Vec::new();
-        for f in &mut self.frames.inflight {
-            let waited = now.duration_since(f.sent_at);
-            if waited > opts.frame {
-                hung.push((f.index, waiting_on(plan, f)));
-            } else if waited > slow.mul_f64(if f.warming { WARM_UP } else { 1.0 }) && !f.slow_warned
-            {
-                f.slow_warned = true;
-                slow_frames.push((f.index, waited, waiting_on(plan, f)));
-            }
-        }
-        for (index, waited, culprits) in slow_frames {
-            tracing::warn!(
-                frame = index,
-                "frame {index} is slow: {} ms so far (the plan estimates {} ms); waiting on {}",
-                waited.as_millis(),
-                predicted.as_millis(),
-                culprits.join(", ")
-            );
-            for c in culprits {
-                self.summary.incidents.push(Incident {
-                    daemon: c,
-                    kind: IncidentKind::Slow {
-                        frame: index,
-                        waited,
-                    },
-                    at: now,
-                });
-            }
-        }
-        for (index, culprits) in hung {
-            for c in culprits {
-                self.lose(
-                    &c,
-                    format!(
-                        "frame {index} not finished after {} s",
-                        opts.frame.as_secs_f64()
-                    ),
-                );
-            }
-        }
-        Ok(())
-    }
-
-    fn due_replan(&mut self) -> Option<String> {
-        if let Some(r) = self.need_replan.take() {
-            return Some(r);
-        }
-        if let Some((at, _)) = &self.reset_at
-            && Instant::now() >= *at
-        {
-            return self
-                .reset_at
-                .take()
-                .map(|(_, r)| format!("frame failure: {r}"));
-        }
-        if self.pending_join.is_some() && self.frames.inflight.is_empty() {
-            return self.pending_join.take();
-        }
-        self.adapt_costs()
-    }
-
-    /// Under a frame budget, once `ADAPT_FRAMES` settled frames of an epoch are measured: each
-    /// node's shadow passes give its cost per light (over the model's shadow weight of its
-    /// lights), the rest of its work its fixed cost. When the medians stray from the scales in
-    /// use by more than `ADAPT_BAND`×, the model takes them (`PlanOptions::cost_scale`). A
-    /// re-plan is due only when the corrected model changes the plan's choices (K, samples,
-    /// what was given up, lights per node) and the frames are over the budget, or under
-    /// `RAISE_BELOW` of it with a candidate of more quality (more samples or fewer concessions;
-    /// never only to free nodes); a plan whose frames were measured over this budget is never
-    /// chosen again (no oscillation between two plans the model cannot tell apart).
-    fn adapt_costs(&mut self) -> Option<String> {
-        let budget = self.opts.frame_budget_us?;
-        if self.measured.len() < ADAPT_FRAMES || self.scales.is_empty() {
-            return None;
-        }
-        let took = median(std::mem::take(&mut self.measured));
-        let scales = std::mem::take(&mut self.scales);
-        let fixed = median(scales.iter().map(|s| s.0).collect());
-        let light = median(scales.iter().map(|s| s.1).collect());
-        let current = self.plan.as_ref()?;
-        let over = took > budget as f64;
-        if over {
-            self.over_budget.insert(choices(current));
-        } else if self.known_good.is_none_or(|(q, _)| quality(current) > q) {
-            self.known_good = Some((quality(current), self.plan_scale));
-        }
-        // Over the budget where a plan of more quality was measured within it: back to that one
-        // (the factors it was planned under give it again on the same cluster).
-        if over
-            && let Some((q, scale)) = self.known_good
-            && q > quality(current)
-        {
-            self.known_good = None;
-            self.opts.cost_scale = scale;
-            let why = format!(
-                "measured frames take {:.1} ms, over the {:.1} ms budget: back to the last plan \
-                 measured within it",
-                took / 1e3,
-                budget as f64 / 1e3
-            );
-            self.notice(why.clone());
-            return Some(why);
-        }
-        let now = self.opts.cost_scale;
-        let strays = |measured: f64, used: f64| (measured / used).ln().abs() > ADAPT_BAND.ln();
-        if !(fixed.is_finite() && light.is_finite() && fixed > 0.0 && light > 0.0)
-            || !(strays(fixed, now.fixed) || strays(light, now.light))
-        {
-            return None;
-        }
-        let mut o = self.opts.clone();
-        o.cost_scale = crate::plan::CostScale {
-            fixed: fixed.clamp(1e-4, 1e4),
-            light: light.clamp(1e-4, 1e4),
-        };
-        let cluster = crate::run::cluster_spec(self.session);
-        let candidate = crate::plan::replan(&self.scene, &cluster, &o, current).ok()?;
-        let text = format!(
-            "measured frames ({:.1} ms, the model's estimate {:.1} ms) put the nodes' fixed cost \
-             at {fixed:.3}× and their cost per light at {light:.3}× what they registered",
-            took / 1e3,
-            current.est_frame_us as f64 / 1e3
-        );
-        self.opts.cost_scale = o.cost_scale;
-        let key = choices(&candidate);
-        // Under the budget, only for more quality (not to free nodes: the frames fit as they are).
-        let better = quality(&candidate) > quality(current);
-        let act = over || (took < RAISE_BELOW * budget as f64 && better);
-        if key == choices(current) || !act || self.over_budget.contains(&key) {
-            tracing::info!("{text}: the corrected cost model keeps the plan");
-            return None;
-        }
-        let why = format!(
-            "{text}: re-planning for the {:.1} ms budget",
-            budget as f64 / 1e3
-        );
-        self.notice(why.clone());
-        Some(why)
-    }
-
-    /// Records a settled frame's measurements for `adapt_costs` (under a frame budget).
-    pub(super) fn measure(&mut self, epoch: u64, stats: &[FrameStats]) {
-        let Some(plan) = &self.plan else { return };
-        if self.opts.frame_budget_us.is_none() || plan.epoch != epoch {
-            return;
-        }
-        let mut slowest = None::<u64>;
-        for s in stats {
-            let Some(&[fixed_us, light_us, w_all, w_shadow]) = self.model.get(&s.daemon_id) else {
-                continue;
             };
-            let work = s.pose_us + s.shadow_us + s.eye_us + s.readback_us + s.pack_us;
-            slowest = Some(slowest.map_or(work, |w| w.max(work)));
-            // Kept maps (walkthrough) hide the shadow passes' cost: no per-light figure.
-            if w_shadow <= 0.0 || s.maps_kept > 0 || fixed_us <= 0.0 || light_us <= 0.0 {
-                continue;
-            }
-            let per_light = s.shadow_us as f64 / w_shadow;
-            let rest = (work as f64 - per_light * w_all).max(0.05 * work as f64);
-            self.scales.push((rest / fixed_us, per_light / light_us));
-        }
-        if let Some(w) = slowest {
-            self.measured.push(w as f64);
+            self.core.handle(input, Instant::now())?;
         }
     }
 
-    /// The registered cost model of each render node of `plan` (`measure`).
-    pub(super) fn set_model(&mut self, plan: &Plan) {
-        let cluster = crate::run::cluster_spec(self.session);
-        self.model = plan
-            .nodes
-            .iter()
-            .filter_map(|n| {
-                let spec = cluster.nodes.iter().find(|d| d.id == n.node)?;
-                let (fixed, light) = crate::plan::node_cost(spec, plan);
-                let (w_all, w_shadow) = n
-                    .shadows
-                    .iter()
-                    .map(crate::plan::light_weight)
-                    .fold((0.0, 0.0), |a, w| (a.0 + w.0, a.1 + w.1));
-                Some((n.node.clone(), [fixed, light, w_all, w_shadow]))
-            })
-            .collect();
+    /// Carries out the core's commands. None waits: sends are queued for the daemons' writer
+    /// tasks, scenes go out from tasks of their own.
+    fn execute(&mut self, on_frame: &mut impl FnMut(FrameResult)) -> Result<(), RunError> {
+        while let Some(c) = self.core.poll_command() {
+            match c {
+                Command::Send { to, msg } => {
+                    if let Err(e) = self.session.send(&to, msg) {
+                        let why = e.to_string();
+                        self.core
+                            .handle(Input::Unsendable { id: to, why }, Instant::now())?;
+                    }
+                }
+                Command::SendScene { to, hash, bytes } => self.session.send_scene(&to, hash, bytes),
+                Command::Drop { id } => {
+                    self.session.lose(&id);
+                }
+                Command::SinkGeometry(g) => {
+                    self.session.sink_geometry.send_replace(g);
+                }
+                Command::Deliver(r) => on_frame(r),
+            }
+        }
+        Ok(())
     }
 }
 
@@ -977,38 +415,8 @@ fn judge_error(
     }
 }
 
-/// What a plan chose, estimates aside: K, what it gave up, the active samples and each node's
-/// lights (two plans with the same key render the same frames at the same cost).
-fn choices(p: &Plan) -> String {
-    let given: Vec<(crate::plan::Knob, &str)> = p
-        .concessions
-        .iter()
-        .map(|c| (c.knob, c.to.as_str()))
-        .collect();
-    let lights: Vec<&[usize]> = p.nodes.iter().map(|n| n.lights.as_slice()).collect();
-    format!(
-        "K {} · {given:?} · {} samples, active {:?} · {lights:?}",
-        p.k,
-        p.samples.len(),
-        p.active
-    )
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
-/// A plan's quality for the budget's purposes: more samples, then fewer concessions.
-fn quality(p: &Plan) -> (usize, std::cmp::Reverse<usize>) {
-    (p.samples.len(), std::cmp::Reverse(p.concessions.len()))
-}
-
 #[cfg(test)]
-mod tests {
+mod verdict_tests {
     use super::{ErrorVerdict, judge_error};
     use lightfold_protocol::ErrorCode;
 
