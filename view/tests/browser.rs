@@ -121,7 +121,8 @@ async fn steps(b: &mut Browser, url: &str) -> anyhow::Result<Figures> {
     b.navigate(url).await?;
     let state = "(() => { const v = window.lightfoldView; return v ? { connected: v.connected, \
         frames: v.frames, canSteer: v.canSteer, revision: v.revision, unacked: v.unacked, \
-        header: v.header, shown: v.displayed, errors: v.errors, lights: v.lights } : null; })()";
+        header: v.header, shown: v.displayed, errors: v.errors, lights: v.lights, \
+        ended: v.ended } : null; })()";
     let first = b
         .wait_for("a first frame on screen", state, WAIT, |v| {
             v["frames"].as_u64().unwrap_or(0) >= 1 && v["shown"].is_object()
@@ -229,6 +230,50 @@ async fn steps(b: &mut Browser, url: &str) -> anyhow::Result<Figures> {
         "the server refused the page's messages: {}",
         steered["errors"]
     );
+
+    // What once ended the cluster from this page: a saturated colour (a pure-red light, whose
+    // node colour has zero channels), then a frame budget set and cleared, each a re-plan over
+    // the red scene. The session goes on: frames at the last revision arrive, nothing is refused
+    // and the page is not told the session ended.
+    let revision = steered["revision"].as_i64().context("no revision")?;
+    b.eval(
+        "(() => { const c = document.querySelector('#lights input[type=color]'); \
+         c.value = '#ff0000'; c.dispatchEvent(new Event('input')); return true; })()",
+    )
+    .await?;
+    for budget in ["40", ""] {
+        b.eval(&format!(
+            "(() => {{ document.getElementById('budget').value = '{budget}'; \
+             document.getElementById('budget-form').requestSubmit(); return true; }})()"
+        ))
+        .await?;
+        tokio::time::sleep(Duration::from_millis(300)).await;
+    }
+    let red = b
+        .wait_for(
+            "frames after a red light and a budget set and cleared",
+            state,
+            WAIT,
+            |v| {
+                let rev = v["revision"].as_i64().unwrap_or(-1);
+                rev >= revision + 3
+                    && v["unacked"].as_u64() == Some(0)
+                    && v["shown"]["revision"].as_i64().unwrap_or(-1) >= rev
+            },
+        )
+        .await?;
+    ensure!(
+        red["ended"].is_null() && red["connected"] == Value::Bool(true),
+        "the session ended after a red light and a budget: {red}"
+    );
+    ensure!(
+        red["errors"].as_array().is_some_and(|e| e.is_empty()),
+        "the server refused the red light or the budget: {}",
+        red["errors"]
+    );
+    let red_png = b.screenshot().await?;
+    save(&red_png, "browser-red.png");
+    not_blank(&crop(&red_png, rect)?).context("the frame under the red light")?;
     ensure!(
         b.exceptions.is_empty(),
         "the page threw: {:?}",

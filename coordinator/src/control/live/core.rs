@@ -167,6 +167,11 @@ pub(crate) struct Core {
     pub(super) failed: bool,
     /// A daemon joined: re-plan once the frames in flight are done.
     pub(super) pending_join: Option<String>,
+    /// The user steered (a colour that splits a node's colour group, a frame budget): re-plan
+    /// once the frames in flight, sent under the settings before, are done. Re-planning at once
+    /// would put them back to be sent again under the new settings, where their own colours may
+    /// split a group again: two frames of different colours would re-plan each other for ever.
+    pub(super) pending_steer: Option<String>,
     /// A frame failed: re-request at this time.
     pub(super) reset_at: Option<(Instant, String)>,
     /// Daemons lost since the last look, and why each lost daemon was lost.
@@ -259,6 +264,7 @@ impl Core {
             need_replan: None,
             failed: false,
             pending_join: None,
+            pending_steer: None,
             reset_at: None,
             just_lost: Vec::new(),
             lost: unreachable.into_iter().collect(),
@@ -421,7 +427,10 @@ impl Core {
 
     /// Publishes the state to watchers.
     pub(super) fn publish(&self) {
-        let state = if !matches!(self.phase, Phase::Running) || self.need_replan.is_some() {
+        let state = if !matches!(self.phase, Phase::Running)
+            || self.need_replan.is_some()
+            || self.pending_steer.is_some()
+        {
             LiveState::Replanning
         } else if self.plan.is_none() {
             LiveState::Starting
@@ -803,8 +812,15 @@ impl Core {
                 .take()
                 .map(|(_, r)| (format!("frame failure: {r}"), true));
         }
-        if self.pending_join.is_some() && self.frames.inflight.is_empty() {
-            return self.pending_join.take().map(|r| (r, false));
+        if self.frames.inflight.is_empty()
+            && let Some(r) = self
+                .pending_steer
+                .take()
+                .or_else(|| self.pending_join.take())
+        {
+            // A join waiting as well is folded into the same epoch.
+            self.pending_join = None;
+            return Some((r, false));
         }
         let plan = self.plan.as_ref()?;
         let cluster = self.cluster();

@@ -68,6 +68,7 @@ impl Core {
         self.salvage();
         self.reset_at = None;
         self.need_replan = None;
+        self.pending_steer = None;
         self.failed = false;
         self.waited_since = None;
         self.replans_without_progress += u32::from(failure);

@@ -44,7 +44,11 @@ impl Core {
 
     /// Sends frame requests up to the in-flight limit (none while a re-plan is due).
     pub(super) fn issue(&mut self, now: Instant) -> Result<(), RunError> {
-        if self.pending_join.is_some() || self.need_replan.is_some() || self.reset_at.is_some() {
+        if self.pending_join.is_some()
+            || self.pending_steer.is_some()
+            || self.need_replan.is_some()
+            || self.reset_at.is_some()
+        {
             return Ok(());
         }
         let Some(plan) = &self.plan else {
@@ -75,7 +79,7 @@ impl Core {
                     None => format!("no frame budget from frame {index}: re-planning"),
                 };
                 self.notice(why.clone());
-                self.need_replan = Some(why);
+                self.pending_steer = Some(why);
                 break;
             }
             let wire = self.base + index;
@@ -90,7 +94,7 @@ impl Core {
                         "new light colours at frame {index} split the colour group of {node}: re-planning"
                     );
                     self.notice(why.clone());
-                    self.need_replan = Some(why);
+                    self.pending_steer = Some(why);
                     break;
                 }
                 Err(e) => return Err(e),

@@ -107,6 +107,9 @@ impl Sim {
         scene.quality.samples_per_area_light = Some(4);
         scene.camera.width = 64;
         scene.camera.height = 48;
+        // A pure-red light: a node colour with zero channels, which any colour with green or
+        // blue in it splits (a re-plan over the recoloured scene).
+        scene.lights[0].color = [1.0, 0.0, 0.0];
         let opts = PlanOptions {
             map_sizing: MapSizing::Fixed(256),
             ..PlanOptions::default()
@@ -623,6 +626,25 @@ fn heartbeats_and_requests_go_on_while_a_scene_loads() {
 }
 
 #[test]
+fn frames_of_alternating_colours_do_not_re_plan_each_other_for_ever() {
+    // Pure red, then pure green: each frame's colours split the node's colour group of the
+    // frame before (a zero channel where the other has light): every frame
+    // re-plans once, after the frame before it is done (re-planning at once put the frame in
+    // flight back under the new colours, where it split the group again, for ever).
+    let mut sim = Sim::new(3, 2, &[]);
+    let mut flicker = |i: u64| FrameSpec {
+        light_colors: vec![(0, [(i % 2) as f32, 1.0 - (i % 2) as f32, 0.0])],
+        ..FrameSpec::default()
+    };
+    sim.run(Duration::from_secs(10), 12, &mut flicker);
+    sim.input(Input::RequestsClosed);
+    sim.run_plain(Duration::from_secs(1), 12);
+    sim.assert_all_delivered(12);
+    let epochs = sim.core.summary.epochs.len();
+    assert!(epochs <= 13, "{epochs} epochs for 12 frames");
+}
+
+#[test]
 fn a_stop_while_waiting_for_daemons_ends_the_run() {
     let mut sim = Sim::new(1, 1, &[]);
     sim.run_plain(Duration::from_secs(1), 100);
@@ -657,6 +679,8 @@ enum Ev {
     Colour(u8),
     Budget(u16),
     NoBudget,
+    /// Consecutive frames of different colours (a colour picker dragged), for a while.
+    Flicker(u16),
 }
 
 fn ev() -> impl Strategy<Value = Ev> {
@@ -668,6 +692,7 @@ fn ev() -> impl Strategy<Value = Ev> {
         1 => (0u8..8).prop_map(Ev::Colour),
         1 => (5u16..100).prop_map(Ev::Budget),
         1 => Just(Ev::NoBudget),
+        1 => (50u16..1500).prop_map(Ev::Flicker),
     ]
 }
 
@@ -717,6 +742,13 @@ proptest! {
                 }
                 Ev::Budget(ms) => steer.frame_budget_us = Some(Some(u64::from(ms) * 1000)),
                 Ev::NoBudget => steer.frame_budget_us = Some(None),
+                Ev::Flicker(ms) => {
+                    let mut flicker = |i: u64| FrameSpec {
+                        light_colors: vec![(0, [(i % 2) as f32, 1.0 - (i % 2) as f32, 0.0])],
+                        ..FrameSpec::default()
+                    };
+                    sim.run(Duration::from_millis(ms.into()), frames, &mut flicker);
+                }
             }
             last_epoch = last_epoch.max(sim.epoch().saturating_sub(1));
             for (t, id) in std::mem::take(&mut restarts) {
