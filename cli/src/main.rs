@@ -24,6 +24,7 @@ mod out;
 mod plan_cmd;
 mod render_cmd;
 mod soak_cmd;
+mod soak_coordinator;
 mod view_probe_cmd;
 
 #[derive(Debug, Parser)]

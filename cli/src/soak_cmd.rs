@@ -76,6 +76,49 @@ pub struct Args {
     /// Log filter of the daemons (their logs go to OUT/logs/ID.log).
     #[arg(long, default_value = "info")]
     pub daemon_log: String,
+    /// Steer the first light's colour every this many frames, mixed with the faults: the scene's
+    /// colour, pure red, pure green, white, in turn (each change from a colour with a zero
+    /// channel re-plans over the recoloured scene); every frame is checked against the
+    /// single-device render under its colours. 0: never.
+    #[arg(long, default_value_t = 0)]
+    pub steer_every: u64,
+    /// Run the coordinator as a process of its own and SIGKILL it this many times at random
+    /// frames of a `--frames` camera path, resuming it each time (`--resume`) over the same
+    /// frame folder; no daemon faults. Every frame must be on disk once and right
+    /// (`OUT/coordinator-soak.md`).
+    #[arg(long, default_value_t = 0)]
+    pub coordinator_kills: u32,
+    /// Frames of the camera path under `--coordinator-kills`.
+    #[arg(long, default_value_t = 60)]
+    pub frames: u32,
+}
+
+/// The colours the soak steers the first light through (`--steer-every`); `None`: the scene's.
+const STEER_COLOURS: [Option<[f32; 3]>; 4] = [
+    None,
+    Some([1.0, 0.0, 0.0]),
+    Some([0.0, 1.0, 0.0]),
+    Some([1.0, 1.0, 1.0]),
+];
+
+/// The light colours of frame `frame` (from 1) when steering every `every` frames.
+fn steered_colours(frame: u64, every: u64) -> Vec<(u32, [f32; 3])> {
+    if every == 0 {
+        return Vec::new();
+    }
+    let step = (frame.saturating_sub(1) / every) as usize % STEER_COLOURS.len();
+    STEER_COLOURS[step].map(|c| (0, c)).into_iter().collect()
+}
+
+/// `scene` with the light colours of `colours` (source light → colour).
+fn recoloured(scene: &Scene, colours: &[(u32, [f32; 3])]) -> Scene {
+    let mut s = scene.clone();
+    for &(l, c) in colours {
+        if let Some(light) = s.lights.get_mut(l as usize) {
+            light.color = c;
+        }
+    }
+    s
 }
 
 /// A SIGSTOP lasts this long at least and at most.
@@ -168,14 +211,14 @@ struct Progress {
 
 /// The check of one frame against the single-device render of its camera.
 #[derive(Debug, Clone)]
-struct Check {
-    frame: u64,
-    ok: bool,
-    outside: usize,
-    channels: usize,
+pub(crate) struct Check {
+    pub frame: u64,
+    pub ok: bool,
+    pub outside: usize,
+    pub channels: usize,
     energy_ratio: f64,
     worst: f32,
-    error: Option<String>,
+    pub error: Option<String>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -221,14 +264,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let token_path = work.path().join("token");
     write_token(&token_path)?;
     let token = lightfold_net::load_token(Some(&token_path))?;
-
-    let Checker {
-        queue: check_tx,
-        thread: checker,
-        adapter,
-    } = spawn_checker(scene.clone(), path)?;
-    let mut machine = Machine::probe(adapter);
-
     let exe = std::env::current_exe().context("cannot find the lightfold executable")?;
     let launcher = Launcher {
         exe,
@@ -237,6 +272,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         logs: logs.clone(),
         gpu_threads: args.gpu_threads,
     };
+    if args.coordinator_kills > 0 {
+        return crate::soak_coordinator::run(&args, launcher);
+    }
+
+    let Checker {
+        queue: check_tx,
+        thread: checker,
+        adapter,
+    } = spawn_checker(scene.clone(), path, args.steer_every)?;
+    let mut machine = Machine::probe(adapter);
+
     let mut children = Children(Vec::new());
     let mut daemons = Vec::new();
     let roles = (0..nodes)
@@ -345,12 +391,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let (tx, rx) = tokio::sync::mpsc::channel::<FrameSpec>(2);
         let base = scene.camera;
         let (stop, req) = (stop_feeding.clone(), Arc::clone(&requested));
+        let steer_every = args.steer_every;
         let feeder = tokio::spawn(async move {
             for i in 0u32.. {
                 let camera = lightfold_scene::wire::camera_to_wire(&camera_at(&base, path, i));
                 let spec = FrameSpec {
                     camera: Some(camera),
-                    light_colors: Vec::new(),
+                    light_colors: steered_colours(u64::from(i) + 1, steer_every),
                     time: None,
                     frame_budget_us: None,
                 };
@@ -464,17 +511,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
 /// Starts daemon processes the way `demo` does, their stderr appended to OUT/logs/ID.log.
 #[derive(Debug)]
-struct Launcher {
-    exe: PathBuf,
-    token: PathBuf,
+pub(crate) struct Launcher {
+    pub exe: PathBuf,
+    pub token: PathBuf,
     log: String,
-    logs: PathBuf,
+    pub logs: PathBuf,
     gpu_threads: u32,
 }
 
 impl Launcher {
     /// Starts daemon `id` listening on `listen`; returns it once it printed its address.
-    fn start(
+    pub(crate) fn start(
         &self,
         id: &str,
         role: &str,
@@ -859,13 +906,17 @@ impl Injector {
 
 /// The thread that checks every delivered frame against the single-device render of its camera:
 /// its queue, the thread, and its adapter (name and backend).
-struct Checker {
-    queue: std::sync::mpsc::Sender<(u64, Image)>,
-    thread: std::thread::JoinHandle<anyhow::Result<Vec<Check>>>,
-    adapter: String,
+pub(crate) struct Checker {
+    pub queue: std::sync::mpsc::Sender<(u64, Image)>,
+    pub thread: std::thread::JoinHandle<anyhow::Result<Vec<Check>>>,
+    pub adapter: String,
 }
 
-fn spawn_checker(scene: Scene, path: FramePath) -> anyhow::Result<Checker> {
+pub(crate) fn spawn_checker(
+    scene: Scene,
+    path: FramePath,
+    steer_every: u64,
+) -> anyhow::Result<Checker> {
     let (tx, rx) = std::sync::mpsc::channel::<(u64, Image)>();
     let (ready_tx, ready_rx) = std::sync::mpsc::channel::<anyhow::Result<String>>();
     let handle = std::thread::Builder::new()
@@ -892,10 +943,10 @@ fn spawn_checker(scene: Scene, path: FramePath) -> anyhow::Result<Checker> {
                     bail!("{msg}");
                 }
             };
-            let samples = lightfold_scene::sampling::scene_samples(&scene);
             let mut checks = Vec::new();
             for (frame, image) in rx {
-                let mut s = scene.clone();
+                let mut s = recoloured(&scene, &steered_colours(frame, steer_every));
+                let samples = lightfold_scene::sampling::scene_samples(&s);
                 s.camera = camera_at(&scene.camera, path, (frame - 1) as u32);
                 let check = match single_device(&gpu, &mut renderer, &s, &samples) {
                     Ok(truth) => compare(frame, &image, &truth),
@@ -1134,6 +1185,8 @@ fn replan_cause(reason: &str) -> &'static str {
         "loss"
     } else if first.trim_end().ends_with(" rejoined") {
         "rejoin"
+    } else if first.starts_with("new light colours") {
+        "steering"
     } else {
         "other"
     }
@@ -1263,11 +1316,16 @@ impl Report {
         let load_mean = m.load.iter().sum::<f64>() / m.load.len().max(1) as f64;
         let load_max = m.load.iter().copied().fold(0.0f64, f64::max);
         r.title = format!(
-            "`lightfold soak --faults {} --seed {}`: scene {} {w}x{h}, {} light samples, K = {}, \
+            "`lightfold soak --faults {} --seed {}{}`: scene {} {w}x{h}, {} light samples, K = {}, \
              {} render nodes + {} compositors, heartbeat {} ms / timeout {} ms; {} ({} cores, \
              {:.0} GiB), frames checked on {}",
             i.args.faults,
             i.args.seed,
+            if i.args.steer_every > 0 {
+                format!(" --steer-every {}", i.args.steer_every)
+            } else {
+                String::new()
+            },
             i.scene.name,
             i.summary.plan.as_ref().map_or(0, |p| p.active.len()),
             i.args.lights_per_node,
@@ -1456,11 +1514,13 @@ impl Report {
         row(
             "re-plans".into(),
             format!(
-                "{} ({} after a loss, {} after a rejoin, {} after a frame failure, {} other)",
+                "{} ({} after a loss, {} after a rejoin, {} after a frame failure, {} for steered \
+                 colours, {} other)",
                 i.summary.epochs.len().saturating_sub(1),
                 causes("loss"),
                 causes("rejoin"),
                 causes("frame failure"),
+                causes("steering"),
                 causes("other")
             ),
         );
@@ -1729,6 +1789,12 @@ mod tests {
         assert_eq!(
             replan_cause("frame failure: comp-1 reported Timeout"),
             "frame failure"
+        );
+        assert_eq!(
+            replan_cause(
+                "new light colours at frame 41 split the colour group of node-0: re-planning"
+            ),
+            "steering"
         );
     }
 
