@@ -245,15 +245,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let probe = plan(&scene, &ClusterSpec::local(256, 256), &plan_opts)?;
     let (nodes, compositors) = (probe.nodes.len(), probe.stages.len());
-    outln!(
-        "soak: scene {:?} {w}x{h}, {} light samples, K = {}: {nodes} render node(s) and \
-         {compositors} compositor(s) on loopback; {} faults, seed {}",
-        scene.name,
-        probe.active.len(),
-        probe.k,
-        args.faults,
-        args.seed
-    );
     let logs = args.out.join("logs");
     std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
     // Removed when dropped, also when the soak fails on the way.
@@ -275,6 +266,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.coordinator_kills > 0 {
         return crate::soak_coordinator::run(&args, launcher);
     }
+    outln!(
+        "soak: scene {:?} {w}x{h}, {} light samples, K = {}: {nodes} render node(s) and \
+         {compositors} compositor(s) on loopback; {} faults, seed {}",
+        scene.name,
+        probe.active.len(),
+        probe.k,
+        args.faults,
+        args.seed
+    );
 
     let Checker {
         queue: check_tx,

@@ -340,7 +340,17 @@ fn report(
     let _ = writeln!(md);
     let _ = writeln!(md, "| | |\n|---|---|");
     let _ = writeln!(md, "| kill points (frames on disk) | {points:?} |");
-    let _ = writeln!(md, "| coordinator starts | {} |", starts.len());
+    let _ = writeln!(
+        md,
+        "| coordinator starts | {} ({} killed, the last finished{}) |",
+        starts.len(),
+        starts.iter().filter(|s| s.killed_at.is_some()).count(),
+        if starts.last().is_some_and(|s| s.killed_at.is_none()) {
+            ""
+        } else {
+            ": no"
+        }
+    );
     let _ = writeln!(md, "| frames on disk | {} of {frames} |", seen.len());
     let _ = writeln!(
         md,

@@ -138,6 +138,9 @@ pub(crate) struct Core {
     /// The scene as the nodes have it (light colours change when a colour change splits a
     /// node's colour group, which re-plans).
     pub(super) scene: Scene,
+    /// Each light's colour in the scene as given: what a frame that names no colour for a light
+    /// renders it with, whatever the light was recoloured to since.
+    pub(super) scene_colors: Vec<[f32; 3]>,
     pub(super) opts: PlanOptions,
     pub(super) bytes: Arc<Vec<u8>>,
     pub(super) hash: [u8; 32],
@@ -237,8 +240,10 @@ impl Core {
             .map_err(|e| RunError::Scene(e.to_string()))?;
         // Nodes decode what they receive and check it against this.
         let hash = scene.content_hash();
+        let scene_colors = scene.lights.iter().map(|l| l.color).collect();
         Ok(Core {
             members,
+            scene_colors,
             control,
             sink_address,
             base,

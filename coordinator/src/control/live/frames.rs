@@ -61,6 +61,14 @@ impl Core {
                 break;
             };
             self.refused.strip(&mut spec);
+            // A light the request names no colour for has the scene's, also after a re-plan
+            // recoloured it.
+            for (l, (now, given)) in self.scene.lights.iter().zip(&self.scene_colors).enumerate() {
+                let named = spec.light_colors.iter().any(|(x, _)| *x as usize == l);
+                if !named && now.color.map(f32::to_bits) != given.map(f32::to_bits) {
+                    spec.light_colors.push((l as u32, *given));
+                }
+            }
             let Some(plan) = &self.plan else {
                 break;
             };

@@ -59,7 +59,8 @@ const WARM_UP: f64 = 3.0;
 const WARNING_EVERY: Duration = Duration::from_secs(1);
 
 /// One frame to render: its camera (`None`: the plan's) and the light colours in effect
-/// (source light → colour; lights not named keep the scene's colour).
+/// (source light → colour; a light not named has its colour in the scene, also after an earlier
+/// frame gave it another).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct FrameSpec {
     pub camera: Option<WireCamera>,

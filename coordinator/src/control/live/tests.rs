@@ -645,6 +645,28 @@ fn frames_of_alternating_colours_do_not_re_plan_each_other_for_ever() {
 }
 
 #[test]
+fn a_light_no_longer_named_goes_back_to_the_scene_colour() {
+    let mut sim = Sim::new(3, 2, &[]);
+    // Green splits the red light's group (a re-plan over a green scene); frames that name no
+    // colour again have the scene's red, which splits it back.
+    let mut spec = |i: u64| FrameSpec {
+        light_colors: if i <= 3 {
+            vec![(0, [0.0, 1.0, 0.0])]
+        } else {
+            Vec::new()
+        },
+        ..FrameSpec::default()
+    };
+    sim.run(Duration::from_secs(2), 3, &mut spec);
+    assert_eq!(sim.core.scene.lights[0].color, [0.0, 1.0, 0.0]);
+    sim.run(Duration::from_secs(2), 6, &mut spec);
+    sim.input(Input::RequestsClosed);
+    sim.run_plain(Duration::from_secs(1), 6);
+    sim.assert_all_delivered(6);
+    assert_eq!(sim.core.scene.lights[0].color, [1.0, 0.0, 0.0]);
+}
+
+#[test]
 fn a_stop_while_waiting_for_daemons_ends_the_run() {
     let mut sim = Sim::new(1, 1, &[]);
     sim.run_plain(Duration::from_secs(1), 100);
