@@ -160,11 +160,15 @@ pub fn frame_specs(scene: &Scene, opts: &RunOptions) -> Vec<FrameSpec> {
 
 /// Per-daemon frame parameters for light colours `colors` (source light → colour) under
 /// `plan`: for every stage input whose node's colour changes, the new `c_n`. Empty when no colour
-/// differs from the plan's (the compositors then use the configured colours).
+/// differs from the plan's, unless `reset`: a stage keeps the colours the last frame that set
+/// any gave it (they are operator parameters) until its next configuration, so once a frame of
+/// an epoch changed colours, every later frame of it names every node's colour (`reset`), those
+/// of the plan included.
 pub fn frame_params(
     plan: &Plan,
     colors: &[(u32, [f32; 3])],
     frame: u64,
+    reset: bool,
 ) -> Result<HashMap<String, FrameParams>, RunError> {
     let mut params: HashMap<String, FrameParams> = HashMap::new();
     let mut per_sample: Vec<[f32; 3]> = plan.samples.iter().map(|s| s.color).collect();
@@ -204,7 +208,7 @@ pub fn frame_params(
             per_sample[k] = new;
         }
     }
-    if !changed {
+    if !changed && !reset {
         return Ok(params);
     }
     for node in plan.nodes.iter().filter(|n| !n.lights.is_empty()) {

@@ -158,8 +158,10 @@ pub(crate) struct Core {
     pub(super) refusals: u32,
     pub(super) refused: Refused,
     pub(super) shunned: BTreeSet<String>,
-    /// Frame requests sent in the current epoch.
+    /// Frame requests sent in the current epoch, and whether one of them set light colours (the
+    /// stages keep them: later frames name every colour, `run::frame_params`).
     pub(super) sent_in_epoch: u64,
+    pub(super) recoloured: bool,
     /// The frames from request to delivery.
     pub(super) frames: ledger::Ledger,
     pub(super) source_open: bool,
@@ -264,6 +266,7 @@ impl Core {
             refused: Refused::default(),
             shunned: BTreeSet::new(),
             sent_in_epoch: 0,
+            recoloured: false,
             frames: ledger::Ledger::default(),
             source_open: true,
             need_replan: None,

@@ -397,6 +397,7 @@ impl Core {
         self.refusals = 0;
         self.plan = Some(next);
         self.sent_in_epoch = 0;
+        self.recoloured = false;
         self.publish();
     }
 

@@ -91,7 +91,7 @@ impl Core {
                 break;
             }
             let wire = self.base + index;
-            let params = match frame_params(plan, &spec.light_colors, index) {
+            let params = match frame_params(plan, &spec.light_colors, index, self.recoloured) {
                 Ok(p) => p,
                 Err(RunError::ColorSplit { node, .. }) => {
                     // The nodes must render with the new colours themselves: re-plan over a
@@ -107,6 +107,7 @@ impl Core {
                 }
                 Err(e) => return Err(e),
             };
+            self.recoloured |= !params.is_empty();
             let mut sends = Vec::with_capacity(self.participants.len());
             for id in &self.participants {
                 let mut frame_params = params.get(id).cloned().unwrap_or(FrameParams {

@@ -76,6 +76,8 @@ struct Sim {
     /// Pings sent, per daemon (heartbeats while the loop configures).
     pings: BTreeMap<String, u32>,
     requested: u64,
+    /// Per wire frame, the light colours each daemon was sent with it.
+    colours: BTreeMap<u64, Vec<(String, Vec<(u32, [f32; 3])>)>>,
     error: Option<RunError>,
 }
 
@@ -168,6 +170,7 @@ impl Sim {
             got: BTreeMap::new(),
             pings: BTreeMap::new(),
             requested: 0,
+            colours: BTreeMap::new(),
             error: None,
         };
         let ids: Vec<String> = sim.daemons.keys().cloned().collect();
@@ -282,7 +285,14 @@ impl Sim {
                     self.answer(to, Message::Configured { epoch });
                 }
             }
-            Message::RenderFrame { epoch, frame, .. } => {
+            Message::RenderFrame {
+                epoch,
+                frame,
+                params,
+                ..
+            } => {
+                let sent = (to.to_string(), params.colors);
+                self.colours.entry(frame).or_default().push(sent);
                 let stats = FrameStats {
                     epoch,
                     frame,
@@ -664,6 +674,51 @@ fn a_light_no_longer_named_goes_back_to_the_scene_colour() {
     sim.run_plain(Duration::from_secs(1), 6);
     sim.assert_all_delivered(6);
     assert_eq!(sim.core.scene.lights[0].color, [1.0, 0.0, 0.0]);
+}
+
+#[test]
+fn a_frame_after_a_colour_change_names_the_colours_the_stages_keep() {
+    // Stages keep the colours the last frame gave them: a brighter red (a scaling, no re-plan)
+    // on frame 1, then frames that name none must set the scene's red back.
+    let mut sim = Sim::new(3, 2, &[]);
+    let mut spec = |i: u64| FrameSpec {
+        light_colors: if i == 1 {
+            vec![(0, [2.0, 0.0, 0.0])]
+        } else {
+            Vec::new()
+        },
+        ..FrameSpec::default()
+    };
+    sim.run(Duration::from_secs(2), 3, &mut spec);
+    sim.input(Input::RequestsClosed);
+    sim.run_plain(Duration::from_secs(1), 3);
+    sim.assert_all_delivered(3);
+    assert_eq!(
+        sim.core.summary.epochs.len(),
+        1,
+        "a scaling re-plans nothing"
+    );
+    let base = sim.core.base;
+    let stages = |frame: u64| -> Vec<Vec<(u32, [f32; 3])>> {
+        sim.colours[&(base + frame)]
+            .iter()
+            .filter(|(to, _)| to.starts_with("comp-"))
+            .map(|(_, c)| c.clone())
+            .collect()
+    };
+    assert!(
+        stages(1)
+            .iter()
+            .any(|c| c.iter().any(|(_, rgb)| rgb[0] == 2.0))
+    );
+    for frame in [2, 3] {
+        let set = stages(frame);
+        assert!(set.iter().any(|c| !c.is_empty()), "frame {frame}: {set:?}");
+        assert!(
+            set.iter().flatten().all(|(_, rgb)| rgb[0] == 1.0),
+            "frame {frame}: {set:?}"
+        );
+    }
 }
 
 #[test]
