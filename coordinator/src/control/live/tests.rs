@@ -60,6 +60,9 @@ struct SimDaemon {
     inbox: Vec<Message>,
 }
 
+/// Light colours as a frame request carries them (stage input or light → colour).
+type Colours = Vec<(u32, [f32; 3])>;
+
 /// A simulated cluster around one core.
 struct Sim {
     core: Core,
@@ -77,7 +80,7 @@ struct Sim {
     pings: BTreeMap<String, u32>,
     requested: u64,
     /// Per wire frame, the light colours each daemon was sent with it.
-    colours: BTreeMap<u64, Vec<(String, Vec<(u32, [f32; 3])>)>>,
+    colours: BTreeMap<u64, Vec<(String, Colours)>>,
     error: Option<RunError>,
 }
 
@@ -699,7 +702,7 @@ fn a_frame_after_a_colour_change_names_the_colours_the_stages_keep() {
         "a scaling re-plans nothing"
     );
     let base = sim.core.base;
-    let stages = |frame: u64| -> Vec<Vec<(u32, [f32; 3])>> {
+    let stages = |frame: u64| -> Vec<Colours> {
         sim.colours[&(base + frame)]
             .iter()
             .filter(|(to, _)| to.starts_with("comp-"))
