@@ -11,7 +11,7 @@ use lightfold_protocol::frame::Frame;
 use lightfold_protocol::{
     FrameParams, FrameStats, Layer, Message, NodeConfig, PixelFormat, Role, WireShadow,
 };
-use lightfold_scene::sampling::scene_samples;
+use lightfold_scene::sampling::direct_samples;
 use lightfold_scene::wire::{camera_to_wire, light_to_wire};
 use lightfold_scene::{Camera, Scene};
 use std::process::Stdio;
@@ -165,7 +165,7 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
     (scene.camera.width, scene.camera.height) = a.size;
     scene.quality.shadow_map_size = a.map;
     scene.quality.map_sizing = lightfold_scene::MapSizing::Fixed;
-    let samples = scene_samples(&scene);
+    let samples = direct_samples(&scene);
     if samples.is_empty() {
         bail!("scene {} has no lights", a.scene);
     }

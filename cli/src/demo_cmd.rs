@@ -402,7 +402,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Some(t) if scene.animation.is_some() => (scene.still_at(t), scene.samples_at(t)),
             _ => (
                 scene.clone(),
-                lightfold_reference::indirect::scene_samples(&scene),
+                lightfold_reference::indirect::frame_samples(&scene),
             ),
         };
         last.camera =

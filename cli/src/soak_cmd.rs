@@ -946,7 +946,7 @@ pub(crate) fn spawn_checker(
             let mut checks = Vec::new();
             for (frame, image) in rx {
                 let mut s = recoloured(&scene, &steered_colours(frame, steer_every));
-                let samples = lightfold_scene::sampling::scene_samples(&s);
+                let samples = lightfold_reference::indirect::frame_samples(&s);
                 s.camera = camera_at(&scene.camera, path, (frame - 1) as u32);
                 let check = match single_device(&gpu, &mut renderer, &s, &samples) {
                     Ok(truth) => compare(frame, &image, &truth),

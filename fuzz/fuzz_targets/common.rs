@@ -3,7 +3,7 @@
 
 use lightfold_scene::Scene;
 use lightfold_scene::limits::MAX_LIGHT_SAMPLES;
-use lightfold_scene::sampling::scene_samples;
+use lightfold_scene::sampling::direct_samples;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
@@ -56,7 +56,7 @@ pub fn check_scene(scene: &Scene) {
     if let Err(e) = scene.check_limits() {
         panic!("loaded beyond the limits: {e}");
     }
-    let samples = scene_samples(scene);
+    let samples = direct_samples(scene);
     assert!(
         samples.len() as u64 <= MAX_LIGHT_SAMPLES,
         "{} samples",

@@ -58,7 +58,7 @@ fn main() -> anyhow::Result<()> {
         ks = vec![0, 1, 4, 8];
     }
     let scene = lightfold_scene::builtin("balls")?;
-    let samples = lightfold_scene::sampling::scene_samples(&scene);
+    let samples = lightfold_scene::sampling::direct_samples(&scene);
     let gpu = Gpu::new(&GpuOptions::default())?;
     let mut opts = RenderOptions::from_quality(&scene.quality);
     opts.walkthrough = true;

@@ -61,7 +61,7 @@ fn main() -> anyhow::Result<()> {
     let mut scene = lightfold_scene::load(&scene_name)?;
     scene.camera.width = size.0;
     scene.camera.height = size.1;
-    let samples = lightfold_scene::sampling::scene_samples(&scene);
+    let samples = lightfold_scene::sampling::direct_samples(&scene);
     let lights: Vec<LightSample> = (0..k)
         .map(|i| samples[(i * samples.len() / k) % samples.len()])
         .collect();

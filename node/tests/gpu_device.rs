@@ -80,7 +80,7 @@ fn images_beyond_the_device_buffers_are_errors_or_fall_back() {
         .unwrap_or_else(|e| panic!("no usable GPU adapter (install mesa-vulkan-drivers): {e}"));
     let mut scene = lightfold_scene::builtin("box").unwrap();
     let opts = RenderOptions::from_quality(&scene.quality);
-    let samples = lightfold_scene::sampling::scene_samples(&scene);
+    let samples = lightfold_scene::sampling::direct_samples(&scene);
     let lights = &samples[..1];
     let max_side = gpu.limits.max_texture_dimension_2d;
     // The readback of a 16-byte target: rows padded to 256 bytes.

@@ -128,7 +128,7 @@ fn point_spot_and_directional_samples_match_the_reference() {
 fn sixteen_lights_in_one_eye_pass_match_the_reference() {
     let mut scene = shadow_scene(W, H);
     scene.quality.samples_per_area_light = Some(8);
-    let samples = sampling::scene_samples(&scene);
+    let samples = sampling::direct_samples(&scene);
     assert_eq!(samples.len(), 16);
     let passes = assert_matches(&samples, C_N, "k16");
     assert_eq!(passes.len(), 16);
@@ -141,7 +141,7 @@ fn more_lights_than_one_dispatch_takes_add_up_in_order() {
     let gpu = gpu();
     let mut scene = shadow_scene(W / 2, H / 2);
     scene.quality.samples_per_area_light = Some(40);
-    let samples = sampling::scene_samples(&scene);
+    let samples = sampling::direct_samples(&scene);
     assert_eq!(samples.len(), 80);
     let opts = RenderOptions::from_quality(&scene.quality);
     let mut images = Vec::new();

@@ -96,7 +96,7 @@ fn main() -> anyhow::Result<()> {
         scene.animation = None;
         scene.camera.width = w;
         scene.camera.height = h;
-        let samples = sampling::scene_samples(&scene);
+        let samples = sampling::direct_samples(&scene);
         let reference =
             render_point_sum(&scene, &samples, [1.0; 3]).radiance([1.0; 3], scene.ambient);
         let old = former(&scene);

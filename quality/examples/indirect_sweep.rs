@@ -54,7 +54,7 @@ fn sweep(
     rows: &mut Vec<Row>,
 ) -> anyhow::Result<()> {
     scene.animation = None;
-    let direct = sampling::scene_samples(&scene);
+    let direct = sampling::direct_samples(&scene);
     let t = Instant::now();
     let direct_img = render_point_sum(&scene, &direct, [1.0; 3]).radiance([1.0; 3], scene.ambient);
     let bounce = |seed| {
@@ -77,7 +77,7 @@ fn sweep(
         let mut s = scene.clone();
         s.quality.indirect = m;
         s.quality.indirect_clamp = Some(clamp);
-        let samples = indirect::scene_samples(&s);
+        let samples = indirect::frame_samples(&s);
         let vpls = samples
             .iter()
             .filter(|x| matches!(x.kind, SampleKind::Bounce { .. }))

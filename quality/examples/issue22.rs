@@ -21,7 +21,7 @@ use lightfold_scene::{MapSizing, defaults, sampling};
 fn cost(name: &str) -> anyhow::Result<()> {
     let gpu = Gpu::new(&GpuOptions::default())?;
     let scene = lightfold_scene::builtin(name)?;
-    let samples = sampling::scene_samples(&scene);
+    let samples = sampling::direct_samples(&scene);
     let truth = render_point_sum(&scene, &samples, [1.0; 3]).radiance([1.0; 3], scene.ambient);
     let open = render_point_sum_with(
         &scene,

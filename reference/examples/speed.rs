@@ -5,7 +5,7 @@
 //! `cargo run --release -p lightfold-reference --example speed -- [--scene balls] [--area 64]`
 
 use lightfold_scene::primitives::{plane, sphere};
-use lightfold_scene::sampling::scene_samples;
+use lightfold_scene::sampling::direct_samples;
 use lightfold_scene::{Camera, Light, LightShape, Material, Quality, Scene};
 use std::time::Instant;
 
@@ -27,7 +27,7 @@ fn main() {
         None => synthetic_scene(),
     };
     let tris: usize = scene.meshes.iter().map(|m| m.triangle_count()).sum();
-    let samples = scene_samples(&scene);
+    let samples = direct_samples(&scene);
     let t = Instant::now();
     let tracer = lightfold_reference::Tracer::new(&scene);
     let build = t.elapsed();

@@ -66,8 +66,8 @@ pub fn default_clamp(scene: &Scene) -> f32 {
 
 /// Every sample a frame of `scene` renders: its direct samples, then its VPLs when
 /// `quality.indirect` asks for them. What the planner, `render` and the reference all call.
-pub fn scene_samples(scene: &Scene) -> Vec<LightSample> {
-    let mut samples = sampling::scene_samples(scene);
+pub fn frame_samples(scene: &Scene) -> Vec<LightSample> {
+    let mut samples = sampling::direct_samples(scene);
     let options = IndirectOptions::of(scene);
     if options.count > 0 {
         let vpls = vpls(&Tracer::new(scene), &samples, &options);

@@ -5,7 +5,7 @@ mod common;
 
 use common::*;
 use lightfold_reference::{AreaOptions, GroundTruth, radiance_point_sum, split_error, truth};
-use lightfold_scene::sampling::scene_samples;
+use lightfold_scene::sampling::direct_samples;
 use lightfold_scene::{Material, Scene};
 
 /// A box floating over the ground under a 1 m² light: a wide penumbra on the ground. The box is
@@ -70,7 +70,7 @@ fn convergence(yaw: f32) -> f64 {
     let mut rmse = Vec::new();
     for n in [4u32, 16, 64] {
         s.quality.samples_per_area_light = Some(n);
-        let img = radiance_point_sum(&s, &scene_samples(&s));
+        let img = radiance_point_sum(&s, &direct_samples(&s));
         let m = truth.compare(&img).unwrap();
         let pen = m.penumbra.unwrap();
         eprintln!("yaw {yaw}, N = {n:>2}: penumbra {pen}");
@@ -121,7 +121,7 @@ fn noise_floor_falls_with_samples_and_error_split_adds_up() {
         },
     );
     s.quality.samples_per_area_light = Some(16);
-    let point_sum = radiance_point_sum(&s, &scene_samples(&s));
+    let point_sum = radiance_point_sum(&s, &direct_samples(&s));
     // A "GPU" image: the point sum with a uniform 1 % gain error.
     let mut gpu = point_sum.clone();
     gpu.data.iter_mut().for_each(|v| *v *= 1.01);

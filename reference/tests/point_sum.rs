@@ -6,7 +6,7 @@ use common::*;
 use lightfold_reference::{
     PointSumOptions, radiance_point_sum, render_point_sum, render_point_sum_with,
 };
-use lightfold_scene::sampling::scene_samples;
+use lightfold_scene::sampling::direct_samples;
 use lightfold_scene::{AlphaMode, Material, Texture};
 
 #[test]
@@ -19,7 +19,7 @@ fn single_point_light_over_plane_is_exact() {
         vec![point_light(light, 12.0)],
         cam,
     );
-    let img = radiance_point_sum(&s, &scene_samples(&s));
+    let img = radiance_point_sum(&s, &direct_samples(&s));
     for y in 0..30 {
         for x in 0..40 {
             let p = ground_point(&cam, x, y);
@@ -48,7 +48,7 @@ fn dense_rect_light_matches_polygon_formula_within_one_percent() {
         cam,
     );
     s.quality.samples_per_area_light = Some(1024);
-    let img = radiance_point_sum(&s, &scene_samples(&s));
+    let img = radiance_point_sum(&s, &direct_samples(&s));
     let corners = rect_corners(center, [0.0, -1.0, 0.0], [1.0, 0.0, 0.0], size);
     for y in 0..18 {
         for x in 0..24 {
@@ -77,7 +77,7 @@ fn box_shadows_the_ground() {
         vec![point_light(light, 5.0)],
         cam,
     );
-    let layers = render_point_sum(&s, &scene_samples(&s), [1.0; 3]);
+    let layers = render_point_sum(&s, &direct_samples(&s), [1.0; 3]);
     let img = layers.radiance([1.0; 3], [0.0; 3]);
     let (mut shadowed, mut lit) = (0, 0);
     for y in 0..64 {
@@ -110,7 +110,7 @@ fn box_shadows_the_ground() {
     );
     let unoccluded = render_point_sum_with(
         &s,
-        &scene_samples(&s),
+        &direct_samples(&s),
         [1.0; 3],
         PointSumOptions { shadows: false },
     )
@@ -140,7 +140,7 @@ fn node_colour_divides_light_colour_and_radiance_restores_it() {
         vec![light],
         cam,
     );
-    let samples = scene_samples(&s);
+    let samples = direct_samples(&s);
     let white = render_point_sum(&s, &samples, [1.0; 3]);
     let tinted = render_point_sum(&s, &samples, [2.0, 0.5, 0.0]);
     for i in 0..48 {
@@ -181,7 +181,7 @@ fn single_sided_back_faces_are_invisible_but_cast_shadows() {
         vec![point_light(light, 5.0)],
         cam,
     );
-    let layers = render_point_sum(&s, &scene_samples(&s), [1.0; 3]);
+    let layers = render_point_sum(&s, &direct_samples(&s), [1.0; 3]);
     // Centre pixel: the ground (white) is seen through the sheet, and it is in shadow.
     assert_eq!(
         layers.diffuse.rgb(8, 8),
@@ -197,7 +197,7 @@ fn single_sided_back_faces_are_invisible_but_cast_shadows() {
     // light above it (the light is on the viewer's side).
     let mut s2 = s.clone();
     s2.materials[1].double_sided = true;
-    let layers = render_point_sum(&s2, &scene_samples(&s2), [1.0; 3]);
+    let layers = render_point_sum(&s2, &direct_samples(&s2), [1.0; 3]);
     assert_eq!(layers.diffuse.rgb(8, 8), [1.0, 0.0, 0.0]);
     // The light is 1.5 m above the sheet; the pixel centre is a few cm off-axis (< 1 %).
     let want = point_on_ground([0.0, 1.5, 0.0], [0.0; 3], 5.0, 1.0);
@@ -240,7 +240,7 @@ fn alpha_mask_is_transparent_to_eye_and_shadow_rays() {
         cam,
     );
     s.textures.push(texture(40));
-    let clear = render_point_sum(&s, &scene_samples(&s), [1.0; 3]);
+    let clear = render_point_sum(&s, &direct_samples(&s), [1.0; 3]);
     assert_eq!(
         clear.diffuse.rgb(8, 8),
         [1.0; 3],
@@ -251,12 +251,12 @@ fn alpha_mask_is_transparent_to_eye_and_shadow_rays() {
         "masked texels cast no shadow"
     );
     s.textures[0] = texture(200);
-    let solid = render_point_sum(&s, &scene_samples(&s), [1.0; 3]);
+    let solid = render_point_sum(&s, &direct_samples(&s), [1.0; 3]);
     assert_eq!(solid.diffuse.rgb(8, 8), [0.0, 1.0, 0.0]);
     // Seen from the side, below the leaf: the ground under it is shadowed only when opaque.
     let mut s3 = s.clone();
     s3.camera = camera([3.0, 0.5, 0.0], [0.0; 3], [0.0, 1.0, 0.0], 20.0, 16, 16);
-    let side = render_point_sum(&s3, &scene_samples(&s3), [1.0; 3]);
+    let side = render_point_sum(&s3, &direct_samples(&s3), [1.0; 3]);
     assert_eq!(
         side.diffuse.rgb(8, 8),
         [1.0; 3],
@@ -268,7 +268,7 @@ fn alpha_mask_is_transparent_to_eye_and_shadow_rays() {
         "under an opaque leaf"
     );
     s3.textures[0] = texture(40);
-    let side = render_point_sum(&s3, &scene_samples(&s3), [1.0; 3]);
+    let side = render_point_sum(&s3, &direct_samples(&s3), [1.0; 3]);
     assert!(
         side.illumination.pixel(8, 8)[0] > 0.0,
         "under a masked-out leaf"
@@ -351,7 +351,7 @@ fn translucent_casters_tint_shadows_by_the_product_of_their_transmittance() {
             vec![point_light(light, 12.0)],
             cam,
         );
-        render_point_sum(&s, &scene_samples(&s), [1.0; 3]).illumination
+        render_point_sum(&s, &direct_samples(&s), [1.0; 3]).illumination
     };
     let open = lit(vec![ground(0)]);
     let red = lit(vec![ground(0), pane(2.0, 1)]);
@@ -428,7 +428,7 @@ fn glass_is_seen_and_lit_through_tinted() {
     assert!(hit.position[1].abs() < 1e-6, "{:?}", hit.position);
     assert_eq!(tint, [0.9, 0.1, 0.2]);
     // The eye sees the ground through it: its layers tinted, its depth the ground's.
-    let layers = render_point_sum(&s, &scene_samples(&s), [1.0; 3]);
+    let layers = render_point_sum(&s, &direct_samples(&s), [1.0; 3]);
     for k in 0..3 {
         assert!((layers.diffuse.rgb(4, 4)[k] - [0.9, 0.1, 0.2][k]).abs() < 1e-6);
     }

@@ -9,8 +9,10 @@ use crate::shading::{V3, add, cross, normalize, scale};
 pub use crate::sampling_shapes::{basis, sample_power};
 pub use crate::scene_ops::mesh_area;
 
-/// All point samples of a scene, in light order, with the scene's quality options.
-pub fn scene_samples(scene: &Scene) -> Vec<LightSample> {
+/// The direct point samples of a scene's lights, in light order, with the scene's quality
+/// options. A frame renders these and, when `quality.indirect` asks for them, virtual point
+/// lights: `lightfold_reference::indirect::frame_samples` gives every sample a frame renders.
+pub fn direct_samples(scene: &Scene) -> Vec<LightSample> {
     let mut out = Vec::new();
     for (i, _) in scene.lights.iter().enumerate() {
         out.extend(light_samples(scene, i, &scene.quality));

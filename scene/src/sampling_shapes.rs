@@ -174,7 +174,7 @@ mod tests {
     use super::*;
     use crate::model::{Material, SamplePattern};
     use crate::primitives;
-    use crate::sampling::{light_samples, scene_samples};
+    use crate::sampling::{direct_samples, light_samples};
 
     fn area_light(name: &str, shape: LightShape, power: f32, samples: u32) -> Light {
         Light {
@@ -311,19 +311,19 @@ mod tests {
             crate::model::Quality::default().pattern,
             SamplePattern::Grid
         );
-        let a = scene_samples(&s);
-        let b = scene_samples(&test_scene());
+        let a = direct_samples(&s);
+        let b = direct_samples(&test_scene());
         assert_eq!(a, b);
         assert_eq!(a.len(), 16 + 16 + 32 + 16 + 9);
         // The grid ignores the seed; jittered sets depend on it.
         let mut t = test_scene();
         t.quality.seed = 99;
-        assert_eq!(scene_samples(&t), a);
+        assert_eq!(direct_samples(&t), a);
         t.quality.pattern = SamplePattern::Jittered;
-        let j99 = scene_samples(&t);
-        assert_eq!(j99, scene_samples(&t));
+        let j99 = direct_samples(&t);
+        assert_eq!(j99, direct_samples(&t));
         t.quality.seed = 100;
-        assert_ne!(scene_samples(&t), j99);
+        assert_ne!(direct_samples(&t), j99);
     }
 
     #[test]

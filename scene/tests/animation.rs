@@ -3,7 +3,7 @@
 //! keyframes, a rotation and a path computed by hand — and broken animations are refused.
 
 use lightfold_scene::animation::{Animation, Channel, Interpolation, Target};
-use lightfold_scene::sampling::scene_samples;
+use lightfold_scene::sampling::direct_samples;
 use lightfold_scene::{GltfOptions, Issue, Scene, builtin, load_gltf_slice, load_gltf_with};
 use std::path::{Path, PathBuf};
 
@@ -276,7 +276,7 @@ fn the_carousel_spins_its_box_and_moves_its_light_as_specified() {
     }
     // The light path: halfway through the first leg (0.75 s of 1.5 s) it is 1.5 m along +x;
     // its samples moved with it, and the path loops every 6 s.
-    let rest = scene_samples(&s);
+    let rest = direct_samples(&s);
     let at = s.samples_at(0.75);
     for (a, r) in at.iter().zip(&rest) {
         let shift = if r.light == 0 { 1.5 } else { 0.0 };
@@ -289,8 +289,8 @@ fn the_carousel_spins_its_box_and_moves_its_light_as_specified() {
     assert_eq!(s.samples_at(6.75), at);
     // The posed light's shape agrees with its posed samples: sampling the posed scene gives the
     // moved samples.
-    assert_eq!(scene_samples(&s.pose(0.75)).len(), at.len());
-    for (a, b) in scene_samples(&s.pose(0.75)).iter().zip(&at) {
+    assert_eq!(direct_samples(&s.pose(0.75)).len(), at.len());
+    for (a, b) in direct_samples(&s.pose(0.75)).iter().zip(&at) {
         assert!(
             close(a.position, b.position),
             "{:?} {:?}",

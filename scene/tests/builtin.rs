@@ -4,7 +4,7 @@
 
 mod support;
 
-use lightfold_scene::sampling::scene_samples;
+use lightfold_scene::sampling::direct_samples;
 use lightfold_scene::{builtin, builtin_names};
 use std::path::PathBuf;
 
@@ -21,7 +21,7 @@ fn every_builtin_builds_small_with_its_samples() {
         assert_eq!(s.name, *name);
         let tris = s.triangle_count();
         assert!(tris <= 50_000, "{name}: {tris} triangles");
-        let samples = scene_samples(&s);
+        let samples = direct_samples(&s);
         let expected = 32;
         assert_eq!(samples.len(), expected, "{name}");
         assert_eq!((s.camera.width, s.camera.height), (800, 600));
@@ -40,7 +40,7 @@ fn balls_and_box_are_at_least_a_fifth_in_shadow() {
     let mut thin = Vec::new();
     for name in ["balls", "box", "plant", "animal", "cornell"] {
         let s = builtin(name).unwrap();
-        let view = support::render(&s, &scene_samples(&s), 200, 150);
+        let view = support::render(&s, &direct_samples(&s), 200, 150);
         let f = view.shadow_fraction();
         println!(
             "{name}: shadow/penumbra {:.1} %, mean luminance {:.3}",
@@ -64,7 +64,7 @@ fn box_has_an_occluder_outside_a_90_degree_cone_of_a_light_sample() {
     let tracer = support::Tracer::new(&s);
     let cos45 = std::f32::consts::FRAC_1_SQRT_2;
     let mut found = 0;
-    for sample in scene_samples(&s).iter().filter(|x| x.light == 1) {
+    for sample in direct_samples(&s).iter().filter(|x| x.light == 1) {
         for i in 0..48 {
             for k in 0..32 {
                 let g = [-6.0 + 0.25 * i as f32, 0.0, -2.5 + 0.25 * k as f32];

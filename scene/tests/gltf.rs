@@ -3,7 +3,7 @@
 
 mod support;
 
-use lightfold_scene::sampling::scene_samples;
+use lightfold_scene::sampling::direct_samples;
 use lightfold_scene::{AlphaMode, GltfOptions, SceneError, load_gltf, load_gltf_with};
 use std::path::{Path, PathBuf};
 
@@ -39,7 +39,7 @@ fn public_models_load_and_are_completed() {
         assert!(s.triangle_count() > 0, "{model}");
         assert_eq!(s.lights.len(), 1, "{model}: the framing light");
         assert!(s.validate().is_clean(), "{model}: {}", s.validate());
-        let view = support::render(&s, &scene_samples(&s), 160, 120);
+        let view = support::render(&s, &direct_samples(&s), 160, 120);
         let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("scene-previews");
         std::fs::create_dir_all(&dir).unwrap();
         view.image

@@ -5,7 +5,7 @@
 mod support;
 
 use lightfold_scene::file::{parse, to_toml};
-use lightfold_scene::sampling::{sample_power, scene_samples};
+use lightfold_scene::sampling::{direct_samples, sample_power};
 use lightfold_scene::{LightShape, SceneError, load, parse_scene_file};
 use std::path::{Path, PathBuf};
 
@@ -67,7 +67,7 @@ fn the_simple_case_is_expressed_exactly() {
         (40.0, [1.0; 3], 16, None)
     );
     // One-sided: every sample is a cosine lobe pointing down, together emitting π·L·A.
-    let samples = scene_samples(&s);
+    let samples = direct_samples(&s);
     assert_eq!(samples.len(), 16);
     let total: f64 = samples.iter().map(|x| sample_power(x).unwrap()).sum();
     let exact = std::f64::consts::PI * 40.0 * 0.5;
@@ -120,7 +120,7 @@ fn every_example_loads_clean() {
                 path.display(),
                 s.validate()
             );
-            assert!(!scene_samples(&s).is_empty());
+            assert!(!direct_samples(&s).is_empty());
             n += 1;
         }
     }
@@ -156,7 +156,7 @@ fn every_light_kind_is_read() {
         ]
     );
     // 3 punctual samples + 4 area lights × 16 (the quality override).
-    assert_eq!(scene_samples(&s).len(), 3 + 4 * 16);
+    assert_eq!(direct_samples(&s).len(), 3 + 4 * 16);
     let LightShape::EmissiveMesh { mesh } = s.lights[6].shape else {
         unreachable!()
     };

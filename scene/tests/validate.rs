@@ -2,7 +2,7 @@
 //! scene validates clean with every index in range.
 
 use lightfold_scene::primitives;
-use lightfold_scene::sampling::scene_samples;
+use lightfold_scene::sampling::direct_samples;
 use lightfold_scene::{Issue, Light, LightShape, Material, Mesh, Scene, Texture};
 
 fn messy() -> Scene {
@@ -146,7 +146,7 @@ fn sanitize_reports_and_fixes_everything() {
         assert!(m.indices.iter().all(|&i| (i as usize) < m.positions.len()));
         assert!(m.positions.iter().flatten().all(|c| c.is_finite()));
     }
-    assert!(!scene_samples(&s).is_empty());
+    assert!(!direct_samples(&s).is_empty());
     // Sanitising is idempotent.
     assert!(s.sanitize().is_clean());
 }

@@ -10,7 +10,7 @@
 //! The figures of `docs/accuracy/aa/README.md` come from the ignored `aa_cost_and_error`.
 
 use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, NodeFrame, RenderOptions, Renderer};
-use lightfold_reference::indirect::scene_samples;
+use lightfold_reference::indirect::frame_samples;
 use lightfold_reference::{compare, radiance_point_sum};
 use lightfold_scene::{Image, LightSample, Scene};
 use lightfold_tests::{silhouettes, single_device_aa};
@@ -81,7 +81,7 @@ fn resolved_before_material(f: &NodeFrame, factor: u32, ambient: [f32; 3]) -> Im
 #[test]
 fn aa4_is_closer_to_the_area_averaged_truth_than_aa1() {
     let scene = silhouettes(96, 72);
-    let samples = scene_samples(&scene);
+    let samples = frame_samples(&scene);
     let want = truth(&scene, &samples, 8);
     let gpu = gpu();
     let aa1 = rmse(&single_device_aa(&gpu, &scene, 1), &want, &scene);
@@ -149,7 +149,7 @@ fn aa_cost_and_error() {
     );
     println!("|---|---:|---|---:|---:|---:|---:|---:|---:|");
     for scene in [silhouettes(160, 120), balls] {
-        let samples = scene_samples(&scene);
+        let samples = frame_samples(&scene);
         let t = Instant::now();
         let want = truth(&scene, &samples, 16);
         let truth_s = t.elapsed().as_secs_f64();

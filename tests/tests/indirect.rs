@@ -76,7 +76,7 @@ fn mean_rgb(img: &Image) -> f64 {
 }
 
 fn vpls_of(scene: &Scene) -> (Vec<LightSample>, Vec<LightSample>) {
-    let all = indirect::scene_samples(scene);
+    let all = indirect::frame_samples(scene);
     all.into_iter()
         .partition(|s| !matches!(s.kind, SampleKind::Bounce { .. }))
 }
@@ -313,7 +313,7 @@ fn cornell(vpls: u32) -> Scene {
 fn cornell_vpls_on_the_gpu_match_the_exact_vpl_sum() {
     let gpu = gpu();
     let scene = cornell(64);
-    let samples = indirect::scene_samples(&scene);
+    let samples = indirect::frame_samples(&scene);
     let got = single_device(&gpu, &scene, false);
     let want = radiance_of(&scene, &samples, true);
     let m = compare(&got, &want, scene.exposure, None).unwrap();
@@ -363,7 +363,7 @@ fn tracer_light_rays_see_single_sided_backs() {
     assert!(!back);
     // No VPL on an unseen back: a light under the quad, pointing up, makes none there.
     s.lights.push(point_light([0.0, -0.5, 0.0], 1.0));
-    let direct = lightfold_scene::sampling::scene_samples(&s);
+    let direct = lightfold_scene::sampling::direct_samples(&s);
     let opts = IndirectOptions {
         count: 64,
         clamp: 0.0,
@@ -407,7 +407,7 @@ fn plans_carry_vpls_and_refuse_them_on_animated_scenes() {
     use lightfold_coordinator::plan::{ClusterSpec, PlanError, PlanOptions, plan};
     let scene = cornell(64);
     let p = plan(&scene, &ClusterSpec::local(64, 8), &PlanOptions::default()).unwrap();
-    let direct = lightfold_scene::sampling::scene_samples(&scene).len();
+    let direct = lightfold_scene::sampling::direct_samples(&scene).len();
     let bounces: Vec<_> = p
         .samples
         .iter()
@@ -470,7 +470,7 @@ intensity = 10.0
     let scene = lightfold_scene::load(path.to_str().unwrap()).unwrap();
     assert_eq!(scene.quality.indirect, 128);
     assert_eq!(scene.quality.indirect_clamp, Some(0.05));
-    let bounces = indirect::scene_samples(&scene)
+    let bounces = indirect::frame_samples(&scene)
         .iter()
         .filter(|s| s.kind == SampleKind::Bounce { clamp: 0.05 })
         .count();

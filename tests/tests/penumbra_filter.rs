@@ -32,7 +32,7 @@ fn balls(n: u32) -> Scene {
 /// The illumination (6 channels) and eye depth of every sample of `scene` on one device, with
 /// shadows or without.
 fn illumination(gpu: &Gpu, scene: &Scene, shadows: bool) -> (Image, Image) {
-    let samples = lightfold_scene::sampling::scene_samples(scene);
+    let samples = lightfold_scene::sampling::direct_samples(scene);
     let mut r = Renderer::new(gpu, scene, RenderOptions::from_quality(&scene.quality)).unwrap();
     // In batches a device takes, summed (as the nodes of a cluster).
     let (mut sum, mut depth) = (None::<Image>, None);

@@ -246,7 +246,7 @@ fn plan_once(
 ) -> Result<Plan, PlanError> {
     let cam = &scene.camera;
     // Direct samples, then the virtual point lights of indirect light (planned like the rest).
-    let samples = lightfold_reference::indirect::scene_samples(scene);
+    let samples = lightfold_reference::indirect::frame_samples(scene);
     let bounds = geom::mesh_bounds(scene);
     let receivers = cull::receivers(scene, &bounds);
     let mut culling = cull::cull(

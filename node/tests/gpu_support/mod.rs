@@ -124,7 +124,7 @@ pub fn shadow_scene(width: u32, height: u32) -> Scene {
 }
 
 pub fn samples(scene: &Scene) -> Vec<LightSample> {
-    sampling::scene_samples(scene)
+    sampling::direct_samples(scene)
 }
 
 pub use lightfold_reference::masks::ShadowStates;

@@ -7,7 +7,7 @@
 use super::{AccuracyError, Setting};
 use lightfold_node::gpu::{Gpu, LayerSet, NodeFrame, RenderOptions, Renderer};
 use lightfold_protocol::format::{self, PixelFormat};
-use lightfold_scene::sampling::scene_samples;
+use lightfold_scene::sampling::direct_samples;
 use lightfold_scene::{Image, LightSample, Scene};
 use std::time::Instant;
 
@@ -37,7 +37,7 @@ pub fn measure_group(
     };
     let mut scene = scene.clone();
     first.apply(&mut scene);
-    let samples = scene_samples(&scene);
+    let samples = direct_samples(&scene);
     let opts = RenderOptions::from_quality(&scene.quality);
     let k_run = first.k.clamp(1, gpu.max_lights(first.map_size).max(1));
     let mut renderer = Renderer::new(gpu, &scene, opts).map_err(|e| err(e.to_string()))?;

@@ -199,7 +199,7 @@ const CHAIN64_BOUND: f64 = 4e-2;
 pub fn hdr_mix(full_size: bool) -> Result<CaseReport, HardCaseError> {
     const CASE: &str = "hdr-mix";
     let scene = load_case_scene(CASE, "hdr_mix.toml", full_size, (128, 96))?;
-    let samples = sampling::scene_samples(&scene);
+    let samples = sampling::direct_samples(&scene);
     // One node per sample of the tiny light, four samples a node of the panel: 4 + 12 nodes.
     let groups = group_samples(&samples, scene.lights.len(), |l| if l == 0 { 1 } else { 4 });
     let nodes = reference_nodes(&scene, &groups);
@@ -333,7 +333,7 @@ const BOTTOM_STEP: f64 = 5.960_464_477_539_063e-8;
 pub fn many_lights(full_size: bool) -> Result<CaseReport, HardCaseError> {
     const CASE: &str = "many-lights";
     let scene = load_case_scene(CASE, "many_lights.toml", full_size, (64, 48))?;
-    let samples = sampling::scene_samples(&scene);
+    let samples = sampling::direct_samples(&scene);
     let groups = group_samples(&samples, scene.lights.len(), |_| 4);
     let nodes = reference_nodes(&scene, &groups);
     let exact = exact_sum(&nodes);

@@ -105,7 +105,7 @@ pub fn degenerate(full: bool) -> Result<CaseReport, HardCaseError> {
     const CASE: &str = "degenerate";
     let (w, h) = if full { (512, 384) } else { (160, 120) };
     let scene = scene(w, h);
-    let samples = sampling::scene_samples(&scene);
+    let samples = sampling::direct_samples(&scene);
     let sample_bad = samples
         .iter()
         .filter(|s| {

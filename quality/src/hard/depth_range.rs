@@ -237,7 +237,7 @@ fn shares(view: &ReferenceView, j: &Judged, img: &Image) -> (f64, f64) {
 pub fn depth_range(full: bool) -> Result<CaseReport, HardCaseError> {
     let gpu = gpu()?;
     let scene = load_case_scene(CASE, "depth_range.toml", full, (160, 120))?;
-    let samples = sampling::scene_samples(&scene);
+    let samples = sampling::direct_samples(&scene);
     let bands = bands(&scene);
     let (w, h) = (scene.camera.width, scene.camera.height);
     let cameras: Vec<Camera> = bands.iter().map(|b| band_camera(b, w, h)).collect();
@@ -391,7 +391,7 @@ fn nan_max(a: f64, b: f64) -> f64 {
 fn texel_tangent(scene: &Scene) -> f32 {
     let receivers = mesh_receivers(scene);
     let size = scene.quality.shadow_map_size.max(1) as f32;
-    sampling::scene_samples(scene)
+    sampling::direct_samples(scene)
         .iter()
         .flat_map(|s| shadow_views(s, &receivers))
         .map(|v| (v.extent[1] - v.extent[0]).max(v.extent[3] - v.extent[2]) / size)
@@ -401,7 +401,7 @@ fn texel_tangent(scene: &Scene) -> f32 {
 /// far/near of each sample's shadow views over every receiver (what the renderer fits here).
 fn depth_ratios(scene: &Scene) -> String {
     let receivers = mesh_receivers(scene);
-    let ratios: Vec<String> = sampling::scene_samples(scene)
+    let ratios: Vec<String> = sampling::direct_samples(scene)
         .iter()
         .flat_map(|s| shadow_views(s, &receivers))
         .map(|v| format!("{:.3e} ({:.4} m..{:.0} m)", v.far / v.near, v.near, v.far))

@@ -32,7 +32,7 @@ fn setup(
     small: (u32, u32),
 ) -> Result<Setup, HardCaseError> {
     let scene = load_case_scene(case, file, full, small)?;
-    let samples = sampling::scene_samples(&scene);
+    let samples = sampling::direct_samples(&scene);
     let reference = render_point_sum(&scene, &samples, C_N);
     let st = shadow_states(&scene, &samples);
     let mask = comparable(&reference.depth, &reference.coverage, &st.visible);

@@ -293,7 +293,7 @@ fn whole_image_case(
 ) -> Result<CaseReport, HardCaseError> {
     let gpu = gpu()?;
     let scene = super::support::load_case_scene(case, file, full, small)?;
-    let samples = sampling::scene_samples(&scene);
+    let samples = sampling::direct_samples(&scene);
     let t = truth(&scene, &samples);
     let mut opts = RenderOptions::from_quality(&scene.quality);
     if let Some(size) = fixes.map_size {

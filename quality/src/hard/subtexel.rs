@@ -178,7 +178,7 @@ fn setup(full: bool, occluder: &str) -> Setup {
         .map(|t| {
             let mut s = scene.clone();
             s.lights = vec![lamp(t)];
-            sampling::scene_samples(&s)
+            sampling::direct_samples(&s)
         })
         .collect();
     let regions = regions(&scene, frames.len(), occluder);

@@ -339,7 +339,7 @@ impl Scene {
     /// The point samples at time `t`: the rest samples moved with their lights (nodes never
     /// resample; this is what they render and what the reference sums).
     pub fn samples_at(&self, t: f32) -> Vec<LightSample> {
-        self.pose_samples(&crate::sampling::scene_samples(self), t)
+        self.pose_samples(&crate::sampling::direct_samples(self), t)
     }
 
     /// `samples` (of this scene's rest pose) moved with their lights to time `t`.
