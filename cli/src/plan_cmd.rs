@@ -211,20 +211,9 @@ fn with_devices(mut cluster: ClusterSpec, max_lights: u32) -> ClusterSpec {
 /// `memory_bytes` of memory (0 unknown); nothing measured.
 pub(crate) fn synthetic_node(id: &str, max_lights: u32, memory_bytes: u64) -> Capabilities {
     Capabilities {
-        role: Role::Node,
-        daemon_id: id.to_string(),
-        advertise: String::new(),
-        adapter: String::new(),
-        backend: String::new(),
         max_lights,
-        max_texture_size: 0,
-        formats: Vec::new(),
-        cost_per_light_us: 0,
-        fixed_cost_us: 0,
-        threads: 0,
-        version: String::new(),
         memory_bytes,
-        eye_ns_per_triangle: 0,
+        ..Capabilities::unmeasured(Role::Node, id)
     }
 }
 

@@ -435,20 +435,8 @@ fn with_threads(mut cluster: ClusterSpec, threads: u32) -> ClusterSpec {
     use lightfold_protocol::{Capabilities, Role};
     for c in &mut cluster.compositors {
         c.capabilities = Some(Capabilities {
-            role: Role::Compositor,
-            daemon_id: c.id.clone(),
-            advertise: String::new(),
-            adapter: String::new(),
-            backend: String::new(),
-            max_lights: 0,
-            max_texture_size: 0,
-            formats: Vec::new(),
-            cost_per_light_us: 0,
-            fixed_cost_us: 0,
             threads,
-            version: String::new(),
-            memory_bytes: 0,
-            eye_ns_per_triangle: 0,
+            ..Capabilities::unmeasured(Role::Compositor, &c.id)
         });
     }
     cluster

@@ -96,20 +96,10 @@ fn larger_maps_take_fewer_lights_per_node() {
     let mut cluster = ClusterSpec::local(16, 16);
     for n in &mut cluster.nodes {
         n.capabilities = Some(Capabilities {
-            role: Role::Node,
-            daemon_id: n.id.clone(),
-            advertise: String::new(),
-            adapter: String::new(),
-            backend: String::new(),
             max_lights: 85,
             max_texture_size: 8192,
-            formats: Vec::new(),
-            cost_per_light_us: 0,
-            fixed_cost_us: 0,
             threads: 1,
-            version: String::new(),
-            memory_bytes: 0,
-            eye_ns_per_triangle: 0,
+            ..Capabilities::unmeasured(Role::Node, &n.id)
         });
     }
     let s = stage();

@@ -318,20 +318,15 @@ fn ambient_is_folded_when_every_material_has_ma_equal_md() {
 
 fn caps(max_lights: u32, light_us: u64, fixed_us: u64) -> Option<Capabilities> {
     Some(Capabilities {
-        role: Role::Node,
-        daemon_id: String::new(),
-        advertise: String::new(),
         adapter: "test".into(),
         backend: "vulkan".into(),
         max_lights,
         max_texture_size: 8192,
-        formats: Vec::new(),
         cost_per_light_us: light_us,
         fixed_cost_us: fixed_us,
         threads: 2,
         version: "0".into(),
-        memory_bytes: 0,
-        eye_ns_per_triangle: 0,
+        ..Capabilities::unmeasured(Role::Node, "")
     })
 }
 

@@ -10,20 +10,13 @@ fn registered(nodes: usize, compositors: usize) -> ClusterSpec {
     let mut c = ClusterSpec::local(nodes, compositors);
     for n in &mut c.nodes {
         n.capabilities = Some(Capabilities {
-            role: Role::Node,
-            daemon_id: n.id.clone(),
             advertise: n.address.clone(),
             adapter: "test".into(),
             backend: "test".into(),
             max_lights: 16,
             max_texture_size: 4096,
-            formats: Vec::new(),
-            cost_per_light_us: 0,
-            fixed_cost_us: 0,
             threads: 1,
-            version: String::new(),
-            memory_bytes: 0,
-            eye_ns_per_triangle: 0,
+            ..Capabilities::unmeasured(Role::Node, &n.id)
         });
     }
     c

@@ -89,6 +89,30 @@ pub struct Capabilities {
     pub eye_ns_per_triangle: u64,
 }
 
+impl Capabilities {
+    /// A daemon of `role` called `daemon_id` that reports nothing else: no advertised address,
+    /// adapter, formats or version, and every measured figure 0 (unknown). Callers set what
+    /// they know with struct update syntax.
+    pub fn unmeasured(role: Role, daemon_id: &str) -> Capabilities {
+        Capabilities {
+            role,
+            daemon_id: daemon_id.to_string(),
+            advertise: String::new(),
+            adapter: String::new(),
+            backend: String::new(),
+            max_lights: 0,
+            max_texture_size: 0,
+            formats: Vec::new(),
+            cost_per_light_us: 0,
+            fixed_cost_us: 0,
+            threads: 0,
+            version: String::new(),
+            memory_bytes: 0,
+            eye_ns_per_triangle: 0,
+        }
+    }
+}
+
 /// A point-light sample as carried by the plan (mirrors `scene::LightSample`).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct WireLight {

@@ -649,20 +649,11 @@ mod tests {
             id: "node-0".into(),
             address: dialled.into(),
             capabilities: Some(Capabilities {
-                role: Role::Node,
-                daemon_id: "node-0".into(),
                 advertise: advertise.into(),
-                adapter: String::new(),
-                backend: String::new(),
                 max_lights: 16,
                 max_texture_size: 4096,
-                formats: Vec::new(),
-                cost_per_light_us: 0,
-                fixed_cost_us: 0,
                 threads: 1,
-                version: String::new(),
-                memory_bytes: 0,
-                eye_ns_per_triangle: 0,
+                ..Capabilities::unmeasured(Role::Node, "node-0")
             }),
         }
     }

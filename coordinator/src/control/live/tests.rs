@@ -22,21 +22,14 @@ const REDIAL: Duration = Duration::from_millis(500);
 
 fn caps(id: &str, role: Role) -> Capabilities {
     Capabilities {
-        role,
-        daemon_id: id.to_string(),
         advertise: format!("{id}:7300"),
         adapter: "sim".into(),
         backend: "sim".into(),
         // Two lights a node: the 4 samples of the scene take two nodes.
         max_lights: if role == Role::Node { 2 } else { 0 },
         max_texture_size: 4096,
-        formats: Vec::new(),
-        cost_per_light_us: 0,
-        fixed_cost_us: 0,
         threads: 1,
-        version: String::new(),
-        memory_bytes: 0,
-        eye_ns_per_triangle: 0,
+        ..Capabilities::unmeasured(role, id)
     }
 }
 
