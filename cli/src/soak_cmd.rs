@@ -139,10 +139,10 @@ const RESTART_TRIES: u32 = 40;
 
 /// One daemon of the cluster (its process is `children.0[i]` at the same index).
 #[derive(Debug, Clone)]
-struct DaemonInfo {
+pub(crate) struct DaemonInfo {
     id: String,
-    role: &'static str,
-    addr: String,
+    pub role: &'static str,
+    pub addr: String,
     /// Processes started for it.
     starts: u32,
     /// Largest VmHWM (KiB) of its processes so far.
@@ -283,23 +283,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } = spawn_checker(scene.clone(), path, args.steer_every)?;
     let mut machine = Machine::probe(adapter);
 
-    let mut children = Children(Vec::new());
-    let mut daemons = Vec::new();
-    let roles = (0..nodes)
-        .map(|i| (format!("node-{i}"), "node"))
-        .chain((0..compositors).map(|i| (format!("comp-{i}"), "compositor")));
-    for (id, role) in roles {
-        let (child, addr) = launcher.start(&id, role, ANY_PORT, Duration::from_secs(30))?;
-        children.0.push((id.clone(), child));
-        daemons.push(DaemonInfo {
-            id,
-            role,
-            addr,
-            starts: 1,
-            hwm_kib: 0,
-            cpu_done: 0.0,
-        });
-    }
+    let (children, daemons) = launcher.start_cluster(nodes, compositors)?;
     let addrs: Vec<DaemonAddr> = daemons
         .iter()
         .map(|d| DaemonAddr {
@@ -520,6 +504,33 @@ pub(crate) struct Launcher {
 }
 
 impl Launcher {
+    /// Starts `nodes` render nodes (`node-0`, …) and `compositors` compositors (`comp-0`, …),
+    /// each on a port of its own; returns them once each printed its address.
+    pub(crate) fn start_cluster(
+        &self,
+        nodes: usize,
+        compositors: usize,
+    ) -> anyhow::Result<(Children, Vec<DaemonInfo>)> {
+        let mut children = Children(Vec::new());
+        let mut daemons = Vec::new();
+        let roles = (0..nodes)
+            .map(|i| (format!("node-{i}"), "node"))
+            .chain((0..compositors).map(|i| (format!("comp-{i}"), "compositor")));
+        for (id, role) in roles {
+            let (child, addr) = self.start(&id, role, ANY_PORT, Duration::from_secs(30))?;
+            children.0.push((id.clone(), child));
+            daemons.push(DaemonInfo {
+                id,
+                role,
+                addr,
+                starts: 1,
+                hwm_kib: 0,
+                cpu_done: 0.0,
+            });
+        }
+        Ok((children, daemons))
+    }
+
     /// Starts daemon `id` listening on `listen`; returns it once it printed its address.
     pub(crate) fn start(
         &self,

@@ -65,26 +65,15 @@ pub fn run(args: &Args, launcher: Launcher) -> anyhow::Result<()> {
         &plan_opts,
     )?;
     let (nodes, compositors) = (probe.nodes.len(), probe.stages.len());
-    let mut children = crate::demo_cmd::Children(Vec::new());
-    let mut node_addrs = Vec::new();
-    let mut comp_addrs = Vec::new();
-    let roles = (0..nodes)
-        .map(|i| (format!("node-{i}"), "node"))
-        .chain((0..compositors).map(|i| (format!("comp-{i}"), "compositor")));
-    for (id, role) in roles {
-        let (child, addr) = launcher.start(
-            &id,
-            role,
-            crate::demo_cmd::ANY_PORT,
-            Duration::from_secs(30),
-        )?;
-        children.0.push((id.clone(), child));
-        if role == "node" {
-            node_addrs.push(addr);
-        } else {
-            comp_addrs.push(addr);
-        }
-    }
+    let (children, daemons) = launcher.start_cluster(nodes, compositors)?;
+    let addrs = |role: &str| -> Vec<String> {
+        daemons
+            .iter()
+            .filter(|d| d.role == role)
+            .map(|d| d.addr.clone())
+            .collect()
+    };
+    let (node_addrs, comp_addrs) = (addrs("node"), addrs("compositor"));
     let dir = args.out.join("frames");
     if dir.exists() {
         std::fs::remove_dir_all(&dir)

@@ -165,11 +165,9 @@ pub(crate) struct Core {
     /// The frames from request to delivery.
     pub(super) frames: ledger::Ledger,
     pub(super) source_open: bool,
-    /// Why the next re-plan is due now (a participant was lost).
+    /// Why the next re-plan is due now: a participant was lost (a failure, counted towards
+    /// `MAX_REPLANS_WITHOUT_PROGRESS`).
     pub(super) need_replan: Option<String>,
-    /// The due re-plan is for a failure (a daemon of the plan lost), not a change the user or
-    /// the cluster asked for: only failures count towards `MAX_REPLANS_WITHOUT_PROGRESS`.
-    pub(super) failed: bool,
     /// A daemon joined: re-plan once the frames in flight are done.
     pub(super) pending_join: Option<String>,
     /// The user steered (a colour that splits a node's colour group, a frame budget): re-plan
@@ -270,7 +268,6 @@ impl Core {
             frames: ledger::Ledger::default(),
             source_open: true,
             need_replan: None,
-            failed: false,
             pending_join: None,
             pending_steer: None,
             reset_at: None,
@@ -321,7 +318,6 @@ impl Core {
                 if let Phase::Waiting { reason, .. } = &self.phase {
                     let reason = format!("{reason}; then a daemon rejoined");
                     self.pending_join = None;
-                    self.phase = Phase::Running;
                     self.plan_next(reason, now)?;
                 }
             }
@@ -687,7 +683,6 @@ impl Core {
         if used {
             self.need_replan
                 .get_or_insert(format!("{id} lost: {reason}"));
-            self.failed = true;
         }
         self.publish();
     }
@@ -810,7 +805,7 @@ impl Core {
     /// The re-plan due now, if any: why, and whether for a failure.
     fn due_replan(&mut self, now: Instant) -> Option<(String, bool)> {
         if let Some(r) = self.need_replan.take() {
-            return Some((r, std::mem::take(&mut self.failed)));
+            return Some((r, true));
         }
         if let Some((at, _)) = &self.reset_at
             && now >= *at

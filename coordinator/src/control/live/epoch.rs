@@ -69,7 +69,6 @@ impl Core {
         self.reset_at = None;
         self.need_replan = None;
         self.pending_steer = None;
-        self.failed = false;
         self.waited_since = None;
         self.replans_without_progress += u32::from(failure);
         if self.replans_without_progress > MAX_REPLANS_WITHOUT_PROGRESS {
