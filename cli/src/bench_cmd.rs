@@ -84,6 +84,10 @@ pub struct NodeArgs {
     /// Graphics backend of the node processes.
     #[arg(long, value_parser = ["vulkan", "gl"], default_value = "vulkan")]
     backend: String,
+    /// Where the nodes pack frames (`lightfold node --pack`): each is measured, interleaved in
+    /// the same rounds, so `device,cpu` gives the device pack against the CPU pack in one run.
+    #[arg(long, value_delimiter = ',', default_value = "device,cpu", value_parser = ["device", "cpu"])]
+    pack: Vec<String>,
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -119,6 +123,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 /// One measured configuration.
 #[derive(Debug, Clone)]
 struct Row {
+    /// The mode, and where the node packed when several were measured.
     mode: String,
     k: u32,
     frames: Vec<FrameStats>,
@@ -190,6 +195,13 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
         a.threads
     );
     let mut plan = Vec::new();
+    let label = |mode: &str, pack: &str| {
+        if a.pack.len() > 1 {
+            format!("{mode}, {pack} pack")
+        } else {
+            mode.to_string()
+        }
+    };
     for mode in &a.modes {
         let (walkthrough, shadows) = match mode.as_str() {
             "moving" => (false, true),
@@ -232,13 +244,15 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
                 slope_bias: scene.quality.slope_bias,
                 eye_meshes: None,
             };
-            plan.push((mode.clone(), k, config));
+            for pack in &a.pack {
+                plan.push((mode.clone(), pack.clone(), k, config.clone()));
+            }
         }
     }
     let mut rows: Vec<Row> = plan
         .iter()
-        .map(|(mode, k, _)| Row {
-            mode: mode.clone(),
+        .map(|(mode, pack, k, _)| Row {
+            mode: label(mode, pack),
             k: *k,
             frames: Vec::new(),
             cpu_ms_total: 0.0,
@@ -247,14 +261,15 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
     // Rounds interleave the configurations, so a burst of load from other processes on a
     // shared machine spreads over all of them instead of skewing one.
     for round in 0..a.rounds {
-        for ((mode, k, config), row) in plan.iter().zip(rows.iter_mut()) {
+        for ((mode, pack, k, config), row) in plan.iter().zip(rows.iter_mut()) {
             let still = mode == "static";
             let (frames, cpu_ms) =
-                measure(&a, &token_text, &scene, &bytes, config.clone(), still).await?;
+                measure(&a, pack, &token_text, &scene, &bytes, config.clone(), still).await?;
             row.cpu_ms_total += cpu_ms * frames.len() as f64;
             row.frames.extend(frames);
             eprintln!(
-                "  round {round} {mode:<11} K={k:<3} {:>8.1} ms/frame fastest, {:>8.1} CPU ms/frame",
+                "  round {round} {:<24} K={k:<3} {:>8.1} ms/frame fastest, {:>8.1} CPU ms/frame",
+                row.mode,
                 row.best_ms(),
                 row.cpu_ms()
             );
@@ -280,6 +295,7 @@ fn run_token() -> String {
 /// Starts a node process, sends the scene and `config`, drives warm-up and timed frames, stops it.
 async fn measure(
     a: &NodeArgs,
+    pack: &str,
     token: &str,
     scene: &Scene,
     bytes: &[u8],
@@ -303,7 +319,7 @@ async fn measure(
     .stdout(Stdio::piped())
     .stderr(Stdio::inherit())
     .kill_on_drop(true);
-    cmd.args(["--backend", &a.backend]);
+    cmd.args(["--backend", &a.backend, "--pack", pack]);
     let mut child = cmd.spawn().context("cannot start a node process")?;
     let stdout = child.stdout.take().context("node stdout")?;
     let mut lines = BufReader::new(stdout).lines();
@@ -482,9 +498,10 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
         a.frames
     );
     outln!(
-        "| mode | K | fastest | median | CPU | shadow | eye | readback | pack | send | shadow passes | MB out | peak RSS MB |"
+        "| mode | K | fastest | median | CPU | setup | shadow | eye | readback | pack | send | untimed | frame ÷ device | read B/px | shadow passes | MB out | peak RSS MB |"
     );
-    outln!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    outln!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    let pixels = f64::from(a.size.0) * f64::from(a.size.1);
     for r in rows {
         let passes = median(
             r.frames
@@ -494,23 +511,43 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
         );
         let mb = median(r.frames.iter().map(|s| s.bytes_out).collect()) / 1e6;
         let rss = r.frames.iter().map(|s| s.peak_rss_bytes).max().unwrap_or(0) as f64 / 1e6;
+        // Time no phase accounts for (packing overlaps sending, so it is not subtracted).
+        let untimed = r.ms(|s| {
+            s.total_us.saturating_sub(
+                s.pose_us + s.setup_us + s.shadow_us + s.eye_us + s.readback_us + s.send_us,
+            )
+        });
+        let device = r.ms(|s| s.shadow_us + s.eye_us);
+        let ratio = if device > 0.0 {
+            format!("{:.2}", r.total_ms() / device)
+        } else {
+            "—".into()
+        };
+        let read = median(r.frames.iter().map(|s| s.read_bytes).collect()) / pixels;
         outln!(
-            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.2} | {:.0} |",
+            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.1} | {} | {:.2} | {:.0} |",
             r.mode,
             r.k,
             r.best_ms(),
             r.total_ms(),
             r.cpu_ms(),
+            r.ms(|s| s.setup_us + s.pose_us),
             r.ms(|s| s.shadow_us),
             r.ms(|s| s.eye_us),
             r.ms(|s| s.readback_us),
             r.ms(|s| s.pack_us),
             r.ms(|s| s.send_us),
+            untimed,
+            ratio,
+            read,
             passes,
             mb,
             rss
         );
     }
+    outln!(
+        "\nDevice time is the shadow and eye phases (each waits for the device); frame ÷ device is the median frame over it. `read B/px` is what the node copied from the device a pixel: the link format's bytes when packing on the device (plus a few words a band), 32 (lit buffer) or 16 a target when packing on the CPU. `untimed` is the frame less every timed phase."
+    );
     outln!("\n### L = {l}: node-seconds per frame (fastest wall time, and CPU time of the node)\n");
     outln!(
         "| mode | K | nodes ⌈L/K⌉ | node-s / frame | vs K = 1 | CPU node-s / frame | vs K = 1 |"
@@ -548,13 +585,19 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
             .join(" | ")
     );
     outln!("|---|{}", "---|".repeat(a.budget_ms.len()));
-    for mode in &a.modes {
+    let mut labels: Vec<&str> = Vec::new();
+    for r in rows {
+        if !labels.contains(&r.mode.as_str()) {
+            labels.push(&r.mode);
+        }
+    }
+    for mode in labels {
         let cells: Vec<String> = a
             .budget_ms
             .iter()
             .map(|&budget| {
                 rows.iter()
-                    .filter(|r| &r.mode == mode && r.best_ms() <= budget)
+                    .filter(|r| r.mode == mode && r.best_ms() <= budget)
                     .min_by_key(|r| l.div_ceil(r.k))
                     .map_or("none".to_string(), |r| {
                         format!("{} (K = {})", l.div_ceil(r.k), r.k)

@@ -27,6 +27,11 @@ pub struct Args {
     /// the CPU.
     #[arg(long, env = "LIGHTFOLD_REQUIRE_GPU")]
     pub require_gpu: bool,
+    /// Where frames are packed into link formats: `device` (a compute pass; only the packed
+    /// bytes are read back), `cpu` (f32 readback, packed on the CPU: the reference path) or
+    /// `auto` (the device, unless it is a software rasteriser such as lavapipe).
+    #[arg(long, default_value = "auto", value_parser = ["auto", "device", "cpu"], env = "LIGHTFOLD_PACK")]
+    pub pack: String,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -50,6 +55,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             adapter_name: args.adapter,
         };
         opts.require_gpu = args.require_gpu;
+        opts.pack = match args.pack.as_str() {
+            "cpu" => daemon::PackOn::Cpu,
+            "device" => daemon::PackOn::Device,
+            _ => daemon::PackOn::Auto,
+        };
         let shutdown = crate::lifecycle::shutdown_token(args.daemon.parent_pid);
         crate::metrics_http::start(&args.daemon.metrics, "node", &id, shutdown.clone()).await?;
         daemon::run(listener, opts, shutdown).await

@@ -117,6 +117,73 @@ async fn a_streamed_frame_equals_a_direct_render() {
     node.stop().await;
 }
 
+/// A node packing on the device streams the very bands a node packing on the CPU streams (same
+/// headers, same payload bytes), and reads back only what it sends.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_node_packing_on_the_device_streams_the_cpu_packs_bands() {
+    use lightfold_node::daemon::PackOn;
+    let scene = scene();
+    let lights = lights(4);
+    let configs = [
+        vec![
+            (Layer::Illumination, PixelFormat::Rgb9e5x2),
+            (Layer::Diffuse, PixelFormat::Rgba8Srgb),
+            (Layer::Depth, PixelFormat::DepthF32),
+        ],
+        vec![(Layer::Illumination, PixelFormat::Seed64)],
+    ];
+    let mut streams = Vec::new();
+    for pack in [PackOn::Device, PackOn::Cpu] {
+        let mut node = start_node_with("node-p", |o| o.pack = pack).await;
+        let mut comp = start_compositor().await;
+        let mut coord = node.coordinator().await;
+        let hash = coord.send_scene(&scene).await;
+        let mut got = Vec::new();
+        for (i, layers) in configs.iter().enumerate() {
+            let epoch = 3 + i as u64;
+            let mut config = node_config(epoch, hash, &lights, layers.clone(), &comp.addr);
+            config.scale = 0.75;
+            assert_eq!(
+                coord.request(Message::ConfigureNode(config.clone())).await,
+                Message::Configured { epoch }
+            );
+            let stats = match coord.frame(epoch, 1).await {
+                Message::FrameDone(s) => s,
+                other => panic!("{pack:?}: expected FrameDone, got {other:?}"),
+            };
+            let bands = comp.take(band_count(&config)).await;
+            let link: u64 = layers.iter().map(|(_, f)| f.bytes_per_pixel() as u64).sum();
+            let pixels = u64::from(WIDTH * HEIGHT);
+            eprintln!("{pack:?} {layers:?}: {} bytes read back", stats.read_bytes);
+            match pack {
+                // The packed bytes and a few words a band.
+                PackOn::Device => assert!(
+                    stats.read_bytes >= pixels * link && stats.read_bytes < pixels * (link + 1),
+                    "{stats:?}"
+                ),
+                _ => assert!(stats.read_bytes >= pixels * 16, "{stats:?}"),
+            }
+            got.push((bands, stats.peak, stats.saturated, stats.empty_bands));
+        }
+        drop(coord);
+        node.stop().await;
+        streams.push(got);
+    }
+    let (device, cpu) = (&streams[0], &streams[1]);
+    for ((d, c), layers) in device.iter().zip(cpu).zip(&configs) {
+        assert_eq!(
+            (d.1, d.2, d.3),
+            (c.1, c.2, c.3),
+            "{layers:?}: peak, saturated, empty"
+        );
+        assert_eq!(d.0.len(), c.0.len());
+        for ((_, dh, dp), (_, ch, cp)) in d.0.iter().zip(&c.0) {
+            assert_eq!(dh, ch, "{layers:?}");
+            assert_eq!(dp, cp, "{layers:?}: band at row {}", dh.y0);
+        }
+    }
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn walkthrough_frames_reuse_what_did_not_change() {
     let mut node = start_node("node-w", None).await;

@@ -20,6 +20,7 @@ pub use halfs::decode as decode_half;
 /// inside their own loops.
 pub use halfs::encode as encode_half;
 pub use rgb9e5::MAX as RGB9E5_MAX;
+pub use rgba8::srgb_encode_tables;
 
 /// A packed pixel format. Illumination formats carry six channels (diffuse RGB, specular RGB);
 /// material formats three (RGB); depth one.

@@ -16,8 +16,9 @@ use crate::message::Role;
 pub const MAGIC: [u8; 4] = *b"LFLD";
 /// 2: `CompositorConfig::wiring`. 4: `FrameParams::time` (scene time). 8: scenes travel as scene
 /// bytes version 6 (glTF metallic-roughness materials, mesh tangents), which nodes of 7 cannot read.
-/// 9: `Message::Error` names the epoch and frame it is about; `Message::Release`.
-pub const PROTOCOL_VERSION: u16 = 9;
+/// 9: `Message::Error` names the epoch and frame it is about; `Message::Release`. 10:
+/// `FrameStats::setup_us` and `read_bytes` (nodes pack on the device).
+pub const PROTOCOL_VERSION: u16 = 10;
 /// Longest daemon id a hello may carry (its wire length is one byte).
 pub const MAX_DAEMON_ID: usize = 255;
 

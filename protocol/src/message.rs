@@ -245,9 +245,14 @@ pub struct FrameStats {
     pub epoch: u64,
     pub frame: u64,
     pub daemon_id: String,
+    /// A node's CPU work of the frame outside its device passes: camera and pose updates,
+    /// checks, light planning (microseconds).
+    pub setup_us: u64,
     pub shadow_us: u64,
     pub eye_us: u64,
     pub readback_us: u64,
+    /// Bytes a node copied from its device to the host for the frame.
+    pub read_bytes: u64,
     pub pack_us: u64,
     pub send_us: u64,
     pub composite_us: u64,

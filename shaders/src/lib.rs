@@ -120,6 +120,10 @@ pub const OVERRIDE_SHADOW_TAPS: &str = "SHADOW_TAPS";
 /// needs it (`docs/translucency.md`).
 pub const OVERRIDE_TRANSLUCENT: &str = "TRANSLUCENT";
 
+/// The node's pack pass: `cs_pack` writes one layer of a frame in its link format, bit for bit
+/// what `protocol::format::pack` writes (`node::gpu::pack`).
+pub const PACK_WGSL: &str = include_str!("../wgsl/pack.wgsl");
+
 /// Every complete shader module with a name, for validation and diagnostics.
 pub const MODULES: &[(&str, &str)] = &[
     ("shadow", SHADOW_WGSL),
@@ -135,6 +139,7 @@ pub const MODULES: &[(&str, &str)] = &[
         "deferred, metallic-roughness, normal-mapped",
         DEFERRED_MR_MAPPED_WGSL,
     ),
+    ("pack", PACK_WGSL),
 ];
 
 #[cfg(test)]
@@ -180,6 +185,7 @@ mod tests {
         ] {
             assert!(shadow.iter().any(|n| n == e), "shadow lacks {e}");
         }
+        assert!(names(PACK_WGSL, "pack").iter().any(|n| n == "cs_pack"));
         for src in [FORWARD_WGSL, FORWARD_MR_WGSL, FORWARD_MR_MAPPED_WGSL] {
             let forward = names(src, "forward");
             for e in ["vs_eye", "fs_illumination", "fs_layers", "fs_eye_filter"] {

@@ -5,6 +5,7 @@
 //! async sender through a bounded channel, so the first bands are on the wire while later ones are
 //! still being packed.
 
+use crate::gpu::pack::PackedFrame;
 use bytes::Bytes;
 use lightfold_protocol::format::{self, FormatError};
 use lightfold_protocol::{BandHeader, Layer, PixelFormat};
@@ -49,6 +50,19 @@ pub enum PackError {
     },
     #[error("packing layer {layer:?}: {source}")]
     Format { layer: Layer, source: FormatError },
+    #[error(
+        "the device packed {layers} layers of {width}x{height} in bands of {band_height} rows, the frame configures {expected} of {frame_width}x{frame_height} in bands of {frame_band_height}"
+    )]
+    DeviceShape {
+        layers: usize,
+        width: u32,
+        height: u32,
+        band_height: u32,
+        expected: usize,
+        frame_width: u32,
+        frame_height: u32,
+        frame_band_height: u32,
+    },
 }
 
 /// The layout of a frame's bands.
@@ -168,6 +182,81 @@ pub fn pack_frame(
             totals.empty_bands += u32::from(packed.header.empty);
             totals.saturated += u64::from(packed.header.saturated);
             if out.blocking_send(packed).is_err() {
+                return Ok(totals);
+            }
+        }
+    }
+    Ok(totals)
+}
+
+/// Cuts a frame packed on the device (`gpu::pack`) into bands in protocol order and hands each
+/// to `out`, as [`pack_frame`] does with images: the same headers (a band whose source values
+/// are all zero travels empty, saturated pixels counted per band) and the same payloads, each a
+/// slice of the layer's packed bytes (no copy). `pack_us` is the time spent sealing bands
+/// (checksums).
+pub fn assemble_frame(
+    layout: &BandLayout,
+    layers: &[(Layer, PixelFormat)],
+    packed: &PackedFrame,
+    out: &mpsc::Sender<PackedBand>,
+) -> Result<PackTotals, PackError> {
+    let bands = layout.bands();
+    let fits = packed.layers.len() == layers.len()
+        && (packed.width, packed.height) == (layout.width, layout.height)
+        && packed.band_height == layout.band_height.clamp(1, layout.height.max(1))
+        && packed
+            .layers
+            .iter()
+            .zip(layers)
+            .all(|(p, (_, f))| p.format == *f && p.bands.len() == bands as usize);
+    if !fits {
+        return Err(PackError::DeviceShape {
+            layers: packed.layers.len(),
+            width: packed.width,
+            height: packed.height,
+            band_height: packed.band_height,
+            expected: layers.len(),
+            frame_width: layout.width,
+            frame_height: layout.height,
+            frame_band_height: layout.band_height,
+        });
+    }
+    let mut totals = PackTotals {
+        peak: packed.peak,
+        ..PackTotals::default()
+    };
+    for band in 0..bands {
+        let (y0, y1) = layout.rows(band);
+        for ((layer, format), p) in layers.iter().zip(&packed.layers) {
+            let start = Instant::now();
+            let row = layout.width as usize * format.bytes_per_pixel();
+            let count = p.bands[band as usize];
+            let mut header = BandHeader {
+                frame: layout.frame,
+                epoch: layout.epoch,
+                layer: *layer,
+                format: *format,
+                x0: 0,
+                y0,
+                width: layout.width,
+                height: y1 - y0,
+                scale: layout.scale,
+                empty: !count.nonzero,
+                payload_len: 0,
+                checksum: 0,
+                saturated: if count.nonzero { count.saturated } else { 0 },
+            };
+            let payload = if count.nonzero {
+                p.bytes.slice(y0 as usize * row..y1 as usize * row)
+            } else {
+                Bytes::new()
+            };
+            header.seal(&payload);
+            totals.pack_us += start.elapsed().as_micros() as u64;
+            totals.bands += 1;
+            totals.empty_bands += u32::from(header.empty);
+            totals.saturated += u64::from(header.saturated);
+            if out.blocking_send(PackedBand { header, payload }).is_err() {
                 return Ok(totals);
             }
         }

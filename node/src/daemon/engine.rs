@@ -6,9 +6,9 @@
 //! control link); it is then not answered, and [`Engine::abandon`] (called by the session, or by
 //! the next request if nobody did) closes the data link it may have left a partial frame on.
 
-use super::bands::{BandLayout, LayerImages, PackedBand, pack_frame, restamp};
+use super::bands::{BandLayout, LayerImages, PackedBand, assemble_frame, pack_frame, restamp};
 use super::config::{self, Checked};
-use super::render_thread::{DeviceReport, RenderHandle, RenderSetup};
+use super::render_thread::{DeviceReport, Output, RenderHandle, RenderSetup};
 use super::scene_cache::{self, SceneCache, SceneCacheError, hex};
 use super::sys::peak_rss_bytes;
 use crate::gpu::device::max_lights_for;
@@ -434,29 +434,38 @@ impl Engine {
             band_height: cfg.band_height,
             scale: active.scale,
         };
-        let formats: Vec<_> = cfg.layers.iter().map(|(_, f)| *f).collect();
+        let configured = cfg.layers.clone();
         let lights: Vec<u32> = cfg.lights.iter().map(|l| l.sample).collect();
         let rendered = self
             .render
-            .render(active.camera, active.time)
+            .render(active.camera, active.time, active.scale)
             .await
             .map_err(|e| refuse(ErrorCode::RenderFailed, format!("frame {frame}: {e}")))?;
-        stats.shadow_us = rendered.stats.shadow_us;
-        stats.eye_us = rendered.stats.eye_us;
-        stats.readback_us = rendered.stats.readback_us;
-        stats.shadow_passes = rendered.stats.shadow_passes;
-        stats.maps_kept = rendered.stats.maps_kept;
-        stats.pose_us = rendered.stats.pose_us;
+        let r = &rendered.stats;
+        stats.setup_us = r.setup_us;
+        stats.shadow_us = r.shadow_us;
+        stats.eye_us = r.eye_us;
+        stats.readback_us = r.readback_us;
+        stats.read_bytes = r.read_bytes;
+        stats.shadow_passes = r.shadow_passes;
+        stats.maps_kept = r.maps_kept;
+        stats.pose_us = r.pose_us;
         stats.lights_rendered = lights;
-        let images: LayerImages = rendered
-            .images
-            .into_iter()
-            .zip(formats)
-            .map(|((layer, img), format)| (layer, format, img))
-            .collect();
 
         let (tx, mut rx) = mpsc::channel::<PackedBand>(BAND_QUEUE);
-        let packer = tokio::task::spawn_blocking(move || pack_frame(&layout, &images, &tx));
+        let packer = match rendered.output {
+            Output::Packed(packed) => tokio::task::spawn_blocking(move || {
+                assemble_frame(&layout, &configured, &packed, &tx)
+            }),
+            Output::Images(images) => {
+                let images: LayerImages = images
+                    .into_iter()
+                    .zip(configured)
+                    .map(|((layer, img), (_, format))| (layer, format, img))
+                    .collect();
+                tokio::task::spawn_blocking(move || pack_frame(&layout, &images, &tx))
+            }
+        };
         let mut kept = Vec::new();
         let stream = async {
             let writer = self.downstream.writer().await?;

@@ -18,6 +18,7 @@ use engine::Engine;
 use lightfold_net::claim::Claims;
 use lightfold_net::{Identity, Timeouts, accept};
 use lightfold_protocol::{Capabilities, Role};
+pub use render_thread::PackOn;
 use render_thread::{DeviceReport, RenderHandle};
 use scene_cache::SceneCache;
 use session::Ended;
@@ -49,6 +50,9 @@ pub struct NodeOptions {
     /// Refuse to start on a software rasteriser (lavapipe, llvmpipe): a GPU node whose driver
     /// is missing fails instead of rendering on the CPU.
     pub require_gpu: bool,
+    /// Where frames are packed into link formats (by default the device, unless it is a
+    /// software rasteriser).
+    pub pack: PackOn,
     /// The memory registration reports (`Capabilities::memory_bytes`); `None`: what the machine
     /// or its control group has.
     pub memory_bytes: Option<u64>,
@@ -69,6 +73,7 @@ impl std::fmt::Debug for NodeOptions {
             .field("max_scene_bytes", &self.max_scene_bytes)
             .field("dial_deadline", &self.dial_deadline)
             .field("require_gpu", &self.require_gpu)
+            .field("pack", &self.pack)
             .field("memory_bytes", &self.memory_bytes)
             .field("coordinator_silence", &self.coordinator_silence)
             .finish_non_exhaustive()
@@ -88,6 +93,7 @@ impl NodeOptions {
             max_scene_bytes: lightfold_scene::MAX_SCENE_BYTES as u64,
             dial_deadline: Duration::from_secs(30),
             require_gpu: false,
+            pack: PackOn::Auto,
             memory_bytes: None,
             coordinator_silence: lightfold_net::claim::COORDINATOR_SILENCE,
         }
@@ -125,7 +131,7 @@ pub async fn run(
 ) -> anyhow::Result<()> {
     let local = listener.local_addr()?;
     let advertise = opts.advertise.clone().unwrap_or_else(|| local.to_string());
-    let (render, report) = RenderHandle::start(opts.gpu.clone()).await?;
+    let (render, report) = RenderHandle::start(opts.gpu.clone(), opts.pack).await?;
     if report.software && opts.require_gpu {
         render.stop().await;
         anyhow::bail!(

@@ -8,6 +8,7 @@
 
 use super::calibrate::{self, Calibration};
 use super::config::Checked;
+use crate::gpu::pack::PackedFrame;
 use crate::gpu::{
     DeviceError, Gpu, GpuOptions, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats,
     Renderer,
@@ -41,10 +42,33 @@ pub struct RenderSetup {
     pub checked: Checked,
 }
 
-/// One rendered frame: an image per configured layer (configuration order) and what it cost.
+/// Where a node packs its frames into link formats.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum PackOn {
+    /// The device on a hardware GPU, the CPU on a software rasteriser: lavapipe runs the pack
+    /// pass on the same CPU cores, about 15× slower than the CPU pack (`docs/gpu.md`).
+    #[default]
+    Auto,
+    /// A compute pass packs on the device and only the packed bytes are read back (`gpu::pack`);
+    /// frames the device cannot pack exactly are packed on the CPU.
+    Device,
+    /// Every frame is read back as f32 images and packed on the CPU (the reference path).
+    Cpu,
+}
+
+/// What a rendered frame holds.
+#[derive(Debug)]
+pub enum Output {
+    /// An image per configured layer (configuration order), to be packed on the CPU.
+    Images(Vec<(Layer, Arc<Image>)>),
+    /// The configured layers packed on the device, in configuration order.
+    Packed(PackedFrame),
+}
+
+/// One rendered frame and what it cost.
 #[derive(Debug)]
 pub struct Rendered {
-    pub images: Vec<(Layer, Arc<Image>)>,
+    pub output: Output,
     pub stats: RenderStats,
     /// Wall time of the whole render call on the render thread, microseconds.
     pub total_us: u64,
@@ -69,6 +93,7 @@ enum Command {
     Render(
         Camera,
         Option<f32>,
+        f32,
         oneshot::Sender<Result<Rendered, RenderFailure>>,
     ),
 }
@@ -91,12 +116,15 @@ impl std::fmt::Debug for Command {
 
 impl RenderHandle {
     /// Starts the render thread: it opens the device, calibrates, reports, then serves commands.
-    pub async fn start(opts: GpuOptions) -> Result<(RenderHandle, DeviceReport), DeviceError> {
+    pub async fn start(
+        opts: GpuOptions,
+        pack: PackOn,
+    ) -> Result<(RenderHandle, DeviceReport), DeviceError> {
         let (tx, rx) = mpsc::channel(QUEUE);
         let (ready_tx, ready_rx) = oneshot::channel();
         let thread = std::thread::Builder::new()
             .name("render".into())
-            .spawn(move || thread_main(opts, rx, ready_tx))
+            .spawn(move || thread_main(opts, pack, rx, ready_tx))
             .map_err(|e| DeviceError::RequestDevice(format!("cannot start render thread: {e}")))?;
         let report = match ready_rx.await {
             Ok(r) => r?,
@@ -118,15 +146,17 @@ impl RenderHandle {
         answer.await.map_err(|_| RenderFailure::Stopped)?
     }
 
-    /// Renders at `camera`, an animated scene posed at `time` (`None`: its rest pose).
+    /// Renders at `camera`, an animated scene posed at `time` (`None`: its rest pose), packing
+    /// `seed64` layers against `scale`.
     pub async fn render(
         &self,
         camera: Camera,
         time: Option<f32>,
+        scale: f32,
     ) -> Result<Rendered, RenderFailure> {
         let (reply, answer) = oneshot::channel();
         self.tx
-            .send(Command::Render(camera, time, reply))
+            .send(Command::Render(camera, time, scale, reply))
             .await
             .map_err(|_| RenderFailure::Stopped)?;
         answer.await.map_err(|_| RenderFailure::Stopped)?
@@ -154,6 +184,7 @@ struct Current {
 
 fn thread_main(
     opts: GpuOptions,
+    pack: PackOn,
     mut rx: mpsc::Receiver<Command>,
     ready: oneshot::Sender<Result<DeviceReport, DeviceError>>,
 ) {
@@ -183,6 +214,16 @@ fn thread_main(
         limits: gpu.limits.clone(),
         calibration,
     };
+    let pack = match pack {
+        PackOn::Auto if report.software => PackOn::Cpu,
+        PackOn::Auto => PackOn::Device,
+        chosen => chosen,
+    };
+    tracing::info!(
+        ?pack,
+        "frames are packed on the {}",
+        if pack == PackOn::Cpu { "CPU" } else { "device" }
+    );
     if ready.send(Ok(report)).is_err() {
         return;
     }
@@ -196,8 +237,8 @@ fn thread_main(
                 }
                 let _ = reply.send(r);
             }
-            Command::Render(camera, time, reply) => {
-                let r = guarded(|| render(&gpu, &mut current, camera, time));
+            Command::Render(camera, time, scale, reply) => {
+                let r = guarded(|| render(&gpu, &mut current, camera, time, scale, pack));
                 if matches!(r, Err(RenderFailure::Panic(_))) {
                     current = None;
                 }
@@ -303,6 +344,8 @@ fn render(
     current: &mut Option<Current>,
     camera: Camera,
     time: Option<f32>,
+    scale: f32,
+    pack: PackOn,
 ) -> Result<Rendered, RenderFailure> {
     let c = current.as_mut().ok_or(RenderFailure::NotConfigured)?;
     let start = Instant::now();
@@ -330,23 +373,44 @@ fn render(
         c.time = time;
         pose_us = t.elapsed().as_micros() as u64;
     }
+    let prepared_us = start.elapsed().as_micros() as u64;
     let checked = &c.setup.checked;
-    let layers: Vec<Layer> = checked.config.layers.iter().map(|(l, _)| *l).collect();
-    let frame = c
-        .renderer
-        .render(
-            gpu,
-            &c.lights,
-            checked.casters.as_deref(),
-            checked.config.color,
-            layer_set(&layers),
-        )
-        .map_err(|e| RenderFailure::Render(e.to_string()))?;
-    let mut stats = frame.stats.clone();
+    let casters = checked.casters.as_deref();
+    let color = checked.config.color;
+    let configured = &checked.config.layers;
+    let failed = |e: RenderError| RenderFailure::Render(e.to_string());
+    let packed = match pack {
+        PackOn::Device => c
+            .renderer
+            .render_packed(
+                gpu,
+                &c.lights,
+                casters,
+                color,
+                configured,
+                checked.config.band_height,
+                scale,
+            )
+            .map_err(failed)?,
+        PackOn::Cpu | PackOn::Auto => None,
+    };
+    let (output, mut stats) = match packed {
+        Some((frame, stats)) => (Output::Packed(frame), stats),
+        None => {
+            let layers: Vec<Layer> = configured.iter().map(|(l, _)| *l).collect();
+            let frame = c
+                .renderer
+                .render(gpu, &c.lights, casters, color, layer_set(&layers))
+                .map_err(failed)?;
+            let stats = frame.stats.clone();
+            (Output::Images(take_layers(frame, &layers)?), stats)
+        }
+    };
     stats.pose_us = pose_us;
-    let images = take_layers(frame, &layers)?;
+    // Camera and pose updates count as the frame's set-up, beside the renderer's own.
+    stats.setup_us += prepared_us - pose_us;
     Ok(Rendered {
-        images,
+        output,
         stats,
         total_us: start.elapsed().as_micros() as u64,
     })

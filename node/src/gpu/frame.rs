@@ -96,6 +96,24 @@ impl LayerSet {
         }
     }
 
+    /// The set holding `layers` (radiance is never a node's and is ignored).
+    pub fn of(layers: impl IntoIterator<Item = lightfold_protocol::Layer>) -> LayerSet {
+        use lightfold_protocol::Layer;
+        let mut set = LayerSet::default();
+        for l in layers {
+            match l {
+                Layer::Illumination => set.illumination = true,
+                Layer::Diffuse => set.diffuse = true,
+                Layer::Specular => set.specular = true,
+                Layer::Ambient => set.ambient = true,
+                Layer::Emissive => set.emissive = true,
+                Layer::Depth => set.depth = true,
+                Layer::Radiance => {}
+            }
+        }
+        set
+    }
+
     pub(crate) fn any_material(&self) -> bool {
         self.diffuse || self.specular || self.ambient || self.emissive
     }
@@ -134,9 +152,14 @@ pub struct RenderStats {
     /// Views whose transmittance maps were rendered this frame (their lights have translucent
     /// casters; `docs/translucency.md`).
     pub transmit_passes: u32,
+    /// CPU work of the frame before its first pass: checks, light planning, map keys.
+    pub setup_us: u64,
     pub shadow_us: u64,
     pub eye_us: u64,
+    /// Reading the frame back: the f32 readback, or the device pack and its readback.
     pub readback_us: u64,
+    /// Bytes copied from the device to the host for the frame.
+    pub read_bytes: u64,
 }
 
 #[derive(Debug, thiserror::Error)]

@@ -7,6 +7,7 @@ pub mod device;
 mod eye_pass;
 pub mod frame;
 pub mod lights;
+pub mod pack;
 mod pipelines;
 mod readback;
 pub mod renderer;

@@ -28,6 +28,11 @@ pub struct Staging {
 }
 
 impl Staging {
+    /// Bytes the kept buffers hold: what the last frame copied to the host.
+    pub fn bytes(&self) -> u64 {
+        self.buffers.iter().map(|b| b.size()).sum()
+    }
+
     /// Buffer `i`, of exactly `size` bytes (made again when the size changes).
     fn buffer(&mut self, device: &wgpu::Device, i: usize, size: u64) -> wgpu::Buffer {
         if self.buffers.get(i).is_none_or(|b| b.size() != size) {

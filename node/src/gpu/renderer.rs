@@ -14,11 +14,13 @@ use super::eye_pass::{
 };
 use super::frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
 use super::lights::{Fault, Fit, LightPlan, Sides, TRANSLUCENT_TEXEL_BYTES, plan_lights_within};
+use super::pack::{self, DevicePacker, PackLayer, PackSource, PackedFrame};
 use super::pipelines::{DrawContext, LightSet, Pipelines};
 use super::readback::{ReadRequest, ReadSource, Staging, read};
 use super::scene_data::SceneData;
 use super::shadow_depth::ShadowDepth;
 use super::shadow_pass::{ShadowMaps, layer_count, render_shadow_maps};
+use lightfold_protocol::{Layer, PixelFormat};
 use lightfold_scene::shadow_views::ShadowView;
 use lightfold_scene::{Camera, Image, LightSample, MapSizing, Material, Mesh, Scene, ShadowFilter};
 use std::time::Instant;
@@ -48,6 +50,14 @@ struct MapConfig {
 
 /// A mesh's axis-aligned box `(min, max)`.
 type MeshBox = ([f32; 3], [f32; 3]);
+
+/// Whether this device packs frames (`gpu::pack`), known after the first packed frame.
+#[derive(Debug)]
+enum PackerState {
+    Untried,
+    Ready(Box<DevicePacker>),
+    Unavailable,
+}
 
 /// One node's renderer: pipelines and scene buffers built once, targets and maps reused.
 #[derive(Debug)]
@@ -85,6 +95,7 @@ pub struct Renderer {
     map_sides: Option<Vec<u32>>,
     /// Readback buffers kept from frame to frame.
     staging: Staging,
+    packer: PackerState,
     /// The meshes the eye pass draws (`None`: every mesh): a sort-last partition.
     eye_meshes: Option<Vec<u32>>,
 }
@@ -267,6 +278,7 @@ impl Renderer {
             object_ids: true,
             map_sides: None,
             staging: Staging::default(),
+            packer: PackerState::Untried,
             variant: EyeVariant::default(),
             deferred: None,
             eye_meshes: None,
@@ -482,11 +494,78 @@ impl Renderer {
         c_n: [f32; 3],
         layers: LayerSet,
     ) -> Result<NodeFrame, RenderError> {
-        // wgpu's handler for errors nobody captures panics: capture every one of this frame.
-        let (frame, error) = captured(&gpu.device, || {
-            self.render_frame(gpu, lights, casters, c_n, layers)
-        });
-        match (frame, error) {
+        self.guarded(gpu, |r| {
+            let (stats, lit_buffer) = r.render_frame(gpu, lights, casters, c_n, layers)?;
+            r.read_images(gpu, layers, lit_buffer, stats)
+        })
+    }
+
+    /// [`Renderer::render`], then the configured `layers` packed in their link formats on the
+    /// device (`gpu::pack`): only the packed bytes are read back. `None` when this device or a
+    /// format cannot be packed there (see [`Renderer::packs_on_device`]): the caller then renders
+    /// with [`Renderer::render`] and packs on the CPU.
+    #[allow(clippy::too_many_arguments)]
+    pub fn render_packed(
+        &mut self,
+        gpu: &Gpu,
+        lights: &[LightSample],
+        casters: Option<&[Vec<u32>]>,
+        c_n: [f32; 3],
+        layers: &[(Layer, PixelFormat)],
+        band_height: u32,
+        scale: f32,
+    ) -> Result<Option<(PackedFrame, RenderStats)>, RenderError> {
+        if !self.packs_on_device(gpu, layers, scale) {
+            return Ok(None);
+        }
+        let set = LayerSet::of(layers.iter().map(|(l, _)| *l));
+        self.guarded(gpu, |r| {
+            let (mut stats, lit_buffer) = r.render_frame(gpu, lights, casters, c_n, set)?;
+            let t = Instant::now();
+            let packed = r.pack_layers(gpu, layers, lit_buffer, band_height, scale)?;
+            stats.readback_us = t.elapsed().as_micros() as u64;
+            stats.read_bytes = packed.read_bytes;
+            Ok(Some((packed, stats)))
+        })
+    }
+
+    /// Whether frames of `layers` at `scale` are packed on this device: the pack pass builds here
+    /// (tried once) and every format packs exactly (`DevicePacker::supports`).
+    pub fn packs_on_device(
+        &mut self,
+        gpu: &Gpu,
+        layers: &[(Layer, PixelFormat)],
+        scale: f32,
+    ) -> bool {
+        if matches!(self.packer, PackerState::Untried) {
+            self.packer = match DevicePacker::new(gpu) {
+                Ok(p) => PackerState::Ready(Box::new(p)),
+                Err(e) => {
+                    tracing::warn!(error = %e, "packing on the CPU: the device cannot pack");
+                    PackerState::Unavailable
+                }
+            };
+        }
+        matches!(self.packer, PackerState::Ready(_))
+            && !layers.is_empty()
+            && layers.len() <= pack::MAX_LAYERS
+            && layers.iter().all(|(l, f)| {
+                *l != Layer::Radiance
+                    && f.channels() == l.channels()
+                    && DevicePacker::supports(*f, scale)
+            })
+    }
+
+    /// Runs one frame's device work, turning what the device refuses into an error (wgpu's
+    /// handler for errors nobody captures panics) and dropping targets a refused frame may have
+    /// left half made.
+    fn guarded<T>(
+        &mut self,
+        gpu: &Gpu,
+        frame: impl FnOnce(&mut Self) -> Result<T, RenderError>,
+    ) -> Result<T, RenderError> {
+        let (out, error) = captured(&gpu.device, || frame(self));
+        match (out, error) {
             (Err(e), _) => Err(e),
             (Ok(_), Some(e)) => {
                 // Targets and maps may be half made: allocate them afresh next frame.
@@ -510,7 +589,8 @@ impl Renderer {
         casters: Option<&[Vec<u32>]>,
         c_n: [f32; 3],
         layers: LayerSet,
-    ) -> Result<NodeFrame, RenderError> {
+    ) -> Result<(RenderStats, bool), RenderError> {
+        let setup = Instant::now();
         if lights.len() > self.max_lights as usize {
             return Err(RenderError::TooManyLights {
                 requested: lights.len(),
@@ -624,6 +704,7 @@ impl Renderer {
 
         // Shadow maps: in walkthrough mode a light's are kept while nothing they depend on
         // changed (the light, its views, the meshes it may draw, the map size).
+        stats.setup_us = setup.elapsed().as_micros() as u64;
         let t0 = Instant::now();
         let config = MapConfig {
             size: plan.atlas.side.max(1),
@@ -723,17 +804,31 @@ impl Renderer {
         }
         wait(gpu)?;
         stats.eye_us = t1.elapsed().as_micros() as u64;
+        let lit_buffer = lit && variant == EyeVariant::Deferred && self.deferred.is_some();
+        Ok((stats, lit_buffer))
+    }
 
-        // Readback of the requested layers.
+    /// Reads the frame's requested layers back as f32 images (`lit_buffer`: the illumination is
+    /// in the deferred pass's lit buffer, else in the forward pass's two targets).
+    fn read_images(
+        &mut self,
+        gpu: &Gpu,
+        layers: LayerSet,
+        lit_buffer: bool,
+        mut stats: RenderStats,
+    ) -> Result<NodeFrame, RenderError> {
+        let (targets, deferred) = match (&self.targets, &self.deferred) {
+            (Some(t), d) => (t, d),
+            (None, _) => return Err(RenderError::Gpu("no frame was rendered".into())),
+        };
+        let (w, h) = (targets.width, targets.height);
+        let lit = layers.illumination;
         let t2 = Instant::now();
         let mut sources: Vec<ReadSource<'_>> = Vec::new();
-        let lit_buffer = match (&self.deferred, variant) {
-            (Some(d), EyeVariant::Deferred) if lit => {
-                sources.push(ReadSource::Lit(&d.illumination));
-                true
-            }
-            _ => false,
-        };
+        match deferred {
+            Some(d) if lit && lit_buffer => sources.push(ReadSource::Lit(&d.illumination)),
+            _ => {}
+        }
         if lit && !lit_buffer {
             sources.push(ReadSource::Texture(req(&targets.diffuse, 3)));
             sources.push(ReadSource::Texture(req(&targets.specular, 3)));
@@ -797,8 +892,55 @@ impl Renderer {
             out.depth = Some(image(data.next().unwrap_or_default(), 1));
         }
         stats.readback_us = t2.elapsed().as_micros() as u64;
+        stats.read_bytes = self.staging.bytes();
         out.stats = stats;
         Ok(out)
+    }
+
+    /// Packs the frame's `layers` on the device (see [`Renderer::render_packed`]).
+    fn pack_layers(
+        &mut self,
+        gpu: &Gpu,
+        layers: &[(Layer, PixelFormat)],
+        lit_buffer: bool,
+        band_height: u32,
+        scale: f32,
+    ) -> Result<PackedFrame, RenderError> {
+        let PackerState::Ready(packer) = &mut self.packer else {
+            return Err(RenderError::Gpu("the device cannot pack".into()));
+        };
+        let Some(targets) = &self.targets else {
+            return Err(RenderError::Gpu("no frame was rendered".into()));
+        };
+        let m = &targets.materials;
+        let sources = layers
+            .iter()
+            .map(|&(layer, format)| {
+                let source = match layer {
+                    Layer::Illumination => match &self.deferred {
+                        Some(d) if lit_buffer => PackSource::Lit(&d.illumination),
+                        _ => PackSource::Split(&targets.diffuse, &targets.specular),
+                    },
+                    Layer::Diffuse => PackSource::Texture(&m[0]),
+                    Layer::Specular => PackSource::Texture(&m[1]),
+                    Layer::Ambient => PackSource::Texture(&m[2]),
+                    Layer::Emissive => PackSource::Texture(&m[3]),
+                    Layer::Depth => PackSource::Texture(&targets.depth),
+                    Layer::Radiance => {
+                        return Err(RenderError::Gpu("a node renders no radiance layer".into()));
+                    }
+                };
+                Ok(PackLayer { source, format })
+            })
+            .collect::<Result<Vec<_>, RenderError>>()?;
+        packer.pack(
+            gpu,
+            &sources,
+            targets.width,
+            targets.height,
+            band_height,
+            scale,
+        )
     }
 
     /// The vertex ranges the eye pass draws: every vertex, or the meshes of

@@ -50,6 +50,14 @@ static SRGB: LazyLock<Srgb> = LazyLock::new(|| {
     }
 });
 
+/// The sRGB encoder's tables, for kernels that must encode exactly as [`super::pack`] does (the
+/// node's device pack): each code's upper threshold (`+∞` for 255) and, per bucket of
+/// `round(x·4095)`, the first code whose threshold lies above the bucket's lower edge.
+pub fn srgb_encode_tables() -> (&'static [f32; 256], &'static [u8; BUCKETS]) {
+    let t = &*SRGB;
+    (&t.threshold, &t.start)
+}
+
 #[inline(always)]
 fn encode_srgb(t: &Srgb, v: f32) -> u8 {
     let x = clamp_nonneg(v, 1.0);
