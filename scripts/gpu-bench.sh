@@ -9,12 +9,18 @@
 # (`cargo test --release --no-run -p lightfold-node --test gpu_correctness --test gpu_modes
 # --test gpu_device`); each is run with its default arguments.
 #
-# Builds the release binary, refuses to go on unless the adapter is a hardware one, then runs
-# `lightfold bench node` for balls, animal, plant and box with
-# K = 1, 2, 3, 4, 8, 16, 32 in moving, walkthrough and no-shadows modes at 800x600 (and a subset at
-# 1920x1080), and a local cluster (demo --frames 60 --orbit 2, K = 4). Every table goes to a file
-# under OUT_DIR. Each step checks the clock: the whole run stays under about 9 minutes, and a step
-# that would not fit is skipped with a line saying so (never silently).
+# Builds the release binary, refuses to go on unless the adapter is a hardware one, then measures,
+# most important first:
+# 1. the local cluster's frame rate for balls (32 lights, K = 4: 8 nodes + 8 compositors) at
+#    800x600 and 1920x1080, walkthrough and moving lights, with nodes packing on the device and on
+#    the CPU (`lightfold node --pack`, through LIGHTFOLD_PACK) in the same run: cluster.md, with
+#    the paper's 93 Hz beside each figure;
+# 2. `lightfold bench node` for balls at both sizes, device and CPU pack in the same rounds
+#    (device ms, CPU ms outside the device, frame ÷ device, bytes read back a pixel);
+# 3. `bench node` for animal, plant and box, and the GPU tests, as time allows.
+# Every table goes to a file under OUT_DIR. Each step checks the clock: the whole run stays under
+# about 9 minutes, and a step that would not fit is skipped with a line saying so (never
+# silently).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 out="${1:-gpu-bench-out}"
@@ -53,30 +59,60 @@ if [ -z "$adapter" ] || echo "$adapter" | grep -Eqi 'llvmpipe|lavapipe|swiftshad
   exit 1
 fi
 
+cluster() {
+  # cluster SIZE MODE PACK: one demo run; appends a row to cluster.md
+  local size=$1 mode=$2 pack=$3 flags=""
+  [ "$mode" = walkthrough ] && flags="--walkthrough"
+  local log="$out/cluster-$size-$mode-$pack.txt"
+  # shellcheck disable=SC2086
+  LIGHTFOLD_PACK=$pack timeout 150 "$bin" demo --scene balls --size "$size" -K 4 --frames 60 --orbit 2 \
+    $flags --no-frame-files --out "$out/cluster.png" --exr "$out/cluster.exr" >"$log" 2>&1 \
+    || echo "cluster $size $mode $pack failed: see $log" | tee -a "$out/log.txt"
+  local fps interval psnr
+  fps=$(grep -o '([0-9.]* frames/s)' "$log" | tr -d '(' | cut -d' ' -f1 | tail -n 1)
+  interval=$(grep -o 'frame interval mean [0-9.]* ms' "$log" | awk '{print $4}' | tail -n 1)
+  psnr=$(grep -m1 '^whole ' "$log" | grep -o 'psnr *[0-9.]*' | awk '{print $2}')
+  echo "| $size | $mode | $pack | ${interval:-—} | ${fps:-—} | 93 | ${psnr:-—} |" >>"$out/cluster.md"
+}
+{
+  echo "### Local cluster, balls, 32 lights, K = 4 (8 nodes + 8 compositors on one GPU), 60 frames"
+  echo
+  echo "| size | mode | pack | frame interval ms | frames/s | paper Hz | PSNR dB |"
+  echo "|---|---|---|---:|---:|---:|---:|"
+} >"$out/cluster.md"
+for size in 800x600 1920x1080; do
+  for mode in walkthrough moving; do
+    for pack in device cpu; do
+      if skip_unless 40 "cluster $size $mode $pack"; then
+        step "cluster $size $mode, $pack pack"
+        cluster "$size" "$mode" "$pack"
+      fi
+    done
+  done
+done
+cat "$out/cluster.md"
+
 bench() {
-  # bench SCENE SIZE KS
-  local scene=$1 size=$2 ks=$3
-  "$bin" bench node --scene "$scene" --size "$size" --ks "$ks" --modes moving,walkthrough,noshadows \
+  # bench SCENE SIZE KS MODES PACKS
+  local scene=$1 size=$2 ks=$3 modes=$4 packs=$5
+  "$bin" bench node --scene "$scene" --size "$size" --ks "$ks" --modes "$modes" --pack "$packs" \
     --rounds 1 --frames 4 --warmup 2 2>"$out/bench-$scene-$size.log" | tee "$out/bench-$scene-$size.md"
 }
-for scene in balls animal plant box; do
-  if skip_unless 60 "bench node $scene 800x600"; then
-    step "bench node $scene 800x600"
-    bench "$scene" 800x600 1,2,3,4,8,16,32 || echo "bench node $scene 800x600 failed: see $out/bench-$scene-800x600.log" | tee -a "$out/log.txt"
+for size in 800x600 1920x1080; do
+  if skip_unless 60 "bench node balls $size"; then
+    step "bench node balls $size (device and CPU pack)"
+    bench balls "$size" 1,4,16,32 moving,walkthrough device,cpu \
+      || echo "bench node balls $size failed: see $out/bench-balls-$size.log" | tee -a "$out/log.txt"
   fi
 done
-for scene in balls animal plant box; do
-  if skip_unless 60 "bench node $scene 1920x1080"; then
-    step "bench node $scene 1920x1080"
-    bench "$scene" 1920x1080 1,4,16,32 || echo "bench node $scene 1920x1080 failed: see $out/bench-$scene-1920x1080.log" | tee -a "$out/log.txt"
+for scene in animal plant box; do
+  if skip_unless 60 "bench node $scene 800x600"; then
+    step "bench node $scene 800x600"
+    bench "$scene" 800x600 1,4,16,32 moving,walkthrough,noshadows device \
+      || echo "bench node $scene 800x600 failed: see $out/bench-$scene-800x600.log" | tee -a "$out/log.txt"
   fi
 done
 
-if skip_unless 60 "local cluster"; then
-  step "local cluster: demo --frames 60 --orbit 2 -K 4"
-  "$bin" demo --frames 60 --orbit 2 -K 4 --no-frame-files --verbose --stats "$out/demo-stats.jsonl" \
-    2>&1 | tee "$out/demo.txt" || echo "local cluster failed: see $out/demo.txt" | tee -a "$out/log.txt"
-fi
 if skip_unless 90 "GPU tests"; then
   step "GPU tests"
   if [ -n "${GPU_TEST_BINS:-}" ]; then

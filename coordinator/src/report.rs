@@ -177,6 +177,7 @@ impl Report {
             "daemon",
             "lights",
             "shadow\npasses",
+            "setup\nms",
             "shadow\nms",
             "eye\nms",
             "readback\nms",
@@ -235,6 +236,7 @@ impl Report {
                 id.to_string(),
                 lights,
                 passes,
+                node_only(&|s| s.setup_us + s.pose_us),
                 node_only(&|s| s.shadow_us),
                 node_only(&|s| s.eye_us),
                 node_only(&|s| s.readback_us),
@@ -271,8 +273,9 @@ impl Report {
             }
         }
         format!(
-            "per daemon, mean per frame over {} frame(s) (shadow, eye, readback, pack: a render \
-             node's steps;\ntotal: its whole frame, waiting on inputs included):\n{table}",
+            "per daemon, mean per frame over {} frame(s) (setup, shadow, eye, readback, pack: a \
+             render node's steps, setup its CPU work before the passes;\ntotal: its whole frame, \
+             waiting on inputs included):\n{table}",
             self.frames.len()
         )
     }

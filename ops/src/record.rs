@@ -39,7 +39,7 @@ pub fn describe() {
     describe_histogram!(
         PHASE_SECONDS,
         Unit::Seconds,
-        "time of each phase of a frame (shadow, eye, readback, pack, send, composite, total)"
+        "time of each phase of a frame (setup, shadow, eye, readback, pack, send, composite, total)"
     );
     describe_counter!(
         BYTES_IN,
@@ -116,8 +116,9 @@ pub fn describe() {
 }
 
 /// The phases of a frame a daemon reports, with their time in microseconds.
-fn phases(s: &FrameStats) -> [(&'static str, u64); 7] {
+fn phases(s: &FrameStats) -> [(&'static str, u64); 8] {
     [
+        ("setup", s.setup_us),
         ("shadow", s.shadow_us),
         ("eye", s.eye_us),
         ("readback", s.readback_us),

@@ -75,7 +75,7 @@ impl Adapt {
             let Some(&[fixed_us, light_us, w_all, w_shadow]) = self.model.get(&s.daemon_id) else {
                 continue;
             };
-            let work = s.pose_us + s.shadow_us + s.eye_us + s.readback_us + s.pack_us;
+            let work = s.pose_us + s.setup_us + s.shadow_us + s.eye_us + s.readback_us + s.pack_us;
             slowest = Some(slowest.map_or(work, |w| w.max(work)));
             // Kept maps (walkthrough) hide the shadow passes' cost: no per-light figure.
             if w_shadow <= 0.0 || s.maps_kept > 0 || fixed_us <= 0.0 || light_us <= 0.0 {
