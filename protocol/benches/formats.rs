@@ -175,6 +175,46 @@ fn summary() {
     }
 }
 
+/// 8-bit sRGB of a 1080p radiance frame (what every PNG and the live view's JPEG frames start
+/// from): the table encoder and the per-channel `powf` reference, against memcpy of the same
+/// bytes (12 read, 3 written a pixel), interleaved round by round as above.
+fn srgb_summary() {
+    use lightfold_protocol::srgb::{encode_rgb8, srgb8};
+    let src = frame(PixelFormat::F32x3);
+    let bytes = PIXELS * (12 + 3);
+    let from = vec![1u8; bytes / 2];
+    let mut to = vec![0u8; bytes / 2];
+    let mut out = Vec::with_capacity(PIXELS * 3);
+    for (name, table) in [("table", true), ("powf", false)] {
+        let (mut best_op, mut best_copy) = (f64::INFINITY, f64::INFINITY);
+        for _ in 0..9 {
+            best_op = best_op.min(best_ns(1, || {
+                out.clear();
+                if table {
+                    encode_rgb8(black_box(&src), 3, 1.0, &mut out);
+                } else {
+                    out.extend(src.iter().map(|&v| srgb8(v)));
+                }
+                black_box(&mut out);
+            }));
+            best_copy = best_copy.min(best_ns(1, || {
+                to.copy_from_slice(black_box(&from));
+                black_box(&mut to);
+            }));
+        }
+        println!(
+            "{:<10} {:<7} {:>9.0} {:>8.2} {:>13.2} {:>7.0}% {:>15}",
+            "srgb8",
+            name,
+            PIXELS as f64 / best_op * 1e3,
+            bytes as f64 / best_op,
+            bytes as f64 / best_copy,
+            best_copy / best_op * 100.0,
+            "-",
+        );
+    }
+}
+
 criterion_group! {
     name = benches;
     // The machine is shared: short, few samples.
@@ -191,5 +231,6 @@ fn main() {
     // Under `cargo test` each routine runs once: too little for a meaningful table.
     if std::env::args().any(|a| a == "--bench") {
         summary();
+        srgb_summary();
     }
 }

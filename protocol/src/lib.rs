@@ -11,6 +11,7 @@ pub mod format;
 pub mod frame;
 pub mod handshake;
 pub mod message;
+pub mod srgb;
 
 pub use band::{BAND_HEADER_LEN, BandError, BandHeader};
 pub use error::ProtocolError;

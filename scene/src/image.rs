@@ -1,7 +1,6 @@
 //! In-memory images of `channels` interleaved f32 values per pixel, row 0 at the top, and their
 //! EXR (linear) and PNG (sRGB at an exposure) files.
 
-use crate::shading::linear_to_srgb;
 use std::path::Path;
 
 /// Layout of the six-channel illumination layer: diffuse RGB then specular RGB.
@@ -120,11 +119,7 @@ impl Image {
     pub fn to_srgb8(&self, exposure: f32) -> Result<Vec<u8>, ImageError> {
         self.need(3, "sRGB output")?;
         let mut out = Vec::with_capacity(self.pixel_count() * 3);
-        for px in self.data.chunks_exact(self.channels) {
-            for &v in &px[..3] {
-                out.push((linear_to_srgb(v * exposure) * 255.0 + 0.5) as u8);
-            }
-        }
+        lightfold_protocol::srgb::encode_rgb8(&self.data, self.channels, exposure, &mut out);
         Ok(out)
     }
 

@@ -508,30 +508,7 @@ pub fn compose(e: V3, ma: V3, ca: V3, ia: V3, md: V3, id: V3, ms: V3, is: V3) ->
     add(add(e, mul(ma, add(ca, ia))), add(mul(md, id), mul(ms, is)))
 }
 
-/// sRGB transfer of a linear value in [0, 1].
-#[inline]
-pub fn linear_to_srgb(x: f32) -> f32 {
-    let x = if x.is_finite() {
-        x.clamp(0.0, 1.0)
-    } else {
-        0.0
-    };
-    if x <= 0.003_130_8 {
-        12.92 * x
-    } else {
-        1.055 * x.powf(1.0 / 2.4) - 0.055
-    }
-}
-
-/// Inverse sRGB transfer.
-#[inline]
-pub fn srgb_to_linear(x: f32) -> f32 {
-    if x <= 0.040_45 {
-        x / 12.92
-    } else {
-        ((x + 0.055) / 1.055).powf(2.4)
-    }
-}
+pub use lightfold_protocol::srgb::{linear_to_srgb, srgb_to_linear};
 
 /// Bilinear texture lookup with repeat wrapping, texel centres at +0.5; returns linear RGBA.
 pub fn sample_texture(t: &Texture, uv: [f32; 2]) -> [f32; 4] {

@@ -2,9 +2,8 @@
 //! colour policy applied, nothing else); `encode_srgb8` tone-maps a radiance band to 8-bit sRGB
 //! for PNG as `sRGB(clamp(exposure·L))` (ARCHITECTURE §2).
 //!
-//! The sRGB transfer is implemented here (the compositor must not depend on `scene`). The fast
-//! encoder reads a bucket table and then steps over exact code thresholds found from the reference
-//! transfer itself, so it gives the reference's bytes, not an approximation of them.
+//! The sRGB transfer and its table encoder are `lightfold_protocol::srgb` (one copy for every
+//! crate); the table encoder gives the reference's bytes, not an approximation of them.
 //! Unlike a bare transfer, +Inf reads as the largest value and encodes as white.
 
 use super::params;
@@ -16,7 +15,6 @@ use lightfold_protocol::Layer;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
-use std::sync::OnceLock;
 
 pub const NAME: &str = "output";
 
@@ -41,66 +39,7 @@ fn bad(reason: String) -> OpError {
     OpError::BadParam { op: NAME, reason }
 }
 
-/// The sRGB transfer of a linear value; NaN and values outside [0, 1] are clamped first.
-pub fn linear_to_srgb(x: f32) -> f32 {
-    let x = if x.is_nan() { 0.0 } else { x.clamp(0.0, 1.0) };
-    if x <= 0.003_130_8 {
-        12.92 * x
-    } else {
-        1.055 * x.powf(1.0 / 2.4) - 0.055
-    }
-}
-
-/// The reference 8-bit code of a linear value (round to nearest).
-pub fn srgb8(x: f32) -> u8 {
-    (linear_to_srgb(x) * 255.0 + 0.5) as u8
-}
-
-/// Buckets of the fast encoder's first guess over [0, 1].
-const BUCKETS: usize = 4096;
-
-struct Tables {
-    /// `thresholds[k]`: the smallest non-negative f32 whose reference code is at least `k`
-    /// (`thresholds[256]` is +Inf, so code 255 never steps further).
-    thresholds: [f32; 257],
-    /// The code at each bucket's lower edge, a lower bound for every value in the bucket.
-    start: [u8; BUCKETS + 1],
-}
-
-fn tables() -> &'static Tables {
-    static T: OnceLock<Tables> = OnceLock::new();
-    T.get_or_init(|| {
-        let mut thresholds = [f32::INFINITY; 257];
-        for (k, t) in thresholds.iter_mut().enumerate().take(256).skip(1) {
-            // Non-negative floats order like their bit patterns: bisect on the bits.
-            let (mut lo, mut hi) = (0u32, 1.0f32.to_bits());
-            while lo < hi {
-                let mid = lo + (hi - lo) / 2;
-                if usize::from(srgb8(f32::from_bits(mid))) >= k {
-                    hi = mid;
-                } else {
-                    lo = mid + 1;
-                }
-            }
-            *t = f32::from_bits(lo);
-        }
-        let start = std::array::from_fn(|b| srgb8(b as f32 / BUCKETS as f32));
-        Tables { thresholds, start }
-    })
-}
-
-/// The fast encoder: the code at the bucket's lower edge, plus one if `v` is past the next
-/// exact threshold. A bucket holds at most one threshold: the steepest part of the curve,
-/// 12.92·255 codes per unit, moves 0.8 codes per bucket.
-#[inline]
-fn srgb8_fast(t: &Tables, v: f32) -> u8 {
-    let v = if v > 0.0 { v } else { 0.0 };
-    let v = if v < 1.0 { v } else { 1.0 };
-    // Multiplying by a power of two is exact, so the bucket's edge is at or below `v`; 1.0 falls
-    // in the extra last bucket.
-    let c = t.start[(v * BUCKETS as f32) as i32 as usize];
-    c + u8::from(v >= t.thresholds[usize::from(c) + 1])
-}
+pub use lightfold_protocol::srgb::{linear_to_srgb, srgb8};
 
 impl Output {
     pub fn new(params: &Value) -> Result<Self, OpError> {
@@ -142,10 +81,10 @@ impl Output {
     /// The fast tone map; the same bytes as `encode_srgb8_scalar`.
     pub fn encode_srgb8(&self, radiance: &[f32], rgb8: &mut [u8]) -> Result<(), OpError> {
         Self::check_rgb8(radiance, rgb8)?;
-        let (t, e) = (tables(), self.params.exposure);
+        let e = self.params.exposure;
         let run = |bytes: &mut [u8], lin: &[f32]| {
             for (b, l) in bytes.iter_mut().zip(lin) {
-                *b = srgb8_fast(t, e * clamp_fast(*l));
+                *b = lightfold_protocol::srgb::encode8(e * clamp_fast(*l));
             }
         };
         if rgb8.len() >= 2 * PAR_SPAN * 3 && rayon::current_num_threads() > 1 {
