@@ -190,6 +190,11 @@ pub struct JobArgs {
     /// extra targets of an illumination node at the last stage.
     #[arg(long)]
     pub material_own_node: bool,
+    /// Keep render nodes that share one GPU apart (one light group each). By default the
+    /// planner gives one node per GPU all the lights of that GPU's nodes when its cost model says
+    /// that is faster (`docs/planner.md` § Shared GPUs).
+    #[arg(long)]
+    pub no_device_merge: bool,
     /// Frame-time budget in milliseconds: K becomes the largest whose slowest node fits it (by
     /// the nodes' cost model), so the plan uses as few nodes as it allows; overrides -K. When no
     /// K fits, larger shadow maps, then samples per area light, then the least important samples
@@ -299,6 +304,7 @@ impl JobArgs {
             // The rule `lightfold render` applies too: the size asked for, else the scene's.
             map_sizing: lightfold_coordinator::plan::MapSizing::from_request(self.shadow_map_size),
             material_own_node: self.material_own_node,
+            merge_shared_devices: !self.no_device_merge,
             frame_budget_us: self.frame_budget.map(|b| (b * 1000.0).round() as u64),
             target_penumbra_db: self.target_psnr,
             penumbra_filter: self.penumbra_filter,

@@ -67,6 +67,26 @@ fn with_memory(mut cluster: ClusterSpec) -> ClusterSpec {
     cluster
 }
 
+/// The probe cluster's nodes as this machine's will be: on a hardware GPU, every node reports
+/// that one device (and the lights it takes), so the plan merges them as the coordinator's will
+/// (`docs/planner.md` § Shared GPUs) and the demo starts only the nodes that plan uses.
+fn on_this_gpu(mut cluster: ClusterSpec) -> ClusterSpec {
+    let host = lightfold_node::daemon::sys::hostname();
+    let Some((device, max_lights)) = lightfold_node::gpu::device::chosen_device(
+        &lightfold_node::gpu::GpuOptions::default(),
+        &host,
+    ) else {
+        return cluster;
+    };
+    let memory_bytes = lightfold_node::daemon::sys::memory_bytes();
+    for n in &mut cluster.nodes {
+        let mut caps = crate::plan_cmd::synthetic_node(&n.id, max_lights, memory_bytes);
+        caps.device = device.clone();
+        n.capabilities = Some(caps);
+    }
+    cluster
+}
+
 /// Processes per core `--max-processes` allows by default, and the floor.
 const PROCESSES_PER_CORE: usize = 4;
 const MIN_MAX_PROCESSES: usize = 32;
@@ -234,7 +254,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &with_memory(ClusterSpec::local(256, 256)),
         &options,
     );
-    let probe_cluster = ClusterSpec::local(256, 256);
+    let probe_cluster = on_this_gpu(ClusterSpec::local(256, 256));
     let probe = plan(
         &lightfold_coordinator::plan::scene_for(&scene, &probe_cluster, &options),
         &probe_cluster,
@@ -544,6 +564,9 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
     }
     if job.material_own_node {
         cmd.arg("--material-own-node");
+    }
+    if job.no_device_merge {
+        cmd.arg("--no-device-merge");
     }
     cmd.arg("--partitions").arg(match job.partitions {
         0 => "auto".to_string(),

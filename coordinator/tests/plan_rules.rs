@@ -946,3 +946,77 @@ fn automatic_topology_is_a_tree_from_eight_chain_stages() {
     assert_eq!(AUTO_TREE_STAGES, 8);
     assert_eq!("auto".parse::<Topology>(), Ok(Topology::Auto));
 }
+
+/// A cluster of `nodes` render nodes measured alike, node `i` on device `device(i)` ("" for a
+/// software rasteriser or a node that reports none).
+fn on_devices(nodes: usize, max_lights: u32, device: impl Fn(usize) -> String) -> ClusterSpec {
+    let mut c = ClusterSpec::local(nodes, 16);
+    for (i, n) in c.nodes.iter_mut().enumerate() {
+        let mut caps = caps(max_lights, 2_000, 6_000).unwrap();
+        caps.device = device(i);
+        n.capabilities = Some(caps);
+    }
+    c
+}
+
+/// Every active sample rendered exactly once.
+fn each_once(p: &lightfold_coordinator::plan::Plan) {
+    let mut lights: Vec<usize> = p.nodes.iter().flat_map(|n| n.lights.clone()).collect();
+    lights.sort_unstable();
+    let mut active = p.active.clone();
+    active.sort_unstable();
+    assert_eq!(lights, active);
+}
+
+#[test]
+fn nodes_sharing_a_gpu_are_planned_as_one_node_per_gpu() {
+    let s = many_lights();
+    let o = PlanOptions {
+        lights_per_node: 4,
+        ..opts()
+    };
+    // Every node on its own device (or reporting none): K = 4, eight nodes, as ever.
+    let apart = plan(&s, &on_devices(8, 85, |i| format!("h/{i}/gpu")), &o).unwrap();
+    let unknown = plan(&s, &on_devices(8, 85, |_| String::new()), &o).unwrap();
+    for p in [&apart, &unknown] {
+        assert_eq!((p.k, p.nodes.len()), (4, 8));
+        assert!(p.shared_devices.is_none());
+        each_once(p);
+    }
+    assert_eq!(apart.nodes, unknown.nodes);
+
+    // All eight on one GPU: one node renders the 32 lights, the other seven idle.
+    let one = plan(&s, &on_devices(8, 85, |_| "h/0000:01:00.0/gpu".into()), &o).unwrap();
+    assert_eq!((one.k, one.nodes.len(), one.idle_nodes.len()), (32, 1, 7));
+    let shared = one.shared_devices.expect("says it merged");
+    assert_eq!((shared.devices, shared.nodes, shared.k_separate), (1, 8, 4));
+    assert!(one.est_frame_us < shared.est_separate_us, "{shared:?}");
+    assert!(
+        one.brief().to_string().contains("shared GPUs"),
+        "{}",
+        one.brief()
+    );
+    each_once(&one);
+
+    // Two GPUs of four nodes: one node on each.
+    let two = plan(&s, &on_devices(8, 85, |i| format!("h/{}/gpu", i % 2)), &o).unwrap();
+    assert_eq!((two.k, two.nodes.len()), (16, 2));
+    let used: Vec<&str> = two.nodes.iter().map(|n| n.node.as_str()).collect();
+    assert_eq!(used.len(), 2);
+    assert_ne!(used[0], used[1]);
+    each_once(&two);
+
+    // A device too small for all its nodes' lights keeps them apart: one node of at most 8
+    // lights cannot render 32.
+    let small = plan(&s, &on_devices(8, 8, |_| "h/0/gpu".into()), &o).unwrap();
+    assert_eq!(small.nodes.len(), 8);
+    assert!(small.shared_devices.is_none());
+
+    // Asked not to merge, the planner does not.
+    let kept = PlanOptions {
+        merge_shared_devices: false,
+        ..o.clone()
+    };
+    let p = plan(&s, &on_devices(8, 85, |_| "h/0/gpu".into()), &kept).unwrap();
+    assert_eq!((p.k, p.nodes.len()), (4, 8));
+}

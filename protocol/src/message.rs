@@ -69,6 +69,12 @@ pub struct Capabilities {
     /// Adapter name and backend, empty for compositors.
     pub adapter: String,
     pub backend: String,
+    /// The hardware device a render node renders on, as `host/bus-or-ids/adapter`: nodes that
+    /// report the same one share a GPU (their device work runs one after another), and the
+    /// planner may give one of them all their lights (`docs/planner.md`). Empty: unknown, a
+    /// compositor, or a software rasteriser (whose "device" is the CPU cores the processes share
+    /// anyway).
+    pub device: String,
     /// Largest K the device supports (0 for compositors).
     pub max_lights: u32,
     pub max_texture_size: u32,
@@ -100,6 +106,7 @@ impl Capabilities {
             advertise: String::new(),
             adapter: String::new(),
             backend: String::new(),
+            device: String::new(),
             max_lights: 0,
             max_texture_size: 0,
             formats: Vec::new(),

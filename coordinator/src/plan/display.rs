@@ -158,6 +158,9 @@ impl Display for Plan {
         if let Some(text) = self.partition_line() {
             writeln!(f, "{text}")?;
         }
+        if let Some(text) = self.shared_line() {
+            writeln!(f, "{text}")?;
+        }
         if let Some(text) = self.target_line() {
             writeln!(f, "{text}")?;
         }
@@ -393,11 +396,30 @@ impl Display for Brief<'_> {
         if let Some(text) = p.partition_line() {
             write!(f, "\n  {text}")?;
         }
+        if let Some(text) = p.shared_line() {
+            write!(f, "\n  {text}")?;
+        }
         Ok(())
     }
 }
 
 impl Plan {
+    /// Nodes sharing devices planned as one node per device, one line, or `None`.
+    pub fn shared_line(&self) -> Option<String> {
+        self.shared_devices.map(|s| {
+            format!(
+                "shared GPUs: {} node(s) report {} device(s) between them; one node per device                  renders the lights of the {} its nodes would have (K = {} instead of {};                  estimated {} per frame against {} with a device's nodes one after another)",
+                s.nodes,
+                s.devices,
+                s.stacked,
+                self.k,
+                s.k_separate,
+                ms(self.est_frame_us),
+                ms(s.est_separate_us)
+            )
+        })
+    }
+
     /// What the plan gave up to meet its frame budget, one line, or `None` when nothing was.
     pub fn gave_up(&self) -> Option<String> {
         gave_up(self)

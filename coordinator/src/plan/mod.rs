@@ -14,6 +14,7 @@ mod group;
 mod material;
 mod replan;
 mod shadow;
+mod shared;
 mod topology;
 mod types;
 pub mod wire;
@@ -234,7 +235,10 @@ pub(crate) fn plan_with(
         };
         return plan_with(scene, cluster, &options, previous);
     }
-    budget::within_budget(scene, cluster, options, previous, plan_once)
+    let separate = budget::within_budget(scene, cluster, options, previous, plan_once);
+    shared::prefer_merged(cluster, options, separate, |one| {
+        budget::within_budget(scene, one, options, previous, plan_once)
+    })
 }
 
 /// One plan of `scene` at the quality it asks for (a frame budget only picks K here).
@@ -714,6 +718,7 @@ fn plan_once(
         epsilon_used: culling.epsilon_used,
         nodes,
         idle_nodes,
+        shared_devices: None,
         stages,
         material,
         links,

@@ -273,6 +273,9 @@ pub struct PlanOptions {
     /// memory the nodes reported (`plan::partitions_for`).
     #[serde(default)]
     pub partitions: u32,
+    /// Plan nodes that share one GPU (`Capabilities::device`) as one node per device with
+    /// their lights together, when the cost model says that is faster (`plan/shared.rs`).
+    pub merge_shared_devices: bool,
 }
 
 /// When the planner adds the screen-space penumbra filter, and its radius.
@@ -355,6 +358,7 @@ impl Default for PlanOptions {
             target_penumbra_db: None,
             penumbra_filter: PenumbraFilter::Budget,
             partitions: 0,
+            merge_shared_devices: true,
         }
     }
 }
@@ -581,6 +585,19 @@ pub enum Knob {
     Epsilon,
 }
 
+/// Render nodes sharing devices, planned as one node per device (`plan/shared.rs`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SharedDevices {
+    /// Devices two or more nodes reported, and those nodes.
+    pub devices: usize,
+    pub nodes: usize,
+    /// K of the ordinary plan, and the most of its nodes one device would have run.
+    pub k_separate: u32,
+    pub stacked: u32,
+    /// The ordinary plan's estimate with a device's nodes one after another, microseconds.
+    pub est_separate_us: u64,
+}
+
 /// Everything the cluster does for one scene and view.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Plan {
@@ -637,6 +654,9 @@ pub struct Plan {
     /// when every node draws it whole.
     #[serde(default)]
     pub partitions: Vec<Vec<u32>>,
+    /// Set when nodes sharing a device are planned as one node per device.
+    #[serde(default)]
+    pub shared_devices: Option<SharedDevices>,
 }
 
 #[cfg(test)]

@@ -109,6 +109,7 @@ fn capabilities(opts: &NodeOptions, advertise: String, report: &DeviceReport) ->
         advertise,
         adapter: report.adapter.clone(),
         backend: report.backend.clone(),
+        device: report.device.clone(),
         max_lights: max_lights_for(&report.limits, map),
         max_texture_size: report.limits.max_texture_dimension_2d,
         formats: config::supported_formats(),

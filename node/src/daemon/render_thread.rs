@@ -28,6 +28,8 @@ const QUEUE: usize = 4;
 pub struct DeviceReport {
     pub adapter: String,
     pub backend: String,
+    /// The hardware device, as `Capabilities::device` gives it (empty for a software one).
+    pub device: String,
     /// The adapter renders in software (lavapipe, llvmpipe, `DeviceType::Cpu`).
     pub software: bool,
     pub limits: wgpu::Limits,
@@ -204,13 +206,16 @@ fn thread_main(
             return;
         }
     };
+    let software = lightfold_ops::is_software_rasteriser(
+        &gpu.info.name,
+        gpu.info.device_type == wgpu::DeviceType::Cpu,
+    );
     let report = DeviceReport {
         adapter: gpu.info.name.clone(),
         backend: format!("{:?}", gpu.info.backend).to_lowercase(),
-        software: lightfold_ops::is_software_rasteriser(
-            &gpu.info.name,
-            gpu.info.device_type == wgpu::DeviceType::Cpu,
-        ),
+        device: crate::gpu::device::device_identity(&super::sys::hostname(), &gpu.info)
+            .unwrap_or_default(),
+        software,
         limits: gpu.limits.clone(),
         calibration,
     };

@@ -35,6 +35,15 @@ pub fn threads() -> u32 {
         .unwrap_or(available)
 }
 
+/// This machine's host name (the kernel's), or "localhost" where it cannot be read.
+pub fn hostname() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .ok()
+        .map(|h| h.trim().to_string())
+        .filter(|h| !h.is_empty())
+        .unwrap_or_else(|| "localhost".to_string())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -145,57 +145,93 @@ fn device_rank(t: wgpu::DeviceType) -> u32 {
     }
 }
 
+/// The adapter [`Gpu::new`] opens for `opts`: Vulkan before GL, then by device type.
+fn choose_adapter(opts: &GpuOptions) -> Result<wgpu::Adapter, DeviceError> {
+    let backends = match opts.backend {
+        Some(b) => b,
+        None => match std::env::var(BACKEND_ENV) {
+            Ok(v) if !v.trim().is_empty() => parse_backend(&v)?,
+            _ => wgpu::Backends::VULKAN | wgpu::Backends::GL,
+        },
+    };
+    let named = |a: &wgpu::Adapter| {
+        opts.adapter_name.as_ref().is_none_or(|name| {
+            let needle = name.to_ascii_lowercase();
+            a.get_info().name.to_ascii_lowercase().contains(&needle)
+        })
+    };
+    let enumerate = |backends: wgpu::Backends| {
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        desc.backends = backends;
+        // Debian's validation layers flag every SPIR-V module with a false "source language"
+        // error when DEBUG is on (PLATFORM.md); keep validation, drop the debug labels.
+        desc.flags =
+            (wgpu::InstanceFlags::from_build_config() - wgpu::InstanceFlags::DEBUG).with_env();
+        let instance = wgpu::Instance::new(desc);
+        let mut adapters = pollster::block_on(instance.enumerate_adapters(backends));
+        adapters.retain(named);
+        adapters
+    };
+    // Vulkan first, GL only where Vulkan has no (matching) adapter: probing GL on a machine
+    // without a display driver logs EGL errors on every start although Vulkan serves.
+    let mut adapters =
+        if backends.contains(wgpu::Backends::VULKAN) && backends != wgpu::Backends::VULKAN {
+            let vulkan = enumerate(wgpu::Backends::VULKAN);
+            if vulkan.is_empty() {
+                enumerate(backends - wgpu::Backends::VULKAN)
+            } else {
+                vulkan
+            }
+        } else {
+            enumerate(backends)
+        };
+    adapters.sort_by_key(|a| {
+        let i = a.get_info();
+        (backend_rank(i.backend), device_rank(i.device_type))
+    });
+    adapters
+        .into_iter()
+        .next()
+        .ok_or_else(|| DeviceError::NoAdapter {
+            backends: format!("{backends:?}"),
+            adapter_name: opts.adapter_name.clone(),
+        })
+}
+
+/// A hardware adapter's identity on this host, what its node reports as `Capabilities::device`:
+/// the host, the PCI bus where the driver gives it (two identical cards differ there) or else
+/// vendor and device ids, and the name. `None` for a software rasteriser, whose "device" is the
+/// CPU cores.
+pub fn device_identity(host: &str, info: &wgpu::AdapterInfo) -> Option<String> {
+    if lightfold_ops::is_software_rasteriser(&info.name, info.device_type == wgpu::DeviceType::Cpu)
+    {
+        return None;
+    }
+    let place = if info.device_pci_bus_id.is_empty() {
+        format!("{:04x}:{:04x}", info.vendor, info.device)
+    } else {
+        info.device_pci_bus_id.clone()
+    };
+    Some(format!("{host}/{place}/{}", info.name))
+}
+
+/// The identity of the device [`Gpu::new`] would open for `opts` on this host and the lights it
+/// takes at the reported map size, without opening it (what a local cluster's nodes will
+/// report); `None` when it is a software rasteriser or there is no adapter.
+pub fn chosen_device(opts: &GpuOptions, host: &str) -> Option<(String, u32)> {
+    let adapter = choose_adapter(opts).ok()?;
+    let identity = device_identity(host, &adapter.get_info())?;
+    let lights = max_lights_for(
+        &adapter.limits(),
+        lightfold_scene::defaults::SHADOW_MAP_SIZE,
+    );
+    Some((identity, lights))
+}
+
 impl Gpu {
     /// Opens the best matching adapter with every limit it offers.
     pub fn new(opts: &GpuOptions) -> Result<Gpu, DeviceError> {
-        let backends = match opts.backend {
-            Some(b) => b,
-            None => match std::env::var(BACKEND_ENV) {
-                Ok(v) if !v.trim().is_empty() => parse_backend(&v)?,
-                _ => wgpu::Backends::VULKAN | wgpu::Backends::GL,
-            },
-        };
-        let named = |a: &wgpu::Adapter| {
-            opts.adapter_name.as_ref().is_none_or(|name| {
-                let needle = name.to_ascii_lowercase();
-                a.get_info().name.to_ascii_lowercase().contains(&needle)
-            })
-        };
-        let enumerate = |backends: wgpu::Backends| {
-            let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
-            desc.backends = backends;
-            // Debian's validation layers flag every SPIR-V module with a false "source language"
-            // error when DEBUG is on (PLATFORM.md); keep validation, drop the debug labels.
-            desc.flags =
-                (wgpu::InstanceFlags::from_build_config() - wgpu::InstanceFlags::DEBUG).with_env();
-            let instance = wgpu::Instance::new(desc);
-            let mut adapters = pollster::block_on(instance.enumerate_adapters(backends));
-            adapters.retain(named);
-            adapters
-        };
-        // Vulkan first, GL only where Vulkan has no (matching) adapter: probing GL on a machine
-        // without a display driver logs EGL errors on every start although Vulkan serves.
-        let mut adapters =
-            if backends.contains(wgpu::Backends::VULKAN) && backends != wgpu::Backends::VULKAN {
-                let vulkan = enumerate(wgpu::Backends::VULKAN);
-                if vulkan.is_empty() {
-                    enumerate(backends - wgpu::Backends::VULKAN)
-                } else {
-                    vulkan
-                }
-            } else {
-                enumerate(backends)
-            };
-        adapters.sort_by_key(|a| {
-            let i = a.get_info();
-            (backend_rank(i.backend), device_rank(i.device_type))
-        });
-        let Some(adapter) = adapters.into_iter().next() else {
-            return Err(DeviceError::NoAdapter {
-                backends: format!("{backends:?}"),
-                adapter_name: opts.adapter_name.clone(),
-            });
-        };
+        let adapter = choose_adapter(opts)?;
         let info = adapter.get_info();
         // Refused here with what to install, rather than as a pipeline the GL driver cannot
         // compile (wgpu's handler for that panics).

@@ -137,6 +137,7 @@ pub fn capabilities() -> impl Strategy<Value = Capabilities> {
             any::<u32>(),
             any::<u32>(),
             prop::collection::vec(format(), 0..9),
+            text(),
         ),
         (
             any::<u64>(),
@@ -150,7 +151,7 @@ pub fn capabilities() -> impl Strategy<Value = Capabilities> {
         .prop_map(
             |(
                 (role, daemon_id, advertise, adapter, backend),
-                (max_lights, max_texture_size, formats),
+                (max_lights, max_texture_size, formats, device),
                 (cost_per_light_us, fixed_cost_us, threads, version, memory_bytes, eye_ns),
             )| Capabilities {
                 role,
@@ -158,6 +159,7 @@ pub fn capabilities() -> impl Strategy<Value = Capabilities> {
                 advertise,
                 adapter,
                 backend,
+                device,
                 max_lights,
                 max_texture_size,
                 formats,
