@@ -690,6 +690,16 @@ pub async fn execute(
     } else {
         session.detach();
     }
+    if !written.skipped.is_empty() {
+        let n = written.skipped.len();
+        let shown: Vec<String> = written.skipped.iter().take(8).map(u64::to_string).collect();
+        outln!(
+            "warning: the files of {n} frame(s) were not written ({}{}): the disk was slower than \
+             the cluster for longer than the writer's queue holds; `--resume` renders them again",
+            shown.join(", "),
+            if n > 8 { ", …" } else { "" }
+        );
+    }
     if let Some(e) = written.error {
         return Err(e.context("writing frames"));
     }

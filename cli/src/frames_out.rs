@@ -95,17 +95,46 @@ impl FramePattern {
 }
 
 /// What the frame writer's thread ends with: the size of the frames written, how many frame
-/// files it wrote, and the first error.
+/// files it wrote, the frames whose files it had to skip (the disk slower than the cluster for
+/// longer than its queue absorbs), and the first error.
 pub struct Written {
     pub size: Option<(u32, u32)>,
     pub frames: u64,
+    pub skipped: Vec<u64>,
     pub error: Option<anyhow::Error>,
 }
 
-/// Writes frames off the event loop as they complete.
+/// Bytes of frames the writer holds at most while the disk catches up (about twenty 1080p
+/// frames): beyond it a frame's files are skipped, never the frame.
+pub const QUEUE_BYTES: usize = 512 << 20;
+
+/// A frame waiting for the writer, and whether its own files (`--frame-pattern`) are wanted;
+/// either way it may be the newest, which goes to `--out`/`--exr`.
+struct Job {
+    frame: FrameResult,
+    files: bool,
+}
+
+#[derive(Default)]
+struct Queue {
+    jobs: std::collections::VecDeque<Job>,
+    bytes: usize,
+    closed: bool,
+    skipped: Vec<u64>,
+}
+
+/// Writes frames off the event loop as they complete. The loop never waits for the disk: the
+/// queue holds at most `budget` bytes of frames; past it a frame's pattern files are skipped
+/// (and reported: `--resume` renders them again) while `--out` still gets the newest frame.
 pub struct FrameWriter {
-    tx: Option<std::sync::mpsc::Sender<FrameResult>>,
+    shared: Option<std::sync::Arc<(std::sync::Mutex<Queue>, std::sync::Condvar)>>,
+    every: bool,
+    budget: usize,
     thread: Option<std::thread::JoinHandle<Written>>,
+}
+
+fn frame_bytes(f: &FrameResult) -> usize {
+    f.image.data.len() * std::mem::size_of::<f32>()
 }
 
 impl FrameWriter {
@@ -115,19 +144,53 @@ impl FrameWriter {
         every: Option<FramePattern>,
         exposure: f32,
     ) -> FrameWriter {
-        let (tx, rx) = std::sync::mpsc::channel::<FrameResult>();
+        Self::with_budget(out, exr, every, exposure, QUEUE_BYTES)
+    }
+
+    /// [`FrameWriter::start`] with a queue of `budget` bytes.
+    pub fn with_budget(
+        out: PathBuf,
+        exr: PathBuf,
+        every: Option<FramePattern>,
+        exposure: f32,
+        budget: usize,
+    ) -> FrameWriter {
+        let shared = std::sync::Arc::new((
+            std::sync::Mutex::new(Queue::default()),
+            std::sync::Condvar::new(),
+        ));
+        let queue = std::sync::Arc::clone(&shared);
+        let has_every = every.is_some();
         let thread = std::thread::spawn(move || {
             let mut w = Written {
                 size: None,
                 frames: 0,
+                skipped: Vec::new(),
                 error: None,
             };
-            while let Ok(mut f) = rx.recv() {
-                // Every frame under the pattern; only the newest queued into --out.
-                let mut newest = Vec::new();
-                loop {
-                    if let Some(p) = &every {
-                        // Complete or absent, whenever the process dies (`--resume` relies on it).
+            let (lock, ready) = &*queue;
+            loop {
+                // Everything queued so far: every frame's files, then the newest into --out.
+                let batch: Vec<Job> = {
+                    let Ok(mut q) = lock.lock() else { break };
+                    while q.jobs.is_empty() && !q.closed {
+                        q = match ready.wait(q) {
+                            Ok(q) => q,
+                            Err(_) => return w,
+                        };
+                    }
+                    if q.jobs.is_empty() {
+                        w.skipped = std::mem::take(&mut q.skipped);
+                        break;
+                    }
+                    q.jobs.drain(..).collect()
+                };
+                let mut newest = None;
+                for job in batch {
+                    if let (true, Some(p)) = (job.files, &every) {
+                        // Complete or absent, whenever the process dies (`--resume` relies on
+                        // it).
+                        let f = &job.frame;
                         let (png, exr) = (p.path(f.frame, "png"), p.path(f.frame, "exr"));
                         match write_atomically(&f.image, &png, &exr, exposure) {
                             Ok(()) => w.frames += 1,
@@ -136,13 +199,12 @@ impl FrameWriter {
                             }
                         }
                     }
-                    newest.push(f);
-                    match rx.try_recv() {
-                        Ok(next) => f = next,
-                        Err(_) => break,
+                    if let Ok(mut q) = lock.lock() {
+                        q.bytes = q.bytes.saturating_sub(frame_bytes(&job.frame));
                     }
+                    newest = Some(job.frame);
                 }
-                if let Some(last) = newest.pop() {
+                if let Some(last) = newest {
                     w.size = Some((last.image.width, last.image.height));
                     if let Err(e) = write_atomically(&last.image, &out, &exr, exposure) {
                         w.error.get_or_insert(e);
@@ -152,30 +214,63 @@ impl FrameWriter {
             w
         });
         FrameWriter {
-            tx: Some(tx),
+            shared: Some(shared),
+            every: has_every,
+            budget,
             thread: Some(thread),
         }
     }
 
+    /// Queues a frame without waiting: its files when the queue has room, else only as the
+    /// newest frame (its files skipped and reported).
     pub fn send(&self, f: FrameResult) {
-        if let Some(tx) = &self.tx {
-            let _ = tx.send(f);
+        let Some(shared) = &self.shared else { return };
+        let (lock, ready) = &**shared;
+        let Ok(mut q) = lock.lock() else { return };
+        let size = frame_bytes(&f);
+        let files = self.every && q.bytes + size <= self.budget;
+        if self.every && !files {
+            if q.skipped.is_empty() {
+                tracing::warn!(
+                    frame = f.frame,
+                    "the disk is slower than the cluster: frame files are skipped while the \
+                     writer's queue is full (--resume renders them again)"
+                );
+            }
+            q.skipped.push(f.frame);
         }
+        // A frame that only goes to --out supersedes one queued for the same.
+        if !files && q.jobs.back().is_some_and(|j| !j.files) {
+            if let Some(old) = q.jobs.pop_back() {
+                q.bytes = q.bytes.saturating_sub(frame_bytes(&old.frame));
+            }
+        }
+        q.bytes += size;
+        q.jobs.push_back(Job { frame: f, files });
+        ready.notify_one();
     }
 
-    /// Waits for every frame to be written.
+    /// Waits for every queued frame to be written.
     pub fn finish(mut self) -> Written {
-        drop(self.tx.take());
+        if let Some(shared) = self.shared.take() {
+            let (lock, ready) = &*shared;
+            if let Ok(mut q) = lock.lock() {
+                q.closed = true;
+            }
+            ready.notify_all();
+        }
         match self.thread.take().map(|t| t.join()) {
             Some(Ok(r)) => r,
             Some(Err(_)) => Written {
                 size: None,
                 frames: 0,
+                skipped: Vec::new(),
                 error: Some(anyhow::anyhow!("the frame writer panicked")),
             },
             None => Written {
                 size: None,
                 frames: 0,
+                skipped: Vec::new(),
                 error: None,
             },
         }
@@ -247,6 +342,51 @@ mod tests {
         for bad in ["out/frame", "a%s", "a%04d%d", "%d%", "a%99d", "%d"] {
             assert!(FramePattern::parse(bad).is_err(), "{bad}");
         }
+    }
+
+    fn frame(n: u64) -> FrameResult {
+        let mut image = lightfold_scene::Image::new(4, 3, 3);
+        image.data.iter_mut().for_each(|v| *v = n as f32 / 10.0);
+        let now = std::time::Instant::now();
+        FrameResult {
+            frame: n,
+            wire_frame: n,
+            epoch: 1,
+            requested_at: now,
+            received_at: now,
+            latency_frames: 0,
+            image,
+            sink_bytes: 0,
+            stats: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_full_queue_skips_frame_files_never_the_newest_frame() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = FramePattern::parse(&dir.path().join("f-%03d").to_string_lossy()).unwrap();
+        let (out, exr) = (dir.path().join("out.png"), dir.path().join("out.exr"));
+        // Room for every frame: all written.
+        let w = FrameWriter::with_budget(out.clone(), exr.clone(), Some(p.clone()), 1.0, 1 << 20);
+        for n in 1..=5 {
+            w.send(frame(n));
+        }
+        let done = w.finish();
+        assert!(done.error.is_none());
+        assert_eq!((done.frames, done.skipped.len()), (5, 0));
+        assert_eq!(p.complete(5), vec![1, 2, 3, 4, 5]);
+        // No room at all (a disk that never keeps up): no frame file, the skips reported, and
+        // --out still holds the newest frame.
+        let q = FramePattern::parse(&dir.path().join("g-%03d").to_string_lossy()).unwrap();
+        let w = FrameWriter::with_budget(out.clone(), exr.clone(), Some(q.clone()), 1.0, 0);
+        for n in 1..=5 {
+            w.send(frame(n));
+        }
+        let done = w.finish();
+        assert_eq!((done.frames, done.skipped), (0, vec![1, 2, 3, 4, 5]));
+        assert!(q.complete(5).is_empty());
+        let newest = lightfold_scene::Image::read_exr(&exr).unwrap();
+        assert_eq!(newest.data[0], 0.5);
     }
 
     #[test]
