@@ -240,10 +240,11 @@ impl FrameWriter {
             q.skipped.push(f.frame);
         }
         // A frame that only goes to --out supersedes one queued for the same.
-        if !files && q.jobs.back().is_some_and(|j| !j.files) {
-            if let Some(old) = q.jobs.pop_back() {
-                q.bytes = q.bytes.saturating_sub(frame_bytes(&old.frame));
-            }
+        if !files
+            && q.jobs.back().is_some_and(|j| !j.files)
+            && let Some(old) = q.jobs.pop_back()
+        {
+            q.bytes = q.bytes.saturating_sub(frame_bytes(&old.frame));
         }
         q.bytes += size;
         q.jobs.push_back(Job { frame: f, files });
