@@ -184,6 +184,92 @@ async fn a_node_packing_on_the_device_streams_the_cpu_packs_bands() {
     }
 }
 
+/// Frame requests that arrive while a frame is rendering are rendered on the device while the
+/// previous frame's bands stream: every band of frame n still precedes frame n + 1's, and each
+/// frame is the same bits as when frames are requested one at a time.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn frames_requested_ahead_render_while_the_last_one_streams() {
+    use lightfold_protocol::WireCamera;
+    let mut node = start_node("node-q", None).await;
+    let mut comp = start_compositor().await;
+    let mut coord = node.coordinator().await;
+    let scene = scene();
+    let hash = coord.send_scene(&scene).await;
+    let lights = lights(4);
+    let layers = vec![
+        (Layer::Illumination, PixelFormat::Rgb9e5x2),
+        (Layer::Depth, PixelFormat::DepthF32),
+    ];
+    let config = node_config(5, hash, &lights, layers, &comp.addr);
+    let per_frame = band_count(&config);
+    assert_eq!(
+        coord.request(Message::ConfigureNode(config.clone())).await,
+        Message::Configured { epoch: 5 }
+    );
+    // Three cameras, each frame a different view so no frame can be a copy of another.
+    let camera = |i: u64| -> WireCamera {
+        let mut c = scene.camera;
+        c.position[0] += 0.2 * i as f32;
+        camera_to_wire(&c)
+    };
+    let request = |frame: u64| Message::RenderFrame {
+        epoch: 5,
+        frame,
+        camera: Some(camera(frame)),
+        params: FrameParams {
+            colors: Vec::new(),
+            scale: None,
+            time: None,
+        },
+    };
+    // One at a time: the reference bits.
+    let mut alone = Vec::new();
+    for f in 1..=3 {
+        match coord.request(request(f)).await {
+            Message::FrameDone(s) => assert!(!s.prefetched, "{s:?}"),
+            other => panic!("expected FrameDone, got {other:?}"),
+        }
+        alone.push(comp.take(per_frame).await);
+    }
+    // All three requested at once, as a coordinator with frames in flight does.
+    for f in 11..=13 {
+        coord.send(request(f - 10)).await;
+    }
+    let mut prefetched = 0;
+    for f in 1..=3u64 {
+        match coord.recv().await {
+            Message::FrameDone(s) => {
+                assert_eq!(s.frame, f, "answers in request order");
+                prefetched += u32::from(s.prefetched);
+            }
+            other => panic!("expected FrameDone, got {other:?}"),
+        }
+    }
+    assert!(
+        prefetched >= 1,
+        "no frame was rendered while another streamed"
+    );
+    let ahead = comp.take(3 * per_frame).await;
+    assert!(comp.idle());
+    // Band order: frame by frame, never interleaved.
+    let frames: Vec<u64> = ahead.iter().map(|(_, h, _)| h.frame).collect();
+    let mut sorted = frames.clone();
+    sorted.sort();
+    assert_eq!(
+        frames, sorted,
+        "every band of a frame precedes the next frame's"
+    );
+    for (i, one) in alone.iter().enumerate() {
+        let got = &ahead[i * per_frame..(i + 1) * per_frame];
+        for ((_, a, pa), (_, b, pb)) in one.iter().zip(got) {
+            assert_eq!((a.layer, a.y0, a.checksum), (b.layer, b.y0, b.checksum));
+            assert_eq!(pa, pb, "frame {} band at row {}", i + 1, a.y0);
+        }
+    }
+    drop(coord);
+    node.stop().await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn walkthrough_frames_reuse_what_did_not_change() {
     let mut node = start_node("node-w", None).await;

@@ -17,7 +17,8 @@ pub const MAGIC: [u8; 4] = *b"LFLD";
 /// 2: `CompositorConfig::wiring`. 4: `FrameParams::time` (scene time). 8: scenes travel as scene
 /// bytes version 6 (glTF metallic-roughness materials, mesh tangents), which nodes of 7 cannot read.
 /// 9: `Message::Error` names the epoch and frame it is about; `Message::Release`. 10:
-/// `FrameStats::setup_us` and `read_bytes` (nodes pack on the device).
+/// `FrameStats::setup_us`, `read_bytes` and `prefetched` (nodes pack on the device and render
+/// the next frame while sending one), `Capabilities::device`.
 pub const PROTOCOL_VERSION: u16 = 10;
 /// Longest daemon id a hello may carry (its wire length is one byte).
 pub const MAX_DAEMON_ID: usize = 255;

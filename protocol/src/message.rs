@@ -260,6 +260,8 @@ pub struct FrameStats {
     pub readback_us: u64,
     /// Bytes a node copied from its device to the host for the frame.
     pub read_bytes: u64,
+    /// A node rendered this frame while it sent the previous one (the request had arrived).
+    pub prefetched: bool,
     pub pack_us: u64,
     pub send_us: u64,
     pub composite_us: u64,

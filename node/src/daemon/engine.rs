@@ -8,7 +8,7 @@
 
 use super::bands::{BandLayout, LayerImages, PackedBand, assemble_frame, pack_frame, restamp};
 use super::config::{self, Checked};
-use super::render_thread::{DeviceReport, Output, RenderHandle, RenderSetup};
+use super::render_thread::{DeviceReport, Output, Pending, RenderHandle, RenderSetup};
 use super::scene_cache::{self, SceneCache, SceneCacheError, hex};
 use super::sys::peak_rss_bytes;
 use crate::gpu::device::max_lights_for;
@@ -83,6 +83,26 @@ struct FrameKey {
     time: Option<u32>,
 }
 
+/// A frame request that follows the one being rendered (already on the control link).
+#[derive(Debug, Clone)]
+pub struct NextFrame {
+    pub epoch: u64,
+    pub frame: u64,
+    pub camera: Option<WireCamera>,
+    pub params: FrameParams,
+}
+
+/// The next frame's render, queued on the render thread while this frame's bands stream: the
+/// device works on frame n + 1 while frame n goes to the socket. Bands still leave in frame
+/// order (frame n + 1's are streamed only when its own request is handled, after frame n's).
+#[derive(Debug)]
+struct Prefetched {
+    epoch: u64,
+    frame: u64,
+    key: FrameKey,
+    pending: Pending,
+}
+
 #[derive(Debug)]
 struct CachedFrame {
     key: FrameKey,
@@ -104,6 +124,7 @@ pub struct Engine {
     /// A frame has started and not returned: if its future was dropped, the data link may hold
     /// part of it.
     in_frame: bool,
+    prefetched: Option<Prefetched>,
 }
 
 impl Engine {
@@ -125,6 +146,7 @@ impl Engine {
             cached: None,
             max_frame,
             in_frame: false,
+            prefetched: None,
         }
     }
 
@@ -202,6 +224,7 @@ impl Engine {
         self.downstream.close();
         self.cached = None;
         self.in_frame = false;
+        self.prefetched = None;
     }
 
     /// Abandons a frame dropped half-way that nobody has abandoned yet.
@@ -231,6 +254,7 @@ impl Engine {
         self.recover();
         self.active = None;
         self.cached = None;
+        self.prefetched = None;
         let epoch = config.epoch;
         let hash = config.scene;
         let Some(scene) = self.scenes.get(&hash) else {
@@ -286,16 +310,20 @@ impl Engine {
     /// `RenderFrame`: renders (or, in walkthrough mode with nothing changed, reuses the last
     /// frame's bands), streams the bands downstream and answers `FrameDone`. Dropping the future
     /// abandons the frame (see [`Engine::abandon`]).
+    ///
+    /// `next`, the request that follows on the control link if it has arrived, is rendered on
+    /// the device while this frame's bands stream (see [`NextFrame`]).
     pub async fn render_frame(
         &mut self,
         epoch: u64,
         frame: u64,
         camera: Option<WireCamera>,
         params: FrameParams,
+        next: Option<NextFrame>,
     ) -> Message {
         self.recover();
         self.in_frame = true;
-        let answer = self.frame(epoch, frame, camera, params).await;
+        let answer = self.frame(epoch, frame, camera, params, next).await;
         self.in_frame = false;
         answer
     }
@@ -306,6 +334,7 @@ impl Engine {
         frame: u64,
         camera: Option<WireCamera>,
         params: FrameParams,
+        next: Option<NextFrame>,
     ) -> Message {
         let start = Instant::now();
         let key = match self.frame_key(epoch, frame, camera, &params) {
@@ -324,9 +353,10 @@ impl Engine {
         };
         let reuse = walkthrough && self.cached.as_ref().is_some_and(|c| c.key == key);
         let sent = if reuse {
+            self.prefetched = None;
             self.resend(frame, &mut stats).await
         } else {
-            self.render_and_send(key, frame, walkthrough, &mut stats)
+            self.render_and_send(key, frame, walkthrough, &mut stats, next)
                 .await
         };
         if let Err(r) = sent {
@@ -396,6 +426,33 @@ impl Engine {
         })
     }
 
+    /// Queues `next`'s render on the render thread (see [`Prefetched`]), unless it would not
+    /// render: a request the node refuses (it is refused again when handled, with the same
+    /// answer), or a walkthrough frame identical to `current` (its bands are resent).
+    async fn prefetch(&mut self, next: NextFrame, current: &FrameKey) {
+        let Ok(key) = self.frame_key(next.epoch, next.frame, next.camera, &next.params) else {
+            return;
+        };
+        let Some(active) = &self.active else {
+            return;
+        };
+        if active.checked.config.walkthrough && key == *current {
+            return;
+        }
+        if let Ok(pending) = self
+            .render
+            .submit(active.camera, active.time, active.scale)
+            .await
+        {
+            self.prefetched = Some(Prefetched {
+                epoch: next.epoch,
+                frame: next.frame,
+                key,
+                pending,
+            });
+        }
+    }
+
     async fn resend(&mut self, frame: u64, stats: &mut FrameStats) -> Result<(), Refusal> {
         let Some(cached) = self.cached.take() else {
             return Err(refuse(ErrorCode::Internal, "no cached frame"));
@@ -419,8 +476,14 @@ impl Engine {
         frame: u64,
         walkthrough: bool,
         stats: &mut FrameStats,
+        next: Option<NextFrame>,
     ) -> Result<(), Refusal> {
         self.cached = None;
+        let epoch = key.epoch;
+        let prefetched = self
+            .prefetched
+            .take()
+            .filter(|p| (p.epoch, p.frame) == (epoch, frame) && p.key == key);
         let Some(active) = &self.active else {
             return Err(refuse(ErrorCode::BadConfig, "not configured"));
         };
@@ -436,11 +499,21 @@ impl Engine {
         };
         let configured = cfg.layers.clone();
         let lights: Vec<u32> = cfg.lights.iter().map(|l| l.sample).collect();
-        let rendered = self
-            .render
-            .render(active.camera, active.time, active.scale)
-            .await
-            .map_err(|e| refuse(ErrorCode::RenderFailed, format!("frame {frame}: {e}")))?;
+        let rendered = match prefetched {
+            Some(p) => {
+                stats.prefetched = true;
+                p.pending.wait().await
+            }
+            None => {
+                self.render
+                    .render(active.camera, active.time, active.scale)
+                    .await
+            }
+        }
+        .map_err(|e| refuse(ErrorCode::RenderFailed, format!("frame {frame}: {e}")))?;
+        if let Some(n) = next {
+            self.prefetch(n, &key).await;
+        }
         let r = &rendered.stats;
         stats.setup_us = r.setup_us;
         stats.shadow_us = r.shadow_us;

@@ -100,6 +100,16 @@ enum Command {
     ),
 }
 
+/// A render queued with [`RenderHandle::submit`].
+#[derive(Debug)]
+pub struct Pending(oneshot::Receiver<Result<Rendered, RenderFailure>>);
+
+impl Pending {
+    pub async fn wait(self) -> Result<Rendered, RenderFailure> {
+        self.0.await.map_err(|_| RenderFailure::Stopped)?
+    }
+}
+
 /// The async side's handle on the render thread.
 #[derive(Debug)]
 pub struct RenderHandle {
@@ -156,12 +166,24 @@ impl RenderHandle {
         time: Option<f32>,
         scale: f32,
     ) -> Result<Rendered, RenderFailure> {
+        self.submit(camera, time, scale).await?.wait().await
+    }
+
+    /// Queues a render and returns at once: the thread renders while the caller does something
+    /// else (sends the previous frame), and [`Pending::wait`] collects it. Dropping the
+    /// `Pending` discards the answer (the thread still renders it).
+    pub async fn submit(
+        &self,
+        camera: Camera,
+        time: Option<f32>,
+        scale: f32,
+    ) -> Result<Pending, RenderFailure> {
         let (reply, answer) = oneshot::channel();
         self.tx
             .send(Command::Render(camera, time, scale, reply))
             .await
             .map_err(|_| RenderFailure::Stopped)?;
-        answer.await.map_err(|_| RenderFailure::Stopped)?
+        Ok(Pending(answer))
     }
 
     /// Closes the queue and waits for the thread to release the device.

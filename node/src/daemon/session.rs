@@ -16,7 +16,7 @@
 //! frame in progress is then abandoned too. A peer that is not a coordinator is logged and
 //! dropped.
 
-use super::engine::Engine;
+use super::engine::{Engine, NextFrame};
 use lightfold_net::claim::{Claims, FAREWELL, Ticket};
 use lightfold_net::{Link, LinkReader, LinkWriter, NetError};
 use lightfold_ops::health::ControlLink;
@@ -254,7 +254,15 @@ async fn work(
     mut fence: watch::Receiver<u64>,
     out: mpsc::Sender<Message>,
 ) {
-    while let Some(Request { msg, fence: seen }) = requests.recv().await {
+    // A request taken early (to render its frame while the previous one streams), handled next.
+    let mut held: Option<Request> = None;
+    loop {
+        let Some(Request { msg, fence: seen }) = (match held.take() {
+            Some(r) => Some(r),
+            None => requests.recv().await,
+        }) else {
+            return;
+        };
         let answer = match msg {
             Message::RenderFrame {
                 epoch,
@@ -262,6 +270,23 @@ async fn work(
                 camera,
                 params,
             } => {
+                // The next request, if it is already here: a frame of the same configuration is
+                // rendered on the device while this one's bands go out.
+                held = requests.try_recv().ok();
+                let next = held.as_ref().and_then(|r| match &r.msg {
+                    Message::RenderFrame {
+                        epoch,
+                        frame,
+                        camera,
+                        params,
+                    } if r.fence == seen => Some(NextFrame {
+                        epoch: *epoch,
+                        frame: *frame,
+                        camera: *camera,
+                        params: params.clone(),
+                    }),
+                    _ => None,
+                });
                 if *fence.borrow() > seen {
                     record::frame_failed("preempted");
                     tracing::info!(
@@ -278,7 +303,7 @@ async fn work(
                     biased;
                     () = preempted(&mut fence, seen) => None,
                     a = engine
-                        .render_frame(epoch, frame, camera, params)
+                        .render_frame(epoch, frame, camera, params, next)
                         .instrument(tracing::info_span!("frame", epoch, frame)) => Some(a),
                 };
                 match done {

@@ -296,6 +296,7 @@ pub fn frame_stats() -> impl Strategy<Value = FrameStats> {
                 eye_us: t[1],
                 readback_us: t[2],
                 read_bytes: bytes_out / 3,
+                prefetched: empty_bands % 2 == 1,
                 pack_us: t[3],
                 send_us: t[4],
                 composite_us: t[5],
