@@ -88,6 +88,11 @@ pub struct NodeArgs {
     /// the same rounds, so `device,cpu` gives the device pack against the CPU pack in one run.
     #[arg(long, value_delimiter = ',', default_value = "device,cpu", value_parser = ["device", "cpu"])]
     pack: Vec<String>,
+    /// Frame requests kept outstanding, as a coordinator's frames in flight: with 2 the node
+    /// renders each frame while it sends the previous one, and `interval` (the time between its
+    /// answers) falls below its frame time.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=8))]
+    in_flight: u32,
 }
 
 fn parse_size(s: &str) -> Result<(u32, u32), String> {
@@ -127,6 +132,8 @@ struct Row {
     mode: String,
     k: u32,
     frames: Vec<FrameStats>,
+    /// Microseconds between consecutive answers over the timed frames.
+    intervals: Vec<u64>,
     /// CPU time of the node process over all timed frames, ms (all its threads).
     cpu_ms_total: f64,
 }
@@ -255,6 +262,7 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
             mode: label(mode, pack),
             k: *k,
             frames: Vec::new(),
+            intervals: Vec::new(),
             cpu_ms_total: 0.0,
         })
         .collect();
@@ -263,8 +271,9 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
     for round in 0..a.rounds {
         for ((mode, pack, k, config), row) in plan.iter().zip(rows.iter_mut()) {
             let still = mode == "static";
-            let (frames, cpu_ms) =
+            let (frames, cpu_ms, intervals) =
                 measure(&a, pack, &token_text, &scene, &bytes, config.clone(), still).await?;
+            row.intervals.extend(intervals);
             row.cpu_ms_total += cpu_ms * frames.len() as f64;
             row.frames.extend(frames);
             eprintln!(
@@ -301,7 +310,7 @@ async fn measure(
     bytes: &[u8],
     config: NodeConfig,
     still: bool,
-) -> anyhow::Result<(Vec<FrameStats>, f64)> {
+) -> anyhow::Result<(Vec<FrameStats>, f64, Vec<u64>)> {
     let exe = std::env::current_exe()?;
     let mut cmd = tokio::process::Command::new(exe);
     cmd.args([
@@ -357,7 +366,7 @@ async fn drive(
     still: bool,
     child: &mut tokio::process::Child,
     addr: &str,
-) -> anyhow::Result<(Vec<FrameStats>, f64)> {
+) -> anyhow::Result<(Vec<FrameStats>, f64, Vec<u64>)> {
     let me = Identity::new(token.as_bytes(), Role::Coordinator, "bench");
     let t = Timeouts::default();
     let mut link = dial(addr, &me, t).await?;
@@ -373,18 +382,17 @@ async fn drive(
     })
     .await?;
     let mut stats = Vec::new();
+    let mut intervals = Vec::new();
     let pid = child.id().context("node process id")?;
     let mut cpu_start = None;
-    for f in 0..a.warmup + a.frames {
-        if f == a.warmup {
-            cpu_start = Some(crate::lifecycle::cpu_seconds(pid));
-        }
+    let total = a.warmup + a.frames;
+    let request = |f: u32| {
         let camera = if still {
             scene.camera
         } else {
             orbit(&scene.camera, f)
         };
-        let msg = Message::RenderFrame {
+        Message::RenderFrame {
             epoch,
             frame: u64::from(f),
             camera: Some(camera_to_wire(&camera)),
@@ -393,10 +401,34 @@ async fn drive(
                 scale: None,
                 time: None,
             },
+        }
+    };
+    // Up to `in_flight` requests outstanding; the next goes out as each answer comes back.
+    let mut sent = 0;
+    while sent < total.min(a.in_flight) {
+        link.send_msg(request(sent)).await?;
+        sent += 1;
+    }
+    let mut last = None::<std::time::Instant>;
+    for f in 0..total {
+        if f == a.warmup {
+            cpu_start = Some(crate::lifecycle::cpu_seconds(pid));
+        }
+        let answer = link.recv_msg(wait).await?;
+        let now = std::time::Instant::now();
+        let Message::FrameDone(s) = answer else {
+            bail!("node answered {answer:?}");
         };
-        let m = expect(&mut link, msg, wait, |m| matches!(m, Message::FrameDone(_))).await?;
-        if let (Message::FrameDone(s), true) = (m, f >= a.warmup) {
+        if f >= a.warmup {
+            if let Some(t) = last {
+                intervals.push((now - t).as_micros() as u64);
+            }
             stats.push(s);
+        }
+        last = Some(now);
+        if sent < total {
+            link.send_msg(request(sent)).await?;
+            sent += 1;
         }
     }
     // CPU time of the node process over the timed frames (0 where /proc cannot tell).
@@ -411,7 +443,7 @@ async fn drive(
     {
         child.kill().await?;
     }
-    Ok((stats, cpu_ms))
+    Ok((stats, cpu_ms, intervals))
 }
 
 /// The scene camera turned `f` half-degrees about the vertical through its target: a walkthrough
@@ -498,9 +530,11 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
         a.frames
     );
     outln!(
-        "| mode | K | fastest | median | CPU | setup | shadow | eye | readback | pack | send | untimed | frame ÷ device | read B/px | shadow passes | MB out | peak RSS MB |"
+        "| mode | K | fastest | median | interval | CPU | setup | shadow | eye | readback | pack | send | untimed | interval ÷ device | read B/px | shadow passes | MB out | peak RSS MB |"
     );
-    outln!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
+    outln!(
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
+    );
     let pixels = f64::from(a.size.0) * f64::from(a.size.1);
     for r in rows {
         let passes = median(
@@ -518,18 +552,20 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
             )
         });
         let device = r.ms(|s| s.shadow_us + s.eye_us);
-        let ratio = if device > 0.0 {
-            format!("{:.2}", r.total_ms() / device)
+        let interval = median(r.intervals.clone()) / 1000.0;
+        let ratio = if device > 0.0 && interval > 0.0 {
+            format!("{:.2}", interval / device)
         } else {
             "—".into()
         };
         let read = median(r.frames.iter().map(|s| s.read_bytes).collect()) / pixels;
         outln!(
-            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.1} | {} | {:.2} | {:.0} |",
+            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.1} | {} | {:.2} | {:.0} |",
             r.mode,
             r.k,
             r.best_ms(),
             r.total_ms(),
+            interval,
             r.cpu_ms(),
             r.ms(|s| s.setup_us + s.pose_us),
             r.ms(|s| s.shadow_us),
@@ -546,7 +582,8 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
         );
     }
     outln!(
-        "\nDevice time is the shadow and eye phases (each waits for the device); frame ÷ device is the median frame over it. `read B/px` is what the node copied from the device a pixel: the link format's bytes when packing on the device (plus a few words a band), 32 (lit buffer) or 16 a target when packing on the CPU. `untimed` is the frame less every timed phase."
+        "\n`interval` is the median time between the node's answers ({} request(s) in flight). Device time is the shadow and eye phases (each waits for the device); interval ÷ device is the node's rate against it (1.5 or less: the node nearly keeps up with its device). `read B/px` is what the node copied from the device a pixel: the link format's bytes when packing on the device (plus a few words a band), 32 (lit buffer) or 16 a target when packing on the CPU. `untimed` is the frame less every timed phase.",
+        a.in_flight
     );
     outln!("\n### L = {l}: node-seconds per frame (fastest wall time, and CPU time of the node)\n");
     outln!(

@@ -32,6 +32,10 @@ pub struct Args {
     /// `auto` (the device, unless it is a software rasteriser such as lavapipe).
     #[arg(long, default_value = "auto", value_parser = ["auto", "device", "cpu"], env = "LIGHTFOLD_PACK")]
     pub pack: String,
+    /// Render a frame whose request has arrived while the previous frame's bands stream (the
+    /// device works while the socket does); `false`: one frame at a time.
+    #[arg(long, default_value_t = true, action = clap::ArgAction::Set, env = "LIGHTFOLD_RENDER_AHEAD")]
+    pub render_ahead: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -55,6 +59,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             adapter_name: args.adapter,
         };
         opts.require_gpu = args.require_gpu;
+        opts.render_ahead = args.render_ahead;
         opts.pack = match args.pack.as_str() {
             "cpu" => daemon::PackOn::Cpu,
             "device" => daemon::PackOn::Device,

@@ -125,6 +125,8 @@ pub struct Engine {
     /// part of it.
     in_frame: bool,
     prefetched: Option<Prefetched>,
+    /// Whether a following request's frame is rendered while this one streams.
+    ahead: bool,
 }
 
 impl Engine {
@@ -147,7 +149,14 @@ impl Engine {
             max_frame,
             in_frame: false,
             prefetched: None,
+            ahead: true,
         }
+    }
+
+    /// Whether a following request's frame is rendered while this one's bands stream.
+    pub fn render_ahead(mut self, on: bool) -> Engine {
+        self.ahead = on;
+        self
     }
 
     /// Stops the render thread (the device is released when this returns).
@@ -511,7 +520,7 @@ impl Engine {
             }
         }
         .map_err(|e| refuse(ErrorCode::RenderFailed, format!("frame {frame}: {e}")))?;
-        if let Some(n) = next {
+        if let Some(n) = next.filter(|_| self.ahead) {
             self.prefetch(n, &key).await;
         }
         let r = &rendered.stats;

@@ -53,6 +53,9 @@ pub struct NodeOptions {
     /// Where frames are packed into link formats (by default the device, unless it is a
     /// software rasteriser).
     pub pack: PackOn,
+    /// Render a frame whose request has arrived while the previous frame's bands stream (on by
+    /// default; off gives one frame at a time, for comparison).
+    pub render_ahead: bool,
     /// The memory registration reports (`Capabilities::memory_bytes`); `None`: what the machine
     /// or its control group has.
     pub memory_bytes: Option<u64>,
@@ -74,6 +77,7 @@ impl std::fmt::Debug for NodeOptions {
             .field("dial_deadline", &self.dial_deadline)
             .field("require_gpu", &self.require_gpu)
             .field("pack", &self.pack)
+            .field("render_ahead", &self.render_ahead)
             .field("memory_bytes", &self.memory_bytes)
             .field("coordinator_silence", &self.coordinator_silence)
             .finish_non_exhaustive()
@@ -94,6 +98,7 @@ impl NodeOptions {
             dial_deadline: Duration::from_secs(30),
             require_gpu: false,
             pack: PackOn::Auto,
+            render_ahead: true,
             memory_bytes: None,
             coordinator_silence: lightfold_net::claim::COORDINATOR_SILENCE,
         }
@@ -163,14 +168,17 @@ pub async fn run(
         role: Role::Node,
         daemon_id: opts.daemon_id.clone(),
     };
-    let engine = Arc::new(Mutex::new(Engine::new(
-        opts.daemon_id.clone(),
-        render,
-        report,
-        SceneCache::new(opts.cache_dir.clone(), opts.max_scene_bytes),
-        lightfold_net::Downstream::new(me.clone(), opts.timeouts, opts.dial_deadline),
-        opts.timeouts.max_frame,
-    )));
+    let engine = Arc::new(Mutex::new(
+        Engine::new(
+            opts.daemon_id.clone(),
+            render,
+            report,
+            SceneCache::new(opts.cache_dir.clone(), opts.max_scene_bytes),
+            lightfold_net::Downstream::new(me.clone(), opts.timeouts, opts.dial_deadline),
+            opts.timeouts.max_frame,
+        )
+        .render_ahead(opts.render_ahead),
+    ));
     // Unclaimed links (test drivers, `lightfold bench`) may run side by side, sharing the engine.
     let claims = Claims::new(&opts.daemon_id, false);
     let stop = shutdown.child_token();
