@@ -530,7 +530,7 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
         a.frames
     );
     outln!(
-        "| mode | K | fastest | median | interval | CPU | setup | shadow | eye | readback | pack | send | untimed | interval ÷ device | read B/px | shadow passes | MB out | peak RSS MB |"
+        "| mode | K | fastest | median | interval | CPU | setup | shadow | eye | readback | pack | send | untimed | ahead | interval ÷ device | read B/px | shadow passes | MB out | peak RSS MB |"
     );
     outln!(
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"
@@ -559,8 +559,9 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
             "—".into()
         };
         let read = median(r.frames.iter().map(|s| s.read_bytes).collect()) / pixels;
+        let ahead = r.frames.iter().filter(|s| s.prefetched).count() * 100 / r.frames.len().max(1);
         outln!(
-            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {} | {:.1} | {} | {:.2} | {:.0} |",
+            "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {}% | {} | {:.1} | {} | {:.2} | {:.0} |",
             r.mode,
             r.k,
             r.best_ms(),
@@ -574,6 +575,7 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
             r.ms(|s| s.pack_us),
             r.ms(|s| s.send_us),
             untimed,
+            ahead,
             ratio,
             read,
             passes,
@@ -582,7 +584,7 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
         );
     }
     outln!(
-        "\n`interval` is the median time between the node's answers ({} request(s) in flight). Device time is the shadow and eye phases (each waits for the device); interval ÷ device is the node's rate against it (1.5 or less: the node nearly keeps up with its device). `read B/px` is what the node copied from the device a pixel: the link format's bytes when packing on the device (plus a few words a band), 32 (lit buffer) or 16 a target when packing on the CPU. `untimed` is the frame less every timed phase.",
+        "\n`interval` is the median time between the node's answers ({} request(s) in flight). Device time is the shadow and eye phases (each waits for the device); interval ÷ device is the node's rate against it (1.5 or less: the node nearly keeps up with its device). `read B/px` is what the node copied from the device a pixel: the link format's bytes when packing on the device (plus a few words a band), 32 (lit buffer) or 16 a target when packing on the CPU. `untimed` is the frame less every timed phase; `ahead` the share of frames the node rendered while it sent the one before.",
         a.in_flight
     );
     outln!("\n### L = {l}: node-seconds per frame (fastest wall time, and CPU time of the node)\n");

@@ -241,11 +241,19 @@ fn thread_main(
         limits: gpu.limits.clone(),
         calibration,
     };
-    let pack = match pack {
+    let mut pack = match pack {
         PackOn::Auto if report.software => PackOn::Cpu,
         PackOn::Auto => PackOn::Device,
         chosen => chosen,
     };
+    // A node never sends other bits than the CPU pack would: a driver whose pack differs on
+    // hostile values is caught here, and the node packs on the CPU instead.
+    if pack == PackOn::Device
+        && let Err(e) = crate::gpu::pack::DevicePacker::self_check(&gpu)
+    {
+        tracing::warn!(error = %e, "packing on the CPU: the device's pack failed its check");
+        pack = PackOn::Cpu;
+    }
     tracing::info!(
         ?pack,
         "frames are packed on the {}",

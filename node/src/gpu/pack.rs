@@ -630,3 +630,155 @@ fn copy_raw(
         },
     );
 }
+
+/// f32 values packing finds hard, deterministic: every special value, subnormals, values at and
+/// around each format's range and rounding ties, and random bit patterns.
+fn hostile(n: usize) -> Vec<f32> {
+    const SPECIAL: [f32; 20] = [
+        0.0,
+        -0.0,
+        f32::NAN,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::MAX,
+        f32::MIN_POSITIVE,
+        1e-45,
+        1e-40,
+        65504.0,
+        65519.996,
+        65520.0,
+        65408.0,
+        65415.0,
+        1.0,
+        0.999_999_94,
+        6.1035e-5,
+        5.96e-8,
+        0.003_130_8,
+        -1.0,
+    ];
+    let mut state = 0x9E37_79B9_7F4A_7C15u64;
+    (0..n)
+        .map(|i| {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            let r = (state >> 32) as u32;
+            match i % 4 {
+                0 => SPECIAL[(r as usize) % SPECIAL.len()],
+                1 => f32::from_bits(r),
+                2 => (r % 4096) as f32 * 0.5 / 2047.0,
+                _ => (r >> 8) as f32 / (1u32 << 24) as f32 * 4.0,
+            }
+        })
+        .collect()
+}
+
+impl DevicePacker {
+    /// Packs hostile values in every format from a lit buffer, an f16 target and a depth target
+    /// on this device and compares them with the CPU pack, byte for byte. A driver that differs
+    /// anywhere (a node must never send other bits than the CPU would) is an error naming the
+    /// first format that differs; the node then packs on the CPU.
+    pub fn self_check(gpu: &Gpu) -> Result<(), RenderError> {
+        use lightfold_protocol::format::pack;
+        use wgpu::util::DeviceExt;
+        const W: u32 = 61;
+        const H: u32 = 5;
+        let pixels = (W * H) as usize;
+        let mut packer = DevicePacker::new(gpu)?;
+        let values = hostile(pixels * 8);
+        let lit = gpu
+            .device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("pack self-check"),
+                contents: bytemuck::cast_slice(&values),
+                usage: wgpu::BufferUsages::STORAGE,
+            });
+        let six: Vec<f32> = values
+            .chunks_exact(8)
+            .flat_map(|p| [p[0], p[1], p[2], p[4], p[5], p[6]])
+            .collect();
+        let texture = |format: wgpu::TextureFormat, bytes: &[u8]| {
+            gpu.device.create_texture_with_data(
+                &gpu.queue,
+                &wgpu::TextureDescriptor {
+                    label: Some("pack self-check"),
+                    size: wgpu::Extent3d {
+                        width: W,
+                        height: H,
+                        depth_or_array_layers: 1,
+                    },
+                    mip_level_count: 1,
+                    sample_count: 1,
+                    dimension: wgpu::TextureDimension::D2,
+                    format,
+                    usage: wgpu::TextureUsages::COPY_SRC | wgpu::TextureUsages::COPY_DST,
+                    view_formats: &[],
+                },
+                wgpu::util::TextureDataOrder::LayerMajor,
+                bytes,
+            )
+        };
+        let halves: Vec<u16> = values
+            .iter()
+            .take(pixels * 4)
+            .map(|v| v.to_bits() as u16)
+            .collect();
+        let f16_target = texture(
+            wgpu::TextureFormat::Rgba16Float,
+            bytemuck::cast_slice(&halves),
+        );
+        let three: Vec<f32> = halves
+            .chunks_exact(4)
+            .flat_map(|t| t[..3].iter().map(|&h| half::f16::from_bits(h).to_f32()))
+            .collect();
+        let depth = &values[..pixels];
+        let depth_target = texture(wgpu::TextureFormat::R32Float, bytemuck::cast_slice(depth));
+        let cases: [(PackSource<'_>, &[f32], &[PixelFormat]); 3] = [
+            (
+                PackSource::Lit(&lit),
+                &six,
+                &[
+                    PixelFormat::Seed64,
+                    PixelFormat::Rgb9e5x2,
+                    PixelFormat::F16x6,
+                    PixelFormat::F32x6,
+                ],
+            ),
+            (
+                PackSource::Texture(&f16_target),
+                &three,
+                &[
+                    PixelFormat::F16x4,
+                    PixelFormat::Rgba8Linear,
+                    PixelFormat::Rgba8Srgb,
+                    PixelFormat::F32x3,
+                ],
+            ),
+            (
+                PackSource::Texture(&depth_target),
+                depth,
+                &[PixelFormat::DepthF32],
+            ),
+        ];
+        for (source, values, formats) in cases {
+            for &format in formats {
+                let scale = 0.75;
+                let mut want = vec![0u8; pixels * format.bytes_per_pixel()];
+                let stats = pack(format, values, scale, &mut want)
+                    .map_err(|e| RenderError::Gpu(format!("self-check CPU pack: {e}")))?;
+                let got = packer.pack(gpu, &[PackLayer { source, format }], W, H, 2, scale)?;
+                let layer = &got.layers[0];
+                let saturated: u64 = layer.bands.iter().map(|b| u64::from(b.saturated)).sum();
+                if layer.bytes[..] != want[..] || saturated != stats.saturated {
+                    let at = layer.bytes.iter().zip(&want).position(|(a, b)| a != b);
+                    return Err(RenderError::Gpu(format!(
+                        "this device packs {format:?} differently from the CPU (first byte \
+                         differing: {at:?}; saturated {saturated} against {})",
+                        stats.saturated
+                    )));
+                }
+            }
+        }
+        Ok(())
+    }
+}
