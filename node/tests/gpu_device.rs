@@ -300,25 +300,7 @@ mod device_pack {
     }
 
     fn texture(gpu: &Gpu, format: wgpu::TextureFormat, bytes: &[u8]) -> wgpu::Texture {
-        gpu.device.create_texture_with_data(
-            &gpu.queue,
-            &wgpu::TextureDescriptor {
-                label: Some("hostile source"),
-                size: wgpu::Extent3d {
-                    width: W,
-                    height: H,
-                    depth_or_array_layers: 1,
-                },
-                mip_level_count: 1,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format,
-                usage: wgpu::TextureUsages::COPY_SRC | wgpu::TextureUsages::COPY_DST,
-                view_formats: &[],
-            },
-            wgpu::util::TextureDataOrder::LayerMajor,
-            bytes,
-        )
+        lightfold_node::gpu::pack::source_texture(gpu, format, W, H, bytes)
     }
 
     fn image(channels: usize, data: Vec<f32>) -> Arc<Image> {

@@ -17,7 +17,7 @@
 
 use super::device::{Gpu, captured};
 use super::frame::RenderError;
-use super::readback::padded_row;
+use super::readback::{copy_texture, padded_row};
 use bytes::Bytes;
 use lightfold_protocol::PixelFormat;
 use lightfold_protocol::format::srgb_encode_tables;
@@ -401,8 +401,8 @@ impl DevicePacker {
                     let row = padded_row(width, t.bytes);
                     let region = u64::from(row) * u64::from(height);
                     let raw = self.raw(device, i, 2 * region, max_binding)?;
-                    copy_raw(&mut encoder, diffuse, &raw, 0, row);
-                    copy_raw(&mut encoder, specular, &raw, region, row);
+                    copy_texture(&mut encoder, diffuse, &raw, 0, row);
+                    copy_texture(&mut encoder, specular, &raw, region, row);
                     p.texel_words = t.bytes / 4;
                     p.row_words = row / 4;
                     p.group_offset = (region / 4) as u32;
@@ -421,7 +421,7 @@ impl DevicePacker {
                     let row = padded_row(width, t.bytes);
                     let raw =
                         self.raw(device, i, u64::from(row) * u64::from(height), max_binding)?;
-                    copy_raw(&mut encoder, texture, &raw, 0, row);
+                    copy_texture(&mut encoder, texture, &raw, 0, row);
                     p.halves = u32::from(t.halves);
                     p.texel_words = if t.halves { 2 } else { t.bytes / 4 };
                     p.row_words = row / 4;
@@ -599,38 +599,6 @@ fn same_size(texture: &wgpu::Texture, width: u32, height: u32) -> Result<(), Ren
     }
 }
 
-/// Copies `texture` into `buffer` at `offset`, rows `row` bytes apart.
-fn copy_raw(
-    encoder: &mut wgpu::CommandEncoder,
-    texture: &wgpu::Texture,
-    buffer: &wgpu::Buffer,
-    offset: u64,
-    row: u32,
-) {
-    let size = texture.size();
-    encoder.copy_texture_to_buffer(
-        wgpu::TexelCopyTextureInfo {
-            texture,
-            mip_level: 0,
-            origin: wgpu::Origin3d::ZERO,
-            aspect: wgpu::TextureAspect::All,
-        },
-        wgpu::TexelCopyBufferInfo {
-            buffer,
-            layout: wgpu::TexelCopyBufferLayout {
-                offset,
-                bytes_per_row: Some(row),
-                rows_per_image: Some(size.height),
-            },
-        },
-        wgpu::Extent3d {
-            width: size.width,
-            height: size.height,
-            depth_or_array_layers: 1,
-        },
-    );
-}
-
 /// f32 values packing finds hard, deterministic: every special value, subnormals, values at and
 /// around each format's range and rounding ties, and random bit patterns.
 fn hostile(n: usize) -> Vec<f32> {
@@ -673,6 +641,37 @@ fn hostile(n: usize) -> Vec<f32> {
         .collect()
 }
 
+/// A `width`×`height` texture of `format` holding `bytes` (rows packed), that can be packed
+/// from: what the self-check and the tests stand in for render targets with.
+pub fn source_texture(
+    gpu: &Gpu,
+    format: wgpu::TextureFormat,
+    width: u32,
+    height: u32,
+    bytes: &[u8],
+) -> wgpu::Texture {
+    use wgpu::util::DeviceExt;
+    gpu.device.create_texture_with_data(
+        &gpu.queue,
+        &wgpu::TextureDescriptor {
+            label: Some("pack source"),
+            size: wgpu::Extent3d {
+                width,
+                height,
+                depth_or_array_layers: 1,
+            },
+            mip_level_count: 1,
+            sample_count: 1,
+            dimension: wgpu::TextureDimension::D2,
+            format,
+            usage: wgpu::TextureUsages::COPY_SRC | wgpu::TextureUsages::COPY_DST,
+            view_formats: &[],
+        },
+        wgpu::util::TextureDataOrder::LayerMajor,
+        bytes,
+    )
+}
+
 impl DevicePacker {
     /// Packs hostile values in every format from a lit buffer, an f16 target and a depth target
     /// on this device and compares them with the CPU pack, byte for byte. A driver that differs
@@ -697,27 +696,7 @@ impl DevicePacker {
             .chunks_exact(8)
             .flat_map(|p| [p[0], p[1], p[2], p[4], p[5], p[6]])
             .collect();
-        let texture = |format: wgpu::TextureFormat, bytes: &[u8]| {
-            gpu.device.create_texture_with_data(
-                &gpu.queue,
-                &wgpu::TextureDescriptor {
-                    label: Some("pack self-check"),
-                    size: wgpu::Extent3d {
-                        width: W,
-                        height: H,
-                        depth_or_array_layers: 1,
-                    },
-                    mip_level_count: 1,
-                    sample_count: 1,
-                    dimension: wgpu::TextureDimension::D2,
-                    format,
-                    usage: wgpu::TextureUsages::COPY_SRC | wgpu::TextureUsages::COPY_DST,
-                    view_formats: &[],
-                },
-                wgpu::util::TextureDataOrder::LayerMajor,
-                bytes,
-            )
-        };
+        let texture = |format, bytes: &[u8]| source_texture(gpu, format, W, H, bytes);
         let halves: Vec<u16> = values
             .iter()
             .take(pixels * 4)

@@ -70,6 +70,39 @@ fn format_info(f: wgpu::TextureFormat) -> Result<(u32, usize, bool), RenderError
     }
 }
 
+/// Copies the whole of `texture` into `buffer` from `offset`, rows `row` bytes apart (a multiple
+/// of `COPY_BYTES_PER_ROW_ALIGNMENT`).
+pub fn copy_texture(
+    encoder: &mut wgpu::CommandEncoder,
+    texture: &wgpu::Texture,
+    buffer: &wgpu::Buffer,
+    offset: u64,
+    row: u32,
+) {
+    let size = texture.size();
+    encoder.copy_texture_to_buffer(
+        wgpu::TexelCopyTextureInfo {
+            texture,
+            mip_level: 0,
+            origin: wgpu::Origin3d::ZERO,
+            aspect: wgpu::TextureAspect::All,
+        },
+        wgpu::TexelCopyBufferInfo {
+            buffer,
+            layout: wgpu::TexelCopyBufferLayout {
+                offset,
+                bytes_per_row: Some(row),
+                rows_per_image: Some(size.height),
+            },
+        },
+        wgpu::Extent3d {
+            width: size.width,
+            height: size.height,
+            depth_or_array_layers: 1,
+        },
+    );
+}
+
 /// Copies every source into `staging` in one submission, waits once, and returns per source its
 /// f32 values (the lit buffer: 6 a pixel; a texture: `keep_channels` a pixel, row 0 at the top).
 pub fn read(
@@ -94,27 +127,7 @@ pub fn read(
                 let (bpp, _, _) = format_info(r.texture.format())?;
                 let row = padded_row(size.width, bpp);
                 let buffer = staging.buffer(device, i, row as u64 * size.height as u64);
-                encoder.copy_texture_to_buffer(
-                    wgpu::TexelCopyTextureInfo {
-                        texture: r.texture,
-                        mip_level: 0,
-                        origin: wgpu::Origin3d::ZERO,
-                        aspect: wgpu::TextureAspect::All,
-                    },
-                    wgpu::TexelCopyBufferInfo {
-                        buffer: &buffer,
-                        layout: wgpu::TexelCopyBufferLayout {
-                            offset: 0,
-                            bytes_per_row: Some(row),
-                            rows_per_image: Some(size.height),
-                        },
-                    },
-                    wgpu::Extent3d {
-                        width: size.width,
-                        height: size.height,
-                        depth_or_array_layers: 1,
-                    },
-                );
+                copy_texture(&mut encoder, r.texture, &buffer, 0, row);
                 buffers.push((buffer, row));
             }
         }
