@@ -181,32 +181,7 @@ mod device_pack {
         }
 
         fn value(&mut self, scale: f32) -> f32 {
-            const SPECIAL: [f32; 24] = [
-                0.0,
-                -0.0,
-                f32::NAN,
-                f32::INFINITY,
-                f32::NEG_INFINITY,
-                f32::MAX,
-                -f32::MAX,
-                f32::MIN_POSITIVE,
-                1e-45,
-                1e-40,
-                65504.0,
-                65519.996,
-                65520.0,
-                65408.0,
-                65415.0,
-                1.0,
-                1.000_000_1,
-                0.999_999_94,
-                1.5259e-5,
-                6.1035e-5,
-                5.96e-8,
-                0.5 / 255.0,
-                0.003_130_8,
-                -1.0,
-            ];
+            const SPECIAL: &[f32] = lightfold_node::gpu::pack::HOSTILE_SPECIALS;
             match self.next_u32() % 8 {
                 0 => f32::from_bits(self.next_u32()),
                 1 => SPECIAL[self.next_u32() as usize % SPECIAL.len()],

@@ -599,31 +599,40 @@ fn same_size(texture: &wgpu::Texture, width: u32, height: u32) -> Result<(), Ren
     }
 }
 
+/// Values a pack must get right: zeros of both signs, NaN, infinities, the largest finite, the
+/// smallest normal and subnormals, each format's top (f16, rgb9e5) and the values just around
+/// it and around 1, half-precision subnormals, and the sRGB knee.
+pub const HOSTILE_SPECIALS: &[f32] = &[
+    0.0,
+    -0.0,
+    f32::NAN,
+    f32::INFINITY,
+    f32::NEG_INFINITY,
+    f32::MAX,
+    -f32::MAX,
+    f32::MIN_POSITIVE,
+    1e-45,
+    1e-40,
+    65504.0,
+    65519.996,
+    65520.0,
+    65408.0,
+    65415.0,
+    1.0,
+    1.000_000_1,
+    0.999_999_94,
+    1.5259e-5,
+    6.1035e-5,
+    5.96e-8,
+    0.5 / 255.0,
+    0.003_130_8,
+    -1.0,
+];
+
 /// f32 values packing finds hard, deterministic: every special value, subnormals, values at and
 /// around each format's range and rounding ties, and random bit patterns.
 fn hostile(n: usize) -> Vec<f32> {
-    const SPECIAL: [f32; 20] = [
-        0.0,
-        -0.0,
-        f32::NAN,
-        f32::INFINITY,
-        f32::NEG_INFINITY,
-        f32::MAX,
-        f32::MIN_POSITIVE,
-        1e-45,
-        1e-40,
-        65504.0,
-        65519.996,
-        65520.0,
-        65408.0,
-        65415.0,
-        1.0,
-        0.999_999_94,
-        6.1035e-5,
-        5.96e-8,
-        0.003_130_8,
-        -1.0,
-    ];
+    const SPECIAL: &[f32] = HOSTILE_SPECIALS;
     let mut state = 0x9E37_79B9_7F4A_7C15u64;
     (0..n)
         .map(|i| {
