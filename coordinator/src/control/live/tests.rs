@@ -101,6 +101,18 @@ impl Sim {
     }
 
     fn build(nodes: usize, compositors: usize, unreached: &[&str]) -> Sim {
+        Sim::build_with(nodes, compositors, unreached, |_| {}, 4)
+    }
+
+    /// [`Sim::build`] with every daemon's capabilities changed by `tweak`, planning `k` lights
+    /// a node.
+    fn build_with(
+        nodes: usize,
+        compositors: usize,
+        unreached: &[&str],
+        tweak: impl Fn(&mut Capabilities),
+        k: u32,
+    ) -> Sim {
         let mut scene = lightfold_scene::builtin("cornell").unwrap();
         scene.quality.samples_per_area_light = Some(4);
         scene.camera.width = 64;
@@ -110,6 +122,7 @@ impl Sim {
         scene.lights[0].color = [1.0, 0.0, 0.0];
         let opts = PlanOptions {
             map_sizing: MapSizing::Fixed(256),
+            lights_per_node: k,
             ..PlanOptions::default()
         };
         let now = Instant::now();
@@ -122,7 +135,9 @@ impl Sim {
         for (id, role) in ids {
             let reached = !unreached.contains(&id.as_str());
             if reached {
-                let m = Member::new(format!("{id}:7300"), caps(&id, role), 1, now);
+                let mut c = caps(&id, role);
+                tweak(&mut c);
+                let m = Member::new(format!("{id}:7300"), c, 1, now);
                 members.insert(id.clone(), m);
             } else {
                 unreachable.push((format!("{id}:7300"), "not reached".to_string()));
@@ -426,6 +441,42 @@ fn the_simulated_cluster_renders_every_frame() {
     sim.assert_all_delivered(20);
     assert!(sim.core.finished());
     assert_eq!(sim.core.summary.epochs.len(), 1);
+}
+
+/// Render nodes that report one GPU are planned as one node; when it is lost, another node of
+/// that GPU takes all the lights and no frame is lost.
+#[test]
+fn nodes_sharing_a_gpu_run_as_one_and_fail_over_to_another() {
+    // K = 2: the ordinary plan would run two nodes, one after the other on the GPU.
+    let mut sim = Sim::build_with(
+        3,
+        2,
+        &[],
+        |c| {
+            if c.role == Role::Node {
+                c.max_lights = 8;
+                c.device = "host/0000:01:00.0/sim".into();
+            }
+        },
+        2,
+    );
+    sim.start();
+    sim.run_plain(Duration::from_secs(3), 6);
+    let plan = sim.core.plan().expect("planned").clone();
+    assert_eq!(plan.nodes.len(), 1, "one node for the shared GPU");
+    assert!(plan.shared_devices.is_some());
+    let first = plan.nodes[0].node.clone();
+    sim.kill(&first);
+    sim.run_plain(Duration::from_secs(5), 12);
+    let after = sim.core.plan().expect("re-planned");
+    assert_eq!(after.nodes.len(), 1);
+    assert_ne!(
+        after.nodes[0].node, first,
+        "another node of the GPU took over"
+    );
+    sim.input(Input::RequestsClosed);
+    sim.run_plain(Duration::from_secs(2), 12);
+    sim.assert_all_delivered(12);
 }
 
 #[test]
