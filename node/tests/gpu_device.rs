@@ -504,6 +504,20 @@ mod device_pack {
         assert!(!DevicePacker::supports(PixelFormat::Seed64, 1e-35));
         assert!(DevicePacker::supports(PixelFormat::Seed64, 1e-20));
         assert!(DevicePacker::supports(PixelFormat::Rgb9e5x2, 0.0));
+        // A frame beyond the storage-binding limit is packed on the CPU, not failed.
+        let limits = wgpu::Limits::default();
+        let hd = [
+            PixelFormat::F16x6,
+            PixelFormat::F16x4,
+            PixelFormat::DepthF32,
+        ];
+        assert!(DevicePacker::fits(&limits, &hd, 1920, 1080));
+        assert!(!DevicePacker::fits(
+            &limits,
+            &[PixelFormat::Rgb9e5x2],
+            8192,
+            4096
+        ));
     }
 
     /// A rendered frame packed on the device equals the same frame read back and packed on the

@@ -262,6 +262,23 @@ impl DevicePacker {
         format != PixelFormat::Seed64 || (scale.is_finite() && scale >= MIN_SEED64_SCALE)
     }
 
+    /// Whether a `width`×`height` frame of `formats` stays within this device's storage-binding
+    /// limit, counting each source at its largest (the forward pass's two 16-byte targets for
+    /// illumination): a frame that does not is packed on the CPU instead of failing.
+    pub fn fits(limits: &wgpu::Limits, formats: &[PixelFormat], width: u32, height: u32) -> bool {
+        let max = limits.max_storage_buffer_binding_size;
+        let pixels = u64::from(width) * u64::from(height);
+        let rows = |bytes: u32| u64::from(padded_row(width, bytes)) * u64::from(height);
+        formats.iter().all(|f| {
+            let source = match f.channels() {
+                6 => (2 * rows(16)).max(pixels * 32),
+                3 => rows(16),
+                _ => rows(4),
+            };
+            pixels * f.bytes_per_pixel() as u64 <= max && source <= max
+        })
+    }
+
     /// Packs `layers` of a `width`×`height` frame cut into bands of `band_height` rows: copies,
     /// one compute pass, one copy to the host, one wait. The sources must hold this frame (their
     /// passes submitted before).

@@ -546,6 +546,7 @@ impl Renderer {
                 }
             };
         }
+        let formats: Vec<PixelFormat> = layers.iter().map(|(_, f)| *f).collect();
         matches!(self.packer, PackerState::Ready(_))
             && !layers.is_empty()
             && layers.len() <= pack::MAX_LAYERS
@@ -554,6 +555,7 @@ impl Renderer {
                     && f.channels() == l.channels()
                     && DevicePacker::supports(*f, scale)
             })
+            && DevicePacker::fits(&gpu.limits, &formats, self.camera.width, self.camera.height)
     }
 
     /// Runs one frame's device work, turning what the device refuses into an error (wgpu's
