@@ -319,7 +319,8 @@ pub struct SurfacePoint {
 
 /// A material at texture coordinates `uv`, its textures from `textures` (a missing one reads
 /// white). Blinn-Phong: `m^d` = diffuse × base texture, the rest as authored. Metallic-roughness
-/// (every texture read at [`shading_uv`]): `m^d = c_diff ⊙ (1 − F0)`, `m^s = 1`,
+/// (every texture read at [`shading_uv`]): `m^d = c_diff ⊙ (1 − F0)`, `m^s` = the material's
+/// `specular` (1, or 0 where a scene file's `specular = false` turned the lobe off),
 /// `m^a = m^d · occlusion`, `e` = emissive × emissive texture.
 pub fn surface_point(m: &Material, textures: &[Texture], uv: [f32; 2]) -> SurfacePoint {
     let read = |t: Option<usize>, uv: [f32; 2]| {
@@ -352,7 +353,7 @@ pub fn surface_point(m: &Material, textures: &[Texture], uv: [f32; 2]) -> Surfac
     let e = read(p.emissive_texture, suv);
     SurfacePoint {
         diffuse: at.diffuse,
-        specular: [1.0; 3],
+        specular: m.specular,
         ambient: scale(at.diffuse, occ),
         emissive: [0, 1, 2].map(|k| m.emissive[k] * e[k]),
         lobe: Lobe::Ggx {

@@ -41,7 +41,8 @@ struct MaterialLayers {
     emissive: vec4f,
 }
 
-// Metallic-roughness (`scene::shading::surface_point`): m^d = c_diff ⊙ (1 − F0), m^s = 1,
+// Metallic-roughness (`scene::shading::surface_point`): m^d = c_diff ⊙ (1 − F0), m^s = the
+// material's specular (1, or 0 with a scene file's `specular = false`),
 // m^a = m^d · occlusion, e = emissive × emissive texture, every texture at `shading_uv`.
 fn material_layers(in: VsOut) -> MaterialLayers {
     let index = in.material & ~NO_UV_BIT;
@@ -57,7 +58,7 @@ fn material_layers(in: VsOut) -> MaterialLayers {
         let e = m.emissive * read_texture(q.emissive_texture, suv).rgb;
         return MaterialLayers(
             vec4f(p.diffuse, 1.0),
-            vec4f(1.0),
+            vec4f(m.specular, 1.0),
             vec4f(p.diffuse * occ, 1.0),
             vec4f(e, 1.0),
         );

@@ -246,3 +246,37 @@ async fn bias_per_built_in_scene() {
         println!("{r}");
     }
 }
+
+/// `specular = false` (every material's `m^s` zeroed, glTF metallic-roughness ones too) means one
+/// thing: `render` drops the specular lobe as the planner and the cluster do. The FlightHelmet's
+/// metallic-roughness materials with the flag: the render loses energy against the same render
+/// with it (the flag is not ignored), and the cluster frame equals the render within the bias.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn specular_off_drops_the_lobe_in_render_and_cluster_alike() {
+    let cluster = InProcessCluster::start(3, 3).await.unwrap();
+    let gpu = Gpu::new(&GpuOptions::default())
+        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let with = small_helmet();
+    assert!(with.materials.iter().any(|m| m.pbr.is_some()));
+    let mut without = with.clone();
+    // What a scene file's `specular = false` does (`scene/src/file/build.rs`).
+    for m in &mut without.materials {
+        m.specular = [0.0; 3];
+    }
+    let lit = single_device_aa(&gpu, &with, 1);
+    let matte = single_device_aa(&gpu, &without, 1);
+    let (drop, _) = compare(&matte, &lit);
+    eprintln!("specular off against on: bias {:+.4} %", drop * 100.0);
+    assert!(
+        drop < -1e-3,
+        "render ignores specular = false on metallic-roughness materials ({:+.4} %)",
+        drop * 100.0
+    );
+    let (bias, _) = bias_of(&cluster, &gpu, &without, |_| {}).await;
+    cluster.stop().await.unwrap();
+    assert!(
+        bias.abs() <= MAX_BIAS,
+        "cluster against render with specular off: {:+.4} %",
+        bias * 100.0
+    );
+}
