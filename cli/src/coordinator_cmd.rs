@@ -240,9 +240,10 @@ pub struct JobArgs {
     /// After the run, assemble the frames' PNGs into this video with `ffmpeg` (on the PATH).
     #[arg(long, value_name = "FILE", conflicts_with = "no_frame_files")]
     pub video: Option<PathBuf>,
-    /// Frames per second of `--video`.
-    #[arg(long, default_value_t = 24, value_parser = clap::value_parser!(u32).range(1..=240))]
-    pub video_fps: u32,
+    /// Frames per second of `--video` (default: `--fps`, so an animation plays at its own speed;
+    /// 24 without it).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(1..=240))]
+    pub video_fps: Option<u32>,
     /// Print the full plan (every node, light, stage and link) and one line per frame after the
     /// run, instead of the plan in a few lines.
     #[arg(long, short = 'v')]
@@ -313,6 +314,15 @@ impl JobArgs {
             supersample: self.aa,
             partitions: self.partitions,
             ..PlanOptions::default()
+        }
+    }
+
+    /// Frames per second of `--video`: `--video-fps`, else the animation's `--fps`, else 24.
+    pub fn video_rate(&self) -> f32 {
+        match (self.video_fps, self.fps) {
+            (Some(v), _) => v as f32,
+            (None, Some(fps)) => fps,
+            (None, None) => 24.0,
         }
     }
 
@@ -729,7 +739,7 @@ pub async fn execute(
         bail!("interrupted after {delivered}{of} frame(s); the frames done are written");
     }
     if let (Some(video), Some(p)) = (&job.video, &every) {
-        crate::frames_out::assemble_video(p, video, job.video_fps)?;
+        crate::frames_out::assemble_video(p, video, job.video_rate())?;
         outln!("wrote {}", video.display());
     }
     let (w, h) = written.size.context("no frame was rendered")?;
@@ -882,8 +892,28 @@ impl Progress {
 
 #[cfg(test)]
 mod tests {
-    use super::{LinkClass, parse_link_format};
+    use super::{JobArgs, LinkClass, parse_link_format};
+    use clap::Parser;
     use lightfold_protocol::PixelFormat;
+
+    #[derive(Debug, clap::Parser)]
+    struct Job {
+        #[command(flatten)]
+        job: JobArgs,
+    }
+
+    #[test]
+    fn a_video_plays_at_the_animation_rate_unless_told_otherwise() {
+        let rate = |args: &[&str]| {
+            let mut all = vec!["job"];
+            all.extend_from_slice(args);
+            Job::try_parse_from(all).unwrap().job.video_rate()
+        };
+        assert_eq!(rate(&[]), 24.0);
+        assert_eq!(rate(&["--fps", "8"]), 8.0);
+        assert_eq!(rate(&["--fps", "8", "--video-fps", "30"]), 30.0);
+        assert_eq!(rate(&["--video-fps", "12"]), 12.0);
+    }
 
     #[test]
     fn link_formats_parse_per_class() {

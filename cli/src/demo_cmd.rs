@@ -598,7 +598,9 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
     if let Some(v) = &job.video {
         cmd.arg("--video").arg(v);
     }
-    cmd.arg("--video-fps").arg(job.video_fps.to_string());
+    if let Some(fps) = job.video_fps {
+        cmd.arg("--video-fps").arg(fps.to_string());
+    }
     if job.verbose {
         cmd.arg("--verbose");
     }

@@ -302,7 +302,7 @@ fn write_atomically(
 }
 
 /// Assembles the frames' PNGs into `video` with `ffmpeg` (H.264, `fps` frames per second).
-pub fn assemble_video(pattern: &FramePattern, video: &Path, fps: u32) -> anyhow::Result<()> {
+pub fn assemble_video(pattern: &FramePattern, video: &Path, fps: f32) -> anyhow::Result<()> {
     let out = std::process::Command::new("ffmpeg")
         .args(["-y", "-loglevel", "error", "-framerate"])
         .arg(fps.to_string())

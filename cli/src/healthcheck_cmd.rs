@@ -13,6 +13,7 @@ pub struct Args {
     /// loopback.
     #[arg(
         long,
+        alias = "metrics-listen",
         env = "LIGHTFOLD_METRICS_LISTEN",
         default_value = "127.0.0.1:9300"
     )]
@@ -73,6 +74,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_address_is_also_taken_as_metrics_listen() {
+        #[derive(Debug, clap::Parser)]
+        struct Cmd {
+            #[command(flatten)]
+            args: Args,
+        }
+        use clap::Parser;
+        let a = Cmd::try_parse_from(["healthcheck", "--metrics-listen", "0.0.0.0:9400"]).unwrap();
+        assert_eq!(a.args.addr, "0.0.0.0:9400");
+        let b = Cmd::try_parse_from(["healthcheck", "--addr", "127.0.0.1:1"]).unwrap();
+        assert_eq!(b.args.addr, "127.0.0.1:1");
+    }
 
     #[test]
     fn a_wildcard_host_is_asked_on_loopback() {
