@@ -7,39 +7,37 @@
 use std::io::Read;
 use std::path::{Component, Path, PathBuf};
 
-/// Reads the regular file at `path`, at most `cap` bytes.
+/// Reads the regular file at `path`, at most `cap` bytes. The error says what went wrong, not
+/// which file: callers name it once (`cannot read PATH: …`).
 pub(crate) fn read_bounded(path: &Path, cap: u64) -> Result<Vec<u8>, String> {
-    let shown = path.display();
     // `metadata` follows symbolic links: what is checked is what would be opened. Checked before
     // opening, since opening a FIFO blocks until a writer comes.
-    let meta = std::fs::metadata(path).map_err(|e| format!("cannot read {shown}: {e}"))?;
+    let meta = std::fs::metadata(path).map_err(|e| e.to_string())?;
     if !meta.is_file() {
         return Err(format!(
-            "{shown} is not a regular file ({}); only regular files are read",
+            "not a regular file ({}); only regular files are read",
             kind(&meta)
         ));
     }
     if meta.len() > cap {
         return Err(format!(
-            "{shown} is {} bytes, more than the {cap} bytes allowed",
+            "{} bytes, more than the {cap} bytes allowed",
             meta.len()
         ));
     }
-    let file = std::fs::File::open(path).map_err(|e| format!("cannot read {shown}: {e}"))?;
+    let file = std::fs::File::open(path).map_err(|e| e.to_string())?;
     // The file opened may not be the one checked (replaced in between): check it again.
-    let meta = file
-        .metadata()
-        .map_err(|e| format!("cannot read {shown}: {e}"))?;
+    let meta = file.metadata().map_err(|e| e.to_string())?;
     if !meta.is_file() {
-        return Err(format!("{shown} is not a regular file ({})", kind(&meta)));
+        return Err(format!("not a regular file ({})", kind(&meta)));
     }
     let mut bytes = Vec::with_capacity(meta.len().min(cap) as usize);
     file.take(cap.saturating_add(1))
         .read_to_end(&mut bytes)
-        .map_err(|e| format!("cannot read {shown}: {e}"))?;
+        .map_err(|e| e.to_string())?;
     if bytes.len() as u64 > cap {
         return Err(format!(
-            "{shown} holds more than the {cap} bytes allowed (it grew while being read)"
+            "more than the {cap} bytes allowed (it grew while being read)"
         ));
     }
     Ok(bytes)

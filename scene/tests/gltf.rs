@@ -229,7 +229,12 @@ fn malformed_structure_is_an_error() {
 #[test]
 fn missing_file_is_an_io_error() {
     let path = scratch("absent").join("absent.glb");
-    assert!(matches!(load_gltf(&path), Err(SceneError::Io { .. })));
+    let e = load_gltf(&path).unwrap_err();
+    assert!(matches!(e, SceneError::Io { .. }));
+    // The path once, and why.
+    let text = e.to_string();
+    assert_eq!(text.matches("absent.glb").count(), 1, "{text}");
+    assert!(text.starts_with("cannot read "), "{text}");
 }
 
 #[test]

@@ -208,7 +208,8 @@ pub(super) fn read_uri(uri: &str, base: Option<&Path>, files: &Budget) -> Result
         format!("{rel:?} is an external file but the glTF was given as bytes without a folder")
     })?;
     let path = crate::input::resolve_inside(base, &rel, "the model's")?;
-    let bytes = crate::input::read_bounded(&path, files.left())?;
+    let bytes = crate::input::read_bounded(&path, files.left())
+        .map_err(|e| format!("cannot read {}: {e}", path.display()))?;
     files.take(bytes.len() as u64).map_err(|e| e.to_string())?;
     Ok(bytes)
 }
