@@ -600,7 +600,12 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
         let connect = Session::connect(&daemons, listener, sink_advertise, me, control);
         let session = tokio::select! {
             r = connect => r?,
-            _ = cancel.cancelled() => bail!("interrupted"),
+            _ = cancel.cancelled() => {
+                return Err(crate::lifecycle::Interrupted(
+                    "interrupted before the cluster was reached".into(),
+                )
+                .into());
+            }
         };
         // Ctrl-C from here on: no new frame is requested, the frames in flight are finished and
         // written, and the summary is printed.
@@ -721,10 +726,11 @@ pub async fn execute(
     };
     if let Some(e) = outcome.error {
         if stop.is_cancelled() {
-            bail!(
+            return Err(crate::lifecycle::Interrupted(format!(
                 "interrupted after {delivered}{of} frame(s); the frames done are written \
                  (while stopping: {e})"
-            );
+            ))
+            .into());
         }
         bail!("the run stopped after {delivered} frame(s): {e}");
     }
@@ -736,7 +742,10 @@ pub async fn execute(
         );
     }
     if stop.is_cancelled() && !serving {
-        bail!("interrupted after {delivered}{of} frame(s); the frames done are written");
+        return Err(crate::lifecycle::Interrupted(format!(
+            "interrupted after {delivered}{of} frame(s); the frames done are written"
+        ))
+        .into());
     }
     if let (Some(video), Some(p)) = (&job.video, &every) {
         crate::frames_out::assemble_video(p, video, job.video_rate())?;

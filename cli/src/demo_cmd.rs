@@ -216,7 +216,22 @@ fn watch_interrupt(state: Arc<Mutex<Interrupt>>) {
             return;
         };
         rt.block_on(async {
-            while tokio::signal::ctrl_c().await.is_ok() {
+            // SIGTERM (a service manager, `kill`) stops the run as Ctrl-C does: the frames done
+            // are kept and nothing is left in the temporary folder.
+            let mut term =
+                tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()).ok();
+            let terminated = async |t: &mut Option<tokio::signal::unix::Signal>| match t {
+                Some(t) => t.recv().await,
+                None => std::future::pending().await,
+            };
+            loop {
+                let got = tokio::select! {
+                    r = tokio::signal::ctrl_c() => r.is_ok(),
+                    r = terminated(&mut term) => r.is_some(),
+                };
+                if !got {
+                    break;
+                }
                 let s = state.lock().unwrap_or_else(|e| e.into_inner());
                 match s.coordinator {
                     Some(pid) => {
@@ -227,7 +242,7 @@ fn watch_interrupt(state: Arc<Mutex<Interrupt>>) {
                             let _ = std::fs::remove_dir_all(dir);
                         }
                         eprintln!("demo: interrupted");
-                        std::process::exit(130);
+                        std::process::exit(crate::lifecycle::INTERRUPTED_EXIT);
                     }
                 }
             }
@@ -395,6 +410,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(t) = temp {
         let path = t.path().display().to_string();
         t.close().with_context(|| format!("cannot remove {path}"))?;
+    }
+    if status.code() == Some(crate::lifecycle::INTERRUPTED_EXIT) {
+        // The coordinator said how far it got, in the one line an interrupted run ends with.
+        return Err(crate::lifecycle::Interrupted(String::new()).into());
     }
     if !status.success() {
         bail!("the coordinator failed ({status})");

@@ -75,6 +75,22 @@ fn host_name() -> String {
 
 /// A token cancelled on SIGTERM, SIGINT, or when `parent_pid` stops being our parent. Must be
 /// called inside a tokio runtime.
+/// A run stopped by Ctrl-C (or SIGTERM to `demo`): not a failure of the command. `main` prints
+/// its message, if any, as the one line the run ends with and exits with [`INTERRUPTED_EXIT`].
+#[derive(Debug)]
+pub struct Interrupted(pub String);
+
+impl std::fmt::Display for Interrupted {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Interrupted {}
+
+/// The exit status of an interrupted run (128 + SIGINT, as shells report it).
+pub const INTERRUPTED_EXIT: i32 = 130;
+
 pub fn shutdown_token(parent_pid: Option<u32>) -> CancellationToken {
     let token = CancellationToken::new();
     let t = token.clone();

@@ -114,6 +114,15 @@ fn main() -> anyhow::Result<()> {
         Command::Soak(args) => soak_cmd::run(args),
         Command::ViewProbe(args) => view_probe_cmd::run(args),
     };
+    // Ctrl-C: one line (the run's own) and the shell's status for it, not an error.
+    if let Err(e) = &result
+        && let Some(i) = e.downcast_ref::<lifecycle::Interrupted>()
+    {
+        if !i.0.is_empty() {
+            eprintln!("{}", i.0);
+        }
+        std::process::exit(lifecycle::INTERRUPTED_EXIT);
+    }
     // A reader that went away (`lightfold plan | head`) is not a failure of the command.
     if let Err(e) = &result
         && out::is_broken_pipe(e)

@@ -199,11 +199,28 @@ fn frames_in(dir: &Path) -> usize {
 }
 
 /// Ctrl-C at a terminal signals the whole foreground process group: the demo and its
-/// coordinator finish the frames in flight with every daemon up, report no daemon lost, and the
-/// temporary directory goes.
+/// coordinator finish the frames in flight with every daemon up, report no daemon lost, end with
+/// one line saying how far they got and the status 130, and the temporary directory goes.
 #[test]
 fn ctrl_c_reads_as_a_shutdown_and_cleans_up() {
-    let (dir, tmp) = work_dir("ctrl-c");
+    interrupted_by("ctrl-c", |child: &std::process::Child| {
+        let group = rustix::process::Pid::from_raw(child.id() as i32).unwrap();
+        rustix::process::kill_process_group(group, rustix::process::Signal::INT).unwrap();
+    });
+}
+
+/// SIGTERM to the demo alone (a service manager, `kill`) stops the run as Ctrl-C does: the
+/// frames done kept, status 130, nothing left in the temporary directory.
+#[test]
+fn sigterm_stops_the_demo_as_ctrl_c_does() {
+    interrupted_by("sigterm", |child: &std::process::Child| {
+        let pid = rustix::process::Pid::from_raw(child.id() as i32).unwrap();
+        rustix::process::kill_process(pid, rustix::process::Signal::TERM).unwrap();
+    });
+}
+
+fn interrupted_by(name: &str, interrupt: impl FnOnce(&std::process::Child)) {
+    let (dir, tmp) = work_dir(name);
     let frames = dir.join("frames");
     let mut cmd = demo(
         &dir,
@@ -236,14 +253,22 @@ fn ctrl_c_reads_as_a_shutdown_and_cleans_up() {
         );
         std::thread::sleep(Duration::from_millis(50));
     }
-    let group = rustix::process::Pid::from_raw(child.id() as i32).unwrap();
-    rustix::process::kill_process_group(group, rustix::process::Signal::INT).unwrap();
+    interrupt(&child);
     let out = child.wait_with_output().unwrap();
     let (stdout, stderr) = texts(&out);
-    assert!(!out.status.success(), "an interrupted run is not a success");
+    assert_eq!(
+        out.status.code(),
+        Some(130),
+        "an interrupted run ends with 130:\n{stdout}\n{stderr}"
+    );
+    assert_eq!(
+        stderr.matches("interrupted after").count(),
+        1,
+        "one line says how far it got:\n{stdout}\n{stderr}"
+    );
     assert!(
-        stderr.contains("interrupted after"),
-        "no interruption:\n{stdout}\n{stderr}"
+        !stderr.contains("Error:"),
+        "an interruption is not an error:\n{stdout}\n{stderr}"
     );
     assert!(
         stdout.contains("0 daemon(s) lost, 0 re-plan(s)"),

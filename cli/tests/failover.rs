@@ -222,7 +222,11 @@ fn an_interrupted_run_keeps_every_frame_it_finished() {
     let out = demo.wait_with_output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "an interrupted run is not a success");
+    assert_eq!(
+        out.status.code(),
+        Some(130),
+        "an interrupted run ends with 130"
+    );
     assert!(
         stderr.contains("interrupted after"),
         "no interruption message:\n{stdout}\n{stderr}"
