@@ -64,6 +64,7 @@ pub fn install(role: &str, daemon: &str) -> anyhow::Result<PrometheusHandle> {
     metrics::set_global_recorder(recorder)
         .map_err(|e| anyhow::anyhow!("cannot install the metrics recorder: {e}"))?;
     lightfold_ops::record::describe();
+    lightfold_ops::record::zero_counters(role);
     Ok(handle)
 }
 

@@ -25,6 +25,25 @@ pub const DAEMONS_REJOINED: &str = "lightfold_daemons_rejoined_total";
 pub const REPLANS: &str = "lightfold_replans_total";
 pub const DAEMONS: &str = "lightfold_daemons";
 
+/// Why a daemon gives up a frame (`frame_failed`'s reasons).
+pub const FAILURE_REASONS: [&str; 3] = ["abandoned", "preempted", "refused"];
+
+/// The counters a daemon of `role` (`node`, `compositor`, `coordinator`) may ever bump, at 0, so
+/// a dashboard or an alert sees the series before the first event (a rate over a series that does
+/// not exist yet is no rate at all). Call once, after the exporter is installed.
+pub fn zero_counters(role: &str) {
+    if role == "coordinator" {
+        for name in [FRAMES_DELIVERED, DAEMONS_LOST, DAEMONS_REJOINED, REPLANS] {
+            metrics::counter!(name).absolute(0);
+        }
+    } else {
+        metrics::counter!(FRAMES_DONE).absolute(0);
+        for reason in FAILURE_REASONS {
+            metrics::counter!(FRAMES_FAILED, "reason" => reason).absolute(0);
+        }
+    }
+}
+
 /// Registers the help text of every metric (call once, after the exporter is installed).
 pub fn describe() {
     use metrics::{Unit, describe_counter, describe_gauge, describe_histogram};
@@ -281,5 +300,39 @@ mod tests {
         assert!(text.contains("phase=\"shadow\""));
         assert!(text.contains("# HELP lightfold_frames_done_total"));
         assert!(text.contains("peer=\"node-0\""));
+    }
+
+    #[test]
+    fn counters_exist_at_zero_before_their_first_event() {
+        for (role, present, absent) in [
+            (
+                "coordinator",
+                vec![
+                    "lightfold_replans_total 0",
+                    "lightfold_daemons_lost_total 0",
+                ],
+                "lightfold_frames_failed_total",
+            ),
+            (
+                "node",
+                vec![
+                    "lightfold_frames_done_total 0",
+                    "lightfold_frames_failed_total{reason=\"refused\"} 0",
+                ],
+                "lightfold_replans_total",
+            ),
+        ] {
+            let recorder = PrometheusBuilder::new().build_recorder();
+            let handle = recorder.handle();
+            metrics::with_local_recorder(&recorder, || {
+                describe();
+                zero_counters(role);
+            });
+            let text = handle.render();
+            for p in present {
+                assert!(text.contains(p), "{role}: {p} missing in\n{text}");
+            }
+            assert!(!text.contains(absent), "{role}: {absent} in\n{text}");
+        }
     }
 }
