@@ -48,16 +48,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .worker_threads(2)
         .enable_all()
         .build()?;
+    let gpu = GpuOptions {
+        backend,
+        adapter_name: args.adapter.clone(),
+    };
+    // Refused before binding or calibrating: a supervisor sees the failure at once, and nothing
+    // ever listened.
+    if args.require_gpu
+        && let Ok((adapter, backend, true)) = lightfold_node::gpu::device::chosen_adapter(&gpu)
+    {
+        anyhow::bail!(daemon::no_hardware_gpu(&adapter, &backend));
+    }
     rt.block_on(async move {
         let (listener, id) = args.daemon.bind("node").await?;
         let mut opts = NodeOptions::new(id.clone(), &token);
         opts.coordinator_silence = args.daemon.coordinator_silence()?;
         opts.advertise = args.daemon.advertise;
         opts.cache_dir = args.cache_dir;
-        opts.gpu = GpuOptions {
-            backend,
-            adapter_name: args.adapter,
-        };
+        opts.gpu = gpu;
         opts.require_gpu = args.require_gpu;
         opts.render_ahead = args.render_ahead;
         opts.pack = match args.pack.as_str() {

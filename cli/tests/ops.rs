@@ -497,7 +497,7 @@ fn require_gpu_refuses_a_software_adapter() {
         .env_remove("XDG_RUNTIME_DIR")
         .env_remove("RUST_LOG")
         .stdin(Stdio::null())
-        .stdout(Stdio::null())
+        .stdout(std::fs::File::create(logs.join("node.out")).unwrap())
         .stderr(std::fs::File::create(&log).unwrap())
         .spawn()
         .unwrap();
@@ -532,6 +532,10 @@ fn require_gpu_refuses_a_software_adapter() {
                 text.contains("--require-gpu") && text.contains("software rasteriser"),
                 "the refusal does not say why:\n{text}"
             );
+            // Refused before it bound a port or calibrated the device.
+            let out = std::fs::read_to_string(logs.join("node.out")).unwrap_or_default();
+            assert!(!out.contains("listening"), "it listened first:\n{out}");
+            assert!(!text.contains("calibrat"), "it calibrated first:\n{text}");
             eprintln!("refused as expected:\n{text}");
         }
         None => {

@@ -127,6 +127,15 @@ fn capabilities(opts: &NodeOptions, advertise: String, report: &DeviceReport) ->
     }
 }
 
+/// Why `--require-gpu` refuses to start on `adapter`, a software rasteriser.
+pub fn no_hardware_gpu(adapter: &str, backend: &str) -> String {
+    format!(
+        "--require-gpu: the only usable adapter is {adapter:?} ({backend}), a software rasteriser; \
+         no hardware GPU was found (is its Vulkan driver installed and the device visible to this \
+         process? `vulkaninfo --summary` lists what the loader sees)"
+    )
+}
+
 /// Runs a render node on `listener` until `shutdown` is cancelled or a coordinator sends
 /// `Shutdown`. Fails only when the device cannot be opened or calibrated; every later error is
 /// reported to the peer that caused it and the node keeps serving.
@@ -140,13 +149,7 @@ pub async fn run(
     let (render, report) = RenderHandle::start(opts.gpu.clone(), opts.pack).await?;
     if report.software && opts.require_gpu {
         render.stop().await;
-        anyhow::bail!(
-            "--require-gpu: the only usable adapter is {:?} ({}), a software rasteriser; no \
-             hardware GPU was found (is its Vulkan driver installed and the device visible to \
-             this process? `vulkaninfo --summary` lists what the loader sees)",
-            report.adapter,
-            report.backend
-        );
+        anyhow::bail!(no_hardware_gpu(&report.adapter, &report.backend));
     }
     if report.software {
         // Info, not a warning: the coordinator warns once for the whole cluster, and on a

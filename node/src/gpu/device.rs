@@ -215,6 +215,21 @@ pub fn device_identity(host: &str, info: &wgpu::AdapterInfo) -> Option<String> {
     Some(format!("{host}/{place}/{}", info.name))
 }
 
+/// The adapter [`Gpu::new`] would open for `opts`, without opening it: its name, backend and
+/// whether it is a software rasteriser (what `--require-gpu` refuses before a node binds).
+pub fn chosen_adapter(opts: &GpuOptions) -> Result<(String, String, bool), DeviceError> {
+    let info = choose_adapter(opts)?.get_info();
+    let software = lightfold_ops::is_software_rasteriser(
+        &info.name,
+        info.device_type == wgpu::DeviceType::Cpu,
+    );
+    Ok((
+        info.name,
+        format!("{:?}", info.backend).to_lowercase(),
+        software,
+    ))
+}
+
 /// The identity of the device [`Gpu::new`] would open for `opts` on this host and the lights it
 /// takes at the reported map size, without opening it (what a local cluster's nodes will
 /// report); `None` when it is a software rasteriser or there is no adapter.
