@@ -285,7 +285,19 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
         }
     }
     print_tables(&a, &rows);
-    eprintln!("bands received: {}", received.load(Ordering::Relaxed));
+    // Every frame's bands reached the stand-in compositor (a node that answered FrameDone
+    // without sending would make every figure above a lie).
+    let per_frame = u64::from(a.size.1.div_ceil(a.band_height.max(1)));
+    let expected =
+        u64::from(a.rounds) * plan.len() as u64 * u64::from(a.warmup + a.frames) * per_frame;
+    let deadline = std::time::Instant::now() + Duration::from_secs(10);
+    while received.load(Ordering::Relaxed) < expected && std::time::Instant::now() < deadline {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let got = received.load(Ordering::Relaxed);
+    if got != expected {
+        bail!("the nodes sent {got} bands where {expected} were due");
+    }
     Ok(())
 }
 
