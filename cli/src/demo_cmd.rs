@@ -70,7 +70,7 @@ fn with_memory(mut cluster: ClusterSpec) -> ClusterSpec {
 /// The probe cluster's nodes as this machine's will be: on a hardware GPU, every node reports
 /// that one device (and the lights it takes), so the plan merges them as the coordinator's will
 /// (`docs/planner.md` § Shared GPUs) and the demo starts only the nodes that plan uses.
-fn on_this_gpu(mut cluster: ClusterSpec) -> ClusterSpec {
+fn on_this_gpu(cluster: ClusterSpec) -> ClusterSpec {
     let host = lightfold_node::daemon::sys::hostname();
     let Some((device, max_lights)) = lightfold_node::gpu::device::chosen_device(
         &lightfold_node::gpu::GpuOptions::default(),
@@ -78,11 +78,14 @@ fn on_this_gpu(mut cluster: ClusterSpec) -> ClusterSpec {
     ) else {
         return cluster;
     };
-    let memory_bytes = lightfold_node::daemon::sys::memory_bytes();
-    for n in &mut cluster.nodes {
-        let mut caps = crate::plan_cmd::synthetic_node(&n.id, max_lights, memory_bytes);
+    let mut cluster = with_memory(cluster);
+    for caps in cluster
+        .nodes
+        .iter_mut()
+        .filter_map(|n| n.capabilities.as_mut())
+    {
+        caps.max_lights = max_lights;
         caps.device = device.clone();
-        n.capabilities = Some(caps);
     }
     cluster
 }

@@ -97,6 +97,7 @@ impl FramePattern {
 /// What the frame writer's thread ends with: the size of the frames written, how many frame
 /// files it wrote, the frames whose files it had to skip (the disk slower than the cluster for
 /// longer than its queue absorbs), and the first error.
+#[derive(Default)]
 pub struct Written {
     pub size: Option<(u32, u32)>,
     pub frames: u64,
@@ -162,12 +163,7 @@ impl FrameWriter {
         let queue = std::sync::Arc::clone(&shared);
         let has_every = every.is_some();
         let thread = std::thread::spawn(move || {
-            let mut w = Written {
-                size: None,
-                frames: 0,
-                skipped: Vec::new(),
-                error: None,
-            };
+            let mut w = Written::default();
             let (lock, ready) = &*queue;
             loop {
                 // Everything queued so far: every frame's files, then the newest into --out.
@@ -263,17 +259,10 @@ impl FrameWriter {
         match self.thread.take().map(|t| t.join()) {
             Some(Ok(r)) => r,
             Some(Err(_)) => Written {
-                size: None,
-                frames: 0,
-                skipped: Vec::new(),
                 error: Some(anyhow::anyhow!("the frame writer panicked")),
+                ..Written::default()
             },
-            None => Written {
-                size: None,
-                frames: 0,
-                skipped: Vec::new(),
-                error: None,
-            },
+            None => Written::default(),
         }
     }
 }

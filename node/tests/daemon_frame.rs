@@ -6,8 +6,8 @@
 mod daemon_support;
 
 use daemon_support::*;
-use lightfold_node::daemon::render_thread::{layer_set, shadow_filter, take_layer};
-use lightfold_node::gpu::{Gpu, GpuOptions, RenderOptions, Renderer};
+use lightfold_node::daemon::render_thread::{shadow_filter, take_layer};
+use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
 use lightfold_protocol::{ErrorCode, FrameParams, Layer, Message, NodeConfig, PixelFormat, Role};
 use lightfold_scene::wire::camera_to_wire;
 
@@ -87,7 +87,13 @@ async fn a_streamed_frame_equals_a_direct_render() {
     renderer.set_camera(&scene.camera);
     let wanted: Vec<Layer> = layers.iter().map(|(l, _)| *l).collect();
     let mut direct = renderer
-        .render(&gpu, &lights, None, config.color, layer_set(&wanted))
+        .render(
+            &gpu,
+            &lights,
+            None,
+            config.color,
+            LayerSet::of(wanted.iter().copied()),
+        )
         .expect("direct render");
     for (layer, format) in &layers {
         let want = take_layer(&mut direct, *layer).expect("direct layer");
@@ -464,7 +470,7 @@ async fn a_node_draws_only_its_part_of_the_scene() {
             &lights,
             None,
             config.color,
-            layer_set(&[Layer::Illumination, Layer::Depth]),
+            LayerSet::of([Layer::Illumination, Layer::Depth]),
         )
         .expect("direct render")
     };

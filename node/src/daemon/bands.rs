@@ -81,6 +81,27 @@ impl BandLayout {
         self.height.div_ceil(self.band_height.max(1))
     }
 
+    /// The header of band `b` of `layer` before its payload is known (not empty, nothing
+    /// saturated, unsealed).
+    pub fn header(&self, b: u32, layer: Layer, format: PixelFormat) -> BandHeader {
+        let (y0, y1) = self.rows(b);
+        BandHeader {
+            frame: self.frame,
+            epoch: self.epoch,
+            layer,
+            format,
+            x0: 0,
+            y0,
+            width: self.width,
+            height: y1 - y0,
+            scale: self.scale,
+            empty: false,
+            payload_len: 0,
+            checksum: 0,
+            saturated: 0,
+        }
+    }
+
     /// Rows `[y0, y1)` of band `b`.
     pub fn rows(&self, b: u32) -> (u32, u32) {
         let h = self.band_height.max(1);
@@ -125,21 +146,7 @@ pub fn pack_band(
     let (y0, y1) = layout.rows(band);
     let row = image.width as usize * image.channels;
     let src = &image.data[y0 as usize * row..y1 as usize * row];
-    let mut header = BandHeader {
-        frame: layout.frame,
-        epoch: layout.epoch,
-        layer,
-        format,
-        x0: 0,
-        y0,
-        width: layout.width,
-        height: y1 - y0,
-        scale: layout.scale,
-        empty: false,
-        payload_len: 0,
-        checksum: 0,
-        saturated: 0,
-    };
+    let mut header = layout.header(band, layer, format);
     // Only exact zeros make an empty band: whatever packs to zero but is not zero still travels,
     // so the receiver's unpacked values never depend on this shortcut.
     if src.iter().all(|v| *v == 0.0) {
@@ -232,19 +239,9 @@ pub fn assemble_frame(
             let row = layout.width as usize * format.bytes_per_pixel();
             let count = p.bands[band as usize];
             let mut header = BandHeader {
-                frame: layout.frame,
-                epoch: layout.epoch,
-                layer: *layer,
-                format: *format,
-                x0: 0,
-                y0,
-                width: layout.width,
-                height: y1 - y0,
-                scale: layout.scale,
                 empty: !count.nonzero,
-                payload_len: 0,
-                checksum: 0,
                 saturated: if count.nonzero { count.saturated } else { 0 },
+                ..layout.header(band, *layer, *format)
             };
             let payload = if count.nonzero {
                 p.bytes.slice(y0 as usize * row..y1 as usize * row)

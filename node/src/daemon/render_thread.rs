@@ -228,10 +228,7 @@ fn thread_main(
             return;
         }
     };
-    let software = lightfold_ops::is_software_rasteriser(
-        &gpu.info.name,
-        gpu.info.device_type == wgpu::DeviceType::Cpu,
-    );
+    let software = crate::gpu::device::is_software(&gpu.info);
     let report = DeviceReport {
         adapter: gpu.info.name.clone(),
         backend: format!("{:?}", gpu.info.backend).to_lowercase(),
@@ -435,7 +432,13 @@ fn render(
             let layers: Vec<Layer> = configured.iter().map(|(l, _)| *l).collect();
             let frame = c
                 .renderer
-                .render(gpu, &c.lights, casters, color, layer_set(&layers))
+                .render(
+                    gpu,
+                    &c.lights,
+                    casters,
+                    color,
+                    LayerSet::of(layers.iter().copied()),
+                )
                 .map_err(failed)?;
             let stats = frame.stats.clone();
             (Output::Images(take_layers(frame, &layers)?), stats)
@@ -449,19 +452,6 @@ fn render(
         stats,
         total_us: start.elapsed().as_micros() as u64,
     })
-}
-
-/// The renderer's layer selection for the configured layers.
-pub fn layer_set(layers: &[Layer]) -> LayerSet {
-    let has = |l| layers.contains(&l);
-    LayerSet {
-        illumination: has(Layer::Illumination),
-        diffuse: has(Layer::Diffuse),
-        specular: has(Layer::Specular),
-        ambient: has(Layer::Ambient),
-        emissive: has(Layer::Emissive),
-        depth: has(Layer::Depth),
-    }
 }
 
 /// Takes one layer's image out of a rendered frame (radiance is never a node's).

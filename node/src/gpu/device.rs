@@ -198,13 +198,17 @@ fn choose_adapter(opts: &GpuOptions) -> Result<wgpu::Adapter, DeviceError> {
         })
 }
 
+/// Whether the adapter renders in software (lavapipe, llvmpipe, `DeviceType::Cpu`).
+pub fn is_software(info: &wgpu::AdapterInfo) -> bool {
+    lightfold_ops::is_software_rasteriser(&info.name, info.device_type == wgpu::DeviceType::Cpu)
+}
+
 /// A hardware adapter's identity on this host, what its node reports as `Capabilities::device`:
 /// the host, the PCI bus where the driver gives it (two identical cards differ there) or else
 /// vendor and device ids, and the name. `None` for a software rasteriser, whose "device" is the
 /// CPU cores.
 pub fn device_identity(host: &str, info: &wgpu::AdapterInfo) -> Option<String> {
-    if lightfold_ops::is_software_rasteriser(&info.name, info.device_type == wgpu::DeviceType::Cpu)
-    {
+    if is_software(info) {
         return None;
     }
     let place = if info.device_pci_bus_id.is_empty() {
@@ -219,10 +223,7 @@ pub fn device_identity(host: &str, info: &wgpu::AdapterInfo) -> Option<String> {
 /// whether it is a software rasteriser (what `--require-gpu` refuses before a node binds).
 pub fn chosen_adapter(opts: &GpuOptions) -> Result<(String, String, bool), DeviceError> {
     let info = choose_adapter(opts)?.get_info();
-    let software = lightfold_ops::is_software_rasteriser(
-        &info.name,
-        info.device_type == wgpu::DeviceType::Cpu,
-    );
+    let software = is_software(&info);
     Ok((
         info.name,
         format!("{:?}", info.backend).to_lowercase(),

@@ -17,7 +17,7 @@
 
 use super::device::{Gpu, captured};
 use super::frame::RenderError;
-use super::readback::{copy_texture, padded_row};
+use super::readback::{copy_texture, kept, padded_row};
 use bytes::Bytes;
 use lightfold_protocol::PixelFormat;
 use lightfold_protocol::format::srgb_encode_tables;
@@ -156,25 +156,6 @@ fn storage(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
         },
         count: None,
     }
-}
-
-/// A buffer of exactly `size` bytes in `slot`, made again when the size differs.
-fn sized(
-    device: &wgpu::Device,
-    slot: &mut Option<wgpu::Buffer>,
-    label: &'static str,
-    size: u64,
-    usage: wgpu::BufferUsages,
-) -> wgpu::Buffer {
-    if slot.as_ref().is_none_or(|b| b.size() != size) {
-        *slot = Some(device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some(label),
-            size,
-            usage,
-            mapped_at_creation: false,
-        }));
-    }
-    slot.clone().expect("made above")
 }
 
 impl DevicePacker {
@@ -328,14 +309,14 @@ impl DevicePacker {
         }
         let count_words = 1 + 2 * u64::from(bands) * layers.len() as u64;
         let counts_size = count_words * 4;
-        let out = sized(
+        let out = kept(
             device,
             &mut self.out,
             "packed frame",
             out_size.max(4),
             wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
         );
-        let counts = sized(
+        let counts = kept(
             device,
             &mut self.counts,
             "pack counts",
@@ -347,7 +328,7 @@ impl DevicePacker {
         // The host gets the layers back to back (no alignment padding), then the counts.
         let packed_size: u64 = offsets.iter().map(|(_, size)| size).sum();
         let read_bytes = packed_size + counts_size;
-        let staging = sized(
+        let staging = kept(
             device,
             &mut self.staging,
             "pack readback",

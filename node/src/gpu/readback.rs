@@ -24,32 +24,42 @@ pub enum ReadSource<'a> {
 /// readback on a discrete GPU, `docs/gpu.md`).
 #[derive(Debug, Default)]
 pub struct Staging {
-    buffers: Vec<wgpu::Buffer>,
+    buffers: Vec<Option<wgpu::Buffer>>,
 }
 
 impl Staging {
     /// Bytes the kept buffers hold: what the last frame copied to the host.
     pub fn bytes(&self) -> u64 {
-        self.buffers.iter().map(|b| b.size()).sum()
+        self.buffers.iter().flatten().map(|b| b.size()).sum()
     }
 
     /// Buffer `i`, of exactly `size` bytes (made again when the size changes).
     fn buffer(&mut self, device: &wgpu::Device, i: usize, size: u64) -> wgpu::Buffer {
-        if self.buffers.get(i).is_none_or(|b| b.size() != size) {
-            let b = device.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("readback"),
-                size,
-                usage: wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ,
-                mapped_at_creation: false,
-            });
-            if i < self.buffers.len() {
-                self.buffers[i] = b;
-            } else {
-                self.buffers.push(b);
-            }
+        if self.buffers.len() <= i {
+            self.buffers.resize(i + 1, None);
         }
-        self.buffers[i].clone()
+        let usage = wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ;
+        kept(device, &mut self.buffers[i], "readback", size, usage)
     }
+}
+
+/// The buffer kept in `slot`, of exactly `size` bytes, made again when the size differs.
+pub(super) fn kept(
+    device: &wgpu::Device,
+    slot: &mut Option<wgpu::Buffer>,
+    label: &'static str,
+    size: u64,
+    usage: wgpu::BufferUsages,
+) -> wgpu::Buffer {
+    if slot.as_ref().is_none_or(|b| b.size() != size) {
+        *slot = Some(device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some(label),
+            size,
+            usage,
+            mapped_at_creation: false,
+        }));
+    }
+    slot.clone().expect("made above")
 }
 
 /// Bytes per row of a `width`-pixel copy, padded to `COPY_BYTES_PER_ROW_ALIGNMENT`.
