@@ -13,7 +13,15 @@ use std::time::Instant;
 /// Renders the reference for `scene` and prints the metrics of the image in `exr` against it.
 /// With `aa` > 1 (the image's `--aa`) the reference is traced with `aa × aa` rays per pixel and
 /// resolved the same way (radiance box-filtered, depth nearest; coverage where a block has any).
-pub fn report(scene: &Scene, samples: &[LightSample], exr: &Path, aa: u32) -> anyhow::Result<()> {
+/// `which` names the point samples `samples` are (`the same 32 point samples`, or what they
+/// differ by).
+pub fn report(
+    scene: &Scene,
+    samples: &[LightSample],
+    which: &str,
+    exr: &Path,
+    aa: u32,
+) -> anyhow::Result<()> {
     let test = Image::read_exr(exr).with_context(|| format!("cannot read {}", exr.display()))?;
     let t = Instant::now();
     let mut scene = scene.clone();
@@ -37,8 +45,7 @@ pub fn report(scene: &Scene, samples: &[LightSample], exr: &Path, aa: u32) -> an
     let mask = penumbra_mask(&reference, &unoccluded, &depth, &coverage);
     let m = compare(&test, &reference, scene.exposure, Some(&mask))?;
     outln!(
-        "error against the CPU reference (exact sum over the same {} point samples, ray-traced shadows, {aa}×{aa} rays per pixel; {:.1} s on the CPU):",
-        samples.len(),
+        "error against the CPU reference (exact sum over {which}, ray-traced shadows, {aa}×{aa} rays per pixel; {:.1} s on the CPU):",
         t.elapsed().as_secs_f64()
     );
     outln!("{m}");

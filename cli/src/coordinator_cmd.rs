@@ -252,6 +252,10 @@ pub struct JobArgs {
     /// phase times (ms), bytes and memory (`docs/operations.md`).
     #[arg(long, value_name = "FILE")]
     pub stats: Option<PathBuf>,
+    /// Write the last plan the run rendered with here, as JSON (the samples it rendered, K, the
+    /// nodes and stages, what a frame budget gave up).
+    #[arg(long, value_name = "FILE")]
+    pub plan_json: Option<PathBuf>,
     /// Go on with a camera path or animation a coordinator did not finish: the frames whose PNG
     /// and EXR are already under the frame pattern are skipped (frames are renamed into place
     /// complete), the others rendered with their own numbers, cameras and times; nothing written
@@ -687,6 +691,10 @@ pub async fn execute(
     progress.finish();
     lightfold_ops::health::set_serving(false);
     let written = writer.finish();
+    if let (Some(path), Some(plan)) = (&job.plan_json, &outcome.summary.plan) {
+        let text = serde_json::to_string(plan).context("cannot write the plan as JSON")?;
+        std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))?;
+    }
     match &outcome.summary.plan {
         Some(plan) if job.verbose => outln!("{plan}"),
         Some(plan) => outln!("{}", plan.brief()),
@@ -762,7 +770,47 @@ pub async fn execute(
     Ok(())
 }
 
-/// What the run survived: one line per lost, stalled, slow or rejoined daemon and per re-plan.
+/// Slow frames `(reported at, frame, waited ms, daemons waited on)` in one line: how many, the
+/// first and the longest wait, and the daemons waited on most often.
+fn slow_summary(
+    slow: &[(std::time::Instant, u64, u128, Vec<&str>)],
+    at: impl Fn(std::time::Instant) -> f64,
+) -> Option<String> {
+    let first = slow.first()?;
+    let longest = slow.iter().max_by_key(|s| s.2)?;
+    let mut often: Vec<(&str, usize)> = Vec::new();
+    for who in slow.iter().flat_map(|s| &s.3) {
+        match often.iter_mut().find(|(d, _)| d == who) {
+            Some((_, n)) => *n += 1,
+            None => often.push((who, 1)),
+        }
+    }
+    often.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(b.0)));
+    let shown: Vec<String> = often
+        .iter()
+        .take(4)
+        .map(|(d, n)| format!("{d} ({n})"))
+        .collect();
+    Some(format!(
+        "\n  {:>7.2} s  slow: {} frame(s) waited past the slow threshold (first frame {}, {} ms; \
+         longest frame {}, {} ms); waited on most: {}{}",
+        at(first.0),
+        slow.len(),
+        first.1,
+        first.2,
+        longest.1,
+        longest.2,
+        shown.join(", "),
+        if often.len() > shown.len() {
+            format!(" and {} more", often.len() - shown.len())
+        } else {
+            String::new()
+        }
+    ))
+}
+
+/// What the run survived: one line per lost, stalled or rejoined daemon and per re-plan, and one
+/// for all slow frames.
 pub fn failover_summary(s: &LiveSummary, start: std::time::Instant) -> String {
     let mut out = String::new();
     let at = |t: std::time::Instant| t.saturating_duration_since(start).as_secs_f64();
@@ -785,7 +833,7 @@ pub fn failover_summary(s: &LiveSummary, start: std::time::Instant) -> String {
             s.saturated, s.saturated_frames
         ));
     }
-    // Slow frames: one line per frame, naming every daemon it waited on.
+    // Slow frames: one line for all of them.
     let mut slow: Vec<(std::time::Instant, u64, u128, Vec<&str>)> = Vec::new();
     for i in &s.incidents {
         let what = match &i.kind {
@@ -801,12 +849,8 @@ pub fn failover_summary(s: &LiveSummary, start: std::time::Instant) -> String {
         };
         out.push_str(&format!("\n  {:>7.2} s  {}  {what}", at(i.at), i.daemon));
     }
-    for (t, frame, ms, who) in slow {
-        out.push_str(&format!(
-            "\n  {:>7.2} s  slow: frame {frame} waited {ms} ms on {}",
-            at(t),
-            who.join(", ")
-        ));
+    if let Some(line) = slow_summary(&slow, at) {
+        out.push_str(&line);
     }
     if !s.stopped.is_empty() {
         out.push_str(&format!(

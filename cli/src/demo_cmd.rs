@@ -69,13 +69,27 @@ fn with_memory(mut cluster: ClusterSpec) -> ClusterSpec {
 
 /// The probe cluster's nodes as this machine's will be: on a hardware GPU, every node reports
 /// that one device (and the lights it takes), so the plan merges them as the coordinator's will
-/// (`docs/planner.md` § Shared GPUs) and the demo starts only the nodes that plan uses.
-fn on_this_gpu(cluster: ClusterSpec) -> ClusterSpec {
+/// (`docs/planner.md` § Shared GPUs); on a software rasteriser, every node reports this
+/// machine's CPU, so the estimate adds them up as the coordinator's will (§ Nodes sharing a
+/// machine's CPU). The demo starts only the nodes that plan uses.
+fn on_this_machine(cluster: ClusterSpec) -> ClusterSpec {
     let host = lightfold_node::daemon::sys::hostname();
-    let Some((device, max_lights)) = lightfold_node::gpu::device::chosen_device(
-        &lightfold_node::gpu::GpuOptions::default(),
-        &host,
-    ) else {
+    let gpu = lightfold_node::gpu::GpuOptions::default();
+    let Some((device, max_lights)) = lightfold_node::gpu::device::chosen_device(&gpu, &host) else {
+        let software = lightfold_node::gpu::device::chosen_adapter(&gpu)
+            .is_ok_and(|(_, _, software)| software);
+        if !software {
+            return cluster;
+        }
+        let machine = lightfold_node::daemon::sys::machine();
+        let mut cluster = with_memory(cluster);
+        for caps in cluster
+            .nodes
+            .iter_mut()
+            .filter_map(|n| n.capabilities.as_mut())
+        {
+            caps.cpu_host = machine.clone();
+        }
         return cluster;
     };
     let mut cluster = with_memory(cluster);
@@ -272,7 +286,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &with_memory(ClusterSpec::local(256, 256)),
         &options,
     );
-    let probe_cluster = on_this_gpu(ClusterSpec::local(256, 256));
+    let probe_cluster = on_this_machine(ClusterSpec::local(256, 256));
     let probe = plan(
         &lightfold_coordinator::plan::scene_for(&scene, &probe_cluster, &options),
         &probe_cluster,
@@ -364,7 +378,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         // Many daemons opening devices at once on few cores answer slowly at first.
         .arg("--connect-timeout")
         .arg("180");
-    job_args(&mut coord, &args.job);
+    // The last plan, for what the comparison below says it compares.
+    let mut job = args.job.clone();
+    let plan_json = job
+        .plan_json
+        .get_or_insert_with(|| dir.join("plan.json"))
+        .clone();
+    job_args(&mut coord, &job);
     if let Some(addr) = &args.serve {
         coord.arg("--http").arg(addr);
         if args.continuous {
@@ -410,6 +430,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map(|(n, c)| (n.clone(), cpu_seconds(c.id())))
         .collect();
     drop(children);
+    let rendered = read_plan(&plan_json);
     if let Some(t) = temp {
         let path = t.path().display().to_string();
         t.close().with_context(|| format!("cannot remove {path}"))?;
@@ -449,9 +470,59 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         };
         last.camera =
             lightfold_coordinator::run::camera_at(&scene.camera, args.job.path(), frames - 1);
-        crate::compare_reference::report(&last, &samples, &args.job.exr, args.job.aa)?;
+        // The samples the cluster rendered: a frame budget or an error target may have lowered
+        // the scene's (the last plan says); the reference sums the same ones on a still scene.
+        let n = samples.len();
+        let (samples, which) = match &rendered {
+            Some(p) if p.samples.len() == n => (samples, format!("the same {n} point samples")),
+            Some(p) if scene.animation.is_none() => (
+                p.samples.clone(),
+                format!(
+                    "the same {} point samples the cluster rendered ({} lowered the scene's {n})",
+                    p.samples.len(),
+                    lowered_by(&args.job)
+                ),
+            ),
+            Some(p) => (
+                samples,
+                format!(
+                    "the scene's {n} point samples (the cluster rendered {}: {} lowered them; \
+                     the error includes that difference)",
+                    p.samples.len(),
+                    lowered_by(&args.job)
+                ),
+            ),
+            None => (samples, format!("the scene's {n} point samples")),
+        };
+        crate::compare_reference::report(&last, &samples, &which, &args.job.exr, args.job.aa)?;
     }
     Ok(())
+}
+
+/// The plan a coordinator wrote with `--plan-json`, `None` (said at debug level) when it cannot
+/// be read: the comparison then names the scene's samples.
+fn read_plan(path: &Path) -> Option<Plan> {
+    /// Far above any plan's JSON (a plan of 4 096 samples and 256 nodes is about 2 MB).
+    const MAX: u64 = 256 << 20;
+    let read = || -> anyhow::Result<Plan> {
+        let file = std::fs::File::open(path)?;
+        let len = file.metadata()?.len();
+        anyhow::ensure!(len <= MAX, "{len} bytes, over {MAX}");
+        Ok(serde_json::from_reader(std::io::BufReader::new(file))?)
+    };
+    read()
+        .inspect_err(|e| tracing::debug!("cannot read the plan {}: {e:#}", path.display()))
+        .ok()
+}
+
+/// What lowers a plan's samples below the scene's, as the job asked for it.
+fn lowered_by(job: &JobArgs) -> &'static str {
+    match (job.frame_budget.is_some(), job.target_psnr.is_some()) {
+        (true, true) => "the frame budget and the error target",
+        (true, false) => "the frame budget",
+        (false, true) => "the error target",
+        (false, false) => "the plan",
+    }
 }
 
 pub(crate) fn write_token(path: &Path) -> anyhow::Result<()> {
@@ -594,6 +665,9 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
         0 => "auto".to_string(),
         p => p.to_string(),
     });
+    if let Some(p) = &job.plan_json {
+        cmd.arg("--plan-json").arg(p);
+    }
     if let Some(p) = &job.stats {
         cmd.arg("--stats").arg(p);
     }
@@ -691,6 +765,8 @@ mod tests {
             "250",
             "--target-psnr",
             "42.5",
+            "--plan-json",
+            "plan.json",
         ];
         let job = Cli::parse_from(given).job;
         let mut cmd = Command::new("lightfold");

@@ -323,9 +323,10 @@ impl Report {
         if !intervals.is_empty() {
             let _ = write!(
                 s,
-                "\nframe interval {} ({:.2} frames/s)",
+                "\nframe interval {} ({:.2} frames/s; the plan estimated {:.1} ms per frame)",
                 spread(&intervals),
-                1e3 / mean(&intervals)
+                1e3 / mean(&intervals),
+                plan.est_frame_us as f64 / 1e3
             );
         }
         let _ = write!(

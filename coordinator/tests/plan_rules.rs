@@ -905,10 +905,13 @@ fn automatic_partitions_follow_the_nodes_memory() {
     // Without a budget, or without a measured eye cost, the eye pass decides nothing.
     assert_eq!(partitions_for(&scene, &with_eye_cost(ns), &auto), 1);
     assert_eq!(partitions_for(&scene, &with_eye_cost(0), &budget), 1);
-    // Nor where a node's fixed cost alone is over the budget: no split would meet it.
+    // Nor where a node's fixed cost alone is over the budget: no split would meet it (2.5 ms
+    // at the scene's size, reported at the calibration size).
+    let (cw, ch) = lightfold_protocol::CALIBRATION_SIZE;
+    let pixels = u64::from(scene.camera.width) * u64::from(scene.camera.height);
     let mut slow = with_eye_cost(ns);
     for n in &mut slow.nodes {
-        n.capabilities.as_mut().unwrap().fixed_cost_us = 2_500;
+        n.capabilities.as_mut().unwrap().fixed_cost_us = 2_500 * u64::from(cw * ch) / pixels.max(1);
     }
     assert_eq!(partitions_for(&scene, &slow, &budget), 1);
     // Asked for: as asked.
@@ -1019,4 +1022,71 @@ fn nodes_sharing_a_gpu_are_planned_as_one_node_per_gpu() {
     };
     let p = plan(&s, &on_devices(8, 85, |_| "h/0/gpu".into()), &kept).unwrap();
     assert_eq!((p.k, p.nodes.len()), (4, 8));
+}
+
+#[test]
+fn nodes_on_one_machines_cpu_are_estimated_one_after_another() {
+    let s = many_lights();
+    let o = PlanOptions {
+        lights_per_node: 4,
+        ..opts()
+    };
+    let on_cpus = |host: &dyn Fn(usize) -> String| {
+        let mut c = on_devices(8, 85, |_| String::new());
+        for (i, n) in c.nodes.iter_mut().enumerate() {
+            if let Some(caps) = n.capabilities.as_mut() {
+                caps.cpu_host = host(i);
+            }
+        }
+        c
+    };
+    // Eight machines (or nodes that say nothing): the slowest node is the frame.
+    let apart = plan(&s, &on_cpus(&|i| format!("boot:{i}")), &o).unwrap();
+    let unknown = plan(&s, &on_cpus(&|_| String::new()), &o).unwrap();
+    let slowest = |p: &lightfold_coordinator::plan::Plan| {
+        p.nodes.iter().map(|n| n.est_cost_us).max().unwrap()
+    };
+    for p in [&apart, &unknown] {
+        assert_eq!((p.k, p.nodes.len()), (4, 8));
+        assert_eq!(p.est_frame_us, slowest(p));
+        assert!(p.cpu_shared.is_none());
+    }
+    // One machine's CPU: the same nodes, their frames added up, and the plan says so.
+    let one = plan(&s, &on_cpus(&|_| "boot:a".into()), &o).unwrap();
+    assert_eq!(one.nodes, apart.nodes);
+    let sum: u64 = one.nodes.iter().map(|n| n.est_cost_us).sum();
+    assert!(
+        one.est_frame_us.abs_diff(sum) <= 8,
+        "{} {sum}",
+        one.est_frame_us
+    );
+    let shared = one.cpu_shared.expect("says the CPU is shared");
+    assert_eq!((shared.machines, shared.nodes), (1, 8));
+    assert_eq!(shared.est_slowest_node_us, slowest(&one));
+    assert!(
+        one.brief().to_string().contains("shared CPU"),
+        "{}",
+        one.brief()
+    );
+    // Two machines of four: each machine's four add up.
+    let two = plan(&s, &on_cpus(&|i| format!("boot:{}", i % 2)), &o).unwrap();
+    assert_eq!(two.cpu_shared.map(|c| (c.machines, c.nodes)), Some((2, 8)));
+    assert!(two.est_frame_us < one.est_frame_us && two.est_frame_us > slowest(&two));
+
+    // A frame budget on one machine's CPU: spreading lights over more nodes only adds their
+    // fixed costs, so the budget takes the fewest nodes; on separate machines, more nodes.
+    let budget = |us: u64| PlanOptions {
+        frame_budget_us: Some(us),
+        ..o.clone()
+    };
+    let b_one = plan(&s, &on_cpus(&|_| "boot:a".into()), &budget(20_000)).unwrap();
+    let b_apart = plan(&s, &on_cpus(&|i| format!("boot:{i}")), &budget(20_000)).unwrap();
+    assert!(
+        b_one.nodes.len() < b_apart.nodes.len(),
+        "{} {}",
+        b_one.nodes.len(),
+        b_apart.nodes.len()
+    );
+    each_once(&b_one);
+    each_once(&b_apart);
 }

@@ -59,6 +59,10 @@ impl Layer {
     }
 }
 
+/// The image size render nodes calibrate at: `Capabilities::cost_per_light_us` and
+/// `fixed_cost_us` are measured at it, and the planner scales them to a plan's size.
+pub const CALIBRATION_SIZE: (u32, u32) = (320, 240);
+
 /// What a daemon can do, reported when it registers.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Capabilities {
@@ -75,13 +79,21 @@ pub struct Capabilities {
     /// compositor, or a software rasteriser (whose "device" is the CPU cores the processes share
     /// anyway).
     pub device: String,
+    /// The machine whose CPU cores a software-rasterising render node renders on: the kernel's
+    /// boot id, which every process, network namespace and container on one machine shares.
+    /// Nodes that report the same one share those cores, so their frames run one after another
+    /// as far as the planner's cost model is concerned (`docs/planner.md` § Nodes sharing a
+    /// machine's CPU). Empty: a GPU node, a compositor, or unknown.
+    pub cpu_host: String,
     /// Largest K the device supports (0 for compositors).
     pub max_lights: u32,
     pub max_texture_size: u32,
     pub formats: Vec<crate::format::PixelFormat>,
-    /// Measured cost of one light (shadow pass + share of the eye pass), microseconds; 0 unknown.
+    /// Measured cost of one light (shadow pass + share of the eye pass) at `CALIBRATION_SIZE`,
+    /// microseconds; 0 unknown.
     pub cost_per_light_us: u64,
-    /// Measured fixed cost of a frame (eye pass, readback), microseconds; 0 unknown.
+    /// Measured fixed cost of a frame (eye pass, readback) at `CALIBRATION_SIZE`, microseconds;
+    /// 0 unknown.
     pub fixed_cost_us: u64,
     pub threads: u32,
     pub version: String,
@@ -107,6 +119,7 @@ impl Capabilities {
             adapter: String::new(),
             backend: String::new(),
             device: String::new(),
+            cpu_host: String::new(),
             max_lights: 0,
             max_texture_size: 0,
             formats: Vec::new(),

@@ -25,9 +25,11 @@ pub struct Adapt {
     /// node and frame the fixed and per-light costs measured over the registered model's.
     measured: Vec<f64>,
     scales: Vec<(f64, f64)>,
-    /// Per render node of the plan: its registered model (fixed µs, µs per light) and the
-    /// model's weights of its lights (whole, shadow passes).
-    model: HashMap<String, [f64; 4]>,
+    /// Per render node of the plan: its registered model (fixed µs, µs per light), the model's
+    /// weights of its lights (whole, shadow passes), and how many of the plan's nodes share its
+    /// machine's CPU (1 on a GPU): their work stretches each other's by about that much, which
+    /// the cost model counts by adding them up (`plan/cpu_hosts.rs`), not in each node's costs.
+    model: HashMap<String, [f64; 5]>,
     /// Plans (`choices`) whose frames were measured over the current budget.
     over_budget: HashSet<String>,
     /// The best plan measured within the current budget: its quality and the cost factors it
@@ -40,18 +42,32 @@ impl Adapt {
     /// A new epoch is configured: its nodes' registered model, the factors it was planned
     /// under, and no measurements yet.
     pub fn epoch(&mut self, plan: &Plan, cluster: &ClusterSpec, opts: &PlanOptions) {
+        let hosts = super::cpu_hosts::cpu_hosts(&cluster.nodes);
+        let machine = |id: &str| {
+            let i = cluster.nodes.iter().position(|d| d.id == id)?;
+            hosts[i]
+        };
         self.model = plan
             .nodes
             .iter()
             .filter_map(|n| {
                 let spec = cluster.nodes.iter().find(|d| d.id == n.node)?;
+                let sharing = machine(&n.node).map_or(1, |m| {
+                    plan.nodes
+                        .iter()
+                        .filter(|o| machine(&o.node) == Some(m))
+                        .count()
+                });
                 let (fixed, light) = node_cost(spec, plan);
                 let (w_all, w_shadow) = n
                     .shadows
                     .iter()
                     .map(light_weight)
                     .fold((0.0, 0.0), |a, w| (a.0 + w.0, a.1 + w.1));
-                Some((n.node.clone(), [fixed, light, w_all, w_shadow]))
+                Some((
+                    n.node.clone(),
+                    [fixed, light, w_all, w_shadow, sharing.max(1) as f64],
+                ))
             })
             .collect();
         self.plan_scale = opts.cost_scale;
@@ -72,7 +88,9 @@ impl Adapt {
         }
         let mut slowest = None::<u64>;
         for s in stats {
-            let Some(&[fixed_us, light_us, w_all, w_shadow]) = self.model.get(&s.daemon_id) else {
+            let Some(&[fixed_us, light_us, w_all, w_shadow, sharing]) =
+                self.model.get(&s.daemon_id)
+            else {
                 continue;
             };
             let work = s.pose_us + s.setup_us + s.shadow_us + s.eye_us + s.readback_us + s.pack_us;
@@ -81,8 +99,10 @@ impl Adapt {
             if w_shadow <= 0.0 || s.maps_kept > 0 || fixed_us <= 0.0 || light_us <= 0.0 {
                 continue;
             }
-            let per_light = s.shadow_us as f64 / w_shadow;
-            let rest = (work as f64 - per_light * w_all).max(0.05 * work as f64);
+            // A node's own costs: its time with the machine's CPU shared, over the sharing.
+            let per_light = s.shadow_us as f64 / w_shadow / sharing;
+            let work = work as f64 / sharing;
+            let rest = (work - per_light * w_all).max(0.05 * work);
             self.scales.push((rest / fixed_us, per_light / light_us));
         }
         if let Some(w) = slowest {

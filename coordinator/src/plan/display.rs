@@ -161,6 +161,9 @@ impl Display for Plan {
         if let Some(text) = self.shared_line() {
             writeln!(f, "{text}")?;
         }
+        if let Some(text) = self.cpu_line() {
+            writeln!(f, "{text}")?;
+        }
         if let Some(text) = self.target_line() {
             writeln!(f, "{text}")?;
         }
@@ -399,6 +402,9 @@ impl Display for Brief<'_> {
         if let Some(text) = p.shared_line() {
             write!(f, "\n  {text}")?;
         }
+        if let Some(text) = p.cpu_line() {
+            write!(f, "\n  {text}")?;
+        }
         Ok(())
     }
 }
@@ -416,6 +422,21 @@ impl Plan {
                 s.k_separate,
                 ms(self.est_frame_us),
                 ms(s.est_separate_us)
+            )
+        })
+    }
+
+    /// Nodes sharing a machine's CPU, estimated one after another, one line, or `None`.
+    pub fn cpu_line(&self) -> Option<String> {
+        self.cpu_shared.map(|s| {
+            format!(
+                "shared CPU: {} node(s) render on the cores of {} machine(s) (software \
+                 rasterisers), so their frames are estimated one after another: {} per frame \
+                 where the slowest node alone takes {}",
+                s.nodes,
+                s.machines,
+                ms(self.est_frame_us),
+                ms(s.est_slowest_node_us)
             )
         })
     }

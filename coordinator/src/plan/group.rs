@@ -86,23 +86,41 @@ fn bits(c: [f32; 3]) -> [u32; 3] {
     c.map(f32::to_bits)
 }
 
-/// A node's cost model: measured when it reported it, otherwise the defaults scaled by pixels.
+/// A node's cost model at a plan's image size: measured when it reported it (at
+/// `CALIBRATION_SIZE`), otherwise the defaults (at 800×600); either scaled by the pixels the same
+/// way, the fixed cost (eye pass, readback) in proportion, a light's cost half (its eye-pass
+/// share) in proportion and half (its shadow passes) not.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct NodeCost {
     pub light_us: f64,
     pub fixed_us: f64,
 }
 
+/// Pixels the measured costs are for.
+const CALIBRATION_PIXELS: f64 =
+    (lightfold_protocol::CALIBRATION_SIZE.0 * lightfold_protocol::CALIBRATION_SIZE.1) as f64;
+
+/// A fixed cost measured at `CALIBRATION_SIZE`, at `pixels`.
+pub(crate) fn measured_fixed_us(fixed_us: u64, pixels: u64) -> f64 {
+    fixed_us as f64 * pixels as f64 / CALIBRATION_PIXELS
+}
+
 impl NodeCost {
     pub fn of(spec: &DaemonSpec, pixels: u64) -> NodeCost {
-        let scale = pixels as f64 / REFERENCE_PIXELS;
         let caps = spec.capabilities.as_ref();
         let measured = |v: Option<u64>| v.filter(|&v| v > 0).map(|v| v as f64);
+        let light = measured(caps.map(|c| c.cost_per_light_us));
+        let fixed = measured(caps.map(|c| c.fixed_cost_us));
+        let at = |reference: f64| pixels as f64 / reference;
         NodeCost {
-            light_us: measured(caps.map(|c| c.cost_per_light_us))
-                .unwrap_or(DEFAULT_LIGHT_US as f64 * (0.5 + 0.5 * scale)),
-            fixed_us: measured(caps.map(|c| c.fixed_cost_us))
-                .unwrap_or(DEFAULT_FIXED_US as f64 * scale),
+            light_us: match light {
+                Some(l) => l * (0.5 + 0.5 * at(CALIBRATION_PIXELS)),
+                None => DEFAULT_LIGHT_US as f64 * (0.5 + 0.5 * at(REFERENCE_PIXELS)),
+            },
+            fixed_us: match fixed {
+                Some(f) => measured_fixed_us(f as u64, pixels),
+                None => DEFAULT_FIXED_US as f64 * at(REFERENCE_PIXELS),
+            },
         }
     }
 
@@ -128,10 +146,12 @@ impl NodeCost {
 /// The largest K a frame budget may choose when no node reports its device limit.
 pub const BUDGET_MAX_K: u32 = 32;
 
-/// The slowest node's estimated frame (µs) when `groups` are assigned by cost.
+/// The estimated frame (µs) when `groups` are assigned by cost: the slowest node, or a machine's
+/// CPU nodes (`hosts`, `plan/cpu_hosts.rs`) one after another.
 fn slowest<'s>(
     groups: &[Group],
     costs: &[NodeCost],
+    hosts: &[Option<usize>],
     views: &impl Fn(&Group) -> Vec<&'s ShadowPlan>,
 ) -> f64 {
     let group_costs: Vec<Vec<f64>> = groups
@@ -141,11 +161,11 @@ fn slowest<'s>(
             costs.iter().map(|c| c.frame(&v, 0)).collect()
         })
         .collect();
-    assign(&group_costs)
-        .iter()
+    let on_nodes = assign(&group_costs)
+        .into_iter()
         .zip(&group_costs)
-        .map(|(&n, c)| c[n])
-        .fold(0.0, f64::max)
+        .map(|(n, c)| (n, c.get(n).copied().unwrap_or(0.0)));
+    super::cpu_hosts::frame_estimate(on_nodes, hosts)
 }
 
 /// With a frame budget: the largest K up to `limit` (the fewest nodes) whose slowest node fits
@@ -155,6 +175,7 @@ pub(crate) fn budget_k<'s>(
     budget_us: f64,
     limit: u32,
     costs: &[NodeCost],
+    hosts: &[Option<usize>],
     groups_for: impl Fn(u32) -> Vec<Group>,
     fit: impl Fn(&[Group]) -> bool,
     views: impl Fn(&Group) -> Vec<&'s ShadowPlan>,
@@ -166,7 +187,7 @@ pub(crate) fn budget_k<'s>(
             // Smaller K only makes more groups.
             break;
         }
-        let est = slowest(&groups, costs, &views);
+        let est = slowest(&groups, costs, hosts, &views);
         if est <= budget_us {
             return k;
         }

@@ -7,6 +7,7 @@
 pub mod adapt;
 mod budget;
 mod config;
+mod cpu_hosts;
 mod cull;
 mod display;
 mod geom;
@@ -148,9 +149,10 @@ pub fn partitions_for(scene: &Scene, cluster: &ClusterSpec, options: &PlanOption
     });
     // (Where even the fastest node's fixed cost per frame is over the budget, no split meets it:
     // the budget's own concessions decide.)
-    let fixed = reported(|c| c.fixed_cost_us);
+    let pixels = u64::from(scene.camera.width) * u64::from(scene.camera.height);
+    let fixed = reported(|c| c.fixed_cost_us).map(|f| group::measured_fixed_us(f, pixels));
     let by_cost = match (options.frame_budget_us, reported(|c| c.eye_ns_per_triangle)) {
-        (Some(budget), Some(ns)) if fixed.is_none_or(|f| f < budget) => {
+        (Some(budget), Some(ns)) if fixed.is_none_or(|f| f < budget as f64) => {
             triangles * ns as f64 / 1000.0 / (budget.max(1) as f64 * EYE_BUDGET_SHARE)
         }
         _ => 1.0,
@@ -430,7 +432,16 @@ fn plan_once(
                     .collect()
             };
             let fits = |g: &[Group]| needed(g.len()) <= available;
-            group::budget_k(budget as f64, limit, &costs, groups_for, fits, views)
+            let hosts = cpu_hosts::cpu_hosts(&cluster.nodes);
+            group::budget_k(
+                budget as f64,
+                limit,
+                &costs,
+                &hosts,
+                groups_for,
+                fits,
+                views,
+            )
         }
     };
     let mut k_used = k;
@@ -448,6 +459,13 @@ fn plan_once(
             available,
         });
     }
+
+    // K as rendered: a budget or a short cluster may raise K past the largest group there is.
+    let k_used = groups
+        .iter()
+        .map(|g| g.lights.len() as u32)
+        .max()
+        .map_or(k_used, |most| k_used.min(most.max(1)));
 
     // Materials, and the eq. 6–7 folding when a node can carry c_n = c^a.
     let needs = material::needs(scene, &receivers, options.force_all);
@@ -682,7 +700,7 @@ fn plan_once(
         &cluster.sink,
         (cam.width, cam.height, band_height),
     );
-    let est_frame_us = nodes.iter().map(|n| n.est_cost_us).max().unwrap_or(0);
+    let (est_frame_us, cpu_shared) = cpu_hosts::plan_estimate(&nodes, &cluster.nodes);
     let mut notes = needs.notes;
     if needs.foldable && fold.is_none() {
         notes.push(if plan_parts > 0 {
@@ -719,6 +737,7 @@ fn plan_once(
         nodes,
         idle_nodes,
         shared_devices: None,
+        cpu_shared,
         stages,
         material,
         links,

@@ -598,6 +598,17 @@ pub struct SharedDevices {
     pub est_separate_us: u64,
 }
 
+/// Render nodes sharing one machine's CPU (software rasterisers), estimated one after another
+/// (`plan/cpu_hosts.rs`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct CpuShared {
+    /// Machines whose CPU two or more of the plan's nodes render on, and those nodes.
+    pub machines: usize,
+    pub nodes: usize,
+    /// The slowest node's own estimate, microseconds (the frame's, were they on separate machines).
+    pub est_slowest_node_us: u64,
+}
+
 /// Everything the cluster does for one scene and view.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Plan {
@@ -657,6 +668,9 @@ pub struct Plan {
     /// Set when nodes sharing a device are planned as one node per device.
     #[serde(default)]
     pub shared_devices: Option<SharedDevices>,
+    /// Nodes rendering on one machine's CPU, whose frames the estimate adds up.
+    #[serde(default)]
+    pub cpu_shared: Option<CpuShared>,
 }
 
 #[cfg(test)]

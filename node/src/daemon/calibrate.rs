@@ -3,17 +3,18 @@
 //! (the planner sizes K from them on heterogeneous machines), and one-light renders drawing a
 //! dense ball in the eye pass instead of the small one, for the eye pass's cost per triangle
 //! (automatic partitioning reads it). Takes well under a second on
-//! lavapipe; the figures are for the calibration scene at its small size, so they rank devices and
-//! K choices rather than predict a big scene's frame time.
+//! lavapipe. The figures are for the calibration scene at its small size; the planner scales
+//! them to a plan's image size (the fixed cost and the eye pass's half of a light's cost by the
+//! pixels), which predicts a frame of a simple scene (`docs/planner.md` § Cost model).
 
 use crate::gpu::{Gpu, LayerSet, RenderError, RenderOptions, Renderer};
 use lightfold_scene::primitives::{plane, sphere};
 use lightfold_scene::{Camera, LightSample, Material, SampleKind, Scene};
 use std::time::Instant;
 
-/// Calibration image size and map size.
-pub const WIDTH: u32 = 320;
-pub const HEIGHT: u32 = 240;
+/// Calibration image size (the planner scales the figures from it) and map size.
+pub const WIDTH: u32 = lightfold_protocol::CALIBRATION_SIZE.0;
+pub const HEIGHT: u32 = lightfold_protocol::CALIBRATION_SIZE.1;
 pub const MAP_SIZE: u32 = 256;
 /// Lights of the second calibration render (more lights, more signal over the machine's noise).
 const MANY: usize = 8;
@@ -113,8 +114,52 @@ pub fn from_times(t1: u64, tk: u64, many: u64) -> Calibration {
     }
 }
 
-/// Measures this device. Shadow maps are recomputed every frame (moving-light cost).
-pub fn run(gpu: &Gpu) -> Result<Calibration, RenderError> {
+/// Longest a node waits for other nodes on its machine's CPU to finish calibrating.
+const LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(30);
+
+/// Nodes rendering on one machine's CPU calibrate one at a time (an advisory lock on a file in
+/// the temporary directory, which in-process nodes take through their own handles too), so each
+/// measures the cores alone: the planner adds up the frames of nodes sharing a machine's CPU
+/// (`Capabilities::cpu_host`), and figures measured while the others calibrate would count the
+/// sharing twice. `None` (calibrate anyway) when the file cannot be opened or the lock is still
+/// held after `LOCK_WAIT`.
+fn cpu_lock() -> Option<std::fs::File> {
+    let path = std::env::temp_dir().join("lightfold-calibration.lock");
+    let file = match std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&path)
+    {
+        Ok(f) => f,
+        Err(e) => {
+            tracing::debug!("calibrating without {}: {e}", path.display());
+            return None;
+        }
+    };
+    let deadline = Instant::now() + LOCK_WAIT;
+    loop {
+        match file.try_lock() {
+            Ok(()) => return Some(file),
+            Err(std::fs::TryLockError::WouldBlock) if Instant::now() < deadline => {
+                std::thread::sleep(std::time::Duration::from_millis(20));
+            }
+            Err(e) => {
+                tracing::warn!(
+                    "calibrating while other nodes on this machine may be too ({}: {e}): the \
+                     figures may count them",
+                    path.display()
+                );
+                return None;
+            }
+        }
+    }
+}
+
+/// Measures this device. Shadow maps are recomputed every frame (moving-light cost). A software
+/// rasteriser (`on_cpu`) calibrates with the machine's other such nodes held off.
+pub fn run(gpu: &Gpu, on_cpu: bool) -> Result<Calibration, RenderError> {
+    let _alone = if on_cpu { cpu_lock() } else { None };
     let start = Instant::now();
     // The calibration scene with a dense ball in the small one's place (mesh 2), which only the
     // eye-cost frames draw, in the eye pass alone: every frame's shadows come from the floor and

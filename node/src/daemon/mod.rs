@@ -115,6 +115,11 @@ fn capabilities(opts: &NodeOptions, advertise: String, report: &DeviceReport) ->
         adapter: report.adapter.clone(),
         backend: report.backend.clone(),
         device: report.device.clone(),
+        cpu_host: if report.software {
+            sys::machine()
+        } else {
+            String::new()
+        },
         max_lights: max_lights_for(&report.limits, map),
         max_texture_size: report.limits.max_texture_dimension_2d,
         formats: config::supported_formats(),

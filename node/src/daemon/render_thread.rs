@@ -219,7 +219,8 @@ fn thread_main(
             return;
         }
     };
-    let calibration = match calibrate::run(&gpu) {
+    let software = crate::gpu::device::is_software(&gpu.info);
+    let calibration = match calibrate::run(&gpu, software) {
         Ok(c) => c,
         Err(e) => {
             let _ = ready.send(Err(DeviceError::RequestDevice(format!(
@@ -228,7 +229,6 @@ fn thread_main(
             return;
         }
     };
-    let software = crate::gpu::device::is_software(&gpu.info);
     let report = DeviceReport {
         adapter: gpu.info.name.clone(),
         backend: format!("{:?}", gpu.info.backend).to_lowercase(),

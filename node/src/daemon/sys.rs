@@ -35,6 +35,17 @@ pub fn threads() -> u32 {
         .unwrap_or(available)
 }
 
+/// This machine, as every process on it sees it: the kernel's boot id (shared by every process,
+/// network namespace and container on one kernel, new at every boot), or the host name where it
+/// cannot be read. Nodes rendering on the CPU report it (`Capabilities::cpu_host`).
+pub fn machine() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/random/boot_id")
+        .ok()
+        .map(|h| h.trim().to_string())
+        .filter(|h| !h.is_empty())
+        .map_or_else(hostname, |id| format!("boot:{id}"))
+}
+
 /// This machine's host name (the kernel's), or "localhost" where it cannot be read.
 pub fn hostname() -> String {
     std::fs::read_to_string("/proc/sys/kernel/hostname")

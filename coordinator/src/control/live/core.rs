@@ -769,8 +769,9 @@ impl Core {
                 slow_frames.push((f.index, waited, super::frames::waiting_on(plan, f)));
             }
         }
+        // One line per slow frame only in the log's detail: the run's summary says it once.
         for (index, waited, culprits) in slow_frames {
-            tracing::warn!(
+            tracing::debug!(
                 frame = index,
                 "frame {index} is slow: {} ms so far (the plan estimates {} ms); waiting on {}",
                 waited.as_millis(),
