@@ -26,6 +26,7 @@ import json
 import os
 import pathlib
 import re
+import shlex
 import shutil
 import subprocess
 import sys
@@ -70,13 +71,14 @@ def image(args):
             )
         elif op == "COPY":
             src, dst = rest.split()[-2:]
-            if src != "/src/target/release/lightfold":
+            if src != "/lightfold":
                 sys.exit(f"COPY {src}: only the build stage's binary is known here")
             print("COPY", args.bin, "->", dst, flush=True)
             shutil.copy2(args.bin, root + dst)
         elif op == "ENV":
-            k, v = rest.split("=", 1)
-            config["env"][k] = v
+            for word in shlex.split(rest):  # ENV A=1 B=2 (continuation lines already joined)
+                k, v = word.split("=", 1)
+                config["env"][k] = v
         elif op == "WORKDIR":
             config["workdir"] = rest
         elif op == "USER":

@@ -10,11 +10,21 @@ mounted secrets or credentials, and the coordinator's images (also its default o
 relative to the image's WORKDIR) land on a writable volume. Operations: Kubernetes probes ask
 /healthz and /readyz on the port the daemon serves metrics on, every container has requests and
 limits and a restricted securityContext, headless services publish daemons that are not ready yet
-(the coordinator makes them ready), the GPU patch asks for a GPU and refuses a CPU rasteriser;
-systemd units are Type=notify with a watchdog, an EnvironmentFile and distinct metrics ports; the
-image asks NVIDIA's toolkit for `graphics` and has a HEALTHCHECK the binary answers; the Slurm
-script has no fixed ports and asks for GPUs when allocated; the Prometheus example passes
-`promtool check config` (where promtool is installed). Needs Python 3.11 with PyYAML.
+(the coordinator makes them ready); the GPU variant (kubernetes-gpu/, a kustomization over
+lightfold.yaml with a strategic-merge patch) is rendered with `kubectl kustomize` where kubectl is
+installed (else merged here the same way), passes the same checks, asks for a GPU and refuses a CPU
+rasteriser. systemd units are Type=notify with a watchdog and an EnvironmentFile; their ExecStart
+is run through its shell for instances 0-99 (ports 7300+N / 7500+N, metrics 9300+N / 9500+N, all
+distinct) and must refuse any other instance with status 64, which is not restarted; they carry
+the sandbox options (docs/deploy.md), and `systemd-analyze security --offline` (where installed)
+scores them. The image sets no NVIDIA_VISIBLE_DEVICES (the runtime chooses a pod's GPUs), asks
+NVIDIA's toolkit for `graphics`, builds with cache mounts and has a HEALTHCHECK the binary
+answers. The Slurm script is run with stand-ins for srun, scontrol and the binary: ports from the
+job id, GPUs when allocated, an empty array under `set -u`, a per-job token it makes (0600 in a
+0700 directory, removed at the end) and a given token that others can read refused. The
+Prometheus examples pass `promtool check config` (where promtool is installed; the Kubernetes
+discovery file only where promtool has Kubernetes discovery, which Debian's lacks).
+Needs Python 3.11 with PyYAML. Without the binary the flag checks are skipped, and it says so.
 deploy/emulate.py runs the same files.
 """
 
@@ -25,6 +35,7 @@ import re
 import shlex
 import subprocess
 import sys
+import tempfile
 import tomllib
 
 import yaml
@@ -35,9 +46,11 @@ COMPOSE = os.path.join(HERE, "compose", "compose.yaml")
 KUBE = os.path.join(HERE, "kubernetes", "lightfold.yaml")
 UNITS = [os.path.join(HERE, "systemd", f) for f in ("lightfold-node@.service", "lightfold-compositor@.service")]
 CONTAINERFILE = os.path.join(HERE, "container", "Containerfile")
-GPU_PATCH = os.path.join(HERE, "kubernetes", "render-gpu.patch.yaml")
+GPU_DIR = os.path.join(HERE, "kubernetes-gpu")
+GPU_PATCH = os.path.join(GPU_DIR, "render-gpu.patch.yaml")
 SBATCH = os.path.join(HERE, "slurm", "lightfold.sbatch")
 PROMETHEUS = os.path.join(HERE, "prometheus", "prometheus.yml")
+PROMETHEUS_K8S_SD = os.path.join(HERE, "prometheus", "kubernetes-sd.yml")
 ROLES = ("node", "compositor", "coordinator")
 errors = []
 
@@ -54,8 +67,18 @@ def err(where, msg):
     errors.append(f"{where}: {msg}")
 
 
+class AnyFlag(dict):
+    """Stands for a subcommand's flags when there is no binary to ask: any flag is accepted, and
+    it takes a value when the next word is not a flag."""
+
+    def __contains__(self, key):
+        return True
+
+
 def flags_of(binary, sub):
-    """{'--flag': takes_value} from `lightfold SUB --help`."""
+    """{'--flag': takes_value} from `lightfold SUB --help` (AnyFlag without the binary)."""
+    if not os.access(binary, os.X_OK):
+        return AnyFlag()
     out = subprocess.run([binary, sub, "--help"], capture_output=True, text=True, check=True).stdout
     flags = {}
     for m in re.finditer(r"^\s+(?:-\w, )?(--[a-z][a-z-]*)( <[A-Z_]+>)?", out, re.MULTILINE):
@@ -75,7 +98,11 @@ def parse_cmd(where, argv, flags):
             err(where, f"`{role}` has no flag {a!r}")
             i += 1
             continue
-        if flags[role][a]:
+        if isinstance(flags[role], AnyFlag):
+            takes = i + 1 < len(argv) and not argv[i + 1].startswith("--")
+        else:
+            takes = flags[role][a]
+        if takes:
             if i + 1 >= len(argv) or argv[i + 1].startswith("--"):
                 err(where, f"{a} needs a value")
                 i += 1
@@ -207,15 +234,17 @@ def expand(s, env):
     return re.sub(r"\$\((\w+)\)", lambda m: env.get(m.group(1), m.group(0)), s)
 
 
-def lint_kubernetes(flags):
-    docs = [d for d in yaml.safe_load_all(read(KUBE)) if d]
+def lint_kubernetes(flags, docs=None, label="kubernetes"):
+    """lightfold.yaml, or DOCS (the GPU variant as kustomize renders it) under LABEL."""
+    if docs is None:
+        docs = [d for d in yaml.safe_load_all(read(KUBE)) if d]
     kinds = {(d["kind"], d["metadata"]["name"]): d for d in docs}
     advertised, ids, cluster_text, sink_name = {"node": set(), "compositor": set()}, {}, None, None
     for d in docs:
         if d["kind"] not in ("StatefulSet", "Job"):
             continue
         spec = d["spec"]["template"]["spec"]
-        where = f"kubernetes/{d['kind']}/{d['metadata']['name']}"
+        where = f"{label}/{d['kind']}/{d['metadata']['name']}"
         vols = {v["name"]: v for v in spec.get("volumes", [])}
         pods = (
             [f"{d['metadata']['name']}-{i}" for i in range(d["spec"].get("replicas", 1))]
@@ -272,9 +301,9 @@ def lint_kubernetes(flags):
                             f"subdomain {spec.get('subdomain')} has no headless Service: the sink has no DNS name",
                         )
     if cluster_text is None:
-        err("kubernetes", "no cluster.toml ConfigMap mounted by the coordinator")
+        err(label, "no cluster.toml ConfigMap mounted by the coordinator")
     else:
-        check_cluster("kubernetes/ConfigMap", cluster_text, advertised, sink_name, ids)
+        check_cluster(f"{label}/ConfigMap", cluster_text, advertised, sink_name, ids)
 
 
 def probe_port(c, probe):
@@ -327,58 +356,185 @@ def check_pod_ops(where, d, spec, c, flags):
         err(where, "a node on a read-only root needs XDG_CACHE_HOME on a volume (the driver's shader cache)")
 
 
+def smp_merge(base, patch):
+    """A strategic merge patch as kubectl applies it to the fields used here: maps merge, lists
+    of maps with a `name` (containers, env, ports, volumes) merge by name, other lists replace."""
+    if isinstance(base, dict) and isinstance(patch, dict):
+        out = dict(base)
+        for k, v in patch.items():
+            out[k] = smp_merge(base[k], v) if k in base else v
+        return out
+    if (
+        isinstance(base, list)
+        and isinstance(patch, list)
+        and all(isinstance(x, dict) and "name" in x for x in base + patch)
+    ):
+        out = [dict(x) for x in base]
+        for p in patch:
+            i = next((j for j, x in enumerate(out) if x["name"] == p["name"]), None)
+            if i is None:
+                out.append(p)
+            else:
+                out[i] = smp_merge(out[i], p)
+        return out
+    return patch
+
+
+def gpu_variant():
+    """The GPU variant's documents: `kubectl kustomize kubernetes-gpu` where kubectl is installed,
+    else the kustomization's patches merged over its resources here."""
+    try:
+        r = subprocess.run(["kubectl", "kustomize", GPU_DIR], capture_output=True, text=True)
+    except FileNotFoundError:
+        r = None
+    if r is not None:
+        if r.returncode != 0:
+            err("kubernetes-gpu", f"kubectl kustomize fails: {r.stderr.strip()}")
+            return None
+        return [d for d in yaml.safe_load_all(r.stdout) if d]
+    print("lint: kubectl not installed; merging kubernetes-gpu's patch here (as kustomize would)")
+    k = yaml.safe_load(read(os.path.join(GPU_DIR, "kustomization.yaml")))
+    docs = []
+    for res in k.get("resources", []):
+        path = os.path.normpath(os.path.join(GPU_DIR, res))
+        if os.path.isdir(path):
+            sub = yaml.safe_load(read(os.path.join(path, "kustomization.yaml")))
+            files = [os.path.join(path, f) for f in sub.get("resources", [])]
+        else:
+            files = [path]
+        for f in files:
+            docs += [d for d in yaml.safe_load_all(read(f)) if d]
+    for p in k.get("patches", []):
+        patch = yaml.safe_load(read(os.path.join(GPU_DIR, p["path"])))
+        for i, d in enumerate(docs):
+            if (d["kind"], d["metadata"]["name"]) == (patch["kind"], patch["metadata"]["name"]):
+                docs[i] = smp_merge(d, patch)
+    return docs
+
+
 def lint_gpu_patch(flags):
-    """The GPU patch, merged over the render StatefulSet the way `kubectl patch` merges it."""
-    where = "kubernetes/render-gpu.patch.yaml"
+    """The GPU patch is a strategic-merge patch kustomize can apply (apiVersion, kind, the render
+    StatefulSet's name); the variant it makes passes every Kubernetes check, and its render nodes
+    ask for a GPU, refuse a CPU rasteriser and ask NVIDIA's toolkit for `graphics`."""
+    where = "kubernetes-gpu/render-gpu.patch.yaml"
     patch = yaml.safe_load(read(GPU_PATCH))
     docs = [d for d in yaml.safe_load_all(read(KUBE)) if d]
     base = next((d for d in docs if d["kind"] == "StatefulSet" and d["metadata"]["name"] == "render"), None)
     if base is None:
         err(where, "no render StatefulSet to patch")
         return
-    spec = base["spec"]["template"]["spec"]
-    for pc in patch["spec"]["template"]["spec"]["containers"]:
-        c = next((x for x in spec["containers"] if x["name"] == pc["name"]), None)
-        if c is None:
-            err(where, f"patches container {pc['name']}, which the StatefulSet does not have")
-            continue
-        merged = dict(c)
-        merged.update({k: v for k, v in pc.items() if k != "name"})
-        role, opts = parse_cmd(where, merged.get("args", []), flags)
+    for key, want in (("apiVersion", base["apiVersion"]), ("kind", "StatefulSet")):
+        if patch.get(key) != want:
+            err(where, f"{key} is {patch.get(key)!r}, not {want!r}: kustomize cannot tell what it patches")
+    if (patch.get("metadata") or {}).get("name") != "render":
+        err(where, "metadata.name is not render, the render StatefulSet of lightfold.yaml")
+    k = yaml.safe_load(read(os.path.join(GPU_DIR, "kustomization.yaml")))
+    if not any(p.get("path") == os.path.basename(GPU_PATCH) for p in k.get("patches", [])):
+        err("kubernetes-gpu/kustomization.yaml", "does not apply render-gpu.patch.yaml")
+    variant = gpu_variant()
+    if variant is None:
+        return
+    lint_kubernetes(flags, variant, "kubernetes-gpu")
+    render = next((d for d in variant if d["kind"] == "StatefulSet" and d["metadata"]["name"] == "render"), None)
+    if render is None:
+        err("kubernetes-gpu", "no render StatefulSet")
+        return
+    for c in render["spec"]["template"]["spec"]["containers"]:
+        role, opts = parse_cmd(where, c.get("args", []), flags)
         if role != "node" or "--require-gpu" not in opts:
             err(where, "a GPU node without --require-gpu renders on the CPU when its GPU is missing")
-        if opts.get("--metrics-listen") != "0.0.0.0:9300":
-            err(where, "the patch changes the metrics port the probes ask")
         for k in ("requests", "limits"):
-            if "nvidia.com/gpu" not in merged.get("resources", {}).get(k, {}):
+            if "nvidia.com/gpu" not in c.get("resources", {}).get(k, {}):
                 err(where, f"no nvidia.com/gpu in resources.{k}")
-        env = {e["name"]: e.get("value") for e in merged.get("env", [])}
+        env = {e["name"]: e.get("value") for e in c.get("env", [])}
         if "graphics" not in (env.get("NVIDIA_DRIVER_CAPABILITIES") or ""):
             err(where, "NVIDIA_DRIVER_CAPABILITIES lacks graphics: no Vulkan driver in the container")
-        if "POD_NAME" not in env:
-            err(where, "the patch's env (a list, replaced whole) drops POD_NAME")
+        if "NVIDIA_VISIBLE_DEVICES" in env:
+            err(where, "sets NVIDIA_VISIBLE_DEVICES: the device plugin sets it from nvidia.com/gpu")
+    for d in variant:
+        if d["kind"] == "StatefulSet" and d["metadata"]["name"] != "render":
+            for c in d["spec"]["template"]["spec"]["containers"]:
+                if "nvidia.com/gpu" in str(c.get("resources")):
+                    err("kubernetes-gpu", f"{d['metadata']['name']} asks for a GPU too")
 
 
 def lint_container(binary):
     where = "container/Containerfile"
     text = read(CONTAINERFILE)
-    last = re.split(r"^FROM .*$", text, flags=re.MULTILINE)[-1]
+    stages = re.split(r"^FROM .*$", text, flags=re.MULTILINE)
+    last = stages[-1]
+    code = "\n".join(l for l in text.splitlines() if not l.lstrip().startswith("#"))
+    if "NVIDIA_VISIBLE_DEVICES" in code:
+        err(where, "sets NVIDIA_VISIBLE_DEVICES: every container of the image would see every GPU of its host")
     caps = re.search(r"NVIDIA_DRIVER_CAPABILITIES=(\S+)", last)
     if not caps or "graphics" not in caps.group(1).split(","):
         err(where, "NVIDIA_DRIVER_CAPABILITIES does not include graphics (the Vulkan driver)")
+    build = re.sub(r"\\\n", " ", "".join(stages[1:-1]))
+    run = next((l for l in build.splitlines() if l.startswith("RUN") and "cargo build" in l), "")
+    for target in ("/usr/local/cargo/registry", "/src/target"):
+        if not re.search(rf"--mount=type=cache,[^ ]*target={re.escape(target)}\b", run):
+            err(where, f"cargo build without a cache mount on {target}: every build starts from nothing")
+    copied = re.search(r"^COPY --from=\S+ (\S+) /usr/local/bin/lightfold$", last, re.MULTILINE)
+    if copied and copied.group(1).startswith("/src/target/"):
+        err(where, f"copies {copied.group(1)} from the target cache mount, which is not in the build stage's image")
     hc = re.search(r"^HEALTHCHECK .*?CMD (\[.*?\])", last, re.MULTILINE | re.DOTALL)
     if not hc:
         err(where, "no HEALTHCHECK")
     else:
         argv = yaml.safe_load(hc.group(1))
         sub = argv[1] if len(argv) > 1 else None
-        if argv[0] != "/usr/local/bin/lightfold" or subprocess.run(
-            [binary, sub, "--help"], capture_output=True
-        ).returncode != 0:
+        if argv[0] != "/usr/local/bin/lightfold":
+            err(where, f"HEALTHCHECK runs {argv[0]}, not the image's binary")
+        elif os.access(binary, os.X_OK) and subprocess.run([binary, sub, "--help"], capture_output=True).returncode:
             err(where, f"HEALTHCHECK runs {argv}, which the binary does not have")
     listen = re.search(r"LIGHTFOLD_METRICS_LISTEN=(\S+)", last)
     if not listen or port_of(listen.group(1)) not in re.findall(r"^EXPOSE (.*)$", last, re.MULTILINE)[-1].split():
         err(where, "the metrics port (LIGHTFOLD_METRICS_LISTEN) is not set or not exposed")
+    ignore = read(CONTAINERFILE + ".dockerignore").split()
+    for path in ("target", ".git", "deploy/compose/token"):
+        if path not in ignore:
+            err(f"{where}.dockerignore", f"does not keep {path} out of the build context")
+    for path in ("Cargo.toml", "Cargo.lock"):
+        if path in ignore or not os.path.exists(os.path.join(REPO, path)):
+            err(f"{where}.dockerignore", f"the build needs {path} in the context")
+
+
+SLURM_STUBS = {
+    # The allocation's hosts, as `scontrol show hostnames` prints them.
+    "scontrol": 'printf "n0\\nn1\\nn2\\n"\n',
+    # Each step: its argv, and the token as the daemons would find it.
+    "srun": 'echo "srun $*" >> "$LOG"; stat -c "token %a %U" "$LIGHTFOLD_TOKEN_FILE" >> "$LOG"\n',
+    "lightfold": 'echo "lightfold $*" >> "$LOG"; stat -c "token %a" "$LIGHTFOLD_TOKEN_FILE" >> "$LOG"\n'
+    'stat -c "dir %a" "$(dirname "$LIGHTFOLD_TOKEN_FILE")" >> "$LOG"\n',
+}
+
+
+def run_sbatch(tmp, gpus, token=None):
+    """The batch script as its batch step runs, with stand-ins for srun, scontrol and the binary:
+    (exit status, stderr, the stand-ins' log lines, files left in the submit directory)."""
+    stubs = os.path.join(tmp, "bin")
+    os.makedirs(stubs, exist_ok=True)
+    submit = tempfile.mkdtemp(dir=tmp, prefix="submit-")
+    for name, body in SLURM_STUBS.items():
+        write(os.path.join(stubs, name), "#!/bin/sh\n" + body)
+        os.chmod(os.path.join(stubs, name), 0o755)
+    log = os.path.join(submit, "stubs.log")
+    env = {
+        "PATH": f"{stubs}:/usr/bin:/bin",
+        "HOME": tmp,
+        "LOG": log,
+        "LIGHTFOLD_BIN": os.path.join(stubs, "lightfold"),
+        "SLURM_JOB_ID": "4242",
+        "SLURM_JOB_NODELIST": "n[0-2]",
+        "SLURM_SUBMIT_DIR": submit,
+        "SLURM_GPUS_PER_NODE": gpus,
+    }
+    if token is not None:
+        env["LIGHTFOLD_TOKEN_FILE"] = token
+    r = subprocess.run(["bash", SBATCH], env=env, cwd=submit, capture_output=True, text=True)
+    lines = read(log).splitlines() if os.path.exists(log) else []
+    left = sorted(set(os.listdir(submit)) - {"stubs.log"})
+    return r.returncode, r.stderr, lines, left
 
 
 def lint_slurm():
@@ -396,54 +552,194 @@ def lint_slurm():
         err(where, "does not give render nodes the allocation's GPUs (--gpus-per-task, --require-gpu)")
     if "--metrics-listen" not in code:
         err(where, "daemons serve no metrics")
+    # Arrays that may be empty, expanded bare: "unbound variable" under set -u before bash 4.4.
+    for name in re.findall(r"^\s*(\w+)=\(\)", code, re.MULTILINE):
+        if re.search(rf'(?<!\+)"\$\{{{name}\[@\]\}}"(?!\}})', code):
+            err(where, f'"${{{name}[@]}}" of a possibly empty array: unbound under set -u in bash before 4.4')
+    try:
+        r = subprocess.run(["shellcheck", SBATCH], capture_output=True, text=True)
+        if r.returncode:
+            err(where, f"shellcheck: {r.stdout.strip()}")
+    except FileNotFoundError:
+        print("lint: SKIPPED shellcheck (not installed: Debian's shellcheck package)")
+    with tempfile.TemporaryDirectory() as tmp:
+        os.chmod(tmp, 0o755)
+        for gpus in ("0", "1"):
+            rc, stderr, lines, left = run_sbatch(tmp, gpus)
+            if rc:
+                err(where, f"with SLURM_GPUS_PER_NODE={gpus} and stand-ins it fails ({rc}): {stderr.strip()}")
+                continue
+            node = next((l for l in lines if l.startswith("srun") and "launch node" in l), "")
+            if ("--gpus-per-task=1" in node) != (gpus != "0") or ("--require-gpu" in node) != (gpus != "0"):
+                err(where, f"GPUs per node {gpus}: node step {node!r}")
+            if "token 600" not in lines or "dir 700" not in lines:
+                err(where, f"the token it makes is not 0600 in a 0700 directory: {lines}")
+            if any(f.startswith(".lightfold-token") for f in left):
+                err(where, f"leaves its token behind: {left}")
+        token = os.path.join(tmp, "token")
+        write(token, "t\n")
+        os.chmod(token, 0o644)
+        rc, stderr, lines, _ = run_sbatch(tmp, "0", token)
+        if rc == 0 or lines or "chmod 600" not in stderr:
+            err(where, f"runs with a token others can read (status {rc}, {stderr.strip()!r})")
+        os.chmod(token, 0o600)
+        rc, stderr, lines, left = run_sbatch(tmp, "0", token)
+        if rc or f"--token-file {token}" not in " ".join(lines) or any(f.startswith(".lightfold") for f in left):
+            err(where, f"does not use the given token file (status {rc}, {stderr.strip()!r})")
 
 
 def lint_prometheus():
-    where = "prometheus/prometheus.yml"
+    """prometheus.yml passes any promtool, Debian's too (2.42, built without Kubernetes
+    discovery); kubernetes-sd.yml passes one that has Kubernetes discovery."""
     doc = yaml.safe_load(read(PROMETHEUS))
+    if "kubernetes_sd_configs" in str(doc):
+        err("prometheus/prometheus.yml", "kubernetes_sd_configs: Debian's Prometheus rejects the whole file")
+    names = {n for j in doc.get("scrape_configs", []) for c in j.get("dns_sd_configs", []) for n in c.get("names", [])}
+    for svc in ("render", "comp"):
+        if not any(n.split(".")[0] == svc for n in names):
+            err("prometheus/prometheus.yml", f"does not discover the {svc} pods (DNS of the headless Service {svc})")
+    k8s = yaml.safe_load(read(PROMETHEUS_K8S_SD))
     if not any(
         r.get("regex") == "metrics" and "__meta_kubernetes_pod_container_port_name" in r.get("source_labels", [])
-        for j in doc.get("scrape_configs", [])
+        for j in k8s.get("scrape_configs", [])
         for r in j.get("relabel_configs", [])
     ):
-        err(where, "the Kubernetes job does not keep the `metrics` container port")
-    try:
-        r = subprocess.run(["promtool", "check", "config", PROMETHEUS], capture_output=True, text=True)
-    except FileNotFoundError:
-        print("lint: SKIPPED promtool check config (promtool not installed: Debian's prometheus package)")
-        return
-    if r.returncode != 0 and "field kubernetes_sd_configs not found" in r.stdout + r.stderr:
-        # Debian's prometheus is built without Kubernetes discovery: check the rest, say so.
-        print("lint: this promtool has no kubernetes_sd_configs (Debian's build); checking the other jobs")
-        doc["scrape_configs"] = [j for j in doc["scrape_configs"] if "kubernetes_sd_configs" not in j]
-        rest = os.path.join(HERE, "prometheus", ".without-kubernetes.yml")
-        write(rest, yaml.safe_dump(doc))
+        err("prometheus/kubernetes-sd.yml", "the Kubernetes job does not keep the `metrics` container port")
+    for path in (PROMETHEUS, PROMETHEUS_K8S_SD):
+        where = f"prometheus/{os.path.basename(path)}"
         try:
-            r = subprocess.run(["promtool", "check", "config", rest], capture_output=True, text=True)
-        finally:
-            os.remove(rest)
-    if r.returncode != 0:
-        err(where, f"promtool check config: {r.stdout}{r.stderr}")
+            r = subprocess.run(["promtool", "check", "config", path], capture_output=True, text=True)
+        except FileNotFoundError:
+            print(f"lint: SKIPPED promtool check config {where} (promtool not installed: Debian's prometheus package)")
+            return
+        out = r.stdout + r.stderr
+        if r.returncode and path == PROMETHEUS_K8S_SD and "field kubernetes_sd_configs not found" in out:
+            print(f"lint: SKIPPED promtool check config {where}: this promtool has no Kubernetes discovery")
+        elif r.returncode:
+            err(where, f"promtool check config: {out.strip()}")
+
+
+def unit_run(path, instance, host, env=None):
+    """A template unit's ExecStart for INSTANCE on HOST as systemd (specifiers, $$, line
+    continuations) and then its /bin/sh -c script would run it, up to the daemon: (status, the
+    daemon's argv or None, stderr). ${CREDENTIALS_DIRECTORY} and ${CACHE_DIRECTORY} stay unexpanded."""
+    text = read(path)
+    line = re.search(r"^ExecStart=(.*)$", re.sub(r"\\\n", " ", text), re.MULTILINE).group(1)
+    line = line.replace("%i", str(instance)).replace("%H", host).replace("%%", "%")
+    argv = [w.replace("$$", "$") for w in shlex.split(line)]
+    if argv[:2] not in (["/bin/sh", "-c"], ["/usr/bin/sh", "-c"]):
+        return 0, argv, ""
+    script = argv[2]
+    if "exec /usr/local/bin/lightfold " not in script:
+        return 1, None, "the script does not exec /usr/local/bin/lightfold"
+    script = script.replace("exec /usr/local/bin/lightfold ", "exec printf '%s\\0' /usr/local/bin/lightfold ")
+    run_env = {
+        "PATH": "/usr/bin:/bin",
+        "CREDENTIALS_DIRECTORY": "${CREDENTIALS_DIRECTORY}",
+        "CACHE_DIRECTORY": "${CACHE_DIRECTORY}",
+        **(env or {}),
+    }
+    r = subprocess.run(["sh", "-c", script, *argv[3:]], env=run_env, capture_output=True, text=True)
+    return r.returncode, r.stdout.split("\0")[:-1] if r.returncode == 0 else None, r.stderr
 
 
 def unit_exec(path, instance, host):
-    """ExecStart of a template unit with %i/%H and the credential and cache variables expanded."""
+    """The daemon's argv for INSTANCE on HOST, the unit's credentials and its text."""
     text = read(path)
-    line = re.search(r"^ExecStart=(.*)$", text, re.MULTILINE).group(1)
+    rc, argv, stderr = unit_run(path, instance, host)
+    if rc:
+        raise RuntimeError(f"{os.path.basename(path)} instance {instance}: status {rc}: {stderr.strip()}")
     creds = dict(re.findall(r"^LoadCredential=([^:]+):(.*)$", text, re.MULTILINE))
-    argv = shlex.split(line.replace("%i", str(instance)).replace("%H", host))
     return argv, creds, text
 
 
-def unit_port(path, instance):
-    argv = unit_exec(path, instance, "h")[0]
-    return port_of(argv[argv.index("--listen") + 1])
+# Instances 0-99: ports base+N, metrics on loopback mbase+N; the sink keeps 7400.
+UNIT_PORTS = {"lightfold-node@.service": (7300, 9300), "lightfold-compositor@.service": (7500, 9500)}
+INSTANCES = range(100)
+# The sandbox (docs/deploy.md); the exposure systemd-analyze gave them, not to be exceeded.
+HARDENING = {
+    "DynamicUser": "yes",
+    "UMask": "0077",
+    "NoNewPrivileges": "yes",
+    "CapabilityBoundingSet": "",
+    "ProtectSystem": "strict",
+    "ProtectHome": "yes",
+    "PrivateTmp": "yes",
+    "PrivateMounts": "yes",
+    "PrivateIPC": "yes",
+    "ProtectHostname": "yes",
+    "ProtectClock": "yes",
+    "ProtectKernelTunables": "yes",
+    "ProtectKernelModules": "yes",
+    "ProtectKernelLogs": "yes",
+    "ProtectControlGroups": "yes",
+    "ProtectProc": "invisible",
+    "RestrictAddressFamilies": "AF_INET AF_INET6 AF_UNIX",
+    "RestrictNamespaces": "yes",
+    "RestrictRealtime": "yes",
+    "RestrictSUIDSGID": "yes",
+    "LockPersonality": "yes",
+    "RemoveIPC": "yes",
+    "SystemCallArchitectures": "native",
+    "SystemCallErrorNumber": "EPERM",
+}
+ROLE_HARDENING = {
+    # Render nodes open the GPU (and llvmpipe or the driver JIT-compiles shaders).
+    "lightfold-node@.service": {"DevicePolicy": "closed", "SupplementaryGroups": "render video"},
+    "lightfold-compositor@.service": {
+        "PrivateDevices": "yes",
+        "PrivateUsers": "yes",
+        "MemoryDenyWriteExecute": "yes",
+        "ProcSubset": "pid",
+    },
+}
+EXPOSURE = {"lightfold-node@.service": 2.0, "lightfold-compositor@.service": 1.5}
+
+
+def check_unit_sandbox(where, path, text):
+    name = os.path.basename(path)
+    settings = {}
+    for k, v in re.findall(r"^(\w+)=(.*)$", text, re.MULTILINE):
+        settings.setdefault(k, []).append(v)
+    for k, want in {**HARDENING, **ROLE_HARDENING[name]}.items():
+        if want not in settings.get(k, []):
+            err(where, f"no {k}={want}")
+    filters = " ".join(settings.get("SystemCallFilter", []))
+    wanted = ["@system-service", "~@privileged"] + (["@resources"] if "compositor" in name else [])
+    for f in wanted:
+        if f not in filters.split():
+            err(where, f"SystemCallFilter= lacks {f}")
+    if "node" in name:
+        allowed = settings.get("DeviceAllow", [])
+        for dev in ("char-drm rw", "char-nvidia* rw"):
+            if dev not in allowed:
+                err(where, f"no DeviceAllow={dev}: a render node cannot open its GPU")
+        for k in ("PrivateDevices", "MemoryDenyWriteExecute"):
+            if "yes" in settings.get(k, []):
+                err(where, f"{k}=yes: a render node cannot use its GPU (devices, shader compilers)")
+    with tempfile.TemporaryDirectory() as tmp:
+        copy = os.path.join(tmp, name.replace("@", "@0"))
+        write(copy, text)
+        try:
+            r = subprocess.run(
+                ["systemd-analyze", "security", "--offline=true", "--no-pager", copy], capture_output=True, text=True
+            )
+        except FileNotFoundError:
+            print(f"lint: SKIPPED systemd-analyze security {where} (systemd-analyze not installed)")
+            return
+        m = re.search(r"Overall exposure level for \S+: ([0-9.]+)", r.stdout)
+        if not m:
+            err(where, f"systemd-analyze security: {r.stdout.strip()[-300:]}{r.stderr.strip()[-300:]}")
+        elif float(m.group(1)) > EXPOSURE[name]:
+            err(where, f"systemd-analyze security exposure {m.group(1)}, above {EXPOSURE[name]}")
 
 
 def lint_systemd(flags):
-    all_metrics = set()
+    listen_ports, metrics_ports = {}, {}
     for path in UNITS:
-        where = f"systemd/{os.path.basename(path)}"
+        name = os.path.basename(path)
+        where = f"systemd/{name}"
+        base, mbase = UNIT_PORTS[name]
         argv, creds, text = unit_exec(path, 0, "render1")
         _, opts = parse_cmd(where, argv[1:], flags)
         tf = opts.get("--token-file", "")
@@ -452,9 +748,6 @@ def lint_systemd(flags):
         if "--cache-dir" in opts and "CacheDirectory=" not in text:
             err(where, "--cache-dir without CacheDirectory= (a DynamicUser= service cannot write elsewhere)")
         check_daemon(where, opts, "render1")
-        ports = {unit_port(path, i) for i in range(10)}
-        if len(ports) != 10:
-            err(where, "instances 0-9 do not get distinct ports")
         for key, want in (("Type", "notify"), ("NotifyAccess", "main")):
             if not re.search(rf"^{key}={want}$", text, re.MULTILINE):
                 err(where, f"not {key}={want}: systemd does not wait for READY=1")
@@ -462,22 +755,44 @@ def lint_systemd(flags):
             err(where, "no WatchdogSec: a wedged daemon is not restarted")
         if not re.search(r"^EnvironmentFile=-?/etc/lightfold/", text, re.MULTILINE):
             err(where, "no EnvironmentFile under /etc/lightfold")
-        metrics = {
-            port_of(re.search(r"^Environment=LIGHTFOLD_METRICS_LISTEN=(\S+)$", unit_exec(path, i, "h")[2].replace("%i", str(i)), re.MULTILINE).group(1))
-            for i in range(10)
-        } if "LIGHTFOLD_METRICS_LISTEN=" in text else set()
-        if len(metrics) != 10:
-            err(where, "instances 0-9 do not get distinct metrics ports (LIGHTFOLD_METRICS_LISTEN)")
-        all_metrics.update(metrics)
-    if all_metrics & {unit_port(p, i) for p in UNITS for i in range(10)} or len(all_metrics) != 20:
-        err("systemd", "metrics ports collide with each other or with daemon ports")
-    a, b = (unit_port(p, 0) for p in UNITS)
-    if a == b or "7400" in (a, b):
-        err("systemd", f"instance 0 ports {a} and {b} collide with each other or with the sink (7400)")
+        ids, wrong = set(), []
+        for i in INSTANCES:
+            rc, argv, stderr = unit_run(path, i, "render1")
+            if rc:
+                wrong.append(f"{i} does not start: {stderr.strip()}")
+                continue
+            _, o = parse_cmd(where, argv[1:], flags)
+            env = re.search(r"^Environment=LIGHTFOLD_METRICS_LISTEN=(\S+)$", text, re.MULTILINE)
+            metrics = o.get("--metrics-listen") or (env.group(1).replace("%i", str(i)) if env else None)
+            port = port_of(o.get("--listen"))
+            if port != str(base + i) or metrics != f"127.0.0.1:{mbase + i}":
+                wrong.append(f"{i} listens on {port}, metrics {metrics}, not {base + i} and 127.0.0.1:{mbase + i}")
+            listen_ports[(name, i)], metrics_ports[(name, i)] = port, port_of(metrics)
+            ids.add(o.get("--id"))
+        if wrong:
+            err(where, f"{len(wrong)} of instances 0-99 wrong, e.g. {wrong[0]}")
+        if len(ids) != len(INSTANCES):
+            err(where, "instances do not get distinct --id")
+        for bad in ("100", "07", "-1", "x", "1e2", "5x", "999999"):
+            rc, argv, stderr = unit_run(path, bad, "render1")
+            if rc != 64 or "0 to 99" not in stderr:
+                listen = argv[argv.index("--listen") + 1] if argv and "--listen" in argv else None
+                err(where, f"instance {bad!r} is not refused with status 64 (status {rc}, --listen {listen})")
+        if not re.search(r"^RestartPreventExitStatus=64$", text, re.MULTILINE):
+            err(where, "an instance refused with 64 is restarted forever (RestartPreventExitStatus=64)")
+        rc, argv, _ = unit_run(path, 3, "render1", {"LIGHTFOLD_METRICS_LISTEN": "0.0.0.0:9999"})
+        if rc or "--metrics-listen" in argv and argv[argv.index("--metrics-listen") + 1] != "0.0.0.0:9999":
+            err(where, "LIGHTFOLD_METRICS_LISTEN from the environment files does not move the metrics listener")
+        check_unit_sandbox(where, path, text)
+    every = list(listen_ports.values()) + list(metrics_ports.values())
+    if len(set(every)) != len(every) or "7400" in every:
+        err("systemd", "ports collide with each other or with the sink (7400)")
 
 
 def lint(args):
     flags = {r: flags_of(args.bin, r) for r in ROLES}
+    if not os.access(args.bin, os.X_OK):
+        print(f"lint: SKIPPED the flag checks: no binary at {args.bin} (cargo build --release -p lightfold-cli)")
     lint_compose(flags)
     lint_kubernetes(flags)
     lint_systemd(flags)

@@ -10,7 +10,8 @@
 #
 # LIGHTFOLD_BIN (default target/release/lightfold) is copied into the temp dir, which stands for
 # the shared file system. KEEP=1 keeps the temp dir (logs, configs, image); OUT=FILE copies the
-# PNG there; TIMEOUT (seconds, default 600) bounds the wait for the job. After the job, the EXR is
+# PNG there; TIMEOUT (seconds, default 600) bounds the wait for the job. JOB_TOKEN=1 gives the job
+# no LIGHTFOLD_TOKEN_FILE, so the batch script makes its own token. After the job, the EXR is
 # compared with the CPU reference (lightfold render --reference, lightfold compare).
 set -euo pipefail
 nodes=${1:-9}
@@ -166,11 +167,16 @@ done
 ctl sinfo -N
 [ "$idle" = "$nodes" ] || { echo "only $idle of $nodes nodes came up; see $work/slurm*.log" >&2; KEEP=1; exit 1; }
 
-# The shared file system: binary, token, submit directory.
+# The shared file system: binary, token (unless the job makes its own), submit directory.
 cp "$bin" "$work/lightfold"
-head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \n' > "$work/token"
-chmod 0600 "$work/token"
-export LIGHTFOLD_BIN=$work/lightfold LIGHTFOLD_TOKEN_FILE=$work/token
+export LIGHTFOLD_BIN=$work/lightfold
+if [ -n "${JOB_TOKEN:-}" ]; then
+  unset LIGHTFOLD_TOKEN_FILE
+else
+  head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \n' > "$work/token"
+  chmod 0600 "$work/token"
+  export LIGHTFOLD_TOKEN_FILE=$work/token
+fi
 start=$(date +%s.%N)
 set +e
 (cd "$work/job" && timeout "$timeout" nsenter --net="/run/netns/$prefix-ctl" sbatch --wait --nodes="$nodes" --parsable "$batch") > "$work/sbatch.out"
@@ -182,7 +188,7 @@ echo "job $job: sbatch --wait returned $status after $(awk "BEGIN { printf \"%.1
 ctl scontrol show job "$job" 2> /dev/null | grep -E 'JobState|RunTime|StartTime|NodeList=|ExitCode' || true
 echo "--- slurm-$job.out"
 cat "$work/job/slurm-$job.out" 2> /dev/null || echo "(no output file)"
-ls -l "$work/job"
+ls -la "$work/job"
 if [ -n "${OUT:-}" ] && [ -f "$work/job/out-$job.png" ]; then cp "$work/job/out-$job.png" "$OUT"; echo "image copied to $OUT"; fi
 [ $status = 0 ] || { KEEP=1; exit $status; }
 # The image against the CPU reference (ray-traced shadows, same scene and light samples).
