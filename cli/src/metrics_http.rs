@@ -65,6 +65,8 @@ pub fn install(role: &str, daemon: &str) -> anyhow::Result<PrometheusHandle> {
         .map_err(|e| anyhow::anyhow!("cannot install the metrics recorder: {e}"))?;
     lightfold_ops::record::describe();
     lightfold_ops::record::zero_counters(role);
+    lightfold_ops::record::build_info();
+    process_metrics().describe();
     Ok(handle)
 }
 
@@ -215,7 +217,15 @@ fn router(handle: PrometheusHandle) -> axum::Router {
         .route("/readyz", get(|| async { readyz() }))
 }
 
+/// The standard `process_*` series (CPU seconds, resident and virtual memory, open and maximum
+/// file descriptors, threads, start time), read from `/proc` at each scrape.
+fn process_metrics() -> &'static metrics_process::Collector {
+    static COLLECTOR: std::sync::OnceLock<metrics_process::Collector> = std::sync::OnceLock::new();
+    COLLECTOR.get_or_init(metrics_process::Collector::default)
+}
+
 fn metrics_text(handle: &PrometheusHandle) -> Response {
+    process_metrics().collect();
     lightfold_ops::record::peak_rss_bytes(lightfold_compositor::daemon::peak_rss_bytes());
     lightfold_ops::record::ready(health::readiness().ready);
     (

@@ -409,6 +409,36 @@ fn a_cluster_is_scraped_while_it_renders() {
         2.0
     );
     assert_eq!(value(&c, "lightfold_daemons_lost_total", &[]), 0.0);
+    // What the binary is, and the standard process series, on every daemon.
+    for (text, parsed) in [
+        (&coord_text, &c),
+        (&comp_text, &comp_samples),
+        (&during, &samples),
+    ] {
+        let protocol = lightfold_protocol::PROTOCOL_VERSION.to_string();
+        assert_eq!(
+            value(
+                parsed,
+                "lightfold_build_info",
+                &[
+                    ("version", env!("CARGO_PKG_VERSION")),
+                    ("protocol", protocol.as_str())
+                ]
+            ),
+            1.0,
+            "{text}"
+        );
+        assert!(
+            value(parsed, "process_resident_memory_bytes", &[]) > 0.0,
+            "{text}"
+        );
+        // (Whole seconds: `metrics` counters are integers.)
+        assert!(
+            parsed.iter().any(|s| s.name == "process_cpu_seconds_total"),
+            "{text}"
+        );
+        assert!(value(parsed, "process_open_fds", &[]) > 0.0, "{text}");
+    }
     assert!(
         value(
             &c,

@@ -24,6 +24,7 @@ pub const DAEMONS_LOST: &str = "lightfold_daemons_lost_total";
 pub const DAEMONS_REJOINED: &str = "lightfold_daemons_rejoined_total";
 pub const REPLANS: &str = "lightfold_replans_total";
 pub const DAEMONS: &str = "lightfold_daemons";
+pub const BUILD_INFO: &str = "lightfold_build_info";
 
 /// Why a daemon gives up a frame (`frame_failed`'s reasons).
 pub const FAILURE_REASONS: [&str; 3] = ["abandoned", "preempted", "refused"];
@@ -44,9 +45,25 @@ pub fn zero_counters(role: &str) {
     }
 }
 
+/// `lightfold_build_info{version, protocol} 1`: what this binary is, for dashboards that tell a
+/// rolling upgrade's old daemons from its new ones (a daemon of another protocol version cannot
+/// join a cluster). Call once, after the exporter is installed.
+pub fn build_info() {
+    metrics::gauge!(
+        BUILD_INFO,
+        "version" => env!("CARGO_PKG_VERSION"),
+        "protocol" => lightfold_protocol::PROTOCOL_VERSION.to_string()
+    )
+    .set(1.0);
+}
+
 /// Registers the help text of every metric (call once, after the exporter is installed).
 pub fn describe() {
     use metrics::{Unit, describe_counter, describe_gauge, describe_histogram};
+    describe_gauge!(
+        BUILD_INFO,
+        "1, labelled with this binary's version and cluster protocol version"
+    );
     describe_counter!(
         FRAMES_DONE,
         "frames this daemon finished (rendered and sent, or combined and sent)"
