@@ -131,6 +131,10 @@ pub struct JobArgs {
     /// Built-in scene name, scene file (.toml) or glTF (.gltf/.glb).
     #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
     pub scene: String,
+    /// The glTF animation to play, by name or index (a `--scene` .gltf/.glb with several
+    /// clips; the first when not given). A scene file names it in its `[gltf]` table.
+    #[arg(long, value_name = "NAME")]
+    pub animation: Option<String>,
     /// Image size as WIDTHxHEIGHT (default: the scene's).
     #[arg(long)]
     pub size: Option<String>,
@@ -280,8 +284,31 @@ impl JobArgs {
     }
 
     pub fn load_scene(&self) -> anyhow::Result<lightfold_scene::Scene> {
-        let mut scene = lightfold_scene::load(&self.scene)
-            .with_context(|| format!("cannot load scene {:?}", self.scene))?;
+        let mut scene = match &self.animation {
+            None => lightfold_scene::load(&self.scene),
+            Some(clip) => {
+                let path = std::path::Path::new(&self.scene);
+                let gltf = path.extension().is_some_and(|e| {
+                    e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb")
+                });
+                if !gltf {
+                    bail!(
+                        "--animation picks a clip of a glTF model given as --scene (.gltf/.glb); \
+                         {:?} is not one (a scene file names its clip as `animation` in its \
+                         [gltf] table)",
+                        self.scene
+                    );
+                }
+                lightfold_scene::load_gltf_with(
+                    path,
+                    &lightfold_scene::GltfOptions {
+                        animation: Some(clip.clone()),
+                        ..Default::default()
+                    },
+                )
+            }
+        }
+        .with_context(|| format!("cannot load scene {:?}", self.scene))?;
         if let Some(size) = &self.size {
             let (w, h) = parse_size(size)?;
             scene.camera.width = w;
@@ -953,6 +980,40 @@ mod tests {
     struct Job {
         #[command(flatten)]
         job: JobArgs,
+    }
+
+    #[test]
+    fn animation_picks_a_glb_clip_and_is_refused_elsewhere() {
+        let fox = concat!(env!("CARGO_MANIFEST_DIR"), "/../assets/Fox/Fox.glb");
+        let load = |args: &[&str]| {
+            let mut all = vec!["job"];
+            all.extend_from_slice(args);
+            Job::try_parse_from(all).unwrap().job.load_scene()
+        };
+        let clip = |args: &[&str]| load(args).unwrap().animation.map(|a| a.name);
+        // The first clip by default; others by name or index.
+        assert_eq!(clip(&["--scene", fox]).as_deref(), Some("Survey"));
+        assert_eq!(
+            clip(&["--scene", fox, "--animation", "Run"]).as_deref(),
+            Some("Run")
+        );
+        assert_eq!(
+            clip(&["--scene", fox, "--animation", "1"]).as_deref(),
+            Some("Walk")
+        );
+        let err = format!(
+            "{:#}",
+            load(&["--scene", fox, "--animation", "Fly"]).unwrap_err()
+        );
+        assert!(
+            err.contains("no animation \"Fly\"") && err.contains("\"Run\""),
+            "{err}"
+        );
+        let err = format!(
+            "{:#}",
+            load(&["--scene", "carousel", "--animation", "Run"]).unwrap_err()
+        );
+        assert!(err.contains("[gltf] table"), "{err}");
     }
 
     #[test]

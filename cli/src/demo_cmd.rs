@@ -612,6 +612,9 @@ pub(crate) fn read_listening(
 
 fn job_args(cmd: &mut Command, job: &JobArgs) {
     cmd.arg("--scene").arg(&job.scene);
+    if let Some(a) = &job.animation {
+        cmd.arg("--animation").arg(a);
+    }
     if let Some(s) = &job.size {
         cmd.arg("--size").arg(s);
     }
@@ -767,6 +770,8 @@ mod tests {
             "42.5",
             "--plan-json",
             "plan.json",
+            "--animation",
+            "Run",
         ];
         let job = Cli::parse_from(given).job;
         let mut cmd = Command::new("lightfold");
