@@ -78,7 +78,7 @@ cluster() {
     --out "$out/cluster.png" --exr "$out/cluster.exr" >"$log" 2>&1 \
     || echo "cluster $size $mode $setup failed: see $log" | tee -a "$out/log.txt"
   local fps interval psnr nodes
-  fps=$(grep -o '([0-9.]* frames/s)' "$log" | tr -d '(' | cut -d' ' -f1 | tail -n 1)
+  fps=$(grep -o '([0-9.]* frames/s' "$log" | tr -d '(' | cut -d' ' -f1 | tail -n 1)
   interval=$(grep -o 'frame interval mean [0-9.]* ms' "$log" | awk '{print $4}' | tail -n 1)
   psnr=$(grep -m1 '^whole ' "$log" | grep -o 'psnr *[0-9.]*' | awk '{print $2}')
   nodes=$(grep -o 'rendered on [0-9]* render node' "$log" | awk '{print $3}' | tail -n 1)

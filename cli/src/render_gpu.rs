@@ -225,11 +225,19 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
         open.box_resolve(args.aa)?.write_exr(path)?;
     }
     outln!(
-        "wrote {} and {} on {} ({} samples, K = {k})",
+        "wrote {} and {} on {} ({} samples, K = {k}{})",
         args.out.display(),
         png.display(),
         gpu.info.name,
-        samples.len()
+        samples.len(),
+        match &parts {
+            Some(p) => format!(
+                ", {} sort-last parts of {} mesh(es), depth-composed",
+                p.len(),
+                p.iter().map(Vec::len).sum::<usize>()
+            ),
+            None => String::new(),
+        }
     );
     Ok(())
 }

@@ -120,6 +120,15 @@ pub fn bytes(b: f64) -> String {
     }
 }
 
+/// Milliseconds as the table prints them: to 0.1 below 100, whole from 100.
+fn ms_text(ms: f64) -> String {
+    if ms >= 99.95 {
+        format!("{ms:.0}")
+    } else {
+        format!("{ms:.1}")
+    }
+}
+
 /// `mean ms, p50 ms, p95 ms` of `v` (the percentiles only with at least two values).
 fn spread(v: &[f64]) -> String {
     let m = mean(v);
@@ -155,7 +164,8 @@ impl Report {
         &self.frames[self.frames.len() - 1]
     }
 
-    /// The per-daemon table: render nodes then compositors, each in natural order, with means
+    /// The per-daemon table (milliseconds to 0.1 below 100 ms, whole above, so that the
+    /// columns stay narrow): render nodes then compositors, each in natural order, with means
     /// per frame over the frames the daemon reported (p50/p95 of its total with two frames or
     /// more) and its peak resident memory. Daemons lost on the way keep their rows.
     pub fn table(&self, plan: &Plan) -> String {
@@ -186,7 +196,7 @@ impl Report {
             "total\nms",
         ];
         if spread {
-            header.extend(["total p50\nms", "total p95\nms"]);
+            header.push("total\np50 / p95");
         }
         header.extend(["sent\nper frame", "peak\nRSS"]);
         let mut table = Table::new();
@@ -211,7 +221,7 @@ impl Report {
                 if stats.is_empty() {
                     "-".into()
                 } else {
-                    format!("{:.1}", mean(&values(&|s| f(s) as f64)) / 1e3)
+                    ms_text(mean(&values(&|s| f(s) as f64)) / 1e3)
                 }
             };
             // What a role does not do reads "-" rather than 0.
@@ -250,9 +260,8 @@ impl Report {
             ];
             if spread {
                 let totals = values(&|s| s.total_us as f64 / 1e3);
-                for p in [50.0, 95.0] {
-                    row.push(percentile(&totals, p).map_or("-".into(), |v| format!("{v:.1}")));
-                }
+                let at = |p: f64| percentile(&totals, p).map_or("-".into(), ms_text);
+                row.push(format!("{} / {}", at(50.0), at(95.0)));
             }
             row.push(if stats.is_empty() {
                 "-".into()

@@ -88,12 +88,20 @@ impl fmt::Display for ErrorStats {
 
 impl fmt::Display for Metrics {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        writeln!(f, "exposure {}", self.exposure)?;
-        writeln!(f, "whole     {}  flip {:.4}", self.whole, self.flip)?;
+        // (Errors of the linear values × exposure; FLIP of the tone-mapped images at it.)
+        writeln!(
+            f,
+            "whole     {}  flip {:.4}  (at exposure {})",
+            self.whole, self.flip, self.exposure
+        )?;
         match (&self.penumbra, self.penumbra_flip) {
             (Some(p), Some(fl)) => write!(f, "penumbra  {p}  flip {fl:.4}"),
             (Some(p), None) => write!(f, "penumbra  {p}"),
-            _ => write!(f, "penumbra  (no mask)"),
+            _ => write!(
+                f,
+                "penumbra  (no mask: it needs the reference's unoccluded image, \
+                 `compare --unoccluded FILE`, which `lightfold render --unoccluded-out FILE` writes)"
+            ),
         }
     }
 }

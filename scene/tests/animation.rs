@@ -129,6 +129,57 @@ fn a_fox_clip_is_chosen_by_name_and_a_missing_one_is_an_error() {
 /// A GLB of one triangle on node 0, with a morph target lifting vertex 0 by +1 in y, and a clip
 /// that moves the node from x = 0 to x = 2 over 1 s (linear), turns it 90° about z by 1 s (step
 /// at 0.5 s: 0° then 90°), and takes the weight 0 → 1 over 2 s.
+#[test]
+fn animation_channels_naming_missing_nodes_or_samplers_are_clear_errors_not_panics() {
+    let opts = GltfOptions {
+        complete: false,
+        ..GltfOptions::default()
+    };
+    let good = keyed_glb();
+    let swap = |from: &str, to: &str| {
+        // Same length: the GLB's chunk lengths stay right.
+        assert_eq!(from.len(), to.len());
+        let at = good
+            .windows(from.len())
+            .position(|w| w == from.as_bytes())
+            .unwrap_or_else(|| panic!("{from}"));
+        let mut bad = good.clone();
+        bad[at..at + to.len()].copy_from_slice(to.as_bytes());
+        bad
+    };
+    for (what, bad, expect) in [
+        (
+            "node",
+            swap(
+                r#""target":{"node":0,"path":"rotation"}"#,
+                r#""target":{"node":7,"path":"rotation"}"#,
+            ),
+            "node 7",
+        ),
+        (
+            "sampler",
+            swap(r#"{"sampler":1,"target""#, r#"{"sampler":9,"target""#),
+            "sampler 9",
+        ),
+    ] {
+        let hook = std::panic::take_hook();
+        // A panic anywhere in the load would print here and fail below.
+        std::panic::set_hook(Box::new(|_| {}));
+        let got = std::panic::catch_unwind(|| load_gltf_slice(&bad, "keys.glb", None, &opts));
+        std::panic::set_hook(hook);
+        let err = got
+            .unwrap_or_else(|_| panic!("{what}: the load panicked"))
+            .expect_err(what)
+            .to_string();
+        assert!(
+            err.contains(expect) && !err.contains("panicked"),
+            "{what}: {err}"
+        );
+    }
+    // The control: the unbroken file loads.
+    assert!(load_gltf_slice(&good, "keys.glb", None, &opts).is_ok());
+}
+
 fn keyed_glb() -> Vec<u8> {
     let mut bin: Vec<u8> = Vec::new();
     let mut f = |v: &[f32]| {

@@ -331,4 +331,30 @@ fn transmission_makes_a_translucent_caster() {
         bad.materials[1].transmission.unwrap().color,
         [1.0, 0.0, 0.0]
     );
+    // Finite but above 1 (glass that would amplify light): reported and clamped too.
+    let mut bright = s.clone();
+    bright.materials[1].transmission = Some(lightfold_scene::Transmission {
+        color: [5.0, 5.0, 0.5],
+        coverage: false,
+    });
+    assert!(!bright.sanitize().is_clean());
+    assert_eq!(
+        bright.materials[1].transmission.unwrap().color,
+        [1.0, 1.0, 0.5]
+    );
+    // The same through a scene file.
+    let text = std::fs::read_to_string(example("glass.toml"))
+        .unwrap()
+        .replacen("[0.9, 0.1, 0.1]", "[5, 5, 5]", 1);
+    let base = std::path::Path::new(&example("glass.toml"))
+        .parent()
+        .unwrap()
+        .to_path_buf();
+    let parsed = lightfold_scene::parse_scene_file(&text, "glass.toml", Some(&base)).unwrap();
+    let red = parsed
+        .materials
+        .iter()
+        .find(|m| m.name == "red glass")
+        .unwrap();
+    assert_eq!(red.transmission.unwrap().color, [1.0; 3]);
 }

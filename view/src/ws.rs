@@ -274,8 +274,9 @@ impl Viewer {
         })
     }
 
-    /// Applies one message from the page; what to answer (an error if it was refused, then its
-    /// ack if it carried an id).
+    /// Applies one message from the page; what to answer: an ack when it carried an id and was
+    /// applied, an error (with the message's id, if any, in place of the ack) when it was
+    /// refused, the stats (then the ack) when asked for.
     fn handle(&mut self, text: &str) -> Vec<Value> {
         let mut value: Value = match serde_json::from_str(text) {
             Ok(v) => v,
@@ -285,20 +286,24 @@ impl Viewer {
             .as_object_mut()
             .and_then(|o| o.remove("id"))
             .filter(Value::is_number);
-        let mut out = Vec::new();
-        match serde_json::from_value::<Input>(value) {
-            Ok(input) => {
-                if let Err(e) = self.apply(input) {
-                    out.push(e);
-                }
+        let answer = match serde_json::from_value::<Input>(value) {
+            Ok(input) => self.apply(input).err(),
+            Err(e) => Some(error(format!("unknown or malformed message: {e}"))),
+        };
+        match (answer, id) {
+            (Some(mut refused), Some(id)) if refused["type"] == "error" => {
+                refused["id"] = id;
+                vec![refused]
             }
-            Err(e) => out.push(error(format!("unknown or malformed message: {e}"))),
+            (answer, id) => {
+                let mut out: Vec<Value> = answer.into_iter().collect();
+                if let Some(id) = id {
+                    let revision = self.hub.steer.borrow().revision;
+                    out.push(json!({"type": "ack", "id": id, "revision": revision}));
+                }
+                out
+            }
         }
-        if let Some(id) = id {
-            let revision = self.hub.steer.borrow().revision;
-            out.push(json!({"type": "ack", "id": id, "revision": revision}));
-        }
-        out
     }
 
     /// Applies a message; `Err` holds the answer to send (an error, or the stats asked for).

@@ -104,7 +104,8 @@
     c.className = `pill ${cls}`;
   }
 
-  /// Sends a message; steering messages get an id, answered by an ack.
+  /// Sends a message; steering messages get an id, answered by an ack (or by an error with
+  /// that id when refused).
   function send(msg, steer = true) {
     if (!ws || ws.readyState !== WebSocket.OPEN) return false;
     if (steer) {
@@ -136,6 +137,8 @@
         setConn(m.text, 'off');
         return toast(m.text, 'error');
       case 'error':
+        // A refused steering message: its error carries its id, in place of the ack.
+        if (typeof m.id === 'number') view.unacked = Math.max(0, view.unacked - 1);
         view.errors.push(m.text);
         if (view.errors.length > 50) view.errors.shift();
         log(`error: ${m.text}`);

@@ -156,7 +156,12 @@ pub async fn run(
         target_rx,
         shutdown.clone(),
     ));
-    tracing::info!(id = %opts.daemon_id, addr = ?listener.local_addr().ok(), "compositor listening");
+    match listener.local_addr() {
+        Ok(addr) => tracing::info!(id = %opts.daemon_id, %addr, "compositor listening"),
+        Err(e) => {
+            tracing::info!(id = %opts.daemon_id, "compositor listening (address unknown: {e})")
+        }
+    }
     lightfold_ops::health::set_live(true);
     let gate = lightfold_net::gate::Gate::handshakes();
 

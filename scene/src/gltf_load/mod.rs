@@ -170,8 +170,9 @@ pub(crate) fn import(
 
 /// Parses and validates a glTF or GLB. Found by fuzzing, the `gltf` crate panics where its
 /// validation does not look: it indexes the accessor a primitive's POSITION names without a
-/// bounds check, and `Image::source` unwraps an image's `uri`, or a buffer-view image's
-/// `mimeType`, when they are missing. Both are checked here first.
+/// bounds check, `Image::source` unwraps an image's `uri`, or a buffer-view image's `mimeType`,
+/// when they are missing, and an animation channel's target node and sampler are unwrapped
+/// unchecked. All are checked here first.
 fn parse(bytes: &[u8]) -> Result<gltf::Gltf, String> {
     let raw = gltf::Gltf::from_slice_without_validation(bytes).map_err(|e| describe(&e))?;
     let root = raw.document.as_json();
@@ -182,6 +183,35 @@ fn parse(bytes: &[u8]) -> Result<gltf::Gltf, String> {
                     return Err(format!(
                         "mesh {m} primitive {p} names accessor {} but the file has {}",
                         index.value(),
+                        root.accessors.len()
+                    ));
+                }
+            }
+        }
+    }
+    // Animation channels index their samplers and target nodes, samplers their accessors,
+    // unchecked by the crate (`Channel::target().node()` unwraps).
+    for (a, anim) in root.animations.iter().enumerate() {
+        for (c, ch) in anim.channels.iter().enumerate() {
+            let (sampler, node) = (ch.sampler.value(), ch.target.node.value());
+            if sampler >= anim.samplers.len() {
+                return Err(format!(
+                    "animation {a} channel {c} names sampler {sampler} but the animation has {}",
+                    anim.samplers.len()
+                ));
+            }
+            if node >= root.nodes.len() {
+                return Err(format!(
+                    "animation {a} channel {c} targets node {node} but the file has {}",
+                    root.nodes.len()
+                ));
+            }
+        }
+        for (k, sampler) in anim.samplers.iter().enumerate() {
+            for index in [sampler.input.value(), sampler.output.value()] {
+                if index >= root.accessors.len() {
+                    return Err(format!(
+                        "animation {a} sampler {k} names accessor {index} but the file has {}",
                         root.accessors.len()
                     ));
                 }

@@ -135,7 +135,10 @@ fn sanitize_material(m: &mut Material, texture_count: usize, issues: &mut Vec<Is
         AlphaMode::Opaque => true,
         AlphaMode::Mask { cutoff } => cutoff.is_finite(),
     };
-    let transmission_ok = m.transmission.is_none_or(|t| colour_ok(&t.color));
+    // Transmittance is a fraction: above 1, glass would brighten the light through it.
+    let transmission_ok = m
+        .transmission
+        .is_none_or(|t| colour_ok(&t.color) && t.color.iter().all(|&x| x <= 1.0));
     let pbr_ok = m.pbr.is_none_or(|p| {
         colour_ok(&p.base_color)
             && [
@@ -147,6 +150,7 @@ fn sanitize_material(m: &mut Material, texture_count: usize, issues: &mut Vec<Is
             ]
             .iter()
             .all(|x| x.is_finite())
+            && (0.0..=1.0).contains(&p.transmission)
     });
     if !(colour_ok(&m.diffuse)
         && transmission_ok
@@ -205,6 +209,7 @@ fn sanitize_material(m: &mut Material, texture_count: usize, issues: &mut Vec<Is
                     *x = default;
                 }
             }
+            p.transmission = p.transmission.clamp(0.0, 1.0);
         }
     }
     // Every texture slot: the metallic-roughness ones, then the diffuse (base-colour) one.

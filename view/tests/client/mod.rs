@@ -113,26 +113,27 @@ impl Client {
         self.next_id += 1;
         v["id"] = id.into();
         self.send(&v).await;
-        loop {
-            let ack = self.expect("ack").await;
-            if ack["id"] == id {
-                return ack["revision"].as_u64().unwrap();
-            }
-        }
+        // Every earlier message with an id was answered before this one (one ordered socket),
+        // by an ack or, refused, by an error alone: an ack of another id is a stray.
+        let ack = self.expect("ack").await;
+        assert_eq!(ack["id"], id, "an ack for another message: {ack}");
+        ack["revision"].as_u64().unwrap()
     }
 
-    /// Sends `v` with an id; the answer to it: an `error`, or `None` when it was acked.
+    /// Sends `v` with an id; the answer to it: an `error` (which carries the id, and no ack
+    /// follows it), or `None` when it was acked.
     pub async fn try_steer(&mut self, mut v: Value) -> Option<Value> {
         let id = self.next_id;
         self.next_id += 1;
         v["id"] = id.into();
         self.send(&v).await;
         loop {
-            if let Some(i) = self.texts.iter().position(|t| t["type"] == "error") {
-                let e = self.texts.remove(i).unwrap();
-                // The ack follows its error.
-                let _ = self.expect("ack").await;
-                return Some(e);
+            if let Some(i) = self
+                .texts
+                .iter()
+                .position(|t| t["type"] == "error" && t["id"] == id)
+            {
+                return self.texts.remove(i);
             }
             if let Some(i) = self
                 .texts
