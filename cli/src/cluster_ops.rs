@@ -16,8 +16,9 @@ pub fn is_software(caps: &Capabilities) -> bool {
     caps.role == Role::Node && lightfold_ops::is_software_rasteriser(&caps.adapter, false)
 }
 
-/// The nodes' adapters: a table with `verbose`, else one line per kind of adapter; then a
-/// warning when any node renders on the CPU. Also sets the `lightfold_daemons` gauges.
+/// The nodes' adapters: a table with `verbose`, else one line per kind of adapter; then a note
+/// when every node renders on the CPU, a warning when some do. Also sets the
+/// `lightfold_daemons` gauges.
 pub fn adapters(session: &Session, verbose: bool) -> String {
     let nodes: Vec<&Capabilities> = session
         .daemons
@@ -30,12 +31,18 @@ pub fn adapters(session: &Session, verbose: bool) -> String {
     lightfold_ops::record::daemons("node", true, software);
     lightfold_ops::record::daemons("node", false, nodes.len() - software);
     lightfold_ops::record::daemons("compositor", false, compositors);
+    describe_adapters(&nodes, verbose)
+}
+
+/// What [`adapters`] says of `nodes`.
+fn describe_adapters(nodes: &[&Capabilities], verbose: bool) -> String {
+    let software = nodes.iter().filter(|c| is_software(c)).count();
     let mut out = String::new();
     if verbose {
         let mut t = comfy_table::Table::new();
         t.load_style(comfy_table::presets::NOTHING);
         t.set_header(["node", "adapter", "backend", "renders on", "threads"]);
-        for c in &nodes {
+        for c in nodes {
             let on = if is_software(c) {
                 "CPU (software)"
             } else {
@@ -53,7 +60,7 @@ pub fn adapters(session: &Session, verbose: bool) -> String {
     } else {
         // One line per kind of adapter, most common first.
         let mut kinds: Vec<((&str, &str), usize)> = Vec::new();
-        for c in &nodes {
+        for c in nodes {
             let k = (c.adapter.as_str(), c.backend.as_str());
             match kinds.iter_mut().find(|(x, _)| *x == k) {
                 Some((_, n)) => *n += 1,
@@ -82,13 +89,23 @@ pub fn adapters(session: &Session, verbose: bool) -> String {
                 names.join(", ")
             )
         };
-        // The warning itself is printed below; the log gets the same as an event.
+        // Said below; the log gets the same as an event. A cluster all on the CPU is one built
+        // that way (a machine without a GPU, a test run): a note. Some nodes on the CPU beside
+        // GPU nodes have most likely lost their GPU (a driver, a container's device): a warning.
         tracing::info!(nodes = %names.join(","), "{who} render on a software rasteriser");
-        out.push_str(&format!(
-            "\nwarning: {who} render on a software rasteriser (the CPU), not a GPU: install the \
-             GPU's Vulkan driver where one is meant to be used, or start nodes with \
-             --require-gpu to refuse this"
-        ));
+        if software == nodes.len() {
+            out.push_str(&format!(
+                "\nnote: {who} render on a software rasteriser (the CPU), not a GPU: frames take \
+                 seconds rather than milliseconds. Where a GPU is meant to be used, install its \
+                 Vulkan driver, or start nodes with --require-gpu to refuse the CPU"
+            ));
+        } else {
+            out.push_str(&format!(
+                "\nwarning: {who} render on a software rasteriser (the CPU) while the others \
+                 have a GPU: install the GPU's Vulkan driver on those machines (or check the \
+                 container sees the device), or start nodes with --require-gpu to refuse this"
+            ));
+        }
     }
     out
 }
@@ -182,4 +199,38 @@ pub fn frame_line(r: &FrameResult, rec: &FrameRecord, start: Instant) -> serde_j
         "height": r.image.height,
         "daemons": daemons,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::describe_adapters;
+    use lightfold_protocol::{Capabilities, Role};
+
+    fn node(id: &str, adapter: &str) -> Capabilities {
+        Capabilities {
+            adapter: adapter.into(),
+            backend: "vulkan".into(),
+            ..Capabilities::unmeasured(Role::Node, id)
+        }
+    }
+
+    #[test]
+    fn a_cluster_all_on_the_cpu_is_noted_and_a_mixed_one_warned_about() {
+        let cpu = node("a", "llvmpipe (LLVM 15.0.6, 256 bits)");
+        let cpu2 = node("b", "llvmpipe (LLVM 15.0.6, 256 bits)");
+        let gpu = node("c", "NVIDIA H100 80GB HBM3");
+        let all = describe_adapters(&[&cpu, &cpu2], false);
+        assert!(
+            all.contains("note: all 2 node(s) render on a software"),
+            "{all}"
+        );
+        assert!(!all.contains("warning"), "{all}");
+        let mixed = describe_adapters(&[&cpu, &gpu], false);
+        assert!(mixed.contains("warning: 1 of 2 node(s) (a)"), "{mixed}");
+        let none = describe_adapters(&[&gpu], false);
+        assert!(
+            !none.contains("note") && !none.contains("warning"),
+            "{none}"
+        );
+    }
 }

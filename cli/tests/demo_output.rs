@@ -90,6 +90,15 @@ fn the_default_output_is_short_with_units_logs_every_frame_and_leaves_no_temp_di
     ] {
         assert!(stdout.contains(part), "no {part:?} in:\n{stdout}");
     }
+    // A first run warns about nothing: no slow-frame lines (the summary says it once, and the
+    // estimate knows the nodes share this machine's CPU), no warning about the CPU adapter of
+    // a cluster that is all on the CPU (a note).
+    for text in [&stdout, &stderr] {
+        assert!(
+            !text.contains("WARN") && !text.contains("warning"),
+            "a warning in:\n{stdout}\n{stderr}"
+        );
+    }
     // No full plan, no raw byte counts, no unexplained frame counts.
     for absent in [
         "stages:",

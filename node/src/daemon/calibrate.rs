@@ -117,38 +117,27 @@ pub fn from_times(t1: u64, tk: u64, many: u64) -> Calibration {
 /// Longest a node waits for other nodes on its machine's CPU to finish calibrating.
 const LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(30);
 
-/// Nodes rendering on one machine's CPU calibrate one at a time (an advisory lock on a file in
-/// the temporary directory, which in-process nodes take through their own handles too), so each
-/// measures the cores alone: the planner adds up the frames of nodes sharing a machine's CPU
+/// Nodes rendering on one machine's CPU calibrate one at a time, so each measures the cores
+/// alone: the planner adds up the frames of nodes sharing a machine's CPU
 /// (`Capabilities::cpu_host`), and figures measured while the others calibrate would count the
-/// sharing twice. `None` (calibrate anyway) when the file cannot be opened or the lock is still
-/// held after `LOCK_WAIT`.
-fn cpu_lock() -> Option<std::fs::File> {
-    let path = std::env::temp_dir().join("lightfold-calibration.lock");
-    let file = match std::fs::OpenOptions::new()
-        .create(true)
-        .truncate(false)
-        .write(true)
-        .open(&path)
-    {
-        Ok(f) => f,
-        Err(e) => {
-            tracing::debug!("calibrating without {}: {e}", path.display());
-            return None;
-        }
-    };
+/// sharing twice. The lock is an abstract Unix socket name (Linux): held while bound, gone with
+/// the process that bound it, no file left anywhere; in-process nodes take it too. Its reach is
+/// one network namespace (nodes in separate namespaces or containers calibrate as they come).
+/// `None` (calibrate anyway) when it cannot be bound, or is still held after `LOCK_WAIT`.
+fn cpu_lock() -> Option<std::os::unix::net::UnixListener> {
+    use std::os::linux::net::SocketAddrExt;
+    let name = std::os::unix::net::SocketAddr::from_abstract_name(b"lightfold/calibration").ok()?;
     let deadline = Instant::now() + LOCK_WAIT;
     loop {
-        match file.try_lock() {
-            Ok(()) => return Some(file),
-            Err(std::fs::TryLockError::WouldBlock) if Instant::now() < deadline => {
+        match std::os::unix::net::UnixListener::bind_addr(&name) {
+            Ok(held) => return Some(held),
+            Err(e) if e.kind() == std::io::ErrorKind::AddrInUse && Instant::now() < deadline => {
                 std::thread::sleep(std::time::Duration::from_millis(20));
             }
             Err(e) => {
                 tracing::warn!(
-                    "calibrating while other nodes on this machine may be too ({}: {e}): the \
-                     figures may count them",
-                    path.display()
+                    "calibrating while other nodes on this machine may be too ({e}): the \
+                     figures may count them"
                 );
                 return None;
             }
@@ -203,7 +192,7 @@ pub fn run(gpu: &Gpu, on_cpu: bool) -> Result<Calibration, RenderError> {
         ..from_times(t1, tk, MANY as u64)
     };
     if tk <= t1 {
-        tracing::warn!(
+        tracing::info!(
             one_light_us = t1,
             many_lights_us = tk,
             "calibration could not tell {MANY} lights from one (a loaded machine?): cost per \
