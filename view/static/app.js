@@ -504,22 +504,55 @@
     }
     const last = Math.max(...[...items.values()].filter((x) => x.kind !== 'sink').map((x) => x.col)) + 1;
     items.get(sink).col = Math.max(last, 2);
-    const cols = [];
-    for (const [id, it] of items) (cols[it.col] ||= []).push(id);
     const BW = 132, BH = 44, GAP = 150, CW = BW + GAP, RH = 62, PAD = 12;
-    const rows = Math.max(...cols.map((c) => (c ? c.length : 0)));
-    const H = rows * RH + PAD * 2, W = (cols.length - 1) * CW + BW + PAD * 2;
-    cols.forEach((ids, c) => (ids || []).forEach((id, r) => {
-      const it = items.get(id);
-      it.x = PAD + c * CW;
-      it.y = PAD + (H - PAD * 2 - ids.length * RH) / 2 + r * RH + (RH - BH) / 2;
-    }));
+    let W, H;
+    if (items.get(sink).col <= 3) {
+      // Shallow: one column per step from the nodes.
+      const cols = [];
+      for (const [id, it] of items) (cols[it.col] ||= []).push(id);
+      const rows = Math.max(...cols.map((c) => (c ? c.length : 0)));
+      H = rows * RH + PAD * 2; W = (cols.length - 1) * CW + BW + PAD * 2;
+      cols.forEach((ids, c) => (ids || []).forEach((id, r) => {
+        const it = items.get(id);
+        it.x = PAD + c * CW;
+        it.y = PAD + (H - PAD * 2 - ids.length * RH) / 2 + r * RH + (RH - BH) / 2;
+      }));
+    } else {
+      // Deep (a chain of many stages, a tall tree): three columns, the stages stacked in order
+      // from the nodes, each beside the nodes that feed it, stage-to-stage links on the right.
+      const stageIds = [...items.keys()].filter((id) => items.get(id).kind === 'stage');
+      stageIds.sort((a, b) => items.get(a).col - items.get(b).col || a.localeCompare(b, undefined, { numeric: true }));
+      const feeds = (id) => links.filter((l) => l.to === id && items.get(l.from)?.kind === 'node').map((l) => l.from);
+      let row = 0;
+      const placed = new Set();
+      for (const id of stageIds) {
+        const fed = feeds(id).filter((n) => !placed.has(n));
+        fed.forEach((n, i) => { const it = items.get(n); it.col = 0; it.row = row + i; placed.add(n); });
+        const st = items.get(id);
+        st.col = 1; st.row = row + (Math.max(fed.length, 1) - 1) / 2;
+        row += Math.max(fed.length, 1);
+      }
+      for (const [id, it] of items) if (it.kind === 'node' && !placed.has(id)) { it.col = 0; it.row = row++; }
+      const lastStage = stageIds.length ? items.get(stageIds[stageIds.length - 1]).row : 0;
+      Object.assign(items.get(sink), { col: 2, row: lastStage });
+      H = Math.max(row, 1) * RH + PAD * 2; W = 2 * CW + BW + PAD * 2;
+      for (const it of items.values()) { it.x = PAD + it.col * CW; it.y = PAD + it.row * RH + (RH - BH) / 2; }
+    }
     const root = svg('svg', { viewBox: `0 0 ${W} ${H}`, width: W, height: H, style: 'max-width:100%;height:auto', role: 'img', 'aria-label': 'the plan' });
     root.append(svg('defs', {}));
     root.firstChild.innerHTML = '<marker id="arrow" viewBox="0 0 10 10" refX="9" refY="5" markerWidth="6" markerHeight="6" orient="auto"><path d="M0,0 L10,5 L0,10 z" fill="#7d8aa5"/></marker>';
     for (const l of links) {
       const a = items.get(l.from), b = items.get(l.to);
       if (!a || !b) continue;
+      if (a.x === b.x) {
+        // Stacked stages: a loop on the right from one to the next; its label beside it.
+        const x = a.x + BW, ya = a.y + BH / 2, yb = b.y + BH / 2, out = x + 36;
+        root.append(svg('path', { d: `M${x},${ya} C${out},${ya} ${out},${yb} ${x},${yb}`, class: 'edge', 'marker-end': 'url(#arrow)' }));
+        const label = svg('text', { x: out + 4, y: (ya + yb) / 2 + 3, class: 'elabel' }, l.bytes_per_frame != null ? `${bytes(l.bytes_per_frame)}/frame` : '');
+        label.append(svg('title', {}, `${l.from} → ${b.lines[0]}\n${(l.layers || []).join(', ')}`));
+        root.append(label);
+        continue;
+      }
       const x1 = a.x + BW, y1 = a.y + BH / 2, x2 = b.x, y2 = b.y + BH / 2, mx = (x1 + x2) / 2;
       root.append(svg('path', { d: `M${x1},${y1} C${mx},${y1} ${mx},${y2} ${x2},${y2}`, class: 'edge', 'marker-end': 'url(#arrow)' }));
       const layers = (l.layers || []).join(', ');
