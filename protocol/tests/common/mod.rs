@@ -138,6 +138,7 @@ pub fn capabilities() -> impl Strategy<Value = Capabilities> {
             any::<u32>(),
             prop::collection::vec(format(), 0..9),
             text(),
+            text(),
         ),
         (
             any::<u64>(),
@@ -151,7 +152,7 @@ pub fn capabilities() -> impl Strategy<Value = Capabilities> {
         .prop_map(
             |(
                 (role, daemon_id, advertise, adapter, backend),
-                (max_lights, max_texture_size, formats, device),
+                (max_lights, max_texture_size, formats, device, cpu_host),
                 (cost_per_light_us, fixed_cost_us, threads, version, memory_bytes, eye_ns),
             )| Capabilities {
                 role,
@@ -160,6 +161,7 @@ pub fn capabilities() -> impl Strategy<Value = Capabilities> {
                 adapter,
                 backend,
                 device,
+                cpu_host,
                 max_lights,
                 max_texture_size,
                 formats,
