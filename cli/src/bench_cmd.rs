@@ -81,8 +81,8 @@ pub struct NodeArgs {
     format: String,
     #[arg(long, default_value_t = 64)]
     band_height: u32,
-    /// Graphics backend of the node processes.
-    #[arg(long, value_parser = ["vulkan", "gl"], default_value = "vulkan")]
+    /// Graphics backend of the node processes (`vulkan`; nodes refuse OpenGL adapters).
+    #[arg(long, value_parser = ["vulkan"], default_value = "vulkan")]
     backend: String,
     /// Where the nodes pack frames (`lightfold node --pack`): each is measured, interleaved in
     /// the same rounds, so `device,cpu` gives the device pack against the CPU pack in one run.

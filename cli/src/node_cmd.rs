@@ -13,8 +13,9 @@ use std::path::PathBuf;
 pub struct Args {
     #[command(flatten)]
     pub daemon: DaemonArgs,
-    /// Graphics backend (else `LIGHTFOLD_BACKEND`, else Vulkan before GL).
-    #[arg(long, value_parser = ["vulkan", "gl"])]
+    /// Graphics backend: `vulkan` (an OpenGL adapter is refused: the shadow lookups have no GLSL
+    /// form). Else `LIGHTFOLD_BACKEND`, else Vulkan.
+    #[arg(long, value_parser = ["vulkan"])]
     pub backend: Option<String>,
     /// Case-insensitive part of the adapter name to use (e.g. `llvmpipe`).
     #[arg(long)]

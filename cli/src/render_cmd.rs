@@ -34,7 +34,8 @@ pub struct Args {
     /// GPU: shadow-map resolution per view (default: the scene's).
     #[arg(long)]
     pub shadow_map_size: Option<u32>,
-    /// GPU: backend, `vulkan` or `gl` (default: `LIGHTFOLD_BACKEND`, else Vulkan then GL).
+    /// GPU: backend, `vulkan` (OpenGL adapters are refused; `metal` or `dx12` where wgpu is built
+    /// with them). Default: `LIGHTFOLD_BACKEND`, else Vulkan.
     #[arg(long)]
     pub backend: Option<String>,
     /// GPU: adapter whose name contains this.

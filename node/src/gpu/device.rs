@@ -1,11 +1,13 @@
-//! Device setup in one place: pick a backend (flag, `LIGHTFOLD_BACKEND`, else Vulkan before GL),
+//! Device setup in one place: pick a backend (flag, `LIGHTFOLD_BACKEND`, else Vulkan, with GL only
+//! found to be refused with what to install),
 //! pick an adapter (optionally by name), check the features and limits the renderer needs, and
 //! open the device with typed errors. Everything else takes `&Device`/`&Queue` so tests can inject
 //! their own.
 
 use std::fmt;
 
-/// Environment variable naming the backend (`vulkan` or `gl`) when no flag is given.
+/// Environment variable naming the backend (`vulkan`; `gl` is refused at device open) when no
+/// flag is given.
 pub const BACKEND_ENV: &str = "LIGHTFOLD_BACKEND";
 
 /// Bytes of one shadow-map texel: Depth32Float and its R32Uint object ID.
@@ -18,7 +20,8 @@ pub const SHADOW_MEMORY_BUDGET: u64 = 1 << 30;
 /// How to choose the device.
 #[derive(Debug, Clone, Default)]
 pub struct GpuOptions {
-    /// Backends to consider; `None` reads [`BACKEND_ENV`], else tries Vulkan then GL.
+    /// Backends to consider; `None` reads [`BACKEND_ENV`], else Vulkan (then GL, whose adapter
+    /// [`Gpu::new`] refuses with what to install).
     pub backend: Option<wgpu::Backends>,
     /// Case-insensitive substring of the adapter name (e.g. `llvmpipe`).
     pub adapter_name: Option<String>,
@@ -44,7 +47,9 @@ pub enum DeviceError {
         backends: String,
         adapter_name: Option<String>,
     },
-    #[error("unknown backend {value:?} in {BACKEND_ENV} (expected vulkan or gl)")]
+    #[error(
+        "unknown backend {value:?} (expected vulkan; metal or dx12 where built; gl is refused at device open)"
+    )]
     UnknownBackend { value: String },
     #[error("adapter {adapter} lacks required feature {feature}")]
     MissingFeature {
