@@ -98,7 +98,11 @@ async fn survives_losing(victim: &str) {
     let cluster = InProcessCluster::start(4, 4).await.unwrap();
     let (out, killed_at) = run_losing(&cluster, &scene, &opts, victim, 2).await;
     let first = &out.summary.epochs[0];
-    assert_eq!(first.nodes, 4, "the first plan uses every node");
+    assert_eq!(
+        first.nodes, 4,
+        "the first plan uses every node: epochs {:?}, incidents {:?}",
+        out.summary.epochs, out.summary.incidents
+    );
     let lost = lost_at(&out.summary, victim)
         .unwrap_or_else(|| panic!("{victim} was never reported lost: {:?}", out.summary));
     let detected = lost.saturating_duration_since(killed_at);

@@ -167,7 +167,8 @@
     const t = animTime();
     const wrapped = ((t % anim.span) + anim.span) % anim.span;
     $('time').value = String(wrapped);
-    $('time-label').textContent = `${t.toFixed(2)} s`;
+    // The clip's own time, as the slider shows it (the scene time wraps at the clip's length).
+    $('time-label').textContent = `${wrapped.toFixed(2)} / ${anim.span.toFixed(2)} s`;
     $('btn-play').textContent = anim.playing ? 'pause' : 'play';
   }
   setInterval(tickAnimation, 100);
