@@ -5,4 +5,4 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 scripts/install-deps.sh
 cargo build --release -p lightfold-cli
-exec target/release/lightfold demo "$@"
+exec "${CARGO_TARGET_DIR:-target}/release/lightfold" demo "$@"
