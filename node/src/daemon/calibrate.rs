@@ -114,12 +114,13 @@ pub fn from_times(t1: u64, tk: u64, many: u64) -> Calibration {
     }
 }
 
-/// Longest a node waits for other nodes on its machine's CPU to finish calibrating: a node
-/// completes no handshake until it has calibrated, and a coordinator gives a handshake 5–10 s
-/// (a test process's many in-process clusters share one lock), so a node that waited this long
-/// calibrates beside the others rather than be left out of the session. Three to four nodes of
-/// a local cluster calibrate alone within it (about 0.6 s each on 2 cores with lavapipe).
-const LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(2);
+/// Longest a node waits for other nodes on its machine's CPU to finish calibrating. A node
+/// authenticates peers while it calibrates and registers once it has, so a coordinator waits for
+/// it under its register deadline (10 s by default, `--connect-timeout`) and, once another
+/// daemon has registered, 15 s after the latest one: a node that waited this long calibrates
+/// beside the others rather than miss either. About thirteen nodes of a local cluster calibrate
+/// alone within it (about 0.6 s each on 2 cores with lavapipe).
+const LOCK_WAIT: std::time::Duration = std::time::Duration::from_secs(8);
 
 /// Nodes rendering on one machine's CPU calibrate one at a time, so each measures the cores
 /// alone: the planner adds up the frames of nodes sharing a machine's CPU

@@ -141,23 +141,24 @@ pub fn no_hardware_gpu(adapter: &str, backend: &str) -> String {
     )
 }
 
-/// Runs a render node on `listener` until `shutdown` is cancelled or a coordinator sends
-/// `Shutdown`. Fails only when the device cannot be opened or calibrated; every later error is
-/// reported to the peer that caused it and the node keeps serving.
-pub async fn run(
-    listener: TcpListener,
-    opts: NodeOptions,
-    shutdown: CancellationToken,
-) -> anyhow::Result<()> {
-    let local = listener.local_addr()?;
-    let advertise = opts.advertise.clone().unwrap_or_else(|| local.to_string());
+/// The device, once opened and calibrated: what registration reports and the engine links use.
+type Ready = Option<(Capabilities, Arc<Mutex<Engine>>)>;
+
+/// Opens the device, calibrates it and builds the engine (what [`run`] waits for before it
+/// serves a link).
+async fn start_device(
+    opts: &NodeOptions,
+    advertise: String,
+    local: std::net::SocketAddr,
+    me: &Identity,
+) -> anyhow::Result<(Capabilities, Arc<Mutex<Engine>>)> {
     let (render, report) = RenderHandle::start(opts.gpu.clone(), opts.pack).await?;
     if report.software && opts.require_gpu {
         render.stop().await;
         anyhow::bail!(no_hardware_gpu(&report.adapter, &report.backend));
     }
     if report.software {
-        // Info, not a warning: the coordinator warns once for the whole cluster, and on a
+        // Info, not a warning: the coordinator says it once for the whole cluster, and on a
         // machine without a GPU every node would say it.
         tracing::info!(
             adapter = %report.adapter, backend = %report.backend,
@@ -165,17 +166,11 @@ pub async fn run(
         );
     }
     lightfold_ops::record::adapter(&report.adapter, &report.backend, report.software);
-    let caps = capabilities(&opts, advertise, &report);
+    let caps = capabilities(opts, advertise, &report);
     tracing::info!(
         id = %opts.daemon_id, %local, adapter = %caps.adapter, backend = %caps.backend,
         software = report.software, max_lights = caps.max_lights, "render node ready"
     );
-    lightfold_ops::health::set_live(true);
-    let me = Identity {
-        token: opts.token.clone(),
-        role: Role::Node,
-        daemon_id: opts.daemon_id.clone(),
-    };
     let engine = Arc::new(Mutex::new(
         Engine::new(
             opts.daemon_id.clone(),
@@ -187,6 +182,31 @@ pub async fn run(
         )
         .render_ahead(opts.render_ahead),
     ));
+    Ok((caps, engine))
+}
+
+/// Runs a render node on `listener` until `shutdown` is cancelled or a coordinator sends
+/// `Shutdown`. Fails only when the device cannot be opened or calibrated; every later error is
+/// reported to the peer that caused it and the node keeps serving. Peers are accepted and
+/// authenticated while the device opens and calibrates (which may wait for the machine's other
+/// nodes to calibrate: `calibrate.rs`); each link is served once the device is ready, so a
+/// coordinator waits for the registration under its register deadline, not its handshake one.
+pub async fn run(
+    listener: TcpListener,
+    opts: NodeOptions,
+    shutdown: CancellationToken,
+) -> anyhow::Result<()> {
+    let local = listener.local_addr()?;
+    let advertise = opts.advertise.clone().unwrap_or_else(|| local.to_string());
+    let me = Identity {
+        token: opts.token.clone(),
+        role: Role::Node,
+        daemon_id: opts.daemon_id.clone(),
+    };
+    let (ready_tx, ready_rx) = tokio::sync::watch::channel::<Ready>(None);
+    let startup = start_device(&opts, advertise, local, &me);
+    tokio::pin!(startup);
+    let mut engine: Option<Arc<Mutex<Engine>>> = None;
     // Unclaimed links (test drivers, `lightfold bench`) may run side by side, sharing the engine.
     let claims = Claims::new(&opts.daemon_id, false);
     let stop = shutdown.child_token();
@@ -195,6 +215,20 @@ pub async fn run(
     loop {
         let (stream, peer) = tokio::select! {
             _ = stop.cancelled() => break,
+            started = &mut startup, if engine.is_none() => match started {
+                Ok((caps, e)) => {
+                    engine = Some(Arc::clone(&e));
+                    lightfold_ops::health::set_live(true);
+                    let _ = ready_tx.send(Some((caps, e)));
+                    continue;
+                }
+                Err(e) => {
+                    stop.cancel();
+                    tracker.close();
+                    tracker.wait().await;
+                    return Err(e);
+                }
+            },
             r = listener.accept() => match r {
                 Ok(x) => x,
                 Err(e) => {
@@ -209,10 +243,9 @@ pub async fn run(
             drop(stream);
             continue;
         };
-        let (me, caps, engine, claims, stop, t, gate, silence) = (
+        let (me, mut ready, claims, stop, t, gate, silence) = (
             me.clone(),
-            caps.clone(),
-            engine.clone(),
+            ready_rx.clone(),
             claims.clone(),
             stop.clone(),
             opts.timeouts,
@@ -227,6 +260,15 @@ pub async fn run(
             drop(slot);
             match link {
                 Ok(link) => {
+                    // Served once the device is ready (at once, after start-up).
+                    let (caps, engine) = tokio::select! {
+                        _ = stop.cancelled() => return,
+                        r = ready.wait_for(Option::is_some) => match r.ok().and_then(|r| r.clone()) {
+                            Some(x) => x,
+                            None => return,
+                        },
+                    };
+                    drop(ready);
                     let ended =
                         session::serve(link, caps, engine, claims, silence, stop.clone()).await;
                     if ended == Ended::Shutdown {
@@ -244,9 +286,14 @@ pub async fn run(
     tracker.close();
     tracker.wait().await;
     drop(listener);
-    match Arc::try_unwrap(engine) {
-        Ok(engine) => engine.into_inner().stop().await,
-        Err(_) => tracing::warn!("engine still shared at shutdown"),
+    // The links are done: the watch's copy is the engine's last one besides ours.
+    drop(ready_rx);
+    drop(ready_tx);
+    match engine.map(Arc::try_unwrap) {
+        Some(Ok(engine)) => engine.into_inner().stop().await,
+        Some(Err(_)) => tracing::warn!("engine still shared at shutdown"),
+        // Stopped before the device was ready: the start-up is dropped with it.
+        None => {}
     }
     tracing::info!("render node stopped");
     Ok(())
