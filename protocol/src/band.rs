@@ -38,6 +38,54 @@ pub struct BandHeader {
     pub saturated: u32,
 }
 
+/// The band grid of one frame on a link: its ids, size, band height and fixed-point scale. The
+/// one place band rows and unsealed headers are derived from (render nodes and the compositor's
+/// test drivers alike).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BandLayout {
+    pub epoch: u64,
+    pub frame: u64,
+    pub width: u32,
+    pub height: u32,
+    pub band_height: u32,
+    /// Fixed-point scale carried by every band (used by `seed64`).
+    pub scale: f32,
+}
+
+impl BandLayout {
+    pub fn bands(&self) -> u32 {
+        self.height.div_ceil(self.band_height.max(1))
+    }
+
+    /// Rows `[y0, y1)` of band `b`.
+    pub fn rows(&self, b: u32) -> (u32, u32) {
+        let h = self.band_height.max(1);
+        let y0 = b.saturating_mul(h).min(self.height);
+        (y0, y0.saturating_add(h).min(self.height))
+    }
+
+    /// The header of band `b` of `layer` before its payload is known (not empty, nothing
+    /// saturated, unsealed).
+    pub fn header(&self, b: u32, layer: Layer, format: PixelFormat) -> BandHeader {
+        let (y0, y1) = self.rows(b);
+        BandHeader {
+            frame: self.frame,
+            epoch: self.epoch,
+            layer,
+            format,
+            x0: 0,
+            y0,
+            width: self.width,
+            height: y1 - y0,
+            scale: self.scale,
+            empty: false,
+            payload_len: 0,
+            checksum: 0,
+            saturated: 0,
+        }
+    }
+}
+
 /// What is wrong with a band header or its payload length.
 #[derive(Debug, Clone, PartialEq, Error)]
 pub enum BandError {

@@ -13,7 +13,7 @@ pub mod handshake;
 pub mod message;
 pub mod srgb;
 
-pub use band::{BAND_HEADER_LEN, BandError, BandHeader};
+pub use band::{BAND_HEADER_LEN, BandError, BandHeader, BandLayout};
 pub use error::ProtocolError;
 pub use format::{FormatError, PackStats, PixelFormat};
 pub use frame::{Codec, DEFAULT_MAX_FRAME, Frame, MAX_CONTROL};

@@ -212,48 +212,7 @@ fn done_or_refused(m: Message) -> Result<FrameStats, DriverError> {
 }
 
 /// What a frame on a link looks like: its ids and band grid.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct FrameShape {
-    pub epoch: u64,
-    pub frame: u64,
-    pub width: u32,
-    pub height: u32,
-    pub band_height: u32,
-    /// Fixed-point scale carried by every band (used by `seed64`).
-    pub scale: f32,
-}
-
-impl FrameShape {
-    pub fn bands(&self) -> u32 {
-        self.height.div_ceil(self.band_height.max(1))
-    }
-
-    /// Rows `(y0, height)` of band `b`.
-    pub fn band_rows(&self, b: u32) -> (u32, u32) {
-        let y0 = b * self.band_height;
-        (y0, self.band_height.min(self.height - y0))
-    }
-
-    /// The header of band `b` of `layer` (payload fields unset).
-    pub fn header(&self, b: u32, layer: Layer, format: PixelFormat) -> BandHeader {
-        let (y0, rows) = self.band_rows(b);
-        BandHeader {
-            frame: self.frame,
-            epoch: self.epoch,
-            layer,
-            format,
-            x0: 0,
-            y0,
-            width: self.width,
-            height: rows,
-            scale: self.scale,
-            empty: false,
-            payload_len: 0,
-            checksum: 0,
-            saturated: 0,
-        }
-    }
-}
+pub type FrameShape = lightfold_protocol::BandLayout;
 
 /// One whole layer of a frame in memory: interleaved f32, `layer.channels()` values a pixel.
 #[derive(Debug, Clone, PartialEq)]
@@ -281,9 +240,9 @@ pub fn pack_band(
         });
     }
     let mut h = shape.header(b, img.layer, img.format);
-    let (y0, rows) = shape.band_rows(b);
+    let (y0, y1) = shape.rows(b);
     let row = shape.width as usize * ch;
-    let values = &img.data[y0 as usize * row..(y0 + rows) as usize * row];
+    let values = &img.data[y0 as usize * row..y1 as usize * row];
     if values.iter().all(|v| *v == 0.0) {
         h.empty = true;
         h.seal(&[]);

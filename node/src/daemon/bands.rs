@@ -65,50 +65,8 @@ pub enum PackError {
     },
 }
 
-/// The layout of a frame's bands.
-#[derive(Debug, Clone, PartialEq)]
-pub struct BandLayout {
-    pub epoch: u64,
-    pub frame: u64,
-    pub width: u32,
-    pub height: u32,
-    pub band_height: u32,
-    pub scale: f32,
-}
-
-impl BandLayout {
-    pub fn bands(&self) -> u32 {
-        self.height.div_ceil(self.band_height.max(1))
-    }
-
-    /// The header of band `b` of `layer` before its payload is known (not empty, nothing
-    /// saturated, unsealed).
-    pub fn header(&self, b: u32, layer: Layer, format: PixelFormat) -> BandHeader {
-        let (y0, y1) = self.rows(b);
-        BandHeader {
-            frame: self.frame,
-            epoch: self.epoch,
-            layer,
-            format,
-            x0: 0,
-            y0,
-            width: self.width,
-            height: y1 - y0,
-            scale: self.scale,
-            empty: false,
-            payload_len: 0,
-            checksum: 0,
-            saturated: 0,
-        }
-    }
-
-    /// Rows `[y0, y1)` of band `b`.
-    pub fn rows(&self, b: u32) -> (u32, u32) {
-        let h = self.band_height.max(1);
-        let y0 = b.saturating_mul(h).min(self.height);
-        (y0, y0.saturating_add(h).min(self.height))
-    }
-}
+/// The layout of a frame's bands (the protocol's, shared with the compositor).
+pub use lightfold_protocol::BandLayout;
 
 /// The images of one frame, one per configured layer in configuration order.
 pub type LayerImages = Vec<(Layer, PixelFormat, Arc<Image>)>;
