@@ -42,22 +42,13 @@ impl Adapt {
     /// A new epoch is configured: its nodes' registered model, the factors it was planned
     /// under, and no measurements yet.
     pub fn epoch(&mut self, plan: &Plan, cluster: &ClusterSpec, opts: &PlanOptions) {
-        let hosts = super::cpu_hosts::cpu_hosts(&cluster.nodes);
-        let machine = |id: &str| {
-            let i = cluster.nodes.iter().position(|d| d.id == id)?;
-            hosts[i]
-        };
+        let sharing = super::cpu_hosts::plan_sharing(&plan.nodes, &cluster.nodes);
         self.model = plan
             .nodes
             .iter()
-            .filter_map(|n| {
+            .zip(sharing)
+            .filter_map(|(n, (sharing, _))| {
                 let spec = cluster.nodes.iter().find(|d| d.id == n.node)?;
-                let sharing = machine(&n.node).map_or(1, |m| {
-                    plan.nodes
-                        .iter()
-                        .filter(|o| machine(&o.node) == Some(m))
-                        .count()
-                });
                 let (fixed, light) = node_cost(spec, plan);
                 let (w_all, w_shadow) = n
                     .shadows

@@ -55,29 +55,55 @@ pub(crate) fn frame_estimate(
     machines.into_iter().fold(slowest, f64::max)
 }
 
+/// Per node of the plan (`nodes`, in order): how many of the plan's nodes render on its
+/// machine's CPU, itself included (1 on a GPU or a machine of its own), and that machine.
+pub(crate) fn plan_sharing(
+    nodes: &[NodePlan],
+    cluster: &[DaemonSpec],
+) -> Vec<(usize, Option<usize>)> {
+    let hosts = cpu_hosts(cluster);
+    let machine = |id: &str| {
+        let i = cluster.iter().position(|d| d.id == id)?;
+        hosts[i]
+    };
+    let machines: Vec<Option<usize>> = nodes.iter().map(|n| machine(&n.node)).collect();
+    machines
+        .iter()
+        .map(|&m| {
+            let sharing = m.map_or(1, |m| machines.iter().filter(|&&o| o == Some(m)).count());
+            (sharing, m)
+        })
+        .collect()
+}
+
 /// A plan's frame estimate (µs) from its nodes' estimates, and what the CPU sharing did to it.
 pub(crate) fn plan_estimate(
     nodes: &[NodePlan],
     cluster: &[DaemonSpec],
 ) -> (u64, Option<CpuShared>) {
-    let hosts = cpu_hosts(cluster);
-    let index = |id: &str| cluster.iter().position(|d| d.id == id);
-    let pairs: Vec<(usize, f64)> = nodes
-        .iter()
-        .filter_map(|n| Some((index(&n.node)?, n.est_cost_us as f64)))
-        .collect();
     let slowest = nodes.iter().map(|n| n.est_cost_us).max().unwrap_or(0);
-    let est = frame_estimate(pairs.iter().copied(), &hosts).round() as u64;
-    let mut machines: Vec<usize> = pairs.iter().filter_map(|&(n, _)| hosts[n]).collect();
-    let nodes_sharing = machines.len();
-    machines.sort_unstable();
-    machines.dedup();
-    let shared = (nodes_sharing >= 2).then_some(CpuShared {
-        machines: machines.len(),
+    let sharing = plan_sharing(nodes, cluster);
+    let mut machines: Vec<f64> = Vec::new();
+    let mut shared: Vec<usize> = Vec::new();
+    for (n, &(count, m)) in nodes.iter().zip(&sharing) {
+        if let (Some(m), true) = (m, count >= 2) {
+            if machines.len() <= m {
+                machines.resize(m + 1, 0.0);
+            }
+            machines[m] += n.est_cost_us as f64;
+            shared.push(m);
+        }
+    }
+    let est = machines.into_iter().fold(slowest as f64, f64::max).round() as u64;
+    let nodes_sharing = shared.len();
+    shared.sort_unstable();
+    shared.dedup();
+    let cpu = (nodes_sharing >= 2).then_some(CpuShared {
+        machines: shared.len(),
         nodes: nodes_sharing,
         est_slowest_node_us: slowest,
     });
-    (est.max(slowest), shared)
+    (est.max(slowest), cpu)
 }
 
 #[cfg(test)]
