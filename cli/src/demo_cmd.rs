@@ -70,36 +70,31 @@ fn with_memory(mut cluster: ClusterSpec) -> ClusterSpec {
 /// The probe cluster's nodes as this machine's will be: on a hardware GPU, every node reports
 /// that one device (and the lights it takes), so the plan merges them as the coordinator's will
 /// (`docs/planner.md` § Shared GPUs); on a software rasteriser, every node reports this
-/// machine's CPU, so the estimate adds them up as the coordinator's will (§ Nodes sharing a
-/// machine's CPU). The demo starts only the nodes that plan uses.
+/// machine's CPU, so the estimate adds them up as the coordinator's will (§ Cost model). The
+/// demo starts only the nodes that plan uses.
 fn on_this_machine(cluster: ClusterSpec) -> ClusterSpec {
+    use lightfold_node::gpu::device::{LocalDevice, chosen_device};
     let host = lightfold_node::daemon::sys::hostname();
-    let gpu = lightfold_node::gpu::GpuOptions::default();
-    let Some((device, max_lights)) = lightfold_node::gpu::device::chosen_device(&gpu, &host) else {
-        let software = lightfold_node::gpu::device::chosen_adapter(&gpu)
-            .is_ok_and(|(_, _, software)| software);
-        if !software {
-            return cluster;
-        }
-        let machine = lightfold_node::daemon::sys::machine();
-        let mut cluster = with_memory(cluster);
-        for caps in cluster
-            .nodes
-            .iter_mut()
-            .filter_map(|n| n.capabilities.as_mut())
-        {
-            caps.cpu_host = machine.clone();
-        }
+    let Some(local) = chosen_device(&lightfold_node::gpu::GpuOptions::default(), &host) else {
         return cluster;
     };
+    let machine = lightfold_node::daemon::sys::machine();
     let mut cluster = with_memory(cluster);
     for caps in cluster
         .nodes
         .iter_mut()
         .filter_map(|n| n.capabilities.as_mut())
     {
-        caps.max_lights = max_lights;
-        caps.device = device.clone();
+        match &local {
+            LocalDevice::Gpu {
+                identity,
+                max_lights,
+            } => {
+                caps.max_lights = *max_lights;
+                caps.device = identity.clone();
+            }
+            LocalDevice::Cpu => caps.cpu_host = machine.clone(),
+        }
     }
     cluster
 }

@@ -236,17 +236,30 @@ pub fn chosen_adapter(opts: &GpuOptions) -> Result<(String, String, bool), Devic
     ))
 }
 
-/// The identity of the device [`Gpu::new`] would open for `opts` on this host and the lights it
-/// takes at the reported map size, without opening it (what a local cluster's nodes will
-/// report); `None` when it is a software rasteriser or there is no adapter.
-pub fn chosen_device(opts: &GpuOptions, host: &str) -> Option<(String, u32)> {
+/// What a local node would render on, known without opening the device.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum LocalDevice {
+    /// A hardware GPU: its identity on this host (`Capabilities::device`) and the lights it
+    /// takes at the reported map size.
+    Gpu { identity: String, max_lights: u32 },
+    /// A software rasteriser: this machine's CPU.
+    Cpu,
+}
+
+/// What [`Gpu::new`] would open for `opts` on this host, without opening it (what a local
+/// cluster's nodes will report); `None` when there is no adapter.
+pub fn chosen_device(opts: &GpuOptions, host: &str) -> Option<LocalDevice> {
     let adapter = choose_adapter(opts).ok()?;
-    let identity = device_identity(host, &adapter.get_info())?;
-    let lights = max_lights_for(
-        &adapter.limits(),
-        lightfold_scene::defaults::SHADOW_MAP_SIZE,
-    );
-    Some((identity, lights))
+    Some(match device_identity(host, &adapter.get_info()) {
+        Some(identity) => LocalDevice::Gpu {
+            identity,
+            max_lights: max_lights_for(
+                &adapter.limits(),
+                lightfold_scene::defaults::SHADOW_MAP_SIZE,
+            ),
+        },
+        None => LocalDevice::Cpu,
+    })
 }
 
 impl Gpu {
