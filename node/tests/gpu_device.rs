@@ -489,7 +489,7 @@ mod device_pack {
                 1.000_001,
             )
             .unwrap();
-        let mut off_layout = layout.clone();
+        let mut off_layout = layout;
         off_layout.scale = 1.000_001;
         let mut device = device_bands(&off_layout, &layers, &off);
         for b in &mut device {
