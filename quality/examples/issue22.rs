@@ -133,6 +133,9 @@ fn main() -> anyhow::Result<()> {
         Fixes::ALL
     };
     fixes.map_size = map_size;
+    if args.iter().any(|a| a == "--no-plane") {
+        fixes.receiver_plane = false;
+    }
     let mut names: Vec<&str> = args
         .iter()
         .filter(|a| !a.starts_with("--") && a.parse::<u32>().is_err())
@@ -145,7 +148,13 @@ fn main() -> anyhow::Result<()> {
         return Ok(());
     }
     if names.is_empty() {
-        names = vec!["corner-leak", "grazing-fin", "deep-near", "thin-poles"];
+        names = vec![
+            "corner-leak",
+            "grazing-fin",
+            "deep-near",
+            "thin-poles",
+            "thin-house",
+        ];
     }
     for name in names {
         let t = std::time::Instant::now();

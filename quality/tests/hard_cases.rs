@@ -113,6 +113,29 @@ fn thin_poles() {
     check("thin-poles");
 }
 
+/// Issue 46: a closed house of 1 cm walls lit through a window from outside keeps every junction
+/// dark (case 18).
+#[test]
+fn thin_house() {
+    check("thin-house");
+}
+
+/// The receiver's plane at each other object's texel (and texels past the receiver's own box
+/// left out) is what keeps the junctions dark: with the symmetric slope bound alone, as before
+/// issue 46, the floor along the lit wall's foot and the side wall along the corner light up.
+#[test]
+fn thin_house_leaks_without_the_receiver_plane() {
+    let fixes = Fixes {
+        receiver_plane: false,
+        ..Fixes::ALL
+    };
+    let r = run_with("thin-house", false, fixes)
+        .expect("an issue-46 case")
+        .unwrap_or_else(|e| panic!("thin-house: {e}"));
+    eprintln!("{r}");
+    assert!(!r.within_bound(), "no leak without the receiver plane: {r}");
+}
+
 /// Per-light map sizes are what pass the fin, the deep scene and the poles: with every map at
 /// 512² (the size every map had before; cascades and object IDs still on) each fails again.
 #[test]
@@ -133,6 +156,6 @@ fn one_map_size_for_every_light_fails_cases_15_to_17() {
 #[test]
 fn every_case_is_tested_and_unknown_names_fail() {
     let names = case_names();
-    assert_eq!(names.len(), 17, "{names:?}: add a test per case");
+    assert_eq!(names.len(), 18, "{names:?}: add a test per case");
     assert!(run_case("no-such-case", false).is_err());
 }

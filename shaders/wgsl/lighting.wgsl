@@ -40,6 +40,9 @@ struct Frame {
 const FLAG_OBJECT_IDS: u32 = 1u;
 // Maps store conventional Z (near 0, far 1): a depth negative control.
 const FLAG_CONVENTIONAL_Z: u32 = 2u;
+// Other objects' texels are compared with the receiver's plane at their centre (`texel_lit`),
+// not with the symmetric bound alone.
+const FLAG_RECEIVER_PLANE: u32 = 4u;
 
 // One shadow map: a square of a layer of `shadow_maps` and how world points land in it. The projection keeps
 // its eight non-zero entries: clip = (a.x·x + a.y·z + a.z, a.w·y + b.x·z + b.y, b.z·z + b.w, w)
@@ -113,12 +116,21 @@ struct Placed {
     index: u32,
     q: vec3f,
     n: vec3f,
+    // The linear map from the view's frame back to the world (rotation only): a world point
+    // is p + to_world·(its view-frame point − q).
+    to_world: mat3x3f,
+}
+
+// The inverse of a view matrix's rotation (the matrix is rigid: its transpose).
+fn view_rotation_inverse(v: View) -> mat3x3f {
+    let m = v.view;
+    return transpose(mat3x3f(m[0].xyz, m[1].xyz, m[2].xyz));
 }
 
 // The view of light s that holds p (its only one, the side of its split plane, or the cube face
 // of p's direction), with p and the geometric normal ng in that view's frame.
 fn place(s: Light, p: vec3f, ng: vec3f) -> Placed {
-    var out = Placed(NO_VIEW, vec3f(0.0), vec3f(0.0));
+    var out = Placed(NO_VIEW, vec3f(0.0), vec3f(0.0), mat3x3f());
     let d = p - s.position;
     if uses_mode(MODE_SINGLE) || uses_mode(MODE_SPLIT) || uses_mode(MODE_CASCADE) {
         var index = s.first_view;
@@ -131,7 +143,7 @@ fn place(s: Light, p: vec3f, ng: vec3f) -> Placed {
             index += s.cascades;
         }
         let v = view_at(index);
-        out = Placed(index, (v.view * vec4f(p, 1.0)).xyz, (v.view * vec4f(ng, 0.0)).xyz);
+        out = Placed(index, (v.view * vec4f(p, 1.0)).xyz, (v.view * vec4f(ng, 0.0)).xyz, view_rotation_inverse(v));
     }
     if is_mode(s, MODE_CUBE) {
         let cube_y = cross(s.cube_x, s.cube_z);
@@ -143,7 +155,15 @@ fn place(s: Light, p: vec3f, ng: vec3f) -> Placed {
         let on_y = !on_x && a.y >= a.z;
         let positive = select(select(c.z >= 0.0, c.y >= 0.0, on_y), c.x >= 0.0, on_x);
         let face = select(select(4u, 2u, on_y), 0u, on_x) + select(1u, 0u, positive);
-        out = Placed(face_view(s, face), cube_face_coords(face, c), cube_face_coords(face, cn));
+        // The face's frame is P·B (B: rows cube_x, cube_y, cube_z; P: the face's signed
+        // permutation), so back to the world is Bᵀ·Pᵀ.
+        let perm = mat3x3f(
+            cube_face_coords(face, vec3f(1.0, 0.0, 0.0)),
+            cube_face_coords(face, vec3f(0.0, 1.0, 0.0)),
+            cube_face_coords(face, vec3f(0.0, 0.0, 1.0)),
+        );
+        let back = mat3x3f(s.cube_x, cube_y, s.cube_z) * transpose(perm);
+        out = Placed(face_view(s, face), cube_face_coords(face, c), cube_face_coords(face, cn), back);
     }
     // Near cascades first: the first whose end lies beyond p's eye depth, if any does.
     if uses_mode(MODE_CASCADE) && s.cascades > 0u {
@@ -154,7 +174,8 @@ fn place(s: Light, p: vec3f, ng: vec3f) -> Placed {
         }
         if k < s.cascades {
             let v = view_at(s.first_view + k);
-            out = Placed(s.first_view + k, (v.view * vec4f(p, 1.0)).xyz, (v.view * vec4f(ng, 0.0)).xyz);
+            let q = (v.view * vec4f(p, 1.0)).xyz;
+            out = Placed(s.first_view + k, q, (v.view * vec4f(ng, 0.0)).xyz, view_rotation_inverse(v));
         }
     }
     // Cube-mode lights always have a view; others may have none.
@@ -195,6 +216,11 @@ struct Receiver {
     at: vec2f,
     layer: u32,
     object: u32,
+    // Its geometric normal in the view's frame.
+    n: vec3f,
+    // Its world position, and the view frame's map back to the world (`Placed::to_world`).
+    p: vec3f,
+    to_world: mat3x3f,
     // Reference depth against texels of its own object (under the slope bias).
     own: f32,
     // Bias against other objects' texels: metres at the receiver, plus metres per texel of the
@@ -203,25 +229,93 @@ struct Receiver {
     per_texel: f32,
 }
 
-// 1 where the receiver is at least as near the light as texel t's caster, else 0. A texel of the
-// receiver's own object is compared under the slope bias (a surface cannot shadow itself within
-// its own depth slope); any other object's caster is compared under a bias that only covers
-// where the receiver's plane lies at that texel's centre (slope capped at 2), so a caster thinner
-// than the slope bias (a roof, a fin's foot) still shadows.
-fn texel_lit(r: Receiver, t: vec2i) -> f32 {
+// Where texel c's centre ray meets the receiver's plane (through q with normal n), in the view's
+// frame: exact for a plane (receiver-plane depth bias). Not finite where the ray runs along it.
+fn plane_point(r: Receiver, c: vec2i) -> vec3f {
+    let uv = (vec2f(c) + vec2f(0.5) - r.v.rect.xy) / r.v.rect.z;
+    let ndc = vec2f(2.0 * uv.x - 1.0, 1.0 - 2.0 * uv.y);
+    let a = r.v.proj_a;
+    let b = r.v.proj_b;
+    if is_ortho(r.v) {
+        // x = (ndc.x − a.y·z − a.z)/a.x at the receiver's z; the plane's z there.
+        let x = (ndc.x - a.y * r.q.z - a.z) / a.x;
+        let y = (ndc.y - b.x * r.q.z - b.y) / a.w;
+        return vec3f(x, y, r.q.z - (r.n.x * (x - r.q.x) + r.n.y * (y - r.q.y)) / r.n.z);
+    }
+    // Perspective: ndc = (a.x·x + a.y·z, a.w·y + b.x·z)/(−z), so the centre's tangent is
+    // ((ndc.x + a.y)/a.x, (ndc.y + b.x)/a.w), and the plane's depth along it (n·q)/(n·(t, −1)).
+    let d = vec3f((ndc.x + a.y) / a.x, (ndc.y + b.x) / a.w, -1.0);
+    return d * (dot(r.n, r.q) / dot(r.n, d));
+}
+
+struct Bounds {
+    lo: vec4f,
+    hi: vec4f,
+}
+
+// Each object's axis-aligned world bounds, object − 1 for object; animated objects' hold every
+// point (node/src/gpu/scene_data.rs, `GpuBounds`).
+@group(0) @binding(4) var<storage, read> object_bounds: array<Bounds>;
+
+// The world point of the receiver's view-frame point pv.
+fn receiver_world(r: Receiver, pv: vec3f) -> vec3f {
+    return r.p + r.to_world * (pv - r.q);
+}
+
+// Whether world point w lies in `object`'s box widened by `margin` metres (object 0, no caster,
+// holds nothing).
+fn in_object_box(object: u32, w: vec3f, margin: f32) -> bool {
+    if object == 0u {
+        return false;
+    }
+    let b = object_bounds[min(object - 1u, arrayLength(&object_bounds) - 1u)];
+    return all(w >= b.lo.xyz - vec3f(margin)) && all(w <= b.hi.xyz + vec3f(margin));
+}
+
+// (lit, counts) for texel t: lit is 1 where the receiver is at least as near the light as t's
+// caster, else 0. A texel of the receiver's own object is compared under the slope bias (a
+// surface cannot shadow itself within its own depth slope); any other object's caster is
+// compared with the receiver's plane where that texel's centre ray meets it, moved by the
+// constant bias (a caster in front of the plane there shadows it), the plane's offset towards
+// the light held within what the slope bias allows at that texel's distance (slope capped at 2).
+// A caster thinner than the slope bias (a roof, a fin's foot) still shadows, and so does a wall
+// standing on the receiver's own plane: its texels beside the receiver lie in front of the plane
+// however near its foot (the symmetric bound alone, 1.5× the plane's slope, let a 1 cm wall's
+// foot light the floor behind it). counts is 0, and the filter leaves the texel out, where that
+// plane point lies outside the receiver's own object's box — the texel is past the receiver's
+// edge (a wall's inside face where another wall closes the corner: the texels past that wall's
+// silhouette are the ground behind the house) — or inside the caster's box: the plane there
+// runs under the caster (the floor beneath a box standing on it, whose texels would otherwise
+// darken the lit floor at its foot by the filter's width).
+fn texel_lit(r: Receiver, t: vec2i) -> vec2f {
     let lo = vec2i(r.v.rect.xy);
     let c = clamp(t, lo, lo + vec2i(i32(r.v.rect.z) - 1));
     let stored = textureLoad(shadow_maps, c, r.layer, 0);
     var ref_depth = r.own;
-    if textureLoad(shadow_ids, c, r.layer, 0).x != r.object {
+    var counts = 1.0;
+    let caster = textureLoad(shadow_ids, c, r.layer, 0).x;
+    if caster != r.object {
         let off = abs(vec2f(c) + vec2f(0.5) - r.at);
-        ref_depth = reference_depth(r.v, r.q, r.base + r.per_texel * max(off.x, off.y));
+        let bound = r.per_texel * max(off.x, off.y);
+        var plane = bound;
+        if (frame.flags & FLAG_RECEIVER_PLANE) != 0u {
+            let pv = plane_point(r, c);
+            let exact = pv.z - r.q.z;
+            if exact == exact && abs(exact) < 3.0e38 {
+                plane = clamp(exact, 0.0, bound);
+                let w = receiver_world(r, pv);
+                if !in_object_box(r.object, w, r.base) || in_object_box(caster, w, r.base) {
+                    counts = 0.0;
+                }
+            }
+        }
+        ref_depth = reference_depth(r.v, r.q, r.base + plane);
     }
     var lit = ref_depth >= stored;
     if (frame.flags & FLAG_CONVENTIONAL_Z) != 0u {
         lit = ref_depth <= stored;
     }
-    return select(0.0, 1.0, lit);
+    return vec2f(select(0.0, 1.0, lit), counts);
 }
 
 // a + (b − a)·w: exactly a where a = b (fully lit stays exactly 1).
@@ -229,15 +323,32 @@ fn lerp(a: f32, b: f32, w: f32) -> f32 {
     return a + (b - a) * w;
 }
 
-// The bilinear 2×2 footprint around `at` (texels), as the comparison sampler weighs it.
-fn texel_bilinear(r: Receiver, at: vec2f) -> f32 {
+// The bilinear 2×2 footprint around `at` (texels), as the comparison sampler weighs it:
+// (Σ w·lit over the texels that count, Σ w over them, the plain bilinear of every texel's lit).
+fn texel_bilinear(r: Receiver, at: vec2f) -> vec3f {
     let p = at - vec2f(0.5);
     let b = floor(p);
     let f = p - b;
     let t = vec2i(b);
-    let top = lerp(texel_lit(r, t), texel_lit(r, t + vec2i(1, 0)), f.x);
-    let bottom = lerp(texel_lit(r, t + vec2i(0, 1)), texel_lit(r, t + vec2i(1, 1)), f.x);
-    return lerp(top, bottom, f.y);
+    let a = texel_lit(r, t);
+    let bx = texel_lit(r, t + vec2i(1, 0));
+    let cy = texel_lit(r, t + vec2i(0, 1));
+    let d = texel_lit(r, t + vec2i(1, 1));
+    let w = vec4f((1.0 - f.x) * (1.0 - f.y), f.x * (1.0 - f.y), (1.0 - f.x) * f.y, f.x * f.y);
+    let counted = w * vec4f(a.y, bx.y, cy.y, d.y);
+    let lit = dot(counted, vec4f(a.x, bx.x, cy.x, d.x));
+    let all_lit = lerp(lerp(a.x, bx.x, f.x), lerp(cy.x, d.x, f.x), f.y);
+    return vec3f(lit, dot(counted, vec4f(1.0)), all_lit);
+}
+
+// A weighted sum of `texel_bilinear`s as the filter's result: the counted texels' mean, or
+// where none counts, the plain mean of `n` footprints. Where every counted texel is lit the
+// result is exactly 1.
+fn counted_mean(sum: vec3f, n: f32) -> f32 {
+    if sum.y > 0.0 {
+        return select(sum.x / sum.y, 1.0, sum.x == sum.y);
+    }
+    return sum.z / n;
 }
 
 fn uses_object_ids() -> bool {
@@ -248,9 +359,6 @@ fn uses_object_ids() -> bool {
 // test, else one hardware comparison lookup (`ref` passes where it is at least the stored
 // reversed-Z depth).
 fn footprint(r: Receiver, offset: vec2f) -> f32 {
-    if uses_object_ids() {
-        return texel_bilinear(r, r.at + offset);
-    }
     // Clamped to the square's outer texel centres, so the 2×2 footprint never reads a neighbour.
     let at = clamp(r.at + offset, r.v.rect.xy + vec2f(0.5), r.v.rect.xy + vec2f(r.v.rect.z - 0.5));
     return textureSampleCompareLevel(shadow_maps, shadow_linear, at / frame.map_size, r.layer, r.own);
@@ -259,10 +367,10 @@ fn footprint(r: Receiver, offset: vec2f) -> f32 {
 // The filter's lookups for receiver r: the texel under it, one footprint, or a taps×taps grid
 // of footprints one texel apart.
 fn shadow_filter(r: Receiver) -> f32 {
+    if uses_object_ids() {
+        return shadow_filter_ids(r);
+    }
     if SHADOW_FILTER == FILTER_NEAREST {
-        if uses_object_ids() {
-            return texel_lit(r, vec2i(floor(r.at)));
-        }
         // The linear sampler read at a texel centre selects that texel alone.
         let t = clamp(floor(r.at), r.v.rect.xy, r.v.rect.xy + vec2f(r.v.rect.z - 1.0));
         let centre = (t + vec2f(0.5)) / frame.map_size;
@@ -280,6 +388,26 @@ fn shadow_filter(r: Receiver) -> f32 {
         }
     }
     return sum / f32(taps * taps);
+}
+
+// `shadow_filter` with the object-ID test: each texel's own comparison (`texel_lit`), texels
+// past the receiver's edge left out.
+fn shadow_filter_ids(r: Receiver) -> f32 {
+    if SHADOW_FILTER == FILTER_NEAREST {
+        return texel_lit(r, vec2i(floor(r.at))).x;
+    }
+    if SHADOW_FILTER == FILTER_PCF2X2 {
+        return counted_mean(texel_bilinear(r, r.at), 1.0);
+    }
+    let taps = max(SHADOW_TAPS, 1u);
+    let half = 0.5 * f32(taps - 1u);
+    var sum = vec3f(0.0);
+    for (var j = 0u; j < taps; j++) {
+        for (var i = 0u; i < taps; i++) {
+            sum += texel_bilinear(r, r.at + vec2f(f32(i), f32(j)) - vec2f(half));
+        }
+    }
+    return counted_mean(sum, f32(taps * taps));
 }
 
 // What translucent casters let through to a receiver at texel t: the stored transmittance
@@ -398,6 +526,9 @@ fn visibility(s: Light, p: vec3f, ng: vec3f, object: u32) -> vec3f {
         v.rect.xy + uv * v.rect.z,
         v.layer,
         object,
+        n,
+        p,
+        placed.to_world,
         reference_depth(v, q, bias),
         frame.depth_bias * along_axis,
         frame.slope_bias * min(slope, 2.0) * texel_m,

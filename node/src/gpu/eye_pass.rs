@@ -38,6 +38,10 @@ pub struct GpuFrame {
 pub const FLAG_OBJECT_IDS: u32 = 1;
 /// `Frame::flags`: shadow depths are conventional Z (near 0), a depth negative control.
 pub const FLAG_CONVENTIONAL_Z: u32 = 2;
+/// `Frame::flags`: with the object-ID test, another object's texel is compared with the
+/// receiver's plane where that texel's centre ray meets it (receiver-plane depth bias), within
+/// the symmetric slope bound; without it, with the bound alone (before issue 46).
+pub const FLAG_RECEIVER_PLANE: u32 = 4;
 
 impl GpuFrame {
     /// Camera part of the frame; light and filter fields are filled by the caller.

@@ -194,6 +194,7 @@ impl Pipelines {
                 storage_entry(1, fragment),
                 storage_entry(2, fragment),
                 storage_entry(3, fragment),
+                storage_entry(4, fragment),
             ],
         });
         let shadow_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {

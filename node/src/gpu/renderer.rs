@@ -10,7 +10,8 @@ use super::atlas::Slot;
 use super::deferred::{DeferredTargets, render_deferred};
 use super::device::{Gpu, SHADOW_MEMORY_BUDGET, SHADOW_TEXEL_BYTES, captured};
 use super::eye_pass::{
-    EyeInputs, EyeTargets, FLAG_CONVENTIONAL_Z, FLAG_OBJECT_IDS, GpuFrame, render_eye,
+    EyeInputs, EyeTargets, FLAG_CONVENTIONAL_Z, FLAG_OBJECT_IDS, FLAG_RECEIVER_PLANE, GpuFrame,
+    render_eye,
 };
 use super::frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
 use super::lights::{Fault, Fit, LightPlan, Sides, TRANSLUCENT_TEXEL_BYTES, plan_lights_within};
@@ -92,6 +93,7 @@ pub struct Renderer {
     fit_to_camera: bool,
     cascades: bool,
     object_ids: bool,
+    receiver_plane: bool,
     map_sides: Option<Vec<u32>>,
     /// Readback buffers kept from frame to frame.
     staging: Staging,
@@ -179,7 +181,7 @@ impl Renderer {
             bytemuck::cast_slice(&data.vertices)
         };
         let tbytes = tangent_bytes(&data.tangents);
-        let (vertices, tangents, materials, pbr, textures, texels) =
+        let (vertices, tangents, materials, pbr, textures, texels, bounds) =
             allocate(gpu, "the scene buffers", || {
                 (
                     init(
@@ -212,6 +214,11 @@ impl Renderer {
                         bytemuck::cast_slice(&data.texels),
                         wgpu::BufferUsages::STORAGE,
                     ),
+                    init(
+                        "object bounds",
+                        bytemuck::cast_slice(&data.object_bounds),
+                        wgpu::BufferUsages::STORAGE,
+                    ),
                 )
             })?;
         let scene_bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -233,6 +240,10 @@ impl Renderer {
                 wgpu::BindGroupEntry {
                     binding: 3,
                     resource: pbr.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: bounds.as_entire_binding(),
                 },
             ],
         });
@@ -276,6 +287,7 @@ impl Renderer {
             fit_to_camera: true,
             cascades: true,
             object_ids: true,
+            receiver_plane: true,
             map_sides: None,
             staging: Staging::default(),
             packer: PackerState::Untried,
@@ -435,6 +447,14 @@ impl Renderer {
     /// issue 22.
     pub fn set_object_ids(&mut self, on: bool) {
         self.object_ids = on;
+    }
+
+    /// With the object-ID test, whether another object's texel is compared with the receiver's
+    /// plane where that texel's centre ray meets it (the default) or with the symmetric slope
+    /// bound alone, as before issue 46 (which let a wall standing on a floor light the floor
+    /// behind it within a texel of its foot).
+    pub fn set_receiver_plane(&mut self, on: bool) {
+        self.receiver_plane = on;
     }
 
     /// Each light's map side as a plan gives it (`WireShadow::map_size`), in the order of the
@@ -1052,6 +1072,9 @@ impl Renderer {
         let mut flags = 0;
         if self.object_ids {
             flags |= FLAG_OBJECT_IDS;
+        }
+        if self.receiver_plane {
+            flags |= FLAG_RECEIVER_PLANE;
         }
         if ShadowDepth::of(o.fault) == ShadowDepth::Conventional32 {
             flags |= FLAG_CONVENTIONAL_Z;

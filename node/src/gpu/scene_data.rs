@@ -112,6 +112,26 @@ pub struct MeshRange {
     pub bounds: Option<(V3, V3)>,
 }
 
+/// One object's axis-aligned bounds as the lighting shader reads them (`object_bounds`, indexed
+/// by object − 1): where a receiver's plane, carried to another object's texel, leaves the
+/// receiver's own object's box, that texel tells nothing about the receiver, and the filter does
+/// not count it (`texel_lit`; docs/hard-cases.md, case 18).
+#[repr(C)]
+#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
+pub struct GpuBounds {
+    pub lo: [f32; 4],
+    pub hi: [f32; 4],
+}
+
+impl GpuBounds {
+    /// Bounds no point leaves (finite: WGSL may assume no infinities): an animated object's,
+    /// whose box moves from frame to frame.
+    pub const UNBOUNDED: GpuBounds = GpuBounds {
+        lo: [-3.0e38, -3.0e38, -3.0e38, 0.0],
+        hi: [3.0e38, 3.0e38, 3.0e38, 0.0],
+    };
+}
+
 /// The CPU-side arrays uploaded once per scene.
 #[derive(Debug, Clone)]
 pub struct SceneData {
@@ -135,6 +155,8 @@ pub struct SceneData {
     pub texels: Vec<u32>,
     /// Length of the scene's bounding-box diagonal (1 for an empty scene).
     pub diagonal: f32,
+    /// Each object's bounds, object − 1 for object (never empty).
+    pub object_bounds: Vec<GpuBounds>,
 }
 
 impl SceneData {
@@ -196,7 +218,22 @@ impl SceneData {
         if texels.is_empty() {
             texels.push(0);
         }
+        // Posed meshes move: their boxes are not fixed for the scene.
+        let mut object_bounds: Vec<GpuBounds> = meshes
+            .iter()
+            .map(|m| match m.bounds {
+                Some((a, b)) if scene.animation.is_none() => GpuBounds {
+                    lo: [a[0], a[1], a[2], 0.0],
+                    hi: [b[0], b[1], b[2], 0.0],
+                },
+                _ => GpuBounds::UNBOUNDED,
+            })
+            .collect();
+        if object_bounds.is_empty() {
+            object_bounds.push(GpuBounds::UNBOUNDED);
+        }
         SceneData {
+            object_bounds,
             vertex_count: vertices.len() as u32,
             tangents,
             normal_mapped,

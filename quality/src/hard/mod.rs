@@ -128,6 +128,7 @@ const CASES: &[(&str, CaseFn)] = &[
     ("grazing-fin", shadow_maps::grazing_fin),
     ("deep-near", shadow_maps::deep_near),
     ("thin-poles", shadow_maps::thin_poles),
+    ("thin-house", shadow_maps::thin_house),
 ];
 
 /// Names of the hard cases `run_case` knows.

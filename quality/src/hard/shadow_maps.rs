@@ -118,6 +118,22 @@ fn thin_poles_with(full: bool, fixes: Fixes) -> Result<CaseReport, HardCaseError
     )
 }
 
+/// Case 18 (issue 46): `scenes/hard/thin_house.toml` — a closed house of 1 cm walls and roof,
+/// lit from outside at 30° through one window.
+pub fn thin_house(full: bool) -> Result<CaseReport, HardCaseError> {
+    thin_house_with(full, Fixes::ALL)
+}
+
+fn thin_house_with(full: bool, fixes: Fixes) -> Result<CaseReport, HardCaseError> {
+    whole_image_case(
+        "thin-house",
+        "thin_house.toml",
+        (full, fixes),
+        (320, 240),
+        Control::Fault(Fault::HugeBias),
+    )
+}
+
 /// Which of issue 22's fixes a render uses (all by default), so each can be measured alone.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Fixes {
@@ -127,6 +143,8 @@ pub struct Fixes {
     pub object_ids: bool,
     /// Shadow maps of this size instead of the scene's (to measure what resolution buys).
     pub map_size: Option<u32>,
+    /// Other objects' texels compared with the receiver's plane at their centre (issue 46).
+    pub receiver_plane: bool,
 }
 
 impl Fixes {
@@ -135,12 +153,14 @@ impl Fixes {
         cascades: true,
         object_ids: true,
         map_size: None,
+        receiver_plane: true,
     };
     /// The renderer before issue 22.
     pub const NONE: Fixes = Fixes {
         cascades: false,
         object_ids: false,
         map_size: None,
+        receiver_plane: false,
     };
 }
 
@@ -194,6 +214,8 @@ struct Score {
     /// Judged dark pixels the GPU lights, and the brightest of them against the brightest
     /// correctly lit radiance of the truth.
     lit: usize,
+    /// Those pixels' indices (for `LIGHTFOLD_HARD_DUMP`).
+    leaks: Vec<usize>,
     brightest: f64,
     non_finite: usize,
 }
@@ -216,11 +238,12 @@ fn render_radiance(
     samples: &[LightSample],
     opts: RenderOptions,
     fixes: Fixes,
-) -> Result<(Image, Image, u32), HardCaseError> {
+) -> Result<(Image, Image, u32, Vec<u32>), HardCaseError> {
     let err = |e: String| HardCaseError::Render { case, message: e };
     let mut r = Renderer::new(gpu, scene, opts).map_err(|e| err(e.to_string()))?;
     r.set_cascades(fixes.cascades);
     r.set_object_ids(fixes.object_ids);
+    r.set_receiver_plane(fixes.receiver_plane);
     let frame = r
         .render(gpu, samples, None, C_N, LayerSet::all())
         .map_err(|e| err(e.to_string()))?;
@@ -231,7 +254,12 @@ fn render_radiance(
     let radiance = frame
         .radiance(&illum, scene.ambient)
         .map_err(|e| err(e.to_string()))?;
-    Ok((illum, radiance, frame.stats.passes_per_light.iter().sum()))
+    Ok((
+        illum,
+        radiance,
+        frame.stats.passes_per_light.iter().sum(),
+        frame.stats.map_sides,
+    ))
 }
 
 fn score(
@@ -254,11 +282,12 @@ fn score(
         .copied()
         .filter(|v| v.is_finite())
         .fold(0f32, f32::max);
-    let (mut lit, mut brightest) = (0usize, 0f64);
+    let (mut lit, mut brightest, mut leaks) = (0usize, 0f64, Vec::new());
     for &i in &t.dark {
         let v = pixel_sum(illum, i);
         if v.is_nan() || v > LIT_SHARE * pixel_sum(&t.unshadowed, i) + ABS_TOL {
             lit += 1;
+            leaks.push(i);
         }
         let rgb = &radiance.data[i * 3..i * 3 + 3];
         brightest = brightest.max(f64::from(rgb.iter().copied().fold(0f32, f32::max)));
@@ -267,6 +296,7 @@ fn score(
         psnr: stats.psnr,
         energy_bias: stats.energy_bias,
         lit,
+        leaks,
         brightest: brightest / f64::from(peak).max(1e-30),
         non_finite: count_non_finite(&illum.data) + count_non_finite(&radiance.data),
     })
@@ -279,9 +309,23 @@ pub fn run_with(name: &str, full: bool, fixes: Fixes) -> Option<Result<CaseRepor
         "grazing-fin" => grazing_fin_with,
         "deep-near" => deep_near_with,
         "thin-poles" => thin_poles_with,
+        "thin-house" => thin_house_with,
         _ => return None,
     };
     Some(f(full, fixes))
+}
+
+/// The distinct map sides of a frame with their counts, largest first: "1024² ×4, 512² ×12".
+fn map_sides(sides: &[u32]) -> String {
+    let mut counts = std::collections::BTreeMap::<std::cmp::Reverse<u32>, usize>::new();
+    for &s in sides {
+        *counts.entry(std::cmp::Reverse(s)).or_default() += 1;
+    }
+    counts
+        .iter()
+        .map(|(s, n)| format!("{}² ×{n}", s.0))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 fn whole_image_case(
@@ -299,19 +343,29 @@ fn whole_image_case(
     if let Some(size) = fixes.map_size {
         opts = opts.fixed_maps(size);
     }
-    let (illum, radiance, passes) = render_radiance(case, &gpu, &scene, &samples, opts, fixes)?;
+    let (illum, radiance, passes, sides) =
+        render_radiance(case, &gpu, &scene, &samples, opts, fixes)?;
     let s = score(case, &scene, &t, &illum, &radiance)?;
     // For looking at a case: LIGHTFOLD_HARD_DUMP=DIR writes both images as PNG.
     if let Some(dir) = std::env::var_os("LIGHTFOLD_HARD_DUMP") {
         let dir = std::path::PathBuf::from(dir);
-        for (img, what) in [(&radiance, "gpu"), (&t.radiance, "truth")] {
+        // The judged dark pixels the renderer lights, in red over its image.
+        let mut leaks = radiance.clone();
+        for &i in &s.leaks {
+            leaks.data[i * 3..i * 3 + 3].copy_from_slice(&[1e3, 0.0, 0.0]);
+        }
+        for (img, what) in [
+            (&radiance, "gpu"),
+            (&t.radiance, "truth"),
+            (&leaks, "leaks"),
+        ] {
             let path = dir.join(format!("{case}-{what}.png"));
             if let Err(e) = img.write_png(&path, scene.exposure) {
                 tracing::warn!(path = %path.display(), "{e}");
             }
         }
     }
-    let (c_illum, c_radiance, _) =
+    let (c_illum, c_radiance, _, _) =
         render_radiance(case, &gpu, &scene, &samples, control.apply(opts), fixes)?;
     let c = score(case, &scene, &t, &c_illum, &c_radiance)?;
     let mut r = report(
@@ -335,8 +389,9 @@ fn whole_image_case(
     };
     r.details = vec![
         format!(
-            "{} samples, {passes} shadow passes, {} judged dark pixels",
+            "{} samples, {passes} shadow passes, map sides {}, {} judged dark pixels",
             samples.len(),
+            map_sides(&sides),
             t.dark.len()
         ),
         line("renderer", &s),
