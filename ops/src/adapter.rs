@@ -26,7 +26,7 @@ mod tests {
 
     #[test]
     fn software_rasterisers_are_named() {
-        // What lavapipe and llvmpipe report on Debian 12 (PLATFORM.md).
+        // What lavapipe and llvmpipe report on Debian 12 (docs/platform.md).
         assert!(is_software_rasteriser(
             "llvmpipe (LLVM 15.0.6, 256 bits)",
             false

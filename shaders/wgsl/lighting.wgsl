@@ -230,8 +230,10 @@ struct Receiver {
 }
 
 // Where texel c's centre ray meets the receiver's plane (through q with normal n), in the view's
-// frame: exact for a plane (receiver-plane depth bias). Not finite where the ray runs along it.
-fn plane_point(r: Receiver, c: vec2i) -> vec3f {
+// frame: exact for a plane (receiver-plane depth bias). w is 0 where the ray runs (nearly) along
+// the plane or meets it behind the light: no point (tested before dividing, not by NaN, which
+// shader compilers may assume away).
+fn plane_point(r: Receiver, c: vec2i) -> vec4f {
     let uv = (vec2f(c) + vec2f(0.5) - r.v.rect.xy) / r.v.rect.z;
     let ndc = vec2f(2.0 * uv.x - 1.0, 1.0 - 2.0 * uv.y);
     let a = r.v.proj_a;
@@ -240,12 +242,20 @@ fn plane_point(r: Receiver, c: vec2i) -> vec3f {
         // x = (ndc.x − a.y·z − a.z)/a.x at the receiver's z; the plane's z there.
         let x = (ndc.x - a.y * r.q.z - a.z) / a.x;
         let y = (ndc.y - b.x * r.q.z - b.y) / a.w;
-        return vec3f(x, y, r.q.z - (r.n.x * (x - r.q.x) + r.n.y * (y - r.q.y)) / r.n.z);
+        if abs(r.n.z) < 1e-4 {
+            return vec4f(0.0);
+        }
+        return vec4f(x, y, r.q.z - (r.n.x * (x - r.q.x) + r.n.y * (y - r.q.y)) / r.n.z, 1.0);
     }
     // Perspective: ndc = (a.x·x + a.y·z, a.w·y + b.x·z)/(−z), so the centre's tangent is
     // ((ndc.x + a.y)/a.x, (ndc.y + b.x)/a.w), and the plane's depth along it (n·q)/(n·(t, −1)).
     let d = vec3f((ndc.x + a.y) / a.x, (ndc.y + b.x) / a.w, -1.0);
-    return d * (dot(r.n, r.q) / dot(r.n, d));
+    let along = dot(r.n, d);
+    if abs(along) < 1e-4 * length(d) {
+        return vec4f(0.0);
+    }
+    let depth = dot(r.n, r.q) / along;
+    return vec4f(d * depth, select(0.0, 1.0, depth > 0.0));
 }
 
 struct Bounds {
@@ -300,10 +310,9 @@ fn texel_lit(r: Receiver, t: vec2i) -> vec2f {
         var plane = bound;
         if (frame.flags & FLAG_RECEIVER_PLANE) != 0u {
             let pv = plane_point(r, c);
-            let exact = pv.z - r.q.z;
-            if exact == exact && abs(exact) < 3.0e38 {
-                plane = clamp(exact, 0.0, bound);
-                let w = receiver_world(r, pv);
+            if pv.w > 0.0 {
+                plane = clamp(pv.z - r.q.z, 0.0, bound);
+                let w = receiver_world(r, pv.xyz);
                 if !in_object_box(r.object, w, r.base) || in_object_box(caster, w, r.base) {
                     counts = 0.0;
                 }

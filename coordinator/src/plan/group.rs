@@ -5,9 +5,9 @@
 use super::types::{DaemonSpec, ShadowPlan};
 use lightfold_scene::LightSample;
 
-/// Estimated cost of one light at 800×600 with one 512² shadow view (PLATFORM.md: ≈ 12 ms).
+/// Estimated cost of one light at 800×600 with one 512² shadow view (docs/platform.md: ≈ 12 ms).
 pub const DEFAULT_LIGHT_US: u64 = 12_000;
-/// Estimated fixed cost of a frame at 800×600: the eye pass and readback (PLATFORM.md: ≈ 60 ms).
+/// Estimated fixed cost of a frame at 800×600: the eye pass and readback (docs/platform.md: ≈ 60 ms).
 pub const DEFAULT_FIXED_US: u64 = 60_000;
 /// Pixels the default costs were measured at.
 const REFERENCE_PIXELS: f64 = 800.0 * 600.0;

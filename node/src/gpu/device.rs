@@ -132,7 +132,7 @@ pub fn parse_backend(value: &str) -> Result<wgpu::Backends, DeviceError> {
 }
 
 fn backend_rank(b: wgpu::Backend) -> u32 {
-    // GL misreads some texture arrays (PLATFORM.md): every native API comes first.
+    // GL misreads some texture arrays (docs/platform.md): every native API comes first.
     match b {
         wgpu::Backend::Vulkan | wgpu::Backend::Metal | wgpu::Backend::Dx12 => 0,
         wgpu::Backend::Gl => 1,
@@ -169,7 +169,7 @@ fn choose_adapter(opts: &GpuOptions) -> Result<wgpu::Adapter, DeviceError> {
         let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
         desc.backends = backends;
         // Debian's validation layers flag every SPIR-V module with a false "source language"
-        // error when DEBUG is on (PLATFORM.md); keep validation, drop the debug labels.
+        // error when DEBUG is on (docs/platform.md); keep validation, drop the debug labels.
         desc.flags =
             (wgpu::InstanceFlags::from_build_config() - wgpu::InstanceFlags::DEBUG).with_env();
         let instance = wgpu::Instance::new(desc);
@@ -344,7 +344,7 @@ impl Gpu {
         }
     }
 
-    /// True on the GL backend, whose texture arrays need padding (PLATFORM.md).
+    /// True on the GL backend, whose texture arrays need padding (docs/platform.md).
     pub fn is_gl(&self) -> bool {
         self.info.backend == wgpu::Backend::Gl
     }

@@ -70,6 +70,8 @@ pub struct Renderer {
     /// The eye pipelines' tangents, one per vertex where the scene is normal-mapped (else a
     /// placeholder no pipeline reads).
     tangents: wgpu::Buffer,
+    /// Each object's world box (`scene_data::GpuBounds`), posed with the meshes.
+    object_bounds: wgpu::Buffer,
     scene_bind_group: wgpu::BindGroup,
     camera: Camera,
     near: f32,
@@ -181,7 +183,7 @@ impl Renderer {
             bytemuck::cast_slice(&data.vertices)
         };
         let tbytes = tangent_bytes(&data.tangents);
-        let (vertices, tangents, materials, pbr, textures, texels, bounds) =
+        let (vertices, tangents, materials, pbr, textures, texels, object_bounds) =
             allocate(gpu, "the scene buffers", || {
                 (
                     init(
@@ -217,7 +219,7 @@ impl Renderer {
                     init(
                         "object bounds",
                         bytemuck::cast_slice(&data.object_bounds),
-                        wgpu::BufferUsages::STORAGE,
+                        wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
                     ),
                 )
             })?;
@@ -243,7 +245,7 @@ impl Renderer {
                 },
                 wgpu::BindGroupEntry {
                     binding: 4,
-                    resource: bounds.as_entire_binding(),
+                    resource: object_bounds.as_entire_binding(),
                 },
             ],
         });
@@ -272,6 +274,7 @@ impl Renderer {
             scene: data,
             vertices,
             tangents,
+            object_bounds,
             scene_bind_group,
             camera: scene.camera,
             near,
@@ -338,6 +341,12 @@ impl Renderer {
                 self.revisions[m] += 1;
             }
         }
+        // Same mesh count, so the same length: each object's box where its pose put it.
+        gpu.queue.write_buffer(
+            &self.object_bounds,
+            0,
+            bytemuck::cast_slice(&super::scene_data::object_bounds(&ranges)),
+        );
         if same_layout {
             if !vertices.is_empty() {
                 gpu.queue

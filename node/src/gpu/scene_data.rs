@@ -124,12 +124,30 @@ pub struct GpuBounds {
 }
 
 impl GpuBounds {
-    /// Bounds no point leaves (finite: WGSL may assume no infinities): an animated object's,
-    /// whose box moves from frame to frame.
+    /// Bounds no point leaves (finite: WGSL may assume no infinities).
     pub const UNBOUNDED: GpuBounds = GpuBounds {
         lo: [-3.0e38, -3.0e38, -3.0e38, 0.0],
         hi: [3.0e38, 3.0e38, 3.0e38, 0.0],
     };
+}
+
+/// Each mesh's bounds as the shader reads them, object − 1 for object; a mesh without a valid
+/// triangle holds every point (never a receiver). Never empty (storage bindings cannot be).
+pub fn object_bounds(meshes: &[MeshRange]) -> Vec<GpuBounds> {
+    let mut out: Vec<GpuBounds> = meshes
+        .iter()
+        .map(|m| match m.bounds {
+            Some((a, b)) => GpuBounds {
+                lo: [a[0], a[1], a[2], 0.0],
+                hi: [b[0], b[1], b[2], 0.0],
+            },
+            None => GpuBounds::UNBOUNDED,
+        })
+        .collect();
+    if out.is_empty() {
+        out.push(GpuBounds::UNBOUNDED);
+    }
+    out
 }
 
 /// The CPU-side arrays uploaded once per scene.
@@ -155,7 +173,8 @@ pub struct SceneData {
     pub texels: Vec<u32>,
     /// Length of the scene's bounding-box diagonal (1 for an empty scene).
     pub diagonal: f32,
-    /// Each object's bounds, object − 1 for object (never empty).
+    /// Each object's bounds, object − 1 for object (never empty); posed again with the meshes
+    /// (`Renderer::set_meshes`).
     pub object_bounds: Vec<GpuBounds>,
 }
 
@@ -218,20 +237,7 @@ impl SceneData {
         if texels.is_empty() {
             texels.push(0);
         }
-        // Posed meshes move: their boxes are not fixed for the scene.
-        let mut object_bounds: Vec<GpuBounds> = meshes
-            .iter()
-            .map(|m| match m.bounds {
-                Some((a, b)) if scene.animation.is_none() => GpuBounds {
-                    lo: [a[0], a[1], a[2], 0.0],
-                    hi: [b[0], b[1], b[2], 0.0],
-                },
-                _ => GpuBounds::UNBOUNDED,
-            })
-            .collect();
-        if object_bounds.is_empty() {
-            object_bounds.push(GpuBounds::UNBOUNDED);
-        }
+        let object_bounds = object_bounds(&meshes);
         SceneData {
             object_bounds,
             vertex_count: vertices.len() as u32,

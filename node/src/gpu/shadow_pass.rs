@@ -128,7 +128,7 @@ fn array_views(
 }
 
 /// Layers to allocate for `views` layers of maps. GL turns arrays of 1 layer or a multiple of 6 layers into
-/// a 2D texture or a cube map and misreads them (PLATFORM.md), so those counts get one spare layer
+/// a 2D texture or a cube map and misreads them (docs/platform.md), so those counts get one spare layer
 /// on every backend.
 pub fn layer_count(views: usize) -> u32 {
     let n = views.max(1) as u32;
