@@ -261,15 +261,39 @@ fn plane_point(r: Receiver, c: vec2i) -> vec4f {
 struct Bounds {
     lo: vec4f,
     hi: vec4f,
+    // The solid box the object fills, if it fills one (w 1): centre, and axes with their half
+    // extents in w.
+    center: vec4f,
+    axis_x: vec4f,
+    axis_y: vec4f,
+    axis_z: vec4f,
 }
 
-// Each object's axis-aligned world bounds, object − 1 for object; animated objects' hold every
-// point (node/src/gpu/scene_data.rs, `GpuBounds`).
+// Each object's axis-aligned world bounds, object − 1 for object, posed with the meshes, and the
+// oriented box it fills where it fills one (every triangle on a face of it: a wall, a tile, a
+// turned crate), so a point in that box is in the solid (node/src/gpu/scene_data.rs,
+// `GpuBounds`).
 @group(0) @binding(4) var<storage, read> object_bounds: array<Bounds>;
 
 // The world point of the receiver's view-frame point pv.
 fn receiver_world(r: Receiver, pv: vec3f) -> vec3f {
     return r.p + r.to_world * (pv - r.q);
+}
+
+// Whether world point w lies inside `object`'s solid: in the oriented box it fills, widened by
+// `margin` (a sphere's or a mesh's box holds air: never).
+fn in_solid_box(object: u32, w: vec3f, margin: f32) -> bool {
+    if object == 0u {
+        return false;
+    }
+    let b = object_bounds[min(object - 1u, arrayLength(&object_bounds) - 1u)];
+    if b.center.w < 0.5 {
+        return false;
+    }
+    let d = w - b.center.xyz;
+    return abs(dot(d, b.axis_x.xyz)) <= b.axis_x.w + margin
+        && abs(dot(d, b.axis_y.xyz)) <= b.axis_y.w + margin
+        && abs(dot(d, b.axis_z.xyz)) <= b.axis_z.w + margin;
 }
 
 // Whether world point w lies in `object`'s box widened by `margin` metres (object 0, no caster,
@@ -294,9 +318,11 @@ fn in_object_box(object: u32, w: vec3f, margin: f32) -> bool {
 // foot light the floor behind it). counts is 0, and the filter leaves the texel out, where that
 // plane point lies outside the receiver's own object's box — the texel is past the receiver's
 // edge (a wall's inside face where another wall closes the corner: the texels past that wall's
-// silhouette are the ground behind the house) — or inside the caster's box: the plane there
-// runs under the caster (the floor beneath a box standing on it, whose texels would otherwise
-// darken the lit floor at its foot by the filter's width).
+// silhouette are the ground behind the house) — or inside the caster's solid, where the caster
+// fills its box: the plane there runs under the caster (the floor beneath a box standing on
+// it, whose texels would otherwise darken the lit floor at its foot by the filter's width). A
+// caster that does not fill its box (a sphere, a mesh) never counts as holding the plane: its
+// box also holds air, where its texels shadow the plane rightly (the floor beneath a ball).
 fn texel_lit(r: Receiver, t: vec2i) -> vec2f {
     let lo = vec2i(r.v.rect.xy);
     let c = clamp(t, lo, lo + vec2i(i32(r.v.rect.z) - 1));
@@ -313,7 +339,7 @@ fn texel_lit(r: Receiver, t: vec2i) -> vec2f {
             if pv.w > 0.0 {
                 plane = clamp(pv.z - r.q.z, 0.0, bound);
                 let w = receiver_world(r, pv.xyz);
-                if !in_object_box(r.object, w, r.base) || in_object_box(caster, w, r.base) {
+                if !in_object_box(r.object, w, r.base) || in_solid_box(caster, w, r.base) {
                     counts = 0.0;
                 }
             }

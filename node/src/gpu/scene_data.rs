@@ -110,17 +110,33 @@ pub struct MeshRange {
     pub translucent: bool,
     /// Bounds of the mesh's referenced positions, `None` when it has no valid triangle.
     pub bounds: Option<(V3, V3)>,
+    /// The mesh's own box where it is one (every triangle on a face of a box of any
+    /// orientation: a wall, a tile, a turned crate), so a point in that box is in the solid.
+    pub solid: Option<SolidBox>,
 }
 
-/// One object's axis-aligned bounds as the lighting shader reads them (`object_bounds`, indexed
-/// by object − 1): where a receiver's plane, carried to another object's texel, leaves the
-/// receiver's own object's box, that texel tells nothing about the receiver, and the filter does
-/// not count it (`texel_lit`; docs/hard-cases.md, case 18).
+/// An oriented box a mesh fills: centre, three orthonormal axes and the half extent along each.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SolidBox {
+    pub center: V3,
+    pub axes: [V3; 3],
+    pub half: V3,
+}
+
+/// One object's bounds as the lighting shader reads them (`object_bounds`, indexed by
+/// object − 1): where a receiver's plane, carried to another object's texel, leaves the
+/// receiver's own object's axis-aligned box, or enters the solid box the caster fills, that
+/// texel tells nothing about the receiver, and the filter does not count it (`texel_lit`;
+/// docs/hard-cases.md, case 18).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
 pub struct GpuBounds {
     pub lo: [f32; 4],
     pub hi: [f32; 4],
+    /// The solid box (`MeshRange::solid`): its centre, w 1 where there is one (else all 0).
+    pub center: [f32; 4],
+    /// Its axes, each with its half extent in w.
+    pub axes: [[f32; 4]; 3],
 }
 
 impl GpuBounds {
@@ -128,19 +144,36 @@ impl GpuBounds {
     pub const UNBOUNDED: GpuBounds = GpuBounds {
         lo: [-3.0e38, -3.0e38, -3.0e38, 0.0],
         hi: [3.0e38, 3.0e38, 3.0e38, 0.0],
+        center: [0.0; 4],
+        axes: [[0.0; 4]; 3],
     };
 }
 
-/// Each mesh's bounds as the shader reads them, object − 1 for object; a mesh without a valid
-/// triangle holds every point (never a receiver). Never empty (storage bindings cannot be).
+/// Each mesh's bounds as the shader reads them, object − 1 for object, with the solid box it
+/// fills where it fills one; a mesh without a valid triangle holds every point (never a
+/// receiver). Never empty (storage bindings cannot be).
 pub fn object_bounds(meshes: &[MeshRange]) -> Vec<GpuBounds> {
     let mut out: Vec<GpuBounds> = meshes
         .iter()
         .map(|m| match m.bounds {
-            Some((a, b)) => GpuBounds {
-                lo: [a[0], a[1], a[2], 0.0],
-                hi: [b[0], b[1], b[2], 0.0],
-            },
+            Some((a, b)) => {
+                let (center, axes) = match m.solid {
+                    Some(s) => (
+                        [s.center[0], s.center[1], s.center[2], 1.0],
+                        std::array::from_fn(|k| {
+                            let a = s.axes[k];
+                            [a[0], a[1], a[2], s.half[k]]
+                        }),
+                    ),
+                    None => ([0.0; 4], [[0.0; 4]; 3]),
+                };
+                GpuBounds {
+                    lo: [a[0], a[1], a[2], 0.0],
+                    hi: [b[0], b[1], b[2], 0.0],
+                    center,
+                    axes,
+                }
+            }
             None => GpuBounds::UNBOUNDED,
         })
         .collect();
@@ -340,15 +373,67 @@ fn triangles(
         }
         let vertex_count = vertices.len() as u32 - first_vertex;
         let bounds = (vertex_count > 0).then_some((mlo, mhi));
+        let solid = solid_box(&vertices[first_vertex as usize..]);
         meshes.push(MeshRange {
             first_vertex,
             vertex_count,
             masked,
             translucent,
             bounds,
+            solid,
         });
     }
     (vertices, tangents, meshes)
+}
+
+/// The box `vertices` (three at a time, each with its triangle's geometric normal) fill, if they
+/// fill one: their triangles face exactly three orthogonal directions (either way), and each
+/// triangle lies in the box's face plane on its own axis (to a millionth of the box's size).
+fn solid_box(vertices: &[Vertex]) -> Option<SolidBox> {
+    let dot = |a: V3, b: V3| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let mut axes: Vec<V3> = Vec::with_capacity(3);
+    let mut axis_of = Vec::with_capacity(vertices.len() / 3);
+    for t in vertices.chunks_exact(3) {
+        let n = t[0].geometric_normal;
+        let k = match axes.iter().position(|a| dot(*a, n).abs() > 0.9999) {
+            Some(k) => k,
+            None if axes.len() < 3 => {
+                axes.push(n);
+                axes.len() - 1
+            }
+            None => return None,
+        };
+        axis_of.push(k);
+    }
+    if axes.len() != 3 || (0..3).any(|i| dot(axes[i], axes[(i + 1) % 3]).abs() > 1e-4) {
+        return None;
+    }
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for v in vertices {
+        for k in 0..3 {
+            let d = dot(axes[k], v.position);
+            lo[k] = lo[k].min(d);
+            hi[k] = hi[k].max(d);
+        }
+    }
+    let size = (0..3).map(|k| hi[k] - lo[k]).fold(0.0f32, f32::max);
+    let eps =
+        1e-6 * size.max(1e-3) + 1e-6 * lo.iter().chain(&hi).fold(0.0f32, |m, x| m.max(x.abs()));
+    let on_face = vertices.chunks_exact(3).zip(&axis_of).all(|(t, &k)| {
+        [lo[k], hi[k]].iter().any(|&face| {
+            t.iter()
+                .all(|v| (dot(axes[k], v.position) - face).abs() <= eps)
+        })
+    });
+    if !on_face {
+        return None;
+    }
+    let mid: V3 = std::array::from_fn(|k| 0.5 * (lo[k] + hi[k]));
+    Some(SolidBox {
+        center: std::array::from_fn(|c| (0..3).map(|k| axes[k][c] * mid[k]).sum()),
+        axes: [axes[0], axes[1], axes[2]],
+        half: std::array::from_fn(|k| 0.5 * (hi[k] - lo[k])),
+    })
 }
 
 fn gpu_material(m: &Material, texture_count: usize) -> (GpuMaterial, GpuPbr) {
@@ -447,6 +532,7 @@ mod tests {
         assert_eq!(std::mem::size_of::<GpuMaterial>(), 96);
         assert_eq!(std::mem::size_of::<GpuPbr>(), 48);
         assert_eq!(std::mem::size_of::<GpuTexture>(), 16);
+        assert_eq!(std::mem::size_of::<GpuBounds>(), 96);
     }
 
     #[test]
@@ -491,5 +577,50 @@ mod tests {
         }
         assert_eq!(d.meshes[0].vertex_count, 6);
         assert_eq!(d.receivers().len(), 1);
+    }
+
+    /// The solid box of a mesh: a box of any orientation fills one, with its own half extents;
+    /// a plane, a sphere, and a box with one face pushed off it do not.
+    #[test]
+    fn boxes_fill_their_oriented_box_and_nothing_else_does() {
+        let (material, pbr) = gpu_material(&Material::diffuse("m", [1.0; 3]), 0);
+        let expand =
+            |mesh: &Mesh| triangles(std::slice::from_ref(mesh), &[material], &[pbr], 0, false).2;
+        let solid = |mesh: &Mesh| expand(mesh)[0].solid;
+        let mut turned =
+            lightfold_scene::primitives::cuboid("b", [1.0, 2.0, 3.0], [0.5, 0.25, 2.0], 0);
+        // A quarter turn about y, then 30° more: the box is no longer axis-aligned.
+        let (c, s) = (30f32.to_radians().cos(), 30f32.to_radians().sin());
+        for p in &mut turned.positions {
+            let (x, z) = (p[0] - 1.0, p[2] - 3.0);
+            (p[0], p[2]) = (1.0 + c * x + s * z, 3.0 - s * x + c * z);
+        }
+        let b = solid(&turned).expect("a turned box fills its box");
+        for k in 0..3 {
+            assert!((b.center[k] - [1.0, 2.0, 3.0][k]).abs() < 1e-5, "{b:?}");
+        }
+        let mut half = b.half;
+        half.sort_by(f32::total_cmp);
+        for (h, want) in half.iter().zip([0.25, 0.5, 2.0]) {
+            assert!((h - want).abs() < 1e-5, "{b:?}");
+        }
+        assert_eq!(
+            solid(&plane(
+                "p",
+                [0.0; 3],
+                [0.0, 1.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [2.0; 2],
+                1,
+                0
+            )),
+            None
+        );
+        let ball = lightfold_scene::primitives::sphere("s", [0.0; 3], 1.0, 16, 8, 0);
+        assert_eq!(solid(&ball), None);
+        // Negative control: one corner pushed out of its faces' planes.
+        let mut bent = lightfold_scene::primitives::cuboid("b", [0.0; 3], [1.0; 3], 0);
+        bent.positions[0][0] += 0.1;
+        assert_eq!(solid(&bent), None);
     }
 }
