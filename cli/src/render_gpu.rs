@@ -346,9 +346,11 @@ fn render_frame(
     let depth = layer(&m.depth, "depth")?;
     if penumbra > 0 {
         // The last stage's filter, as a cluster planned with the same radius applies it.
-        illumination.data = lightfold_compositor::ops::penumbra::filter_frame(
+        use lightfold_compositor::ops::penumbra as filter;
+        illumination.data = filter::filter_frame(
             w,
             penumbra,
+            Some(filter::crease_tolerance(scene.camera.fov_y_deg, h)),
             &illumination.data,
             &depth.data,
         )?;

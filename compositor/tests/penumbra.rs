@@ -139,6 +139,83 @@ fn no_blur_across_silhouettes_or_creases_and_a_box_filter_fails() {
     assert!(e.starts_with("silhouette"), "{e}");
 }
 
+/// A shallow crease as an 800×600 camera sees it (focal 724 px, 45° field of view): two faces of a
+/// low-poly body 14° apart meeting at one depth, lit differently. The plane prediction misses a
+/// tap across it by only its slope change times the distance (0.03 % of 1/z a pixel, under the
+/// depth tolerance), so without the crease test the filter blurs the faces into each other; with
+/// the tolerance the planner gives that camera it keeps each face's own value.
+#[test]
+fn a_shallow_crease_stops_the_filter_that_the_plane_test_alone_blurs() {
+    let (w, h, f) = (40, 30, 724.0);
+    let (left, right) = (
+        plane_depth(w, h, [0.0, 0.0, 0.25], f),
+        // Tilted by 14° about the vertical, through the same depth at the crease, between
+        // pixels 19 and 20 (u = −0.5: a pixel centred exactly on a crease lies on both faces).
+        plane_depth(
+            w,
+            h,
+            [-0.25 * 0.2493, 0.0, 0.25 - 0.25 * 0.2493 * 0.5 / f],
+            f,
+        ),
+    );
+    let depth: Vec<f32> = (0..w * h)
+        .map(|p| if p % w < 20 { left[p] } else { right[p] })
+        .collect();
+    let il = illumination(w, h, |x, _| if x < 20 { 0.3 } else { 0.9 });
+    let crease = ops::penumbra::crease_tolerance(45.0, 600);
+    let with = filter(w, json!({ "radius": 3, "crease_tolerance": crease }));
+    let without = filter(w, json!({ "radius": 3 }));
+    let (a, b) = (
+        filtered(&*with, &inputs(il.clone(), depth.clone())),
+        filtered(&*without, &inputs(il.clone(), depth)),
+    );
+    let changed = |out: &[f32]| (0..il.len()).filter(|&k| !close(out[k], il[k])).count();
+    assert_eq!(changed(&a), 0, "the crease test keeps each face to itself");
+    // Negative control: the plane test alone blurs the pixels next to the crease.
+    assert!(changed(&b) > 0, "the plane test alone sees the 14° crease");
+}
+
+/// The crease test leaves a smooth curved surface to the filter: a cylinder of 0.3 m radius 3 m
+/// away, seen by the same camera, is averaged like a plane (its normal turns 0.8° a pixel).
+#[test]
+fn a_smooth_curved_surface_is_still_averaged() {
+    let (w, h, f) = (40, 30, 724.0f32);
+    let (radius, distance) = (0.3f32, 3.0f32);
+    // A vertical cylinder (axis along y) at x = 0, z = distance: the eye ray through column u
+    // meets it at the nearer root of |t·(u/f, 1) − (0, distance)| = radius (in x and z).
+    let depth: Vec<f32> = (0..w * h)
+        .map(|p| {
+            let u = (p % w) as f32 - w as f32 / 2.0;
+            let d = [u / f, 1.0];
+            let (a, b, c) = (
+                d[0] * d[0] + d[1] * d[1],
+                -2.0 * distance * d[1],
+                distance * distance - radius * radius,
+            );
+            (-b - (b * b - 4.0 * a * c).sqrt()) / (2.0 * a)
+        })
+        .collect();
+    // A step of illumination down the middle: a penumbra on the cylinder.
+    let il = illumination(w, h, |x, _| if x < 20 { 0.2 } else { 0.8 });
+    let crease = ops::penumbra::crease_tolerance(45.0, 600);
+    let with = filter(w, json!({ "radius": 2, "crease_tolerance": crease }));
+    let without = filter(w, json!({ "radius": 2 }));
+    let a = filtered(&*with, &inputs(il.clone(), depth.clone()));
+    let b = filtered(&*without, &inputs(il, depth));
+    assert_same_bits_f32(
+        &a,
+        &b,
+        "a smooth cylinder filters as without the crease test",
+    );
+}
+
+fn assert_same_bits_f32(a: &[f32], b: &[f32], what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}: length");
+    for (k, (x, y)) in a.iter().zip(b).enumerate() {
+        assert_eq!(x.to_bits(), y.to_bits(), "{what}: value {k}: {x} vs {y}");
+    }
+}
+
 #[test]
 fn a_tilted_plane_is_averaged_over_the_whole_window() {
     // A receiver seen at a slant (1/z changes by 3 % a pixel across): every tap of a 7×7
@@ -267,10 +344,28 @@ fn bands_with_their_halo_give_the_whole_frames_bits() {
             }
         })
         .collect();
-    for radius in [1, 3, 5] {
-        let op = filter(w, json!({ "radius": radius, "specular": true }));
+    // With the crease test (a tolerance the tilted plane's slopes meet and the gaps' do not) a
+    // tap's own slope is read too: two more rows of halo.
+    for (radius, crease) in [
+        (1, None),
+        (3, None),
+        (5, None),
+        (1, Some(0.05)),
+        (3, Some(0.05)),
+    ] {
+        let mut params = json!({ "radius": radius, "specular": true });
+        if let Some(t) = crease {
+            params["crease_tolerance"] = json!(t);
+        }
+        let op = filter(w, params);
         let whole = filtered(&*op, &inputs(il.clone(), depth.clone()));
-        let halo = radius.max(2);
+        let halo = ops::penumbra::halo_rows(radius, crease.is_some()) as usize;
+        let want = if crease.is_some() {
+            radius + 2
+        } else {
+            radius.max(2)
+        };
+        assert_eq!(halo, want as usize);
         for band in [halo, 4, 7, 16] {
             if band < halo {
                 continue;
@@ -278,7 +373,11 @@ fn bands_with_their_halo_give_the_whole_frames_bits() {
             let got = banded(&*op, &il, &depth, w, band, halo);
             assert_eq!(got.len(), whole.len());
             for (k, (g, x)) in got.iter().zip(&whole).enumerate() {
-                assert_eq!(g.to_bits(), x.to_bits(), "r={radius} band={band} value {k}");
+                assert_eq!(
+                    g.to_bits(),
+                    x.to_bits(),
+                    "r={radius} crease={crease:?} band={band} value {k}"
+                );
             }
             // Negative control: without the halo the band edges differ.
             let cut = banded(&*op, &il, &depth, w, band, 0);
@@ -310,6 +409,8 @@ fn fast_matches_reference_on_hostile_values() {
                 json!({ "width": w }),
                 json!({ "width": w, "kernel": "box", "radius": 2 }),
                 json!({ "width": w, "radius": 8, "specular": true, "depth_tolerance": 0.5 }),
+                json!({ "width": w, "radius": 3, "crease_tolerance": 1e-4 }),
+                json!({ "width": w, "crease_tolerance": 3.0e38, "depth_tolerance": 1e30 }),
             ] {
                 let op = ops::create("penumbra", &params).unwrap();
                 let out = filtered(&*op, &inputs(il.clone(), depth.clone()));
@@ -328,6 +429,9 @@ fn parameters_and_band_shape_are_checked() {
         json!({ "width": 8, "radius": 9 }),
         json!({ "width": 8, "depth_tolerance": 0.0 }),
         json!({ "width": 8, "depth_tolerance": -1.0 }),
+        json!({ "width": 8, "crease_tolerance": 0.0 }),
+        json!({ "width": 8, "crease_tolerance": -1e-4 }),
+        json!({ "width": 8, "crease_tolerance": "flat" }),
         json!({ "width": 8, "blur": 1 }),
         json!({ "width": 8, "kernel": "gauss" }),
     ] {

@@ -13,7 +13,11 @@
 //! where the surface goes on as a plane (two pixels each way, the smaller second difference), so
 //! a pixel on a silhouette or a crease takes its slope from its own side.
 //! This is the normal-aware part: the plane is the surface's tangent plane as the depth layer
-//! gives it, so no normal layer travels. Background pixels (depth 0, or not finite and positive)
+//! gives it, so no normal layer travels. A crease whose faces meet at one depth and differ by
+//! a few degrees (the facets of a low-poly body) misses the prediction only by its slope change
+//! times the distance, under `depth_tolerance` for the nearest taps; so with `crease_tolerance`
+//! (the planner always gives it: [`crease_tolerance`] of the camera, [`CREASE_DEG`]) a tap also
+//! needs its own slope, relative to its 1/z, within that of the pixel's. Background pixels (depth 0, or not finite and positive)
 //! are left as they are and never counted.
 //!
 //! Input 0 carries the illumination (diffuse RGB, specular RGB), input 1 the depth layer (eye
@@ -46,6 +50,27 @@ pub const MAX_RADIUS: u32 = 8;
 pub const DEFAULT_RADIUS: u32 = 3;
 /// Default tolerance on the plane prediction, relative to the pixel's inverse depth.
 pub const DEFAULT_DEPTH_TOLERANCE: f32 = 0.002;
+/// The crease a planned filter stops at: taps on a face whose plane differs from the pixel's by
+/// this much, as the camera sees it, weigh nothing; by half as much or less, fully
+/// (`crease_tolerance`).
+pub const CREASE_DEG: f32 = 12.0;
+
+/// `crease_tolerance` for a pinhole camera of vertical field of view `fov_y_deg` over `height`
+/// pixels: tan([`CREASE_DEG`]) over the focal length in pixels. A plane with camera-space normal
+/// n has 1/z = (n·(u/f, v/f, 1))/k, so its relative slope per pixel g/(1/z) is
+/// (n_x, n_y)/(f·n·ray): two faces of a crease differ there by about tan(angle)/f.
+pub fn crease_tolerance(fov_y_deg: f32, height: u32) -> f32 {
+    let focal = 0.5 * height.max(1) as f32 / (0.5 * fov_y_deg.to_radians()).tan();
+    CREASE_DEG.to_radians().tan() / focal
+}
+
+/// Rows of each neighbouring band a band needs for a filter of `radius` to give the whole
+/// frame's values: the radius, and at least the two rows a pixel's slope is read from; with the
+/// crease test (`crease`), two more, for the slopes of the taps `radius` rows away.
+pub fn halo_rows(radius: u32, crease: bool) -> u32 {
+    if crease { radius + 2 } else { radius.max(2) }
+}
+
 /// Rows below which a band is filtered on the calling thread. A stage's bands are a few tens of
 /// rows, each row thousands of taps: rows go to the stage's compute pool from a handful on (one
 /// 1080p band on one thread made the filter the slowest stage on a 16-core GPU machine).
@@ -68,6 +93,13 @@ struct Params {
     radius: u32,
     #[serde(default = "default_tolerance")]
     depth_tolerance: f32,
+    /// Largest difference of relative slope (per pixel, of 1/z over 1/z) between a pixel and a
+    /// tap on its plane: a tap on another face of a crease whose depth goes on smoothly differs
+    /// by the crease's angle over the focal length ([`crease_tolerance`]). Absent: no crease
+    /// test (the plane prediction alone, which sees a crease only by its slope change times the
+    /// distance, beyond `depth_tolerance`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    crease_tolerance: Option<f32>,
     #[serde(default)]
     specular: bool,
     #[serde(default)]
@@ -115,6 +147,13 @@ impl Penumbra {
                 p.depth_tolerance
             )));
         }
+        if let Some(t) = p.crease_tolerance
+            && !(t.is_finite() && t > 0.0)
+        {
+            return Err(bad(format!(
+                "crease_tolerance must be finite and positive, got {t}"
+            )));
+        }
         Ok(Penumbra { params: p })
     }
 
@@ -123,10 +162,10 @@ impl Penumbra {
         self.params.radius
     }
 
-    /// Rows of each neighbouring band a band needs to be filtered as the whole frame would be:
-    /// the radius, and at least the two rows the plane's slope is read from.
+    /// Rows of each neighbouring band a band needs to be filtered as the whole frame would be
+    /// ([`halo_rows`]).
     pub fn halo(&self) -> u32 {
-        self.params.radius.max(2)
+        halo_rows(self.params.radius, self.params.crease_tolerance.is_some())
     }
 
     /// The row length this operator reads bands with.
@@ -143,6 +182,11 @@ impl Penumbra {
                 ((r - dx.abs()) * (r - dy.abs())) as f32
             }
         }
+    }
+
+    /// The crease test's tolerance, infinite where there is none (every tap passes it).
+    fn crease(&self) -> f32 {
+        self.params.crease_tolerance.unwrap_or(f32::INFINITY)
     }
 
     /// Channels filtered per pixel (3: diffuse only; 6: diffuse and specular).
@@ -166,14 +210,21 @@ impl Penumbra {
 
 /// The filter over one whole frame `width` pixels wide: `illumination` (6 channels a pixel) and
 /// `depth` (1) in, the filtered illumination out, as a last stage gives it band by band. What
-/// `lightfold render` and the accuracy sweep apply after a single-device render.
+/// `lightfold render` and the accuracy sweep apply after a single-device render, with the
+/// crease test the planner gives a cluster's filter (`crease`: [`crease_tolerance`] of the
+/// camera).
 pub fn filter_frame(
     width: u32,
     radius: u32,
+    crease: Option<f32>,
     illumination: &[f32],
     depth: &[f32],
 ) -> Result<Vec<f32>, OpError> {
-    let op = Penumbra::new(&serde_json::json!({ "width": width, "radius": radius }))?;
+    let mut params = serde_json::json!({ "width": width, "radius": radius });
+    if let Some(t) = crease {
+        params["crease_tolerance"] = serde_json::json!(t);
+    }
+    let op = Penumbra::new(&params)?;
     let pixels = depth.len();
     let mut out = vec![0.0; pixels * 6];
     let views = [
@@ -227,6 +278,26 @@ fn slope(c: f32, a: f32, aa: f32, b: f32, bb: f32) -> f32 {
     }
 }
 
+/// How much a tap of inverse depth `q` and slopes (`qx`, `qy`) counts as the pixel's own face
+/// (`c`; `gx`, `gy`), from the larger difference of their relative slopes g/(1/z) per axis,
+/// e = max|qx·c − gx·q| / (c·q) (compared without dividing): 1 up to half of `crease`, 0 from
+/// `crease` on, linear between — so a tap near the limit does not flip the pixel's value on a
+/// rounding of its depth (a cluster's depth and a single device's may differ in the last bit).
+/// Not finite (an extreme depth) weighs 1, as the plane test keeps it.
+#[inline]
+fn face_weight(gx: f32, gy: f32, c: f32, qx: f32, qy: f32, q: f32, crease: f32) -> f32 {
+    let limit = crease * c * q;
+    let e = (qx * c - gx * q).abs().max((qy * c - gy * q).abs());
+    #[allow(clippy::neg_cmp_op_on_partial_ord)]
+    if !(2.0 * e > limit) {
+        1.0
+    } else if e >= limit {
+        0.0
+    } else {
+        2.0 - 2.0 * e / limit
+    }
+}
+
 impl Operator for Penumbra {
     fn name(&self) -> &'static str {
         NAME
@@ -255,6 +326,7 @@ impl Operator for Penumbra {
         let dst = out.layer_mut(Layer::Illumination).expect("checked");
         let (w, r) = (self.params.width as usize, self.params.radius as i64);
         let tol = self.params.depth_tolerance;
+        let crease = self.crease();
         let nf = self.filtered();
         let at = |x: i64, y: i64| -> f32 {
             if x < 0 || y < 0 || x >= w as i64 || y >= rows as i64 {
@@ -273,8 +345,13 @@ impl Operator for Penumbra {
                 if c <= 0.0 {
                     continue;
                 }
-                let gx = slope(c, at(x - 1, y), at(x - 2, y), at(x + 1, y), at(x + 2, y));
-                let gy = slope(c, at(x, y - 1), at(x, y - 2), at(x, y + 1), at(x, y + 2));
+                let slopes = |x: i64, y: i64, c: f32| {
+                    (
+                        slope(c, at(x - 1, y), at(x - 2, y), at(x + 1, y), at(x + 2, y)),
+                        slope(c, at(x, y - 1), at(x, y - 2), at(x, y + 1), at(x, y + 2)),
+                    )
+                };
+                let (gx, gy) = slopes(x, y, c);
                 let limit = tol * c;
                 let mut sum = [0.0f32; 6];
                 let mut n = 0.0f32;
@@ -288,8 +365,10 @@ impl Operator for Penumbra {
                         if (q - predicted).abs() > limit {
                             continue;
                         }
+                        let (qx, qy) = slopes(x + dx, y + dy, q);
+                        let face = face_weight(gx, gy, c, qx, qy, q, crease);
                         let k = ((y + dy) as usize * w + (x + dx) as usize) * 6;
-                        let wt = self.weight(dx, dy);
+                        let wt = self.weight(dx, dy) * face;
                         for (s, v) in sum.iter_mut().zip(&il[k..k + nf]) {
                             *s += wt * sanitize(*v);
                         }
@@ -311,6 +390,7 @@ impl Operator for Penumbra {
         let w = self.params.width as usize;
         let r = self.params.radius as usize;
         let tol = self.params.depth_tolerance;
+        let crease = self.crease();
         let nf = self.filtered();
         // Inverse depth with a border of `pad` zeros (background: never counted), so neighbours
         // and taps read without bounds tests; and the plane's slopes, once per pixel.
@@ -323,14 +403,15 @@ impl Operator for Penumbra {
                 *o = inverse(*z);
             }
         }
-        let mut gxs = vec![0.0f32; rows * w];
-        let mut gys = vec![0.0f32; rows * w];
+        // Slopes in the same padded layout, so a tap's own slopes read like its depth.
+        let mut gxs = vec![0.0f32; inv.len()];
+        let mut gys = vec![0.0f32; inv.len()];
         for y in 0..rows {
             for x in 0..w {
                 let i = (y + pad) * pw + x + pad;
                 let c = inv[i];
-                gxs[y * w + x] = slope(c, inv[i - 1], inv[i - 2], inv[i + 1], inv[i + 2]);
-                gys[y * w + x] = slope(
+                gxs[i] = slope(c, inv[i - 1], inv[i - 2], inv[i + 1], inv[i + 2]);
+                gys[i] = slope(
                     c,
                     inv[i - pw],
                     inv[i - 2 * pw],
@@ -360,8 +441,9 @@ impl Operator for Penumbra {
         // the non-negative sums), so the bits are the reference's.
         let row = |y: usize, line: &mut [f32]| {
             let at = y * w;
-            let (gx, gy) = (&gxs[at..at + w], &gys[at..at + w]);
-            let c = &inv[(y + pad) * pw + pad..(y + pad) * pw + pad + w];
+            let own = (y + pad) * pw + pad..(y + pad) * pw + pad + w;
+            let (gx, gy) = (&gxs[own.clone()], &gys[own.clone()]);
+            let c = &inv[own];
             let mut n = vec![0.0f32; w];
             let mut m = vec![0.0f32; w];
             let mut sums = vec![vec![0.0f32; w]; nf];
@@ -371,15 +453,21 @@ impl Operator for Penumbra {
                     let wt = weights[(qy + r - y) * side + (dxi + r as isize) as usize];
                     let dx = dxi as f32;
                     let start = ((qy + pad) * pw) as isize + pad as isize + dxi;
-                    let qinv = &inv[start as usize..start as usize + w];
+                    let taps = start as usize..start as usize + w;
+                    let qinv = &inv[taps.clone()];
+                    let (qgx, qgy) = (&gxs[taps.clone()], &gys[taps]);
                     for x in 0..w {
                         let q = qinv[x];
-                        // The reference's `c + gx·dx + gy·dy` and its test, as written there
+                        // The reference's `c + gx·dx + gy·dy` and its tests, as written there
                         // (negated: a NaN prediction, from extreme depths, is kept in both).
                         let predicted = c[x] + gx[x] * dx + gy[x] * dy;
                         #[allow(clippy::neg_cmp_op_on_partial_ord)]
                         let keep = q > 0.0 && !((q - predicted).abs() > tol * c[x]);
-                        m[x] = if keep { wt } else { 0.0 };
+                        m[x] = if keep {
+                            wt * face_weight(gx[x], gy[x], c[x], qgx[x], qgy[x], q, crease)
+                        } else {
+                            0.0
+                        };
                         n[x] += m[x];
                     }
                     // The pixels whose tap dxi lies in the row (off it, m is 0: the padding).

@@ -494,10 +494,19 @@ fn plan_once(
     };
     let penumbra = (radius > 0).then(|| {
         material_layers.push((Layer::Depth, PixelFormat::DepthF32));
-        serde_json::json!({ "width": cam.width, "radius": radius })
+        serde_json::json!({
+            "width": cam.width,
+            "radius": radius,
+            "crease_tolerance": lightfold_compositor::ops::penumbra::crease_tolerance(
+                cam.fov_y_deg,
+                cam.height,
+            ),
+        })
     });
     let band_height = if penumbra.is_some() {
-        options.band_height.max(radius.max(2))
+        options
+            .band_height
+            .max(lightfold_compositor::ops::penumbra::halo_rows(radius, true))
     } else {
         options.band_height
     };

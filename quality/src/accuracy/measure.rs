@@ -92,7 +92,8 @@ pub fn measure_group(
         if s.penumbra > 0 {
             // The compositor's filter, timed as one more node's work.
             let t = Instant::now();
-            illumination = penumbra_filter(&frames[0].0, &illumination, s.penumbra).map_err(err)?;
+            illumination =
+                penumbra_filter(&scene, &frames[0].0, &illumination, s.penumbra).map_err(err)?;
             node_seconds.push(t.elapsed().as_secs_f64());
         }
         let image = radiance(&scene, &frames[0].0, &illumination).map_err(err)?;
@@ -128,12 +129,13 @@ fn through_link(
 }
 
 /// The compositor's `penumbra` operator of `radius` over a whole frame of illumination, with the
-/// first node's depth layer.
-fn penumbra_filter(m: &NodeFrame, il: &Image, radius: u32) -> Result<Image, String> {
+/// first node's depth layer and the crease test the planner gives it for the scene's camera.
+fn penumbra_filter(scene: &Scene, m: &NodeFrame, il: &Image, radius: u32) -> Result<Image, String> {
+    use lightfold_compositor::ops::penumbra;
     let depth = m.depth.as_ref().ok_or("depth layer missing")?;
-    let data =
-        lightfold_compositor::ops::penumbra::filter_frame(il.width, radius, &il.data, &depth.data)
-            .map_err(|e| e.to_string())?;
+    let crease = penumbra::crease_tolerance(scene.camera.fov_y_deg, scene.camera.height);
+    let data = penumbra::filter_frame(il.width, radius, Some(crease), &il.data, &depth.data)
+        .map_err(|e| e.to_string())?;
     Ok(Image {
         data,
         ..Image::new(il.width, il.height, 6)
