@@ -343,11 +343,22 @@ fn operators(c: &mut Criterion) {
             let plane: Vec<f32> = (0..px)
                 .map(|p| 1.0 / (0.05 + 1e-4 * (p / w) as f32 + 2e-5 * (p % w) as f32))
                 .collect();
+            // `_crease`: with the crease test the planner gives a 45° camera of this height
+            // (every tap on the plane passes it: its costliest case too).
+            let crease = ops::penumbra::crease_tolerance(45.0, (px / w) as u32);
             for radius in [1, 2] {
-                let op = ops::create("penumbra", &json!({"width": w, "radius": radius})).unwrap();
                 let inputs = [ill(px, &d.up), BandView::new(px).with(Layer::Depth, &plane)];
-                let name = format!("penumbra_r{radius}");
-                bench_op(&mut g, &pool, &name, &*op, &inputs, px, false);
+                for (suffix, params) in [
+                    ("", json!({"width": w, "radius": radius})),
+                    (
+                        "_crease",
+                        json!({"width": w, "radius": radius, "crease_tolerance": crease}),
+                    ),
+                ] {
+                    let op = ops::create("penumbra", &params).unwrap();
+                    let name = format!("penumbra_r{radius}{suffix}");
+                    bench_op(&mut g, &pool, &name, &*op, &inputs, px, false);
+                }
             }
 
             let join = ops::create("join", &json!({"inputs": 2})).unwrap();

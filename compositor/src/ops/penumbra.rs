@@ -278,24 +278,18 @@ fn slope(c: f32, a: f32, aa: f32, b: f32, bb: f32) -> f32 {
     }
 }
 
-/// How much a tap of inverse depth `q` and slopes (`qx`, `qy`) counts as the pixel's own face
-/// (`c`; `gx`, `gy`), from the larger difference of their relative slopes g/(1/z) per axis,
-/// e = max|qx·c − gx·q| / (c·q) (compared without dividing): 1 up to half of `crease`, 0 from
-/// `crease` on, linear between — so a tap near the limit does not flip the pixel's value on a
-/// rounding of its depth (a cluster's depth and a single device's may differ in the last bit).
-/// Not finite (an extreme depth) weighs 1, as the plane test keeps it.
+/// How much a tap of inverse depth `q` (`z_q` = 1/q) and slopes (`qx`, `qy`) counts as the
+/// pixel's own face (`c`; `gx`, `gy`; `per` = 1/(crease·c)), from the larger difference of
+/// their relative slopes g/(1/z) per axis over the crease tolerance,
+/// ratio = max|qx·c − gx·q| · per · z_q: 1 up to a ratio of ½, 0 from 1 on, linear between — so
+/// a tap near the limit does not flip the pixel's value on a rounding of its depth (a
+/// cluster's depth and a single device's may differ in the last bit). Branch-free (the fast
+/// version runs it across a row); not finite (an extreme depth) weighs 1, as the plane test
+/// keeps it.
 #[inline]
-fn face_weight(gx: f32, gy: f32, c: f32, qx: f32, qy: f32, q: f32, crease: f32) -> f32 {
-    let limit = crease * c * q;
+fn face_weight(gx: f32, gy: f32, c: f32, qx: f32, qy: f32, q: f32, per: f32, z_q: f32) -> f32 {
     let e = (qx * c - gx * q).abs().max((qy * c - gy * q).abs());
-    #[allow(clippy::neg_cmp_op_on_partial_ord)]
-    if !(2.0 * e > limit) {
-        1.0
-    } else if e >= limit {
-        0.0
-    } else {
-        2.0 - 2.0 * e / limit
-    }
+    (2.0 - 2.0 * (e * per * z_q)).min(1.0).max(0.0)
 }
 
 impl Operator for Penumbra {
@@ -326,7 +320,7 @@ impl Operator for Penumbra {
         let dst = out.layer_mut(Layer::Illumination).expect("checked");
         let (w, r) = (self.params.width as usize, self.params.radius as i64);
         let tol = self.params.depth_tolerance;
-        let crease = self.crease();
+        let (crease, creases) = (self.crease(), self.params.crease_tolerance.is_some());
         let nf = self.filtered();
         let at = |x: i64, y: i64| -> f32 {
             if x < 0 || y < 0 || x >= w as i64 || y >= rows as i64 {
@@ -365,8 +359,12 @@ impl Operator for Penumbra {
                         if (q - predicted).abs() > limit {
                             continue;
                         }
-                        let (qx, qy) = slopes(x + dx, y + dy, q);
-                        let face = face_weight(gx, gy, c, qx, qy, q, crease);
+                        let face = if creases {
+                            let (qx, qy) = slopes(x + dx, y + dy, q);
+                            face_weight(gx, gy, c, qx, qy, q, 1.0 / (crease * c), 1.0 / q)
+                        } else {
+                            1.0
+                        };
                         let k = ((y + dy) as usize * w + (x + dx) as usize) * 6;
                         let wt = self.weight(dx, dy) * face;
                         for (s, v) in sum.iter_mut().zip(&il[k..k + nf]) {
@@ -390,7 +388,7 @@ impl Operator for Penumbra {
         let w = self.params.width as usize;
         let r = self.params.radius as usize;
         let tol = self.params.depth_tolerance;
-        let crease = self.crease();
+        let (crease, creases) = (self.crease(), self.params.crease_tolerance.is_some());
         let nf = self.filtered();
         // Inverse depth with a border of `pad` zeros (background: never counted), so neighbours
         // and taps read without bounds tests; and the plane's slopes, once per pixel.
@@ -403,6 +401,13 @@ impl Operator for Penumbra {
                 *o = inverse(*z);
             }
         }
+        // Depth (1/(1/z), as the reference computes it) in the same padded layout, for the
+        // crease test's weights.
+        let zs: Vec<f32> = if creases {
+            inv.iter().map(|q| 1.0 / q).collect()
+        } else {
+            Vec::new()
+        };
         // Slopes in the same padded layout, so a tap's own slopes read like its depth.
         let mut gxs = vec![0.0f32; inv.len()];
         let mut gys = vec![0.0f32; inv.len()];
@@ -444,6 +449,11 @@ impl Operator for Penumbra {
             let own = (y + pad) * pw + pad..(y + pad) * pw + pad + w;
             let (gx, gy) = (&gxs[own.clone()], &gys[own.clone()]);
             let c = &inv[own];
+            let per: Vec<f32> = if creases {
+                c.iter().map(|c| 1.0 / (crease * c)).collect()
+            } else {
+                Vec::new()
+            };
             let mut n = vec![0.0f32; w];
             let mut m = vec![0.0f32; w];
             let mut sums = vec![vec![0.0f32; w]; nf];
@@ -455,19 +465,25 @@ impl Operator for Penumbra {
                     let start = ((qy + pad) * pw) as isize + pad as isize + dxi;
                     let taps = start as usize..start as usize + w;
                     let qinv = &inv[taps.clone()];
-                    let (qgx, qgy) = (&gxs[taps.clone()], &gys[taps]);
                     for x in 0..w {
                         let q = qinv[x];
-                        // The reference's `c + gx·dx + gy·dy` and its tests, as written there
+                        // The reference's `c + gx·dx + gy·dy` and its test, as written there
                         // (negated: a NaN prediction, from extreme depths, is kept in both).
                         let predicted = c[x] + gx[x] * dx + gy[x] * dy;
                         #[allow(clippy::neg_cmp_op_on_partial_ord)]
                         let keep = q > 0.0 && !((q - predicted).abs() > tol * c[x]);
-                        m[x] = if keep {
-                            wt * face_weight(gx[x], gy[x], c[x], qgx[x], qgy[x], q, crease)
-                        } else {
-                            0.0
-                        };
+                        m[x] = if keep { wt } else { 0.0 };
+                    }
+                    if creases {
+                        // The reference's weight of each kept tap, across the row.
+                        let (qgx, qgy, zq) = (&gxs[taps.clone()], &gys[taps.clone()], &zs[taps]);
+                        for x in 0..w {
+                            m[x] *= face_weight(
+                                gx[x], gy[x], c[x], qgx[x], qgy[x], qinv[x], per[x], zq[x],
+                            );
+                        }
+                    }
+                    for x in 0..w {
                         n[x] += m[x];
                     }
                     // The pixels whose tap dxi lies in the row (off it, m is 0: the padding).
