@@ -287,9 +287,17 @@ fn slope(c: f32, a: f32, aa: f32, b: f32, bb: f32) -> f32 {
 /// version runs it across a row); not finite (an extreme depth) weighs 1, as the plane test
 /// keeps it.
 #[inline]
-fn face_weight(gx: f32, gy: f32, c: f32, qx: f32, qy: f32, q: f32, per: f32, z_q: f32) -> f32 {
+fn face_weight(
+    (gx, gy, c): (f32, f32, f32),
+    (qx, qy, q): (f32, f32, f32),
+    per: f32,
+    z_q: f32,
+) -> f32 {
     let e = (qx * c - gx * q).abs().max((qy * c - gy * q).abs());
-    (2.0 - 2.0 * (e * per * z_q)).min(1.0).max(0.0)
+    // min then max, not clamp: a NaN ratio must weigh 1, not stay NaN.
+    #[allow(clippy::manual_clamp)]
+    let w = (2.0 - 2.0 * (e * per * z_q)).min(1.0).max(0.0);
+    w
 }
 
 impl Operator for Penumbra {
@@ -361,7 +369,7 @@ impl Operator for Penumbra {
                         }
                         let face = if creases {
                             let (qx, qy) = slopes(x + dx, y + dy, q);
-                            face_weight(gx, gy, c, qx, qy, q, 1.0 / (crease * c), 1.0 / q)
+                            face_weight((gx, gy, c), (qx, qy, q), 1.0 / (crease * c), 1.0 / q)
                         } else {
                             1.0
                         };
@@ -479,7 +487,10 @@ impl Operator for Penumbra {
                         let (qgx, qgy, zq) = (&gxs[taps.clone()], &gys[taps.clone()], &zs[taps]);
                         for x in 0..w {
                             m[x] *= face_weight(
-                                gx[x], gy[x], c[x], qgx[x], qgy[x], qinv[x], per[x], zq[x],
+                                (gx[x], gy[x], c[x]),
+                                (qgx[x], qgy[x], qinv[x]),
+                                per[x],
+                                zq[x],
                             );
                         }
                     }
