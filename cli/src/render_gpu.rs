@@ -346,11 +346,10 @@ fn render_frame(
     let depth = layer(&m.depth, "depth")?;
     if penumbra > 0 {
         // The last stage's filter, as a cluster planned with the same radius applies it.
-        use lightfold_compositor::ops::penumbra as filter;
-        illumination.data = filter::filter_frame(
+        illumination.data = lightfold_compositor::ops::penumbra::filter_frame(
             w,
             penumbra,
-            Some(filter::crease_tolerance(scene.camera.fov_y_deg, h)),
+            scene.camera.fov_y_deg,
             &illumination.data,
             &depth.data,
         )?;

@@ -13,6 +13,16 @@ fn check(name: &str) -> CaseReport {
     r
 }
 
+/// Case `name` rendered without one of the fixes (`fixes`): it must break its bound, which
+/// shows that fix is what holds it.
+fn fails_without(name: &str, fixes: Fixes, what: &str) {
+    let r = run_with(name, false, fixes)
+        .expect("a shadow-map case")
+        .unwrap_or_else(|e| panic!("{name}: {e}"));
+    eprintln!("{r}");
+    assert!(!r.within_bound(), "{name} passes {what}: {r}");
+}
+
 #[test]
 fn chain64() {
     check("chain64");
@@ -91,11 +101,7 @@ fn corner_leak_leaks_without_object_ids() {
         object_ids: false,
         ..Fixes::ALL
     };
-    let r = run_with("corner-leak", false, fixes)
-        .expect("an issue-22 case")
-        .unwrap_or_else(|e| panic!("corner-leak: {e}"));
-    eprintln!("{r}");
-    assert!(!r.within_bound(), "no leak without object IDs: {r}");
+    fails_without("corner-leak", fixes, "without object IDs");
 }
 
 #[test]
@@ -129,11 +135,7 @@ fn thin_house_leaks_without_the_receiver_plane() {
         receiver_plane: false,
         ..Fixes::ALL
     };
-    let r = run_with("thin-house", false, fixes)
-        .expect("an issue-46 case")
-        .unwrap_or_else(|e| panic!("thin-house: {e}"));
-    eprintln!("{r}");
-    assert!(!r.within_bound(), "no leak without the receiver plane: {r}");
+    fails_without("thin-house", fixes, "without the receiver plane");
 }
 
 /// Per-light map sizes are what pass the fin, the deep scene and the poles: with every map at
@@ -145,11 +147,7 @@ fn one_map_size_for_every_light_fails_cases_15_to_17() {
         ..Fixes::ALL
     };
     for name in ["grazing-fin", "deep-near", "thin-poles"] {
-        let r = run_with(name, false, fixes)
-            .expect("an issue-22 case")
-            .unwrap_or_else(|e| panic!("{name}: {e}"));
-        eprintln!("{r}");
-        assert!(!r.within_bound(), "{name} passes with 512² maps: {r}");
+        fails_without(name, fixes, "with 512² maps");
     }
 }
 

@@ -116,21 +116,35 @@ struct Placed {
     index: u32,
     q: vec3f,
     n: vec3f,
-    // The linear map from the view's frame back to the world (rotation only): a world point
-    // is p + to_world·(its view-frame point − q).
-    to_world: mat3x3f,
+    // The cube face whose own axes make q's frame, NO_FACE where the view's matrix does.
+    face: u32,
 }
 
-// The inverse of a view matrix's rotation (the matrix is rigid: its transpose).
-fn view_rotation_inverse(v: View) -> mat3x3f {
-    let m = v.view;
+const NO_FACE: u32 = 6u;
+
+// The linear map from placed's view frame back to the world (rotation only): a world point is
+// p + to_world·(its view-frame point − q). Only the receiver-plane test needs it, so it is
+// built there, not for every placed point.
+fn placed_to_world(s: Light, placed: Placed) -> mat3x3f {
+    if placed.face < NO_FACE {
+        // The face's frame is P·B (B: rows cube_x, cube_y, cube_z; P: the face's signed
+        // permutation), so back to the world is Bᵀ·Pᵀ.
+        let perm = mat3x3f(
+            cube_face_coords(placed.face, vec3f(1.0, 0.0, 0.0)),
+            cube_face_coords(placed.face, vec3f(0.0, 1.0, 0.0)),
+            cube_face_coords(placed.face, vec3f(0.0, 0.0, 1.0)),
+        );
+        return mat3x3f(s.cube_x, cross(s.cube_x, s.cube_z), s.cube_z) * transpose(perm);
+    }
+    // A view matrix is rigid: its rotation's inverse is its transpose.
+    let m = view_at(placed.index).view;
     return transpose(mat3x3f(m[0].xyz, m[1].xyz, m[2].xyz));
 }
 
 // The view of light s that holds p (its only one, the side of its split plane, or the cube face
 // of p's direction), with p and the geometric normal ng in that view's frame.
 fn place(s: Light, p: vec3f, ng: vec3f) -> Placed {
-    var out = Placed(NO_VIEW, vec3f(0.0), vec3f(0.0), mat3x3f());
+    var out = Placed(NO_VIEW, vec3f(0.0), vec3f(0.0), NO_FACE);
     let d = p - s.position;
     if uses_mode(MODE_SINGLE) || uses_mode(MODE_SPLIT) || uses_mode(MODE_CASCADE) {
         var index = s.first_view;
@@ -143,7 +157,7 @@ fn place(s: Light, p: vec3f, ng: vec3f) -> Placed {
             index += s.cascades;
         }
         let v = view_at(index);
-        out = Placed(index, (v.view * vec4f(p, 1.0)).xyz, (v.view * vec4f(ng, 0.0)).xyz, view_rotation_inverse(v));
+        out = Placed(index, (v.view * vec4f(p, 1.0)).xyz, (v.view * vec4f(ng, 0.0)).xyz, NO_FACE);
     }
     if is_mode(s, MODE_CUBE) {
         let cube_y = cross(s.cube_x, s.cube_z);
@@ -155,15 +169,7 @@ fn place(s: Light, p: vec3f, ng: vec3f) -> Placed {
         let on_y = !on_x && a.y >= a.z;
         let positive = select(select(c.z >= 0.0, c.y >= 0.0, on_y), c.x >= 0.0, on_x);
         let face = select(select(4u, 2u, on_y), 0u, on_x) + select(1u, 0u, positive);
-        // The face's frame is P·B (B: rows cube_x, cube_y, cube_z; P: the face's signed
-        // permutation), so back to the world is Bᵀ·Pᵀ.
-        let perm = mat3x3f(
-            cube_face_coords(face, vec3f(1.0, 0.0, 0.0)),
-            cube_face_coords(face, vec3f(0.0, 1.0, 0.0)),
-            cube_face_coords(face, vec3f(0.0, 0.0, 1.0)),
-        );
-        let back = mat3x3f(s.cube_x, cube_y, s.cube_z) * transpose(perm);
-        out = Placed(face_view(s, face), cube_face_coords(face, c), cube_face_coords(face, cn), back);
+        out = Placed(face_view(s, face), cube_face_coords(face, c), cube_face_coords(face, cn), face);
     }
     // Near cascades first: the first whose end lies beyond p's eye depth, if any does.
     if uses_mode(MODE_CASCADE) && s.cascades > 0u {
@@ -174,8 +180,7 @@ fn place(s: Light, p: vec3f, ng: vec3f) -> Placed {
         }
         if k < s.cascades {
             let v = view_at(s.first_view + k);
-            let q = (v.view * vec4f(p, 1.0)).xyz;
-            out = Placed(s.first_view + k, q, (v.view * vec4f(ng, 0.0)).xyz, view_rotation_inverse(v));
+            out = Placed(s.first_view + k, (v.view * vec4f(p, 1.0)).xyz, (v.view * vec4f(ng, 0.0)).xyz, NO_FACE);
         }
     }
     // Cube-mode lights always have a view; others may have none.
@@ -218,7 +223,8 @@ struct Receiver {
     object: u32,
     // Its geometric normal in the view's frame.
     n: vec3f,
-    // Its world position, and the view frame's map back to the world (`Placed::to_world`).
+    // Its world position, and the view frame's map back to the world (`placed_to_world`; only
+    // read by the receiver-plane test).
     p: vec3f,
     to_world: mat3x3f,
     // Reference depth against texels of its own object (under the slope bias).
@@ -280,13 +286,18 @@ fn receiver_world(r: Receiver, pv: vec3f) -> vec3f {
     return r.p + r.to_world * (pv - r.q);
 }
 
+// The bounds of `object` (> 0: mesh index + 1).
+fn bounds_of(object: u32) -> Bounds {
+    return object_bounds[min(object - 1u, arrayLength(&object_bounds) - 1u)];
+}
+
 // Whether world point w lies inside `object`'s solid: in the oriented box it fills, widened by
-// `margin` (a sphere's or a mesh's box holds air: never).
+// `margin` (a sphere's or a mesh's box holds air: never; object 0, no caster, holds nothing).
 fn in_solid_box(object: u32, w: vec3f, margin: f32) -> bool {
     if object == 0u {
         return false;
     }
-    let b = object_bounds[min(object - 1u, arrayLength(&object_bounds) - 1u)];
+    let b = bounds_of(object);
     if b.center.w < 0.5 {
         return false;
     }
@@ -302,7 +313,7 @@ fn in_object_box(object: u32, w: vec3f, margin: f32) -> bool {
     if object == 0u {
         return false;
     }
-    let b = object_bounds[min(object - 1u, arrayLength(&object_bounds) - 1u)];
+    let b = bounds_of(object);
     return all(w >= b.lo.xyz - vec3f(margin)) && all(w <= b.hi.xyz + vec3f(margin));
 }
 
@@ -555,6 +566,10 @@ fn visibility(s: Light, p: vec3f, ng: vec3f, object: u32) -> vec3f {
     // Grazing receivers cannot ask for more than ten texels' worth of depth per texel.
     let bias = frame.depth_bias * along_axis
         + frame.slope_bias * frame.kernel_radius * min(slope, 10.0) * texel_m;
+    var to_world = mat3x3f();
+    if uses_object_ids() && (frame.flags & FLAG_RECEIVER_PLANE) != 0u {
+        to_world = placed_to_world(s, placed);
+    }
     let r = Receiver(
         v,
         q,
@@ -563,7 +578,7 @@ fn visibility(s: Light, p: vec3f, ng: vec3f, object: u32) -> vec3f {
         object,
         n,
         p,
-        placed.to_world,
+        to_world,
         reference_depth(v, q, bias),
         frame.depth_bias * along_axis,
         frame.slope_bias * min(slope, 2.0) * texel_m,

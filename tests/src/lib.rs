@@ -367,14 +367,10 @@ pub fn single_device_filtered(gpu: &Gpu, scene: &Scene, walkthrough: bool, radiu
     );
     if radius > 0 {
         let depth = f.depth.unwrap();
-        let cam = &scene.camera;
         il.data = lightfold_compositor::ops::penumbra::filter_frame(
             il.width,
             radius,
-            Some(lightfold_compositor::ops::penumbra::crease_tolerance(
-                cam.fov_y_deg,
-                cam.height,
-            )),
+            scene.camera.fov_y_deg,
             &il.data,
             &depth.data,
         )

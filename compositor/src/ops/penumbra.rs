@@ -184,11 +184,6 @@ impl Penumbra {
         }
     }
 
-    /// The crease test's tolerance, infinite where there is none (every tap passes it).
-    fn crease(&self) -> f32 {
-        self.params.crease_tolerance.unwrap_or(f32::INFINITY)
-    }
-
     /// Channels filtered per pixel (3: diffuse only; 6: diffuse and specular).
     fn filtered(&self) -> usize {
         if self.params.specular { 6 } else { 3 }
@@ -208,23 +203,29 @@ impl Penumbra {
     }
 }
 
+/// The parameters a planned filter of `radius` gets for a `width × height` image seen with a
+/// vertical field of view of `fov_y_deg`: the crease test at [`crease_tolerance`] of that camera.
+pub fn planned_params(width: u32, height: u32, radius: u32, fov_y_deg: f32) -> Value {
+    serde_json::json!({
+        "width": width,
+        "radius": radius,
+        "crease_tolerance": crease_tolerance(fov_y_deg, height),
+    })
+}
+
 /// The filter over one whole frame `width` pixels wide: `illumination` (6 channels a pixel) and
-/// `depth` (1) in, the filtered illumination out, as a last stage gives it band by band. What
-/// `lightfold render` and the accuracy sweep apply after a single-device render, with the
-/// crease test the planner gives a cluster's filter (`crease`: [`crease_tolerance`] of the
-/// camera).
+/// `depth` (1) in, the filtered illumination out, as a last stage planned for a camera of
+/// vertical field of view `fov_y_deg` gives it band by band ([`planned_params`]). What
+/// `lightfold render` and the accuracy sweep apply after a single-device render.
 pub fn filter_frame(
     width: u32,
     radius: u32,
-    crease: Option<f32>,
+    fov_y_deg: f32,
     illumination: &[f32],
     depth: &[f32],
 ) -> Result<Vec<f32>, OpError> {
-    let mut params = serde_json::json!({ "width": width, "radius": radius });
-    if let Some(t) = crease {
-        params["crease_tolerance"] = serde_json::json!(t);
-    }
-    let op = Penumbra::new(&params)?;
+    let height = (depth.len() / width.max(1) as usize) as u32;
+    let op = Penumbra::new(&planned_params(width, height, radius, fov_y_deg))?;
     let pixels = depth.len();
     let mut out = vec![0.0; pixels * 6];
     let views = [
@@ -328,7 +329,7 @@ impl Operator for Penumbra {
         let dst = out.layer_mut(Layer::Illumination).expect("checked");
         let (w, r) = (self.params.width as usize, self.params.radius as i64);
         let tol = self.params.depth_tolerance;
-        let (crease, creases) = (self.crease(), self.params.crease_tolerance.is_some());
+        let crease = self.params.crease_tolerance;
         let nf = self.filtered();
         let at = |x: i64, y: i64| -> f32 {
             if x < 0 || y < 0 || x >= w as i64 || y >= rows as i64 {
@@ -367,11 +368,12 @@ impl Operator for Penumbra {
                         if (q - predicted).abs() > limit {
                             continue;
                         }
-                        let face = if creases {
-                            let (qx, qy) = slopes(x + dx, y + dy, q);
-                            face_weight((gx, gy, c), (qx, qy, q), 1.0 / (crease * c), 1.0 / q)
-                        } else {
-                            1.0
+                        let face = match crease {
+                            Some(t) => {
+                                let (qx, qy) = slopes(x + dx, y + dy, q);
+                                face_weight((gx, gy, c), (qx, qy, q), 1.0 / (t * c), 1.0 / q)
+                            }
+                            None => 1.0,
                         };
                         let k = ((y + dy) as usize * w + (x + dx) as usize) * 6;
                         let wt = self.weight(dx, dy) * face;
@@ -396,7 +398,7 @@ impl Operator for Penumbra {
         let w = self.params.width as usize;
         let r = self.params.radius as usize;
         let tol = self.params.depth_tolerance;
-        let (crease, creases) = (self.crease(), self.params.crease_tolerance.is_some());
+        let crease = self.params.crease_tolerance;
         let nf = self.filtered();
         // Inverse depth with a border of `pad` zeros (background: never counted), so neighbours
         // and taps read without bounds tests; and the plane's slopes, once per pixel.
@@ -411,7 +413,7 @@ impl Operator for Penumbra {
         }
         // Depth (1/(1/z), as the reference computes it) in the same padded layout, for the
         // crease test's weights.
-        let zs: Vec<f32> = if creases {
+        let zs: Vec<f32> = if crease.is_some() {
             inv.iter().map(|q| 1.0 / q).collect()
         } else {
             Vec::new()
@@ -457,10 +459,9 @@ impl Operator for Penumbra {
             let own = (y + pad) * pw + pad..(y + pad) * pw + pad + w;
             let (gx, gy) = (&gxs[own.clone()], &gys[own.clone()]);
             let c = &inv[own];
-            let per: Vec<f32> = if creases {
-                c.iter().map(|c| 1.0 / (crease * c)).collect()
-            } else {
-                Vec::new()
+            let per: Vec<f32> = match crease {
+                Some(t) => c.iter().map(|c| 1.0 / (t * c)).collect(),
+                None => Vec::new(),
             };
             let mut n = vec![0.0f32; w];
             let mut m = vec![0.0f32; w];
@@ -482,7 +483,7 @@ impl Operator for Penumbra {
                         let keep = q > 0.0 && !((q - predicted).abs() > tol * c[x]);
                         m[x] = if keep { wt } else { 0.0 };
                     }
-                    if creases {
+                    if crease.is_some() {
                         // The reference's weight of each kept tap, across the row.
                         let (qgx, qgy, zq) = (&gxs[taps.clone()], &gys[taps.clone()], &zs[taps]);
                         for x in 0..w {

@@ -494,14 +494,12 @@ fn plan_once(
     };
     let penumbra = (radius > 0).then(|| {
         material_layers.push((Layer::Depth, PixelFormat::DepthF32));
-        serde_json::json!({
-            "width": cam.width,
-            "radius": radius,
-            "crease_tolerance": lightfold_compositor::ops::penumbra::crease_tolerance(
-                cam.fov_y_deg,
-                cam.height,
-            ),
-        })
+        lightfold_compositor::ops::penumbra::planned_params(
+            cam.width,
+            cam.height,
+            radius,
+            cam.fov_y_deg,
+        )
     });
     let band_height = if penumbra.is_some() {
         options

@@ -131,11 +131,15 @@ fn through_link(
 /// The compositor's `penumbra` operator of `radius` over a whole frame of illumination, with the
 /// first node's depth layer and the crease test the planner gives it for the scene's camera.
 fn penumbra_filter(scene: &Scene, m: &NodeFrame, il: &Image, radius: u32) -> Result<Image, String> {
-    use lightfold_compositor::ops::penumbra;
     let depth = m.depth.as_ref().ok_or("depth layer missing")?;
-    let crease = penumbra::crease_tolerance(scene.camera.fov_y_deg, scene.camera.height);
-    let data = penumbra::filter_frame(il.width, radius, Some(crease), &il.data, &depth.data)
-        .map_err(|e| e.to_string())?;
+    let data = lightfold_compositor::ops::penumbra::filter_frame(
+        il.width,
+        radius,
+        scene.camera.fov_y_deg,
+        &il.data,
+        &depth.data,
+    )
+    .map_err(|e| e.to_string())?;
     Ok(Image {
         data,
         ..Image::new(il.width, il.height, 6)

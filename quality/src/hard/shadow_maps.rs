@@ -57,81 +57,80 @@ impl Control {
     }
 }
 
+/// One whole-image case of this file: its name, scene file, small (test) size and negative
+/// control.
+#[derive(Clone, Copy)]
+struct MapCase {
+    name: &'static str,
+    file: &'static str,
+    small: (u32, u32),
+    control: Control,
+}
+
+/// Cases 14–18 (docs/hard-cases.md).
+const MAP_CASES: [MapCase; 5] = [
+    MapCase {
+        name: "corner-leak",
+        file: "corner_leak.toml",
+        small: (256, 192),
+        control: Control::Fault(Fault::HugeBias),
+    },
+    MapCase {
+        name: "grazing-fin",
+        file: "grazing_fin.toml",
+        small: (256, 192),
+        control: Control::Fault(Fault::HugeBias),
+    },
+    MapCase {
+        name: "deep-near",
+        file: "deep_near.toml",
+        small: (256, 192),
+        control: Control::MapSize(64),
+    },
+    MapCase {
+        name: "thin-poles",
+        file: "thin_poles.toml",
+        small: (320, 240),
+        control: Control::MapSize(64),
+    },
+    MapCase {
+        name: "thin-house",
+        file: "thin_house.toml",
+        small: (320, 240),
+        control: Control::Fault(Fault::HugeBias),
+    },
+];
+
+/// Case `name` of [`MAP_CASES`] with every fix.
+fn all_fixes(name: &str, full: bool) -> Result<CaseReport, HardCaseError> {
+    run_with(name, full, Fixes::ALL).expect("a case of MAP_CASES")
+}
+
 /// Case 14: `scenes/hard/corner_leak.toml` — a closed room of 2 cm walls and roof (a skylight
 /// in it), the light outside.
 pub fn corner_leak(full: bool) -> Result<CaseReport, HardCaseError> {
-    corner_leak_with(full, Fixes::ALL)
-}
-
-fn corner_leak_with(full: bool, fixes: Fixes) -> Result<CaseReport, HardCaseError> {
-    whole_image_case(
-        "corner-leak",
-        "corner_leak.toml",
-        (full, fixes),
-        (256, 192),
-        Control::Fault(Fault::HugeBias),
-    )
+    all_fixes("corner-leak", full)
 }
 
 /// Case 15: `scenes/hard/grazing_fin.toml` — a fin on a 60 m floor, light 5° above the horizon.
 pub fn grazing_fin(full: bool) -> Result<CaseReport, HardCaseError> {
-    grazing_fin_with(full, Fixes::ALL)
-}
-
-fn grazing_fin_with(full: bool, fixes: Fixes) -> Result<CaseReport, HardCaseError> {
-    whole_image_case(
-        "grazing-fin",
-        "grazing_fin.toml",
-        (full, fixes),
-        (256, 192),
-        Control::Fault(Fault::HugeBias),
-    )
+    all_fixes("grazing-fin", full)
 }
 
 /// Case 16: `scenes/hard/deep_near.toml` — 25 cm boxes near the camera on an 800 m ground.
 pub fn deep_near(full: bool) -> Result<CaseReport, HardCaseError> {
-    deep_near_with(full, Fixes::ALL)
-}
-
-fn deep_near_with(full: bool, fixes: Fixes) -> Result<CaseReport, HardCaseError> {
-    whole_image_case(
-        "deep-near",
-        "deep_near.toml",
-        (full, fixes),
-        (256, 192),
-        Control::MapSize(64),
-    )
+    all_fixes("deep-near", full)
 }
 
 /// Case 17: `scenes/hard/thin_poles.toml` — 6 cm poles on a 40 m yard.
 pub fn thin_poles(full: bool) -> Result<CaseReport, HardCaseError> {
-    thin_poles_with(full, Fixes::ALL)
-}
-
-fn thin_poles_with(full: bool, fixes: Fixes) -> Result<CaseReport, HardCaseError> {
-    whole_image_case(
-        "thin-poles",
-        "thin_poles.toml",
-        (full, fixes),
-        (320, 240),
-        Control::MapSize(64),
-    )
+    all_fixes("thin-poles", full)
 }
 
 /// Case 18 (issue 46): `scenes/hard/thin_house.toml` — a closed house of 1 cm walls and roof,
 /// lit from outside at 30° through one window.
 pub fn thin_house(full: bool) -> Result<CaseReport, HardCaseError> {
-    thin_house_with(full, Fixes::ALL)
-}
-
-fn thin_house_with(full: bool, fixes: Fixes) -> Result<CaseReport, HardCaseError> {
-    whole_image_case(
-        "thin-house",
-        "thin_house.toml",
-        (full, fixes),
-        (320, 240),
-        Control::Fault(Fault::HugeBias),
-    )
+    all_fixes("thin-house", full)
 }
 
 /// Which of issue 22's fixes a render uses (all by default), so each can be measured alone.
@@ -304,15 +303,8 @@ fn score(
 
 /// Runs case `name` of this file with only `fixes` (the hard-case test runs [`Fixes::ALL`]).
 pub fn run_with(name: &str, full: bool, fixes: Fixes) -> Option<Result<CaseReport, HardCaseError>> {
-    let f = match name {
-        "corner-leak" => corner_leak_with,
-        "grazing-fin" => grazing_fin_with,
-        "deep-near" => deep_near_with,
-        "thin-poles" => thin_poles_with,
-        "thin-house" => thin_house_with,
-        _ => return None,
-    };
-    Some(f(full, fixes))
+    let c = MAP_CASES.iter().find(|c| c.name == name)?;
+    Some(whole_image_case(c, full, fixes))
 }
 
 /// The distinct map sides of a frame with their counts, largest first: "1024² ×4, 512² ×12".
@@ -328,13 +320,13 @@ fn map_sides(sides: &[u32]) -> String {
         .join(", ")
 }
 
-fn whole_image_case(
-    case: &'static str,
-    file: &str,
-    (full, fixes): (bool, Fixes),
-    small: (u32, u32),
-    control: Control,
-) -> Result<CaseReport, HardCaseError> {
+fn whole_image_case(c: &MapCase, full: bool, fixes: Fixes) -> Result<CaseReport, HardCaseError> {
+    let MapCase {
+        name: case,
+        file,
+        small,
+        control,
+    } = *c;
     let gpu = gpu()?;
     let scene = super::support::load_case_scene(case, file, full, small)?;
     let samples = sampling::direct_samples(&scene);
