@@ -27,6 +27,7 @@ fn sample(
         color,
         range: None,
         light: 0,
+        area: None,
     }
 }
 

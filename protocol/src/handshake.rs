@@ -18,8 +18,9 @@ pub const MAGIC: [u8; 4] = *b"LFLD";
 /// bytes version 6 (glTF metallic-roughness materials, mesh tangents), which nodes of 7 cannot read.
 /// 9: `Message::Error` names the epoch and frame it is about; `Message::Release`. 10:
 /// `FrameStats::setup_us`, `read_bytes` and `prefetched` (nodes pack on the device and render
-/// the next frame while sending one), `Capabilities::device`. 11: `Capabilities::cpu_host`.
-pub const PROTOCOL_VERSION: u16 = 11;
+/// the next frame while sending one), `Capabilities::device`. 11: `Capabilities::cpu_host`. 12:
+/// `WireLight::area` (closed-form glossy specular of area lights), scene bytes version 7.
+pub const PROTOCOL_VERSION: u16 = 12;
 /// Longest daemon id a hello may carry (its wire length is one byte).
 pub const MAX_DAEMON_ID: usize = 255;
 

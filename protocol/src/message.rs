@@ -152,6 +152,19 @@ pub struct WireLight {
     pub light: u32,
     /// Index of the sample in the scene's full sample list (stable across plans).
     pub sample: u32,
+    /// The area light's shape where glossy specular is integrated over it in closed form.
+    pub area: Option<WireArea>,
+}
+
+/// An area light's shape (mirrors `scene::AreaShape`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct WireArea {
+    /// 0 parallelogram `center ± u ± v`, 1 ellipse `center + cos φ·u + sin φ·v`, 2 sphere of
+    /// radius `u[0]` (`v` zero).
+    pub kind: u8,
+    pub center: [f32; 3],
+    pub u: [f32; 3],
+    pub v: [f32; 3],
 }
 
 /// Camera as carried by frame requests (mirrors `scene::Camera`).

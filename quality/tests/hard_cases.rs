@@ -138,6 +138,13 @@ fn thin_house_leaks_without_the_receiver_plane() {
     fails_without("thin-house", fixes, "without the receiver plane");
 }
 
+/// Issue 46: glossy highlights of an area light equal the lobe's integral over the light (case
+/// 19); each sample's own point highlight, as before, is the control that fails.
+#[test]
+fn glossy_area() {
+    check("glossy-area");
+}
+
 /// Per-light map sizes are what pass the fin, the deep scene and the poles: with every map at
 /// 512² (the size every map had before; cascades and object IDs still on) each fails again.
 #[test]
@@ -154,6 +161,6 @@ fn one_map_size_for_every_light_fails_cases_15_to_17() {
 #[test]
 fn every_case_is_tested_and_unknown_names_fail() {
     let names = case_names();
-    assert_eq!(names.len(), 18, "{names:?}: add a test per case");
+    assert_eq!(names.len(), 19, "{names:?}: add a test per case");
     assert!(run_case("no-such-case", false).is_err());
 }

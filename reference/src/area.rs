@@ -130,6 +130,7 @@ fn emitters(scene: &Scene) -> Vec<Emitter> {
             color: light.color,
             range: light.range,
             light: i as u32,
+            area: None,
         };
         let e = match &light.shape {
             LightShape::Point { .. } | LightShape::Spot { .. } | LightShape::Directional { .. } => {

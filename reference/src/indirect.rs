@@ -150,6 +150,7 @@ pub fn vpls(
                 color: flux.map(|c| c / peak),
                 range: None,
                 light: s.light,
+                area: None,
             })
         })
         .collect();

@@ -1,6 +1,6 @@
 //! Project defaults, named once (ARCHITECTURE §10).
 
-use crate::model::{MapSizing, Quality, SamplePattern, ShadowFilter};
+use crate::model::{AreaSpecular, MapSizing, Quality, SamplePattern, ShadowFilter};
 use crate::shadow_views::Mismatch;
 
 /// Default image width and height.
@@ -39,5 +39,6 @@ pub fn quality() -> Quality {
         lights_per_node: LIGHTS_PER_NODE,
         indirect: 0,
         indirect_clamp: None,
+        area_specular: AreaSpecular::Analytic,
     }
 }

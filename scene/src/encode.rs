@@ -7,14 +7,14 @@
 
 use crate::error::SceneError;
 use crate::model::{
-    AlphaMode, Camera, Light, LightShape, MapSizing, Material, Mesh, MetallicRoughness, Quality,
-    SamplePattern, Scene, ShadowFilter, Texture,
+    AlphaMode, AreaSpecular, Camera, Light, LightShape, MapSizing, Material, Mesh,
+    MetallicRoughness, Quality, SamplePattern, Scene, ShadowFilter, Texture,
 };
 use sha2::{Digest, Sha256};
 
 const MAGIC: &[u8; 4] = b"LFSC";
 /// Version of the byte layout of `to_bytes` (bump when `Scene` changes shape).
-pub const SCENE_BYTES_VERSION: u32 = 6;
+pub const SCENE_BYTES_VERSION: u32 = 7;
 /// Largest scene `from_bytes` accepts ([`crate::limits::MAX_SCENE_BYTES`]).
 pub const MAX_SCENE_BYTES: usize = crate::limits::MAX_SCENE_BYTES as usize;
 
@@ -303,6 +303,7 @@ impl Canon {
             lights_per_node,
             indirect,
             indirect_clamp,
+            area_specular,
         } = q;
         match samples_per_area_light {
             None => self.u8(0),
@@ -350,6 +351,10 @@ impl Canon {
                     self.f32(*c);
                 }
             }
+        }
+        // Likewise only the non-default: point-sampled glossy specular.
+        if *area_specular == AreaSpecular::Sampled {
+            self.u8(2);
         }
     }
 

@@ -17,6 +17,7 @@ pub mod gltf_load;
 pub mod image;
 mod input;
 pub mod limits;
+pub mod ltc;
 pub mod model;
 pub mod partition;
 pub mod primitives;

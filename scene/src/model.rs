@@ -297,6 +297,45 @@ pub struct LightSample {
     pub range: Option<f32>,
     /// Index of the source light in `Scene::lights`.
     pub light: u32,
+    /// The shape of the area light this sample belongs to, where the glossy specular of its
+    /// light is integrated over that shape in closed form ([`AreaSpecular::Analytic`],
+    /// [`crate::ltc`]); `None` for point, spot, directional and bounce samples, emissive meshes,
+    /// and under [`AreaSpecular::Sampled`].
+    pub area: Option<AreaShape>,
+}
+
+/// The emitting shape of an area light as the closed-form specular integrates it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum AreaShape {
+    /// A parallelogram `center ± u ± v` (`u`, `v`: half extents along its sides).
+    Rect {
+        center: [f32; 3],
+        u: [f32; 3],
+        v: [f32; 3],
+    },
+    /// A disk or ellipse `center + cos φ·u + sin φ·v` (`u`, `v`: its semi-axes).
+    Disk {
+        center: [f32; 3],
+        u: [f32; 3],
+        v: [f32; 3],
+    },
+    /// A sphere, seen from a point as the disk of its silhouette.
+    Sphere { center: [f32; 3], radius: f32 },
+}
+
+/// How the specular lobe of a glTF metallic-roughness surface meets an area light.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum AreaSpecular {
+    /// The lobe's unshadowed integral over the light's shape in closed form (linearly transformed
+    /// cosines), shared among the light's samples in proportion to their irradiance and
+    /// modulated by each sample's visibility (`docs/shading.md`): a narrow lobe no longer
+    /// breaks into one highlight per sample.
+    #[default]
+    Analytic,
+    /// Each sample's own point-light specular: exact as the sample count grows, a grid of
+    /// highlight dots on glossy surfaces at the usual counts.
+    Sampled,
 }
 
 /// A pinhole camera: right-handed, Y up, vertical field of view, image row 0 at the top.
@@ -370,6 +409,8 @@ pub struct Quality {
     /// Clamp distance of those lights' `1/r²` falloff, metres (0: none; `None`:
     /// [`crate::defaults::INDIRECT_CLAMP_REL`] of the scene's bounding diagonal).
     pub indirect_clamp: Option<f32>,
+    /// How glossy (metallic-roughness) specular meets area lights.
+    pub area_specular: AreaSpecular,
 }
 
 impl Default for Quality {

@@ -3,7 +3,9 @@
 //! An area-light sample is a cosine lobe `I(θ) = L·A/N·max(0, cos θ)` about the emitter normal, so
 //! the N samples together emit the area light's power `π·L·A`.
 
-use crate::model::{LightSample, LightShape, Quality, SampleKind, SamplePattern, Scene};
+use crate::model::{
+    AreaShape, AreaSpecular, LightSample, LightShape, Quality, SampleKind, SamplePattern, Scene,
+};
 use crate::shading::{V3, add, cross, normalize, scale};
 
 pub use crate::sampling_shapes::{basis, sample_power};
@@ -32,6 +34,7 @@ pub fn light_samples(scene: &Scene, index: usize, q: &Quality) -> Vec<LightSampl
         color: light.color,
         range: light.range,
         light: index as u32,
+        area: None,
     };
     match &light.shape {
         LightShape::Point { position } => vec![LightSample {
@@ -67,6 +70,14 @@ pub fn light_samples(scene: &Scene, index: usize, q: &Quality) -> Vec<LightSampl
             let u = normalize(*u_axis);
             let v = cross(nrm, u);
             let area = size[0] * size[1];
+            let base = LightSample {
+                area: analytic(q, || AreaShape::Rect {
+                    center: *center,
+                    u: scale(u, 0.5 * size[0]),
+                    v: scale(v, 0.5 * size[1]),
+                }),
+                ..base
+            };
             unit_square_points(n, q.pattern, q.seed ^ index as u64)
                 .into_iter()
                 .map(|(a, b)| {
@@ -80,6 +91,11 @@ pub fn light_samples(scene: &Scene, index: usize, q: &Quality) -> Vec<LightSampl
         }
         other => crate::sampling_shapes::samples(scene, light, other, n, q, base),
     }
+}
+
+/// `shape` where the quality integrates glossy specular over area lights in closed form.
+pub(crate) fn analytic(q: &Quality, shape: impl FnOnce() -> AreaShape) -> Option<AreaShape> {
+    (q.area_specular == AreaSpecular::Analytic).then(shape)
 }
 
 pub(crate) fn lobe(base: LightSample, position: V3, normal: V3, intensity: f32) -> LightSample {

@@ -4,8 +4,8 @@
 //! quality pattern and seed apply) onto its surface with an area-preserving map, and gives each of
 //! the N samples the intensity `L·A/N`: the samples together emit exactly the light's power.
 
-use crate::model::{Light, LightSample, LightShape, Quality, SampleKind, Scene};
-use crate::sampling::{lobe, unit_square_points};
+use crate::model::{AreaShape, Light, LightSample, LightShape, Quality, SampleKind, Scene};
+use crate::sampling::{analytic, lobe, unit_square_points};
 use crate::shading::{V3, add, cross, length, normalize, scale, sub};
 use std::f32::consts::{FRAC_PI_2, FRAC_PI_4, PI, TAU};
 
@@ -28,6 +28,14 @@ pub(crate) fn samples(
             let nrm = normalize(*normal);
             let (u, v) = basis(nrm);
             let intensity = light.power * PI * radius * radius / n as f32;
+            let base = LightSample {
+                area: analytic(q, || AreaShape::Disk {
+                    center: *center,
+                    u: scale(u, *radius),
+                    v: scale(v, *radius),
+                }),
+                ..base
+            };
             points()
                 .into_iter()
                 .map(|(a, b)| {
@@ -39,6 +47,13 @@ pub(crate) fn samples(
         }
         LightShape::Sphere { center, radius } => {
             let intensity = light.power * 4.0 * PI * radius * radius / n as f32;
+            let base = LightSample {
+                area: analytic(q, || AreaShape::Sphere {
+                    center: *center,
+                    radius: *radius,
+                }),
+                ..base
+            };
             points()
                 .into_iter()
                 .map(|(a, b)| {

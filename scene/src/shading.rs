@@ -249,8 +249,19 @@ pub fn ggx_coefficients(s: &LightSample, p: V3, n: V3, v: V3, alpha: f32, f0: V3
     }
     let (l, _) = to_light(s, p);
     let (id, dv, w) = ggx_terms(n, l, v, alpha);
+    // A sample of an area light of known shape takes its irradiance's share of the lobe
+    // integrated over that shape (`crate::ltc`), not its own point highlight.
+    let share = crate::ltc::closed_form_share(alpha);
+    let area = s
+        .area
+        .filter(|_| share > 0.0)
+        .and_then(|a| crate::ltc::ggx_area_terms(&a, p, n, v, alpha));
     let is = f0.map(|f| {
-        let x = e * dv * (f + (1.0 - f) * w);
+        let point = e * dv * (f + (1.0 - f) * w);
+        let x = match area {
+            Some((s1, sw)) => point + (e * (f * s1 + (1.0 - f) * sw) - point) * share,
+            None => point,
+        };
         if x.is_finite() { x } else { 0.0 }
     });
     (e * id, is)

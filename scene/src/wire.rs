@@ -1,8 +1,8 @@
 //! Conversions between scene types and their wire mirrors in `lightfold-protocol` (the plan carries
 //! explicit light samples and cameras; nodes never resample).
 
-use crate::model::{Camera, LightSample, SampleKind};
-use lightfold_protocol::{WireCamera, WireLight};
+use crate::model::{AreaShape, Camera, LightSample, SampleKind};
+use lightfold_protocol::{WireArea, WireCamera, WireLight};
 
 /// The wire form of a sample; `sample` is its index in the scene's full sample list.
 pub fn light_to_wire(s: &LightSample, sample: u32) -> WireLight {
@@ -27,6 +27,53 @@ pub fn light_to_wire(s: &LightSample, sample: u32) -> WireLight {
         range: s.range.unwrap_or(0.0),
         light: s.light,
         sample,
+        area: s.area.map(area_to_wire),
+    }
+}
+
+fn area_to_wire(a: AreaShape) -> WireArea {
+    match a {
+        AreaShape::Rect { center, u, v } => WireArea {
+            kind: 0,
+            center,
+            u,
+            v,
+        },
+        AreaShape::Disk { center, u, v } => WireArea {
+            kind: 1,
+            center,
+            u,
+            v,
+        },
+        AreaShape::Sphere { center, radius } => WireArea {
+            kind: 2,
+            center,
+            u: [radius, 0.0, 0.0],
+            v: [0.0; 3],
+        },
+    }
+}
+
+fn area_from_wire(a: &WireArea, sample: u32) -> Result<AreaShape, WireError> {
+    let finite = a
+        .center
+        .iter()
+        .chain(a.u.iter())
+        .chain(a.v.iter())
+        .all(|v| v.is_finite());
+    if !finite {
+        return Err(WireError::NonFinite { sample });
+    }
+    let (center, u, v) = (a.center, a.u, a.v);
+    match a.kind {
+        0 => Ok(AreaShape::Rect { center, u, v }),
+        1 => Ok(AreaShape::Disk { center, u, v }),
+        2 if u[0] >= 0.0 => Ok(AreaShape::Sphere {
+            center,
+            radius: u[0],
+        }),
+        2 => Err(WireError::NegativeRadius { sample }),
+        kind => Err(WireError::UnknownArea { sample, kind }),
     }
 }
 
@@ -34,6 +81,10 @@ pub fn light_to_wire(s: &LightSample, sample: u32) -> WireLight {
 pub enum WireError {
     #[error("light sample {sample} has unknown kind {kind}")]
     UnknownKind { sample: u32, kind: u8 },
+    #[error("light sample {sample} has unknown area shape {kind}")]
+    UnknownArea { sample: u32, kind: u8 },
+    #[error("light sample {sample} has a sphere light of negative radius")]
+    NegativeRadius { sample: u32 },
     #[error("light sample {sample} has a non-finite field")]
     NonFinite { sample: u32 },
     #[error("camera is invalid: {0}")]
@@ -83,6 +134,11 @@ pub fn light_from_wire(w: &WireLight) -> Result<LightSample, WireError> {
         color: w.color,
         range: (w.range > 0.0).then_some(w.range),
         light: w.light,
+        area: w
+            .area
+            .as_ref()
+            .map(|a| area_from_wire(a, w.sample))
+            .transpose()?,
     })
 }
 
@@ -154,6 +210,7 @@ mod tests {
                 color: [1.0, 0.5, 0.25],
                 range: if i % 2 == 0 { Some(7.0) } else { None },
                 light: 3,
+                area: None,
             };
             assert_eq!(light_from_wire(&light_to_wire(&s, i as u32)).unwrap(), s);
         }
@@ -166,6 +223,7 @@ mod tests {
                 color: [1.0; 3],
                 range: None,
                 light: 0,
+                area: None,
             },
             9,
         );
@@ -182,6 +240,74 @@ mod tests {
         assert_eq!(
             light_from_wire(&bad),
             Err(WireError::NonFinite { sample: 9 })
+        );
+    }
+
+    #[test]
+    fn area_shapes_round_trip_and_are_validated() {
+        let shapes = [
+            AreaShape::Rect {
+                center: [0.0, 2.0, 0.0],
+                u: [0.5, 0.0, 0.0],
+                v: [0.0, 0.0, 0.25],
+            },
+            AreaShape::Disk {
+                center: [1.0, 2.0, 0.0],
+                u: [0.3, 0.0, 0.0],
+                v: [0.0, 0.3, 0.0],
+            },
+            AreaShape::Sphere {
+                center: [0.0, 3.0, 1.0],
+                radius: 0.2,
+            },
+        ];
+        for (i, area) in shapes.into_iter().enumerate() {
+            let s = LightSample {
+                position: [1.0, 2.0, 3.0],
+                direction: [0.0, -1.0, 0.0],
+                kind: SampleKind::CosineLobe,
+                intensity: 4.5,
+                color: [1.0; 3],
+                range: None,
+                light: 1,
+                area: Some(area),
+            };
+            assert_eq!(light_from_wire(&light_to_wire(&s, i as u32)).unwrap(), s);
+        }
+        let s = LightSample {
+            area: Some(shapes[2]),
+            ..light_from_wire(&light_to_wire(
+                &LightSample {
+                    position: [0.0; 3],
+                    direction: [0.0, 1.0, 0.0],
+                    kind: SampleKind::CosineLobe,
+                    intensity: 1.0,
+                    color: [1.0; 3],
+                    range: None,
+                    light: 0,
+                    area: None,
+                },
+                4,
+            ))
+            .unwrap()
+        };
+        let mut bad = light_to_wire(&s, 4);
+        bad.area.as_mut().unwrap().kind = 9;
+        assert_eq!(
+            light_from_wire(&bad),
+            Err(WireError::UnknownArea { sample: 4, kind: 9 })
+        );
+        let mut bad = light_to_wire(&s, 4);
+        bad.area.as_mut().unwrap().u[0] = -1.0;
+        assert_eq!(
+            light_from_wire(&bad),
+            Err(WireError::NegativeRadius { sample: 4 })
+        );
+        let mut bad = light_to_wire(&s, 4);
+        bad.area.as_mut().unwrap().center[1] = f32::INFINITY;
+        assert_eq!(
+            light_from_wire(&bad),
+            Err(WireError::NonFinite { sample: 4 })
         );
     }
 

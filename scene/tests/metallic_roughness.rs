@@ -48,6 +48,7 @@ fn directional(travel: [f32; 3]) -> LightSample {
         color: [1.0; 3],
         range: None,
         light: 0,
+        area: None,
     }
 }
 
@@ -243,4 +244,182 @@ fn shading_uvs_are_the_coordinates_to_half_a_16_bit_step() {
         assert_eq!(shading_uv([f + 3.0, f - 5.0]), shading_uv([f, f]));
     }
     assert_eq!(shading_uv([f32::NAN, f32::INFINITY]), [0.0, 0.0]);
+}
+
+/// Issue 46: the closed-form glossy specular of an area light (`scene::ltc`) against the
+/// specification's BRDF integrated over the light by brute force (a fine midpoint grid over the
+/// shape, `dω = cos_light·dA/r²`, in f64), for a rectangle, a disk and a sphere light, at the
+/// highlight's peak and beside it, from normal to grazing views, roughness 0.1 to 0.45 (where the
+/// closed form has most of the share, `ltc::closed_form_share`). What is
+/// compared is a silver metal's reflected radiance per unit light radiance:
+/// `E·(F0·S₁/E + (1 − F0)·S_w/E)` against `∫ f·cos dω`.
+/// A patch of an emitter: its centre, unit outward normal and area.
+type Patch = ([f64; 3], [f64; 3], f64);
+/// An emitter cut into patches.
+type Patches = Box<dyn Fn() -> Vec<Patch>>;
+
+#[test]
+fn closed_form_area_specular_matches_brute_force_integration() {
+    use lightfold_scene::AreaShape;
+    use lightfold_scene::ltc::ggx_area_terms;
+    let base = [0.97f64, 0.96, 0.91];
+    let n = [0.0f32, 1.0, 0.0];
+    let add =
+        |a: [f64; 3], b: [f64; 3], s: f64| [a[0] + b[0] * s, a[1] + b[1] * s, a[2] + b[2] * s];
+    let d3 = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    // (∫ f·cos dω per channel, ∫ cos dω) over points `q` of area `da` facing along `qn`.
+    let integrate =
+        |points: &mut dyn Iterator<Item = ([f64; 3], [f64; 3], f64)>, r: f64, v: [f64; 3]| {
+            let (mut s, mut e) = ([0.0f64; 3], 0.0f64);
+            for (q, qn, da) in points {
+                let r2 = d3(q, q);
+                let l = q.map(|c| c / r2.sqrt());
+                let cos_light = -d3(l, qn);
+                if cos_light <= 0.0 || l[1] <= 0.0 {
+                    continue;
+                }
+                let dw = cos_light * da / r2;
+                let f = spec_brdf_cos(base, 1.0, r, [0.0, 1.0, 0.0], l, v);
+                for k in 0..3 {
+                    s[k] += f[k] * dw;
+                }
+                e += l[1] * dw;
+            }
+            (s, e)
+        };
+    let grid = 500usize;
+    let mut worst = 0f64;
+    let mut report = Vec::new();
+    for &(theta_deg, off_deg) in &[
+        (0.0f64, 0.0f64),
+        (40.0, 0.0),
+        (40.0, 25.0),
+        (70.0, 0.0),
+        (70.0, -20.0),
+    ] {
+        let t = theta_deg.to_radians();
+        let v = [t.sin(), t.cos(), 0.0];
+        // The light's centre 2 m out along the mirror direction, turned `off` about the normal.
+        let o = off_deg.to_radians();
+        let dir = [-t.sin() * o.cos(), t.cos(), -t.sin() * o.sin()];
+        let dir = if theta_deg == 0.0 {
+            [0.0, 1.0, 0.0]
+        } else {
+            dir
+        };
+        let centre = dir.map(|c| c * 2.0);
+        let facing = dir.map(|c| -c);
+        // Axes across the light: perpendicular to its facing direction.
+        let helper = if facing[0].abs() < 0.9 {
+            [1.0, 0.0, 0.0]
+        } else {
+            [0.0, 0.0, 1.0]
+        };
+        let cross = |a: [f64; 3], b: [f64; 3]| {
+            [
+                a[1] * b[2] - a[2] * b[1],
+                a[2] * b[0] - a[0] * b[2],
+                a[0] * b[1] - a[1] * b[0],
+            ]
+        };
+        let ua = cross(helper, facing);
+        let ua = ua.map(|c| c / d3(ua, ua).sqrt());
+        let va = cross(facing, ua);
+        let f32v = |a: [f64; 3]| a.map(|c| c as f32);
+        for &r in &[0.1f64, 0.2, 0.3, 0.45] {
+            let shapes: [(&str, AreaShape, Patches); 3] = [
+                (
+                    "rect",
+                    AreaShape::Rect {
+                        center: f32v(centre),
+                        u: f32v(ua.map(|c| c * 0.5)),
+                        v: f32v(va.map(|c| c * 0.3)),
+                    },
+                    Box::new(move || {
+                        let da = 1.0 * 0.6 / (grid * grid) as f64;
+                        (0..grid * grid)
+                            .map(|k| {
+                                let a = ((k % grid) as f64 + 0.5) / grid as f64 - 0.5;
+                                let b = ((k / grid) as f64 + 0.5) / grid as f64 - 0.5;
+                                (add(add(centre, ua, a), va, b * 0.6), facing, da)
+                            })
+                            .collect()
+                    }),
+                ),
+                (
+                    "disk",
+                    AreaShape::Disk {
+                        center: f32v(centre),
+                        u: f32v(ua.map(|c| c * 0.4)),
+                        v: f32v(va.map(|c| c * 0.4)),
+                    },
+                    Box::new(move || {
+                        let cell = 0.8 / grid as f64;
+                        (0..grid * grid)
+                            .filter_map(|k| {
+                                let a = ((k % grid) as f64 + 0.5) * cell - 0.4;
+                                let b = ((k / grid) as f64 + 0.5) * cell - 0.4;
+                                (a * a + b * b <= 0.16)
+                                    .then(|| (add(add(centre, ua, a), va, b), facing, cell * cell))
+                            })
+                            .collect()
+                    }),
+                ),
+                (
+                    "sphere",
+                    AreaShape::Sphere {
+                        center: f32v(centre),
+                        radius: 0.3,
+                    },
+                    Box::new(move || {
+                        // Uniform in (cos θ, φ) about an axis across the facing direction
+                        // (equal areas), so the cap facing the point lies on the grid's
+                        // equator, where its cells are finest, not at a pole.
+                        let grid = 2 * grid;
+                        let da = 4.0 * PI * 0.09 / (grid * grid) as f64;
+                        (0..grid * grid)
+                            .map(|k| {
+                                let z = 1.0 - 2.0 * ((k % grid) as f64 + 0.5) / grid as f64;
+                                let phi = 2.0 * PI * ((k / grid) as f64 + 0.5) / grid as f64;
+                                let s = (1.0 - z * z).sqrt();
+                                let out = add(
+                                    add(ua.map(|c| c * z), facing, s * phi.cos()),
+                                    va,
+                                    s * phi.sin(),
+                                );
+                                (add(centre, out, 0.3), out, da)
+                            })
+                            .collect()
+                    }),
+                ),
+            ];
+            for (name, shape, points) in &shapes {
+                let (want, e) = integrate(&mut points().into_iter(), r, v);
+                let (s1, sw) = ggx_area_terms(shape, [0.0; 3], n, f32v(v), (r * r) as f32)
+                    .unwrap_or_else(|| panic!("{name} θ {theta_deg} r {r}: no closed form"));
+                // The whole lobe's reflectance (the fitted table's quadrature).
+                let cell = lightfold_scene::ltc::lookup((r * r) as f32, t.cos() as f32);
+                for k in 0..3 {
+                    let f0 = base[k];
+                    let got = e * (f0 * f64::from(s1) + (1.0 - f0) * f64::from(sw));
+                    let total = f0 * f64::from(cell[4]) + (1.0 - f0) * f64::from(cell[5]);
+                    // Relative to what the shape catches, or to the whole lobe where it catches
+                    // only the lobe's tail.
+                    let rel = (got - want[k]).abs() / want[k].max(0.25 * total);
+                    worst = worst.max(rel);
+                    if k == 0 {
+                        report.push(format!(
+                            "{name:6} θ {theta_deg:4} off {off_deg:5} r {r}: {got:.5e} vs {:.5e} ({rel:.3})",
+                            want[k]
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    eprintln!("{}", report.join("\n"));
+    eprintln!("worst relative error {worst:.4}");
+    // Measured: 5.3 % at worst (roughness 0.45 seen at 70°, where the closed form's share is
+    // 0.84); below 1 % for every light that holds the highlight's peak at roughness ≤ 0.3.
+    assert!(worst < 0.06, "worst relative error {worst}");
 }

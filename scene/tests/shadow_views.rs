@@ -16,6 +16,7 @@ fn sample(position: V3, direction: V3, kind: SampleKind) -> LightSample {
         color: [1.0; 3],
         range: None,
         light: 0,
+        area: None,
     }
 }
 

@@ -635,11 +635,181 @@ fn illuminate(sf: Surface, start: Shaded) -> Shaded {
     return out;
 }
 
+// Closed-form glossy specular of area lights (`scene::ltc`, docs/shading.md): keep the two in
+// step. The fitted table, two vec4 a cell: M⁻¹'s (a, b, c, d), then the lobe's norm and Fresnel
+// integral.
+@group(0) @binding(5) var<storage, read> ltc_table: array<vec4f>;
+
+const LTC_SIZE: u32 = 64u;
+const LTC_MAX_VERTICES: u32 = 8u;
+// Circumradius of the regular octagon with the unit disk's area.
+const OCTAGON_RADIUS: f32 = 1.0539074;
+const MIN_COSINE_INTEGRAL: f32 = 1e-7;
+
+fn ltc_cell(row: u32, column: u32, half: u32) -> vec4f {
+    return ltc_table[(row * LTC_SIZE + column) * 2u + half];
+}
+
+// Half `half` of the table bilinearly interpolated at GGX α and view cosine `cos_v`.
+fn ltc_lookup(alpha: f32, cos_v: f32, half: u32) -> vec4f {
+    let last = f32(LTC_SIZE - 1u);
+    let x = sqrt(clamp(alpha, 0.0, 1.0)) * last;
+    let y = sqrt(1.0 - clamp(cos_v, 0.0, 1.0)) * last;
+    let i = min(u32(floor(x)), LTC_SIZE - 2u);
+    let j = min(u32(floor(y)), LTC_SIZE - 2u);
+    let fx = x - f32(i);
+    let fy = y - f32(j);
+    let a = ltc_cell(i, j, half);
+    let b = ltc_cell(i + 1u, j, half);
+    let top = a + (ltc_cell(i, j + 1u, half) - a) * fy;
+    let bottom = b + (ltc_cell(i + 1u, j + 1u, half) - b) * fy;
+    return top + (bottom - top) * fx;
+}
+
+// A unit tangent of unit n (`scene::sampling::basis`'s first axis).
+fn tangent_of(n: vec3f) -> vec3f {
+    let helper = select(vec3f(0.0, 1.0, 0.0), vec3f(1.0, 0.0, 0.0), abs(n.x) < 0.9);
+    return safe_normalize(cross(helper, n));
+}
+
+struct Polygon {
+    v: array<vec3f, 8>,
+    count: u32,
+}
+
+// The polygon standing for a sample's area light seen from p (`scene::ltc::polygon`); no
+// vertices from inside a sphere light.
+fn area_polygon(s: Light, p: vec3f) -> Polygon {
+    var out: Polygon;
+    out.count = 0u;
+    if s.area_kind == AREA_RECT {
+        out.v[0] = s.area_center - s.area_u - s.area_v;
+        out.v[1] = s.area_center + s.area_u - s.area_v;
+        out.v[2] = s.area_center + s.area_u + s.area_v;
+        out.v[3] = s.area_center - s.area_u + s.area_v;
+        out.count = 4u;
+        return out;
+    }
+    var c = s.area_center;
+    var u = s.area_u;
+    var w = s.area_v;
+    if s.area_kind == AREA_SPHERE {
+        let radius = s.area_u.x;
+        let d = s.area_center - p;
+        let dist = length(d);
+        if !(dist > radius * 1.0001) {
+            return out;
+        }
+        let k = (radius / dist) * (radius / dist);
+        c = p + d * (1.0 - k);
+        let r = radius * sqrt(1.0 - k);
+        let axis = d * (1.0 / dist);
+        let t = tangent_of(axis);
+        u = t * r;
+        w = cross(axis, t) * r;
+    }
+    for (var k = 0u; k < LTC_MAX_VERTICES; k++) {
+        let phi = 2.0 * PI * f32(k) / f32(LTC_MAX_VERTICES);
+        out.v[k] = c + (u * (cos(phi) * OCTAGON_RADIUS) + w * (sin(phi) * OCTAGON_RADIUS));
+    }
+    out.count = LTC_MAX_VERTICES;
+    return out;
+}
+
+// One edge's share of 2π·∫cos/π over a spherical polygon (unit a, b).
+fn ltc_edge(a: vec3f, b: vec3f) -> f32 {
+    let c = cross(a, b);
+    let s = length(c);
+    let theta = atan2(s, dot(a, b));
+    return c.z * select(1.0, theta / s, s > 1e-9);
+}
+
+// ∫ max(z, 0)/π dω over the spherical polygon of directions `poly`, clipped to z ≥ 0.
+fn clipped_cosine_integral(poly: Polygon) -> f32 {
+    var clipped: array<vec3f, 9>;
+    var m = 0u;
+    for (var k = 0u; k < poly.count; k++) {
+        let a = poly.v[k];
+        let b = poly.v[(k + 1u) % poly.count];
+        if a.z >= 0.0 {
+            clipped[m] = a;
+            m++;
+        }
+        if (a.z >= 0.0) != (b.z >= 0.0) && m < 9u {
+            let t = a.z / (a.z - b.z);
+            var x = a + (b - a) * t;
+            x.z = 0.0;
+            clipped[m] = x;
+            m++;
+        }
+    }
+    var sum = 0.0;
+    for (var k = 0u; k < m; k++) {
+        sum += ltc_edge(safe_normalize(clipped[k]), safe_normalize(clipped[(k + 1u) % m]));
+    }
+    return abs(sum / (2.0 * PI));
+}
+
+// (S₁/E, S_w/E, 1) of a sample's area light at a surface point (`scene::ltc::ggx_area_terms`),
+// or zero where the closed form does not apply.
+fn ggx_area_terms(s: Light, p: vec3f, n: vec3f, v: vec3f, alpha: f32) -> vec3f {
+    let world = area_polygon(s, p);
+    if world.count == 0u {
+        return vec3f(0.0);
+    }
+    let along = v - n * dot(n, v);
+    let l = length(along);
+    let t1 = select(tangent_of(n), along * (1.0 / l), l > 1e-6);
+    let t2 = cross(n, t1);
+    let m = ltc_lookup(alpha, dot(n, v), 0u);
+    var local: Polygon;
+    var lobe: Polygon;
+    local.count = world.count;
+    lobe.count = world.count;
+    for (var k = 0u; k < world.count; k++) {
+        let w = world.v[k] - p;
+        let q = vec3f(dot(w, t1), dot(w, t2), dot(w, n));
+        local.v[k] = q;
+        lobe.v[k] = vec3f(m.x * q.x + m.y * q.z, q.y, m.z * q.x + m.w * q.z);
+    }
+    let e = clipped_cosine_integral(local);
+    if !(e > MIN_COSINE_INTEGRAL) {
+        return vec3f(0.0);
+    }
+    let k = ltc_lookup(alpha, dot(n, v), 1u);
+    let ratio = clipped_cosine_integral(lobe) / (PI * e);
+    let terms = vec2f(k.x * ratio, k.y * ratio);
+    return select(vec3f(0.0), vec3f(terms, 1.0), all(abs(terms) < vec2f(3.0e38)));
+}
+
+// Roughness range over which glossy specular passes from the closed form to the samples' own.
+const CLOSED_FORM_ROUGHNESS: vec2f = vec2f(0.4, 0.6);
+
+// The closed form's share at GGX α (`scene::ltc::closed_form_share`).
+fn closed_form_share(alpha: f32) -> f32 {
+    let r = sqrt(max(alpha, 0.0));
+    let t = clamp((r - CLOSED_FORM_ROUGHNESS.x) / (CLOSED_FORM_ROUGHNESS.y - CLOSED_FORM_ROUGHNESS.x), 0.0, 1.0);
+    return 1.0 - t * t * (3.0 - 2.0 * t);
+}
+
+// Whether two samples belong to the same area light (consecutive samples of one light share
+// its closed-form terms).
+fn same_area(a: Light, b: Light) -> bool {
+    return a.area_kind == b.area_kind && all(a.area_center == b.area_center)
+        && all(a.area_u == b.area_u) && all(a.area_v == b.area_v);
+}
+
 fn illuminate_metallic_roughness(sf: Surface, start: Shaded) -> Shaded {
     let lobe = metallic_roughness_lobe(sf.material, sf.uv);
     let f0 = lobe.xyz;
     let v = safe_normalize(frame.camera - sf.p);
     var out = start;
+    // The closed form's share of glossy specular, the last area light's terms and the sample
+    // they were computed for.
+    let share = closed_form_share(lobe.w);
+    var area_terms = vec3f(0.0);
+    var area_of: Light;
+    area_of.area_kind = AREA_NONE;
     for (var i = 0u; i < frame.light_count; i++) {
         let s = light_at(i);
         let lr = to_light(s, sf.p);
@@ -648,7 +818,17 @@ fn illuminate_metallic_roughness(sf: Surface, start: Shaded) -> Shaded {
             continue;
         }
         let t = ggx_terms(sf.n, lr.xyz, v, lobe.w);
-        let x = e * t.y * (f0 + (vec3f(1.0) - f0) * t.z);
+        var x = e * t.y * (f0 + (vec3f(1.0) - f0) * t.z);
+        if s.area_kind != AREA_NONE && share > 0.0 {
+            if !same_area(s, area_of) {
+                area_terms = ggx_area_terms(s, sf.p, sf.n, v, lobe.w);
+                area_of = s;
+            }
+            if area_terms.z > 0.0 {
+                let closed = e * (f0 * area_terms.x + (vec3f(1.0) - f0) * area_terms.y);
+                x = x + (closed - x) * share;
+            }
+        }
         let is = select(vec3f(0.0), x, abs(x) < vec3f(3.0e38));
         let vis = visibility(s, sf.p, sf.ng, sf.object);
         out.diffuse += s.weight * (e * t.x * vis);

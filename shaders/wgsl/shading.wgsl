@@ -40,7 +40,20 @@ struct Light {
     // View index per face, two faces to a word (low 16 bits, high 16 bits): +x −x, +y −y, +z −z;
     // FACE_NONE where none.
     faces: vec4<u32>,
+    // The area light's shape for closed-form glossy specular (`scene::ltc`): AREA_* kind, centre,
+    // half axes (a sphere's radius in area_u.x).
+    area_center: vec3f,
+    area_kind: u32,
+    area_u: vec3f,
+    area_pad0: u32,
+    area_v: vec3f,
+    area_pad1: u32,
 }
+
+const AREA_NONE: u32 = 0u;
+const AREA_RECT: u32 = 1u;
+const AREA_DISK: u32 = 2u;
+const AREA_SPHERE: u32 = 3u;
 
 const FACE_NONE: u32 = 0xffffu;
 

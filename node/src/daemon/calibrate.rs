@@ -91,6 +91,7 @@ pub fn calibration_lights(n: usize) -> Vec<LightSample> {
                 color: [1.0, 1.0, 1.0],
                 range: None,
                 light: 0,
+                area: None,
             }
         })
         .collect()

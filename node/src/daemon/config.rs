@@ -335,6 +335,7 @@ mod tests {
             range: 0.0,
             light: 0,
             sample: 0,
+            area: None,
         };
         NodeConfig {
             epoch: 1,

@@ -94,9 +94,10 @@ fn required_limits(l: &wgpu::Limits) -> [(&'static str, u64, u64); 6] {
             (lightfold_shaders::CHUNK_VIEWS * std::mem::size_of::<super::lights::GpuView>()) as u64,
             l.max_uniform_buffer_binding_size,
         ),
+        // The scene group's six and the forward pass's lights and views.
         (
             "max_storage_buffers_per_shader_stage",
-            4,
+            8,
             l.max_storage_buffers_per_shader_stage as u64,
         ),
         ("max_color_attachments", 2, l.max_color_attachments as u64),

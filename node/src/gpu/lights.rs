@@ -11,7 +11,7 @@ use lightfold_scene::shadow_views::{
     Mismatch, ShadowView, ShadowViewKind, camera_views, cube_frame, mismatch_size, probes,
     shadow_views, visible_receivers,
 };
-use lightfold_scene::{Camera, LightSample, SampleKind};
+use lightfold_scene::{AreaShape, Camera, LightSample, SampleKind};
 
 /// Deliberate mistakes for negative-control tests: each must make the comparison with the CPU
 /// reference fail. Never set outside tests.
@@ -63,7 +63,22 @@ pub struct GpuLight {
     /// View index of each face (`CubeFace::index` order), two to a word, low half first; see
     /// [`GpuLight::face`].
     pub faces: [u32; 4],
+    /// The area light's shape for closed-form glossy specular ([`AREA_NONE`], [`AREA_RECT`],
+    /// [`AREA_DISK`], [`AREA_SPHERE`]; `scene::ltc`), its centre and its half axes `area_u`,
+    /// `area_v` (a sphere's radius in `area_u[0]`).
+    pub area_center: [f32; 3],
+    pub area_kind: u32,
+    pub area_u: [f32; 3],
+    pub area_pad0: u32,
+    pub area_v: [f32; 3],
+    pub area_pad1: u32,
 }
+
+/// Values of [`GpuLight::area_kind`].
+pub const AREA_NONE: u32 = 0;
+pub const AREA_RECT: u32 = 1;
+pub const AREA_DISK: u32 = 2;
+pub const AREA_SPHERE: u32 = 3;
 
 /// A cube face with no receivers, hence no view.
 pub const NO_VIEW: u32 = u32::MAX;
@@ -328,6 +343,14 @@ fn gpu_light(s: &LightSample, weight: V3, first_view: u32, view_count: u32) -> G
         SampleKind::Directional => (4, 0.0, 0.0),
         SampleKind::Bounce { clamp } => (5, clamp, 0.0),
     };
+    let (area_kind, area_center, area_u, area_v) = match s.area {
+        None => (AREA_NONE, [0.0; 3], [0.0; 3], [0.0; 3]),
+        Some(AreaShape::Rect { center, u, v }) => (AREA_RECT, center, u, v),
+        Some(AreaShape::Disk { center, u, v }) => (AREA_DISK, center, u, v),
+        Some(AreaShape::Sphere { center, radius }) => {
+            (AREA_SPHERE, center, [radius, 0.0, 0.0], [0.0; 3])
+        }
+    };
     GpuLight {
         position: s.position,
         kind,
@@ -347,6 +370,12 @@ fn gpu_light(s: &LightSample, weight: V3, first_view: u32, view_count: u32) -> G
         cube_z: [0.0; 3],
         cascades: 0,
         faces: [u32::MAX; 4],
+        area_center,
+        area_kind,
+        area_u,
+        area_pad0: 0,
+        area_v,
+        area_pad1: 0,
     }
 }
 
@@ -452,6 +481,7 @@ mod tests {
             color: [1.0, 0.5, 0.25],
             range: None,
             light: 0,
+            area: None,
         }
     }
 
@@ -462,7 +492,7 @@ mod tests {
 
     #[test]
     fn layouts_match_the_wgsl_structs() {
-        assert_eq!(std::mem::size_of::<GpuLight>(), 112);
+        assert_eq!(std::mem::size_of::<GpuLight>(), 160);
         assert_eq!(std::mem::size_of::<GpuView>(), 128);
     }
 

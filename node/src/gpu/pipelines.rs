@@ -195,6 +195,8 @@ impl Pipelines {
                 storage_entry(2, fragment),
                 storage_entry(3, fragment),
                 storage_entry(4, fragment),
+                // The fitted table of closed-form glossy specular (`scene::ltc`).
+                storage_entry(5, fragment),
             ],
         });
         let shadow_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {

@@ -183,7 +183,7 @@ impl Renderer {
             bytemuck::cast_slice(&data.vertices)
         };
         let tbytes = tangent_bytes(&data.tangents);
-        let (vertices, tangents, materials, pbr, textures, texels, object_bounds) =
+        let (vertices, tangents, materials, pbr, textures, texels, object_bounds, ltc) =
             allocate(gpu, "the scene buffers", || {
                 (
                     init(
@@ -221,6 +221,11 @@ impl Renderer {
                         bytemuck::cast_slice(&data.object_bounds),
                         wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
                     ),
+                    init(
+                        "ltc table",
+                        bytemuck::cast_slice(lightfold_scene::ltc::table()),
+                        wgpu::BufferUsages::STORAGE,
+                    ),
                 )
             })?;
         let scene_bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -246,6 +251,10 @@ impl Renderer {
                 wgpu::BindGroupEntry {
                     binding: 4,
                     resource: object_bounds.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 5,
+                    resource: ltc.as_entire_binding(),
                 },
             ],
         });

@@ -112,9 +112,10 @@ pub fn light() -> impl Strategy<Value = WireLight> {
         v3(),
         num(),
         any::<(u32, u32)>(),
+        prop::option::of((any::<u8>(), v3(), v3(), v3())),
     )
         .prop_map(
-            |(position, direction, kind, cone, intensity, color, range, (light, sample))| {
+            |(position, direction, kind, cone, intensity, color, range, (light, sample), area)| {
                 WireLight {
                     position,
                     direction,
@@ -125,6 +126,7 @@ pub fn light() -> impl Strategy<Value = WireLight> {
                     range,
                     light,
                     sample,
+                    area: area.map(|(kind, center, u, v)| WireArea { kind, center, u, v }),
                 }
             },
         )

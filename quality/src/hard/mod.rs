@@ -9,6 +9,7 @@ mod banding;
 mod chain;
 mod degenerate;
 mod depth_range;
+pub mod glossy;
 mod shadow;
 pub mod shadow_maps;
 mod subtexel;
@@ -129,6 +130,7 @@ const CASES: &[(&str, CaseFn)] = &[
     ("deep-near", shadow_maps::deep_near),
     ("thin-poles", shadow_maps::thin_poles),
     ("thin-house", shadow_maps::thin_house),
+    ("glossy-area", glossy::glossy_area),
 ];
 
 /// Names of the hard cases `run_case` knows.

@@ -466,4 +466,5 @@ fn apply_quality(q: &mut Quality, s: &super::spec::QualitySpec) {
     q.lights_per_node = s.lights_per_node.unwrap_or(q.lights_per_node);
     q.indirect = s.indirect.unwrap_or(q.indirect);
     q.indirect_clamp = s.indirect_clamp.or(q.indirect_clamp);
+    q.area_specular = s.area_specular.unwrap_or(q.area_specular);
 }

@@ -142,6 +142,10 @@ pub struct QualitySpec {
     /// Their falloff clamp, metres.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub indirect_clamp: Option<f32>,
+    /// `"analytic"` (the default: glossy specular integrated over each area light in closed
+    /// form) or `"sampled"` (each sample's own point highlight).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub area_specular: Option<crate::model::AreaSpecular>,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

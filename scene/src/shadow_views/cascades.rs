@@ -204,6 +204,7 @@ mod tests {
             color: [1.0; 3],
             range: None,
             light: 0,
+            area: None,
         }
     }
 
