@@ -3,10 +3,10 @@
 //! the state as it is, so viewers steering at once compose their moves instead of overwriting
 //! each other's.
 
+use crate::clock::Clock;
 use glam::Vec3;
 use lightfold_coordinator::control::FrameSpec;
 use lightfold_scene::{Camera, Scene};
-use std::time::Instant;
 
 /// Closest the camera may come to its target's up axis, degrees (orbit stops short of the poles).
 const POLE_MARGIN_DEG: f32 = 2.0;
@@ -50,42 +50,13 @@ pub struct Steer {
     /// The scene's camera (`reset`).
     pub home: Camera,
     pub lights: Vec<LightSetting>,
-    /// Scene time of an animated scene.
+    /// Clip time of an animated scene, as it plays.
     pub clock: Clock,
     /// The frame budget a viewer set (µs; `Some(None)`: none); `None` until one does (the
     /// session's own, `--frame-budget`, holds).
     pub frame_budget_us: Option<Option<u64>>,
     /// Counts changes, from 0 (the scene as loaded).
     pub revision: u64,
-}
-
-/// Scene time as the viewers play it: a time, and while playing the instant it was at it.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Clock {
-    /// Scene time (seconds) when paused, or at `since` while playing.
-    pub time: f32,
-    pub since: Option<Instant>,
-    /// The animation's span (seconds, for the page's slider); 0 for a still scene.
-    pub span: f32,
-}
-
-impl Clock {
-    /// The scene time now.
-    pub fn now(&self) -> f32 {
-        match self.since {
-            None => self.time,
-            Some(at) => self.time + at.elapsed().as_secs_f32(),
-        }
-    }
-
-    pub fn playing(&self) -> bool {
-        self.since.is_some()
-    }
-
-    /// Whether the scene moves at all (otherwise frames carry no time).
-    pub fn animated(&self) -> bool {
-        self.span > 0.0
-    }
 }
 
 impl Steer {
@@ -101,15 +72,11 @@ impl Steer {
                     intensity: 1.0,
                 })
                 .collect(),
-            clock: Clock {
-                time: 0.0,
-                since: None,
-                span: if scene.is_animated() {
-                    scene.animation.as_ref().map_or(0.0, |a| a.span())
-                } else {
-                    0.0
-                },
-            },
+            clock: Clock::new(if scene.is_animated() {
+                scene.animation.as_ref().map_or(0.0, |a| a.span())
+            } else {
+                0.0
+            }),
             frame_budget_us: None,
             revision: 0,
         }
@@ -133,32 +100,14 @@ impl Steer {
         Ok(())
     }
 
-    /// Jumps to scene time `t` (playing on from there if playing).
+    /// Jumps to scene time `t`, mapped into the clip (playing on from there if playing).
     pub fn seek(&mut self, t: f32) -> Result<(), SteerError> {
-        finite(&[t], "scene time")?;
-        if t.abs() > 1e6 {
-            return Err(SteerError::OutOfRange(format!(
-                "scene time {t} s is beyond ±10⁶ s"
-            )));
-        }
-        self.clock.time = t;
-        if self.clock.playing() {
-            self.clock.since = Some(Instant::now());
-        }
-        Ok(())
+        self.clock.seek(t)
     }
 
     /// Starts or stops the scene's clock (no-op when already so, or for a still scene).
     pub fn play(&mut self, on: bool) {
-        if !self.clock.animated() || on == self.clock.playing() {
-            return;
-        }
-        if on {
-            self.clock.since = Some(Instant::now());
-        } else {
-            self.clock.time = self.clock.now();
-            self.clock.since = None;
-        }
+        self.clock.play(on);
     }
 
     /// The frame request for this state: its camera, and every light's colour (colour × power

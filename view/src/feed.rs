@@ -1,9 +1,10 @@
 //! Frame requests from the steering state: one request whenever there is room in the pipeline
 //! (fewer than `frames_in_flight` requested and not delivered) and something to show — the
-//! steering changed since the last request, a viewer asked for a frame, or the view is
-//! continuous. Each request is built when it is sent, so it carries the newest camera and lights.
+//! steering changed since the last request, the scene's clock moved (an animation playing), a
+//! viewer asked for a frame, or the view is continuous. Each request is built when it is sent, so
+//! it carries the newest camera, lights and clip time.
 
-use crate::hub::Hub;
+use crate::hub::{Hub, Requested};
 use lightfold_coordinator::control::FrameSpec;
 use std::sync::Arc;
 use tokio::sync::mpsc;
@@ -18,7 +19,7 @@ pub async fn run(
     let mut steer = hub.steer.subscribe();
     let mut delivered = hub.delivered.subscribe();
     let mut requested: u64 = 0;
-    let mut last_revision: Option<u64> = None;
+    let mut last: Option<Requested> = None;
     loop {
         // Room in the pipeline.
         while requested.saturating_sub(*delivered.borrow_and_update()) >= in_flight {
@@ -29,12 +30,15 @@ pub async fn run(
         }
         // Something to show.
         loop {
-            let (revision, playing) = {
+            let now = {
                 let s = steer.borrow_and_update();
-                (s.revision, s.clock.playing())
+                Requested {
+                    revision: s.revision,
+                    time: s.clock.animated().then(|| s.clock.now()),
+                }
             };
-            // A playing animation always has a new frame to show.
-            if hub.continuous || playing || last_revision != Some(revision) {
+            // A playing animation has a new frame to show until it stops at its end.
+            if hub.continuous || last != Some(now) {
                 break;
             }
             tokio::select! {
@@ -47,12 +51,16 @@ pub async fn run(
             let s = steer.borrow();
             (s.spec(), s.revision)
         };
-        last_revision = Some(revision);
+        let at = Requested {
+            revision,
+            time: spec.time,
+        };
+        last = Some(at);
         requested += 1;
         hub.revisions
             .lock()
             .unwrap_or_else(|e| e.into_inner())
-            .insert(requested, revision);
+            .insert(requested, at);
         tokio::select! {
             _ = stop.cancelled() => return,
             r = tx.send(spec) => if r.is_err() { return },

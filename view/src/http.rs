@@ -1,4 +1,4 @@
-//! The HTTP side: the page (embedded), the newest frame as JPEG and EXR, and the WebSocket.
+//! The HTTP side: the page (embedded), the newest frame as JPEG, PNG and EXR, and the WebSocket.
 
 use crate::hub::{Hub, MAX_VIEWERS};
 use axum::extract::ws::WebSocketUpgrade;
@@ -6,10 +6,12 @@ use axum::extract::{ConnectInfo, State};
 use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
+use bytes::Bytes;
 use hyper::body::Incoming;
 use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
 use hyper_util::server::conn::auto::Builder;
 use hyper_util::service::TowerToHyperService;
+use lightfold_scene::Image;
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
@@ -52,6 +54,7 @@ pub async fn serve(listener: tokio::net::TcpListener, hub: Arc<Hub>) {
             get(|| async { page(STYLE, "text/css; charset=utf-8") }),
         )
         .route("/frame.jpg", get(jpeg))
+        .route("/frame.png", get(png))
         .route("/frame.exr", get(exr))
         .route("/ws", get(websocket))
         .with_state(hub);
@@ -139,40 +142,63 @@ async fn exr(State(hub): State<Arc<Hub>>) -> Response {
     let Some(image) = image else {
         return no_frame();
     };
-    // One encoding per frame, however many download it at once (they wait for it here).
-    let mut cache = hub.exr.lock().await;
-    let cached = cache
-        .as_ref()
-        .filter(|(of, _)| Arc::ptr_eq(of, &image))
-        .map(|(_, b)| b.clone());
-    let encoded = match cached {
-        Some(b) => Ok(Ok(b)),
-        None => {
-            let of = Arc::clone(&image);
-            let r =
-                tokio::task::spawn_blocking(move || of.exr_bytes().map(bytes::Bytes::from)).await;
-            if let Ok(Ok(b)) = &r {
-                *cache = Some((image, b.clone()));
-            }
-            r
-        }
+    let encoded = once_per_frame(&hub.exr, image, (), |i| Ok(i.exr_bytes()?)).await;
+    download(encoded, "image/x-exr", "frame.exr")
+}
+
+/// The newest frame as a PNG: 8-bit sRGB at the exposure the view encodes frames at now.
+async fn png(State(hub): State<Arc<Hub>>) -> Response {
+    let image = hub.image.lock().unwrap_or_else(|e| e.into_inner()).clone();
+    let Some(image) = image else {
+        return no_frame();
     };
-    drop(cache);
+    let stops = *hub.exposure.borrow();
+    let encoded = once_per_frame(&hub.png, image, stops.to_bits(), move |i| {
+        crate::encode::png(i, stops)
+    })
+    .await;
+    download(encoded, "image/png", "frame.png")
+}
+
+/// `image` encoded by `encode`: once per frame and `key`, however many download it at once
+/// (they wait for it here and share its bytes).
+async fn once_per_frame<K: PartialEq>(
+    cache: &tokio::sync::Mutex<Option<(Arc<Image>, K, Bytes)>>,
+    image: Arc<Image>,
+    key: K,
+    encode: impl FnOnce(&Image) -> anyhow::Result<Vec<u8>> + Send + 'static,
+) -> Result<Bytes, String> {
+    let mut cache = cache.lock().await;
+    if let Some((_, _, b)) = cache
+        .as_ref()
+        .filter(|(of, k, _)| Arc::ptr_eq(of, &image) && *k == key)
+    {
+        return Ok(b.clone());
+    }
+    let of = Arc::clone(&image);
+    let bytes = tokio::task::spawn_blocking(move || encode(&of).map(Bytes::from))
+        .await
+        .map_err(|e| e.to_string())?
+        .map_err(|e| e.to_string())?;
+    *cache = Some((image, key, bytes.clone()));
+    Ok(bytes)
+}
+
+fn download(encoded: Result<Bytes, String>, kind: &'static str, name: &str) -> Response {
     match encoded {
-        Ok(Ok(bytes)) => (
+        Ok(bytes) => (
             [
-                (header::CONTENT_TYPE, "image/x-exr"),
-                (header::CACHE_CONTROL, "no-store"),
+                (header::CONTENT_TYPE, kind.to_string()),
+                (header::CACHE_CONTROL, "no-store".to_string()),
                 (
                     header::CONTENT_DISPOSITION,
-                    "attachment; filename=\"frame.exr\"",
+                    format!("attachment; filename=\"{name}\""),
                 ),
             ],
             bytes,
         )
             .into_response(),
-        Ok(Err(e)) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
-        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e.to_string()).into_response(),
+        Err(e) => (StatusCode::INTERNAL_SERVER_ERROR, e).into_response(),
     }
 }
 

@@ -43,6 +43,13 @@ pub struct ViewCounters {
     pub viewers_dropped: AtomicU64,
 }
 
+/// What a frame was requested at: the steering revision, and the clip time of an animated scene.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Requested {
+    pub revision: u64,
+    pub time: Option<f32>,
+}
+
 /// One encoded frame, ready to send: the binary WebSocket message and its JPEG part.
 #[derive(Debug)]
 pub struct ViewFrame {
@@ -58,22 +65,31 @@ pub struct Hub {
     pub jpeg_quality: u8,
     pub send_timeout: std::time::Duration,
     pub scene: serde_json::Value,
+    /// The scene's own exposure, stops (what the page's exposure resets to).
+    pub scene_stops: f32,
     token: Option<[u8; 32]>,
     pub steer: watch::Sender<Steer>,
     /// A viewer asked for a frame although nothing changed.
     pub render_now: Notify,
     /// The number of the last frame the loop delivered.
     pub delivered: watch::Sender<u64>,
-    /// The steering revision each frame was requested at, by frame number (pruned as frames
-    /// are delivered).
-    pub revisions: Mutex<BTreeMap<u64, u64>>,
+    /// What each frame was requested at, by frame number (pruned as frames are delivered).
+    pub revisions: Mutex<BTreeMap<u64, Requested>>,
+    /// The exposure frames are encoded at, stops (`to_srgb8(2^stops)`): the viewers' to set; not
+    /// part of the steering revision, since no node renders again for it.
+    pub exposure: watch::Sender<f32>,
+    /// The encoding thread's queue, to tell it the exposure changed (it then encodes the last
+    /// frame again); `None` before it starts and after it stops.
+    pub encoder: Mutex<Option<std::sync::mpsc::Sender<crate::encode::Work>>>,
     pub frames: watch::Sender<Option<Arc<ViewFrame>>>,
     /// The newest frame, linear (for `/frame.exr`).
     pub image: Mutex<Option<Arc<Image>>>,
     /// `/frame.exr`'s bytes, encoded once per frame and shared by every download of it (each
     /// download used to hold its own copy: 120 unread downloads took the coordinator from 35 to
     /// 782 MB at 800×600).
-    pub exr: tokio::sync::Mutex<Option<(Arc<Image>, bytes::Bytes)>>,
+    pub exr: tokio::sync::Mutex<Option<(Arc<Image>, (), bytes::Bytes)>>,
+    /// `/frame.png`'s bytes, likewise, with the exposure (stops, as bits) they were encoded at.
+    pub png: tokio::sync::Mutex<Option<(Arc<Image>, u32, bytes::Bytes)>>,
     live: watch::Receiver<LiveStatus>,
     /// The status as the page gets it, and the newest notice.
     pub status: watch::Sender<Option<Arc<serde_json::Value>>>,
@@ -102,14 +118,18 @@ impl Hub {
             jpeg_quality: opts.jpeg_quality.clamp(1, 100),
             send_timeout: opts.send_timeout,
             scene: crate::json::scene(scene),
+            scene_stops: crate::encode::stops_of(scene.exposure),
             token: opts.token.as_deref().map(digest),
             steer: watch::Sender::new(Steer::new(scene)),
             render_now: Notify::new(),
             delivered: watch::Sender::new(0),
             revisions: Mutex::new(BTreeMap::new()),
+            exposure: watch::Sender::new(crate::encode::stops_of(scene.exposure)),
+            encoder: Mutex::new(None),
             frames: watch::Sender::new(None),
             image: Mutex::new(None),
             exr: tokio::sync::Mutex::new(None),
+            png: tokio::sync::Mutex::new(None),
             live,
             status: watch::Sender::new(None),
             notice: watch::Sender::new(None),
@@ -141,12 +161,28 @@ impl Hub {
         self.delivered.send_replace(frame);
     }
 
-    /// The steering revision frame `frame` was requested at (and forgets older frames).
-    pub fn revision_of(&self, frame: u64) -> u64 {
+    /// What frame `frame` was requested at (and forgets older frames).
+    pub fn requested(&self, frame: u64) -> Requested {
         let mut r = self.revisions.lock().unwrap_or_else(|e| e.into_inner());
-        let rev = r.get(&frame).copied().unwrap_or(0);
+        let at = r.get(&frame).copied().unwrap_or_default();
         r.retain(|&f, _| f > frame);
-        rev
+        at
+    }
+
+    /// Sets the exposure frames are encoded at (stops: finite, clamped to the range); the next
+    /// frame encoded uses it, and the last frame is encoded again at it. The stops applied.
+    pub fn set_exposure(&self, stops: f32) -> Result<f32, crate::SteerError> {
+        let stops = crate::encode::check_stops(stops)?;
+        if self
+            .exposure
+            .send_if_modified(|s| std::mem::replace(s, stops) != stops)
+        {
+            let tx = self.encoder.lock().unwrap_or_else(|e| e.into_inner());
+            if let Some(tx) = tx.as_ref() {
+                let _ = tx.send(crate::encode::Work::Exposure);
+            }
+        }
+        Ok(stops)
     }
 
     /// The `stats` message: what serving the view has cost so far.

@@ -2,6 +2,8 @@
 //! camera and lights, and frame headers.
 
 use crate::camera::Steer;
+use crate::clock::Clock;
+use crate::hub::Requested;
 use lightfold_coordinator::control::{FrameResult, IncidentKind, LiveState, LiveStatus};
 use lightfold_coordinator::plan::{Downstream, Plan};
 use lightfold_scene::{Camera, LightShape, Scene};
@@ -56,6 +58,25 @@ pub fn camera(c: &Camera) -> Value {
 
 pub fn camera_message(s: &Steer) -> Value {
     json!({"type": "camera", "camera": camera(&s.camera), "revision": s.revision})
+}
+
+/// The scene's clock as the page shows it: the clip's span, its time now, and how it plays.
+pub fn animation(c: &Clock) -> Value {
+    json!({
+        "span": c.span,
+        "time": c.now(),
+        "playing": c.playing(),
+        "loop": c.looping,
+        "speed": c.speed,
+    })
+}
+
+pub fn animation_message(s: &Steer) -> Value {
+    json!({"type": "animation", "animation": animation(&s.clock), "revision": s.revision})
+}
+
+pub fn exposure_message(stops: f32) -> Value {
+    json!({"type": "exposure", "stops": stops})
 }
 
 pub fn lights_message(s: &Steer) -> Value {
@@ -165,10 +186,10 @@ pub fn plan(p: &Plan) -> Value {
     })
 }
 
-/// The header of a frame message.
+/// The header of a frame message (the encoder adds the exposure it was encoded at).
 pub fn frame_header(
     f: &FrameResult,
-    revision: u64,
+    requested: Requested,
     interval_ms: Option<f64>,
     plan: Option<&Plan>,
 ) -> Value {
@@ -191,7 +212,8 @@ pub fn frame_header(
     json!({
         "frame": f.frame,
         "epoch": f.epoch.to_string(),
-        "revision": revision,
+        "revision": requested.revision,
+        "time": requested.time,
         "width": f.image.width,
         "height": f.image.height,
         "interval_ms": interval_ms,

@@ -1,7 +1,8 @@
 //! The live view (`docs/live-view.md`): an HTTP server on the coordinator's runtime that serves a
 //! web page showing the newest frame as frames complete, and lets the people watching steer the
 //! cluster — the camera of the next frame requested, the lights' colours and powers (the
-//! compositors' per-frame `c_n`, with no node re-rendering) — while it shows per-daemon timings,
+//! compositors' per-frame `c_n`, with no node re-rendering), the scene's clock, and the exposure
+//! frames are encoded at (applied by the view itself) — while it shows per-daemon timings,
 //! the plan as a graph and the cluster's state (re-planning, degraded, who was lost).
 //!
 //! The view drives the coordinator's event loop (`control::Live`) itself: frame requests come from
@@ -14,6 +15,7 @@
 //! presents the token (`ViewOptions::token`, the cluster's or a separate viewer token).
 
 mod camera;
+mod clock;
 mod encode;
 mod feed;
 mod http;
@@ -22,6 +24,8 @@ mod json;
 mod ws;
 
 pub use camera::{Steer, SteerError};
+pub use clock::{Clock, MAX_SPEED, MIN_SPEED, clip_time};
+pub use encode::{MAX_STOPS, MIN_STOPS};
 pub use hub::{MAX_VIEWERS, MAX_WATCHERS, ViewCounters};
 
 use lightfold_coordinator::control::{FrameResult, Live, LiveSummary, Session};
@@ -162,7 +166,7 @@ impl View {
         let relay = tokio::spawn(Arc::clone(&hub).relay_status());
         let (tx, rx) = tokio::sync::mpsc::channel(1);
         let feeder = tokio::spawn(feed::run(Arc::clone(&hub), tx, in_flight, stop));
-        let mut encoder = encode::Encoder::start(Arc::clone(&hub), scene.exposure);
+        let mut encoder = encode::Encoder::start(Arc::clone(&hub));
         let error = live
             .run(rx, |f| {
                 hub.delivered(f.frame);

@@ -47,6 +47,19 @@ enum Input {
     },
     Play,
     Pause,
+    /// Playback speed, times real time.
+    Speed {
+        speed: f32,
+    },
+    /// Loop at the end of the clip, or stop there.
+    Loop {
+        on: bool,
+    },
+    /// The exposure frames are encoded at, stops (applied to the frames encoded from now on and
+    /// to the last frame again; nothing is rendered for it).
+    Exposure {
+        stops: f32,
+    },
     /// The frame budget the planner meets, milliseconds (`null`: none).
     Budget {
         ms: Option<f32>,
@@ -134,6 +147,8 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
     let mut frames = hub.frames.subscribe();
     let mut status = hub.status.subscribe();
     let mut steer = hub.steer.subscribe();
+    let mut exposure = hub.exposure.subscribe();
+    exposure.borrow_and_update(); // the welcome says it
     let mut notices = hub.notice.subscribe();
     notices.borrow_and_update(); // only notices from now on
     let mut ended = hub.ended.subscribe();
@@ -208,6 +223,12 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
                 let s = steer.borrow_and_update().clone();
                 outbox.push(json::camera_message(&s));
                 outbox.push(json::lights_message(&s));
+                outbox.push(json::animation_message(&s));
+            }
+            r = exposure.changed() => {
+                if r.is_err() { return; }
+                let stops = *exposure.borrow_and_update();
+                outbox.push(json::exposure_message(stops));
             }
             r = notices.changed() => {
                 if r.is_err() { return; }
@@ -266,10 +287,12 @@ impl Viewer {
             "revision": s.revision,
             "walkthrough": self.hub.plan().is_some_and(|p| p.walkthrough),
             "continuous": self.hub.continuous,
-            "animation": {
-                "span": s.clock.span,
-                "time": s.clock.now(),
-                "playing": s.clock.playing(),
+            "animation": json::animation(&s.clock),
+            "exposure": {
+                "stops": *self.hub.exposure.borrow(),
+                "scene_stops": self.hub.scene_stops,
+                "min": crate::encode::MIN_STOPS,
+                "max": crate::encode::MAX_STOPS,
             },
         })
     }
@@ -325,6 +348,7 @@ impl Viewer {
                 self.hub.render_now.notify_one();
                 Ok(())
             }
+            Input::Exposure { stops } => self.hub.set_exposure(stops).map(drop).map_err(error),
             input => self.steer(input).map_err(error),
         }
     }
@@ -358,8 +382,15 @@ impl Viewer {
                     next.play(false);
                     Ok(())
                 }
+                Input::Speed { speed } => next.clock.set_speed(speed),
+                Input::Loop { on } => {
+                    next.clock.set_looping(on);
+                    Ok(())
+                }
                 Input::Budget { ms } => next.set_budget(ms),
-                Input::Hello { .. } | Input::Render | Input::Stats => Ok(()),
+                Input::Hello { .. } | Input::Render | Input::Stats | Input::Exposure { .. } => {
+                    Ok(())
+                }
             };
             if result.is_ok() && next != *s {
                 next.revision += 1;

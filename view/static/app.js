@@ -15,11 +15,13 @@
   // The page's state, for automated tests: frames received, the last header received and the
   // one on screen (`displayed`), the last acked steering revision, steering messages awaiting
   // their ack (`unacked`), the server's error messages, the camera, whether this viewer may
-  // steer, the last status.
+  // steer, the last status, the exposure frames are encoded at (stops), the playback (`clock`:
+  // the clip time of the frame on screen, the one clock the page shows) and the camera bookmarks.
   const view = (window.lightfoldView = {
     connected: false, frames: 0, header: null, displayed: null, revision: null, unacked: 0, errors: [],
     ended: null,
     camera: null, canSteer: false, status: null, scene: null, lights: [],
+    exposure: null, clock: null, playback: null, bookmarks: [],
   });
 
   const $ = (id) => document.getElementById(id);
@@ -123,6 +125,8 @@
     switch (m.type) {
       case 'welcome': return onWelcome(m);
       case 'camera': view.camera = m.camera; showCamera(); return;
+      case 'animation': return showAnimation(m.animation || {});
+      case 'exposure': return showExposure(m.stops);
       case 'lights': return onLights(m.lights || []);
       case 'status': view.status = m; return showStatus(m);
       case 'ack':
@@ -148,36 +152,44 @@
   }
 
   let tokenTried = false;
-  // Scene time: the server plays the clock; the page follows it locally between messages.
-  const anim = { span: 0, time: 0, playing: false, at: 0 };
-  function animTime() {
-    return anim.playing ? anim.time + (performance.now() - anim.at) / 1000 : anim.time;
-  }
+  // The scene's clock: the server plays it (speed, loop) and stamps every frame with the clip
+  // time it was rendered at; the page shows one clock, the clip time of the frame on screen.
+  const anim = { span: 0, playing: false, loop: true, speed: 1, at: 0, time: 0 };
+  let seeking = false; // the user holds the time slider
+  const fmtClip = (t) => `${Number(t).toFixed(2)} / ${anim.span.toFixed(2)} s`;
   function showAnimation(a) {
     anim.span = a.span || 0;
-    anim.time = a.time || 0;
     anim.playing = !!a.playing;
+    anim.loop = a.loop !== false;
+    anim.speed = a.speed || 1;
+    anim.time = a.time || 0;
     anim.at = performance.now();
+    view.playback = { span: anim.span, playing: anim.playing, loop: anim.loop, speed: anim.speed };
     $('anim').hidden = !(anim.span > 0);
     $('time').max = String(anim.span || 1);
-    tickAnimation();
+    $('loop').checked = anim.loop;
+    const sp = $('speed');
+    if (![...sp.options].some((o) => Number(o.value) === anim.speed)) sp.append(el('option', { value: String(anim.speed), text: `${anim.speed}×` }));
+    sp.value = String([...sp.options].find((o) => Number(o.value) === anim.speed).value);
+    showClock();
   }
-  function tickAnimation() {
+  // Whether the clock still runs: a clip that does not loop stops at its end.
+  const running = () => anim.playing && (anim.loop || anim.time + (performance.now() - anim.at) / 1000 * anim.speed < anim.span);
+  function showClock() {
     if (!(anim.span > 0)) return;
-    const t = animTime();
-    const wrapped = ((t % anim.span) + anim.span) % anim.span;
-    $('time').value = String(wrapped);
-    // The clip's own time, as the slider shows it (the scene time wraps at the clip's length).
-    $('time-label').textContent = `${wrapped.toFixed(2)} / ${anim.span.toFixed(2)} s`;
-    $('btn-play').textContent = anim.playing ? 'pause' : 'play';
+    const t = view.displayed?.time;
+    if (typeof t === 'number') {
+      view.clock = t;
+      // Not under the user's hand while they drag it.
+      if (!seeking) $('time').value = String(t);
+      $('time-label').textContent = fmtClip(t);
+    }
+    $('btn-play').textContent = running() ? 'pause' : 'play';
   }
-  setInterval(tickAnimation, 100);
+  // The play button follows a clip that stops at its end.
+  setInterval(() => { if (anim.playing) showClock(); }, 250);
   function togglePlay() {
-    anim.time = animTime();
-    anim.at = performance.now();
-    anim.playing = !anim.playing;
-    send({ type: anim.playing ? 'play' : 'pause' });
-    tickAnimation();
+    send({ type: running() ? 'pause' : 'play' });
   }
 
   function onWelcome(m) {
@@ -192,6 +204,8 @@
     $('scene-name').textContent = s.name ? `${s.name} · ${s.width}×${s.height}${m.continuous ? ' · continuous' : ''}${m.walkthrough ? ' · walkthrough' : ''}` : '';
     buildLights(s.lights || []);
     showAnimation(m.animation || {});
+    setupExposure(m.exposure || {});
+    loadBookmarks();
     showCamera();
     fitFrame();
     // A token in the address (`#token=…`, never sent to the server in a request line) is
@@ -229,11 +243,14 @@
       $('placeholder').hidden = true;
       view.displayed = header;
       fitFrame();
+      showClock();
     };
     img.onerror = () => log(`frame ${header.frame}: JPEG did not decode`);
     img.src = url;
     view.frames += 1;
     view.header = header;
+    // A frame encoded again at a new exposure is no new frame from the cluster.
+    if (header.reencoded) return;
     const now = performance.now();
     if (lastArrival) {
       const inst = 1000 / Math.max(1, now - lastArrival);
@@ -341,12 +358,15 @@
   });
   $('btn-reset').addEventListener('click', () => send({ type: 'reset' }));
   $('btn-play').addEventListener('click', togglePlay);
+  $('time').addEventListener('pointerdown', () => { seeking = true; });
+  window.addEventListener('pointerup', () => { if (seeking) { seeking = false; showClock(); } });
   $('time').addEventListener('input', () => {
-    anim.time = Number($('time').value);
-    anim.at = performance.now();
-    send({ type: 'time', t: anim.time });
-    tickAnimation();
+    const t = Number($('time').value);
+    $('time-label').textContent = fmtClip(t);
+    send({ type: 'time', t });
   });
+  $('loop').addEventListener('change', () => send({ type: 'loop', on: $('loop').checked }));
+  $('speed').addEventListener('change', () => send({ type: 'speed', speed: Number($('speed').value) }));
   $('btn-render').addEventListener('click', () => send({ type: 'render' }));
   $('budget-form').addEventListener('submit', (e) => {
     e.preventDefault();
@@ -362,7 +382,110 @@
   function showCamera() {
     const c = view.camera;
     $('camera').textContent = c ? `camera  position ${fmtVec(c.position)}  target ${fmtVec(c.target)}  fov ${Number(c.fov_y_deg).toFixed(1)}°` : '';
+    // The numeric fields follow the camera, except while the user is typing in them.
+    if (!c || $('camera-form').contains(document.activeElement)) return;
+    const round = (x) => String(Math.round(Number(x) * 1e4) / 1e4);
+    CAM_FIELDS.forEach(([id, key, i]) => { $(id).value = round(i == null ? c[key] : c[key][i]); });
   }
+
+  // ---- numeric camera and bookmarks -------------------------------------------------------
+  const CAM_FIELDS = [
+    ['cam-px', 'position', 0], ['cam-py', 'position', 1], ['cam-pz', 'position', 2],
+    ['cam-tx', 'target', 0], ['cam-ty', 'target', 1], ['cam-tz', 'target', 2],
+    ['cam-fov', 'fov_y_deg', null],
+  ];
+  // Sends a camera edit (the server checks it: finite, the field of view within 1°–179°, a
+  // camera that does not sit on its target nor look along its up axis).
+  function sendCamera(c) {
+    return send({ type: 'camera', camera: { position: c.position, target: c.target, up: c.up, fov_y_deg: c.fov_y_deg } });
+  }
+  $('camera-form').addEventListener('submit', (e) => {
+    e.preventDefault();
+    if (!view.camera) return;
+    const c = { position: [], target: [], up: view.camera.up, fov_y_deg: 0 };
+    for (const [id, key, i] of CAM_FIELDS) {
+      const raw = $(id).value.trim();
+      const v = Number(raw);
+      if (raw === '' || !isFinite(v)) { toast(`${$(id).getAttribute('aria-label')}: not a number`, 'error'); return; }
+      if (i == null) c[key] = v; else c[key][i] = v;
+    }
+    sendCamera(c);
+    document.activeElement?.blur();
+  });
+
+  // Bookmarks live in this browser (localStorage), one list per scene name.
+  const bookmarkKey = () => `lightfold.bookmarks.${view.scene?.name || ''}`;
+  function readBookmarks() {
+    try {
+      const v = JSON.parse(localStorage.getItem(bookmarkKey()) || '[]');
+      return Array.isArray(v) ? v.filter((b) => b && typeof b.name === 'string' && b.camera) : [];
+    } catch (e) { return []; }
+  }
+  function writeBookmarks(list) {
+    try { localStorage.setItem(bookmarkKey(), JSON.stringify(list)); } catch (e) { toast(`cannot keep bookmarks: ${e.message}`, 'error'); }
+    loadBookmarks();
+  }
+  function loadBookmarks() {
+    const list = readBookmarks();
+    view.bookmarks = list.map((b) => b.name);
+    const ul = $('bookmarks');
+    if (!list.length) { ul.replaceChildren(el('li', { class: 'dim', text: 'none' })); return; }
+    ul.replaceChildren(...list.map((b) => el('li', {},
+      el('button', { class: 'bname', title: 'go to this camera', onclick: () => sendCamera(b.camera) }, b.name),
+      el('span', { class: 'mono dim', text: `${fmtVec(b.camera.position)} → ${fmtVec(b.camera.target)} · ${Number(b.camera.fov_y_deg).toFixed(1)}°` }),
+      el('button', { title: 'delete this bookmark', 'aria-label': `delete ${b.name}`, onclick: () => writeBookmarks(readBookmarks().filter((x) => x.name !== b.name)) }, '×'))));
+  }
+  $('bookmark-form').addEventListener('submit', (e) => {
+    e.preventDefault();
+    if (!view.camera) return;
+    const list = readBookmarks();
+    const name = $('bookmark-name').value.trim() || `view ${list.length + 1}`;
+    const c = view.camera;
+    const entry = { name, camera: { position: c.position, target: c.target, up: c.up, fov_y_deg: c.fov_y_deg } };
+    const i = list.findIndex((b) => b.name === name);
+    if (i >= 0) list[i] = entry; else list.push(entry);
+    $('bookmark-name').value = '';
+    writeBookmarks(list);
+  });
+
+  // ---- exposure ---------------------------------------------------------------------------
+  // Stops (EV): the view encodes frames at 2^stops × radiance; a change re-encodes the frame on
+  // screen, no node renders again.
+  const expo = { scene: 0, timer: null, last: 0 };
+  const fmtEv = (x) => `${x >= 0 ? '+' : '−'}${Math.abs(x).toFixed(1)} EV`;
+  function setupExposure(e) {
+    expo.scene = typeof e.scene_stops === 'number' ? e.scene_stops : 0;
+    const lo = Math.max(e.min ?? -8, Math.min(-8, Math.floor(expo.scene)));
+    const hi = Math.min(e.max ?? 8, Math.max(8, Math.ceil(expo.scene)));
+    $('exposure').min = String(lo);
+    $('exposure').max = String(hi);
+    showExposure(typeof e.stops === 'number' ? e.stops : expo.scene);
+  }
+  function showExposure(stops) {
+    if (typeof stops !== 'number') return;
+    view.exposure = stops;
+    if (!expo.timer && document.activeElement !== $('exposure')) $('exposure').value = String(stops);
+    $('exposure-label').textContent = fmtEv(stops);
+  }
+  // Throttled like the lights: at most one message per LIGHT_THROTTLE_MS, the last value sent.
+  function sendExposure() {
+    if (expo.timer) return;
+    const go = () => {
+      expo.timer = null;
+      expo.last = performance.now();
+      send({ type: 'exposure', stops: Number($('exposure').value) });
+    };
+    const wait = LIGHT_THROTTLE_MS - (performance.now() - expo.last);
+    if (wait <= 0) go(); else expo.timer = setTimeout(go, wait);
+  }
+  $('exposure').addEventListener('input', () => {
+    $('exposure-label').textContent = fmtEv(Number($('exposure').value));
+    sendExposure();
+  });
+  $('exposure').addEventListener('dblclick', () => {
+    $('exposure').value = String(expo.scene);
+    $('exposure').dispatchEvent(new Event('input'));
+  });
 
   // ---- lights -----------------------------------------------------------------------------
   // Per light: {index, color (linear), intensity, inputs, timer, last}.

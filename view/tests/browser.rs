@@ -1,8 +1,11 @@
 //! The live page in a real browser: headless Chromium (Debian's `chromium`, installed by
 //! `scripts/install-deps.sh --test`) opens the view of an in-process cluster over the DevTools protocol,
 //! must show a frame that is not blank, and a mouse drag across the frame must orbit the camera:
-//! the steering revision rises, a frame requested at it arrives, and the picture changes.
-//! Without Chromium the test fails, naming the install step.
+//! the steering revision rises, a frame requested at it arrives, and the picture changes. Then
+//! the page's other controls: the exposure slider brightens the frame on screen with no render,
+//! the PNG, JPEG and EXR links download the frame, the numeric camera fields set the camera and
+//! field of view on Enter, and camera bookmarks are saved, kept across a reload, recalled and
+//! deleted. Without Chromium the test fails, naming the install step.
 
 mod cdp;
 
@@ -273,7 +276,19 @@ async fn steps(b: &mut Browser, url: &str) -> anyhow::Result<Figures> {
     );
     let red_png = b.screenshot().await?;
     save(&red_png, "browser-red.png");
-    not_blank(&crop(&red_png, rect)?).context("the frame under the red light")?;
+    let red_frame = crop(&red_png, rect)?;
+    not_blank(&red_frame).context("the frame under the red light")?;
+    // A still scene shows no playback controls.
+    let anim = b
+        .eval("getComputedStyle(document.getElementById('anim')).display")
+        .await?;
+    ensure!(
+        anim == "none",
+        "a still scene shows playback controls: {anim}"
+    );
+    exposure(b, rect, &red, &red_frame).await?;
+    downloads(b).await?;
+    camera_fields_and_bookmarks(b, url).await?;
     ensure!(
         b.exceptions.is_empty(),
         "the page threw: {:?}",
@@ -288,6 +303,229 @@ async fn steps(b: &mut Browser, url: &str) -> anyhow::Result<Figures> {
         revision_before,
         revision_after,
     })
+}
+
+/// The page's state for the controls below.
+const CONTROLS: &str = "(() => { const v = window.lightfoldView; return v ? { connected: v.connected, \
+    revision: v.revision, unacked: v.unacked, shown: v.displayed, errors: v.errors, \
+    camera: v.camera, exposure: v.exposure, bookmarks: v.bookmarks, scene: v.scene?.name } \
+    : null; })()";
+
+/// Two stops more on the exposure slider: the frame on screen is encoded again, brighter, at the
+/// same steering revision (nothing rendered for it).
+async fn exposure(
+    b: &mut Browser,
+    rect: (f64, f64, f64, f64),
+    at: &Value,
+    frame: &RgbImage,
+) -> anyhow::Result<()> {
+    let shown = &at["shown"];
+    let stops = shown["exposure"]
+        .as_f64()
+        .context("no exposure in the header")?;
+    let set = b
+        .eval(
+            "(() => { const s = document.getElementById('exposure'); \
+             s.value = String(Number(s.value) + 2); s.dispatchEvent(new Event('input')); \
+             return Number(s.value); })()",
+        )
+        .await?;
+    let want = set.as_f64().context("the slider's value")?;
+    ensure!(
+        (want - stops - 2.0).abs() < 1e-6,
+        "slider {set}, frame at {stops}"
+    );
+    let brighter = b
+        .wait_for("the frame on screen at 2 stops more", CONTROLS, WAIT, |v| {
+            v["shown"]["exposure"]
+                .as_f64()
+                .is_some_and(|e| (e - want).abs() < 1e-4)
+                && v["unacked"].as_u64() == Some(0)
+        })
+        .await?;
+    ensure!(
+        brighter["shown"]["revision"] == shown["revision"]
+            && brighter["revision"] == at["revision"]
+            && brighter["shown"]["frame"] == shown["frame"],
+        "an exposure edit rendered a frame: {} then {}",
+        shown,
+        brighter["shown"]
+    );
+    ensure!(brighter["exposure"].as_f64() == Some(want), "{brighter}");
+    let png = b.screenshot().await?;
+    save(&png, "browser-exposure.png");
+    let after = crop(&png, rect)?;
+    let (dark, bright) = (mean_luma(frame), mean_luma(&after));
+    println!("exposure {stops} -> {want} stops: mean luma on screen {dark:.1} -> {bright:.1}");
+    ensure!(
+        bright > dark + 5.0,
+        "2 stops more did not brighten the frame: {dark:.1} -> {bright:.1}"
+    );
+    Ok(())
+}
+
+/// The page's PNG, JPEG and EXR links fetch the frame in those formats.
+async fn downloads(b: &mut Browser) -> anyhow::Result<()> {
+    let got = b
+        .eval(
+            "(async () => { const out = {}; for (const id of ['dl-png', 'dl-jpg', 'exr']) { \
+             const a = document.getElementById(id); const r = await fetch(a.getAttribute('href')); \
+             const buf = await r.arrayBuffer(); out[id] = { href: a.getAttribute('href'), \
+             status: r.status, type: r.headers.get('content-type'), bytes: buf.byteLength, \
+             head: Array.from(new Uint8Array(buf.slice(0, 4))) }; } return out; })()",
+        )
+        .await?;
+    for (id, href, kind, magic) in [
+        (
+            "dl-png",
+            "/frame.png",
+            "image/png",
+            [0x89, b'P', b'N', b'G'],
+        ),
+        (
+            "dl-jpg",
+            "/frame.jpg",
+            "image/jpeg",
+            [0xFF, 0xD8, 0xFF, 0xE0],
+        ),
+        ("exr", "/frame.exr", "image/x-exr", [0x76, 0x2F, 0x31, 0x01]),
+    ] {
+        let d = &got[id];
+        let head: Vec<u8> = d["head"]
+            .as_array()
+            .context("no bytes")?
+            .iter()
+            .filter_map(|x| x.as_u64().map(|x| x as u8))
+            .collect();
+        ensure!(
+            d["href"] == href && d["status"] == 200 && d["type"] == kind,
+            "{id}: {d}"
+        );
+        // The JPEG's fourth byte depends on the encoder's first segment: check its marker only.
+        let n = if id == "dl-jpg" { 3 } else { 4 };
+        ensure!(head[..n] == magic[..n], "{id} starts {head:02x?}: {d}");
+    }
+    Ok(())
+}
+
+/// The numeric camera fields set position, target and field of view on Enter; a bookmark of that
+/// camera survives a reload and brings it back after a reset; deleting it empties the list.
+async fn camera_fields_and_bookmarks(b: &mut Browser, url: &str) -> anyhow::Result<()> {
+    let now = b.eval(CONTROLS).await?;
+    let cam = &now["camera"];
+    let v3 = |v: &Value| -> anyhow::Result<[f64; 3]> {
+        let a = v.as_array().with_context(|| format!("not a vector: {v}"))?;
+        ensure!(a.len() == 3, "not a vector: {v}");
+        Ok([0, 1, 2].map(|i| a[i].as_f64().unwrap_or(f64::NAN)))
+    };
+    let (pos, target) = (v3(&cam["position"])?, v3(&cam["target"])?);
+    // A quarter further from the target, at 30°.
+    let want: [f64; 3] =
+        [0, 1, 2].map(|i| ((target[i] + (pos[i] - target[i]) * 1.25) * 1000.0).round() / 1000.0);
+    let fov = 30.0;
+    let revision = now["revision"].as_i64().unwrap_or(-1);
+    b.eval(&format!(
+        "(() => {{ const set = (id, v) => {{ document.getElementById(id).value = String(v); }}; \
+         set('cam-px', {}); set('cam-py', {}); set('cam-pz', {}); set('cam-tx', {}); \
+         set('cam-ty', {}); set('cam-tz', {}); set('cam-fov', {fov}); \
+         document.getElementById('cam-fov').focus(); \
+         document.getElementById('camera-form').requestSubmit(); return true; }})()",
+        want[0], want[1], want[2], target[0], target[1], target[2]
+    ))
+    .await?;
+    let is_wanted = move |v: &Value| -> bool {
+        let c = &v["camera"];
+        let p = c["position"].as_array();
+        c["fov_y_deg"]
+            .as_f64()
+            .is_some_and(|f| (f - fov).abs() < 1e-4)
+            && p.is_some_and(|p| {
+                p.len() == 3
+                    && (0..3).all(|i| p[i].as_f64().is_some_and(|x| (x - want[i]).abs() < 1e-3))
+            })
+    };
+    let set = b
+        .wait_for("the camera from the fields", CONTROLS, WAIT, |v| {
+            is_wanted(v)
+                && v["unacked"].as_u64() == Some(0)
+                && v["revision"].as_i64() > Some(revision)
+        })
+        .await?;
+    ensure!(
+        set["errors"].as_array().is_some_and(|e| e.is_empty()),
+        "the camera fields were refused: {}",
+        set["errors"]
+    );
+    b.wait_for("a frame from the new camera", CONTROLS, WAIT, |v| {
+        v["shown"]["revision"].as_i64() >= set["revision"].as_i64()
+    })
+    .await?;
+
+    // Bookmark it, reload (the list is the browser's), reset, recall.
+    b.eval(
+        "(() => { document.getElementById('bookmark-name').value = 'wide'; \
+         document.getElementById('bookmark-form').requestSubmit(); return true; })()",
+    )
+    .await?;
+    let has = |name: &'static str| {
+        move |v: &Value| {
+            v["bookmarks"]
+                .as_array()
+                .is_some_and(|b| b.iter().any(|x| x == name))
+        }
+    };
+    b.wait_for("the bookmark listed", CONTROLS, WAIT, has("wide"))
+        .await?;
+    b.navigate(url).await?;
+    b.wait_for("the bookmark after a reload", CONTROLS, WAIT, |v| {
+        v["connected"] == Value::Bool(true) && has("wide")(v)
+    })
+    .await?;
+    b.eval("(() => { document.getElementById('btn-reset').click(); return true; })()")
+        .await?;
+    let reset = b
+        .wait_for("the scene's camera again", CONTROLS, WAIT, |v| {
+            v["camera"]["fov_y_deg"]
+                .as_f64()
+                .is_some_and(|f| (f - fov).abs() > 0.5)
+                && v["unacked"].as_u64() == Some(0)
+        })
+        .await?;
+    ensure!(
+        !is_wanted(&reset),
+        "reset left the bookmarked camera: {reset}"
+    );
+    b.eval(
+        "(() => { const b = [...document.querySelectorAll('#bookmarks button.bname')] \
+         .find((x) => x.textContent === 'wide'); b.click(); return true; })()",
+    )
+    .await?;
+    b.wait_for("the bookmarked camera recalled", CONTROLS, WAIT, |v| {
+        is_wanted(v) && v["unacked"].as_u64() == Some(0)
+    })
+    .await?;
+    b.eval(
+        "(() => { document.querySelector('#bookmarks button[aria-label=\"delete wide\"]').click(); \
+         return true; })()",
+    )
+    .await?;
+    b.wait_for("the bookmark deleted", CONTROLS, WAIT, |v| {
+        v["bookmarks"].as_array().is_some_and(|b| b.is_empty())
+    })
+    .await?;
+    let stored = b
+        .eval("localStorage.getItem('lightfold.bookmarks.' + window.lightfoldView.scene.name)")
+        .await?;
+    ensure!(stored == "[]", "localStorage still holds {stored}");
+    Ok(())
+}
+
+fn mean_luma(img: &RgbImage) -> f64 {
+    let n = (img.width() as f64 * img.height() as f64).max(1.0);
+    img.pixels()
+        .map(|p| 0.2126 * p[0] as f64 + 0.7152 * p[1] as f64 + 0.0722 * p[2] as f64)
+        .sum::<f64>()
+        / n
 }
 
 /// The `#frame` element's box (x, y, width, height) in CSS pixels.

@@ -4,7 +4,9 @@
 //! page is told, a frame budget from the page re-plans at a lowered quality that the frames then
 //! match, and a stalled viewer does not hold the cluster back; a pure-red light with a budget set
 //! and cleared keeps the session (the colour-split test), and a session that ends tells the page
-//! why.
+//! why; an exposure edit re-encodes the frame on screen with nothing rendered, `/frame.png` is the
+//! frame at the exposure shown, and the scene's clock plays in the clip (wrapping, or stopping at
+//! its end), at a speed.
 
 mod client;
 
@@ -472,6 +474,11 @@ async fn malformed_and_hostile_messages_get_errors_and_change_nothing() {
                    "up": [0, 1, 0], "fov_y_deg": 45}}),
             json!({"type": "camera", "camera": {"position": [0, 0, 5], "target": [0, 0, 0],
                    "up": [0, 1, 0], "fov_y_deg": 500}}),
+            json!({"type": "exposure", "stops": 1e39}),
+            json!({"type": "exposure", "stops": "bright"}),
+            json!({"type": "speed", "speed": 10.0}),
+            json!({"type": "speed", "speed": 0.0}),
+            json!({"type": "loop", "on": "yes"}),
         ];
         for m in bad {
             let e = c.try_steer(m.clone()).await;
@@ -532,7 +539,8 @@ async fn the_page_and_the_current_frame_as_exr_and_jpeg_are_served() {
             "{page}"
         );
         let mut c = Client::connect(addr).await;
-        c.expect("welcome").await;
+        let welcome = c.expect("welcome").await;
+        let stops = welcome["exposure"]["stops"].as_f64().unwrap() as f32;
         let f = c.frame().await;
         let (head, exr) = http_get(addr, "/frame.exr").await;
         assert!(
@@ -555,6 +563,26 @@ async fn the_page_and_the_current_frame_as_exr_and_jpeg_are_served() {
         let (head, jpeg) = http_get(addr, "/frame.jpg").await;
         assert!(head.contains("image/jpeg"), "{head}");
         assert_eq!(jpeg, f.jpeg, "the JPEG is the one pushed");
+        // The PNG: the frame, 8-bit sRGB at the exposure shown, losslessly.
+        let srgb = |at: f32| want.to_srgb8(at.exp2()).unwrap();
+        let png = |bytes: &[u8]| {
+            image::load_from_memory_with_format(bytes, image::ImageFormat::Png)
+                .expect("a valid PNG")
+                .to_rgb8()
+        };
+        let (head, body) = http_get(addr, "/frame.png").await;
+        assert!(head.contains("200") && head.contains("image/png"), "{head}");
+        let got = png(&body);
+        assert_eq!((got.width(), got.height()), (want.width, want.height));
+        let got = got.into_raw();
+        assert!(max_diff(&got, &srgb(stops)) <= 1, "the PNG is the frame");
+        // Negative control: the frame a stop brighter is another picture.
+        assert!(max_diff(&got, &srgb(stops + 1.0)) > 8);
+        // At the exposure a viewer sets, from the same linear frame.
+        c.steer(json!({"type": "exposure", "stops": stops + 1.0}))
+            .await;
+        let (_, body) = http_get(addr, "/frame.png").await;
+        assert!(max_diff(&png(&body).into_raw(), &srgb(stops + 1.0)) <= 1);
         let (head, _) = http_get(addr, "/nothing-here").await;
         assert!(head.contains("404"), "{head}");
         let _ = std::fs::remove_dir_all(&dir);
@@ -606,8 +634,12 @@ async fn a_time_seek_poses_the_next_frame_as_the_single_device_render_of_that_po
         assert!(span >= 8.0, "the carousel's longest motion is 8 s: {span}");
         assert_eq!(welcome["animation"]["playing"], false);
         let first = c.frame().await;
-        let revision = c.steer(json!({"type": "time", "t": 2.0})).await;
+        assert_eq!(first.header["time"].as_f64(), Some(0.0));
+        // A scene time past the clip's end is posed at its clip time.
+        let revision = c.steer(json!({"type": "time", "t": span + 2.0})).await;
         let (posed, _) = until_revision(&mut c, revision).await;
+        let shown = posed.header["time"].as_f64().unwrap();
+        assert!((shown - 2.0).abs() < 1e-3, "the frame's clip time {shown}");
         let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
         let truth = single_device(&gpu, &s2.still_at(2.0), true);
         assert_close(
@@ -630,6 +662,154 @@ async fn a_time_seek_poses_the_next_frame_as_the_single_device_render_of_that_po
         let b = frame_number(&c.frame().await);
         assert!(b > a);
         c.steer(json!({"type": "pause"})).await;
+
+        // At 4×, looping, from half a second before the end: the frames' clip times wrap to the
+        // start, and every one lies in the clip.
+        c.steer(json!({"type": "speed", "speed": 4.0})).await;
+        c.steer(json!({"type": "time", "t": span - 0.5})).await;
+        let played = c.steer(json!({"type": "play"})).await;
+        let times = clip_times(&mut c, played, |t| t < span - 0.5).await;
+        c.steer(json!({"type": "pause"})).await;
+        assert!(
+            times.iter().all(|t| (0.0..span).contains(t)),
+            "clip times outside [0, {span}): {times:?}"
+        );
+        // Not looping: the clip times rise to the end and stop there, and the clock stops.
+        c.steer(json!({"type": "loop", "on": false})).await;
+        c.steer(json!({"type": "time", "t": span - 1.0})).await;
+        let played = c.steer(json!({"type": "play"})).await;
+        let times = clip_times(&mut c, played, |t| (t - span).abs() < 1e-4).await;
+        assert!(
+            times.windows(2).all(|w| w[1] >= w[0]) && times.iter().all(|&t| t <= span),
+            "{times:?}"
+        );
+        let mut other = Client::connect(addr).await;
+        let w = other.expect("welcome").await;
+        let anim = &w["animation"];
+        assert_eq!(anim["playing"], false, "stopped at the end: {anim}");
+        assert_eq!(
+            (anim["loop"].clone(), anim["speed"].as_f64()),
+            (json!(false), Some(4.0))
+        );
+        assert!(
+            (anim["time"].as_f64().unwrap() - span).abs() < 1e-4,
+            "{anim}"
+        );
+        println!("clip times at 4x, not looping: {times:?}");
+    })
+    .await;
+}
+
+/// The clip times of the frames requested at `revision` or later, until one satisfies `last`.
+async fn clip_times(c: &mut Client, revision: u64, last: impl Fn(f64) -> bool) -> Vec<f64> {
+    let mut times = Vec::new();
+    loop {
+        let f = c.frame().await;
+        if f.header["revision"].as_u64().unwrap() < revision {
+            continue;
+        }
+        let t = f.header["time"]
+            .as_f64()
+            .expect("an animated frame has a time");
+        times.push(t);
+        if last(t) {
+            return times;
+        }
+        assert!(times.len() < 500, "no such frame: {times:?}");
+    }
+}
+
+fn max_diff(a: &[u8], b: &[u8]) -> u8 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| x.abs_diff(*y))
+        .max()
+        .unwrap_or(0)
+}
+
+fn mean_luma(jpeg: &[u8]) -> f64 {
+    let img = image::load_from_memory(jpeg).unwrap().to_luma8();
+    img.pixels().map(|p| f64::from(p[0])).sum::<f64>() / f64::from(img.width() * img.height())
+}
+
+/// Exposure is applied where frames are encoded: an edit is acknowledged at the same steering
+/// revision, the frame on screen comes again at the new exposure, brighter, with nothing
+/// rendered for it, and the next frame rendered is encoded at it too; stops that are not finite
+/// are refused, huge ones clamped.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn an_exposure_edit_reencodes_the_frame_on_screen_without_a_render() {
+    let scene = small("balls");
+    let plan = plan_options(&scene, 4);
+    with_view(scene, plan, loopback(), |addr, delivered, _| async move {
+        let mut c = Client::connect(addr).await;
+        let welcome = c.expect("welcome").await;
+        let s0 = welcome["exposure"]["stops"].as_f64().unwrap();
+        assert_eq!(welcome["exposure"]["scene_stops"].as_f64(), Some(s0));
+        let first = c.frame().await;
+        assert_eq!(first.header["exposure"].as_f64(), Some(s0));
+        assert_eq!(first.header["reencoded"], false);
+        let rendered = delivered.lock().unwrap().len();
+        let revision = first.header["revision"].as_u64().unwrap();
+        let up = s0 + 1.0;
+        let acked = c.steer(json!({"type": "exposure", "stops": up})).await;
+        assert_eq!(acked, revision, "an exposure is no render input");
+        assert_eq!(c.expect("exposure").await["stops"].as_f64(), Some(up));
+        let again = c.frame().await;
+        assert_eq!(
+            again.header["frame"], first.header["frame"],
+            "{}",
+            again.header
+        );
+        assert_eq!(again.header["revision"], first.header["revision"]);
+        assert_eq!(again.header["exposure"].as_f64(), Some(up));
+        assert_eq!(again.header["reencoded"], true);
+        assert_eq!(
+            delivered.lock().unwrap().len(),
+            rendered,
+            "a frame was rendered"
+        );
+        let (dark, bright) = (mean_luma(&first.jpeg), mean_luma(&again.jpeg));
+        assert!(
+            bright > dark + 5.0,
+            "+1 stop: mean luma {dark:.1} -> {bright:.1}"
+        );
+        // Negative control: back at the scene's exposure, the frame is as it was.
+        c.steer(json!({"type": "exposure", "stops": s0})).await;
+        let back = c.frame().await;
+        let same = mean_luma(&back.jpeg);
+        assert!(
+            (same - dark).abs() < 1.0,
+            "back to {s0} stops: {dark:.1} vs {same:.1}"
+        );
+        println!("mean luma at {s0} stops {dark:.1}, at {up} stops {bright:.1}, back {same:.1}");
+
+        // The next frame rendered is encoded at the exposure set.
+        c.steer(json!({"type": "exposure", "stops": up})).await;
+        let revision = c
+            .steer(json!({"type": "orbit", "yaw_deg": 20.0, "pitch_deg": 0.0}))
+            .await;
+        let (moved, _) = until_revision(&mut c, revision).await;
+        assert_eq!(moved.header["exposure"].as_f64(), Some(up));
+        assert_eq!(moved.header["reencoded"], false);
+
+        // Stops that are not finite are refused; huge ones are clamped.
+        let refused = c
+            .try_steer(json!({"type": "exposure", "stops": 1e39}))
+            .await
+            .expect("infinite stops are refused");
+        assert!(
+            refused["text"].as_str().unwrap().contains("finite"),
+            "{refused}"
+        );
+        c.steer(json!({"type": "exposure", "stops": 1e9})).await;
+        // The exposures every viewer is told, in order, end at the clamped one.
+        let max = f64::from(lightfold_view::MAX_STOPS);
+        let mut told = Vec::new();
+        while told.last() != Some(&max) {
+            told.push(c.expect("exposure").await["stops"].as_f64().unwrap());
+            assert!(told.len() < 10, "{told:?}");
+        }
     })
     .await;
 }
