@@ -6,8 +6,8 @@
 #
 # On a machine without a Rust toolchain, point LIGHTFOLD_BIN at a release binary built elsewhere
 # (same architecture) and GPU_TEST_BINS at a folder of prebuilt test executables
-# (`cargo test --release --no-run -p lightfold-node --test gpu_device --test daemon_frame
-# --test gpu_correctness --test gpu_modes`); each is run with its default arguments.
+# (`cargo test --release --no-run -p lightfold-node -p lightfold-tests --test it`: one test
+# executable per crate); each is run with the filters in GPU_TEST_FILTERS.
 #
 # Builds the release binary, refuses to go on unless the adapter is a hardware one, then measures,
 # most important first:
@@ -131,6 +131,8 @@ for scene in animal plant box; do
   fi
 done
 
+# gpu_device first: the device pack's bit-for-bit differential tests on this GPU's driver.
+GPU_TEST_FILTERS="gpu_device:: daemon_frame:: gpu_correctness:: gpu_modes:: cluster:: animation::"
 if skip_unless 90 "GPU tests"; then
   step "GPU tests"
   if [ -n "${GPU_TEST_BINS:-}" ]; then
@@ -142,14 +144,12 @@ if skip_unless 90 "GPU tests"; then
         continue
       fi
       echo "== $(basename "$t")" >>"$out/gpu-tests.txt"
-      timeout "$limit" "$t" 2>&1 | grep -E '^test |test result|panicked' | tee -a "$out/gpu-tests.txt" \
+      timeout "$limit" "$t" $GPU_TEST_FILTERS 2>&1 | grep -E '^test |test result|panicked' | tee -a "$out/gpu-tests.txt" \
         || echo "GPU tests: $(basename "$t") failed, see $out/gpu-tests.txt"
     done
   elif command -v cargo >/dev/null; then
-    # gpu_device first: the device pack's bit-for-bit differential tests on this GPU's driver.
-    timeout 150 cargo test --release -p lightfold-node -p lightfold-tests --test gpu_device \
-      --test daemon_frame --test cluster --test animation \
-      2>&1 | grep -E '^test |test result' | tee "$out/gpu-tests.txt" || echo "GPU tests: see $out/gpu-tests.txt"
+    timeout 150 cargo test --release -p lightfold-node -p lightfold-tests --test it -- \
+      $GPU_TEST_FILTERS 2>&1 | grep -E '^test |test result' | tee "$out/gpu-tests.txt" || echo "GPU tests: see $out/gpu-tests.txt"
   else
     echo "skipped: GPU tests (no cargo here and no GPU_TEST_BINS)" | tee -a "$out/log.txt"
   fi

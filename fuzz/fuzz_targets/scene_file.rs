@@ -3,7 +3,7 @@
 //! within the limits and survive its wire form (`common::check_scene`). Files whose objects would
 //! build more than 2 M triangles are skipped: a few lines of TOML reach the 10 M limit, which
 //! takes seconds and gigabytes under the sanitizer (the limit itself is tested in
-//! `scene/tests/hostile.rs`). Run with `scripts/fuzz.sh scene_file`.
+//! `scene/tests/it/hostile.rs`). Run with `scripts/fuzz.sh scene_file`.
 
 #![no_main]
 

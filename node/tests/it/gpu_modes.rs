@@ -1,0 +1,390 @@
+//! Renderer modes against the CPU reference: every sample kind (isotropic point with cube faces,
+//! spot, directional with an orthographic map), 16 lights in one pass, caster lists, walkthrough
+//! mode (no shadow passes in steady state, bit-identical images) and the light-count limit.
+
+use crate::gpu_support;
+
+use gpu_support::*;
+use lightfold_node::gpu::{EyeVariant, LayerSet, RenderError, RenderOptions, Renderer};
+use lightfold_reference::{PointSumOptions, render_point_sum, render_point_sum_with};
+use lightfold_scene::shading::normalize;
+use lightfold_scene::{LightSample, SampleKind, ShadowFilter, sampling};
+
+const W: u32 = 160;
+const H: u32 = 120;
+
+fn sample(
+    position: [f32; 3],
+    direction: [f32; 3],
+    kind: SampleKind,
+    color: [f32; 3],
+) -> LightSample {
+    LightSample {
+        position,
+        direction: normalize(direction),
+        kind,
+        intensity: 1.5,
+        color,
+        range: None,
+        light: 0,
+        area: None,
+    }
+}
+
+fn assert_matches(samples: &[LightSample], c_n: [f32; 3], what: &str) -> Vec<u32> {
+    assert_matches_shadowing(samples, c_n, what, 0.05)
+}
+
+/// As [`assert_matches`], with at least `min_shadow` of the pixels in some sample's shadow.
+fn assert_matches_shadowing(
+    samples: &[LightSample],
+    c_n: [f32; 3],
+    what: &str,
+    min_shadow: f64,
+) -> Vec<u32> {
+    let gpu = gpu();
+    let scene = shadow_scene(W, H);
+    let reference = render_point_sum(&scene, samples, c_n);
+    let states = shadow_states(&scene, samples);
+    let mask = comparable(&reference, &states.visible);
+    let mut r = Renderer::new(&gpu, &scene, RenderOptions::from_quality(&scene.quality)).unwrap();
+    let frame = r
+        .render(&gpu, samples, None, c_n, LayerSet::illumination())
+        .unwrap();
+    dump(what, &frame, &reference);
+    let c = compare(
+        frame.illumination.as_ref().unwrap(),
+        &reference.illumination,
+        &mask,
+    );
+    eprintln!("{what}: {c:?} passes {:?}", frame.stats.passes_per_light);
+    assert!(c.passes(), "{what}: {c:?}");
+    assert!(
+        states.shadowed_fraction() >= min_shadow,
+        "{what}: too little shadow to test"
+    );
+    frame.stats.passes_per_light
+}
+
+#[test]
+fn point_spot_and_directional_samples_match_the_reference() {
+    let samples = [
+        sample(
+            [0.6, 1.1, 0.9],
+            [0.0, -1.0, 0.0],
+            SampleKind::Isotropic,
+            [1.0, 0.9, 0.7],
+        ),
+        sample(
+            [-1.0, 2.2, 2.0],
+            [0.4, -1.0, -0.6],
+            SampleKind::Spot {
+                cos_outer: 0.6,
+                cos_inner: 0.8,
+            },
+            [0.7, 0.9, 1.0],
+        ),
+        LightSample {
+            intensity: 0.8,
+            ..sample(
+                [0.0; 3],
+                [0.5, -1.0, -0.4],
+                SampleKind::Directional,
+                [1.0; 3],
+            )
+        },
+        sample(
+            [0.0, 0.4, 1.2],
+            [0.0, 1.0, 0.0],
+            SampleKind::TwoSidedLobe,
+            [1.0; 3],
+        ),
+        // A range window (the light pass leaves it out when no light has one).
+        LightSample {
+            range: Some(2.5),
+            ..sample(
+                [-0.8, 1.6, -0.2],
+                [0.2, -1.0, 0.1],
+                SampleKind::CosineLobe,
+                [0.8, 1.0, 0.9],
+            )
+        },
+    ];
+    let passes = assert_matches(&samples, [1.0; 3], "kinds");
+    // Alone, each kind gets a light pass compiled for that kind only.
+    for (i, s) in samples.iter().enumerate() {
+        assert_matches_shadowing(&[*s], [1.0; 3], &format!("kind {i} alone"), 0.0);
+    }
+    assert!(
+        passes[0] >= 5,
+        "a point light above the floor needs cube faces: {passes:?}"
+    );
+    assert_eq!(
+        passes[2], 1,
+        "one orthographic map for the directional light"
+    );
+}
+
+#[test]
+fn sixteen_lights_in_one_eye_pass_match_the_reference() {
+    let mut scene = shadow_scene(W, H);
+    scene.quality.samples_per_area_light = Some(8);
+    let samples = sampling::direct_samples(&scene);
+    assert_eq!(samples.len(), 16);
+    let passes = assert_matches(&samples, C_N, "k16");
+    assert_eq!(passes.len(), 16);
+}
+
+#[test]
+fn more_lights_than_one_dispatch_takes_add_up_in_order() {
+    // 80 samples: the deferred pass lights them in two dispatches (64 + 16), the forward pass in
+    // one raster; the sums must agree as closely as the two variants always do.
+    let gpu = gpu();
+    let mut scene = shadow_scene(W / 2, H / 2);
+    scene.quality.samples_per_area_light = Some(40);
+    let samples = sampling::direct_samples(&scene);
+    assert_eq!(samples.len(), 80);
+    let opts = RenderOptions::from_quality(&scene.quality);
+    let mut images = Vec::new();
+    for variant in [EyeVariant::Forward, EyeVariant::Deferred] {
+        let mut r = Renderer::new(&gpu, &scene, opts).unwrap();
+        r.set_variant(variant);
+        let f = r
+            .render(&gpu, &samples, None, C_N, LayerSet::illumination())
+            .unwrap();
+        images.push(f.illumination.unwrap());
+    }
+    let (a, b) = (&images[0], &images[1]);
+    let energy: f64 = a.data.iter().map(|&v| f64::from(v)).sum();
+    assert!(energy > 0.0, "black image");
+    let worst = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| (x - y).abs() / (x.abs().max(y.abs()) + 1e-6))
+        .fold(0.0f32, f32::max);
+    assert!(worst < 1e-4, "chunked deferred differs by {worst} relative");
+}
+
+#[test]
+fn caster_lists_choose_what_casts() {
+    let gpu = gpu();
+    let scene = shadow_scene(W, H);
+    let samples = samples(&scene);
+    let opts = RenderOptions::from_quality(&scene.quality);
+    let mut r = Renderer::new(&gpu, &scene, opts).unwrap();
+    let all = r
+        .render(&gpu, &samples, None, C_N, LayerSet::illumination())
+        .unwrap();
+    let every: Vec<Vec<u32>> = vec![(0..scene.meshes.len() as u32).collect(); samples.len()];
+    let listed = r
+        .render(&gpu, &samples, Some(&every), C_N, LayerSet::illumination())
+        .unwrap();
+    assert_eq!(
+        all.illumination, listed.illumination,
+        "listing every mesh is the default"
+    );
+    // No casters at all: the unoccluded image.
+    let none = vec![Vec::new(); samples.len()];
+    let open = r
+        .render(&gpu, &samples, Some(&none), C_N, LayerSet::illumination())
+        .unwrap();
+    let unoccluded =
+        render_point_sum_with(&scene, &samples, C_N, PointSumOptions { shadows: false });
+    let mask: Vec<bool> =
+        lightfold_reference::masks::silhouettes(&unoccluded.depth, &unoccluded.coverage, 0)
+            .iter()
+            .map(|&s| !s)
+            .collect();
+    let c = compare(
+        open.illumination.as_ref().unwrap(),
+        &unoccluded.illumination,
+        &mask,
+    );
+    assert!(c.passes(), "{c:?}");
+    let wrong = vec![Vec::new(); samples.len() + 1];
+    assert!(matches!(
+        r.render(&gpu, &samples, Some(&wrong), C_N, LayerSet::illumination()),
+        Err(RenderError::Casters { .. })
+    ));
+}
+
+#[test]
+fn walkthrough_keeps_maps_and_images_are_bit_identical() {
+    let gpu = gpu();
+    let scene = shadow_scene(W, H);
+    let samples = samples(&scene);
+    let opts = RenderOptions::from_quality(&scene.quality);
+    let mut walk = Renderer::new(
+        &gpu,
+        &scene,
+        RenderOptions {
+            walkthrough: true,
+            ..opts
+        },
+    )
+    .unwrap();
+    let mut moving = Renderer::new(&gpu, &scene, opts).unwrap();
+    moving.set_fit_to_camera(false);
+    let layers = LayerSet::illumination();
+    let first = walk.render(&gpu, &samples, None, C_N, layers).unwrap();
+    assert!(first.stats.shadow_passes > 0);
+    let steady = walk.render(&gpu, &samples, None, C_N, layers).unwrap();
+    assert_eq!(
+        steady.stats.shadow_passes, 0,
+        "steady state renders no shadow map"
+    );
+    assert_eq!(steady.illumination, first.illumination);
+    let reference = moving.render(&gpu, &samples, None, C_N, layers).unwrap();
+    assert!(reference.stats.shadow_passes > 0);
+    assert_eq!(
+        steady.illumination, reference.illumination,
+        "bit-identical to moving mode"
+    );
+    // The camera moves, lights stay: still no shadow pass, still identical.
+    let mut cam = scene.camera;
+    cam.position = [1.5, 2.5, 4.5];
+    walk.set_camera(&cam);
+    moving.set_camera(&cam);
+    let walked = walk.render(&gpu, &samples, None, C_N, layers).unwrap();
+    assert_eq!(walked.stats.shadow_passes, 0);
+    let moved = moving.render(&gpu, &samples, None, C_N, layers).unwrap();
+    assert_eq!(walked.illumination, moved.illumination);
+    assert_ne!(
+        walked.illumination, steady.illumination,
+        "the camera did move"
+    );
+    // A light moves: its maps are rendered again, and only its.
+    let mut lights = samples.clone();
+    lights[0].position[0] += 0.1;
+    let relit = walk.render(&gpu, &lights, None, C_N, layers).unwrap();
+    assert!(relit.stats.shadow_passes > 0);
+    assert_eq!(relit.stats.shadow_passes, relit.stats.passes_per_light[0]);
+    assert_eq!(relit.stats.maps_kept as usize, lights.len() - 1);
+    // And the image is the one every map rendered afresh gives.
+    let fresh = moving.render(&gpu, &lights, None, C_N, layers).unwrap();
+    assert_eq!(
+        relit.illumination, fresh.illumination,
+        "kept maps are still right"
+    );
+}
+
+#[test]
+fn more_lights_than_the_device_takes_is_an_error() {
+    let gpu = gpu();
+    let scene = shadow_scene(32, 24);
+    let opts = RenderOptions::from_quality(&scene.quality);
+    let max = gpu.max_lights(opts.shadow_map_size) as usize;
+    assert!(max >= 16, "max lights {max}");
+    let one = samples(&scene)[0];
+    let mut r = Renderer::new(&gpu, &scene, opts).unwrap();
+    let too_many = vec![one; max + 1];
+    match r.render(&gpu, &too_many, None, C_N, LayerSet::illumination()) {
+        Err(RenderError::TooManyLights { requested, maximum }) => {
+            assert_eq!((requested, maximum as usize), (max + 1, max));
+        }
+        other => panic!("expected TooManyLights, got {other:?}"),
+    }
+}
+
+#[test]
+fn every_shadow_filter_matches_the_reference_away_from_edges() {
+    let gpu = gpu();
+    let scene = shadow_scene(W, H);
+    let samples = samples(&scene);
+    let reference = render_point_sum(&scene, &samples, C_N);
+    let states = shadow_states(&scene, &samples);
+    let mask = comparable(&reference, &states.visible);
+    for filter in [
+        ShadowFilter::None,
+        ShadowFilter::Pcf2x2,
+        ShadowFilter::Pcf { taps: 3 },
+    ] {
+        let opts = RenderOptions {
+            filter,
+            ..RenderOptions::from_quality(&scene.quality)
+        };
+        let mut r = Renderer::new(&gpu, &scene, opts).unwrap();
+        let frame = r
+            .render(&gpu, &samples, None, C_N, LayerSet::illumination())
+            .unwrap();
+        let c = compare(
+            frame.illumination.as_ref().unwrap(),
+            &reference.illumination,
+            &mask,
+        );
+        eprintln!("{filter:?}: {c:?}");
+        assert!(c.passes(), "{filter:?}: {c:?}");
+    }
+}
+
+#[test]
+fn forward_and_deferred_agree_and_walkthrough_is_bit_identical_in_both() {
+    let gpu = gpu();
+    let scene = shadow_scene(W, H);
+    let samples = samples(&scene);
+    let opts = RenderOptions::from_quality(&scene.quality);
+    let mut frames = Vec::new();
+    for variant in [EyeVariant::Forward, EyeVariant::Deferred] {
+        let mut r = Renderer::new(
+            &gpu,
+            &scene,
+            RenderOptions {
+                walkthrough: true,
+                ..opts
+            },
+        )
+        .unwrap();
+        r.set_variant(variant);
+        let first = r
+            .render(&gpu, &samples, None, C_N, LayerSet::all())
+            .unwrap();
+        let steady = r
+            .render(&gpu, &samples, None, C_N, LayerSet::all())
+            .unwrap();
+        assert_eq!(steady.stats.shadow_passes, 0);
+        assert_eq!(first.illumination, steady.illumination, "{variant:?}");
+        frames.push(first);
+    }
+    let (f, d) = (&frames[0], &frames[1]);
+    assert_eq!(f.diffuse, d.diffuse);
+    assert_eq!(f.depth, d.depth);
+    let (a, b) = (
+        f.illumination.as_ref().unwrap(),
+        d.illumination.as_ref().unwrap(),
+    );
+    let worst = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| (x - y).abs() / (x.abs().max(y.abs()) + 1e-6))
+        .fold(0.0f32, f32::max);
+    assert!(worst < 1e-4, "variants differ by {worst} relative");
+}
+
+#[test]
+fn empty_scenes_no_lights_and_tiny_images_render_zeros() {
+    let gpu = gpu();
+    let mut empty = shadow_scene(7, 5);
+    empty.meshes.clear();
+    let samples = samples(&empty);
+    let opts = RenderOptions::from_quality(&empty.quality);
+    let mut r = Renderer::new(&gpu, &empty, opts).unwrap();
+    let f = r
+        .render(&gpu, &samples, None, C_N, LayerSet::all())
+        .unwrap();
+    assert_eq!(f.stats.shadow_passes, 0, "no receiver, no map");
+    for img in [&f.illumination, &f.diffuse, &f.depth] {
+        let img = img.as_ref().unwrap();
+        assert_eq!((img.width, img.height), (7, 5));
+        assert!(img.data.iter().all(|&v| v == 0.0));
+    }
+    let scene = shadow_scene(1, 1);
+    let mut r = Renderer::new(&gpu, &scene, opts).unwrap();
+    let dark = r.render(&gpu, &[], None, C_N, LayerSet::all()).unwrap();
+    assert_eq!(dark.illumination.unwrap().data, vec![0.0; 6]);
+    assert!(
+        dark.depth.unwrap().data[0] > 0.0,
+        "the floor is under the only pixel"
+    );
+}

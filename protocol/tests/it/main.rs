@@ -1,0 +1,11 @@
+//! The integration tests of `protocol`, one binary (each file of this folder a module).
+
+mod common;
+
+mod floats;
+mod formats;
+mod frames;
+mod halfs;
+mod handshake;
+mod mutation;
+mod split_frames;

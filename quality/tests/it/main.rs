@@ -1,0 +1,4 @@
+//! The integration tests of `quality`, one binary (each file of this folder a module).
+
+mod accuracy_sweep;
+mod hard_cases;

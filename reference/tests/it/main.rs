@@ -1,0 +1,9 @@
+//! The integration tests of `reference`, one binary (each file of this folder a module).
+
+mod common;
+
+mod area;
+mod bvh;
+mod convergence;
+mod metrics;
+mod point_sum;

@@ -1,0 +1,16 @@
+//! The integration tests of `tests`, one binary (each file of this folder a module).
+
+mod animation;
+mod antialiasing;
+mod cluster;
+mod cluster_smoke;
+mod failover;
+mod frame_budget;
+mod hostile;
+mod indirect;
+mod partitions;
+mod penumbra_filter;
+mod plan_culling;
+mod plan_passes;
+mod render_parity;
+mod seed64_scale;
