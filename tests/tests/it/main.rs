@@ -6,7 +6,6 @@ mod cluster;
 mod cluster_smoke;
 mod failover;
 mod frame_budget;
-mod hostile;
 mod indirect;
 mod partitions;
 mod penumbra_filter;

@@ -2,6 +2,10 @@
 //! stray connections to the coordinator's sink, 200 MB frames sent before authenticating to every
 //! daemon, and a second link claiming a live producer's id. Every frame still arrives, with no
 //! re-plan, and the daemons' memory does not follow the hostile frames.
+//!
+//! Its own test binary (the crate's other tests are modules of `tests/it`): it measures this
+//! process's peak memory and needs an undisturbed cluster, so no other test may share its
+//! process.
 
 use lightfold_coordinator::run::RunOptions;
 use lightfold_net::Identity;
