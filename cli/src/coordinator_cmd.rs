@@ -78,19 +78,79 @@ pub struct Args {
 pub struct ViewArgs {
     /// Serve the live view on ADDR and run until stopped (Ctrl-C) instead of rendering
     /// `--frames`: a web page that shows frames as they complete and steers camera and lights.
-    /// Viewers beyond loopback only watch unless they present the token.
+    /// Viewers beyond loopback see nothing but the page until they present the token (see
+    /// `--public-watch`).
     #[arg(long, value_name = "ADDR")]
     pub http: Option<String>,
     /// With `--http`: render frame after frame even when nothing changed.
     #[arg(long)]
     pub continuous: bool,
-    /// With `--http`: the token viewers beyond loopback present to steer (default: the
-    /// cluster's token).
+    /// With `--http`: the token viewers beyond loopback present to watch and steer (default:
+    /// the cluster's token).
     #[arg(long, value_name = "FILE")]
     pub view_token_file: Option<PathBuf>,
     /// With `--http`: JPEG quality of the frames pushed to viewers.
     #[arg(long, default_value_t = 85, value_parser = clap::value_parser!(u8).range(1..=100))]
     pub jpeg_quality: u8,
+    #[command(flatten)]
+    pub access: ViewAccessArgs,
+}
+
+/// Who may see the live view, and over what (`docs/live-view.md` § Access): shared by
+/// `coordinator --http` and `demo --serve`.
+#[derive(Debug, Clone, Default, clap::Args)]
+pub struct ViewAccessArgs {
+    /// Live view (`--http`, `demo --serve`): let viewers beyond loopback watch without the
+    /// token: frames and the cluster's status, with daemon addresses removed (steering still
+    /// needs the token). Default: they get the page and nothing more until they present it.
+    #[arg(long)]
+    pub public_watch: bool,
+    /// Live view: serve it over HTTPS and WSS with this certificate chain (PEM); needs
+    /// `--tls-key`.
+    #[arg(long, value_name = "PEM", requires = "tls_key")]
+    pub tls_cert: Option<PathBuf>,
+    /// Live view: the private key of `--tls-cert` (PEM: PKCS#8, PKCS#1 or SEC1); needs
+    /// `--tls-cert`.
+    #[arg(long, value_name = "PEM", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
+    /// Live view without TLS: accept the token from viewers beyond loopback anyway (it then
+    /// crosses the network readable). Default: refused there, so the token is only sent over
+    /// TLS or on loopback.
+    #[arg(long)]
+    pub allow_plain_token: bool,
+}
+
+impl ViewAccessArgs {
+    /// The certificate and key, both or neither.
+    pub fn tls(&self) -> anyhow::Result<Option<lightfold_view::TlsFiles>> {
+        match (&self.tls_cert, &self.tls_key) {
+            (Some(cert), Some(key)) => Ok(Some(lightfold_view::TlsFiles {
+                cert: cert.clone(),
+                key: key.clone(),
+            })),
+            (None, None) => Ok(None),
+            _ => bail!("--tls-cert and --tls-key go together: give both, or neither"),
+        }
+    }
+
+    /// The same flags for a coordinator started by `demo` (paths made absolute).
+    pub fn to_args(&self) -> Vec<std::ffi::OsString> {
+        let abs = |p: &PathBuf| std::path::absolute(p).unwrap_or_else(|_| p.clone());
+        let mut a: Vec<std::ffi::OsString> = Vec::new();
+        if self.public_watch {
+            a.push("--public-watch".into());
+        }
+        if let (Some(cert), Some(key)) = (&self.tls_cert, &self.tls_key) {
+            a.push("--tls-cert".into());
+            a.push(abs(cert).into());
+            a.push("--tls-key".into());
+            a.push(abs(key).into());
+        }
+        if self.allow_plain_token {
+            a.push("--allow-plain-token".into());
+        }
+        a
+    }
 }
 
 impl ViewArgs {
@@ -108,18 +168,31 @@ impl ViewArgs {
             token: Some(token),
             continuous: self.continuous,
             jpeg_quality: self.jpeg_quality,
+            public_watch: self.access.public_watch,
+            tls: self.access.tls()?,
+            allow_plain_token: self.access.allow_plain_token,
             ..lightfold_view::ViewOptions::default()
         })
         .await?;
         let addr = view.local_addr();
+        let scheme = if view.is_tls() { "https" } else { "http" };
         if addr.ip().is_loopback() {
-            outln!("view: http://{addr}/");
+            outln!("view: {scheme}://{addr}/");
         } else {
-            outln!(
-                "view: http://{addr}/ (viewers beyond loopback watch; to steer they present the \
-                 token, in the page or as http://HOST:{}/#token=TOKEN)",
-                addr.port()
-            );
+            let who = if self.access.public_watch {
+                "viewers beyond loopback watch (no daemon addresses); to steer they present"
+            } else {
+                "viewers beyond loopback see nothing until they present"
+            };
+            let how = if view.is_tls() || self.access.allow_plain_token {
+                format!(
+                    "in the page or as {scheme}://HOST:{}/#token=TOKEN",
+                    addr.port()
+                )
+            } else {
+                "which plain HTTP does not take from them: give --tls-cert and --tls-key".into()
+            };
+            outln!("view: {scheme}://{addr}/ ({who} the token, {how})");
         }
         Ok(Some(view))
     }

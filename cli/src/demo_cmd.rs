@@ -52,6 +52,9 @@ pub struct Args {
     /// With `--serve`: render frame after frame even when nothing changed.
     #[arg(long, requires = "serve")]
     pub continuous: bool,
+    /// With `--serve`: who may see the view, and over what (as `coordinator --http`).
+    #[command(flatten)]
+    pub view_access: crate::coordinator_cmd::ViewAccessArgs,
     /// Every daemon and the coordinator serve `/metrics`, `/healthz` and `/readyz` on a loopback
     /// port of its own (`--metrics-listen`; the addresses are printed).
     #[arg(long)]
@@ -264,6 +267,12 @@ fn watch_interrupt(state: Arc<Mutex<Interrupt>>) {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let started = Instant::now();
+    // A certificate or key the view cannot use fails here, before any daemon starts.
+    if args.serve.is_some()
+        && let Some(tls) = args.view_access.tls()?
+    {
+        lightfold_view::check_tls(&tls)?;
+    }
     let interrupt = Arc::new(Mutex::new(Interrupt::default()));
     watch_interrupt(Arc::clone(&interrupt));
     // The coordinator loads the scene again and says what it makes of it (a glTF's ignored
@@ -385,6 +394,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if args.continuous {
             coord.arg("--continuous");
         }
+        coord.args(args.view_access.to_args());
     }
     if args.metrics {
         coord.args(["--metrics-listen", ANY_PORT]);

@@ -1,9 +1,11 @@
-//! The HTTP side: the page (embedded), the newest frame as JPEG, PNG and EXR, and the WebSocket.
+//! The HTTP side (plain, or TLS): the page (embedded), the newest frame as JPEG, PNG and EXR
+//! (to viewers allowed to see it: `refused_frames`), and the WebSocket.
 
+use crate::access::Access;
 use crate::hub::{Hub, MAX_VIEWERS};
 use axum::extract::ws::WebSocketUpgrade;
 use axum::extract::{ConnectInfo, State};
-use axum::http::{StatusCode, header};
+use axum::http::{HeaderMap, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
 use bytes::Bytes;
@@ -16,6 +18,7 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
+use tokio_util::sync::CancellationToken;
 use tower::Service;
 
 const INDEX: &str = include_str!("../static/index.html");
@@ -37,8 +40,13 @@ pub const HEADER_TIMEOUT: Duration = Duration::from_secs(5);
 const DRAIN: Duration = Duration::from_secs(2);
 
 /// Accepts connections until the view stops: at most `MAX_CONNECTIONS` at once, each with a
-/// deadline on its request header (hyper's, with a timer: `axum::serve` sets none).
-pub async fn serve(listener: tokio::net::TcpListener, hub: Arc<Hub>) {
+/// deadline on its request header (hyper's, with a timer: `axum::serve` sets none) and, over TLS,
+/// on its handshake.
+pub async fn serve(
+    listener: tokio::net::TcpListener,
+    tls: Option<tokio_rustls::TlsAcceptor>,
+    hub: Arc<Hub>,
+) {
     let stop = hub.stop.clone();
     let app = axum::Router::new()
         .route(
@@ -77,34 +85,99 @@ pub async fn serve(listener: tokio::net::TcpListener, hub: Arc<Hub>) {
         };
         let app = app.clone();
         let stop = stop.clone();
+        let tls = tls.clone();
         tokio::spawn(async move {
             let _permit = permit;
-            let service = tower::service_fn(move |mut req: axum::extract::Request<Incoming>| {
-                req.extensions_mut().insert(ConnectInfo(peer));
-                let mut app = app.clone();
-                async move { app.call(req.map(axum::body::Body::new)).await }
-            });
-            let mut builder = Builder::new(TokioExecutor::new());
-            builder
-                .http1()
-                .timer(TokioTimer::new())
-                .header_read_timeout(HEADER_TIMEOUT);
-            let conn = builder.serve_connection_with_upgrades(
-                TokioIo::new(stream),
-                TowerToHyperService::new(service),
-            );
-            tokio::pin!(conn);
-            tokio::select! {
-                r = conn.as_mut() => if let Err(e) = r {
-                    tracing::debug!(%peer, "view connection ended: {e}");
-                },
-                _ = stop.cancelled() => {
-                    conn.as_mut().graceful_shutdown();
-                    let _ = tokio::time::timeout(DRAIN, conn).await;
+            match tls {
+                None => connection(stream, peer, app, stop).await,
+                Some(tls) => {
+                    // A peer speaking plain HTTP, or no TLS at all, fails here and is closed.
+                    let handshake = tokio::select! {
+                        r = tokio::time::timeout(HEADER_TIMEOUT, tls.accept(stream)) => r,
+                        _ = stop.cancelled() => return,
+                    };
+                    match handshake {
+                        Ok(Ok(stream)) => connection(stream, peer, app, stop).await,
+                        Ok(Err(e)) => tracing::debug!(%peer, "view TLS handshake failed: {e}"),
+                        Err(_) => tracing::debug!(%peer, "view TLS handshake timed out"),
+                    }
                 }
             }
         });
     }
+}
+
+/// Serves one connection (plain or TLS) until it ends or the view stops.
+async fn connection<S>(stream: S, peer: SocketAddr, app: axum::Router, stop: CancellationToken)
+where
+    S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send + 'static,
+{
+    let service = tower::service_fn(move |mut req: axum::extract::Request<Incoming>| {
+        req.extensions_mut().insert(ConnectInfo(peer));
+        let mut app = app.clone();
+        async move { app.call(req.map(axum::body::Body::new)).await }
+    });
+    let mut builder = Builder::new(TokioExecutor::new());
+    builder
+        .http1()
+        .timer(TokioTimer::new())
+        .header_read_timeout(HEADER_TIMEOUT);
+    let conn = builder
+        .serve_connection_with_upgrades(TokioIo::new(stream), TowerToHyperService::new(service));
+    tokio::pin!(conn);
+    tokio::select! {
+        r = conn.as_mut() => if let Err(e) = r {
+            tracing::debug!(%peer, "view connection ended: {e}");
+        },
+        _ = stop.cancelled() => {
+            conn.as_mut().graceful_shutdown();
+            let _ = tokio::time::timeout(DRAIN, conn).await;
+        }
+    }
+}
+
+/// `None` when a frame may go to `peer` (on loopback, with `--public-watch`, or to a request that
+/// carries the token as `Authorization: Bearer TOKEN`, over TLS or with `--allow-plain-token`);
+/// else the answer to send instead (401, or 403 for a token sent over plain HTTP).
+fn refused_frames(hub: &Hub, peer: SocketAddr, headers: &HeaderMap) -> Option<Response> {
+    let presented = headers.get(header::AUTHORIZATION).map(|h| {
+        let h = h.to_str().unwrap_or("");
+        match h.split_once(' ') {
+            Some((scheme, token)) if scheme.eq_ignore_ascii_case("bearer") => Some(token.trim()),
+            _ => None,
+        }
+    });
+    let Some(presented) = presented else {
+        return match hub.access_of(peer) {
+            Access::Steer | Access::Watch => None,
+            Access::Locked => Some(unauthorized(
+                "this view shows its frames only to viewers who present the token: send it as \
+                 `Authorization: Bearer TOKEN`, or open the page and enter it there",
+            )),
+        };
+    };
+    if crate::access::on_loopback(peer) {
+        return None;
+    }
+    if let Some(why) = hub.token_refused(peer) {
+        return Some((StatusCode::FORBIDDEN, why).into_response());
+    }
+    match presented {
+        Some(t) if hub.token_matches(t) => None,
+        Some(_) => Some(unauthorized("wrong token")),
+        None => Some(unauthorized(
+            "the view takes the token as `Authorization: Bearer TOKEN`",
+        )),
+    }
+}
+
+fn unauthorized(text: &'static str) -> Response {
+    (
+        StatusCode::UNAUTHORIZED,
+        [(header::WWW_AUTHENTICATE, "Bearer realm=\"lightfold view\"")],
+        text,
+    )
+        .into_response()
 }
 
 fn page(body: &'static str, kind: &'static str) -> Response {
@@ -122,7 +195,14 @@ fn no_frame() -> Response {
     (StatusCode::SERVICE_UNAVAILABLE, "no frame yet").into_response()
 }
 
-async fn jpeg(State(hub): State<Arc<Hub>>) -> Response {
+async fn jpeg(
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    headers: HeaderMap,
+    State(hub): State<Arc<Hub>>,
+) -> Response {
+    if let Some(r) = refused_frames(&hub, peer, &headers) {
+        return r;
+    }
     let frame = hub.frames.borrow().clone();
     match frame {
         Some(f) => (
@@ -137,7 +217,14 @@ async fn jpeg(State(hub): State<Arc<Hub>>) -> Response {
     }
 }
 
-async fn exr(State(hub): State<Arc<Hub>>) -> Response {
+async fn exr(
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    headers: HeaderMap,
+    State(hub): State<Arc<Hub>>,
+) -> Response {
+    if let Some(r) = refused_frames(&hub, peer, &headers) {
+        return r;
+    }
     let image = hub.image.lock().unwrap_or_else(|e| e.into_inner()).clone();
     let Some(image) = image else {
         return no_frame();
@@ -147,7 +234,14 @@ async fn exr(State(hub): State<Arc<Hub>>) -> Response {
 }
 
 /// The newest frame as a PNG: 8-bit sRGB at the exposure the view encodes frames at now.
-async fn png(State(hub): State<Arc<Hub>>) -> Response {
+async fn png(
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    headers: HeaderMap,
+    State(hub): State<Arc<Hub>>,
+) -> Response {
+    if let Some(r) = refused_frames(&hub, peer, &headers) {
+        return r;
+    }
     let image = hub.image.lock().unwrap_or_else(|e| e.into_inner()).clone();
     let Some(image) = image else {
         return no_frame();

@@ -2,12 +2,14 @@
 //! as the page shows it, and counters of what serving costs.
 
 use crate::ViewOptions;
+use crate::access::Access;
 use crate::camera::Steer;
 use bytes::Bytes;
 use lightfold_coordinator::control::LiveStatus;
 use lightfold_scene::{Image, Scene};
 use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
+use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -20,6 +22,12 @@ pub const MAX_VIEWERS: usize = 64;
 /// viewers who steer, so watchers cannot fill the view and lock its operator out (64 watch-only
 /// viewers used to take every slot).
 pub const MAX_WATCHERS: usize = 48;
+
+/// Why the token is refused over plain HTTP from beyond loopback.
+pub const PLAIN_TOKEN_REFUSED: &str = "this view is served over plain HTTP, so the token is not \
+     accepted from beyond loopback (it would cross the network readable): serve the view over \
+     HTTPS (--tls-cert, --tls-key), open it on the coordinator's machine (loopback), or start it \
+     with --allow-plain-token";
 
 /// What serving the view has cost, for the figures in `docs/live-view.md`.
 #[derive(Debug, Default)]
@@ -68,6 +76,14 @@ pub struct Hub {
     /// The scene's own exposure, stops (what the page's exposure resets to).
     pub scene_stops: f32,
     token: Option<[u8; 32]>,
+    /// Viewers beyond loopback without the token watch (`ViewOptions::public_watch`).
+    pub public_watch: bool,
+    /// The token is taken over plain HTTP from beyond loopback (`allow_plain_token`).
+    pub allow_plain_token: bool,
+    /// The view serves HTTPS and WSS.
+    pub tls: bool,
+    /// Addresses removed from what viewers without the token are sent.
+    pub addresses: crate::access::Addresses,
     pub steer: watch::Sender<Steer>,
     /// A viewer asked for a frame although nothing changed.
     pub render_now: Notify,
@@ -120,6 +136,10 @@ impl Hub {
             scene: crate::json::scene(scene),
             scene_stops: crate::encode::stops_of(scene.exposure),
             token: opts.token.as_deref().map(digest),
+            public_watch: opts.public_watch,
+            allow_plain_token: opts.allow_plain_token,
+            tls: false,
+            addresses: crate::access::Addresses::default(),
             steer: watch::Sender::new(Steer::new(scene)),
             render_now: Notify::new(),
             delivered: watch::Sender::new(0),
@@ -141,11 +161,33 @@ impl Hub {
         }
     }
 
-    /// Whether `presented` is the view's token (compared as digests: no early exit on the
-    /// first differing byte of the token itself).
+    /// Whether `presented` is the view's token (compared as SHA-256 digests, every byte of
+    /// them whatever the first difference).
     pub fn token_matches(&self, presented: &str) -> bool {
         self.token
-            .is_some_and(|t| t == digest(presented.as_bytes()))
+            .is_some_and(|t| crate::access::same_digest(&t, &digest(presented.as_bytes())))
+    }
+
+    /// What a viewer at `peer` may do before it presents the token.
+    pub fn access_of(&self, peer: SocketAddr) -> Access {
+        if crate::access::on_loopback(peer) {
+            Access::Steer
+        } else if self.public_watch {
+            Access::Watch
+        } else {
+            Access::Locked
+        }
+    }
+
+    /// Why a viewer at `peer` may not present the token over this connection (`None`: it may):
+    /// beyond loopback without TLS the token would cross the network readable, so it is refused
+    /// there unless the view was started with `--allow-plain-token`.
+    pub fn token_refused(&self, peer: SocketAddr) -> Option<&'static str> {
+        if crate::access::on_loopback(peer) || self.tls || self.allow_plain_token {
+            None
+        } else {
+            Some(PLAIN_TOKEN_REFUSED)
+        }
     }
 
     /// The plan in use.

@@ -11,9 +11,14 @@
 //! loop; every viewer gets the newest frame when it can take one, so a slow viewer drops frames
 //! and never slows the cluster.
 //!
-//! Security: a viewer connecting from loopback may steer; any other may only watch until it
-//! presents the token (`ViewOptions::token`, the cluster's or a separate viewer token).
+//! Security (`docs/live-view.md` § Access): a viewer connecting from loopback may steer; any
+//! other sees nothing but the page until it presents the token (`ViewOptions::token`, the
+//! cluster's or a separate viewer token), unless the view was started with `public_watch`, when it
+//! watches (frames and status, daemon addresses removed). The view serves HTTPS and WSS when given
+//! a certificate and key (`ViewOptions::tls`); without TLS the token is taken from beyond loopback
+//! only with `allow_plain_token`.
 
+mod access;
 mod camera;
 mod clock;
 mod encode;
@@ -21,6 +26,7 @@ mod feed;
 mod http;
 mod hub;
 mod json;
+mod tls;
 mod ws;
 
 pub use camera::{Steer, SteerError};
@@ -36,8 +42,8 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 use tokio_util::sync::CancellationToken;
 
-/// How the view is served.
-#[derive(Debug, Clone)]
+/// How the view is served. Its `Debug` says whether there is a token, never the token.
+#[derive(Clone)]
 pub struct ViewOptions {
     /// Address to listen on (`127.0.0.1:8080` by default: loopback only).
     pub listen: String,
@@ -53,6 +59,37 @@ pub struct ViewOptions {
     pub send_buffer: u32,
     /// A viewer that takes longer than this to take one message is dropped.
     pub send_timeout: std::time::Duration,
+    /// Viewers beyond loopback without the token watch (frames and status, with daemon
+    /// addresses removed); else they get the page and nothing more until they present it.
+    pub public_watch: bool,
+    /// Serve HTTPS and WSS with this certificate chain and key (PEM files).
+    pub tls: Option<TlsFiles>,
+    /// Without TLS, accept the token from beyond loopback anyway (it crosses the network
+    /// readable); else it is refused there, so it is only ever sent over TLS or on loopback.
+    pub allow_plain_token: bool,
+}
+
+impl std::fmt::Debug for ViewOptions {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ViewOptions")
+            .field("listen", &self.listen)
+            .field("token", &self.token.as_ref().map(|_| "<set>"))
+            .field("continuous", &self.continuous)
+            .field("jpeg_quality", &self.jpeg_quality)
+            .field("send_buffer", &self.send_buffer)
+            .field("send_timeout", &self.send_timeout)
+            .field("public_watch", &self.public_watch)
+            .field("tls", &self.tls)
+            .field("allow_plain_token", &self.allow_plain_token)
+            .finish()
+    }
+}
+
+/// A certificate chain and its private key, PEM files (`--tls-cert`, `--tls-key`).
+#[derive(Debug, Clone)]
+pub struct TlsFiles {
+    pub cert: std::path::PathBuf,
+    pub key: std::path::PathBuf,
 }
 
 impl Default for ViewOptions {
@@ -64,8 +101,17 @@ impl Default for ViewOptions {
             jpeg_quality: 85,
             send_buffer: 256 << 10,
             send_timeout: std::time::Duration::from_secs(10),
+            public_watch: false,
+            tls: None,
+            allow_plain_token: false,
         }
     }
+}
+
+/// Whether the view can serve TLS with `files` (a clear error if not: unreadable, not PEM, or a
+/// key that is not the certificate's).
+pub fn check_tls(files: &TlsFiles) -> anyhow::Result<()> {
+    tls::acceptor(files).map(drop)
 }
 
 /// Where the view listens unless told otherwise.
@@ -74,18 +120,30 @@ pub const DEFAULT_LISTEN: &str = "127.0.0.1:8080";
 const ENDED_GRACE: std::time::Duration = std::time::Duration::from_millis(500);
 
 /// A bound view server, ready to drive a session.
-#[derive(Debug)]
 pub struct View {
     listener: tokio::net::TcpListener,
+    tls: Option<tokio_rustls::TlsAcceptor>,
     addr: SocketAddr,
     opts: ViewOptions,
     counters: Arc<ViewCounters>,
 }
 
+impl std::fmt::Debug for View {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("View")
+            .field("addr", &self.addr)
+            .field("tls", &self.tls.is_some())
+            .finish_non_exhaustive()
+    }
+}
+
 impl View {
-    /// Binds the HTTP listener.
+    /// Binds the HTTP listener (after loading the TLS certificate and key, if given: a file
+    /// that cannot be read, holds no certificate or key, or a key that is not the certificate's
+    /// is an error here, before anything listens).
     pub async fn bind(opts: ViewOptions) -> anyhow::Result<View> {
         use anyhow::Context;
+        let tls = opts.tls.as_ref().map(tls::acceptor).transpose()?;
         let addr: SocketAddr = tokio::net::lookup_host(&opts.listen)
             .await
             .with_context(|| format!("cannot resolve the view's address {}", opts.listen))?
@@ -106,6 +164,7 @@ impl View {
         let addr = listener.local_addr()?;
         Ok(View {
             listener,
+            tls,
             addr,
             opts,
             counters: Arc::default(),
@@ -114,6 +173,11 @@ impl View {
 
     pub fn local_addr(&self) -> SocketAddr {
         self.addr
+    }
+
+    /// Whether the view serves HTTPS and WSS.
+    pub fn is_tls(&self) -> bool {
+        self.tls.is_some()
     }
 
     /// What serving the view has cost so far (encoding time, bytes sent, frames dropped).
@@ -143,6 +207,15 @@ impl View {
         mut on_frame: impl FnMut(FrameResult),
     ) -> RunOutcome {
         let in_flight = session.opts.frames_in_flight.max(1) as u64;
+        // Addresses a viewer without the token must not see (`access::Addresses::redact`).
+        let addresses = access::Addresses::new(
+            session
+                .daemons
+                .values()
+                .map(|d| d.address.as_str())
+                .chain(session.unreachable.iter().map(|(a, _)| a.as_str()))
+                .chain(std::iter::once(session.sink_address.as_str())),
+        );
         let mut live = match Live::new(session, scene, plan) {
             Ok(l) => l,
             Err(e) => {
@@ -155,14 +228,17 @@ impl View {
         // Daemons whose links end once the view is told to stop are stopping with it, not lost.
         live.stop_on(stop.clone());
         let serving = CancellationToken::new();
-        let hub = Arc::new(hub::Hub::new(
+        let mut hub = hub::Hub::new(
             scene,
             &self.opts,
             self.counters,
             live.observe(),
             serving.clone(),
-        ));
-        let server = tokio::spawn(http::serve(self.listener, Arc::clone(&hub)));
+        );
+        hub.tls = self.tls.is_some();
+        hub.addresses = addresses;
+        let hub = Arc::new(hub);
+        let server = tokio::spawn(http::serve(self.listener, self.tls, Arc::clone(&hub)));
         let relay = tokio::spawn(Arc::clone(&hub).relay_status());
         let (tx, rx) = tokio::sync::mpsc::channel(1);
         let feeder = tokio::spawn(feed::run(Arc::clone(&hub), tx, in_flight, stop));
@@ -191,5 +267,24 @@ impl View {
             summary: std::mem::take(&mut live.summary),
             error,
         }
+    }
+}
+
+#[cfg(test)]
+mod options_tests {
+    use super::ViewOptions;
+
+    #[test]
+    fn debug_never_prints_the_token() {
+        let opts = ViewOptions {
+            token: Some(b"s3cret-token".to_vec()),
+            ..ViewOptions::default()
+        };
+        let text = format!("{opts:?}");
+        assert!(!text.contains("s3cret"), "{text}");
+        // Control: the token's bytes as the derived Debug would print them are absent too, and
+        // the field still says a token is set.
+        assert!(!text.contains("115, 51"), "{text}");
+        assert!(text.contains("token: Some(\"<set>\")"), "{text}");
     }
 }

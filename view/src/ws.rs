@@ -2,6 +2,7 @@
 //! viewer has taken the one before, the status, camera and lights when they change, and the
 //! viewer's steering messages (`docs/live-view.md`).
 
+use crate::access::Access;
 use crate::camera::SteerError;
 use crate::hub::Hub;
 use crate::json;
@@ -77,8 +78,14 @@ struct CameraIn {
 
 struct Viewer {
     hub: Arc<Hub>,
-    can_steer: bool,
+    peer: SocketAddr,
+    access: Access,
 }
+
+/// What a viewer beyond loopback without the token is told (the view was not started with
+/// `--public-watch`).
+const LOCKED: &str = "this view shows its frames and the cluster only to viewers who present the \
+     token (the cluster's, or the view's own)";
 
 /// How long a viewer arriving when the watching slots are full has to present the token.
 const HELLO_WAIT: std::time::Duration = std::time::Duration::from_secs(5);
@@ -117,23 +124,26 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
     hub.viewers.fetch_add(1, Ordering::Relaxed);
     let _present = Present(Arc::clone(&hub));
     let mut v = Viewer {
-        can_steer: peer.ip().is_loopback(),
+        access: hub.access_of(peer),
+        peer,
         hub: Arc::clone(&hub),
     };
     let (mut tx, mut rx) = socket.split();
     let mut first_answers = Vec::new();
-    let mut watching = if v.can_steer {
+    // Every viewer that does not steer (watching, or waiting to present the token) takes a
+    // watching slot.
+    let mut watching = if v.access.can_steer() {
         None
     } else {
         Watching::take(&hub)
     };
-    if !v.can_steer && watching.is_none() {
+    if !v.access.can_steer() && watching.is_none() {
         // The watching slots are full: only a viewer who presents the token takes one of
         // the slots kept for steering.
         if let Ok(Some(Ok(Message::Text(t)))) = tokio::time::timeout(HELLO_WAIT, rx.next()).await {
             first_answers = v.handle(&t);
         }
-        if !v.can_steer {
+        if !v.access.can_steer() {
             let m = error(format!(
                 "{} viewers are watching already: present the token to steer, or try later",
                 crate::hub::MAX_WATCHERS
@@ -143,22 +153,23 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
             return;
         }
     }
-    tracing::info!(%peer, steer = v.can_steer, "viewer connected");
+    tracing::info!(%peer, access = ?v.access, "viewer connected");
     let mut frames = hub.frames.subscribe();
     let mut status = hub.status.subscribe();
     let mut steer = hub.steer.subscribe();
     let mut exposure = hub.exposure.subscribe();
-    exposure.borrow_and_update(); // the welcome says it
     let mut notices = hub.notice.subscribe();
-    notices.borrow_and_update(); // only notices from now on
     let mut ended = hub.ended.subscribe();
     ended.mark_changed();
+    let mut outbox = vec![v.welcome()];
+    if v.access.can_watch() {
+        outbox.push(json::lights_message(&steer.borrow_and_update()));
+    }
+    // What the welcome says already, and only notices from now on.
+    exposure.borrow_and_update();
+    notices.borrow_and_update();
     frames.mark_changed();
     status.mark_changed();
-    let mut outbox = vec![
-        v.welcome(),
-        json::lights_message(&steer.borrow_and_update()),
-    ];
     outbox.extend(first_answers);
     let mut last_sent: Option<u64> = None;
     loop {
@@ -167,6 +178,9 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
                 return;
             }
         }
+        // A viewer without the token sees nothing of the session until it presents it, unless
+        // the view lets everyone watch.
+        let watch = v.access.can_watch();
         tokio::select! {
             _ = hub.stop.cancelled() => {
                 let _ = tx.send(Message::Close(None)).await;
@@ -174,12 +188,18 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
             }
             m = rx.next() => match m {
                 Some(Ok(Message::Text(t))) => {
-                    let could = v.can_steer;
+                    let before = v.access;
                     outbox.extend(v.handle(&t));
-                    if v.can_steer && !could {
+                    if v.access.can_steer() && !before.can_steer() {
                         // A steering viewer now: its watching slot is free again.
                         drop(watching.take());
                         outbox.push(v.welcome());
+                        outbox.push(json::lights_message(&steer.borrow_and_update()));
+                        exposure.borrow_and_update();
+                        notices.borrow_and_update();
+                        // The newest frame and status, now unredacted.
+                        frames.mark_changed();
+                        status.mark_changed();
                     }
                 }
                 Some(Ok(Message::Binary(_))) => {
@@ -192,7 +212,7 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
                     return;
                 }
             },
-            r = frames.changed() => {
+            r = frames.changed(), if watch => {
                 if r.is_err() { return; }
                 let f = frames.borrow_and_update().clone();
                 if let Some(f) = f {
@@ -209,39 +229,41 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
                     hub.counters.bytes_sent.fetch_add(n, Ordering::Relaxed);
                 }
             }
-            r = status.changed() => {
+            r = status.changed(), if watch => {
                 if r.is_err() { return; }
                 let s = status.borrow_and_update().clone();
                 if let Some(s) = s {
                     let mut s = (*s).clone();
                     s["viewers"] = hub.viewers.load(Ordering::Relaxed).into();
-                    outbox.push(s);
+                    outbox.push(v.redacted(s));
                 }
             }
-            r = steer.changed() => {
+            r = steer.changed(), if watch => {
                 if r.is_err() { return; }
                 let s = steer.borrow_and_update().clone();
                 outbox.push(json::camera_message(&s));
                 outbox.push(json::lights_message(&s));
                 outbox.push(json::animation_message(&s));
             }
-            r = exposure.changed() => {
+            r = exposure.changed(), if watch => {
                 if r.is_err() { return; }
                 let stops = *exposure.borrow_and_update();
                 outbox.push(json::exposure_message(stops));
             }
-            r = notices.changed() => {
+            r = notices.changed(), if watch => {
                 if r.is_err() { return; }
                 if let Some((_, text)) = notices.borrow_and_update().clone() {
-                    outbox.push(json!({"type": "notice", "text": text}));
+                    outbox.push(v.redacted(json!({"type": "notice", "text": text})));
                 }
             }
             r = ended.changed() => {
                 if r.is_err() { return; }
                 let why = ended.borrow_and_update().clone();
                 if let Some(why) = why {
-                    // The page shows why instead of looping on "reconnecting" with no reason.
-                    let m = json!({"type": "ended", "text": why});
+                    // The page shows why instead of looping on "reconnecting" with no reason
+                    // (a viewer that sees nothing of the session is told only that it ended).
+                    let why = if watch { why } else { "the session ended".to_string() };
+                    let m = v.redacted(json!({"type": "ended", "text": why}));
                     if send(&mut tx, &hub, Message::Text(m.to_string().into())).await {
                         let _ = tx.send(Message::Close(None)).await;
                     }
@@ -278,10 +300,24 @@ fn error(text: impl std::fmt::Display) -> Value {
 
 impl Viewer {
     fn welcome(&self) -> Value {
+        let token_refused = self.hub.token_refused(self.peer);
+        if !self.access.can_watch() {
+            // Nothing of the session: only that it must present the token, and whether it can
+            // here.
+            return json!({
+                "type": "welcome",
+                "can_steer": false,
+                "can_watch": false,
+                "token_accepted": token_refused.is_none(),
+                "text": token_refused.unwrap_or(LOCKED),
+            });
+        }
         let s = self.hub.steer.borrow();
-        json!({
+        let mut w = json!({
             "type": "welcome",
-            "can_steer": self.can_steer,
+            "can_steer": self.access.can_steer(),
+            "can_watch": true,
+            "token_accepted": token_refused.is_none(),
             "scene": self.hub.scene,
             "camera": json::camera(&s.camera),
             "revision": s.revision,
@@ -294,7 +330,19 @@ impl Viewer {
                 "min": crate::encode::MIN_STOPS,
                 "max": crate::encode::MAX_STOPS,
             },
-        })
+        });
+        if let Some(why) = token_refused.filter(|_| !self.access.can_steer()) {
+            w["text"] = why.into();
+        }
+        w
+    }
+
+    /// `m` as this viewer may see it: without the token, no daemon address.
+    fn redacted(&self, mut m: Value) -> Value {
+        if !self.access.can_steer() {
+            self.hub.addresses.redact(&mut m);
+        }
+        m
     }
 
     /// Applies one message from the page; what to answer: an ack when it carried an id and was
@@ -333,15 +381,22 @@ impl Viewer {
     fn apply(&mut self, input: Input) -> Result<(), Value> {
         match input {
             Input::Hello { token } => {
-                if self.hub.token_matches(&token) {
-                    self.can_steer = true;
+                if let Some(why) = self.hub.token_refused(self.peer) {
+                    Err(error(why))
+                } else if self.hub.token_matches(&token) {
+                    self.access = Access::Steer;
                     Ok(())
-                } else {
+                } else if self.access.can_watch() {
                     Err(error("wrong token: this view can only watch"))
+                } else {
+                    Err(error(
+                        "wrong token: this view shows nothing without the token",
+                    ))
                 }
             }
+            _ if !self.access.can_watch() => Err(error(LOCKED)),
             Input::Stats => Err(self.hub.stats()),
-            _ if !self.can_steer => Err(error(
+            _ if !self.access.can_steer() => Err(error(
                 "this view can only watch: present the cluster's token to steer",
             )),
             Input::Render => {

@@ -15,12 +15,14 @@
   // The page's state, for automated tests: frames received, the last header received and the
   // one on screen (`displayed`), the last acked steering revision, steering messages awaiting
   // their ack (`unacked`), the server's error messages, the camera, whether this viewer may
-  // steer, the last status, the exposure frames are encoded at (stops), the playback (`clock`:
+  // steer (`canSteer`), whether it sees the session at all (`canWatch`: beyond loopback without
+  // the token, only with --public-watch) and whether the view takes the token over this
+  // connection (`tokenAccepted`: not over plain HTTP beyond loopback), the last status, the exposure frames are encoded at (stops), the playback (`clock`:
   // the clip time of the frame on screen, the one clock the page shows) and the camera bookmarks.
   const view = (window.lightfoldView = {
     connected: false, frames: 0, header: null, displayed: null, revision: null, unacked: 0, errors: [],
     ended: null,
-    camera: null, canSteer: false, status: null, scene: null, lights: [],
+    camera: null, canSteer: false, canWatch: true, tokenAccepted: true, status: null, scene: null, lights: [],
     exposure: null, clock: null, playback: null, bookmarks: [],
   });
 
@@ -192,14 +194,41 @@
     send({ type: running() ? 'pause' : 'play' });
   }
 
+  // The token this page presented and the view took: sent with frame downloads too
+  // (`Authorization: Bearer`), which a viewer beyond loopback needs unless the view is public.
+  let presented = null;
+  let heldToken = null;
+  function presentToken(token) {
+    presented = { token };
+    send({ type: 'hello', token }, false);
+  }
+
   function onWelcome(m) {
     backoff = 500;
     view.canSteer = !!m.can_steer;
+    // A viewer beyond loopback without the token sees nothing of the session unless the view
+    // was started with --public-watch; and over plain HTTP the view does not take the token from
+    // it at all (it would cross the network readable): the page says so instead of sending it.
+    view.canWatch = m.can_watch !== false;
+    view.tokenAccepted = m.token_accepted !== false;
+    if (view.canSteer && presented) heldToken = presented.token;
     view.scene = m.scene || null;
     view.camera = m.camera || null;
     if (typeof m.revision === 'number') view.revision = m.revision;
     $('watch-only').hidden = view.canSteer;
     document.body.classList.toggle('watch', !view.canSteer);
+    const access = $('access-text');
+    access.replaceChildren();
+    if (!view.tokenAccepted) {
+      access.append(el('b', { text: view.canWatch ? 'Watch only. ' : 'No view without the token. ' }), m.text || '');
+    } else if (!view.canWatch) {
+      access.append(el('b', { text: 'Token needed. ' }), 'This view shows its frames only to viewers who present the token.');
+    } else {
+      access.append(el('b', { text: 'Watch only. ' }), 'This page is served beyond loopback; present the token to steer.');
+    }
+    $('token-form').hidden = !view.tokenAccepted;
+    $('placeholder').textContent = view.canWatch ? 'waiting for the first frame…'
+      : view.tokenAccepted ? 'present the token to watch' : 'this view shows nothing here without the token';
     const s = m.scene || {};
     $('scene-name').textContent = s.name ? `${s.name} · ${s.width}×${s.height}${m.continuous ? ' · continuous' : ''}${m.walkthrough ? ' · walkthrough' : ''}` : '';
     buildLights(s.lights || []);
@@ -211,9 +240,14 @@
     // A token in the address (`#token=…`, never sent to the server in a request line) is
     // presented once, so a link printed by the coordinator opens a view that steers.
     const fromUrl = new URLSearchParams(location.hash.slice(1)).get('token');
-    if (!view.canSteer && fromUrl && !tokenTried) {
+    if (!view.canSteer && view.tokenAccepted && fromUrl && !tokenTried) {
       tokenTried = true;
-      send({ type: 'hello', token: fromUrl }, false);
+      presentToken(fromUrl);
+    } else if (!view.canSteer && view.tokenAccepted && heldToken) {
+      // Reconnected: the token the view took before, once per connection.
+      const t = heldToken;
+      heldToken = null;
+      presentToken(t);
     }
     // Ask for a frame if none comes of its own accord (the view renders only on change).
     clearTimeout(firstFrameTimer);
@@ -376,8 +410,26 @@
   $('token-form').addEventListener('submit', (e) => {
     e.preventDefault();
     const token = $('token').value;
-    if (token) send({ type: 'hello', token }, false);
+    if (token && view.tokenAccepted) presentToken(token);
   });
+  // Downloads carry the token the view took (a link alone would be refused beyond loopback).
+  for (const id of ['dl-png', 'dl-jpg', 'exr']) {
+    $(id).addEventListener('click', async (e) => {
+      if (!heldToken) return; // loopback or a public view: the plain link works
+      e.preventDefault();
+      const a = e.currentTarget;
+      try {
+        const r = await fetch(a.getAttribute('href'), { headers: { Authorization: `Bearer ${heldToken}` } });
+        if (!r.ok) { toast(`${a.getAttribute('href')}: ${r.status} ${await r.text()}`, 'error'); return; }
+        const url = URL.createObjectURL(await r.blob());
+        const tmp = el('a', { href: url, download: a.getAttribute('download') });
+        document.body.append(tmp);
+        tmp.click();
+        tmp.remove();
+        setTimeout(() => URL.revokeObjectURL(url), 10000);
+      } catch (err) { toast(`download failed: ${err.message}`, 'error'); }
+    });
+  }
 
   function showCamera() {
     const c = view.camera;

@@ -6,6 +6,7 @@ use serde_json::Value;
 use std::collections::VecDeque;
 use std::net::SocketAddr;
 use std::time::Duration;
+use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::net::TcpStream;
 use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
@@ -18,8 +19,8 @@ pub struct Frame {
     pub jpeg: Vec<u8>,
 }
 
-pub struct Client {
-    ws: WebSocketStream<MaybeTlsStream<TcpStream>>,
+pub struct Client<S = MaybeTlsStream<TcpStream>> {
+    ws: WebSocketStream<S>,
     texts: VecDeque<Value>,
     frames: VecDeque<Frame>,
     next_id: u64,
@@ -37,12 +38,7 @@ impl Client {
             .await
             .expect("connecting timed out")
             .expect("the view accepts a WebSocket");
-        Client {
-            ws,
-            texts: VecDeque::new(),
-            frames: VecDeque::new(),
-            next_id: 1,
-        }
+        Client::over(ws)
     }
 
     /// Connects with a 4 KiB receive window and never reads after the handshake.
@@ -54,6 +50,37 @@ impl Client {
             .await
             .expect("the handshake");
         Stalled { _ws: ws }
+    }
+}
+
+impl<S: AsyncRead + AsyncWrite + Unpin> Client<S> {
+    /// A viewer on a WebSocket already open (over TLS, say).
+    pub fn over(ws: WebSocketStream<S>) -> Client<S> {
+        Client {
+            ws,
+            texts: VecDeque::new(),
+            frames: VecDeque::new(),
+            next_id: 1,
+        }
+    }
+
+    /// What arrives within `within` (text messages, and how many frames), taking it all.
+    pub async fn drain_for(&mut self, within: Duration) -> (Vec<Value>, usize) {
+        let deadline = tokio::time::Instant::now() + within;
+        while let Ok(m) = tokio::time::timeout_at(deadline, self.ws.next()).await {
+            match m
+                .expect("the view closed the socket")
+                .expect("a WebSocket error")
+            {
+                Message::Text(t) => self.texts.push_back(serde_json::from_str(&t).unwrap()),
+                Message::Binary(b) => self.frames.push_back(parse_frame(&b)),
+                Message::Close(c) => panic!("the view closed the socket: {c:?}"),
+                _ => {}
+            }
+        }
+        let frames = self.frames.len();
+        self.frames.clear();
+        (self.texts.drain(..).collect(), frames)
     }
 
     async fn read(&mut self) {
