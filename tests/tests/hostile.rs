@@ -11,6 +11,8 @@ use lightfold_coordinator::run::RunOptions;
 use lightfold_net::Identity;
 use lightfold_protocol::Role;
 use lightfold_tests::{InProcessCluster, RunOutput, orbit_options, small};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 use tokio::io::AsyncWriteExt;
 
@@ -33,10 +35,11 @@ fn peak_rss() -> u64 {
         .map_or(0, |kb| kb * 1024)
 }
 
-/// Renders the orbit while `attack(sink address)` runs beside it; the run must be undisturbed.
+/// Renders the orbit while `attack(sink address, frames delivered so far)` runs beside it; the
+/// run must be undisturbed.
 async fn render_under<F, Fut>(cluster: &InProcessCluster, attack: F) -> RunOutput
 where
-    F: FnOnce(String) -> Fut,
+    F: FnOnce(String, Arc<AtomicU64>) -> Fut,
     Fut: std::future::Future<Output = ()>,
 {
     let scene = small("balls");
@@ -44,9 +47,14 @@ where
     let mut session = cluster.connect(opts.control).await.unwrap();
     let sink = session.sink_address.clone();
     let mut frames = Vec::new();
-    let run = lightfold_coordinator::run::render(&mut session, &scene, &opts, |f| frames.push(f));
+    let delivered = Arc::new(AtomicU64::new(0));
+    let seen = Arc::clone(&delivered);
+    let run = lightfold_coordinator::run::render(&mut session, &scene, &opts, |f| {
+        seen.store(f.frame, Ordering::Relaxed);
+        frames.push(f);
+    });
     let (outcome, ()) = tokio::time::timeout(lightfold_tests::RUN_DEADLINE, async {
-        tokio::join!(run, attack(sink))
+        tokio::join!(run, attack(sink, delivered))
     })
     .await
     .expect("the run timed out");
@@ -57,7 +65,8 @@ where
     assert_eq!(
         outcome.summary.epochs.len(),
         1,
-        "no re-plan: {:?}",
+        "no re-plan: {:?}; incidents {:?}",
+        outcome.summary.epochs,
         outcome.summary.incidents
     );
     RunOutput {
@@ -71,7 +80,7 @@ where
 async fn stray_connections_to_the_sink_are_dropped() {
     let _one = ONE_AT_A_TIME.lock().await;
     let cluster = InProcessCluster::start(4, 4).await.unwrap();
-    render_under(&cluster, |sink| async move {
+    render_under(&cluster, |sink, _| async move {
         tokio::time::sleep(Duration::from_millis(300)).await;
         for i in 0..50 {
             // Connect and close (a port scanner, a health probe), or send junk.
@@ -101,11 +110,11 @@ async fn huge_frames_before_the_handshake_are_refused_at_once() {
     // The cluster's own peak comes first: a quiet orbit sets the high-water mark, so what the
     // attacked orbit adds on top is the hostile frames' doing (rendering alone grows this
     // process's peak by some 300 MB on lavapipe).
-    render_under(&cluster, |_| async {}).await;
+    render_under(&cluster, |_, _| async {}).await;
     let before = peak_rss();
     let sent = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
     let counter = std::sync::Arc::clone(&sent);
-    render_under(&cluster, |sink| async move {
+    render_under(&cluster, |sink, _| async move {
         let mut all = targets.clone();
         all.push(sink);
         let mut tasks = Vec::new();
@@ -157,8 +166,13 @@ async fn a_second_link_claiming_a_live_producer_is_refused() {
     let cluster = InProcessCluster::start(4, 4).await.unwrap();
     let compositors = cluster.compositors.clone();
     let token = cluster.token.clone();
-    render_under(&cluster, |_| async move {
-        tokio::time::sleep(Duration::from_millis(800)).await;
+    render_under(&cluster, |_, delivered| async move {
+        // Live producers: every one has delivered frames (on a loaded machine the first frame
+        // alone can take seconds; a claim made before it tests something else).
+        let start = std::time::Instant::now();
+        while delivered.load(Ordering::Relaxed) < 2 && start.elapsed() < Duration::from_secs(60) {
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
         // With the token: claim to be node-1 (and node-0, node-2, node-3) at every stage.
         let mut held = Vec::new();
         for addr in &compositors {

@@ -217,17 +217,24 @@ async fn jpeg(
     }
 }
 
+/// The newest frame's linear image for a download, or the answer that refuses it (no token,
+/// no frame yet).
+fn newest_image(hub: &Hub, peer: SocketAddr, headers: &HeaderMap) -> Result<Arc<lightfold_scene::Image>, Response> {
+    if let Some(r) = refused_frames(hub, peer, headers) {
+        return Err(r);
+    }
+    let image = hub.image.lock().unwrap_or_else(|e| e.into_inner()).clone();
+    image.ok_or_else(no_frame)
+}
+
 async fn exr(
     ConnectInfo(peer): ConnectInfo<SocketAddr>,
     headers: HeaderMap,
     State(hub): State<Arc<Hub>>,
 ) -> Response {
-    if let Some(r) = refused_frames(&hub, peer, &headers) {
-        return r;
-    }
-    let image = hub.image.lock().unwrap_or_else(|e| e.into_inner()).clone();
-    let Some(image) = image else {
-        return no_frame();
+    let image = match newest_image(&hub, peer, &headers) {
+        Ok(image) => image,
+        Err(r) => return r,
     };
     let encoded = once_per_frame(&hub.exr, image, (), |i| Ok(i.exr_bytes()?)).await;
     download(encoded, "image/x-exr", "frame.exr")
@@ -239,12 +246,9 @@ async fn png(
     headers: HeaderMap,
     State(hub): State<Arc<Hub>>,
 ) -> Response {
-    if let Some(r) = refused_frames(&hub, peer, &headers) {
-        return r;
-    }
-    let image = hub.image.lock().unwrap_or_else(|e| e.into_inner()).clone();
-    let Some(image) = image else {
-        return no_frame();
+    let image = match newest_image(&hub, peer, &headers) {
+        Ok(image) => image,
+        Err(r) => return r,
     };
     let stops = *hub.exposure.borrow();
     let encoded = once_per_frame(&hub.png, image, stops.to_bits(), move |i| {
