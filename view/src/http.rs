@@ -219,12 +219,16 @@ async fn jpeg(
 
 /// The newest frame's linear image for a download, or the answer that refuses it (no token,
 /// no frame yet).
-fn newest_image(hub: &Hub, peer: SocketAddr, headers: &HeaderMap) -> Result<Arc<lightfold_scene::Image>, Response> {
+fn newest_image(
+    hub: &Hub,
+    peer: SocketAddr,
+    headers: &HeaderMap,
+) -> Result<Arc<lightfold_scene::Image>, Box<Response>> {
     if let Some(r) = refused_frames(hub, peer, headers) {
-        return Err(r);
+        return Err(Box::new(r));
     }
     let image = hub.image.lock().unwrap_or_else(|e| e.into_inner()).clone();
-    image.ok_or_else(no_frame)
+    image.ok_or_else(|| Box::new(no_frame()))
 }
 
 async fn exr(
@@ -234,7 +238,7 @@ async fn exr(
 ) -> Response {
     let image = match newest_image(&hub, peer, &headers) {
         Ok(image) => image,
-        Err(r) => return r,
+        Err(r) => return *r,
     };
     let encoded = once_per_frame(&hub.exr, image, (), |i| Ok(i.exr_bytes()?)).await;
     download(encoded, "image/x-exr", "frame.exr")
@@ -248,7 +252,7 @@ async fn png(
 ) -> Response {
     let image = match newest_image(&hub, peer, &headers) {
         Ok(image) => image,
-        Err(r) => return r,
+        Err(r) => return *r,
     };
     let stops = *hub.exposure.borrow();
     let encoded = once_per_frame(&hub.png, image, stops.to_bits(), move |i| {
