@@ -31,9 +31,10 @@
 //! `θ_h < β/2 + π/4`, adaptive Simpson in `w`, trapezoid in `φ`; refinement changes the results by
 //! under 1e-5. (Stratified visible-normal sampling with 256² samples was off by up to 7e-4: its
 //! strata cannot resolve the horizon cut in the lobe's tail.) `D` is evaluated in f64 in the
-//! cancellation-free form `α²|l+v|⁴/(π((l+v)ₓ² + (l+v)ᵧ² + α²(l+v)_z²)²)`, checked at start-up
-//! against the crate's f32 [`ggx_d`] (whose `1 − (n·h)²` cancellation cannot resolve the
-//! `α = 10⁻³` lobe); `V` and Schlick's weight are the crate's functions.
+//! cancellation-free form `α²|l+v|⁴/(π((l+v)ₓ² + (l+v)ᵧ² + α²(l+v)_z²)²)` (the crate's f32
+//! [`ggx_d`] now takes the same form, `α²/(π(|n × h|² + α²(n·h)²)²)`; the table was fitted when it
+//! still computed `1 − (n·h)²`, which cannot resolve the `α = 10⁻³` lobe in f32), checked at
+//! start-up against [`ggx_d`]; `V` and Schlick's weight are the crate's functions.
 //!
 //! **Table convention** (`scene/data/ltc_ggx.bin`, 64·64·8 little-endian f32 = 131072 bytes, no
 //! header). Row `i` in 0..64: roughness `r = i/63`, `α = ggx_alpha(r)`. Column `j` in 0..64:
@@ -788,7 +789,7 @@ fn check_d() {
             let ph = k as f64 * 2.4;
             let h = [th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()];
             let ours = brdf.d_of(scale(h, 1.7));
-            let theirs = f64::from(ggx_d(h[2] as f32, alpha as f32));
+            let theirs = f64::from(ggx_d([0.0, 0.0, 1.0], h.map(|c| c as f32), alpha as f32));
             worst = worst.max((ours - theirs).abs() / theirs);
         }
     }

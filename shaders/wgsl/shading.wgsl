@@ -174,9 +174,14 @@ fn ggx_alpha(roughness: f32) -> f32 {
     return max(r * r, MIN_ALPHA);
 }
 
-fn ggx_d(nh: f32, alpha: f32) -> f32 {
+// α²/(π(|n × h|² + α²(n·h)²)²): D without 1 − (n·h)²'s cancellation (`scene::shading::ggx_d`).
+fn ggx_d(n: vec3f, h: vec3f, alpha: f32) -> f32 {
     let a2 = alpha * alpha;
-    let d = nh * nh * (a2 - 1.0) + 1.0;
+    let c = cross(n, h);
+    let facing = dot(n, h) > 0.0;
+    let nh = select(0.0, dot(n, h), facing);
+    let t2 = select(1.0, dot(c, c), facing);
+    let d = t2 + a2 * nh * nh;
     return a2 / (PI * d * d);
 }
 
@@ -202,8 +207,7 @@ fn ggx_terms(n: vec3f, l: vec3f, v: vec3f, alpha: f32) -> vec3f {
     let w = schlick_weight(dot(v, h));
     let nl = max(dot(n, l), 0.0);
     let nv = max(dot(n, v), 0.0);
-    let nh = max(dot(n, h), 0.0);
-    let dv = ggx_d(nh, alpha) * smith_visibility(nl, nv, alpha);
+    let dv = ggx_d(n, h, alpha) * smith_visibility(nl, nv, alpha);
     return vec3f((1.0 - w) / PI, select(0.0, dv, abs(dv) < 3.0e38), w);
 }
 

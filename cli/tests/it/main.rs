@@ -5,7 +5,6 @@ mod antialiasing;
 mod compositor_chain;
 mod demo;
 mod demo_output;
-mod failover;
 mod limits;
 mod live_view;
 mod multihost;

@@ -423,3 +423,43 @@ fn closed_form_area_specular_matches_brute_force_integration() {
     // 0.84); below 1 % for every light that holds the highlight's peak at roughness ≤ 0.3.
     assert!(worst < 0.06, "worst relative error {worst}");
 }
+
+/// `ggx_d` holds a near-mirror lobe (α = 10⁻³, the smallest) to f32 precision near its peak,
+/// against the same formula in f64; the textbook form `α²/(π((n·h)²(α² − 1) + 1)²)` in f32 (the
+/// control) loses several per cent there to `1 − (n·h)²`'s cancellation.
+#[test]
+fn ggx_d_keeps_a_near_mirror_lobe_exact() {
+    use lightfold_scene::shading::{MIN_ALPHA, ggx_d};
+    let alpha = MIN_ALPHA;
+    let (mut ours, mut textbook) = (0f64, 0f64);
+    for k in 1..400 {
+        // Half vectors from the peak out to 4α.
+        let theta = f64::from(alpha) * 4.0 * f64::from(k) / 400.0;
+        let phi = f64::from(k) * 2.399;
+        let h64 = [
+            theta.sin() * phi.cos(),
+            theta.sin() * phi.sin(),
+            theta.cos(),
+        ];
+        let h = h64.map(|c| c as f32);
+        let a2 = f64::from(alpha).powi(2);
+        // The f64 truth of the f32 vector as given (its own length taken into account).
+        let hd = h.map(f64::from);
+        let len2 = hd.iter().map(|c| c * c).sum::<f64>();
+        let t2 = (hd[0] * hd[0] + hd[1] * hd[1]) / len2;
+        let nh2 = hd[2] * hd[2] / len2;
+        let truth = a2 / (PI * (t2 + a2 * nh2).powi(2));
+        let got = f64::from(ggx_d([0.0, 0.0, 1.0], h, alpha));
+        ours = ours.max((got - truth).abs() / truth);
+        let a2f = alpha * alpha;
+        let d = h[2] * h[2] * (a2f - 1.0) + 1.0;
+        let old = f64::from(a2f / (std::f32::consts::PI * d * d));
+        textbook = textbook.max((old - truth).abs() / truth);
+    }
+    eprintln!("relative error near the peak: ggx_d {ours:.2e}, textbook form {textbook:.2e}");
+    assert!(ours < 1e-4, "{ours}");
+    assert!(
+        textbook > 1e-2,
+        "the control should lose precision: {textbook}"
+    );
+}

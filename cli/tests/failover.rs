@@ -3,6 +3,10 @@
 //! compositor is SIGKILLed; in another run a node is stopped (SIGSTOP) for 3 s. Every run exits 0
 //! with all N frames written as they completed, and its report names the daemons it lost and the
 //! one that came back.
+//!
+//! Its own test binary (the crate's other tests are modules of `tests/it`): the restart must be
+//! folded in while the run still renders, a race the machine's load decides; sharing a process
+//! with the crate's other multi-process tests, it lost that race.
 
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
