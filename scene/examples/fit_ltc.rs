@@ -48,6 +48,7 @@
 //! and view angles and a few rectangles, the brute-force area integral of `f_cos` against the LTC
 //! estimate from the bilinearly interpolated table and from a fresh fit at the exact parameters.
 
+use lightfold_scene::ltc;
 use lightfold_scene::shading::{MIN_ALPHA, ggx_alpha, ggx_d, schlick_weight, smith_visibility};
 use std::f64::consts::PI;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -588,34 +589,50 @@ fn parallel<T: Send>(count: usize, work: impl Fn(usize) -> T + Sync) -> Vec<T> {
         .collect()
 }
 
-fn fit_table() -> Vec<Cell> {
-    // Normal incidence, rough to smooth: each row's start.
+/// The normal-incidence column, rough to smooth (each cell starting from the rougher one): each
+/// row's start.
+fn normal_incidence_column() -> Vec<Cell> {
     let mut column0 = vec![Cell::default(); N];
     let mut start: Params = [0.0, 0.0, 0.0];
     for i in (0..N).rev() {
         column0[i] = fit_cell(i, 0, &start);
         start = column0[i].params;
     }
+    column0
+}
+
+/// Row `i` from its normal-incidence cell towards grazing.
+fn fit_row(i: usize, first: Cell) -> Vec<Cell> {
+    let mut row = vec![first; N];
+    for j in 1..N {
+        row[j] = fit_cell(i, j, &row[j - 1].params);
+    }
+    row
+}
+
+fn fit_table() -> Vec<Cell> {
+    let column0 = normal_incidence_column();
     eprintln!("normal-incidence column fitted");
-    // Each row from its normal-incidence cell towards grazing.
     let t0 = Instant::now();
     let rows = parallel(N, |i| {
-        let mut row = vec![column0[i]; N];
-        for j in 1..N {
-            row[j] = fit_cell(i, j, &row[j - 1].params);
-        }
+        let row = fit_row(i, column0[i]);
         eprintln!("row {i} fitted ({:.1} s)", t0.elapsed().as_secs_f64());
         row
     });
     rows.into_iter().flatten().collect()
 }
 
+/// A cell as the table file stores it.
+fn stored(c: &Cell) -> [f32; 8] {
+    let e = c.entry;
+    [e[0], e[1], e[2], e[3], c.norm, c.fresnel, 0.0, 0.0].map(|x| x as f32)
+}
+
 fn write_table(path: &str, cells: &[Cell]) -> std::io::Result<()> {
     let mut bytes = Vec::with_capacity(N * N * 32);
     for c in cells {
-        let e = c.entry;
-        for x in [e[0], e[1], e[2], e[3], c.norm, c.fresnel, 0.0, 0.0] {
-            bytes.extend_from_slice(&(x as f32).to_le_bytes());
+        for x in stored(c) {
+            bytes.extend_from_slice(&x.to_le_bytes());
         }
     }
     if let Some(dir) = std::path::Path::new(path).parent()
@@ -629,65 +646,7 @@ fn write_table(path: &str, cells: &[Cell]) -> std::io::Result<()> {
 fn read_table(path: &str) -> std::io::Result<Vec<[f32; 8]>> {
     let bytes = std::fs::read(path)?;
     assert_eq!(bytes.len(), N * N * 32, "table size");
-    Ok(bytes
-        .chunks_exact(32)
-        .map(|c| {
-            let mut v = [0.0f32; 8];
-            for (k, x) in v.iter_mut().enumerate() {
-                *x = f32::from_le_bytes([c[4 * k], c[4 * k + 1], c[4 * k + 2], c[4 * k + 3]]);
-            }
-            v
-        })
-        .collect())
-}
-
-/// The table bilinearly interpolated at roughness `r` and `cos θ` (as a shader would).
-fn lookup(table: &[[f32; 8]], r: f64, cos_theta: f64) -> [f64; 8] {
-    let fi = (r.clamp(0.0, 1.0) * (N - 1) as f64).min((N - 1) as f64);
-    let fj = ((1.0 - cos_theta).max(0.0).sqrt() * (N - 1) as f64).min((N - 1) as f64);
-    let (i0, j0) = (fi.floor() as usize, fj.floor() as usize);
-    let (i1, j1) = ((i0 + 1).min(N - 1), (j0 + 1).min(N - 1));
-    let (ti, tj) = (fi - i0 as f64, fj - j0 as f64);
-    let mut out = [0.0; 8];
-    for (k, o) in out.iter_mut().enumerate() {
-        let g = |i: usize, j: usize| f64::from(table[i * N + j][k]);
-        *o = (1.0 - ti) * ((1.0 - tj) * g(i0, j0) + tj * g(i0, j1))
-            + ti * ((1.0 - tj) * g(i1, j0) + tj * g(i1, j1));
-    }
-    out
-}
-
-/// `∫ max(z, 0)/π dω` over the spherical polygon of `verts` (any winding): clip at z = 0, then
-/// sum the edges' `acos(v1·v2)·normalize(v1×v2).z/2π`.
-fn clamped_cosine_integral(verts: &[V3]) -> f64 {
-    let mut clipped: Vec<V3> = Vec::new();
-    for k in 0..verts.len() {
-        let a = verts[k];
-        let b = verts[(k + 1) % verts.len()];
-        if a[2] >= 0.0 {
-            clipped.push(a);
-        }
-        if (a[2] >= 0.0) != (b[2] >= 0.0) {
-            let t = a[2] / (a[2] - b[2]);
-            let mut p = add(a, scale(sub(b, a), t));
-            p[2] = 0.0;
-            clipped.push(p);
-        }
-    }
-    if clipped.len() < 3 {
-        return 0.0;
-    }
-    let mut sum = 0.0;
-    for k in 0..clipped.len() {
-        let a = norm3(clipped[k]);
-        let b = norm3(clipped[(k + 1) % clipped.len()]);
-        let c = cross(a, b);
-        let lc = len(c);
-        if lc > 0.0 {
-            sum += dot(a, b).clamp(-1.0, 1.0).acos() * c[2] / lc;
-        }
-    }
-    (sum / (2.0 * PI)).abs()
+    Ok(ltc::parse_table(&bytes))
 }
 
 /// A parallelogram light `corner + s·e1 + t·e2`, s, t ∈ [0, 1].
@@ -744,9 +703,10 @@ impl Rect {
         }
         sum * da
     }
+    /// The shipped polygon integral (`scene::ltc`, f32) of the rectangle through `minv`.
     fn ltc(&self, minv: &M3) -> f64 {
-        let v = self.verts().map(|p| mat_vec(minv, p));
-        clamped_cosine_integral(&v)
+        let v = self.verts().map(|p| mat_vec(minv, p).map(|c| c as f32));
+        f64::from(ltc::clipped_cosine_integral(&v))
     }
 }
 
@@ -920,7 +880,7 @@ fn check(table: &[[f32; 8]]) {
         let alpha = f64::from(ggx_alpha(r as f32));
         let cos_theta = th.to_radians().cos();
         let brdf = Brdf::new(alpha, cos_theta);
-        let e = lookup(table, r, cos_theta);
+        let e = ltc::lookup_in(table, (r * r) as f32, cos_theta as f32).map(f64::from);
         let tab = Ltc::from_minv([[e[0], 0.0, e[1]], [0.0, 1.0, 0.0], [e[2], 0.0, e[3]]]);
         // A fresh fit at the exact parameters, started from the table.
         let cs = setup(alpha, clamp_cos(cos_theta));
@@ -987,4 +947,40 @@ fn check(table: &[[f32; 8]]) {
         "max |error| relative to norm over all rects: {:.2}%",
         100.0 * max_abs
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The shipped table (`scene/data/ltc_ggx.bin`, compiled into `scene::ltc`) is this fitter's
+    /// output: the normal-incidence column and one whole row, fitted again here, give the same
+    /// cells (to 1e-4 of the cell's largest entry: another libm may round a sine differently).
+    /// A cell of the neighbouring row (the control) differs by far more.
+    #[test]
+    fn the_shipped_table_is_what_the_fitter_writes() {
+        let shipped = ltc::table();
+        let column0 = normal_incidence_column();
+        let i = 20;
+        let row = fit_row(i, column0[i]);
+        let differs = |a: &[f32; 8], b: &[f32; 8]| {
+            let scale = a.iter().fold(1e-6f32, |m, x| m.max(x.abs()));
+            a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs())) / scale
+        };
+        let worst = row
+            .iter()
+            .enumerate()
+            .map(|(j, c)| differs(&stored(c), &shipped[i * N + j]))
+            .fold(0f32, f32::max);
+        assert!(
+            worst < 1e-4,
+            "row {i} differs from the shipped table by {worst}"
+        );
+        let control = differs(&stored(&row[40]), &shipped[(i + 1) * N + 40]);
+        assert!(control > 1e-3, "neighbouring rows should differ: {control}");
+        for (k, c) in column0.iter().enumerate() {
+            let d = differs(&stored(c), &shipped[k * N]);
+            assert!(d < 1e-4, "normal-incidence cell {k} differs by {d}");
+        }
+    }
 }

@@ -139,6 +139,25 @@ impl Image {
         })
     }
 
+    /// The first three channels as sRGB PNG file bytes at `exposure`.
+    pub fn png_bytes(&self, exposure: f32) -> Result<Vec<u8>, ImageError> {
+        use image::ImageEncoder;
+        let rgb = self.to_srgb8(exposure)?;
+        let mut out = Vec::new();
+        image::codecs::png::PngEncoder::new(&mut out)
+            .write_image(
+                &rgb,
+                self.width,
+                self.height,
+                image::ExtendedColorType::Rgb8,
+            )
+            .map_err(|e| ImageError::Write {
+                path: "(memory)".to_string(),
+                message: e.to_string(),
+            })?;
+        Ok(out)
+    }
+
     fn need(&self, needed: usize, what: &'static str) -> Result<(), ImageError> {
         if self.channels < needed {
             return Err(ImageError::Channels {

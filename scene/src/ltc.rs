@@ -38,24 +38,32 @@ const _: () = assert!(BYTES.len() == LTC_SIZE * LTC_SIZE * LTC_CELL * 4);
 /// The fitted table, row-major (`row · LTC_SIZE + column`).
 pub fn table() -> &'static [[f32; LTC_CELL]] {
     static TABLE: OnceLock<Vec<[f32; LTC_CELL]>> = OnceLock::new();
-    TABLE.get_or_init(|| {
-        BYTES
-            .chunks_exact(4 * LTC_CELL)
-            .map(|cell| {
-                let mut out = [0.0; LTC_CELL];
-                for (o, b) in out.iter_mut().zip(cell.chunks_exact(4)) {
-                    *o = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
-                }
-                out
-            })
-            .collect()
-    })
+    TABLE.get_or_init(|| parse_table(BYTES))
+}
+
+/// Cells of a table file (little-endian f32, [`LTC_CELL`] a cell; a trailing partial cell is
+/// dropped).
+pub fn parse_table(bytes: &[u8]) -> Vec<[f32; LTC_CELL]> {
+    bytes
+        .chunks_exact(4 * LTC_CELL)
+        .map(|cell| {
+            let mut out = [0.0; LTC_CELL];
+            for (o, b) in out.iter_mut().zip(cell.chunks_exact(4)) {
+                *o = f32::from_le_bytes([b[0], b[1], b[2], b[3]]);
+            }
+            out
+        })
+        .collect()
 }
 
 /// The table bilinearly interpolated at GGX `alpha` and view cosine `cos_v` (both clamped to
 /// the table; the shader reads it the same way).
 pub fn lookup(alpha: f32, cos_v: f32) -> [f32; LTC_CELL] {
-    let t = table();
+    lookup_in(table(), alpha, cos_v)
+}
+
+/// [`lookup`] in table `t` (`LTC_SIZE²` cells).
+pub fn lookup_in(t: &[[f32; LTC_CELL]], alpha: f32, cos_v: f32) -> [f32; LTC_CELL] {
     let last = (LTC_SIZE - 1) as f32;
     let alpha = if alpha.is_finite() { alpha } else { 1.0 };
     let cos_v = if cos_v.is_finite() { cos_v } else { 1.0 };

@@ -151,11 +151,8 @@ fn looks_like_address(w: &str) -> bool {
 
 /// Whether two digests are equal, looking at every byte whatever the first difference.
 pub fn same_digest(a: &[u8; 32], b: &[u8; 32]) -> bool {
-    let diff = a
-        .iter()
-        .zip(b)
-        .fold(0u8, |acc, (x, y)| acc | std::hint::black_box(x ^ y));
-    diff == 0
+    use subtle::ConstantTimeEq;
+    a.ct_eq(b).into()
 }
 
 #[cfg(test)]

@@ -180,16 +180,7 @@ pub fn srgb8(img: &Image, stops: f32) -> Result<Vec<u8>, lightfold_scene::image:
 
 /// `image` as a PNG, 8-bit sRGB at `stops` of exposure (`/frame.png`).
 pub fn png(img: &Image, stops: f32) -> anyhow::Result<Vec<u8>> {
-    use image::ImageEncoder;
-    let rgb = srgb8(img, stops)?;
-    let mut out = Vec::new();
-    image::codecs::png::PngEncoder::new(&mut out).write_image(
-        &rgb,
-        img.width,
-        img.height,
-        image::ExtendedColorType::Rgb8,
-    )?;
-    Ok(out)
+    Ok(img.png_bytes(multiplier(stops))?)
 }
 
 /// The frame message: its header (with the exposure it was encoded at, and whether it is a

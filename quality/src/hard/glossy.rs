@@ -66,13 +66,13 @@ pub fn scene(full_size: bool) -> Scene {
             m,
         ));
     }
-    let normal = normalize(sub([0.0, RADIUS, 0.0], LIGHT_CENTER));
+    let (center, normal, u_axis, _) = panel();
     s.lights.push(Light {
         name: "panel".into(),
         shape: LightShape::Rect {
-            center: LIGHT_CENTER,
+            center,
             normal,
-            u_axis: [1.0, 0.0, 0.0],
+            u_axis,
             size: LIGHT_SIZE,
         },
         color: [1.0; 3],
