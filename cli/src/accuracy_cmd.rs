@@ -61,6 +61,13 @@ pub struct Args {
     /// `--cluster`: compositors.
     #[arg(long, default_value_t = 8, requires = "cluster")]
     cluster_compositors: usize,
+    /// Instead of the sweep, measure what the planner chooses for the scene by default (with its
+    /// calibration, made first when the cache has none) beside the scene as it asks (the
+    /// previous default), both against the area-light truth; one Markdown row each.
+    #[arg(long, conflicts_with_all = ["hard", "cluster"])]
+    planned: bool,
+    #[command(flatten)]
+    model: crate::model_args::ModelArgs,
 }
 
 /// Where results go unless `--out` says otherwise: a folder of their own in the current
@@ -87,6 +94,9 @@ fn scene_label(scene: &str) -> String {
 pub fn run(args: Args) -> anyhow::Result<()> {
     if args.hard {
         return run_hard(&args);
+    }
+    if args.planned {
+        return run_planned(&args);
     }
     let plan = match args.sweep.as_str() {
         "full" => SweepPlan::full(),
@@ -242,6 +252,104 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "wrote {}/{{sweep.csv,README.md,frontier.svg}}",
         out.display()
     );
+    Ok(())
+}
+
+/// `--planned`: the planner's default choice (with this scene's calibration) against the scene
+/// as it asks, rendered on this device as the sweep renders a point, both against the truth.
+fn run_planned(args: &Args) -> anyhow::Result<()> {
+    use lightfold_coordinator::plan::{ClusterSpec, MapSizing as PlanSizing, PlanOptions, plan};
+    use lightfold_quality::accuracy::{Setting, measure_prepared};
+    let mut scene = lightfold_scene::load(&args.scene)
+        .with_context(|| format!("cannot load scene {:?}", args.scene))?;
+    let (w, h) = crate::coordinator_cmd::parse_size(&args.size)?;
+    scene.camera.width = w;
+    scene.camera.height = h;
+    let cache = args.model.cache();
+    let calibration = crate::model_args::run_calibration(&scene, &cache)?;
+    let mut options = PlanOptions {
+        error_model: Some(calibration.model.clone()),
+        target_penumbra_db: Some(args.target_db as f32),
+        ..PlanOptions::default()
+    };
+    if args.model.error_model == "default" {
+        options.error_model = None;
+    }
+    let p = plan(&scene, &ClusterSpec::local(256, 256), &options)?;
+    let truth = load_or_render_truth(
+        &scene,
+        &TruthOptions {
+            samples_per_light: args.truth_samples,
+            cache_dir: cache.truth_cache.clone(),
+        },
+    )?;
+    let gpu = Gpu::new(&GpuOptions::default()).context("no usable GPU")?;
+    let defaults = accuracy::Setting::defaults(&scene);
+    // The planner's choice: its samples per area light, its map floor, its filter and K.
+    let mut planned = scene.clone();
+    let (samples, floor) = match &p.target {
+        Some(t) => (t.to, t.map_floor),
+        None => (defaults.samples, 0),
+    };
+    if p.target.as_ref().is_some_and(|t| t.calibrated) {
+        planned.quality.samples_per_area_light = Some(samples);
+    }
+    if floor > 0
+        && let lightfold_scene::MapSizing::Mismatch(mut m) = planned.quality.map_sizing
+    {
+        m.max = m.max.max(floor);
+        m.min = floor;
+        planned.quality.map_sizing = lightfold_scene::MapSizing::Mismatch(m);
+        planned.quality.shadow_map_size = floor;
+    }
+    let largest = match PlanSizing::Scene.resolve(&planned.quality) {
+        PlanSizing::Mismatch { max, .. } => max,
+        PlanSizing::Fixed(n) => n,
+        PlanSizing::Scene => planned.quality.shadow_map_size,
+    };
+    let setting = |samples: u32, k: u32, penumbra: u32| Setting {
+        samples,
+        map_size: largest,
+        k,
+        penumbra,
+        ..defaults
+    };
+    let rows = [
+        ("as the scene asks", &scene, setting(defaults.samples, defaults.k, 0), None),
+        (
+            "planned",
+            &planned,
+            setting(samples, p.k, p.penumbra_radius),
+            p.target.as_ref().map(|t| t.expected_db),
+        ),
+    ];
+    outln!(
+        "| scene | setting | samples/light | map floor | filter | penumbra PSNR (expected) | whole PSNR | node-s |"
+    );
+    outln!("|---|---|---:|---:|---:|---:|---:|---:|");
+    for (what, s, setting, expected) in rows {
+        let m = measure_prepared(&gpu, s, &[setting], args.repeats)?;
+        let m = &m[0];
+        let metrics = truth.truth.compare(&m.image)?;
+        let pen = metrics.penumbra.map_or(f64::NAN, |e| e.psnr);
+        let floor_text = match (what, floor) {
+            ("planned", f) if f > 0 => format!("{f}²"),
+            _ => "rule".to_string(),
+        };
+        outln!(
+            "| {} | {what} | {} | {floor_text} | {} | {pen:.2} dB{} | {:.2} dB | {:.3} |",
+            scene_label(&args.scene),
+            setting.samples,
+            if setting.penumbra > 0 {
+                format!("r{}", setting.penumbra)
+            } else {
+                "—".into()
+            },
+            expected.map_or_else(String::new, |e| format!(" ({e:.2})")),
+            metrics.whole.psnr,
+            m.node_seconds.iter().sum::<f64>(),
+        );
+    }
     Ok(())
 }
 

@@ -260,7 +260,8 @@ pub struct JobArgs {
     /// light group is rendered once per part by a node drawing only that part's eye pass, with
     /// maps fitted to it, and the compositor chain depth-composes the parts (docs/planner.md §
     /// Partitions). Needs P × the render nodes. `auto` (the default): 1, unless the scene's
-    /// geometry would not fit the memory the render nodes report.
+    /// geometry would not fit the memory the render nodes report or, with `--frame-budget`, its
+    /// eye pass would take more than half the budget on the fastest node.
     #[arg(long, default_value = "auto", value_parser = crate::coordinator_cmd::partitions_arg)]
     pub partitions: u32,
     /// Render the material layers on a node of their own (the paper's layout) instead of as
@@ -283,6 +284,8 @@ pub struct JobArgs {
     /// scene's accuracy sweep) expects to reach it; `lightfold accuracy` measures what it gives.
     #[arg(long, value_parser = crate::coordinator_cmd::target_db)]
     pub target_psnr: Option<f32>,
+    #[command(flatten)]
+    pub model: crate::model_args::ModelArgs,
     /// Screen-space penumbra filter at the last stage: a tent average of the illumination sum
     /// over each pixel's (2R+1)² window, on its own surface only (the eye depth travels with the
     /// material layers), before the material multiply, so few samples per area light give a
@@ -419,6 +422,14 @@ impl JobArgs {
             partitions: self.partitions,
             ..PlanOptions::default()
         }
+    }
+
+    /// [`JobArgs::plan_options`] with the error model for `scene` (`--error-model`: a
+    /// calibration of it sets the default error target).
+    pub fn plan_options_for(&self, scene: &lightfold_scene::Scene) -> anyhow::Result<PlanOptions> {
+        let mut o = self.plan_options();
+        self.model.apply(scene, &mut o)?;
+        Ok(o)
     }
 
     /// Frames per second of `--video`: `--video-fps`, else the animation's `--fps`, else 24.
@@ -675,7 +686,7 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
             ..ControlOptions::default()
         };
         let opts = RunOptions {
-            plan: args.job.plan_options(),
+            plan: args.job.plan_options_for(&scene)?,
             frames: args.job.frames,
             path: args.job.path(),
             color_changes: Vec::new(),

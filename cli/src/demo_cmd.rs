@@ -13,7 +13,7 @@ use crate::coordinator_cmd::JobArgs;
 use crate::lifecycle::{cpu_seconds, send_signal};
 use crate::out::outln;
 use anyhow::{Context, bail};
-use lightfold_coordinator::plan::{ClusterSpec, Plan, plan};
+use lightfold_coordinator::plan::{ClusterSpec, Plan, PlanOptions, plan};
 use rustix::process::Signal;
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
@@ -116,7 +116,7 @@ pub(crate) fn default_max_processes() -> usize {
 /// the smallest K that would fit.
 fn check_processes(
     scene: &lightfold_scene::Scene,
-    job: &JobArgs,
+    options: &PlanOptions,
     probe: &Plan,
     max_processes: Option<usize>,
 ) -> anyhow::Result<()> {
@@ -139,7 +139,7 @@ fn check_processes(
     let cluster = ClusterSpec::local(256, 256);
     // The planner's node count falls as K grows: the smallest K that fits, by bisection.
     let at = |k: u32| {
-        let mut opts = job.plan_options();
+        let mut opts = options.clone();
         opts.lights_per_node = k;
         opts.frame_budget_us = None;
         plan(scene, &cluster, &opts).ok()
@@ -284,7 +284,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // Plan against a large synthetic cluster to learn what this scene needs: partitioned as the
     // coordinator will partition it (its nodes, all on this machine, report this machine's
     // memory), large meshes in chunks.
-    let mut options = args.job.plan_options();
+    let mut options = args.job.plan_options_for(&scene)?;
     options.partitions = lightfold_coordinator::plan::partitions_for(
         &scene,
         &with_memory(ClusterSpec::local(256, 256)),
@@ -298,7 +298,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )?;
     let nodes = probe.nodes.len();
     let compositors = probe.stages.len();
-    check_processes(&scene, &args.job, &probe, args.max_processes)?;
+    check_processes(&scene, &options, &probe, args.max_processes)?;
     outln!(
         "demo: scene {:?} needs {} render node(s) and {} compositor(s); starting them on loopback",
         scene.name,
@@ -685,6 +685,7 @@ fn job_args(cmd: &mut Command, job: &JobArgs) {
     if let Some(t) = job.target_psnr {
         cmd.arg("--target-psnr").arg(t.to_string());
     }
+    job.model.forward(cmd);
     cmd.arg("--penumbra-filter")
         .arg(crate::coordinator_cmd::penumbra_filter_arg(
             job.penumbra_filter,
@@ -796,7 +797,7 @@ mod tests {
         let job = Cli::parse_from(["demo"]).job;
         let probe = plan(&scene, &ClusterSpec::local(256, 256), &job.plan_options()).unwrap();
         assert!(probe.nodes.len() > 200, "{} nodes", probe.nodes.len());
-        let e = check_processes(&scene, &job, &probe, Some(32))
+        let e = check_processes(&scene, &job.plan_options(), &probe, Some(32))
             .unwrap_err()
             .to_string();
         assert!(e.contains("at K = 4 needs"), "{e}");
@@ -824,8 +825,8 @@ mod tests {
         // The default scene fits the default on any machine; a larger limit admits the scene.
         let small = lightfold_scene::builtin("balls").unwrap();
         let p = plan(&small, &ClusterSpec::local(256, 256), &job.plan_options()).unwrap();
-        check_processes(&small, &job, &p, None).unwrap();
-        check_processes(&scene, &job, &probe, Some(1000)).unwrap();
+        check_processes(&small, &job.plan_options(), &p, None).unwrap();
+        check_processes(&scene, &job.plan_options(), &probe, Some(1000)).unwrap();
         assert!(default_max_processes() >= MIN_MAX_PROCESSES);
     }
 }

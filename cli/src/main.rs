@@ -6,6 +6,7 @@ use clap::{Parser, Subcommand};
 
 mod accuracy_cmd;
 mod bench_cmd;
+mod calibrate_cmd;
 mod cluster_ops;
 mod compare_cmd;
 mod compare_reference;
@@ -19,6 +20,7 @@ mod indirect_args;
 mod lifecycle;
 mod logging;
 mod metrics_http;
+mod model_args;
 mod node_cmd;
 mod out;
 mod plan_cmd;
@@ -55,6 +57,9 @@ struct Cli {
 enum Command {
     /// Speed against error: sweep the quality knobs against the area-light ground truth.
     Accuracy(accuracy_cmd::Args),
+    /// Fit a scene's own error model for the planner: a few renders against its area-light
+    /// truth, cached; plans of the scene then aim at 45 dB penumbra PSNR at the least cost.
+    Calibrate(calibrate_cmd::Args),
     /// Benchmarks that print figures (`bench node`: what K lights per node cost).
     Bench(bench_cmd::Args),
     /// Image metrics of a test EXR against a reference EXR (RMSE, PSNR, FLIP, penumbra);
@@ -102,6 +107,7 @@ fn main() -> anyhow::Result<()> {
     let result = match cli.command {
         Command::Accuracy(args) => accuracy_cmd::run(args),
         Command::Bench(args) => bench_cmd::run(args),
+        Command::Calibrate(args) => calibrate_cmd::run(args),
         Command::Compare(args) => compare_cmd::run(args),
         Command::Compositor(args) => compositor_cmd::run(args),
         Command::Coordinator(args) => coordinator_cmd::run_cmd(args),

@@ -87,6 +87,8 @@ pub struct Args {
     /// scene's accuracy sweep) expects to reach it; `lightfold accuracy` measures what it gives.
     #[arg(long, value_parser = crate::coordinator_cmd::target_db)]
     pub target_psnr: Option<f32>,
+    #[command(flatten)]
+    pub model: crate::model_args::ModelArgs,
     /// Screen-space penumbra filter at the last stage: a tent average of the illumination sum
     /// over each pixel's (2R+1)² window, on its own surface only (the eye depth travels with the
     /// material layers), before the material multiply, so few samples per area light give a
@@ -141,6 +143,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(n) = args.shadow_map_size {
         options.map_sizing = MapSizing::Fixed(n);
     }
+    args.model.apply(&scene, &mut options)?;
     let max_lights = args.max_lights;
     // The scene the coordinator plans: with partitions, meshes too large for a part in chunks
     // (clusters here report no memory, so `auto` is 1).

@@ -5,6 +5,7 @@
 //! Uses the GPU renderer and the CPU reference side by side; nothing here runs in a daemon.
 
 pub mod accuracy;
+pub mod calibrate;
 pub mod hard;
 
 use anyhow::Context;

@@ -33,6 +33,7 @@
 //! The plan records each step (`Plan::concessions`) with the estimate after it; the same inputs
 //! give the same steps, so a live session re-planning with nothing changed keeps its plan.
 
+use super::error_model::{Curve, ErrorModel};
 use super::{
     ClusterSpec, Concession, Knob, MapSizing, PenumbraFilter, Plan, PlanError, PlanOptions,
     TargetChoice, scene_hash,
@@ -43,103 +44,57 @@ use lightfold_scene::Scene;
 /// steps at mid-grey).
 pub const MAX_EPSILON: f32 = 1.6e-2;
 
-/// The error model: penumbra PSNR (dB) against the area-light truth by point samples per area
-/// light, fitted to `docs/accuracy/balls` (grid pattern, 512² maps, PCF 2×2, 400×300):
-/// 1 → 27.39, 4 → 37.34, 16 → 47.53, 64 → 55.51, 256 → 58.09 dB. Piecewise linear in log₂ of
-/// the count, the last slope beyond 256. Only differences of it are used (a scene's own level
-/// differs; its slope is what the model claims).
-const SWEEP: [(f32, f32); 5] = [
-    (1.0, 27.39),
-    (4.0, 37.34),
-    (16.0, 47.53),
-    (64.0, 55.51),
-    (256.0, 58.09),
-];
-
-/// The model's penumbra PSNR at `n` samples per area light (see [`SWEEP`]).
+/// The default scene's model ([`ErrorModel::balls`]) at `n` samples per area light: what plans
+/// without a calibration of their own expect.
 pub fn expected_penumbra_db(n: u32) -> f32 {
-    through_log2(&SWEEP, n)
+    ErrorModel::balls().base().db(n)
 }
 
-/// Piecewise linear in log₂ of the count through `(count, dB)` points (at least two, in rising
-/// order), the last slope beyond them and the first before.
-fn through_log2(points: &[(f32, f32)], n: u32) -> f32 {
-    let x = (n.max(1) as f32).log2();
-    let pts: Vec<(f32, f32)> = points.iter().map(|&(n, db)| (n.log2(), db)).collect();
-    let seg = pts
-        .windows(2)
-        .find(|w| x <= w[1].0)
-        .unwrap_or(&pts[pts.len() - 2..]);
-    let (x0, y0) = seg[0];
-    let (x1, y1) = seg[1];
-    y0 + (x - x0) * (y1 - y0) / (x1 - x0)
-}
-
-/// The error model with the screen-space penumbra filter (tent kernel) at its best radius, from
-/// the same sweep (`docs/accuracy/balls-penumbra`): (samples per area light, radius, penumbra
-/// PSNR dB) — 1 → 32.54 (r 4), 2 → 35.57 (r 3), 4 → 42.40 (r 2), 8 → 44.21 (r 1), 16 → 50.94
-/// (r 1). From 32 samples on the filter measured no better than none (+0.5 dB at 32 for −2.7 dB
-/// over the whole image, −2.5 dB at 64), so the model adds it up to 16 only.
-const FILTERED: [(f32, u32, f32); 5] = [
-    (1.0, 4, 32.54),
-    (2.0, 3, 35.57),
-    (4.0, 2, 42.40),
-    (8.0, 1, 44.21),
-    (16.0, 1, 50.94),
-];
-
-/// The penumbra filter's radius the error model expects to gain the most at `n` samples per area
-/// light (that of the nearest measured count, in log₂), 0 above the counts where it measured a
-/// gain.
+/// The penumbra filter's radius the default scene's model expects to gain the most at `n`
+/// samples per area light, 0 above the counts where it measured a gain.
 pub fn filter_radius(n: u32) -> u32 {
-    let last = FILTERED[FILTERED.len() - 1].0;
-    if n.max(1) as f32 > last {
-        return 0;
-    }
-    let x = (n.max(1) as f32).log2();
-    FILTERED
-        .iter()
-        .min_by(|a, b| (a.0.log2() - x).abs().total_cmp(&(b.0.log2() - x).abs()))
-        .map_or(0, |f| f.1)
+    ErrorModel::balls().base().filter_radius(n)
 }
 
-/// The model's penumbra PSNR at `n` samples per area light with the filter at
-/// [`filter_radius`]`(n)` (piecewise linear in log₂ n through [`FILTERED`]); without a filter
-/// there, [`expected_penumbra_db`].
-fn expected_filtered_db(n: u32) -> f32 {
-    if filter_radius(n) == 0 {
-        return expected_penumbra_db(n);
+/// The curve a plan with `options` reads: its model's (the default scene's when it has none),
+/// at the map floor its sizing gives.
+fn curve<'a>(options: &'a PlanOptions, scene: &Scene) -> &'a Curve {
+    model(options).curve(map_floor(options, scene))
+}
+
+/// The model a plan with `options` reads (the default scene's when it has none).
+fn model(options: &PlanOptions) -> &ErrorModel {
+    options.error_model.as_ref().unwrap_or(&BALLS_MODEL)
+}
+
+/// The default scene's model, built once.
+static BALLS_MODEL: std::sync::LazyLock<ErrorModel> = std::sync::LazyLock::new(ErrorModel::balls);
+
+/// The shadow-map floor `options`' sizing sets (the mismatch rule's smallest map), 0 when it
+/// sets none (the scene's rule, or one size for every map).
+fn map_floor(options: &PlanOptions, scene: &Scene) -> u32 {
+    match options.map_sizing.resolve(&scene.quality) {
+        MapSizing::Mismatch { min, .. } => min,
+        _ => 0,
     }
-    let points: Vec<(f32, f32)> = FILTERED.iter().map(|&(n, _, db)| (n, db)).collect();
-    through_log2(&points, n)
 }
 
 /// The filter's radius at `n` samples per area light when the scene asks for `from`: what
 /// `filter` resolves to. `Budget` filters counts lowered below the scene's, and any count where
 /// an error target chose the samples (`from` is `None` then: the target asked for the cheapest
 /// plan that reaches it).
-fn resolve_radius(filter: PenumbraFilter, from: Option<u32>, n: Option<u32>) -> u32 {
+fn resolve_radius(curve: &Curve, filter: PenumbraFilter, from: Option<u32>, n: Option<u32>) -> u32 {
     match (filter, n) {
         (PenumbraFilter::Off, _) | (_, None) => 0,
         (PenumbraFilter::Radius(r), _) => r,
-        (PenumbraFilter::Auto, Some(n)) => filter_radius(n),
+        (PenumbraFilter::Auto, Some(n)) => curve.filter_radius(n),
         (PenumbraFilter::Budget, Some(n)) => {
             if from.is_none_or(|f| n < f) {
-                filter_radius(n)
+                curve.filter_radius(n)
             } else {
                 0
             }
         }
-    }
-}
-
-/// The model's figure at `n` samples with the filter at `radius`: the filtered model where the
-/// radius is its own, else the unfiltered one (a radius it did not measure is not claimed).
-fn expected_db(n: u32, radius: u32) -> f32 {
-    if radius > 0 && radius == filter_radius(n) {
-        expected_filtered_db(n)
-    } else {
-        expected_penumbra_db(n)
     }
 }
 
@@ -167,7 +122,7 @@ fn capped_radius(
     n: Option<u32>,
     threads: u32,
 ) -> u32 {
-    let mut r = resolve_radius(options.penumbra_filter, from, n);
+    let mut r = resolve_radius(curve(options, scene), options.penumbra_filter, from, n);
     if let (Some(budget), false) = (
         options.frame_budget_us,
         matches!(options.penumbra_filter, PenumbraFilter::Radius(_)),
@@ -285,7 +240,8 @@ fn lower(
             let m = area_samples(&s)?;
             let radius = |k| capped_radius(options, from, scene, Some(k), threads);
             let (rn, rm) = (radius(n), radius(m));
-            let db = expected_db(m, rm) - expected_db(n, rn);
+            let c = curve(options, scene);
+            let db = c.expected_db(m, rm) - c.expected_db(n, rn);
             let text = |k: u32, r: u32| {
                 if r > 0 {
                     format!("{k} + penumbra filter r{r}")
@@ -331,7 +287,7 @@ pub(crate) fn within_budget(
 ) -> Result<Plan, PlanError> {
     let targeted = options
         .target_penumbra_db
-        .and_then(|t| to_target(scene, t, options.penumbra_filter));
+        .and_then(|t| to_target(scene, t, options));
     let threads = stage_threads(cluster);
     // What `Budget` filters below: the scene's count, or any count an error target chose.
     let from = if targeted.is_some() {
@@ -339,7 +295,9 @@ pub(crate) fn within_budget(
     } else {
         area_samples(scene)
     };
-    let start = targeted.as_ref().map_or(scene, |(s, _)| s);
+    let (start, options) = targeted
+        .as_ref()
+        .map_or((scene, options), |(s, o, _)| (s, o));
     let fit = |s: &Scene, o: &PlanOptions| {
         fit_budget(
             s,
@@ -351,7 +309,7 @@ pub(crate) fn within_budget(
     };
     let mut first = fit(start, options)?;
     first.scene_hash = scene_hash(scene);
-    first.target = targeted.as_ref().map(|(_, t)| t.clone());
+    first.target = targeted.as_ref().map(|(_, _, t)| t.clone());
     let Some(budget) = options.frame_budget_us else {
         return Ok(first);
     };
@@ -406,7 +364,7 @@ pub(crate) fn within_budget(
             && p.est_frame_us < best.est_frame_us
         {
             best = p;
-            unfilter(&mut concessions);
+            unfilter(&mut concessions, curve(&options_now, &scene_now));
         }
     }
     // Nodes hold the scene they were sent: the plan names it, not the lowered copy the samples
@@ -419,7 +377,7 @@ pub(crate) fn within_budget(
 
 /// The concessions of samples per area light as they read without the penumbra filter: the
 /// counts alone, and the unfiltered model's figures.
-fn unfilter(concessions: &mut [Concession]) {
+fn unfilter(concessions: &mut [Concession], curve: &Curve) {
     let count = |t: &str| t.split(" + ").next().unwrap_or(t).to_string();
     for c in concessions
         .iter_mut()
@@ -427,7 +385,7 @@ fn unfilter(concessions: &mut [Concession]) {
     {
         (c.from, c.to) = (count(&c.from), count(&c.to));
         if let (Ok(n), Ok(m)) = (c.from.parse::<u32>(), c.to.parse::<u32>()) {
-            c.expected_db = Some(expected_penumbra_db(m) - expected_penumbra_db(n));
+            c.expected_db = Some(curve.db(m) - curve.db(n));
         }
     }
 }
@@ -468,45 +426,77 @@ fn fit_budget(
     Ok(p)
 }
 
-/// The scene with its area lights' sample counts halved or doubled (each by the same factor) to
-/// the fewest whose expected penumbra PSNR reaches `target_db` (with the penumbra filter where
-/// `filter` lets the planner add it and the model expects a gain), and what was chosen; `None`
-/// for a scene without area lights.
+/// The scene and options an error target asks for, and what was chosen; `None` for a scene
+/// without area lights. With the default scene's model the area lights' sample counts are halved
+/// or doubled (each by the same factor) to the fewest whose expected penumbra PSNR reaches
+/// `target_db` (with the penumbra filter where `options` lets the planner add it and the model
+/// expects a gain). With a scene's own calibration ([`ErrorModel::cheapest`]) every area light
+/// takes the chosen count, and the mismatch rule's smallest map is raised to the chosen floor:
+/// the cheapest setting the calibration measured to reach the target. Counts are raised no
+/// further than the model measured (beyond it the model would be a guess, and a target it does
+/// not reach there is out of reach).
 fn to_target(
     scene: &Scene,
     target_db: f32,
-    filter: PenumbraFilter,
-) -> Option<(Scene, TargetChoice)> {
+    options: &PlanOptions,
+) -> Option<(Scene, PlanOptions, TargetChoice)> {
     let from = area_samples(scene)?;
     let max = lightfold_scene::limits::MAX_SAMPLES_PER_AREA_LIGHT;
-    let expect = |n: u32| expected_db(n, resolve_radius(filter, None, Some(n)));
-    let mut n = from;
-    while n > 1 && expect(n / 2) >= target_db {
-        n /= 2;
-    }
-    // Raised no further than the sweep measured (its last count): beyond it the model would be
-    // a guess, and a target it does not reach there is out of reach.
-    let measured_up_to = SWEEP[SWEEP.len() - 1].0 as u32;
-    while expect(n) < target_db && n * 2 <= measured_up_to.max(from) {
-        n *= 2;
-    }
-    let s = with_area_samples(scene, |c| {
-        if n >= from {
-            (c * (n / from)).min(max)
-        } else {
-            (c / (from / n)).max(1)
-        }
+    let model = model(options);
+    let sizing = options.map_sizing.resolve(&scene.quality);
+    // Floors are the calibration's to choose only where the mismatch rule sizes the maps (one
+    // size asked for every map is kept) and only above the rule's own smallest map.
+    let floors_free = model.calibrated && matches!(sizing, MapSizing::Mismatch { .. });
+    let only_base;
+    let pick_from = if floors_free {
+        model
+    } else {
+        only_base = ErrorModel {
+            curves: vec![model.curve(map_floor(options, scene)).clone()],
+            ..model.clone()
+        };
+        &only_base
+    };
+    let filter = options.penumbra_filter;
+    let choice = pick_from.cheapest(target_db, from, |c, n| {
+        resolve_radius(c, filter, None, Some(n))
     });
-    let expected = expect(n);
+    let n = choice.samples;
+    let s = if model.calibrated {
+        with_area_samples(scene, |_| n.min(max))
+    } else {
+        with_area_samples(scene, |c| {
+            if n >= from {
+                (c * (n / from)).min(max)
+            } else {
+                (c / (from / n)).max(1)
+            }
+        })
+    };
+    let mut o = options.clone();
+    let mut floor = 0;
+    if floors_free
+        && let MapSizing::Mismatch { min, max, target } = sizing
+    {
+        floor = choice.map_floor.max(min);
+        o.map_sizing = MapSizing::Mismatch {
+            min: floor,
+            max: max.max(floor),
+            target,
+        };
+    }
     Some((
         s,
+        o,
         TargetChoice {
             target_db,
             from,
             to: n,
-            expected_db: expected,
-            reachable: expected >= target_db,
-            penumbra_radius: resolve_radius(filter, None, Some(n)),
+            expected_db: choice.db,
+            reachable: choice.db >= target_db,
+            penumbra_radius: choice.radius,
+            map_floor: floor,
+            calibrated: model.calibrated,
         },
     ))
 }
@@ -516,50 +506,19 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_model_goes_through_the_sweep_and_rises_with_samples() {
-        for (n, db) in SWEEP {
-            assert!((expected_penumbra_db(n as u32) - db).abs() < 1e-4, "{n}");
-        }
-        let mut last = f32::MIN;
-        for n in 1..=1024 {
-            let db = expected_penumbra_db(n);
-            assert!(db > last, "{n}: {db} after {last}");
-            last = db;
-        }
-        // Halving 16 costs the 8 → 16 slope: about 5 dB.
-        let d = expected_penumbra_db(8) - expected_penumbra_db(16);
-        assert!((-5.2..=-5.0).contains(&d), "{d}");
-    }
-
-    #[test]
-    fn the_filter_model_goes_through_its_sweep_and_stops_where_it_stopped_helping() {
-        for (n, r, db) in FILTERED {
-            assert_eq!(filter_radius(n as u32), r, "{n}");
-            assert!((expected_filtered_db(n as u32) - db).abs() < 1e-4, "{n}");
-            assert!(
-                expected_filtered_db(n as u32) > expected_penumbra_db(n as u32),
-                "{n}"
-            );
-        }
-        for n in [17, 32, 64, 256] {
-            assert_eq!(filter_radius(n), 0, "{n}");
-            assert_eq!(expected_filtered_db(n), expected_penumbra_db(n));
-        }
-        assert_eq!(filter_radius(3), 2);
-        assert_eq!(filter_radius(12), 1);
-        // `Budget` filters only counts lowered below the scene's; `Auto` any it helps.
+    fn budget_filters_only_counts_lowered_below_the_scenes_and_auto_any_it_helps() {
+        let balls = ErrorModel::balls();
+        let c = balls.base();
         let b = PenumbraFilter::Budget;
-        assert_eq!(resolve_radius(b, Some(16), Some(16)), 0);
-        assert_eq!(resolve_radius(b, Some(16), Some(4)), 2);
-        assert_eq!(resolve_radius(b, None, Some(16)), 1);
-        assert_eq!(resolve_radius(PenumbraFilter::Auto, Some(16), Some(16)), 1);
-        assert_eq!(resolve_radius(PenumbraFilter::Off, Some(16), Some(4)), 0);
+        assert_eq!(resolve_radius(c, b, Some(16), Some(16)), 0);
+        assert_eq!(resolve_radius(c, b, Some(16), Some(4)), 2);
+        assert_eq!(resolve_radius(c, b, None, Some(16)), 1);
+        assert_eq!(resolve_radius(c, PenumbraFilter::Auto, Some(16), Some(16)), 1);
+        assert_eq!(resolve_radius(c, PenumbraFilter::Off, Some(16), Some(4)), 0);
         assert_eq!(
-            resolve_radius(PenumbraFilter::Radius(5), Some(16), Some(64)),
+            resolve_radius(c, PenumbraFilter::Radius(5), Some(16), Some(64)),
             5
         );
-        // A radius the model did not measure is not claimed.
-        assert_eq!(expected_db(16, 3), expected_penumbra_db(16));
     }
 
     #[test]

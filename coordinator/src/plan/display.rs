@@ -468,10 +468,25 @@ impl Plan {
             0 => String::new(),
             r => format!(" + penumbra filter r{r}"),
         };
+        let maps = match t.map_floor {
+            0 => String::new(),
+            f => format!(", shadow maps from {f}²"),
+        };
+        let (model, check) = if t.calibrated {
+            (
+                "this scene's calibration",
+                "`lightfold accuracy --planned` measures it",
+            )
+        } else {
+            (
+                "the default scene's error model",
+                "`lightfold accuracy --knobs samples,penumbra --target-db` measures it; \
+                 `lightfold calibrate` fits this scene's own",
+            )
+        };
         Some(format!(
-            "error target {:.1} dB penumbra PSNR: samples per area light {} → {}{filter} (expected \
-             {:.1} dB by the error model{}; `lightfold accuracy --knobs samples,penumbra \
-             --target-db` measures it)",
+            "error target {:.1} dB penumbra PSNR: samples per area light {} → {}{filter}{maps} \
+             (expected {:.1} dB by {model}{}; {check})",
             t.target_db,
             t.from,
             t.to,
@@ -479,7 +494,7 @@ impl Plan {
             if t.reachable {
                 ""
             } else {
-                ", the most its sweep measured: the target is out of reach"
+                ", the most it measured: the target is out of reach"
             }
         ))
     }

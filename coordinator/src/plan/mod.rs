@@ -10,6 +10,7 @@ mod config;
 mod cpu_hosts;
 mod cull;
 mod display;
+mod error_model;
 mod geom;
 mod group;
 mod material;
@@ -21,6 +22,7 @@ mod types;
 pub mod wire;
 
 pub use budget::{MAX_EPSILON, expected_penumbra_db, filter_cost_us, filter_radius};
+pub use error_model::{Choice, Curve, ErrorModel};
 pub use group::{DEFAULT_FIXED_US, DEFAULT_LIGHT_US};
 pub use replan::{lights_moved, replan};
 pub use topology::BAND_OVERHEAD_BYTES;

@@ -259,6 +259,11 @@ pub struct PlanOptions {
     /// expects to reach it (`plan/budget.rs`); a frame budget may then lower them further.
     #[serde(default)]
     pub target_penumbra_db: Option<f32>,
+    /// The error model the target and the budget's concessions read: a calibration of the
+    /// planned scene (`lightfold calibrate`, `lightfold_quality::calibrate`), or `None` for the
+    /// default scene's sweep ([`ErrorModel::balls`]).
+    #[serde(default)]
+    pub error_model: Option<super::ErrorModel>,
     /// The screen-space penumbra filter (`--penumbra-filter`, the compositor's `penumbra`
     /// operator): the last stage filters the illumination sum before the material multiply,
     /// with the eye depth the material layers' node adds (`depth32`); bands are raised to at
@@ -356,6 +361,7 @@ impl Default for PlanOptions {
             supersample: 1,
             cost_scale: CostScale::default(),
             target_penumbra_db: None,
+            error_model: None,
             penumbra_filter: PenumbraFilter::Budget,
             partitions: 0,
             merge_shared_devices: true,
@@ -562,7 +568,7 @@ pub struct TargetChoice {
     /// Largest samples per area light before and after.
     pub from: u32,
     pub to: u32,
-    /// The error model's penumbra PSNR at `to` (`budget::expected_penumbra_db`).
+    /// The error model's penumbra PSNR at `to` (`ErrorModel`).
     pub expected_db: f32,
     /// Whether the model expects the target at all (else `to` is the most its sweep measured,
     /// 256, or the scene's own count when that is more).
@@ -570,6 +576,13 @@ pub struct TargetChoice {
     /// The penumbra filter's radius the model's figure assumes (0: none).
     #[serde(default)]
     pub penumbra_radius: u32,
+    /// The mismatch rule's smallest shadow map as the target raised it (0: unchanged).
+    #[serde(default)]
+    pub map_floor: u32,
+    /// Whether the figure comes from a calibration of this scene (else the default scene's
+    /// sweep, whose level other scenes do not share).
+    #[serde(default)]
+    pub calibrated: bool,
 }
 
 /// The quality knobs a frame budget can lower, in the order the planner lowers them.

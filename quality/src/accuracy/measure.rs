@@ -31,12 +31,28 @@ pub fn measure_group(
     let Some(first) = settings.first() else {
         return Ok(Vec::new());
     };
+    let mut scene = scene.clone();
+    first.apply(&mut scene);
+    measure_prepared(gpu, &scene, settings, repeats)
+}
+
+/// [`measure_group`] of a scene whose quality is already set as the settings render (samples,
+/// pattern, map sizing, filter): the settings give K, the largest map (for the devices' K
+/// limit), the link format and the penumbra filter.
+pub fn measure_prepared(
+    gpu: &Gpu,
+    scene: &Scene,
+    settings: &[Setting],
+    repeats: u32,
+) -> Result<Vec<Measured>, AccuracyError> {
+    let Some(first) = settings.first() else {
+        return Ok(Vec::new());
+    };
     let err = |message: String| AccuracyError::Render {
         setting: first.to_string(),
         message,
     };
-    let mut scene = scene.clone();
-    first.apply(&mut scene);
+    let scene = scene.clone();
     let samples = direct_samples(&scene);
     let opts = RenderOptions::from_quality(&scene.quality);
     let k_run = first.k.clamp(1, gpu.max_lights(first.map_size).max(1));

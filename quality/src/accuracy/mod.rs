@@ -12,7 +12,7 @@ pub mod pareto;
 pub mod report;
 pub mod truth;
 
-pub use measure::{Measured, measure_group};
+pub use measure::{Measured, measure_group, measure_prepared};
 pub use pareto::pareto_frontier;
 pub use report::{CSV_COLUMNS, write_csv, write_markdown, write_svg};
 pub use truth::{CachedTruth, TruthOptions, load_or_render_truth};

@@ -1,0 +1,365 @@
+//! The planner's error model: penumbra PSNR against the area-light truth by point samples per
+//! area light, the screen-space penumbra filter's radius and the smallest shadow map
+//! (`docs/planner.md` § Error model).
+//!
+//! Two sources. [`ErrorModel::balls`] is the sweep of the default scene at 400×300
+//! (`docs/accuracy/balls`, `balls-penumbra`), what every plan used before a scene had its own.
+//! [`ErrorModel`]s of a scene of its own come from a short calibration
+//! (`lightfold_quality::calibrate`, `lightfold calibrate`): a few renders of that scene at a
+//! reduced size against its area-light truth, one curve per shadow-map floor, cached by the
+//! scene's content and size. With such a model an error target chooses the samples per area
+//! light, the map floor and the filter together, at the least node-seconds the calibration
+//! measured ([`ErrorModel::cheapest`]).
+
+use serde::{Deserialize, Serialize};
+
+/// Penumbra PSNR against samples per area light at one shadow-map floor.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Curve {
+    /// The smallest shadow map (side) the curve was measured with: the mismatch rule's floor
+    /// raised to it. 0: the scene's own rule, whatever it is.
+    pub map_floor: u32,
+    /// `(samples per area light, penumbra PSNR dB)`, rising in samples, at least two points.
+    pub unfiltered: Vec<(u32, f32)>,
+    /// `(samples, filter radius, penumbra PSNR dB)` at the counts where a radius of the
+    /// penumbra filter gained over none: the radius that gained most. Radii are for the plan's
+    /// image size.
+    #[serde(default)]
+    pub filtered: Vec<(u32, u32, f32)>,
+    /// Node-seconds a frame per sample per area light, as measured by the calibration (0:
+    /// not measured; costs then go by samples × map side).
+    #[serde(default)]
+    pub seconds_per_sample: f64,
+}
+
+/// The planner's error model (module documentation).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ErrorModel {
+    /// Where the figures come from, as the plan prints it.
+    pub source: String,
+    /// Measured on the planned scene itself (not the default scene's sweep).
+    pub calibrated: bool,
+    /// One curve per map floor, rising floors; at least one.
+    pub curves: Vec<Curve>,
+}
+
+/// One choice of an error target (`ErrorModel::cheapest`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Choice {
+    pub samples: u32,
+    /// The shadow-map floor (0: the scene's rule).
+    pub map_floor: u32,
+    /// The penumbra filter's radius (0: none).
+    pub radius: u32,
+    /// The model's penumbra PSNR there.
+    pub db: f32,
+    /// Its relative cost (node-seconds where measured).
+    pub cost: f64,
+}
+
+/// The balls sweep without the filter (grid pattern, 512² maps, PCF 2×2, 400×300):
+/// 1 → 27.39, 4 → 37.34, 16 → 47.53, 64 → 55.51, 256 → 58.09 dB.
+const BALLS: [(u32, f32); 5] = [(1, 27.39), (4, 37.34), (16, 47.53), (64, 55.51), (256, 58.09)];
+
+/// The same sweep with the filter at its best radius (`docs/accuracy/balls-penumbra`). From 32
+/// samples on the filter measured no better than none (+0.5 dB at 32 for −2.7 dB over the whole
+/// image, −2.5 dB at 64), so the model adds it up to 16 only.
+const BALLS_FILTERED: [(u32, u32, f32); 5] = [
+    (1, 4, 32.54),
+    (2, 3, 35.57),
+    (4, 2, 42.40),
+    (8, 1, 44.21),
+    (16, 1, 50.94),
+];
+
+impl Default for ErrorModel {
+    fn default() -> Self {
+        ErrorModel::balls()
+    }
+}
+
+impl ErrorModel {
+    /// The default scene's sweep at 400×300, for scenes without a calibration of their own.
+    /// Only its differences carry to other scenes (their levels differ; `docs/planner.md`).
+    pub fn balls() -> ErrorModel {
+        ErrorModel {
+            source: "the default scene's sweep (balls, 400×300); no calibration of this scene"
+                .into(),
+            calibrated: false,
+            curves: vec![Curve {
+                map_floor: 0,
+                unfiltered: BALLS.to_vec(),
+                filtered: BALLS_FILTERED.to_vec(),
+                seconds_per_sample: 0.0,
+            }],
+        }
+    }
+
+    /// Whether the model can be used: at least one curve, each with two or more rising counts and
+    /// finite figures.
+    pub fn check(&self) -> Result<(), String> {
+        if self.curves.is_empty() {
+            return Err("the error model has no curve".into());
+        }
+        for c in &self.curves {
+            if c.unfiltered.len() < 2 {
+                return Err("an error-model curve needs two sample counts or more".into());
+            }
+            let rising = c.unfiltered.windows(2).all(|w| w[0].0 < w[1].0)
+                && c.filtered.windows(2).all(|w| w[0].0 < w[1].0);
+            let finite = c.unfiltered.iter().all(|p| p.1.is_finite() && p.0 > 0)
+                && c.filtered.iter().all(|p| p.2.is_finite() && p.0 > 0)
+                && c.seconds_per_sample.is_finite()
+                && c.seconds_per_sample >= 0.0;
+            if !rising || !finite {
+                return Err("an error-model curve's counts must rise and its figures be finite".into());
+            }
+        }
+        Ok(())
+    }
+
+    /// The curve measured at `floor`, else the lowest floor's (the scene's own rule).
+    pub fn curve(&self, floor: u32) -> &Curve {
+        self.curves
+            .iter()
+            .find(|c| c.map_floor == floor)
+            .unwrap_or(&self.curves[0])
+    }
+
+    /// The curve of the scene's own map rule (the lowest floor).
+    pub fn base(&self) -> &Curve {
+        &self.curves[0]
+    }
+
+    /// The cheapest `(samples, floor, radius)` whose expected penumbra PSNR reaches `target_db`,
+    /// among sample counts `from·2^k` (or `from/2^k`) the model measured, every floor, and the
+    /// filter where `filter` allows it (`filter(curve, n)` gives the radius to use at `n` on
+    /// that curve). When none reaches the target: the highest expected PSNR (cheapest
+    /// among equals). Costs: the measured node-seconds per sample, else samples × (1 + map
+    /// side / 512).
+    pub fn cheapest(
+        &self,
+        target_db: f32,
+        from: u32,
+        filter: impl Fn(&Curve, u32) -> u32,
+    ) -> Choice {
+        let mut all = Vec::new();
+        for c in &self.curves {
+            let top = c.measured_up_to().max(from);
+            let mut counts = vec![from.max(1)];
+            let mut n = from.max(1);
+            while n > 1 {
+                n /= 2;
+                counts.push(n);
+            }
+            let mut n = from.max(1);
+            while n * 2 <= top {
+                n *= 2;
+                counts.push(n);
+            }
+            for n in counts {
+                let radius = filter(c, n);
+                let side = if c.map_floor == 0 { 512 } else { c.map_floor };
+                let cost = if c.seconds_per_sample > 0.0 {
+                    f64::from(n) * c.seconds_per_sample
+                } else {
+                    f64::from(n) * (1.0 + f64::from(side) / 512.0)
+                };
+                all.push(Choice {
+                    samples: n,
+                    map_floor: c.map_floor,
+                    radius,
+                    db: c.expected_db(n, radius),
+                    cost,
+                });
+            }
+        }
+        let reaching = all.iter().filter(|c| c.db >= target_db);
+        let best = reaching.min_by(|a, b| a.cost.total_cmp(&b.cost).then(b.db.total_cmp(&a.db)));
+        match best {
+            Some(c) => *c,
+            None => *all
+                .iter()
+                .max_by(|a, b| a.db.total_cmp(&b.db).then(b.cost.total_cmp(&a.cost)))
+                .expect("a model has a curve with points"),
+        }
+    }
+}
+
+impl Curve {
+    /// The largest count the curve measured.
+    pub fn measured_up_to(&self) -> u32 {
+        self.unfiltered.last().map_or(1, |p| p.0)
+    }
+
+    /// Penumbra PSNR at `n` samples per area light without the filter: piecewise linear in
+    /// log₂ n through the measured points, the end slopes beyond them.
+    pub fn db(&self, n: u32) -> f32 {
+        let pts: Vec<(f32, f32)> = self.unfiltered.iter().map(|&(n, d)| (n as f32, d)).collect();
+        through_log2(&pts, n)
+    }
+
+    /// The filter's radius the model expects to gain most at `n` (that of the nearest filtered
+    /// count in log₂), 0 above the counts where it measured a gain.
+    pub fn filter_radius(&self, n: u32) -> u32 {
+        let Some(last) = self.filtered.last() else {
+            return 0;
+        };
+        if n.max(1) > last.0 {
+            return 0;
+        }
+        let x = (n.max(1) as f32).log2();
+        self.filtered
+            .iter()
+            .min_by(|a, b| {
+                ((a.0 as f32).log2() - x)
+                    .abs()
+                    .total_cmp(&((b.0 as f32).log2() - x).abs())
+            })
+            .map_or(0, |f| f.1)
+    }
+
+    /// Penumbra PSNR at `n` with the filter at [`Curve::filter_radius`]`(n)` (piecewise linear
+    /// through the filtered points; one point: its gain over the unfiltered curve).
+    pub fn filtered_db(&self, n: u32) -> f32 {
+        if self.filter_radius(n) == 0 {
+            return self.db(n);
+        }
+        if let [(m, _, d)] = self.filtered[..] {
+            return self.db(n) + (d - self.db(m));
+        }
+        let pts: Vec<(f32, f32)> = self
+            .filtered
+            .iter()
+            .map(|&(n, _, d)| (n as f32, d))
+            .collect();
+        through_log2(&pts, n)
+    }
+
+    /// The figure at `n` samples with the filter at `radius`: the filtered figure where the
+    /// radius is the model's own, else the unfiltered one (a radius it did not measure is not
+    /// claimed).
+    pub fn expected_db(&self, n: u32, radius: u32) -> f32 {
+        if radius > 0 && radius == self.filter_radius(n) {
+            self.filtered_db(n)
+        } else {
+            self.db(n)
+        }
+    }
+}
+
+/// Piecewise linear in log₂ of the count through `(count, dB)` points (at least two, in rising
+/// order), the last slope beyond them and the first before.
+fn through_log2(points: &[(f32, f32)], n: u32) -> f32 {
+    let x = (n.max(1) as f32).log2();
+    let pts: Vec<(f32, f32)> = points.iter().map(|&(n, db)| (n.log2(), db)).collect();
+    if pts.len() < 2 {
+        return pts.first().map_or(0.0, |p| p.1);
+    }
+    let seg = pts
+        .windows(2)
+        .find(|w| x <= w[1].0)
+        .unwrap_or(&pts[pts.len() - 2..]);
+    let (x0, y0) = seg[0];
+    let (x1, y1) = seg[1];
+    y0 + (x - x0) * (y1 - y0) / (x1 - x0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn model() -> ErrorModel {
+        ErrorModel {
+            source: "test".into(),
+            calibrated: true,
+            curves: vec![
+                Curve {
+                    map_floor: 512,
+                    unfiltered: vec![(4, 30.0), (16, 36.0), (64, 38.0)],
+                    filtered: vec![(4, 2, 33.0), (16, 1, 37.0)],
+                    seconds_per_sample: 0.01,
+                },
+                Curve {
+                    map_floor: 2048,
+                    unfiltered: vec![(4, 31.0), (16, 40.0), (64, 47.0)],
+                    filtered: vec![],
+                    seconds_per_sample: 0.03,
+                },
+            ],
+        }
+    }
+
+    #[test]
+    fn the_cheapest_choice_reaching_the_target_wins_across_floors_and_filters() {
+        let m = model();
+        assert!(m.check().is_ok());
+        let any = |c: &Curve, n| c.filter_radius(n);
+        // 36 dB: 16 samples at the small floor (0.16 s) beats 8 at 2048² (0.24 s); with the
+        // filter 8 samples reach 35 only (between 33 and 37), so 16 unfiltered or filtered.
+        let c = m.cheapest(36.0, 16, any);
+        assert_eq!((c.samples, c.map_floor), (16, 512), "{c:?}");
+        // 45 dB only the large floor reaches, at 64 samples (model 47 dB at 64, 43.5 at 32).
+        let c = m.cheapest(45.0, 16, any);
+        assert_eq!((c.samples, c.map_floor, c.radius), (64, 2048, 0), "{c:?}");
+        // Out of reach: the best there is, said by its figure.
+        let c = m.cheapest(60.0, 16, any);
+        assert_eq!((c.samples, c.map_floor), (64, 2048));
+        assert!(c.db < 60.0);
+        // The filter gives 33 dB at 4 samples where none gives 30: a 32 dB target takes 4
+        // samples filtered, or 8 unfiltered (33 dB) when the filter is not allowed.
+        let c = m.cheapest(32.0, 16, any);
+        assert_eq!((c.samples, c.radius), (4, 2), "{c:?}");
+        let c = m.cheapest(32.0, 16, |_: &Curve, _| 0);
+        assert_eq!((c.samples, c.radius), (8, 0), "{c:?}");
+    }
+
+    #[test]
+    fn the_default_model_goes_through_the_sweep_and_rises_with_samples() {
+        let balls = ErrorModel::balls();
+        let c = balls.base();
+        for (n, db) in BALLS {
+            assert!((c.db(n) - db).abs() < 1e-4, "{n}");
+        }
+        let mut last = f32::MIN;
+        for n in 1..=1024 {
+            let db = c.db(n);
+            assert!(db > last, "{n}: {db} after {last}");
+            last = db;
+        }
+        // Halving 16 costs the 8 → 16 slope: about 5 dB.
+        let d = c.db(8) - c.db(16);
+        assert!((-5.2..=-5.0).contains(&d), "{d}");
+    }
+
+    #[test]
+    fn the_default_filter_model_goes_through_its_sweep_and_stops_where_it_stopped_helping() {
+        let balls = ErrorModel::balls();
+        let c = balls.base();
+        for (n, r, db) in BALLS_FILTERED {
+            assert_eq!(c.filter_radius(n), r, "{n}");
+            assert!((c.filtered_db(n) - db).abs() < 1e-4, "{n}");
+            assert!(c.filtered_db(n) > c.db(n), "{n}");
+        }
+        for n in [17, 32, 64, 256] {
+            assert_eq!(c.filter_radius(n), 0, "{n}");
+            assert_eq!(c.filtered_db(n), c.db(n));
+        }
+        assert_eq!(c.filter_radius(3), 2);
+        assert_eq!(c.filter_radius(12), 1);
+        // A radius the model did not measure is not claimed.
+        assert_eq!(c.expected_db(16, 3), c.db(16));
+    }
+
+    #[test]
+    fn a_model_without_rising_counts_is_refused() {
+        let mut m = model();
+        m.curves[0].unfiltered = vec![(16, 30.0), (4, 31.0)];
+        assert!(m.check().is_err());
+        m.curves.clear();
+        assert!(m.check().is_err());
+        let mut m = model();
+        m.curves[1].unfiltered[0].1 = f32::NAN;
+        assert!(m.check().is_err());
+    }
+}

@@ -1,0 +1,310 @@
+//! A scene's own error model for the planner (`docs/planner.md` § Error model): a few renders of
+//! the scene at a reduced size against its area-light truth, one curve of penumbra PSNR against
+//! samples per area light for each shadow-map floor, with and without the penumbra filter, and
+//! the node-seconds each took. Cached by the scene's content and image size, so a second plan of
+//! the same scene reads it back.
+//!
+//! The reduced size divides the image by a whole factor `d` (at most 400×300); the renders keep
+//! the shadow maps the full-size plan would get (the mismatch rule's target × `d`), so the maps'
+//! error is the full size's, and a filter radius r measured there is radius `r·d` at full size
+//! (the same footprint on the scene).
+
+use crate::accuracy::{
+    AccuracyError, Setting, TruthOptions, load_or_render_truth, measure_prepared,
+};
+use lightfold_compositor::ops::{LinkKind, recommended_link_format};
+use lightfold_coordinator::plan::{Curve, ErrorModel};
+use lightfold_node::gpu::Gpu;
+use lightfold_scene::{Image, MapSizing, Scene};
+use sha2::{Digest, Sha256};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The largest calibration image (a larger image is divided by a whole factor down to it).
+pub const MAX_SIZE: (u32, u32) = (400, 300);
+/// Samples per area light the curves measure.
+pub const COUNTS: [u32; 6] = [4, 8, 16, 32, 64, 128];
+/// Shadow-map floors (the mismatch rule's smallest map raised to each; those below the scene's
+/// own floor are the scene's floor).
+pub const FLOORS: [u32; 3] = [512, 1024, 2048];
+/// Penumbra-filter radii measured at the calibration size.
+pub const RADII: [u32; 2] = [1, 2];
+/// A radius of the filter counts as a gain at a count only above this margin (dB).
+const FILTER_GAIN_DB: f64 = 0.1;
+/// Figures are capped here (a render equal to its truth has infinite PSNR).
+const CAP_DB: f64 = 100.0;
+/// The largest cached model read back (bytes).
+const MAX_MODEL_BYTES: u64 = 1 << 20;
+
+const CACHE_VERSION: &[u8] = b"lightfold-calibration-v1";
+
+/// How to calibrate.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CalibrationOptions {
+    /// Points per area light per pixel of the truth.
+    pub truth_samples: u32,
+    /// Where truths are cached (shared with `lightfold accuracy`).
+    pub truth_cache: Option<PathBuf>,
+    /// Where models are cached.
+    pub model_cache: Option<PathBuf>,
+}
+
+/// One measured point.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CalPoint {
+    pub map_floor: u32,
+    pub samples: u32,
+    /// Filter radius at the plan's size (0: none).
+    pub radius: u32,
+    pub penumbra_db: f64,
+    pub node_seconds: f64,
+}
+
+/// A calibration: the model and how it was made.
+#[derive(Debug, Clone)]
+pub struct Calibration {
+    pub model: ErrorModel,
+    pub key: String,
+    pub from_cache: bool,
+    /// Wall seconds of the renders and of the truth (0 when cached).
+    pub seconds: f64,
+    pub truth_seconds: f64,
+    /// Every point measured (empty when read from the cache).
+    pub points: Vec<CalPoint>,
+    /// The calibration image size and the factor it divides the scene's by.
+    pub size: (u32, u32),
+    pub divisor: u32,
+}
+
+/// The whole factor a `width × height` image is divided by for its calibration.
+pub fn divisor(width: u32, height: u32) -> u32 {
+    width
+        .div_ceil(MAX_SIZE.0)
+        .max(height.div_ceil(MAX_SIZE.1))
+        .max(1)
+}
+
+/// The cache key of `scene`'s model: its content and image size, with the quality knobs the
+/// model does not depend on (samples per area light, map sizes, K) left out, and those it does
+/// (pattern, filter, biases, the area-light specular) kept.
+pub fn model_key(scene: &Scene) -> String {
+    let mut content = scene.clone();
+    let q = &scene.quality;
+    content.quality = lightfold_scene::Quality {
+        pattern: q.pattern,
+        filter: q.filter,
+        depth_bias: q.depth_bias,
+        slope_bias: q.slope_bias,
+        area_specular: q.area_specular,
+        map_sizing: q.map_sizing,
+        shadow_map_size: match q.map_sizing {
+            MapSizing::Fixed => q.shadow_map_size,
+            MapSizing::Mismatch(_) => lightfold_scene::defaults::SHADOW_MAP_SIZE,
+        },
+        ..lightfold_scene::defaults::quality()
+    };
+    for l in content.lights.iter_mut().filter(|l| l.is_area()) {
+        l.samples = 1;
+    }
+    let mut h = Sha256::new();
+    h.update(CACHE_VERSION);
+    h.update(content.content_hash());
+    h.update(scene.camera.width.to_le_bytes());
+    h.update(scene.camera.height.to_le_bytes());
+    hex::encode(&h.finalize()[..12])
+}
+
+/// The cached model of `scene` under `dir`, if there is a readable one.
+pub fn cached_model(scene: &Scene, dir: &Path) -> Option<ErrorModel> {
+    read_model(&model_path(dir, &model_key(scene))).ok()
+}
+
+fn model_path(dir: &Path, key: &str) -> PathBuf {
+    dir.join(format!("{key}.json"))
+}
+
+/// Reads a model file: bounded, parsed and checked.
+pub fn read_model(path: &Path) -> Result<ErrorModel, String> {
+    let meta = std::fs::metadata(path).map_err(|e| e.to_string())?;
+    if meta.len() > MAX_MODEL_BYTES {
+        return Err(format!("{} bytes, more than a model takes", meta.len()));
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| e.to_string())?;
+    let model: ErrorModel = serde_json::from_str(&text).map_err(|e| e.to_string())?;
+    model.check()?;
+    Ok(model)
+}
+
+/// The model of `scene` from the cache, or calibrated on `gpu` (and cached).
+pub fn calibrate(
+    gpu: &Gpu,
+    scene: &Scene,
+    opts: &CalibrationOptions,
+) -> Result<Calibration, AccuracyError> {
+    let key = model_key(scene);
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let d = divisor(w, h);
+    let size = ((w / d).max(1), (h / d).max(1));
+    if let Some(dir) = &opts.model_cache
+        && let Ok(model) = read_model(&model_path(dir, &key))
+    {
+        return Ok(Calibration {
+            model,
+            key,
+            from_cache: true,
+            seconds: 0.0,
+            truth_seconds: 0.0,
+            points: Vec::new(),
+            size,
+            divisor: d,
+        });
+    }
+    let mut cal = scene.clone();
+    (cal.camera.width, cal.camera.height) = size;
+    let truth = load_or_render_truth(
+        &cal,
+        &TruthOptions {
+            samples_per_light: opts.truth_samples.max(1),
+            cache_dir: opts.truth_cache.clone(),
+        },
+    )?;
+    let started = Instant::now();
+    let q = scene.quality;
+    // The floors: the scene's own rule first (its smallest map), then the larger ones; a scene
+    // that fixes one size for every map has that one curve only.
+    let floors: Vec<(u32, MapSizing, u32)> = match q.map_sizing {
+        MapSizing::Fixed => vec![(0, MapSizing::Fixed, q.shadow_map_size)],
+        MapSizing::Mismatch(m) => {
+            let mut f: Vec<u32> = FLOORS.iter().map(|&f| f.max(m.min)).collect();
+            f.dedup();
+            f.into_iter()
+                .map(|floor| {
+                    let rule = lightfold_scene::shadow_views::Mismatch {
+                        min: floor,
+                        max: m.max.max(floor),
+                        target: m.target * d as f32,
+                    };
+                    (floor, MapSizing::Mismatch(rule), m.max.max(floor))
+                })
+                .collect()
+        }
+    };
+    let format = recommended_link_format(LinkKind::NodeToCompositor);
+    let radii: Vec<u32> = RADII
+        .iter()
+        .copied()
+        .filter(|r| r * d <= lightfold_compositor::ops::penumbra::MAX_RADIUS)
+        .collect();
+    let mut points = Vec::new();
+    let mut curves = Vec::new();
+    for &(floor, sizing, largest) in &floors {
+        cal.quality.map_sizing = sizing;
+        if floor > 0 {
+            cal.quality.shadow_map_size = floor;
+        }
+        let mut unfiltered = Vec::new();
+        let mut filtered = Vec::new();
+        let mut filter_gains = true;
+        let (mut sum_nt, mut sum_nn) = (0.0, 0.0);
+        for n in COUNTS {
+            cal.quality.samples_per_area_light = Some(n);
+            let settings: Vec<Setting> = std::iter::once(0)
+                .chain(radii.iter().copied())
+                .map(|penumbra| Setting {
+                    samples: n,
+                    pattern: q.pattern,
+                    map_size: largest,
+                    filter: q.filter,
+                    format,
+                    k: q.lights_per_node,
+                    penumbra,
+                })
+                .collect();
+            let measured = measure_prepared(gpu, &cal, &settings, 1)?;
+            let mut dbs = Vec::with_capacity(measured.len());
+            for (s, m) in settings.iter().zip(&measured) {
+                let db = penumbra_db(&truth.truth, &m.image)?;
+                let secs: f64 = m.node_seconds.iter().sum();
+                points.push(CalPoint {
+                    map_floor: floor,
+                    samples: n,
+                    radius: s.penumbra * d,
+                    penumbra_db: db,
+                    node_seconds: secs,
+                });
+                dbs.push(db);
+            }
+            let secs: f64 = measured[0].node_seconds.iter().sum();
+            sum_nt += f64::from(n) * secs;
+            sum_nn += f64::from(n) * f64::from(n);
+            unfiltered.push((n, dbs[0] as f32));
+            // The filter's curve is the counts from the fewest up to the first where no radius
+            // gains: the planner reads it as "filter up to here".
+            let best = dbs[1..]
+                .iter()
+                .zip(&radii)
+                .max_by(|a, b| a.0.total_cmp(b.0));
+            match best {
+                Some((&db, &r)) if filter_gains && db > dbs[0] + FILTER_GAIN_DB => {
+                    filtered.push((n, r * d, db as f32));
+                }
+                _ => filter_gains = false,
+            }
+        }
+        curves.push(Curve {
+            map_floor: floor,
+            unfiltered,
+            filtered,
+            seconds_per_sample: if sum_nn > 0.0 { sum_nt / sum_nn } else { 0.0 },
+        });
+    }
+    let seconds = started.elapsed().as_secs_f64();
+    let model = ErrorModel {
+        source: format!(
+            "this scene's calibration ({}×{} for {w}×{h}, {}-point truth, key {key})",
+            size.0, size.1, opts.truth_samples
+        ),
+        calibrated: true,
+        curves,
+    };
+    model.check().map_err(|message| AccuracyError::Render {
+        setting: "calibration".into(),
+        message,
+    })?;
+    if let Some(dir) = &opts.model_cache {
+        write_model(dir, &key, &model)?;
+    }
+    Ok(Calibration {
+        model,
+        key,
+        from_cache: false,
+        seconds,
+        truth_seconds: truth.render_seconds,
+        points,
+        size,
+        divisor: d,
+    })
+}
+
+/// Penumbra PSNR of `image` against the truth (the whole image's where the truth has no
+/// penumbra), capped at [`CAP_DB`].
+fn penumbra_db(truth: &lightfold_reference::GroundTruth, image: &Image) -> Result<f64, AccuracyError> {
+    let m = truth.compare(image)?;
+    let e = m.penumbra.filter(|p| p.pixels > 0).unwrap_or(m.whole);
+    Ok(if e.psnr.is_finite() { e.psnr.min(CAP_DB) } else { CAP_DB })
+}
+
+/// Writes the model beside the others (a temporary file renamed into place, so a reader never
+/// sees half of one).
+fn write_model(dir: &Path, key: &str, model: &ErrorModel) -> Result<(), AccuracyError> {
+    let path = model_path(dir, key);
+    let err = |message: String| AccuracyError::Cache {
+        path: path.display().to_string(),
+        message,
+    };
+    std::fs::create_dir_all(dir).map_err(|e| err(e.to_string()))?;
+    let text = serde_json::to_string_pretty(model).map_err(|e| err(e.to_string()))?;
+    let tmp = dir.join(format!("{key}.json.{}.tmp", std::process::id()));
+    std::fs::write(&tmp, text).map_err(|e| err(e.to_string()))?;
+    std::fs::rename(&tmp, &path).map_err(|e| err(e.to_string()))
+}
