@@ -315,7 +315,12 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
         ..defaults
     };
     let rows = [
-        ("as the scene asks", &scene, setting(defaults.samples, defaults.k, 0), None),
+        (
+            "as the scene asks",
+            &scene,
+            setting(defaults.samples, defaults.k, 0),
+            None,
+        ),
         (
             "planned",
             &planned,

@@ -41,16 +41,14 @@ impl ModelArgs {
     /// The cache folders: models, truths.
     pub fn cache(&self) -> CalibrationOptions {
         let root = self.model_cache.clone().unwrap_or_else(|| {
-            dirs::cache_dir().map_or_else(
-                || PathBuf::from("lightfold-cache"),
-                |d| d.join("lightfold"),
-            )
+            dirs::cache_dir()
+                .map_or_else(|| PathBuf::from("lightfold-cache"), |d| d.join("lightfold"))
         });
-        CalibrationOptions {
-            truth_samples: TRUTH_SAMPLES,
-            truth_cache: Some(root.join("accuracy")),
-            model_cache: Some(root.join("calibration")),
-        }
+        CalibrationOptions::standard(
+            TRUTH_SAMPLES,
+            Some(root.join("accuracy")),
+            Some(root.join("calibration")),
+        )
     }
 
     /// The model for `scene` (at its image size), `None` for the default scene's.
@@ -61,8 +59,7 @@ impl ModelArgs {
                 if self.calibrate {
                     return Ok(Some(run_calibration(scene, &self.cache())?.model));
                 }
-                let dir = self.cache().model_cache;
-                Ok(dir.and_then(|d| calibrate::cached_model(scene, &d)))
+                Ok(calibrate::cached_model(scene, &self.cache()))
             }
             path => calibrate::read_model(std::path::Path::new(path))
                 .map(Some)
@@ -96,33 +93,23 @@ impl ModelArgs {
 /// Calibrates `scene` (or reads its model from the cache) on this machine's GPU, saying so on
 /// stderr.
 pub fn run_calibration(scene: &Scene, opts: &CalibrationOptions) -> anyhow::Result<Calibration> {
-    if let Some(d) = &opts.model_cache
-        && let Some(model) = calibrate::cached_model(scene, d)
-    {
-        return Ok(Calibration {
-            model,
-            key: calibrate::model_key(scene),
-            from_cache: true,
-            seconds: 0.0,
-            truth_seconds: 0.0,
-            points: Vec::new(),
-            size: (scene.camera.width, scene.camera.height),
-            divisor: calibrate::divisor(scene.camera.width, scene.camera.height),
-        });
+    if calibrate::cached_model(scene, opts).is_none() {
+        eprintln!(
+            "calibrating the error model of this scene at {}×{} (truth and renders; cached after)…",
+            scene.camera.width, scene.camera.height
+        );
     }
-    eprintln!(
-        "calibrating the error model of this scene at {}×{} (truth and renders; cached after)…",
-        scene.camera.width, scene.camera.height
-    );
     let gpu = lightfold_node::gpu::Gpu::new(&lightfold_node::gpu::GpuOptions::default())
         .context("calibration needs a GPU adapter (or lavapipe)")?;
     let c = calibrate::calibrate(&gpu, scene, opts)?;
-    eprintln!(
-        "calibrated in {:.1} s (truth {:.1} s, renders {:.1} s), key {}",
-        c.seconds + c.truth_seconds,
-        c.truth_seconds,
-        c.seconds,
-        c.key
-    );
+    if !c.from_cache {
+        eprintln!(
+            "calibrated in {:.1} s (truth {:.1} s, renders {:.1} s), key {}",
+            c.seconds + c.truth_seconds,
+            c.truth_seconds,
+            c.seconds,
+            c.key
+        );
+    }
     Ok(c)
 }

@@ -47,6 +47,27 @@ pub struct CalibrationOptions {
     pub truth_cache: Option<PathBuf>,
     /// Where models are cached.
     pub model_cache: Option<PathBuf>,
+    /// Samples per area light measured (rising), and the map floors.
+    pub counts: Vec<u32>,
+    pub floors: Vec<u32>,
+}
+
+impl CalibrationOptions {
+    /// [`COUNTS`] and [`FLOORS`] with a truth of `truth_samples` points per area light, caches
+    /// under `truth_cache` and `model_cache`.
+    pub fn standard(
+        truth_samples: u32,
+        truth_cache: Option<PathBuf>,
+        model_cache: Option<PathBuf>,
+    ) -> CalibrationOptions {
+        CalibrationOptions {
+            truth_samples,
+            truth_cache,
+            model_cache,
+            counts: COUNTS.to_vec(),
+            floors: FLOORS.to_vec(),
+        }
+    }
 }
 
 /// One measured point.
@@ -87,7 +108,7 @@ pub fn divisor(width: u32, height: u32) -> u32 {
 /// The cache key of `scene`'s model: its content and image size, with the quality knobs the
 /// model does not depend on (samples per area light, map sizes, K) left out, and those it does
 /// (pattern, filter, biases, the area-light specular) kept.
-pub fn model_key(scene: &Scene) -> String {
+pub fn model_key(scene: &Scene, opts: &CalibrationOptions) -> String {
     let mut content = scene.clone();
     let q = &scene.quality;
     content.quality = lightfold_scene::Quality {
@@ -111,12 +132,17 @@ pub fn model_key(scene: &Scene) -> String {
     h.update(content.content_hash());
     h.update(scene.camera.width.to_le_bytes());
     h.update(scene.camera.height.to_le_bytes());
+    h.update(opts.truth_samples.to_le_bytes());
+    for v in opts.counts.iter().chain([&0]).chain(&opts.floors) {
+        h.update(v.to_le_bytes());
+    }
     hex::encode(&h.finalize()[..12])
 }
 
-/// The cached model of `scene` under `dir`, if there is a readable one.
-pub fn cached_model(scene: &Scene, dir: &Path) -> Option<ErrorModel> {
-    read_model(&model_path(dir, &model_key(scene))).ok()
+/// The cached model of `scene` under `opts`' model cache, if there is a readable one.
+pub fn cached_model(scene: &Scene, opts: &CalibrationOptions) -> Option<ErrorModel> {
+    let dir = opts.model_cache.as_ref()?;
+    read_model(&model_path(dir, &model_key(scene, opts))).ok()
 }
 
 fn model_path(dir: &Path, key: &str) -> PathBuf {
@@ -141,7 +167,16 @@ pub fn calibrate(
     scene: &Scene,
     opts: &CalibrationOptions,
 ) -> Result<Calibration, AccuracyError> {
-    let key = model_key(scene);
+    let key = model_key(scene, opts);
+    if opts.counts.len() < 2
+        || opts.counts.windows(2).any(|w| w[0] >= w[1])
+        || opts.floors.is_empty()
+    {
+        return Err(AccuracyError::Render {
+            setting: "calibration".into(),
+            message: "a calibration needs two or more rising sample counts and a map floor".into(),
+        });
+    }
     let (w, h) = (scene.camera.width, scene.camera.height);
     let d = divisor(w, h);
     let size = ((w / d).max(1), (h / d).max(1));
@@ -175,7 +210,8 @@ pub fn calibrate(
     let floors: Vec<(u32, MapSizing, u32)> = match q.map_sizing {
         MapSizing::Fixed => vec![(0, MapSizing::Fixed, q.shadow_map_size)],
         MapSizing::Mismatch(m) => {
-            let mut f: Vec<u32> = FLOORS.iter().map(|&f| f.max(m.min)).collect();
+            let mut f: Vec<u32> = opts.floors.iter().map(|&f| f.max(m.min)).collect();
+            f.sort_unstable();
             f.dedup();
             f.into_iter()
                 .map(|floor| {
@@ -206,7 +242,7 @@ pub fn calibrate(
         let mut filtered = Vec::new();
         let mut filter_gains = true;
         let (mut sum_nt, mut sum_nn) = (0.0, 0.0);
-        for n in COUNTS {
+        for &n in &opts.counts {
             cal.quality.samples_per_area_light = Some(n);
             let settings: Vec<Setting> = std::iter::once(0)
                 .chain(radii.iter().copied())
@@ -288,10 +324,17 @@ pub fn calibrate(
 
 /// Penumbra PSNR of `image` against the truth (the whole image's where the truth has no
 /// penumbra), capped at [`CAP_DB`].
-fn penumbra_db(truth: &lightfold_reference::GroundTruth, image: &Image) -> Result<f64, AccuracyError> {
+fn penumbra_db(
+    truth: &lightfold_reference::GroundTruth,
+    image: &Image,
+) -> Result<f64, AccuracyError> {
     let m = truth.compare(image)?;
     let e = m.penumbra.filter(|p| p.pixels > 0).unwrap_or(m.whole);
-    Ok(if e.psnr.is_finite() { e.psnr.min(CAP_DB) } else { CAP_DB })
+    Ok(if e.psnr.is_finite() {
+        e.psnr.min(CAP_DB)
+    } else {
+        CAP_DB
+    })
 }
 
 /// Writes the model beside the others (a temporary file renamed into place, so a reader never

@@ -475,15 +475,15 @@ fn to_target(
     };
     let mut o = options.clone();
     let mut floor = 0;
-    if floors_free
-        && let MapSizing::Mismatch { min, max, target } = sizing
-    {
-        floor = choice.map_floor.max(min);
+    if floors_free && let MapSizing::Mismatch { min, max, target } = sizing {
+        let f = choice.map_floor.max(min);
         o.map_sizing = MapSizing::Mismatch {
-            min: floor,
-            max: max.max(floor),
+            min: f,
+            max: max.max(f),
             target,
         };
+        // Recorded only where raised.
+        floor = if f > min { f } else { 0 };
     }
     Some((
         s,
@@ -513,7 +513,10 @@ mod tests {
         assert_eq!(resolve_radius(c, b, Some(16), Some(16)), 0);
         assert_eq!(resolve_radius(c, b, Some(16), Some(4)), 2);
         assert_eq!(resolve_radius(c, b, None, Some(16)), 1);
-        assert_eq!(resolve_radius(c, PenumbraFilter::Auto, Some(16), Some(16)), 1);
+        assert_eq!(
+            resolve_radius(c, PenumbraFilter::Auto, Some(16), Some(16)),
+            1
+        );
         assert_eq!(resolve_radius(c, PenumbraFilter::Off, Some(16), Some(4)), 0);
         assert_eq!(
             resolve_radius(c, PenumbraFilter::Radius(5), Some(16), Some(64)),

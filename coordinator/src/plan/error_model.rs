@@ -59,7 +59,13 @@ pub struct Choice {
 
 /// The balls sweep without the filter (grid pattern, 512² maps, PCF 2×2, 400×300):
 /// 1 → 27.39, 4 → 37.34, 16 → 47.53, 64 → 55.51, 256 → 58.09 dB.
-const BALLS: [(u32, f32); 5] = [(1, 27.39), (4, 37.34), (16, 47.53), (64, 55.51), (256, 58.09)];
+const BALLS: [(u32, f32); 5] = [
+    (1, 27.39),
+    (4, 37.34),
+    (16, 47.53),
+    (64, 55.51),
+    (256, 58.09),
+];
 
 /// The same sweep with the filter at its best radius (`docs/accuracy/balls-penumbra`). From 32
 /// samples on the filter measured no better than none (+0.5 dB at 32 for −2.7 dB over the whole
@@ -112,7 +118,9 @@ impl ErrorModel {
                 && c.seconds_per_sample.is_finite()
                 && c.seconds_per_sample >= 0.0;
             if !rising || !finite {
-                return Err("an error-model curve's counts must rise and its figures be finite".into());
+                return Err(
+                    "an error-model curve's counts must rise and its figures be finite".into(),
+                );
             }
         }
         Ok(())
@@ -195,7 +203,11 @@ impl Curve {
     /// Penumbra PSNR at `n` samples per area light without the filter: piecewise linear in
     /// log₂ n through the measured points, the end slopes beyond them.
     pub fn db(&self, n: u32) -> f32 {
-        let pts: Vec<(f32, f32)> = self.unfiltered.iter().map(|&(n, d)| (n as f32, d)).collect();
+        let pts: Vec<(f32, f32)> = self
+            .unfiltered
+            .iter()
+            .map(|&(n, d)| (n as f32, d))
+            .collect();
         through_log2(&pts, n)
     }
 

@@ -3,8 +3,8 @@
 //! gives the same plan for the same inputs.
 
 use lightfold_coordinator::plan::{
-    ClusterSpec, Knob, MAX_EPSILON, PenumbraFilter, Plan, PlanOptions, expected_penumbra_db, plan,
-    replan, scene_hash,
+    ClusterSpec, Curve, ErrorModel, Knob, MAX_EPSILON, PenumbraFilter, Plan, PlanOptions,
+    expected_penumbra_db, plan, replan, scene_hash,
 };
 use lightfold_protocol::{Layer, OpSource};
 use lightfold_scene::Scene;
@@ -483,4 +483,112 @@ fn the_filter_is_added_only_where_the_last_stage_can_run_it_within_the_budget() 
     assert!(filter_cost_us(1, 1920, 1080, one.band_height, 1) / 1e3 > budget_ms as f64);
     // An explicit radius is kept whatever it costs.
     assert_eq!(with(1, PenumbraFilter::Radius(4)).penumbra_radius, 4);
+}
+
+/// A calibration of a scene whose shadows need large maps (as the Fox's do): more samples at
+/// the scene's own floor stop gaining, 2048² maps reach further, the filter gains at few samples.
+fn map_bound_model() -> ErrorModel {
+    ErrorModel {
+        source: "test calibration".into(),
+        calibrated: true,
+        curves: vec![
+            Curve {
+                map_floor: 512,
+                unfiltered: vec![(4, 29.0), (16, 35.5), (64, 37.5), (128, 37.8)],
+                filtered: vec![(4, 2, 31.0)],
+                seconds_per_sample: 0.010,
+            },
+            Curve {
+                map_floor: 2048,
+                unfiltered: vec![(4, 30.0), (16, 40.0), (64, 46.0), (128, 48.0)],
+                filtered: vec![(4, 2, 32.0)],
+                seconds_per_sample: 0.030,
+            },
+        ],
+    }
+}
+
+#[test]
+fn a_calibrated_target_chooses_samples_map_floor_and_filter_at_the_least_measured_cost() {
+    let s = balls();
+    let at = |target: f32, model: Option<ErrorModel>| {
+        plan(
+            &s,
+            &ClusterSpec::local(256, 256),
+            &PlanOptions {
+                target_penumbra_db: Some(target),
+                error_model: model,
+                ..PlanOptions::default()
+            },
+        )
+        .unwrap()
+    };
+    // 45 dB: only 2048² maps reach it, at 64 samples per light (46 dB; 32 would give 43).
+    let p = at(45.0, Some(map_bound_model()));
+    let t = p.target.clone().unwrap();
+    assert_eq!(
+        (t.to, t.map_floor, t.penumbra_radius),
+        (64, 2048, 0),
+        "{t:?}"
+    );
+    assert!(t.calibrated && t.reachable && (t.expected_db - 46.0).abs() < 1e-4);
+    assert_eq!(p.samples.len(), 2 * 64);
+    // Every map at least the floor, where the rule alone gives smaller ones.
+    let sides = |p: &Plan| {
+        p.nodes
+            .iter()
+            .flat_map(|n| n.shadows.iter().map(|m| m.map_size))
+            .collect::<Vec<_>>()
+    };
+    assert!(sides(&p).iter().all(|&n| n >= 2048), "{:?}", sides(&p));
+    let rule = at(20.0, None);
+    assert!(sides(&rule).iter().any(|&n| n < 2048), "{:?}", sides(&rule));
+    let text = p.to_string();
+    assert!(
+        text.contains("shadow maps from 2048²") && text.contains("this scene's calibration"),
+        "{text}"
+    );
+    // 35 dB: the scene's floor at 16 samples is cheapest (0.16 s against 0.48 s at 2048²).
+    let t = at(35.0, Some(map_bound_model())).target.unwrap();
+    assert_eq!((t.to, t.map_floor), (16, 0), "{t:?}");
+    // 30.5 dB: 4 samples filtered (31 dB) beat 8 unfiltered; the plan filters at the model's
+    // radius.
+    let p = at(30.5, Some(map_bound_model()));
+    let t = p.target.clone().unwrap();
+    assert_eq!(
+        (t.to, t.penumbra_radius, p.penumbra_radius),
+        (4, 2, 2),
+        "{t:?}"
+    );
+    // Control: the default scene's model, which knows nothing of maps, expects 45 dB from 16
+    // samples at the scene's floor — what this scene's calibration says gives 35.5 dB.
+    let t = at(45.0, None).target.unwrap();
+    assert_eq!((t.to, t.map_floor), (16, 0), "{t:?}");
+    assert!(!t.calibrated && map_bound_model().curve(512).db(16) < 40.0);
+}
+
+#[test]
+fn one_map_size_asked_for_keeps_its_size_under_a_calibrated_target() {
+    let s = balls();
+    let p = plan(
+        &s,
+        &ClusterSpec::local(256, 256),
+        &PlanOptions {
+            target_penumbra_db: Some(45.0),
+            error_model: Some(map_bound_model()),
+            map_sizing: lightfold_coordinator::plan::MapSizing::Fixed(1024),
+            ..PlanOptions::default()
+        },
+    )
+    .unwrap();
+    let t = p.target.clone().unwrap();
+    assert_eq!(t.map_floor, 0, "{t:?}");
+    assert!(
+        p.nodes
+            .iter()
+            .flat_map(|n| &n.shadows)
+            .all(|m| m.map_size == 1024)
+    );
+    // Out of reach on the floor it has: the most it measured, said so.
+    assert!(!t.reachable && t.to == 128, "{t:?}");
 }

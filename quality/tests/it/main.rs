@@ -1,4 +1,5 @@
 //! The integration tests of `quality`, one binary (each file of this folder a module).
 
 mod accuracy_sweep;
+mod calibration;
 mod hard_cases;
