@@ -499,6 +499,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             ),
             None => (samples, format!("the scene's {n} point samples")),
         };
+        if let Some(p) = rendered.as_ref().filter(|p| p.penumbra_radius > 0) {
+            outln!(
+                "the plan filters the penumbra (radius {}): the difference to the point sum \
+                 below includes the filter's change, made to bring the image nearer the area \
+                 lights the samples stand for{}",
+                p.penumbra_radius,
+                p.target.as_ref().map_or_else(String::new, |t| format!(
+                    " ({:.1} dB penumbra PSNR against their truth expected by {})",
+                    t.expected_db,
+                    if t.calibrated {
+                        "this scene's calibration"
+                    } else {
+                        "the default scene's error model"
+                    }
+                ))
+            );
+        }
         crate::compare_reference::report(&last, &samples, &which, &args.job.exr, args.job.aa)?;
     }
     Ok(())

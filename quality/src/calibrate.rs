@@ -36,7 +36,7 @@ const CAP_DB: f64 = 100.0;
 /// The largest cached model read back (bytes).
 const MAX_MODEL_BYTES: u64 = 1 << 20;
 
-const CACHE_VERSION: &[u8] = b"lightfold-calibration-v1";
+const CACHE_VERSION: &[u8] = b"lightfold-calibration-v2";
 
 /// How to calibrate.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -78,6 +78,7 @@ pub struct CalPoint {
     /// Filter radius at the plan's size (0: none).
     pub radius: u32,
     pub penumbra_db: f64,
+    pub whole_db: f64,
     pub node_seconds: f64,
 }
 
@@ -258,14 +259,17 @@ pub fn calibrate(
                 .collect();
             let measured = measure_prepared(gpu, &cal, &settings, 1)?;
             let mut dbs = Vec::with_capacity(measured.len());
+            let mut wholes = Vec::with_capacity(measured.len());
             for (s, m) in settings.iter().zip(&measured) {
-                let db = penumbra_db(&truth.truth, &m.image)?;
+                let (db, whole) = psnr(&truth.truth, &m.image)?;
+                wholes.push(whole);
                 let secs: f64 = m.node_seconds.iter().sum();
                 points.push(CalPoint {
                     map_floor: floor,
                     samples: n,
                     radius: s.penumbra * d,
                     penumbra_db: db,
+                    whole_db: whole,
                     node_seconds: secs,
                 });
                 dbs.push(db);
@@ -275,10 +279,15 @@ pub fn calibrate(
             sum_nn += f64::from(n) * f64::from(n);
             unfiltered.push((n, dbs[0] as f32));
             // The filter's curve is the counts from the fewest up to the first where no radius
-            // gains: the planner reads it as "filter up to here".
+            // gains: the planner reads it as "filter up to here". A radius gains where the
+            // penumbra does and the whole image loses nothing (the filter also averages shading
+            // and contact shadows outside the penumbra).
             let best = dbs[1..]
                 .iter()
+                .zip(&wholes[1..])
                 .zip(&radii)
+                .filter(|((_, whole), _)| **whole >= wholes[0])
+                .map(|((db, _), r)| (db, r))
                 .max_by(|a, b| a.0.total_cmp(b.0));
             match best {
                 Some((&db, &r)) if filter_gains && db > dbs[0] + FILTER_GAIN_DB => {
@@ -323,18 +332,21 @@ pub fn calibrate(
 }
 
 /// Penumbra PSNR of `image` against the truth (the whole image's where the truth has no
-/// penumbra), capped at [`CAP_DB`].
-fn penumbra_db(
+/// penumbra) and whole-image PSNR, capped at [`CAP_DB`].
+fn psnr(
     truth: &lightfold_reference::GroundTruth,
     image: &Image,
-) -> Result<f64, AccuracyError> {
+) -> Result<(f64, f64), AccuracyError> {
     let m = truth.compare(image)?;
+    let cap = |db: f64| {
+        if db.is_finite() {
+            db.min(CAP_DB)
+        } else {
+            CAP_DB
+        }
+    };
     let e = m.penumbra.filter(|p| p.pixels > 0).unwrap_or(m.whole);
-    Ok(if e.psnr.is_finite() {
-        e.psnr.min(CAP_DB)
-    } else {
-        CAP_DB
-    })
+    Ok((cap(e.psnr), cap(m.whole.psnr)))
 }
 
 /// Writes the model beside the others (a temporary file renamed into place, so a reader never
