@@ -11,8 +11,8 @@ bin=${LIGHTFOLD_BIN:-target/release/lightfold}
 scenes=(balls box plant animal cornell carousel city
   assets/AlphaBlendModeTest/AlphaBlendModeTest.gltf assets/BoxTextured/BoxTextured.gltf
   assets/CesiumMan/CesiumMan.gltf assets/FlightHelmet/FlightHelmet.gltf assets/Fox/Fox.glb)
-echo "| scene | setting | samples/light | map floor | filter | penumbra PSNR (expected) | whole PSNR | node-s |"
-echo "|---|---|---:|---:|---:|---:|---:|---:|"
+echo "| scene | setting | samples/light | map floor | filter | penumbra PSNR (expected) | whole PSNR | node-s | truth floor |"
+echo "|---|---|---:|---:|---:|---:|---:|---:|---:|"
 for s in "${scenes[@]}"; do
   start=$SECONDS
   LP_NUM_THREADS=${LP_NUM_THREADS:-2} NODEVICE_SELECT=1 "$bin" --log warn accuracy --planned \

@@ -329,9 +329,9 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
         ),
     ];
     outln!(
-        "| scene | setting | samples/light | map floor | filter | penumbra PSNR (expected) | whole PSNR | node-s |"
+        "| scene | setting | samples/light | map floor | filter | penumbra PSNR (expected) | whole PSNR | node-s | truth floor |"
     );
-    outln!("|---|---|---:|---:|---:|---:|---:|---:|");
+    outln!("|---|---|---:|---:|---:|---:|---:|---:|---:|");
     for (what, s, setting, expected) in rows {
         let m = measure_prepared(&gpu, s, &[setting], args.repeats)?;
         let m = &m[0];
@@ -342,7 +342,7 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
             _ => "rule".to_string(),
         };
         outln!(
-            "| {} | {what} | {} | {floor_text} | {} | {pen:.2} dB{} | {:.2} dB | {:.3} |",
+            "| {} | {what} | {} | {floor_text} | {} | {pen:.2} dB{} | {:.2} dB | {:.3} | {:.2} dB |",
             scene_label(&args.scene),
             setting.samples,
             if setting.penumbra > 0 {
@@ -353,6 +353,7 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
             expected.map_or_else(String::new, |e| format!(" ({e:.2})")),
             metrics.whole.psnr,
             m.node_seconds.iter().sum::<f64>(),
+            truth.floor.penumbra.map_or(f64::NAN, |e| e.psnr),
         );
     }
     Ok(())

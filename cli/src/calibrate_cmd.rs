@@ -32,6 +32,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let c = run_calibration(&scene, &args.model.cache())?;
     outln!("error model: {}", c.model.source);
+    if c.model.truth_floor_db > 0.0 {
+        outln!(
+            "truth's noise floor in the penumbra: {:.2} dB (figures near it are as good as the \
+             truth can tell)",
+            c.model.truth_floor_db
+        );
+    }
     if c.from_cache {
         outln!("(from the cache, key {})", c.key);
     } else {

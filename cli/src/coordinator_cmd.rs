@@ -93,7 +93,62 @@ pub struct ViewArgs {
     #[arg(long, default_value_t = 85, value_parser = clap::value_parser!(u8).range(1..=100))]
     pub jpeg_quality: u8,
     #[command(flatten)]
+    pub refine: RefineArgs,
+    #[command(flatten)]
     pub access: ViewAccessArgs,
+}
+
+/// Refinement while the live view is idle (`docs/live-view.md` § Refinement when idle): shared
+/// by `coordinator --http` and `demo --serve`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct RefineArgs {
+    /// Live view: once no viewer has changed anything for MS milliseconds, render the frame
+    /// again at a higher quality, one step a frame (the samples per area light doubled, then the
+    /// antialiasing factor doubled, up to their caps); any input drops back to the session's
+    /// quality (its frame budget's) in the next frame.
+    #[arg(long, value_name = "MS", default_value_t = 500)]
+    pub refine_after: u64,
+    /// Live view: no refinement while idle.
+    #[arg(long)]
+    pub no_refine: bool,
+    /// Live view: the samples per area light refinement doubles up to (default: 4 × the
+    /// scene's largest count, at most 256).
+    #[arg(long, value_name = "N",
+          value_parser = clap::value_parser!(u32).range(1..=i64::from(lightfold_scene::limits::MAX_SAMPLES_PER_AREA_LIGHT)))]
+    pub refine_max_samples: Option<u32>,
+    /// Live view: the antialiasing factor refinement doubles up to once the samples are at
+    /// their cap (1: no antialiasing step).
+    #[arg(long, value_name = "N", default_value_t = 2,
+          value_parser = clap::value_parser!(u32).range(1..=16))]
+    pub refine_max_aa: u32,
+}
+
+impl RefineArgs {
+    /// The view's refinement (`None`: `--no-refine`).
+    pub fn options(&self) -> Option<lightfold_view::RefineOptions> {
+        (!self.no_refine).then(|| lightfold_view::RefineOptions {
+            after: std::time::Duration::from_millis(self.refine_after),
+            max_samples: self.refine_max_samples.unwrap_or(0),
+            max_supersample: self.refine_max_aa,
+        })
+    }
+
+    /// The same flags for a coordinator started by `demo`.
+    pub fn to_args(&self) -> Vec<std::ffi::OsString> {
+        let mut a: Vec<std::ffi::OsString> = Vec::new();
+        if self.no_refine {
+            a.push("--no-refine".into());
+        }
+        a.push("--refine-after".into());
+        a.push(self.refine_after.to_string().into());
+        if let Some(n) = self.refine_max_samples {
+            a.push("--refine-max-samples".into());
+            a.push(n.to_string().into());
+        }
+        a.push("--refine-max-aa".into());
+        a.push(self.refine_max_aa.to_string().into());
+        a
+    }
 }
 
 /// Who may see the live view, and over what (`docs/live-view.md` § Access): shared by
@@ -167,6 +222,7 @@ impl ViewArgs {
             listen: listen.clone(),
             token: Some(token),
             continuous: self.continuous,
+            refine: self.refine.options(),
             jpeg_quality: self.jpeg_quality,
             public_watch: self.access.public_watch,
             tls: self.access.tls()?,

@@ -55,6 +55,9 @@ pub struct Args {
     /// With `--serve`: who may see the view, and over what (as `coordinator --http`).
     #[command(flatten)]
     pub view_access: crate::coordinator_cmd::ViewAccessArgs,
+    /// With `--serve`: refinement while the view is idle (as `coordinator --http`).
+    #[command(flatten)]
+    pub refine: crate::coordinator_cmd::RefineArgs,
     /// Every daemon and the coordinator serve `/metrics`, `/healthz` and `/readyz` on a loopback
     /// port of its own (`--metrics-listen`; the addresses are printed).
     #[arg(long)]
@@ -395,6 +398,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             coord.arg("--continuous");
         }
         coord.args(args.view_access.to_args());
+        coord.args(args.refine.to_args());
     }
     if args.metrics {
         coord.args(["--metrics-listen", ANY_PORT]);

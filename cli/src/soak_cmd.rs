@@ -384,6 +384,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     light_colors: steered_colours(u64::from(i) + 1, steer_every),
                     time: None,
                     frame_budget_us: None,
+                    refine: None,
                 };
                 tokio::select! {
                     biased;

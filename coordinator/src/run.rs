@@ -153,6 +153,7 @@ pub fn frame_specs(scene: &Scene, opts: &RunOptions) -> Vec<FrameSpec> {
                 light_colors: colors.clone(),
                 time: opts.time_of(i),
                 frame_budget_us: None,
+                refine: None,
             }
         })
         .collect()

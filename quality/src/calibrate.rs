@@ -311,6 +311,10 @@ pub fn calibrate(
         ),
         calibrated: true,
         curves,
+        truth_floor_db: truth
+            .floor
+            .penumbra
+            .map_or(0.0, |p| p.psnr.min(CAP_DB) as f32),
     };
     model.check().map_err(|message| AccuracyError::Render {
         setting: "calibration".into(),

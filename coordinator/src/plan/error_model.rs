@@ -41,6 +41,10 @@ pub struct ErrorModel {
     pub calibrated: bool,
     /// One curve per map floor, rising floors; at least one.
     pub curves: Vec<Curve>,
+    /// The truth's own noise in the penumbra (its PSNR against a second seed, dB; 0: unknown):
+    /// figures near it are as good as the truth can tell.
+    #[serde(default)]
+    pub truth_floor_db: f32,
 }
 
 /// One choice of an error target (`ErrorModel::cheapest`).
@@ -92,6 +96,7 @@ impl ErrorModel {
             source: "the default scene's sweep (balls, 400×300); no calibration of this scene"
                 .into(),
             calibrated: false,
+            truth_floor_db: 56.73,
             curves: vec![Curve {
                 map_floor: 0,
                 unfiltered: BALLS.to_vec(),
@@ -140,7 +145,8 @@ impl ErrorModel {
     }
 
     /// The cheapest `(samples, floor, radius)` whose expected penumbra PSNR reaches `target_db`,
-    /// among sample counts `from·2^k` (or `from/2^k`) the model measured, every floor, and the
+    /// among the counts a calibration measured (for the default scene's model: `from·2^k` or
+    /// `from/2^k` up to the most it measured), every floor, and the
     /// filter where `filter` allows it (`filter(curve, n)` gives the radius to use at `n` on
     /// that curve). When none reaches the target: the highest expected PSNR (cheapest
     /// among equals). Costs: the measured node-seconds per sample, else samples × (1 + map
@@ -153,18 +159,25 @@ impl ErrorModel {
     ) -> Choice {
         let mut all = Vec::new();
         for c in &self.curves {
-            let top = c.measured_up_to().max(from);
-            let mut counts = vec![from.max(1)];
-            let mut n = from.max(1);
-            while n > 1 {
-                n /= 2;
-                counts.push(n);
-            }
-            let mut n = from.max(1);
-            while n * 2 <= top {
-                n *= 2;
-                counts.push(n);
-            }
+            // A calibration's own counts (every area light takes the count chosen), so each
+            // figure is one it measured; the default scene's model scales the scene's counts.
+            let counts: Vec<u32> = if self.calibrated {
+                c.unfiltered.iter().map(|p| p.0).collect()
+            } else {
+                let top = c.measured_up_to().max(from);
+                let mut counts = vec![from.max(1)];
+                let mut n = from.max(1);
+                while n > 1 {
+                    n /= 2;
+                    counts.push(n);
+                }
+                let mut n = from.max(1);
+                while n * 2 <= top {
+                    n *= 2;
+                    counts.push(n);
+                }
+                counts
+            };
             for n in counts {
                 let radius = filter(c, n);
                 let side = if c.map_floor == 0 { 512 } else { c.map_floor };
@@ -285,6 +298,7 @@ mod tests {
         ErrorModel {
             source: "test".into(),
             calibrated: true,
+            truth_floor_db: 0.0,
             curves: vec![
                 Curve {
                     map_floor: 512,
@@ -307,8 +321,8 @@ mod tests {
         let m = model();
         assert!(m.check().is_ok());
         let any = |c: &Curve, n| c.filter_radius(n);
-        // 36 dB: 16 samples at the small floor (0.16 s) beats 8 at 2048² (0.24 s); with the
-        // filter 8 samples reach 35 only (between 33 and 37), so 16 unfiltered or filtered.
+        // 36 dB: 16 samples at the small floor (0.16 s) beat 16 at 2048² (0.48 s); 4 filtered
+        // reach 33 only.
         let c = m.cheapest(36.0, 16, any);
         assert_eq!((c.samples, c.map_floor), (16, 512), "{c:?}");
         // 45 dB only the large floor reaches, at 64 samples (model 47 dB at 64, 43.5 at 32).
@@ -319,11 +333,12 @@ mod tests {
         assert_eq!((c.samples, c.map_floor), (64, 2048));
         assert!(c.db < 60.0);
         // The filter gives 33 dB at 4 samples where none gives 30: a 32 dB target takes 4
-        // samples filtered, or 8 unfiltered (33 dB) when the filter is not allowed.
+        // samples filtered, or 16 unfiltered when the filter is not allowed (a calibration's
+        // choices are the counts it measured: no 8 between them).
         let c = m.cheapest(32.0, 16, any);
         assert_eq!((c.samples, c.radius), (4, 2), "{c:?}");
         let c = m.cheapest(32.0, 16, |_: &Curve, _| 0);
-        assert_eq!((c.samples, c.radius), (8, 0), "{c:?}");
+        assert_eq!((c.samples, c.radius, c.map_floor), (16, 0, 512), "{c:?}");
     }
 
     #[test]

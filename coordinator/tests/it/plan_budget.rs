@@ -491,6 +491,7 @@ fn map_bound_model() -> ErrorModel {
     ErrorModel {
         source: "test calibration".into(),
         calibrated: true,
+        truth_floor_db: 0.0,
         curves: vec![
             Curve {
                 map_floor: 512,
@@ -551,7 +552,7 @@ fn a_calibrated_target_chooses_samples_map_floor_and_filter_at_the_least_measure
     // 35 dB: the scene's floor at 16 samples is cheapest (0.16 s against 0.48 s at 2048²).
     let t = at(35.0, Some(map_bound_model())).target.unwrap();
     assert_eq!((t.to, t.map_floor), (16, 0), "{t:?}");
-    // 30.5 dB: 4 samples filtered (31 dB) beat 8 unfiltered; the plan filters at the model's
+    // 30.5 dB: 4 samples filtered (31 dB) beat 16 unfiltered; the plan filters at the model's
     // radius.
     let p = at(30.5, Some(map_bound_model()));
     let t = p.target.clone().unwrap();

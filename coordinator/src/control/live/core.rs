@@ -10,8 +10,8 @@
 
 use super::epoch::Establishing;
 use super::{
-    ErrorVerdict, FrameSpec, Incident, IncidentKind, LiveState, LiveStatus, LiveSummary, Refused,
-    STATUS_INCIDENTS, Settings, WARM_UP, WARNING_EVERY, judge_error, ledger,
+    ErrorVerdict, FrameSpec, Incident, IncidentKind, LiveState, LiveStatus, LiveSummary, Refine,
+    Refused, STATUS_INCIDENTS, Settings, WARM_UP, WARNING_EVERY, judge_error, ledger,
 };
 use crate::control::session::{ControlError, ControlOptions, FrameResult};
 use crate::control::sink::{SinkEvent, SinkGeometry};
@@ -142,6 +142,11 @@ pub(crate) struct Core {
     /// renders it with, whatever the light was recoloured to since.
     pub(super) scene_colors: Vec<[f32; 3]>,
     pub(super) opts: PlanOptions,
+    /// The refinement the plan renders (`FrameSpec::refine`), above the session's quality.
+    pub(super) refine: Option<Refine>,
+    /// The samples per area light an error target chose in the newest plan without a
+    /// refinement: refinements plan no target, and never fewer samples than it chose.
+    pub(super) target_samples: Option<u32>,
     pub(super) bytes: Arc<Vec<u8>>,
     pub(super) hash: [u8; 32],
     /// Sort-last partitions: the scene each node needs (`scene::partition::keep_meshes`), by
@@ -253,6 +258,8 @@ impl Core {
             out: VecDeque::new(),
             scene,
             opts,
+            refine: None,
+            target_samples: None,
             bytes: Arc::new(bytes),
             hash,
             subsets: HashMap::new(),
@@ -356,6 +363,12 @@ impl Core {
     /// The plan in use.
     pub fn plan(&self) -> Option<&Plan> {
         self.plan.as_ref()
+    }
+
+    /// The antialiasing factor frames are rendered at: the session's, or its refinement's.
+    pub(super) fn supersample(&self) -> u32 {
+        let session = self.opts.supersample.max(1);
+        self.refine.map_or(session, |r| r.supersample.max(session))
     }
 
     /// A watcher of the state (plan, epochs, incidents, lost daemons, notices).
@@ -825,6 +838,10 @@ impl Core {
             // A join waiting as well is folded into the same epoch.
             self.pending_join = None;
             return Some((r, false));
+        }
+        // A refinement is planned with no budget: its frames say nothing of the budget's plan.
+        if self.refine.is_some() {
+            return None;
         }
         let plan = self.plan.as_ref()?;
         let cluster = self.cluster();

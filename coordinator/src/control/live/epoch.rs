@@ -5,12 +5,13 @@
 //! requests, joins and heartbeats go on meanwhile.
 
 use super::core::{Command, Core, Phase, SceneBytes};
-use super::{EpochRecord, MAX_REPLANS_WITHOUT_PROGRESS, Settings};
+use super::{EpochRecord, MAX_REPLANS_WITHOUT_PROGRESS, Refine, Settings};
 use crate::control::session::ControlError;
 use crate::control::sink::SinkGeometry;
-use crate::plan::{Plan, PlanError, lights_moved, plan, replan};
+use crate::plan::{Plan, PlanError, PlanOptions, lights_moved, plan, replan};
 use crate::run::RunError;
 use lightfold_protocol::{ErrorCode, Message};
+use lightfold_scene::Scene;
 use std::collections::{BTreeMap, BTreeSet};
 use std::sync::Arc;
 use std::time::Instant;
@@ -100,9 +101,30 @@ impl Core {
         let mut o = self.opts.clone();
         o.epoch = self.first_epoch + self.epochs_used;
         let cluster = self.cluster();
-        let next = match &self.plan {
-            Some(prev) => replan(&self.scene, &cluster, &o, prev),
-            None => plan(&self.scene, &cluster, &o),
+        let plan_for = |scene: &Scene, o: &PlanOptions| match &self.plan {
+            Some(prev) => replan(scene, &cluster, o, prev),
+            None => plan(scene, &cluster, o),
+        };
+        // A refinement that cannot be planned (too many samples for the nodes there are, say)
+        // is dropped, and the session's quality planned instead.
+        let refined = self.refine.map(|r| {
+            refined(&self.scene, r, self.target_samples, &o)
+                .and_then(|(scene, ro)| plan_for(&scene, &ro).map_err(|e| e.to_string()))
+        });
+        let next = match refined {
+            None => plan_for(&self.scene, &o),
+            Some(Ok(next)) => Ok(next),
+            Some(Err(why)) => {
+                // Not to be tried again: frames asking for it get the session's quality.
+                tracing::warn!(
+                    "the refinement ({}) cannot be planned: {why}; rendering at the session's \
+                     quality",
+                    self.refine.map(|r| r.to_string()).unwrap_or_default()
+                );
+                let next = plan_for(&self.scene, &o);
+                self.refused.refine = Some(self.refine.take());
+                next
+            }
         };
         match next {
             Ok(next) => self.begin(next, reason, now),
@@ -184,6 +206,7 @@ impl Core {
     /// the configurations once every node holds its scene, and makes it the plan once every
     /// daemon applied its configuration. Returns whether it changed anything.
     pub(super) fn advance(&mut self, now: Instant) -> Result<bool, RunError> {
+        let supersample = self.supersample();
         let Phase::Configuring(est) = &mut self.phase else {
             return Ok(false);
         };
@@ -222,7 +245,7 @@ impl Core {
                 width: next.width,
                 height: next.height,
                 band_height: next.band_height,
-                supersample: self.opts.supersample.max(1),
+                supersample,
             };
             est.configs_sent = true;
             est.waiting = configs.iter().map(|(id, _)| id.clone()).collect();
@@ -388,10 +411,14 @@ impl Core {
         self.summary.plan = Some(next.clone());
         let cluster = self.cluster();
         self.adapt.epoch(&next, &cluster, &self.opts);
+        if self.refine.is_none() {
+            self.target_samples = next.target.as_ref().map(|t| t.to);
+        }
         self.good = Some(Settings {
             epoch: next.epoch,
             colors: self.scene.lights.iter().map(|l| l.color).collect(),
             opts: self.opts.clone(),
+            refine: self.refine,
         });
         self.refusals = 0;
         self.plan = Some(next);
@@ -493,6 +520,14 @@ impl Core {
         if self.opts.cost_scale != good.opts.cost_scale {
             undone.push("the cost model".to_string());
         }
+        if self.refine != good.refine {
+            self.refused.refine = Some(self.refine);
+            undone.push(match good.refine {
+                Some(r) => format!("the refinement ({r})"),
+                None => "the session's quality (no refinement)".to_string(),
+            });
+            self.refine = good.refine;
+        }
         if !undone.is_empty() {
             self.opts = good.opts.clone();
         }
@@ -556,6 +591,42 @@ impl Core {
         self.subsets.insert(kept, entry.clone());
         Ok(entry)
     }
+}
+
+/// The scene and options refinement `r` plans from the nodes' `scene` (at the session's
+/// antialiasing factor, `options.supersample`) and the session's `options`: every area light at
+/// the refinement's samples (at least the `target_samples` an error target of the session chose),
+/// the camera at its factor, no frame budget or error target. The nodes keep the scene they hold:
+/// the samples and the camera travel in the configurations.
+fn refined(
+    scene: &Scene,
+    r: Refine,
+    target_samples: Option<u32>,
+    options: &PlanOptions,
+) -> Result<(Scene, PlanOptions), String> {
+    let session = options.supersample.max(1);
+    let factor = r.supersample.max(session);
+    let mut s = scene.clone();
+    if r.samples_per_area_light > 0 && s.lights.iter().any(|l| l.is_area()) {
+        let n = r.samples_per_area_light.max(target_samples.unwrap_or(0));
+        lightfold_scene::limits::check_samples_per_area_light(
+            "the refinement's samples per area light",
+            n,
+        )
+        .map_err(|e| e.to_string())?;
+        s.quality.samples_per_area_light = Some(n);
+    }
+    // The scene's camera is the session's factor × the frames' size.
+    let mut camera = s.camera;
+    (camera.width, camera.height) = (camera.width / session, camera.height / session);
+    s.camera = camera.supersampled(factor).map_err(|e| e.to_string())?;
+    let o = PlanOptions {
+        frame_budget_us: None,
+        target_penumbra_db: None,
+        supersample: factor,
+        ..options.clone()
+    };
+    Ok((s, o))
 }
 
 /// Whether a plan error means the cluster is too small (rather than a bad scene or options).

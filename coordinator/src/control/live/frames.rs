@@ -28,7 +28,11 @@ impl Core {
         let Some(r) = ledger::result(f, latency_frames) else {
             return;
         };
-        if !warming && self.plan.as_ref().is_some_and(|p| p.epoch == r.epoch) {
+        // Refined frames are planned with no budget: they would mislead the budget's cost model.
+        if !warming
+            && self.refine.is_none()
+            && self.plan.as_ref().is_some_and(|p| p.epoch == r.epoch)
+        {
             self.adapt.measure(&self.opts, &r.stats);
         }
         self.frames.finished(r);
@@ -60,7 +64,7 @@ impl Core {
             let Some((index, mut spec)) = self.frames.queue.pop_front() else {
                 break;
             };
-            self.refused.strip(&mut spec);
+            self.refused.strip(&mut spec, self.refine);
             // A light the request names no colour for has the scene's, also after a re-plan
             // recoloured it.
             for (l, (now, given)) in self.scene.lights.iter().zip(&self.scene_colors).enumerate() {
@@ -72,22 +76,42 @@ impl Core {
             let Some(plan) = &self.plan else {
                 break;
             };
-            if let Some(budget) = spec.frame_budget_us
-                && budget != self.opts.frame_budget_us
-            {
-                // Plan under the new budget, then send this frame under the new epoch.
-                self.opts.frame_budget_us = budget;
-                self.adapt.budget_changed();
+            let budget = spec
+                .frame_budget_us
+                .filter(|b| *b != self.opts.frame_budget_us);
+            if budget.is_some() || spec.refine != self.refine {
+                // Plan under the new budget or refinement (one re-plan for both), then send this
+                // frame under the new epoch.
+                let mut why = Vec::new();
+                if let Some(budget) = budget {
+                    self.opts.frame_budget_us = budget;
+                    self.adapt.budget_changed();
+                    let text = match budget {
+                        Some(us) => format!(
+                            "frame budget {:.1} ms from frame {index}: re-planning",
+                            us as f64 / 1e3
+                        ),
+                        None => format!("no frame budget from frame {index}: re-planning"),
+                    };
+                    self.notice(text.clone());
+                    why.push(text);
+                }
+                if spec.refine != self.refine {
+                    // Each refinement step re-plans: told in the log and the epoch's reason,
+                    // not as a notice (the page would show one every step).
+                    let text = match spec.refine {
+                        Some(r) => format!("refining from frame {index} ({r}): re-planning"),
+                        None => {
+                            format!("back to the session's quality from frame {index}: re-planning")
+                        }
+                    };
+                    tracing::info!("{text}");
+                    self.refine = spec.refine;
+                    why.push(text);
+                }
                 self.frames.queue.push_front((index, spec));
-                let why = match budget {
-                    Some(us) => format!(
-                        "frame budget {:.1} ms from frame {index}: re-planning",
-                        us as f64 / 1e3
-                    ),
-                    None => format!("no frame budget from frame {index}: re-planning"),
-                };
-                self.notice(why.clone());
-                self.pending_steer = Some(why);
+                self.pending_steer = Some(why.join("; "));
+                self.publish();
                 break;
             }
             let wire = self.base + index;
@@ -122,7 +146,7 @@ impl Core {
                 let msg = Message::RenderFrame {
                     epoch,
                     frame: wire,
-                    camera: spec.camera.map(|c| supersampled(c, self.opts.supersample)),
+                    camera: spec.camera.map(|c| supersampled(c, self.supersample())),
                     params: frame_params,
                 };
                 sends.push(Command::Send {

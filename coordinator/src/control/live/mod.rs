@@ -71,6 +71,38 @@ pub struct FrameSpec {
     /// differs from the session's: the loop re-plans before sending the frame
     /// (`plan/budget.rs`). `None` keeps the session's.
     pub frame_budget_us: Option<Option<u64>>,
+    /// Render this frame above the session's quality (the live view's refinement while its
+    /// viewers are idle); `None`: at the session's quality, its frame budget's where it has one.
+    /// A change re-plans before the frame is sent, as a budget does.
+    pub refine: Option<Refine>,
+}
+
+/// A frame rendered above the session's quality (`docs/live-view.md` § Refinement when idle):
+/// planned with no frame budget or error target, every area light at `samples_per_area_light`
+/// samples (the scene's quality override; each sample carries its share of the light's power, so
+/// every light's energy is kept), at `supersample` × the camera's width and height, which the
+/// sink box-resolves. A refinement the planner cannot plan (a camera too large at that factor,
+/// say) is dropped: the frame renders at the session's quality, and the same refinement asked
+/// for again is not tried again.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Refine {
+    /// Samples per area light, every area light (0: the scene's counts).
+    pub samples_per_area_light: u32,
+    /// Antialiasing factor (`PlanOptions::supersample`); never below the session's.
+    pub supersample: u32,
+}
+
+impl std::fmt::Display for Refine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.samples_per_area_light > 0 {
+            write!(
+                f,
+                "{} samples per area light, ",
+                self.samples_per_area_light
+            )?;
+        }
+        write!(f, "antialiasing {}×", self.supersample.max(1))
+    }
 }
 
 /// Something that happened to a daemon during the run.
@@ -172,6 +204,7 @@ struct Settings {
     /// Each scene light's colour.
     colors: Vec<[f32; 3]>,
     opts: PlanOptions,
+    refine: Option<Refine>,
 }
 
 /// Settings daemons refused: frame requests asking for them again are sent without them.
@@ -181,11 +214,14 @@ struct Refused {
     colors: Vec<(u32, [f32; 3])>,
     /// A frame budget (`FrameSpec::frame_budget_us`).
     budget: Option<Option<u64>>,
+    /// A refinement (`FrameSpec::refine`).
+    refine: Option<Option<Refine>>,
 }
 
 impl Refused {
-    /// Takes out of `spec` what was refused: those lights keep their colour, the budget stays.
-    fn strip(&self, spec: &mut FrameSpec) {
+    /// Takes out of `spec` what was refused: those lights keep their colour, the budget stays,
+    /// and the refinement stays `current`.
+    fn strip(&self, spec: &mut FrameSpec, current: Option<Refine>) {
         spec.light_colors.retain(|(l, c)| {
             !self
                 .colors
@@ -194,6 +230,9 @@ impl Refused {
         });
         if spec.frame_budget_us.is_some() && spec.frame_budget_us == self.budget {
             spec.frame_budget_us = None;
+        }
+        if self.refine == Some(spec.refine) {
+            spec.refine = current;
         }
     }
 }

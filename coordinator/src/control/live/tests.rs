@@ -74,6 +74,9 @@ struct Sim {
     requested: u64,
     /// Per wire frame, the light colours each daemon was sent with it.
     colours: BTreeMap<u64, Vec<(String, Colours)>>,
+    /// Per wire frame, the camera size its nodes were sent; the sink's newest antialiasing factor.
+    sizes: BTreeMap<u64, (u32, u32)>,
+    sink_supersample: u32,
     error: Option<RunError>,
 }
 
@@ -182,6 +185,8 @@ impl Sim {
             pings: BTreeMap::new(),
             requested: 0,
             colours: BTreeMap::new(),
+            sizes: BTreeMap::new(),
+            sink_supersample: 0,
             error: None,
         };
         let ids: Vec<String> = sim.daemons.keys().cloned().collect();
@@ -247,7 +252,7 @@ impl Sim {
                     d.rejoin_scheduled = false;
                     self.maybe_rejoin(&id, REDIAL);
                 }
-                Command::SinkGeometry(_) => {}
+                Command::SinkGeometry(g) => self.sink_supersample = g.supersample,
                 Command::Deliver(r) => self.delivered.push(r.frame),
             }
         }
@@ -300,8 +305,11 @@ impl Sim {
                 epoch,
                 frame,
                 params,
-                ..
+                camera,
             } => {
+                if let Some(c) = camera {
+                    self.sizes.insert(frame, (c.width, c.height));
+                }
                 let sent = (to.to_string(), params.colors);
                 self.colours.entry(frame).or_default().push(sent);
                 let stats = FrameStats {
@@ -895,4 +903,148 @@ proptest! {
         let want: Vec<u64> = (1..=sim.requested).collect();
         prop_assert_eq!(&sim.delivered, &want);
     }
+}
+
+/// Idle refinement (`FrameSpec::refine`): each step re-plans above the budget's quality (more
+/// samples per area light, then a larger camera the sink resolves), with no budget; a frame
+/// without it re-plans back to the budget's plan; a refinement that cannot be planned is
+/// dropped (the frame renders at the session's quality) and not tried again.
+#[test]
+fn refinement_re_plans_above_the_budget_s_quality_and_back() {
+    let mut sim = Sim::build_with(3, 2, &[], |c| c.max_lights = 64, 4);
+    sim.start();
+    let scene = sim.core.scene.clone();
+    let area = scene.lights.iter().filter(|l| l.is_area()).count();
+    let other = scene.lights.len() - area;
+    assert!(area > 0, "the scene has area lights");
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let camera = lightfold_scene::wire::camera_to_wire(&scene.camera);
+    let refine = |samples, supersample| {
+        Some(super::Refine {
+            samples_per_area_light: samples,
+            supersample,
+        })
+    };
+    // Frames 1–5 under a 1 µs budget (no plan meets it: fewer samples per area light); 6–10 at 8
+    // samples, 11–15 at 16 samples and 2× antialiasing, 16–20 back at the budget's, 21–30 asking
+    // for a factor no camera takes.
+    let mut spec = |i: u64| FrameSpec {
+        camera: Some(camera),
+        frame_budget_us: (i == 1).then_some(Some(1)),
+        refine: match i {
+            6..=10 => refine(8, 1),
+            11..=15 => refine(16, 2),
+            21.. => refine(16, 1 << 20),
+            _ => None,
+        },
+        ..FrameSpec::default()
+    };
+    let samples = |sim: &Sim| sim.core.plan().unwrap().samples.len();
+    sim.run(Duration::from_secs(3), 5, &mut spec);
+    let budget = samples(&sim);
+    assert!(budget < 4 * area + other, "the budget lowered the samples");
+    assert_eq!(sim.core.plan().unwrap().frame_budget_us, Some(1));
+    sim.run(Duration::from_secs(3), 10, &mut spec);
+    assert_eq!(samples(&sim), 8 * area + other);
+    assert_eq!(sim.core.plan().unwrap().frame_budget_us, None, "no budget");
+    sim.run(Duration::from_secs(3), 15, &mut spec);
+    assert_eq!(samples(&sim), 16 * area + other);
+    assert_eq!(sim.core.plan().unwrap().width, 2 * w);
+    assert_eq!(sim.sink_supersample, 2, "the sink resolves 2 × 2");
+    let base = sim.core.base;
+    let wire = |frame: u64| base + frame;
+    assert_eq!(sim.sizes[&wire(15)], (2 * w, 2 * h));
+    assert_eq!(sim.sizes[&wire(10)], (w, h));
+    sim.run(Duration::from_secs(3), 20, &mut spec);
+    assert_eq!(samples(&sim), budget, "back to the budget's quality");
+    assert_eq!(sim.core.plan().unwrap().frame_budget_us, Some(1));
+    assert_eq!(sim.sink_supersample, 1);
+    assert_eq!(sim.sizes[&wire(16)], (w, h));
+    let epochs = sim.core.summary.epochs.len();
+    sim.run(Duration::from_secs(3), 30, &mut spec);
+    sim.input(Input::RequestsClosed);
+    sim.run_plain(Duration::from_secs(2), 30);
+    sim.assert_all_delivered(30);
+    assert_eq!(samples(&sim), budget, "the refinement was dropped");
+    assert_eq!(sim.sizes[&wire(30)], (w, h));
+    assert!(
+        sim.core.summary.epochs.len() <= epochs + 1,
+        "a refinement that cannot be planned re-planned again"
+    );
+    let reasons: Vec<&str> = sim
+        .core
+        .summary
+        .epochs
+        .iter()
+        .map(|e| e.reason.as_str())
+        .collect();
+    assert!(
+        reasons.iter().any(|r| r.contains("refining from frame 6")),
+        "{reasons:?}"
+    );
+}
+
+/// A daemon that refuses a refinement's configuration: the refinement goes back (the frames render
+/// at the session's quality), the daemon stays, and frames asking for it again re-plan nothing.
+#[test]
+fn a_refused_refinement_goes_back_and_is_not_asked_again() {
+    let mut sim = Sim::build_with(3, 2, &[], |c| c.max_lights = 64, 4);
+    sim.start();
+    sim.run_plain(Duration::from_secs(1), 5);
+    let before = sim.core.plan().unwrap().samples.len();
+    sim.daemons.get_mut("node-0").unwrap().refuse_next = true;
+    let mut spec = |i: u64| FrameSpec {
+        refine: (i > 5).then_some(super::Refine {
+            samples_per_area_light: 8,
+            supersample: 1,
+        }),
+        ..FrameSpec::default()
+    };
+    sim.run(Duration::from_secs(3), 10, &mut spec);
+    let epochs = sim.core.summary.epochs.len();
+    sim.run(Duration::from_secs(3), 20, &mut spec);
+    sim.input(Input::RequestsClosed);
+    sim.run_plain(Duration::from_secs(1), 20);
+    sim.assert_all_delivered(20);
+    assert_eq!(sim.core.refine, None);
+    assert_eq!(sim.core.plan().unwrap().samples.len(), before);
+    assert_eq!(
+        sim.core.summary.epochs.len(),
+        epochs,
+        "asked again, planned again"
+    );
+    assert!(
+        sim.in_plan("node-0"),
+        "the daemon stays: the change went back"
+    );
+}
+
+/// Under an error target that chose more samples than a refinement step asks for, the step
+/// plans the target's count (a refinement never renders fewer samples than the session).
+#[test]
+fn a_refinement_never_plans_fewer_samples_than_the_error_target_chose() {
+    let mut sim = Sim::build_with(3, 2, &[], |c| c.max_lights = 64, 4);
+    sim.core.opts.target_penumbra_db = Some(50.0);
+    sim.start();
+    sim.run_plain(Duration::from_secs(1), 5);
+    let chosen = sim.core.plan().unwrap().target.as_ref().unwrap().to;
+    assert!(
+        chosen > 8,
+        "the target chose {chosen} samples per area light"
+    );
+    let session = sim.core.plan().unwrap().samples.len();
+    let mut spec = |i: u64| FrameSpec {
+        refine: (i > 5).then_some(super::Refine {
+            samples_per_area_light: 8,
+            supersample: 1,
+        }),
+        ..FrameSpec::default()
+    };
+    sim.run(Duration::from_secs(3), 10, &mut spec);
+    sim.input(Input::RequestsClosed);
+    sim.run_plain(Duration::from_secs(1), 10);
+    sim.assert_all_delivered(10);
+    assert_eq!(sim.core.refine.map(|r| r.samples_per_area_light), Some(8));
+    assert_eq!(sim.core.plan().unwrap().samples.len(), session);
+    assert!(sim.core.plan().unwrap().target.is_none(), "no target");
 }
