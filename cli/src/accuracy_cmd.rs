@@ -314,17 +314,22 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
         penumbra,
         ..defaults
     };
+    // Each row: what, the scene rendered, its settings (one render; a second setting is the
+    // same images unfiltered), the model's figure.
+    let unfiltered = (p.penumbra_radius > 0).then(|| setting(samples, p.k, 0));
     let rows = [
         (
             "as the scene asks",
             &scene,
-            setting(defaults.samples, defaults.k, 0),
+            vec![setting(defaults.samples, defaults.k, 0)],
             None,
         ),
         (
             "planned",
             &planned,
-            setting(samples, p.k, p.penumbra_radius),
+            std::iter::once(setting(samples, p.k, p.penumbra_radius))
+                .chain(unfiltered)
+                .collect(),
             p.target.as_ref().map(|t| t.expected_db),
         ),
     ];
@@ -332,29 +337,35 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
         "| scene | setting | samples/light | map floor | filter | penumbra PSNR (expected) | whole PSNR | node-s | truth floor |"
     );
     outln!("|---|---|---:|---:|---:|---:|---:|---:|---:|");
-    for (what, s, setting, expected) in rows {
-        let m = measure_prepared(&gpu, s, &[setting], args.repeats)?;
-        let m = &m[0];
-        let metrics = truth.truth.compare(&m.image)?;
-        let pen = metrics.penumbra.map_or(f64::NAN, |e| e.psnr);
-        let floor_text = match (what, floor) {
-            ("planned", f) if f > 0 => format!("{f}²"),
-            _ => "rule".to_string(),
-        };
-        outln!(
-            "| {} | {what} | {} | {floor_text} | {} | {pen:.2} dB{} | {:.2} dB | {:.3} | {:.2} dB |",
-            scene_label(&args.scene),
-            setting.samples,
-            if setting.penumbra > 0 {
-                format!("r{}", setting.penumbra)
+    for (what, s, settings, expected) in rows {
+        let measured = measure_prepared(&gpu, s, &settings, args.repeats)?;
+        for (i, (setting, m)) in settings.iter().zip(&measured).enumerate() {
+            let metrics = truth.truth.compare(&m.image)?;
+            let pen = metrics.penumbra.map_or(f64::NAN, |e| e.psnr);
+            let floor_text = match (what, floor) {
+                ("planned", f) if f > 0 => format!("{f}²"),
+                _ => "rule".to_string(),
+            };
+            let (what, expected) = if i == 0 {
+                (what.to_string(), expected)
             } else {
-                "—".into()
-            },
-            expected.map_or_else(String::new, |e| format!(" ({e:.2})")),
-            metrics.whole.psnr,
-            m.node_seconds.iter().sum::<f64>(),
-            truth.floor.penumbra.map_or(f64::NAN, |e| e.psnr),
-        );
+                (format!("{what}, filter off"), None)
+            };
+            outln!(
+                "| {} | {what} | {} | {floor_text} | {} | {pen:.2} dB{} | {:.2} dB | {:.3} | {:.2} dB |",
+                scene_label(&args.scene),
+                setting.samples,
+                if setting.penumbra > 0 {
+                    format!("r{}", setting.penumbra)
+                } else {
+                    "—".into()
+                },
+                expected.map_or_else(String::new, |e| format!(" ({e:.2})")),
+                metrics.whole.psnr,
+                m.node_seconds.iter().sum::<f64>(),
+                truth.floor.penumbra.map_or(f64::NAN, |e| e.psnr),
+            );
+        }
     }
     Ok(())
 }
