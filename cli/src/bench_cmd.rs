@@ -35,7 +35,7 @@ enum What {
 
 #[derive(Debug, clap::Args)]
 pub struct NodeArgs {
-    /// Built-in scene name, scene file (.toml) or glTF (.gltf/.glb).
+    /// Built-in scene name, scene file (.toml) or model (.gltf/.glb, .obj, .ply).
     #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
     scene: String,
     /// Image size as WIDTHxHEIGHT.

@@ -9,7 +9,7 @@ use lightfold_coordinator::plan::PenumbraFilter;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Built-in scene name, `.toml` scene file or `.gltf`/`.glb` model.
+    /// Built-in scene name, `.toml` scene file or `.gltf`/`.glb`, `.obj` or `.ply` model.
     #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
     scene: String,
     /// Image size as WIDTHxHEIGHT the plans will render at (default: the scene's).

@@ -67,6 +67,15 @@ fn text() -> String {
         format!("at most {} per scene", limits::MAX_TRIANGLES),
     );
     line(
+        "  model files",
+        format!(
+            "at most {} vertices per OBJ or PLY, {} meshes and {} materials per OBJ",
+            limits::MAX_VERTICES,
+            limits::MAX_MODEL_MESHES,
+            limits::MAX_MODEL_MATERIALS
+        ),
+    );
+    line(
         "  scene bytes",
         format!(
             "at most {} MiB of files read, {} MiB decoded, {} MiB on the wire",

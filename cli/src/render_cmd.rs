@@ -17,7 +17,7 @@ mod gpu;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Built-in scene name, `.toml` scene file or `.gltf`/`.glb` model.
+    /// Built-in scene name, `.toml` scene file or `.gltf`/`.glb`, `.obj` or `.ply` model.
     #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
     pub scene: String,
     /// Output EXR (linear radiance); the PNG is written next to it.

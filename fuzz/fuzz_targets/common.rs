@@ -8,7 +8,8 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 /// A folder holding `tri.bin` (three positions and three u16 indices), `tex.png` (2×2),
-/// `tri.gltf` (a triangle using both) and, beside it, `../outside.bin`.
+/// `tri.gltf` (a triangle using both), `tri.mtl` (a material textured with `tex.png`) and, beside
+/// it, `../outside.bin` and `../outside.mtl`.
 #[allow(dead_code)]
 pub fn folder() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
@@ -31,6 +32,8 @@ pub fn folder() -> &'static Path {
             .save(dir.join("tex.png"))
             .unwrap();
         std::fs::write(dir.join("tri.gltf"), TRI_GLTF).unwrap();
+        std::fs::write(dir.join("tri.mtl"), TRI_MTL).unwrap();
+        std::fs::write(root.join("outside.mtl"), TRI_MTL).unwrap();
         dir
     })
 }
@@ -44,6 +47,10 @@ pub const TRI_GLTF: &str = r#"{"asset":{"version":"2.0"},"scene":0,"scenes":[{"n
 "bufferViews":[{"buffer":0,"byteOffset":0,"byteLength":36},{"buffer":0,"byteOffset":36,"byteLength":6}],
 "accessors":[{"bufferView":0,"componentType":5126,"count":3,"type":"VEC3","min":[0,0,0],"max":[1,1,0]},
 {"bufferView":1,"componentType":5123,"count":3,"type":"SCALAR"}]}"#;
+
+#[allow(dead_code)]
+pub const TRI_MTL: &str = "newmtl tri\nKd 0.8 0.4 0.2\nKs 0.5 0.5 0.5\nNs 40\nmap_Kd tex.png\n\
+newmtl glow\nKe 2 2 1\nnewmtl glass\nTf 0.9 0.1 0.1\nillum 4\n";
 
 /// What every loaded scene must satisfy: it validates clean, is within the limits, samples
 /// without panicking into at most the limit's samples, and survives the wire form unchanged.

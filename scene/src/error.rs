@@ -8,12 +8,18 @@ pub enum SceneError {
     UnknownBuiltin { name: String, known: String },
     #[error("built-in scene {0}")]
     BuiltinSize(String),
-    #[error("{input:?} is neither a built-in scene ({known}) nor a .toml, .gltf or .glb file")]
+    #[error(
+        "{input:?} is neither a built-in scene ({known}) nor a .toml, .gltf, .glb, .obj or .ply file"
+    )]
     UnknownInput { input: String, known: String },
     #[error("cannot read {path}: {message}")]
     Io { path: String, message: String },
     #[error("{path}: invalid glTF: {message}")]
     Gltf { path: String, message: String },
+    #[error("{path}: invalid OBJ: {message}")]
+    Obj { path: String, message: String },
+    #[error("{path}: invalid PLY: {message}")]
+    Ply { path: String, message: String },
     #[error("{path}: texture {texture}: {message}")]
     Texture {
         path: String,

@@ -1,6 +1,6 @@
 //! lightfold's scene: the model every part agrees on (meshes, materials, lights, camera), the
 //! lighting maths defined once (`shading`), light sampling into point samples, primitives, images,
-//! glTF 2.0 and TOML scene-file loading, and the built-in scenes.
+//! glTF 2.0, OBJ/MTL, PLY and TOML scene-file loading, and the built-in scenes.
 //!
 //! Must not depend on tokio, wgpu or any networking: the GPU node, the CPU reference, the planner
 //! and the tests all read scenes through this crate.
@@ -19,7 +19,10 @@ mod input;
 pub mod limits;
 pub mod ltc;
 pub mod model;
+mod model_file;
+pub mod obj_load;
 pub mod partition;
+pub mod ply_load;
 pub mod primitives;
 pub mod sampling;
 mod sampling_shapes;
@@ -37,4 +40,7 @@ pub use file::{SceneFile, load, load_scene_file, parse_scene_file};
 pub use gltf_load::{GltfOptions, ignored_features, load_gltf, load_gltf_slice, load_gltf_with};
 pub use image::Image;
 pub use model::*;
+pub use model_file::ModelOptions;
+pub use obj_load::{load_obj, load_obj_slice, load_obj_with};
+pub use ply_load::{load_ply, load_ply_slice, load_ply_with};
 pub use validate::{Issue, ValidationReport};

@@ -16,6 +16,9 @@
 //!   stays finite; at K = 4 it is already 4096 render nodes.
 //! - **Triangles** 10 M: 1.4 GB of vertices on the device (the renderer expands indices), the
 //!   most a 1 GiB scene of indexed triangles holds in practice.
+//! - **Model files** (OBJ, PLY): at most 3 positions per triangle of the limit (30 M), and at
+//!   most 65 536 meshes and 65 536 materials from one file: every count is read from the file
+//!   before anything is kept, so a few bytes that declare billions are refused, never allocated.
 //! - **Bytes** 1 GiB for the files of one scene together (model, buffers, images), 1 GiB for
 //!   what they decode to (accessors, textures), and 1 GiB for the wire form; 16 MiB for a TOML
 //!   scene file; textures at most 8192 per side.
@@ -27,6 +30,13 @@ pub const MAX_SCENE_BYTES: u64 = 1 << 30;
 pub const MAX_SCENE_FILE_BYTES: u64 = 16 << 20;
 /// Most triangles in one scene.
 pub const MAX_TRIANGLES: u64 = 10_000_000;
+/// Most vertices (positions, and each of texture coordinates and normals) one OBJ or PLY model
+/// may declare: three per triangle of [`MAX_TRIANGLES`].
+pub const MAX_VERTICES: u64 = 3 * MAX_TRIANGLES;
+/// Most meshes one OBJ model makes (its groups and objects, split where the material changes).
+pub const MAX_MODEL_MESHES: u64 = 65_536;
+/// Most materials one OBJ model's material libraries define together.
+pub const MAX_MODEL_MATERIALS: u64 = 65_536;
 /// Largest side of a decoded texture.
 pub const MAX_TEXTURE_SIDE: u32 = 8192;
 /// Most point samples one area light may ask for (its `samples` or the scene's
@@ -65,6 +75,12 @@ pub enum LimitError {
     TotalSamples { samples: u64 },
     #[error("{triangles} triangles; a scene may have at most {MAX_TRIANGLES}")]
     Triangles { triangles: u64 },
+    #[error("{count} {what}; a model may have at most {limit}")]
+    Count {
+        what: &'static str,
+        count: u64,
+        limit: u64,
+    },
     #[error("{what} take {bytes} bytes; a scene may hold at most {MAX_SCENE_BYTES}")]
     Bytes { what: &'static str, bytes: u64 },
 }
@@ -106,6 +122,14 @@ pub fn check_samples_per_area_light(what: &str, samples: u32) -> Result<(), Limi
 pub fn check_triangles(triangles: u64) -> Result<(), LimitError> {
     if triangles > MAX_TRIANGLES {
         return Err(LimitError::Triangles { triangles });
+    }
+    Ok(())
+}
+
+/// Checks a count a model file declares (`what`: "vertices", "meshes", …) against `limit`.
+pub fn check_count(what: &'static str, count: u64, limit: u64) -> Result<(), LimitError> {
+    if count > limit {
+        return Err(LimitError::Count { what, count, limit });
     }
     Ok(())
 }

@@ -1,4 +1,4 @@
-//! Building a [`Scene`] from a parsed scene file: the glTF (if any), primitive objects with
+//! Building a [`Scene`] from a parsed scene file: the model (glTF, OBJ or PLY; if any), primitive objects with
 //! their materials, lights, camera, ambient, exposure and quality; then completion of whatever is
 //! missing (camera, lights) exactly as for a bare glTF.
 
@@ -12,6 +12,7 @@ use crate::model::{
     Camera, Light, LightShape, MapSizing, Material, Mesh, Quality, SamplePattern, Scene,
     ShadowFilter,
 };
+use crate::model_file::ModelOptions;
 use crate::primitives;
 use crate::shadow_views::Mismatch;
 use glam::{Affine3A, Quat, Vec3};
@@ -33,37 +34,74 @@ pub(super) fn build(
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "scene".into())
     });
-    let (mut scene, gltf_camera) =
-        match &file.gltf {
-            Some(g) => {
-                let folder = base.unwrap_or(Path::new("."));
-                let path = crate::input::resolve_inside(folder, &g.path, "the scene file's")
-                    .map_err(|e| match e.io {
-                        Some(path) => SceneError::Io {
-                            path: path.display().to_string(),
-                            message: e.message,
-                        },
-                        None => err(format!("gltf.path: {}", e.message)),
-                    })?;
-                let bytes = gltf_load::read_model(&path)?;
-                let opts = GltfOptions {
-                    scale: g.scale,
-                    translation: g.translation,
-                    complete: false,
-                    animation: g.animation.clone(),
-                };
-                let label = path.display().to_string();
-                let imported = gltf_load::import(
-                    &bytes,
-                    &label,
-                    &name,
-                    Some(gltf_load::model_folder(&path)),
-                    &opts,
-                )?;
-                (imported.scene, imported.has_camera)
-            }
-            None => (Scene::new(&name), false),
+    let models = [
+        file.gltf.as_ref().map(|_| "[gltf]"),
+        file.obj.as_ref().map(|_| "[obj]"),
+        file.ply.as_ref().map(|_| "[ply]"),
+    ];
+    let named: Vec<&str> = models.into_iter().flatten().collect();
+    if named.len() > 1 {
+        return Err(err(format!(
+            "a scene file takes one model ([gltf], [obj] or [ply]); this one has {}",
+            named.join(" and ")
+        )));
+    }
+    // A model's path, read only inside the scene file's folder.
+    let model_path = |table: &str, relative: &str| {
+        let folder = base.unwrap_or(Path::new("."));
+        crate::input::resolve_inside(folder, relative, "the scene file's").map_err(|e| match e.io {
+            Some(path) => SceneError::Io {
+                path: path.display().to_string(),
+                message: e.message,
+            },
+            None => err(format!("{table}.path: {}", e.message)),
+        })
+    };
+    let placed = |scale: f32, translation: [f32; 3]| ModelOptions {
+        scale,
+        translation,
+        complete: false,
+    };
+    let (mut scene, gltf_camera) = if let Some(g) = &file.gltf {
+        let path = model_path("gltf", &g.path)?;
+        let bytes = gltf_load::read_model(&path)?;
+        let opts = GltfOptions {
+            scale: g.scale,
+            translation: g.translation,
+            complete: false,
+            animation: g.animation.clone(),
         };
+        let label = path.display().to_string();
+        let imported = gltf_load::import(
+            &bytes,
+            &label,
+            &name,
+            Some(gltf_load::model_folder(&path)),
+            &opts,
+        )?;
+        (imported.scene, imported.has_camera)
+    } else if let Some(o) = &file.obj {
+        let path = model_path("obj", &o.path)?;
+        let bytes = gltf_load::read_model(&path)?;
+        let label = path.display().to_string();
+        let imported = crate::obj_load::import(
+            &bytes,
+            &label,
+            &name,
+            Some(gltf_load::model_folder(&path)),
+            &placed(o.scale, o.translation),
+        )?;
+        (imported.scene, false)
+    } else if let Some(p) = &file.ply {
+        let path = model_path("ply", &p.path)?;
+        let bytes = gltf_load::read_model(&path)?;
+        let label = path.display().to_string();
+        let imported =
+            crate::ply_load::import(&bytes, &label, &name, &placed(p.scale, p.translation))?;
+        (imported.scene, false)
+    } else {
+        (Scene::new(&name), false)
+    };
     scene.name = name;
 
     let mut by_name: HashMap<&str, usize> = HashMap::new();

@@ -1,7 +1,8 @@
 //! Scene files (TOML, `version = 1`, unknown fields rejected) and [`load`], the one entry point
-//! that accepts a built-in name, a `.toml` scene file or a `.gltf` / `.glb` model.
+//! that accepts a built-in name, a `.toml` scene file or a `.gltf` / `.glb`, `.obj` or `.ply`
+//! model.
 //!
-//! A scene file references a glTF (relative to the file) and/or builds primitives (plane, box,
+//! A scene file references a model (glTF, OBJ or PLY, relative to the file) and/or builds primitives (plane, box,
 //! sphere, cylinder) with materials, and sets camera, lights, ambient, exposure and quality.
 //! Whatever it leaves out is completed like a bare glTF: a framed camera, and without lights a
 //! rectangular area light (plus a ground plane when the file builds no objects).
@@ -17,7 +18,9 @@ use crate::gltf_load::load_gltf;
 use crate::model::Scene;
 use std::path::Path;
 
-/// Loads a built-in scene by name, a `.toml` scene file, or a `.gltf` / `.glb` model.
+/// Loads a built-in scene by name, a `.toml` scene file, or a `.gltf` / `.glb`, `.obj` or `.ply`
+/// model (a model alone is completed with a framed camera and, without lights, a light and a
+/// ground plane).
 pub fn load(path_or_builtin: &str) -> Result<Scene, SceneError> {
     if is_builtin(path_or_builtin) {
         return builtin(path_or_builtin);
@@ -30,6 +33,8 @@ pub fn load(path_or_builtin: &str) -> Result<Scene, SceneError> {
     match ext.as_str() {
         "toml" => load_scene_file(path),
         "gltf" | "glb" => load_gltf(path),
+        "obj" => crate::obj_load::load_obj(path),
+        "ply" => crate::ply_load::load_ply(path),
         _ => Err(SceneError::UnknownInput {
             input: path_or_builtin.to_string(),
             known: format!("{}, city[:N]", builtin_names().join(", ")),
@@ -38,8 +43,8 @@ pub fn load(path_or_builtin: &str) -> Result<Scene, SceneError> {
 }
 
 /// Reads and builds a scene file (a regular file of at most
-/// [`crate::limits::MAX_SCENE_FILE_BYTES`]); a referenced glTF is resolved relative to the file's
-/// folder and must lie inside it.
+/// [`crate::limits::MAX_SCENE_FILE_BYTES`]); a referenced model is resolved relative to the
+/// file's folder and must lie inside it.
 pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
     let label = path.display().to_string();
     let io = |message: String| SceneError::Io {

@@ -66,6 +66,12 @@ pub struct SceneFile {
     pub specular: bool,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub gltf: Option<GltfRef>,
+    /// A Wavefront OBJ model (with its MTL libraries); a file takes one model in all.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub obj: Option<ModelRef>,
+    /// A PLY model; a file takes one model in all.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ply: Option<ModelRef>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<CameraSpec>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -94,6 +100,18 @@ pub struct GltfRef {
     /// The animation to play (name or index); the first when not given.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub animation: Option<String>,
+}
+
+/// An OBJ or PLY model, its path relative to the scene file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelRef {
+    pub path: String,
+    /// Uniform scale (0.01 for a model in centimetres).
+    #[serde(default = "one")]
+    pub scale: f32,
+    #[serde(default)]
+    pub translation: V3,
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

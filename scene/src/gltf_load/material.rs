@@ -5,7 +5,7 @@
 //! emissive textures, `KHR_materials_emissive_strength` and `KHR_materials_transmission`'s factor.
 
 use super::accessor::Buffers;
-use crate::limits::{Budget, MAX_TEXTURE_SIDE};
+use crate::limits::Budget;
 use crate::model::{AlphaMode, Material, MetallicRoughness, Texture, Transmission};
 use std::collections::{BTreeSet, HashMap};
 use std::path::Path;
@@ -171,21 +171,7 @@ impl<'a> MaterialLoader<'a> {
             gltf::image::Source::Uri { uri, .. } => read_uri(uri, self.base, &self.bufs.files)
                 .map_err(|e| format!("texture {name} ({uri}): {e}"))?,
         };
-        let cannot = |e: &dyn std::fmt::Display| format!("texture {name}: cannot decode: {e}");
-        let mut reader = image::ImageReader::new(std::io::Cursor::new(&bytes))
-            .with_guessed_format()
-            .map_err(|e| cannot(&e))?;
-        // Sides and memory checked from the header, before the image is decoded.
-        let mut limits = image::Limits::default();
-        limits.max_image_width = Some(MAX_TEXTURE_SIDE);
-        limits.max_image_height = Some(MAX_TEXTURE_SIDE);
-        limits.max_alloc = Some(self.bufs.decoded.left());
-        reader.limits(limits);
-        let decoded = reader.decode().map_err(|e| cannot(&e))?.to_rgba8();
-        self.bufs
-            .decoded
-            .take(decoded.len() as u64)
-            .map_err(|e| format!("texture {name}: {e}"))?;
+        let decoded = crate::model_file::decode_texture(&bytes, &name, &self.bufs.decoded)?;
         Ok((name, decoded))
     }
 }

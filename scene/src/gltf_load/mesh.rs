@@ -379,7 +379,7 @@ fn morph_targets(
 
 /// Unwelds the mesh so every triangle gets its own vertices with the face normal; also returns
 /// each new vertex's old index.
-fn flat_shaded(m: Mesh) -> (Mesh, Vec<u32>) {
+pub(crate) fn flat_shaded(m: Mesh) -> (Mesh, Vec<u32>) {
     let Mesh {
         name,
         positions,

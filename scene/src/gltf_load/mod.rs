@@ -23,6 +23,7 @@ use crate::model::{Camera, Light, LightShape, Material, Scene};
 use crate::shading::normalize;
 use accessor::Buffers;
 use glam::{Mat4, Quat, Vec3};
+pub(crate) use mesh::flat_shaded;
 use std::collections::BTreeSet;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;

@@ -223,9 +223,12 @@ fn mistakes_are_reported() {
 fn load_dispatches_on_names_and_extensions() {
     assert_eq!(load("balls").unwrap().name, "balls");
     assert!(matches!(
-        load("model.obj"),
+        load("model.fbx"),
         Err(SceneError::UnknownInput { .. })
     ));
+    // OBJ and PLY models are read as models (here: missing files).
+    assert!(matches!(load("model.obj"), Err(SceneError::Io { .. })));
+    assert!(matches!(load("model.PLY"), Err(SceneError::Io { .. })));
     assert!(matches!(
         load("ballz"),
         Err(SceneError::UnknownInput { .. })
