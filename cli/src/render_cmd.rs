@@ -105,6 +105,20 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    // The PNG goes beside the EXR with the extension changed: an `--out` ending in .png would
+    // have the PNG written over the EXR.
+    if args
+        .out
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("png"))
+    {
+        bail!(
+            "--out names the EXR (linear radiance) and the PNG is written beside it: give \
+             --out {} instead of {}",
+            args.out.with_extension("exr").display(),
+            args.out.display()
+        );
+    }
     if !args.reference && args.area_truth.is_some() {
         bail!("--area-truth renders true area lights on the CPU: add --reference");
     }

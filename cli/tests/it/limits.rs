@@ -57,6 +57,11 @@ fn render_refuses_sizes_and_samples_beyond_the_limits() {
             "the limit is 4096",
         ],
     );
+    // `--out` names the EXR; a .png there would have the PNG written over it.
+    let png = dir.join("x.png").display().to_string();
+    let e = refused(&["render", "--out", &png]);
+    has(&e, &["--out names the EXR", "x.exr instead of"]);
+    assert!(!dir.join("x.png").exists());
     let e = refused(&["render", "--shadow-map-size", "65536", "--out", &out]);
     has(&e, &["shadow-map size 65536 is outside 1..=4096"]);
     let e = refused(&["plan", "balls", "--size", "0x10"]);
