@@ -5,7 +5,6 @@
 use crate::model_args::{DEFAULT_TARGET_DB, ModelArgs, run_calibration};
 use crate::out::outln;
 use anyhow::Context;
-use lightfold_coordinator::plan::PenumbraFilter;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -81,22 +80,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     }
     outln!("{table}");
-    let from = scene
-        .lights
-        .iter()
-        .filter(|l| l.is_area())
-        .map(|l| scene.quality.samples_per_area_light.unwrap_or(l.samples))
-        .max();
-    match from {
+    match scene.area_samples() {
         None => outln!("the scene has no area light: no sample count to choose"),
         Some(from) => {
-            let choice = c.model.cheapest(args.target_db, from, |curve, n| {
-                // What a plan's default filter does when a target chooses the samples.
-                match PenumbraFilter::Budget {
-                    PenumbraFilter::Off => 0,
-                    _ => curve.filter_radius(n),
-                }
-            });
+            // What a plan's default filter (`budget`) does where a target chooses the samples:
+            // the radius the curve gains most with.
+            let choice = c
+                .model
+                .cheapest(args.target_db, from, |curve, n| curve.filter_radius(n));
             outln!(
                 "for {:.1} dB: {} samples per area light{}{}, expected {:.2} dB{} \
                  (`lightfold plan` and `lightfold demo` now choose it; \

@@ -7,6 +7,17 @@ use crate::shading::{V3, cross, length, sub};
 use std::f64::consts::PI;
 
 impl Scene {
+    /// The largest count of point samples an area light of the scene is drawn with (the
+    /// quality's override where it sets one), at least 1; `None` without area lights.
+    pub fn area_samples(&self) -> Option<u32> {
+        let q = &self.quality;
+        self.lights
+            .iter()
+            .filter(|l| l.is_area())
+            .map(|l| q.samples_per_area_light.unwrap_or(l.samples).max(1))
+            .max()
+    }
+
     /// An empty scene: no geometry or lights, the default camera and quality, exposure 1.
     pub fn new(name: &str) -> Self {
         Scene {

@@ -57,6 +57,8 @@ pub struct Steer {
     pub frame_budget_us: Option<Option<u64>>,
     /// Counts changes, from 0 (the scene as loaded).
     pub revision: u64,
+    /// When the revision last changed (the last input), or the state was made.
+    pub changed_at: std::time::Instant,
 }
 
 impl Steer {
@@ -79,6 +81,7 @@ impl Steer {
             }),
             frame_budget_us: None,
             revision: 0,
+            changed_at: std::time::Instant::now(),
         }
     }
 
@@ -123,6 +126,7 @@ impl Steer {
                 .collect(),
             time: self.clock.animated().then(|| self.clock.now()),
             frame_budget_us: self.frame_budget_us,
+            refine: None,
         }
     }
 

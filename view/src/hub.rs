@@ -51,11 +51,13 @@ pub struct ViewCounters {
     pub viewers_dropped: AtomicU64,
 }
 
-/// What a frame was requested at: the steering revision, and the clip time of an animated scene.
+/// What a frame was requested at: the steering revision, the clip time of an animated scene,
+/// and the refinement step (`None`: the session's quality).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct Requested {
     pub revision: u64,
     pub time: Option<f32>,
+    pub refine: Option<crate::refine::Step>,
 }
 
 /// One encoded frame, ready to send: the binary WebSocket message and its JPEG part.
@@ -70,6 +72,8 @@ pub struct ViewFrame {
 pub struct Hub {
     pub started: Instant,
     pub continuous: bool,
+    /// Refinement when idle (`None`: off).
+    pub refine: Option<crate::refine::Ladder>,
     pub jpeg_quality: u8,
     pub send_timeout: std::time::Duration,
     pub scene: serde_json::Value,
@@ -131,6 +135,7 @@ impl Hub {
         Hub {
             started: Instant::now(),
             continuous: opts.continuous,
+            refine: None,
             jpeg_quality: opts.jpeg_quality.clamp(1, 100),
             send_timeout: opts.send_timeout,
             scene: crate::json::scene(scene),

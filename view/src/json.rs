@@ -186,6 +186,26 @@ pub fn plan(p: &Plan) -> Value {
     })
 }
 
+/// A refinement step as frame headers carry it (`null`: the session's quality).
+pub fn refine_step(s: Option<crate::refine::Step>) -> Value {
+    s.map_or(Value::Null, |s| {
+        json!({
+            "level": s.level,
+            "of": s.of,
+            "samples": s.refine.samples_per_area_light,
+            "aa": s.refine.supersample,
+        })
+    })
+}
+
+/// How the view refines while idle, for the welcome (`null`: it does not).
+pub fn refine(l: Option<&crate::refine::Ladder>) -> Value {
+    l.map_or(Value::Null, |l| {
+        let steps: Vec<Value> = (1..=l.top()).map(|i| refine_step(l.step(i))).collect();
+        json!({"after_ms": l.after.as_millis() as u64, "steps": steps})
+    })
+}
+
 /// The header of a frame message (the encoder adds the exposure it was encoded at).
 pub fn frame_header(
     f: &FrameResult,
@@ -214,6 +234,7 @@ pub fn frame_header(
         "epoch": f.epoch.to_string(),
         "revision": requested.revision,
         "time": requested.time,
+        "refine": refine_step(requested.refine),
         "width": f.image.width,
         "height": f.image.height,
         "interval_ms": interval_ms,

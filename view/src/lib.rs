@@ -7,7 +7,8 @@
 //!
 //! The view drives the coordinator's event loop (`control::Live`) itself: frame requests come from
 //! the steering state, one at a time as room frees up (so a change reaches the next frame
-//! requested), and only when something changed unless `continuous`. Frames are encoded off the
+//! requested), and only when something changed unless `continuous`; while nothing changes it
+//! refines the frame step by step (`refine`), when asked to. Frames are encoded off the
 //! loop; every viewer gets the newest frame when it can take one, so a slow viewer drops frames
 //! and never slows the cluster.
 //!
@@ -26,6 +27,7 @@ mod feed;
 mod http;
 mod hub;
 mod json;
+mod refine;
 mod tls;
 mod ws;
 
@@ -33,6 +35,7 @@ pub use camera::{Steer, SteerError};
 pub use clock::{Clock, MAX_SPEED, MIN_SPEED, clip_time};
 pub use encode::{MAX_STOPS, MIN_STOPS};
 pub use hub::{MAX_VIEWERS, MAX_WATCHERS, ViewCounters};
+pub use refine::{DEFAULT_MAX_SAMPLES, DEFAULT_SAMPLES_FACTOR, Ladder, RefineOptions, Step};
 
 use lightfold_coordinator::control::{FrameResult, Live, LiveSummary, Session};
 use lightfold_coordinator::plan::PlanOptions;
@@ -52,6 +55,10 @@ pub struct ViewOptions {
     pub token: Option<Vec<u8>>,
     /// Render frame after frame even when nothing changed (else only after a change).
     pub continuous: bool,
+    /// Refine while no viewer changes anything: more samples per area light, then antialiasing,
+    /// a frame a step (`None`: off, the default here; the command line's `--refine-after` is on
+    /// by default).
+    pub refine: Option<RefineOptions>,
     /// JPEG quality of the frames pushed to viewers (1–100).
     pub jpeg_quality: u8,
     /// Kernel send buffer of each viewer's socket, bytes: small, so that a slow viewer's queue
@@ -75,6 +82,7 @@ impl std::fmt::Debug for ViewOptions {
             .field("listen", &self.listen)
             .field("token", &self.token.as_ref().map(|_| "<set>"))
             .field("continuous", &self.continuous)
+            .field("refine", &self.refine)
             .field("jpeg_quality", &self.jpeg_quality)
             .field("send_buffer", &self.send_buffer)
             .field("send_timeout", &self.send_timeout)
@@ -98,6 +106,7 @@ impl Default for ViewOptions {
             listen: DEFAULT_LISTEN.to_string(),
             token: None,
             continuous: false,
+            refine: None,
             jpeg_quality: 85,
             send_buffer: 256 << 10,
             send_timeout: std::time::Duration::from_secs(10),
@@ -236,6 +245,11 @@ impl View {
             serving.clone(),
         );
         hub.tls = self.tls.is_some();
+        hub.refine = self
+            .opts
+            .refine
+            .map(|o| refine::Ladder::new(scene, plan.supersample, &o))
+            .filter(|l| l.top() > 0);
         hub.addresses = addresses;
         let hub = Arc::new(hub);
         let server = tokio::spawn(http::serve(self.listener, self.tls, Arc::clone(&hub)));

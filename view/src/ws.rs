@@ -323,6 +323,7 @@ impl Viewer {
             "revision": s.revision,
             "walkthrough": self.hub.plan().is_some_and(|p| p.walkthrough),
             "continuous": self.hub.continuous,
+            "refine": json::refine(self.hub.refine.as_ref()),
             "animation": json::animation(&s.clock),
             "exposure": {
                 "stops": *self.hub.exposure.borrow(),
@@ -449,6 +450,7 @@ impl Viewer {
             };
             if result.is_ok() && next != *s {
                 next.revision += 1;
+                next.changed_at = std::time::Instant::now();
                 *s = next;
                 true
             } else {

@@ -297,6 +297,10 @@
     $('st-interval').textContent = ms(header.interval_ms);
     $('st-latency').textContent = ms(header.latency_ms);
     $('st-fps').textContent = fps == null ? '–' : fps.toFixed(1);
+    const r = header.refine;
+    $('st-refine').textContent = r
+      ? `${r.level}/${r.of}${r.samples ? ` · ${r.samples} spl` : ''}${r.aa > 1 ? ` · ${r.aa}× aa` : ''}`
+      : 'no';
     scheduleTimings(header);
   }
 

@@ -14,9 +14,10 @@ use client::{Client, Frame};
 use lightfold_coordinator::control::FrameResult;
 use lightfold_coordinator::plan::{MapSizing, PlanOptions};
 use lightfold_node::gpu::{Gpu, GpuOptions};
+use lightfold_reference::{AreaOptions, GroundTruth};
 use lightfold_scene::Scene;
 use lightfold_tests::{InProcessCluster, assert_close, single_device, small, test_control};
-use lightfold_view::{Steer, View, ViewOptions};
+use lightfold_view::{RefineOptions, Steer, View, ViewOptions};
 use serde_json::json;
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
@@ -317,6 +318,189 @@ async fn a_budget_from_the_page_replans_and_frames_match_the_lowered_quality() {
         );
         let status = c.status_where(|s| s["plan"]["samples"] == 8).await;
         assert!(status["plan"]["gave_up"].is_null(), "{status}");
+    })
+    .await;
+}
+
+/// `small("balls")` at 96×72 under a 1 ms frame budget (one sample per area light), its
+/// area-light truth, and the view refining after `refine` idle (`None`: not at all).
+fn refinement_setup(refine: Option<Duration>) -> (Scene, PlanOptions, ViewOptions, GroundTruth) {
+    let mut scene = small("balls");
+    (scene.camera.width, scene.camera.height) = (96, 72);
+    let plan = plan_options(&scene, 4);
+    let truth = GroundTruth::render(&scene, &AreaOptions::default());
+    assert!(truth.penumbra_pixels() > 100, "the scene has penumbrae");
+    let opts = ViewOptions {
+        refine: refine.map(|after| RefineOptions {
+            after,
+            ..RefineOptions::default()
+        }),
+        ..loopback()
+    };
+    (scene, plan, opts, truth)
+}
+
+/// Penumbra PSNR of a delivered frame against the area-light truth, dB.
+fn penumbra_psnr(truth: &GroundTruth, image: &lightfold_scene::Image) -> f64 {
+    truth.compare(image).unwrap().penumbra.unwrap().psnr
+}
+
+/// Idle refinement: with no input, successive frames approach the area truth (penumbra PSNR
+/// rises at every step up to the cap: 8 and 16 samples per area light, then 2× antialiasing,
+/// from the budget's one), each step a frame of its own and nothing after the cap; one input then
+/// returns the next frame to the budget's quality (the budget's plan, and the single-device render
+/// of it). The curve is printed (`--nocapture`): `docs/live-view.md` § Measured.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn idle_refinement_approaches_the_area_truth_and_one_input_drops_back() {
+    let (scene, plan, opts, truth) = refinement_setup(Some(Duration::from_millis(300)));
+    let s2 = scene.clone();
+    with_view(scene, plan, opts, |addr, delivered, _| async move {
+        let mut c = Client::connect(addr).await;
+        let welcome = c.expect("welcome").await;
+        let steps = welcome["refine"]["steps"].as_array().unwrap().clone();
+        assert_eq!(steps.len(), 3, "{welcome}");
+        assert_eq!(welcome["refine"]["after_ms"], 300);
+        let first = c.frame().await;
+        assert!(first.header["refine"].is_null(), "{}", first.header);
+        let own = penumbra_psnr(&truth, &delivered_frame(&delivered, frame_number(&first)));
+        let revision = c.steer(json!({"type": "budget", "ms": 1.0})).await;
+        let input = std::time::Instant::now();
+        let (f, _) = until_revision(&mut c, revision).await;
+        assert!(f.header["refine"].is_null(), "{}", f.header);
+        let image = delivered_frame(&delivered, frame_number(&f));
+        let mut curve = vec![(input.elapsed(), 0, penumbra_psnr(&truth, &image))];
+        let budget_epoch = f.header["epoch"].clone();
+        // Idle: one frame a step, each nearer the truth, up to the cap.
+        for level in 1..=3u64 {
+            let f = c.frame().await;
+            let r = &f.header["refine"];
+            assert_eq!(r["level"], level, "{}", f.header);
+            assert_eq!(r, &steps[level as usize - 1]);
+            assert_eq!(f.header["revision"], revision, "no input");
+            let psnr = penumbra_psnr(&truth, &delivered_frame(&delivered, frame_number(&f)));
+            let before = curve.last().unwrap().2;
+            assert!(
+                psnr > before,
+                "step {level} ({r}): penumbra PSNR {psnr:.2} dB, {before:.2} dB before"
+            );
+            curve.push((input.elapsed(), level, psnr));
+        }
+        assert!(
+            curve[1].2 > own,
+            "the first step is above the scene's own quality"
+        );
+        eprintln!("refinement curve (96×72 balls, budget 1 ms, refine after 300 ms):");
+        eprintln!("  the scene's own quality (4 samples per area light): {own:.2} dB");
+        for ((t, level, psnr), step) in curve
+            .iter()
+            .zip(std::iter::once(&json!(null)).chain(&steps))
+        {
+            eprintln!(
+                "  {:>6.0} ms after the input: level {level} {step}: penumbra PSNR {psnr:.2} dB",
+                t.as_secs_f64() * 1e3
+            );
+        }
+        // At the cap nothing more is rendered.
+        let (_, more) = c.drain_for(Duration::from_secs(2)).await;
+        assert_eq!(more, 0, "frames after the cap");
+        // One input: the next frame is back at the budget's quality.
+        let dropped = std::time::Instant::now();
+        let revision = c
+            .steer(json!({"type": "light", "index": 0, "color": [1.0, 1.0, 1.0], "intensity": 0.5}))
+            .await;
+        let (f, before) = until_revision(&mut c, revision).await;
+        eprintln!(
+            "  an input at the cap: its frame {:.0} ms later",
+            dropped.elapsed().as_secs_f64() * 1e3
+        );
+        assert_eq!(before, 0, "the input's frame is the next one");
+        assert!(f.header["refine"].is_null(), "{}", f.header);
+        let epoch = f.header["epoch"].clone();
+        assert_ne!(epoch, budget_epoch, "the way back re-plans");
+        let status = c
+            .status_where(|s| s["epoch"] == epoch && s["plan"]["gave_up"].is_string())
+            .await;
+        assert_eq!(status["plan"]["samples"], 2, "one sample per area light");
+        assert_eq!(status["plan"]["frame_budget_ms"], 1.0);
+        let radius = status["plan"]["penumbra_radius"].as_u64().unwrap() as u32;
+        eprintln!("  the budget's plan: penumbra filter radius {radius}");
+        let mut lowered = s2.clone();
+        lowered.quality.samples_per_area_light = Some(1);
+        lowered.lights[0].color = [0.5; 3];
+        let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
+        assert_close(
+            &delivered_frame(&delivered, frame_number(&f)),
+            &lightfold_tests::single_device_filtered(&gpu, &lowered, true, radius),
+            "the frame after the input",
+        );
+    })
+    .await;
+}
+
+/// Refinement under `--continuous`: frames keep coming at every step, the steps rise one at a
+/// time to the top and stay there, and an input's frame is at the session's quality again.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn continuous_refinement_steps_up_frame_by_frame_and_drops_back() {
+    let (scene, plan, opts, _) = refinement_setup(Some(Duration::from_millis(300)));
+    let opts = ViewOptions {
+        continuous: true,
+        ..opts
+    };
+    with_view(scene, plan, opts, |addr, _, _| async move {
+        let mut c = Client::connect(addr).await;
+        c.expect("welcome").await;
+        let revision = c
+            .steer(json!({"type": "orbit", "yaw_deg": 10.0, "pitch_deg": 0.0}))
+            .await;
+        until_revision(&mut c, revision).await;
+        let mut levels = Vec::new();
+        while levels.iter().filter(|&&l| l == 3).count() < 3 {
+            let f = c.frame().await;
+            assert_eq!(f.header["revision"], revision, "no input");
+            levels.push(f.header["refine"]["level"].as_u64().unwrap_or(0));
+            assert!(
+                levels.len() < 200,
+                "the steps did not reach the top: {levels:?}"
+            );
+        }
+        assert!(
+            levels.windows(2).all(|w| w[1] == w[0] || w[1] == w[0] + 1),
+            "one step at a time: {levels:?}"
+        );
+        let revision = c
+            .steer(json!({"type": "orbit", "yaw_deg": -10.0, "pitch_deg": 0.0}))
+            .await;
+        let (f, _) = until_revision(&mut c, revision).await;
+        assert!(f.header["refine"].is_null(), "{}", f.header);
+    })
+    .await;
+}
+
+/// The negative control of idle refinement: without it, an idle view renders nothing, and frames
+/// asked for while idle (`render`) are the budget's frame again, no nearer the truth.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn without_refinement_idle_frames_do_not_improve() {
+    let (scene, plan, opts, truth) = refinement_setup(None);
+    with_view(scene, plan, opts, |addr, delivered, _| async move {
+        let mut c = Client::connect(addr).await;
+        let welcome = c.expect("welcome").await;
+        assert!(welcome["refine"].is_null(), "{welcome}");
+        c.frame().await;
+        let revision = c.steer(json!({"type": "budget", "ms": 1.0})).await;
+        let (f, _) = until_revision(&mut c, revision).await;
+        let first = penumbra_psnr(&truth, &delivered_frame(&delivered, frame_number(&f)));
+        let (_, idle) = c.drain_for(Duration::from_secs(2)).await;
+        assert_eq!(idle, 0, "an idle view rendered");
+        for _ in 0..3 {
+            c.send(&json!({"type": "render"})).await;
+            let f = c.frame().await;
+            assert!(f.header["refine"].is_null(), "{}", f.header);
+            let psnr = penumbra_psnr(&truth, &delivered_frame(&delivered, frame_number(&f)));
+            assert!(
+                (psnr - first).abs() < 0.05,
+                "an idle frame at {psnr:.2} dB, the budget's at {first:.2} dB"
+            );
+        }
     })
     .await;
 }

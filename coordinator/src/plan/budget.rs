@@ -175,13 +175,7 @@ pub fn filter_cost_us(radius: u32, width: u32, height: u32, band_height: u32, th
 
 /// The largest sample count of the scene's area lights (the count their samples come from).
 fn area_samples(scene: &Scene) -> Option<u32> {
-    let q = &scene.quality;
-    scene
-        .lights
-        .iter()
-        .filter(|l| l.is_area())
-        .map(|l| q.samples_per_area_light.unwrap_or(l.samples).max(1))
-        .max()
+    scene.area_samples()
 }
 
 /// The scene with every area light's sample count (and the quality's override, if any) mapped
