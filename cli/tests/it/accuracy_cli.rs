@@ -77,3 +77,63 @@ fn a_sweep_writes_into_its_own_folder_with_clean_figures() {
     );
     let _ = std::fs::remove_dir_all(&cwd);
 }
+
+/// A calibration as `lightfold calibrate` caches it, for `balls` at 400×300: the scene's own
+/// floor stops gaining, 2048² maps reach 45 dB at 64 samples.
+const MAP_BOUND: &str = r#"{
+  "source": "test calibration",
+  "calibrated": true,
+  "truth_floor_db": 56.0,
+  "curves": [
+    {"map_floor": 512, "unfiltered": [[4, 29.0], [16, 35.5], [64, 37.5]], "filtered": [],
+     "seconds_per_sample": 0.01},
+    {"map_floor": 2048, "unfiltered": [[4, 30.0], [16, 40.0], [64, 46.0]], "filtered": [],
+     "seconds_per_sample": 0.03}
+  ]
+}"#;
+
+#[test]
+fn a_calibration_sets_the_plans_default_target_and_a_bad_model_file_is_an_error() {
+    let dir = fresh_dir("error-model");
+    let model = dir.join("model.json");
+    std::fs::write(&model, MAP_BOUND).unwrap();
+    let plan = |extra: &[&str]| {
+        lightfold()
+            .args(["plan", "--scene", "balls", "--size", "400x300"])
+            .args(extra)
+            .output()
+            .unwrap()
+    };
+    let out = plan(&["--error-model", &model.display().to_string()]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains("error target 45.0 dB")
+            && text.contains("16 → 64, shadow maps from 2048²")
+            && text.contains("this scene's calibration"),
+        "{text}"
+    );
+    // Control: the default scene's model, no target asked for: the scene as it asks.
+    let out = plan(&["--error-model", "default"]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success() && !text.contains("error target"),
+        "{text}"
+    );
+    // An empty cache: nothing calibrated, the same as the default.
+    let cache = dir.join("cache").display().to_string();
+    let out = plan(&["--model-cache", &cache]);
+    assert!(!String::from_utf8_lossy(&out.stdout).contains("error target"));
+    // Broken or missing model files are refused with their path.
+    std::fs::write(&model, &MAP_BOUND[..MAP_BOUND.len() / 2]).unwrap();
+    for path in [model.clone(), dir.join("missing.json")] {
+        let out = plan(&["--error-model", &path.display().to_string()]);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{path:?}");
+        assert!(err.contains("cannot read the error model"), "{err}");
+    }
+}
