@@ -61,9 +61,19 @@ impl ModelArgs {
                 }
                 Ok(calibrate::cached_model(scene, &self.cache()))
             }
-            path => calibrate::read_model(std::path::Path::new(path))
-                .map(Some)
-                .map_err(|e| anyhow::anyhow!("cannot read the error model {path}: {e}")),
+            path => {
+                let model = calibrate::read_model(std::path::Path::new(path))
+                    .map_err(|e| anyhow::anyhow!("cannot read the error model {path}: {e}"))?;
+                let ours = calibrate::model_key(scene, &self.cache());
+                if !model.key.is_empty() && model.key != ours {
+                    tracing::warn!(
+                        "the error model {path} was calibrated for another scene or image size \
+                         (key {}, this one's {ours}): its figures may not hold here",
+                        model.key
+                    );
+                }
+                Ok(Some(model))
+            }
         }
     }
 

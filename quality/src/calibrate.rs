@@ -315,6 +315,7 @@ pub fn calibrate(
             .floor
             .penumbra
             .map_or(0.0, |p| p.psnr.min(CAP_DB) as f32),
+        key: key.clone(),
     };
     model.check().map_err(|message| AccuracyError::Render {
         setting: "calibration".into(),

@@ -117,6 +117,23 @@ fn a_calibration_sets_the_plans_default_target_and_a_bad_model_file_is_an_error(
             && text.contains("this scene's calibration"),
         "{text}"
     );
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("another scene"));
+    // A model made for another scene or size is used, with a warning.
+    let other = dir.join("other.json");
+    std::fs::write(
+        &other,
+        MAP_BOUND.replace(
+            "\"source\"",
+            "\"key\": \"0123456789abcdef01234567\", \"source\"",
+        ),
+    )
+    .unwrap();
+    let out = plan(&["--error-model", &other.display().to_string()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        out.status.success() && err.contains("calibrated for another scene"),
+        "{err}"
+    );
     // Control: the default scene's model, no target asked for: the scene as it asks.
     let out = plan(&["--error-model", "default"]);
     let text = String::from_utf8_lossy(&out.stdout);

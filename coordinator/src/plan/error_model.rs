@@ -45,6 +45,10 @@ pub struct ErrorModel {
     /// figures near it are as good as the truth can tell.
     #[serde(default)]
     pub truth_floor_db: f32,
+    /// The calibration's cache key (scene content and image size; empty for the default
+    /// scene's model), so a model given as a file can be checked against the planned scene.
+    #[serde(default)]
+    pub key: String,
 }
 
 /// One choice of an error target (`ErrorModel::cheapest`).
@@ -97,6 +101,7 @@ impl ErrorModel {
                 .into(),
             calibrated: false,
             truth_floor_db: 56.73,
+            key: String::new(),
             curves: vec![Curve {
                 map_floor: 0,
                 unfiltered: BALLS.to_vec(),
@@ -299,6 +304,7 @@ mod tests {
             source: "test".into(),
             calibrated: true,
             truth_floor_db: 0.0,
+            key: String::new(),
             curves: vec![
                 Curve {
                     map_floor: 512,

@@ -492,6 +492,7 @@ fn map_bound_model() -> ErrorModel {
         source: "test calibration".into(),
         calibrated: true,
         truth_floor_db: 0.0,
+        key: String::new(),
         curves: vec![
             Curve {
                 map_floor: 512,

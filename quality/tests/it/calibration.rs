@@ -36,6 +36,7 @@ fn a_calibration_measures_each_floor_caches_and_predicts_what_its_plan_renders()
     let gpu = Gpu::new(&GpuOptions::default())?;
     let c = calibrate(&gpu, &scene, &opts)?;
     assert!(!c.from_cache && c.model.calibrated && c.divisor == 1);
+    assert_eq!(c.model.key, model_key(&scene, &opts));
     assert_eq!(c.model.curves.len(), 2);
     for (curve, floor) in c.model.curves.iter().zip([512, 1024]) {
         assert_eq!(curve.map_floor, floor);
