@@ -56,7 +56,8 @@ impl ModelArgs {
         match self.error_model.as_str() {
             "default" => Ok(None),
             "auto" => {
-                if self.calibrate {
+                // A scene without area lights has no samples to choose: nothing to calibrate.
+                if self.calibrate && scene.area_samples().is_some() {
                     return Ok(Some(run_calibration(scene, &self.cache())?.model));
                 }
                 Ok(calibrate::cached_model(scene, &self.cache()))

@@ -169,6 +169,14 @@ pub fn calibrate(
     opts: &CalibrationOptions,
 ) -> Result<Calibration, AccuracyError> {
     let key = model_key(scene, opts);
+    if scene.area_samples().is_none() {
+        return Err(AccuracyError::Render {
+            setting: "calibration".into(),
+            message: "the scene has no area light: its samples per light are no choice to \
+                      calibrate"
+                .into(),
+        });
+    }
     if opts.counts.len() < 2
         || opts.counts.windows(2).any(|w| w[0] >= w[1])
         || opts.floors.is_empty()

@@ -101,6 +101,19 @@ fn a_calibration_measures_each_floor_caches_and_predicts_what_its_plan_renders()
 }
 
 #[test]
+fn a_scene_without_area_lights_is_refused_before_any_render() -> anyhow::Result<()> {
+    let dir = tempfile::tempdir()?;
+    let opts = options(dir.path());
+    let mut scene = small_balls();
+    scene.lights.retain(|l| !l.is_area());
+    let gpu = Gpu::new(&GpuOptions::default())?;
+    let e = calibrate(&gpu, &scene, &opts).expect_err("no area light");
+    assert!(e.to_string().contains("no area light"), "{e}");
+    assert!(!dir.path().join("truth").exists(), "nothing rendered");
+    Ok(())
+}
+
+#[test]
 fn the_cache_key_follows_what_the_model_depends_on() {
     let dir = std::path::Path::new("/nonexistent");
     let opts = options(dir);
