@@ -107,9 +107,26 @@ impl Core {
         };
         // A refinement that cannot be planned (too many samples for the nodes there are, say)
         // is dropped, and the session's quality planned instead.
+        // So is one whose estimated frame is far over the session's own: a step's frame is not
+        // cancelled by an input, so its length is how long an input may wait.
+        let session = self.refine.map(|_| plan_for(&self.scene, &o));
         let refined = self.refine.map(|r| {
             refined(&self.scene, r, self.target_samples, &o)
                 .and_then(|(scene, ro)| plan_for(&scene, &ro).map_err(|e| e.to_string()))
+                .and_then(|p| {
+                    let bound = refine_bound_us(session.as_ref().and_then(|s| s.as_ref().ok()));
+                    if p.est_frame_us > bound {
+                        Err(format!(
+                            "its estimated frame ({:.0} ms) is over {:.0} ms, {REFINE_SLOWDOWN}× \
+                             the session's or {} ms at least",
+                            p.est_frame_us as f64 / 1e3,
+                            bound as f64 / 1e3,
+                            REFINE_MIN_BOUND_US / 1000
+                        ))
+                    } else {
+                        Ok(p)
+                    }
+                })
         });
         let next = match refined {
             None => plan_for(&self.scene, &o),
@@ -591,6 +608,19 @@ impl Core {
         self.subsets.insert(kept, entry.clone());
         Ok(entry)
     }
+}
+
+/// A refinement step's estimated frame may be at most this many times the session's own ...
+pub(super) const REFINE_SLOWDOWN: u64 = 4;
+/// ... or this long (µs), whichever is more.
+pub(super) const REFINE_MIN_BOUND_US: u64 = 1_000_000;
+
+/// The longest estimated frame a refinement step may have, given the session's plan at its own
+/// quality (when it could be planned).
+pub(super) fn refine_bound_us(session: Option<&Plan>) -> u64 {
+    session
+        .map_or(0, |p| p.est_frame_us.saturating_mul(REFINE_SLOWDOWN))
+        .max(REFINE_MIN_BOUND_US)
 }
 
 /// The scene and options refinement `r` plans from the nodes' `scene` (at the session's

@@ -1048,3 +1048,64 @@ fn a_refinement_never_plans_fewer_samples_than_the_error_target_chose() {
     assert_eq!(sim.core.plan().unwrap().samples.len(), session);
     assert!(sim.core.plan().unwrap().target.is_none(), "no target");
 }
+
+/// A refinement whose estimated frame is far over the session's (64 samples per area light on
+/// nodes that take 100 ms a light, against the scene's 4) is dropped like one that cannot be
+/// planned: an input would wait for its frame. The control, 8 samples, is taken.
+#[test]
+fn a_refinement_far_slower_than_the_sessions_frame_is_dropped() {
+    let mut sim = Sim::build_with(
+        3,
+        2,
+        &[],
+        |c| {
+            c.max_lights = 64;
+            c.cost_per_light_us = 100_000;
+        },
+        4,
+    );
+    sim.start();
+    let scene = sim.core.scene.clone();
+    let camera = lightfold_scene::wire::camera_to_wire(&scene.camera);
+    let area = scene.lights.iter().filter(|l| l.is_area()).count();
+    let other = scene.lights.len() - area;
+    sim.run_plain(Duration::from_secs(3), 2);
+    let session = sim.core.plan().unwrap().clone();
+    assert_eq!(session.samples.len(), 4 * area + other);
+    let bound = super::epoch::refine_bound_us(Some(&session));
+    let mut spec = |i: u64| FrameSpec {
+        camera: Some(camera),
+        refine: Some(super::Refine {
+            samples_per_area_light: if i <= 6 { 8 } else { 64 },
+            supersample: 1,
+        }),
+        ..FrameSpec::default()
+    };
+    sim.run(Duration::from_secs(3), 6, &mut spec);
+    let taken = sim.core.plan().unwrap().clone();
+    assert_eq!(
+        taken.samples.len(),
+        8 * area + other,
+        "the control step is taken"
+    );
+    assert!(taken.est_frame_us <= bound);
+    sim.run(Duration::from_secs(3), 12, &mut spec);
+    sim.input(Input::RequestsClosed);
+    sim.run_plain(Duration::from_secs(2), 12);
+    sim.assert_all_delivered(12);
+    let p = sim.core.plan().unwrap();
+    assert_eq!(
+        p.samples.len(),
+        4 * area + other,
+        "the 64-sample step was dropped"
+    );
+    // It was dropped for its estimate: planned, it is over the bound.
+    let mut slow = scene.clone();
+    slow.quality.samples_per_area_light = Some(64);
+    let would = crate::plan::plan(&slow, &sim.core.cluster(), &sim.core.opts).unwrap();
+    assert!(
+        would.est_frame_us > bound,
+        "{} ≤ {bound}",
+        would.est_frame_us
+    );
+}
