@@ -258,7 +258,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 /// `--planned`: the planner's default choice (with this scene's calibration) against the scene
 /// as it asks, rendered on this device as the sweep renders a point, both against the truth.
 fn run_planned(args: &Args) -> anyhow::Result<()> {
-    use lightfold_coordinator::plan::{ClusterSpec, MapSizing as PlanSizing, PlanOptions, plan};
+    use lightfold_coordinator::plan::{
+        ClusterSpec, MapSizing as PlanSizing, PlanOptions, plan, targeted,
+    };
     use lightfold_quality::accuracy::{Setting, measure_prepared};
     let mut scene = lightfold_scene::load(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;
@@ -285,22 +287,26 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
     )?;
     let gpu = Gpu::new(&GpuOptions::default()).context("no usable GPU")?;
     let defaults = accuracy::Setting::defaults(&scene);
-    // The planner's choice: its samples per area light, its map floor, its filter and K.
-    let mut planned = scene.clone();
-    let (samples, floor) = match &p.target {
-        Some(t) => (t.to, t.map_floor),
-        None => (defaults.samples, 0),
+    // The planner's choice, as it made it: the scene with its samples per area light and the
+    // options with its map sizing (`plan::targeted`), its filter and K from the plan.
+    let (mut planned, sizing, floor) = match targeted(&scene, args.target_db as f32, &options) {
+        Some((s, o, t)) => (s, o.map_sizing, t.map_floor),
+        None => (scene.clone(), options.map_sizing, 0),
     };
-    if p.target.as_ref().is_some_and(|t| t.calibrated) {
-        planned.quality.samples_per_area_light = Some(samples);
-    }
-    if floor > 0
-        && let lightfold_scene::MapSizing::Mismatch(mut m) = planned.quality.map_sizing
-    {
-        m.max = m.max.max(floor);
-        m.min = floor;
-        planned.quality.map_sizing = lightfold_scene::MapSizing::Mismatch(m);
-        planned.quality.shadow_map_size = floor;
+    let samples = planned.area_samples().unwrap_or(defaults.samples);
+    // Where the plan sizes maps other than by the scene's own rule (a raised floor), the scene
+    // the device renders takes that rule.
+    match sizing {
+        PlanSizing::Mismatch { min, max, target } => {
+            let rule = lightfold_scene::shadow_views::Mismatch { min, max, target };
+            planned.quality.map_sizing = lightfold_scene::MapSizing::Mismatch(rule);
+            planned.quality.shadow_map_size = min;
+        }
+        PlanSizing::Fixed(n) => {
+            planned.quality.map_sizing = lightfold_scene::MapSizing::Fixed;
+            planned.quality.shadow_map_size = n;
+        }
+        PlanSizing::Scene => {}
     }
     let largest = match PlanSizing::Scene.resolve(&planned.quality) {
         PlanSizing::Mismatch { max, .. } => max,

@@ -104,23 +104,23 @@ impl ModelArgs {
 /// Calibrates `scene` (or reads its model from the cache) on this machine's GPU, saying so on
 /// stderr.
 pub fn run_calibration(scene: &Scene, opts: &CalibrationOptions) -> anyhow::Result<Calibration> {
-    if calibrate::cached_model(scene, opts).is_none() {
-        eprintln!(
-            "calibrating the error model of this scene at {}×{} (truth and renders; cached after)…",
-            scene.camera.width, scene.camera.height
-        );
+    // A cached model needs no device.
+    if let Some(c) = calibrate::cached(scene, opts) {
+        return Ok(c);
     }
+    eprintln!(
+        "calibrating the error model of this scene at {}×{} (truth and renders; cached after)…",
+        scene.camera.width, scene.camera.height
+    );
     let gpu = lightfold_node::gpu::Gpu::new(&lightfold_node::gpu::GpuOptions::default())
         .context("calibration needs a GPU adapter (or lavapipe)")?;
     let c = calibrate::calibrate(&gpu, scene, opts)?;
-    if !c.from_cache {
-        eprintln!(
-            "calibrated in {:.1} s (truth {:.1} s, renders {:.1} s), key {}",
-            c.seconds + c.truth_seconds,
-            c.truth_seconds,
-            c.seconds,
-            c.key
-        );
-    }
+    eprintln!(
+        "calibrated in {:.1} s (truth {:.1} s, renders {:.1} s), key {}",
+        c.seconds + c.truth_seconds,
+        c.truth_seconds,
+        c.seconds,
+        c.key
+    );
     Ok(c)
 }

@@ -142,8 +142,7 @@ pub fn model_key(scene: &Scene, opts: &CalibrationOptions) -> String {
 
 /// The cached model of `scene` under `opts`' model cache, if there is a readable one.
 pub fn cached_model(scene: &Scene, opts: &CalibrationOptions) -> Option<ErrorModel> {
-    let dir = opts.model_cache.as_ref()?;
-    read_model(&model_path(dir, &model_key(scene, opts))).ok()
+    cached(scene, opts).map(|c| c.model)
 }
 
 fn model_path(dir: &Path, key: &str) -> PathBuf {
@@ -160,6 +159,29 @@ pub fn read_model(path: &Path) -> Result<ErrorModel, String> {
     let model: ErrorModel = serde_json::from_str(&text).map_err(|e| e.to_string())?;
     model.check()?;
     Ok(model)
+}
+
+/// The calibration size of a `width × height` image: the divisor and the reduced size.
+fn reduced(width: u32, height: u32) -> (u32, (u32, u32)) {
+    let d = divisor(width, height);
+    (d, ((width / d).max(1), (height / d).max(1)))
+}
+
+/// `scene`'s calibration from the cache, if there is a readable one (no device needed).
+pub fn cached(scene: &Scene, opts: &CalibrationOptions) -> Option<Calibration> {
+    let key = model_key(scene, opts);
+    let model = read_model(&model_path(opts.model_cache.as_ref()?, &key)).ok()?;
+    let (d, size) = reduced(scene.camera.width, scene.camera.height);
+    Some(Calibration {
+        model,
+        key,
+        from_cache: true,
+        seconds: 0.0,
+        truth_seconds: 0.0,
+        points: Vec::new(),
+        size,
+        divisor: d,
+    })
 }
 
 /// The model of `scene` from the cache, or calibrated on `gpu` (and cached).
@@ -186,23 +208,11 @@ pub fn calibrate(
             message: "a calibration needs two or more rising sample counts and a map floor".into(),
         });
     }
-    let (w, h) = (scene.camera.width, scene.camera.height);
-    let d = divisor(w, h);
-    let size = ((w / d).max(1), (h / d).max(1));
-    if let Some(dir) = &opts.model_cache
-        && let Ok(model) = read_model(&model_path(dir, &key))
-    {
-        return Ok(Calibration {
-            model,
-            key,
-            from_cache: true,
-            seconds: 0.0,
-            truth_seconds: 0.0,
-            points: Vec::new(),
-            size,
-            divisor: d,
-        });
+    if let Some(c) = cached(scene, opts) {
+        return Ok(c);
     }
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let (d, size) = reduced(w, h);
     let mut cal = scene.clone();
     (cal.camera.width, cal.camera.height) = size;
     let truth = load_or_render_truth(

@@ -47,13 +47,13 @@ pub const MAX_EPSILON: f32 = 1.6e-2;
 /// The default scene's model ([`ErrorModel::balls`]) at `n` samples per area light: what plans
 /// without a calibration of their own expect.
 pub fn expected_penumbra_db(n: u32) -> f32 {
-    ErrorModel::balls().base().db(n)
+    BALLS_MODEL.base().db(n)
 }
 
 /// The penumbra filter's radius the default scene's model expects to gain the most at `n`
 /// samples per area light, 0 above the counts where it measured a gain.
 pub fn filter_radius(n: u32) -> u32 {
-    ErrorModel::balls().base().filter_radius(n)
+    BALLS_MODEL.base().filter_radius(n)
 }
 
 /// The curve a plan with `options` reads: its model's (the default scene's when it has none),
@@ -101,7 +101,7 @@ fn resolve_radius(curve: &Curve, filter: PenumbraFilter, from: Option<u32>, n: O
 /// `options` with the penumbra filter resolved for `scene` (a count lowered from `from`): a
 /// radius, or off, which is all `plan_once` reads.
 fn resolved(options: &PlanOptions, from: Option<u32>, scene: &Scene, threads: u32) -> PlanOptions {
-    let r = capped_radius(options, from, scene, area_samples(scene), threads);
+    let r = capped_radius(options, from, scene, scene.area_samples(), threads);
     PlanOptions {
         penumbra_filter: if r > 0 {
             PenumbraFilter::Radius(r)
@@ -173,11 +173,6 @@ pub fn filter_cost_us(radius: u32, width: u32, height: u32, band_height: u32, th
     pixels * (FILTER_NS.0 + FILTER_NS.1 * side * side) * halo / 1e3 / f64::from(threads.max(1))
 }
 
-/// The largest sample count of the scene's area lights (the count their samples come from).
-fn area_samples(scene: &Scene) -> Option<u32> {
-    scene.area_samples()
-}
-
 /// The scene with every area light's sample count (and the quality's override, if any) mapped
 /// by `f` (given counts of at least one).
 fn with_area_samples(scene: &Scene, f: impl Fn(u32) -> u32) -> Scene {
@@ -226,12 +221,12 @@ fn lower(
             Some((scene.clone(), o, maps_text(now), maps_text(next), Some(0.0)))
         }
         Knob::SamplesPerAreaLight => {
-            let n = area_samples(scene)?;
+            let n = scene.area_samples()?;
             if n <= 1 {
                 return None;
             }
             let s = with_area_samples(scene, |c| (c / 2).max(1));
-            let m = area_samples(&s)?;
+            let m = s.area_samples()?;
             let radius = |k| capped_radius(options, from, scene, Some(k), threads);
             let (rn, rm) = (radius(n), radius(m));
             let c = curve(options, scene);
@@ -281,13 +276,13 @@ pub(crate) fn within_budget(
 ) -> Result<Plan, PlanError> {
     let targeted = options
         .target_penumbra_db
-        .and_then(|t| to_target(scene, t, options));
+        .and_then(|t| targeted(scene, t, options));
     let threads = stage_threads(cluster);
     // What `Budget` filters below: the scene's count, or any count an error target chose.
     let from = if targeted.is_some() {
         None
     } else {
-        area_samples(scene)
+        scene.area_samples()
     };
     let (start, options) = targeted
         .as_ref()
@@ -429,12 +424,12 @@ fn fit_budget(
 /// the cheapest setting the calibration measured to reach the target. Counts are raised no
 /// further than the model measured (beyond it the model would be a guess, and a target it does
 /// not reach there is out of reach).
-fn to_target(
+pub fn targeted(
     scene: &Scene,
     target_db: f32,
     options: &PlanOptions,
 ) -> Option<(Scene, PlanOptions, TargetChoice)> {
-    let from = area_samples(scene)?;
+    let from = scene.area_samples()?;
     let max = lightfold_scene::limits::MAX_SAMPLES_PER_AREA_LIGHT;
     let model = model(options);
     let sizing = options.map_sizing.resolve(&scene.quality);

@@ -21,7 +21,7 @@ mod topology;
 mod types;
 pub mod wire;
 
-pub use budget::{MAX_EPSILON, expected_penumbra_db, filter_cost_us, filter_radius};
+pub use budget::{MAX_EPSILON, expected_penumbra_db, filter_cost_us, filter_radius, targeted};
 pub use error_model::{Choice, Curve, ErrorModel};
 pub use group::{DEFAULT_FIXED_US, DEFAULT_LIGHT_US};
 pub use replan::{lights_moved, replan};

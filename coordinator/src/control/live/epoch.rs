@@ -109,7 +109,8 @@ impl Core {
         // is dropped, and the session's quality planned instead.
         // So is one whose estimated frame is far over the session's own: a step's frame is not
         // cancelled by an input, so its length is how long an input may wait.
-        let session = self.refine.map(|_| plan_for(&self.scene, &o));
+        // The session's own plan is the bound's measure, and the plan when the step is dropped.
+        let mut session = self.refine.map(|_| plan_for(&self.scene, &o));
         let refined = self.refine.map(|r| {
             refined(&self.scene, r, self.target_samples, &o)
                 .and_then(|(scene, ro)| plan_for(&scene, &ro).map_err(|e| e.to_string()))
@@ -138,7 +139,7 @@ impl Core {
                      quality",
                     self.refine.map(|r| r.to_string()).unwrap_or_default()
                 );
-                let next = plan_for(&self.scene, &o);
+                let next = session.take().unwrap_or_else(|| plan_for(&self.scene, &o));
                 self.refused.refine = Some(self.refine.take());
                 next
             }
