@@ -35,6 +35,7 @@ pub(super) fn build(
             .unwrap_or_else(|| "scene".into())
     });
     let models = [
+        file.base.as_ref().map(|_| "[base]"),
         file.gltf.as_ref().map(|_| "[gltf]"),
         file.obj.as_ref().map(|_| "[obj]"),
         file.ply.as_ref().map(|_| "[ply]"),
@@ -42,7 +43,7 @@ pub(super) fn build(
     let named: Vec<&str> = models.into_iter().flatten().collect();
     if named.len() > 1 {
         return Err(err(format!(
-            "a scene file takes one model ([gltf], [obj] or [ply]); this one has {}",
+            "a scene file takes one model or base ([base], [gltf], [obj] or [ply]); this one has {}",
             named.join(" and ")
         )));
     }
@@ -62,7 +63,9 @@ pub(super) fn build(
         translation,
         complete: false,
     };
-    let (mut scene, gltf_camera) = if let Some(g) = &file.gltf {
+    let (mut scene, gltf_camera) = if let Some(b) = &file.base {
+        (load_base(&b.scene, base, label)?, true)
+    } else if let Some(g) = &file.gltf {
         let path = model_path("gltf", &g.path)?;
         let bytes = gltf_load::read_model(&path)?;
         let opts = GltfOptions {
@@ -102,7 +105,9 @@ pub(super) fn build(
     } else {
         (Scene::new(&name), false)
     };
-    scene.name = name;
+    if file.name.is_some() || file.base.is_none() {
+        scene.name = name;
+    }
 
     let mut by_name: HashMap<&str, usize> = HashMap::new();
     for m in &file.materials {
@@ -140,6 +145,23 @@ pub(super) fn build(
             return Err(err(format!("object name {obj_name:?} is used twice")));
         }
     }
+    if file.base.is_some() {
+        // A base's meshes are named as objects too, where their names are unique (an emissive
+        // mesh light of the base names its mesh).
+        let mut seen: HashMap<&str, usize> = HashMap::new();
+        for m in &scene.meshes {
+            *seen.entry(m.name.as_str()).or_default() += 1;
+        }
+        for (k, m) in scene.meshes.iter().enumerate() {
+            if seen.get(m.name.as_str()) == Some(&1) && !m.name.is_empty() {
+                objects.entry(m.name.clone()).or_insert(k);
+            }
+        }
+        if !file.lights.is_empty() {
+            // The file's lights are the scene's: they replace the base's.
+            scene.lights.clear();
+        }
+    }
     for (i, l) in file.lights.iter().enumerate() {
         let light = light(l, i, &mut scene, &objects).map_err(err)?;
         scene.lights.push(light);
@@ -148,8 +170,16 @@ pub(super) fn build(
     if let Some(c) = &file.camera {
         scene.camera = camera(c);
     }
-    scene.ambient = file.ambient.unwrap_or([0.0; 3]);
-    scene.exposure = file.exposure;
+    if file.base.is_none() {
+        scene.ambient = [0.0; 3];
+        scene.exposure = 1.0;
+    }
+    if let Some(a) = file.ambient {
+        scene.ambient = a;
+    }
+    if let Some(e) = file.exposure {
+        scene.exposure = e;
+    }
     if let Some(q) = &file.quality {
         apply_quality(&mut scene.quality, q);
     }
@@ -165,6 +195,52 @@ pub(super) fn build(
         tracing::warn!(file = label, %report, "scene sanitised");
     }
     Ok(scene)
+}
+
+/// The scene of a `[base]`: a built-in, or a scene file (without a base of its own) or model
+/// inside the file's folder.
+fn load_base(reference: &str, folder: Option<&Path>, label: &str) -> Result<Scene, SceneError> {
+    if crate::builtin::is_builtin(reference) {
+        return crate::builtin::builtin(reference);
+    }
+    let folder = folder.unwrap_or(Path::new("."));
+    let path = crate::input::resolve_inside(folder, reference, "the scene file's").map_err(
+        |e| match e.io {
+            Some(path) => SceneError::Io {
+                path: path.display().to_string(),
+                message: e.message,
+            },
+            None => SceneError::file(label, format!("base.scene: {}", e.message)),
+        },
+    )?;
+    let toml = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+    if toml {
+        let base_label = path.display().to_string();
+        let bytes = crate::input::read_bounded(&path, crate::limits::MAX_SCENE_FILE_BYTES)
+            .map_err(|message| SceneError::Io {
+                path: base_label.clone(),
+                message,
+            })?;
+        let text = String::from_utf8(bytes)
+            .map_err(|_| SceneError::file(&base_label, "the file is not UTF-8 text".into()))?;
+        let parsed = super::parse(&text, &base_label)?;
+        if parsed.base.is_some() {
+            return Err(SceneError::file(
+                label,
+                format!(
+                    "base.scene: {reference:?} has a [base] of its own; a base is one level deep"
+                ),
+            ));
+        }
+        return build(
+            &parsed,
+            &base_label,
+            Some(crate::gltf_load::model_folder(&path)),
+        );
+    }
+    crate::load(&path.to_string_lossy())
 }
 
 fn camera(c: &CameraSpec) -> Camera {

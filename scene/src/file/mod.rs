@@ -8,6 +8,7 @@
 //! rectangular area light (plus a ground plane when the file builds no objects).
 
 mod build;
+pub mod save;
 pub mod spec;
 
 pub use spec::SceneFile;

@@ -58,12 +58,17 @@ pub struct SceneFile {
     /// Global ambient colour `c^a`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ambient: Option<V3>,
-    /// PNG exposure: `sRGB(clamp(exposure·L))`.
-    #[serde(default = "one")]
-    pub exposure: f32,
+    /// PNG exposure: `sRGB(clamp(exposure·L))` (absent: the base scene's, or 1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exposure: Option<f32>,
     /// `false` turns every material's specular term off (glTF materials included).
     #[serde(default = "yes")]
     pub specular: bool,
+    /// A scene this file starts from (a built-in, or a scene file or model in its folder):
+    /// the file's objects are added to it, and its lights, camera, exposure, ambient and quality
+    /// replace the base's where the file gives them.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub base: Option<BaseRef>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub gltf: Option<GltfRef>,
     /// A Wavefront OBJ model (with its MTL libraries); a file takes one model in all.
@@ -85,6 +90,14 @@ pub struct SceneFile {
     /// Objects and lights that move (`docs/scenes.md`, "Motion").
     #[serde(default, rename = "motion", skip_serializing_if = "Vec::is_empty")]
     pub motions: Vec<crate::animation::MotionSpec>,
+}
+
+/// The scene a file starts from: a built-in's name, or the path (relative to the file, inside
+/// its folder) of a scene file without a base of its own, or of a glTF, OBJ or PLY model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BaseRef {
+    pub scene: String,
 }
 
 /// A glTF / GLB model, its path relative to the scene file.

@@ -361,3 +361,91 @@ fn transmission_makes_a_translucent_caster() {
         .unwrap();
     assert_eq!(red.transmission.unwrap().color, [1.0; 3]);
 }
+
+/// A session's scene written as a file over its base builds the same scene: the built-in's
+/// meshes and materials, the edited lights (moved, added, one removed), camera and exposure.
+#[test]
+fn a_session_file_over_a_base_builds_the_same_scene() {
+    use lightfold_scene::file::save::session_file;
+    for base in ["balls", "cornell", "carousel"] {
+        let mut s = load(base).unwrap();
+        if let Some(LightShape::Rect { center, .. } | LightShape::Sphere { center, .. }) =
+            s.lights.first_mut().map(|l| &mut l.shape)
+        {
+            center[0] += 0.25;
+        }
+        s.lights.push(lightfold_scene::Light {
+            name: "added".into(),
+            shape: LightShape::Disk {
+                center: [0.1, 2.5, 0.3],
+                normal: [0.0, -1.0, 0.0],
+                radius: 0.2,
+            },
+            color: [0.9, 0.5, 0.25],
+            power: 7.5,
+            range: None,
+            samples: 9,
+        });
+        s.camera.position[1] += 0.5;
+        s.camera.fov_y_deg = 41.0;
+        s.exposure = 1.5;
+        let file = session_file(&s, base).unwrap();
+        let text = to_toml(&file).unwrap();
+        let back = parse_scene_file(&text, "saved.toml", None).unwrap();
+        assert_eq!(back.name, s.name, "{base}");
+        assert_eq!(back.camera, s.camera, "{base}");
+        assert_eq!(back.exposure, s.exposure, "{base}");
+        assert_eq!(back.meshes, s.meshes, "{base}: meshes");
+        assert_eq!(back.lights.len(), s.lights.len(), "{base}");
+        for (a, b) in back.lights.iter().zip(&s.lights) {
+            assert_eq!(a.name, b.name, "{base}");
+            assert_eq!(a.color, b.color, "{base}: {}", a.name);
+            assert_eq!(a.power, b.power, "{base}: {}", a.name);
+            assert_eq!(a.samples, b.samples, "{base}: {}", a.name);
+            // Spot angles travel in degrees: equal to rounding.
+            assert_eq!(a.shape, b.shape, "{base}: {}", a.name);
+        }
+        assert_eq!(direct_samples(&back), direct_samples(&s), "{base}: samples");
+    }
+}
+
+/// A base is one level deep, inside the file's folder, and the file's own settings replace
+/// the base's: a base scene file keeps its lights when the file names none.
+#[test]
+fn a_base_is_resolved_inside_the_folder_and_one_level_deep() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::copy(example("lights.toml"), dir.path().join("lights.toml")).unwrap();
+    let base = load(&example("lights.toml")).unwrap();
+    let write = |name: &str, text: &str| {
+        let p = dir.path().join(name);
+        std::fs::write(&p, text).unwrap();
+        p.display().to_string()
+    };
+    let keep = write(
+        "keep.toml",
+        "version = 1\nexposure = 2.0\n[base]\nscene = \"lights.toml\"\n",
+    );
+    let s = load(&keep).unwrap();
+    assert_eq!(s.lights, base.lights);
+    assert_eq!(s.meshes, base.meshes);
+    assert_eq!(s.exposure, 2.0);
+    assert_eq!(s.name, base.name);
+    let nested = write(
+        "nested.toml",
+        "version = 1\n[base]\nscene = \"keep.toml\"\n",
+    );
+    let e = load(&nested).unwrap_err().to_string();
+    assert!(e.contains("one level deep"), "{e}");
+    let outside = write(
+        "outside.toml",
+        "version = 1\n[base]\nscene = \"../x.toml\"\n",
+    );
+    let e = load(&outside).unwrap_err().to_string();
+    assert!(e.contains("base.scene"), "{e}");
+    let two = write(
+        "two.toml",
+        "version = 1\n[base]\nscene = \"balls\"\n[gltf]\npath = \"m.glb\"\n",
+    );
+    let e = load(&two).unwrap_err().to_string();
+    assert!(e.contains("[base] and [gltf]"), "{e}");
+}

@@ -1,0 +1,153 @@
+//! Scene files written from a scene: a light as its `[[light]]` table, and a session's scene (a
+//! base, its camera, exposure, ambient and lights as edited) as a file that builds the same
+//! scene again.
+
+use super::spec::{BaseRef, CameraSpec, LightSpec, SceneFile, VERSION};
+use crate::model::{Light, LightShape, Scene};
+
+/// The `[[light]]` table of `light` in `scene` (whose meshes name an emissive mesh light's
+/// object). An emissive mesh light whose mesh has no name of its own in the scene (empty, or
+/// shared with another mesh) cannot be written.
+pub fn light_spec(light: &Light, scene: &Scene) -> Result<LightSpec, String> {
+    let name = Some(light.name.clone()).filter(|n| !n.is_empty());
+    let (color, power) = (light.color, light.power);
+    Ok(match light.shape {
+        LightShape::Point { position } => LightSpec::Point {
+            name,
+            position,
+            intensity: power,
+            color,
+            range: light.range,
+        },
+        LightShape::Spot {
+            position,
+            direction,
+            inner_angle,
+            outer_angle,
+        } => LightSpec::Spot {
+            name,
+            position,
+            direction,
+            intensity: power,
+            inner_angle_deg: inner_angle.to_degrees(),
+            outer_angle_deg: outer_angle.to_degrees(),
+            color,
+            range: light.range,
+        },
+        LightShape::Directional { direction } => LightSpec::Directional {
+            name,
+            direction,
+            irradiance: power,
+            color,
+        },
+        LightShape::Rect {
+            center,
+            normal,
+            u_axis,
+            size,
+        } => LightSpec::Rect {
+            name,
+            center,
+            size,
+            normal,
+            u_axis,
+            radiance: power,
+            color,
+            samples: light.samples,
+        },
+        LightShape::Disk {
+            center,
+            normal,
+            radius,
+        } => LightSpec::Disk {
+            name,
+            center,
+            normal,
+            radius,
+            radiance: power,
+            color,
+            samples: light.samples,
+        },
+        LightShape::Sphere { center, radius } => LightSpec::Sphere {
+            name,
+            center,
+            radius,
+            radiance: power,
+            color,
+            samples: light.samples,
+        },
+        LightShape::EmissiveMesh { mesh } => {
+            let object = scene
+                .meshes
+                .get(mesh)
+                .map(|m| m.name.clone())
+                .filter(|n| !n.is_empty())
+                .filter(|n| scene.meshes.iter().filter(|m| &m.name == n).count() == 1)
+                .ok_or_else(|| {
+                    format!(
+                        "light {:?} glows from mesh {mesh}, which has no name of its own to \
+                         write",
+                        light.name
+                    )
+                })?;
+            let two_sided = scene
+                .materials
+                .get(scene.meshes[mesh].material)
+                .is_some_and(|m| m.double_sided);
+            LightSpec::EmissiveMesh {
+                name,
+                object,
+                radiance: power,
+                color,
+                two_sided,
+                samples: light.samples,
+            }
+        }
+    })
+}
+
+/// The scene file that builds `scene` from `base` (a built-in's name, or a path relative to
+/// where the file is read): the base, then `scene`'s camera, exposure, ambient and lights, which
+/// replace the base's. What else `scene` has must be the base's own (a session edits only
+/// camera and lights).
+pub fn session_file(scene: &Scene, base: &str) -> Result<SceneFile, String> {
+    let c = &scene.camera;
+    let lights = scene
+        .lights
+        .iter()
+        .map(|l| light_spec(l, scene))
+        .collect::<Result<Vec<_>, _>>()?;
+    if lights.is_empty() {
+        return Err(
+            "the scene has no lights; a file without lights keeps its base's, so it cannot \
+             say so"
+                .into(),
+        );
+    }
+    Ok(SceneFile {
+        version: VERSION,
+        name: Some(scene.name.clone()),
+        ambient: Some(scene.ambient),
+        exposure: Some(scene.exposure),
+        specular: true,
+        base: Some(BaseRef {
+            scene: base.to_string(),
+        }),
+        gltf: None,
+        obj: None,
+        ply: None,
+        camera: Some(CameraSpec {
+            position: c.position,
+            target: c.target,
+            up: c.up,
+            fov_y_deg: c.fov_y_deg,
+            width: c.width,
+            height: c.height,
+        }),
+        quality: None,
+        materials: Vec::new(),
+        objects: Vec::new(),
+        lights,
+        motions: Vec::new(),
+    })
+}
