@@ -209,8 +209,13 @@ impl ViewAccessArgs {
 }
 
 impl ViewArgs {
-    /// Binds the view's listener, if asked for, and says where it is.
-    pub async fn bind(&self, cluster_token: &[u8]) -> anyhow::Result<Option<lightfold_view::View>> {
+    /// Binds the view's listener, if asked for, and says where it is. `scene` is how the
+    /// session's scene was named (`--scene`), what a saved session names as its base.
+    pub async fn bind(
+        &self,
+        cluster_token: &[u8],
+        scene: &str,
+    ) -> anyhow::Result<Option<lightfold_view::View>> {
         let Some(listen) = &self.http else {
             return Ok(None);
         };
@@ -227,6 +232,7 @@ impl ViewArgs {
             public_watch: self.access.public_watch,
             tls: self.access.tls()?,
             allow_plain_token: self.access.allow_plain_token,
+            scene_source: Some(scene.to_string()),
             ..lightfold_view::ViewOptions::default()
         })
         .await?;
@@ -762,7 +768,7 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
                 return Ok(());
             }
         }
-        let view = args.view.bind(&token).await?;
+        let view = args.view.bind(&token, &args.job.scene).await?;
         let me = Identity::new(&token, Role::Coordinator, "coordinator");
         let cancel = crate::lifecycle::shutdown_token(args.parent_pid);
         crate::metrics_http::start(&args.metrics, "coordinator", "coordinator", cancel.clone())

@@ -385,6 +385,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     time: None,
                     frame_budget_us: None,
                     refine: None,
+                    lights: None,
                 };
                 tokio::select! {
                     biased;

@@ -154,6 +154,7 @@ pub fn frame_specs(scene: &Scene, opts: &RunOptions) -> Vec<FrameSpec> {
                 time: opts.time_of(i),
                 frame_budget_us: None,
                 refine: None,
+                lights: None,
             }
         })
         .collect()

@@ -6,7 +6,8 @@
 use crate::clock::Clock;
 use glam::Vec3;
 use lightfold_coordinator::control::FrameSpec;
-use lightfold_scene::{Camera, Scene};
+use lightfold_scene::{Camera, Light, Scene};
+use std::sync::Arc;
 
 /// Closest the camera may come to its target's up axis, degrees (orbit stops short of the poles).
 const POLE_MARGIN_DEG: f32 = 2.0;
@@ -19,7 +20,7 @@ pub const MAX_LIGHT_VALUE: f32 = 1000.0;
 pub const MIN_BUDGET_MS: f32 = 1.0;
 pub const MAX_BUDGET_MS: f32 = 600_000.0;
 /// Coordinates beyond this are refused (the scene's own bounds are far smaller).
-const MAX_COORDINATE: f32 = 1e7;
+pub const MAX_COORDINATE: f32 = 1e7;
 
 /// A steering message that cannot be applied.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -32,6 +33,8 @@ pub enum SteerError {
     UnknownLight(u32),
     #[error("{0}")]
     Degenerate(&'static str),
+    #[error("{0}")]
+    BadLight(String),
 }
 
 /// A light as the viewers set it.
@@ -43,6 +46,16 @@ pub struct LightSetting {
     pub intensity: f32,
 }
 
+impl LightSetting {
+    /// A light as it is: its own colour, its power multiplied by 1.
+    pub fn of(light: &lightfold_scene::Light) -> LightSetting {
+        LightSetting {
+            color: light.color,
+            intensity: 1.0,
+        }
+    }
+}
+
 /// What the next frame requested shows.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Steer {
@@ -50,6 +63,13 @@ pub struct Steer {
     /// The scene's camera (`reset`).
     pub home: Camera,
     pub lights: Vec<LightSetting>,
+    /// The scene's lights as edited (`crate::edit`); their colours and powers are what the
+    /// settings in `lights` multiply.
+    pub scene_lights: Arc<Vec<Light>>,
+    /// Whether a viewer edited the lights (frames then carry them).
+    pub lights_edited: bool,
+    /// The scene animates some of its lights (none may then be removed).
+    pub animated_lights: bool,
     /// Clip time of an animated scene, as it plays.
     pub clock: Clock,
     /// The frame budget a viewer set (µs; `Some(None)`: none); `None` until one does (the
@@ -66,14 +86,13 @@ impl Steer {
         Steer {
             camera: scene.camera,
             home: scene.camera,
-            lights: scene
-                .lights
-                .iter()
-                .map(|l| LightSetting {
-                    color: l.color,
-                    intensity: 1.0,
-                })
-                .collect(),
+            lights: scene.lights.iter().map(LightSetting::of).collect(),
+            scene_lights: Arc::new(scene.lights.clone()),
+            lights_edited: false,
+            animated_lights: scene
+                .animation
+                .as_ref()
+                .is_some_and(|a| a.moving_lights(scene.lights.len()).contains(&true)),
             clock: Clock::new(if scene.is_animated() {
                 scene.animation.as_ref().map_or(0.0, |a| a.span())
             } else {
@@ -127,6 +146,7 @@ impl Steer {
             time: self.clock.animated().then(|| self.clock.now()),
             frame_budget_us: self.frame_budget_us,
             refine: None,
+            lights: self.lights_edited.then(|| Arc::clone(&self.scene_lights)),
         }
     }
 
@@ -139,7 +159,7 @@ impl Steer {
                 "an orbit turns at most {MAX_TURN_DEG}° at a time"
             )));
         }
-        let (pos, target, up) = self.frame()?;
+        let (pos, target, up) = self.view_frame()?;
         let d = pos - target;
         let d = glam::Quat::from_axis_angle(up, yaw_deg.to_radians()) * d;
         // Pitch: the angle between d and up moves by -pitch, kept within the margins.
@@ -167,7 +187,7 @@ impl Steer {
                 "a pan moves at most 100 views at a time".into(),
             ));
         }
-        let (pos, target, up) = self.frame()?;
+        let (pos, target, up) = self.view_frame()?;
         let forward = (target - pos).normalize();
         let right = forward.cross(up).normalize();
         let true_up = right.cross(forward);
@@ -191,7 +211,7 @@ impl Steer {
                 "a zoom step is between 1/{MAX_ZOOM_STEP} and {MAX_ZOOM_STEP}"
             )));
         }
-        let (pos, target, _) = self.frame()?;
+        let (pos, target, _) = self.view_frame()?;
         let d = (pos - target) * factor;
         if d.length() < 1e-4 {
             return Err(SteerError::Degenerate("the camera would reach its target"));
@@ -224,7 +244,7 @@ impl Steer {
             ..self.camera
         };
         let before = std::mem::replace(&mut self.camera, next);
-        if let Err(e) = self.frame().and_then(|(p, t, _)| {
+        if let Err(e) = self.view_frame().and_then(|(p, t, _)| {
             check_point(p)?;
             check_point(t)
         }) {
@@ -262,7 +282,7 @@ impl Steer {
     }
 
     /// Position, target and unit up of the camera; an error if they make no view.
-    fn frame(&self) -> Result<(Vec3, Vec3, Vec3), SteerError> {
+    pub(crate) fn view_frame(&self) -> Result<(Vec3, Vec3, Vec3), SteerError> {
         let pos = Vec3::from(self.camera.position);
         let target = Vec3::from(self.camera.target);
         let up = Vec3::from(self.camera.up);
@@ -285,7 +305,7 @@ impl Steer {
     }
 }
 
-fn finite(v: &[f32], what: &'static str) -> Result<(), SteerError> {
+pub(crate) fn finite(v: &[f32], what: &'static str) -> Result<(), SteerError> {
     if v.iter().all(|x| x.is_finite()) {
         Ok(())
     } else {
@@ -293,7 +313,7 @@ fn finite(v: &[f32], what: &'static str) -> Result<(), SteerError> {
     }
 }
 
-fn check_point(p: Vec3) -> Result<(), SteerError> {
+pub(crate) fn check_point(p: Vec3) -> Result<(), SteerError> {
     if p.is_finite() && p.abs().max_element() <= MAX_COORDINATE {
         Ok(())
     } else {

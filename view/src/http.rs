@@ -64,6 +64,7 @@ pub async fn serve(
         .route("/frame.jpg", get(jpeg))
         .route("/frame.png", get(png))
         .route("/frame.exr", get(exr))
+        .route("/scene.toml", get(scene_file))
         .route("/ws", get(websocket))
         .with_state(hub);
     let gate = lightfold_net::gate::Gate::new(MAX_CONNECTIONS, MAX_PER_ADDRESS);
@@ -260,6 +261,52 @@ async fn png(
     })
     .await;
     download(encoded, "image/png", "frame.png")
+}
+
+/// The session as a scene file (`crate::save`): its base, with the camera, exposure and lights
+/// as the viewers left them. Shown to whom the frames are.
+async fn scene_file(
+    ConnectInfo(peer): ConnectInfo<SocketAddr>,
+    headers: HeaderMap,
+    State(hub): State<Arc<Hub>>,
+) -> Response {
+    if let Some(r) = refused_frames(&hub, peer, &headers) {
+        return r;
+    }
+    let base = match &hub.save_base {
+        Ok(b) => b,
+        Err(why) => {
+            return (
+                StatusCode::CONFLICT,
+                format!("this session cannot be saved: {why}"),
+            )
+                .into_response();
+        }
+    };
+    let steer = hub.steer.borrow().clone();
+    let stops = *hub.exposure.borrow();
+    match crate::save::session_toml(&hub.skeleton, &steer, stops, base) {
+        Ok(text) => (
+            [
+                (
+                    header::CONTENT_TYPE,
+                    "application/toml; charset=utf-8".to_string(),
+                ),
+                (header::CACHE_CONTROL, "no-store".to_string()),
+                (
+                    header::CONTENT_DISPOSITION,
+                    "attachment; filename=\"session.toml\"".to_string(),
+                ),
+            ],
+            text,
+        )
+            .into_response(),
+        Err(why) => (
+            StatusCode::CONFLICT,
+            format!("this session cannot be saved: {why}"),
+        )
+            .into_response(),
+    }
 }
 
 /// `image` encoded by `encode`: once per frame and `key`, however many download it at once

@@ -89,6 +89,9 @@ pub struct Hub {
     /// Addresses removed from what viewers without the token are sent.
     pub addresses: crate::access::Addresses,
     pub steer: watch::Sender<Steer>,
+    /// The scene without its geometry, and the base a saved session names (`crate::save`).
+    pub skeleton: Scene,
+    pub save_base: Result<String, String>,
     /// A viewer asked for a frame although nothing changed.
     pub render_now: Notify,
     /// The number of the last frame the loop delivered.
@@ -146,6 +149,8 @@ impl Hub {
             tls: false,
             addresses: crate::access::Addresses::default(),
             steer: watch::Sender::new(Steer::new(scene)),
+            skeleton: crate::save::skeleton(scene),
+            save_base: crate::save::base_of(opts.scene_source.as_deref()),
             render_now: Notify::new(),
             delivered: watch::Sender::new(0),
             revisions: Mutex::new(BTreeMap::new()),

@@ -79,12 +79,36 @@ pub fn exposure_message(stops: f32) -> Value {
     json!({"type": "exposure", "stops": stops})
 }
 
+/// Every light as the viewers set it: colour and power multiplier, and the light itself — its
+/// kind, name, samples, where it is (`position`, for the page's markers; `null`: directional or
+/// a mesh light) and its `[[light]]` table (`spec`; `null` for a mesh light, which the page
+/// cannot edit).
 pub fn lights_message(s: &Steer) -> Value {
     let lights: Vec<Value> = s
         .lights
         .iter()
+        .zip(s.scene_lights.iter())
         .enumerate()
-        .map(|(i, l)| json!({"index": i, "color": l.color, "intensity": l.intensity}))
+        .map(|(i, (set, l))| {
+            let spec = match l.shape {
+                LightShape::EmissiveMesh { .. } => Value::Null,
+                _ => lightfold_scene::file::save::light_spec(l, &Scene::new(""))
+                    .ok()
+                    .and_then(|spec| serde_json::to_value(spec).ok())
+                    .unwrap_or(Value::Null),
+            };
+            json!({
+                "index": i,
+                "color": set.color,
+                "intensity": set.intensity,
+                "name": l.name,
+                "kind": shape_name(&l.shape),
+                "power": l.power,
+                "samples": if l.is_area() { l.samples } else { 1 },
+                "position": crate::edit::light_position(&l.shape),
+                "spec": spec,
+            })
+        })
         .collect();
     json!({"type": "lights", "lights": lights, "revision": s.revision})
 }
@@ -225,6 +249,7 @@ pub fn frame_header(
                 "pack_us": s.pack_us, "send_us": s.send_us, "composite_us": s.composite_us,
                 "total_us": s.total_us, "bytes_out": s.bytes_out,
                 "lights_rendered": s.lights_rendered.len(),
+                "shadow_passes": s.shadow_passes, "maps_kept": s.maps_kept,
             })
         })
         .collect();

@@ -22,12 +22,14 @@
 mod access;
 mod camera;
 mod clock;
+mod edit;
 mod encode;
 mod feed;
 mod http;
 mod hub;
 mod json;
 mod refine;
+mod save;
 mod tls;
 mod ws;
 
@@ -74,6 +76,9 @@ pub struct ViewOptions {
     /// Without TLS, accept the token from beyond loopback anyway (it crosses the network
     /// readable); else it is refused there, so it is only ever sent over TLS or on loopback.
     pub allow_plain_token: bool,
+    /// How the session's scene was named (a built-in, or a file's path): what a saved session
+    /// (`/scene.toml`) names as its base. `None`: the view cannot save the session.
+    pub scene_source: Option<String>,
 }
 
 impl std::fmt::Debug for ViewOptions {
@@ -89,6 +94,7 @@ impl std::fmt::Debug for ViewOptions {
             .field("public_watch", &self.public_watch)
             .field("tls", &self.tls)
             .field("allow_plain_token", &self.allow_plain_token)
+            .field("scene_source", &self.scene_source)
             .finish()
     }
 }
@@ -113,6 +119,7 @@ impl Default for ViewOptions {
             public_watch: false,
             tls: None,
             allow_plain_token: false,
+            scene_source: None,
         }
     }
 }

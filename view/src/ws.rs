@@ -40,6 +40,23 @@ enum Input {
         color: [f32; 3],
         intensity: f32,
     },
+    /// Light `index` as a scene file's `[[light]]` table says (`docs/scenes.md`).
+    LightSet {
+        index: u32,
+        light: lightfold_scene::file::spec::LightSpec,
+    },
+    LightAdd {
+        light: lightfold_scene::file::spec::LightSpec,
+    },
+    LightRemove {
+        index: u32,
+    },
+    /// Move light `index` by fractions of the view's width and height, at its distance.
+    LightDrag {
+        index: u32,
+        x: f32,
+        y: f32,
+    },
     Render,
     Stats,
     /// Jump to a scene time (seconds).
@@ -429,6 +446,10 @@ impl Viewer {
                     color,
                     intensity,
                 } => next.set_light(index, color, intensity),
+                Input::LightSet { index, light } => next.edit_light(index, &light),
+                Input::LightAdd { light } => next.add_light(&light),
+                Input::LightRemove { index } => next.remove_light(index),
+                Input::LightDrag { index, x, y } => next.drag_light(index, x, y),
                 Input::Time { t } => next.seek(t),
                 Input::Play => {
                     next.play(true);

@@ -968,6 +968,101 @@ async fn a_bad_certificate_or_key_is_a_clear_error_at_start() {
     println!("a mismatched pair: {}", error(bind(&cert_a, &key_b).await));
 }
 
+/// A light dragged from the page moves its shadow in the next frame; in walkthrough mode only the
+/// node holding it draws maps again (every other node keeps its maps); a light added joins the
+/// next frame; and the session saved as a scene file (`/scene.toml`) renders, single-device, the
+/// frame the view shows.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_dragged_light_redraws_only_its_maps_and_the_saved_session_renders_the_frame() {
+    let scene = small("balls");
+    let plan = plan_options(&scene, 4);
+    let opts = ViewOptions {
+        scene_source: Some("balls".into()),
+        ..loopback()
+    };
+    let original = scene.clone();
+    with_view(scene, plan, opts, |addr, delivered, _| async move {
+        let mut c = Client::connect(addr).await;
+        c.expect("welcome").await;
+        let first = c.frame().await;
+        let nodes = |f: &Frame| -> Vec<(u64, u64, u64)> {
+            f.header["daemons"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter(|d| d["role"] == "node" && d["lights_rendered"].as_u64() > Some(0))
+                .map(|d| {
+                    (
+                        d["lights_rendered"].as_u64().unwrap(),
+                        d["shadow_passes"].as_u64().unwrap(),
+                        d["maps_kept"].as_u64().unwrap(),
+                    )
+                })
+                .collect()
+        };
+        // Control: the first frame draws every node's maps.
+        let at_start = nodes(&first);
+        assert!(at_start.len() >= 2, "{at_start:?}");
+        assert!(
+            at_start.iter().all(|&(_, passes, _)| passes > 0),
+            "{at_start:?}"
+        );
+
+        let lights = c.expect("lights").await;
+        assert!(lights["lights"][0]["position"].is_array(), "{lights}");
+        let revision = c
+            .steer(json!({"type": "light_drag", "index": 0, "x": 0.15, "y": 0.05}))
+            .await;
+        let (dragged, _) = until_revision(&mut c, revision).await;
+        let after = nodes(&dragged);
+        let drew: Vec<_> = after.iter().filter(|n| n.1 > 0).collect();
+        assert_eq!(
+            drew.len(),
+            1,
+            "only the dragged light's node draws maps: {after:?}"
+        );
+        assert!(
+            after.iter().filter(|n| n.1 == 0).all(|n| n.2 > 0),
+            "the other nodes keep their maps: {after:?}"
+        );
+        assert!(after.len() >= 2, "{after:?}");
+
+        // Another light, then the session saved.
+        let revision = c
+            .steer(json!({"type": "light_add", "light": {"type": "sphere",
+                "center": [0.6, 1.6, 0.8], "radius": 0.15, "radiance": 20.0,
+                "color": [1.0, 0.7, 0.4], "samples": 4}}))
+            .await;
+        let (added, _) = until_revision(&mut c, revision).await;
+        let (head, body) = http_get(addr, "/scene.toml").await;
+        assert!(
+            head.starts_with("HTTP/1.0 200") || head.starts_with("HTTP/1.1 200"),
+            "{head}"
+        );
+        let text = String::from_utf8(body).unwrap();
+        assert!(text.contains("scene = \"balls\""), "{text}");
+        let saved = lightfold_scene::parse_scene_file(&text, "session.toml", None).unwrap();
+        assert_eq!(saved.lights.len(), original.lights.len() + 1);
+        let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
+        let frame = delivered_frame(&delivered, frame_number(&added));
+        assert_close(
+            &frame,
+            &single_device(&gpu, &saved, true),
+            "the saved session",
+        );
+        // Negative control: the scene as it started is not that frame.
+        let before = single_device(&gpu, &original, true);
+        let differs = frame
+            .data
+            .iter()
+            .zip(&before.data)
+            .filter(|(a, b)| (*a - *b).abs() > 0.05)
+            .count();
+        assert!(differs > 50, "the edits changed only {differs} channels");
+    })
+    .await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn malformed_and_hostile_messages_get_errors_and_change_nothing() {
     let scene = small("balls");
@@ -997,6 +1092,22 @@ async fn malformed_and_hostile_messages_get_errors_and_change_nothing() {
             json!({"type": "speed", "speed": 10.0}),
             json!({"type": "speed", "speed": 0.0}),
             json!({"type": "loop", "on": "yes"}),
+            // Light edits: unknown lights, unusable or unbounded shapes, a mesh light.
+            json!({"type": "light_drag", "index": 99, "x": 0.1, "y": 0}),
+            json!({"type": "light_drag", "index": 0, "x": 1e30, "y": 0}),
+            json!({"type": "light_remove", "index": 99}),
+            json!({"type": "light_set", "index": 0, "light": {"type": "sphere",
+                   "center": [0, 1, 0], "radius": -1.0, "radiance": 5.0}}),
+            json!({"type": "light_set", "index": 0, "light": {"type": "rect",
+                   "center": [0, 1, 0], "size": [1, 1], "normal": [0, 0, 0],
+                   "u_axis": [1, 0, 0], "radiance": 5.0}}),
+            json!({"type": "light_set", "index": 0, "light": {"type": "point",
+                   "position": [1e9, 1, 0], "intensity": 5.0}}),
+            json!({"type": "light_add", "light": {"type": "disk", "center": [0, 2, 0],
+                   "normal": [0, -1, 0], "radius": 0.3, "radiance": 5.0, "samples": 100000}}),
+            json!({"type": "light_add", "light": {"type": "emissive_mesh", "object": "floor",
+                   "radiance": 5.0}}),
+            json!({"type": "light_add", "light": {"type": "warp", "position": [0, 1, 0]}}),
         ];
         for m in bad {
             let e = c.try_steer(m.clone()).await;

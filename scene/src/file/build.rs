@@ -378,7 +378,7 @@ fn object_mesh(
     Ok((scene.add_mesh(mesh), name))
 }
 
-fn light(
+pub(super) fn light(
     l: &LightSpec,
     index: usize,
     scene: &mut Scene,

@@ -2,8 +2,11 @@
 //! base, its camera, exposure, ambient and lights as edited) as a file that builds the same
 //! scene again.
 
-use super::spec::{BaseRef, CameraSpec, LightSpec, SceneFile, VERSION};
-use crate::model::{Light, LightShape, Scene};
+use super::spec::{
+    BaseRef, CameraSpec, FilterSpec, LightSpec, MismatchSpec, PatternSpec, QualitySpec, SceneFile,
+    SizingSpec, SizingWord, VERSION,
+};
+use crate::model::{Light, LightShape, MapSizing, Quality, SamplePattern, Scene, ShadowFilter};
 
 /// The `[[light]]` table of `light` in `scene` (whose meshes name an emissive mesh light's
 /// object). An emissive mesh light whose mesh has no name of its own in the scene (empty, or
@@ -106,9 +109,57 @@ pub fn light_spec(light: &Light, scene: &Scene) -> Result<LightSpec, String> {
     })
 }
 
+/// The light a `[[light]]` table makes (the `index`-th light of a file, for its default name).
+/// An emissive mesh light names an object of a scene file, so it is made only in one.
+pub fn light_of(spec: &LightSpec, index: usize) -> Result<Light, String> {
+    if matches!(spec, LightSpec::EmissiveMesh { .. }) {
+        return Err("an emissive mesh light is its object's: it is made in a scene file".into());
+    }
+    super::build::light(spec, index, &mut Scene::new(""), &Default::default())
+}
+
+/// The `[quality]` table that sets every quality option to `q`'s.
+pub fn quality_spec(q: &Quality) -> Result<QualitySpec, String> {
+    Ok(QualitySpec {
+        samples_per_area_light: q.samples_per_area_light,
+        pattern: Some(match q.pattern {
+            SamplePattern::Grid => PatternSpec::Grid,
+            SamplePattern::Jittered => PatternSpec::Jittered,
+            SamplePattern::Halton => PatternSpec::Halton,
+        }),
+        seed: Some(q.seed),
+        shadow_map_size: Some(q.shadow_map_size),
+        shadow_map_sizing: Some(match q.map_sizing {
+            MapSizing::Fixed => SizingSpec::Word(SizingWord::Fixed),
+            MapSizing::Mismatch(m) => SizingSpec::Mismatch(MismatchSpec {
+                target: Some(m.target),
+                min: Some(m.min),
+                max: Some(m.max),
+            }),
+        }),
+        filter: Some(match q.filter {
+            ShadowFilter::None => FilterSpec::None,
+            ShadowFilter::Pcf2x2 => FilterSpec::Pcf2x2,
+            ShadowFilter::Pcf { taps: 3 } => FilterSpec::Pcf3x3,
+            ShadowFilter::Pcf { taps: 5 } => FilterSpec::Pcf5x5,
+            ShadowFilter::Pcf { taps } => {
+                return Err(format!(
+                    "a {taps}×{taps} shadow filter has no scene-file name"
+                ));
+            }
+        }),
+        depth_bias: Some(q.depth_bias),
+        slope_bias: Some(q.slope_bias),
+        lights_per_node: Some(q.lights_per_node),
+        indirect: Some(q.indirect),
+        indirect_clamp: q.indirect_clamp,
+        area_specular: Some(q.area_specular),
+    })
+}
+
 /// The scene file that builds `scene` from `base` (a built-in's name, or a path relative to
-/// where the file is read): the base, then `scene`'s camera, exposure, ambient and lights, which
-/// replace the base's. What else `scene` has must be the base's own (a session edits only
+/// where the file is read): the base, then `scene`'s camera, exposure, ambient, quality and
+/// lights, which replace the base's. What else `scene` has must be the base's own (a session edits only
 /// camera and lights).
 pub fn session_file(scene: &Scene, base: &str) -> Result<SceneFile, String> {
     let c = &scene.camera;
@@ -144,7 +195,7 @@ pub fn session_file(scene: &Scene, base: &str) -> Result<SceneFile, String> {
             width: c.width,
             height: c.height,
         }),
-        quality: None,
+        quality: Some(quality_spec(&scene.quality)?),
         materials: Vec::new(),
         objects: Vec::new(),
         lights,

@@ -12,6 +12,23 @@ use crate::model::{AlphaMode, Material, Mesh, Scene, Texture};
 use crate::shading::{V3, add, cross, dot, length, normalize, sub};
 use settings::{sanitize_camera, sanitize_light, sanitize_quality};
 
+/// Checks one light as [`Scene::sanitize`] would, without a scene (an emissive mesh light, which
+/// needs its mesh, is refused): `Err` says each thing sanitising would fix or drop.
+pub fn check_light(light: &crate::model::Light) -> Result<(), String> {
+    let mut copy = light.clone();
+    let mut issues = Vec::new();
+    let kept = settings::sanitize_light(&mut copy, &[], &mut issues);
+    if kept && issues.is_empty() {
+        Ok(())
+    } else {
+        Err(issues
+            .iter()
+            .map(ToString::to_string)
+            .collect::<Vec<_>>()
+            .join("; "))
+    }
+}
+
 impl Scene {
     /// Reports what [`Scene::sanitize`] would fix, without changing the scene.
     pub fn validate(&self) -> ValidationReport {

@@ -388,13 +388,18 @@ fn a_session_file_over_a_base_builds_the_same_scene() {
         });
         s.camera.position[1] += 0.5;
         s.camera.fov_y_deg = 41.0;
+        s.camera.width = 64;
         s.exposure = 1.5;
+        s.quality.samples_per_area_light = Some(4);
+        s.quality.shadow_map_size = 768;
+        s.quality.filter = lightfold_scene::ShadowFilter::Pcf { taps: 3 };
         let file = session_file(&s, base).unwrap();
         let text = to_toml(&file).unwrap();
         let back = parse_scene_file(&text, "saved.toml", None).unwrap();
         assert_eq!(back.name, s.name, "{base}");
         assert_eq!(back.camera, s.camera, "{base}");
         assert_eq!(back.exposure, s.exposure, "{base}");
+        assert_eq!(back.quality, s.quality, "{base}");
         assert_eq!(back.meshes, s.meshes, "{base}: meshes");
         assert_eq!(back.lights.len(), s.lights.len(), "{base}");
         for (a, b) in back.lights.iter().zip(&s.lights) {

@@ -144,6 +144,32 @@ impl Core {
                 next
             }
         };
+        let next = match next {
+            Err(e) if !self.stopping => {
+                // What the user changed since the last epoch every daemon took (a light edit, a
+                // budget) may be what cannot be planned: put it back and plan again, rather than
+                // wait for daemons or end the session.
+                match self.good.clone() {
+                    Some(good) => {
+                        let undone = self.restore(&good)?;
+                        if undone.is_empty() {
+                            Err(e)
+                        } else {
+                            let why = format!(
+                                "cannot plan the change ({e}): {} kept as in epoch {}, \
+                                 re-planning",
+                                undone.join(", "),
+                                good.epoch
+                            );
+                            self.notice(why.clone());
+                            return self.plan_next(why, now);
+                        }
+                    }
+                    None => Err(e),
+                }
+            }
+            next => next,
+        };
         match next {
             Ok(next) => self.begin(next, reason, now),
             Err(_) if self.stopping => {
@@ -437,6 +463,7 @@ impl Core {
             colors: self.scene.lights.iter().map(|l| l.color).collect(),
             opts: self.opts.clone(),
             refine: self.refine,
+            lights: self.scene.lights.clone(),
         });
         self.refusals = 0;
         self.plan = Some(next);
@@ -509,6 +536,12 @@ impl Core {
     /// (`Refused::strip`).
     fn restore(&mut self, good: &Settings) -> Result<Vec<String>, RunError> {
         let mut undone = Vec::new();
+        if !super::same_lights(&self.scene.lights, &good.lights) {
+            self.refused.lights = Some(Arc::new(self.scene.lights.clone()));
+            undone.push("the lights as they were (the edit is dropped)".to_string());
+            self.scene.lights = good.lights.clone();
+            self.scene_colors = good.lights.iter().map(|l| l.color).collect();
+        }
         let back: Vec<(u32, [f32; 3])> = self
             .scene
             .lights

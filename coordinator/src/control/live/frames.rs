@@ -79,7 +79,11 @@ impl Core {
             let budget = spec
                 .frame_budget_us
                 .filter(|b| *b != self.opts.frame_budget_us);
-            if budget.is_some() || spec.refine != self.refine {
+            let edit = spec
+                .lights
+                .clone()
+                .filter(|l| !super::same_lights(l, &self.scene.lights));
+            if budget.is_some() || spec.refine != self.refine || edit.is_some() {
                 // Plan under the new budget or refinement (one re-plan for both), then send this
                 // frame under the new epoch.
                 let mut why = Vec::new();
@@ -94,6 +98,15 @@ impl Core {
                         None => format!("no frame budget from frame {index}: re-planning"),
                     };
                     self.notice(text.clone());
+                    why.push(text);
+                }
+                if let Some(lights) = edit {
+                    let text = format!(
+                        "lights edited at frame {index} ({} light(s)): re-planning",
+                        lights.len()
+                    );
+                    tracing::info!("{text}");
+                    self.edit_lights(&lights);
                     why.push(text);
                 }
                 if spec.refine != self.refine {
@@ -170,6 +183,14 @@ impl Core {
             });
         }
         Ok(())
+    }
+
+    /// Makes `lights` the scene's: the next plan renders them, each with its base colour. Nodes
+    /// keep the scene bytes they hold (and sort-last parts theirs): a node's lights reach it in
+    /// its configuration, so its renderer, and the maps of lights that did not change, stay.
+    pub(super) fn edit_lights(&mut self, lights: &[lightfold_scene::Light]) {
+        self.scene.lights = lights.to_vec();
+        self.scene_colors = lights.iter().map(|l| l.color).collect();
     }
 
     /// Gives the scene's lights the colours of `colors` (source light → colour), as the next plan

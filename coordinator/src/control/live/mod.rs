@@ -75,6 +75,25 @@ pub struct FrameSpec {
     /// viewers are idle); `None`: at the session's quality, its frame budget's where it has one.
     /// A change re-plans before the frame is sent, as a budget does.
     pub refine: Option<Refine>,
+    /// The scene's lights as the viewers edited them (moved, turned, resized, resampled, added,
+    /// removed; their colour and power as the base the frame's `light_colors` scale), where they
+    /// differ from the session's: the loop re-plans over them before sending the frame. Nodes
+    /// keep their scene (a node's lights travel in its configuration), so in walkthrough mode a
+    /// node draws again only the maps of lights that changed. `None`: the session's lights.
+    pub lights: Option<Arc<Vec<lightfold_scene::Light>>>,
+}
+
+/// Whether two light lists are the same lights but for their colours (which frames change as
+/// `FrameSpec::light_colors`, and a re-plan may have recoloured).
+pub(super) fn same_lights(a: &[lightfold_scene::Light], b: &[lightfold_scene::Light]) -> bool {
+    a.len() == b.len()
+        && a.iter().zip(b).all(|(x, y)| {
+            x.name == y.name
+                && x.shape == y.shape
+                && x.power.to_bits() == y.power.to_bits()
+                && x.range == y.range
+                && x.samples == y.samples
+        })
 }
 
 /// A frame rendered above the session's quality (`docs/live-view.md` § Refinement when idle):
@@ -205,6 +224,8 @@ struct Settings {
     colors: Vec<[f32; 3]>,
     opts: PlanOptions,
     refine: Option<Refine>,
+    /// The scene's lights (`FrameSpec::lights`).
+    lights: Vec<lightfold_scene::Light>,
 }
 
 /// Settings daemons refused: frame requests asking for them again are sent without them.
@@ -216,6 +237,8 @@ struct Refused {
     budget: Option<Option<u64>>,
     /// A refinement (`FrameSpec::refine`).
     refine: Option<Option<Refine>>,
+    /// An edit of the lights (`FrameSpec::lights`).
+    lights: Option<Arc<Vec<lightfold_scene::Light>>>,
 }
 
 impl Refused {
@@ -233,6 +256,11 @@ impl Refused {
         }
         if self.refine == Some(spec.refine) {
             spec.refine = current;
+        }
+        if let (Some(asked), Some(refused)) = (&spec.lights, &self.lights)
+            && same_lights(asked, refused)
+        {
+            spec.lights = None;
         }
     }
 }

@@ -1,0 +1,216 @@
+//! Editing the scene's lights from the page: a light set from a `[[light]]` table (the scene
+//! file's vocabulary, `docs/scenes.md`), added, removed, or dragged across the view. Every edit
+//! is checked as a scene file's light would be, and bounded (coordinates, samples, the number
+//! of lights); an edit that fails changes nothing. The coordinator re-plans over the edited
+//! lights (`FrameSpec::lights`).
+
+use crate::camera::{LightSetting, MAX_COORDINATE, Steer, SteerError, check_point, finite};
+use glam::Vec3;
+use lightfold_scene::file::save::light_of;
+use lightfold_scene::file::spec::LightSpec;
+use lightfold_scene::limits::{MAX_LIGHT_SAMPLES, MAX_SAMPLES_PER_AREA_LIGHT};
+use lightfold_scene::{Light, LightShape};
+use std::sync::Arc;
+
+/// Most lights a session may have.
+pub const MAX_LIGHTS: usize = 256;
+/// Largest power a viewer may give a light (radiance, intensity or irradiance).
+pub const MAX_POWER: f32 = 1e9;
+
+/// Where a light is, for dragging it and for the page's markers (`None`: a directional light,
+/// or a mesh light, which is where its object is).
+pub fn light_position(shape: &LightShape) -> Option<[f32; 3]> {
+    match shape {
+        LightShape::Point { position } | LightShape::Spot { position, .. } => Some(*position),
+        LightShape::Rect { center, .. }
+        | LightShape::Disk { center, .. }
+        | LightShape::Sphere { center, .. } => Some(*center),
+        LightShape::Directional { .. } | LightShape::EmissiveMesh { .. } => None,
+    }
+}
+
+fn set_position(shape: &mut LightShape, p: [f32; 3]) {
+    match shape {
+        LightShape::Point { position } | LightShape::Spot { position, .. } => *position = p,
+        LightShape::Rect { center, .. }
+        | LightShape::Disk { center, .. }
+        | LightShape::Sphere { center, .. } => *center = p,
+        LightShape::Directional { .. } | LightShape::EmissiveMesh { .. } => {}
+    }
+}
+
+fn bad(m: impl Into<String>) -> SteerError {
+    SteerError::BadLight(m.into())
+}
+
+/// Checks a light a viewer made: what a scene file's would pass, within the view's bounds.
+fn check(light: &Light) -> Result<(), SteerError> {
+    lightfold_scene::validate::check_light(light).map_err(bad)?;
+    if light.power > MAX_POWER {
+        return Err(bad(format!("a light's power is at most {MAX_POWER}")));
+    }
+    if light.samples > MAX_SAMPLES_PER_AREA_LIGHT {
+        return Err(bad(format!(
+            "an area light takes at most {MAX_SAMPLES_PER_AREA_LIGHT} samples"
+        )));
+    }
+    let extent = match light.shape {
+        LightShape::Rect { size, .. } => size[0].max(size[1]),
+        LightShape::Disk { radius, .. } | LightShape::Sphere { radius, .. } => radius,
+        _ => 0.0,
+    };
+    if extent > MAX_COORDINATE || light.range.is_some_and(|r| r > MAX_COORDINATE) {
+        return Err(bad(format!(
+            "a light's size and range are at most {MAX_COORDINATE}"
+        )));
+    }
+    if let Some(p) = light_position(&light.shape) {
+        check_point(Vec3::from(p))?;
+    }
+    Ok(())
+}
+
+impl Steer {
+    /// The light `index` as a `[[light]]` table says (its colour and power become the light's
+    /// own, with the viewers' multiplier back at 1). A mesh light can only be recoloured.
+    pub fn edit_light(&mut self, index: u32, spec: &LightSpec) -> Result<(), SteerError> {
+        let old = self
+            .scene_lights
+            .get(index as usize)
+            .ok_or(SteerError::UnknownLight(index))?;
+        if matches!(old.shape, LightShape::EmissiveMesh { .. }) {
+            return Err(bad(
+                "a mesh light is its object: it can be recoloured, not moved or reshaped",
+            ));
+        }
+        let mut light = light_of(spec, index as usize).map_err(bad)?;
+        if spec_name(spec).is_none() {
+            light.name = old.name.clone();
+        }
+        check(&light)?;
+        let mut lights = self.scene_lights.as_ref().clone();
+        let mut settings = self.lights.clone();
+        settings[index as usize] = LightSetting::of(&light);
+        lights[index as usize] = light;
+        self.commit(lights, settings)
+    }
+
+    /// Adds a light (after the others).
+    pub fn add_light(&mut self, spec: &LightSpec) -> Result<(), SteerError> {
+        let index = self.scene_lights.len();
+        if index >= MAX_LIGHTS {
+            return Err(bad(format!("a session has at most {MAX_LIGHTS} lights")));
+        }
+        let light = light_of(spec, index).map_err(bad)?;
+        check(&light)?;
+        let mut lights = self.scene_lights.as_ref().clone();
+        let mut settings = self.lights.clone();
+        settings.push(LightSetting::of(&light));
+        lights.push(light);
+        self.commit(lights, settings)
+    }
+
+    /// Removes light `index`; the lights after it move down one. Refused for the last light
+    /// (set its power to 0 instead), a mesh light (its object would still glow), and in a scene
+    /// that animates its lights (their motions are bound to their places in the list).
+    pub fn remove_light(&mut self, index: u32) -> Result<(), SteerError> {
+        let old = self
+            .scene_lights
+            .get(index as usize)
+            .ok_or(SteerError::UnknownLight(index))?;
+        if matches!(old.shape, LightShape::EmissiveMesh { .. }) {
+            return Err(bad(
+                "a mesh light is its object (it would still glow): set its power to 0 instead",
+            ));
+        }
+        if self.scene_lights.len() == 1 {
+            return Err(bad(
+                "the last light cannot be removed: set its power to 0 instead",
+            ));
+        }
+        if self.animated_lights {
+            return Err(bad(
+                "this scene animates its lights, whose motions are bound to their places in the \
+                 list: set the light's power to 0 instead",
+            ));
+        }
+        let mut lights = self.scene_lights.as_ref().clone();
+        let mut settings = self.lights.clone();
+        lights.remove(index as usize);
+        settings.remove(index as usize);
+        self.commit(lights, settings)
+    }
+
+    /// Moves light `index` by `x` view widths right and `y` view heights up, at its own distance
+    /// from the camera (a light behind the camera moves at the target's distance).
+    pub fn drag_light(&mut self, index: u32, x: f32, y: f32) -> Result<(), SteerError> {
+        finite(&[x, y], "drag")?;
+        if x.abs() > 100.0 || y.abs() > 100.0 {
+            return Err(SteerError::OutOfRange(
+                "a drag moves at most 100 views at a time".into(),
+            ));
+        }
+        let light = self
+            .scene_lights
+            .get(index as usize)
+            .ok_or(SteerError::UnknownLight(index))?;
+        let p = light_position(&light.shape).ok_or_else(|| {
+            bad(match light.shape {
+                LightShape::EmissiveMesh { .. } => "a mesh light is its object: it cannot be moved",
+                _ => "a directional light has no position: turn it with its direction",
+            })
+        })?;
+        let (pos, target, up) = self.view_frame()?;
+        let forward = (target - pos).normalize();
+        let right = forward.cross(up).normalize();
+        let true_up = right.cross(forward);
+        let p = Vec3::from(p);
+        let depth = (p - pos).dot(forward);
+        let dist = if depth > 1e-3 {
+            depth
+        } else {
+            (target - pos).length()
+        };
+        let half_h = dist * (self.camera.fov_y_deg.to_radians() * 0.5).tan();
+        let half_w = half_h * self.camera.aspect();
+        let moved = p + right * (x * 2.0 * half_w) + true_up * (y * 2.0 * half_h);
+        check_point(moved)?;
+        let mut lights = self.scene_lights.as_ref().clone();
+        set_position(&mut lights[index as usize].shape, moved.to_array());
+        self.commit(lights, self.lights.clone())
+    }
+
+    /// Makes `lights` the session's, with the viewers' colour `settings` (one per light).
+    fn commit(
+        &mut self,
+        lights: Vec<Light>,
+        settings: Vec<LightSetting>,
+    ) -> Result<(), SteerError> {
+        let samples: u64 = lights
+            .iter()
+            .map(|l| if l.is_area() { u64::from(l.samples) } else { 1 })
+            .sum();
+        if samples > MAX_LIGHT_SAMPLES {
+            return Err(bad(format!(
+                "{samples} light samples in all; a scene takes at most {MAX_LIGHT_SAMPLES}"
+            )));
+        }
+        debug_assert_eq!(lights.len(), settings.len());
+        self.lights = settings;
+        self.scene_lights = Arc::new(lights);
+        self.lights_edited = true;
+        Ok(())
+    }
+}
+
+fn spec_name(spec: &LightSpec) -> Option<&String> {
+    match spec {
+        LightSpec::Point { name, .. }
+        | LightSpec::Spot { name, .. }
+        | LightSpec::Directional { name, .. }
+        | LightSpec::Rect { name, .. }
+        | LightSpec::Disk { name, .. }
+        | LightSpec::Sphere { name, .. }
+        | LightSpec::EmissiveMesh { name, .. } => name.as_ref(),
+    }
+}

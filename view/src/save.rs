@@ -1,0 +1,100 @@
+//! The session saved as a scene file (`GET /scene.toml`): the scene the session started from as
+//! its `[base]`, with the camera, exposure and lights as the viewers left them
+//! (`lightfold_scene::file::save`), so that `lightfold render --scene` of it renders the frame
+//! the view shows.
+
+use crate::camera::Steer;
+use lightfold_scene::file::save::session_file;
+use lightfold_scene::{Scene, builtin::is_builtin};
+use std::path::Path;
+
+/// What a saved session names as its base, given how the session's scene was named (a
+/// built-in, or a file's path): a built-in's name, or the file's name — the saved file is read
+/// beside it. A saved session (a file over a base, with nothing of its own but camera, lights
+/// and settings) names its own base, so saving again does not nest. `Err`: why it cannot be
+/// saved.
+pub fn base_of(source: Option<&str>) -> Result<String, String> {
+    let source = source.ok_or("the view was not told how its scene was named")?;
+    if is_builtin(source) {
+        return Ok(source.to_string());
+    }
+    let path = Path::new(source);
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .ok_or_else(|| format!("{source:?} names no file"))?;
+    let toml = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
+    if !toml {
+        return Ok(name);
+    }
+    let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read {source}: {e}"))?;
+    let file = lightfold_scene::file::parse(&text, source).map_err(|e| e.to_string())?;
+    match file.base {
+        None => Ok(name),
+        Some(b)
+            if file.objects.is_empty() && file.materials.is_empty() && file.motions.is_empty() =>
+        {
+            Ok(b.scene)
+        }
+        Some(_) => Err(format!(
+            "{source} builds on a base and adds objects of its own; a saved session over it \
+             would be a base two levels deep"
+        )),
+    }
+}
+
+/// The scene without its geometry, textures or animation: names, materials and settings (what a
+/// saved session's lights and settings are written from; mesh names name mesh lights' objects).
+pub fn skeleton(scene: &Scene) -> Scene {
+    Scene {
+        name: scene.name.clone(),
+        meshes: scene
+            .meshes
+            .iter()
+            .map(|m| lightfold_scene::Mesh {
+                name: m.name.clone(),
+                positions: Vec::new(),
+                normals: Vec::new(),
+                uvs: Vec::new(),
+                tangents: Vec::new(),
+                indices: Vec::new(),
+                material: m.material,
+            })
+            .collect(),
+        materials: scene.materials.clone(),
+        textures: Vec::new(),
+        lights: Vec::new(),
+        camera: scene.camera,
+        ambient: scene.ambient,
+        exposure: scene.exposure,
+        quality: scene.quality,
+        animation: None,
+    }
+}
+
+/// The saved session's TOML: `skeleton`'s settings, with the steering's camera and lights (each
+/// light's colour and power as the viewers set them) and the view's exposure (`stops`).
+pub fn session_toml(
+    skeleton: &Scene,
+    steer: &Steer,
+    stops: f32,
+    base: &str,
+) -> Result<String, String> {
+    let mut s = skeleton.clone();
+    s.camera = steer.camera;
+    s.exposure = 2f32.powf(stops);
+    s.lights = steer
+        .scene_lights
+        .iter()
+        .zip(&steer.lights)
+        .map(|(l, set)| lightfold_scene::Light {
+            color: set.color,
+            power: l.power * set.intensity,
+            ..l.clone()
+        })
+        .collect();
+    let file = session_file(&s, base)?;
+    lightfold_scene::file::to_toml(&file).map_err(|e| e.to_string())
+}
