@@ -1063,6 +1063,48 @@ async fn a_dragged_light_redraws_only_its_maps_and_the_saved_session_renders_the
     .await;
 }
 
+/// Lights added beyond what the nodes hold at the scene's samples (K = 4, three nodes, each area
+/// light of `small` 4 samples: a fourth area light does not fit) are planned at fewer samples
+/// and the session goes on; taking the light out again and dragging another renders the
+/// single-device image of the lights as edited.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn lights_added_beyond_the_cluster_keep_the_session_and_later_edits_match() {
+    let scene = small("balls");
+    let plan = plan_options(&scene, 4);
+    let original = scene.clone();
+    with_view(scene, plan, loopback(), |addr, delivered, _| async move {
+        let mut c = Client::connect(addr).await;
+        c.expect("welcome").await;
+        c.frame().await;
+        let sphere = json!({"type": "sphere", "center": [0.6, 1.6, 0.8], "radius": 0.15,
+            "radiance": 20.0, "color": [1.0, 0.7, 0.4], "samples": 4});
+        let disk = json!({"type": "disk", "center": [0.0, 2.5, 0.0], "normal": [0.0, -1.0, 0.0],
+            "radius": 0.3, "radiance": 10.0, "color": [0.4, 1.0, 0.6], "samples": 4});
+        c.steer(json!({"type": "light_add", "light": sphere})).await;
+        let revision = c.steer(json!({"type": "light_add", "light": disk})).await;
+        until_revision(&mut c, revision).await;
+        assert!(c.texts_of("ended").is_empty(), "the session ended");
+        c.steer(json!({"type": "light_remove", "index": 3})).await;
+        let revision = c
+            .steer(json!({"type": "light_drag", "index": 1, "x": -0.1, "y": 0.0}))
+            .await;
+        let (f, _) = until_revision(&mut c, revision).await;
+        let mut want = Steer::new(&original);
+        want.add_light(&serde_json::from_value(sphere).unwrap())
+            .unwrap();
+        want.drag_light(1, -0.1, 0.0).unwrap();
+        let mut three = original.clone();
+        three.lights = want.scene_lights.as_ref().clone();
+        let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
+        assert_close(
+            &delivered_frame(&delivered, frame_number(&f)),
+            &single_device(&gpu, &three, true),
+            "the frame after the edits",
+        );
+    })
+    .await;
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn malformed_and_hostile_messages_get_errors_and_change_nothing() {
     let scene = small("balls");

@@ -13,6 +13,7 @@ use lightfold_net::NetError;
 use lightfold_protocol::{Capabilities, ErrorCode, FrameStats, Message, Role};
 use proptest::prelude::*;
 use std::collections::{BTreeMap, BTreeSet};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 const TICK: Duration = super::TICK;
@@ -1108,4 +1109,68 @@ fn a_refinement_far_slower_than_the_sessions_frame_is_dropped() {
         "{} ≤ {bound}",
         would.est_frame_us
     );
+}
+
+/// A light edit the cluster cannot take (twenty point lights at K = 4 on three nodes whose
+/// devices take 4 lights each) is put back — the session goes on with the lights it had, told
+/// why — and frames asking for the same edit again re-plan nothing; an edit that fits is
+/// planned. (Before, the plan error ended the session.)
+#[test]
+fn a_light_edit_no_plan_fits_is_put_back_and_the_session_goes_on() {
+    let mut sim = Sim::build_with(3, 2, &[], |c| c.max_lights = 4, 4);
+    sim.start();
+    sim.run_plain(Duration::from_secs(1), 3);
+    let lights = sim.core.scene.lights.clone();
+    let before = sim.core.plan().unwrap().samples.len();
+    let mut many = lights.clone();
+    for i in 0..20 {
+        many.push(lightfold_scene::Light {
+            name: format!("extra {i}"),
+            shape: lightfold_scene::LightShape::Point {
+                position: [i as f32 * 0.01, 0.5, 0.0],
+            },
+            color: [1.0, 1.0, 1.0],
+            power: 1.0,
+            range: None,
+            samples: 1,
+        });
+    }
+    let many = Arc::new(many);
+    let mut spec = |i: u64| FrameSpec {
+        lights: (i > 3).then(|| Arc::clone(&many)),
+        ..FrameSpec::default()
+    };
+    sim.run(Duration::from_secs(3), 10, &mut spec);
+    sim.assert_all_delivered(10);
+    assert_eq!(sim.core.scene.lights, lights, "the edit was put back");
+    assert_eq!(sim.core.plan().unwrap().samples.len(), before);
+    let notice = sim
+        .core
+        .observe()
+        .borrow()
+        .notice
+        .clone()
+        .expect("a notice");
+    assert!(notice.1.contains("cannot plan"), "{notice:?}");
+    let epochs = sim.core.summary.epochs.len();
+    sim.run(Duration::from_secs(2), 15, &mut spec);
+    assert_eq!(
+        sim.core.summary.epochs.len(),
+        epochs,
+        "the refused edit was planned again"
+    );
+    // One more light fits.
+    let mut one = lights.clone();
+    one.push(many[lights.len()].clone());
+    let one = Arc::new(one);
+    let mut spec = |_: u64| FrameSpec {
+        lights: Some(Arc::clone(&one)),
+        ..FrameSpec::default()
+    };
+    sim.run(Duration::from_secs(3), 20, &mut spec);
+    sim.input(Input::RequestsClosed);
+    sim.run_plain(Duration::from_secs(2), 20);
+    sim.assert_all_delivered(20);
+    assert_eq!(sim.core.scene.lights.len(), lights.len() + 1);
+    assert_eq!(sim.core.plan().unwrap().samples.len(), before + 1);
 }
