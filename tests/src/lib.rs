@@ -12,7 +12,7 @@ use lightfold_coordinator::run::RunOptions;
 use lightfold_net::{Identity, Timeouts};
 use lightfold_node::daemon::{self as node, NodeOptions};
 use lightfold_node::gpu::{Gpu, LayerSet, RenderOptions, Renderer};
-use lightfold_protocol::Role;
+use lightfold_protocol::{Role, stats};
 use lightfold_scene::{Image, Scene};
 use std::time::Duration;
 use tokio::net::TcpListener;
@@ -295,24 +295,16 @@ pub fn small_helmet() -> Scene {
     s
 }
 
-/// The median of `v` (NaN when empty).
-pub fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(|a, b| a.total_cmp(b));
-    v[v.len() / 2]
-}
-
 /// `d` in milliseconds.
 pub fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
 
 /// The median latency (request to complete image) and interval of the frames after the first,
-/// in milliseconds: what the scaling examples report (`docs/scaling.md`).
+/// in milliseconds (NaN where there are none): what the scaling examples report (`docs/scaling.md`).
 pub fn latency_and_interval(frames: &[FrameResult]) -> (f64, f64) {
     let later = &frames[1.min(frames.len())..];
+    let median = |v: Vec<f64>| stats::median(&v).unwrap_or(f64::NAN);
     let latency = median(
         later
             .iter()
