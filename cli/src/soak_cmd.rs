@@ -1000,21 +1000,11 @@ fn single_device(
 ) -> anyhow::Result<Image> {
     r.set_camera(&scene.camera);
     let f = r.render(gpu, samples, None, [1.0; 3], LayerSet::all())?;
-    let (Some(il), Some(md), Some(ms), Some(ma), Some(e)) =
-        (f.illumination, f.diffuse, f.specular, f.ambient, f.emissive)
-    else {
-        bail!("the renderer left out a layer");
-    };
-    let mut out = Image::new(il.width, il.height, 3);
-    for i in 0..out.pixel_count() {
-        for c in 0..3 {
-            out.data[i * 3 + c] = e.data[i * 3 + c]
-                + ma.data[i * 3 + c] * scene.ambient[c]
-                + md.data[i * 3 + c] * il.data[i * 6 + c]
-                + ms.data[i * 3 + c] * il.data[i * 6 + 3 + c];
-        }
-    }
-    Ok(out)
+    let il = f
+        .illumination
+        .as_ref()
+        .context("the renderer left out a layer")?;
+    Ok(f.radiance(il, scene.ambient)?)
 }
 
 /// The link formats' bound of `lightfold-tests`' `assert_close_within(.., 1000)`: 2.5 % relative

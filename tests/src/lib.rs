@@ -13,6 +13,7 @@ use lightfold_net::{Identity, Timeouts};
 use lightfold_node::daemon::{self as node, NodeOptions};
 use lightfold_node::gpu::{Gpu, LayerSet, RenderOptions, Renderer};
 use lightfold_protocol::{Role, stats};
+use lightfold_scene::shading::{MaterialLayers, compose_frame};
 use lightfold_scene::{Image, Scene};
 use std::time::Duration;
 use tokio::net::TcpListener;
@@ -357,8 +358,8 @@ pub fn single_device_filtered(gpu: &Gpu, scene: &Scene, walkthrough: bool, radiu
         f.ambient.unwrap(),
         f.emissive.unwrap(),
     );
+    let depth = f.depth.unwrap();
     if radius > 0 {
-        let depth = f.depth.unwrap();
         il.data = lightfold_compositor::ops::penumbra::filter_frame(
             il.width,
             radius,
@@ -368,21 +369,24 @@ pub fn single_device_filtered(gpu: &Gpu, scene: &Scene, walkthrough: bool, radiu
         )
         .unwrap();
     }
-    shade(scene, &il, [&md, &ms, &ma, &e])
+    shade(scene, &il, [&md, &ms, &ma, &e], |i| depth.data[i] > 0.0)
 }
 
-/// The material stage on one device: `m^e + m^a·c^a + m^d·I^d + m^s·I^s` per pixel.
-fn shade(scene: &Scene, il: &Image, [md, ms, ma, e]: [&Image; 4]) -> Image {
-    let mut out = Image::new(il.width, il.height, 3);
-    for i in 0..out.pixel_count() {
-        for c in 0..3 {
-            out.data[i * 3 + c] = e.data[i * 3 + c]
-                + ma.data[i * 3 + c] * scene.ambient[c]
-                + md.data[i * 3 + c] * il.data[i * 6 + c]
-                + ms.data[i * 3 + c] * il.data[i * 6 + 3 + c];
-        }
-    }
-    out
+/// The material stage on one device: paper eq. 2 (`compose_frame`), `e + m^a·c^a + m^d·I^d +
+/// m^s·I^s` per pixel with the ambient `c^a` only where `covered`.
+fn shade(
+    scene: &Scene,
+    il: &Image,
+    [md, ms, ma, e]: [&Image; 4],
+    covered: impl Fn(usize) -> bool,
+) -> Image {
+    let m = MaterialLayers {
+        diffuse: md,
+        specular: ms,
+        ambient: ma,
+        emissive: e,
+    };
+    compose_frame(il, [1.0; 3], m, scene.ambient, covered)
 }
 
 /// [`single_device`] over sort-last parts: each part's eye pass alone with its shadow maps
@@ -447,6 +451,7 @@ pub fn single_device_parts(
         scene,
         &layers[0],
         [&layers[1], &layers[2], &layers[3], &layers[4]],
+        |i| won[i].is_some(),
     )
 }
 
