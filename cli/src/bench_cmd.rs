@@ -9,7 +9,7 @@ use anyhow::{Context, bail};
 use lightfold_net::{Identity, Link, Timeouts, accept, dial};
 use lightfold_protocol::frame::Frame;
 use lightfold_protocol::{
-    FrameParams, FrameStats, Layer, Message, NodeConfig, PixelFormat, Role, WireShadow,
+    FrameParams, FrameStats, Layer, Message, NodeConfig, PixelFormat, Role, WireShadow, stats,
 };
 use lightfold_scene::sampling::direct_samples;
 use lightfold_scene::wire::{camera_to_wire, light_to_wire};
@@ -138,22 +138,14 @@ struct Row {
     cpu_ms_total: f64,
 }
 
-fn median(mut v: Vec<u64>) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_unstable();
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2] as f64
-    } else {
-        (v[n / 2 - 1] + v[n / 2]) as f64 / 2.0
-    }
+/// The median of `v` (`stats::median`), 0 when empty.
+fn median(v: &[u64]) -> f64 {
+    stats::median(v).unwrap_or(0) as f64
 }
 
 impl Row {
     fn ms(&self, f: impl Fn(&FrameStats) -> u64) -> f64 {
-        median(self.frames.iter().map(f).collect()) / 1000.0
+        median(&self.frames.iter().map(f).collect::<Vec<_>>()) / 1000.0
     }
     fn total_ms(&self) -> f64 {
         self.ms(|s| s.total_us)
@@ -550,12 +542,12 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
     let pixels = f64::from(a.size.0) * f64::from(a.size.1);
     for r in rows {
         let passes = median(
-            r.frames
+            &r.frames
                 .iter()
                 .map(|s| u64::from(s.shadow_passes))
-                .collect(),
+                .collect::<Vec<_>>(),
         );
-        let mb = median(r.frames.iter().map(|s| s.bytes_out).collect()) / 1e6;
+        let mb = median(&r.frames.iter().map(|s| s.bytes_out).collect::<Vec<_>>()) / 1e6;
         let rss = r.frames.iter().map(|s| s.peak_rss_bytes).max().unwrap_or(0) as f64 / 1e6;
         // Time no phase accounts for (packing overlaps sending, so it is not subtracted).
         let untimed = r.ms(|s| {
@@ -564,13 +556,13 @@ fn print_tables(a: &NodeArgs, rows: &[Row]) {
             )
         });
         let device = r.ms(|s| s.shadow_us + s.eye_us);
-        let interval = median(r.intervals.clone()) / 1000.0;
+        let interval = median(&r.intervals) / 1000.0;
         let ratio = if device > 0.0 && interval > 0.0 {
             format!("{:.2}", interval / device)
         } else {
             "—".into()
         };
-        let read = median(r.frames.iter().map(|s| s.read_bytes).collect()) / pixels;
+        let read = median(&r.frames.iter().map(|s| s.read_bytes).collect::<Vec<_>>()) / pixels;
         let ahead = r.frames.iter().filter(|s| s.prefetched).count() * 100 / r.frames.len().max(1);
         outln!(
             "| {} | {} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {:.1} | {}% | {} | {:.1} | {} | {:.2} | {:.0} |",

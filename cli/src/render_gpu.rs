@@ -11,6 +11,7 @@ use lightfold_node::gpu::device::parse_backend;
 use lightfold_node::gpu::{
     EyeVariant, Gpu, GpuOptions, LayerSet, NodeFrame, RenderOptions, Renderer,
 };
+use lightfold_protocol::stats;
 use lightfold_reference::output::png_next_to;
 use lightfold_scene::{Image, LightSample, Scene};
 use std::time::Instant;
@@ -42,12 +43,11 @@ impl FrameTimes {
     }
 }
 
-/// Median of each column.
+/// Median of each column (`stats::median`), 0 when there are no rows.
 fn medians(rows: &[[u64; 3]]) -> [u64; 3] {
     std::array::from_fn(|c| {
-        let mut v: Vec<u64> = rows.iter().map(|r| r[c]).collect();
-        v.sort_unstable();
-        v.get(v.len() / 2).copied().unwrap_or(0)
+        let v: Vec<u64> = rows.iter().map(|r| r[c]).collect();
+        stats::median(&v).unwrap_or(0)
     })
 }
 

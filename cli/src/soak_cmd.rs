@@ -21,7 +21,7 @@ use lightfold_coordinator::plan::{ClusterSpec, MapSizing, PlanOptions, plan};
 use lightfold_coordinator::run::{FramePath, camera_at};
 use lightfold_net::{Identity, Timeouts};
 use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
-use lightfold_protocol::Role;
+use lightfold_protocol::{Role, stats};
 use lightfold_scene::{Image, Scene};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -1001,21 +1001,11 @@ fn single_device(
 ) -> anyhow::Result<Image> {
     r.set_camera(&scene.camera);
     let f = r.render(gpu, samples, None, [1.0; 3], LayerSet::all())?;
-    let (Some(il), Some(md), Some(ms), Some(ma), Some(e)) =
-        (f.illumination, f.diffuse, f.specular, f.ambient, f.emissive)
-    else {
-        bail!("the renderer left out a layer");
-    };
-    let mut out = Image::new(il.width, il.height, 3);
-    for i in 0..out.pixel_count() {
-        for c in 0..3 {
-            out.data[i * 3 + c] = e.data[i * 3 + c]
-                + ma.data[i * 3 + c] * scene.ambient[c]
-                + md.data[i * 3 + c] * il.data[i * 6 + c]
-                + ms.data[i * 3 + c] * il.data[i * 6 + 3 + c];
-        }
-    }
-    Ok(out)
+    let il = f
+        .illumination
+        .as_ref()
+        .context("the renderer left out a layer")?;
+    Ok(f.radiance(il, scene.ambient)?)
 }
 
 /// The link formats' bound of `lightfold-tests`' `assert_close_within(.., 1000)`: 2.5 % relative
@@ -1167,22 +1157,12 @@ fn ms(d: Duration) -> String {
     format!("{:.0}", d.as_secs_f64() * 1000.0)
 }
 
-/// Nearest-rank percentile.
-fn pct(sorted: &[Duration], p: f64) -> Option<Duration> {
-    if sorted.is_empty() {
-        return None;
-    }
-    let rank = ((p * sorted.len() as f64).ceil() as usize).clamp(1, sorted.len());
-    Some(sorted[rank - 1])
-}
-
-/// "p50 / p95 / max ms (n = …)" of some durations.
+/// "p50 / p95 / max ms (n = …)" of some durations (nearest-rank percentiles).
 fn spread(v: &[Duration]) -> String {
-    let mut s = v.to_vec();
-    s.sort_unstable();
-    match (pct(&s, 0.5), pct(&s, 0.95), s.last()) {
+    let pct = |p| stats::percentile_nearest_rank(v, p);
+    match (pct(0.5), pct(0.95), v.iter().max()) {
         (Some(a), Some(b), Some(m)) => {
-            format!("{} / {} / {} ms (n = {})", ms(a), ms(b), ms(*m), s.len())
+            format!("{} / {} / {} ms (n = {})", ms(a), ms(b), ms(*m), v.len())
         }
         _ => "– (n = 0)".into(),
     }
@@ -1326,7 +1306,7 @@ impl Report {
 
         let (w, h) = (i.scene.camera.width, i.scene.camera.height);
         let m = i.machine;
-        let load_mean = m.load.iter().sum::<f64>() / m.load.len().max(1) as f64;
+        let load_mean = stats::mean(&m.load).unwrap_or(0.0);
         let load_max = m.load.iter().copied().fold(0.0f64, f64::max);
         r.title = format!(
             "`lightfold soak --faults {} --seed {}{}`: scene {} {w}x{h}, {} light samples, K = {}, \
@@ -1395,11 +1375,7 @@ impl Report {
             .windows(2)
             .map(|w| w[1].at.saturating_duration_since(w[0].at))
             .collect();
-        let typical = {
-            let mut g = gaps.clone();
-            g.sort();
-            g.get(g.len() / 2).copied().unwrap_or_default()
-        };
+        let typical = stats::median(&gaps).unwrap_or_default();
         let bar = Duration::from_secs(2) + typical;
         let largest = gaps.iter().max().copied().unwrap_or_default();
         row(
@@ -1779,6 +1755,7 @@ mod tests {
     #[test]
     fn percentiles_are_nearest_rank() {
         let v: Vec<Duration> = (1..=20).map(Duration::from_millis).collect();
+        let pct = stats::percentile_nearest_rank::<Duration>;
         assert_eq!(pct(&v, 0.5), Some(Duration::from_millis(10)));
         assert_eq!(pct(&v, 0.95), Some(Duration::from_millis(19)));
         assert_eq!(pct(&v, 1.0), Some(Duration::from_millis(20)));

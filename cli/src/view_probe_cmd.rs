@@ -6,6 +6,7 @@
 
 use anyhow::{Context, bail};
 use futures::{SinkExt, StreamExt};
+use lightfold_protocol::stats;
 use serde_json::{Value, json};
 use std::time::{Duration, Instant};
 use tokio_tungstenite::tungstenite::Message;
@@ -117,13 +118,9 @@ async fn stats(ws: &mut Socket, seen: &mut Seen) -> anyhow::Result<Value> {
     seen.stats.take().context("stats")
 }
 
+/// The nearest-rank `p`-quantile of `v` (`stats`), NaN when empty (printed as "NaN").
 fn percentile(v: &[f64], p: f64) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    s[((s.len() - 1) as f64 * p).round() as usize]
+    stats::percentile_nearest_rank(v, p).unwrap_or(f64::NAN)
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {

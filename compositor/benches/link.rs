@@ -26,7 +26,7 @@ use lightfold_compositor::daemon::driver::{
 use lightfold_compositor::daemon::{CompositorOptions, run};
 use lightfold_net::{Identity, Timeouts};
 use lightfold_protocol::{
-    BandHeader, CompositorConfig, FrameParams, Layer, PixelFormat, Role, StageInput,
+    BandHeader, CompositorConfig, FrameParams, Layer, PixelFormat, Role, StageInput, stats,
 };
 use raw::{RawRelay, cpu_ms};
 use std::time::Duration;
@@ -112,9 +112,10 @@ async fn send_bands(p: &mut Producer, bands: &[(BandHeader, Bytes)], frame: u64)
     }
 }
 
-fn stats(mut v: Vec<f64>) -> (f64, f64) {
-    v.sort_by(f64::total_cmp);
-    (v[v.len() / 2], v[0])
+/// The median (`stats::median`) and the least of some timings.
+fn median_and_best(v: &[f64]) -> (f64, f64) {
+    let s = stats::sorted(v);
+    (stats::median(&s).expect("timed frames"), s[0])
 }
 
 struct LinkCase {
@@ -271,12 +272,13 @@ async fn link_cost(case: &LinkCase, frames: usize, with_raw: bool) {
     let raw = raw_times;
 
     let in_bytes: usize = in_sizes.iter().flatten().sum();
-    let (med, best) = stats(times);
-    let (rmed, rbest) = stats(raw);
-    let (smed, sbest) = stats(spawned_times);
-    let (combine, _) = stats(work.iter().map(|w| w.0).collect());
-    let (pack, _) = stats(work.iter().map(|w| w.1).collect());
-    let (send, _) = stats(work.iter().map(|w| w.2).collect());
+    let (med, best) = median_and_best(&times);
+    let (rmed, rbest) = median_and_best(&raw);
+    let (smed, sbest) = median_and_best(&spawned_times);
+    let part = |k: fn(&(f64, f64, f64)) -> f64| work.iter().map(k).collect::<Vec<_>>();
+    let (combine, _) = median_and_best(&part(|w| w.0));
+    let (pack, _) = median_and_best(&part(|w| w.1));
+    let (send, _) = median_and_best(&part(|w| w.2));
     println!(
         "link {:<10} in {:>5.1} MB + out {:>5.1} MB per frame | stage median {:>6.1} ms best {:>6.1} ms | raw TCP median {:>6.1} ms best {:>6.1} ms | ratio {:.2} (best {:.2})",
         case.name,
@@ -445,7 +447,7 @@ async fn pipelining(periods: &[u64], frames: u64) {
         .map(|(d, s)| (*d - *s).as_secs_f64() * 1e3)
         .collect();
     let worst = latencies.iter().copied().fold(0.0, f64::max);
-    let (latency, _) = stats(latencies);
+    let (latency, _) = median_and_best(&latencies);
     println!(
         "pipeline {n} stages, source periods {periods:?} ms: interval {interval:.1} ms = {:.3} x slowest ({slowest} ms); latency median {latency:.1} ms = {:.2} frames (worst {:.2})",
         interval / slowest as f64,

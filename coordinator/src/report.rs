@@ -7,6 +7,7 @@ use crate::control::FrameResult;
 use crate::plan::Plan;
 use comfy_table::{CellAlignment, Table, presets};
 use lightfold_protocol::FrameStats;
+use lightfold_protocol::stats::{self, percentile_nearest_rank};
 use std::cmp::Ordering;
 use std::fmt::Write;
 
@@ -88,23 +89,9 @@ pub fn natural_cmp(a: &str, b: &str) -> Ordering {
     }
 }
 
-/// The `p`-th percentile (0–100) of `v` by nearest rank; `None` when empty.
-pub fn percentile(v: &[f64], p: f64) -> Option<f64> {
-    if v.is_empty() {
-        return None;
-    }
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let rank = ((p / 100.0) * s.len() as f64).ceil() as usize;
-    Some(s[rank.clamp(1, s.len()) - 1])
-}
-
+/// The mean of `v`, 0 when empty (a row's figures read "-" before they get here).
 fn mean(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        0.0
-    } else {
-        v.iter().sum::<f64>() / v.len() as f64
-    }
+    stats::mean(v).unwrap_or(0.0)
 }
 
 /// A byte count with its unit (decimal, as the plan's MB): `512 B`, `36.9 kB`, `1.16 MB`.
@@ -132,7 +119,10 @@ fn ms_text(ms: f64) -> String {
 /// `mean ms, p50 ms, p95 ms` of `v` (the percentiles only with at least two values).
 fn spread(v: &[f64]) -> String {
     let m = mean(v);
-    match (percentile(v, 50.0), percentile(v, 95.0)) {
+    match (
+        percentile_nearest_rank(v, 0.5),
+        percentile_nearest_rank(v, 0.95),
+    ) {
         (Some(p50), Some(p95)) if v.len() >= 2 => {
             format!("mean {m:.1} ms, p50 {p50:.1} ms, p95 {p95:.1} ms")
         }
@@ -260,8 +250,8 @@ impl Report {
             ];
             if spread {
                 let totals = values(&|s| s.total_us as f64 / 1e3);
-                let at = |p: f64| percentile(&totals, p).map_or("-".into(), ms_text);
-                row.push(format!("{} / {}", at(50.0), at(95.0)));
+                let at = |p: f64| percentile_nearest_rank(&totals, p).map_or("-".into(), ms_text);
+                row.push(format!("{} / {}", at(0.5), at(0.95)));
             }
             row.push(if stats.is_empty() {
                 "-".into()
@@ -368,10 +358,10 @@ mod tests {
     #[test]
     fn percentiles_and_units() {
         let v: Vec<f64> = (1..=100).map(f64::from).collect();
-        assert_eq!(percentile(&v, 50.0), Some(50.0));
-        assert_eq!(percentile(&v, 95.0), Some(95.0));
-        assert_eq!(percentile(&[3.0], 95.0), Some(3.0));
-        assert_eq!(percentile(&[], 50.0), None);
+        assert_eq!(percentile_nearest_rank(&v, 0.5), Some(50.0));
+        assert_eq!(percentile_nearest_rank(&v, 0.95), Some(95.0));
+        assert_eq!(percentile_nearest_rank(&[3.0], 0.95), Some(3.0));
+        assert_eq!(percentile_nearest_rank::<f64>(&[], 0.5), None);
         assert_eq!(bytes(512.0), "512 B");
         assert_eq!(bytes(36864.0), "36.9 kB");
         assert_eq!(bytes(1_160_000.0), "1.16 MB");

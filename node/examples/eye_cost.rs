@@ -7,6 +7,7 @@
 //! [--frames N] [--sums] [K…]`
 
 use lightfold_node::gpu::{EyeVariant, Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+use lightfold_protocol::stats;
 use lightfold_scene::Camera;
 
 fn orbit(c: &Camera, f: u32) -> Camera {
@@ -31,9 +32,8 @@ fn cpu_ms() -> f64 {
     ns as f64 / 1e6
 }
 
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+fn median(v: &[f64]) -> f64 {
+    stats::median(v).expect("timed frames")
 }
 
 fn main() -> anyhow::Result<()> {
@@ -112,8 +112,8 @@ fn main() -> anyhow::Result<()> {
         let (m, c) = (min(&eye[slot]), min(&cpu[slot]));
         println!(
             "{k}\t{m:.1}\t{:.1}\t{c:.1}\t{:.1}",
-            median(&mut eye[slot]),
-            median(&mut cpu[slot])
+            median(&eye[slot]),
+            median(&cpu[slot])
         );
         fastest.push((k as f64, m));
         fastest_cpu.push((k as f64, c));

@@ -9,12 +9,12 @@
 //! [--size WxH] [K]`
 
 use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+use lightfold_protocol::stats;
 use lightfold_reference::render_point_sum;
 use lightfold_scene::{Image, LightSample, Scene};
 
-fn median(v: &mut [f64]) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+fn median(v: &[f64]) -> f64 {
+    stats::median(v).expect("timed frames")
 }
 
 /// The scene with every translucent caster made opaque: the same triangles, black shadows.
@@ -98,9 +98,9 @@ fn main() -> anyhow::Result<()> {
         last = Some((a, b));
     }
     let (a, b) = last.expect("frames ran");
-    let (st, so) = (median(&mut shadow_t), median(&mut shadow_o));
-    let (et, eo) = (median(&mut eye_t), median(&mut eye_o));
-    let (lt, lo) = (median(&mut layers_t), median(&mut layers_o));
+    let (st, so) = (median(&shadow_t), median(&shadow_o));
+    let (et, eo) = (median(&eye_t), median(&eye_o));
+    let (lt, lo) = (median(&layers_t), median(&layers_o));
     println!(
         "scene {} at {}×{}, K = {k}, {views} views of which {transmit_views} with transmittance \
          maps; medians of {frames} frames on {}",

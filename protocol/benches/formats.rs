@@ -11,8 +11,8 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 
 use criterion::{Criterion, Throughput, criterion_group};
-use lightfold_protocol::PixelFormat;
 use lightfold_protocol::format::{pack, unpack};
+use lightfold_protocol::{PixelFormat, stats};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -33,9 +33,7 @@ fn record(name: &str, iters: u64, elapsed: Duration) {
 
 fn median_ns(name: &str) -> Option<f64> {
     let times = TIMES.lock().ok()?;
-    let mut v = times.get(name)?.clone();
-    v.sort_by(f64::total_cmp);
-    v.get(v.len() / 2).copied()
+    stats::median(times.get(name)?)
 }
 
 /// A plausible frame: mostly in [0, SCALE], some dark, a few bright (saturating seed64).

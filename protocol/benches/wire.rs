@@ -9,9 +9,9 @@
 
 use half::f16;
 use half::slice::HalfFloatSliceExt;
-use lightfold_protocol::PixelFormat;
 use lightfold_protocol::band::checksum;
 use lightfold_protocol::format::{pack, unpack};
+use lightfold_protocol::{PixelFormat, stats};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::hint::black_box;
@@ -92,8 +92,9 @@ fn main() {
         src.len() as f64 * 2e-6
     );
     println!("{:<34} {:>8} {:>10}", "step", "best ms", "median ms");
-    for (name, mut t) in names.iter().zip(times) {
-        t.sort_by(f64::total_cmp);
-        println!("{name:<34} {:>8.2} {:>10.2}", t[0], t[t.len() / 2]);
+    for (name, t) in names.iter().zip(times) {
+        let t = stats::sorted(&t);
+        let median = stats::median(&t).expect("rounds > 0");
+        println!("{name:<34} {:>8.2} {median:>10.2}", t[0]);
     }
 }

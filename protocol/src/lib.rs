@@ -3,7 +3,8 @@
 //!
 //! Must not depend on tokio, wgpu or do any I/O: encoders write into `BufMut`, decoders read from
 //! `Buf` and tell "need more bytes" from "invalid", so the daemons, the tests and the fuzzer drive
-//! the same code.
+//! the same code. Beside the wire, it holds the few pure definitions every crate must share and
+//! none may copy: the sRGB transfer (`srgb`) and the summary statistics (`stats`).
 
 pub mod band;
 pub mod error;
@@ -12,6 +13,7 @@ pub mod frame;
 pub mod handshake;
 pub mod message;
 pub mod srgb;
+pub mod stats;
 
 pub use band::{BAND_HEADER_LEN, BandError, BandHeader, BandLayout};
 pub use error::ProtocolError;

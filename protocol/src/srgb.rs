@@ -4,7 +4,12 @@
 //! included) from two table reads, no `powf`: a bucket table gives the code at the bucket's lower
 //! edge, and one comparison with the next code's exact threshold (found from the reference itself)
 //! finishes it. Here rather than in `scene` so the compositor, which must not depend on `scene`,
-//! shares it; the wire's own `rgba8srgb` format rounds in the linear domain and is `format`'s.
+//! shares it; the wire's own `rgba8srgb` format rounds in the linear domain and is `format`'s
+//! (its tables are built from [`srgb_to_linear_f64`], the same curve in f64).
+//!
+//! Out-of-range input, one rule in both directions: NaN and −∞ read as 0, +∞ as 1, and anything
+//! else is clamped to [0, 1] before the curve, so no transfer here returns a value outside [0, 1]
+//! or a NaN.
 
 use std::sync::OnceLock;
 
@@ -19,8 +24,21 @@ pub fn linear_to_srgb(x: f32) -> f32 {
     }
 }
 
-/// Inverse sRGB transfer of a value in [0, 1].
+/// The inverse sRGB transfer (an encoded value to linear); NaN and values outside [0, 1] are
+/// clamped first, as [`linear_to_srgb`] clamps them.
 pub fn srgb_to_linear(x: f32) -> f32 {
+    let x = if x.is_nan() { 0.0 } else { x.clamp(0.0, 1.0) };
+    if x <= 0.040_45 {
+        x / 12.92
+    } else {
+        ((x + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// [`srgb_to_linear`] in f64, for tables that must hold the curve closer than f32 rounds it (the
+/// `rgba8srgb` format's code midpoints).
+pub fn srgb_to_linear_f64(x: f64) -> f64 {
+    let x = if x.is_nan() { 0.0 } else { x.clamp(0.0, 1.0) };
     if x <= 0.040_45 {
         x / 12.92
     } else {
@@ -132,6 +150,45 @@ mod tests {
         }
         assert_eq!(encode8(f32::INFINITY), 255);
         assert_eq!(encode8(f32::NAN), 0);
+    }
+
+    #[test]
+    fn out_of_range_reads_as_the_nearest_end_both_ways() {
+        for (x, end) in [
+            (f32::NAN, 0.0),
+            (f32::NEG_INFINITY, 0.0),
+            (-1.0, 0.0),
+            (-0.0, 0.0),
+            (f32::INFINITY, 1.0),
+            (2.0, 1.0),
+        ] {
+            assert_eq!(linear_to_srgb(x), linear_to_srgb(end), "{x}");
+            assert_eq!(srgb_to_linear(x), srgb_to_linear(end), "{x}");
+            let wide = f64::from(x);
+            assert_eq!(
+                srgb_to_linear_f64(wide),
+                srgb_to_linear_f64(f64::from(end)),
+                "{x}"
+            );
+        }
+        assert_eq!(srgb8(f32::INFINITY), 255);
+        assert_eq!(srgb8(f32::NEG_INFINITY), 0);
+        assert_eq!((srgb_to_linear(0.0), srgb_to_linear_f64(1.0)), (0.0, 1.0));
+        // By hand: the linear piece below the knee, the power piece above it.
+        assert_eq!(srgb_to_linear(0.04), 0.04 / 12.92);
+        assert!((srgb_to_linear(0.5) - 0.214_041_14).abs() < 1e-7);
+        assert!((srgb_to_linear_f64(0.5) - 0.214_041_140_482_232_5).abs() < 1e-15);
+        assert!((linear_to_srgb(0.214_041_14) - 0.5).abs() < 1e-6);
+        // Every code decodes to within f32 rounding of the f64 curve, and back to itself.
+        for c in 0..=255u8 {
+            let s = f32::from(c) / 255.0;
+            let (lin, wide) = (srgb_to_linear(s), srgb_to_linear_f64(f64::from(c) / 255.0));
+            assert!(
+                (f64::from(lin) - wide).abs() <= 1e-6 * wide.max(1e-3),
+                "{c}"
+            );
+            assert_eq!(srgb8(lin), c);
+        }
     }
 
     #[test]

@@ -17,6 +17,7 @@
 //!   same run, alternating.
 use anyhow::Context;
 use lightfold_node::gpu::{Gpu, GpuOptions};
+use lightfold_protocol::stats;
 use lightfold_quality::gpu_radiance;
 use lightfold_reference::metrics::error_stats;
 use lightfold_reference::render_point_sum;
@@ -59,9 +60,8 @@ fn former(scene: &Scene) -> Scene {
     s
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+fn median(v: &[f64]) -> f64 {
+    stats::median(v).expect("timed frames")
 }
 
 fn main() -> anyhow::Result<()> {
@@ -117,7 +117,7 @@ fn main() -> anyhow::Result<()> {
             scene.exposure,
             None,
         )?;
-        let (a, b) = (median(now_ms), median(old_ms));
+        let (a, b) = (median(&now_ms), median(&old_ms));
         println!(
             "| {model} | {} | {} | {:.2} | {:+.3} % | {:.2} | {:+.2} % | {a:.1} | {b:.1} | {:.2}× |",
             scene.triangle_count(),

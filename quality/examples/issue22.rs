@@ -12,6 +12,7 @@
 //! sizes and at fixed 1024² and 2048², and each render's whole-image and penumbra PSNR
 //! against the exact point sum of the same samples (penumbra: `reference::masks::penumbra`).
 use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+use lightfold_protocol::stats;
 use lightfold_quality::hard::shadow_maps::{Fixes, run_with};
 use lightfold_reference::metrics::error_stats;
 use lightfold_reference::{PointSumOptions, masks, render_point_sum, render_point_sum_with};
@@ -70,8 +71,7 @@ fn cost(name: &str) -> anyhow::Result<()> {
         }
         let f = last.expect("rendered");
         times.remove(0);
-        times.sort_unstable();
-        let median = times[times.len() / 2] as f64 / 1e3;
+        let median = stats::median(&times).expect("timed frames") as f64 / 1e3;
         let base = *baseline.get_or_insert(median);
         let illum = f.illumination.clone().expect("illumination");
         let img = f.radiance(&illum, scene.ambient)?;

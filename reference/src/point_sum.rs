@@ -4,7 +4,7 @@
 //! material pass produce, so GPU output can be compared layer by layer.
 
 use crate::trace::{SurfaceHit, Tracer};
-use lightfold_scene::shading::{self, V3};
+use lightfold_scene::shading::{self, MaterialLayers, V3};
 use lightfold_scene::{Image, LightSample, Scene};
 use rayon::prelude::*;
 
@@ -50,30 +50,17 @@ pub(crate) struct PixelLayers {
 }
 
 impl Layers {
-    /// Final linear radiance (paper eq. 2) with `I^d = c_n ⊙ illumination`, `I^a = 0` and global
-    /// ambient `c^a = ambient`: `e + m^a⊙c^a + m^d⊙I^d + m^s⊙I^s`. 3 channels.
+    /// Final linear radiance (paper eq. 2, [`shading::compose_frame`]) with
+    /// `I^d = c_n ⊙ illumination`, `I^a = 0` and global ambient `c^a = ambient` where a surface
+    /// covers the pixel: `e + m^a⊙c^a + m^d⊙I^d + m^s⊙I^s`. 3 channels.
     pub fn radiance(&self, c_n: [f32; 3], ambient: [f32; 3]) -> Image {
-        let (w, h) = (self.illumination.width, self.illumination.height);
-        let mut out = Image::new(w, h, 3);
-        for (i, px) in out.data.chunks_exact_mut(3).enumerate() {
-            let il = &self.illumination.data[i * 6..i * 6 + 6];
-            let get = |img: &Image| -> V3 { [0, 1, 2].map(|k| img.data[i * 3 + k]) };
-            let id = [0, 1, 2].map(|k| c_n[k] * il[k]);
-            let is = [0, 1, 2].map(|k| c_n[k] * il[3 + k]);
-            let ca = if self.coverage[i] { ambient } else { [0.0; 3] };
-            let p = shading::compose(
-                get(&self.emissive),
-                get(&self.ambient),
-                ca,
-                [0.0; 3],
-                get(&self.diffuse),
-                id,
-                get(&self.specular),
-                is,
-            );
-            px.copy_from_slice(&p);
-        }
-        out
+        let m = MaterialLayers {
+            diffuse: &self.diffuse,
+            specular: &self.specular,
+            ambient: &self.ambient,
+            emissive: &self.emissive,
+        };
+        shading::compose_frame(&self.illumination, c_n, m, ambient, |i| self.coverage[i])
     }
 
     pub(crate) fn from_pixels(width: u32, height: u32, pixels: &[PixelLayers]) -> Layers {

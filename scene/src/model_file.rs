@@ -125,8 +125,3 @@ pub(crate) fn read_resolved(path: &Path, files: &Budget) -> Result<Vec<u8>, Stri
     files.take(bytes.len() as u64).map_err(|e| e.to_string())?;
     Ok(bytes)
 }
-
-/// Linear RGB from an sRGB-encoded colour in 0..=1.
-pub(crate) fn srgb_to_linear3(c: [f32; 3]) -> [f32; 3] {
-    c.map(crate::shading::srgb_to_linear)
-}

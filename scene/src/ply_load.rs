@@ -20,7 +20,8 @@ use crate::error::SceneError;
 use crate::gltf_load::{Imported, flat_shaded};
 use crate::limits::{self, LimitError};
 use crate::model::{Material, Mesh, Scene};
-use crate::model_file::{ModelOptions, finish, srgb_to_linear3, stem};
+use crate::model_file::{ModelOptions, finish, stem};
+use lightfold_protocol::srgb::{linear_to_srgb, srgb_to_linear, srgb8};
 use ply_rs_bw::parser::{Parser, Reader};
 use ply_rs_bw::ply::{
     BeginList, ElementDef, Encoding, Header, Property, PropertyAccess, PropertyAccessResult,
@@ -573,13 +574,13 @@ fn build(
             ignored.insert("faces of fewer than three corners".into());
             continue;
         }
-        let face_colour = layout.face_colours.then(|| srgb_to_linear3(f.c));
+        let face_colour = layout.face_colours.then(|| f.c.map(srgb_to_linear));
         for w in f.corners[1..].windows(2) {
             let t = [f.corners[0], w[0], w[1]];
             triangles.push(t);
             if coloured {
                 colours.push(face_colour.unwrap_or_else(|| {
-                    let c = t.map(|i| srgb_to_linear3(vertices[i as usize].c));
+                    let c = t.map(|i| vertices[i as usize].c.map(srgb_to_linear));
                     if c[0] == c[1] && c[1] == c[2] {
                         c[0]
                     } else {
@@ -607,7 +608,7 @@ fn build(
             continue;
         }
         let label = if coloured {
-            let s = colour.map(|c| (crate::shading::linear_to_srgb(c) * 255.0).round() as u8);
+            let s = colour.map(srgb8);
             format!("#{:02x}{:02x}{:02x}", s[0], s[1], s[2])
         } else {
             "default".to_string()
@@ -659,10 +660,7 @@ fn build(
 /// Each triangle's group and each group's mean colour: triangles of one 8-bit sRGB colour form a
 /// group; beyond [`MAX_COLOUR_MATERIALS`] groups, colours are quantised to fewer bits.
 fn group_colours(colours: &[[f32; 3]]) -> (Vec<u32>, Vec<[f32; 3]>) {
-    let srgb: Vec<[f32; 3]> = colours
-        .iter()
-        .map(|c| c.map(|x| crate::shading::linear_to_srgb(x.clamp(0.0, 1.0))))
-        .collect();
+    let srgb: Vec<[f32; 3]> = colours.iter().map(|c| c.map(linear_to_srgb)).collect();
     for bits in [8u32, 6, 5, 4, 3] {
         let levels = ((1u32 << bits) - 1) as f32;
         let key = |c: &[f32; 3]| {

@@ -11,6 +11,7 @@
 //! - pixel `p = e + m^a ⊙ (c^a + I^a) + m^d ⊙ I^d + m^s ⊙ I^s` (paper eq. 2),
 //!   `I^d = Σ c_λ·i^d_λ·s_λ`, `I^s = Σ c_λ·i^s_λ·s_λ`, `s_λ ∈ [0, 1]` the shadow coefficient.
 
+use crate::Image;
 use crate::model::{LightSample, Material, MetallicRoughness, SampleKind, Texture};
 use std::f32::consts::PI;
 
@@ -529,6 +530,50 @@ pub fn compose(e: V3, ma: V3, ca: V3, ia: V3, md: V3, id: V3, ms: V3, is: V3) ->
     add(add(e, mul(ma, add(ca, ia))), add(mul(md, id), mul(ms, is)))
 }
 
+/// A frame's material layers, 3 channels a pixel each, as [`compose_frame`] reads them.
+#[derive(Debug, Clone, Copy)]
+pub struct MaterialLayers<'a> {
+    /// `m^d`.
+    pub diffuse: &'a Image,
+    /// `m^s`.
+    pub specular: &'a Image,
+    /// `m^a`.
+    pub ambient: &'a Image,
+    /// `e`.
+    pub emissive: &'a Image,
+}
+
+/// Paper eq. 2 over a frame, the one copy every single-device renderer and reference uses: per
+/// pixel [`compose`] of the material layers with `I^d = c_n ⊙ illumination[0..3]`,
+/// `I^s = c_n ⊙ illumination[3..6]` (`illumination` has 6 channels), `I^a = 0` and the global
+/// ambient `c^a = ambient` only where `covered(pixel)`: the background takes no ambient light
+/// whatever its material layers hold. 3 channels out, the illumination's size.
+pub fn compose_frame(
+    illumination: &Image,
+    c_n: V3,
+    m: MaterialLayers<'_>,
+    ambient: V3,
+    covered: impl Fn(usize) -> bool,
+) -> Image {
+    let mut out = Image::new(illumination.width, illumination.height, 3);
+    for (i, px) in out.data.chunks_exact_mut(3).enumerate() {
+        let rgb = |img: &Image| -> V3 { [0, 1, 2].map(|c| img.data[i * 3 + c]) };
+        let l = &illumination.data[i * 6..i * 6 + 6];
+        let ca = if covered(i) { ambient } else { [0.0; 3] };
+        px.copy_from_slice(&compose(
+            rgb(m.emissive),
+            rgb(m.ambient),
+            ca,
+            [0.0; 3],
+            rgb(m.diffuse),
+            [0, 1, 2].map(|c| c_n[c] * l[c]),
+            rgb(m.specular),
+            [0, 1, 2].map(|c| c_n[c] * l[3 + c]),
+        ));
+    }
+    out
+}
+
 pub use lightfold_protocol::srgb::{linear_to_srgb, srgb_to_linear};
 
 /// Bilinear texture lookup with repeat wrapping, texel centres at +0.5; returns linear RGBA.
@@ -592,5 +637,61 @@ pub fn transmittance(tr: &crate::model::Transmission, alpha: f32, texture_rgb: V
         covered.map(|c| (1.0 - a) + a * c)
     } else {
         covered
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn compose_frame_is_eq_2_with_ambient_only_where_covered() {
+        // Two pixels with the same layers; the second is background.
+        let layer = |v: V3| {
+            let mut img = Image::new(2, 1, 3);
+            img.data = [v, v].concat();
+            img
+        };
+        let (md, ms, ma, e) = (
+            layer([0.5, 0.25, 1.0]),
+            layer([0.1, 0.2, 0.3]),
+            layer([0.4, 0.4, 0.4]),
+            layer([0.01, 0.02, 0.03]),
+        );
+        let mut il = Image::new(2, 1, 6);
+        il.data = [[2.0, 4.0, 8.0, 1.0, 1.0, 1.0]; 2].concat();
+        let m = MaterialLayers {
+            diffuse: &md,
+            specular: &ms,
+            ambient: &ma,
+            emissive: &e,
+        };
+        let out = compose_frame(&il, [1.0, 0.5, 1.0], m, [0.5; 3], |i| i == 0);
+        // By hand: e + m^a·c^a + m^d·c_n·I^d + m^s·c_n·I^s, c^a only on the covered pixel.
+        let covered = [
+            0.01 + 0.4 * 0.5 + 0.5 * 2.0 + 0.1,
+            0.02 + 0.4 * 0.5 + 0.25 * 2.0 + 0.2 * 0.5,
+            0.03 + 0.4 * 0.5 + 1.0 * 8.0 + 0.3,
+        ];
+        let background = [0.01 + 1.0 + 0.1, 0.02 + 0.5 + 0.1, 0.03 + 8.0 + 0.3];
+        for (k, want) in covered.iter().chain(&background).enumerate() {
+            assert!(
+                (out.data[k] - want).abs() < 1e-6,
+                "{k}: {} vs {want}",
+                out.data[k]
+            );
+        }
+        // The same bits as `compose`, pixel by pixel.
+        let p = compose(
+            [0.01, 0.02, 0.03],
+            [0.4; 3],
+            [0.5; 3],
+            [0.0; 3],
+            [0.5, 0.25, 1.0],
+            [2.0, 2.0, 8.0],
+            [0.1, 0.2, 0.3],
+            [1.0, 0.5, 1.0],
+        );
+        assert_eq!(out.data[..3], p);
     }
 }

@@ -12,6 +12,7 @@
 
 use lightfold_coordinator::control::{FrameSpec, Live};
 use lightfold_coordinator::plan::{MapSizing, Plan, PlanOptions};
+use lightfold_protocol::stats;
 use lightfold_quality::accuracy::{TruthOptions, load_or_render_truth};
 use lightfold_tests::{InProcessCluster, test_control};
 
@@ -58,12 +59,8 @@ fn best_swept(budget_ms: f64, nodes: usize) -> anyhow::Result<Option<(String, f6
     Ok(best)
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
+fn median(v: &[f64]) -> f64 {
+    stats::median(v).unwrap_or(f64::NAN)
 }
 
 /// Samples per area light of a plan of balls (two area lights, no point lights).
@@ -191,8 +188,8 @@ async fn main() -> anyhow::Result<()> {
             "| {budget} ms | {} | {} | {epochs} | {:.1} ms | {:.1} ms | {measured:.2} dB | {best} |",
             first.unwrap_or_default(),
             choices(&plan),
-            median(work),
-            median(intervals),
+            median(&work),
+            median(&intervals),
         );
     }
     Ok(())

@@ -12,7 +12,8 @@ use lightfold_coordinator::run::RunOptions;
 use lightfold_net::{Identity, Timeouts};
 use lightfold_node::daemon::{self as node, NodeOptions};
 use lightfold_node::gpu::{Gpu, LayerSet, RenderOptions, Renderer};
-use lightfold_protocol::Role;
+use lightfold_protocol::{Role, stats};
+use lightfold_scene::shading::{MaterialLayers, compose_frame};
 use lightfold_scene::{Image, Scene};
 use std::time::Duration;
 use tokio::net::TcpListener;
@@ -295,24 +296,16 @@ pub fn small_helmet() -> Scene {
     s
 }
 
-/// The median of `v` (NaN when empty).
-pub fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(|a, b| a.total_cmp(b));
-    v[v.len() / 2]
-}
-
 /// `d` in milliseconds.
 pub fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
 
 /// The median latency (request to complete image) and interval of the frames after the first,
-/// in milliseconds: what the scaling examples report (`docs/scaling.md`).
+/// in milliseconds (NaN where there are none): what the scaling examples report (`docs/scaling.md`).
 pub fn latency_and_interval(frames: &[FrameResult]) -> (f64, f64) {
     let later = &frames[1.min(frames.len())..];
+    let median = |v: Vec<f64>| stats::median(&v).unwrap_or(f64::NAN);
     let latency = median(
         later
             .iter()
@@ -365,8 +358,8 @@ pub fn single_device_filtered(gpu: &Gpu, scene: &Scene, walkthrough: bool, radiu
         f.ambient.unwrap(),
         f.emissive.unwrap(),
     );
+    let depth = f.depth.unwrap();
     if radius > 0 {
-        let depth = f.depth.unwrap();
         il.data = lightfold_compositor::ops::penumbra::filter_frame(
             il.width,
             radius,
@@ -376,21 +369,24 @@ pub fn single_device_filtered(gpu: &Gpu, scene: &Scene, walkthrough: bool, radiu
         )
         .unwrap();
     }
-    shade(scene, &il, [&md, &ms, &ma, &e])
+    shade(scene, &il, [&md, &ms, &ma, &e], |i| depth.data[i] > 0.0)
 }
 
-/// The material stage on one device: `m^e + m^a·c^a + m^d·I^d + m^s·I^s` per pixel.
-fn shade(scene: &Scene, il: &Image, [md, ms, ma, e]: [&Image; 4]) -> Image {
-    let mut out = Image::new(il.width, il.height, 3);
-    for i in 0..out.pixel_count() {
-        for c in 0..3 {
-            out.data[i * 3 + c] = e.data[i * 3 + c]
-                + ma.data[i * 3 + c] * scene.ambient[c]
-                + md.data[i * 3 + c] * il.data[i * 6 + c]
-                + ms.data[i * 3 + c] * il.data[i * 6 + 3 + c];
-        }
-    }
-    out
+/// The material stage on one device: paper eq. 2 (`compose_frame`), `e + m^a·c^a + m^d·I^d +
+/// m^s·I^s` per pixel with the ambient `c^a` only where `covered`.
+fn shade(
+    scene: &Scene,
+    il: &Image,
+    [md, ms, ma, e]: [&Image; 4],
+    covered: impl Fn(usize) -> bool,
+) -> Image {
+    let m = MaterialLayers {
+        diffuse: md,
+        specular: ms,
+        ambient: ma,
+        emissive: e,
+    };
+    compose_frame(il, [1.0; 3], m, scene.ambient, covered)
 }
 
 /// [`single_device`] over sort-last parts: each part's eye pass alone with its shadow maps
@@ -455,6 +451,7 @@ pub fn single_device_parts(
         scene,
         &layers[0],
         [&layers[1], &layers[2], &layers[3], &layers[4]],
+        |i| won[i].is_some(),
     )
 }
 

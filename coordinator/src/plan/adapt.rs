@@ -7,7 +7,7 @@
 //! after each step.
 
 use super::{ClusterSpec, CostScale, Knob, Plan, PlanOptions, light_weight, node_cost, replan};
-use lightfold_protocol::FrameStats;
+use lightfold_protocol::{FrameStats, stats};
 use lightfold_scene::Scene;
 use std::collections::{HashMap, HashSet};
 
@@ -122,10 +122,12 @@ impl Adapt {
         if self.measured.len() < ADAPT_FRAMES || self.scales.is_empty() {
             return None;
         }
-        let took = median(std::mem::take(&mut self.measured));
+        // Both hold at least one value here (checked above).
+        let median = |v: &[f64]| stats::median(v).unwrap_or(f64::NAN);
+        let took = median(&std::mem::take(&mut self.measured));
         let scales = std::mem::take(&mut self.scales);
-        let fixed = median(scales.iter().map(|s| s.0).collect());
-        let light = median(scales.iter().map(|s| s.1).collect());
+        let fixed = median(&scales.iter().map(|s| s.0).collect::<Vec<_>>());
+        let light = median(&scales.iter().map(|s| s.1).collect::<Vec<_>>());
         let over = took > budget as f64;
         if over {
             self.over_budget.insert(choices(current));
@@ -197,14 +199,6 @@ fn choices(p: &Plan) -> String {
         p.samples.len(),
         p.active
     )
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
 }
 
 /// A plan's quality for the budget's purposes: more samples, then fewer concessions.

@@ -3,6 +3,7 @@
 //! renderer's errors.
 
 use super::lights::Fault;
+use lightfold_scene::shading::{MaterialLayers, compose_frame};
 use lightfold_scene::{Image, MapSizing, Quality, ShadowFilter};
 
 /// How a renderer draws shadows.
@@ -198,7 +199,7 @@ pub struct MissingLayer(pub &'static str);
 impl NodeFrame {
     /// Paper eq. 2 from this frame's material layers and `illumination` (6 channels, summed over
     /// every node with `c_n` white): `e + m^a⊙c^a + m^d⊙I^d + m^s⊙I^s`, the global ambient `c^a`
-    /// only where there is a surface (depth 0 is background).
+    /// only where there is a surface (depth 0 is background); [`compose_frame`].
     pub fn radiance(&self, illumination: &Image, ambient: [f32; 3]) -> Result<Image, MissingLayer> {
         fn layer<'a>(
             img: &'a Option<Image>,
@@ -213,26 +214,13 @@ impl NodeFrame {
             layer(&self.emissive, "e")?,
         );
         let depth = layer(&self.depth, "depth")?;
-        let mut out = Image::new(illumination.width, illumination.height, 3);
-        for (i, px) in out.data.chunks_exact_mut(3).enumerate() {
-            let rgb = |img: &Image| -> [f32; 3] { [0, 1, 2].map(|c| img.data[i * 3 + c]) };
-            let l = &illumination.data[i * 6..i * 6 + 6];
-            let ca = if depth.data[i] > 0.0 {
-                ambient
-            } else {
-                [0.0; 3]
-            };
-            px.copy_from_slice(&lightfold_scene::shading::compose(
-                rgb(e),
-                rgb(ma),
-                ca,
-                [0.0; 3],
-                rgb(md),
-                [l[0], l[1], l[2]],
-                rgb(ms),
-                [l[3], l[4], l[5]],
-            ));
-        }
-        Ok(out)
+        let m = MaterialLayers {
+            diffuse: md,
+            specular: ms,
+            ambient: ma,
+            emissive: e,
+        };
+        let covered = |i: usize| depth.data[i] > 0.0;
+        Ok(compose_frame(illumination, [1.0; 3], m, ambient, covered))
     }
 }

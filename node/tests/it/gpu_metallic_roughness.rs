@@ -9,6 +9,7 @@ use crate::gpu_support;
 
 use gpu_support::*;
 use lightfold_node::gpu::{EyeVariant, Gpu, LayerSet, NodeFrame, RenderOptions, Renderer};
+use lightfold_protocol::stats;
 use lightfold_reference::render_point_sum;
 use lightfold_scene::primitives::{plane, sphere};
 use lightfold_scene::{
@@ -155,9 +156,9 @@ fn closed_form_errors(
             }
         }
     }
-    errors.sort_by(f64::total_cmp);
-    let n = errors.len();
-    (errors[n - 1], errors[n / 2], n)
+    let errors = stats::sorted(&errors);
+    let median = stats::median(&errors).expect("lit pixels");
+    (errors[errors.len() - 1], median, errors.len())
 }
 
 #[test]

@@ -7,6 +7,7 @@
 use std::sync::LazyLock;
 
 use super::{clamp_nonneg, count_saturated, round_u32};
+use crate::srgb::srgb_to_linear_f64;
 
 const BUCKETS: usize = 4096;
 /// Values map to buckets by `round(x · SPAN)`.
@@ -24,16 +25,8 @@ struct Srgb {
     start: [u8; BUCKETS],
 }
 
-fn srgb_to_linear(s: f64) -> f64 {
-    if s <= 0.04045 {
-        s / 12.92
-    } else {
-        ((s + 0.055) / 1.055).powf(2.4)
-    }
-}
-
 static SRGB: LazyLock<Srgb> = LazyLock::new(|| {
-    let exact: [f64; 256] = std::array::from_fn(|c| srgb_to_linear(c as f64 / 255.0));
+    let exact: [f64; 256] = std::array::from_fn(|c| srgb_to_linear_f64(c as f64 / 255.0));
     let decode = exact.map(|v| v as f32);
     let threshold: [f32; 256] = std::array::from_fn(|c| match exact.get(c + 1) {
         Some(next) => ((exact[c] + next) / 2.0) as f32,

@@ -8,8 +8,8 @@ use super::support::{count_non_finite, load_case_scene};
 use super::{CaseReport, HardCaseError};
 use lightfold_compositor::ops::precision::study::{self, Content, Scale, Setup};
 use lightfold_compositor::ops::{Accumulate, BandMut, BandView, Operator};
-use lightfold_protocol::Layer;
 use lightfold_protocol::format::{self, PixelFormat};
+use lightfold_protocol::{Layer, stats};
 use lightfold_reference::render_point_sum;
 use lightfold_scene::{LightSample, Scene, sampling};
 use serde_json::json;
@@ -209,21 +209,17 @@ pub fn hdr_mix(full_size: bool) -> Result<CaseReport, HardCaseError> {
         .map(|n| count_non_finite(&n.illumination))
         .sum();
     // White: the dim light's typical diffuse illumination (median of the lit pixels of its nodes).
-    let dim: Vec<f64> = {
-        let mut v: Vec<f64> = (0..exact.len() / 6)
-            .map(|p| {
-                nodes
-                    .iter()
-                    .filter(|n| n.color == scene.lights[1].color)
-                    .map(|n| f64::from(n.illumination[p * 6]))
-                    .sum::<f64>()
-            })
-            .filter(|&x| x > 0.0)
-            .collect();
-        v.sort_by(f64::total_cmp);
-        v
-    };
-    let white = dim.get(dim.len() / 2).copied().unwrap_or(1.0);
+    let dim: Vec<f64> = (0..exact.len() / 6)
+        .map(|p| {
+            nodes
+                .iter()
+                .filter(|n| n.color == scene.lights[1].color)
+                .map(|n| f64::from(n.illumination[p * 6]))
+                .sum::<f64>()
+        })
+        .filter(|&x| x > 0.0)
+        .collect();
+    let white = stats::median(&dim).unwrap_or(1.0);
     let floor = white / (255.0 * 12.92);
     let n = nodes.len();
     let forward: Vec<usize> = (0..n).collect();

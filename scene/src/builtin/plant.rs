@@ -6,8 +6,9 @@ use super::{camera, rect_light};
 use crate::model::{AlphaMode, Material, Mesh, Scene, Texture};
 use crate::primitives;
 use crate::sampling::SplitMix64;
-use crate::shading::{V3, add, cross, linear_to_srgb, normalize, scale};
+use crate::shading::{V3, add, cross, normalize, scale};
 use glam::{Affine3A, Quat, Vec3};
+use lightfold_protocol::srgb::srgb8;
 use std::f32::consts::{PI, TAU};
 
 const BRANCHES: u32 = 12;
@@ -196,7 +197,7 @@ fn leaf_texture(width: u32, height: u32) -> Texture {
                 [0.1 * shade, 0.4 * shade, 0.08 * shade]
             };
             for c in lin {
-                rgba8.push((linear_to_srgb(c) * 255.0 + 0.5) as u8);
+                rgba8.push(srgb8(c));
             }
             rgba8.push(if inside { 255 } else { 0 });
         }

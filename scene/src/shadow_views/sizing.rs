@@ -9,6 +9,7 @@
 use super::ShadowView;
 use crate::model::{Camera, LightSample, SampleKind};
 use crate::shading::{V3, dot, length, sub};
+use lightfold_protocol::stats;
 
 /// Grazing angles are capped so one nearly edge-on surface does not ask for a huge map.
 const MIN_COS_ALPHA: f32 = 0.2;
@@ -216,11 +217,10 @@ pub fn mismatch_size(
             need.push(n);
         }
     }
-    if need.is_empty() {
+    let Some(median) = stats::median(&need) else {
         return fallback.clamp(lo, hi);
-    }
-    need.sort_by(f32::total_cmp);
-    let median = need[need.len() / 2].max(caster_need(views, casters, cam, d_i));
+    };
+    let median = median.max(caster_need(views, casters, cam, d_i));
     let size = 2u32.pow(median.max(1.0).log2().round().clamp(0.0, 14.0) as u32);
     size.clamp(lo, hi)
 }

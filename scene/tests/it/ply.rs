@@ -6,7 +6,7 @@
 //! are clear errors, beside a control that loads.
 
 use lightfold_scene::ply_load::{MAX_COLOUR_MATERIALS, ignored_features};
-use lightfold_scene::shading::{linear_to_srgb, srgb_to_linear};
+use lightfold_scene::shading::srgb_to_linear;
 use lightfold_scene::{ModelOptions, Scene, builtin, load, load_ply_slice, load_ply_with};
 use std::path::{Path, PathBuf};
 
@@ -28,7 +28,7 @@ fn scratch(test: &str) -> PathBuf {
 
 /// A material's diffuse colour as the 8-bit sRGB a PLY stores.
 fn srgb8(c: [f32; 3]) -> [u8; 3] {
-    c.map(|x| (linear_to_srgb(x) * 255.0).round() as u8)
+    c.map(lightfold_protocol::srgb::srgb8)
 }
 
 /// Every mesh of `scene` in one PLY: positions and normals as they are, each vertex coloured with
@@ -199,6 +199,35 @@ fn polygons_fan_with_face_colours_and_flat_normals() {
     let s = load_ply_slice(plain.as_bytes(), "plain.ply", &unplaced()).unwrap();
     assert_eq!(s.meshes.len(), 1);
     assert_eq!(s.materials[0].diffuse, [0.8; 3]);
+}
+
+#[test]
+fn float_colours_outside_0_1_are_clamped_before_decoding() {
+    // The sRGB decode clamps as the encode does: 2 and +∞ read as 1, −1, −∞ and NaN as 0, not as
+    // a brighter-than-white, negative or NaN diffuse colour.
+    let text = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+                property float z\nproperty float red\nproperty float green\nproperty float blue\n\
+                element face 1\nproperty list uchar int vertex_indices\nend_header\n\
+                0 0 0 2 -1 0.5\n1 0 0 2 -1 0.5\n0 1 0 2 -1 0.5\n3 0 1 2\n";
+    let s = load_ply_slice(text.as_bytes(), "bright.ply", &unplaced()).unwrap();
+    assert_eq!(s.materials.len(), 1);
+    assert_eq!(s.materials[0].diffuse, [1.0, 0.0, srgb_to_linear(0.5)]);
+    // NaN and infinities, which only a binary file can hold.
+    let mut bin = text[..text.find("end_header\n").unwrap()]
+        .replace("ascii", "binary_little_endian")
+        .into_bytes();
+    bin.extend_from_slice(b"end_header\n");
+    for p in [[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]] {
+        for v in [p[0], p[1], 0.0, f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            bin.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    bin.push(3);
+    for i in 0..3i32 {
+        bin.extend_from_slice(&i.to_le_bytes());
+    }
+    let s = load_ply_slice(&bin, "nan.ply", &unplaced()).unwrap();
+    assert_eq!(s.materials[0].diffuse, [0.0, 1.0, 0.0]);
 }
 
 #[test]

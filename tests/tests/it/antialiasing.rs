@@ -10,6 +10,7 @@
 //! The figures of `docs/accuracy/aa/README.md` come from the ignored `aa_cost_and_error`.
 
 use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, NodeFrame, RenderOptions, Renderer};
+use lightfold_protocol::stats;
 use lightfold_reference::indirect::frame_samples;
 use lightfold_reference::{compare, radiance_point_sum};
 use lightfold_scene::{Image, LightSample, Scene};
@@ -126,8 +127,7 @@ fn timed<T>(runs: usize, mut f: impl FnMut() -> T) -> (f64, T) {
         out = f();
         times.push(t.elapsed().as_secs_f64());
     }
-    times.sort_by(f64::total_cmp);
-    (times[times.len() / 2], out)
+    (stats::median(&times).expect("runs > 0"), out)
 }
 
 /// The table of `docs/accuracy/aa/README.md`: cost and error of `--aa 1, 2, 4` on one device
