@@ -126,7 +126,7 @@
     try { m = parseJson(data); } catch (e) { log(`bad message: ${data.slice(0, 80)}`); return; }
     switch (m.type) {
       case 'welcome': return onWelcome(m);
-      case 'camera': view.camera = m.camera; showCamera(); return;
+      case 'camera': view.camera = m.camera; showCamera(); drawMarkers(); return;
       case 'animation': return showAnimation(m.animation || {});
       case 'exposure': return showExposure(m.stops);
       case 'lights': return onLights(m.lights || []);
@@ -313,6 +313,7 @@
     const s = Math.min(vp.clientWidth / w, vp.clientHeight / h);
     img.style.width = `${Math.floor(w * s)}px`;
     img.style.height = `${Math.floor(h * s)}px`;
+    drawMarkers();
   }
   new ResizeObserver(fitFrame).observe($('viewport'));
 
@@ -573,12 +574,151 @@
       view.lights.push({ index: st.index, color: st.color, intensity: st.intensity });
       const meta = [l.kind, l.power != null ? `${Number(l.power).toPrecision(3)} W` : null, l.samples > 1 ? `${l.samples} samples` : null]
         .filter(Boolean).join(' · ');
-      box.append(el('div', { class: 'light' },
+      const row = el('div', { class: 'light' },
         color,
         el('div', { class: 'light-name' }, el('div', { text: l.name || `light ${l.index}` }), el('div', { class: 'dim small', text: meta })),
-        slider, val));
+        slider, val);
+      box.append(row);
+      if (l.spec) {
+        const editor = lightEditor(l);
+        editor.hidden = true;
+        const edit = el('button', { type: 'button', class: 'small', title: 'edit by numbers', text: '✎' });
+        edit.addEventListener('click', () => { editor.hidden = !editor.hidden; });
+        const remove = el('button', { type: 'button', class: 'small', title: 'remove this light', text: '✕' });
+        remove.addEventListener('click', () => send({ type: 'light_remove', index: l.index }));
+        row.append(edit, remove);
+        box.append(editor);
+      }
     }
   }
+
+  // Numeric fields for every number of a light's [[light]] table (position, direction, size,
+  // samples, …); a change sends the table as edited. The server checks it.
+  function lightEditor(l) {
+    const box = el('div', { class: 'light-edit' });
+    const spec = l.spec;
+    for (const [key, value] of Object.entries(spec)) {
+      if (key === 'type' || key === 'name' || key === 'color') continue;
+      const values = Array.isArray(value) ? value : typeof value === 'number' ? [value] : null;
+      if (!values || !values.every((v) => typeof v === 'number')) continue;
+      const cells = el('span', {});
+      const inputs = values.map((v) => {
+        const input = el('input', { type: 'number', step: 'any', value: String(v), 'aria-label': `${key}` });
+        input.addEventListener('change', () => {
+          const got = inputs.map((i) => Number(i.value));
+          if (got.some((x) => !Number.isFinite(x))) { toast(`${key}: not a number`); return; }
+          const next = Object.assign({}, spec, { [key]: Array.isArray(value) ? got : got[0] });
+          send({ type: 'light_set', index: l.index, light: next });
+        });
+        return input;
+      });
+      cells.append(...inputs);
+      box.append(el('label', { class: 'dim small', text: key }), cells);
+    }
+    return box;
+  }
+
+  // A new light at the camera's target, a fifth of the way to the camera and above it.
+  $('light-add').addEventListener('submit', (e) => {
+    e.preventDefault();
+    const c = view.camera;
+    if (!c) return;
+    const at = c.target.map((t, i) => t + (c.position[i] - t) * 0.2 + (i === 1 ? 0.5 : 0));
+    const dist = Math.hypot(...c.position.map((p, i) => p - c.target[i]));
+    const size = Math.max(0.05, dist * 0.05);
+    const down = [0, -1, 0];
+    const specs = {
+      sphere: { type: 'sphere', center: at, radius: size, radiance: 10 / (size * size) },
+      rect: { type: 'rect', center: at, size: [2 * size, 2 * size], normal: down, u_axis: [1, 0, 0], radiance: 5 / (size * size) },
+      disk: { type: 'disk', center: at, normal: down, radius: size, radiance: 5 / (size * size) },
+      point: { type: 'point', position: at, intensity: 10 },
+      spot: { type: 'spot', position: at, direction: down, intensity: 20, inner_angle_deg: 20, outer_angle_deg: 30 },
+      directional: { type: 'directional', direction: [0.3, -1, -0.2], irradiance: 1 },
+    };
+    send({ type: 'light_add', light: specs[$('add-kind').value] });
+  });
+
+  // ---- light markers ----------------------------------------------------------------------
+  // Each light with a position, projected with the camera onto the frame; dragging one moves
+  // the light in the view's plane at its depth (`light_drag`, fractions of the view).
+  const markers = $('markers');
+  let lightDrag = null;
+  function project(p) {
+    const c = view.camera;
+    const w = view.scene?.width;
+    const h = view.scene?.height;
+    if (!c || !w || !h) return null;
+    const sub3 = (a, b) => a.map((x, i) => x - b[i]);
+    const dot3 = (a, b) => a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    const cross3 = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+    const norm3 = (a) => { const n = Math.hypot(...a) || 1; return a.map((x) => x / n); };
+    const f = norm3(sub3(c.target, c.position));
+    const r = norm3(cross3(f, c.up));
+    const u = cross3(r, f);
+    const d = sub3(p, c.position);
+    const z = dot3(d, f);
+    if (z <= 1e-6) return null;
+    const t = Math.tan((c.fov_y_deg * Math.PI) / 360);
+    return [dot3(d, r) / z / (t * (w / h)), dot3(d, u) / z / t];
+  }
+  function drawMarkers() {
+    markers.replaceChildren();
+    if (!view.canSteer || !img.style.width) return;
+    const vr = $('viewport').getBoundingClientRect();
+    const ir = img.getBoundingClientRect();
+    for (const l of view.lightInfo || []) {
+      if (!Array.isArray(l.position)) continue;
+      const ndc = project(l.position);
+      if (!ndc || Math.abs(ndc[0]) > 1.2 || Math.abs(ndc[1]) > 1.2) continue;
+      const x = ir.left - vr.left + (ndc[0] * 0.5 + 0.5) * ir.width;
+      const y = ir.top - vr.top + (0.5 - ndc[1] * 0.5) * ir.height;
+      const m = el('div', { class: 'marker', title: `${l.name || `light ${l.index}`}: drag to move` });
+      m.dataset.index = String(l.index);
+      m.style.left = `${x}px`;
+      m.style.top = `${y}px`;
+      m.style.background = linearToHex(l.color || [1, 1, 1]);
+      if (lightDrag && lightDrag.index === l.index) m.classList.add('active');
+      m.addEventListener('mousedown', (e) => {
+        if (e.button !== 0) return;
+        e.preventDefault();
+        e.stopPropagation();
+        lightDrag = { index: l.index, x: e.clientX, y: e.clientY, dx: 0, dy: 0, queued: false };
+        m.classList.add('active');
+      });
+      markers.append(m);
+    }
+  }
+  window.addEventListener('mousemove', (e) => {
+    if (!lightDrag) return;
+    const r = img.getBoundingClientRect();
+    lightDrag.dx += (e.clientX - lightDrag.x) / Math.max(1, r.width);
+    lightDrag.dy -= (e.clientY - lightDrag.y) / Math.max(1, r.height);
+    lightDrag.x = e.clientX;
+    lightDrag.y = e.clientY;
+    // The marker follows the pointer at once; the light follows in the frames.
+    const m = markers.querySelector(`.marker[data-index="${lightDrag.index}"]`);
+    if (m) {
+      m.style.left = `${parseFloat(m.style.left) + e.movementX}px`;
+      m.style.top = `${parseFloat(m.style.top) + e.movementY}px`;
+    }
+    if (lightDrag.queued) return;
+    lightDrag.queued = true;
+    requestAnimationFrame(() => {
+      if (!lightDrag) return;
+      lightDrag.queued = false;
+      if (lightDrag.dx || lightDrag.dy) {
+        send({ type: 'light_drag', index: lightDrag.index, x: lightDrag.dx, y: lightDrag.dy });
+        lightDrag.dx = 0;
+        lightDrag.dy = 0;
+      }
+    });
+  });
+  window.addEventListener('mouseup', () => {
+    if (!lightDrag) return;
+    if (lightDrag.dx || lightDrag.dy) send({ type: 'light_drag', index: lightDrag.index, x: lightDrag.dx, y: lightDrag.dy });
+    lightDrag = null;
+    drawMarkers();
+  });
 
   // Throttled: at most one message per light per LIGHT_THROTTLE_MS, the last value always sent.
   function sendLight(st) {
@@ -595,7 +735,17 @@
     else st.timer = setTimeout(go, wait);
   }
 
+  // The lights message carries each light whole (kind, samples, position, its [[light]] table):
+  // a light added, removed or reshaped rebuilds the list; a colour alone updates it.
+  let lightsShape = '';
   function onLights(lights) {
+    view.lightInfo = lights;
+    const shape = JSON.stringify(lights.map((l) => [l.name, l.kind, l.power, l.samples, l.spec]));
+    if (shape !== lightsShape) {
+      lightsShape = shape;
+      if (!controls.some((s) => s.timer)) buildLights(lights);
+    }
+    drawMarkers();
     for (const l of lights) {
       const st = controls.find((s) => s.index === l.index);
       if (!st || st.timer) continue; // a change of ours is on its way

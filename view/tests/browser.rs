@@ -289,6 +289,7 @@ async fn steps(b: &mut Browser, url: &str) -> anyhow::Result<Figures> {
     exposure(b, rect, &red, &red_frame).await?;
     downloads(b).await?;
     camera_fields_and_bookmarks(b, url).await?;
+    light_marker_drag(b).await?;
     ensure!(
         b.exceptions.is_empty(),
         "the page threw: {:?}",
@@ -410,6 +411,45 @@ async fn downloads(b: &mut Browser) -> anyhow::Result<()> {
 
 /// The numeric camera fields set position, target and field of view on Enter; a bookmark of that
 /// camera survives a reload and brings it back after a reset; deleting it empties the list.
+/// A light's marker dragged across the frame moves the light: its position in the lights the
+/// page is sent changes, and a frame at the new revision reaches the screen.
+async fn light_marker_drag(b: &mut Browser) -> anyhow::Result<()> {
+    let marker = "(() => { const m = document.querySelector('.marker[data-index=\"0\"]'); \
+        if (!m) return null; const r = m.getBoundingClientRect(); \
+        const v = window.lightfoldView; \
+        return { x: r.left + r.width / 2, y: r.top + r.height / 2, revision: v.revision, \
+        unacked: v.unacked, shown: v.displayed?.revision, \
+        position: (v.lightInfo || [])[0]?.position }; })()";
+    let before = b
+        .wait_for("light 0's marker over the frame", marker, WAIT, |v| {
+            v["x"].is_number()
+        })
+        .await?;
+    let (x, y) = (
+        before["x"].as_f64().context("x")?,
+        before["y"].as_f64().context("y")?,
+    );
+    let revision = before["revision"].as_i64().unwrap_or(-1);
+    b.mouse("mousePressed", x, y, 1).await?;
+    for i in 1..=8 {
+        b.mouse("mouseMoved", x + 8.0 * i as f64, y, 1).await?;
+        tokio::time::sleep(Duration::from_millis(25)).await;
+    }
+    b.mouse("mouseReleased", x + 64.0, y, 0).await?;
+    let moved = b
+        .wait_for("the light moved and its frame shown", marker, WAIT, |v| {
+            v["revision"].as_i64().unwrap_or(-1) > revision
+                && v["unacked"].as_u64() == Some(0)
+                && v["shown"].as_i64() >= v["revision"].as_i64()
+        })
+        .await?;
+    ensure!(
+        moved["position"] != before["position"] && moved["position"].is_array(),
+        "the light did not move: {before} then {moved}"
+    );
+    Ok(())
+}
+
 async fn camera_fields_and_bookmarks(b: &mut Browser, url: &str) -> anyhow::Result<()> {
     let now = b.eval(CONTROLS).await?;
     let cam = &now["camera"];
