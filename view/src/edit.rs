@@ -214,3 +214,111 @@ fn spec_name(spec: &LightSpec) -> Option<&String> {
         | LightSpec::EmissiveMesh { name, .. } => name.as_ref(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use lightfold_scene::builtin;
+
+    fn spec(v: serde_json::Value) -> LightSpec {
+        serde_json::from_value(v).unwrap()
+    }
+
+    #[test]
+    fn edits_keep_the_other_lights_settings_and_refuse_what_cannot_be() {
+        let scene = builtin("balls").unwrap();
+        let mut s = Steer::new(&scene);
+        assert!(
+            s.spec().lights.is_none(),
+            "no edit, no lights in the request"
+        );
+        s.set_light(1, [0.2, 0.4, 0.6], 2.0).unwrap();
+        let sphere = spec(serde_json::json!({"type": "sphere", "center": [0, 2, 0],
+            "radius": 0.2, "radiance": 5.0, "samples": 8}));
+        s.add_light(&sphere).unwrap();
+        assert_eq!(s.scene_lights.len(), 3);
+        assert_eq!(
+            s.lights[1].color,
+            [0.2, 0.4, 0.6],
+            "light 1 keeps its setting"
+        );
+        s.remove_light(0).unwrap();
+        assert_eq!(
+            s.lights[0].color,
+            [0.2, 0.4, 0.6],
+            "settings move down with their lights"
+        );
+        assert_eq!(s.lights[0].intensity, 2.0);
+        assert_eq!(s.spec().lights.as_deref(), Some(s.scene_lights.as_ref()));
+        // The drag moves in the view plane: the light stays at its depth.
+        let before = light_position(&s.scene_lights[1].shape).unwrap();
+        s.drag_light(1, 0.25, 0.0).unwrap();
+        let after = light_position(&s.scene_lights[1].shape).unwrap();
+        let (pos, target, _) = s.view_frame().unwrap();
+        let f = (target - pos).normalize();
+        let depth = |p: [f32; 3]| (Vec3::from(p) - pos).dot(f);
+        assert!((depth(before) - depth(after)).abs() < 1e-4);
+        assert!((Vec3::from(before) - Vec3::from(after)).length() > 0.1);
+        // Refused, changing nothing.
+        let was = s.clone();
+        let bad = [
+            s.clone().drag_light(9, 0.1, 0.0),
+            s.clone().drag_light(0, f32::NAN, 0.0),
+            s.clone().edit_light(
+                0,
+                &spec(serde_json::json!({"type": "disk",
+                "center": [0, 1, 0], "normal": [0, 0, 0], "radius": 0.1, "radiance": 1.0})),
+            ),
+            s.clone().edit_light(
+                0,
+                &spec(serde_json::json!({"type": "point",
+                "position": [0, 1, 0], "intensity": 1e12})),
+            ),
+            s.clone().add_light(&spec(
+                serde_json::json!({"type": "rect", "center": [0, 1, 0],
+                "size": [1, 1], "normal": [0, -1, 0], "u_axis": [1, 0, 0], "radiance": 1.0,
+                "samples": 5000}),
+            )),
+            s.clone()
+                .add_light(&spec(serde_json::json!({"type": "emissive_mesh",
+                "object": "floor", "radiance": 1.0}))),
+        ];
+        for (i, r) in bad.iter().enumerate() {
+            assert!(r.is_err(), "edit {i} was taken");
+        }
+        assert_eq!(s, was);
+        let mut one = Steer::new(&scene);
+        one.remove_light(0).unwrap();
+        assert!(one.remove_light(0).is_err(), "the last light stays");
+        let mut sun = Steer::new(&scene);
+        sun.edit_light(
+            0,
+            &spec(serde_json::json!({"type": "directional",
+            "direction": [0, -1, 0], "irradiance": 1.0})),
+        )
+        .unwrap();
+        assert!(
+            sun.drag_light(0, 0.1, 0.0).is_err(),
+            "a directional light has no position"
+        );
+    }
+
+    #[test]
+    fn mesh_lights_and_animated_lights_are_not_removed() {
+        let cornell = builtin("cornell").unwrap();
+        if let Some(i) = cornell
+            .lights
+            .iter()
+            .position(|l| matches!(l.shape, LightShape::EmissiveMesh { .. }))
+        {
+            let mut s = Steer::new(&cornell);
+            assert!(s.remove_light(i as u32).is_err());
+            assert!(s.drag_light(i as u32, 0.1, 0.0).is_err());
+        }
+        let carousel = builtin("carousel").unwrap();
+        let mut s = Steer::new(&carousel);
+        assert!(s.animated_lights, "the carousel animates a light");
+        assert!(s.remove_light(0).is_err());
+        s.drag_light(0, 0.05, 0.0).unwrap();
+    }
+}
