@@ -1,8 +1,10 @@
 //! `lightfold view-probe`: measures a live view as a viewer sees it — interaction latency (an
 //! input sent → the first frame showing it arrives), the frame interval, and what serving costs
 //! (encoding time and bytes per frame from the view's `stats`, the coordinator's CPU per frame
-//! with `--pid`). Inputs are orbit steps, sent as a drag (`--rate` per second, whatever the
-//! frames do) or one at a time after the frame showing the previous one (`--steps`).
+//! with `--pid`). Inputs are orbit steps, or with `--light N` steps of light N dragged across the
+//! view, sent as a drag (`--rate` per second, whatever the frames do) or one at a time after the
+//! frame showing the previous one (`--steps`). It also counts the nodes that drew shadow maps
+//! per frame (a light drag in walkthrough mode redraws only its own node's).
 
 use anyhow::{Context, bail};
 use futures::{SinkExt, StreamExt};
@@ -28,6 +30,10 @@ pub struct Args {
     /// Degrees each input orbits the camera by.
     #[arg(long, default_value_t = 1.0)]
     pub yaw: f32,
+    /// Drag light N (by 1 % of the view's width per input, turning back every 40 inputs)
+    /// instead of orbiting the camera.
+    #[arg(long)]
+    pub light: Option<u32>,
     /// The coordinator's pid, to report its CPU time per frame.
     #[arg(long)]
     pub pid: Option<u32>,
@@ -43,6 +49,8 @@ struct Seen {
     inputs: Vec<(Instant, Option<u64>)>,
     /// Per frame: arrival, revision, message bytes.
     frames: Vec<(Instant, u64, usize)>,
+    /// Per frame from the cluster (not encoded again): nodes that drew shadow maps, and nodes.
+    drew: Vec<(usize, usize)>,
     stats: Option<Value>,
 }
 
@@ -57,6 +65,17 @@ impl Seen {
                 let header: Value = serde_json::from_slice(b.get(4..4 + n).context("header")?)?;
                 let revision = header["revision"].as_u64().unwrap_or(0);
                 self.frames.push((Instant::now(), revision, b.len()));
+                if header["reencoded"] != Value::Bool(true) {
+                    let nodes: Vec<&Value> = header["daemons"]
+                        .as_array()
+                        .map(|d| d.iter().filter(|d| d["role"] == "node").collect())
+                        .unwrap_or_default();
+                    let drew = nodes
+                        .iter()
+                        .filter(|d| d["shadow_passes"].as_u64().unwrap_or(0) > 0)
+                        .count();
+                    self.drew.push((drew, nodes.len()));
+                }
             }
             Message::Text(t) => {
                 let v: Value = serde_json::from_str(&t)?;
@@ -196,7 +215,14 @@ async fn probe(args: Args) -> anyhow::Result<()> {
             }
             waiting_since = None;
             let id = seen.inputs.len();
-            let m = json!({"type": "orbit", "yaw_deg": args.yaw, "pitch_deg": 0.0, "id": id});
+            let m = match args.light {
+                None => json!({"type": "orbit", "yaw_deg": args.yaw, "pitch_deg": 0.0, "id": id}),
+                Some(index) => {
+                    let way = if (id / 40) % 2 == 0 { 1.0 } else { -1.0 };
+                    json!({"type": "light_drag", "index": index, "x": 0.01 * way, "y": 0.0,
+                           "id": id})
+                }
+            };
             seen.inputs.push((Instant::now(), None));
             ws.send(Message::Text(m.to_string().into())).await?;
         }
@@ -242,9 +268,16 @@ fn report(
     let (encoded, sent) = (d("frames_encoded").max(1.0), d("frames_sent").max(1.0));
     let delivered = d("frames_delivered");
     println!(
-        "view-probe: {} inputs ({}) over {:.1} s, {} frames received, {} delivered by the cluster",
+        "view-probe: {} inputs ({}{}) over {:.1} s, {} frames received, {} delivered by the cluster",
         seen.inputs.len(),
-        if args.steps {
+        match (args.light, args.steps) {
+            (Some(l), true) => format!("light {l} dragged, one at a time"),
+            (Some(l), false) => format!("light {l} dragged at {} /s", args.rate),
+            (None, _) => String::new(),
+        },
+        if args.light.is_some() {
+            String::new()
+        } else if args.steps {
             "one at a time".to_string()
         } else {
             format!("a drag at {} /s", args.rate)
@@ -273,6 +306,17 @@ fn report(
         d("jpeg_bytes") / encoded,
         d("bytes_sent") / sent,
         d("frames_skipped")
+    );
+    let (drew, nodes): (usize, usize) = seen
+        .drew
+        .iter()
+        .fold((0, 0), |(a, b), (d, n)| (a + d, b + n));
+    let frames = seen.drew.len().max(1) as f64;
+    println!(
+        "  shadow maps: {:.2} of {:.2} nodes drew maps per frame ({} frames)",
+        drew as f64 / frames,
+        nodes as f64 / frames,
+        seen.drew.len()
     );
     if let Some(c) = cpu {
         println!(
