@@ -149,7 +149,12 @@ impl Core {
                 // What the user changed since the last epoch every daemon took (a light edit, a
                 // budget) may be what cannot be planned: put it back and plan again, rather than
                 // wait for daemons or end the session.
-                match self.good.clone() {
+                // Only a change a user made counts (not the cost model the loop learns).
+                let user_changed = self.good.as_ref().is_some_and(|good| {
+                    !super::same_lights(&self.scene.lights, &good.lights)
+                        || self.opts.frame_budget_us != good.opts.frame_budget_us
+                });
+                match self.good.clone().filter(|_| user_changed) {
                     Some(good) => {
                         let undone = self.restore(&good)?;
                         if undone.is_empty() {
