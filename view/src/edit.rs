@@ -180,6 +180,23 @@ impl Steer {
         self.commit(lights, self.lights.clone())
     }
 
+    /// The lights as the loop put them back after an edit it could not plan: each light's
+    /// setting stays where the light is the same, and is the light's own where it is not.
+    pub(crate) fn put_back_lights(&mut self, lights: &[Light]) {
+        let settings = lights
+            .iter()
+            .enumerate()
+            .map(
+                |(i, l)| match (self.scene_lights.get(i), self.lights.get(i)) {
+                    (Some(now), Some(set)) if now.shape == l.shape && now.power == l.power => *set,
+                    _ => LightSetting::of(l),
+                },
+            )
+            .collect();
+        self.lights = settings;
+        self.scene_lights = Arc::new(lights.to_vec());
+    }
+
     /// Makes `lights` the session's, with the viewers' colour `settings` (one per light).
     fn commit(
         &mut self,
@@ -300,6 +317,35 @@ mod tests {
         assert!(
             sun.drag_light(0, 0.1, 0.0).is_err(),
             "a directional light has no position"
+        );
+    }
+
+    #[test]
+    fn lights_put_back_by_the_loop_keep_the_settings_of_lights_that_stayed() {
+        let scene = builtin("balls").unwrap();
+        let mut s = Steer::new(&scene);
+        s.set_light(0, [0.5, 0.5, 0.5], 3.0).unwrap();
+        s.drag_light(1, 0.2, 0.0).unwrap();
+        s.set_light(1, [0.1, 0.2, 0.3], 2.0).unwrap();
+        s.add_light(&spec(
+            serde_json::json!({"type": "point", "position": [0, 2, 0],
+            "intensity": 3.0}),
+        ))
+        .unwrap();
+        // The loop could not plan the drag and the addition: it renders the scene's lights.
+        s.put_back_lights(&scene.lights);
+        assert_eq!(s.scene_lights.as_ref(), &scene.lights);
+        assert_eq!(s.lights.len(), scene.lights.len());
+        assert_eq!((s.lights[0].color, s.lights[0].intensity), ([0.5; 3], 3.0));
+        assert_eq!(
+            s.lights[1],
+            crate::camera::LightSetting::of(&scene.lights[1]),
+            "light 1 was not the same"
+        );
+        assert_eq!(
+            s.spec().lights.as_deref(),
+            Some(&scene.lights),
+            "frames carry them"
         );
     }
 

@@ -261,11 +261,28 @@ impl Hub {
     pub async fn relay_status(self: Arc<Self>) {
         let mut live = self.live.clone();
         live.mark_changed();
+        let mut taken_back = 0;
         loop {
-            let (value, notice) = {
+            let (value, notice, put_back) = {
                 let s = live.borrow_and_update();
-                (crate::json::status(&s, self.started), s.notice.clone())
+                (
+                    crate::json::status(&s, self.started),
+                    s.notice.clone(),
+                    s.lights_put_back.clone(),
+                )
             };
+            if let Some((n, lights)) = put_back
+                && n > taken_back
+            {
+                // The loop could not plan an edit and renders the lights as they were: so does
+                // every page.
+                taken_back = n;
+                self.steer.send_modify(|s| {
+                    s.put_back_lights(&lights);
+                    s.revision += 1;
+                    s.changed_at = Instant::now();
+                });
+            }
             self.status.send_replace(Some(Arc::new(value)));
             if notice.is_some() && *self.notice.borrow() != notice {
                 self.notice.send_replace(notice);

@@ -190,7 +190,7 @@ pub(crate) struct Core {
     pub(super) waited_since: Option<Instant>,
     last_ping: Option<Instant>,
     last_warning: Option<Instant>,
-    observer: watch::Sender<LiveStatus>,
+    pub(super) observer: watch::Sender<LiveStatus>,
     notices: u64,
     /// The run was told to stop (`Input::Stop`).
     pub(super) stopping: bool,

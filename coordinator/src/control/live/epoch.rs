@@ -546,6 +546,11 @@ impl Core {
             undone.push("the lights as they were (the edit is dropped)".to_string());
             self.scene.lights = good.lights.clone();
             self.scene_colors = good.lights.iter().map(|l| l.color).collect();
+            let lights = Arc::new(good.lights.clone());
+            self.observer.send_modify(|s| {
+                let n = s.lights_put_back.as_ref().map_or(1, |(n, _)| n + 1);
+                s.lights_put_back = Some((n, lights));
+            });
         }
         let back: Vec<(u32, [f32; 3])> = self
             .scene

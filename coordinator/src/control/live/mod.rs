@@ -200,6 +200,9 @@ pub struct LiveStatus {
     pub lost: Vec<(String, String)>,
     /// The latest notice (a re-plan the user caused, …), numbered from 1.
     pub notice: Option<(u64, String)>,
+    /// The lights the loop put back after an edit it could not plan (`FrameSpec::lights`),
+    /// numbered from 1: whoever steers should take them as the lights again.
+    pub lights_put_back: Option<(u64, Arc<Vec<lightfold_scene::Light>>)>,
 }
 
 #[derive(Debug)]

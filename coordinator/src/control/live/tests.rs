@@ -1152,6 +1152,12 @@ fn a_light_edit_no_plan_fits_is_put_back_and_the_session_goes_on() {
         .clone()
         .expect("a notice");
     assert!(notice.1.contains("cannot plan"), "{notice:?}");
+    // Whoever steers is told which lights are rendered again.
+    let put_back = sim.core.observe().borrow().lights_put_back.clone();
+    assert_eq!(
+        put_back.map(|(n, l)| (n, l.as_ref().clone())),
+        Some((1, lights.clone()))
+    );
     let epochs = sim.core.summary.epochs.len();
     sim.run(Duration::from_secs(2), 15, &mut spec);
     assert_eq!(
