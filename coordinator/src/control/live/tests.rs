@@ -1180,3 +1180,53 @@ fn a_light_edit_no_plan_fits_is_put_back_and_the_session_goes_on() {
     assert_eq!(sim.core.scene.lights.len(), lights.len() + 1);
     assert_eq!(sim.core.plan().unwrap().samples.len(), before + 1);
 }
+
+/// Light edits survive failover: a node lost after an edit is planned around with the edited
+/// lights (moved and added), not the scene's.
+#[test]
+fn light_edits_survive_a_lost_node() {
+    let mut sim = Sim::build_with(4, 2, &[], |c| c.max_lights = 64, 4);
+    sim.start();
+    sim.run_plain(Duration::from_secs(1), 3);
+    let before = sim.core.plan().unwrap().samples.len();
+    let mut edited = sim.core.scene.lights.clone();
+    if let lightfold_scene::LightShape::Rect { center, .. }
+    | lightfold_scene::LightShape::Sphere { center, .. }
+    | lightfold_scene::LightShape::Disk { center, .. } = &mut edited[0].shape
+    {
+        center[0] += 0.2;
+    }
+    edited.push(lightfold_scene::Light {
+        name: "added".into(),
+        shape: lightfold_scene::LightShape::Point {
+            position: [0.1, 0.6, 0.2],
+        },
+        color: [1.0, 1.0, 1.0],
+        power: 1.0,
+        range: None,
+        samples: 1,
+    });
+    let edited = Arc::new(edited);
+    let mut spec = |_: u64| FrameSpec {
+        lights: Some(Arc::clone(&edited)),
+        ..FrameSpec::default()
+    };
+    sim.run(Duration::from_secs(3), 8, &mut spec);
+    assert_eq!(sim.core.plan().unwrap().samples.len(), before + 1);
+    let epochs = sim.core.summary.epochs.len();
+    let victim = sim.core.plan().unwrap().nodes[0].node.clone();
+    sim.kill(&victim);
+    sim.run(Duration::from_secs(5), 14, &mut spec);
+    sim.input(Input::RequestsClosed);
+    sim.run_plain(Duration::from_secs(2), 14);
+    sim.assert_all_delivered(14);
+    let plan = sim.core.plan().unwrap();
+    assert!(sim.core.summary.epochs.len() > epochs, "the loss re-planned");
+    assert!(plan.nodes.iter().all(|n| n.node != victim));
+    assert_eq!(plan.samples.len(), before + 1, "the added light is still planned");
+    assert_eq!(sim.core.scene.lights, *edited, "the edited lights are the scene's");
+    assert!(
+        plan.samples.iter().any(|s| s.light == edited.len() as u32 - 1),
+        "the plan renders the added light"
+    );
+}
