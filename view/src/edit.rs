@@ -74,15 +74,10 @@ impl Steer {
     /// The light `index` as a `[[light]]` table says (its colour and power become the light's
     /// own, with the viewers' multiplier back at 1). A mesh light can only be recoloured.
     pub fn edit_light(&mut self, index: u32, spec: &LightSpec) -> Result<(), SteerError> {
-        let old = self
-            .scene_lights
-            .get(index as usize)
-            .ok_or(SteerError::UnknownLight(index))?;
-        if matches!(old.shape, LightShape::EmissiveMesh { .. }) {
-            return Err(bad(
-                "a mesh light is its object: it can be recoloured, not moved or reshaped",
-            ));
-        }
+        let old = self.not_a_mesh_light(
+            index,
+            "a mesh light is its object: it can be recoloured, not moved or reshaped",
+        )?;
         let mut light = light_of(spec, index as usize).map_err(bad)?;
         if spec_name(spec).is_none() {
             light.name = old.name.clone();
@@ -114,15 +109,10 @@ impl Steer {
     /// (set its power to 0 instead), a mesh light (its object would still glow), and in a scene
     /// that animates its lights (their motions are bound to their places in the list).
     pub fn remove_light(&mut self, index: u32) -> Result<(), SteerError> {
-        let old = self
-            .scene_lights
-            .get(index as usize)
-            .ok_or(SteerError::UnknownLight(index))?;
-        if matches!(old.shape, LightShape::EmissiveMesh { .. }) {
-            return Err(bad(
-                "a mesh light is its object (it would still glow): set its power to 0 instead",
-            ));
-        }
+        self.not_a_mesh_light(
+            index,
+            "a mesh light is its object (it would still glow): set its power to 0 instead",
+        )?;
         if self.scene_lights.len() == 1 {
             return Err(bad(
                 "the last light cannot be removed: set its power to 0 instead",
@@ -178,6 +168,18 @@ impl Steer {
         let mut lights = self.scene_lights.as_ref().clone();
         set_position(&mut lights[index as usize].shape, moved.to_array());
         self.commit(lights, self.lights.clone())
+    }
+
+    /// Light `index`, unless it is a mesh light (then `why`).
+    fn not_a_mesh_light(&self, index: u32, why: &str) -> Result<&Light, SteerError> {
+        let light = self
+            .scene_lights
+            .get(index as usize)
+            .ok_or(SteerError::UnknownLight(index))?;
+        if matches!(light.shape, LightShape::EmissiveMesh { .. }) {
+            return Err(bad(why));
+        }
+        Ok(light)
     }
 
     /// The lights as the loop put them back after an edit it could not plan: each light's

@@ -1221,12 +1221,24 @@ fn light_edits_survive_a_lost_node() {
     sim.run_plain(Duration::from_secs(2), 14);
     sim.assert_all_delivered(14);
     let plan = sim.core.plan().unwrap();
-    assert!(sim.core.summary.epochs.len() > epochs, "the loss re-planned");
-    assert!(plan.nodes.iter().all(|n| n.node != victim));
-    assert_eq!(plan.samples.len(), before + 1, "the added light is still planned");
-    assert_eq!(sim.core.scene.lights, *edited, "the edited lights are the scene's");
     assert!(
-        plan.samples.iter().any(|s| s.light == edited.len() as u32 - 1),
+        sim.core.summary.epochs.len() > epochs,
+        "the loss re-planned"
+    );
+    assert!(plan.nodes.iter().all(|n| n.node != victim));
+    assert_eq!(
+        plan.samples.len(),
+        before + 1,
+        "the added light is still planned"
+    );
+    assert_eq!(
+        sim.core.scene.lights, *edited,
+        "the edited lights are the scene's"
+    );
+    assert!(
+        plan.samples
+            .iter()
+            .any(|s| s.light == edited.len() as u32 - 1),
         "the plan renders the added light"
     );
 }
