@@ -261,16 +261,35 @@ impl Hub {
     pub async fn relay_status(self: Arc<Self>) {
         let mut live = self.live.clone();
         live.mark_changed();
-        let mut taken_back = 0;
+        let (mut taken_back, mut colors_taken_back) = (0, 0);
         loop {
-            let (value, notice, put_back) = {
+            let (value, notice, put_back, colors_back) = {
                 let s = live.borrow_and_update();
                 (
                     crate::json::status(&s, self.started),
                     s.notice.clone(),
                     s.lights_put_back.clone(),
+                    s.colors_put_back.clone(),
                 )
             };
+            if let Some((n, colors)) = colors_back
+                && n > colors_taken_back
+            {
+                // Daemons refused what a colour needed: the loop renders the colours before it.
+                colors_taken_back = n;
+                self.steer.send_modify(|s| {
+                    for (light, color) in &colors {
+                        if let Some(set) = s.lights.get_mut(*light as usize) {
+                            *set = crate::camera::LightSetting {
+                                color: *color,
+                                intensity: 1.0,
+                            };
+                        }
+                    }
+                    s.revision += 1;
+                    s.changed_at = Instant::now();
+                });
+            }
             if let Some((n, lights)) = put_back
                 && n > taken_back
             {

@@ -570,6 +570,10 @@ impl Core {
                 back.iter().map(|b| b.0).collect::<Vec<_>>()
             ));
             self.recolour(&back)?;
+            self.observer.send_modify(|s| {
+                let n = s.colors_put_back.as_ref().map_or(1, |(n, _)| n + 1);
+                s.colors_put_back = Some((n, back.clone()));
+            });
         }
         if self.opts.frame_budget_us != good.opts.frame_budget_us {
             self.refused.budget = Some(self.opts.frame_budget_us);

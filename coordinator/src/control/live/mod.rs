@@ -203,6 +203,9 @@ pub struct LiveStatus {
     /// The lights the loop put back after an edit it could not plan (`FrameSpec::lights`),
     /// numbered from 1: whoever steers should take them as the lights again.
     pub lights_put_back: Option<(u64, Arc<Vec<lightfold_scene::Light>>)>,
+    /// Light colours the loop put back after daemons refused the plan they needed (light →
+    /// colour), numbered from 1: whoever steers should show them again.
+    pub colors_put_back: Option<(u64, Vec<(u32, [f32; 3])>)>,
 }
 
 #[derive(Debug)]

@@ -1242,3 +1242,32 @@ fn light_edits_survive_a_lost_node() {
         "the plan renders the added light"
     );
 }
+
+/// A colour whose re-plan a daemon refuses goes back, and the colours put back are published
+/// for whoever steers (the live view shows them again instead of the refused one).
+#[test]
+fn a_refused_colour_is_published_as_put_back() {
+    let mut sim = Sim::new(3, 2, &[]);
+    sim.run_plain(Duration::from_secs(1), 5);
+    let red = sim.core.scene.lights[0].color;
+    // White on the pure-red light splits its node's colour group: a re-plan, which the nodes
+    // refuse (each the next configuration it is sent).
+    for d in ["node-0", "node-1", "node-2"] {
+        sim.daemons.get_mut(d).unwrap().refuse_next = true;
+    }
+    let mut spec = |i: u64| FrameSpec {
+        light_colors: if i > 5 {
+            vec![(0, [1.0, 1.0, 1.0])]
+        } else {
+            Vec::new()
+        },
+        ..FrameSpec::default()
+    };
+    sim.run(Duration::from_secs(5), 15, &mut spec);
+    sim.input(Input::RequestsClosed);
+    sim.run_plain(Duration::from_secs(1), 15);
+    sim.assert_all_delivered(15);
+    let back = sim.core.observe().borrow().colors_put_back.clone();
+    assert_eq!(back, Some((1, vec![(0, red)])), "{back:?}");
+    assert_eq!(sim.core.scene.lights[0].color, red);
+}
