@@ -174,6 +174,9 @@ pub struct LiveSummary {
     pub saturated_frames: u64,
 }
 
+/// Light colours by source light: (light, linear colour).
+pub type LightColors = Vec<(u32, [f32; 3])>;
+
 /// What the loop is doing, for a watcher.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum LiveState {
@@ -205,7 +208,7 @@ pub struct LiveStatus {
     pub lights_put_back: Option<(u64, Arc<Vec<lightfold_scene::Light>>)>,
     /// Light colours the loop put back after daemons refused the plan they needed (light →
     /// colour), numbered from 1: whoever steers should show them again.
-    pub colors_put_back: Option<(u64, Vec<(u32, [f32; 3])>)>,
+    pub colors_put_back: Option<(u64, LightColors)>,
 }
 
 #[derive(Debug)]
