@@ -11,7 +11,7 @@ use lightfold_coordinator::plan::Plan;
 use lightfold_coordinator::run::RunOptions;
 use lightfold_net::{Identity, Timeouts};
 use lightfold_node::daemon::{self as node, NodeOptions};
-use lightfold_node::gpu::{Gpu, LayerSet, RenderOptions, Renderer};
+use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
 use lightfold_protocol::{Role, stats};
 use lightfold_scene::shading::{MaterialLayers, compose_frame};
 use lightfold_scene::{Image, Scene};
@@ -259,6 +259,14 @@ pub fn test_control() -> ControlOptions {
         heartbeat_timeout: Duration::from_secs(3),
         ..ControlOptions::default()
     }
+}
+
+/// The device, or a failed test that says why and what to install: GPU tests never skip, and CI
+/// (no real GPU) runs them on lavapipe.
+pub fn gpu() -> Gpu {
+    Gpu::new(&GpuOptions::default()).unwrap_or_else(|e| {
+        panic!("GPU tests need an adapter (CI installs mesa-vulkan-drivers for lavapipe): {e}")
+    })
 }
 
 /// Small versions of built-in scenes: 2 area lights × 4 samples, 64×48.

@@ -1,8 +1,14 @@
-//! A small driver for stages, over the real `net` links: it plays the coordinator (dial a stage,
-//! read its `Register`, configure it, request frames, collect `FrameDone` and errors), a producer
-//! (a node or upstream stage streaming frames band-major) and a sink (the coordinator's data
-//! listener assembling frames). Tests, benchmarks and bring-up use it until the coordinator exists;
-//! every wait has a deadline.
+//! A stand-in for everything around one stage, over the real `net` links, so a stage or a chain
+//! of stages can be exercised without planning or render nodes: it plays the coordinator (dial a
+//! stage, read its `Register`, configure it, request frames, collect `FrameDone` and errors), a
+//! producer (a node or upstream stage streaming frames band-major) and a sink (the coordinator's
+//! data listener assembling frames). Every wait has a deadline.
+//!
+//! Only tests and benchmarks use it: this crate's integration tests and `benches/link.rs`, and
+//! the CLI's test of a chain of `lightfold compositor` processes. No shipped command does — a
+//! real cluster's coordinator speaks to its stages through `lightfold_coordinator::control`. It
+//! is public because those tests and benches are compiled outside this crate; a cargo feature
+//! would have to be enabled by hand (`required-features` skips the tests silently without it).
 
 use super::pixels::{pack, unpack};
 use bytes::Bytes;

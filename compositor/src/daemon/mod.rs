@@ -11,6 +11,7 @@ mod check;
 mod compute;
 mod config;
 mod control;
+/// A stand-in coordinator, producer and sink for tests and benchmarks of stages.
 pub mod driver;
 mod engine;
 mod inputs;

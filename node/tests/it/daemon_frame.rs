@@ -7,7 +7,7 @@ use crate::daemon_support;
 
 use daemon_support::*;
 use lightfold_node::daemon::render_thread::{shadow_filter, take_layer};
-use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+use lightfold_node::gpu::{LayerSet, RenderOptions, Renderer};
 use lightfold_protocol::{ErrorCode, FrameParams, Layer, Message, NodeConfig, PixelFormat, Role};
 use lightfold_scene::wire::camera_to_wire;
 
@@ -81,7 +81,7 @@ async fn a_streamed_frame_equals_a_direct_render() {
     assert_eq!(stats.empty_bands, flagged);
 
     // The same lights rendered directly on this process's own device.
-    let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter (install lavapipe)");
+    let gpu = crate::gpu_support::gpu();
     let options = direct_options(&scene, &config);
     let mut renderer = Renderer::new(&gpu, &scene, options).expect("renderer");
     renderer.set_camera(&scene.camera);
@@ -457,7 +457,7 @@ async fn a_node_draws_only_its_part_of_the_scene() {
     }
     let bands = comp.take(band_count(&config)).await;
 
-    let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter (install lavapipe)");
+    let gpu = crate::gpu_support::gpu();
     let options = direct_options(&scene, &config);
     let render = |eye: Option<Vec<u32>>| {
         let mut r = Renderer::new(&gpu, &scene, options).expect("renderer");
@@ -514,7 +514,7 @@ async fn a_node_draws_only_its_part_of_the_scene() {
 /// lower. Before, the configuration was accepted and every frame then failed.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn maps_above_the_base_size_share_the_budget() {
-    let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter (install lavapipe)");
+    let gpu = crate::gpu_support::gpu();
     let mut scene = scene();
     scene.quality.map_sizing =
         lightfold_scene::MapSizing::Mismatch(lightfold_scene::defaults::MAP_MISMATCH);

@@ -1,12 +1,11 @@
 //! Opens the device the renderer will use and checks what it reports. Fails (never skips) when no
 //! adapter is found.
 
-use lightfold_node::gpu::{Gpu, GpuOptions};
+use crate::gpu_support::gpu;
 
 #[test]
 fn device_opens_and_reports_limits() {
-    let gpu = Gpu::new(&GpuOptions::default())
-        .unwrap_or_else(|e| panic!("no usable GPU adapter (install mesa-vulkan-drivers): {e}"));
+    let gpu = gpu();
     eprintln!("adapter {:?} backend {:?}", gpu.info.name, gpu.info.backend);
     eprintln!("limits {:#?}", gpu.limits);
     eprintln!("float32 targets {}", gpu.float32_targets);
@@ -19,8 +18,7 @@ fn device_opens_and_reports_limits() {
 #[test]
 fn a_rejected_pipeline_is_an_error() {
     use lightfold_node::gpu::{Fault, RenderError, RenderOptions, Renderer};
-    let gpu = Gpu::new(&GpuOptions::default())
-        .unwrap_or_else(|e| panic!("no usable GPU adapter (install mesa-vulkan-drivers): {e}"));
+    let gpu = gpu();
     let scene = lightfold_scene::builtin("box").unwrap();
     let mut opts = RenderOptions::from_quality(&scene.quality);
     opts.fault = Some(Fault::InvalidPipeline);
@@ -37,8 +35,7 @@ fn a_rejected_pipeline_is_an_error() {
 #[test]
 fn a_refused_allocation_is_an_error() {
     use lightfold_node::gpu::RenderError;
-    let gpu = Gpu::new(&GpuOptions::default())
-        .unwrap_or_else(|e| panic!("no usable GPU adapter (install mesa-vulkan-drivers): {e}"));
+    let gpu = gpu();
     let side = gpu.limits.max_texture_dimension_2d + 1;
     let refused = gpu.allocate("a texture wider than the device allows", |d| {
         d.create_texture(&wgpu::TextureDescriptor {
@@ -76,8 +73,7 @@ fn a_refused_allocation_is_an_error() {
 fn images_beyond_the_device_buffers_are_errors_or_fall_back() {
     use lightfold_node::gpu::{EyeVariant, LayerSet, RenderError, RenderOptions, Renderer};
     use lightfold_scene::limits::{MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
-    let gpu = Gpu::new(&GpuOptions::default())
-        .unwrap_or_else(|e| panic!("no usable GPU adapter (install mesa-vulkan-drivers): {e}"));
+    let gpu = gpu();
     let mut scene = lightfold_scene::builtin("box").unwrap();
     let opts = RenderOptions::from_quality(&scene.quality);
     let samples = lightfold_scene::sampling::direct_samples(&scene);
@@ -146,21 +142,17 @@ fn an_opengl_adapter_is_refused_with_what_to_install() {
 /// Packing on the device (`gpu::pack`) against the CPU pack, the reference: the same band headers
 /// and the same payload bytes for every link format, on hostile values and on rendered frames.
 mod device_pack {
+    use crate::gpu_support::gpu;
     use lightfold_node::daemon::bands::{
         BandLayout, LayerImages, PackedBand, assemble_frame, pack_frame,
     };
     use lightfold_node::gpu::pack::{DevicePacker, PackLayer, PackSource, PackedFrame};
-    use lightfold_node::gpu::{EyeVariant, Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+    use lightfold_node::gpu::{EyeVariant, Gpu, LayerSet, RenderOptions, Renderer};
     use lightfold_protocol::{Layer, PixelFormat};
     use lightfold_scene::Image;
     use std::sync::Arc;
     use tokio::sync::mpsc;
     use wgpu::util::DeviceExt;
-
-    fn gpu() -> Gpu {
-        Gpu::new(&GpuOptions::default())
-            .unwrap_or_else(|e| panic!("no usable GPU adapter (install mesa-vulkan-drivers): {e}"))
-    }
 
     /// A deterministic stream of f32 bit patterns that packing finds hard: every special value,
     /// subnormals, values at and around each format's range and rounding boundaries, random bit

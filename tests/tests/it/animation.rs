@@ -7,16 +7,11 @@
 
 use lightfold_coordinator::plan::MapSizing;
 use lightfold_coordinator::run::RunOptions;
-use lightfold_node::gpu::{Gpu, GpuOptions};
+use lightfold_node::gpu::Gpu;
 use lightfold_scene::{GltfOptions, Scene};
 use lightfold_tests::{
-    InProcessCluster, RunOutput, assert_close, single_device, small, test_control,
+    InProcessCluster, RunOutput, assert_close, gpu, single_device, small, test_control,
 };
-
-fn gpu() -> Gpu {
-    Gpu::new(&GpuOptions::default())
-        .expect("a GPU adapter is required (install mesa-vulkan-drivers)")
-}
 
 fn animated_options(scene: &Scene, frames: u32, time: f32, fps: f32, k: u32) -> RunOptions {
     let mut opts = RunOptions {

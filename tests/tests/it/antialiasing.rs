@@ -9,12 +9,12 @@
 //!
 //! The figures of `docs/accuracy/aa/README.md` come from the ignored `aa_cost_and_error`.
 
-use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, NodeFrame, RenderOptions, Renderer};
+use lightfold_node::gpu::{Gpu, LayerSet, NodeFrame, RenderOptions, Renderer};
 use lightfold_protocol::stats;
 use lightfold_reference::indirect::frame_samples;
 use lightfold_reference::{compare, radiance_point_sum};
 use lightfold_scene::{Image, LightSample, Scene};
-use lightfold_tests::{silhouettes, single_device_aa};
+use lightfold_tests::{gpu, silhouettes, single_device_aa};
 use std::time::Instant;
 
 /// `--aa 4` must have at most this fraction of `--aa 1`'s RMSE against the truth (measured
@@ -43,11 +43,6 @@ fn rmse(test: &Image, truth: &Image, scene: &Scene) -> f64 {
         .unwrap()
         .whole
         .rmse
-}
-
-fn gpu() -> Gpu {
-    Gpu::new(&GpuOptions::default())
-        .expect("a GPU adapter is required (install mesa-vulkan-drivers)")
 }
 
 /// Every layer of one frame of `scene` (already at its internal size) on one device.

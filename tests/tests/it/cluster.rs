@@ -6,7 +6,6 @@
 use lightfold_coordinator::control::{DaemonAddr, Session};
 use lightfold_coordinator::plan::{MapSizing, Topology};
 use lightfold_coordinator::run::{ColorChange, RunOptions};
-use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_protocol::Role;
 use lightfold_tests::{
     InProcessCluster, assert_close, render_on, single_device, small, test_control,
@@ -17,8 +16,7 @@ use std::time::{Duration, Instant};
 async fn cluster_matches_single_device_render() {
     let cluster = InProcessCluster::start(5, 5).await.unwrap();
     let mut session = cluster.connect(test_control()).await.unwrap();
-    let gpu = Gpu::new(&GpuOptions::default())
-        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let gpu = lightfold_tests::gpu();
     for name in ["box", "balls"] {
         let scene = small(name);
         let want = single_device(&gpu, &scene, false);
@@ -85,7 +83,7 @@ async fn light_colour_change_needs_no_rerender() {
     }];
     let out = cluster.render(&scene, &opts).await.unwrap();
     assert_eq!(out.frames.len(), 2);
-    let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
+    let gpu = lightfold_tests::gpu();
     // Walkthrough nodes fit their maps to every receiver: compare with a single-device render
     // that does the same, within the link formats' bound.
     assert_close(

@@ -8,7 +8,6 @@
 use lightfold_coordinator::control::{ControlError, IncidentKind, Live, LiveSummary};
 use lightfold_coordinator::plan::MapSizing;
 use lightfold_coordinator::run::{RunError, RunOptions, camera_at};
-use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_scene::Scene;
 use lightfold_tests::{
     InProcessCluster, RunOutput, assert_close, orbit_options, single_device, small,
@@ -29,8 +28,7 @@ fn setup() -> (Scene, RunOptions) {
 
 /// Every frame of the run, in order, against the single-device render of its camera.
 fn assert_every_frame(out: &RunOutput, scene: &Scene, opts: &RunOptions, what: &str) {
-    let gpu = Gpu::new(&GpuOptions::default())
-        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let gpu = lightfold_tests::gpu();
     let numbers: Vec<u64> = out.frames.iter().map(|f| f.frame).collect();
     let want: Vec<u64> = (1..=u64::from(opts.frames)).collect();
     assert_eq!(numbers, want, "{what}: every frame once, in order");
@@ -469,8 +467,7 @@ async fn a_pure_red_light_and_a_budget_change_do_not_end_the_session() {
         !reasons.iter().any(|r| r.contains("refused")),
         "no daemon refused a plan: {reasons:?}"
     );
-    let gpu = Gpu::new(&GpuOptions::default())
-        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let gpu = lightfold_tests::gpu();
     let numbers: Vec<u64> = frames.iter().map(|f| f.frame).collect();
     assert_eq!(numbers, (1..=u64::from(FRAMES)).collect::<Vec<_>>());
     for f in &frames {
@@ -495,8 +492,7 @@ async fn a_resumed_run_renders_only_the_missing_frames() {
     let out = cluster.render(&scene, &opts).await.unwrap();
     let numbers: Vec<u64> = out.frames.iter().map(|f| f.frame).collect();
     assert_eq!(numbers, vec![3, 5, 6], "the missing frames, in order, once");
-    let gpu = Gpu::new(&GpuOptions::default())
-        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let gpu = lightfold_tests::gpu();
     for f in &out.frames {
         let mut s = scene.clone();
         s.camera = camera_at(&scene.camera, opts.path, (f.frame - 1) as u32);

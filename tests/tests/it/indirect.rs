@@ -15,22 +15,19 @@
 
 use lightfold_coordinator::plan::MapSizing;
 use lightfold_coordinator::run::RunOptions;
-use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+use lightfold_node::gpu::{Gpu, LayerSet, RenderOptions, Renderer};
 use lightfold_reference::indirect::{self, IndirectOptions, OneBounceOptions};
 use lightfold_reference::{
     PointSumOptions, Tracer, compare, render_one_bounce, render_point_sum_with,
 };
 use lightfold_scene::{Camera, Image, Light, LightSample, LightShape, Material, SampleKind, Scene};
-use lightfold_tests::{InProcessCluster, assert_close, render_on, single_device, test_control};
+use lightfold_tests::{
+    InProcessCluster, assert_close, gpu, render_on, single_device, test_control,
+};
 
 const RHO: f32 = 0.5;
 const R: f32 = 1.0;
 const I: f32 = 1.0;
-
-fn gpu() -> Gpu {
-    Gpu::new(&GpuOptions::default())
-        .expect("a GPU adapter is required (install mesa-vulkan-drivers)")
-}
 
 fn camera(position: [f32; 3], target: [f32; 3], w: u32, h: u32) -> Camera {
     Camera {

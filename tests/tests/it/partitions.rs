@@ -8,21 +8,15 @@
 
 use lightfold_coordinator::plan::PlanOptions;
 use lightfold_coordinator::run::RunOptions;
-use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_scene::primitives::plane;
 use lightfold_scene::{Image, Light, LightShape, Material, Scene};
 use lightfold_tests::{
-    InProcessCluster, assert_close, render_on, single_device, single_device_parts, small,
+    InProcessCluster, assert_close, gpu, render_on, single_device, single_device_parts, small,
     small_glass, test_control,
 };
 
 /// The largest image bias `|Σ cluster / Σ render − 1|` (as `render_parity.rs`).
 const MAX_BIAS: f64 = 5e-4;
-
-fn gpu() -> Gpu {
-    Gpu::new(&GpuOptions::default())
-        .expect("a GPU adapter is required (install mesa-vulkan-drivers)")
-}
 
 /// The scene the cluster renders with `parts` partitions (`plan::scene_for`: meshes too large
 /// for a part in chunks), which the plan's mesh indices name.

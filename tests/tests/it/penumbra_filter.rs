@@ -6,18 +6,13 @@
 use lightfold_compositor::ops::{self, BandMut, BandView, Operator};
 use lightfold_coordinator::plan::{MapSizing, PenumbraFilter, Topology};
 use lightfold_coordinator::run::RunOptions;
-use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+use lightfold_node::gpu::{Gpu, LayerSet, RenderOptions, Renderer};
 use lightfold_protocol::Layer;
 use lightfold_scene::{Image, Scene};
 use lightfold_tests::{
-    InProcessCluster, assert_close, render_on, single_device, single_device_filtered, small,
+    InProcessCluster, assert_close, gpu, render_on, single_device, single_device_filtered, small,
     test_control,
 };
-
-fn gpu() -> Gpu {
-    Gpu::new(&GpuOptions::default())
-        .expect("a GPU adapter is required (install mesa-vulkan-drivers)")
-}
 
 /// `balls` at the accuracy sweep's size with `n` samples per area light.
 fn balls(n: u32) -> Scene {

@@ -264,8 +264,8 @@ fn compositors_accept_every_planned_stage() {
 /// illumination as with every mesh casting. Needs an adapter (lavapipe in CI); fails without one.
 #[test]
 fn planned_casters_give_the_same_gpu_image_as_every_caster() {
-    use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
-    let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter (install lavapipe)");
+    use lightfold_node::gpu::{LayerSet, RenderOptions, Renderer};
+    let gpu = lightfold_tests::gpu();
     for name in lightfold_scene::builtin_names() {
         let scene = culled_variant(name);
         let p = plan(&scene, &ClusterSpec::local(64, 8), &PlanOptions::default()).unwrap();

@@ -4,11 +4,11 @@
 //! receiver). The planner balances nodes by these counts, so a mismatch misprices every light.
 
 use lightfold_coordinator::plan::{ClusterSpec, PlanOptions, plan};
-use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+use lightfold_node::gpu::{LayerSet, RenderOptions, Renderer};
 
 #[test]
 fn planned_passes_equal_the_renderers() {
-    let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter (install lavapipe)");
+    let gpu = lightfold_tests::gpu();
     let mut total = [0usize; 2];
     for name in lightfold_scene::builtin_names() {
         let mut scene = lightfold_scene::builtin(name).unwrap();

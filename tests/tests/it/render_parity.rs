@@ -8,7 +8,7 @@
 
 use lightfold_coordinator::plan::{MapSizing, PlanOptions};
 use lightfold_coordinator::run::RunOptions;
-use lightfold_node::gpu::{Gpu, GpuOptions};
+use lightfold_node::gpu::Gpu;
 use lightfold_protocol::PixelFormat;
 use lightfold_scene::{Image, Scene};
 use lightfold_tests::{
@@ -106,8 +106,7 @@ async fn cluster_and_render(
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn cluster_frame_equals_render_within_bias() {
     let cluster = InProcessCluster::start(3, 3).await.unwrap();
-    let gpu = Gpu::new(&GpuOptions::default())
-        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let gpu = lightfold_tests::gpu();
     let mut failed = Vec::new();
     for scene in [
         grey_balls(),
@@ -137,8 +136,7 @@ async fn cluster_frame_equals_render_within_bias() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn cluster_frame_with_aa_equals_render_with_aa() {
     let cluster = InProcessCluster::start(3, 3).await.unwrap();
-    let gpu = Gpu::new(&GpuOptions::default())
-        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let gpu = lightfold_tests::gpu();
     let mut failed = Vec::new();
     for scene in [small("balls"), silhouettes(64, 48)] {
         let ((bias, rms), frame) =
@@ -179,8 +177,7 @@ async fn cluster_frame_with_aa_equals_render_with_aa() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn former_plan_options_fail_the_bias_check() {
     let cluster = InProcessCluster::start(3, 3).await.unwrap();
-    let gpu = Gpu::new(&GpuOptions::default())
-        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let gpu = lightfold_tests::gpu();
     let former = |p: &mut PlanOptions| {
         p.formats.material = PixelFormat::Rgba8Srgb;
         p.map_sizing = MapSizing::mismatch();
@@ -214,8 +211,7 @@ async fn former_plan_options_fail_the_bias_check() {
 #[ignore = "a measurement (about a minute on lavapipe), not a check"]
 async fn bias_per_built_in_scene() {
     let cluster = InProcessCluster::start(4, 4).await.unwrap();
-    let gpu = Gpu::new(&GpuOptions::default())
-        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let gpu = lightfold_tests::gpu();
     let former = |p: &mut PlanOptions| {
         p.formats.material = PixelFormat::Rgba8Srgb;
         p.map_sizing = MapSizing::mismatch();
@@ -254,8 +250,7 @@ async fn bias_per_built_in_scene() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn specular_off_drops_the_lobe_in_render_and_cluster_alike() {
     let cluster = InProcessCluster::start(3, 3).await.unwrap();
-    let gpu = Gpu::new(&GpuOptions::default())
-        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let gpu = lightfold_tests::gpu();
     let with = small_helmet();
     assert!(with.materials.iter().any(|m| m.pbr.is_some()));
     let mut without = with.clone();

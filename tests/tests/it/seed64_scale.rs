@@ -7,7 +7,6 @@
 
 use lightfold_coordinator::control::seed64_scale;
 use lightfold_coordinator::run::RunOptions;
-use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_protocol::PixelFormat;
 use lightfold_scene::Scene;
 use lightfold_scene::animation::{MotionSpec, PathSpec, apply_motions};
@@ -87,8 +86,7 @@ async fn seed64_scale_follows_a_brightening_scene() {
     session.detach();
     cluster.stop().await.unwrap();
     assert_eq!(out.frames.len(), FRAMES as usize);
-    let gpu = Gpu::new(&GpuOptions::default())
-        .expect("a GPU adapter is required (install mesa-vulkan-drivers)");
+    let gpu = lightfold_tests::gpu();
     let nodes: Vec<_> = out
         .plan
         .nodes
