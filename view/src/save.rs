@@ -98,3 +98,52 @@ pub fn session_toml(
     let file = session_file(&s, base)?;
     lightfold_scene::file::to_toml(&file).map_err(|e| e.to_string())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_saved_session_names_a_base_one_level_deep() {
+        assert_eq!(base_of(Some("balls")).unwrap(), "balls");
+        assert_eq!(base_of(Some("/data/models/fox.glb")).unwrap(), "fox.glb");
+        assert!(base_of(None).is_err());
+        let dir = tempfile::tempdir().unwrap();
+        let write = |name: &str, text: &str| {
+            let p = dir.path().join(name);
+            std::fs::write(&p, text).unwrap();
+            p.display().to_string()
+        };
+        let plain = write("room.toml", "version = 1\n");
+        assert_eq!(base_of(Some(&plain)).unwrap(), "room.toml");
+        // A saved session names its own base, so saving it again does not nest.
+        let session = write(
+            "session.toml",
+            "version = 1\n[base]\nscene = \"room.toml\"\n[[light]]\ntype = \"point\"\n\
+             position = [0.0, 1.0, 0.0]\nintensity = 1.0\n",
+        );
+        assert_eq!(base_of(Some(&session)).unwrap(), "room.toml");
+        // A file over a base with objects of its own cannot be a base itself.
+        let built = write(
+            "built.toml",
+            "version = 1\n[base]\nscene = \"room.toml\"\n[[object]]\ntype = \"box\"\n\
+             center = [0.0, 0.5, 0.0]\nsize = [1.0, 1.0, 1.0]\n",
+        );
+        let e = base_of(Some(&built)).unwrap_err();
+        assert!(e.contains("two levels deep"), "{e}");
+    }
+
+    #[test]
+    fn the_session_file_folds_the_viewers_settings_into_its_lights() {
+        let scene = lightfold_scene::builtin("balls").unwrap();
+        let mut steer = Steer::new(&scene);
+        steer.set_light(0, [0.2, 0.4, 0.8], 2.0).unwrap();
+        let text = session_toml(&skeleton(&scene), &steer, 1.0, "balls").unwrap();
+        let saved = lightfold_scene::parse_scene_file(&text, "session.toml", None).unwrap();
+        assert_eq!(saved.lights[0].color, [0.2, 0.4, 0.8]);
+        assert_eq!(saved.lights[0].power, scene.lights[0].power * 2.0);
+        assert_eq!(saved.lights[1], scene.lights[1]);
+        assert_eq!(saved.exposure, 2.0, "one stop up");
+        assert_eq!(saved.meshes, scene.meshes, "the base's geometry");
+    }
+}
