@@ -11,27 +11,25 @@ use serde_json::{Value, json};
 use std::time::Instant;
 
 pub fn scene(s: &Scene) -> Value {
-    let lights: Vec<Value> = s
-        .lights
-        .iter()
-        .enumerate()
-        .map(|(i, l)| {
-            json!({
-                "index": i,
-                "name": l.name,
-                "kind": shape_name(&l.shape),
-                "color": l.color,
-                "power": l.power,
-                "samples": if l.is_area() { l.samples } else { 1 },
-            })
-        })
-        .collect();
+    let lights: Vec<Value> = s.lights.iter().enumerate().map(light).collect();
     json!({
         "name": s.name,
         "width": s.camera.width,
         "height": s.camera.height,
         "exposure": s.exposure,
         "lights": lights,
+    })
+}
+
+/// A light as the page lists it: index, name, kind, colour, power and samples.
+fn light((i, l): (usize, &lightfold_scene::Light)) -> Value {
+    json!({
+        "index": i,
+        "name": l.name,
+        "kind": shape_name(&l.shape),
+        "color": l.color,
+        "power": l.power,
+        "samples": if l.is_area() { l.samples } else { 1 },
     })
 }
 
@@ -97,17 +95,12 @@ pub fn lights_message(s: &Steer) -> Value {
                     .and_then(|spec| serde_json::to_value(spec).ok())
                     .unwrap_or(Value::Null),
             };
-            json!({
-                "index": i,
-                "color": set.color,
-                "intensity": set.intensity,
-                "name": l.name,
-                "kind": shape_name(&l.shape),
-                "power": l.power,
-                "samples": if l.is_area() { l.samples } else { 1 },
-                "position": crate::edit::light_position(&l.shape),
-                "spec": spec,
-            })
+            let mut v = light((i, l));
+            v["color"] = json!(set.color);
+            v["intensity"] = json!(set.intensity);
+            v["position"] = json!(crate::edit::light_position(&l.shape));
+            v["spec"] = spec;
+            v
         })
         .collect();
     json!({"type": "lights", "lights": lights, "revision": s.revision})

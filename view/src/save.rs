@@ -29,8 +29,7 @@ pub fn base_of(source: Option<&str>) -> Result<String, String> {
     if !toml {
         return Ok(name);
     }
-    let text = std::fs::read_to_string(path).map_err(|e| format!("cannot read {source}: {e}"))?;
-    let file = lightfold_scene::file::parse(&text, source).map_err(|e| e.to_string())?;
+    let file = lightfold_scene::file::read_scene_file(path).map_err(|e| e.to_string())?;
     match file.base {
         None => Ok(name),
         Some(b)

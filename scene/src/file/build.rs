@@ -218,14 +218,7 @@ fn load_base(reference: &str, folder: Option<&Path>, label: &str) -> Result<Scen
         .is_some_and(|e| e.eq_ignore_ascii_case("toml"));
     if toml {
         let base_label = path.display().to_string();
-        let bytes = crate::input::read_bounded(&path, crate::limits::MAX_SCENE_FILE_BYTES)
-            .map_err(|message| SceneError::Io {
-                path: base_label.clone(),
-                message,
-            })?;
-        let text = String::from_utf8(bytes)
-            .map_err(|_| SceneError::file(&base_label, "the file is not UTF-8 text".into()))?;
-        let parsed = super::parse(&text, &base_label)?;
+        let parsed = super::read_scene_file(&path)?;
         if parsed.base.is_some() {
             return Err(SceneError::file(
                 label,

@@ -47,6 +47,14 @@ pub fn load(path_or_builtin: &str) -> Result<Scene, SceneError> {
 /// [`crate::limits::MAX_SCENE_FILE_BYTES`]); a referenced model is resolved relative to the
 /// file's folder and must lie inside it.
 pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
+    let file = read_scene_file(path)?;
+    let label = path.display().to_string();
+    build_checked(&file, &label, Some(crate::gltf_load::model_folder(path)))
+}
+
+/// Reads and parses a scene file without building it: a regular file of at most
+/// [`crate::limits::MAX_SCENE_FILE_BYTES`], UTF-8, version-checked.
+pub fn read_scene_file(path: &Path) -> Result<SceneFile, SceneError> {
     let label = path.display().to_string();
     let io = |message: String| SceneError::Io {
         path: label.clone(),
@@ -55,15 +63,19 @@ pub fn load_scene_file(path: &Path) -> Result<Scene, SceneError> {
     let bytes =
         crate::input::read_bounded(path, crate::limits::MAX_SCENE_FILE_BYTES).map_err(io)?;
     let text = String::from_utf8(bytes).map_err(|_| io("the file is not UTF-8 text".into()))?;
-    parse_scene_file(&text, &label, Some(crate::gltf_load::model_folder(path)))
+    parse(&text, &label)
 }
 
 /// Builds a scene from scene-file text; `label` names it in errors, `base` is the folder the
 /// glTF path is resolved in (and must stay inside; the current folder when `None`). The scene is
 /// checked against [`crate::limits`].
 pub fn parse_scene_file(text: &str, label: &str, base: Option<&Path>) -> Result<Scene, SceneError> {
-    let file = parse(text, label)?;
-    let scene = build::build(&file, label, base)?;
+    build_checked(&parse(text, label)?, label, base)
+}
+
+/// Builds a parsed scene file and checks the scene against [`crate::limits`].
+fn build_checked(file: &SceneFile, label: &str, base: Option<&Path>) -> Result<Scene, SceneError> {
+    let scene = build::build(file, label, base)?;
     scene
         .check_limits()
         .map_err(|e| SceneError::limit(label, e))?;

@@ -544,8 +544,7 @@ impl Core {
         if !super::same_lights(&self.scene.lights, &good.lights) {
             self.refused.lights = Some(Arc::new(self.scene.lights.clone()));
             undone.push("the lights as they were (the edit is dropped)".to_string());
-            self.scene.lights = good.lights.clone();
-            self.scene_colors = good.lights.iter().map(|l| l.color).collect();
+            self.edit_lights(&good.lights);
             let lights = Arc::new(good.lights.clone());
             self.observer.send_modify(|s| {
                 let n = s.lights_put_back.as_ref().map_or(1, |(n, _)| n + 1);
