@@ -156,7 +156,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
     )?;
     eprintln!(
-        "truth {} ({}; {:.1} s); floor penumbra PSNR {:.2} dB",
+        "truth {} ({}; {:.1} s); floor penumbra PSNR {:.2} dB; {} tie pixels left out",
         truth.key,
         if truth.from_cache {
             "cached"
@@ -164,7 +164,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "rendered"
         },
         truth.render_seconds,
-        truth.floor.penumbra.map_or(f64::NAN, |p| p.psnr)
+        truth.floor.penumbra.map_or(f64::NAN, |p| p.psnr),
+        truth.truth.tie_pixels()
     );
 
     let gpu = Gpu::new(&GpuOptions::default()).context("no usable GPU")?;

@@ -36,7 +36,7 @@ const CAP_DB: f64 = 100.0;
 /// The largest cached model read back (bytes).
 const MAX_MODEL_BYTES: u64 = 1 << 20;
 
-const CACHE_VERSION: &[u8] = b"lightfold-calibration-v2";
+const CACHE_VERSION: &[u8] = b"lightfold-calibration-v3";
 
 /// How to calibrate.
 #[derive(Debug, Clone, PartialEq, Eq)]

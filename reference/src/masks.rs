@@ -15,6 +15,14 @@ pub const PENUMBRA_HIGH: f32 = 0.98;
 pub const SILHOUETTE_THRESHOLD: f32 = 0.02;
 /// Default dilation radius of the silhouette mask, in pixels (square neighbourhood).
 pub const SILHOUETTE_DILATION: u32 = 2;
+/// A pixel centre within this many pixels of a boundary between two surfaces is a tie
+/// ([`ties`]): a rasteriser's fill rule and a ray tracer's intersection test may each give it
+/// to either side. Rasterisers resolve 1/256 of a pixel (8 sub-pixel bits), so 1/64 holds every
+/// disagreement of theirs and no pixel whose centre is clearly on one side.
+pub const TIE_PIXELS: f32 = 1.0 / 64.0;
+/// Shading normals closer than this cosine (2.6°) are one surface for [`ties`]: a smooth surface
+/// turns far less over [`TIE_PIXELS`].
+const TIE_COS: f32 = 0.999;
 
 /// Pixels where `0.02 < shadowed/unoccluded < 0.98` (ratio of RGB sums), over covered pixels
 /// whose unoccluded radiance is positive.
@@ -33,6 +41,45 @@ pub fn penumbra(shadowed: &Image, unoccluded: &Image) -> Vec<bool> {
             } else {
                 false
             }
+        })
+        .collect()
+}
+
+/// Pixels whose centre lies on a boundary between two surfaces, to within [`TIE_PIXELS`]: the
+/// eye rays [`TIE_PIXELS`] to either side of the centre, across and down, do not all hit the same
+/// surface as the centre's (the same coverage and material, shading normals within 2.6°). Which surface such
+/// a pixel shows is a tie — the Cornell box's camera on the room's axis puts the floor–wall
+/// junctions through a whole diagonal of pixel centres, where a rasteriser shows the floor and
+/// the ray tracer the wall — so comparisons leave them out as they leave out silhouettes. The
+/// depth-based silhouette mask cannot see these: the two surfaces meet at one depth. A crease
+/// inside one mesh counts (a box's edge, a flat-shaded facet's), a seam between coplanar pieces of
+/// one material or an edge between smoothly shaded triangles does not.
+pub fn ties(scene: &Scene) -> Vec<bool> {
+    use rayon::prelude::*;
+    let tracer = Tracer::new(scene);
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    let same =
+        |a: &Option<crate::trace::SurfaceHit>, b: &Option<crate::trace::SurfaceHit>| match (a, b) {
+            (None, None) => true,
+            (Some(a), Some(b)) => {
+                let (n, m) = (a.normal, b.normal);
+                let cos = n[0] * m[0] + n[1] * m[1] + n[2] * m[2];
+                a.material == b.material && cos > TIE_COS
+            }
+            _ => false,
+        };
+    (0..h)
+        .into_par_iter()
+        .flat_map_iter(|y| {
+            let tracer = &tracer;
+            (0..w).map(move |x| {
+                let (cx, cy) = (x as f32 + 0.5, y as f32 + 0.5);
+                let centre = tracer.primary_at(cx, cy);
+                let d = TIE_PIXELS;
+                [(d, 0.0), (-d, 0.0), (0.0, d), (0.0, -d)]
+                    .iter()
+                    .any(|&(dx, dy)| !same(&centre, &tracer.primary_at(cx + dx, cy + dy)))
+            })
         })
         .collect()
 }

@@ -113,12 +113,25 @@ pub fn compare(
     exposure: f32,
     penumbra: Option<&[bool]>,
 ) -> Result<Metrics, MetricsError> {
-    let whole = error_stats(test, reference, exposure, None)?;
+    compare_over(test, reference, exposure, None, penumbra)
+}
+
+/// [`compare`] with the "whole image" limited to the pixels `compared` holds (all without it):
+/// the area-light truth leaves out pixel centres that lie on a boundary between two surfaces
+/// ([`crate::masks::ties`]).
+pub fn compare_over(
+    test: &Image,
+    reference: &Image,
+    exposure: f32,
+    compared: Option<&[bool]>,
+    penumbra: Option<&[bool]>,
+) -> Result<Metrics, MetricsError> {
+    let whole = error_stats(test, reference, exposure, compared)?;
     let flip = flip_map(test, reference, exposure)?;
     let mean = |mask: Option<&[bool]>| {
         let (mut sum, mut n) = (0.0f64, 0usize);
         for (i, &e) in flip.iter().enumerate() {
-            if mask.is_none_or(|m| m[i]) {
+            if mask.is_none_or(|m| m.get(i).copied().unwrap_or(false)) {
                 sum += f64::from(e);
                 n += 1;
             }
@@ -131,7 +144,7 @@ pub fn compare(
     Ok(Metrics {
         exposure,
         whole,
-        flip: mean(None),
+        flip: mean(compared),
         penumbra: masked,
         penumbra_flip: penumbra.map(|m| mean(Some(m))),
     })

@@ -109,8 +109,14 @@ impl<'a> Tracer<'a> {
 
     /// The primary hit through the centre of pixel `(x, y)`.
     pub fn primary(&self, x: u32, y: u32) -> Option<SurfaceHit> {
+        self.primary_at(x as f32 + 0.5, y as f32 + 0.5)
+    }
+
+    /// The eye ray through image point `(fx, fy)` (pixels, `(0.5, 0.5)` the first pixel's
+    /// centre) and what it hits.
+    pub fn primary_at(&self, fx: f32, fy: f32) -> Option<SurfaceHit> {
         let cam = &self.scene.camera;
-        let dir = cam.ray_dir(x as f32 + 0.5, y as f32 + 0.5);
+        let dir = cam.ray_dir(fx, fy);
         let forward = cam.frame().forward;
         self.eye_ray(cam.position, dir, dot(dir, forward))
     }

@@ -3,8 +3,8 @@
 //! and light-sampling error.
 
 use crate::area::{AreaOptions, render_area};
-use crate::masks::penumbra_mask;
-use crate::metrics::{Metrics, MetricsError, compare};
+use crate::masks::{penumbra_mask, ties};
+use crate::metrics::{Metrics, MetricsError, compare_over};
 use lightfold_scene::{Image, Scene};
 
 /// Everything a comparison against the truth needs.
@@ -19,7 +19,10 @@ pub struct GroundTruth {
     pub unoccluded: Image,
     pub depth: Image,
     pub coverage: Vec<bool>,
-    /// Penumbra minus dilated silhouettes.
+    /// Pixels compared: all but those whose centre lies on a boundary between two surfaces
+    /// ([`ties`]), where a rasteriser may show either.
+    pub compared: Vec<bool>,
+    /// Penumbra minus dilated silhouettes and ties.
     pub penumbra: Vec<bool>,
 }
 
@@ -44,21 +47,63 @@ impl GroundTruth {
         );
         let radiance = shadowed.radiance([1.0; 3], scene.ambient);
         let unoccluded = unoccluded.radiance([1.0; 3], scene.ambient);
-        let penumbra = penumbra_mask(&radiance, &unoccluded, &shadowed.depth, &shadowed.coverage);
+        GroundTruth::assemble(
+            scene,
+            *options,
+            radiance,
+            unoccluded,
+            shadowed.depth,
+            shadowed.coverage,
+        )
+    }
+
+    /// The truth of `scene` from its rendered layers (a cache's, or [`GroundTruth::render`]'s):
+    /// the masks are derived here, the tie mask by tracing the scene's eye rays again.
+    pub fn assemble(
+        scene: &Scene,
+        options: AreaOptions,
+        radiance: Image,
+        unoccluded: Image,
+        depth: Image,
+        coverage: Vec<bool>,
+    ) -> GroundTruth {
+        let compared: Vec<bool> = ties(scene).into_iter().map(|t| !t).collect();
+        let penumbra = penumbra_mask(&radiance, &unoccluded, &depth, &coverage)
+            .into_iter()
+            .zip(&compared)
+            .map(|(p, &c)| p && c)
+            .collect();
         GroundTruth {
-            options: *options,
+            options,
             exposure: scene.exposure,
             radiance,
             unoccluded,
-            depth: shadowed.depth,
-            coverage: shadowed.coverage,
+            depth,
+            coverage,
+            compared,
             penumbra,
         }
     }
 
-    /// Metrics of `test` against the truth, whole image and penumbra.
+    /// Metrics of `test` against the truth, whole image (the compared pixels) and penumbra.
     pub fn compare(&self, test: &Image) -> Result<Metrics, MetricsError> {
-        compare(test, &self.radiance, self.exposure, Some(&self.penumbra))
+        self.compare_with(test, &self.radiance)
+    }
+
+    /// Metrics of `test` against `reference` over the truth's masks.
+    pub fn compare_with(&self, test: &Image, reference: &Image) -> Result<Metrics, MetricsError> {
+        compare_over(
+            test,
+            reference,
+            self.exposure,
+            Some(&self.compared),
+            Some(&self.penumbra),
+        )
+    }
+
+    /// Number of pixels left out as ties ([`ties`]).
+    pub fn tie_pixels(&self) -> usize {
+        self.compared.iter().filter(|&&c| !c).count()
     }
 
     /// Number of penumbra pixels.
@@ -110,17 +155,16 @@ pub struct ErrorSplit {
 }
 
 /// Splits `gpu`'s error using the exact point sum of the same samples and the truth; all three
-/// use the truth's penumbra mask.
+/// use the truth's masks.
 pub fn split_error(
     gpu: &Image,
     point_sum: &Image,
     truth: &GroundTruth,
 ) -> Result<ErrorSplit, MetricsError> {
-    let mask = Some(truth.penumbra.as_slice());
     Ok(ErrorSplit {
-        total: compare(gpu, &truth.radiance, truth.exposure, mask)?,
-        shadow_map: compare(gpu, point_sum, truth.exposure, mask)?,
-        light_sampling: compare(point_sum, &truth.radiance, truth.exposure, mask)?,
+        total: truth.compare(gpu)?,
+        shadow_map: truth.compare_with(gpu, point_sum)?,
+        light_sampling: truth.compare(point_sum)?,
     })
 }
 

@@ -114,8 +114,8 @@ pub fn markdown(
     let _ = writeln!(s, "Reproduce: `{command}`\n");
     let _ = writeln!(
         s,
-        "Truth: {}×{}, {} points per area light per pixel (cache key `{}`), {} penumbra pixels. \
-         Noise floor (truth against a second seed): whole PSNR {:.2} dB, penumbra PSNR {:.2} dB, \
+        "Truth: {}×{}, {} points per area light per pixel (cache key `{}`), {} penumbra pixels, {} \
+         pixels left out as ties (a pixel centre on a boundary between two surfaces). Noise floor (truth against a second seed): whole PSNR {:.2} dB, penumbra PSNR {:.2} dB, \
          FLIP {:.4}. \"at floor\" = RMSE within 10× the floor's (whole and penumbra): such points \
          are as good as this truth can tell.\n",
         t.radiance.width,
@@ -123,6 +123,7 @@ pub fn markdown(
         t.options.samples_per_light,
         truth.key,
         t.penumbra_pixels(),
+        t.tie_pixels(),
         truth.floor.whole.psnr,
         floor_pen,
         truth.floor.flip

@@ -4,7 +4,6 @@
 //! render); the penumbra mask and the floor are recomputed from them, which is cheap.
 
 use super::AccuracyError;
-use lightfold_reference::masks::penumbra_mask;
 use lightfold_reference::{AreaOptions, GroundTruth, Metrics, render_area};
 use lightfold_scene::{Image, Scene};
 use sha2::{Digest, Sha256};
@@ -110,16 +109,7 @@ fn assemble(
     }
     // The reference writes depth 0 where no surface is hit.
     let coverage: Vec<bool> = depth.data.iter().map(|&z| z > 0.0).collect();
-    let penumbra = penumbra_mask(&radiance, &unoccluded, &depth, &coverage);
-    GroundTruth {
-        options,
-        exposure: scene.exposure,
-        radiance,
-        unoccluded,
-        depth,
-        coverage,
-        penumbra,
-    }
+    GroundTruth::assemble(scene, options, radiance, unoccluded, depth, coverage)
 }
 
 const FILES: [&str; 4] = [

@@ -130,6 +130,7 @@ const CASES: &[(&str, CaseFn)] = &[
     ("deep-near", shadow_maps::deep_near),
     ("thin-poles", shadow_maps::thin_poles),
     ("thin-house", shadow_maps::thin_house),
+    ("cornell-junction", shadow_maps::cornell_junction),
     ("glossy-area", glossy::glossy_area),
 ];
 

@@ -67,8 +67,8 @@ struct MapCase {
     control: Control,
 }
 
-/// Cases 14–18 (docs/hard-cases.md).
-const MAP_CASES: [MapCase; 5] = [
+/// Cases 14–18 and 20 (docs/hard-cases.md).
+const MAP_CASES: [MapCase; 6] = [
     MapCase {
         name: "corner-leak",
         file: "corner_leak.toml",
@@ -96,6 +96,12 @@ const MAP_CASES: [MapCase; 5] = [
     MapCase {
         name: "thin-house",
         file: "thin_house.toml",
+        small: (320, 240),
+        control: Control::Fault(Fault::HugeBias),
+    },
+    MapCase {
+        name: "cornell-junction",
+        file: "cornell_junction.toml",
         small: (320, 240),
         control: Control::Fault(Fault::HugeBias),
     },
@@ -131,6 +137,12 @@ pub fn thin_poles(full: bool) -> Result<CaseReport, HardCaseError> {
 /// lit from outside at 30° through one window.
 pub fn thin_house(full: bool) -> Result<CaseReport, HardCaseError> {
     all_fixes("thin-house", full)
+}
+
+/// Case 20 (issue 46): `scenes/hard/cornell_junction.toml` — the Cornell box, a room of separate
+/// planes meeting edge to edge, lit from inside by its ceiling panel.
+pub fn cornell_junction(full: bool) -> Result<CaseReport, HardCaseError> {
+    all_fixes("cornell-junction", full)
 }
 
 /// Which of issue 22's fixes a render uses (all by default), so each can be measured alone.

@@ -138,6 +138,13 @@ fn thin_house_leaks_without_the_receiver_plane() {
     fails_without("thin-house", fixes, "without the receiver plane");
 }
 
+/// Issue 46: a room of separate planes lit from inside (the Cornell box) keeps its junctions as
+/// the exact point sum has them (case 20).
+#[test]
+fn cornell_junction() {
+    check("cornell-junction");
+}
+
 /// Issue 46: glossy highlights of an area light equal the lobe's integral over the light (case
 /// 19); each sample's own point highlight, as before, is the control that fails.
 #[test]

@@ -3,3 +3,4 @@
 mod accuracy_sweep;
 mod calibration;
 mod hard_cases;
+mod ties;

@@ -7,3 +7,4 @@ mod bvh;
 mod convergence;
 mod metrics;
 mod point_sum;
+mod ties;
