@@ -386,6 +386,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     frame_budget_us: None,
                     refine: None,
                     lights: None,
+                    scene: None,
                 };
                 tokio::select! {
                     biased;

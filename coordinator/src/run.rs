@@ -155,6 +155,7 @@ pub fn frame_specs(scene: &Scene, opts: &RunOptions) -> Vec<FrameSpec> {
                 frame_budget_us: None,
                 refine: None,
                 lights: None,
+                scene: None,
             }
         })
         .collect()

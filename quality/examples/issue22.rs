@@ -154,6 +154,7 @@ fn main() -> anyhow::Result<()> {
             "deep-near",
             "thin-poles",
             "thin-house",
+            "cornell-junction",
         ];
     }
     for name in names {

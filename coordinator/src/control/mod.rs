@@ -8,7 +8,7 @@ mod sink;
 
 pub use live::{
     EpochRecord, FrameSpec, Incident, IncidentKind, Live, LiveState, LiveStatus, LiveSummary,
-    Refine, SEED64_HEADROOM, seed64_scale,
+    OpenScene, Refine, SEED64_HEADROOM, seed64_scale,
 };
 pub use session::{
     ControlError, ControlOptions, Daemon, DaemonAddr, FrameResult, SCENE_CHUNK, Session,

@@ -142,6 +142,10 @@ pub(crate) struct Core {
     /// renders it with, whatever the light was recoloured to since.
     pub(super) scene_colors: Vec<[f32; 3]>,
     pub(super) opts: PlanOptions,
+    /// The scene frames show (`OpenScene::id`; 0: the session's first), and whether the next
+    /// plan starts afresh (a scene opened: nothing of the plan before carries over).
+    pub(super) scene_id: u64,
+    pub(super) fresh_plan: bool,
     /// The refinement the plan renders (`FrameSpec::refine`), above the session's quality.
     pub(super) refine: Option<Refine>,
     /// The samples per area light an error target chose in the newest plan without a
@@ -258,6 +262,8 @@ impl Core {
             out: VecDeque::new(),
             scene,
             opts,
+            scene_id: 0,
+            fresh_plan: false,
             refine: None,
             target_samples: None,
             bytes: Arc::new(bytes),
@@ -474,6 +480,7 @@ impl Core {
                 .iter()
                 .map(|(a, b)| (a.clone(), b.clone()))
                 .collect();
+            s.scene = self.scene_id;
         });
     }
 

@@ -101,7 +101,8 @@ impl Core {
         let mut o = self.opts.clone();
         o.epoch = self.first_epoch + self.epochs_used;
         let cluster = self.cluster();
-        let plan_for = |scene: &Scene, o: &PlanOptions| match &self.plan {
+        let prev = self.plan.as_ref().filter(|_| !self.fresh_plan);
+        let plan_for = |scene: &Scene, o: &PlanOptions| match prev {
             Some(prev) => replan(scene, &cluster, o, prev),
             None => plan(scene, &cluster, o),
         };
@@ -472,6 +473,7 @@ impl Core {
         });
         self.refusals = 0;
         self.plan = Some(next);
+        self.fresh_plan = false;
         self.sent_in_epoch = 0;
         self.recoloured = false;
         self.publish();

@@ -65,6 +65,34 @@ impl Core {
                 break;
             };
             self.refused.strip(&mut spec, self.refine);
+            let shows = super::scene_id(&spec);
+            if shows < self.scene_id {
+                // Requested before a scene was opened: it shows the new one as it is.
+                spec.scene = None;
+                spec.lights = None;
+                spec.light_colors.clear();
+            } else if let Some(open) = spec.scene.clone().filter(|_| shows > self.scene_id) {
+                self.frames.queue.push_front((index, spec));
+                match self.open_scene(&open) {
+                    Ok(()) => {
+                        let why =
+                            format!("scene {:?} opened at frame {index}: planning", open.name);
+                        self.notice(why.clone());
+                        self.pending_steer = Some(why);
+                        self.publish();
+                        break;
+                    }
+                    Err(e) => {
+                        let why = format!("cannot open scene {:?}: {e}", open.name);
+                        self.notice(why.clone());
+                        self.refused.scene = Some(open.id);
+                        self.observer
+                            .send_modify(|s| s.scene_refused = Some((open.id, why.clone())));
+                        // Sent again without it, as the loop's scene.
+                        continue;
+                    }
+                }
+            }
             // A light the request names no colour for has the scene's, also after a re-plan
             // recoloured it.
             for (l, (now, given)) in self.scene.lights.iter().zip(&self.scene_colors).enumerate() {
@@ -182,6 +210,39 @@ impl Core {
                 warming: self.sent_in_epoch <= limit as u64,
             });
         }
+        Ok(())
+    }
+
+    /// Makes `open` the session's scene, once a plan for it fits the daemons connected now: the
+    /// next epoch plans it afresh and offers every node its bytes (nodes know a scene by its
+    /// hash). What belonged to the scene before goes: light edits and colours, refinement, what
+    /// was refused, the settings to go back to, the cost model learned under a budget, and the
+    /// `seed64` peaks. The frame budget the viewers set stays.
+    pub(super) fn open_scene(&mut self, open: &super::OpenScene) -> Result<(), String> {
+        let cluster = self.cluster();
+        let options = crate::plan::PlanOptions {
+            frame_budget_us: self.opts.frame_budget_us,
+            ..open.options.clone()
+        };
+        let (scene, opts) =
+            super::prepare(&open.scene, &cluster, &options).map_err(|e| e.to_string())?;
+        crate::plan::plan(&scene, &cluster, &opts).map_err(|e| e.to_string())?;
+        let bytes = scene.to_bytes().map_err(|e| e.to_string())?;
+        self.hash = scene.content_hash();
+        self.bytes = std::sync::Arc::new(bytes);
+        self.scene_colors = scene.lights.iter().map(|l| l.color).collect();
+        self.scene = scene;
+        self.opts = opts;
+        self.scene_id = open.id;
+        self.fresh_plan = true;
+        self.subsets.clear();
+        self.refine = None;
+        self.target_samples = None;
+        self.good = None;
+        self.refused = super::Refused::default();
+        self.adapt = Default::default();
+        self.peaks.clear();
+        self.recoloured = false;
         Ok(())
     }
 

@@ -81,6 +81,36 @@ pub struct FrameSpec {
     /// keep their scene (a node's lights travel in its configuration), so in walkthrough mode a
     /// node draws again only the maps of lights that changed. `None`: the session's lights.
     pub lights: Option<Arc<Vec<lightfold_scene::Light>>>,
+    /// The scene this frame shows, where a viewer opened another (`None`: the session's first).
+    /// A newer one than the loop's is planned from this frame on, the nodes sent it as they are
+    /// sent any scene they do not hold; one the cluster cannot plan is refused
+    /// (`LiveStatus::scene_refused`) and the frame shows the loop's scene. A frame of an older
+    /// scene (requested before the switch) shows the current one, without its light edits or
+    /// colours.
+    pub scene: Option<Arc<OpenScene>>,
+}
+
+/// A scene a viewer opened in a live session (`FrameSpec::scene`).
+#[derive(Debug)]
+pub struct OpenScene {
+    /// Counts the scenes opened in the session, from 1 (0 is the one it started with).
+    pub id: u64,
+    /// How the viewer named it.
+    pub name: String,
+    pub scene: lightfold_scene::Scene,
+    /// The options to plan it with (the session's, with this scene's error model).
+    pub options: PlanOptions,
+}
+
+impl PartialEq for OpenScene {
+    fn eq(&self, other: &OpenScene) -> bool {
+        self.id == other.id
+    }
+}
+
+/// The id of the scene `spec` shows (0: the session's first).
+pub(super) fn scene_id(spec: &FrameSpec) -> u64 {
+    spec.scene.as_ref().map_or(0, |s| s.id)
 }
 
 /// Whether two light lists are the same lights but for their colours (which frames change as
@@ -209,6 +239,11 @@ pub struct LiveStatus {
     /// Light colours the loop put back after daemons refused the plan they needed (light →
     /// colour), numbered from 1: whoever steers should show them again.
     pub colors_put_back: Option<(u64, LightColors)>,
+    /// The id of the scene frames show now (`OpenScene::id`; 0: the session's first).
+    pub scene: u64,
+    /// A scene a viewer opened that the loop could not plan, and why: whoever steers should go
+    /// back to the scene it had.
+    pub scene_refused: Option<(u64, String)>,
 }
 
 #[derive(Debug)]
@@ -248,6 +283,8 @@ struct Refused {
     refine: Option<Option<Refine>>,
     /// An edit of the lights (`FrameSpec::lights`).
     lights: Option<Arc<Vec<lightfold_scene::Light>>>,
+    /// A scene opened (`FrameSpec::scene`, by id): frames showing it show the loop's scene.
+    scene: Option<u64>,
 }
 
 impl Refused {
@@ -271,7 +308,30 @@ impl Refused {
         {
             spec.lights = None;
         }
+        if self.scene.is_some_and(|id| scene_id(spec) == id) {
+            spec.scene = None;
+            spec.lights = None;
+            spec.light_colors.clear();
+        }
     }
+}
+
+/// The scene and options a session plans from, for `cluster`: partitions resolved once (automatic
+/// ones from the nodes' memory), meshes too large for a part split into chunks first, and the
+/// camera at `--aa`'s factor (everything the cluster renders is N × the camera's size; the sink
+/// resolves).
+pub(super) fn prepare(
+    scene: &lightfold_scene::Scene,
+    cluster: &crate::plan::ClusterSpec,
+    opts: &PlanOptions,
+) -> Result<(lightfold_scene::Scene, PlanOptions), RunError> {
+    let opts = PlanOptions {
+        partitions: crate::plan::partitions_for(scene, cluster, opts),
+        ..opts.clone()
+    };
+    let mut scene = crate::plan::scene_for(scene, cluster, &opts).into_owned();
+    scene.camera = scene.camera.supersampled(opts.supersample)?;
+    Ok((scene, opts))
 }
 
 /// The epochs one run may use (`Session::reserve_epochs`).
@@ -304,12 +364,7 @@ impl<'s> Live<'s> {
         // Partitions resolved once for the run (automatic ones from the nodes' memory), and
         // meshes too large for a part split into chunks first.
         let cluster = crate::run::cluster_spec(session);
-        let opts = PlanOptions {
-            partitions: crate::plan::partitions_for(scene, &cluster, opts),
-            ..opts.clone()
-        };
-        let mut scene = crate::plan::scene_for(scene, &cluster, &opts).into_owned();
-        scene.camera = scene.camera.supersampled(opts.supersample)?;
+        let (scene, opts) = prepare(scene, &cluster, opts)?;
         let now = Instant::now();
         let members = session
             .daemons

@@ -1271,3 +1271,74 @@ fn a_refused_colour_is_published_as_put_back() {
     assert_eq!(back, Some((1, vec![(0, red)])), "{back:?}");
     assert_eq!(sim.core.scene.lights[0].color, red);
 }
+
+/// A viewer opens another scene: from the frame that carries it on, the plan is the new scene's
+/// and every node holds its bytes; frames requested before it show it too. One the cluster cannot
+/// plan is refused and said, and the session goes on with the scene it had.
+#[test]
+fn a_scene_opened_live_is_planned_and_sent_to_every_node() {
+    let mut sim = Sim::build_with(3, 2, &[], |c| c.max_lights = 4, 4);
+    sim.start();
+    sim.run_plain(Duration::from_secs(1), 3);
+    let first = sim.core.hash;
+    let small = |samples: u32| {
+        let mut s = lightfold_scene::builtin("balls").unwrap();
+        s.quality.samples_per_area_light = Some(samples);
+        s.camera.width = 64;
+        s.camera.height = 48;
+        s
+    };
+    // Too many samples for three nodes of four lights: refused.
+    let too_big = Arc::new(super::OpenScene {
+        id: 1,
+        name: "balls at 64 samples".into(),
+        scene: small(64),
+        options: sim.core.opts.clone(),
+    });
+    let mut spec = |i: u64| FrameSpec {
+        scene: (i > 3).then(|| Arc::clone(&too_big)),
+        ..FrameSpec::default()
+    };
+    sim.run(Duration::from_secs(3), 10, &mut spec);
+    sim.assert_all_delivered(10);
+    assert_eq!(sim.core.scene_id, 0);
+    assert_eq!(sim.core.hash, first);
+    let refused = sim.core.observe().borrow().scene_refused.clone();
+    assert!(
+        refused
+            .as_ref()
+            .is_some_and(|(id, why)| *id == 1 && why.contains("cannot open")),
+        "{refused:?}"
+    );
+    // One that fits.
+    let epochs = sim.core.summary.epochs.len();
+    let balls = Arc::new(super::OpenScene {
+        id: 2,
+        name: "balls".into(),
+        scene: small(2),
+        options: sim.core.opts.clone(),
+    });
+    let mut spec = |i: u64| FrameSpec {
+        scene: (i > 12).then(|| Arc::clone(&balls)),
+        ..FrameSpec::default()
+    };
+    sim.run(Duration::from_secs(3), 20, &mut spec);
+    sim.input(Input::RequestsClosed);
+    sim.run_plain(Duration::from_secs(2), 20);
+    sim.assert_all_delivered(20);
+    assert_eq!(sim.core.scene_id, 2);
+    assert_eq!(sim.core.scene.name, "balls");
+    assert_ne!(sim.core.hash, first);
+    assert_eq!(sim.core.summary.epochs.len(), epochs + 1, "one plan for it");
+    let plan = sim.core.plan().unwrap();
+    assert_eq!(plan.scene_hash, sim.core.hash);
+    for n in &plan.nodes {
+        assert_eq!(
+            sim.daemons[&n.node].scene,
+            Some(sim.core.hash),
+            "{} holds the new scene",
+            n.node
+        );
+    }
+    assert_eq!(sim.core.observe().borrow().scene, 2);
+}
