@@ -96,6 +96,11 @@ pub struct ViewArgs {
     pub refine: RefineArgs,
     #[command(flatten)]
     pub access: ViewAccessArgs,
+    /// With `--http`: the folder whose scene files and models (.toml, .gltf/.glb, .obj, .ply,
+    /// directly in it) viewers may open from the page, beside the built-ins; each is loaded as
+    /// `--scene` would be (same size and plan options).
+    #[arg(long, value_name = "DIR")]
+    pub scene_dir: Option<PathBuf>,
 }
 
 /// Refinement while the live view is idle (`docs/live-view.md` § Refinement when idle): shared
@@ -214,10 +219,31 @@ impl ViewArgs {
     pub async fn bind(
         &self,
         cluster_token: &[u8],
-        scene: &str,
+        job: &JobArgs,
     ) -> anyhow::Result<Option<lightfold_view::View>> {
         let Some(listen) = &self.http else {
             return Ok(None);
+        };
+        if let Some(dir) = &self.scene_dir
+            && !dir.is_dir()
+        {
+            bail!("--scene-dir {}: not a folder", dir.display());
+        }
+        let scene = job.scene.as_str();
+        // A scene a viewer picks is loaded as `--scene` is, with its own error model.
+        let picked = job.clone();
+        let scenes = lightfold_view::SceneCatalog {
+            dir: self.scene_dir.clone(),
+            open: Box::new(move |source: &str| {
+                let job = JobArgs {
+                    scene: source.to_string(),
+                    animation: None,
+                    ..picked.clone()
+                };
+                let scene = job.load_scene()?;
+                let options = job.plan_options_for(&scene)?;
+                Ok(lightfold_view::Opened { scene, options })
+            }),
         };
         let token = match &self.view_token_file {
             Some(f) => lightfold_net::load_token(Some(f))?,
@@ -233,6 +259,7 @@ impl ViewArgs {
             tls: self.access.tls()?,
             allow_plain_token: self.access.allow_plain_token,
             scene_source: Some(scene.to_string()),
+            scenes: Some(std::sync::Arc::new(scenes)),
             ..lightfold_view::ViewOptions::default()
         })
         .await?;
@@ -768,7 +795,7 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
                 return Ok(());
             }
         }
-        let view = args.view.bind(&token, &args.job.scene).await?;
+        let view = args.view.bind(&token, &args.job).await?;
         let me = Identity::new(&token, Role::Coordinator, "coordinator");
         let cancel = crate::lifecycle::shutdown_token(args.parent_pid);
         crate::metrics_http::start(&args.metrics, "coordinator", "coordinator", cancel.clone())

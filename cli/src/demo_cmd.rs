@@ -58,6 +58,11 @@ pub struct Args {
     /// With `--serve`: refinement while the view is idle (as `coordinator --http`).
     #[command(flatten)]
     pub refine: crate::coordinator_cmd::RefineArgs,
+    /// With `--serve`: a folder whose scene files and models viewers may open from the page,
+    /// beside the built-ins (as `coordinator --scene-dir`). The cluster is the one started for
+    /// `--scene`: a scene it cannot plan is refused, and the view stays on the scene it had.
+    #[arg(long, value_name = "DIR", requires = "serve")]
+    pub scene_dir: Option<PathBuf>,
     /// Every daemon and the coordinator serve `/metrics`, `/healthz` and `/readyz` on a loopback
     /// port of its own (`--metrics-listen`; the addresses are printed).
     #[arg(long)]
@@ -399,6 +404,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         coord.args(args.view_access.to_args());
         coord.args(args.refine.to_args());
+        if let Some(dir) = &args.scene_dir {
+            coord.arg("--scene-dir").arg(dir);
+        }
     }
     if args.metrics {
         coord.args(["--metrics-listen", ANY_PORT]);

@@ -75,6 +75,8 @@ pub struct Steer {
     /// The frame budget a viewer set (µs; `Some(None)`: none); `None` until one does (the
     /// session's own, `--frame-budget`, holds).
     pub frame_budget_us: Option<Option<u64>>,
+    /// The scene a viewer opened, which frames carry (`None`: the session's first).
+    pub open: Option<Arc<lightfold_coordinator::control::OpenScene>>,
     /// Counts changes, from 0 (the scene as loaded).
     pub revision: u64,
     /// When the revision last changed (the last input), or the state was made.
@@ -99,6 +101,7 @@ impl Steer {
                 0.0
             }),
             frame_budget_us: None,
+            open: None,
             revision: 0,
             changed_at: std::time::Instant::now(),
         }
@@ -147,6 +150,7 @@ impl Steer {
             frame_budget_us: self.frame_budget_us,
             refine: None,
             lights: self.lights_edited.then(|| Arc::clone(&self.scene_lights)),
+            scene: self.open.clone(),
         }
     }
 

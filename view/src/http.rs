@@ -273,7 +273,8 @@ async fn scene_file(
     if let Some(r) = refused_frames(&hub, peer, &headers) {
         return r;
     }
-    let base = match &hub.save_base {
+    let info = Arc::clone(&hub.scene.borrow());
+    let base = match &info.save_base {
         Ok(b) => b,
         Err(why) => {
             return (
@@ -285,7 +286,7 @@ async fn scene_file(
     };
     let steer = hub.steer.borrow().clone();
     let stops = *hub.exposure.borrow();
-    match crate::save::session_toml(&hub.skeleton, &steer, stops, base) {
+    match crate::save::session_toml(&info.skeleton, &steer, stops, base) {
         Ok(text) => (
             [
                 (

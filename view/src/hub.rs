@@ -10,7 +10,7 @@ use lightfold_scene::{Image, Scene};
 use sha2::{Digest, Sha256};
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
 use tokio::sync::{Notify, watch};
@@ -76,9 +76,17 @@ pub struct Hub {
     pub refine: Option<crate::refine::Ladder>,
     pub jpeg_quality: u8,
     pub send_timeout: std::time::Duration,
-    pub scene: serde_json::Value,
-    /// The scene's own exposure, stops (what the page's exposure resets to).
-    pub scene_stops: f32,
+    /// The scene frames show now (a viewer may open another: `crate::open`).
+    pub scene: watch::Sender<Arc<crate::open::SceneInfo>>,
+    /// The scenes viewers may open (`None`: none but the session's).
+    pub catalog: Option<Arc<crate::open::SceneCatalog>>,
+    /// A scene is being loaded; the scene and steering before the last one opened (what a
+    /// scene the loop refuses goes back to); the next scene's id.
+    pub opening: AtomicBool,
+    previous: Mutex<Option<(Arc<crate::open::SceneInfo>, Steer)>>,
+    next_scene: AtomicU64,
+    /// Notices of the view's own (numbered apart from the loop's).
+    told: AtomicU64,
     token: Option<[u8; 32]>,
     /// Viewers beyond loopback without the token watch (`ViewOptions::public_watch`).
     pub public_watch: bool,
@@ -89,9 +97,6 @@ pub struct Hub {
     /// Addresses removed from what viewers without the token are sent.
     pub addresses: crate::access::Addresses,
     pub steer: watch::Sender<Steer>,
-    /// The scene without its geometry, and the base a saved session names (`crate::save`).
-    pub skeleton: Scene,
-    pub save_base: Result<String, String>,
     /// A viewer asked for a frame although nothing changed.
     pub render_now: Notify,
     /// The number of the last frame the loop delivered.
@@ -141,16 +146,25 @@ impl Hub {
             refine: None,
             jpeg_quality: opts.jpeg_quality.clamp(1, 100),
             send_timeout: opts.send_timeout,
-            scene: crate::json::scene(scene),
-            scene_stops: crate::encode::stops_of(scene.exposure),
+            scene: watch::Sender::new(Arc::new(crate::open::SceneInfo::new(
+                0,
+                opts.scene_source
+                    .clone()
+                    .unwrap_or_else(|| scene.name.clone()),
+                scene,
+                opts.scene_source.as_deref(),
+            ))),
+            catalog: opts.scenes.clone(),
+            opening: AtomicBool::new(false),
+            previous: Mutex::new(None),
+            next_scene: AtomicU64::new(1),
+            told: AtomicU64::new(0),
             token: opts.token.as_deref().map(digest),
             public_watch: opts.public_watch,
             allow_plain_token: opts.allow_plain_token,
             tls: false,
             addresses: crate::access::Addresses::default(),
             steer: watch::Sender::new(Steer::new(scene)),
-            skeleton: crate::save::skeleton(scene),
-            save_base: crate::save::base_of(opts.scene_source.as_deref()),
             render_now: Notify::new(),
             delivered: watch::Sender::new(0),
             revisions: Mutex::new(BTreeMap::new()),
@@ -257,21 +271,91 @@ impl Hub {
         })
     }
 
+    /// A notice of the view's own to every page (and the log).
+    pub fn tell(&self, text: String) {
+        tracing::info!("{text}");
+        let n = (1 << 48) + self.told.fetch_add(1, Ordering::Relaxed);
+        self.notice.send_replace(Some((n, text)));
+    }
+
+    /// Makes `opened` the scene frames ask for (`FrameSpec::scene`): the steering starts from
+    /// its camera and lights (the frame budget a viewer set stays), and every page is welcomed
+    /// again. The scene and steering before are kept for the loop's refusal.
+    pub fn install_scene(&self, name: String, source: String, opened: crate::open::Opened) {
+        let id = self.next_scene.fetch_add(1, Ordering::Relaxed);
+        let crate::open::Opened { scene, options } = opened;
+        let info = Arc::new(crate::open::SceneInfo::new(
+            id,
+            name.clone(),
+            &scene,
+            Some(&source),
+        ));
+        let steer = Steer::new(&scene);
+        let open = Arc::new(lightfold_coordinator::control::OpenScene {
+            id,
+            name: name.clone(),
+            scene,
+            options,
+        });
+        let before = self.steer.borrow().clone();
+        *self.previous.lock().unwrap_or_else(|e| e.into_inner()) =
+            Some((Arc::clone(&self.scene.borrow()), before));
+        self.exposure.send_replace(info.stops);
+        self.scene.send_replace(info);
+        self.steer.send_modify(|s| {
+            let revision = s.revision + 1;
+            let budget = s.frame_budget_us;
+            *s = steer;
+            s.open = Some(open);
+            s.frame_budget_us = budget;
+            s.revision = revision;
+        });
+        self.tell(format!("opening scene {name:?}"));
+    }
+
+    /// The loop refused scene `id`: back to the scene and steering before it, if it is still
+    /// the one shown.
+    fn scene_refused(&self, id: u64) {
+        if self.scene.borrow().id != id {
+            return;
+        }
+        let Some((info, steer)) = self
+            .previous
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take()
+        else {
+            return;
+        };
+        self.exposure.send_replace(info.stops);
+        self.scene.send_replace(info);
+        self.steer.send_modify(|s| {
+            let revision = s.revision + 1;
+            *s = steer;
+            s.revision = revision;
+            s.changed_at = Instant::now();
+        });
+    }
+
     /// Turns the loop's status into the page's, whenever it changes, until the view stops.
     pub async fn relay_status(self: Arc<Self>) {
         let mut live = self.live.clone();
         live.mark_changed();
         let (mut taken_back, mut colors_taken_back) = (0, 0);
         loop {
-            let (value, notice, put_back, colors_back) = {
+            let (value, notice, put_back, colors_back, scene_refused) = {
                 let s = live.borrow_and_update();
                 (
                     crate::json::status(&s, self.started),
                     s.notice.clone(),
                     s.lights_put_back.clone(),
                     s.colors_put_back.clone(),
+                    s.scene_refused.as_ref().map(|(id, _)| *id),
                 )
             };
+            if let Some(id) = scene_refused {
+                self.scene_refused(id);
+            }
             if let Some((n, colors)) = colors_back
                 && n > colors_taken_back
             {

@@ -28,6 +28,7 @@ mod feed;
 mod http;
 mod hub;
 mod json;
+mod open;
 mod refine;
 mod save;
 mod tls;
@@ -37,6 +38,7 @@ pub use camera::{Steer, SteerError};
 pub use clock::{Clock, MAX_SPEED, MIN_SPEED, clip_time};
 pub use encode::{MAX_STOPS, MIN_STOPS};
 pub use hub::{MAX_VIEWERS, MAX_WATCHERS, ViewCounters};
+pub use open::{MAX_LISTED, Opened, Opener, SceneCatalog};
 pub use refine::{DEFAULT_MAX_SAMPLES, DEFAULT_SAMPLES_FACTOR, Ladder, RefineOptions, Step};
 
 use lightfold_coordinator::control::{FrameResult, Live, LiveSummary, Session};
@@ -79,6 +81,8 @@ pub struct ViewOptions {
     /// How the session's scene was named (a built-in, or a file's path): what a saved session
     /// (`/scene.toml`) names as its base. `None`: the view cannot save the session.
     pub scene_source: Option<String>,
+    /// The scenes a viewer may open from the page (`None`: only the session's).
+    pub scenes: Option<Arc<SceneCatalog>>,
 }
 
 impl std::fmt::Debug for ViewOptions {
@@ -95,6 +99,7 @@ impl std::fmt::Debug for ViewOptions {
             .field("tls", &self.tls)
             .field("allow_plain_token", &self.allow_plain_token)
             .field("scene_source", &self.scene_source)
+            .field("scenes", &self.scenes)
             .finish()
     }
 }
@@ -120,6 +125,7 @@ impl Default for ViewOptions {
             tls: None,
             allow_plain_token: false,
             scene_source: None,
+            scenes: None,
         }
     }
 }

@@ -82,6 +82,10 @@ enum Input {
     Budget {
         ms: Option<f32>,
     },
+    /// Open another scene: one the welcome's `scenes` offers, by name (`crate::open`).
+    SceneOpen {
+        name: String,
+    },
 }
 
 #[derive(Debug, Deserialize)]
@@ -177,6 +181,8 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
     let mut exposure = hub.exposure.subscribe();
     let mut notices = hub.notice.subscribe();
     let mut ended = hub.ended.subscribe();
+    let mut scenes = hub.scene.subscribe();
+    scenes.borrow_and_update();
     ended.mark_changed();
     let mut outbox = vec![v.welcome()];
     if v.access.can_watch() {
@@ -262,6 +268,14 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
                 outbox.push(json::lights_message(&s));
                 outbox.push(json::animation_message(&s));
             }
+            r = scenes.changed(), if watch => {
+                // Another scene opened (or one refused, and the one before back): the page
+                // starts again from the welcome.
+                if r.is_err() { return; }
+                scenes.borrow_and_update();
+                outbox.push(v.welcome());
+                outbox.push(json::lights_message(&steer.borrow()));
+            }
             r = exposure.changed(), if watch => {
                 if r.is_err() { return; }
                 let stops = *exposure.borrow_and_update();
@@ -329,13 +343,18 @@ impl Viewer {
                 "text": token_refused.unwrap_or(LOCKED),
             });
         }
+        let info = Arc::clone(&self.hub.scene.borrow());
         let s = self.hub.steer.borrow();
         let mut w = json!({
             "type": "welcome",
             "can_steer": self.access.can_steer(),
             "can_watch": true,
             "token_accepted": token_refused.is_none(),
-            "scene": self.hub.scene,
+            "scene": info.json,
+            "scenes": self.hub.catalog.as_ref().map(|c| json!({
+                "names": c.names(),
+                "current": info.name,
+            })),
             "camera": json::camera(&s.camera),
             "revision": s.revision,
             "walkthrough": self.hub.plan().is_some_and(|p| p.walkthrough),
@@ -344,7 +363,7 @@ impl Viewer {
             "animation": json::animation(&s.clock),
             "exposure": {
                 "stops": *self.hub.exposure.borrow(),
-                "scene_stops": self.hub.scene_stops,
+                "scene_stops": info.stops,
                 "min": crate::encode::MIN_STOPS,
                 "max": crate::encode::MAX_STOPS,
             },
@@ -422,6 +441,7 @@ impl Viewer {
                 Ok(())
             }
             Input::Exposure { stops } => self.hub.set_exposure(stops).map(drop).map_err(error),
+            Input::SceneOpen { name } => crate::open::start(&self.hub, name).map_err(error),
             input => self.steer(input).map_err(error),
         }
     }
@@ -465,9 +485,11 @@ impl Viewer {
                     Ok(())
                 }
                 Input::Budget { ms } => next.set_budget(ms),
-                Input::Hello { .. } | Input::Render | Input::Stats | Input::Exposure { .. } => {
-                    Ok(())
-                }
+                Input::Hello { .. }
+                | Input::Render
+                | Input::Stats
+                | Input::Exposure { .. }
+                | Input::SceneOpen { .. } => Ok(()),
             };
             if result.is_ok() && next != *s {
                 next.revision += 1;

@@ -232,6 +232,7 @@
     const s = m.scene || {};
     $('scene-name').textContent = s.name ? `${s.name} · ${s.width}×${s.height}${m.continuous ? ' · continuous' : ''}${m.walkthrough ? ' · walkthrough' : ''}` : '';
     buildLights(s.lights || []);
+    showScenes(m.scenes);
     showAnimation(m.animation || {});
     setupExposure(m.exposure || {});
     loadBookmarks();
@@ -255,6 +256,22 @@
       firstFrameTimer = setTimeout(() => { if (!view.frames) send({ type: 'render' }); }, 1500);
     }
   }
+
+  // The scenes this view offers (`scenes: {names, current}`; absent: none to pick).
+  function showScenes(scenes) {
+    const box = $('scene-box');
+    box.hidden = !scenes || !Array.isArray(scenes.names);
+    if (box.hidden) return;
+    const pick = $('scene-pick');
+    pick.replaceChildren(...scenes.names.map((n) => el('option', { text: n, value: n })));
+    if (scenes.names.includes(scenes.current)) pick.value = scenes.current;
+  }
+
+  $('scene-form').addEventListener('submit', (e) => {
+    e.preventDefault();
+    const name = $('scene-pick').value;
+    if (name && send({ type: 'scene_open', name })) toast(`opening ${name}…`, 'notice');
+  });
 
   // ---- frames -----------------------------------------------------------------------------
   const img = $('frame');

@@ -1594,3 +1594,104 @@ async fn watchers_leave_room_for_the_operator() {
     })
     .await;
 }
+
+/// The page's scene picker: the built-ins and the scene files of the view's folder, opened as
+/// the command line opens `--scene` (here: small). Only a name the view offers opens; the frames
+/// after one are its single-device render and every page is welcomed again with it; a scene the
+/// cluster cannot plan is refused, and the view goes back to the scene it had.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_scene_opened_from_the_page_renders_and_one_no_plan_fits_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    // Two area lights of 512 samples each: more than three nodes take.
+    std::fs::write(
+        dir.path().join("too-many.toml"),
+        "version = 1\n[base]\nscene = \"balls\"\n[quality]\nsamples_per_area_light = 512\n",
+    )
+    .unwrap();
+    std::fs::write(dir.path().join("notes.txt"), "not a scene").unwrap();
+    let scene = small("balls");
+    let plan = plan_options(&scene, 4);
+    let catalog = lightfold_view::SceneCatalog {
+        dir: Some(dir.path().to_path_buf()),
+        open: Box::new(|source: &str| {
+            let mut s = lightfold_scene::load(source)?;
+            if s.quality.samples_per_area_light.is_none() {
+                s.quality.samples_per_area_light = Some(4);
+            }
+            s.camera.width = 64;
+            s.camera.height = 48;
+            let options = plan_options(&s, 4);
+            Ok(lightfold_view::Opened { scene: s, options })
+        }),
+    };
+    let opts = ViewOptions {
+        scenes: Some(Arc::new(catalog)),
+        ..loopback()
+    };
+    with_view(scene, plan, opts, |addr, delivered, _| async move {
+        let mut c = Client::connect(addr).await;
+        let welcome = c.expect("welcome").await;
+        let names: Vec<String> =
+            serde_json::from_value(welcome["scenes"]["names"].clone()).unwrap();
+        assert!(names.iter().any(|n| n == "box"), "{names:?}");
+        assert!(names.iter().any(|n| n == "too-many.toml"), "{names:?}");
+        assert!(!names.iter().any(|n| n == "notes.txt"), "{names:?}");
+        c.frame().await;
+        // Names the view does not offer: refused, nothing changes.
+        for name in [
+            "../too-many.toml",
+            "notes.txt",
+            "/etc/passwd",
+            "nowhere.toml",
+        ] {
+            let e = c
+                .try_steer(json!({"type": "scene_open", "name": name}))
+                .await
+                .unwrap_or_else(|| panic!("{name:?} was taken"));
+            assert!(
+                e["text"]
+                    .as_str()
+                    .unwrap()
+                    .contains("not a scene this view offers"),
+                "{e}"
+            );
+        }
+        // One that opens.
+        c.steer(json!({"type": "scene_open", "name": "box"})).await;
+        let again = c.expect("welcome").await;
+        assert_eq!(again["scenes"]["current"], "box");
+        assert_eq!(again["scene"]["name"], "box");
+        let revision = again["revision"].as_u64().unwrap();
+        let (f, _) = until_revision(&mut c, revision).await;
+        let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
+        assert_close(
+            &delivered_frame(&delivered, frame_number(&f)),
+            &single_device(&gpu, &small("box"), true),
+            "the first frame of the opened scene",
+        );
+        // One no plan fits: refused by the loop, and the view goes back to `box`.
+        c.steer(json!({"type": "scene_open", "name": "too-many.toml"}))
+            .await;
+        let opened = c.expect("welcome").await;
+        assert_eq!(opened["scenes"]["current"], "too-many.toml");
+        let back = c.expect("welcome").await;
+        assert_eq!(back["scenes"]["current"], "box", "{back}");
+        let mut notices = c.texts_of("notice");
+        notices.extend(c.drain_for(Duration::from_millis(300)).await.0);
+        assert!(
+            notices.iter().any(|t| t["type"] == "notice"
+                && t["text"].as_str().unwrap().contains("cannot open scene")),
+            "{notices:?}"
+        );
+        let revision = back["revision"].as_u64().unwrap();
+        c.send(&json!({"type": "render"})).await;
+        let (f, _) = until_revision(&mut c, revision).await;
+        assert_close(
+            &delivered_frame(&delivered, frame_number(&f)),
+            &single_device(&gpu, &small("box"), true),
+            "the frame after the refused scene",
+        );
+        assert!(c.texts_of("ended").is_empty(), "the session ended");
+    })
+    .await;
+}

@@ -19,6 +19,9 @@ use crate::gltf_load::load_gltf;
 use crate::model::Scene;
 use std::path::Path;
 
+/// The file extensions [`load`] reads (lower case).
+pub const LOADABLE_EXTENSIONS: &[&str] = &["toml", "gltf", "glb", "obj", "ply"];
+
 /// Loads a built-in scene by name, a `.toml` scene file, or a `.gltf` / `.glb`, `.obj` or `.ply`
 /// model (a model alone is completed with a framed camera and, without lights, a light and a
 /// ground plane).
