@@ -55,8 +55,21 @@ async fn the_page_shows_frames_and_a_drag_orbits_the_camera() {
         lights_per_node: 4,
         ..PlanOptions::default()
     };
+    // The built-ins to pick from, opened small as the session's scene is.
+    let scenes = lightfold_view::SceneCatalog {
+        dir: None,
+        open: Box::new(|name: &str| {
+            let scene = small(name);
+            let options = PlanOptions {
+                lights_per_node: 4,
+                ..PlanOptions::default()
+            };
+            Ok(lightfold_view::Opened { scene, options })
+        }),
+    };
     let view = View::bind(ViewOptions {
         listen: "127.0.0.1:0".into(),
+        scenes: Some(std::sync::Arc::new(scenes)),
         ..ViewOptions::default()
     })
     .await
@@ -290,6 +303,7 @@ async fn steps(b: &mut Browser, url: &str) -> anyhow::Result<Figures> {
     downloads(b).await?;
     camera_fields_and_bookmarks(b, url).await?;
     light_marker_drag(b).await?;
+    open_scene(b, rect).await?;
     ensure!(
         b.exceptions.is_empty(),
         "the page threw: {:?}",
@@ -446,6 +460,47 @@ async fn light_marker_drag(b: &mut Browser) -> anyhow::Result<()> {
     ensure!(
         moved["position"] != before["position"] && moved["position"].is_array(),
         "the light did not move: {before} then {moved}"
+    );
+    Ok(())
+}
+
+/// The Scene box: `box` picked and opened; the page is welcomed with it and shows its frames.
+async fn open_scene(b: &mut Browser, rect: (f64, f64, f64, f64)) -> anyhow::Result<()> {
+    // A light's numeric editor stays folded until its ✎ is clicked (a stylesheet's `display:
+    // grid` once overrode the `hidden` attribute and every editor showed).
+    let shown = b
+        .eval(
+            "[...document.querySelectorAll('.light-edit')].filter((e) =>              getComputedStyle(e).display !== 'none').length",
+        )
+        .await?;
+    ensure!(shown == 0, "{shown} light editors unfolded unasked");
+    let before = crop(&b.screenshot().await?, rect)?;
+    let picked = b
+        .eval(
+            "(() => { const box = document.getElementById('scene-box');              const pick = document.getElementById('scene-pick');              if (box.hidden || ![...pick.options].some((o) => o.value === 'box')) return false;              pick.value = 'box';              document.getElementById('scene-form').requestSubmit(); return true; })()",
+        )
+        .await?;
+    ensure!(picked == Value::Bool(true), "no `box` in the Scene box");
+    let opened = b
+        .wait_for("box opened and its frame shown", CONTROLS, WAIT, |v| {
+            v["scene"] == "box"
+                && v["unacked"].as_u64() == Some(0)
+                && v["shown"]["revision"].as_i64() >= v["revision"].as_i64()
+        })
+        .await?;
+    ensure!(
+        opened["errors"].as_array().is_some_and(|e| e.is_empty()),
+        "the server refused the pick: {}",
+        opened["errors"]
+    );
+    let png = b.screenshot().await?;
+    save(&png, "browser-scene.png");
+    let after = crop(&png, rect)?;
+    not_blank(&after).context("the opened scene's frame")?;
+    let diff = mean_abs_diff(&before, &after);
+    ensure!(
+        diff > MIN_DIFF,
+        "the frame did not change when box opened: {diff:.3}"
     );
     Ok(())
 }
