@@ -281,7 +281,7 @@ impl Hub {
     /// Makes `opened` the scene frames ask for (`FrameSpec::scene`): the steering starts from
     /// its camera and lights (the frame budget a viewer set stays), and every page is welcomed
     /// again. The scene and steering before are kept for the loop's refusal.
-    pub fn install_scene(&self, name: String, source: String, opened: crate::open::Opened) {
+    pub fn install_scene(&self, name: String, source: String, opened: crate::open::Opened) -> u64 {
         let id = self.next_scene.fetch_add(1, Ordering::Relaxed);
         let crate::open::Opened { scene, options } = opened;
         let info = Arc::new(crate::open::SceneInfo::new(
@@ -311,6 +311,20 @@ impl Hub {
             s.revision = revision;
         });
         self.tell(format!("opening scene {name:?}"));
+        id
+    }
+
+    /// Waits until the loop shows scene `id` or has refused it (at most `within`, or until the
+    /// view stops).
+    pub async fn scene_settled(&self, id: u64, within: std::time::Duration) {
+        let mut live = self.live.clone();
+        let settled = live
+            .wait_for(|s| s.scene == id || s.scene_refused.as_ref().is_some_and(|(r, _)| *r == id));
+        tokio::select! {
+            _ = settled => {}
+            _ = tokio::time::sleep(within) => {}
+            _ = self.stop.cancelled() => {}
+        }
     }
 
     /// The loop refused scene `id`: back to the scene and steering before it, if it is still

@@ -15,6 +15,9 @@ use std::sync::atomic::Ordering;
 
 /// At most this many files of the folder are offered (the first by name).
 pub const MAX_LISTED: usize = 500;
+/// How long a scene opened holds the next back while the loop has neither taken nor refused it
+/// (frames carry a new scene only as room frees in the pipeline).
+const SETTLE: std::time::Duration = std::time::Duration::from_secs(120);
 
 /// A scene loaded for the page, as the command line loads `--scene`.
 #[derive(Debug)]
@@ -115,7 +118,12 @@ pub fn start(hub: &Arc<Hub>, name: String) -> Result<(), String> {
             tokio::task::spawn_blocking(move || (catalog.open)(&source)).await
         };
         match loaded {
-            Ok(Ok(opened)) => hub.install_scene(name, source, opened),
+            Ok(Ok(opened)) => {
+                // The next scene waits until the loop has taken this one or refused it: a
+                // refusal goes back to the scene before, which must be the one the loop shows.
+                let id = hub.install_scene(name, source, opened);
+                hub.scene_settled(id, SETTLE).await;
+            }
             Ok(Err(e)) => hub.tell(format!("cannot open {name:?}: {e:#}")),
             Err(e) => hub.tell(format!("cannot open {name:?}: {e}")),
         }
