@@ -34,6 +34,9 @@ pub enum Fault {
     Depth16,
     /// Shadow maps with conventional Z (near 0, far 1) in `Depth32Float`.
     ConventionalZ,
+    /// The eye pass draws only meshes wholly inside the view (a wrong culling: meshes the
+    /// image's border cuts vanish).
+    EyeCullPartial,
 }
 
 /// `Light` in `shading.wgsl` (std430).
@@ -440,27 +443,48 @@ pub fn chunk_lights(lights: &[GpuLight], views: &[GpuView], max_lights: usize) -
 /// depth-clamped into the map).
 pub fn box_in_view(view: &ShadowView, lo: V3, hi: V3) -> bool {
     let vp = mat_mul(&view.proj, &view.view);
-    let mut outside = [true; 5];
-    for i in 0..8 {
+    // Beyond the far plane (reversed Z: depth below 0); nearer than the near plane is kept
+    // (depth clamp).
+    !outside_a_plane(&box_corners_clip(&vp, lo, hi), |c| c[2] < 0.0)
+}
+
+/// Whether the box `lo`–`hi` may show in an eye view of reversed-Z projection with an infinite
+/// far plane (`Camera::projection_reversed_z`): some part of it is not beyond one of the four
+/// side planes or in front of the near plane. Conservative: a box that misses the frustum only
+/// diagonally is kept.
+pub fn box_in_eye_view(view_proj: &[[f32; 4]; 4], lo: V3, hi: V3) -> bool {
+    !outside_a_plane(&box_corners_clip(view_proj, lo, hi), |c| c[2] > c[3])
+}
+
+/// Whether the box `lo`–`hi` lies wholly inside the eye view (every corner within every plane):
+/// what a wrong culling that drops partly visible meshes keeps (`Fault::EyeCullPartial`).
+pub fn box_wholly_in_eye_view(view_proj: &[[f32; 4]; 4], lo: V3, hi: V3) -> bool {
+    box_corners_clip(view_proj, lo, hi).iter().all(|c| {
+        c[3] > 0.0 && c[0].abs() <= c[3] && c[1].abs() <= c[3] && c[2] <= c[3] && c[2] >= 0.0
+    })
+}
+
+/// The eight corners of the box `lo`–`hi` in clip space.
+fn box_corners_clip(vp: &[[f32; 4]; 4], lo: V3, hi: V3) -> [[f32; 4]; 8] {
+    std::array::from_fn(|i| {
         let p = [
             if i & 1 == 0 { lo[0] } else { hi[0] },
             if i & 2 == 0 { lo[1] } else { hi[1] },
             if i & 4 == 0 { lo[2] } else { hi[2] },
         ];
-        let c: [f32; 4] =
-            std::array::from_fn(|r| vp[0][r] * p[0] + vp[1][r] * p[1] + vp[2][r] * p[2] + vp[3][r]);
-        let tests = [
-            c[0] < -c[3],
-            c[0] > c[3],
-            c[1] < -c[3],
-            c[1] > c[3],
-            c[2] < 0.0,
-        ];
-        for (o, t) in outside.iter_mut().zip(tests) {
-            *o &= t;
-        }
-    }
-    !outside.iter().any(|&o| o)
+        std::array::from_fn(|r| vp[0][r] * p[0] + vp[1][r] * p[1] + vp[2][r] * p[2] + vp[3][r])
+    })
+}
+
+/// Whether every corner lies beyond the same one of the four side planes, or all pass `depth`
+/// (beyond a depth plane).
+fn outside_a_plane(corners: &[[f32; 4]; 8], depth: impl Fn(&[f32; 4]) -> bool) -> bool {
+    let beyond = |t: &dyn Fn(&[f32; 4]) -> bool| corners.iter().all(t);
+    beyond(&|c| c[0] < -c[3])
+        || beyond(&|c| c[0] > c[3])
+        || beyond(&|c| c[1] < -c[3])
+        || beyond(&|c| c[1] > c[3])
+        || beyond(&depth)
 }
 
 /// Column-major `a · b`.

@@ -102,6 +102,10 @@ pub struct Renderer {
     packer: PackerState,
     /// The meshes the eye pass draws (`None`: every mesh): a sort-last partition.
     eye_meshes: Option<Vec<u32>>,
+    /// The eye pass draws only the meshes whose bounds meet the camera's frustum (the default).
+    eye_culling: bool,
+    /// Vertices the last eye pass drew.
+    eye_vertices: u32,
 }
 
 impl Renderer {
@@ -306,6 +310,8 @@ impl Renderer {
             variant: EyeVariant::default(),
             deferred: None,
             eye_meshes: None,
+            eye_culling: true,
+            eye_vertices: 0,
         })
     }
 
@@ -491,6 +497,17 @@ impl Renderer {
     pub fn set_eye_meshes(&mut self, meshes: Option<Vec<u32>>) {
         self.eye_meshes = meshes;
         self.refresh_receivers();
+    }
+
+    /// Whether the eye pass draws only the meshes whose bounds meet the camera's frustum (the
+    /// default; the image is the same either way: a mesh outside makes no fragment).
+    pub fn set_eye_culling(&mut self, on: bool) {
+        self.eye_culling = on;
+    }
+
+    /// Vertices the last eye pass drew (three a triangle), after culling.
+    pub fn eye_vertices(&self) -> u32 {
+        self.eye_vertices
     }
 
     /// Chooses how the eye pass lights pixels (same images either way, within f32 rounding).
@@ -818,7 +835,8 @@ impl Renderer {
             material_layers: layers.any_material(),
             vertex_count: self.scene.vertex_count,
         };
-        let draws = self.eye_draws();
+        let draws = self.eye_draws(&frame.view_proj);
+        self.eye_vertices = draws.iter().map(|r| r.end - r.start).sum();
         if variant == EyeVariant::Deferred {
             if !self
                 .deferred
@@ -983,16 +1001,31 @@ impl Renderer {
         )
     }
 
-    /// The vertex ranges the eye pass draws: every vertex, or the meshes of
-    /// [`Renderer::set_eye_meshes`] (contiguous ones merged into one draw).
-    fn eye_draws(&self) -> Vec<std::ops::Range<u32>> {
-        let Some(meshes) = &self.eye_meshes else {
+    /// The vertex ranges the eye pass draws: every mesh, or those of
+    /// [`Renderer::set_eye_meshes`], less (with eye culling) those whose bounds miss the
+    /// frustum of `view_proj` (contiguous ones merged into one draw).
+    fn eye_draws(&self, view_proj: &[[f32; 4]; 4]) -> Vec<std::ops::Range<u32>> {
+        let partial = self.options.fault == Some(Fault::EyeCullPartial);
+        if self.eye_meshes.is_none() && !self.eye_culling && !partial {
             return std::iter::once(0..self.scene.vertex_count).collect();
+        }
+        let shown = |r: &super::scene_data::MeshRange| match r.bounds {
+            _ if !self.eye_culling && !partial => true,
+            None => false,
+            Some((lo, hi)) if partial => super::lights::box_wholly_in_eye_view(view_proj, lo, hi),
+            Some((lo, hi)) => super::lights::box_in_eye_view(view_proj, lo, hi),
         };
-        let mut ranges: Vec<std::ops::Range<u32>> = meshes
-            .iter()
-            .filter_map(|&m| self.scene.meshes.get(m as usize))
-            .filter(|r| r.vertex_count > 0)
+        let chosen: Box<dyn Iterator<Item = &super::scene_data::MeshRange>> = match &self.eye_meshes
+        {
+            Some(meshes) => Box::new(
+                meshes
+                    .iter()
+                    .filter_map(|&m| self.scene.meshes.get(m as usize)),
+            ),
+            None => Box::new(self.scene.meshes.iter()),
+        };
+        let mut ranges: Vec<std::ops::Range<u32>> = chosen
+            .filter(|r| r.vertex_count > 0 && shown(r))
             .map(|r| r.first_vertex..r.first_vertex + r.vertex_count)
             .collect();
         ranges.sort_by_key(|r| r.start);

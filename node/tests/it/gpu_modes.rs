@@ -5,7 +5,7 @@
 use crate::gpu_support;
 
 use gpu_support::*;
-use lightfold_node::gpu::{EyeVariant, LayerSet, RenderError, RenderOptions, Renderer};
+use lightfold_node::gpu::{EyeVariant, Fault, LayerSet, RenderError, RenderOptions, Renderer};
 use lightfold_reference::{PointSumOptions, render_point_sum, render_point_sum_with};
 use lightfold_scene::shading::normalize;
 use lightfold_scene::{LightSample, SampleKind, ShadowFilter, sampling};
@@ -386,5 +386,66 @@ fn empty_scenes_no_lights_and_tiny_images_render_zeros() {
     assert!(
         dark.depth.unwrap().data[0] > 0.0,
         "the floor is under the only pixel"
+    );
+}
+
+/// Issue 48: the eye pass draws only the meshes whose bounds meet the camera's frustum, and the
+/// picture is the one drawing every mesh gives, bit for bit: every built-in and a small city,
+/// from its own camera and from one turned and narrowed so that most meshes are out of view.
+/// Control: a culling that drops the meshes the image's border cuts (`Fault::EyeCullPartial`)
+/// changes the picture.
+#[test]
+fn eye_culling_changes_no_pixel() {
+    let gpu = gpu();
+    let mut names: Vec<&str> = lightfold_scene::builtin_names().to_vec();
+    names.push("city:20k");
+    let mut culled_somewhere = false;
+    let mut control_differs = false;
+    for name in names {
+        let mut scene = lightfold_scene::builtin(name).unwrap();
+        scene.quality.samples_per_area_light = Some(2);
+        scene.camera.width = 64;
+        scene.camera.height = 48;
+        let samples: Vec<LightSample> = sampling::direct_samples(&scene)
+            .into_iter()
+            .take(4)
+            .collect();
+        let mut narrow = scene.camera.orbited(70.0);
+        narrow.fov_y_deg = 12.0;
+        for camera in [scene.camera, narrow] {
+            let render = |culling: bool, fault| {
+                let opts = RenderOptions {
+                    fault,
+                    ..RenderOptions::from_quality(&scene.quality)
+                };
+                let mut r = Renderer::new(&gpu, &scene, opts).unwrap();
+                r.set_eye_culling(culling);
+                r.set_camera(&camera);
+                let f = r
+                    .render(&gpu, &samples, None, C_N, LayerSet::all())
+                    .unwrap();
+                (f, r.eye_vertices())
+            };
+            let (all, drawn_all) = render(false, None);
+            let (culled, drawn) = render(true, None);
+            assert_eq!(
+                culled.illumination, all.illumination,
+                "{name}: illumination"
+            );
+            assert_eq!(culled.diffuse, all.diffuse, "{name}: diffuse layer");
+            assert_eq!(culled.depth, all.depth, "{name}: depth layer");
+            assert!(drawn <= drawn_all);
+            culled_somewhere |= drawn < drawn_all;
+            let (wrong, _) = render(true, Some(Fault::EyeCullPartial));
+            control_differs |= wrong.depth != all.depth;
+        }
+    }
+    assert!(
+        culled_somewhere,
+        "no view culled a mesh: the test proves nothing"
+    );
+    assert!(
+        control_differs,
+        "dropping meshes the border cuts changed no picture"
     );
 }

@@ -1,0 +1,83 @@
+//! What eye-pass culling saves (issue 48): the `city` at N triangles seen from its own camera
+//! (most of it in view) and from a street-level camera looking down one street (most of it
+//! out), eye-pass time with culling off and on, alternating, the median of `--frames` each, with
+//! the vertices each drew. Set `LP_NUM_THREADS` as the bench does.
+//!
+//! `cargo run --release -p lightfold-node --example eye_cull -- [city:N] [--frames N] [--size WxH]`
+
+use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+use lightfold_protocol::stats;
+use lightfold_scene::sampling;
+
+fn main() -> anyhow::Result<()> {
+    let mut name = "city".to_string();
+    let mut frames = 5u32;
+    let (mut w, mut h) = (800u32, 600u32);
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        match a.as_str() {
+            "--frames" => frames = args.next().unwrap_or_default().parse()?,
+            "--size" => {
+                let v = args.next().unwrap_or_default();
+                let (a, b) = v
+                    .split_once('x')
+                    .ok_or_else(|| anyhow::anyhow!("--size WxH"))?;
+                (w, h) = (a.parse()?, b.parse()?);
+            }
+            n => name = n.to_string(),
+        }
+    }
+    let mut scene = lightfold_scene::builtin(&name)?;
+    scene.camera.width = w;
+    scene.camera.height = h;
+    let gpu = Gpu::new(&GpuOptions::default())?;
+    let samples: Vec<_> = sampling::direct_samples(&scene)
+        .into_iter()
+        .take(4)
+        .collect();
+    let mut street = scene.camera;
+    street.position = [0.5, 1.7, 0.5];
+    street.target = [40.0, 1.7, 0.5];
+    street.fov_y_deg = 50.0;
+    println!(
+        "{name}: {} triangles, {} meshes, {w}×{h}, {} lights, walkthrough (maps kept)",
+        scene.triangle_count(),
+        scene.meshes.len(),
+        samples.len()
+    );
+    for (what, camera) in [("own camera", scene.camera), ("street level", street)] {
+        let opts = RenderOptions {
+            walkthrough: true,
+            ..RenderOptions::from_quality(&scene.quality)
+        };
+        let mut r = Renderer::new(&gpu, &scene, opts)?;
+        r.set_camera(&camera);
+        // Maps drawn once, pipelines warm.
+        r.render(&gpu, &samples, None, [1.0; 3], LayerSet::all())?;
+        let (mut off, mut on) = (Vec::new(), Vec::new());
+        let (mut v_off, mut v_on) = (0, 0);
+        for _ in 0..frames {
+            for culling in [false, true] {
+                r.set_eye_culling(culling);
+                let f = r.render(&gpu, &samples, None, [1.0; 3], LayerSet::all())?;
+                let us = f.stats.eye_us as f64 / 1e3;
+                if culling {
+                    on.push(us);
+                    v_on = r.eye_vertices();
+                } else {
+                    off.push(us);
+                    v_off = r.eye_vertices();
+                }
+            }
+        }
+        let (a, b) = (
+            stats::median(&off).unwrap_or(f64::NAN),
+            stats::median(&on).unwrap_or(f64::NAN),
+        );
+        println!(
+            "{what}: eye pass {a:.1} ms → {b:.1} ms with culling ({:.2}×), vertices {v_off} → {v_on}",
+            b / a
+        );
+    }
+    Ok(())
+}
