@@ -164,11 +164,11 @@ impl Resolver for Confined {
             let anchor = anchor.to_string_lossy();
             // Inside a package, a relative path stays inside it.
             if !Path::new(&asset).is_absolute() {
-                if ar::is_package_relative_path(&anchor) {
-                    if let Some((package, inner)) = ar::split_package_relative_path_inner(&anchor) {
-                        let dir = inner.rsplit_once('/').map_or("", |(d, _)| d);
-                        return ar::join_package_relative_path(&package, &packaged(dir, &asset));
-                    }
+                if ar::is_package_relative_path(&anchor)
+                    && let Some((package, inner)) = ar::split_package_relative_path_inner(&anchor)
+                {
+                    let dir = inner.rsplit_once('/').map_or("", |(d, _)| d);
+                    return ar::join_package_relative_path(&package, &packaged(dir, &asset));
                 }
                 if anchor.to_ascii_lowercase().ends_with(".usdz") {
                     return ar::join_package_relative_path(&anchor, &packaged("", &asset));
