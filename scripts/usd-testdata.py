@@ -186,6 +186,26 @@ def materials_stage(path):
     stage.GetRootLayer().Save()
 
 
+def mesh_light_stage(path):
+    """A 2 m × 1 m quad 3 m up, facing down, with MeshLightAPI (normalized), over a ground."""
+    stage = Usd.Stage.CreateNew(path)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    mesh(stage, "/Ground", plane_points(5.0), [4], [0, 1, 2, 3], [(0, 1, 0)] * 4,
+         (0.8, 0.8, 0.8), True)
+    panel = UsdGeom.Mesh.Define(stage, "/Panel")
+    panel.CreatePointsAttr([(-1, 3, -0.5), (1, 3, -0.5), (1, 3, 0.5), (-1, 3, 0.5)])
+    panel.CreateFaceVertexCountsAttr([4])
+    panel.CreateFaceVertexIndicesAttr([0, 1, 2, 3])
+    panel.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    light = UsdLux.MeshLightAPI.Apply(panel.GetPrim())
+    lux = UsdLux.LightAPI(panel.GetPrim())
+    lux.CreateIntensityAttr(6.0)
+    lux.CreateExposureAttr(1.0)
+    lux.CreateNormalizeAttr(True)
+    lux.CreateColorAttr(Gf.Vec3f(1.0, 0.5, 0.25))
+    stage.GetRootLayer().Save()
+
+
 def composed_stages(folder):
     """A stage built from a reference, a payload and a sublayer, all inside its folder; and the
     hostile ones: a reference outside the folder, an absolute one, and a reference cycle."""
@@ -244,6 +264,7 @@ def main():
     stage.GetRootLayer().Export(os.path.join(out, "lights.usdc"))
     UsdUtils.CreateNewUsdzPackage(os.path.join(out, "lights.usdc"), os.path.join(out, "lights.usdz"))
     materials_stage(os.path.join(out, "materials.usda"))
+    mesh_light_stage(os.path.join(out, "meshlight.usda"))
     composed_stages(out)
 
 

@@ -2,7 +2,8 @@
 //!
 //! A light's radiance (or point intensity, or irradiance) is `intensity · 2^exposure`, in the
 //! light's `color`; with `normalize` it is divided by the light's world-space area (rect
-//! `w·h`, disk `π r²`, sphere `4π r²`) so that its power does not depend on its size. Area
+//! `w·h`, disk `π r²`, sphere `4π r²`, a mesh light its triangles') so that its power does not
+//! depend on its size. Area
 //! lights emit along −Z of their frame (a sphere outward); their sizes take the frame's scale.
 //! A sphere with `treatAsPoint` is a point light of intensity `L·π r²` (the power of the sphere
 //! it stands for), a spot with `shaping:cone:angle`. A distant light's irradiance is
@@ -36,11 +37,17 @@ fn input<T>(
     }
 }
 
-pub(super) fn light(r: &mut Reader, prim: &Prim, kind: &str, world: DMat4) -> Result<(), Error> {
+/// What every UsdLux light emits: `intensity · 2^exposure` in `color`, and whether it is
+/// normalized by its area.
+struct Emission {
+    radiance: f64,
+    color: [f32; 3],
+    normalize: bool,
+}
+
+fn emission(r: &mut Reader, prim: &Prim, default_intensity: f64) -> Result<Emission, Error> {
     let t = r.time;
-    let name = prim.path().name().unwrap_or("light").to_string();
     let bad = |m: String| Error::Usd(format!("light {}: {m}", prim.path().as_str()));
-    let default_intensity = if kind == "DistantLight" { 50000.0 } else { 1.0 };
     let intensity = input(prim, "intensity", t, scalar)?.unwrap_or(default_intensity);
     let exposure = input(prim, "exposure", t, scalar)?.unwrap_or(0.0);
     let color = input(prim, "color", t, vec3)?.unwrap_or([1.0; 3]);
@@ -65,6 +72,73 @@ pub(super) fn light(r: &mut Reader, prim: &Prim, kind: &str, world: DMat4) -> Re
             "intensity {intensity} · 2^{exposure} is not a finite, non-negative radiance"
         )));
     }
+    Ok(Emission {
+        radiance,
+        color,
+        normalize,
+    })
+}
+
+/// A mesh with `MeshLightAPI` (or `LightAPI`) as an emissive-mesh light of its emission
+/// (normalized by the mesh's world-space area), glowing with it in a material of its own.
+pub(super) fn mesh_light(r: &mut Reader, prim: &Prim, mesh: usize) -> Result<(), Error> {
+    let Emission {
+        radiance,
+        color,
+        normalize,
+    } = emission(r, prim, 1.0)?;
+    let m = &r.scene.meshes[mesh];
+    let area: f64 = m
+        .indices
+        .chunks_exact(3)
+        .map(|t| {
+            let [a, b, c] =
+                [0, 1, 2].map(|k| DVec3::from(m.positions[t[k] as usize].map(f64::from)));
+            (b - a).cross(c - a).length() / 2.0
+        })
+        .sum();
+    let power = if normalize {
+        if !area.is_finite() || area <= 0.0 {
+            r.ignored
+                .insert("normalized mesh lights without area".into());
+            return Ok(());
+        }
+        radiance / area
+    } else {
+        radiance
+    };
+    super::count(
+        "materials",
+        r.scene.materials.len() as u64 + 1,
+        crate::limits::MAX_MODEL_MATERIALS,
+    )?;
+    let glow = Material {
+        emissive: color.map(|c| (f64::from(c) * power) as f32),
+        ..r.scene.materials[m.material].clone()
+    };
+    let name = prim.path().name().unwrap_or("mesh light").to_string();
+    r.scene.meshes[mesh].material = r.scene.add_material(glow);
+    r.scene.lights.push(Light {
+        name,
+        shape: LightShape::EmissiveMesh { mesh },
+        color,
+        power: power as f32,
+        range: None,
+        samples: crate::defaults::SAMPLES_PER_AREA_LIGHT,
+    });
+    Ok(())
+}
+
+pub(super) fn light(r: &mut Reader, prim: &Prim, kind: &str, world: DMat4) -> Result<(), Error> {
+    let t = r.time;
+    let name = prim.path().name().unwrap_or("light").to_string();
+    let bad = |m: String| Error::Usd(format!("light {}: {m}", prim.path().as_str()));
+    let default_intensity = if kind == "DistantLight" { 50000.0 } else { 1.0 };
+    let Emission {
+        radiance,
+        color,
+        normalize,
+    } = emission(r, prim, default_intensity)?;
     let center = world.transform_point3(DVec3::ZERO);
     let [x, y, z] = [DVec3::X, DVec3::Y, DVec3::Z].map(|a| world.transform_vector3(a));
     let back = (-z).normalize_or_zero();

@@ -127,14 +127,11 @@ pub(super) fn read(r: &mut Reader, prim: &Prim, world: DMat4) -> Result<(), Erro
         r.ignored
             .insert("subdivision surfaces (their control meshes are rendered)".into());
     }
-    if prim
+    let is_light = prim
         .api_schemas()
         .map_err(|e| bad(e.to_string()))?
         .iter()
-        .any(|s| matches!(s.as_str(), "MeshLightAPI" | "LightAPI"))
-    {
-        r.ignored.insert("mesh lights (MeshLightAPI)".into());
-    }
+        .any(|s| matches!(s.as_str(), "MeshLightAPI" | "LightAPI"));
     if prim
         .attribute("points")
         .num_time_samples()
@@ -251,13 +248,16 @@ pub(super) fn read(r: &mut Reader, prim: &Prim, world: DMat4) -> Result<(), Erro
     } else {
         mesh
     };
-    if r.scene.materials[material]
+    let k = r.scene.meshes.len();
+    r.scene.meshes.push(mesh);
+    if is_light {
+        super::light::mesh_light(r, prim, k)?;
+    } else if r.scene.materials[material]
         .emissive
         .iter()
         .any(|&c| c > 0.0)
     {
-        r.emissive_meshes.push(r.scene.meshes.len());
+        r.emissive_meshes.push(k);
     }
-    r.scene.meshes.push(mesh);
     Ok(())
 }

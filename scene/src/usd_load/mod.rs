@@ -1,8 +1,8 @@
 //! USD stages (`.usda`, `.usdc`, `.usdz`) loaded into a [`Scene`] through the `openusd` crate,
 //! which composes the stage (sublayers, references, payloads, variants, instancing): meshes
 //! (`UsdGeomMesh`, fan-triangulated) under their composed `Xform` stacks, `UsdPreviewSurface`
-//! materials (or `primvars:displayColor`), the first `UsdGeomCamera`, and UsdLux lights as
-//! lightfold's area lights (`light.rs`; the mapping and units are in `docs/scenes.md` § USD).
+//! materials (or `primvars:displayColor`), the first `UsdGeomCamera`, and UsdLux lights (mesh
+//! lights included) as lightfold's area lights (`light.rs`; the mapping and units are in `docs/scenes.md` § USD).
 //! Features it does not use are listed in one warning.
 //!
 //! Untrusted input: the stage is read only through [`resolve::Confined`], which serves the

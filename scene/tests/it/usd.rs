@@ -293,6 +293,29 @@ fn preview_surfaces_units_and_up_axis_map_to_lightfold() {
 }
 
 #[test]
+fn a_mesh_with_mesh_light_api_is_an_emissive_mesh_light() {
+    let path = data("usd/meshlight.usda");
+    let scene = load_usd_with(&path, &unplaced()).unwrap();
+    let panel = scene.meshes.iter().position(|m| m.name == "Panel").unwrap();
+    assert_eq!(scene.lights.len(), 1);
+    let l = &scene.lights[0];
+    assert_eq!(l.shape, LightShape::EmissiveMesh { mesh: panel });
+    // 6 · 2^1 over the panel's 2 m².
+    assert!(close(l.power, 6.0, 1e-6), "{}", l.power);
+    assert_eq!(l.color, [1.0, 0.5, 0.25]);
+    let glow = &scene.materials[scene.meshes[panel].material];
+    assert_eq!(glow.emissive, [6.0, 3.0, 1.5]);
+    // Its triangles face down (counter-clockwise seen from below).
+    assert!(
+        scene.meshes[panel]
+            .normals
+            .iter()
+            .all(|n| close_all(n, &[0.0, -1.0, 0.0], 1e-6))
+    );
+    assert!(ignored_features(&path).unwrap().is_empty());
+}
+
+#[test]
 fn references_payloads_sublayers_and_instances_compose() {
     let scene = load_usd_with(&data("usd/composed.usda"), &unplaced()).unwrap();
     let mut names: Vec<&str> = scene.meshes.iter().map(|m| m.name.as_str()).collect();
