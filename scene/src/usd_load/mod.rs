@@ -28,6 +28,7 @@ use std::path::Path;
 use std::rc::Rc;
 
 pub use resolve::MAX_LAYER_READS;
+pub use walk::MAX_PRIMS;
 
 /// Loads a `.usda`, `.usdc`, `.usdz` or `.usd` stage with default options.
 pub fn load_usd(path: &Path) -> Result<Scene, SceneError> {

@@ -13,8 +13,11 @@ use openusd::usd::{Prim, PrimPredicate, SchemaBase, SchemaKind, Stage, TimeCode}
 use std::collections::{BTreeSet, HashMap};
 use std::rc::Rc;
 
-/// Most prims one stage may compose (instancing included).
-pub const MAX_PRIMS: u64 = 1 << 20;
+/// Most prims one stage may compose (instance proxies included). Nested references compose
+/// exponentially many prims from a few bytes, and the crate's composition keeps about 20 kB per
+/// prim of such a stage: at this limit a 2 kB stage of eight levels of eight references took
+/// 15 s and 1.5 GB before it was refused (unbounded, it grew to 22 GB and was killed).
+pub const MAX_PRIMS: u64 = 1 << 16;
 
 pub(super) enum Error {
     Usd(String),
@@ -76,15 +79,6 @@ pub(super) fn convert(
         TimeCode::EARLIEST
     };
     let root = root_frame(&stage, opts)?;
-    let mut paths = Vec::new();
-    stage
-        .traverse(PrimPredicate::DEFAULT.with_instance_proxies(true), |p| {
-            if (paths.len() as u64) <= MAX_PRIMS {
-                paths.push(p.clone());
-            }
-        })
-        .at(&"cannot walk the stage")?;
-    super::count("prims", paths.len() as u64, MAX_PRIMS)?;
     let mut r = Reader {
         time,
         ignored,
@@ -96,18 +90,32 @@ pub(super) fn convert(
         emissive_meshes: Vec::new(),
         stage: &stage,
     };
-    // World transform of each prim walked (`None`: hidden with its subtree).
-    let mut frames: HashMap<sdf::Path, Option<DMat4>> = HashMap::new();
-    for path in &paths {
-        let parent = match path.parent().and_then(|p| frames.get(&p).copied()) {
-            Some(frame) => frame,
-            None => Some(root),
+    // Depth first, each prim with its parent's world transform, as `Stage::traverse` walks with
+    // instance proxies (active, loaded, defined, not abstract), but counted as it goes: nested
+    // references can compose exponentially many prims from a few bytes.
+    let mut stack = vec![(sdf::Path::abs_root(), root)];
+    let mut walked = 0u64;
+    while let Some((path, frame)) = stack.pop() {
+        let frame = if path == sdf::Path::abs_root() {
+            frame
+        } else {
+            walked += 1;
+            super::count("prims", walked, MAX_PRIMS)?;
+            let status = stage.prim_status(path.clone()).at(&path)?;
+            if !PrimPredicate::DEFAULT.matches(status) {
+                continue;
+            }
+            match visit(&mut r, &path, frame, root)? {
+                Some(world) => world,
+                None => continue,
+            }
         };
-        let frame = match parent {
-            Some(parent) => visit(&mut r, path, parent, root)?,
-            None => None,
-        };
-        frames.insert(path.clone(), frame);
+        let names = stage.prim(path.clone()).child_names().at(&path)?;
+        for name in names.iter().rev() {
+            if let Ok(child) = path.append_path(name.as_str()) {
+                stack.push((child, frame));
+            }
+        }
     }
     crate::obj_load::add_emissive_lights(&mut r.scene, &r.emissive_meshes);
     composition_errors(&stage)?;

@@ -453,3 +453,30 @@ fn malformed_and_oversized_stages_are_clear_errors() {
         .to_string();
     has(&e, &["big.usda", "10000001 triangles", "at most 10000000"]);
 }
+
+#[test]
+fn composition_that_multiplies_prims_is_bounded() {
+    // Three levels of 64 children, each referencing the next level: 266 240 prims from 6 kB
+    // (nested references compose exponentially many); the walk stops at the limit.
+    let mut text = String::from("#usda 1.0\n");
+    for level in 0..3 {
+        text.push_str(&format!("def \"L{level}\"\n{{\n"));
+        for k in 0..64 {
+            if level < 2 {
+                let next = level + 1;
+                text.push_str(&format!(
+                    "    def \"c{k}\" (references = </L{next}>) {{}}\n"
+                ));
+            } else {
+                text.push_str(&format!("    def \"c{k}\" {{}}\n"));
+            }
+        }
+        text.push_str("}\n");
+    }
+    let start = std::time::Instant::now();
+    let e = load_usd_slice(text.as_bytes(), "bomb.usda", None, &unplaced())
+        .unwrap_err()
+        .to_string();
+    has(&e, &["bomb.usda", "65537 prims", "at most 65536"]);
+    assert!(start.elapsed().as_secs() < 60, "{:?}", start.elapsed());
+}
