@@ -367,6 +367,16 @@ fn paths_outside_the_folder_and_cycles_are_refused() {
             .to_string();
         has(&e, words);
     }
+    // A symbolic link inside the folder that leads out of it is refused too.
+    let dir = crate::obj::scratch("usd-link");
+    std::fs::copy(data("usd/parts/box.usda"), dir.join("../secret.usda")).unwrap();
+    std::os::unix::fs::symlink(dir.join("../secret.usda"), dir.join("link.usda")).unwrap();
+    let stage = "#usda 1.0\ndef \"A\" (references = @./link.usda@) {}\n";
+    std::fs::write(dir.join("stage.usda"), stage).unwrap();
+    let e = load_usd_with(&dir.join("stage.usda"), &unplaced())
+        .unwrap_err()
+        .to_string();
+    has(&e, &["refused", "link.usda", "outside the stage's folder"]);
     // Bytes without a folder may name no file at all.
     let text = "#usda 1.0\ndef \"A\" (references = @./parts/box.usda@) {}\n";
     let e = load_usd_slice(text.as_bytes(), "bytes.usda", None, &unplaced())
