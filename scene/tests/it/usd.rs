@@ -449,6 +449,22 @@ fn malformed_and_oversized_stages_are_clear_errors() {
             .to_string();
         has(&e, words);
     }
+    // A binary layer whose token index is out of range made `openusd` 0.6 panic (found by the
+    // fuzzer; its input is kept in fuzz/crashes/usd/): the loader turns that into an error.
+    let crash = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../fuzz/crashes/usd/crash-d656f14611a19219949ba0781643b4c30491aaed");
+    let bytes = std::fs::read(crash).unwrap();
+    let e = load_usd_slice(&bytes, "crash.usdc", None, &unplaced())
+        .unwrap_err()
+        .to_string();
+    has(
+        &e,
+        &[
+            "crash.usdc: invalid USD",
+            "the USD reader panicked",
+            "index out of bounds",
+        ],
+    );
     // Counts beyond the limits are refused before a mesh is built: one face of 10 000 003
     // corners (20 MB of text) is 10 000 001 triangles.
     let mut big = String::with_capacity(20_000_200);
