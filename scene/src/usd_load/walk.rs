@@ -145,13 +145,23 @@ fn visit(
         return Ok(None);
     }
     let x = AnyPrim(prim.clone());
+    let order = x.xform_op_order().at(path)?.unwrap_or_default();
+    // Checked before the crate composes the stack: it hangs on a property name that is not one
+    // (an unterminated string in the file makes one; found by fuzzing).
+    if let Some(bad) = order.iter().find(|op| !is_op_name(op)) {
+        return Err(Error::Usd(format!(
+            "{}: xformOpOrder names {:?}, which is not an xformOp",
+            truncate(path.as_str(), 200),
+            truncate(bad, 64)
+        )));
+    }
     let local = x.local_to_parent_transform(r.time).at(path)?;
     let above = if x.resets_xform_stack().at(path)? {
         root
     } else {
         parent
     };
-    if let Some(order) = x.xform_op_order().at(path)? {
+    {
         for op in order.iter().take(64) {
             let op = op.strip_prefix("!invert!").unwrap_or(op);
             if op.starts_with("xformOp:") && prim.attribute(op).num_time_samples().at(path)? > 1 {
@@ -185,6 +195,24 @@ fn visit(
         }
     }
     Ok(Some(world))
+}
+
+/// Whether an `xformOpOrder` entry names an op: `!resetXformStack!`, or `xformOp:` and a
+/// namespaced identifier, optionally after `!invert!`.
+fn is_op_name(op: &str) -> bool {
+    if op == "!resetXformStack!" {
+        return true;
+    }
+    let op = op.strip_prefix("!invert!").unwrap_or(op);
+    op.strip_prefix("xformOp:").is_some_and(|rest| {
+        !rest.is_empty()
+            && rest.split(':').all(|part| {
+                part.chars()
+                    .next()
+                    .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+                    && part.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+            })
+    })
 }
 
 /// The stage's units and up axis under the placement `opts` asks for: positions in metres,

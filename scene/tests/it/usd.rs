@@ -465,6 +465,22 @@ fn malformed_and_oversized_stages_are_clear_errors() {
             "index out of bounds",
         ],
     );
+    // An unterminated string that makes an xformOpOrder entry of the rest of the file hung the
+    // crate's composition (found by the fuzzer; kept in fuzz/crashes/usd/): refused first.
+    let hang = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../fuzz/crashes/usd/timeout-116c92cdcb3e285b42ec373b56dfe075e0876e6f");
+    let bytes = std::fs::read(hang).unwrap();
+    let e = load_usd_slice(&bytes, "hang.usda", None, &unplaced())
+        .unwrap_err()
+        .to_string();
+    has(
+        &e,
+        &[
+            "hang.usda: invalid USD",
+            "/World/Occluder: xformOpOrder names",
+            "not an xformOp",
+        ],
+    );
     // Counts beyond the limits are refused before a mesh is built: one face of 10 000 003
     // corners (20 MB of text) is 10 000 001 triangles.
     let mut big = String::with_capacity(20_000_200);
