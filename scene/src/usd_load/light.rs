@@ -322,13 +322,84 @@ fn bound_material(prim: &Prim) -> Result<Option<sdf::Path>, Error> {
     Ok(None)
 }
 
+/// Most prims of one material network checked before the crate reads it.
+const MAX_NETWORK_PRIMS: usize = 256;
+
+/// Whether `path` is a plain prim or property path (`/A/B`, `/A/B.ns:name`): the crate loops
+/// forever over some malformed ones a text layer can hold (an unterminated `<…>` target; found
+/// by fuzzing), so the paths the material reader will follow are checked first.
+pub(super) fn is_plain_path(path: &str) -> bool {
+    let ident = |s: &str| {
+        s.chars()
+            .next()
+            .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+            && s.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
+    };
+    let (prim, property) = match path.split_once('.') {
+        Some((prim, property)) => (prim, Some(property)),
+        None => (path, None),
+    };
+    prim.strip_prefix('/')
+        .is_some_and(|rest| rest.split('/').all(ident))
+        && property.is_none_or(|p| p.split(':').all(ident))
+}
+
+/// Checks the material at `material` and every prim its connections reach (its shaders) for
+/// connections the crate could not follow.
+fn check_network(stage: &openusd::usd::Stage, material: &sdf::Path) -> Result<(), Error> {
+    let bad = |what: &str, path: &str| {
+        Error::Usd(format!(
+            "{what} {:?} is not a prim or property path",
+            super::walk::truncate(path, 120)
+        ))
+    };
+    if !is_plain_path(material.as_str()) {
+        return Err(bad("material:binding target", material.as_str()));
+    }
+    let mut queue = vec![material.clone()];
+    let mut seen = std::collections::HashSet::new();
+    while let Some(at) = queue.pop() {
+        if !seen.insert(at.clone()) {
+            continue;
+        }
+        if seen.len() > MAX_NETWORK_PRIMS {
+            return Err(Error::Usd(format!(
+                "material {}: more than {MAX_NETWORK_PRIMS} prims in its network",
+                material.as_str()
+            )));
+        }
+        let prim = stage.prim(at.clone());
+        for attribute in prim.attributes().at(&at)? {
+            for target in attribute.connections().at(&at)? {
+                if !is_plain_path(target.as_str()) {
+                    return Err(bad(
+                        &format!("{} connects to", attribute.path().as_str()),
+                        target.as_str(),
+                    ));
+                }
+                queue.push(target.prim_path());
+            }
+        }
+        queue.extend(
+            prim.children()
+                .at(&at)?
+                .into_iter()
+                .map(|c| c.path().clone()),
+        );
+    }
+    Ok(())
+}
+
 /// The index of `prim`'s material (made once per bound material or display colour and
 /// sidedness).
 pub(super) fn material(r: &mut Reader, prim: &Prim, double_sided: bool) -> Result<usize, Error> {
     let t = r.time;
     let bound = bound_material(prim)?;
     let surface = match &bound {
-        Some(m) => read_preview_surface(r.stage, m).at(m)?,
+        Some(m) => {
+            check_network(r.stage, m)?;
+            read_preview_surface(r.stage, m).at(m)?
+        }
         None => None,
     };
     if bound.is_some() && surface.is_none() {

@@ -481,6 +481,20 @@ fn malformed_and_oversized_stages_are_clear_errors() {
             "not an xformOp",
         ],
     );
+    // So did a connection whose `<…>` target is not closed (the same find, a run later).
+    let hang = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../fuzz/crashes/usd/timeout-116d0914e2bdb3318b615a0aabdd92acb22c5170");
+    let bytes = std::fs::read(hang).unwrap();
+    let e = load_usd_slice(&bytes, "hang2.usda", None, &unplaced())
+        .unwrap_err()
+        .to_string();
+    has(
+        &e,
+        &[
+            "/Root/Looks/Gold.outputs:surface connects to",
+            "is not a prim or property path",
+        ],
+    );
     // Counts beyond the limits are refused before a mesh is built: one face of 10 000 003
     // corners (20 MB of text) is 10 000 001 triangles.
     let mut big = String::with_capacity(20_000_200);
