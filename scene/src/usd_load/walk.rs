@@ -111,6 +111,14 @@ pub(super) fn convert(
             }
         };
         let names = stage.prim(path.clone()).child_names().at(&path)?;
+        // The crate loops forever over a path with a malformed name (found by fuzzing).
+        if let Some(bad) = names.iter().find(|n| !is_identifier(n.as_str())) {
+            return Err(Error::Usd(format!(
+                "a prim under {} is named {:?}, which is not an identifier",
+                truncate(path.as_str(), 200),
+                truncate(bad.as_str(), 64)
+            )));
+        }
         for name in names.iter().rev() {
             if let Ok(child) = path.append_path(name.as_str()) {
                 stack.push((child, frame));
@@ -195,6 +203,15 @@ fn visit(
         }
     }
     Ok(Some(world))
+}
+
+/// Whether `name` is a USD identifier: a letter (Unicode, as USD 24 allows) or `_`, then letters,
+/// digits or `_`.
+pub(super) fn is_identifier(name: &str) -> bool {
+    name.chars()
+        .next()
+        .is_some_and(|c| c.is_alphabetic() || c == '_')
+        && name.chars().all(|c| c.is_alphanumeric() || c == '_')
 }
 
 /// Whether an `xformOpOrder` entry names an op: `!resetXformStack!`, or `xformOp:` and a

@@ -495,6 +495,17 @@ fn malformed_and_oversized_stages_are_clear_errors() {
             "is not a prim or property path",
         ],
     );
+    // And a prim whose name is not an identifier (NUL bytes, spaces: a later run).
+    let hang = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../fuzz/crashes/usd/timeout-7b2409dc8e9080f878185548a7f1ca95b0dc827e");
+    let bytes = std::fs::read(hang).unwrap();
+    let e = load_usd_slice(&bytes, "hang3.usda", None, &unplaced())
+        .unwrap_err()
+        .to_string();
+    has(
+        &e,
+        &["a prim under / is named", "which is not an identifier"],
+    );
     // Counts beyond the limits are refused before a mesh is built: one face of 10 000 003
     // corners (20 MB of text) is 10 000 001 triangles.
     let mut big = String::with_capacity(20_000_200);
