@@ -4,7 +4,7 @@
 #   scripts/fuzz.sh [TARGET...] [SECONDS]     # default: every target, 60 s each
 #   scripts/fuzz.sh --check                   # exit 0 when a usable toolchain is present
 #
-# Targets: decode (wire codec), handshake, gltf, glb, obj, ply, scene_file, scene_bytes (see
+# Targets: decode (wire codec), handshake, gltf, glb, obj, ply, usd, scene_file, scene_bytes (see
 # docs/fuzzing.md). Needs cargo-fuzz (`cargo install cargo-fuzz --locked`) and a compiler that
 # takes the -Z flags cargo-fuzz passes: a nightly toolchain when one is installed, else stable
 # with RUSTC_BOOTSTRAP=1 (stable ships the sanitizer runtimes cargo-fuzz links). One fuzzing
@@ -15,7 +15,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-ALL=(decode handshake gltf glb obj ply scene_file scene_bytes)
+ALL=(decode handshake gltf glb obj ply usd scene_file scene_bytes)
 
 # The cargo invocation: nightly if installed, else stable allowed to take -Z flags.
 if rustup toolchain list 2>/dev/null | grep -q '^nightly'; then
@@ -67,6 +67,7 @@ seed() {
     glb) for f in assets/*/*.glb; do
            [ -e "$dir/raw-$(basename "$f")" ] || { printf '\001'; cat "$f"; } > "$dir/raw-$(basename "$f")"
          done ;;
+    usd) for f in scene/tests/data/usd/*.usd*; do cp -n "$f" "$dir/" 2>/dev/null || true; done ;;
     scene_file) for f in scenes/*.toml scenes/hard/*.toml; do cp -n "$f" "$dir/" 2>/dev/null || true; done ;;
   esac
 }

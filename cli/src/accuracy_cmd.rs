@@ -16,7 +16,8 @@ mod cluster;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Built-in scene name, `.toml` scene file or `.gltf`/`.glb`, `.obj` or `.ply` model.
+    /// Built-in scene name, `.toml` scene file or `.gltf`/`.glb`, `.obj`, `.ply` or USD
+    /// (`.usda`, `.usdc`, `.usdz`) model.
     #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
     scene: String,
     /// Run the hard cases of numerical stability at full size instead of the sweep.

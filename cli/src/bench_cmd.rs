@@ -35,7 +35,8 @@ enum What {
 
 #[derive(Debug, clap::Args)]
 pub struct NodeArgs {
-    /// Built-in scene name, scene file (.toml) or model (.gltf/.glb, .obj, .ply).
+    /// Built-in scene name, scene file (.toml) or model (.gltf/.glb, .obj, .ply,
+    /// .usda/.usdc/.usdz).
     #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
     scene: String,
     /// Image size as WIDTHxHEIGHT.

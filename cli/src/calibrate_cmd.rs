@@ -8,7 +8,8 @@ use anyhow::Context;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Built-in scene name, `.toml` scene file or `.gltf`/`.glb`, `.obj` or `.ply` model.
+    /// Built-in scene name, `.toml` scene file or `.gltf`/`.glb`, `.obj`, `.ply` or USD
+    /// (`.usda`, `.usdc`, `.usdz`) model.
     #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
     scene: String,
     /// Image size as WIDTHxHEIGHT the plans will render at (default: the scene's).

@@ -290,7 +290,8 @@ impl ViewArgs {
 /// What to render and how: shared by `coordinator` and `demo`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct JobArgs {
-    /// Built-in scene name, scene file (.toml) or model (.gltf/.glb, .obj, .ply).
+    /// Built-in scene name, scene file (.toml) or model (.gltf/.glb, .obj, .ply,
+    /// .usda/.usdc/.usdz).
     #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
     pub scene: String,
     /// The glTF animation to play, by name or index (a `--scene` .gltf/.glb with several

@@ -69,10 +69,19 @@ fn text() -> String {
     line(
         "  model files",
         format!(
-            "at most {} vertices per OBJ or PLY, {} meshes and {} materials per OBJ",
+            "at most {} vertices per OBJ, PLY or USD stage, {} meshes and {} materials per OBJ \
+             or USD stage",
             limits::MAX_VERTICES,
             limits::MAX_MODEL_MESHES,
             limits::MAX_MODEL_MATERIALS
+        ),
+    );
+    line(
+        "  USD stages",
+        format!(
+            "at most {} prims composed and {} layer reads per stage",
+            lightfold_scene::usd_load::MAX_PRIMS,
+            lightfold_scene::usd_load::MAX_LAYER_READS
         ),
     );
     line(

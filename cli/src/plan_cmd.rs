@@ -15,7 +15,8 @@ use std::path::PathBuf;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Built-in scene name, scene file (.toml) or model (.gltf/.glb, .obj, .ply) [default: balls].
+    /// Built-in scene name, scene file (.toml) or model (.gltf/.glb, .obj, .ply,
+    /// .usda/.usdc/.usdz) [default: balls].
     #[arg(
         long = "scene",
         value_name = "SCENE",

@@ -17,7 +17,8 @@ mod gpu;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Built-in scene name, `.toml` scene file or `.gltf`/`.glb`, `.obj` or `.ply` model.
+    /// Built-in scene name, `.toml` scene file or `.gltf`/`.glb`, `.obj`, `.ply` or USD
+    /// (`.usda`, `.usdc`, `.usdz`) model.
     #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
     pub scene: String,
     /// Output EXR (linear radiance); the PNG is written next to it.

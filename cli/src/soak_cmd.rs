@@ -36,7 +36,8 @@ use tokio_util::sync::CancellationToken;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Built-in scene name, scene file (.toml) or model (.gltf/.glb, .obj, .ply).
+    /// Built-in scene name, scene file (.toml) or model (.gltf/.glb, .obj, .ply,
+    /// .usda/.usdc/.usdz).
     #[arg(long, default_value = "balls")]
     pub scene: String,
     /// Image size as WIDTHxHEIGHT.

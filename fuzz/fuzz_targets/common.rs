@@ -8,8 +8,9 @@ use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 /// A folder holding `tri.bin` (three positions and three u16 indices), `tex.png` (2×2),
-/// `tri.gltf` (a triangle using both), `tri.mtl` (a material textured with `tex.png`) and, beside
-/// it, `../outside.bin` and `../outside.mtl`.
+/// `tri.gltf` (a triangle using both), `tri.mtl` (a material textured with `tex.png`), `tri.usda`
+/// (a USD triangle, material and light) and, beside it, `../outside.bin`, `../outside.mtl` and
+/// `../outside.usda`.
 #[allow(dead_code)]
 pub fn folder() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
@@ -34,6 +35,8 @@ pub fn folder() -> &'static Path {
         std::fs::write(dir.join("tri.gltf"), TRI_GLTF).unwrap();
         std::fs::write(dir.join("tri.mtl"), TRI_MTL).unwrap();
         std::fs::write(root.join("outside.mtl"), TRI_MTL).unwrap();
+        std::fs::write(dir.join("tri.usda"), TRI_USDA).unwrap();
+        std::fs::write(root.join("outside.usda"), TRI_USDA).unwrap();
         dir
     })
 }
@@ -51,6 +54,44 @@ pub const TRI_GLTF: &str = r#"{"asset":{"version":"2.0"},"scene":0,"scenes":[{"n
 #[allow(dead_code)]
 pub const TRI_MTL: &str = "newmtl tri\nKd 0.8 0.4 0.2\nKs 0.5 0.5 0.5\nNs 40\nmap_Kd tex.png\n\
 newmtl glow\nKe 2 2 1\nnewmtl glass\nTf 0.9 0.1 0.1\nillum 4\n";
+
+#[allow(dead_code)]
+pub const TRI_USDA: &str = r#"#usda 1.0
+(
+    defaultPrim = "Tri"
+)
+def Xform "Tri"
+{
+    def Mesh "Mesh" (prepend apiSchemas = ["MaterialBindingAPI"])
+    {
+        int[] faceVertexCounts = [3]
+        int[] faceVertexIndices = [0, 1, 2]
+        point3f[] points = [(0, 0, 0), (1, 0, 0), (0, 1, 0)]
+        texCoord2f[] primvars:st = [(0, 0), (1, 0), (0, 1)] (interpolation = "faceVarying")
+        uniform token subdivisionScheme = "none"
+        rel material:binding = </Tri/Look>
+    }
+    def Material "Look"
+    {
+        token outputs:surface.connect = </Tri/Look/Surface.outputs:surface>
+        def Shader "Surface"
+        {
+            uniform token info:id = "UsdPreviewSurface"
+            color3f inputs:diffuseColor = (0.8, 0.4, 0.2)
+            color3f inputs:emissiveColor = (1, 1, 0)
+            float inputs:roughness = 0.3
+            token outputs:surface
+        }
+    }
+    def RectLight "Key"
+    {
+        float inputs:intensity = 5
+        bool inputs:normalize = 1
+        double3 xformOp:translate = (0, 2, 0)
+        uniform token[] xformOpOrder = ["xformOp:translate"]
+    }
+}
+"#;
 
 /// What every loaded scene must satisfy: it validates clean, is within the limits, samples
 /// without panicking into at most the limit's samples, and survives the wire form unchanged.

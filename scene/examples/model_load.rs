@@ -7,7 +7,8 @@
 //!
 //! `write DIR N` writes a rippled grid of about N triangles (positions, normals, texture
 //! coordinates, 32-bit indices) as `grid.glb`, `grid.obj` (with `grid.mtl`), `grid.ply` (binary
-//! little-endian) and `grid-ascii.ply`. `load PATH` loads one through `lightfold_scene::load` (as
+//! little-endian), `grid-ascii.ply` and `grid.usda` (a USD mesh of triangles; usd-core's
+//! `Sdf.Layer.FindOrOpen("grid.usda").Export("grid.usdc")` makes the binary form). `load PATH` loads one through `lightfold_scene::load` (as
 //! `--scene PATH` does: completed with a camera, light and ground) and prints its triangles and
 //! the seconds the load took; `/usr/bin/time -v` adds the peak resident memory of the process.
 
@@ -96,7 +97,14 @@ fn write(dir: &Path, triangles: u64) -> Result<(), Box<dyn std::error::Error>> {
     write_obj(&g, dir)?;
     write_ply(&g, &dir.join("grid.ply"), false)?;
     write_ply(&g, &dir.join("grid-ascii.ply"), true)?;
-    for f in ["grid.glb", "grid.obj", "grid.ply", "grid-ascii.ply"] {
+    write_usda(&g, &dir.join("grid.usda"))?;
+    for f in [
+        "grid.glb",
+        "grid.obj",
+        "grid.ply",
+        "grid-ascii.ply",
+        "grid.usda",
+    ] {
         println!("{f}: {} bytes", std::fs::metadata(dir.join(f))?.len());
     }
     Ok(())
@@ -225,5 +233,56 @@ fn write_ply(g: &Grid, path: &Path, ascii: bool) -> std::io::Result<()> {
             }
         }
     }
+    out.flush()
+}
+
+fn write_usda(g: &Grid, path: &Path) -> std::io::Result<()> {
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path)?);
+    writeln!(
+        out,
+        "#usda 1.0\n(\n    defaultPrim = \"grid\"\n    metersPerUnit = 1\n    upAxis = \"Y\"\n)\n\n\
+         def Mesh \"grid\"\n{{\n    uniform token subdivisionScheme = \"none\"\n    \
+         color3f[] primvars:displayColor = [(0.8, 0.8, 0.8)]"
+    )?;
+    let mut line = String::new();
+    let mut array = |name: &str, items: &mut dyn Iterator<Item = String>| -> std::io::Result<()> {
+        write!(out, "    {name} = [")?;
+        for (k, item) in items.enumerate() {
+            line.clear();
+            if k > 0 {
+                line.push_str(", ");
+            }
+            line.push_str(&item);
+            out.write_all(line.as_bytes())?;
+        }
+        writeln!(out, "]")
+    };
+    array(
+        "point3f[] points",
+        &mut g
+            .positions
+            .iter()
+            .map(|p| format!("({}, {}, {})", p[0], p[1], p[2])),
+    )?;
+    array(
+        "normal3f[] normals",
+        &mut g
+            .normals
+            .iter()
+            .map(|n| format!("({}, {}, {})", n[0], n[1], n[2])),
+    )?;
+    array(
+        "texCoord2f[] primvars:st",
+        &mut g.uvs.iter().map(|t| format!("({}, {})", t[0], t[1])),
+    )?;
+    array(
+        "int[] faceVertexCounts",
+        &mut (0..g.indices.len() / 3).map(|_| "3".to_string()),
+    )?;
+    array(
+        "int[] faceVertexIndices",
+        &mut g.indices.iter().map(|i| i.to_string()),
+    )?;
+    writeln!(out, "}}")?;
     out.flush()
 }

@@ -9,7 +9,7 @@ pub enum SceneError {
     #[error("built-in scene {0}")]
     BuiltinSize(String),
     #[error(
-        "{input:?} is neither a built-in scene ({known}) nor a .toml, .gltf, .glb, .obj or .ply file"
+        "{input:?} is neither a built-in scene ({known}) nor a .toml, .gltf, .glb, .obj, .ply, .usda, .usdc, .usdz or .usd file"
     )]
     UnknownInput { input: String, known: String },
     #[error("cannot read {path}: {message}")]
@@ -20,6 +20,8 @@ pub enum SceneError {
     Obj { path: String, message: String },
     #[error("{path}: invalid PLY: {message}")]
     Ply { path: String, message: String },
+    #[error("{path}: invalid USD: {message}")]
+    Usd { path: String, message: String },
     #[error("{path}: texture {texture}: {message}")]
     Texture {
         path: String,

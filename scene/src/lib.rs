@@ -1,6 +1,6 @@
 //! lightfold's scene: the model every part agrees on (meshes, materials, lights, camera), the
 //! lighting maths defined once (`shading`), light sampling into point samples, primitives, images,
-//! glTF 2.0, OBJ/MTL, PLY and TOML scene-file loading, and the built-in scenes.
+//! glTF 2.0, OBJ/MTL, PLY, USD and TOML scene-file loading, and the built-in scenes.
 //!
 //! Must not depend on tokio, wgpu or any networking: the GPU node, the CPU reference, the planner
 //! and the tests all read scenes through this crate.
@@ -30,6 +30,7 @@ mod scene_ops;
 pub mod shading;
 pub mod shadow_views;
 pub mod supersample;
+pub mod usd_load;
 pub mod validate;
 pub mod wire;
 
@@ -43,4 +44,5 @@ pub use model::*;
 pub use model_file::ModelOptions;
 pub use obj_load::{load_obj, load_obj_slice, load_obj_with};
 pub use ply_load::{load_ply, load_ply_slice, load_ply_with};
+pub use usd_load::{load_usd, load_usd_slice, load_usd_with};
 pub use validate::{Issue, ValidationReport};

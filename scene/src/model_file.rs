@@ -19,7 +19,15 @@ pub struct ModelOptions {
     /// Add a framed camera, and a ground plane and area light when the model has no lights
     /// ([`crate::framing::complete`]), as for a glTF given alone.
     pub complete: bool,
+    /// Read binary USD layers (`.usdc`, and inside `.usdz`): off unless the environment's
+    /// `LIGHTFOLD_TRUST_BINARY_USD=1` says the files are trusted. `openusd` 0.6 allocates the
+    /// counts a binary layer claims before checking them, so a hostile 3.5 kB layer can abort
+    /// the process (`docs/scenes.md` § USD); text layers are read always.
+    pub binary_usd: bool,
 }
+
+/// The environment variable that lets binary USD layers be read ([`ModelOptions::binary_usd`]).
+pub const TRUST_BINARY_USD: &str = "LIGHTFOLD_TRUST_BINARY_USD";
 
 impl Default for ModelOptions {
     fn default() -> Self {
@@ -27,6 +35,7 @@ impl Default for ModelOptions {
             scale: 1.0,
             translation: [0.0; 3],
             complete: true,
+            binary_usd: std::env::var_os(TRUST_BINARY_USD).is_some_and(|v| v == "1"),
         }
     }
 }

@@ -1,4 +1,4 @@
-//! Building a [`Scene`] from a parsed scene file: the model (glTF, OBJ or PLY; if any), primitive objects with
+//! Building a [`Scene`] from a parsed scene file: the model (glTF, OBJ, PLY or USD; if any), primitive objects with
 //! their materials, lights, camera, ambient, exposure and quality; then completion of whatever is
 //! missing (camera, lights) exactly as for a bare glTF.
 
@@ -39,11 +39,12 @@ pub(super) fn build(
         file.gltf.as_ref().map(|_| "[gltf]"),
         file.obj.as_ref().map(|_| "[obj]"),
         file.ply.as_ref().map(|_| "[ply]"),
+        file.usd.as_ref().map(|_| "[usd]"),
     ];
     let named: Vec<&str> = models.into_iter().flatten().collect();
     if named.len() > 1 {
         return Err(err(format!(
-            "a scene file takes one model or base ([base], [gltf], [obj] or [ply]); this one has {}",
+            "a scene file takes one model or base ([base], [gltf], [obj], [ply] or [usd]); this one has {}",
             named.join(" and ")
         )));
     }
@@ -62,6 +63,7 @@ pub(super) fn build(
         scale,
         translation,
         complete: false,
+        ..ModelOptions::default()
     };
     let (mut scene, gltf_camera) = if let Some(b) = &file.base {
         (load_base(&b.scene, base, label)?, true)
@@ -102,6 +104,18 @@ pub(super) fn build(
         let imported =
             crate::ply_load::import(&bytes, &label, &name, &placed(p.scale, p.translation))?;
         (imported.scene, false)
+    } else if let Some(u) = &file.usd {
+        let path = model_path("usd", &u.path)?;
+        let bytes = gltf_load::read_model(&path)?;
+        let label = path.display().to_string();
+        let imported = crate::usd_load::import(
+            &bytes,
+            &label,
+            &name,
+            Some(gltf_load::model_folder(&path)),
+            &placed(u.scale, u.translation),
+        )?;
+        (imported.scene, imported.has_camera)
     } else {
         (Scene::new(&name), false)
     };

@@ -1,8 +1,8 @@
 //! Scene files (TOML, `version = 1`, unknown fields rejected) and [`load`], the one entry point
-//! that accepts a built-in name, a `.toml` scene file or a `.gltf` / `.glb`, `.obj` or `.ply`
-//! model.
+//! that accepts a built-in name, a `.toml` scene file or a `.gltf` / `.glb`, `.obj`, `.ply` or
+//! USD (`.usda`, `.usdc`, `.usdz`, `.usd`) model.
 //!
-//! A scene file references a model (glTF, OBJ or PLY, relative to the file) and/or builds primitives (plane, box,
+//! A scene file references a model (glTF, OBJ, PLY or USD, relative to the file) and/or builds primitives (plane, box,
 //! sphere, cylinder) with materials, and sets camera, lights, ambient, exposure and quality.
 //! Whatever it leaves out is completed like a bare glTF: a framed camera, and without lights a
 //! rectangular area light (plus a ground plane when the file builds no objects).
@@ -20,10 +20,12 @@ use crate::model::Scene;
 use std::path::Path;
 
 /// The file extensions [`load`] reads (lower case).
-pub const LOADABLE_EXTENSIONS: &[&str] = &["toml", "gltf", "glb", "obj", "ply"];
+pub const LOADABLE_EXTENSIONS: &[&str] = &[
+    "toml", "gltf", "glb", "obj", "ply", "usda", "usdc", "usdz", "usd",
+];
 
-/// Loads a built-in scene by name, a `.toml` scene file, or a `.gltf` / `.glb`, `.obj` or `.ply`
-/// model (a model alone is completed with a framed camera and, without lights, a light and a
+/// Loads a built-in scene by name, a `.toml` scene file, or a `.gltf` / `.glb`, `.obj`, `.ply` or
+/// USD model (a model alone is completed with a framed camera and, without lights, a light and a
 /// ground plane).
 pub fn load(path_or_builtin: &str) -> Result<Scene, SceneError> {
     if is_builtin(path_or_builtin) {
@@ -39,6 +41,7 @@ pub fn load(path_or_builtin: &str) -> Result<Scene, SceneError> {
         "gltf" | "glb" => load_gltf(path),
         "obj" => crate::obj_load::load_obj(path),
         "ply" => crate::ply_load::load_ply(path),
+        "usda" | "usdc" | "usdz" | "usd" => crate::usd_load::load_usd(path),
         _ => Err(SceneError::UnknownInput {
             input: path_or_builtin.to_string(),
             known: format!("{}, city[:N]", builtin_names().join(", ")),

@@ -187,6 +187,7 @@ pub fn session_file(scene: &Scene, base: &str) -> Result<SceneFile, String> {
         gltf: None,
         obj: None,
         ply: None,
+        usd: None,
         camera: Some(CameraSpec {
             position: c.position,
             target: c.target,

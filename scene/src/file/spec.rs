@@ -77,6 +77,10 @@ pub struct SceneFile {
     /// A PLY model; a file takes one model in all.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub ply: Option<ModelRef>,
+    /// A USD stage (`.usda`, `.usdc`, `.usdz`) with its lights and camera; a file takes one
+    /// model in all.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub usd: Option<ModelRef>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<CameraSpec>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -115,7 +119,7 @@ pub struct GltfRef {
     pub animation: Option<String>,
 }
 
-/// An OBJ or PLY model, its path relative to the scene file.
+/// An OBJ, PLY or USD model, its path relative to the scene file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ModelRef {

@@ -239,7 +239,7 @@ fn model_mesh(
 /// Every mesh with an emissive material lights the scene: an emissive-mesh light of radiance
 /// `max(Ke)` and colour `Ke / max(Ke)`, emitting along the counter-clockwise face normal (the
 /// material is one-sided).
-fn add_emissive_lights(scene: &mut Scene, meshes: &[usize]) {
+pub(crate) fn add_emissive_lights(scene: &mut Scene, meshes: &[usize]) {
     if meshes.is_empty() {
         return;
     }

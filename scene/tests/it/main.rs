@@ -13,4 +13,5 @@ mod partition;
 mod ply;
 mod scene_file;
 mod shadow_views;
+mod usd;
 mod validate;
