@@ -97,8 +97,8 @@ pub struct ViewArgs {
     #[command(flatten)]
     pub access: ViewAccessArgs,
     /// With `--http`: the folder whose scene files and models (.toml, .gltf/.glb, .obj, .ply,
-    /// directly in it) viewers may open from the page, beside the built-ins; each is loaded as
-    /// `--scene` would be (same size and plan options).
+    /// .usda/.usdc/.usdz, directly in it) viewers may open from the page, beside the built-ins;
+    /// each is loaded as `--scene` would be (same size and plan options).
     #[arg(long, value_name = "DIR")]
     pub scene_dir: Option<PathBuf>,
 }
