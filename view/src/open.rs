@@ -85,12 +85,7 @@ fn files(dir: &Path) -> Vec<String> {
         .filter_map(Result::ok)
         .filter(|e| e.file_type().is_ok_and(|t| t.is_file()))
         .filter_map(|e| e.file_name().into_string().ok())
-        .filter(|n| {
-            Path::new(n)
-                .extension()
-                .map(|e| e.to_string_lossy().to_ascii_lowercase())
-                .is_some_and(|e| lightfold_scene::LOADABLE_EXTENSIONS.contains(&e.as_str()))
-        })
+        .filter(|n| lightfold_scene::is_loadable(Path::new(n)))
         .collect();
     out.sort();
     out.truncate(MAX_LISTED);

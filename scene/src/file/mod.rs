@@ -19,11 +19,6 @@ use crate::gltf_load::load_gltf;
 use crate::model::Scene;
 use std::path::Path;
 
-/// The file extensions [`load`] reads (lower case).
-pub const LOADABLE_EXTENSIONS: &[&str] = &[
-    "toml", "gltf", "glb", "obj", "ply", "usda", "usdc", "usdz", "usd",
-];
-
 /// Loads a built-in scene by name, a `.toml` scene file, or a `.gltf` / `.glb`, `.obj`, `.ply` or
 /// USD model (a model alone is completed with a framed camera and, without lights, a light and a
 /// ground plane).
@@ -32,21 +27,34 @@ pub fn load(path_or_builtin: &str) -> Result<Scene, SceneError> {
         return builtin(path_or_builtin);
     }
     let path = Path::new(path_or_builtin);
-    let ext = path
-        .extension()
-        .map(|e| e.to_string_lossy().to_ascii_lowercase())
-        .unwrap_or_default();
-    match ext.as_str() {
-        "toml" => load_scene_file(path),
-        "gltf" | "glb" => load_gltf(path),
-        "obj" => crate::obj_load::load_obj(path),
-        "ply" => crate::ply_load::load_ply(path),
-        "usda" | "usdc" | "usdz" | "usd" => crate::usd_load::load_usd(path),
-        _ => Err(SceneError::UnknownInput {
+    match loader_for(path) {
+        Some(load) => load(path),
+        None => Err(SceneError::UnknownInput {
             input: path_or_builtin.to_string(),
             known: format!("{}, city[:N]", builtin_names().join(", ")),
         }),
     }
+}
+
+/// Whether [`load`] reads a file named like `path` (by its extension, any case).
+pub fn is_loadable(path: &Path) -> bool {
+    loader_for(path).is_some()
+}
+
+/// The loader of a file by its extension: the one dispatch of [`load`] and [`is_loadable`].
+fn loader_for(path: &Path) -> Option<fn(&Path) -> Result<Scene, SceneError>> {
+    let ext = path
+        .extension()
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    Some(match ext.as_str() {
+        "toml" => load_scene_file,
+        "gltf" | "glb" => load_gltf,
+        "obj" => crate::obj_load::load_obj,
+        "ply" => crate::ply_load::load_ply,
+        "usda" | "usdc" | "usdz" | "usd" => crate::usd_load::load_usd,
+        _ => return None,
+    })
 }
 
 /// Reads and builds a scene file (a regular file of at most
