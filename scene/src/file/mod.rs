@@ -41,8 +41,11 @@ pub fn is_loadable(path: &Path) -> bool {
     loader_for(path).is_some()
 }
 
+/// A loader of one file format.
+type Loader = fn(&Path) -> Result<Scene, SceneError>;
+
 /// The loader of a file by its extension: the one dispatch of [`load`] and [`is_loadable`].
-fn loader_for(path: &Path) -> Option<fn(&Path) -> Result<Scene, SceneError>> {
+fn loader_for(path: &Path) -> Option<Loader> {
     let ext = path
         .extension()
         .map(|e| e.to_string_lossy().to_ascii_lowercase())

@@ -113,9 +113,6 @@ pub(crate) fn import(
         })?),
         None => None,
     };
-    if !opts.binary_usd && bytes.starts_with(resolve::BINARY_MAGIC) {
-        return Err(err(resolve::binary_refused(label)));
-    }
     let shared = Rc::new(resolve::Shared::new(
         &root_name(bytes, label),
         bytes.to_vec(),

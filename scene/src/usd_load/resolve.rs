@@ -33,7 +33,7 @@ pub(super) struct Shared {
 }
 
 /// The first bytes of a binary USD layer.
-pub(super) const BINARY_MAGIC: &[u8] = b"PXR-USDC";
+const BINARY_MAGIC: &[u8] = b"PXR-USDC";
 
 impl Shared {
     pub fn new(
@@ -257,7 +257,7 @@ impl Resolver for Confined {
 }
 
 /// Why binary layer `path` is not read.
-pub(super) fn binary_refused(path: &str) -> String {
+fn binary_refused(path: &str) -> String {
     format!(
         "{path} is a binary USD layer, read only from trusted files ({}=1): the USD reader \
          (openusd 0.6) allocates the counts a binary layer claims before checking them, so a \
