@@ -243,6 +243,7 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
                 depth_bias: scene.quality.depth_bias,
                 slope_bias: scene.quality.slope_bias,
                 eye_meshes: None,
+                moves: Vec::new(),
             };
             for pack in &a.pack {
                 plan.push((mode.clone(), pack.clone(), k, config.clone()));

@@ -388,6 +388,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     refine: None,
                     lights: None,
                     scene: None,
+                    moves: None,
                 };
                 tokio::select! {
                     biased;

@@ -156,6 +156,7 @@ pub fn frame_specs(scene: &Scene, opts: &RunOptions) -> Vec<FrameSpec> {
                 refine: None,
                 lights: None,
                 scene: None,
+                moves: None,
             }
         })
         .collect()

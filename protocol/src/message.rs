@@ -188,6 +188,15 @@ pub struct WireShadow {
     pub casters: Vec<u32>,
 }
 
+/// A mesh of the node's scene moved (protocol version 13): its positions are transformed by
+/// `matrix` (column-major, world to world), its normals by the inverse transpose
+/// (`scene::moves::apply_matrix`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct WireMove {
+    pub mesh: u32,
+    pub matrix: [f32; 16],
+}
+
 /// A node's configuration for one plan epoch.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NodeConfig {
@@ -215,6 +224,9 @@ pub struct NodeConfig {
     /// The meshes this node draws in its eye pass, a sort-last part of the scene (protocol
     /// version 6); `None`: every mesh. Shadows still come from each light's casters.
     pub eye_meshes: Option<Vec<u32>>,
+    /// Meshes moved from where the scene has them (objects a viewer moved in a live session),
+    /// each at most once; empty: none. Animated scenes never have any.
+    pub moves: Vec<WireMove>,
 }
 
 /// One input of a compositor stage.

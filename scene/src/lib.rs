@@ -19,6 +19,7 @@ mod input;
 pub mod limits;
 pub mod ltc;
 pub mod model;
+pub mod moves;
 mod model_file;
 pub mod obj_load;
 pub mod partition;

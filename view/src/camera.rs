@@ -35,6 +35,8 @@ pub enum SteerError {
     Degenerate(&'static str),
     #[error("{0}")]
     BadLight(String),
+    #[error("{0}")]
+    BadMove(String),
 }
 
 /// A light as the viewers set it.
@@ -75,6 +77,10 @@ pub struct Steer {
     /// The frame budget a viewer set (µs; `Some(None)`: none); `None` until one does (the
     /// session's own, `--frame-budget`, holds).
     pub frame_budget_us: Option<Option<u64>>,
+    /// The scene's objects as viewers moved them (`crate::objects`), by mesh.
+    pub moves: Arc<Vec<lightfold_scene::moves::MeshMove>>,
+    /// Whether a viewer moved objects (frames then carry the moves).
+    pub moves_edited: bool,
     /// The scene a viewer opened, which frames carry (`None`: the session's first).
     pub open: Option<Arc<lightfold_coordinator::control::OpenScene>>,
     /// Counts changes, from 0 (the scene as loaded).
@@ -101,6 +107,8 @@ impl Steer {
                 0.0
             }),
             frame_budget_us: None,
+            moves: Arc::new(Vec::new()),
+            moves_edited: false,
             open: None,
             revision: 0,
             changed_at: std::time::Instant::now(),
@@ -151,6 +159,7 @@ impl Steer {
             refine: None,
             lights: self.lights_edited.then(|| Arc::clone(&self.scene_lights)),
             scene: self.open.clone(),
+            moves: self.moves_edited.then(|| Arc::clone(&self.moves)),
         }
     }
 
@@ -205,6 +214,25 @@ impl Steer {
         self.camera.position = p.to_array();
         self.camera.target = t.to_array();
         Ok(())
+    }
+
+    /// The world shift of `x` view widths right and `y` view heights up at the depth of point
+    /// `p` (a point behind the camera at the target's distance): what dragging something at
+    /// `p` across the view moves it by.
+    pub(crate) fn view_shift(&self, p: Vec3, x: f32, y: f32) -> Result<Vec3, SteerError> {
+        let (pos, target, up) = self.view_frame()?;
+        let forward = (target - pos).normalize();
+        let right = forward.cross(up).normalize();
+        let true_up = right.cross(forward);
+        let depth = (p - pos).dot(forward);
+        let dist = if depth > 1e-3 {
+            depth
+        } else {
+            (target - pos).length()
+        };
+        let half_h = dist * (self.camera.fov_y_deg.to_radians() * 0.5).tan();
+        let half_w = half_h * self.camera.aspect();
+        Ok(right * (x * 2.0 * half_w) + true_up * (y * 2.0 * half_h))
     }
 
     /// Multiplies the distance to the target by `factor` (< 1 moves closer).

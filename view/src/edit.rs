@@ -150,20 +150,8 @@ impl Steer {
                 _ => "a directional light has no position: turn it with its direction",
             })
         })?;
-        let (pos, target, up) = self.view_frame()?;
-        let forward = (target - pos).normalize();
-        let right = forward.cross(up).normalize();
-        let true_up = right.cross(forward);
         let p = Vec3::from(p);
-        let depth = (p - pos).dot(forward);
-        let dist = if depth > 1e-3 {
-            depth
-        } else {
-            (target - pos).length()
-        };
-        let half_h = dist * (self.camera.fov_y_deg.to_radians() * 0.5).tan();
-        let half_w = half_h * self.camera.aspect();
-        let moved = p + right * (x * 2.0 * half_w) + true_up * (y * 2.0 * half_h);
+        let moved = p + self.view_shift(p, x, y)?;
         check_point(moved)?;
         let mut lights = self.scene_lights.as_ref().clone();
         set_position(&mut lights[index as usize].shape, moved.to_array());

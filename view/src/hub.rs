@@ -355,15 +355,16 @@ impl Hub {
     pub async fn relay_status(self: Arc<Self>) {
         let mut live = self.live.clone();
         live.mark_changed();
-        let (mut taken_back, mut colors_taken_back) = (0, 0);
+        let (mut taken_back, mut colors_taken_back, mut moves_taken_back) = (0, 0, 0);
         loop {
-            let (value, notice, put_back, colors_back, scene_refused) = {
+            let (value, notice, put_back, colors_back, moves_back, scene_refused) = {
                 let s = live.borrow_and_update();
                 (
                     crate::json::status(&s, self.started),
                     s.notice.clone(),
                     s.lights_put_back.clone(),
                     s.colors_put_back.clone(),
+                    s.moves_put_back.clone(),
                     s.scene_refused.as_ref().map(|(id, _)| *id),
                 )
             };
@@ -384,6 +385,18 @@ impl Hub {
                             };
                         }
                     }
+                    s.revision += 1;
+                    s.changed_at = Instant::now();
+                });
+            }
+            if let Some((n, moves)) = moves_back
+                && n > moves_taken_back
+            {
+                // The loop could not plan or make a move and renders the objects as they were:
+                // so does every page.
+                moves_taken_back = n;
+                self.steer.send_modify(|s| {
+                    s.put_back_moves(&moves);
                     s.revision += 1;
                     s.changed_at = Instant::now();
                 });

@@ -6,6 +6,7 @@ use crate::clock::Clock;
 use crate::hub::Requested;
 use lightfold_coordinator::control::{FrameResult, IncidentKind, LiveState, LiveStatus};
 use lightfold_coordinator::plan::{Downstream, Plan};
+use lightfold_scene::moves::MeshMove;
 use lightfold_scene::{Camera, LightShape, Scene};
 use serde_json::{Value, json};
 use std::time::Instant;
@@ -104,6 +105,28 @@ pub fn lights_message(s: &Steer) -> Value {
         })
         .collect();
     json!({"type": "lights", "lights": lights, "revision": s.revision})
+}
+
+/// The objects viewers moved, each with its name and move (`crate::objects`).
+pub fn moves_message(s: &Steer, objects: &crate::objects::Objects) -> Value {
+    let moves: Vec<Value> = s
+        .moves
+        .iter()
+        .map(|m| object(m, objects.name(m.mesh), None))
+        .collect();
+    json!({"type": "moves", "moves": moves, "revision": s.revision})
+}
+
+/// One object and its move; `fixed`: why it cannot move.
+pub fn object(m: &MeshMove, name: &str, fixed: Option<&str>) -> Value {
+    json!({
+        "mesh": m.mesh,
+        "name": name,
+        "translate": m.translate,
+        "rotate": m.rotate,
+        "scale": m.scale,
+        "fixed": fixed,
+    })
 }
 
 pub fn status(s: &LiveStatus, started: Instant) -> Value {

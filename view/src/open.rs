@@ -142,6 +142,8 @@ pub struct SceneInfo {
     /// The scene without its geometry, and the base a saved session names (`crate::save`).
     pub skeleton: Scene,
     pub save_base: Result<String, String>,
+    /// Its objects, for picking and moving them (`crate::objects`).
+    pub objects: Arc<crate::objects::Objects>,
 }
 
 impl SceneInfo {
@@ -153,6 +155,7 @@ impl SceneInfo {
             stops: crate::encode::stops_of(scene.exposure),
             skeleton: crate::save::skeleton(scene),
             save_base: crate::save::base_of(source),
+            objects: Arc::new(crate::objects::Objects::new(scene)),
         }
     }
 }

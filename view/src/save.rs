@@ -33,7 +33,10 @@ pub fn base_of(source: Option<&str>) -> Result<String, String> {
     match file.base {
         None => Ok(name),
         Some(b)
-            if file.objects.is_empty() && file.materials.is_empty() && file.motions.is_empty() =>
+            if file.objects.is_empty()
+                && file.materials.is_empty()
+                && file.motions.is_empty()
+                && file.moves.is_empty() =>
         {
             Ok(b.scene)
         }
@@ -94,7 +97,8 @@ pub fn session_toml(
             ..l.clone()
         })
         .collect();
-    let file = session_file(&s, base)?;
+    let mut file = session_file(&s, base)?;
+    file.moves = steer.moves.to_vec();
     lightfold_scene::file::to_toml(&file).map_err(|e| e.to_string())
 }
 

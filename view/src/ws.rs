@@ -57,6 +57,28 @@ enum Input {
         x: f32,
         y: f32,
     },
+    /// The object seen through `(x, y)`, fractions of the view from its left and top: answered
+    /// with an `object` message (its mesh, name and move; `mesh: null` where there is none).
+    ObjectPick {
+        x: f32,
+        y: f32,
+    },
+    /// Object `mesh` moved from where the scene has it (`scene::moves::MeshMove`).
+    ObjectSet {
+        mesh: u32,
+        #[serde(default)]
+        translate: [f32; 3],
+        #[serde(default)]
+        rotate: [f32; 3],
+        #[serde(default = "unit_scale")]
+        scale: f32,
+    },
+    /// Move object `mesh` by fractions of the view's width and height, at its depth.
+    ObjectDrag {
+        mesh: u32,
+        x: f32,
+        y: f32,
+    },
     Render,
     Stats,
     /// Jump to a scene time (seconds).
@@ -86,6 +108,10 @@ enum Input {
     SceneOpen {
         name: String,
     },
+}
+
+fn unit_scale() -> f32 {
+    1.0
 }
 
 #[derive(Debug, Deserialize)]
@@ -186,7 +212,9 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
     ended.mark_changed();
     let mut outbox = vec![v.welcome()];
     if v.access.can_watch() {
-        outbox.push(json::lights_message(&steer.borrow_and_update()));
+        let s = steer.borrow_and_update().clone();
+        outbox.push(json::lights_message(&s));
+        outbox.push(json::moves_message(&s, &hub.scene.borrow().objects));
     }
     // What the welcome says already, and only notices from now on.
     exposure.borrow_and_update();
@@ -217,7 +245,9 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
                         // A steering viewer now: its watching slot is free again.
                         drop(watching.take());
                         outbox.push(v.welcome());
-                        outbox.push(json::lights_message(&steer.borrow_and_update()));
+                        let s = steer.borrow_and_update().clone();
+                        outbox.push(json::lights_message(&s));
+                        outbox.push(json::moves_message(&s, &hub.scene.borrow().objects));
                         exposure.borrow_and_update();
                         notices.borrow_and_update();
                         // The newest frame and status, now unredacted.
@@ -266,6 +296,7 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
                 let s = steer.borrow_and_update().clone();
                 outbox.push(json::camera_message(&s));
                 outbox.push(json::lights_message(&s));
+                outbox.push(json::moves_message(&s, &hub.scene.borrow().objects));
                 outbox.push(json::animation_message(&s));
             }
             r = scenes.changed(), if watch => {
@@ -275,6 +306,7 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
                 scenes.borrow_and_update();
                 outbox.push(v.welcome());
                 outbox.push(json::lights_message(&steer.borrow()));
+                outbox.push(json::moves_message(&steer.borrow(), &hub.scene.borrow().objects));
             }
             r = exposure.changed(), if watch => {
                 if r.is_err() { return; }
@@ -433,6 +465,7 @@ impl Viewer {
             }
             _ if !self.access.can_watch() => Err(error(LOCKED)),
             Input::Stats => Err(self.hub.stats()),
+            Input::ObjectPick { x, y } => Err(self.pick(x, y)),
             _ if !self.access.can_steer() => Err(error(
                 "this view can only watch: present the cluster's token to steer",
             )),
@@ -446,7 +479,26 @@ impl Viewer {
         }
     }
 
+    /// The `object` message for a pick at `(x, y)` (fractions of the view from left and top).
+    fn pick(&self, x: f32, y: f32) -> Value {
+        if !(x.is_finite() && y.is_finite() && (0.0..=1.0).contains(&x) && (0.0..=1.0).contains(&y))
+        {
+            return error("a pick is at fractions of the view between 0 and 1");
+        }
+        let objects = Arc::clone(&self.hub.scene.borrow().objects);
+        let s = self.hub.steer.borrow().clone();
+        match objects.pick(&s.camera, &s.moves, x, y) {
+            Some(p) => {
+                let mut v = json::object(&s.object_move(p.mesh), &p.name, p.fixed.as_deref());
+                v["type"] = "object".into();
+                v
+            }
+            None => json!({"type": "object", "mesh": null}),
+        }
+    }
+
     fn steer(&self, input: Input) -> Result<(), SteerError> {
+        let objects = Arc::clone(&self.hub.scene.borrow().objects);
         let mut result = Ok(());
         self.hub.steer.send_if_modified(|s| {
             let mut next = s.clone();
@@ -470,6 +522,21 @@ impl Viewer {
                 Input::LightAdd { light } => next.add_light(&light),
                 Input::LightRemove { index } => next.remove_light(index),
                 Input::LightDrag { index, x, y } => next.drag_light(index, x, y),
+                Input::ObjectSet {
+                    mesh,
+                    translate,
+                    rotate,
+                    scale,
+                } => next.move_object(
+                    &objects,
+                    lightfold_scene::moves::MeshMove {
+                        mesh,
+                        translate,
+                        rotate,
+                        scale,
+                    },
+                ),
+                Input::ObjectDrag { mesh, x, y } => next.drag_object(&objects, mesh, x, y),
                 Input::Time { t } => next.seek(t),
                 Input::Play => {
                     next.play(true);
@@ -489,6 +556,7 @@ impl Viewer {
                 | Input::Render
                 | Input::Stats
                 | Input::Exposure { .. }
+                | Input::ObjectPick { .. }
                 | Input::SceneOpen { .. } => Ok(()),
             };
             if result.is_ok() && next != *s {

@@ -1695,3 +1695,165 @@ async fn a_scene_opened_from_the_page_renders_and_one_no_plan_fits_is_refused() 
     })
     .await;
 }
+
+/// Two boxes 12 m apart on one floor, each under its own spot light whose range (4 m) does not
+/// reach the other box: a box casts only into its own light's map.
+const TWO_BOXES: &str = r#"
+version = 1
+name = "two-boxes"
+
+[camera]
+position = [-3.0, 5.0, 6.0]
+target = [-4.0, 0.0, 0.0]
+up = [0.0, 1.0, 0.0]
+fov_y_deg = 60.0
+width = 160
+height = 120
+
+[[object]]
+type = "plane"
+name = "floor"
+center = [0.0, 0.0, 0.0]
+normal = [0.0, 1.0, 0.0]
+u_axis = [1.0, 0.0, 0.0]
+size = [24.0, 10.0]
+diffuse = [0.8, 0.8, 0.8]
+
+[[object]]
+type = "box"
+name = "left"
+center = [-6.0, 0.5, 0.0]
+size = [1.0, 1.0, 1.0]
+diffuse = [0.7, 0.5, 0.4]
+
+[[object]]
+type = "box"
+name = "right"
+center = [6.0, 0.5, 0.0]
+size = [1.0, 1.0, 1.0]
+diffuse = [0.4, 0.5, 0.7]
+
+[[light]]
+type = "spot"
+name = "over-left"
+position = [-6.0, 3.0, 1.2]
+direction = [0.0, -1.0, 0.0]
+intensity = 20.0
+outer_angle_deg = 60.0
+range = 4.0
+
+[[light]]
+type = "spot"
+name = "over-right"
+position = [6.0, 3.0, 1.2]
+direction = [0.0, -1.0, 0.0]
+intensity = 20.0
+outer_angle_deg = 60.0
+range = 4.0
+"#;
+
+/// An object picked and moved from the page: the pick names it, its move reaches the next
+/// frame, in walkthrough mode only the map of the light it casts for is drawn again (the other
+/// light's map is kept), and the session saved as a scene file (`[[move]]`) renders,
+/// single-device, the frame the view shows; the scene unmoved does not (the control).
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn an_object_moved_from_the_page_redraws_only_the_maps_it_reaches() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("two_boxes.toml");
+    std::fs::write(&path, TWO_BOXES).unwrap();
+    let scene = lightfold_scene::load(path.to_str().unwrap()).unwrap();
+    let plan = plan_options(&scene, 4);
+    let opts = ViewOptions {
+        scene_source: Some(path.display().to_string()),
+        ..loopback()
+    };
+    let original = scene.clone();
+    let folder = dir.path().to_path_buf();
+    with_view(scene, plan, opts, |addr, delivered, _| async move {
+        let mut c = Client::connect(addr).await;
+        c.expect("welcome").await;
+        let first = c.frame().await;
+        // (shadow passes, maps kept) over the nodes that render lights.
+        let maps = |f: &Frame| -> (u64, u64) {
+            f.header["daemons"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .filter(|d| d["role"] == "node" && d["lights_rendered"].as_u64() > Some(0))
+                .fold((0, 0), |(p, k), d| {
+                    (
+                        p + d["shadow_passes"].as_u64().unwrap(),
+                        k + d["maps_kept"].as_u64().unwrap(),
+                    )
+                })
+        };
+        // Control: the first frame draws both lights' maps.
+        let (passes, _) = maps(&first);
+        assert!(passes >= 2, "{:?}", maps(&first));
+
+        // Pick the left box: somewhere on a grid over the view it is seen.
+        let mut left = None;
+        'grid: for j in 1..12 {
+            for i in 1..16 {
+                let (x, y) = (i as f32 / 16.0, j as f32 / 12.0);
+                c.send(&json!({"type": "object_pick", "x": x, "y": y})).await;
+                let o = c.expect("object").await;
+                if o["name"] == "left" {
+                    assert!(o["fixed"].is_null(), "{o}");
+                    left = o["mesh"].as_u64();
+                    break 'grid;
+                }
+            }
+        }
+        let left = left.expect("the left box is picked somewhere in the view");
+        let revision = c
+            .steer(json!({"type": "object_set", "mesh": left,
+                "translate": [0.6, 0.0, 0.3], "rotate": [0.0, 30.0, 0.0]}))
+            .await;
+        let (moved, _) = until_revision(&mut c, revision).await;
+        let (passes, kept) = maps(&moved);
+        assert!(passes >= 1, "the moved box's light draws its map again");
+        assert!(kept >= 1, "the other light's map is kept: {passes} passes, {kept} kept");
+        let moves = c.expect("moves").await;
+        assert_eq!(moves["moves"][0]["name"], "left", "{moves}");
+
+        // A drag moves it further; the session saved renders the frame shown.
+        let revision = c
+            .steer(json!({"type": "object_drag", "mesh": left, "x": 0.05, "y": 0.0}))
+            .await;
+        let (dragged, _) = until_revision(&mut c, revision).await;
+        let (head, body) = http_get(addr, "/scene.toml").await;
+        assert!(head.contains(" 200"), "{head}");
+        let text = String::from_utf8(body).unwrap();
+        assert!(text.contains("[[move]]"), "{text}");
+        let saved =
+            lightfold_scene::parse_scene_file(&text, "session.toml", Some(&folder)).unwrap();
+        let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
+        let frame = delivered_frame(&delivered, frame_number(&dragged));
+        assert_close(
+            &frame,
+            &single_device(&gpu, &saved, true),
+            "the saved session",
+        );
+        let before = single_device(&gpu, &original, true);
+        let differs = frame
+            .data
+            .iter()
+            .zip(&before.data)
+            .filter(|(a, b)| (*a - *b).abs() > 0.05)
+            .count();
+        assert!(differs > 50, "the move changed only {differs} channels");
+
+        // Moves that cannot be made are refused and change nothing.
+        for bad in [
+            json!({"type": "object_set", "mesh": 99, "translate": [1.0, 0.0, 0.0]}),
+            json!({"type": "object_set", "mesh": left, "scale": 0.0}),
+            json!({"type": "object_drag", "mesh": left, "x": 1e9, "y": 0.0}),
+            json!({"type": "object_pick", "x": 2.0, "y": 0.5}),
+        ] {
+            let e = c.try_steer(bad.clone()).await.expect("refused");
+            assert!(e["text"].is_string(), "{bad}: {e}");
+        }
+    })
+    .await;
+}

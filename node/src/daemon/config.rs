@@ -92,6 +92,11 @@ pub enum ConfigError {
     },
     #[error("the eye pass lists mesh {mesh}, but the scene has {meshes} meshes")]
     BadEyeMesh { mesh: u32, meshes: usize },
+    #[error(
+        "move {index} is not one this node can make (mesh {mesh} of {meshes}, a finite transform \
+         that keeps facing, each mesh once, no animated scene)"
+    )]
+    BadMove { index: usize, mesh: u32, meshes: usize },
     #[error("a band of {bytes} bytes does not fit the link's maximum frame of {max} bytes")]
     BandTooLarge { bytes: u64, max: usize },
     #[error("downstream address is empty")]
@@ -223,6 +228,20 @@ pub fn check(
             mesh: *m,
             meshes: scene.meshes.len(),
         });
+    }
+    for (index, m) in config.moves.iter().enumerate() {
+        if index >= scene.meshes.len()
+            || m.mesh as usize >= scene.meshes.len()
+            || config.moves[..index].iter().any(|o| o.mesh == m.mesh)
+            || !lightfold_scene::moves::is_valid_columns(&m.matrix)
+            || scene.animation.is_some()
+        {
+            return Err(ConfigError::BadMove {
+                index,
+                mesh: m.mesh,
+                meshes: scene.meshes.len(),
+            });
+        }
     }
     let (map_size, map_sides, casters) = check_shadows(
         &config.shadows,
@@ -361,6 +380,7 @@ mod tests {
             depth_bias: 0.0,
             slope_bias: 0.0,
             eye_meshes: None,
+            moves: Vec::new(),
         }
     }
 

@@ -13,7 +13,7 @@ use crate::gpu::{
     DeviceError, Gpu, GpuOptions, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats,
     Renderer,
 };
-use lightfold_protocol::{Hash, Layer};
+use lightfold_protocol::{Hash, Layer, WireMove};
 use lightfold_scene::{Camera, Image, Scene, ShadowFilter};
 use std::panic::AssertUnwindSafe;
 use std::sync::Arc;
@@ -204,6 +204,8 @@ struct Current {
     time: Option<f32>,
     /// The configured light samples posed at `time`.
     lights: Vec<lightfold_scene::LightSample>,
+    /// The moves the renderer's geometry was made with (`NodeConfig::moves`).
+    moves: Vec<WireMove>,
 }
 
 fn thread_main(
@@ -367,6 +369,7 @@ fn configure(
         setup,
         camera: None,
         time: None,
+        moves: Vec::new(),
     });
     Ok(())
 }
@@ -388,16 +391,38 @@ fn render(
     let mut pose_us = 0;
     // A still scene ignores the time; an animated one is posed here, from the node's own copy.
     let time = time.filter(|_| c.setup.scene.animation.is_some());
-    if c.time != time {
+    let moves = &c.setup.checked.config.moves;
+    if c.time != time || c.moves != *moves {
         let t = Instant::now();
         let scene = &c.setup.scene;
-        let meshes = match time {
+        let mut meshes = match time {
             Some(t) => scene.pose_meshes(t),
             None => scene.meshes.clone(),
         };
-        c.renderer
-            .set_meshes(gpu, &meshes)
-            .map_err(|e| RenderFailure::Render(e.to_string()))?;
+        // Checked (`config::check`): each names a mesh of the scene once.
+        for m in moves {
+            if let Some(mesh) = meshes.get_mut(m.mesh as usize) {
+                lightfold_scene::moves::apply_columns(mesh, &m.matrix);
+            }
+        }
+        let posed = if c.time == time {
+            // Only moves changed: the meshes whose move is new, changed or undone.
+            let mut changed = vec![false; meshes.len()];
+            for m in moves.iter().chain(&c.moves) {
+                let now = moves.iter().find(|x| x.mesh == m.mesh);
+                let before = c.moves.iter().find(|x| x.mesh == m.mesh);
+                if now != before
+                    && let Some(k) = changed.get_mut(m.mesh as usize)
+                {
+                    *k = true;
+                }
+            }
+            c.renderer.set_moved_meshes(gpu, &meshes, &changed)
+        } else {
+            c.renderer.set_meshes(gpu, &meshes)
+        };
+        posed.map_err(|e| RenderFailure::Render(e.to_string()))?;
+        c.moves = moves.clone();
         c.lights = match time {
             Some(t) => scene.pose_samples(&c.setup.checked.lights, t),
             None => c.setup.checked.lights.clone(),

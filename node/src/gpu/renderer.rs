@@ -323,6 +323,27 @@ impl Renderer {
     /// count, materials and indices; `Scene::pose_meshes`) and marks the ones that changed, so
     /// only the shadow maps they may reach are rendered again.
     pub fn set_meshes(&mut self, gpu: &Gpu, meshes: &[Mesh]) -> Result<(), RenderError> {
+        self.pose_meshes(gpu, meshes, None)
+    }
+
+    /// [`Renderer::set_meshes`] where the caller knows which meshes changed (`changed[m]`, one
+    /// per mesh): objects moved in a still scene, whose unposed vertices the renderer does not
+    /// keep to compare with. Only the maps the changed meshes may reach are rendered again.
+    pub fn set_moved_meshes(
+        &mut self,
+        gpu: &Gpu,
+        meshes: &[Mesh],
+        changed: &[bool],
+    ) -> Result<(), RenderError> {
+        self.pose_meshes(gpu, meshes, Some(changed))
+    }
+
+    fn pose_meshes(
+        &mut self,
+        gpu: &Gpu,
+        meshes: &[Mesh],
+        changed: Option<&[bool]>,
+    ) -> Result<(), RenderError> {
         if meshes.len() != self.scene.meshes.len() {
             return Err(RenderError::Gpu(format!(
                 "posed scene has {} meshes, the renderer {}",
@@ -348,10 +369,12 @@ impl Renderer {
                     &v[r.first_vertex as usize..(r.first_vertex + r.vertex_count) as usize],
                 )
             }
+            // Without the CPU copy, what the caller says changed (or everything).
+            let unknown = changed.is_none_or(|c| c.get(m).copied().unwrap_or(true));
             if !same_layout
-                || !kept
+                || (!kept && unknown)
                 || new.bounds != old.bounds
-                || span(new, &vertices) != span(old, &self.scene.vertices)
+                || (kept && span(new, &vertices) != span(old, &self.scene.vertices))
             {
                 self.revisions[m] += 1;
             }

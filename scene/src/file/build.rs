@@ -181,6 +181,8 @@ pub(super) fn build(
         scene.lights.push(light);
     }
     crate::animation::apply_motions(&mut scene, &file.motions, &objects).map_err(err)?;
+    crate::moves::check(&scene, &file.moves).map_err(err)?;
+    scene.apply_moves(&file.moves);
     if let Some(c) = &file.camera {
         scene.camera = camera(c);
     }

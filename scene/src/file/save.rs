@@ -201,5 +201,6 @@ pub fn session_file(scene: &Scene, base: &str) -> Result<SceneFile, String> {
         objects: Vec::new(),
         lights,
         motions: Vec::new(),
+        moves: Vec::new(),
     })
 }

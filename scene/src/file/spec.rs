@@ -94,6 +94,11 @@ pub struct SceneFile {
     /// Objects and lights that move (`docs/scenes.md`, "Motion").
     #[serde(default, rename = "motion", skip_serializing_if = "Vec::is_empty")]
     pub motions: Vec<crate::animation::MotionSpec>,
+    /// Meshes moved from where the model or base has them, by mesh index
+    /// (`crate::moves::MeshMove`; what a saved live session writes for the objects its viewers
+    /// moved).
+    #[serde(default, rename = "move", skip_serializing_if = "Vec::is_empty")]
+    pub moves: Vec<crate::moves::MeshMove>,
 }
 
 /// The scene a file starts from: a built-in's name, or the path (relative to the file, inside

@@ -20,6 +20,7 @@ use crate::run::RunError;
 use lightfold_net::NetError;
 use lightfold_protocol::{Capabilities, ErrorCode, FrameStats, Message};
 use lightfold_scene::Scene;
+use lightfold_scene::moves::MeshMove;
 use std::collections::{BTreeMap, BTreeSet, HashMap, VecDeque};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -141,6 +142,11 @@ pub(crate) struct Core {
     /// Each light's colour in the scene as given: what a frame that names no colour for a light
     /// renders it with, whatever the light was recoloured to since.
     pub(super) scene_colors: Vec<[f32; 3]>,
+    /// Meshes split into chunks for partitions (`CoreSetup::chunked`).
+    pub(super) chunked: bool,
+    /// The objects as viewers moved them (`FrameSpec::moves`): `scene` stays as the nodes hold
+    /// it, the planner sees it moved (`Core::planned_scene`) and nodes are sent the matrices.
+    pub(super) moves: Arc<Vec<MeshMove>>,
     pub(super) opts: PlanOptions,
     /// The scene frames show (`OpenScene::id`; 0: the session's first), and whether the next
     /// plan starts afresh (a scene opened: nothing of the plan before carries over).
@@ -222,6 +228,9 @@ impl std::fmt::Debug for Core {
 pub(crate) struct CoreSetup {
     /// The scene as the cluster renders it (partitioned, supersampled: `Live::new`).
     pub scene: Scene,
+    /// Whether `scene` has meshes split into chunks for partitions (its meshes are then not
+    /// the ones viewers see, and none may be moved).
+    pub chunked: bool,
     pub opts: PlanOptions,
     pub control: ControlOptions,
     pub members: BTreeMap<String, Member>,
@@ -233,9 +242,42 @@ pub(crate) struct CoreSetup {
 }
 
 impl Core {
+    /// The scene the planner plans where objects were moved (the nodes' scene with the objects
+    /// moved); `None`: the nodes' scene as it is.
+    pub(super) fn moved_scene(&self) -> Option<Scene> {
+        (!self.moves.iter().all(MeshMove::is_identity)).then(|| self.scene.moved(&self.moves))
+    }
+
+    /// Each moved mesh's matrix, as nodes are sent it (`NodeConfig::moves`).
+    pub(super) fn wire_moves(&self) -> Vec<lightfold_protocol::WireMove> {
+        self.scene
+            .move_matrices(&self.moves)
+            .into_iter()
+            .map(|(mesh, m)| lightfold_protocol::WireMove {
+                mesh,
+                matrix: m.to_cols_array(),
+            })
+            .collect()
+    }
+
+    /// Why `moves` cannot be the session's, or `Ok`.
+    pub(super) fn check_moves(&self, moves: &[MeshMove]) -> Result<(), String> {
+        if self.chunked && !moves.is_empty() {
+            return Err(
+                "the cluster renders this scene's meshes split into chunks for partitions: \
+                 its objects cannot be moved"
+                    .into(),
+            );
+        }
+        lightfold_scene::moves::check(&self.scene, moves)
+    }
+}
+
+impl Core {
     pub fn new(setup: CoreSetup) -> Result<Core, RunError> {
         let CoreSetup {
             scene,
+            chunked,
             opts,
             control,
             members,
@@ -261,6 +303,8 @@ impl Core {
             phase: Phase::Running,
             out: VecDeque::new(),
             scene,
+            chunked,
+            moves: Arc::new(Vec::new()),
             opts,
             scene_id: 0,
             fresh_plan: false,

@@ -111,9 +111,12 @@ impl Core {
         // So is one whose estimated frame is far over the session's own: a step's frame is not
         // cancelled by an input, so its length is how long an input may wait.
         // The session's own plan is the bound's measure, and the plan when the step is dropped.
-        let mut session = self.refine.map(|_| plan_for(&self.scene, &o));
+        // The planner sees the objects where viewers moved them; nodes move their own copies.
+        let planned = self.moved_scene();
+        let scene = planned.as_ref().unwrap_or(&self.scene);
+        let mut session = self.refine.map(|_| plan_for(scene, &o));
         let refined = self.refine.map(|r| {
-            refined(&self.scene, r, self.target_samples, &o)
+            refined(scene, r, self.target_samples, &o)
                 .and_then(|(scene, ro)| plan_for(&scene, &ro).map_err(|e| e.to_string()))
                 .and_then(|p| {
                     let bound = refine_bound_us(session.as_ref().and_then(|s| s.as_ref().ok()));
@@ -131,7 +134,7 @@ impl Core {
                 })
         });
         let next = match refined {
-            None => plan_for(&self.scene, &o),
+            None => plan_for(scene, &o),
             Some(Ok(next)) => Ok(next),
             Some(Err(why)) => {
                 // Not to be tried again: frames asking for it get the session's quality.
@@ -140,7 +143,7 @@ impl Core {
                      quality",
                     self.refine.map(|r| r.to_string()).unwrap_or_default()
                 );
-                let next = session.take().unwrap_or_else(|| plan_for(&self.scene, &o));
+                let next = session.take().unwrap_or_else(|| plan_for(scene, &o));
                 self.refused.refine = Some(self.refine.take());
                 next
             }
@@ -154,6 +157,7 @@ impl Core {
                 let user_changed = self.good.as_ref().is_some_and(|good| {
                     !super::same_lights(&self.scene.lights, &good.lights)
                         || self.opts.frame_budget_us != good.opts.frame_budget_us
+                        || *self.moves != *good.moves
                 });
                 match self.good.clone().filter(|_| user_changed) {
                     Some(good) => {
@@ -257,6 +261,7 @@ impl Core {
     /// daemon applied its configuration. Returns whether it changed anything.
     pub(super) fn advance(&mut self, now: Instant) -> Result<bool, RunError> {
         let supersample = self.supersample();
+        let moves = self.wire_moves();
         let Phase::Configuring(est) = &mut self.phase else {
             return Ok(false);
         };
@@ -285,9 +290,10 @@ impl Core {
                 configs.push((stage.compositor.clone(), Message::ConfigureCompositor(cfg)));
             }
             for node in &next.nodes {
-                let cfg = next
+                let mut cfg = next
                     .node_config(&node.node)
                     .ok_or_else(|| ControlError::UnknownDaemon(node.node.clone()))?;
+                cfg.moves = moves.clone();
                 configs.push((node.node.clone(), Message::ConfigureNode(cfg)));
             }
             let geometry = SinkGeometry {
@@ -470,6 +476,7 @@ impl Core {
             opts: self.opts.clone(),
             refine: self.refine,
             lights: self.scene.lights.clone(),
+            moves: Arc::clone(&self.moves),
         });
         self.refusals = 0;
         self.plan = Some(next);
@@ -574,6 +581,16 @@ impl Core {
             self.observer.send_modify(|s| {
                 let n = s.colors_put_back.as_ref().map_or(1, |(n, _)| n + 1);
                 s.colors_put_back = Some((n, back.clone()));
+            });
+        }
+        if *self.moves != *good.moves {
+            self.refused.moves = Some(Arc::clone(&self.moves));
+            undone.push("the objects where they were (the move is dropped)".to_string());
+            self.moves = Arc::clone(&good.moves);
+            let back = Arc::clone(&good.moves);
+            self.observer.send_modify(|s| {
+                let n = s.moves_put_back.as_ref().map_or(1, |(n, _)| n + 1);
+                s.moves_put_back = Some((n, back));
             });
         }
         if self.opts.frame_budget_us != good.opts.frame_budget_us {

@@ -6,6 +6,7 @@ use super::{InFlight, ledger};
 use crate::plan::{Plan, Source};
 use crate::run::{RunError, frame_params};
 use lightfold_protocol::{FrameParams, Message, WireCamera};
+use std::sync::Arc;
 use std::time::Instant;
 
 /// A frame's camera (at the delivered size) as the nodes render it under `--aa factor`.
@@ -70,6 +71,7 @@ impl Core {
                 // Requested before a scene was opened: it shows the new one as it is.
                 spec.scene = None;
                 spec.lights = None;
+                spec.moves = None;
                 spec.light_colors.clear();
             } else if let Some(open) = spec.scene.clone().filter(|_| shows > self.scene_id) {
                 self.frames.queue.push_front((index, spec));
@@ -101,6 +103,20 @@ impl Core {
                     spec.light_colors.push((l as u32, *given));
                 }
             }
+            if let Some(moves) = spec.moves.clone().filter(|m| **m != *self.moves)
+                && let Err(e) = self.check_moves(&moves)
+            {
+                // Frames asking for it again are sent without it; the viewers take the moves
+                // back.
+                self.notice(format!("cannot move the objects ({e}): they stay where they are"));
+                self.refused.moves = Some(moves);
+                spec.moves = None;
+                let back = Arc::clone(&self.moves);
+                self.observer.send_modify(|s| {
+                    let n = s.moves_put_back.as_ref().map_or(1, |(n, _)| n + 1);
+                    s.moves_put_back = Some((n, back));
+                });
+            }
             let Some(plan) = &self.plan else {
                 break;
             };
@@ -111,7 +127,9 @@ impl Core {
                 .lights
                 .clone()
                 .filter(|l| !super::same_lights(l, &self.scene.lights));
-            if budget.is_some() || spec.refine != self.refine || edit.is_some() {
+            let moved = spec.moves.clone().filter(|m| **m != *self.moves);
+            if budget.is_some() || spec.refine != self.refine || edit.is_some() || moved.is_some()
+            {
                 // Plan under the new budget or refinement (one re-plan for both), then send this
                 // frame under the new epoch.
                 let mut why = Vec::new();
@@ -135,6 +153,15 @@ impl Core {
                     );
                     tracing::info!("{text}");
                     self.edit_lights(&lights);
+                    why.push(text);
+                }
+                if let Some(moves) = moved {
+                    let text = format!(
+                        "objects moved at frame {index} ({} moved): re-planning",
+                        moves.iter().filter(|m| !m.is_identity()).count()
+                    );
+                    tracing::info!("{text}");
+                    self.moves = moves;
                     why.push(text);
                 }
                 if spec.refine != self.refine {
@@ -231,6 +258,8 @@ impl Core {
         self.hash = scene.content_hash();
         self.bytes = std::sync::Arc::new(bytes);
         self.scene_colors = scene.lights.iter().map(|l| l.color).collect();
+        self.chunked = scene.meshes.len() != open.scene.meshes.len();
+        self.moves = Arc::new(Vec::new());
         self.scene = scene;
         self.opts = opts;
         self.scene_id = open.id;

@@ -39,6 +39,7 @@ use crate::run::RunError;
 use core::{Command, Core, CoreSetup, Input, Member};
 pub use frames::{SEED64_HEADROOM, seed64_scale};
 use lightfold_protocol::{ErrorCode, FrameStats, WireCamera};
+use lightfold_scene::moves::MeshMove;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 use tokio::sync::{mpsc, watch};
@@ -88,6 +89,13 @@ pub struct FrameSpec {
     /// scene (requested before the switch) shows the current one, without its light edits or
     /// colours.
     pub scene: Option<Arc<OpenScene>>,
+    /// The scene's objects as the viewers moved them (every move, by mesh of the scene the
+    /// frame shows), where they differ from the session's: the loop re-plans over the moved
+    /// scene before sending the frame (culling, casters and virtual point lights follow the
+    /// objects). Nodes keep their scene and are sent each moved mesh's matrix in their
+    /// configuration (`NodeConfig::moves`), so in walkthrough mode a node draws again only the
+    /// maps a moved object may reach. `None`: the session's moves.
+    pub moves: Option<Arc<Vec<MeshMove>>>,
 }
 
 /// A scene a viewer opened in a live session (`FrameSpec::scene`).
@@ -239,6 +247,9 @@ pub struct LiveStatus {
     /// Light colours the loop put back after daemons refused the plan they needed (light →
     /// colour), numbered from 1: whoever steers should show them again.
     pub colors_put_back: Option<(u64, LightColors)>,
+    /// The object moves the loop put back after a move it could not plan or make
+    /// (`FrameSpec::moves`), numbered from 1: whoever steers should take them as the moves again.
+    pub moves_put_back: Option<(u64, Arc<Vec<MeshMove>>)>,
     /// The id of the scene frames show now (`OpenScene::id`; 0: the session's first).
     pub scene: u64,
     /// A scene a viewer opened that the loop could not plan, and why: whoever steers should go
@@ -270,6 +281,8 @@ struct Settings {
     refine: Option<Refine>,
     /// The scene's lights (`FrameSpec::lights`).
     lights: Vec<lightfold_scene::Light>,
+    /// The objects' moves (`FrameSpec::moves`).
+    moves: Arc<Vec<MeshMove>>,
 }
 
 /// Settings daemons refused: frame requests asking for them again are sent without them.
@@ -285,6 +298,8 @@ struct Refused {
     lights: Option<Arc<Vec<lightfold_scene::Light>>>,
     /// A scene opened (`FrameSpec::scene`, by id): frames showing it show the loop's scene.
     scene: Option<u64>,
+    /// Object moves (`FrameSpec::moves`).
+    moves: Option<Arc<Vec<MeshMove>>>,
 }
 
 impl Refused {
@@ -308,9 +323,13 @@ impl Refused {
         {
             spec.lights = None;
         }
+        if spec.moves.is_some() && spec.moves == self.moves {
+            spec.moves = None;
+        }
         if self.scene.is_some_and(|id| scene_id(spec) == id) {
             spec.scene = None;
             spec.lights = None;
+            spec.moves = None;
             spec.light_colors.clear();
         }
     }
@@ -364,7 +383,9 @@ impl<'s> Live<'s> {
         // Partitions resolved once for the run (automatic ones from the nodes' memory), and
         // meshes too large for a part split into chunks first.
         let cluster = crate::run::cluster_spec(session);
+        let given = scene.meshes.len();
         let (scene, opts) = prepare(scene, &cluster, opts)?;
+        let chunked = scene.meshes.len() != given;
         let now = Instant::now();
         let members = session
             .daemons
@@ -376,6 +397,7 @@ impl<'s> Live<'s> {
             .collect();
         let core = Core::new(CoreSetup {
             scene,
+            chunked,
             opts,
             control: session.opts,
             members,

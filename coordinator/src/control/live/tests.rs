@@ -164,6 +164,7 @@ impl Sim {
         }
         let core = Core::new(CoreSetup {
             scene,
+            chunked: false,
             opts,
             control: control(),
             members,

@@ -302,6 +302,7 @@ pub fn node_config(
         depth_bias: s.quality.depth_bias,
         slope_bias: s.quality.slope_bias,
         eye_meshes: None,
+        moves: Vec::new(),
     }
 }
 
