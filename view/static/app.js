@@ -130,6 +130,8 @@
       case 'animation': return showAnimation(m.animation || {});
       case 'exposure': return showExposure(m.stops);
       case 'lights': return onLights(m.lights || []);
+      case 'moves': return onMoves(m.moves || []);
+      case 'object': return onObject(m);
       case 'status': view.status = m; return showStatus(m);
       case 'ack':
         view.unacked = Math.max(0, view.unacked - 1);
@@ -735,6 +737,109 @@
     if (lightDrag.dx || lightDrag.dy) send({ type: 'light_drag', index: lightDrag.index, x: lightDrag.dx, y: lightDrag.dy });
     lightDrag = null;
     drawMarkers();
+  });
+
+  // ---- objects ----------------------------------------------------------------------------
+  // Alt+mousedown in the frame picks the object under the pointer (`object_pick`, answered by
+  // `object`); dragging on moves it in the view's plane at its depth (`object_drag`). The form
+  // sets its move by numbers (`object_set`); `moves` lists every object moved.
+  let objDrag = null;
+  view.moves = [];
+  view.object = null;
+  function fractionOf(e) {
+    const r = img.getBoundingClientRect();
+    return [(e.clientX - r.left) / Math.max(1, r.width), (e.clientY - r.top) / Math.max(1, r.height)];
+  }
+  vp.addEventListener('mousedown', (e) => {
+    if (e.button !== 0 || !e.altKey || !view.canSteer) return;
+    const [x, y] = fractionOf(e);
+    if (x < 0 || x > 1 || y < 0 || y > 1) return;
+    e.preventDefault();
+    e.stopImmediatePropagation();
+    objDrag = { mesh: null, x: e.clientX, y: e.clientY, dx: 0, dy: 0, queued: false };
+    send({ type: 'object_pick', x, y }, false);
+  }, true);
+  function showObject(o) {
+    view.object = o;
+    const f = $('object-form');
+    f.hidden = !o;
+    if (!o) return;
+    $('object-name').textContent = o.name || `object ${o.mesh}`;
+    $('object-mesh').textContent = o.fixed ? `(mesh ${o.mesh}: ${o.fixed})` : `(mesh ${o.mesh})`;
+    ['x', 'y', 'z'].forEach((a, i) => {
+      $(`obj-t${a}`).value = String(o.translate[i]);
+      $(`obj-r${a}`).value = String(o.rotate[i]);
+    });
+    $('obj-s').value = String(o.scale);
+    for (const i of f.querySelectorAll('input, button')) i.disabled = !!o.fixed;
+  }
+  function onObject(o) {
+    if (o.mesh === null || o.mesh === undefined) {
+      objDrag = null;
+      return toast('no object there', 'notice');
+    }
+    showObject(o);
+    if (o.fixed) { objDrag = null; return toast(o.fixed, 'error'); }
+    if (objDrag) objDrag.mesh = o.mesh;
+  }
+  function onMoves(moves) {
+    view.moves = moves;
+    const ul = $('moves');
+    ul.replaceChildren();
+    if (!moves.length) ul.append(el('li', { class: 'dim', text: 'no object moved' }));
+    for (const m of moves) {
+      const li = el('li', { text: `${m.name || `object ${m.mesh}`} · move ${m.translate.map((v) => v.toFixed(2)).join(', ')} · turn ${m.rotate.map((v) => v.toFixed(0)).join(', ')}° · ×${m.scale}` });
+      li.addEventListener('click', () => showObject(m));
+      ul.append(li);
+    }
+    // The form shows the selected object's move as it is now.
+    const o = view.object;
+    if (o && !(objDrag && objDrag.mesh === o.mesh)) {
+      const now = moves.find((m) => m.mesh === o.mesh);
+      showObject(now || { ...o, translate: [0, 0, 0], rotate: [0, 0, 0], scale: 1 });
+    }
+  }
+  function sendObjectDrag() {
+    if (objDrag && objDrag.mesh !== null && (objDrag.dx || objDrag.dy)) {
+      send({ type: 'object_drag', mesh: objDrag.mesh, x: objDrag.dx, y: objDrag.dy });
+      objDrag.dx = 0;
+      objDrag.dy = 0;
+    }
+  }
+  window.addEventListener('mousemove', (e) => {
+    if (!objDrag) return;
+    const r = img.getBoundingClientRect();
+    objDrag.dx += (e.clientX - objDrag.x) / Math.max(1, r.width);
+    objDrag.dy -= (e.clientY - objDrag.y) / Math.max(1, r.height);
+    objDrag.x = e.clientX;
+    objDrag.y = e.clientY;
+    if (objDrag.queued) return;
+    objDrag.queued = true;
+    requestAnimationFrame(() => {
+      if (!objDrag) return;
+      objDrag.queued = false;
+      sendObjectDrag();
+    });
+  });
+  window.addEventListener('mouseup', () => {
+    if (!objDrag) return;
+    sendObjectDrag();
+    objDrag = null;
+  });
+  $('object-form').addEventListener('submit', (e) => {
+    e.preventDefault();
+    const o = view.object;
+    if (!o) return;
+    const num = (id) => Number($(id).value);
+    send({
+      type: 'object_set', mesh: o.mesh,
+      translate: ['x', 'y', 'z'].map((a) => num(`obj-t${a}`)),
+      rotate: ['x', 'y', 'z'].map((a) => num(`obj-r${a}`)),
+      scale: num('obj-s'),
+    });
+  });
+  $('obj-back').addEventListener('click', () => {
+    if (view.object) send({ type: 'object_set', mesh: view.object.mesh });
   });
 
   // Throttled: at most one message per light per LIGHT_THROTTLE_MS, the last value always sent.
