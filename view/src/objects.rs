@@ -255,9 +255,15 @@ mod tests {
             ..MeshMove::identity(ball)
         };
         assert_ne!(objects.pick(&cam, &[mv], x, y).map(|p| p.mesh), Some(ball));
-        let there = std::array::from_fn(|i| objects.pivots[ball as usize][i] + mv.translate[i]);
-        let (x2, y2) = seen_at(&cam, there);
-        assert_eq!(objects.pick(&cam, &[mv], x2, y2).map(|p| p.mesh), Some(ball));
+        // Moved halfway to the camera along the same ray: in front of everything there, and
+        // smaller (the ray meets it where it is now, not where it was).
+        let c = Vec3::from(objects.pivots[ball as usize]);
+        let toward = MeshMove {
+            translate: ((Vec3::from(cam.position) - c) * 0.5).to_array(),
+            scale: 0.5,
+            ..MeshMove::identity(ball)
+        };
+        assert_eq!(objects.pick(&cam, &[toward], x, y).map(|p| p.mesh), Some(ball));
         // Far off the scene: nothing.
         let up = Camera {
             target: [cam.position[0], cam.position[1] + 10.0, cam.position[2] + 0.1],
