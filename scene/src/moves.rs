@@ -65,8 +65,9 @@ impl MeshMove {
 /// The centre of a mesh's box (the origin for a mesh with no finite position): what a move
 /// turns and scales about.
 pub fn pivot(mesh: &Mesh) -> [f32; 3] {
-    mesh.bounds()
-        .map_or([0.0; 3], |(lo, hi)| std::array::from_fn(|i| 0.5 * (lo[i] + hi[i])))
+    mesh.bounds().map_or([0.0; 3], |(lo, hi)| {
+        std::array::from_fn(|i| 0.5 * (lo[i] + hi[i]))
+    })
 }
 
 /// Why `moves` cannot be made in `scene`, or `Ok`. A move names a mesh of the scene once, is
@@ -242,10 +243,7 @@ mod tests {
         assert!(check(&scene, &[ok]).is_ok());
         let bad = [
             MeshMove::identity(scene.meshes.len() as u32),
-            MeshMove {
-                scale: 0.0,
-                ..ok
-            },
+            MeshMove { scale: 0.0, ..ok },
             MeshMove {
                 rotate: [f32::NAN, 0.0, 0.0],
                 ..ok
@@ -263,7 +261,9 @@ mod tests {
         assert!(animated.animation.is_some());
         assert!(check(&animated, &[MeshMove::identity(0)]).is_err());
         assert!(check(&animated, &[]).is_ok());
-        assert!(!is_valid_matrix(&Mat4::from_scale(Vec3::new(1.0, 1.0, -1.0))));
+        assert!(!is_valid_matrix(&Mat4::from_scale(Vec3::new(
+            1.0, 1.0, -1.0
+        ))));
         assert!(!is_valid_matrix(&Mat4::from_scale(Vec3::ZERO)));
         assert!(is_valid_matrix(&ok.matrix([0.0; 3])));
     }

@@ -133,10 +133,13 @@ impl Objects {
     /// Checks a move a viewer made: a mesh of the scene that may move, and numbers a scene
     /// file's `[[move]]` would pass.
     fn check(&self, m: &MeshMove) -> Result<(), SteerError> {
-        let fixed = self
-            .fixed
-            .get(m.mesh as usize)
-            .ok_or_else(|| bad(format!("no object {}: the scene has {}", m.mesh, self.len())))?;
+        let fixed = self.fixed.get(m.mesh as usize).ok_or_else(|| {
+            bad(format!(
+                "no object {}: the scene has {}",
+                m.mesh,
+                self.len()
+            ))
+        })?;
         if let Some(why) = fixed {
             return Err(bad(why.clone()));
         }
@@ -263,10 +266,17 @@ mod tests {
             scale: 0.5,
             ..MeshMove::identity(ball)
         };
-        assert_eq!(objects.pick(&cam, &[toward], x, y).map(|p| p.mesh), Some(ball));
+        assert_eq!(
+            objects.pick(&cam, &[toward], x, y).map(|p| p.mesh),
+            Some(ball)
+        );
         // Far off the scene: nothing.
         let up = Camera {
-            target: [cam.position[0], cam.position[1] + 10.0, cam.position[2] + 0.1],
+            target: [
+                cam.position[0],
+                cam.position[1] + 10.0,
+                cam.position[2] + 0.1,
+            ],
             ..cam
         };
         assert_eq!(objects.pick(&up, &[], 0.5, 0.5), None);

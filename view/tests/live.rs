@@ -1796,7 +1796,8 @@ async fn an_object_moved_from_the_page_redraws_only_the_maps_it_reaches() {
         'grid: for j in 1..12 {
             for i in 1..16 {
                 let (x, y) = (i as f32 / 16.0, j as f32 / 12.0);
-                c.send(&json!({"type": "object_pick", "x": x, "y": y})).await;
+                c.send(&json!({"type": "object_pick", "x": x, "y": y}))
+                    .await;
                 let o = c.expect("object").await;
                 if o["name"] == "left" {
                     assert!(o["fixed"].is_null(), "{o}");
@@ -1813,8 +1814,17 @@ async fn an_object_moved_from_the_page_redraws_only_the_maps_it_reaches() {
         let (moved, _) = until_revision(&mut c, revision).await;
         let (passes, kept) = maps(&moved);
         assert!(passes >= 1, "the moved box's light draws its map again");
-        assert!(kept >= 1, "the other light's map is kept: {passes} passes, {kept} kept");
-        let moves = c.expect("moves").await;
+        assert!(
+            kept >= 1,
+            "the other light's map is kept: {passes} passes, {kept} kept"
+        );
+        // Every page is told the moves (the welcome's, with none, came first).
+        let moves = loop {
+            let m = c.expect("moves").await;
+            if m["moves"].as_array().is_some_and(|a| !a.is_empty()) {
+                break m;
+            }
+        };
         assert_eq!(moves["moves"][0]["name"], "left", "{moves}");
 
         // A drag moves it further; the session saved renders the frame shown.

@@ -96,7 +96,11 @@ pub enum ConfigError {
         "move {index} is not one this node can make (mesh {mesh} of {meshes}, a finite transform \
          that keeps facing, each mesh once, no animated scene)"
     )]
-    BadMove { index: usize, mesh: u32, meshes: usize },
+    BadMove {
+        index: usize,
+        mesh: u32,
+        meshes: usize,
+    },
     #[error("a band of {bytes} bytes does not fit the link's maximum frame of {max} bytes")]
     BandTooLarge { bytes: u64, max: usize },
     #[error("downstream address is empty")]
@@ -463,6 +467,13 @@ mod tests {
         assert!(!supports(Layer::Radiance, PixelFormat::F32x3));
     }
 
+    /// Mesh `mesh` scaled by `s` about the origin.
+    fn moved(mesh: u32, s: f32) -> lightfold_protocol::WireMove {
+        let mut matrix = [0.0; 16];
+        (matrix[0], matrix[5], matrix[10], matrix[15]) = (s, s, s, 1.0);
+        lightfold_protocol::WireMove { mesh, matrix }
+    }
+
     #[test]
     fn bad_configurations_are_refused_with_their_code() {
         let illum = vec![(Layer::Illumination, PixelFormat::F16x6)];
@@ -553,7 +564,42 @@ mod tests {
                 },
                 |e| matches!(e, ConfigError::MissingShadow(0)),
             ),
+            (
+                NodeConfig {
+                    moves: vec![moved(2, 1.0)],
+                    ..config(illum.clone(), 1)
+                },
+                |e| matches!(e, ConfigError::BadMove { mesh: 2, .. }),
+            ),
+            (
+                NodeConfig {
+                    moves: vec![moved(1, 1.0), moved(1, 2.0)],
+                    ..config(illum.clone(), 1)
+                },
+                |e| matches!(e, ConfigError::BadMove { index: 1, .. }),
+            ),
+            (
+                NodeConfig {
+                    // A mirror turns the mesh's triangles inside out.
+                    moves: vec![moved(0, -1.0)],
+                    ..config(illum.clone(), 1)
+                },
+                |e| matches!(e, ConfigError::BadMove { index: 0, .. }),
+            ),
+            (
+                NodeConfig {
+                    moves: vec![moved(0, f32::NAN)],
+                    ..config(illum.clone(), 1)
+                },
+                |e| matches!(e, ConfigError::BadMove { index: 0, .. }),
+            ),
         ];
+        // A move the scene can make passes.
+        let good = NodeConfig {
+            moves: vec![moved(1, 2.0)],
+            ..config(illum.clone(), 1)
+        };
+        assert!(run(good).is_ok());
         for (i, (c, expected)) in cases.into_iter().enumerate() {
             let e = run(c).expect_err(&format!("case {i} is refused"));
             assert!(expected(&e), "case {i}: {e}");

@@ -108,7 +108,9 @@ impl Core {
             {
                 // Frames asking for it again are sent without it; the viewers take the moves
                 // back.
-                self.notice(format!("cannot move the objects ({e}): they stay where they are"));
+                self.notice(format!(
+                    "cannot move the objects ({e}): they stay where they are"
+                ));
                 self.refused.moves = Some(moves);
                 spec.moves = None;
                 let back = Arc::clone(&self.moves);
@@ -128,8 +130,7 @@ impl Core {
                 .clone()
                 .filter(|l| !super::same_lights(l, &self.scene.lights));
             let moved = spec.moves.clone().filter(|m| **m != *self.moves);
-            if budget.is_some() || spec.refine != self.refine || edit.is_some() || moved.is_some()
-            {
+            if budget.is_some() || spec.refine != self.refine || edit.is_some() || moved.is_some() {
                 // Plan under the new budget or refinement (one re-plan for both), then send this
                 // frame under the new epoch.
                 let mut why = Vec::new();

@@ -70,6 +70,8 @@ struct Sim {
     /// Per epoch, the daemons configured for it; per (epoch, wire frame), those that got it.
     configured: BTreeMap<u64, BTreeSet<String>>,
     got: BTreeMap<(u64, u64), BTreeSet<String>>,
+    /// The newest configuration each node was sent.
+    node_configs: BTreeMap<String, lightfold_protocol::NodeConfig>,
     /// Pings sent, per daemon (heartbeats while the loop configures).
     pings: BTreeMap<String, u32>,
     requested: u64,
@@ -183,6 +185,7 @@ impl Sim {
             seq: 0,
             delivered: Vec::new(),
             configured: BTreeMap::new(),
+            node_configs: BTreeMap::new(),
             got: BTreeMap::new(),
             pings: BTreeMap::new(),
             requested: 0,
@@ -268,6 +271,9 @@ impl Sim {
         if d.mute {
             d.inbox.push(msg);
             return;
+        }
+        if let Message::ConfigureNode(c) = &msg {
+            self.node_configs.insert(to.to_string(), c.clone());
         }
         let d = &self.daemons[to];
         match msg {
@@ -1342,4 +1348,73 @@ fn a_scene_opened_live_is_planned_and_sent_to_every_node() {
         );
     }
     assert_eq!(sim.core.observe().borrow().scene, 2);
+}
+
+/// Objects moved reach every node of each plan as matrices (the nodes keep their scene), also
+/// after a lost node re-plans; the planner sees them moved; a move the loop cannot make is put
+/// back, published, and not tried again.
+#[test]
+fn object_moves_reach_every_node_and_survive_a_lost_node() {
+    use lightfold_scene::moves::MeshMove;
+    let mut sim = Sim::build_with(4, 2, &[], |c| c.max_lights = 64, 4);
+    sim.start();
+    sim.run_plain(Duration::from_secs(1), 3);
+    let hash = sim.core.hash;
+    let mesh = sim.core.scene.meshes.len() as u32 - 1;
+    let moved = MeshMove {
+        translate: [0.1, 0.0, -0.1],
+        rotate: [0.0, 20.0, 0.0],
+        ..MeshMove::identity(mesh)
+    };
+    let moves = Arc::new(vec![moved]);
+    let want = sim.core.scene.move_matrices(&moves)[0].1.to_cols_array();
+    let carried = |sim: &Sim| {
+        let plan = sim.core.plan().unwrap();
+        plan.nodes.iter().all(|n| {
+            let c = &sim.node_configs[&n.node];
+            c.epoch == plan.epoch
+                && c.moves.len() == 1
+                && c.moves[0].mesh == mesh
+                && c.moves[0].matrix == want
+        })
+    };
+    assert!(!carried(&sim), "the control: no move before");
+    let mut spec = |_: u64| FrameSpec {
+        moves: Some(Arc::clone(&moves)),
+        ..FrameSpec::default()
+    };
+    sim.run(Duration::from_secs(3), 8, &mut spec);
+    assert!(carried(&sim), "every node of the plan is sent the move");
+    assert_eq!(sim.core.hash, hash, "the nodes keep their scene");
+    let victim = sim.core.plan().unwrap().nodes[0].node.clone();
+    sim.kill(&victim);
+    sim.run(Duration::from_secs(5), 14, &mut spec);
+    assert!(
+        sim.core
+            .plan()
+            .unwrap()
+            .nodes
+            .iter()
+            .all(|n| n.node != victim)
+    );
+    assert!(carried(&sim), "the move survives the loss");
+
+    // A move of a mesh the scene lacks: put back, published, frames asking again stripped.
+    let status = sim.core.observe();
+    let epochs = sim.core.summary.epochs.len();
+    let bad = Arc::new(vec![moved, MeshMove::identity(9999)]);
+    let mut spec = |_: u64| FrameSpec {
+        moves: Some(Arc::clone(&bad)),
+        ..FrameSpec::default()
+    };
+    sim.run(Duration::from_secs(3), 20, &mut spec);
+    sim.input(Input::RequestsClosed);
+    sim.run_plain(Duration::from_secs(2), 20);
+    sim.assert_all_delivered(20);
+    assert_eq!(sim.core.moves, moves, "the good moves stay");
+    assert_eq!(sim.core.summary.epochs.len(), epochs, "nothing re-planned");
+    let back = status.borrow().moves_put_back.clone();
+    assert_eq!(back.map(|(_, m)| m), Some(Arc::clone(&moves)));
+    let notice = status.borrow().notice.clone().unwrap().1;
+    assert!(notice.contains("cannot move"), "{notice}");
 }
