@@ -408,6 +408,7 @@
     if (orbit) { pending.yaw += orbit[0]; pending.pitch += orbit[1]; queueFlush(); }
     else if (k === '+' || k === '=') { pending.zoom /= ZOOM_PER_NOTCH; queueFlush(); }
     else if (k === '-' || k === '_') { pending.zoom *= ZOOM_PER_NOTCH; queueFlush(); }
+    else if ((k === 'q' || k === 'e' || k === '[' || k === ']') && turnOrScaleObject(k)) { /* sent */ }
     else if (k === 'r') send({ type: 'reset' });
     else if (k === 'p' && anim.span > 0) togglePlay();
     else if (k === ' ') send({ type: 'render' });
@@ -838,6 +839,22 @@
       scale: num('obj-s'),
     });
   });
+  // Keys for the selected object: Q/E turn it 15° about the vertical, [ and ] scale it by
+  // 1/1.1 and 1.1.
+  function turnOrScaleObject(k) {
+    const o = view.object;
+    if (!o || o.fixed) return false;
+    const now = view.moves.find((m) => m.mesh === o.mesh) || { translate: [0, 0, 0], rotate: [0, 0, 0], scale: 1 };
+    const rotate = [...now.rotate];
+    let scale = now.scale;
+    if (k === 'q') rotate[1] += 15;
+    else if (k === 'e') rotate[1] -= 15;
+    else if (k === ']') scale *= 1.1;
+    else scale /= 1.1;
+    rotate[1] = ((rotate[1] + 540) % 360) - 180;
+    send({ type: 'object_set', mesh: o.mesh, translate: now.translate, rotate, scale });
+    return true;
+  }
   $('obj-back').addEventListener('click', () => {
     if (view.object) send({ type: 'object_set', mesh: view.object.mesh });
   });
