@@ -1,8 +1,8 @@
 //! `lightfold view-probe`: measures a live view as a viewer sees it — interaction latency (an
 //! input sent → the first frame showing it arrives), the frame interval, and what serving costs
 //! (encoding time and bytes per frame from the view's `stats`, the coordinator's CPU per frame
-//! with `--pid`). Inputs are orbit steps, or with `--light N` steps of light N dragged across the
-//! view, sent as a drag (`--rate` per second, whatever the frames do) or one at a time after the
+//! with `--pid`). Inputs are orbit steps, or with `--light N` steps of light N (with `--object
+//! M` of object M, the scene's mesh M) dragged across the view, sent as a drag (`--rate` per second, whatever the frames do) or one at a time after the
 //! frame showing the previous one (`--steps`). It also counts the nodes that drew shadow maps
 //! per frame (a light drag in walkthrough mode redraws only its own node's).
 
@@ -32,8 +32,11 @@ pub struct Args {
     pub yaw: f32,
     /// Drag light N (by 1 % of the view's width per input, turning back every 40 inputs)
     /// instead of orbiting the camera.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "object")]
     pub light: Option<u32>,
+    /// Drag object M (the scene's mesh M) the same way instead of orbiting the camera.
+    #[arg(long)]
+    pub object: Option<u32>,
     /// The coordinator's pid, to report its CPU time per frame.
     #[arg(long)]
     pub pid: Option<u32>,
@@ -215,12 +218,18 @@ async fn probe(args: Args) -> anyhow::Result<()> {
             }
             waiting_since = None;
             let id = seen.inputs.len();
-            let m = match args.light {
-                None => json!({"type": "orbit", "yaw_deg": args.yaw, "pitch_deg": 0.0, "id": id}),
-                Some(index) => {
-                    let way = if (id / 40) % 2 == 0 { 1.0 } else { -1.0 };
+            let way = if (id / 40) % 2 == 0 { 1.0 } else { -1.0 };
+            let m = match (args.light, args.object) {
+                (Some(index), _) => {
                     json!({"type": "light_drag", "index": index, "x": 0.01 * way, "y": 0.0,
                            "id": id})
+                }
+                (None, Some(mesh)) => {
+                    json!({"type": "object_drag", "mesh": mesh, "x": 0.01 * way, "y": 0.0,
+                           "id": id})
+                }
+                (None, None) => {
+                    json!({"type": "orbit", "yaw_deg": args.yaw, "pitch_deg": 0.0, "id": id})
                 }
             };
             seen.inputs.push((Instant::now(), None));

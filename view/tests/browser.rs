@@ -5,7 +5,8 @@
 //! the page's other controls: the exposure slider brightens the frame on screen with no render,
 //! the PNG, JPEG and EXR links download the frame, the numeric camera fields set the camera and
 //! field of view on Enter, and camera bookmarks are saved, kept across a reload, recalled and
-//! deleted. Without Chromium the test fails, naming the install step.
+//! deleted; a light's marker and an object (Alt+drag) are dragged and move, and another scene
+//! is opened from the Scene box. Without Chromium the test fails, naming the install step.
 
 mod cdp;
 
@@ -303,6 +304,7 @@ async fn steps(b: &mut Browser, url: &str) -> anyhow::Result<Figures> {
     downloads(b).await?;
     camera_fields_and_bookmarks(b, url).await?;
     light_marker_drag(b).await?;
+    object_drag(b, rect).await?;
     open_scene(b, rect).await?;
     ensure!(
         b.exceptions.is_empty(),
@@ -460,6 +462,43 @@ async fn light_marker_drag(b: &mut Browser) -> anyhow::Result<()> {
     ensure!(
         moved["position"] != before["position"] && moved["position"].is_array(),
         "the light did not move: {before} then {moved}"
+    );
+    Ok(())
+}
+
+/// Alt+drag in the frame picks the object under the pointer and moves it: the page names it,
+/// every page is told its move, and a frame at the new revision reaches the screen.
+async fn object_drag(b: &mut Browser, rect: (f64, f64, f64, f64)) -> anyhow::Result<()> {
+    let state = "(() => { const v = window.lightfoldView; \
+        return { revision: v.revision, unacked: v.unacked, shown: v.displayed?.revision, \
+        object: v.object, moves: v.moves }; })()";
+    let before = b.eval(state).await?;
+    let revision = before["revision"].as_i64().unwrap_or(-1);
+    let (x, y) = (rect.0 + rect.2 * 0.5, rect.1 + rect.3 * 0.6);
+    const ALT: u32 = 1;
+    b.mouse_with("mousePressed", x, y, 1, ALT).await?;
+    b.wait_for("the object under the pointer picked", state, WAIT, |v| {
+        v["object"]["mesh"].is_number()
+    })
+    .await?;
+    for i in 1..=8 {
+        b.mouse_with("mouseMoved", x + 6.0 * i as f64, y, 1, ALT)
+            .await?;
+        tokio::time::sleep(Duration::from_millis(25)).await;
+    }
+    b.mouse_with("mouseReleased", x + 48.0, y, 0, ALT).await?;
+    let moved = b
+        .wait_for("the object moved and its frame shown", state, WAIT, |v| {
+            v["revision"].as_i64().unwrap_or(-1) > revision
+                && v["unacked"].as_u64() == Some(0)
+                && v["shown"].as_i64() >= v["revision"].as_i64()
+                && v["moves"].as_array().is_some_and(|m| !m.is_empty())
+        })
+        .await?;
+    let (picked, listed) = (&moved["object"]["mesh"], &moved["moves"][0]["mesh"]);
+    ensure!(
+        picked == listed && moved["moves"][0]["translate"] != serde_json::json!([0.0, 0.0, 0.0]),
+        "the picked object is not the one moved: {moved}"
     );
     Ok(())
 }

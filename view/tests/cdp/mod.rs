@@ -225,9 +225,22 @@ impl Browser {
 
     /// One mouse event at (`x`, `y`) in CSS pixels.
     pub async fn mouse(&mut self, kind: &str, x: f64, y: f64, buttons: u32) -> anyhow::Result<()> {
+        self.mouse_with(kind, x, y, buttons, 0).await
+    }
+
+    /// [`Browser::mouse`] with keys held (`modifiers`: CDP's bits, 1 = Alt, 8 = Shift).
+    pub async fn mouse_with(
+        &mut self,
+        kind: &str,
+        x: f64,
+        y: f64,
+        buttons: u32,
+        modifiers: u32,
+    ) -> anyhow::Result<()> {
         self.call(
             "Input.dispatchMouseEvent",
             json!({"type": kind, "x": x, "y": y, "button": "left", "buttons": buttons,
+                   "modifiers": modifiers,
                    "clickCount": if kind == "mouseMoved" { 0 } else { 1 }}),
         )
         .await?;
