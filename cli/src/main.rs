@@ -27,6 +27,7 @@ mod plan_cmd;
 mod render_cmd;
 mod soak_cmd;
 mod soak_coordinator;
+mod soak_report;
 mod view_probe_cmd;
 
 #[derive(Debug, Parser)]

@@ -12,22 +12,21 @@
 use crate::demo_cmd::{ANY_PORT, Children, daemon_command, read_listening, write_token};
 use crate::lifecycle::{cpu_seconds, peak_rss_kib, send_signal};
 use crate::out::outln;
+use crate::soak_report::{Report, ReportInput};
 use anyhow::{Context, bail};
 use lightfold_coordinator::control::{
-    ControlOptions, DaemonAddr, FrameResult, FrameSpec, Incident, IncidentKind, Live, LiveSummary,
-    Session,
+    ControlOptions, DaemonAddr, FrameResult, FrameSpec, Live, LiveSummary, Session,
 };
 use lightfold_coordinator::plan::{ClusterSpec, MapSizing, PlanOptions, plan};
 use lightfold_coordinator::run::{FramePath, camera_at};
 use lightfold_net::{Identity, Timeouts};
 use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
-use lightfold_protocol::{Role, stats};
+use lightfold_protocol::Role;
 use lightfold_scene::{Image, Scene};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rustix::process::Signal;
-use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Child, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
@@ -141,26 +140,26 @@ const RESTART_TRIES: u32 = 40;
 /// One daemon of the cluster (its process is `children.0[i]` at the same index).
 #[derive(Debug, Clone)]
 pub(crate) struct DaemonInfo {
-    id: String,
+    pub id: String,
     pub role: &'static str,
     pub addr: String,
     /// Processes started for it.
-    starts: u32,
+    pub starts: u32,
     /// Largest VmHWM (KiB) of its processes so far.
-    hwm_kib: u64,
+    pub hwm_kib: u64,
     /// CPU seconds of its processes that ended.
-    cpu_done: f64,
+    pub cpu_done: f64,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
-enum Kind {
+pub(crate) enum Kind {
     Kill,
     Stop(Duration),
     Term,
 }
 
 impl Kind {
-    fn name(&self) -> &'static str {
+    pub fn name(&self) -> &'static str {
         match self {
             Kind::Kill => "SIGKILL",
             Kind::Stop(_) => "SIGSTOP",
@@ -171,22 +170,22 @@ impl Kind {
 
 /// One injected fault and what the injector saw of it.
 #[derive(Debug, Clone)]
-struct Fault {
-    daemon: usize,
-    kind: Kind,
+pub(crate) struct Fault {
+    pub daemon: usize,
+    pub kind: Kind,
     /// When the signal was sent.
-    at: Instant,
+    pub at: Instant,
     /// SIGKILL / SIGTERM: when the process had exited.
-    exited: Option<Instant>,
+    pub exited: Option<Instant>,
     /// When it runs again: restarted and listening, or continued.
-    resumed: Option<Instant>,
+    pub resumed: Option<Instant>,
     /// The next action (restart or SIGCONT) is due then.
     due: Option<Instant>,
     /// When a frame requested after `resumed` came back with this daemon's report.
-    back: Option<Instant>,
-    restart_tries: u32,
+    pub back: Option<Instant>,
+    pub restart_tries: u32,
     gave_up: bool,
-    notes: Vec<String>,
+    pub notes: Vec<String>,
 }
 
 impl Fault {
@@ -197,10 +196,10 @@ impl Fault {
 
 /// A frame handed over by the event loop.
 #[derive(Debug, Clone)]
-struct Delivery {
-    frame: u64,
-    at: Instant,
-    requested_at: Instant,
+pub(crate) struct Delivery {
+    pub frame: u64,
+    pub at: Instant,
+    pub requested_at: Instant,
     daemons: Vec<String>,
 }
 
@@ -217,13 +216,221 @@ pub(crate) struct Check {
     pub ok: bool,
     pub outside: usize,
     pub channels: usize,
-    energy_ratio: f64,
-    worst: f32,
+    pub energy_ratio: f64,
+    pub worst: f32,
     pub error: Option<String>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let started = Instant::now();
+    let (setup, launcher) = setup(&args)?;
+    if args.coordinator_kills > 0 {
+        return crate::soak_coordinator::run(&args, launcher);
+    }
+    let (scene, nodes, compositors) = (&setup.scene, setup.nodes, setup.compositors);
+    let (w, h) = (scene.camera.width, scene.camera.height);
+    outln!(
+        "soak: scene {:?} {w}x{h}, {} light samples, K = {}: {nodes} render node(s) and \
+         {compositors} compositor(s) on loopback; {} faults, seed {}",
+        scene.name,
+        setup.active,
+        setup.k,
+        args.faults,
+        args.seed
+    );
+
+    let Checker {
+        queue: check_tx,
+        thread: checker,
+        adapter,
+    } = spawn_checker(scene.clone(), setup.path, args.steer_every)?;
+    let mut machine = Machine::probe(adapter);
+
+    let (children, daemons) = launcher.start_cluster(nodes, compositors)?;
+    let addrs: Vec<DaemonAddr> = daemons
+        .iter()
+        .map(|d| DaemonAddr {
+            address: d.addr.clone(),
+            role: if d.role == "node" {
+                Role::Node
+            } else {
+                Role::Compositor
+            },
+            id: Some(d.id.clone()),
+        })
+        .collect();
+    let control = control_options(&args)?;
+
+    let shared = Shared {
+        progress: Arc::default(),
+        run_over: Arc::new(AtomicBool::new(false)),
+        interrupted: Arc::new(AtomicBool::new(false)),
+        stop_feeding: CancellationToken::new(),
+    };
+    let requested = Arc::new(AtomicU64::new(0));
+    let rt = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()?;
+
+    let me = Identity::new(&setup.token, Role::Coordinator, "coordinator");
+    let mut session = rt.block_on(async {
+        let sink = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+        anyhow::Ok(Session::connect(&addrs, sink, None, me, control).await?)
+    })?;
+    outln!(
+        "soak: cluster connected after {:.1} s; injecting faults",
+        started.elapsed().as_secs_f64()
+    );
+
+    let injector = spawn_injector(&args, shared.clone(), launcher, children, daemons)?;
+
+    let run_started = Instant::now();
+    let (run_error, summary) = rt.block_on(drive(
+        &mut session,
+        &setup,
+        args.steer_every,
+        &shared,
+        &requested,
+        check_tx,
+    ));
+    let run_time = run_started.elapsed();
+    shared.run_over.store(true, Ordering::SeqCst);
+    shared.stop_feeding.cancel();
+    let inj = match injector.join() {
+        Ok(inj) => inj,
+        Err(_) => bail!("the fault injector panicked"),
+    };
+    let Injector {
+        mut children,
+        mut daemons,
+        faults,
+        notes,
+        loads,
+        ..
+    } = inj;
+    machine.load = loads;
+    // Every daemon runs (none is stopped): read what each used before shutting them down.
+    for (d, (_, c)) in daemons.iter_mut().zip(children.0.iter_mut()) {
+        if matches!(c.try_wait(), Ok(None)) {
+            d.hwm_kib = d.hwm_kib.max(peak_rss_kib(c.id()));
+            d.cpu_done += cpu_seconds(c.id());
+        }
+    }
+    rt.block_on(session.shutdown());
+    drop(children);
+    drop(rt);
+    let _ = setup.work.close();
+    eprintln!("soak: cluster stopped; waiting for the frame checks");
+    let checks = checker
+        .join()
+        .map_err(|_| anyhow::anyhow!("the frame checker panicked"))??;
+
+    let deliveries = std::mem::take(
+        &mut shared
+            .progress
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .deliveries,
+    );
+    let report = Report::build(&ReportInput {
+        args: &args,
+        scene: &setup.scene,
+        nodes,
+        compositors,
+        control,
+        machine: &machine,
+        requested: requested.load(Ordering::SeqCst),
+        deliveries: &deliveries,
+        checks: &checks,
+        summary: &summary,
+        faults: &faults,
+        daemons: &daemons,
+        run_error: run_error.as_deref(),
+        run_time,
+        notes: &notes,
+        interrupted: shared.interrupted.load(Ordering::SeqCst),
+    });
+    report.print();
+    report.write(&args.out)?;
+    outln!("soak: report written to {}", args.out.display());
+    if !report.failures.is_empty() {
+        bail!("soak failed: {}", report.failures.join("; "));
+    }
+    Ok(())
+}
+
+/// Runs the coordinator's event loop over the orbit until it ends or fails: frames are fed
+/// until `shared.stop_feeding` is cancelled, and each delivered frame is recorded in
+/// `shared.progress` and queued for its check. Returns the loop's error, if any, and what it
+/// did.
+async fn drive(
+    session: &mut Session,
+    setup: &Setup,
+    steer_every: u64,
+    shared: &Shared,
+    requested: &Arc<AtomicU64>,
+    check_tx: std::sync::mpsc::Sender<(u64, Image)>,
+) -> (Option<String>, LiveSummary) {
+    let (tx, rx) = tokio::sync::mpsc::channel::<FrameSpec>(2);
+    let feeder = spawn_feeder(
+        tx,
+        setup.scene.camera,
+        setup.path,
+        steer_every,
+        shared.stop_feeding.clone(),
+        Arc::clone(requested),
+    );
+    let ctrl_c = spawn_interrupt(Arc::clone(&shared.interrupted));
+    let mut live = match Live::new(session, &setup.scene, &setup.plan_opts) {
+        Ok(l) => l,
+        Err(e) => {
+            feeder.abort();
+            ctrl_c.abort();
+            return (Some(e.to_string()), LiveSummary::default());
+        }
+    };
+    let p = Arc::clone(&shared.progress);
+    let on_frame = move |f: FrameResult| {
+        let daemons = f.stats.iter().map(|s| s.daemon_id.clone()).collect();
+        p.lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .deliveries
+            .push(Delivery {
+                frame: f.frame,
+                at: Instant::now(),
+                requested_at: f.requested_at,
+                daemons,
+            });
+        let _ = check_tx.send((f.frame, f.image));
+    };
+    let result = live.run(rx, on_frame).await;
+    feeder.abort();
+    ctrl_c.abort();
+    let summary = std::mem::take(&mut live.summary);
+    (result.err().map(|e| e.to_string()), summary)
+}
+
+/// What the soak runs: the scene at its size, the camera path, the plan options, the cluster
+/// the plan asks for, and the token the daemons share.
+struct Setup {
+    scene: Scene,
+    path: FramePath,
+    plan_opts: PlanOptions,
+    /// Render nodes and compositors the scene's plan uses, with its active samples and K.
+    nodes: usize,
+    compositors: usize,
+    active: usize,
+    k: u32,
+    /// Holds the token file; removed when dropped, also when the soak fails on the way.
+    work: tempfile::TempDir,
+    token: Vec<u8>,
+}
+
+/// Loads the scene as `args` ask, plans it over a cluster large enough for any plan to learn
+/// the cluster to start, and writes the token and the log folder the daemons use; the launcher
+/// starts them.
+fn setup(args: &Args) -> anyhow::Result<(Setup, Launcher)> {
     let mut scene = lightfold_scene::load(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;
     let (w, h) = crate::coordinator_cmd::parse_size(&args.size)?;
@@ -248,7 +455,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let (nodes, compositors) = (probe.nodes.len(), probe.stages.len());
     let logs = args.out.join("logs");
     std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
-    // Removed when dropped, also when the soak fails on the way.
     let work = tempfile::Builder::new()
         .prefix("lightfold-soak-")
         .tempdir()
@@ -264,44 +470,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         logs: logs.clone(),
         gpu_threads: args.gpu_threads,
     };
-    if args.coordinator_kills > 0 {
-        return crate::soak_coordinator::run(&args, launcher);
-    }
-    outln!(
-        "soak: scene {:?} {w}x{h}, {} light samples, K = {}: {nodes} render node(s) and \
-         {compositors} compositor(s) on loopback; {} faults, seed {}",
-        scene.name,
-        probe.active.len(),
-        probe.k,
-        args.faults,
-        args.seed
-    );
+    let setup = Setup {
+        scene,
+        path,
+        plan_opts,
+        nodes,
+        compositors,
+        active: probe.active.len(),
+        k: probe.k,
+        work,
+        token,
+    };
+    Ok((setup, launcher))
+}
 
-    let Checker {
-        queue: check_tx,
-        thread: checker,
-        adapter,
-    } = spawn_checker(scene.clone(), path, args.steer_every)?;
-    let mut machine = Machine::probe(adapter);
-
-    let (children, daemons) = launcher.start_cluster(nodes, compositors)?;
-    let addrs: Vec<DaemonAddr> = daemons
-        .iter()
-        .map(|d| DaemonAddr {
-            address: d.addr.clone(),
-            role: if d.role == "node" {
-                Role::Node
-            } else {
-                Role::Compositor
-            },
-            id: Some(d.id.clone()),
-        })
-        .collect();
+/// The coordinator's deadlines for the soak: generous where daemons start at once on few
+/// cores, and the heartbeat timeout `args` ask for.
+fn control_options(args: &Args) -> anyhow::Result<ControlOptions> {
     let heartbeat_timeout = Duration::try_from_secs_f64(args.heartbeat_timeout)
         .ok()
         .filter(|d| !d.is_zero())
         .context("--heartbeat-timeout is not a positive number of seconds")?;
-    let control = ControlOptions {
+    Ok(ControlOptions {
         link: Timeouts {
             connect: Duration::from_secs(5),
             handshake: Duration::from_secs(10),
@@ -316,186 +506,85 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         // Two daemons may be down at once; wait for one to come back rather than fail.
         wait_for_daemons: Duration::from_secs(60),
         ..ControlOptions::default()
+    })
+}
+
+/// Starts the fault injector's thread over the cluster; it hands its record back when joined.
+fn spawn_injector(
+    args: &Args,
+    shared: Shared,
+    launcher: Launcher,
+    children: Children,
+    daemons: Vec<DaemonInfo>,
+) -> std::io::Result<std::thread::JoinHandle<Injector>> {
+    let cfg = InjectorConfig {
+        faults: args.faults as usize,
+        settle_frames: args.settle_frames,
+        deadline: Instant::now() + Duration::from_secs_f64(args.max_seconds.max(0.0)),
+        seed: args.seed,
     };
+    let seed = args.seed;
+    std::thread::Builder::new()
+        .name("soak-faults".into())
+        .spawn(move || {
+            let mut inj = Injector {
+                cfg,
+                shared,
+                launcher,
+                children,
+                daemons,
+                faults: Vec::new(),
+                rng: ChaCha8Rng::seed_from_u64(seed),
+                seen: 0,
+                notes: Vec::new(),
+                loads: Vec::new(),
+            };
+            inj.run();
+            inj
+        })
+}
 
-    let progress: Arc<Mutex<Progress>> = Arc::default();
-    let run_over = Arc::new(AtomicBool::new(false));
-    let interrupted = Arc::new(AtomicBool::new(false));
-    let stop_feeding = CancellationToken::new();
-    let requested = Arc::new(AtomicU64::new(0));
-    let rt = tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()?;
-
-    let me = Identity::new(&token, Role::Coordinator, "coordinator");
-    let mut session = rt.block_on(async {
-        let sink = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
-        anyhow::Ok(Session::connect(&addrs, sink, None, me, control).await?)
-    })?;
-    outln!(
-        "soak: cluster connected after {:.1} s; injecting faults",
-        started.elapsed().as_secs_f64()
-    );
-
-    let injector = {
-        let cfg = InjectorConfig {
-            faults: args.faults as usize,
-            settle_frames: args.settle_frames,
-            deadline: Instant::now() + Duration::from_secs_f64(args.max_seconds.max(0.0)),
-            seed: args.seed,
-        };
-        let shared = Shared {
-            progress: Arc::clone(&progress),
-            run_over: Arc::clone(&run_over),
-            interrupted: Arc::clone(&interrupted),
-            stop_feeding: stop_feeding.clone(),
-        };
-        std::thread::Builder::new()
-            .name("soak-faults".into())
-            .spawn(move || {
-                let mut inj = Injector {
-                    cfg,
-                    shared,
-                    launcher,
-                    children,
-                    daemons,
-                    faults: Vec::new(),
-                    rng: ChaCha8Rng::seed_from_u64(args.seed),
-                    seen: 0,
-                    notes: Vec::new(),
-                    loads: Vec::new(),
-                };
-                inj.run();
-                inj
-            })?
-    };
-
-    let run_started = Instant::now();
-    let (run_error, summary) = rt.block_on(async {
-        let (tx, rx) = tokio::sync::mpsc::channel::<FrameSpec>(2);
-        let base = scene.camera;
-        let (stop, req) = (stop_feeding.clone(), Arc::clone(&requested));
-        let steer_every = args.steer_every;
-        let feeder = tokio::spawn(async move {
-            for i in 0u32.. {
-                let camera = lightfold_scene::wire::camera_to_wire(&camera_at(&base, path, i));
-                let spec = FrameSpec {
-                    camera: Some(camera),
-                    light_colors: steered_colours(u64::from(i) + 1, steer_every),
-                    time: None,
-                    frame_budget_us: None,
-                    refine: None,
-                    lights: None,
-                    scene: None,
-                    moves: None,
-                };
-                tokio::select! {
-                    biased;
-                    _ = stop.cancelled() => break,
-                    r = tx.send(spec) => if r.is_err() { break },
-                }
-                req.fetch_add(1, Ordering::SeqCst);
+/// Feeds the event loop the frames of the orbit from `base`, with the steered light colours,
+/// counting each in `requested`, until `stop` is cancelled or the loop stops taking them.
+fn spawn_feeder(
+    tx: tokio::sync::mpsc::Sender<FrameSpec>,
+    base: lightfold_scene::Camera,
+    path: FramePath,
+    steer_every: u64,
+    stop: CancellationToken,
+    req: Arc<AtomicU64>,
+) -> tokio::task::JoinHandle<()> {
+    tokio::spawn(async move {
+        for i in 0u32.. {
+            let camera = lightfold_scene::wire::camera_to_wire(&camera_at(&base, path, i));
+            let spec = FrameSpec {
+                camera: Some(camera),
+                light_colors: steered_colours(u64::from(i) + 1, steer_every),
+                time: None,
+                frame_budget_us: None,
+                refine: None,
+                lights: None,
+                scene: None,
+                moves: None,
+            };
+            tokio::select! {
+                biased;
+                _ = stop.cancelled() => break,
+                r = tx.send(spec) => if r.is_err() { break },
             }
-        });
-        let int = Arc::clone(&interrupted);
-        let ctrl_c = tokio::spawn(async move {
-            if tokio::signal::ctrl_c().await.is_ok() {
-                eprintln!("soak: interrupted: no more faults; finishing the frames in flight");
-                int.store(true, Ordering::SeqCst);
-            }
-        });
-        let mut live = match Live::new(&mut session, &scene, &plan_opts) {
-            Ok(l) => l,
-            Err(e) => {
-                feeder.abort();
-                ctrl_c.abort();
-                return (Some(e.to_string()), LiveSummary::default());
-            }
-        };
-        let p = Arc::clone(&progress);
-        let on_frame = move |f: FrameResult| {
-            let daemons = f.stats.iter().map(|s| s.daemon_id.clone()).collect();
-            p.lock()
-                .unwrap_or_else(|e| e.into_inner())
-                .deliveries
-                .push(Delivery {
-                    frame: f.frame,
-                    at: Instant::now(),
-                    requested_at: f.requested_at,
-                    daemons,
-                });
-            let _ = check_tx.send((f.frame, f.image));
-        };
-        let result = live.run(rx, on_frame).await;
-        feeder.abort();
-        ctrl_c.abort();
-        let summary = std::mem::take(&mut live.summary);
-        (result.err().map(|e| e.to_string()), summary)
-    });
-    let run_time = run_started.elapsed();
-    run_over.store(true, Ordering::SeqCst);
-    stop_feeding.cancel();
-    let inj = match injector.join() {
-        Ok(inj) => inj,
-        Err(_) => bail!("the fault injector panicked"),
-    };
-    let Injector {
-        mut children,
-        mut daemons,
-        faults,
-        notes,
-        loads,
-        ..
-    } = inj;
-    machine.load = loads;
-    // Every daemon runs (none is stopped): read what each used before shutting them down.
-    for (d, (_, c)) in daemons.iter_mut().zip(children.0.iter_mut()) {
-        if matches!(c.try_wait(), Ok(None)) {
-            d.hwm_kib = d.hwm_kib.max(peak_rss_kib(c.id()));
-            d.cpu_done += cpu_seconds(c.id());
+            req.fetch_add(1, Ordering::SeqCst);
         }
-    }
-    rt.block_on(session.shutdown());
-    drop(children);
-    drop(rt);
-    let _ = work.close();
-    eprintln!("soak: cluster stopped; waiting for the frame checks");
-    let checks = checker
-        .join()
-        .map_err(|_| anyhow::anyhow!("the frame checker panicked"))??;
+    })
+}
 
-    let deliveries = std::mem::take(
-        &mut progress
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .deliveries,
-    );
-    let report = Report::build(&ReportInput {
-        args: &args,
-        scene: &scene,
-        nodes,
-        compositors,
-        control,
-        machine: &machine,
-        requested: requested.load(Ordering::SeqCst),
-        deliveries: &deliveries,
-        checks: &checks,
-        summary: &summary,
-        faults: &faults,
-        daemons: &daemons,
-        run_error: run_error.as_deref(),
-        run_time,
-        notes: &notes,
-        interrupted: interrupted.load(Ordering::SeqCst),
-    });
-    report.print();
-    report.write(&args.out)?;
-    outln!("soak: report written to {}", args.out.display());
-    if !report.failures.is_empty() {
-        bail!("soak failed: {}", report.failures.join("; "));
-    }
-    Ok(())
+/// On Ctrl-C, marks the soak `interrupted`: no more faults, and the frames in flight finish.
+fn spawn_interrupt(interrupted: Arc<AtomicBool>) -> tokio::task::JoinHandle<()> {
+    tokio::spawn(async move {
+        if tokio::signal::ctrl_c().await.is_ok() {
+            eprintln!("soak: interrupted: no more faults; finishing the frames in flight");
+            interrupted.store(true, Ordering::SeqCst);
+        }
+    })
 }
 
 /// Starts daemon processes the way `demo` does, their stderr appended to OUT/logs/ID.log.
@@ -575,7 +664,7 @@ struct InjectorConfig {
     seed: u64,
 }
 
-#[derive(Debug)]
+#[derive(Debug, Clone)]
 struct Shared {
     progress: Arc<Mutex<Progress>>,
     run_over: Arc<AtomicBool>,
@@ -1057,14 +1146,14 @@ fn compare(frame: u64, test: &Image, want: &Image) -> Check {
 
 /// Where the soak ran.
 #[derive(Debug, Clone, Default)]
-struct Machine {
-    cpu: String,
-    cores: usize,
-    memory_gib: f64,
+pub(crate) struct Machine {
+    pub cpu: String,
+    pub cores: usize,
+    pub memory_gib: f64,
     /// The frame checker's adapter and backend.
-    checker: String,
+    pub checker: String,
     /// 1-minute load averages sampled every second during the run.
-    load: Vec<f64>,
+    pub load: Vec<f64>,
 }
 
 impl Machine {
@@ -1103,693 +1192,9 @@ fn load_average() -> Option<f64> {
         .ok()
 }
 
-struct ReportInput<'a> {
-    args: &'a Args,
-    scene: &'a Scene,
-    nodes: usize,
-    compositors: usize,
-    control: ControlOptions,
-    machine: &'a Machine,
-    requested: u64,
-    deliveries: &'a [Delivery],
-    checks: &'a [Check],
-    summary: &'a LiveSummary,
-    faults: &'a [Fault],
-    daemons: &'a [DaemonInfo],
-    run_error: Option<&'a str>,
-    run_time: Duration,
-    notes: &'a [String],
-    interrupted: bool,
-}
-
-/// What a fault led to, as measured after the run.
-#[derive(Debug)]
-struct Outcome {
-    /// Signal → the coordinator's `Lost` incident for the daemon.
-    lost: Option<Duration>,
-    next_frame: Option<Duration>,
-    fresh_frame: Option<Duration>,
-    back: Option<Duration>,
-}
-
-/// How long a SIGSTOP lasted against the heartbeat timeout.
-#[derive(Debug, Clone, Copy, PartialEq)]
-enum Stall {
-    /// Shorter than the timeout: must not be declared lost.
-    Short,
-    /// At least the timeout but shorter than `sure`: the first unanswered heartbeat may go out
-    /// up to one interval after the stop, so either outcome is right.
-    Window,
-    /// At least the timeout + one heartbeat interval + two loop ticks: must be declared lost.
-    Long,
-}
-
-/// The soak's figures: one table of (metric, value) rows, the per-daemon table, and the
-/// per-fault and per-epoch rows for the CSV files.
-#[derive(Debug, Default)]
-struct Report {
-    title: String,
-    rows: Vec<(String, String)>,
-    daemons: Vec<[String; 6]>,
-    faults: Vec<Vec<String>>,
-    epochs: Vec<Vec<String>>,
-    failures: Vec<String>,
-}
-
-fn ms(d: Duration) -> String {
-    format!("{:.0}", d.as_secs_f64() * 1000.0)
-}
-
-/// "p50 / p95 / max ms (n = …)" of some durations (nearest-rank percentiles).
-fn spread(v: &[Duration]) -> String {
-    let pct = |p| stats::percentile_nearest_rank(v, p);
-    match (pct(0.5), pct(0.95), v.iter().max()) {
-        (Some(a), Some(b), Some(m)) => {
-            format!("{} / {} / {} ms (n = {})", ms(a), ms(b), ms(*m), v.len())
-        }
-        _ => "– (n = 0)".into(),
-    }
-}
-
-/// What an epoch was planned for: the first cause in its reason ("X lost: …", "X rejoined",
-/// "frame failure: …", each maybe followed by "; then …").
-fn replan_cause(reason: &str) -> &'static str {
-    let first = reason.split("; then").next().unwrap_or(reason);
-    if first.starts_with("frame failure") {
-        "frame failure"
-    } else if first.contains(" lost: ") {
-        "loss"
-    } else if first.trim_end().ends_with(" rejoined") {
-        "rejoin"
-    } else if first.starts_with("new light colours") {
-        "steering"
-    } else {
-        "other"
-    }
-}
-
-impl Report {
-    fn build(i: &ReportInput<'_>) -> Report {
-        let mut r = Report::default();
-        let end = Instant::now();
-        let hb = i.control.heartbeat_timeout;
-        let sure = hb + i.control.heartbeat + Duration::from_millis(100);
-        let stall = |k: &Kind| match k {
-            Kind::Stop(d) if *d < hb => Some(Stall::Short),
-            Kind::Stop(d) if *d < sure => Some(Stall::Window),
-            Kind::Stop(_) => Some(Stall::Long),
-            _ => None,
-        };
-        let lost_incidents: Vec<&Incident> = i
-            .summary
-            .incidents
-            .iter()
-            .filter(|x| matches!(x.kind, IncidentKind::Lost { .. }))
-            .collect();
-        let id_of = |f: &Fault| i.daemons[f.daemon].id.as_str();
-        let outcomes: Vec<Outcome> = (0..i.faults.len())
-            .map(|k| {
-                let f = &i.faults[k];
-                // The fault's window on its daemon: from the signal to the next fault on it.
-                let until = i.faults[k + 1..]
-                    .iter()
-                    .find(|g| g.daemon == f.daemon)
-                    .map_or(end, |g| g.at);
-                let lost_at = lost_incidents
-                    .iter()
-                    .find(|x| x.daemon == id_of(f) && x.at >= f.at && x.at < until)
-                    .map(|x| x.at);
-                let first = |p: &dyn Fn(&Delivery) -> bool| {
-                    i.deliveries
-                        .iter()
-                        .find(|d| p(d))
-                        .map(|d| d.at.duration_since(f.at))
-                };
-                Outcome {
-                    lost: lost_at.map(|t| t.duration_since(f.at)),
-                    next_frame: first(&|d| d.at > f.at),
-                    fresh_frame: first(&|d| d.requested_at > f.at),
-                    back: f
-                        .back
-                        .zip(f.resumed)
-                        .map(|(b, r)| b.saturating_duration_since(r)),
-                }
-            })
-            .collect();
-        let pick = |pred: &dyn Fn(&Kind) -> bool, get: &dyn Fn(&Outcome) -> Option<Duration>| {
-            i.faults
-                .iter()
-                .zip(&outcomes)
-                .filter(|(f, _)| pred(&f.kind))
-                .filter_map(|(_, o)| get(o))
-                .collect::<Vec<Duration>>()
-        };
-        let count =
-            |pred: &dyn Fn(&Kind) -> bool| i.faults.iter().filter(|f| pred(&f.kind)).count();
-        let kill = |k: &Kind| *k == Kind::Kill;
-        let term = |k: &Kind| *k == Kind::Term;
-        let stop = |k: &Kind| matches!(k, Kind::Stop(_));
-        let is = |c: Stall| move |k: &Kind| stall(k) == Some(c);
-        let any = |_: &Kind| true;
-        let lost = |o: &Outcome| o.lost;
-        let must_lose = |k: &Kind| !matches!(stall(k), Some(Stall::Short | Stall::Window));
-        let missed: Vec<usize> = i
-            .faults
-            .iter()
-            .zip(&outcomes)
-            .enumerate()
-            .filter(|(_, (f, o))| must_lose(&f.kind) && o.lost.is_none())
-            .map(|(k, _)| k + 1)
-            .collect();
-        let lost_count = |pred: &dyn Fn(&Kind) -> bool| pick(pred, &|o: &Outcome| o.lost).len();
-        // Losses no fault explains: outside [signal, back in a frame] of every fault on it.
-        let explained = |x: &Incident| {
-            i.faults
-                .iter()
-                .any(|f| id_of(f) == x.daemon && x.at >= f.at && x.at <= f.back.unwrap_or(end))
-        };
-        let stray: Vec<&str> = lost_incidents
-            .iter()
-            .filter(|x| !explained(x))
-            .map(|x| x.daemon.as_str())
-            .collect();
-
-        // Frames.
-        let mut numbers: Vec<u64> = i.deliveries.iter().map(|d| d.frame).collect();
-        let out_of_order = numbers.windows(2).filter(|w| w[1] <= w[0]).count();
-        numbers.sort_unstable();
-        let before = numbers.len();
-        numbers.dedup();
-        let duplicated = before - numbers.len();
-        let in_range = numbers.iter().filter(|&&n| n <= i.requested).count() as u64;
-        let lost_frames = i.requested.saturating_sub(in_range);
-        let wrong: Vec<&Check> = i.checks.iter().filter(|c| !c.ok).collect();
-        let unchecked = i.deliveries.len().saturating_sub(i.checks.len());
-        let worst_outside = i
-            .checks
-            .iter()
-            .map(|c| c.outside as f64 / c.channels.max(1) as f64)
-            .fold(0.0f64, f64::max);
-        let worst_energy = i
-            .checks
-            .iter()
-            .map(|c| (c.energy_ratio - 1.0).abs())
-            .fold(0.0f64, f64::max);
-        let causes = |c: &str| {
-            i.summary
-                .epochs
-                .iter()
-                .skip(1)
-                .filter(|e| replan_cause(&e.reason) == c)
-                .count()
-        };
-        let incidents = |p: &dyn Fn(&IncidentKind) -> bool| {
-            i.summary.incidents.iter().filter(|x| p(&x.kind)).count()
-        };
-
-        let (w, h) = (i.scene.camera.width, i.scene.camera.height);
-        let m = i.machine;
-        let load_mean = stats::mean(&m.load).unwrap_or(0.0);
-        let load_max = m.load.iter().copied().fold(0.0f64, f64::max);
-        r.title = format!(
-            "`lightfold soak --faults {} --seed {}{}`: scene {} {w}x{h}, {} light samples, K = {}, \
-             {} render nodes + {} compositors, heartbeat {} ms / timeout {} ms; {} ({} cores, \
-             {:.0} GiB), frames checked on {}",
-            i.args.faults,
-            i.args.seed,
-            if i.args.steer_every > 0 {
-                format!(" --steer-every {}", i.args.steer_every)
-            } else {
-                String::new()
-            },
-            i.scene.name,
-            i.summary.plan.as_ref().map_or(0, |p| p.active.len()),
-            i.args.lights_per_node,
-            i.nodes,
-            i.compositors,
-            i.control.heartbeat.as_millis(),
-            hb.as_millis(),
-            m.cpu,
-            m.cores,
-            m.memory_gib,
-            m.checker
-        );
-        let secs = |d: Duration| format!("{:.2} s", d.as_secs_f64());
-        let mut row = |k: String, v: String| r.rows.push((k, v));
-        row(
-            "faults injected".into(),
-            format!(
-                "{} ({} SIGKILL, {} SIGSTOP, {} SIGTERM)",
-                i.faults.len(),
-                count(&kill),
-                count(&stop),
-                count(&term)
-            ),
-        );
-        row(
-            "SIGSTOP lengths".into(),
-            format!(
-                "{} shorter than {}, {} from {} to {}, {} of {} or more",
-                count(&is(Stall::Short)),
-                secs(hb),
-                count(&is(Stall::Window)),
-                secs(hb),
-                secs(sure),
-                count(&is(Stall::Long)),
-                secs(sure)
-            ),
-        );
-        row(
-            "run time".into(),
-            format!(
-                "{:.1} s{}; load average {load_mean:.1} mean, {load_max:.1} max",
-                i.run_time.as_secs_f64(),
-                if i.interrupted { " (interrupted)" } else { "" }
-            ),
-        );
-        row("frames requested".into(), i.requested.to_string());
-        row("frames delivered".into(), i.deliveries.len().to_string());
-        row("frames lost".into(), lost_frames.to_string());
-        row("frames duplicated".into(), duplicated.to_string());
-        row("frames out of order".into(), out_of_order.to_string());
-        // The session's target: no gap between delivered frames above 2 s plus one frame interval.
-        let gaps: Vec<Duration> = i
-            .deliveries
-            .windows(2)
-            .map(|w| w[1].at.saturating_duration_since(w[0].at))
-            .collect();
-        let typical = stats::median(&gaps).unwrap_or_default();
-        let bar = Duration::from_secs(2) + typical;
-        let largest = gaps.iter().max().copied().unwrap_or_default();
-        row(
-            "largest gap between delivered frames".into(),
-            format!(
-                "{:.2} s (median interval {:.3} s; {} gap(s) over 2 s + one interval)",
-                largest.as_secs_f64(),
-                typical.as_secs_f64(),
-                gaps.iter().filter(|g| **g > bar).count()
-            ),
-        );
-        row(
-            "frames wrong".into(),
-            format!(
-                "{} of {} checked (worst frame: {:.3} % of channels outside the bound; energy \
-                 off by {:.3} %)",
-                wrong.len(),
-                i.checks.len(),
-                worst_outside * 100.0,
-                worst_energy * 100.0
-            ),
-        );
-        row(
-            "frame rate".into(),
-            format!(
-                "{:.2} frames/s over the run",
-                numbers.len() as f64 / i.run_time.as_secs_f64().max(1e-9)
-            ),
-        );
-        row(
-            "detection (p50 / p95 / max): SIGKILL".into(),
-            spread(&pick(&kill, &lost)),
-        );
-        row("detection: SIGTERM".into(), spread(&pick(&term, &lost)));
-        row(
-            format!("detection: SIGSTOP ≥ {}", secs(sure)),
-            spread(&pick(&is(Stall::Long), &lost)),
-        );
-        row(
-            format!("detection: SIGSTOP {}–{}", secs(hb), secs(sure)),
-            format!(
-                "{} ({} of {} declared lost)",
-                spread(&pick(&is(Stall::Window), &lost)),
-                lost_count(&is(Stall::Window)),
-                count(&is(Stall::Window))
-            ),
-        );
-        let exits = |pred: &dyn Fn(&Kind) -> bool| {
-            i.faults
-                .iter()
-                .filter(|f| pred(&f.kind))
-                .filter_map(|f| f.exited.map(|e| e.saturating_duration_since(f.at)))
-                .collect::<Vec<Duration>>()
-        };
-        row(
-            "process exit (signal → reaped): SIGKILL".into(),
-            spread(&exits(&kill)),
-        );
-        row("process exit: SIGTERM".into(), spread(&exits(&term)));
-        row(
-            format!("SIGSTOP < {} ridden out (not declared lost)", secs(hb)),
-            format!(
-                "{} of {} ({} declared lost)",
-                count(&is(Stall::Short)) - lost_count(&is(Stall::Short)),
-                count(&is(Stall::Short)),
-                lost_count(&is(Stall::Short))
-            ),
-        );
-        row(
-            "losses expected but not detected".into(),
-            if missed.is_empty() {
-                "0".into()
-            } else {
-                format!("{} (faults {missed:?})", missed.len())
-            },
-        );
-        row(
-            "losses no fault explains".into(),
-            if stray.is_empty() {
-                "0".into()
-            } else {
-                format!("{} ({})", stray.len(), stray.join(", "))
-            },
-        );
-        row(
-            "recovery (p50 / p95 / max): fault → next frame delivered".into(),
-            spread(&pick(&any, &|o| o.next_frame)),
-        );
-        let fresh = |o: &Outcome| o.fresh_frame;
-        row(
-            "recovery: fault → first frame requested after it delivered".into(),
-            spread(&pick(&any, &fresh)),
-        );
-        row(
-            "recovery to a new frame: SIGKILL".into(),
-            spread(&pick(&kill, &fresh)),
-        );
-        row(
-            "recovery to a new frame: SIGTERM".into(),
-            spread(&pick(&term, &fresh)),
-        );
-        row(
-            format!("recovery to a new frame: SIGSTOP < {}", secs(hb)),
-            spread(&pick(&is(Stall::Short), &fresh)),
-        );
-        row(
-            format!("recovery to a new frame: SIGSTOP ≥ {}", secs(hb)),
-            spread(&pick(
-                &|k| matches!(stall(k), Some(Stall::Window | Stall::Long)),
-                &fresh,
-            )),
-        );
-        row(
-            "fold-back: daemon running again → in a delivered frame".into(),
-            spread(&pick(&any, &|o| o.back)),
-        );
-        row(
-            "faults whose daemon was not folded back".into(),
-            i.faults
-                .iter()
-                .filter(|f| f.back.is_none())
-                .count()
-                .to_string(),
-        );
-        row(
-            "re-plans".into(),
-            format!(
-                "{} ({} after a loss, {} after a rejoin, {} after a frame failure, {} for steered \
-                 colours, {} other)",
-                i.summary.epochs.len().saturating_sub(1),
-                causes("loss"),
-                causes("rejoin"),
-                causes("frame failure"),
-                causes("steering"),
-                causes("other")
-            ),
-        );
-        row(
-            "frame requests sent again".into(),
-            i.summary.rerequested.to_string(),
-        );
-        row(
-            "incidents: Lost / Slow / Rejoined".into(),
-            format!(
-                "{} / {} / {}",
-                lost_incidents.len(),
-                incidents(&|k| matches!(k, IncidentKind::Slow { .. })),
-                incidents(&|k| *k == IncidentKind::Rejoined)
-            ),
-        );
-        row(
-            "restarts that failed (port busy, …)".into(),
-            i.faults
-                .iter()
-                .map(|f| f.restart_tries)
-                .sum::<u32>()
-                .to_string(),
-        );
-        if let Some(e) = i.run_error {
-            row("run error".into(), e.to_string());
-        }
-        for n in i.notes {
-            row("note".into(), n.clone());
-        }
-
-        for d in i.daemons {
-            let faults = i.faults.iter().filter(|f| id_of(f) == d.id).count();
-            r.daemons.push([
-                d.id.clone(),
-                d.role.to_string(),
-                d.starts.to_string(),
-                faults.to_string(),
-                format!("{:.1}", d.hwm_kib as f64 / 1024.0),
-                format!("{:.1}", d.cpu_done),
-            ]);
-        }
-        let t0 = i.faults.first().map_or(end, |f| f.at);
-        let since = |t: Instant| format!("{:.3}", t.saturating_duration_since(t0).as_secs_f64());
-        for (k, (f, o)) in i.faults.iter().zip(&outcomes).enumerate() {
-            let opt = |d: Option<Duration>| d.map_or(String::new(), ms);
-            r.faults.push(vec![
-                (k + 1).to_string(),
-                since(f.at),
-                id_of(f).to_string(),
-                f.kind.name().to_string(),
-                match f.kind {
-                    Kind::Stop(d) => ms(d),
-                    _ => String::new(),
-                },
-                opt(f.exited.map(|e| e.saturating_duration_since(f.at))),
-                opt(f.resumed.map(|e| e.saturating_duration_since(f.at))),
-                opt(o.lost),
-                opt(o.next_frame),
-                opt(o.fresh_frame),
-                opt(o.back),
-                f.notes.join(" | "),
-            ]);
-        }
-        for e in &i.summary.epochs {
-            r.epochs.push(vec![
-                e.epoch.to_string(),
-                since(e.at),
-                ms(e.configure),
-                e.nodes.to_string(),
-                e.stages.to_string(),
-                e.k.to_string(),
-                e.lights_moved.to_string(),
-                e.reason.clone(),
-            ]);
-        }
-
-        let mut fail = |n: usize, what: &str| {
-            if n > 0 {
-                r.failures.push(format!("{n} frame(s) {what}"));
-            }
-        };
-        fail(lost_frames as usize, "lost");
-        fail(duplicated, "delivered twice");
-        fail(out_of_order, "out of order");
-        fail(unchecked, "delivered but not checked");
-        if !wrong.is_empty() {
-            let list: Vec<String> = wrong
-                .iter()
-                .take(5)
-                .map(|c| {
-                    format!(
-                        "frame {}: {} of {} channels outside, energy ratio {:.4}, worst |diff| {}{}",
-                        c.frame,
-                        c.outside,
-                        c.channels,
-                        c.energy_ratio,
-                        c.worst,
-                        c.error.as_deref().map_or(String::new(), |e| format!(", {e}"))
-                    )
-                })
-                .collect();
-            r.failures.push(format!(
-                "{} frame(s) wrong ({})",
-                wrong.len(),
-                list.join("; ")
-            ));
-        }
-        if let Some(e) = i.run_error {
-            r.failures.push(format!("the run failed: {e}"));
-        }
-        r
-    }
-
-    fn print(&self) {
-        outln!("\n{}\n", self.title);
-        let wk = self
-            .rows
-            .iter()
-            .map(|(k, _)| k.chars().count())
-            .max()
-            .unwrap_or(0);
-        for (k, v) in &self.rows {
-            outln!("{k:<wk$}  {v}");
-        }
-        outln!(
-            "\n{:<8} {:<10} {:>9} {:>6} {:>13} {:>8}",
-            "daemon",
-            "role",
-            "processes",
-            "faults",
-            "peak RSS MiB",
-            "CPU s"
-        );
-        for d in &self.daemons {
-            outln!(
-                "{:<8} {:<10} {:>9} {:>6} {:>13} {:>8}",
-                d[0],
-                d[1],
-                d[2],
-                d[3],
-                d[4],
-                d[5]
-            );
-        }
-        for f in &self.failures {
-            outln!("FAILED: {f}");
-        }
-    }
-
-    fn write(&self, dir: &Path) -> anyhow::Result<()> {
-        write_csv(
-            &dir.join("soak.csv"),
-            &["metric", "value"],
-            self.rows.iter().map(|(k, v)| vec![k.clone(), v.clone()]),
-        )?;
-        write_csv(
-            &dir.join("daemons.csv"),
-            &[
-                "daemon",
-                "role",
-                "processes",
-                "faults",
-                "peak_rss_mib",
-                "cpu_s",
-            ],
-            self.daemons.iter().map(|d| d.to_vec()),
-        )?;
-        write_csv(
-            &dir.join("faults.csv"),
-            &[
-                "fault",
-                "at_s",
-                "daemon",
-                "signal",
-                "stall_ms",
-                "exited_ms",
-                "running_again_ms",
-                "detected_ms",
-                "next_frame_ms",
-                "first_new_frame_ms",
-                "folded_back_ms",
-                "notes",
-            ],
-            self.faults.iter().cloned(),
-        )?;
-        write_csv(
-            &dir.join("epochs.csv"),
-            &[
-                "epoch",
-                "at_s",
-                "configure_ms",
-                "nodes",
-                "stages",
-                "k",
-                "lights_moved",
-                "reason",
-            ],
-            self.epochs.iter().cloned(),
-        )?;
-        let mut md = format!("{}\n\n| metric | value |\n|---|---|\n", self.title);
-        for (k, v) in &self.rows {
-            let _ = writeln!(md, "| {} | {} |", md_cell(k), md_cell(v));
-        }
-        md.push_str(
-            "\n| daemon | role | processes | faults | peak RSS (VmHWM, MiB) | CPU s |\n\
-             |---|---|---:|---:|---:|---:|\n",
-        );
-        for d in &self.daemons {
-            let _ = writeln!(md, "| {} |", d.join(" | "));
-        }
-        for f in &self.failures {
-            let _ = writeln!(md, "\n**FAILED:** {}", md_cell(f));
-        }
-        std::fs::write(dir.join("soak.md"), md)?;
-        Ok(())
-    }
-}
-
-fn write_csv(
-    path: &Path,
-    header: &[&str],
-    rows: impl Iterator<Item = Vec<String>>,
-) -> anyhow::Result<()> {
-    let mut w =
-        csv::Writer::from_path(path).with_context(|| format!("cannot write {}", path.display()))?;
-    w.write_record(header)?;
-    for r in rows {
-        w.write_record(&r)?;
-    }
-    w.flush()
-        .with_context(|| format!("cannot write {}", path.display()))
-}
-
-fn md_cell(s: &str) -> String {
-    s.replace('|', "\\|").replace('\n', " ")
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn percentiles_are_nearest_rank() {
-        let v: Vec<Duration> = (1..=20).map(Duration::from_millis).collect();
-        let pct = stats::percentile_nearest_rank::<Duration>;
-        assert_eq!(pct(&v, 0.5), Some(Duration::from_millis(10)));
-        assert_eq!(pct(&v, 0.95), Some(Duration::from_millis(19)));
-        assert_eq!(pct(&v, 1.0), Some(Duration::from_millis(20)));
-        assert_eq!(pct(&[], 0.5), None);
-        assert_eq!(spread(&[]), "– (n = 0)");
-        assert_eq!(spread(&v), "10 / 19 / 20 ms (n = 20)");
-    }
-
-    #[test]
-    fn replans_are_classified_by_their_first_cause() {
-        assert_eq!(
-            replan_cause("node-1 lost: its control link ended: x"),
-            "loss"
-        );
-        assert_eq!(
-            replan_cause("node-1 lost: no answer; then a daemon rejoined"),
-            "loss"
-        );
-        assert_eq!(replan_cause("comp-2 rejoined"), "rejoin");
-        assert_eq!(replan_cause("comp-2 rejoined; then node-1 lost"), "rejoin");
-        assert_eq!(
-            replan_cause("frame failure: comp-1 reported Timeout"),
-            "frame failure"
-        );
-        assert_eq!(
-            replan_cause(
-                "new light colours at frame 41 split the colour group of node-0: re-planning"
-            ),
-            "steering"
-        );
-    }
 
     #[test]
     fn the_comparison_follows_the_link_bound() {

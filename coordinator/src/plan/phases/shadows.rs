@@ -1,0 +1,246 @@
+//! The phases up to the shadow maps: cull the light samples, fit shadow views to the scene and
+//! to each sort-last part, and plan every active sample's maps.
+
+use crate::plan::types::*;
+use crate::plan::{PlanError, cull, geom, shadow};
+use lightfold_scene::shading::V3;
+use lightfold_scene::shadow_views::Probe;
+use lightfold_scene::{LightSample, Scene};
+
+/// The cull phase's output: every light sample of a frame and which of them are rendered.
+pub(super) struct Culled {
+    /// Direct samples, then the virtual point lights of indirect light (planned like the rest).
+    pub(super) samples: Vec<LightSample>,
+    /// Per mesh, its box over the whole animation (`None` where it has none).
+    pub(super) bounds: Vec<Option<geom::Aabb>>,
+    /// The meshes the camera may see.
+    pub(super) receivers: Vec<cull::Receiver>,
+    pub(super) culling: cull::Culling,
+    /// Per sample, whether its light moves.
+    pub(super) moving: Vec<bool>,
+}
+
+/// Culls the samples of `scene`: each is active or dropped for a reason, by the receivers it
+/// reaches and the ε budget, except that a moving light's samples are kept whatever they miss at
+/// rest.
+pub(super) fn cull_samples(scene: &Scene, options: &PlanOptions) -> Culled {
+    let samples = lightfold_reference::indirect::frame_samples(scene);
+    let bounds = geom::mesh_bounds(scene);
+    let receivers = cull::receivers(scene, &bounds);
+    let mut culling = cull::cull(
+        &samples,
+        &receivers,
+        scene.exposure,
+        options.epsilon,
+        options.force_all,
+    );
+    // A moving light's samples reach other receivers at other times: none is culled for what
+    // it misses at rest, and every mesh may cast into its maps.
+    let moving: Vec<bool> = match &scene.animation {
+        None => vec![false; samples.len()],
+        Some(a) => {
+            let moving = a.moving_lights(scene.lights.len());
+            samples
+                .iter()
+                .map(|s| moving.get(s.light as usize).copied().unwrap_or(false))
+                .collect()
+        }
+    };
+    if moving.contains(&true) {
+        cull::keep_moving(&mut culling, &moving, receivers.len());
+    }
+    debug_assert!(
+        {
+            let mut seen = vec![0u8; samples.len()];
+            let dropped = culling.dropped.iter().map(|d| d.0);
+            culling
+                .active
+                .iter()
+                .copied()
+                .chain(dropped)
+                .for_each(|i| seen[i] += 1);
+            seen.iter().all(|&n| n == 1) && culling.lit.len() == samples.len()
+        },
+        "every sample is active or dropped, once"
+    );
+    Culled {
+        samples,
+        bounds,
+        receivers,
+        culling,
+        moving,
+    }
+}
+
+/// What a node fits its shadow views to: the boxes of the meshes it draws, and the points the
+/// mismatch rule measures on them.
+struct ViewFit {
+    boxes: Vec<(V3, V3)>,
+    probes: Vec<Probe>,
+}
+
+/// The fit phase's output: the sort-last parts and what the nodes of the whole scene, or of each
+/// part, fit their shadow views to.
+pub(super) struct Fit {
+    whole: ViewFit,
+    /// Sort-last parts (mesh indices, ascending), none without partitions: every group is
+    /// rendered once per part.
+    pub(super) parts: Vec<Vec<u32>>,
+    /// Per part, whether it holds each mesh, and its own fit.
+    part_fit: Vec<(Vec<bool>, ViewFit)>,
+}
+
+/// Partitions the scene's meshes when `options` asks for parts, and gives the boxes and probes
+/// shadow views are fitted to; an error where a part would be empty.
+pub(super) fn fit_views(
+    scene: &Scene,
+    bounds: &[Option<geom::Aabb>],
+    options: &PlanOptions,
+) -> Result<Fit, PlanError> {
+    let cam = &scene.camera;
+    // The boxes nodes fit shadow views to: every mesh with triangles (node/src/gpu/scene_data.rs),
+    // or a sort-last node's part of them; and where the mismatch rule measures on them, as the
+    // renderer does (`shadow_views::sizing`).
+    let fit_where = |keep: &dyn Fn(usize) -> bool| -> ViewFit {
+        let boxes: Vec<(V3, V3)> = bounds
+            .iter()
+            .zip(&scene.meshes)
+            .enumerate()
+            .filter(|(m, (_, mesh))| keep(*m) && mesh.indices.len() >= 3)
+            .filter_map(|(_, (b, _))| b.map(|b| (b.lo, b.hi)))
+            .collect();
+        let probes = lightfold_scene::shadow_views::probes(cam, &boxes);
+        ViewFit { boxes, probes }
+    };
+    let whole = fit_where(&|_| true);
+    let parts = if options.partitions > 1 {
+        let parts =
+            lightfold_scene::partition::partition_meshes(scene, options.partitions as usize);
+        if parts.iter().any(Vec::is_empty) {
+            return Err(PlanError::InvalidOptions {
+                reason: format!(
+                    "{} partitions of a scene with {} meshes leave a part empty (`scene_for` \
+                     splits meshes too large for a part, but not an animated scene's, nor one an \
+                     emissive-mesh light samples): ask for at most {} partitions",
+                    options.partitions,
+                    scene.meshes.len(),
+                    parts.iter().filter(|p| !p.is_empty()).count()
+                ),
+            });
+        }
+        parts
+    } else {
+        Vec::new()
+    };
+    // A part's nodes fit their maps to the part's own receivers (`Renderer::
+    // set_fit_to_eye_meshes`).
+    let part_fit: Vec<(Vec<bool>, ViewFit)> = parts
+        .iter()
+        .map(|part| {
+            let mut mask = vec![false; scene.meshes.len()];
+            for &m in part {
+                mask[m as usize] = true;
+            }
+            let fit = fit_where(&|m| mask[m]);
+            (mask, fit)
+        })
+        .collect();
+    debug_assert!(
+        parts.is_empty()
+            || (0..scene.meshes.len())
+                .all(|m| part_fit.iter().filter(|(mask, _)| mask[m]).count() == 1),
+        "every mesh is in exactly one part"
+    );
+    Ok(Fit {
+        whole,
+        parts,
+        part_fit,
+    })
+}
+
+/// The shadow phase's output: every active sample's shadow maps, for the whole scene and for
+/// each part's receivers.
+pub(super) struct Shadows {
+    /// Per sample, its maps for the whole scene (`None`: not rendered).
+    pub(super) whole: Vec<Option<ShadowPlan>>,
+    /// Per part and sample, its maps fitted to the part's receivers.
+    pub(super) parts: Vec<Vec<Option<ShadowPlan>>>,
+}
+
+impl Shadows {
+    /// The maps of `lights` (sample indices) that part `part`'s nodes render, or a node of the
+    /// whole scene for `None`.
+    pub(super) fn of(&self, part: Option<usize>, lights: &[usize]) -> Vec<&ShadowPlan> {
+        let maps = part.map_or(&self.whole, |p| &self.parts[p]);
+        lights.iter().filter_map(|&i| maps[i].as_ref()).collect()
+    }
+}
+
+/// Plans the casters, views and map size of every active sample's maps, once for the whole
+/// scene and once per part.
+pub(super) fn plan_shadows(
+    scene: &Scene,
+    options: &PlanOptions,
+    culled: &Culled,
+    fit: &Fit,
+) -> Shadows {
+    let cam = &scene.camera;
+    let Culled {
+        samples,
+        bounds,
+        receivers,
+        culling,
+        moving,
+    } = culled;
+    // Like the node's renderer: moving-light maps are fitted to what the camera sees (cascades
+    // where that spans a deep range); walkthrough maps outlive camera moves, so they cover every
+    // receiver.
+    let fit_camera = (!options.walkthrough).then_some(cam);
+    // Sample i's shadow plan for the whole scene, or for part `p`'s receivers only.
+    let shadow_in = |i: usize, p: Option<usize>| {
+        let in_part = |m: usize| p.is_none_or(|p| fit.part_fit[p].0[m]);
+        let lit: Vec<&cull::Receiver> = culling.lit[i]
+            .iter()
+            .map(|&r| &receivers[r])
+            .filter(|r| in_part(r.mesh))
+            .collect();
+        let view_fit = p.map_or(&fit.whole, |p| &fit.part_fit[p].1);
+        let mut plan = shadow::shadow_plan(
+            &samples[i],
+            &lit,
+            bounds,
+            &view_fit.boxes,
+            fit_camera,
+            &view_fit.probes,
+            cam,
+            options.map_sizing.resolve(&scene.quality),
+            scene.quality.shadow_map_size,
+            options.force_all || moving[i],
+        );
+        // Model only what the scene needs: transmittance maps where a caster lets light through.
+        plan.transmittance = plan
+            .casters
+            .iter()
+            .any(|&m| scene.is_translucent_mesh(m as usize));
+        plan
+    };
+    let shadows_of = |p: Option<usize>| -> Vec<Option<ShadowPlan>> {
+        let mut v = vec![None; samples.len()];
+        for &i in &culling.active {
+            v[i] = Some(shadow_in(i, p));
+        }
+        v
+    };
+    let shadows = Shadows {
+        whole: shadows_of(None),
+        parts: (0..fit.parts.len()).map(|p| shadows_of(Some(p))).collect(),
+    };
+    debug_assert!(
+        std::iter::once(&shadows.whole)
+            .chain(&shadows.parts)
+            .all(|maps| (0..samples.len())
+                .all(|i| maps[i].is_some() == culling.active.binary_search(&i).is_ok())),
+        "exactly the active samples have maps, in every part"
+    );
+    shadows
+}

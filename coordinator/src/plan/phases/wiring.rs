@@ -1,0 +1,294 @@
+//! The topology phase: the compositor stages that sum the nodes' illumination, with or
+//! without sort-last parts, the node plans that feed them, and the frame they are estimated at.
+
+use super::groups::{Assignment, Grouping, Materials};
+use super::shadows::Shadows;
+use crate::plan::group::Group;
+use crate::plan::types::*;
+use crate::plan::{cpu_hosts, topology};
+use lightfold_protocol::{Layer, PixelFormat};
+use lightfold_scene::Scene;
+
+/// The topology phase's output: the compositor stages, the render nodes that feed them and the
+/// frame they are estimated at.
+pub(super) struct Wired {
+    pub(super) stages: Vec<StagePlan>,
+    pub(super) nodes: Vec<NodePlan>,
+    pub(super) placement: MaterialPlacement,
+    /// The sort-last parts the nodes render (mesh indices), none without partitions.
+    pub(super) parts: Vec<Vec<u32>>,
+    /// The estimated frame (µs), and the render nodes that share a machine's CPU cores.
+    pub(super) est_frame_us: u64,
+    pub(super) cpu_shared: Option<CpuShared>,
+}
+
+/// The stages, nodes and material placement of one layout, before the estimate.
+struct Layout {
+    stages: Vec<StagePlan>,
+    nodes: Vec<NodePlan>,
+    placement: MaterialPlacement,
+}
+
+/// Wires the assigned nodes into compositor stages (per part with partitions) that sum the
+/// illumination, apply the material layers and send the result to the sink, and estimates the
+/// frame of those nodes.
+pub(super) fn wire_stages(
+    scene: &Scene,
+    cluster: &ClusterSpec,
+    parts: Vec<Vec<u32>>,
+    grouping: &Grouping,
+    materials: &Materials,
+    assignment: &Assignment,
+    shadows: &Shadows,
+) -> Wired {
+    let layers = &materials.layers;
+    let finish = topology::Finish {
+        mode: materials.mode,
+        ambient: scene.ambient,
+        ambient_layer: layers.iter().any(|l| l.0 == Layer::Ambient),
+        emissive: layers.iter().any(|l| l.0 == Layer::Emissive),
+        material_layers: layers.clone(),
+        material_node: assignment
+            .material_node
+            .map(|m| cluster.nodes[m].id.clone()),
+        fold: materials.fold,
+        exposure: scene.exposure,
+        penumbra: materials.penumbra.clone(),
+    };
+    let Layout {
+        stages,
+        nodes,
+        placement,
+    } = if parts.is_empty() {
+        unpartitioned(cluster, grouping, assignment, shadows, &finish)
+    } else {
+        partitioned(&parts, cluster, grouping, assignment, shadows, &finish)
+    };
+    debug_assert!(
+        {
+            let mut ids: Vec<&str> = nodes.iter().map(|n| n.node.as_str()).collect();
+            ids.sort_unstable();
+            ids.dedup();
+            ids.len() == nodes.len()
+                && ids.len()
+                    == assignment.units.len() + usize::from(assignment.material_node.is_some())
+        },
+        "one node plan per unit, and one for the material layers' own node, each on its own node"
+    );
+    let (est_frame_us, cpu_shared) = cpu_hosts::plan_estimate(&nodes, &cluster.nodes);
+    Wired {
+        stages,
+        nodes,
+        placement,
+        parts,
+        est_frame_us,
+        cpu_shared,
+    }
+}
+
+/// The nodes and stages without partitions: one node per group, and the material layers as
+/// extra targets of the node the topology chooses, or on their own node.
+fn unpartitioned(
+    cluster: &ClusterSpec,
+    grouping: &Grouping,
+    assignment: &Assignment,
+    shadows: &Shadows,
+    finish: &topology::Finish,
+) -> Layout {
+    let Grouping { costs, groups, .. } = grouping;
+    let Assignment {
+        options,
+        on_node,
+        material_node,
+        ..
+    } = assignment;
+    let material_layers = &finish.material_layers;
+    let group_shadows = |g: &Group| shadows.of(None, &g.lights);
+    let illum: Vec<topology::IllumInput> = groups
+        .iter()
+        .zip(on_node)
+        .map(|(g, &n)| topology::IllumInput {
+            node: cluster.nodes[n].id.clone(),
+            color: g.color,
+            layers: vec![(Layer::Illumination, options.formats.node)],
+            cost: costs[n].frame(&group_shadows(g), 0),
+        })
+        .collect();
+    let (stages, node_dst, site) = topology::stages(
+        &illum,
+        finish,
+        &cluster.compositors,
+        options.topology,
+        &options.formats,
+    );
+    let mut nodes: Vec<NodePlan> = groups
+        .iter()
+        .zip(on_node)
+        .zip(node_dst)
+        .map(|((g, &n), (stage, input))| NodePlan {
+            node: cluster.nodes[n].id.clone(),
+            lights: g.lights.clone(),
+            color: g.color,
+            shadows: g
+                .lights
+                .iter()
+                .filter_map(|&i| shadows.whole[i].clone())
+                .collect(),
+            layers: vec![(Layer::Illumination, options.formats.node)],
+            downstream: stage,
+            input_index: input,
+            est_cost_us: costs[n].frame(&group_shadows(g), 0).round() as u64,
+            part: None,
+            scene: None,
+        })
+        .collect();
+    let placement = match (&site, *material_node) {
+        (topology::MaterialSite::Host(h), _) => {
+            // Extra targets: the host's eye pass writes the material layers too.
+            let host = &mut nodes[*h];
+            host.layers.extend(material_layers.iter().copied());
+            let g = &groups[*h];
+            host.est_cost_us = costs[on_node[*h]]
+                .frame(&group_shadows(g), material_layers.len())
+                .round() as u64;
+            MaterialPlacement::ExtraTargets {
+                node: host.node.clone(),
+            }
+        }
+        (topology::MaterialSite::OwnNode((stage, input)), Some(m)) => {
+            nodes.push(NodePlan {
+                node: cluster.nodes[m].id.clone(),
+                lights: Vec::new(),
+                color: [1.0; 3],
+                shadows: Vec::new(),
+                layers: material_layers.clone(),
+                downstream: stage.clone(),
+                input_index: *input,
+                est_cost_us: costs[m].frame(&[], material_layers.len()).round() as u64,
+                part: None,
+                scene: None,
+            });
+            MaterialPlacement::OwnNode {
+                node: cluster.nodes[m].id.clone(),
+            }
+        }
+        (topology::MaterialSite::OwnNode(_), None) => {
+            unreachable!("the topology hosts the material layers whenever no own node is chosen")
+        }
+    };
+    Layout {
+        stages,
+        nodes,
+        placement,
+    }
+}
+
+/// The nodes and stages of a sort-last grid: unit `u = (part, group)` on node `on_node[u]`;
+/// each part's cheapest node also renders its part's eye depth and material layers.
+fn partitioned(
+    parts: &[Vec<u32>],
+    cluster: &ClusterSpec,
+    grouping: &Grouping,
+    assignment: &Assignment,
+    shadows: &Shadows,
+    finish: &topology::Finish,
+) -> Layout {
+    let Grouping { costs, groups, .. } = grouping;
+    let Assignment {
+        options,
+        units,
+        on_node,
+        ..
+    } = assignment;
+    let unit_shadows = |u: usize| {
+        let (p, g) = units[u];
+        shadows.of(p, &groups[g].lights)
+    };
+    // The eye depth (which the penumbra filter's material layers may already name) and the
+    // material layers.
+    let mut host_layers = vec![
+        (Layer::Illumination, options.formats.node),
+        (Layer::Depth, PixelFormat::DepthF32),
+    ];
+    host_layers.extend(
+        finish
+            .material_layers
+            .iter()
+            .copied()
+            .filter(|l| l.0 != Layer::Depth),
+    );
+    let extra = host_layers.len() - 1;
+    // Per part, its units with the cheapest first (it hosts the part's depth and materials).
+    let mut part_units: Vec<Vec<usize>> = vec![Vec::new(); parts.len()];
+    for (u, &(p, _)) in units.iter().enumerate() {
+        part_units[p.expect("partitioned units name their part")].push(u);
+    }
+    let cost_of = |u: usize, layers: usize| costs[on_node[u]].frame(&unit_shadows(u), layers);
+    for list in &mut part_units {
+        if let Some(first) = list
+            .iter()
+            .enumerate()
+            .min_by(|a, b| {
+                cost_of(*a.1, extra)
+                    .total_cmp(&cost_of(*b.1, extra))
+                    .then(a.0.cmp(&b.0))
+            })
+            .map(|(i, _)| i)
+        {
+            let host = list.remove(first);
+            list.insert(0, host);
+        }
+    }
+    let inputs: Vec<Vec<topology::IllumInput>> = part_units
+        .iter()
+        .map(|list| {
+            list.iter()
+                .enumerate()
+                .map(|(j, &u)| topology::IllumInput {
+                    node: cluster.nodes[on_node[u]].id.clone(),
+                    color: groups[units[u].1].color,
+                    layers: if j == 0 {
+                        host_layers.clone()
+                    } else {
+                        vec![(Layer::Illumination, options.formats.node)]
+                    },
+                    cost: cost_of(u, 0),
+                })
+                .collect()
+        })
+        .collect();
+    let (stages, dst) = topology::partition_stages(
+        &inputs,
+        finish,
+        &cluster.compositors,
+        options.topology,
+        &options.formats,
+    );
+    let mut nodes = Vec::with_capacity(units.len());
+    for (p, list) in part_units.iter().enumerate() {
+        for (j, &u) in list.iter().enumerate() {
+            let g = &groups[units[u].1];
+            let (stage, input) = dst[p][j].clone();
+            nodes.push(NodePlan {
+                node: inputs[p][j].node.clone(),
+                lights: g.lights.clone(),
+                color: g.color,
+                shadows: unit_shadows(u).into_iter().cloned().collect(),
+                layers: inputs[p][j].layers.clone(),
+                downstream: stage,
+                input_index: input,
+                est_cost_us: cost_of(u, if j == 0 { extra } else { 0 }).round() as u64,
+                part: Some(p),
+                scene: None,
+            });
+        }
+    }
+    let placement = MaterialPlacement::PerPart {
+        nodes: inputs.iter().map(|p| p[0].node.clone()).collect(),
+    };
+    Layout {
+        stages,
+        nodes,
+        placement,
+    }
+}
