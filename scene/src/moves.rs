@@ -148,22 +148,10 @@ pub fn apply_columns(mesh: &mut Mesh, cols: &[f32; 16]) {
     apply_matrix(mesh, &Mat4::from_cols_array(cols));
 }
 
-/// Transforms `mesh`'s positions by `m`, its normals by the inverse transpose (renormalised)
-/// and its tangents' directions by `m` (renormalised, the handedness kept). `m` is one
-/// [`is_valid_matrix`] accepts.
+/// Transforms `mesh` by `m` (`Mesh::transform`: positions, normals by the inverse transpose,
+/// tangents' directions); `m` is one [`is_valid_matrix`] accepts.
 pub fn apply_matrix(mesh: &mut Mesh, m: &Mat4) {
-    let linear = Mat3::from_mat4(*m);
-    let normal = linear.inverse().transpose();
-    for p in &mut mesh.positions {
-        *p = m.transform_point3(Vec3::from(*p)).to_array();
-    }
-    for n in &mut mesh.normals {
-        *n = (normal * Vec3::from(*n)).normalize_or_zero().to_array();
-    }
-    for t in &mut mesh.tangents {
-        let d = (linear * Vec3::new(t[0], t[1], t[2])).normalize_or_zero();
-        *t = [d.x, d.y, d.z, t[3]];
-    }
+    mesh.transform(&glam::Affine3A::from_mat4(*m));
 }
 
 impl Scene {

@@ -203,8 +203,9 @@ pub fn cylinder(
 
 impl Mesh {
     /// Applies an affine transform in place: positions by `m`, normals by its inverse transpose
-    /// (renormalised), and the winding is flipped when `m` mirrors (negative determinant) so that
-    /// counter-clockwise stays front-facing.
+    /// (renormalised), tangents' directions by its linear part (renormalised; a mirror flips
+    /// their handedness), and the winding is flipped when `m` mirrors (negative determinant) so
+    /// that counter-clockwise stays front-facing.
     pub fn transform(&mut self, m: &glam::Affine3A) {
         let normal_matrix = glam::Mat3::from(m.matrix3).inverse().transpose();
         for p in &mut self.positions {
@@ -213,7 +214,13 @@ impl Mesh {
         for n in &mut self.normals {
             *n = normalize((normal_matrix * glam::Vec3::from(*n)).to_array());
         }
-        if m.matrix3.determinant() < 0.0 {
+        let mirrored = m.matrix3.determinant() < 0.0;
+        for t in &mut self.tangents {
+            let d = normalize((m.matrix3 * glam::Vec3A::new(t[0], t[1], t[2])).to_array());
+            // A mirror turns the bitangent `w·(n × t)` round: its handedness flips.
+            *t = [d[0], d[1], d[2], if mirrored { -t[3] } else { t[3] }];
+        }
+        if mirrored {
             for t in self.indices.chunks_exact_mut(3) {
                 t.swap(1, 2);
             }
