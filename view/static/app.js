@@ -708,34 +708,48 @@
       markers.append(m);
     }
   }
+  // A drag of a light or an object: `d` gathers the pointer's moves as fractions of the frame
+  // (`dx` right, `dy` up) and `flush` sends them, at most once per animation frame and once
+  // more when the button is released.
+  function addDragMove(d, e) {
+    const r = img.getBoundingClientRect();
+    d.dx += (e.clientX - d.x) / Math.max(1, r.width);
+    d.dy -= (e.clientY - d.y) / Math.max(1, r.height);
+    d.x = e.clientX;
+    d.y = e.clientY;
+  }
+  function queueDrag(current, flush) {
+    const d = current();
+    if (d.queued) return;
+    d.queued = true;
+    requestAnimationFrame(() => {
+      const now = current();
+      if (!now) return;
+      now.queued = false;
+      flush();
+    });
+  }
+  function sendLightDrag() {
+    if (lightDrag && (lightDrag.dx || lightDrag.dy)) {
+      send({ type: 'light_drag', index: lightDrag.index, x: lightDrag.dx, y: lightDrag.dy });
+      lightDrag.dx = 0;
+      lightDrag.dy = 0;
+    }
+  }
   window.addEventListener('mousemove', (e) => {
     if (!lightDrag) return;
-    const r = img.getBoundingClientRect();
-    lightDrag.dx += (e.clientX - lightDrag.x) / Math.max(1, r.width);
-    lightDrag.dy -= (e.clientY - lightDrag.y) / Math.max(1, r.height);
-    lightDrag.x = e.clientX;
-    lightDrag.y = e.clientY;
+    addDragMove(lightDrag, e);
     // The marker follows the pointer at once; the light follows in the frames.
     const m = markers.querySelector(`.marker[data-index="${lightDrag.index}"]`);
     if (m) {
       m.style.left = `${parseFloat(m.style.left) + e.movementX}px`;
       m.style.top = `${parseFloat(m.style.top) + e.movementY}px`;
     }
-    if (lightDrag.queued) return;
-    lightDrag.queued = true;
-    requestAnimationFrame(() => {
-      if (!lightDrag) return;
-      lightDrag.queued = false;
-      if (lightDrag.dx || lightDrag.dy) {
-        send({ type: 'light_drag', index: lightDrag.index, x: lightDrag.dx, y: lightDrag.dy });
-        lightDrag.dx = 0;
-        lightDrag.dy = 0;
-      }
-    });
+    queueDrag(() => lightDrag, sendLightDrag);
   });
   window.addEventListener('mouseup', () => {
     if (!lightDrag) return;
-    if (lightDrag.dx || lightDrag.dy) send({ type: 'light_drag', index: lightDrag.index, x: lightDrag.dx, y: lightDrag.dy });
+    sendLightDrag();
     lightDrag = null;
     drawMarkers();
   });
@@ -809,18 +823,8 @@
   }
   window.addEventListener('mousemove', (e) => {
     if (!objDrag) return;
-    const r = img.getBoundingClientRect();
-    objDrag.dx += (e.clientX - objDrag.x) / Math.max(1, r.width);
-    objDrag.dy -= (e.clientY - objDrag.y) / Math.max(1, r.height);
-    objDrag.x = e.clientX;
-    objDrag.y = e.clientY;
-    if (objDrag.queued) return;
-    objDrag.queued = true;
-    requestAnimationFrame(() => {
-      if (!objDrag) return;
-      objDrag.queued = false;
-      sendObjectDrag();
-    });
+    addDragMove(objDrag, e);
+    queueDrag(() => objDrag, sendObjectDrag);
   });
   window.addEventListener('mouseup', () => {
     if (!objDrag) return;

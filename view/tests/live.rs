@@ -87,6 +87,41 @@ fn frame_number(f: &Frame) -> u64 {
     f.header["frame"].as_u64().unwrap()
 }
 
+/// The session saved now (`/scene.toml`, read beside `folder`) renders, single-device, the
+/// cluster's frame `shown`; the scene as it started (`original`) does not (the negative
+/// control: over 50 channels differ by more than 0.05). Returns the saved file's text.
+async fn saved_session_renders(
+    addr: std::net::SocketAddr,
+    delivered: &Delivered,
+    shown: &Frame,
+    folder: Option<&std::path::Path>,
+    original: &Scene,
+) -> String {
+    let (head, body) = http_get(addr, "/scene.toml").await;
+    assert!(
+        head.starts_with("HTTP/1.0 200") || head.starts_with("HTTP/1.1 200"),
+        "{head}"
+    );
+    let text = String::from_utf8(body).unwrap();
+    let saved = lightfold_scene::parse_scene_file(&text, "session.toml", folder).unwrap();
+    let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
+    let frame = delivered_frame(delivered, frame_number(shown));
+    assert_close(
+        &frame,
+        &single_device(&gpu, &saved, true),
+        "the saved session",
+    );
+    let before = single_device(&gpu, original, true);
+    let differs = frame
+        .data
+        .iter()
+        .zip(&before.data)
+        .filter(|(a, b)| (*a - *b).abs() > 0.05)
+        .count();
+    assert!(differs > 50, "the edits changed only {differs} channels");
+    text
+}
+
 /// Frames until one shows `revision`; how many came before it.
 async fn until_revision(c: &mut Client, revision: u64) -> (Frame, usize) {
     let mut before = 0;
@@ -1034,31 +1069,10 @@ async fn a_dragged_light_redraws_only_its_maps_and_the_saved_session_renders_the
                 "color": [1.0, 0.7, 0.4], "samples": 4}}))
             .await;
         let (added, _) = until_revision(&mut c, revision).await;
-        let (head, body) = http_get(addr, "/scene.toml").await;
-        assert!(
-            head.starts_with("HTTP/1.0 200") || head.starts_with("HTTP/1.1 200"),
-            "{head}"
-        );
-        let text = String::from_utf8(body).unwrap();
+        let text = saved_session_renders(addr, &delivered, &added, None, &original).await;
         assert!(text.contains("scene = \"balls\""), "{text}");
         let saved = lightfold_scene::parse_scene_file(&text, "session.toml", None).unwrap();
         assert_eq!(saved.lights.len(), original.lights.len() + 1);
-        let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
-        let frame = delivered_frame(&delivered, frame_number(&added));
-        assert_close(
-            &frame,
-            &single_device(&gpu, &saved, true),
-            "the saved session",
-        );
-        // Negative control: the scene as it started is not that frame.
-        let before = single_device(&gpu, &original, true);
-        let differs = frame
-            .data
-            .iter()
-            .zip(&before.data)
-            .filter(|(a, b)| (*a - *b).abs() > 0.05)
-            .count();
-        assert!(differs > 50, "the edits changed only {differs} channels");
     })
     .await;
 }
@@ -1832,27 +1846,9 @@ async fn an_object_moved_from_the_page_redraws_only_the_maps_it_reaches() {
             .steer(json!({"type": "object_drag", "mesh": left, "x": 0.05, "y": 0.0}))
             .await;
         let (dragged, _) = until_revision(&mut c, revision).await;
-        let (head, body) = http_get(addr, "/scene.toml").await;
-        assert!(head.contains(" 200"), "{head}");
-        let text = String::from_utf8(body).unwrap();
+        let text =
+            saved_session_renders(addr, &delivered, &dragged, Some(&folder), &original).await;
         assert!(text.contains("[[move]]"), "{text}");
-        let saved =
-            lightfold_scene::parse_scene_file(&text, "session.toml", Some(&folder)).unwrap();
-        let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
-        let frame = delivered_frame(&delivered, frame_number(&dragged));
-        assert_close(
-            &frame,
-            &single_device(&gpu, &saved, true),
-            "the saved session",
-        );
-        let before = single_device(&gpu, &original, true);
-        let differs = frame
-            .data
-            .iter()
-            .zip(&before.data)
-            .filter(|(a, b)| (*a - *b).abs() > 0.05)
-            .count();
-        assert!(differs > 50, "the move changed only {differs} channels");
 
         // Moves that cannot be made are refused and change nothing.
         for bad in [
