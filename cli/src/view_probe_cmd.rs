@@ -277,19 +277,21 @@ fn report(
     let (encoded, sent) = (d("frames_encoded").max(1.0), d("frames_sent").max(1.0));
     let delivered = d("frames_delivered");
     println!(
-        "view-probe: {} inputs ({}{}) over {:.1} s, {} frames received, {} delivered by the cluster",
+        "view-probe: {} inputs ({}) over {:.1} s, {} frames received, {} delivered by the cluster",
         seen.inputs.len(),
-        match (args.light, args.steps) {
-            (Some(l), true) => format!("light {l} dragged, one at a time"),
-            (Some(l), false) => format!("light {l} dragged at {} /s", args.rate),
-            (None, _) => String::new(),
-        },
-        if args.light.is_some() {
-            String::new()
-        } else if args.steps {
-            "one at a time".to_string()
-        } else {
-            format!("a drag at {} /s", args.rate)
+        {
+            let what = match (args.light, args.object) {
+                (Some(l), _) => format!("light {l} dragged"),
+                (None, Some(m)) => format!("object {m} dragged"),
+                (None, None) => "a drag".to_string(),
+            };
+            if args.steps && args.light.is_none() && args.object.is_none() {
+                "one at a time".to_string()
+            } else if args.steps {
+                format!("{what}, one at a time")
+            } else {
+                format!("{what} at {} /s", args.rate)
+            }
         },
         sent_for.as_secs_f64(),
         seen.frames.len(),
