@@ -487,7 +487,14 @@ impl Viewer {
         }
         let objects = Arc::clone(&self.hub.scene.borrow().objects);
         let s = self.hub.steer.borrow().clone();
-        match objects.pick(&s.camera, &s.moves, x, y) {
+        // The first pick builds the ray-cast tree (seconds for millions of triangles): off this
+        // worker's other tasks where the runtime has other workers.
+        let pick = || objects.pick(&s.camera, &s.moves, x, y);
+        let picked = match tokio::runtime::Handle::try_current().map(|h| h.runtime_flavor()) {
+            Ok(tokio::runtime::RuntimeFlavor::MultiThread) => tokio::task::block_in_place(pick),
+            _ => pick(),
+        };
+        match picked {
             Some(p) => {
                 let mut v = json::object(&s.object_move(p.mesh), &p.name, p.fixed.as_deref());
                 v["type"] = "object".into();
