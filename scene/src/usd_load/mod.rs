@@ -14,6 +14,7 @@
 
 mod light;
 mod mesh;
+mod motion;
 mod resolve;
 mod walk;
 

@@ -36,7 +36,7 @@ impl<T, E: std::fmt::Display> At<T> for Result<T, E> {
 }
 
 /// Any prim, seen as transformable (its `xformOp` stack, visibility, purpose).
-struct AnyPrim(Prim);
+pub(super) struct AnyPrim(pub Prim);
 
 impl SchemaBase for AnyPrim {
     const KIND: SchemaKind = SchemaKind::ConcreteTyped;
@@ -59,6 +59,19 @@ pub(super) struct Reader<'a> {
     pub has_camera: bool,
     pub emissive_meshes: Vec<usize>,
     pub stage: &'a Stage,
+    /// The stage's time codes, for time-sampled transforms (`super::motion`).
+    pub clock: Clock,
+    /// What time-sampled transforms animate, once one does.
+    pub motion: Option<crate::animation::Animation>,
+    /// Local transforms evaluated for animation so far (bounded).
+    pub evaluations: u64,
+}
+
+/// The stage's time codes: its start and end, and how many make a second.
+pub(super) struct Clock {
+    pub start: f64,
+    pub end: f64,
+    pub per_second: f64,
 }
 
 pub(super) fn convert(
@@ -73,10 +86,29 @@ pub(super) fn convert(
         .open(&root_id)
         .at(&"cannot open the stage")?;
     composition_errors(&stage)?;
-    let time = if stage.has_authored_time_code_range() {
+    let authored = stage.has_authored_time_code_range();
+    let time = if authored {
         TimeCode::new(stage.start_time_code())
     } else {
         TimeCode::EARLIEST
+    };
+    let per_second = stage.time_codes_per_second();
+    let clock = Clock {
+        start: if authored {
+            stage.start_time_code()
+        } else {
+            f64::NEG_INFINITY
+        },
+        end: if authored {
+            stage.end_time_code()
+        } else {
+            f64::INFINITY
+        },
+        per_second: if per_second.is_finite() && per_second > 0.0 {
+            per_second
+        } else {
+            24.0
+        },
     };
     let root = root_frame(&stage, opts)?;
     let mut r = Reader {
@@ -89,15 +121,18 @@ pub(super) fn convert(
         has_camera: false,
         emissive_meshes: Vec::new(),
         stage: &stage,
+        clock,
+        motion: None,
+        evaluations: 0,
     };
     // Depth first, each prim with its parent's world transform, as `Stage::traverse` walks with
     // instance proxies (active, loaded, defined, not abstract), but counted as it goes: nested
     // references can compose exponentially many prims from a few bytes.
-    let mut stack = vec![(sdf::Path::abs_root(), root)];
+    let mut stack = vec![(sdf::Path::abs_root(), root, Rc::new(Vec::new()))];
     let mut walked = 0u64;
-    while let Some((path, frame)) = stack.pop() {
-        let frame = if path == sdf::Path::abs_root() {
-            frame
+    while let Some((path, frame, times)) = stack.pop() {
+        let (frame, times) = if path == sdf::Path::abs_root() {
+            (frame, times)
         } else {
             walked += 1;
             super::count("prims", walked, MAX_PRIMS)?;
@@ -105,8 +140,8 @@ pub(super) fn convert(
             if !PrimPredicate::DEFAULT.matches(status) {
                 continue;
             }
-            match visit(&mut r, &path, frame, root)? {
-                Some(world) => world,
+            match visit(&mut r, &path, frame, &times, root)? {
+                Some(next) => next,
                 None => continue,
             }
         };
@@ -121,23 +156,37 @@ pub(super) fn convert(
         }
         for name in names.iter().rev() {
             if let Ok(child) = path.append_path(name.as_str()) {
-                stack.push((child, frame));
+                stack.push((child, frame, Rc::clone(&times)));
             }
         }
+    }
+    if let Some(mut anim) = r.motion.take() {
+        // A mesh light's samples lie on its mesh, and lights move rigidly with nodes only:
+        // an emissive mesh stays where it is at the start.
+        let before = anim.meshes.len();
+        anim.meshes
+            .retain(|m| !r.emissive_meshes.contains(&(m.mesh as usize)));
+        if anim.meshes.len() < before {
+            r.ignored
+                .insert("time-sampled transforms of emissive meshes (held at the start)".into());
+        }
+        r.scene.animation = Some(anim);
     }
     crate::obj_load::add_emissive_lights(&mut r.scene, &r.emissive_meshes);
     composition_errors(&stage)?;
     Ok((r.scene, r.has_camera))
 }
 
-/// Converts the prim at `path` under its parent's world transform; its own world transform, or
-/// `None` when it and its subtree are not rendered.
+/// Converts the prim at `path` under its parent's world transform (and the time codes its
+/// parent's world transform is sampled at); its own world transform and time codes, or `None`
+/// when it and its subtree are not rendered.
 fn visit(
     r: &mut Reader,
     path: &sdf::Path,
     parent: DMat4,
+    parent_times: &Rc<Vec<f64>>,
     root: DMat4,
-) -> Result<Option<DMat4>, Error> {
+) -> Result<Option<(DMat4, Rc<Vec<f64>>)>, Error> {
     let prim = r.stage.prim(path.clone());
     let type_name = prim
         .type_name()
@@ -164,22 +213,27 @@ fn visit(
         )));
     }
     let local = x.local_to_parent_transform(r.time).at(path)?;
-    let above = if x.resets_xform_stack().at(path)? {
-        root
-    } else {
-        parent
-    };
-    {
-        for op in order.iter().take(64) {
-            let op = op.strip_prefix("!invert!").unwrap_or(op);
-            if op.starts_with("xformOp:") && prim.attribute(op).num_time_samples().at(path)? > 1 {
-                r.ignored.insert(
-                    "time-sampled transforms (read at the start time; not animated)".into(),
-                );
-            }
+    let resets = x.resets_xform_stack().at(path)?;
+    let above = if resets { root } else { parent };
+    // The time codes this prim's world transform is sampled at: its own ops' and, unless it
+    // resets the stack, its parent's.
+    let mut own = Vec::new();
+    for op in order.iter().take(64) {
+        let op = op.strip_prefix("!invert!").unwrap_or(op);
+        let attribute = prim.attribute(op);
+        if op.starts_with("xformOp:") && attribute.num_time_samples().at(path)? > 1 {
+            let span = r.clock.start..=r.clock.end;
+            own.extend(attribute.time_samples_in_interval(span).at(path)?);
         }
     }
+    let times = if own.is_empty() && !resets {
+        Rc::clone(parent_times)
+    } else {
+        let inherited: &[f64] = if resets { &[] } else { parent_times };
+        Rc::new(super::motion::merge(inherited, &own, r.ignored))
+    };
     let world = above * DMat4::from_cols_array(&local.0);
+    let (meshes, lights) = (r.scene.meshes.len(), r.scene.lights.len());
     match type_name.as_str() {
         "Mesh" => super::mesh::read(r, &prim, world)?,
         "Camera" => super::light::camera(r, &prim, world)?,
@@ -202,7 +256,11 @@ fn visit(
             r.ignored.insert(format!("{} prims", truncate(t, 32)));
         }
     }
-    Ok(Some(world))
+    let read = (meshes..r.scene.meshes.len(), lights..r.scene.lights.len());
+    if times.len() >= 2 && (!read.0.is_empty() || !read.1.is_empty()) {
+        super::motion::animate(r, path, &times, world, root, read.0, read.1)?;
+    }
+    Ok(Some((world, times)))
 }
 
 /// Whether `name` is a USD identifier: a letter (Unicode, as USD 24 allows) or `_`, then letters,

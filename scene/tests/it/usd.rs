@@ -575,3 +575,51 @@ fn binary_layers_are_refused_unless_trusted() {
     // Control: text layers are read without it.
     load_usd_with(&data("usd").join("lights.usda"), &unplaced()).unwrap();
 }
+
+/// Time-sampled transforms animate what they place: a mesh under a translated parent and its
+/// own turn, and a light under the parent, posed at any time as USD interpolates the samples
+/// (positions worked out by hand), holding the ends; a mesh without samples stays.
+#[test]
+fn time_sampled_transforms_animate_meshes_and_lights() {
+    let path = data("usd/moving.usda");
+    let scene = load_usd_with(&path, &unplaced()).unwrap();
+    let ignored = ignored_features(&path).unwrap();
+    assert!(
+        !ignored.iter().any(|i| i.contains("time-sampled")),
+        "{ignored:?}"
+    );
+    let anim = scene.animation.as_ref().expect("the stage animates");
+    assert_eq!((anim.nodes.len(), anim.meshes.len(), anim.lights.len()), (2, 1, 1));
+    assert!((anim.duration() - 2.0).abs() < 1e-6, "48 time codes at 24 a second");
+    let blade = scene.meshes.iter().position(|m| m.name == "Blade").unwrap();
+    let floor = scene.meshes.iter().position(|m| m.name == "Floor").unwrap();
+    // The blade's corner (1, 1, 0) at rest: turned about y by 45° per second, shifted by the
+    // parent's translation (linear between its samples).
+    let corner = |t: f32| -> [f32; 3] {
+        let posed = scene.pose_meshes(t);
+        let m = &posed[blade];
+        *m.positions
+            .iter()
+            .min_by(|a, b| (a[1] - 1.0).abs().total_cmp(&(b[1] - 1.0).abs()).then(b[0].total_cmp(&a[0]).reverse()))
+            .unwrap()
+    };
+    let s = std::f32::consts::FRAC_1_SQRT_2;
+    let (c, sn) = (22.5f32.to_radians().cos(), 22.5f32.to_radians().sin());
+    for (t, want) in [
+        (0.0, [1.0, 1.0, 0.0]),
+        (0.5, [1.0 + c, 1.0, -sn]),
+        (1.0, [2.0 + s, 1.0, -s]),
+        (2.0, [2.0, 1.0, 1.0]),
+        (5.0, [2.0, 1.0, 1.0]),
+    ] {
+        let got = corner(t);
+        assert!(close_all(&got, &want, 1e-4), "t = {t}: {got:?}, want {want:?}");
+    }
+    let posed = scene.pose_meshes(1.0);
+    assert_eq!(posed[floor], scene.meshes[floor], "the floor has no samples");
+    // The lamp rides the parent: (0, 3, 0) shifted.
+    let lamp = |t: f32| scene.samples_at(t)[0].position;
+    assert!(close_all(&lamp(0.0), &[0.0, 3.0, 0.0], 1e-5), "{:?}", lamp(0.0));
+    assert!(close_all(&lamp(1.0), &[2.0, 3.0, 0.0], 1e-5), "{:?}", lamp(1.0));
+    assert!(close_all(&lamp(1.5), &[2.0, 3.0, 1.0], 1e-5), "{:?}", lamp(1.5));
+}

@@ -209,6 +209,11 @@ pub fn node_config() -> impl Strategy<Value = NodeConfig> {
             num(),
         ),
         prop::option::of(prop::collection::vec(any::<u32>(), 0..4)),
+        prop::collection::vec(
+            (any::<u32>(), prop::array::uniform16(num()))
+                .prop_map(|(mesh, matrix)| WireMove { mesh, matrix }),
+            0..3,
+        ),
     )
         .prop_map(
             |(
@@ -216,6 +221,7 @@ pub fn node_config() -> impl Strategy<Value = NodeConfig> {
                 (shadows, color, layers, scale, band_height),
                 (camera, walkthrough, downstream, input_index, filter, depth_bias, slope_bias),
                 eye_meshes,
+                moves,
             )| NodeConfig {
                 epoch,
                 scene,
@@ -233,6 +239,7 @@ pub fn node_config() -> impl Strategy<Value = NodeConfig> {
                 depth_bias,
                 slope_bias,
                 eye_meshes,
+                moves,
             },
         )
 }
