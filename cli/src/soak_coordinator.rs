@@ -88,7 +88,11 @@ pub fn run(args: &Args, launcher: Launcher) -> anyhow::Result<()> {
         "soak: {nodes} render node(s), {compositors} compositor(s); the coordinator is killed \
          when {points:?} of {frames} frames are on disk, and resumed"
     );
-    let (seen, starts, mut failures) = run_starts(
+    let Outcome {
+        seen,
+        starts,
+        mut failures,
+    } = run_starts(
         args,
         scene,
         &launcher,
@@ -124,10 +128,18 @@ fn kill_points(seed: u64, kills: u32, frames: u32) -> Vec<usize> {
     points
 }
 
+/// What the coordinator's starts left ([`run_starts`]).
+#[derive(Debug)]
+struct Outcome {
+    /// The frames seen complete on disk, by number.
+    seen: BTreeMap<u64, Seen>,
+    starts: Vec<Start>,
+    failures: Vec<String>,
+}
+
 /// Starts the coordinator over the daemons at `addrs` (render nodes, compositors) and watches
 /// the frame folder, killing it when the next of `points` frames are on disk and starting it
-/// again, until one start exits or the run's time is up. Returns the frames seen, the starts
-/// and the failures found.
+/// again, until one start exits or the run's time is up.
 fn run_starts(
     args: &Args,
     scene: &lightfold_scene::Scene,
@@ -136,7 +148,7 @@ fn run_starts(
     dir: &Path,
     pattern: &FramePattern,
     points: &[usize],
-) -> anyhow::Result<(BTreeMap<u64, Seen>, Vec<Start>, Vec<String>)> {
+) -> anyhow::Result<Outcome> {
     let frames = args.frames;
     let mut seen: BTreeMap<u64, Seen> = BTreeMap::new();
     let mut starts: Vec<Start> = Vec::new();
@@ -191,7 +203,11 @@ fn run_starts(
             }
         }
     }
-    Ok((seen, starts, failures))
+    Ok(Outcome {
+        seen,
+        starts,
+        failures,
+    })
 }
 
 /// Checks every frame is on disk as first seen (none missing, none written again), then each
