@@ -238,7 +238,6 @@ fn fused(
 ) -> Result<BandOut, ComputeError> {
     let cfg = &plan.config;
     let pixels = cfg.width as usize * rows as usize;
-    // One accumulate over illumination-only inputs: add straight from the packed bytes.
     let packed: Vec<Option<PackedIllumination<'_>>> = received
         .iter()
         .map(|layers| {
