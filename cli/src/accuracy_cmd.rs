@@ -7,7 +7,8 @@ use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_quality::accuracy::{
-    self, SweepPlan, TruthOptions, load_or_render_truth, report, run_sweep, run_sweep_with,
+    self, CachedTruth, SweepPlan, TruthOptions, load_or_render_truth, report, run_sweep,
+    run_sweep_with,
 };
 use std::path::PathBuf;
 
@@ -92,6 +93,9 @@ fn scene_label(scene: &str) -> String {
     stem.to_ascii_lowercase()
 }
 
+/// Runs `lightfold accuracy`: the hard cases, the planned comparison, or the sweep of the
+/// scene's settings against its ground truth, written as CSV, Markdown and SVG under the
+/// output folder with the report's headline printed.
 pub fn run(args: Args) -> anyhow::Result<()> {
     if args.hard {
         return run_hard(&args);
@@ -99,40 +103,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.planned {
         return run_planned(&args);
     }
-    let plan = match args.sweep.as_str() {
-        "full" => SweepPlan::full(),
-        "reduced" => SweepPlan::reduced(),
-        "tiny" => SweepPlan::tiny(),
-        other => anyhow::bail!("unknown --sweep {other:?}: full, reduced or tiny"),
-    };
-    let plan = if args.knobs.is_empty() {
-        plan
-    } else {
-        let knobs = args
-            .knobs
-            .iter()
-            .map(|k| {
-                accuracy::Knob::from_name(k).with_context(|| {
-                    format!("unknown knob {k:?}: samples, pattern, map, filter, format, K, grid or penumbra")
-                })
-            })
-            .collect::<anyhow::Result<Vec<_>>>()?;
-        let plan = plan.only(&knobs);
-        let idle: Vec<&str> = knobs
-            .iter()
-            .filter(|k| !plan.varies(**k))
-            .map(|k| k.name())
-            .collect();
-        if !idle.is_empty() {
-            anyhow::bail!(
-                "--sweep {} does not vary {}: use --sweep reduced or full for {}",
-                args.sweep,
-                idle.join(", "),
-                if idle.len() == 1 { "it" } else { "them" }
-            );
-        }
-        plan
-    };
+    let plan = sweep_plan(&args)?;
     let mut scene = lightfold_scene::load(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;
     let (w, h) = crate::coordinator_cmd::parse_size(&args.size)?;
@@ -144,30 +115,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .clone()
         .unwrap_or_else(|| PathBuf::from(DEFAULT_OUT).join(&label));
     std::fs::create_dir_all(&out).with_context(|| format!("cannot create {}", out.display()))?;
-
-    eprintln!(
-        "truth: {}x{}, {} points per area light per pixel…",
-        w, h, args.truth_samples
-    );
-    let truth = load_or_render_truth(
-        &scene,
-        &TruthOptions {
-            samples_per_light: args.truth_samples,
-            cache_dir: Some(cache_dir(&args)),
-        },
-    )?;
-    eprintln!(
-        "truth {} ({}; {:.1} s); floor penumbra PSNR {:.2} dB; {} tie pixels left out",
-        truth.key,
-        if truth.from_cache {
-            "cached"
-        } else {
-            "rendered"
-        },
-        truth.render_seconds,
-        truth.floor.penumbra.map_or(f64::NAN, |p| p.psnr),
-        truth.truth.tie_pixels()
-    );
+    let truth = truth_for(&args, &scene)?;
 
     let gpu = Gpu::new(&GpuOptions::default()).context("no usable GPU")?;
     let points = plan.points(accuracy::Setting::defaults(&scene));
@@ -192,10 +140,105 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     bar.finish_and_clear();
 
+    let command = command_line(&args, &out);
+    let title = sweep_title(&args, &label, (w, h), &gpu.info.name);
+    report::write_csv(&out.join("sweep.csv"), &points)?;
+    report::write_markdown(
+        &out.join("README.md"),
+        &title,
+        &command,
+        &truth,
+        &points,
+        args.target_db,
+    )?;
+    report::write_svg(&out.join("frontier.svg"), &title, &truth, &points)?;
+    let md = report::markdown(&title, &command, &truth, &points, args.target_db);
+    // The headline paragraphs and the pattern table (everything before the table of points).
+    for line in md.lines().take_while(|l| !l.starts_with("| knob")) {
+        outln!("{line}");
+    }
+    outln!(
+        "wrote {}/{{sweep.csv,README.md,frontier.svg}}",
+        out.display()
+    );
+    Ok(())
+}
+
+/// The sweep `--sweep` names, narrowed to the `--knobs` given; an unknown name, or a knob the
+/// sweep does not vary, is an error.
+fn sweep_plan(args: &Args) -> anyhow::Result<SweepPlan> {
+    let plan = match args.sweep.as_str() {
+        "full" => SweepPlan::full(),
+        "reduced" => SweepPlan::reduced(),
+        "tiny" => SweepPlan::tiny(),
+        other => anyhow::bail!("unknown --sweep {other:?}: full, reduced or tiny"),
+    };
+    if args.knobs.is_empty() {
+        return Ok(plan);
+    }
+    let knobs = args
+        .knobs
+        .iter()
+        .map(|k| {
+            accuracy::Knob::from_name(k).with_context(|| {
+                format!(
+                    "unknown knob {k:?}: samples, pattern, map, filter, format, K, grid or penumbra"
+                )
+            })
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let plan = plan.only(&knobs);
+    let idle: Vec<&str> = knobs
+        .iter()
+        .filter(|k| !plan.varies(**k))
+        .map(|k| k.name())
+        .collect();
+    if !idle.is_empty() {
+        anyhow::bail!(
+            "--sweep {} does not vary {}: use --sweep reduced or full for {}",
+            args.sweep,
+            idle.join(", "),
+            if idle.len() == 1 { "it" } else { "them" }
+        );
+    }
+    Ok(plan)
+}
+
+/// Loads the scene's ground truth from the cache or renders it, saying on stderr which and
+/// what it is worth (the floor of the penumbra PSNR, the tie pixels left out).
+fn truth_for(args: &Args, scene: &lightfold_scene::Scene) -> anyhow::Result<CachedTruth> {
+    eprintln!(
+        "truth: {}x{}, {} points per area light per pixel…",
+        scene.camera.width, scene.camera.height, args.truth_samples
+    );
+    let truth = load_or_render_truth(
+        scene,
+        &TruthOptions {
+            samples_per_light: args.truth_samples,
+            cache_dir: Some(cache_dir(args)),
+        },
+    )?;
+    eprintln!(
+        "truth {} ({}; {:.1} s); floor penumbra PSNR {:.2} dB; {} tie pixels left out",
+        truth.key,
+        if truth.from_cache {
+            "cached"
+        } else {
+            "rendered"
+        },
+        truth.render_seconds,
+        truth.floor.penumbra.map_or(f64::NAN, |p| p.psnr),
+        truth.truth.tie_pixels()
+    );
+    Ok(truth)
+}
+
+/// The command that repeats this sweep, as the report quotes it.
+fn command_line(args: &Args, out: &std::path::Path) -> String {
     let threads = std::env::var("LP_NUM_THREADS")
         .map(|t| format!("LP_NUM_THREADS={t} "))
         .unwrap_or_default();
-    let command = format!(
+    format!(
         "{threads}NODEVICE_SELECT=1 lightfold accuracy --scene {} --size {} \
          --truth-samples {} --sweep {}{}{} --repeats {} --out {}",
         args.scene,
@@ -217,7 +260,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
         args.repeats,
         out.display()
-    );
+    )
+}
+
+/// The report's title: the scene, image size, sweep and knobs, and what rendered it.
+fn sweep_title(args: &Args, label: &str, (w, h): (u32, u32), device: &str) -> String {
     let knobs = if args.knobs.is_empty() {
         String::new()
     } else {
@@ -231,30 +278,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         String::new()
     };
-    let title = format!(
-        "{label} ({w}×{h}, {}{knobs}{path} on {})",
-        args.sweep, gpu.info.name
-    );
-    report::write_csv(&out.join("sweep.csv"), &points)?;
-    report::write_markdown(
-        &out.join("README.md"),
-        &title,
-        &command,
-        &truth,
-        &points,
-        args.target_db,
-    )?;
-    report::write_svg(&out.join("frontier.svg"), &title, &truth, &points)?;
-    let md = report::markdown(&title, &command, &truth, &points, args.target_db);
-    // The headline paragraphs and the pattern table (everything before the table of points).
-    for line in md.lines().take_while(|l| !l.starts_with("| knob")) {
-        outln!("{line}");
-    }
-    outln!(
-        "wrote {}/{{sweep.csv,README.md,frontier.svg}}",
-        out.display()
-    );
-    Ok(())
+    format!("{label} ({w}×{h}, {}{knobs}{path} on {device})", args.sweep)
 }
 
 /// `--planned`: the planner's default choice (with this scene's calibration) against the scene

@@ -283,137 +283,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let interrupt = Arc::new(Mutex::new(Interrupt::default()));
     watch_interrupt(Arc::clone(&interrupt));
-    // The coordinator loads the scene again and says what it makes of it (a glTF's ignored
-    // features, geometry sanitised): loaded quietly here, so it is said once.
-    let scene =
-        tracing::subscriber::with_default(tracing::subscriber::NoSubscriber::default(), || {
-            args.job.load_scene()
-        })?;
-    // Plan against a large synthetic cluster to learn what this scene needs: partitioned as the
-    // coordinator will partition it (its nodes, all on this machine, report this machine's
-    // memory), large meshes in chunks.
-    let mut options = args.job.plan_options_for(&scene)?;
-    options.partitions = lightfold_coordinator::plan::partitions_for(
-        &scene,
-        &with_memory(ClusterSpec::local(256, 256)),
-        &options,
-    );
-    let probe_cluster = on_this_machine(ClusterSpec::local(256, 256));
-    let probe = plan(
-        &lightfold_coordinator::plan::scene_for(&scene, &probe_cluster, &options),
-        &probe_cluster,
-        &options,
-    )?;
-    let nodes = probe.nodes.len();
-    let compositors = probe.stages.len();
-    check_processes(&scene, &options, &probe, args.max_processes)?;
-    outln!(
-        "demo: scene {:?} needs {} render node(s) and {} compositor(s); starting them on loopback",
-        scene.name,
-        nodes,
-        compositors
-    );
+    let (scene, nodes, compositors) = size_cluster(&args)?;
     // Removed when dropped: on every way out of this function, errors and panics included.
-    let (temp, dir) = match &args.work_dir {
-        Some(d) => {
-            std::fs::create_dir_all(d).with_context(|| format!("cannot create {}", d.display()))?;
-            (None, d.clone())
-        }
-        None => {
-            let t = tempfile::Builder::new()
-                .prefix("lightfold-demo-")
-                .tempdir()
-                .context("cannot create a temporary directory")?;
-            let path = t.path().to_path_buf();
-            (Some(t), path)
-        }
-    };
+    let (temp, dir) = work_dir(&args)?;
     interrupt.lock().unwrap_or_else(|e| e.into_inner()).temp = temp.as_ref().map(|_| dir.clone());
     let token_path = dir.join("token");
     write_token(&token_path)?;
     let exe = std::env::current_exe().context("cannot find the lightfold executable")?;
-    let mut children = Children(Vec::new());
-    for i in 0..nodes {
-        let id = format!("node-{i}");
-        let mut cmd = daemon_command(&exe, "node", &id, &token_path, &args.daemon_log, ANY_PORT);
-        if args.gpu_threads > 0 {
-            cmd.env("LP_NUM_THREADS", args.gpu_threads.to_string());
-        }
-        if args.metrics {
-            cmd.args(["--metrics-listen", ANY_PORT]);
-        }
-        let child = cmd.spawn().with_context(|| format!("cannot start {id}"))?;
-        children.0.push((id, child));
-    }
-    for i in 0..compositors {
-        let id = format!("comp-{i}");
-        let mut cmd = daemon_command(
-            &exe,
-            "compositor",
-            &id,
-            &token_path,
-            &args.daemon_log,
-            ANY_PORT,
-        );
-        if args.metrics {
-            cmd.args(["--metrics-listen", ANY_PORT]);
-        }
-        let child = cmd.spawn().with_context(|| format!("cannot start {id}"))?;
-        children.0.push((id, child));
-    }
-    let deadline = Instant::now() + Duration::from_secs(30);
-    let mut addrs = Vec::new();
-    for (name, child) in &mut children.0 {
-        addrs.push(read_listening(child, name, deadline)?);
-    }
-    let (node_addrs, comp_addrs) = addrs.split_at(nodes);
-    let cluster = dir.join("cluster.toml");
-    let mut text = String::from("version = 1\nsink_listen = \"127.0.0.1:0\"\n");
-    for (i, a) in node_addrs.iter().enumerate() {
-        text.push_str(&format!("[[node]]\naddress = \"{a}\"\nid = \"node-{i}\"\n"));
-    }
-    for (i, a) in comp_addrs.iter().enumerate() {
-        text.push_str(&format!(
-            "[[compositor]]\naddress = \"{a}\"\nid = \"comp-{i}\"\n"
-        ));
-    }
-    std::fs::write(&cluster, text)?;
-    let mut coord = Command::new(&exe);
-    coord
-        .arg("--log")
-        .arg(&args.daemon_log)
-        .arg("coordinator")
-        .arg("--cluster")
-        .arg(&cluster)
-        .arg("--token-file")
-        .arg(&token_path)
-        // Many daemons opening devices at once on few cores answer slowly at first.
-        .arg("--connect-timeout")
-        .arg("180");
-    // The last plan, for what the comparison below says it compares.
-    let mut job = args.job.clone();
-    let plan_json = job
-        .plan_json
-        .get_or_insert_with(|| dir.join("plan.json"))
-        .clone();
-    job_args(&mut coord, &job);
-    if let Some(addr) = &args.serve {
-        coord.arg("--http").arg(addr);
-        if args.continuous {
-            coord.arg("--continuous");
-        }
-        coord.args(args.view_access.to_args());
-        coord.args(args.refine.to_args());
-        if let Some(dir) = &args.scene_dir {
-            coord.arg("--scene-dir").arg(dir);
-        }
-    }
-    if args.metrics {
-        coord.args(["--metrics-listen", ANY_PORT]);
-    }
-    coord
-        .arg("--parent-pid")
-        .arg(std::process::id().to_string());
+    let mut children = start_daemons(&exe, &args, &token_path, nodes, compositors)?;
+    let cluster = write_cluster(&dir, &mut children, nodes)?;
+    let (mut coord, plan_json) = coordinator_command(&exe, &args, &cluster, &token_path, &dir);
     let mut child = coord
         .stdout(Stdio::inherit())
         .stderr(Stdio::inherit())
@@ -468,69 +347,247 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         return Ok(());
     }
     if !args.no_compare {
-        // The image written is the last frame's: on a camera path, compare it with the
-        // reference seen from that frame's camera.
-        // On an animation, the scene posed at that frame's time.
-        let frames = args.job.frames.max(1);
-        let clock = lightfold_coordinator::run::RunOptions {
-            time: args.job.time,
-            fps: args.job.fps,
-            ..Default::default()
-        };
-        let (mut last, samples) = match clock.time_of(frames - 1) {
-            // (A scene with indirect light is still: its samples include its VPLs.)
-            Some(t) if scene.animation.is_some() => (scene.still_at(t), scene.samples_at(t)),
-            _ => (
-                scene.clone(),
-                lightfold_reference::indirect::frame_samples(&scene),
-            ),
-        };
-        last.camera =
-            lightfold_coordinator::run::camera_at(&scene.camera, args.job.path(), frames - 1);
-        // The samples the cluster rendered: a frame budget or an error target may have lowered
-        // the scene's (the last plan says); the reference sums the same ones on a still scene.
-        let n = samples.len();
-        let (samples, which) = match &rendered {
-            Some(p) if p.samples.len() == n => (samples, format!("the same {n} point samples")),
-            Some(p) if scene.animation.is_none() => (
-                p.samples.clone(),
-                format!(
-                    "the same {} point samples the cluster rendered ({} lowered the scene's {n})",
-                    p.samples.len(),
-                    lowered_by(&args.job)
-                ),
-            ),
-            Some(p) => (
-                samples,
-                format!(
-                    "the scene's {n} point samples (the cluster rendered {}: {} lowered them; \
-                     the error includes that difference)",
-                    p.samples.len(),
-                    lowered_by(&args.job)
-                ),
-            ),
-            None => (samples, format!("the scene's {n} point samples")),
-        };
-        if let Some(p) = rendered.as_ref().filter(|p| p.penumbra_radius > 0) {
-            outln!(
-                "the plan filters the penumbra (radius {}): the difference to the point sum \
-                 below includes the filter's change, made to bring the image nearer the area \
-                 lights the samples stand for{}",
-                p.penumbra_radius,
-                p.target.as_ref().map_or_else(String::new, |t| format!(
-                    " ({:.1} dB penumbra PSNR against their truth expected by {})",
-                    t.expected_db,
-                    if t.calibrated {
-                        "this scene's calibration"
-                    } else {
-                        "the default scene's error model"
-                    }
-                ))
-            );
-        }
-        crate::compare_reference::report(&last, &samples, &which, &args.job.exr, args.job.aa)?;
+        compare_last_frame(&args, &scene, rendered.as_ref())?;
     }
     Ok(())
+}
+
+/// Loads the job's scene and plans it against a large synthetic cluster, returning the scene
+/// with the number of render nodes and compositors the plan uses; says so, and fails when
+/// that is more processes than the demo may start.
+fn size_cluster(args: &Args) -> anyhow::Result<(lightfold_scene::Scene, usize, usize)> {
+    // The coordinator loads the scene again and says what it makes of it (a glTF's ignored
+    // features, geometry sanitised): loaded quietly here, so it is said once.
+    let scene =
+        tracing::subscriber::with_default(tracing::subscriber::NoSubscriber::default(), || {
+            args.job.load_scene()
+        })?;
+    // Plan against a large synthetic cluster to learn what this scene needs: partitioned as the
+    // coordinator will partition it (its nodes, all on this machine, report this machine's
+    // memory), large meshes in chunks.
+    let mut options = args.job.plan_options_for(&scene)?;
+    options.partitions = lightfold_coordinator::plan::partitions_for(
+        &scene,
+        &with_memory(ClusterSpec::local(256, 256)),
+        &options,
+    );
+    let probe_cluster = on_this_machine(ClusterSpec::local(256, 256));
+    let probe = plan(
+        &lightfold_coordinator::plan::scene_for(&scene, &probe_cluster, &options),
+        &probe_cluster,
+        &options,
+    )?;
+    let nodes = probe.nodes.len();
+    let compositors = probe.stages.len();
+    check_processes(&scene, &options, &probe, args.max_processes)?;
+    outln!(
+        "demo: scene {:?} needs {} render node(s) and {} compositor(s); starting them on loopback",
+        scene.name,
+        nodes,
+        compositors
+    );
+    Ok((scene, nodes, compositors))
+}
+
+/// The directory for the token, cluster file and pid list: `--work-dir`, created if missing,
+/// or a fresh temporary directory returned with the guard that removes it.
+fn work_dir(args: &Args) -> anyhow::Result<(Option<tempfile::TempDir>, PathBuf)> {
+    Ok(match &args.work_dir {
+        Some(d) => {
+            std::fs::create_dir_all(d).with_context(|| format!("cannot create {}", d.display()))?;
+            (None, d.clone())
+        }
+        None => {
+            let t = tempfile::Builder::new()
+                .prefix("lightfold-demo-")
+                .tempdir()
+                .context("cannot create a temporary directory")?;
+            let path = t.path().to_path_buf();
+            (Some(t), path)
+        }
+    })
+}
+
+/// Spawns `nodes` render nodes then `compositors` compositors, each on a port the kernel picks;
+/// those already started are stopped when a later one fails to start.
+fn start_daemons(
+    exe: &Path,
+    args: &Args,
+    token_path: &Path,
+    nodes: usize,
+    compositors: usize,
+) -> anyhow::Result<Children> {
+    let mut children = Children(Vec::new());
+    for i in 0..nodes {
+        let id = format!("node-{i}");
+        let mut cmd = daemon_command(exe, "node", &id, token_path, &args.daemon_log, ANY_PORT);
+        if args.gpu_threads > 0 {
+            cmd.env("LP_NUM_THREADS", args.gpu_threads.to_string());
+        }
+        if args.metrics {
+            cmd.args(["--metrics-listen", ANY_PORT]);
+        }
+        let child = cmd.spawn().with_context(|| format!("cannot start {id}"))?;
+        children.0.push((id, child));
+    }
+    for i in 0..compositors {
+        let id = format!("comp-{i}");
+        let mut cmd = daemon_command(
+            exe,
+            "compositor",
+            &id,
+            token_path,
+            &args.daemon_log,
+            ANY_PORT,
+        );
+        if args.metrics {
+            cmd.args(["--metrics-listen", ANY_PORT]);
+        }
+        let child = cmd.spawn().with_context(|| format!("cannot start {id}"))?;
+        children.0.push((id, child));
+    }
+    Ok(children)
+}
+
+/// Waits (30 s at most) for every daemon to say where it listens, then writes the cluster file
+/// naming them into `dir` and returns its path; the first `nodes` children are render nodes.
+fn write_cluster(dir: &Path, children: &mut Children, nodes: usize) -> anyhow::Result<PathBuf> {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let mut addrs = Vec::new();
+    for (name, child) in &mut children.0 {
+        addrs.push(read_listening(child, name, deadline)?);
+    }
+    let (node_addrs, comp_addrs) = addrs.split_at(nodes);
+    let cluster = dir.join("cluster.toml");
+    let mut text = String::from("version = 1\nsink_listen = \"127.0.0.1:0\"\n");
+    for (i, a) in node_addrs.iter().enumerate() {
+        text.push_str(&format!("[[node]]\naddress = \"{a}\"\nid = \"node-{i}\"\n"));
+    }
+    for (i, a) in comp_addrs.iter().enumerate() {
+        text.push_str(&format!(
+            "[[compositor]]\naddress = \"{a}\"\nid = \"comp-{i}\"\n"
+        ));
+    }
+    std::fs::write(&cluster, text)?;
+    Ok(cluster)
+}
+
+/// The coordinator's command line for the job over the cluster file, and the path its last
+/// plan is written to (`--plan-json`, in `dir` unless the job names one).
+fn coordinator_command(
+    exe: &Path,
+    args: &Args,
+    cluster: &Path,
+    token_path: &Path,
+    dir: &Path,
+) -> (Command, PathBuf) {
+    let mut coord = Command::new(exe);
+    coord
+        .arg("--log")
+        .arg(&args.daemon_log)
+        .arg("coordinator")
+        .arg("--cluster")
+        .arg(cluster)
+        .arg("--token-file")
+        .arg(token_path)
+        // Many daemons opening devices at once on few cores answer slowly at first.
+        .arg("--connect-timeout")
+        .arg("180");
+    // The last plan, for what the comparison below says it compares.
+    let mut job = args.job.clone();
+    let plan_json = job
+        .plan_json
+        .get_or_insert_with(|| dir.join("plan.json"))
+        .clone();
+    job_args(&mut coord, &job);
+    if let Some(addr) = &args.serve {
+        coord.arg("--http").arg(addr);
+        if args.continuous {
+            coord.arg("--continuous");
+        }
+        coord.args(args.view_access.to_args());
+        coord.args(args.refine.to_args());
+        if let Some(dir) = &args.scene_dir {
+            coord.arg("--scene-dir").arg(dir);
+        }
+    }
+    if args.metrics {
+        coord.args(["--metrics-listen", ANY_PORT]);
+    }
+    coord
+        .arg("--parent-pid")
+        .arg(std::process::id().to_string());
+    (coord, plan_json)
+}
+
+/// Compares the image the cluster wrote (the last frame's) with the CPU reference for that
+/// frame, summing the samples the last plan says the cluster rendered where they can stand in
+/// for the scene's.
+fn compare_last_frame(
+    args: &Args,
+    scene: &lightfold_scene::Scene,
+    rendered: Option<&Plan>,
+) -> anyhow::Result<()> {
+    // The image written is the last frame's: on a camera path, compare it with the
+    // reference seen from that frame's camera.
+    // On an animation, the scene posed at that frame's time.
+    let frames = args.job.frames.max(1);
+    let clock = lightfold_coordinator::run::RunOptions {
+        time: args.job.time,
+        fps: args.job.fps,
+        ..Default::default()
+    };
+    let (mut last, samples) = match clock.time_of(frames - 1) {
+        // (A scene with indirect light is still: its samples include its VPLs.)
+        Some(t) if scene.animation.is_some() => (scene.still_at(t), scene.samples_at(t)),
+        _ => (
+            scene.clone(),
+            lightfold_reference::indirect::frame_samples(scene),
+        ),
+    };
+    last.camera = lightfold_coordinator::run::camera_at(&scene.camera, args.job.path(), frames - 1);
+    // The samples the cluster rendered: a frame budget or an error target may have lowered
+    // the scene's (the last plan says); the reference sums the same ones on a still scene.
+    let n = samples.len();
+    let (samples, which) = match rendered {
+        Some(p) if p.samples.len() == n => (samples, format!("the same {n} point samples")),
+        Some(p) if scene.animation.is_none() => (
+            p.samples.clone(),
+            format!(
+                "the same {} point samples the cluster rendered ({} lowered the scene's {n})",
+                p.samples.len(),
+                lowered_by(&args.job)
+            ),
+        ),
+        Some(p) => (
+            samples,
+            format!(
+                "the scene's {n} point samples (the cluster rendered {}: {} lowered them; \
+                 the error includes that difference)",
+                p.samples.len(),
+                lowered_by(&args.job)
+            ),
+        ),
+        None => (samples, format!("the scene's {n} point samples")),
+    };
+    if let Some(p) = rendered.filter(|p| p.penumbra_radius > 0) {
+        outln!(
+            "the plan filters the penumbra (radius {}): the difference to the point sum \
+             below includes the filter's change, made to bring the image nearer the area \
+             lights the samples stand for{}",
+            p.penumbra_radius,
+            p.target.as_ref().map_or_else(String::new, |t| format!(
+                " ({:.1} dB penumbra PSNR against their truth expected by {})",
+                t.expected_db,
+                if t.calibrated {
+                    "this scene's calibration"
+                } else {
+                    "the default scene's error model"
+                }
+            ))
+        );
+    }
+    crate::compare_reference::report(&last, &samples, &which, &args.job.exr, args.job.aa)
 }
 
 /// The plan a coordinator wrote with `--plan-json`, `None` (said at debug level) when it cannot

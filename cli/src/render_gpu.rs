@@ -51,62 +51,17 @@ fn medians(rows: &[[u64; 3]]) -> [u64; 3] {
     })
 }
 
+/// Renders `args.frames` frames of the scene's samples on one local GPU (as sort-last parts
+/// with `--partitions`), printing each frame's costs with `--timings`, then writes the last
+/// frame's radiance and the images asked for besides.
 pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Result<()> {
     // With partitions, meshes too large for a part in chunks, as the cluster splits them.
     let chunked = (args.partitions > 1)
         .then(|| lightfold_scene::partition::chunk_for_parts(scene, args.partitions as usize))
         .flatten();
     let scene = chunked.as_ref().unwrap_or(scene);
-    let backend = args
-        .backend
-        .as_deref()
-        .map(parse_backend)
-        .transpose()
-        .context("bad --backend")?;
-    let gpu = Gpu::new(&GpuOptions {
-        backend,
-        adapter_name: args.adapter.clone(),
-    })
-    .context(
-        "no usable GPU (install a Vulkan driver: mesa-vulkan-drivers gives lavapipe on the CPU; \
-         or render with --reference on the CPU)",
-    )?;
-    // `--shadow-map-size` is in the scene's quality already (checked against the limits); the
-    // size comes from the rule the cluster's planner applies, so both render the same maps.
-    let mut opts = RenderOptions::from_quality(&scene.quality);
-    if let Some(n) = lightfold_coordinator::plan::MapSizing::Scene.uniform_size(&scene.quality) {
-        opts.shadow_map_size = n;
-    }
-    opts.walkthrough = args.walkthrough;
-    let k = args
-        .k
-        .unwrap_or(scene.quality.lights_per_node)
-        .clamp(1, gpu.max_lights(opts.shadow_map_size).max(1)) as usize;
-    let mut renderer = Renderer::new(&gpu, scene, opts)?;
-    if args.forward {
-        renderer.set_variant(EyeVariant::Forward);
-    }
+    let (gpu, mut renderer, k) = open_renderer(args, scene, samples)?;
     let frames = args.frames.max(1);
-    if args.timings {
-        outln!(
-            "adapter {} ({:?}), {:?} eye pass, {}x{} (--aa {}), {} samples, K = {k}, {} maps, \
-             {} batch(es)",
-            gpu.info.name,
-            gpu.info.backend,
-            renderer.frame_variant(&gpu, scene.camera.width, scene.camera.height),
-            scene.camera.width,
-            scene.camera.height,
-            args.aa,
-            samples.len(),
-            match opts.map_sizing {
-                lightfold_scene::MapSizing::Fixed => format!("{}²", opts.shadow_map_size),
-                lightfold_scene::MapSizing::Mismatch(m) =>
-                    format!("mismatch-sized (m = {}, {}²–{}²)", m.target, m.min, m.max),
-            },
-            samples.len().div_ceil(k).max(1)
-        );
-        outln!("frame  shadow_passes  shadow_ms  eye_ms  readback_ms  total_ms");
-    }
     let mut image = None;
     // Per-batch costs after the first frame (which also compiles shaders and allocates), without
     // each frame's first batch (which also renders the material layers).
@@ -171,54 +126,9 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
         image = Some(radiance);
     }
     if args.timings {
-        let p = &views_per_light;
-        let sum: u32 = p.iter().sum();
-        outln!(
-            "shadow views per light: min {}, mean {:.2}, max {} ({sum} in all)",
-            p.iter().min().unwrap_or(&0),
-            sum as f64 / p.len().max(1) as f64,
-            p.iter().max().unwrap_or(&0)
-        );
+        print_steady(k, frames, &views_per_light, &steady, steady_frames);
     }
-    if args.timings && !steady.is_empty() {
-        let [s, e, r] = medians(&steady);
-        let which = match frames {
-            1 => "the only frame".to_string(),
-            2 => "frame 1".to_string(),
-            n => format!("each of frames 1–{}", n - 1),
-        };
-        let warm = if frames == 1 {
-            ""
-        } else {
-            "frame 0 warms up; "
-        };
-        outln!(
-            "node frame (K = {k}, illumination only): median of {} batches, {} in {which} \
-             ({warm}each frame's first batch, which also renders the materials, is left out): \
-             shadow {:.1} ms, eye {:.1} ms, readback {:.1} ms, total {:.1} ms",
-            steady.len(),
-            steady.len() / steady_frames.max(1),
-            s as f64 / 1e3,
-            e as f64 / 1e3,
-            r as f64 / 1e3,
-            (s + e + r) as f64 / 1e3
-        );
-    }
-    let (radiance, depth) = image.expect("at least one frame");
-    // `--aa N`: the frame is N·W × N·H; resolve the final radiance (after the material
-    // combine) and the depth to the requested size. N = 1 leaves both as rendered.
-    let radiance = radiance.box_resolve(args.aa)?;
-    let depth = depth.nearest_depth_resolve(args.aa)?;
-    radiance.write_exr(&args.out)?;
-    let png = png_next_to(&args.out);
-    radiance.write_png(&png, scene.exposure)?;
-    if let Some(path) = &args.depth_out {
-        let mut rgb = Image::new(depth.width, depth.height, 3);
-        for (o, &z) in rgb.data.chunks_exact_mut(3).zip(&depth.data) {
-            o.fill(z);
-        }
-        rgb.write_exr(path)?;
-    }
+    let png = write_images(args, scene, image.expect("at least one frame"))?;
     if let Some(path) = &args.unoccluded_out {
         let none = vec![Vec::new(); samples.len()];
         let ((open, _), _) = render_frame(&gpu, &mut renderer, scene, samples, k, Some(&none), 0)?;
@@ -240,6 +150,135 @@ pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Re
         }
     );
     Ok(())
+}
+
+/// Opens the GPU the flags ask for and a renderer for the scene at the shadow map size the
+/// cluster's planner would choose, returning them with K (the lights per batch, as many as
+/// the device allows at most). With `--timings`, prints what will be rendered and the heading
+/// of the per-frame table.
+fn open_renderer(
+    args: &Args,
+    scene: &Scene,
+    samples: &[LightSample],
+) -> anyhow::Result<(Gpu, Renderer, usize)> {
+    let backend = args
+        .backend
+        .as_deref()
+        .map(parse_backend)
+        .transpose()
+        .context("bad --backend")?;
+    let gpu = Gpu::new(&GpuOptions {
+        backend,
+        adapter_name: args.adapter.clone(),
+    })
+    .context(
+        "no usable GPU (install a Vulkan driver: mesa-vulkan-drivers gives lavapipe on the CPU; \
+         or render with --reference on the CPU)",
+    )?;
+    // `--shadow-map-size` is in the scene's quality already (checked against the limits); the
+    // size comes from the rule the cluster's planner applies, so both render the same maps.
+    let mut opts = RenderOptions::from_quality(&scene.quality);
+    if let Some(n) = lightfold_coordinator::plan::MapSizing::Scene.uniform_size(&scene.quality) {
+        opts.shadow_map_size = n;
+    }
+    opts.walkthrough = args.walkthrough;
+    let k = args
+        .k
+        .unwrap_or(scene.quality.lights_per_node)
+        .clamp(1, gpu.max_lights(opts.shadow_map_size).max(1)) as usize;
+    let mut renderer = Renderer::new(&gpu, scene, opts)?;
+    if args.forward {
+        renderer.set_variant(EyeVariant::Forward);
+    }
+    if args.timings {
+        outln!(
+            "adapter {} ({:?}), {:?} eye pass, {}x{} (--aa {}), {} samples, K = {k}, {} maps, \
+             {} batch(es)",
+            gpu.info.name,
+            gpu.info.backend,
+            renderer.frame_variant(&gpu, scene.camera.width, scene.camera.height),
+            scene.camera.width,
+            scene.camera.height,
+            args.aa,
+            samples.len(),
+            match opts.map_sizing {
+                lightfold_scene::MapSizing::Fixed => format!("{}²", opts.shadow_map_size),
+                lightfold_scene::MapSizing::Mismatch(m) =>
+                    format!("mismatch-sized (m = {}, {}²–{}²)", m.target, m.min, m.max),
+            },
+            samples.len().div_ceil(k).max(1)
+        );
+        outln!("frame  shadow_passes  shadow_ms  eye_ms  readback_ms  total_ms");
+    }
+    Ok((gpu, renderer, k))
+}
+
+/// Prints the shadow views per light of the first frame and, when any batch counts, the
+/// median cost of a node frame of K lights over the steady batches of `steady_frames` frames.
+fn print_steady(
+    k: usize,
+    frames: u32,
+    views_per_light: &[u32],
+    steady: &[[u64; 3]],
+    steady_frames: usize,
+) {
+    let p = views_per_light;
+    let sum: u32 = p.iter().sum();
+    outln!(
+        "shadow views per light: min {}, mean {:.2}, max {} ({sum} in all)",
+        p.iter().min().unwrap_or(&0),
+        sum as f64 / p.len().max(1) as f64,
+        p.iter().max().unwrap_or(&0)
+    );
+    if steady.is_empty() {
+        return;
+    }
+    let [s, e, r] = medians(steady);
+    let which = match frames {
+        1 => "the only frame".to_string(),
+        2 => "frame 1".to_string(),
+        n => format!("each of frames 1–{}", n - 1),
+    };
+    let warm = if frames == 1 {
+        ""
+    } else {
+        "frame 0 warms up; "
+    };
+    outln!(
+        "node frame (K = {k}, illumination only): median of {} batches, {} in {which} \
+         ({warm}each frame's first batch, which also renders the materials, is left out): \
+         shadow {:.1} ms, eye {:.1} ms, readback {:.1} ms, total {:.1} ms",
+        steady.len(),
+        steady.len() / steady_frames.max(1),
+        s as f64 / 1e3,
+        e as f64 / 1e3,
+        r as f64 / 1e3,
+        (s + e + r) as f64 / 1e3
+    );
+}
+
+/// Writes the frame's radiance, resolved to the requested size, as EXR at `--out` and as PNG
+/// next to it (returning the PNG's path), and its eye depth with `--depth-out`.
+fn write_images(
+    args: &Args,
+    scene: &Scene,
+    (radiance, depth): (Image, Image),
+) -> anyhow::Result<std::path::PathBuf> {
+    // `--aa N`: the frame is N·W × N·H; resolve the final radiance (after the material
+    // combine) and the depth to the requested size. N = 1 leaves both as rendered.
+    let radiance = radiance.box_resolve(args.aa)?;
+    let depth = depth.nearest_depth_resolve(args.aa)?;
+    radiance.write_exr(&args.out)?;
+    let png = png_next_to(&args.out);
+    radiance.write_png(&png, scene.exposure)?;
+    if let Some(path) = &args.depth_out {
+        let mut rgb = Image::new(depth.width, depth.height, 3);
+        for (o, &z) in rgb.data.chunks_exact_mut(3).zip(&depth.data) {
+            o.fill(z);
+        }
+        rgb.write_exr(path)?;
+    }
+    Ok(png)
 }
 
 /// One image over sort-last partitions: each part's image alone ([`Renderer::set_eye_meshes`],

@@ -44,6 +44,9 @@ struct Start {
     ended: Option<Instant>,
 }
 
+/// Runs the coordinator soak: starts the daemons the scene's plan needs, renders the camera
+/// path with the coordinator killed and resumed at random points, then checks every frame
+/// was written once and matches the single-device render, and writes the report.
 pub fn run(args: &Args, launcher: Launcher) -> anyhow::Result<()> {
     let frames = args.frames;
     if frames < 2 {
@@ -80,17 +83,73 @@ pub fn run(args: &Args, launcher: Launcher) -> anyhow::Result<()> {
             .with_context(|| format!("cannot empty the frame folder {}", dir.display()))?;
     }
     let pattern = FramePattern::parse(&dir.join("frame-%04d").to_string_lossy())?;
-    // Kill points: frames complete on disk, distinct, ascending.
-    let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
-    let mut points: Vec<usize> = (0..args.coordinator_kills)
-        .map(|_| rng.random_range(1..frames as usize))
-        .collect();
-    points.sort_unstable();
-    points.dedup();
+    let points = kill_points(args.seed, args.coordinator_kills, frames);
     outln!(
         "soak: {nodes} render node(s), {compositors} compositor(s); the coordinator is killed \
          when {points:?} of {frames} frames are on disk, and resumed"
     );
+    let Outcome {
+        seen,
+        starts,
+        mut failures,
+    } = run_starts(
+        args,
+        scene,
+        &launcher,
+        (&node_addrs, &comp_addrs),
+        &dir,
+        &pattern,
+        &points,
+    )?;
+    drop(children);
+    let (checks, adapter) = check_frames(args, scene, &pattern, &seen, &mut failures)?;
+    let md = report(
+        args, frames, &points, &starts, &seen, &checks, &failures, &adapter,
+    );
+    print!("{md}");
+    let file = args.out.join("coordinator-soak.md");
+    std::fs::write(&file, &md).with_context(|| format!("cannot write {}", file.display()))?;
+    outln!("soak: report written to {}", file.display());
+    if !failures.is_empty() {
+        bail!("coordinator soak failed: {}", failures.join("; "));
+    }
+    Ok(())
+}
+
+/// The points at which the coordinator is killed: numbers of frames complete on disk, drawn
+/// from `seed` between 1 and `frames - 1`, distinct, ascending.
+fn kill_points(seed: u64, kills: u32, frames: u32) -> Vec<usize> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut points: Vec<usize> = (0..kills)
+        .map(|_| rng.random_range(1..frames as usize))
+        .collect();
+    points.sort_unstable();
+    points.dedup();
+    points
+}
+
+/// What the coordinator's starts left ([`run_starts`]).
+#[derive(Debug)]
+struct Outcome {
+    /// The frames seen complete on disk, by number.
+    seen: BTreeMap<u64, Seen>,
+    starts: Vec<Start>,
+    failures: Vec<String>,
+}
+
+/// Starts the coordinator over the daemons at `addrs` (render nodes, compositors) and watches
+/// the frame folder, killing it when the next of `points` frames are on disk and starting it
+/// again, until one start exits or the run's time is up.
+fn run_starts(
+    args: &Args,
+    scene: &lightfold_scene::Scene,
+    launcher: &Launcher,
+    (node_addrs, comp_addrs): (&[String], &[String]),
+    dir: &Path,
+    pattern: &FramePattern,
+    points: &[usize],
+) -> anyhow::Result<Outcome> {
+    let frames = args.frames;
     let mut seen: BTreeMap<u64, Seen> = BTreeMap::new();
     let mut starts: Vec<Start> = Vec::new();
     let mut failures: Vec<String> = Vec::new();
@@ -100,10 +159,10 @@ pub fn run(args: &Args, launcher: Launcher) -> anyhow::Result<()> {
         let mut child = coordinator(
             args,
             scene,
-            &launcher,
-            &node_addrs,
-            &comp_addrs,
-            &dir,
+            launcher,
+            node_addrs,
+            comp_addrs,
+            dir,
             starts.len(),
         )?;
         starts.push(Start {
@@ -114,11 +173,11 @@ pub fn run(args: &Args, launcher: Launcher) -> anyhow::Result<()> {
         });
         loop {
             std::thread::sleep(POLL);
-            look(&pattern, frames, &mut seen, &mut failures);
+            look(pattern, frames, &mut seen, &mut failures);
             let start = starts.last_mut().expect("a start");
             if let Some(status) = child.try_wait()? {
                 start.ended = Some(Instant::now());
-                look(&pattern, frames, &mut seen, &mut failures);
+                look(pattern, frames, &mut seen, &mut failures);
                 if !status.success() {
                     failures.push(format!(
                         "coordinator start {} exited with {status} (log: coordinator-{}.log)",
@@ -144,9 +203,25 @@ pub fn run(args: &Args, launcher: Launcher) -> anyhow::Result<()> {
             }
         }
     }
-    drop(children);
+    Ok(Outcome {
+        seen,
+        starts,
+        failures,
+    })
+}
+
+/// Checks every frame is on disk as first seen (none missing, none written again), then each
+/// against the single-device render of its camera, adding what fails to `failures`. Returns
+/// the checks and the adapter that rendered the comparisons.
+fn check_frames(
+    args: &Args,
+    scene: &lightfold_scene::Scene,
+    pattern: &FramePattern,
+    seen: &BTreeMap<u64, Seen>,
+    failures: &mut Vec<String>,
+) -> anyhow::Result<(Vec<Check>, String)> {
     // Every frame once: all there, and none written again after it first appeared.
-    for n in 1..=u64::from(frames) {
+    for n in 1..=u64::from(args.frames) {
         let Some(first) = seen.get(&n) else {
             failures.push(format!("frame {n} is not on disk"));
             continue;
@@ -191,17 +266,7 @@ pub fn run(args: &Args, launcher: Launcher) -> anyhow::Result<()> {
                 .unwrap_or_default()
         ));
     }
-    let md = report(
-        args, frames, &points, &starts, &seen, &checks, &failures, &adapter,
-    );
-    print!("{md}");
-    let file = args.out.join("coordinator-soak.md");
-    std::fs::write(&file, &md).with_context(|| format!("cannot write {}", file.display()))?;
-    outln!("soak: report written to {}", file.display());
-    if !failures.is_empty() {
-        bail!("coordinator soak failed: {}", failures.join("; "));
-    }
-    Ok(())
+    Ok((checks, adapter))
 }
 
 /// Starts coordinator number `n` (from 0) over the soak's daemons; its output goes to

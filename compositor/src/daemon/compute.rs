@@ -9,7 +9,8 @@ use super::config::{Operators, StagePlan};
 use super::inputs::InBand;
 use super::pixels::{pack, unpack};
 use crate::ops::{
-    BandMut, BandView, Depth, OpError, PackSummary, PackedIllumination, PackedLayer, PackedOut,
+    Accumulate, BandMut, BandView, Depth, OpError, PackSummary, PackedIllumination, PackedLayer,
+    PackedOut,
 };
 use crate::pipeline::{PipelineError, Scratch as PipelineScratch};
 use bytes::Bytes;
@@ -165,44 +166,16 @@ pub(crate) fn combine(
         );
     }
     if let Some(acc) = &ops.fused {
-        // One accumulate over illumination-only inputs: add straight from the packed bytes.
-        let packed: Vec<Option<PackedIllumination<'_>>> = received
-            .iter()
-            .map(|layers| {
-                let b = &layers[0];
-                (!b.header.empty).then_some(PackedIllumination {
-                    format: b.header.format,
-                    scale: b.header.scale,
-                    bytes: &b.payload,
-                })
-            })
-            .collect();
-        if let [(Layer::Illumination, format)] = cfg.outputs[..] {
-            // The sum is packed block by block as it is made (`ops::packed_out`): composite and
-            // pack are one pass, timed as composite.
-            let header = header(plan, frame, Layer::Illumination, format, y0, rows, scale);
-            let mut bytes = scratch.pool.take(pixels * format.bytes_per_pixel());
-            let target = PackedOut {
-                layer: Layer::Illumination,
-                format,
-                scale,
-                bytes: &mut bytes,
-            };
-            let summary = acc
-                .apply_packed_to(&packed, pixels, target)
-                .map_err(ComputeError::Fused)?;
-            let mut out = out;
-            out.composite = start.elapsed();
-            let band = packed_band(header, bytes, &summary, &mut out, &scratch.pool);
-            out.bands.push(band);
-            return Ok(out);
-        }
-        scratch.outs.resize_with(1, Vec::new);
-        scratch.outs[0].resize(pixels * Layer::Illumination.channels(), 0.0);
-        let mut band_mut = BandMut::new(pixels).with(Layer::Illumination, &mut scratch.outs[0]);
-        acc.apply_packed(&packed, &mut band_mut)
-            .map_err(ComputeError::Fused)?;
-        return finish(plan, frame, y0, rows, 0, scale, scratch, out, start);
+        return fused(
+            plan,
+            acc,
+            frame,
+            (y0, rows),
+            received,
+            scale,
+            scratch,
+            start,
+        );
     }
 
     // The band and, for a neighbourhood filter, `halo` rows of each neighbouring band.
@@ -218,6 +191,109 @@ pub(crate) fn combine(
     };
     let w = cfg.width as usize;
     let extended = pixels + (top + bottom) * w;
+    let present = unpack_window(plan, window, rows, (top, bottom), scratch)?;
+    let views: Vec<BandView<'_>> = received
+        .iter()
+        .zip(&scratch.inputs)
+        .zip(&present)
+        .map(|((layers, bufs), here)| {
+            layers
+                .iter()
+                .zip(bufs)
+                .zip(here)
+                .filter(|(_, keep)| **keep)
+                .fold(BandView::new(extended), |v, ((band, data), _)| {
+                    v.with(band.header.layer, data)
+                })
+        })
+        .collect();
+    scratch.outs.resize_with(plan.produced.len(), Vec::new);
+    for (buf, layer) in scratch.outs.iter_mut().zip(&plan.produced) {
+        buf.resize(extended * layer.channels(), 0.0);
+    }
+    let mut band_mut = plan
+        .produced
+        .iter()
+        .zip(scratch.outs.iter_mut())
+        .fold(BandMut::new(extended), |m, (l, d)| m.with(*l, d));
+    pipeline
+        .run(&views, &mut band_mut, &mut scratch.pipeline)
+        .map_err(ComputeError::Pipeline)?;
+    finish(plan, frame, y0, rows, top * w, scale, scratch, out, start)
+}
+
+/// One accumulate over illumination-only inputs (`Operators::fused`), added straight from the
+/// packed bytes: a lone illumination output is packed block by block as the sum is made,
+/// otherwise the sum is packed by [`finish`].
+#[allow(clippy::too_many_arguments)]
+fn fused(
+    plan: &StagePlan,
+    acc: &Accumulate,
+    frame: u64,
+    (y0, rows): (u32, u32),
+    received: &[Vec<InBand>],
+    scale: f32,
+    scratch: &mut Scratch,
+    start: Instant,
+) -> Result<BandOut, ComputeError> {
+    let cfg = &plan.config;
+    let pixels = cfg.width as usize * rows as usize;
+    let packed: Vec<Option<PackedIllumination<'_>>> = received
+        .iter()
+        .map(|layers| {
+            let b = &layers[0];
+            (!b.header.empty).then_some(PackedIllumination {
+                format: b.header.format,
+                scale: b.header.scale,
+                bytes: &b.payload,
+            })
+        })
+        .collect();
+    if let [(Layer::Illumination, format)] = cfg.outputs[..] {
+        // The sum is packed block by block as it is made (`ops::packed_out`): composite and
+        // pack are one pass, timed as composite.
+        let header = header(plan, frame, Layer::Illumination, format, y0, rows, scale);
+        let mut bytes = scratch.pool.take(pixels * format.bytes_per_pixel());
+        let target = PackedOut {
+            layer: Layer::Illumination,
+            format,
+            scale,
+            bytes: &mut bytes,
+        };
+        let summary = acc
+            .apply_packed_to(&packed, pixels, target)
+            .map_err(ComputeError::Fused)?;
+        let mut out = BandOut {
+            composite: start.elapsed(),
+            ..BandOut::default()
+        };
+        let band = packed_band(header, bytes, &summary, &mut out, &scratch.pool);
+        out.bands.push(band);
+        return Ok(out);
+    }
+    scratch.outs.resize_with(1, Vec::new);
+    scratch.outs[0].resize(pixels * Layer::Illumination.channels(), 0.0);
+    let mut band_mut = BandMut::new(pixels).with(Layer::Illumination, &mut scratch.outs[0]);
+    acc.apply_packed(&packed, &mut band_mut)
+        .map_err(ComputeError::Fused)?;
+    let out = BandOut::default();
+    finish(plan, frame, y0, rows, 0, scale, scratch, out, start)
+}
+
+/// Unpacks every input layer of the window's band of `rows` rows, with `top` rows of the band
+/// above and `bottom` rows of the band below, into `scratch.inputs` (empty parts as zeros).
+/// Returns, per input and layer, whether it is in the view: a layer empty throughout is left
+/// out unless its reader requires it.
+fn unpack_window(
+    plan: &StagePlan,
+    window: &Window,
+    rows: u32,
+    (top, bottom): (usize, usize),
+    scratch: &mut Scratch,
+) -> Result<Vec<Vec<bool>>, ComputeError> {
+    let received: &[Vec<InBand>] = &window.centre;
+    let w = plan.config.width as usize;
+    let extended = w * rows as usize + (top + bottom) * w;
     scratch.inputs.resize_with(received.len(), Vec::new);
     let mut present: Vec<Vec<bool>> = Vec::with_capacity(received.len());
     for (i, layers) in received.iter().enumerate() {
@@ -271,34 +347,7 @@ pub(crate) fn combine(
         }
         present.push(here);
     }
-    let views: Vec<BandView<'_>> = received
-        .iter()
-        .zip(&scratch.inputs)
-        .zip(&present)
-        .map(|((layers, bufs), here)| {
-            layers
-                .iter()
-                .zip(bufs)
-                .zip(here)
-                .filter(|(_, keep)| **keep)
-                .fold(BandView::new(extended), |v, ((band, data), _)| {
-                    v.with(band.header.layer, data)
-                })
-        })
-        .collect();
-    scratch.outs.resize_with(plan.produced.len(), Vec::new);
-    for (buf, layer) in scratch.outs.iter_mut().zip(&plan.produced) {
-        buf.resize(extended * layer.channels(), 0.0);
-    }
-    let mut band_mut = plan
-        .produced
-        .iter()
-        .zip(scratch.outs.iter_mut())
-        .fold(BandMut::new(extended), |m, (l, d)| m.with(*l, d));
-    pipeline
-        .run(&views, &mut band_mut, &mut scratch.pipeline)
-        .map_err(ComputeError::Pipeline)?;
-    finish(plan, frame, y0, rows, top * w, scale, scratch, out, start)
+    Ok(present)
 }
 
 /// A lone `depth` over layers it selects as bits (`Operators::depth`): every output is selected

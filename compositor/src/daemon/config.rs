@@ -152,6 +152,171 @@ fn filter_halo(c: &CompositorConfig, band_rows: u32, bands: u32) -> Result<u32, 
     Ok(halo)
 }
 
+/// Checks the configuration's image size, bands, frames in flight, downstream address, inputs
+/// and output formats, and that a band in the widest format fits a link frame of `max_frame`
+/// bytes. Returns the rows of a full band.
+fn check_shape(c: &CompositorConfig, max_frame: usize) -> Result<u32, ConfigError> {
+    if !(1..=MAX_SIDE).contains(&c.width) || !(1..=MAX_SIDE).contains(&c.height) {
+        return Err(ConfigError::BadSize {
+            width: c.width,
+            height: c.height,
+        });
+    }
+    if c.band_height == 0 {
+        return Err(ConfigError::BadBandHeight(c.band_height));
+    }
+    if !(1..=MAX_FRAMES_IN_FLIGHT).contains(&c.frames_in_flight) {
+        return Err(ConfigError::BadFramesInFlight(c.frames_in_flight));
+    }
+    if c.downstream.trim().is_empty() {
+        return Err(ConfigError::NoDownstream);
+    }
+    check_inputs(c)?;
+    check_formats(&c.outputs, "outputs")?;
+    let band_rows = c.band_height.min(c.height);
+    let widest = c
+        .inputs
+        .iter()
+        .flat_map(|i| &i.layers)
+        .chain(&c.outputs)
+        .map(|(_, f)| f.bytes_per_pixel() as u64)
+        .max()
+        .unwrap_or(0);
+    let band_bytes = u64::from(c.width) * u64::from(band_rows) * widest;
+    let band_frame = band_bytes + lightfold_protocol::BAND_HEADER_LEN as u64 + 1;
+    if band_frame > max_frame as u64 {
+        return Err(ConfigError::BandTooLarge {
+            bytes: band_bytes,
+            max: max_frame,
+        });
+    }
+    Ok(band_rows)
+}
+
+/// How a stage's operators read its inputs ([`wire`]).
+struct Wiring {
+    /// The operators (`None`: a relay).
+    pipeline: Option<Pipeline>,
+    /// Layers the stage can emit.
+    produced: Vec<Layer>,
+    /// Per stage input: the operator reading it and as which of its inputs.
+    readers: Vec<Option<(usize, usize)>>,
+    /// Per stage input: the layers its reader requires.
+    required: Vec<Vec<Layer>>,
+}
+
+/// Builds the stage's pipeline from its operators and wiring, or checks that a stage without
+/// operators relays exactly one input, and records which operator reads each input and the
+/// layers it requires there.
+fn wire(c: &CompositorConfig) -> Result<Wiring, ConfigError> {
+    let input_layers: Vec<Vec<Layer>> = c
+        .inputs
+        .iter()
+        .map(|i| i.layers.iter().map(|l| l.0).collect())
+        .collect();
+    let mut readers = vec![None; c.inputs.len()];
+    let mut required = vec![Vec::new(); c.inputs.len()];
+    let (pipeline, produced) = if c.ops.is_empty() {
+        if c.inputs.len() != 1 {
+            return Err(ConfigError::RelayInputs(c.inputs.len()));
+        }
+        required[0] = input_layers[0].clone();
+        (None, input_layers[0].clone())
+    } else {
+        let p = Pipeline::from_wiring(&c.ops, &c.wiring, &input_layers)?;
+        for (k, stage) in p.stages().iter().enumerate() {
+            let sig = stage.op.signature();
+            for (j, src) in stage.sources.iter().enumerate() {
+                if let Source::Input(n) = *src {
+                    // An input read by two operators (explicit wiring): its colour belongs to
+                    // the first (the `accumulate`), and it needs what either requires.
+                    readers[n].get_or_insert((k, j));
+                    for &l in &sig.inputs[j].required {
+                        if !required[n].contains(&l) {
+                            required[n].push(l);
+                        }
+                    }
+                }
+            }
+        }
+        let produced = p.output_layers();
+        (Some(p), produced)
+    };
+    Ok(Wiring {
+        pipeline,
+        produced,
+        readers,
+        required,
+    })
+}
+
+/// The operator for the fused unpack-and-add path: the stage's one `accumulate` (or `join` of
+/// illumination sums) over illumination-only inputs read in order; `None` otherwise.
+fn fused_accumulate(c: &CompositorConfig) -> Option<Accumulate> {
+    // The fused paths read the stage inputs in order, as the fold does; explicit wiring may
+    // not, so it keeps the general path.
+    let fold = c.wiring.is_empty();
+    let illumination_only = c
+        .inputs
+        .iter()
+        .all(|i| i.layers.len() == 1 && i.layers[0].0 == Layer::Illumination);
+    match c.ops.as_slice() {
+        [(name, params)] if fold && illumination_only => {
+            let params: serde_json::Value = serde_json::from_str(params).unwrap_or_default();
+            if name == crate::ops::accumulate::NAME {
+                Accumulate::new(&params).ok()
+            } else if name == crate::ops::join::NAME
+                && p_layer(&params) == Some(Layer::Illumination)
+            {
+                // A join of illumination sums is an accumulate of white, non-folding local
+                // terms: 0 + 1·x is x, added in input order, saturated once, so the fused
+                // path gives the join's bits (tests compare the two).
+                let white: Vec<[f32; 3]> = vec![[1.0; 3]; c.inputs.len()];
+                Accumulate::new(&serde_json::json!({ "upstream": false, "colors": white })).ok()
+            } else {
+                None
+            }
+        }
+        _ => None,
+    }
+}
+
+/// The operator for the packed depth path: the stage's one `depth`, read in order, when its
+/// layers travel in formats it selects as bits; `None` otherwise.
+fn packed_depth(c: &CompositorConfig) -> Option<Depth> {
+    let fold = c.wiring.is_empty();
+    match c.ops.as_slice() {
+        [(name, params)] if fold && name == crate::ops::depth::NAME => {
+            let params: serde_json::Value = serde_json::from_str(params).unwrap_or_default();
+            let layers: Vec<Vec<(Layer, PixelFormat)>> =
+                c.inputs.iter().map(|i| i.layers.clone()).collect();
+            Depth::new(&params)
+                .ok()
+                .filter(|d| d.packed_supported(&layers, &c.outputs))
+        }
+        _ => None,
+    }
+}
+
+/// Each input's queue budget in bytes: `frames_in_flight` whole frames of its layers, each
+/// band counting its overhead.
+fn input_budget(c: &CompositorConfig, bands: u32) -> Vec<u64> {
+    c.inputs
+        .iter()
+        .map(|i| {
+            let per_frame: u64 = i
+                .layers
+                .iter()
+                .map(|(_, f)| {
+                    u64::from(c.width) * u64::from(c.height) * f.bytes_per_pixel() as u64
+                        + u64::from(bands) * BAND_OVERHEAD
+                })
+                .sum();
+            per_frame * u64::from(c.frames_in_flight)
+        })
+        .collect()
+}
+
 impl StagePlan {
     /// Checks `config` and builds its operators (`None`: a relay). `max_frame` is the link's
     /// frame limit.
@@ -160,74 +325,13 @@ impl StagePlan {
         max_frame: usize,
     ) -> Result<(StagePlan, Operators), ConfigError> {
         let c = &config;
-        if !(1..=MAX_SIDE).contains(&c.width) || !(1..=MAX_SIDE).contains(&c.height) {
-            return Err(ConfigError::BadSize {
-                width: c.width,
-                height: c.height,
-            });
-        }
-        if c.band_height == 0 {
-            return Err(ConfigError::BadBandHeight(c.band_height));
-        }
-        if !(1..=MAX_FRAMES_IN_FLIGHT).contains(&c.frames_in_flight) {
-            return Err(ConfigError::BadFramesInFlight(c.frames_in_flight));
-        }
-        if c.downstream.trim().is_empty() {
-            return Err(ConfigError::NoDownstream);
-        }
-        check_inputs(c)?;
-        check_formats(&c.outputs, "outputs")?;
-        let band_rows = c.band_height.min(c.height);
-        let widest = c
-            .inputs
-            .iter()
-            .flat_map(|i| &i.layers)
-            .chain(&c.outputs)
-            .map(|(_, f)| f.bytes_per_pixel() as u64)
-            .max()
-            .unwrap_or(0);
-        let band_bytes = u64::from(c.width) * u64::from(band_rows) * widest;
-        let band_frame = band_bytes + lightfold_protocol::BAND_HEADER_LEN as u64 + 1;
-        if band_frame > max_frame as u64 {
-            return Err(ConfigError::BandTooLarge {
-                bytes: band_bytes,
-                max: max_frame,
-            });
-        }
-
-        let input_layers: Vec<Vec<Layer>> = c
-            .inputs
-            .iter()
-            .map(|i| i.layers.iter().map(|l| l.0).collect())
-            .collect();
-        let mut readers = vec![None; c.inputs.len()];
-        let mut required = vec![Vec::new(); c.inputs.len()];
-        let (pipeline, produced) = if c.ops.is_empty() {
-            if c.inputs.len() != 1 {
-                return Err(ConfigError::RelayInputs(c.inputs.len()));
-            }
-            required[0] = input_layers[0].clone();
-            (None, input_layers[0].clone())
-        } else {
-            let p = Pipeline::from_wiring(&c.ops, &c.wiring, &input_layers)?;
-            for (k, stage) in p.stages().iter().enumerate() {
-                let sig = stage.op.signature();
-                for (j, src) in stage.sources.iter().enumerate() {
-                    if let Source::Input(n) = *src {
-                        // An input read by two operators (explicit wiring): its colour belongs to
-                        // the first (the `accumulate`), and it needs what either requires.
-                        readers[n].get_or_insert((k, j));
-                        for &l in &sig.inputs[j].required {
-                            if !required[n].contains(&l) {
-                                required[n].push(l);
-                            }
-                        }
-                    }
-                }
-            }
-            let produced = p.output_layers();
-            (Some(p), produced)
-        };
+        let band_rows = check_shape(c, max_frame)?;
+        let Wiring {
+            pipeline,
+            produced,
+            readers,
+            required,
+        } = wire(c)?;
         if c.outputs.is_empty() {
             return Err(ConfigError::NoOutputs);
         }
@@ -239,60 +343,11 @@ impl StagePlan {
                 });
             }
         }
-        // The fused paths read the stage inputs in order, as the fold does; explicit wiring may
-        // not, so it keeps the general path.
-        let fold = c.wiring.is_empty();
-        let illumination_only = c
-            .inputs
-            .iter()
-            .all(|i| i.layers.len() == 1 && i.layers[0].0 == Layer::Illumination);
-        let fused = match c.ops.as_slice() {
-            [(name, params)] if fold && illumination_only => {
-                let params: serde_json::Value = serde_json::from_str(params).unwrap_or_default();
-                if name == crate::ops::accumulate::NAME {
-                    Accumulate::new(&params).ok()
-                } else if name == crate::ops::join::NAME
-                    && p_layer(&params) == Some(Layer::Illumination)
-                {
-                    // A join of illumination sums is an accumulate of white, non-folding local
-                    // terms: 0 + 1·x is x, added in input order, saturated once, so the fused
-                    // path gives the join's bits (tests compare the two).
-                    let white: Vec<[f32; 3]> = vec![[1.0; 3]; c.inputs.len()];
-                    Accumulate::new(&serde_json::json!({ "upstream": false, "colors": white })).ok()
-                } else {
-                    None
-                }
-            }
-            _ => None,
-        };
-        let depth = match c.ops.as_slice() {
-            [(name, params)] if fold && name == crate::ops::depth::NAME => {
-                let params: serde_json::Value = serde_json::from_str(params).unwrap_or_default();
-                let layers: Vec<Vec<(Layer, PixelFormat)>> =
-                    c.inputs.iter().map(|i| i.layers.clone()).collect();
-                Depth::new(&params)
-                    .ok()
-                    .filter(|d| d.packed_supported(&layers, &c.outputs))
-            }
-            _ => None,
-        };
+        let fused = fused_accumulate(c);
+        let depth = packed_depth(c);
         let bands = c.height.div_ceil(c.band_height);
         let halo = filter_halo(c, band_rows, bands)?;
-        let input_budget = c
-            .inputs
-            .iter()
-            .map(|i| {
-                let per_frame: u64 = i
-                    .layers
-                    .iter()
-                    .map(|(_, f)| {
-                        u64::from(c.width) * u64::from(c.height) * f.bytes_per_pixel() as u64
-                            + u64::from(bands) * BAND_OVERHEAD
-                    })
-                    .sum();
-                per_frame * u64::from(c.frames_in_flight)
-            })
-            .collect();
+        let input_budget = input_budget(c, bands);
         let plan = StagePlan {
             bands,
             readers,

@@ -79,6 +79,20 @@ impl Display for ShadowViews {
 
 impl Display for Plan {
     fn fmt(&self, f: &mut Formatter<'_>) -> fmt::Result {
+        self.write_samples(f)?;
+        self.write_nodes_summary(f)?;
+        self.write_nodes(f)?;
+        self.write_material(f)?;
+        self.write_stages(f)?;
+        self.write_links(f)?;
+        write!(f, "{KEY}")
+    }
+}
+
+impl Plan {
+    /// Writes the plan's heading line, then its samples: how many are active and dropped,
+    /// how many are virtual point lights, and each dropped one with the reason.
+    fn write_samples(&self, f: &mut Formatter<'_>) -> fmt::Result {
         let hash: String = self.scene_hash[..6]
             .iter()
             .map(|b| format!("{b:02x}"))
@@ -122,6 +136,14 @@ impl Display for Plan {
                 self.samples[*i].light
             )?;
         }
+        Ok(())
+    }
+
+    /// Writes how many nodes are used and idle, with the shadow passes and estimated time per
+    /// frame, then the one-line summaries that apply: transmittance maps, partitions, nodes
+    /// sharing a device or a CPU, the error target, the penumbra filter and the quality the
+    /// planner gave up to fit.
+    fn write_nodes_summary(&self, f: &mut Formatter<'_>) -> fmt::Result {
         let passes: usize = self
             .nodes
             .iter()
@@ -155,24 +177,23 @@ impl Display for Plan {
                 transmitting.iter().sum::<usize>()
             )?;
         }
-        if let Some(text) = self.partition_line() {
+        let lines = [
+            self.partition_line(),
+            self.shared_line(),
+            self.cpu_line(),
+            self.target_line(),
+            self.penumbra_line(),
+            gave_up(self),
+        ];
+        for text in lines.into_iter().flatten() {
             writeln!(f, "{text}")?;
         }
-        if let Some(text) = self.shared_line() {
-            writeln!(f, "{text}")?;
-        }
-        if let Some(text) = self.cpu_line() {
-            writeln!(f, "{text}")?;
-        }
-        if let Some(text) = self.target_line() {
-            writeln!(f, "{text}")?;
-        }
-        if let Some(text) = self.penumbra_line() {
-            writeln!(f, "{text}")?;
-        }
-        if let Some(text) = gave_up(self) {
-            writeln!(f, "{text}")?;
-        }
+        Ok(())
+    }
+
+    /// Writes each node's line (where its output goes, its colour and lights, or the material
+    /// layers it renders) with a line per light's shadow views, then the idle nodes.
+    fn write_nodes(&self, f: &mut Formatter<'_>) -> fmt::Result {
         for n in &self.nodes {
             write!(
                 f,
@@ -219,6 +240,12 @@ impl Display for Plan {
         if !self.idle_nodes.is_empty() {
             writeln!(f, "  idle: {}", self.idle_nodes.join(", "))?;
         }
+        Ok(())
+    }
+
+    /// Writes how the material stage runs and where its layers are rendered, the ambient
+    /// colour when it is folded into the diffuse sum, and the material's notes.
+    fn write_material(&self, f: &mut Formatter<'_>) -> fmt::Result {
         let m = &self.material;
         let mode = match m.mode {
             MaterialMode::UniformSpecular { specular } => {
@@ -255,6 +282,11 @@ impl Display for Plan {
         for note in &m.notes {
             writeln!(f, "  {note}")?;
         }
+        Ok(())
+    }
+
+    /// Writes each compositor stage: its inputs, where its output goes, and its operators.
+    fn write_stages(&self, f: &mut Formatter<'_>) -> fmt::Result {
         writeln!(f, "stages:")?;
         for s in &self.stages {
             let ins: Vec<String> = s
@@ -273,6 +305,11 @@ impl Display for Plan {
                 writeln!(f, "      {name} {p}")?;
             }
         }
+        Ok(())
+    }
+
+    /// Writes each link with the layers it carries and its bytes per frame, then the total.
+    fn write_links(&self, f: &mut Formatter<'_>) -> fmt::Result {
         writeln!(f, "links (bytes per frame):")?;
         let mut total = 0;
         for l in &self.links {
@@ -287,8 +324,7 @@ impl Display for Plan {
                 mb(l.bytes_per_frame)
             )?;
         }
-        writeln!(f, "  total {} per frame", mb(total))?;
-        write!(f, "{KEY}")
+        writeln!(f, "  total {} per frame", mb(total))
     }
 }
 

@@ -9,6 +9,7 @@ use super::types::{DaemonSpec, Topology};
 use super::types::{Downstream, FormatChoice, InputRef, LinkPlan, MaterialMode, Source, StagePlan};
 use lightfold_protocol::{Layer, OpSource, PixelFormat};
 use serde_json::{Value, json};
+use std::ops::Range;
 
 /// Framing cost of one band on a link: the band header plus the frame's kind and length.
 pub const BAND_OVERHEAD_BYTES: u64 = 52 + 5;
@@ -69,14 +70,63 @@ pub(crate) fn stages(
     topology: Topology,
     formats: &FormatChoice,
 ) -> (Vec<StagePlan>, Vec<Dest>, MaterialSite) {
-    let c = compositors.len().max(1);
+    let (tree_host, chunks) = leaf_chunks(nodes.len(), compositors.len(), finish, topology);
+    let mut node_dst = vec![(String::new(), 0u32); nodes.len()];
+    let mut stages = leaf_stages(
+        nodes,
+        finish,
+        compositors,
+        topology,
+        formats.chain,
+        &chunks,
+        &mut node_dst,
+    );
+    if topology == Topology::Tree {
+        // The leaves' partial sums joined pair by pair.
+        let join = StagePlan {
+            compositor: String::new(),
+            wiring: Vec::new(),
+            ops: vec![(
+                "join".to_string(),
+                json!({ "inputs": 2, "layer": "illumination" }),
+            )],
+            inputs: Vec::new(),
+            outputs: vec![(Layer::Illumination, formats.chain)],
+            downstream: Downstream::Sink,
+            input_index: 0,
+        };
+        join_pairs(&mut stages, compositors, &join);
+    }
+    // The last stage built is the root: material and output follow its sum.
+    let root = stages.last_mut().expect("at least one stage");
+    let site = match tree_host {
+        Some(h) => {
+            node_dst[h] = host_on_tree_root(root, nodes, finish, h);
+            MaterialSite::Host(h)
+        }
+        None => material_site(root, nodes, finish),
+    };
+    finish_root(root, finish, formats);
+    (stages, node_dst, site)
+}
+
+/// How the illumination nodes spread over the leaf stages: the node a tree's root reads
+/// itself for the material layers (when its root is a `join`), and the contiguous, even
+/// chunks of the other nodes per leaf.
+fn leaf_chunks(
+    nodes: usize,
+    compositors: usize,
+    finish: &Finish,
+    topology: Topology,
+) -> (Option<usize>, Vec<Range<usize>>) {
+    let c = compositors.max(1);
     // A tree whose root is a `join` reads no node, so its root also reads the last node itself
     // (`join` → `accumulate` → `material`), which carries the material layers.
     let tree_host = (topology == Topology::Tree
         && finish.material_node.is_none()
-        && nodes.len().min(c.div_ceil(2)) >= 2)
-        .then(|| nodes.len() - 1);
-    let spread = nodes.len() - usize::from(tree_host.is_some());
+        && nodes.min(c.div_ceil(2)) >= 2)
+        .then(|| nodes - 1);
+    let spread = nodes - usize::from(tree_host.is_some());
     let n = spread.max(1);
     // (`Auto` is resolved before stages are built: `Topology::resolve`.)
     let leaves = match topology {
@@ -91,17 +141,38 @@ pub(crate) fn stages(
         chunks.push(start..start + len);
         start += len;
     }
-    let chain_fmt = formats.chain;
+    (tree_host, chunks)
+}
+
+/// `accumulate`'s parameters over the nodes in `range`, folding the ambient term where the
+/// folding node is among them.
+fn accumulate_range(
+    nodes: &[IllumInput],
+    finish: &Finish,
+    range: &Range<usize>,
+    upstream: bool,
+) -> Value {
+    let fold = finish
+        .fold
+        .filter(|f| range.contains(f))
+        .map(|f| f - range.start);
+    accumulate_params(&nodes[range.clone()], finish, upstream, fold)
+}
+
+/// The leaf stages, one per chunk of nodes on the compositors in order, each summing its
+/// nodes (after the upstream stage's sum along a chain); records in `node_dst` where each
+/// node streams.
+fn leaf_stages(
+    nodes: &[IllumInput],
+    finish: &Finish,
+    compositors: &[DaemonSpec],
+    topology: Topology,
+    chain_fmt: PixelFormat,
+    chunks: &[Range<usize>],
+    node_dst: &mut [Dest],
+) -> Vec<StagePlan> {
     let ill = |f: PixelFormat| vec![(Layer::Illumination, f)];
     let mut stages: Vec<StagePlan> = Vec::new();
-    let mut node_dst = vec![(String::new(), 0u32); nodes.len()];
-    let accumulate = |range: &std::ops::Range<usize>, upstream: bool| -> Value {
-        let fold = finish
-            .fold
-            .filter(|f| range.contains(f))
-            .map(|f| f - range.start);
-        accumulate_params(&nodes[range.clone()], finish, upstream, fold)
-    };
     for (i, range) in chunks.iter().enumerate() {
         let id = compositors[i].id.clone();
         let upstream = topology == Topology::Chain && i > 0;
@@ -126,7 +197,10 @@ pub(crate) fn stages(
         let ops = if range.is_empty() {
             Vec::new()
         } else {
-            vec![("accumulate".to_string(), accumulate(range, upstream))]
+            vec![(
+                "accumulate".to_string(),
+                accumulate_range(nodes, finish, range, upstream),
+            )]
         };
         stages.push(StagePlan {
             compositor: id,
@@ -138,46 +212,41 @@ pub(crate) fn stages(
             input_index: 0,
         });
     }
-    if topology == Topology::Tree {
-        // The leaves' partial sums joined pair by pair.
-        let join = StagePlan {
-            compositor: String::new(),
-            wiring: Vec::new(),
-            ops: vec![(
-                "join".to_string(),
-                json!({ "inputs": 2, "layer": "illumination" }),
-            )],
-            inputs: Vec::new(),
-            outputs: ill(chain_fmt),
-            downstream: Downstream::Sink,
-            input_index: 0,
-        };
-        join_pairs(&mut stages, compositors, &join);
-    }
-    // The last stage built is the root: material and output follow its sum.
-    let root = stages.last_mut().expect("at least one stage");
+    stages
+}
+
+/// Makes a tree's root read node `h` itself: it joins the two partial sums, adds that node,
+/// then shades with its material layers. Returns where the node streams.
+fn host_on_tree_root(
+    root: &mut StagePlan,
+    nodes: &[IllumInput],
+    finish: &Finish,
+    h: usize,
+) -> Dest {
     let sum_inputs = root.inputs.len() as u32;
-    if let Some(h) = tree_host {
-        // The root joins the two partial sums, adds its own node, then shades with that node's
-        // material layers.
-        let mut layers = nodes[h].layers.clone();
-        layers.extend(finish.material_layers.iter().copied());
-        root.inputs.push(InputRef {
-            source: Source::Node(nodes[h].node.clone()),
-            layers,
-        });
-        node_dst[h] = (root.compositor.clone(), sum_inputs);
-        root.ops
-            .push(("accumulate".to_string(), accumulate(&(h..h + 1), true)));
-        root.wiring = vec![
-            (0..sum_inputs).map(OpSource::Input).collect(),
-            vec![OpSource::Op(0), OpSource::Input(sum_inputs)],
-            vec![OpSource::Op(1), OpSource::Input(sum_inputs)],
-            vec![OpSource::Op(2)],
-        ];
-        finish_root(root, finish, formats);
-        return (stages, node_dst, MaterialSite::Host(h));
-    }
+    let mut layers = nodes[h].layers.clone();
+    layers.extend(finish.material_layers.iter().copied());
+    root.inputs.push(InputRef {
+        source: Source::Node(nodes[h].node.clone()),
+        layers,
+    });
+    root.ops.push((
+        "accumulate".to_string(),
+        accumulate_range(nodes, finish, &(h..h + 1), true),
+    ));
+    root.wiring = vec![
+        (0..sum_inputs).map(OpSource::Input).collect(),
+        vec![OpSource::Op(0), OpSource::Input(sum_inputs)],
+        vec![OpSource::Op(1), OpSource::Input(sum_inputs)],
+        vec![OpSource::Op(2)],
+    ];
+    (root.compositor.clone(), sum_inputs)
+}
+
+/// Adds the material layers to the root: as extra targets of the cheapest node it reads,
+/// unless a node of their own is given, which then becomes another input.
+fn material_site(root: &mut StagePlan, nodes: &[IllumInput], finish: &Finish) -> MaterialSite {
+    let sum_inputs = root.inputs.len() as u32;
     // Extra targets of the cheapest node the root reads, unless a node of their own is given.
     let host = finish.material_node.is_none().then(|| {
         root.inputs
@@ -194,7 +263,7 @@ pub(crate) fn stages(
                     .then(a.1.cmp(&b.1))
             })
     });
-    let site = match (host.flatten(), &finish.material_node) {
+    match (host.flatten(), &finish.material_node) {
         (Some((j, k)), _) => {
             root.inputs[j]
                 .layers
@@ -216,9 +285,7 @@ pub(crate) fn stages(
             });
             MaterialSite::OwnNode((root.compositor.clone(), sum_inputs))
         }
-    };
-    finish_root(root, finish, formats);
-    (stages, node_dst, site)
+    }
 }
 
 /// `accumulate`'s parameters over `nodes` (after the upstream sum when `upstream`), with the
