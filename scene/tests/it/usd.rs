@@ -595,14 +595,12 @@ fn time_sampled_transforms_animate_meshes_and_lights() {
     let floor = scene.meshes.iter().position(|m| m.name == "Floor").unwrap();
     // The blade's corner (1, 1, 0) at rest: turned about y by 45° per second, shifted by the
     // parent's translation (linear between its samples).
-    let corner = |t: f32| -> [f32; 3] {
-        let posed = scene.pose_meshes(t);
-        let m = &posed[blade];
-        *m.positions
-            .iter()
-            .min_by(|a, b| (a[1] - 1.0).abs().total_cmp(&(b[1] - 1.0).abs()).then(b[0].total_cmp(&a[0]).reverse()))
-            .unwrap()
-    };
+    let k = scene.meshes[blade]
+        .positions
+        .iter()
+        .position(|p| close_all(p, &[1.0, 1.0, 0.0], 1e-6))
+        .expect("the corner at rest");
+    let corner = |t: f32| -> [f32; 3] { scene.pose_meshes(t)[blade].positions[k] };
     let s = std::f32::consts::FRAC_1_SQRT_2;
     let (c, sn) = (22.5f32.to_radians().cos(), 22.5f32.to_radians().sin());
     for (t, want) in [
