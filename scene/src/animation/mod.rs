@@ -6,8 +6,8 @@
 //! meshes and lights to nodes. `Scene::meshes` and `Scene::lights` stay the rest pose; a rig keeps
 //! what posing needs: a mesh's vertices in its node's space (skinned meshes: their joints, inverse
 //! bind matrices and up to four weights per vertex; morph targets: per-vertex deltas) and a light's
-//! rest world matrix. glTF animations and scene-file motions (`[object.motion]`, `[light.motion]`)
-//! both become this one model, and every part poses a scene through [`Scene::pose`] and
+//! rest world matrix. glTF animations, scene-file motions (`[object.motion]`, `[light.motion]`)
+//! and USD's time-sampled transforms all become this one model, and every part poses a scene through [`Scene::pose`] and
 //! [`Scene::samples_at`]: the GPU node, the CPU reference and the planner see the same pose.
 //!
 //! Lights move rigidly: a light attached to a node moves by `W(t)·W(rest)⁻¹` (its samples too, so
