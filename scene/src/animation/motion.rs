@@ -114,23 +114,7 @@ fn add(
     }
     let pivot = match (m.pivot, &subject) {
         (Some(p), _) => p,
-        (None, Subject::Mesh(i)) => {
-            let mesh = &scene.meshes[*i];
-            let (lo, hi) = mesh.positions.iter().fold(
-                ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]),
-                |(lo, hi), p| {
-                    (
-                        std::array::from_fn(|k| lo[k].min(p[k])),
-                        std::array::from_fn(|k| hi[k].max(p[k])),
-                    )
-                },
-            );
-            if mesh.positions.is_empty() {
-                [0.0; 3]
-            } else {
-                std::array::from_fn(|k| 0.5 * (lo[k] + hi[k]))
-            }
-        }
+        (None, Subject::Mesh(i)) => crate::moves::pivot(&scene.meshes[*i]),
         (None, Subject::Light(i)) => light_centre(&scene.lights[*i].shape, scene),
     };
     if !pivot.iter().all(|v| v.is_finite()) {
