@@ -80,9 +80,9 @@ pub(super) fn animate(
         r.ignored
             .insert("shear in time-sampled transforms (approximated by scale and rotation)".into());
     }
-    let finite = keys.iter().all(|(t, s, q, tr)| {
-        t.is_finite() && s.is_finite() && q.is_finite() && tr.is_finite()
-    });
+    let finite = keys
+        .iter()
+        .all(|(t, s, q, tr)| t.is_finite() && s.is_finite() && q.is_finite() && tr.is_finite());
     if !finite {
         return Err(Error::Usd(format!(
             "{}: a time-sampled transform is not finite",
@@ -121,7 +121,8 @@ pub(super) fn animate(
             .flat_map(|k| f(k).as_vec3().to_array())
             .collect()
     };
-    anim.channels.push(channel(Target::Translation, 3, v3(|k| k.3)));
+    anim.channels
+        .push(channel(Target::Translation, 3, v3(|k| k.3)));
     anim.channels.push(channel(Target::Scale, 3, v3(|k| k.1)));
     anim.channels.push(channel(
         Target::Rotation,
@@ -136,7 +137,12 @@ pub(super) fn animate(
         let positions = mesh
             .positions
             .iter()
-            .map(|p| inverse.transform_point3(DVec3::from(p.map(f64::from))).as_vec3().to_array())
+            .map(|p| {
+                inverse
+                    .transform_point3(DVec3::from(p.map(f64::from)))
+                    .as_vec3()
+                    .to_array()
+            })
             .collect();
         let normals = mesh
             .normals
@@ -175,7 +181,12 @@ pub(super) fn merge(
     b: &[f64],
     ignored: &mut std::collections::BTreeSet<String>,
 ) -> Vec<f64> {
-    let mut all: Vec<f64> = a.iter().chain(b).copied().filter(|t| t.is_finite()).collect();
+    let mut all: Vec<f64> = a
+        .iter()
+        .chain(b)
+        .copied()
+        .filter(|t| t.is_finite())
+        .collect();
     all.sort_by(f64::total_cmp);
     all.dedup();
     if all.len() > MAX_TIMES {

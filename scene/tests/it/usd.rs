@@ -589,8 +589,14 @@ fn time_sampled_transforms_animate_meshes_and_lights() {
         "{ignored:?}"
     );
     let anim = scene.animation.as_ref().expect("the stage animates");
-    assert_eq!((anim.nodes.len(), anim.meshes.len(), anim.lights.len()), (2, 1, 1));
-    assert!((anim.duration() - 2.0).abs() < 1e-6, "48 time codes at 24 a second");
+    assert_eq!(
+        (anim.nodes.len(), anim.meshes.len(), anim.lights.len()),
+        (2, 1, 1)
+    );
+    assert!(
+        (anim.duration() - 2.0).abs() < 1e-6,
+        "48 time codes at 24 a second"
+    );
     let blade = scene.meshes.iter().position(|m| m.name == "Blade").unwrap();
     let floor = scene.meshes.iter().position(|m| m.name == "Floor").unwrap();
     // The blade's corner (1, 1, 0) at rest: turned about y by 45° per second, shifted by the
@@ -611,13 +617,31 @@ fn time_sampled_transforms_animate_meshes_and_lights() {
         (5.0, [2.0, 1.0, 1.0]),
     ] {
         let got = corner(t);
-        assert!(close_all(&got, &want, 1e-4), "t = {t}: {got:?}, want {want:?}");
+        assert!(
+            close_all(&got, &want, 1e-4),
+            "t = {t}: {got:?}, want {want:?}"
+        );
     }
     let posed = scene.pose_meshes(1.0);
-    assert_eq!(posed[floor], scene.meshes[floor], "the floor has no samples");
+    assert_eq!(
+        posed[floor], scene.meshes[floor],
+        "the floor has no samples"
+    );
     // The lamp rides the parent: (0, 3, 0) shifted.
     let lamp = |t: f32| scene.samples_at(t)[0].position;
-    assert!(close_all(&lamp(0.0), &[0.0, 3.0, 0.0], 1e-5), "{:?}", lamp(0.0));
-    assert!(close_all(&lamp(1.0), &[2.0, 3.0, 0.0], 1e-5), "{:?}", lamp(1.0));
-    assert!(close_all(&lamp(1.5), &[2.0, 3.0, 1.0], 1e-5), "{:?}", lamp(1.5));
+    assert!(
+        close_all(&lamp(0.0), &[0.0, 3.0, 0.0], 1e-5),
+        "{:?}",
+        lamp(0.0)
+    );
+    assert!(
+        close_all(&lamp(1.0), &[2.0, 3.0, 0.0], 1e-5),
+        "{:?}",
+        lamp(1.0)
+    );
+    assert!(
+        close_all(&lamp(1.5), &[2.0, 3.0, 1.0], 1e-5),
+        "{:?}",
+        lamp(1.5)
+    );
 }
