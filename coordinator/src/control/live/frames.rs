@@ -103,86 +103,13 @@ impl Core {
                     spec.light_colors.push((l as u32, *given));
                 }
             }
-            if let Some(moves) = spec.moves.clone().filter(|m| **m != *self.moves)
-                && let Err(e) = self.check_moves(&moves)
-            {
-                // Frames asking for it again are sent without it; the viewers take the moves
-                // back.
-                self.notice(format!(
-                    "cannot move the objects ({e}): they stay where they are"
-                ));
-                self.refused.moves = Some(moves);
-                spec.moves = None;
-                let back = Arc::clone(&self.moves);
-                self.observer.send_modify(|s| {
-                    let n = s.moves_put_back.as_ref().map_or(1, |(n, _)| n + 1);
-                    s.moves_put_back = Some((n, back));
-                });
-            }
+            self.refuse_moves_it_cannot_make(&mut spec);
+            let Some(spec) = self.replan_for_steering(index, spec) else {
+                break;
+            };
             let Some(plan) = &self.plan else {
                 break;
             };
-            let budget = spec
-                .frame_budget_us
-                .filter(|b| *b != self.opts.frame_budget_us);
-            let edit = spec
-                .lights
-                .clone()
-                .filter(|l| !super::same_lights(l, &self.scene.lights));
-            let moved = spec.moves.clone().filter(|m| **m != *self.moves);
-            if budget.is_some() || spec.refine != self.refine || edit.is_some() || moved.is_some() {
-                // Plan under the new budget or refinement (one re-plan for both), then send this
-                // frame under the new epoch.
-                let mut why = Vec::new();
-                if let Some(budget) = budget {
-                    self.opts.frame_budget_us = budget;
-                    self.adapt.budget_changed();
-                    let text = match budget {
-                        Some(us) => format!(
-                            "frame budget {:.1} ms from frame {index}: re-planning",
-                            us as f64 / 1e3
-                        ),
-                        None => format!("no frame budget from frame {index}: re-planning"),
-                    };
-                    self.notice(text.clone());
-                    why.push(text);
-                }
-                if let Some(lights) = edit {
-                    let text = format!(
-                        "lights edited at frame {index} ({} light(s)): re-planning",
-                        lights.len()
-                    );
-                    tracing::info!("{text}");
-                    self.edit_lights(&lights);
-                    why.push(text);
-                }
-                if let Some(moves) = moved {
-                    let text = format!(
-                        "objects moved at frame {index} ({} moved): re-planning",
-                        moves.iter().filter(|m| !m.is_identity()).count()
-                    );
-                    tracing::info!("{text}");
-                    self.moves = moves;
-                    why.push(text);
-                }
-                if spec.refine != self.refine {
-                    // Each refinement step re-plans: told in the log and the epoch's reason,
-                    // not as a notice (the page would show one every step).
-                    let text = match spec.refine {
-                        Some(r) => format!("refining from frame {index} ({r}): re-planning"),
-                        None => {
-                            format!("back to the session's quality from frame {index}: re-planning")
-                        }
-                    };
-                    tracing::info!("{text}");
-                    self.refine = spec.refine;
-                    why.push(text);
-                }
-                self.frames.queue.push_front((index, spec));
-                self.pending_steer = Some(why.join("; "));
-                self.publish();
-                break;
-            }
             let wire = self.base + index;
             let params = match frame_params(plan, &spec.light_colors, index, self.recoloured) {
                 Ok(p) => p,
@@ -274,6 +201,99 @@ impl Core {
         self.peaks.clear();
         self.recoloured = false;
         Ok(())
+    }
+
+    /// Takes out of `spec` a move list the loop cannot make (`Core::check_moves`): a notice,
+    /// frames asking for it again sent without it, and the moves rendered published for the
+    /// viewers to take back.
+    fn refuse_moves_it_cannot_make(&mut self, spec: &mut super::FrameSpec) {
+        if let Some(moves) = spec.moves.clone().filter(|m| **m != *self.moves)
+            && let Err(e) = self.check_moves(&moves)
+        {
+            self.notice(format!(
+                "cannot move the objects ({e}): they stay where they are"
+            ));
+            self.refused.moves = Some(moves);
+            spec.moves = None;
+            let back = Arc::clone(&self.moves);
+            self.observer.send_modify(|s| {
+                let n = s.moves_put_back.as_ref().map_or(1, |(n, _)| n + 1);
+                s.moves_put_back = Some((n, back));
+            });
+        }
+    }
+
+    /// Frame `index` as requested: `Some(spec)` to send it under the plan there is, or `None`
+    /// when it asks for a budget, refinement, light edit or move the plan lacks — the settings
+    /// are taken, the frame is put back at the head of the queue and a re-plan is due once the
+    /// frames in flight are done (one re-plan for all of them).
+    fn replan_for_steering(
+        &mut self,
+        index: u64,
+        spec: super::FrameSpec,
+    ) -> Option<super::FrameSpec> {
+        let budget = spec
+            .frame_budget_us
+            .filter(|b| *b != self.opts.frame_budget_us);
+        let edit = spec
+            .lights
+            .clone()
+            .filter(|l| !super::same_lights(l, &self.scene.lights));
+        let moved = spec.moves.clone().filter(|m| **m != *self.moves);
+        if budget.is_some() || spec.refine != self.refine || edit.is_some() || moved.is_some() {
+            // Plan under the new budget or refinement (one re-plan for both), then send this
+            // frame under the new epoch.
+            let mut why = Vec::new();
+            if let Some(budget) = budget {
+                self.opts.frame_budget_us = budget;
+                self.adapt.budget_changed();
+                let text = match budget {
+                    Some(us) => format!(
+                        "frame budget {:.1} ms from frame {index}: re-planning",
+                        us as f64 / 1e3
+                    ),
+                    None => format!("no frame budget from frame {index}: re-planning"),
+                };
+                self.notice(text.clone());
+                why.push(text);
+            }
+            if let Some(lights) = edit {
+                let text = format!(
+                    "lights edited at frame {index} ({} light(s)): re-planning",
+                    lights.len()
+                );
+                tracing::info!("{text}");
+                self.edit_lights(&lights);
+                why.push(text);
+            }
+            if let Some(moves) = moved {
+                let text = format!(
+                    "objects moved at frame {index} ({} moved): re-planning",
+                    moves.iter().filter(|m| !m.is_identity()).count()
+                );
+                tracing::info!("{text}");
+                self.moves = moves;
+                why.push(text);
+            }
+            if spec.refine != self.refine {
+                // Each refinement step re-plans: told in the log and the epoch's reason,
+                // not as a notice (the page would show one every step).
+                let text = match spec.refine {
+                    Some(r) => format!("refining from frame {index} ({r}): re-planning"),
+                    None => {
+                        format!("back to the session's quality from frame {index}: re-planning")
+                    }
+                };
+                tracing::info!("{text}");
+                self.refine = spec.refine;
+                why.push(text);
+            }
+            self.frames.queue.push_front((index, spec));
+            self.pending_steer = Some(why.join("; "));
+            self.publish();
+            return None;
+        }
+        Some(spec)
     }
 
     /// Makes `lights` the scene's: the next plan renders them, each with its base colour. Nodes
