@@ -177,6 +177,9 @@ pub(super) fn convert(
     Ok((r.scene, r.has_camera))
 }
 
+/// A prim's world transform at the start, and the time codes it is sampled at (ascending).
+type Placed = (DMat4, Rc<Vec<f64>>);
+
 /// Converts the prim at `path` under its parent's world transform (and the time codes its
 /// parent's world transform is sampled at); its own world transform and time codes, or `None`
 /// when it and its subtree are not rendered.
@@ -186,7 +189,7 @@ fn visit(
     parent: DMat4,
     parent_times: &Rc<Vec<f64>>,
     root: DMat4,
-) -> Result<Option<(DMat4, Rc<Vec<f64>>)>, Error> {
+) -> Result<Option<Placed>, Error> {
     let prim = r.stage.prim(path.clone());
     let type_name = prim
         .type_name()
