@@ -1,5 +1,6 @@
 //! The integration tests of `tests`, one binary (each file of this folder a module).
 
+mod ambient;
 mod animation;
 mod antialiasing;
 mod cluster;
