@@ -465,10 +465,10 @@ impl Viewer {
             }
             _ if !self.access.can_watch() => Err(error(LOCKED)),
             Input::Stats => Err(self.hub.stats()),
-            Input::ObjectPick { x, y } => Err(self.pick(x, y)),
             _ if !self.access.can_steer() => Err(error(
                 "this view can only watch: present the cluster's token to steer",
             )),
+            Input::ObjectPick { x, y } => Err(self.pick(x, y)),
             Input::Render => {
                 self.hub.render_now.notify_one();
                 Ok(())
