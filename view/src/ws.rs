@@ -3,16 +3,18 @@
 //! viewer's steering messages (`docs/live-view.md`).
 
 use crate::access::Access;
-use crate::camera::SteerError;
-use crate::hub::Hub;
+use crate::camera::{Steer, SteerError};
+use crate::hub::{Hub, ViewFrame};
 use crate::json;
 use axum::extract::ws::{Message, WebSocket};
+use futures::stream::{SplitSink, SplitStream};
 use futures::{SinkExt, StreamExt};
 use serde::Deserialize;
 use serde_json::{Value, json};
 use std::net::SocketAddr;
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
+use tokio::sync::watch;
 
 #[derive(Debug, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
@@ -167,6 +169,9 @@ impl Drop for Present {
     }
 }
 
+/// Serves one viewer's WebSocket until the viewer leaves or is dropped, or the view stops:
+/// admits it, sends the welcome and what it may see, then relays frames, changes and its
+/// steering messages.
 pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
     hub.viewers.fetch_add(1, Ordering::Relaxed);
     let _present = Present(Arc::clone(&hub));
@@ -176,13 +181,63 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
         hub: Arc::clone(&hub),
     };
     let (mut tx, mut rx) = socket.split();
+    let Some((watching, first_answers)) = admit(&mut v, &hub, &mut tx, &mut rx).await else {
+        return;
+    };
+    tracing::info!(%peer, access = ?v.access, "viewer connected");
+    let mut feeds = Feeds::subscribe(&hub);
+    let mut outbox = opening(&v, &hub, &mut feeds);
+    outbox.extend(first_answers);
+    relay(&hub, v, tx, rx, watching, feeds, outbox).await;
+}
+
+/// The sending half of a viewer's WebSocket.
+type Tx = SplitSink<WebSocket, Message>;
+/// The receiving half of a viewer's WebSocket.
+type Rx = SplitStream<WebSocket>;
+
+/// The hub's channels one viewer follows.
+struct Feeds {
+    frames: watch::Receiver<Option<Arc<ViewFrame>>>,
+    status: watch::Receiver<Option<Arc<Value>>>,
+    steer: watch::Receiver<Steer>,
+    exposure: watch::Receiver<f32>,
+    notices: watch::Receiver<Option<(u64, String)>>,
+    ended: watch::Receiver<Option<String>>,
+    scenes: watch::Receiver<Arc<crate::open::SceneInfo>>,
+}
+
+impl Feeds {
+    /// Subscribes to every channel the viewer follows.
+    fn subscribe(hub: &Hub) -> Feeds {
+        Feeds {
+            frames: hub.frames.subscribe(),
+            status: hub.status.subscribe(),
+            steer: hub.steer.subscribe(),
+            exposure: hub.exposure.subscribe(),
+            notices: hub.notice.subscribe(),
+            ended: hub.ended.subscribe(),
+            scenes: hub.scene.subscribe(),
+        }
+    }
+}
+
+/// Admits the viewer. One that does not steer takes a watching slot; where the slots are full it
+/// has `HELLO_WAIT` to present the token, else it is told why and the socket closed (`None`).
+/// Returns the slot it holds and the answers to a message read while it waited.
+async fn admit(
+    v: &mut Viewer,
+    hub: &Arc<Hub>,
+    tx: &mut Tx,
+    rx: &mut Rx,
+) -> Option<(Option<Watching>, Vec<Value>)> {
     let mut first_answers = Vec::new();
     // Every viewer that does not steer (watching, or waiting to present the token) takes a
     // watching slot.
-    let mut watching = if v.access.can_steer() {
+    let watching = if v.access.can_steer() {
         None
     } else {
-        Watching::take(&hub)
+        Watching::take(hub)
     };
     if !v.access.can_steer() && watching.is_none() {
         // The watching slots are full: only a viewer who presents the token takes one of
@@ -195,37 +250,50 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
                 "{} viewers are watching already: present the token to steer, or try later",
                 crate::hub::MAX_WATCHERS
             ));
-            let _ = send(&mut tx, &hub, Message::Text(m.to_string().into())).await;
+            let _ = send(tx, hub, Message::Text(m.to_string().into())).await;
             let _ = tx.send(Message::Close(None)).await;
-            return;
+            return None;
         }
     }
-    tracing::info!(%peer, access = ?v.access, "viewer connected");
-    let mut frames = hub.frames.subscribe();
-    let mut status = hub.status.subscribe();
-    let mut steer = hub.steer.subscribe();
-    let mut exposure = hub.exposure.subscribe();
-    let mut notices = hub.notice.subscribe();
-    let mut ended = hub.ended.subscribe();
-    let mut scenes = hub.scene.subscribe();
-    scenes.borrow_and_update();
-    ended.mark_changed();
+    Some((watching, first_answers))
+}
+
+/// The first messages: the welcome, then the lights and moves to a viewer who may watch. Marks
+/// what the welcome says already as seen (notices count from now on), and the session's end,
+/// the newest frame and the status as still to send.
+fn opening(v: &Viewer, hub: &Hub, feeds: &mut Feeds) -> Vec<Value> {
+    feeds.scenes.borrow_and_update();
+    feeds.ended.mark_changed();
     let mut outbox = vec![v.welcome()];
     if v.access.can_watch() {
-        let s = steer.borrow_and_update().clone();
+        let s = feeds.steer.borrow_and_update().clone();
         outbox.push(json::lights_message(&s));
         outbox.push(json::moves_message(&s, &hub.scene.borrow().objects));
     }
     // What the welcome says already, and only notices from now on.
-    exposure.borrow_and_update();
-    notices.borrow_and_update();
-    frames.mark_changed();
-    status.mark_changed();
-    outbox.extend(first_answers);
+    feeds.exposure.borrow_and_update();
+    feeds.notices.borrow_and_update();
+    feeds.frames.mark_changed();
+    feeds.status.mark_changed();
+    outbox
+}
+
+/// The viewer's loop: sends what is queued, then waits for the view to stop, a message from the
+/// viewer, or a change it may see (a viewer without the token sees only the session's end).
+async fn relay(
+    hub: &Hub,
+    mut v: Viewer,
+    mut tx: Tx,
+    mut rx: Rx,
+    mut watching: Option<Watching>,
+    mut feeds: Feeds,
+    mut outbox: Vec<Value>,
+) {
+    let peer = v.peer;
     let mut last_sent: Option<u64> = None;
     loop {
         for m in outbox.drain(..) {
-            if !send(&mut tx, &hub, Message::Text(m.to_string().into())).await {
+            if !send(&mut tx, hub, Message::Text(m.to_string().into())).await {
                 return;
             }
         }
@@ -239,21 +307,7 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
             }
             m = rx.next() => match m {
                 Some(Ok(Message::Text(t))) => {
-                    let before = v.access;
-                    outbox.extend(v.handle(&t));
-                    if v.access.can_steer() && !before.can_steer() {
-                        // A steering viewer now: its watching slot is free again.
-                        drop(watching.take());
-                        outbox.push(v.welcome());
-                        let s = steer.borrow_and_update().clone();
-                        outbox.push(json::lights_message(&s));
-                        outbox.push(json::moves_message(&s, &hub.scene.borrow().objects));
-                        exposure.borrow_and_update();
-                        notices.borrow_and_update();
-                        // The newest frame and status, now unredacted.
-                        frames.mark_changed();
-                        status.mark_changed();
-                    }
+                    on_text(&mut v, &t, hub, &mut feeds, &mut watching, &mut outbox);
                 }
                 Some(Ok(Message::Binary(_))) => {
                     outbox.push(error("the view takes JSON text messages only"));
@@ -265,76 +319,139 @@ pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
                     return;
                 }
             },
-            r = frames.changed(), if watch => {
+            r = feeds.frames.changed(), if watch => {
                 if r.is_err() { return; }
-                let f = frames.borrow_and_update().clone();
-                if let Some(f) = f {
-                    if let Some(prev) = last_sent {
-                        let skipped = f.frame.saturating_sub(prev + 1);
-                        hub.counters.frames_skipped.fetch_add(skipped, Ordering::Relaxed);
-                    }
-                    last_sent = Some(f.frame);
-                    let n = f.message.len() as u64;
-                    if !send(&mut tx, &hub, Message::Binary(f.message.clone())).await {
-                        return;
-                    }
-                    hub.counters.frames_sent.fetch_add(1, Ordering::Relaxed);
-                    hub.counters.bytes_sent.fetch_add(n, Ordering::Relaxed);
+                if !send_frame(&mut tx, hub, &mut feeds.frames, &mut last_sent).await {
+                    return;
                 }
             }
-            r = status.changed(), if watch => {
+            r = feeds.status.changed(), if watch => {
                 if r.is_err() { return; }
-                let s = status.borrow_and_update().clone();
+                let s = feeds.status.borrow_and_update().clone();
                 if let Some(s) = s {
                     let mut s = (*s).clone();
                     s["viewers"] = hub.viewers.load(Ordering::Relaxed).into();
                     outbox.push(v.redacted(s));
                 }
             }
-            r = steer.changed(), if watch => {
+            r = feeds.steer.changed(), if watch => {
                 if r.is_err() { return; }
-                let s = steer.borrow_and_update().clone();
+                let s = feeds.steer.borrow_and_update().clone();
                 outbox.push(json::camera_message(&s));
                 outbox.push(json::lights_message(&s));
                 outbox.push(json::moves_message(&s, &hub.scene.borrow().objects));
                 outbox.push(json::animation_message(&s));
             }
-            r = scenes.changed(), if watch => {
+            r = feeds.scenes.changed(), if watch => {
                 // Another scene opened (or one refused, and the one before back): the page
                 // starts again from the welcome.
                 if r.is_err() { return; }
-                scenes.borrow_and_update();
+                feeds.scenes.borrow_and_update();
                 outbox.push(v.welcome());
-                outbox.push(json::lights_message(&steer.borrow()));
-                outbox.push(json::moves_message(&steer.borrow(), &hub.scene.borrow().objects));
+                outbox.push(json::lights_message(&feeds.steer.borrow()));
+                outbox.push(json::moves_message(&feeds.steer.borrow(), &hub.scene.borrow().objects));
             }
-            r = exposure.changed(), if watch => {
+            r = feeds.exposure.changed(), if watch => {
                 if r.is_err() { return; }
-                let stops = *exposure.borrow_and_update();
+                let stops = *feeds.exposure.borrow_and_update();
                 outbox.push(json::exposure_message(stops));
             }
-            r = notices.changed(), if watch => {
+            r = feeds.notices.changed(), if watch => {
                 if r.is_err() { return; }
-                if let Some((_, text)) = notices.borrow_and_update().clone() {
+                if let Some((_, text)) = feeds.notices.borrow_and_update().clone() {
                     outbox.push(v.redacted(json!({"type": "notice", "text": text})));
                 }
             }
-            r = ended.changed() => {
+            r = feeds.ended.changed() => {
                 if r.is_err() { return; }
-                let why = ended.borrow_and_update().clone();
-                if let Some(why) = why {
-                    // The page shows why instead of looping on "reconnecting" with no reason
-                    // (a viewer that sees nothing of the session is told only that it ended).
-                    let why = if watch { why } else { "the session ended".to_string() };
-                    let m = v.redacted(json!({"type": "ended", "text": why}));
-                    if send(&mut tx, &hub, Message::Text(m.to_string().into())).await {
-                        let _ = tx.send(Message::Close(None)).await;
-                    }
+                if send_ended(&v, &mut tx, hub, &mut feeds.ended, watch).await {
                     return;
                 }
             }
         }
     }
+}
+
+/// Answers one text message from the viewer. A viewer who steers now gives back its watching
+/// slot and is sent the welcome, lights and moves again, and the newest frame and status
+/// unredacted.
+fn on_text(
+    v: &mut Viewer,
+    text: &str,
+    hub: &Hub,
+    feeds: &mut Feeds,
+    watching: &mut Option<Watching>,
+    outbox: &mut Vec<Value>,
+) {
+    let before = v.access;
+    outbox.extend(v.handle(text));
+    if v.access.can_steer() && !before.can_steer() {
+        // A steering viewer now: its watching slot is free again.
+        drop(watching.take());
+        outbox.push(v.welcome());
+        let s = feeds.steer.borrow_and_update().clone();
+        outbox.push(json::lights_message(&s));
+        outbox.push(json::moves_message(&s, &hub.scene.borrow().objects));
+        feeds.exposure.borrow_and_update();
+        feeds.notices.borrow_and_update();
+        // The newest frame and status, now unredacted.
+        feeds.frames.mark_changed();
+        feeds.status.mark_changed();
+    }
+}
+
+/// Sends the newest frame, if any, counting the frames skipped since the last one sent; false
+/// when the viewer is gone or too slow.
+async fn send_frame(
+    tx: &mut Tx,
+    hub: &Hub,
+    frames: &mut watch::Receiver<Option<Arc<ViewFrame>>>,
+    last_sent: &mut Option<u64>,
+) -> bool {
+    let f = frames.borrow_and_update().clone();
+    if let Some(f) = f {
+        if let Some(prev) = *last_sent {
+            let skipped = f.frame.saturating_sub(prev + 1);
+            hub.counters
+                .frames_skipped
+                .fetch_add(skipped, Ordering::Relaxed);
+        }
+        *last_sent = Some(f.frame);
+        let n = f.message.len() as u64;
+        if !send(tx, hub, Message::Binary(f.message.clone())).await {
+            return false;
+        }
+        hub.counters.frames_sent.fetch_add(1, Ordering::Relaxed);
+        hub.counters.bytes_sent.fetch_add(n, Ordering::Relaxed);
+    }
+    true
+}
+
+/// Tells the viewer why the session ended, if it has, and closes the socket once that is sent;
+/// true when it has ended. A viewer who may not watch is told only that it ended.
+async fn send_ended(
+    v: &Viewer,
+    tx: &mut Tx,
+    hub: &Hub,
+    ended: &mut watch::Receiver<Option<String>>,
+    watch: bool,
+) -> bool {
+    let why = ended.borrow_and_update().clone();
+    let Some(why) = why else {
+        return false;
+    };
+    // The page shows why instead of looping on "reconnecting" with no reason (a viewer that
+    // sees nothing of the session is told only that it ended).
+    let why = if watch {
+        why
+    } else {
+        "the session ended".to_string()
+    };
+    let m = v.redacted(json!({"type": "ended", "text": why}));
+    if send(tx, hub, Message::Text(m.to_string().into())).await {
+        let _ = tx.send(Message::Close(None)).await;
+    }
+    true
 }
 
 /// Sends one message within the deadline; false when the viewer is gone or too slow.

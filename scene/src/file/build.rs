@@ -19,21 +19,66 @@ use glam::{Affine3A, Quat, Vec3};
 use std::collections::HashMap;
 use std::path::Path;
 
+/// Builds the scene of a parsed scene file labelled `label`, reading its model inside the folder
+/// `base`, and completes whatever the file leaves out.
 pub(super) fn build(
     file: &SceneFile,
     label: &str,
     base: Option<&Path>,
 ) -> Result<Scene, SceneError> {
-    let err = |m: String| SceneError::SceneFile {
+    let err = |m: String| file_error(label, m);
+    let name = scene_name(file, label);
+    check_one_model(file).map_err(err)?;
+    let (mut scene, gltf_camera) = load_model(file, label, base, &name)?;
+    if file.name.is_some() || file.base.is_none() {
+        scene.name = name;
+    }
+    let by_name = add_materials(file, &mut scene).map_err(err)?;
+    let mut objects = add_objects(file, label, &mut scene, &by_name)?;
+    if file.base.is_some() {
+        name_base_meshes(&scene, &mut objects);
+        if !file.lights.is_empty() {
+            // The file's lights are the scene's: they replace the base's.
+            scene.lights.clear();
+        }
+    }
+    for (i, l) in file.lights.iter().enumerate() {
+        let light = light(l, i, &mut scene, &objects).map_err(err)?;
+        scene.lights.push(light);
+    }
+    crate::animation::apply_motions(&mut scene, &file.motions, &objects).map_err(err)?;
+    crate::moves::check(&scene, &file.moves).map_err(err)?;
+    scene.apply_moves(&file.moves);
+    apply_settings(file, &mut scene);
+    let has_camera = file.camera.is_some() || gltf_camera;
+    framing::complete_with(&mut scene, has_camera, file.objects.is_empty());
+    let report = scene.sanitize();
+    if !report.is_clean() {
+        tracing::warn!(file = label, %report, "scene sanitised");
+    }
+    Ok(scene)
+}
+
+/// Wraps a message about the scene file `label` in a [`SceneError::SceneFile`].
+fn file_error(label: &str, message: String) -> SceneError {
+    SceneError::SceneFile {
         path: label.to_string(),
-        message: m,
-    };
-    let name = file.name.clone().unwrap_or_else(|| {
+        message,
+    }
+}
+
+/// Returns the scene's name: the file's `name`, else the stem of its label, else "scene".
+fn scene_name(file: &SceneFile, label: &str) -> String {
+    file.name.clone().unwrap_or_else(|| {
         Path::new(label)
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_else(|| "scene".into())
-    });
+    })
+}
+
+/// Refuses a file that names more than one model or base table.
+fn check_one_model(file: &SceneFile) -> Result<(), String> {
     let models = [
         file.base.as_ref().map(|_| "[base]"),
         file.gltf.as_ref().map(|_| "[gltf]"),
@@ -43,11 +88,22 @@ pub(super) fn build(
     ];
     let named: Vec<&str> = models.into_iter().flatten().collect();
     if named.len() > 1 {
-        return Err(err(format!(
+        return Err(format!(
             "a scene file takes one model or base ([base], [gltf], [obj], [ply] or [usd]); this one has {}",
             named.join(" and ")
-        )));
+        ));
     }
+    Ok(())
+}
+
+/// Loads the file's base or model, or starts an empty scene named `name`; the flag says whether
+/// the loaded scene brought its own camera.
+fn load_model(
+    file: &SceneFile,
+    label: &str,
+    base: Option<&Path>,
+    name: &str,
+) -> Result<(Scene, bool), SceneError> {
     // A model's path, read only inside the scene file's folder.
     let model_path = |table: &str, relative: &str| {
         let folder = base.unwrap_or(Path::new("."));
@@ -56,7 +112,7 @@ pub(super) fn build(
                 path: path.display().to_string(),
                 message: e.message,
             },
-            None => err(format!("{table}.path: {}", e.message)),
+            None => file_error(label, format!("{table}.path: {}", e.message)),
         })
     };
     let placed = |scale: f32, translation: [f32; 3]| ModelOptions {
@@ -65,7 +121,7 @@ pub(super) fn build(
         complete: false,
         ..ModelOptions::default()
     };
-    let (mut scene, gltf_camera) = if let Some(b) = &file.base {
+    Ok(if let Some(b) = &file.base {
         (load_base(&b.scene, base, label)?, true)
     } else if let Some(g) = &file.gltf {
         let path = model_path("gltf", &g.path)?;
@@ -80,7 +136,7 @@ pub(super) fn build(
         let imported = gltf_load::import(
             &bytes,
             &label,
-            &name,
+            name,
             Some(gltf_load::model_folder(&path)),
             &opts,
         )?;
@@ -92,7 +148,7 @@ pub(super) fn build(
         let imported = crate::obj_load::import(
             &bytes,
             &label,
-            &name,
+            name,
             Some(gltf_load::model_folder(&path)),
             &placed(o.scale, o.translation),
         )?;
@@ -102,7 +158,7 @@ pub(super) fn build(
         let bytes = gltf_load::read_model(&path)?;
         let label = path.display().to_string();
         let imported =
-            crate::ply_load::import(&bytes, &label, &name, &placed(p.scale, p.translation))?;
+            crate::ply_load::import(&bytes, &label, name, &placed(p.scale, p.translation))?;
         (imported.scene, false)
     } else if let Some(u) = &file.usd {
         let path = model_path("usd", &u.path)?;
@@ -111,22 +167,26 @@ pub(super) fn build(
         let imported = crate::usd_load::import(
             &bytes,
             &label,
-            &name,
+            name,
             Some(gltf_load::model_folder(&path)),
             &placed(u.scale, u.translation),
         )?;
         (imported.scene, imported.has_camera)
     } else {
-        (Scene::new(&name), false)
-    };
-    if file.name.is_some() || file.base.is_none() {
-        scene.name = name;
-    }
+        (Scene::new(name), false)
+    })
+}
 
+/// Adds the file's materials to the scene and returns their indices by name; a name defined
+/// twice is an error.
+fn add_materials<'a>(
+    file: &'a SceneFile,
+    scene: &mut Scene,
+) -> Result<HashMap<&'a str, usize>, String> {
     let mut by_name: HashMap<&str, usize> = HashMap::new();
     for m in &file.materials {
         if by_name.contains_key(m.name.as_str()) {
-            return Err(err(format!("material {:?} is defined twice", m.name)));
+            return Err(format!("material {:?} is defined twice", m.name));
         }
         let k = scene.add_material(Material {
             name: m.name.clone(),
@@ -147,6 +207,17 @@ pub(super) fn build(
         });
         by_name.insert(&m.name, k);
     }
+    Ok(by_name)
+}
+
+/// Builds the file's primitive objects into the scene, checking the triangle limit before each,
+/// and returns their mesh indices by object name; a name used twice is an error.
+fn add_objects(
+    file: &SceneFile,
+    label: &str,
+    scene: &mut Scene,
+    by_name: &HashMap<&str, usize>,
+) -> Result<HashMap<String, usize>, SceneError> {
     let mut objects: HashMap<String, usize> = HashMap::new();
     let mut triangles = scene.triangle_count() as u64;
     for (i, o) in file.objects.iter().enumerate() {
@@ -154,35 +225,35 @@ pub(super) fn build(
         // are clamped), their number is not.
         triangles += object_triangles(o);
         crate::limits::check_triangles(triangles).map_err(|e| SceneError::limit(label, e))?;
-        let (mesh, obj_name) = object_mesh(o, i, &mut scene, &by_name).map_err(err)?;
+        let (mesh, obj_name) =
+            object_mesh(o, i, scene, by_name).map_err(|m| file_error(label, m))?;
         if objects.insert(obj_name.clone(), mesh).is_some() {
-            return Err(err(format!("object name {obj_name:?} is used twice")));
+            return Err(file_error(
+                label,
+                format!("object name {obj_name:?} is used twice"),
+            ));
         }
     }
-    if file.base.is_some() {
-        // A base's meshes are named as objects too, where their names are unique (an emissive
-        // mesh light of the base names its mesh).
-        let mut seen: HashMap<&str, usize> = HashMap::new();
-        for m in &scene.meshes {
-            *seen.entry(m.name.as_str()).or_default() += 1;
-        }
-        for (k, m) in scene.meshes.iter().enumerate() {
-            if seen.get(m.name.as_str()) == Some(&1) && !m.name.is_empty() {
-                objects.entry(m.name.clone()).or_insert(k);
-            }
-        }
-        if !file.lights.is_empty() {
-            // The file's lights are the scene's: they replace the base's.
-            scene.lights.clear();
+    Ok(objects)
+}
+
+/// Names a base's meshes as objects too, where their names are unique (an emissive mesh light of
+/// the base names its mesh); the file's own objects keep their names.
+fn name_base_meshes(scene: &Scene, objects: &mut HashMap<String, usize>) {
+    let mut seen: HashMap<&str, usize> = HashMap::new();
+    for m in &scene.meshes {
+        *seen.entry(m.name.as_str()).or_default() += 1;
+    }
+    for (k, m) in scene.meshes.iter().enumerate() {
+        if seen.get(m.name.as_str()) == Some(&1) && !m.name.is_empty() {
+            objects.entry(m.name.clone()).or_insert(k);
         }
     }
-    for (i, l) in file.lights.iter().enumerate() {
-        let light = light(l, i, &mut scene, &objects).map_err(err)?;
-        scene.lights.push(light);
-    }
-    crate::animation::apply_motions(&mut scene, &file.motions, &objects).map_err(err)?;
-    crate::moves::check(&scene, &file.moves).map_err(err)?;
-    scene.apply_moves(&file.moves);
+}
+
+/// Applies the file's camera, ambient, exposure, quality and specular switch to the scene; a
+/// scene without a base starts from no ambient and an exposure of one.
+fn apply_settings(file: &SceneFile, scene: &mut Scene) {
     if let Some(c) = &file.camera {
         scene.camera = camera(c);
     }
@@ -204,13 +275,6 @@ pub(super) fn build(
             m.specular = [0.0; 3];
         }
     }
-    let has_camera = file.camera.is_some() || gltf_camera;
-    framing::complete_with(&mut scene, has_camera, file.objects.is_empty());
-    let report = scene.sanitize();
-    if !report.is_clean() {
-        tracing::warn!(file = label, %report, "scene sanitised");
-    }
-    Ok(scene)
 }
 
 /// The scene of a `[base]`: a built-in, or a scene file (without a base of its own) or model
@@ -387,138 +451,15 @@ fn object_mesh(
     Ok((scene.add_mesh(mesh), name))
 }
 
+/// Builds light `index` of a scene file; an emissive-mesh light also gives its object a glowing
+/// material of its own.
 pub(super) fn light(
     l: &LightSpec,
     index: usize,
     scene: &mut Scene,
     objects: &HashMap<String, usize>,
 ) -> Result<Light, String> {
-    let named = |name: &Option<String>, kind: &str| {
-        name.clone()
-            .unwrap_or_else(|| format!("{kind} light {index}"))
-    };
-    let make = |name: String, shape, color, power, range, samples| Light {
-        name,
-        shape,
-        color,
-        power,
-        range,
-        samples,
-    };
     Ok(match l {
-        LightSpec::Point {
-            name,
-            position,
-            intensity,
-            color,
-            range,
-        } => make(
-            named(name, "point"),
-            LightShape::Point {
-                position: *position,
-            },
-            *color,
-            *intensity,
-            *range,
-            1,
-        ),
-        LightSpec::Spot {
-            name,
-            position,
-            direction,
-            intensity,
-            inner_angle_deg,
-            outer_angle_deg,
-            color,
-            range,
-        } => make(
-            named(name, "spot"),
-            LightShape::Spot {
-                position: *position,
-                direction: *direction,
-                inner_angle: inner_angle_deg.to_radians(),
-                outer_angle: outer_angle_deg.to_radians(),
-            },
-            *color,
-            *intensity,
-            *range,
-            1,
-        ),
-        LightSpec::Directional {
-            name,
-            direction,
-            irradiance,
-            color,
-        } => make(
-            named(name, "directional"),
-            LightShape::Directional {
-                direction: *direction,
-            },
-            *color,
-            *irradiance,
-            None,
-            1,
-        ),
-        LightSpec::Rect {
-            name,
-            center,
-            size,
-            normal,
-            u_axis,
-            radiance,
-            color,
-            samples,
-        } => make(
-            named(name, "rect"),
-            LightShape::Rect {
-                center: *center,
-                normal: *normal,
-                u_axis: *u_axis,
-                size: *size,
-            },
-            *color,
-            *radiance,
-            None,
-            *samples,
-        ),
-        LightSpec::Disk {
-            name,
-            center,
-            normal,
-            radius,
-            radiance,
-            color,
-            samples,
-        } => make(
-            named(name, "disk"),
-            LightShape::Disk {
-                center: *center,
-                normal: *normal,
-                radius: *radius,
-            },
-            *color,
-            *radiance,
-            None,
-            *samples,
-        ),
-        LightSpec::Sphere {
-            name,
-            center,
-            radius,
-            radiance,
-            color,
-            samples,
-        } => make(
-            named(name, "sphere"),
-            LightShape::Sphere {
-                center: *center,
-                radius: *radius,
-            },
-            *color,
-            *radiance,
-            None,
-            *samples,
-        ),
         LightSpec::EmissiveMesh {
             name,
             object,
@@ -540,8 +481,8 @@ pub(super) fn light(
                 ..base
             });
             scene.meshes[mesh].material = glow;
-            make(
-                named(name, "emissive mesh"),
+            make_light(
+                light_name(name, "emissive mesh", index),
                 LightShape::EmissiveMesh { mesh },
                 *color,
                 *radiance,
@@ -549,7 +490,163 @@ pub(super) fn light(
                 *samples,
             )
         }
+        LightSpec::Rect { .. } | LightSpec::Disk { .. } | LightSpec::Sphere { .. } => {
+            area_light(l, index)
+        }
+        _ => punctual_light(l, index),
     })
+}
+
+/// Returns a light's name: the given one, else `"{kind} light {index}"`.
+fn light_name(name: &Option<String>, kind: &str, index: usize) -> String {
+    name.clone()
+        .unwrap_or_else(|| format!("{kind} light {index}"))
+}
+
+/// Assembles a [`Light`] from its parts.
+fn make_light(
+    name: String,
+    shape: LightShape,
+    color: [f32; 3],
+    power: f32,
+    range: Option<f32>,
+    samples: u32,
+) -> Light {
+    Light {
+        name,
+        shape,
+        color,
+        power,
+        range,
+        samples,
+    }
+}
+
+/// Builds a point, spot or directional light (one sample each); `l` is none of the area kinds.
+fn punctual_light(l: &LightSpec, index: usize) -> Light {
+    match l {
+        LightSpec::Point {
+            name,
+            position,
+            intensity,
+            color,
+            range,
+        } => make_light(
+            light_name(name, "point", index),
+            LightShape::Point {
+                position: *position,
+            },
+            *color,
+            *intensity,
+            *range,
+            1,
+        ),
+        LightSpec::Spot {
+            name,
+            position,
+            direction,
+            intensity,
+            inner_angle_deg,
+            outer_angle_deg,
+            color,
+            range,
+        } => make_light(
+            light_name(name, "spot", index),
+            LightShape::Spot {
+                position: *position,
+                direction: *direction,
+                inner_angle: inner_angle_deg.to_radians(),
+                outer_angle: outer_angle_deg.to_radians(),
+            },
+            *color,
+            *intensity,
+            *range,
+            1,
+        ),
+        LightSpec::Directional {
+            name,
+            direction,
+            irradiance,
+            color,
+        } => make_light(
+            light_name(name, "directional", index),
+            LightShape::Directional {
+                direction: *direction,
+            },
+            *color,
+            *irradiance,
+            None,
+            1,
+        ),
+        _ => unreachable!("light() passes only point, spot and directional lights here"),
+    }
+}
+
+/// Builds a rect, disk or sphere light, with no range window; `l` is one of those kinds.
+fn area_light(l: &LightSpec, index: usize) -> Light {
+    match l {
+        LightSpec::Rect {
+            name,
+            center,
+            size,
+            normal,
+            u_axis,
+            radiance,
+            color,
+            samples,
+        } => make_light(
+            light_name(name, "rect", index),
+            LightShape::Rect {
+                center: *center,
+                normal: *normal,
+                u_axis: *u_axis,
+                size: *size,
+            },
+            *color,
+            *radiance,
+            None,
+            *samples,
+        ),
+        LightSpec::Disk {
+            name,
+            center,
+            normal,
+            radius,
+            radiance,
+            color,
+            samples,
+        } => make_light(
+            light_name(name, "disk", index),
+            LightShape::Disk {
+                center: *center,
+                normal: *normal,
+                radius: *radius,
+            },
+            *color,
+            *radiance,
+            None,
+            *samples,
+        ),
+        LightSpec::Sphere {
+            name,
+            center,
+            radius,
+            radiance,
+            color,
+            samples,
+        } => make_light(
+            light_name(name, "sphere", index),
+            LightShape::Sphere {
+                center: *center,
+                radius: *radius,
+            },
+            *color,
+            *radiance,
+            None,
+            *samples,
+        ),
+        _ => unreachable!("light() passes only rect, disk and sphere lights here"),
+    }
 }
 
 fn apply_quality(q: &mut Quality, s: &super::spec::QualitySpec) {

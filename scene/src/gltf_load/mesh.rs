@@ -36,158 +36,215 @@ pub(super) fn node_meshes(
     let mut out = Vec::new();
     let name = node.name().or(mesh.name()).unwrap_or("mesh");
     for prim in mesh.primitives() {
-        let at = format!("mesh {} primitive {}", mesh.index(), prim.index());
-        let mode = prim.mode();
-        if !matches!(
-            mode,
-            Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
-        ) {
-            ctx.ignored.insert("point and line primitives".into());
-            continue;
+        if let Some(made) = primitive_mesh(node, mesh, &prim, name, ctx, material)? {
+            out.push(made);
         }
-        if prim.morph_targets().len() > 0 && !ctx.rig {
-            ctx.ignored.insert("morph targets (base shape used)".into());
-        }
-        let pos_acc = prim
-            .get(&Semantic::Positions)
-            .ok_or_else(|| format!("{at} has no POSITION attribute"))?;
-        // The triangles this primitive declares, counted before anything is read (instances
-        // count each time: one mesh placed by many nodes is many meshes).
-        let declared = prim.indices().map_or(pos_acc.count(), |a| a.count()) as u64;
-        ctx.triangles += match mode {
-            Mode::Triangles => declared / 3,
-            _ => declared.saturating_sub(2),
-        };
-        crate::limits::check_triangles(ctx.triangles).map_err(|e| format!("{at}: {e}"))?;
-        let (pos, _) = ctx
-            .bufs
-            .read_f32(&pos_acc, &[Dimensions::Vec3], "POSITION")?;
-        let n = pos.len() / 3;
-        let attr = |sem: Semantic, dims: Dimensions, what: &str| -> ReadResult<Option<Vec<f32>>> {
-            match prim.get(&sem) {
-                None => Ok(None),
-                Some(acc) => {
-                    let (v, c) = ctx.bufs.read_f32(&acc, &[dims], what)?;
-                    if v.len() / c != n {
-                        return Err(format!(
-                            "{at}: {what} has {} elements but POSITION has {n}",
-                            v.len() / c
-                        ));
-                    }
-                    Ok(Some(v))
-                }
-            }
-        };
-        let normals = attr(Semantic::Normals, Dimensions::Vec3, "NORMAL")?;
-        let uvs = attr(Semantic::TexCoords(0), Dimensions::Vec2, "TEXCOORD_0")?;
-        // Provided tangents go with provided normals (without, the specification has flat
-        // normals computed and tangents ignored); a normal map needs UVs too.
-        let tangents = match (&normals, &uvs) {
-            (Some(_), Some(_)) => attr(Semantic::Tangents, Dimensions::Vec4, "TANGENT")?,
-            _ => None,
-        };
-        if prim.get(&Semantic::Colors(0)).is_some() {
-            ctx.ignored.insert("vertex colours".into());
-        }
-        let indices: Vec<u32> = match prim.indices() {
-            Some(acc) => ctx.bufs.read_u32(&acc, &[Dimensions::Scalar], "indices")?.0,
-            None => (0..n as u32).collect(),
-        };
-        if let Some(&bad) = indices.iter().find(|&&i| i as usize >= n) {
-            return Err(format!("{at}: index {bad} is out of range ({n} vertices)"));
-        }
-        let tris = triangulate(mode, &indices);
-
-        let skinning = match node.skin() {
-            Some(skin) => skin_matrices(&skin, &prim, n, ctx, &at)?,
-            None => None,
-        };
-        let mut rig = if ctx.rig {
-            Some(MeshRig {
-                mesh: 0,
-                node: node.index() as u32,
-                positions: pos.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
-                normals: normals
-                    .as_ref()
-                    .map(|v| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
-                    .unwrap_or_default(),
-                vertex_map: Vec::new(),
-                skin: match node.skin() {
-                    Some(skin) => skin_rig(&skin, &prim, n, ctx, &at)?,
-                    None => None,
-                },
-                targets: morph_targets(&prim, n, normals.is_some(), ctx, &at)?,
-            })
-        } else {
-            None
-        };
-        let mut m = Mesh {
-            name: format!("{name}#{}", prim.index()),
-            positions: Vec::with_capacity(n),
-            normals: Vec::new(),
-            uvs: uvs
-                .map(|u| u.chunks_exact(2).map(|c| [c[0], c[1]]).collect())
-                .unwrap_or_default(),
-            tangents: Vec::new(),
-            indices: tris,
-            material: material(prim.material().index()),
-        };
-        let rigid = ctx.world[node.index()];
-        let rigid_normal = normal_matrix(&rigid);
-        let mut mirrored = vec![false; n];
-        let mut world_normals = Vec::with_capacity(if normals.is_some() { n } else { 0 });
-        let mut world_tangents = Vec::with_capacity(if tangents.is_some() { n } else { 0 });
-        for v in 0..n {
-            let p = Vec3::new(pos[3 * v], pos[3 * v + 1], pos[3 * v + 2]);
-            let mat = skinning.as_ref().map_or(rigid, |s| s[v]);
-            m.positions.push(mat.transform_point3(p).to_array());
-            mirrored[v] = Mat3::from_mat4(mat).determinant() < 0.0;
-            if let Some(nrm) = &normals {
-                let nm = if skinning.is_some() {
-                    normal_matrix(&mat)
-                } else {
-                    rigid_normal
-                };
-                let nv = Vec3::new(nrm[3 * v], nrm[3 * v + 1], nrm[3 * v + 2]);
-                world_normals.push(normalize((nm * nv).to_array()));
-            }
-            if let Some(t) = &tangents {
-                // A direction in the surface: transformed as positions are; a mirroring
-                // transform turns the bitangent w·(n × t) over, so w changes sign with it.
-                let tv = Vec3::new(t[4 * v], t[4 * v + 1], t[4 * v + 2]);
-                let [x, y, z] = normalize((Mat3::from_mat4(mat) * tv).to_array());
-                let w = if t[4 * v + 3] < 0.0 { -1.0 } else { 1.0 };
-                let w = if mirrored[v] { -w } else { w };
-                world_tangents.push([x, y, z, w]);
-            }
-        }
-        m.normals = world_normals;
-        m.tangents = world_tangents;
-        // Mirroring transforms turn counter-clockwise into clockwise: swap to keep CCW front.
-        for t in m.indices.chunks_exact_mut(3) {
-            if mirrored[t[0] as usize] {
-                t.swap(1, 2);
-            }
-        }
-        if normals.is_none() {
-            let (flat, map) = flat_shaded(m);
-            m = flat;
-            if let Some(r) = rig.as_mut() {
-                r.vertex_map = map;
-            }
-        }
-        // A normal map without the model's tangents: MikkTSpace's, as the specification asks.
-        // (A posed mesh uses its triangles' own: rigs carry no tangents.)
-        if m.tangents.is_empty()
-            && normals.is_some()
-            && rig.is_none()
-            && prim.material().normal_texture().is_some()
-        {
-            super::tangents::generate(&mut m);
-        }
-        out.push((m, rig));
     }
     Ok(out)
+}
+
+/// The world-space mesh of one primitive of `node`'s mesh (named `{name}#{index}`), with its rig
+/// when `ctx.rig`; `None` for a point or line primitive, which is noted as ignored.
+fn primitive_mesh(
+    node: &gltf::Node,
+    mesh: &gltf::Mesh,
+    prim: &gltf::Primitive,
+    name: &str,
+    ctx: &mut NodeContext,
+    material: &mut dyn FnMut(Option<usize>) -> usize,
+) -> ReadResult<Option<(Mesh, Option<MeshRig>)>> {
+    let at = format!("mesh {} primitive {}", mesh.index(), prim.index());
+    let mode = prim.mode();
+    if !matches!(
+        mode,
+        Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+    ) {
+        ctx.ignored.insert("point and line primitives".into());
+        return Ok(None);
+    }
+    if prim.morph_targets().len() > 0 && !ctx.rig {
+        ctx.ignored.insert("morph targets (base shape used)".into());
+    }
+    let v = read_vertices(prim, mode, ctx, &at)?;
+    let n = v.n;
+    let tris = triangulate(mode, &v.indices);
+
+    let skinning = match node.skin() {
+        Some(skin) => skin_matrices(&skin, prim, n, ctx, &at)?,
+        None => None,
+    };
+    let mut rig = if ctx.rig {
+        Some(MeshRig {
+            mesh: 0,
+            node: node.index() as u32,
+            positions: v.pos.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect(),
+            normals: v
+                .normals
+                .as_ref()
+                .map(|v| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+                .unwrap_or_default(),
+            vertex_map: Vec::new(),
+            skin: match node.skin() {
+                Some(skin) => skin_rig(&skin, prim, n, ctx, &at)?,
+                None => None,
+            },
+            targets: morph_targets(prim, n, v.normals.is_some(), ctx, &at)?,
+        })
+    } else {
+        None
+    };
+    let mut m = Mesh {
+        name: format!("{name}#{}", prim.index()),
+        positions: Vec::with_capacity(n),
+        normals: Vec::new(),
+        uvs: v
+            .uvs
+            .as_ref()
+            .map(|u| u.chunks_exact(2).map(|c| [c[0], c[1]]).collect())
+            .unwrap_or_default(),
+        tangents: Vec::new(),
+        indices: tris,
+        material: material(prim.material().index()),
+    };
+    place_vertices(&mut m, &v, ctx.world[node.index()], skinning.as_deref());
+    if v.normals.is_none() {
+        let (flat, map) = flat_shaded(m);
+        m = flat;
+        if let Some(r) = rig.as_mut() {
+            r.vertex_map = map;
+        }
+    }
+    // A normal map without the model's tangents: MikkTSpace's, as the specification asks.
+    // (A posed mesh uses its triangles' own: rigs carry no tangents.)
+    if m.tangents.is_empty()
+        && v.normals.is_some()
+        && rig.is_none()
+        && prim.material().normal_texture().is_some()
+    {
+        super::tangents::generate(&mut m);
+    }
+    Ok(Some((m, rig)))
+}
+
+/// A primitive's vertex attributes as read (flat arrays of components) and its indices.
+struct Vertices {
+    /// Number of vertices.
+    n: usize,
+    pos: Vec<f32>,
+    normals: Option<Vec<f32>>,
+    uvs: Option<Vec<f32>>,
+    tangents: Option<Vec<f32>>,
+    indices: Vec<u32>,
+}
+
+/// Counts the primitive's declared triangles towards the scene limit, then reads its positions,
+/// normals, first texture coordinates, tangents (only with both of those) and indices, checking
+/// every count and index against the positions.
+fn read_vertices(
+    prim: &gltf::Primitive,
+    mode: Mode,
+    ctx: &mut NodeContext,
+    at: &str,
+) -> ReadResult<Vertices> {
+    let pos_acc = prim
+        .get(&Semantic::Positions)
+        .ok_or_else(|| format!("{at} has no POSITION attribute"))?;
+    // The triangles this primitive declares, counted before anything is read (instances
+    // count each time: one mesh placed by many nodes is many meshes).
+    let declared = prim.indices().map_or(pos_acc.count(), |a| a.count()) as u64;
+    ctx.triangles += match mode {
+        Mode::Triangles => declared / 3,
+        _ => declared.saturating_sub(2),
+    };
+    crate::limits::check_triangles(ctx.triangles).map_err(|e| format!("{at}: {e}"))?;
+    let (pos, _) = ctx
+        .bufs
+        .read_f32(&pos_acc, &[Dimensions::Vec3], "POSITION")?;
+    let n = pos.len() / 3;
+    let attr = |sem: Semantic, dims: Dimensions, what: &str| -> ReadResult<Option<Vec<f32>>> {
+        match prim.get(&sem) {
+            None => Ok(None),
+            Some(acc) => {
+                let (v, c) = ctx.bufs.read_f32(&acc, &[dims], what)?;
+                if v.len() / c != n {
+                    return Err(format!(
+                        "{at}: {what} has {} elements but POSITION has {n}",
+                        v.len() / c
+                    ));
+                }
+                Ok(Some(v))
+            }
+        }
+    };
+    let normals = attr(Semantic::Normals, Dimensions::Vec3, "NORMAL")?;
+    let uvs = attr(Semantic::TexCoords(0), Dimensions::Vec2, "TEXCOORD_0")?;
+    // Provided tangents go with provided normals (without, the specification has flat
+    // normals computed and tangents ignored); a normal map needs UVs too.
+    let tangents = match (&normals, &uvs) {
+        (Some(_), Some(_)) => attr(Semantic::Tangents, Dimensions::Vec4, "TANGENT")?,
+        _ => None,
+    };
+    if prim.get(&Semantic::Colors(0)).is_some() {
+        ctx.ignored.insert("vertex colours".into());
+    }
+    let indices: Vec<u32> = match prim.indices() {
+        Some(acc) => ctx.bufs.read_u32(&acc, &[Dimensions::Scalar], "indices")?.0,
+        None => (0..n as u32).collect(),
+    };
+    if let Some(&bad) = indices.iter().find(|&&i| i as usize >= n) {
+        return Err(format!("{at}: index {bad} is out of range ({n} vertices)"));
+    }
+    Ok(Vertices {
+        n,
+        pos,
+        normals,
+        uvs,
+        tangents,
+        indices,
+    })
+}
+
+/// Fills the mesh's world-space positions, normals and tangents, each vertex by its skinning
+/// matrix (else the node's `rigid` world matrix), and keeps triangles counter-clockwise where a
+/// vertex's transform mirrors.
+fn place_vertices(m: &mut Mesh, attrs: &Vertices, rigid: Mat4, skinning: Option<&[Mat4]>) {
+    let (n, pos) = (attrs.n, &attrs.pos);
+    let rigid_normal = normal_matrix(&rigid);
+    let mut mirrored = vec![false; n];
+    let mut world_normals = Vec::with_capacity(if attrs.normals.is_some() { n } else { 0 });
+    let mut world_tangents = Vec::with_capacity(if attrs.tangents.is_some() { n } else { 0 });
+    for v in 0..n {
+        let p = Vec3::new(pos[3 * v], pos[3 * v + 1], pos[3 * v + 2]);
+        let mat = skinning.map_or(rigid, |s| s[v]);
+        m.positions.push(mat.transform_point3(p).to_array());
+        mirrored[v] = Mat3::from_mat4(mat).determinant() < 0.0;
+        if let Some(nrm) = &attrs.normals {
+            let nm = if skinning.is_some() {
+                normal_matrix(&mat)
+            } else {
+                rigid_normal
+            };
+            let nv = Vec3::new(nrm[3 * v], nrm[3 * v + 1], nrm[3 * v + 2]);
+            world_normals.push(normalize((nm * nv).to_array()));
+        }
+        if let Some(t) = &attrs.tangents {
+            // A direction in the surface: transformed as positions are; a mirroring
+            // transform turns the bitangent w·(n × t) over, so w changes sign with it.
+            let tv = Vec3::new(t[4 * v], t[4 * v + 1], t[4 * v + 2]);
+            let [x, y, z] = normalize((Mat3::from_mat4(mat) * tv).to_array());
+            let w = if t[4 * v + 3] < 0.0 { -1.0 } else { 1.0 };
+            let w = if mirrored[v] { -w } else { w };
+            world_tangents.push([x, y, z, w]);
+        }
+    }
+    m.normals = world_normals;
+    m.tangents = world_tangents;
+    // Mirroring transforms turn counter-clockwise into clockwise: swap to keep CCW front.
+    for t in m.indices.chunks_exact_mut(3) {
+        if mirrored[t[0] as usize] {
+            t.swap(1, 2);
+        }
+    }
 }
 
 fn normal_matrix(m: &Mat4) -> Mat3 {

@@ -23,6 +23,7 @@ use std::borrow::Cow;
 use std::collections::BTreeSet;
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;
+use std::str::SplitWhitespace;
 
 /// Point samples of each emissive-mesh light an OBJ makes, while there are at most
 /// [`EMISSIVE_SAMPLES`] / 16 of them; beyond, the total is shared (at least one each).
@@ -314,43 +315,7 @@ fn scan(bytes: &[u8], ignored: &mut BTreeSet<String>) -> Result<Scan, ScanError>
             continue;
         };
         match keyword {
-            "v" | "vt" | "vn" => {
-                let kind = match keyword {
-                    "v" => 0,
-                    "vt" => 1,
-                    _ => 2,
-                };
-                let mut numbers = 0;
-                for w in words {
-                    w.parse::<f32>()
-                        .map_err(|_| bad(format!("{w:?} in a `{keyword}` is not a number")))?;
-                    numbers += 1;
-                }
-                let fine = match kind {
-                    0 => matches!(numbers, 3 | 4 | 6),
-                    1 => (2..=3).contains(&numbers),
-                    _ => numbers == 3,
-                };
-                if !fine {
-                    let expected = ["3, 4 or 6", "2 or 3", "3"][kind];
-                    return Err(bad(format!(
-                        "a `{keyword}` has {numbers} numbers ({expected} expected)"
-                    )));
-                }
-                if kind == 0 && numbers == 4 {
-                    let w: f32 = line
-                        .split_whitespace()
-                        .nth(4)
-                        .map_or(1.0, |w| w.parse().unwrap_or(1.0));
-                    if w == 0.0 {
-                        return Err(bad("a vertex weight w of 0".into()));
-                    }
-                }
-                counts[kind] += 1;
-                let what = ["positions", "texture coordinates", "normals"][kind];
-                limits::check_count(what, counts[kind], limits::MAX_VERTICES)
-                    .map_err(|e| ScanError::Limit(line_no, e))?;
-            }
+            "v" | "vt" | "vn" => vertex(keyword, words, line, &mut counts, line_no)?,
             "f" | "l" => {
                 let mut corners = 0u64;
                 for w in words {
@@ -397,37 +362,7 @@ fn scan(bytes: &[u8], ignored: &mut BTreeSet<String>) -> Result<Scan, ScanError>
                 }
                 out.mtllibs.push((line_no, arg.to_string()));
             }
-            "s" => {
-                if !matches!(words.next(), Some("off" | "0")) {
-                    ignored.insert("smoothing groups (normals as given, else flat)".into());
-                }
-            }
-            "p" => {
-                ignored.insert("points (p)".into());
-            }
-            "vp" | "cstype" | "deg" | "bmat" | "step" | "curv" | "curv2" | "surf" | "parm"
-            | "trim" | "hole" | "scrv" | "sp" | "end" | "con" | "ctech" | "stech" => {
-                ignored.insert("free-form curves and surfaces".into());
-            }
-            "mg" => {
-                ignored.insert("merging groups (mg)".into());
-            }
-            "lod" | "bevel" | "c_interp" | "d_interp" | "shadow_obj" | "trace_obj" => {
-                ignored.insert(format!("display and rendering attributes ({keyword})"));
-            }
-            "usemap" | "maplib" => {
-                ignored.insert("texture map libraries (usemap, maplib)".into());
-            }
-            w if w.starts_with('#') => {}
-            w => {
-                // Listed by name, a few at most: a hostile file could hold millions of them.
-                unknown += 1;
-                if unknown <= 8 {
-                    ignored.insert(format!("unknown statement {:?}", truncate(w, 32)));
-                } else {
-                    ignored.insert("further unknown statements".into());
-                }
-            }
+            _ => ignore_statement(keyword, words, ignored, &mut unknown),
         }
     }
     if pending {
@@ -445,6 +380,97 @@ fn scan(bytes: &[u8], ignored: &mut BTreeSet<String>) -> Result<Scan, ScanError>
         }
     }
     Ok(out)
+}
+
+/// Checks one `v`, `vt` or `vn` statement on line `line_no` (its number count, a position's
+/// weight) and counts it, against the limit, in `counts` (positions, texture coordinates, normals).
+fn vertex(
+    keyword: &str,
+    words: SplitWhitespace,
+    line: &str,
+    counts: &mut [u64; 3],
+    line_no: usize,
+) -> Result<(), ScanError> {
+    let bad = |m: String| ScanError::Line(line_no, m);
+    let kind = match keyword {
+        "v" => 0,
+        "vt" => 1,
+        _ => 2,
+    };
+    let mut numbers = 0;
+    for w in words {
+        w.parse::<f32>()
+            .map_err(|_| bad(format!("{w:?} in a `{keyword}` is not a number")))?;
+        numbers += 1;
+    }
+    let fine = match kind {
+        0 => matches!(numbers, 3 | 4 | 6),
+        1 => (2..=3).contains(&numbers),
+        _ => numbers == 3,
+    };
+    if !fine {
+        let expected = ["3, 4 or 6", "2 or 3", "3"][kind];
+        return Err(bad(format!(
+            "a `{keyword}` has {numbers} numbers ({expected} expected)"
+        )));
+    }
+    if kind == 0 && numbers == 4 {
+        let w: f32 = line
+            .split_whitespace()
+            .nth(4)
+            .map_or(1.0, |w| w.parse().unwrap_or(1.0));
+        if w == 0.0 {
+            return Err(bad("a vertex weight w of 0".into()));
+        }
+    }
+    counts[kind] += 1;
+    let what = ["positions", "texture coordinates", "normals"][kind];
+    limits::check_count(what, counts[kind], limits::MAX_VERTICES)
+        .map_err(|e| ScanError::Limit(line_no, e))?;
+    Ok(())
+}
+
+/// Notes in `ignored` what a statement lightfold does not render stands for; a comment is
+/// nothing, and unknown statements are named (the first eight, counted in `unknown`).
+fn ignore_statement(
+    keyword: &str,
+    mut words: SplitWhitespace,
+    ignored: &mut BTreeSet<String>,
+    unknown: &mut usize,
+) {
+    match keyword {
+        "s" => {
+            if !matches!(words.next(), Some("off" | "0")) {
+                ignored.insert("smoothing groups (normals as given, else flat)".into());
+            }
+        }
+        "p" => {
+            ignored.insert("points (p)".into());
+        }
+        "vp" | "cstype" | "deg" | "bmat" | "step" | "curv" | "curv2" | "surf" | "parm" | "trim"
+        | "hole" | "scrv" | "sp" | "end" | "con" | "ctech" | "stech" => {
+            ignored.insert("free-form curves and surfaces".into());
+        }
+        "mg" => {
+            ignored.insert("merging groups (mg)".into());
+        }
+        "lod" | "bevel" | "c_interp" | "d_interp" | "shadow_obj" | "trace_obj" => {
+            ignored.insert(format!("display and rendering attributes ({keyword})"));
+        }
+        "usemap" | "maplib" => {
+            ignored.insert("texture map libraries (usemap, maplib)".into());
+        }
+        w if w.starts_with('#') => {}
+        w => {
+            // Listed by name, a few at most: a hostile file could hold millions of them.
+            *unknown += 1;
+            if *unknown <= 8 {
+                ignored.insert(format!("unknown statement {:?}", truncate(w, 32)));
+            } else {
+                ignored.insert("further unknown statements".into());
+            }
+        }
+    }
 }
 
 /// Checks one face corner `v`, `v/vt`, `v//vn` or `v/vt/vn`: a relative (negative) index

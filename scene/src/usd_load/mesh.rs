@@ -70,15 +70,85 @@ fn expand<T: Copy>(prim: &Prim, name: &str, values: Vec<T>, r: &Reader) -> Resul
         .collect()
 }
 
+/// Reads the `UsdGeomMesh` `prim` into a world-space mesh of the scene, placed by `world`; a mesh
+/// without points or triangles adds nothing, and an emissive or light mesh is noted as a light.
 pub(super) fn read(r: &mut Reader, prim: &Prim, world: DMat4) -> Result<(), Error> {
     let t = r.time;
     let path = prim.path().as_str().to_string();
-    let bad = |m: String| Error::Usd(format!("{}: {m}", walk::truncate(&path, 200)));
     let Some(points) = walk::vec3_array(prim, "points", t)? else {
         return Ok(());
     };
     r.points += points.len() as u64;
     super::count("points", r.points, limits::MAX_VERTICES)?;
+    let Some(Faces {
+        counts,
+        indices,
+        triangles,
+    }) = faces(r, prim, &path, points.len())?
+    else {
+        return Ok(());
+    };
+    let is_light = check_prim(r, prim, &path)?;
+    let sizes = [points.len(), indices.len(), counts.len()];
+    let (normals, st) = primvars(r, prim, sizes)?;
+    let left = token(prim, "orientation", t)?.as_deref() == Some("leftHanded");
+    let double_sided = walk::boolean(prim, "doubleSided", t)?.unwrap_or(false);
+    let material = super::light::material(r, prim, double_sided)?;
+    let name = prim
+        .path()
+        .name()
+        .map(str::to_string)
+        .unwrap_or_else(|| path.clone());
+    let mut mesh = Mesh {
+        name,
+        positions: Vec::new(),
+        normals: Vec::new(),
+        uvs: Vec::new(),
+        tangents: Vec::new(),
+        indices: Vec::with_capacity(triangles as usize * 3),
+        material,
+    };
+    let welded = fill_attributes(&mut mesh, points, normals, st, &counts, &indices);
+    let mirrored = world.determinant() < 0.0;
+    add_faces(&mut mesh, &counts, &indices, welded, left != mirrored);
+    to_world(&mut mesh, world);
+    let mesh = if mesh.normals.is_empty() {
+        flat_shaded(mesh).0
+    } else {
+        mesh
+    };
+    let k = r.scene.meshes.len();
+    r.scene.meshes.push(mesh);
+    if is_light {
+        super::light::mesh_light(r, prim, k)?;
+    } else if r.scene.materials[material]
+        .emissive
+        .iter()
+        .any(|&c| c > 0.0)
+    {
+        r.emissive_meshes.push(k);
+    }
+    Ok(())
+}
+
+/// An error about the prim at `path` (shortened to 200 characters).
+fn prim_error(path: &str, message: String) -> Error {
+    Error::Usd(format!("{}: {message}", walk::truncate(path, 200)))
+}
+
+/// A mesh's faces: vertex counts per face, the point index of each corner, and the number of
+/// triangles they fan into.
+struct Faces {
+    counts: Vec<i64>,
+    indices: Vec<i64>,
+    triangles: u64,
+}
+
+/// Reads and checks the mesh's faces against its `points` points and counts their triangles
+/// towards the model's limit; `None` when the mesh has no triangles.
+fn faces(r: &mut Reader, prim: &Prim, path: &str, points: usize) -> Result<Option<Faces>, Error> {
+    let t = r.time;
+    let bad = |m: String| prim_error(path, m);
     let counts = int_array(prim, "faceVertexCounts", t)?.unwrap_or_default();
     let indices = int_array(prim, "faceVertexIndices", t)?.unwrap_or_default();
     super::count(
@@ -107,22 +177,32 @@ pub(super) fn read(r: &mut Reader, prim: &Prim, world: DMat4) -> Result<(), Erro
     if let Some((k, &i)) = indices
         .iter()
         .enumerate()
-        .find(|&(_, &i)| i < 0 || i as u64 >= points.len() as u64)
+        .find(|&(_, &i)| i < 0 || i as u64 >= points as u64)
     {
         return Err(bad(format!(
-            "faceVertexIndices[{k}] is {i}, outside its {} points",
-            points.len()
+            "faceVertexIndices[{k}] is {i}, outside its {points} points"
         )));
     }
     if triangles == 0 {
-        return Ok(());
+        return Ok(None);
     }
+    Ok(Some(Faces {
+        counts,
+        indices,
+        triangles,
+    }))
+}
+
+/// Counts the mesh towards the model's limit, notes what of the prim is not rendered
+/// (subdivision, time-sampled points) and returns whether the prim is a mesh light.
+fn check_prim(r: &mut Reader, prim: &Prim, path: &str) -> Result<bool, Error> {
+    let bad = |m: String| prim_error(path, m);
     super::count(
         "meshes",
         r.scene.meshes.len() as u64 + 1,
         limits::MAX_MODEL_MESHES,
     )?;
-    let scheme = token(prim, "subdivisionScheme", t)?;
+    let scheme = token(prim, "subdivisionScheme", r.time)?;
     if scheme.as_deref() != Some("none") {
         r.ignored
             .insert("subdivision surfaces (their control meshes are rendered)".into());
@@ -141,7 +221,18 @@ pub(super) fn read(r: &mut Reader, prim: &Prim, world: DMat4) -> Result<(), Erro
         r.ignored
             .insert("time-sampled points (read at the start time)".into());
     }
-    let sizes = [points.len(), indices.len(), counts.len()];
+    Ok(is_light)
+}
+
+/// A mesh's normals and their layout, if used.
+type Normals = Option<(Vec<[f32; 3]>, Per)>;
+/// A mesh's texture coordinates and their layout, if used.
+type Uvs = Option<(Vec<[f32; 2]>, Per)>;
+
+/// Reads the mesh's normals (`primvars:normals`, else `normals`) and `primvars:st`, expanded
+/// through their indices, with their layouts over `sizes` (points, corners, faces).
+fn primvars(r: &mut Reader, prim: &Prim, sizes: [usize; 3]) -> Result<(Normals, Uvs), Error> {
+    let t = r.time;
     let normals_name = if walk::value(prim, "primvars:normals", t)?.is_some() {
         "primvars:normals"
     } else {
@@ -171,14 +262,19 @@ pub(super) fn read(r: &mut Reader, prim: &Prim, world: DMat4) -> Result<(), Erro
         "vertex",
         sizes,
     );
-    let left = token(prim, "orientation", t)?.as_deref() == Some("leftHanded");
-    let double_sided = walk::boolean(prim, "doubleSided", t)?.unwrap_or(false);
-    let material = super::light::material(r, prim, double_sided)?;
-    let name = prim
-        .path()
-        .name()
-        .map(str::to_string)
-        .unwrap_or_else(|| path.clone());
+    Ok((normals, st))
+}
+
+/// Fills the mesh's positions, normals and texture coordinates: shared per point when every
+/// attribute is per point (welded, the returned flag), else one vertex per face corner.
+fn fill_attributes(
+    mesh: &mut Mesh,
+    points: Vec<[f32; 3]>,
+    normals: Normals,
+    st: Uvs,
+    counts: &[i64],
+    indices: &[i64],
+) -> bool {
     let welded = normals.as_ref().is_none_or(|n| n.1 == Per::Point)
         && st.as_ref().is_none_or(|s| s.1 == Per::Point);
     // Each corner's point, and each corner's (or point's) attribute row.
@@ -191,15 +287,6 @@ pub(super) fn read(r: &mut Reader, prim: &Prim, world: DMat4) -> Result<(), Erro
         Per::Point => indices[k] as usize,
         Per::Corner => k,
         Per::Face => corner_face[k],
-    };
-    let mut mesh = Mesh {
-        name,
-        positions: Vec::new(),
-        normals: Vec::new(),
-        uvs: Vec::new(),
-        tangents: Vec::new(),
-        indices: Vec::with_capacity(triangles as usize * 3),
-        material,
     };
     if welded {
         mesh.positions = points;
@@ -218,13 +305,18 @@ pub(super) fn read(r: &mut Reader, prim: &Prim, world: DMat4) -> Result<(), Erro
     for uv in &mut mesh.uvs {
         uv[1] = 1.0 - uv[1];
     }
+    welded
+}
+
+/// Fan-triangulates the faces into the mesh's indices, reversing each triangle's winding when
+/// `flip` (a left-handed mesh or a mirroring transform, not both).
+fn add_faces(mesh: &mut Mesh, counts: &[i64], indices: &[i64], welded: bool, flip: bool) {
     let corner = |k: usize| if welded { indices[k] as u32 } else { k as u32 };
-    let mirrored = world.determinant() < 0.0;
     let mut start = 0usize;
-    for &c in &counts {
+    for &c in counts {
         for i in 1..c as usize - 1 {
             let (a, b, d) = (corner(start), corner(start + i), corner(start + i + 1));
-            if left != mirrored {
+            if flip {
                 mesh.indices.extend_from_slice(&[a, d, b]);
             } else {
                 mesh.indices.extend_from_slice(&[a, b, d]);
@@ -232,6 +324,10 @@ pub(super) fn read(r: &mut Reader, prim: &Prim, world: DMat4) -> Result<(), Erro
         }
         start += c as usize;
     }
+}
+
+/// Moves the mesh's positions and normals into world space by `world`.
+fn to_world(mesh: &mut Mesh, world: DMat4) {
     let normal_matrix = DMat3::from_mat4(world).inverse().transpose();
     for p in &mut mesh.positions {
         *p = world
@@ -243,21 +339,4 @@ pub(super) fn read(r: &mut Reader, prim: &Prim, world: DMat4) -> Result<(), Erro
         let v = (normal_matrix * DVec3::from(n.map(f64::from))).as_vec3();
         *n = normalize(v.to_array());
     }
-    let mesh = if mesh.normals.is_empty() {
-        flat_shaded(mesh).0
-    } else {
-        mesh
-    };
-    let k = r.scene.meshes.len();
-    r.scene.meshes.push(mesh);
-    if is_light {
-        super::light::mesh_light(r, prim, k)?;
-    } else if r.scene.materials[material]
-        .emissive
-        .iter()
-        .any(|&c| c > 0.0)
-    {
-        r.emissive_meshes.push(k);
-    }
-    Ok(())
 }
