@@ -208,6 +208,22 @@ struct Feeds {
 }
 
 impl Feeds {
+    /// The welcome, then the lights and moves to a viewer who may watch; marks what they say
+    /// as seen (notices count from now on) and the newest frame and status as still to send.
+    fn welcome(&mut self, v: &Viewer, hub: &Hub) -> Vec<Value> {
+        let mut outbox = vec![v.welcome()];
+        if v.access.can_watch() {
+            let s = self.steer.borrow_and_update().clone();
+            outbox.push(json::lights_message(&s));
+            outbox.push(json::moves_message(&s, &hub.scene.borrow().objects));
+        }
+        self.exposure.borrow_and_update();
+        self.notices.borrow_and_update();
+        self.frames.mark_changed();
+        self.status.mark_changed();
+        outbox
+    }
+
     /// Subscribes to every channel the viewer follows.
     fn subscribe(hub: &Hub) -> Feeds {
         Feeds {
@@ -264,18 +280,7 @@ async fn admit(
 fn opening(v: &Viewer, hub: &Hub, feeds: &mut Feeds) -> Vec<Value> {
     feeds.scenes.borrow_and_update();
     feeds.ended.mark_changed();
-    let mut outbox = vec![v.welcome()];
-    if v.access.can_watch() {
-        let s = feeds.steer.borrow_and_update().clone();
-        outbox.push(json::lights_message(&s));
-        outbox.push(json::moves_message(&s, &hub.scene.borrow().objects));
-    }
-    // What the welcome says already, and only notices from now on.
-    feeds.exposure.borrow_and_update();
-    feeds.notices.borrow_and_update();
-    feeds.frames.mark_changed();
-    feeds.status.mark_changed();
-    outbox
+    feeds.welcome(v, hub)
 }
 
 /// The viewer's loop: sends what is queued, then waits for the view to stop, a message from the
@@ -388,15 +393,8 @@ fn on_text(
     if v.access.can_steer() && !before.can_steer() {
         // A steering viewer now: its watching slot is free again.
         drop(watching.take());
-        outbox.push(v.welcome());
-        let s = feeds.steer.borrow_and_update().clone();
-        outbox.push(json::lights_message(&s));
-        outbox.push(json::moves_message(&s, &hub.scene.borrow().objects));
-        feeds.exposure.borrow_and_update();
-        feeds.notices.borrow_and_update();
-        // The newest frame and status, now unredacted.
-        feeds.frames.mark_changed();
-        feeds.status.mark_changed();
+        // The newest frame and status follow, now unredacted.
+        outbox.extend(feeds.welcome(v, hub));
     }
 }
 
