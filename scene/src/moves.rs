@@ -97,17 +97,24 @@ pub fn check(scene: &Scene, moves: &[MeshMove]) -> Result<(), String> {
             return Err(format!("object {mesh} is moved twice"));
         }
         check_numbers(m)?;
-        if scene
-            .lights
-            .iter()
-            .any(|l| matches!(l.shape, LightShape::EmissiveMesh { mesh: e } if e == mesh))
-        {
-            return Err(format!(
-                "object {mesh} is a mesh light: it cannot be moved (its light samples lie on it)"
-            ));
+        if let Some(why) = fixed(scene, mesh) {
+            return Err(format!("object {mesh}: {why}"));
         }
     }
     Ok(())
+}
+
+/// Why mesh `mesh` of `scene` cannot move (`None`: it can): an animated scene's objects move
+/// with its clock, and a mesh light's samples lie on its mesh.
+pub fn fixed(scene: &Scene, mesh: usize) -> Option<String> {
+    if scene.animation.is_some() {
+        return Some("the scene is animated: its objects move with its clock".into());
+    }
+    scene
+        .lights
+        .iter()
+        .any(|l| matches!(l.shape, LightShape::EmissiveMesh { mesh: e } if e == mesh))
+        .then(|| "a mesh light cannot be moved: its light samples lie on it".into())
 }
 
 /// Why move `m`'s numbers are not ones a move may have, or `Ok`: finite, a translation within

@@ -115,6 +115,12 @@ impl Steer {
         }
     }
 
+    /// Counts a change: a new revision, made now (what the next frame requested shows).
+    pub fn changed(&mut self) {
+        self.revision += 1;
+        self.changed_at = std::time::Instant::now();
+    }
+
     /// Sets the frame budget the planner meets (`None`: none, planning at the scene's quality).
     pub fn set_budget(&mut self, ms: Option<f32>) -> Result<(), SteerError> {
         let us = match ms {

@@ -385,8 +385,7 @@ impl Hub {
                             };
                         }
                     }
-                    s.revision += 1;
-                    s.changed_at = Instant::now();
+                    s.changed();
                 });
             }
             if let Some((n, moves)) = moves_back
@@ -397,8 +396,7 @@ impl Hub {
                 moves_taken_back = n;
                 self.steer.send_modify(|s| {
                     s.put_back_moves(&moves);
-                    s.revision += 1;
-                    s.changed_at = Instant::now();
+                    s.changed();
                 });
             }
             if let Some((n, lights)) = put_back
@@ -409,8 +407,7 @@ impl Hub {
                 taken_back = n;
                 self.steer.send_modify(|s| {
                     s.put_back_lights(&lights);
-                    s.revision += 1;
-                    s.changed_at = Instant::now();
+                    s.changed();
                 });
             }
             self.status.send_replace(Some(Arc::new(value)));

@@ -9,7 +9,7 @@ use crate::camera::{Steer, SteerError, check_point, finite};
 use glam::{Mat4, Vec3};
 use lightfold_reference::bvh::Bvh;
 use lightfold_scene::moves::{self, MeshMove};
-use lightfold_scene::{Camera, LightShape, Scene};
+use lightfold_scene::{Camera, Scene};
 use std::sync::{Arc, OnceLock};
 
 /// The scene's objects as picking and moving need them: each mesh's name, its triangles at
@@ -50,19 +50,7 @@ impl Objects {
             }
         }
         let fixed = (0..scene.meshes.len())
-            .map(|m| {
-                if scene.animation.is_some() {
-                    Some("the scene is animated: its objects move with its clock".to_string())
-                } else if scene
-                    .lights
-                    .iter()
-                    .any(|l| matches!(l.shape, LightShape::EmissiveMesh { mesh } if mesh == m))
-                {
-                    Some("a mesh light cannot be moved: its light samples lie on it".to_string())
-                } else {
-                    None
-                }
-            })
+            .map(|m| moves::fixed(scene, m))
             .collect();
         Objects {
             names: scene.meshes.iter().map(|m| m.name.clone()).collect(),

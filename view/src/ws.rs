@@ -682,8 +682,7 @@ impl Viewer {
                 | Input::SceneOpen { .. } => Ok(()),
             };
             if result.is_ok() && next != *s {
-                next.revision += 1;
-                next.changed_at = std::time::Instant::now();
+                next.changed();
                 *s = next;
                 true
             } else {

@@ -587,11 +587,7 @@ impl Core {
             self.refused.moves = Some(Arc::clone(&self.moves));
             undone.push("the objects where they were (the move is dropped)".to_string());
             self.moves = Arc::clone(&good.moves);
-            let back = Arc::clone(&good.moves);
-            self.observer.send_modify(|s| {
-                let n = s.moves_put_back.as_ref().map_or(1, |(n, _)| n + 1);
-                s.moves_put_back = Some((n, back));
-            });
+            self.publish_moves_put_back();
         }
         if self.opts.frame_budget_us != good.opts.frame_budget_us {
             self.refused.budget = Some(self.opts.frame_budget_us);

@@ -215,11 +215,7 @@ impl Core {
             ));
             self.refused.moves = Some(moves);
             spec.moves = None;
-            let back = Arc::clone(&self.moves);
-            self.observer.send_modify(|s| {
-                let n = s.moves_put_back.as_ref().map_or(1, |(n, _)| n + 1);
-                s.moves_put_back = Some((n, back));
-            });
+            self.publish_moves_put_back();
         }
     }
 
@@ -294,6 +290,16 @@ impl Core {
             return None;
         }
         Some(spec)
+    }
+
+    /// Tells whoever steers the moves the loop renders after refusing others
+    /// (`LiveStatus::moves_put_back`, numbered from 1).
+    pub(super) fn publish_moves_put_back(&self) {
+        let back = Arc::clone(&self.moves);
+        self.observer.send_modify(|s| {
+            let n = s.moves_put_back.as_ref().map_or(1, |(n, _)| n + 1);
+            s.moves_put_back = Some((n, back));
+        });
     }
 
     /// Makes `lights` the scene's: the next plan renders them, each with its base colour. Nodes
