@@ -6,13 +6,12 @@ lightfold reads USD with its own Rust loader, never through this).
     /tmp/usd/bin/python scripts/usd-testdata.py            # rewrites scene/tests/data/usd/
 
 lights.usda holds one light of each supported UsdLux type (rect, disk, sphere, a sphere
-treated as a point, the same with a cone as a spot, distant) over a ground plane with an
+treated as a point, the same with a cone as a spot, cylinder, distant with an angle) over a ground plane with an
 occluder box, under composed transforms; lights.toml beside it is the same scene written by
 hand. lights.usdc and lights.usdz are the same stage in the binary and package forms.
 """
 
 import os
-import shutil
 import sys
 
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdShade, UsdUtils
@@ -130,12 +129,22 @@ def lights_stage(path):
     shaping.CreateShapingConeAngleAttr(30.0)
     shaping.CreateShapingConeSoftnessAttr(0.5)
 
+    # A tube along the frame's X axis: scaled 2 along it and 0.5 across, turned a quarter about Y.
+    tube = UsdLux.CylinderLight.Define(stage, "/World/Lights/Tube")
+    tube.AddTranslateOp().Set(Gf.Vec3d(0, 1.5, -2))
+    tube.AddRotateYOp().Set(90.0)
+    tube.AddScaleOp().Set(Gf.Vec3f(2, 0.5, 0.5))
+    tube.CreateLengthAttr(1.5)
+    tube.CreateRadiusAttr(0.1)
+    tube.CreateIntensityAttr(8.0)
+    tube.CreateNormalizeAttr(True)
+
     sun = UsdLux.DistantLight.Define(stage, "/World/Sun")
     sun.AddRotateXOp().Set(-60.0)
     sun.CreateIntensityAttr(3.0)
     sun.CreateExposureAttr(1.0)
     sun.CreateNormalizeAttr(True)
-    sun.CreateAngleAttr(0.0)
+    sun.CreateAngleAttr(2.0)
     stage.GetRootLayer().Save()
     return stage
 
@@ -257,9 +266,8 @@ def composed_stages(folder):
 
 def main():
     out = sys.argv[1] if len(sys.argv) > 1 else ROOT
-    if os.path.isdir(out):
-        shutil.rmtree(out)
-    os.makedirs(out)
+    # Rewrites its own stages only: moving.usda is written by hand beside them.
+    os.makedirs(out, exist_ok=True)
     stage = lights_stage(os.path.join(out, "lights.usda"))
     stage.GetRootLayer().Export(os.path.join(out, "lights.usdc"))
     UsdUtils.CreateNewUsdzPackage(os.path.join(out, "lights.usdc"), os.path.join(out, "lights.usdz"))

@@ -1,7 +1,8 @@
 //! The true direct illumination of area lights: per pixel centre, a fresh stratified-jittered set
 //! of points on every area light (solid-angle sampling for spheres), each shaded through
-//! `scene::shading` with an exact ray-traced visibility test. Point, spot and directional lights
-//! are exact (their one sample). Deliberately independent of `scene::sampling`'s area maps, so a
+//! `scene::shading` with an exact ray-traced visibility test; a soft sun, a fresh set of
+//! directions over its disk on the sky, equal in solid angle. Point, spot and parallel
+//! directional lights are exact (their one sample). Deliberately independent of `scene::sampling`'s area maps, so a
 //! mistake there shows up as a difference rather than being reproduced.
 
 use crate::point_sum::{Layers, PixelLayers, Shade, render_pixels};
@@ -57,6 +58,24 @@ enum Emitter {
     Sphere {
         center: V3,
         radius: f32,
+        base: LightSample,
+    },
+    /// The curved side of a cylinder: `p(a, b)` along the axis and around it.
+    Cylinder {
+        center: [f64; 3],
+        axis: [f64; 3],
+        u: [f64; 3],
+        v: [f64; 3],
+        length: f64,
+        radius: f64,
+        base: LightSample,
+    },
+    /// A soft sun: directions about `w` (the direction of travel) within the cap
+    /// `1 − cos θ ≤ one_minus_cos`, each parallel light carrying `E/n / (1 − one_minus_cos/2)`
+    /// (the cap's radiance `E / (π sin²α)` times its solid angle over `n`).
+    Sun {
+        w: [f64; 3],
+        one_minus_cos: f64,
         base: LightSample,
     },
     Mesh {
@@ -133,11 +152,44 @@ fn emitters(scene: &Scene) -> Vec<Emitter> {
             area: None,
         };
         let e = match &light.shape {
+            LightShape::Directional { direction, angle } if *angle > 0.0 => {
+                let d = direction.map(f64::from);
+                let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                let half = f64::from(*angle) / 2.0;
+                Some(Emitter::Sun {
+                    w: d.map(|c| c / l),
+                    one_minus_cos: 2.0 * (half / 2.0).sin().powi(2),
+                    base: LightSample {
+                        kind: SampleKind::Directional,
+                        ..base
+                    },
+                })
+            }
             LightShape::Point { .. } | LightShape::Spot { .. } | LightShape::Directional { .. } => {
                 light_samples(scene, i, &scene.quality)
                     .into_iter()
                     .next()
                     .map(Emitter::Exact)
+            }
+            LightShape::Cylinder {
+                center,
+                axis,
+                length,
+                radius,
+            } => {
+                let a = axis.map(f64::from);
+                let l = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+                let a = a.map(|c| c / l);
+                let (u, v) = frame64(a);
+                Some(Emitter::Cylinder {
+                    center: center.map(f64::from),
+                    axis: a,
+                    u,
+                    v,
+                    length: f64::from(*length),
+                    radius: f64::from(*radius),
+                    base,
+                })
             }
             LightShape::Rect {
                 center,
@@ -294,6 +346,46 @@ fn point_on(e: &Emitter, p: V3, a: f64, b: f64, n: u32) -> Option<LightSample> {
             radius,
             base,
         } => sphere_point(*center, *radius, base, p, a, b, n),
+        Emitter::Cylinder {
+            center,
+            axis,
+            u,
+            v,
+            length,
+            radius,
+            base,
+        } => {
+            let (s, c) = (TAU * b).sin_cos();
+            let nrm = [0, 1, 2].map(|k| c * u[k] + s * v[k]);
+            let q = [0, 1, 2]
+                .map(|k| (center[k] + (a - 0.5) * length * axis[k] + radius * nrm[k]) as f32);
+            let area = TAU * radius * length;
+            Some(lobe(
+                base,
+                q,
+                nrm.map(|x| x as f32),
+                f64::from(base.intensity) * area / n,
+            ))
+        }
+        Emitter::Sun {
+            w,
+            one_minus_cos,
+            base,
+        } => {
+            // Uniform in solid angle over the cap: cos θ = 1 − a·(1 − cos α).
+            let cos_t = 1.0 - a * one_minus_cos;
+            let sin_t = (a * one_minus_cos * (2.0 - a * one_minus_cos))
+                .max(0.0)
+                .sqrt();
+            let (s, c) = (TAU * b).sin_cos();
+            let (u, v) = frame64(*w);
+            let dir = [0, 1, 2].map(|k| (cos_t * w[k] + sin_t * (c * u[k] + s * v[k])) as f32);
+            Some(LightSample {
+                direction: dir,
+                intensity: (f64::from(base.intensity) / n / (1.0 - one_minus_cos / 2.0)) as f32,
+                ..*base
+            })
+        }
         Emitter::Mesh {
             tris,
             cdf,

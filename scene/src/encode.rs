@@ -14,7 +14,7 @@ use sha2::{Digest, Sha256};
 
 const MAGIC: &[u8; 4] = b"LFSC";
 /// Version of the byte layout of `to_bytes` (bump when `Scene` changes shape).
-pub const SCENE_BYTES_VERSION: u32 = 7;
+pub const SCENE_BYTES_VERSION: u32 = 8;
 /// Largest scene `from_bytes` accepts ([`crate::limits::MAX_SCENE_BYTES`]).
 pub const MAX_SCENE_BYTES: usize = crate::limits::MAX_SCENE_BYTES as usize;
 
@@ -231,9 +231,10 @@ impl Canon {
                 self.f32(*inner_angle);
                 self.f32(*outer_angle);
             }
-            LightShape::Directional { direction } => {
+            LightShape::Directional { direction, angle } => {
                 self.u8(2);
                 self.f32s(direction);
+                self.f32(*angle);
             }
             LightShape::Rect {
                 center,
@@ -265,6 +266,18 @@ impl Canon {
             LightShape::EmissiveMesh { mesh } => {
                 self.u8(6);
                 self.len(*mesh);
+            }
+            LightShape::Cylinder {
+                center,
+                axis,
+                length,
+                radius,
+            } => {
+                self.u8(7);
+                self.f32s(center);
+                self.f32s(axis);
+                self.f32(*length);
+                self.f32(*radius);
             }
         }
         self.f32s(color);

@@ -44,6 +44,9 @@ pub const MAX_TEXTURE_SIDE: u32 = 8192;
 pub const MAX_SAMPLES_PER_AREA_LIGHT: u32 = 4096;
 /// Most point samples of a whole scene (every light together).
 pub const MAX_LIGHT_SAMPLES: u64 = 16_384;
+/// Widest soft sun: a directional light's apparent angular diameter, radians (90°; wider
+/// sources are not distant lights).
+pub const MAX_SUN_ANGLE: f32 = std::f32::consts::FRAC_PI_2;
 /// Largest image side.
 pub const MAX_IMAGE_SIDE: u32 = 8192;
 /// Most pixels of one image (4096 × 4096).

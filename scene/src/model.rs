@@ -214,8 +214,11 @@ pub enum LightShape {
         inner_angle: f32,
         outer_angle: f32,
     },
-    /// Directional light; power is irradiance in W/m² on a surface facing it.
-    Directional { direction: [f32; 3] },
+    /// Directional light travelling along `direction`; power is irradiance in W/m² on a surface
+    /// facing it. `angle` is the apparent angular diameter of its source in radians (the sun's is
+    /// about 0.0093): 0 is parallel light with hard shadows; above 0 it is a soft sun, a disk of
+    /// uniform radiance on the sky sampled by `Light::samples` parallel lights.
+    Directional { direction: [f32; 3], angle: f32 },
     /// One-sided rectangle emitting along `normal`; `u_axis` spans `size[0]`, `normal × u_axis`
     /// spans `size[1]`. Power is radiance in W/(sr·m²).
     Rect {
@@ -232,6 +235,15 @@ pub enum LightShape {
     },
     /// Sphere emitting outward; power is radiance.
     Sphere { center: [f32; 3], radius: f32 },
+    /// The curved side of a cylinder emitting outward (its end caps do not emit): `length` along
+    /// `axis` (unit) about `center`, of `radius`. Power is radiance. A fluorescent tube, UsdLux's
+    /// `CylinderLight`.
+    Cylinder {
+        center: [f32; 3],
+        axis: [f32; 3],
+        length: f32,
+        radius: f32,
+    },
     /// The triangles of `Scene::meshes[mesh]` emit along their geometric normals (both sides when
     /// the mesh's material is double-sided); power is radiance.
     EmissiveMesh { mesh: usize },
@@ -247,7 +259,8 @@ pub struct Light {
     pub power: f32,
     /// Optional range window (glTF KHR_lights_punctual): contribution is zero beyond it.
     pub range: Option<f32>,
-    /// Number of point samples for an area light (ignored for point, spot, directional).
+    /// Number of point samples for an area light (ignored for point, spot and parallel
+    /// directional lights; a soft sun's count of parallel lights).
     pub samples: u32,
 }
 
@@ -258,8 +271,9 @@ impl Light {
             LightShape::Rect { .. }
                 | LightShape::Disk { .. }
                 | LightShape::Sphere { .. }
+                | LightShape::Cylinder { .. }
                 | LightShape::EmissiveMesh { .. }
-        )
+        ) || matches!(self.shape, LightShape::Directional { angle, .. } if angle > 0.0)
     }
 }
 

@@ -55,7 +55,7 @@ pub fn light_samples(scene: &Scene, index: usize, q: &Quality) -> Vec<LightSampl
             },
             ..base
         }],
-        LightShape::Directional { direction } => vec![LightSample {
+        LightShape::Directional { direction, angle } if *angle <= 0.0 => vec![LightSample {
             direction: normalize(*direction),
             kind: SampleKind::Directional,
             ..base

@@ -1,8 +1,10 @@
-//! Sampling of disk, sphere and emissive-mesh area lights (rectangles live in `sampling`).
+//! Sampling of disk, sphere, cylinder and emissive-mesh area lights and of soft suns (rectangles
+//! live in `sampling`).
 //!
 //! Every shape maps the same stratified unit-square points (`sampling::unit_square_points`, so the
 //! quality pattern and seed apply) onto its surface with an area-preserving map, and gives each of
-//! the N samples the intensity `L·A/N`: the samples together emit exactly the light's power.
+//! the N samples the intensity `L·A/N`: the samples together emit exactly the light's power. A
+//! soft sun maps them onto the cap of directions its disk covers, equal solid angle to each.
 
 use crate::model::{AreaShape, Light, LightSample, LightShape, Quality, SampleKind, Scene};
 use crate::sampling::{analytic, lobe, unit_square_points};
@@ -80,7 +82,60 @@ pub(crate) fn samples(
                 base,
             )
         }
-        // Point, spot, directional and rectangle lights are handled in `sampling`.
+        LightShape::Cylinder {
+            center,
+            axis,
+            length,
+            radius,
+        } => {
+            let ax = normalize(*axis);
+            let (u, v) = basis(ax);
+            let intensity = light.power * TAU * radius * length / n as f32;
+            points()
+                .into_iter()
+                .map(|(a, b)| {
+                    let (s, c) = (TAU * b).sin_cos();
+                    let nrm = add(scale(u, c), scale(v, s));
+                    let p = add(
+                        *center,
+                        add(scale(ax, (a - 0.5) * length), scale(nrm, *radius)),
+                    );
+                    lobe(base, p, nrm, intensity)
+                })
+                .collect()
+        }
+        LightShape::Directional { direction, angle } => {
+            let d = normalize(*direction);
+            let (u, v) = basis(d);
+            // 1 − cos α of the cap's half-angle α, without cancellation at the sun's 0.27°.
+            let k = 2.0 * (0.25 * angle.min(PI)).sin().powi(2);
+            // The mean cosine over the cap is 1 − k/2: a surface facing the sun receives `power`.
+            let intensity = light.power / n as f32 / (1.0 - 0.5 * k);
+            points()
+                .into_iter()
+                .map(|(a, b)| {
+                    let (x, y) = concentric(a, b);
+                    let r2 = x * x + y * y;
+                    let w = if r2 > 0.0 {
+                        let t = r2 * k;
+                        (t * (2.0 - t)).max(0.0).sqrt() / r2.sqrt()
+                    } else {
+                        0.0
+                    };
+                    let dir = add(
+                        scale(d, 1.0 - r2 * k),
+                        add(scale(u, x * w), scale(v, y * w)),
+                    );
+                    LightSample {
+                        direction: normalize(dir),
+                        kind: SampleKind::Directional,
+                        intensity,
+                        ..base
+                    }
+                })
+                .collect()
+        }
+        // Point, spot, parallel directional and rectangle lights are handled in `sampling`.
         _ => Vec::new(),
     }
 }
@@ -255,6 +310,17 @@ mod tests {
                 2.0,
                 9,
             ),
+            area_light(
+                "tube",
+                LightShape::Cylinder {
+                    center: [0.5, 3.5, -1.0],
+                    axis: [1.0, 0.2, 0.0],
+                    length: 1.2,
+                    radius: 0.05,
+                },
+                9.0,
+                16,
+            ),
         ];
         s
     }
@@ -284,6 +350,77 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A soft sun's parallel lights lie within its disk on the sky, are spread about its axis,
+    /// and together give a surface facing it exactly its irradiance.
+    #[test]
+    fn a_soft_sun_spreads_its_irradiance_over_its_disk() {
+        let mut s = Scene::new("sun");
+        let axis = normalize([0.3, -1.0, 0.2]);
+        for angle_deg in [0.53f32, 10.0, 90.0] {
+            let angle = angle_deg.to_radians();
+            s.lights = vec![area_light(
+                "sun",
+                LightShape::Directional {
+                    direction: [0.3, -1.0, 0.2],
+                    angle,
+                },
+                2.0,
+                16,
+            )];
+            for pattern in [
+                SamplePattern::Grid,
+                SamplePattern::Jittered,
+                SamplePattern::Halton,
+            ] {
+                for n in [1, 16, 33, 256] {
+                    s.quality.pattern = pattern;
+                    s.quality.samples_per_area_light = Some(n);
+                    let samples = light_samples(&s, 0, &s.quality);
+                    assert_eq!(samples.len(), n as usize);
+                    let mut irradiance = 0.0f64;
+                    let mut mean = [0.0f64; 3];
+                    for x in &samples {
+                        assert_eq!(x.kind, SampleKind::Directional);
+                        let c = crate::shading::dot(x.direction, axis);
+                        assert!(
+                            c >= (angle / 2.0).cos() - 1e-5,
+                            "{angle_deg}° {pattern:?}: cos {c} outside the disk"
+                        );
+                        irradiance += f64::from(x.intensity) * f64::from(c);
+                        for k in 0..3 {
+                            mean[k] += f64::from(x.direction[k]) / f64::from(n);
+                        }
+                    }
+                    // The mean cosine of N stratified points is the cap's within its spread.
+                    let spread = 1.0 - f64::from((angle / 2.0).cos());
+                    let tol = 1e-5 + if n == 1 { spread } else { spread / 4.0 };
+                    assert!(
+                        (irradiance - 2.0).abs() / 2.0 < tol,
+                        "{angle_deg}° {pattern:?} n={n}: {irradiance}"
+                    );
+                    // Centred: the mean direction is near the axis (one jittered point
+                    // may lie anywhere in the disk).
+                    if n > 1 {
+                        let m = normalize(mean.map(|c| c as f32));
+                        let off = crate::shading::dot(m, axis).clamp(-1.0, 1.0).acos();
+                        assert!(
+                            off < 0.2 * angle / 2.0 + 1e-3,
+                            "{angle_deg}° {pattern:?} n={n}: mean direction {m:?}, {off} rad off"
+                        );
+                    }
+                }
+            }
+        }
+        // Parallel (angle 0): one exact sample of the whole irradiance.
+        s.lights[0].shape = LightShape::Directional {
+            direction: axis,
+            angle: 0.0,
+        };
+        let one = light_samples(&s, 0, &s.quality);
+        assert_eq!(one.len(), 1);
+        assert_eq!(one[0].intensity, 2.0);
     }
 
     #[test]
@@ -316,6 +453,16 @@ mod tests {
             assert!(length(d) <= 0.3 + 1e-5);
             assert!(crate::shading::dot(d, x.direction) > 0.0);
         }
+        // The tube: on its side (distance 0.05 from the axis, within its length), facing out.
+        let axis = normalize([1.0, 0.2, 0.0]);
+        for x in light_samples(&s, 5, &s.quality) {
+            let d = sub(x.position, [0.5, 3.5, -1.0]);
+            let along = crate::shading::dot(d, axis);
+            let radial = sub(d, scale(axis, along));
+            assert!(along.abs() <= 0.6 + 1e-5, "{along}");
+            assert!((length(radial) - 0.05).abs() < 1e-5, "{radial:?}");
+            assert!(crate::shading::dot(normalize(radial), x.direction) > 0.9999);
+        }
     }
 
     #[test]
@@ -329,7 +476,7 @@ mod tests {
         let a = direct_samples(&s);
         let b = direct_samples(&test_scene());
         assert_eq!(a, b);
-        assert_eq!(a.len(), 16 + 16 + 32 + 16 + 9);
+        assert_eq!(a.len(), 16 + 16 + 32 + 16 + 9 + 16);
         // The grid ignores the seed; jittered sets depend on it.
         let mut t = test_scene();
         t.quality.seed = 99;

@@ -98,12 +98,15 @@ impl Scene {
     }
 
     /// Emitting area `A` (m²) of an area light and whether it emits on both sides; `None` for
-    /// point, spot and directional lights.
+    /// point, spot and directional lights (a soft sun too: it has no area, only an angle).
     pub fn light_area(&self, light: &Light) -> Option<(f64, bool)> {
         match &light.shape {
             LightShape::Rect { size, .. } => Some((size[0] as f64 * size[1] as f64, false)),
             LightShape::Disk { radius, .. } => Some((PI * (*radius as f64).powi(2), false)),
             LightShape::Sphere { radius, .. } => Some((4.0 * PI * (*radius as f64).powi(2), false)),
+            LightShape::Cylinder { length, radius, .. } => {
+                Some((2.0 * PI * f64::from(*radius) * f64::from(*length), false))
+            }
             LightShape::EmissiveMesh { mesh } => {
                 let m = self.meshes.get(*mesh)?;
                 let two_sided = self

@@ -24,7 +24,8 @@ pub fn light_position(shape: &LightShape) -> Option<[f32; 3]> {
         LightShape::Point { position } | LightShape::Spot { position, .. } => Some(*position),
         LightShape::Rect { center, .. }
         | LightShape::Disk { center, .. }
-        | LightShape::Sphere { center, .. } => Some(*center),
+        | LightShape::Sphere { center, .. }
+        | LightShape::Cylinder { center, .. } => Some(*center),
         LightShape::Directional { .. } | LightShape::EmissiveMesh { .. } => None,
     }
 }
@@ -34,7 +35,8 @@ fn set_position(shape: &mut LightShape, p: [f32; 3]) {
         LightShape::Point { position } | LightShape::Spot { position, .. } => *position = p,
         LightShape::Rect { center, .. }
         | LightShape::Disk { center, .. }
-        | LightShape::Sphere { center, .. } => *center = p,
+        | LightShape::Sphere { center, .. }
+        | LightShape::Cylinder { center, .. } => *center = p,
         LightShape::Directional { .. } | LightShape::EmissiveMesh { .. } => {}
     }
 }
@@ -57,6 +59,7 @@ fn check(light: &Light) -> Result<(), SteerError> {
     let extent = match light.shape {
         LightShape::Rect { size, .. } => size[0].max(size[1]),
         LightShape::Disk { radius, .. } | LightShape::Sphere { radius, .. } => radius,
+        LightShape::Cylinder { length, radius, .. } => length.max(radius),
         _ => 0.0,
     };
     if extent > MAX_COORDINATE || light.range.is_some_and(|r| r > MAX_COORDINATE) {
@@ -218,6 +221,7 @@ fn spec_name(spec: &LightSpec) -> Option<&String> {
         | LightSpec::Rect { name, .. }
         | LightSpec::Disk { name, .. }
         | LightSpec::Sphere { name, .. }
+        | LightSpec::Cylinder { name, .. }
         | LightSpec::EmissiveMesh { name, .. } => name.as_ref(),
     }
 }

@@ -42,6 +42,7 @@ fn shape_name(s: &LightShape) -> &'static str {
         LightShape::Rect { .. } => "rect",
         LightShape::Disk { .. } => "disk",
         LightShape::Sphere { .. } => "sphere",
+        LightShape::Cylinder { .. } => "cylinder",
         LightShape::EmissiveMesh { .. } => "emissive mesh",
     }
 }

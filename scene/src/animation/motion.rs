@@ -183,7 +183,8 @@ fn light_centre(shape: &LightShape, scene: &Scene) -> [f32; 3] {
         LightShape::Point { position } | LightShape::Spot { position, .. } => position,
         LightShape::Rect { center, .. }
         | LightShape::Disk { center, .. }
-        | LightShape::Sphere { center, .. } => center,
+        | LightShape::Sphere { center, .. }
+        | LightShape::Cylinder { center, .. } => center,
         LightShape::Directional { .. } => [0.0; 3],
         LightShape::EmissiveMesh { mesh } => scene
             .meshes

@@ -249,8 +249,9 @@ fn move_shape(shape: &LightShape, d: &Mat4) -> LightShape {
             inner_angle,
             outer_angle,
         },
-        LightShape::Directional { direction } => LightShape::Directional {
+        LightShape::Directional { direction, angle } => LightShape::Directional {
             direction: vector(d, direction),
+            angle,
         },
         LightShape::Rect {
             center,
@@ -274,6 +275,17 @@ fn move_shape(shape: &LightShape, d: &Mat4) -> LightShape {
         },
         LightShape::Sphere { center, radius } => LightShape::Sphere {
             center: point(d, center),
+            radius,
+        },
+        LightShape::Cylinder {
+            center,
+            axis,
+            length,
+            radius,
+        } => LightShape::Cylinder {
+            center: point(d, center),
+            axis: vector(d, axis),
+            length,
             radius,
         },
         LightShape::EmissiveMesh { mesh } => LightShape::EmissiveMesh { mesh },

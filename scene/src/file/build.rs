@@ -490,9 +490,10 @@ pub(super) fn light(
                 *samples,
             )
         }
-        LightSpec::Rect { .. } | LightSpec::Disk { .. } | LightSpec::Sphere { .. } => {
-            area_light(l, index)
-        }
+        LightSpec::Rect { .. }
+        | LightSpec::Disk { .. }
+        | LightSpec::Sphere { .. }
+        | LightSpec::Cylinder { .. } => area_light(l, index),
         _ => punctual_light(l, index),
     })
 }
@@ -568,21 +569,29 @@ fn punctual_light(l: &LightSpec, index: usize) -> Light {
             direction,
             irradiance,
             color,
+            angle_deg,
+            samples,
         } => make_light(
             light_name(name, "directional", index),
             LightShape::Directional {
                 direction: *direction,
+                angle: angle_deg.to_radians(),
             },
             *color,
             *irradiance,
             None,
-            1,
+            // A soft sun's parallel lights, as an area light's points; ignored when parallel.
+            samples.unwrap_or(if *angle_deg > 0.0 {
+                crate::defaults::SAMPLES_PER_AREA_LIGHT
+            } else {
+                1
+            }),
         ),
         _ => unreachable!("light() passes only point, spot and directional lights here"),
     }
 }
 
-/// Builds a rect, disk or sphere light, with no range window; `l` is one of those kinds.
+/// Builds a rect, disk, sphere or cylinder light, with no range window; `l` is one of those kinds.
 fn area_light(l: &LightSpec, index: usize) -> Light {
     match l {
         LightSpec::Rect {
@@ -645,7 +654,29 @@ fn area_light(l: &LightSpec, index: usize) -> Light {
             None,
             *samples,
         ),
-        _ => unreachable!("light() passes only rect, disk and sphere lights here"),
+        LightSpec::Cylinder {
+            name,
+            center,
+            axis,
+            length,
+            radius,
+            radiance,
+            color,
+            samples,
+        } => make_light(
+            light_name(name, "cylinder", index),
+            LightShape::Cylinder {
+                center: *center,
+                axis: *axis,
+                length: *length,
+                radius: *radius,
+            },
+            *color,
+            *radiance,
+            None,
+            *samples,
+        ),
+        _ => unreachable!("light() passes only rect, disk, sphere and cylinder lights here"),
     }
 }
 

@@ -37,11 +37,13 @@ pub fn light_spec(light: &Light, scene: &Scene) -> Result<LightSpec, String> {
             color,
             range: light.range,
         },
-        LightShape::Directional { direction } => LightSpec::Directional {
+        LightShape::Directional { direction, angle } => LightSpec::Directional {
             name,
             direction,
             irradiance: power,
             color,
+            angle_deg: angle.to_degrees(),
+            samples: (angle > 0.0).then_some(light.samples),
         },
         LightShape::Rect {
             center,
@@ -74,6 +76,21 @@ pub fn light_spec(light: &Light, scene: &Scene) -> Result<LightSpec, String> {
         LightShape::Sphere { center, radius } => LightSpec::Sphere {
             name,
             center,
+            radius,
+            radiance: power,
+            color,
+            samples: light.samples,
+        },
+        LightShape::Cylinder {
+            center,
+            axis,
+            length,
+            radius,
+        } => LightSpec::Cylinder {
+            name,
+            center,
+            axis,
+            length,
             radius,
             radiance: power,
             color,

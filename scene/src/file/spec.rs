@@ -35,6 +35,9 @@ fn height() -> u32 {
 fn area_samples() -> u32 {
     crate::defaults::SAMPLES_PER_AREA_LIGHT
 }
+fn is_zero(x: &f32) -> bool {
+    *x == 0.0
+}
 fn shininess() -> f32 {
     32.0
 }
@@ -348,6 +351,8 @@ pub enum LightSpec {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         range: Option<f32>,
     },
+    /// Parallel light, or a soft sun when `angle_deg` > 0: a disk of that apparent diameter
+    /// (the sun's is 0.53°) sampled by `samples` parallel lights (the area-light default).
     Directional {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         name: Option<String>,
@@ -356,6 +361,10 @@ pub enum LightSpec {
         irradiance: f32,
         #[serde(default = "white")]
         color: V3,
+        #[serde(default, skip_serializing_if = "is_zero")]
+        angle_deg: f32,
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        samples: Option<u32>,
     },
     /// One-sided rectangle emitting along `normal`.
     Rect {
@@ -387,6 +396,21 @@ pub enum LightSpec {
         #[serde(default, skip_serializing_if = "Option::is_none")]
         name: Option<String>,
         center: V3,
+        radius: f32,
+        radiance: f32,
+        #[serde(default = "white")]
+        color: V3,
+        #[serde(default = "area_samples")]
+        samples: u32,
+    },
+    /// The curved side of a tube emitting outward (its caps do not emit): `length` along `axis`
+    /// about `center`.
+    Cylinder {
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        name: Option<String>,
+        center: V3,
+        axis: V3,
+        length: f32,
         radius: f32,
         radiance: f32,
         #[serde(default = "white")]

@@ -508,7 +508,10 @@ fn convert_light(l: &gltf::khr_lights_punctual::Light, w: &Mat4) -> Light {
     let direction = normalize(w.transform_vector3(Vec3::NEG_Z).to_array());
     let shape = match l.kind() {
         gltf::khr_lights_punctual::Kind::Point => LightShape::Point { position },
-        gltf::khr_lights_punctual::Kind::Directional => LightShape::Directional { direction },
+        gltf::khr_lights_punctual::Kind::Directional => LightShape::Directional {
+            direction,
+            angle: 0.0,
+        },
         gltf::khr_lights_punctual::Kind::Spot {
             inner_cone_angle,
             outer_cone_angle,

@@ -2,13 +2,15 @@
 //!
 //! A light's radiance (or point intensity, or irradiance) is `intensity · 2^exposure`, in the
 //! light's `color`; with `normalize` it is divided by the light's world-space area (rect
-//! `w·h`, disk `π r²`, sphere `4π r²`, a mesh light its triangles') so that its power does not
+//! `w·h`, disk `π r²`, sphere `4π r²`, cylinder `2π r·length`, a mesh light its triangles') so that its power does not
 //! depend on its size. Area
 //! lights emit along −Z of their frame (a sphere outward); their sizes take the frame's scale.
 //! A sphere with `treatAsPoint` is a point light of intensity `L·π r²` (the power of the sphere
 //! it stands for), a spot with `shaping:cone:angle`. A distant light's irradiance is
-//! `intensity · 2^exposure` when normalized, else that radiance over the solid angle of its
-//! `angle` (`2π(1 − cos(angle/2))`; an angle of 0 reads it as irradiance).
+//! `intensity · 2^exposure` when normalized, else what that radiance gives over the disk of its
+//! `angle` (`π·sin²(angle/2)`; an angle of 0 reads it as irradiance); its `angle` makes it a soft
+//! sun, sampled like an area light. A cylinder light emits from its curved side (`2π·r·length`
+//! when normalized) along the frame's X axis.
 
 use super::walk::{At, Error, Reader, boolean, scalar, token, value, vec3};
 use crate::model::{
@@ -219,23 +221,48 @@ pub(super) fn light(r: &mut Reader, prim: &Prim, kind: &str, world: DMat4) -> Re
                 (shape, radiance)
             }
         }
+        "CylinderLight" => {
+            // Along the frame's X axis, the radius across it; the caps do not emit.
+            let length = size("length", 1.0, x.length())?;
+            let radius = size("radius", 0.5, (y.length() + z.length()) / 2.0)?;
+            if boolean(prim, "treatAsLine", t)? == Some(true) {
+                r.ignored.insert(
+                    "CylinderLight treatAsLine (drawn as the cylinder of its radius)".into(),
+                );
+            }
+            let shape = LightShape::Cylinder {
+                center: to3(center),
+                axis: to3(x.normalize_or_zero()),
+                length: length as f32,
+                radius: radius as f32,
+            };
+            let area = 2.0 * PI * radius * length;
+            (shape, if normalize { radiance / area } else { radiance })
+        }
         _ => {
+            // The light's apparent diameter in degrees; the sun's 0.53 is UsdLux's fallback.
             let angle = input(prim, "angle", t, scalar)?.unwrap_or(0.53);
             if !(angle.is_finite() && angle >= 0.0) {
                 return Err(bad(format!("inputs:angle is {angle}")));
             }
-            if angle > 0.0 {
-                r.ignored
-                    .insert("DistantLight angle (its soft shadows: the light is parallel)".into());
+            let widest = f64::from(crate::limits::MAX_SUN_ANGLE).to_degrees();
+            if angle > widest {
+                r.ignored.insert(format!(
+                    "DistantLight angles above {widest}° (narrowed to it)"
+                ));
             }
-            let solid_angle = 2.0 * PI * (1.0 - (angle.to_radians() / 2.0).cos());
+            let angle = angle.min(widest);
+            let half = angle.to_radians() / 2.0;
+            // The irradiance of a disk of radiance L and half-angle α on a surface facing it:
+            // ∫ L·cos θ dω over the cap = π·L·sin²α.
             let irradiance = if normalize || angle == 0.0 {
                 radiance
             } else {
-                radiance * solid_angle
+                radiance * PI * half.sin().powi(2)
             };
             let shape = LightShape::Directional {
                 direction: to3(back),
+                angle: angle.to_radians() as f32,
             };
             (shape, irradiance)
         }

@@ -240,12 +240,8 @@ fn visit(
     match type_name.as_str() {
         "Mesh" => super::mesh::read(r, &prim, world)?,
         "Camera" => super::light::camera(r, &prim, world)?,
-        "RectLight" | "DiskLight" | "SphereLight" | "DistantLight" => {
+        "RectLight" | "DiskLight" | "SphereLight" | "CylinderLight" | "DistantLight" => {
             super::light::light(r, &prim, &type_name, world)?
-        }
-        "CylinderLight" => {
-            r.ignored
-                .insert("CylinderLight (lightfold samples no cylinders)".into());
         }
         "DomeLight" | "DomeLight_1" => {
             r.ignored.insert("DomeLight (environment light)".into());

@@ -2,6 +2,7 @@
 
 use super::{Issue, finite3};
 use crate::defaults;
+use crate::limits::MAX_SUN_ANGLE;
 use crate::model::{Camera, Light, LightShape, Scene};
 use crate::shading::{V3, add, dot, length, normalize, scale, sub};
 
@@ -58,9 +59,18 @@ pub(super) fn sanitize_light(
                 (*outer_angle, *inner_angle) = (o, i);
             }
         }
-        LightShape::Directional { direction } => {
+        LightShape::Directional { direction, angle } => {
             if !unit(direction) {
                 return drop("direction is unusable");
+            }
+            let a = if angle.is_finite() {
+                angle.clamp(0.0, MAX_SUN_ANGLE)
+            } else {
+                0.0
+            };
+            if a != *angle {
+                fixes.push("angle clamped to 0 ≤ angle ≤ 90°");
+                *angle = a;
             }
         }
         LightShape::Rect {
@@ -96,6 +106,16 @@ pub(super) fn sanitize_light(
         LightShape::Sphere { center, radius } => {
             if !finite3(center) || !positive(*radius) {
                 return drop("sphere centre or radius is unusable");
+            }
+        }
+        LightShape::Cylinder {
+            center,
+            axis,
+            length,
+            radius,
+        } => {
+            if !finite3(center) || !unit(axis) || !positive(*length) || !positive(*radius) {
+                return drop("cylinder centre, axis, length or radius is unusable");
             }
         }
         LightShape::EmissiveMesh { mesh } => match mesh_index.get(*mesh).copied().flatten() {

@@ -140,6 +140,7 @@ fn every_light_kind_is_read() {
             LightShape::Rect { .. } => "rect",
             LightShape::Disk { .. } => "disk",
             LightShape::Sphere { .. } => "sphere",
+            LightShape::Cylinder { .. } => "cylinder",
             LightShape::EmissiveMesh { .. } => "emissive_mesh",
         })
         .collect();
@@ -149,15 +150,25 @@ fn every_light_kind_is_read() {
             "point",
             "spot",
             "directional",
+            "directional",
             "rect",
             "disk",
             "sphere",
+            "cylinder",
             "emissive_mesh"
         ]
     );
-    // 3 punctual samples + 4 area lights × 16 (the quality override).
-    assert_eq!(direct_samples(&s).len(), 3 + 4 * 16);
-    let LightShape::EmissiveMesh { mesh } = s.lights[6].shape else {
+    // 3 punctual samples + a soft sun and 5 area lights × 16 (the quality override).
+    assert_eq!(direct_samples(&s).len(), 3 + 6 * 16);
+    assert_eq!(
+        s.lights[3].shape,
+        LightShape::Directional {
+            direction: [-0.4, -1.0, 0.3],
+            angle: 6f32.to_radians()
+        }
+    );
+    assert!(s.lights[3].is_area() && !s.lights[2].is_area());
+    let LightShape::EmissiveMesh { mesh } = s.lights[8].shape else {
         unreachable!()
     };
     let glow = &s.materials[s.meshes[mesh].material];

@@ -79,7 +79,9 @@ fn shape_numbers(s: &LightShape) -> (&'static str, Vec<f32>) {
             "spot",
             [&position[..], direction, &[*inner_angle, *outer_angle]].concat(),
         ),
-        LightShape::Directional { direction } => ("directional", direction.to_vec()),
+        LightShape::Directional { direction, angle } => {
+            ("directional", [&direction[..], &[*angle]].concat())
+        }
         LightShape::Rect {
             center,
             normal,
@@ -92,6 +94,15 @@ fn shape_numbers(s: &LightShape) -> (&'static str, Vec<f32>) {
             radius,
         } => ("disk", [&center[..], normal, &[*radius]].concat()),
         LightShape::Sphere { center, radius } => ("sphere", [&center[..], &[*radius]].concat()),
+        LightShape::Cylinder {
+            center,
+            axis,
+            length,
+            radius,
+        } => (
+            "cylinder",
+            [&center[..], axis, &[*length, *radius]].concat(),
+        ),
         LightShape::EmissiveMesh { mesh } => ("emissive mesh", vec![*mesh as f32]),
     }
 }
@@ -222,7 +233,7 @@ fn a_loader_that_ignored_exposure_or_normalize_would_be_caught() {
 fn a_stage_loads_directly_and_from_a_scene_file() {
     let direct = load(data("usd/lights.usda").to_str().unwrap()).unwrap();
     assert_eq!(direct.name, "lights");
-    assert_eq!(direct.lights.len(), 6);
+    assert_eq!(direct.lights.len(), 7);
     // The stage's camera is kept (completion only frames a scene without one).
     assert!(close(direct.camera.fov_y_deg, 37.8493, 1e-5));
     let dir = crate::obj::scratch("usd-scene-file");
@@ -231,7 +242,7 @@ fn a_stage_loads_directly_and_from_a_scene_file() {
                 [[object]]\ntype = \"sphere\"\nname = \"ball\"\ncenter = [0.0, 3.0, 0.0]\n\
                 radius = 0.5\n";
     let scene = parse_scene_file(text, "with-usd.toml", Some(&dir)).unwrap();
-    assert_eq!(scene.lights.len(), 6);
+    assert_eq!(scene.lights.len(), 7);
     assert!(scene.meshes.iter().any(|m| m.name == "ball"));
     // Placed at scale 2: the panel is twice as high and wide, its radiance unchanged.
     let LightShape::Rect { center, size, .. } = scene.lights[0].shape else {
@@ -281,10 +292,23 @@ fn preview_surfaces_units_and_up_axis_map_to_lightfold() {
     assert_eq!(glow.alpha, 0.5);
     assert_eq!(glow.alpha_mode, AlphaMode::Mask { cutoff: 0.5 });
     assert!(glow.transmission.is_some_and(|t| t.coverage));
-    assert_eq!(scene.lights.len(), 1);
-    assert_eq!(scene.lights[0].shape, LightShape::EmissiveMesh { mesh: 1 });
+    assert_eq!(scene.lights.len(), 2);
+    assert_eq!(scene.lights[1].shape, LightShape::EmissiveMesh { mesh: 1 });
+    // The tube at UsdLux's fallbacks (length 1, radius 0.5) in centimetres, along X.
+    let LightShape::Cylinder {
+        center,
+        axis,
+        length,
+        radius,
+    } = scene.lights[0].shape
+    else {
+        panic!("{:?}", scene.lights[0]);
+    };
+    assert!(close_all(&center, &[0.0; 3], 1e-6) && close_all(&axis, &[1.0, 0.0, 0.0], 1e-6));
+    assert!(close(length, 0.01, 1e-6) && close(radius, 0.005, 1e-6));
+    assert_eq!(scene.lights[0].power, 1.0);
     assert_eq!(
-        (scene.lights[0].power, scene.lights[0].color),
+        (scene.lights[1].power, scene.lights[1].color),
         (4.0, [0.5, 1.0, 0.25])
     );
     assert!(tri.positions.iter().all(|p| close(p[1], 0.5, 1e-6)));
@@ -297,10 +321,10 @@ fn preview_surfaces_units_and_up_axis_map_to_lightfold() {
     uvs.sort_by(|a, b| a.partial_cmp(b).unwrap());
     assert_eq!(uvs, vec![[0.0, 0.0], [0.0, 1.0], [1.0, 1.0]]);
     let ignored = ignored_features(&path).unwrap();
-    for word in ["Cube prims", "CylinderLight", "UsdPreviewSurface clearcoat"] {
+    for word in ["Cube prims", "UsdPreviewSurface clearcoat"] {
         assert!(ignored.iter().any(|i| i.contains(word)), "{ignored:?}");
     }
-    assert_eq!(ignored.len(), 3, "{ignored:?}");
+    assert_eq!(ignored.len(), 2, "{ignored:?}");
 }
 
 #[test]
@@ -643,5 +667,53 @@ fn time_sampled_transforms_animate_meshes_and_lights() {
         close_all(&lamp(1.5), &[2.0, 3.0, 1.0], 1e-5),
         "{:?}",
         lamp(1.5)
+    );
+}
+
+/// A `DistantLight`'s `angle` makes a soft sun: sampled as an area light, and without
+/// `normalize` its radiance gives the irradiance `π·L·sin²(angle/2)` of its disk; an angle past
+/// 90° is narrowed to it and listed.
+#[test]
+fn a_distant_lights_angle_makes_a_soft_sun() {
+    let dir = crate::obj::scratch("usd-soft-sun");
+    let stage = |angle: &str| {
+        let text = format!(
+            "#usda 1.0\ndef DistantLight \"Sun\" {{\n  float inputs:intensity = 1000\n  \
+             float inputs:angle = {angle}\n}}\n"
+        );
+        let path = dir.join(format!("sun{angle}.usda"));
+        std::fs::write(&path, text).unwrap();
+        path
+    };
+    let path = stage("4.0");
+    let scene = load_usd_with(&path, &unplaced()).unwrap();
+    let sun = &scene.lights[0];
+    let want = 1000.0 * std::f64::consts::PI * 2f64.to_radians().sin().powi(2);
+    assert!(
+        close(sun.power, want as f32, 1e-6),
+        "{} vs {want}",
+        sun.power
+    );
+    assert_eq!(
+        sun.shape,
+        LightShape::Directional {
+            direction: [0.0, 0.0, -1.0],
+            angle: 4f32.to_radians()
+        }
+    );
+    assert!(sun.is_area());
+    assert_eq!(lightfold_scene::sampling::direct_samples(&scene).len(), 16);
+    assert!(ignored_features(&path).unwrap().is_empty());
+    // Parallel at angle 0: one sample, the radiance read as irradiance.
+    let flat = load_usd_with(&stage("0.0"), &unplaced()).unwrap();
+    assert!(!flat.lights[0].is_area() && flat.lights[0].power == 1000.0);
+    let wide_path = stage("120.0");
+    let wide = load_usd_with(&wide_path, &unplaced()).unwrap();
+    assert!(matches!(wide.lights[0].shape,
+        LightShape::Directional { angle, .. } if angle == std::f32::consts::FRAC_PI_2));
+    let ignored = ignored_features(&wide_path).unwrap();
+    assert!(
+        ignored.iter().any(|i| i.contains("narrowed")),
+        "{ignored:?}"
     );
 }

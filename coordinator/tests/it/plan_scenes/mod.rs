@@ -192,6 +192,7 @@ pub fn random(seed: u64) -> Scene {
                 name: format!("sun{i}"),
                 shape: LightShape::Directional {
                     direction: [range(&mut rng, -0.5, 0.5), -1.0, range(&mut rng, -0.5, 0.5)],
+                    angle: 0.0,
                 },
                 color,
                 power: 1.0,
