@@ -449,9 +449,13 @@ fn ortho_view(dir: V3, boxes: &[(V3, V3)]) -> Option<ShadowView> {
     }
     let [l, r, b, t] = widen(e);
     let depth = (zmax - zmin).max(1e-3);
-    // The eye sits just before the nearest receiver (on the axis through the world origin, so
-    // view x/y equal the world projections above); casters further up-light are depth-clamped.
-    let start = zmin - 0.02 * depth - 1e-3;
+    // The eye sits before the nearest receiver (on the axis through the world origin, so view
+    // x/y equal the world projections above); casters further up-light are depth-clamped. The
+    // room left up-light of the receivers holds their bias (metres along the ray: the depth bias
+    // and up to ten texels of slope): a flat receiver facing the light has no depth range of its
+    // own, and a biased depth past the near plane would pass every clamped caster.
+    let lateral = (r - l).max(t - b);
+    let start = zmin - 0.02 * depth - 0.25 * lateral - 1e-3;
     let origin = scale(fwd, start);
     let near = 1e-3f32;
     let far = zmax - start + 0.02 * depth;

@@ -184,6 +184,32 @@ fn directional_light_gets_one_orthographic_view() {
     assert_covered(&s, &boxes);
 }
 
+/// A flat receiver facing a parallel light has no depth range of its own: the map must still
+/// leave room up-light of it for the receiver's bias (the scene's depth bias and a slope
+/// allowance of ten texels), or the biased reference depth passes the near plane, where every
+/// clamped caster lies, and nothing is shadowed (a sun straight overhead once lit the floor under
+/// a roof).
+#[test]
+fn a_flat_receiver_under_a_parallel_light_keeps_room_for_its_bias() {
+    let floor = ([-2.0, 0.0, -2.0], [2.0, 0.0, 2.0]);
+    for direction in [[0.0, -1.0, 0.0], [0.001, -1.0, 0.0]] {
+        let s = sample(
+            [0.0; 3],
+            lightfold_scene::shading::normalize(direction),
+            SampleKind::Directional,
+        );
+        let v = shadow_views(&s, &[floor])[0];
+        let texel = 4.0 / 1024.0;
+        let bias = lightfold_scene::defaults::quality().depth_bias + 1.5 * 2.0 * 10.0 * texel;
+        let (_, at) = project(&v, [0.0, 0.0, 0.0]).unwrap();
+        let (_, biased) = project(&v, [0.0, bias, 0.0]).unwrap();
+        assert!(
+            0.0 < at && at < biased && biased < 1.0,
+            "{direction:?}: receiver at depth {at}, biased {biased}"
+        );
+    }
+}
+
 #[test]
 fn depth_is_reversed_between_near_and_far() {
     let s = sample([0.0, 3.0, 0.0], [0.0, -1.0, 0.0], SampleKind::CosineLobe);

@@ -14,3 +14,4 @@ mod plan_culling;
 mod plan_passes;
 mod render_parity;
 mod seed64_scale;
+mod soft_lights;
