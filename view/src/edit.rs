@@ -293,6 +293,13 @@ mod tests {
             s.clone()
                 .add_light(&spec(serde_json::json!({"type": "emissive_mesh",
                 "object": "floor", "radiance": 1.0}))),
+            s.clone()
+                .add_light(&spec(serde_json::json!({"type": "directional",
+                "direction": [0, -1, 0], "irradiance": 1.0, "angle_deg": 120.0}))),
+            s.clone()
+                .add_light(&spec(serde_json::json!({"type": "cylinder",
+                "center": [0, 1, 0], "axis": [0, 0, 0], "length": 1.0, "radius": 0.1,
+                "radiance": 1.0}))),
         ];
         for (i, r) in bad.iter().enumerate() {
             assert!(r.is_err(), "edit {i} was taken");
@@ -312,6 +319,20 @@ mod tests {
             sun.drag_light(0, 0.1, 0.0).is_err(),
             "a directional light has no position"
         );
+        // The page's soft sun and tube: sampled like area lights; the tube drags by its centre.
+        let mut soft = Steer::new(&scene);
+        soft.add_light(&spec(serde_json::json!({"type": "directional",
+            "direction": [0.3, -1, -0.2], "irradiance": 1.0, "angle_deg": 2.0, "samples": 16})))
+            .unwrap();
+        soft.add_light(&spec(
+            serde_json::json!({"type": "cylinder", "center": [0, 2, 0],
+            "axis": [1, 0, 0], "length": 1.0, "radius": 0.05, "radiance": 5.0}),
+        ))
+        .unwrap();
+        let n = soft.scene_lights.len();
+        assert!(soft.scene_lights[n - 2].is_area() && soft.scene_lights[n - 1].is_area());
+        soft.drag_light(n as u32 - 1, 0.1, 0.0).unwrap();
+        assert!(soft.drag_light(n as u32 - 2, 0.1, 0.0).is_err());
     }
 
     #[test]

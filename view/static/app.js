@@ -654,6 +654,8 @@
       point: { type: 'point', position: at, intensity: 10 },
       spot: { type: 'spot', position: at, direction: down, intensity: 20, inner_angle_deg: 20, outer_angle_deg: 30 },
       directional: { type: 'directional', direction: [0.3, -1, -0.2], irradiance: 1 },
+      sun: { type: 'directional', direction: [0.3, -1, -0.2], irradiance: 1, angle_deg: 2, samples: 16 },
+      tube: { type: 'cylinder', center: at, axis: [1, 0, 0], length: 8 * size, radius: size / 4, radiance: 5 / (size * size) },
     };
     send({ type: 'light_add', light: specs[$('add-kind').value] });
   });

@@ -35,9 +35,6 @@ fn height() -> u32 {
 fn area_samples() -> u32 {
     crate::defaults::SAMPLES_PER_AREA_LIGHT
 }
-fn is_zero(x: &f32) -> bool {
-    *x == 0.0
-}
 fn shininess() -> f32 {
     32.0
 }
@@ -361,7 +358,8 @@ pub enum LightSpec {
         irradiance: f32,
         #[serde(default = "white")]
         color: V3,
-        #[serde(default, skip_serializing_if = "is_zero")]
+        /// Written always, so that an editor of the table offers it.
+        #[serde(default)]
         angle_deg: f32,
         #[serde(default, skip_serializing_if = "Option::is_none")]
         samples: Option<u32>,
