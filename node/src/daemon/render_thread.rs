@@ -312,6 +312,7 @@ fn options_for(setup: &RenderSetup) -> RenderOptions {
         depth_bias: c.depth_bias,
         slope_bias: c.slope_bias,
         walkthrough: c.walkthrough,
+        chunk_triangles: crate::gpu::scene_data::CHUNK_TRIANGLES,
         fault: None,
     }
 }

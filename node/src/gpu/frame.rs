@@ -22,6 +22,9 @@ pub struct RenderOptions {
     /// Keep shadow maps between frames while lights and casters do not change. The maps then
     /// cover every receiver, as the camera may move (see `Renderer::set_fit_to_camera`).
     pub walkthrough: bool,
+    /// Triangles per chunk of a large mesh, the unit the eye and shadow passes cull
+    /// ([`crate::gpu::scene_data::CHUNK_TRIANGLES`]; 0: every mesh whole).
+    pub chunk_triangles: u32,
     /// A deliberate mistake for negative-control tests.
     pub fault: Option<Fault>,
 }
@@ -44,6 +47,7 @@ impl RenderOptions {
             depth_bias: q.depth_bias,
             slope_bias: q.slope_bias,
             walkthrough: false,
+            chunk_triangles: super::scene_data::CHUNK_TRIANGLES,
             fault: None,
         }
     }

@@ -118,7 +118,7 @@ impl Renderer {
                 maximum: max,
             });
         }
-        let data = SceneData::new(scene);
+        let data = SceneData::chunked(scene, opts.chunk_triangles);
         let storage_max = gpu.limits.max_storage_buffer_binding_size;
         for (what, bytes) in [
             ("texture texels", data.texels.len() as u64 * 4),
@@ -351,7 +351,7 @@ impl Renderer {
                 self.scene.meshes.len()
             )));
         }
-        let (vertices, tangents, ranges) = self.scene.geometry(meshes);
+        let (vertices, tangents, ranges, chunks) = self.scene.geometry(meshes);
         // Without the CPU copy (a still scene) every mesh counts as changed.
         let kept = self.scene.vertices.len() as u32 == self.scene.vertex_count;
         let same_layout = vertices.len() as u32 == self.scene.vertex_count
@@ -424,6 +424,7 @@ impl Renderer {
         self.scene.vertex_count = vertices.len() as u32;
         self.scene.vertices = vertices;
         self.scene.meshes = ranges;
+        self.scene.chunks = chunks;
         self.refresh_receivers();
         Ok(())
     }
@@ -815,7 +816,7 @@ impl Renderer {
             let views: Vec<bool> = plan.view_light.iter().map(|&l| fresh[l as usize]).collect();
             (stats.shadow_passes, stats.transmit_passes) = render_shadow_maps(
                 &self.draw_context(gpu),
-                &self.scene.meshes,
+                &self.scene,
                 maps,
                 &plan,
                 casters,
@@ -1025,18 +1026,19 @@ impl Renderer {
     }
 
     /// The vertex ranges the eye pass draws: every mesh, or those of
-    /// [`Renderer::set_eye_meshes`], less (with eye culling) those whose bounds miss the
+    /// [`Renderer::set_eye_meshes`], less (with eye culling) the chunks whose bounds miss the
     /// frustum of `view_proj` (contiguous ones merged into one draw).
     fn eye_draws(&self, view_proj: &[[f32; 4]; 4]) -> Vec<std::ops::Range<u32>> {
         let partial = self.options.fault == Some(Fault::EyeCullPartial);
         if self.eye_meshes.is_none() && !self.eye_culling && !partial {
             return std::iter::once(0..self.scene.vertex_count).collect();
         }
-        let shown = |r: &super::scene_data::MeshRange| match r.bounds {
-            _ if !self.eye_culling && !partial => true,
-            None => false,
-            Some((lo, hi)) if partial => super::lights::box_wholly_in_eye_view(view_proj, lo, hi),
-            Some((lo, hi)) => super::lights::box_in_eye_view(view_proj, lo, hi),
+        let shown = |(lo, hi): ([f32; 3], [f32; 3])| {
+            if partial {
+                super::lights::box_wholly_in_eye_view(view_proj, lo, hi)
+            } else {
+                !self.eye_culling || super::lights::box_in_eye_view(view_proj, lo, hi)
+            }
         };
         let chosen: Box<dyn Iterator<Item = &super::scene_data::MeshRange>> = match &self.eye_meshes
         {
@@ -1047,19 +1049,12 @@ impl Renderer {
             ),
             None => Box::new(self.scene.meshes.iter()),
         };
-        let mut ranges: Vec<std::ops::Range<u32>> = chosen
-            .filter(|r| r.vertex_count > 0 && shown(r))
-            .map(|r| r.first_vertex..r.first_vertex + r.vertex_count)
+        let ranges: Vec<std::ops::Range<u32>> = chosen
+            .flat_map(|r| self.scene.mesh_chunks(r))
+            .filter(|c| c.vertex_count > 0 && shown(c.bounds))
+            .map(|c| c.first_vertex..c.first_vertex + c.vertex_count)
             .collect();
-        ranges.sort_by_key(|r| r.start);
-        let mut merged: Vec<std::ops::Range<u32>> = Vec::with_capacity(ranges.len());
-        for r in ranges {
-            match merged.last_mut() {
-                Some(last) if r.start <= last.end => last.end = last.end.max(r.end),
-                _ => merged.push(r),
-            }
-        }
-        merged
+        super::scene_data::merged(ranges)
     }
 
     /// Per light of the frame, whether it has translucent casters (`casters[λ]`, or any mesh

@@ -98,11 +98,29 @@ pub struct GpuTexture {
     pub srgb: u32,
 }
 
+/// Triangles in a chunk of a large mesh. A mesh of more is drawn in chunks: its triangles ordered
+/// along a Morton curve of their centroids and cut into runs of this many, each with its own box,
+/// so the eye and shadow passes leave out the parts of it their frustum misses. A smaller mesh
+/// is one chunk, its triangles in their own order.
+pub const CHUNK_TRIANGLES: u32 = 4096;
+
+/// A run of a mesh's triangles in the vertex list, with its box.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Chunk {
+    pub first_vertex: u32,
+    pub vertex_count: u32,
+    pub bounds: (V3, V3),
+}
+
 /// Where one mesh's triangles sit in the vertex list.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MeshRange {
     pub first_vertex: u32,
     pub vertex_count: u32,
+    /// Its chunks: `SceneData::chunks[first_chunk..first_chunk + chunk_count]` (none when it
+    /// has no valid triangle).
+    pub first_chunk: u32,
+    pub chunk_count: u32,
     /// Whether its material discards masked texels (needs the masked shadow pipeline).
     pub masked: bool,
     /// Whether its material lets light through: it casts into the transmittance maps, not the
@@ -198,6 +216,10 @@ pub struct SceneData {
     /// read a tangent per vertex (else one zero tangent for every vertex).
     pub normal_mapped: bool,
     pub meshes: Vec<MeshRange>,
+    /// Every mesh's chunks, mesh after mesh (`MeshRange::first_chunk`).
+    pub chunks: Vec<Chunk>,
+    /// Triangles per chunk of a large mesh (0: every mesh whole).
+    pub chunk_triangles: u32,
     pub materials: Vec<GpuMaterial>,
     /// Each material's metallic-roughness parameters (zero for Blinn-Phong ones), index for
     /// index with `materials`.
@@ -212,7 +234,14 @@ pub struct SceneData {
 }
 
 impl SceneData {
+    /// The scene's arrays, large meshes in chunks of [`CHUNK_TRIANGLES`].
     pub fn new(scene: &Scene) -> SceneData {
+        SceneData::chunked(scene, CHUNK_TRIANGLES)
+    }
+
+    /// The scene's arrays, meshes of more than `chunk_triangles` triangles in chunks of that
+    /// many (0: every mesh whole, its triangles in their own order).
+    pub fn chunked(scene: &Scene, chunk_triangles: u32) -> SceneData {
         // Out-of-range material indices get the reference's mid-grey diffuse fallback, last.
         let fallback_material = Material::diffuse("fallback", [0.5; 3]);
         let (materials, pbr): (Vec<GpuMaterial>, Vec<GpuPbr>) = scene
@@ -227,8 +256,14 @@ impl SceneData {
             .meshes
             .iter()
             .any(|m| is_normal_mapped(m, material_of(m, fallback), &materials, &pbr));
-        let (vertices, tangents, meshes) =
-            triangles(&scene.meshes, &materials, &pbr, fallback, normal_mapped);
+        let (vertices, tangents, meshes, chunks) = triangles(
+            &scene.meshes,
+            &materials,
+            &pbr,
+            fallback,
+            normal_mapped,
+            chunk_triangles,
+        );
         let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
         for (a, b) in meshes.iter().filter_map(|m| m.bounds) {
             for k in 0..3 {
@@ -278,6 +313,8 @@ impl SceneData {
             normal_mapped,
             vertices,
             meshes,
+            chunks,
+            chunk_triangles,
             materials,
             pbr,
             textures,
@@ -286,9 +323,9 @@ impl SceneData {
         }
     }
 
-    /// The expanded vertices, their tangents (where the scene is normal-mapped) and mesh ranges
-    /// of `meshes` (this scene's meshes, posed), with this scene's materials.
-    pub fn geometry(&self, meshes: &[Mesh]) -> (Vec<Vertex>, Vec<Tangent>, Vec<MeshRange>) {
+    /// The expanded vertices, their tangents (where the scene is normal-mapped), mesh ranges and
+    /// chunks of `meshes` (this scene's meshes, posed), with this scene's materials.
+    pub fn geometry(&self, meshes: &[Mesh]) -> Geometry {
         let fallback = self.materials.len() as u32 - 1;
         triangles(
             meshes,
@@ -296,7 +333,16 @@ impl SceneData {
             &self.pbr,
             fallback,
             self.normal_mapped,
+            self.chunk_triangles,
         )
+    }
+
+    /// The chunks of mesh range `r` (one of `meshes`).
+    pub fn mesh_chunks(&self, r: &MeshRange) -> &[Chunk] {
+        let at = r.first_chunk as usize;
+        self.chunks
+            .get(at..at + r.chunk_count as usize)
+            .unwrap_or(&[])
     }
 
     /// Receivers for `shadow_views`: the bounds of every mesh with triangles.
@@ -305,19 +351,24 @@ impl SceneData {
     }
 }
 
+/// Expanded vertices, their tangents, where each mesh lies and its chunks.
+pub type Geometry = (Vec<Vertex>, Vec<Tangent>, Vec<MeshRange>, Vec<Chunk>);
+
 /// Triangles expanded to one vertex each, their tangents (`with_tangents`: one per vertex, else
-/// none), and where each mesh's lie; `materials` ends with the `fallback` for out-of-range
-/// indices.
+/// none), where each mesh's lie and its chunks of `chunk` triangles (0: one chunk a mesh);
+/// `materials` ends with the `fallback` for out-of-range indices.
 fn triangles(
     scene_meshes: &[Mesh],
     materials: &[GpuMaterial],
     pbr: &[GpuPbr],
     fallback: u32,
     with_tangents: bool,
-) -> (Vec<Vertex>, Vec<Tangent>, Vec<MeshRange>) {
+    chunk: u32,
+) -> Geometry {
     let mut vertices = Vec::new();
     let mut tangents = Vec::new();
     let mut meshes = Vec::with_capacity(scene_meshes.len());
+    let mut chunks = Vec::new();
     for (index, mesh) in scene_meshes.iter().enumerate() {
         let first_vertex = vertices.len() as u32;
         let object = u32::try_from(index + 1).unwrap_or(u32::MAX);
@@ -330,7 +381,14 @@ fn triangles(
         let normal_mapped = is_normal_mapped(mesh, material, materials, pbr);
         let has_tangents = mesh.tangents.len() == mesh.positions.len();
         let (mut mlo, mut mhi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-        for tri in mesh.indices.chunks_exact(3) {
+        let count = mesh.indices.len() / 3;
+        let order: Vec<usize> = if chunk > 0 && count > chunk as usize {
+            spatial_order(mesh)
+        } else {
+            (0..count).collect()
+        };
+        for t in order {
+            let tri = &mesh.indices[3 * t..3 * t + 3];
             let idx = [tri[0] as usize, tri[1] as usize, tri[2] as usize];
             let Some(p) = idx
                 .iter()
@@ -374,16 +432,112 @@ fn triangles(
         let vertex_count = vertices.len() as u32 - first_vertex;
         let bounds = (vertex_count > 0).then_some((mlo, mhi));
         let solid = solid_box(&vertices[first_vertex as usize..]);
+        let first_chunk = chunks.len() as u32;
+        let per = if chunk == 0 {
+            vertex_count.max(1)
+        } else {
+            3 * chunk
+        };
+        let mut at = first_vertex;
+        for part in vertices[first_vertex as usize..].chunks(per as usize) {
+            chunks.push(Chunk {
+                first_vertex: at,
+                vertex_count: part.len() as u32,
+                bounds: vertex_bounds(part),
+            });
+            at += part.len() as u32;
+        }
         meshes.push(MeshRange {
             first_vertex,
             vertex_count,
+            first_chunk,
+            chunk_count: chunks.len() as u32 - first_chunk,
             masked,
             translucent,
             bounds,
             solid,
         });
     }
-    (vertices, tangents, meshes)
+    (vertices, tangents, meshes, chunks)
+}
+
+/// `ranges` sorted, overlapping and touching ones merged: fewer draws for the same vertices.
+pub fn merged(mut ranges: Vec<std::ops::Range<u32>>) -> Vec<std::ops::Range<u32>> {
+    ranges.sort_by_key(|r| r.start);
+    let mut out: Vec<std::ops::Range<u32>> = Vec::with_capacity(ranges.len());
+    for r in ranges {
+        match out.last_mut() {
+            Some(last) if r.start <= last.end => last.end = last.end.max(r.end),
+            _ => out.push(r),
+        }
+    }
+    out
+}
+
+/// The box of `vertices`' positions.
+fn vertex_bounds(vertices: &[Vertex]) -> (V3, V3) {
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for v in vertices {
+        for a in 0..3 {
+            lo[a] = lo[a].min(v.position[a]);
+            hi[a] = hi[a].max(v.position[a]);
+        }
+    }
+    (lo, hi)
+}
+
+/// `mesh`'s triangle indices ordered along a Morton (Z-order) curve of their centroids over the
+/// mesh's box, 10 bits an axis (ties keep their order): neighbours in the list are neighbours in
+/// space, so consecutive runs make compact chunks. A triangle with an index out of range or a
+/// non-finite corner sorts anywhere (it is skipped).
+fn spatial_order(mesh: &Mesh) -> Vec<usize> {
+    let finite = mesh
+        .positions
+        .iter()
+        .filter(|p| p.iter().all(|c| c.is_finite()));
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for p in finite {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    let cell = |c: f32, a: usize| -> u64 {
+        let span = hi[a] - lo[a];
+        let f = if span > 0.0 { (c - lo[a]) / span } else { 0.0 };
+        if f.is_finite() {
+            (f.clamp(0.0, 1.0) * 1023.0) as u64
+        } else {
+            0
+        }
+    };
+    // Spreads 10 bits to every third bit.
+    let spread = |mut x: u64| -> u64 {
+        x &= 0x3ff;
+        x = (x | (x << 16)) & 0x0300_00ff;
+        x = (x | (x << 8)) & 0x0300_f00f;
+        x = (x | (x << 4)) & 0x030c_30c3;
+        (x | (x << 2)) & 0x0924_9249
+    };
+    let mut keyed: Vec<(u64, usize)> = mesh
+        .indices
+        .chunks_exact(3)
+        .enumerate()
+        .map(|(t, tri)| {
+            let mut c = [0.0f32; 3];
+            for &i in tri {
+                let p = mesh.positions.get(i as usize).copied().unwrap_or([0.0; 3]);
+                for a in 0..3 {
+                    c[a] += p[a] / 3.0;
+                }
+            }
+            let key =
+                spread(cell(c[0], 0)) | spread(cell(c[1], 1)) << 1 | spread(cell(c[2], 2)) << 2;
+            (key, t)
+        })
+        .collect();
+    keyed.sort_by_key(|&(k, _)| k);
+    keyed.into_iter().map(|(_, t)| t).collect()
 }
 
 /// The box `vertices` (three at a time, each with its triangle's geometric normal) fill, if they
@@ -585,7 +739,7 @@ mod tests {
     fn boxes_fill_their_oriented_box_and_nothing_else_does() {
         let (material, pbr) = gpu_material(&Material::diffuse("m", [1.0; 3]), 0);
         let expand =
-            |mesh: &Mesh| triangles(std::slice::from_ref(mesh), &[material], &[pbr], 0, false).2;
+            |mesh: &Mesh| triangles(std::slice::from_ref(mesh), &[material], &[pbr], 0, false, 0).2;
         let solid = |mesh: &Mesh| expand(mesh)[0].solid;
         let mut turned =
             lightfold_scene::primitives::cuboid("b", [1.0, 2.0, 3.0], [0.5, 0.25, 2.0], 0);

@@ -8,7 +8,7 @@
 
 use super::lights::{LightPlan, box_in_view, mat_mul};
 use super::pipelines::{DrawContext, VIEW_UNIFORM_STRIDE};
-use super::scene_data::MeshRange;
+use super::scene_data::SceneData;
 use super::shadow_depth::ShadowDepth;
 use wgpu::util::DeviceExt;
 
@@ -220,6 +220,13 @@ fn layer_pass<'e>(
     })
 }
 
+/// A run of a caster's vertices a view draws, with its material's pipeline choice.
+struct Piece {
+    vertices: std::ops::Range<u32>,
+    masked: bool,
+    translucent: bool,
+}
+
 /// Records and submits one render pass per layer holding a view of `plan` that `render[view]`
 /// asks for, drawing every view of that layer into its square (the other layers are kept).
 /// `casters[λ]` lists the meshes that may cast into light λ's maps (`None`: all); translucent
@@ -228,7 +235,7 @@ fn layer_pass<'e>(
 /// views drawn and of those with transmittance maps.
 pub fn render_shadow_maps(
     cx: &DrawContext<'_>,
-    meshes: &[MeshRange],
+    scene: &SceneData,
     maps: &ShadowMaps,
     plan: &LightPlan,
     casters: Option<&[Vec<u32>]>,
@@ -268,9 +275,10 @@ pub fn render_shadow_maps(
         .create_command_encoder(&wgpu::CommandEncoderDescriptor {
             label: Some("shadow passes"),
         });
+    let meshes = &scene.meshes;
     let all: Vec<u32> = (0..meshes.len() as u32).collect();
-    // The meshes view i draws: its light's casters that can reach its frustum.
-    let drawn = |i: usize| -> Vec<&MeshRange> {
+    // What view i draws: the chunks of its light's casters that can reach its frustum.
+    let drawn = |i: usize| -> Vec<Piece> {
         let light = plan.view_light[i] as usize;
         let allowed: &[u32] = casters.and_then(|c| c.get(light)).map_or(&all, |c| c);
         allowed
@@ -281,6 +289,17 @@ pub fn render_shadow_maps(
                     m.vertex_count > 0 && box_in_view(&plan.geometry[i], lo, hi)
                 })
             })
+            .flat_map(|m| {
+                scene
+                    .mesh_chunks(m)
+                    .iter()
+                    .filter(|c| box_in_view(&plan.geometry[i], c.bounds.0, c.bounds.1))
+                    .map(|c| Piece {
+                        vertices: c.first_vertex..c.first_vertex + c.vertex_count,
+                        masked: m.masked,
+                        translucent: m.translucent,
+                    })
+            })
             .collect()
     };
     // Each view of `layer` (those `include` allows) in its square of the layer (`atlas::Slot`):
@@ -288,7 +307,7 @@ pub fn render_shadow_maps(
     let views_of = |pass: &mut wgpu::RenderPass<'_>,
                     layer: u32,
                     include: &dyn Fn(usize) -> bool,
-                    draw: &dyn Fn(&mut wgpu::RenderPass<'_>, &[&MeshRange])| {
+                    draw: &dyn Fn(&mut wgpu::RenderPass<'_>, &[Piece])| {
         let mut count = 0;
         pass.set_bind_group(0, cx.scene_bind_group, &[]);
         pass.set_vertex_buffer(0, cx.vertices.slice(..));
@@ -309,8 +328,8 @@ pub fn render_shadow_maps(
         }
         count
     };
-    let draw_range = |pass: &mut wgpu::RenderPass<'_>, m: &MeshRange| {
-        pass.draw(m.first_vertex..m.first_vertex + m.vertex_count, 0..1);
+    let draw_range = |pass: &mut wgpu::RenderPass<'_>, m: &Piece| {
+        pass.draw(m.vertices.clone(), 0..1);
     };
     // A pass clears its whole layer, so every view in a layer that holds one to render is drawn
     // again (the others are what they were: same light, views and casters).
@@ -368,7 +387,7 @@ pub fn render_shadow_maps(
         ) else {
             continue;
         };
-        let translucent_only = |pass: &mut wgpu::RenderPass<'_>, drawn: &[&MeshRange]| {
+        let translucent_only = |pass: &mut wgpu::RenderPass<'_>, drawn: &[Piece]| {
             for m in drawn.iter().filter(|m| m.translucent) {
                 draw_range(pass, m);
             }

@@ -394,15 +394,39 @@ fn empty_scenes_no_lights_and_tiny_images_render_zeros() {
 /// from its own camera and from one turned and narrowed so that most meshes are out of view.
 /// Control: a culling that drops the meshes the image's border cuts (`Fault::EyeCullPartial`)
 /// changes the picture.
+/// `balls` with a wall of 32 768 triangles behind it: one mesh large enough to be drawn in
+/// chunks.
+fn balls_and_wall() -> lightfold_scene::Scene {
+    let mut scene = lightfold_scene::builtin("balls").unwrap();
+    let material = scene.meshes[0].material;
+    scene.add_mesh(lightfold_scene::primitives::plane(
+        "wall",
+        [0.0, 2.0, -4.0],
+        [0.0, 0.0, 1.0],
+        [1.0, 0.0, 0.0],
+        [12.0, 6.0],
+        128,
+        material,
+    ));
+    scene
+}
+
+/// Culling whole meshes and chunks of large ones, in the eye pass and every shadow view, changes
+/// no pixel: against every mesh drawn whole and unculled, on every built-in, a 20 k city and a
+/// scene with one large mesh, from each scene's camera and a narrow turned one.
 #[test]
 fn eye_culling_changes_no_pixel() {
     let gpu = gpu();
-    let mut names: Vec<&str> = lightfold_scene::builtin_names().to_vec();
-    names.push("city:20k");
+    let mut scenes: Vec<(String, lightfold_scene::Scene)> = lightfold_scene::builtin_names()
+        .iter()
+        .chain(&["city:20k"])
+        .map(|n| (n.to_string(), lightfold_scene::builtin(n).unwrap()))
+        .collect();
+    scenes.push(("balls and a wall".into(), balls_and_wall()));
     let mut culled_somewhere = false;
+    let mut chunks_culled = false;
     let mut control_differs = false;
-    for name in names {
-        let mut scene = lightfold_scene::builtin(name).unwrap();
+    for (name, mut scene) in scenes {
         scene.quality.samples_per_area_light = Some(2);
         scene.camera.width = 64;
         scene.camera.height = 48;
@@ -413,9 +437,10 @@ fn eye_culling_changes_no_pixel() {
         let mut narrow = scene.camera.orbited(70.0);
         narrow.fov_y_deg = 12.0;
         for camera in [scene.camera, narrow] {
-            let render = |culling: bool, fault| {
+            let render = |culling: bool, chunk_triangles: u32, fault| {
                 let opts = RenderOptions {
                     fault,
+                    chunk_triangles,
                     ..RenderOptions::from_quality(&scene.quality)
                 };
                 let mut r = Renderer::new(&gpu, &scene, opts).unwrap();
@@ -426,23 +451,28 @@ fn eye_culling_changes_no_pixel() {
                     .unwrap();
                 (f, r.eye_vertices())
             };
-            let (all, drawn_all) = render(false, None);
-            let (culled, drawn) = render(true, None);
-            assert_eq!(
-                culled.illumination, all.illumination,
-                "{name}: illumination"
-            );
-            assert_eq!(culled.diffuse, all.diffuse, "{name}: diffuse layer");
-            assert_eq!(culled.depth, all.depth, "{name}: depth layer");
-            assert!(drawn <= drawn_all);
-            culled_somewhere |= drawn < drawn_all;
-            let (wrong, _) = render(true, Some(Fault::EyeCullPartial));
+            let (all, drawn_all) = render(false, 0, None);
+            let (whole, drawn_whole) = render(true, 0, None);
+            let (culled, drawn) = render(true, 4096, None);
+            for (what, f) in [("meshes culled", &whole), ("chunks culled", &culled)] {
+                assert_eq!(
+                    f.illumination, all.illumination,
+                    "{name}, {what}: illumination"
+                );
+                assert_eq!(f.diffuse, all.diffuse, "{name}, {what}: diffuse layer");
+                assert_eq!(f.depth, all.depth, "{name}, {what}: depth layer");
+            }
+            assert!(drawn <= drawn_whole && drawn_whole <= drawn_all);
+            culled_somewhere |= drawn_whole < drawn_all;
+            chunks_culled |= drawn < drawn_whole;
+            let (wrong, _) = render(true, 4096, Some(Fault::EyeCullPartial));
             control_differs |= wrong.depth != all.depth;
         }
     }
     assert!(
-        culled_somewhere,
-        "no view culled a mesh: the test proves nothing"
+        culled_somewhere && chunks_culled,
+        "no view culled a mesh ({culled_somewhere}) or a chunk ({chunks_culled}): the test \
+         proves nothing"
     );
     assert!(
         control_differs,
