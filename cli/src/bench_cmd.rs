@@ -406,6 +406,7 @@ async fn drive(
                 colors: Vec::new(),
                 scale: None,
                 time: None,
+                lights: Vec::new(),
             },
         }
     };

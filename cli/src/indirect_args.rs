@@ -14,14 +14,14 @@ pub struct IndirectArgs {
     /// the scene's, or 2 % of its bounding diagonal).
     #[arg(long, value_name = "METRES")]
     pub indirect_clamp: Option<f32>,
-    /// Drop the scene's animation and render its rest pose (indirect light needs a still scene).
+    /// Drop the scene's animation and render its rest pose.
     #[arg(long)]
     pub still: bool,
 }
 
 impl IndirectArgs {
-    /// Sets the scene's indirect-light options; refuses a non-finite or negative clamp, and
-    /// indirect light on an animated scene (its virtual point lights are traced for one pose).
+    /// Sets the scene's indirect-light options; refuses a non-finite or negative clamp. An
+    /// animated scene's virtual point lights are traced again for every frame's time.
     pub fn apply(&self, scene: &mut Scene) -> anyhow::Result<()> {
         if let Some(c) = self.indirect_clamp {
             if !(c.is_finite() && c >= 0.0) {
@@ -34,14 +34,6 @@ impl IndirectArgs {
         }
         if self.still {
             scene.animation = None;
-        }
-        if scene.quality.indirect > 0 && scene.animation.is_some() {
-            bail!(
-                "indirect light (virtual point lights) is traced for still scenes, and {:?} is \
-                 animated: add --still to render its rest pose (or, with `render`, --time to pose \
-                 it), or drop --indirect",
-                scene.name
-            );
         }
         scene
             .check_limits()

@@ -71,6 +71,7 @@ fn no_params() -> FrameParams {
         colors: vec![],
         scale: None,
         time: None,
+        lights: Vec::new(),
     }
 }
 

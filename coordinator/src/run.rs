@@ -226,6 +226,7 @@ pub fn frame_params(
                 colors: Vec::new(),
                 scale: None,
                 time: None,
+                lights: Vec::new(),
             })
             .colors
             .push((node.input_index, new_c));

@@ -282,6 +282,10 @@ pub struct FrameParams {
     /// Scene time in seconds: nodes pose their cached copy of an animated scene at it
     /// (`Scene::pose`); `None` is the rest pose.
     pub time: Option<f32>,
+    /// Virtual point lights of an animated scene traced again at `time` (protocol version 14):
+    /// each replaces the node's light of the same `sample` index, which must be a virtual point
+    /// light (a node checks them; empty: the lights of `NodeConfig`, posed).
+    pub lights: Vec<WireLight>,
 }
 
 /// Per-frame timing a daemon reports back.

@@ -66,14 +66,80 @@ pub fn default_clamp(scene: &Scene) -> f32 {
 
 /// Every sample a frame of `scene` renders: its direct samples, then its VPLs when
 /// `quality.indirect` asks for them. What the planner, `render` and the reference all call.
+/// An animated scene's VPLs are its rest pose's, one a light path whether or not the path left
+/// one ([`vpl_slots`]): the frame at time `t` replaces them with [`frame_samples_at`]'s.
 pub fn frame_samples(scene: &Scene) -> Vec<LightSample> {
     let mut samples = sampling::direct_samples(scene);
     let options = IndirectOptions::of(scene);
     if options.count > 0 {
-        let vpls = vpls(&Tracer::new(scene), &samples, &options);
-        samples.extend(vpls);
+        let tracer = Tracer::new(scene);
+        if scene.is_animated() {
+            samples.extend(vpl_slots(&tracer, &samples, &options));
+        } else {
+            samples.extend(vpls(&tracer, &samples, &options));
+        }
     }
     samples
+}
+
+/// The samples of an animated scene's frame at time `t`, slot for slot with
+/// [`frame_samples`]: the direct samples moved with their lights, and the VPLs traced again in
+/// the scene posed at `t` with the same light paths (the same source and directions per path,
+/// so a VPL moves with what it landed on instead of jumping to a fresh random place). A still
+/// scene's are [`frame_samples`]'.
+pub fn frame_samples_at(scene: &Scene, t: f32) -> Vec<LightSample> {
+    if !scene.is_animated() {
+        return frame_samples(scene);
+    }
+    let rest = sampling::direct_samples(scene);
+    let mut samples = scene.pose_samples(&rest, t);
+    if scene.quality.indirect > 0 {
+        samples.extend(vpls_at(scene, &rest, t));
+    }
+    samples
+}
+
+/// The VPL slots of an animated scene at time `t` traced from `direct_rest` (its direct
+/// samples at rest, as a plan holds them: moved with their lights here), in the scene posed at
+/// `t` ([`frame_samples_at`]'s VPLs; what a frame at `t` sends the nodes of a plan).
+pub fn vpls_at(scene: &Scene, direct_rest: &[LightSample], t: f32) -> Vec<LightSample> {
+    let direct = scene.pose_samples(direct_rest, t);
+    let posed = scene.still_at(t);
+    vpl_slots(&Tracer::new(&posed), &direct, &IndirectOptions::of(scene))
+}
+
+/// The VPL of every light path, in path order: a path that leaves none (it left the scene or
+/// ended on a black or unseen surface) gives a dark one (intensity 0, at the origin facing up),
+/// so that path `j` keeps slot `j` at every pose.
+pub fn vpl_slots(
+    tracer: &Tracer<'_>,
+    direct: &[LightSample],
+    options: &IndirectOptions,
+) -> Vec<LightSample> {
+    let clamp = sanitized_clamp(options.clamp);
+    let dark = LightSample {
+        position: [0.0; 3],
+        direction: [0.0, 1.0, 0.0],
+        kind: SampleKind::Bounce { clamp },
+        intensity: 0.0,
+        color: [1.0; 3],
+        range: None,
+        light: 0,
+        area: None,
+    };
+    let paths = vpl_paths(tracer, direct, options);
+    if paths.is_empty() {
+        return vec![dark; options.count as usize];
+    }
+    paths.into_iter().map(|p| p.unwrap_or(dark)).collect()
+}
+
+fn sanitized_clamp(clamp: f32) -> f32 {
+    if clamp.is_finite() {
+        clamp.max(0.0)
+    } else {
+        0.0
+    }
 }
 
 /// The VPLs of `direct` in the traced scene (see the module documentation).
@@ -82,6 +148,18 @@ pub fn vpls(
     direct: &[LightSample],
     options: &IndirectOptions,
 ) -> Vec<LightSample> {
+    vpl_paths(tracer, direct, options)
+        .into_iter()
+        .flatten()
+        .collect()
+}
+
+/// Per light path, the VPL it leaves (none when there is no source or no path).
+fn vpl_paths(
+    tracer: &Tracer<'_>,
+    direct: &[LightSample],
+    options: &IndirectOptions,
+) -> Vec<Option<LightSample>> {
     let m = options.count as usize;
     let sources: Vec<(usize, f64)> = direct
         .iter()
@@ -101,11 +179,7 @@ pub fn vpls(
         acc += s.1 / total;
         cdf.push(acc);
     }
-    let clamp = if options.clamp.is_finite() {
-        options.clamp.max(0.0)
-    } else {
-        0.0
-    };
+    let clamp = sanitized_clamp(options.clamp);
     let offset = tracer.epsilon() * 10.0;
     let paths: Vec<Option<LightSample>> = (0..m)
         .into_par_iter()
@@ -154,7 +228,7 @@ pub fn vpls(
             })
         })
         .collect();
-    paths.into_iter().flatten().collect()
+    paths
 }
 
 /// Radiant power of a sample (W, scalar), for choosing sources; a directional light's is its

@@ -46,6 +46,7 @@ async fn a_stage_accumulates_its_inputs_band_by_band() {
                 colors: vec![(1, [3.0, 0.25, 1.0])],
                 scale: None,
                 time: None,
+                lights: Vec::new(),
             };
             (p, "[3.0, 0.25, 1.0]")
         };

@@ -174,11 +174,20 @@ pub(crate) fn cull(
 /// Re-activates the samples `moving[i]` dropped for what they miss (not for emitting nothing):
 /// they move, so what they reach at rest says nothing of other times. Active or not, each then
 /// lights every one of the `receivers`.
-pub(crate) fn keep_moving(c: &mut Culling, moving: &[bool], receivers: usize) {
+pub(crate) fn keep_moving(
+    c: &mut Culling,
+    moving: &[bool],
+    samples: &[LightSample],
+    receivers: usize,
+) {
     let mut kept = Vec::new();
     c.dropped.retain(|(i, reason)| {
-        let drop =
-            !moving[*i] || matches!(reason, DropReason::ZeroEmission | DropReason::NonFinite);
+        // A moving virtual point light dark at rest (its path left nothing there) may light
+        // up at another time: its slot stays.
+        let revives = matches!(samples[*i].kind, lightfold_scene::SampleKind::Bounce { .. });
+        let drop = !moving[*i]
+            || matches!(reason, DropReason::NonFinite)
+            || (matches!(reason, DropReason::ZeroEmission) && !revives);
         if !drop {
             if let DropReason::BelowEpsilon { bound } = reason {
                 c.epsilon_used -= bound;

@@ -285,13 +285,6 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
     if let MapSizing::Fixed(0) = o.map_sizing {
         return bad_options("a fixed shadow-map size must be at least 1");
     }
-    if scene.quality.indirect > 0 && scene.animation.is_some() {
-        return bad_scene(
-            "indirect light (virtual point lights) is traced for still scenes, and this one is \
-             animated: render it without indirect light, or a still pose of it"
-                .to_string(),
-        );
-    }
     if cluster.nodes.is_empty() {
         return Err(PlanError::NoNodes);
     }

@@ -107,6 +107,11 @@ pub enum ConfigError {
     NoDownstream,
     #[error("filter {0} is not 0, 1, 3 or 5")]
     BadFilter(u32),
+    #[error(
+        "frame light {index} (sample {sample}) does not replace one of this node's virtual point \
+         lights with another, once"
+    )]
+    BadFrameLight { index: usize, sample: u32 },
 }
 
 impl ConfigError {
@@ -150,6 +155,35 @@ pub fn check_scale(scale: f32, layers: &[(Layer, PixelFormat)]) -> Result<(), Co
         Err(ConfigError::BadScale(scale))
     }
 }
+
+/// Checks a frame's virtual point lights (`FrameParams::lights`) against the configured ones:
+/// each a valid bounce light replacing a configured bounce light of the same sample index, at
+/// most once. Gives the index of each in the configuration with its sample.
+pub fn check_frame_lights(
+    lights: &[lightfold_protocol::WireLight],
+    configured: &[lightfold_protocol::WireLight],
+) -> Result<Vec<(usize, lightfold_scene::LightSample)>, ConfigError> {
+    let mut out: Vec<(usize, lightfold_scene::LightSample)> = Vec::with_capacity(lights.len());
+    for (index, w) in lights.iter().enumerate() {
+        let bad = || ConfigError::BadFrameLight {
+            index,
+            sample: w.sample,
+        };
+        let at = configured
+            .iter()
+            .position(|c| c.sample == w.sample && c.kind == BOUNCE_KIND)
+            .ok_or_else(bad)?;
+        let s = light_from_wire(w).map_err(|source| ConfigError::Light { index, source })?;
+        if w.kind != BOUNCE_KIND || out.iter().any(|(i, _)| *i == at) {
+            return Err(bad());
+        }
+        out.push((at, s));
+    }
+    Ok(out)
+}
+
+/// `WireLight::kind` of a virtual point light.
+const BOUNCE_KIND: u8 = 5;
 
 /// Checks a camera from a configuration or a frame request.
 pub fn check_camera(camera: &WireCamera) -> Result<Camera, ConfigError> {

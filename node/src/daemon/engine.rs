@@ -70,6 +70,8 @@ struct Active {
     scale: f32,
     /// Scene time of the last frame (kept for frames that give none, like the camera).
     time: Option<f32>,
+    /// Virtual point lights of the last frame that gave them (`FrameParams::lights`).
+    bounce: super::render_thread::Bounce,
     /// Whether the configured scene moves over time (otherwise the time changes nothing).
     animated: bool,
 }
@@ -311,6 +313,7 @@ impl Engine {
             scale: checked.config.scale,
             checked,
             time: None,
+            bounce: Arc::default(),
             animated,
         });
         Message::Configured { epoch }
@@ -427,6 +430,11 @@ impl Engine {
             }
             active.time = Some(t);
         }
+        if !params.lights.is_empty() {
+            let b = config::check_frame_lights(&params.lights, &active.checked.config.lights)
+                .map_err(|e| refuse(ErrorCode::BadConfig, format!("frame {frame}: {e}")))?;
+            active.bounce = Arc::new(b);
+        }
         Ok(FrameKey {
             epoch,
             camera: active.camera,
@@ -450,7 +458,12 @@ impl Engine {
         }
         if let Ok(pending) = self
             .render
-            .submit(active.camera, active.time, active.scale)
+            .submit(
+                active.camera,
+                active.time,
+                active.scale,
+                Arc::clone(&active.bounce),
+            )
             .await
         {
             self.prefetched = Some(Prefetched {
@@ -515,7 +528,12 @@ impl Engine {
             }
             None => {
                 self.render
-                    .render(active.camera, active.time, active.scale)
+                    .render(
+                        active.camera,
+                        active.time,
+                        active.scale,
+                        Arc::clone(&active.bounce),
+                    )
                     .await
             }
         }

@@ -96,9 +96,14 @@ enum Command {
         Camera,
         Option<f32>,
         f32,
+        Bounce,
         oneshot::Sender<Result<Rendered, RenderFailure>>,
     ),
 }
+
+/// Virtual point lights of an animated scene traced again for a frame's time: each replaces
+/// the configured light at its index (`FrameParams::lights`, checked by the engine).
+pub type Bounce = Arc<Vec<(usize, lightfold_scene::LightSample)>>;
 
 /// A render queued with [`RenderHandle::submit`].
 #[derive(Debug)]
@@ -158,15 +163,16 @@ impl RenderHandle {
         answer.await.map_err(|_| RenderFailure::Stopped)?
     }
 
-    /// Renders at `camera`, an animated scene posed at `time` (`None`: its rest pose), packing
-    /// `seed64` layers against `scale`.
+    /// Renders at `camera`, an animated scene posed at `time` (`None`: its rest pose) with its
+    /// virtual point lights as `bounce` places them, packing `seed64` layers against `scale`.
     pub async fn render(
         &self,
         camera: Camera,
         time: Option<f32>,
         scale: f32,
+        bounce: Bounce,
     ) -> Result<Rendered, RenderFailure> {
-        self.submit(camera, time, scale).await?.wait().await
+        self.submit(camera, time, scale, bounce).await?.wait().await
     }
 
     /// Queues a render and returns at once: the thread renders while the caller does something
@@ -177,10 +183,11 @@ impl RenderHandle {
         camera: Camera,
         time: Option<f32>,
         scale: f32,
+        bounce: Bounce,
     ) -> Result<Pending, RenderFailure> {
         let (reply, answer) = oneshot::channel();
         self.tx
-            .send(Command::Render(camera, time, scale, reply))
+            .send(Command::Render(camera, time, scale, bounce, reply))
             .await
             .map_err(|_| RenderFailure::Stopped)?;
         Ok(Pending(answer))
@@ -271,8 +278,8 @@ fn thread_main(
                 }
                 let _ = reply.send(r);
             }
-            Command::Render(camera, time, scale, reply) => {
-                let r = guarded(|| render(&gpu, &mut current, camera, time, scale, pack));
+            Command::Render(camera, time, scale, bounce, reply) => {
+                let r = guarded(|| render(&gpu, &mut current, camera, time, scale, &bounce, pack));
                 if matches!(r, Err(RenderFailure::Panic(_))) {
                     current = None;
                 }
@@ -381,6 +388,7 @@ fn render(
     camera: Camera,
     time: Option<f32>,
     scale: f32,
+    bounce: &[(usize, lightfold_scene::LightSample)],
     pack: PackOn,
 ) -> Result<Rendered, RenderFailure> {
     let c = current.as_mut().ok_or(RenderFailure::NotConfigured)?;
@@ -430,6 +438,12 @@ fn render(
         };
         c.time = time;
         pose_us = t.elapsed().as_micros() as u64;
+    }
+    // The frame's virtual point lights where its time put them (indices checked).
+    for (i, s) in bounce {
+        if let Some(l) = c.lights.get_mut(*i) {
+            *l = *s;
+        }
     }
     let prepared_us = start.elapsed().as_micros() as u64;
     let checked = &c.setup.checked;

@@ -226,6 +226,7 @@ async fn frames_requested_ahead_render_while_the_last_one_streams() {
             colors: Vec::new(),
             scale: None,
             time: None,
+            lights: Vec::new(),
         },
     };
     // One at a time: the reference bits.
@@ -331,6 +332,7 @@ async fn walkthrough_frames_reuse_what_did_not_change() {
                 colors: Vec::new(),
                 scale: None,
                 time: None,
+                lights: Vec::new(),
             },
         })
         .await
@@ -360,6 +362,7 @@ async fn walkthrough_frames_reuse_what_did_not_change() {
                 colors: Vec::new(),
                 scale: None,
                 time: None,
+                lights: Vec::new(),
             },
         })
         .await;
@@ -377,6 +380,7 @@ async fn walkthrough_frames_reuse_what_did_not_change() {
                 colors: Vec::new(),
                 scale: None,
                 time: Some(f32::NAN),
+                lights: Vec::new(),
             },
         })
         .await;

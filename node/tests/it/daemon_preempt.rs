@@ -26,6 +26,7 @@ fn frame(epoch: u64, frame: u64) -> Message {
             colors: Vec::new(),
             scale: None,
             time: None,
+            lights: Vec::new(),
         },
     }
 }

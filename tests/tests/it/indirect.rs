@@ -600,3 +600,143 @@ fn vpls_follow_a_moved_object_without_flicker() {
         "the bounce flickers: {coherent:.4} against {fresh:.4} with fresh VPLs"
     );
 }
+
+/// The carousel (a box spins, an area light travels) with 64 VPLs, a fixed clamp, 64×48.
+fn carousel_indirect(vpls: u32) -> Scene {
+    let mut s = lightfold_tests::small("carousel");
+    s.quality.indirect = vpls;
+    // A clamp of its own: the default follows the scene's bounds, which a pose changes.
+    s.quality.indirect_clamp = Some(0.1);
+    s
+}
+
+/// Indirect light on the built-in animated scene: every frame traces the VPLs again where the
+/// box and the light are, with the same light paths, one slot each (a path that leaves nothing
+/// keeps a dark slot). The bounce (VPLs alone, exact sums on the CPU) between consecutive frames
+/// of a still camera 1/50 s apart changes by what moved — the travelling light's paths land
+/// a little further along, the spinner's VPLs turn with it — while a fresh random set each frame
+/// (the control, the seed changed per frame) changes every pixel by its Monte Carlo error; the
+/// bound is a quarter of the control's, as for moved objects.
+#[test]
+fn vpls_follow_the_animation_without_flicker() {
+    let base = carousel_indirect(64);
+    assert!(base.is_animated());
+    let rest = indirect::frame_samples(&base);
+    let slots = rest
+        .iter()
+        .filter(|s| matches!(s.kind, SampleKind::Bounce { .. }))
+        .count();
+    assert_eq!(slots, 64, "one slot a light path");
+    let frames = |fresh: bool| -> Vec<Image> {
+        (0..6)
+            .map(|k| {
+                let t = 0.5 + k as f32 / 50.0;
+                let mut s = base.clone();
+                if fresh {
+                    s.quality.seed = base.quality.seed.wrapping_add(k + 1);
+                }
+                let all = indirect::frame_samples_at(&s, t);
+                assert_eq!(all.len(), rest.len(), "t = {t}: slot for slot");
+                let vpls: Vec<LightSample> = all
+                    .into_iter()
+                    .filter(|x| matches!(x.kind, SampleKind::Bounce { .. }))
+                    .collect();
+                assert!(vpls.iter().filter(|v| v.intensity > 0.0).count() > 32);
+                radiance_of(&s.still_at(t), &vpls, true)
+            })
+            .collect()
+    };
+    let flicker = |f: &[Image]| -> f64 {
+        let steps: Vec<f64> = f
+            .windows(2)
+            .map(|w| {
+                let d: f64 = w[0]
+                    .data
+                    .iter()
+                    .zip(&w[1].data)
+                    .map(|(a, b)| f64::from((a - b).abs()))
+                    .sum::<f64>()
+                    / w[0].data.len() as f64;
+                d / mean_rgb(&w[0]).max(1e-12)
+            })
+            .collect();
+        steps.iter().sum::<f64>() / steps.len() as f64
+    };
+    let coherent = flicker(&frames(false));
+    let fresh = flicker(&frames(true));
+    eprintln!(
+        "carousel bounce flicker, frames 1/50 s apart: same paths {coherent:.4}, fresh VPLs each \
+         frame {fresh:.4} (ratio {:.3})",
+        coherent / fresh
+    );
+    assert!(coherent > 0.0, "the animation changes the bounce");
+    assert!(
+        coherent < 0.25 * fresh,
+        "the bounce flickers: {coherent:.4} against {fresh:.4} with fresh VPLs"
+    );
+}
+
+/// The carousel with VPLs through the in-process cluster: each frame (its VPLs traced again at
+/// its time and sent with the frame, `FrameParams::lights`) equals the single-device render of
+/// the scene posed at that time with its own VPLs; the rest pose's VPLs kept (the control) do
+/// not.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn an_animated_scene_with_vpls_through_the_cluster_equals_each_pose() {
+    let gpu = gpu();
+    let scene = carousel_indirect(16);
+    let cluster = InProcessCluster::start(3, 3).await.unwrap();
+    let mut session = cluster.connect(test_control()).await.unwrap();
+    let mut opts = RunOptions {
+        control: test_control(),
+        frames: 2,
+        time: Some(0.5),
+        fps: Some(1.5),
+        ..RunOptions::default()
+    };
+    opts.plan.lights_per_node = 8;
+    opts.plan.walkthrough = true;
+    opts.plan.map_sizing = MapSizing::Fixed(scene.quality.shadow_map_size);
+    let out = render_on(&mut session, &scene, &opts).await.unwrap();
+    let bounce = out
+        .plan
+        .samples
+        .iter()
+        .filter(|s| matches!(s.kind, SampleKind::Bounce { .. }))
+        .count();
+    assert_eq!(bounce, 16, "every VPL slot planned, none culled");
+    for (i, f) in out.frames.iter().enumerate() {
+        let t = opts.time_of(i as u32).unwrap();
+        let want = single_device(&gpu, &scene.still_at(t), true);
+        assert_close(&f.image, &want, &format!("carousel with VPLs at t = {t}"));
+    }
+    // The control: the pose at the last time with the rest pose's VPLs.
+    let t = opts.time_of(1).unwrap();
+    let posed = scene.still_at(t);
+    let mut kept = lightfold_scene::sampling::direct_samples(&posed);
+    kept.extend(
+        indirect::frame_samples(&scene)
+            .into_iter()
+            .filter(|s| matches!(s.kind, SampleKind::Bounce { .. })),
+    );
+    let stale = radiance_of(&posed, &kept, true);
+    let fresh = radiance_of(&posed, &indirect::frame_samples(&posed), true);
+    let d = |a: &Image, b: &Image| {
+        a.data
+            .iter()
+            .zip(&b.data)
+            .map(|(x, y)| f64::from((x - y).abs()))
+            .sum::<f64>()
+            / a.data.len() as f64
+    };
+    let (to_stale, to_fresh) = (
+        d(&out.frames[1].image, &stale),
+        d(&out.frames[1].image, &fresh),
+    );
+    eprintln!(
+        "carousel at t = {t}: mean difference to its own VPLs {to_fresh:.5}, to the rest pose's {to_stale:.5}"
+    );
+    assert!(
+        to_stale > 2.0 * to_fresh,
+        "the frame kept the rest pose's VPLs"
+    );
+}

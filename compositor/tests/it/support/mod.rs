@@ -271,5 +271,6 @@ pub fn no_params() -> lightfold_protocol::FrameParams {
         colors: Vec::new(),
         scale: None,
         time: None,
+        lights: Vec::new(),
     }
 }

@@ -128,14 +128,28 @@ impl Core {
                 Err(e) => return Err(e),
             };
             self.recoloured |= !params.is_empty();
+            let bounce = spec.time.and_then(|t| bounce_at(plan, &self.scene, t));
             let mut sends = Vec::with_capacity(self.participants.len());
             for id in &self.participants {
                 let mut frame_params = params.get(id).cloned().unwrap_or(FrameParams {
                     colors: Vec::new(),
                     scale: None,
                     time: None,
+                    lights: Vec::new(),
                 });
                 frame_params.time = spec.time;
+                if let (Some((first, vpls)), Some(node)) =
+                    (&bounce, plan.nodes.iter().find(|n| n.node == *id))
+                {
+                    frame_params.lights = node
+                        .lights
+                        .iter()
+                        .filter_map(|&i| {
+                            let s = vpls.get(i.checked_sub(*first)?)?;
+                            Some(lightfold_scene::wire::light_to_wire(s, i as u32))
+                        })
+                        .collect();
+                }
                 if let Some(s) = seed64_node(plan, id).and_then(|_| self.peaks.get(id)) {
                     frame_params.scale = seed64_scale(*s);
                 }
@@ -396,4 +410,25 @@ fn seed64_node(plan: &crate::plan::Plan, id: &str) -> Option<()> {
                 .any(|(_, f)| *f == lightfold_protocol::PixelFormat::Seed64)
         })
         .map(|_| ())
+}
+
+/// An animated scene's virtual point lights at time `t` for `plan` (planned from `scene`, or
+/// from it with other samples per light): the index of its first VPL and the VPLs traced
+/// again at `t` from its direct samples, slot for slot with the plan's. `None` for a still scene,
+/// one without VPLs, or a plan whose VPL slots the scene does not give.
+fn bounce_at(
+    plan: &crate::plan::Plan,
+    scene: &lightfold_scene::Scene,
+    t: f32,
+) -> Option<(usize, Vec<lightfold_scene::LightSample>)> {
+    if !scene.is_animated() || scene.quality.indirect == 0 {
+        return None;
+    }
+    let bounce = |s: &lightfold_scene::LightSample| {
+        matches!(s.kind, lightfold_scene::SampleKind::Bounce { .. })
+    };
+    let first = plan.samples.iter().position(bounce)?;
+    let vpls = lightfold_reference::indirect::vpls_at(scene, &plan.samples[..first], t);
+    (vpls.len() == plan.samples.len() - first && plan.samples[first..].iter().all(bounce))
+        .then_some((first, vpls))
 }

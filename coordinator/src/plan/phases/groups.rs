@@ -60,8 +60,24 @@ pub(super) fn group_samples(
             (limit, limit)
         }
     };
+    // An animated scene's virtual point lights change colour from frame to frame (each takes
+    // the albedo where its path lands): their nodes' colour is white, so any colour passes.
+    let animated_bounce = scene.is_animated();
     let groups_for = |k: u32| {
         let mut g = group::form_groups(&culling.active, &culled.samples, k);
+        if animated_bounce {
+            for group in &mut g {
+                let bounce = |&i: &usize| {
+                    matches!(
+                        culled.samples[i].kind,
+                        lightfold_scene::SampleKind::Bounce { .. }
+                    )
+                };
+                if group.lights.iter().any(bounce) {
+                    group.color = [1.0; 3];
+                }
+            }
+        }
         if g.is_empty() {
             // Nothing lit: one node with no light keeps the pipeline whole (it sends empty bands).
             g.push(Group {

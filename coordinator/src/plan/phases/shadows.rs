@@ -5,7 +5,7 @@ use crate::plan::types::*;
 use crate::plan::{PlanError, cull, geom, shadow};
 use lightfold_scene::shading::V3;
 use lightfold_scene::shadow_views::Probe;
-use lightfold_scene::{LightSample, Scene};
+use lightfold_scene::{LightSample, SampleKind, Scene};
 
 /// The cull phase's output: every light sample of a frame and which of them are rendered.
 pub(super) struct Culled {
@@ -35,19 +35,25 @@ pub(super) fn cull_samples(scene: &Scene, options: &PlanOptions) -> Culled {
         options.force_all,
     );
     // A moving light's samples reach other receivers at other times: none is culled for what
-    // it misses at rest, and every mesh may cast into its maps.
+    // it misses at rest, and every mesh may cast into its maps. In an animated scene every
+    // virtual point light moves: each frame traces them again where things are
+    // (`frame_samples_at`), one slot a light path, dark at rest or not.
+    let animated = scene.is_animated();
     let moving: Vec<bool> = match &scene.animation {
         None => vec![false; samples.len()],
         Some(a) => {
             let moving = a.moving_lights(scene.lights.len());
             samples
                 .iter()
-                .map(|s| moving.get(s.light as usize).copied().unwrap_or(false))
+                .map(|s| {
+                    (animated && matches!(s.kind, SampleKind::Bounce { .. }))
+                        || moving.get(s.light as usize).copied().unwrap_or(false)
+                })
                 .collect()
         }
     };
     if moving.contains(&true) {
-        cull::keep_moving(&mut culling, &moving, receivers.len());
+        cull::keep_moving(&mut culling, &moving, &samples, receivers.len());
     }
     debug_assert!(
         {

@@ -192,6 +192,7 @@ impl Coordinator {
                 colors: Vec::new(),
                 scale: None,
                 time: None,
+                lights: Vec::new(),
             },
         })
         .await

@@ -345,11 +345,13 @@ pub fn message() -> impl Strategy<Value = Message> {
     let params = (
         prop::collection::vec((any::<u32>(), v3()), 0..3),
         prop::option::of(num()),
+        prop::collection::vec(light(), 0..2),
     )
-        .prop_map(|(colors, scale)| FrameParams {
+        .prop_map(|(colors, scale, lights)| FrameParams {
             colors,
             scale,
             time: None,
+            lights,
         });
     prop_oneof![
         capabilities().prop_map(Message::Register).boxed(),
