@@ -682,4 +682,45 @@ mod tests {
         .unwrap();
         assert_eq!((c.map_size, c.map_sides), (2048, Some(vec![2048, 256])));
     }
+
+    /// A frame's virtual point lights replace configured ones of the same sample, once each;
+    /// anything else is refused.
+    #[test]
+    fn frame_lights_replace_only_configured_bounce_lights_once() {
+        let mut lights = config(vec![(Layer::Illumination, PixelFormat::F16x4)], 3).lights;
+        for (i, l) in lights.iter_mut().enumerate() {
+            l.sample = 10 + i as u32;
+        }
+        lights[1].kind = BOUNCE_KIND;
+        lights[1].cone = [0.1, 0.0];
+        lights[2].kind = BOUNCE_KIND;
+        let moved = |sample: u32| WireLight {
+            position: [0.5, 1.0, 0.0],
+            sample,
+            ..lights[1]
+        };
+        let got = check_frame_lights(&[moved(12), moved(11)], &lights).unwrap();
+        assert_eq!(got.iter().map(|(i, _)| *i).collect::<Vec<_>>(), [2, 1]);
+        assert_eq!(got[0].1.position, [0.5, 1.0, 0.0]);
+        let nan = WireLight {
+            intensity: f32::NAN,
+            ..moved(11)
+        };
+        let not_bounce = WireLight {
+            kind: 1,
+            ..moved(11)
+        };
+        for (what, bad) in [
+            ("not a configured bounce light", vec![moved(10)]),
+            ("no such sample", vec![moved(99)]),
+            ("twice", vec![moved(11), moved(11)]),
+            ("not a bounce light", vec![not_bounce]),
+            ("not finite", vec![nan]),
+        ] {
+            assert!(
+                check_frame_lights(&bad, &lights).is_err(),
+                "{what} was taken"
+            );
+        }
+    }
 }
