@@ -187,10 +187,7 @@ impl Pipeline {
     /// link inputs, as many as it has; each later operator takes the previous output as its input
     /// 0 and the next unused link inputs after it. Every link input must be used. Wiring beyond
     /// this convention (one link feeding two operators) needs `from_wiring` or a pipeline file.
-    pub fn from_ops(
-        ops: &[OpSpec],
-        inputs: &[Vec<Layer>],
-    ) -> Result<Pipeline, PipelineError> {
+    pub fn from_ops(ops: &[OpSpec], inputs: &[Vec<Layer>]) -> Result<Pipeline, PipelineError> {
         let mut stages: Vec<Stage> = Vec::new();
         let mut next = 0;
         for (k, spec) in ops.iter().enumerate() {

@@ -322,7 +322,11 @@ impl AccumulateParams {
             return Err(bad(op, "colors must list at least one local node".into()));
         }
         check_inputs(op, "colors", self.colors.len())?;
-        check_rgb(op, "specular_color", self.specular_color.unwrap_or([1.0; 3]))?;
+        check_rgb(
+            op,
+            "specular_color",
+            self.specular_color.unwrap_or([1.0; 3]),
+        )?;
         let first = usize::from(self.upstream);
         for (j, color) in self.colors.iter().enumerate() {
             let (cd, cs) = color.pair();
@@ -437,7 +441,10 @@ impl DepthParams {
         check_inputs(op, "inputs", self.inputs as usize)?;
         for (i, l) in self.layers.iter().enumerate() {
             if *l == Layer::Depth || self.layers[..i].contains(l) {
-                return Err(bad(op, format!("layers lists {l:?} twice or carries depth")));
+                return Err(bad(
+                    op,
+                    format!("layers lists {l:?} twice or carries depth"),
+                ));
             }
         }
         if self.reversed_z && self.zero_is_empty {
@@ -491,7 +498,10 @@ impl JoinParams {
 #[serde(deny_unknown_fields)]
 pub struct MergeParams {
     /// Per input, the layers it gives.
-    #[serde(serialize_with = "by_name::ser_vecs", deserialize_with = "by_name::de_vecs")]
+    #[serde(
+        serialize_with = "by_name::ser_vecs",
+        deserialize_with = "by_name::de_vecs"
+    )]
     pub inputs: Vec<Vec<Layer>>,
 }
 

@@ -19,7 +19,6 @@ pub const NAME: &str = MergeParams::NAME;
 
 pub use lightfold_protocol::pipeline::MergeParams;
 
-
 fn bad(reason: String) -> OpError {
     OpError::BadParam { op: NAME, reason }
 }

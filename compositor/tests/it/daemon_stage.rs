@@ -232,7 +232,10 @@ async fn a_bad_configuration_is_refused_and_the_old_one_kept() {
         .await
         .unwrap();
     // A parameter out of range (a negative colour) is refused with the operator's reason.
-    let acc = [("accumulate", r#"{"upstream": false, "colors": [[1, -1, 1]]}"#)];
+    let acc = [(
+        "accumulate",
+        r#"{"upstream": false, "colors": [[1, -1, 1]]}"#,
+    )];
     let bad = config(3, size, ins.clone(), &acc, &out, &sink_addr);
     match ctl.configure(bad, WAIT).await {
         Err(DriverError::Refused { code, message }) => {

@@ -17,7 +17,6 @@ use std::ops::Range;
 /// Framing cost of one band on a link: the band header plus the frame's kind and length.
 pub const BAND_OVERHEAD_BYTES: u64 = 52 + 5;
 
-
 /// An illumination node as the topology sees it.
 #[derive(Debug, Clone)]
 pub(crate) struct IllumInput {

@@ -449,7 +449,10 @@ fn a_tree_joins_pairs_and_a_chain_links_stages() {
     );
     assert_eq!(crate::params(&chain.stages[1].ops[0])["upstream"], true);
     assert_eq!(
-        crate::params(&chain.stages[0].ops[0])["colors"].as_array().unwrap().len(),
+        crate::params(&chain.stages[0].ops[0])["colors"]
+            .as_array()
+            .unwrap()
+            .len(),
         3
     );
     // Bytes: 8 node links at rgb9e5x2 (one also carrying the material layers), 2 chain links at

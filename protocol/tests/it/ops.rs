@@ -82,7 +82,10 @@ fn every_operator() -> Vec<OpSpec> {
             layer: Layer::Diffuse,
         }),
         OpSpec::Merge(MergeParams {
-            inputs: vec![vec![Layer::Illumination], vec![Layer::Depth, Layer::Emissive]],
+            inputs: vec![
+                vec![Layer::Illumination],
+                vec![Layer::Depth, Layer::Emissive],
+            ],
         }),
         OpSpec::Output(OutputParams { exposure: 2.5 }),
         OpSpec::Penumbra(PenumbraParams {

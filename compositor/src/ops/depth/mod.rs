@@ -33,7 +33,6 @@ pub const NAME: &str = DepthParams::NAME;
 
 pub use lightfold_protocol::pipeline::DepthParams;
 
-
 fn bad(reason: String) -> OpError {
     OpError::BadParam { op: NAME, reason }
 }

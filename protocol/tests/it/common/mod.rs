@@ -303,7 +303,8 @@ pub fn op_spec() -> impl Strategy<Value = OpSpec> {
                 zero_is_empty,
             })
         ),
-        (any::<u32>(), layer()).prop_map(|(inputs, layer)| OpSpec::Join(JoinParams { inputs, layer })),
+        (any::<u32>(), layer())
+            .prop_map(|(inputs, layer)| OpSpec::Join(JoinParams { inputs, layer })),
         prop::collection::vec(op_layers(), 0..4)
             .prop_map(|inputs| OpSpec::Merge(MergeParams { inputs })),
         num().prop_map(|exposure| OpSpec::Output(OutputParams { exposure })),
