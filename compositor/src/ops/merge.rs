@@ -22,6 +22,7 @@ pub use lightfold_protocol::pipeline::MergeParams;
 fn bad(reason: String) -> OpError {
     OpError::BadParam { op: NAME, reason }
 }
+
 /// The merge operator (see the module documentation).
 #[derive(Debug, Clone)]
 pub struct Merge {

@@ -36,6 +36,7 @@ pub use lightfold_protocol::pipeline::DepthParams;
 fn bad(reason: String) -> OpError {
     OpError::BadParam { op: NAME, reason }
 }
+
 /// The depth operator (see the module documentation).
 #[derive(Debug, Clone)]
 pub struct Depth {
