@@ -42,6 +42,12 @@ const ILL: Layer = Layer::Illumination;
 /// Bytes of framing around a band payload: length prefix, kind byte, header.
 const FRAMING: usize = 4 + 1 + lightfold_protocol::BAND_HEADER_LEN;
 
+/// A typed operator from its name and JSON parameter text.
+fn spec(name: &str, params: &str) -> lightfold_protocol::OpSpec {
+    let params: serde_json::Value = serde_json::from_str(params).expect("JSON parameters");
+    lightfold_compositor::ops::spec_from_json(name, &params).expect("operator")
+}
+
 fn me(role: Role, id: &str) -> Identity {
     Identity::new(TOKEN, role, id)
 }
@@ -153,7 +159,7 @@ async fn link_cost(case: &LinkCase, frames: usize, with_raw: bool) {
                 layers: l.clone(),
             })
             .collect(),
-        ops: vec![(case.op.0.into(), case.op.1.into())],
+        ops: vec![spec(case.op.0, case.op.1)],
         outputs: case.outputs.clone(),
         downstream: sink_addr,
         input_index: 0,
@@ -350,7 +356,7 @@ async fn pipelining(periods: &[u64], frames: u64) {
             height,
             band_height,
             inputs,
-            ops: vec![("accumulate".into(), params.into())],
+            ops: vec![spec("accumulate", params)],
             outputs: vec![(ILL, if last { PixelFormat::F32x6 } else { link_fmt })],
             downstream: if last {
                 sink_addr.clone()

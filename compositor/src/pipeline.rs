@@ -23,7 +23,7 @@
 
 use crate::ops::params::de_layers;
 use crate::ops::{self, BandMut, BandView, OpError, Operator};
-use lightfold_protocol::{Layer, OpSource};
+use lightfold_protocol::{Layer, OpSource, OpSpec};
 use serde::Deserialize;
 use serde_json::Value;
 
@@ -183,18 +183,15 @@ impl Pipeline {
     }
 
     /// Builds a pipeline from a compositor configuration's ordered operator list
-    /// (`CompositorConfig::ops`: name and JSON parameter text). The first operator takes the first
+    /// (`CompositorConfig::ops`: typed operators). The first operator takes the first
     /// link inputs, as many as it has; each later operator takes the previous output as its input
     /// 0 and the next unused link inputs after it. Every link input must be used. Wiring beyond
     /// this convention (one link feeding two operators) needs `from_wiring` or a pipeline file.
-    pub fn from_ops(
-        ops: &[(String, String)],
-        inputs: &[Vec<Layer>],
-    ) -> Result<Pipeline, PipelineError> {
+    pub fn from_ops(ops: &[OpSpec], inputs: &[Vec<Layer>]) -> Result<Pipeline, PipelineError> {
         let mut stages: Vec<Stage> = Vec::new();
         let mut next = 0;
-        for (k, (name, text)) in ops.iter().enumerate() {
-            let (stage, op) = op_stage(k, name, text)?;
+        for (k, spec) in ops.iter().enumerate() {
+            let (stage, op) = op_stage(k, spec)?;
             let wanted = op.signature().inputs.len();
             let mut sources = Vec::with_capacity(wanted);
             if k > 0 && wanted > 0 {
@@ -222,7 +219,7 @@ impl Pipeline {
     /// input may feed several operators, an operator may read any earlier one. Empty `wiring`
     /// is the fold of `from_ops`. Every stage input must be read.
     pub fn from_wiring(
-        ops: &[(String, String)],
+        ops: &[OpSpec],
         wiring: &[Vec<OpSource>],
         inputs: &[Vec<Layer>],
     ) -> Result<Pipeline, PipelineError> {
@@ -236,8 +233,8 @@ impl Pipeline {
         }
         let mut read = vec![false; inputs.len()];
         let mut stages: Vec<Stage> = Vec::new();
-        for (k, ((name, text), wires)) in ops.iter().zip(wiring).enumerate() {
-            let (stage, op) = op_stage(k, name, text)?;
+        for (k, (spec, wires)) in ops.iter().zip(wiring).enumerate() {
+            let (stage, op) = op_stage(k, spec)?;
             let sources = wires
                 .iter()
                 .map(|w| match *w {
@@ -437,21 +434,10 @@ fn resolve(reference: &str, inputs: usize, earlier: &[Stage]) -> Option<Source> 
         .map(Source::Stage)
 }
 
-/// Operator `k` of an operator list, named by its index, with its JSON parameters parsed.
-fn op_stage(
-    k: usize,
-    name: &str,
-    text: &str,
-) -> Result<(String, Box<dyn Operator>), PipelineError> {
+/// Operator `k` of an operator list, named by its index, built from its typed parameters.
+fn op_stage(k: usize, spec: &OpSpec) -> Result<(String, Box<dyn Operator>), PipelineError> {
     let stage = k.to_string();
-    let params: Value = if text.trim().is_empty() {
-        Value::Null
-    } else {
-        serde_json::from_str(text).map_err(|e| PipelineError::Parse {
-            reason: format!("parameters of operator {k} ({name}): {e}"),
-        })?
-    };
-    let op = ops::create(name, &params).map_err(|source| PipelineError::Operator {
+    let op = ops::from_spec(spec).map_err(|source| PipelineError::Operator {
         stage: stage.clone(),
         source,
     })?;

@@ -20,8 +20,10 @@ pub const MAGIC: [u8; 4] = *b"LFLD";
 /// `FrameStats::setup_us`, `read_bytes` and `prefetched` (nodes pack on the device and render
 /// the next frame while sending one), `Capabilities::device`. 11: `Capabilities::cpu_host`. 12:
 /// `WireLight::area` (closed-form glossy specular of area lights), scene bytes version 7. 13:
-/// `NodeConfig::moves` (objects moved in a live session). 14: `FrameParams::lights` (virtual
-/// point lights of animated scenes traced per frame).
+/// `NodeConfig::moves` (objects moved in a live session). 14: `CompositorConfig::ops` carries
+/// typed operator parameters (`pipeline::OpSpec`) instead of names and JSON text,
+/// `FrameParams::lights` (virtual point lights of animated scenes traced per frame), scene bytes
+/// version 8 (soft suns and cylinder lights).
 pub const PROTOCOL_VERSION: u16 = 14;
 /// Longest daemon id a hello may carry (its wire length is one byte).
 pub const MAX_DAEMON_ID: usize = 255;

@@ -256,8 +256,9 @@ pub struct CompositorConfig {
     pub band_height: u32,
     /// Inputs in input-index order.
     pub inputs: Vec<StageInput>,
-    /// Operators applied in order to each band: (registry name, parameters as JSON object text).
-    pub ops: Vec<(String, String)>,
+    /// Operators applied in order to each band, each with its typed parameters (protocol version
+    /// 14; before, a registry name and JSON parameter text).
+    pub ops: Vec<crate::pipeline::OpSpec>,
     /// Per operator, where each of its inputs comes from. Empty: the fold (operator 0 reads the
     /// first stage inputs, each next one the previous output and then the next inputs). Explicit
     /// wiring lets two operators read the same input (a node's illumination into `accumulate`,

@@ -200,7 +200,7 @@ pub fn plan(p: &Plan) -> Value {
         .stages
         .iter()
         .map(|s| {
-            let ops: Vec<&str> = s.ops.iter().map(|(name, _)| name.as_str()).collect();
+            let ops: Vec<&str> = s.ops.iter().map(|op| op.name()).collect();
             json!({"id": s.compositor, "ops": ops, "downstream": downstream(&s.downstream)})
         })
         .collect();

@@ -149,7 +149,8 @@ fn stage_config(
         ops: if op.0.is_empty() {
             vec![]
         } else {
-            vec![(op.0.to_string(), op.1)]
+            let params: serde_json::Value = serde_json::from_str(&op.1).expect("JSON parameters");
+            vec![lightfold_compositor::ops::spec_from_json(op.0, &params).expect("operator")]
         },
         outputs: vec![(ILL, out)],
         downstream: downstream.into(),
@@ -194,7 +195,8 @@ fn stage_in_memory(
     out: PixelFormat,
 ) -> Bounded {
     let pixels = (WIDTH * HEIGHT) as usize;
-    let ops = vec![(op.to_string(), params.to_string())];
+    let params: serde_json::Value = serde_json::from_str(params).expect("JSON parameters");
+    let ops = vec![lightfold_compositor::ops::spec_from_json(op, &params).expect("operator")];
     let p = Pipeline::from_ops(&ops, &vec![vec![ILL]; inputs.len()]).expect("pipeline");
     let views: Vec<BandView<'_>> = inputs
         .iter()

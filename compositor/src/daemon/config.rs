@@ -9,7 +9,8 @@
 
 use crate::ops::{Accumulate, Depth, OpError};
 use crate::pipeline::{Pipeline, PipelineError, Source};
-use lightfold_protocol::{CompositorConfig, ErrorCode, Layer, PixelFormat};
+use lightfold_protocol::pipeline::{AccumulateParams, NodeColor};
+use lightfold_protocol::{CompositorConfig, ErrorCode, Layer, OpSpec, PixelFormat};
 
 /// Largest image side a stage accepts (keeps every size computation far from overflow).
 pub const MAX_SIDE: u32 = 1 << 15;
@@ -121,13 +122,11 @@ pub struct StagePlan {
 /// The halo the stage's `penumbra` operators need, checked against the image and its bands.
 fn filter_halo(c: &CompositorConfig, band_rows: u32, bands: u32) -> Result<u32, ConfigError> {
     let mut halo = 0;
-    for (op, (name, params)) in c.ops.iter().enumerate() {
-        if name != crate::ops::penumbra::NAME {
+    for (op, spec) in c.ops.iter().enumerate() {
+        let OpSpec::Penumbra(params) = spec else {
             continue;
-        }
-        // The pipeline built it from the same text, so it parses.
-        let params: serde_json::Value = serde_json::from_str(params).unwrap_or_default();
-        let filter = crate::ops::Penumbra::new(&params).map_err(|e| {
+        };
+        let filter = crate::ops::Penumbra::from_params(params.clone()).map_err(|e| {
             ConfigError::Pipeline(PipelineError::Operator {
                 stage: op.to_string(),
                 source: e,
@@ -261,21 +260,20 @@ fn fused_accumulate(c: &CompositorConfig) -> Option<Accumulate> {
         .iter()
         .all(|i| i.layers.len() == 1 && i.layers[0].0 == Layer::Illumination);
     match c.ops.as_slice() {
-        [(name, params)] if fold && illumination_only => {
-            let params: serde_json::Value = serde_json::from_str(params).unwrap_or_default();
-            if name == crate::ops::accumulate::NAME {
-                Accumulate::new(&params).ok()
-            } else if name == crate::ops::join::NAME
-                && p_layer(&params) == Some(Layer::Illumination)
-            {
-                // A join of illumination sums is an accumulate of white, non-folding local
-                // terms: 0 + 1·x is x, added in input order, saturated once, so the fused
-                // path gives the join's bits (tests compare the two).
-                let white: Vec<[f32; 3]> = vec![[1.0; 3]; c.inputs.len()];
-                Accumulate::new(&serde_json::json!({ "upstream": false, "colors": white })).ok()
-            } else {
-                None
-            }
+        [OpSpec::Accumulate(p)] if fold && illumination_only => {
+            Accumulate::from_params(p.clone()).ok()
+        }
+        [OpSpec::Join(p)] if fold && illumination_only && p.layer == Layer::Illumination => {
+            // A join of illumination sums is an accumulate of white, non-folding local terms:
+            // 0 + 1·x is x, added in input order, saturated once, so the fused path gives the
+            // join's bits (tests compare the two).
+            Accumulate::from_params(AccumulateParams {
+                colors: vec![NodeColor::Rgb([1.0; 3]); c.inputs.len()],
+                upstream: false,
+                specular_color: None,
+                ambient: None,
+            })
+            .ok()
         }
         _ => None,
     }
@@ -286,11 +284,10 @@ fn fused_accumulate(c: &CompositorConfig) -> Option<Accumulate> {
 fn packed_depth(c: &CompositorConfig) -> Option<Depth> {
     let fold = c.wiring.is_empty();
     match c.ops.as_slice() {
-        [(name, params)] if fold && name == crate::ops::depth::NAME => {
-            let params: serde_json::Value = serde_json::from_str(params).unwrap_or_default();
+        [OpSpec::Depth(p)] if fold => {
             let layers: Vec<Vec<(Layer, PixelFormat)>> =
                 c.inputs.iter().map(|i| i.layers.clone()).collect();
-            Depth::new(&params)
+            Depth::from_params(p.clone())
                 .ok()
                 .filter(|d| d.packed_supported(&layers, &c.outputs))
         }
@@ -425,17 +422,10 @@ fn check_formats(layers: &[(Layer, PixelFormat)], place: &str) -> Result<(), Con
     Ok(())
 }
 
-/// The layer a `join`'s parameters name (illumination when they name none).
-fn p_layer(params: &serde_json::Value) -> Option<Layer> {
-    match params.get("layer") {
-        None => Some(Layer::Illumination),
-        Some(v) => v.as_str().and_then(crate::ops::layer_from_name),
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use lightfold_protocol::pipeline::{DepthParams, JoinParams, MaterialParams, MaterialStage};
     use lightfold_protocol::{OpSource, StageInput};
 
     fn input(peer: &str, layers: &[(Layer, PixelFormat)]) -> StageInput {
@@ -455,8 +445,18 @@ mod tests {
             band_height: 5,
             inputs: vec![input("up", &ill), input("n1", &ill), input("m", &mat)],
             ops: vec![
-                ("accumulate".into(), r#"{"colors": [[1, 1, 1]]}"#.into()),
-                ("material".into(), r#"{"stage": "diffuse"}"#.into()),
+                OpSpec::Accumulate(AccumulateParams {
+                    colors: vec![NodeColor::Rgb([1.0; 3])],
+                    upstream: true,
+                    specular_color: None,
+                    ambient: None,
+                }),
+                OpSpec::Material(MaterialParams {
+                    stage: MaterialStage::Diffuse,
+                    ambient_color: None,
+                    specular: false,
+                    emissive: false,
+                }),
             ],
             outputs: vec![(Layer::Radiance, PixelFormat::F32x3)],
             downstream: "127.0.0.1:1".into(),
@@ -485,7 +485,10 @@ mod tests {
         let ill = [(Layer::Illumination, PixelFormat::F16x6)];
         let mut c = config();
         c.inputs = vec![input("a", &ill), input("b", &ill)];
-        c.ops = vec![("join".into(), r#"{"inputs": 2}"#.into())];
+        c.ops = vec![OpSpec::Join(JoinParams {
+            inputs: 2,
+            layer: Layer::Illumination,
+        })];
         c.outputs = ill.to_vec();
         assert!(
             StagePlan::new(c.clone(), 1 << 20)
@@ -498,7 +501,10 @@ mod tests {
         let dif = [(Layer::Diffuse, PixelFormat::F16x4)];
         let mut d = c.clone();
         d.inputs = vec![input("a", &dif), input("b", &dif)];
-        d.ops = vec![("join".into(), r#"{"inputs": 2, "layer": "diffuse"}"#.into())];
+        d.ops = vec![OpSpec::Join(JoinParams {
+            inputs: 2,
+            layer: Layer::Diffuse,
+        })];
         d.outputs = dif.to_vec();
         assert!(StagePlan::new(d, 1 << 20).unwrap().1.fused.is_none());
         c.wiring = vec![vec![OpSource::Input(1), OpSource::Input(0)]];
@@ -514,7 +520,12 @@ mod tests {
             ];
             let mut c = config();
             c.inputs = vec![input("a", &layers), input("b", &layers)];
-            c.ops = vec![("depth".into(), r#"{"inputs": 2}"#.into())];
+            c.ops = vec![OpSpec::Depth(DepthParams {
+                inputs: 2,
+                layers: vec![Layer::Illumination],
+                reversed_z: false,
+                zero_is_empty: false,
+            })];
             c.outputs = layers.to_vec();
             StagePlan::new(c, 1 << 20).unwrap().1
         };
@@ -528,9 +539,19 @@ mod tests {
     #[test]
     fn bad_configurations_are_refused_with_their_reason() {
         let mut c = config();
-        c.ops[0].0 = "blend".into();
+        c.ops[1] = OpSpec::Material(MaterialParams {
+            stage: MaterialStage::Ambient,
+            ambient_color: Some([0.1, f32::NAN, 0.1]),
+            specular: false,
+            emissive: false,
+        });
         let e = StagePlan::new(c, 1 << 20).unwrap_err();
-        assert_eq!(e.code(), ErrorCode::UnknownOperator);
+        assert_eq!(e.code(), ErrorCode::BadConfig);
+        assert!(
+            e.to_string()
+                .contains("ambient_color must be finite and non-negative"),
+            "{e}"
+        );
 
         let mut c = config();
         c.inputs[1].layers[0].1 = PixelFormat::F16x4;

@@ -2,48 +2,32 @@
 //! associative, so the order is part of the contract: the same topology gives the same bits run to
 //! run; a chain and a tree of the same inputs differ only by rounding (tests/chain_tree.rs).
 
-use super::params::{self, de_layer, ser_layer};
+use super::params;
 use super::{
     BLOCK, BandMut, BandView, InputSpec, OpError, Operator, Signature, check_band, clamp_fast,
     for_spans, sanitize, saturate,
 };
-use lightfold_protocol::Layer;
-use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-pub const NAME: &str = "join";
+pub const NAME: &str = JoinParams::NAME;
 
-fn illumination() -> Layer {
-    Layer::Illumination
-}
-
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Params {
-    inputs: usize,
-    #[serde(
-        default = "illumination",
-        deserialize_with = "de_layer",
-        serialize_with = "ser_layer"
-    )]
-    layer: Layer,
-}
+pub use lightfold_protocol::pipeline::JoinParams;
 
 /// The join operator (see the module documentation).
 #[derive(Debug, Clone)]
 pub struct Join {
-    params: Params,
+    params: JoinParams,
 }
 
 impl Join {
+    /// From JSON parameters (`JoinParams`).
     pub fn new(params: &Value) -> Result<Self, OpError> {
-        let p: Params = params::parse(NAME, params)?;
-        if p.inputs == 0 {
-            return Err(bad("inputs must be at least 1".into()));
-        }
-        if p.layer == Layer::Depth {
-            return Err(bad("depth cannot be summed; use the depth operator".into()));
-        }
+        Self::from_params(params::parse(NAME, params)?)
+    }
+
+    /// From typed parameters, validated (`JoinParams::validate`).
+    pub fn from_params(p: JoinParams) -> Result<Self, OpError> {
+        p.validate()?;
         Ok(Join { params: p })
     }
 
@@ -67,7 +51,7 @@ impl Operator for Join {
             optional: vec![self.params.layer],
         };
         Signature {
-            inputs: vec![spec; self.params.inputs],
+            inputs: vec![spec; self.params.inputs as usize],
             outputs: vec![self.params.layer],
         }
     }

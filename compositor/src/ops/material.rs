@@ -8,47 +8,22 @@
 //! Per-light ambient illumination is folded into the diffuse sum upstream (eq. 6–7), so the
 //! ambient term here is the global `c^a` alone.
 
-use super::params::{self, check_rgb};
+use super::params;
 use super::{
     BandMut, BandView, InputSpec, MAX_VALUE, OpError, Operator, Signature, check_band, clamp_fast,
     for_spans, sanitize, saturate,
 };
 use lightfold_protocol::Layer;
-use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-pub const NAME: &str = "material";
+pub const NAME: &str = MaterialParams::NAME;
 
-/// Which material node this is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum MaterialStage {
-    Specular,
-    Diffuse,
-    Ambient,
-    Emissive,
-    Single,
-}
-
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Params {
-    stage: MaterialStage,
-    /// `c^a`: required by `ambient`, optional for `single`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    ambient_color: Option<[f32; 3]>,
-    /// `single` only: multiply the specular sum by an `m^s` layer (false: eq. 4 pre-multiplied).
-    #[serde(default)]
-    specular: bool,
-    /// `single` only: add an emissive layer.
-    #[serde(default)]
-    emissive: bool,
-}
+pub use lightfold_protocol::pipeline::{MaterialParams, MaterialStage};
 
 /// The material operator (see the module documentation).
 #[derive(Debug, Clone)]
 pub struct Material {
-    params: Params,
+    params: MaterialParams,
 }
 
 fn bad(reason: String) -> OpError {
@@ -56,27 +31,14 @@ fn bad(reason: String) -> OpError {
 }
 
 impl Material {
+    /// From JSON parameters (`MaterialParams`).
     pub fn new(params: &Value) -> Result<Self, OpError> {
-        let p: Params = params::parse(NAME, params)?;
-        if p.stage != MaterialStage::Single && (p.specular || p.emissive) {
-            return Err(bad(
-                "specular and emissive flags belong to the single stage".into(),
-            ));
-        }
-        match (p.stage, p.ambient_color) {
-            (MaterialStage::Ambient, None) => {
-                return Err(bad("the ambient stage needs ambient_color".into()));
-            }
-            (MaterialStage::Ambient | MaterialStage::Single, Some(ca)) => {
-                check_rgb(NAME, "ambient_color", ca)?
-            }
-            (_, Some(_)) => {
-                return Err(bad(
-                    "ambient_color belongs to the ambient or single stage".into()
-                ));
-            }
-            _ => {}
-        }
+        Self::from_params(params::parse(NAME, params)?)
+    }
+
+    /// From typed parameters, validated (`MaterialParams::validate`).
+    pub fn from_params(p: MaterialParams) -> Result<Self, OpError> {
+        p.validate()?;
         Ok(Material { params: p })
     }
 

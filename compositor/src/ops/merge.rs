@@ -8,68 +8,37 @@
 //! Colour layers follow the shared value policy; depth is copied bit for bit (its reading is the
 //! `depth` operator's business).
 
-use super::params::{self, layer_from_name, layer_name};
+use super::params;
 use super::{
     BandMut, BandView, InputSpec, OpError, Operator, Signature, check_band, clamp_fast, sanitize,
 };
 use lightfold_protocol::Layer;
-use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-pub const NAME: &str = "merge";
+pub const NAME: &str = MergeParams::NAME;
 
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Params {
-    /// Per input, the names of the layers it gives.
-    inputs: Vec<Vec<String>>,
-}
-
-/// The merge operator (see the module documentation).
-#[derive(Debug, Clone)]
-pub struct Merge {
-    params: Params,
-    layers: Vec<Vec<Layer>>,
-}
+pub use lightfold_protocol::pipeline::MergeParams;
 
 fn bad(reason: String) -> OpError {
     OpError::BadParam { op: NAME, reason }
 }
 
+/// The merge operator (see the module documentation).
+#[derive(Debug, Clone)]
+pub struct Merge {
+    params: MergeParams,
+}
+
 impl Merge {
+    /// From JSON parameters (`MergeParams`: per input, the names of the layers it gives).
     pub fn new(params: &Value) -> Result<Self, OpError> {
-        let p: Params = params::parse(NAME, params)?;
-        if p.inputs.is_empty() {
-            return Err(bad("inputs must name at least one input".into()));
-        }
-        let mut layers = Vec::with_capacity(p.inputs.len());
-        let mut seen: Vec<Layer> = Vec::new();
-        for (i, names) in p.inputs.iter().enumerate() {
-            if names.is_empty() {
-                return Err(bad(format!("input {i} gives no layer")));
-            }
-            let mut own = Vec::with_capacity(names.len());
-            for name in names {
-                let l =
-                    layer_from_name(name).ok_or_else(|| bad(format!("unknown layer {name:?}")))?;
-                if seen.contains(&l) {
-                    return Err(bad(format!("layer {name} comes from two inputs")));
-                }
-                seen.push(l);
-                own.push(l);
-            }
-            layers.push(own);
-        }
-        Ok(Merge { params: p, layers })
+        Self::from_params(params::parse(NAME, params)?)
     }
 
-    /// The parameters that merge `layers[i]` from input i.
-    pub fn params(layers: &[Vec<Layer>]) -> Value {
-        let names: Vec<Vec<&str>> = layers
-            .iter()
-            .map(|ls| ls.iter().map(|&l| layer_name(l)).collect())
-            .collect();
-        serde_json::json!({ "inputs": names })
+    /// From typed parameters, validated (`MergeParams::validate`).
+    pub fn from_params(p: MergeParams) -> Result<Self, OpError> {
+        p.validate()?;
+        Ok(Merge { params: p })
     }
 
     fn run(
@@ -79,7 +48,7 @@ impl Merge {
         copy: impl Fn(&[f32], &mut [f32]),
     ) -> Result<(), OpError> {
         check_band(NAME, &self.signature(), inputs, out)?;
-        for (view, layers) in inputs.iter().zip(&self.layers) {
+        for (view, layers) in inputs.iter().zip(&self.params.inputs) {
             for &l in layers {
                 let src = view.layer(l).expect("checked");
                 let dst = out.layer_mut(l).expect("checked");
@@ -102,14 +71,15 @@ impl Operator for Merge {
     fn signature(&self) -> Signature {
         Signature {
             inputs: self
-                .layers
+                .params
+                .inputs
                 .iter()
                 .map(|ls| InputSpec {
                     required: ls.clone(),
                     optional: vec![],
                 })
                 .collect(),
-            outputs: self.layers.concat(),
+            outputs: self.params.inputs.concat(),
         }
     }
 

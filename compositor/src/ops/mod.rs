@@ -1,5 +1,7 @@
 //! Compositing operators (per pixel, and one neighbourhood filter, `penumbra`) (paper §3, ARCHITECTURE §8): the `Operator` trait, the band
-//! views they read and write, the registry by name, and the value policy they all share.
+//! views they read and write, the registry by name, and the value policy they all share. Each
+//! operator's parameters are the typed ones of `lightfold_protocol::pipeline` (what a
+//! configuration carries, `from_spec`), also read from JSON (pipeline files, `create`).
 //!
 //! Bands are rectangles of rows held as interleaved f32 per layer (`Layer::channels()` values a
 //! pixel), so the stage daemon can stream a frame band by band through the same code. Every
@@ -24,7 +26,7 @@ pub(crate) mod params;
 pub mod penumbra;
 pub mod precision;
 
-use lightfold_protocol::Layer;
+use lightfold_protocol::{Layer, OpSpec};
 use rayon::prelude::*;
 use serde_json::Value;
 use std::fmt;
@@ -233,6 +235,40 @@ static REGISTRY: [(&str, Constructor); 7] = [
     (output::NAME, |p| Ok(Box::new(Output::new(p)?))),
     (penumbra::NAME, |p| Ok(Box::new(Penumbra::new(p)?))),
 ];
+
+/// Builds the operator a configuration's `OpSpec` names, its parameters validated.
+pub fn from_spec(spec: &OpSpec) -> Result<Box<dyn Operator>, OpError> {
+    Ok(match spec.clone() {
+        OpSpec::Accumulate(p) => Box::new(Accumulate::from_params(p)?),
+        OpSpec::Material(p) => Box::new(Material::from_params(p)?),
+        OpSpec::Depth(p) => Box::new(Depth::from_params(p)?),
+        OpSpec::Join(p) => Box::new(Join::from_params(p)?),
+        OpSpec::Merge(p) => Box::new(Merge::from_params(p)?),
+        OpSpec::Output(p) => Box::new(Output::from_params(p)?),
+        OpSpec::Penumbra(p) => Box::new(Penumbra::from_params(p)?),
+    })
+}
+
+/// The typed operator `name` with JSON `params` (`null` means all defaults), as a
+/// configuration carries it; not validated (`OpSpec::validate`, `from_spec`).
+pub fn spec_from_json(name: &str, params: &Value) -> Result<OpSpec, OpError> {
+    use lightfold_protocol::pipeline::OP_NAMES;
+    Ok(match name {
+        accumulate::NAME => OpSpec::Accumulate(params::parse(accumulate::NAME, params)?),
+        material::NAME => OpSpec::Material(params::parse(material::NAME, params)?),
+        depth::NAME => OpSpec::Depth(params::parse(depth::NAME, params)?),
+        join::NAME => OpSpec::Join(params::parse(join::NAME, params)?),
+        merge::NAME => OpSpec::Merge(params::parse(merge::NAME, params)?),
+        output::NAME => OpSpec::Output(params::parse(output::NAME, params)?),
+        penumbra::NAME => OpSpec::Penumbra(params::parse(penumbra::NAME, params)?),
+        _ => {
+            return Err(OpError::UnknownOperator {
+                name: name.to_string(),
+                known: OP_NAMES.to_vec(),
+            });
+        }
+    })
+}
 
 /// Every operator by name.
 pub fn registry() -> &'static [(&'static str, Constructor)] {

@@ -13,26 +13,16 @@ use super::{
 };
 use lightfold_protocol::Layer;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-pub const NAME: &str = "output";
+pub const NAME: &str = OutputParams::NAME;
 
-fn one() -> f32 {
-    1.0
-}
-
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Params {
-    #[serde(default = "one")]
-    exposure: f32,
-}
+pub use lightfold_protocol::pipeline::OutputParams;
 
 /// The output operator (see the module documentation).
 #[derive(Debug, Clone)]
 pub struct Output {
-    params: Params,
+    params: OutputParams,
 }
 
 fn bad(reason: String) -> OpError {
@@ -42,14 +32,14 @@ fn bad(reason: String) -> OpError {
 pub use lightfold_protocol::srgb::{linear_to_srgb, srgb8};
 
 impl Output {
+    /// From JSON parameters (`OutputParams`).
     pub fn new(params: &Value) -> Result<Self, OpError> {
-        let p: Params = params::parse(NAME, params)?;
-        if !(p.exposure.is_finite() && p.exposure >= 0.0) {
-            return Err(bad(format!(
-                "exposure must be finite and non-negative, got {}",
-                p.exposure
-            )));
-        }
+        Self::from_params(params::parse(NAME, params)?)
+    }
+
+    /// From typed parameters, validated (`OutputParams::validate`).
+    pub fn from_params(p: OutputParams) -> Result<Self, OpError> {
+        p.validate()?;
         Ok(Output { params: p })
     }
 

@@ -1,8 +1,9 @@
-//! Parameter plumbing shared by the operators: JSON → typed parameters with unknown keys
-//! rejected, colour validation, layer names, and the merge `set_params` applies.
+//! Parameter plumbing shared by the operators: JSON → the typed parameters of
+//! `lightfold_protocol::pipeline` with unknown keys rejected, their validation errors as
+//! `OpError`s, and the merge `set_params` applies. Layer names are the protocol's.
 
 use super::OpError;
-use lightfold_protocol::Layer;
+use lightfold_protocol::{Layer, ParamError};
 use serde::de::DeserializeOwned;
 use serde_json::{Map, Value};
 
@@ -47,44 +48,18 @@ pub(crate) fn merge(op: &'static str, current: &Value, patch: &Value) -> Result<
     Ok(Value::Object(out))
 }
 
-/// A colour parameter must be finite and non-negative: it multiplies sanitised values, and a
-/// negative or NaN factor would break the never-NaN, never-negative policy.
-pub(crate) fn check_rgb(op: &'static str, what: &str, rgb: [f32; 3]) -> Result<(), OpError> {
-    if rgb.iter().all(|c| c.is_finite() && *c >= 0.0) {
-        Ok(())
-    } else {
-        Err(OpError::BadParam {
-            op,
-            reason: format!("{what} must be finite and non-negative, got {rgb:?}"),
-        })
+pub use lightfold_protocol::pipeline::{layer_from_name, layer_name};
+
+impl From<ParamError> for OpError {
+    fn from(e: ParamError) -> OpError {
+        OpError::BadParam {
+            op: e.op,
+            reason: e.reason,
+        }
     }
 }
 
-/// A layer by its lowercase name, as pipeline files and parameters spell it.
-pub fn layer_from_name(name: &str) -> Option<Layer> {
-    Layer::ALL.into_iter().find(|l| layer_name(*l) == name)
-}
-
-/// The lowercase name of a layer.
-pub fn layer_name(layer: Layer) -> &'static str {
-    match layer {
-        Layer::Illumination => "illumination",
-        Layer::Diffuse => "diffuse",
-        Layer::Specular => "specular",
-        Layer::Ambient => "ambient",
-        Layer::Emissive => "emissive",
-        Layer::Depth => "depth",
-        Layer::Radiance => "radiance",
-    }
-}
-
-/// Deserialises a layer from its lowercase name.
-pub(crate) fn de_layer<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Layer, D::Error> {
-    let s: String = serde::Deserialize::deserialize(d)?;
-    layer_from_name(&s).ok_or_else(|| serde::de::Error::custom(format!("unknown layer {s:?}")))
-}
-
-/// Deserialises a list of layers from their lowercase names.
+/// Deserialises a list of layers from their lowercase names (pipeline files).
 pub(crate) fn de_layers<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<Layer>, D::Error> {
     let names: Vec<String> = serde::Deserialize::deserialize(d)?;
     names
@@ -94,14 +69,4 @@ pub(crate) fn de_layers<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<La
                 .ok_or_else(|| serde::de::Error::custom(format!("unknown layer {s:?}")))
         })
         .collect()
-}
-
-/// Serialises a layer as its lowercase name.
-pub(crate) fn ser_layer<S: serde::Serializer>(l: &Layer, s: S) -> Result<S::Ok, S::Error> {
-    s.serialize_str(layer_name(*l))
-}
-
-/// Serialises a list of layers as their lowercase names.
-pub(crate) fn ser_layers<S: serde::Serializer>(ls: &[Layer], s: S) -> Result<S::Ok, S::Error> {
-    s.collect_seq(ls.iter().map(|l| layer_name(*l)))
 }

@@ -40,89 +40,25 @@ use super::{
 };
 use lightfold_protocol::Layer;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-pub const NAME: &str = "penumbra";
-/// Largest radius accepted: a 17×17 window.
-pub const MAX_RADIUS: u32 = 8;
-/// Default radius: seed 003's 7×7 window.
-pub const DEFAULT_RADIUS: u32 = 3;
-/// Default tolerance on the plane prediction, relative to the pixel's inverse depth.
-pub const DEFAULT_DEPTH_TOLERANCE: f32 = 0.002;
-/// The crease a planned filter stops at: taps on a face whose plane differs from the pixel's by
-/// this much, as the camera sees it, weigh nothing; by half as much or less, fully
-/// (`crease_tolerance`).
-pub const CREASE_DEG: f32 = 12.0;
+pub const NAME: &str = PenumbraParams::NAME;
 
-/// `crease_tolerance` for a pinhole camera of vertical field of view `fov_y_deg` over `height`
-/// pixels: tan([`CREASE_DEG`]) over the focal length in pixels. A plane with camera-space normal
-/// n has 1/z = (n·(u/f, v/f, 1))/k, so its relative slope per pixel g/(1/z) is
-/// (n_x, n_y)/(f·n·ray): two faces of a crease differ there by about tan(angle)/f.
-pub fn crease_tolerance(fov_y_deg: f32, height: u32) -> f32 {
-    let focal = 0.5 * height.max(1) as f32 / (0.5 * fov_y_deg.to_radians()).tan();
-    CREASE_DEG.to_radians().tan() / focal
-}
-
-/// Rows of each neighbouring band a band needs for a filter of `radius` to give the whole
-/// frame's values: the radius, and at least the two rows a pixel's slope is read from; with the
-/// crease test (`crease`), two more, for the slopes of the taps `radius` rows away.
-pub fn halo_rows(radius: u32, crease: bool) -> u32 {
-    if crease { radius + 2 } else { radius.max(2) }
-}
+pub use lightfold_protocol::pipeline::{
+    CREASE_DEG, Kernel, PENUMBRA_DEFAULT_DEPTH_TOLERANCE as DEFAULT_DEPTH_TOLERANCE,
+    PENUMBRA_DEFAULT_RADIUS as DEFAULT_RADIUS, PENUMBRA_MAX_RADIUS as MAX_RADIUS, PenumbraParams,
+    crease_tolerance, halo_rows,
+};
 
 /// Rows below which a band is filtered on the calling thread. A stage's bands are a few tens of
 /// rows, each row thousands of taps: rows go to the stage's compute pool from a handful on (one
 /// 1080p band on one thread made the filter the slowest stage on a 16-core GPU machine).
 const PAR_ROWS: usize = 4;
 
-fn default_radius() -> u32 {
-    DEFAULT_RADIUS
-}
-
-fn default_tolerance() -> f32 {
-    DEFAULT_DEPTH_TOLERANCE
-}
-
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Params {
-    /// Pixels per row of the bands this operator sees (the image width).
-    width: u32,
-    #[serde(default = "default_radius")]
-    radius: u32,
-    #[serde(default = "default_tolerance")]
-    depth_tolerance: f32,
-    /// Largest difference of relative slope (per pixel, of 1/z over 1/z) between a pixel and a
-    /// tap on its plane: a tap on another face of a crease whose depth goes on smoothly differs
-    /// by the crease's angle over the focal length ([`crease_tolerance`]). Absent: no crease
-    /// test (the plane prediction alone, which sees a crease only by its slope change times the
-    /// distance, beyond `depth_tolerance`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    crease_tolerance: Option<f32>,
-    #[serde(default)]
-    specular: bool,
-    #[serde(default)]
-    kernel: Kernel,
-}
-
-/// How a window's taps are weighted.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Kernel {
-    /// Every tap alike (seed 003's average).
-    Box,
-    /// `(r + 1 − |dx|)·(r + 1 − |dy|)`: a quarter of the box's blur for the same window, so it
-    /// smooths the steps between samples with less loss of the penumbra's own shape (the
-    /// default: it measured closer to the truth on `balls`, docs/accuracy/).
-    #[default]
-    Tent,
-}
-
 /// The penumbra filter (see the module documentation).
 #[derive(Debug, Clone)]
 pub struct Penumbra {
-    params: Params,
+    params: PenumbraParams,
 }
 
 fn bad(reason: String) -> OpError {
@@ -130,30 +66,14 @@ fn bad(reason: String) -> OpError {
 }
 
 impl Penumbra {
+    /// From JSON parameters (`PenumbraParams`).
     pub fn new(params: &Value) -> Result<Self, OpError> {
-        let p: Params = params::parse(NAME, params)?;
-        if p.width == 0 {
-            return Err(bad("width must be at least 1".into()));
-        }
-        if !(1..=MAX_RADIUS).contains(&p.radius) {
-            return Err(bad(format!(
-                "radius must be in 1..={MAX_RADIUS}, got {}",
-                p.radius
-            )));
-        }
-        if !(p.depth_tolerance.is_finite() && p.depth_tolerance > 0.0) {
-            return Err(bad(format!(
-                "depth_tolerance must be finite and positive, got {}",
-                p.depth_tolerance
-            )));
-        }
-        if let Some(t) = p.crease_tolerance
-            && !(t.is_finite() && t > 0.0)
-        {
-            return Err(bad(format!(
-                "crease_tolerance must be finite and positive, got {t}"
-            )));
-        }
+        Self::from_params(params::parse(NAME, params)?)
+    }
+
+    /// From typed parameters, validated (`PenumbraParams::validate`).
+    pub fn from_params(p: PenumbraParams) -> Result<Self, OpError> {
+        p.validate()?;
         Ok(Penumbra { params: p })
     }
 
@@ -165,7 +85,7 @@ impl Penumbra {
     /// Rows of each neighbouring band a band needs to be filtered as the whole frame would be
     /// ([`halo_rows`]).
     pub fn halo(&self) -> u32 {
-        halo_rows(self.params.radius, self.params.crease_tolerance.is_some())
+        self.params.halo()
     }
 
     /// The row length this operator reads bands with.
@@ -203,19 +123,9 @@ impl Penumbra {
     }
 }
 
-/// The parameters a planned filter of `radius` gets for a `width × height` image seen with a
-/// vertical field of view of `fov_y_deg`: the crease test at [`crease_tolerance`] of that camera.
-pub fn planned_params(width: u32, height: u32, radius: u32, fov_y_deg: f32) -> Value {
-    serde_json::json!({
-        "width": width,
-        "radius": radius,
-        "crease_tolerance": crease_tolerance(fov_y_deg, height),
-    })
-}
-
 /// The filter over one whole frame `width` pixels wide: `illumination` (6 channels a pixel) and
 /// `depth` (1) in, the filtered illumination out, as a last stage planned for a camera of
-/// vertical field of view `fov_y_deg` gives it band by band ([`planned_params`]). What
+/// vertical field of view `fov_y_deg` gives it band by band (`PenumbraParams::planned`). What
 /// `lightfold render` and the accuracy sweep apply after a single-device render.
 pub fn filter_frame(
     width: u32,
@@ -225,7 +135,7 @@ pub fn filter_frame(
     depth: &[f32],
 ) -> Result<Vec<f32>, OpError> {
     let height = (depth.len() / width.max(1) as usize) as u32;
-    let op = Penumbra::new(&planned_params(width, height, radius, fov_y_deg))?;
+    let op = Penumbra::from_params(PenumbraParams::planned(width, height, radius, fov_y_deg))?;
     let pixels = depth.len();
     let mut out = vec![0.0; pixels * 6];
     let views = [

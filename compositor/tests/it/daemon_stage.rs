@@ -232,12 +232,19 @@ async fn a_bad_configuration_is_refused_and_the_old_one_kept() {
     ctl.configure(config(2, size, ins.clone(), &[], &out, &sink_addr), WAIT)
         .await
         .unwrap();
-    let bad = config(3, size, ins.clone(), &[("blend", "{}")], &out, &sink_addr);
+    // A parameter out of range (a negative colour) is refused with the operator's reason.
+    let acc = [(
+        "accumulate",
+        r#"{"upstream": false, "colors": [[1, -1, 1]]}"#,
+    )];
+    let bad = config(3, size, ins.clone(), &acc, &out, &sink_addr);
     match ctl.configure(bad, WAIT).await {
         Err(DriverError::Refused { code, message }) => {
-            assert_eq!(code, ErrorCode::UnknownOperator);
+            assert_eq!(code, ErrorCode::BadConfig);
             assert!(
-                message.contains("blend") && message.contains("epoch 3"),
+                message.contains("accumulate")
+                    && message.contains("must be finite and non-negative")
+                    && message.contains("epoch 3"),
                 "{message}"
             );
         }

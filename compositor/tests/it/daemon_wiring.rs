@@ -8,7 +8,7 @@ use crate::support;
 use lightfold_compositor::daemon::driver::{ControlClient, LayerImage, Sink};
 use lightfold_compositor::ops::{BandMut, BandView};
 use lightfold_compositor::pipeline::Pipeline;
-use lightfold_protocol::{Layer, OpSource, PixelFormat};
+use lightfold_protocol::{Layer, OpSource, OpSpec, PixelFormat};
 use support::*;
 
 const ILL: Layer = Layer::Illumination;
@@ -39,7 +39,7 @@ async fn one_frame(
 /// The radiance of `ops` wired as `wiring` over whole-frame `inputs` (each a list of layers), in
 /// memory: what the stage must give.
 fn in_memory(
-    ops: &[(String, String)],
+    ops: &[OpSpec],
     wiring: &[Vec<OpSource>],
     inputs: &[Vec<(Layer, &[f32])>],
     pixels: usize,
@@ -137,10 +137,7 @@ async fn one_input_feeds_accumulate_and_material() {
     )
     .await;
 
-    let ops: Vec<(String, String)> = ops
-        .iter()
-        .map(|(n, p)| (n.to_string(), p.to_string()))
-        .collect();
+    let ops = specs(&ops);
     let inputs = [
         vec![(ILL, &up[..])],
         vec![(ILL, &ill[..]), (dif, &d[..]), (spe, &s[..])],
@@ -197,7 +194,7 @@ async fn penumbra_filters_across_band_edges() {
     let e = ctl.configure(short, WAIT).await.unwrap_err();
     assert!(e.to_string().contains("needs 3 rows"), "{e}");
     let mut narrow = cfg.clone();
-    narrow.ops[1].1 = r#"{"width": 22}"#.into();
+    narrow.ops[1] = specs(&[("penumbra", r#"{"width": 22}"#)]).remove(0);
     let e = ctl.configure(narrow, WAIT).await.unwrap_err();
     assert!(e.to_string().contains("22 pixels wide"), "{e}");
     ctl.configure(cfg, WAIT).await.unwrap();
@@ -239,10 +236,7 @@ async fn penumbra_filters_across_band_edges() {
     )
     .await;
 
-    let ops: Vec<(String, String)> = ops
-        .iter()
-        .map(|(n, p)| (n.to_string(), p.to_string()))
-        .collect();
+    let ops = specs(&ops);
     let inputs = [
         vec![(ILL, &up[..])],
         vec![(ILL, &ill[..]), (dif, &d[..]), (dep, &depth[..])],
@@ -254,7 +248,7 @@ async fn penumbra_filters_across_band_edges() {
         "band by band with halos gives the whole frame's bits"
     );
     // And the filter did something: without it the frame differs.
-    let plain: Vec<(String, String)> = [ops[0].clone(), ops[2].clone(), ops[3].clone()].into();
+    let plain = vec![ops[0].clone(), ops[2].clone(), ops[3].clone()];
     let plain_wiring = vec![
         vec![OpSource::Input(0), OpSource::Input(1)],
         vec![OpSource::Op(0), OpSource::Input(1)],

@@ -6,7 +6,8 @@ use crate::common;
 use common::{Owned, assert_same_bits, ordinary, rng, run};
 use lightfold_compositor::ops::{self, BandMut, BandView, OpError};
 use lightfold_compositor::pipeline::{Pipeline, PipelineError, Scratch};
-use lightfold_protocol::Layer;
+use lightfold_protocol::pipeline::OutputParams;
+use lightfold_protocol::{Layer, OpSpec};
 use serde_json::json;
 
 const EXAMPLE: &str = r#"
@@ -211,12 +212,9 @@ fn clear_errors() {
 #[test]
 fn from_ops_convention() {
     let ops = [
-        (
-            "accumulate".to_string(),
-            r#"{"colors": [[1, 1, 1]]}"#.to_string(),
-        ),
-        ("material".to_string(), r#"{"stage": "single"}"#.to_string()),
-        ("output".to_string(), String::new()),
+        ops::spec_from_json("accumulate", &json!({"colors": [[1, 1, 1]]})).unwrap(),
+        ops::spec_from_json("material", &json!({"stage": "single"})).unwrap(),
+        ops::spec_from_json("output", &serde_json::Value::Null).unwrap(),
     ];
     let links = [
         vec![Layer::Illumination],
@@ -239,9 +237,13 @@ fn from_ops_convention() {
     assert_same_bits(&got, &shade, "from_ops");
     let e = Pipeline::from_ops(&ops[..1], &links).unwrap_err();
     assert!(matches!(e, PipelineError::UnusedInputs { ref unused } if unused == &[2]));
-    let bad = [("accumulate".to_string(), "{colors".to_string())];
-    assert!(matches!(
-        Pipeline::from_ops(&bad, &links),
-        Err(PipelineError::Parse { .. })
-    ));
+    // Parameters out of range are refused with the operator's reason.
+    let mut bad = ops.clone();
+    bad[2] = OpSpec::Output(OutputParams { exposure: -1.0 });
+    let e = Pipeline::from_ops(&bad, &links).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("exposure must be finite and non-negative"),
+        "{e}"
+    );
 }

@@ -166,7 +166,7 @@ pub fn filter_cost_us(radius: u32, width: u32, height: u32, band_height: u32, th
     }
     let side = f64::from(2 * radius + 1);
     // The planned filter has the crease test: its halo is the radius + 2 rows.
-    let rows = lightfold_compositor::ops::penumbra::halo_rows(radius, true);
+    let rows = lightfold_protocol::pipeline::halo_rows(radius, true);
     let band = f64::from(band_height.max(rows));
     let halo = 1.0 + 2.0 * f64::from(rows) / band;
     let pixels = f64::from(width) * f64::from(height);

@@ -66,11 +66,7 @@ impl Plan {
                     layers: i.layers.clone(),
                 })
                 .collect(),
-            ops: s
-                .ops
-                .iter()
-                .map(|(name, p)| (name.clone(), p.to_string()))
-                .collect(),
+            ops: s.ops.clone(),
             wiring: s.wiring.clone(),
             outputs: s.outputs.clone(),
             downstream: match &s.downstream {

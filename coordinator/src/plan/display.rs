@@ -301,8 +301,8 @@ impl Plan {
                 Downstream::Sink => format!("sink {}", self.sink),
             };
             writeln!(f, "  {} ← [{}] → {to}", s.compositor, ins.join(", "))?;
-            for (name, p) in &s.ops {
-                writeln!(f, "      {name} {p}")?;
+            for op in &s.ops {
+                writeln!(f, "      {} {}", op.name(), op_params(op))?;
             }
         }
         Ok(())
@@ -570,4 +570,21 @@ fn gave_up(p: &Plan) -> Option<String> {
         "gave up for the budget: {} (expected penumbra PSNR {db:+.1} dB by the error model{bound})",
         steps.join(", ")
     ))
+}
+
+/// An operator's parameters as one line of JSON: keys sorted, unset options left out, each f32
+/// in its shortest decimal form (0.85, not 0.8500000238418579).
+fn op_params(op: &lightfold_protocol::OpSpec) -> serde_json::Value {
+    // Through text: serde_json writes an f32 in its shortest form, and reads that back as the
+    // f64 of the same digits.
+    let text = serde_json::to_string(op).unwrap_or_default();
+    let mut v: serde_json::Value = serde_json::from_str(&text).unwrap_or_default();
+    let mut params = v
+        .as_object_mut()
+        .and_then(|m| m.remove(op.name()))
+        .unwrap_or_default();
+    if let Some(m) = params.as_object_mut() {
+        m.retain(|_, x| !x.is_null());
+    }
+    params
 }

@@ -30,7 +30,7 @@ pub use topology::BAND_OVERHEAD_BYTES;
 pub use types::*;
 
 use group::NodeCost;
-use lightfold_compositor::ops::penumbra::MAX_RADIUS as PENUMBRA_MAX_RADIUS;
+use lightfold_protocol::pipeline::PENUMBRA_MAX_RADIUS;
 use lightfold_scene::{LightSample, Scene};
 use phases::plan_once;
 use sha2::{Digest, Sha256};

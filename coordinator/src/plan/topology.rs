@@ -1,24 +1,21 @@
 //! Compositor stages and data links: a chain like the paper's (each stage adds its nodes to the
 //! upstream sum) or a tree (leaf stages accumulate nodes, stages above `join` pairs), with the
 //! material and output operators at the last stage, which reads the node carrying the material
-//! layers (a tree's root reads one node of its own for that, after its `join`). Operator names
-//! and JSON parameters are those of the compositor's registry (`compositor/src/ops/`); a stage's operators read its inputs as a
+//! layers (a tree's root reads one node of its own for that, after its `join`). Operators are
+//! the typed ones of `lightfold_protocol::pipeline` (`OpSpec`); a stage's operators read its inputs as a
 //! fold: operator 0 the first inputs, each next one the previous output plus the next inputs.
 
 use super::types::{DaemonSpec, Topology};
 use super::types::{Downstream, FormatChoice, InputRef, LinkPlan, MaterialMode, Source, StagePlan};
-use lightfold_protocol::{Layer, OpSource, PixelFormat};
-use serde_json::{Value, json};
+use lightfold_protocol::pipeline::{
+    AccumulateParams, AmbientFold, AmbientMask, DepthParams, JoinParams, MaterialParams,
+    MaterialStage, MergeParams, NodeColor, OutputParams, PenumbraParams,
+};
+use lightfold_protocol::{Layer, OpSource, OpSpec, PixelFormat};
 use std::ops::Range;
 
 /// Framing cost of one band on a link: the band header plus the frame's kind and length.
 pub const BAND_OVERHEAD_BYTES: u64 = 52 + 5;
-
-/// An f32 colour as JSON numbers with the f32's shortest decimal form (0.92, not
-/// 0.9200000166893005); the compositor reads them back to the same f32.
-fn rgb(c: [f32; 3]) -> Value {
-    json!(c.map(|x| x.to_string().parse::<f64>().unwrap_or(f64::from(x))))
-}
 
 /// An illumination node as the topology sees it.
 #[derive(Debug, Clone)]
@@ -46,7 +43,7 @@ pub(crate) struct Finish {
     pub exposure: f32,
     /// The `penumbra` operator's parameters when the last stage filters the illumination sum
     /// (the depth layer travels with the material layers).
-    pub penumbra: Option<Value>,
+    pub penumbra: Option<PenumbraParams>,
 }
 
 /// Where a node streams: `(stage id, input index)`.
@@ -86,10 +83,10 @@ pub(crate) fn stages(
         let join = StagePlan {
             compositor: String::new(),
             wiring: Vec::new(),
-            ops: vec![(
-                "join".to_string(),
-                json!({ "inputs": 2, "layer": "illumination" }),
-            )],
+            ops: vec![OpSpec::Join(JoinParams {
+                inputs: 2,
+                layer: Layer::Illumination,
+            })],
             inputs: Vec::new(),
             outputs: vec![(Layer::Illumination, formats.chain)],
             downstream: Downstream::Sink,
@@ -151,7 +148,7 @@ fn accumulate_range(
     finish: &Finish,
     range: &Range<usize>,
     upstream: bool,
-) -> Value {
+) -> AccumulateParams {
     let fold = finish
         .fold
         .filter(|f| range.contains(f))
@@ -197,10 +194,9 @@ fn leaf_stages(
         let ops = if range.is_empty() {
             Vec::new()
         } else {
-            vec![(
-                "accumulate".to_string(),
-                accumulate_range(nodes, finish, range, upstream),
-            )]
+            vec![OpSpec::Accumulate(accumulate_range(
+                nodes, finish, range, upstream,
+            ))]
         };
         stages.push(StagePlan {
             compositor: id,
@@ -230,10 +226,12 @@ fn host_on_tree_root(
         source: Source::Node(nodes[h].node.clone()),
         layers,
     });
-    root.ops.push((
-        "accumulate".to_string(),
-        accumulate_range(nodes, finish, &(h..h + 1), true),
-    ));
+    root.ops.push(OpSpec::Accumulate(accumulate_range(
+        nodes,
+        finish,
+        &(h..h + 1),
+        true,
+    )));
     root.wiring = vec![
         (0..sum_inputs).map(OpSource::Input).collect(),
         vec![OpSource::Op(0), OpSource::Input(sum_inputs)],
@@ -295,16 +293,19 @@ fn accumulate_params(
     finish: &Finish,
     upstream: bool,
     fold: Option<usize>,
-) -> Value {
-    let colors: Vec<Value> = nodes.iter().map(|n| rgb(n.color)).collect();
-    let mut p = json!({ "colors": colors, "upstream": upstream });
-    if let MaterialMode::UniformSpecular { specular } = finish.mode {
-        p["specular_color"] = rgb(specular);
+) -> AccumulateParams {
+    AccumulateParams {
+        colors: nodes.iter().map(|n| NodeColor::Rgb(n.color)).collect(),
+        upstream,
+        specular_color: match finish.mode {
+            MaterialMode::UniformSpecular { specular } => Some(specular),
+            _ => None,
+        },
+        ambient: fold.map(|f| AmbientFold {
+            input: (f + usize::from(upstream)) as u32,
+            mask: AmbientMask::Uniform,
+        }),
     }
-    if let Some(f) = fold {
-        p["ambient"] = json!({ "input": f + usize::from(upstream), "mask": "uniform" });
-    }
-    p
 }
 
 /// The stages of a sort-last grid (`docs/planner.md` § Partitions): `parts[q]` are the nodes
@@ -323,7 +324,6 @@ pub(crate) fn partition_stages(
     topology: Topology,
     formats: &FormatChoice,
 ) -> (Vec<StagePlan>, Vec<Vec<Dest>>) {
-    use lightfold_compositor::ops::{Merge, layer_name};
     let chain = topology == Topology::Chain;
     // A tree's leaves take runs of parts and `depth` joins pairs of them level by level (2·leaves
     // − 1 stages); a chain's stages each take a run and the upstream stream.
@@ -361,8 +361,12 @@ pub(crate) fn partition_stages(
             .map_or(formats.material, |m| m.1),
     };
     let depth_params = |inputs: usize| {
-        let names: Vec<&str> = carried.iter().map(|&l| layer_name(l)).collect();
-        json!({ "inputs": inputs, "layers": names, "zero_is_empty": true })
+        OpSpec::Depth(DepthParams {
+            inputs: inputs as u32,
+            layers: carried.clone(),
+            reversed_z: false,
+            zero_is_empty: true,
+        })
     };
     let mut stages: Vec<StagePlan> = Vec::with_capacity(count);
     let mut dst: Vec<Vec<Dest>> = parts
@@ -372,7 +376,7 @@ pub(crate) fn partition_stages(
     for (i, chunk) in chunks.iter().enumerate() {
         let id = compositors[i].id.clone();
         let mut inputs = Vec::new();
-        let mut ops: Vec<(String, Value)> = Vec::new();
+        let mut ops: Vec<OpSpec> = Vec::new();
         let mut wiring: Vec<Vec<OpSource>> = Vec::new();
         let mut composed = Vec::new();
         if let Some(prev) = stages.last_mut().filter(|_| chain) {
@@ -394,15 +398,13 @@ pub(crate) fn partition_stages(
                 });
             }
             let last = inputs.len() as u32;
-            ops.push((
-                "accumulate".to_string(),
-                accumulate_params(&parts[q], finish, false, None),
-            ));
+            ops.push(OpSpec::Accumulate(accumulate_params(
+                &parts[q], finish, false, None,
+            )));
             wiring.push((first..last).map(OpSource::Input).collect());
-            ops.push((
-                "merge".to_string(),
-                Merge::params(&[vec![Layer::Illumination], own.clone()]),
-            ));
+            ops.push(OpSpec::Merge(MergeParams {
+                inputs: vec![vec![Layer::Illumination], own.clone()],
+            }));
             wiring.push(vec![
                 OpSource::Op(ops.len() as u32 - 2),
                 OpSource::Input(first),
@@ -410,7 +412,7 @@ pub(crate) fn partition_stages(
             composed.push(OpSource::Op(ops.len() as u32 - 1));
         }
         let outputs: Vec<Layer> = if composed.len() > 1 {
-            ops.push(("depth".to_string(), depth_params(composed.len())));
+            ops.push(depth_params(composed.len()));
             wiring.push(composed);
             std::iter::once(Layer::Depth)
                 .chain(carried.iter().copied())
@@ -438,7 +440,7 @@ pub(crate) fn partition_stages(
             .collect();
         let join = StagePlan {
             compositor: String::new(),
-            ops: vec![("depth".to_string(), depth_params(2))],
+            ops: vec![depth_params(2)],
             wiring: vec![vec![OpSource::Input(0), OpSource::Input(1)]],
             inputs: Vec::new(),
             outputs: joined.iter().map(|&l| (l, format_of(l))).collect(),
@@ -493,17 +495,15 @@ fn join_pairs(stages: &mut Vec<StagePlan>, compositors: &[DaemonSpec], join: &St
 
 /// Appends `material` and `output` to the root stage, which sends radiance to the sink.
 fn finish_root(root: &mut StagePlan, finish: &Finish, formats: &FormatChoice) {
-    let mut mp = json!({
-        "stage": "single",
-        "specular": matches!(finish.mode, MaterialMode::General),
-        "emissive": finish.emissive,
-    });
-    if finish.ambient_layer {
-        mp["ambient_color"] = rgb(finish.ambient);
-    }
-    root.ops.push(("material".to_string(), mp));
-    root.ops
-        .push(("output".to_string(), json!({ "exposure": finish.exposure })));
+    root.ops.push(OpSpec::Material(MaterialParams {
+        stage: MaterialStage::Single,
+        ambient_color: finish.ambient_layer.then_some(finish.ambient),
+        specular: matches!(finish.mode, MaterialMode::General),
+        emissive: finish.emissive,
+    }));
+    root.ops.push(OpSpec::Output(OutputParams {
+        exposure: finish.exposure,
+    }));
     root.outputs = vec![(Layer::Radiance, formats.sink)];
     root.downstream = Downstream::Sink;
     if let Some(params) = &finish.penumbra {
@@ -514,8 +514,12 @@ fn finish_root(root: &mut StagePlan, finish: &Finish, formats: &FormatChoice) {
 /// Puts the `penumbra` operator between the illumination sum and `material`: it reads what
 /// `material` read (the sum, and the input with the material layers, whose depth it needs), and
 /// `material` reads its output.
-fn insert_penumbra(root: &mut StagePlan, params: Value) {
-    let Some(mi) = root.ops.iter().position(|(n, _)| n == "material") else {
+fn insert_penumbra(root: &mut StagePlan, params: PenumbraParams) {
+    let Some(mi) = root
+        .ops
+        .iter()
+        .position(|o| matches!(o, OpSpec::Material(_)))
+    else {
         return;
     };
     if root.wiring.is_empty() {
@@ -541,7 +545,7 @@ fn insert_penumbra(root: &mut StagePlan, params: Value) {
             }
         }
     }
-    root.ops.insert(mi, ("penumbra".to_string(), params));
+    root.ops.insert(mi, OpSpec::Penumbra(params));
     root.wiring.insert(mi, reads);
     root.wiring[mi + 1] = vec![OpSource::Op(mi as u32), material_input];
 }

@@ -145,7 +145,7 @@ impl Default for FormatChoice {
     /// exactly as `lightfold render` multiplies them. 8-bit sRGB scaled a constant colour by up
     /// to 0.8 % (0.5 grey: ×1.0058), a bias of the whole image that `render` does not have.
     fn default() -> Self {
-        use lightfold_compositor::ops::{LinkKind, recommended_link_format};
+        use lightfold_protocol::pipeline::{LinkKind, recommended_link_format};
         FormatChoice {
             node: recommended_link_format(LinkKind::NodeToCompositor),
             chain: recommended_link_format(LinkKind::CompositorToCompositor),
@@ -483,8 +483,8 @@ pub enum Downstream {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StagePlan {
     pub compositor: String,
-    /// Operators in order: registry name and JSON parameters.
-    pub ops: Vec<(String, serde_json::Value)>,
+    /// Operators in order, with their typed parameters (`CompositorConfig::ops`).
+    pub ops: Vec<lightfold_protocol::OpSpec>,
     /// Per operator, where each input comes from; empty: the fold (`CompositorConfig::wiring`).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub wiring: Vec<Vec<lightfold_protocol::OpSource>>,

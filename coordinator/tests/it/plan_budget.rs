@@ -288,14 +288,14 @@ fn an_error_target_picks_the_fewest_samples_the_model_expects_to_reach_it() {
 fn assert_filtered(p: &Plan, radius: u32) {
     assert_eq!(p.penumbra_radius, radius, "{p}");
     let root = p.stages.last().unwrap();
-    let names: Vec<&str> = root.ops.iter().map(|(n, _)| n.as_str()).collect();
+    let names: Vec<&str> = root.ops.iter().map(|o| o.name()).collect();
     let k = names
         .iter()
         .position(|n| *n == "penumbra")
         .expect("a penumbra stage");
     assert_eq!(&names[k..], ["penumbra", "material", "output"], "{names:?}");
-    assert_eq!(root.ops[k].1["radius"], radius);
-    assert_eq!(root.ops[k].1["width"], p.width);
+    assert_eq!(crate::params(&root.ops[k])["radius"], radius);
+    assert_eq!(crate::params(&root.ops[k])["width"], p.width);
     let w = &root.wiring;
     assert_eq!(w[k][0], OpSource::Op(k as u32 - 1));
     let OpSource::Input(m) = w[k][1] else {
@@ -316,7 +316,7 @@ fn assert_filtered(p: &Plan, radius: u32) {
 fn unfiltered(p: &Plan) {
     assert_eq!(p.penumbra_radius, 0);
     for s in &p.stages {
-        assert!(s.ops.iter().all(|(n, _)| n != "penumbra"), "{p}");
+        assert!(s.ops.iter().all(|o| o.name() != "penumbra"), "{p}");
         assert!(
             s.inputs
                 .iter()

@@ -7,7 +7,7 @@ use crate::plan_scenes;
 use lightfold_coordinator::plan::{
     ClusterSpec, Downstream, DropReason, MaterialMode, PlanOptions, Source, Topology, plan,
 };
-use lightfold_protocol::{Layer, OpSource};
+use lightfold_protocol::{Layer, OpSource, OpSpec};
 use lightfold_scene::shading::irradiance;
 use proptest::prelude::*;
 
@@ -123,7 +123,7 @@ proptest! {
         for (a, b) in before.stages.iter().zip(&after.stages) {
             prop_assert_eq!(&a.inputs, &b.inputs);
             prop_assert_eq!(&a.downstream, &b.downstream);
-            let names = |s: &lightfold_coordinator::plan::StagePlan| s.ops.iter().map(|o| o.0.clone()).collect::<Vec<_>>();
+            let names = |s: &lightfold_coordinator::plan::StagePlan| s.ops.iter().map(|o| o.name().to_string()).collect::<Vec<_>>();
             prop_assert_eq!(names(a), names(b));
         }
     }
@@ -192,13 +192,13 @@ proptest! {
             let mut read = 0;
             let mut wired = vec![false; s.inputs.len()];
             prop_assert!(s.wiring.is_empty() || s.wiring.len() == s.ops.len());
-            for (j, (name, params)) in s.ops.iter().enumerate() {
-                let wanted = match name.as_str() {
-                    "accumulate" => params["colors"].as_array().unwrap().len() + usize::from(params["upstream"].as_bool().unwrap()),
-                    "join" => params["inputs"].as_u64().unwrap() as usize,
-                    "material" => 2,
-                    "output" => 1,
-                    other => panic!("unknown operator {other}"),
+            for (j, op) in s.ops.iter().enumerate() {
+                let wanted = match op {
+                    OpSpec::Accumulate(p) => p.colors.len() + usize::from(p.upstream),
+                    OpSpec::Join(p) => p.inputs as usize,
+                    OpSpec::Material(_) => 2,
+                    OpSpec::Output(_) => 1,
+                    other => panic!("unknown operator {}", other.name()),
                 };
                 read += wanted - usize::from(j > 0);
                 if let Some(wires) = s.wiring.get(j) {

@@ -63,7 +63,7 @@ fn the_stage_scene_plans_one_group_and_one_material_node() {
         MaterialMode::UniformSpecular { specular: [0.0; 3] }
     );
     assert_eq!(p.stages.len(), 1);
-    let ops: Vec<&str> = p.stages[0].ops.iter().map(|o| o.0.as_str()).collect();
+    let ops: Vec<&str> = p.stages[0].ops.iter().map(|o| o.name()).collect();
     assert_eq!(ops, ["accumulate", "material", "output"]);
     // accumulate reads the node, material the sum and the same node, output the material.
     assert_eq!(
@@ -260,7 +260,7 @@ fn material_layers_follow_the_visible_materials() {
     let p = plan(&s, &local(), &opts()).unwrap();
     let layers: Vec<Layer> = p.material.layers.iter().map(|l| l.0).collect();
     assert_eq!(layers, [Layer::Diffuse, Layer::Emissive]);
-    let material = &p.stages[0].ops[1].1;
+    let material = &crate::params(&p.stages[0].ops[1]);
     assert_eq!(material["emissive"], true);
     let mut hidden = stage();
     hidden.add_mesh(cuboid(
@@ -282,7 +282,7 @@ fn material_layers_follow_the_visible_materials() {
     let r = plan(&spec, &local(), &opts()).unwrap();
     assert_eq!(r.material.mode, MaterialMode::General);
     assert!(r.material.layers.iter().any(|l| l.0 == Layer::Specular));
-    assert_eq!(r.stages[0].ops[1].1["specular"], true);
+    assert_eq!(crate::params(&r.stages[0].ops[1])["specular"], true);
 }
 
 #[test]
@@ -299,7 +299,7 @@ fn ambient_is_folded_when_every_material_has_ma_equal_md() {
         p.nodes[0].color, [0.1; 3],
         "the folding node carries c_n = c^a"
     );
-    let acc = &p.stages[0].ops[0].1;
+    let acc = &crate::params(&p.stages[0].ops[0]);
     assert_eq!(acc["ambient"]["input"], 0);
     assert_eq!(acc["ambient"]["mask"], "uniform");
 
@@ -308,7 +308,7 @@ fn ambient_is_folded_when_every_material_has_ma_equal_md() {
     let q = plan(&s, &local(), &opts()).unwrap();
     assert!(!q.material.fold_ambient);
     assert!(q.material.layers.iter().any(|l| l.0 == Layer::Ambient));
-    assert_eq!(q.stages[0].ops[1].1["ambient_color"][0], 0.1);
+    assert_eq!(crate::params(&q.stages[0].ops[1])["ambient_color"][0], 0.1);
 
     // c^a = 0: nothing.
     s.ambient = [0.0; 3];
@@ -408,7 +408,7 @@ fn a_tree_joins_pairs_and_a_chain_links_stages() {
     let joins = tree
         .stages
         .iter()
-        .filter(|st| st.ops[0].0 == "join")
+        .filter(|st| st.ops[0].name() == "join")
         .count();
     assert_eq!(joins, 3);
     let root = tree
@@ -416,7 +416,7 @@ fn a_tree_joins_pairs_and_a_chain_links_stages() {
         .iter()
         .find(|st| st.downstream == Downstream::Sink)
         .unwrap();
-    let ops: Vec<&str> = root.ops.iter().map(|o| o.0.as_str()).collect();
+    let ops: Vec<&str> = root.ops.iter().map(|o| o.name()).collect();
     // The root joins the two halves, adds the one node it reads itself, and shades with that
     // node's material layers.
     assert_eq!(ops, ["join", "accumulate", "material", "output"]);
@@ -447,9 +447,12 @@ fn a_tree_joins_pairs_and_a_chain_links_stages() {
         chain.stages[0].downstream,
         Downstream::Stage("comp-1".into())
     );
-    assert_eq!(chain.stages[1].ops[0].1["upstream"], true);
+    assert_eq!(crate::params(&chain.stages[1].ops[0])["upstream"], true);
     assert_eq!(
-        chain.stages[0].ops[0].1["colors"].as_array().unwrap().len(),
+        crate::params(&chain.stages[0].ops[0])["colors"]
+            .as_array()
+            .unwrap()
+            .len(),
         3
     );
     // Bytes: 8 node links at rgb9e5x2 (one also carrying the material layers), 2 chain links at
@@ -508,12 +511,8 @@ fn configurations_carry_the_plan() {
     assert_eq!(c.inputs.len(), 1);
     assert_eq!(c.wiring, p.stages[0].wiring);
     assert_eq!(c.downstream, "127.0.0.1:7400");
-    for (_, params) in &c.ops {
-        assert!(
-            serde_json::from_str::<serde_json::Value>(params)
-                .unwrap()
-                .is_object()
-        );
+    for op in &c.ops {
+        op.validate().unwrap_or_else(|e| panic!("{e}"));
     }
 }
 
@@ -744,14 +743,14 @@ fn partitions_plan_a_grid_of_parts_by_light_groups() {
     // Two stages along a chain: part 0's sum, then part 1's, depth-composed with it and shaded.
     assert_eq!(p.stages.len(), 2);
     let names = |s: &lightfold_coordinator::plan::StagePlan| -> Vec<String> {
-        s.ops.iter().map(|o| o.0.clone()).collect()
+        s.ops.iter().map(|o| o.name().to_string()).collect()
     };
     assert_eq!(names(&p.stages[0]), ["accumulate", "merge"]);
     assert_eq!(
         names(&p.stages[1]),
         ["accumulate", "merge", "depth", "material", "output"]
     );
-    assert_eq!(p.stages[1].ops[2].1["zero_is_empty"], true);
+    assert_eq!(crate::params(&p.stages[1].ops[2])["zero_is_empty"], true);
     assert_eq!(p.stages[0].downstream, Downstream::Stage("comp-1".into()));
     assert_stages_build(&p);
     let text = p.to_string();
@@ -839,7 +838,7 @@ fn partitions_are_refused_where_they_cannot_be_planned() {
     .unwrap();
     assert_eq!(p.penumbra_radius, 2);
     let root = p.stages.last().unwrap();
-    let names: Vec<&str> = root.ops.iter().map(|o| o.0.as_str()).collect();
+    let names: Vec<&str> = root.ops.iter().map(|o| o.name()).collect();
     assert_eq!(
         &names[names.len() - 4..],
         ["depth", "penumbra", "material", "output"]

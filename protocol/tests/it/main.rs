@@ -8,4 +8,5 @@ mod frames;
 mod halfs;
 mod handshake;
 mod mutation;
+mod ops;
 mod split_frames;

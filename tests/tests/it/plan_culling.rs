@@ -113,8 +113,11 @@ fn pipeline(scene: &Scene, p: &Plan) -> Image {
     };
     let mut materials: Option<Layers> = None;
     let fold_node = p.stages.iter().find_map(|s| {
-        let acc = s.ops.iter().find(|o| o.0 == "accumulate")?;
-        let input = acc.1.get("ambient")?["input"].as_u64()? as usize;
+        let acc = s.ops.iter().find_map(|o| match o {
+            lightfold_protocol::OpSpec::Accumulate(a) => Some(a),
+            _ => None,
+        })?;
+        let input = acc.ambient?.input as usize;
         match &s.inputs[input].source {
             lightfold_coordinator::plan::Source::Node(id) => Some(id.clone()),
             _ => None,

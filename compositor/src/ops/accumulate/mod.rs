@@ -9,7 +9,7 @@
 //! `ambient` layer (`mask = "layer"`). Terms are added in input-index order, so a chain of
 //! stages and one stage with many inputs give the same bits.
 
-use super::params::{self, check_rgb};
+use super::params;
 mod decode;
 mod fast;
 mod packed;
@@ -21,91 +21,37 @@ use super::{
     for_spans, sanitize,
 };
 use lightfold_protocol::Layer;
-use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-pub const NAME: &str = "accumulate";
+pub const NAME: &str = AccumulateParams::NAME;
 
-/// A node's light colour: one colour for diffuse and specular, or the paper's separate pair.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(untagged)]
-pub enum NodeColor {
-    Rgb([f32; 3]),
-    Split {
-        diffuse: [f32; 3],
-        specular: [f32; 3],
-    },
-}
+pub use lightfold_protocol::pipeline::{AccumulateParams, AmbientFold, AmbientMask, NodeColor};
 
-impl NodeColor {
-    fn pair(self) -> ([f32; 3], [f32; 3]) {
-        match self {
-            NodeColor::Rgb(c) => (c, c),
-            NodeColor::Split { diffuse, specular } => (diffuse, specular),
-        }
-    }
-}
-
-/// Where eq. 7's `I^a` comes from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum AmbientMask {
-    /// `I^a = 1` at every pixel.
-    #[default]
-    Uniform,
-    /// `I^a` per pixel and channel from the `ambient` layer of the folding input.
-    Layer,
-}
-
-/// The eq. 6 folding: input `input` (a local node whose `c_n^d` is the ambient colour) adds
-/// `c_n^d ⊙ I^a` to the diffuse sum.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AmbientFold {
-    pub input: usize,
-    #[serde(default)]
-    pub mask: AmbientMask,
-}
-
-fn yes() -> bool {
-    true
-}
-
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Params {
-    /// `c_n` of each local input, in input order.
-    colors: Vec<NodeColor>,
-    /// Whether input 0 is the upstream partial sum.
-    #[serde(default = "yes")]
-    upstream: bool,
-    /// Eq. 4's uniform `m^s`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    specular_color: Option<[f32; 3]>,
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    ambient: Option<AmbientFold>,
-    /// Per-frame colour changes as `[[input index, colour], …]` (the shape of
-    /// `FrameParams::colors`), applied over `colors` and then forgotten.
-    #[serde(default, skip_serializing)]
-    input_colors: Vec<(usize, NodeColor)>,
-}
+/// The key of the JSON parameters (never of the typed ones) that carries per-frame colour
+/// changes as `[[input index, colour], …]` (the shape of `FrameParams::colors`), applied over
+/// `colors` and then forgotten.
+const INPUT_COLORS: &str = "input_colors";
 
 /// The accumulate operator (see the module documentation).
 #[derive(Debug, Clone)]
 pub struct Accumulate {
-    params: Params,
+    params: AccumulateParams,
     /// Per local input, the six channel factors: `c^d` then `m^s ⊙ c^s`.
     coeffs: Vec<[f32; 6]>,
 }
 
 impl Accumulate {
+    /// From JSON parameters: `AccumulateParams` and, optionally, `input_colors`.
     pub fn new(params: &Value) -> Result<Self, OpError> {
-        Self::from_params(params::parse(NAME, params)?)
-    }
-
-    fn from_params(mut p: Params) -> Result<Self, OpError> {
+        let mut params = params.clone();
+        let changes = match params.as_object_mut().and_then(|m| m.remove(INPUT_COLORS)) {
+            Some(v) => serde_json::from_value::<Vec<(usize, NodeColor)>>(v)
+                .map_err(|e| bad(format!("{INPUT_COLORS}: {e}")))?,
+            None => Vec::new(),
+        };
+        let mut p: AccumulateParams = params::parse(NAME, &params)?;
         let first = usize::from(p.upstream);
-        for (input, color) in std::mem::take(&mut p.input_colors) {
+        for (input, color) in changes {
             let slot = input
                 .checked_sub(first)
                 .and_then(|j| p.colors.get_mut(j))
@@ -116,45 +62,40 @@ impl Accumulate {
                 })?;
             *slot = color;
         }
-        if p.colors.is_empty() {
-            return Err(bad("colors must list at least one local node".into()));
-        }
+        Self::from_params(p)
+    }
+
+    /// From typed parameters, validated (`AccumulateParams::validate`).
+    pub fn from_params(p: AccumulateParams) -> Result<Self, OpError> {
+        p.validate()?;
         let ms = p.specular_color.unwrap_or([1.0; 3]);
-        check_rgb(NAME, "specular_color", ms)?;
-        let mut coeffs = Vec::with_capacity(p.colors.len());
-        for (j, color) in p.colors.iter().enumerate() {
-            let (cd, cs) = color.pair();
-            check_rgb(NAME, &format!("diffuse colour of input {}", first + j), cd)?;
-            check_rgb(NAME, &format!("specular colour of input {}", first + j), cs)?;
-            coeffs.push([
-                cd[0],
-                cd[1],
-                cd[2],
-                ms[0] * cs[0],
-                ms[1] * cs[1],
-                ms[2] * cs[2],
-            ]);
-        }
-        if let Some(a) = p.ambient
-            && !(first..first + p.colors.len()).contains(&a.input)
-        {
-            return Err(bad(format!(
-                "ambient.input {} is not a local node input",
-                a.input
-            )));
-        }
+        let coeffs = p
+            .colors
+            .iter()
+            .map(|color| {
+                let (cd, cs) = color.pair();
+                [
+                    cd[0],
+                    cd[1],
+                    cd[2],
+                    ms[0] * cs[0],
+                    ms[1] * cs[1],
+                    ms[2] * cs[2],
+                ]
+            })
+            .collect();
         Ok(Accumulate { params: p, coeffs })
     }
 
     /// Local input `j`'s input index.
     fn input_of(&self, j: usize) -> usize {
-        j + usize::from(self.params.upstream)
+        self.params.input_of(j)
     }
 
     /// The folding mask of local input `j`, if it folds the ambient term.
     fn fold_of(&self, j: usize) -> Option<AmbientMask> {
         let a = self.params.ambient?;
-        (a.input == self.input_of(j)).then_some(a.mask)
+        (a.input as usize == self.input_of(j)).then_some(a.mask)
     }
 
     /// The layers of every input and the local-input lookups both versions start from.

@@ -21,65 +21,37 @@ mod packed;
 pub use packed::PackedLayer;
 
 use super::dispatch::{self, Isa, Kernel};
-use super::params::{self, de_layers, ser_layers};
+use super::params;
 use super::{
     BLOCK, BandMut, BandView, InputSpec, OpError, Operator, Signature, check_band, clamp_fast,
     for_spans, sanitize,
 };
 use lightfold_protocol::Layer;
-use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
-pub const NAME: &str = "depth";
+pub const NAME: &str = DepthParams::NAME;
 
-fn illumination() -> Vec<Layer> {
-    vec![Layer::Illumination]
-}
-
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct Params {
-    inputs: usize,
-    /// Colour layers carried with the depth.
-    #[serde(
-        default = "illumination",
-        deserialize_with = "de_layers",
-        serialize_with = "ser_layers"
-    )]
-    layers: Vec<Layer>,
-    #[serde(default)]
-    reversed_z: bool,
-    /// Linear depth where 0 marks an empty pixel (a node's eye depth; see the module docs).
-    #[serde(default)]
-    zero_is_empty: bool,
-}
-
-/// The depth operator (see the module documentation).
-#[derive(Debug, Clone)]
-pub struct Depth {
-    params: Params,
-}
+pub use lightfold_protocol::pipeline::DepthParams;
 
 fn bad(reason: String) -> OpError {
     OpError::BadParam { op: NAME, reason }
 }
 
+/// The depth operator (see the module documentation).
+#[derive(Debug, Clone)]
+pub struct Depth {
+    params: DepthParams,
+}
+
 impl Depth {
+    /// From JSON parameters (`DepthParams`).
     pub fn new(params: &Value) -> Result<Self, OpError> {
-        let p: Params = params::parse(NAME, params)?;
-        if p.inputs == 0 {
-            return Err(bad("inputs must be at least 1".into()));
-        }
-        for (i, l) in p.layers.iter().enumerate() {
-            if *l == Layer::Depth || p.layers[..i].contains(l) {
-                return Err(bad(format!("layers lists {l:?} twice or carries depth")));
-            }
-        }
-        if p.reversed_z && p.zero_is_empty {
-            return Err(bad(
-                "zero_is_empty reads linear depth: it excludes reversed_z".into(),
-            ));
-        }
+        Self::from_params(params::parse(NAME, params)?)
+    }
+
+    /// From typed parameters, validated (`DepthParams::validate`).
+    pub fn from_params(p: DepthParams) -> Result<Self, OpError> {
+        p.validate()?;
         Ok(Depth { params: p })
     }
 
@@ -127,7 +99,7 @@ impl Operator for Depth {
             optional: vec![],
         };
         Signature {
-            inputs: vec![spec; self.params.inputs],
+            inputs: vec![spec; self.params.inputs as usize],
             outputs: layers,
         }
     }

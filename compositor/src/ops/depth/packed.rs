@@ -71,15 +71,16 @@ impl Depth {
         outputs: &[(Layer, PixelFormat)],
     ) -> Result<(), OpError> {
         let p = &self.params;
-        if inputs.len() != p.inputs {
+        let n = p.inputs as usize;
+        if inputs.len() != n {
             return Err(OpError::InputCount {
                 op: NAME,
-                expected: p.inputs,
+                expected: n,
                 got: inputs.len(),
             });
         }
         // Winners share vector lanes with halves, as 16-bit input indices.
-        if p.inputs > MAX_INPUTS {
+        if n > MAX_INPUTS {
             return Err(bad(format!(
                 "the packed path takes at most {MAX_INPUTS} inputs"
             )));

@@ -8,32 +8,7 @@ pub mod study;
 use lightfold_protocol::PixelFormat;
 use lightfold_protocol::format::{self, F16_MAX, RGB9E5_MAX};
 
-/// The kinds of pixel links in a cluster.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum LinkKind {
-    /// A render node's illumination band into its compositor (packed once, unpacked once).
-    NodeToCompositor,
-    /// A partial sum from one compositor to the next (re-packed at every hop of a chain).
-    CompositorToCompositor,
-    /// The sink compositor's final radiance to the coordinator.
-    SinkToCoordinator,
-}
-
-/// The link format the planner should choose by default (docs/precision.md):
-/// - node → compositor: `rgb9e5x2`. One quantisation per node; HDR range at 8 bytes a pixel with
-///   a relative error of at most 2^-9 of each triple's largest channel, and no scale to plan.
-/// - compositor → compositor: `f16x6`. It keeps 1e4 : 1 HDR and dark content over a 32-hop chain
-///   (RMS error under 1e-3, nothing saturated, no dark pixel lost); `seed64` at a fixed scale
-///   saturates the highlights and zeroes the darks, and `rgb9e5x2` re-quantised at every hop loses
-///   the dim channel of a coloured triple.
-/// - sink → coordinator: `f32x3`, the final radiance in full precision (EXR holds it as is).
-pub fn recommended_link_format(hop: LinkKind) -> PixelFormat {
-    match hop {
-        LinkKind::NodeToCompositor => PixelFormat::Rgb9e5x2,
-        LinkKind::CompositorToCompositor => PixelFormat::F16x6,
-        LinkKind::SinkToCoordinator => PixelFormat::F32x3,
-    }
-}
+pub use lightfold_protocol::pipeline::{LinkKind, recommended_link_format};
 
 /// A link format with the scale fixed-point formats need (`seed64`; ignored by the others).
 #[derive(Debug, Clone, Copy, PartialEq)]

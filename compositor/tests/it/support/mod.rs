@@ -8,7 +8,7 @@ use lightfold_compositor::ops::{BandMut, BandView};
 use lightfold_compositor::pipeline::Pipeline;
 use lightfold_net::{Identity, Timeouts};
 use lightfold_protocol::format::{channel_bound, clamp_to_range, quantisation_bound};
-use lightfold_protocol::{CompositorConfig, Layer, PixelFormat, Role, StageInput};
+use lightfold_protocol::{CompositorConfig, Layer, OpSpec, PixelFormat, Role, StageInput};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use std::sync::Arc;
@@ -126,10 +126,7 @@ pub fn config(
         height,
         band_height,
         inputs,
-        ops: ops
-            .iter()
-            .map(|(n, p)| (n.to_string(), p.to_string()))
-            .collect(),
+        ops: specs(ops),
         outputs: outputs.to_vec(),
         downstream: downstream.into(),
         input_index: 0,
@@ -192,16 +189,27 @@ pub fn quantised(format: PixelFormat, layer: Layer, data: Vec<f32>) -> Vec<f32> 
 }
 
 /// The operators of `ops` applied to whole frames in memory (no quantisation).
+/// Typed operators from (name, JSON parameter text; empty: defaults).
+pub fn specs(ops: &[(&str, &str)]) -> Vec<OpSpec> {
+    ops.iter()
+        .map(|(n, p)| {
+            let p: serde_json::Value = if p.trim().is_empty() {
+                serde_json::Value::Null
+            } else {
+                serde_json::from_str(p).expect("JSON parameters")
+            };
+            lightfold_compositor::ops::spec_from_json(n, &p).expect("operator")
+        })
+        .collect()
+}
+
 pub fn reference(
     ops: &[(&str, &str)],
     inputs: &[&LayerImage],
     width: u32,
     height: u32,
 ) -> Vec<Vec<f32>> {
-    let ops: Vec<(String, String)> = ops
-        .iter()
-        .map(|(n, p)| (n.to_string(), p.to_string()))
-        .collect();
+    let ops = specs(ops);
     let layers: Vec<Vec<Layer>> = inputs.iter().map(|i| vec![i.layer]).collect();
     let p = Pipeline::from_ops(&ops, &layers).expect("reference pipeline");
     let pixels = width as usize * height as usize;

@@ -159,7 +159,7 @@ pub(super) struct Materials {
     /// The penumbra filter's radius, 0 for none.
     pub(super) radius: u32,
     /// The `penumbra` operator's parameters, when it filters.
-    pub(super) penumbra: Option<serde_json::Value>,
+    pub(super) penumbra: Option<lightfold_protocol::pipeline::PenumbraParams>,
     /// Band height, raised to the filter's halo where it filters.
     pub(super) band_height: u32,
 }
@@ -201,7 +201,7 @@ pub(super) fn choose_materials(
     };
     let penumbra = (radius > 0).then(|| {
         layers.push((Layer::Depth, PixelFormat::DepthF32));
-        lightfold_compositor::ops::penumbra::planned_params(
+        lightfold_protocol::pipeline::PenumbraParams::planned(
             cam.width,
             cam.height,
             radius,
@@ -211,7 +211,7 @@ pub(super) fn choose_materials(
     let band_height = if penumbra.is_some() {
         options
             .band_height
-            .max(lightfold_compositor::ops::penumbra::halo_rows(radius, true))
+            .max(lightfold_protocol::pipeline::halo_rows(radius, true))
     } else {
         options.band_height
     };

@@ -4,6 +4,7 @@
 
 use bytes::Bytes;
 use lightfold_protocol::format::PixelFormat;
+use lightfold_protocol::pipeline::*;
 use lightfold_protocol::*;
 use proptest::prelude::*;
 
@@ -244,13 +245,95 @@ pub fn node_config() -> impl Strategy<Value = NodeConfig> {
         )
 }
 
+pub fn node_color() -> impl Strategy<Value = NodeColor> {
+    prop_oneof![
+        v3().prop_map(NodeColor::Rgb),
+        (v3(), v3()).prop_map(|(diffuse, specular)| NodeColor::Split { diffuse, specular }),
+    ]
+}
+
+pub fn op_layers() -> impl Strategy<Value = Vec<Layer>> {
+    prop::collection::vec(layer(), 0..4)
+}
+
+/// Any operator with any parameters (valid or not: the wire carries both).
+pub fn op_spec() -> impl Strategy<Value = OpSpec> {
+    let ambient = prop::option::of(
+        (
+            any::<u32>(),
+            prop::sample::select(vec![AmbientMask::Uniform, AmbientMask::Layer]),
+        )
+            .prop_map(|(input, mask)| AmbientFold { input, mask }),
+    );
+    let stage = prop::sample::select(vec![
+        MaterialStage::Specular,
+        MaterialStage::Diffuse,
+        MaterialStage::Ambient,
+        MaterialStage::Emissive,
+        MaterialStage::Single,
+    ]);
+    prop_oneof![
+        (
+            prop::collection::vec(node_color(), 0..4),
+            any::<bool>(),
+            prop::option::of(v3()),
+            ambient
+        )
+            .prop_map(|(colors, upstream, specular_color, ambient)| {
+                OpSpec::Accumulate(AccumulateParams {
+                    colors,
+                    upstream,
+                    specular_color,
+                    ambient,
+                })
+            }),
+        (stage, prop::option::of(v3()), any::<bool>(), any::<bool>()).prop_map(
+            |(stage, ambient_color, specular, emissive)| OpSpec::Material(MaterialParams {
+                stage,
+                ambient_color,
+                specular,
+                emissive,
+            })
+        ),
+        (any::<u32>(), op_layers(), any::<bool>(), any::<bool>()).prop_map(
+            |(inputs, layers, reversed_z, zero_is_empty)| OpSpec::Depth(DepthParams {
+                inputs,
+                layers,
+                reversed_z,
+                zero_is_empty,
+            })
+        ),
+        (any::<u32>(), layer())
+            .prop_map(|(inputs, layer)| OpSpec::Join(JoinParams { inputs, layer })),
+        prop::collection::vec(op_layers(), 0..4)
+            .prop_map(|inputs| OpSpec::Merge(MergeParams { inputs })),
+        num().prop_map(|exposure| OpSpec::Output(OutputParams { exposure })),
+        (
+            (any::<u32>(), any::<u32>(), num()),
+            (prop::option::of(num()), any::<bool>(), any::<bool>())
+        )
+            .prop_map(
+                |((width, radius, depth_tolerance), (crease_tolerance, specular, tent))| {
+                    OpSpec::Penumbra(PenumbraParams {
+                        width,
+                        radius,
+                        depth_tolerance,
+                        crease_tolerance,
+                        specular,
+                        kernel: if tent { Kernel::Tent } else { Kernel::Box },
+                    })
+                }
+            ),
+    ]
+}
+
 pub fn compositor_config() -> impl Strategy<Value = CompositorConfig> {
     let input = (text(), layers()).prop_map(|(peer, layers)| StageInput { peer, layers });
     (
         (any::<u64>(), any::<u32>(), any::<u32>(), any::<u32>()),
         (
             prop::collection::vec(input, 0..3),
-            prop::collection::vec((text(), text()), 0..3),
+            prop::collection::vec(op_spec(), 0..3),
             prop::collection::vec(
                 prop::collection::vec(
                     prop_oneof![
