@@ -158,25 +158,7 @@ pub async fn serve(
 ) {
     let app = router(handle);
     let gate = lightfold_net::gate::Gate::new(MAX_CONNECTIONS, MAX_PER_ADDRESS);
-    loop {
-        let (stream, peer) = tokio::select! {
-            _ = stop.cancelled() => return,
-            r = listener.accept() => match r {
-                Ok(x) => x,
-                Err(e) => {
-                    tracing::warn!("the metrics listener cannot accept: {e}");
-                    tokio::time::sleep(Duration::from_millis(100)).await;
-                    continue;
-                }
-            },
-        };
-        let permit = match gate.admit(peer.ip()) {
-            Ok(p) => p,
-            Err(full) => {
-                tracing::debug!(%peer, "metrics connection refused: {full}");
-                continue;
-            }
-        };
+    while let Some((stream, peer, permit)) = gate.next_admitted(&listener, &stop, "metrics").await {
         let app = app.clone();
         let stop = stop.clone();
         tokio::spawn(async move {

@@ -14,6 +14,8 @@ use std::time::{Duration, Instant};
 pub const MAX_HANDSHAKES: usize = 64;
 /// Of those, from one address.
 pub const MAX_HANDSHAKES_PER_ADDRESS: usize = 16;
+/// How long an accept loop waits after a failed accept before it tries again.
+pub const ACCEPT_BACKOFF: Duration = Duration::from_millis(100);
 /// Refusals are logged at most this often.
 const LOG_EVERY: Duration = Duration::from_secs(1);
 
@@ -116,6 +118,38 @@ impl Gate {
         }
     }
 
+    /// The next connection `listener` accepts that this gate admits, with its slot: what every
+    /// daemon's accept loop waits on. `None` once `stop` is cancelled. A failed accept (out of
+    /// file descriptors and the like) is logged and retried after [`ACCEPT_BACKOFF`] instead of
+    /// spun on; a peer over the gate's limits is closed at once and logged as `what`.
+    pub async fn next_admitted(
+        &self,
+        listener: &tokio::net::TcpListener,
+        stop: &tokio_util::sync::CancellationToken,
+        what: &str,
+    ) -> Option<(tokio::net::TcpStream, std::net::SocketAddr, Slot)> {
+        loop {
+            let accepted = tokio::select! {
+                _ = stop.cancelled() => return None,
+                a = listener.accept() => a,
+            };
+            match accepted {
+                Ok((stream, peer)) => {
+                    if let Some(slot) = self.admit_or_refuse(peer, what) {
+                        return Some((stream, peer, slot));
+                    }
+                }
+                Err(e) => {
+                    tracing::warn!("{what}: accepting a connection failed: {e}");
+                    tokio::select! {
+                        _ = stop.cancelled() => return None,
+                        _ = tokio::time::sleep(ACCEPT_BACKOFF) => {}
+                    }
+                }
+            }
+        }
+    }
+
     /// Logs a refused peer (WARN), at most once a second; refusals in between are counted and
     /// reported with the next line.
     pub fn refused(&self, peer: &str, why: &dyn std::fmt::Display) {
@@ -171,5 +205,38 @@ mod tests {
         drop(a);
         let _a3 = g.admit(ip(1)).unwrap();
         assert_eq!(g.open.lock().unwrap().by_address.get(&ip(1)), Some(&2));
+    }
+
+    /// The accept loop every daemon runs: admitted connections come out with their slot, one
+    /// over the limit is closed unread and the loop goes on to the next, and a cancelled stop
+    /// ends it.
+    #[tokio::test]
+    async fn next_admitted_passes_admitted_peers_and_ends_on_stop() {
+        use tokio::io::AsyncReadExt;
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let stop = tokio_util::sync::CancellationToken::new();
+        let g = Gate::new(1, 1);
+        let _first = tokio::net::TcpStream::connect(addr).await.unwrap();
+        let (_s, peer, slot) = g.next_admitted(&listener, &stop, "test").await.unwrap();
+        assert!(peer.ip().is_loopback());
+        // The gate is full: the second peer is closed at once, unread.
+        let mut second = tokio::net::TcpStream::connect(addr).await.unwrap();
+        let third = tokio::net::TcpStream::connect(addr);
+        let waited = tokio::time::timeout(
+            Duration::from_millis(300),
+            g.next_admitted(&listener, &stop, "test"),
+        );
+        assert!(
+            waited.await.is_err(),
+            "nothing admitted while the gate is full"
+        );
+        let mut buf = [0u8; 1];
+        assert_eq!(second.read(&mut buf).await.unwrap(), 0, "closed");
+        drop(slot);
+        let _third = third.await.unwrap();
+        assert!(g.next_admitted(&listener, &stop, "test").await.is_some());
+        stop.cancel();
+        assert!(g.next_admitted(&listener, &stop, "test").await.is_none());
     }
 }

@@ -68,22 +68,8 @@ pub async fn serve(
         .route("/ws", get(websocket))
         .with_state(hub);
     let gate = lightfold_net::gate::Gate::new(MAX_CONNECTIONS, MAX_PER_ADDRESS);
-    loop {
-        let (stream, peer) = tokio::select! {
-            _ = stop.cancelled() => return,
-            r = listener.accept() => match r {
-                Ok(x) => x,
-                Err(e) => {
-                    // Out of file descriptors and the like: wait instead of spinning.
-                    tracing::warn!("the view cannot accept a connection: {e}");
-                    tokio::time::sleep(Duration::from_millis(100)).await;
-                    continue;
-                }
-            },
-        };
-        let Some(permit) = gate.admit_or_refuse(peer, "the view") else {
-            continue;
-        };
+    while let Some((stream, peer, permit)) = gate.next_admitted(&listener, &stop, "the view").await
+    {
         let app = app.clone();
         let stop = stop.clone();
         let tls = tls.clone();

@@ -166,37 +166,18 @@ pub async fn run(
     lightfold_ops::health::set_live(true);
     let gate = lightfold_net::gate::Gate::handshakes();
 
-    loop {
-        let accepted = tokio::select! {
-            _ = shutdown.cancelled() => break,
-            a = listener.accept() => a,
+    while let Some((stream, _, slot)) = gate.next_admitted(&listener, &shutdown, "handshakes").await
+    {
+        let conn = Connection {
+            gate: gate.clone(),
+            slot,
+            identity: identity.clone(),
+            timeouts: opts.timeouts,
+            hub: Arc::clone(&hub),
+            registry: Arc::clone(&registry),
+            shutdown: shutdown.clone(),
         };
-        match accepted {
-            Ok((stream, peer)) => {
-                let Some(slot) = gate.admit_or_refuse(peer, "handshakes") else {
-                    drop(stream);
-                    continue;
-                };
-                let conn = Connection {
-                    gate: gate.clone(),
-                    slot,
-                    identity: identity.clone(),
-                    timeouts: opts.timeouts,
-                    hub: Arc::clone(&hub),
-                    registry: Arc::clone(&registry),
-                    shutdown: shutdown.clone(),
-                };
-                tracker.spawn(conn.serve(stream));
-            }
-            Err(e) => {
-                // Out of descriptors and the like: back off instead of spinning.
-                tracing::warn!("accept failed: {e}");
-                tokio::select! {
-                    _ = shutdown.cancelled() => break,
-                    _ = tokio::time::sleep(Duration::from_millis(100)) => {}
-                }
-            }
-        }
+        tracker.spawn(conn.serve(stream));
     }
     lightfold_ops::health::set_live(false);
     drop(listener);

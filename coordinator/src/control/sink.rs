@@ -65,26 +65,8 @@ pub async fn run_sink(
     cancel: CancellationToken,
 ) {
     let gate = lightfold_net::gate::Gate::handshakes();
-    loop {
-        let accepted = tokio::select! {
-            _ = cancel.cancelled() => return,
-            a = listener.accept() => a,
-        };
-        let (stream, peer) = match accepted {
-            Ok(x) => x,
-            Err(e) => {
-                let _ = out
-                    .send(SinkEvent::Warning(format!("sink accept failed: {e}")))
-                    .await;
-                // Out of descriptors and the like: back off instead of spinning.
-                tokio::time::sleep(std::time::Duration::from_millis(100)).await;
-                continue;
-            }
-        };
-        // A stray connection (a port scan, a probe) is refused and logged; it never ends the job.
-        let Some(slot) = gate.admit_or_refuse(peer, "handshakes") else {
-            continue;
-        };
+    // A stray connection (a port scan, a probe) is refused and logged; it never ends the job.
+    while let Some((stream, _, slot)) = gate.next_admitted(&listener, &cancel, "the sink").await {
         let (me, out, geometry, cancel) =
             (me.clone(), out.clone(), geometry.clone(), cancel.clone());
         tokio::spawn(async move {

@@ -213,7 +213,7 @@ pub async fn run(
     let tracker = TaskTracker::new();
     let gate = lightfold_net::gate::Gate::handshakes();
     loop {
-        let (stream, peer) = tokio::select! {
+        let (stream, peer, slot) = tokio::select! {
             _ = stop.cancelled() => break,
             started = &mut startup, if engine.is_none() => match started {
                 Ok((caps, e)) => {
@@ -229,19 +229,10 @@ pub async fn run(
                     return Err(e);
                 }
             },
-            r = listener.accept() => match r {
-                Ok(x) => x,
-                Err(e) => {
-                    // Out of descriptors and the like: back off rather than spin.
-                    tracing::warn!(error = %e, "accept failed");
-                    tokio::time::sleep(Duration::from_millis(100)).await;
-                    continue;
-                }
+            next = gate.next_admitted(&listener, &stop, "handshakes") => match next {
+                Some(next) => next,
+                None => break,
             },
-        };
-        let Some(slot) = gate.admit_or_refuse(peer, "handshakes") else {
-            drop(stream);
-            continue;
         };
         let (me, mut ready, claims, stop, t, gate, silence) = (
             me.clone(),
