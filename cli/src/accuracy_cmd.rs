@@ -285,7 +285,7 @@ fn sweep_title(args: &Args, label: &str, (w, h): (u32, u32), device: &str) -> St
 /// as it asks, rendered on this device as the sweep renders a point, both against the truth.
 fn run_planned(args: &Args) -> anyhow::Result<()> {
     use lightfold_coordinator::plan::{
-        ClusterSpec, MapSizing as PlanSizing, PlanOptions, plan, targeted,
+        ClusterSpec, Learned, MapSizing as PlanSizing, PlanOptions, plan, targeted,
     };
     use lightfold_quality::accuracy::{Setting, measure_prepared};
     let mut scene = lightfold_scene::load(&args.scene)
@@ -296,12 +296,15 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
     let cache = args.model.cache();
     let calibration = crate::model_args::run_calibration(&scene, &cache)?;
     let mut options = PlanOptions {
-        error_model: Some(calibration.model.clone()),
         target_penumbra_db: Some(args.target_db as f32),
+        learned: Learned {
+            error_model: Some(calibration.model.clone()),
+            ..Learned::default()
+        },
         ..PlanOptions::default()
     };
     if args.model.error_model == "default" {
-        options.error_model = None;
+        options.learned.error_model = None;
     }
     let p = plan(&scene, &ClusterSpec::local(256, 256), &options)?;
     let truth = load_or_render_truth(

@@ -85,7 +85,7 @@ impl ModelArgs {
         if model.as_ref().is_some_and(|m| m.calibrated) && options.target_penumbra_db.is_none() {
             options.target_penumbra_db = Some(DEFAULT_TARGET_DB);
         }
-        options.error_model = model;
+        options.learned.error_model = model;
         Ok(())
     }
 

@@ -61,7 +61,7 @@ impl Adapt {
                 ))
             })
             .collect();
-        self.plan_scale = opts.cost_scale;
+        self.plan_scale = opts.learned.cost_scale;
         self.measured.clear();
         self.scales.clear();
     }
@@ -141,7 +141,7 @@ impl Adapt {
             && q > quality(current)
         {
             self.known_good = None;
-            opts.cost_scale = scale;
+            opts.learned.cost_scale = scale;
             return Some(format!(
                 "measured frames take {:.1} ms, over the {:.1} ms budget: back to the last plan \
                  measured within it",
@@ -149,7 +149,7 @@ impl Adapt {
                 budget as f64 / 1e3
             ));
         }
-        let now = opts.cost_scale;
+        let now = opts.learned.cost_scale;
         let strays = |measured: f64, used: f64| (measured / used).ln().abs() > ADAPT_BAND.ln();
         if !(fixed.is_finite() && light.is_finite() && fixed > 0.0 && light > 0.0)
             || !(strays(fixed, now.fixed) || strays(light, now.light))
@@ -157,7 +157,7 @@ impl Adapt {
             return None;
         }
         let mut o = opts.clone();
-        o.cost_scale = CostScale {
+        o.learned.cost_scale = CostScale {
             fixed: fixed.clamp(1e-4, 1e4),
             light: light.clamp(1e-4, 1e4),
         };
@@ -168,7 +168,7 @@ impl Adapt {
             took / 1e3,
             current.est_frame_us as f64 / 1e3
         );
-        opts.cost_scale = o.cost_scale;
+        opts.learned.cost_scale = o.learned.cost_scale;
         let key = choices(&candidate);
         // Under the budget, only for more quality (not to free nodes: the frames fit as they are).
         let better = quality(&candidate) > quality(current);

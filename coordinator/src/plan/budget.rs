@@ -64,7 +64,7 @@ fn curve<'a>(options: &'a PlanOptions, scene: &Scene) -> &'a Curve {
 
 /// The model a plan with `options` reads (the default scene's when it has none).
 fn model(options: &PlanOptions) -> &ErrorModel {
-    options.error_model.as_ref().unwrap_or(&BALLS_MODEL)
+    options.learned.error_model.as_ref().unwrap_or(&BALLS_MODEL)
 }
 
 /// The default scene's model, built once.

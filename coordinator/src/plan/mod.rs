@@ -276,7 +276,7 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
         return bad_options("the error target must be a penumbra PSNR between 0 and 200 dB");
     }
     let scale_ok = |k: f64| k > 0.0 && k <= 1e6;
-    if !(scale_ok(o.cost_scale.fixed) && scale_ok(o.cost_scale.light)) {
+    if !(scale_ok(o.learned.cost_scale.fixed) && scale_ok(o.learned.cost_scale.light)) {
         return bad_options("cost scale must be positive and at most 1e6");
     }
     if !(o.epsilon >= 0.0 && o.epsilon.is_finite()) {

@@ -212,7 +212,22 @@ impl MapSizing {
     }
 }
 
-/// What the planner is asked for.
+/// What the planner learned about the cluster and the scene, apart from what a user asks for
+/// (the rest of [`PlanOptions`]): the live loop and calibration set it, never a flag.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+pub struct Learned {
+    /// Multiplies every node's cost model: its fixed cost per frame and its cost per light (1:
+    /// as the nodes registered them, or the defaults). The live loop sets both from measured
+    /// frames under a frame budget (`control::Live`, `docs/planner.md` § Frame budgets), so the
+    /// budget is met by what frames take.
+    pub cost_scale: CostScale,
+    /// The error model the target and the budget's concessions read: a calibration of the
+    /// planned scene (`lightfold calibrate`, `lightfold_quality::calibrate`), or `None` for the
+    /// default scene's sweep ([`super::ErrorModel::balls`]).
+    pub error_model: Option<super::ErrorModel>,
+}
+
+/// What the planner is asked for, and what it learned ([`Learned`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PlanOptions {
     /// Lights per node, the paper's K (raised up to the device limit when nodes are short).
@@ -248,22 +263,15 @@ pub struct PlanOptions {
     /// planner itself (`plan()`) plans the camera it is given.
     #[serde(default = "one")]
     pub supersample: u32,
-    /// Multiplies every node's cost model: its fixed cost per frame and its cost per light (1:
-    /// as the nodes registered them, or the defaults). The live loop sets both from measured
-    /// frames under a frame budget (`control::Live`, `docs/planner.md` § Frame budgets), so the
-    /// budget is met by what frames take.
-    #[serde(default)]
-    pub cost_scale: CostScale,
     /// An error target (`--target-psnr`, penumbra PSNR in dB against the area-light truth): the
     /// area lights' sample counts are halved or doubled to the fewest the planner's error model
     /// expects to reach it (`plan/budget.rs`); a frame budget may then lower them further.
     #[serde(default)]
     pub target_penumbra_db: Option<f32>,
-    /// The error model the target and the budget's concessions read: a calibration of the
-    /// planned scene (`lightfold calibrate`, `lightfold_quality::calibrate`), or `None` for the
-    /// default scene's sweep ([`ErrorModel::balls`]).
+    /// What the planner learned rather than what it was asked: the nodes' measured cost and the
+    /// scene's error model ([`Learned`]).
     #[serde(default)]
-    pub error_model: Option<super::ErrorModel>,
+    pub learned: Learned,
     /// The screen-space penumbra filter (`--penumbra-filter`, the compositor's `penumbra`
     /// operator): the last stage filters the illumination sum before the material multiply,
     /// with the eye depth the material layers' node adds (`depth32`); bands are raised to at
@@ -359,9 +367,8 @@ impl Default for PlanOptions {
             material_own_node: false,
             frame_budget_us: None,
             supersample: 1,
-            cost_scale: CostScale::default(),
             target_penumbra_db: None,
-            error_model: None,
+            learned: Learned::default(),
             penumbra_filter: PenumbraFilter::Budget,
             partitions: 0,
             merge_shared_devices: true,

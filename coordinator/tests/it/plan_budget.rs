@@ -459,7 +459,10 @@ fn the_filter_is_added_only_where_the_last_stage_can_run_it_within_the_budget() 
             &with_threads(ClusterSpec::local(8, 8), threads),
             &PlanOptions {
                 frame_budget_us: Some(budget_ms * 1000),
-                cost_scale: CostScale::uniform(1e-3),
+                learned: lightfold_coordinator::plan::Learned {
+                    cost_scale: CostScale::uniform(1e-3),
+                    ..Default::default()
+                },
                 penumbra_filter: filter,
                 ..PlanOptions::default()
             },
@@ -519,7 +522,10 @@ fn a_calibrated_target_chooses_samples_map_floor_and_filter_at_the_least_measure
             &ClusterSpec::local(256, 256),
             &PlanOptions {
                 target_penumbra_db: Some(target),
-                error_model: model,
+                learned: lightfold_coordinator::plan::Learned {
+                    error_model: model,
+                    ..Default::default()
+                },
                 ..PlanOptions::default()
             },
         )
@@ -577,7 +583,10 @@ fn one_map_size_asked_for_keeps_its_size_under_a_calibrated_target() {
         &ClusterSpec::local(256, 256),
         &PlanOptions {
             target_penumbra_db: Some(45.0),
-            error_model: Some(map_bound_model()),
+            learned: lightfold_coordinator::plan::Learned {
+                error_model: Some(map_bound_model()),
+                ..Default::default()
+            },
             map_sizing: lightfold_coordinator::plan::MapSizing::Fixed(1024),
             ..PlanOptions::default()
         },

@@ -63,7 +63,10 @@ fn a_calibration_measures_each_floor_caches_and_predicts_what_its_plan_renders()
         &ClusterSpec::local(64, 64),
         &PlanOptions {
             target_penumbra_db: Some(target),
-            error_model: Some(c.model.clone()),
+            learned: lightfold_coordinator::plan::Learned {
+                error_model: Some(c.model.clone()),
+                ..Default::default()
+            },
             ..PlanOptions::default()
         },
     )?;

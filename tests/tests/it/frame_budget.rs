@@ -60,7 +60,10 @@ fn options(budget_us: Option<u64>) -> PlanOptions {
     PlanOptions {
         frame_budget_us: budget_us,
         map_sizing: MapSizing::Fixed(512),
-        cost_scale: CostScale::uniform(1e-3),
+        learned: lightfold_coordinator::plan::Learned {
+            cost_scale: CostScale::uniform(1e-3),
+            ..Default::default()
+        },
         ..PlanOptions::default()
     }
 }
@@ -97,7 +100,10 @@ async fn without_a_budget_measured_frames_change_nothing() {
 async fn a_pessimistic_model_starts_low_and_measured_frames_raise_the_quality() {
     // 10 s: missed by every plan of a model 1000× too slow, met at full quality by the frames.
     let o = PlanOptions {
-        cost_scale: CostScale::uniform(1e3),
+        learned: lightfold_coordinator::plan::Learned {
+            cost_scale: CostScale::uniform(1e3),
+            ..Default::default()
+        },
         ..options(Some(10_000_000))
     };
     let (s, epochs) = run(o, 40).await;

@@ -596,7 +596,7 @@ impl Core {
                 None => "no frame budget".to_string(),
             });
         }
-        if self.opts.cost_scale != good.opts.cost_scale {
+        if self.opts.learned.cost_scale != good.opts.learned.cost_scale {
             undone.push("the cost model".to_string());
         }
         if self.refine != good.refine {

@@ -34,7 +34,7 @@ pub(super) fn group_samples(
     let costs: Vec<NodeCost> = cluster
         .nodes
         .iter()
-        .map(|n| NodeCost::of(n, pixels).scaled(options.cost_scale))
+        .map(|n| NodeCost::of(n, pixels).scaled(options.learned.cost_scale))
         .collect();
     // Nodes report their limit at 512² maps: larger maps take fewer lights per node.
     let largest_map = shadows.whole.iter().flatten().map(|s| s.map_size).max();
