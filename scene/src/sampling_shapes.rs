@@ -389,8 +389,8 @@ mod tests {
                             "{angle_deg}° {pattern:?}: cos {c} outside the disk"
                         );
                         irradiance += f64::from(x.intensity) * f64::from(c);
-                        for k in 0..3 {
-                            mean[k] += f64::from(x.direction[k]) / f64::from(n);
+                        for (m, d) in mean.iter_mut().zip(x.direction) {
+                            *m += f64::from(d) / f64::from(n);
                         }
                     }
                     // The mean cosine of N stratified points is the cap's within its spread.
