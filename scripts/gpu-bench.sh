@@ -19,7 +19,8 @@
 # 2. `lightfold bench node` for balls at both sizes, device and CPU pack in the same rounds, two
 #    requests in flight (device ms, CPU ms outside the device, interval ÷ device, bytes read back
 #    a pixel);
-# 3. `bench node` for animal, plant and box, and the GPU tests, as time allows.
+# 3. `bench node` for animal, plant and box, the city at 1 M and 4 M triangles, and the GPU
+#    tests, as time allows.
 # Every table goes to a file under OUT_DIR. Each step checks the clock: the whole run stays under
 # about 9 minutes, and a step that would not fit is skipped with a line saying so (never
 # silently).
@@ -127,6 +128,16 @@ for scene in animal plant box; do
   if skip_unless 60 "bench node $scene 800x600"; then
     step "bench node $scene 800x600"
     bench "$scene" 800x600 1,4,16,32 moving,walkthrough,noshadows device \
+      || echo "bench node $scene 800x600 failed: see $out/bench-$scene-800x600.log" | tee -a "$out/log.txt"
+  fi
+done
+
+# The city (docs/scaling.md § Triangles) at 1 M and 4 M triangles: what a node pays as scenes
+# grow, with per-view culling of meshes and chunks, on a GPU.
+for scene in city:1M city:4M; do
+  if skip_unless 90 "bench node $scene 800x600"; then
+    step "bench node $scene 800x600"
+    bench "$scene" 800x600 4 moving,walkthrough device \
       || echo "bench node $scene 800x600 failed: see $out/bench-$scene-800x600.log" | tee -a "$out/log.txt"
   fi
 done
