@@ -11,9 +11,9 @@ use std::path::Path;
 use std::time::Instant;
 
 /// Whether a registered node renders on a software rasteriser. Nodes report only the adapter's
-/// name, which names every software rasteriser wgpu can land on (`lightfold_ops::adapter`).
+/// name, which names every software rasteriser wgpu can land on (`lightfold_telemetry::adapter`).
 pub fn is_software(caps: &Capabilities) -> bool {
-    caps.role == Role::Node && lightfold_ops::is_software_rasteriser(&caps.adapter, false)
+    caps.role == Role::Node && lightfold_telemetry::is_software_rasteriser(&caps.adapter, false)
 }
 
 /// The nodes' adapters: a table with `verbose`, else one line per kind of adapter; then a note
@@ -28,9 +28,9 @@ pub fn adapters(session: &Session, verbose: bool) -> String {
         .collect();
     let compositors = session.daemons.len() - nodes.len();
     let software = nodes.iter().filter(|c| is_software(c)).count();
-    lightfold_ops::record::daemons("node", true, software);
-    lightfold_ops::record::daemons("node", false, nodes.len() - software);
-    lightfold_ops::record::daemons("compositor", false, compositors);
+    lightfold_telemetry::record::daemons("node", true, software);
+    lightfold_telemetry::record::daemons("node", false, nodes.len() - software);
+    lightfold_telemetry::record::daemons("compositor", false, compositors);
     describe_adapters(&nodes, verbose)
 }
 
@@ -138,7 +138,7 @@ impl StatsFile {
     /// once and ends the file, not the run.
     pub fn frame(&mut self, r: &FrameResult, rec: &FrameRecord) {
         let latency = r.received_at.saturating_duration_since(r.requested_at);
-        lightfold_ops::record::frame_delivered(latency, r.sink_bytes, &r.stats);
+        lightfold_telemetry::record::frame_delivered(latency, r.sink_bytes, &r.stats);
         let Some(out) = &mut self.out else {
             return;
         };

@@ -801,7 +801,7 @@ pub fn run_cmd(args: Args) -> anyhow::Result<()> {
         let cancel = crate::lifecycle::shutdown_token(args.parent_pid);
         crate::metrics_http::start(&args.metrics, "coordinator", "coordinator", cancel.clone())
             .await?;
-        lightfold_ops::health::set_live(true);
+        lightfold_telemetry::health::set_live(true);
         let connect = Session::connect(&daemons, listener, sink_advertise, me, control);
         let session = tokio::select! {
             r = connect => r?,
@@ -856,7 +856,7 @@ pub async fn execute(
     let mut report = Report::default();
     outln!("{}", crate::cluster_ops::adapters(&session, job.verbose));
     let mut stats = crate::cluster_ops::StatsFile::create(job.stats.as_deref(), start)?;
-    lightfold_ops::health::set_serving(true);
+    lightfold_telemetry::health::set_serving(true);
     let mut progress = Progress::new(
         (!serving).then_some(opts.frames - opts.skip.len() as u32),
         std::io::IsTerminal::is_terminal(&std::io::stderr()),
@@ -890,7 +890,7 @@ pub async fn execute(
         }
     };
     progress.finish();
-    lightfold_ops::health::set_serving(false);
+    lightfold_telemetry::health::set_serving(false);
     let written = writer.finish();
     if let (Some(path), Some(plan)) = (&job.plan_json, &outcome.summary.plan) {
         let text = serde_json::to_string(plan).context("cannot write the plan as JSON")?;

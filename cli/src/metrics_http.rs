@@ -15,7 +15,7 @@ use hyper::body::Incoming;
 use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
 use hyper_util::server::conn::auto::Builder;
 use hyper_util::service::TowerToHyperService;
-use lightfold_ops::health;
+use lightfold_telemetry::health;
 use metrics_exporter_prometheus::{Matcher, PrometheusBuilder, PrometheusHandle};
 use std::io::Write;
 use std::net::SocketAddr;
@@ -63,9 +63,9 @@ pub fn install(role: &str, daemon: &str) -> anyhow::Result<PrometheusHandle> {
     let handle = recorder.handle();
     metrics::set_global_recorder(recorder)
         .map_err(|e| anyhow::anyhow!("cannot install the metrics recorder: {e}"))?;
-    lightfold_ops::record::describe();
-    lightfold_ops::record::zero_counters(role);
-    lightfold_ops::record::build_info();
+    lightfold_telemetry::record::describe();
+    lightfold_telemetry::record::zero_counters(role);
+    lightfold_telemetry::record::build_info();
     process_metrics().describe();
     Ok(handle)
 }
@@ -208,8 +208,8 @@ fn process_metrics() -> &'static metrics_process::Collector {
 
 fn metrics_text(handle: &PrometheusHandle) -> Response {
     process_metrics().collect();
-    lightfold_ops::record::peak_rss_bytes(lightfold_compositor::daemon::peak_rss_bytes());
-    lightfold_ops::record::ready(health::readiness().ready);
+    lightfold_telemetry::record::peak_rss_bytes(lightfold_compositor::daemon::peak_rss_bytes());
+    lightfold_telemetry::record::ready(health::readiness().ready);
     (
         [(
             header::CONTENT_TYPE,

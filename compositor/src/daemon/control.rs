@@ -201,14 +201,14 @@ impl ControlHub {
             }
         }
         // Registered; ready (`/readyz`) once this link has configured the stage.
-        let mut registered = lightfold_ops::health::ControlLink::open();
+        let mut registered = lightfold_telemetry::health::ControlLink::open();
         let write = async {
             while let Some(msg) = rx.recv().await {
                 match &msg {
-                    Message::FrameDone(stats) => lightfold_ops::record::frame_done(stats),
+                    Message::FrameDone(stats) => lightfold_telemetry::record::frame_done(stats),
                     Message::Configured { epoch } => {
                         registered.configured();
-                        lightfold_ops::record::plan_epoch(*epoch);
+                        lightfold_telemetry::record::plan_epoch(*epoch);
                     }
                     _ => {}
                 }
@@ -230,7 +230,7 @@ impl ControlHub {
                         after,
                         ..
                     })) => {
-                        lightfold_ops::health::released_silent_coordinator(&addr, after);
+                        lightfold_telemetry::health::released_silent_coordinator(&addr, after);
                         return;
                     }
                     Some(Err(e)) => {

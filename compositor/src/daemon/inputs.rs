@@ -421,8 +421,8 @@ async fn pump(
                 Err(_) => return,
             },
         };
-        lightfold_ops::record::bytes_in("bands", payload.len() as u64);
-        lightfold_ops::record::link_bytes_in(&state.peer, payload.len() as u64);
+        lightfold_telemetry::record::bytes_in("bands", payload.len() as u64);
+        lightfold_telemetry::record::link_bytes_in(&state.peer, payload.len() as u64);
         let band = InBand {
             header,
             _held: metrics.hold(payload.len() as u64),

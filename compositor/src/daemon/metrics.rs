@@ -1,6 +1,6 @@
 //! Counters a running stage exposes: bytes it holds (input queues, bands being combined, the output
 //! queue) with their peak, and frame outcomes. Tests read them to prove memory stays bounded under
-//! backpressure; they are also recorded as the daemon's metrics (`lightfold_ops::record`).
+//! backpressure; they are also recorded as the daemon's metrics (`lightfold_telemetry::record`).
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -61,7 +61,7 @@ impl StageMetrics {
     pub(crate) fn hold(self: &Arc<Self>, bytes: u64) -> Held {
         let now = self.buffered.fetch_add(bytes, Ordering::Relaxed) + bytes;
         self.peak_buffered.fetch_max(now, Ordering::Relaxed);
-        lightfold_ops::record::buffered_bytes(now);
+        lightfold_telemetry::record::buffered_bytes(now);
         Held {
             bytes,
             metrics: Arc::clone(self),
@@ -74,12 +74,12 @@ impl StageMetrics {
 
     pub(crate) fn frame_failed(&self) {
         self.frames_failed.fetch_add(1, Ordering::Relaxed);
-        lightfold_ops::record::frame_failed("abandoned");
+        lightfold_telemetry::record::frame_failed("abandoned");
     }
 
     pub(crate) fn stale_band(&self) {
         self.stale_bands.fetch_add(1, Ordering::Relaxed);
-        lightfold_ops::record::stale_band();
+        lightfold_telemetry::record::stale_band();
     }
 
     pub(crate) fn mismatch(&self) {
@@ -100,7 +100,7 @@ impl Drop for Held {
             .metrics
             .buffered
             .fetch_sub(self.bytes, Ordering::Relaxed);
-        lightfold_ops::record::buffered_bytes(before.saturating_sub(self.bytes));
+        lightfold_telemetry::record::buffered_bytes(before.saturating_sub(self.bytes));
     }
 }
 

@@ -163,7 +163,7 @@ pub async fn run(
             tracing::info!(id = %opts.daemon_id, "compositor listening (address unknown: {e})")
         }
     }
-    lightfold_ops::health::set_live(true);
+    lightfold_telemetry::health::set_live(true);
     let gate = lightfold_net::gate::Gate::handshakes();
 
     while let Some((stream, _, slot)) = gate.next_admitted(&listener, &shutdown, "handshakes").await
@@ -179,7 +179,7 @@ pub async fn run(
         };
         tracker.spawn(conn.serve(stream));
     }
-    lightfold_ops::health::set_live(false);
+    lightfold_telemetry::health::set_live(false);
     drop(listener);
     tracker.close();
     if tokio::time::timeout(SHUTDOWN_GRACE, tracker.wait())

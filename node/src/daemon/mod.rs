@@ -165,7 +165,7 @@ async fn start_device(
             "rendering on a software rasteriser (the CPU), not a GPU"
         );
     }
-    lightfold_ops::record::adapter(&report.adapter, &report.backend, report.software);
+    lightfold_telemetry::record::adapter(&report.adapter, &report.backend, report.software);
     let caps = capabilities(opts, advertise, &report);
     tracing::info!(
         id = %opts.daemon_id, %local, adapter = %caps.adapter, backend = %caps.backend,
@@ -218,7 +218,7 @@ pub async fn run(
             started = &mut startup, if engine.is_none() => match started {
                 Ok((caps, e)) => {
                     engine = Some(Arc::clone(&e));
-                    lightfold_ops::health::set_live(true);
+                    lightfold_telemetry::health::set_live(true);
                     let _ = ready_tx.send(Some((caps, e)));
                     continue;
                 }
@@ -273,7 +273,7 @@ pub async fn run(
             }
         });
     }
-    lightfold_ops::health::set_live(false);
+    lightfold_telemetry::health::set_live(false);
     tracker.close();
     tracker.wait().await;
     drop(listener);

@@ -19,10 +19,10 @@
 use super::engine::{Engine, NextFrame};
 use lightfold_net::claim::{Claims, FAREWELL, Ticket};
 use lightfold_net::{Link, LinkReader, LinkWriter, NetError};
-use lightfold_ops::health::ControlLink;
-use lightfold_ops::record;
 use lightfold_protocol::frame::Frame;
 use lightfold_protocol::{Capabilities, ErrorCode, Message, Role};
+use lightfold_telemetry::health::ControlLink;
+use lightfold_telemetry::record;
 use std::sync::Arc;
 use tokio::sync::{Mutex, mpsc, watch};
 use tokio_util::sync::CancellationToken;
@@ -197,7 +197,7 @@ async fn read(
                     after,
                     ..
                 })) => {
-                    lightfold_ops::health::released_silent_coordinator(&addr, after);
+                    lightfold_telemetry::health::released_silent_coordinator(&addr, after);
                     return Ended::Left;
                 }
                 Some(Err(e)) => {

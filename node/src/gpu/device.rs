@@ -206,7 +206,10 @@ fn choose_adapter(opts: &GpuOptions) -> Result<wgpu::Adapter, DeviceError> {
 
 /// Whether the adapter renders in software (lavapipe, llvmpipe, `DeviceType::Cpu`).
 pub fn is_software(info: &wgpu::AdapterInfo) -> bool {
-    lightfold_ops::is_software_rasteriser(&info.name, info.device_type == wgpu::DeviceType::Cpu)
+    lightfold_telemetry::is_software_rasteriser(
+        &info.name,
+        info.device_type == wgpu::DeviceType::Cpu,
+    )
 }
 
 /// A hardware adapter's identity on this host, what its node reports as `Capabilities::device`:

@@ -698,7 +698,7 @@ impl Core {
         now: Instant,
     ) {
         tracing::info!(daemon = %id, address = %dialled, "rejoined");
-        lightfold_ops::record::daemon_rejoined();
+        lightfold_telemetry::record::daemon_rejoined();
         // Lost under its id, or under its address when it was not reached at the start.
         self.lost.remove(&dialled);
         self.lost.remove(&id);
@@ -734,7 +734,7 @@ impl Core {
             return;
         }
         tracing::warn!(daemon = %id, address = %m.address, in_plan = used, "lost: {reason}");
-        lightfold_ops::record::daemon_lost();
+        lightfold_telemetry::record::daemon_lost();
         self.summary.incidents.push(Incident {
             daemon: id.to_string(),
             kind: IncidentKind::Lost {

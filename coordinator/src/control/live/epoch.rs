@@ -443,9 +443,9 @@ impl Core {
             "plan epoch configured ({reason})"
         );
         self.summary.epochs.push(record);
-        lightfold_ops::record::plan_epoch(next.epoch);
+        lightfold_telemetry::record::plan_epoch(next.epoch);
         if self.summary.epochs.len() > 1 {
-            lightfold_ops::record::replanned();
+            lightfold_telemetry::record::replanned();
         }
         // Daemons the new plan leaves out drop what they hold of the old epoch (a stage would
         // otherwise wait out its input deadline on a frame that can no longer come).
