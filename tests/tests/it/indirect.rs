@@ -72,6 +72,25 @@ fn mean_rgb(img: &Image) -> f64 {
     img.data.iter().map(|&v| f64::from(v)).sum::<f64>() / img.data.len() as f64
 }
 
+/// Frame-to-frame flicker of a still camera's frames: the mean absolute difference between
+/// consecutive frames over the earlier one's mean, averaged over the steps.
+fn flicker(frames: &[Image]) -> f64 {
+    let steps: Vec<f64> = frames
+        .windows(2)
+        .map(|w| {
+            let d: f64 = w[0]
+                .data
+                .iter()
+                .zip(&w[1].data)
+                .map(|(a, b)| f64::from((a - b).abs()))
+                .sum::<f64>()
+                / w[0].data.len() as f64;
+            d / mean_rgb(&w[0]).max(1e-12)
+        })
+        .collect();
+    steps.iter().sum::<f64>() / steps.len() as f64
+}
+
 fn vpls_of(scene: &Scene) -> (Vec<LightSample>, Vec<LightSample>) {
     let all = indirect::frame_samples(scene);
     all.into_iter()
@@ -570,22 +589,6 @@ fn vpls_follow_a_moved_object_without_flicker() {
             })
             .collect()
     };
-    let flicker = |f: &[Image]| -> f64 {
-        let steps: Vec<f64> = f
-            .windows(2)
-            .map(|w| {
-                let d: f64 = w[0]
-                    .data
-                    .iter()
-                    .zip(&w[1].data)
-                    .map(|(a, b)| f64::from((a - b).abs()))
-                    .sum::<f64>()
-                    / w[0].data.len() as f64;
-                d / mean_rgb(&w[0]).max(1e-12)
-            })
-            .collect();
-        steps.iter().sum::<f64>() / steps.len() as f64
-    };
     let coherent = flicker(&frames(false));
     let fresh = flicker(&frames(true));
     eprintln!(
@@ -627,6 +630,8 @@ fn vpls_follow_the_animation_without_flicker() {
         .filter(|s| matches!(s.kind, SampleKind::Bounce { .. }))
         .count();
     assert_eq!(slots, 64, "one slot a light path");
+    // What tracing a frame's VPLs costs (the coordinator does it on its event loop).
+    let traced = std::cell::Cell::new(0.0f64);
     let frames = |fresh: bool| -> Vec<Image> {
         (0..6)
             .map(|k| {
@@ -635,7 +640,9 @@ fn vpls_follow_the_animation_without_flicker() {
                 if fresh {
                     s.quality.seed = base.quality.seed.wrapping_add(k + 1);
                 }
+                let started = std::time::Instant::now();
                 let all = indirect::frame_samples_at(&s, t);
+                traced.set(traced.get() + started.elapsed().as_secs_f64());
                 assert_eq!(all.len(), rest.len(), "t = {t}: slot for slot");
                 let vpls: Vec<LightSample> = all
                     .into_iter()
@@ -646,28 +653,13 @@ fn vpls_follow_the_animation_without_flicker() {
             })
             .collect()
     };
-    let flicker = |f: &[Image]| -> f64 {
-        let steps: Vec<f64> = f
-            .windows(2)
-            .map(|w| {
-                let d: f64 = w[0]
-                    .data
-                    .iter()
-                    .zip(&w[1].data)
-                    .map(|(a, b)| f64::from((a - b).abs()))
-                    .sum::<f64>()
-                    / w[0].data.len() as f64;
-                d / mean_rgb(&w[0]).max(1e-12)
-            })
-            .collect();
-        steps.iter().sum::<f64>() / steps.len() as f64
-    };
     let coherent = flicker(&frames(false));
     let fresh = flicker(&frames(true));
     eprintln!(
         "carousel bounce flicker, frames 1/50 s apart: same paths {coherent:.4}, fresh VPLs each \
-         frame {fresh:.4} (ratio {:.3})",
-        coherent / fresh
+         frame {fresh:.4} (ratio {:.3}); a frame's samples posed and traced in {:.1} ms",
+        coherent / fresh,
+        traced.get() * 1e3 / 12.0
     );
     assert!(coherent > 0.0, "the animation changes the bounce");
     assert!(
