@@ -419,8 +419,8 @@ async fn cluster_with_vpls_matches_single_device_render() {
 }
 
 #[test]
-fn plans_carry_vpls_and_refuse_them_on_animated_scenes() {
-    use lightfold_coordinator::plan::{ClusterSpec, PlanError, PlanOptions, plan};
+fn plans_carry_vpls_and_keep_every_slot_of_an_animated_scene() {
+    use lightfold_coordinator::plan::{ClusterSpec, PlanOptions, plan};
     let scene = cornell(64);
     let p = plan(&scene, &ClusterSpec::local(64, 8), &PlanOptions::default()).unwrap();
     let direct = lightfold_scene::sampling::direct_samples(&scene).len();
@@ -447,12 +447,21 @@ fn plans_carry_vpls_and_refuse_them_on_animated_scenes() {
     .unwrap();
     assert_eq!(still.samples.len(), direct);
 
+    // An animated scene: one slot a light path, every one kept (a VPL dark or unseen at rest
+    // may light what the camera sees at another time).
     let mut moving = lightfold_scene::builtin("carousel").unwrap();
     moving.quality.indirect = 16;
-    let err = plan(&moving, &ClusterSpec::local(64, 8), &PlanOptions::default()).unwrap_err();
+    let p = plan(&moving, &ClusterSpec::local(64, 8), &PlanOptions::default()).unwrap();
+    let first = lightfold_scene::sampling::direct_samples(&moving).len();
+    assert_eq!(p.samples.len(), first + 16);
     assert!(
-        matches!(&err, PlanError::InvalidScene { reason } if reason.contains("animated")),
-        "{err}"
+        p.samples[first..]
+            .iter()
+            .all(|s| matches!(s.kind, SampleKind::Bounce { .. }))
+    );
+    assert!(
+        (first..first + 16).all(|i| p.active.contains(&i)),
+        "every slot active"
     );
 }
 
