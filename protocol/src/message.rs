@@ -283,9 +283,10 @@ pub struct FrameParams {
     /// Scene time in seconds: nodes pose their cached copy of an animated scene at it
     /// (`Scene::pose`); `None` is the rest pose.
     pub time: Option<f32>,
-    /// Virtual point lights of an animated scene traced again at `time` (protocol version 14):
-    /// each replaces the node's light of the same `sample` index, which must be a virtual point
-    /// light (a node checks them; empty: the lights of `NodeConfig`, posed).
+    /// Lights in place of configured ones (protocol version 14): an animated scene's virtual
+    /// point lights traced again at `time`, or lights a viewer moved where the plan stayed the
+    /// same. Each replaces the node's light of the same `sample` index and kind, at most once (a
+    /// node checks them); empty: the last frame's.
     pub lights: Vec<WireLight>,
 }
 

@@ -1003,10 +1003,11 @@ async fn a_bad_certificate_or_key_is_a_clear_error_at_start() {
     println!("a mismatched pair: {}", error(bind(&cert_a, &key_b).await));
 }
 
-/// A light dragged from the page moves its shadow in the next frame; in walkthrough mode only the
-/// node holding it draws maps again (every other node keeps its maps); a light added joins the
-/// next frame; and the session saved as a scene file (`/scene.toml`) renders, single-device, the
-/// frame the view shows.
+/// A light dragged from the page moves its shadow in the next frame, without a new epoch when
+/// the plan stays the same but for the light (it travels with the frames); in walkthrough mode
+/// only the node holding it draws maps again (every other node keeps its maps); a light added
+/// joins the next frame; and the session saved as a scene file (`/scene.toml`) renders,
+/// single-device, the frame the view shows, after the drag and after the addition.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_dragged_light_redraws_only_its_maps_and_the_saved_session_renders_the_frame() {
     let scene = small("balls");
@@ -1056,11 +1057,27 @@ async fn a_dragged_light_redraws_only_its_maps_and_the_saved_session_renders_the
             1,
             "only the dragged light's node draws maps: {after:?}"
         );
+        // Every other node kept its maps, or (its lights and view unchanged) sent its last
+        // bands again without rendering.
+        let all_nodes = first.header["daemons"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|d| d["role"] == "node")
+            .count();
+        assert!(all_nodes >= 2, "{}", first.header);
         assert!(
             after.iter().filter(|n| n.1 == 0).all(|n| n.2 > 0),
             "the other nodes keep their maps: {after:?}"
         );
-        assert!(after.len() >= 2, "{after:?}");
+        // A small drag changes no node's groups, casters or map sizes: no new epoch, the moved
+        // light travels with the frames (`FrameParams::lights`), and the frame is the edited
+        // scene's single-device render.
+        assert_eq!(
+            dragged.header["epoch"], first.header["epoch"],
+            "the drag re-planned"
+        );
+        saved_session_renders(addr, &delivered, &dragged, None, &original).await;
 
         // Another light, then the session saved.
         let revision = c

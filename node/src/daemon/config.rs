@@ -108,8 +108,8 @@ pub enum ConfigError {
     #[error("filter {0} is not 0, 1, 3 or 5")]
     BadFilter(u32),
     #[error(
-        "frame light {index} (sample {sample}) does not replace one of this node's virtual point \
-         lights with another, once"
+        "frame light {index} (sample {sample}) does not replace one of this node's lights with one \
+         of the same kind, once"
     )]
     BadFrameLight { index: usize, sample: u32 },
 }
@@ -156,9 +156,10 @@ pub fn check_scale(scale: f32, layers: &[(Layer, PixelFormat)]) -> Result<(), Co
     }
 }
 
-/// Checks a frame's virtual point lights (`FrameParams::lights`) against the configured ones:
-/// each a valid bounce light replacing a configured bounce light of the same sample index, at
-/// most once. Gives the index of each in the configuration with its sample.
+/// Checks a frame's lights (`FrameParams::lights`: an animated scene's virtual point lights, or
+/// lights a viewer moved) against the configured ones: each a valid light replacing the
+/// configured light of the same sample index and kind, at most once. Gives the index of each in
+/// the configuration with its sample.
 pub fn check_frame_lights(
     lights: &[lightfold_protocol::WireLight],
     configured: &[lightfold_protocol::WireLight],
@@ -171,19 +172,16 @@ pub fn check_frame_lights(
         };
         let at = configured
             .iter()
-            .position(|c| c.sample == w.sample && c.kind == BOUNCE_KIND)
+            .position(|c| c.sample == w.sample && c.kind == w.kind)
             .ok_or_else(bad)?;
         let s = light_from_wire(w).map_err(|source| ConfigError::Light { index, source })?;
-        if w.kind != BOUNCE_KIND || out.iter().any(|(i, _)| *i == at) {
+        if out.iter().any(|(i, _)| *i == at) {
             return Err(bad());
         }
         out.push((at, s));
     }
     Ok(out)
 }
-
-/// `WireLight::kind` of a virtual point light.
-const BOUNCE_KIND: u8 = 5;
 
 /// Checks a camera from a configuration or a frame request.
 pub fn check_camera(camera: &WireCamera) -> Result<Camera, ConfigError> {
@@ -683,10 +681,11 @@ mod tests {
         assert_eq!((c.map_size, c.map_sides), (2048, Some(vec![2048, 256])));
     }
 
-    /// A frame's virtual point lights replace configured ones of the same sample, once each;
-    /// anything else is refused.
+    /// A frame's lights replace configured ones of the same sample and kind, once each; anything
+    /// else is refused.
     #[test]
-    fn frame_lights_replace_only_configured_bounce_lights_once() {
+    fn frame_lights_replace_configured_lights_of_their_kind_once() {
+        const BOUNCE_KIND: u8 = 5;
         let mut lights = config(vec![(Layer::Illumination, PixelFormat::F16x4)], 3).lights;
         for (i, l) in lights.iter_mut().enumerate() {
             l.sample = 10 + i as u32;
@@ -710,11 +709,17 @@ mod tests {
             kind: 1,
             ..moved(11)
         };
+        // A moved cosine-lobe sample (kind 1) replaces light 0.
+        let lobe = WireLight {
+            position: [0.0, 3.0, 0.0],
+            ..lights[0]
+        };
+        assert_eq!(check_frame_lights(&[lobe], &lights).unwrap()[0].0, 0);
         for (what, bad) in [
-            ("not a configured bounce light", vec![moved(10)]),
+            ("another kind than the configured light", vec![moved(10)]),
             ("no such sample", vec![moved(99)]),
             ("twice", vec![moved(11), moved(11)]),
-            ("not a bounce light", vec![not_bounce]),
+            ("a lobe for a bounce light", vec![not_bounce]),
             ("not finite", vec![nan]),
         ] {
             assert!(

@@ -70,8 +70,10 @@ struct Active {
     scale: f32,
     /// Scene time of the last frame (kept for frames that give none, like the camera).
     time: Option<f32>,
-    /// Virtual point lights of the last frame that gave them (`FrameParams::lights`).
+    /// Lights of the last frame that gave them (`FrameParams::lights`), in place of configured
+    /// ones, and how many times they changed (part of the frame's key).
     bounce: super::render_thread::Bounce,
+    lights_changed: u64,
     /// Whether the configured scene moves over time (otherwise the time changes nothing).
     animated: bool,
 }
@@ -83,6 +85,8 @@ struct FrameKey {
     camera: Camera,
     scale: u32,
     time: Option<u32>,
+    /// Changes whenever a frame's lights (`FrameParams::lights`) differ from the last ones.
+    lights: u64,
 }
 
 /// A frame request that follows the one being rendered (already on the control link).
@@ -314,6 +318,7 @@ impl Engine {
             checked,
             time: None,
             bounce: Arc::default(),
+            lights_changed: 0,
             animated,
         });
         Message::Configured { epoch }
@@ -433,13 +438,17 @@ impl Engine {
         if !params.lights.is_empty() {
             let b = config::check_frame_lights(&params.lights, &active.checked.config.lights)
                 .map_err(|e| refuse(ErrorCode::BadConfig, format!("frame {frame}: {e}")))?;
-            active.bounce = Arc::new(b);
+            if *active.bounce != b {
+                active.lights_changed += 1;
+                active.bounce = Arc::new(b);
+            }
         }
         Ok(FrameKey {
             epoch,
             camera: active.camera,
             scale: active.scale.to_bits(),
             time: active.time.filter(|_| active.animated).map(f32::to_bits),
+            lights: active.lights_changed,
         })
     }
 

@@ -154,6 +154,10 @@ pub(crate) struct Core {
     pub(super) fresh_plan: bool,
     /// The refinement the plan renders (`FrameSpec::refine`), above the session's quality.
     pub(super) refine: Option<Refine>,
+    /// Lights a viewer moved since the epoch began, where the plan stayed the same but for
+    /// them: per node, its lights as moved (`FrameParams::lights`), sent with every frame of
+    /// the epoch (`frames.rs`, `light_edit_in_place`).
+    pub(super) light_frames: std::collections::HashMap<String, Vec<lightfold_protocol::WireLight>>,
     /// The samples per area light an error target chose in the newest plan without a
     /// refinement: refinements plan no target, and never fewer samples than it chose.
     pub(super) target_samples: Option<u32>,
@@ -309,6 +313,7 @@ impl Core {
             scene_id: 0,
             fresh_plan: false,
             refine: None,
+            light_frames: std::collections::HashMap::new(),
             target_samples: None,
             bytes: Arc::new(bytes),
             hash,

@@ -218,6 +218,8 @@ impl Core {
     fn begin(&mut self, mut next: Plan, reason: String, now: Instant) -> Result<(), RunError> {
         // Nodes know the scene by the hash of the bytes they are sent.
         next.scene_hash = self.hash;
+        // The new configurations carry the lights where they are.
+        self.light_frames.clear();
         let members: BTreeSet<String> = next
             .nodes
             .iter()

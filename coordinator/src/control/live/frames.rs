@@ -138,6 +138,9 @@ impl Core {
                     lights: Vec::new(),
                 });
                 frame_params.time = spec.time;
+                if let Some(moved) = self.light_frames.get(id) {
+                    frame_params.lights = moved.clone();
+                }
                 if let (Some((first, vpls)), Some(node)) =
                     (&bounce, plan.nodes.iter().find(|n| n.node == *id))
                 {
@@ -268,12 +271,17 @@ impl Core {
                 why.push(text);
             }
             if let Some(lights) = edit {
+                self.edit_lights(&lights);
+                let alone = budget.is_none() && spec.refine == self.refine && moved.is_none();
+                if alone && self.light_edit_in_place() {
+                    tracing::debug!("lights edited at frame {index}: sent with the frames");
+                    return Some(spec);
+                }
                 let text = format!(
                     "lights edited at frame {index} ({} light(s)): re-planning",
                     lights.len()
                 );
                 tracing::info!("{text}");
-                self.edit_lights(&lights);
                 why.push(text);
             }
             if let Some(moves) = moved {
@@ -322,6 +330,42 @@ impl Core {
     pub(super) fn edit_lights(&mut self, lights: &[lightfold_scene::Light]) {
         self.scene.lights = lights.to_vec();
         self.scene_colors = lights.iter().map(|l| l.color).collect();
+    }
+
+    /// Whether the scene's lights, as just edited, can be rendered without a new epoch: planned
+    /// again over the current plan, every daemon's configuration is the same but for where its
+    /// lights are and how strong (the same samples, kinds, colours, groups, casters and map
+    /// sizes, the same stages). Then the moved lights go to their nodes with every frame
+    /// (`Core::light_frames`) and nodes redraw only their maps. Not for an animated scene
+    /// (nodes pose its lights), a refinement or moved objects (planned from other scenes).
+    fn light_edit_in_place(&mut self) -> bool {
+        let Some(old) = self.plan.as_ref() else {
+            return false;
+        };
+        if self.scene.is_animated() || self.refine.is_some() || self.moved_scene().is_some() {
+            return false;
+        }
+        let mut o = self.opts.clone();
+        o.epoch = old.epoch;
+        let Ok(new) = crate::plan::replan(&self.scene, &self.cluster(), &o, old) else {
+            return false;
+        };
+        match moved_lights(old, &new) {
+            Some(mut frames) => {
+                // A node whose lights are all back where its configuration has them is sent
+                // them so (a frame without lights keeps the last frame's).
+                for node in self.light_frames.keys() {
+                    if !frames.contains_key(node)
+                        && let Some(c) = old.node_config(node)
+                    {
+                        frames.insert(node.clone(), c.lights);
+                    }
+                }
+                self.light_frames = frames;
+                true
+            }
+            None => false,
+        }
     }
 
     /// Gives the scene's lights the colours of `colors` (source light → colour), as the next plan
@@ -431,4 +475,62 @@ fn bounce_at(
     let vpls = lightfold_reference::indirect::vpls_at(scene, &plan.samples[..first], t);
     (vpls.len() == plan.samples.len() - first && plan.samples[first..].iter().all(bounce))
         .then_some((first, vpls))
+}
+
+/// Per node, its lights in `new` that differ from `old`, when every daemon's configuration under
+/// `new` is the one under `old` but for where its lights are and how strong; `None` otherwise.
+fn moved_lights(
+    old: &Plan,
+    new: &Plan,
+) -> Option<std::collections::HashMap<String, Vec<lightfold_protocol::WireLight>>> {
+    let same_sample = |a: &lightfold_scene::LightSample, b: &lightfold_scene::LightSample| {
+        std::mem::discriminant(&a.kind) == std::mem::discriminant(&b.kind)
+            && a.color == b.color
+            && a.range == b.range
+            && a.light == b.light
+            && a.area.is_some() == b.area.is_some()
+    };
+    if old.samples.len() != new.samples.len()
+        || old.nodes.len() != new.nodes.len()
+        || old.stages.len() != new.stages.len()
+        || !old
+            .samples
+            .iter()
+            .zip(&new.samples)
+            .all(|(a, b)| same_sample(a, b))
+    {
+        return None;
+    }
+    let mut probe = new.clone();
+    probe.epoch = old.epoch;
+    probe.scene_hash = old.scene_hash;
+    for (p, o) in probe.nodes.iter_mut().zip(&old.nodes) {
+        p.scene = o.scene;
+    }
+    let mut frames = std::collections::HashMap::new();
+    for n in &old.nodes {
+        let (was, now) = (old.node_config(&n.node)?, probe.node_config(&n.node)?);
+        let unmoved = lightfold_protocol::NodeConfig {
+            lights: was.lights.clone(),
+            ..now.clone()
+        };
+        if unmoved != was {
+            return None;
+        }
+        let moved: Vec<_> = now
+            .lights
+            .iter()
+            .zip(&was.lights)
+            .filter(|(a, b)| a != b)
+            .map(|(a, _)| *a)
+            .collect();
+        if !moved.is_empty() {
+            frames.insert(n.node.clone(), moved);
+        }
+    }
+    let same_stages = old
+        .stages
+        .iter()
+        .all(|s| old.compositor_config(&s.compositor) == probe.compositor_config(&s.compositor));
+    same_stages.then_some(frames)
 }
