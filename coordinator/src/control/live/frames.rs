@@ -534,3 +534,66 @@ fn moved_lights(
         .all(|s| old.compositor_config(&s.compositor) == probe.compositor_config(&s.compositor));
     same_stages.then_some(frames)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::moved_lights;
+    use crate::plan::{ClusterSpec, PlanOptions, plan, replan};
+    use lightfold_scene::LightShape;
+
+    /// A light nudged keeps every configuration but its own lights: they go to the nodes that
+    /// hold its samples and nowhere else. A light added, recoloured or moved where its casters
+    /// change needs a new epoch (the controls).
+    #[test]
+    fn a_nudged_light_rides_with_the_frames_and_other_edits_re_plan() {
+        let mut scene = lightfold_scene::builtin("balls").unwrap();
+        scene.quality.samples_per_area_light = Some(4);
+        scene.camera.width = 64;
+        scene.camera.height = 48;
+        let cluster = ClusterSpec::local(8, 8);
+        let mut opts = PlanOptions::default();
+        opts.lights_per_node = 4;
+        opts.walkthrough = true;
+        let old = plan(&scene, &cluster, &opts).unwrap();
+        let edited = |f: &dyn Fn(&mut lightfold_scene::Scene)| {
+            let mut s = scene.clone();
+            f(&mut s);
+            replan(&s, &cluster, &opts, &old).unwrap()
+        };
+        let shift = |s: &mut lightfold_scene::Scene, d: f32| match &mut s.lights[0].shape {
+            LightShape::Rect { center, .. }
+            | LightShape::Disk { center, .. }
+            | LightShape::Sphere { center, .. } => center[0] += d,
+            other => panic!("{other:?}"),
+        };
+        let nudged = edited(&|s| shift(s, 0.01));
+        let frames = moved_lights(&old, &nudged).expect("a nudge keeps the plan");
+        let holders: Vec<&str> = old
+            .nodes
+            .iter()
+            .filter(|n| n.lights.iter().any(|&i| old.samples[i].light == 0))
+            .map(|n| n.node.as_str())
+            .collect();
+        let mut sent: Vec<&str> = frames.keys().map(String::as_str).collect();
+        sent.sort_unstable();
+        let mut want = holders.clone();
+        want.sort_unstable();
+        assert_eq!(sent, want, "only the nodes holding light 0's samples");
+        for lights in frames.values() {
+            for w in lights {
+                assert_eq!(old.samples[w.sample as usize].light, 0);
+            }
+        }
+        // The controls.
+        let mut added = scene.clone();
+        added.lights.push(added.lights[0].clone());
+        let added = replan(&added, &cluster, &opts, &old).unwrap();
+        assert!(moved_lights(&old, &added).is_none(), "a light added");
+        let recoloured = edited(&|s| s.lights[0].color = [1.0, 0.2, 0.2]);
+        assert!(
+            moved_lights(&old, &recoloured).is_none(),
+            "a light recoloured"
+        );
+        assert!(moved_lights(&old, &old).is_some_and(|f| f.is_empty()));
+    }
+}
