@@ -551,9 +551,11 @@ mod tests {
         scene.camera.width = 64;
         scene.camera.height = 48;
         let cluster = ClusterSpec::local(8, 8);
-        let mut opts = PlanOptions::default();
-        opts.lights_per_node = 4;
-        opts.walkthrough = true;
+        let opts = PlanOptions {
+            lights_per_node: 4,
+            walkthrough: true,
+            ..PlanOptions::default()
+        };
         let old = plan(&scene, &cluster, &opts).unwrap();
         let edited = |f: &dyn Fn(&mut lightfold_scene::Scene)| {
             let mut s = scene.clone();
