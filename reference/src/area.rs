@@ -75,6 +75,9 @@ enum Emitter {
     /// (the cap's radiance `E / (π sin²α)` times its solid angle over `n`).
     Sun {
         w: [f64; 3],
+        /// A frame perpendicular to `w`.
+        u: [f64; 3],
+        v: [f64; 3],
         one_minus_cos: f64,
         base: LightSample,
     },
@@ -156,8 +159,12 @@ fn emitters(scene: &Scene) -> Vec<Emitter> {
                 let d = direction.map(f64::from);
                 let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
                 let half = f64::from(*angle) / 2.0;
+                let w = d.map(|c| c / l);
+                let (u, v) = frame64(w);
                 Some(Emitter::Sun {
-                    w: d.map(|c| c / l),
+                    w,
+                    u,
+                    v,
                     one_minus_cos: 2.0 * (half / 2.0).sin().powi(2),
                     base: LightSample {
                         kind: SampleKind::Directional,
@@ -369,6 +376,8 @@ fn point_on(e: &Emitter, p: V3, a: f64, b: f64, n: u32) -> Option<LightSample> {
         }
         Emitter::Sun {
             w,
+            u,
+            v,
             one_minus_cos,
             base,
         } => {
@@ -378,7 +387,6 @@ fn point_on(e: &Emitter, p: V3, a: f64, b: f64, n: u32) -> Option<LightSample> {
                 .max(0.0)
                 .sqrt();
             let (s, c) = (TAU * b).sin_cos();
-            let (u, v) = frame64(*w);
             let dir = [0, 1, 2].map(|k| (cos_t * w[k] + sin_t * (c * u[k] + s * v[k])) as f32);
             Some(LightSample {
                 direction: dir,

@@ -72,7 +72,7 @@ struct Active {
     time: Option<f32>,
     /// Lights of the last frame that gave them (`FrameParams::lights`), in place of configured
     /// ones, and how many times they changed (part of the frame's key).
-    bounce: super::render_thread::Bounce,
+    frame_lights: super::render_thread::FrameLights,
     lights_changed: u64,
     /// Whether the configured scene moves over time (otherwise the time changes nothing).
     animated: bool,
@@ -317,7 +317,7 @@ impl Engine {
             scale: checked.config.scale,
             checked,
             time: None,
-            bounce: Arc::default(),
+            frame_lights: Arc::default(),
             lights_changed: 0,
             animated,
         });
@@ -438,9 +438,9 @@ impl Engine {
         if !params.lights.is_empty() {
             let b = config::check_frame_lights(&params.lights, &active.checked.config.lights)
                 .map_err(|e| refuse(ErrorCode::BadConfig, format!("frame {frame}: {e}")))?;
-            if *active.bounce != b {
+            if *active.frame_lights != b {
                 active.lights_changed += 1;
-                active.bounce = Arc::new(b);
+                active.frame_lights = Arc::new(b);
             }
         }
         Ok(FrameKey {
@@ -471,7 +471,7 @@ impl Engine {
                 active.camera,
                 active.time,
                 active.scale,
-                Arc::clone(&active.bounce),
+                Arc::clone(&active.frame_lights),
             )
             .await
         {
@@ -541,7 +541,7 @@ impl Engine {
                         active.camera,
                         active.time,
                         active.scale,
-                        Arc::clone(&active.bounce),
+                        Arc::clone(&active.frame_lights),
                     )
                     .await
             }

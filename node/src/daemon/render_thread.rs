@@ -96,14 +96,15 @@ enum Command {
         Camera,
         Option<f32>,
         f32,
-        Bounce,
+        FrameLights,
         oneshot::Sender<Result<Rendered, RenderFailure>>,
     ),
 }
 
-/// Virtual point lights of an animated scene traced again for a frame's time: each replaces
-/// the configured light at its index (`FrameParams::lights`, checked by the engine).
-pub type Bounce = Arc<Vec<(usize, lightfold_scene::LightSample)>>;
+/// A frame's lights in place of configured ones (an animated scene's virtual point lights at
+/// its time, or lights a viewer moved): each replaces the configured light at its index
+/// (`FrameParams::lights`, checked by the engine).
+pub type FrameLights = Arc<Vec<(usize, lightfold_scene::LightSample)>>;
 
 /// A render queued with [`RenderHandle::submit`].
 #[derive(Debug)]
@@ -164,15 +165,15 @@ impl RenderHandle {
     }
 
     /// Renders at `camera`, an animated scene posed at `time` (`None`: its rest pose) with its
-    /// virtual point lights as `bounce` places them, packing `seed64` layers against `scale`.
+    /// lights as `lights` replaces them, packing `seed64` layers against `scale`.
     pub async fn render(
         &self,
         camera: Camera,
         time: Option<f32>,
         scale: f32,
-        bounce: Bounce,
+        lights: FrameLights,
     ) -> Result<Rendered, RenderFailure> {
-        self.submit(camera, time, scale, bounce).await?.wait().await
+        self.submit(camera, time, scale, lights).await?.wait().await
     }
 
     /// Queues a render and returns at once: the thread renders while the caller does something
@@ -183,11 +184,11 @@ impl RenderHandle {
         camera: Camera,
         time: Option<f32>,
         scale: f32,
-        bounce: Bounce,
+        lights: FrameLights,
     ) -> Result<Pending, RenderFailure> {
         let (reply, answer) = oneshot::channel();
         self.tx
-            .send(Command::Render(camera, time, scale, bounce, reply))
+            .send(Command::Render(camera, time, scale, lights, reply))
             .await
             .map_err(|_| RenderFailure::Stopped)?;
         Ok(Pending(answer))
@@ -278,8 +279,8 @@ fn thread_main(
                 }
                 let _ = reply.send(r);
             }
-            Command::Render(camera, time, scale, bounce, reply) => {
-                let r = guarded(|| render(&gpu, &mut current, camera, time, scale, &bounce, pack));
+            Command::Render(camera, time, scale, lights, reply) => {
+                let r = guarded(|| render(&gpu, &mut current, camera, time, scale, &lights, pack));
                 if matches!(r, Err(RenderFailure::Panic(_))) {
                     current = None;
                 }
@@ -388,7 +389,7 @@ fn render(
     camera: Camera,
     time: Option<f32>,
     scale: f32,
-    bounce: &[(usize, lightfold_scene::LightSample)],
+    lights: &[(usize, lightfold_scene::LightSample)],
     pack: PackOn,
 ) -> Result<Rendered, RenderFailure> {
     let c = current.as_mut().ok_or(RenderFailure::NotConfigured)?;
@@ -439,8 +440,8 @@ fn render(
         c.time = time;
         pose_us = t.elapsed().as_micros() as u64;
     }
-    // The frame's virtual point lights where its time put them (indices checked).
-    for (i, s) in bounce {
+    // The frame's lights in place of configured ones (indices checked by the engine).
+    for (i, s) in lights {
         if let Some(l) = c.lights.get_mut(*i) {
             *l = *s;
         }
