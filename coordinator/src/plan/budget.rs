@@ -462,6 +462,10 @@ pub fn targeted(
             }
         })
     };
+    // Highlights: each area light raised to what its visible glossy receivers need.
+    let receivers = super::cull::receivers(&s, &super::geom::mesh_bounds(&s));
+    let rho = super::gloss::max_spacing_over_lobe(target_db);
+    let (s, gloss) = super::gloss::raise(&s, &receivers, rho).unwrap_or((s, Vec::new()));
     let mut o = options.clone();
     let mut floor = 0;
     if floors_free && let MapSizing::Mismatch { min, max, target } = sizing {
@@ -486,6 +490,7 @@ pub fn targeted(
             penumbra_radius: choice.radius,
             map_floor: floor,
             calibrated: model.calibrated,
+            gloss,
         },
     ))
 }

@@ -520,9 +520,29 @@ impl Plan {
                  `lightfold calibrate` fits this scene's own",
             )
         };
+        let gloss: String = t
+            .gloss
+            .iter()
+            .map(|g| {
+                format!(
+                    "; highlights: {:?} {} → {} for {:?} (GGX α {:.2} at {:.2} m{})",
+                    g.name,
+                    g.from,
+                    g.to,
+                    g.material,
+                    g.alpha,
+                    g.distance,
+                    if g.reached {
+                        ""
+                    } else {
+                        ", capped: its highlight stays spotted"
+                    }
+                )
+            })
+            .collect();
         Some(format!(
             "error target {:.1} dB penumbra PSNR: samples per area light {} → {}{filter}{maps} \
-             (expected {:.1} dB by {model}{}; {check})",
+             (expected {:.1} dB by {model}{}; {check}){gloss}",
             t.target_db,
             t.from,
             t.to,

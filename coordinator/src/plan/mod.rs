@@ -12,6 +12,7 @@ mod cull;
 mod display;
 mod error_model;
 mod geom;
+pub mod gloss;
 mod group;
 mod material;
 mod phases;

@@ -590,6 +590,9 @@ pub struct TargetChoice {
     /// sweep, whose level other scenes do not share).
     #[serde(default)]
     pub calibrated: bool,
+    /// Area lights raised above `to` for the glossy highlights they light (`plan::gloss`).
+    #[serde(default)]
+    pub gloss: Vec<super::gloss::GlossRaise>,
 }
 
 /// The quality knobs a frame budget can lower, in the order the planner lowers them.

@@ -35,12 +35,57 @@ const LIGHT_CENTER: V3 = [0.0, 2.6, 2.0];
 const LIGHT_SIZE: [f32; 2] = [1.6, 0.8];
 const RADIANCE: f32 = 4.0;
 
+/// A row of glossy spheres under one panel: the case's own ([`Setup::case`]) or another, for
+/// sweeps of roughness, light size and samples (`examples/glossy_sweep.rs`).
+#[derive(Debug, Clone)]
+pub struct Setup {
+    /// One sphere per roughness, left to right (at most five fit the frame).
+    pub roughness: Vec<f32>,
+    /// The panel's centre (it faces the row's middle sphere) and size (metres).
+    pub light_center: V3,
+    pub light_size: [f32; 2],
+    /// Samples of the panel.
+    pub samples: u32,
+    /// Metallic-roughness highlights in closed form (the default) or each sample's own.
+    pub area_specular: AreaSpecular,
+}
+
+impl Setup {
+    /// Hard case 19's scene.
+    pub fn case() -> Setup {
+        Setup {
+            roughness: ROUGHNESS.to_vec(),
+            light_center: LIGHT_CENTER,
+            light_size: LIGHT_SIZE,
+            samples: lightfold_scene::defaults::SAMPLES_PER_AREA_LIGHT,
+            area_specular: AreaSpecular::default(),
+        }
+    }
+
+    /// The panel's frame: centre, unit normal, unit u and v axes.
+    fn panel(&self) -> (V3, V3, V3, V3) {
+        let n = normalize(sub([0.0, RADIUS, 0.0], self.light_center));
+        let u = [1.0, 0.0, 0.0];
+        (self.light_center, n, u, cross(n, u))
+    }
+
+    /// The centre of sphere `i`.
+    pub fn sphere_center(&self, i: usize) -> V3 {
+        [sphere_x(i), RADIUS, 0.0]
+    }
+}
+
 fn sphere_x(i: usize) -> f32 {
     (i as f32 - 2.0) * 1.1
 }
 
 /// The case's scene: ground, five spheres (materials 1..=5), the panel, 16 samples.
 pub fn scene(full_size: bool) -> Scene {
+    setup_scene(&Setup::case(), full_size)
+}
+
+/// A setup's scene: ground, one sphere per roughness (materials 1..), the panel.
+pub fn setup_scene(setup: &Setup, full_size: bool) -> Scene {
     let mut s = Scene::new("hard-glossy-area");
     let ground = s.add_material(Material::diffuse("ground", [0.5, 0.5, 0.5]));
     s.add_mesh(plane(
@@ -52,34 +97,35 @@ pub fn scene(full_size: bool) -> Scene {
         1,
         ground,
     ));
-    for (i, r) in ROUGHNESS.iter().enumerate() {
+    for (i, r) in setup.roughness.iter().enumerate() {
         let m = s.add_material(Material::metallic_roughness(
             &format!("silver r{r}"),
             MetallicRoughness::new(SILVER, 1.0, *r),
         ));
         s.add_mesh(sphere(
             &format!("sphere r{r}"),
-            [sphere_x(i), RADIUS, 0.0],
+            setup.sphere_center(i),
             RADIUS,
             128,
             64,
             m,
         ));
     }
-    let (center, normal, u_axis, _) = panel();
+    let (center, normal, u_axis, _) = setup.panel();
     s.lights.push(Light {
         name: "panel".into(),
         shape: LightShape::Rect {
             center,
             normal,
             u_axis,
-            size: LIGHT_SIZE,
+            size: setup.light_size,
         },
         color: [1.0; 3],
         power: RADIANCE,
         range: None,
-        samples: lightfold_scene::defaults::SAMPLES_PER_AREA_LIGHT,
+        samples: setup.samples,
     });
+    s.quality.area_specular = setup.area_specular;
     let (width, height) = if full_size { (800, 300) } else { (320, 120) };
     s.camera = Camera {
         position: [0.0, 1.3, 4.2],
@@ -92,18 +138,11 @@ pub fn scene(full_size: bool) -> Scene {
     s
 }
 
-/// The panel's frame: centre, unit normal, unit u and v axes.
-fn panel() -> (V3, V3, V3, V3) {
-    let n = normalize(sub([0.0, RADIUS, 0.0], LIGHT_CENTER));
-    let u = [1.0, 0.0, 0.0];
-    (LIGHT_CENTER, n, u, cross(n, u))
-}
-
 /// Reflected radiance of the panel at a surface point: the GGX lobe sampled by half-vectors
 /// (`D(h)·(n·h)`), each reflected ray meeting the panel's emitting side adding
 /// `4·V·(n·l)·|v·h|/(n·h)·F·L`.
-fn truth_at(p: V3, n: V3, v: V3, alpha: f32, f0: V3, samples: u32) -> V3 {
-    let (c, ln, lu, lv) = panel();
+fn truth_at(setup: &Setup, p: V3, n: V3, v: V3, alpha: f32, f0: V3, samples: u32) -> V3 {
+    let (c, ln, lu, lv) = setup.panel();
     let (t1, t2) = lightfold_scene::sampling::basis(n);
     let (nx, ny) = grid_shape(samples);
     let nv = dot(n, v).max(0.0);
@@ -130,8 +169,8 @@ fn truth_at(p: V3, n: V3, v: V3, alpha: f32, f0: V3, samples: u32) -> V3 {
             let t = dot(sub(c, p), ln) / dot(l, ln);
             let q = sub(add(p, scale(l, t)), c);
             if t <= 0.0
-                || dot(q, lu).abs() > 0.5 * LIGHT_SIZE[0]
-                || dot(q, lv).abs() > 0.5 * LIGHT_SIZE[1]
+                || dot(q, lu).abs() > 0.5 * setup.light_size[0]
+                || dot(q, lv).abs() > 0.5 * setup.light_size[1]
             {
                 continue;
             }
@@ -146,11 +185,20 @@ fn truth_at(p: V3, n: V3, v: V3, alpha: f32, f0: V3, samples: u32) -> V3 {
 }
 
 /// Per sphere: the judged pixels' truth (RGB) and indices.
-struct Truth {
+#[derive(Debug)]
+pub struct Truth {
     per_sphere: Vec<Vec<(usize, V3)>>,
 }
 
-fn truth(scene: &Scene, samples: u32) -> Truth {
+impl Truth {
+    /// Judged pixels per sphere.
+    pub fn pixels(&self) -> Vec<usize> {
+        self.per_sphere.iter().map(Vec::len).collect()
+    }
+}
+
+/// The truth of `setup`'s scene (`scene`), `samples` half-vectors a pixel.
+pub fn truth(setup: &Setup, scene: &Scene, samples: u32) -> Truth {
     let tracer = Tracer::new(scene);
     let cam = &scene.camera;
     let (w, h) = (cam.width, cam.height);
@@ -165,13 +213,14 @@ fn truth(scene: &Scene, samples: u32) -> Truth {
             hits.push(hit);
         }
     }
-    let (c, ..) = panel();
-    let mut per_sphere = vec![Vec::new(); ROUGHNESS.len()];
+    let (c, ..) = setup.panel();
+    let spheres = setup.roughness.len();
+    let mut per_sphere = vec![Vec::new(); spheres];
     for y in 1..h - 1 {
         for x in 1..w - 1 {
             let i = (y * w + x) as usize;
             let m = material[i];
-            if m == 0 || m > ROUGHNESS.len() {
+            if m == 0 || m > spheres {
                 continue;
             }
             // Away from silhouettes: the 3×3 neighbourhood is the same sphere.
@@ -194,6 +243,7 @@ fn truth(scene: &Scene, samples: u32) -> Truth {
             let point = lightfold_scene::shading::metallic_roughness_point(pbr, [1.0; 4], [1.0; 4]);
             let ms = surface_point(mat, &scene.textures, hit.uv).specular;
             let rgb = truth_at(
+                setup,
                 p,
                 hit.normal,
                 hit.to_viewer,
@@ -208,7 +258,7 @@ fn truth(scene: &Scene, samples: u32) -> Truth {
 }
 
 /// Per sphere: RMS error over the truth's peak, and the image's peak over the truth's.
-fn errors(t: &Truth, img: &Image) -> Vec<(f64, f64)> {
+pub fn errors(t: &Truth, img: &Image) -> Vec<(f64, f64)> {
     t.per_sphere
         .iter()
         .map(|px| {
@@ -234,7 +284,10 @@ fn errors(t: &Truth, img: &Image) -> Vec<(f64, f64)> {
 }
 
 /// The render and its GPU seconds (after a warm-up frame).
-fn render(gpu: &lightfold_node::gpu::Gpu, scene: &Scene) -> Result<(Image, f64), HardCaseError> {
+pub fn render(
+    gpu: &lightfold_node::gpu::Gpu,
+    scene: &Scene,
+) -> Result<(Image, f64), HardCaseError> {
     let samples = direct_samples(scene);
     crate::gpu_radiance(gpu, scene, &samples).map_err(|e| HardCaseError::Render {
         case: CASE,
@@ -244,8 +297,9 @@ fn render(gpu: &lightfold_node::gpu::Gpu, scene: &Scene) -> Result<(Image, f64),
 
 pub fn glossy_area(full_size: bool) -> Result<CaseReport, HardCaseError> {
     let gpu = gpu()?;
-    let scene = scene(full_size);
-    let t = truth(&scene, if full_size { 4096 } else { 1024 });
+    let setup = Setup::case();
+    let scene = setup_scene(&setup, full_size);
+    let t = truth(&setup, &scene, if full_size { 4096 } else { 1024 });
     let (img, seconds) = render(&gpu, &scene)?;
     let mut sampled = scene.clone();
     sampled.quality.area_specular = AreaSpecular::Sampled;

@@ -2,5 +2,6 @@
 
 mod accuracy_sweep;
 mod calibration;
+mod gloss_rule;
 mod hard_cases;
 mod ties;
