@@ -321,6 +321,7 @@ fn options_for(setup: &RenderSetup) -> RenderOptions {
         slope_bias: c.slope_bias,
         walkthrough: c.walkthrough,
         chunk_triangles: crate::gpu::scene_data::CHUNK_TRIANGLES,
+        shadow_lod: true,
         fault: None,
     }
 }

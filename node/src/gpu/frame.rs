@@ -25,6 +25,9 @@ pub struct RenderOptions {
     /// Triangles per chunk of a large mesh, the unit the eye and shadow passes cull
     /// ([`crate::gpu::scene_data::CHUNK_TRIANGLES`]; 0: every mesh whole).
     pub chunk_triangles: u32,
+    /// Draw opaque meshes' chunks in shadow views at a simplified level whose error fits half a
+    /// texel there (`gpu::lod`; the default).
+    pub shadow_lod: bool,
     /// A deliberate mistake for negative-control tests.
     pub fault: Option<Fault>,
 }
@@ -48,6 +51,7 @@ impl RenderOptions {
             slope_bias: q.slope_bias,
             walkthrough: false,
             chunk_triangles: super::scene_data::CHUNK_TRIANGLES,
+            shadow_lod: true,
             fault: None,
         }
     }
@@ -157,6 +161,10 @@ pub struct RenderStats {
     /// Views whose transmittance maps were rendered this frame (their lights have translucent
     /// casters; `docs/translucency.md`).
     pub transmit_passes: u32,
+    /// Vertices the shadow passes drew this frame (opaque and masked casters), and those of them
+    /// from simplified levels (`gpu::lod`).
+    pub shadow_vertices: u64,
+    pub shadow_lod_vertices: u64,
     /// CPU work of the frame before its first pass: checks, light planning, map keys.
     pub setup_us: u64,
     pub shadow_us: u64,

@@ -37,6 +37,9 @@ pub enum Fault {
     /// The eye pass draws only meshes wholly inside the view (a wrong culling: meshes the
     /// image's border cuts vanish).
     EyeCullPartial,
+    /// Shadow views draw every large mesh's chunks at their coarsest level, whatever its error
+    /// (`gpu::lod`).
+    LodCoarsest,
 }
 
 /// `Light` in `shading.wgsl` (std430).

@@ -7,6 +7,7 @@ pub mod device;
 mod eye_pass;
 pub mod frame;
 pub mod lights;
+pub mod lod;
 pub mod pack;
 mod pipelines;
 mod readback;

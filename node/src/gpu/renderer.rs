@@ -67,6 +67,8 @@ pub struct Renderer {
     scene: SceneData,
     receivers: Vec<([f32; 3], [f32; 3])>,
     vertices: wgpu::Buffer,
+    /// The shadow passes' simplified levels (`SceneData::lods`), where there are any.
+    lod_vertices: Option<wgpu::Buffer>,
     /// The eye pipelines' tangents, one per vertex where the scene is normal-mapped (else a
     /// placeholder no pipeline reads).
     tangents: wgpu::Buffer,
@@ -118,7 +120,7 @@ impl Renderer {
                 maximum: max,
             });
         }
-        let data = SceneData::chunked(scene, opts.chunk_triangles);
+        let data = SceneData::with_lod(scene, opts.chunk_triangles, opts.shadow_lod);
         let storage_max = gpu.limits.max_storage_buffer_binding_size;
         for (what, bytes) in [
             ("texture texels", data.texels.len() as u64 * 4),
@@ -271,6 +273,21 @@ impl Renderer {
             compare: Some(depth.lookup_compare()),
             ..Default::default()
         });
+        let lod_vertices = if data.lods.vertices.is_empty() {
+            None
+        } else {
+            let bytes: &[u8] = bytemuck::cast_slice(&data.lods.vertices);
+            if bytes.len() as u64 > gpu.limits.max_buffer_size {
+                return Err(RenderError::BindingTooLarge {
+                    what: "simplified shadow casters",
+                    bytes: bytes.len() as u64,
+                    maximum: gpu.limits.max_buffer_size,
+                });
+            }
+            Some(allocate(gpu, "the simplified shadow casters", || {
+                init("lod vertices", bytes, wgpu::BufferUsages::VERTEX)
+            })?)
+        };
         let near = (data.diagonal * 1e-4).clamp(1e-4, 1e-2);
         // The GPU holds the vertices now; only an animated scene needs them again on the CPU
         // (`set_meshes` compares the posed ones with them). A still scene's would be the largest
@@ -280,7 +297,9 @@ impl Renderer {
             data.vertices = Vec::new();
         }
         data.tangents = Vec::new();
+        data.lods.vertices = Vec::new();
         Ok(Renderer {
+            lod_vertices,
             sampler,
             receivers: data.receivers(),
             pipelines,
@@ -425,6 +444,8 @@ impl Renderer {
         self.scene.vertices = vertices;
         self.scene.meshes = ranges;
         self.scene.chunks = chunks;
+        // Posed meshes are drawn whole: their levels were simplified from the rest pose.
+        self.scene.lods = super::lod::Lods::default();
         self.refresh_receivers();
         Ok(())
     }
@@ -530,6 +551,11 @@ impl Renderer {
     }
 
     /// Vertices the last eye pass drew (three a triangle), after culling.
+    /// Triangles of the shadow passes' simplified levels (`gpu::lod`).
+    pub fn lod_triangles(&self) -> u64 {
+        self.scene.lods.triangles()
+    }
+
     pub fn eye_vertices(&self) -> u32 {
         self.eye_vertices
     }
@@ -814,7 +840,7 @@ impl Renderer {
         if fresh.contains(&true) {
             let maps = self.maps.as_ref().expect("allocated above");
             let views: Vec<bool> = plan.view_light.iter().map(|&l| fresh[l as usize]).collect();
-            (stats.shadow_passes, stats.transmit_passes) = render_shadow_maps(
+            let drawn = render_shadow_maps(
                 &self.draw_context(gpu),
                 &self.scene,
                 maps,
@@ -823,6 +849,9 @@ impl Renderer {
                 &views,
                 &transmit,
             );
+            (stats.shadow_passes, stats.transmit_passes) = (drawn.passes, drawn.transmitted);
+            (stats.shadow_vertices, stats.shadow_lod_vertices) =
+                (drawn.vertices, drawn.lod_vertices);
             wait(gpu)?;
         }
         stats.maps_kept = fresh.iter().filter(|f| !**f).count() as u32;
@@ -1120,6 +1149,11 @@ impl Renderer {
             pipelines: &self.pipelines,
             scene_bind_group: &self.scene_bind_group,
             vertices: &self.vertices,
+            lod: self
+                .lod_vertices
+                .as_ref()
+                .filter(|_| self.scene.lods.any())
+                .map(|b| (b, self.options.fault == Some(Fault::LodCoarsest))),
             tangents: self.scene.normal_mapped.then_some(&self.tangents),
         }
     }

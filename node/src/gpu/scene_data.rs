@@ -216,6 +216,9 @@ pub struct SceneData {
     /// read a tangent per vertex (else one zero tangent for every vertex).
     pub normal_mapped: bool,
     pub meshes: Vec<MeshRange>,
+    /// Simplified levels of the large meshes' chunks for the shadow passes (`gpu::lod`; empty
+    /// without LOD, and once meshes are posed).
+    pub lods: super::lod::Lods,
     /// Every mesh's chunks, mesh after mesh (`MeshRange::first_chunk`).
     pub chunks: Vec<Chunk>,
     /// Triangles per chunk of a large mesh (0: every mesh whole).
@@ -240,8 +243,14 @@ impl SceneData {
     }
 
     /// The scene's arrays, meshes of more than `chunk_triangles` triangles in chunks of that
-    /// many (0: every mesh whole, its triangles in their own order).
+    /// many (0: every mesh whole, its triangles in their own order), without LOD.
     pub fn chunked(scene: &Scene, chunk_triangles: u32) -> SceneData {
+        SceneData::with_lod(scene, chunk_triangles, false)
+    }
+
+    /// [`SceneData::chunked`], and with `lod` the shadow passes' simplified levels of the
+    /// chunks of opaque meshes (`gpu::lod`).
+    pub fn with_lod(scene: &Scene, chunk_triangles: u32, lod: bool) -> SceneData {
         // Out-of-range material indices get the reference's mid-grey diffuse fallback, last.
         let fallback_material = Material::diffuse("fallback", [0.5; 3]);
         let (materials, pbr): (Vec<GpuMaterial>, Vec<GpuPbr>) = scene
@@ -306,7 +315,13 @@ impl SceneData {
             texels.push(0);
         }
         let object_bounds = object_bounds(&meshes);
+        let lods = if lod {
+            super::lod::build(&vertices, &meshes, &chunks)
+        } else {
+            super::lod::Lods::default()
+        };
         SceneData {
+            lods,
             object_bounds,
             vertex_count: vertices.len() as u32,
             tangents,
@@ -657,7 +672,7 @@ fn is_normal_mapped(mesh: &Mesh, material: u32, materials: &[GpuMaterial], pbr: 
 }
 
 /// Unit counter-clockwise normal computed in f64 (zero for a degenerate triangle).
-fn geometric_normal(a: V3, b: V3, c: V3) -> V3 {
+pub(crate) fn geometric_normal(a: V3, b: V3, c: V3) -> V3 {
     let f = |v: V3| v.map(f64::from);
     let (a, b, c) = (f(a), f(b), f(c));
     let e1 = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];

@@ -7,6 +7,7 @@
 //! of the nearest opaque caster (seed 001's separate transparent and opaque depths).
 
 use super::lights::{LightPlan, box_in_view, mat_mul};
+use super::lod;
 use super::pipelines::{DrawContext, VIEW_UNIFORM_STRIDE};
 use super::scene_data::SceneData;
 use super::shadow_depth::ShadowDepth;
@@ -225,6 +226,8 @@ struct Piece {
     vertices: std::ops::Range<u32>,
     masked: bool,
     translucent: bool,
+    /// From the simplified levels' buffer (`gpu::lod`), not the scene's.
+    lod: bool,
 }
 
 /// Records and submits one render pass per layer holding a view of `plan` that `render[view]`
@@ -232,7 +235,8 @@ struct Piece {
 /// `casters[λ]` lists the meshes that may cast into light λ's maps (`None`: all); translucent
 /// ones draw into the translucent maps, in two more passes per layer, for the views
 /// `transmit[view]` marks (those of lights with translucent casters). Returns the number of
-/// views drawn and of those with transmittance maps.
+/// views drawn and of those with transmittance maps, and the vertices drawn (opaque and masked;
+/// from simplified levels).
 pub fn render_shadow_maps(
     cx: &DrawContext<'_>,
     scene: &SceneData,
@@ -241,9 +245,9 @@ pub fn render_shadow_maps(
     casters: Option<&[Vec<u32>]>,
     render: &[bool],
     transmit: &[bool],
-) -> (u32, u32) {
+) -> ShadowDrawn {
     if plan.views.is_empty() || !render.contains(&true) {
-        return (0, 0);
+        return ShadowDrawn::default();
     }
     let mut uniforms = vec![0u8; VIEW_UNIFORM_STRIDE as usize * plan.views.len()];
     for (i, v) in plan.geometry.iter().enumerate() {
@@ -290,18 +294,42 @@ pub fn render_shadow_maps(
                 })
             })
             .flat_map(|m| {
+                let first = m.first_chunk as usize;
                 scene
                     .mesh_chunks(m)
                     .iter()
-                    .filter(|c| box_in_view(&plan.geometry[i], c.bounds.0, c.bounds.1))
-                    .map(|c| Piece {
-                        vertices: c.first_vertex..c.first_vertex + c.vertex_count,
-                        masked: m.masked,
-                        translucent: m.translucent,
+                    .enumerate()
+                    .filter(|(_, c)| box_in_view(&plan.geometry[i], c.bounds.0, c.bounds.1))
+                    .map(move |(k, c)| {
+                        // The coarsest level whose error fits the view's texels at the chunk.
+                        let level = cx.lod.and_then(|(_, coarsest)| {
+                            if coarsest {
+                                return scene.lods.coarsest(first + k);
+                            }
+                            let side = plan.views[i].rect[2];
+                            let texel =
+                                lod::texel_at(&plan.geometry[i], side, c.bounds.0, c.bounds.1);
+                            scene.lods.pick(first + k, texel)
+                        });
+                        match level {
+                            Some(l) => Piece {
+                                vertices: l.first_vertex..l.first_vertex + l.vertex_count,
+                                masked: m.masked,
+                                translucent: m.translucent,
+                                lod: true,
+                            },
+                            None => Piece {
+                                vertices: c.first_vertex..c.first_vertex + c.vertex_count,
+                                masked: m.masked,
+                                translucent: m.translucent,
+                                lod: false,
+                            },
+                        }
                     })
             })
             .collect()
     };
+    let drawn_vertices = std::cell::Cell::new((0u64, 0u64));
     // Each view of `layer` (those `include` allows) in its square of the layer (`atlas::Slot`):
     // clip space maps onto it alone; `draw` records its meshes.
     let views_of = |pass: &mut wgpu::RenderPass<'_>,
@@ -367,13 +395,27 @@ pub fn render_shadow_maps(
                     } else {
                         &cx.pipelines.shadow_opaque
                     });
-                    for m in drawn
-                        .iter()
-                        .filter(|m| m.masked == masked && !m.translucent)
-                    {
-                        draw_range(pass, m);
+                    for lod in [false, true] {
+                        let mut set = drawn
+                            .iter()
+                            .filter(|m| m.masked == masked && !m.translucent && m.lod == lod)
+                            .peekable();
+                        if set.peek().is_none() {
+                            continue;
+                        }
+                        match cx.lod {
+                            Some((buffer, _)) if lod => pass.set_vertex_buffer(0, buffer.slice(..)),
+                            _ => pass.set_vertex_buffer(0, cx.vertices.slice(..)),
+                        }
+                        for m in set {
+                            let n = u64::from(m.vertices.end - m.vertices.start);
+                            let (all, simplified) = drawn_vertices.get();
+                            drawn_vertices.set((all + n, simplified + if lod { n } else { 0 }));
+                            draw_range(pass, m);
+                        }
                     }
                 }
+                pass.set_vertex_buffer(0, cx.vertices.slice(..));
             });
         }
         let tm = &maps.translucent;
@@ -421,5 +463,22 @@ pub fn render_shadow_maps(
         });
     }
     cx.queue.submit([encoder.finish()]);
-    (passes, transmitted)
+    let (vertices, lod_vertices) = drawn_vertices.get();
+    ShadowDrawn {
+        passes,
+        transmitted,
+        vertices,
+        lod_vertices,
+    }
+}
+
+/// What [`render_shadow_maps`] drew.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ShadowDrawn {
+    /// Views drawn, and of those with transmittance maps.
+    pub passes: u32,
+    pub transmitted: u32,
+    /// Vertices of opaque and masked casters drawn, and of them from simplified levels.
+    pub vertices: u64,
+    pub lod_vertices: u64,
 }

@@ -1,0 +1,115 @@
+//! What simplified shadow casters save (issue 48, `gpu::lod`): a scene's frames with every map
+//! drawn again (the lights nudged), full detail against the levels, alternating, the median of
+//! `--frames` each: the shadow passes' time and vertices, the levels' build time and triangles,
+//! and how many pixels of the illumination agree (`docs/scaling.md` § Level of detail). Set
+//! `LP_NUM_THREADS` as the bench does.
+//!
+//! `cargo run --release -p lightfold-node --example shadow_lod -- [--scene city:1m] [--frames N] [--size WxH] [--lights N]`
+
+use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
+use lightfold_protocol::stats;
+use lightfold_scene::sampling;
+use std::time::Instant;
+
+fn main() -> anyhow::Result<()> {
+    let mut name = "city:1m".to_string();
+    let mut frames = 5u32;
+    let mut lights = 4usize;
+    let (mut w, mut h) = (400u32, 300u32);
+    let mut args = std::env::args().skip(1);
+    while let Some(a) = args.next() {
+        match a.as_str() {
+            "--scene" => name = args.next().unwrap_or_default(),
+            "--frames" => frames = args.next().unwrap_or_default().parse()?,
+            "--lights" => lights = args.next().unwrap_or_default().parse()?,
+            "--size" => {
+                let v = args.next().unwrap_or_default();
+                let (a, b) = v
+                    .split_once('x')
+                    .ok_or_else(|| anyhow::anyhow!("--size WxH"))?;
+                (w, h) = (a.parse()?, b.parse()?);
+            }
+            other => anyhow::bail!("unknown argument {other}"),
+        }
+    }
+    let mut scene = lightfold_scene::builtin(&name)?;
+    scene.camera.width = w;
+    scene.camera.height = h;
+    let gpu = Gpu::new(&GpuOptions::default())?;
+    let samples: Vec<_> = sampling::direct_samples(&scene)
+        .into_iter()
+        .take(lights)
+        .collect();
+    println!(
+        "{name}: {} triangles, {} meshes, {w}×{h}, {} lights, maps drawn every frame",
+        scene.triangle_count(),
+        scene.meshes.len(),
+        samples.len()
+    );
+    let mut renderers = Vec::new();
+    for shadow_lod in [false, true] {
+        let opts = RenderOptions {
+            shadow_lod,
+            ..RenderOptions::from_quality(&scene.quality)
+        };
+        let t = Instant::now();
+        let r = Renderer::new(&gpu, &scene, opts)?;
+        println!(
+            "  LOD {}: renderer built in {:.2} s{}",
+            if shadow_lod { "on " } else { "off" },
+            t.elapsed().as_secs_f64(),
+            if shadow_lod {
+                format!(", {} triangles in levels", r.lod_triangles())
+            } else {
+                String::new()
+            }
+        );
+        renderers.push(r);
+    }
+    let mut shadow_ms = [Vec::new(), Vec::new()];
+    let mut vertices = [(0u64, 0u64); 2];
+    let mut last = Vec::new();
+    for frame in 0..frames {
+        let nudged: Vec<_> = samples
+            .iter()
+            .map(|s| {
+                let mut s = *s;
+                s.position[0] += 1e-3 * (frame + 1) as f32;
+                s
+            })
+            .collect();
+        last.clear();
+        for (k, r) in renderers.iter_mut().enumerate() {
+            let f = r.render(&gpu, &nudged, None, [1.0; 3], LayerSet::illumination())?;
+            shadow_ms[k].push(f.stats.shadow_us as f64 / 1e3);
+            vertices[k] = (f.stats.shadow_vertices, f.stats.shadow_lod_vertices);
+            last.push(
+                f.illumination
+                    .ok_or_else(|| anyhow::anyhow!("no illumination"))?,
+            );
+        }
+    }
+    let med = |v: &Vec<f64>| stats::median(v).unwrap_or(f64::NAN);
+    let (s0, s1) = (med(&shadow_ms[0]), med(&shadow_ms[1]));
+    let max = last[0]
+        .data
+        .iter()
+        .fold(0f32, |a, &v| a.max(v.abs()))
+        .max(1e-30);
+    let differ = last[0]
+        .data
+        .chunks(6)
+        .zip(last[1].data.chunks(6))
+        .filter(|(a, b)| a.iter().zip(*b).any(|(x, y)| (x - y).abs() > 1e-3 * max))
+        .count();
+    println!(
+        "shadow passes {s0:.1} → {s1:.1} ms with LOD ({:.2}×); their vertices {} → {} ({} from \
+         levels); pixels differing by over 0.1 % of the brightest: {differ} of {}",
+        s1 / s0,
+        vertices[0].0,
+        vertices[1].0,
+        vertices[1].1,
+        w * h
+    );
+    Ok(())
+}
