@@ -2,9 +2,10 @@
 # Installs the system packages lightfold needs at run time (Mesa's software Vulkan and GL), if
 # missing; with --test also those its tests need (Chromium, which the live view's browser test
 # drives headless, and Prometheus, whose promtool checks the daemons' /metrics). No -dev packages
-# are needed to build.
+# are needed to build; a C++ compiler is (the `meshopt` crate compiles meshoptimizer, the shadow
+# casters' simplifier).
 set -euo pipefail
-pkgs=(iproute2 mesa-vulkan-drivers libvulkan1 libegl1 libegl-mesa0 libgl1-mesa-dri)
+pkgs=(iproute2 g++ mesa-vulkan-drivers libvulkan1 libegl1 libegl-mesa0 libgl1-mesa-dri)
 [ "${1:-}" = --test ] && pkgs+=(chromium prometheus)
 missing=()
 for p in "${pkgs[@]}"; do

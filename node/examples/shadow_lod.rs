@@ -67,6 +67,7 @@ fn main() -> anyhow::Result<()> {
         renderers.push(r);
     }
     let mut shadow_ms = [Vec::new(), Vec::new()];
+    let mut frame_ms = [Vec::new(), Vec::new()];
     let mut vertices = [(0u64, 0u64); 2];
     let mut last = Vec::new();
     for frame in 0..frames {
@@ -82,6 +83,8 @@ fn main() -> anyhow::Result<()> {
         for (k, r) in renderers.iter_mut().enumerate() {
             let f = r.render(&gpu, &nudged, None, [1.0; 3], LayerSet::illumination())?;
             shadow_ms[k].push(f.stats.shadow_us as f64 / 1e3);
+            let s = &f.stats;
+            frame_ms[k].push((s.setup_us + s.shadow_us + s.eye_us + s.readback_us) as f64 / 1e3);
             vertices[k] = (f.stats.shadow_vertices, f.stats.shadow_lod_vertices);
             last.push(
                 f.illumination
@@ -91,6 +94,7 @@ fn main() -> anyhow::Result<()> {
     }
     let med = |v: &Vec<f64>| stats::median(v).unwrap_or(f64::NAN);
     let (s0, s1) = (med(&shadow_ms[0]), med(&shadow_ms[1]));
+    let (f0, f1) = (med(&frame_ms[0]), med(&frame_ms[1]));
     let max = last[0]
         .data
         .iter()
@@ -103,8 +107,10 @@ fn main() -> anyhow::Result<()> {
         .filter(|(a, b)| a.iter().zip(*b).any(|(x, y)| (x - y).abs() > 1e-3 * max))
         .count();
     println!(
-        "shadow passes {s0:.1} → {s1:.1} ms with LOD ({:.2}×); their vertices {} → {} ({} from \
-         levels); pixels differing by over 0.1 % of the brightest: {differ} of {}",
+        "frame {f0:.1} → {f1:.1} ms with LOD ({:.2}×); shadow passes {s0:.1} → {s1:.1} ms \
+         ({:.2}×); their vertices {} → {} ({} from levels); pixels differing by over 0.1 % of \
+         the brightest: {differ} of {}",
+        f1 / f0,
         s1 / s0,
         vertices[0].0,
         vertices[1].0,

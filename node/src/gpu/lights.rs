@@ -37,8 +37,8 @@ pub enum Fault {
     /// The eye pass draws only meshes wholly inside the view (a wrong culling: meshes the
     /// image's border cuts vanish).
     EyeCullPartial,
-    /// Shadow views draw every large mesh's chunks at their coarsest level, whatever its error
-    /// (`gpu::lod`).
+    /// Levels are simplified without the area guard and shadow views draw every chunk at its
+    /// coarsest, whatever its error (`gpu::lod`).
     LodCoarsest,
 }
 

@@ -27,25 +27,38 @@ pub const MAX_ERROR_TEXELS: f32 = 0.5;
 /// Meshes of fewer triangles keep their detail.
 pub const MIN_TRIANGLES: u32 = 256;
 
+/// A level is kept only if its area is within this share of the chunk's (1 %).
+const MAX_AREA_CHANGE: f64 = 0.01;
+
 /// A level is kept only if it has at most this share of the finer level's triangles.
 const MIN_SAVING: f32 = 0.6;
 
-/// One simplified level of a chunk: its triangles in [`Lods::vertices`] and the largest distance
-/// the simplifier moved the surface (metres).
+/// One simplified level of a chunk: its triangles in the uploaded level buffer (`first_vertex`,
+/// set by [`Lods::layout`]; `offset` within its mesh's block) and the largest distance the
+/// simplifier moved the surface (metres).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Level {
     pub first_vertex: u32,
+    pub offset: u32,
     pub vertex_count: u32,
     pub error: f32,
 }
 
-/// The simplified levels of every chunk, expanded like the scene's own vertices.
+/// The simplified levels of every chunk, expanded like the scene's own vertices, in one block
+/// per mesh (so a pose re-simplifies only the meshes it changed).
 #[derive(Debug, Clone, Default)]
 pub struct Lods {
-    pub vertices: Vec<Vertex>,
+    /// Per mesh, its levels' vertices: while they are needed on the CPU (a scene that may be
+    /// posed again); empty once uploaded otherwise.
+    pub mesh_vertices: Vec<Vec<Vertex>>,
+    /// Per mesh, its block's vertex count and where it starts in the uploaded buffer.
+    pub mesh_count: Vec<u32>,
+    pub mesh_first: Vec<u32>,
     /// Per chunk (as `SceneData::chunks`), its levels, finest first; empty for a chunk kept
     /// whole.
     pub levels: Vec<Vec<Level>>,
+    /// Whether levels that lose area were refused (false only for `Fault::LodCoarsest`).
+    pub guarded: bool,
 }
 
 impl Lods {
@@ -76,31 +89,113 @@ impl Lods {
             .map(|l| u64::from(l.vertex_count / 3))
             .sum()
     }
+
+    /// Vertices of the uploaded buffer.
+    pub fn vertex_count(&self) -> u32 {
+        self.mesh_count.iter().sum()
+    }
+
+    /// Lays the meshes' blocks out one after another (sets `mesh_first` and every level's
+    /// `first_vertex`) and returns the buffer's vertices (from `mesh_vertices`).
+    pub fn layout(&mut self, meshes: &[MeshRange]) -> Vec<Vertex> {
+        let mut at = 0u32;
+        self.mesh_first = self
+            .mesh_count
+            .iter()
+            .map(|&n| {
+                let first = at;
+                at += n;
+                first
+            })
+            .collect();
+        for (m, r) in meshes.iter().enumerate() {
+            let first = self.mesh_first.get(m).copied().unwrap_or(0);
+            for c in r.first_chunk..r.first_chunk + r.chunk_count {
+                for l in self.levels.get_mut(c as usize).into_iter().flatten() {
+                    l.first_vertex = first + l.offset;
+                }
+            }
+        }
+        self.mesh_vertices.concat()
+    }
+
+    /// The levels of the meshes `changed` marks simplified again from `vertices` (the others
+    /// kept), where the chunks are laid out as before; everything built again otherwise or
+    /// where the levels' vertices were dropped. Call [`Lods::layout`] after.
+    pub fn update(
+        &mut self,
+        vertices: &[Vertex],
+        meshes: &[MeshRange],
+        chunks: &[Chunk],
+        changed: &[bool],
+    ) {
+        let kept = self.mesh_vertices.len() == meshes.len()
+            && self.levels.len() == chunks.len()
+            && self
+                .mesh_vertices
+                .iter()
+                .zip(&self.mesh_count)
+                .all(|(v, &n)| v.len() as u32 == n);
+        if !kept {
+            *self = build(vertices, meshes, chunks, self.guarded);
+            return;
+        }
+        for (m, r) in meshes.iter().enumerate() {
+            if changed.get(m).copied().unwrap_or(true) {
+                self.mesh_vertices[m] =
+                    build_mesh(vertices, r, chunks, &mut self.levels, self.guarded);
+                self.mesh_count[m] = self.mesh_vertices[m].len() as u32;
+            }
+        }
+    }
 }
 
 /// The levels of the chunks of `meshes` (ranges into `vertices`) that LOD applies to (module
-/// documentation).
-pub fn build(vertices: &[Vertex], meshes: &[MeshRange], chunks: &[Chunk]) -> Lods {
+/// documentation); `guarded`: refusing levels that lose area (always, but in a negative control).
+/// Call [`Lods::layout`] after.
+pub fn build(vertices: &[Vertex], meshes: &[MeshRange], chunks: &[Chunk], guarded: bool) -> Lods {
     let mut lods = Lods {
-        vertices: Vec::new(),
         levels: vec![Vec::new(); chunks.len()],
+        guarded,
+        ..Lods::default()
     };
     for m in meshes {
-        if m.masked || m.translucent || m.vertex_count / 3 < MIN_TRIANGLES {
-            continue;
-        }
-        for c in m.first_chunk..m.first_chunk + m.chunk_count {
-            let chunk = &chunks[c as usize];
-            let tris = &vertices
-                [chunk.first_vertex as usize..(chunk.first_vertex + chunk.vertex_count) as usize];
-            lods.levels[c as usize] = simplify_chunk(tris, &mut lods.vertices);
-        }
+        let v = build_mesh(vertices, m, chunks, &mut lods.levels, guarded);
+        lods.mesh_count.push(v.len() as u32);
+        lods.mesh_vertices.push(v);
     }
     lods
 }
 
+/// Mesh `m`'s block of level vertices, its chunks' levels written into `levels` (cleared where
+/// LOD does not apply).
+fn build_mesh(
+    vertices: &[Vertex],
+    m: &MeshRange,
+    chunks: &[Chunk],
+    levels: &mut [Vec<Level>],
+    guarded: bool,
+) -> Vec<Vertex> {
+    let mut out = Vec::new();
+    let applies = !m.masked && !m.translucent && m.vertex_count / 3 >= MIN_TRIANGLES;
+    for c in m.first_chunk..m.first_chunk + m.chunk_count {
+        let Some(slot) = levels.get_mut(c as usize) else {
+            continue;
+        };
+        slot.clear();
+        if !applies {
+            continue;
+        }
+        let chunk = &chunks[c as usize];
+        let tris = &vertices
+            [chunk.first_vertex as usize..(chunk.first_vertex + chunk.vertex_count) as usize];
+        *slot = simplify_chunk(tris, &mut out, guarded);
+    }
+    out
+}
+
 /// The levels of one chunk's expanded triangles, appended to `out`.
-fn simplify_chunk(tris: &[Vertex], out: &mut Vec<Vertex>) -> Vec<Level> {
+fn simplify_chunk(tris: &[Vertex], out: &mut Vec<Vertex>, guarded: bool) -> Vec<Level> {
     // Weld by position: the shadow pass reads positions and object IDs only.
     let mut at: HashMap<[u32; 3], u32> = HashMap::with_capacity(tris.len());
     let mut positions: Vec<[f32; 3]> = Vec::new();
@@ -116,6 +211,7 @@ fn simplify_chunk(tris: &[Vertex], out: &mut Vec<Vertex>) -> Vec<Level> {
             })
         })
         .collect();
+    let whole = area(&indices, &positions);
     let mut levels = Vec::new();
     let mut finer = indices.len();
     for k in 1..=LEVELS {
@@ -135,7 +231,13 @@ fn simplify_chunk(tris: &[Vertex], out: &mut Vec<Vertex>) -> Vec<Level> {
         if simplified.is_empty() || simplified.len() as f32 > MIN_SAVING * finer as f32 {
             break;
         }
-        let first_vertex = out.len() as u32;
+        // A thin part collapsed moves the surface by less than its thickness, under any texel
+        // bound, and takes its shadow with it (hard case 8, the sub-texel fence): a level must
+        // keep the chunk's area.
+        if guarded && (area(&simplified, &positions) - whole).abs() > MAX_AREA_CHANGE * whole {
+            break;
+        }
+        let offset = out.len() as u32;
         for tri in simplified.chunks_exact(3) {
             let p = [0, 1, 2].map(|k| positions[tri[k] as usize]);
             let n = super::scene_data::geometric_normal(p[0], p[1], p[2]);
@@ -149,8 +251,9 @@ fn simplify_chunk(tris: &[Vertex], out: &mut Vec<Vertex>) -> Vec<Level> {
         }
         finer = simplified.len();
         levels.push(Level {
-            first_vertex,
-            vertex_count: out.len() as u32 - first_vertex,
+            first_vertex: offset,
+            offset,
+            vertex_count: out.len() as u32 - offset,
             error: if error.is_finite() {
                 error.max(0.0)
             } else {
@@ -159,6 +262,26 @@ fn simplify_chunk(tris: &[Vertex], out: &mut Vec<Vertex>) -> Vec<Level> {
         });
     }
     levels
+}
+
+/// The area of the triangles `indices` makes of `positions` (m²).
+fn area(indices: &[u32], positions: &[[f32; 3]]) -> f64 {
+    indices
+        .chunks_exact(3)
+        .map(|t| {
+            let p = [0, 1, 2].map(|k| positions[t[k] as usize].map(f64::from));
+            let (a, b) = (
+                [0, 1, 2].map(|k| p[1][k] - p[0][k]),
+                [0, 1, 2].map(|k| p[2][k] - p[0][k]),
+            );
+            let c = [
+                a[1] * b[2] - a[2] * b[1],
+                a[2] * b[0] - a[0] * b[2],
+                a[0] * b[1] - a[1] * b[0],
+            ];
+            0.5 * (c[0] * c[0] + c[1] * c[1] + c[2] * c[2]).sqrt()
+        })
+        .sum()
 }
 
 /// The size of one of `view`'s texels (metres) at the point of the box `lo`–`hi` nearest the

@@ -18,7 +18,7 @@ use super::lights::{Fault, Fit, LightPlan, Sides, TRANSLUCENT_TEXEL_BYTES, plan_
 use super::pack::{self, DevicePacker, PackLayer, PackSource, PackedFrame};
 use super::pipelines::{DrawContext, LightSet, Pipelines};
 use super::readback::{ReadRequest, ReadSource, Staging, read};
-use super::scene_data::SceneData;
+use super::scene_data::{SceneData, Vertex};
 use super::shadow_depth::ShadowDepth;
 use super::shadow_pass::{ShadowMaps, layer_count, render_shadow_maps};
 use lightfold_protocol::{Layer, PixelFormat};
@@ -120,7 +120,12 @@ impl Renderer {
                 maximum: max,
             });
         }
-        let data = SceneData::with_lod(scene, opts.chunk_triangles, opts.shadow_lod);
+        let data = SceneData::with_lod(
+            scene,
+            opts.chunk_triangles,
+            opts.shadow_lod
+                .then_some(opts.fault != Some(Fault::LodCoarsest)),
+        );
         let storage_max = gpu.limits.max_storage_buffer_binding_size;
         for (what, bytes) in [
             ("texture texels", data.texels.len() as u64 * 4),
@@ -273,21 +278,7 @@ impl Renderer {
             compare: Some(depth.lookup_compare()),
             ..Default::default()
         });
-        let lod_vertices = if data.lods.vertices.is_empty() {
-            None
-        } else {
-            let bytes: &[u8] = bytemuck::cast_slice(&data.lods.vertices);
-            if bytes.len() as u64 > gpu.limits.max_buffer_size {
-                return Err(RenderError::BindingTooLarge {
-                    what: "simplified shadow casters",
-                    bytes: bytes.len() as u64,
-                    maximum: gpu.limits.max_buffer_size,
-                });
-            }
-            Some(allocate(gpu, "the simplified shadow casters", || {
-                init("lod vertices", bytes, wgpu::BufferUsages::VERTEX)
-            })?)
-        };
+        let lod_vertices = lod_buffer(gpu, &data.lod_vertices)?;
         let near = (data.diagonal * 1e-4).clamp(1e-4, 1e-2);
         // The GPU holds the vertices now; only an animated scene needs them again on the CPU
         // (`set_meshes` compares the posed ones with them). A still scene's would be the largest
@@ -297,7 +288,13 @@ impl Renderer {
             data.vertices = Vec::new();
         }
         data.tangents = Vec::new();
-        data.lods.vertices = Vec::new();
+        data.lod_vertices = Vec::new();
+        // Levels are simplified again when meshes are posed: an animated scene keeps its
+        // meshes' level vertices to redo only the meshes a pose changed; a still scene's are
+        // built again whole if it is ever moved.
+        if scene.animation.is_none() {
+            data.lods.mesh_vertices = Vec::new();
+        }
         Ok(Renderer {
             lod_vertices,
             sampler,
@@ -378,6 +375,7 @@ impl Renderer {
                 .iter()
                 .zip(&self.scene.meshes)
                 .all(|(a, b)| (a.first_vertex, a.vertex_count) == (b.first_vertex, b.vertex_count));
+        let mut moved = vec![false; ranges.len()];
         for (m, (new, old)) in ranges.iter().zip(&self.scene.meshes).enumerate() {
             // Compared in place as bytes (no copy per mesh per frame).
             fn span<'v>(
@@ -396,6 +394,7 @@ impl Renderer {
                 || (kept && span(new, &vertices) != span(old, &self.scene.vertices))
             {
                 self.revisions[m] += 1;
+                moved[m] = true;
             }
         }
         // Same mesh count, so the same length: each object's box where its pose put it.
@@ -440,12 +439,27 @@ impl Renderer {
                 (init("vertices", bytes), init("tangents", tbytes))
             })?;
         }
+        // The moved meshes' levels simplified again from their pose (the same levels a still
+        // scene of that pose gets).
+        if self.options.shadow_lod {
+            self.scene.lods.update(&vertices, &ranges, &chunks, &moved);
+            let level_vertices = self.scene.lods.layout(&ranges);
+            let fits = self
+                .lod_vertices
+                .as_ref()
+                .is_some_and(|b| b.size() == std::mem::size_of_val(&level_vertices[..]) as u64);
+            match &self.lod_vertices {
+                Some(b) if fits && !level_vertices.is_empty() => {
+                    gpu.queue
+                        .write_buffer(b, 0, bytemuck::cast_slice(&level_vertices));
+                }
+                _ => self.lod_vertices = lod_buffer(gpu, &level_vertices)?,
+            }
+        }
         self.scene.vertex_count = vertices.len() as u32;
         self.scene.vertices = vertices;
         self.scene.meshes = ranges;
         self.scene.chunks = chunks;
-        // Posed meshes are drawn whole: their levels were simplified from the rest pose.
-        self.scene.lods = super::lod::Lods::default();
         self.refresh_receivers();
         Ok(())
     }
@@ -1220,4 +1234,31 @@ fn tangent_bytes(tangents: &[super::scene_data::Tangent]) -> &[u8] {
     } else {
         bytemuck::cast_slice(tangents)
     }
+}
+
+/// The shadow passes' level buffer (`gpu::lod`) holding `vertices`, or `None` without any.
+fn lod_buffer(gpu: &Gpu, vertices: &[Vertex]) -> Result<Option<wgpu::Buffer>, RenderError> {
+    if vertices.is_empty() {
+        return Ok(None);
+    }
+    let bytes: &[u8] = bytemuck::cast_slice(vertices);
+    if bytes.len() as u64 > gpu.limits.max_buffer_size {
+        return Err(RenderError::BindingTooLarge {
+            what: "simplified shadow casters",
+            bytes: bytes.len() as u64,
+            maximum: gpu.limits.max_buffer_size,
+        });
+    }
+    Ok(Some(allocate(
+        gpu,
+        "the simplified shadow casters",
+        || {
+            gpu.device
+                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                    label: Some("lod vertices"),
+                    contents: bytes,
+                    usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+                })
+        },
+    )?))
 }

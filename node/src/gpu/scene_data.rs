@@ -216,9 +216,11 @@ pub struct SceneData {
     /// read a tangent per vertex (else one zero tangent for every vertex).
     pub normal_mapped: bool,
     pub meshes: Vec<MeshRange>,
-    /// Simplified levels of the large meshes' chunks for the shadow passes (`gpu::lod`; empty
-    /// without LOD, and once meshes are posed).
+    /// Simplified levels of the meshes' chunks for the shadow passes (`gpu::lod`; empty
+    /// without LOD), laid out (`Lods::layout`).
     pub lods: super::lod::Lods,
+    /// The level buffer's vertices until uploaded.
+    pub lod_vertices: Vec<Vertex>,
     /// Every mesh's chunks, mesh after mesh (`MeshRange::first_chunk`).
     pub chunks: Vec<Chunk>,
     /// Triangles per chunk of a large mesh (0: every mesh whole).
@@ -245,12 +247,13 @@ impl SceneData {
     /// The scene's arrays, meshes of more than `chunk_triangles` triangles in chunks of that
     /// many (0: every mesh whole, its triangles in their own order), without LOD.
     pub fn chunked(scene: &Scene, chunk_triangles: u32) -> SceneData {
-        SceneData::with_lod(scene, chunk_triangles, false)
+        SceneData::with_lod(scene, chunk_triangles, None)
     }
 
     /// [`SceneData::chunked`], and with `lod` the shadow passes' simplified levels of the
-    /// chunks of opaque meshes (`gpu::lod`).
-    pub fn with_lod(scene: &Scene, chunk_triangles: u32, lod: bool) -> SceneData {
+    /// chunks of opaque meshes (`gpu::lod`; `Some(false)`: without the area guard, a negative
+    /// control's mistake).
+    pub fn with_lod(scene: &Scene, chunk_triangles: u32, lod: Option<bool>) -> SceneData {
         // Out-of-range material indices get the reference's mid-grey diffuse fallback, last.
         let fallback_material = Material::diffuse("fallback", [0.5; 3]);
         let (materials, pbr): (Vec<GpuMaterial>, Vec<GpuPbr>) = scene
@@ -315,13 +318,15 @@ impl SceneData {
             texels.push(0);
         }
         let object_bounds = object_bounds(&meshes);
-        let lods = if lod {
-            super::lod::build(&vertices, &meshes, &chunks)
+        let mut lods = if let Some(guarded) = lod {
+            super::lod::build(&vertices, &meshes, &chunks, guarded)
         } else {
             super::lod::Lods::default()
         };
+        let lod_vertices = lods.layout(&meshes);
         SceneData {
             lods,
+            lod_vertices,
             object_bounds,
             vertex_count: vertices.len() as u32,
             tangents,

@@ -574,3 +574,46 @@ fn shadow_lod_keeps_the_picture() {
         "the coarsest levels changed no picture beyond the bound"
     );
 }
+
+/// A mesh moved after the renderer was built gets the levels the moved scene would be built with
+/// (simplified again from its pose; the other meshes' kept), so a node that poses or moves
+/// meshes draws the shadows a fresh single-device render of that pose draws, bit for bit.
+#[test]
+fn moved_meshes_get_the_levels_of_their_pose() {
+    let gpu = gpu();
+    let mut scene = balls_and_smooth_sphere();
+    scene.camera.width = 96;
+    scene.camera.height = 72;
+    let samples: Vec<LightSample> = sampling::direct_samples(&scene)
+        .into_iter()
+        .take(4)
+        .collect();
+    let last = scene.meshes.len() - 1;
+    let mut moved = scene.clone();
+    for p in &mut moved.meshes[last].positions {
+        // Squashed and shifted: a pose the levels must follow.
+        *p = [p[0] + 0.4, 0.5 * p[1] + 0.7, p[2] - 0.2];
+    }
+    let render = |r: &mut Renderer| {
+        r.render(&gpu, &samples, None, C_N, LayerSet::illumination())
+            .unwrap()
+    };
+    let mut posed =
+        Renderer::new(&gpu, &scene, RenderOptions::from_quality(&scene.quality)).unwrap();
+    render(&mut posed);
+    let mut changed = vec![false; scene.meshes.len()];
+    changed[last] = true;
+    posed
+        .set_moved_meshes(&gpu, &moved.meshes, &changed)
+        .unwrap();
+    let after = render(&mut posed);
+    let mut fresh =
+        Renderer::new(&gpu, &moved, RenderOptions::from_quality(&moved.quality)).unwrap();
+    let want = render(&mut fresh);
+    assert!(
+        after.stats.shadow_lod_vertices > 0,
+        "levels drawn after the move"
+    );
+    assert_eq!(after.illumination, want.illumination);
+    assert_eq!(posed.lod_triangles(), fresh.lod_triangles());
+}
