@@ -14,6 +14,7 @@
 
 use super::scene_data::{Chunk, MeshRange, Vertex};
 use lightfold_scene::shadow_views::{ShadowView, ShadowViewKind};
+use rayon::prelude::*;
 use std::collections::HashMap;
 
 /// Simplified levels per chunk (a quarter, a sixteenth and a sixty-fourth of its triangles, where
@@ -140,11 +141,18 @@ impl Lods {
             *self = build(vertices, meshes, chunks, self.guarded);
             return;
         }
-        for (m, r) in meshes.iter().enumerate() {
-            if changed.get(m).copied().unwrap_or(true) {
-                self.mesh_vertices[m] =
-                    build_mesh(vertices, r, chunks, &mut self.levels, self.guarded);
-                self.mesh_count[m] = self.mesh_vertices[m].len() as u32;
+        let built = build_meshes(
+            vertices,
+            meshes,
+            chunks,
+            self.guarded,
+            changed,
+            &mut self.levels,
+        );
+        for (m, v) in built.into_iter().enumerate() {
+            if let Some(v) = v {
+                self.mesh_count[m] = v.len() as u32;
+                self.mesh_vertices[m] = v;
             }
         }
     }
@@ -159,39 +167,72 @@ pub fn build(vertices: &[Vertex], meshes: &[MeshRange], chunks: &[Chunk], guarde
         guarded,
         ..Lods::default()
     };
-    for m in meshes {
-        let v = build_mesh(vertices, m, chunks, &mut lods.levels, guarded);
+    let all = vec![true; meshes.len()];
+    let built = build_meshes(vertices, meshes, chunks, guarded, &all, &mut lods.levels);
+    for v in built.into_iter().flatten() {
         lods.mesh_count.push(v.len() as u32);
         lods.mesh_vertices.push(v);
     }
     lods
 }
 
-/// Mesh `m`'s block of level vertices, its chunks' levels written into `levels` (cleared where
-/// LOD does not apply).
+/// Mesh `m`'s block of level vertices and its chunks' levels (empty where LOD does not apply).
 fn build_mesh(
     vertices: &[Vertex],
     m: &MeshRange,
     chunks: &[Chunk],
-    levels: &mut [Vec<Level>],
     guarded: bool,
-) -> Vec<Vertex> {
+) -> (Vec<Vertex>, Vec<Vec<Level>>) {
     let mut out = Vec::new();
     let applies = !m.masked && !m.translucent && m.vertex_count / 3 >= MIN_TRIANGLES;
-    for c in m.first_chunk..m.first_chunk + m.chunk_count {
-        let Some(slot) = levels.get_mut(c as usize) else {
-            continue;
-        };
-        slot.clear();
-        if !applies {
-            continue;
-        }
-        let chunk = &chunks[c as usize];
-        let tris = &vertices
-            [chunk.first_vertex as usize..(chunk.first_vertex + chunk.vertex_count) as usize];
-        *slot = simplify_chunk(tris, &mut out, guarded);
-    }
-    out
+    let levels = (m.first_chunk..m.first_chunk + m.chunk_count)
+        .map(|c| match chunks.get(c as usize) {
+            Some(chunk) if applies => {
+                let tris = &vertices[chunk.first_vertex as usize
+                    ..(chunk.first_vertex + chunk.vertex_count) as usize];
+                simplify_chunk(tris, &mut out, guarded)
+            }
+            _ => Vec::new(),
+        })
+        .collect();
+    (out, levels)
+}
+
+/// [`build_mesh`] of the meshes `which` marks, in parallel (the simplifier is the slow part of
+/// loading a large scene), their levels written into `levels`.
+fn build_meshes(
+    vertices: &[Vertex],
+    meshes: &[MeshRange],
+    chunks: &[Chunk],
+    guarded: bool,
+    which: &[bool],
+    levels: &mut [Vec<Level>],
+) -> Vec<Option<Vec<Vertex>>> {
+    let built: Vec<Option<(Vec<Vertex>, Vec<Vec<Level>>)>> = meshes
+        .par_iter()
+        .enumerate()
+        .map(|(i, m)| {
+            which
+                .get(i)
+                .copied()
+                .unwrap_or(true)
+                .then(|| build_mesh(vertices, m, chunks, guarded))
+        })
+        .collect();
+    built
+        .into_iter()
+        .zip(meshes)
+        .map(|(b, m)| {
+            b.map(|(v, l)| {
+                for (k, l) in l.into_iter().enumerate() {
+                    if let Some(slot) = levels.get_mut(m.first_chunk as usize + k) {
+                        *slot = l;
+                    }
+                }
+                v
+            })
+        })
+        .collect()
 }
 
 /// The levels of one chunk's expanded triangles, appended to `out`.
