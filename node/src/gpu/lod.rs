@@ -176,13 +176,11 @@ pub fn build(vertices: &[Vertex], meshes: &[MeshRange], chunks: &[Chunk], guarde
     lods
 }
 
+/// One mesh's block of level vertices and its chunks' levels.
+type MeshLevels = (Vec<Vertex>, Vec<Vec<Level>>);
+
 /// Mesh `m`'s block of level vertices and its chunks' levels (empty where LOD does not apply).
-fn build_mesh(
-    vertices: &[Vertex],
-    m: &MeshRange,
-    chunks: &[Chunk],
-    guarded: bool,
-) -> (Vec<Vertex>, Vec<Vec<Level>>) {
+fn build_mesh(vertices: &[Vertex], m: &MeshRange, chunks: &[Chunk], guarded: bool) -> MeshLevels {
     let mut out = Vec::new();
     let applies = !m.masked && !m.translucent && m.vertex_count / 3 >= MIN_TRIANGLES;
     let levels = (m.first_chunk..m.first_chunk + m.chunk_count)
@@ -208,7 +206,7 @@ fn build_meshes(
     which: &[bool],
     levels: &mut [Vec<Level>],
 ) -> Vec<Option<Vec<Vertex>>> {
-    let built: Vec<Option<(Vec<Vertex>, Vec<Vec<Level>>)>> = meshes
+    let built: Vec<Option<MeshLevels>> = meshes
         .par_iter()
         .enumerate()
         .map(|(i, m)| {
