@@ -23,11 +23,8 @@ fn main() -> anyhow::Result<()> {
             "--frames" => frames = args.next().unwrap_or_default().parse()?,
             "--lights" => lights = args.next().unwrap_or_default().parse()?,
             "--size" => {
-                let v = args.next().unwrap_or_default();
-                let (a, b) = v
-                    .split_once('x')
-                    .ok_or_else(|| anyhow::anyhow!("--size WxH"))?;
-                (w, h) = (a.parse()?, b.parse()?);
+                (w, h) = lightfold_scene::limits::parse_image_size(&args.next().unwrap_or_default())
+                    .map_err(|e| anyhow::anyhow!("--size WxH: {e}"))?
             }
             other => anyhow::bail!("unknown argument {other}"),
         }
