@@ -386,10 +386,15 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
             } else {
                 (format!("{what}, filter off"), None)
             };
+            // The planner may raise single lights (glossy highlights, `plan::gloss`).
+            let counts = per_light_samples(s);
+            let samples = match (counts.iter().min(), counts.iter().max()) {
+                (Some(a), Some(b)) if a != b => format!("{a}–{b}"),
+                _ => setting.samples.to_string(),
+            };
             outln!(
-                "| {} | {what} | {} | {floor_text} | {} | {pen:.2} dB{} | {:.2} dB | {:.3} | {:.2} dB |",
+                "| {} | {what} | {samples} | {floor_text} | {} | {pen:.2} dB{} | {:.2} dB | {:.3} | {:.2} dB |",
                 scene_label(&args.scene),
-                setting.samples,
                 if setting.penumbra > 0 {
                     format!("r{}", setting.penumbra)
                 } else {
@@ -403,6 +408,17 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+/// Each area light's samples as `scene` renders them.
+fn per_light_samples(scene: &lightfold_scene::Scene) -> Vec<u32> {
+    let q = scene.quality.samples_per_area_light;
+    scene
+        .lights
+        .iter()
+        .filter(|l| l.is_area())
+        .map(|l| q.unwrap_or(l.samples).max(1))
+        .collect()
 }
 
 fn run_hard(args: &Args) -> anyhow::Result<()> {
