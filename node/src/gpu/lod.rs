@@ -252,22 +252,25 @@ fn simplify_chunk(tris: &[Vertex], out: &mut Vec<Vertex>, guarded: bool) -> Vec<
         .collect();
     let whole = area(&indices, &positions);
     let mut levels = Vec::new();
-    let mut finer = indices.len();
-    for k in 1..=LEVELS {
-        let target = indices.len() / 4usize.pow(k as u32);
+    // Each level is simplified from the one before (faster than from the chunk each time); its
+    // error is bounded by the sum of the steps'.
+    let mut finer = indices;
+    let mut total_error = 0f32;
+    for _ in 1..=LEVELS {
+        let target = finer.len() / 4;
         if target < 3 {
             break;
         }
         let mut error = 0f32;
         let simplified = meshopt::simplify_decoder(
-            &indices,
+            &finer,
             &positions,
             target,
             f32::MAX,
             meshopt::SimplifyOptions::LockBorder | meshopt::SimplifyOptions::ErrorAbsolute,
             Some(&mut error),
         );
-        if simplified.is_empty() || simplified.len() as f32 > MIN_SAVING * finer as f32 {
+        if simplified.is_empty() || simplified.len() as f32 > MIN_SAVING * finer.len() as f32 {
             break;
         }
         // A thin part collapsed moves the surface by less than its thickness, under any texel
@@ -288,17 +291,18 @@ fn simplify_chunk(tris: &[Vertex], out: &mut Vec<Vertex>, guarded: bool) -> Vec<
                 });
             }
         }
-        finer = simplified.len();
+        total_error += if error.is_finite() {
+            error.max(0.0)
+        } else {
+            f32::MAX
+        };
         levels.push(Level {
             first_vertex: offset,
             offset,
             vertex_count: out.len() as u32 - offset,
-            error: if error.is_finite() {
-                error.max(0.0)
-            } else {
-                f32::MAX
-            },
+            error: total_error,
         });
+        finer = simplified;
     }
     levels
 }
