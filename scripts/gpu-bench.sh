@@ -19,8 +19,8 @@
 # 2. `lightfold bench node` for balls at both sizes, device and CPU pack in the same rounds, two
 #    requests in flight (device ms, CPU ms outside the device, interval ÷ device, bytes read back
 #    a pixel);
-# 3. `bench node` for animal, plant and box, the city at 1 M and 4 M triangles, and the GPU
-#    tests, as time allows.
+# 3. `bench node` for animal, plant and box, the city at 1 M and 4 M triangles, shadow LOD off
+#    and on (the city at 4 M), and the GPU tests, as time allows.
 # Every table goes to a file under OUT_DIR. Each step checks the clock: the whole run stays under
 # about 9 minutes, and a step that would not fit is skipped with a line saying so (never
 # silently).
@@ -141,6 +141,19 @@ for scene in city:1M city:4M; do
       || echo "bench node $scene 800x600 failed: see $out/bench-$scene-800x600.log" | tee -a "$out/log.txt"
   fi
 done
+
+# Simplified shadow casters (docs/scaling.md § Level of detail): the city at 4 M triangles with
+# every map drawn each frame, full detail against the levels, alternating in one run.
+if skip_unless 90 "shadow LOD city:4M"; then
+  step "shadow LOD city:4M 800x600"
+  if command -v cargo >/dev/null; then
+    timeout 150 cargo run --release -q -p lightfold-node --example shadow_lod -- \
+      --scene city:4M --size 800x600 --frames 3 2>&1 | grep -v INFO | tee "$out/shadow-lod.txt" \
+      || echo "shadow LOD: see $out/shadow-lod.txt" | tee -a "$out/log.txt"
+  else
+    echo "skipped: shadow LOD (no cargo here)" | tee -a "$out/log.txt"
+  fi
+fi
 
 # gpu_device first: the device pack's bit-for-bit differential tests on this GPU's driver.
 GPU_TEST_FILTERS="gpu_device:: daemon_frame:: gpu_correctness:: gpu_modes:: cluster:: animation::"
