@@ -498,20 +498,25 @@ fn balls_and_smooth_sphere() -> lightfold_scene::Scene {
     scene
 }
 
-/// Issue 48: shadow views draw large meshes' chunks at simplified levels whose error fits half a
+/// Issue 48: shadow views draw meshes' chunks at simplified levels whose error fits half a
 /// texel (`gpu::lod`), and the picture stays that of full detail within the bound: ≥ 99.5 % of
-/// pixels agree (the GPU tests' tolerance) and the energy within 0.2 %, on a 20 k city (flat
-/// walls: levels without error), balls with a 32 k wall and with a smooth 32 k sphere, from each
-/// scene's camera and a turned, narrowed one. Control: every chunk at its coarsest level
-/// (`Fault::LodCoarsest`) breaks the bound on the sphere.
+/// pixels agree (the GPU tests' tolerance) and the energy within 0.2 %, on every built-in, a
+/// 20 k city (flat walls: levels without error), balls with a 32 k wall and with a smooth 32 k
+/// sphere, from each scene's camera and a turned, narrowed one. Control: levels without the area
+/// guard, every chunk at its coarsest (`Fault::LodCoarsest`), break the bound on the sphere.
 #[test]
 fn shadow_lod_keeps_the_picture() {
     let gpu = gpu();
-    let scenes = [
-        ("city:20k", lightfold_scene::builtin("city:20k").unwrap()),
-        ("balls and a wall", balls_and_wall()),
-        ("balls and a smooth sphere", balls_and_smooth_sphere()),
-    ];
+    let mut scenes: Vec<(String, lightfold_scene::Scene)> = lightfold_scene::builtin_names()
+        .iter()
+        .chain(&["city:20k"])
+        .map(|n| (n.to_string(), lightfold_scene::builtin(n).unwrap()))
+        .collect();
+    scenes.push(("balls and a wall".into(), balls_and_wall()));
+    scenes.push((
+        "balls and a smooth sphere".into(),
+        balls_and_smooth_sphere(),
+    ));
     let mut control_fails = false;
     let mut saved = false;
     for (name, mut scene) in scenes {
