@@ -348,3 +348,150 @@ pub fn texel_at(view: &ShadowView, side: f32, lo: [f32; 3], hi: [f32; 3]) -> f32
         .fold(f32::INFINITY, f32::min);
     per * nearest.max(view.near).max(0.0)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gpu::scene_data::SceneData;
+    use lightfold_scene::primitives::{cuboid, plane};
+    use lightfold_scene::{Material, Scene};
+
+    /// A scene of one mesh: `parts` appended into one.
+    fn one_mesh(parts: Vec<lightfold_scene::Mesh>) -> Scene {
+        let mut s = Scene::new("lod");
+        let m = s.add_material(Material::diffuse("grey", [0.5; 3]));
+        let mut mesh = parts[0].clone();
+        mesh.material = m;
+        for p in &parts[1..] {
+            let base = mesh.positions.len() as u32;
+            mesh.positions.extend(&p.positions);
+            mesh.normals.extend(&p.normals);
+            mesh.uvs.extend(&p.uvs);
+            mesh.indices.extend(p.indices.iter().map(|i| i + base));
+        }
+        s.add_mesh(mesh);
+        s
+    }
+
+    /// Each level's area over the chunk's.
+    fn area_ratios(data: &SceneData) -> Vec<f64> {
+        let tri_area = |v: &[Vertex]| -> f64 {
+            let idx: Vec<u32> = (0..v.len() as u32).collect();
+            let pos: Vec<[f32; 3]> = v.iter().map(|v| v.position).collect();
+            area(&idx, &pos)
+        };
+        let c = &data.chunks[0];
+        let whole = tri_area(
+            &data.vertices[c.first_vertex as usize..(c.first_vertex + c.vertex_count) as usize],
+        );
+        data.lods.levels[0]
+            .iter()
+            .map(|l| {
+                let v = &data.lod_vertices
+                    [l.first_vertex as usize..(l.first_vertex + l.vertex_count) as usize];
+                tri_area(v) / whole
+            })
+            .collect()
+    }
+
+    /// The class of hard case 8 (the sub-texel fence): wires thinner than any texel collapse
+    /// with an error under half a texel and take their shadow with them. Guarded, no level
+    /// loses area; without the guard (the control) one does.
+    #[test]
+    fn thin_wires_keep_their_area() {
+        let wires: Vec<_> = (0..64)
+            .map(|i| {
+                cuboid(
+                    "wire",
+                    [i as f32 * 0.06, 1.0, 0.0],
+                    [0.0005, 1.0, 0.0005],
+                    0,
+                )
+            })
+            .collect();
+        let scene = one_mesh(wires);
+        let guarded = SceneData::with_lod(&scene, 4096, Some(true));
+        let ratios = area_ratios(&guarded);
+        assert!(
+            ratios.iter().all(|r| (r - 1.0).abs() <= MAX_AREA_CHANGE),
+            "{ratios:?}"
+        );
+        let unguarded = SceneData::with_lod(&scene, 4096, Some(false));
+        let lost = area_ratios(&unguarded);
+        assert!(
+            lost.iter().any(|r| (r - 1.0).abs() > MAX_AREA_CHANGE),
+            "the control must lose area: {lost:?}"
+        );
+    }
+
+    /// A finely divided plane simplifies to a quarter and further, its error under a millimetre
+    /// on 4 m (the simplifier's estimate is not exactly 0 on a plane) and no area lost; LOD off
+    /// builds nothing.
+    #[test]
+    fn a_flat_grid_simplifies_without_error() {
+        let scene = one_mesh(vec![plane(
+            "floor",
+            [0.0; 3],
+            [0.0, 1.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [4.0, 4.0],
+            32,
+            0,
+        )]);
+        let data = SceneData::with_lod(&scene, 4096, Some(true));
+        let levels = &data.lods.levels[0];
+        assert!(levels.len() >= 2, "{levels:?}");
+        assert!(levels.iter().all(|l| l.error <= 1e-3), "{levels:?}");
+        assert!(levels[0].vertex_count * 4 <= data.chunks[0].vertex_count + 3);
+        assert!(area_ratios(&data).iter().all(|r| (r - 1.0).abs() < 1e-5));
+        let off = SceneData::with_lod(&scene, 4096, None);
+        assert!(!off.lods.any() && off.lod_vertices.is_empty());
+    }
+
+    #[test]
+    fn a_view_takes_the_coarsest_level_within_half_a_texel() {
+        let level = |error| Level {
+            error,
+            ..Level::default()
+        };
+        let lods = Lods {
+            levels: vec![vec![level(0.1), level(0.5), level(2.0)]],
+            ..Lods::default()
+        };
+        let pick = |texel| lods.pick(0, texel).map(|l| l.error);
+        assert_eq!(pick(0.1), None);
+        assert_eq!(pick(0.3), Some(0.1));
+        assert_eq!(pick(1.0), Some(0.5));
+        assert_eq!(pick(10.0), Some(2.0));
+        assert_eq!(lods.coarsest(0).map(|l| l.error), Some(2.0));
+    }
+
+    /// A texel's size at a box: an orthographic view's is the same everywhere; a perspective
+    /// view's grows with the box's nearest depth (never nearer than the near plane).
+    #[test]
+    fn texels_grow_with_depth_in_perspective_views() {
+        let identity = [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
+        let mut view = ShadowView {
+            kind: ShadowViewKind::Fitted,
+            view: identity,
+            proj: identity,
+            near: 0.5,
+            far: 100.0,
+            extent: [-1.0, 1.0, -1.0, 1.0],
+            half_space: None,
+            eye_depth: None,
+        };
+        let t = |v: &ShadowView, lo, hi| texel_at(v, 100.0, lo, hi);
+        assert!((t(&view, [0.0, 0.0, -10.0], [1.0, 1.0, -5.0]) - 0.1).abs() < 1e-6);
+        // Straddling the light: its near plane.
+        assert!((t(&view, [0.0, 0.0, -10.0], [1.0, 1.0, 5.0]) - 0.01).abs() < 1e-6);
+        view.kind = ShadowViewKind::Ortho;
+        view.extent = [-50.0, 50.0, -50.0, 50.0];
+        assert!((t(&view, [0.0, 0.0, -10.0], [1.0, 1.0, -5.0]) - 1.0).abs() < 1e-6);
+    }
+}
