@@ -1,8 +1,9 @@
-//! What simplified shadow casters save (issue 48, `gpu::lod`): a scene's frames with every map
-//! drawn again (the lights nudged), full detail against the levels, alternating, the median of
-//! `--frames` each: the shadow passes' time and vertices, the levels' build time and triangles,
-//! and how many pixels of the illumination agree (`docs/scaling.md` § Level of detail). Set
-//! `LP_NUM_THREADS` as the bench does.
+//! What levels of detail save (issue 48, `gpu::lod`): a scene's frames with every map drawn
+//! again (the lights nudged), full detail against the levels (the shadow casters' and the eye
+//! pass's lossless ones), alternating, the median of `--frames` each: the shadow passes' and the
+//! eye pass's time and vertices, the levels' build time and triangles, and how many pixels of
+//! the illumination agree (`docs/scaling.md` § Level of detail). Set `LP_NUM_THREADS` as the
+//! bench does.
 //!
 //! `cargo run --release -p lightfold-node --example shadow_lod -- [--scene city:1m] [--frames N] [--size WxH] [--lights N]`
 
@@ -47,6 +48,7 @@ fn main() -> anyhow::Result<()> {
     for shadow_lod in [false, true] {
         let opts = RenderOptions {
             shadow_lod,
+            eye_lod: shadow_lod,
             ..RenderOptions::from_quality(&scene.quality)
         };
         let t = Instant::now();
@@ -65,6 +67,8 @@ fn main() -> anyhow::Result<()> {
     }
     let mut shadow_ms = [Vec::new(), Vec::new()];
     let mut frame_ms = [Vec::new(), Vec::new()];
+    let mut eye_ms = [Vec::new(), Vec::new()];
+    let mut eye_vertices = [0u32; 2];
     let mut vertices = [(0u64, 0u64); 2];
     let mut last = Vec::new();
     for frame in 0..frames {
@@ -81,6 +85,8 @@ fn main() -> anyhow::Result<()> {
             let f = r.render(&gpu, &nudged, None, [1.0; 3], LayerSet::illumination())?;
             shadow_ms[k].push(f.stats.shadow_us as f64 / 1e3);
             let s = &f.stats;
+            eye_ms[k].push(s.eye_us as f64 / 1e3);
+            eye_vertices[k] = r.eye_vertices();
             frame_ms[k].push((s.setup_us + s.shadow_us + s.eye_us + s.readback_us) as f64 / 1e3);
             vertices[k] = (f.stats.shadow_vertices, f.stats.shadow_lod_vertices);
             last.push(
@@ -92,6 +98,7 @@ fn main() -> anyhow::Result<()> {
     let med = |v: &Vec<f64>| stats::median(v).unwrap_or(f64::NAN);
     let (s0, s1) = (med(&shadow_ms[0]), med(&shadow_ms[1]));
     let (f0, f1) = (med(&frame_ms[0]), med(&frame_ms[1]));
+    let (e0, e1) = (med(&eye_ms[0]), med(&eye_ms[1]));
     let max = last[0]
         .data
         .iter()
@@ -113,6 +120,12 @@ fn main() -> anyhow::Result<()> {
         vertices[1].0,
         vertices[1].1,
         w * h
+    );
+    println!(
+        "eye pass {e0:.1} → {e1:.1} ms ({:.2}×); its vertices {} → {}",
+        e1 / e0,
+        eye_vertices[0],
+        eye_vertices[1]
     );
     Ok(())
 }

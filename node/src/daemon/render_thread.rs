@@ -322,6 +322,7 @@ fn options_for(setup: &RenderSetup) -> RenderOptions {
         walkthrough: c.walkthrough,
         chunk_triangles: crate::gpu::scene_data::CHUNK_TRIANGLES,
         shadow_lod: true,
+        eye_lod: true,
         fault: None,
     }
 }

@@ -99,7 +99,7 @@ fn chunk_groups(cx: &DrawContext<'_>, inputs: &EyeInputs<'_>) -> Vec<wgpu::BindG
 /// Records and submits the G-buffer raster and the light dispatches of `light_pass`.
 pub fn render_deferred(
     cx: &DrawContext<'_>,
-    draws: &[std::ops::Range<u32>],
+    draws: &super::eye_pass::EyeDraws,
     targets: &EyeTargets,
     deferred: &DeferredTargets,
     inputs: &EyeInputs<'_>,

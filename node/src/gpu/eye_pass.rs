@@ -254,7 +254,7 @@ pub fn record_raster(
     bind_group: &wgpu::BindGroup,
     colour: &[&wgpu::Texture],
     depth_buffer: &wgpu::Texture,
-    draws: &[Range<u32>],
+    draws: &EyeDraws,
 ) {
     let view = |t: &wgpu::Texture| t.create_view(&Default::default());
     let views: Vec<wgpu::TextureView> = colour.iter().map(|t| view(t)).collect();
@@ -286,8 +286,37 @@ pub fn record_raster(
     if let Some(t) = cx.tangents {
         pass.set_vertex_buffer(1, t.slice(..));
     }
-    for r in draws.iter().filter(|r| !r.is_empty()) {
+    for r in draws.scene.iter().filter(|r| !r.is_empty()) {
         pass.draw(r.clone(), 0..1);
+    }
+    // Lossless levels (`gpu::lod`) from their own buffer; never in a normal-mapped scene, so no
+    // tangent buffer is bound against them.
+    if let Some((levels, _)) = cx.lod
+        && !draws.levels.is_empty()
+    {
+        pass.set_vertex_buffer(0, levels.slice(..));
+        for r in draws.levels.iter().filter(|r| !r.is_empty()) {
+            pass.draw(r.clone(), 0..1);
+        }
+    }
+}
+
+/// What the eye pass draws: vertex ranges of the scene's buffer, and of the level buffer
+/// (`gpu::lod`'s lossless eye levels).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct EyeDraws {
+    pub scene: Vec<Range<u32>>,
+    pub levels: Vec<Range<u32>>,
+}
+
+impl EyeDraws {
+    /// Vertices drawn.
+    pub fn vertices(&self) -> u32 {
+        self.scene
+            .iter()
+            .chain(&self.levels)
+            .map(|r| r.end - r.start)
+            .sum()
     }
 }
 
@@ -295,7 +324,7 @@ pub fn record_raster(
 /// partition's: [`super::Renderer::set_eye_meshes`]).
 pub fn render_eye(
     cx: &DrawContext<'_>,
-    draws: &[Range<u32>],
+    draws: &EyeDraws,
     targets: &EyeTargets,
     inputs: &EyeInputs<'_>,
 ) {

@@ -28,6 +28,10 @@ pub struct RenderOptions {
     /// Draw opaque meshes' chunks in shadow views at a simplified level whose error fits half a
     /// texel there (`gpu::lod`; the default).
     pub shadow_lod: bool,
+    /// Draw opaque chunks in the eye pass at their lossless level where they have one: coplanar
+    /// runs of a finely divided flat surface merged, nothing that moves a position, normal or
+    /// UV (`gpu::lod`; the default).
+    pub eye_lod: bool,
     /// A deliberate mistake for negative-control tests.
     pub fault: Option<Fault>,
 }
@@ -52,6 +56,7 @@ impl RenderOptions {
             walkthrough: false,
             chunk_triangles: super::scene_data::CHUNK_TRIANGLES,
             shadow_lod: true,
+            eye_lod: true,
             fault: None,
         }
     }

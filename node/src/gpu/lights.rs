@@ -40,6 +40,9 @@ pub enum Fault {
     /// Levels are simplified without the area guard and shadow views draw every chunk at its
     /// coarsest, whatever its error (`gpu::lod`).
     LodCoarsest,
+    /// The eye pass draws each chunk's first shadow level (lossy: it moves the surface) instead
+    /// of its lossless eye level (`gpu::lod`).
+    EyeLodLossy,
 }
 
 /// `Light` in `shading.wgsl` (std430).

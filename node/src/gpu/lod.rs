@@ -4,7 +4,12 @@
 //! (meshoptimizer's edge-collapse simplifier, through the `meshopt` crate), each with the largest
 //! distance it moved the surface (metres). A shadow view draws a chunk at the coarsest level whose
 //! error is at most [`MAX_ERROR_TEXELS`] of a map texel where the chunk is nearest the light, so no
-//! shadow edge moves by more than that; the eye pass always draws the full mesh.
+//! shadow edge moves by more than that.
+//!
+//! The eye pass draws full detail but for one more level per chunk where the chunk is
+//! flat-shaded (every vertex normal its triangle's): welded by every attribute it reads and
+//! simplified only while positions and UVs move by at most [`EYE_TOLERANCE`] of the chunk's size,
+//! which merges coplanar runs of a finely divided flat surface and nothing else (`eye_level`).
 //!
 //! Chunk borders are locked (`LockBorder`): the vertices a chunk shares with its neighbours never
 //! move, so chunks drawn at different levels meet without cracks. Alpha-masked and translucent
@@ -27,6 +32,20 @@ pub const MAX_ERROR_TEXELS: f32 = 0.5;
 
 /// Meshes of fewer triangles keep their detail.
 pub const MIN_TRIANGLES: u32 = 256;
+
+/// An eye level may move position, normal and UV by at most this share of its chunk's size:
+/// lossless but for rounding.
+pub const EYE_TOLERANCE: f32 = 1e-4;
+
+/// A chunk is flat-shaded where every vertex normal is its triangle's geometric normal within
+/// this (cosine 1 − this).
+const FLAT_SHADED: f32 = 1e-5;
+
+/// An eye level keeps its chunk's area within this share.
+const EYE_AREA_CHANGE: f64 = 1e-4;
+
+/// An eye level is kept only if it has at most this share of the chunk's triangles.
+const EYE_MIN_SAVING: f32 = 0.8;
 
 /// A level is kept only if its area is within this share of the chunk's (1 %).
 const MAX_AREA_CHANGE: f64 = 0.01;
@@ -58,8 +77,23 @@ pub struct Lods {
     /// Per chunk (as `SceneData::chunks`), its levels, finest first; empty for a chunk kept
     /// whole.
     pub levels: Vec<Vec<Level>>,
-    /// Whether levels that lose area were refused (false only for `Fault::LodCoarsest`).
+    /// Per chunk, its lossless level for the eye pass (module documentation), if it has one.
+    pub eye: Vec<Option<Level>>,
+    /// What was built: whether levels that lose area were refused (false only for
+    /// `Fault::LodCoarsest`) and whether eye levels were made.
+    pub build: Build,
+}
+
+/// What [`build`] makes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Build {
+    /// Make the shadow passes' levels.
+    pub shadow: bool,
+    /// Refuse shadow levels that lose area (always, but in a negative control).
     pub guarded: bool,
+    /// Make lossless levels for the eye pass too (not where the scene is normal-mapped: the
+    /// level buffer carries no tangents).
+    pub eye: bool,
 }
 
 impl Lods {
@@ -77,16 +111,17 @@ impl Lods {
         self.levels.get(chunk)?.last()
     }
 
-    /// Whether some chunk has a level.
+    /// Whether some chunk has a level (for the shadow passes or the eye).
     pub fn any(&self) -> bool {
-        self.levels.iter().any(|l| !l.is_empty())
+        self.levels.iter().any(|l| !l.is_empty()) || self.eye.iter().any(Option::is_some)
     }
 
-    /// Triangles of every level of every chunk.
+    /// Triangles of every level of every chunk (shadow and eye).
     pub fn triangles(&self) -> u64 {
         self.levels
             .iter()
             .flatten()
+            .chain(self.eye.iter().flatten())
             .map(|l| u64::from(l.vertex_count / 3))
             .sum()
     }
@@ -94,6 +129,11 @@ impl Lods {
     /// Vertices of the uploaded buffer.
     pub fn vertex_count(&self) -> u32 {
         self.mesh_count.iter().sum()
+    }
+
+    /// The lossless eye level of `chunk`, if it has one.
+    pub fn eye_level(&self, chunk: usize) -> Option<&Level> {
+        self.eye.get(chunk)?.as_ref()
     }
 
     /// Lays the meshes' blocks out one after another (sets `mesh_first` and every level's
@@ -115,6 +155,9 @@ impl Lods {
                 for l in self.levels.get_mut(c as usize).into_iter().flatten() {
                     l.first_vertex = first + l.offset;
                 }
+                if let Some(Some(l)) = self.eye.get_mut(c as usize) {
+                    l.first_vertex = first + l.offset;
+                }
             }
         }
         self.mesh_vertices.concat()
@@ -132,22 +175,24 @@ impl Lods {
     ) {
         let kept = self.mesh_vertices.len() == meshes.len()
             && self.levels.len() == chunks.len()
+            && self.eye.len() == chunks.len()
             && self
                 .mesh_vertices
                 .iter()
                 .zip(&self.mesh_count)
                 .all(|(v, &n)| v.len() as u32 == n);
         if !kept {
-            *self = build(vertices, meshes, chunks, self.guarded);
+            *self = build(vertices, meshes, chunks, self.build);
             return;
         }
         let built = build_meshes(
             vertices,
             meshes,
             chunks,
-            self.guarded,
+            self.build,
             changed,
             &mut self.levels,
+            &mut self.eye,
         );
         for (m, v) in built.into_iter().enumerate() {
             if let Some(v) = v {
@@ -159,16 +204,24 @@ impl Lods {
 }
 
 /// The levels of the chunks of `meshes` (ranges into `vertices`) that LOD applies to (module
-/// documentation); `guarded`: refusing levels that lose area (always, but in a negative control).
-/// Call [`Lods::layout`] after.
-pub fn build(vertices: &[Vertex], meshes: &[MeshRange], chunks: &[Chunk], guarded: bool) -> Lods {
+/// documentation). Call [`Lods::layout`] after.
+pub fn build(vertices: &[Vertex], meshes: &[MeshRange], chunks: &[Chunk], build: Build) -> Lods {
     let mut lods = Lods {
         levels: vec![Vec::new(); chunks.len()],
-        guarded,
+        eye: vec![None; chunks.len()],
+        build,
         ..Lods::default()
     };
     let all = vec![true; meshes.len()];
-    let built = build_meshes(vertices, meshes, chunks, guarded, &all, &mut lods.levels);
+    let built = build_meshes(
+        vertices,
+        meshes,
+        chunks,
+        build,
+        &all,
+        &mut lods.levels,
+        &mut lods.eye,
+    );
     for v in built.into_iter().flatten() {
         lods.mesh_count.push(v.len() as u32);
         lods.mesh_vertices.push(v);
@@ -176,24 +229,37 @@ pub fn build(vertices: &[Vertex], meshes: &[MeshRange], chunks: &[Chunk], guarde
     lods
 }
 
-/// One mesh's block of level vertices and its chunks' levels.
-type MeshLevels = (Vec<Vertex>, Vec<Vec<Level>>);
+/// One mesh's block of level vertices, its chunks' shadow levels and eye levels.
+type MeshLevels = (Vec<Vertex>, Vec<Vec<Level>>, Vec<Option<Level>>);
 
 /// Mesh `m`'s block of level vertices and its chunks' levels (empty where LOD does not apply).
-fn build_mesh(vertices: &[Vertex], m: &MeshRange, chunks: &[Chunk], guarded: bool) -> MeshLevels {
+fn build_mesh(vertices: &[Vertex], m: &MeshRange, chunks: &[Chunk], build: Build) -> MeshLevels {
     let mut out = Vec::new();
     let applies = !m.masked && !m.translucent && m.vertex_count / 3 >= MIN_TRIANGLES;
-    let levels = (m.first_chunk..m.first_chunk + m.chunk_count)
-        .map(|c| match chunks.get(c as usize) {
+    let (mut levels, mut eye) = (Vec::new(), Vec::new());
+    for c in m.first_chunk..m.first_chunk + m.chunk_count {
+        match chunks.get(c as usize) {
             Some(chunk) if applies => {
                 let tris = &vertices[chunk.first_vertex as usize
                     ..(chunk.first_vertex + chunk.vertex_count) as usize];
-                simplify_chunk(tris, &mut out, guarded)
+                levels.push(if build.shadow {
+                    simplify_chunk(tris, &mut out, build.guarded)
+                } else {
+                    Vec::new()
+                });
+                eye.push(if build.eye {
+                    eye_level(tris, &mut out)
+                } else {
+                    None
+                });
             }
-            _ => Vec::new(),
-        })
-        .collect();
-    (out, levels)
+            _ => {
+                levels.push(Vec::new());
+                eye.push(None);
+            }
+        }
+    }
+    (out, levels, eye)
 }
 
 /// [`build_mesh`] of the meshes `which` marks, in parallel (the simplifier is the slow part of
@@ -202,9 +268,10 @@ fn build_meshes(
     vertices: &[Vertex],
     meshes: &[MeshRange],
     chunks: &[Chunk],
-    guarded: bool,
+    build: Build,
     which: &[bool],
     levels: &mut [Vec<Level>],
+    eye: &mut [Option<Level>],
 ) -> Vec<Option<Vec<Vertex>>> {
     let built: Vec<Option<MeshLevels>> = meshes
         .par_iter()
@@ -214,17 +281,18 @@ fn build_meshes(
                 .get(i)
                 .copied()
                 .unwrap_or(true)
-                .then(|| build_mesh(vertices, m, chunks, guarded))
+                .then(|| build_mesh(vertices, m, chunks, build))
         })
         .collect();
     built
         .into_iter()
         .zip(meshes)
         .map(|(b, m)| {
-            b.map(|(v, l)| {
-                for (k, l) in l.into_iter().enumerate() {
-                    if let Some(slot) = levels.get_mut(m.first_chunk as usize + k) {
-                        *slot = l;
+            b.map(|(v, l, e)| {
+                for (k, (l, e)) in l.into_iter().zip(e).enumerate() {
+                    let c = m.first_chunk as usize + k;
+                    if let (Some(slot), Some(eslot)) = (levels.get_mut(c), eye.get_mut(c)) {
+                        (*slot, *eslot) = (l, e);
                     }
                 }
                 v
@@ -307,6 +375,98 @@ fn simplify_chunk(tris: &[Vertex], out: &mut Vec<Vertex>, guarded: bool) -> Vec<
     levels
 }
 
+/// A flat-shaded chunk's level for the eye pass, appended to `out`: its triangles welded by every
+/// attribute the eye pass reads (position, normal, UV, material, object), so attribute seams are
+/// borders and stay; simplified (borders locked) only as far as neither position nor UV moves by
+/// more than [`EYE_TOLERANCE`] of the chunk's size, and only where the area stays. Coplanar runs
+/// of a finely divided flat surface collapse; smooth-shaded chunks stay whole.
+fn eye_level(tris: &[Vertex], out: &mut Vec<Vertex>) -> Option<Level> {
+    // Only flat-shaded chunks: where shading normals are interpolated across a curved surface, a
+    // collapse under any position bound still bends them.
+    let flat = tris.iter().all(|v| {
+        let (n, g) = (v.normal, v.geometric_normal);
+        n[0] * g[0] + n[1] * g[1] + n[2] * g[2] >= 1.0 - FLAT_SHADED
+    });
+    if !flat {
+        return None;
+    }
+    let mut at: HashMap<[u32; 10], u32> = HashMap::with_capacity(tris.len());
+    let mut positions: Vec<[f32; 3]> = Vec::new();
+    let mut attributes: Vec<f32> = Vec::new();
+    let mut first: Vec<usize> = Vec::new();
+    let indices: Vec<u32> = tris
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let p = v.position.map(f32::to_bits);
+            let n = v.normal.map(f32::to_bits);
+            let t = v.uv.map(f32::to_bits);
+            let key = [
+                p[0], p[1], p[2], n[0], n[1], n[2], t[0], t[1], v.material, v.object,
+            ];
+            *at.entry(key).or_insert_with(|| {
+                positions.push(v.position);
+                attributes.extend(v.normal);
+                attributes.extend(v.uv);
+                first.push(i);
+                positions.len() as u32 - 1
+            })
+        })
+        .collect();
+    let (lo, hi) = positions.iter().fold(
+        ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]),
+        |(lo, hi), p| {
+            (
+                [0, 1, 2].map(|k| lo[k].min(p[k])),
+                [0, 1, 2].map(|k| hi[k].max(p[k])),
+            )
+        },
+    );
+    let size = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f32>().sqrt();
+    let tolerance = EYE_TOLERANCE * size.max(1e-6);
+    let locks = vec![false; positions.len()];
+    let mut error = 0f32;
+    let simplified = meshopt::simplify_with_attributes_and_locks_decoder(
+        &indices,
+        &positions,
+        &attributes,
+        &[1.0; 5],
+        5 * std::mem::size_of::<f32>(),
+        &locks,
+        0,
+        tolerance,
+        meshopt::SimplifyOptions::LockBorder | meshopt::SimplifyOptions::ErrorAbsolute,
+        Some(&mut error),
+    );
+    let whole = area(&indices, &positions);
+    if simplified.is_empty()
+        || simplified.len() as f32 > EYE_MIN_SAVING * indices.len() as f32
+        || error.is_nan()
+        || error > tolerance
+        || (area(&simplified, &positions) - whole).abs() > EYE_AREA_CHANGE * whole
+    {
+        return None;
+    }
+    let offset = out.len() as u32;
+    for tri in simplified.chunks_exact(3) {
+        let p = [0, 1, 2].map(|k| positions[tri[k] as usize]);
+        let n = super::scene_data::geometric_normal(p[0], p[1], p[2]);
+        for (k, &i) in tri.iter().enumerate() {
+            out.push(Vertex {
+                position: p[k],
+                geometric_normal: n,
+                ..tris[first[i as usize]]
+            });
+        }
+    }
+    Some(Level {
+        first_vertex: offset,
+        offset,
+        vertex_count: out.len() as u32 - offset,
+        error,
+    })
+}
+
 /// The area of the triangles `indices` makes of `positions` (m²).
 fn area(indices: &[u32], positions: &[[f32; 3]]) -> f64 {
     indices
@@ -355,6 +515,14 @@ mod tests {
     use crate::gpu::scene_data::SceneData;
     use lightfold_scene::primitives::{cuboid, plane};
     use lightfold_scene::{Material, Scene};
+
+    fn shadow_levels(guarded: bool) -> Build {
+        Build {
+            shadow: true,
+            guarded,
+            eye: false,
+        }
+    }
 
     /// A scene of one mesh: `parts` appended into one.
     fn one_mesh(parts: Vec<lightfold_scene::Mesh>) -> Scene {
@@ -410,13 +578,13 @@ mod tests {
             })
             .collect();
         let scene = one_mesh(wires);
-        let guarded = SceneData::with_lod(&scene, 4096, Some(true));
+        let guarded = SceneData::with_lod(&scene, 4096, shadow_levels(true));
         let ratios = area_ratios(&guarded);
         assert!(
             ratios.iter().all(|r| (r - 1.0).abs() <= MAX_AREA_CHANGE),
             "{ratios:?}"
         );
-        let unguarded = SceneData::with_lod(&scene, 4096, Some(false));
+        let unguarded = SceneData::with_lod(&scene, 4096, shadow_levels(false));
         let lost = area_ratios(&unguarded);
         assert!(
             lost.iter().any(|r| (r - 1.0).abs() > MAX_AREA_CHANGE),
@@ -438,13 +606,13 @@ mod tests {
             32,
             0,
         )]);
-        let data = SceneData::with_lod(&scene, 4096, Some(true));
+        let data = SceneData::with_lod(&scene, 4096, shadow_levels(true));
         let levels = &data.lods.levels[0];
         assert!(levels.len() >= 2, "{levels:?}");
         assert!(levels.iter().all(|l| l.error <= 1e-3), "{levels:?}");
         assert!(levels[0].vertex_count * 4 <= data.chunks[0].vertex_count + 3);
         assert!(area_ratios(&data).iter().all(|r| (r - 1.0).abs() < 1e-5));
-        let off = SceneData::with_lod(&scene, 4096, None);
+        let off = SceneData::with_lod(&scene, 4096, Build::default());
         assert!(!off.lods.any() && off.lod_vertices.is_empty());
     }
 
@@ -493,5 +661,44 @@ mod tests {
         view.kind = ShadowViewKind::Ortho;
         view.extent = [-50.0, 50.0, -50.0, 50.0];
         assert!((t(&view, [0.0, 0.0, -10.0], [1.0, 1.0, -5.0]) - 1.0).abs() < 1e-6);
+    }
+
+    /// Eye levels: a finely divided flat plane gets one (fewer triangles, the same area); a
+    /// smooth-shaded sphere of as many triangles gets none, however small its collapses.
+    #[test]
+    fn only_flat_shaded_chunks_get_an_eye_level() {
+        let eye = Build {
+            shadow: false,
+            guarded: true,
+            eye: true,
+        };
+        let flat = one_mesh(vec![plane(
+            "floor",
+            [0.0; 3],
+            [0.0, 1.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [4.0, 4.0],
+            32,
+            0,
+        )]);
+        let data = SceneData::with_lod(&flat, 4096, eye);
+        let level = data
+            .lods
+            .eye_level(0)
+            .expect("a flat grid has an eye level");
+        assert!(
+            level.vertex_count * 2 < data.chunks[0].vertex_count,
+            "{level:?}"
+        );
+        assert!(
+            level.error <= EYE_TOLERANCE * 4.0 * 2f32.sqrt(),
+            "{level:?}"
+        );
+        assert!(data.lods.levels[0].is_empty(), "no shadow levels asked for");
+        let round = one_mesh(vec![lightfold_scene::primitives::sphere(
+            "ball", [0.0; 3], 1.0, 64, 32, 0,
+        )]);
+        let data = SceneData::with_lod(&round, 4096, eye);
+        assert!(data.lods.eye.iter().all(Option::is_none));
     }
 }

@@ -10,8 +10,8 @@ use super::atlas::Slot;
 use super::deferred::{DeferredTargets, render_deferred};
 use super::device::{Gpu, SHADOW_MEMORY_BUDGET, SHADOW_TEXEL_BYTES, captured};
 use super::eye_pass::{
-    EyeInputs, EyeTargets, FLAG_CONVENTIONAL_Z, FLAG_OBJECT_IDS, FLAG_RECEIVER_PLANE, GpuFrame,
-    render_eye,
+    EyeDraws, EyeInputs, EyeTargets, FLAG_CONVENTIONAL_Z, FLAG_OBJECT_IDS, FLAG_RECEIVER_PLANE,
+    GpuFrame, render_eye,
 };
 use super::frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
 use super::lights::{Fault, Fit, LightPlan, Sides, TRANSLUCENT_TEXEL_BYTES, plan_lights_within};
@@ -123,8 +123,11 @@ impl Renderer {
         let data = SceneData::with_lod(
             scene,
             opts.chunk_triangles,
-            opts.shadow_lod
-                .then_some(opts.fault != Some(Fault::LodCoarsest)),
+            super::lod::Build {
+                shadow: opts.shadow_lod,
+                guarded: opts.fault != Some(Fault::LodCoarsest),
+                eye: opts.eye_lod,
+            },
         );
         let storage_max = gpu.limits.max_storage_buffer_binding_size;
         for (what, bytes) in [
@@ -441,7 +444,7 @@ impl Renderer {
         }
         // The moved meshes' levels simplified again from their pose (the same levels a still
         // scene of that pose gets).
-        if self.options.shadow_lod {
+        if self.options.shadow_lod || self.options.eye_lod {
             self.scene.lods.update(&vertices, &ranges, &chunks, &moved);
             let level_vertices = self.scene.lods.layout(&ranges);
             let fits = self
@@ -903,7 +906,7 @@ impl Renderer {
             vertex_count: self.scene.vertex_count,
         };
         let draws = self.eye_draws(&frame.view_proj);
-        self.eye_vertices = draws.iter().map(|r| r.end - r.start).sum();
+        self.eye_vertices = draws.vertices();
         if variant == EyeVariant::Deferred {
             if !self
                 .deferred
@@ -1070,11 +1073,17 @@ impl Renderer {
 
     /// The vertex ranges the eye pass draws: every mesh, or those of
     /// [`Renderer::set_eye_meshes`], less (with eye culling) the chunks whose bounds miss the
-    /// frustum of `view_proj` (contiguous ones merged into one draw).
-    fn eye_draws(&self, view_proj: &[[f32; 4]; 4]) -> Vec<std::ops::Range<u32>> {
+    /// frustum of `view_proj` (contiguous ones merged into one draw); a chunk with a lossless
+    /// eye level (`gpu::lod`) from the level buffer.
+    fn eye_draws(&self, view_proj: &[[f32; 4]; 4]) -> EyeDraws {
         let partial = self.options.fault == Some(Fault::EyeCullPartial);
-        if self.eye_meshes.is_none() && !self.eye_culling && !partial {
-            return std::iter::once(0..self.scene.vertex_count).collect();
+        let lossy = self.options.fault == Some(Fault::EyeLodLossy);
+        let levels = self.lod_vertices.is_some() && self.scene.lods.any();
+        if self.eye_meshes.is_none() && !self.eye_culling && !partial && !levels {
+            return EyeDraws {
+                scene: std::iter::once(0..self.scene.vertex_count).collect(),
+                levels: Vec::new(),
+            };
         }
         let shown = |(lo, hi): ([f32; 3], [f32; 3])| {
             if partial {
@@ -1092,12 +1101,34 @@ impl Renderer {
             ),
             None => Box::new(self.scene.meshes.iter()),
         };
-        let ranges: Vec<std::ops::Range<u32>> = chosen
-            .flat_map(|r| self.scene.mesh_chunks(r))
-            .filter(|c| c.vertex_count > 0 && shown(c.bounds))
-            .map(|c| c.first_vertex..c.first_vertex + c.vertex_count)
-            .collect();
-        super::scene_data::merged(ranges)
+        let mut draws = EyeDraws::default();
+        for r in chosen {
+            let first = r.first_chunk as usize;
+            for (k, c) in self.scene.mesh_chunks(r).iter().enumerate() {
+                if c.vertex_count == 0 || !shown(c.bounds) {
+                    continue;
+                }
+                let lods = &self.scene.lods;
+                let level = if !levels {
+                    None
+                } else if lossy {
+                    lods.levels.get(first + k).and_then(|l| l.first())
+                } else {
+                    lods.eye_level(first + k)
+                };
+                match level {
+                    Some(l) => draws
+                        .levels
+                        .push(l.first_vertex..l.first_vertex + l.vertex_count),
+                    None => draws
+                        .scene
+                        .push(c.first_vertex..c.first_vertex + c.vertex_count),
+                }
+            }
+        }
+        draws.scene = super::scene_data::merged(draws.scene);
+        draws.levels = super::scene_data::merged(draws.levels);
+        draws
     }
 
     /// Per light of the frame, whether it has translucent casters (`casters[λ]`, or any mesh

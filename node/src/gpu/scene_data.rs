@@ -247,13 +247,12 @@ impl SceneData {
     /// The scene's arrays, meshes of more than `chunk_triangles` triangles in chunks of that
     /// many (0: every mesh whole, its triangles in their own order), without LOD.
     pub fn chunked(scene: &Scene, chunk_triangles: u32) -> SceneData {
-        SceneData::with_lod(scene, chunk_triangles, None)
+        SceneData::with_lod(scene, chunk_triangles, super::lod::Build::default())
     }
 
-    /// [`SceneData::chunked`], and with `lod` the shadow passes' simplified levels of the
-    /// chunks of opaque meshes (`gpu::lod`; `Some(false)`: without the area guard, a negative
-    /// control's mistake).
-    pub fn with_lod(scene: &Scene, chunk_triangles: u32, lod: Option<bool>) -> SceneData {
+    /// [`SceneData::chunked`], with the simplified levels of the chunks of opaque meshes that
+    /// `lod` asks for (`gpu::lod`; eye levels never where the scene is normal-mapped).
+    pub fn with_lod(scene: &Scene, chunk_triangles: u32, lod: super::lod::Build) -> SceneData {
         // Out-of-range material indices get the reference's mid-grey diffuse fallback, last.
         let fallback_material = Material::diffuse("fallback", [0.5; 3]);
         let (materials, pbr): (Vec<GpuMaterial>, Vec<GpuPbr>) = scene
@@ -318,8 +317,12 @@ impl SceneData {
             texels.push(0);
         }
         let object_bounds = object_bounds(&meshes);
-        let mut lods = if let Some(guarded) = lod {
-            super::lod::build(&vertices, &meshes, &chunks, guarded)
+        let lod = super::lod::Build {
+            eye: lod.eye && !normal_mapped,
+            ..lod
+        };
+        let mut lods = if lod.shadow || lod.eye {
+            super::lod::build(&vertices, &meshes, &chunks, lod)
         } else {
             super::lod::Lods::default()
         };
