@@ -347,29 +347,19 @@ fn simplify_chunk(tris: &[Vertex], out: &mut Vec<Vertex>, guarded: bool) -> Vec<
         if guarded && (area(&simplified, &positions) - whole).abs() > MAX_AREA_CHANGE * whole {
             break;
         }
-        let offset = out.len() as u32;
-        for tri in simplified.chunks_exact(3) {
-            let p = [0, 1, 2].map(|k| positions[tri[k] as usize]);
-            let n = super::scene_data::geometric_normal(p[0], p[1], p[2]);
-            for (k, &i) in tri.iter().enumerate() {
-                out.push(Vertex {
-                    position: p[k],
-                    geometric_normal: n,
-                    ..tris[first[i as usize]]
-                });
-            }
-        }
         total_error += if error.is_finite() {
             error.max(0.0)
         } else {
             f32::MAX
         };
-        levels.push(Level {
-            first_vertex: offset,
-            offset,
-            vertex_count: out.len() as u32 - offset,
-            error: total_error,
-        });
+        levels.push(append(
+            out,
+            &simplified,
+            &positions,
+            &first,
+            tris,
+            total_error,
+        ));
         finer = simplified;
     }
     levels
@@ -447,6 +437,20 @@ fn eye_level(tris: &[Vertex], out: &mut Vec<Vertex>) -> Option<Level> {
     {
         return None;
     }
+    Some(append(out, &simplified, &positions, &first, tris, error))
+}
+
+/// Appends the triangles `simplified` (indices into the welded `positions`; `first[i]` the first
+/// of `tris` welded into `i`, whose other attributes the level takes) to `out`, each with its own
+/// geometric normal, as a level of `error`.
+fn append(
+    out: &mut Vec<Vertex>,
+    simplified: &[u32],
+    positions: &[[f32; 3]],
+    first: &[usize],
+    tris: &[Vertex],
+    error: f32,
+) -> Level {
     let offset = out.len() as u32;
     for tri in simplified.chunks_exact(3) {
         let p = [0, 1, 2].map(|k| positions[tri[k] as usize]);
@@ -459,12 +463,12 @@ fn eye_level(tris: &[Vertex], out: &mut Vec<Vertex>) -> Option<Level> {
             });
         }
     }
-    Some(Level {
+    Level {
         first_vertex: offset,
         offset,
         vertex_count: out.len() as u32 - offset,
         error,
-    })
+    }
 }
 
 /// The area of the triangles `indices` makes of `positions` (m²).

@@ -389,11 +389,6 @@ fn empty_scenes_no_lights_and_tiny_images_render_zeros() {
     );
 }
 
-/// Issue 48: the eye pass draws only the meshes whose bounds meet the camera's frustum, and the
-/// picture is the one drawing every mesh gives, bit for bit: every built-in and a small city,
-/// from its own camera and from one turned and narrowed so that most meshes are out of view.
-/// Control: a culling that drops the meshes the image's border cuts (`Fault::EyeCullPartial`)
-/// changes the picture.
 /// `balls` with a wall of 32 768 triangles behind it: one mesh large enough to be drawn in
 /// chunks.
 fn balls_and_wall() -> lightfold_scene::Scene {
@@ -411,32 +406,90 @@ fn balls_and_wall() -> lightfold_scene::Scene {
     scene
 }
 
-/// Culling whole meshes and chunks of large ones, in the eye pass and every shadow view, changes
-/// no pixel: against every mesh drawn whole and unculled, on every built-in, a 20 k city and a
-/// scene with one large mesh, from each scene's camera and a narrow turned one.
-#[test]
-fn eye_culling_changes_no_pixel() {
-    let gpu = gpu();
+/// A case of the culling and LOD tests: a scene, its first four light samples, and two cameras.
+struct ViewCase {
+    name: String,
+    scene: lightfold_scene::Scene,
+    samples: Vec<LightSample>,
+    cameras: [lightfold_scene::Camera; 2],
+}
+
+impl ViewCase {
+    /// One frame of `layers` from `camera` with `opts` (`tweak` of the scene's own options): the
+    /// frame and the eye pass's vertices.
+    fn render(
+        &self,
+        gpu: &lightfold_node::gpu::Gpu,
+        camera: &lightfold_scene::Camera,
+        tweak: impl FnOnce(RenderOptions) -> RenderOptions,
+        layers: LayerSet,
+    ) -> (lightfold_node::gpu::NodeFrame, u32) {
+        let opts = tweak(RenderOptions::from_quality(&self.scene.quality));
+        let mut r = Renderer::new(gpu, &self.scene, opts).unwrap();
+        r.set_camera(camera);
+        let f = r.render(gpu, &self.samples, None, C_N, layers).unwrap();
+        (f, r.eye_vertices())
+    }
+}
+
+/// Every built-in, a 20 k city and balls with a 32 k wall (with `sphere`, also balls with a smooth
+/// 32 k sphere), each `w`×`h` at 2 samples per area light, seen from its own camera and from one
+/// turned 70° with a `fov`° field of view (most meshes out of view).
+fn view_cases(sphere: bool, (w, h): (u32, u32), fov: f32) -> Vec<ViewCase> {
     let mut scenes: Vec<(String, lightfold_scene::Scene)> = lightfold_scene::builtin_names()
         .iter()
         .chain(&["city:20k"])
         .map(|n| (n.to_string(), lightfold_scene::builtin(n).unwrap()))
         .collect();
     scenes.push(("balls and a wall".into(), balls_and_wall()));
+    if sphere {
+        scenes.push((
+            "balls and a smooth sphere".into(),
+            balls_and_smooth_sphere(),
+        ));
+    }
+    scenes
+        .into_iter()
+        .map(|(name, mut scene)| {
+            scene.quality.samples_per_area_light = Some(2);
+            scene.camera.width = w;
+            scene.camera.height = h;
+            let samples = sampling::direct_samples(&scene)
+                .into_iter()
+                .take(4)
+                .collect();
+            let mut narrow = scene.camera.orbited(70.0);
+            narrow.fov_y_deg = fov;
+            ViewCase {
+                name,
+                cameras: [scene.camera, narrow],
+                scene,
+                samples,
+            }
+        })
+        .collect()
+}
+
+/// Issue 48: the eye pass draws only the meshes whose bounds meet the camera's frustum, and the
+/// picture is the one drawing every mesh gives, bit for bit. Control: a culling that drops the
+/// meshes the image's border cuts (`Fault::EyeCullPartial`) changes the picture.
+/// Culling whole meshes and chunks of large ones, in the eye pass and every shadow view, changes
+/// no pixel: against every mesh drawn whole and unculled, on every built-in, a 20 k city and a
+/// scene with one large mesh, from each scene's camera and a narrow turned one.
+#[test]
+fn eye_culling_changes_no_pixel() {
+    let gpu = gpu();
     let mut culled_somewhere = false;
     let mut chunks_culled = false;
     let mut control_differs = false;
-    for (name, mut scene) in scenes {
-        scene.quality.samples_per_area_light = Some(2);
-        scene.camera.width = 64;
-        scene.camera.height = 48;
-        let samples: Vec<LightSample> = sampling::direct_samples(&scene)
-            .into_iter()
-            .take(4)
-            .collect();
-        let mut narrow = scene.camera.orbited(70.0);
-        narrow.fov_y_deg = 12.0;
-        for camera in [scene.camera, narrow] {
+    for ViewCase {
+        name,
+        scene,
+        samples,
+        cameras,
+    } in view_cases(false, (64, 48), 12.0)
+    {
+        for camera in cameras {
             let render = |culling: bool, chunk_triangles: u32, fault| {
                 // (Culling alone: LOD draws other triangles, `shadow_lod_keeps_the_picture`,
                 // `eye_lod_keeps_the_picture`.)
@@ -509,39 +562,18 @@ fn balls_and_smooth_sphere() -> lightfold_scene::Scene {
 #[test]
 fn shadow_lod_keeps_the_picture() {
     let gpu = gpu();
-    let mut scenes: Vec<(String, lightfold_scene::Scene)> = lightfold_scene::builtin_names()
-        .iter()
-        .chain(&["city:20k"])
-        .map(|n| (n.to_string(), lightfold_scene::builtin(n).unwrap()))
-        .collect();
-    scenes.push(("balls and a wall".into(), balls_and_wall()));
-    scenes.push((
-        "balls and a smooth sphere".into(),
-        balls_and_smooth_sphere(),
-    ));
     let mut control_fails = false;
     let mut saved = false;
-    for (name, mut scene) in scenes {
-        scene.quality.samples_per_area_light = Some(2);
-        scene.camera.width = 160;
-        scene.camera.height = 120;
-        let samples: Vec<LightSample> = sampling::direct_samples(&scene)
-            .into_iter()
-            .take(4)
-            .collect();
-        let mut narrow = scene.camera.orbited(70.0);
-        narrow.fov_y_deg = 20.0;
-        for camera in [scene.camera, narrow] {
+    for case in view_cases(true, (160, 120), 20.0) {
+        let (name, scene) = (&case.name, &case.scene);
+        for camera in &case.cameras {
             let render = |shadow_lod: bool, fault| {
-                let opts = RenderOptions {
+                let tweak = |o| RenderOptions {
                     fault,
                     shadow_lod,
-                    ..RenderOptions::from_quality(&scene.quality)
+                    ..o
                 };
-                let mut r = Renderer::new(&gpu, &scene, opts).unwrap();
-                r.set_camera(&camera);
-                r.render(&gpu, &samples, None, C_N, LayerSet::illumination())
-                    .unwrap()
+                case.render(&gpu, camera, tweak, LayerSet::illumination()).0
             };
             let full = render(false, None);
             let lod = render(true, None);
@@ -635,40 +667,17 @@ fn moved_meshes_get_the_levels_of_their_pose() {
 #[test]
 fn eye_lod_keeps_the_picture() {
     let gpu = gpu();
-    let mut scenes: Vec<(String, lightfold_scene::Scene)> = lightfold_scene::builtin_names()
-        .iter()
-        .chain(&["city:20k"])
-        .map(|n| (n.to_string(), lightfold_scene::builtin(n).unwrap()))
-        .collect();
-    scenes.push(("balls and a wall".into(), balls_and_wall()));
-    scenes.push((
-        "balls and a smooth sphere".into(),
-        balls_and_smooth_sphere(),
-    ));
     let (mut saved, mut control_fails) = (false, false);
-    for (name, mut scene) in scenes {
-        scene.quality.samples_per_area_light = Some(2);
-        scene.camera.width = 160;
-        scene.camera.height = 120;
-        let samples: Vec<LightSample> = sampling::direct_samples(&scene)
-            .into_iter()
-            .take(4)
-            .collect();
-        let mut narrow = scene.camera.orbited(70.0);
-        narrow.fov_y_deg = 20.0;
-        for camera in [scene.camera, narrow] {
+    for case in view_cases(true, (160, 120), 20.0) {
+        let (name, scene) = (&case.name, &case.scene);
+        for camera in &case.cameras {
             let render = |eye_lod: bool, fault| {
-                let opts = RenderOptions {
+                let tweak = |o| RenderOptions {
                     fault,
                     eye_lod,
-                    ..RenderOptions::from_quality(&scene.quality)
+                    ..o
                 };
-                let mut r = Renderer::new(&gpu, &scene, opts).unwrap();
-                r.set_camera(&camera);
-                let f = r
-                    .render(&gpu, &samples, None, C_N, LayerSet::all())
-                    .unwrap();
-                (f, r.eye_vertices())
+                case.render(&gpu, camera, tweak, LayerSet::all())
             };
             let (full, drawn_full) = render(false, None);
             let (lod, drawn) = render(true, None);
