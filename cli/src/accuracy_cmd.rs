@@ -412,12 +412,11 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
 
 /// Each area light's samples as `scene` renders them.
 fn per_light_samples(scene: &lightfold_scene::Scene) -> Vec<u32> {
-    let q = scene.quality.samples_per_area_light;
     scene
         .lights
         .iter()
         .filter(|l| l.is_area())
-        .map(|l| q.unwrap_or(l.samples).max(1))
+        .map(|l| scene.quality.samples_of(l))
         .collect()
 }
 

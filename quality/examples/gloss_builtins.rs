@@ -64,23 +64,17 @@ fn main() -> anyhow::Result<()> {
             let t0 = std::time::Instant::now();
             let img = measure_group(&gpu, &scene, &[setting], 1)?.remove(0).image;
             let secs = t0.elapsed().as_secs_f64();
-            let psnr = |mask: &dyn Fn(usize) -> bool, peak: f32| {
-                let (mut se, mut k) = (0f64, 0usize);
-                for i in (0..(w * h) as usize).filter(|&i| mask(i)) {
-                    for c in 0..3 {
-                        let d =
-                            f64::from((img.data[i * 3 + c] - truth.radiance.data[i * 3 + c]) * e);
-                        se += d * d;
-                        k += 1;
-                    }
-                }
-                (
-                    10.0 * (f64::from(peak).powi(2) / (se / k.max(1) as f64)).log10(),
-                    k / 3,
-                )
+            // The project's metric (`reference::metrics`); the glossy figure's peak is the
+            // brightest glossy truth pixel rather than 1.
+            let stats = |mask: &[bool]| {
+                lightfold_reference::metrics::error_stats(&img, &truth.radiance, e, Some(mask))
             };
-            let (g, gp) = psnr(&|i| glossy[i], peak);
-            let (whole, _) = psnr(&|i| truth.compared[i], 1.0);
+            let glossy_stats = stats(&glossy)?;
+            let whole = stats(&truth.compared)?.psnr;
+            let (g, gp) = (
+                20.0 * (f64::from(peak) / glossy_stats.rmse).log10(),
+                glossy_stats.pixels,
+            );
             println!("{name},{n},{g:.2},{gp},{whole:.2},{secs:.2}");
         }
     }

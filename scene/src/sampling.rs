@@ -25,7 +25,7 @@ pub fn direct_samples(scene: &Scene) -> Vec<LightSample> {
 /// The point samples of light `index`.
 pub fn light_samples(scene: &Scene, index: usize, q: &Quality) -> Vec<LightSample> {
     let light = &scene.lights[index];
-    let n = q.samples_per_area_light.unwrap_or(light.samples).max(1);
+    let n = q.samples_of(light);
     let base = LightSample {
         position: [0.0; 3],
         direction: [0.0, -1.0, 0.0],

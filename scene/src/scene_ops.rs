@@ -2,19 +2,26 @@
 //! emitted power of area lights.
 
 use crate::defaults;
-use crate::model::{Camera, Light, LightShape, Material, Mesh, Scene};
+use crate::model::{Camera, Light, LightShape, Material, Mesh, Quality, Scene};
 use crate::shading::{V3, cross, length, sub};
 use std::f64::consts::PI;
 
+impl Quality {
+    /// The point samples area light `light` is drawn with: the override where this quality sets
+    /// one, else the light's own count, at least 1.
+    pub fn samples_of(&self, light: &Light) -> u32 {
+        self.samples_per_area_light.unwrap_or(light.samples).max(1)
+    }
+}
+
 impl Scene {
-    /// The largest count of point samples an area light of the scene is drawn with (the
-    /// quality's override where it sets one), at least 1; `None` without area lights.
+    /// The largest count of point samples an area light of the scene is drawn with
+    /// ([`Quality::samples_of`]); `None` without area lights.
     pub fn area_samples(&self) -> Option<u32> {
-        let q = &self.quality;
         self.lights
             .iter()
             .filter(|l| l.is_area())
-            .map(|l| q.samples_per_area_light.unwrap_or(l.samples).max(1))
+            .map(|l| self.quality.samples_of(l))
             .max()
     }
 
@@ -86,10 +93,7 @@ impl Scene {
             .iter()
             .map(|l| {
                 if l.is_area() {
-                    self.quality
-                        .samples_per_area_light
-                        .unwrap_or(l.samples)
-                        .max(1) as usize
+                    self.quality.samples_of(l) as usize
                 } else {
                     1
                 }

@@ -20,7 +20,7 @@
 //! glossy receivers need, and the plan says which light, for which material, and why.
 
 use super::cull::Receiver;
-use lightfold_scene::shading::ggx_alpha;
+use lightfold_scene::shading::{ggx_alpha, length, sub};
 use lightfold_scene::{AreaSpecular, Light, LightShape, Scene};
 use serde::{Deserialize, Serialize};
 use std::f32::consts::PI;
@@ -163,10 +163,7 @@ fn cell_angle(light: &Light, samples: u32, d: f32) -> Option<f32> {
 /// `ρ` (module documentation) of `light` at its own sample count for a lobe of GGX `alpha` at
 /// `point`; 0 for lights the rule does not size.
 pub fn spacing_over_lobe(light: &Light, point: [f32; 3], alpha: f32) -> f32 {
-    let d = center(light).map_or(f32::INFINITY, |c| {
-        let v = [c[0] - point[0], c[1] - point[1], c[2] - point[2]];
-        (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt()
-    });
+    let d = center(light).map_or(f32::INFINITY, |c| length(sub(c, point)));
     cell_angle(light, light.samples, d).map_or(0.0, |a| a / (2.0 * alpha.max(1e-4)))
 }
 
@@ -188,8 +185,8 @@ fn samples_for(light: &Light, from: u32, max: u32, d: f32, alpha: f32, rho: f32)
 /// Raises each area light of `scene` whose visible glossy receivers need more samples than it
 /// has (its count as the scene gives it: `Quality::samples_per_area_light`, or its own) to the
 /// fewest at which their lobes are at least `1/rho` times the samples' spacing
-/// ([`max_spacing_over_lobe`]), at most [`MAX_GLOSS_SAMPLES`] (never lowered). Returns the scene (every light's count its own) and what
-/// was raised; the scene unchanged where nothing was.
+/// ([`max_spacing_over_lobe`]), at most [`MAX_GLOSS_SAMPLES`] (never lowered). Returns the
+/// scene (every light's count its own) and what was raised; `None` where nothing was.
 pub(crate) fn raise(
     scene: &Scene,
     receivers: &[Receiver],
@@ -210,11 +207,7 @@ pub(crate) fn raise(
         if !light.is_area() {
             continue;
         }
-        let from = scene
-            .quality
-            .samples_per_area_light
-            .unwrap_or(light.samples)
-            .max(1);
+        let from = scene.quality.samples_of(light);
         let mut best: Option<GlossRaise> = None;
         for (r, alpha, share) in &glossy {
             let d = center(light).map_or(f32::INFINITY, |c| r.bounds.distance(c));
@@ -241,10 +234,10 @@ pub(crate) fn raise(
         return None;
     }
     let mut s = scene.clone();
-    let q = s.quality.samples_per_area_light.take();
     for l in s.lights.iter_mut().filter(|l| l.is_area()) {
-        l.samples = q.unwrap_or(l.samples).max(1);
+        l.samples = scene.quality.samples_of(l);
     }
+    s.quality.samples_per_area_light = None;
     for r in &raises {
         s.lights[r.light].samples = r.to;
     }

@@ -14,8 +14,8 @@
 //! Chunk borders are locked (`LockBorder`): the vertices a chunk shares with its neighbours never
 //! move, so chunks drawn at different levels meet without cracks. Alpha-masked and translucent
 //! meshes keep their detail (their texels decide the shadow, not their triangles), and so do
-//! meshes of fewer than [`MIN_TRIANGLES`] (boxes, walls, panes: nothing to gain). Posed meshes
-//! (animation, moves) are drawn at full detail (their levels would be stale).
+//! meshes of fewer than [`MIN_TRIANGLES`] (boxes, walls, panes: nothing to gain). Meshes a pose or
+//! a move changes are simplified again from their new vertices ([`Lods::update`]).
 
 use super::scene_data::{Chunk, MeshRange, Vertex};
 use lightfold_scene::shadow_views::{ShadowView, ShadowViewKind};
@@ -71,9 +71,8 @@ pub struct Lods {
     /// Per mesh, its levels' vertices: while they are needed on the CPU (a scene that may be
     /// posed again); empty once uploaded otherwise.
     pub mesh_vertices: Vec<Vec<Vertex>>,
-    /// Per mesh, its block's vertex count and where it starts in the uploaded buffer.
+    /// Per mesh, its block's vertex count in the uploaded buffer.
     pub mesh_count: Vec<u32>,
-    pub mesh_first: Vec<u32>,
     /// Per chunk (as `SceneData::chunks`), its levels, finest first; empty for a chunk kept
     /// whole.
     pub levels: Vec<Vec<Level>>,
@@ -113,7 +112,12 @@ impl Lods {
 
     /// Whether some chunk has a level (for the shadow passes or the eye).
     pub fn any(&self) -> bool {
-        self.levels.iter().any(|l| !l.is_empty()) || self.eye.iter().any(Option::is_some)
+        self.levels.iter().any(|l| !l.is_empty()) || self.has_eye()
+    }
+
+    /// Whether some chunk has an eye level.
+    pub fn has_eye(&self) -> bool {
+        self.eye.iter().any(Option::is_some)
     }
 
     /// Triangles of every level of every chunk (shadow and eye).
@@ -126,31 +130,16 @@ impl Lods {
             .sum()
     }
 
-    /// Vertices of the uploaded buffer.
-    pub fn vertex_count(&self) -> u32 {
-        self.mesh_count.iter().sum()
-    }
-
     /// The lossless eye level of `chunk`, if it has one.
     pub fn eye_level(&self, chunk: usize) -> Option<&Level> {
         self.eye.get(chunk)?.as_ref()
     }
 
-    /// Lays the meshes' blocks out one after another (sets `mesh_first` and every level's
-    /// `first_vertex`) and returns the buffer's vertices (from `mesh_vertices`).
+    /// Lays the meshes' blocks out one after another (sets every level's `first_vertex`) and
+    /// returns the buffer's vertices (from `mesh_vertices`).
     pub fn layout(&mut self, meshes: &[MeshRange]) -> Vec<Vertex> {
-        let mut at = 0u32;
-        self.mesh_first = self
-            .mesh_count
-            .iter()
-            .map(|&n| {
-                let first = at;
-                at += n;
-                first
-            })
-            .collect();
+        let mut first = 0u32;
         for (m, r) in meshes.iter().enumerate() {
-            let first = self.mesh_first.get(m).copied().unwrap_or(0);
             for c in r.first_chunk..r.first_chunk + r.chunk_count {
                 for l in self.levels.get_mut(c as usize).into_iter().flatten() {
                     l.first_vertex = first + l.offset;
@@ -159,6 +148,7 @@ impl Lods {
                     l.first_vertex = first + l.offset;
                 }
             }
+            first += self.mesh_count.get(m).copied().unwrap_or(0);
         }
         self.mesh_vertices.concat()
     }

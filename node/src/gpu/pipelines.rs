@@ -38,8 +38,9 @@ pub struct DrawContext<'a> {
     pub pipelines: &'a Pipelines,
     pub scene_bind_group: &'a wgpu::BindGroup,
     pub vertices: &'a wgpu::Buffer,
-    /// The shadow passes' simplified levels (`gpu::lod`) where the scene has some, and whether
-    /// to draw the coarsest whatever its error (`Fault::LodCoarsest`).
+    /// The simplified levels' vertices (`gpu::lod`, shadow and eye levels) where the scene has
+    /// some, and whether shadow views draw the coarsest whatever its error
+    /// (`Fault::LodCoarsest`).
     pub lod: Option<(&'a wgpu::Buffer, bool)>,
     /// The eye pipelines' tangents where the scene is normal-mapped (`tangent_layout`).
     pub tangents: Option<&'a wgpu::Buffer>,

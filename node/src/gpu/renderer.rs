@@ -67,7 +67,7 @@ pub struct Renderer {
     scene: SceneData,
     receivers: Vec<([f32; 3], [f32; 3])>,
     vertices: wgpu::Buffer,
-    /// The shadow passes' simplified levels (`SceneData::lods`), where there are any.
+    /// The simplified levels' vertices (`SceneData::lods`), where there are any.
     lod_vertices: Option<wgpu::Buffer>,
     /// The eye pipelines' tangents, one per vertex where the scene is normal-mapped (else a
     /// placeholder no pipeline reads).
@@ -567,12 +567,12 @@ impl Renderer {
         self.eye_culling = on;
     }
 
-    /// Vertices the last eye pass drew (three a triangle), after culling.
-    /// Triangles of the shadow passes' simplified levels (`gpu::lod`).
+    /// Triangles of the simplified levels, shadow and eye (`gpu::lod`).
     pub fn lod_triangles(&self) -> u64 {
         self.scene.lods.triangles()
     }
 
+    /// Vertices the last eye pass drew (three a triangle), after culling.
     pub fn eye_vertices(&self) -> u32 {
         self.eye_vertices
     }
@@ -1078,7 +1078,8 @@ impl Renderer {
     fn eye_draws(&self, view_proj: &[[f32; 4]; 4]) -> EyeDraws {
         let partial = self.options.fault == Some(Fault::EyeCullPartial);
         let lossy = self.options.fault == Some(Fault::EyeLodLossy);
-        let levels = self.lod_vertices.is_some() && self.scene.lods.any();
+        let lods = &self.scene.lods;
+        let levels = self.lod_vertices.is_some() && if lossy { lods.any() } else { lods.has_eye() };
         if self.eye_meshes.is_none() && !self.eye_culling && !partial && !levels {
             return EyeDraws {
                 scene: std::iter::once(0..self.scene.vertex_count).collect(),
@@ -1108,7 +1109,6 @@ impl Renderer {
                 if c.vertex_count == 0 || !shown(c.bounds) {
                     continue;
                 }
-                let lods = &self.scene.lods;
                 let level = if !levels {
                     None
                 } else if lossy {
@@ -1267,7 +1267,7 @@ fn tangent_bytes(tangents: &[super::scene_data::Tangent]) -> &[u8] {
     }
 }
 
-/// The shadow passes' level buffer (`gpu::lod`) holding `vertices`, or `None` without any.
+/// The level buffer (`gpu::lod`) holding `vertices`, or `None` without any.
 fn lod_buffer(gpu: &Gpu, vertices: &[Vertex]) -> Result<Option<wgpu::Buffer>, RenderError> {
     if vertices.is_empty() {
         return Ok(None);
@@ -1275,21 +1275,17 @@ fn lod_buffer(gpu: &Gpu, vertices: &[Vertex]) -> Result<Option<wgpu::Buffer>, Re
     let bytes: &[u8] = bytemuck::cast_slice(vertices);
     if bytes.len() as u64 > gpu.limits.max_buffer_size {
         return Err(RenderError::BindingTooLarge {
-            what: "simplified shadow casters",
+            what: "simplified levels",
             bytes: bytes.len() as u64,
             maximum: gpu.limits.max_buffer_size,
         });
     }
-    Ok(Some(allocate(
-        gpu,
-        "the simplified shadow casters",
-        || {
-            gpu.device
-                .create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                    label: Some("lod vertices"),
-                    contents: bytes,
-                    usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
-                })
-        },
-    )?))
+    Ok(Some(allocate(gpu, "the simplified levels", || {
+        gpu.device
+            .create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("lod vertices"),
+                contents: bytes,
+                usage: wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+            })
+    })?))
 }

@@ -311,19 +311,15 @@ pub fn render_shadow_maps(
                                 lod::texel_at(&plan.geometry[i], side, c.bounds.0, c.bounds.1);
                             scene.lods.pick(first + k, texel)
                         });
-                        match level {
-                            Some(l) => Piece {
-                                vertices: l.first_vertex..l.first_vertex + l.vertex_count,
-                                masked: m.masked,
-                                translucent: m.translucent,
-                                lod: true,
-                            },
-                            None => Piece {
-                                vertices: c.first_vertex..c.first_vertex + c.vertex_count,
-                                masked: m.masked,
-                                translucent: m.translucent,
-                                lod: false,
-                            },
+                        let (first_vertex, count) = level
+                            .map_or((c.first_vertex, c.vertex_count), |l| {
+                                (l.first_vertex, l.vertex_count)
+                            });
+                        Piece {
+                            vertices: first_vertex..first_vertex + count,
+                            masked: m.masked,
+                            translucent: m.translucent,
+                            lod: level.is_some(),
                         }
                     })
             })
