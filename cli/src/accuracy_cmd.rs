@@ -342,6 +342,7 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
         PlanSizing::Fixed(n) => n,
         PlanSizing::Scene => planned.quality.shadow_map_size,
     };
+    // The scenes' own filters render (`measure_prepared`); the settings say which.
     let setting = |samples: u32, k: u32, penumbra: u32| Setting {
         samples,
         map_size: largest,
@@ -395,10 +396,11 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
             outln!(
                 "| {} | {what} | {samples} | {floor_text} | {} | {pen:.2} dB{} | {:.2} dB | {:.3} | {:.2} dB |",
                 scene_label(&args.scene),
-                if setting.penumbra > 0 {
-                    format!("r{}", setting.penumbra)
-                } else {
-                    "—".into()
+                match (setting.penumbra, s.quality.filter) {
+                    (_, lightfold_scene::ShadowFilter::Cell { taps }) =>
+                        format!("cell {taps}×{taps}"),
+                    (0, _) => "—".into(),
+                    (r, _) => format!("r{r}"),
                 },
                 expected.map_or_else(String::new, |e| format!(" ({e:.2})")),
                 metrics.whole.psnr,

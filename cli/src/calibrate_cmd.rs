@@ -58,6 +58,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "samples/light",
         "penumbra PSNR",
         "filtered (radius)",
+        "cell filter",
         "node-s/frame at calibration size",
     ]);
     for curve in &c.model.curves {
@@ -67,6 +68,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .iter()
                 .find(|f| f.0 == n)
                 .map_or_else(|| "—".to_string(), |f| format!("{:.2} dB (r{})", f.2, f.1));
+            let cell = curve
+                .cell_db(n)
+                .map_or_else(|| "—".to_string(), |db| format!("{db:.2} dB"));
             table.add_row([
                 if curve.map_floor == 0 {
                     "the scene's".to_string()
@@ -76,6 +80,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 n.to_string(),
                 format!("{db:.2} dB"),
                 filtered,
+                cell,
                 format!("{:.3}", curve.seconds_per_sample * f64::from(n)),
             ]);
         }
@@ -100,7 +105,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 } else {
                     format!(", shadow maps from {}²", choice.map_floor)
                 },
-                if choice.radius > 0 {
+                if choice.cell {
+                    ", the cell filter".to_string()
+                } else if choice.radius > 0 {
                     format!(", penumbra filter r{}", choice.radius)
                 } else {
                     String::new()

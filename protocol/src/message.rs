@@ -154,6 +154,9 @@ pub struct WireLight {
     pub sample: u32,
     /// The area light's shape where glossy specular is integrated over it in closed form.
     pub area: Option<WireArea>,
+    /// Width of the sample's cell of its light (metres; radians for a soft sun; 0: no cell), for
+    /// the cell filter (protocol version 15).
+    pub cell: f32,
 }
 
 /// An area light's shape (mirrors `scene::AreaShape`).
@@ -197,6 +200,10 @@ pub struct WireMove {
     pub matrix: [f32; 16],
 }
 
+/// `NodeConfig::filter` at and above this: the cell filter, with `filter − CELL_FILTER` taps
+/// per axis.
+pub const CELL_FILTER: u32 = 256;
+
 /// A node's configuration for one plan epoch.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NodeConfig {
@@ -217,7 +224,8 @@ pub struct NodeConfig {
     /// Where to send bands (a compositor's data address), and this node's input index there.
     pub downstream: String,
     pub input_index: u32,
-    /// Shadow filter: 0 none, 1 PCF 2×2, n > 1 n×n grid of 2×2 lookups.
+    /// Shadow filter: 0 none, 1 PCF 2×2, n in 2..=15 an n×n grid of 2×2 lookups,
+    /// [`CELL_FILTER`] + n the cell filter with n×n taps (protocol version 15).
     pub filter: u32,
     pub depth_bias: f32,
     pub slope_bias: f32,

@@ -15,7 +15,8 @@ use crate::accuracy::{
 use lightfold_compositor::ops::{LinkKind, recommended_link_format};
 use lightfold_coordinator::plan::{Curve, ErrorModel};
 use lightfold_node::gpu::Gpu;
-use lightfold_scene::{Image, MapSizing, Scene};
+use lightfold_scene::defaults::CELL_TAPS;
+use lightfold_scene::{Image, MapSizing, Scene, ShadowFilter};
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -36,7 +37,7 @@ const CAP_DB: f64 = 100.0;
 /// The largest cached model read back (bytes).
 const MAX_MODEL_BYTES: u64 = 1 << 20;
 
-const CACHE_VERSION: &[u8] = b"lightfold-calibration-v3";
+const CACHE_VERSION: &[u8] = b"lightfold-calibration-v4";
 
 /// How to calibrate.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -77,6 +78,8 @@ pub struct CalPoint {
     pub samples: u32,
     /// Filter radius at the plan's size (0: none).
     pub radius: u32,
+    /// Rendered with the cell filter instead of the scene's shadow filter.
+    pub cell: bool,
     pub penumbra_db: f64,
     pub whole_db: f64,
     pub node_seconds: f64,
@@ -259,8 +262,9 @@ pub fn calibrate(
         }
         let mut unfiltered = Vec::new();
         let mut filtered = Vec::new();
+        let mut cell = Vec::new();
         let mut filter_gains = true;
-        let (mut sum_nt, mut sum_nn) = (0.0, 0.0);
+        let (mut sum_nt, mut sum_nn, mut sum_cell_nt, mut sum_cell_nn) = (0.0, 0.0, 0.0, 0.0);
         for &n in &opts.counts {
             cal.quality.samples_per_area_light = Some(n);
             let settings: Vec<Setting> = std::iter::once(0)
@@ -289,8 +293,38 @@ pub fn calibrate(
                     penumbra_db: db,
                     whole_db: whole,
                     node_seconds: secs,
+                    cell: false,
                 });
                 dbs.push(db);
+            }
+            // The cell filter, where the scene does not already ask for it: a render of its
+            // own (the nodes' filter changes), kept where it gains in the penumbra and the whole
+            // image loses nothing.
+            if !matches!(q.filter, ShadowFilter::Cell { .. }) {
+                let setting = Setting {
+                    filter: ShadowFilter::Cell { taps: CELL_TAPS },
+                    penumbra: 0,
+                    ..settings[0]
+                };
+                let mut with_cell = cal.clone();
+                with_cell.quality.filter = setting.filter;
+                let m = measure_prepared(gpu, &with_cell, &[setting], 1)?.remove(0);
+                let (db, whole) = psnr(&truth.truth, &m.image)?;
+                let secs: f64 = m.node_seconds.iter().sum();
+                points.push(CalPoint {
+                    map_floor: floor,
+                    samples: n,
+                    radius: 0,
+                    penumbra_db: db,
+                    whole_db: whole,
+                    node_seconds: secs,
+                    cell: true,
+                });
+                sum_cell_nt += f64::from(n) * secs;
+                sum_cell_nn += f64::from(n) * f64::from(n);
+                if db > dbs[0] + FILTER_GAIN_DB && whole >= wholes[0] {
+                    cell.push((n, db as f32));
+                }
             }
             let secs: f64 = measured[0].node_seconds.iter().sum();
             sum_nt += f64::from(n) * secs;
@@ -319,6 +353,12 @@ pub fn calibrate(
             unfiltered,
             filtered,
             seconds_per_sample: if sum_nn > 0.0 { sum_nt / sum_nn } else { 0.0 },
+            cell_seconds_per_sample: if sum_cell_nn > 0.0 && !cell.is_empty() {
+                sum_cell_nt / sum_cell_nn
+            } else {
+                0.0
+            },
+            cell,
         });
     }
     let seconds = started.elapsed().as_secs_f64();

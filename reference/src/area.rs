@@ -153,6 +153,7 @@ fn emitters(scene: &Scene) -> Vec<Emitter> {
             range: light.range,
             light: i as u32,
             area: None,
+            cell: 0.0,
         };
         let e = match &light.shape {
             LightShape::Directional { direction, angle } if *angle > 0.0 => {

@@ -126,6 +126,7 @@ pub fn vpl_slots(
         range: None,
         light: 0,
         area: None,
+        cell: 0.0,
     };
     let paths = vpl_paths(tracer, direct, options);
     if paths.is_empty() {
@@ -225,6 +226,7 @@ fn vpl_paths(
                 range: None,
                 light: s.light,
                 area: None,
+                cell: 0.0,
             })
         })
         .collect();

@@ -26,6 +26,9 @@ pub const INDIRECT_CLAMP_REL: f32 = 0.02;
 /// The built-in scene `lightfold demo` renders.
 pub const DEFAULT_SCENE: &str = "balls";
 
+/// Taps per axis of the cell filter a scene file's `filter = "cell"` asks for.
+pub const CELL_TAPS: u32 = 3;
+
 pub fn quality() -> Quality {
     Quality {
         samples_per_area_light: None,

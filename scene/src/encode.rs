@@ -348,6 +348,10 @@ impl Canon {
                 self.u8(2);
                 self.u32(*taps);
             }
+            ShadowFilter::Cell { taps } => {
+                self.u8(3);
+                self.u32(*taps);
+            }
         }
         self.f32(*depth_bias);
         self.f32(*slope_bias);

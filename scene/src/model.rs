@@ -316,6 +316,11 @@ pub struct LightSample {
     /// [`crate::ltc`]); `None` for point, spot, directional and bounce samples, emissive meshes,
     /// and under [`AreaSpecular::Sampled`].
     pub area: Option<AreaShape>,
+    /// Width of this sample's cell of its light ([`crate::sampling::cell_width`]: metres; radians
+    /// for a soft sun's directions): the shadow a cell casts past a blocker, which the cell filter
+    /// ([`ShadowFilter::Cell`]) spreads each sample's shadow over. 0 for samples that are no cell
+    /// of a shape (points, spots, parallel light, emissive meshes, virtual point lights).
+    pub cell: f32,
 }
 
 /// The emitting shape of an area light as the closed-form specular integrates it.
@@ -386,6 +391,12 @@ pub enum ShadowFilter {
     Pcf2x2,
     /// `n×n` grid of 2×2 bilinear comparisons (n = 3 or 5), averaged.
     Pcf { taps: u32 },
+    /// Each area-light sample's shadow spread over the shadow its cell of the light casts
+    /// (percentage-closer soft shadows per sample; `docs/shading.md` § The cell filter): a
+    /// `taps × taps` blocker search, then `taps × taps` 2×2 comparisons over the kernel that the
+    /// blockers' mean distance gives. Samples without a cell (`LightSample::cell` 0) get
+    /// [`ShadowFilter::Pcf2x2`].
+    Cell { taps: u32 },
 }
 
 /// How shadow maps are sized (`Quality::map_sizing`).

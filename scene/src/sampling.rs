@@ -4,7 +4,8 @@
 //! the N samples together emit the area light's power `π·L·A`.
 
 use crate::model::{
-    AreaShape, AreaSpecular, LightSample, LightShape, Quality, SampleKind, SamplePattern, Scene,
+    AreaShape, AreaSpecular, Light, LightSample, LightShape, Quality, SampleKind, SamplePattern,
+    Scene,
 };
 use crate::shading::{V3, add, cross, normalize, scale};
 
@@ -35,6 +36,7 @@ pub fn light_samples(scene: &Scene, index: usize, q: &Quality) -> Vec<LightSampl
         range: light.range,
         light: index as u32,
         area: None,
+        cell: cell_width(light, n).unwrap_or(0.0),
     };
     match &light.shape {
         LightShape::Point { position } => vec![LightSample {
@@ -90,6 +92,32 @@ pub fn light_samples(scene: &Scene, index: usize, q: &Quality) -> Vec<LightSampl
                 .collect()
         }
         other => crate::sampling_shapes::samples(scene, light, other, n, q, base),
+    }
+}
+
+/// The width of one sample's cell of `light` at `samples` samples: the largest side of a
+/// rectangle's grid cell, the side of the square of a cell's area for disks, spheres (half of
+/// whose samples face any receiver, so the whole area over `samples`) and tubes (metres), and for
+/// a soft sun, whose samples are directions, the same of its disk on the sky (radians). `None`
+/// for lights whose samples are no cells of a shape (points, spots, parallel light, emissive
+/// meshes). The planner's highlight rule and the cell filter both read it.
+pub fn cell_width(light: &Light, samples: u32) -> Option<f32> {
+    use std::f32::consts::PI;
+    let n = samples.max(1) as f32;
+    match &light.shape {
+        LightShape::Rect { size, .. } => {
+            let (nx, ny) = grid_shape(samples);
+            Some((size[0] / nx as f32).max(size[1] / ny as f32))
+        }
+        LightShape::Disk { radius, .. } => Some((PI * radius * radius / n).sqrt()),
+        LightShape::Sphere { radius, .. } => Some((4.0 * PI * radius * radius / n).sqrt()),
+        LightShape::Cylinder { length, radius, .. } => {
+            Some((2.0 * PI * radius * length / n).sqrt())
+        }
+        LightShape::Directional { angle, .. } if *angle > 0.0 => {
+            Some((PI / 4.0 * angle * angle / n).sqrt())
+        }
+        _ => None,
     }
 }
 

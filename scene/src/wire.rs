@@ -1,8 +1,37 @@
 //! Conversions between scene types and their wire mirrors in `lightfold-protocol` (the plan carries
 //! explicit light samples and cameras; nodes never resample).
 
-use crate::model::{AreaShape, Camera, LightSample, SampleKind};
-use lightfold_protocol::{WireArea, WireCamera, WireLight};
+use crate::model::{AreaShape, Camera, LightSample, SampleKind, ShadowFilter};
+use lightfold_protocol::{CELL_FILTER, WireArea, WireCamera, WireLight};
+
+/// Taps per axis a grid or cell filter may have.
+pub const MAX_FILTER_TAPS: u32 = 15;
+
+/// The wire code of a shadow filter (`NodeConfig::filter`): 0 none, 1 PCF 2×2, n an n×n grid,
+/// [`CELL_FILTER`] + n the cell filter with n×n taps.
+pub fn filter_to_wire(f: ShadowFilter) -> u32 {
+    match f {
+        ShadowFilter::None => 0,
+        ShadowFilter::Pcf2x2 => 1,
+        ShadowFilter::Pcf { taps } => taps.clamp(2, MAX_FILTER_TAPS),
+        ShadowFilter::Cell { taps } => CELL_FILTER + taps.clamp(2, MAX_FILTER_TAPS),
+    }
+}
+
+/// The shadow filter of a wire code, `None` for a code no filter has.
+pub fn filter_from_wire(code: u32) -> Option<ShadowFilter> {
+    match code {
+        0 => Some(ShadowFilter::None),
+        1 => Some(ShadowFilter::Pcf2x2),
+        taps @ 2..=MAX_FILTER_TAPS => Some(ShadowFilter::Pcf { taps }),
+        c if (CELL_FILTER + 2..=CELL_FILTER + MAX_FILTER_TAPS).contains(&c) => {
+            Some(ShadowFilter::Cell {
+                taps: c - CELL_FILTER,
+            })
+        }
+        _ => None,
+    }
+}
 
 /// The wire form of a sample; `sample` is its index in the scene's full sample list.
 pub fn light_to_wire(s: &LightSample, sample: u32) -> WireLight {
@@ -28,6 +57,7 @@ pub fn light_to_wire(s: &LightSample, sample: u32) -> WireLight {
         light: s.light,
         sample,
         area: s.area.map(area_to_wire),
+        cell: s.cell,
     }
 }
 
@@ -85,6 +115,8 @@ pub enum WireError {
     UnknownArea { sample: u32, kind: u8 },
     #[error("light sample {sample} has a sphere light of negative radius")]
     NegativeRadius { sample: u32 },
+    #[error("light sample {sample} has a cell of negative width")]
+    NegativeCell { sample: u32 },
     #[error("light sample {sample} has a non-finite field")]
     NonFinite { sample: u32 },
     #[error("camera is invalid: {0}")]
@@ -103,9 +135,13 @@ pub fn light_from_wire(w: &WireLight) -> Result<LightSample, WireError> {
         .chain(w.cone.iter())
         .all(|v| v.is_finite())
         && w.intensity.is_finite()
-        && w.range.is_finite();
+        && w.range.is_finite()
+        && w.cell.is_finite();
     if !finite {
         return Err(WireError::NonFinite { sample: w.sample });
+    }
+    if w.cell < 0.0 {
+        return Err(WireError::NegativeCell { sample: w.sample });
     }
     let kind = match w.kind {
         0 => SampleKind::Isotropic,
@@ -139,6 +175,7 @@ pub fn light_from_wire(w: &WireLight) -> Result<LightSample, WireError> {
             .as_ref()
             .map(|a| area_from_wire(a, w.sample))
             .transpose()?,
+        cell: w.cell,
     })
 }
 
@@ -211,6 +248,7 @@ mod tests {
                 range: if i % 2 == 0 { Some(7.0) } else { None },
                 light: 3,
                 area: None,
+                cell: 0.0,
             };
             assert_eq!(light_from_wire(&light_to_wire(&s, i as u32)).unwrap(), s);
         }
@@ -224,6 +262,7 @@ mod tests {
                 range: None,
                 light: 0,
                 area: None,
+                cell: 0.0,
             },
             9,
         );
@@ -271,6 +310,7 @@ mod tests {
                 range: None,
                 light: 1,
                 area: Some(area),
+                cell: 0.0,
             };
             assert_eq!(light_from_wire(&light_to_wire(&s, i as u32)).unwrap(), s);
         }
@@ -286,6 +326,7 @@ mod tests {
                     range: None,
                     light: 0,
                     area: None,
+                    cell: 0.0,
                 },
                 4,
             ))

@@ -6,6 +6,11 @@
 const FILTER_NEAREST: u32 = 0u;
 const FILTER_PCF2X2: u32 = 1u;
 const FILTER_GRID: u32 = 2u;
+// Each sample's shadow filtered over its cell of the light (`Light::cell`): percentage-closer
+// soft shadows per sample, the kernel from the blockers' and the receiver's distances.
+const FILTER_CELL: u32 = 3u;
+// The cell filter's largest kernel half-width and blocker-search reach, texels.
+const MAX_CELL_RADIUS: f32 = 8.0;
 
 // The shadow filter and its taps per axis are fixed per pipeline, so only the chosen filter's
 // lookups are in the code (a CPU rasteriser would run the others' too).
@@ -422,7 +427,7 @@ fn shadow_filter(r: Receiver) -> f32 {
         let centre = (t + vec2f(0.5)) / frame.map_size;
         return textureSampleCompareLevel(shadow_maps, shadow_linear, centre, r.layer, r.own);
     }
-    if SHADOW_FILTER == FILTER_PCF2X2 {
+    if SHADOW_FILTER == FILTER_PCF2X2 || SHADOW_FILTER == FILTER_CELL {
         return footprint(r, vec2f(0.0));
     }
     let taps = max(SHADOW_TAPS, 1u);
@@ -442,7 +447,7 @@ fn shadow_filter_ids(r: Receiver) -> f32 {
     if SHADOW_FILTER == FILTER_NEAREST {
         return texel_lit(r, vec2i(floor(r.at))).x;
     }
-    if SHADOW_FILTER == FILTER_PCF2X2 {
+    if SHADOW_FILTER == FILTER_PCF2X2 || SHADOW_FILTER == FILTER_CELL {
         return counted_mean(texel_bilinear(r, r.at), 1.0);
     }
     let taps = max(SHADOW_TAPS, 1u);
@@ -454,6 +459,101 @@ fn shadow_filter_ids(r: Receiver) -> f32 {
         }
     }
     return counted_mean(sum, f32(taps * taps));
+}
+
+// Distance along the view's axis of a stored map depth (its inverse projection; reversed or
+// conventional Z alike).
+fn stored_distance(v: View, stored: f32) -> f32 {
+    if is_ortho(v) {
+        return -(stored - v.proj_b.w) / v.proj_b.z;
+    }
+    return v.proj_b.w / (stored + v.proj_b.z);
+}
+
+// The half-width, in texels of view v, of the shadow that one cell of width `cell` (metres;
+// radians for a soft sun's direction, whose views are orthographic) casts past a blocker at
+// distance `blocker` onto a receiver at distance `receiver` (both along the view's axis): the
+// rays from the cell's edge to the receiver cross the blocker's depth that far from the ray
+// from the sample. Similar triangles: cell/2 · (receiver − blocker) / (receiver · blocker) in
+// tangent units, or cell/2 · (receiver − blocker) metres for a parallel view.
+fn cell_radius(v: View, cell: f32, blocker: f32, receiver: f32) -> f32 {
+    let gap = max(receiver - blocker, 0.0);
+    if is_ortho(v) {
+        return 0.5 * cell * gap / v.texel;
+    }
+    return 0.5 * cell * gap / (max(receiver, 1e-6) * max(blocker, 1e-6) * v.texel);
+}
+
+// The cell filter (FILTER_CELL) for receiver r of sample s: a blocker search over the reach a
+// cell can have (taps × taps texels over ±reach, other objects' texels nearer the light than the
+// receiver by more than the bias another object's texel gets there), then, where it finds
+// blockers, a taps × taps grid of 2×2 footprints spread over ±the radius their mean distance
+// gives (`cell_radius`). Where the search finds none the receiver gets the 2×2 footprint under
+// it alone (what PCF 2×2 gives), so a blocker the sparse search steps over still shadows as a
+// point sample would. `own_bias(radius)` is the receiver's own bias for a footprint of that
+// half-width.
+fn cell_filter(r_in: Receiver, cell: f32, slope_part: f32, own_const: f32) -> f32 {
+    var r = r_in;
+    let receiver = max(-r.q.z, 1e-6);
+    var near = 1.0;
+    if (frame.flags & FLAG_CONVENTIONAL_Z) != 0u {
+        near = 0.0;
+    }
+    let reach = clamp(cell_radius(r.v, cell, stored_distance(r.v, near), receiver), 0.5, MAX_CELL_RADIUS);
+    let taps = max(SHADOW_TAPS, 2u);
+    let step = 2.0 * reach / f32(taps - 1u);
+    let lo = vec2i(r.v.rect.xy);
+    let hi = lo + vec2i(i32(r.v.rect.z) - 1);
+    var found = 0.0;
+    var sum_distance = 0.0;
+    for (var j = 0u; j < taps; j++) {
+        for (var i = 0u; i < taps; i++) {
+            let offset = vec2f(f32(i), f32(j)) * step - vec2f(reach);
+            let c = clamp(vec2i(floor(r.at + offset)), lo, hi);
+            if uses_object_ids() && textureLoad(shadow_ids, c, r.layer, 0).x == r.object {
+                continue;
+            }
+            let stored = textureLoad(shadow_maps, c, r.layer, 0);
+            let off = abs(vec2f(c) + vec2f(0.5) - r.at);
+            let ref_depth = reference_depth(r.v, r.q, r.base + r.per_texel * max(off.x, off.y));
+            var blocks = ref_depth < stored;
+            if (frame.flags & FLAG_CONVENTIONAL_Z) != 0u {
+                blocks = ref_depth > stored;
+            }
+            if blocks {
+                found += 1.0;
+                sum_distance += stored_distance(r.v, stored);
+            }
+        }
+    }
+    if found == 0.0 {
+        if uses_object_ids() {
+            return counted_mean(texel_bilinear(r, r.at), 1.0);
+        }
+        return footprint(r, vec2f(0.0));
+    }
+    let radius = clamp(cell_radius(r.v, cell, sum_distance / found, receiver), 0.5, MAX_CELL_RADIUS);
+    // The receiver's own texels under the slope bias of this footprint.
+    r.own = reference_depth(r.v, r.q, own_const + slope_part * (radius + 0.5));
+    // Footprint centres at the middles of taps × taps equal cells of ±radius.
+    let spacing = 2.0 * radius / f32(taps);
+    let first = -radius + 0.5 * spacing;
+    var sum = vec3f(0.0);
+    var plain = 0.0;
+    for (var j = 0u; j < taps; j++) {
+        for (var i = 0u; i < taps; i++) {
+            let offset = vec2f(first) + vec2f(f32(i), f32(j)) * spacing;
+            if uses_object_ids() {
+                sum += texel_bilinear(r, r.at + offset);
+            } else {
+                plain += footprint(r, offset);
+            }
+        }
+    }
+    if uses_object_ids() {
+        return counted_mean(sum, f32(taps * taps));
+    }
+    return plain / f32(taps * taps);
 }
 
 // What translucent casters let through to a receiver at texel t: the stored transmittance
@@ -511,7 +611,7 @@ fn transmit_filter(r: Receiver) -> vec3f {
     if SHADOW_FILTER == FILTER_NEAREST {
         return texel_transmit(r, vec2i(floor(r.at)), transmit_reference(r, 0.5));
     }
-    if SHADOW_FILTER == FILTER_PCF2X2 {
+    if SHADOW_FILTER == FILTER_PCF2X2 || SHADOW_FILTER == FILTER_CELL {
         return transmit_bilinear(r, vec2f(0.0));
     }
     let taps = max(SHADOW_TAPS, 1u);
@@ -564,8 +664,8 @@ fn visibility(s: Light, p: vec3f, ng: vec3f, object: u32) -> vec3f {
         along_axis = 1.0;
     }
     // Grazing receivers cannot ask for more than ten texels' worth of depth per texel.
-    let bias = frame.depth_bias * along_axis
-        + frame.slope_bias * frame.kernel_radius * min(slope, 10.0) * texel_m;
+    let slope_part = frame.slope_bias * min(slope, 10.0) * texel_m;
+    let bias = frame.depth_bias * along_axis + slope_part * frame.kernel_radius;
     var to_world = mat3x3f();
     if uses_object_ids() && (frame.flags & FLAG_RECEIVER_PLANE) != 0u {
         to_world = placed_to_world(s, placed);
@@ -583,7 +683,12 @@ fn visibility(s: Light, p: vec3f, ng: vec3f, object: u32) -> vec3f {
         frame.depth_bias * along_axis,
         frame.slope_bias * min(slope, 2.0) * texel_m,
     );
-    let lit = shadow_filter(r);
+    var lit = 0.0;
+    if SHADOW_FILTER == FILTER_CELL && s.cell > 0.0 {
+        lit = cell_filter(r, s.cell, slope_part, frame.depth_bias * along_axis);
+    } else {
+        lit = shadow_filter(r);
+    }
     if TRANSLUCENT && v.rect.w != 0.0 && lit > 0.0 {
         return lit * transmit_filter(r);
     }

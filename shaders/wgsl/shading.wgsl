@@ -45,7 +45,9 @@ struct Light {
     area_center: vec3f,
     area_kind: u32,
     area_u: vec3f,
-    area_pad0: u32,
+    // Width of the sample's cell of its light (metres; radians for a soft sun's directions; 0
+    // for samples that are no cell of a shape): the cell filter's kernel (FILTER_CELL).
+    cell: f32,
     area_v: vec3f,
     area_pad1: u32,
 }

@@ -38,7 +38,7 @@ use super::{
     ClusterSpec, Concession, Knob, MapSizing, PenumbraFilter, Plan, PlanError, PlanOptions,
     TargetChoice, scene_hash,
 };
-use lightfold_scene::Scene;
+use lightfold_scene::{Scene, ShadowFilter};
 
 /// The most ε a frame budget raises the culling bound to (display units: about 4 8-bit sRGB
 /// steps at mid-grey).
@@ -447,6 +447,24 @@ pub fn targeted(
         &only_base
     };
     let filter = options.penumbra_filter;
+    // A radius asked for is kept, so the cell filter (which replaces it) is no choice then.
+    let without_cell;
+    let pick_from = if matches!(filter, PenumbraFilter::Radius(_)) {
+        without_cell = ErrorModel {
+            curves: pick_from
+                .curves
+                .iter()
+                .map(|c| Curve {
+                    cell: Vec::new(),
+                    ..c.clone()
+                })
+                .collect(),
+            ..pick_from.clone()
+        };
+        &without_cell
+    } else {
+        pick_from
+    };
     let choice = pick_from.cheapest(target_db, from, |c, n| {
         resolve_radius(c, filter, None, Some(n))
     });
@@ -466,7 +484,17 @@ pub fn targeted(
     let receivers = super::cull::receivers(&s, &super::geom::mesh_bounds(&s));
     let rho = super::gloss::max_spacing_over_lobe(target_db);
     let (s, gloss) = super::gloss::raise(&s, &receivers, rho).unwrap_or((s, Vec::new()));
+    let mut s = s;
+    if choice.cell {
+        s.quality.filter = ShadowFilter::Cell {
+            taps: lightfold_scene::defaults::CELL_TAPS,
+        };
+    }
     let mut o = options.clone();
+    if choice.cell {
+        // Each sample's shadow is already spread over its cell: no screen filter on top.
+        o.penumbra_filter = PenumbraFilter::Off;
+    }
     let mut floor = 0;
     if floors_free && let MapSizing::Mismatch { min, max, target } = sizing {
         let f = choice.map_floor.max(min);
@@ -489,6 +517,7 @@ pub fn targeted(
             reachable: choice.db >= target_db,
             penumbra_radius: choice.radius,
             map_floor: floor,
+            cell_filter: choice.cell,
             calibrated: model.calibrated,
             gloss,
         },

@@ -4,7 +4,6 @@
 use super::types::{Downstream, Plan, Source};
 use super::wire::{camera_to_wire, light_to_wire};
 use lightfold_protocol::{CompositorConfig, NodeConfig, StageInput, WireShadow};
-use lightfold_scene::ShadowFilter;
 
 impl Plan {
     /// The configuration of render node `node_id`, or `None` when the plan leaves it idle.
@@ -36,11 +35,7 @@ impl Plan {
             walkthrough: self.walkthrough,
             downstream: self.address(&n.downstream),
             input_index: n.input_index,
-            filter: match self.filter {
-                ShadowFilter::None => 0,
-                ShadowFilter::Pcf2x2 => 1,
-                ShadowFilter::Pcf { taps } => taps,
-            },
+            filter: lightfold_scene::wire::filter_to_wire(self.filter),
             depth_bias: self.depth_bias,
             slope_bias: self.slope_bias,
             eye_meshes: n.part.and_then(|p| self.partitions.get(p).cloned()),

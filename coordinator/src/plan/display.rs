@@ -500,9 +500,10 @@ impl Plan {
     /// How an error target chose the samples, one line, or `None` without a target.
     pub fn target_line(&self) -> Option<String> {
         let t = self.target.as_ref()?;
-        let filter = match t.penumbra_radius {
-            0 => String::new(),
-            r => format!(" + penumbra filter r{r}"),
+        let filter = match (t.penumbra_radius, t.cell_filter) {
+            (_, true) => " + cell filter (each sample's shadow over its cell)".to_string(),
+            (0, false) => String::new(),
+            (r, false) => format!(" + penumbra filter r{r}"),
         };
         let maps = match t.map_floor {
             0 => String::new(),

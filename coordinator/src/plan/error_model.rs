@@ -30,6 +30,15 @@ pub struct Curve {
     /// not measured; costs then go by samples × map side).
     #[serde(default)]
     pub seconds_per_sample: f64,
+    /// `(samples, penumbra PSNR dB)` with the cell filter (each sample's shadow spread over
+    /// its cell's, `ShadowFilter::Cell`) instead of the scene's own, at the counts where the
+    /// calibration measured it gaining in the penumbra and losing nothing over the whole image;
+    /// empty: never measured, or never a gain.
+    #[serde(default)]
+    pub cell: Vec<(u32, f32)>,
+    /// Node-seconds a frame per sample with the cell filter (0: not measured).
+    #[serde(default)]
+    pub cell_seconds_per_sample: f64,
 }
 
 /// The planner's error model (module documentation).
@@ -59,6 +68,8 @@ pub struct Choice {
     pub map_floor: u32,
     /// The penumbra filter's radius (0: none).
     pub radius: u32,
+    /// The cell filter instead of the scene's own shadow filter (never with a radius).
+    pub cell: bool,
     /// The model's penumbra PSNR there.
     pub db: f32,
     /// Its relative cost (node-seconds where measured).
@@ -107,6 +118,8 @@ impl ErrorModel {
                 unfiltered: BALLS.to_vec(),
                 filtered: BALLS_FILTERED.to_vec(),
                 seconds_per_sample: 0.0,
+                cell: Vec::new(),
+                cell_seconds_per_sample: 0.0,
             }],
         }
     }
@@ -122,11 +135,14 @@ impl ErrorModel {
                 return Err("an error-model curve needs two sample counts or more".into());
             }
             let rising = c.unfiltered.windows(2).all(|w| w[0].0 < w[1].0)
-                && c.filtered.windows(2).all(|w| w[0].0 < w[1].0);
+                && c.filtered.windows(2).all(|w| w[0].0 < w[1].0)
+                && c.cell.windows(2).all(|w| w[0].0 < w[1].0);
             let finite = c.unfiltered.iter().all(|p| p.1.is_finite() && p.0 > 0)
                 && c.filtered.iter().all(|p| p.2.is_finite() && p.0 > 0)
-                && c.seconds_per_sample.is_finite()
-                && c.seconds_per_sample >= 0.0;
+                && c.cell.iter().all(|p| p.1.is_finite() && p.0 > 0)
+                && [c.seconds_per_sample, c.cell_seconds_per_sample]
+                    .iter()
+                    .all(|s| s.is_finite() && *s >= 0.0);
             if !rising || !finite {
                 return Err(
                     "an error-model curve's counts must rise and its figures be finite".into(),
@@ -149,13 +165,13 @@ impl ErrorModel {
         &self.curves[0]
     }
 
-    /// The cheapest `(samples, floor, radius)` whose expected penumbra PSNR reaches `target_db`,
-    /// among the counts a calibration measured (for the default scene's model: `from·2^k` or
-    /// `from/2^k` up to the most it measured), every floor, and the
-    /// filter where `filter` allows it (`filter(curve, n)` gives the radius to use at `n` on
-    /// that curve). When none reaches the target: the highest expected PSNR (cheapest
-    /// among equals). Costs: the measured node-seconds per sample, else samples × (1 + map
-    /// side / 512).
+    /// The cheapest `(samples, floor, radius or cell filter)` whose expected penumbra PSNR
+    /// reaches `target_db`, among the counts a calibration measured (for the default scene's
+    /// model: `from·2^k` or `from/2^k` up to the most it measured), every floor, the
+    /// penumbra filter where `filter` allows it (`filter(curve, n)` gives the radius to use at
+    /// `n` on that curve) and the cell filter at the counts where the curve measured it. When
+    /// none reaches the target: the highest expected PSNR (cheapest among equals). Costs: the
+    /// measured node-seconds per sample, else samples × (1 + map side / 512).
     pub fn cheapest(
         &self,
         target_db: f32,
@@ -195,9 +211,22 @@ impl ErrorModel {
                     samples: n,
                     map_floor: c.map_floor,
                     radius,
+                    cell: false,
                     db: c.expected_db(n, radius),
                     cost,
                 });
+                if let Some(db) = c.cell_db(n)
+                    && c.cell_seconds_per_sample > 0.0
+                {
+                    all.push(Choice {
+                        samples: n,
+                        map_floor: c.map_floor,
+                        radius: 0,
+                        cell: true,
+                        db,
+                        cost: f64::from(n) * c.cell_seconds_per_sample,
+                    });
+                }
             }
         }
         let reaching = all.iter().filter(|c| c.db >= target_db);
@@ -266,6 +295,12 @@ impl Curve {
         through_log2(&pts, n)
     }
 
+    /// Penumbra PSNR at `n` with the cell filter: the figure measured at that count, `None`
+    /// where the curve has none (the cell filter is claimed only where it was measured).
+    pub fn cell_db(&self, n: u32) -> Option<f32> {
+        self.cell.iter().find(|p| p.0 == n).map(|p| p.1)
+    }
+
     /// The figure at `n` samples with the filter at `radius`: the filtered figure where the
     /// radius is the model's own, else the unfiltered one (a radius it did not measure is not
     /// claimed).
@@ -311,12 +346,16 @@ mod tests {
                     unfiltered: vec![(4, 30.0), (16, 36.0), (64, 38.0)],
                     filtered: vec![(4, 2, 33.0), (16, 1, 37.0)],
                     seconds_per_sample: 0.01,
+                    cell: vec![],
+                    cell_seconds_per_sample: 0.0,
                 },
                 Curve {
                     map_floor: 2048,
                     unfiltered: vec![(4, 31.0), (16, 40.0), (64, 47.0)],
                     filtered: vec![],
                     seconds_per_sample: 0.03,
+                    cell: vec![],
+                    cell_seconds_per_sample: 0.0,
                 },
             ],
         }
@@ -382,6 +421,40 @@ mod tests {
         assert_eq!(c.filter_radius(12), 1);
         // A radius the model did not measure is not claimed.
         assert_eq!(c.expected_db(16, 3), c.db(16));
+    }
+
+    #[test]
+    fn the_cell_filter_is_chosen_where_it_reaches_the_target_for_less() {
+        let mut m = model();
+        // At the small floor the cell filter gives 37 dB at 4 samples for 0.015 s a sample.
+        m.curves[0].cell = vec![(4, 37.0), (16, 41.0)];
+        m.curves[0].cell_seconds_per_sample = 0.015;
+        assert!(m.check().is_ok());
+        let any = |c: &Curve, n| c.filter_radius(n);
+        // 36 dB: 4 samples with the cell filter (0.06 s) beat 16 unfiltered (0.16 s).
+        let c = m.cheapest(36.0, 16, any);
+        assert_eq!(
+            (c.samples, c.map_floor, c.cell, c.radius),
+            (4, 512, true, 0),
+            "{c:?}"
+        );
+        assert_eq!(c.db, 37.0);
+        // 40 dB: 16 with it (0.24 s) beat 64 at 2048² (1.92 s).
+        let c = m.cheapest(40.0, 16, any);
+        assert_eq!((c.samples, c.cell), (16, true), "{c:?}");
+        // Where it was not measured it is not claimed: 32 dB goes to 4 with the penumbra
+        // filter (0.04 s) rather than the cell filter (0.06 s), 45 dB to the large floor.
+        let c = m.cheapest(32.0, 16, any);
+        assert_eq!((c.samples, c.radius, c.cell), (4, 2, false), "{c:?}");
+        let c = m.cheapest(45.0, 16, any);
+        assert_eq!((c.samples, c.map_floor, c.cell), (64, 2048, false), "{c:?}");
+        assert_eq!(m.curves[0].cell_db(8), None);
+        // Unmeasured cost: not offered.
+        m.curves[0].cell_seconds_per_sample = 0.0;
+        assert!(!m.cheapest(36.0, 16, any).cell);
+        // Falling counts are refused.
+        m.curves[0].cell = vec![(16, 41.0), (4, 37.0)];
+        assert!(m.check().is_err());
     }
 
     #[test]

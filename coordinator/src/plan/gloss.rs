@@ -23,7 +23,6 @@ use super::cull::Receiver;
 use lightfold_scene::shading::{ggx_alpha, length, sub};
 use lightfold_scene::{AreaSpecular, Light, LightShape, Scene};
 use serde::{Deserialize, Serialize};
-use std::f32::consts::PI;
 
 /// The largest sample spacing over lobe width at which point-sampled highlights stayed within
 /// 0.56 % RMS of their peak (45 dB, the default error target) beyond the truth's own noise in
@@ -117,27 +116,9 @@ pub fn sampled_lobe(scene: &Scene, material: usize) -> Option<(f32, f32)> {
     ))
 }
 
-/// The largest side of one sample's cell of `light` at `samples` (metres; radians for a soft
-/// sun, whose samples are directions), or `None` for lights whose samples are not cells of a
-/// shape (points, spots, parallel light, emissive meshes).
+/// The width of one sample's cell (`scene::sampling::cell_width`).
 fn cell(light: &Light, samples: u32) -> Option<f32> {
-    let n = samples.max(1) as f32;
-    match &light.shape {
-        LightShape::Rect { size, .. } => {
-            let (nx, ny) = lightfold_scene::sampling::grid_shape(samples);
-            Some((size[0] / nx as f32).max(size[1] / ny as f32))
-        }
-        LightShape::Disk { radius, .. } => Some((PI * radius * radius / n).sqrt()),
-        // Half the sphere's samples face a receiver.
-        LightShape::Sphere { radius, .. } => Some((4.0 * PI * radius * radius / n).sqrt()),
-        LightShape::Cylinder { length, radius, .. } => {
-            Some((2.0 * PI * radius * length / n).sqrt())
-        }
-        LightShape::Directional { angle, .. } if *angle > 0.0 => {
-            Some((PI / 4.0 * angle * angle / n).sqrt())
-        }
-        _ => None,
-    }
+    lightfold_scene::sampling::cell_width(light, samples)
 }
 
 /// The light's centre, for distances (`None` for a sun, which is at infinity).

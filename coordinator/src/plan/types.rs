@@ -586,6 +586,9 @@ pub struct TargetChoice {
     /// The mismatch rule's smallest shadow map as the target raised it (0: unchanged).
     #[serde(default)]
     pub map_floor: u32,
+    /// Whether the target chose the cell filter (`ShadowFilter::Cell`) for the nodes.
+    #[serde(default)]
+    pub cell_filter: bool,
     /// Whether the figure comes from a calibration of this scene (else the default scene's
     /// sweep, whose level other scenes do not share).
     #[serde(default)]

@@ -502,12 +502,16 @@ fn map_bound_model() -> ErrorModel {
                 unfiltered: vec![(4, 29.0), (16, 35.5), (64, 37.5), (128, 37.8)],
                 filtered: vec![(4, 2, 31.0)],
                 seconds_per_sample: 0.010,
+                cell: vec![],
+                cell_seconds_per_sample: 0.0,
             },
             Curve {
                 map_floor: 2048,
                 unfiltered: vec![(4, 30.0), (16, 40.0), (64, 46.0), (128, 48.0)],
                 filtered: vec![(4, 2, 32.0)],
                 seconds_per_sample: 0.030,
+                cell: vec![],
+                cell_seconds_per_sample: 0.0,
             },
         ],
     }

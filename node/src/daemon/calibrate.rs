@@ -92,6 +92,7 @@ pub fn calibration_lights(n: usize) -> Vec<LightSample> {
                 range: None,
                 light: 0,
                 area: None,
+                cell: 0.0,
             }
         })
         .collect()

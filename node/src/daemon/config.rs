@@ -7,7 +7,11 @@ use lightfold_protocol::{
     BAND_HEADER_LEN, ErrorCode, Layer, NodeConfig, PixelFormat, WireCamera, WireShadow,
 };
 use lightfold_scene::wire::{WireError, camera_from_wire, light_from_wire};
-use lightfold_scene::{Camera, LightSample, Scene};
+use lightfold_scene::{Camera, LightSample, Scene, ShadowFilter};
+
+/// Most taps per axis of the cell filter a configuration may ask for (its search and its
+/// kernel each read taps² footprints).
+pub const MAX_CELL_TAPS: u32 = 8;
 
 /// Layers a render node produces (radiance is made by the material stage, never by a node).
 pub const NODE_LAYERS: [Layer; 6] = [
@@ -105,7 +109,10 @@ pub enum ConfigError {
     BandTooLarge { bytes: u64, max: usize },
     #[error("downstream address is empty")]
     NoDownstream,
-    #[error("filter {0} is not 0, 1, 3 or 5")]
+    #[error(
+        "filter {0} is not 0 (none), 1 (PCF 2×2), 3 or 5 (a grid) or 258..=264 (the cell filter \
+         with 2..=8 taps)"
+    )]
     BadFilter(u32),
     #[error(
         "frame light {index} (sample {sample}) does not replace one of this node's lights with one \
@@ -234,7 +241,13 @@ pub fn check(
             return Err(ConfigError::NonFinite { what, value });
         }
     }
-    if !matches!(config.filter, 0 | 1 | 3 | 5) {
+    let known = match lightfold_scene::wire::filter_from_wire(config.filter) {
+        Some(ShadowFilter::Pcf { taps }) => matches!(taps, 3 | 5),
+        Some(ShadowFilter::Cell { taps }) => (2..=MAX_CELL_TAPS).contains(&taps),
+        Some(_) => true,
+        None => false,
+    };
+    if !known {
         return Err(ConfigError::BadFilter(config.filter));
     }
     if config.downstream.trim().is_empty() {
@@ -391,6 +404,7 @@ mod tests {
             light: 0,
             sample: 0,
             area: None,
+            cell: 0.0,
         };
         NodeConfig {
             epoch: 1,
@@ -504,6 +518,48 @@ mod tests {
         let mut matrix = [0.0; 16];
         (matrix[0], matrix[5], matrix[10], matrix[15]) = (s, s, s, 1.0);
         lightfold_protocol::WireMove { mesh, matrix }
+    }
+
+    #[test]
+    fn shadow_filters_are_the_ones_a_node_renders_and_cells_are_checked() {
+        let illum = vec![(Layer::Illumination, PixelFormat::F16x6)];
+        let with = |filter| NodeConfig {
+            filter,
+            ..config(illum.clone(), 1)
+        };
+        for (code, filter) in [
+            (0, ShadowFilter::None),
+            (1, ShadowFilter::Pcf2x2),
+            (3, ShadowFilter::Pcf { taps: 3 }),
+            (5, ShadowFilter::Pcf { taps: 5 }),
+            (258, ShadowFilter::Cell { taps: 2 }),
+            (259, ShadowFilter::Cell { taps: 3 }),
+            (264, ShadowFilter::Cell { taps: 8 }),
+        ] {
+            assert!(run(with(code)).is_ok(), "{code}");
+            assert_eq!(lightfold_scene::wire::filter_to_wire(filter), code);
+            assert_eq!(crate::daemon::render_thread::shadow_filter(code), filter);
+        }
+        for code in [2, 4, 6, 16, 255, 256, 257, 265, u32::MAX] {
+            assert_eq!(run(with(code)).unwrap_err(), ConfigError::BadFilter(code));
+        }
+        // A light's cell must be a finite width.
+        for (cell, negative) in [(-0.1, true), (f32::NAN, false), (f32::INFINITY, false)] {
+            let mut c = config(illum.clone(), 1);
+            c.lights[0].cell = cell;
+            let e = run(c).unwrap_err();
+            assert!(
+                matches!(
+                    e,
+                    ConfigError::Light {
+                        source: WireError::NegativeCell { .. },
+                        ..
+                    }
+                ) == negative
+                    && matches!(e, ConfigError::Light { .. }),
+                "{cell}: {e}"
+            );
+        }
     }
 
     #[test]

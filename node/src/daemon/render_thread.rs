@@ -327,13 +327,9 @@ fn options_for(setup: &RenderSetup) -> RenderOptions {
     }
 }
 
-/// The wire's filter code (`NodeConfig::filter`): 0 none, 1 PCF 2×2, n > 1 an n×n grid.
+/// The wire's filter code (`NodeConfig::filter`, checked by `config::check`).
 pub fn shadow_filter(code: u32) -> ShadowFilter {
-    match code {
-        0 => ShadowFilter::None,
-        1 => ShadowFilter::Pcf2x2,
-        taps => ShadowFilter::Pcf { taps },
-    }
+    lightfold_scene::wire::filter_from_wire(code).unwrap_or(ShadowFilter::Pcf2x2)
 }
 
 fn configure(

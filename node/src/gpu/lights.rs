@@ -78,7 +78,8 @@ pub struct GpuLight {
     pub area_center: [f32; 3],
     pub area_kind: u32,
     pub area_u: [f32; 3],
-    pub area_pad0: u32,
+    /// Width of the sample's cell of its light (`LightSample::cell`): the cell filter's kernel.
+    pub cell: f32,
     pub area_v: [f32; 3],
     pub area_pad1: u32,
 }
@@ -382,7 +383,11 @@ fn gpu_light(s: &LightSample, weight: V3, first_view: u32, view_count: u32) -> G
         area_center,
         area_kind,
         area_u,
-        area_pad0: 0,
+        cell: if s.cell.is_finite() {
+            s.cell.max(0.0)
+        } else {
+            0.0
+        },
         area_v,
         area_pad1: 0,
     }
@@ -512,6 +517,7 @@ mod tests {
             range: None,
             light: 0,
             area: None,
+            cell: 0.0,
         }
     }
 

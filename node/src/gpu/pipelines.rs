@@ -162,6 +162,7 @@ fn filter_constants(filter: ShadowFilter, translucent: bool) -> [(&'static str, 
         ShadowFilter::None => (0, 1),
         ShadowFilter::Pcf2x2 => (1, 1),
         ShadowFilter::Pcf { taps } => (2, taps.clamp(1, 15)),
+        ShadowFilter::Cell { taps } => (3, taps.clamp(2, 15)),
     };
     [
         (OVERRIDE_SHADOW_FILTER, f64::from(mode)),

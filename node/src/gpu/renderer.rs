@@ -1216,6 +1216,9 @@ impl Renderer {
             ShadowFilter::None => 0.5,
             ShadowFilter::Pcf2x2 => 1.0,
             ShadowFilter::Pcf { taps } => (taps.clamp(1, 15) - 1) as f32 * 0.5 + 1.0,
+            // Samples without a cell get the 2×2 footprint; the cell kernel sets its own
+            // receiver's bias per lookup (`cell_filter` in lighting.wgsl).
+            ShadowFilter::Cell { .. } => 1.0,
         };
         let mut flags = 0;
         if self.object_ids {

@@ -110,6 +110,7 @@ fn lone_sphere(material: Material) -> (Scene, Vec<LightSample>) {
         range: None,
         light: 0,
         area: None,
+        cell: 0.0,
     }];
     (s, samples)
 }

@@ -28,6 +28,7 @@ fn sample(
         range: None,
         light: 0,
         area: None,
+        cell: 0.0,
     }
 }
 

@@ -116,12 +116,13 @@ pub fn pattern_name(p: SamplePattern) -> &'static str {
     }
 }
 
-/// Short name of a filter (`none`, `pcf2x2`, `pcf3x3`, `pcf5x5`).
+/// Short name of a filter (`none`, `pcf2x2`, `pcf3x3`, `pcf5x5`, `cell4`).
 pub fn filter_name(f: ShadowFilter) -> String {
     match f {
         ShadowFilter::None => "none".into(),
         ShadowFilter::Pcf2x2 => "pcf2x2".into(),
         ShadowFilter::Pcf { taps } => format!("pcf{taps}x{taps}"),
+        ShadowFilter::Cell { taps } => format!("cell{taps}"),
     }
 }
 

@@ -2,6 +2,7 @@
 
 mod accuracy_sweep;
 mod calibration;
+mod cell_filter;
 mod gloss_rule;
 mod hard_cases;
 mod ties;

@@ -697,6 +697,9 @@ fn apply_quality(q: &mut Quality, s: &super::spec::QualitySpec) {
             FilterSpec::Pcf2x2 => ShadowFilter::Pcf2x2,
             FilterSpec::Pcf3x3 => ShadowFilter::Pcf { taps: 3 },
             FilterSpec::Pcf5x5 => ShadowFilter::Pcf { taps: 5 },
+            FilterSpec::Cell => ShadowFilter::Cell {
+                taps: crate::defaults::CELL_TAPS,
+            },
         };
     }
     q.seed = s.seed.unwrap_or(q.seed);

@@ -159,7 +159,10 @@ pub fn quality_spec(q: &Quality) -> Result<QualitySpec, String> {
             ShadowFilter::Pcf2x2 => FilterSpec::Pcf2x2,
             ShadowFilter::Pcf { taps: 3 } => FilterSpec::Pcf3x3,
             ShadowFilter::Pcf { taps: 5 } => FilterSpec::Pcf5x5,
-            ShadowFilter::Pcf { taps } => {
+            ShadowFilter::Cell {
+                taps: crate::defaults::CELL_TAPS,
+            } => FilterSpec::Cell,
+            ShadowFilter::Pcf { taps } | ShadowFilter::Cell { taps } => {
                 return Err(format!(
                     "a {taps}×{taps} shadow filter has no scene-file name"
                 ));

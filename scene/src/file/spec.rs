@@ -230,6 +230,8 @@ pub enum FilterSpec {
     Pcf2x2,
     Pcf3x3,
     Pcf5x5,
+    /// The cell filter ([`crate::ShadowFilter::Cell`]) with [`crate::defaults::CELL_TAPS`].
+    Cell,
 }
 
 /// A named material that objects refer to.

@@ -205,6 +205,7 @@ mod tests {
             range: None,
             light: 0,
             area: None,
+            cell: 0.0,
         }
     }
 

@@ -49,6 +49,7 @@ fn directional(travel: [f32; 3]) -> LightSample {
         range: None,
         light: 0,
         area: None,
+        cell: 0.0,
     }
 }
 

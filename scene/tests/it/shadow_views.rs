@@ -17,6 +17,7 @@ fn sample(position: V3, direction: V3, kind: SampleKind) -> LightSample {
         range: None,
         light: 0,
         area: None,
+        cell: 0.0,
     }
 }
 

@@ -112,9 +112,21 @@ pub fn light() -> impl Strategy<Value = WireLight> {
         num(),
         any::<(u32, u32)>(),
         prop::option::of((any::<u8>(), v3(), v3(), v3())),
+        num(),
     )
         .prop_map(
-            |(position, direction, kind, cone, intensity, color, range, (light, sample), area)| {
+            |(
+                position,
+                direction,
+                kind,
+                cone,
+                intensity,
+                color,
+                range,
+                (light, sample),
+                area,
+                cell,
+            )| {
                 WireLight {
                     position,
                     direction,
@@ -126,6 +138,7 @@ pub fn light() -> impl Strategy<Value = WireLight> {
                     light,
                     sample,
                     area: area.map(|(kind, center, u, v)| WireArea { kind, center, u, v }),
+                    cell,
                 }
             },
         )
