@@ -183,10 +183,25 @@ impl LocalCluster {
             })
             .map(|t| if t.is_finite() { t } else { 0.0 })
             .collect();
+        // Each node's pixel-bound share (eye pass, readback, pack, send) of its fastest frame.
+        let pixel_seconds = plan
+            .nodes
+            .iter()
+            .map(|n| {
+                timed
+                    .iter()
+                    .filter_map(|f| f.stats.iter().find(|st| st.daemon_id == n.node))
+                    .min_by_key(|st| st.total_us)
+                    .map_or(0.0, |st| {
+                        (st.eye_us + st.readback_us + st.pack_us + st.send_us) as f64 / 1e6
+                    })
+            })
+            .collect();
         let last = timed.last().unwrap_or(first);
         Ok(Measured {
             image: last.image.clone(),
             node_seconds,
+            pixel_seconds,
             k_run: plan.k,
             lights: plan.active.len(),
         })

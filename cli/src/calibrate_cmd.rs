@@ -59,7 +59,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "penumbra PSNR",
         "filtered (radius)",
         "cell filter",
-        "node-s/frame at calibration size",
+        "node-s/frame (full size, estimated)",
     ]);
     for curve in &c.model.curves {
         for &(n, db) in &curve.unfiltered {
@@ -68,9 +68,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .iter()
                 .find(|f| f.0 == n)
                 .map_or_else(|| "—".to_string(), |f| format!("{:.2} dB (r{})", f.2, f.1));
-            let cell = curve
-                .cell_db(n)
-                .map_or_else(|| "—".to_string(), |db| format!("{db:.2} dB"));
+            let cell = curve.cell_db(n).map_or_else(
+                || "—".to_string(),
+                |db| {
+                    format!(
+                        "{db:.2} dB ({:.3} node-s)",
+                        curve.cell_seconds_per_sample * f64::from(n)
+                    )
+                },
+            );
             table.add_row([
                 if curve.map_floor == 0 {
                     "the scene's".to_string()

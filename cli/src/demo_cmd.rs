@@ -570,12 +570,23 @@ fn compare_last_frame(
         ),
         None => (samples, format!("the scene's {n} point samples")),
     };
-    if let Some(p) = rendered.filter(|p| p.penumbra_radius > 0) {
+    let filtered = rendered.and_then(|p| {
+        if p.target.as_ref().is_some_and(|t| t.cell_filter) {
+            Some((
+                p,
+                "each sample's shadow over its cell of the light (the cell filter)".to_string(),
+            ))
+        } else if p.penumbra_radius > 0 {
+            Some((p, format!("the penumbra (radius {})", p.penumbra_radius)))
+        } else {
+            None
+        }
+    });
+    if let Some((p, what)) = filtered {
         outln!(
-            "the plan filters the penumbra (radius {}): the difference to the point sum \
-             below includes the filter's change, made to bring the image nearer the area \
-             lights the samples stand for{}",
-            p.penumbra_radius,
+            "the plan filters {what}: the difference to the point sum below includes the \
+             filter's change, made to bring the image nearer the area lights the samples \
+             stand for{}",
             p.target.as_ref().map_or_else(String::new, |t| format!(
                 " ({:.1} dB penumbra PSNR against their truth expected by {})",
                 t.expected_db,

@@ -17,6 +17,10 @@ pub struct Measured {
     pub image: Image,
     /// Frame time of each node (batch), seconds.
     pub node_seconds: Vec<f64>,
+    /// The part of each node's time that scales with the image's pixels (eye pass, readback,
+    /// the link's pack; the screen-space filter's node), seconds: a cost model at another image
+    /// size scales these by the pixel ratio and keeps the rest (shadow passes, set-up).
+    pub pixel_seconds: Vec<f64>,
     pub k_run: u32,
     pub lights: usize,
 }
@@ -92,6 +96,7 @@ pub fn measure_prepared(
         let (w, h) = (scene.camera.width, scene.camera.height);
         let mut illumination = Image::new(w, h, 6);
         let mut node_seconds = Vec::with_capacity(frames.len());
+        let mut pixel_seconds = Vec::with_capacity(frames.len());
         let mut bytes = Vec::new();
         for (frame, secs) in &frames {
             let il = frame
@@ -100,7 +105,13 @@ pub fn measure_prepared(
                 .ok_or_else(|| err("illumination layer missing".into()))?;
             let t = Instant::now();
             let linked = through_link(s.format, &il.data, &mut bytes)?;
-            node_seconds.push(secs + t.elapsed().as_secs_f64());
+            let pack = t.elapsed().as_secs_f64();
+            node_seconds.push(secs + pack);
+            // The frame's own phases say which share of its time the pixels took.
+            let st = &frame.stats;
+            let phases = (st.setup_us + st.shadow_us + st.eye_us + st.readback_us).max(1) as f64;
+            let pixel_share = (st.eye_us + st.readback_us) as f64 / phases;
+            pixel_seconds.push(secs * pixel_share + pack);
             for (a, b) in illumination.data.iter_mut().zip(&linked) {
                 *a += b;
             }
@@ -111,11 +122,13 @@ pub fn measure_prepared(
             illumination =
                 penumbra_filter(&scene, &frames[0].0, &illumination, s.penumbra).map_err(err)?;
             node_seconds.push(t.elapsed().as_secs_f64());
+            pixel_seconds.push(t.elapsed().as_secs_f64());
         }
         let image = radiance(&scene, &frames[0].0, &illumination).map_err(err)?;
         out.push(Measured {
             image,
             node_seconds,
+            pixel_seconds,
             k_run,
             lights: samples.len(),
         });
