@@ -465,24 +465,46 @@ pub fn targeted(
     } else {
         pick_from
     };
-    let choice = pick_from.cheapest(target_db, from, |c, n| {
-        resolve_radius(c, filter, None, Some(n))
-    });
-    let n = choice.samples;
-    let s = if model.calibrated {
-        with_area_samples(scene, |_| n.min(max))
-    } else {
-        with_area_samples(scene, |c| {
-            if n >= from {
-                (c * (n / from)).min(max)
-            } else {
-                (c / (from / n)).max(1)
-            }
-        })
+    // The scene at `n` samples per area light, as the choice sets it.
+    let at = |n: u32| {
+        if model.calibrated {
+            with_area_samples(scene, |_| n.min(max))
+        } else {
+            with_area_samples(scene, |c| {
+                if n >= from {
+                    (c * (n / from)).min(max)
+                } else {
+                    (c / (from / n)).max(1)
+                }
+            })
+        }
     };
-    // Highlights: each area light raised to what its visible glossy receivers need.
-    let receivers = super::cull::receivers(&s, &super::geom::mesh_bounds(&s));
+    // Highlights: each area light raised to what its visible glossy receivers need, after the
+    // choice; the choice pays for it (a count the raise undoes saves nothing).
+    let receivers = super::cull::receivers(scene, &super::geom::mesh_bounds(scene));
     let rho = super::gloss::max_spacing_over_lobe(target_db);
+    let area_total = |s: &Scene| -> f64 {
+        s.lights
+            .iter()
+            .filter(|l| l.is_area())
+            .map(|l| f64::from(s.quality.samples_of(l)))
+            .sum()
+    };
+    let raised = |n: u32| -> f64 {
+        let s = at(n);
+        match super::gloss::raise(&s, &receivers, rho) {
+            Some((r, _)) => area_total(&r) / area_total(&s).max(1.0),
+            None => 1.0,
+        }
+    };
+    let choice = pick_from.cheapest_raised(
+        target_db,
+        from,
+        |c, n| resolve_radius(c, filter, None, Some(n)),
+        raised,
+    );
+    let n = choice.samples;
+    let s = at(n);
     let (s, gloss) = super::gloss::raise(&s, &receivers, rho).unwrap_or((s, Vec::new()));
     let mut s = s;
     if choice.cell {

@@ -178,6 +178,19 @@ impl ErrorModel {
         from: u32,
         filter: impl Fn(&Curve, u32) -> u32,
     ) -> Choice {
+        self.cheapest_raised(target_db, from, filter, |_| 1.0)
+    }
+
+    /// [`ErrorModel::cheapest`] where a count `n` will be raised after the choice (glossy
+    /// highlights, `plan::gloss`), so it costs `raised(n)` times what `n` samples cost: a few
+    /// filtered samples that the highlights raise anyway save nothing.
+    pub fn cheapest_raised(
+        &self,
+        target_db: f32,
+        from: u32,
+        filter: impl Fn(&Curve, u32) -> u32,
+        raised: impl Fn(u32) -> f64,
+    ) -> Choice {
         let mut all = Vec::new();
         for c in &self.curves {
             // A calibration's own counts (every area light takes the count chosen), so each
@@ -201,12 +214,14 @@ impl ErrorModel {
             };
             for n in counts {
                 let radius = filter(c, n);
+                let factor = raised(n).max(1.0);
                 let side = if c.map_floor == 0 { 512 } else { c.map_floor };
-                let cost = if c.seconds_per_sample > 0.0 {
-                    f64::from(n) * c.seconds_per_sample
-                } else {
-                    f64::from(n) * (1.0 + f64::from(side) / 512.0)
-                };
+                let cost = factor
+                    * if c.seconds_per_sample > 0.0 {
+                        f64::from(n) * c.seconds_per_sample
+                    } else {
+                        f64::from(n) * (1.0 + f64::from(side) / 512.0)
+                    };
                 all.push(Choice {
                     samples: n,
                     map_floor: c.map_floor,
@@ -224,7 +239,7 @@ impl ErrorModel {
                         radius: 0,
                         cell: true,
                         db,
-                        cost: f64::from(n) * c.cell_seconds_per_sample,
+                        cost: factor * f64::from(n) * c.cell_seconds_per_sample,
                     });
                 }
             }
@@ -449,6 +464,15 @@ mod tests {
         let c = m.cheapest(45.0, 16, any);
         assert_eq!((c.samples, c.map_floor, c.cell), (64, 2048, false), "{c:?}");
         assert_eq!(m.curves[0].cell_db(8), None);
+        // Where highlights raise 4 samples to 16 anyway (×4 the cost), 16 unfiltered (0.16 s,
+        // not raised) beat the cell filter at 4 (0.24 s once raised).
+        let c = m.cheapest_raised(
+            36.0,
+            16,
+            any,
+            |n| if n < 16 { 16.0 / n as f64 } else { 1.0 },
+        );
+        assert_eq!((c.samples, c.cell), (16, false), "{c:?}");
         // Unmeasured cost: not offered.
         m.curves[0].cell_seconds_per_sample = 0.0;
         assert!(!m.cheapest(36.0, 16, any).cell);
