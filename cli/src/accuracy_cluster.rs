@@ -171,20 +171,9 @@ impl LocalCluster {
             Some((f, _)) => (f, std::slice::from_ref(f)),
             None => return Err(err("no frame arrived".into())),
         };
-        let node_seconds = plan
-            .nodes
-            .iter()
-            .map(|n| {
-                timed
-                    .iter()
-                    .filter_map(|f| f.stats.iter().find(|st| st.daemon_id == n.node))
-                    .map(|st| st.total_us as f64 / 1e6)
-                    .fold(f64::INFINITY, f64::min)
-            })
-            .map(|t| if t.is_finite() { t } else { 0.0 })
-            .collect();
-        // Each node's pixel-bound share (eye pass, readback, pack, send) of its fastest frame.
-        let pixel_seconds = plan
+        // Each node's fastest timed frame: its time, and the pixel-bound share of it (eye pass,
+        // readback, pack, send).
+        let fastest: Vec<Option<&lightfold_protocol::FrameStats>> = plan
             .nodes
             .iter()
             .map(|n| {
@@ -192,11 +181,16 @@ impl LocalCluster {
                     .iter()
                     .filter_map(|f| f.stats.iter().find(|st| st.daemon_id == n.node))
                     .min_by_key(|st| st.total_us)
-                    .map_or(0.0, |st| {
-                        (st.eye_us + st.readback_us + st.pack_us + st.send_us) as f64 / 1e6
-                    })
             })
             .collect();
+        let seconds = |us: &dyn Fn(&lightfold_protocol::FrameStats) -> u64| -> Vec<f64> {
+            fastest
+                .iter()
+                .map(|st| st.map_or(0.0, |st| us(st) as f64 / 1e6))
+                .collect()
+        };
+        let node_seconds = seconds(&|st| st.total_us);
+        let pixel_seconds = seconds(&|st| st.eye_us + st.readback_us + st.pack_us + st.send_us);
         let last = timed.last().unwrap_or(first);
         Ok(Measured {
             image: last.image.clone(),

@@ -167,7 +167,8 @@ fn samples_for(light: &Light, from: u32, max: u32, d: f32, alpha: f32, rho: f32)
 /// has (its count as the scene gives it: `Quality::samples_per_area_light`, or its own) to the
 /// fewest at which their lobes are at least `1/rho` times the samples' spacing
 /// ([`max_spacing_over_lobe`]), at most [`MAX_GLOSS_SAMPLES`] (never lowered). Returns the
-/// scene (every light's count its own) and what was raised; `None` where nothing was.
+/// scene (every light's count its own) and what was raised, with each light at the cap whose
+/// highlight still needs more (`reached` false, its count kept); `None` where neither.
 pub(crate) fn raise(
     scene: &Scene,
     receivers: &[Receiver],
@@ -195,12 +196,15 @@ pub(crate) fn raise(
             // The error goes with ρ² × share: a dimmer highlight allows wider spacing.
             let rho = rho / share.max(MIN_SHARE).sqrt();
             let (n, reached) = samples_for(light, from, MAX_GLOSS_SAMPLES, d, *alpha, rho);
-            if n > best.as_ref().map_or(from, |b| b.to) {
+            // A raise, or a light already at the cap whose highlight still needs more (said,
+            // though its count stays).
+            let capped_here = !reached && best.is_none();
+            if n > best.as_ref().map_or(from, |b| b.to) || capped_here {
                 best = Some(GlossRaise {
                     light: i,
                     name: light.name.clone(),
                     from,
-                    to: n,
+                    to: n.max(from),
                     material: scene.materials[scene.meshes[r.mesh].material].name.clone(),
                     alpha: *alpha,
                     share: *share,

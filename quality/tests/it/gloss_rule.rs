@@ -30,7 +30,9 @@ fn a_target_raises_a_large_panel_for_glossy_spheres_to_smooth_highlights() -> an
         .gloss
         .first()
         .expect("the panel is raised for its spheres");
-    assert!(g.reached && g.from == 16 && g.to > 16, "{g:?}");
+    // Raised above the count the target chose (which, paying for the raise, may itself take
+    // more than the scene's 16).
+    assert!(g.reached && g.from >= 16 && g.to > g.from, "{g:?}");
     assert!(
         g.material.contains("r0.4"),
         "the narrower lobe asks most: {g:?}"
