@@ -310,9 +310,12 @@ pub fn calibrate(
                     penumbra: 0,
                     ..settings[0]
                 };
-                let mut with_cell = cal.clone();
-                with_cell.quality.filter = setting.filter;
-                let m = measure_prepared(gpu, &with_cell, &[setting], 1)?.remove(0);
+                // The scene's own filter is put back before the next count's renders (no
+                // copy of the scene: a city's meshes are hundreds of megabytes).
+                cal.quality.filter = setting.filter;
+                let m = measure_prepared(gpu, &cal, &[setting], 1);
+                cal.quality.filter = q.filter;
+                let m = m?.remove(0);
                 let (db, whole) = psnr(&truth.truth, &m.image)?;
                 let secs = full_size_seconds(&m, d);
                 points.push(CalPoint {
