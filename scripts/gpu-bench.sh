@@ -6,7 +6,7 @@
 #
 # On a machine without a Rust toolchain, point LIGHTFOLD_BIN at a release binary built elsewhere
 # (same architecture) and GPU_TEST_BINS at a folder of prebuilt test executables
-# (`cargo test --release --no-run -p lightfold-node -p lightfold-tests --test it`: one test
+# (`cargo test --release --no-run -p lightfold-node -p lightfold-harness --test it`: one test
 # executable per crate); each is run with the filters in GPU_TEST_FILTERS.
 #
 # Builds the release binary, refuses to go on unless the adapter is a hardware one, then measures,
@@ -172,7 +172,7 @@ if skip_unless 90 "GPU tests"; then
         || echo "GPU tests: $(basename "$t") failed, see $out/gpu-tests.txt"
     done
   elif command -v cargo >/dev/null; then
-    timeout 150 cargo test --release -p lightfold-node -p lightfold-tests --test it -- \
+    timeout 150 cargo test --release -p lightfold-node -p lightfold-harness --test it -- \
       $GPU_TEST_FILTERS 2>&1 | grep -E '^test |test result' | tee "$out/gpu-tests.txt" || echo "GPU tests: see $out/gpu-tests.txt"
   else
     echo "skipped: GPU tests (no cargo here and no GPU_TEST_BINS)" | tee -a "$out/log.txt"

@@ -2,18 +2,15 @@
 //! `--out`), on one device or with `--cluster` through an in-process cluster, or with `--hard`
 //! the full-size hard cases of numerical stability.
 
-use crate::out::outln;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
+use lightfold_harness::outln;
 use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_quality::accuracy::{
     self, CachedTruth, SweepPlan, TruthOptions, load_or_render_truth, report, run_sweep,
     run_sweep_with,
 };
 use std::path::PathBuf;
-
-#[path = "accuracy_cluster.rs"]
-mod cluster;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -129,7 +126,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bar.set_message(what.to_string());
     };
     let points = if args.cluster {
-        let mut c = cluster::LocalCluster::start(args.cluster_nodes, args.cluster_compositors)?;
+        let mut c = lightfold_harness::sweep::SweepCluster::start(
+            args.cluster_nodes,
+            args.cluster_compositors,
+        )?;
         let points = run_sweep_with(&scene, &truth, &plan, progress, |scene, settings| {
             c.measure(scene, settings, args.repeats)
         });

@@ -3,8 +3,8 @@
 //! where `plan`, `coordinator` and `demo` look for it.
 
 use crate::model_args::{DEFAULT_TARGET_DB, ModelArgs, run_calibration};
-use crate::out::outln;
 use anyhow::Context;
+use lightfold_harness::outln;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

@@ -1,8 +1,8 @@
 //! The error summary of a cluster image: compared with the CPU reference's exact sum over the same
 //! point samples (ray-traced shadows), so what remains is shadow-map and link-precision error.
 
-use crate::out::outln;
 use anyhow::Context;
+use lightfold_harness::outln;
 use lightfold_reference::masks::{penumbra_mask, ties};
 use lightfold_reference::metrics::compare_over;
 use lightfold_reference::point_sum::{PointSumOptions, render_point_sum_with};

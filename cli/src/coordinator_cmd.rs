@@ -3,19 +3,19 @@
 //! plan (in a few lines; in full with `--verbose`) and timing tables. While frames run, a
 //! terminal shows a progress bar; a log (stderr not a terminal) gets a line per frame.
 
-use crate::frames_out::{FramePattern, FrameWriter};
-use crate::out::outln;
 use anyhow::{Context, bail};
 use lightfold_coordinator::cluster::ClusterFile;
+use lightfold_coordinator::control::FrameResult;
 use lightfold_coordinator::control::Session;
 use lightfold_coordinator::control::{ControlOptions, DaemonAddr};
-use lightfold_coordinator::control::{FrameResult, IncidentKind, LiveSummary};
+use lightfold_coordinator::frames_out::{FramePattern, FrameWriter};
 use lightfold_coordinator::plan::{PlanOptions, Topology};
 use lightfold_coordinator::report::Report;
 use lightfold_coordinator::run::{FramePath, RunOptions};
+use lightfold_harness::outln;
 use lightfold_net::{Identity, Timeouts};
 use lightfold_protocol::Role;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 #[derive(Debug, clap::Args)]
@@ -41,6 +41,10 @@ pub struct Args {
     pub token_file: Option<PathBuf>,
     #[command(flatten)]
     pub job: JobArgs,
+    /// The job (what to render and how) from a JSON file, as `demo` writes it for its
+    /// coordinator, instead of the job's flags (`--scene`, `-K`, `--frames`, …).
+    #[arg(long, value_name = "FILE")]
+    pub job_file: Option<PathBuf>,
     /// Stop every daemon when done.
     #[arg(long)]
     pub shutdown: bool,
@@ -287,8 +291,9 @@ impl ViewArgs {
     }
 }
 
-/// What to render and how: shared by `coordinator` and `demo`.
-#[derive(Debug, Clone, clap::Args)]
+/// What to render and how: shared by `coordinator` and `demo`, which hands it to its
+/// coordinator as a job file (`--job-file`, JSON).
+#[derive(Debug, Clone, clap::Args, serde::Serialize, serde::Deserialize)]
 pub struct JobArgs {
     /// Built-in scene name, scene file (.toml) or model (.gltf/.glb, .obj, .ply,
     /// .usda/.usdc/.usdz).
@@ -434,7 +439,96 @@ pub struct JobArgs {
     pub resume: bool,
 }
 
+/// The largest job file read (a job is a few kilobytes).
+const MAX_JOB_FILE: u64 = 1 << 20;
+
 impl JobArgs {
+    /// The job with every flag at its default, as `lightfold coordinator` alone parses it.
+    pub fn defaults() -> JobArgs {
+        use clap::{Args as _, FromArgMatches as _};
+        let cmd = JobArgs::augment_args(clap::Command::new("job"));
+        JobArgs::from_arg_matches(&cmd.get_matches_from(["job"]))
+            .expect("every job flag has a default")
+    }
+
+    /// Writes the job as a job file (JSON) for `--job-file`.
+    pub fn write(&self, path: &Path) -> anyhow::Result<()> {
+        let text = serde_json::to_string_pretty(self)?;
+        std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
+    }
+
+    /// The job of a job file; `flags` (the job's flags as parsed) must all be at their defaults:
+    /// a job file replaces them, so a flag given beside it would be ignored silently.
+    pub fn from_file(path: &Path, flags: &JobArgs) -> anyhow::Result<JobArgs> {
+        let defaults = serde_json::to_value(JobArgs::defaults())?;
+        if serde_json::to_value(flags)? != defaults {
+            bail!(
+                "--job-file replaces the job's flags (--scene, -K, --frames, …): give one or the other"
+            );
+        }
+        let file = std::fs::File::open(path)
+            .with_context(|| format!("cannot open the job file {}", path.display()))?;
+        let mut text = String::new();
+        std::io::Read::read_to_string(&mut std::io::Read::take(file, MAX_JOB_FILE + 1), &mut text)
+            .with_context(|| format!("cannot read the job file {}", path.display()))?;
+        if text.len() as u64 > MAX_JOB_FILE {
+            bail!(
+                "the job file {} is larger than {} KiB",
+                path.display(),
+                MAX_JOB_FILE >> 10
+            );
+        }
+        let job: JobArgs = serde_json::from_str(&text)
+            .with_context(|| format!("{} is not a job file", path.display()))?;
+        job.check()
+            .map_err(|e| anyhow::anyhow!("the job file {}: {e}", path.display()))?;
+        Ok(job)
+    }
+
+    /// What the flags' parsers and conflicts check, for a job that did not come through them
+    /// (a job file).
+    fn check(&self) -> Result<(), String> {
+        let within = |v: u32, lo: u32, hi: u32, flag: &str| {
+            if (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err(format!("{flag} {v} is not in {lo}..={hi}"))
+            }
+        };
+        within(self.frames, 1, u32::MAX, "--frames")?;
+        within(self.frames_in_flight, 1, 8, "--frames-in-flight")?;
+        if let Some(v) = self.video_fps {
+            within(v, 1, 240, "--video-fps")?;
+        }
+        if self.partitions != 0 {
+            partitions_arg(&self.partitions.to_string())?;
+        }
+        if let Some(t) = self.time {
+            finite_seconds(&t.to_string())?;
+        }
+        if let Some(f) = self.fps {
+            positive_fps(&f.to_string())?;
+        }
+        if let Some(db) = self.target_psnr {
+            target_db(&db.to_string())?;
+        }
+        if let Some(ms) = self.frame_budget {
+            positive_ms(&ms.to_string())?;
+        }
+        penumbra_filter(&penumbra_filter_arg(self.penumbra_filter))?;
+        for (class, format) in &self.link_format {
+            parse_link_format(&format!("{}={}", class.name(), format.name()))?;
+        }
+        let patterned = self.frame_pattern.is_some() || self.frame_dir.is_some();
+        if self.frame_pattern.is_some() && self.frame_dir.is_some() {
+            return Err("--frame-pattern and --frame-dir together".into());
+        }
+        if self.no_frame_files && (patterned || self.video.is_some() || self.resume) {
+            return Err("--no-frame-files with frame files asked for".into());
+        }
+        Ok(())
+    }
+
     /// The frames `--resume` skips: those already complete under the frame pattern.
     pub fn resumed(&self, serving: bool) -> anyhow::Result<Vec<u64>> {
         if !self.resume {
@@ -559,7 +653,7 @@ impl JobArgs {
         let pattern = match given {
             Some(p) => p,
             None if (self.frames > 1 && !serving) || self.video.is_some() => {
-                crate::frames_out::DEFAULT_PATTERN.to_string()
+                lightfold_coordinator::frames_out::DEFAULT_PATTERN.to_string()
             }
             None => return Ok(None),
         };
@@ -575,7 +669,7 @@ impl JobArgs {
 }
 
 /// A class of link whose format `--link-format` sets.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum LinkClass {
     Node,
     Chain,
@@ -670,9 +764,6 @@ pub fn positive_ms(s: &str) -> Result<f64, String> {
     }
 }
 
-/// `--size WIDTHxHEIGHT`, within the image limits every input shares
-/// (`lightfold_scene::limits`, printed by `lightfold defaults`).
-/// `--penumbra-filter`: `off`, `budget`, `auto` or a radius 1–8.
 /// `--partitions`: `auto` (0) or 1 to `MAX_PARTITIONS`.
 pub fn partitions_arg(s: &str) -> Result<u32, String> {
     let max = lightfold_coordinator::plan::MAX_PARTITIONS;
@@ -685,6 +776,7 @@ pub fn partitions_arg(s: &str) -> Result<u32, String> {
     }
 }
 
+/// `--penumbra-filter`: `off`, `budget`, `auto` or a radius 1–8.
 pub fn penumbra_filter(s: &str) -> Result<lightfold_coordinator::plan::PenumbraFilter, String> {
     use lightfold_coordinator::plan::PenumbraFilter;
     match s.trim() {
@@ -700,7 +792,7 @@ pub fn penumbra_filter(s: &str) -> Result<lightfold_coordinator::plan::PenumbraF
     }
 }
 
-/// The `--penumbra-filter` argument that gives `f` (what `demo` passes on).
+/// The `--penumbra-filter` argument that gives `f`.
 pub fn penumbra_filter_arg(f: lightfold_coordinator::plan::PenumbraFilter) -> String {
     use lightfold_coordinator::plan::PenumbraFilter;
     match f {
@@ -711,12 +803,17 @@ pub fn penumbra_filter_arg(f: lightfold_coordinator::plan::PenumbraFilter) -> St
     }
 }
 
+/// `--size WIDTHxHEIGHT`, within the image limits every input shares
+/// (`lightfold_scene::limits`, printed by `lightfold defaults`).
 pub fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
     lightfold_scene::limits::parse_image_size(s)
         .map_err(|e| anyhow::anyhow!("bad --size: {e} (see `lightfold defaults`)"))
 }
 
-pub fn run_cmd(args: Args) -> anyhow::Result<()> {
+pub fn run_cmd(mut args: Args) -> anyhow::Result<()> {
+    if let Some(path) = &args.job_file {
+        args.job = JobArgs::from_file(path, &args.job)?;
+    }
     let token = lightfold_net::load_token(args.token_file.as_deref())?;
     let (daemons, sink_listen, sink_advertise) = match &args.cluster {
         Some(path) => {
@@ -854,8 +951,12 @@ pub async fn execute(
         p.create_dir()?;
     }
     let mut report = Report::default();
-    outln!("{}", crate::cluster_ops::adapters(&session, job.verbose));
-    let mut stats = crate::cluster_ops::StatsFile::create(job.stats.as_deref(), start)?;
+    outln!(
+        "{}",
+        lightfold_coordinator::operator::adapters(&session, job.verbose)
+    );
+    let mut stats =
+        lightfold_coordinator::operator::StatsFile::create(job.stats.as_deref(), start)?;
     lightfold_telemetry::health::set_serving(true);
     let mut progress = Progress::new(
         (!serving).then_some(opts.frames - opts.skip.len() as u32),
@@ -908,7 +1009,10 @@ pub async fn execute(
         outln!("{}", report.table(plan));
         outln!("{}", report.summary(plan));
     }
-    outln!("{}", failover_summary(&outcome.summary, start));
+    outln!(
+        "{}",
+        lightfold_coordinator::operator::failover_summary(&outcome.summary, start)
+    );
     if shutdown {
         session.shutdown().await;
     } else {
@@ -957,7 +1061,7 @@ pub async fn execute(
         .into());
     }
     if let (Some(video), Some(p)) = (&job.video, &every) {
-        crate::frames_out::assemble_video(p, video, job.video_rate())?;
+        lightfold_coordinator::frames_out::assemble_video(p, video, job.video_rate())?;
         outln!("wrote {}", video.display());
     }
     let (w, h) = written.size.context("no frame was rendered")?;
@@ -969,114 +1073,6 @@ pub async fn execute(
         if serving { " (the view stopped)" } else { "" }
     );
     Ok(())
-}
-
-/// Slow frames `(reported at, frame, waited ms, daemons waited on)` in one line: how many, the
-/// first and the longest wait, and the daemons waited on most often.
-fn slow_summary(
-    slow: &[(std::time::Instant, u64, u128, Vec<&str>)],
-    at: impl Fn(std::time::Instant) -> f64,
-) -> Option<String> {
-    let first = slow.first()?;
-    let longest = slow.iter().max_by_key(|s| s.2)?;
-    let mut often: Vec<(&str, usize)> = Vec::new();
-    for who in slow.iter().flat_map(|s| &s.3) {
-        match often.iter_mut().find(|(d, _)| d == who) {
-            Some((_, n)) => *n += 1,
-            None => often.push((who, 1)),
-        }
-    }
-    often.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(b.0)));
-    let shown: Vec<String> = often
-        .iter()
-        .take(4)
-        .map(|(d, n)| format!("{d} ({n})"))
-        .collect();
-    Some(format!(
-        "\n  {:>7.2} s  slow: {} frame(s) waited past the slow threshold (first frame {}, {} ms; \
-         longest frame {}, {} ms); waited on most: {}{}",
-        at(first.0),
-        slow.len(),
-        first.1,
-        first.2,
-        longest.1,
-        longest.2,
-        shown.join(", "),
-        if often.len() > shown.len() {
-            format!(" and {} more", often.len() - shown.len())
-        } else {
-            String::new()
-        }
-    ))
-}
-
-/// What the run survived: one line per lost, stalled or rejoined daemon and per re-plan, and one
-/// for all slow frames.
-pub fn failover_summary(s: &LiveSummary, start: std::time::Instant) -> String {
-    let mut out = String::new();
-    let at = |t: std::time::Instant| t.saturating_duration_since(start).as_secs_f64();
-    let lost = s
-        .incidents
-        .iter()
-        .filter(|i| matches!(i.kind, IncidentKind::Lost { .. }))
-        .count();
-    out.push_str(&format!(
-        "failover: {} frame(s) delivered, {} daemon(s) lost, {} re-plan(s), {} frame request(s) sent again",
-        s.delivered,
-        lost,
-        s.epochs.len().saturating_sub(1),
-        s.rerequested
-    ));
-    if s.saturated > 0 {
-        out.push_str(&format!(
-            "\nsaturated: {} value(s) in {} frame(s) were clamped to their link format's range \
-             (per daemon in --stats; a seed64 link's scale follows its measured maximum once a frame's reports are back, after --frames-in-flight frames)",
-            s.saturated, s.saturated_frames
-        ));
-    }
-    // Slow frames: one line for all of them.
-    let mut slow: Vec<(std::time::Instant, u64, u128, Vec<&str>)> = Vec::new();
-    for i in &s.incidents {
-        let what = match &i.kind {
-            IncidentKind::Lost { reason } => format!("lost: {reason}"),
-            IncidentKind::Slow { frame, waited } => {
-                match slow.iter_mut().find(|x| x.1 == *frame) {
-                    Some(x) => x.3.push(&i.daemon),
-                    None => slow.push((i.at, *frame, waited.as_millis(), vec![&i.daemon])),
-                }
-                continue;
-            }
-            IncidentKind::Rejoined => "rejoined".to_string(),
-        };
-        out.push_str(&format!("\n  {:>7.2} s  {}  {what}", at(i.at), i.daemon));
-    }
-    if let Some(line) = slow_summary(&slow, at) {
-        out.push_str(&line);
-    }
-    if !s.stopped.is_empty() {
-        out.push_str(&format!(
-            "\n  stopping: {} stopped with the run (not lost){}",
-            s.stopped.join(", "),
-            match s.abandoned {
-                0 => String::new(),
-                n => format!("; {n} frame(s) not finished"),
-            }
-        ));
-    }
-    for e in s.epochs.iter().skip(1) {
-        out.push_str(&format!(
-            "\n  {:>7.2} s  epoch {}: {} node(s), {} stage(s), K = {}, {} light(s) moved, configured in {} ms ({})",
-            at(e.at),
-            e.epoch,
-            e.nodes,
-            e.stages,
-            e.k,
-            e.lights_moved,
-            e.configure.as_millis(),
-            e.reason
-        ));
-    }
-    out
 }
 
 /// How a run shows its frames while they come: a progress bar on a terminal; on a log (stderr

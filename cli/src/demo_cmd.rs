@@ -10,16 +10,17 @@
 //! daemon still up and prints its summary, then this process stops the daemons.
 
 use crate::coordinator_cmd::JobArgs;
-use crate::lifecycle::{cpu_seconds, send_signal};
-use crate::out::outln;
 use anyhow::{Context, bail};
 use lightfold_coordinator::plan::{ClusterSpec, Plan, PlanOptions, plan};
+use lightfold_harness::launcher::{
+    ANY_PORT, Launcher, cluster_file, cpu_seconds, send_signal, write_token,
+};
+use lightfold_harness::outln;
 use rustix::process::Signal;
-use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -183,42 +184,6 @@ fn check_processes(
     )
 }
 
-/// Spawned daemons, killed and reaped on drop (so every exit path, panics included, cleans up).
-/// `soak` replaces entries when it restarts a daemon.
-pub(crate) struct Children(pub(crate) Vec<(String, Child)>);
-
-impl Drop for Children {
-    fn drop(&mut self) {
-        for (_, c) in &mut self.0 {
-            // A child already reaped may have passed its pid on to another process.
-            if matches!(c.try_wait(), Ok(None)) {
-                terminate(c);
-            }
-        }
-        let deadline = Instant::now() + Duration::from_secs(5);
-        for (name, c) in &mut self.0 {
-            loop {
-                match c.try_wait() {
-                    Ok(Some(_)) => break,
-                    Ok(None) if Instant::now() < deadline => {
-                        std::thread::sleep(Duration::from_millis(20))
-                    }
-                    _ => {
-                        tracing::warn!(daemon = %name, "did not stop on SIGTERM; killing");
-                        let _ = c.kill();
-                        let _ = c.wait();
-                        break;
-                    }
-                }
-            }
-        }
-    }
-}
-
-fn terminate(c: &Child) {
-    send_signal(c.id(), Signal::TERM);
-}
-
 /// What the Ctrl-C handler needs: the coordinator once it runs (SIGINT is passed on to it), and
 /// before that the temporary directory to remove on the way out.
 #[derive(Debug, Default)]
@@ -289,10 +254,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     interrupt.lock().unwrap_or_else(|e| e.into_inner()).temp = temp.as_ref().map(|_| dir.clone());
     let token_path = dir.join("token");
     write_token(&token_path)?;
-    let exe = std::env::current_exe().context("cannot find the lightfold executable")?;
-    let mut children = start_daemons(&exe, &args, &token_path, nodes, compositors)?;
-    let cluster = write_cluster(&dir, &mut children, nodes)?;
-    let (mut coord, plan_json) = coordinator_command(&exe, &args, &cluster, &token_path, &dir);
+    let launcher = Launcher {
+        gpu_threads: args.gpu_threads,
+        metrics: args.metrics,
+        ..Launcher::this_exe(token_path.clone(), &args.daemon_log)?
+    };
+    let (children, daemons) = launcher.start_cluster(nodes, compositors)?;
+    let cluster = dir.join("cluster.toml");
+    std::fs::write(&cluster, cluster_file(&daemons))?;
+    let (mut coord, plan_json) =
+        coordinator_command(&launcher.exe, &args, &cluster, &token_path, &dir)?;
     let mut child = coord
         .stdout(Stdio::inherit())
         .stderr(Stdio::inherit())
@@ -408,71 +379,7 @@ fn work_dir(args: &Args) -> anyhow::Result<(Option<tempfile::TempDir>, PathBuf)>
     })
 }
 
-/// Spawns `nodes` render nodes then `compositors` compositors, each on a port the kernel picks;
-/// those already started are stopped when a later one fails to start.
-fn start_daemons(
-    exe: &Path,
-    args: &Args,
-    token_path: &Path,
-    nodes: usize,
-    compositors: usize,
-) -> anyhow::Result<Children> {
-    let mut children = Children(Vec::new());
-    for i in 0..nodes {
-        let id = format!("node-{i}");
-        let mut cmd = daemon_command(exe, "node", &id, token_path, &args.daemon_log, ANY_PORT);
-        if args.gpu_threads > 0 {
-            cmd.env("LP_NUM_THREADS", args.gpu_threads.to_string());
-        }
-        if args.metrics {
-            cmd.args(["--metrics-listen", ANY_PORT]);
-        }
-        let child = cmd.spawn().with_context(|| format!("cannot start {id}"))?;
-        children.0.push((id, child));
-    }
-    for i in 0..compositors {
-        let id = format!("comp-{i}");
-        let mut cmd = daemon_command(
-            exe,
-            "compositor",
-            &id,
-            token_path,
-            &args.daemon_log,
-            ANY_PORT,
-        );
-        if args.metrics {
-            cmd.args(["--metrics-listen", ANY_PORT]);
-        }
-        let child = cmd.spawn().with_context(|| format!("cannot start {id}"))?;
-        children.0.push((id, child));
-    }
-    Ok(children)
-}
-
-/// Waits (30 s at most) for every daemon to say where it listens, then writes the cluster file
-/// naming them into `dir` and returns its path; the first `nodes` children are render nodes.
-fn write_cluster(dir: &Path, children: &mut Children, nodes: usize) -> anyhow::Result<PathBuf> {
-    let deadline = Instant::now() + Duration::from_secs(30);
-    let mut addrs = Vec::new();
-    for (name, child) in &mut children.0 {
-        addrs.push(read_listening(child, name, deadline)?);
-    }
-    let (node_addrs, comp_addrs) = addrs.split_at(nodes);
-    let cluster = dir.join("cluster.toml");
-    let mut text = String::from("version = 1\nsink_listen = \"127.0.0.1:0\"\n");
-    for (i, a) in node_addrs.iter().enumerate() {
-        text.push_str(&format!("[[node]]\naddress = \"{a}\"\nid = \"node-{i}\"\n"));
-    }
-    for (i, a) in comp_addrs.iter().enumerate() {
-        text.push_str(&format!(
-            "[[compositor]]\naddress = \"{a}\"\nid = \"comp-{i}\"\n"
-        ));
-    }
-    std::fs::write(&cluster, text)?;
-    Ok(cluster)
-}
-
-/// The coordinator's command line for the job over the cluster file, and the path its last
+/// The coordinator's command line for the job (written to `dir/job.json`) over the cluster file, and the path its last
 /// plan is written to (`--plan-json`, in `dir` unless the job names one).
 fn coordinator_command(
     exe: &Path,
@@ -480,7 +387,7 @@ fn coordinator_command(
     cluster: &Path,
     token_path: &Path,
     dir: &Path,
-) -> (Command, PathBuf) {
+) -> anyhow::Result<(Command, PathBuf)> {
     let mut coord = Command::new(exe);
     coord
         .arg("--log")
@@ -499,7 +406,10 @@ fn coordinator_command(
         .plan_json
         .get_or_insert_with(|| dir.join("plan.json"))
         .clone();
-    job_args(&mut coord, &job);
+    // The job travels as a file, not as its flags spelt out again.
+    let job_file = dir.join("job.json");
+    job.write(&job_file)?;
+    coord.arg("--job-file").arg(&job_file);
     if let Some(addr) = &args.serve {
         coord.arg("--http").arg(addr);
         if args.continuous {
@@ -517,7 +427,7 @@ fn coordinator_command(
     coord
         .arg("--parent-pid")
         .arg(std::process::id().to_string());
-    (coord, plan_json)
+    Ok((coord, plan_json))
 }
 
 /// Compares the image the cluster wrote (the last frame's) with the CPU reference for that
@@ -627,187 +537,6 @@ fn lowered_by(job: &JobArgs) -> &'static str {
     }
 }
 
-pub(crate) fn write_token(path: &Path) -> anyhow::Result<()> {
-    use std::io::{Read, Write};
-    let mut bytes = [0u8; 32];
-    std::fs::File::open("/dev/urandom")?.read_exact(&mut bytes)?;
-    let hex = hex::encode(bytes);
-    let mut f = std::fs::File::create(path)?;
-    let mut perms = f.metadata()?.permissions();
-    std::os::unix::fs::PermissionsExt::set_mode(&mut perms, 0o600);
-    std::fs::set_permissions(path, perms)?;
-    f.write_all(hex.as_bytes())?;
-    Ok(())
-}
-
-/// Where the demo's daemons listen: loopback, a port the kernel picks.
-pub(crate) const ANY_PORT: &str = "127.0.0.1:0";
-
-/// The command line of one daemon of a local cluster, listening on `listen` (`ANY_PORT`, or a
-/// port it had before when a daemon is restarted); stdout is piped for `read_listening`.
-pub(crate) fn daemon_command(
-    exe: &Path,
-    role: &str,
-    id: &str,
-    token: &Path,
-    log: &str,
-    listen: &str,
-) -> Command {
-    let mut cmd = Command::new(exe);
-    cmd.arg("--log")
-        .arg(log)
-        .arg(role)
-        .arg("--listen")
-        .arg(listen)
-        .arg("--id")
-        .arg(id)
-        .arg("--token-file")
-        .arg(token)
-        .arg("--parent-pid")
-        .arg(std::process::id().to_string())
-        .stdin(Stdio::null())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::inherit());
-    // A process group of its own: a Ctrl-C at the terminal interrupts the launcher and its
-    // coordinator, which stop the daemons once the frames in flight are done (they still exit
-    // when the launcher does, by `--parent-pid`).
-    std::os::unix::process::CommandExt::process_group(&mut cmd, 0);
-    cmd
-}
-
-/// Reads the daemon's `listening <addr>` line from its stdout.
-pub(crate) fn read_listening(
-    child: &mut Child,
-    name: &str,
-    deadline: Instant,
-) -> anyhow::Result<String> {
-    let stdout = child
-        .stdout
-        .take()
-        .with_context(|| format!("{name} has no stdout"))?;
-    let (tx, rx) = std::sync::mpsc::channel();
-    let who = name.to_string();
-    std::thread::spawn(move || {
-        let mut lines = BufReader::new(stdout).lines();
-        let first = lines.next();
-        let _ = tx.send(first);
-        // Keep draining so the daemon never blocks on a full pipe; say where its metrics are.
-        for line in lines.map_while(Result::ok) {
-            if let Some(a) = line.strip_prefix("metrics ") {
-                eprintln!("{who}: metrics on http://{}/metrics", a.trim());
-            }
-        }
-    });
-    let left = deadline.saturating_duration_since(Instant::now());
-    match rx.recv_timeout(left) {
-        Ok(Some(Ok(line))) => match line.strip_prefix("listening ") {
-            Some(addr) => Ok(addr.trim().to_string()),
-            None => bail!("{name} printed {line:?} instead of its address"),
-        },
-        Ok(_) => bail!("{name} exited before it was listening"),
-        Err(_) => bail!(
-            "{name} did not start listening within {:.0} s",
-            left.as_secs_f64()
-        ),
-    }
-}
-
-fn job_args(cmd: &mut Command, job: &JobArgs) {
-    cmd.arg("--scene").arg(&job.scene);
-    if let Some(a) = &job.animation {
-        cmd.arg("--animation").arg(a);
-    }
-    if let Some(s) = &job.size {
-        cmd.arg("--size").arg(s);
-    }
-    cmd.arg("-K").arg(job.lights_per_node.to_string());
-    cmd.arg("--aa").arg(job.aa.to_string());
-    if let Some(m) = job.indirect.indirect {
-        cmd.arg("--indirect").arg(m.to_string());
-    }
-    if let Some(c) = job.indirect.indirect_clamp {
-        cmd.arg("--indirect-clamp").arg(c.to_string());
-    }
-    if job.indirect.still {
-        cmd.arg("--still");
-    }
-    cmd.arg("--topology").arg(job.topology.to_string());
-    cmd.arg("--frames").arg(job.frames.to_string());
-    if job.resume {
-        cmd.arg("--resume");
-    }
-    cmd.arg("--frames-in-flight")
-        .arg(job.frames_in_flight.to_string());
-    if let Some(o) = job.orbit {
-        cmd.arg("--orbit").arg(o.to_string());
-    }
-    if let Some(t) = job.time {
-        cmd.arg("--time").arg(t.to_string());
-    }
-    if let Some(f) = job.fps {
-        cmd.arg("--fps").arg(f.to_string());
-    }
-    if job.walkthrough {
-        cmd.arg("--walkthrough");
-    }
-    if job.force_all {
-        cmd.arg("--force-all");
-    }
-    if let Some(n) = job.shadow_map_size {
-        cmd.arg("--shadow-map-size").arg(n.to_string());
-    }
-    for (class, format) in &job.link_format {
-        cmd.arg("--link-format")
-            .arg(format!("{}={}", class.name(), format.name()));
-    }
-    if job.material_own_node {
-        cmd.arg("--material-own-node");
-    }
-    if job.no_device_merge {
-        cmd.arg("--no-device-merge");
-    }
-    cmd.arg("--partitions").arg(match job.partitions {
-        0 => "auto".to_string(),
-        p => p.to_string(),
-    });
-    if let Some(p) = &job.plan_json {
-        cmd.arg("--plan-json").arg(p);
-    }
-    if let Some(p) = &job.stats {
-        cmd.arg("--stats").arg(p);
-    }
-    if let Some(b) = job.frame_budget {
-        cmd.arg("--frame-budget").arg(b.to_string());
-    }
-    if let Some(t) = job.target_psnr {
-        cmd.arg("--target-psnr").arg(t.to_string());
-    }
-    job.model.forward(cmd);
-    cmd.arg("--penumbra-filter")
-        .arg(crate::coordinator_cmd::penumbra_filter_arg(
-            job.penumbra_filter,
-        ));
-    cmd.arg("--out").arg(&job.out).arg("--exr").arg(&job.exr);
-    if let Some(p) = &job.frame_pattern {
-        cmd.arg("--frame-pattern").arg(p);
-    }
-    if let Some(d) = &job.frame_dir {
-        cmd.arg("--frame-dir").arg(d);
-    }
-    if job.no_frame_files {
-        cmd.arg("--no-frame-files");
-    }
-    if let Some(v) = &job.video {
-        cmd.arg("--video").arg(v);
-    }
-    if let Some(fps) = job.video_fps {
-        cmd.arg("--video-fps").arg(fps.to_string());
-    }
-    if job.verbose {
-        cmd.arg("--verbose");
-    }
-}
-
 /// Daemon CPU per frame and the frame interval it implies on this machine's cores (start-up and
 /// calibration included, so an upper estimate of the steady state).
 fn print_cpu(cpu: &[(String, f64)], frames: u32) {
@@ -877,13 +606,70 @@ mod tests {
             "Run",
         ];
         let job = Cli::parse_from(given).job;
-        let mut cmd = Command::new("lightfold");
-        job_args(&mut cmd, &job);
-        let forwarded: Vec<String> = std::iter::once("coordinator".to_string())
-            .chain(cmd.get_args().map(|a| a.to_string_lossy().into_owned()))
-            .collect();
-        let back = Cli::parse_from(forwarded).job;
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("job.json");
+        job.write(&file).unwrap();
+        let none = Cli::parse_from(["coordinator"]).job;
+        let back = JobArgs::from_file(&file, &none).unwrap();
         assert_eq!(format!("{back:?}"), format!("{job:?}"));
+        // Control: a flag beside the job file would be ignored, so it is refused.
+        let e = JobArgs::from_file(&file, &Cli::parse_from(["coordinator", "-K", "3"]).job)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("give one or the other"), "{e}");
+    }
+
+    #[test]
+    fn a_bad_job_file_is_refused_with_what_is_wrong() {
+        let dir = tempfile::tempdir().unwrap();
+        let none = Cli::parse_from(["coordinator"]).job;
+        let good = serde_json::to_value(&none).unwrap();
+        let refused = |name: &str, text: &[u8]| -> String {
+            let file = dir.path().join(name);
+            std::fs::write(&file, text).unwrap();
+            format!("{:#}", JobArgs::from_file(&file, &none).unwrap_err())
+        };
+        let with = |key: &str, v: serde_json::Value| {
+            let mut j = good.clone();
+            j[key] = v;
+            serde_json::to_vec(&j).unwrap()
+        };
+        // What the flags' parsers refuse, a job file may not carry either.
+        for (key, v, says) in [
+            ("frames", serde_json::json!(0), "--frames 0"),
+            (
+                "frames_in_flight",
+                serde_json::json!(99),
+                "--frames-in-flight 99",
+            ),
+            ("partitions", serde_json::json!(100000), "expected auto"),
+            ("target_psnr", serde_json::json!(-3.0), "not a PSNR"),
+            ("frame_budget", serde_json::json!(0.0), "milliseconds"),
+            (
+                "penumbra_filter",
+                serde_json::json!({"radius": 40}),
+                "radius from 1 to 8",
+            ),
+            (
+                "link_format",
+                serde_json::json!([["Sink", "F16x6"]]),
+                "not a format for sink",
+            ),
+        ] {
+            let e = refused(key, &with(key, v));
+            assert!(e.contains(says), "{key}: {e}");
+        }
+        assert!(refused("garbage", b"{not json").contains("is not a job file"));
+        assert!(refused("huge", &vec![b' '; (1 << 20) + 10]).contains("larger than"));
+        let e = format!(
+            "{:#}",
+            JobArgs::from_file(&dir.path().join("absent"), &none).unwrap_err()
+        );
+        assert!(e.contains("cannot open the job file"), "{e}");
+        // Control: the defaults themselves pass.
+        let file = dir.path().join("defaults.json");
+        std::fs::write(&file, serde_json::to_vec(&good).unwrap()).unwrap();
+        JobArgs::from_file(&file, &none).unwrap();
     }
 
     #[test]

@@ -67,7 +67,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if status != "200" {
         bail!("{addr}{path}: {status} {body}");
     }
-    crate::out::outln!("{addr}{path}: {body}");
+    lightfold_harness::outln!("{addr}{path}: {body}");
     Ok(())
 }
 

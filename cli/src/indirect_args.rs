@@ -4,7 +4,7 @@
 use anyhow::bail;
 use lightfold_scene::Scene;
 
-#[derive(Debug, Clone, Default, clap::Args)]
+#[derive(Debug, Clone, Default, clap::Args, serde::Serialize, serde::Deserialize)]
 pub struct IndirectArgs {
     /// One-bounce indirect light from this many virtual point lights, planned like any light
     /// sample (0: direct light only; default: the scene's `[quality] indirect`).

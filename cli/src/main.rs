@@ -3,18 +3,16 @@
 //! `run` function; this file only dispatches.
 
 use clap::{Parser, Subcommand};
+use lightfold_harness::{bench, out, soak, view_probe};
 
 mod accuracy_cmd;
-mod bench_cmd;
 mod calibrate_cmd;
-mod cluster_ops;
 mod compare_cmd;
 mod compare_reference;
 mod compositor_cmd;
 mod coordinator_cmd;
 mod defaults_cmd;
 mod demo_cmd;
-mod frames_out;
 mod healthcheck_cmd;
 mod indirect_args;
 mod lifecycle;
@@ -22,13 +20,8 @@ mod logging;
 mod metrics_http;
 mod model_args;
 mod node_cmd;
-mod out;
 mod plan_cmd;
 mod render_cmd;
-mod soak_cmd;
-mod soak_coordinator;
-mod soak_report;
-mod view_probe_cmd;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -62,7 +55,7 @@ enum Command {
     /// truth, cached; plans of the scene then aim at 45 dB penumbra PSNR at the least cost.
     Calibrate(calibrate_cmd::Args),
     /// Benchmarks that print figures (`bench node`: what K lights per node cost).
-    Bench(bench_cmd::Args),
+    Bench(bench::Args),
     /// Image metrics of a test EXR against a reference EXR (RMSE, PSNR, FLIP, penumbra);
     /// `--min-psnr`/`--max-flip` fail the command when not met (a CI gate).
     Compare(compare_cmd::Args),
@@ -89,10 +82,10 @@ enum Command {
     Render(render_cmd::Args),
     /// Failover soak: a local cluster under random daemon faults (kill, stop, terminate and
     /// restart); every frame checked; detection and recovery times, re-plans, peak RSS.
-    Soak(soak_cmd::Args),
+    Soak(soak::Args),
     /// Measure a live view as a viewer sees it: interaction latency, frame interval and what
     /// serving costs (`docs/live-view.md`).
-    ViewProbe(view_probe_cmd::Args),
+    ViewProbe(view_probe::Args),
 }
 
 #[derive(Debug, Subcommand)]
@@ -107,7 +100,7 @@ fn main() -> anyhow::Result<()> {
     logging::init(&cli.log, cli.log_format);
     let result = match cli.command {
         Command::Accuracy(args) => accuracy_cmd::run(args),
-        Command::Bench(args) => bench_cmd::run(args),
+        Command::Bench(args) => bench::run(args),
         Command::Calibrate(args) => calibrate_cmd::run(args),
         Command::Compare(args) => compare_cmd::run(args),
         Command::Compositor(args) => compositor_cmd::run(args),
@@ -118,8 +111,8 @@ fn main() -> anyhow::Result<()> {
         Command::Node(args) => node_cmd::run(args),
         Command::Plan(args) => plan_cmd::run(args),
         Command::Render(args) => render_cmd::run(args),
-        Command::Soak(args) => soak_cmd::run(args),
-        Command::ViewProbe(args) => view_probe_cmd::run(args),
+        Command::Soak(args) => soak::run(args),
+        Command::ViewProbe(args) => view_probe::run(args),
     };
     // Ctrl-C: one line (the run's own) and the shell's status for it, not an error.
     if let Err(e) = &result

@@ -17,7 +17,7 @@ pub const DEFAULT_TARGET_DB: f32 = 45.0;
 /// Points per area light per pixel of a calibration's truth.
 pub const TRUTH_SAMPLES: u32 = 256;
 
-#[derive(Debug, Clone, PartialEq, clap::Args)]
+#[derive(Debug, Clone, PartialEq, clap::Args, serde::Serialize, serde::Deserialize)]
 pub struct ModelArgs {
     /// The planner's error model: `auto` (this scene's calibration at this size from the cache
     /// when there is one, else the default scene's sweep), `default` (the default scene's sweep),
@@ -87,17 +87,6 @@ impl ModelArgs {
         }
         options.learned.error_model = model;
         Ok(())
-    }
-
-    /// The arguments again, for a coordinator started by `demo`.
-    pub fn forward(&self, cmd: &mut std::process::Command) {
-        cmd.arg("--error-model").arg(&self.error_model);
-        if self.calibrate {
-            cmd.arg("--calibrate");
-        }
-        if let Some(d) = &self.model_cache {
-            cmd.arg("--model-cache").arg(d);
-        }
     }
 }
 

@@ -4,12 +4,12 @@
 //! and K is raised towards it when the cluster has too few nodes, as the coordinator does with
 //! the limits its nodes report.
 
-use crate::out::{out, outln};
 use anyhow::Context;
 use lightfold_coordinator::cluster::ClusterFile;
 use lightfold_coordinator::plan::{
     ClusterSpec, DaemonSpec, MapSizing, PlanError, PlanOptions, Topology, plan,
 };
+use lightfold_harness::{out, outln};
 use lightfold_protocol::{Capabilities, Role};
 use std::path::PathBuf;
 

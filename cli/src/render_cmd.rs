@@ -3,8 +3,8 @@
 //! the exact sum over the scene's point samples, or with `--area-truth SPP` the true area lights.
 //! `-K` is lights per node, as in every other command.
 
-use crate::out::outln;
 use anyhow::{Context, bail};
+use lightfold_harness::outln;
 use lightfold_reference::output::{
     Outputs, ReferenceMode, png_next_to, retain_lights, select_lights,
 };

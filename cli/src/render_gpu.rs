@@ -5,8 +5,8 @@
 //! box-resolved after that combine. `--timings` prints the per-phase cost of every frame.
 
 use super::Args;
-use crate::out::outln;
 use anyhow::Context;
+use lightfold_harness::outln;
 use lightfold_node::gpu::device::parse_backend;
 use lightfold_node::gpu::{
     EyeVariant, Gpu, GpuOptions, LayerSet, NodeFrame, RenderOptions, Renderer,

@@ -5,6 +5,8 @@
 
 pub mod cluster;
 pub mod control;
+pub mod frames_out;
+pub mod operator;
 pub mod plan;
 pub mod report;
 pub mod run;

@@ -6,10 +6,10 @@
 pub mod claim;
 mod codec;
 mod downstream;
+mod frame_io;
 pub mod gate;
 mod link;
 mod token;
-mod wire;
 
 pub use codec::LinkCodec;
 pub use downstream::Downstream;

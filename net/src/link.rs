@@ -3,7 +3,7 @@
 //! every wait. Band payloads are written and read in place (`wire`).
 
 use crate::codec::CodecError;
-use crate::wire::{FrameReader, FrameWriter};
+use crate::frame_io::{FrameReader, FrameWriter};
 use lightfold_protocol::frame::{DEFAULT_MAX_FRAME, Frame, ProtocolError};
 use lightfold_protocol::handshake::{Handshake, HandshakeError, PeerInfo};
 use lightfold_protocol::{Message, Role};

@@ -14,7 +14,7 @@ use anyhow::{Context, anyhow, ensure};
 use cdp::Browser;
 use image::RgbImage;
 use lightfold_coordinator::plan::PlanOptions;
-use lightfold_tests::{InProcessCluster, small, test_control};
+use lightfold_harness::{InProcessCluster, small, test_control};
 use lightfold_view::{View, ViewOptions};
 use serde_json::Value;
 use std::time::Duration;

@@ -13,10 +13,10 @@ mod client;
 use client::{Client, Frame};
 use lightfold_coordinator::control::FrameResult;
 use lightfold_coordinator::plan::{MapSizing, PlanOptions};
+use lightfold_harness::{InProcessCluster, assert_close, single_device, small, test_control};
 use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_reference::{AreaOptions, GroundTruth};
 use lightfold_scene::Scene;
-use lightfold_tests::{InProcessCluster, assert_close, single_device, small, test_control};
 use lightfold_view::{RefineOptions, Steer, View, ViewOptions};
 use serde_json::json;
 use std::sync::atomic::Ordering;
@@ -64,7 +64,7 @@ where
         body(addr, Arc::clone(&delivered), counters).await;
         stop.cancel();
     };
-    let (outcome, ()) = tokio::time::timeout(lightfold_tests::RUN_DEADLINE, async {
+    let (outcome, ()) = tokio::time::timeout(lightfold_harness::RUN_DEADLINE, async {
         tokio::join!(run, test)
     })
     .await
@@ -318,7 +318,7 @@ async fn a_budget_from_the_page_replans_and_frames_match_the_lowered_quality() {
         let got = delivered_frame(&delivered, frame_number(&f));
         assert_close(
             &got,
-            &lightfold_tests::single_device_filtered(&gpu, &lowered, true, radius),
+            &lightfold_harness::single_device_filtered(&gpu, &lowered, true, radius),
             "the frame under the budget",
         );
         // Negative control: the scene's own quality is another image.
@@ -465,7 +465,7 @@ async fn idle_refinement_approaches_the_area_truth_and_one_input_drops_back() {
         let gpu = Gpu::new(&GpuOptions::default()).expect("a GPU adapter is required");
         assert_close(
             &delivered_frame(&delivered, frame_number(&f)),
-            &lightfold_tests::single_device_filtered(&gpu, &lowered, true, radius),
+            &lightfold_harness::single_device_filtered(&gpu, &lowered, true, radius),
             "the frame after the input",
         );
     })
@@ -1569,7 +1569,7 @@ async fn the_page_is_told_why_a_session_ended() {
             "the view closed the page's link"
         );
     };
-    let (outcome, ()) = tokio::time::timeout(lightfold_tests::RUN_DEADLINE, async {
+    let (outcome, ()) = tokio::time::timeout(lightfold_harness::RUN_DEADLINE, async {
         tokio::join!(run, test)
     })
     .await

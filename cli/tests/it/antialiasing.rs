@@ -1,7 +1,7 @@
 //! `lightfold render --aa N` end to end, on the GPU and the CPU reference: `--aa 1` writes the
 //! same bytes as no `--aa` (the default path is untouched), and `--aa 2` writes an image of the
 //! size asked for that differs from it. How close `--aa N` comes to the area-averaged truth is
-//! `tests/tests/it/antialiasing.rs`.
+//! `harness/tests/it/antialiasing.rs`.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;

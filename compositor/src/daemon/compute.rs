@@ -5,9 +5,9 @@
 //! payload buffers are reused), so the engine runs it on the stage's compute pool while the next
 //! band arrives.
 
-use super::config::{Operators, StagePlan};
 use super::inputs::InBand;
 use super::pixels::{pack, unpack};
+use super::stage_plan::{Operators, StagePlan};
 use crate::ops::{
     Accumulate, BandMut, BandView, Depth, OpError, PackSummary, PackedIllumination, PackedLayer,
     PackedOut,

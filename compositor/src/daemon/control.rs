@@ -6,8 +6,8 @@
 //! over; while none does, a new unclaimed link replaces the old. A coordinator that goes away
 //! leaves the stage running.
 
-use super::config::{Operators, StagePlan};
 use super::engine::{Command, FrameRequest};
+use super::stage_plan::{Operators, StagePlan};
 use lightfold_net::claim::{Claims, FAREWELL, Ticket};
 use lightfold_net::{Link, LinkReader, LinkWriter, NetError};
 use lightfold_protocol::{Capabilities, ErrorCode, Frame, Message, PixelFormat, Role};

@@ -5,10 +5,10 @@
 
 use super::check::Expect;
 use super::compute::{BandOut, BufferPool, Received, Scratch, Window, combine};
-use super::config::{Operators, StagePlan};
 use super::control::{ControlOut, NewConfig};
 use super::inputs::{InBand, InputError, Slot, SlotContext};
 use super::output::{Feed, Out, Queued, Target};
+use super::stage_plan::{Operators, StagePlan};
 use crate::ops::Operator;
 use lightfold_protocol::{ErrorCode, FrameParams, FrameStats, Message};
 use serde_json::json;

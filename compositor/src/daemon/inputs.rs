@@ -4,8 +4,8 @@
 //! slot that hands out bands in order with a deadline on every wait.
 
 use super::check::{Expect, Mismatch, Verdict, judge};
-use super::config::BAND_OVERHEAD;
 use super::metrics::{Held, StageMetrics};
+use super::stage_plan::BAND_OVERHEAD;
 use bytes::Bytes;
 use lightfold_net::{LinkReader, LinkWriter};
 use lightfold_protocol::{BandHeader, Frame};

@@ -9,7 +9,6 @@
 
 mod check;
 mod compute;
-mod config;
 mod control;
 /// A stand-in coordinator, producer and sink for tests and benchmarks of stages.
 pub mod driver;
@@ -18,10 +17,11 @@ mod inputs;
 mod metrics;
 mod output;
 pub mod pixels;
+mod stage_plan;
 
 pub use check::{Expect, Mismatch, Verdict, judge};
-pub use config::{BAND_OVERHEAD, ConfigError, MAX_FRAMES_IN_FLIGHT, StagePlan};
 pub use metrics::{StageMetrics, peak_rss_bytes};
+pub use stage_plan::{BAND_OVERHEAD, ConfigError, MAX_FRAMES_IN_FLIGHT, StagePlan};
 
 use control::ControlHub;
 use engine::Engine;

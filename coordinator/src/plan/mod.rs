@@ -6,9 +6,9 @@
 
 pub mod adapt;
 mod budget;
-mod config;
 mod cpu_hosts;
 mod cull;
+mod daemon_configs;
 mod display;
 mod error_model;
 mod geom;

@@ -86,7 +86,7 @@ pub enum Topology {
 }
 
 /// The fewest chain stages at which [`Topology::Auto`] builds a tree instead. Measured with
-/// `tests/examples/scale_out.rs` (`docs/scaling.md`): the tree's latency was lower at 8, 16 and
+/// `harness/examples/scale_out.rs` (`docs/scaling.md`): the tree's latency was lower at 8, 16 and
 /// 32 nodes, the chain's at 4.
 pub const AUTO_TREE_STAGES: usize = 8;
 

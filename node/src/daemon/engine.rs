@@ -7,7 +7,7 @@
 //! the next request if nobody did) closes the data link it may have left a partial frame on.
 
 use super::bands::{BandLayout, LayerImages, PackedBand, assemble_frame, pack_frame, restamp};
-use super::config::{self, Checked};
+use super::configure::{self, Checked};
 use super::render_thread::{DeviceReport, Output, Pending, RenderHandle, RenderSetup};
 use super::scene_cache::{self, SceneCache, SceneCacheError, hex};
 use super::sys::peak_rss_bytes;
@@ -278,7 +278,7 @@ impl Engine {
         };
         let animated = scene.is_animated();
         let limits = self.report.limits.clone();
-        let checked = match config::check(
+        let checked = match configure::check(
             config,
             &scene,
             |size| max_lights_for(&limits, size),
@@ -408,7 +408,7 @@ impl Engine {
             ));
         }
         if let Some(w) = camera {
-            let c = config::check_camera(&w)
+            let c = configure::check_camera(&w)
                 .map_err(|e| refuse(ErrorCode::BadConfig, format!("frame {frame}: {e}")))?;
             if (c.width, c.height) != (active.camera.width, active.camera.height) {
                 return Err(refuse(
@@ -422,7 +422,7 @@ impl Engine {
             active.camera = c;
         }
         if let Some(s) = params.scale {
-            config::check_scale(s, &active.checked.config.layers)
+            configure::check_scale(s, &active.checked.config.layers)
                 .map_err(|e| refuse(ErrorCode::BadConfig, format!("frame {frame}: {e}")))?;
             active.scale = s;
         }
@@ -436,7 +436,7 @@ impl Engine {
             active.time = Some(t);
         }
         if !params.lights.is_empty() {
-            let b = config::check_frame_lights(&params.lights, &active.checked.config.lights)
+            let b = configure::check_frame_lights(&params.lights, &active.checked.config.lights)
                 .map_err(|e| refuse(ErrorCode::BadConfig, format!("frame {frame}: {e}")))?;
             if *active.frame_lights != b {
                 active.lights_changed += 1;

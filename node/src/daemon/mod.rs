@@ -5,15 +5,16 @@
 
 pub mod bands;
 pub mod calibrate;
-pub mod config;
+pub mod configure;
+mod control_link;
 mod engine;
 pub mod render_thread;
 pub mod scene_cache;
-mod session;
 pub mod sys;
 
 use crate::gpu::GpuOptions;
 use crate::gpu::device::max_lights_for;
+use control_link::Ended;
 use engine::Engine;
 use lightfold_net::claim::Claims;
 use lightfold_net::{Identity, Timeouts, accept};
@@ -21,7 +22,6 @@ use lightfold_protocol::{Capabilities, Role};
 pub use render_thread::PackOn;
 use render_thread::{DeviceReport, RenderHandle};
 use scene_cache::SceneCache;
-use session::Ended;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Duration;
@@ -122,7 +122,7 @@ fn capabilities(opts: &NodeOptions, advertise: String, report: &DeviceReport) ->
         },
         max_lights: max_lights_for(&report.limits, map),
         max_texture_size: report.limits.max_texture_dimension_2d,
-        formats: config::supported_formats(),
+        formats: configure::supported_formats(),
         cost_per_light_us: report.calibration.cost_per_light_us,
         fixed_cost_us: report.calibration.fixed_cost_us,
         threads: sys::threads(),
@@ -261,7 +261,7 @@ pub async fn run(
                     };
                     drop(ready);
                     let ended =
-                        session::serve(link, caps, engine, claims, silence, stop.clone()).await;
+                        control_link::serve(link, caps, engine, claims, silence, stop.clone()).await;
                     if ended == Ended::Shutdown {
                         stop.cancel();
                     }

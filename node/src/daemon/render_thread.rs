@@ -7,7 +7,7 @@
 //! ignored), and it serves the next command as usual.
 
 use super::calibrate::{self, Calibration};
-use super::config::Checked;
+use super::configure::Checked;
 use crate::gpu::pack::PackedFrame;
 use crate::gpu::{
     DeviceError, Gpu, GpuOptions, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats,
@@ -327,7 +327,7 @@ fn options_for(setup: &RenderSetup) -> RenderOptions {
     }
 }
 
-/// The wire's filter code (`NodeConfig::filter`, checked by `config::check`).
+/// The wire's filter code (`NodeConfig::filter`, checked by `configure::check`).
 pub fn shadow_filter(code: u32) -> ShadowFilter {
     lightfold_scene::wire::filter_from_wire(code).unwrap_or(ShadowFilter::Pcf2x2)
 }
@@ -407,7 +407,7 @@ fn render(
             Some(t) => scene.pose_meshes(t),
             None => scene.meshes.clone(),
         };
-        // Checked (`config::check`): each names a mesh of the scene once.
+        // Checked (`configure::check`): each names a mesh of the scene once.
         for m in moves {
             if let Some(mesh) = meshes.get_mut(m.mesh as usize) {
                 lightfold_scene::moves::apply_columns(mesh, &m.matrix);
