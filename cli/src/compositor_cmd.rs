@@ -30,7 +30,7 @@ fn seconds(what: &str, s: f64) -> anyhow::Result<Duration> {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(id) = &args.daemon.id {
-        crate::logging::set_daemon(id);
+        lightfold_telemetry::logging::set_daemon(id);
     }
     let token = lightfold_net::load_token(args.daemon.token_file.as_deref())?;
     let input_timeout = seconds("input-timeout", args.input_timeout)?;

@@ -1117,7 +1117,7 @@ impl Progress {
                     || of.is_some_and(|n| f.frame >= n as u64);
                 if due {
                     *last = Some(std::time::Instant::now());
-                    if crate::logging::json() {
+                    if lightfold_telemetry::logging::json() {
                         tracing::info!(
                             frame = f.frame,
                             latency_ms = f.latency_ms,

@@ -4,6 +4,7 @@
 
 use clap::{Parser, Subcommand};
 use lightfold_harness::{bench, out, soak, view_probe};
+use lightfold_telemetry::logging;
 
 mod accuracy_cmd;
 mod calibrate_cmd;
@@ -16,7 +17,6 @@ mod demo_cmd;
 mod healthcheck_cmd;
 mod indirect_args;
 mod lifecycle;
-mod logging;
 mod metrics_http;
 mod model_args;
 mod node_cmd;
@@ -38,7 +38,7 @@ struct Cli {
     #[arg(
         long,
         global = true,
-        value_enum,
+        value_name = "text|json",
         default_value = "text",
         env = "LIGHTFOLD_LOG_FORMAT"
     )]

@@ -79,7 +79,7 @@ pub async fn start(
     daemon: &str,
     stop: CancellationToken,
 ) -> anyhow::Result<Option<SocketAddr>> {
-    crate::logging::set_daemon(daemon);
+    lightfold_telemetry::logging::set_daemon(daemon);
     tokio::spawn(systemd(stop.clone()));
     let Some(listen) = &args.metrics_listen else {
         return Ok(None);

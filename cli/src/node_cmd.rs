@@ -41,7 +41,7 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(id) = &args.daemon.id {
-        crate::logging::set_daemon(id);
+        lightfold_telemetry::logging::set_daemon(id);
     }
     let token = lightfold_net::load_token(args.daemon.token_file.as_deref())?;
     let backend = args.backend.as_deref().map(parse_backend).transpose()?;

@@ -20,10 +20,8 @@
 mod raw;
 
 use bytes::Bytes;
-use lightfold_compositor::daemon::driver::{
-    ControlClient, FrameShape, LayerImage, Producer, Sink, pack_band,
-};
 use lightfold_compositor::daemon::{CompositorOptions, run};
+use lightfold_harness::driver::{ControlClient, FrameShape, LayerImage, Producer, Sink, pack_band};
 use lightfold_net::{Identity, Timeouts};
 use lightfold_protocol::{
     BandHeader, CompositorConfig, FrameParams, Layer, PixelFormat, Role, StageInput, stats,
@@ -40,7 +38,7 @@ static COMPUTE_THREADS: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
 const WAIT: Duration = Duration::from_secs(60);
 const ILL: Layer = Layer::Illumination;
 /// Bytes of framing around a band payload: length prefix, kind byte, header.
-const FRAMING: usize = 4 + 1 + lightfold_protocol::BAND_HEADER_LEN;
+const FRAMING: usize = lightfold_protocol::frame::BAND_PREFIX_LEN;
 
 /// A typed operator from its name and JSON parameter text.
 fn spec(name: &str, params: &str) -> lightfold_protocol::OpSpec {

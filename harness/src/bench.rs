@@ -4,21 +4,21 @@
 //! few frames with a slowly orbiting camera and reports the node's own per-phase timings, the
 //! node-seconds a frame of L lights costs, and the nodes L lights need under a frame budget.
 
+use crate::driver::ControlClient;
+use crate::launcher::{ANY_PORT, Children, Launcher, write_token};
 use crate::outln;
 use anyhow::{Context, bail};
-use lightfold_net::{Identity, Link, Timeouts, accept, dial};
+use lightfold_net::{Identity, Timeouts, accept};
 use lightfold_protocol::frame::Frame;
 use lightfold_protocol::{
-    FrameParams, FrameStats, Layer, Message, NodeConfig, PixelFormat, Role, WireShadow, stats,
+    FrameParams, FrameStats, Layer, NodeConfig, PixelFormat, Role, WireShadow, stats,
 };
 use lightfold_scene::sampling::direct_samples;
 use lightfold_scene::wire::{camera_to_wire, light_to_wire};
 use lightfold_scene::{Camera, Scene};
-use std::process::Stdio;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
-use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::net::TcpListener;
 
 #[derive(Debug, clap::Args)]
@@ -176,13 +176,24 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
     }
     let bytes = scene.to_bytes()?;
     let hash = scene.content_hash();
-    let token_text = run_token();
+    // A token for this run only, in a file the node processes read.
+    let work = tempfile::Builder::new()
+        .prefix("lightfold-bench-")
+        .tempdir()
+        .context("cannot create a temporary directory")?;
+    let token_path = work.path().join("token");
+    write_token(&token_path)?;
+    let token = lightfold_net::load_token(Some(&token_path))?;
+    let launcher = Launcher {
+        gpu_threads: a.threads,
+        ..Launcher::this_exe(token_path, "warn")?
+    };
 
     // The compositor: accepts data links and counts what arrives.
     let data = TcpListener::bind("127.0.0.1:0").await?;
     let data_addr = data.local_addr()?.to_string();
     let received = Arc::new(AtomicU64::new(0));
-    tokio::spawn(drain(data, token_text.clone(), received.clone()));
+    tokio::spawn(drain(data, token.clone(), received.clone()));
 
     eprintln!(
         "bench node: scene {} ({} triangles, {} samples), {}x{}, {}² maps, LP_NUM_THREADS={}",
@@ -266,7 +277,7 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
         for ((mode, pack, k, config), row) in plan.iter().zip(rows.iter_mut()) {
             let still = mode == "static";
             let (frames, cpu_ms, intervals) =
-                measure(&a, pack, &token_text, &scene, &bytes, config.clone(), still).await?;
+                measure(&a, pack, &launcher, &scene, &bytes, config.clone(), still).await?;
             row.intervals.extend(intervals);
             row.cpu_ms_total += cpu_ms * frames.len() as f64;
             row.frames.extend(frames);
@@ -295,64 +306,47 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A cluster token for this run only (std's per-process random hasher keys as the source).
-fn run_token() -> String {
-    use std::hash::{BuildHasher, Hasher};
-    (0..4)
-        .map(|i| {
-            let mut h = std::collections::hash_map::RandomState::new().build_hasher();
-            h.write_u32(i);
-            format!("{:016x}", h.finish())
-        })
-        .collect()
-}
-
 /// Starts a node process, sends the scene and `config`, drives warm-up and timed frames, stops it.
 async fn measure(
     a: &NodeArgs,
     pack: &str,
-    token: &str,
+    launcher: &Launcher,
     scene: &Scene,
     bytes: &[u8],
     config: NodeConfig,
     still: bool,
 ) -> anyhow::Result<(Vec<FrameStats>, f64, Vec<u64>)> {
-    let exe = std::env::current_exe()?;
-    let mut cmd = tokio::process::Command::new(exe);
-    cmd.args([
-        "--log",
-        "warn",
-        "node",
-        "--listen",
-        "127.0.0.1:0",
-        "--id",
-        "bench-node",
-    ])
-    .env("LIGHTFOLD_TOKEN", token)
-    .env("LP_NUM_THREADS", a.threads.to_string())
-    .stdin(Stdio::null())
-    .stdout(Stdio::piped())
-    .stderr(Stdio::inherit())
-    .kill_on_drop(true);
-    cmd.args(["--backend", &a.backend, "--pack", pack]);
-    let mut child = cmd.spawn().context("cannot start a node process")?;
-    let stdout = child.stdout.take().context("node stdout")?;
-    let mut lines = BufReader::new(stdout).lines();
-    let line = tokio::time::timeout(Duration::from_secs(30), lines.next_line())
-        .await
-        .context("node did not report its address")??
-        .context("node exited before listening")?;
-    let addr = line
-        .strip_prefix("listening ")
-        .with_context(|| format!("unexpected node output {line:?}"))?
-        .to_string();
-
-    match drive(a, token, scene, bytes, config, still, &mut child, &addr).await {
-        Ok(r) => Ok(r),
+    let node = Launcher {
+        node_args: vec![
+            "--backend".into(),
+            a.backend.clone(),
+            "--pack".into(),
+            pack.into(),
+        ],
+        ..launcher.clone()
+    };
+    let (child, addr) = tokio::task::block_in_place(|| {
+        node.start("bench-node", "node", ANY_PORT, Duration::from_secs(30))
+    })?;
+    let pid = child.id();
+    // Stopped and reaped on every way out, errors included.
+    let mut children = Children(vec![("bench-node".into(), child)]);
+    match drive(a, launcher, scene, bytes, config, still, pid, &addr).await {
+        Ok(r) => {
+            // The node was told to shut down: give it time to exit before `Children` stops it.
+            let deadline = std::time::Instant::now() + Duration::from_secs(30);
+            while let Some((_, c)) = children.0.first_mut()
+                && matches!(c.try_wait(), Ok(None))
+                && std::time::Instant::now() < deadline
+            {
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+            Ok(r)
+        }
         Err(e) => {
             // A node that died (no device, a crash) shows only as a broken link here: say so.
-            match tokio::time::timeout(Duration::from_secs(5), child.wait()).await {
-                Ok(Ok(status)) => Err(e.context(format!(
+            match children.0.first_mut().map(|(_, c)| c.try_wait()) {
+                Some(Ok(Some(status))) => Err(e.context(format!(
                     "the node process exited ({status}); its own messages are above"
                 ))),
                 _ => Err(e),
@@ -365,55 +359,44 @@ async fn measure(
 #[allow(clippy::too_many_arguments)]
 async fn drive(
     a: &NodeArgs,
-    token: &str,
+    launcher: &Launcher,
     scene: &Scene,
     bytes: &[u8],
     config: NodeConfig,
     still: bool,
-    child: &mut tokio::process::Child,
+    pid: u32,
     addr: &str,
 ) -> anyhow::Result<(Vec<FrameStats>, f64, Vec<u64>)> {
-    let me = Identity::new(token.as_bytes(), Role::Coordinator, "bench");
-    let t = Timeouts::default();
-    let mut link = dial(addr, &me, t).await?;
+    let token = lightfold_net::load_token(Some(&launcher.token))?;
+    let me = Identity::new(&token, Role::Coordinator, "bench");
     let wait = Duration::from_secs(600);
-    match link.recv_msg(wait).await? {
-        Message::Register(_) => {}
-        other => bail!("expected Register, got {other:?}"),
-    }
-    send_scene(&mut link, config.scene, bytes, wait).await?;
+    let mut node = ControlClient::connect(addr, &me, Timeouts::default(), wait).await?;
+    node.send_scene(config.scene, bytes, 4 << 20, wait).await?;
     let epoch = config.epoch;
-    expect(&mut link, Message::ConfigureNode(config), wait, |m| {
-        matches!(m, Message::Configured { .. })
-    })
-    .await?;
+    node.configure_node(config, wait).await?;
     let mut stats = Vec::new();
     let mut intervals = Vec::new();
-    let pid = child.id().context("node process id")?;
     let mut cpu_start = None;
     let total = a.warmup + a.frames;
-    let request = |f: u32| {
-        let camera = if still {
+    let params = FrameParams {
+        colors: Vec::new(),
+        scale: None,
+        time: None,
+        lights: Vec::new(),
+    };
+    let camera = |f: u32| {
+        let c = if still {
             scene.camera
         } else {
             orbit(&scene.camera, f)
         };
-        Message::RenderFrame {
-            epoch,
-            frame: u64::from(f),
-            camera: Some(camera_to_wire(&camera)),
-            params: FrameParams {
-                colors: Vec::new(),
-                scale: None,
-                time: None,
-                lights: Vec::new(),
-            },
-        }
+        Some(camera_to_wire(&c))
     };
     // Up to `in_flight` requests outstanding; the next goes out as each answer comes back.
     let mut sent = 0;
     while sent < total.min(a.in_flight) {
-        link.send_msg(request(sent)).await?;
+        node.render_from(epoch, u64::from(sent), camera(sent), params.clone())
+            .await?;
         sent += 1;
     }
     let mut last = None::<std::time::Instant>;
@@ -421,11 +404,8 @@ async fn drive(
         if f == a.warmup {
             cpu_start = Some(crate::launcher::cpu_seconds(pid));
         }
-        let answer = link.recv_msg(wait).await?;
+        let s = node.frame_done(u64::from(f), wait).await?;
         let now = std::time::Instant::now();
-        let Message::FrameDone(s) = answer else {
-            bail!("node answered {answer:?}");
-        };
         if f >= a.warmup {
             if let Some(t) = last {
                 intervals.push((now - t).as_micros() as u64);
@@ -434,7 +414,8 @@ async fn drive(
         }
         last = Some(now);
         if sent < total {
-            link.send_msg(request(sent)).await?;
+            node.render_from(epoch, u64::from(sent), camera(sent), params.clone())
+                .await?;
             sent += 1;
         }
     }
@@ -443,13 +424,7 @@ async fn drive(
         Some(a0) => (crate::launcher::cpu_seconds(pid) - a0) * 1000.0 / f64::from(a.frames),
         None => f64::NAN,
     };
-    link.send_msg(Message::Shutdown).await?;
-    if tokio::time::timeout(Duration::from_secs(30), child.wait())
-        .await
-        .is_err()
-    {
-        child.kill().await?;
-    }
+    node.shutdown().await?;
     Ok((stats, cpu_ms, intervals))
 }
 
@@ -459,58 +434,9 @@ fn orbit(c: &Camera, f: u32) -> Camera {
     c.orbited(-0.5 * f as f32)
 }
 
-async fn send_scene(
-    link: &mut Link,
-    hash: [u8; 32],
-    bytes: &[u8],
-    wait: Duration,
-) -> anyhow::Result<()> {
-    let offer = Message::SceneOffer {
-        hash,
-        size: bytes.len() as u64,
-    };
-    let answer = expect(link, offer, wait, |m| {
-        matches!(m, Message::SceneNeed { .. })
-    })
-    .await?;
-    if let Message::SceneNeed { need: false, .. } = answer {
-        return Ok(());
-    }
-    const CHUNK: usize = 4 << 20;
-    let n = bytes.chunks(CHUNK).count().max(1);
-    for (i, c) in bytes.chunks(CHUNK).enumerate() {
-        link.send_msg(Message::SceneChunk {
-            hash,
-            offset: (i * CHUNK) as u64,
-            data: c.to_vec(),
-            last: i + 1 == n,
-        })
-        .await?;
-    }
-    match link.recv_msg(wait).await? {
-        Message::SceneReady { .. } => Ok(()),
-        other => bail!("scene transfer: {other:?}"),
-    }
-}
-
-/// Sends `msg` and returns the answer if `ok` accepts it.
-async fn expect(
-    link: &mut Link,
-    msg: Message,
-    wait: Duration,
-    ok: impl Fn(&Message) -> bool,
-) -> anyhow::Result<Message> {
-    link.send_msg(msg).await?;
-    let answer = link.recv_msg(wait).await?;
-    if !ok(&answer) {
-        bail!("node answered {answer:?}");
-    }
-    Ok(answer)
-}
-
 /// Accepts data links and counts the bands that arrive.
-async fn drain(listener: TcpListener, token: String, count: Arc<AtomicU64>) {
-    let me = Identity::new(token.as_bytes(), Role::Compositor, "bench-compositor");
+async fn drain(listener: TcpListener, token: Vec<u8>, count: Arc<AtomicU64>) {
+    let me = Identity::new(&token, Role::Compositor, "bench-compositor");
     while let Ok((stream, _)) = listener.accept().await {
         let (me, count) = (me.clone(), count.clone());
         tokio::spawn(async move {

@@ -72,6 +72,8 @@ pub struct Launcher {
     pub gpu_threads: u32,
     /// Whether each daemon serves `/metrics` on a port of its own (`--metrics-listen`).
     pub metrics: bool,
+    /// More flags for render nodes (`--backend`, `--pack`).
+    pub node_args: Vec<String>,
 }
 
 impl Launcher {
@@ -84,6 +86,7 @@ impl Launcher {
             logs: None,
             gpu_threads: 0,
             metrics: false,
+            node_args: Vec::new(),
         })
     }
 
@@ -139,8 +142,11 @@ impl Launcher {
 
     fn spawn(&self, id: &str, role: &str, listen: &str) -> anyhow::Result<Child> {
         let mut cmd = daemon_command(&self.exe, role, id, &self.token, &self.log, listen);
-        if role == "node" && self.gpu_threads > 0 {
-            cmd.env("LP_NUM_THREADS", self.gpu_threads.to_string());
+        if role == "node" {
+            if self.gpu_threads > 0 {
+                cmd.env("LP_NUM_THREADS", self.gpu_threads.to_string());
+            }
+            cmd.args(&self.node_args);
         }
         if self.metrics {
             cmd.args(["--metrics-listen", ANY_PORT]);

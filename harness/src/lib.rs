@@ -2,6 +2,8 @@
 //!
 //! - [`in_process`]: render nodes and compositors as tasks of this process, killed and restarted
 //!   on their addresses, and a coordinator session over them (tests).
+//! - [`driver`]: the one fake coordinator (and producer and sink) over real links, for tests
+//!   and benchmarks of one daemon or a chain.
 //! - [`check`]: the single-device render a cluster frame must equal, and the comparison within
 //!   the link formats' bound (tests, `lightfold soak`).
 //! - [`sweep`]: accuracy sweeps rendered through an in-process cluster.
@@ -19,6 +21,7 @@
 
 pub mod bench;
 pub mod check;
+pub mod driver;
 pub mod fixtures;
 pub mod in_process;
 pub mod launcher;

@@ -5,9 +5,9 @@
 //! in-memory result within the bound of its link formats. The stages then exit cleanly on the
 //! coordinator's `Shutdown` or on SIGTERM; every process is killed at the end, even on failure.
 
-use lightfold_compositor::daemon::driver::{ControlClient, FrameShape, LayerImage, Producer, Sink};
 use lightfold_compositor::ops::{BandMut, BandView};
 use lightfold_compositor::pipeline::Pipeline;
+use lightfold_harness::driver::{ControlClient, FrameShape, LayerImage, Producer, Sink};
 use lightfold_net::{Identity, Timeouts};
 use lightfold_protocol::format::{channel_bound, clamp_to_range, quantisation_bound};
 use lightfold_protocol::{CompositorConfig, FrameParams, Layer, PixelFormat, Role, StageInput};

@@ -11,7 +11,6 @@ mod check;
 mod compute;
 mod control;
 /// A stand-in coordinator, producer and sink for tests and benchmarks of stages.
-pub mod driver;
 mod engine;
 mod inputs;
 mod metrics;

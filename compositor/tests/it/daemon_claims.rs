@@ -6,7 +6,7 @@
 
 use crate::support;
 
-use lightfold_compositor::daemon::driver::{ControlClient, DriverError};
+use lightfold_harness::driver::{ControlClient, DriverError};
 use lightfold_protocol::{ErrorCode, Layer, Message, PixelFormat};
 use std::time::Duration;
 use support::*;

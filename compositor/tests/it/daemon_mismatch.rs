@@ -6,7 +6,7 @@
 use crate::support;
 
 use bytes::Bytes;
-use lightfold_compositor::daemon::driver::{DriverError, FrameShape, Producer, pack_band};
+use lightfold_harness::driver::{DriverError, FrameShape, Producer, pack_band};
 use lightfold_protocol::{ErrorCode, Layer, PixelFormat};
 use support::*;
 
@@ -15,12 +15,12 @@ const SIZE: (u32, u32, u32) = (19, 13, 4);
 const FMT: PixelFormat = PixelFormat::Rgb9e5x2;
 
 struct Rig {
-    ctl: lightfold_compositor::daemon::driver::ControlClient,
-    sink: lightfold_compositor::daemon::driver::Sink,
+    ctl: lightfold_harness::driver::ControlClient,
+    sink: lightfold_harness::driver::Sink,
     a: Producer,
     b: Producer,
-    ia: lightfold_compositor::daemon::driver::LayerImage,
-    ib: lightfold_compositor::daemon::driver::LayerImage,
+    ia: lightfold_harness::driver::LayerImage,
+    ib: lightfold_harness::driver::LayerImage,
 }
 
 const OUT: [(Layer, PixelFormat); 1] = [(ILL, PixelFormat::F32x6)];

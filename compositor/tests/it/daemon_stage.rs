@@ -5,7 +5,7 @@
 
 use crate::support;
 
-use lightfold_compositor::daemon::driver::DriverError;
+use lightfold_harness::driver::DriverError;
 use lightfold_protocol::{ErrorCode, FrameParams, Layer, Message, PixelFormat};
 use support::*;
 
@@ -289,8 +289,7 @@ async fn a_reconfiguration_abandons_the_frame_in_progress() {
     let img = image(ILL, PixelFormat::F32x6, hdr(8, w, h, ILL, 0..0));
     // Frame 1 gets one band of three, then the plan changes under it.
     ctl.render(1, 1, no_params()).await.unwrap();
-    let (hd, p) =
-        lightfold_compositor::daemon::driver::pack_band(&shape(1, 1, size), 0, &img).unwrap();
+    let (hd, p) = lightfold_harness::driver::pack_band(&shape(1, 1, size), 0, &img).unwrap();
     a.send_band(hd, p).await.unwrap();
     ctl.configure(config(2, size, ins, &[], &out, &sink_addr), WAIT)
         .await

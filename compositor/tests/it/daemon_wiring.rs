@@ -5,9 +5,9 @@
 
 use crate::support;
 
-use lightfold_compositor::daemon::driver::{ControlClient, LayerImage, Sink};
 use lightfold_compositor::ops::{BandMut, BandView};
 use lightfold_compositor::pipeline::Pipeline;
+use lightfold_harness::driver::{ControlClient, LayerImage, Sink};
 use lightfold_protocol::{Layer, OpSource, OpSpec, PixelFormat};
 use support::*;
 

@@ -15,7 +15,7 @@ use lightfold_protocol::{Layer, OpSource, OpSpec, PixelFormat};
 use std::ops::Range;
 
 /// Framing cost of one band on a link: the band header plus the frame's kind and length.
-pub const BAND_OVERHEAD_BYTES: u64 = 52 + 5;
+pub const BAND_OVERHEAD_BYTES: u64 = lightfold_protocol::frame::BAND_PREFIX_LEN as u64;
 
 /// An illumination node as the topology sees it.
 #[derive(Debug, Clone)]

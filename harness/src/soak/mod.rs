@@ -483,6 +483,7 @@ fn setup(args: &Args) -> anyhow::Result<(Setup, Launcher)> {
         logs: Some(logs.clone()),
         gpu_threads: args.gpu_threads,
         metrics: false,
+        node_args: Vec::new(),
     };
     let setup = Setup {
         scene,

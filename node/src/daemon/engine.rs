@@ -16,7 +16,7 @@ use lightfold_net::Downstream;
 use lightfold_net::NetError;
 use lightfold_protocol::frame::Frame;
 use lightfold_protocol::{
-    BAND_HEADER_LEN, ErrorCode, FrameParams, FrameStats, Hash, Message, NodeConfig, WireCamera,
+    ErrorCode, FrameParams, FrameStats, Hash, Message, NodeConfig, WireCamera,
 };
 use lightfold_scene::Camera;
 use std::sync::Arc;
@@ -26,7 +26,7 @@ use tokio::sync::mpsc;
 /// Packed bands waiting for the socket: enough to keep it busy, few enough to bound memory.
 const BAND_QUEUE: usize = 8;
 /// Bytes a band frame costs beyond its payload: length prefix, kind byte, header.
-const BAND_OVERHEAD: u64 = 4 + 1 + BAND_HEADER_LEN as u64;
+const BAND_OVERHEAD: u64 = lightfold_protocol::frame::BAND_PREFIX_LEN as u64;
 
 /// A refused request: becomes `Message::Error` on the control link.
 #[derive(Debug)]

@@ -2,10 +2,10 @@
 //! short deadlines, HDR test content, configurations, and the in-memory reference a stage's
 //! output is compared with (the same operators over whole frames, plus the link formats' bound).
 
-use lightfold_compositor::daemon::driver::{ControlClient, FrameShape, LayerImage, Producer, Sink};
 use lightfold_compositor::daemon::{CompositorOptions, StageMetrics, run};
 use lightfold_compositor::ops::{BandMut, BandView};
 use lightfold_compositor::pipeline::Pipeline;
+use lightfold_harness::driver::{ControlClient, FrameShape, LayerImage, Producer, Sink};
 use lightfold_net::{Identity, Timeouts};
 use lightfold_protocol::format::{channel_bound, clamp_to_range, quantisation_bound};
 use lightfold_protocol::{CompositorConfig, Layer, OpSpec, PixelFormat, Role, StageInput};

@@ -2,7 +2,8 @@
 //! one does) and a listener playing the compositor. Every wait has a deadline.
 
 use bytes::Bytes;
-use lightfold_net::{Identity, Link, NetError, Timeouts, accept, dial};
+use lightfold_harness::driver::ControlClient;
+use lightfold_net::{Identity, NetError, Timeouts, accept};
 use lightfold_node::daemon::calibrate::{calibration_lights, calibration_scene};
 use lightfold_node::daemon::{NodeOptions, run};
 use lightfold_protocol::frame::Frame;
@@ -99,20 +100,21 @@ impl TestNode {
     }
 }
 
-/// The test driver's side of a control link.
+/// The test driver's side of a control link: the harness's fake coordinator with the answers
+/// these tests expect (a failure panics with what came instead).
 pub struct Coordinator {
-    pub link: Link,
+    pub client: ControlClient,
     pub caps: lightfold_protocol::Capabilities,
 }
 
 impl Coordinator {
     pub async fn try_connect(addr: &str) -> Result<Coordinator, String> {
         let me = Identity::new(TOKEN, Role::Coordinator, "test-coordinator");
-        let mut link = dial(addr, &me, quick()).await.map_err(|e| e.to_string())?;
-        match link.recv_msg(WAIT).await.map_err(|e| e.to_string())? {
-            Message::Register(caps) => Ok(Coordinator { link, caps }),
-            other => Err(format!("expected Register, got {other:?}")),
-        }
+        let client = ControlClient::connect(addr, &me, quick(), WAIT)
+            .await
+            .map_err(|e| e.to_string())?;
+        let caps = client.capabilities.clone();
+        Ok(Coordinator { client, caps })
     }
 
     /// Connects and claims the node for `session`; returns the node's answer (`Claimed`, or an
@@ -125,16 +127,16 @@ impl Coordinator {
 
     /// The next message within `within`, or the link's error (closed, timed out).
     pub async fn recv_within(&mut self, within: Duration) -> Result<Message, NetError> {
-        self.link.recv_msg(within).await
+        self.client.recv_raw(within).await
     }
 
     pub async fn send(&mut self, msg: Message) {
-        self.link.send_msg(msg).await.expect("send to the node");
+        self.client.send_msg(msg).await.expect("send to the node");
     }
 
     pub async fn recv(&mut self) -> Message {
-        self.link
-            .recv_msg(WAIT)
+        self.client
+            .recv_raw(WAIT)
             .await
             .expect("answer from the node")
     }
@@ -148,39 +150,22 @@ impl Coordinator {
     pub async fn send_scene(&mut self, scene: &Scene) -> Hash {
         let bytes = scene.to_bytes().expect("scene encodes");
         let hash = scene.content_hash();
-        let answer = self
-            .request(Message::SceneOffer {
-                hash,
-                size: bytes.len() as u64,
-            })
-            .await;
-        match answer {
-            Message::SceneNeed { need: false, .. } => return hash,
-            Message::SceneNeed { need: true, .. } => {}
-            other => panic!("expected SceneNeed, got {other:?}"),
-        }
-        self.send_chunks(hash, &bytes, 1000).await;
-        match self.recv().await {
-            Message::SceneReady { hash: h, triangles } => {
-                assert_eq!(h, hash);
-                assert_eq!(triangles, scene.triangle_count() as u64);
-            }
-            other => panic!("expected SceneReady, got {other:?}"),
+        let loaded = self
+            .client
+            .send_scene(hash, &bytes, 1000, WAIT)
+            .await
+            .expect("the node takes the scene");
+        if let Some(triangles) = loaded {
+            assert_eq!(triangles, scene.triangle_count() as u64);
         }
         hash
     }
 
     pub async fn send_chunks(&mut self, hash: Hash, bytes: &[u8], chunk: usize) {
-        let n = bytes.chunks(chunk).count();
-        for (i, c) in bytes.chunks(chunk).enumerate() {
-            self.send(Message::SceneChunk {
-                hash,
-                offset: (i * chunk) as u64,
-                data: c.to_vec(),
-                last: i + 1 == n,
-            })
-            .await;
-        }
+        self.client
+            .send_chunks(hash, bytes, chunk)
+            .await
+            .expect("send to the node");
     }
 
     pub async fn frame(&mut self, epoch: u64, frame: u64) -> Message {

@@ -7,7 +7,7 @@
 //! depth discontinuity per `reference::masks::silhouettes`, undilated). Shadow maps and ray tracing
 //! legitimately disagree there; everywhere else they must agree to 1e-3 relative + 1e-4 absolute.
 
-use lightfold_node::gpu::{Gpu, GpuOptions, NodeFrame};
+use lightfold_node::gpu::NodeFrame;
 use lightfold_reference::Layers;
 use lightfold_scene::primitives::{cuboid, plane, sphere};
 use lightfold_scene::{
@@ -20,11 +20,7 @@ pub const ABS_TOL: f32 = 1e-4;
 pub const C_N: [f32; 3] = [1.0, 0.8, 0.6];
 
 /// The device, or a failed test that says why (GPU tests never skip).
-pub fn gpu() -> Gpu {
-    Gpu::new(&GpuOptions::default()).unwrap_or_else(|e| {
-        panic!("GPU tests need an adapter (CI installs mesa-vulkan-drivers for lavapipe): {e}")
-    })
-}
+pub use lightfold_harness::gpu;
 
 /// A checkerboard with transparent cells, for an alpha-masked caster.
 fn checker(n: u32) -> Texture {

@@ -1,21 +1,20 @@
-//! A stand-in for everything around one stage, over the real `net` links, so a stage or a chain
-//! of stages can be exercised without planning or render nodes: it plays the coordinator (dial a
-//! stage, read its `Register`, configure it, request frames, collect `FrameDone` and errors), a
-//! producer (a node or upstream stage streaming frames band-major) and a sink (the coordinator's
-//! data listener assembling frames). Every wait has a deadline.
+//! The one fake coordinator: a stand-in for everything around a daemon, over the real `net`
+//! links, so a render node, a stage or a chain of stages can be exercised without planning: it
+//! plays the coordinator (dial a daemon, read its `Register`, claim it, send it a scene, configure
+//! it, request frames, collect `FrameDone` and errors), a producer (a node or upstream stage
+//! streaming frames band-major) and a sink (the coordinator's data listener assembling frames).
+//! Every wait has a deadline.
 //!
-//! Only tests and benchmarks use it: this crate's integration tests and `benches/link.rs`, and
-//! the CLI's test of a chain of `lightfold compositor` processes. No shipped command does — a
-//! real cluster's coordinator speaks to its stages through `lightfold_coordinator::control`. It
-//! is public because those tests and benches are compiled outside this crate; a cargo feature
-//! would have to be enabled by hand (`required-features` skips the tests silently without it).
+//! Tests and benchmarks use it (the node's and the compositor's daemon tests, the compositor's
+//! link benchmark, the CLI's chain of `lightfold compositor` processes, `lightfold bench node`);
+//! a real cluster's coordinator speaks to its daemons through `lightfold_coordinator::control`.
 
-use super::pixels::{pack, unpack};
 use bytes::Bytes;
+use lightfold_compositor::daemon::pixels::{pack, unpack};
 use lightfold_net::{Identity, Link, LinkReader, LinkWriter, NetError, Timeouts, dial_retry};
 use lightfold_protocol::{
-    BandHeader, Capabilities, CompositorConfig, ErrorCode, Frame, FrameParams, FrameStats, Layer,
-    Message, PixelFormat,
+    BandHeader, Capabilities, CompositorConfig, ErrorCode, Frame, FrameParams, FrameStats, Hash,
+    Layer, Message, NodeConfig, PixelFormat, WireCamera,
 };
 use std::collections::VecDeque;
 use std::time::Duration;
@@ -48,7 +47,7 @@ pub enum DriverError {
     },
 }
 
-/// The coordinator's side of a stage's control link.
+/// The coordinator's side of a daemon's control link.
 #[derive(Debug)]
 pub struct ControlClient {
     link: Link,
@@ -58,7 +57,7 @@ pub struct ControlClient {
 }
 
 impl ControlClient {
-    /// Dials the stage at `addr` (retrying until `within`) and reads its `Register`.
+    /// Dials the daemon at `addr` (retrying until `within`) and reads its `Register`.
     pub async fn connect(
         addr: &str,
         me: &Identity,
@@ -103,16 +102,36 @@ impl ControlClient {
         }
     }
 
-    /// Sends a configuration and waits for `Configured` (an `Error` becomes `Refused`).
+    /// Sends a stage's configuration and waits for `Configured` (an `Error` becomes `Refused`).
     pub async fn configure(
         &mut self,
         config: CompositorConfig,
         within: Duration,
     ) -> Result<(), DriverError> {
         let epoch = config.epoch;
-        self.link
-            .send_msg(Message::ConfigureCompositor(config))
-            .await?;
+        self.configured(Message::ConfigureCompositor(config), epoch, within)
+            .await
+    }
+
+    /// Sends a render node's configuration and waits for `Configured` (an `Error` becomes
+    /// `Refused`).
+    pub async fn configure_node(
+        &mut self,
+        config: NodeConfig,
+        within: Duration,
+    ) -> Result<(), DriverError> {
+        let epoch = config.epoch;
+        self.configured(Message::ConfigureNode(config), epoch, within)
+            .await
+    }
+
+    async fn configured(
+        &mut self,
+        msg: Message,
+        epoch: u64,
+        within: Duration,
+    ) -> Result<(), DriverError> {
+        self.link.send_msg(msg).await?;
         let deadline = Instant::now() + within;
         loop {
             match self.read(deadline, "Configured").await? {
@@ -132,13 +151,86 @@ impl ControlClient {
         frame: u64,
         params: FrameParams,
     ) -> Result<(), DriverError> {
+        self.render_from(epoch, frame, None, params).await
+    }
+
+    /// Requests a frame from `camera` (`None`: the configured one).
+    pub async fn render_from(
+        &mut self,
+        epoch: u64,
+        frame: u64,
+        camera: Option<WireCamera>,
+        params: FrameParams,
+    ) -> Result<(), DriverError> {
         let msg = Message::RenderFrame {
             epoch,
             frame,
-            camera: None,
+            camera,
             params,
         };
         Ok(self.link.send_msg(msg).await?)
+    }
+
+    /// Offers a render node the scene encoded as `bytes` (content hash `hash`) and sends it in
+    /// chunks of `chunk` bytes if the node asks for it; returns the triangles the node loaded, or
+    /// `None` when it had the scene already.
+    pub async fn send_scene(
+        &mut self,
+        hash: Hash,
+        bytes: &[u8],
+        chunk: usize,
+        within: Duration,
+    ) -> Result<Option<u64>, DriverError> {
+        let deadline = Instant::now() + within;
+        let offer = Message::SceneOffer {
+            hash,
+            size: bytes.len() as u64,
+        };
+        self.link.send_msg(offer).await?;
+        match self.read(deadline, "SceneNeed").await? {
+            Message::SceneNeed { need: false, .. } => return Ok(None),
+            Message::SceneNeed { need: true, .. } => {}
+            other => return Err(unexpected("SceneNeed", other)),
+        }
+        self.send_chunks(hash, bytes, chunk).await?;
+        match self.read(deadline, "SceneReady").await? {
+            Message::SceneReady { hash: h, triangles } if h == hash => Ok(Some(triangles)),
+            other => Err(unexpected("SceneReady", other)),
+        }
+    }
+
+    /// Sends `bytes` as the scene `hash` in chunks of `chunk` bytes (the last one marked), with
+    /// no offer before and no answer awaited: what tests of a node's scene checks send.
+    pub async fn send_chunks(
+        &mut self,
+        hash: Hash,
+        bytes: &[u8],
+        chunk: usize,
+    ) -> Result<(), DriverError> {
+        let chunk = chunk.max(1);
+        let n = bytes.chunks(chunk).count().max(1);
+        for (i, c) in bytes.chunks(chunk).enumerate() {
+            self.link
+                .send_msg(Message::SceneChunk {
+                    hash,
+                    offset: (i * chunk) as u64,
+                    data: c.to_vec(),
+                    last: i + 1 == n,
+                })
+                .await?;
+        }
+        Ok(())
+    }
+
+    /// Sends any message (a test's own protocol step).
+    pub async fn send_msg(&mut self, msg: Message) -> Result<(), DriverError> {
+        Ok(self.link.send_msg(msg).await?)
+    }
+
+    /// The next message straight from the link, its error as the link gives it (closed, timed
+    /// out): for tests of how a daemon ends a link. The backlog is not consulted.
+    pub async fn recv_raw(&mut self, within: Duration) -> Result<Message, NetError> {
+        self.link.recv_msg(within).await
     }
 
     /// Tells the stage the plan of `epoch` leaves it out (`Message::Release`; no answer).
@@ -199,6 +291,16 @@ impl ControlClient {
             }),
             r => Ok(r?),
         }
+    }
+}
+
+fn unexpected(expected: &'static str, got: Message) -> DriverError {
+    match got {
+        Message::Error { code, message, .. } => DriverError::Refused { code, message },
+        other => DriverError::Unexpected {
+            expected,
+            got: format!("{other:?}"),
+        },
     }
 }
 
