@@ -9,6 +9,7 @@ mod downstream;
 mod frame_io;
 pub mod gate;
 mod link;
+mod serve;
 mod token;
 
 pub use codec::LinkCodec;
@@ -17,4 +18,5 @@ pub use link::{
     Identity, Link, LinkReader, LinkWriter, NetError, PRE_AUTH_MAX_FRAME, Timeouts, accept,
     describe, dial, dial_retry,
 };
+pub use serve::serve;
 pub use token::{TokenError, load_token};

@@ -156,3 +156,71 @@ async fn a_probe_is_a_disconnect_and_garbage_is_not() {
     let e = server.await.unwrap().expect_err("not a lightfold peer");
     assert!(!e.is_disconnect(), "{e}");
 }
+
+/// The daemon skeleton: authenticated peers reach the handler (each on its own task), a peer
+/// with the wrong token and a silent one never do and do not hold up the next, and cancelling
+/// `stop` ends the loop.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn serve_hands_authenticated_links_to_the_handler_until_stopped() {
+    let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let me = Identity::new(b"secret", Role::Node, "node-a");
+    let stop = tokio_util::sync::CancellationToken::new();
+    let tracker = tokio_util::task::TaskTracker::new();
+    let (seen_tx, mut seen) = tokio::sync::mpsc::unbounded_channel::<String>();
+    let server = {
+        let (stop, tracker) = (stop.clone(), tracker.clone());
+        tokio::spawn(async move {
+            lightfold_net::serve(&listener, &me, quick(), &stop, &tracker, "test", {
+                move |mut link: lightfold_net::Link| {
+                    let seen = seen_tx.clone();
+                    async move {
+                        let _ = seen.send(link.peer.daemon_id.clone());
+                        // Echo one ping, so the client knows it was served.
+                        if let Ok(Message::Ping { seq }) = link.recv_msg(quick().send).await {
+                            let _ = link.send_msg(Message::Pong { seq }).await;
+                        }
+                    }
+                }
+            })
+            .await
+        })
+    };
+    // A silent peer (never says hello) first: it must not block the ones after it.
+    let _silent = tokio::net::TcpStream::connect(&addr).await.unwrap();
+    let wrong = dial(
+        &addr,
+        &Identity::new(b"wrong", Role::Coordinator, "bad"),
+        quick(),
+    )
+    .await;
+    assert!(wrong.is_err(), "a wrong token is refused");
+    for id in ["coord-1", "coord-2"] {
+        let mut c = dial(
+            &addr,
+            &Identity::new(b"secret", Role::Coordinator, id),
+            quick(),
+        )
+        .await
+        .unwrap();
+        c.send_msg(Message::Ping { seq: 1 }).await.unwrap();
+        assert_eq!(
+            c.recv_msg(Duration::from_secs(2)).await.unwrap(),
+            Message::Pong { seq: 1 }
+        );
+        assert_eq!(seen.recv().await.as_deref(), Some(id));
+    }
+    assert!(
+        seen.try_recv().is_err(),
+        "only authenticated peers reach the handler"
+    );
+    stop.cancel();
+    tokio::time::timeout(Duration::from_secs(5), server)
+        .await
+        .expect("serve ends when stopped")
+        .unwrap();
+    tracker.close();
+    tokio::time::timeout(Duration::from_secs(5), tracker.wait())
+        .await
+        .expect("the connections' tasks end");
+}

@@ -29,7 +29,7 @@ use lightfold_net::{Identity, Link, Timeouts};
 use lightfold_protocol::Role;
 use std::sync::Arc;
 use std::time::Duration;
-use tokio::net::{TcpListener, TcpStream};
+use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
@@ -163,21 +163,21 @@ pub async fn run(
         }
     }
     lightfold_telemetry::health::set_live(true);
-    let gate = lightfold_net::gate::Gate::handshakes();
-
-    while let Some((stream, _, slot)) = gate.next_admitted(&listener, &shutdown, "handshakes").await
-    {
-        let conn = Connection {
-            gate: gate.clone(),
-            slot,
-            identity: identity.clone(),
-            timeouts: opts.timeouts,
-            hub: Arc::clone(&hub),
-            registry: Arc::clone(&registry),
-            shutdown: shutdown.clone(),
-        };
-        tracker.spawn(conn.serve(stream));
-    }
+    let conn = Connection {
+        hub: Arc::clone(&hub),
+        registry: Arc::clone(&registry),
+        shutdown: shutdown.clone(),
+    };
+    lightfold_net::serve(
+        &listener,
+        &identity,
+        opts.timeouts,
+        &shutdown,
+        &tracker,
+        "handshakes",
+        move |link| conn.clone().serve(link),
+    )
+    .await;
     lightfold_telemetry::health::set_live(false);
     drop(listener);
     tracker.close();
@@ -191,38 +191,17 @@ pub async fn run(
     Ok(())
 }
 
-/// One accepted connection, before we know who it is.
+/// What serves an authenticated link: the control hub (coordinators) or the input registry
+/// (producers).
+#[derive(Clone)]
 struct Connection {
-    gate: lightfold_net::gate::Gate,
-    /// Its handshake slot, given back once it is authenticated.
-    slot: lightfold_net::gate::Slot,
-    identity: Identity,
-    timeouts: Timeouts,
     hub: Arc<ControlHub>,
     registry: Arc<Registry>,
     shutdown: CancellationToken,
 }
 
 impl Connection {
-    async fn serve(self, stream: TcpStream) {
-        let peer_addr = stream
-            .peer_addr()
-            .map_or_else(|_| "unknown peer".to_string(), |a| a.to_string());
-        let link: Link = tokio::select! {
-            _ = self.shutdown.cancelled() => return,
-            l = lightfold_net::accept(stream, &self.identity, self.timeouts) => match l {
-                Ok(l) => l,
-                Err(e) if e.is_disconnect() => {
-                    tracing::debug!("a connection closed before its handshake: {e}");
-                    return;
-                }
-                Err(e) => {
-                    self.gate.refused(&peer_addr, &e);
-                    return;
-                }
-            },
-        };
-        drop(self.slot);
+    async fn serve(self, link: Link) {
         match link.peer.role {
             Role::Coordinator => self.hub.session(link, &self.shutdown).await,
             Role::Node | Role::Compositor => {

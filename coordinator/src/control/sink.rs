@@ -64,33 +64,28 @@ pub async fn run_sink(
     out: mpsc::Sender<SinkEvent>,
     cancel: CancellationToken,
 ) {
-    let gate = lightfold_net::gate::Gate::handshakes();
     // A stray connection (a port scan, a probe) is refused and logged; it never ends the job.
-    while let Some((stream, _, slot)) = gate.next_admitted(&listener, &cancel, "the sink").await {
-        let (me, out, geometry, cancel) =
-            (me.clone(), out.clone(), geometry.clone(), cancel.clone());
-        tokio::spawn(async move {
-            let link = lightfold_net::accept(stream, &me, timeouts).await;
-            drop(slot);
-            match link {
-                Ok(link) => {
-                    let addr = link.addr.clone();
-                    if let Err(e) = receive(link, geometry, &out, cancel).await {
-                        let _ = out
-                            .send(SinkEvent::Warning(format!("sink link from {addr}: {e}")))
-                            .await;
-                    }
-                }
-                Err(e) => {
+    let tracker = tokio_util::task::TaskTracker::new();
+    let serve_link = {
+        let (out, cancel) = (out.clone(), cancel.clone());
+        move |link: lightfold_net::Link| {
+            let (out, geometry, cancel) = (out.clone(), geometry.clone(), cancel.clone());
+            async move {
+                let addr = link.addr.clone();
+                if let Err(e) = receive(link, geometry, &out, cancel).await {
                     let _ = out
-                        .send(SinkEvent::Warning(format!(
-                            "sink refused a connection: {e}"
-                        )))
+                        .send(SinkEvent::Warning(format!("sink link from {addr}: {e}")))
                         .await;
                 }
             }
-        });
-    }
+        }
+    };
+    lightfold_net::serve(
+        &listener, &me, timeouts, &cancel, &tracker, "the sink", serve_link,
+    )
+    .await;
+    tracker.close();
+    tracker.wait().await;
 }
 
 async fn receive(

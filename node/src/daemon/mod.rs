@@ -17,7 +17,7 @@ use crate::gpu::device::max_lights_for;
 use control_link::Ended;
 use engine::Engine;
 use lightfold_net::claim::Claims;
-use lightfold_net::{Identity, Timeouts, accept};
+use lightfold_net::{Identity, Timeouts};
 use lightfold_protocol::{Capabilities, Role};
 pub use render_thread::PackOn;
 use render_thread::{DeviceReport, RenderHandle};
@@ -211,67 +211,67 @@ pub async fn run(
     let claims = Claims::new(&opts.daemon_id, false);
     let stop = shutdown.child_token();
     let tracker = TaskTracker::new();
-    let gate = lightfold_net::gate::Gate::handshakes();
-    loop {
-        let (stream, peer, slot) = tokio::select! {
-            _ = stop.cancelled() => break,
-            started = &mut startup, if engine.is_none() => match started {
-                Ok((caps, e)) => {
-                    engine = Some(Arc::clone(&e));
-                    lightfold_telemetry::health::set_live(true);
-                    let _ = ready_tx.send(Some((caps, e)));
-                    continue;
-                }
-                Err(e) => {
-                    stop.cancel();
-                    tracker.close();
-                    tracker.wait().await;
-                    return Err(e);
-                }
-            },
-            next = gate.next_admitted(&listener, &stop, "handshakes") => match next {
-                Some(next) => next,
-                None => break,
-            },
-        };
-        let (me, mut ready, claims, stop, t, gate, silence) = (
-            me.clone(),
+    // Each link is served once the device is ready (at once, after start-up); links are
+    // accepted and authenticated while the device opens.
+    let serve_link = {
+        let (ready, claims, stop, silence) = (
             ready_rx.clone(),
             claims.clone(),
             stop.clone(),
-            opts.timeouts,
-            gate.clone(),
             opts.coordinator_silence,
         );
-        tracker.spawn(async move {
-            let link = tokio::select! {
-                _ = stop.cancelled() => return,
-                l = accept(stream, &me, t) => l,
-            };
-            drop(slot);
-            match link {
-                Ok(link) => {
-                    // Served once the device is ready (at once, after start-up).
-                    let (caps, engine) = tokio::select! {
-                        _ = stop.cancelled() => return,
-                        r = ready.wait_for(Option::is_some) => match r.ok().and_then(|r| r.clone()) {
-                            Some(x) => x,
-                            None => return,
-                        },
-                    };
-                    drop(ready);
-                    let ended =
-                        control_link::serve(link, caps, engine, claims, silence, stop.clone()).await;
-                    if ended == Ended::Shutdown {
-                        stop.cancel();
-                    }
+        move |link| {
+            let (mut ready, claims, stop) = (ready.clone(), claims.clone(), stop.clone());
+            async move {
+                let (caps, engine) = tokio::select! {
+                    _ = stop.cancelled() => return,
+                    r = ready.wait_for(Option::is_some) => match r.ok().and_then(|r| r.clone()) {
+                        Some(x) => x,
+                        None => return,
+                    },
+                };
+                drop(ready);
+                let ended =
+                    control_link::serve(link, caps, engine, claims, silence, stop.clone()).await;
+                if ended == Ended::Shutdown {
+                    stop.cancel();
                 }
-                Err(e) if e.is_disconnect() => {
-                    tracing::debug!(%peer, error = %e, "closed before its handshake")
-                }
-                Err(e) => gate.refused(&peer.to_string(), &format!("handshake failed: {e}")),
             }
-        });
+        }
+    };
+    let failed = {
+        let serving = lightfold_net::serve(
+            &listener,
+            &me,
+            opts.timeouts,
+            &stop,
+            &tracker,
+            "handshakes",
+            serve_link,
+        );
+        tokio::pin!(serving);
+        loop {
+            tokio::select! {
+                () = &mut serving => break None,
+                started = &mut startup, if engine.is_none() => match started {
+                    Ok((caps, e)) => {
+                        engine = Some(Arc::clone(&e));
+                        lightfold_telemetry::health::set_live(true);
+                        let _ = ready_tx.send(Some((caps, e)));
+                    }
+                    Err(e) => {
+                        stop.cancel();
+                        (&mut serving).await;
+                        break Some(e);
+                    }
+                },
+            }
+        }
+    };
+    if let Some(e) = failed {
+        tracker.close();
+        tracker.wait().await;
+        return Err(e);
     }
     lightfold_telemetry::health::set_live(false);
     tracker.close();
