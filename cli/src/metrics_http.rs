@@ -11,17 +11,12 @@ use anyhow::Context;
 use axum::http::{StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use axum::routing::get;
-use hyper::body::Incoming;
-use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
-use hyper_util::server::conn::auto::Builder;
-use hyper_util::service::TowerToHyperService;
 use lightfold_telemetry::health;
 use metrics_exporter_prometheus::{Matcher, PrometheusBuilder, PrometheusHandle};
 use std::io::Write;
 use std::net::SocketAddr;
 use std::time::Duration;
 use tokio_util::sync::CancellationToken;
-use tower::Service;
 
 /// Connections served at once, and from one address; more are closed unread. An idle
 /// connection costs a task and a socket: the bound is for descriptors, and the per-address share
@@ -150,40 +145,19 @@ pub fn notify_stopping() {
     }
 }
 
-/// Accepts scrapes until `stop`.
+/// Accepts scrapes until `stop` (the view's HTTP accept loop, with the limits above).
 pub async fn serve(
     listener: tokio::net::TcpListener,
     handle: PrometheusHandle,
     stop: CancellationToken,
 ) {
-    let app = router(handle);
-    let gate = lightfold_net::gate::Gate::new(MAX_CONNECTIONS, MAX_PER_ADDRESS);
-    while let Some((stream, peer, permit)) = gate.next_admitted(&listener, &stop, "metrics").await {
-        let app = app.clone();
-        let stop = stop.clone();
-        tokio::spawn(async move {
-            let _permit = permit;
-            let service = tower::service_fn(move |req: axum::extract::Request<Incoming>| {
-                let mut app = app.clone();
-                async move { app.call(req.map(axum::body::Body::new)).await }
-            });
-            let mut builder = Builder::new(TokioExecutor::new());
-            builder
-                .http1()
-                .timer(TokioTimer::new())
-                .header_read_timeout(HEADER_TIMEOUT);
-            let conn =
-                builder.serve_connection(TokioIo::new(stream), TowerToHyperService::new(service));
-            tokio::select! {
-                r = tokio::time::timeout(CONNECTION_LIFETIME, conn) => match r {
-                    Ok(Err(e)) => tracing::debug!(%peer, "metrics connection ended: {e}"),
-                    Err(_) => tracing::debug!(%peer, "metrics connection closed after {CONNECTION_LIFETIME:?}"),
-                    Ok(Ok(())) => {}
-                },
-                _ = stop.cancelled() => {}
-            }
-        });
-    }
+    let limits = lightfold_view::HttpLimits {
+        connections: MAX_CONNECTIONS,
+        per_address: MAX_PER_ADDRESS,
+        header_timeout: HEADER_TIMEOUT,
+        lifetime: Some(CONNECTION_LIFETIME),
+    };
+    lightfold_view::serve_router(listener, router(handle), None, limits, stop, "metrics").await;
 }
 
 fn router(handle: PrometheusHandle) -> axum::Router {

@@ -39,9 +39,9 @@ pub const HEADER_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long open requests get to finish when the view stops.
 const DRAIN: Duration = Duration::from_secs(2);
 
-/// Accepts connections until the view stops: at most `MAX_CONNECTIONS` at once, each with a
-/// deadline on its request header (hyper's, with a timer: `axum::serve` sets none) and, over TLS,
-/// on its handshake.
+/// Serves the view until it stops ([`serve_router`] with the view's limits: at most
+/// `MAX_CONNECTIONS` at once, each with a deadline on its request header and, over TLS, on its
+/// handshake).
 pub async fn serve(
     listener: tokio::net::TcpListener,
     tls: Option<tokio_rustls::TlsAcceptor>,
@@ -67,26 +67,73 @@ pub async fn serve(
         .route("/scene.toml", get(scene_file))
         .route("/ws", get(websocket))
         .with_state(hub);
-    let gate = lightfold_net::gate::Gate::new(MAX_CONNECTIONS, MAX_PER_ADDRESS);
-    while let Some((stream, peer, permit)) = gate.next_admitted(&listener, &stop, "the view").await
-    {
+    let limits = HttpLimits {
+        connections: MAX_CONNECTIONS,
+        per_address: MAX_PER_ADDRESS,
+        header_timeout: HEADER_TIMEOUT,
+        lifetime: None,
+    };
+    serve_router(listener, app, tls, limits, stop, "the view").await;
+}
+
+/// What an HTTP listener allows its connections.
+#[derive(Debug, Clone, Copy)]
+pub struct HttpLimits {
+    /// Connections served at once; more are closed unread.
+    pub connections: usize,
+    /// Connections served at once from one address.
+    pub per_address: usize,
+    /// A request's header (and, over TLS, the handshake) must arrive within this.
+    pub header_timeout: Duration,
+    /// A connection is closed after this, whatever it is doing (`None`: when it ends).
+    pub lifetime: Option<Duration>,
+}
+
+/// The one HTTP accept loop (the live view, every daemon's `/metrics`): connections admitted by a
+/// gate of `limits`, each on a task of its own with hyper's header deadline (with a timer:
+/// `axum::serve` sets none), over TLS when `tls` is given, the peer's address as `ConnectInfo`;
+/// until `stop`, when open requests get [`DRAIN`] to finish. `what` names the listener in logs.
+pub async fn serve_router(
+    listener: tokio::net::TcpListener,
+    app: axum::Router,
+    tls: Option<tokio_rustls::TlsAcceptor>,
+    limits: HttpLimits,
+    stop: CancellationToken,
+    what: &'static str,
+) {
+    let gate = lightfold_net::gate::Gate::new(limits.connections, limits.per_address);
+    while let Some((stream, peer, permit)) = gate.next_admitted(&listener, &stop, what).await {
         let app = app.clone();
         let stop = stop.clone();
         let tls = tls.clone();
         tokio::spawn(async move {
             let _permit = permit;
-            match tls {
-                None => connection(stream, peer, app, stop).await,
-                Some(tls) => {
-                    // A peer speaking plain HTTP, or no TLS at all, fails here and is closed.
-                    let handshake = tokio::select! {
-                        r = tokio::time::timeout(HEADER_TIMEOUT, tls.accept(stream)) => r,
-                        _ = stop.cancelled() => return,
-                    };
-                    match handshake {
-                        Ok(Ok(stream)) => connection(stream, peer, app, stop).await,
-                        Ok(Err(e)) => tracing::debug!(%peer, "view TLS handshake failed: {e}"),
-                        Err(_) => tracing::debug!(%peer, "view TLS handshake timed out"),
+            let served = async {
+                match tls {
+                    None => connection(stream, peer, app, limits, stop, what).await,
+                    Some(tls) => {
+                        // A peer speaking plain HTTP, or no TLS at all, fails here and is closed.
+                        let handshake = tokio::select! {
+                            r = tokio::time::timeout(limits.header_timeout, tls.accept(stream)) => r,
+                            _ = stop.cancelled() => return,
+                        };
+                        match handshake {
+                            Ok(Ok(stream)) => {
+                                connection(stream, peer, app, limits, stop, what).await
+                            }
+                            Ok(Err(e)) => {
+                                tracing::debug!(%peer, "{what}: TLS handshake failed: {e}")
+                            }
+                            Err(_) => tracing::debug!(%peer, "{what}: TLS handshake timed out"),
+                        }
+                    }
+                }
+            };
+            match limits.lifetime {
+                None => served.await,
+                Some(lifetime) => {
+                    if tokio::time::timeout(lifetime, served).await.is_err() {
+                        tracing::debug!(%peer, "{what}: connection closed after {lifetime:?}");
                     }
                 }
             }
@@ -94,9 +141,15 @@ pub async fn serve(
     }
 }
 
-/// Serves one connection (plain or TLS) until it ends or the view stops.
-async fn connection<S>(stream: S, peer: SocketAddr, app: axum::Router, stop: CancellationToken)
-where
+/// Serves one connection (plain or TLS) until it ends or the listener stops.
+async fn connection<S>(
+    stream: S,
+    peer: SocketAddr,
+    app: axum::Router,
+    limits: HttpLimits,
+    stop: CancellationToken,
+    what: &str,
+) where
     S: tokio::io::AsyncRead + tokio::io::AsyncWrite + Unpin + Send + 'static,
 {
     let service = tower::service_fn(move |mut req: axum::extract::Request<Incoming>| {
@@ -108,13 +161,13 @@ where
     builder
         .http1()
         .timer(TokioTimer::new())
-        .header_read_timeout(HEADER_TIMEOUT);
+        .header_read_timeout(limits.header_timeout);
     let conn = builder
         .serve_connection_with_upgrades(TokioIo::new(stream), TowerToHyperService::new(service));
     tokio::pin!(conn);
     tokio::select! {
         r = conn.as_mut() => if let Err(e) = r {
-            tracing::debug!(%peer, "view connection ended: {e}");
+            tracing::debug!(%peer, "{what}: connection ended: {e}");
         },
         _ = stop.cancelled() => {
             conn.as_mut().graceful_shutdown();

@@ -38,6 +38,7 @@ mod ws;
 pub use camera::{Steer, SteerError};
 pub use clock::{Clock, MAX_SPEED, MIN_SPEED, clip_time};
 pub use encode::{MAX_STOPS, MIN_STOPS};
+pub use http::{HttpLimits, serve_router};
 pub use hub::{MAX_VIEWERS, MAX_WATCHERS, ViewCounters};
 pub use open::{MAX_LISTED, Opened, Opener, SceneCatalog};
 pub use refine::{DEFAULT_MAX_SAMPLES, DEFAULT_SAMPLES_FACTOR, Ladder, RefineOptions, Step};
