@@ -450,10 +450,7 @@ fn compare_last_frame(
     let (mut last, samples) = match clock.time_of(frames - 1) {
         // (A scene with indirect light is still: its samples include its VPLs.)
         Some(t) if scene.animation.is_some() => (scene.still_at(t), scene.samples_at(t)),
-        _ => (
-            scene.clone(),
-            lightfold_reference::indirect::frame_samples(scene),
-        ),
+        _ => (scene.clone(), lightfold_scene::vpl::frame_samples(scene)),
     };
     last.camera = lightfold_coordinator::run::camera_at(&scene.camera, args.job.path(), frames - 1);
     // The samples the cluster rendered: a frame budget or an error target may have lowered

@@ -190,7 +190,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                     scene = scene.still_at(t);
                     all
                 }
-                None => lightfold_reference::indirect::frame_samples(&scene),
+                None => lightfold_scene::vpl::frame_samples(&scene),
             };
             let samples = if args.lights.is_empty() {
                 all

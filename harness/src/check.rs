@@ -21,7 +21,7 @@ pub fn single_device(gpu: &Gpu, scene: &Scene, walkthrough: bool) -> Image {
 /// before the material multiply, as a last stage planned with that radius applies it.
 pub fn single_device_filtered(gpu: &Gpu, scene: &Scene, walkthrough: bool, radius: u32) -> Image {
     // Direct samples and, where the scene asks for indirect light, its VPLs (as the planner).
-    let samples = lightfold_reference::indirect::frame_samples(scene);
+    let samples = lightfold_scene::vpl::frame_samples(scene);
     let mut r = Renderer::new(gpu, scene, RenderOptions::from_quality(&scene.quality)).unwrap();
     r.set_fit_to_camera(!walkthrough);
     radiance(gpu, &mut r, scene, &samples, radius).unwrap()
@@ -86,7 +86,7 @@ pub fn single_device_parts(
     parts: &[Vec<u32>],
     ties_to_higher: bool,
 ) -> Image {
-    let samples = lightfold_reference::indirect::frame_samples(scene);
+    let samples = lightfold_scene::vpl::frame_samples(scene);
     let mut r = Renderer::new(gpu, scene, RenderOptions::from_quality(&scene.quality)).unwrap();
     r.set_camera(&scene.camera);
     // Each part's maps fitted to the part, as a sort-last node fits them.

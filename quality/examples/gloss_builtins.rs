@@ -9,7 +9,7 @@
 use lightfold_coordinator::plan::{PlanOptions, gloss, targeted};
 use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_quality::accuracy::{Setting, TruthOptions, load_or_render_truth, measure_group};
-use lightfold_reference::trace::Tracer;
+use lightfold_scene::trace::Tracer;
 
 fn main() -> anyhow::Result<()> {
     let mut names: Vec<String> = std::env::args().skip(1).collect();

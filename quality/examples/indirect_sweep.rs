@@ -15,9 +15,10 @@
 //! the shadow-map error (the GPU against that exact sum).
 use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_quality::gpu_radiance;
-use lightfold_reference::indirect::{self, OneBounceOptions, default_clamp};
+use lightfold_reference::indirect::OneBounceOptions;
 use lightfold_reference::metrics::error_stats;
 use lightfold_reference::{render_one_bounce, render_point_sum};
+use lightfold_scene::vpl::{self, default_clamp};
 use lightfold_scene::{Image, SampleKind, Scene, sampling};
 use plotters::prelude::*;
 use std::path::{Path, PathBuf};
@@ -77,7 +78,7 @@ fn sweep(
         let mut s = scene.clone();
         s.quality.indirect = m;
         s.quality.indirect_clamp = Some(clamp);
-        let samples = indirect::frame_samples(&s);
+        let samples = vpl::frame_samples(&s);
         let vpls = samples
             .iter()
             .filter(|x| matches!(x.kind, SampleKind::Bounce { .. }))

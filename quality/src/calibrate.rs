@@ -15,8 +15,9 @@ use crate::accuracy::{
 use lightfold_compositor::ops::{LinkKind, recommended_link_format};
 use lightfold_coordinator::plan::{Curve, ErrorModel};
 use lightfold_node::gpu::Gpu;
+use lightfold_protocol::format::PixelFormat;
 use lightfold_scene::defaults::CELL_TAPS;
-use lightfold_scene::{Image, MapSizing, Scene, ShadowFilter};
+use lightfold_scene::{Image, MapSizing, Quality, Scene, ShadowFilter};
 use sha2::{Digest, Sha256};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -198,23 +199,7 @@ pub fn calibrate(
     opts: &CalibrationOptions,
 ) -> Result<Calibration, AccuracyError> {
     let key = model_key(scene, opts);
-    if scene.area_samples().is_none() {
-        return Err(AccuracyError::Render {
-            setting: "calibration".into(),
-            message: "the scene has no area light: its samples per light are no choice to \
-                      calibrate"
-                .into(),
-        });
-    }
-    if opts.counts.len() < 2
-        || opts.counts.windows(2).any(|w| w[0] >= w[1])
-        || opts.floors.is_empty()
-    {
-        return Err(AccuracyError::Render {
-            setting: "calibration".into(),
-            message: "a calibration needs two or more rising sample counts and a map floor".into(),
-        });
-    }
+    check_request(scene, opts)?;
     if let Some(c) = cached(scene, opts) {
         return Ok(c);
     }
@@ -231,142 +216,25 @@ pub fn calibrate(
     )?;
     let started = Instant::now();
     let q = scene.quality;
-    // The floors: the scene's own rule first (its smallest map), then the larger ones; a scene
-    // that fixes one size for every map has that one curve only.
-    let floors: Vec<(u32, MapSizing, u32)> = match q.map_sizing {
-        MapSizing::Fixed => vec![(0, MapSizing::Fixed, q.shadow_map_size)],
-        MapSizing::Mismatch(m) => {
-            let mut f: Vec<u32> = opts.floors.iter().map(|&f| f.max(m.min)).collect();
-            f.sort_unstable();
-            f.dedup();
-            f.into_iter()
-                .map(|floor| {
-                    let rule = lightfold_scene::shadow_views::Mismatch {
-                        min: floor,
-                        max: m.max.max(floor),
-                        target: m.target * d as f32,
-                    };
-                    (floor, MapSizing::Mismatch(rule), m.max.max(floor))
-                })
-                .collect()
-        }
-    };
-    let format = recommended_link_format(LinkKind::NodeToCompositor);
+    let floors = floor_rules(&q, opts, d);
     let radii: Vec<u32> = RADII
         .iter()
         .copied()
         .filter(|r| r * d <= lightfold_compositor::ops::penumbra::MAX_RADIUS)
         .collect();
+    let curves_of = Calibrating {
+        gpu,
+        truth: &truth.truth,
+        quality: q,
+        counts: &opts.counts,
+        radii: &radii,
+        format: recommended_link_format(LinkKind::NodeToCompositor),
+        d,
+    };
     let mut points = Vec::new();
     let mut curves = Vec::new();
-    for &(floor, sizing, largest) in &floors {
-        cal.quality.map_sizing = sizing;
-        if floor > 0 {
-            cal.quality.shadow_map_size = floor;
-        }
-        let mut unfiltered = Vec::new();
-        let mut filtered = Vec::new();
-        let mut cell = Vec::new();
-        let mut filter_gains = true;
-        let (mut sum_nt, mut sum_nn, mut sum_cell_nt, mut sum_cell_nn) = (0.0, 0.0, 0.0, 0.0);
-        for &n in &opts.counts {
-            cal.quality.samples_per_area_light = Some(n);
-            let settings: Vec<Setting> = std::iter::once(0)
-                .chain(radii.iter().copied())
-                .map(|penumbra| Setting {
-                    samples: n,
-                    pattern: q.pattern,
-                    map_size: largest,
-                    filter: q.filter,
-                    format,
-                    k: q.lights_per_node,
-                    penumbra,
-                })
-                .collect();
-            let measured = measure_prepared(gpu, &cal, &settings, 1)?;
-            let mut dbs = Vec::with_capacity(measured.len());
-            let mut wholes = Vec::with_capacity(measured.len());
-            for (s, m) in settings.iter().zip(&measured) {
-                let (db, whole) = psnr(&truth.truth, &m.image)?;
-                wholes.push(whole);
-                let secs = full_size_seconds(m, d);
-                points.push(CalPoint {
-                    map_floor: floor,
-                    samples: n,
-                    radius: s.penumbra * d,
-                    penumbra_db: db,
-                    whole_db: whole,
-                    node_seconds: secs,
-                    cell: false,
-                });
-                dbs.push(db);
-            }
-            // The cell filter, where the scene does not already ask for it: a render of its
-            // own (the nodes' filter changes), kept where it gains in the penumbra and the whole
-            // image loses nothing.
-            if !matches!(q.filter, ShadowFilter::Cell { .. }) && n <= MAX_CELL_SAMPLES {
-                let setting = Setting {
-                    filter: ShadowFilter::Cell { taps: CELL_TAPS },
-                    penumbra: 0,
-                    ..settings[0]
-                };
-                // The scene's own filter is put back before the next count's renders (no
-                // copy of the scene: a city's meshes are hundreds of megabytes).
-                cal.quality.filter = setting.filter;
-                let m = measure_prepared(gpu, &cal, &[setting], 1);
-                cal.quality.filter = q.filter;
-                let m = m?.remove(0);
-                let (db, whole) = psnr(&truth.truth, &m.image)?;
-                let secs = full_size_seconds(&m, d);
-                points.push(CalPoint {
-                    map_floor: floor,
-                    samples: n,
-                    radius: 0,
-                    penumbra_db: db,
-                    whole_db: whole,
-                    node_seconds: secs,
-                    cell: true,
-                });
-                sum_cell_nt += f64::from(n) * secs;
-                sum_cell_nn += f64::from(n) * f64::from(n);
-                if db > dbs[0] + FILTER_GAIN_DB && whole >= wholes[0] {
-                    cell.push((n, db as f32));
-                }
-            }
-            let secs = full_size_seconds(&measured[0], d);
-            sum_nt += f64::from(n) * secs;
-            sum_nn += f64::from(n) * f64::from(n);
-            unfiltered.push((n, dbs[0] as f32));
-            // The filter's curve is the counts from the fewest up to the first where no radius
-            // gains: the planner reads it as "filter up to here". A radius gains where the
-            // penumbra does and the whole image loses nothing (the filter also averages shading
-            // and contact shadows outside the penumbra).
-            let best = dbs[1..]
-                .iter()
-                .zip(&wholes[1..])
-                .zip(&radii)
-                .filter(|((_, whole), _)| **whole >= wholes[0])
-                .map(|((db, _), r)| (db, r))
-                .max_by(|a, b| a.0.total_cmp(b.0));
-            match best {
-                Some((&db, &r)) if filter_gains && db > dbs[0] + FILTER_GAIN_DB => {
-                    filtered.push((n, r * d, db as f32));
-                }
-                _ => filter_gains = false,
-            }
-        }
-        curves.push(Curve {
-            map_floor: floor,
-            unfiltered,
-            filtered,
-            seconds_per_sample: if sum_nn > 0.0 { sum_nt / sum_nn } else { 0.0 },
-            cell_seconds_per_sample: if sum_cell_nn > 0.0 && !cell.is_empty() {
-                sum_cell_nt / sum_cell_nn
-            } else {
-                0.0
-            },
-            cell,
-        });
+    for &floor in &floors {
+        curves.push(curves_of.curve(&mut cal, floor, &mut points)?);
     }
     let seconds = started.elapsed().as_secs_f64();
     let model = ErrorModel {
@@ -399,6 +267,235 @@ pub fn calibrate(
         size,
         divisor: d,
     })
+}
+
+/// Refuses a calibration of a scene without area lights, or with fewer than two rising sample
+/// counts or no map floor.
+fn check_request(scene: &Scene, opts: &CalibrationOptions) -> Result<(), AccuracyError> {
+    if scene.area_samples().is_none() {
+        return Err(AccuracyError::Render {
+            setting: "calibration".into(),
+            message: "the scene has no area light: its samples per light are no choice to \
+                      calibrate"
+                .into(),
+        });
+    }
+    if opts.counts.len() < 2
+        || opts.counts.windows(2).any(|w| w[0] >= w[1])
+        || opts.floors.is_empty()
+    {
+        return Err(AccuracyError::Render {
+            setting: "calibration".into(),
+            message: "a calibration needs two or more rising sample counts and a map floor".into(),
+        });
+    }
+    Ok(())
+}
+
+/// The floors, each with the map sizing its renders use and the largest map they get, for a
+/// scene of quality `q` at divisor `d`.
+fn floor_rules(q: &Quality, opts: &CalibrationOptions, d: u32) -> Vec<(u32, MapSizing, u32)> {
+    // The floors: the scene's own rule first (its smallest map), then the larger ones; a scene
+    // that fixes one size for every map has that one curve only.
+    match q.map_sizing {
+        MapSizing::Fixed => vec![(0, MapSizing::Fixed, q.shadow_map_size)],
+        MapSizing::Mismatch(m) => {
+            let mut f: Vec<u32> = opts.floors.iter().map(|&f| f.max(m.min)).collect();
+            f.sort_unstable();
+            f.dedup();
+            f.into_iter()
+                .map(|floor| {
+                    let rule = lightfold_scene::shadow_views::Mismatch {
+                        min: floor,
+                        max: m.max.max(floor),
+                        target: m.target * d as f32,
+                    };
+                    (floor, MapSizing::Mismatch(rule), m.max.max(floor))
+                })
+                .collect()
+        }
+    }
+}
+
+/// What every curve of one calibration is measured with: the device, the truth, the scene's
+/// quality, the counts and filter radii measured, the link format and the size divisor.
+struct Calibrating<'a> {
+    gpu: &'a Gpu,
+    truth: &'a lightfold_reference::GroundTruth,
+    quality: Quality,
+    counts: &'a [u32],
+    radii: &'a [u32],
+    format: PixelFormat,
+    d: u32,
+}
+
+/// The renders of one count: a setting per radius (0 first), what each measured, and its
+/// penumbra and whole-image PSNR.
+struct CountRenders {
+    settings: Vec<Setting>,
+    measured: Vec<crate::accuracy::Measured>,
+    dbs: Vec<f64>,
+    wholes: Vec<f64>,
+}
+
+impl Calibrating<'_> {
+    /// The curve of one floor (`floor`, its sizing and largest map) over every count, rendering
+    /// `cal` switched to that floor; every point measured goes to `points`.
+    fn curve(
+        &self,
+        cal: &mut Scene,
+        (floor, sizing, largest): (u32, MapSizing, u32),
+        points: &mut Vec<CalPoint>,
+    ) -> Result<Curve, AccuracyError> {
+        let (q, d) = (self.quality, self.d);
+        cal.quality.map_sizing = sizing;
+        if floor > 0 {
+            cal.quality.shadow_map_size = floor;
+        }
+        let mut unfiltered = Vec::new();
+        let mut filtered = Vec::new();
+        let mut cell = Vec::new();
+        let mut filter_gains = true;
+        let (mut sum_nt, mut sum_nn, mut sum_cell_nt, mut sum_cell_nn) = (0.0, 0.0, 0.0, 0.0);
+        for &n in self.counts {
+            cal.quality.samples_per_area_light = Some(n);
+            let CountRenders {
+                settings,
+                measured,
+                dbs,
+                wholes,
+            } = self.radius_renders(cal, floor, largest, n, points)?;
+            // The cell filter, where the scene does not already ask for it: a render of its
+            // own (the nodes' filter changes), kept where it gains in the penumbra and the whole
+            // image loses nothing.
+            if !matches!(q.filter, ShadowFilter::Cell { .. }) && n <= MAX_CELL_SAMPLES {
+                let (db, whole, secs) = self.cell_render(cal, floor, n, &settings[0], points)?;
+                sum_cell_nt += f64::from(n) * secs;
+                sum_cell_nn += f64::from(n) * f64::from(n);
+                if db > dbs[0] + FILTER_GAIN_DB && whole >= wholes[0] {
+                    cell.push((n, db as f32));
+                }
+            }
+            let secs = full_size_seconds(&measured[0], d);
+            sum_nt += f64::from(n) * secs;
+            sum_nn += f64::from(n) * f64::from(n);
+            unfiltered.push((n, dbs[0] as f32));
+            // The filter's curve is the counts from the fewest up to the first where no radius
+            // gains: the planner reads it as "filter up to here". A radius gains where the
+            // penumbra does and the whole image loses nothing (the filter also averages shading
+            // and contact shadows outside the penumbra).
+            let best = dbs[1..]
+                .iter()
+                .zip(&wholes[1..])
+                .zip(self.radii)
+                .filter(|((_, whole), _)| **whole >= wholes[0])
+                .map(|((db, _), r)| (db, r))
+                .max_by(|a, b| a.0.total_cmp(b.0));
+            match best {
+                Some((&db, &r)) if filter_gains && db > dbs[0] + FILTER_GAIN_DB => {
+                    filtered.push((n, r * d, db as f32));
+                }
+                _ => filter_gains = false,
+            }
+        }
+        Ok(Curve {
+            map_floor: floor,
+            unfiltered,
+            filtered,
+            seconds_per_sample: if sum_nn > 0.0 { sum_nt / sum_nn } else { 0.0 },
+            cell_seconds_per_sample: if sum_cell_nn > 0.0 && !cell.is_empty() {
+                sum_cell_nt / sum_cell_nn
+            } else {
+                0.0
+            },
+            cell,
+        })
+    }
+
+    /// Renders `cal` at `n` samples per area light without the penumbra filter and with each
+    /// radius, maps of at most `largest`, and measures each against the truth (a point each).
+    fn radius_renders(
+        &self,
+        cal: &Scene,
+        floor: u32,
+        largest: u32,
+        n: u32,
+        points: &mut Vec<CalPoint>,
+    ) -> Result<CountRenders, AccuracyError> {
+        let (q, d) = (self.quality, self.d);
+        let settings: Vec<Setting> = std::iter::once(0)
+            .chain(self.radii.iter().copied())
+            .map(|penumbra| Setting {
+                samples: n,
+                pattern: q.pattern,
+                map_size: largest,
+                filter: q.filter,
+                format: self.format,
+                k: q.lights_per_node,
+                penumbra,
+            })
+            .collect();
+        let measured = measure_prepared(self.gpu, cal, &settings, 1)?;
+        let mut dbs = Vec::with_capacity(measured.len());
+        let mut wholes = Vec::with_capacity(measured.len());
+        for (s, m) in settings.iter().zip(&measured) {
+            let (db, whole) = psnr(self.truth, &m.image)?;
+            wholes.push(whole);
+            let secs = full_size_seconds(m, d);
+            points.push(CalPoint {
+                map_floor: floor,
+                samples: n,
+                radius: s.penumbra * d,
+                penumbra_db: db,
+                whole_db: whole,
+                node_seconds: secs,
+                cell: false,
+            });
+            dbs.push(db);
+        }
+        Ok(CountRenders {
+            settings,
+            measured,
+            dbs,
+            wholes,
+        })
+    }
+
+    /// Renders `cal` at `n` samples per area light as `unfiltered` (no penumbra filter) does
+    /// but with the cell filter, and measures it (a point): its penumbra and whole-image PSNR
+    /// and full-size node-seconds.
+    fn cell_render(
+        &self,
+        cal: &mut Scene,
+        floor: u32,
+        n: u32,
+        unfiltered: &Setting,
+        points: &mut Vec<CalPoint>,
+    ) -> Result<(f64, f64, f64), AccuracyError> {
+        let setting = Setting {
+            filter: ShadowFilter::Cell { taps: CELL_TAPS },
+            penumbra: 0,
+            ..*unfiltered
+        };
+        // The scene's own filter is put back before the next count's renders (no
+        // copy of the scene: a city's meshes are hundreds of megabytes).
+        cal.quality.filter = setting.filter;
+        let m = measure_prepared(self.gpu, cal, &[setting], 1);
+        cal.quality.filter = self.quality.filter;
+        let m = m?.remove(0);
+        let (db, whole) = psnr(self.truth, &m.image)?;
+        let secs = full_size_seconds(&m, self.d);
+        points.push(CalPoint {
+            map_floor: floor,
+            samples: n,
+            radius: 0,
+            penumbra_db: db,
+            whole_db: whole,
+            node_seconds: secs,
+            cell: true,
+        });
+        Ok((db, whole, secs))
+    }
 }
 
 /// Node-seconds of a render at the calibration size as the full-size image would take them:

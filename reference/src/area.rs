@@ -6,9 +6,9 @@
 //! mistake there shows up as a difference rather than being reproduced.
 
 use crate::point_sum::{Layers, PixelLayers, Shade, render_pixels};
-use crate::trace::{SurfaceHit, Tracer};
 use lightfold_scene::sampling::{SplitMix64, grid_shape, light_samples};
 use lightfold_scene::shading::{V3, cross, dot, length, normalize, scale, sub};
+use lightfold_scene::trace::{SurfaceHit, Tracer};
 use lightfold_scene::{Image, LightSample, LightShape, SampleKind, Scene};
 use std::f64::consts::{PI, TAU};
 

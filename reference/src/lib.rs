@@ -5,21 +5,21 @@
 //! depend on tokio or wgpu.
 
 pub mod area;
-pub mod bvh;
 pub mod indirect;
 pub mod masks;
 pub mod metrics;
 pub mod output;
 pub mod point_sum;
-pub mod trace;
 pub mod truth;
 
 pub use area::{AreaOptions, direct_at, radiance_area, render_area};
-pub use indirect::{IndirectOptions, OneBounceOptions, render_one_bounce};
+pub use indirect::{OneBounceOptions, render_one_bounce};
+/// The ray tracer every reference render uses (it lives beside the scene model, which the
+/// planner's VPL placement shares).
+pub use lightfold_scene::trace::{SurfaceHit, Tracer};
 pub use metrics::{ErrorStats, Metrics, MetricsError, compare};
 pub use output::{ReferenceError, ReferenceMode, render_to_files};
 pub use point_sum::{
     Layers, PointSumOptions, radiance_point_sum, render_point_sum, render_point_sum_with,
 };
-pub use trace::{SurfaceHit, Tracer};
 pub use truth::{ErrorSplit, GroundTruth, noise_floor, split_error};

@@ -2,8 +2,8 @@
 //! are about) minus a dilated silhouette mask (where a raster and a ray tracer legitimately
 //! disagree about which surface a pixel centre sees).
 
-use crate::trace::Tracer;
 use lightfold_scene::shading::lobe_coefficients;
+use lightfold_scene::trace::Tracer;
 use lightfold_scene::{Image, LightSample, Scene};
 
 /// Penumbra bounds on `shadowed / unoccluded` radiance.
@@ -58,16 +58,16 @@ pub fn ties(scene: &Scene) -> Vec<bool> {
     use rayon::prelude::*;
     let tracer = Tracer::new(scene);
     let (w, h) = (scene.camera.width, scene.camera.height);
-    let same =
-        |a: &Option<crate::trace::SurfaceHit>, b: &Option<crate::trace::SurfaceHit>| match (a, b) {
-            (None, None) => true,
-            (Some(a), Some(b)) => {
-                let (n, m) = (a.normal, b.normal);
-                let cos = n[0] * m[0] + n[1] * m[1] + n[2] * m[2];
-                a.material == b.material && cos > TIE_COS
-            }
-            _ => false,
-        };
+    let same = |a: &Option<lightfold_scene::trace::SurfaceHit>,
+                b: &Option<lightfold_scene::trace::SurfaceHit>| match (a, b) {
+        (None, None) => true,
+        (Some(a), Some(b)) => {
+            let (n, m) = (a.normal, b.normal);
+            let cos = n[0] * m[0] + n[1] * m[1] + n[2] * m[2];
+            a.material == b.material && cos > TIE_COS
+        }
+        _ => false,
+    };
     (0..h)
         .into_par_iter()
         .flat_map_iter(|y| {

@@ -3,8 +3,8 @@
 //! `scene::shading` the GPU mirrors. Produces the same layers an illumination node and the
 //! material pass produce, so GPU output can be compared layer by layer.
 
-use crate::trace::{SurfaceHit, Tracer};
 use lightfold_scene::shading::{self, MaterialLayers, V3};
+use lightfold_scene::trace::{SurfaceHit, Tracer};
 use lightfold_scene::{Image, LightSample, Scene};
 use rayon::prelude::*;
 

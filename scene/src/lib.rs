@@ -7,6 +7,7 @@
 
 pub mod animation;
 pub mod builtin;
+pub mod bvh;
 pub mod camera;
 pub mod defaults;
 mod encode;
@@ -31,8 +32,10 @@ mod scene_ops;
 pub mod shading;
 pub mod shadow_views;
 pub mod supersample;
+pub mod trace;
 pub mod usd_load;
 pub mod validate;
+pub mod vpl;
 pub mod wire;
 
 pub use builtin::{builtin, builtin_names, is_builtin};

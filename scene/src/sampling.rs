@@ -14,7 +14,7 @@ pub use crate::scene_ops::mesh_area;
 
 /// The direct point samples of a scene's lights, in light order, with the scene's quality
 /// options. A frame renders these and, when `quality.indirect` asks for them, virtual point
-/// lights: `lightfold_reference::indirect::frame_samples` gives every sample a frame renders.
+/// lights: `lightfold_scene::vpl::frame_samples` gives every sample a frame renders.
 pub fn direct_samples(scene: &Scene) -> Vec<LightSample> {
     let mut out = Vec::new();
     for (i, _) in scene.lights.iter().enumerate() {

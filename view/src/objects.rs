@@ -7,7 +7,7 @@
 
 use crate::camera::{Steer, SteerError, check_point, finite};
 use glam::{Mat4, Vec3};
-use lightfold_reference::bvh::Bvh;
+use lightfold_scene::bvh::Bvh;
 use lightfold_scene::moves::{self, MeshMove};
 use lightfold_scene::{Camera, Scene};
 use std::sync::{Arc, OnceLock};

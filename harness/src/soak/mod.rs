@@ -997,7 +997,7 @@ pub(crate) fn spawn_checker(
             let mut checks = Vec::new();
             for (frame, image) in rx {
                 let mut s = recoloured(&scene, &steered_colours(frame, steer_every));
-                let samples = lightfold_reference::indirect::frame_samples(&s);
+                let samples = lightfold_scene::vpl::frame_samples(&s);
                 s.camera = camera_at(&scene.camera, path, (frame - 1) as u32);
                 let check = match radiance(&gpu, &mut renderer, &s, &samples, 0) {
                     Ok(truth) => compare(frame, &image, &truth, 1000),

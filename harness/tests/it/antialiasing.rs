@@ -12,8 +12,8 @@
 use lightfold_harness::{gpu, silhouettes, single_device_aa};
 use lightfold_node::gpu::{Gpu, LayerSet, NodeFrame, RenderOptions, Renderer};
 use lightfold_protocol::stats;
-use lightfold_reference::indirect::frame_samples;
 use lightfold_reference::{compare, radiance_point_sum};
+use lightfold_scene::vpl::frame_samples;
 use lightfold_scene::{Image, LightSample, Scene};
 use std::time::Instant;
 

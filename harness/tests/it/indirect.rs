@@ -19,10 +19,11 @@ use lightfold_harness::{
     InProcessCluster, assert_close, gpu, render_on, single_device, test_control,
 };
 use lightfold_node::gpu::{Gpu, LayerSet, RenderOptions, Renderer};
-use lightfold_reference::indirect::{self, IndirectOptions, OneBounceOptions};
+use lightfold_reference::indirect::OneBounceOptions;
 use lightfold_reference::{
     PointSumOptions, Tracer, compare, render_one_bounce, render_point_sum_with,
 };
+use lightfold_scene::vpl::{self, IndirectOptions};
 use lightfold_scene::{Camera, Image, Light, LightSample, LightShape, Material, SampleKind, Scene};
 
 const RHO: f32 = 0.5;
@@ -92,7 +93,7 @@ fn flicker(frames: &[Image]) -> f64 {
 }
 
 fn vpls_of(scene: &Scene) -> (Vec<LightSample>, Vec<LightSample>) {
-    let all = indirect::frame_samples(scene);
+    let all = vpl::frame_samples(scene);
     all.into_iter()
         .partition(|s| !matches!(s.kind, SampleKind::Bounce { .. }))
 }
@@ -329,7 +330,7 @@ fn cornell(vpls: u32) -> Scene {
 fn cornell_vpls_on_the_gpu_match_the_exact_vpl_sum() {
     let gpu = gpu();
     let scene = cornell(64);
-    let samples = indirect::frame_samples(&scene);
+    let samples = vpl::frame_samples(&scene);
     let got = single_device(&gpu, &scene, false);
     let want = radiance_of(&scene, &samples, true);
     let m = compare(&got, &want, scene.exposure, None).unwrap();
@@ -385,7 +386,7 @@ fn tracer_light_rays_see_single_sided_backs() {
         clamp: 0.0,
         seed: 1,
     };
-    assert!(indirect::vpls(&Tracer::new(&s), &direct, &opts).is_empty());
+    assert!(vpl::vpls(&Tracer::new(&s), &direct, &opts).is_empty());
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
@@ -495,7 +496,7 @@ intensity = 10.0
     let scene = lightfold_scene::load(path.to_str().unwrap()).unwrap();
     assert_eq!(scene.quality.indirect, 128);
     assert_eq!(scene.quality.indirect_clamp, Some(0.05));
-    let bounces = indirect::frame_samples(&scene)
+    let bounces = vpl::frame_samples(&scene)
         .iter()
         .filter(|s| s.kind == SampleKind::Bounce { clamp: 0.05 })
         .count();
@@ -633,7 +634,7 @@ fn carousel_indirect(vpls: u32) -> Scene {
 fn vpls_follow_the_animation_without_flicker() {
     let base = carousel_indirect(64);
     assert!(base.is_animated());
-    let rest = indirect::frame_samples(&base);
+    let rest = vpl::frame_samples(&base);
     let slots = rest
         .iter()
         .filter(|s| matches!(s.kind, SampleKind::Bounce { .. }))
@@ -650,7 +651,7 @@ fn vpls_follow_the_animation_without_flicker() {
                     s.quality.seed = base.quality.seed.wrapping_add(k + 1);
                 }
                 let started = std::time::Instant::now();
-                let all = indirect::frame_samples_at(&s, t);
+                let all = vpl::frame_samples_at(&s, t);
                 traced.set(traced.get() + started.elapsed().as_secs_f64());
                 assert_eq!(all.len(), rest.len(), "t = {t}: slot for slot");
                 let vpls: Vec<LightSample> = all
@@ -715,12 +716,12 @@ async fn an_animated_scene_with_vpls_through_the_cluster_equals_each_pose() {
     let posed = scene.still_at(t);
     let mut kept = lightfold_scene::sampling::direct_samples(&posed);
     kept.extend(
-        indirect::frame_samples(&scene)
+        vpl::frame_samples(&scene)
             .into_iter()
             .filter(|s| matches!(s.kind, SampleKind::Bounce { .. })),
     );
     let stale = radiance_of(&posed, &kept, true);
-    let fresh = radiance_of(&posed, &indirect::frame_samples(&posed), true);
+    let fresh = radiance_of(&posed, &vpl::frame_samples(&posed), true);
     let d = |a: &Image, b: &Image| {
         a.data
             .iter()

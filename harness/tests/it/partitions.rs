@@ -340,7 +340,7 @@ async fn a_mesh_larger_than_a_part_is_split_into_chunks() {
     // (Per pixel the two GPU images differ at some shadow edges: chunk boxes change the
     // receivers maps are fitted and sized to.)
     let one_mesh = single_device(&gpu, &scene, false);
-    let samples = lightfold_reference::indirect::frame_samples(&scene);
+    let samples = lightfold_scene::vpl::frame_samples(&scene);
     let truth = lightfold_reference::radiance_point_sum(&scene, &samples);
     let rmse = |img: &Image| {
         let e: f64 = img

@@ -288,25 +288,19 @@ impl DevicePacker {
         }
         let band_height = band_height.clamp(1, height.max(1));
         let bands = height.div_ceil(band_height);
-        let pixels = u64::from(width) * u64::from(height);
-        let max_binding = limits.max_storage_buffer_binding_size;
+        let shape = PackShape {
+            width,
+            height,
+            band_height,
+            bands,
+            scale,
+            pixels: u64::from(width) * u64::from(height),
+            max_binding: limits.max_storage_buffer_binding_size,
+        };
         let align = u64::from(limits.min_storage_buffer_offset_alignment).max(256);
 
         // Where each layer's packed bytes go, and its parameters (sources resolved below).
-        let mut offsets = Vec::with_capacity(layers.len());
-        let mut out_size = 0u64;
-        for l in layers {
-            let size = pixels * l.format.bytes_per_pixel() as u64;
-            if size > max_binding {
-                return Err(RenderError::BindingTooLarge {
-                    what: "a packed layer",
-                    bytes: size,
-                    maximum: max_binding,
-                });
-            }
-            offsets.push((out_size, size));
-            out_size = (out_size + size).div_ceil(align) * align;
-        }
+        let (offsets, out_size) = layer_offsets(layers, &shape, align)?;
         let count_words = 1 + 2 * u64::from(bands) * layers.len() as u64;
         let counts_size = count_words * 4;
         let out = kept(
@@ -343,89 +337,7 @@ impl DevicePacker {
         let mut params = Vec::with_capacity(layers.len());
         let mut sources: Vec<wgpu::Buffer> = Vec::with_capacity(layers.len());
         for (i, l) in layers.iter().enumerate() {
-            let channels = l.format.channels() as u32;
-            let mut p = Params {
-                width,
-                height,
-                band_height,
-                format: l.format as u32,
-                channels,
-                peak: u32::from(channels == 6),
-                band_base: 1 + 2 * bands * i as u32,
-                ..Params::default()
-            };
-            if l.format == PixelFormat::Seed64 {
-                p.kd = (2047.0 / scale).to_bits();
-                p.ks = (1023.0 / scale).to_bits();
-                p.scale = scale.to_bits();
-                let limit = scale * 2.0;
-                p.limit = if limit.is_finite() { limit } else { f32::MAX }.to_bits();
-            }
-            let six = |what: &str| {
-                if channels == 6 {
-                    Ok(())
-                } else {
-                    Err(RenderError::Gpu(format!(
-                        "{what} holds six channels, {:?} packs {channels}",
-                        l.format
-                    )))
-                }
-            };
-            let source = match l.source {
-                PackSource::Lit(lit) => {
-                    six("the lit buffer")?;
-                    if lit.size() < pixels * 32 || lit.size() > max_binding {
-                        return Err(RenderError::Gpu(format!(
-                            "the lit buffer of {} bytes does not fit a {width}x{height} pack",
-                            lit.size()
-                        )));
-                    }
-                    p.texel_words = 8;
-                    p.row_words = width * 8;
-                    p.group_offset = 4;
-                    lit.clone()
-                }
-                PackSource::Split(diffuse, specular) => {
-                    six("the forward pass's targets")?;
-                    same_size(diffuse, width, height)?;
-                    same_size(specular, width, height)?;
-                    let t = texels(diffuse.format())?;
-                    if t.halves || t.channels < 3 || diffuse.format() != specular.format() {
-                        return Err(RenderError::Gpu(format!(
-                            "cannot pack illumination from {:?} targets",
-                            diffuse.format()
-                        )));
-                    }
-                    let row = padded_row(width, t.bytes);
-                    let region = u64::from(row) * u64::from(height);
-                    let raw = self.raw(device, i, 2 * region, max_binding)?;
-                    copy_texture(&mut encoder, diffuse, &raw, 0, row);
-                    copy_texture(&mut encoder, specular, &raw, region, row);
-                    p.texel_words = t.bytes / 4;
-                    p.row_words = row / 4;
-                    p.group_offset = (region / 4) as u32;
-                    raw
-                }
-                PackSource::Texture(texture) => {
-                    same_size(texture, width, height)?;
-                    let t = texels(texture.format())?;
-                    if channels > t.channels.min(3) && channels != t.channels {
-                        return Err(RenderError::Gpu(format!(
-                            "a {:?} target cannot give the {channels} channels of {:?}",
-                            texture.format(),
-                            l.format
-                        )));
-                    }
-                    let row = padded_row(width, t.bytes);
-                    let raw =
-                        self.raw(device, i, u64::from(row) * u64::from(height), max_binding)?;
-                    copy_texture(&mut encoder, texture, &raw, 0, row);
-                    p.halves = u32::from(t.halves);
-                    p.texel_words = if t.halves { 2 } else { t.bytes / 4 };
-                    p.row_words = row / 4;
-                    raw
-                }
-            };
+            let (p, source) = self.layer_source(device, &mut encoder, i, l, &shape)?;
             params.push(p);
             sources.push(source);
         }
@@ -433,9 +345,154 @@ impl DevicePacker {
             gpu.queue
                 .write_buffer(&self.params, i as u64 * PARAM_STRIDE, bytemuck::bytes_of(p));
         }
-        let groups: Vec<wgpu::BindGroup> = sources
+        let groups = self.bind_groups(device, &sources, &offsets, &out, &counts);
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("pack"),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(&self.pipeline);
+            for g in &groups {
+                pass.set_bind_group(0, g, &[]);
+                pass.dispatch_workgroups(width.div_ceil(WORKGROUP), height, 1);
+            }
+        }
+        let mut at = 0;
+        for &(offset, size) in &offsets {
+            encoder.copy_buffer_to_buffer(&out, offset, &staging, at, size);
+            at += size;
+        }
+        encoder.copy_buffer_to_buffer(&counts, 0, &staging, packed_size, counts_size);
+        gpu.queue.submit([encoder.finish()]);
+
+        map_for_reading(device, &staging)?;
+        let frame = {
+            let mapped = staging
+                .get_mapped_range(..)
+                .map_err(|e| RenderError::Gpu(format!("mapped range: {e}")))?;
+            unpack(&mapped, layers, &offsets, &shape, packed_size, read_bytes)
+        };
+        staging.unmap();
+        Ok(frame)
+    }
+
+    /// Layer `i`'s parameters and the buffer its shader reads: the lit buffer itself, or the
+    /// raw copy of its targets, whose copies are recorded into `encoder`.
+    fn layer_source(
+        &mut self,
+        device: &wgpu::Device,
+        encoder: &mut wgpu::CommandEncoder,
+        i: usize,
+        l: &PackLayer<'_>,
+        shape: &PackShape,
+    ) -> Result<(Params, wgpu::Buffer), RenderError> {
+        let PackShape {
+            width,
+            height,
+            band_height,
+            bands,
+            scale,
+            pixels,
+            max_binding,
+        } = *shape;
+        let channels = l.format.channels() as u32;
+        let mut p = Params {
+            width,
+            height,
+            band_height,
+            format: l.format as u32,
+            channels,
+            peak: u32::from(channels == 6),
+            band_base: 1 + 2 * bands * i as u32,
+            ..Params::default()
+        };
+        if l.format == PixelFormat::Seed64 {
+            p.kd = (2047.0 / scale).to_bits();
+            p.ks = (1023.0 / scale).to_bits();
+            p.scale = scale.to_bits();
+            let limit = scale * 2.0;
+            p.limit = if limit.is_finite() { limit } else { f32::MAX }.to_bits();
+        }
+        let six = |what: &str| {
+            if channels == 6 {
+                Ok(())
+            } else {
+                Err(RenderError::Gpu(format!(
+                    "{what} holds six channels, {:?} packs {channels}",
+                    l.format
+                )))
+            }
+        };
+        let source = match l.source {
+            PackSource::Lit(lit) => {
+                six("the lit buffer")?;
+                if lit.size() < pixels * 32 || lit.size() > max_binding {
+                    return Err(RenderError::Gpu(format!(
+                        "the lit buffer of {} bytes does not fit a {width}x{height} pack",
+                        lit.size()
+                    )));
+                }
+                p.texel_words = 8;
+                p.row_words = width * 8;
+                p.group_offset = 4;
+                lit.clone()
+            }
+            PackSource::Split(diffuse, specular) => {
+                six("the forward pass's targets")?;
+                same_size(diffuse, width, height)?;
+                same_size(specular, width, height)?;
+                let t = texels(diffuse.format())?;
+                if t.halves || t.channels < 3 || diffuse.format() != specular.format() {
+                    return Err(RenderError::Gpu(format!(
+                        "cannot pack illumination from {:?} targets",
+                        diffuse.format()
+                    )));
+                }
+                let row = padded_row(width, t.bytes);
+                let region = u64::from(row) * u64::from(height);
+                let raw = self.raw(device, i, 2 * region, max_binding)?;
+                copy_texture(encoder, diffuse, &raw, 0, row);
+                copy_texture(encoder, specular, &raw, region, row);
+                p.texel_words = t.bytes / 4;
+                p.row_words = row / 4;
+                p.group_offset = (region / 4) as u32;
+                raw
+            }
+            PackSource::Texture(texture) => {
+                same_size(texture, width, height)?;
+                let t = texels(texture.format())?;
+                if channels > t.channels.min(3) && channels != t.channels {
+                    return Err(RenderError::Gpu(format!(
+                        "a {:?} target cannot give the {channels} channels of {:?}",
+                        texture.format(),
+                        l.format
+                    )));
+                }
+                let row = padded_row(width, t.bytes);
+                let raw = self.raw(device, i, u64::from(row) * u64::from(height), max_binding)?;
+                copy_texture(encoder, texture, &raw, 0, row);
+                p.halves = u32::from(t.halves);
+                p.texel_words = if t.halves { 2 } else { t.bytes / 4 };
+                p.row_words = row / 4;
+                raw
+            }
+        };
+        Ok((p, source))
+    }
+
+    /// One bind group per layer: its parameters, its source, its part of `out`, the counts
+    /// and the sRGB tables.
+    fn bind_groups(
+        &self,
+        device: &wgpu::Device,
+        sources: &[wgpu::Buffer],
+        offsets: &[(u64, u64)],
+        out: &wgpu::Buffer,
+        counts: &wgpu::Buffer,
+    ) -> Vec<wgpu::BindGroup> {
+        sources
             .iter()
-            .zip(&offsets)
+            .zip(offsets)
             .enumerate()
             .map(|(i, (source, &(offset, size)))| {
                 device.create_bind_group(&wgpu::BindGroupDescriptor {
@@ -457,7 +514,7 @@ impl DevicePacker {
                         wgpu::BindGroupEntry {
                             binding: 2,
                             resource: wgpu::BindingResource::Buffer(wgpu::BufferBinding {
-                                buffer: &out,
+                                buffer: out,
                                 offset,
                                 size: wgpu::BufferSize::new(size),
                             }),
@@ -473,81 +530,7 @@ impl DevicePacker {
                     ],
                 })
             })
-            .collect();
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("pack"),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(&self.pipeline);
-            for g in &groups {
-                pass.set_bind_group(0, g, &[]);
-                pass.dispatch_workgroups(width.div_ceil(WORKGROUP), height, 1);
-            }
-        }
-        let mut at = 0;
-        for &(offset, size) in &offsets {
-            encoder.copy_buffer_to_buffer(&out, offset, &staging, at, size);
-            at += size;
-        }
-        encoder.copy_buffer_to_buffer(&counts, 0, &staging, packed_size, counts_size);
-        gpu.queue.submit([encoder.finish()]);
-
-        let (tx, rx) = std::sync::mpsc::channel();
-        staging.map_async(wgpu::MapMode::Read, .., move |r| {
-            let _ = tx.send(r);
-        });
-        device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| RenderError::Gpu(format!("pack wait: {e}")))?;
-        match rx.try_recv() {
-            Ok(Ok(())) => {}
-            Ok(Err(e)) => return Err(RenderError::Gpu(format!("map of the packed frame: {e}"))),
-            Err(_) => return Err(RenderError::Gpu("the packed frame was never mapped".into())),
-        }
-        let frame = {
-            let mapped = staging
-                .get_mapped_range(..)
-                .map_err(|e| RenderError::Gpu(format!("mapped range: {e}")))?;
-            let bytes: &[u8] = &mapped;
-            let word = |i: u64| {
-                let at = (packed_size + 4 * i) as usize;
-                u32::from_le_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]])
-            };
-            let mut at = 0usize;
-            let packed = layers
-                .iter()
-                .zip(&offsets)
-                .enumerate()
-                .map(|(i, (l, &(_, size)))| PackedLayer {
-                    format: l.format,
-                    bytes: {
-                        let b = Bytes::copy_from_slice(&bytes[at..at + size as usize]);
-                        at += size as usize;
-                        b
-                    },
-                    bands: (0..u64::from(bands))
-                        .map(|b| {
-                            let base = 1 + 2 * (u64::from(bands) * i as u64 + b);
-                            BandCount {
-                                nonzero: word(base) != 0,
-                                saturated: word(base + 1),
-                            }
-                        })
-                        .collect(),
-                })
-                .collect();
-            PackedFrame {
-                width,
-                height,
-                band_height,
-                layers: packed,
-                peak: f32::from_bits(word(0)),
-                read_bytes,
-            }
-        };
-        staging.unmap();
-        Ok(frame)
+            .collect()
     }
 
     /// The raw-copy buffer of source `i`, of at least `size` bytes.
@@ -594,6 +577,107 @@ fn same_size(texture: &wgpu::Texture, width: u32, height: u32) -> Result<(), Ren
             "a {}x{} target cannot be packed as a {width}x{height} frame",
             s.width, s.height
         )))
+    }
+}
+/// The frame one pack covers: its size and bands, the `seed64` scale, its pixels and the
+/// device's storage-binding limit.
+#[derive(Debug, Clone, Copy)]
+struct PackShape {
+    width: u32,
+    height: u32,
+    /// Rows a band (clamped to the frame) and bands.
+    band_height: u32,
+    bands: u32,
+    scale: f32,
+    pixels: u64,
+    max_binding: u64,
+}
+
+/// Where each layer's packed bytes go in the output buffer (offset, size), each at `align`,
+/// and the buffer's size. A layer beyond the storage-binding limit is an error.
+fn layer_offsets(
+    layers: &[PackLayer<'_>],
+    shape: &PackShape,
+    align: u64,
+) -> Result<(Vec<(u64, u64)>, u64), RenderError> {
+    let mut offsets = Vec::with_capacity(layers.len());
+    let mut out_size = 0u64;
+    for l in layers {
+        let size = shape.pixels * l.format.bytes_per_pixel() as u64;
+        if size > shape.max_binding {
+            return Err(RenderError::BindingTooLarge {
+                what: "a packed layer",
+                bytes: size,
+                maximum: shape.max_binding,
+            });
+        }
+        offsets.push((out_size, size));
+        out_size = (out_size + size).div_ceil(align) * align;
+    }
+    Ok((offsets, out_size))
+}
+
+/// Maps `staging` for reading and waits for it.
+fn map_for_reading(device: &wgpu::Device, staging: &wgpu::Buffer) -> Result<(), RenderError> {
+    let (tx, rx) = std::sync::mpsc::channel();
+    staging.map_async(wgpu::MapMode::Read, .., move |r| {
+        let _ = tx.send(r);
+    });
+    device
+        .poll(wgpu::PollType::wait_indefinitely())
+        .map_err(|e| RenderError::Gpu(format!("pack wait: {e}")))?;
+    match rx.try_recv() {
+        Ok(Ok(())) => Ok(()),
+        Ok(Err(e)) => Err(RenderError::Gpu(format!("map of the packed frame: {e}"))),
+        Err(_) => Err(RenderError::Gpu("the packed frame was never mapped".into())),
+    }
+}
+
+/// The packed frame in `bytes` as read back: the layers back to back (`offsets`' sizes), then
+/// the counts from `packed_size` (the peak, then per layer and band its two words).
+fn unpack(
+    bytes: &[u8],
+    layers: &[PackLayer<'_>],
+    offsets: &[(u64, u64)],
+    shape: &PackShape,
+    packed_size: u64,
+    read_bytes: u64,
+) -> PackedFrame {
+    let bands = shape.bands;
+    let word = |i: u64| {
+        let at = (packed_size + 4 * i) as usize;
+        u32::from_le_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]])
+    };
+    let mut at = 0usize;
+    let packed = layers
+        .iter()
+        .zip(offsets)
+        .enumerate()
+        .map(|(i, (l, &(_, size)))| PackedLayer {
+            format: l.format,
+            bytes: {
+                let b = Bytes::copy_from_slice(&bytes[at..at + size as usize]);
+                at += size as usize;
+                b
+            },
+            bands: (0..u64::from(bands))
+                .map(|b| {
+                    let base = 1 + 2 * (u64::from(bands) * i as u64 + b);
+                    BandCount {
+                        nonzero: word(base) != 0,
+                        saturated: word(base + 1),
+                    }
+                })
+                .collect(),
+        })
+        .collect();
+    PackedFrame {
+        width: shape.width,
+        height: shape.height,
+        band_height: shape.band_height,
+        layers: packed,
+        peak: f32::from_bits(word(0)),
+        read_bytes,
     }
 }
 

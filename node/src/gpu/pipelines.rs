@@ -171,6 +171,535 @@ fn filter_constants(filter: ShadowFilter, translucent: bool) -> [(&'static str, 
     ]
 }
 
+/// The bind-group layouts the pipeline layouts are made of.
+#[derive(Debug)]
+struct GroupLayouts {
+    scene: wgpu::BindGroupLayout,
+    shadow: wgpu::BindGroupLayout,
+    /// Group 1 of the forward pass: lights and views in storage buffers.
+    eye: wgpu::BindGroupLayout,
+    /// Group 1 of the deferred variant: one chunk of lights and views in uniform buffers.
+    chunk: wgpu::BindGroupLayout,
+}
+
+impl GroupLayouts {
+    /// The scene's, the shadow views' and the eye passes' bind-group layouts.
+    fn new(device: &wgpu::Device) -> GroupLayouts {
+        // Lighting runs in fragment shaders (forward) and in a compute shader (deferred).
+        let fragment = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
+        let scene = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("scene"),
+            entries: &[
+                storage_entry(0, fragment),
+                storage_entry(1, fragment),
+                storage_entry(2, fragment),
+                storage_entry(3, fragment),
+                storage_entry(4, fragment),
+                // The fitted table of closed-form glossy specular (`scene::ltc`).
+                storage_entry(5, fragment),
+            ],
+        });
+        let shadow = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("shadow view"),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::VERTEX,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: true,
+                    min_binding_size: wgpu::BufferSize::new(64),
+                },
+                count: None,
+            }],
+        });
+        let eye = eye_group_layout(
+            device,
+            "eye",
+            wgpu::BufferBindingType::Storage { read_only: true },
+        );
+        let chunk = eye_group_layout(device, "light chunk", wgpu::BufferBindingType::Uniform);
+        GroupLayouts {
+            scene,
+            shadow,
+            eye,
+            chunk,
+        }
+    }
+}
+
+/// Group 1 of an eye pass, `label`: the frame uniform, lights and views in `data` buffers, the
+/// shadow maps with their comparison sampler, object IDs, transmittance and translucent depth.
+fn eye_group_layout(
+    device: &wgpu::Device,
+    label: &str,
+    data: wgpu::BufferBindingType,
+) -> wgpu::BindGroupLayout {
+    // Lighting runs in fragment shaders (forward) and in a compute shader (deferred).
+    let fragment = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
+    let vf = wgpu::ShaderStages::VERTEX_FRAGMENT | wgpu::ShaderStages::COMPUTE;
+    let comparison = |binding| wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: fragment,
+        ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
+        count: None,
+    };
+    let data_entry = |binding| wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: fragment,
+        ty: wgpu::BindingType::Buffer {
+            ty: data,
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    };
+    device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some(label),
+        entries: &[
+            wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: vf,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Uniform,
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
+                count: None,
+            },
+            data_entry(1),
+            data_entry(2),
+            wgpu::BindGroupLayoutEntry {
+                binding: 3,
+                visibility: fragment,
+                ty: wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Depth,
+                    view_dimension: wgpu::TextureViewDimension::D2Array,
+                    multisampled: false,
+                },
+                count: None,
+            },
+            comparison(4),
+            wgpu::BindGroupLayoutEntry {
+                binding: 5,
+                visibility: fragment,
+                ty: wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Uint,
+                    view_dimension: wgpu::TextureViewDimension::D2Array,
+                    multisampled: false,
+                },
+                count: None,
+            },
+            wgpu::BindGroupLayoutEntry {
+                binding: 6,
+                visibility: fragment,
+                ty: wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Float { filterable: false },
+                    view_dimension: wgpu::TextureViewDimension::D2Array,
+                    multisampled: false,
+                },
+                count: None,
+            },
+            wgpu::BindGroupLayoutEntry {
+                binding: 7,
+                visibility: fragment,
+                ty: wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Depth,
+                    view_dimension: wgpu::TextureViewDimension::D2Array,
+                    multisampled: false,
+                },
+                count: None,
+            },
+        ],
+    })
+}
+
+/// The shader modules: the shadow passes', the forward eye pass's and the deferred one's.
+#[derive(Debug)]
+struct Modules {
+    shadow: wgpu::ShaderModule,
+    forward: wgpu::ShaderModule,
+    deferred: wgpu::ShaderModule,
+}
+
+impl Modules {
+    /// Compiles `shadow.wgsl` and the eye modules `forward_wgsl` and `deferred_wgsl`.
+    fn new(device: &wgpu::Device, forward_wgsl: &str, deferred_wgsl: &str) -> Modules {
+        let shadow = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("shadow.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(lightfold_shaders::SHADOW_WGSL.into()),
+        });
+        let forward = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("forward eye pass"),
+            source: wgpu::ShaderSource::Wgsl(forward_wgsl.into()),
+        });
+        let deferred = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("deferred eye pass"),
+            source: wgpu::ShaderSource::Wgsl(deferred_wgsl.into()),
+        });
+        Modules {
+            shadow,
+            forward,
+            deferred,
+        }
+    }
+}
+
+/// The render pipelines' layouts: the shadow passes', the forward eye pass's and the G-buffer's.
+#[derive(Debug)]
+struct RasterLayouts {
+    shadow: wgpu::PipelineLayout,
+    forward: wgpu::PipelineLayout,
+    gbuffer: wgpu::PipelineLayout,
+}
+
+impl RasterLayouts {
+    /// The scene's group followed by the shadow view's, the eye group or a light chunk.
+    fn new(device: &wgpu::Device, groups: &GroupLayouts) -> RasterLayouts {
+        let shadow = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("shadow"),
+            bind_group_layouts: &[Some(&groups.scene), Some(&groups.shadow)],
+            immediate_size: 0,
+        });
+        let forward = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("forward eye pass"),
+            bind_group_layouts: &[Some(&groups.scene), Some(&groups.eye)],
+            immediate_size: 0,
+        });
+        let gbuffer = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("g-buffer"),
+            bind_group_layouts: &[Some(&groups.scene), Some(&groups.chunk)],
+            immediate_size: 0,
+        });
+        RasterLayouts {
+            shadow,
+            forward,
+            gbuffer,
+        }
+    }
+}
+
+/// A colour target written as is (no blending).
+fn color_target(format: wgpu::TextureFormat) -> Option<wgpu::ColorTargetState> {
+    Some(wgpu::ColorTargetState {
+        format,
+        blend: None,
+        write_mask: wgpu::ColorWrites::ALL,
+    })
+}
+
+/// dst·src: the target starts at 1 and each fragment multiplies its value in, in any order.
+fn multiply_blend() -> wgpu::BlendState {
+    let multiply = wgpu::BlendComponent {
+        src_factor: wgpu::BlendFactor::Zero,
+        dst_factor: wgpu::BlendFactor::Src,
+        operation: wgpu::BlendOperation::Add,
+    };
+    wgpu::BlendState {
+        color: multiply,
+        alpha: multiply,
+    }
+}
+
+/// The shadow passes' pipelines.
+#[derive(Debug)]
+struct ShadowPipelines {
+    opaque: wgpu::RenderPipeline,
+    masked: wgpu::RenderPipeline,
+    translucent_depth: wgpu::RenderPipeline,
+    transmit: wgpu::RenderPipeline,
+}
+
+/// What every shadow pipeline is built from: the device, `shadow.wgsl`, the shadow layout and
+/// the depth encoding.
+#[derive(Debug, Clone, Copy)]
+struct ShadowRasters<'a> {
+    device: &'a wgpu::Device,
+    module: &'a wgpu::ShaderModule,
+    layout: &'a wgpu::PipelineLayout,
+    depth: ShadowDepth,
+}
+
+impl ShadowRasters<'_> {
+    /// One shadow pipeline of entry points `vs` and `fs`. `write`: the pass writes depth (else
+    /// it only tests against the opaque casters'); `target`: its colour target, if any, and how
+    /// fragments blend into it.
+    fn pipeline(
+        &self,
+        vs: &str,
+        fs: &str,
+        write: bool,
+        target: Option<wgpu::ColorTargetState>,
+    ) -> wgpu::RenderPipeline {
+        let shadow_primitive = wgpu::PrimitiveState {
+            cull_mode: None,
+            // Casters between the light and the fitted near plane clamp to depth 1 instead of
+            // being clipped away.
+            unclipped_depth: true,
+            ..Default::default()
+        };
+        self.device
+            .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(fs),
+                layout: Some(self.layout),
+                vertex: wgpu::VertexState {
+                    module: self.module,
+                    entry_point: Some(vs),
+                    compilation_options: Default::default(),
+                    buffers: &[Some(vertex_layout())],
+                },
+                primitive: shadow_primitive,
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: self.depth.format(),
+                    depth_compare: Some(self.depth.write_compare()),
+                    ..depth_state(write)
+                }),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: self.module,
+                    entry_point: Some(fs),
+                    compilation_options: Default::default(),
+                    targets: &target.into_iter().map(Some).collect::<Vec<_>>(),
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+    }
+
+    /// The opaque and alpha-masked casters' pipelines (depth and object IDs), then the
+    /// translucent casters' depth and transmittance pipelines.
+    fn pipelines(&self) -> ShadowPipelines {
+        let ids = Some(wgpu::ColorTargetState {
+            format: OBJECT_ID_FORMAT,
+            blend: None,
+            write_mask: wgpu::ColorWrites::ALL,
+        });
+        let opaque = self.pipeline("vs_depth", "fs_depth", true, ids.clone());
+        let masked = self.pipeline("vs_masked", "fs_masked", true, ids);
+        let translucent_depth = self.pipeline("vs_masked", "fs_translucent_depth", true, None);
+        // dst·src: the map starts at 1 and each translucent fragment multiplies its
+        // transmittance in, in any order.
+        let transmit = self.pipeline(
+            "vs_masked",
+            "fs_transmit",
+            false,
+            Some(wgpu::ColorTargetState {
+                format: TRANSMIT_FORMAT,
+                blend: Some(multiply_blend()),
+                write_mask: wgpu::ColorWrites::ALL,
+            }),
+        );
+        ShadowPipelines {
+            opaque,
+            masked,
+            translucent_depth,
+            transmit,
+        }
+    }
+}
+
+/// The eye rasters: forward and G-buffer, without and with the material layers, and the
+/// filters' pass where the scene has filters.
+#[derive(Debug)]
+struct EyePipelines {
+    illumination: wgpu::RenderPipeline,
+    layers: wgpu::RenderPipeline,
+    gbuffer: wgpu::RenderPipeline,
+    gbuffer_layers: wgpu::RenderPipeline,
+    filter: Option<[wgpu::RenderPipeline; 2]>,
+}
+
+/// What every eye raster is built with: the device, the shadow filter's pipeline constants and
+/// whether the vertex stage reads a tangent per vertex.
+#[derive(Debug, Clone, Copy)]
+struct EyeRasters<'a> {
+    device: &'a wgpu::Device,
+    filter: &'a [(&'static str, f64); 3],
+    normal_mapped: bool,
+}
+
+impl EyeRasters<'_> {
+    /// One eye raster of `module`'s `vs_eye` and `fs` into `targets`. `write`: the raster
+    /// writes depth (the filters' pass only tests against it).
+    fn pipeline(
+        &self,
+        module: &wgpu::ShaderModule,
+        layout: &wgpu::PipelineLayout,
+        fs: &str,
+        targets: &[Option<wgpu::ColorTargetState>],
+        write: bool,
+    ) -> wgpu::RenderPipeline {
+        let eye_buffers = [Some(vertex_layout()), Some(tangent_layout())];
+        self.device
+            .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
+                label: Some(fs),
+                layout: Some(layout),
+                vertex: wgpu::VertexState {
+                    module,
+                    entry_point: Some("vs_eye"),
+                    compilation_options: Default::default(),
+                    buffers: if self.normal_mapped {
+                        &eye_buffers[..]
+                    } else {
+                        &eye_buffers[..1]
+                    },
+                },
+                // Sidedness is decided per material in the shader (single-sided back faces discard).
+                primitive: wgpu::PrimitiveState::default(),
+                depth_stencil: Some(depth_state(write)),
+                multisample: Default::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module,
+                    entry_point: Some(fs),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants: self.filter,
+                        ..Default::default()
+                    },
+                    targets,
+                }),
+                multiview_mask: None,
+                cache: None,
+            })
+    }
+
+    /// The forward and G-buffer rasters, without and with the material layers, then (with
+    /// `filters`) the filters' pass for each.
+    fn pipelines(&self, modules: &Modules, layouts: &RasterLayouts, filters: bool) -> EyePipelines {
+        let illum_targets = [
+            color_target(ILLUMINATION_FORMAT),
+            color_target(ILLUMINATION_FORMAT),
+            color_target(EYE_DEPTH_FORMAT),
+        ];
+        let layer_targets = [
+            color_target(ILLUMINATION_FORMAT),
+            color_target(ILLUMINATION_FORMAT),
+            color_target(EYE_DEPTH_FORMAT),
+            color_target(MATERIAL_FORMAT),
+            color_target(MATERIAL_FORMAT),
+            color_target(MATERIAL_FORMAT),
+            color_target(MATERIAL_FORMAT),
+        ];
+        let forward = |fs, targets: &[_]| {
+            self.pipeline(&modules.forward, &layouts.forward, fs, targets, true)
+        };
+        let illumination = forward("fs_illumination", &illum_targets);
+        let layers = forward("fs_layers", &layer_targets);
+        let gbuffer_targets = [
+            color_target(GBUFFER_FORMAT),
+            color_target(GBUFFER_FORMAT),
+            color_target(GBUFFER_FORMAT),
+            color_target(EYE_DEPTH_FORMAT),
+            color_target(MATERIAL_FORMAT),
+            color_target(MATERIAL_FORMAT),
+            color_target(MATERIAL_FORMAT),
+            color_target(MATERIAL_FORMAT),
+        ];
+        let gbuffer = self.pipeline(
+            &modules.deferred,
+            &layouts.gbuffer,
+            "fs_gbuffer",
+            &gbuffer_targets[..4],
+            true,
+        );
+        let gbuffer_layers = self.pipeline(
+            &modules.deferred,
+            &layouts.gbuffer,
+            "fs_gbuffer_layers",
+            &gbuffer_targets,
+            true,
+        );
+        let filter = filters.then(|| self.filter_pipelines(modules, layouts));
+        EyePipelines {
+            illumination,
+            layers,
+            gbuffer,
+            gbuffer_layers,
+            filter,
+        }
+    }
+
+    /// The filters' eye pass over the material layers, with the forward and the deferred
+    /// group layouts.
+    fn filter_pipelines(
+        &self,
+        modules: &Modules,
+        layouts: &RasterLayouts,
+    ) -> [wgpu::RenderPipeline; 2] {
+        // dst·src into each material layer, behind the eye depth test (kept, not written).
+        let filter_target = Some(wgpu::ColorTargetState {
+            format: MATERIAL_FORMAT,
+            blend: Some(multiply_blend()),
+            write_mask: wgpu::ColorWrites::ALL,
+        });
+        let filter_targets = [
+            filter_target.clone(),
+            filter_target.clone(),
+            filter_target.clone(),
+            filter_target,
+        ];
+        [
+            self.pipeline(
+                &modules.forward,
+                &layouts.forward,
+                "fs_eye_filter",
+                &filter_targets,
+                false,
+            ),
+            self.pipeline(
+                &modules.deferred,
+                &layouts.gbuffer,
+                "fs_eye_filter",
+                &filter_targets,
+                false,
+            ),
+        ]
+    }
+}
+
+/// The deferred light pass's group 2 (the G-buffer and the lit buffer) and its pipeline layout.
+fn deferred_layouts(
+    device: &wgpu::Device,
+    groups: &GroupLayouts,
+) -> (wgpu::BindGroupLayout, wgpu::PipelineLayout) {
+    let gbuffer_entry = |binding| wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Texture {
+            sample_type: wgpu::TextureSampleType::Uint,
+            view_dimension: wgpu::TextureViewDimension::D2,
+            multisampled: false,
+        },
+        count: None,
+    };
+    let deferred_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some("deferred"),
+        entries: &[
+            gbuffer_entry(0),
+            gbuffer_entry(1),
+            gbuffer_entry(2),
+            wgpu::BindGroupLayoutEntry {
+                binding: 3,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Buffer {
+                    ty: wgpu::BufferBindingType::Storage { read_only: false },
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
+                count: None,
+            },
+        ],
+    });
+    let deferred_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some("deferred lights"),
+        bind_group_layouts: &[
+            Some(&groups.scene),
+            Some(&groups.chunk),
+            Some(&deferred_layout),
+        ],
+        immediate_size: 0,
+    });
+    (deferred_layout, deferred_pl)
+}
+
 impl Pipelines {
     /// `translucent`: the scene has translucent casters, so lookups read transmittance maps
     /// (a scene without compiles them out and renders as before they existed); `filters`: some
@@ -189,389 +718,41 @@ impl Pipelines {
         let filter = filter_constants(filter, translucent);
         let (forward_wgsl, deferred_wgsl) =
             lightfold_shaders::eye_modules(metallic_roughness, normal_mapped);
-        // Lighting runs in fragment shaders (forward) and in a compute shader (deferred).
-        let fragment = wgpu::ShaderStages::FRAGMENT | wgpu::ShaderStages::COMPUTE;
-        let vf = wgpu::ShaderStages::VERTEX_FRAGMENT | wgpu::ShaderStages::COMPUTE;
-        let scene_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("scene"),
-            entries: &[
-                storage_entry(0, fragment),
-                storage_entry(1, fragment),
-                storage_entry(2, fragment),
-                storage_entry(3, fragment),
-                storage_entry(4, fragment),
-                // The fitted table of closed-form glossy specular (`scene::ltc`).
-                storage_entry(5, fragment),
-            ],
-        });
-        let shadow_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("shadow view"),
-            entries: &[wgpu::BindGroupLayoutEntry {
-                binding: 0,
-                visibility: wgpu::ShaderStages::VERTEX,
-                ty: wgpu::BindingType::Buffer {
-                    ty: wgpu::BufferBindingType::Uniform,
-                    has_dynamic_offset: true,
-                    min_binding_size: wgpu::BufferSize::new(64),
-                },
-                count: None,
-            }],
-        });
-        let comparison = |binding| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: fragment,
-            ty: wgpu::BindingType::Sampler(wgpu::SamplerBindingType::Comparison),
-            count: None,
-        };
-        let eye_group = |label, data: wgpu::BufferBindingType| {
-            let data_entry = |binding| wgpu::BindGroupLayoutEntry {
-                binding,
-                visibility: fragment,
-                ty: wgpu::BindingType::Buffer {
-                    ty: data,
-                    has_dynamic_offset: false,
-                    min_binding_size: None,
-                },
-                count: None,
-            };
-            device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-                label: Some(label),
-                entries: &[
-                    wgpu::BindGroupLayoutEntry {
-                        binding: 0,
-                        visibility: vf,
-                        ty: wgpu::BindingType::Buffer {
-                            ty: wgpu::BufferBindingType::Uniform,
-                            has_dynamic_offset: false,
-                            min_binding_size: None,
-                        },
-                        count: None,
-                    },
-                    data_entry(1),
-                    data_entry(2),
-                    wgpu::BindGroupLayoutEntry {
-                        binding: 3,
-                        visibility: fragment,
-                        ty: wgpu::BindingType::Texture {
-                            sample_type: wgpu::TextureSampleType::Depth,
-                            view_dimension: wgpu::TextureViewDimension::D2Array,
-                            multisampled: false,
-                        },
-                        count: None,
-                    },
-                    comparison(4),
-                    wgpu::BindGroupLayoutEntry {
-                        binding: 5,
-                        visibility: fragment,
-                        ty: wgpu::BindingType::Texture {
-                            sample_type: wgpu::TextureSampleType::Uint,
-                            view_dimension: wgpu::TextureViewDimension::D2Array,
-                            multisampled: false,
-                        },
-                        count: None,
-                    },
-                    wgpu::BindGroupLayoutEntry {
-                        binding: 6,
-                        visibility: fragment,
-                        ty: wgpu::BindingType::Texture {
-                            sample_type: wgpu::TextureSampleType::Float { filterable: false },
-                            view_dimension: wgpu::TextureViewDimension::D2Array,
-                            multisampled: false,
-                        },
-                        count: None,
-                    },
-                    wgpu::BindGroupLayoutEntry {
-                        binding: 7,
-                        visibility: fragment,
-                        ty: wgpu::BindingType::Texture {
-                            sample_type: wgpu::TextureSampleType::Depth,
-                            view_dimension: wgpu::TextureViewDimension::D2Array,
-                            multisampled: false,
-                        },
-                        count: None,
-                    },
-                ],
-            })
-        };
-        let eye_layout = eye_group("eye", wgpu::BufferBindingType::Storage { read_only: true });
-        let chunk_layout = eye_group("light chunk", wgpu::BufferBindingType::Uniform);
-
-        let shadow_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("shadow.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(lightfold_shaders::SHADOW_WGSL.into()),
-        });
-        let forward_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("forward eye pass"),
-            source: wgpu::ShaderSource::Wgsl(forward_wgsl.into()),
-        });
-        let deferred_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("deferred eye pass"),
-            source: wgpu::ShaderSource::Wgsl(deferred_wgsl.into()),
-        });
-        let shadow_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("shadow"),
-            bind_group_layouts: &[Some(&scene_layout), Some(&shadow_layout)],
-            immediate_size: 0,
-        });
-        let forward_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("forward eye pass"),
-            bind_group_layouts: &[Some(&scene_layout), Some(&eye_layout)],
-            immediate_size: 0,
-        });
-        let gbuffer_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("g-buffer"),
-            bind_group_layouts: &[Some(&scene_layout), Some(&chunk_layout)],
-            immediate_size: 0,
-        });
-
-        let shadow_primitive = wgpu::PrimitiveState {
-            cull_mode: None,
-            // Casters between the light and the fitted near plane clamp to depth 1 instead of
-            // being clipped away.
-            unclipped_depth: true,
-            ..Default::default()
-        };
-        // `write`: the pass writes depth (else it only tests against the opaque casters');
-        // `target`: its colour target, if any, and how fragments blend into it.
-        let shadow = |vs: &str, fs: &str, write: bool, target: Option<wgpu::ColorTargetState>| {
-            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some(fs),
-                layout: Some(&shadow_pl),
-                vertex: wgpu::VertexState {
-                    module: &shadow_module,
-                    entry_point: Some(vs),
-                    compilation_options: Default::default(),
-                    buffers: &[Some(vertex_layout())],
-                },
-                primitive: shadow_primitive,
-                depth_stencil: Some(wgpu::DepthStencilState {
-                    format: depth.format(),
-                    depth_compare: Some(depth.write_compare()),
-                    ..depth_state(write)
-                }),
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module: &shadow_module,
-                    entry_point: Some(fs),
-                    compilation_options: Default::default(),
-                    targets: &target.into_iter().map(Some).collect::<Vec<_>>(),
-                }),
-                multiview_mask: None,
-                cache: None,
-            })
-        };
-        let ids = Some(wgpu::ColorTargetState {
-            format: OBJECT_ID_FORMAT,
-            blend: None,
-            write_mask: wgpu::ColorWrites::ALL,
-        });
-        let shadow_opaque = shadow("vs_depth", "fs_depth", true, ids.clone());
-        let shadow_masked = shadow("vs_masked", "fs_masked", true, ids);
-        let shadow_translucent_depth = shadow("vs_masked", "fs_translucent_depth", true, None);
-        // dst·src: the map starts at 1 and each translucent fragment multiplies its
-        // transmittance in, in any order.
-        let multiply = wgpu::BlendComponent {
-            src_factor: wgpu::BlendFactor::Zero,
-            dst_factor: wgpu::BlendFactor::Src,
-            operation: wgpu::BlendOperation::Add,
-        };
-        let shadow_transmit = shadow(
-            "vs_masked",
-            "fs_transmit",
-            false,
-            Some(wgpu::ColorTargetState {
-                format: TRANSMIT_FORMAT,
-                blend: Some(wgpu::BlendState {
-                    color: multiply,
-                    alpha: multiply,
-                }),
-                write_mask: wgpu::ColorWrites::ALL,
-            }),
-        );
-
-        let illumination_format = ILLUMINATION_FORMAT;
-        let target = |f: wgpu::TextureFormat| {
-            Some(wgpu::ColorTargetState {
-                format: f,
-                blend: None,
-                write_mask: wgpu::ColorWrites::ALL,
-            })
-        };
-        let illum_targets = [
-            target(illumination_format),
-            target(illumination_format),
-            target(EYE_DEPTH_FORMAT),
-        ];
-        let layer_targets = [
-            target(illumination_format),
-            target(illumination_format),
-            target(EYE_DEPTH_FORMAT),
-            target(MATERIAL_FORMAT),
-            target(MATERIAL_FORMAT),
-            target(MATERIAL_FORMAT),
-            target(MATERIAL_FORMAT),
-        ];
-        // `write`: the raster writes depth (the filters' pass only tests against it).
-        let eye_buffers = [Some(vertex_layout()), Some(tangent_layout())];
-        let eye_with = |module: &wgpu::ShaderModule,
-                        layout: &wgpu::PipelineLayout,
-                        fs: &str,
-                        targets: &[Option<wgpu::ColorTargetState>],
-                        write: bool| {
-            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some(fs),
-                layout: Some(layout),
-                vertex: wgpu::VertexState {
-                    module,
-                    entry_point: Some("vs_eye"),
-                    compilation_options: Default::default(),
-                    buffers: if normal_mapped {
-                        &eye_buffers[..]
-                    } else {
-                        &eye_buffers[..1]
-                    },
-                },
-                // Sidedness is decided per material in the shader (single-sided back faces discard).
-                primitive: wgpu::PrimitiveState::default(),
-                depth_stencil: Some(depth_state(write)),
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module,
-                    entry_point: Some(fs),
-                    compilation_options: wgpu::PipelineCompilationOptions {
-                        constants: &filter,
-                        ..Default::default()
-                    },
-                    targets,
-                }),
-                multiview_mask: None,
-                cache: None,
-            })
-        };
-        let eye = |module: &wgpu::ShaderModule,
-                   layout: &wgpu::PipelineLayout,
-                   fs: &str,
-                   targets: &[Option<wgpu::ColorTargetState>]| {
-            eye_with(module, layout, fs, targets, true)
-        };
-        let forward = |fs, targets: &[_]| eye(&forward_module, &forward_pl, fs, targets);
-        let eye_illumination = forward("fs_illumination", &illum_targets);
-        let eye_layers = forward("fs_layers", &layer_targets);
-        let gbuffer_targets = [
-            target(GBUFFER_FORMAT),
-            target(GBUFFER_FORMAT),
-            target(GBUFFER_FORMAT),
-            target(EYE_DEPTH_FORMAT),
-            target(MATERIAL_FORMAT),
-            target(MATERIAL_FORMAT),
-            target(MATERIAL_FORMAT),
-            target(MATERIAL_FORMAT),
-        ];
-        let gbuffer = eye(
-            &deferred_module,
-            &gbuffer_pl,
-            "fs_gbuffer",
-            &gbuffer_targets[..4],
-        );
-        let gbuffer_layers = eye(
-            &deferred_module,
-            &gbuffer_pl,
-            "fs_gbuffer_layers",
-            &gbuffer_targets,
-        );
-        // dst·src into each material layer, behind the eye depth test (kept, not written).
-        let multiply = wgpu::BlendComponent {
-            src_factor: wgpu::BlendFactor::Zero,
-            dst_factor: wgpu::BlendFactor::Src,
-            operation: wgpu::BlendOperation::Add,
-        };
-        let filter_target = Some(wgpu::ColorTargetState {
-            format: MATERIAL_FORMAT,
-            blend: Some(wgpu::BlendState {
-                color: multiply,
-                alpha: multiply,
-            }),
-            write_mask: wgpu::ColorWrites::ALL,
-        });
-        let filter_targets = [
-            filter_target.clone(),
-            filter_target.clone(),
-            filter_target.clone(),
-            filter_target,
-        ];
-        let eye_filter = filters.then(|| {
-            [
-                eye_with(
-                    &forward_module,
-                    &forward_pl,
-                    "fs_eye_filter",
-                    &filter_targets,
-                    false,
-                ),
-                eye_with(
-                    &deferred_module,
-                    &gbuffer_pl,
-                    "fs_eye_filter",
-                    &filter_targets,
-                    false,
-                ),
-            ]
-        });
-        let gbuffer_entry = |binding| wgpu::BindGroupLayoutEntry {
-            binding,
-            visibility: wgpu::ShaderStages::COMPUTE,
-            ty: wgpu::BindingType::Texture {
-                sample_type: wgpu::TextureSampleType::Uint,
-                view_dimension: wgpu::TextureViewDimension::D2,
-                multisampled: false,
-            },
-            count: None,
-        };
-        let deferred_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("deferred"),
-            entries: &[
-                gbuffer_entry(0),
-                gbuffer_entry(1),
-                gbuffer_entry(2),
-                wgpu::BindGroupLayoutEntry {
-                    binding: 3,
-                    visibility: wgpu::ShaderStages::COMPUTE,
-                    ty: wgpu::BindingType::Buffer {
-                        ty: wgpu::BufferBindingType::Storage { read_only: false },
-                        has_dynamic_offset: false,
-                        min_binding_size: None,
-                    },
-                    count: None,
-                },
-            ],
-        });
-        let deferred_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("deferred lights"),
-            bind_group_layouts: &[
-                Some(&scene_layout),
-                Some(&chunk_layout),
-                Some(&deferred_layout),
-            ],
-            immediate_size: 0,
-        });
+        let groups = GroupLayouts::new(device);
+        let modules = Modules::new(device, forward_wgsl, deferred_wgsl);
+        let layouts = RasterLayouts::new(device, &groups);
+        let shadow = ShadowRasters {
+            device,
+            module: &modules.shadow,
+            layout: &layouts.shadow,
+            depth,
+        }
+        .pipelines();
+        let eye = EyeRasters {
+            device,
+            filter: &filter,
+            normal_mapped,
+        }
+        .pipelines(&modules, &layouts, filters);
+        let (deferred_layout, deferred_pl) = deferred_layouts(device, &groups);
         Pipelines {
-            scene_layout,
-            shadow_layout,
-            eye_layout,
-            chunk_layout,
-            shadow_opaque,
-            shadow_masked,
-            shadow_translucent_depth,
-            shadow_transmit,
+            scene_layout: groups.scene,
+            shadow_layout: groups.shadow,
+            eye_layout: groups.eye,
+            chunk_layout: groups.chunk,
+            shadow_opaque: shadow.opaque,
+            shadow_masked: shadow.masked,
+            shadow_translucent_depth: shadow.translucent_depth,
+            shadow_transmit: shadow.transmit,
             translucent,
-            eye_illumination,
-            eye_layers,
-            eye_filter,
-            illumination_format,
+            eye_illumination: eye.illumination,
+            eye_layers: eye.layers,
+            eye_filter: eye.filter,
+            illumination_format: ILLUMINATION_FORMAT,
             deferred_layout,
-            gbuffer,
-            gbuffer_layers,
-            deferred_module,
+            gbuffer: eye.gbuffer,
+            gbuffer_layers: eye.gbuffer_layers,
+            deferred_module: modules.deferred,
             deferred_pl,
             filter,
             light_passes: HashMap::new(),

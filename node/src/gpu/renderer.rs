@@ -129,149 +129,13 @@ impl Renderer {
                 eye: opts.eye_lod,
             },
         );
-        let storage_max = gpu.limits.max_storage_buffer_binding_size;
-        for (what, bytes) in [
-            ("texture texels", data.texels.len() as u64 * 4),
-            (
-                "materials",
-                std::mem::size_of_val(&data.materials[..]) as u64,
-            ),
-            (
-                "metallic-roughness parameters",
-                std::mem::size_of_val(&data.pbr[..]) as u64,
-            ),
-        ] {
-            if bytes > storage_max {
-                return Err(RenderError::BindingTooLarge {
-                    what,
-                    bytes,
-                    maximum: storage_max,
-                });
-            }
-        }
-        let vertex_bytes = std::mem::size_of_val(&data.vertices[..]) as u64;
-        if vertex_bytes > gpu.limits.max_buffer_size {
-            return Err(RenderError::BindingTooLarge {
-                what: "vertices",
-                bytes: vertex_bytes,
-                maximum: gpu.limits.max_buffer_size,
-            });
-        }
+        check_scene_size(gpu, &data)?;
         // Validation and internal errors (a shader the driver rejects or cannot translate, a
         // limit) come back as errors: wgpu's default handler for errors nobody captured panics.
         let depth = ShadowDepth::of(opts.fault);
-        let translucent = data.meshes.iter().any(|m| m.translucent);
-        let filters = scene.materials.iter().any(Material::is_filter);
-        let metallic_roughness = scene.materials.iter().any(|m| m.pbr.is_some());
-        let (pipelines, error) = captured(device, || {
-            let pipelines = Pipelines::new(
-                device,
-                opts.filter,
-                depth,
-                translucent,
-                filters,
-                metallic_roughness,
-                data.normal_mapped,
-            );
-            if opts.fault == Some(Fault::InvalidPipeline) {
-                pipelines.invalid_pipeline(device);
-            }
-            pipelines
-        });
-        if let Some(e) = error {
-            return Err(RenderError::Gpu(format!(
-                "creating the pipelines failed: {e}"
-            )));
-        }
-        let init = |label: &str, contents: &[u8], usage| {
-            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-                label: Some(label),
-                contents,
-                usage,
-            })
-        };
-        // A vertex buffer cannot be empty either.
-        let vbytes: &[u8] = if data.vertices.is_empty() {
-            &[0; 48]
-        } else {
-            bytemuck::cast_slice(&data.vertices)
-        };
-        let tbytes = tangent_bytes(&data.tangents);
-        let (vertices, tangents, materials, pbr, textures, texels, object_bounds, ltc) =
-            allocate(gpu, "the scene buffers", || {
-                (
-                    init(
-                        "vertices",
-                        vbytes,
-                        wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
-                    ),
-                    init(
-                        "tangents",
-                        tbytes,
-                        wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
-                    ),
-                    init(
-                        "materials",
-                        bytemuck::cast_slice(&data.materials),
-                        wgpu::BufferUsages::STORAGE,
-                    ),
-                    init(
-                        "metallic-roughness",
-                        bytemuck::cast_slice(&data.pbr),
-                        wgpu::BufferUsages::STORAGE,
-                    ),
-                    init(
-                        "textures",
-                        bytemuck::cast_slice(&data.textures),
-                        wgpu::BufferUsages::STORAGE,
-                    ),
-                    init(
-                        "texels",
-                        bytemuck::cast_slice(&data.texels),
-                        wgpu::BufferUsages::STORAGE,
-                    ),
-                    init(
-                        "object bounds",
-                        bytemuck::cast_slice(&data.object_bounds),
-                        wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
-                    ),
-                    init(
-                        "ltc table",
-                        bytemuck::cast_slice(lightfold_scene::ltc::table()),
-                        wgpu::BufferUsages::STORAGE,
-                    ),
-                )
-            })?;
-        let scene_bind_group = device.create_bind_group(&wgpu::BindGroupDescriptor {
-            label: Some("scene"),
-            layout: &pipelines.scene_layout,
-            entries: &[
-                wgpu::BindGroupEntry {
-                    binding: 0,
-                    resource: materials.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 1,
-                    resource: textures.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 2,
-                    resource: texels.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: pbr.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 4,
-                    resource: object_bounds.as_entire_binding(),
-                },
-                wgpu::BindGroupEntry {
-                    binding: 5,
-                    resource: ltc.as_entire_binding(),
-                },
-            ],
-        });
+        let pipelines = build_pipelines(device, scene, &data, &opts, depth)?;
+        let buffers = SceneBuffers::upload(gpu, &data)?;
+        let scene_bind_group = buffers.bind_group(device, &pipelines.scene_layout);
         // Reversed-Z: a receiver is lit where its depth is at least the stored one (the depth
         // negative controls aside).
         let sampler = device.create_sampler(&wgpu::SamplerDescriptor {
@@ -304,9 +168,9 @@ impl Renderer {
             receivers: data.receivers(),
             pipelines,
             scene: data,
-            vertices,
-            tangents,
-            object_bounds,
+            vertices: buffers.vertices,
+            tangents: buffers.tangents,
+            object_bounds: buffers.object_bounds,
             scene_bind_group,
             camera: scene.camera,
             near,
@@ -715,6 +579,53 @@ impl Renderer {
         layers: LayerSet,
     ) -> Result<(RenderStats, bool), RenderError> {
         let setup = Instant::now();
+        let (w, h) = self.check_frame(gpu, lights, casters)?;
+        let variant = self.frame_variant(gpu, w, h);
+        if variant != self.variant
+            && self
+                .targets
+                .as_ref()
+                .is_none_or(|t| (t.width, t.height) != (w, h))
+        {
+            tracing::info!(
+                width = w,
+                height = h,
+                "deferred lit buffer exceeds the device's storage-binding limit: forward eye pass"
+            );
+        }
+        let lit = layers.illumination;
+        let frame_lights: &[LightSample] = if lit { lights } else { &[] };
+        let (plan, transmit) = self.plan_frame(gpu, frame_lights, casters, c_n)?;
+        let mut stats = RenderStats {
+            passes_per_light: plan.passes_per_light.clone(),
+            map_sides: plan.atlas.slots.iter().map(|s| s.side).collect(),
+            maps_halved: plan.maps_halved,
+            ..Default::default()
+        };
+
+        // Shadow maps: in walkthrough mode a light's are kept while nothing they depend on
+        // changed (the light, its views, the meshes it may draw, the map size).
+        stats.setup_us = setup.elapsed().as_micros() as u64;
+        let t0 = Instant::now();
+        self.render_maps(gpu, &plan, frame_lights, casters, &transmit, &mut stats)?;
+        stats.shadow_us = t0.elapsed().as_micros() as u64;
+
+        // Eye pass.
+        let t1 = Instant::now();
+        self.render_eye_pass(gpu, &plan, layers, variant, w, h)?;
+        stats.eye_us = t1.elapsed().as_micros() as u64;
+        let lit_buffer = lit && variant == EyeVariant::Deferred && self.deferred.is_some();
+        Ok((stats, lit_buffer))
+    }
+
+    /// Refuses a frame of more lights than the maps hold, of casters not one per light, or of
+    /// an image size (or its readback) beyond the device's limits; else the image size.
+    fn check_frame(
+        &self,
+        gpu: &Gpu,
+        lights: &[LightSample],
+        casters: Option<&[Vec<u32>]>,
+    ) -> Result<(u32, u32), RenderError> {
         if lights.len() > self.max_lights as usize {
             return Err(RenderError::TooManyLights {
                 requested: lights.len(),
@@ -748,22 +659,20 @@ impl Renderer {
                 maximum: gpu.limits.max_buffer_size,
             });
         }
-        let variant = self.frame_variant(gpu, w, h);
-        if variant != self.variant
-            && self
-                .targets
-                .as_ref()
-                .is_none_or(|t| (t.width, t.height) != (w, h))
-        {
-            tracing::info!(
-                width = w,
-                height = h,
-                "deferred lit buffer exceeds the device's storage-binding limit: forward eye pass"
-            );
-        }
+        Ok((w, h))
+    }
+
+    /// The frame's light plan (views fitted and sized, within the shadow-memory budget) and,
+    /// per view, whether it gets transmittance maps; a plan beyond the device's texture
+    /// limits is an error.
+    fn plan_frame(
+        &self,
+        gpu: &Gpu,
+        frame_lights: &[LightSample],
+        casters: Option<&[Vec<u32>]>,
+        c_n: [f32; 3],
+    ) -> Result<(LightPlan, Vec<bool>), RenderError> {
         let opts = self.options;
-        let lit = layers.illumination;
-        let frame_lights: &[LightSample] = if lit { lights } else { &[] };
         // Moving lights: maps cover only what the camera sees. Walkthrough: the maps must outlive
         // camera moves, so they cover every receiver.
         let fit = match (opts.walkthrough || !self.fit_to_camera, self.cascades) {
@@ -805,7 +714,6 @@ impl Renderer {
         for (v, &t) in plan.views.iter_mut().zip(&transmit) {
             v.rect[3] = if t { 1.0 } else { 0.0 };
         }
-        let any_transmit = transmit.contains(&true);
         let max_layers = gpu.limits.max_texture_array_layers;
         if layer_count(plan.atlas.layers as usize) > max_layers {
             return Err(RenderError::TooManyViews {
@@ -819,22 +727,28 @@ impl Renderer {
                 maximum: gpu.limits.max_texture_dimension_2d,
             });
         }
-        let mut stats = RenderStats {
-            passes_per_light: plan.passes_per_light.clone(),
-            map_sides: plan.atlas.slots.iter().map(|s| s.side).collect(),
-            maps_halved: plan.maps_halved,
-            ..Default::default()
-        };
+        Ok((plan, transmit))
+    }
 
-        // Shadow maps: in walkthrough mode a light's are kept while nothing they depend on
-        // changed (the light, its views, the meshes it may draw, the map size).
-        stats.setup_us = setup.elapsed().as_micros() as u64;
-        let t0 = Instant::now();
+    /// The frame's shadow maps: the array (re)allocated where it no longer fits, and the maps of
+    /// every light whose key changed (all but in walkthrough mode) rendered again, with what
+    /// was drawn and kept in `stats`.
+    fn render_maps(
+        &mut self,
+        gpu: &Gpu,
+        plan: &LightPlan,
+        frame_lights: &[LightSample],
+        casters: Option<&[Vec<u32>]>,
+        transmit: &[bool],
+        stats: &mut RenderStats,
+    ) -> Result<(), RenderError> {
+        let opts = self.options;
+        let any_transmit = transmit.contains(&true);
         let config = MapConfig {
             size: plan.atlas.side.max(1),
             fault: opts.fault,
         };
-        let keys = self.light_keys(&plan, frame_lights, casters);
+        let keys = self.light_keys(plan, frame_lights, casters);
         let fits = self
             .maps
             .as_ref()
@@ -861,10 +775,10 @@ impl Renderer {
                 &self.draw_context(gpu),
                 &self.scene,
                 maps,
-                &plan,
+                plan,
                 casters,
                 &views,
-                &transmit,
+                transmit,
             );
             (stats.shadow_passes, stats.transmit_passes) = (drawn.passes, drawn.transmitted);
             (stats.shadow_vertices, stats.shadow_lod_vertices) =
@@ -874,10 +788,20 @@ impl Renderer {
         stats.maps_kept = fresh.iter().filter(|f| !**f).count() as u32;
         self.map_config = Some(config);
         self.map_keys = keys;
-        stats.shadow_us = t0.elapsed().as_micros() as u64;
+        Ok(())
+    }
 
-        // Eye pass.
-        let t1 = Instant::now();
+    /// The eye pass of a `w`×`h` frame lit by `plan` (`variant`: forward or deferred), its
+    /// targets (re)allocated where the size changed; waits for the device.
+    fn render_eye_pass(
+        &mut self,
+        gpu: &Gpu,
+        plan: &LightPlan,
+        layers: LayerSet,
+        variant: EyeVariant,
+        w: u32,
+        h: u32,
+    ) -> Result<(), RenderError> {
         if !self
             .targets
             .as_ref()
@@ -894,7 +818,7 @@ impl Renderer {
             .pipelines
             .light_pass(&gpu.device, LightSet::of(&plan.lights))?;
         let targets = self.targets.as_ref().expect("allocated above");
-        let frame = self.frame_uniform(&plan);
+        let frame = self.frame_uniform(plan);
         let maps = self.maps.as_ref().expect("allocated with the shadow maps");
         let inputs = EyeInputs {
             frame,
@@ -930,10 +854,7 @@ impl Renderer {
         } else {
             render_eye(&self.draw_context(gpu), &draws, targets, &inputs);
         }
-        wait(gpu)?;
-        stats.eye_us = t1.elapsed().as_micros() as u64;
-        let lit_buffer = lit && variant == EyeVariant::Deferred && self.deferred.is_some();
-        Ok((stats, lit_buffer))
+        wait(gpu)
     }
 
     /// Reads the frame's requested layers back as f32 images (`lit_buffer`: the illumination is
@@ -1251,6 +1172,186 @@ fn req(texture: &wgpu::Texture, keep_channels: usize) -> ReadRequest<'_> {
 
 fn allocate<T>(gpu: &Gpu, what: &'static str, make: impl FnOnce() -> T) -> Result<T, RenderError> {
     gpu.allocate(what, |_| make())
+}
+/// Refuses a scene whose texels, materials or metallic-roughness parameters exceed the
+/// device's storage-binding limit, or whose vertices its buffer limit.
+fn check_scene_size(gpu: &Gpu, data: &SceneData) -> Result<(), RenderError> {
+    let storage_max = gpu.limits.max_storage_buffer_binding_size;
+    for (what, bytes) in [
+        ("texture texels", data.texels.len() as u64 * 4),
+        (
+            "materials",
+            std::mem::size_of_val(&data.materials[..]) as u64,
+        ),
+        (
+            "metallic-roughness parameters",
+            std::mem::size_of_val(&data.pbr[..]) as u64,
+        ),
+    ] {
+        if bytes > storage_max {
+            return Err(RenderError::BindingTooLarge {
+                what,
+                bytes,
+                maximum: storage_max,
+            });
+        }
+    }
+    let vertex_bytes = std::mem::size_of_val(&data.vertices[..]) as u64;
+    if vertex_bytes > gpu.limits.max_buffer_size {
+        return Err(RenderError::BindingTooLarge {
+            what: "vertices",
+            bytes: vertex_bytes,
+            maximum: gpu.limits.max_buffer_size,
+        });
+    }
+    Ok(())
+}
+
+/// The pipelines for `scene` (its translucent casters, filters, metallic-roughness materials
+/// and tangents), with the invalid pipeline of [`Fault::InvalidPipeline`]; what the device
+/// refuses is an error.
+fn build_pipelines(
+    device: &wgpu::Device,
+    scene: &Scene,
+    data: &SceneData,
+    opts: &RenderOptions,
+    depth: ShadowDepth,
+) -> Result<Pipelines, RenderError> {
+    let translucent = data.meshes.iter().any(|m| m.translucent);
+    let filters = scene.materials.iter().any(Material::is_filter);
+    let metallic_roughness = scene.materials.iter().any(|m| m.pbr.is_some());
+    let (pipelines, error) = captured(device, || {
+        let pipelines = Pipelines::new(
+            device,
+            opts.filter,
+            depth,
+            translucent,
+            filters,
+            metallic_roughness,
+            data.normal_mapped,
+        );
+        if opts.fault == Some(Fault::InvalidPipeline) {
+            pipelines.invalid_pipeline(device);
+        }
+        pipelines
+    });
+    if let Some(e) = error {
+        return Err(RenderError::Gpu(format!(
+            "creating the pipelines failed: {e}"
+        )));
+    }
+    Ok(pipelines)
+}
+
+/// The scene's buffers on the device: vertex buffers and what the scene bind group holds.
+#[derive(Debug)]
+struct SceneBuffers {
+    vertices: wgpu::Buffer,
+    tangents: wgpu::Buffer,
+    materials: wgpu::Buffer,
+    pbr: wgpu::Buffer,
+    textures: wgpu::Buffer,
+    texels: wgpu::Buffer,
+    object_bounds: wgpu::Buffer,
+    ltc: wgpu::Buffer,
+}
+
+impl SceneBuffers {
+    /// Uploads `data`'s vertices, tangents, materials, textures and object bounds, and the
+    /// LTC table; memory the device cannot allocate is an error.
+    fn upload(gpu: &Gpu, data: &SceneData) -> Result<SceneBuffers, RenderError> {
+        let device = &gpu.device;
+        let init = |label: &str, contents: &[u8], usage| {
+            device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some(label),
+                contents,
+                usage,
+            })
+        };
+        // A vertex buffer cannot be empty either.
+        let vbytes: &[u8] = if data.vertices.is_empty() {
+            &[0; 48]
+        } else {
+            bytemuck::cast_slice(&data.vertices)
+        };
+        let tbytes = tangent_bytes(&data.tangents);
+        allocate(gpu, "the scene buffers", || SceneBuffers {
+            vertices: init(
+                "vertices",
+                vbytes,
+                wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+            ),
+            tangents: init(
+                "tangents",
+                tbytes,
+                wgpu::BufferUsages::VERTEX | wgpu::BufferUsages::COPY_DST,
+            ),
+            materials: init(
+                "materials",
+                bytemuck::cast_slice(&data.materials),
+                wgpu::BufferUsages::STORAGE,
+            ),
+            pbr: init(
+                "metallic-roughness",
+                bytemuck::cast_slice(&data.pbr),
+                wgpu::BufferUsages::STORAGE,
+            ),
+            textures: init(
+                "textures",
+                bytemuck::cast_slice(&data.textures),
+                wgpu::BufferUsages::STORAGE,
+            ),
+            texels: init(
+                "texels",
+                bytemuck::cast_slice(&data.texels),
+                wgpu::BufferUsages::STORAGE,
+            ),
+            object_bounds: init(
+                "object bounds",
+                bytemuck::cast_slice(&data.object_bounds),
+                wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+            ),
+            ltc: init(
+                "ltc table",
+                bytemuck::cast_slice(lightfold_scene::ltc::table()),
+                wgpu::BufferUsages::STORAGE,
+            ),
+        })
+    }
+
+    /// The scene bind group (group 0 of every pipeline) of `layout` over these buffers.
+    fn bind_group(&self, device: &wgpu::Device, layout: &wgpu::BindGroupLayout) -> wgpu::BindGroup {
+        device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("scene"),
+            layout,
+            entries: &[
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: self.materials.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 1,
+                    resource: self.textures.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: self.texels.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 3,
+                    resource: self.pbr.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 4,
+                    resource: self.object_bounds.as_entire_binding(),
+                },
+                wgpu::BindGroupEntry {
+                    binding: 5,
+                    resource: self.ltc.as_entire_binding(),
+                },
+            ],
+        })
+    }
 }
 
 fn wait(gpu: &Gpu) -> Result<(), RenderError> {

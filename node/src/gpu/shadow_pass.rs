@@ -249,6 +249,63 @@ pub fn render_shadow_maps(
     if plan.views.is_empty() || !render.contains(&true) {
         return ShadowDrawn::default();
     }
+    // Kept to the end, beside the bind group that reads it.
+    let (_uniform_buffer, view_bind_group) = view_uniforms(cx, maps, plan);
+    let mut encoder = cx
+        .device
+        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
+            label: Some("shadow passes"),
+        });
+    let shadows = ShadowFrame {
+        cx,
+        scene,
+        maps,
+        plan,
+        casters,
+        transmit,
+        all: (0..scene.meshes.len() as u32).collect(),
+        view_bind_group,
+        drawn_vertices: std::cell::Cell::new((0u64, 0u64)),
+    };
+    // A pass clears its whole layer, so every view in a layer that holds one to render is drawn
+    // again (the others are what they were: same light, views and casters).
+    let mut layers: Vec<u32> = plan
+        .views
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| render.get(*i).copied().unwrap_or(true))
+        .map(|(_, v)| v.layer)
+        .collect();
+    layers.sort_unstable();
+    layers.dedup();
+    let (mut passes, mut transmitted) = (0, 0);
+    for layer in layers {
+        let (Some(target), Some(ids)) = (
+            maps.layer_views.get(layer as usize),
+            maps.id_layer_views.get(layer as usize),
+        ) else {
+            continue;
+        };
+        passes += shadows.opaque_pass(&mut encoder, layer, target, ids);
+        transmitted += shadows.translucent_passes(&mut encoder, layer, target);
+    }
+    cx.queue.submit([encoder.finish()]);
+    let (vertices, lod_vertices) = shadows.drawn_vertices.get();
+    ShadowDrawn {
+        passes,
+        transmitted,
+        vertices,
+        lod_vertices,
+    }
+}
+
+/// Every view's view-projection in a uniform buffer, one per [`VIEW_UNIFORM_STRIDE`], and the
+/// bind group that reads one of them at a dynamic offset.
+fn view_uniforms(
+    cx: &DrawContext<'_>,
+    maps: &ShadowMaps,
+    plan: &LightPlan,
+) -> (wgpu::Buffer, wgpu::BindGroup) {
     let mut uniforms = vec![0u8; VIEW_UNIFORM_STRIDE as usize * plan.views.len()];
     for (i, v) in plan.geometry.iter().enumerate() {
         let vp = mat_mul(&maps.depth.projection(&v.proj), &v.view);
@@ -274,17 +331,34 @@ pub fn render_shadow_maps(
             }),
         }],
     });
-    let mut encoder = cx
-        .device
-        .create_command_encoder(&wgpu::CommandEncoderDescriptor {
-            label: Some("shadow passes"),
-        });
-    let meshes = &scene.meshes;
-    let all: Vec<u32> = (0..meshes.len() as u32).collect();
-    // What view i draws: the chunks of its light's casters that can reach its frustum.
-    let drawn = |i: usize| -> Vec<Piece> {
+    (uniform_buffer, view_bind_group)
+}
+
+/// What one frame's shadow passes record with, and the vertices they drew.
+struct ShadowFrame<'a> {
+    cx: &'a DrawContext<'a>,
+    scene: &'a SceneData,
+    maps: &'a ShadowMaps,
+    plan: &'a LightPlan,
+    casters: Option<&'a [Vec<u32>]>,
+    transmit: &'a [bool],
+    /// Every mesh (the casters of a light `casters` does not list).
+    all: Vec<u32>,
+    view_bind_group: wgpu::BindGroup,
+    /// Vertices drawn of opaque and masked casters, and of them from simplified levels.
+    drawn_vertices: std::cell::Cell<(u64, u64)>,
+}
+
+impl ShadowFrame<'_> {
+    /// What view i draws: the chunks of its light's casters that can reach its frustum.
+    fn drawn(&self, i: usize) -> Vec<Piece> {
+        let (cx, scene, plan) = (self.cx, self.scene, self.plan);
+        let meshes = &scene.meshes;
         let light = plan.view_light[i] as usize;
-        let allowed: &[u32] = casters.and_then(|c| c.get(light)).map_or(&all, |c| c);
+        let allowed: &[u32] = self
+            .casters
+            .and_then(|c| c.get(light))
+            .map_or(&self.all, |c| c);
         allowed
             .iter()
             .filter_map(|&m| meshes.get(m as usize))
@@ -324,18 +398,22 @@ pub fn render_shadow_maps(
                     })
             })
             .collect()
-    };
-    let drawn_vertices = std::cell::Cell::new((0u64, 0u64));
-    // Each view of `layer` (those `include` allows) in its square of the layer (`atlas::Slot`):
-    // clip space maps onto it alone; `draw` records its meshes.
-    let views_of = |pass: &mut wgpu::RenderPass<'_>,
-                    layer: u32,
-                    include: &dyn Fn(usize) -> bool,
-                    draw: &dyn Fn(&mut wgpu::RenderPass<'_>, &[Piece])| {
+    }
+
+    /// Each view of `layer` (those `include` allows) in its square of the layer (`atlas::Slot`):
+    /// clip space maps onto it alone; `draw` records its meshes. Returns the views drawn.
+    fn views_of(
+        &self,
+        pass: &mut wgpu::RenderPass<'_>,
+        layer: u32,
+        include: &dyn Fn(usize) -> bool,
+        draw: &dyn Fn(&mut wgpu::RenderPass<'_>, &[Piece]),
+    ) -> u32 {
+        let cx = self.cx;
         let mut count = 0;
         pass.set_bind_group(0, cx.scene_bind_group, &[]);
         pass.set_vertex_buffer(0, cx.vertices.slice(..));
-        for (i, v) in plan.views.iter().enumerate() {
+        for (i, v) in self.plan.views.iter().enumerate() {
             if v.layer != layer || !include(i) {
                 continue;
             }
@@ -345,127 +423,126 @@ pub fn render_shadow_maps(
             pass.set_scissor_rect(x as u32, y as u32, side as u32, side as u32);
             pass.set_bind_group(
                 1,
-                &view_bind_group,
+                &self.view_bind_group,
                 &[(i as u64 * VIEW_UNIFORM_STRIDE) as u32],
             );
-            draw(pass, &drawn(i));
+            draw(pass, &self.drawn(i));
         }
         count
-    };
-    let draw_range = |pass: &mut wgpu::RenderPass<'_>, m: &Piece| {
-        pass.draw(m.vertices.clone(), 0..1);
-    };
-    // A pass clears its whole layer, so every view in a layer that holds one to render is drawn
-    // again (the others are what they were: same light, views and casters).
-    let mut layers: Vec<u32> = plan
-        .views
-        .iter()
-        .enumerate()
-        .filter(|(i, _)| render.get(*i).copied().unwrap_or(true))
-        .map(|(_, v)| v.layer)
-        .collect();
-    layers.sort_unstable();
-    layers.dedup();
-    let has_transmit = |i: usize| transmit.get(i).copied().unwrap_or(false);
-    let (mut passes, mut transmitted) = (0, 0);
-    for layer in layers {
-        let (Some(target), Some(ids)) = (
-            maps.layer_views.get(layer as usize),
-            maps.id_layer_views.get(layer as usize),
-        ) else {
-            continue;
-        };
-        {
-            // "Nothing in front" (0 in reversed-Z), so uncovered texels are lit.
-            let mut pass = layer_pass(
-                &mut encoder,
-                "shadow pass",
-                Some((ids, wgpu::Color::TRANSPARENT)),
-                target,
-                wgpu::LoadOp::Clear(maps.depth.clear()),
-            );
-            passes += views_of(&mut pass, layer, &|_| true, &|pass, drawn| {
-                for masked in [false, true] {
-                    pass.set_pipeline(if masked {
-                        &cx.pipelines.shadow_masked
-                    } else {
-                        &cx.pipelines.shadow_opaque
-                    });
-                    for lod in [false, true] {
-                        let mut set = drawn
-                            .iter()
-                            .filter(|m| m.masked == masked && !m.translucent && m.lod == lod)
-                            .peekable();
-                        if set.peek().is_none() {
-                            continue;
-                        }
-                        match cx.lod {
-                            Some((buffer, _)) if lod => pass.set_vertex_buffer(0, buffer.slice(..)),
-                            _ => pass.set_vertex_buffer(0, cx.vertices.slice(..)),
-                        }
-                        for m in set {
-                            let n = u64::from(m.vertices.end - m.vertices.start);
-                            let (all, simplified) = drawn_vertices.get();
-                            drawn_vertices.set((all + n, simplified + if lod { n } else { 0 }));
-                            draw_range(pass, m);
-                        }
+    }
+
+    /// The opaque and masked casters of every view of `layer` into its depth (`target`) and
+    /// object IDs (`ids`), both cleared first. Returns the views drawn.
+    fn opaque_pass(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        layer: u32,
+        target: &wgpu::TextureView,
+        ids: &wgpu::TextureView,
+    ) -> u32 {
+        let cx = self.cx;
+        // "Nothing in front" (0 in reversed-Z), so uncovered texels are lit.
+        let mut pass = layer_pass(
+            encoder,
+            "shadow pass",
+            Some((ids, wgpu::Color::TRANSPARENT)),
+            target,
+            wgpu::LoadOp::Clear(self.maps.depth.clear()),
+        );
+        self.views_of(&mut pass, layer, &|_| true, &|pass, drawn| {
+            for masked in [false, true] {
+                pass.set_pipeline(if masked {
+                    &cx.pipelines.shadow_masked
+                } else {
+                    &cx.pipelines.shadow_opaque
+                });
+                for lod in [false, true] {
+                    let mut set = drawn
+                        .iter()
+                        .filter(|m| m.masked == masked && !m.translucent && m.lod == lod)
+                        .peekable();
+                    if set.peek().is_none() {
+                        continue;
+                    }
+                    match cx.lod {
+                        Some((buffer, _)) if lod => pass.set_vertex_buffer(0, buffer.slice(..)),
+                        _ => pass.set_vertex_buffer(0, cx.vertices.slice(..)),
+                    }
+                    for m in set {
+                        let n = u64::from(m.vertices.end - m.vertices.start);
+                        let (all, simplified) = self.drawn_vertices.get();
+                        self.drawn_vertices
+                            .set((all + n, simplified + if lod { n } else { 0 }));
+                        draw_range(pass, m);
                     }
                 }
-                pass.set_vertex_buffer(0, cx.vertices.slice(..));
-            });
-        }
-        let tm = &maps.translucent;
+            }
+            pass.set_vertex_buffer(0, cx.vertices.slice(..));
+        })
+    }
+
+    /// Where `layer` holds a view with transmittance maps (and they are full size), the
+    /// nearest translucent caster's depth and their transmittance behind the opaque casters'
+    /// depth (`target`). Returns the views with transmittance maps drawn.
+    fn translucent_passes(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        layer: u32,
+        target: &wgpu::TextureView,
+    ) -> u32 {
+        let (cx, plan) = (self.cx, self.plan);
+        let has_transmit = |i: usize| self.transmit.get(i).copied().unwrap_or(false);
+        let tm = &self.maps.translucent;
         let in_layer = |i: usize| plan.views[i].layer == layer && has_transmit(i);
         if !tm.full || !(0..plan.views.len()).any(in_layer) {
-            continue;
+            return 0;
         }
         let (Some(transmit_target), Some(translucent_depth)) = (
             tm.transmit_layer_views.get(layer as usize),
             tm.depth_layer_views.get(layer as usize),
         ) else {
-            continue;
+            return 0;
         };
         let translucent_only = |pass: &mut wgpu::RenderPass<'_>, drawn: &[Piece]| {
             for m in drawn.iter().filter(|m| m.translucent) {
                 draw_range(pass, m);
             }
         };
+        let transmitted;
         // The nearest translucent caster's depth.
         {
             let mut pass = layer_pass(
-                &mut encoder,
+                encoder,
                 "translucent depth pass",
                 None,
                 translucent_depth,
-                wgpu::LoadOp::Clear(maps.depth.clear()),
+                wgpu::LoadOp::Clear(self.maps.depth.clear()),
             );
             pass.set_pipeline(&cx.pipelines.shadow_translucent_depth);
-            transmitted += views_of(&mut pass, layer, &has_transmit, &|pass, drawn| {
+            transmitted = self.views_of(&mut pass, layer, &has_transmit, &|pass, drawn| {
                 pass.set_pipeline(&cx.pipelines.shadow_translucent_depth);
                 translucent_only(pass, drawn);
             });
         }
         // Their transmittance, multiplied in behind the opaque casters' depth (tested, kept).
         let mut pass = layer_pass(
-            &mut encoder,
+            encoder,
             "transmittance pass",
             Some((transmit_target, wgpu::Color::WHITE)),
             target,
             wgpu::LoadOp::Load,
         );
-        views_of(&mut pass, layer, &has_transmit, &|pass, drawn| {
+        self.views_of(&mut pass, layer, &has_transmit, &|pass, drawn| {
             pass.set_pipeline(&cx.pipelines.shadow_transmit);
             translucent_only(pass, drawn);
         });
+        transmitted
     }
-    cx.queue.submit([encoder.finish()]);
-    let (vertices, lod_vertices) = drawn_vertices.get();
-    ShadowDrawn {
-        passes,
-        transmitted,
-        vertices,
-        lod_vertices,
-    }
+}
+
+/// Draws a piece's vertices.
+fn draw_range(pass: &mut wgpu::RenderPass<'_>, m: &Piece) {
+    pass.draw(m.vertices.clone(), 0..1);
 }
 
 /// What [`render_shadow_maps`] drew.

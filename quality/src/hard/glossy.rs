@@ -12,13 +12,13 @@
 
 use super::support::{count_non_finite, gpu, report};
 use super::{CaseReport, HardCaseError};
-use lightfold_reference::trace::Tracer;
 use lightfold_scene::primitives::{plane, sphere};
 use lightfold_scene::sampling::{direct_samples, grid_shape};
 use lightfold_scene::shading::{
     V3, add, cross, dot, ggx_alpha, normalize, scale, schlick_weight, smith_visibility, sub,
     surface_point,
 };
+use lightfold_scene::trace::Tracer;
 use lightfold_scene::{
     AreaSpecular, Camera, Image, Light, LightShape, Material, MetallicRoughness, Scene,
 };

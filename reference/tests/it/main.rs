@@ -3,7 +3,6 @@
 mod common;
 
 mod area;
-mod bvh;
 mod convergence;
 mod metrics;
 mod point_sum;

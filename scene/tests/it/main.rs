@@ -4,6 +4,7 @@ mod support;
 
 mod animation;
 mod builtin;
+mod bvh;
 mod encode;
 mod gltf;
 mod hostile;

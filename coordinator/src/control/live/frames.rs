@@ -472,7 +472,7 @@ fn bounce_at(
         matches!(s.kind, lightfold_scene::SampleKind::Bounce { .. })
     };
     let first = plan.samples.iter().position(bounce)?;
-    let vpls = lightfold_reference::indirect::vpls_at(scene, &plan.samples[..first], t);
+    let vpls = lightfold_scene::vpl::vpls_at(scene, &plan.samples[..first], t);
     (vpls.len() == plan.samples.len() - first && plan.samples[first..].iter().all(bounce))
         .then_some((first, vpls))
 }

@@ -24,7 +24,7 @@ pub(super) struct Culled {
 /// reaches and the ε budget, except that a moving light's samples are kept whatever they miss at
 /// rest.
 pub(super) fn cull_samples(scene: &Scene, options: &PlanOptions) -> Culled {
-    let samples = lightfold_reference::indirect::frame_samples(scene);
+    let samples = lightfold_scene::vpl::frame_samples(scene);
     let bounds = geom::mesh_bounds(scene);
     let receivers = cull::receivers(scene, &bounds);
     let mut culling = cull::cull(

@@ -10,8 +10,8 @@
 //! whatever its sidedness.
 
 use crate::bvh::Bvh;
-use lightfold_scene::shading::{self, V3, dot, normalize, sample_texture};
-use lightfold_scene::{AlphaMode, LightSample, Material, SampleKind, Scene};
+use crate::shading::{self, V3, dot, normalize, sample_texture};
+use crate::{AlphaMode, LightSample, Material, SampleKind, Scene};
 
 /// Shadow-ray origin offset and end shortening, relative to the scene's bounding diagonal.
 const EPSILON_REL: f64 = 1e-5;

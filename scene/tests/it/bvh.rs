@@ -1,6 +1,6 @@
 //! The BVH against brute force, degenerate input and shared edges.
 
-use lightfold_reference::bvh::{Bvh, is_valid_triangle};
+use lightfold_scene::bvh::{Bvh, is_valid_triangle};
 use proptest::prelude::*;
 
 fn brute_closest(
