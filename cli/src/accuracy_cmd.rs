@@ -13,7 +13,7 @@ use lightfold_quality::accuracy::{
 use std::path::PathBuf;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Built-in scene name, `.toml` scene file or `.gltf`/`.glb`, `.obj`, `.ply` or USD
     /// (`.usda`, `.usdc`, `.usdz`) model.
     #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
@@ -93,7 +93,7 @@ fn scene_label(scene: &str) -> String {
 /// Runs `lightfold accuracy`: the hard cases, the planned comparison, or the sweep of the
 /// scene's settings against its ground truth, written as CSV, Markdown and SVG under the
 /// output folder with the report's headline printed.
-pub fn run(args: Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     if args.hard {
         return run_hard(&args);
     }

@@ -7,7 +7,7 @@ use anyhow::Context;
 use lightfold_harness::outln;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Built-in scene name, `.toml` scene file or `.gltf`/`.glb`, `.obj`, `.ply` or USD
     /// (`.usda`, `.usdc`, `.usdz`) model.
     #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
@@ -22,7 +22,7 @@ pub struct Args {
     model: ModelArgs,
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     let mut scene = lightfold_scene::load(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;
     if let Some(size) = &args.size {

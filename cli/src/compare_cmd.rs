@@ -11,7 +11,7 @@ use lightfold_scene::Image;
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// The image under test (EXR, linear radiance).
     pub test: PathBuf,
     /// The reference image (EXR, linear radiance).
@@ -37,7 +37,7 @@ pub struct Args {
     pub max_flip: Option<f64>,
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     let test = read(&args.test)?;
     let reference = read(&args.reference)?;
     let mask = match &args.unoccluded {

@@ -15,7 +15,7 @@ use std::time::Instant;
 /// resolved the same way (radiance box-filtered, depth nearest; coverage where a block has any).
 /// `which` names the point samples `samples` are (`the same 32 point samples`, or what they
 /// differ by).
-pub fn report(
+pub(crate) fn report(
     scene: &Scene,
     samples: &[LightSample],
     which: &str,

@@ -9,7 +9,7 @@ use lightfold_compositor::daemon::{self, CompositorOptions};
 use std::time::Duration;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     #[command(flatten)]
     pub daemon: DaemonArgs,
     /// Longest wait for one input band once a frame is due, in seconds.
@@ -28,7 +28,7 @@ fn seconds(what: &str, s: f64) -> anyhow::Result<Duration> {
     Duration::try_from_secs_f64(s).with_context(|| format!("--{what} {s} is not a duration"))
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     if let Some(id) = &args.daemon.id {
         lightfold_telemetry::logging::set_daemon(id);
     }

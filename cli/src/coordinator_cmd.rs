@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Cluster file (TOML) listing daemons by address or DNS name.
     #[arg(long, conflicts_with_all = ["node", "compositor"])]
     pub cluster: Option<PathBuf>,
@@ -79,7 +79,7 @@ pub struct Args {
 
 /// The live view (`docs/live-view.md`).
 #[derive(Debug, Clone, clap::Args)]
-pub struct ViewArgs {
+pub(crate) struct ViewArgs {
     /// Serve the live view on ADDR and run until stopped (Ctrl-C) instead of rendering
     /// `--frames`: a web page that shows frames as they complete and steers camera and lights.
     /// Viewers beyond loopback see nothing but the page until they present the token (see
@@ -110,7 +110,7 @@ pub struct ViewArgs {
 /// Refinement while the live view is idle (`docs/live-view.md` § Refinement when idle): shared
 /// by `coordinator --http` and `demo --serve`.
 #[derive(Debug, Clone, clap::Args)]
-pub struct RefineArgs {
+pub(crate) struct RefineArgs {
     /// Live view: once no viewer has changed anything for MS milliseconds, render the frame
     /// again at a higher quality, one step a frame (the samples per area light doubled, then the
     /// antialiasing factor doubled, up to their caps); any input drops back to the session's
@@ -134,7 +134,7 @@ pub struct RefineArgs {
 
 impl RefineArgs {
     /// The view's refinement (`None`: `--no-refine`).
-    pub fn options(&self) -> Option<lightfold_view::RefineOptions> {
+    pub(crate) fn options(&self) -> Option<lightfold_view::RefineOptions> {
         (!self.no_refine).then(|| lightfold_view::RefineOptions {
             after: std::time::Duration::from_millis(self.refine_after),
             max_samples: self.refine_max_samples.unwrap_or(0),
@@ -143,7 +143,7 @@ impl RefineArgs {
     }
 
     /// The same flags for a coordinator started by `demo`.
-    pub fn to_args(&self) -> Vec<std::ffi::OsString> {
+    pub(crate) fn to_args(&self) -> Vec<std::ffi::OsString> {
         let mut a: Vec<std::ffi::OsString> = Vec::new();
         if self.no_refine {
             a.push("--no-refine".into());
@@ -163,7 +163,7 @@ impl RefineArgs {
 /// Who may see the live view, and over what (`docs/live-view.md` § Access): shared by
 /// `coordinator --http` and `demo --serve`.
 #[derive(Debug, Clone, Default, clap::Args)]
-pub struct ViewAccessArgs {
+pub(crate) struct ViewAccessArgs {
     /// Live view (`--http`, `demo --serve`): let viewers beyond loopback watch without the
     /// token: frames and the cluster's status, with daemon addresses removed (steering still
     /// needs the token). Default: they get the page and nothing more until they present it.
@@ -186,7 +186,7 @@ pub struct ViewAccessArgs {
 
 impl ViewAccessArgs {
     /// The certificate and key, both or neither.
-    pub fn tls(&self) -> anyhow::Result<Option<lightfold_view::TlsFiles>> {
+    pub(crate) fn tls(&self) -> anyhow::Result<Option<lightfold_view::TlsFiles>> {
         match (&self.tls_cert, &self.tls_key) {
             (Some(cert), Some(key)) => Ok(Some(lightfold_view::TlsFiles {
                 cert: cert.clone(),
@@ -198,7 +198,7 @@ impl ViewAccessArgs {
     }
 
     /// The same flags for a coordinator started by `demo` (paths made absolute).
-    pub fn to_args(&self) -> Vec<std::ffi::OsString> {
+    pub(crate) fn to_args(&self) -> Vec<std::ffi::OsString> {
         let abs = |p: &PathBuf| std::path::absolute(p).unwrap_or_else(|_| p.clone());
         let mut a: Vec<std::ffi::OsString> = Vec::new();
         if self.public_watch {
@@ -220,7 +220,7 @@ impl ViewAccessArgs {
 impl ViewArgs {
     /// Binds the view's listener, if asked for, and says where it is. `scene` is how the
     /// session's scene was named (`--scene`), what a saved session names as its base.
-    pub async fn bind(
+    pub(crate) async fn bind(
         &self,
         cluster_token: &[u8],
         job: &JobArgs,
@@ -294,7 +294,7 @@ impl ViewArgs {
 /// What to render and how: shared by `coordinator` and `demo`, which hands it to its
 /// coordinator as a job file (`--job-file`, JSON).
 #[derive(Debug, Clone, clap::Args, serde::Serialize, serde::Deserialize)]
-pub struct JobArgs {
+pub(crate) struct JobArgs {
     /// Built-in scene name, scene file (.toml) or model (.gltf/.glb, .obj, .ply,
     /// .usda/.usdc/.usdz).
     #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
@@ -444,7 +444,7 @@ const MAX_JOB_FILE: u64 = 1 << 20;
 
 impl JobArgs {
     /// The job with every flag at its default, as `lightfold coordinator` alone parses it.
-    pub fn defaults() -> JobArgs {
+    pub(crate) fn defaults() -> JobArgs {
         use clap::{Args as _, FromArgMatches as _};
         let cmd = JobArgs::augment_args(clap::Command::new("job"));
         JobArgs::from_arg_matches(&cmd.get_matches_from(["job"]))
@@ -452,14 +452,14 @@ impl JobArgs {
     }
 
     /// Writes the job as a job file (JSON) for `--job-file`.
-    pub fn write(&self, path: &Path) -> anyhow::Result<()> {
+    pub(crate) fn write(&self, path: &Path) -> anyhow::Result<()> {
         let text = serde_json::to_string_pretty(self)?;
         std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
     }
 
     /// The job of a job file; `flags` (the job's flags as parsed) must all be at their defaults:
     /// a job file replaces them, so a flag given beside it would be ignored silently.
-    pub fn from_file(path: &Path, flags: &JobArgs) -> anyhow::Result<JobArgs> {
+    pub(crate) fn from_file(path: &Path, flags: &JobArgs) -> anyhow::Result<JobArgs> {
         let defaults = serde_json::to_value(JobArgs::defaults())?;
         if serde_json::to_value(flags)? != defaults {
             bail!(
@@ -530,7 +530,7 @@ impl JobArgs {
     }
 
     /// The frames `--resume` skips: those already complete under the frame pattern.
-    pub fn resumed(&self, serving: bool) -> anyhow::Result<Vec<u64>> {
+    pub(crate) fn resumed(&self, serving: bool) -> anyhow::Result<Vec<u64>> {
         if !self.resume {
             return Ok(Vec::new());
         }
@@ -543,7 +543,7 @@ impl JobArgs {
         Ok(pattern.complete(self.frames))
     }
 
-    pub fn load_scene(&self) -> anyhow::Result<lightfold_scene::Scene> {
+    pub(crate) fn load_scene(&self) -> anyhow::Result<lightfold_scene::Scene> {
         let mut scene = match &self.animation {
             None => lightfold_scene::load(&self.scene),
             Some(clip) => {
@@ -587,7 +587,7 @@ impl JobArgs {
         Ok(scene)
     }
 
-    pub fn plan_options(&self) -> PlanOptions {
+    pub(crate) fn plan_options(&self) -> PlanOptions {
         PlanOptions {
             lights_per_node: self.lights_per_node,
             topology: self.topology,
@@ -610,14 +610,17 @@ impl JobArgs {
 
     /// [`JobArgs::plan_options`] with the error model for `scene` (`--error-model`: a
     /// calibration of it sets the default error target).
-    pub fn plan_options_for(&self, scene: &lightfold_scene::Scene) -> anyhow::Result<PlanOptions> {
+    pub(crate) fn plan_options_for(
+        &self,
+        scene: &lightfold_scene::Scene,
+    ) -> anyhow::Result<PlanOptions> {
         let mut o = self.plan_options();
         self.model.apply(scene, &mut o)?;
         Ok(o)
     }
 
     /// Frames per second of `--video`: `--video-fps`, else the animation's `--fps`, else 24.
-    pub fn video_rate(&self) -> f32 {
+    pub(crate) fn video_rate(&self) -> f32 {
         match (self.video_fps, self.fps) {
             (Some(v), _) => v as f32,
             (None, Some(fps)) => fps,
@@ -626,7 +629,7 @@ impl JobArgs {
     }
 
     /// The planner's formats with `--link-format` applied (the last given per class wins).
-    pub fn formats(&self) -> lightfold_coordinator::plan::FormatChoice {
+    pub(crate) fn formats(&self) -> lightfold_coordinator::plan::FormatChoice {
         let mut f = lightfold_coordinator::plan::FormatChoice::default();
         for &(class, format) in &self.link_format {
             match class {
@@ -641,7 +644,7 @@ impl JobArgs {
 
     /// Where every frame goes, if anywhere: the pattern given, or the default for a camera path
     /// (`serving`: the live view keeps every frame only when asked to).
-    pub fn frame_files(&self, serving: bool) -> anyhow::Result<Option<FramePattern>> {
+    pub(crate) fn frame_files(&self, serving: bool) -> anyhow::Result<Option<FramePattern>> {
         if self.no_frame_files {
             return Ok(None);
         }
@@ -660,7 +663,7 @@ impl JobArgs {
         FramePattern::parse(&pattern).map(Some)
     }
 
-    pub fn path(&self) -> FramePath {
+    pub(crate) fn path(&self) -> FramePath {
         match self.orbit {
             Some(d) => FramePath::Orbit { degrees: d },
             None => FramePath::Still,
@@ -670,7 +673,7 @@ impl JobArgs {
 
 /// A class of link whose format `--link-format` sets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-pub enum LinkClass {
+pub(crate) enum LinkClass {
     Node,
     Chain,
     Sink,
@@ -678,7 +681,7 @@ pub enum LinkClass {
 }
 
 impl LinkClass {
-    pub fn name(self) -> &'static str {
+    pub(crate) fn name(self) -> &'static str {
         match self {
             LinkClass::Node => "node",
             LinkClass::Chain => "chain",
@@ -691,7 +694,9 @@ impl LinkClass {
 /// `CLASS=FORMAT` (`--link-format`): a format that carries what the class's links carry —
 /// six illumination channels on `node` and `chain` links, three colour channels on `sink` links,
 /// and for `material` links the 8-bit formats or half floats (what nodes emit).
-pub fn parse_link_format(s: &str) -> Result<(LinkClass, lightfold_protocol::PixelFormat), String> {
+pub(crate) fn parse_link_format(
+    s: &str,
+) -> Result<(LinkClass, lightfold_protocol::PixelFormat), String> {
     use lightfold_protocol::PixelFormat;
     let (class, format) = s
         .split_once('=')
@@ -731,7 +736,7 @@ pub fn parse_link_format(s: &str) -> Result<(LinkClass, lightfold_protocol::Pixe
 }
 
 /// A scene time in seconds: any finite number (`--time`).
-pub fn finite_seconds(s: &str) -> Result<f32, String> {
+pub(crate) fn finite_seconds(s: &str) -> Result<f32, String> {
     match s.parse::<f32>() {
         Ok(t) if t.is_finite() => Ok(t),
         _ => Err(format!("{s:?} is not a finite number of seconds")),
@@ -739,7 +744,7 @@ pub fn finite_seconds(s: &str) -> Result<f32, String> {
 }
 
 /// Frames per second: finite and positive (`--fps`).
-pub fn positive_fps(s: &str) -> Result<f32, String> {
+pub(crate) fn positive_fps(s: &str) -> Result<f32, String> {
     match s.parse::<f32>() {
         Ok(f) if f.is_finite() && f > 0.0 => Ok(f),
         _ => Err(format!(
@@ -749,7 +754,7 @@ pub fn positive_fps(s: &str) -> Result<f32, String> {
 }
 
 /// A penumbra PSNR target in dB (`--target-psnr`): finite, in (0, 200).
-pub fn target_db(s: &str) -> Result<f32, String> {
+pub(crate) fn target_db(s: &str) -> Result<f32, String> {
     match s.parse::<f32>() {
         Ok(v) if v > 0.0 && v < 200.0 => Ok(v),
         _ => Err(format!("{s:?} is not a PSNR in dB between 0 and 200")),
@@ -757,7 +762,7 @@ pub fn target_db(s: &str) -> Result<f32, String> {
 }
 
 /// A duration in milliseconds that must be finite and positive (`--frame-budget`).
-pub fn positive_ms(s: &str) -> Result<f64, String> {
+pub(crate) fn positive_ms(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 && v < 1e9 => Ok(v),
         _ => Err(format!("{s:?} is not a positive number of milliseconds")),
@@ -765,7 +770,7 @@ pub fn positive_ms(s: &str) -> Result<f64, String> {
 }
 
 /// `--partitions`: `auto` (0) or 1 to `MAX_PARTITIONS`.
-pub fn partitions_arg(s: &str) -> Result<u32, String> {
+pub(crate) fn partitions_arg(s: &str) -> Result<u32, String> {
     let max = lightfold_coordinator::plan::MAX_PARTITIONS;
     match s {
         "auto" => Ok(0),
@@ -777,7 +782,9 @@ pub fn partitions_arg(s: &str) -> Result<u32, String> {
 }
 
 /// `--penumbra-filter`: `off`, `budget`, `auto` or a radius 1–8.
-pub fn penumbra_filter(s: &str) -> Result<lightfold_coordinator::plan::PenumbraFilter, String> {
+pub(crate) fn penumbra_filter(
+    s: &str,
+) -> Result<lightfold_coordinator::plan::PenumbraFilter, String> {
     use lightfold_coordinator::plan::PenumbraFilter;
     match s.trim() {
         "off" | "0" => Ok(PenumbraFilter::Off),
@@ -793,7 +800,7 @@ pub fn penumbra_filter(s: &str) -> Result<lightfold_coordinator::plan::PenumbraF
 }
 
 /// The `--penumbra-filter` argument that gives `f`.
-pub fn penumbra_filter_arg(f: lightfold_coordinator::plan::PenumbraFilter) -> String {
+pub(crate) fn penumbra_filter_arg(f: lightfold_coordinator::plan::PenumbraFilter) -> String {
     use lightfold_coordinator::plan::PenumbraFilter;
     match f {
         PenumbraFilter::Off => "off".into(),
@@ -805,12 +812,12 @@ pub fn penumbra_filter_arg(f: lightfold_coordinator::plan::PenumbraFilter) -> St
 
 /// `--size WIDTHxHEIGHT`, within the image limits every input shares
 /// (`lightfold_scene::limits`, printed by `lightfold defaults`).
-pub fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
+pub(crate) fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
     lightfold_scene::limits::parse_image_size(s)
         .map_err(|e| anyhow::anyhow!("bad --size: {e} (see `lightfold defaults`)"))
 }
 
-pub fn run_cmd(mut args: Args) -> anyhow::Result<()> {
+pub(crate) fn run_cmd(mut args: Args) -> anyhow::Result<()> {
     if let Some(path) = &args.job_file {
         args.job = JobArgs::from_file(path, &args.job)?;
     }
@@ -935,7 +942,7 @@ fn seconds(v: f64, what: &str) -> anyhow::Result<Duration> {
 /// frames, or the live view's until stopped: prints the plan, writes each frame as it completes,
 /// then prints the frames, timing table, failover summary and totals. A run that cannot go on
 /// keeps what it wrote and fails naming the daemon and why.
-pub async fn execute(
+pub(crate) async fn execute(
     mut session: Session,
     scene: &lightfold_scene::Scene,
     opts: &RunOptions,

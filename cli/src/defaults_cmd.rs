@@ -4,9 +4,9 @@
 use lightfold_scene::{defaults, limits};
 
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub(crate) struct Args {}
 
-pub fn run(_args: Args) -> anyhow::Result<()> {
+pub(crate) fn run(_args: Args) -> anyhow::Result<()> {
     print!("{}", text());
     Ok(())
 }

@@ -23,7 +23,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Instant;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     #[command(flatten)]
     pub job: JobArgs,
     /// Lavapipe threads per render node (LP_NUM_THREADS); 0 leaves Mesa's default.
@@ -238,7 +238,7 @@ fn watch_interrupt(state: Arc<Mutex<Interrupt>>) {
     });
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     let started = Instant::now();
     // A certificate or key the view cannot use fails here, before any daemon starts.
     if args.serve.is_some()

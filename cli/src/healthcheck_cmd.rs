@@ -8,7 +8,7 @@ use std::net::{SocketAddr, TcpStream, ToSocketAddrs};
 use std::time::Duration;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// The daemon's `--metrics-listen` address; a wildcard host (`0.0.0.0`, `[::]`) is asked on
     /// loopback.
     #[arg(
@@ -42,7 +42,7 @@ fn dial_addr(listen: &str) -> anyhow::Result<SocketAddr> {
     Ok(a)
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     let wait = Duration::try_from_secs_f64(args.timeout)
         .ok()
         .filter(|d| !d.is_zero())

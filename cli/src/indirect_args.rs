@@ -5,7 +5,7 @@ use anyhow::bail;
 use lightfold_scene::Scene;
 
 #[derive(Debug, Clone, Default, clap::Args, serde::Serialize, serde::Deserialize)]
-pub struct IndirectArgs {
+pub(crate) struct IndirectArgs {
     /// One-bounce indirect light from this many virtual point lights, planned like any light
     /// sample (0: direct light only; default: the scene's `[quality] indirect`).
     #[arg(long, value_name = "M")]
@@ -22,7 +22,7 @@ pub struct IndirectArgs {
 impl IndirectArgs {
     /// Sets the scene's indirect-light options; refuses a non-finite or negative clamp. An
     /// animated scene's virtual point lights are traced again for every frame's time.
-    pub fn apply(&self, scene: &mut Scene) -> anyhow::Result<()> {
+    pub(crate) fn apply(&self, scene: &mut Scene) -> anyhow::Result<()> {
         if let Some(c) = self.indirect_clamp {
             if !(c.is_finite() && c >= 0.0) {
                 bail!("--indirect-clamp must be a finite distance ≥ 0 (metres), not {c}");

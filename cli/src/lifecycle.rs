@@ -12,7 +12,7 @@ use tokio_util::sync::CancellationToken;
 
 /// Flags every daemon takes.
 #[derive(Debug, clap::Args)]
-pub struct DaemonArgs {
+pub(crate) struct DaemonArgs {
     /// Address to bind (control and data links arrive here), e.g. `0.0.0.0:7300`.
     #[arg(long)]
     pub listen: String,
@@ -39,7 +39,7 @@ pub struct DaemonArgs {
 
 impl DaemonArgs {
     /// `--coordinator-silence` as a duration.
-    pub fn coordinator_silence(&self) -> anyhow::Result<std::time::Duration> {
+    pub(crate) fn coordinator_silence(&self) -> anyhow::Result<std::time::Duration> {
         let s = self.coordinator_silence;
         if !(s.is_finite() && (0.0..=86_400.0).contains(&s)) {
             anyhow::bail!("--coordinator-silence {s} is not a number of seconds from 0 to 86400");
@@ -49,7 +49,7 @@ impl DaemonArgs {
 
     /// Binds the listener, prints `listening <addr>` (flushed) for launchers, and returns the
     /// listener with the daemon id (`<role>-<host>-<port>` unless given).
-    pub async fn bind(&self, role: &str) -> anyhow::Result<(TcpListener, String)> {
+    pub(crate) async fn bind(&self, role: &str) -> anyhow::Result<(TcpListener, String)> {
         let listener = TcpListener::bind(&self.listen)
             .await
             .with_context(|| format!("cannot listen on {}", self.listen))?;
@@ -78,7 +78,7 @@ fn host_name() -> String {
 /// A run stopped by Ctrl-C (or SIGTERM to `demo`): not a failure of the command. `main` prints
 /// its message, if any, as the one line the run ends with and exits with [`INTERRUPTED_EXIT`].
 #[derive(Debug)]
-pub struct Interrupted(pub String);
+pub(crate) struct Interrupted(pub String);
 
 impl std::fmt::Display for Interrupted {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -89,9 +89,9 @@ impl std::fmt::Display for Interrupted {
 impl std::error::Error for Interrupted {}
 
 /// The exit status of an interrupted run (128 + SIGINT, as shells report it).
-pub const INTERRUPTED_EXIT: i32 = 130;
+pub(crate) const INTERRUPTED_EXIT: i32 = 130;
 
-pub fn shutdown_token(parent_pid: Option<u32>) -> CancellationToken {
+pub(crate) fn shutdown_token(parent_pid: Option<u32>) -> CancellationToken {
     let token = CancellationToken::new();
     let t = token.clone();
     tokio::spawn(async move {

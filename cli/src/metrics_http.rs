@@ -38,7 +38,7 @@ const UPKEEP_EVERY: Duration = Duration::from_secs(5);
 
 /// The `--metrics-listen` flag every daemon takes.
 #[derive(Debug, Clone, clap::Args)]
-pub struct MetricsArgs {
+pub(crate) struct MetricsArgs {
     /// Serve `/metrics` (Prometheus text), `/healthz` and `/readyz` on this address, e.g.
     /// `127.0.0.1:9300` (port 0: any; the address is printed as `metrics <addr>` on stdout).
     /// Off by default.
@@ -48,7 +48,7 @@ pub struct MetricsArgs {
 
 /// Installs the exporter as this process's recorder, labelling every series with `role` and
 /// `daemon`. Call once, before the daemon records anything.
-pub fn install(role: &str, daemon: &str) -> anyhow::Result<PrometheusHandle> {
+pub(crate) fn install(role: &str, daemon: &str) -> anyhow::Result<PrometheusHandle> {
     let recorder = PrometheusBuilder::new()
         .add_global_label("role", role)
         .add_global_label("daemon", daemon)
@@ -68,7 +68,7 @@ pub fn install(role: &str, daemon: &str) -> anyhow::Result<PrometheusHandle> {
 /// Starts what `args` asks for on the current runtime: with `--metrics-listen`, the exporter and
 /// the server (printing `metrics <addr>` on stdout once bound); in any case the systemd
 /// notifications. Everything stops with `stop`.
-pub async fn start(
+pub(crate) async fn start(
     args: &MetricsArgs,
     role: &str,
     daemon: &str,
@@ -139,14 +139,14 @@ async fn systemd(stop: CancellationToken) {
 
 /// Tells systemd the daemon is stopping (`STOPPING=1`): called where the stop is decided, since
 /// the runtime may drop its tasks before they run again. A no-op without systemd.
-pub fn notify_stopping() {
+pub(crate) fn notify_stopping() {
     if std::env::var_os("NOTIFY_SOCKET").is_some() {
         let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
     }
 }
 
 /// Accepts scrapes until `stop` (the view's HTTP accept loop, with the limits above).
-pub async fn serve(
+pub(crate) async fn serve(
     listener: tokio::net::TcpListener,
     handle: PrometheusHandle,
     stop: CancellationToken,

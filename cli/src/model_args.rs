@@ -12,13 +12,13 @@ use std::path::PathBuf;
 
 /// The penumbra PSNR (dB, against the area-light truth) a plan with a calibration aims at when
 /// no target is given.
-pub const DEFAULT_TARGET_DB: f32 = 45.0;
+pub(crate) const DEFAULT_TARGET_DB: f32 = 45.0;
 
 /// Points per area light per pixel of a calibration's truth.
-pub const TRUTH_SAMPLES: u32 = 256;
+pub(crate) const TRUTH_SAMPLES: u32 = 256;
 
 #[derive(Debug, Clone, PartialEq, clap::Args, serde::Serialize, serde::Deserialize)]
-pub struct ModelArgs {
+pub(crate) struct ModelArgs {
     /// The planner's error model: `auto` (this scene's calibration at this size from the cache
     /// when there is one, else the default scene's sweep), `default` (the default scene's sweep),
     /// or a model file as `lightfold calibrate` writes it. With a calibration and no
@@ -39,7 +39,7 @@ pub struct ModelArgs {
 
 impl ModelArgs {
     /// The cache folders: models, truths.
-    pub fn cache(&self) -> CalibrationOptions {
+    pub(crate) fn cache(&self) -> CalibrationOptions {
         let root = self.model_cache.clone().unwrap_or_else(|| {
             dirs::cache_dir()
                 .map_or_else(|| PathBuf::from("lightfold-cache"), |d| d.join("lightfold"))
@@ -52,7 +52,7 @@ impl ModelArgs {
     }
 
     /// The model for `scene` (at its image size), `None` for the default scene's.
-    pub fn model(&self, scene: &Scene) -> anyhow::Result<Option<ErrorModel>> {
+    pub(crate) fn model(&self, scene: &Scene) -> anyhow::Result<Option<ErrorModel>> {
         match self.error_model.as_str() {
             "default" => Ok(None),
             "auto" => {
@@ -80,7 +80,7 @@ impl ModelArgs {
 
     /// `options` with the model for `scene`, and with a calibration the default target when
     /// none was asked for.
-    pub fn apply(&self, scene: &Scene, options: &mut PlanOptions) -> anyhow::Result<()> {
+    pub(crate) fn apply(&self, scene: &Scene, options: &mut PlanOptions) -> anyhow::Result<()> {
         let model = self.model(scene)?;
         if model.as_ref().is_some_and(|m| m.calibrated) && options.target_penumbra_db.is_none() {
             options.target_penumbra_db = Some(DEFAULT_TARGET_DB);
@@ -92,7 +92,10 @@ impl ModelArgs {
 
 /// Calibrates `scene` (or reads its model from the cache) on this machine's GPU, saying so on
 /// stderr.
-pub fn run_calibration(scene: &Scene, opts: &CalibrationOptions) -> anyhow::Result<Calibration> {
+pub(crate) fn run_calibration(
+    scene: &Scene,
+    opts: &CalibrationOptions,
+) -> anyhow::Result<Calibration> {
     // A cached model needs no device.
     if let Some(c) = calibrate::cached(scene, opts) {
         return Ok(c);

@@ -10,7 +10,7 @@ use lightfold_node::gpu::device::parse_backend;
 use std::path::PathBuf;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     #[command(flatten)]
     pub daemon: DaemonArgs,
     /// Graphics backend: `vulkan` (an OpenGL adapter is refused: the shadow lookups have no GLSL
@@ -39,7 +39,7 @@ pub struct Args {
     pub render_ahead: bool,
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     if let Some(id) = &args.daemon.id {
         lightfold_telemetry::logging::set_daemon(id);
     }

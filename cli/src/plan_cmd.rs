@@ -14,7 +14,7 @@ use lightfold_protocol::{Capabilities, Role};
 use std::path::PathBuf;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Built-in scene name, scene file (.toml) or model (.gltf/.glb, .obj, .ply,
     /// .usda/.usdc/.usdz) [default: balls].
     #[arg(
@@ -119,7 +119,7 @@ fn default_max_lights() -> u32 {
     )
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     let name = args.scene();
     let mut scene =
         lightfold_scene::load(name).with_context(|| format!("cannot load scene {name:?}"))?;

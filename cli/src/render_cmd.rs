@@ -16,7 +16,7 @@ use std::path::PathBuf;
 mod gpu;
 
 #[derive(Debug, clap::Args)]
-pub struct Args {
+pub(crate) struct Args {
     /// Built-in scene name, `.toml` scene file or `.gltf`/`.glb`, `.obj`, `.ply` or USD
     /// (`.usda`, `.usdc`, `.usdz`) model.
     #[arg(long, default_value = lightfold_scene::defaults::DEFAULT_SCENE)]
@@ -105,7 +105,7 @@ pub struct Args {
     pub indirect: crate::indirect_args::IndirectArgs,
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
+pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     // The PNG goes beside the EXR with the extension changed: an `--out` ending in .png would
     // have the PNG written over the EXR.
     if args

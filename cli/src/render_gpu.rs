@@ -54,7 +54,7 @@ fn medians(rows: &[[u64; 3]]) -> [u64; 3] {
 /// Renders `args.frames` frames of the scene's samples on one local GPU (as sort-last parts
 /// with `--partitions`), printing each frame's costs with `--timings`, then writes the last
 /// frame's radiance and the images asked for besides.
-pub fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Result<()> {
+pub(super) fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> anyhow::Result<()> {
     // With partitions, meshes too large for a part in chunks, as the cluster splits them.
     let chunked = (args.partitions > 1)
         .then(|| lightfold_scene::partition::chunk_for_parts(scene, args.partitions as usize))

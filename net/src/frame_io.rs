@@ -41,7 +41,7 @@ pub(crate) struct FrameWriter {
 }
 
 impl FrameWriter {
-    pub fn new(io: OwnedWriteHalf, max_frame: usize) -> FrameWriter {
+    pub(crate) fn new(io: OwnedWriteHalf, max_frame: usize) -> FrameWriter {
         FrameWriter {
             io,
             codec: Codec::new(max_frame),
@@ -67,13 +67,13 @@ impl FrameWriter {
     }
 
     /// Writes `frame` and everything queued before it.
-    pub async fn send(&mut self, frame: Frame) -> Result<(), CodecError> {
+    pub(crate) async fn send(&mut self, frame: Frame) -> Result<(), CodecError> {
         self.push(frame)?;
         self.flush().await
     }
 
     /// Queues `frame`, first writing what is queued if that is already a lot.
-    pub async fn feed(&mut self, frame: Frame) -> Result<(), CodecError> {
+    pub(crate) async fn feed(&mut self, frame: Frame) -> Result<(), CodecError> {
         if self.queued >= FEED_BOUNDARY {
             self.flush().await?;
         }
@@ -81,7 +81,7 @@ impl FrameWriter {
     }
 
     /// Writes everything queued.
-    pub async fn flush(&mut self) -> Result<(), CodecError> {
+    pub(crate) async fn flush(&mut self) -> Result<(), CodecError> {
         while !self.queue.is_empty() {
             let slices: Vec<IoSlice<'_>> = self
                 .queue
@@ -137,7 +137,7 @@ struct Partial {
 }
 
 impl FrameReader {
-    pub fn new(io: OwnedReadHalf, max_frame: usize) -> FrameReader {
+    pub(crate) fn new(io: OwnedReadHalf, max_frame: usize) -> FrameReader {
         FrameReader {
             io,
             codec: Codec::new(max_frame),
@@ -149,12 +149,12 @@ impl FrameReader {
 
     /// Changes the largest frame accepted from here on (a link reads hello-sized frames until it
     /// is authenticated).
-    pub fn set_max_frame(&mut self, max_frame: usize) {
+    pub(crate) fn set_max_frame(&mut self, max_frame: usize) {
         self.codec.max_frame = max_frame;
     }
 
     /// The next frame; `None` when the peer closed cleanly between frames.
-    pub async fn next(&mut self) -> Option<Result<Frame, CodecError>> {
+    pub(crate) async fn next(&mut self) -> Option<Result<Frame, CodecError>> {
         loop {
             if let Some(p) = self.partial.as_mut() {
                 let len = p.payload.len;

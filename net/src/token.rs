@@ -6,9 +6,9 @@
 use std::path::Path;
 
 /// Tokens shorter than this (after trimming) are warned about: easy to guess.
-pub const MIN_TOKEN_BYTES: usize = 16;
+pub(crate) const MIN_TOKEN_BYTES: usize = 16;
 /// Largest token file read (a token is a line; this bounds a mistaken path such as a log file).
-pub const MAX_TOKEN_FILE_BYTES: u64 = 64 << 10;
+pub(crate) const MAX_TOKEN_FILE_BYTES: u64 = 64 << 10;
 
 #[derive(Debug, thiserror::Error)]
 pub enum TokenError {
@@ -95,7 +95,7 @@ fn read_token_file(p: &Path) -> Result<(Vec<u8>, u32), TokenError> {
 /// What is weak about a token (trimmed) from `origin`, whose file has permission bits `mode`
 /// (`None` for the environment): shorter than [`MIN_TOKEN_BYTES`], or a file group or others
 /// may read or write.
-pub fn token_warnings(token: &[u8], origin: &str, mode: Option<u32>) -> Vec<String> {
+pub(crate) fn token_warnings(token: &[u8], origin: &str, mode: Option<u32>) -> Vec<String> {
     let mut out = Vec::new();
     if token.len() < MIN_TOKEN_BYTES {
         out.push(format!(

@@ -27,7 +27,7 @@ pub struct ModelOptions {
 }
 
 /// The environment variable that lets binary USD layers be read ([`ModelOptions::binary_usd`]).
-pub const TRUST_BINARY_USD: &str = "LIGHTFOLD_TRUST_BINARY_USD";
+pub(crate) const TRUST_BINARY_USD: &str = "LIGHTFOLD_TRUST_BINARY_USD";
 
 impl Default for ModelOptions {
     fn default() -> Self {

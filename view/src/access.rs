@@ -8,7 +8,7 @@ use std::net::{IpAddr, SocketAddr};
 
 /// What a viewer is allowed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Access {
+pub(crate) enum Access {
     /// Sees everything and steers (loopback, or the token presented).
     Steer,
     /// Sees frames and the status with addresses removed (`public_watch`, no token).
@@ -18,29 +18,29 @@ pub enum Access {
 }
 
 impl Access {
-    pub fn can_steer(self) -> bool {
+    pub(crate) fn can_steer(self) -> bool {
         self == Access::Steer
     }
-    pub fn can_watch(self) -> bool {
+    pub(crate) fn can_watch(self) -> bool {
         self != Access::Locked
     }
 }
 
 /// Whether `peer` is on loopback (an IPv4 loopback address mapped into IPv6 too).
-pub fn on_loopback(peer: SocketAddr) -> bool {
+pub(crate) fn on_loopback(peer: SocketAddr) -> bool {
     peer.ip().to_canonical().is_loopback()
 }
 
 /// What replaces an address in what a viewer without the token is sent.
-pub const HIDDEN: &str = "[address]";
+pub(crate) const HIDDEN: &str = "[address]";
 
 /// The addresses the view knows of (the daemons', the sink's): removed wherever they appear in
 /// text a viewer without the token is sent, with anything else that looks like an address.
 #[derive(Debug, Default, Clone)]
-pub struct Addresses(Vec<String>);
+pub(crate) struct Addresses(Vec<String>);
 
 impl Addresses {
-    pub fn new<'a>(addresses: impl IntoIterator<Item = &'a str>) -> Addresses {
+    pub(crate) fn new<'a>(addresses: impl IntoIterator<Item = &'a str>) -> Addresses {
         let mut all: Vec<String> = Vec::new();
         for a in addresses {
             if a.is_empty() {
@@ -65,7 +65,7 @@ impl Addresses {
     }
 
     /// `text` with every address in it replaced by `HIDDEN`.
-    pub fn scrub(&self, text: &str) -> String {
+    pub(crate) fn scrub(&self, text: &str) -> String {
         let mut out = text.to_string();
         for a in &self.0 {
             if out.contains(a.as_str()) {
@@ -77,7 +77,7 @@ impl Addresses {
 
     /// Removes addresses from a JSON message: the plan's sink address, and every address in its
     /// strings.
-    pub fn redact(&self, v: &mut Value) {
+    pub(crate) fn redact(&self, v: &mut Value) {
         if let Some(plan) = v.get_mut("plan").and_then(Value::as_object_mut) {
             plan.insert("sink".into(), Value::Null);
         }
@@ -150,7 +150,7 @@ fn looks_like_address(w: &str) -> bool {
 }
 
 /// Whether two digests are equal, looking at every byte whatever the first difference.
-pub fn same_digest(a: &[u8; 32], b: &[u8; 32]) -> bool {
+pub(crate) fn same_digest(a: &[u8; 32], b: &[u8; 32]) -> bool {
     use subtle::ConstantTimeEq;
     a.ct_eq(b).into()
 }

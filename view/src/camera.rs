@@ -15,12 +15,12 @@ const POLE_MARGIN_DEG: f32 = 2.0;
 const MAX_TURN_DEG: f32 = 360.0;
 const MAX_ZOOM_STEP: f32 = 10.0;
 /// Largest colour component and power multiplier a viewer may set.
-pub const MAX_LIGHT_VALUE: f32 = 1000.0;
+pub(crate) const MAX_LIGHT_VALUE: f32 = 1000.0;
 /// Frame budgets a viewer may set, milliseconds.
-pub const MIN_BUDGET_MS: f32 = 1.0;
-pub const MAX_BUDGET_MS: f32 = 600_000.0;
+pub(crate) const MIN_BUDGET_MS: f32 = 1.0;
+pub(crate) const MAX_BUDGET_MS: f32 = 600_000.0;
 /// Coordinates beyond this are refused (the scene's own bounds are far smaller).
-pub const MAX_COORDINATE: f32 = 1e7;
+pub(crate) const MAX_COORDINATE: f32 = 1e7;
 
 /// A steering message that cannot be applied.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 pub const MIN_SPEED: f32 = 0.25;
 pub const MAX_SPEED: f32 = 4.0;
 /// Scene times a viewer may seek to, seconds either side of 0 (mapped into the clip).
-pub const MAX_SEEK: f32 = 1e6;
+pub(crate) const MAX_SEEK: f32 = 1e6;
 
 /// Clip time when paused, and while playing the instant it was at it.
 #[derive(Debug, Clone, Copy, PartialEq)]

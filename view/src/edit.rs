@@ -13,13 +13,13 @@ use lightfold_scene::{Light, LightShape};
 use std::sync::Arc;
 
 /// Most lights a session may have.
-pub const MAX_LIGHTS: usize = 256;
+pub(crate) const MAX_LIGHTS: usize = 256;
 /// Largest power a viewer may give a light (radiance, intensity or irradiance).
-pub const MAX_POWER: f32 = 1e9;
+pub(crate) const MAX_POWER: f32 = 1e9;
 
 /// Where a light is, for dragging it and for the page's markers (`None`: a directional light,
 /// or a mesh light, which is where its object is).
-pub fn light_position(shape: &LightShape) -> Option<[f32; 3]> {
+pub(crate) fn light_position(shape: &LightShape) -> Option<[f32; 3]> {
     match shape {
         LightShape::Point { position } | LightShape::Spot { position, .. } => Some(*position),
         LightShape::Rect { center, .. }

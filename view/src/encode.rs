@@ -20,7 +20,7 @@ pub const MAX_STOPS: f32 = 16.0;
 
 /// An exposure in stops as the view applies it: finite (else an error), clamped to
 /// `MIN_STOPS..=MAX_STOPS`.
-pub fn check_stops(stops: f32) -> Result<f32, crate::SteerError> {
+pub(crate) fn check_stops(stops: f32) -> Result<f32, crate::SteerError> {
     if !stops.is_finite() {
         return Err(crate::SteerError::NotFinite("exposure stops"));
     }
@@ -28,7 +28,7 @@ pub fn check_stops(stops: f32) -> Result<f32, crate::SteerError> {
 }
 
 /// A scene's exposure multiplier in stops (clamped; 0 for one that is not positive).
-pub fn stops_of(multiplier: f32) -> f32 {
+pub(crate) fn stops_of(multiplier: f32) -> f32 {
     if multiplier.is_finite() && multiplier > 0.0 {
         multiplier.log2().clamp(MIN_STOPS, MAX_STOPS)
     } else {
@@ -37,25 +37,25 @@ pub fn stops_of(multiplier: f32) -> f32 {
 }
 
 /// The multiplier `to_srgb8` takes for an exposure in stops.
-pub fn multiplier(stops: f32) -> f32 {
+pub(crate) fn multiplier(stops: f32) -> f32 {
     stops.exp2()
 }
 
 /// A delivered frame to encode, and its header.
-pub struct Job {
+pub(crate) struct Job {
     frame: u64,
     header: serde_json::Value,
     image: Arc<Image>,
 }
 
 /// What the encoding thread is sent: a delivered frame, or word that the exposure changed.
-pub enum Work {
+pub(crate) enum Work {
     Frame(Job),
     Exposure,
 }
 
 #[derive(Debug)]
-pub struct Encoder {
+pub(crate) struct Encoder {
     tx: Option<mpsc::Sender<Work>>,
     thread: Option<std::thread::JoinHandle<()>>,
     hub: Arc<Hub>,
@@ -63,7 +63,7 @@ pub struct Encoder {
 }
 
 impl Encoder {
-    pub fn start(hub: Arc<Hub>) -> Encoder {
+    pub(crate) fn start(hub: Arc<Hub>) -> Encoder {
         let (tx, rx) = mpsc::channel::<Work>();
         *hub.encoder.lock().unwrap_or_else(|e| e.into_inner()) = Some(tx.clone());
         let h = Arc::clone(&hub);
@@ -81,7 +81,7 @@ impl Encoder {
     }
 
     /// Queues a delivered frame (called on the event loop: builds the header, copies the image).
-    pub fn send(&mut self, f: &FrameResult) {
+    pub(crate) fn send(&mut self, f: &FrameResult) {
         let interval = self
             .last_received
             .map(|t| f.received_at.saturating_duration_since(t).as_secs_f64() * 1000.0);
@@ -99,7 +99,7 @@ impl Encoder {
     }
 
     /// Encodes what is queued, then stops the thread.
-    pub fn finish(mut self) {
+    pub(crate) fn finish(mut self) {
         drop(self.tx.take());
         drop(
             self.hub
@@ -174,12 +174,15 @@ fn thread_cpu_ns() -> Option<u64> {
 }
 
 /// 8-bit sRGB of `image` at `stops` of exposure.
-pub fn srgb8(img: &Image, stops: f32) -> Result<Vec<u8>, lightfold_scene::image::ImageError> {
+pub(crate) fn srgb8(
+    img: &Image,
+    stops: f32,
+) -> Result<Vec<u8>, lightfold_scene::image::ImageError> {
     img.to_srgb8(multiplier(stops))
 }
 
 /// `image` as a PNG, 8-bit sRGB at `stops` of exposure (`/frame.png`).
-pub fn png(img: &Image, stops: f32) -> anyhow::Result<Vec<u8>> {
+pub(crate) fn png(img: &Image, stops: f32) -> anyhow::Result<Vec<u8>> {
     Ok(img.png_bytes(multiplier(stops))?)
 }
 

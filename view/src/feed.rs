@@ -22,7 +22,7 @@ struct Shown {
     time: Option<f32>,
 }
 
-pub async fn run(
+pub(crate) async fn run(
     hub: Arc<Hub>,
     tx: mpsc::Sender<FrameSpec>,
     in_flight: u64,

@@ -25,24 +25,24 @@ const INDEX: &str = include_str!("../static/index.html");
 const APP: &str = include_str!("../static/app.js");
 const STYLE: &str = include_str!("../static/style.css");
 /// Largest message a page may send (steering messages are a few hundred bytes).
-pub const MAX_MESSAGE: usize = 16 << 10;
+pub(crate) const MAX_MESSAGE: usize = 16 << 10;
 
 /// Connections served at once (page loads, frame downloads, WebSocket handshakes), and from one
 /// address; more are closed unread. Upgraded WebSockets count against `MAX_VIEWERS` instead. An
 /// idle connection costs a task and a socket; the per-address share keeps one peer holding slow
 /// connections from starving the others (128 of them failed 22 of 24 requests under the former
 /// 128 in all).
-pub const MAX_CONNECTIONS: usize = 512;
-pub const MAX_PER_ADDRESS: usize = 64;
+pub(crate) const MAX_CONNECTIONS: usize = 512;
+pub(crate) const MAX_PER_ADDRESS: usize = 64;
 /// A request's header must arrive within this (a peer that trickles bytes is closed).
-pub const HEADER_TIMEOUT: Duration = Duration::from_secs(5);
+pub(crate) const HEADER_TIMEOUT: Duration = Duration::from_secs(5);
 /// How long open requests get to finish when the view stops.
 const DRAIN: Duration = Duration::from_secs(2);
 
 /// Serves the view until it stops ([`serve_router`] with the view's limits: at most
 /// `MAX_CONNECTIONS` at once, each with a deadline on its request header and, over TLS, on its
 /// handshake).
-pub async fn serve(
+pub(crate) async fn serve(
     listener: tokio::net::TcpListener,
     tls: Option<tokio_rustls::TlsAcceptor>,
     hub: Arc<Hub>,

@@ -24,7 +24,7 @@ pub const MAX_VIEWERS: usize = 64;
 pub const MAX_WATCHERS: usize = 48;
 
 /// Why the token is refused over plain HTTP from beyond loopback.
-pub const PLAIN_TOKEN_REFUSED: &str = "this view is served over plain HTTP, so the token is not \
+pub(crate) const PLAIN_TOKEN_REFUSED: &str = "this view is served over plain HTTP, so the token is not \
      accepted from beyond loopback (it would cross the network readable): serve the view over \
      HTTPS (--tls-cert, --tls-key), open it on the coordinator's machine (loopback), or start it \
      with --allow-plain-token";
@@ -54,7 +54,7 @@ pub struct ViewCounters {
 /// What a frame was requested at: the steering revision, the clip time of an animated scene,
 /// and the refinement step (`None`: the session's quality).
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct Requested {
+pub(crate) struct Requested {
     pub revision: u64,
     pub time: Option<f32>,
     pub refine: Option<crate::refine::Step>,
@@ -62,14 +62,14 @@ pub struct Requested {
 
 /// One encoded frame, ready to send: the binary WebSocket message and its JPEG part.
 #[derive(Debug)]
-pub struct ViewFrame {
+pub(crate) struct ViewFrame {
     pub frame: u64,
     pub message: Bytes,
     pub jpeg: Bytes,
 }
 
 #[derive(Debug)]
-pub struct Hub {
+pub(crate) struct Hub {
     pub started: Instant,
     pub continuous: bool,
     /// Refinement when idle (`None`: off).
@@ -133,7 +133,7 @@ pub struct Hub {
 }
 
 impl Hub {
-    pub fn new(
+    pub(crate) fn new(
         scene: &Scene,
         opts: &ViewOptions,
         counters: Arc<ViewCounters>,
@@ -187,13 +187,13 @@ impl Hub {
 
     /// Whether `presented` is the view's token (compared as SHA-256 digests, every byte of
     /// them whatever the first difference).
-    pub fn token_matches(&self, presented: &str) -> bool {
+    pub(crate) fn token_matches(&self, presented: &str) -> bool {
         self.token
             .is_some_and(|t| crate::access::same_digest(&t, &digest(presented.as_bytes())))
     }
 
     /// What a viewer at `peer` may do before it presents the token.
-    pub fn access_of(&self, peer: SocketAddr) -> Access {
+    pub(crate) fn access_of(&self, peer: SocketAddr) -> Access {
         if crate::access::on_loopback(peer) {
             Access::Steer
         } else if self.public_watch {
@@ -206,7 +206,7 @@ impl Hub {
     /// Why a viewer at `peer` may not present the token over this connection (`None`: it may):
     /// beyond loopback without TLS the token would cross the network readable, so it is refused
     /// there unless the view was started with `--allow-plain-token`.
-    pub fn token_refused(&self, peer: SocketAddr) -> Option<&'static str> {
+    pub(crate) fn token_refused(&self, peer: SocketAddr) -> Option<&'static str> {
         if crate::access::on_loopback(peer) || self.tls || self.allow_plain_token {
             None
         } else {
@@ -215,12 +215,12 @@ impl Hub {
     }
 
     /// The plan in use.
-    pub fn plan(&self) -> Option<Arc<lightfold_coordinator::plan::Plan>> {
+    pub(crate) fn plan(&self) -> Option<Arc<lightfold_coordinator::plan::Plan>> {
         self.live.borrow().plan.clone()
     }
 
     /// The loop delivered frame `frame`.
-    pub fn delivered(&self, frame: u64) {
+    pub(crate) fn delivered(&self, frame: u64) {
         self.counters
             .frames_delivered
             .fetch_add(1, Ordering::Relaxed);
@@ -228,7 +228,7 @@ impl Hub {
     }
 
     /// What frame `frame` was requested at (and forgets older frames).
-    pub fn requested(&self, frame: u64) -> Requested {
+    pub(crate) fn requested(&self, frame: u64) -> Requested {
         let mut r = self.revisions.lock().unwrap_or_else(|e| e.into_inner());
         let at = r.get(&frame).copied().unwrap_or_default();
         r.retain(|&f, _| f > frame);
@@ -237,7 +237,7 @@ impl Hub {
 
     /// Sets the exposure frames are encoded at (stops: finite, clamped to the range); the next
     /// frame encoded uses it, and the last frame is encoded again at it. The stops applied.
-    pub fn set_exposure(&self, stops: f32) -> Result<f32, crate::SteerError> {
+    pub(crate) fn set_exposure(&self, stops: f32) -> Result<f32, crate::SteerError> {
         let stops = crate::encode::check_stops(stops)?;
         if self
             .exposure
@@ -252,7 +252,7 @@ impl Hub {
     }
 
     /// The `stats` message: what serving the view has cost so far.
-    pub fn stats(&self) -> serde_json::Value {
+    pub(crate) fn stats(&self) -> serde_json::Value {
         let c = &self.counters;
         let get = |a: &AtomicU64| a.load(Ordering::Relaxed);
         serde_json::json!({
@@ -272,7 +272,7 @@ impl Hub {
     }
 
     /// A notice of the view's own to every page (and the log).
-    pub fn tell(&self, text: String) {
+    pub(crate) fn tell(&self, text: String) {
         tracing::info!("{text}");
         let n = (1 << 48) + self.told.fetch_add(1, Ordering::Relaxed);
         self.notice.send_replace(Some((n, text)));
@@ -281,7 +281,12 @@ impl Hub {
     /// Makes `opened` the scene frames ask for (`FrameSpec::scene`): the steering starts from
     /// its camera and lights (the frame budget a viewer set stays), and every page is welcomed
     /// again. The scene and steering before are kept for the loop's refusal.
-    pub fn install_scene(&self, name: String, source: String, opened: crate::open::Opened) -> u64 {
+    pub(crate) fn install_scene(
+        &self,
+        name: String,
+        source: String,
+        opened: crate::open::Opened,
+    ) -> u64 {
         let id = self.next_scene.fetch_add(1, Ordering::Relaxed);
         let crate::open::Opened { scene, options } = opened;
         let info = Arc::new(crate::open::SceneInfo::new(
@@ -316,7 +321,7 @@ impl Hub {
 
     /// Waits until the loop shows scene `id` or has refused it (at most `within`, or until the
     /// view stops).
-    pub async fn scene_settled(&self, id: u64, within: std::time::Duration) {
+    pub(crate) async fn scene_settled(&self, id: u64, within: std::time::Duration) {
         let mut live = self.live.clone();
         let settled = live
             .wait_for(|s| s.scene == id || s.scene_refused.as_ref().is_some_and(|(r, _)| *r == id));
@@ -352,7 +357,7 @@ impl Hub {
     }
 
     /// Turns the loop's status into the page's, whenever it changes, until the view stops.
-    pub async fn relay_status(self: Arc<Self>) {
+    pub(crate) async fn relay_status(self: Arc<Self>) {
         let mut live = self.live.clone();
         live.mark_changed();
         let (mut taken_back, mut colors_taken_back, mut moves_taken_back) = (0, 0, 0);

@@ -11,7 +11,7 @@ use lightfold_scene::{Camera, LightShape, Scene};
 use serde_json::{Value, json};
 use std::time::Instant;
 
-pub fn scene(s: &Scene) -> Value {
+pub(crate) fn scene(s: &Scene) -> Value {
     let lights: Vec<Value> = s.lights.iter().enumerate().map(light).collect();
     json!({
         "name": s.name,
@@ -47,7 +47,7 @@ fn shape_name(s: &LightShape) -> &'static str {
     }
 }
 
-pub fn camera(c: &Camera) -> Value {
+pub(crate) fn camera(c: &Camera) -> Value {
     json!({
         "position": c.position,
         "target": c.target,
@@ -56,12 +56,12 @@ pub fn camera(c: &Camera) -> Value {
     })
 }
 
-pub fn camera_message(s: &Steer) -> Value {
+pub(crate) fn camera_message(s: &Steer) -> Value {
     json!({"type": "camera", "camera": camera(&s.camera), "revision": s.revision})
 }
 
 /// The scene's clock as the page shows it: the clip's span, its time now, and how it plays.
-pub fn animation(c: &Clock) -> Value {
+pub(crate) fn animation(c: &Clock) -> Value {
     json!({
         "span": c.span,
         "time": c.now(),
@@ -71,11 +71,11 @@ pub fn animation(c: &Clock) -> Value {
     })
 }
 
-pub fn animation_message(s: &Steer) -> Value {
+pub(crate) fn animation_message(s: &Steer) -> Value {
     json!({"type": "animation", "animation": animation(&s.clock), "revision": s.revision})
 }
 
-pub fn exposure_message(stops: f32) -> Value {
+pub(crate) fn exposure_message(stops: f32) -> Value {
     json!({"type": "exposure", "stops": stops})
 }
 
@@ -83,7 +83,7 @@ pub fn exposure_message(stops: f32) -> Value {
 /// kind, name, samples, where it is (`position`, for the page's markers; `null`: directional or
 /// a mesh light) and its `[[light]]` table (`spec`; `null` for a mesh light, which the page
 /// cannot edit).
-pub fn lights_message(s: &Steer) -> Value {
+pub(crate) fn lights_message(s: &Steer) -> Value {
     let lights: Vec<Value> = s
         .lights
         .iter()
@@ -109,7 +109,7 @@ pub fn lights_message(s: &Steer) -> Value {
 }
 
 /// The objects viewers moved, each with its name and move (`crate::objects`).
-pub fn moves_message(s: &Steer, objects: &crate::objects::Objects) -> Value {
+pub(crate) fn moves_message(s: &Steer, objects: &crate::objects::Objects) -> Value {
     let moves: Vec<Value> = s
         .moves
         .iter()
@@ -119,7 +119,7 @@ pub fn moves_message(s: &Steer, objects: &crate::objects::Objects) -> Value {
 }
 
 /// One object and its move; `fixed`: why it cannot move.
-pub fn object(m: &MeshMove, name: &str, fixed: Option<&str>) -> Value {
+pub(crate) fn object(m: &MeshMove, name: &str, fixed: Option<&str>) -> Value {
     json!({
         "mesh": m.mesh,
         "name": name,
@@ -130,7 +130,7 @@ pub fn object(m: &MeshMove, name: &str, fixed: Option<&str>) -> Value {
     })
 }
 
-pub fn status(s: &LiveStatus, started: Instant) -> Value {
+pub(crate) fn status(s: &LiveStatus, started: Instant) -> Value {
     let at =
         |t: Instant| (t.saturating_duration_since(started).as_secs_f64() * 1000.0).round() / 1000.0;
     let state = match s.state {
@@ -180,7 +180,7 @@ pub fn status(s: &LiveStatus, started: Instant) -> Value {
     })
 }
 
-pub fn plan(p: &Plan) -> Value {
+pub(crate) fn plan(p: &Plan) -> Value {
     let downstream = |d: &Downstream| match d {
         Downstream::Stage(s) => s.clone(),
         Downstream::Sink => "sink".to_string(),
@@ -228,7 +228,7 @@ pub fn plan(p: &Plan) -> Value {
 }
 
 /// A refinement step as frame headers carry it (`null`: the session's quality).
-pub fn refine_step(s: Option<crate::refine::Step>) -> Value {
+pub(crate) fn refine_step(s: Option<crate::refine::Step>) -> Value {
     s.map_or(Value::Null, |s| {
         json!({
             "level": s.level,
@@ -240,7 +240,7 @@ pub fn refine_step(s: Option<crate::refine::Step>) -> Value {
 }
 
 /// How the view refines while idle, for the welcome (`null`: it does not).
-pub fn refine(l: Option<&crate::refine::Ladder>) -> Value {
+pub(crate) fn refine(l: Option<&crate::refine::Ladder>) -> Value {
     l.map_or(Value::Null, |l| {
         let steps: Vec<Value> = (1..=l.top()).map(|i| refine_step(l.step(i))).collect();
         json!({"after_ms": l.after.as_millis() as u64, "steps": steps})
@@ -248,7 +248,7 @@ pub fn refine(l: Option<&crate::refine::Ladder>) -> Value {
 }
 
 /// The header of a frame message (the encoder adds the exposure it was encoded at).
-pub fn frame_header(
+pub(crate) fn frame_header(
     f: &FrameResult,
     requested: Requested,
     interval_ms: Option<f64>,

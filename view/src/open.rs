@@ -95,7 +95,7 @@ fn files(dir: &Path) -> Vec<String> {
 /// Starts opening `name` for the viewers: checked against the catalog now, loaded on a blocking
 /// thread, then made the scene frames ask for. Refused at once when the view has no catalog, the
 /// name is not offered, or another scene is being opened.
-pub fn start(hub: &Arc<Hub>, name: String) -> Result<(), String> {
+pub(crate) fn start(hub: &Arc<Hub>, name: String) -> Result<(), String> {
     let catalog = hub
         .catalog
         .clone()
@@ -130,7 +130,7 @@ pub fn start(hub: &Arc<Hub>, name: String) -> Result<(), String> {
 /// The scene frames show, as the view keeps it: what the page is welcomed with and what a saved
 /// session is built from.
 #[derive(Debug)]
-pub struct SceneInfo {
+pub(crate) struct SceneInfo {
     /// `OpenScene::id` (0: the session's first).
     pub id: u64,
     /// How it was named (the command line's `--scene`, or the page's pick).
@@ -147,7 +147,7 @@ pub struct SceneInfo {
 }
 
 impl SceneInfo {
-    pub fn new(id: u64, name: String, scene: &Scene, source: Option<&str>) -> SceneInfo {
+    pub(crate) fn new(id: u64, name: String, scene: &Scene, source: Option<&str>) -> SceneInfo {
         SceneInfo {
             id,
             name,

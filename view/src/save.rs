@@ -13,7 +13,7 @@ use std::path::Path;
 /// beside it. A saved session (a file over a base, with nothing of its own but camera, lights
 /// and settings) names its own base, so saving again does not nest. `Err`: why it cannot be
 /// saved.
-pub fn base_of(source: Option<&str>) -> Result<String, String> {
+pub(crate) fn base_of(source: Option<&str>) -> Result<String, String> {
     let source = source.ok_or("the view was not told how its scene was named")?;
     if is_builtin(source) {
         return Ok(source.to_string());
@@ -49,7 +49,7 @@ pub fn base_of(source: Option<&str>) -> Result<String, String> {
 
 /// The scene without its geometry, textures or animation: names, materials and settings (what a
 /// saved session's lights and settings are written from; mesh names name mesh lights' objects).
-pub fn skeleton(scene: &Scene) -> Scene {
+pub(crate) fn skeleton(scene: &Scene) -> Scene {
     Scene {
         name: scene.name.clone(),
         meshes: scene
@@ -78,7 +78,7 @@ pub fn skeleton(scene: &Scene) -> Scene {
 
 /// The saved session's TOML: `skeleton`'s settings, with the steering's camera and lights (each
 /// light's colour and power as the viewers set them) and the view's exposure (`stops`).
-pub fn session_toml(
+pub(crate) fn session_toml(
     skeleton: &Scene,
     steer: &Steer,
     stops: f32,

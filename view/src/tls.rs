@@ -11,7 +11,7 @@ use tokio_rustls::rustls::pki_types::{CertificateDer, PrivateKeyDer};
 
 /// The acceptor for `files`; a clear error for a file that cannot be read, holds no certificate
 /// or key, or a key that is not the certificate's.
-pub fn acceptor(files: &TlsFiles) -> anyhow::Result<TlsAcceptor> {
+pub(crate) fn acceptor(files: &TlsFiles) -> anyhow::Result<TlsAcceptor> {
     let cert_pem = std::fs::read(&files.cert).with_context(|| {
         format!(
             "cannot read the view's TLS certificate {}",

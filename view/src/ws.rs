@@ -172,7 +172,7 @@ impl Drop for Present {
 /// Serves one viewer's WebSocket until the viewer leaves or is dropped, or the view stops:
 /// admits it, sends the welcome and what it may see, then relays frames, changes and its
 /// steering messages.
-pub async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
+pub(crate) async fn serve(socket: WebSocket, hub: Arc<Hub>, peer: SocketAddr) {
     hub.viewers.fetch_add(1, Ordering::Relaxed);
     let _present = Present(Arc::clone(&hub));
     let mut v = Viewer {

@@ -8,7 +8,7 @@ use tokio::sync::mpsc;
 
 /// CPU time (user + system) this process has used, in ms (from `/proc/self/stat`, 10 ms ticks:
 /// only sums over many frames are meaningful).
-pub fn cpu_ms() -> f64 {
+pub(crate) fn cpu_ms() -> f64 {
     let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
     // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
     let rest = stat.rsplit_once(')').map_or("", |(_, r)| r);
@@ -21,7 +21,7 @@ pub fn cpu_ms() -> f64 {
 /// band k once it has read input band k of both senders (as the stage does, minus the work).
 /// All four ends run in the caller's task, so on one thread: the kernel copies a byte out of a
 /// socket on the core that just copied it in. Every buffer is allocated once and reused.
-pub struct RawRelay {
+pub(crate) struct RawRelay {
     senders: Vec<TcpStream>,
     ins: Vec<TcpStream>,
     out: TcpStream,
@@ -34,7 +34,7 @@ pub struct RawRelay {
 }
 
 impl RawRelay {
-    pub async fn new(in_sizes: Vec<Vec<usize>>, out_sizes: Vec<usize>) -> RawRelay {
+    pub(crate) async fn new(in_sizes: Vec<Vec<usize>>, out_sizes: Vec<usize>) -> RawRelay {
         let relay_l = TcpListener::bind("127.0.0.1:0").await.unwrap();
         let sink_l = TcpListener::bind("127.0.0.1:0").await.unwrap();
         let mut senders = Vec::new();
@@ -73,7 +73,7 @@ impl RawRelay {
     }
 
     /// One frame; returns its time in ms.
-    pub async fn frame(&mut self) -> f64 {
+    pub(crate) async fn frame(&mut self) -> f64 {
         let start = Instant::now();
         let RawRelay {
             senders,
@@ -104,7 +104,7 @@ impl RawRelay {
     /// (as it runs a stage's tasks), while the senders and the receiver stay with the caller (as
     /// the producers and the sink of the stage path do): bytes then cross cores and threads wake
     /// each other, as they do for the stage.
-    pub fn spawn_relay(self) -> SpawnedRelay {
+    pub(crate) fn spawn_relay(self) -> SpawnedRelay {
         let RawRelay {
             senders,
             ins,
@@ -138,7 +138,7 @@ impl RawRelay {
 }
 
 /// [`RawRelay`] with its relay in a task of its own ([`RawRelay::spawn_relay`]).
-pub struct SpawnedRelay {
+pub(crate) struct SpawnedRelay {
     senders: Vec<TcpStream>,
     recv: TcpStream,
     in_sizes: Vec<Vec<usize>>,
@@ -150,7 +150,7 @@ pub struct SpawnedRelay {
 
 impl SpawnedRelay {
     /// One frame; returns its time in ms.
-    pub async fn frame(&mut self) -> f64 {
+    pub(crate) async fn frame(&mut self) -> f64 {
         let start = Instant::now();
         self.go.send(()).await.unwrap();
         let (s0, s1) = self.senders.split_at_mut(1);

@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 /// Why a band could not be combined. Headers were checked before, so these are internal faults
 /// or packed values a format rejects.
 #[derive(Debug, thiserror::Error)]
-pub enum ComputeError {
+pub(super) enum ComputeError {
     #[error(transparent)]
     Pipeline(PipelineError),
     #[error(transparent)]
@@ -52,7 +52,7 @@ pub(crate) struct Scratch {
 }
 
 impl Scratch {
-    pub fn new(pool: Arc<BufferPool>) -> Scratch {
+    pub(super) fn new(pool: Arc<BufferPool>) -> Scratch {
         Scratch {
             inputs: Vec::new(),
             outs: Vec::new(),

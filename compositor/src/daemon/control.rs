@@ -26,26 +26,26 @@ pub(crate) struct ControlOut {
 }
 
 impl ControlOut {
-    pub fn send(&self, msg: Message) {
+    pub(super) fn send(&self, msg: Message) {
         if let Err(e) = self.tx.try_send(msg) {
             tracing::warn!("control message dropped (no coordinator reading): {e}");
         }
     }
 
     /// An error about the link itself (a message the stage does not take).
-    pub fn error(&self, code: ErrorCode, message: String) {
+    pub(super) fn error(&self, code: ErrorCode, message: String) {
         tracing::warn!(?code, "{message}");
         self.send(Message::error(code, message));
     }
 
     /// An error about the configuration of `epoch`.
-    pub fn epoch_error(&self, epoch: u64, code: ErrorCode, message: String) {
+    pub(super) fn epoch_error(&self, epoch: u64, code: ErrorCode, message: String) {
         tracing::warn!(?code, epoch, "{message}");
         self.send(Message::epoch_error(epoch, code, message));
     }
 
     /// An error about `frame` of `epoch`.
-    pub fn frame_error(&self, epoch: u64, frame: u64, code: ErrorCode, message: String) {
+    pub(super) fn frame_error(&self, epoch: u64, frame: u64, code: ErrorCode, message: String) {
         tracing::warn!(?code, epoch, frame, "{message}");
         self.send(Message::frame_error(epoch, frame, code, message));
     }
@@ -74,7 +74,7 @@ pub(crate) struct NewConfig {
 }
 
 impl ControlHub {
-    pub fn new(
+    pub(super) fn new(
         commands: mpsc::Sender<Command>,
         generation: watch::Sender<u64>,
         daemon_id: &str,
@@ -101,13 +101,13 @@ impl ControlHub {
         }
     }
 
-    pub fn out(&self) -> ControlOut {
+    pub(super) fn out(&self) -> ControlOut {
         self.out.clone()
     }
 
     /// Serves one coordinator until it leaves, another takes the stage over (it is told
     /// `TakenOver` first), or the stage shuts down.
-    pub async fn session(&self, link: Link, shutdown: &CancellationToken) {
+    pub(super) async fn session(&self, link: Link, shutdown: &CancellationToken) {
         let coordinator = link.peer.daemon_id.clone();
         let addr = link.addr.clone();
         tracing::info!(%coordinator, %addr, "coordinator connected");

@@ -76,7 +76,7 @@ pub(crate) struct Engine {
 }
 
 impl Engine {
-    pub fn new(
+    pub(super) fn new(
         ctx: SlotContext,
         control: ControlOut,
         out: Feed,
@@ -103,7 +103,7 @@ impl Engine {
         }
     }
 
-    pub async fn run(mut self, mut commands: mpsc::Receiver<Command>) {
+    pub(super) async fn run(mut self, mut commands: mpsc::Receiver<Command>) {
         let shutdown = self.ctx.shutdown.clone();
         loop {
             let cmd = tokio::select! {

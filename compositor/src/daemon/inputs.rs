@@ -84,7 +84,7 @@ impl Registry {
     /// Parks a producer's link, replacing an older parked one from the same daemon (it
     /// reconnected). A link claiming a producer whose attached link is alive and streaming is
     /// refused, unless that link ends within `RECONNECT_GRACE`.
-    pub async fn offer(&self, peer: String, link: ProducerLink) -> Offer {
+    pub(super) async fn offer(&self, peer: String, link: ProducerLink) -> Offer {
         let live = self
             .attached
             .lock()
@@ -190,7 +190,7 @@ impl std::fmt::Debug for Event {
 }
 
 impl Slot {
-    pub fn new(index: usize, peer: String, budget: u64) -> Slot {
+    pub(super) fn new(index: usize, peer: String, budget: u64) -> Slot {
         Slot {
             index,
             peer,
@@ -205,7 +205,7 @@ impl Slot {
 
     /// Keeps this slot (and its link) under a new configuration; the budget only grows, so the
     /// bound is the largest budget configured while the link lives.
-    pub fn reconfigure(&mut self, index: usize, budget: u64) {
+    pub(super) fn reconfigure(&mut self, index: usize, budget: u64) {
         self.index = index;
         if budget > self.budget_total {
             self.budget
@@ -215,7 +215,7 @@ impl Slot {
     }
 
     /// The next band of this input that is not stale, judged against `expect`.
-    pub async fn next(
+    pub(super) async fn next(
         &mut self,
         expect: &Expect,
         ctx: &SlotContext,

@@ -13,7 +13,7 @@ use lightfold_protocol::pipeline::{AccumulateParams, NodeColor};
 use lightfold_protocol::{CompositorConfig, ErrorCode, Layer, OpSpec, PixelFormat};
 
 /// Largest image side a stage accepts (keeps every size computation far from overflow).
-pub const MAX_SIDE: u32 = 1 << 15;
+pub(super) const MAX_SIDE: u32 = 1 << 15;
 /// Most frames an input may buffer, whatever the configuration asks.
 pub const MAX_FRAMES_IN_FLIGHT: u32 = 16;
 /// Bytes a queued band costs beyond its payload (header, bookkeeping), so that even empty bands

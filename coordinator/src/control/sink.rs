@@ -56,7 +56,7 @@ struct Partial {
 
 /// Runs the sink until cancelled: every accepted link streams radiance bands; frames are sent on
 /// `out` when all their bands arrived.
-pub async fn run_sink(
+pub(super) async fn run_sink(
     listener: TcpListener,
     me: Identity,
     timeouts: Timeouts,

@@ -13,7 +13,7 @@ pub(crate) struct Aabb {
 }
 
 impl Aabb {
-    pub fn corners(&self) -> [V3; 8] {
+    pub(crate) fn corners(&self) -> [V3; 8] {
         let (l, h) = (self.lo, self.hi);
         std::array::from_fn(|i| {
             [
@@ -24,35 +24,35 @@ impl Aabb {
         })
     }
 
-    pub fn center(&self) -> V3 {
+    pub(crate) fn center(&self) -> V3 {
         std::array::from_fn(|k| 0.5 * (self.lo[k] + self.hi[k]))
     }
 
     /// Radius of the bounding sphere about `center`.
-    pub fn radius(&self) -> f32 {
+    pub(crate) fn radius(&self) -> f32 {
         0.5 * length(sub(self.hi, self.lo))
     }
 
     /// Distance from `p` to the nearest point of the box (0 inside).
-    pub fn distance(&self, p: V3) -> f32 {
+    pub(crate) fn distance(&self, p: V3) -> f32 {
         let d: V3 = std::array::from_fn(|k| (self.lo[k] - p[k]).max(p[k] - self.hi[k]).max(0.0));
         length(d)
     }
 
-    pub fn union_point(&self, p: V3) -> Aabb {
+    pub(crate) fn union_point(&self, p: V3) -> Aabb {
         Aabb {
             lo: std::array::from_fn(|k| self.lo[k].min(p[k])),
             hi: std::array::from_fn(|k| self.hi[k].max(p[k])),
         }
     }
 
-    pub fn intersects(&self, o: &Aabb) -> bool {
+    pub(crate) fn intersects(&self, o: &Aabb) -> bool {
         (0..3).all(|k| self.lo[k] <= o.hi[k] && o.lo[k] <= self.hi[k])
     }
 
     /// Whether moving this box along `d` by some `t ≥ 0` makes it overlap `o` (a box swept to
     /// infinity, for directional lights). Exact for boxes: the overlap in all three axes at once.
-    pub fn sweep_hits(&self, d: V3, o: &Aabb) -> bool {
+    pub(crate) fn sweep_hits(&self, d: V3, o: &Aabb) -> bool {
         let (mut t0, mut t1) = (0.0f32, f32::INFINITY);
         for (k, &dk) in d.iter().enumerate() {
             // Overlap on axis k: lo + t·d ≤ o.hi and o.lo ≤ hi + t·d.
@@ -88,7 +88,7 @@ pub(crate) struct Frustum {
 }
 
 impl Frustum {
-    pub fn new(cam: &Camera) -> Frustum {
+    pub(super) fn new(cam: &Camera) -> Frustum {
         let f = cam.frame();
         let ty = (cam.fov_y_deg.to_radians() * 0.5).tan();
         let tx = ty * cam.aspect();
@@ -112,7 +112,7 @@ impl Frustum {
     }
 
     /// False only when the box is entirely outside one plane (with a small margin).
-    pub fn may_contain(&self, b: &Aabb) -> bool {
+    pub(super) fn may_contain(&self, b: &Aabb) -> bool {
         let margin = 1e-4 * (1.0 + b.radius());
         self.planes.iter().all(|&(n, d)| {
             let p: V3 = std::array::from_fn(|k| if n[k] >= 0.0 { b.hi[k] } else { b.lo[k] });

@@ -12,7 +12,7 @@ pub const DEFAULT_FIXED_US: u64 = 60_000;
 /// Pixels the default costs were measured at.
 const REFERENCE_PIXELS: f64 = 800.0 * 600.0;
 /// Cost of each extra material render target, as a fraction of the fixed eye-pass cost.
-pub const TARGET_FRACTION: f64 = 0.05;
+pub(super) const TARGET_FRACTION: f64 = 0.05;
 
 /// A group of samples that one node renders.
 #[derive(Debug, Clone, PartialEq)]
@@ -106,7 +106,7 @@ pub(crate) fn measured_fixed_us(fixed_us: u64, pixels: u64) -> f64 {
 }
 
 impl NodeCost {
-    pub fn of(spec: &DaemonSpec, pixels: u64) -> NodeCost {
+    pub(super) fn of(spec: &DaemonSpec, pixels: u64) -> NodeCost {
         let caps = spec.capabilities.as_ref();
         let measured = |v: Option<u64>| v.filter(|&v| v > 0).map(|v| v as f64);
         let light = measured(caps.map(|c| c.cost_per_light_us));
@@ -125,7 +125,7 @@ impl NodeCost {
     }
 
     /// The live loop's correction from measured frames.
-    pub fn scaled(self, k: super::CostScale) -> NodeCost {
+    pub(super) fn scaled(self, k: super::CostScale) -> NodeCost {
         NodeCost {
             light_us: self.light_us * k.light,
             fixed_us: self.fixed_us * k.fixed,
@@ -133,18 +133,18 @@ impl NodeCost {
     }
 
     /// One light: half eye-pass share, half shadow passes (per view, growing with the map side).
-    pub fn light(&self, shadow: &ShadowPlan) -> f64 {
+    pub(super) fn light(&self, shadow: &ShadowPlan) -> f64 {
         self.light_us * super::light_weight(shadow).0
     }
 
-    pub fn frame(&self, shadows: &[&ShadowPlan], extra_targets: usize) -> f64 {
+    pub(super) fn frame(&self, shadows: &[&ShadowPlan], extra_targets: usize) -> f64 {
         self.fixed_us * (1.0 + TARGET_FRACTION * extra_targets as f64)
             + shadows.iter().map(|s| self.light(s)).sum::<f64>()
     }
 }
 
 /// The largest K a frame budget may choose when no node reports its device limit.
-pub const BUDGET_MAX_K: u32 = 32;
+pub(super) const BUDGET_MAX_K: u32 = 32;
 
 /// The estimated frame (µs) when `groups` are assigned by cost: the slowest node, or a machine's
 /// CPU nodes (`hosts`, `plan/cpu_hosts.rs`) one after another.
@@ -268,7 +268,7 @@ pub(crate) fn assign(group_costs: &[Vec<f64>]) -> Vec<usize> {
 }
 
 /// Slack a re-plan may add to the slowest node's estimate to keep lights where they were.
-pub const STICKY_SLACK: f64 = 1.05;
+pub(super) const STICKY_SLACK: f64 = 1.05;
 
 /// Re-plans move few lights: each group goes to the node that already rendered most of its
 /// lights (`had`, per node), largest overlaps first, as long as that node's cost for the group

@@ -48,7 +48,7 @@ struct Start {
 /// Runs the coordinator soak: starts the daemons the scene's plan needs, renders the camera
 /// path with the coordinator killed and resumed at random points, then checks every frame
 /// was written once and matches the single-device render, and writes the report.
-pub fn run(args: &Args, launcher: Launcher) -> anyhow::Result<()> {
+pub(super) fn run(args: &Args, launcher: Launcher) -> anyhow::Result<()> {
     let frames = args.frames;
     if frames < 2 {
         bail!("--coordinator-kills needs --frames of at least 2");

@@ -183,7 +183,7 @@ pub(crate) enum Kind {
 }
 
 impl Kind {
-    pub fn name(&self) -> &'static str {
+    pub(crate) fn name(&self) -> &'static str {
         match self {
             Kind::Kill => "SIGKILL",
             Kind::Stop(_) => "SIGSTOP",

@@ -36,7 +36,7 @@ const REPLIES: usize = 64;
 
 /// How a control session ended.
 #[derive(Debug, PartialEq, Eq)]
-pub enum Ended {
+pub(super) enum Ended {
     /// The coordinator left (cleanly or not), or another took over; the node keeps serving.
     Left,
     /// The coordinator asked the daemon to stop.
@@ -54,7 +54,7 @@ struct Request {
 }
 
 /// Serves one authenticated control link.
-pub async fn serve(
+pub(super) async fn serve(
     link: Link,
     caps: Capabilities,
     engine: Arc<Mutex<Engine>>,

@@ -91,7 +91,7 @@ struct FrameKey {
 
 /// A frame request that follows the one being rendered (already on the control link).
 #[derive(Debug, Clone)]
-pub struct NextFrame {
+pub(super) struct NextFrame {
     pub epoch: u64,
     pub frame: u64,
     pub camera: Option<WireCamera>,
@@ -118,7 +118,7 @@ struct CachedFrame {
 
 /// The node's state.
 #[derive(Debug)]
-pub struct Engine {
+pub(super) struct Engine {
     pub daemon_id: String,
     render: RenderHandle,
     pub report: DeviceReport,
@@ -136,7 +136,7 @@ pub struct Engine {
 }
 
 impl Engine {
-    pub fn new(
+    pub(super) fn new(
         daemon_id: String,
         render: RenderHandle,
         report: DeviceReport,
@@ -160,19 +160,19 @@ impl Engine {
     }
 
     /// Whether a following request's frame is rendered while this one's bands stream.
-    pub fn render_ahead(mut self, on: bool) -> Engine {
+    pub(super) fn render_ahead(mut self, on: bool) -> Engine {
         self.ahead = on;
         self
     }
 
     /// Stops the render thread (the device is released when this returns).
-    pub async fn stop(self) {
+    pub(super) async fn stop(self) {
         self.render.stop().await;
     }
 
     /// `SceneOffer`: `SceneNeed { need: false }` when the scene is in memory or in the disk cache,
     /// else starts a transfer and answers `need: true`.
-    pub async fn scene_offer(&mut self, hash: Hash, size: u64) -> Message {
+    pub(super) async fn scene_offer(&mut self, hash: Hash, size: u64) -> Message {
         if self.scenes.get(&hash).is_some() {
             return Message::SceneNeed { hash, need: false };
         }
@@ -193,7 +193,7 @@ impl Engine {
 
     /// `SceneChunk`: nothing until the last chunk, then `SceneReady` once the bytes match the hash
     /// and decode.
-    pub async fn scene_chunk(
+    pub(super) async fn scene_chunk(
         &mut self,
         hash: Hash,
         offset: u64,
@@ -235,7 +235,7 @@ impl Engine {
     /// (a cancelled write leaves the rest queued), so the link is closed and the next frame dials
     /// afresh; the walkthrough cache is cleared. The render thread needs nothing: it finishes the
     /// render it was given and its answer is discarded.
-    pub fn abandon(&mut self) {
+    pub(super) fn abandon(&mut self) {
         self.downstream.close();
         self.cached = None;
         self.in_frame = false;
@@ -253,7 +253,7 @@ impl Engine {
     /// `Release`: the plan of `epoch` leaves this node out. It drops its configuration, its
     /// walkthrough frame and its data link (a frame in progress was abandoned by the preempting
     /// reader), and waits for the next configuration.
-    pub fn release(&mut self, epoch: u64) {
+    pub(super) fn release(&mut self, epoch: u64) {
         self.abandon();
         self.active = None;
         tracing::info!(
@@ -265,7 +265,7 @@ impl Engine {
     /// `ConfigureNode`: checks the configuration, hands it to the render thread (which rebuilds
     /// the renderer only for a new scene or new build options) and points the data link at the
     /// new downstream. A refused configuration leaves the node unconfigured.
-    pub async fn configure(&mut self, config: NodeConfig) -> Message {
+    pub(super) async fn configure(&mut self, config: NodeConfig) -> Message {
         self.recover();
         self.active = None;
         self.cached = None;
@@ -330,7 +330,7 @@ impl Engine {
     ///
     /// `next`, the request that follows on the control link if it has arrived, is rendered on
     /// the device while this frame's bands stream (see [`NextFrame`]).
-    pub async fn render_frame(
+    pub(super) async fn render_frame(
         &mut self,
         epoch: u64,
         frame: u64,

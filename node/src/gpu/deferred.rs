@@ -18,7 +18,7 @@ const WORKGROUP: u32 = 8;
 
 /// The G-buffer and the lit result at one image size.
 #[derive(Debug)]
-pub struct DeferredTargets {
+pub(super) struct DeferredTargets {
     pub width: u32,
     pub height: u32,
     gbuffer: [wgpu::Texture; 3],
@@ -27,7 +27,7 @@ pub struct DeferredTargets {
 }
 
 impl DeferredTargets {
-    pub fn new(device: &wgpu::Device, w: u32, h: u32) -> DeferredTargets {
+    pub(super) fn new(device: &wgpu::Device, w: u32, h: u32) -> DeferredTargets {
         let gbuffer = [
             "g-buffer position",
             "g-buffer normal",
@@ -97,7 +97,7 @@ fn chunk_groups(cx: &DrawContext<'_>, inputs: &EyeInputs<'_>) -> Vec<wgpu::BindG
 }
 
 /// Records and submits the G-buffer raster and the light dispatches of `light_pass`.
-pub fn render_deferred(
+pub(super) fn render_deferred(
     cx: &DrawContext<'_>,
     draws: &super::eye_pass::EyeDraws,
     targets: &EyeTargets,

@@ -13,7 +13,7 @@ use wgpu::util::DeviceExt;
 /// `Frame` in `eye.wgsl` (uniform layout).
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
-pub struct GpuFrame {
+pub(super) struct GpuFrame {
     pub view_proj: [[f32; 4]; 4],
     pub camera: [f32; 3],
     pub light_count: u32,
@@ -35,17 +35,17 @@ pub struct GpuFrame {
 /// `Frame::flags`: shadow lookups compare against other objects' casters with a bias sized for
 /// their offset from the receiver (the object-ID test), and against the receiver's own surface
 /// with the slope bias.
-pub const FLAG_OBJECT_IDS: u32 = 1;
+pub(super) const FLAG_OBJECT_IDS: u32 = 1;
 /// `Frame::flags`: shadow depths are conventional Z (near 0), a depth negative control.
-pub const FLAG_CONVENTIONAL_Z: u32 = 2;
+pub(super) const FLAG_CONVENTIONAL_Z: u32 = 2;
 /// `Frame::flags`: with the object-ID test, another object's texel is compared with the
 /// receiver's plane where that texel's centre ray meets it (receiver-plane depth bias), within
 /// the symmetric slope bound; without it, with the bound alone (before issue 46).
-pub const FLAG_RECEIVER_PLANE: u32 = 4;
+pub(super) const FLAG_RECEIVER_PLANE: u32 = 4;
 
 impl GpuFrame {
     /// Camera part of the frame; light and filter fields are filled by the caller.
-    pub fn for_camera(camera: &Camera, near: f32) -> GpuFrame {
+    pub(super) fn for_camera(camera: &Camera, near: f32) -> GpuFrame {
         let f = camera.frame();
         GpuFrame {
             view_proj: mat_mul(&camera.projection_reversed_z(near), &camera.view_matrix()),
@@ -67,7 +67,7 @@ impl GpuFrame {
 
 /// The eye pass's render targets at one image size.
 #[derive(Debug)]
-pub struct EyeTargets {
+pub(super) struct EyeTargets {
     pub width: u32,
     pub height: u32,
     pub diffuse: wgpu::Texture,
@@ -108,7 +108,12 @@ fn target(
 }
 
 impl EyeTargets {
-    pub fn new(device: &wgpu::Device, w: u32, h: u32, illumination: wgpu::TextureFormat) -> Self {
+    pub(super) fn new(
+        device: &wgpu::Device,
+        w: u32,
+        h: u32,
+        illumination: wgpu::TextureFormat,
+    ) -> Self {
         EyeTargets {
             width: w,
             height: h,
@@ -123,7 +128,7 @@ impl EyeTargets {
 
 /// Inputs of one eye pass.
 #[derive(Debug)]
-pub struct EyeInputs<'a> {
+pub(super) struct EyeInputs<'a> {
     pub frame: GpuFrame,
     pub lights: &'a [GpuLight],
     pub views: &'a [GpuView],
@@ -136,7 +141,7 @@ pub struct EyeInputs<'a> {
 }
 
 /// The forward pass's uniform, light and view buffers bound as group 1 (storage buffers).
-pub fn eye_bind_group(cx: &DrawContext<'_>, inputs: &EyeInputs<'_>) -> wgpu::BindGroup {
+pub(super) fn eye_bind_group(cx: &DrawContext<'_>, inputs: &EyeInputs<'_>) -> wgpu::BindGroup {
     // Storage bindings cannot be empty: pad with one unused record.
     let lights: Vec<GpuLight> = if inputs.lights.is_empty() {
         vec![GpuLight::zeroed()]
@@ -159,7 +164,7 @@ pub fn eye_bind_group(cx: &DrawContext<'_>, inputs: &EyeInputs<'_>) -> wgpu::Bin
 }
 
 /// Group 1 of an eye pass: `frame` and the light and view records in buffers of `usage`.
-pub fn light_group(
+pub(super) fn light_group(
     cx: &DrawContext<'_>,
     layout: &wgpu::BindGroupLayout,
     inputs: &EyeInputs<'_>,
@@ -247,7 +252,7 @@ fn attachments(
 
 /// Records one raster of the scene from the camera into `colour` (cleared to zero) with a
 /// reversed-Z depth buffer (kept for the filters' pass, [`record_filters`], where there is one).
-pub fn record_raster(
+pub(super) fn record_raster(
     cx: &DrawContext<'_>,
     encoder: &mut wgpu::CommandEncoder,
     pipeline: &wgpu::RenderPipeline,
@@ -304,14 +309,14 @@ pub fn record_raster(
 /// What the eye pass draws: vertex ranges of the scene's buffer, and of the level buffer
 /// (`gpu::lod`'s lossless eye levels).
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct EyeDraws {
+pub(super) struct EyeDraws {
     pub scene: Vec<Range<u32>>,
     pub levels: Vec<Range<u32>>,
 }
 
 impl EyeDraws {
     /// Vertices drawn.
-    pub fn vertices(&self) -> u32 {
+    pub(super) fn vertices(&self) -> u32 {
         self.scene
             .iter()
             .chain(&self.levels)
@@ -322,7 +327,7 @@ impl EyeDraws {
 
 /// Records and submits the forward eye pass over the vertex ranges `draws` (every mesh, or a
 /// partition's: [`super::Renderer::set_eye_meshes`]).
-pub fn render_eye(
+pub(super) fn render_eye(
     cx: &DrawContext<'_>,
     draws: &EyeDraws,
     targets: &EyeTargets,
@@ -369,7 +374,7 @@ pub fn render_eye(
 /// the visible surface multiplies its transmittance in), when the scene has filters: over every
 /// vertex, so every filter in front counts whichever sort-last part drew the surface. `variant`
 /// 0 is the forward pass's group layout, 1 the deferred raster's.
-pub fn record_filters(
+pub(super) fn record_filters(
     cx: &DrawContext<'_>,
     encoder: &mut wgpu::CommandEncoder,
     variant: usize,

@@ -19,20 +19,20 @@ use super::shadow_depth::ShadowDepth;
 use super::shadow_pass::{OBJECT_ID_FORMAT, TRANSMIT_FORMAT};
 
 /// Depth format of the eye pass (and of shadow maps, but for the depth negative controls).
-pub const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
+pub(super) const DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// Material layers as render targets (f16 keeps 4 of them within the per-sample byte limit).
-pub const MATERIAL_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
+pub(super) const MATERIAL_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
 /// Eye depth target: f32 bits in a u32, since GL cannot render to 32-bit float formats.
-pub const EYE_DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
+pub(super) const EYE_DEPTH_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 /// Illumination targets: f32 bits in u32s, exact on every backend (GL has no Rgba32Float
 /// target and f16 would cost the 1e-3 accuracy margin).
-pub const ILLUMINATION_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Uint;
+pub(super) const ILLUMINATION_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Uint;
 /// Stride of per-view uniforms for dynamic offsets (the largest alignment any device asks for).
-pub const VIEW_UNIFORM_STRIDE: u64 = 256;
+pub(super) const VIEW_UNIFORM_STRIDE: u64 = 256;
 
 /// What every pass records with: the device, its queue, the pipelines and the scene's buffers.
 #[derive(Debug, Clone, Copy)]
-pub struct DrawContext<'a> {
+pub(super) struct DrawContext<'a> {
     pub device: &'a wgpu::Device,
     pub queue: &'a wgpu::Queue,
     pub pipelines: &'a Pipelines,
@@ -48,7 +48,7 @@ pub struct DrawContext<'a> {
 
 /// Everything built from the shader sources.
 #[derive(Debug)]
-pub struct Pipelines {
+pub(super) struct Pipelines {
     pub scene_layout: wgpu::BindGroupLayout,
     pub shadow_layout: wgpu::BindGroupLayout,
     /// Group 1 of the forward pass: lights and views in storage buffers.
@@ -82,7 +82,7 @@ pub struct Pipelines {
 }
 
 /// G-buffer targets: position + material, shading normal, geometric normal (f32 bits).
-pub const GBUFFER_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Uint;
+pub(super) const GBUFFER_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba32Uint;
 
 fn storage_entry(binding: u32, visibility: wgpu::ShaderStages) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
@@ -136,14 +136,14 @@ fn depth_state(write: bool) -> wgpu::DepthStencilState {
 /// modes (`GpuLight::cube`) of its lights, and whether any has a range window. Code for what a
 /// frame lacks folds away (a CPU rasteriser would run it, masked).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub struct LightSet {
+pub(super) struct LightSet {
     pub kinds: u32,
     pub modes: u32,
     pub ranges: bool,
 }
 
 impl LightSet {
-    pub fn of(lights: &[GpuLight]) -> LightSet {
+    pub(super) fn of(lights: &[GpuLight]) -> LightSet {
         let bit = |v: u32| 1u32 << v.min(31);
         LightSet {
             kinds: lights.iter().fold(0, |m, l| m | bit(l.kind)),
@@ -706,7 +706,7 @@ impl Pipelines {
     /// are filters, which eye rays see through (`docs/translucency.md`); `metallic_roughness`:
     /// some material is (else the eye modules hold none of the glTF BRDF's code); `normal_mapped`: the eye
     /// pipelines read a tangent per vertex (`eye_vertex_mapped.wgsl`; else none).
-    pub fn new(
+    pub(super) fn new(
         device: &wgpu::Device,
         filter: ShadowFilter,
         depth: ShadowDepth,
@@ -761,7 +761,7 @@ impl Pipelines {
 
     /// The deferred light pass for `lights`, compiled on first use (a handle: clones share the
     /// pipeline). A pipeline the device rejects is an error and is not kept.
-    pub fn light_pass(
+    pub(super) fn light_pass(
         &mut self,
         device: &wgpu::Device,
         lights: LightSet,
@@ -802,7 +802,7 @@ impl Pipelines {
 
     /// A compute pipeline naming an entry point the deferred shader lacks
     /// (`Fault::InvalidPipeline`).
-    pub fn invalid_pipeline(&self, device: &wgpu::Device) {
+    pub(super) fn invalid_pipeline(&self, device: &wgpu::Device) {
         let _ = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some("deliberately invalid"),
             layout: Some(&self.deferred_pl),

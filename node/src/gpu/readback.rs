@@ -6,7 +6,7 @@ use super::frame::RenderError;
 
 /// A render target to read and how many of its channels to keep.
 #[derive(Debug, Clone, Copy)]
-pub struct ReadRequest<'a> {
+pub(super) struct ReadRequest<'a> {
     pub texture: &'a wgpu::Texture,
     pub keep_channels: usize,
 }
@@ -14,7 +14,7 @@ pub struct ReadRequest<'a> {
 /// What one frame reads back: the deferred pass's lit buffer (two vec4<f32> a pixel, read as
 /// six channels: diffuse RGB then specular RGB), and textures.
 #[derive(Debug, Clone, Copy)]
-pub enum ReadSource<'a> {
+pub(super) enum ReadSource<'a> {
     Lit(&'a wgpu::Buffer),
     Texture(ReadRequest<'a>),
 }
@@ -23,13 +23,13 @@ pub enum ReadSource<'a> {
 /// frames allocates none (a fresh host-visible buffer per target and frame was most of the
 /// readback on a discrete GPU, `docs/gpu.md`).
 #[derive(Debug, Default)]
-pub struct Staging {
+pub(super) struct Staging {
     buffers: Vec<Option<wgpu::Buffer>>,
 }
 
 impl Staging {
     /// Bytes the kept buffers hold: what the last frame copied to the host.
-    pub fn bytes(&self) -> u64 {
+    pub(super) fn bytes(&self) -> u64 {
         self.buffers.iter().flatten().map(|b| b.size()).sum()
     }
 
@@ -63,7 +63,7 @@ pub(super) fn kept(
 }
 
 /// Bytes per row of a `width`-pixel copy, padded to `COPY_BYTES_PER_ROW_ALIGNMENT`.
-pub fn padded_row(width: u32, bytes_per_pixel: u32) -> u32 {
+pub(super) fn padded_row(width: u32, bytes_per_pixel: u32) -> u32 {
     let align = wgpu::COPY_BYTES_PER_ROW_ALIGNMENT;
     (width * bytes_per_pixel).div_ceil(align) * align
 }
@@ -82,7 +82,7 @@ fn format_info(f: wgpu::TextureFormat) -> Result<(u32, usize, bool), RenderError
 
 /// Copies the whole of `texture` into `buffer` from `offset`, rows `row` bytes apart (a multiple
 /// of `COPY_BYTES_PER_ROW_ALIGNMENT`).
-pub fn copy_texture(
+pub(super) fn copy_texture(
     encoder: &mut wgpu::CommandEncoder,
     texture: &wgpu::Texture,
     buffer: &wgpu::Buffer,
@@ -115,7 +115,7 @@ pub fn copy_texture(
 
 /// Copies every source into `staging` in one submission, waits once, and returns per source its
 /// f32 values (the lit buffer: 6 a pixel; a texture: `keep_channels` a pixel, row 0 at the top).
-pub fn read(
+pub(super) fn read(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
     staging: &mut Staging,

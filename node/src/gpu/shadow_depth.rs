@@ -7,7 +7,7 @@ use super::lights::Fault;
 
 /// The shadow maps' depth encoding.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum ShadowDepth {
+pub(super) enum ShadowDepth {
     /// Reversed-Z in `Depth32Float`: the renderer.
     #[default]
     Reversed32,
@@ -19,7 +19,7 @@ pub enum ShadowDepth {
 }
 
 impl ShadowDepth {
-    pub fn of(fault: Option<Fault>) -> ShadowDepth {
+    pub(super) fn of(fault: Option<Fault>) -> ShadowDepth {
         match fault {
             Some(Fault::Depth16) => ShadowDepth::Reversed16,
             Some(Fault::ConventionalZ) => ShadowDepth::Conventional32,
@@ -27,7 +27,7 @@ impl ShadowDepth {
         }
     }
 
-    pub fn format(self) -> wgpu::TextureFormat {
+    pub(super) fn format(self) -> wgpu::TextureFormat {
         match self {
             ShadowDepth::Reversed16 => wgpu::TextureFormat::Depth16Unorm,
             ShadowDepth::Reversed32 | ShadowDepth::Conventional32 => {
@@ -41,12 +41,12 @@ impl ShadowDepth {
     }
 
     /// The depth of "nothing in front": uncovered texels are lit.
-    pub fn clear(self) -> f32 {
+    pub(super) fn clear(self) -> f32 {
         if self.reversed() { 0.0 } else { 1.0 }
     }
 
     /// The depth test of the shadow pass: the nearer fragment wins.
-    pub fn write_compare(self) -> wgpu::CompareFunction {
+    pub(super) fn write_compare(self) -> wgpu::CompareFunction {
         if self.reversed() {
             wgpu::CompareFunction::Greater
         } else {
@@ -56,7 +56,7 @@ impl ShadowDepth {
 
     /// The comparison sampler's test: a receiver is lit where it is at least as near as the
     /// stored depth.
-    pub fn lookup_compare(self) -> wgpu::CompareFunction {
+    pub(super) fn lookup_compare(self) -> wgpu::CompareFunction {
         if self.reversed() {
             wgpu::CompareFunction::GreaterEqual
         } else {
@@ -70,7 +70,7 @@ impl ShadowDepth {
     /// receiver behind the light's plane stays reversed-Z's "nearest" (1.0), which conventional Z
     /// reads as "farthest": such receivers (within the bias of a light's plane) come out shadowed
     /// under this fault.
-    pub fn projection(self, proj: &[[f32; 4]; 4]) -> [[f32; 4]; 4] {
+    pub(super) fn projection(self, proj: &[[f32; 4]; 4]) -> [[f32; 4]; 4] {
         let mut p = *proj;
         if !self.reversed() {
             for c in &mut p {

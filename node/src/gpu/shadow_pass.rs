@@ -15,7 +15,7 @@ use wgpu::util::DeviceExt;
 
 /// The shadow-map array and a render view per layer.
 #[derive(Debug)]
-pub struct ShadowMaps {
+pub(super) struct ShadowMaps {
     pub size: u32,
     pub layers: u32,
     pub depth: ShadowDepth,
@@ -33,7 +33,7 @@ pub struct ShadowMaps {
 
 /// The transmittance maps and the nearest translucent caster's depth.
 #[derive(Debug)]
-pub struct TranslucentMaps {
+pub(super) struct TranslucentMaps {
     /// Whether these are full-size maps (else the 1 × 1 stand-ins).
     pub full: bool,
     _transmit: wgpu::Texture,
@@ -47,7 +47,7 @@ pub struct TranslucentMaps {
 /// Format of the transmittance maps: the RGB product of the translucent casters' transmittance
 /// in front of the nearest opaque one. f16 blends on every backend and keeps a red pane's
 /// 0.1 to 0.05 % (8 bits would round it to 0.102: a 2 % darker or lighter tint).
-pub const TRANSMIT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
+pub(super) const TRANSMIT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba16Float;
 
 fn array_texture(
     device: &wgpu::Device,
@@ -102,7 +102,7 @@ impl TranslucentMaps {
 }
 
 /// Format of the object-ID layers: mesh index + 1, 0 where no caster drew.
-pub const OBJECT_ID_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
+pub(super) const OBJECT_ID_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 
 fn array_views(
     texture: &wgpu::Texture,
@@ -131,7 +131,7 @@ fn array_views(
 /// Layers to allocate for `views` layers of maps. GL turns arrays of 1 layer or a multiple of 6 layers into
 /// a 2D texture or a cube map and misreads them (docs/platform.md), so those counts get one spare layer
 /// on every backend.
-pub fn layer_count(views: usize) -> u32 {
+pub(super) fn layer_count(views: usize) -> u32 {
     let n = views.max(1) as u32;
     if n == 1 || n.is_multiple_of(6) {
         n + 1
@@ -142,7 +142,7 @@ pub fn layer_count(views: usize) -> u32 {
 
 impl ShadowMaps {
     /// `translucent`: also allocate the translucent casters' maps at full size.
-    pub fn new(
+    pub(super) fn new(
         device: &wgpu::Device,
         size: u32,
         layers: u32,
@@ -175,7 +175,7 @@ impl ShadowMaps {
 
     /// Whether this array has `layers` layers (before padding) of `size`², with the
     /// translucent casters' maps where `translucent` asks for them.
-    pub fn fits(&self, size: u32, layers: u32, translucent: bool) -> bool {
+    pub(super) fn fits(&self, size: u32, layers: u32, translucent: bool) -> bool {
         self.size == size
             && self.layers >= layer_count(layers as usize)
             && (self.translucent.full || !translucent)
@@ -237,7 +237,7 @@ struct Piece {
 /// `transmit[view]` marks (those of lights with translucent casters). Returns the number of
 /// views drawn and of those with transmittance maps, and the vertices drawn (opaque and masked;
 /// from simplified levels).
-pub fn render_shadow_maps(
+pub(super) fn render_shadow_maps(
     cx: &DrawContext<'_>,
     scene: &SceneData,
     maps: &ShadowMaps,
@@ -547,7 +547,7 @@ fn draw_range(pass: &mut wgpu::RenderPass<'_>, m: &Piece) {
 
 /// What [`render_shadow_maps`] drew.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct ShadowDrawn {
+pub(super) struct ShadowDrawn {
     /// Views drawn, and of those with transmittance maps.
     pub passes: u32,
     pub transmitted: u32,

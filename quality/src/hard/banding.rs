@@ -215,7 +215,7 @@ type Row = Vec<(u32, f64, f64)>;
 /// or the case fails: from N = 4 to 256 the error falls at least like N^-0.4 for the grid and
 /// N^-0.65 for jittered and Halton points (fitted log-log slopes). Control: the regular grid at
 /// cell centres, N = 16.
-pub fn banding_case(full: bool) -> Result<CaseReport, HardCaseError> {
+pub(super) fn banding_case(full: bool) -> Result<CaseReport, HardCaseError> {
     let scene = load_case_scene(CASE, "banding.toml", full, (160, 120))?;
     let truth_n = if full { 1024 } else { 256 };
     let t = truth(&scene, truth_n, 1);

@@ -143,7 +143,7 @@ fn group_samples(
 /// metric is the worst RMS relative error (relative to max(exact, one 8-bit step of white)); every
 /// channel must also stay within `chain_bound`, and nothing may saturate or lose a dark pixel.
 /// Control: the paper's `seed64` at a fixed scale of 1 (display white).
-pub fn chain64(full_size: bool) -> Result<CaseReport, HardCaseError> {
+pub(super) fn chain64(full_size: bool) -> Result<CaseReport, HardCaseError> {
     const CASE: &str = "chain64";
     let pixels = if full_size { 65_536 } else { 8_192 };
     let run = |content, chain| {
@@ -196,7 +196,7 @@ const CHAIN64_BOUND: f64 = 4e-2;
 /// Any channel outside the documented worst case (each node's `rgb9e5x2` quantisation, then
 /// `chain_bound` of the `f16x6` hops) fails the case outright. Control: the chain in `seed64` at
 /// a fixed scale of 1.
-pub fn hdr_mix(full_size: bool) -> Result<CaseReport, HardCaseError> {
+pub(super) fn hdr_mix(full_size: bool) -> Result<CaseReport, HardCaseError> {
     const CASE: &str = "hdr-mix";
     let scene = load_case_scene(CASE, "hdr_mix.toml", full_size, (128, 96))?;
     let samples = sampling::direct_samples(&scene);
@@ -326,7 +326,7 @@ const BOTTOM_STEP: f64 = 5.960_464_477_539_063e-8;
 /// over 256 nodes of K = 4 — through `rgb9e5x2` node links and an `f16x6` chain. Metric: the
 /// frame's |energy bias| against the exact sum; any saturated pixel fails. Control: the chain in
 /// `seed64` at a fixed scale of 1.
-pub fn many_lights(full_size: bool) -> Result<CaseReport, HardCaseError> {
+pub(super) fn many_lights(full_size: bool) -> Result<CaseReport, HardCaseError> {
     const CASE: &str = "many-lights";
     let scene = load_case_scene(CASE, "many_lights.toml", full_size, (64, 48))?;
     let samples = sampling::direct_samples(&scene);

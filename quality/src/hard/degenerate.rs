@@ -50,7 +50,7 @@ fn junk_mesh(material: usize) -> Mesh {
     }
 }
 
-pub fn scene(width: u32, height: u32) -> Scene {
+pub(super) fn scene(width: u32, height: u32) -> Scene {
     let mut s = Scene::new("hard-degenerate");
     let grey = s.add_material(Material::diffuse("grey", [0.7, 0.7, 0.7]));
     let red = s.add_material(Material::diffuse("red", [0.8, 0.3, 0.2]));
@@ -101,7 +101,7 @@ pub fn scene(width: u32, height: u32) -> Scene {
 /// Metric: share of compared pixels outside 1e-3 of the reference; any non-finite value in a
 /// sample, the GPU image or the reference fails. Control: how many of the scene's normals a naive
 /// `n / |n|` turns non-finite — it must be > 0, or the scene does not exercise what it claims.
-pub fn degenerate(full: bool) -> Result<CaseReport, HardCaseError> {
+pub(super) fn degenerate(full: bool) -> Result<CaseReport, HardCaseError> {
     const CASE: &str = "degenerate";
     let (w, h) = if full { (512, 384) } else { (160, 120) };
     let scene = scene(w, h);

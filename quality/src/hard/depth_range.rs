@@ -234,7 +234,7 @@ fn shares(view: &ReferenceView, j: &Judged, img: &Image) -> (f64, f64) {
 /// 0.5 m constant bias with lost contact shadows; 16-bit and conventional-Z maps (the depth
 /// precision the case is about) must each make the farthest band worse than the nearest by more
 /// than the bound. The control value is the smallest of those four.
-pub fn depth_range(full: bool) -> Result<CaseReport, HardCaseError> {
+pub(super) fn depth_range(full: bool) -> Result<CaseReport, HardCaseError> {
     let gpu = gpu()?;
     let scene = load_case_scene(CASE, "depth_range.toml", full, (160, 120))?;
     let samples = sampling::direct_samples(&scene);

@@ -77,14 +77,14 @@ fn acne_share(s: &Setup, img: &Image) -> (f64, usize) {
 
 /// Case 1: `scenes/hard/grazing.toml` — a small light 5° above a floor with thin fins. Metric:
 /// the acne share. Control: bias 0.
-pub fn grazing(full: bool) -> Result<CaseReport, HardCaseError> {
+pub(super) fn grazing(full: bool) -> Result<CaseReport, HardCaseError> {
     acne_case("grazing", "grazing.toml", full, GRAZING_BOUND)
 }
 
 /// Case 11: `scenes/hard/terminator.toml` — low-poly (8×6) smooth-shaded spheres under a light
 /// 10° above the horizon: the smooth normal says lit where the facets shadow themselves. Same
 /// metric and control as case 1.
-pub fn terminator(full: bool) -> Result<CaseReport, HardCaseError> {
+pub(super) fn terminator(full: bool) -> Result<CaseReport, HardCaseError> {
     acne_case("terminator", "terminator.toml", full, TERMINATOR_BOUND)
 }
 
@@ -129,7 +129,7 @@ const TERMINATOR_BOUND: f64 = 0.01;
 /// Case 2: `scenes/hard/contact.toml` — boxes resting on the floor. Metric: share of compared
 /// floor pixels within 10 cm of a box's footprint that are outside 1e-3 of the reference (where
 /// peter-panning shows). Control: a 0.5 m constant bias.
-pub fn contact(full: bool) -> Result<CaseReport, HardCaseError> {
+pub(super) fn contact(full: bool) -> Result<CaseReport, HardCaseError> {
     const CASE: &str = "contact";
     let gpu = gpu()?;
     let s = setup(CASE, "contact.toml", full, (192, 144))?;
@@ -195,7 +195,7 @@ const GRAZING_BOUND: f64 = 0.01;
 
 /// Case 6: `scenes/hard/thin_wall.toml` — a 1 cm wall with the light behind it. Metric: share of
 /// compared pixels whose truth is 0 that the GPU lights. Control: a 0.5 m constant bias.
-pub fn thin_wall(full: bool) -> Result<CaseReport, HardCaseError> {
+pub(super) fn thin_wall(full: bool) -> Result<CaseReport, HardCaseError> {
     const CASE: &str = "thin-wall";
     let gpu = gpu()?;
     let s = setup(CASE, "thin_wall.toml", full, (192, 144))?;
@@ -249,7 +249,7 @@ const THIN_WALL_BOUND: f64 = 0.001;
 /// Case 4: `scenes/hard/near_light.toml` — a point light 1 cm above a block under a shelf, with
 /// walls around, and a panel 1 cm in front of another block. Metric: share of compared pixels
 /// outside 1e-3 of the reference; the 1/r² peak must be finite. Control: cube maps keep one face.
-pub fn near_light(full: bool) -> Result<CaseReport, HardCaseError> {
+pub(super) fn near_light(full: bool) -> Result<CaseReport, HardCaseError> {
     const CASE: &str = "near-light";
     let gpu = gpu()?;
     let s = setup(CASE, "near_light.toml", full, (192, 144))?;

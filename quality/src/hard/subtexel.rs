@@ -366,12 +366,12 @@ fn subtexel_case(
 }
 
 /// Case 7, leaves: `LEAVES` 3×6 cm leaves. docs/hard-cases.md, case 7.
-pub fn subtexel_leaves(full: bool) -> Result<CaseReport, HardCaseError> {
+pub(super) fn subtexel_leaves(full: bool) -> Result<CaseReport, HardCaseError> {
     subtexel_case("subtexel-leaves", "leaves", full, LEAVES_BOUNDS)
 }
 
 /// Case 7, fence: 3 mm wires on a 6 cm mesh. docs/hard-cases.md, case 7.
-pub fn subtexel_fence(full: bool) -> Result<CaseReport, HardCaseError> {
+pub(super) fn subtexel_fence(full: bool) -> Result<CaseReport, HardCaseError> {
     subtexel_case("subtexel-fence", "fence", full, FENCE_BOUNDS)
 }
 

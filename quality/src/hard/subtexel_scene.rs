@@ -8,7 +8,7 @@ use lightfold_scene::shading::{add, cross, normalize, scale};
 use lightfold_scene::{Camera, Light, LightShape, Material, Mesh, Scene};
 
 /// Leaves in the crown.
-pub const LEAVES: usize = 4000;
+pub(super) const LEAVES: usize = 4000;
 /// Leaf size (m) and wire thickness and spacing (m).
 const LEAF: [f32; 2] = [0.03, 0.06];
 const WIRE: f32 = 0.003;
@@ -17,10 +17,10 @@ const WIRE_SPACING: f32 = 0.06;
 const LAMP_DISTANCE: f32 = 25.0;
 const LAMP_ELEVATION: f32 = 55.0;
 const LAMP_AZIMUTH0: f32 = -2.0;
-pub const LAMP_STEP: f32 = 0.5;
+pub(super) const LAMP_STEP: f32 = 0.5;
 
 /// The yard with leaves and fence, lamp at frame 0.
-pub fn scene(width: u32, height: u32) -> Scene {
+pub(super) fn scene(width: u32, height: u32) -> Scene {
     let mut s = Scene::new("hard-subtexel");
     let grey = s.add_material(Material::diffuse("ground", [0.8, 0.8, 0.8]));
     let leaf = s.add_material(Material::diffuse("leaf", [0.3, 0.55, 0.2]));
@@ -42,7 +42,7 @@ pub fn scene(width: u32, height: u32) -> Scene {
 }
 
 /// The lamp at frame `t`: a 0.5 m square facing the yard's origin, 4 samples.
-pub fn lamp(t: usize) -> Light {
+pub(super) fn lamp(t: usize) -> Light {
     let (az, el) = (
         (LAMP_AZIMUTH0 + LAMP_STEP * t as f32).to_radians(),
         LAMP_ELEVATION.to_radians(),

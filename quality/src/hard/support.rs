@@ -12,16 +12,16 @@ use lightfold_scene::{Camera, Image, LightSample, Scene};
 use std::path::PathBuf;
 
 /// Per-pixel tolerance of "agrees with the reference" (as in the GPU correctness tests).
-pub const REL_TOL: f32 = 1e-3;
-pub const ABS_TOL: f32 = 1e-4;
+pub(super) const REL_TOL: f32 = 1e-3;
+pub(super) const ABS_TOL: f32 = 1e-4;
 
 /// `scenes/hard/` of the repository.
-pub fn scene_dir() -> PathBuf {
+pub(super) fn scene_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../scenes/hard")
 }
 
 /// Loads `scenes/hard/<file>`; the CI version renders at `small` (width, height).
-pub fn load_case_scene(
+pub(super) fn load_case_scene(
     case: &'static str,
     file: &str,
     full_size: bool,
@@ -37,18 +37,18 @@ pub fn load_case_scene(
     Ok(scene)
 }
 
-pub fn count_non_finite(v: &[f32]) -> usize {
+pub(super) fn count_non_finite(v: &[f32]) -> usize {
     v.iter().filter(|x| !x.is_finite()).count()
 }
 
-pub fn gpu() -> Result<Gpu, HardCaseError> {
+pub(super) fn gpu() -> Result<Gpu, HardCaseError> {
     Gpu::new(&GpuOptions::default()).map_err(|e| HardCaseError::Gpu {
         message: format!("hard cases need an adapter (lavapipe will do): {e}"),
     })
 }
 
 /// The GPU illumination (6 channels) of `samples` with node colour `c_n` under `opts`.
-pub fn gpu_illumination(
+pub(super) fn gpu_illumination(
     case: &'static str,
     gpu: &Gpu,
     scene: &Scene,
@@ -70,10 +70,10 @@ pub fn gpu_illumination(
     })
 }
 
-pub use lightfold_reference::masks::{ShadowStates, shadow_states};
+pub(super) use lightfold_reference::masks::{ShadowStates, shadow_states};
 
 /// Whether every channel of pixel `i` agrees within the per-pixel tolerance.
-pub fn pixel_agrees(a: &Image, b: &Image, i: usize) -> bool {
+pub(super) fn pixel_agrees(a: &Image, b: &Image, i: usize) -> bool {
     let c = a.channels;
     a.data[i * c..i * c + c]
         .iter()
@@ -82,7 +82,7 @@ pub fn pixel_agrees(a: &Image, b: &Image, i: usize) -> bool {
 }
 
 /// Fraction of the `mask` pixels where `gpu` and `reference` disagree.
-pub fn disagreement(gpu: &Image, reference: &Image, mask: &[bool]) -> (f64, usize) {
+pub(super) fn disagreement(gpu: &Image, reference: &Image, mask: &[bool]) -> (f64, usize) {
     let (mut n, mut bad) = (0usize, 0usize);
     for (i, _) in mask.iter().enumerate().filter(|(_, m)| **m) {
         n += 1;
@@ -92,13 +92,13 @@ pub fn disagreement(gpu: &Image, reference: &Image, mask: &[bool]) -> (f64, usiz
 }
 
 /// Sum of the six channels of pixel `i`.
-pub fn pixel_sum(img: &Image, i: usize) -> f32 {
+pub(super) fn pixel_sum(img: &Image, i: usize) -> f32 {
     let c = img.channels;
     img.data[i * c..i * c + c].iter().sum()
 }
 
 /// A report skeleton for cases whose details are filled in by the caller.
-pub fn report(
+pub(super) fn report(
     name: &'static str,
     metric: &'static str,
     (measured, bound): (f64, f64),
@@ -118,12 +118,12 @@ pub fn report(
     }
 }
 
-pub use lightfold_reference::masks::comparable;
+pub(super) use lightfold_reference::masks::comparable;
 
 /// The GPU illumination of `samples` seen by each of `cameras`, one renderer whose shadow maps
 /// are fitted to every receiver of the scene (not just what a camera sees), so every camera
 /// looks at the same maps.
-pub fn gpu_illumination_views(
+pub(super) fn gpu_illumination_views(
     case: &'static str,
     gpu: &Gpu,
     scene: &Scene,
@@ -153,7 +153,7 @@ pub fn gpu_illumination_views(
 
 /// What the reference says about one view of a scene: the exact point sum, the same without
 /// shadows, per-pixel shadow states and the comparable-pixel mask.
-pub struct ReferenceView {
+pub(super) struct ReferenceView {
     pub scene: Scene,
     pub shadowed: lightfold_reference::Layers,
     pub unshadowed: Image,
@@ -162,7 +162,7 @@ pub struct ReferenceView {
 }
 
 impl ReferenceView {
-    pub fn new(scene: &Scene, camera: Camera, samples: &[LightSample]) -> ReferenceView {
+    pub(super) fn new(scene: &Scene, camera: Camera, samples: &[LightSample]) -> ReferenceView {
         use lightfold_reference::{PointSumOptions, render_point_sum, render_point_sum_with};
         let mut scene = scene.clone();
         scene.camera = camera;
@@ -186,13 +186,13 @@ impl ReferenceView {
     }
 
     /// Every sample that would light pixel `i` reaches it.
-    pub fn fully_lit(&self, i: usize) -> bool {
+    pub(super) fn fully_lit(&self, i: usize) -> bool {
         let (l, v) = (self.states.lit[i], self.states.visible[i]);
         l != 0 && l == v
     }
 
     /// Some sample would light pixel `i` but none reaches it.
-    pub fn fully_shadowed(&self, i: usize) -> bool {
+    pub(super) fn fully_shadowed(&self, i: usize) -> bool {
         self.states.lit[i] != 0 && self.states.visible[i] == 0
     }
 }

@@ -13,7 +13,7 @@ use crate::model::{Material, Mesh, Scene};
 use crate::primitives;
 
 /// Triangles of `city` without a count.
-pub const DEFAULT_TRIANGLES: u64 = 1_000_000;
+pub(super) const DEFAULT_TRIANGLES: u64 = 1_000_000;
 /// The fewest triangles a city is built with (one block).
 const MIN_TRIANGLES: u64 = 1_000;
 /// Distance between block centres, and a building's largest half footprint.
@@ -21,7 +21,7 @@ const PITCH: f32 = 12.0;
 
 /// The triangle count `name` asks for (`city`, `city:N`, `city:Nk`, `city:NM`), or `None` when
 /// `name` is not a city.
-pub fn requested(name: &str) -> Option<Result<u64, String>> {
+pub(super) fn requested(name: &str) -> Option<Result<u64, String>> {
     if name == "city" {
         return Some(Ok(DEFAULT_TRIANGLES));
     }

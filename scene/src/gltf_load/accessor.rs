@@ -22,7 +22,7 @@ pub(super) type ReadResult<T> = Result<T, String>;
 
 impl Buffers {
     /// The bytes of a buffer view, checked against its buffer.
-    pub fn view_bytes(&self, view: &gltf::buffer::View) -> ReadResult<&[u8]> {
+    pub(super) fn view_bytes(&self, view: &gltf::buffer::View) -> ReadResult<&[u8]> {
         let buffer = view.buffer().index();
         let data = self
             .data
@@ -45,7 +45,7 @@ impl Buffers {
 
     /// All elements of `acc` as f32 components (`count × components` values), integers
     /// normalised when the accessor says so. `what` names the use for error messages.
-    pub fn read_f32(
+    pub(super) fn read_f32(
         &self,
         acc: &gltf::Accessor,
         expect: &[Dimensions],
@@ -64,7 +64,7 @@ impl Buffers {
     }
 
     /// All elements of an integer accessor (indices, joints) as u32 components.
-    pub fn read_u32(
+    pub(super) fn read_u32(
         &self,
         acc: &gltf::Accessor,
         expect: &[Dimensions],

@@ -23,7 +23,7 @@ pub(super) struct MaterialLoader<'a> {
 }
 
 impl<'a> MaterialLoader<'a> {
-    pub fn new(
+    pub(super) fn new(
         bufs: &'a Buffers,
         base: Option<&'a Path>,
         ignored: &'a mut BTreeSet<String>,
@@ -37,7 +37,7 @@ impl<'a> MaterialLoader<'a> {
         }
     }
 
-    pub fn convert(&mut self, m: &gltf::Material) -> Result<Material, String> {
+    pub(super) fn convert(&mut self, m: &gltf::Material) -> Result<Material, String> {
         let pbr = m.pbr_metallic_roughness();
         let base = pbr.base_color_factor();
         let rgb = [base[0], base[1], base[2]];

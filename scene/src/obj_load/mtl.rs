@@ -43,7 +43,7 @@ pub(super) struct Libraries {
 }
 
 impl Libraries {
-    pub fn load(
+    pub(super) fn load(
         mtllibs: &[(usize, String)],
         base: Option<&Path>,
         files: &Budget,
@@ -96,7 +96,7 @@ impl Libraries {
     }
 
     /// What `tobj` gets for a `mtllib` statement.
-    pub fn get(&self, p: &Path) -> tobj::MTLLoadResult {
+    pub(super) fn get(&self, p: &Path) -> tobj::MTLLoadResult {
         let key = p.to_string_lossy().into_owned();
         let empty = || Ok((Vec::new(), HashMap::new()));
         if !self.served.borrow_mut().insert(key.clone()) {
@@ -112,7 +112,7 @@ impl Libraries {
     }
 
     /// The folder material `i` (of the list `tobj` returns) reads its textures in.
-    pub fn folder_of(&self, i: usize) -> String {
+    pub(super) fn folder_of(&self, i: usize) -> String {
         self.order.borrow().get(i).cloned().unwrap_or_default()
     }
 }
@@ -232,7 +232,7 @@ pub(super) struct Converter<'a> {
 }
 
 impl<'a> Converter<'a> {
-    pub fn new(
+    pub(super) fn new(
         base: Option<&'a Path>,
         files: &'a Budget,
         decoded: &'a Budget,
@@ -248,15 +248,19 @@ impl<'a> Converter<'a> {
         }
     }
 
-    pub fn ignored_mut(&mut self) -> &mut BTreeSet<String> {
+    pub(super) fn ignored_mut(&mut self) -> &mut BTreeSet<String> {
         self.ignored
     }
 
-    pub fn into_textures(self) -> Vec<Texture> {
+    pub(super) fn into_textures(self) -> Vec<Texture> {
         self.textures
     }
 
-    pub fn convert(&mut self, m: &tobj::Material, folder: String) -> Result<Material, String> {
+    pub(super) fn convert(
+        &mut self,
+        m: &tobj::Material,
+        folder: String,
+    ) -> Result<Material, String> {
         let at = |e: String| format!("material {:?}: {e}", m.name);
         let param = |key: &str| -> Option<Vec<f32>> {
             m.unknown_param.get(key).map(|v| {

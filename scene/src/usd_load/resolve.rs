@@ -36,7 +36,7 @@ pub(super) struct Shared {
 const BINARY_MAGIC: &[u8] = b"PXR-USDC";
 
 impl Shared {
-    pub fn new(
+    pub(super) fn new(
         root_name: &str,
         root: Vec<u8>,
         base: Option<PathBuf>,

@@ -16,14 +16,14 @@ use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
 /// Where Debian installs Chromium (`scripts/install-deps.sh --test`); `LIGHTFOLD_CHROMIUM` overrides.
-pub const CHROMIUM: &str = "/usr/bin/chromium";
+pub(crate) const CHROMIUM: &str = "/usr/bin/chromium";
 
 /// How long the browser may take to start and to answer one command.
 const LAUNCH_DEADLINE: Duration = Duration::from_secs(30);
 const CALL_DEADLINE: Duration = Duration::from_secs(30);
 
 /// The Chromium binary, or a loud failure naming the install step.
-pub fn chromium_path() -> String {
+pub(crate) fn chromium_path() -> String {
     let path = std::env::var("LIGHTFOLD_CHROMIUM").unwrap_or_else(|_| CHROMIUM.to_string());
     assert!(
         std::path::Path::new(&path).is_file(),
@@ -35,7 +35,7 @@ pub fn chromium_path() -> String {
 
 /// A headless browser with one attached page.
 #[derive(Debug)]
-pub struct Browser {
+pub(crate) struct Browser {
     child: Child,
     _profile: tempfile::TempDir,
     ws: WebSocketStream<MaybeTlsStream<TcpStream>>,
@@ -50,7 +50,7 @@ pub struct Browser {
 
 impl Browser {
     /// Starts `chromium --headless=new` with a fresh profile and connects to its DevTools socket.
-    pub async fn launch(width: u32, height: u32) -> anyhow::Result<Browser> {
+    pub(crate) async fn launch(width: u32, height: u32) -> anyhow::Result<Browser> {
         let path = chromium_path();
         let profile = tempfile::tempdir().context("creating the browser profile folder")?;
         let mut child = Command::new(&path)
@@ -136,12 +136,12 @@ impl Browser {
     }
 
     /// The browser's recent standard error.
-    pub fn stderr_tail(&self) -> String {
+    pub(crate) fn stderr_tail(&self) -> String {
         self.stderr.lock().unwrap().join("\n")
     }
 
     /// Opens a blank page and attaches to it; later commands go to that page.
-    pub async fn open_page(&mut self, width: u32, height: u32) -> anyhow::Result<()> {
+    pub(crate) async fn open_page(&mut self, width: u32, height: u32) -> anyhow::Result<()> {
         let target = self
             .browser_call("Target.createTarget", json!({"url": "about:blank"}))
             .await?;
@@ -167,7 +167,7 @@ impl Browser {
         Ok(())
     }
 
-    pub async fn navigate(&mut self, url: &str) -> anyhow::Result<()> {
+    pub(crate) async fn navigate(&mut self, url: &str) -> anyhow::Result<()> {
         let r = self.call("Page.navigate", json!({ "url": url })).await?;
         if let Some(e) = r.get("errorText") {
             bail!("navigating to {url} failed: {e}");
@@ -176,7 +176,7 @@ impl Browser {
     }
 
     /// Evaluates `expression` in the page; its value (JSON).
-    pub async fn eval(&mut self, expression: &str) -> anyhow::Result<Value> {
+    pub(crate) async fn eval(&mut self, expression: &str) -> anyhow::Result<Value> {
         let r = self
             .call(
                 "Runtime.evaluate",
@@ -190,7 +190,7 @@ impl Browser {
     }
 
     /// Evaluates `expression` until `done` holds for its value, or fails after `deadline`.
-    pub async fn wait_for(
+    pub(crate) async fn wait_for(
         &mut self,
         what: &str,
         expression: &str,
@@ -213,7 +213,7 @@ impl Browser {
     }
 
     /// The page as PNG bytes.
-    pub async fn screenshot(&mut self) -> anyhow::Result<Vec<u8>> {
+    pub(crate) async fn screenshot(&mut self) -> anyhow::Result<Vec<u8>> {
         let r = self
             .call(
                 "Page.captureScreenshot",
@@ -224,12 +224,18 @@ impl Browser {
     }
 
     /// One mouse event at (`x`, `y`) in CSS pixels.
-    pub async fn mouse(&mut self, kind: &str, x: f64, y: f64, buttons: u32) -> anyhow::Result<()> {
+    pub(crate) async fn mouse(
+        &mut self,
+        kind: &str,
+        x: f64,
+        y: f64,
+        buttons: u32,
+    ) -> anyhow::Result<()> {
         self.mouse_with(kind, x, y, buttons, 0).await
     }
 
     /// [`Browser::mouse`] with keys held (`modifiers`: CDP's bits, 1 = Alt, 8 = Shift).
-    pub async fn mouse_with(
+    pub(crate) async fn mouse_with(
         &mut self,
         kind: &str,
         x: f64,
@@ -248,7 +254,7 @@ impl Browser {
     }
 
     /// Closes the browser (politely, then by force).
-    pub async fn close(mut self) {
+    pub(crate) async fn close(mut self) {
         let _ = timeout(
             Duration::from_secs(5),
             self.browser_call("Browser.close", json!({})),
@@ -264,13 +270,17 @@ impl Browser {
     }
 
     /// A command to the attached page.
-    pub async fn call(&mut self, method: &str, params: Value) -> anyhow::Result<Value> {
+    pub(crate) async fn call(&mut self, method: &str, params: Value) -> anyhow::Result<Value> {
         let session = self.session.clone().context("no page attached")?;
         self.send(method, params, Some(session)).await
     }
 
     /// A command to the browser itself.
-    pub async fn browser_call(&mut self, method: &str, params: Value) -> anyhow::Result<Value> {
+    pub(crate) async fn browser_call(
+        &mut self,
+        method: &str,
+        params: Value,
+    ) -> anyhow::Result<Value> {
         self.send(method, params, None).await
     }
 

@@ -12,14 +12,14 @@ use tokio_tungstenite::tungstenite::Message;
 use tokio_tungstenite::{MaybeTlsStream, WebSocketStream};
 
 /// How long any one wait may take (lavapipe on two shared cores).
-pub const WAIT: Duration = Duration::from_secs(120);
+pub(crate) const WAIT: Duration = Duration::from_secs(120);
 
-pub struct Frame {
+pub(crate) struct Frame {
     pub header: Value,
     pub jpeg: Vec<u8>,
 }
 
-pub struct Client<S = MaybeTlsStream<TcpStream>> {
+pub(crate) struct Client<S = MaybeTlsStream<TcpStream>> {
     ws: WebSocketStream<S>,
     texts: VecDeque<Value>,
     frames: VecDeque<Frame>,
@@ -27,12 +27,12 @@ pub struct Client<S = MaybeTlsStream<TcpStream>> {
 }
 
 /// A viewer that never reads.
-pub struct Stalled {
+pub(crate) struct Stalled {
     _ws: WebSocketStream<TcpStream>,
 }
 
 impl Client {
-    pub async fn connect(addr: SocketAddr) -> Client {
+    pub(crate) async fn connect(addr: SocketAddr) -> Client {
         let url = format!("ws://{addr}/ws");
         let (ws, _) = tokio::time::timeout(WAIT, tokio_tungstenite::connect_async(url))
             .await
@@ -42,7 +42,7 @@ impl Client {
     }
 
     /// Connects with a 4 KiB receive window and never reads after the handshake.
-    pub async fn connect_stalled(addr: SocketAddr) -> Stalled {
+    pub(crate) async fn connect_stalled(addr: SocketAddr) -> Stalled {
         let socket = tokio::net::TcpSocket::new_v4().unwrap();
         socket.set_recv_buffer_size(4096).unwrap();
         let stream = socket.connect(addr).await.unwrap();
@@ -55,7 +55,7 @@ impl Client {
 
 impl<S: AsyncRead + AsyncWrite + Unpin> Client<S> {
     /// A viewer on a WebSocket already open (over TLS, say).
-    pub fn over(ws: WebSocketStream<S>) -> Client<S> {
+    pub(crate) fn over(ws: WebSocketStream<S>) -> Client<S> {
         Client {
             ws,
             texts: VecDeque::new(),
@@ -65,7 +65,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Client<S> {
     }
 
     /// What arrives within `within` (text messages, and how many frames), taking it all.
-    pub async fn drain_for(&mut self, within: Duration) -> (Vec<Value>, usize) {
+    pub(crate) async fn drain_for(&mut self, within: Duration) -> (Vec<Value>, usize) {
         let deadline = tokio::time::Instant::now() + within;
         while let Ok(m) = tokio::time::timeout_at(deadline, self.ws.next()).await {
             match m
@@ -98,7 +98,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Client<S> {
     }
 
     /// The next frame.
-    pub async fn frame(&mut self) -> Frame {
+    pub(crate) async fn frame(&mut self) -> Frame {
         loop {
             if let Some(f) = self.frames.pop_front() {
                 return f;
@@ -108,7 +108,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Client<S> {
     }
 
     /// The next text message of type `kind` (others of that kind before it are consumed).
-    pub async fn expect(&mut self, kind: &str) -> Value {
+    pub(crate) async fn expect(&mut self, kind: &str) -> Value {
         loop {
             if let Some(i) = self.texts.iter().position(|t| t["type"] == kind) {
                 return self.texts.remove(i).unwrap();
@@ -118,7 +118,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Client<S> {
     }
 
     /// The first status (queued or new) that satisfies `pred`.
-    pub async fn status_where(&mut self, pred: impl Fn(&Value) -> bool) -> Value {
+    pub(crate) async fn status_where(&mut self, pred: impl Fn(&Value) -> bool) -> Value {
         loop {
             let s = self.expect("status").await;
             if pred(&s) {
@@ -127,7 +127,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Client<S> {
         }
     }
 
-    pub async fn send(&mut self, v: &Value) {
+    pub(crate) async fn send(&mut self, v: &Value) {
         self.ws
             .send(Message::Text(v.to_string().into()))
             .await
@@ -135,7 +135,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Client<S> {
     }
 
     /// Sends a steering message with an id; the revision its ack names.
-    pub async fn steer(&mut self, mut v: Value) -> u64 {
+    pub(crate) async fn steer(&mut self, mut v: Value) -> u64 {
         let id = self.next_id;
         self.next_id += 1;
         v["id"] = id.into();
@@ -149,7 +149,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Client<S> {
 
     /// Sends `v` with an id; the answer to it: an `error` (which carries the id, and no ack
     /// follows it), or `None` when it was acked.
-    pub async fn try_steer(&mut self, mut v: Value) -> Option<Value> {
+    pub(crate) async fn try_steer(&mut self, mut v: Value) -> Option<Value> {
         let id = self.next_id;
         self.next_id += 1;
         v["id"] = id.into();
@@ -175,7 +175,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Client<S> {
     }
 
     /// The text messages of type `kind` read but not yet taken.
-    pub fn texts_of(&self, kind: &str) -> Vec<Value> {
+    pub(crate) fn texts_of(&self, kind: &str) -> Vec<Value> {
         self.texts
             .iter()
             .filter(|t| t["type"] == kind)
@@ -184,7 +184,7 @@ impl<S: AsyncRead + AsyncWrite + Unpin> Client<S> {
     }
 
     /// Whether the view closes the socket within `within`.
-    pub async fn closed_within(&mut self, within: Duration) -> bool {
+    pub(crate) async fn closed_within(&mut self, within: Duration) -> bool {
         let deadline = tokio::time::Instant::now() + within;
         loop {
             match tokio::time::timeout_at(deadline, self.ws.next()).await {

@@ -6,12 +6,12 @@ use lightfold_protocol::Layer;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-pub fn rng(seed: u64) -> ChaCha8Rng {
+pub(crate) fn rng(seed: u64) -> ChaCha8Rng {
     ChaCha8Rng::seed_from_u64(seed)
 }
 
 /// One value: mostly ordinary, sometimes NaN, ±Inf, negative, subnormal, zero or huge.
-pub fn hostile(r: &mut ChaCha8Rng) -> f32 {
+pub(crate) fn hostile(r: &mut ChaCha8Rng) -> f32 {
     match r.random_range(0..100) {
         0..4 => f32::NAN,
         4..7 => f32::INFINITY,
@@ -26,19 +26,19 @@ pub fn hostile(r: &mut ChaCha8Rng) -> f32 {
 }
 
 /// Ordinary non-negative values (no specials).
-pub fn ordinary(r: &mut ChaCha8Rng) -> f32 {
+pub(crate) fn ordinary(r: &mut ChaCha8Rng) -> f32 {
     r.random_range(0.0..4.0f32)
 }
 
 /// An owned band: layers of `pixels` pixels.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Owned {
+pub(crate) struct Owned {
     pub pixels: usize,
     pub layers: Vec<(Layer, Vec<f32>)>,
 }
 
 impl Owned {
-    pub fn zeros(pixels: usize, layers: &[Layer]) -> Owned {
+    pub(crate) fn zeros(pixels: usize, layers: &[Layer]) -> Owned {
         Owned {
             pixels,
             layers: layers
@@ -48,7 +48,7 @@ impl Owned {
         }
     }
 
-    pub fn random(
+    pub(crate) fn random(
         pixels: usize,
         layers: &[Layer],
         r: &mut ChaCha8Rng,
@@ -63,7 +63,7 @@ impl Owned {
         }
     }
 
-    pub fn view(&self) -> BandView<'_> {
+    pub(crate) fn view(&self) -> BandView<'_> {
         BandView {
             pixels: self.pixels,
             layers: self
@@ -74,7 +74,7 @@ impl Owned {
         }
     }
 
-    pub fn view_mut(&mut self) -> BandMut<'_> {
+    pub(crate) fn view_mut(&mut self) -> BandMut<'_> {
         BandMut {
             pixels: self.pixels,
             layers: self
@@ -85,7 +85,7 @@ impl Owned {
         }
     }
 
-    pub fn layer(&self, layer: Layer) -> &[f32] {
+    pub(crate) fn layer(&self, layer: Layer) -> &[f32] {
         &self
             .layers
             .iter()
@@ -96,7 +96,7 @@ impl Owned {
 }
 
 /// Runs `op` (fast, or the reference) on owned inputs into a fresh output band.
-pub fn run(op: &dyn Operator, inputs: &[Owned], pixels: usize, scalar: bool) -> Owned {
+pub(crate) fn run(op: &dyn Operator, inputs: &[Owned], pixels: usize, scalar: bool) -> Owned {
     let mut out = Owned::zeros(pixels, &op.signature().outputs);
     let views: Vec<BandView<'_>> = inputs.iter().map(Owned::view).collect();
     let mut o = out.view_mut();
@@ -110,7 +110,7 @@ pub fn run(op: &dyn Operator, inputs: &[Owned], pixels: usize, scalar: bool) -> 
 }
 
 /// Asserts two bands hold the same bits, naming the first difference.
-pub fn assert_same_bits(a: &Owned, b: &Owned, what: &str) {
+pub(crate) fn assert_same_bits(a: &Owned, b: &Owned, what: &str) {
     assert_eq!(a.layers.len(), b.layers.len(), "{what}: layer count");
     for ((la, da), (lb, db)) in a.layers.iter().zip(&b.layers) {
         assert_eq!(la, lb, "{what}: layer order");

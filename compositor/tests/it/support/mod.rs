@@ -17,11 +17,11 @@ use tokio::net::TcpListener;
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
-pub const TOKEN: &[u8] = b"stage-test-token";
+pub(crate) const TOKEN: &[u8] = b"stage-test-token";
 /// Deadline of every wait in these tests.
-pub const WAIT: Duration = Duration::from_secs(10);
+pub(crate) const WAIT: Duration = Duration::from_secs(10);
 
-pub fn timeouts() -> Timeouts {
+pub(crate) fn timeouts() -> Timeouts {
     Timeouts {
         connect: Duration::from_secs(2),
         handshake: Duration::from_secs(2),
@@ -30,23 +30,26 @@ pub fn timeouts() -> Timeouts {
     }
 }
 
-pub fn identity(role: Role, id: &str) -> Identity {
+pub(crate) fn identity(role: Role, id: &str) -> Identity {
     Identity::new(TOKEN, role, id)
 }
 
 /// A stage running in this process.
-pub struct Stage {
+pub(crate) struct Stage {
     pub addr: String,
     pub metrics: Arc<StageMetrics>,
     pub shutdown: CancellationToken,
     pub handle: JoinHandle<anyhow::Result<()>>,
 }
 
-pub async fn start_stage(id: &str) -> Stage {
+pub(crate) async fn start_stage(id: &str) -> Stage {
     start_stage_with(id, |_| {}).await
 }
 
-pub async fn start_stage_with(id: &str, tweak: impl FnOnce(&mut CompositorOptions)) -> Stage {
+pub(crate) async fn start_stage_with(
+    id: &str,
+    tweak: impl FnOnce(&mut CompositorOptions),
+) -> Stage {
     let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap().to_string();
     let mut opts = CompositorOptions::new(id, addr.clone(), TOKEN);
@@ -67,7 +70,7 @@ pub async fn start_stage_with(id: &str, tweak: impl FnOnce(&mut CompositorOption
 
 impl Stage {
     /// Cancels the stage and waits (with a deadline) for `run` to return.
-    pub async fn stop(self) {
+    pub(crate) async fn stop(self) {
         self.shutdown.cancel();
         tokio::time::timeout(WAIT, self.handle)
             .await
@@ -76,7 +79,7 @@ impl Stage {
             .expect("stage run returns Ok");
     }
 
-    pub async fn control(&self) -> ControlClient {
+    pub(crate) async fn control(&self) -> ControlClient {
         ControlClient::connect(
             &self.addr,
             &identity(Role::Coordinator, "coord"),
@@ -87,7 +90,7 @@ impl Stage {
         .expect("coordinator connects")
     }
 
-    pub async fn producer(&self, id: &str) -> Producer {
+    pub(crate) async fn producer(&self, id: &str) -> Producer {
         Producer::connect(&self.addr, &identity(Role::Node, id), timeouts(), WAIT)
             .await
             .expect("producer connects")
@@ -95,7 +98,7 @@ impl Stage {
 }
 
 /// The coordinator's data listener for a sink stage.
-pub async fn sink() -> (Sink, String) {
+pub(crate) async fn sink() -> (Sink, String) {
     let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap().to_string();
     (
@@ -104,7 +107,7 @@ pub async fn sink() -> (Sink, String) {
     )
 }
 
-pub fn input(peer: &str, layers: &[(Layer, PixelFormat)]) -> StageInput {
+pub(crate) fn input(peer: &str, layers: &[(Layer, PixelFormat)]) -> StageInput {
     StageInput {
         peer: peer.into(),
         layers: layers.to_vec(),
@@ -112,7 +115,7 @@ pub fn input(peer: &str, layers: &[(Layer, PixelFormat)]) -> StageInput {
 }
 
 /// A configuration with the test defaults for what a test does not care about.
-pub fn config(
+pub(crate) fn config(
     epoch: u64,
     (width, height, band_height): (u32, u32, u32),
     inputs: Vec<StageInput>,
@@ -135,7 +138,11 @@ pub fn config(
     }
 }
 
-pub fn shape(epoch: u64, frame: u64, (width, height, band_height): (u32, u32, u32)) -> FrameShape {
+pub(crate) fn shape(
+    epoch: u64,
+    frame: u64,
+    (width, height, band_height): (u32, u32, u32),
+) -> FrameShape {
     FrameShape {
         epoch,
         frame,
@@ -148,7 +155,7 @@ pub fn shape(epoch: u64, frame: u64, (width, height, band_height): (u32, u32, u3
 
 /// HDR content with a 1e4 : 1 range (log-uniform), and a block of all-zero rows so some bands
 /// travel empty.
-pub fn hdr(
+pub(crate) fn hdr(
     seed: u64,
     width: u32,
     height: u32,
@@ -170,7 +177,7 @@ pub fn hdr(
     v
 }
 
-pub fn image(layer: Layer, format: PixelFormat, data: Vec<f32>) -> LayerImage {
+pub(crate) fn image(layer: Layer, format: PixelFormat, data: Vec<f32>) -> LayerImage {
     LayerImage {
         layer,
         format,
@@ -179,7 +186,7 @@ pub fn image(layer: Layer, format: PixelFormat, data: Vec<f32>) -> LayerImage {
 }
 
 /// Values as they come out of a link format (so the in-memory reference sees what the stage sees).
-pub fn quantised(format: PixelFormat, layer: Layer, data: Vec<f32>) -> Vec<f32> {
+pub(crate) fn quantised(format: PixelFormat, layer: Layer, data: Vec<f32>) -> Vec<f32> {
     let px = data.len() / layer.channels();
     let mut bytes = vec![0u8; px * format.bytes_per_pixel()];
     lightfold_protocol::format::pack(format, &data, 1.0, &mut bytes).unwrap();
@@ -190,7 +197,7 @@ pub fn quantised(format: PixelFormat, layer: Layer, data: Vec<f32>) -> Vec<f32> 
 
 /// The operators of `ops` applied to whole frames in memory (no quantisation).
 /// Typed operators from (name, JSON parameter text; empty: defaults).
-pub fn specs(ops: &[(&str, &str)]) -> Vec<OpSpec> {
+pub(crate) fn specs(ops: &[(&str, &str)]) -> Vec<OpSpec> {
     ops.iter()
         .map(|(n, p)| {
             let p: serde_json::Value = if p.trim().is_empty() {
@@ -203,7 +210,7 @@ pub fn specs(ops: &[(&str, &str)]) -> Vec<OpSpec> {
         .collect()
 }
 
-pub fn reference(
+pub(crate) fn reference(
     ops: &[(&str, &str)],
     inputs: &[&LayerImage],
     width: u32,
@@ -233,7 +240,7 @@ pub fn reference(
 
 /// Per value, the round-trip error bound of packing `values` (pixels of `format`), the
 /// shared-exponent formats judged by each triple's largest channel as the protocol documents.
-pub fn link_bound(format: PixelFormat, values: &[f32], scale: f32) -> Vec<f32> {
+pub(crate) fn link_bound(format: PixelFormat, values: &[f32], scale: f32) -> Vec<f32> {
     let ch = format.channels();
     let mut out = Vec::with_capacity(values.len());
     for px in values.chunks_exact(ch) {
@@ -253,7 +260,7 @@ pub fn link_bound(format: PixelFormat, values: &[f32], scale: f32) -> Vec<f32> {
 }
 
 /// Asserts `got` is within `bound` of `want` value by value (plus f32 rounding of the sums).
-pub fn assert_within(got: &[f32], want: &[f32], bound: &[f32], what: &str) {
+pub(crate) fn assert_within(got: &[f32], want: &[f32], bound: &[f32], what: &str) {
     assert_eq!(got.len(), want.len(), "{what}: length");
     let mut worst = (0.0f32, 0usize);
     for (k, ((g, w), b)) in got.iter().zip(want).zip(bound).enumerate() {
@@ -274,7 +281,7 @@ pub fn assert_within(got: &[f32], want: &[f32], bound: &[f32], what: &str) {
 }
 
 /// Frame parameters that change nothing.
-pub fn no_params() -> lightfold_protocol::FrameParams {
+pub(crate) fn no_params() -> lightfold_protocol::FrameParams {
     lightfold_protocol::FrameParams {
         colors: Vec::new(),
         scale: None,

@@ -46,7 +46,7 @@ pub(crate) struct Member {
 }
 
 impl Member {
-    pub fn new(address: String, caps: Capabilities, link: u64, now: Instant) -> Member {
+    pub(super) fn new(address: String, caps: Capabilities, link: u64, now: Instant) -> Member {
         Member {
             address,
             caps,
@@ -278,7 +278,7 @@ impl Core {
 }
 
 impl Core {
-    pub fn new(setup: CoreSetup) -> Result<Core, RunError> {
+    pub(super) fn new(setup: CoreSetup) -> Result<Core, RunError> {
         let CoreSetup {
             scene,
             chunked,
@@ -350,13 +350,13 @@ impl Core {
     }
 
     /// Plans and configures the first epoch (`Phase::Configuring`).
-    pub fn start(&mut self, now: Instant) -> Result<(), RunError> {
+    pub(super) fn start(&mut self, now: Instant) -> Result<(), RunError> {
         self.replan("start".to_string(), true, now)?;
         self.settle(now)
     }
 
     /// Takes one input at `now`. An error ends the run (`summary` says what happened).
-    pub fn handle(&mut self, input: Input, now: Instant) -> Result<(), RunError> {
+    pub(super) fn handle(&mut self, input: Input, now: Instant) -> Result<(), RunError> {
         match input {
             Input::Daemon { id, link, at, msg } => {
                 if let Some((id, m)) = self.accept(id, link, at, msg)? {
@@ -401,22 +401,22 @@ impl Core {
     }
 
     /// The next command for the driver.
-    pub fn poll_command(&mut self) -> Option<Command> {
+    pub(super) fn poll_command(&mut self) -> Option<Command> {
         self.out.pop_front()
     }
 
     /// Whether the run is over (nothing more will be requested or delivered).
-    pub fn finished(&self) -> bool {
+    pub(super) fn finished(&self) -> bool {
         self.finished
     }
 
     /// Whether the core takes frame requests now (the lookahead is not full).
-    pub fn wants_requests(&self) -> bool {
+    pub(super) fn wants_requests(&self) -> bool {
         self.source_open && self.frames.queue.len() < self.control.frames_in_flight.max(1)
     }
 
     /// The plan in use.
-    pub fn plan(&self) -> Option<&Plan> {
+    pub(super) fn plan(&self) -> Option<&Plan> {
         self.plan.as_ref()
     }
 
@@ -427,7 +427,7 @@ impl Core {
     }
 
     /// A watcher of the state (plan, epochs, incidents, lost daemons, notices).
-    pub fn observe(&self) -> watch::Receiver<LiveStatus> {
+    pub(super) fn observe(&self) -> watch::Receiver<LiveStatus> {
         self.observer.subscribe()
     }
 

@@ -34,14 +34,14 @@ impl Default for Ledger {
 
 impl Ledger {
     /// Queues a request under the next number.
-    pub fn request(&mut self, spec: FrameSpec) {
+    pub(super) fn request(&mut self, spec: FrameSpec) {
         self.queue.push_back((self.next_index, spec));
         self.next_index += 1;
     }
 
     /// Takes the frames in flight whose image and `participants` reports are all in, each with
     /// the number of frames requested after it that are still in flight (its latency in frames).
-    pub fn complete(&mut self, participants: usize) -> Vec<(InFlight, u32)> {
+    pub(super) fn complete(&mut self, participants: usize) -> Vec<(InFlight, u32)> {
         let mut out = Vec::new();
         let mut i = 0;
         while i < self.inflight.len() {
@@ -58,7 +58,7 @@ impl Ledger {
     }
 
     /// Records a complete frame for delivery in order.
-    pub fn finished(&mut self, r: FrameResult) {
+    pub(super) fn finished(&mut self, r: FrameResult) {
         // A number already delivered or recorded is never delivered twice.
         if r.frame >= self.next_deliver {
             self.done.entry(r.frame).or_insert(r);
@@ -66,7 +66,7 @@ impl Ledger {
     }
 
     /// The complete frames that are next in request order, each once.
-    pub fn deliverable(&mut self) -> Vec<FrameResult> {
+    pub(super) fn deliverable(&mut self) -> Vec<FrameResult> {
         let mut out = Vec::new();
         while let Some(r) = self.done.remove(&self.next_deliver) {
             self.next_deliver += 1;
@@ -78,7 +78,7 @@ impl Ledger {
     /// A re-plan: returns the frames in flight whose image reached the sink (complete: the caller
     /// finishes them) and puts the others back at the head of the queue, in order. Returns them
     /// with the number put back.
-    pub fn salvage(&mut self) -> (Vec<InFlight>, u64) {
+    pub(super) fn salvage(&mut self) -> (Vec<InFlight>, u64) {
         let mut kept = Vec::new();
         let mut again = Vec::new();
         for f in std::mem::take(&mut self.inflight) {
@@ -97,7 +97,7 @@ impl Ledger {
 
     /// Gives up every frame not delivered yet (daemons stopped with the run); returns how many
     /// were in flight.
-    pub fn abandon(&mut self) -> usize {
+    pub(super) fn abandon(&mut self) -> usize {
         let left = self.inflight.len();
         self.inflight.clear();
         self.queue.clear();
@@ -105,7 +105,7 @@ impl Ledger {
     }
 
     /// Whether nothing is queued or in flight.
-    pub fn idle(&self) -> bool {
+    pub(super) fn idle(&self) -> bool {
         self.queue.is_empty() && self.inflight.is_empty()
     }
 }

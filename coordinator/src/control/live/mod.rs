@@ -213,7 +213,7 @@ pub struct LiveSummary {
 }
 
 /// Light colours by source light: (light, linear colour).
-pub type LightColors = Vec<(u32, [f32; 3])>;
+pub(super) type LightColors = Vec<(u32, [f32; 3])>;
 
 /// What the loop is doing, for a watcher.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]

@@ -4,14 +4,14 @@ use lightfold_scene::primitives::{cuboid, plane, sphere};
 use lightfold_scene::sampling::SplitMix64;
 use lightfold_scene::{Light, LightShape, Material, Scene};
 
-pub const PALETTE: [[f32; 3]; 4] = [
+pub(crate) const PALETTE: [[f32; 3]; 4] = [
     [1.0, 1.0, 1.0],
     [1.0, 0.8, 0.6],
     [0.6, 0.7, 1.0],
     [1.0, 0.2, 0.2],
 ];
 
-pub fn rect(
+pub(crate) fn rect(
     name: &str,
     center: [f32; 3],
     normal: [f32; 3],
@@ -35,7 +35,7 @@ pub fn rect(
 }
 
 /// A floor, a box and a ball under one downward rectangular light of 4 samples.
-pub fn stage() -> Scene {
+pub(crate) fn stage() -> Scene {
     let mut s = Scene::new("stage");
     let grey = s.add_material(Material::diffuse("grey", [0.7, 0.7, 0.7]));
     let red = s.add_material(Material::diffuse("red", [0.8, 0.2, 0.2]));
@@ -75,7 +75,7 @@ fn range(rng: &mut SplitMix64, lo: f32, hi: f32) -> f32 {
 
 /// A random small scene: a floor, 1–4 objects with random materials, 1–4 lights of every kind
 /// (some aimed away, some with a short range, some black), optional ambient and emission.
-pub fn random(seed: u64) -> Scene {
+pub(crate) fn random(seed: u64) -> Scene {
     let mut rng = SplitMix64(seed);
     let mut s = Scene::new(&format!("random-{seed}"));
     let spec = pick(&mut rng, &[[0.0; 3], [0.04; 3], [0.04; 3]]);

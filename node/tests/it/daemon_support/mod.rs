@@ -19,12 +19,12 @@ use tokio::sync::mpsc;
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
-pub const TOKEN: &[u8] = b"daemon test token";
-pub const WAIT: Duration = Duration::from_secs(60);
-pub const WIDTH: u32 = 160;
-pub const HEIGHT: u32 = 120;
+pub(crate) const TOKEN: &[u8] = b"daemon test token";
+pub(crate) const WAIT: Duration = Duration::from_secs(60);
+pub(crate) const WIDTH: u32 = 160;
+pub(crate) const HEIGHT: u32 = 120;
 
-pub fn quick() -> Timeouts {
+pub(crate) fn quick() -> Timeouts {
     Timeouts {
         connect: Duration::from_secs(5),
         handshake: Duration::from_secs(10),
@@ -34,30 +34,30 @@ pub fn quick() -> Timeouts {
 }
 
 /// The test scene: the calibration scene at a small size.
-pub fn scene() -> Scene {
+pub(crate) fn scene() -> Scene {
     let mut s = calibration_scene();
     s.camera.width = WIDTH;
     s.camera.height = HEIGHT;
     s
 }
 
-pub fn lights(n: usize) -> Vec<LightSample> {
+pub(crate) fn lights(n: usize) -> Vec<LightSample> {
     calibration_lights(n)
 }
 
 /// A running node.
-pub struct TestNode {
+pub(crate) struct TestNode {
     pub addr: String,
     pub shutdown: CancellationToken,
     pub handle: JoinHandle<anyhow::Result<()>>,
 }
 
-pub async fn start_node(id: &str, cache_dir: Option<PathBuf>) -> TestNode {
+pub(crate) async fn start_node(id: &str, cache_dir: Option<PathBuf>) -> TestNode {
     start_node_with(id, |opts| opts.cache_dir = cache_dir).await
 }
 
 /// A node with the test defaults, then `tweak` applied to its options.
-pub async fn start_node_with(id: &str, tweak: impl FnOnce(&mut NodeOptions)) -> TestNode {
+pub(crate) async fn start_node_with(id: &str, tweak: impl FnOnce(&mut NodeOptions)) -> TestNode {
     let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap().to_string();
     let mut opts = NodeOptions::new(id, TOKEN);
@@ -76,7 +76,7 @@ pub async fn start_node_with(id: &str, tweak: impl FnOnce(&mut NodeOptions)) -> 
 impl TestNode {
     /// Connects a test coordinator; if the node failed to start (no GPU adapter, say), fails
     /// with the node's own error.
-    pub async fn coordinator(&mut self) -> Coordinator {
+    pub(crate) async fn coordinator(&mut self) -> Coordinator {
         match Coordinator::try_connect(&self.addr).await {
             Ok(c) => c,
             Err(e) => {
@@ -90,7 +90,7 @@ impl TestNode {
     }
 
     /// Cancels the node and waits for `run` to return.
-    pub async fn stop(self) {
+    pub(crate) async fn stop(self) {
         self.shutdown.cancel();
         let r = tokio::time::timeout(WAIT, self.handle)
             .await
@@ -102,13 +102,13 @@ impl TestNode {
 
 /// The test driver's side of a control link: the harness's fake coordinator with the answers
 /// these tests expect (a failure panics with what came instead).
-pub struct Coordinator {
+pub(crate) struct Coordinator {
     pub client: ControlClient,
     pub caps: lightfold_protocol::Capabilities,
 }
 
 impl Coordinator {
-    pub async fn try_connect(addr: &str) -> Result<Coordinator, String> {
+    pub(crate) async fn try_connect(addr: &str) -> Result<Coordinator, String> {
         let me = Identity::new(TOKEN, Role::Coordinator, "test-coordinator");
         let client = ControlClient::connect(addr, &me, quick(), WAIT)
             .await
@@ -119,35 +119,35 @@ impl Coordinator {
 
     /// Connects and claims the node for `session`; returns the node's answer (`Claimed`, or an
     /// `Error`) with the link.
-    pub async fn claim(addr: &str, session: u64, take_over: bool) -> (Coordinator, Message) {
+    pub(crate) async fn claim(addr: &str, session: u64, take_over: bool) -> (Coordinator, Message) {
         let mut c = Coordinator::try_connect(addr).await.expect("connect");
         let answer = c.request(Message::Claim { session, take_over }).await;
         (c, answer)
     }
 
     /// The next message within `within`, or the link's error (closed, timed out).
-    pub async fn recv_within(&mut self, within: Duration) -> Result<Message, NetError> {
+    pub(crate) async fn recv_within(&mut self, within: Duration) -> Result<Message, NetError> {
         self.client.recv_raw(within).await
     }
 
-    pub async fn send(&mut self, msg: Message) {
+    pub(crate) async fn send(&mut self, msg: Message) {
         self.client.send_msg(msg).await.expect("send to the node");
     }
 
-    pub async fn recv(&mut self) -> Message {
+    pub(crate) async fn recv(&mut self) -> Message {
         self.client
             .recv_raw(WAIT)
             .await
             .expect("answer from the node")
     }
 
-    pub async fn request(&mut self, msg: Message) -> Message {
+    pub(crate) async fn request(&mut self, msg: Message) -> Message {
         self.send(msg).await;
         self.recv().await
     }
 
     /// Offers the scene and sends it if asked; returns its hash.
-    pub async fn send_scene(&mut self, scene: &Scene) -> Hash {
+    pub(crate) async fn send_scene(&mut self, scene: &Scene) -> Hash {
         let bytes = scene.to_bytes().expect("scene encodes");
         let hash = scene.content_hash();
         let loaded = self
@@ -161,14 +161,14 @@ impl Coordinator {
         hash
     }
 
-    pub async fn send_chunks(&mut self, hash: Hash, bytes: &[u8], chunk: usize) {
+    pub(crate) async fn send_chunks(&mut self, hash: Hash, bytes: &[u8], chunk: usize) {
         self.client
             .send_chunks(hash, bytes, chunk)
             .await
             .expect("send to the node");
     }
 
-    pub async fn frame(&mut self, epoch: u64, frame: u64) -> Message {
+    pub(crate) async fn frame(&mut self, epoch: u64, frame: u64) -> Message {
         self.request(Message::RenderFrame {
             epoch,
             frame,
@@ -185,14 +185,14 @@ impl Coordinator {
 }
 
 /// A listener playing the compositor: accepts data links and forwards every band.
-pub struct Compositor {
+pub(crate) struct Compositor {
     pub addr: String,
     pub bands: mpsc::Receiver<(String, BandHeader, Bytes)>,
     /// Bumped by [`Compositor::let_go`]: every link accepted so far is closed.
     generation: tokio::sync::watch::Sender<u64>,
 }
 
-pub async fn start_compositor() -> Compositor {
+pub(crate) async fn start_compositor() -> Compositor {
     let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
     let addr = listener.local_addr().unwrap().to_string();
     let (tx, bands) = mpsc::channel(4096);
@@ -234,7 +234,7 @@ pub async fn start_compositor() -> Compositor {
 
 impl Compositor {
     /// The next `n` bands, each within the deadline.
-    pub async fn take(&mut self, n: usize) -> Vec<(String, BandHeader, Bytes)> {
+    pub(crate) async fn take(&mut self, n: usize) -> Vec<(String, BandHeader, Bytes)> {
         let mut out = Vec::with_capacity(n);
         for _ in 0..n {
             let b = tokio::time::timeout(WAIT, self.bands.recv())
@@ -248,18 +248,18 @@ impl Compositor {
 
     /// Closes every link accepted so far, as a stage does with the links of producers a new
     /// configuration leaves out.
-    pub fn let_go(&self) {
+    pub(crate) fn let_go(&self) {
         self.generation.send_modify(|g| *g += 1);
     }
 
     /// True if no band is waiting.
-    pub fn idle(&mut self) -> bool {
+    pub(crate) fn idle(&mut self) -> bool {
         self.bands.try_recv().is_err()
     }
 }
 
 /// A node configuration for the test scene.
-pub fn node_config(
+pub(crate) fn node_config(
     epoch: u64,
     scene: Hash,
     lights: &[LightSample],
@@ -293,12 +293,12 @@ pub fn node_config(
 }
 
 /// Bands expected per frame.
-pub fn band_count(config: &NodeConfig) -> usize {
+pub(crate) fn band_count(config: &NodeConfig) -> usize {
     config.camera.height.div_ceil(config.band_height) as usize * config.layers.len()
 }
 
 /// Unpacks one layer's bands into an image (empty bands stay zero).
-pub fn assemble(
+pub(crate) fn assemble(
     bands: &[(String, BandHeader, Bytes)],
     layer: Layer,
     width: u32,
@@ -320,7 +320,7 @@ pub fn assemble(
 }
 
 /// Largest excess of `|got − want|` over the format's documented bound (≤ 0 means within).
-pub fn worst_excess(format: PixelFormat, got: &Image, want: &Image, scale: f32) -> f32 {
+pub(crate) fn worst_excess(format: PixelFormat, got: &Image, want: &Image, scale: f32) -> f32 {
     assert_eq!(
         (got.width, got.height, got.channels),
         (want.width, want.height, want.channels)

@@ -14,13 +14,13 @@ use lightfold_scene::{
     AlphaMode, Camera, Image, Light, LightSample, LightShape, Material, Scene, Texture, sampling,
 };
 
-pub const REL_TOL: f32 = 1e-3;
-pub const ABS_TOL: f32 = 1e-4;
+pub(crate) const REL_TOL: f32 = 1e-3;
+pub(crate) const ABS_TOL: f32 = 1e-4;
 /// Node colour of the tests: light A's colour, so light B's weight is not 1.
-pub const C_N: [f32; 3] = [1.0, 0.8, 0.6];
+pub(crate) const C_N: [f32; 3] = [1.0, 0.8, 0.6];
 
 /// The device, or a failed test that says why (GPU tests never skip).
-pub use lightfold_harness::gpu;
+pub(crate) use lightfold_harness::gpu;
 
 /// A checkerboard with transparent cells, for an alpha-masked caster.
 fn checker(n: u32) -> Texture {
@@ -43,7 +43,7 @@ fn checker(n: u32) -> Texture {
 /// Floor, back wall, a glossy sphere, a box, a pillar far off to the side of a low light (outside
 /// a 90° cone of its samples), an alpha-masked fence, an emissive block, a slab floating just above
 /// the floor; two coloured area lights.
-pub fn shadow_scene(width: u32, height: u32) -> Scene {
+pub(crate) fn shadow_scene(width: u32, height: u32) -> Scene {
     let mut s = Scene::new("shadow test");
     let grey = s.add_material(Material::diffuse("grey", [0.7, 0.7, 0.7]));
     let wall = s.add_material(Material::diffuse("wall", [0.6, 0.65, 0.7]));
@@ -117,21 +117,21 @@ pub fn shadow_scene(width: u32, height: u32) -> Scene {
     s
 }
 
-pub fn samples(scene: &Scene) -> Vec<LightSample> {
+pub(crate) fn samples(scene: &Scene) -> Vec<LightSample> {
     sampling::direct_samples(scene)
 }
 
-pub use lightfold_reference::masks::ShadowStates;
+pub(crate) use lightfold_reference::masks::ShadowStates;
 
 /// The reference's shadow states; these tests judge at most 64 samples, each with its own bit.
-pub fn shadow_states(scene: &Scene, samples: &[LightSample]) -> ShadowStates {
+pub(crate) fn shadow_states(scene: &Scene, samples: &[LightSample]) -> ShadowStates {
     assert!(samples.len() <= 64, "shadow states hold 64 samples");
     lightfold_reference::masks::shadow_states(scene, samples)
 }
 
 /// Outcome of comparing a GPU layer with the reference.
 #[derive(Debug, Clone, Copy)]
-pub struct Comparison {
+pub(crate) struct Comparison {
     pub compared: usize,
     pub agree: f64,
     pub energy_ratio: f64,
@@ -139,13 +139,13 @@ pub struct Comparison {
 
 impl Comparison {
     /// The bar: ≥ 99 % of compared pixels agree and mean energy within 1 %.
-    pub fn passes(&self) -> bool {
+    pub(crate) fn passes(&self) -> bool {
         self.agree >= 0.99 && (self.energy_ratio - 1.0).abs() <= 0.01
     }
 }
 
 /// Compares images channel by channel on `mask`; energy is compared over every pixel.
-pub fn compare(gpu: &Image, reference: &Image, mask: &[bool]) -> Comparison {
+pub(crate) fn compare(gpu: &Image, reference: &Image, mask: &[bool]) -> Comparison {
     assert_eq!(
         (gpu.width, gpu.height, gpu.channels),
         (reference.width, reference.height, reference.channels)
@@ -180,7 +180,7 @@ pub fn compare(gpu: &Image, reference: &Image, mask: &[bool]) -> Comparison {
 }
 
 /// Writes GPU, reference and ×10 difference PNGs when `LIGHTFOLD_TEST_IMAGES` names a folder.
-pub fn dump(name: &str, frame: &NodeFrame, reference: &Layers) {
+pub(crate) fn dump(name: &str, frame: &NodeFrame, reference: &Layers) {
     let Ok(dir) = std::env::var("LIGHTFOLD_TEST_IMAGES") else {
         return;
     };
@@ -200,6 +200,6 @@ pub fn dump(name: &str, frame: &NodeFrame, reference: &Layers) {
 }
 
 /// Pixels compared: not on a shadow edge or a silhouette (see the module docs).
-pub fn comparable(reference: &Layers, states: &[u64]) -> Vec<bool> {
+pub(crate) fn comparable(reference: &Layers, states: &[u64]) -> Vec<bool> {
     lightfold_reference::masks::comparable(&reference.depth, &reference.coverage, states)
 }

@@ -9,7 +9,7 @@ use lightfold_protocol::*;
 use proptest::prelude::*;
 
 /// Every `Message` variant, in declaration order.
-pub const VARIANTS: [&str; 17] = [
+pub(crate) const VARIANTS: [&str; 17] = [
     "Register",
     "SceneOffer",
     "SceneNeed",
@@ -29,7 +29,7 @@ pub const VARIANTS: [&str; 17] = [
     "Release",
 ];
 
-pub fn variant(m: &Message) -> &'static str {
+pub(crate) fn variant(m: &Message) -> &'static str {
     match m {
         Message::Register(_) => "Register",
         Message::SceneOffer { .. } => "SceneOffer",
@@ -52,22 +52,22 @@ pub fn variant(m: &Message) -> &'static str {
 }
 
 /// Any f32 but NaN (so `PartialEq` can judge a round trip).
-pub fn num() -> impl Strategy<Value = f32> {
+pub(crate) fn num() -> impl Strategy<Value = f32> {
     prop_oneof![
         3 => -1.0e4f32..1.0e4,
         1 => prop::num::f32::NORMAL | prop::num::f32::SUBNORMAL | prop::num::f32::ZERO | prop::num::f32::INFINITE,
     ]
 }
 
-pub fn v3() -> impl Strategy<Value = [f32; 3]> {
+pub(crate) fn v3() -> impl Strategy<Value = [f32; 3]> {
     prop::array::uniform3(num())
 }
 
-pub fn text() -> impl Strategy<Value = String> {
+pub(crate) fn text() -> impl Strategy<Value = String> {
     prop_oneof![3 => "[a-z0-9:./-]{0,24}", 1 => ".{0,12}"]
 }
 
-pub fn role() -> impl Strategy<Value = Role> {
+pub(crate) fn role() -> impl Strategy<Value = Role> {
     prop::sample::select(vec![
         Role::Coordinator,
         Role::Node,
@@ -76,19 +76,19 @@ pub fn role() -> impl Strategy<Value = Role> {
     ])
 }
 
-pub fn layer() -> impl Strategy<Value = Layer> {
+pub(crate) fn layer() -> impl Strategy<Value = Layer> {
     prop::sample::select(Layer::ALL.to_vec())
 }
 
-pub fn format() -> impl Strategy<Value = PixelFormat> {
+pub(crate) fn format() -> impl Strategy<Value = PixelFormat> {
     prop::sample::select(PixelFormat::ALL.to_vec())
 }
 
-pub fn layers() -> impl Strategy<Value = Vec<(Layer, PixelFormat)>> {
+pub(crate) fn layers() -> impl Strategy<Value = Vec<(Layer, PixelFormat)>> {
     prop::collection::vec((layer(), format()), 0..4)
 }
 
-pub fn camera() -> impl Strategy<Value = WireCamera> {
+pub(crate) fn camera() -> impl Strategy<Value = WireCamera> {
     (v3(), v3(), v3(), num(), any::<u32>(), any::<u32>()).prop_map(
         |(position, target, up, fov_y_deg, width, height)| WireCamera {
             position,
@@ -101,7 +101,7 @@ pub fn camera() -> impl Strategy<Value = WireCamera> {
     )
 }
 
-pub fn light() -> impl Strategy<Value = WireLight> {
+pub(crate) fn light() -> impl Strategy<Value = WireLight> {
     (
         v3(),
         v3(),
@@ -144,7 +144,7 @@ pub fn light() -> impl Strategy<Value = WireLight> {
         )
 }
 
-pub fn capabilities() -> impl Strategy<Value = Capabilities> {
+pub(crate) fn capabilities() -> impl Strategy<Value = Capabilities> {
     (
         (role(), text(), text(), text(), text()),
         (
@@ -189,7 +189,7 @@ pub fn capabilities() -> impl Strategy<Value = Capabilities> {
         )
 }
 
-pub fn node_config() -> impl Strategy<Value = NodeConfig> {
+pub(crate) fn node_config() -> impl Strategy<Value = NodeConfig> {
     let shadow = (
         any::<u32>(),
         any::<u32>(),
@@ -258,19 +258,19 @@ pub fn node_config() -> impl Strategy<Value = NodeConfig> {
         )
 }
 
-pub fn node_color() -> impl Strategy<Value = NodeColor> {
+pub(crate) fn node_color() -> impl Strategy<Value = NodeColor> {
     prop_oneof![
         v3().prop_map(NodeColor::Rgb),
         (v3(), v3()).prop_map(|(diffuse, specular)| NodeColor::Split { diffuse, specular }),
     ]
 }
 
-pub fn op_layers() -> impl Strategy<Value = Vec<Layer>> {
+pub(crate) fn op_layers() -> impl Strategy<Value = Vec<Layer>> {
     prop::collection::vec(layer(), 0..4)
 }
 
 /// Any operator with any parameters (valid or not: the wire carries both).
-pub fn op_spec() -> impl Strategy<Value = OpSpec> {
+pub(crate) fn op_spec() -> impl Strategy<Value = OpSpec> {
     let ambient = prop::option::of(
         (
             any::<u32>(),
@@ -340,7 +340,7 @@ pub fn op_spec() -> impl Strategy<Value = OpSpec> {
     ]
 }
 
-pub fn compositor_config() -> impl Strategy<Value = CompositorConfig> {
+pub(crate) fn compositor_config() -> impl Strategy<Value = CompositorConfig> {
     let input = (text(), layers()).prop_map(|(peer, layers)| StageInput { peer, layers });
     (
         (any::<u64>(), any::<u32>(), any::<u32>(), any::<u32>()),
@@ -381,7 +381,7 @@ pub fn compositor_config() -> impl Strategy<Value = CompositorConfig> {
         )
 }
 
-pub fn frame_stats() -> impl Strategy<Value = FrameStats> {
+pub(crate) fn frame_stats() -> impl Strategy<Value = FrameStats> {
     (
         (any::<u64>(), any::<u64>(), text(), any::<[u64; 7]>()),
         (any::<u32>(), prop::collection::vec(any::<u32>(), 0..8)),
@@ -420,7 +420,7 @@ pub fn frame_stats() -> impl Strategy<Value = FrameStats> {
         )
 }
 
-pub fn error_code() -> impl Strategy<Value = ErrorCode> {
+pub(crate) fn error_code() -> impl Strategy<Value = ErrorCode> {
     prop::sample::select(vec![
         ErrorCode::UnknownScene,
         ErrorCode::UnsupportedFormat,
@@ -436,7 +436,7 @@ pub fn error_code() -> impl Strategy<Value = ErrorCode> {
     ])
 }
 
-pub fn message() -> impl Strategy<Value = Message> {
+pub(crate) fn message() -> impl Strategy<Value = Message> {
     let hash = any::<[u8; 32]>;
     let params = (
         prop::collection::vec((any::<u32>(), v3()), 0..3),
@@ -522,7 +522,7 @@ pub fn message() -> impl Strategy<Value = Message> {
     ]
 }
 
-pub fn hello() -> impl Strategy<Value = Hello> {
+pub(crate) fn hello() -> impl Strategy<Value = Hello> {
     (role(), "[A-Za-z0-9._:-]{1,64}", any::<[u8; 32]>()).prop_map(|(role, daemon_id, nonce)| {
         Hello {
             magic: MAGIC,
@@ -536,7 +536,7 @@ pub fn hello() -> impl Strategy<Value = Hello> {
 
 /// A valid band: a small rectangle of a layer in a format of the same channel count, its
 /// payload random bytes of the right length (or none when empty), header sealed.
-pub fn band() -> impl Strategy<Value = (BandHeader, Bytes)> {
+pub(crate) fn band() -> impl Strategy<Value = (BandHeader, Bytes)> {
     let pair =
         (layer(), format()).prop_filter("format fits layer", |(l, f)| l.channels() == f.channels());
     (
@@ -582,7 +582,7 @@ pub fn band() -> impl Strategy<Value = (BandHeader, Bytes)> {
         )
 }
 
-pub fn frame() -> impl Strategy<Value = Frame> {
+pub(crate) fn frame() -> impl Strategy<Value = Frame> {
     prop_oneof![
         1 => hello().prop_map(Frame::Hello),
         1 => any::<[u8; 32]>().prop_map(Frame::Proof),

@@ -4,7 +4,7 @@ use lightfold_scene::primitives::{cuboid, plane};
 use lightfold_scene::shading::{V3, cross, length, normalize, sub};
 use lightfold_scene::{Camera, Light, LightShape, Material, Mesh, Quality, Scene};
 
-pub fn camera(position: V3, target: V3, up: V3, fov: f32, w: u32, h: u32) -> Camera {
+pub(crate) fn camera(position: V3, target: V3, up: V3, fov: f32, w: u32, h: u32) -> Camera {
     Camera {
         position,
         target,
@@ -15,7 +15,7 @@ pub fn camera(position: V3, target: V3, up: V3, fov: f32, w: u32, h: u32) -> Cam
     }
 }
 
-pub fn scene(
+pub(crate) fn scene(
     meshes: Vec<Mesh>,
     materials: Vec<Material>,
     lights: Vec<Light>,
@@ -36,7 +36,7 @@ pub fn scene(
 }
 
 /// A 20 m ground plane at y = 0 facing +y with material 0.
-pub fn ground(material: usize) -> Mesh {
+pub(crate) fn ground(material: usize) -> Mesh {
     plane(
         "ground",
         [0.0; 3],
@@ -48,7 +48,7 @@ pub fn ground(material: usize) -> Mesh {
     )
 }
 
-pub fn point_light(position: V3, power: f32) -> Light {
+pub(crate) fn point_light(position: V3, power: f32) -> Light {
     Light {
         name: "point".into(),
         shape: LightShape::Point { position },
@@ -60,7 +60,7 @@ pub fn point_light(position: V3, power: f32) -> Light {
 }
 
 /// A downward-facing rectangle light at height `y` of size `w × d` centred over `(cx, cz)`.
-pub fn rect_light(center: V3, size: [f32; 2], radiance: f32, samples: u32) -> Light {
+pub(crate) fn rect_light(center: V3, size: [f32; 2], radiance: f32, samples: u32) -> Light {
     Light {
         name: "rect".into(),
         shape: LightShape::Rect {
@@ -77,12 +77,12 @@ pub fn rect_light(center: V3, size: [f32; 2], radiance: f32, samples: u32) -> Li
 }
 
 /// Camera straight above the origin looking down (image rows run along +z).
-pub fn top_camera(height: f32, fov: f32, w: u32, h: u32) -> Camera {
+pub(crate) fn top_camera(height: f32, fov: f32, w: u32, h: u32) -> Camera {
     camera([0.0, height, 0.0], [0.0; 3], [0.0, 0.0, -1.0], fov, w, h)
 }
 
 /// Where the centre ray of pixel `(x, y)` meets the plane y = 0.
-pub fn ground_point(cam: &Camera, x: u32, y: u32) -> V3 {
+pub(crate) fn ground_point(cam: &Camera, x: u32, y: u32) -> V3 {
     let d = cam.ray_dir(x as f32 + 0.5, y as f32 + 0.5);
     let o = cam.position;
     let t = -o[1] / d[1];
@@ -91,7 +91,7 @@ pub fn ground_point(cam: &Camera, x: u32, y: u32) -> V3 {
 
 /// Lambert's formula: irradiance at `p` (unit normal `n`) from a uniformly emitting polygon of
 /// radiance `l` (vertices in order, polygon wholly above the tangent plane), in f64.
-pub fn polygon_irradiance(p: V3, n: V3, verts: &[V3], l: f64) -> f64 {
+pub(crate) fn polygon_irradiance(p: V3, n: V3, verts: &[V3], l: f64) -> f64 {
     let p = p.map(f64::from);
     let n = n.map(f64::from);
     let v: Vec<[f64; 3]> = verts
@@ -121,7 +121,7 @@ pub fn polygon_irradiance(p: V3, n: V3, verts: &[V3], l: f64) -> f64 {
 }
 
 /// The four corners of a rectangle light, in order.
-pub fn rect_corners(center: V3, normal: V3, u_axis: V3, size: [f32; 2]) -> [V3; 4] {
+pub(crate) fn rect_corners(center: V3, normal: V3, u_axis: V3, size: [f32; 2]) -> [V3; 4] {
     let u = normalize(u_axis);
     let v = cross(normalize(normal), u);
     let c = |a: f32, b: f32| -> V3 {
@@ -131,7 +131,7 @@ pub fn rect_corners(center: V3, normal: V3, u_axis: V3, size: [f32; 2]) -> [V3; 
 }
 
 /// Closed-form diffuse radiance from a point light of intensity `i` at `light` on the ground.
-pub fn point_on_ground(light: V3, p: V3, i: f32, albedo: f32) -> f64 {
+pub(crate) fn point_on_ground(light: V3, p: V3, i: f32, albedo: f32) -> f64 {
     let d = sub(light, p);
     let r = f64::from(length(d));
     let cos = f64::from(d[1]) / r;
@@ -139,11 +139,11 @@ pub fn point_on_ground(light: V3, p: V3, i: f32, albedo: f32) -> f64 {
 }
 
 /// A box occluder.
-pub fn occluder(center: V3, half: V3, material: usize) -> Mesh {
+pub(crate) fn occluder(center: V3, half: V3, material: usize) -> Mesh {
     cuboid("box", center, half, material)
 }
 
-pub fn assert_close(got: f64, want: f64, rel: f64, what: &str) {
+pub(crate) fn assert_close(got: f64, want: f64, rel: f64, what: &str) {
     let err = (got - want).abs() / want.abs().max(1e-12);
     assert!(
         err <= rel,

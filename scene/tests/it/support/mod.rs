@@ -22,14 +22,14 @@ struct Node {
     count: u32,
 }
 
-pub struct Tracer<'a> {
+pub(crate) struct Tracer<'a> {
     scene: &'a Scene,
     tris: Vec<Tri>,
     nodes: Vec<Node>,
 }
 
 #[derive(Debug, Clone, Copy)]
-pub struct Hit {
+pub(crate) struct Hit {
     pub t: f32,
     pub mesh: u32,
     pub first_index: u32,
@@ -38,7 +38,7 @@ pub struct Hit {
 }
 
 impl<'a> Tracer<'a> {
-    pub fn new(scene: &'a Scene) -> Self {
+    pub(crate) fn new(scene: &'a Scene) -> Self {
         let mut tris = Vec::new();
         for (mi, m) in scene.meshes.iter().enumerate() {
             for (k, t) in m.indices.chunks_exact(3).enumerate() {
@@ -125,7 +125,7 @@ impl<'a> Tracer<'a> {
     }
 
     /// Nearest hit along `o + t·d`, `t ∈ (tmin, tmax)`; with `any` the first accepted hit.
-    pub fn trace(&self, o: V3, d: V3, tmin: f32, tmax: f32, any: bool) -> Option<Hit> {
+    pub(crate) fn trace(&self, o: V3, d: V3, tmin: f32, tmax: f32, any: bool) -> Option<Hit> {
         let inv = d.map(|x| 1.0 / x);
         let mut best: Option<Hit> = None;
         let mut limit = tmax;
@@ -192,7 +192,7 @@ impl<'a> Tracer<'a> {
         ]
     }
 
-    pub fn uv(&self, hit: &Hit) -> [f32; 2] {
+    pub(crate) fn uv(&self, hit: &Hit) -> [f32; 2] {
         let m = &self.scene.meshes[hit.mesh as usize];
         if m.uvs.is_empty() {
             return [0.0, 0.0];
@@ -206,7 +206,7 @@ impl<'a> Tracer<'a> {
     }
 
     /// Geometric normal of the hit triangle (unit, not flipped).
-    pub fn geometric_normal(&self, hit: &Hit) -> V3 {
+    pub(crate) fn geometric_normal(&self, hit: &Hit) -> V3 {
         let m = &self.scene.meshes[hit.mesh as usize];
         let [a, b, c] = self.corners(hit).map(|k| m.positions[k]);
         normalize(cross(sub(b, a), sub(c, a)))
@@ -247,12 +247,12 @@ fn intersect(t: &Tri, o: V3, d: V3) -> Option<(f32, f32, f32)> {
 
 /// Per pixel of a `w×h` view: `None` for background, else whether some sample with non-zero
 /// unshadowed irradiance is blocked (shadow or penumbra), and the shaded linear RGB.
-pub struct View {
+pub(crate) struct View {
     pub shadowed: Vec<Option<bool>>,
     pub image: Image,
 }
 
-pub fn render(scene: &Scene, samples: &[LightSample], width: u32, height: u32) -> View {
+pub(crate) fn render(scene: &Scene, samples: &[LightSample], width: u32, height: u32) -> View {
     let tracer = Tracer::new(scene);
     let mut cam = scene.camera;
     cam.width = width;
@@ -304,13 +304,13 @@ pub fn render(scene: &Scene, samples: &[LightSample], width: u32, height: u32) -
 
 impl View {
     /// Fraction of all pixels that are in shadow or penumbra.
-    pub fn shadow_fraction(&self) -> f64 {
+    pub(crate) fn shadow_fraction(&self) -> f64 {
         let n = self.shadowed.iter().filter(|s| **s == Some(true)).count();
         n as f64 / self.shadowed.len() as f64
     }
 
     /// Mean linear luminance over the non-background pixels.
-    pub fn mean_luminance(&self) -> f64 {
+    pub(crate) fn mean_luminance(&self) -> f64 {
         let mut sum = 0.0;
         let mut n = 0;
         for (i, s) in self.shadowed.iter().enumerate() {
