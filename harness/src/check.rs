@@ -3,7 +3,6 @@
 //! within the link formats' bound. Tests assert with it; `lightfold soak` checks every frame it
 //! delivers with it.
 
-use anyhow::Context;
 use lightfold_node::gpu::{Gpu, LayerSet, RenderOptions, Renderer};
 use lightfold_scene::shading::{MaterialLayers, compose_frame};
 use lightfold_scene::{Image, LightSample, Scene};
@@ -38,25 +37,11 @@ pub fn radiance(
     radius: u32,
 ) -> anyhow::Result<Image> {
     r.set_camera(&scene.camera);
-    let f = r.render(gpu, samples, None, [1.0; 3], LayerSet::all())?;
-    let mut il = f
-        .illumination
-        .clone()
-        .context("the renderer left out the illumination")?;
-    if radius > 0 {
-        let depth = f
-            .depth
-            .as_ref()
-            .context("the renderer left out the depth")?;
-        il.data = lightfold_compositor::ops::penumbra::filter_frame(
-            il.width,
-            radius,
-            scene.camera.fov_y_deg,
-            &il.data,
-            &depth.data,
-        )?;
-    }
-    Ok(f.radiance(&il, scene.ambient)?)
+    // Every sample in one batch: one node frame of all of them.
+    let k = samples.len().max(1);
+    let ((image, _), _) =
+        lightfold_quality::single::render_frame(gpu, r, scene, samples, k, None, radius)?;
+    Ok(image)
 }
 
 /// The material stage on one device: paper eq. 2 (`compose_frame`), `e + m^a·c^a + m^d·I^d +

@@ -7,8 +7,8 @@
 pub mod accuracy;
 pub mod calibrate;
 pub mod hard;
+pub mod single;
 
-use anyhow::Context;
 use lightfold_node::gpu::{Gpu, LayerSet, RenderOptions, Renderer};
 use lightfold_scene::{Image, LightSample, Scene};
 use std::time::Instant;
@@ -17,9 +17,8 @@ use std::time::Instant;
 pub const BATCH_LIGHTS: usize = 16;
 
 /// The final radiance of `scene` under `samples` on one device, in batches of
-/// [`BATCH_LIGHTS`] (each batch's `m^d⊙I^d + m^s⊙I^s`, the ambient and emissive terms once),
-/// and the seconds the batches took after a warm-up frame (pipelines compile on first use): the
-/// node-seconds of the frame.
+/// [`BATCH_LIGHTS`] ([`single::render_frame`]), and the seconds the frame took after a warm-up
+/// frame (pipelines compile on first use): the node-seconds of the frame.
 pub fn gpu_radiance(
     gpu: &Gpu,
     scene: &Scene,
@@ -34,27 +33,7 @@ pub fn gpu_radiance(
         [1.0; 3],
         LayerSet::all(),
     )?;
-    let mut total: Option<Image> = None;
-    let mut seconds = 0.0;
-    for chunk in samples.chunks(BATCH_LIGHTS) {
-        let t = Instant::now();
-        let f = r.render(gpu, chunk, None, [1.0; 3], LayerSet::all())?;
-        seconds += t.elapsed().as_secs_f64();
-        let illum = f.illumination.clone().context("illumination")?;
-        // The ambient and emissive terms once, with the first batch.
-        let ambient = if total.is_none() {
-            scene.ambient
-        } else {
-            [0.0; 3]
-        };
-        let mut img = f.radiance(&illum, ambient)?;
-        if let Some(t) = &total {
-            let e = f.emissive.as_ref().context("emissive")?;
-            for ((o, v), s) in img.data.iter_mut().zip(&e.data).zip(&t.data) {
-                *o += s - v;
-            }
-        }
-        total = Some(img);
-    }
-    Ok((total.context("no samples")?, seconds))
+    let t = Instant::now();
+    let ((image, _), _) = single::render_frame(gpu, &mut r, scene, samples, BATCH_LIGHTS, None, 0)?;
+    Ok((image, t.elapsed().as_secs_f64()))
 }
