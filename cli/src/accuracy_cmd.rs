@@ -103,7 +103,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     let plan = sweep_plan(&args)?;
     let mut scene = lightfold_scene::load(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;
-    let (w, h) = crate::coordinator_cmd::parse_size(&args.size)?;
+    let (w, h) = crate::plan_args::parse_size(&args.size)?;
     scene.camera.width = w;
     scene.camera.height = h;
     let label = scene_label(&args.scene);
@@ -290,7 +290,7 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
     use lightfold_quality::accuracy::{Setting, measure_prepared};
     let mut scene = lightfold_scene::load(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;
-    let (w, h) = crate::coordinator_cmd::parse_size(&args.size)?;
+    let (w, h) = crate::plan_args::parse_size(&args.size)?;
     scene.camera.width = w;
     scene.camera.height = h;
     let cache = args.model.cache();

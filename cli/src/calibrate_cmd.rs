@@ -26,7 +26,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     let mut scene = lightfold_scene::load(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;
     if let Some(size) = &args.size {
-        let (w, h) = crate::coordinator_cmd::parse_size(size)?;
+        let (w, h) = crate::plan_args::parse_size(size)?;
         scene.camera.width = w;
         scene.camera.height = h;
     }

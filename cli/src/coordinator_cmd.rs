@@ -9,7 +9,7 @@ use lightfold_coordinator::control::FrameResult;
 use lightfold_coordinator::control::Session;
 use lightfold_coordinator::control::{ControlOptions, DaemonAddr};
 use lightfold_coordinator::frames_out::{FramePattern, FrameWriter};
-use lightfold_coordinator::plan::{PlanOptions, Topology};
+use lightfold_coordinator::plan::PlanOptions;
 use lightfold_coordinator::report::Report;
 use lightfold_coordinator::run::{FramePath, RunOptions};
 use lightfold_harness::outln;
@@ -303,25 +303,9 @@ pub(crate) struct JobArgs {
     /// clips; the first when not given). A scene file names it in its `[gltf]` table.
     #[arg(long, value_name = "NAME")]
     pub animation: Option<String>,
-    /// Image size as WIDTHxHEIGHT (default: the scene's).
-    #[arg(long)]
-    pub size: Option<String>,
-    /// Lights per node (K).
-    #[arg(short = 'K', long, default_value_t = lightfold_scene::defaults::LIGHTS_PER_NODE)]
-    pub lights_per_node: u32,
-    /// Antialiasing: N×N samples per pixel. The cluster renders N·width × N·height (within the
-    /// image limits of `lightfold defaults`) and the coordinator's sink box-filters the final
-    /// radiance back to the image size; the sink link carries N² times the pixels.
-    #[arg(long, value_name = "N", default_value_t = 1)]
-    pub aa: u32,
     #[command(flatten)]
-    pub indirect: crate::indirect_args::IndirectArgs,
-    /// Compositor topology: `chain` (a linear pipeline, each stage adds its nodes to the upstream
-    /// sum), `tree` (leaf stages sum nodes, the stages above join pairs of partial sums) or
-    /// `auto` (a tree where a chain would have 8 stages or more: lower latency there,
-    /// docs/scaling.md).
-    #[arg(long, default_value = "chain")]
-    pub topology: Topology,
+    #[serde(flatten)]
+    pub(crate) plan: crate::plan_args::PlanArgs,
     /// Frames to render (at least 1).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     pub frames: u32,
@@ -339,57 +323,6 @@ pub(crate) struct JobArgs {
     /// Keep shadow maps between frames (static lights and geometry).
     #[arg(long)]
     pub walkthrough: bool,
-    /// No culling: every light, stage and caster.
-    #[arg(long)]
-    pub force_all: bool,
-    /// One shadow-map size for every light (default: the scene's, as `lightfold render` uses).
-    #[arg(long)]
-    pub shadow_map_size: Option<u32>,
-    /// Pixel format of one class of link, as CLASS=FORMAT, repeatable or comma-separated:
-    /// `node` (illumination, node → compositor; default rgb9e5x2), `chain` (compositor →
-    /// compositor; f16x6), `sink` (final radiance to the coordinator; f32x3), `material`
-    /// (material colours in [0, 1]; f16x4). See `docs/precision.md` for what each costs.
-    #[arg(long, value_name = "CLASS=FORMAT", value_delimiter = ',', value_parser = parse_link_format)]
-    pub link_format: Vec<(LinkClass, lightfold_protocol::PixelFormat)>,
-    /// Sort-last partitions: split the scene's meshes into P spatially coherent parts; every
-    /// light group is rendered once per part by a node drawing only that part's eye pass, with
-    /// maps fitted to it, and the compositor chain depth-composes the parts (docs/planner.md §
-    /// Partitions). Needs P × the render nodes. `auto` (the default): 1, unless the scene's
-    /// geometry would not fit the memory the render nodes report or, with `--frame-budget`, its
-    /// eye pass would take more than half the budget on the fastest node.
-    #[arg(long, default_value = "auto", value_parser = crate::coordinator_cmd::partitions_arg)]
-    pub partitions: u32,
-    /// Render the material layers on a node of their own (the paper's layout) instead of as
-    /// extra targets of an illumination node at the last stage.
-    #[arg(long)]
-    pub material_own_node: bool,
-    /// Keep render nodes that share one GPU apart (one light group each). By default the
-    /// planner gives one node per GPU all the lights of that GPU's nodes when its cost model says
-    /// that is faster (`docs/planner.md` § Shared GPUs).
-    #[arg(long)]
-    pub no_device_merge: bool,
-    /// Frame-time budget in milliseconds: K becomes the largest whose slowest node fits it (by
-    /// the nodes' cost model), so the plan uses as few nodes as it allows; overrides -K. When no
-    /// K fits, larger shadow maps, then samples per area light, then the least important samples
-    /// are given up until it does (the plan says what it gave up).
-    #[arg(long, value_parser = crate::coordinator_cmd::positive_ms)]
-    pub frame_budget: Option<f64>,
-    /// Error target: penumbra PSNR in dB against the area-light truth. The area lights' samples
-    /// are halved or doubled to the fewest the planner's error model (fitted to the default
-    /// scene's accuracy sweep) expects to reach it; `lightfold accuracy` measures what it gives.
-    #[arg(long, value_parser = crate::coordinator_cmd::target_db)]
-    pub target_psnr: Option<f32>,
-    #[command(flatten)]
-    pub model: crate::model_args::ModelArgs,
-    /// Screen-space penumbra filter at the last stage: a tent average of the illumination sum
-    /// over each pixel's (2R+1)² window, on its own surface only (the eye depth travels with the
-    /// material layers), before the material multiply, so few samples per area light give a
-    /// smooth penumbra. `budget` (the default): where a frame budget or an error target lowers
-    /// the samples per area light, at the radius the error model gains most with; `auto`: at
-    /// every count where the model expects a gain (16 samples or fewer); `off`; or a radius
-    /// 1–8 (docs/operators.md, docs/planner.md).
-    #[arg(long, default_value = "budget", value_parser = crate::coordinator_cmd::penumbra_filter)]
-    pub penumbra_filter: lightfold_coordinator::plan::PenumbraFilter,
     /// Frames requested ahead of the one being finished: 2 keeps every stage busy (the
     /// pipelined rate of the slowest stage), 1 shortens the live view's latency at lower rate.
     #[arg(long, default_value_t = 2, value_parser = clap::value_parser!(u32).range(1..=8))]
@@ -500,25 +433,13 @@ impl JobArgs {
         if let Some(v) = self.video_fps {
             within(v, 1, 240, "--video-fps")?;
         }
-        if self.partitions != 0 {
-            partitions_arg(&self.partitions.to_string())?;
-        }
         if let Some(t) = self.time {
             finite_seconds(&t.to_string())?;
         }
         if let Some(f) = self.fps {
             positive_fps(&f.to_string())?;
         }
-        if let Some(db) = self.target_psnr {
-            target_db(&db.to_string())?;
-        }
-        if let Some(ms) = self.frame_budget {
-            positive_ms(&ms.to_string())?;
-        }
-        penumbra_filter(&penumbra_filter_arg(self.penumbra_filter))?;
-        for (class, format) in &self.link_format {
-            parse_link_format(&format!("{}={}", class.name(), format.name()))?;
-        }
+        self.plan.check()?;
         let patterned = self.frame_pattern.is_some() || self.frame_dir.is_some();
         if self.frame_pattern.is_some() && self.frame_dir.is_some() {
             return Err("--frame-pattern and --frame-dir together".into());
@@ -569,42 +490,17 @@ impl JobArgs {
             }
         }
         .with_context(|| format!("cannot load scene {:?}", self.scene))?;
-        if let Some(size) = &self.size {
-            let (w, h) = parse_size(size)?;
-            scene.camera.width = w;
-            scene.camera.height = h;
-        }
-        if let Some(n) = self.shadow_map_size {
-            lightfold_scene::limits::check_shadow_map_size(n)
-                .map_err(|e| anyhow::anyhow!("bad --shadow-map-size: {e}"))?;
-        }
-        self.indirect.apply(&mut scene)?;
-        // Refused here, before any daemon is started or dialled, when N·size is over the limits.
-        scene
-            .camera
-            .supersampled(self.aa)
-            .map_err(|e| anyhow::anyhow!("{e} (see `lightfold defaults`)"))?;
+        self.plan.apply(&mut scene)?;
         Ok(scene)
     }
 
+    /// The plan options of the job: the planning flags' (`PlanArgs::plan_options`) with the
+    /// job's walkthrough and frames in flight.
     pub(crate) fn plan_options(&self) -> PlanOptions {
         PlanOptions {
-            lights_per_node: self.lights_per_node,
-            topology: self.topology,
-            force_all: self.force_all,
             walkthrough: self.walkthrough,
-            // The rule `lightfold render` applies too: the size asked for, else the scene's.
-            map_sizing: lightfold_coordinator::plan::MapSizing::from_request(self.shadow_map_size),
-            material_own_node: self.material_own_node,
-            merge_shared_devices: !self.no_device_merge,
-            frame_budget_us: self.frame_budget.map(|b| (b * 1000.0).round() as u64),
-            target_penumbra_db: self.target_psnr,
-            penumbra_filter: self.penumbra_filter,
             frames_in_flight: self.frames_in_flight,
-            formats: self.formats(),
-            supersample: self.aa,
-            partitions: self.partitions,
-            ..PlanOptions::default()
+            ..self.plan.plan_options()
         }
     }
 
@@ -615,7 +511,7 @@ impl JobArgs {
         scene: &lightfold_scene::Scene,
     ) -> anyhow::Result<PlanOptions> {
         let mut o = self.plan_options();
-        self.model.apply(scene, &mut o)?;
+        self.plan.model.apply(scene, &mut o)?;
         Ok(o)
     }
 
@@ -626,20 +522,6 @@ impl JobArgs {
             (None, Some(fps)) => fps,
             (None, None) => 24.0,
         }
-    }
-
-    /// The planner's formats with `--link-format` applied (the last given per class wins).
-    pub(crate) fn formats(&self) -> lightfold_coordinator::plan::FormatChoice {
-        let mut f = lightfold_coordinator::plan::FormatChoice::default();
-        for &(class, format) in &self.link_format {
-            match class {
-                LinkClass::Node => f.node = format,
-                LinkClass::Chain => f.chain = format,
-                LinkClass::Sink => f.sink = format,
-                LinkClass::Material => f.material = format,
-            }
-        }
-        f
     }
 
     /// Where every frame goes, if anywhere: the pattern given, or the default for a camera path
@@ -671,70 +553,6 @@ impl JobArgs {
     }
 }
 
-/// A class of link whose format `--link-format` sets.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-pub(crate) enum LinkClass {
-    Node,
-    Chain,
-    Sink,
-    Material,
-}
-
-impl LinkClass {
-    pub(crate) fn name(self) -> &'static str {
-        match self {
-            LinkClass::Node => "node",
-            LinkClass::Chain => "chain",
-            LinkClass::Sink => "sink",
-            LinkClass::Material => "material",
-        }
-    }
-}
-
-/// `CLASS=FORMAT` (`--link-format`): a format that carries what the class's links carry —
-/// six illumination channels on `node` and `chain` links, three colour channels on `sink` links,
-/// and for `material` links the 8-bit formats or half floats (what nodes emit).
-pub(crate) fn parse_link_format(
-    s: &str,
-) -> Result<(LinkClass, lightfold_protocol::PixelFormat), String> {
-    use lightfold_protocol::PixelFormat;
-    let (class, format) = s
-        .split_once('=')
-        .ok_or_else(|| format!("{s:?} is not CLASS=FORMAT (e.g. chain=f32x6)"))?;
-    let class = match class.trim() {
-        "node" => LinkClass::Node,
-        "chain" => LinkClass::Chain,
-        "sink" => LinkClass::Sink,
-        "material" => LinkClass::Material,
-        other => {
-            return Err(format!(
-                "unknown link class {other:?}: node, chain, sink or material"
-            ));
-        }
-    };
-    let fits = |f: PixelFormat| match class {
-        LinkClass::Node | LinkClass::Chain => f.channels() == 6,
-        LinkClass::Sink => f.channels() == 3,
-        LinkClass::Material => matches!(
-            f,
-            PixelFormat::Rgba8Linear | PixelFormat::Rgba8Srgb | PixelFormat::F16x4
-        ),
-    };
-    let allowed: Vec<&str> = PixelFormat::ALL
-        .into_iter()
-        .filter(|&f| fits(f))
-        .map(PixelFormat::name)
-        .collect();
-    match PixelFormat::from_name(format.trim()) {
-        Some(f) if fits(f) => Ok((class, f)),
-        _ => Err(format!(
-            "{format:?} is not a format for {} links: {}",
-            class.name(),
-            allowed.join(", ")
-        )),
-    }
-}
-
 /// A scene time in seconds: any finite number (`--time`).
 pub(crate) fn finite_seconds(s: &str) -> Result<f32, String> {
     match s.parse::<f32>() {
@@ -751,70 +569,6 @@ pub(crate) fn positive_fps(s: &str) -> Result<f32, String> {
             "{s:?} is not a positive number of frames per second"
         )),
     }
-}
-
-/// A penumbra PSNR target in dB (`--target-psnr`): finite, in (0, 200).
-pub(crate) fn target_db(s: &str) -> Result<f32, String> {
-    match s.parse::<f32>() {
-        Ok(v) if v > 0.0 && v < 200.0 => Ok(v),
-        _ => Err(format!("{s:?} is not a PSNR in dB between 0 and 200")),
-    }
-}
-
-/// A duration in milliseconds that must be finite and positive (`--frame-budget`).
-pub(crate) fn positive_ms(s: &str) -> Result<f64, String> {
-    match s.parse::<f64>() {
-        Ok(v) if v.is_finite() && v > 0.0 && v < 1e9 => Ok(v),
-        _ => Err(format!("{s:?} is not a positive number of milliseconds")),
-    }
-}
-
-/// `--partitions`: `auto` (0) or 1 to `MAX_PARTITIONS`.
-pub(crate) fn partitions_arg(s: &str) -> Result<u32, String> {
-    let max = lightfold_coordinator::plan::MAX_PARTITIONS;
-    match s {
-        "auto" => Ok(0),
-        n => match n.parse::<u32>() {
-            Ok(p) if (1..=max).contains(&p) => Ok(p),
-            _ => Err(format!("expected auto or 1 to {max}, got {n:?}")),
-        },
-    }
-}
-
-/// `--penumbra-filter`: `off`, `budget`, `auto` or a radius 1–8.
-pub(crate) fn penumbra_filter(
-    s: &str,
-) -> Result<lightfold_coordinator::plan::PenumbraFilter, String> {
-    use lightfold_coordinator::plan::PenumbraFilter;
-    match s.trim() {
-        "off" | "0" => Ok(PenumbraFilter::Off),
-        "budget" => Ok(PenumbraFilter::Budget),
-        "auto" => Ok(PenumbraFilter::Auto),
-        r => match r.parse::<u32>() {
-            Ok(r @ 1..=8) => Ok(PenumbraFilter::Radius(r)),
-            _ => Err(format!(
-                "{s:?}: off, budget, auto or a radius from 1 to 8 (pixels)"
-            )),
-        },
-    }
-}
-
-/// The `--penumbra-filter` argument that gives `f`.
-pub(crate) fn penumbra_filter_arg(f: lightfold_coordinator::plan::PenumbraFilter) -> String {
-    use lightfold_coordinator::plan::PenumbraFilter;
-    match f {
-        PenumbraFilter::Off => "off".into(),
-        PenumbraFilter::Budget => "budget".into(),
-        PenumbraFilter::Auto => "auto".into(),
-        PenumbraFilter::Radius(r) => r.to_string(),
-    }
-}
-
-/// `--size WIDTHxHEIGHT`, within the image limits every input shares
-/// (`lightfold_scene::limits`, printed by `lightfold defaults`).
-pub(crate) fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
-    lightfold_scene::limits::parse_image_size(s)
-        .map_err(|e| anyhow::anyhow!("bad --size: {e} (see `lightfold defaults`)"))
 }
 
 pub(crate) fn run_cmd(mut args: Args) -> anyhow::Result<()> {
@@ -1149,7 +903,8 @@ impl Progress {
 
 #[cfg(test)]
 mod tests {
-    use super::{JobArgs, LinkClass, parse_link_format};
+    use super::JobArgs;
+    use crate::plan_args::{LinkClass, parse_link_format};
     use clap::Parser;
     use lightfold_protocol::PixelFormat;
 

@@ -505,7 +505,7 @@ fn compare_last_frame(
             ))
         );
     }
-    crate::compare_reference::report(&last, &samples, &which, &args.job.exr, args.job.aa)
+    crate::compare_reference::report(&last, &samples, &which, &args.job.exr, args.job.plan.aa)
 }
 
 /// The plan a coordinator wrote with `--plan-json`, `None` (said at debug level) when it cannot
@@ -526,7 +526,10 @@ fn read_plan(path: &Path) -> Option<Plan> {
 
 /// What lowers a plan's samples below the scene's, as the job asked for it.
 fn lowered_by(job: &JobArgs) -> &'static str {
-    match (job.frame_budget.is_some(), job.target_psnr.is_some()) {
+    match (
+        job.plan.frame_budget.is_some(),
+        job.plan.target_psnr.is_some(),
+    ) {
         (true, true) => "the frame budget and the error target",
         (true, false) => "the frame budget",
         (false, true) => "the error target",

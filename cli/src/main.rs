@@ -20,6 +20,7 @@ mod lifecycle;
 mod metrics_http;
 mod model_args;
 mod node_cmd;
+mod plan_args;
 mod plan_cmd;
 mod render_cmd;
 

@@ -4,11 +4,10 @@
 //! and K is raised towards it when the cluster has too few nodes, as the coordinator does with
 //! the limits its nodes report.
 
+use crate::plan_args::PlanArgs;
 use anyhow::Context;
 use lightfold_coordinator::cluster::ClusterFile;
-use lightfold_coordinator::plan::{
-    ClusterSpec, DaemonSpec, MapSizing, PlanError, PlanOptions, Topology, plan,
-};
+use lightfold_coordinator::plan::{ClusterSpec, DaemonSpec, PlanError, plan};
 use lightfold_harness::{out, outln};
 use lightfold_protocol::{Capabilities, Role};
 use std::path::PathBuf;
@@ -22,83 +21,30 @@ pub(crate) struct Args {
         value_name = "SCENE",
         conflicts_with = "scene_positional"
     )]
-    pub scene: Option<String>,
+    pub(crate) scene: Option<String>,
     /// The scene as a positional argument (the same as `--scene`).
     #[arg(value_name = "SCENE", hide = true)]
-    pub scene_positional: Option<String>,
+    pub(crate) scene_positional: Option<String>,
     /// Cluster file (TOML) listing the daemons; without it a synthetic local cluster is used.
     #[arg(long)]
-    pub cluster: Option<PathBuf>,
+    pub(crate) cluster: Option<PathBuf>,
     /// Render nodes of the synthetic cluster (default: as many as the plan needs at -K). With
     /// fewer, K is raised as the coordinator raises it, up to --max-lights.
     #[arg(long)]
-    pub nodes: Option<usize>,
+    pub(crate) nodes: Option<usize>,
     /// Compositors of the synthetic cluster (default: as many as the plan uses).
     #[arg(long)]
-    pub compositors: Option<usize>,
-    /// Lights per node (the paper's K); raised when the cluster has too few nodes.
-    #[arg(short = 'K', long, default_value_t = lightfold_scene::defaults::LIGHTS_PER_NODE)]
-    pub lights_per_node: u32,
-    #[command(flatten)]
-    pub indirect: crate::indirect_args::IndirectArgs,
+    pub(crate) compositors: Option<usize>,
     /// The most lights one node's device takes, the ceiling K is raised to. A real node reports
     /// its own at registration (its "render node ready" log line; lavapipe's is 85); the default
     /// is what every device takes (wgpu's default limits at the default shadow-map size).
     #[arg(long, value_name = "K", default_value_t = default_max_lights())]
-    pub max_lights: u32,
-    /// Compositor topology: `chain` (a linear pipeline, each stage adds its nodes to the upstream
-    /// sum), `tree` (leaf stages sum nodes, the stages above join pairs of partial sums) or
-    /// `auto` (a tree where a chain would have 8 stages or more: lower latency there,
-    /// docs/scaling.md).
-    #[arg(long, default_value = "chain")]
-    pub topology: Topology,
-    /// No culling: every light, material layer and caster.
-    #[arg(long)]
-    pub force_all: bool,
-    /// Budget of radiance (display units) culled samples may add to a pixel.
-    #[arg(long, default_value_t = lightfold_coordinator::plan::DEFAULT_EPSILON)]
-    pub epsilon: f32,
-    /// One shadow-map size for every light instead of the mismatch-factor choice.
-    #[arg(long)]
-    pub shadow_map_size: Option<u32>,
-    /// Image size as WIDTHxHEIGHT (default: the scene's).
-    #[arg(long)]
-    pub size: Option<String>,
+    pub(crate) max_lights: u32,
+    #[command(flatten)]
+    pub(crate) plan: PlanArgs,
     /// Print the plan as JSON instead of text.
     #[arg(long)]
-    pub json: bool,
-    /// Sort-last partitions: split the scene's meshes into P spatially coherent parts; every
-    /// light group is rendered once per part by a node drawing only that part's eye pass, with
-    /// maps fitted to it, and the compositor chain depth-composes the parts (docs/planner.md §
-    /// Partitions). Needs P × the render nodes. `auto` (the default): 1, unless the scene's
-    /// geometry would not fit the memory the render nodes report.
-    #[arg(long, default_value = "auto", value_parser = crate::coordinator_cmd::partitions_arg)]
-    pub partitions: u32,
-    /// Render the material layers on a node of their own (the paper's layout).
-    #[arg(long)]
-    pub material_own_node: bool,
-    /// Frame-time budget in milliseconds: K becomes the largest whose slowest node fits it (by
-    /// the nodes' cost model), so the plan uses as few nodes as it allows; overrides -K. When no
-    /// K fits, larger shadow maps, then samples per area light, then the least important samples
-    /// are given up until it does (the plan says what it gave up).
-    #[arg(long, value_parser = crate::coordinator_cmd::positive_ms)]
-    pub frame_budget: Option<f64>,
-    /// Error target: penumbra PSNR in dB against the area-light truth. The area lights' samples
-    /// are halved or doubled to the fewest the planner's error model (fitted to the default
-    /// scene's accuracy sweep) expects to reach it; `lightfold accuracy` measures what it gives.
-    #[arg(long, value_parser = crate::coordinator_cmd::target_db)]
-    pub target_psnr: Option<f32>,
-    #[command(flatten)]
-    pub model: crate::model_args::ModelArgs,
-    /// Screen-space penumbra filter at the last stage: a tent average of the illumination sum
-    /// over each pixel's (2R+1)² window, on its own surface only (the eye depth travels with the
-    /// material layers), before the material multiply, so few samples per area light give a
-    /// smooth penumbra. `budget` (the default): where a frame budget or an error target lowers
-    /// the samples per area light, at the radius the error model gains most with; `auto`: at
-    /// every count where the model expects a gain (16 samples or fewer); `off`; or a radius
-    /// 1–8 (docs/operators.md, docs/planner.md).
-    #[arg(long, default_value = "budget", value_parser = crate::coordinator_cmd::penumbra_filter)]
-    pub penumbra_filter: lightfold_coordinator::plan::PenumbraFilter,
+    pub(crate) json: bool,
 }
 
 impl Args {
@@ -123,28 +69,8 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     let name = args.scene();
     let mut scene =
         lightfold_scene::load(name).with_context(|| format!("cannot load scene {name:?}"))?;
-    if let Some(size) = &args.size {
-        let (w, h) = crate::coordinator_cmd::parse_size(size)?;
-        scene.camera.width = w;
-        scene.camera.height = h;
-    }
-    args.indirect.apply(&mut scene)?;
-    let mut options = PlanOptions {
-        lights_per_node: args.lights_per_node,
-        topology: args.topology,
-        force_all: args.force_all,
-        epsilon: args.epsilon,
-        material_own_node: args.material_own_node,
-        frame_budget_us: args.frame_budget.map(|b| (b * 1000.0).round() as u64),
-        target_penumbra_db: args.target_psnr,
-        penumbra_filter: args.penumbra_filter,
-        partitions: args.partitions,
-        ..PlanOptions::default()
-    };
-    if let Some(n) = args.shadow_map_size {
-        options.map_sizing = MapSizing::Fixed(n);
-    }
-    args.model.apply(&scene, &mut options)?;
+    args.plan.apply(&mut scene)?;
+    let options = args.plan.plan_options_for(&scene)?;
     let max_lights = args.max_lights;
     // The scene the coordinator plans: with partitions, meshes too large for a part in chunks
     // (clusters here report no memory, so `auto` is 1).
@@ -176,15 +102,15 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
         ),
         e => e.into(),
     })?;
-    let raised = (options.frame_budget_us.is_none() && p.k > args.lights_per_node).then(|| {
+    let raised = (options.frame_budget_us.is_none() && p.k > args.plan.lights_per_node).then(|| {
         format!(
             "K raised from {} to {}: {} render node(s) are too few for {} active light samples at \
              K = {} (the coordinator does the same on a cluster this size)",
-            args.lights_per_node,
+            args.plan.lights_per_node,
             p.k,
             cluster.nodes.len(),
             p.active.len(),
-            args.lights_per_node
+            args.plan.lights_per_node
         )
     });
     if args.json {
