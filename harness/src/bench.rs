@@ -5,7 +5,7 @@
 //! node-seconds a frame of L lights costs, and the nodes L lights need under a frame budget.
 
 use crate::driver::ControlClient;
-use crate::launcher::{ANY_PORT, Children, Launcher, write_token};
+use crate::launcher::{ANY_PORT, Children, Launcher, run_token};
 use crate::outln;
 use anyhow::{Context, bail};
 use lightfold_net::{Identity, Timeouts, accept};
@@ -177,13 +177,7 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
     let bytes = scene.to_bytes()?;
     let hash = scene.content_hash();
     // A token for this run only, in a file the node processes read.
-    let work = tempfile::Builder::new()
-        .prefix("lightfold-bench-")
-        .tempdir()
-        .context("cannot create a temporary directory")?;
-    let token_path = work.path().join("token");
-    write_token(&token_path)?;
-    let token = lightfold_net::load_token(Some(&token_path))?;
+    let (_work, token_path, token) = run_token("lightfold-bench-")?;
     let launcher = Launcher {
         gpu_threads: a.threads,
         ..Launcher::this_exe(token_path, "warn")?

@@ -182,6 +182,19 @@ pub fn cluster_file(started: &[Started]) -> String {
     text
 }
 
+/// A token for one run: a fresh temporary folder (`prefix…`, removed when the guard drops), the
+/// token file in it ([`write_token`]) and the token's bytes.
+pub fn run_token(prefix: &str) -> anyhow::Result<(tempfile::TempDir, PathBuf, Vec<u8>)> {
+    let work = tempfile::Builder::new()
+        .prefix(prefix)
+        .tempdir()
+        .context("cannot create a temporary directory")?;
+    let path = work.path().join("token");
+    write_token(&path)?;
+    let token = lightfold_net::load_token(Some(&path))?;
+    Ok((work, path, token))
+}
+
 /// Writes a fresh random token (32 bytes, hex) to `path`, readable by its owner only.
 pub fn write_token(path: &Path) -> anyhow::Result<()> {
     use std::io::{Read, Write};

@@ -14,7 +14,7 @@ mod report;
 
 use crate::check::{Check, compare, radiance};
 use crate::launcher::{
-    Children, Launcher, Started, cpu_seconds, peak_rss_kib, send_signal, write_token,
+    Children, Launcher, Started, cpu_seconds, peak_rss_kib, run_token, send_signal,
 };
 use crate::outln;
 use anyhow::{Context, bail};
@@ -468,13 +468,7 @@ fn setup(args: &Args) -> anyhow::Result<(Setup, Launcher)> {
     let (nodes, compositors) = (probe.nodes.len(), probe.stages.len());
     let logs = args.out.join("logs");
     std::fs::create_dir_all(&logs).with_context(|| format!("cannot create {}", logs.display()))?;
-    let work = tempfile::Builder::new()
-        .prefix("lightfold-soak-")
-        .tempdir()
-        .context("cannot create a temporary directory")?;
-    let token_path = work.path().join("token");
-    write_token(&token_path)?;
-    let token = lightfold_net::load_token(Some(&token_path))?;
+    let (work, token_path, token) = run_token("lightfold-soak-")?;
     let exe = std::env::current_exe().context("cannot find the lightfold executable")?;
     let launcher = Launcher {
         exe,
