@@ -995,15 +995,11 @@ pub(crate) fn spawn_checker(
                 s.camera = camera_at(&scene.camera, path, (frame - 1) as u32);
                 let check = match radiance(&gpu, &mut renderer, &s, &samples, 0) {
                     Ok(truth) => compare(frame, &image, &truth, 1000),
-                    Err(e) => Check {
+                    Err(e) => Check::failed(
                         frame,
-                        ok: false,
-                        outside: 0,
-                        channels: image.data.len(),
-                        energy_ratio: f64::NAN,
-                        worst: f32::NAN,
-                        error: Some(format!("the reference render failed: {e:#}")),
-                    },
+                        image.data.len(),
+                        format!("the reference render failed: {e:#}"),
+                    ),
                 };
                 checks.push(check);
             }

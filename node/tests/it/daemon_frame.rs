@@ -28,7 +28,7 @@ async fn a_streamed_frame_equals_a_direct_render() {
     let mut node = start_node("node-a", None).await;
     let mut comp = start_compositor().await;
     let mut coord = node.coordinator().await;
-    let caps = coord.caps.clone();
+    let caps = coord.client.capabilities.clone();
     eprintln!("registered: {caps:?}");
     assert_eq!((caps.role, caps.daemon_id.as_str()), (Role::Node, "node-a"));
     assert!(caps.max_lights >= 4, "max lights {}", caps.max_lights);

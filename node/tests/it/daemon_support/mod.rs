@@ -104,7 +104,6 @@ impl TestNode {
 /// these tests expect (a failure panics with what came instead).
 pub(crate) struct Coordinator {
     pub client: ControlClient,
-    pub caps: lightfold_protocol::Capabilities,
 }
 
 impl Coordinator {
@@ -113,8 +112,7 @@ impl Coordinator {
         let client = ControlClient::connect(addr, &me, quick(), WAIT)
             .await
             .map_err(|e| e.to_string())?;
-        let caps = client.capabilities.clone();
-        Ok(Coordinator { client, caps })
+        Ok(Coordinator { client })
     }
 
     /// Connects and claims the node for `session`; returns the node's answer (`Claimed`, or an
