@@ -1,7 +1,7 @@
 //! Project defaults, named once (ARCHITECTURE §10).
 
+use crate::model::Mismatch;
 use crate::model::{AreaSpecular, MapSizing, Quality, SamplePattern, ShadowFilter};
-use crate::shadow_views::Mismatch;
 
 /// Default image width and height.
 pub const WIDTH: u32 = 800;
@@ -43,5 +43,11 @@ pub fn quality() -> Quality {
         indirect: 0,
         indirect_clamp: None,
         area_specular: AreaSpecular::Analytic,
+    }
+}
+
+impl Default for crate::model::Quality {
+    fn default() -> Self {
+        quality()
     }
 }

@@ -12,7 +12,7 @@
 //!   `I^d = Σ c_λ·i^d_λ·s_λ`, `I^s = Σ c_λ·i^s_λ·s_λ`, `s_λ ∈ [0, 1]` the shadow coefficient.
 
 use crate::Image;
-use crate::model::{LightSample, Material, MetallicRoughness, SampleKind, Texture};
+use crate::model::{AlphaMode, LightSample, Material, MetallicRoughness, SampleKind, Texture};
 use std::f32::consts::PI;
 
 pub type V3 = [f32; 3];
@@ -637,6 +637,36 @@ pub fn transmittance(tr: &crate::model::Transmission, alpha: f32, texture_rgb: V
         covered.map(|c| (1.0 - a) + a * c)
     } else {
         covered
+    }
+}
+
+impl MetallicRoughness {
+    /// The layer values at the factors, untextured (`metallic_roughness_point`
+    /// with white textures): `(m^d, m^s, m^a)` = `(c_diff ⊙ (1 − F0), 1, m^d)`.
+    pub fn summary(&self) -> ([f32; 3], [f32; 3], [f32; 3]) {
+        let at = metallic_roughness_point(self, [1.0; 4], [1.0; 4]);
+        (at.diffuse, [1.0; 3], at.diffuse)
+    }
+}
+
+impl Material {
+    /// A glTF metallic-roughness material with no textures, opaque and double-sided.
+    pub fn metallic_roughness(name: &str, pbr: MetallicRoughness) -> Self {
+        let (diffuse, specular, ambient) = pbr.summary();
+        Material {
+            name: name.to_string(),
+            diffuse,
+            diffuse_texture: None,
+            specular,
+            shininess: shininess_from_roughness(pbr.roughness),
+            ambient,
+            emissive: [0.0; 3],
+            alpha: 1.0,
+            alpha_mode: AlphaMode::Opaque,
+            double_sided: true,
+            transmission: None,
+            pbr: Some(pbr),
+        }
     }
 }
 

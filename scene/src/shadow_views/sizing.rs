@@ -16,16 +16,7 @@ const MIN_COS_ALPHA: f32 = 0.2;
 /// The coarse grid of eye rays that finds representative visible points.
 const PROBE_GRID: (u32, u32) = (16, 12);
 
-/// The mismatch rule's bounds and target (`Quality::map_sizing`).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Mismatch {
-    /// Smallest and largest map side (rounded to powers of two inside them).
-    pub min: u32,
-    pub max: u32,
-    /// The `m` to aim for: 1 puts a texel on each image pixel of a lit surface, 2 lets it span
-    /// two.
-    pub target: f32,
-}
+pub use crate::model::Mismatch;
 
 /// A visible point found by a probe ray: position, box-face normal, eye distance, `cos β`.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -8,6 +8,7 @@ mod bvh;
 mod encode;
 mod gltf;
 mod hostile;
+mod layering;
 mod metallic_roughness;
 mod obj;
 mod partition;

@@ -6,6 +6,8 @@
 
 use serde::{Deserialize, Serialize};
 
+pub(crate) mod keyframes;
+
 /// A whole scene, ready to render.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Scene {
@@ -22,7 +24,7 @@ pub struct Scene {
     pub quality: Quality,
     /// What moves over time (`None`: a still scene). `meshes` and `lights` are the rest pose;
     /// [`Scene::pose`] gives the scene at a time.
-    pub animation: Option<crate::animation::Animation>,
+    pub animation: Option<keyframes::Animation>,
 }
 
 /// A triangle mesh in world space. `normals`, `uvs` and `tangents` are either empty or one per
@@ -116,13 +118,6 @@ impl MetallicRoughness {
             transmission: 0.0,
         }
     }
-
-    /// The layer values at the factors, untextured (`crate::shading::metallic_roughness_point`
-    /// with white textures): `(m^d, m^s, m^a)` = `(c_diff ⊙ (1 − F0), 1, m^d)`.
-    pub fn summary(&self) -> ([f32; 3], [f32; 3], [f32; 3]) {
-        let at = crate::shading::metallic_roughness_point(self, [1.0; 4], [1.0; 4]);
-        (at.diffuse, [1.0; 3], at.diffuse)
-    }
 }
 
 /// How a translucent caster filters light (seed 001's shadows of transparent occluders):
@@ -153,25 +148,6 @@ impl Material {
             double_sided: true,
             transmission: None,
             pbr: None,
-        }
-    }
-
-    /// A glTF metallic-roughness material with no textures, opaque and double-sided.
-    pub fn metallic_roughness(name: &str, pbr: MetallicRoughness) -> Self {
-        let (diffuse, specular, ambient) = pbr.summary();
-        Material {
-            name: name.to_string(),
-            diffuse,
-            diffuse_texture: None,
-            specular,
-            shininess: crate::shading::shininess_from_roughness(pbr.roughness),
-            ambient,
-            emissive: [0.0; 3],
-            alpha: 1.0,
-            alpha_mode: AlphaMode::Opaque,
-            double_sided: true,
-            transmission: None,
-            pbr: Some(pbr),
         }
     }
 
@@ -406,7 +382,19 @@ pub enum MapSizing {
     Fixed,
     /// Each light's maps from the eye/light mismatch factor where the camera sees its light
     /// (`shadow_views::sizing`): the renderer and the planner size them alike.
-    Mismatch(crate::shadow_views::Mismatch),
+    Mismatch(Mismatch),
+}
+
+/// The mismatch rule's bounds and target (`Quality::map_sizing`; applied by
+/// `shadow_views::mismatch_size`).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Mismatch {
+    /// Smallest and largest map side (rounded to powers of two inside them).
+    pub min: u32,
+    pub max: u32,
+    /// The `m` to aim for: 1 puts a texel on each image pixel of a lit surface, 2 lets it span
+    /// two.
+    pub target: f32,
 }
 
 /// Quality options that a scene file may set and `lightfold accuracy` varies.
@@ -436,10 +424,4 @@ pub struct Quality {
     pub indirect_clamp: Option<f32>,
     /// How glossy (metallic-roughness) specular meets area lights.
     pub area_specular: AreaSpecular,
-}
-
-impl Default for Quality {
-    fn default() -> Self {
-        crate::defaults::quality()
-    }
 }
