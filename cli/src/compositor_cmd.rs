@@ -50,8 +50,13 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
         opts.coordinator_silence = silence;
         opts.compute_threads = usize::from(args.compute_threads);
         let shutdown = crate::lifecycle::shutdown_token(args.daemon.parent_pid);
-        crate::metrics_http::start(&args.daemon.metrics, "compositor", &id, shutdown.clone())
-            .await?;
+        lightfold_view::metrics::start(
+            args.daemon.metrics.metrics_listen.as_deref(),
+            "compositor",
+            &id,
+            shutdown.clone(),
+        )
+        .await?;
         daemon::run(listener, opts, shutdown).await
     })
 }

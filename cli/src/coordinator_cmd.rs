@@ -74,7 +74,7 @@ pub(crate) struct Args {
     #[command(flatten)]
     pub view: ViewArgs,
     #[command(flatten)]
-    pub metrics: crate::metrics_http::MetricsArgs,
+    pub metrics: crate::lifecycle::MetricsArgs,
 }
 
 /// The live view (`docs/live-view.md`).
@@ -657,8 +657,13 @@ pub(crate) fn run_cmd(mut args: Args) -> anyhow::Result<()> {
         let view = args.view.bind(&token, &args.job).await?;
         let me = Identity::new(&token, Role::Coordinator, "coordinator");
         let cancel = crate::lifecycle::shutdown_token(args.parent_pid);
-        crate::metrics_http::start(&args.metrics, "coordinator", "coordinator", cancel.clone())
-            .await?;
+        lightfold_view::metrics::start(
+            args.metrics.metrics_listen.as_deref(),
+            "coordinator",
+            "coordinator",
+            cancel.clone(),
+        )
+        .await?;
         lightfold_telemetry::health::set_live(true);
         let connect = Session::connect(&daemons, listener, sink_advertise, me, control);
         let session = tokio::select! {

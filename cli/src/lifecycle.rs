@@ -34,7 +34,7 @@ pub(crate) struct DaemonArgs {
     #[arg(long, default_value_t = 5.0, value_name = "SECONDS")]
     pub coordinator_silence: f64,
     #[command(flatten)]
-    pub metrics: crate::metrics_http::MetricsArgs,
+    pub metrics: MetricsArgs,
 }
 
 impl DaemonArgs {
@@ -108,7 +108,7 @@ pub(crate) fn shutdown_token(parent_pid: Option<u32>) -> CancellationToken {
             _ = tokio::signal::ctrl_c() => tracing::info!("interrupted: shutting down"),
             _ = t.cancelled() => {}
         }
-        crate::metrics_http::notify_stopping();
+        lightfold_view::metrics::notify_stopping();
         t.cancel();
     });
     if let Some(pid) = parent_pid {
@@ -117,7 +117,7 @@ pub(crate) fn shutdown_token(parent_pid: Option<u32>) -> CancellationToken {
             loop {
                 if std::os::unix::process::parent_id() != pid {
                     tracing::info!(parent = pid, "launcher exited: shutting down");
-                    crate::metrics_http::notify_stopping();
+                    lightfold_view::metrics::notify_stopping();
                     t.cancel();
                     return;
                 }
@@ -129,4 +129,14 @@ pub(crate) fn shutdown_token(parent_pid: Option<u32>) -> CancellationToken {
         });
     }
     token
+}
+
+/// The `--metrics-listen` flag every daemon takes.
+#[derive(Debug, Clone, clap::Args)]
+pub(crate) struct MetricsArgs {
+    /// Serve `/metrics` (Prometheus text), `/healthz` and `/readyz` on this address, e.g.
+    /// `127.0.0.1:9300` (port 0: any; the address is printed as `metrics <addr>` on stdout).
+    /// Off by default.
+    #[arg(long, value_name = "ADDR", env = "LIGHTFOLD_METRICS_LISTEN")]
+    pub metrics_listen: Option<String>,
 }

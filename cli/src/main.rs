@@ -17,7 +17,6 @@ mod demo_cmd;
 mod healthcheck_cmd;
 mod indirect_args;
 mod lifecycle;
-mod metrics_http;
 mod model_args;
 mod node_cmd;
 mod plan_args;

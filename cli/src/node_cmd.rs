@@ -75,7 +75,13 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
             _ => daemon::PackOn::Auto,
         };
         let shutdown = crate::lifecycle::shutdown_token(args.daemon.parent_pid);
-        crate::metrics_http::start(&args.daemon.metrics, "node", &id, shutdown.clone()).await?;
+        lightfold_view::metrics::start(
+            args.daemon.metrics.metrics_listen.as_deref(),
+            "node",
+            &id,
+            shutdown.clone(),
+        )
+        .await?;
         daemon::run(listener, opts, shutdown).await
     })
 }

@@ -10,6 +10,7 @@
 pub mod adapter;
 pub mod health;
 pub mod logging;
+pub mod process;
 pub mod record;
 
 pub use adapter::is_software_rasteriser;

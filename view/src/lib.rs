@@ -28,6 +28,7 @@ mod feed;
 mod http;
 mod hub;
 mod json;
+pub mod metrics;
 mod objects;
 mod open;
 mod refine;

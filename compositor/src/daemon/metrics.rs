@@ -103,12 +103,3 @@ impl Drop for Held {
         lightfold_telemetry::record::buffered_bytes(before.saturating_sub(self.bytes));
     }
 }
-
-/// Peak resident set of this process in bytes (`VmHWM`), 0 where unavailable.
-pub fn peak_rss_bytes() -> u64 {
-    procfs::process::Process::myself()
-        .and_then(|p| p.status())
-        .ok()
-        .and_then(|s| s.vmhwm)
-        .map_or(0, |kib| kib * 1024)
-}

@@ -19,7 +19,7 @@ pub mod pixels;
 mod stage_plan;
 
 pub use check::{Expect, Mismatch, Verdict, judge};
-pub use metrics::{StageMetrics, peak_rss_bytes};
+pub use metrics::StageMetrics;
 pub use stage_plan::{BAND_OVERHEAD, ConfigError, MAX_FRAMES_IN_FLIGHT, StagePlan};
 
 use control::ControlHub;

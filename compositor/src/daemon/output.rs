@@ -13,10 +13,11 @@
 //! dropped (the frame is not reported done).
 
 use super::control::ControlOut;
-use super::metrics::{Held, StageMetrics, peak_rss_bytes};
+use super::metrics::{Held, StageMetrics};
 use bytes::Bytes;
 use lightfold_net::{Downstream, Identity, NetError, Timeouts};
 use lightfold_protocol::{BandHeader, ErrorCode, Frame, FrameStats, Message};
+use lightfold_telemetry::process::peak_rss_bytes;
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::sync::{mpsc, watch};

@@ -10,7 +10,6 @@ use super::bands::{BandLayout, LayerImages, PackedBand, assemble_frame, pack_fra
 use super::configure::{self, Checked};
 use super::render_thread::{DeviceReport, Output, Pending, RenderHandle, RenderSetup};
 use super::scene_cache::{self, SceneCache, SceneCacheError, hex};
-use super::sys::peak_rss_bytes;
 use crate::gpu::device::max_lights_for;
 use lightfold_net::Downstream;
 use lightfold_net::NetError;
@@ -19,6 +18,7 @@ use lightfold_protocol::{
     ErrorCode, FrameParams, FrameStats, Hash, Message, NodeConfig, WireCamera,
 };
 use lightfold_scene::Camera;
+use lightfold_telemetry::process::peak_rss_bytes;
 use std::sync::Arc;
 use std::time::Instant;
 use tokio::sync::mpsc;

@@ -1,14 +1,5 @@
-//! What the process costs the machine: its peak resident set size, read from `/proc` through
-//! `procfs` (no unsafe `getrusage` call; 0 where `/proc` does not exist).
-
-/// Peak resident set size of this process in bytes (`VmHWM`), 0 when unknown.
-pub fn peak_rss_bytes() -> u64 {
-    procfs::process::Process::myself()
-        .and_then(|p| p.status())
-        .ok()
-        .and_then(|s| s.vmhwm)
-        .map_or(0, |kib| kib * 1024)
-}
+//! What the machine offers this process (memory, threads), read from `/proc` through `procfs`;
+//! its peak resident set is `lightfold_telemetry::process`'s.
 
 /// Memory this process may use, bytes: the machine's total (`MemTotal`), or its control group's
 /// limit (`memory.max`, cgroup v2: a container's or a Slurm job's) where that is lower; 0 when
@@ -63,13 +54,6 @@ mod tests {
     fn this_machine_has_memory() {
         if std::path::Path::new("/proc/meminfo").exists() {
             assert!(memory_bytes() > 0);
-        }
-    }
-
-    #[test]
-    fn this_process_has_a_peak() {
-        if std::path::Path::new("/proc/self/status").exists() {
-            assert!(peak_rss_bytes() > 0);
         }
     }
 }

@@ -36,19 +36,9 @@ const BUCKETS: &[f64] = &[
 /// How often histograms are drained and idle series aged when nobody scrapes.
 const UPKEEP_EVERY: Duration = Duration::from_secs(5);
 
-/// The `--metrics-listen` flag every daemon takes.
-#[derive(Debug, Clone, clap::Args)]
-pub(crate) struct MetricsArgs {
-    /// Serve `/metrics` (Prometheus text), `/healthz` and `/readyz` on this address, e.g.
-    /// `127.0.0.1:9300` (port 0: any; the address is printed as `metrics <addr>` on stdout).
-    /// Off by default.
-    #[arg(long, value_name = "ADDR", env = "LIGHTFOLD_METRICS_LISTEN")]
-    pub metrics_listen: Option<String>,
-}
-
 /// Installs the exporter as this process's recorder, labelling every series with `role` and
 /// `daemon`. Call once, before the daemon records anything.
-pub(crate) fn install(role: &str, daemon: &str) -> anyhow::Result<PrometheusHandle> {
+pub fn install(role: &str, daemon: &str) -> anyhow::Result<PrometheusHandle> {
     let recorder = PrometheusBuilder::new()
         .add_global_label("role", role)
         .add_global_label("daemon", daemon)
@@ -65,18 +55,18 @@ pub(crate) fn install(role: &str, daemon: &str) -> anyhow::Result<PrometheusHand
     Ok(handle)
 }
 
-/// Starts what `args` asks for on the current runtime: with `--metrics-listen`, the exporter and
-/// the server (printing `metrics <addr>` on stdout once bound); in any case the systemd
-/// notifications. Everything stops with `stop`.
-pub(crate) async fn start(
-    args: &MetricsArgs,
+/// Starts a daemon's operations endpoints on the current runtime: with a `listen` address
+/// (`--metrics-listen`), the exporter and the server (printing `metrics <addr>` on stdout once
+/// bound); in any case the systemd notifications. Everything stops with `stop`.
+pub async fn start(
+    listen: Option<&str>,
     role: &str,
     daemon: &str,
     stop: CancellationToken,
 ) -> anyhow::Result<Option<SocketAddr>> {
     lightfold_telemetry::logging::set_daemon(daemon);
     tokio::spawn(systemd(stop.clone()));
-    let Some(listen) = &args.metrics_listen else {
+    let Some(listen) = listen else {
         return Ok(None);
     };
     let handle = install(role, daemon)?;
@@ -139,25 +129,25 @@ async fn systemd(stop: CancellationToken) {
 
 /// Tells systemd the daemon is stopping (`STOPPING=1`): called where the stop is decided, since
 /// the runtime may drop its tasks before they run again. A no-op without systemd.
-pub(crate) fn notify_stopping() {
+pub fn notify_stopping() {
     if std::env::var_os("NOTIFY_SOCKET").is_some() {
         let _ = sd_notify::notify(&[sd_notify::NotifyState::Stopping]);
     }
 }
 
 /// Accepts scrapes until `stop` (the view's HTTP accept loop, with the limits above).
-pub(crate) async fn serve(
+pub async fn serve(
     listener: tokio::net::TcpListener,
     handle: PrometheusHandle,
     stop: CancellationToken,
 ) {
-    let limits = lightfold_view::HttpLimits {
+    let limits = crate::HttpLimits {
         connections: MAX_CONNECTIONS,
         per_address: MAX_PER_ADDRESS,
         header_timeout: HEADER_TIMEOUT,
         lifetime: Some(CONNECTION_LIFETIME),
     };
-    lightfold_view::serve_router(listener, router(handle), None, limits, stop, "metrics").await;
+    crate::serve_router(listener, router(handle), None, limits, stop, "metrics").await;
 }
 
 fn router(handle: PrometheusHandle) -> axum::Router {
@@ -182,7 +172,7 @@ fn process_metrics() -> &'static metrics_process::Collector {
 
 fn metrics_text(handle: &PrometheusHandle) -> Response {
     process_metrics().collect();
-    lightfold_telemetry::record::peak_rss_bytes(lightfold_compositor::daemon::peak_rss_bytes());
+    lightfold_telemetry::record::peak_rss_bytes(lightfold_telemetry::process::peak_rss_bytes());
     lightfold_telemetry::record::ready(health::readiness().ready);
     (
         [(
