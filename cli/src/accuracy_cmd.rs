@@ -4,12 +4,12 @@
 
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
-use lightfold_harness::outln;
 use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_quality::accuracy::{
     self, CachedTruth, SweepPlan, TruthOptions, load_or_render_truth, report, run_sweep,
     run_sweep_with,
 };
+use lightfold_telemetry::outln;
 use std::path::PathBuf;
 
 #[derive(Debug, clap::Args)]

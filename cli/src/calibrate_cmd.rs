@@ -4,7 +4,7 @@
 
 use crate::model_args::{DEFAULT_TARGET_DB, ModelArgs, run_calibration};
 use anyhow::Context;
-use lightfold_harness::outln;
+use lightfold_telemetry::outln;
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {

@@ -3,11 +3,11 @@
 //! the reference's unoccluded image is given. `--min-psnr` and `--max-flip` turn it into a gate:
 //! the command fails (status 1) when the whole-image figures miss them.
 
-use lightfold_harness::outln;
 use lightfold_reference::masks::{penumbra, penumbra_mask};
 use lightfold_reference::metrics::compare;
 use lightfold_reference::output::write_error_map;
 use lightfold_scene::Image;
+use lightfold_telemetry::outln;
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, clap::Args)]

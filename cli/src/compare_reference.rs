@@ -2,11 +2,11 @@
 //! point samples (ray-traced shadows), so what remains is shadow-map and link-precision error.
 
 use anyhow::Context;
-use lightfold_harness::outln;
 use lightfold_reference::masks::{penumbra_mask, ties};
 use lightfold_reference::metrics::compare_over;
 use lightfold_reference::point_sum::{PointSumOptions, render_point_sum_with};
 use lightfold_scene::{Image, LightSample, Scene};
+use lightfold_telemetry::outln;
 use std::path::Path;
 use std::time::Instant;
 

@@ -5,16 +5,15 @@
 
 use anyhow::{Context, bail};
 use lightfold_coordinator::cluster::ClusterFile;
-use lightfold_coordinator::control::FrameResult;
+use lightfold_coordinator::console::{Console, JobOutput};
 use lightfold_coordinator::control::Session;
 use lightfold_coordinator::control::{ControlOptions, DaemonAddr};
-use lightfold_coordinator::frames_out::{FramePattern, FrameWriter};
+use lightfold_coordinator::frames_out::FramePattern;
 use lightfold_coordinator::plan::PlanOptions;
-use lightfold_coordinator::report::Report;
-use lightfold_coordinator::run::{FramePath, RunOptions};
-use lightfold_harness::outln;
+use lightfold_coordinator::run::{FramePath, RunOptions, render_until};
 use lightfold_net::{Identity, Timeouts};
 use lightfold_protocol::Role;
+use lightfold_telemetry::outln;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -545,6 +544,20 @@ impl JobArgs {
         FramePattern::parse(&pattern).map(Some)
     }
 
+    /// Where the job's results go (`serving`: the live view drives the frames).
+    pub(crate) fn output(&self, serving: bool, shutdown: bool) -> anyhow::Result<JobOutput> {
+        Ok(JobOutput {
+            out: self.out.clone(),
+            exr: self.exr.clone(),
+            every: self.frame_files(serving)?,
+            plan_json: self.plan_json.clone(),
+            stats: self.stats.clone(),
+            verbose: self.verbose,
+            video: self.video.clone().map(|v| (v, self.video_rate())),
+            shutdown,
+        })
+    }
+
     pub(crate) fn path(&self) -> FramePath {
         match self.orbit {
             Some(d) => FramePath::Orbit { degrees: d },
@@ -677,16 +690,18 @@ pub(crate) fn run_cmd(mut args: Args) -> anyhow::Result<()> {
         };
         // Ctrl-C from here on: no new frame is requested, the frames in flight are finished and
         // written, and the summary is printed.
-        execute(
-            session,
-            &scene,
-            &opts,
-            &args.job,
-            view,
-            args.shutdown,
-            cancel,
-        )
-        .await
+        let mut session = session;
+        let output = args.job.output(view.is_some(), args.shutdown)?;
+        let mut console = Console::start(&session, &scene, &opts, output, view.is_some())?;
+        let on_frame = |f| console.frame(f);
+        let outcome = match view {
+            None => render_until(&mut session, &scene, &opts, cancel.clone(), on_frame).await,
+            Some(v) => {
+                v.run_with(&mut session, &scene, &opts.plan, cancel.clone(), on_frame)
+                    .await
+            }
+        };
+        console.finish(session, outcome, &cancel).await
     })
 }
 
@@ -695,215 +710,6 @@ fn seconds(v: f64, what: &str) -> anyhow::Result<Duration> {
         bail!("{what} {v} is not a number of seconds");
     }
     Ok(Duration::from_secs_f64(v))
-}
-
-/// Runs the job on a connected session through the coordinator's event loop — the scripted
-/// frames, or the live view's until stopped: prints the plan, writes each frame as it completes,
-/// then prints the frames, timing table, failover summary and totals. A run that cannot go on
-/// keeps what it wrote and fails naming the daemon and why.
-pub(crate) async fn execute(
-    mut session: Session,
-    scene: &lightfold_scene::Scene,
-    opts: &RunOptions,
-    job: &JobArgs,
-    view: Option<lightfold_view::View>,
-    shutdown: bool,
-    stop: tokio_util::sync::CancellationToken,
-) -> anyhow::Result<()> {
-    let start = std::time::Instant::now();
-    let serving = view.is_some();
-    let every = job.frame_files(serving)?;
-    if let Some(p) = &every {
-        p.create_dir()?;
-    }
-    let mut report = Report::default();
-    outln!(
-        "{}",
-        lightfold_coordinator::operator::adapters(&session, job.verbose)
-    );
-    let mut stats =
-        lightfold_coordinator::operator::StatsFile::create(job.stats.as_deref(), start)?;
-    lightfold_telemetry::health::set_serving(true);
-    let mut progress = Progress::new(
-        (!serving).then_some(opts.frames - opts.skip.len() as u32),
-        std::io::IsTerminal::is_terminal(&std::io::stderr()),
-    );
-    let writer = FrameWriter::start(
-        job.out.clone(),
-        job.exr.clone(),
-        every.clone(),
-        scene.exposure,
-    );
-    let on_frame = |frame: FrameResult| {
-        let record = report.record(&frame);
-        stats.frame(&frame, record);
-        progress.frame(record);
-        writer.send(frame);
-    };
-    let outcome = match view {
-        None => {
-            lightfold_coordinator::run::render_until(
-                &mut session,
-                scene,
-                opts,
-                stop.clone(),
-                on_frame,
-            )
-            .await
-        }
-        Some(v) => {
-            v.run_with(&mut session, scene, &opts.plan, stop.clone(), on_frame)
-                .await
-        }
-    };
-    progress.finish();
-    lightfold_telemetry::health::set_serving(false);
-    let written = writer.finish();
-    if let (Some(path), Some(plan)) = (&job.plan_json, &outcome.summary.plan) {
-        let text = serde_json::to_string(plan).context("cannot write the plan as JSON")?;
-        std::fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))?;
-    }
-    match &outcome.summary.plan {
-        Some(plan) if job.verbose => outln!("{plan}"),
-        Some(plan) => outln!("{}", plan.brief()),
-        None => {}
-    }
-    if job.verbose && !report.frames.is_empty() {
-        outln!("{}", report.frame_lines());
-    }
-    if let (Some(plan), false) = (&outcome.summary.plan, report.frames.is_empty()) {
-        outln!("{}", report.table(plan));
-        outln!("{}", report.summary(plan));
-    }
-    outln!(
-        "{}",
-        lightfold_coordinator::operator::failover_summary(&outcome.summary, start)
-    );
-    if shutdown {
-        session.shutdown().await;
-    } else {
-        session.detach();
-    }
-    if !written.skipped.is_empty() {
-        let n = written.skipped.len();
-        let shown: Vec<String> = written.skipped.iter().take(8).map(u64::to_string).collect();
-        outln!(
-            "warning: the files of {n} frame(s) were not written ({}{}): the disk was slower than \
-             the cluster for longer than the writer's queue holds; `--resume` renders them again",
-            shown.join(", "),
-            if n > 8 { ", …" } else { "" }
-        );
-    }
-    if let Some(e) = written.error {
-        return Err(e.context("writing frames"));
-    }
-    let delivered = outcome.summary.delivered;
-    let of = if serving {
-        String::new()
-    } else {
-        format!(" of {}", opts.frames)
-    };
-    if let Some(e) = outcome.error {
-        if stop.is_cancelled() {
-            return Err(crate::lifecycle::Interrupted(format!(
-                "interrupted after {delivered}{of} frame(s); the frames done are written \
-                 (while stopping: {e})"
-            ))
-            .into());
-        }
-        bail!("the run stopped after {delivered} frame(s): {e}");
-    }
-    if let (Some(p), true) = (&every, written.frames > 0) {
-        outln!(
-            "wrote {} frame(s) as {}",
-            written.frames,
-            p.ffmpeg_input().replace(".png", ".{png,exr}")
-        );
-    }
-    if stop.is_cancelled() && !serving {
-        return Err(crate::lifecycle::Interrupted(format!(
-            "interrupted after {delivered}{of} frame(s); the frames done are written"
-        ))
-        .into());
-    }
-    if let (Some(video), Some(p)) = (&job.video, &every) {
-        lightfold_coordinator::frames_out::assemble_video(p, video, job.video_rate())?;
-        outln!("wrote {}", video.display());
-    }
-    let (w, h) = written.size.context("no frame was rendered")?;
-    outln!(
-        "wrote {} and {} ({w}x{h}) in {:.2} s{}",
-        job.out.display(),
-        job.exr.display(),
-        start.elapsed().as_secs_f64(),
-        if serving { " (the view stopped)" } else { "" }
-    );
-    Ok(())
-}
-
-/// How a run shows its frames while they come: a progress bar on a terminal; on a log (stderr
-/// not a terminal) one line per frame, at most one a second for fast runs (the first and the
-/// last frame always).
-enum Progress {
-    Bar(indicatif::ProgressBar),
-    Lines {
-        of: Option<u32>,
-        last: Option<std::time::Instant>,
-    },
-    Quiet,
-}
-
-/// The least time between two frame lines on a log.
-const LINE_EVERY: Duration = Duration::from_secs(1);
-
-impl Progress {
-    /// `frames`: how many the run renders (`None`: until stopped, the live view).
-    fn new(frames: Option<u32>, terminal: bool) -> Progress {
-        match frames {
-            Some(n) if terminal && n > 1 => {
-                let pb = indicatif::ProgressBar::new(n as u64);
-                pb.set_style(
-                    indicatif::ProgressStyle::with_template(
-                        "{bar:40} {pos}/{len} frames {per_sec} eta {eta}",
-                    )
-                    .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-                );
-                Progress::Bar(pb)
-            }
-            _ if terminal => Progress::Quiet,
-            of => Progress::Lines { of, last: None },
-        }
-    }
-
-    fn frame(&mut self, f: &lightfold_coordinator::report::FrameRecord) {
-        match self {
-            Progress::Bar(pb) => pb.inc(1),
-            Progress::Lines { of, last } => {
-                let due = last.is_none_or(|t| t.elapsed() >= LINE_EVERY)
-                    || of.is_some_and(|n| f.frame >= n as u64);
-                if due {
-                    *last = Some(std::time::Instant::now());
-                    if lightfold_telemetry::logging::json() {
-                        tracing::info!(
-                            frame = f.frame,
-                            latency_ms = f.latency_ms,
-                            "{}",
-                            f.line(*of)
-                        );
-                    } else {
-                        eprintln!("{}", f.line(*of));
-                    }
-                }
-            }
-            Progress::Quiet => {}
-        }
-    }
-
-    fn finish(self) {
-        if let Progress::Bar(pb) = self {
-            pb.finish_and_clear();
-        }
-    }
 }
 
 #[cfg(test)]

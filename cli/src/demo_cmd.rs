@@ -15,7 +15,7 @@ use lightfold_coordinator::plan::{ClusterSpec, Plan, PlanOptions, plan};
 use lightfold_harness::launcher::{
     ANY_PORT, Launcher, cluster_file, cpu_seconds, send_signal, write_token,
 };
-use lightfold_harness::outln;
+use lightfold_telemetry::outln;
 use rustix::process::Signal;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};

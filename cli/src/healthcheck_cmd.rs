@@ -67,7 +67,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     if status != "200" {
         bail!("{addr}{path}: {status} {body}");
     }
-    lightfold_harness::outln!("{addr}{path}: {body}");
+    lightfold_telemetry::outln!("{addr}{path}: {body}");
     Ok(())
 }
 

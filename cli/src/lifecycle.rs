@@ -77,16 +77,7 @@ fn host_name() -> String {
 /// called inside a tokio runtime.
 /// A run stopped by Ctrl-C (or SIGTERM to `demo`): not a failure of the command. `main` prints
 /// its message, if any, as the one line the run ends with and exits with [`INTERRUPTED_EXIT`].
-#[derive(Debug)]
-pub(crate) struct Interrupted(pub String);
-
-impl std::fmt::Display for Interrupted {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.0)
-    }
-}
-
-impl std::error::Error for Interrupted {}
+pub(crate) use lightfold_coordinator::console::Interrupted;
 
 /// The exit status of an interrupted run (128 + SIGINT, as shells report it).
 pub(crate) const INTERRUPTED_EXIT: i32 = 130;

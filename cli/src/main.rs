@@ -3,8 +3,9 @@
 //! `run` function; this file only dispatches.
 
 use clap::{Parser, Subcommand};
-use lightfold_harness::{bench, out, soak, view_probe};
+use lightfold_harness::{bench, soak, view_probe};
 use lightfold_telemetry::logging;
+use lightfold_telemetry::out;
 
 mod accuracy_cmd;
 mod calibrate_cmd;

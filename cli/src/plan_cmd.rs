@@ -8,8 +8,8 @@ use crate::plan_args::PlanArgs;
 use anyhow::Context;
 use lightfold_coordinator::cluster::ClusterFile;
 use lightfold_coordinator::plan::{ClusterSpec, DaemonSpec, PlanError, plan};
-use lightfold_harness::{out, outln};
 use lightfold_protocol::{Capabilities, Role};
+use lightfold_telemetry::{out, outln};
 use std::path::PathBuf;
 
 #[derive(Debug, clap::Args)]

@@ -4,12 +4,12 @@
 //! `-K` is lights per node, as in every other command.
 
 use anyhow::{Context, bail};
-use lightfold_harness::outln;
 use lightfold_reference::output::{
     Outputs, ReferenceMode, png_next_to, retain_lights, select_lights,
 };
 use lightfold_reference::{AreaOptions, render_to_files};
 use lightfold_scene::limits;
+use lightfold_telemetry::outln;
 use std::path::PathBuf;
 
 #[path = "render_gpu.rs"]

@@ -6,13 +6,13 @@
 
 use super::Args;
 use anyhow::Context;
-use lightfold_harness::outln;
 use lightfold_node::gpu::device::parse_backend;
 use lightfold_node::gpu::{EyeVariant, Gpu, GpuOptions, RenderOptions, Renderer};
 use lightfold_protocol::stats;
 use lightfold_quality::single::{render_frame, render_partitioned};
 use lightfold_reference::output::png_next_to;
 use lightfold_scene::{Image, LightSample, Scene};
+use lightfold_telemetry::outln;
 
 /// Median of each column (`stats::median`), 0 when there are no rows.
 fn medians(rows: &[[u64; 3]]) -> [u64; 3] {

@@ -4,6 +4,7 @@
 //! Must not depend on wgpu or the node crate.
 
 pub mod cluster;
+pub mod console;
 pub mod control;
 pub mod frames_out;
 pub mod operator;

@@ -6,7 +6,6 @@
 
 use crate::driver::ControlClient;
 use crate::launcher::{ANY_PORT, Children, Launcher, run_token};
-use crate::outln;
 use anyhow::{Context, bail};
 use lightfold_net::{Identity, Timeouts, accept};
 use lightfold_protocol::frame::Frame;
@@ -16,6 +15,7 @@ use lightfold_protocol::{
 use lightfold_scene::sampling::direct_samples;
 use lightfold_scene::wire::{camera_to_wire, light_to_wire};
 use lightfold_scene::{Camera, Scene};
+use lightfold_telemetry::outln;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;

@@ -13,7 +13,6 @@
 //!   frame checked, detection and recovery measured.
 //! - [`bench`]: `lightfold bench`, benchmarks that print figures; [`view_probe`]: `lightfold
 //!   view-probe`, a live view measured as a viewer sees it.
-//! - [`out`]: standard output that ends quietly when its reader goes (every command's).
 //! - [`fixtures`]: the device or a loud failure, small scenes, test deadlines.
 //!
 //! The workspace's cluster tests (`tests/it`) and scaling examples live in this crate too. Every
@@ -25,7 +24,6 @@ pub mod driver;
 pub mod fixtures;
 pub mod in_process;
 pub mod launcher;
-pub mod out;
 pub mod soak;
 pub mod sweep;
 pub mod view_probe;

@@ -10,6 +10,7 @@
 pub mod adapter;
 pub mod health;
 pub mod logging;
+pub mod out;
 pub mod process;
 pub mod record;
 

@@ -9,10 +9,10 @@
 use super::{Args, Checker, spawn_checker};
 use crate::check::Check;
 use crate::launcher::{Launcher, send_signal};
-use crate::outln;
 use anyhow::{Context, bail};
 use lightfold_coordinator::frames_out::FramePattern;
 use lightfold_coordinator::run::FramePath;
+use lightfold_telemetry::outln;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rustix::process::Signal;

@@ -16,7 +16,6 @@ use crate::check::{Check, compare, radiance};
 use crate::launcher::{
     Children, Launcher, Started, cpu_seconds, peak_rss_kib, run_token, send_signal,
 };
-use crate::outln;
 use anyhow::{Context, bail};
 use lightfold_coordinator::control::{
     ControlOptions, DaemonAddr, FrameResult, FrameSpec, Live, LiveSummary, Session,
@@ -27,6 +26,7 @@ use lightfold_net::{Identity, Timeouts};
 use lightfold_node::gpu::{Gpu, GpuOptions, RenderOptions, Renderer};
 use lightfold_protocol::Role;
 use lightfold_scene::{Image, Scene};
+use lightfold_telemetry::outln;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use report::{Report, ReportInput};

@@ -5,11 +5,11 @@
 
 use super::{Args, DaemonInfo, Delivery, Fault, Kind, Machine};
 use crate::check::Check;
-use crate::outln;
 use anyhow::Context;
 use lightfold_coordinator::control::{ControlOptions, Incident, IncidentKind, LiveSummary};
 use lightfold_protocol::stats;
 use lightfold_scene::Scene;
+use lightfold_telemetry::outln;
 use std::fmt::Write as _;
 use std::path::Path;
 use std::time::{Duration, Instant};

@@ -4,8 +4,8 @@
 //! error; [`Stdout`] turns that error into a quiet exit, and [`outln!`]/[`out!`] are `println!`
 //! and `print!` through it.
 //!
-//! Use: `lightfold_harness::outln!("{plan}")` where `println!` was (a drop-in replacement), or `let mut
-//! o = lightfold_harness::out::stdout();` and `writeln!(o, …)?` for many lines under one lock. An error that
+//! Use: `lightfold_telemetry::outln!("{plan}")` where `println!` was (a drop-in replacement), or `let mut
+//! o = lightfold_telemetry::out::stdout();` and `writeln!(o, …)?` for many lines under one lock. An error that
 //! reaches `main` with a `BrokenPipe` cause is a quiet exit too ([`is_broken_pipe`]).
 
 use std::io::{self, Write};
