@@ -11,10 +11,11 @@
 
 use crate::coordinator_cmd::JobArgs;
 use anyhow::{Context, bail};
-use lightfold_coordinator::plan::{ClusterSpec, Plan, PlanOptions, plan};
+use lightfold_coordinator::plan::{ClusterSpec, Plan, plan};
 use lightfold_harness::launcher::{
     ANY_PORT, Launcher, cluster_file, cpu_seconds, send_signal, write_token,
 };
+use lightfold_harness::local_cluster::{check_processes, on_this_machine, with_memory};
 use lightfold_telemetry::outln;
 use rustix::process::Signal;
 use std::path::{Path, PathBuf};
@@ -68,120 +69,6 @@ pub(crate) struct Args {
     /// port of its own (`--metrics-listen`; the addresses are printed).
     #[arg(long)]
     pub metrics: bool,
-}
-
-/// `cluster` with every render node reporting this machine's memory, as the demo's nodes will.
-fn with_memory(mut cluster: ClusterSpec) -> ClusterSpec {
-    let memory_bytes = lightfold_node::daemon::sys::memory_bytes();
-    for n in &mut cluster.nodes {
-        n.capabilities = Some(crate::plan_cmd::synthetic_node(&n.id, 0, memory_bytes));
-    }
-    cluster
-}
-
-/// The probe cluster's nodes as this machine's will be: on a hardware GPU, every node reports
-/// that one device (and the lights it takes), so the plan merges them as the coordinator's will
-/// (`docs/planner.md` § Shared GPUs); on a software rasteriser, every node reports this
-/// machine's CPU, so the estimate adds them up as the coordinator's will (§ Cost model). The
-/// demo starts only the nodes that plan uses.
-fn on_this_machine(cluster: ClusterSpec) -> ClusterSpec {
-    use lightfold_node::gpu::device::{LocalDevice, chosen_device};
-    let host = lightfold_node::daemon::sys::hostname();
-    let Some(local) = chosen_device(&lightfold_node::gpu::GpuOptions::default(), &host) else {
-        return cluster;
-    };
-    let machine = lightfold_node::daemon::sys::machine();
-    let mut cluster = with_memory(cluster);
-    for caps in cluster
-        .nodes
-        .iter_mut()
-        .filter_map(|n| n.capabilities.as_mut())
-    {
-        match &local {
-            LocalDevice::Gpu {
-                identity,
-                max_lights,
-            } => {
-                caps.max_lights = *max_lights;
-                caps.device = identity.clone();
-            }
-            LocalDevice::Cpu => caps.cpu_host = machine.clone(),
-        }
-    }
-    cluster
-}
-
-/// Processes per core `--max-processes` allows by default, and the floor.
-const PROCESSES_PER_CORE: usize = 4;
-const MIN_MAX_PROCESSES: usize = 32;
-
-/// The default of `--max-processes` on this machine.
-pub(crate) fn default_max_processes() -> usize {
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    (PROCESSES_PER_CORE * cores).max(MIN_MAX_PROCESSES)
-}
-
-/// Refuses a plan needing more than `max` processes (nodes, stages and the coordinator), naming
-/// the smallest K that would fit.
-fn check_processes(
-    scene: &lightfold_scene::Scene,
-    options: &PlanOptions,
-    probe: &Plan,
-    max_processes: Option<usize>,
-) -> anyhow::Result<()> {
-    let (max, why) = match max_processes {
-        Some(n) => (n, format!("--max-processes allows {n}")),
-        None => (
-            default_max_processes(),
-            format!(
-                "this machine holds {} ({PROCESSES_PER_CORE} per core, at least \
-                 {MIN_MAX_PROCESSES}; --max-processes N to change)",
-                default_max_processes()
-            ),
-        ),
-    };
-    let count = |p: &Plan| p.nodes.len() + p.stages.len() + 1;
-    let needed = count(probe);
-    if needed <= max {
-        return Ok(());
-    }
-    let cluster = ClusterSpec::local(256, 256);
-    // The planner's node count falls as K grows: the smallest K that fits, by bisection.
-    let at = |k: u32| {
-        let mut opts = options.clone();
-        opts.lights_per_node = k;
-        opts.frame_budget_us = None;
-        plan(scene, &cluster, &opts).ok()
-    };
-    let (mut lo, mut hi) = (probe.k + 1, 256);
-    let mut fits = None;
-    while lo <= hi {
-        let k = lo + (hi - lo) / 2;
-        match at(k).filter(|p| count(p) <= max) {
-            Some(p) => {
-                fits = Some((p.k, p.nodes.len(), p.stages.len(), count(&p)));
-                hi = k - 1;
-            }
-            None => lo = k + 1,
-        }
-    }
-    let hint = match fits {
-        Some((k, n, c, total)) => format!(
-            "-K {k} fits ({n} render node(s), {c} compositor(s), {total} processes), as does a \
-             --frame-budget loose enough for K ≥ {k}"
-        ),
-        None => "no K up to 256 fits: the scene has too many light samples for this many \
-                 processes"
-            .into(),
-    };
-    bail!(
-        "demo: scene {:?} at K = {} needs {} render node(s) and {} compositor(s), {needed} \
-         processes with the coordinator; {why}. {hint}",
-        scene.name,
-        probe.k,
-        probe.nodes.len(),
-        probe.stages.len(),
-    )
 }
 
 /// What the Ctrl-C handler needs: the coordinator once it runs (SIGINT is passed on to it), and
@@ -350,7 +237,8 @@ fn size_cluster(args: &Args) -> anyhow::Result<(lightfold_scene::Scene, usize, u
     )?;
     let nodes = probe.nodes.len();
     let compositors = probe.stages.len();
-    check_processes(&scene, &options, &probe, args.max_processes)?;
+    check_processes(&scene, &options, &probe, args.max_processes)
+        .map_err(|e| anyhow::anyhow!("demo: {e}"))?;
     outln!(
         "demo: scene {:?} needs {} render node(s) and {} compositor(s); starting them on loopback",
         scene.name,
@@ -710,6 +598,7 @@ mod tests {
         let p = plan(&small, &ClusterSpec::local(256, 256), &job.plan_options()).unwrap();
         check_processes(&small, &job.plan_options(), &p, None).unwrap();
         check_processes(&scene, &job.plan_options(), &probe, Some(1000)).unwrap();
+        use lightfold_harness::local_cluster::{MIN_MAX_PROCESSES, default_max_processes};
         assert!(default_max_processes() >= MIN_MAX_PROCESSES);
     }
 }

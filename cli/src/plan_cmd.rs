@@ -7,8 +7,7 @@
 use crate::plan_args::PlanArgs;
 use anyhow::Context;
 use lightfold_coordinator::cluster::ClusterFile;
-use lightfold_coordinator::plan::{ClusterSpec, DaemonSpec, PlanError, plan};
-use lightfold_protocol::{Capabilities, Role};
+use lightfold_coordinator::plan::{ClusterSpec, PlanError, plan};
 use lightfold_telemetry::{out, outln};
 use std::path::PathBuf;
 
@@ -77,11 +76,13 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     let scene = lightfold_coordinator::plan::scene_for(&scene, &ClusterSpec::local(1, 1), &options)
         .into_owned();
     let cluster = match &args.cluster {
-        Some(path) => from_file(&ClusterFile::load(path)?),
+        Some(path) => ClusterSpec::from_file(&ClusterFile::load(path)?),
         None => {
             // Learn what the scene needs on an ample cluster, then plan on exactly that (or on
             // the nodes asked for, with the compositors a plan on them uses).
-            let ample = |nodes: usize| with_devices(ClusterSpec::local(nodes, 1024), max_lights);
+            let ample = |nodes: usize| {
+                ClusterSpec::local(nodes, 1024).with_synthetic_nodes(max_lights, 0, false)
+            };
             let probe = plan(&scene, &ample(1024), &options)?;
             let nodes = args.nodes.unwrap_or(probe.nodes.len());
             let compositors = match args.compositors {
@@ -95,7 +96,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
             ClusterSpec::local(nodes, compositors)
         }
     };
-    let cluster = with_devices(cluster, max_lights);
+    let cluster = cluster.with_synthetic_nodes(max_lights, 0, false);
     let p = plan(&scene, &cluster, &options).map_err(|e| match e {
         PlanError::NotEnoughNodes { .. } => anyhow::anyhow!(
             "{e} (assuming nodes that take at most K = {max_lights}; --max-lights N to change)"
@@ -125,46 +126,4 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
         out!("{p}");
     }
     Ok(())
-}
-
-/// `cluster` with every render node reporting a device that takes at most `max_lights` lights
-/// (what a real node reports at registration; the planner raises K only up to it).
-fn with_devices(mut cluster: ClusterSpec, max_lights: u32) -> ClusterSpec {
-    for n in &mut cluster.nodes {
-        n.capabilities
-            .get_or_insert_with(|| synthetic_node(&n.id, max_lights, 0));
-    }
-    cluster
-}
-
-/// What a synthetic render node `id` reports: a device taking at most `max_lights` lights and
-/// `memory_bytes` of memory (0 unknown); nothing measured.
-pub(crate) fn synthetic_node(id: &str, max_lights: u32, memory_bytes: u64) -> Capabilities {
-    Capabilities {
-        max_lights,
-        memory_bytes,
-        ..Capabilities::unmeasured(Role::Node, id)
-    }
-}
-
-fn from_file(file: &ClusterFile) -> ClusterSpec {
-    let spec = |prefix: &str, entries: &[lightfold_coordinator::cluster::DaemonEntry]| {
-        entries
-            .iter()
-            .enumerate()
-            .map(|(i, e)| DaemonSpec {
-                id: e.id.clone().unwrap_or_else(|| format!("{prefix}-{i}")),
-                address: e.address.clone(),
-                capabilities: None,
-            })
-            .collect()
-    };
-    ClusterSpec {
-        nodes: spec("node", &file.nodes),
-        compositors: spec("comp", &file.compositors),
-        sink: file
-            .sink_advertise
-            .clone()
-            .unwrap_or_else(|| file.sink_listen.clone()),
-    }
 }

@@ -8,19 +8,10 @@ use super::Args;
 use anyhow::Context;
 use lightfold_node::gpu::device::parse_backend;
 use lightfold_node::gpu::{EyeVariant, Gpu, GpuOptions, RenderOptions, Renderer};
-use lightfold_protocol::stats;
-use lightfold_quality::single::{render_frame, render_partitioned};
+use lightfold_quality::single::{FrameTimes, Parts, Repeated, render_frame, render_repeated};
 use lightfold_reference::output::png_next_to;
 use lightfold_scene::{Image, LightSample, Scene};
 use lightfold_telemetry::outln;
-
-/// Median of each column (`stats::median`), 0 when there are no rows.
-fn medians(rows: &[[u64; 3]]) -> [u64; 3] {
-    std::array::from_fn(|c| {
-        let v: Vec<u64> = rows.iter().map(|r| r[c]).collect();
-        stats::median(&v).unwrap_or(0)
-    })
-}
 
 /// Renders `args.frames` frames of the scene's samples on one local GPU (as sort-last parts
 /// with `--partitions`), printing each frame's costs with `--timings`, then writes the last
@@ -33,22 +24,9 @@ pub(super) fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> any
     let scene = chunked.as_ref().unwrap_or(scene);
     let (gpu, mut renderer, k) = open_renderer(args, scene, samples)?;
     let frames = args.frames.max(1);
-    let mut image = None;
-    // Per-batch costs after the first frame (which also compiles shaders and allocates), without
-    // each frame's first batch (which also renders the material layers).
-    let mut steady: Vec<[u64; 3]> = Vec::new();
-    let mut steady_frames = 0;
-    let mut views_per_light = Vec::new();
-    let parts = (args.partitions > 1)
-        .then(|| lightfold_scene::partition::partition_meshes(scene, args.partitions as usize));
-    // Each part's casters per sample, once for every frame (a still scene; an animated one casts
-    // every mesh).
-    let casters = parts
-        .as_ref()
-        .filter(|_| scene.animation.is_none())
-        .map(|p| lightfold_coordinator::plan::part_casters(scene, samples, p));
+    let parts = (args.partitions > 1).then(|| Parts::new(scene, samples, args.partitions as usize));
     if let (Some(parts), true) = (&parts, args.timings) {
-        for (i, p) in parts.iter().enumerate() {
+        for (i, p) in parts.parts.iter().enumerate() {
             let tris: usize = p
                 .iter()
                 .map(|&m| scene.meshes[m as usize].triangle_count())
@@ -56,27 +34,7 @@ pub(super) fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> any
             outln!("partition {i}: {} meshes, {tris} triangles", p.len());
         }
     }
-    for f in 0..frames {
-        let (radiance, times) = match &parts {
-            None => render_frame(
-                &gpu,
-                &mut renderer,
-                scene,
-                samples,
-                k,
-                None,
-                args.penumbra_filter,
-            )?,
-            Some(parts) => render_partitioned(
-                &gpu,
-                &mut renderer,
-                scene,
-                samples,
-                k,
-                parts,
-                casters.as_deref(),
-            )?,
-        };
+    let each = |f: u32, times: &FrameTimes| {
         if args.timings {
             outln!(
                 "{f:>5}  {:>13}  {:>9.1}  {:>6.1}  {:>11.1}  {:>8.1}",
@@ -87,19 +45,22 @@ pub(super) fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> any
                 times.total_us as f64 / 1e3
             );
         }
-        if f > 0 || frames == 1 {
-            steady.extend(times.batches.iter().skip(1));
-            steady_frames += 1;
-        }
-        if f == 0 {
-            views_per_light = times.passes_per_light;
-        }
-        image = Some(radiance);
-    }
+    };
+    let run = render_repeated(
+        &gpu,
+        &mut renderer,
+        scene,
+        samples,
+        k,
+        frames,
+        parts.as_ref(),
+        args.penumbra_filter,
+        each,
+    )?;
     if args.timings {
-        print_steady(k, frames, &views_per_light, &steady, steady_frames);
+        print_steady(k, frames, &run);
     }
-    let png = write_images(args, scene, image.expect("at least one frame"))?;
+    let png = write_images(args, scene, run.image)?;
     if let Some(path) = &args.unoccluded_out {
         let none = vec![Vec::new(); samples.len()];
         let ((open, _), _) = render_frame(&gpu, &mut renderer, scene, samples, k, Some(&none), 0)?;
@@ -114,8 +75,8 @@ pub(super) fn render(args: &Args, scene: &Scene, samples: &[LightSample]) -> any
         match &parts {
             Some(p) => format!(
                 ", {} sort-last parts of {} mesh(es), depth-composed",
-                p.len(),
-                p.iter().map(Vec::len).sum::<usize>()
+                p.parts.len(),
+                p.parts.iter().map(Vec::len).sum::<usize>()
             ),
             None => String::new(),
         }
@@ -186,14 +147,8 @@ fn open_renderer(
 
 /// Prints the shadow views per light of the first frame and, when any batch counts, the
 /// median cost of a node frame of K lights over the steady batches of `steady_frames` frames.
-fn print_steady(
-    k: usize,
-    frames: u32,
-    views_per_light: &[u32],
-    steady: &[[u64; 3]],
-    steady_frames: usize,
-) {
-    let p = views_per_light;
+fn print_steady(k: usize, frames: u32, run: &Repeated) {
+    let p = &run.views_per_light;
     let sum: u32 = p.iter().sum();
     outln!(
         "shadow views per light: min {}, mean {:.2}, max {} ({sum} in all)",
@@ -201,10 +156,10 @@ fn print_steady(
         sum as f64 / p.len().max(1) as f64,
         p.iter().max().unwrap_or(&0)
     );
-    if steady.is_empty() {
+    if run.steady.is_empty() {
         return;
     }
-    let [s, e, r] = medians(steady);
+    let [s, e, r] = run.steady_medians();
     let which = match frames {
         1 => "the only frame".to_string(),
         2 => "frame 1".to_string(),
@@ -219,8 +174,8 @@ fn print_steady(
         "node frame (K = {k}, illumination only): median of {} batches, {} in {which} \
          ({warm}each frame's first batch, which also renders the materials, is left out): \
          shadow {:.1} ms, eye {:.1} ms, readback {:.1} ms, total {:.1} ms",
-        steady.len(),
-        steady.len() / steady_frames.max(1),
+        run.steady.len(),
+        run.steady.len() / run.steady_frames.max(1),
         s as f64 / 1e3,
         e as f64 / 1e3,
         r as f64 / 1e3,

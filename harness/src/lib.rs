@@ -7,6 +7,8 @@
 //! - [`check`]: the single-device render a cluster frame must equal, and the comparison within
 //!   the link formats' bound (tests, `lightfold soak`).
 //! - [`sweep`]: accuracy sweeps rendered through an in-process cluster.
+//! - [`local_cluster`]: a cluster all on this machine, as its nodes will report themselves, and
+//!   the bound on its processes.
 //! - [`launcher`]: local clusters of daemon processes (`lightfold demo`, `soak`, `bench`), and
 //!   what launchers signal and measure them with.
 //! - [`soak`]: `lightfold soak`, the failover soak: faults injected into a process cluster, every
@@ -24,6 +26,7 @@ pub mod driver;
 pub mod fixtures;
 pub mod in_process;
 pub mod launcher;
+pub mod local_cluster;
 pub mod soak;
 pub mod sweep;
 pub mod view_probe;

@@ -157,3 +157,98 @@ pub fn render_frame(
     times.total_us = t.elapsed().as_micros() as u64;
     Ok(((radiance, depth), times))
 }
+
+/// Sort-last parts of a scene for one device: the meshes of each part, and each part's casters
+/// per sample where the scene is still (an animated one casts every mesh).
+#[derive(Debug, Clone)]
+pub struct Parts {
+    pub parts: Vec<Vec<u32>>,
+    pub casters: Option<Vec<Vec<Vec<u32>>>>,
+}
+
+impl Parts {
+    /// `n` parts of `scene` (already chunked for them, `partition::chunk_for_parts`), as the
+    /// cluster's planner partitions it.
+    pub fn new(scene: &Scene, samples: &[LightSample], n: usize) -> Parts {
+        let parts = lightfold_scene::partition::partition_meshes(scene, n);
+        let casters = scene
+            .animation
+            .is_none()
+            .then(|| lightfold_coordinator::plan::part_casters(scene, samples, &parts));
+        Parts { parts, casters }
+    }
+}
+
+/// Frames of one scene rendered one after another ([`render_repeated`]): the last image and
+/// what its batches cost once warm.
+#[derive(Debug)]
+pub struct Repeated {
+    /// The last frame's radiance and eye depth.
+    pub image: (Image, Image),
+    /// Shadow views per light of the first frame.
+    pub views_per_light: Vec<u32>,
+    /// Each steady batch's shadow, eye and readback microseconds: every frame after the first
+    /// (which also compiles shaders and allocates; the only one when there is one), without each
+    /// frame's first batch (which also renders the material layers).
+    pub steady: Vec<[u64; 3]>,
+    /// Frames the steady batches come from.
+    pub steady_frames: usize,
+}
+
+impl Repeated {
+    /// Median shadow, eye and readback microseconds of the steady batches (0 without any).
+    pub fn steady_medians(&self) -> [u64; 3] {
+        std::array::from_fn(|c| {
+            let v: Vec<u64> = self.steady.iter().map(|r| r[c]).collect();
+            lightfold_protocol::stats::median(&v).unwrap_or(0)
+        })
+    }
+}
+
+/// Renders `frames` (at least one) frames of the scene on one device, whole
+/// ([`render_frame`], with the penumbra filter's `penumbra` radius) or as sort-last `parts`
+/// ([`render_partitioned`]), handing each frame's costs to `each` as it completes.
+#[allow(clippy::too_many_arguments)]
+pub fn render_repeated(
+    gpu: &Gpu,
+    renderer: &mut Renderer,
+    scene: &Scene,
+    samples: &[LightSample],
+    k: usize,
+    frames: u32,
+    parts: Option<&Parts>,
+    penumbra: u32,
+    mut each: impl FnMut(u32, &FrameTimes),
+) -> anyhow::Result<Repeated> {
+    let frames = frames.max(1);
+    let mut run = Repeated {
+        image: (Image::new(0, 0, 3), Image::new(0, 0, 1)),
+        views_per_light: Vec::new(),
+        steady: Vec::new(),
+        steady_frames: 0,
+    };
+    for f in 0..frames {
+        let (image, times) = match parts {
+            None => render_frame(gpu, renderer, scene, samples, k, None, penumbra)?,
+            Some(p) => render_partitioned(
+                gpu,
+                renderer,
+                scene,
+                samples,
+                k,
+                &p.parts,
+                p.casters.as_deref(),
+            )?,
+        };
+        each(f, &times);
+        if f > 0 || frames == 1 {
+            run.steady.extend(times.batches.iter().skip(1));
+            run.steady_frames += 1;
+        }
+        if f == 0 {
+            run.views_per_light = times.passes_per_light;
+        }
+        run.image = image;
+    }
+    Ok(run)
+}

@@ -69,6 +69,52 @@ impl ClusterSpec {
             sink: "127.0.0.1:7400".to_string(),
         }
     }
+
+    /// The cluster a cluster file names (ids `node-i`, `comp-j` where it gives none), its
+    /// daemons not yet asked what they are.
+    pub fn from_file(file: &crate::cluster::ClusterFile) -> ClusterSpec {
+        let spec = |prefix: &str, entries: &[crate::cluster::DaemonEntry]| {
+            entries
+                .iter()
+                .enumerate()
+                .map(|(i, e)| DaemonSpec {
+                    id: e.id.clone().unwrap_or_else(|| format!("{prefix}-{i}")),
+                    address: e.address.clone(),
+                    capabilities: None,
+                })
+                .collect()
+        };
+        ClusterSpec {
+            nodes: spec("node", &file.nodes),
+            compositors: spec("comp", &file.compositors),
+            sink: file
+                .sink_advertise
+                .clone()
+                .unwrap_or_else(|| file.sink_listen.clone()),
+        }
+    }
+
+    /// Every render node reporting a device that takes at most `max_lights` lights and
+    /// `memory_bytes` of memory (0: unknown), nothing measured — what a real node reports at
+    /// registration (the planner raises K only up to it). `replace`: also over what a node
+    /// reports already.
+    pub fn with_synthetic_nodes(
+        mut self,
+        max_lights: u32,
+        memory_bytes: u64,
+        replace: bool,
+    ) -> Self {
+        for n in &mut self.nodes {
+            if replace || n.capabilities.is_none() {
+                n.capabilities = Some(Capabilities {
+                    max_lights,
+                    memory_bytes,
+                    ..Capabilities::unmeasured(lightfold_protocol::Role::Node, &n.id)
+                });
+            }
+        }
+        self
+    }
 }
 
 /// How compositor stages are connected.
