@@ -6,7 +6,7 @@ use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use lightfold_node::gpu::{Gpu, GpuOptions};
 use lightfold_quality::accuracy::{
-    self, CachedTruth, SweepPlan, TruthOptions, load_or_render_truth, report, run_sweep,
+    self, CachedTruth, SweepPlan, TruthOptions, load_or_render_truth, planned, report, run_sweep,
     run_sweep_with,
 };
 use lightfold_telemetry::outln;
@@ -100,7 +100,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     if args.planned {
         return run_planned(&args);
     }
-    let plan = sweep_plan(&args)?;
+    let plan = SweepPlan::named(&args.sweep, &args.knobs).map_err(anyhow::Error::msg)?;
     let mut scene = lightfold_scene::load(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;
     let (w, h) = crate::plan_args::parse_size(&args.size)?;
@@ -162,46 +162,6 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
         out.display()
     );
     Ok(())
-}
-
-/// The sweep `--sweep` names, narrowed to the `--knobs` given; an unknown name, or a knob the
-/// sweep does not vary, is an error.
-fn sweep_plan(args: &Args) -> anyhow::Result<SweepPlan> {
-    let plan = match args.sweep.as_str() {
-        "full" => SweepPlan::full(),
-        "reduced" => SweepPlan::reduced(),
-        "tiny" => SweepPlan::tiny(),
-        other => anyhow::bail!("unknown --sweep {other:?}: full, reduced or tiny"),
-    };
-    if args.knobs.is_empty() {
-        return Ok(plan);
-    }
-    let knobs = args
-        .knobs
-        .iter()
-        .map(|k| {
-            accuracy::Knob::from_name(k).with_context(|| {
-                format!(
-                    "unknown knob {k:?}: samples, pattern, map, filter, format, K, grid or penumbra"
-                )
-            })
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    let plan = plan.only(&knobs);
-    let idle: Vec<&str> = knobs
-        .iter()
-        .filter(|k| !plan.varies(**k))
-        .map(|k| k.name())
-        .collect();
-    if !idle.is_empty() {
-        anyhow::bail!(
-            "--sweep {} does not vary {}: use --sweep reduced or full for {}",
-            args.sweep,
-            idle.join(", "),
-            if idle.len() == 1 { "it" } else { "them" }
-        );
-    }
-    Ok(plan)
 }
 
 /// Loads the scene's ground truth from the cache or renders it, saying on stderr which and
@@ -284,10 +244,6 @@ fn sweep_title(args: &Args, label: &str, (w, h): (u32, u32), device: &str) -> St
 /// `--planned`: the planner's default choice (with this scene's calibration) against the scene
 /// as it asks, rendered on this device as the sweep renders a point, both against the truth.
 fn run_planned(args: &Args) -> anyhow::Result<()> {
-    use lightfold_coordinator::plan::{
-        ClusterSpec, Learned, MapSizing as PlanSizing, PlanOptions, plan, targeted,
-    };
-    use lightfold_quality::accuracy::{Setting, measure_prepared};
     let mut scene = lightfold_scene::load(&args.scene)
         .with_context(|| format!("cannot load scene {:?}", args.scene))?;
     let (w, h) = crate::plan_args::parse_size(&args.size)?;
@@ -295,18 +251,7 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
     scene.camera.height = h;
     let cache = args.model.cache();
     let calibration = crate::model_args::run_calibration(&scene, &cache)?;
-    let mut options = PlanOptions {
-        target_penumbra_db: Some(args.target_db as f32),
-        learned: Learned {
-            error_model: Some(calibration.model.clone()),
-            ..Learned::default()
-        },
-        ..PlanOptions::default()
-    };
-    if args.model.error_model == "default" {
-        options.learned.error_model = None;
-    }
-    let p = plan(&scene, &ClusterSpec::local(256, 256), &options)?;
+    let model = (args.model.error_model != "default").then(|| calibration.model.clone());
     let truth = load_or_render_truth(
         &scene,
         &TruthOptions {
@@ -315,111 +260,35 @@ fn run_planned(args: &Args) -> anyhow::Result<()> {
         },
     )?;
     let gpu = Gpu::new(&GpuOptions::default()).context("no usable GPU")?;
-    let defaults = accuracy::Setting::defaults(&scene);
-    // The planner's choice, as it made it: the scene with its samples per area light and the
-    // options with its map sizing (`plan::targeted`), its filter and K from the plan.
-    let (mut planned, sizing, floor) = match targeted(&scene, args.target_db as f32, &options) {
-        Some((s, o, t)) => (s, o.map_sizing, t.map_floor),
-        None => (scene.clone(), options.map_sizing, 0),
-    };
-    let samples = planned.area_samples().unwrap_or(defaults.samples);
-    // Where the plan sizes maps other than by the scene's own rule (a raised floor), the scene
-    // the device renders takes that rule.
-    match sizing {
-        PlanSizing::Mismatch { min, max, target } => {
-            let rule = lightfold_scene::shadow_views::Mismatch { min, max, target };
-            planned.quality.map_sizing = lightfold_scene::MapSizing::Mismatch(rule);
-            planned.quality.shadow_map_size = min;
-        }
-        PlanSizing::Fixed(n) => {
-            planned.quality.map_sizing = lightfold_scene::MapSizing::Fixed;
-            planned.quality.shadow_map_size = n;
-        }
-        PlanSizing::Scene => {}
-    }
-    let largest = match PlanSizing::Scene.resolve(&planned.quality) {
-        PlanSizing::Mismatch { max, .. } => max,
-        PlanSizing::Fixed(n) => n,
-        PlanSizing::Scene => planned.quality.shadow_map_size,
-    };
-    // The scenes' own filters render (`measure_prepared`); the settings say which.
-    let setting = |samples: u32, k: u32, penumbra: u32| Setting {
-        samples,
-        map_size: largest,
-        k,
-        penumbra,
-        ..defaults
-    };
-    // Each row: what, the scene rendered, its settings (one render; a second setting is the
-    // same images unfiltered), the model's figure.
-    let unfiltered = (p.penumbra_radius > 0).then(|| setting(samples, p.k, 0));
-    let rows = [
-        (
-            "as the scene asks",
-            &scene,
-            vec![setting(defaults.samples, defaults.k, 0)],
-            None,
-        ),
-        (
-            "planned",
-            &planned,
-            std::iter::once(setting(samples, p.k, p.penumbra_radius))
-                .chain(unfiltered)
-                .collect(),
-            p.target.as_ref().map(|t| t.expected_db),
-        ),
-    ];
+    let rows = planned::measure(
+        &gpu,
+        &scene,
+        args.target_db as f32,
+        model,
+        &truth,
+        args.repeats,
+    )?;
     outln!(
         "| scene | setting | samples/light | map floor | filter | penumbra PSNR (expected) | whole PSNR | node-s | truth floor |"
     );
     outln!("|---|---|---:|---:|---:|---:|---:|---:|---:|");
-    for (what, s, settings, expected) in rows {
-        let measured = measure_prepared(&gpu, s, &settings, args.repeats)?;
-        for (i, (setting, m)) in settings.iter().zip(&measured).enumerate() {
-            let metrics = truth.truth.compare(&m.image)?;
-            let pen = metrics.penumbra.map_or(f64::NAN, |e| e.psnr);
-            let floor_text = match (what, floor) {
-                ("planned", f) if f > 0 => format!("{f}²"),
-                _ => "rule".to_string(),
-            };
-            let (what, expected) = if i == 0 {
-                (what.to_string(), expected)
-            } else {
-                (format!("{what}, filter off"), None)
-            };
-            // The planner may raise single lights (glossy highlights, `plan::gloss`).
-            let counts = per_light_samples(s);
-            let samples = match (counts.iter().min(), counts.iter().max()) {
-                (Some(a), Some(b)) if a != b => format!("{a}–{b}"),
-                _ => setting.samples.to_string(),
-            };
-            outln!(
-                "| {} | {what} | {samples} | {floor_text} | {} | {pen:.2} dB{} | {:.2} dB | {:.3} | {:.2} dB |",
-                scene_label(&args.scene),
-                match (setting.penumbra, s.quality.filter) {
-                    (_, lightfold_scene::ShadowFilter::Cell { taps }) =>
-                        format!("cell {taps}×{taps}"),
-                    (0, _) => "—".into(),
-                    (r, _) => format!("r{r}"),
-                },
-                expected.map_or_else(String::new, |e| format!(" ({e:.2})")),
-                metrics.whole.psnr,
-                m.node_seconds.iter().sum::<f64>(),
-                truth.floor.penumbra.map_or(f64::NAN, |e| e.psnr),
-            );
-        }
+    for r in rows {
+        outln!(
+            "| {} | {} | {} | {} | {} | {:.2} dB{} | {:.2} dB | {:.3} | {:.2} dB |",
+            scene_label(&args.scene),
+            r.what,
+            r.samples,
+            r.floor,
+            r.filter,
+            r.penumbra_db,
+            r.expected_db
+                .map_or_else(String::new, |e| format!(" ({e:.2})")),
+            r.whole_db,
+            r.node_seconds,
+            truth.floor.penumbra.map_or(f64::NAN, |e| e.psnr),
+        );
     }
     Ok(())
-}
-
-/// Each area light's samples as `scene` renders them.
-fn per_light_samples(scene: &lightfold_scene::Scene) -> Vec<u32> {
-    scene
-        .lights
-        .iter()
-        .filter(|l| l.is_area())
-        .map(|l| scene.quality.samples_of(l))
-        .collect()
 }
 
 fn run_hard(args: &Args) -> anyhow::Result<()> {

@@ -9,6 +9,7 @@
 
 mod measure;
 pub mod pareto;
+pub mod planned;
 pub mod report;
 pub mod truth;
 
@@ -300,6 +301,46 @@ impl SweepPlan {
     }
 
     /// This plan with only `knobs` varied (the others keep the defaults).
+    /// The sweep `name` names ("full", "reduced", "tiny"), narrowed to the knobs named in
+    /// `knobs` (none: all of it); an unknown name, or a knob the sweep does not vary, is an error
+    /// saying what there is.
+    pub fn named(name: &str, knobs: &[String]) -> Result<SweepPlan, String> {
+        let plan = match name {
+            "full" => SweepPlan::full(),
+            "reduced" => SweepPlan::reduced(),
+            "tiny" => SweepPlan::tiny(),
+            other => return Err(format!("unknown --sweep {other:?}: full, reduced or tiny")),
+        };
+        if knobs.is_empty() {
+            return Ok(plan);
+        }
+        let knobs = knobs
+            .iter()
+            .map(|k| {
+                Knob::from_name(k).ok_or_else(|| {
+                    format!(
+                        "unknown knob {k:?}: samples, pattern, map, filter, format, K, grid or \
+                         penumbra"
+                    )
+                })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let plan = plan.only(&knobs);
+        let idle: Vec<&str> = knobs
+            .iter()
+            .filter(|k| !plan.varies(**k))
+            .map(|k| k.name())
+            .collect();
+        if !idle.is_empty() {
+            return Err(format!(
+                "--sweep {name} does not vary {}: use --sweep reduced or full for {}",
+                idle.join(", "),
+                if idle.len() == 1 { "it" } else { "them" }
+            ));
+        }
+        Ok(plan)
+    }
+
     pub fn only(mut self, knobs: &[Knob]) -> SweepPlan {
         let keep = |k: Knob| knobs.contains(&k);
         if !keep(Knob::Samples) {
