@@ -464,31 +464,8 @@ impl JobArgs {
     }
 
     pub(crate) fn load_scene(&self) -> anyhow::Result<lightfold_scene::Scene> {
-        let mut scene = match &self.animation {
-            None => lightfold_scene::load(&self.scene),
-            Some(clip) => {
-                let path = std::path::Path::new(&self.scene);
-                let gltf = path.extension().is_some_and(|e| {
-                    e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb")
-                });
-                if !gltf {
-                    bail!(
-                        "--animation picks a clip of a glTF model given as --scene (.gltf/.glb); \
-                         {:?} is not one (a scene file names its clip as `animation` in its \
-                         [gltf] table)",
-                        self.scene
-                    );
-                }
-                lightfold_scene::load_gltf_with(
-                    path,
-                    &lightfold_scene::GltfOptions {
-                        animation: Some(clip.clone()),
-                        ..Default::default()
-                    },
-                )
-            }
-        }
-        .with_context(|| format!("cannot load scene {:?}", self.scene))?;
+        let mut scene = lightfold_scene::load_with_clip(&self.scene, self.animation.as_deref())
+            .with_context(|| format!("cannot load scene {:?}", self.scene))?;
         self.plan.apply(&mut scene)?;
         Ok(scene)
     }
@@ -592,20 +569,7 @@ pub(crate) fn run_cmd(mut args: Args) -> anyhow::Result<()> {
     let (daemons, sink_listen, sink_advertise) = match &args.cluster {
         Some(path) => {
             let f = ClusterFile::load(path)?;
-            let mut d: Vec<DaemonAddr> = f
-                .nodes
-                .iter()
-                .map(|e| DaemonAddr {
-                    address: e.address.clone(),
-                    role: Role::Node,
-                    id: e.id.clone(),
-                })
-                .collect();
-            d.extend(f.compositors.iter().map(|e| DaemonAddr {
-                address: e.address.clone(),
-                role: Role::Compositor,
-                id: e.id.clone(),
-            }));
+            let d = f.daemons();
             (
                 d,
                 args.sink_listen.clone().unwrap_or(f.sink_listen),

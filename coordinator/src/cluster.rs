@@ -14,6 +14,8 @@ use serde::Deserialize;
 use std::path::Path;
 
 pub const CLUSTER_FILE_VERSION: u32 = 1;
+/// The largest cluster file read (a thousand daemons take about 60 KiB).
+pub const MAX_CLUSTER_FILE: u64 = 4 << 20;
 
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -56,17 +58,51 @@ pub enum ClusterFileError {
         "cluster file {path} has version {found}; this lightfold reads version {CLUSTER_FILE_VERSION}"
     )]
     Version { path: String, found: u32 },
+    #[error("cluster file {path} is larger than {} MiB", MAX_CLUSTER_FILE >> 20)]
+    TooLarge { path: String },
     #[error("cluster file {path} lists no {what}")]
     Empty { path: String, what: &'static str },
 }
 
 impl ClusterFile {
+    /// Reads and checks the file at `path` (at most [`MAX_CLUSTER_FILE`] bytes).
     pub fn load(path: &Path) -> Result<ClusterFile, ClusterFileError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ClusterFileError::Read {
-            path: path.display().to_string(),
+        use std::io::Read;
+        let shown = path.display().to_string();
+        let read = |source| ClusterFileError::Read {
+            path: shown.clone(),
             source,
-        })?;
-        Self::parse(&text, &path.display().to_string())
+        };
+        let mut text = String::new();
+        std::fs::File::open(path)
+            .map_err(read)?
+            .take(MAX_CLUSTER_FILE + 1)
+            .read_to_string(&mut text)
+            .map_err(read)?;
+        if text.len() as u64 > MAX_CLUSTER_FILE {
+            return Err(ClusterFileError::TooLarge { path: shown });
+        }
+        Self::parse(&text, &shown)
+    }
+
+    /// The daemons to connect: render nodes, then compositors, each with the id it must register
+    /// under where the file gives one.
+    pub fn daemons(&self) -> Vec<crate::control::DaemonAddr> {
+        let with = |role| {
+            move |e: &DaemonEntry| crate::control::DaemonAddr {
+                address: e.address.clone(),
+                role,
+                id: e.id.clone(),
+            }
+        };
+        let nodes = self.nodes.iter().map(with(lightfold_protocol::Role::Node));
+        nodes
+            .chain(
+                self.compositors
+                    .iter()
+                    .map(with(lightfold_protocol::Role::Compositor)),
+            )
+            .collect()
     }
 
     pub fn parse(text: &str, origin: &str) -> Result<ClusterFile, ClusterFileError> {
@@ -124,5 +160,28 @@ mod tests {
         assert!(matches!(e, ClusterFileError::Empty { .. }), "{e}");
         let e = ClusterFile::parse("version = 1\n[[node]]\naddress = 5\n", "t").unwrap_err();
         assert!(matches!(e, ClusterFileError::Parse { .. }), "{e}");
+    }
+
+    #[test]
+    fn loads_within_a_bound_and_lists_its_daemons_in_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("cluster.toml");
+        let text = "version = 1\n[[compositor]]\naddress = \"b:2\"\n[[node]]\naddress = \"a:1\"\nid = \"n0\"\n";
+        std::fs::write(&path, text).unwrap();
+        let d = ClusterFile::load(&path).unwrap().daemons();
+        assert_eq!(d.len(), 2);
+        assert_eq!(
+            (d[0].address.as_str(), d[0].role),
+            ("a:1", lightfold_protocol::Role::Node)
+        );
+        assert_eq!(d[0].id.as_deref(), Some("n0"));
+        assert_eq!(d[1].role, lightfold_protocol::Role::Compositor);
+        // A file one byte over the bound (a comment, so it would parse) is refused unparsed.
+        let padding = "#".repeat(MAX_CLUSTER_FILE as usize + 1 - text.len());
+        std::fs::write(&path, format!("{text}{padding}")).unwrap();
+        let e = ClusterFile::load(&path).unwrap_err();
+        assert!(matches!(e, ClusterFileError::TooLarge { .. }), "{e}");
+        let e = ClusterFile::load(&dir.path().join("missing.toml")).unwrap_err();
+        assert!(matches!(e, ClusterFileError::Read { .. }), "{e}");
     }
 }

@@ -28,6 +28,11 @@ pub enum SceneError {
         texture: String,
         message: String,
     },
+    #[error(
+        "{input:?} is not a glTF model (.gltf/.glb): only a glTF's animations are chosen by name \
+         (a scene file names its clip as `animation` in its [gltf] table)"
+    )]
+    ClipOfNonGltf { input: String },
     #[error("{path}: invalid scene file: {message}")]
     SceneFile { path: String, message: String },
     #[error(

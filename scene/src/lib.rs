@@ -41,7 +41,7 @@ pub mod wire;
 pub use builtin::{builtin, builtin_names, is_builtin};
 pub use encode::{MAX_SCENE_BYTES, SCENE_BYTES_VERSION};
 pub use error::SceneError;
-pub use file::{SceneFile, is_loadable, load, load_scene_file, parse_scene_file};
+pub use file::{SceneFile, is_loadable, load, load_scene_file, load_with_clip, parse_scene_file};
 pub use gltf_load::{GltfOptions, ignored_features, load_gltf, load_gltf_slice, load_gltf_with};
 pub use image::Image;
 pub use model::*;

@@ -36,6 +36,28 @@ pub fn load(path_or_builtin: &str) -> Result<Scene, SceneError> {
     }
 }
 
+/// [`load`], playing the animation `clip` (by name or index) of a glTF model (`.gltf`/`.glb`);
+/// without a clip, [`load`]. A clip for any other input is [`SceneError::ClipOfNonGltf`].
+pub fn load_with_clip(path_or_builtin: &str, clip: Option<&str>) -> Result<Scene, SceneError> {
+    let Some(clip) = clip else {
+        return load(path_or_builtin);
+    };
+    let path = Path::new(path_or_builtin);
+    let gltf = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("gltf") || e.eq_ignore_ascii_case("glb"));
+    if !gltf {
+        return Err(SceneError::ClipOfNonGltf {
+            input: path_or_builtin.to_string(),
+        });
+    }
+    let opts = crate::GltfOptions {
+        animation: Some(clip.to_string()),
+        ..Default::default()
+    };
+    crate::load_gltf_with(path, &opts)
+}
+
 /// Whether [`load`] reads a file named like `path` (by its extension, any case).
 pub fn is_loadable(path: &Path) -> bool {
     loader_for(path).is_some()

@@ -482,3 +482,24 @@ fn broken_animations_are_dropped_and_refused_on_the_wire() {
     still.animation = None;
     assert_ne!(still.content_hash(), s.content_hash());
 }
+
+#[test]
+fn a_clip_is_chosen_only_of_a_gltf() {
+    let e = lightfold_scene::load_with_clip("balls", Some("walk")).unwrap_err();
+    assert!(
+        matches!(e, lightfold_scene::SceneError::ClipOfNonGltf { .. }),
+        "{e}"
+    );
+    assert!(e.to_string().contains("[gltf] table"), "{e}");
+    let e = lightfold_scene::load_with_clip("scene.toml", Some("0")).unwrap_err();
+    assert!(
+        matches!(e, lightfold_scene::SceneError::ClipOfNonGltf { .. }),
+        "{e}"
+    );
+    // Without a clip it is `load`; a glTF's clip by a name it lacks is the glTF loader's error.
+    assert_eq!(
+        lightfold_scene::load_with_clip("balls", None).unwrap(),
+        lightfold_scene::load("balls").unwrap()
+    );
+    assert!(lightfold_scene::load_with_clip("missing.glb", Some("walk")).is_err());
+}
