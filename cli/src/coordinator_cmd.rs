@@ -266,26 +266,7 @@ impl ViewArgs {
             ..lightfold_view::ViewOptions::default()
         })
         .await?;
-        let addr = view.local_addr();
-        let scheme = if view.is_tls() { "https" } else { "http" };
-        if addr.ip().is_loopback() {
-            outln!("view: {scheme}://{addr}/");
-        } else {
-            let who = if self.access.public_watch {
-                "viewers beyond loopback watch (no daemon addresses); to steer they present"
-            } else {
-                "viewers beyond loopback see nothing until they present"
-            };
-            let how = if view.is_tls() || self.access.allow_plain_token {
-                format!(
-                    "in the page or as {scheme}://HOST:{}/#token=TOKEN",
-                    addr.port()
-                )
-            } else {
-                "which plain HTTP does not take from them: give --tls-cert and --tls-key".into()
-            };
-            outln!("view: {scheme}://{addr}/ ({who} the token, {how})");
-        }
+        outln!("{}", view.address_line());
         Ok(Some(view))
     }
 }

@@ -10,7 +10,6 @@ use lightfold_telemetry::out;
 mod accuracy_cmd;
 mod calibrate_cmd;
 mod compare_cmd;
-mod compare_reference;
 mod compositor_cmd;
 mod coordinator_cmd;
 mod defaults_cmd;

@@ -5,6 +5,7 @@
 //! Uses the GPU renderer and the CPU reference side by side; nothing here runs in a daemon.
 
 pub mod accuracy;
+pub mod against_point_sum;
 pub mod calibrate;
 pub mod hard;
 pub mod single;

@@ -205,6 +205,30 @@ impl View {
         self.tls.is_some()
     }
 
+    /// Where the view is and who may do what there, as its one line on start-up: the address,
+    /// and beyond loopback what a viewer must present and how (`docs/live-view.md` § Access).
+    pub fn address_line(&self) -> String {
+        let addr = self.addr;
+        let scheme = if self.is_tls() { "https" } else { "http" };
+        if addr.ip().is_loopback() {
+            return format!("view: {scheme}://{addr}/");
+        }
+        let who = if self.opts.public_watch {
+            "viewers beyond loopback watch (no daemon addresses); to steer they present"
+        } else {
+            "viewers beyond loopback see nothing until they present"
+        };
+        let how = if self.is_tls() || self.opts.allow_plain_token {
+            format!(
+                "in the page or as {scheme}://HOST:{}/#token=TOKEN",
+                addr.port()
+            )
+        } else {
+            "which plain HTTP does not take from them: give --tls-cert and --tls-key".into()
+        };
+        format!("view: {scheme}://{addr}/ ({who} the token, {how})")
+    }
+
     /// What serving the view has cost so far (encoding time, bytes sent, frames dropped).
     pub fn counters(&self) -> Arc<ViewCounters> {
         Arc::clone(&self.counters)

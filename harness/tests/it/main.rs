@@ -8,6 +8,7 @@ mod cluster_smoke;
 mod failover;
 mod frame_budget;
 mod indirect;
+mod local_cluster;
 mod partitions;
 mod penumbra_filter;
 mod plan_culling;

@@ -5,6 +5,7 @@ mod support;
 mod animation;
 mod builtin;
 mod bvh;
+mod defaults;
 mod encode;
 mod gltf;
 mod hostile;

@@ -1,28 +1,23 @@
-//! The error summary of a cluster image: compared with the CPU reference's exact sum over the same
-//! point samples (ray-traced shadows), so what remains is shadow-map and link-precision error.
+//! A cluster image's error against the CPU reference's exact sum over the same point samples
+//! (ray-traced shadows), so what remains is shadow-map and link-precision error (`lightfold
+//! demo`'s closing figures).
 
-use anyhow::Context;
 use lightfold_reference::masks::{penumbra_mask, ties};
-use lightfold_reference::metrics::compare_over;
+use lightfold_reference::metrics::{Metrics, compare_over};
 use lightfold_reference::point_sum::{PointSumOptions, render_point_sum_with};
 use lightfold_scene::{Image, LightSample, Scene};
-use lightfold_telemetry::outln;
-use std::path::Path;
 use std::time::Instant;
 
-/// Renders the reference for `scene` and prints the metrics of the image in `exr` against it.
+/// Renders the reference for `scene` and measures `test` (a cluster's image) against it,
+/// returning the metrics and the reference's seconds on the CPU.
 /// With `aa` > 1 (the image's `--aa`) the reference is traced with `aa × aa` rays per pixel and
 /// resolved the same way (radiance box-filtered, depth nearest; coverage where a block has any).
-/// `which` names the point samples `samples` are (`the same 32 point samples`, or what they
-/// differ by).
-pub(crate) fn report(
+pub fn measure(
     scene: &Scene,
     samples: &[LightSample],
-    which: &str,
-    exr: &Path,
+    test: &Image,
     aa: u32,
-) -> anyhow::Result<()> {
-    let test = Image::read_exr(exr).with_context(|| format!("cannot read {}", exr.display()))?;
+) -> anyhow::Result<(Metrics, f64)> {
     let t = Instant::now();
     let mut scene = scene.clone();
     scene.camera = scene.camera.supersampled(aa)?;
@@ -51,16 +46,11 @@ pub(crate) fn report(
         mask.iter_mut().zip(c).for_each(|(m, &c)| *m &= c);
     }
     let m = compare_over(
-        &test,
+        test,
         &reference,
         scene.exposure,
         compared.as_deref(),
         Some(&mask),
     )?;
-    outln!(
-        "error against the CPU reference (exact sum over {which}, ray-traced shadows, {aa}×{aa} rays per pixel; {:.1} s on the CPU):",
-        t.elapsed().as_secs_f64()
-    );
-    outln!("{m}");
-    Ok(())
+    Ok((m, t.elapsed().as_secs_f64()))
 }
