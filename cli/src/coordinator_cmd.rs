@@ -379,19 +379,9 @@ impl JobArgs {
                 "--job-file replaces the job's flags (--scene, -K, --frames, …): give one or the other"
             );
         }
-        let file = std::fs::File::open(path)
-            .with_context(|| format!("cannot open the job file {}", path.display()))?;
-        let mut text = String::new();
-        std::io::Read::read_to_string(&mut std::io::Read::take(file, MAX_JOB_FILE + 1), &mut text)
-            .with_context(|| format!("cannot read the job file {}", path.display()))?;
-        if text.len() as u64 > MAX_JOB_FILE {
-            bail!(
-                "the job file {} is larger than {} KiB",
-                path.display(),
-                MAX_JOB_FILE >> 10
-            );
-        }
-        let job: JobArgs = serde_json::from_str(&text)
+        let bytes = lightfold_scene::read_bounded(path, MAX_JOB_FILE)
+            .map_err(|e| anyhow::anyhow!("cannot read the job file {}: {e}", path.display()))?;
+        let job: JobArgs = serde_json::from_slice(&bytes)
             .with_context(|| format!("{} is not a job file", path.display()))?;
         job.check()
             .map_err(|e| anyhow::anyhow!("the job file {}: {e}", path.display()))?;

@@ -47,41 +47,29 @@ fn default_sink() -> String {
 
 #[derive(Debug, thiserror::Error)]
 pub enum ClusterFileError {
-    #[error("cannot read cluster file {path}: {source}")]
-    Read {
-        path: String,
-        source: std::io::Error,
-    },
+    #[error("cannot read cluster file {path}: {message}")]
+    Read { path: String, message: String },
     #[error("malformed cluster file {path}: {message}")]
     Parse { path: String, message: String },
     #[error(
         "cluster file {path} has version {found}; this lightfold reads version {CLUSTER_FILE_VERSION}"
     )]
     Version { path: String, found: u32 },
-    #[error("cluster file {path} is larger than {} MiB", MAX_CLUSTER_FILE >> 20)]
-    TooLarge { path: String },
     #[error("cluster file {path} lists no {what}")]
     Empty { path: String, what: &'static str },
 }
 
 impl ClusterFile {
-    /// Reads and checks the file at `path` (at most [`MAX_CLUSTER_FILE`] bytes).
+    /// Reads and checks the file at `path` (a regular file of at most [`MAX_CLUSTER_FILE`]
+    /// bytes, `lightfold_scene::read_bounded`).
     pub fn load(path: &Path) -> Result<ClusterFile, ClusterFileError> {
-        use std::io::Read;
         let shown = path.display().to_string();
-        let read = |source| ClusterFileError::Read {
+        let read = |message| ClusterFileError::Read {
             path: shown.clone(),
-            source,
+            message,
         };
-        let mut text = String::new();
-        std::fs::File::open(path)
-            .map_err(read)?
-            .take(MAX_CLUSTER_FILE + 1)
-            .read_to_string(&mut text)
-            .map_err(read)?;
-        if text.len() as u64 > MAX_CLUSTER_FILE {
-            return Err(ClusterFileError::TooLarge { path: shown });
-        }
+        let bytes = lightfold_scene::read_bounded(path, MAX_CLUSTER_FILE).map_err(read)?;
+        let text = String::from_utf8(bytes).map_err(|_| read("not UTF-8 text".into()))?;
         Self::parse(&text, &shown)
     }
 
@@ -180,7 +168,11 @@ mod tests {
         let padding = "#".repeat(MAX_CLUSTER_FILE as usize + 1 - text.len());
         std::fs::write(&path, format!("{text}{padding}")).unwrap();
         let e = ClusterFile::load(&path).unwrap_err();
-        assert!(matches!(e, ClusterFileError::TooLarge { .. }), "{e}");
+        assert!(matches!(e, ClusterFileError::Read { .. }), "{e}");
+        assert!(e.to_string().contains("more than the 4194304 bytes"), "{e}");
+        // A folder is not read (nor would a FIFO be waited on).
+        let e = ClusterFile::load(dir.path()).unwrap_err();
+        assert!(e.to_string().contains("not a regular file"), "{e}");
         let e = ClusterFile::load(&dir.path().join("missing.toml")).unwrap_err();
         assert!(matches!(e, ClusterFileError::Read { .. }), "{e}");
     }

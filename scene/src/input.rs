@@ -8,8 +8,9 @@ use std::io::Read;
 use std::path::{Component, Path, PathBuf};
 
 /// Reads the regular file at `path`, at most `cap` bytes. The error says what went wrong, not
-/// which file: callers name it once (`cannot read PATH: …`).
-pub(crate) fn read_bounded(path: &Path, cap: u64) -> Result<Vec<u8>, String> {
+/// which file: callers name it once (`cannot read PATH: …`). Every file lightfold reads that a
+/// user names (scenes, cluster files, job files) is read through it.
+pub fn read_bounded(path: &Path, cap: u64) -> Result<Vec<u8>, String> {
     // `metadata` follows symbolic links: what is checked is what would be opened. Checked before
     // opening, since opening a FIFO blocks until a writer comes.
     let meta = std::fs::metadata(path).map_err(|e| e.to_string())?;

@@ -44,6 +44,7 @@ pub use error::SceneError;
 pub use file::{SceneFile, is_loadable, load, load_scene_file, load_with_clip, parse_scene_file};
 pub use gltf_load::{GltfOptions, ignored_features, load_gltf, load_gltf_slice, load_gltf_with};
 pub use image::Image;
+pub use input::read_bounded;
 pub use model::*;
 pub use model_file::ModelOptions;
 pub use obj_load::{load_obj, load_obj_slice, load_obj_with};
