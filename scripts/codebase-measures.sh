@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # What the codebase measures (docs/codebase.md): lines of Rust per crate, the cli's size and what
 # it is made of, test binaries, the longest functions outside tests; with --cold-build DIR also
-# a cold `cargo test --workspace --no-run` into the empty folder DIR (CPU and wall time, size).
+# a cold `cargo test --workspace --all-targets --no-run` into the empty folder DIR (CPU and wall
+# time, size).
 # Usage: scripts/codebase-measures.sh [--cold-build DIR]
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -89,8 +90,9 @@ if [ "${1:-}" = "--cold-build" ]; then
   dir=${2:?--cold-build takes an empty folder}
   mkdir -p "$dir"
   [ -z "$(ls -A "$dir")" ] || { echo "$dir is not empty" >&2; exit 1; }
-  echo "== cold cargo test --workspace --no-run into $dir"
+  # What CI builds (`scripts/test.sh`): every target, examples and benches included.
+  echo "== cold cargo test --workspace --all-targets --no-run into $dir"
   CARGO_TARGET_DIR="$dir" CARGO_INCREMENTAL=0 /usr/bin/time -f '%e s wall, %U s user, %S s system' \
-    cargo test --workspace --no-run --quiet 2>&1 | tail -n 1
+    cargo test --workspace --all-targets --no-run --quiet 2>&1 | tail -n 1
   du -sh "$dir" | awk '{print $1 " in the target folder"}'
 fi
