@@ -9,7 +9,7 @@
 //! with the crate's other multi-process tests, it lost that race.
 
 use std::path::{Path, PathBuf};
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
 fn lightfold() -> Command {
@@ -53,10 +53,44 @@ fn start_demo_with(dir: &Path, frames: u32, extra: &[&str]) -> Child {
         .arg("--exr")
         .arg(dir.join("out.exr"))
         .args(extra)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
+        // Into files, not pipes: a pipe nobody reads until the end fills (64 KiB) and then
+        // blocks the coordinator's next write — a stall that looks like a hang.
+        .stdout(std::fs::File::create(dir.join("demo.out")).unwrap())
+        .stderr(std::fs::File::create(dir.join("demo.err")).unwrap())
         .spawn()
         .unwrap()
+}
+
+/// The demo's exit status and what it printed (stdout, stderr) once it ends.
+fn output(mut demo: Child, dir: &Path) -> (std::process::ExitStatus, String, String) {
+    let status = demo.wait().unwrap();
+    let read = |f: &str| std::fs::read_to_string(dir.join(f)).unwrap_or_default();
+    (status, read("demo.out"), read("demo.err"))
+}
+
+/// Polls until the demo in `dir` has written `n` frames; past `within`, stops it and fails
+/// with the end of what it printed.
+fn wait_for_frames(demo: &mut Child, dir: &Path, n: usize, within: Duration) {
+    let start = Instant::now();
+    while frames_written(dir) < n {
+        if start.elapsed() > within {
+            let _ = demo.kill();
+            let _ = demo.wait();
+            let tail = |f: &str| {
+                let t = std::fs::read_to_string(dir.join(f)).unwrap_or_default();
+                let lines: Vec<&str> = t.lines().collect();
+                lines[lines.len().saturating_sub(40)..].join("\n")
+            };
+            panic!(
+                "timed out waiting for frame {n} ({} written); the demo's stdout ends:\n{}\n\
+                 its stderr ends:\n{}",
+                frames_written(dir),
+                tail("demo.out"),
+                tail("demo.err")
+            );
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }
 
 /// Polls until `f` holds, failing after `within`.
@@ -115,14 +149,11 @@ fn signal(sig: &str, pid: &str) {
     assert!(ok.success(), "kill {sig} {pid}");
 }
 
-fn finish(demo: Child) -> (String, String) {
-    let out = demo.wait_with_output().unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
-    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+fn finish(demo: Child, dir: &Path) -> (String, String) {
+    let (status, stdout, stderr) = output(demo, dir);
     assert!(
-        out.status.success(),
-        "demo failed ({}):\n{stdout}\n{stderr}",
-        out.status
+        status.success(),
+        "demo failed ({status}):\n{stdout}\n{stderr}"
     );
     (stdout, stderr)
 }
@@ -133,10 +164,8 @@ fn killed_daemons_cost_no_frame_and_a_restarted_one_comes_back() {
     // redial) is folded back in while they last, even on a loaded machine.
     const FRAMES: u32 = 80;
     let dir = work_dir("failover-kill");
-    let demo = start_demo(&dir, FRAMES);
-    wait_for("frame 2", Duration::from_secs(300), || {
-        frames_written(&dir) >= 2
-    });
+    let mut demo = start_demo(&dir, FRAMES);
+    wait_for_frames(&mut demo, &dir, 2, Duration::from_secs(300));
     let node = pid_of(&dir, "node-1");
     let addr = address_of(&dir, "node-1");
     signal("-KILL", &node);
@@ -205,7 +234,7 @@ fn killed_daemons_cost_no_frame_and_a_restarted_one_comes_back() {
         frames_written(&dir) >= seen + 2
     });
     signal("-KILL", &pid_of(&dir, "comp-1"));
-    let (stdout, _) = finish(demo);
+    let (stdout, _) = finish(demo, &dir);
     let _ = restarted.kill();
     let _ = restarted.wait();
     assert_eq!(frames_written(&dir), FRAMES as usize, "{stdout}");
@@ -226,15 +255,13 @@ fn killed_daemons_cost_no_frame_and_a_restarted_one_comes_back() {
 fn a_stopped_node_is_named_and_every_frame_arrives() {
     const FRAMES: u32 = 8;
     let dir = work_dir("failover-stop");
-    let demo = start_demo(&dir, FRAMES);
-    wait_for("frame 2", Duration::from_secs(300), || {
-        frames_written(&dir) >= 2
-    });
+    let mut demo = start_demo(&dir, FRAMES);
+    wait_for_frames(&mut demo, &dir, 2, Duration::from_secs(300));
     let node = pid_of(&dir, "node-2");
     signal("-STOP", &node);
     std::thread::sleep(Duration::from_secs(3));
     signal("-CONT", &node);
-    let (stdout, _) = finish(demo);
+    let (stdout, _) = finish(demo, &dir);
     assert_eq!(frames_written(&dir), FRAMES as usize, "{stdout}");
     assert!(
         stdout.contains("node-2  lost: no answer to heartbeats"),
@@ -246,20 +273,12 @@ fn a_stopped_node_is_named_and_every_frame_arrives() {
 #[test]
 fn an_interrupted_run_keeps_every_frame_it_finished() {
     let dir = work_dir("failover-int");
-    let demo = start_demo(&dir, 500);
-    wait_for("frame 3", Duration::from_secs(300), || {
-        frames_written(&dir) >= 3
-    });
+    let mut demo = start_demo(&dir, 500);
+    wait_for_frames(&mut demo, &dir, 3, Duration::from_secs(300));
     // Ctrl-C reaches the coordinator: it requests nothing more and finishes what is in flight.
     signal("-INT", &pid_of(&dir, "coordinator"));
-    let out = demo.wait_with_output().unwrap();
-    let stdout = String::from_utf8_lossy(&out.stdout);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(
-        out.status.code(),
-        Some(130),
-        "an interrupted run ends with 130"
-    );
+    let (status, stdout, stderr) = output(demo, &dir);
+    assert_eq!(status.code(), Some(130), "an interrupted run ends with 130");
     assert!(
         stderr.contains("interrupted after"),
         "no interruption message:\n{stdout}\n{stderr}"
@@ -287,14 +306,12 @@ fn an_interrupted_run_keeps_every_frame_it_finished() {
 fn a_killed_coordinator_is_resumed_without_rewriting_a_frame() {
     const FRAMES: u32 = 12;
     let dir = work_dir("failover-resume");
-    let demo = start_demo(&dir, FRAMES);
-    wait_for("frame 3", Duration::from_secs(300), || {
-        frames_written(&dir) >= 3
-    });
+    let mut demo = start_demo(&dir, FRAMES);
+    wait_for_frames(&mut demo, &dir, 3, Duration::from_secs(300));
     signal("-KILL", &pid_of(&dir, "coordinator"));
-    let out = demo.wait_with_output().unwrap();
+    let (status, _, _) = output(demo, &dir);
     assert!(
-        !out.status.success(),
+        !status.success(),
         "a run whose coordinator died is not a success"
     );
     let frame = |i: u32| dir.join("frames").join(format!("frame-{i:04}.exr"));
@@ -308,7 +325,7 @@ fn a_killed_coordinator_is_resumed_without_rewriting_a_frame() {
         before.len()
     );
     let _ = std::fs::remove_file(dir.join("pids"));
-    let (stdout, _) = finish(start_demo_with(&dir, FRAMES, &["--resume"]));
+    let (stdout, _) = finish(start_demo_with(&dir, FRAMES, &["--resume"]), &dir);
     assert!(
         stdout.contains(&format!(
             "resuming: {} of {FRAMES} frame(s) already written",
