@@ -71,35 +71,40 @@ fn output(mut demo: Child, dir: &Path) -> (std::process::ExitStatus, String, Str
 /// Polls until the demo in `dir` has written `n` frames; past `within`, stops it and fails
 /// with the end of what it printed.
 fn wait_for_frames(demo: &mut Child, dir: &Path, n: usize, within: Duration) {
+    if poll_until(within, || frames_written(dir) >= n) {
+        return;
+    }
+    let _ = demo.kill();
+    let _ = demo.wait();
+    let tail = |f: &str| {
+        let t = std::fs::read_to_string(dir.join(f)).unwrap_or_default();
+        let lines: Vec<&str> = t.lines().collect();
+        lines[lines.len().saturating_sub(40)..].join("\n")
+    };
+    panic!(
+        "timed out waiting for frame {n} ({} written); the demo's stdout ends:\n{}\n\
+         its stderr ends:\n{}",
+        frames_written(dir),
+        tail("demo.out"),
+        tail("demo.err")
+    );
+}
+
+/// Polls until `f` holds, giving up (false) after `within`.
+fn poll_until(within: Duration, mut f: impl FnMut() -> bool) -> bool {
     let start = Instant::now();
-    while frames_written(dir) < n {
-        if start.elapsed() > within {
-            let _ = demo.kill();
-            let _ = demo.wait();
-            let tail = |f: &str| {
-                let t = std::fs::read_to_string(dir.join(f)).unwrap_or_default();
-                let lines: Vec<&str> = t.lines().collect();
-                lines[lines.len().saturating_sub(40)..].join("\n")
-            };
-            panic!(
-                "timed out waiting for frame {n} ({} written); the demo's stdout ends:\n{}\n\
-                 its stderr ends:\n{}",
-                frames_written(dir),
-                tail("demo.out"),
-                tail("demo.err")
-            );
+    while !f() {
+        if start.elapsed() >= within {
+            return false;
         }
         std::thread::sleep(Duration::from_millis(20));
     }
+    true
 }
 
 /// Polls until `f` holds, failing after `within`.
-fn wait_for(what: &str, within: Duration, mut f: impl FnMut() -> bool) {
-    let start = Instant::now();
-    while !f() {
-        assert!(start.elapsed() < within, "timed out waiting for {what}");
-        std::thread::sleep(Duration::from_millis(20));
-    }
+fn wait_for(what: &str, within: Duration, f: impl FnMut() -> bool) {
+    assert!(poll_until(within, f), "timed out waiting for {what}");
 }
 
 fn frames_written(dir: &Path) -> usize {
