@@ -71,7 +71,16 @@ fn output(mut demo: Child, dir: &Path) -> (std::process::ExitStatus, String, Str
 /// Polls until the demo in `dir` has written `n` frames; past `within`, stops it and fails
 /// with the end of what it printed.
 fn wait_for_frames(demo: &mut Child, dir: &Path, n: usize, within: Duration) {
-    if poll_until(within, || frames_written(dir) >= n) {
+    // A demo that has exited writes no more frames: stop at once rather than wait out `within`.
+    let mut exited = None;
+    let got = poll_until(within, || {
+        if frames_written(dir) >= n {
+            return true;
+        }
+        exited = demo.try_wait().ok().flatten();
+        exited.is_some()
+    });
+    if got && exited.is_none() {
         return;
     }
     let _ = demo.kill();
@@ -82,8 +91,11 @@ fn wait_for_frames(demo: &mut Child, dir: &Path, n: usize, within: Duration) {
         lines[lines.len().saturating_sub(40)..].join("\n")
     };
     panic!(
-        "timed out waiting for frame {n} ({} written); the demo's stdout ends:\n{}\n\
+        "{} waiting for frame {n} ({} written); the demo's stdout ends:\n{}\n\
          its stderr ends:\n{}",
+        exited.map_or("timed out".to_string(), |s| format!(
+            "the demo exited ({s})"
+        )),
         frames_written(dir),
         tail("demo.out"),
         tail("demo.err")

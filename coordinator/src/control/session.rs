@@ -8,16 +8,12 @@ use super::sink::{SinkEvent, SinkGeometry, run_sink};
 use lightfold_net::{Identity, LinkWriter, NetError, Timeouts};
 use lightfold_protocol::frame::Frame;
 use lightfold_protocol::{Capabilities, ErrorCode, FrameStats, Message, Role};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashSet};
 use std::hash::{BuildHasher, Hasher};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 use tokio_util::sync::CancellationToken;
-
-/// How long the daemons still registering are waited for after the latest one registered
-/// (`Session::connect`).
-const STRAGGLERS: Duration = Duration::from_secs(15);
 
 /// How long `Session::shutdown` waits for its `Shutdown` messages to be written.
 const SHUTDOWN_FLUSH: Duration = Duration::from_secs(2);
@@ -31,6 +27,10 @@ pub struct ControlOptions {
     pub link: Timeouts,
     /// A daemon must register this soon after the handshake.
     pub register: Duration,
+    /// Once a daemon of every listed role has registered, those still registering are waited
+    /// for this long after the latest registration, then started without and redialled
+    /// (`Session::connect`).
+    pub stragglers: Duration,
     /// Scene transfer and configuration must finish within this.
     pub configure: Duration,
     /// A frame must reach the sink this long after it was requested.
@@ -60,6 +60,7 @@ impl Default for ControlOptions {
         ControlOptions {
             link: Timeouts::default(),
             register: Duration::from_secs(10),
+            stragglers: Duration::from_secs(15),
             configure: Duration::from_secs(120),
             frame: Duration::from_secs(120),
             frames_in_flight: 2,
@@ -326,9 +327,13 @@ impl Session {
         // Each daemon is taken in as it registers: its writer task keeps it hearing from this
         // coordinator while the others are waited for.
         let mut first_error = None;
-        // Once some daemon has registered, the others get `STRAGGLERS` more after the latest
-        // registration: a daemon killed while the coordinator connects is redialled after that,
-        // not waited for until the register deadline (`--connect-timeout`, minutes in `demo`).
+        // Once a daemon of every listed role has registered, the others get `stragglers` more
+        // after the latest registration: a daemon killed while the coordinator connects is
+        // redialled after that, not waited for until the register deadline (`--connect-timeout`,
+        // minutes in `demo`). Until then nothing could be planned, so a slow start (a loaded
+        // machine, a node still compiling its shaders) is waited for up to that deadline: a
+        // session that started without its only render node would end at once.
+        let mut missing_roles: HashSet<Role> = daemons.iter().map(|d| d.role).collect();
         let mut cut_off: Option<tokio::time::Instant> = None;
         loop {
             let next = match cut_off {
@@ -345,7 +350,10 @@ impl Session {
             });
             match done {
                 Ok((_, Ok(r))) => {
-                    cut_off = Some(tokio::time::Instant::now() + STRAGGLERS);
+                    missing_roles.remove(&r.entry.role);
+                    if missing_roles.is_empty() {
+                        cut_off = Some(tokio::time::Instant::now() + opts.stragglers);
+                    }
                     if let Some(prev) = session.daemons.get(&r.caps.daemon_id) {
                         first_error.get_or_insert(ControlError::DuplicateId {
                             id: r.caps.daemon_id.clone(),
@@ -372,8 +380,8 @@ impl Session {
         joins.abort_all();
         for d in pending.into_values() {
             let why = format!(
-                "did not register within {} s of the others",
-                STRAGGLERS.as_secs()
+                "did not register within {:.0} s of the others",
+                opts.stragglers.as_secs_f64()
             );
             session.start_without(d, why);
         }

@@ -586,6 +586,60 @@ async fn a_node_dead_at_the_start_is_folded_in_when_it_comes_back() {
     cluster.stop().await.unwrap();
 }
 
+/// The only render node slow to start (a loaded machine: it comes up after the compositor has
+/// registered and the stragglers' grace has passed) is waited for until the register deadline,
+/// not left behind: a session without a render node could plan nothing and would end at once.
+/// The control: with a second render node up, the slow one is started without after the grace.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn the_only_render_node_slow_to_start_is_waited_for() {
+    let (scene, mut opts) = setup();
+    opts.frames = 2;
+    opts.control.stragglers = Duration::from_millis(500);
+    opts.control.register = Duration::from_secs(60);
+    for nodes in [1, 2] {
+        let mut cluster = InProcessCluster::start(nodes, 1).await.unwrap();
+        cluster.kill("node-0").await.unwrap();
+        let (daemons, me) = (cluster.daemons(), cluster.identity());
+        let sink = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let connect = lightfold_coordinator::control::Session::connect(
+            &daemons,
+            sink,
+            None,
+            me,
+            opts.control,
+        );
+        let late_start = async {
+            tokio::time::sleep(Duration::from_secs(3)).await;
+            cluster.restart("node-0").await.unwrap();
+        };
+        let (session, ()) = tokio::time::timeout(lightfold_harness::RUN_DEADLINE, async {
+            tokio::join!(connect, late_start)
+        })
+        .await
+        .expect("connecting timed out");
+        let mut session = session.unwrap();
+        let unreachable: Vec<&str> = session
+            .unreachable
+            .iter()
+            .map(|(a, _)| a.as_str())
+            .collect();
+        if nodes == 1 {
+            assert!(unreachable.is_empty(), "left behind: {unreachable:?}");
+            assert_eq!(session.daemons.len(), 2, "the node and the compositor");
+            let out = lightfold_harness::render_on(&mut session, &scene, &opts)
+                .await
+                .unwrap();
+            session.detach();
+            assert_every_frame(&out, &scene, &opts, "with the only node late");
+        } else {
+            assert_eq!(unreachable.len(), 1, "control: node-0 is started without");
+            assert_eq!(session.daemons.len(), 2, "node-1 and the compositor");
+            session.detach();
+        }
+        cluster.stop().await.unwrap();
+    }
+}
+
 /// Told to stop (Ctrl-C) while it waits for lost daemons to come back, the run stops at once with
 /// what it delivered, instead of waiting out `--wait-for-daemons`.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
