@@ -47,6 +47,15 @@ pub(crate) struct PlanArgs {
     /// eye pass would take more than half the budget on the fastest node.
     #[arg(long, default_value = "auto", value_parser = partitions_arg)]
     pub(crate) partitions: u32,
+    /// Sort-first tiles: split the image into T bands of rows; every light group is rendered
+    /// once per tile by a node drawing only those rows (the whole scene, the whole scene's
+    /// maps), and the coordinator moves rows between tiles each frame from the nodes' measured
+    /// eye passes, so a heavier tile gets fewer rows (docs/planner.md § Tiles). Needs T × the
+    /// render nodes (K rises to fit); fewer nodes than T take fewer tiles. Excludes
+    /// --partitions. 0 or 1: none.
+    #[arg(long, default_value_t = 0, value_parser = tiles_arg)]
+    #[serde(default)]
+    pub(crate) tiles: u32,
     /// Render the material layers on a node of their own (the paper's layout) instead of as
     /// extra targets of an illumination node at the last stage.
     #[arg(long)]
@@ -120,7 +129,8 @@ impl PlanArgs {
             penumbra_filter: self.penumbra_filter,
             formats: self.formats(),
             supersample: self.aa,
-            partitions: self.partitions,
+            partitions: if self.tiles > 1 { 1 } else { self.partitions },
+            tiles: self.tiles,
             ..PlanOptions::default()
         }
     }
@@ -151,6 +161,10 @@ impl PlanArgs {
     pub(crate) fn check(&self) -> Result<(), String> {
         if self.partitions != 0 {
             partitions_arg(&self.partitions.to_string())?;
+        }
+        tiles_arg(&self.tiles.to_string())?;
+        if self.tiles > 1 && self.partitions > 1 {
+            return Err("--tiles and --partitions exclude each other: ask for one".into());
         }
         if let Some(db) = self.target_psnr {
             target_db(&db.to_string())?;
@@ -261,6 +275,15 @@ pub(crate) fn partitions_arg(s: &str) -> Result<u32, String> {
             Ok(p) if (1..=max).contains(&p) => Ok(p),
             _ => Err(format!("expected auto or 1 to {max}, got {n:?}")),
         },
+    }
+}
+
+/// `--tiles`: 0 to `MAX_TILES`.
+pub(crate) fn tiles_arg(s: &str) -> Result<u32, String> {
+    let max = lightfold_coordinator::tiles::MAX_TILES;
+    match s.parse::<u32>() {
+        Ok(t) if t <= max => Ok(t),
+        _ => Err(format!("expected 0 to {max} tiles, got {s:?}")),
     }
 }
 

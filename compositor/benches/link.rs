@@ -76,6 +76,7 @@ fn no_params() -> FrameParams {
         scale: None,
         time: None,
         lights: Vec::new(),
+        rows: None,
     }
 }
 

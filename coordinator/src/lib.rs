@@ -11,3 +11,4 @@ pub mod operator;
 pub mod plan;
 pub mod report;
 pub mod run;
+pub mod tiles;

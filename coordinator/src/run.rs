@@ -227,6 +227,7 @@ pub fn frame_params(
                 scale: None,
                 time: None,
                 lights: Vec::new(),
+                rows: None,
             })
             .colors
             .push((node.input_index, new_c));

@@ -248,6 +248,7 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
                 depth_bias: scene.quality.depth_bias,
                 slope_bias: scene.quality.slope_bias,
                 eye_meshes: None,
+                rows: None,
                 moves: Vec::new(),
             };
             for pack in &a.pack {
@@ -377,6 +378,7 @@ async fn drive(
         scale: None,
         time: None,
         lights: Vec::new(),
+        rows: None,
     };
     let camera = |f: u32| {
         let c = if still {

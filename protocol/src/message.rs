@@ -235,6 +235,11 @@ pub struct NodeConfig {
     /// Meshes moved from where the scene has them (objects a viewer moved in a live session),
     /// each at most once; empty: none. Animated scenes never have any.
     pub moves: Vec<WireMove>,
+    /// Sort-first tiles (protocol version 16): the image rows `[y0, y1)` this node renders, a
+    /// tile of the image; every other row is empty (no illumination, no material, depth 0:
+    /// nothing there) and goes out as empty bands. `None`: every row. `FrameParams::rows` moves
+    /// them from one frame on (the coordinator's load balancing).
+    pub rows: Option<[u32; 2]>,
 }
 
 /// One input of a compositor stage.
@@ -296,6 +301,9 @@ pub struct FrameParams {
     /// same. Each replaces the node's light of the same `sample` index and kind, at most once (a
     /// node checks them); empty: the last frame's.
     pub lights: Vec<WireLight>,
+    /// A tiled node's new rows `[y0, y1)` from this frame on (protocol version 16; see
+    /// `NodeConfig::rows`); `None`: the last frame's.
+    pub rows: Option<[u32; 2]>,
 }
 
 /// Per-frame timing a daemon reports back.

@@ -224,6 +224,7 @@ pub(crate) fn plan(p: &Plan) -> Value {
         "samples": p.samples.len(), "gave_up": p.gave_up(),
         "penumbra_radius": p.penumbra_radius, "penumbra": p.penumbra_line(),
         "partitions": p.partitions.len(), "partition": p.partition_line(),
+        "tiles": p.tiles,
     })
 }
 

@@ -302,6 +302,7 @@ async fn eight_processes_as_a_chain_then_a_tree_match_the_in_memory_result() {
         scale: None,
         time: None,
         lights: Vec::new(),
+        rows: None,
     };
 
     // Epoch 1: c0 → c1 → … → c7 → sink, node k feeding stage k.

@@ -47,6 +47,7 @@ async fn a_stage_accumulates_its_inputs_band_by_band() {
                 scale: None,
                 time: None,
                 lights: Vec::new(),
+                rows: None,
             };
             (p, "[3.0, 0.25, 1.0]")
         };

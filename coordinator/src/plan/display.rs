@@ -200,8 +200,10 @@ impl Plan {
                 "  {} → {} input {} · ",
                 n.node, n.downstream, n.input_index
             )?;
-            if let Some(p) = n.part {
-                write!(f, "part {p} · ")?;
+            match (n.part, n.part.and_then(|p| self.tiles.get(p))) {
+                (Some(p), Some(r)) => write!(f, "tile {p} (rows {}–{}) · ", r[0], r[1])?,
+                (Some(p), None) => write!(f, "part {p} · ")?,
+                _ => {}
             }
             if n.lights.is_empty() && n.layers.iter().all(|l| l.0 != Layer::Illumination) {
                 writeln!(
@@ -350,8 +352,27 @@ impl Plan {
 
 impl Plan {
     /// The sort-last grid in one line (`None` without partitions): parts × light groups, the
-    /// meshes of each part.
+    /// meshes of each part; or the sort-first tiles': tiles × light groups, the rows of each.
     pub fn partition_line(&self) -> Option<String> {
+        let put_together = match self.topology {
+            super::types::Topology::Tree => "in a tree",
+            _ => "along the chain",
+        };
+        if !self.tiles.is_empty() {
+            let groups = self.nodes.iter().filter(|n| n.part == Some(0)).count();
+            let rows: Vec<String> = self
+                .tiles
+                .iter()
+                .map(|r| format!("{}–{}", r[0], r[1]))
+                .collect();
+            return Some(format!(
+                "tiles: {} sort-first tiles × {groups} light group(s) = {} nodes, put together \
+                 {put_together}; rows {} to start, balanced each frame from the nodes' eye passes",
+                self.tiles.len(),
+                self.nodes.len(),
+                rows.join(", ")
+            ));
+        }
         if self.partitions.is_empty() {
             return None;
         }
@@ -366,10 +387,7 @@ impl Plan {
             "partitions: {} parts × {groups} light group(s) = {} nodes, depth-composed {} ({})",
             self.partitions.len(),
             self.nodes.len(),
-            match self.topology {
-                super::types::Topology::Tree => "in a tree",
-                _ => "along the chain",
-            },
+            put_together,
             meshes.join(", ")
         ))
     }

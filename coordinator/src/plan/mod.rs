@@ -226,6 +226,17 @@ pub(crate) fn plan_with(
     previous: Option<&Plan>,
 ) -> Result<Plan, PlanError> {
     validate(scene, cluster, options)?;
+    // Tiles take the nodes there are (a lost node leaves fewer; where T × the groups do not fit
+    // them, fewer tiles), and exclude partitions.
+    let nodes = cluster.nodes.len().max(1) as u32;
+    if options.tiles > 1 && (options.tiles > nodes || options.partitions != 1) {
+        let options = PlanOptions {
+            tiles: options.tiles.min(nodes),
+            partitions: 1,
+            ..options.clone()
+        };
+        return plan_with(scene, cluster, &options, previous);
+    }
     if options.partitions == 0 {
         let options = PlanOptions {
             partitions: partitions_for(scene, cluster, options),
@@ -234,9 +245,19 @@ pub(crate) fn plan_with(
         return plan_with(scene, cluster, &options, previous);
     }
     let separate = budget::within_budget(scene, cluster, options, previous, plan_once);
-    shared::prefer_merged(cluster, options, separate, |one| {
+    let planned = shared::prefer_merged(cluster, options, separate, |one| {
         budget::within_budget(scene, one, options, previous, plan_once)
-    })
+    });
+    match planned {
+        Err(PlanError::NotEnoughNodes { .. }) if options.tiles > 1 => {
+            let fewer = PlanOptions {
+                tiles: options.tiles - 1,
+                ..options.clone()
+            };
+            plan_with(scene, cluster, &fewer, previous)
+        }
+        other => other,
+    }
 }
 
 fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(), PlanError> {
@@ -267,6 +288,33 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
         return bad_options(
             "with partitions each part's first node renders its material layers: drop the material node of its own",
         );
+    }
+    if o.tiles > crate::tiles::MAX_TILES {
+        return bad_options(&format!(
+            "tiles must be 0 or 1 (none) or 2 to {}, got {}",
+            crate::tiles::MAX_TILES,
+            o.tiles
+        ));
+    }
+    if o.tiles > 1 {
+        if o.partitions > 1 {
+            return bad_options(
+                "tiles (sort-first) and partitions (sort-last) exclude each other: ask for one",
+            );
+        }
+        if o.material_own_node {
+            return bad_options(
+                "with tiles each tile's first node renders its material layers: drop the material node of its own",
+            );
+        }
+        let bands = scene.camera.height.div_ceil(o.band_height);
+        if bands < o.tiles {
+            return bad_options(&format!(
+                "{} tiles need at least as many bands of rows: the image has {bands} ({} rows, \
+                 bands of {})",
+                o.tiles, scene.camera.height, o.band_height
+            ));
+        }
     }
     if o.frames_in_flight == 0 {
         return bad_options("frames in flight must be at least 1");

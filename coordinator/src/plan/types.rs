@@ -332,6 +332,14 @@ pub struct PlanOptions {
     /// memory the nodes reported (`plan::partitions_for`).
     #[serde(default)]
     pub partitions: u32,
+    /// Sort-first tiles (`--tiles T`, `docs/planner.md` § Tiles): the image is split into T
+    /// bands of rows, every light group is rendered once per tile by a node drawing only those
+    /// rows (every mesh, the whole scene's shadow maps), and the stages put the tiles together
+    /// as they depth-compose sort-last parts (a tile's node leaves the other rows empty). The
+    /// coordinator moves the rows between tiles from the nodes' measured eye passes
+    /// (`control::tiles`). 0 or 1: no tiles. Excludes partitions.
+    #[serde(default)]
+    pub tiles: u32,
     /// Plan nodes that share one GPU (`Capabilities::device`) as one node per device with
     /// their lights together, when the cost model says that is faster (`plan/shared.rs`).
     pub merge_shared_devices: bool,
@@ -417,6 +425,7 @@ impl Default for PlanOptions {
             learned: Learned::default(),
             penumbra_filter: PenumbraFilter::Budget,
             partitions: 0,
+            tiles: 0,
             merge_shared_devices: true,
         }
     }
@@ -737,6 +746,11 @@ pub struct Plan {
     /// when every node draws it whole.
     #[serde(default)]
     pub partitions: Vec<Vec<u32>>,
+    /// The sort-first tiles (image rows `[y0, y1)`, top to bottom, covering every row once)
+    /// when the plan tiles the image; empty otherwise. `NodePlan::part` indexes these then.
+    /// The rows the plan starts with: the coordinator balances them frame by frame.
+    #[serde(default)]
+    pub tiles: Vec<[u32; 2]>,
     /// Set when nodes sharing a device are planned as one node per device.
     #[serde(default)]
     pub shared_devices: Option<SharedDevices>,

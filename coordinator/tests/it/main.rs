@@ -7,6 +7,7 @@ mod plan_formats;
 mod plan_gloss;
 mod plan_props;
 mod plan_rules;
+mod plan_tiles;
 mod replan;
 
 /// An operator's parameters as JSON (each f32 in its shortest decimal form, so `0.1` compares

@@ -647,7 +647,7 @@ fn transmittance_maps_only_where_a_caster_lets_light_through() {
 
 /// Every stage of `p` as the compositor builds it from its configuration: the wiring validates
 /// against the operators' signatures, and the stage emits the layers it says it sends.
-fn assert_stages_build(p: &lightfold_coordinator::plan::Plan) {
+pub(crate) fn assert_stages_build(p: &lightfold_coordinator::plan::Plan) {
     for s in &p.stages {
         let c = p.compositor_config(&s.compositor).unwrap();
         let inputs: Vec<Vec<Layer>> = c

@@ -287,5 +287,6 @@ pub(crate) fn no_params() -> lightfold_protocol::FrameParams {
         scale: None,
         time: None,
         lights: Vec::new(),
+        rows: None,
     }
 }

@@ -214,6 +214,8 @@ pub(crate) struct Core {
     pub(super) finished: bool,
     /// Each node's latest `FrameStats::peak` in this epoch: the next `seed64` scale's input.
     pub(super) peaks: HashMap<String, f32>,
+    /// The epoch's sort-first tiles and their balancer; `None` without tiles.
+    pub(super) tiles: Option<crate::tiles::TileBalancer>,
     pub summary: LiveSummary,
 }
 
@@ -345,6 +347,7 @@ impl Core {
             abandon: false,
             finished: false,
             peaks: HashMap::new(),
+            tiles: None,
             summary: LiveSummary::default(),
         })
     }
@@ -615,6 +618,14 @@ impl Core {
         };
         if f.stats.iter().any(|x| x.daemon_id == s.daemon_id) {
             return;
+        }
+        if let Some(b) = &mut self.tiles {
+            // What a tile's rows cost its node: the passes and copies that grow with them.
+            let cost = s.eye_us + s.readback_us + s.pack_us;
+            if b.reported(s.frame, &s.daemon_id, cost as f64) {
+                self.summary.tile_rows = b.rows().to_vec();
+                self.summary.tile_steps += 1;
+            }
         }
         if s.saturated > 0 {
             if self.summary.saturated == 0 {

@@ -481,6 +481,10 @@ impl Core {
             moves: Arc::clone(&self.moves),
         });
         self.refusals = 0;
+        self.tiles = crate::tiles::TileBalancer::of(&next);
+        if let Some(b) = &self.tiles {
+            self.summary.tile_rows = b.rows().to_vec();
+        }
         self.plan = Some(next);
         self.fresh_plan = false;
         self.sent_in_epoch = 0;

@@ -136,6 +136,7 @@ impl Core {
                     scale: None,
                     time: None,
                     lights: Vec::new(),
+                    rows: None,
                 });
                 frame_params.time = spec.time;
                 if let Some(moved) = self.light_frames.get(id) {
@@ -152,6 +153,9 @@ impl Core {
                             Some(lightfold_scene::wire::light_to_wire(s, i as u32))
                         })
                         .collect();
+                }
+                if let Some(b) = &mut self.tiles {
+                    frame_params.rows = b.requested(wire, id);
                 }
                 if let Some(s) = seed64_node(plan, id).and_then(|_| self.peaks.get(id)) {
                     frame_params.scale = seed64_scale(*s);

@@ -210,6 +210,10 @@ pub struct LiveSummary {
     /// (`FrameStats::saturated`), and the frames in which any were.
     pub saturated: u64,
     pub saturated_frames: u64,
+    /// Sort-first tiles: the rows of each tile at the end of the last epoch that had tiles, and
+    /// the balancing steps taken over the run (`tiles::TileBalancer`).
+    pub tile_rows: Vec<[u32; 2]>,
+    pub tile_steps: u64,
 }
 
 /// Light colours by source light: (light, linear colour).

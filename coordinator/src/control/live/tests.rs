@@ -81,6 +81,12 @@ struct Sim {
     sizes: BTreeMap<u64, (u32, u32)>,
     sink_supersample: u32,
     error: Option<RunError>,
+    /// Per tiled node, the rows it renders now (its configuration's, moved by `FrameParams`),
+    /// and every move it was sent: (wire frame, node, rows).
+    rows: BTreeMap<String, [u32; 2]>,
+    moved_rows: Vec<(u64, String, [u32; 2])>,
+    /// A tiled node reports this many µs of eye pass per row at `y` (none: 0).
+    row_cost: Option<fn(u32) -> u64>,
 }
 
 fn control() -> ControlOptions {
@@ -193,6 +199,9 @@ impl Sim {
             sizes: BTreeMap::new(),
             sink_supersample: 0,
             error: None,
+            rows: BTreeMap::new(),
+            moved_rows: Vec::new(),
+            row_cost: None,
         };
         let ids: Vec<String> = sim.daemons.keys().cloned().collect();
         for id in ids {
@@ -274,6 +283,10 @@ impl Sim {
         }
         if let Message::ConfigureNode(c) = &msg {
             self.node_configs.insert(to.to_string(), c.clone());
+            match c.rows {
+                Some(r) => self.rows.insert(to.to_string(), r),
+                None => self.rows.remove(to),
+            };
         }
         let d = &self.daemons[to];
         match msg {
@@ -318,12 +331,21 @@ impl Sim {
                 if let Some(c) = camera {
                     self.sizes.insert(frame, (c.width, c.height));
                 }
+                if let Some(r) = params.rows {
+                    self.rows.insert(to.to_string(), r);
+                    self.moved_rows.push((frame, to.to_string(), r));
+                }
+                let eye_us = match (self.row_cost, self.rows.get(to)) {
+                    (Some(cost), Some(r)) => (r[0]..r[1]).map(cost).sum(),
+                    _ => 0,
+                };
                 let sent = (to.to_string(), params.colors);
                 self.colours.entry(frame).or_default().push(sent);
                 let stats = FrameStats {
                     epoch,
                     frame,
                     daemon_id: to.to_string(),
+                    eye_us,
                     ..FrameStats::default()
                 };
                 self.answer(to, Message::FrameDone(stats));
@@ -1417,4 +1439,47 @@ fn object_moves_reach_every_node_and_survive_a_lost_node() {
     assert_eq!(back.map(|(_, m)| m), Some(Arc::clone(&moves)));
     let notice = status.borrow().notice.clone().unwrap().1;
     assert!(notice.contains("cannot move"), "{notice}");
+}
+
+/// Sort-first tiles: rows in the top quarter of the image cost 9 times those below. The core
+/// moves rows from the top tile to the bottom one frame by frame, in `FrameParams::rows` to the
+/// nodes whose rows changed, until the tiles cost about the same; every frame is still
+/// delivered. Untiled, no rows are ever sent (the control).
+#[test]
+fn tiles_give_the_heavy_tile_fewer_rows_frame_by_frame() {
+    for tiles in [2, 0] {
+        let mut sim = Sim::build(4, 2, &[]);
+        sim.core.opts.tiles = tiles;
+        sim.core.opts.band_height = 4;
+        sim.row_cost = Some(|y| if y < 12 { 900 } else { 100 });
+        sim.start();
+        sim.run_plain(Duration::from_secs(5), 40);
+        sim.input(Input::RequestsClosed);
+        sim.run_plain(Duration::from_secs(1), 40);
+        sim.assert_all_delivered(40);
+        let plan = sim.core.summary.plan.clone().unwrap();
+        if tiles == 0 {
+            assert!(plan.tiles.is_empty());
+            assert!(sim.moved_rows.is_empty(), "{:?}", sim.moved_rows);
+            assert_eq!(sim.core.summary.tile_steps, 0);
+            continue;
+        }
+        assert_eq!(plan.tiles, vec![[0, 24], [24, 48]], "rows start even");
+        assert_eq!(plan.nodes.len(), 4, "2 tiles × 2 light groups");
+        let rows = sim.core.summary.tile_rows.clone();
+        let cost = |r: [u32; 2]| -> u64 { (r[0]..r[1]).map(sim.row_cost.unwrap()).sum() };
+        assert!(rows[0][1] < 24, "the heavy top tile shrank: {rows:?}");
+        let (a, b) = (cost(rows[0]), cost(rows[1]));
+        assert!(
+            a.abs_diff(b) <= 2 * 4 * 900,
+            "the tiles cost {a} and {b} µs, within a boundary band: {rows:?}"
+        );
+        assert!(sim.core.summary.tile_steps >= 10);
+        // Both nodes of a tile render the same rows, and every node was told.
+        for n in &plan.nodes {
+            let t = n.part.unwrap();
+            assert_eq!(sim.rows[&n.node], rows[t], "{}", n.node);
+        }
+        assert!(!sim.moved_rows.is_empty());
+    }
 }

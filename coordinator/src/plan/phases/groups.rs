@@ -30,7 +30,8 @@ pub(super) fn group_samples(
     let cam = &scene.camera;
     let culling = &culled.culling;
     let available = cluster.nodes.len();
-    let pixels = u64::from(cam.width) * u64::from(cam.height);
+    // A sort-first tile's node renders its share of the rows.
+    let pixels = u64::from(cam.width) * u64::from(cam.height) / u64::from(options.tiles.max(1));
     let costs: Vec<NodeCost> = cluster
         .nodes
         .iter()

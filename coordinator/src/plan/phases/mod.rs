@@ -150,7 +150,9 @@ fn assemble(
     } = materials;
     let mut notes = needs.notes;
     if needs.foldable && fold.is_none() {
-        notes.push(if !parts.is_empty() {
+        notes.push(if options.tiles > 1 {
+            "ambient: each tile sums its own groups, so no one node carries c_n = c^a → ambient layer instead".to_string()
+        } else if !parts.is_empty() {
             "ambient: each part sums its own groups, so no one node carries c_n = c^a → ambient layer instead".to_string()
         } else {
             "ambient: no node can carry c_n = c^a → ambient layer instead".to_string()
@@ -199,6 +201,13 @@ fn assemble(
         concessions: Vec::new(),
         target: None,
         addresses: links.addresses,
-        partitions: parts,
+        tiles: if options.tiles > 1 {
+            crate::tiles::even_rows(cam.height, band_height, options.tiles)
+                .or_else(|| crate::tiles::even_rows(cam.height, 1, options.tiles))
+                .unwrap_or_default()
+        } else {
+            Vec::new()
+        },
+        partitions: if options.tiles > 1 { Vec::new() } else { parts },
     }
 }

@@ -92,8 +92,11 @@ pub(super) struct Fit {
     /// Sort-last parts (mesh indices, ascending), none without partitions: every group is
     /// rendered once per part.
     pub(super) parts: Vec<Vec<u32>>,
-    /// Per part, whether it holds each mesh, and its own fit.
+    /// Per part, whether it holds each mesh, and its own fit (none for tiles).
     part_fit: Vec<(Vec<bool>, ViewFit)>,
+    /// Sort-first tiles: `parts` are the tiles, each holding every mesh, with the whole scene's
+    /// maps (a tile's node draws the whole scene into its rows).
+    pub(super) tiled: bool,
 }
 
 /// Partitions the scene's meshes when `options` asks for parts, and gives the boxes and probes
@@ -119,7 +122,11 @@ pub(super) fn fit_views(
         ViewFit { boxes, probes }
     };
     let whole = fit_where(&|_| true);
-    let parts = if options.partitions > 1 {
+    let tiled = options.tiles > 1;
+    let parts = if tiled {
+        let every: Vec<u32> = (0..scene.meshes.len() as u32).collect();
+        vec![every; options.tiles as usize]
+    } else if options.partitions > 1 {
         let parts =
             lightfold_scene::partition::partition_meshes(scene, options.partitions as usize);
         if parts.iter().any(Vec::is_empty) {
@@ -142,6 +149,7 @@ pub(super) fn fit_views(
     // set_fit_to_eye_meshes`).
     let part_fit: Vec<(Vec<bool>, ViewFit)> = parts
         .iter()
+        .filter(|_| !tiled)
         .map(|part| {
             let mut mask = vec![false; scene.meshes.len()];
             for &m in part {
@@ -153,6 +161,7 @@ pub(super) fn fit_views(
         .collect();
     debug_assert!(
         parts.is_empty()
+            || tiled
             || (0..scene.meshes.len())
                 .all(|m| part_fit.iter().filter(|(mask, _)| mask[m]).count() == 1),
         "every mesh is in exactly one part"
@@ -161,6 +170,7 @@ pub(super) fn fit_views(
         whole,
         parts,
         part_fit,
+        tiled,
     })
 }
 
@@ -237,10 +247,13 @@ pub(super) fn plan_shadows(
         }
         v
     };
-    let shadows = Shadows {
-        whole: shadows_of(None),
-        parts: (0..fit.parts.len()).map(|p| shadows_of(Some(p))).collect(),
+    let whole = shadows_of(None);
+    let parts = if fit.tiled {
+        vec![whole.clone(); fit.parts.len()]
+    } else {
+        (0..fit.parts.len()).map(|p| shadows_of(Some(p))).collect()
     };
+    let shadows = Shadows { whole, parts };
     debug_assert!(
         std::iter::once(&shadows.whole)
             .chain(&shadows.parts)

@@ -228,6 +228,7 @@ pub(crate) fn node_config() -> impl Strategy<Value = NodeConfig> {
                 .prop_map(|(mesh, matrix)| WireMove { mesh, matrix }),
             0..3,
         ),
+        prop::option::of(any::<[u32; 2]>()),
     )
         .prop_map(
             |(
@@ -236,6 +237,7 @@ pub(crate) fn node_config() -> impl Strategy<Value = NodeConfig> {
                 (camera, walkthrough, downstream, input_index, filter, depth_bias, slope_bias),
                 eye_meshes,
                 moves,
+                rows,
             )| NodeConfig {
                 epoch,
                 scene,
@@ -254,6 +256,7 @@ pub(crate) fn node_config() -> impl Strategy<Value = NodeConfig> {
                 slope_bias,
                 eye_meshes,
                 moves,
+                rows,
             },
         )
 }
@@ -442,12 +445,14 @@ pub(crate) fn message() -> impl Strategy<Value = Message> {
         prop::collection::vec((any::<u32>(), v3()), 0..3),
         prop::option::of(num()),
         prop::collection::vec(light(), 0..2),
+        prop::option::of(any::<[u32; 2]>()),
     )
-        .prop_map(|(colors, scale, lights)| FrameParams {
+        .prop_map(|(colors, scale, lights, rows)| FrameParams {
             colors,
             scale,
             time: None,
             lights,
+            rows,
         });
     prop_oneof![
         capabilities().prop_map(Message::Register).boxed(),
