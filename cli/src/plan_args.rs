@@ -129,7 +129,12 @@ impl PlanArgs {
             penumbra_filter: self.penumbra_filter,
             formats: self.formats(),
             supersample: self.aa,
-            partitions: if self.tiles > 1 { 1 } else { self.partitions },
+            // Tiles take no automatic partitions; asked-for ones are refused beside them.
+            partitions: if self.tiles > 1 && self.partitions == 0 {
+                1
+            } else {
+                self.partitions
+            },
             tiles: self.tiles,
             ..PlanOptions::default()
         }

@@ -106,7 +106,7 @@ fn partitions_refuse_the_reference_and_the_penumbra_filter() {
 
 /// `lightfold plan --partitions P` prints the grid: parts × light groups, each node's part, the
 /// depth compose along the chain; more parts than meshes split the large meshes; more than the
-/// limit is refused.
+/// limit is refused. `--tiles T` prints the tiles' grid and rows.
 #[test]
 fn plan_prints_the_partition_grid() {
     let plan = |extra: &[&str]| {
@@ -151,4 +151,24 @@ fn plan_prints_the_partition_grid() {
     assert!(text.contains("part 15 · "), "{text}");
     let out = plan(&["--partitions", "65"]);
     assert!(!out.status.success(), "65 partitions were accepted");
+    // Sort-first tiles: rows per tile on each node's line; refused beside partitions.
+    let out = plan(&["--tiles", "3", "--size", "320x240"]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(text.contains("tiles: 3 sort-first tiles × "), "{text}");
+    assert!(text.contains("tile 2 (rows "), "{text}");
+    let out = plan(&["--tiles", "2", "--partitions", "2"]);
+    assert!(
+        !out.status.success(),
+        "tiles and partitions were accepted together"
+    );
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("exclude each other"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }

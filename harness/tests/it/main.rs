@@ -16,3 +16,4 @@ mod plan_passes;
 mod render_parity;
 mod seed64_scale;
 mod soft_lights;
+mod tiles;

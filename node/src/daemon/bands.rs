@@ -1,7 +1,8 @@
 //! Cutting a rendered frame into bands and packing them into link formats, in the order the
 //! cluster protocol fixes: band-major (rows `[b·H, min((b+1)·H, height))`), and within a band the
 //! configured layers in configuration order. A band whose source values are all zero is flagged
-//! empty and carries no payload. Packing runs on a blocking thread and hands each band to the
+//! empty and carries no payload, and so is every band wholly outside a sort-first tile's rows,
+//! without looking at its pixels. Packing runs on a blocking thread and hands each band to the
 //! async sender through a bounded channel, so the first bands are on the wire while later ones are
 //! still being packed.
 
@@ -93,6 +94,24 @@ pub fn check_images(layout: &BandLayout, images: &LayerImages) -> Result<(), Pac
     Ok(())
 }
 
+/// Whether band `band` of `layout` has no row in `rows` (a sort-first tile's `[y0, y1)`;
+/// `None`: every row), so it travels empty unread.
+pub fn outside_rows(layout: &BandLayout, band: u32, rows: Option<[u32; 2]>) -> bool {
+    let (b0, b1) = layout.rows(band);
+    rows.is_some_and(|[y0, y1]| b1 <= y0 || b0 >= y1)
+}
+
+/// The empty band `band` of `layer` (no payload).
+fn empty_band(layout: &BandLayout, band: u32, layer: Layer, format: PixelFormat) -> PackedBand {
+    let mut header = layout.header(band, layer, format);
+    header.empty = true;
+    header.seal(&[]);
+    PackedBand {
+        header,
+        payload: Bytes::new(),
+    }
+}
+
 /// Packs one band of one layer.
 pub fn pack_band(
     layout: &BandLayout,
@@ -108,12 +127,7 @@ pub fn pack_band(
     // Only exact zeros make an empty band: whatever packs to zero but is not zero still travels,
     // so the receiver's unpacked values never depend on this shortcut.
     if src.iter().all(|v| *v == 0.0) {
-        header.empty = true;
-        header.seal(&[]);
-        return Ok(PackedBand {
-            header,
-            payload: Bytes::new(),
-        });
+        return Ok(empty_band(layout, band, layer, format));
     }
     let mut payload = vec![0u8; (src.len() / image.channels) * format.bytes_per_pixel()];
     let stats = format::pack(format, src, layout.scale, &mut payload)
@@ -127,21 +141,29 @@ pub fn pack_band(
 }
 
 /// Packs every band of the frame in protocol order and hands each to `out` (blocking when the
-/// sender is behind). Stops early, without error, when the receiver is gone.
+/// sender is behind). Stops early, without error, when the receiver is gone. With `rows` (a
+/// sort-first tile, the images zero elsewhere) the bands wholly outside them go out empty
+/// without being looked at.
 pub fn pack_frame(
     layout: &BandLayout,
     images: &LayerImages,
+    rows: Option<[u32; 2]>,
     out: &mpsc::Sender<PackedBand>,
 ) -> Result<PackTotals, PackError> {
     check_images(layout, images)?;
     let mut totals = PackTotals {
-        peak: illumination_peak(images),
+        peak: illumination_peak(images, rows),
         ..PackTotals::default()
     };
     for band in 0..layout.bands() {
+        let outside = outside_rows(layout, band, rows);
         for (layer, format, image) in images {
             let start = Instant::now();
-            let packed = pack_band(layout, band, *layer, *format, image)?;
+            let packed = if outside {
+                empty_band(layout, band, *layer, *format)
+            } else {
+                pack_band(layout, band, *layer, *format, image)?
+            };
             totals.pack_us += start.elapsed().as_micros() as u64;
             totals.bands += 1;
             totals.empty_bands += u32::from(packed.header.empty);
@@ -158,7 +180,8 @@ pub fn pack_frame(
 /// to `out`, as [`pack_frame`] does with images: the same headers (a band whose source values
 /// are all zero travels empty, saturated pixels counted per band) and the same payloads, each a
 /// slice of the layer's packed bytes (no copy). `pack_us` is the time spent sealing bands
-/// (checksums).
+/// (checksums). The device packed and read back only the bands a tile's rows meet
+/// (`PackedFrame::first_row` to `end_row`); the others are empty.
 pub fn assemble_frame(
     layout: &BandLayout,
     layers: &[(Layer, PixelFormat)],
@@ -166,14 +189,15 @@ pub fn assemble_frame(
     out: &mpsc::Sender<PackedBand>,
 ) -> Result<PackTotals, PackError> {
     let bands = layout.bands();
+    let held = |(y0, y1): (u32, u32)| packed.first_row <= y0 && y1 <= packed.end_row;
     let fits = packed.layers.len() == layers.len()
         && (packed.width, packed.height) == (layout.width, layout.height)
         && packed.band_height == layout.band_height.clamp(1, layout.height.max(1))
-        && packed
-            .layers
-            .iter()
-            .zip(layers)
-            .all(|(p, (_, f))| p.format == *f && p.bands.len() == bands as usize);
+        && packed.layers.iter().zip(layers).all(|(p, (_, f))| {
+            let row = layout.width as usize * f.bytes_per_pixel();
+            let rows = packed.end_row.saturating_sub(packed.first_row) as usize;
+            p.format == *f && p.bands.len() == bands as usize && p.bytes.len() == row * rows
+        });
     if !fits {
         return Err(PackError::DeviceShape {
             layers: packed.layers.len(),
@@ -195,14 +219,21 @@ pub fn assemble_frame(
         for ((layer, format), p) in layers.iter().zip(&packed.layers) {
             let start = Instant::now();
             let row = layout.width as usize * format.bytes_per_pixel();
-            let count = p.bands[band as usize];
+            // A band the device did not read back holds nothing (outside the tile).
+            let count = if held((y0, y1)) {
+                p.bands[band as usize]
+            } else {
+                Default::default()
+            };
             let mut header = BandHeader {
                 empty: !count.nonzero,
                 saturated: if count.nonzero { count.saturated } else { 0 },
                 ..layout.header(band, *layer, *format)
             };
             let payload = if count.nonzero {
-                p.bytes.slice(y0 as usize * row..y1 as usize * row)
+                let first = packed.first_row as usize;
+                p.bytes
+                    .slice((y0 as usize - first) * row..(y1 as usize - first) * row)
             } else {
                 Bytes::new()
             };
@@ -219,12 +250,18 @@ pub fn assemble_frame(
     Ok(totals)
 }
 
-/// Largest finite value of the frame's illumination layer, 0 without one.
-pub fn illumination_peak(images: &LayerImages) -> f32 {
+/// Largest finite value of the frame's illumination layer, 0 without one; with `rows` (a
+/// sort-first tile, zero elsewhere) only those rows are looked at.
+pub fn illumination_peak(images: &LayerImages, rows: Option<[u32; 2]>) -> f32 {
     images
         .iter()
         .filter(|(layer, _, _)| *layer == Layer::Illumination)
-        .flat_map(|(_, _, image)| image.data.iter().copied())
+        .flat_map(|(_, _, image)| {
+            let row = image.width as usize * image.channels;
+            let [y0, y1] = rows.unwrap_or([0, image.height]);
+            let (a, b) = (y0 as usize * row, (y1 as usize * row).min(image.data.len()));
+            image.data[a.min(b)..b].iter().copied()
+        })
         .filter(|v| v.is_finite())
         .fold(0.0, f32::max)
 }
@@ -285,7 +322,7 @@ mod tests {
             (Layer::Depth, PixelFormat::DepthF32, Arc::new(depth)),
         ];
         let (tx, mut rx) = mpsc::channel(64);
-        let totals = pack_frame(&l, &images, &tx).unwrap();
+        let totals = pack_frame(&l, &images, None, &tx).unwrap();
         drop(tx);
         let mut got = Vec::new();
         while let Ok(b) = rx.try_recv() {
@@ -329,7 +366,7 @@ mod tests {
         )];
         let (tx, _rx) = mpsc::channel(4);
         assert!(matches!(
-            pack_frame(&l, &images, &tx),
+            pack_frame(&l, &images, None, &tx),
             Err(PackError::Shape { .. })
         ));
     }

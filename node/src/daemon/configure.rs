@@ -119,6 +119,11 @@ pub enum ConfigError {
          of the same kind, once"
     )]
     BadFrameLight { index: usize, sample: u32 },
+    #[error(
+        "rows {y0}..{y1} are not a tile of the {height}-row image (a sort-first tile needs \
+         y0 < y1 <= {height})"
+    )]
+    BadRows { y0: u32, y1: u32, height: u32 },
 }
 
 impl ConfigError {
@@ -190,6 +195,13 @@ pub fn check_frame_lights(
     Ok(out)
 }
 
+/// Checks a sort-first tile's rows (`NodeConfig::rows`, `FrameParams::rows`) for an image
+/// `height` rows tall: `[y0, y1)` with at least one row, none below the image.
+pub fn check_rows(rows: [u32; 2], height: u32) -> Result<(), ConfigError> {
+    let [y0, y1] = rows;
+    crate::gpu::check_rows(rows, height).map_err(|_| ConfigError::BadRows { y0, y1, height })
+}
+
 /// Checks a camera from a configuration or a frame request.
 pub fn check_camera(camera: &WireCamera) -> Result<Camera, ConfigError> {
     camera_from_wire(camera).map_err(ConfigError::Camera)
@@ -254,6 +266,9 @@ pub fn check(
         return Err(ConfigError::NoDownstream);
     }
     let camera = check_camera(&config.camera)?;
+    if let Some(rows) = config.rows {
+        check_rows(rows, camera.height)?;
+    }
     let widest = config
         .layers
         .iter()
@@ -430,6 +445,7 @@ mod tests {
             depth_bias: 0.0,
             slope_bias: 0.0,
             eye_meshes: None,
+            rows: None,
             moves: Vec::new(),
         }
     }
@@ -698,6 +714,40 @@ mod tests {
             };
             assert_eq!(e.code(), code);
         }
+    }
+
+    #[test]
+    fn tile_rows_within_the_image_pass_and_others_are_refused() {
+        // The test camera is 48 rows tall.
+        let illum = vec![(Layer::Illumination, PixelFormat::F16x6)];
+        let with = |rows| NodeConfig {
+            rows,
+            ..config(illum.clone(), 1)
+        };
+        for rows in [
+            None,
+            Some([0, 48]),
+            Some([0, 1]),
+            Some([47, 48]),
+            Some([13, 29]),
+        ] {
+            assert!(run(with(rows)).is_ok(), "{rows:?}");
+        }
+        for [y0, y1] in [
+            [5, 5],
+            [9, 3],
+            [0, 49],
+            [48, 49],
+            [0, u32::MAX],
+            [u32::MAX, 0],
+        ] {
+            let e = run(with(Some([y0, y1]))).expect_err("refused");
+            assert_eq!(e, ConfigError::BadRows { y0, y1, height: 48 });
+            assert_eq!(e.code(), ErrorCode::BadConfig);
+            assert!(e.to_string().contains(&format!("rows {y0}..{y1}")), "{e}");
+        }
+        assert!(check_rows([0, 48], 48).is_ok());
+        assert!(check_rows([0, 0], 0).is_err());
     }
 
     #[test]

@@ -76,6 +76,9 @@ struct Active {
     lights_changed: u64,
     /// Whether the configured scene moves over time (otherwise the time changes nothing).
     animated: bool,
+    /// The image rows this node renders (a sort-first tile: `NodeConfig::rows`, moved by
+    /// `FrameParams::rows`); `None`: every row.
+    rows: Option<[u32; 2]>,
 }
 
 /// What makes two frames identical: in walkthrough mode the same key means the same bands.
@@ -87,6 +90,7 @@ struct FrameKey {
     time: Option<u32>,
     /// Changes whenever a frame's lights (`FrameParams::lights`) differ from the last ones.
     lights: u64,
+    rows: Option<[u32; 2]>,
 }
 
 /// A frame request that follows the one being rendered (already on the control link).
@@ -315,6 +319,7 @@ impl Engine {
         self.active = Some(Active {
             camera: checked.camera,
             scale: checked.config.scale,
+            rows: checked.config.rows,
             checked,
             time: None,
             frame_lights: Arc::default(),
@@ -435,6 +440,11 @@ impl Engine {
             }
             active.time = Some(t);
         }
+        if let Some(rows) = params.rows {
+            configure::check_rows(rows, active.camera.height)
+                .map_err(|e| refuse(ErrorCode::BadConfig, format!("frame {frame}: {e}")))?;
+            active.rows = Some(rows);
+        }
         if !params.lights.is_empty() {
             let b = configure::check_frame_lights(&params.lights, &active.checked.config.lights)
                 .map_err(|e| refuse(ErrorCode::BadConfig, format!("frame {frame}: {e}")))?;
@@ -449,6 +459,7 @@ impl Engine {
             scale: active.scale.to_bits(),
             time: active.time.filter(|_| active.animated).map(f32::to_bits),
             lights: active.lights_changed,
+            rows: active.rows,
         })
     }
 
@@ -472,6 +483,7 @@ impl Engine {
                 active.time,
                 active.scale,
                 Arc::clone(&active.frame_lights),
+                active.rows,
             )
             .await
         {
@@ -542,6 +554,7 @@ impl Engine {
                         active.time,
                         active.scale,
                         Arc::clone(&active.frame_lights),
+                        active.rows,
                     )
                     .await
             }
@@ -572,7 +585,8 @@ impl Engine {
                     .zip(configured)
                     .map(|((layer, img), (_, format))| (layer, format, img))
                     .collect();
-                tokio::task::spawn_blocking(move || pack_frame(&layout, &images, &tx))
+                let rows = rendered.rows;
+                tokio::task::spawn_blocking(move || pack_frame(&layout, &images, rows, &tx))
             }
         };
         let mut kept = Vec::new();

@@ -74,6 +74,9 @@ pub struct Rendered {
     pub stats: RenderStats,
     /// Wall time of the whole render call on the render thread, microseconds.
     pub total_us: u64,
+    /// The image rows it rendered (a sort-first tile; `None`: every row): every other row is
+    /// zero, and the bands wholly outside them travel empty.
+    pub rows: Option<[u32; 2]>,
 }
 
 #[derive(Debug, Clone, thiserror::Error)]
@@ -97,6 +100,7 @@ enum Command {
         Option<f32>,
         f32,
         FrameLights,
+        Option<[u32; 2]>,
         oneshot::Sender<Result<Rendered, RenderFailure>>,
     ),
 }
@@ -165,15 +169,20 @@ impl RenderHandle {
     }
 
     /// Renders at `camera`, an animated scene posed at `time` (`None`: its rest pose) with its
-    /// lights as `lights` replaces them, packing `seed64` layers against `scale`.
+    /// lights as `lights` replaces them, only the image rows `rows` (a sort-first tile, checked
+    /// by the caller; `None`: every row), packing `seed64` layers against `scale`.
     pub async fn render(
         &self,
         camera: Camera,
         time: Option<f32>,
         scale: f32,
         lights: FrameLights,
+        rows: Option<[u32; 2]>,
     ) -> Result<Rendered, RenderFailure> {
-        self.submit(camera, time, scale, lights).await?.wait().await
+        self.submit(camera, time, scale, lights, rows)
+            .await?
+            .wait()
+            .await
     }
 
     /// Queues a render and returns at once: the thread renders while the caller does something
@@ -185,10 +194,11 @@ impl RenderHandle {
         time: Option<f32>,
         scale: f32,
         lights: FrameLights,
+        rows: Option<[u32; 2]>,
     ) -> Result<Pending, RenderFailure> {
         let (reply, answer) = oneshot::channel();
         self.tx
-            .send(Command::Render(camera, time, scale, lights, reply))
+            .send(Command::Render(camera, time, scale, lights, rows, reply))
             .await
             .map_err(|_| RenderFailure::Stopped)?;
         Ok(Pending(answer))
@@ -279,8 +289,15 @@ fn thread_main(
                 }
                 let _ = reply.send(r);
             }
-            Command::Render(camera, time, scale, lights, reply) => {
-                let r = guarded(|| render(&gpu, &mut current, camera, time, scale, &lights, pack));
+            Command::Render(camera, time, scale, lights, rows, reply) => {
+                let frame = FrameAsk {
+                    camera,
+                    time,
+                    scale,
+                    lights: &lights,
+                    rows,
+                };
+                let r = guarded(|| render(&gpu, &mut current, frame, pack));
                 if matches!(r, Err(RenderFailure::Panic(_))) {
                     current = None;
                 }
@@ -381,21 +398,35 @@ fn configure(
     Ok(())
 }
 
-fn render(
-    gpu: &Gpu,
-    current: &mut Option<Current>,
+/// What one `Command::Render` asks for.
+struct FrameAsk<'a> {
     camera: Camera,
     time: Option<f32>,
     scale: f32,
-    lights: &[(usize, lightfold_scene::LightSample)],
+    lights: &'a [(usize, lightfold_scene::LightSample)],
+    rows: Option<[u32; 2]>,
+}
+
+fn render(
+    gpu: &Gpu,
+    current: &mut Option<Current>,
+    frame: FrameAsk<'_>,
     pack: PackOn,
 ) -> Result<Rendered, RenderFailure> {
+    let FrameAsk {
+        camera,
+        time,
+        scale,
+        lights,
+        rows,
+    } = frame;
     let c = current.as_mut().ok_or(RenderFailure::NotConfigured)?;
     let start = Instant::now();
     if c.camera != Some(camera) {
         c.renderer.set_camera(&camera);
         c.camera = Some(camera);
     }
+    c.renderer.set_rows(rows);
     let mut pose_us = 0;
     // A still scene ignores the time; an animated one is posed here, from the node's own copy.
     let time = time.filter(|_| c.setup.scene.animation.is_some());
@@ -490,6 +521,7 @@ fn render(
         output,
         stats,
         total_us: start.elapsed().as_micros() as u64,
+        rows,
     })
 }
 

@@ -53,7 +53,10 @@ impl DeferredTargets {
         let illumination = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("deferred illumination"),
             size: w as u64 * h as u64 * 32,
-            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            // COPY_DST: a tile's rows below it are cleared.
+            usage: wgpu::BufferUsages::STORAGE
+                | wgpu::BufferUsages::COPY_SRC
+                | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
         DeferredTargets {
@@ -67,7 +70,11 @@ impl DeferredTargets {
 
 /// Group 1 of each light dispatch: its chunk of lights and views, padded to the sizes the
 /// shader declares, and the frame with the chunk's light count.
-fn chunk_groups(cx: &DrawContext<'_>, inputs: &EyeInputs<'_>) -> Vec<wgpu::BindGroup> {
+fn chunk_groups(
+    cx: &DrawContext<'_>,
+    inputs: &EyeInputs<'_>,
+    rows: Option<[u32; 2]>,
+) -> Vec<wgpu::BindGroup> {
     chunk_lights(inputs.lights, inputs.views, CHUNK_LIGHTS)
         .into_iter()
         .enumerate()
@@ -80,6 +87,8 @@ fn chunk_groups(cx: &DrawContext<'_>, inputs: &EyeInputs<'_>) -> Vec<wgpu::BindG
                 light_count: chunk.lights.len() as u32,
                 accumulate: u32::from(i > 0),
                 view_base: chunk.first_view,
+                // A tile lights no row below its own (`cs_lights` stops at `height`).
+                height: rows.map_or(inputs.frame.height, |r| r[1]),
                 ..inputs.frame
             };
             chunk.lights.resize(CHUNK_LIGHTS, GpuLight::zeroed());
@@ -105,7 +114,7 @@ pub(super) fn render_deferred(
     inputs: &EyeInputs<'_>,
     light_pass: &wgpu::ComputePipeline,
 ) {
-    let groups = chunk_groups(cx, inputs);
+    let groups = chunk_groups(cx, inputs, draws.rows);
     let g = &deferred.gbuffer;
     let mut colour = vec![&g[0], &g[1], &g[2], &targets.depth];
     if inputs.material_layers {
@@ -138,6 +147,7 @@ pub(super) fn render_deferred(
             &groups[0],
             targets,
             inputs.vertex_count,
+            draws.rows,
         );
     }
     let view = |t: &wgpu::Texture| t.create_view(&Default::default());
@@ -164,6 +174,13 @@ pub(super) fn render_deferred(
             },
         ],
     });
+    // Rows below a tile are not lit: zero them (those above it are lit from the cleared
+    // G-buffer, background, which writes zeros: the shader has no row offset).
+    let end = draws.rows.map_or(deferred.height, |r| r[1]);
+    if end < deferred.height {
+        let row = u64::from(deferred.width) * 32;
+        encoder.clear_buffer(&deferred.illumination, u64::from(end) * row, None);
+    }
     {
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some("deferred lights"),
@@ -176,7 +193,7 @@ pub(super) fn render_deferred(
             pass.set_bind_group(1, group, &[]);
             pass.dispatch_workgroups(
                 deferred.width.div_ceil(WORKGROUP),
-                deferred.height.div_ceil(WORKGROUP),
+                end.div_ceil(WORKGROUP),
                 1,
             );
         }

@@ -140,6 +140,13 @@ pub(super) struct EyeInputs<'a> {
     pub vertex_count: u32,
 }
 
+/// Restricts `pass` to the rows `[y0, y1)` of a `width`-pixel-wide target (nothing for `None`).
+fn scissor(pass: &mut wgpu::RenderPass<'_>, rows: Option<[u32; 2]>, width: u32) {
+    if let Some([y0, y1]) = rows {
+        pass.set_scissor_rect(0, y0, width, y1.saturating_sub(y0));
+    }
+}
+
 /// The forward pass's uniform, light and view buffers bound as group 1 (storage buffers).
 pub(super) fn eye_bind_group(cx: &DrawContext<'_>, inputs: &EyeInputs<'_>) -> wgpu::BindGroup {
     // Storage bindings cannot be empty: pad with one unused record.
@@ -284,6 +291,7 @@ pub(super) fn record_raster(
         occlusion_query_set: None,
         multiview_mask: None,
     });
+    scissor(&mut pass, draws.rows, depth_buffer.width());
     pass.set_pipeline(pipeline);
     pass.set_bind_group(0, cx.scene_bind_group, &[]);
     pass.set_bind_group(1, bind_group, &[]);
@@ -307,11 +315,14 @@ pub(super) fn record_raster(
 }
 
 /// What the eye pass draws: vertex ranges of the scene's buffer, and of the level buffer
-/// (`gpu::lod`'s lossless eye levels).
+/// (`gpu::lod`'s lossless eye levels), and where.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub(super) struct EyeDraws {
     pub scene: Vec<Range<u32>>,
     pub levels: Vec<Range<u32>>,
+    /// The image rows `[y0, y1)` the pass rasterises and lights (a sort-first tile, scissored;
+    /// every target is cleared whole, so the other rows stay zero); `None`: every row.
+    pub rows: Option<[u32; 2]>,
 }
 
 impl EyeDraws {
@@ -365,6 +376,7 @@ pub(super) fn render_eye(
             &bind_group,
             targets,
             inputs.vertex_count,
+            draws.rows,
         );
     }
     cx.queue.submit([encoder.finish()]);
@@ -381,6 +393,7 @@ pub(super) fn record_filters(
     bind_group: &wgpu::BindGroup,
     targets: &EyeTargets,
     vertex_count: u32,
+    rows: Option<[u32; 2]>,
 ) {
     let Some(pipelines) = &cx.pipelines.eye_filter else {
         return;
@@ -404,6 +417,7 @@ pub(super) fn record_filters(
         occlusion_query_set: None,
         multiview_mask: None,
     });
+    scissor(&mut pass, rows, targets.width);
     pass.set_pipeline(&pipelines[variant.min(1)]);
     pass.set_bind_group(0, cx.scene_bind_group, &[]);
     pass.set_bind_group(1, bind_group, &[]);

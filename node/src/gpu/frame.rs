@@ -204,8 +204,20 @@ pub enum RenderError {
     },
     #[error("the device cannot allocate {what}: {message}")]
     Allocation { what: &'static str, message: String },
+    #[error("rows {y0}..{y1} are not a tile of the {height}-row image (need y0 < y1 <= {height})")]
+    Rows { y0: u32, y1: u32, height: u32 },
     #[error("gpu: {0}")]
     Gpu(String),
+}
+
+/// Checks a sort-first tile, image rows `[y0, y1)` of an image `height` rows tall: at least one
+/// row, none below the image.
+pub fn check_rows([y0, y1]: [u32; 2], height: u32) -> Result<(), RenderError> {
+    if y0 < y1 && y1 <= height {
+        Ok(())
+    } else {
+        Err(RenderError::Rows { y0, y1, height })
+    }
 }
 
 /// A material layer [`NodeFrame::radiance`] needs was not rendered.

@@ -43,6 +43,12 @@ pub enum Fault {
     /// The eye pass draws each chunk's first shadow level (lossy: it moves the surface) instead
     /// of its lossless eye level (`gpu::lod`).
     EyeLodLossy,
+    /// A sort-first tile's raster and light pass cover rows `[y0 + 1, y1 + 1)`, one row below
+    /// its own (`Renderer::set_rows`).
+    TileRowsOffByOne,
+    /// A sort-first tile's eye culling takes its rows from the bottom of the image (a flipped
+    /// sub-frustum: meshes in the tile are culled, others drawn).
+    TileFrustumFlipped,
 }
 
 /// `Light` in `shading.wgsl` (std430).
@@ -465,6 +471,28 @@ pub fn box_in_view(view: &ShadowView, lo: V3, hi: V3) -> bool {
 /// diagonally is kept.
 pub fn box_in_eye_view(view_proj: &[[f32; 4]; 4], lo: V3, hi: V3) -> bool {
     !outside_a_plane(&box_corners_clip(view_proj, lo, hi), |c| c[2] > c[3])
+}
+
+/// The view-projection of a sort-first tile, image rows `[y0, y1)` of a `height`-row image: the
+/// camera's `view_proj` with clip y remapped so the tile's rows span −1..1, an off-centre
+/// sub-frustum for [`box_in_eye_view`] (x, depth and w unchanged). Row 0 is the top (clip
+/// y = +w).
+pub fn tile_view_proj(view_proj: &[[f32; 4]; 4], [y0, y1]: [u32; 2], height: u32) -> [[f32; 4]; 4] {
+    let h = height.max(1) as f32;
+    // NDC y of the tile's top and bottom edges.
+    let (top, bottom) = (1.0 - 2.0 * y0 as f32 / h, 1.0 - 2.0 * y1 as f32 / h);
+    let (centre, half) = (
+        (top + bottom) * 0.5,
+        ((top - bottom) * 0.5).max(f32::MIN_POSITIVE),
+    );
+    // y' = (y − centre·w) / half, column-major.
+    let mut remap = [[0.0; 4]; 4];
+    for (i, col) in remap.iter_mut().enumerate() {
+        col[i] = 1.0;
+    }
+    remap[1][1] = 1.0 / half;
+    remap[3][1] = -centre / half;
+    mat_mul(&remap, view_proj)
 }
 
 /// Whether the box `lo`–`hi` lies wholly inside the eye view (every corner within every plane):

@@ -19,6 +19,7 @@ mod shadow_pass;
 pub use device::{DeviceError, Gpu, GpuOptions};
 pub use frame::{
     EyeVariant, LayerSet, MissingLayer, NodeFrame, RenderError, RenderOptions, RenderStats,
+    check_rows,
 };
 pub use lights::Fault;
 pub use renderer::Renderer;

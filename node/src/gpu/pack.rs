@@ -60,7 +60,8 @@ pub struct BandCount {
     pub saturated: u32,
 }
 
-/// One layer packed: every row, top to bottom, in its link format.
+/// One layer packed: its rows from [`PackedFrame::first_row`] down (every row without a tile),
+/// in its link format.
 #[derive(Debug, Clone)]
 pub struct PackedLayer {
     pub format: PixelFormat,
@@ -80,6 +81,10 @@ pub struct PackedFrame {
     pub peak: f32,
     /// Bytes copied from the device to the host for this frame.
     pub read_bytes: u64,
+    /// The first row the layers' bytes hold: a sort-first tile reads back only the bands its
+    /// rows meet, `first_row` to [`PackedFrame::end_row`] (every other band is empty).
+    pub first_row: u32,
+    pub end_row: u32,
 }
 
 /// The layer parameters of `pack.wgsl` (field for field).
@@ -272,6 +277,21 @@ impl DevicePacker {
         band_height: u32,
         scale: f32,
     ) -> Result<PackedFrame, RenderError> {
+        self.pack_rows(gpu, layers, [width, height], band_height, scale, None)
+    }
+
+    /// [`DevicePacker::pack`] of a sort-first tile, image rows `rows` (`None`: every row; the
+    /// sources zero elsewhere): only the bands those rows meet are packed (and the rows above
+    /// them, which the shader cannot skip) and only they are read back.
+    pub fn pack_rows(
+        &mut self,
+        gpu: &Gpu,
+        layers: &[PackLayer<'_>],
+        [width, height]: [u32; 2],
+        band_height: u32,
+        scale: f32,
+        rows: Option<[u32; 2]>,
+    ) -> Result<PackedFrame, RenderError> {
         let device = &gpu.device;
         let limits = &gpu.limits;
         if layers.len() > MAX_LAYERS {
@@ -288,6 +308,14 @@ impl DevicePacker {
         }
         let band_height = band_height.clamp(1, height.max(1));
         let bands = height.div_ceil(band_height);
+        // The rows of the bands the tile meets.
+        let [y0, y1] = rows.unwrap_or([0, height]);
+        let first_row = (y0.min(height) / band_height) * band_height;
+        let end_row = y1
+            .div_ceil(band_height)
+            .saturating_mul(band_height)
+            .min(height);
+        let end_row = end_row.max(first_row);
         let shape = PackShape {
             width,
             height,
@@ -319,9 +347,25 @@ impl DevicePacker {
                 | wgpu::BufferUsages::COPY_SRC
                 | wgpu::BufferUsages::COPY_DST,
         );
-        // The host gets the layers back to back (no alignment padding), then the counts.
-        let packed_size: u64 = offsets.iter().map(|(_, size)| size).sum();
+        // The host gets the tile's rows of the layers back to back (no alignment padding), then
+        // the counts.
+        let reads: Vec<(u64, u64)> = layers
+            .iter()
+            .zip(&offsets)
+            .map(|(l, &(offset, _))| {
+                let row = u64::from(width) * l.format.bytes_per_pixel() as u64;
+                (
+                    offset + row * u64::from(first_row),
+                    row * u64::from(end_row - first_row),
+                )
+            })
+            .collect();
+        let packed_size: u64 = reads.iter().map(|(_, size)| size).sum();
         let read_bytes = packed_size + counts_size;
+        // At least the frame's size: a tile whose rows move reuses its largest frame's buffer.
+        if self.staging.as_ref().is_none_or(|b| b.size() < read_bytes) {
+            self.staging = None;
+        }
         let staging = kept(
             device,
             &mut self.staging,
@@ -354,26 +398,33 @@ impl DevicePacker {
             pass.set_pipeline(&self.pipeline);
             for g in &groups {
                 pass.set_bind_group(0, g, &[]);
-                pass.dispatch_workgroups(width.div_ceil(WORKGROUP), height, 1);
+                // No row below the tile's last band (their counts stay cleared: empty).
+                pass.dispatch_workgroups(width.div_ceil(WORKGROUP), end_row, 1);
             }
         }
         let mut at = 0;
-        for &(offset, size) in &offsets {
-            encoder.copy_buffer_to_buffer(&out, offset, &staging, at, size);
+        for &(offset, size) in &reads {
+            if size > 0 {
+                encoder.copy_buffer_to_buffer(&out, offset, &staging, at, size);
+            }
             at += size;
         }
         encoder.copy_buffer_to_buffer(&counts, 0, &staging, packed_size, counts_size);
         gpu.queue.submit([encoder.finish()]);
 
-        map_for_reading(device, &staging)?;
+        map_for_reading(device, &staging, read_bytes)?;
         let frame = {
             let mapped = staging
-                .get_mapped_range(..)
+                .get_mapped_range(..read_bytes)
                 .map_err(|e| RenderError::Gpu(format!("mapped range: {e}")))?;
-            unpack(&mapped, layers, &offsets, &shape, packed_size, read_bytes)
+            unpack(&mapped, layers, &reads, &shape, packed_size, read_bytes)
         };
         staging.unmap();
-        Ok(frame)
+        Ok(PackedFrame {
+            first_row,
+            end_row,
+            ..frame
+        })
     }
 
     /// Layer `i`'s parameters and the buffer its shader reads: the lit buffer itself, or the
@@ -618,9 +669,13 @@ fn layer_offsets(
 }
 
 /// Maps `staging` for reading and waits for it.
-fn map_for_reading(device: &wgpu::Device, staging: &wgpu::Buffer) -> Result<(), RenderError> {
+fn map_for_reading(
+    device: &wgpu::Device,
+    staging: &wgpu::Buffer,
+    size: u64,
+) -> Result<(), RenderError> {
     let (tx, rx) = std::sync::mpsc::channel();
-    staging.map_async(wgpu::MapMode::Read, .., move |r| {
+    staging.map_async(wgpu::MapMode::Read, ..size, move |r| {
         let _ = tx.send(r);
     });
     device
@@ -678,6 +733,8 @@ fn unpack(
         layers: packed,
         peak: f32::from_bits(word(0)),
         read_bytes,
+        first_row: 0,
+        end_row: shape.height,
     }
 }
 

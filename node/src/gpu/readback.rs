@@ -1,6 +1,7 @@
 //! Reading render targets back to the CPU: one copy per texture (or the deferred lit buffer) into
 //! a mappable buffer kept from frame to frame, rows padded to wgpu's 256-byte alignment, all in
-//! one submission and one wait, then unpadded and converted to f32 channels.
+//! one submission and one wait, then unpadded and converted to f32 channels. A sort-first tile
+//! reads back only its rows; the images it gives are whole, zero in every other row.
 
 use super::frame::RenderError;
 
@@ -25,21 +26,48 @@ pub(super) enum ReadSource<'a> {
 #[derive(Debug, Default)]
 pub(super) struct Staging {
     buffers: Vec<Option<wgpu::Buffer>>,
+    /// Bytes the last frame copied to the host.
+    read: u64,
 }
 
 impl Staging {
-    /// Bytes the kept buffers hold: what the last frame copied to the host.
+    /// Bytes the last frame copied to the host.
     pub(super) fn bytes(&self) -> u64 {
-        self.buffers.iter().flatten().map(|b| b.size()).sum()
+        self.read
     }
 
-    /// Buffer `i`, of exactly `size` bytes (made again when the size changes).
+    /// Buffer `i`, of at least `size` bytes (made again, of exactly `size`, when smaller: a tile
+    /// whose rows move from frame to frame reuses the buffer of its largest frame).
     fn buffer(&mut self, device: &wgpu::Device, i: usize, size: u64) -> wgpu::Buffer {
         if self.buffers.len() <= i {
             self.buffers.resize(i + 1, None);
         }
+        let slot = &mut self.buffers[i];
+        if let Some(b) = slot.as_ref().filter(|b| b.size() >= size) {
+            return b.clone();
+        }
         let usage = wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::MAP_READ;
-        kept(device, &mut self.buffers[i], "readback", size, usage)
+        kept(device, slot, "readback", size, usage)
+    }
+}
+
+/// The rows `[y0, y1)` of an image `height` rows tall that a frame reads back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct ReadRows {
+    pub y0: u32,
+    pub y1: u32,
+    pub height: u32,
+}
+
+impl ReadRows {
+    /// The rows `rows` of a `height`-row image (`None`: every row).
+    pub(super) fn of(rows: Option<[u32; 2]>, height: u32) -> ReadRows {
+        let [y0, y1] = rows.unwrap_or([0, height]);
+        ReadRows { y0, y1, height }
+    }
+
+    fn count(&self) -> u32 {
+        self.y1 - self.y0
     }
 }
 
@@ -113,40 +141,82 @@ pub(super) fn copy_texture(
     );
 }
 
-/// Copies every source into `staging` in one submission, waits once, and returns per source its
-/// f32 values (the lit buffer: 6 a pixel; a texture: `keep_channels` a pixel, row 0 at the top).
+/// Copies rows `rows` of `texture` into `buffer` from offset 0, rows `row` bytes apart.
+fn copy_rows(
+    encoder: &mut wgpu::CommandEncoder,
+    texture: &wgpu::Texture,
+    buffer: &wgpu::Buffer,
+    row: u32,
+    rows: ReadRows,
+) {
+    encoder.copy_texture_to_buffer(
+        wgpu::TexelCopyTextureInfo {
+            texture,
+            mip_level: 0,
+            origin: wgpu::Origin3d {
+                x: 0,
+                y: rows.y0,
+                z: 0,
+            },
+            aspect: wgpu::TextureAspect::All,
+        },
+        wgpu::TexelCopyBufferInfo {
+            buffer,
+            layout: wgpu::TexelCopyBufferLayout {
+                offset: 0,
+                bytes_per_row: Some(row),
+                rows_per_image: Some(rows.count()),
+            },
+        },
+        wgpu::Extent3d {
+            width: texture.width(),
+            height: rows.count(),
+            depth_or_array_layers: 1,
+        },
+    );
+}
+
+/// Copies rows `rows` of every source into `staging` in one submission, waits once, and returns
+/// per source its f32 values over the whole image, zero outside `rows` (the lit buffer: 6 a
+/// pixel; a texture: `keep_channels` a pixel, row 0 at the top).
 pub(super) fn read(
     device: &wgpu::Device,
     queue: &wgpu::Queue,
     staging: &mut Staging,
     sources: &[ReadSource<'_>],
+    rows: ReadRows,
 ) -> Result<Vec<Vec<f32>>, RenderError> {
     let mut encoder = device.create_command_encoder(&wgpu::CommandEncoderDescriptor {
         label: Some("readback"),
     });
+    // (buffer, padded row bytes, bytes copied)
     let mut buffers = Vec::with_capacity(sources.len());
     for (i, source) in sources.iter().enumerate() {
         match source {
             ReadSource::Lit(lit) => {
-                let buffer = staging.buffer(device, i, lit.size());
-                encoder.copy_buffer_to_buffer(lit, 0, &buffer, 0, lit.size());
-                buffers.push((buffer, 0));
+                // Rows of 32 bytes a pixel, the image's height of them.
+                let row = lit.size() / u64::from(rows.height.max(1));
+                let size = row * u64::from(rows.count());
+                let buffer = staging.buffer(device, i, size);
+                encoder.copy_buffer_to_buffer(lit, row * u64::from(rows.y0), &buffer, 0, size);
+                buffers.push((buffer, 0, size));
             }
             ReadSource::Texture(r) => {
-                let size = r.texture.size();
                 let (bpp, _, _) = format_info(r.texture.format())?;
-                let row = padded_row(size.width, bpp);
-                let buffer = staging.buffer(device, i, row as u64 * size.height as u64);
-                copy_texture(&mut encoder, r.texture, &buffer, 0, row);
-                buffers.push((buffer, row));
+                let row = padded_row(r.texture.width(), bpp);
+                let size = u64::from(row) * u64::from(rows.count());
+                let buffer = staging.buffer(device, i, size);
+                copy_rows(&mut encoder, r.texture, &buffer, row, rows);
+                buffers.push((buffer, row, size));
             }
         }
     }
     queue.submit([encoder.finish()]);
+    staging.read = buffers.iter().map(|(_, _, size)| size).sum();
     let (tx, rx) = std::sync::mpsc::channel();
-    for (i, (buffer, _)) in buffers.iter().enumerate() {
+    for (i, (buffer, _, size)) in buffers.iter().enumerate() {
         let tx = tx.clone();
-        buffer.map_async(wgpu::MapMode::Read, .., move |r| {
+        buffer.map_async(wgpu::MapMode::Read, ..*size, move |r| {
             let _ = tx.send((i, r));
         });
     }
@@ -169,10 +239,10 @@ pub(super) fn read(
         None => sources
             .iter()
             .zip(&buffers)
-            .map(|(source, (buffer, row))| convert(source, buffer, *row))
+            .map(|(source, (buffer, row, size))| convert(source, buffer, *row, *size, rows))
             .collect(),
     };
-    for ((buffer, _), mapped) in buffers.iter().zip(mapped) {
+    for ((buffer, _, _), mapped) in buffers.iter().zip(mapped) {
         if mapped {
             buffer.unmap();
         }
@@ -180,14 +250,17 @@ pub(super) fn read(
     result
 }
 
-/// The mapped `buffer` of `source` as f32 values.
+/// The first `size` mapped bytes of `buffer`, rows `rows` of `source`, as the f32 values of the
+/// whole image (zero outside those rows).
 fn convert(
     source: &ReadSource<'_>,
     buffer: &wgpu::Buffer,
     row: u32,
+    size: u64,
+    rows: ReadRows,
 ) -> Result<Vec<f32>, RenderError> {
     let mapped = buffer
-        .get_mapped_range(..)
+        .get_mapped_range(..size)
         .map_err(|e| RenderError::Gpu(format!("mapped range: {e}")))?;
     let bytes: &[u8] = &mapped;
     let f32s = |b: &[u8], out: &mut Vec<f32>| match bytemuck::try_cast_slice::<u8, f32>(b) {
@@ -201,20 +274,24 @@ fn convert(
     match source {
         ReadSource::Lit(_) => {
             // vec4 diffuse, vec4 specular: keep xyz of each.
-            let mut out = Vec::with_capacity(bytes.len() / 32 * 6);
+            let pixels = bytes.len() / 32;
+            let per_row = pixels / rows.count().max(1) as usize;
+            let len = per_row * rows.height as usize * 6;
+            let mut out = zeros_above(len, per_row * 6, rows);
             for px in bytes.chunks_exact(32) {
                 f32s(&px[0..12], &mut out);
                 f32s(&px[16..28], &mut out);
             }
+            out.resize(len, 0.0);
             Ok(out)
         }
         ReadSource::Texture(r) => {
-            let size = r.texture.size();
             let (bpp, channels, half) = format_info(r.texture.format())?;
             let keep = r.keep_channels.min(channels);
-            let (w, h) = (size.width as usize, size.height as usize);
-            let mut out = Vec::with_capacity(w * h * keep);
-            for y in 0..h {
+            let w = r.texture.width() as usize;
+            let len = w * rows.height as usize * keep;
+            let mut out = zeros_above(len, w * keep, rows);
+            for y in 0..rows.count() as usize {
                 let line = &bytes[y * row as usize..][..w * bpp as usize];
                 if half {
                     for px in line.chunks_exact(bpp as usize) {
@@ -230,9 +307,18 @@ fn convert(
                     }
                 }
             }
+            out.resize(len, 0.0);
             Ok(out)
         }
     }
+}
+
+/// A vector of capacity `len` (the whole image's values) holding the zeros of the rows above
+/// `rows`, `row` values each; the caller appends the read rows, then zeros to `len`.
+fn zeros_above(len: usize, row: usize, rows: ReadRows) -> Vec<f32> {
+    let mut out = Vec::with_capacity(len);
+    out.resize(row * rows.y0 as usize, 0.0);
+    out
 }
 
 #[cfg(test)]

@@ -17,7 +17,7 @@ use super::frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, 
 use super::lights::{Fault, Fit, LightPlan, Sides, TRANSLUCENT_TEXEL_BYTES, plan_lights_within};
 use super::pack::{self, DevicePacker, PackLayer, PackSource, PackedFrame};
 use super::pipelines::{DrawContext, LightSet, Pipelines};
-use super::readback::{ReadRequest, ReadSource, Staging, read};
+use super::readback::{ReadRequest, ReadRows, ReadSource, Staging, read};
 use super::scene_data::{SceneData, Vertex};
 use super::shadow_depth::ShadowDepth;
 use super::shadow_pass::{ShadowMaps, layer_count, render_shadow_maps};
@@ -108,6 +108,8 @@ pub struct Renderer {
     eye_culling: bool,
     /// Vertices the last eye pass drew.
     eye_vertices: u32,
+    /// The image rows `[y0, y1)` frames render (a sort-first tile); `None`: every row.
+    rows: Option<[u32; 2]>,
 }
 
 impl Renderer {
@@ -195,6 +197,7 @@ impl Renderer {
             eye_meshes: None,
             eye_culling: true,
             eye_vertices: 0,
+            rows: None,
         })
     }
 
@@ -431,6 +434,20 @@ impl Renderer {
         self.eye_culling = on;
     }
 
+    /// Renders only the image rows `[y0, y1)` from the next frame on (`None`: every row), a
+    /// sort-first tile: the eye pass rasterises and lights those rows only (scissored, meshes
+    /// culled against the tile's sub-frustum) and reads back only them; every other row of every
+    /// layer is zero (depth 0: nothing there). Shadow maps are the same as without a tile.
+    /// Checked against the camera's height when a frame renders ([`RenderError::Rows`]).
+    pub fn set_rows(&mut self, rows: Option<[u32; 2]>) {
+        self.rows = rows;
+    }
+
+    /// The rows frames render (see [`Renderer::set_rows`]).
+    pub fn rows(&self) -> Option<[u32; 2]> {
+        self.rows
+    }
+
     /// Triangles of the simplified levels, shadow and eye (`gpu::lod`).
     pub fn lod_triangles(&self) -> u64 {
         self.scene.lods.triangles()
@@ -649,6 +666,9 @@ impl Renderer {
                 maximum: max_side,
             });
         }
+        if let Some(rows) = self.rows {
+            super::frame::check_rows(rows, h)?;
+        }
         // The largest buffer a frame needs besides the lit buffer: the readback of a 16-byte
         // target. Checked here so the device is never asked for it.
         let readback = u64::from(super::readback::padded_row(w, 16)) * u64::from(h);
@@ -829,7 +849,10 @@ impl Renderer {
             material_layers: layers.any_material(),
             vertex_count: self.scene.vertex_count,
         };
-        let draws = self.eye_draws(&frame.view_proj);
+        let draws = EyeDraws {
+            rows: self.raster_rows(h),
+            ..self.eye_draws(&self.cull_view_proj(&frame.view_proj, h))
+        };
         self.eye_vertices = draws.vertices();
         if variant == EyeVariant::Deferred {
             if !self
@@ -894,7 +917,9 @@ impl Renderer {
                 sources.push(ReadSource::Texture(req(tex, channels)));
             }
         }
-        let mut data = read(&gpu.device, &gpu.queue, &mut self.staging, &sources)?.into_iter();
+        let rows = ReadRows::of(self.rows, h);
+        let mut data =
+            read(&gpu.device, &gpu.queue, &mut self.staging, &sources, rows)?.into_iter();
         let image = |data: Vec<f32>, channels| Image {
             width: w,
             height: h,
@@ -982,14 +1007,36 @@ impl Renderer {
                 Ok(PackLayer { source, format })
             })
             .collect::<Result<Vec<_>, RenderError>>()?;
-        packer.pack(
+        packer.pack_rows(
             gpu,
             &sources,
-            targets.width,
-            targets.height,
+            [targets.width, targets.height],
             band_height,
             scale,
+            self.rows,
         )
+    }
+
+    /// The rows the eye pass rasterises for a tile of an `h`-row image ([`Renderer::set_rows`]),
+    /// one row low under [`Fault::TileRowsOffByOne`]; `None` without a tile.
+    fn raster_rows(&self, h: u32) -> Option<[u32; 2]> {
+        let [y0, y1] = self.rows?;
+        if self.options.fault == Some(Fault::TileRowsOffByOne) {
+            return Some([(y0 + 1).min(h - 1), (y1 + 1).min(h)]);
+        }
+        Some([y0, y1])
+    }
+
+    /// The view-projection eye culling tests meshes against: the camera's, or a tile's
+    /// sub-frustum (`lights::tile_view_proj`; flipped under [`Fault::TileFrustumFlipped`]).
+    fn cull_view_proj(&self, view_proj: &[[f32; 4]; 4], h: u32) -> [[f32; 4]; 4] {
+        match self.rows {
+            None => *view_proj,
+            Some([y0, y1]) if self.options.fault == Some(Fault::TileFrustumFlipped) => {
+                super::lights::tile_view_proj(view_proj, [h - y1, h - y0], h)
+            }
+            Some(rows) => super::lights::tile_view_proj(view_proj, rows, h),
+        }
     }
 
     /// The vertex ranges the eye pass draws: every mesh, or those of
@@ -1004,7 +1051,7 @@ impl Renderer {
         if self.eye_meshes.is_none() && !self.eye_culling && !partial && !levels {
             return EyeDraws {
                 scene: std::iter::once(0..self.scene.vertex_count).collect(),
-                levels: Vec::new(),
+                ..EyeDraws::default()
             };
         }
         let shown = |(lo, hi): ([f32; 3], [f32; 3])| {

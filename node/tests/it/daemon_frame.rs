@@ -227,6 +227,7 @@ async fn frames_requested_ahead_render_while_the_last_one_streams() {
             scale: None,
             time: None,
             lights: Vec::new(),
+            rows: None,
         },
     };
     // One at a time: the reference bits.
@@ -333,6 +334,7 @@ async fn walkthrough_frames_reuse_what_did_not_change() {
                 scale: None,
                 time: None,
                 lights: Vec::new(),
+                rows: None,
             },
         })
         .await
@@ -363,6 +365,7 @@ async fn walkthrough_frames_reuse_what_did_not_change() {
                 scale: None,
                 time: None,
                 lights: Vec::new(),
+                rows: None,
             },
         })
         .await;
@@ -381,6 +384,7 @@ async fn walkthrough_frames_reuse_what_did_not_change() {
                 scale: None,
                 time: Some(f32::NAN),
                 lights: Vec::new(),
+                rows: None,
             },
         })
         .await;

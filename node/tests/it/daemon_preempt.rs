@@ -27,6 +27,7 @@ fn frame(epoch: u64, frame: u64) -> Message {
             scale: None,
             time: None,
             lights: Vec::new(),
+            rows: None,
         },
     }
 }

@@ -226,7 +226,7 @@ mod device_pack {
 
     fn cpu_bands(layout: &BandLayout, images: LayerImages) -> Vec<PackedBand> {
         let (tx, mut rx) = mpsc::channel(4096);
-        pack_frame(layout, &images, &tx).expect("CPU pack");
+        pack_frame(layout, &images, None, &tx).expect("CPU pack");
         drop(tx);
         std::iter::from_fn(|| rx.try_recv().ok()).collect()
     }
@@ -298,11 +298,10 @@ mod device_pack {
             .pack(gpu, &[PackLayer { source, format }], W, H, BAND, scale)
             .expect("device pack");
         let device = device_bands(&layout, &[(layer, format)], &packed);
-        let peak = lightfold_node::daemon::bands::illumination_peak(&vec![(
-            layer,
-            format,
-            image(channels, values.to_vec()),
-        )]);
+        let peak = lightfold_node::daemon::bands::illumination_peak(
+            &vec![(layer, format, image(channels, values.to_vec()))],
+            None,
+        );
         if layer == Layer::Illumination && packed.peak.to_bits() != peak.to_bits() {
             return Some(format!(
                 "peak {} on the device, {peak} on the CPU",

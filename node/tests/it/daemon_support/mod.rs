@@ -176,6 +176,7 @@ impl Coordinator {
                 scale: None,
                 time: None,
                 lights: Vec::new(),
+                rows: None,
             },
         })
         .await
@@ -286,6 +287,7 @@ pub(crate) fn node_config(
         depth_bias: s.quality.depth_bias,
         slope_bias: s.quality.slope_bias,
         eye_meshes: None,
+        rows: None,
         moves: Vec::new(),
     }
 }
