@@ -259,6 +259,18 @@ pub fn failover_summary(s: &LiveSummary, start: std::time::Instant) -> String {
         s.epochs.len().saturating_sub(1),
         s.rerequested
     ));
+    if s.tile_steps > 0 {
+        let rows: Vec<String> = s
+            .tile_rows
+            .iter()
+            .map(|r| format!("{}–{}", r[0], r[1]))
+            .collect();
+        out.push_str(&format!(
+            "\ntiles: rows {} after {} balancing step(s)",
+            rows.join(", "),
+            s.tile_steps
+        ));
+    }
     if s.saturated > 0 {
         out.push_str(&format!(
             "\nsaturated: {} value(s) in {} frame(s) were clamped to their link format's range \
