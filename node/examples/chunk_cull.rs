@@ -11,23 +11,13 @@ use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
 use lightfold_protocol::stats;
 use lightfold_scene::{primitives, sampling};
 
+mod common;
+
 fn main() -> anyhow::Result<()> {
-    let mut div = 500u32;
-    let mut frames = 5u32;
-    let (mut w, mut h) = (400u32, 300u32);
-    let mut args = std::env::args().skip(1);
-    while let Some(a) = args.next() {
-        match a.as_str() {
-            "--frames" => frames = args.next().unwrap_or_default().parse()?,
-            "--div" => div = args.next().unwrap_or_default().parse()?,
-            "--size" => {
-                (w, h) = lightfold_scene::limits::parse_image_size(&args.next().unwrap_or_default())
-                    .map_err(|e| anyhow::anyhow!("--size WxH: {e}"))?
-            }
-            other => anyhow::bail!("unknown argument {other}"),
-        }
-    }
-    let mut scene = lightfold_scene::builtin("balls")?;
+    let args = common::parse("balls", (400, 300), 5, &["--div"])?;
+    let (frames, (w, h)) = (args.frames, args.size);
+    let div: u32 = args.get("--div", 500)?;
+    let mut scene = args.builtin_scene()?;
     // The floor (mesh 0) as one finely divided mesh of the same plane.
     let floor = &scene.meshes[0];
     let (lo, hi) = floor.bounds().ok_or_else(|| anyhow::anyhow!("no floor"))?;
@@ -40,8 +30,6 @@ fn main() -> anyhow::Result<()> {
         div,
         floor.material,
     );
-    scene.camera.width = w;
-    scene.camera.height = h;
     let gpu = Gpu::new(&GpuOptions::default())?;
     let samples: Vec<_> = sampling::direct_samples(&scene)
         .into_iter()

@@ -9,24 +9,12 @@ use lightfold_node::gpu::{Gpu, GpuOptions, LayerSet, RenderOptions, Renderer};
 use lightfold_protocol::stats;
 use lightfold_scene::sampling;
 
+mod common;
+
 fn main() -> anyhow::Result<()> {
-    let mut name = "city".to_string();
-    let mut frames = 5u32;
-    let (mut w, mut h) = (800u32, 600u32);
-    let mut args = std::env::args().skip(1);
-    while let Some(a) = args.next() {
-        match a.as_str() {
-            "--frames" => frames = args.next().unwrap_or_default().parse()?,
-            "--size" => {
-                (w, h) = lightfold_scene::limits::parse_image_size(&args.next().unwrap_or_default())
-                    .map_err(|e| anyhow::anyhow!("--size WxH: {e}"))?
-            }
-            n => name = n.to_string(),
-        }
-    }
-    let mut scene = lightfold_scene::builtin(&name)?;
-    scene.camera.width = w;
-    scene.camera.height = h;
+    let args = common::parse("city", (800, 600), 5, &[])?;
+    let (name, frames, (w, h)) = (args.scene.clone(), args.frames, args.size);
+    let scene = args.builtin_scene()?;
     let gpu = Gpu::new(&GpuOptions::default())?;
     let samples: Vec<_> = sampling::direct_samples(&scene)
         .into_iter()

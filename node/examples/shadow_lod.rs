@@ -12,27 +12,13 @@ use lightfold_protocol::stats;
 use lightfold_scene::sampling;
 use std::time::Instant;
 
+mod common;
+
 fn main() -> anyhow::Result<()> {
-    let mut name = "city:1m".to_string();
-    let mut frames = 5u32;
-    let mut lights = 4usize;
-    let (mut w, mut h) = (400u32, 300u32);
-    let mut args = std::env::args().skip(1);
-    while let Some(a) = args.next() {
-        match a.as_str() {
-            "--scene" => name = args.next().unwrap_or_default(),
-            "--frames" => frames = args.next().unwrap_or_default().parse()?,
-            "--lights" => lights = args.next().unwrap_or_default().parse()?,
-            "--size" => {
-                (w, h) = lightfold_scene::limits::parse_image_size(&args.next().unwrap_or_default())
-                    .map_err(|e| anyhow::anyhow!("--size WxH: {e}"))?
-            }
-            other => anyhow::bail!("unknown argument {other}"),
-        }
-    }
-    let mut scene = lightfold_scene::builtin(&name)?;
-    scene.camera.width = w;
-    scene.camera.height = h;
+    let args = common::parse("city:1m", (400, 300), 5, &["--lights"])?;
+    let (name, frames, (w, h)) = (args.scene.clone(), args.frames, args.size);
+    let lights: usize = args.get("--lights", 4)?;
+    let scene = args.builtin_scene()?;
     let gpu = Gpu::new(&GpuOptions::default())?;
     let samples: Vec<_> = sampling::direct_samples(&scene)
         .into_iter()
