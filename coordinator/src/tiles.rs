@@ -137,6 +137,18 @@ impl TileBalancer {
         })
     }
 
+    /// Starts from the rows `previous` (the last epoch's balancer) reached, where it had as many
+    /// tiles of the same image and bands: a re-plan (a lost node, new colours) keeps the
+    /// balance instead of starting even. The nodes, configured with the plan's rows, are sent
+    /// these with their next frame.
+    pub fn carry(&mut self, previous: &TileBalancer) {
+        if previous.rows.len() == self.rows.len()
+            && (previous.height, previous.band_height) == (self.height, self.band_height)
+        {
+            self.rows = previous.rows.clone();
+        }
+    }
+
     /// The rows of every tile now.
     pub fn rows(&self) -> &[[u32; 2]] {
         &self.rows

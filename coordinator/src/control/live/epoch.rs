@@ -481,7 +481,13 @@ impl Core {
             moves: Arc::clone(&self.moves),
         });
         self.refusals = 0;
-        self.tiles = crate::tiles::TileBalancer::of(&next);
+        let previous = self.tiles.take();
+        self.tiles = crate::tiles::TileBalancer::of(&next).map(|mut b| {
+            if let Some(p) = &previous {
+                b.carry(p);
+            }
+            b
+        });
         if let Some(b) = &self.tiles {
             self.summary.tile_rows = b.rows().to_vec();
         }

@@ -85,6 +85,8 @@ struct Sim {
     /// and every move it was sent: (wire frame, node, rows).
     rows: BTreeMap<String, [u32; 2]>,
     moved_rows: Vec<(u64, String, [u32; 2])>,
+    /// The rows each tiled node rendered its first frame of each epoch with.
+    first_rows: BTreeMap<(u64, String), [u32; 2]>,
     /// A tiled node reports this many µs of eye pass per row at `y` (none: 0).
     row_cost: Option<fn(u32) -> u64>,
 }
@@ -201,6 +203,7 @@ impl Sim {
             error: None,
             rows: BTreeMap::new(),
             moved_rows: Vec::new(),
+            first_rows: BTreeMap::new(),
             row_cost: None,
         };
         let ids: Vec<String> = sim.daemons.keys().cloned().collect();
@@ -334,6 +337,9 @@ impl Sim {
                 if let Some(r) = params.rows {
                     self.rows.insert(to.to_string(), r);
                     self.moved_rows.push((frame, to.to_string(), r));
+                }
+                if let Some(&r) = self.rows.get(to) {
+                    self.first_rows.entry((epoch, to.to_string())).or_insert(r);
                 }
                 let eye_us = match (self.row_cost, self.rows.get(to)) {
                     (Some(cost), Some(r)) => (r[0]..r[1]).map(cost).sum(),
@@ -1481,5 +1487,43 @@ fn tiles_give_the_heavy_tile_fewer_rows_frame_by_frame() {
             assert_eq!(sim.rows[&n.node], rows[t], "{}", n.node);
         }
         assert!(!sim.moved_rows.is_empty());
+    }
+}
+
+/// A re-plan keeps the tiles' balance: with two idle nodes, losing a tiled node re-plans the
+/// same 2 × 2 grid, and the first frame of the new epoch is sent the rows the old one reached,
+/// not the even split its configuration carries.
+#[test]
+fn a_re_plan_keeps_the_tiles_rows() {
+    let mut sim = Sim::build(6, 2, &[]);
+    sim.core.opts.tiles = 2;
+    sim.core.opts.band_height = 4;
+    sim.row_cost = Some(|y| if y < 12 { 900 } else { 100 });
+    sim.start();
+    sim.run_plain(Duration::from_secs(5), 30);
+    let before = sim.core.summary.tile_rows.clone();
+    assert!(before[0][1] < 24, "balanced: {before:?}");
+    let epoch = sim.epoch();
+    let tiled = sim.core.summary.plan.clone().unwrap().nodes[0].node.clone();
+    sim.kill(&tiled);
+    sim.run_plain(Duration::from_secs(5), 60);
+    sim.input(Input::RequestsClosed);
+    sim.run_plain(Duration::from_secs(1), 60);
+    sim.assert_all_delivered(60);
+    assert!(sim.epoch() > epoch, "re-planned");
+    let plan = sim.core.summary.plan.clone().unwrap();
+    assert_eq!(plan.tiles, vec![[0, 24], [24, 48]], "configured even");
+    assert!(!plan.nodes.iter().any(|n| n.node == tiled));
+    // The new epoch's first frame: every node renders the rows the old epoch reached, not the
+    // even ones it was configured with (without the carry it would start even).
+    for n in &plan.nodes {
+        let first = sim.first_rows[&(plan.epoch, n.node.clone())];
+        assert_eq!(
+            first,
+            before[n.part.unwrap()],
+            "{}'s first frame after the re-plan (configured {:?})",
+            n.node,
+            plan.tiles
+        );
     }
 }
