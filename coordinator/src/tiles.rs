@@ -106,8 +106,6 @@ pub struct TileBalancer {
     frames: BTreeMap<u64, Measured>,
     /// The rows each node was last sent.
     given: HashMap<String, [u32; 2]>,
-    /// Rebalancing steps taken (frames whose every tile reported).
-    pub steps: u64,
 }
 
 impl TileBalancer {
@@ -133,7 +131,6 @@ impl TileBalancer {
             tile_of,
             frames: BTreeMap::new(),
             given,
-            steps: 0,
         })
     }
 
@@ -187,7 +184,6 @@ impl TileBalancer {
             .map(|c| c.iter().copied().fold(0.0, f64::max))
             .collect();
         self.rows = rebalance(rows, &slowest, self.height, self.band_height, DAMPING);
-        self.steps += 1;
         self.frames = self.frames.split_off(&(wire + 1));
         true
     }

@@ -117,35 +117,16 @@ pub(super) fn copy_texture(
     offset: u64,
     row: u32,
 ) {
-    let size = texture.size();
-    encoder.copy_texture_to_buffer(
-        wgpu::TexelCopyTextureInfo {
-            texture,
-            mip_level: 0,
-            origin: wgpu::Origin3d::ZERO,
-            aspect: wgpu::TextureAspect::All,
-        },
-        wgpu::TexelCopyBufferInfo {
-            buffer,
-            layout: wgpu::TexelCopyBufferLayout {
-                offset,
-                bytes_per_row: Some(row),
-                rows_per_image: Some(size.height),
-            },
-        },
-        wgpu::Extent3d {
-            width: size.width,
-            height: size.height,
-            depth_or_array_layers: 1,
-        },
-    );
+    let rows = ReadRows::of(None, texture.height());
+    copy_rows(encoder, texture, buffer, offset, row, rows);
 }
 
-/// Copies rows `rows` of `texture` into `buffer` from offset 0, rows `row` bytes apart.
+/// Copies rows `rows` of `texture` into `buffer` from `offset`, rows `row` bytes apart.
 fn copy_rows(
     encoder: &mut wgpu::CommandEncoder,
     texture: &wgpu::Texture,
     buffer: &wgpu::Buffer,
+    offset: u64,
     row: u32,
     rows: ReadRows,
 ) {
@@ -163,7 +144,7 @@ fn copy_rows(
         wgpu::TexelCopyBufferInfo {
             buffer,
             layout: wgpu::TexelCopyBufferLayout {
-                offset: 0,
+                offset,
                 bytes_per_row: Some(row),
                 rows_per_image: Some(rows.count()),
             },
@@ -206,7 +187,7 @@ pub(super) fn read(
                 let row = padded_row(r.texture.width(), bpp);
                 let size = u64::from(row) * u64::from(rows.count());
                 let buffer = staging.buffer(device, i, size);
-                copy_rows(&mut encoder, r.texture, &buffer, row, rows);
+                copy_rows(&mut encoder, r.texture, &buffer, 0, row, rows);
                 buffers.push((buffer, row, size));
             }
         }
