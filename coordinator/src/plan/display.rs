@@ -178,6 +178,7 @@ impl Plan {
             )?;
         }
         let lines = [
+            self.decomposition_line(),
             self.partition_line(),
             self.shared_line(),
             self.cpu_line(),
@@ -351,6 +352,14 @@ impl Plan {
 }
 
 impl Plan {
+    /// How an automatic plan chose between tiles and an untiled image, one line, or `None` when
+    /// the options fixed it.
+    pub fn decomposition_line(&self) -> Option<String> {
+        self.decomposition
+            .as_ref()
+            .map(|d| format!("decomposition: {}", d.why))
+    }
+
     /// The sort-last grid in one line (`None` without partitions): parts × light groups, the
     /// meshes of each part; or the sort-first tiles': tiles × light groups, the rows of each.
     pub fn partition_line(&self) -> Option<String> {
@@ -448,6 +457,9 @@ impl Display for Brief<'_> {
             write!(f, "\n  {text}")?;
         }
         if let Some(text) = p.penumbra_line() {
+            write!(f, "\n  {text}")?;
+        }
+        if let Some(text) = p.decomposition_line() {
             write!(f, "\n  {text}")?;
         }
         if let Some(text) = p.partition_line() {

@@ -9,6 +9,7 @@ mod budget;
 mod cpu_hosts;
 mod cull;
 mod daemon_configs;
+mod decompose;
 mod display;
 mod error_model;
 mod geom;
@@ -226,6 +227,9 @@ pub(crate) fn plan_with(
     previous: Option<&Plan>,
 ) -> Result<Plan, PlanError> {
     validate(scene, cluster, options)?;
+    if options.tiles == 0 {
+        return decompose::choose(scene, cluster, options, previous);
+    }
     // Tiles take the nodes there are (a lost node leaves fewer; where T × the groups do not fit
     // them, fewer tiles), and exclude partitions.
     let nodes = cluster.nodes.len().max(1) as u32;
@@ -291,7 +295,7 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
     }
     if o.tiles > crate::tiles::MAX_TILES {
         return bad_options(&format!(
-            "tiles must be 0 or 1 (none) or 2 to {}, got {}",
+            "tiles must be 0 (automatic), 1 (none) or 2 to {}, got {}",
             crate::tiles::MAX_TILES,
             o.tiles
         ));

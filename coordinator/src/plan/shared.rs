@@ -74,6 +74,14 @@ fn stacked(plan: &Plan, cluster: &ClusterSpec, devices: &[Vec<usize>]) -> usize 
         .unwrap_or(0)
 }
 
+/// `plan`'s estimated frame with the nodes it puts on one shared device of `cluster` run one
+/// after another (each at most the slowest node's estimate): its estimate where no device
+/// carries two of its nodes.
+pub(crate) fn serial_est_us(plan: &Plan, cluster: &ClusterSpec) -> u64 {
+    let stack = stacked(plan, cluster, &shared(cluster)).max(1);
+    plan.est_frame_us.saturating_mul(stack as u64)
+}
+
 /// `separate` (the ordinary plan) or, where nodes share devices and the model prefers it, the
 /// plan `plan_one` makes on one node per device.
 pub(crate) fn prefer_merged<E>(

@@ -337,7 +337,10 @@ pub struct PlanOptions {
     /// rows (every mesh, the whole scene's shadow maps), and the stages put the tiles together
     /// as they depth-compose sort-last parts (a tile's node leaves the other rows empty). The
     /// coordinator moves the rows between tiles from the nodes' measured eye passes
-    /// (`control::tiles`). 0 or 1: no tiles. Excludes partitions.
+    /// (`control::tiles`). 1: no tiles; 0 (the default) chooses by the cost model
+    /// (`plan/decompose.rs`): the tile count whose estimated frame is at least
+    /// [`TILES_MIN_GAIN`] shorter than the untiled one, none where the scene is partitioned.
+    /// Excludes partitions.
     #[serde(default)]
     pub tiles: u32,
     /// Plan nodes that share one GPU (`Capabilities::device`) as one node per device with
@@ -757,6 +760,37 @@ pub struct Plan {
     /// Nodes rendering on one machine's CPU, whose frames the estimate adds up.
     #[serde(default)]
     pub cpu_shared: Option<CpuShared>,
+    /// How the planner chose between sort-first tiles and an untiled image, when it chose
+    /// (`PlanOptions::tiles` 0); `None` when the options fixed it.
+    #[serde(default)]
+    pub decomposition: Option<Decomposition>,
+}
+
+/// The share by which a tiled plan's estimated frame must beat the untiled one for an automatic
+/// plan to tile: what the cost model leaves out (compositing more streams, the balancer's first
+/// frames before the rows fit the content) is not worth a smaller gain.
+pub const TILES_MIN_GAIN: f64 = 0.1;
+
+/// An automatic plan's choice between sort-first tiles and an untiled image (`plan/decompose.rs`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Decomposition {
+    /// Every tile count planned (1: untiled), in that order, with what its plan estimated.
+    pub candidates: Vec<TileCandidate>,
+    /// The choice in words, as `lightfold plan` prints it.
+    pub why: String,
+}
+
+/// One tile count an automatic plan weighed.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TileCandidate {
+    pub tiles: u32,
+    /// The plan's estimated frame: the slowest node, or the nodes one machine's CPU or one
+    /// shared GPU runs, one after another.
+    pub est_frame_us: u64,
+    /// Accuracy steps its frame budget gave up (fewer wins before a shorter frame).
+    pub concessions: usize,
+    /// Render nodes it uses.
+    pub nodes: usize,
 }
 
 #[cfg(test)]

@@ -338,6 +338,8 @@ fn the_penumbra_filter_rides_on_lowered_samples_and_error_targets() {
                 penumbra_filter: filter,
                 frame_budget_us: budget,
                 target_penumbra_db: target,
+                // The untiled ladder (tiles would meet the budget with fewer steps).
+                tiles: 1,
                 ..PlanOptions::default()
             },
         )
@@ -420,6 +422,8 @@ fn the_last_stage_filters_between_the_sum_and_the_material_in_every_layout() {
                 material_own_node: own_node,
                 penumbra_filter: PenumbraFilter::Radius(radius),
                 band_height: 2,
+                // The untiled layouts (tiled, the filter reads the tiles' composed depth).
+                tiles: 1,
                 ..PlanOptions::default()
             };
             let p = plan(&s, &ClusterSpec::local(16, 16), &o).unwrap();

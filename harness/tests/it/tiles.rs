@@ -46,7 +46,7 @@ async fn a_tiled_cluster_frame_equals_the_untiled_one_while_rows_move() {
     let gpu = gpu();
     let mut exact_checked = 0;
     for (scene, tiles) in [(small("balls"), 2), (small("balls"), 3), (small_glass(), 2)] {
-        let untiled = run(&cluster, &scene, 0, 1).await;
+        let untiled = run(&cluster, &scene, 1, 1).await;
         assert!(untiled.plan.tiles.is_empty());
         let tiled = run(&cluster, &scene, tiles, 6).await;
         let what = format!("{} T={tiles}", scene.name);

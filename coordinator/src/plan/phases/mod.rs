@@ -209,5 +209,6 @@ fn assemble(
             Vec::new()
         },
         partitions: if options.tiles > 1 { Vec::new() } else { parts },
+        decomposition: None,
     }
 }
