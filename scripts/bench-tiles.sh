@@ -13,10 +13,10 @@ bin=target/release/lightfold
 export NODEVICE_SELECT=1
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
-for layout in "--tiles 0" "--tiles 2" "--tiles 4" "--partitions 2" "--partitions 4"; do
+for layout in "--tiles 1" "--tiles auto" "--tiles 2" "--tiles 4" "--partitions 2" "--partitions 4"; do
   echo "=== $layout size=$size frames=$frames"
   # shellcheck disable=SC2086 # the layout is two words
   "$bin" demo -K 32 --size "$size" --frames "$frames" --orbit 2 --walkthrough --no-compare \
     --no-frame-files --out "$out/frame.png" --exr "$out/frame.exr" $layout 2>/dev/null \
-    | grep -E "^(\| (node|comp)-|frame interval|node-seconds|tiles:|partitions:|demo: daemon CPU)"
+    | grep -E "^(\| (node|comp)-|frame interval|node-seconds|tiles:|partitions:|demo: daemon CPU)|decomposition:"
 done
