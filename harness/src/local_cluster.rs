@@ -82,6 +82,10 @@ pub fn check_processes(
         let mut opts = options.clone();
         opts.lights_per_node = k;
         opts.frame_budget_us = None;
+        // Automatic tiles take the nodes there are (here 256): count the untiled plan's.
+        if opts.tiles == 0 {
+            opts.tiles = 1;
+        }
         plan(scene, &cluster, &opts).ok()
     };
     let (mut lo, mut hi) = (probe.k + 1, 256);

@@ -224,7 +224,7 @@ pub(crate) fn plan(p: &Plan) -> Value {
         "samples": p.samples.len(), "gave_up": p.gave_up(),
         "penumbra_radius": p.penumbra_radius, "penumbra": p.penumbra_line(),
         "partitions": p.partitions.len(), "partition": p.partition_line(),
-        "tiles": p.tiles,
+        "tiles": p.tiles, "decomposition": p.decomposition_line(),
     })
 }
 
@@ -314,10 +314,19 @@ mod tests {
             .map(|n| n["part"].as_u64().unwrap())
             .collect();
         assert!(parts.contains(&0) && parts.contains(&1), "{parts:?}");
-        // Without partitions there is no part.
-        let whole = super::plan(
-            &plan(&scene, &ClusterSpec::local(32, 8), &PlanOptions::default()).unwrap(),
+        assert!(
+            v["decomposition"]
+                .as_str()
+                .unwrap()
+                .contains("sort-last, 2 partitions")
         );
+        // Without partitions or tiles there is no part.
+        let untiled = PlanOptions {
+            tiles: 1,
+            ..PlanOptions::default()
+        };
+        let whole = super::plan(&plan(&scene, &ClusterSpec::local(32, 8), &untiled).unwrap());
         assert!(whole["nodes"][0]["part"].is_null() && whole["partition"].is_null());
+        assert!(whole["decomposition"].is_null(), "the options fixed it");
     }
 }
