@@ -51,8 +51,8 @@ pub(crate) struct PlanArgs {
     /// once per tile by a node drawing only those rows (the whole scene, the whole scene's
     /// maps), and the coordinator moves rows between tiles each frame from the nodes' measured
     /// eye passes, so a heavier tile gets fewer rows (docs/planner.md § Tiles). Needs T × the
-    /// render nodes (K rises to fit); fewer nodes than T take fewer tiles. Excludes
-    /// --partitions. 1: none. `auto` (the default): the tile count whose estimated frame is at
+    /// render nodes (K rises to fit; with --partitions P, T × P × the groups); fewer nodes than
+    /// needed take fewer tiles. 1: none. `auto` (the default): the tile count whose estimated frame is at
     /// least 10 % shorter than the untiled one by the cost model, none where the scene is
     /// partitioned; the plan says why (docs/planner.md § Choosing tiles).
     #[arg(long, default_value = "auto", value_parser = tiles_arg)]
@@ -131,12 +131,7 @@ impl PlanArgs {
             penumbra_filter: self.penumbra_filter,
             formats: self.formats(),
             supersample: self.aa,
-            // Tiles take no automatic partitions; asked-for ones are refused beside them.
-            partitions: if self.tiles > 1 && self.partitions == 0 {
-                1
-            } else {
-                self.partitions
-            },
+            partitions: self.partitions,
             tiles: self.tiles,
             ..PlanOptions::default()
         }
@@ -170,9 +165,6 @@ impl PlanArgs {
             partitions_arg(&self.partitions.to_string())?;
         }
         tiles_arg(&self.tiles.to_string())?;
-        if self.tiles > 1 && self.partitions > 1 {
-            return Err("--tiles and --partitions exclude each other: ask for one".into());
-        }
         if let Some(db) = self.target_psnr {
             target_db(&db.to_string())?;
         }

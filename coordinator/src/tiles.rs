@@ -117,12 +117,12 @@ impl TileBalancer {
         let tile_of: HashMap<String, usize> = plan
             .nodes
             .iter()
-            .filter_map(|n| Some((n.node.clone(), n.part?)))
+            .filter_map(|n| Some((n.node.clone(), n.tile?)))
             .collect();
         let given = plan
             .nodes
             .iter()
-            .filter_map(|n| Some((n.node.clone(), *plan.tiles.get(n.part?)?)))
+            .filter_map(|n| Some((n.node.clone(), *plan.tiles.get(n.tile?)?)))
             .collect();
         Some(TileBalancer {
             height: plan.height,

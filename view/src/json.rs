@@ -193,6 +193,7 @@ pub(crate) fn plan(p: &Plan) -> Value {
                 "id": n.node, "lights": n.lights.len(), "color": n.color,
                 "downstream": n.downstream, "est_ms": n.est_cost_us as f64 / 1000.0,
                 "part": n.part,
+                "tile": n.tile,
             })
         })
         .collect();

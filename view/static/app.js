@@ -956,7 +956,7 @@
     const items = new Map(); // id -> {kind, col, lines}
     for (const n of plan.nodes) {
       const lights = Array.isArray(n.lights) ? n.lights.length : n.lights;
-      const part = n.part != null ? ` · part ${n.part}` : '';
+      const part = (n.part != null ? ` · part ${n.part}` : '') + (n.tile != null ? ` · tile ${n.tile}` : '');
       items.set(n.id, { kind: 'node', col: 0, lines: [n.id, `${lights} light${lights === 1 ? '' : 's'}${part}${n.est_ms != null ? ` · ${ms(n.est_ms)}` : ''}`], color: n.color });
     }
     for (const s of plan.stages || []) items.set(s.id, { kind: 'stage', col: 1, lines: [s.id, (s.ops || []).join(' + ')] });

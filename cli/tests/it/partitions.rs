@@ -106,7 +106,8 @@ fn partitions_refuse_the_reference_and_the_penumbra_filter() {
 
 /// `lightfold plan --partitions P` prints the grid: parts × light groups, each node's part, the
 /// depth compose along the chain; more parts than meshes split the large meshes; more than the
-/// limit is refused. `--tiles T` prints the tiles' grid and rows.
+/// limit is refused. `--tiles T` prints the tiles' grid and rows, beside `--partitions P` the
+/// grid of both; the automatic plan its decomposition line.
 #[test]
 fn plan_prints_the_partition_grid() {
     let plan = |extra: &[&str]| {
@@ -151,7 +152,7 @@ fn plan_prints_the_partition_grid() {
     assert!(text.contains("part 15 · "), "{text}");
     let out = plan(&["--partitions", "65"]);
     assert!(!out.status.success(), "65 partitions were accepted");
-    // Sort-first tiles: rows per tile on each node's line; refused beside partitions.
+    // Sort-first tiles: rows per tile on each node's line; a grid beside partitions.
     let out = plan(&["--tiles", "3", "--size", "320x240"]);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(
@@ -161,14 +162,20 @@ fn plan_prints_the_partition_grid() {
     );
     assert!(text.contains("tiles: 3 sort-first tiles × "), "{text}");
     assert!(text.contains("tile 2 (rows "), "{text}");
-    let out = plan(&["--tiles", "2", "--partitions", "2"]);
+    let out = plan(&["--tiles", "2", "--partitions", "2", "--size", "320x240"]);
+    let text = String::from_utf8_lossy(&out.stdout);
     assert!(
-        !out.status.success(),
-        "tiles and partitions were accepted together"
-    );
-    assert!(
-        String::from_utf8_lossy(&out.stderr).contains("exclude each other"),
-        "{}",
+        out.status.success(),
+        "{text}{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    assert!(
+        text.contains("tiles: 2 sort-first tiles × 2 sort-last parts × "),
+        "{text}"
+    );
+    assert!(text.contains("part 1 · tile 1 (rows "), "{text}");
+    // The automatic choice says why.
+    let out = plan(&["--size", "320x240"]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("decomposition: "), "{text}");
 }

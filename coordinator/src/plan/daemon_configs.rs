@@ -39,7 +39,7 @@ impl Plan {
             depth_bias: self.depth_bias,
             slope_bias: self.slope_bias,
             eye_meshes: n.part.and_then(|p| self.partitions.get(p).cloned()),
-            rows: n.part.and_then(|p| self.tiles.get(p).copied()),
+            rows: n.tile.and_then(|t| self.tiles.get(t).copied()),
             moves: Vec::new(),
         })
     }

@@ -1,13 +1,14 @@
-//! Sort-first, sort-last or neither, chosen (`PlanOptions::tiles` 0; `docs/planner.md` §
+//! Sort-first, sort-last, both or neither, chosen (`PlanOptions::tiles` 0; `docs/planner.md` §
 //! Choosing tiles). Sort-last partitions are chosen first, by memory and the eye pass's share of
-//! a frame budget (`partitions_for`); tiles and partitions do not combine, so a partitioned plan
-//! is untiled. Otherwise the planner plans the image whole and with each candidate tile count
-//! the render nodes allow, and takes the tile count whose plan gives up the fewest accuracy steps
-//! to its frame budget and, among those, estimates the shortest frame, if that frame is at least
+//! a frame budget (`partitions_for`). Then the planner plans the image whole and with each
+//! candidate tile count the render nodes allow (with those partitions: a grid of tiles × parts),
+//! and takes the tile count whose plan gives up the fewest accuracy steps to its frame budget
+//! and, among those, estimates the shortest frame, if that frame is at least
 //! [`TILES_MIN_GAIN`] shorter than the untiled plan's. The cost model decides what tiles buy: a
 //! node's fixed cost and the eye-pass half of each light scale with its pixels, its shadow passes
 //! do not, and tiles multiply the shadow passes (each tile's nodes render every light group);
-//! nodes on one machine's CPU run one after another, so there tiles only add shadow passes.
+//! nodes on one machine's CPU or one GPU run one after another, so there tiles mostly add shadow
+//! passes.
 
 use super::types::{Decomposition, PlanOptions, TILES_MIN_GAIN, TileCandidate};
 use super::{Plan, PlanError, partitions_for, plan_with};
@@ -31,6 +32,19 @@ pub(super) fn choose(
     options: &PlanOptions,
     previous: Option<&Plan>,
 ) -> Result<Plan, PlanError> {
+    let decided = |plan: Result<Plan, PlanError>, candidates: Vec<TileCandidate>, why: String| {
+        plan.map(|mut p| {
+            p.decomposition = Some(Decomposition { candidates, why });
+            p
+        })
+    };
+    let asked = options.partitions;
+    let parts = partitions_for(scene, cluster, options).max(1);
+    // The candidates keep the partitions resolved, so the grid is tiles × those parts.
+    let options = &PlanOptions {
+        partitions: parts,
+        ..options.clone()
+    };
     let with = |tiles: u32| {
         let options = PlanOptions {
             tiles,
@@ -38,33 +52,24 @@ pub(super) fn choose(
         };
         plan_with(scene, cluster, &options, previous)
     };
-    let decided = |plan: Result<Plan, PlanError>, candidates: Vec<TileCandidate>, why: String| {
-        plan.map(|mut p| {
-            p.decomposition = Some(Decomposition { candidates, why });
-            p
-        })
-    };
-    let parts = partitions_for(scene, cluster, options);
-    if parts > 1 {
-        let cause = if options.partitions > 1 {
+    // What the partitions say before the tiles' reason.
+    let sort_last = if parts > 1 {
+        let cause = if asked > 1 {
             "asked for"
         } else {
             "the scene's geometry or eye pass needs them"
         };
-        return decided(
-            with(1),
-            Vec::new(),
-            format!(
-                "untiled: sort-last, {parts} partitions ({cause}); tiles do not combine with partitions"
-            ),
-        );
-    }
+        format!("sort-last, {parts} partitions ({cause}); ")
+    } else {
+        String::new()
+    };
     if options.material_own_node {
         return decided(
             with(1),
             Vec::new(),
-            "untiled: the material layers have a node of their own (a tile's first node renders its own)"
-                .to_string(),
+            format!(
+                "{sort_last}untiled: the material layers have a node of their own (a tile's first node renders its own)"
+            ),
         );
     }
     let nodes = cluster.nodes.len() as u32;
@@ -73,14 +78,16 @@ pub(super) fn choose(
         .height
         .div_ceil(options.band_height.max(1))
         .max(1);
-    let most = nodes.min(bands).min(MAX_TILES);
+    let most = (nodes / parts).min(bands).min(MAX_TILES);
     if most < 2 {
         let why = if nodes < 2 {
-            "untiled: one render node"
+            "untiled: one render node".to_string()
+        } else if parts > 1 {
+            format!("{sort_last}untiled: too few render nodes for two tiles of every part")
         } else {
-            "untiled: the image has one band of rows"
+            "untiled: the image has one band of rows".to_string()
         };
-        return decided(with(1), Vec::new(), why.to_string());
+        return decided(with(1), Vec::new(), why);
     }
     let whole = with(1)?;
     // Nodes sharing a GPU run one after another: tiles stacked on one device buy nothing.
@@ -120,7 +127,7 @@ pub(super) fn choose(
         {
             let why = if tiled.concessions.len() < whole.concessions.len() {
                 format!(
-                    "sort-first, {} tiles: {} accuracy step(s) given up to the frame budget \
+                    "{sort_last}sort-first, {} tiles: {} accuracy step(s) given up to the frame budget \
                      against {} untiled (estimates {listed})",
                     tiled.tiles.len(),
                     tiled.concessions.len(),
@@ -128,7 +135,7 @@ pub(super) fn choose(
                 )
             } else {
                 format!(
-                    "sort-first, {} tiles: est. frame {} against {} untiled, {:.0} % shorter \
+                    "{sort_last}sort-first, {} tiles: est. frame {} against {} untiled, {:.0} % shorter \
                      (estimates {listed})",
                     tiled.tiles.len(),
                     ms(est(&tiled)),
@@ -148,7 +155,7 @@ pub(super) fn choose(
                 ""
             };
             let why = format!(
-                "untiled: no tile count is {:.0} % faster by the cost model (estimates {listed}){cpu}",
+                "{sort_last}untiled: no tile count is {:.0} % faster by the cost model (estimates {listed}){cpu}",
                 100.0 * TILES_MIN_GAIN
             );
             decided(Ok(whole), candidates, why)
@@ -156,7 +163,7 @@ pub(super) fn choose(
         None => decided(
             Ok(whole),
             candidates,
-            "untiled: too few render nodes for two tiles of every light group".to_string(),
+            format!("{sort_last}untiled: too few render nodes for two tiles of every light group"),
         ),
     }
 }

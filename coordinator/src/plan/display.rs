@@ -201,10 +201,11 @@ impl Plan {
                 "  {} → {} input {} · ",
                 n.node, n.downstream, n.input_index
             )?;
-            match (n.part, n.part.and_then(|p| self.tiles.get(p))) {
-                (Some(p), Some(r)) => write!(f, "tile {p} (rows {}–{}) · ", r[0], r[1])?,
-                (Some(p), None) => write!(f, "part {p} · ")?,
-                _ => {}
+            if let Some(p) = n.part {
+                write!(f, "part {p} · ")?;
+            }
+            if let Some((t, r)) = n.tile.and_then(|t| Some((t, self.tiles.get(t)?))) {
+                write!(f, "tile {t} (rows {}–{}) · ", r[0], r[1])?;
             }
             if n.lights.is_empty() && n.layers.iter().all(|l| l.0 != Layer::Illumination) {
                 writeln!(
@@ -367,16 +368,26 @@ impl Plan {
             super::types::Topology::Tree => "in a tree",
             _ => "along the chain",
         };
+        // Light groups: the nodes of the first cell (part 0 and tile 0, where the grid has them).
+        let groups = self
+            .nodes
+            .iter()
+            .filter(|n| n.part.unwrap_or(0) == 0 && n.tile.unwrap_or(0) == 0)
+            .count();
         if !self.tiles.is_empty() {
-            let groups = self.nodes.iter().filter(|n| n.part == Some(0)).count();
             let rows: Vec<String> = self
                 .tiles
                 .iter()
                 .map(|r| format!("{}–{}", r[0], r[1]))
                 .collect();
+            let parts = match self.partitions.len() {
+                0 => String::new(),
+                p => format!(" × {p} sort-last parts"),
+            };
             return Some(format!(
-                "tiles: {} sort-first tiles × {groups} light group(s) = {} nodes, put together \
-                 {put_together}; rows {} to start, balanced each frame from the nodes' eye passes",
+                "tiles: {} sort-first tiles{parts} × {groups} light group(s) = {} nodes, put \
+                 together {put_together}; rows {} to start, balanced each frame from the nodes' \
+                 eye passes",
                 self.tiles.len(),
                 self.nodes.len(),
                 rows.join(", ")
@@ -385,7 +396,6 @@ impl Plan {
         if self.partitions.is_empty() {
             return None;
         }
-        let groups = self.nodes.iter().filter(|n| n.part == Some(0)).count();
         let meshes: Vec<String> = self
             .partitions
             .iter()

@@ -230,13 +230,12 @@ pub(crate) fn plan_with(
     if options.tiles == 0 {
         return decompose::choose(scene, cluster, options, previous);
     }
-    // Tiles take the nodes there are (a lost node leaves fewer; where T × the groups do not fit
-    // them, fewer tiles), and exclude partitions.
+    // Tiles take the nodes there are (a lost node leaves fewer; where T × the parts × the groups
+    // do not fit them, fewer tiles).
     let nodes = cluster.nodes.len().max(1) as u32;
-    if options.tiles > 1 && (options.tiles > nodes || options.partitions != 1) {
+    if options.tiles > nodes {
         let options = PlanOptions {
-            tiles: options.tiles.min(nodes),
-            partitions: 1,
+            tiles: nodes,
             ..options.clone()
         };
         return plan_with(scene, cluster, &options, previous);
@@ -301,11 +300,6 @@ fn validate(scene: &Scene, cluster: &ClusterSpec, o: &PlanOptions) -> Result<(),
         ));
     }
     if o.tiles > 1 {
-        if o.partitions > 1 {
-            return bad_options(
-                "tiles (sort-first) and partitions (sort-last) exclude each other: ask for one",
-            );
-        }
         if o.material_own_node {
             return bad_options(
                 "with tiles each tile's first node renders its material layers: drop the material node of its own",

@@ -517,6 +517,10 @@ pub struct NodePlan {
     /// `None`: the whole scene.
     #[serde(default)]
     pub part: Option<usize>,
+    /// The sort-first tile whose rows this node draws (an index into `Plan::tiles`); `None`:
+    /// every row.
+    #[serde(default)]
+    pub tile: Option<usize>,
     /// The content hash of the scene this node is sent when it is not the plan's (a sort-last
     /// node gets only what it draws: `scene::partition::keep_meshes`); set by the control loop.
     #[serde(default)]

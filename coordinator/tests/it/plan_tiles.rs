@@ -34,7 +34,7 @@ fn tiles_plan_a_grid_of_row_bands_by_light_groups() {
     }
     assert_eq!(p.nodes.len(), 6, "3 tiles × 2 light groups");
     for t in 0..3 {
-        let of_tile: Vec<_> = p.nodes.iter().filter(|n| n.part == Some(t)).collect();
+        let of_tile: Vec<_> = p.nodes.iter().filter(|n| n.tile == Some(t)).collect();
         let mut lights: Vec<usize> = of_tile.iter().flat_map(|n| n.lights.clone()).collect();
         lights.sort_unstable();
         assert_eq!(lights, vec![0, 1, 2, 3], "tile {t} renders every light");
@@ -95,6 +95,67 @@ fn tiles_plan_a_grid_of_row_bands_by_light_groups() {
     assert_stages_build(&tree);
 }
 
+/// Both: T tiles × P sort-last parts × G groups. Each node draws its part's meshes into its
+/// tile's rows with its part's maps (those of the untiled partitioned plan); every cell renders
+/// every light and one node of each carries the cell's depth and materials.
+#[test]
+fn tiles_and_partitions_plan_a_grid_of_both() {
+    let scene = stage();
+    let grid = PlanOptions {
+        partitions: 2,
+        ..tiled(2)
+    };
+    let cluster = ClusterSpec::local(16, 16);
+    let p = plan(&scene, &cluster, &grid).unwrap();
+    let parts = plan(
+        &scene,
+        &cluster,
+        &PlanOptions {
+            tiles: 1,
+            ..grid.clone()
+        },
+    )
+    .unwrap();
+    assert_eq!((p.tiles.len(), p.partitions.len()), (2, 2));
+    assert_eq!(p.partitions, parts.partitions, "the same sort-last parts");
+    assert_eq!(p.nodes.len(), 8, "2 tiles × 2 parts × 2 groups");
+    for part in 0..2 {
+        for tile in 0..2 {
+            let cell: Vec<_> = p
+                .nodes
+                .iter()
+                .filter(|n| n.part == Some(part) && n.tile == Some(tile))
+                .collect();
+            let mut lights: Vec<usize> = cell.iter().flat_map(|n| n.lights.clone()).collect();
+            lights.sort_unstable();
+            assert_eq!(lights, vec![0, 1, 2, 3], "part {part} tile {tile}");
+            let hosts = cell
+                .iter()
+                .filter(|n| n.layers.iter().any(|l| l.0 == Layer::Depth))
+                .count();
+            assert_eq!(hosts, 1, "part {part} tile {tile}: one depth host");
+            for n in cell {
+                let c = p.node_config(&n.node).unwrap();
+                assert_eq!(c.rows, Some(p.tiles[tile]), "{}", n.node);
+                assert_eq!(c.eye_meshes, Some(p.partitions[part].clone()), "{}", n.node);
+                let untiled = parts
+                    .nodes
+                    .iter()
+                    .find(|m| m.part == Some(part) && m.lights == n.lights)
+                    .unwrap();
+                assert_eq!(n.shadows, untiled.shadows, "{}: the part's maps", n.node);
+            }
+        }
+    }
+    assert_stages_build(&p);
+    let text = p.to_string();
+    assert!(
+        text.contains("tiles: 2 sort-first tiles × 2 sort-last parts × 2 light group(s) = 8 nodes"),
+        "{text}"
+    );
+    assert!(text.contains("part 1 · tile 0 (rows "), "{text}");
+}
+
 #[test]
 fn short_clusters_take_fewer_tiles() {
     let scene = stage();
@@ -126,7 +187,6 @@ fn tiles_are_refused_where_they_cannot_be_planned() {
             other => panic!("expected a refusal, got {other:?}"),
         }
     };
-    assert!(refused(&|o| o.partitions = 2).contains("exclude each other"));
     assert!(refused(&|o| o.tiles = 65).contains("2 to 64"));
     assert!(refused(&|o| o.material_own_node = true).contains("material"));
     let h = scene.camera.height;
@@ -272,13 +332,29 @@ fn automatic_tiles_give_way_to_partitions_and_fixed_options() {
         partitions: 2,
         ..tiled(0)
     };
-    assert!(why(parts, &pixels).contains("sort-last, 2 partitions (asked for)"));
-    // Memory for a third of the scene: partitions by memory.
+    // Shadow-bound nodes: the partitions asked for, untiled.
+    let shadows = measured(8, 400_000, 500, apart);
+    let said = why(parts.clone(), &shadows);
+    assert!(
+        said.starts_with("sort-last, 2 partitions (asked for); untiled: no tile count"),
+        "{said}"
+    );
     // Memory for half the scene: two parts by memory.
-    let tight = measured(8, 500, 400_000, |_, c| {
+    let tight = measured(8, 400_000, 500, |_, c| {
         c.memory_bytes = scene.triangle_count() as u64 * 430
     });
     assert!(why(tiled(0), &tight).contains("the scene's geometry or eye pass needs them"));
+    // Pixel-bound nodes: both, a grid of tiles × the parts asked for.
+    let both = plan(&scene, &pixels, &parts).unwrap();
+    let d = both.decomposition.clone().unwrap();
+    assert_eq!(both.partitions.len(), 2, "{}", d.why);
+    assert!(both.tiles.len() >= 2, "{}", d.why);
+    assert!(
+        d.why
+            .starts_with("sort-last, 2 partitions (asked for); sort-first,"),
+        "{}",
+        d.why
+    );
     let own = PlanOptions {
         material_own_node: true,
         ..tiled(0)

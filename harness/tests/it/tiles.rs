@@ -15,16 +15,27 @@ use lightfold_scene::{Image, Scene};
 
 /// Renders `frames` frames of `scene` with `tiles` tiles at K = 4 and bands of 8 rows.
 async fn run(cluster: &InProcessCluster, scene: &Scene, tiles: u32, frames: u32) -> RunOutput {
+    let plan = PlanOptions {
+        tiles,
+        lights_per_node: 4,
+        band_height: 8,
+        partitions: 1,
+        ..PlanOptions::default()
+    };
+    run_with(cluster, scene, plan, frames).await
+}
+
+async fn run_with(
+    cluster: &InProcessCluster,
+    scene: &Scene,
+    plan: PlanOptions,
+    frames: u32,
+) -> RunOutput {
     let mut session = cluster.connect(test_control()).await.unwrap();
     let opts = RunOptions {
         control: test_control(),
         frames,
-        plan: PlanOptions {
-            tiles,
-            lights_per_node: 4,
-            band_height: 8,
-            ..PlanOptions::default()
-        },
+        plan,
         ..RunOptions::default()
     };
     let out = render_on(&mut session, scene, &opts).await.unwrap();
@@ -51,7 +62,7 @@ async fn a_tiled_cluster_frame_equals_the_untiled_one_while_rows_move() {
         let tiled = run(&cluster, &scene, tiles, 6).await;
         let what = format!("{} T={tiles}", scene.name);
         assert_eq!(tiled.plan.tiles.len(), tiles as usize, "{what}");
-        assert!(tiled.plan.nodes.iter().all(|n| n.part.is_some()), "{what}");
+        assert!(tiled.plan.nodes.iter().all(|n| n.tile.is_some()), "{what}");
         assert!(
             tiled.summary.tile_steps > 0,
             "{what}: the rows were balanced"
@@ -98,5 +109,62 @@ async fn a_tiled_cluster_frame_equals_the_untiled_one_while_rows_move() {
         assert!(failed.is_err(), "{what}: a missing tile went unnoticed");
     }
     assert!(exact_checked > 0, "no scene was checked bit for bit");
+    cluster.stop().await.unwrap();
+}
+
+/// Both decompositions at once: 2 sort-first tiles × 2 sort-last parts of `balls`, one light
+/// group (K = 32), so each of the 4 nodes draws one part's meshes into one tile's rows with the
+/// part's maps. The frame equals the partitioned untiled cluster's frame and the single-device
+/// render within the link formats' bound while the rows move; control: without its last tile's
+/// rows it fails.
+#[tokio::test(flavor = "multi_thread", worker_threads = 4)]
+async fn a_grid_of_tiles_and_parts_equals_the_partitioned_frame() {
+    let cluster = InProcessCluster::start(4, 3).await.unwrap();
+    let gpu = gpu();
+    let scene = small("balls");
+    let options = |tiles| PlanOptions {
+        tiles,
+        partitions: 2,
+        lights_per_node: 32,
+        band_height: 8,
+        ..PlanOptions::default()
+    };
+    let parts = run_with(&cluster, &scene, options(1), 1).await;
+    assert_eq!(
+        (parts.plan.partitions.len(), parts.plan.tiles.len()),
+        (2, 0)
+    );
+    let grid = run_with(&cluster, &scene, options(2), 4).await;
+    assert_eq!((grid.plan.partitions.len(), grid.plan.tiles.len()), (2, 2));
+    assert_eq!(grid.plan.nodes.len(), 4, "2 tiles × 2 parts × 1 group");
+    assert!(
+        grid.plan
+            .nodes
+            .iter()
+            .all(|n| n.part.is_some() && n.tile.is_some())
+    );
+    let truth = single_device(&gpu, &scene, false);
+    for f in &grid.frames {
+        let exact = f
+            .image
+            .data
+            .iter()
+            .zip(&parts.frames[0].image.data)
+            .filter(|(a, b)| a.to_bits() == b.to_bits())
+            .count();
+        eprintln!(
+            "grid frame {}: {exact} of {} values equal the partitioned frame's bit for bit; rows \
+             at the end {:?}",
+            f.frame,
+            f.image.data.len(),
+            grid.summary.tile_rows
+        );
+        assert_close(&f.image, &parts.frames[0].image, "grid vs partitions");
+        assert_close(&f.image, &truth, "grid vs render");
+    }
+    let last = *grid.plan.tiles.last().unwrap();
+    let missing = without_rows(&grid.frames[0].image, last);
+    let failed = std::panic::catch_unwind(|| assert_close(&missing, &truth, "control"));
+    assert!(failed.is_err(), "a missing tile went unnoticed");
     cluster.stop().await.unwrap();
 }

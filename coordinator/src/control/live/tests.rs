@@ -1483,7 +1483,7 @@ fn tiles_give_the_heavy_tile_fewer_rows_frame_by_frame() {
         assert!(sim.core.summary.tile_steps >= 10);
         // Both nodes of a tile render the same rows, and every node was told.
         for n in &plan.nodes {
-            let t = n.part.unwrap();
+            let t = n.tile.unwrap();
             assert_eq!(sim.rows[&n.node], rows[t], "{}", n.node);
         }
         assert!(!sim.moved_rows.is_empty());
@@ -1520,7 +1520,7 @@ fn a_re_plan_keeps_the_tiles_rows() {
         let first = sim.first_rows[&(plan.epoch, n.node.clone())];
         assert_eq!(
             first,
-            before[n.part.unwrap()],
+            before[n.tile.unwrap()],
             "{}'s first frame after the re-plan (configured {:?})",
             n.node,
             plan.tiles

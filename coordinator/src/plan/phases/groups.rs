@@ -239,8 +239,8 @@ pub(super) fn choose_materials(
 pub(super) struct Assignment {
     /// The options with `Topology::Auto` resolved.
     pub(super) options: PlanOptions,
-    /// Work units: one per group `(None, group)`, or per part and group (part-major) with
-    /// partitions.
+    /// Work units: one per group `(None, group)`, or per cell of the grid and group (cell-major)
+    /// with partitions or tiles (`Fit::cell`).
     pub(super) units: Vec<(Option<usize>, usize)>,
     /// Per unit, the index of its render node in the cluster.
     pub(super) on_node: Vec<usize>,
@@ -287,8 +287,12 @@ pub(super) fn assign_nodes(
         .collect();
     let mut on_node = group::assign(&unit_costs);
     if let Some(prev) = previous {
-        // A light keeps its node when the node keeps its part.
-        let key = |part: Option<usize>, l: usize| part.map_or(l, |p| (p + 1) * samples + l);
+        // A light keeps its node when the node keeps its part and tile.
+        let key = |part: Option<usize>, tile: Option<usize>, l: usize| {
+            let cell = part.map_or(0, |p| p + 1) * (crate::tiles::MAX_TILES as usize + 1)
+                + tile.map_or(0, |t| t + 1);
+            cell * samples + l
+        };
         let had: Vec<Vec<usize>> = cluster
             .nodes
             .iter()
@@ -297,13 +301,26 @@ pub(super) fn assign_nodes(
                     .iter()
                     .find(|p| p.node == n.id)
                     .map_or_else(Vec::new, |p| {
-                        p.lights.iter().map(|&l| key(p.part, l)).collect()
+                        p.lights.iter().map(|&l| key(p.part, p.tile, l)).collect()
                     })
             })
             .collect();
+        let cell = |c: Option<usize>| match c {
+            None => (None, None),
+            Some(c) => {
+                super::shadows::cell_of(c, options.partitions > 1, options.tiles.max(1) as usize)
+            }
+        };
         let lights: Vec<Vec<usize>> = units
             .iter()
-            .map(|&(p, g)| groups[g].lights.iter().map(|&l| key(p, l)).collect())
+            .map(|&(c, g)| {
+                let (part, tile) = cell(c);
+                groups[g]
+                    .lights
+                    .iter()
+                    .map(|&l| key(part, tile, l))
+                    .collect()
+            })
             .collect();
         let lights: Vec<&[usize]> = lights.iter().map(Vec::as_slice).collect();
         on_node = group::sticky(&unit_costs, &on_node, &lights, &had);

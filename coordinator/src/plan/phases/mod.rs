@@ -45,7 +45,7 @@ pub(super) fn plan_once(
     let wired = wire_stages(
         scene,
         cluster,
-        fit.parts,
+        fit,
         &grouping,
         &materials,
         &assignment,
@@ -208,7 +208,7 @@ fn assemble(
         } else {
             Vec::new()
         },
-        partitions: if options.tiles > 1 { Vec::new() } else { parts },
+        partitions: parts,
         decomposition: None,
     }
 }

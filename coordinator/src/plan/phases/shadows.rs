@@ -89,14 +89,38 @@ struct ViewFit {
 /// part, fit their shadow views to.
 pub(super) struct Fit {
     whole: ViewFit,
-    /// Sort-last parts (mesh indices, ascending), none without partitions: every group is
-    /// rendered once per part.
+    /// The cells of the grid (mesh indices, ascending), none without partitions or tiles:
+    /// every group is rendered once per cell. Cell `c` is sort-last part `c / tiles` (the whole
+    /// scene without partitions) in sort-first tile `c % tiles` (every row without tiles).
     pub(super) parts: Vec<Vec<u32>>,
-    /// Per part, whether it holds each mesh, and its own fit (none for tiles).
+    /// The sort-last parts (mesh indices, ascending), none without partitions.
+    pub(super) sort_last: Vec<Vec<u32>>,
+    /// Per sort-last part, whether it holds each mesh, and its own fit.
     part_fit: Vec<(Vec<bool>, ViewFit)>,
-    /// Sort-first tiles: `parts` are the tiles, each holding every mesh, with the whole scene's
-    /// maps (a tile's node draws the whole scene into its rows).
-    pub(super) tiled: bool,
+    /// Sort-first tiles (1: none). A tile's node draws its cell's meshes into its rows with the
+    /// maps of its sort-last part (the whole scene's without partitions).
+    pub(super) tiles: usize,
+}
+
+impl Fit {
+    /// Cell `cell`'s sort-last part and sort-first tile (`None` where the grid has none).
+    pub(super) fn cell(&self, cell: usize) -> (Option<usize>, Option<usize>) {
+        cell_of(cell, !self.sort_last.is_empty(), self.tiles)
+    }
+}
+
+/// Cell `cell`'s sort-last part (where the grid is `partitioned`) and tile (of `tiles`, where
+/// more than one): cells run part-major, tiles within a part.
+pub(super) fn cell_of(
+    cell: usize,
+    partitioned: bool,
+    tiles: usize,
+) -> (Option<usize>, Option<usize>) {
+    let tiles = tiles.max(1);
+    (
+        partitioned.then_some(cell / tiles),
+        (tiles > 1).then_some(cell % tiles),
+    )
 }
 
 /// Partitions the scene's meshes when `options` asks for parts, and gives the boxes and probes
@@ -122,11 +146,8 @@ pub(super) fn fit_views(
         ViewFit { boxes, probes }
     };
     let whole = fit_where(&|_| true);
-    let tiled = options.tiles > 1;
-    let parts = if tiled {
-        let every: Vec<u32> = (0..scene.meshes.len() as u32).collect();
-        vec![every; options.tiles as usize]
-    } else if options.partitions > 1 {
+    let tiles = options.tiles.max(1) as usize;
+    let sort_last = if options.partitions > 1 {
         let parts =
             lightfold_scene::partition::partition_meshes(scene, options.partitions as usize);
         if parts.iter().any(Vec::is_empty) {
@@ -145,11 +166,18 @@ pub(super) fn fit_views(
     } else {
         Vec::new()
     };
+    let parts: Vec<Vec<u32>> = match (sort_last.is_empty(), tiles > 1) {
+        (true, false) => Vec::new(),
+        (true, true) => vec![(0..scene.meshes.len() as u32).collect(); tiles],
+        (false, _) => sort_last
+            .iter()
+            .flat_map(|part| std::iter::repeat_n(part.clone(), tiles))
+            .collect(),
+    };
     // A part's nodes fit their maps to the part's own receivers (`Renderer::
     // set_fit_to_eye_meshes`).
-    let part_fit: Vec<(Vec<bool>, ViewFit)> = parts
+    let part_fit: Vec<(Vec<bool>, ViewFit)> = sort_last
         .iter()
-        .filter(|_| !tiled)
         .map(|part| {
             let mut mask = vec![false; scene.meshes.len()];
             for &m in part {
@@ -160,8 +188,7 @@ pub(super) fn fit_views(
         })
         .collect();
     debug_assert!(
-        parts.is_empty()
-            || tiled
+        sort_last.is_empty()
             || (0..scene.meshes.len())
                 .all(|m| part_fit.iter().filter(|(mask, _)| mask[m]).count() == 1),
         "every mesh is in exactly one part"
@@ -169,8 +196,9 @@ pub(super) fn fit_views(
     Ok(Fit {
         whole,
         parts,
+        sort_last,
         part_fit,
-        tiled,
+        tiles,
     })
 }
 
@@ -248,11 +276,16 @@ pub(super) fn plan_shadows(
         v
     };
     let whole = shadows_of(None);
-    let parts = if fit.tiled {
-        vec![whole.clone(); fit.parts.len()]
-    } else {
-        (0..fit.parts.len()).map(|p| shadows_of(Some(p))).collect()
-    };
+    // Per sort-last part once; a cell takes its part's maps (the whole scene's for tiles alone).
+    let by_part: Vec<Vec<Option<ShadowPlan>>> = (0..fit.sort_last.len())
+        .map(|p| shadows_of(Some(p)))
+        .collect();
+    let parts = (0..fit.parts.len())
+        .map(|c| match fit.cell(c).0 {
+            Some(p) => by_part[p].clone(),
+            None => whole.clone(),
+        })
+        .collect();
     let shadows = Shadows { whole, parts };
     debug_assert!(
         std::iter::once(&shadows.whole)

@@ -2,7 +2,7 @@
 //! without sort-last parts, the node plans that feed them, and the frame they are estimated at.
 
 use super::groups::{Assignment, Grouping, Materials};
-use super::shadows::Shadows;
+use super::shadows::{Fit, Shadows};
 use crate::plan::group::Group;
 use crate::plan::types::*;
 use crate::plan::{cpu_hosts, topology};
@@ -35,7 +35,7 @@ struct Layout {
 pub(super) fn wire_stages(
     scene: &Scene,
     cluster: &ClusterSpec,
-    parts: Vec<Vec<u32>>,
+    fit: Fit,
     grouping: &Grouping,
     materials: &Materials,
     assignment: &Assignment,
@@ -59,10 +59,10 @@ pub(super) fn wire_stages(
         stages,
         nodes,
         placement,
-    } = if parts.is_empty() {
+    } = if fit.parts.is_empty() {
         unpartitioned(cluster, grouping, assignment, shadows, &finish)
     } else {
-        partitioned(&parts, cluster, grouping, assignment, shadows, &finish)
+        partitioned(&fit, cluster, grouping, assignment, shadows, &finish)
     };
     debug_assert!(
         {
@@ -80,7 +80,7 @@ pub(super) fn wire_stages(
         stages,
         nodes,
         placement,
-        parts,
+        parts: fit.sort_last,
         est_frame_us,
         cpu_shared,
     }
@@ -139,6 +139,7 @@ fn unpartitioned(
             input_index: input,
             est_cost_us: costs[n].frame(&group_shadows(g), 0).round() as u64,
             part: None,
+            tile: None,
             scene: None,
         })
         .collect();
@@ -166,6 +167,7 @@ fn unpartitioned(
                 input_index: *input,
                 est_cost_us: costs[m].frame(&[], material_layers.len()).round() as u64,
                 part: None,
+                tile: None,
                 scene: None,
             });
             MaterialPlacement::OwnNode {
@@ -183,10 +185,11 @@ fn unpartitioned(
     }
 }
 
-/// The nodes and stages of a sort-last grid: unit `u = (part, group)` on node `on_node[u]`;
-/// each part's cheapest node also renders its part's eye depth and material layers.
+/// The nodes and stages of a grid of cells (sort-last parts, sort-first tiles or both: `Fit`):
+/// unit `u = (cell, group)` on node `on_node[u]`; each cell's cheapest node also renders its
+/// cell's eye depth and material layers.
 fn partitioned(
-    parts: &[Vec<u32>],
+    fit: &Fit,
     cluster: &ClusterSpec,
     grouping: &Grouping,
     assignment: &Assignment,
@@ -219,7 +222,7 @@ fn partitioned(
     );
     let extra = host_layers.len() - 1;
     // Per part, its units with the cheapest first (it hosts the part's depth and materials).
-    let mut part_units: Vec<Vec<usize>> = vec![Vec::new(); parts.len()];
+    let mut part_units: Vec<Vec<usize>> = vec![Vec::new(); fit.parts.len()];
     for (u, &(p, _)) in units.iter().enumerate() {
         part_units[p.expect("partitioned units name their part")].push(u);
     }
@@ -278,7 +281,8 @@ fn partitioned(
                 downstream: stage,
                 input_index: input,
                 est_cost_us: cost_of(u, if j == 0 { extra } else { 0 }).round() as u64,
-                part: Some(p),
+                part: fit.cell(p).0,
+                tile: fit.cell(p).1,
                 scene: None,
             });
         }
