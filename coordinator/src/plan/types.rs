@@ -334,13 +334,12 @@ pub struct PlanOptions {
     pub partitions: u32,
     /// Sort-first tiles (`--tiles T`, `docs/planner.md` § Tiles): the image is split into T
     /// bands of rows, every light group is rendered once per tile by a node drawing only those
-    /// rows (every mesh, the whole scene's shadow maps), and the stages put the tiles together
-    /// as they depth-compose sort-last parts (a tile's node leaves the other rows empty). The
-    /// coordinator moves the rows between tiles from the nodes' measured eye passes
-    /// (`control::tiles`). 1: no tiles; 0 (the default) chooses by the cost model
-    /// (`plan/decompose.rs`): the tile count whose estimated frame is at least
-    /// [`TILES_MIN_GAIN`] shorter than the untiled one, none where the scene is partitioned.
-    /// Excludes partitions.
+    /// rows (every mesh, or with partitions its part's, with those meshes' shadow maps), and the
+    /// stages put the tiles together as they depth-compose sort-last parts (a tile's node leaves
+    /// the other rows empty). The coordinator moves the rows between tiles from the nodes'
+    /// measured eye passes (`control::tiles`). 1: no tiles; 0 (the default) chooses by the cost
+    /// model (`plan/decompose.rs`): the tile count whose estimated frame is at least
+    /// [`TILES_MIN_GAIN`] shorter than the untiled one (with the partitions resolved).
     #[serde(default)]
     pub tiles: u32,
     /// Plan nodes that share one GPU (`Capabilities::device`) as one node per device with
