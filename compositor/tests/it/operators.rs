@@ -174,12 +174,7 @@ fn eq7_mask_fold_equals_the_ambient_layer() {
     )
     .unwrap();
     for scalar in [true, false] {
-        let sum = run(
-            &*plain,
-            &[band(&[(Layer::Illumination, &ill)])],
-            2,
-            scalar,
-        );
+        let sum = run(&*plain, &[band(&[(Layer::Illumination, &ill)])], 2, scalar);
         let eq2 = run(&*single(true), &[sum, materials.clone()], 2, scalar);
         let folded = run(
             &*masked,

@@ -1025,7 +1025,9 @@ impl Renderer {
                     Layer::Depth => PackSource::Texture(&targets.depth),
                     Layer::AmbientMask => match mask {
                         Some(mask) => PackSource::Texture(mask),
-                        None => return Err(RenderError::Gpu("no ambient mask was rendered".into())),
+                        None => {
+                            return Err(RenderError::Gpu("no ambient mask was rendered".into()));
+                        }
                     },
                     Layer::Radiance => {
                         return Err(RenderError::Gpu("a node renders no radiance layer".into()));
