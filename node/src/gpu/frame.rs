@@ -102,6 +102,8 @@ impl LayerSet {
         }
     }
 
+    /// Illumination, the material layers of eq. 2 and depth: what a whole frame's radiance
+    /// needs ([`NodeFrame::radiance`]). Not eq. 7's mask, which only a folding node sends.
     pub fn all() -> LayerSet {
         LayerSet {
             illumination: true,
@@ -110,7 +112,7 @@ impl LayerSet {
             ambient: true,
             emissive: true,
             depth: true,
-            ambient_mask: true,
+            ambient_mask: false,
         }
     }
 
