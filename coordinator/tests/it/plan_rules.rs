@@ -475,6 +475,23 @@ fn eq7_falls_back_to_the_ambient_layer_where_no_node_can_carry_ca() {
         "{:?}",
         p.material.notes
     );
+    // An ambient layer 8-bit sRGB holds exactly (m^a white or black) takes 4 B/px, as the mask
+    // would: no saving, the ambient layer travels.
+    let mut white = mixed_ambient_stage();
+    white.materials[0].diffuse = [1.0; 3];
+    white.materials[0].ambient = [1.0; 3];
+    let w = plan(&white, &local(), &opts()).unwrap();
+    assert!(!w.material.fold_ambient);
+    assert!(
+        w.material
+            .layers
+            .contains(&(Layer::Ambient, PixelFormat::Rgba8Srgb))
+    );
+    assert!(
+        w.material.notes.iter().any(|n| n.contains("no fewer")),
+        "{:?}",
+        w.material.notes
+    );
     // With partitions each part sums its own groups: the ambient layer travels too.
     let parts = PlanOptions {
         partitions: 2,
