@@ -133,6 +133,7 @@ fn layer_code(layer: Layer) -> u8 {
         Layer::Emissive => 4,
         Layer::Depth => 5,
         Layer::Radiance => 6,
+        Layer::AmbientMask => 7,
     }
 }
 
@@ -145,6 +146,7 @@ fn layer_from_code(code: u8) -> Option<Layer> {
         4 => Layer::Emissive,
         5 => Layer::Depth,
         6 => Layer::Radiance,
+        7 => Layer::AmbientMask,
         _ => return None,
     })
 }

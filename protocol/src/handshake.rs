@@ -25,8 +25,8 @@ pub const MAGIC: [u8; 4] = *b"LFLD";
 /// `FrameParams::lights` (virtual point lights of animated scenes traced per frame), scene bytes
 /// version 8 (soft suns and cylinder lights). 15: `WireLight::cell` and the cell filter
 /// (`NodeConfig::filter` ≥ `CELL_FILTER`). 16: sort-first tiles (`NodeConfig::rows`,
-/// `FrameParams::rows`).
-pub const PROTOCOL_VERSION: u16 = 16;
+/// `FrameParams::rows`). 17: `Layer::AmbientMask` (eq. 7's per-pixel ambient mask, wire code 7).
+pub const PROTOCOL_VERSION: u16 = 17;
 /// Longest daemon id a hello may carry (its wire length is one byte).
 pub const MAX_DAEMON_ID: usize = 255;
 

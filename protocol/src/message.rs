@@ -36,10 +36,14 @@ pub enum Layer {
     Depth,
     /// Final radiance RGB (after the material stage), three channels.
     Radiance,
+    /// Eq. 7's per-pixel ambient mask `I^a = m^a ⊘ m^d`, three channels: per channel 1 where
+    /// `m^a = m^d`, 0 where `m^a` or `m^d` is 0, their ratio elsewhere. `accumulate` reads it
+    /// from its folding input (`AmbientMask::Layer`).
+    AmbientMask,
 }
 
 impl Layer {
-    pub const ALL: [Layer; 7] = [
+    pub const ALL: [Layer; 8] = [
         Layer::Illumination,
         Layer::Diffuse,
         Layer::Specular,
@@ -47,6 +51,7 @@ impl Layer {
         Layer::Emissive,
         Layer::Depth,
         Layer::Radiance,
+        Layer::AmbientMask,
     ];
 
     /// f32 channels per pixel of this layer in memory.

@@ -120,6 +120,7 @@ pub fn layer_name(layer: Layer) -> &'static str {
         Layer::Emissive => "emissive",
         Layer::Depth => "depth",
         Layer::Radiance => "radiance",
+        Layer::AmbientMask => "ambient_mask",
     }
 }
 
@@ -274,7 +275,8 @@ pub enum AmbientMask {
     /// `I^a = 1` at every pixel.
     #[default]
     Uniform,
-    /// `I^a` per pixel and channel from the `ambient` layer of the folding input.
+    /// `I^a` per pixel and channel from the `ambient_mask` layer (`Layer::AmbientMask`) of the
+    /// folding input (eq. 7).
     Layer,
 }
 

@@ -124,6 +124,10 @@ pub const OVERRIDE_TRANSLUCENT: &str = "TRANSLUCENT";
 /// what `protocol::format::pack` writes (`node::gpu::pack`).
 pub const PACK_WGSL: &str = include_str!("../wgsl/pack.wgsl");
 
+/// The node's ambient-mask pass: `cs_ambient_mask` writes eq. 7's `I^a = m^a ⊘ m^d` from the eye
+/// pass's material targets (`node::gpu::ambient_mask`).
+pub const AMBIENT_MASK_WGSL: &str = include_str!("../wgsl/ambient_mask.wgsl");
+
 /// Every complete shader module with a name, for validation and diagnostics.
 pub const MODULES: &[(&str, &str)] = &[
     ("shadow", SHADOW_WGSL),
@@ -140,6 +144,7 @@ pub const MODULES: &[(&str, &str)] = &[
         DEFERRED_MR_MAPPED_WGSL,
     ),
     ("pack", PACK_WGSL),
+    ("ambient mask", AMBIENT_MASK_WGSL),
 ];
 
 #[cfg(test)]
@@ -186,6 +191,11 @@ mod tests {
             assert!(shadow.iter().any(|n| n == e), "shadow lacks {e}");
         }
         assert!(names(PACK_WGSL, "pack").iter().any(|n| n == "cs_pack"));
+        assert!(
+            names(AMBIENT_MASK_WGSL, "ambient mask")
+                .iter()
+                .any(|n| n == "cs_ambient_mask")
+        );
         for src in [FORWARD_WGSL, FORWARD_MR_WGSL, FORWARD_MR_MAPPED_WGSL] {
             let forward = names(src, "forward");
             for e in ["vs_eye", "fs_illumination", "fs_layers", "fs_eye_filter"] {

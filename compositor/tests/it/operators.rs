@@ -120,13 +120,93 @@ fn accumulate_eq7_ambient_mask_layer() {
     let mask = [1.0, 1.0, 1.0, 0.0, 0.0, 0.0];
     let inputs = [band(&[
         (Layer::Illumination, &ill),
-        (Layer::Ambient, &mask),
+        (Layer::AmbientMask, &mask),
     ])];
     let want = [
         4.0, 6.0, 8.0, 8.0, 10.0, 12.0, // I^a = 1
         2.0, 4.0, 6.0, 8.0, 10.0, 12.0, // I^a = 0
     ];
     check(&*op, &inputs, &[(Layer::Illumination, &want)]);
+    // The mask is its own layer: an input with the material's m^a (`ambient`) instead is refused.
+    let with_ma = [band(&[
+        (Layer::Illumination, &ill),
+        (Layer::Ambient, &mask),
+    ])];
+    let mut out = Owned::zeros(2, &[Layer::Illumination]);
+    let views: Vec<_> = with_ma.iter().map(Owned::view).collect();
+    assert!(matches!(
+        op.apply(&views, &mut out.view_mut()),
+        Err(OpError::MissingLayer {
+            layer: Layer::AmbientMask,
+            ..
+        })
+    ));
+}
+
+#[test]
+fn eq7_mask_fold_equals_the_ambient_layer() {
+    // Two pixels, one material each: m^a = m^d and m^a = 0. Eq. 7 (c^a folded at a node of
+    // colour c^a, masked by I^a = m^a ⊘ m^d, then m^d ⊙ the sum) equals eq. 2's ambient layer
+    // (m^d ⊙ the sum + c^a ⊙ m^a).
+    let ca = [2.0, 0.5, 4.0];
+    let md = [0.5, 0.25, 1.0, 0.25, 0.5, 0.75];
+    let ma = [0.5, 0.25, 1.0, 0.0, 0.0, 0.0];
+    let mask = [1.0, 1.0, 1.0, 0.0, 0.0, 0.0];
+    let ill: Vec<f32> = [I1, I2].concat();
+    let materials = band(&[(Layer::Diffuse, &md), (Layer::Ambient, &ma)]);
+    let single = |ambient: bool| {
+        let mut p = json!({"stage": "single"});
+        if ambient {
+            p["ambient_color"] = json!(ca);
+        }
+        ops::create("material", &p).unwrap()
+    };
+    // Eq. 2: the node of colour c^a sums its own light only; the ambient layer adds c^a ⊙ m^a.
+    let plain = ops::create(
+        "accumulate",
+        &json!({"upstream": false, "colors": [ca], "specular_color": [0, 0, 0]}),
+    )
+    .unwrap();
+    let masked = ops::create(
+        "accumulate",
+        &json!({"upstream": false, "colors": [ca], "specular_color": [0, 0, 0],
+                "ambient": {"input": 0, "mask": "layer"}}),
+    )
+    .unwrap();
+    for scalar in [true, false] {
+        let sum = run(&*plain, &[band(&[(Layer::Illumination, &ill)])], 2, scalar);
+        let eq2 = run(&*single(true), &[sum, materials.clone()], 2, scalar);
+        let folded = run(
+            &*masked,
+            &[band(&[
+                (Layer::Illumination, &ill),
+                (Layer::AmbientMask, &mask),
+            ])],
+            2,
+            scalar,
+        );
+        let eq7 = run(&*single(false), &[folded, materials.clone()], 2, scalar);
+        assert_eq!(
+            eq7.layer(Layer::Radiance),
+            eq2.layer(Layer::Radiance),
+            "scalar={scalar}"
+        );
+        // Negative control: the mask read as all ones (eq. 6) adds c^a where m^a = 0.
+        let uniform = ops::create(
+            "accumulate",
+            &json!({"upstream": false, "colors": [ca], "specular_color": [0, 0, 0],
+                    "ambient": {"input": 0, "mask": "uniform"}}),
+        )
+        .unwrap();
+        let folded = run(
+            &*uniform,
+            &[band(&[(Layer::Illumination, &ill)])],
+            2,
+            scalar,
+        );
+        let eq6 = run(&*single(false), &[folded, materials.clone()], 2, scalar);
+        assert_ne!(eq6.layer(Layer::Radiance), eq2.layer(Layer::Radiance));
+    }
 }
 
 #[test]

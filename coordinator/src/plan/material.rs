@@ -2,7 +2,9 @@
 //! layer; no global ambient `c^a` or no ambient material → no ambient layer; one specular colour
 //! over the visible materials → eq. 4–5 (specular pre-multiplied in `accumulate`, a single
 //! material stage); eq. 6–7 folding of `c^a` into the diffuse sum when every visible material has
-//! `m^a = m^d`. Each [0, 1] layer travels in the plan's material format (half floats by default,
+//! `m^a = m^d`, or eq. 7 (the folding node's per-pixel mask `I^a = m^a ⊘ m^d` instead of the
+//! ambient layer) where every visible `m^a` is `m^d` or 0 per channel and the mask travels in
+//! fewer bytes than the ambient layer. Each [0, 1] layer travels in the plan's material format (half floats by default,
 //! exact against the node's `Rgba16Float` targets), or in 4-byte 8-bit sRGB where every value the
 //! layer can take survives it exactly.
 
@@ -21,6 +23,9 @@ pub(crate) struct Needs {
     pub ambient: bool,
     /// Every visible material has `m^a = m^d` (untextured): eq. 6–7 may fold `c^a`.
     pub foldable: bool,
+    /// Every visible material's rendered `m^a` is, per pixel and channel, its rendered `m^d` or
+    /// 0 ([`mask_exact`]): eq. 7's mask `I^a ∈ {0, 1}` reproduces `m^a = m^d ⊙ I^a` exactly.
+    pub maskable: bool,
     /// Layers whose visible values exceed 1 (they need the HDR material format).
     pub hdr: Vec<Layer>,
     /// Layers whose every visible value 8-bit sRGB holds exactly (untextured, each channel 0, 1
@@ -34,6 +39,24 @@ pub(crate) struct Needs {
 fn pbr_varies(m: &Material) -> bool {
     m.pbr
         .is_some_and(|p| p.metallic_roughness_texture.is_some())
+}
+
+/// Whether `m`'s rendered `m^a` is, at every pixel and channel, its rendered `m^d` or 0, so that
+/// eq. 7's mask (`shaders/wgsl/ambient_mask.wgsl`: 1 where the two are equal, 0 where either is
+/// 0) gives `m^d ⊙ I^a = m^a` exactly. Metallic-roughness renders `m^a = m^d · occlusion`
+/// (`eye.wgsl`), which is `m^d` per texel without an occlusion texture, whatever else is
+/// textured. Blinn-Phong renders `m^a` as the material's constant: per channel 0, or `m^d`
+/// where no diffuse texture varies `m^d`. A filter in front multiplies both layers by the same
+/// transmittance, which keeps equal values equal and zero zero.
+pub(crate) fn mask_exact(m: &Material) -> bool {
+    match &m.pbr {
+        Some(p) => p.occlusion_texture.is_none(),
+        None => m
+            .ambient
+            .iter()
+            .zip(&m.diffuse)
+            .all(|(&a, &d)| a == 0.0 || (a == d && m.diffuse_texture.is_none())),
+    }
 }
 
 pub(crate) fn needs(scene: &Scene, receivers: &[Receiver], force_all: bool) -> Needs {
@@ -81,6 +104,7 @@ pub(crate) fn needs(scene: &Scene, receivers: &[Receiver], force_all: bool) -> N
             emissive: true,
             ambient: true,
             foldable: false,
+            maskable: false,
             hdr,
             srgb8_exact,
             notes,
@@ -95,6 +119,7 @@ pub(crate) fn needs(scene: &Scene, receivers: &[Receiver], force_all: bool) -> N
                 && m.diffuse_texture.is_none()
                 && m.pbr.is_none_or(|p| p.occlusion_texture.is_none())
         });
+    let maskable = ambient && mats.iter().all(|m| mask_exact(m));
     let first_spec = mats.first().map(|m| m.specular);
     let uniform_specular = match first_spec {
         Some(s) if mats.iter().all(|m| m.specular == s) => Some(s),
@@ -119,14 +144,21 @@ pub(crate) fn needs(scene: &Scene, receivers: &[Receiver], force_all: bool) -> N
     } else {
         "emissive: no visible material emits → no emissive layer".to_string()
     });
-    notes.push(match (ambient_light, ambient, foldable) {
-        (false, _, _) => "ambient: c^a = 0 → no ambient layer".to_string(),
-        (true, false, _) => "ambient: no visible material has m^a → no ambient layer".to_string(),
-        (true, true, true) => {
+    notes.push(match (ambient_light, ambient, foldable, maskable) {
+        (false, ..) => "ambient: c^a = 0 → no ambient layer".to_string(),
+        (true, false, ..) => "ambient: no visible material has m^a → no ambient layer".to_string(),
+        (true, true, true, _) => {
             "ambient: every visible material has m^a = m^d → c^a folded into the diffuse sum (eq. 6–7) if a node can carry c_n = c^a"
                 .to_string()
         }
-        (true, true, false) => "ambient: m^a differs from m^d → ambient layer".to_string(),
+        (true, true, false, true) => {
+            "ambient: every visible m^a is m^d or 0 per pixel and channel → eq. 7's mask I^a ∈ {0, 1} reproduces it exactly"
+                .to_string()
+        }
+        (true, true, false, false) => {
+            "ambient: m^a differs from m^d (neither m^d nor 0, or under a texture) → ambient layer"
+                .to_string()
+        }
     });
     notes.push(match uniform_specular {
         Some(s) => format!(
@@ -139,9 +171,46 @@ pub(crate) fn needs(scene: &Scene, receivers: &[Receiver], force_all: bool) -> N
         emissive,
         ambient,
         foldable,
+        maskable,
         hdr,
         srgb8_exact,
         notes,
+    }
+}
+
+/// Eq. 7's choice where the visible materials allow the mask (`Needs::maskable`, not eq. 6's
+/// uniform fold): the format the folding node sends `I^a` in when it takes fewer bytes a pixel
+/// than the ambient layer would (`None` otherwise), and the note saying which and why.
+pub(crate) fn eq7_mask(
+    needs: &Needs,
+    formats: &FormatChoice,
+) -> (Option<PixelFormat>, Option<String>) {
+    if !needs.ambient || needs.foldable || !needs.maskable {
+        return (None, None);
+    }
+    // I^a is 0 or 1, which every material format holds exactly; 8-bit sRGB is the narrowest.
+    let mask = if formats.material.bytes_per_pixel() > PixelFormat::Rgba8Srgb.bytes_per_pixel() {
+        PixelFormat::Rgba8Srgb
+    } else {
+        formats.material
+    };
+    let ambient = layer_format(needs, formats, Layer::Ambient);
+    let (m, a) = (mask.bytes_per_pixel(), ambient.bytes_per_pixel());
+    if m < a {
+        (
+            Some(mask),
+            Some(format!(
+                "ambient: eq. 7 → c^a folded into the diffuse sum at a node of c_n = c^a, masked by the I^a that node renders ({} B/px in {mask:?}) instead of the ambient layer ({a} B/px in {ambient:?}); the material stage multiplies one layer fewer",
+                m
+            )),
+        )
+    } else {
+        (
+            None,
+            Some(format!(
+                "ambient: eq. 7's mask would take {m} B/px ({mask:?}), no fewer than the ambient layer's {a} ({ambient:?}) → ambient layer"
+            )),
+        )
     }
 }
 
@@ -158,24 +227,29 @@ fn srgb8_holds(c: [f32; 3]) -> bool {
     round_trips && rendered.map(f32::to_bits) == back.map(f32::to_bits)
 }
 
+/// The format material layer `l` travels in: the HDR material format for emission and layers
+/// above 1, 8-bit sRGB where it holds every visible value exactly and is narrower, otherwise
+/// the material format.
+fn layer_format(needs: &Needs, formats: &FormatChoice, l: Layer) -> PixelFormat {
+    if l == Layer::Emissive || needs.hdr.contains(&l) {
+        formats.material_hdr
+    } else if needs.srgb8_exact.contains(&l)
+        && formats.material.bytes_per_pixel() > PixelFormat::Rgba8Srgb.bytes_per_pixel()
+    {
+        // As exact as the wider format, in fewer bytes.
+        PixelFormat::Rgba8Srgb
+    } else {
+        formats.material
+    }
+}
+
 /// The material mode and the layers the material node renders, given whether `c^a` is folded.
 pub(crate) fn layers(
     needs: &Needs,
     fold: bool,
     formats: &FormatChoice,
 ) -> (MaterialMode, Vec<(Layer, PixelFormat)>) {
-    let format = |l: Layer| {
-        if l == Layer::Emissive || needs.hdr.contains(&l) {
-            formats.material_hdr
-        } else if needs.srgb8_exact.contains(&l)
-            && formats.material.bytes_per_pixel() > PixelFormat::Rgba8Srgb.bytes_per_pixel()
-        {
-            // As exact as the wider format, in fewer bytes.
-            PixelFormat::Rgba8Srgb
-        } else {
-            formats.material
-        }
-    };
+    let format = |l: Layer| layer_format(needs, formats, l);
     let mut layers = vec![Layer::Diffuse];
     let mode = match needs.uniform_specular {
         Some(specular) => MaterialMode::UniformSpecular { specular },

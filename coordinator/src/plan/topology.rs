@@ -40,6 +40,9 @@ pub(crate) struct Finish {
     pub material_node: Option<String>,
     /// Index into the illumination nodes of the node whose `c_n = c^a` folds the ambient term.
     pub fold: Option<usize>,
+    /// Eq. 7: the folding node's input carries its ambient mask (`Layer::AmbientMask`), which
+    /// `accumulate` reads (`AmbientMask::Layer`); `None`: eq. 6's `I^a = 1`.
+    pub ambient_mask: Option<PixelFormat>,
     pub exposure: f32,
     /// The `penumbra` operator's parameters when the last stage filters the illumination sum
     /// (the depth layer travels with the material layers).
@@ -303,7 +306,10 @@ fn accumulate_params(
         },
         ambient: fold.map(|f| AmbientFold {
             input: (f + usize::from(upstream)) as u32,
-            mask: AmbientMask::Uniform,
+            mask: match finish.ambient_mask {
+                Some(_) => AmbientMask::Layer,
+                None => AmbientMask::Uniform,
+            },
         }),
     }
 }

@@ -595,8 +595,12 @@ pub struct MaterialPlan {
     /// Global ambient `c^a`.
     pub ambient: [f32; 3],
     /// Eq. 6–7: `c^a` is added to the diffuse sum in `accumulate` (every visible material has
-    /// `m^a = m^d`), so no ambient layer travels.
+    /// `m^a = m^d`, or eq. 7's mask reproduces `m^a`), so no ambient layer travels.
     pub fold_ambient: bool,
+    /// Eq. 7: the folding node renders the ambient mask `I^a` (`Layer::AmbientMask`) and sends
+    /// it in this format; `None` with eq. 6 (`I^a = 1`) or no fold.
+    #[serde(default)]
+    pub ambient_mask: Option<PixelFormat>,
     pub placement: MaterialPlacement,
     /// Why each layer is present or absent, for the printout.
     pub notes: Vec<String>,

@@ -7,7 +7,7 @@ use lightfold_coordinator::plan::{
     ClusterSpec, Downstream, DropReason, MapSizing, MaterialMode, MaterialPlacement, PlanError,
     PlanOptions, Topology, plan,
 };
-use lightfold_protocol::{Capabilities, Layer, OpSource, Role};
+use lightfold_protocol::{Capabilities, Layer, OpSource, PixelFormat, Role};
 use lightfold_scene::primitives::cuboid;
 use lightfold_scene::{Light, LightShape, Material, Scene};
 use plan_scenes::{rect, stage};
@@ -316,6 +316,205 @@ fn ambient_is_folded_when_every_material_has_ma_equal_md() {
     s.ambient = [0.0; 3];
     let r = plan(&s, &local(), &opts()).unwrap();
     assert!(!r.material.layers.iter().any(|l| l.0 == Layer::Ambient));
+}
+
+/// `stage` under `c^a = 0.1`, grey with `m^a = m^d` and red with `m^a = 0` (eq. 7's mixed scene).
+fn mixed_ambient_stage() -> Scene {
+    let mut s = stage();
+    s.ambient = [0.1, 0.1, 0.1];
+    s.materials[0].ambient = s.materials[0].diffuse;
+    s.materials[1].ambient = [0.0; 3];
+    s
+}
+
+/// Bytes per frame over every link of a plan.
+fn link_bytes(p: &lightfold_coordinator::plan::Plan) -> u64 {
+    p.links.iter().map(|l| l.bytes_per_frame).sum()
+}
+
+#[test]
+fn mixed_ambient_plans_the_eq7_mask_instead_of_an_ambient_layer() {
+    let s = mixed_ambient_stage();
+    let p = plan(&s, &local(), &opts()).unwrap();
+    let text = p.to_string();
+    assert!(p.material.fold_ambient, "{text}");
+    assert!(
+        !p.material.layers.iter().any(|l| l.0 == Layer::Ambient),
+        "no ambient material layer: {text}"
+    );
+    // The folding node (c_n = c^a) renders the mask, in 8-bit sRGB (exact for 0 and 1).
+    let folding: Vec<_> = p
+        .nodes
+        .iter()
+        .filter(|n| n.layers.iter().any(|l| l.0 == Layer::AmbientMask))
+        .collect();
+    assert_eq!(folding.len(), 1, "{text}");
+    assert_eq!(
+        folding[0].color, [0.1; 3],
+        "the folding node carries c_n = c^a"
+    );
+    assert!(
+        folding[0]
+            .layers
+            .contains(&(Layer::AmbientMask, PixelFormat::Rgba8Srgb))
+    );
+    let c = p.node_config(&folding[0].node).unwrap();
+    assert!(c.layers.iter().any(|l| l.0 == Layer::AmbientMask));
+    // Its stage's accumulate reads I^a from that input; the material stage adds no c^a ⊙ m^a.
+    let stage = p
+        .stages
+        .iter()
+        .find(|st| st.compositor == folding[0].downstream)
+        .unwrap();
+    let acc = stage
+        .ops
+        .iter()
+        .map(crate::params)
+        .find(|o| o.get("colors").is_some())
+        .unwrap();
+    assert_eq!(acc["ambient"]["mask"], "layer", "{text}");
+    let input = acc["ambient"]["input"].as_u64().unwrap() as usize;
+    assert!(
+        stage.inputs[input]
+            .layers
+            .iter()
+            .any(|l| l.0 == Layer::AmbientMask),
+        "accumulate's folding input carries the mask"
+    );
+    let last = p.stages.last().unwrap();
+    let material = last
+        .ops
+        .iter()
+        .map(crate::params)
+        .find(|o| o.get("stage").is_some())
+        .unwrap();
+    assert!(material["ambient_color"].is_null(), "{material}");
+    assert!(
+        p.material.notes.iter().any(|n| n.contains("eq. 7")),
+        "{:?}",
+        p.material.notes
+    );
+    assert_stages_build(&p);
+    // Across several nodes and stages (chain, tree, a material node of its own), the one folding
+    // node sends the mask, wherever the material layers are.
+    for (topology, own) in [
+        (Topology::Chain, false),
+        (Topology::Tree, false),
+        (Topology::Chain, true),
+    ] {
+        let o = PlanOptions {
+            lights_per_node: 1,
+            topology,
+            material_own_node: own,
+            ..opts()
+        };
+        let p = plan(&s, &ClusterSpec::local(16, 4), &o).unwrap();
+        let masks = p
+            .nodes
+            .iter()
+            .filter(|n| n.layers.iter().any(|l| l.0 == Layer::AmbientMask))
+            .count();
+        assert_eq!(masks, 1, "{p}");
+        assert!(!p.material.layers.iter().any(|l| l.0 == Layer::Ambient));
+        assert!(p.nodes.len() >= 4, "{p}");
+        assert_stages_build(&p);
+    }
+
+    // Negative control: a textured m^d under m^a = m^d (the mask is a ratio there, not 0 or 1)
+    // keeps the ambient layer, and the material stage adds c^a ⊙ m^a.
+    let mut textured = s.clone();
+    textured.textures.push(lightfold_scene::Texture {
+        name: "checker".into(),
+        width: 2,
+        height: 2,
+        srgb: true,
+        rgba8: vec![
+            255, 255, 255, 255, 64, 64, 64, 255, 64, 64, 64, 255, 255, 255, 255, 255,
+        ],
+    });
+    textured.materials[0].diffuse_texture = Some(0);
+    let q = plan(&textured, &local(), &opts()).unwrap();
+    assert!(!q.material.fold_ambient);
+    assert!(q.material.layers.iter().any(|l| l.0 == Layer::Ambient));
+    assert!(
+        q.nodes
+            .iter()
+            .all(|n| !n.layers.iter().any(|l| l.0 == Layer::AmbientMask))
+    );
+    // The mask saves bytes on the links: 4 a pixel instead of the ambient layer's 8.
+    assert!(
+        link_bytes(&p) < link_bytes(&q),
+        "{} ≥ {}",
+        link_bytes(&p),
+        link_bytes(&q)
+    );
+    // Negative control: m^a neither m^d nor 0 (half of it) keeps the ambient layer.
+    let mut half = s.clone();
+    half.materials[0].ambient = half.materials[0].diffuse.map(|d| d * 0.5);
+    let r = plan(&half, &local(), &opts()).unwrap();
+    assert!(!r.material.fold_ambient);
+    assert!(r.material.layers.iter().any(|l| l.0 == Layer::Ambient));
+}
+
+#[test]
+fn eq7_falls_back_to_the_ambient_layer_where_no_node_can_carry_ca() {
+    // c^a with a zero channel, and no group of that colour: no node can take c_n = c^a.
+    let mut s = mixed_ambient_stage();
+    s.ambient = [0.1, 0.0, 0.1];
+    let p = plan(&s, &local(), &opts()).unwrap();
+    assert!(!p.material.fold_ambient);
+    assert!(p.material.layers.iter().any(|l| l.0 == Layer::Ambient));
+    assert!(
+        p.nodes
+            .iter()
+            .all(|n| !n.layers.iter().any(|l| l.0 == Layer::AmbientMask))
+    );
+    assert!(
+        p.material
+            .notes
+            .iter()
+            .any(|n| n.contains("no node can carry c_n = c^a")),
+        "{:?}",
+        p.material.notes
+    );
+    // An ambient layer 8-bit sRGB holds exactly (m^a white or black) takes 4 B/px, as the mask
+    // would: no saving, the ambient layer travels.
+    let mut white = mixed_ambient_stage();
+    white.materials[0].diffuse = [1.0; 3];
+    white.materials[0].ambient = [1.0; 3];
+    let w = plan(&white, &local(), &opts()).unwrap();
+    assert!(!w.material.fold_ambient);
+    assert!(
+        w.material
+            .layers
+            .contains(&(Layer::Ambient, PixelFormat::Rgba8Srgb))
+    );
+    assert!(
+        w.material.notes.iter().any(|n| n.contains("no fewer")),
+        "{:?}",
+        w.material.notes
+    );
+    // With partitions each part sums its own groups: the ambient layer travels too.
+    let parts = PlanOptions {
+        partitions: 2,
+        ..opts()
+    };
+    let q = plan(&mixed_ambient_stage(), &local(), &parts).unwrap();
+    assert!(!q.material.fold_ambient);
+    assert!(q.material.layers.iter().any(|l| l.0 == Layer::Ambient));
+    assert!(
+        q.nodes
+            .iter()
+            .all(|n| !n.layers.iter().any(|l| l.0 == Layer::AmbientMask))
+    );
+    assert!(
+        q.material
+            .notes
+            .iter()
+            .any(|n| n.contains("each part sums its own groups")),
+        "{:?}",
+        q.material.notes
+    );
 }
 
 fn caps(max_lights: u32, light_us: u64, fixed_us: u64) -> Option<Capabilities> {

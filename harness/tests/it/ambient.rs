@@ -4,17 +4,20 @@
 //! - **GPU against the CPU.** With every light off, a frame is the ambient term alone,
 //!   `c^a ⊙ m^a` of the visible surface: the single-device GPU render equals the CPU reference's
 //!   (no shadow maps involved), and is black where `m^a = 0`.
-//! - **Cluster against the GPU.** The lit scene through the in-process cluster equals the
-//!   single-device render within the link formats' bound; the same scene without its ambient
-//!   (the control) does not.
+//! - **Cluster against the GPU.** The planner folds `c^a` by eq. 7: the folding node sends the
+//!   per-pixel mask `I^a` and no ambient layer travels. The lit scene through the in-process
+//!   cluster equals the single-device render within the link formats' bound; the same scene
+//!   without its ambient (a control) does not, nor does the scene with `m^a = m^d` everywhere
+//!   (the control that the mask, not `I^a = 1`, reached the image).
 
-use lightfold_coordinator::plan::MapSizing;
+use lightfold_coordinator::plan::{MapSizing, Plan};
 use lightfold_coordinator::run::RunOptions;
 use lightfold_harness::{
     InProcessCluster, assert_close, gpu, render_on, single_device, small, test_control,
 };
+use lightfold_protocol::{Layer, PixelFormat};
 use lightfold_reference::{compare, render_point_sum};
-use lightfold_scene::Scene;
+use lightfold_scene::{Image, Scene};
 
 /// `balls` small, under `c^a = (0.3, 0.25, 0.2)`, every other material with `m^a = m^d` and
 /// the rest with `m^a = 0`.
@@ -66,10 +69,27 @@ async fn mixed_ambient_through_the_cluster_equals_the_single_device_render() {
     opts.plan.map_sizing = MapSizing::Fixed(scene.quality.shadow_map_size);
     let out = render_on(&mut session, &scene, &opts).await.unwrap();
     let got = &out.frames[0].image;
+    let plan = &out.plan;
+    let link_bytes = |p: &Plan| p.links.iter().map(|l| l.bytes_per_frame).sum::<u64>();
     eprintln!(
-        "mixed ambient: the plan's material layers {:?}",
-        out.plan.material.layers
+        "mixed ambient: the plan's material layers {:?}, ambient mask {:?}, {} link bytes per frame",
+        plan.material.layers,
+        plan.material.ambient_mask,
+        link_bytes(plan)
     );
+    // Eq. 7: no ambient layer; the folding node sends I^a in 8-bit sRGB.
+    assert!(plan.material.fold_ambient, "{plan}");
+    assert!(
+        !plan.material.layers.iter().any(|l| l.0 == Layer::Ambient),
+        "{plan}"
+    );
+    assert_eq!(plan.material.ambient_mask, Some(PixelFormat::Rgba8Srgb));
+    let masks = plan
+        .nodes
+        .iter()
+        .filter(|n| n.layers.iter().any(|l| l.0 == Layer::AmbientMask))
+        .count();
+    assert_eq!(masks, 1, "{plan}");
     assert_close(got, &want, "mixed ambient through the cluster");
     // The control: the same scene without its ambient differs.
     let unlit = Scene {
@@ -77,13 +97,29 @@ async fn mixed_ambient_through_the_cluster_equals_the_single_device_render() {
         ..scene.clone()
     };
     let without = single_device(&gpu, &unlit, false);
-    let differs = got
-        .data
-        .iter()
-        .zip(&without.data)
-        .filter(|(a, b)| (*a - *b).abs() > 0.01)
-        .count();
+    let differs = channels_apart(got, &without);
     assert!(differs > 500, "the ambient changed only {differs} channels");
+    // The control that the mask reached the image: with I^a = 1 everywhere (every material's
+    // m^a = m^d) the m^a = 0 materials would take c^a too.
+    let mut uniform = scene.clone();
+    for m in &mut uniform.materials {
+        m.ambient = m.diffuse;
+    }
+    let unmasked = single_device(&gpu, &uniform, false);
+    let differs = channels_apart(got, &unmasked);
+    assert!(
+        differs > 500,
+        "I^a = 1 changed only {differs} channels: the mask did not reach the image"
+    );
     session.detach();
     cluster.stop().await.unwrap();
+}
+
+/// Channels of `a` and `b` more than 0.01 apart.
+fn channels_apart(a: &Image, b: &Image) -> usize {
+    a.data
+        .iter()
+        .zip(&b.data)
+        .filter(|(x, y)| (*x - *y).abs() > 0.01)
+        .count()
 }

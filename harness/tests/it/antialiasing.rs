@@ -69,6 +69,7 @@ fn resolved_before_material(f: &NodeFrame, factor: u32, ambient: [f32; 3]) -> Im
                 .nearest_depth_resolve(factor)
                 .unwrap(),
         ),
+        ambient_mask: None,
         stats: Default::default(),
     };
     low.radiance(&r(&f.illumination), ambient).unwrap()

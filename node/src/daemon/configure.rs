@@ -14,13 +14,14 @@ use lightfold_scene::{Camera, LightSample, Scene, ShadowFilter};
 pub const MAX_CELL_TAPS: u32 = 8;
 
 /// Layers a render node produces (radiance is made by the material stage, never by a node).
-pub const NODE_LAYERS: [Layer; 6] = [
+pub const NODE_LAYERS: [Layer; 7] = [
     Layer::Illumination,
     Layer::Diffuse,
     Layer::Specular,
     Layer::Ambient,
     Layer::Emissive,
     Layer::Depth,
+    Layer::AmbientMask,
 ];
 
 /// Formats a node can pack, by layer kind.

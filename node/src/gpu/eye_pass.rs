@@ -86,8 +86,13 @@ fn target(
     format: wgpu::TextureFormat,
 ) -> wgpu::Texture {
     // Depth buffers are never read back (GL cannot copy them); colour targets are.
+    // Material targets are also read by the ambient-mask pass (`gpu::ambient_mask`).
     let usage = if format == DEPTH_FORMAT {
         wgpu::TextureUsages::RENDER_ATTACHMENT
+    } else if format == MATERIAL_FORMAT {
+        wgpu::TextureUsages::RENDER_ATTACHMENT
+            | wgpu::TextureUsages::COPY_SRC
+            | wgpu::TextureUsages::TEXTURE_BINDING
     } else {
         wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC
     };

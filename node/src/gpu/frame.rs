@@ -88,6 +88,9 @@ pub struct LayerSet {
     pub ambient: bool,
     pub emissive: bool,
     pub depth: bool,
+    /// Eq. 7's `I^a = m^a ⊘ m^d` (`Layer::AmbientMask`), computed from the m^d and m^a targets
+    /// after the eye pass (`gpu::ambient_mask`).
+    pub ambient_mask: bool,
 }
 
 impl LayerSet {
@@ -99,6 +102,8 @@ impl LayerSet {
         }
     }
 
+    /// Illumination, the material layers of eq. 2 and depth: what a whole frame's radiance
+    /// needs ([`NodeFrame::radiance`]). Not eq. 7's mask, which only a folding node sends.
     pub fn all() -> LayerSet {
         LayerSet {
             illumination: true,
@@ -107,6 +112,7 @@ impl LayerSet {
             ambient: true,
             emissive: true,
             depth: true,
+            ambient_mask: false,
         }
     }
 
@@ -122,6 +128,7 @@ impl LayerSet {
                 Layer::Ambient => set.ambient = true,
                 Layer::Emissive => set.emissive = true,
                 Layer::Depth => set.depth = true,
+                Layer::AmbientMask => set.ambient_mask = true,
                 Layer::Radiance => {}
             }
         }
@@ -129,7 +136,7 @@ impl LayerSet {
     }
 
     pub(crate) fn any_material(&self) -> bool {
-        self.diffuse || self.specular || self.ambient || self.emissive
+        self.diffuse || self.specular || self.ambient || self.emissive || self.ambient_mask
     }
 }
 
@@ -143,6 +150,9 @@ pub struct NodeFrame {
     pub specular: Option<Image>,
     pub ambient: Option<Image>,
     pub emissive: Option<Image>,
+    /// 3 channels: eq. 7's `I^a = m^a ⊘ m^d` per channel (1 where `m^a = m^d`, 0 where either is
+    /// 0).
+    pub ambient_mask: Option<Image>,
     /// 1 channel: eye-space distance along the camera's forward axis, 0 for background.
     pub depth: Option<Image>,
     pub stats: RenderStats,

@@ -1,6 +1,7 @@
 //! The GPU renderer of a render node: device setup, shadow maps for K point-light samples, the
 //! illumination eye pass with optional material layers, and readback into `scene::Image`s.
 
+mod ambient_mask;
 pub mod atlas;
 mod deferred;
 pub mod device;

@@ -6,6 +6,7 @@
 //! same, whatever the camera does: an animated scene re-renders only the maps of lights that
 //! moved or whose casters moved ([`Renderer::set_meshes`] poses the geometry).
 
+use super::ambient_mask::AmbientMaskPass;
 use super::atlas::Slot;
 use super::deferred::{DeferredTargets, render_deferred};
 use super::device::{Gpu, SHADOW_MEMORY_BUDGET, SHADOW_TEXEL_BYTES, captured};
@@ -93,6 +94,8 @@ pub struct Renderer {
     targets: Option<EyeTargets>,
     variant: EyeVariant,
     deferred: Option<DeferredTargets>,
+    /// Eq. 7's ambient-mask pass and its output, built when a frame first asks for the mask.
+    ambient_mask: Option<AmbientMaskPass>,
     max_lights: u32,
     fit_to_camera: bool,
     cascades: bool,
@@ -194,6 +197,7 @@ impl Renderer {
             packer: PackerState::Untried,
             variant: EyeVariant::default(),
             deferred: None,
+            ambient_mask: None,
             eye_meshes: None,
             eye_culling: true,
             eye_vertices: 0,
@@ -576,6 +580,7 @@ impl Renderer {
                 // Targets and maps may be half made: allocate them afresh next frame.
                 self.targets = None;
                 self.deferred = None;
+                self.ambient_mask = None;
                 self.maps = None;
                 self.map_config = None;
                 self.map_keys.clear();
@@ -877,6 +882,12 @@ impl Renderer {
         } else {
             render_eye(&self.draw_context(gpu), &draws, targets, &inputs);
         }
+        if layers.ambient_mask {
+            let [m_diffuse, _, m_ambient, _] = &targets.materials;
+            self.ambient_mask
+                .get_or_insert_with(|| AmbientMaskPass::new(&gpu.device))
+                .run(&gpu.device, &gpu.queue, m_diffuse, m_ambient);
+        }
         wait(gpu)
     }
 
@@ -906,6 +917,7 @@ impl Renderer {
             sources.push(ReadSource::Texture(req(&targets.specular, 3)));
         }
         let m = &targets.materials;
+        let mask = mask_output(self.ambient_mask.as_ref(), layers)?;
         for (want, tex, channels) in [
             (layers.diffuse, &m[0], 3),
             (layers.specular, &m[1], 3),
@@ -916,6 +928,9 @@ impl Renderer {
             if want {
                 sources.push(ReadSource::Texture(req(tex, channels)));
             }
+        }
+        if let Some(mask) = mask {
+            sources.push(ReadSource::Texture(req(mask, 3)));
         }
         let rows = ReadRows::of(self.rows, h);
         let mut data =
@@ -933,6 +948,7 @@ impl Renderer {
             ambient: None,
             emissive: None,
             depth: None,
+            ambient_mask: None,
             stats: RenderStats::default(),
         };
         if lit {
@@ -965,6 +981,9 @@ impl Renderer {
         if layers.depth {
             out.depth = Some(image(data.next().unwrap_or_default(), 1));
         }
+        if layers.ambient_mask {
+            out.ambient_mask = Some(image(data.next().unwrap_or_default(), 3));
+        }
         stats.readback_us = t2.elapsed().as_micros() as u64;
         stats.read_bytes = self.staging.bytes();
         out.stats = stats;
@@ -987,6 +1006,10 @@ impl Renderer {
             return Err(RenderError::Gpu("no frame was rendered".into()));
         };
         let m = &targets.materials;
+        let mask = mask_output(
+            self.ambient_mask.as_ref(),
+            LayerSet::of(layers.iter().map(|l| l.0)),
+        )?;
         let sources = layers
             .iter()
             .map(|&(layer, format)| {
@@ -1000,6 +1023,12 @@ impl Renderer {
                     Layer::Ambient => PackSource::Texture(&m[2]),
                     Layer::Emissive => PackSource::Texture(&m[3]),
                     Layer::Depth => PackSource::Texture(&targets.depth),
+                    Layer::AmbientMask => match mask {
+                        Some(mask) => PackSource::Texture(mask),
+                        None => {
+                            return Err(RenderError::Gpu("no ambient mask was rendered".into()));
+                        }
+                    },
                     Layer::Radiance => {
                         return Err(RenderError::Gpu("a node renders no radiance layer".into()));
                     }
@@ -1399,6 +1428,20 @@ impl SceneBuffers {
             ],
         })
     }
+}
+
+/// The ambient mask `pass` rendered for a frame of `layers`, when they ask for it (`None`
+/// otherwise); an error if they asked for it and none was rendered.
+fn mask_output(
+    pass: Option<&AmbientMaskPass>,
+    layers: LayerSet,
+) -> Result<Option<&wgpu::Texture>, RenderError> {
+    if !layers.ambient_mask {
+        return Ok(None);
+    }
+    pass.and_then(AmbientMaskPass::output)
+        .map(Some)
+        .ok_or_else(|| RenderError::Gpu("no ambient mask was rendered".into()))
 }
 
 fn wait(gpu: &Gpu) -> Result<(), RenderError> {

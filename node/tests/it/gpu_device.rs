@@ -537,6 +537,7 @@ mod device_pack {
                 (Layer::Ambient, PixelFormat::F16x4),
                 (Layer::Emissive, PixelFormat::F16x4),
                 (Layer::Depth, PixelFormat::DepthF32),
+                (Layer::AmbientMask, PixelFormat::Rgba8Srgb),
             ],
         ];
         let layout = BandLayout {

@@ -8,6 +8,7 @@ mod daemon_errors;
 mod daemon_frame;
 mod daemon_preempt;
 mod daemon_tiles;
+mod gpu_ambient_mask;
 mod gpu_correctness;
 mod gpu_device;
 mod gpu_metallic_roughness;

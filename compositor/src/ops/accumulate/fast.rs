@@ -13,7 +13,7 @@ pub(super) enum Kind {
     Plain,
     /// Eq. 6 with `I^a = 1`.
     Uniform,
-    /// Eq. 6 with `I^a` from the ambient layer.
+    /// Eq. 7: `I^a` from the ambient-mask layer.
     Masked,
 }
 
@@ -98,7 +98,7 @@ impl Term {
             (Kind::Masked, x) => {
                 let (c, a) = (
                     &self.c6,
-                    a.expect("checked: the masked input has an ambient layer"),
+                    a.expect("checked: the masked input has an ambient-mask layer"),
                 );
                 for (px, (o, a)) in o.chunks_exact_mut(6).zip(a.chunks_exact(3)).enumerate() {
                     let x: [f32; 6] = match x {

@@ -5,8 +5,9 @@
 //! Options: a uniform specular colour `m^s` pre-multiplied into every node's specular colour
 //! (eq. 4, so a single material stage follows), and the ambient folding of eq. 6–7, which adds
 //! `c_n^d ⊙ I^a` at one node whose diffuse colour is the ambient colour; `I^a` is 1 everywhere
-//! (`mask = "uniform"`: every material has `m^a = m^d`) or read per pixel from that input's
-//! `ambient` layer (`mask = "layer"`). Terms are added in input-index order, so a chain of
+//! (`mask = "uniform"`: every material has `m^a = m^d`) or read per pixel and channel from that
+//! input's `ambient_mask` layer (`mask = "layer"`, eq. 7: `I^a = m^a ⊘ m^d`, which the folding
+//! node renders). Terms are added in input-index order, so a chain of
 //! stages and one stage with many inputs give the same bits.
 
 use super::params;
@@ -115,7 +116,7 @@ impl Accumulate {
         let locals = (0..self.coeffs.len())
             .map(|j| {
                 let v = &inputs[self.input_of(j)];
-                (v.layer(Layer::Illumination), v.layer(Layer::Ambient))
+                (v.layer(Layer::Illumination), v.layer(Layer::AmbientMask))
             })
             .collect();
         (up, locals)
@@ -143,7 +144,7 @@ impl Operator for Accumulate {
         for j in 0..self.coeffs.len() {
             inputs.push(match self.fold_of(j) {
                 Some(AmbientMask::Layer) => InputSpec {
-                    required: vec![Layer::Ambient],
+                    required: vec![Layer::AmbientMask],
                     optional: vec![Layer::Illumination],
                 },
                 _ => optional_ill.clone(),
@@ -172,7 +173,7 @@ impl Operator for Accumulate {
                         Some(x) => sanitize(x[px * 6 + ch]),
                         None => 0.0,
                     };
-                    // Eq. 6: the folded ambient joins the diffuse illumination before c_n^d.
+                    // Eq. 6–7: the folded ambient joins the diffuse illumination before c_n^d.
                     let term = match (folds[j], ch < 3) {
                         (Some(AmbientMask::Uniform), true) => i + 1.0,
                         (Some(AmbientMask::Layer), true) => {

@@ -207,7 +207,7 @@ fn packed_error(input: usize, source: FormatError) -> OpError {
 impl Accumulate {
     /// Unpack and accumulate fused: `inputs[i]` is input i's illumination band still in its link
     /// format (`None`: an empty band). Gives the bits of unpacking every band and calling `apply`.
-    /// The masked ambient folding needs an ambient layer and is not available here. Runs on the
+    /// The masked ambient folding needs an ambient-mask layer and is not available here. Runs on the
     /// widest instruction set this CPU has (`Isa::best`).
     pub fn apply_packed(
         &self,
@@ -315,7 +315,7 @@ impl Accumulate {
             return Err(OpError::MissingLayer {
                 op: NAME,
                 input: self.input_of(j),
-                layer: Layer::Ambient,
+                layer: Layer::AmbientMask,
             });
         }
         for (i, p) in inputs.iter().enumerate() {

@@ -154,6 +154,12 @@ pub(super) struct Materials {
     pub(super) needs: material::Needs,
     /// The group whose colour carries the ambient term (eq. 6–7), if one can.
     pub(super) fold: Option<usize>,
+    /// Whether the visible materials ask for the fold (eq. 6, or eq. 7 where cheaper), whether
+    /// or not a node can carry it.
+    pub(super) wants_fold: bool,
+    /// Eq. 7: the format the folding group's node sends its ambient mask `I^a` in (`None`: no
+    /// fold, or eq. 6's `I^a = 1`).
+    pub(super) ambient_mask: Option<PixelFormat>,
     pub(super) mode: MaterialMode,
     /// The material layers, with the eye depth last when the penumbra filter reads it.
     pub(super) layers: Vec<(Layer, PixelFormat)>,
@@ -176,10 +182,13 @@ pub(super) fn choose_materials(
     groups: &mut [Group],
 ) -> Materials {
     let cam = &scene.camera;
-    let needs = material::needs(scene, receivers, options.force_all);
+    let mut needs = material::needs(scene, receivers, options.force_all);
+    let (mask, note) = material::eq7_mask(&needs, &options.formats);
+    needs.notes.extend(note);
+    let wants_fold = needs.foldable || mask.is_some();
     let mut fold = None;
     // Parts each sum their own light groups, so no one input of theirs can carry c^a for all.
-    if needs.foldable && unpartitioned {
+    if wants_fold && unpartitioned {
         let ca = scene.ambient;
         let positive = ca.iter().all(|&c| c > 0.0);
         // A group of colour c^a folds as is; otherwise any group can take c_n = c^a (the node
@@ -224,9 +233,12 @@ pub(super) fn choose_materials(
         band_height >= options.band_height,
         "the filter's halo only ever raises the band height"
     );
+    let ambient_mask = mask.filter(|_| fold.is_some());
     Materials {
         needs,
         fold,
+        wants_fold,
+        ambient_mask,
         mode,
         layers,
         radius,

@@ -142,6 +142,8 @@ fn assemble(
     let Materials {
         needs,
         fold,
+        wants_fold,
+        ambient_mask,
         mode,
         layers,
         radius,
@@ -149,7 +151,7 @@ fn assemble(
         ..
     } = materials;
     let mut notes = needs.notes;
-    if needs.foldable && fold.is_none() {
+    if wants_fold && fold.is_none() {
         notes.push(if options.tiles > 1 {
             "ambient: each tile sums its own groups, so no one node carries c_n = c^a → ambient layer instead".to_string()
         } else if !parts.is_empty() {
@@ -163,6 +165,7 @@ fn assemble(
         layers,
         ambient: scene.ambient,
         fold_ambient: fold.is_some(),
+        ambient_mask,
         placement,
         notes,
     };

@@ -52,6 +52,7 @@ pub(super) fn wire_stages(
             .material_node
             .map(|m| cluster.nodes[m].id.clone()),
         fold: materials.fold,
+        ambient_mask: materials.ambient_mask,
         exposure: scene.exposure,
         penumbra: materials.penumbra.clone(),
     };
@@ -104,14 +105,27 @@ fn unpartitioned(
     } = assignment;
     let material_layers = &finish.material_layers;
     let group_shadows = |g: &Group| shadows.of(None, &g.lights);
+    // Eq. 7: the folding group's node also renders its ambient mask, an extra target.
+    let mask_of = |i: usize| {
+        finish
+            .ambient_mask
+            .filter(|_| finish.fold == Some(i))
+            .map(|f| (Layer::AmbientMask, f))
+    };
+    let node_layers = |i: usize| {
+        let mut layers = vec![(Layer::Illumination, options.formats.node)];
+        layers.extend(mask_of(i));
+        layers
+    };
     let illum: Vec<topology::IllumInput> = groups
         .iter()
         .zip(on_node)
-        .map(|(g, &n)| topology::IllumInput {
+        .enumerate()
+        .map(|(i, (g, &n))| topology::IllumInput {
             node: cluster.nodes[n].id.clone(),
             color: g.color,
-            layers: vec![(Layer::Illumination, options.formats.node)],
-            cost: costs[n].frame(&group_shadows(g), 0),
+            layers: node_layers(i),
+            cost: costs[n].frame(&group_shadows(g), mask_of(i).iter().count()),
         })
         .collect();
     let (stages, node_dst, site) = topology::stages(
@@ -125,7 +139,8 @@ fn unpartitioned(
         .iter()
         .zip(on_node)
         .zip(node_dst)
-        .map(|((g, &n), (stage, input))| NodePlan {
+        .zip(&illum)
+        .map(|(((g, &n), (stage, input)), ill)| NodePlan {
             node: cluster.nodes[n].id.clone(),
             lights: g.lights.clone(),
             color: g.color,
@@ -134,10 +149,10 @@ fn unpartitioned(
                 .iter()
                 .filter_map(|&i| shadows.whole[i].clone())
                 .collect(),
-            layers: vec![(Layer::Illumination, options.formats.node)],
+            layers: ill.layers.clone(),
             downstream: stage,
             input_index: input,
-            est_cost_us: costs[n].frame(&group_shadows(g), 0).round() as u64,
+            est_cost_us: ill.cost.round() as u64,
             part: None,
             tile: None,
             scene: None,
@@ -150,7 +165,10 @@ fn unpartitioned(
             host.layers.extend(material_layers.iter().copied());
             let g = &groups[*h];
             host.est_cost_us = costs[on_node[*h]]
-                .frame(&group_shadows(g), material_layers.len())
+                .frame(
+                    &group_shadows(g),
+                    material_layers.len() + mask_of(*h).iter().count(),
+                )
                 .round() as u64;
             MaterialPlacement::ExtraTargets {
                 node: host.node.clone(),
