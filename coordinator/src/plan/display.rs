@@ -10,7 +10,13 @@ use std::fmt::{self, Display, Formatter};
 
 fn layers(l: &[(Layer, PixelFormat)]) -> String {
     l.iter()
-        .map(|(l, f)| format!("{} {}", format!("{l:?}").to_lowercase(), f.name()))
+        .map(|(l, f)| {
+            format!(
+                "{} {}",
+                lightfold_protocol::pipeline::layer_name(*l),
+                f.name()
+            )
+        })
         .collect::<Vec<_>>()
         .join(", ")
 }
