@@ -409,12 +409,7 @@ fn mixed_ambient_plans_the_eq7_mask_instead_of_an_ambient_layer() {
             ..opts()
         };
         let p = plan(&s, &ClusterSpec::local(16, 4), &o).unwrap();
-        let masks = p
-            .nodes
-            .iter()
-            .filter(|n| n.layers.iter().any(|l| l.0 == Layer::AmbientMask))
-            .count();
-        assert_eq!(masks, 1, "{p}");
+        assert_eq!(mask_senders(&p), 1, "{p}");
         assert!(!p.material.layers.iter().any(|l| l.0 == Layer::Ambient));
         assert!(p.nodes.len() >= 4, "{p}");
         assert_stages_build(&p);
@@ -436,11 +431,7 @@ fn mixed_ambient_plans_the_eq7_mask_instead_of_an_ambient_layer() {
     let q = plan(&textured, &local(), &opts()).unwrap();
     assert!(!q.material.fold_ambient);
     assert!(q.material.layers.iter().any(|l| l.0 == Layer::Ambient));
-    assert!(
-        q.nodes
-            .iter()
-            .all(|n| !n.layers.iter().any(|l| l.0 == Layer::AmbientMask))
-    );
+    assert_eq!(mask_senders(&q), 0);
     // The mask saves bytes on the links: 4 a pixel instead of the ambient layer's 8.
     assert!(
         link_bytes(&p) < link_bytes(&q),
@@ -456,6 +447,19 @@ fn mixed_ambient_plans_the_eq7_mask_instead_of_an_ambient_layer() {
     assert!(r.material.layers.iter().any(|l| l.0 == Layer::Ambient));
 }
 
+/// The nodes of `p` that send eq. 7's mask.
+fn mask_senders(p: &lightfold_coordinator::plan::Plan) -> usize {
+    p.nodes
+        .iter()
+        .filter(|n| n.layers.iter().any(|l| l.0 == Layer::AmbientMask))
+        .count()
+}
+
+/// Whether a material note of `p` says `text`.
+fn noted(p: &lightfold_coordinator::plan::Plan, text: &str) -> bool {
+    p.material.notes.iter().any(|n| n.contains(text))
+}
+
 #[test]
 fn eq7_falls_back_to_the_ambient_layer_where_no_node_can_carry_ca() {
     // c^a with a zero channel, and no group of that colour: no node can take c_n = c^a.
@@ -464,16 +468,9 @@ fn eq7_falls_back_to_the_ambient_layer_where_no_node_can_carry_ca() {
     let p = plan(&s, &local(), &opts()).unwrap();
     assert!(!p.material.fold_ambient);
     assert!(p.material.layers.iter().any(|l| l.0 == Layer::Ambient));
+    assert_eq!(mask_senders(&p), 0);
     assert!(
-        p.nodes
-            .iter()
-            .all(|n| !n.layers.iter().any(|l| l.0 == Layer::AmbientMask))
-    );
-    assert!(
-        p.material
-            .notes
-            .iter()
-            .any(|n| n.contains("no node can carry c_n = c^a")),
+        noted(&p, "no node can carry c_n = c^a"),
         "{:?}",
         p.material.notes
     );
@@ -502,16 +499,9 @@ fn eq7_falls_back_to_the_ambient_layer_where_no_node_can_carry_ca() {
     let q = plan(&mixed_ambient_stage(), &local(), &parts).unwrap();
     assert!(!q.material.fold_ambient);
     assert!(q.material.layers.iter().any(|l| l.0 == Layer::Ambient));
+    assert_eq!(mask_senders(&q), 0);
     assert!(
-        q.nodes
-            .iter()
-            .all(|n| !n.layers.iter().any(|l| l.0 == Layer::AmbientMask))
-    );
-    assert!(
-        q.material
-            .notes
-            .iter()
-            .any(|n| n.contains("each part sums its own groups")),
+        noted(&q, "each part sums its own groups"),
         "{:?}",
         q.material.notes
     );

@@ -43,6 +43,15 @@ async fn run_with(
     out
 }
 
+/// How many values of `a` equal `b`'s bit for bit.
+fn bit_equal(a: &Image, b: &Image) -> usize {
+    a.data
+        .iter()
+        .zip(&b.data)
+        .filter(|(x, y)| x.to_bits() == y.to_bits())
+        .count()
+}
+
 /// `image` with rows `[y0, y1)` set to zero.
 fn without_rows(image: &Image, rows: [u32; 2]) -> Image {
     let mut out = image.clone();
@@ -69,13 +78,7 @@ async fn a_tiled_cluster_frame_equals_the_untiled_one_while_rows_move() {
         );
         let truth = single_device(&gpu, &scene, false);
         for f in &tiled.frames {
-            let exact = f
-                .image
-                .data
-                .iter()
-                .zip(&untiled.frames[0].image.data)
-                .filter(|(a, b)| a.to_bits() == b.to_bits())
-                .count();
+            let exact = bit_equal(&f.image, &untiled.frames[0].image);
             eprintln!(
                 "{what} frame {}: {exact} of {} values equal the untiled frame's bit for bit; \
                  rows at the end {:?}",
@@ -145,13 +148,7 @@ async fn a_grid_of_tiles_and_parts_equals_the_partitioned_frame() {
     );
     let truth = single_device(&gpu, &scene, false);
     for f in &grid.frames {
-        let exact = f
-            .image
-            .data
-            .iter()
-            .zip(&parts.frames[0].image.data)
-            .filter(|(a, b)| a.to_bits() == b.to_bits())
-            .count();
+        let exact = bit_equal(&f.image, &parts.frames[0].image);
         eprintln!(
             "grid frame {}: {exact} of {} values equal the partitioned frame's bit for bit; rows \
              at the end {:?}",
