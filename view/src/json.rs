@@ -297,6 +297,8 @@ mod tests {
         let scene = lightfold_scene::builtin("balls").unwrap();
         let options = PlanOptions {
             partitions: 2,
+            // Parts alone (the automatic choice adds tiles on these synthetic nodes).
+            tiles: 1,
             ..PlanOptions::default()
         };
         let p = plan(&scene, &ClusterSpec::local(32, 8), &options).unwrap();
@@ -315,11 +317,18 @@ mod tests {
             .map(|n| n["part"].as_u64().unwrap())
             .collect();
         assert!(parts.contains(&0) && parts.contains(&1), "{parts:?}");
+        // The automatic choice's reason travels with the plan.
+        let auto = PlanOptions {
+            partitions: 2,
+            ..PlanOptions::default()
+        };
+        let chosen = super::plan(&plan(&scene, &ClusterSpec::local(32, 8), &auto).unwrap());
         assert!(
-            v["decomposition"]
+            chosen["decomposition"]
                 .as_str()
                 .unwrap()
-                .contains("sort-last, 2 partitions")
+                .starts_with("decomposition: sort-last, 2 partitions"),
+            "{chosen}"
         );
         // Without partitions or tiles there is no part.
         let untiled = PlanOptions {

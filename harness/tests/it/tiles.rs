@@ -8,8 +8,8 @@
 use lightfold_coordinator::plan::PlanOptions;
 use lightfold_coordinator::run::RunOptions;
 use lightfold_harness::{
-    InProcessCluster, RunOutput, assert_close, gpu, render_on, single_device, small, small_glass,
-    test_control,
+    InProcessCluster, RunOutput, assert_close, gpu, render_on, single_device, single_device_parts,
+    small, small_glass, test_control,
 };
 use lightfold_scene::{Image, Scene};
 
@@ -117,9 +117,10 @@ async fn a_tiled_cluster_frame_equals_the_untiled_one_while_rows_move() {
 
 /// Both decompositions at once: 2 sort-first tiles × 2 sort-last parts of `balls`, one light
 /// group (K = 32), so each of the 4 nodes draws one part's meshes into one tile's rows with the
-/// part's maps. The frame equals the partitioned untiled cluster's frame and the single-device
-/// render within the link formats' bound while the rows move; control: without its last tile's
-/// rows it fails.
+/// part's maps. Every frame equals the partitioned untiled cluster's frame bit for bit (one
+/// group: the same layers through selections only) while the rows move, and the single-device
+/// render of the same parts (`single_device_parts`) within the link formats' bound; control:
+/// without its last tile's rows it fails.
 #[tokio::test(flavor = "multi_thread", worker_threads = 4)]
 async fn a_grid_of_tiles_and_parts_equals_the_partitioned_frame() {
     let cluster = InProcessCluster::start(4, 3).await.unwrap();
@@ -146,7 +147,14 @@ async fn a_grid_of_tiles_and_parts_equals_the_partitioned_frame() {
             .iter()
             .all(|n| n.part.is_some() && n.tile.is_some())
     );
-    let truth = single_device(&gpu, &scene, false);
+    // The render the partitioned cluster matches: each part's maps fitted to the part.
+    let chunked = lightfold_coordinator::plan::scene_for(
+        &scene,
+        &lightfold_coordinator::plan::ClusterSpec::local(1, 1),
+        &options(1),
+    )
+    .into_owned();
+    let truth = single_device_parts(&gpu, &chunked, &grid.plan.partitions, false);
     for f in &grid.frames {
         let exact = bit_equal(&f.image, &parts.frames[0].image);
         eprintln!(
@@ -156,8 +164,8 @@ async fn a_grid_of_tiles_and_parts_equals_the_partitioned_frame() {
             f.image.data.len(),
             grid.summary.tile_rows
         );
-        assert_close(&f.image, &parts.frames[0].image, "grid vs partitions");
-        assert_close(&f.image, &truth, "grid vs render");
+        assert_eq!(exact, f.image.data.len(), "grid vs partitions: bit for bit");
+        assert_close(&f.image, &truth, "grid vs render of the parts");
     }
     let last = *grid.plan.tiles.last().unwrap();
     let missing = without_rows(&grid.frames[0].image, last);
