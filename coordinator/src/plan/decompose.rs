@@ -10,6 +10,7 @@
 //! nodes on one machine's CPU or one GPU run one after another, so there tiles mostly add shadow
 //! passes.
 
+use super::display::ms;
 use super::types::{Decomposition, PlanOptions, TILES_MIN_GAIN, TileCandidate};
 use super::{Plan, PlanError, partitions_for, plan_with};
 use crate::plan::ClusterSpec;
@@ -19,10 +20,6 @@ use lightfold_scene::Scene;
 /// Tile counts an automatic plan weighs beside the untiled image (those the nodes and the
 /// image's bands allow): enough to find the knee without planning every count.
 const CANDIDATES: [u32; 11] = [2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64];
-
-fn ms(us: u64) -> String {
-    format!("{:.1} ms", us as f64 / 1000.0)
-}
 
 /// Plans `scene` with the tile count chosen as the module documentation says, `options.tiles`
 /// being 0. The plan records the choice (`Plan::decomposition`).

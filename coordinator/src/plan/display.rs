@@ -25,7 +25,8 @@ fn rgb(c: [f32; 3]) -> String {
     format!("({}, {}, {})", c[0], c[1], c[2])
 }
 
-fn ms(us: u64) -> String {
+/// Microseconds as the plan prints them, in milliseconds.
+pub(super) fn ms(us: u64) -> String {
     format!("{:.1} ms", us as f64 / 1000.0)
 }
 

@@ -290,6 +290,7 @@ fn partitioned(
         for (j, &u) in list.iter().enumerate() {
             let g = &groups[units[u].1];
             let (stage, input) = dst[p][j].clone();
+            let (part, tile) = fit.cell(p);
             nodes.push(NodePlan {
                 node: inputs[p][j].node.clone(),
                 lights: g.lights.clone(),
@@ -299,8 +300,8 @@ fn partitioned(
                 downstream: stage,
                 input_index: input,
                 est_cost_us: cost_of(u, if j == 0 { extra } else { 0 }).round() as u64,
-                part: fit.cell(p).0,
-                tile: fit.cell(p).1,
+                part,
+                tile,
                 scene: None,
             });
         }
