@@ -250,6 +250,7 @@ async fn bench_node(a: NodeArgs) -> anyhow::Result<()> {
                 eye_meshes: None,
                 rows: None,
                 moves: Vec::new(),
+                peel: None,
             };
             for pack in &a.pack {
                 plan.push((mode.clone(), pack.clone(), k, config.clone()));

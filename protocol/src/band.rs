@@ -134,6 +134,7 @@ fn layer_code(layer: Layer) -> u8 {
         Layer::Depth => 5,
         Layer::Radiance => 6,
         Layer::AmbientMask => 7,
+        Layer::Transmittance => 8,
     }
 }
 
@@ -147,6 +148,7 @@ fn layer_from_code(code: u8) -> Option<Layer> {
         5 => Layer::Depth,
         6 => Layer::Radiance,
         7 => Layer::AmbientMask,
+        8 => Layer::Transmittance,
         _ => return None,
     })
 }

@@ -26,7 +26,9 @@ pub const MAGIC: [u8; 4] = *b"LFLD";
 /// version 8 (soft suns and cylinder lights). 15: `WireLight::cell` and the cell filter
 /// (`NodeConfig::filter` ≥ `CELL_FILTER`). 16: sort-first tiles (`NodeConfig::rows`,
 /// `FrameParams::rows`). 17: `Layer::AmbientMask` (eq. 7's per-pixel ambient mask, wire code 7).
-pub const PROTOCOL_VERSION: u16 = 17;
+/// 18: peeled translucency: `Layer::Transmittance` (wire code 8), `NodeConfig::peel` and the
+/// `blend` operator.
+pub const PROTOCOL_VERSION: u16 = 18;
 /// Longest daemon id a hello may carry (its wire length is one byte).
 pub const MAX_DAEMON_ID: usize = 255;
 

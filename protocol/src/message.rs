@@ -40,10 +40,14 @@ pub enum Layer {
     /// `m^a = m^d`, 0 where `m^a` or `m^d` is 0, their ratio elsewhere. `accumulate` reads it
     /// from its folding input (`AmbientMask::Layer`).
     AmbientMask,
+    /// A translucent eye layer's transmittance `T` for the eye (`docs/translucency.md` § Peeled
+    /// layers), three channels in [0, 1]: what of the light behind the layer passes through
+    /// it. `blend` reads it beside the layer's radiance.
+    Transmittance,
 }
 
 impl Layer {
-    pub const ALL: [Layer; 8] = [
+    pub const ALL: [Layer; 9] = [
         Layer::Illumination,
         Layer::Diffuse,
         Layer::Specular,
@@ -52,6 +56,7 @@ impl Layer {
         Layer::Depth,
         Layer::Radiance,
         Layer::AmbientMask,
+        Layer::Transmittance,
     ];
 
     /// f32 channels per pixel of this layer in memory.
@@ -245,6 +250,14 @@ pub struct NodeConfig {
     /// nothing there) and goes out as empty bands. `None`: every row. `FrameParams::rows` moves
     /// them from one frame on (the coordinator's load balancing).
     pub rows: Option<[u32; 2]>,
+    /// Peeled translucency (protocol version 18, `docs/translucency.md` § Peeled layers): which
+    /// eye layer this node renders. `None`: the classic eye pass (filters seen through, their
+    /// transmittance multiplied into the material layers; coverage surfaces as cut-outs).
+    /// `Some(0)`: the opaque layer of a peeled plan (every translucent surface skipped, nothing
+    /// multiplied: `blend` applies the layers in front). `Some(d)`, d ≥ 1: the d-th nearest
+    /// translucent surface in front of the opaque one, its material layers premultiplied by its
+    /// coverage, with its eye transmittance (`Layer::Transmittance`).
+    pub peel: Option<u32>,
 }
 
 /// One input of a compositor stage.

@@ -39,10 +39,11 @@ pub enum OpSpec {
     Merge(MergeParams),
     Output(OutputParams),
     Penumbra(PenumbraParams),
+    Blend(BlendParams),
 }
 
 /// Every operator's registry name, in `OpSpec` order.
-pub const OP_NAMES: [&str; 7] = [
+pub const OP_NAMES: [&str; 8] = [
     "accumulate",
     "material",
     "depth",
@@ -50,6 +51,7 @@ pub const OP_NAMES: [&str; 7] = [
     "merge",
     "output",
     "penumbra",
+    "blend",
 ];
 
 impl OpSpec {
@@ -63,6 +65,7 @@ impl OpSpec {
             OpSpec::Merge(_) => MergeParams::NAME,
             OpSpec::Output(_) => OutputParams::NAME,
             OpSpec::Penumbra(_) => PenumbraParams::NAME,
+            OpSpec::Blend(_) => BlendParams::NAME,
         }
     }
 
@@ -77,6 +80,7 @@ impl OpSpec {
             OpSpec::Merge(p) => p.validate(),
             OpSpec::Output(p) => p.validate(),
             OpSpec::Penumbra(p) => p.validate(),
+            OpSpec::Blend(p) => p.validate(),
         }
     }
 }
@@ -121,6 +125,7 @@ pub fn layer_name(layer: Layer) -> &'static str {
         Layer::Depth => "depth",
         Layer::Radiance => "radiance",
         Layer::AmbientMask => "ambient_mask",
+        Layer::Transmittance => "transmittance",
     }
 }
 
@@ -490,6 +495,38 @@ impl JoinParams {
             ));
         }
         Ok(())
+    }
+}
+
+// ----- blend -----
+
+/// `blend`: premultiplied "over" with a per-channel transmittance, back to front. Input 0 is
+/// the back (`radiance`); inputs 1.. each give a layer in front of everything before it
+/// (`radiance`, premultiplied by its coverage, and `transmittance`), the last the nearest:
+/// `out = R_0`, then for each front input i in order `out = R_i + T_i ⊙ out`. A scalar alpha's
+/// "over" is `T = 1 − α` in every channel.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BlendParams {
+    /// Inputs in all: the back and the layers in front of it (at least 2).
+    pub inputs: u32,
+}
+
+impl BlendParams {
+    pub const NAME: &'static str = "blend";
+
+    pub fn validate(&self) -> Result<(), ParamError> {
+        let op = Self::NAME;
+        if self.inputs < 2 {
+            return Err(bad(
+                op,
+                format!(
+                    "inputs must be at least 2 (a back and a layer over it), got {}",
+                    self.inputs
+                ),
+            ));
+        }
+        check_inputs(op, "inputs", self.inputs as usize)
     }
 }
 

@@ -15,6 +15,7 @@
 //! operator ever emits NaN or Inf for colour. Depth has its own rule (see `depth`).
 
 pub mod accumulate;
+pub mod blend;
 pub mod depth;
 pub mod dispatch;
 pub mod join;
@@ -32,6 +33,7 @@ use serde_json::Value;
 use std::fmt;
 
 pub use accumulate::{Accumulate, PackedIllumination};
+pub use blend::Blend;
 pub use depth::{Depth, PackedLayer};
 pub use dispatch::Isa;
 pub use join::Join;
@@ -226,7 +228,7 @@ pub trait Operator: Send + Sync + fmt::Debug {
 /// Builds an operator from its JSON parameters.
 pub type Constructor = fn(&Value) -> Result<Box<dyn Operator>, OpError>;
 
-static REGISTRY: [(&str, Constructor); 7] = [
+static REGISTRY: [(&str, Constructor); 8] = [
     (accumulate::NAME, |p| Ok(Box::new(Accumulate::new(p)?))),
     (material::NAME, |p| Ok(Box::new(Material::new(p)?))),
     (depth::NAME, |p| Ok(Box::new(Depth::new(p)?))),
@@ -234,6 +236,7 @@ static REGISTRY: [(&str, Constructor); 7] = [
     (merge::NAME, |p| Ok(Box::new(Merge::new(p)?))),
     (output::NAME, |p| Ok(Box::new(Output::new(p)?))),
     (penumbra::NAME, |p| Ok(Box::new(Penumbra::new(p)?))),
+    (blend::NAME, |p| Ok(Box::new(Blend::new(p)?))),
 ];
 
 /// Builds the operator a configuration's `OpSpec` names, its parameters validated.
@@ -246,6 +249,7 @@ pub fn from_spec(spec: &OpSpec) -> Result<Box<dyn Operator>, OpError> {
         OpSpec::Merge(p) => Box::new(Merge::from_params(p)?),
         OpSpec::Output(p) => Box::new(Output::from_params(p)?),
         OpSpec::Penumbra(p) => Box::new(Penumbra::from_params(p)?),
+        OpSpec::Blend(p) => Box::new(Blend::from_params(p)?),
     })
 }
 
@@ -261,6 +265,7 @@ pub fn spec_from_json(name: &str, params: &Value) -> Result<OpSpec, OpError> {
         merge::NAME => OpSpec::Merge(params::parse(merge::NAME, params)?),
         output::NAME => OpSpec::Output(params::parse(output::NAME, params)?),
         penumbra::NAME => OpSpec::Penumbra(params::parse(penumbra::NAME, params)?),
+        blend::NAME => OpSpec::Blend(params::parse(blend::NAME, params)?),
         _ => {
             return Err(OpError::UnknownOperator {
                 name: name.to_string(),

@@ -176,6 +176,12 @@ fn merge_matches_reference() {
 }
 
 #[test]
+fn blend_matches_reference() {
+    differential("blend", json!({"inputs": 2}));
+    differential("blend", json!({"inputs": 5}));
+}
+
+#[test]
 fn join_matches_reference() {
     differential("join", json!({"inputs": 1}));
     differential("join", json!({"inputs": 5}));

@@ -460,6 +460,60 @@ fn join_sums_in_order() {
 }
 
 #[test]
+fn blend_is_over_back_to_front() {
+    // Back R0 = 1 (per channel); a red glass (T = [0.9, 0.1, 0.1], its own 0.05 of reflection)
+    // over it; a half-covered white film (α = 0.5: R = 0.5·0.8, T = 0.5) nearest.
+    // out = R2 + T2 ⊙ (R1 + T1 ⊙ R0).
+    let op = ops::create("blend", &json!({"inputs": 3})).unwrap();
+    let inputs = [
+        band(&[(Layer::Radiance, &[1.0, 1.0, 1.0])]),
+        band(&[
+            (Layer::Radiance, &[0.05, 0.05, 0.05]),
+            (Layer::Transmittance, &[0.9, 0.1, 0.1]),
+        ]),
+        band(&[
+            (Layer::Radiance, &[0.4, 0.4, 0.4]),
+            (Layer::Transmittance, &[0.5, 0.5, 0.5]),
+        ]),
+    ];
+    let want: Vec<f32> = [0.9f32, 0.1, 0.1]
+        .iter()
+        .map(|t| 0.4 + 0.5 * (0.05 + t * 1.0))
+        .collect();
+    check(&*op, &inputs, &[(Layer::Radiance, &want)]);
+    // Order matters: the film behind the glass tints differently.
+    let swapped = [inputs[0].clone(), inputs[2].clone(), inputs[1].clone()];
+    let out = common::run(&*op, &swapped, 1, false);
+    assert_ne!(out.layer(Layer::Radiance), &want[..]);
+    // An empty front band (no layer there) lets the back through; hostile transmittance is
+    // clamped to [0, 1] (NaN hides: 0), hostile radiance follows the value policy.
+    let inputs = [
+        band(&[(Layer::Radiance, &[2.0, 2.0, 2.0, 2.0, 2.0, 2.0])]),
+        Owned::zeros(2, &[]),
+        band(&[
+            (
+                Layer::Radiance,
+                &[f32::NAN, -1.0, 0.25, f32::INFINITY, 0.0, 0.0],
+            ),
+            (
+                Layer::Transmittance,
+                &[f32::NAN, 3.0, -1.0, 0.5, f32::INFINITY, 0.25],
+            ),
+        ]),
+    ];
+    check(
+        &*op,
+        &inputs,
+        &[(Layer::Radiance, &[0.0, 2.0, 0.25, MAX_VALUE, 2.0, 0.5])],
+    );
+    // Fewer than two inputs is not a blend.
+    assert!(matches!(
+        ops::create("blend", &json!({"inputs": 1})),
+        Err(OpError::BadParam { .. })
+    ));
+}
+
+#[test]
 fn output_linear_and_srgb8() {
     let op = ops::Output::new(&json!({"exposure": 2.0})).unwrap();
     let lin = [0.25, f32::NAN, -1.0, f32::INFINITY, 0.001, 0.5];
@@ -496,13 +550,14 @@ fn registry_and_errors() {
             "join",
             "merge",
             "output",
-            "penumbra"
+            "penumbra",
+            "blend"
         ]
     );
-    let err = ops::create("blend", &json!({})).unwrap_err();
+    let err = ops::create("over", &json!({})).unwrap_err();
     assert_eq!(
         err.to_string(),
-        "unknown operator \"blend\" (known: accumulate, material, depth, join, merge, output, penumbra)"
+        "unknown operator \"over\" (known: accumulate, material, depth, join, merge, output, penumbra, blend)"
     );
     for (name, params) in [
         ("accumulate", json!({"colors": [[1, -1, 1]]})),
@@ -516,6 +571,8 @@ fn registry_and_errors() {
         ("material", json!({"stage": "diffuse", "emissive": true})),
         ("depth", json!({"inputs": 2, "layers": ["depth"]})),
         ("join", json!({"inputs": 2, "layer": "depth"})),
+        ("blend", json!({"inputs": 0})),
+        ("blend", json!({"inputs": 2, "layer": "radiance"})),
         ("output", json!({"exposure": -1.0})),
         ("output", json!([1, 2])),
         ("merge", json!({"inputs": []})),

@@ -448,6 +448,7 @@ mod tests {
             eye_meshes: None,
             rows: None,
             moves: Vec::new(),
+            peel: None,
         }
     }
 

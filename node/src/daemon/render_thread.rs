@@ -535,7 +535,7 @@ pub fn take_layer(frame: &mut NodeFrame, layer: Layer) -> Option<Image> {
         Layer::Emissive => frame.emissive.take(),
         Layer::Depth => frame.depth.take(),
         Layer::AmbientMask => frame.ambient_mask.take(),
-        Layer::Radiance => None,
+        Layer::Radiance | Layer::Transmittance => None,
     }
 }
 

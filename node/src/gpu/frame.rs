@@ -129,7 +129,7 @@ impl LayerSet {
                 Layer::Emissive => set.emissive = true,
                 Layer::Depth => set.depth = true,
                 Layer::AmbientMask => set.ambient_mask = true,
-                Layer::Radiance => {}
+                Layer::Radiance | Layer::Transmittance => {}
             }
         }
         set

@@ -1029,8 +1029,11 @@ impl Renderer {
                             return Err(RenderError::Gpu("no ambient mask was rendered".into()));
                         }
                     },
-                    Layer::Radiance => {
-                        return Err(RenderError::Gpu("a node renders no radiance layer".into()));
+                    Layer::Radiance | Layer::Transmittance => {
+                        return Err(RenderError::Gpu(format!(
+                            "this node renders no {} layer",
+                            lightfold_protocol::pipeline::layer_name(layer)
+                        )));
                     }
                 };
                 Ok(PackLayer { source, format })

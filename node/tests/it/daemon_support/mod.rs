@@ -289,6 +289,7 @@ pub(crate) fn node_config(
         eye_meshes: None,
         rows: None,
         moves: Vec::new(),
+        peel: None,
     }
 }
 

@@ -228,7 +228,10 @@ pub(crate) fn node_config() -> impl Strategy<Value = NodeConfig> {
                 .prop_map(|(mesh, matrix)| WireMove { mesh, matrix }),
             0..3,
         ),
-        prop::option::of(any::<[u32; 2]>()),
+        (
+            prop::option::of(any::<[u32; 2]>()),
+            prop::option::of(any::<u32>()),
+        ),
     )
         .prop_map(
             |(
@@ -237,7 +240,7 @@ pub(crate) fn node_config() -> impl Strategy<Value = NodeConfig> {
                 (camera, walkthrough, downstream, input_index, filter, depth_bias, slope_bias),
                 eye_meshes,
                 moves,
-                rows,
+                (rows, peel),
             )| NodeConfig {
                 epoch,
                 scene,
@@ -257,6 +260,7 @@ pub(crate) fn node_config() -> impl Strategy<Value = NodeConfig> {
                 eye_meshes,
                 moves,
                 rows,
+                peel,
             },
         )
 }
