@@ -28,8 +28,8 @@ pub mod wire;
 pub use budget::{MAX_EPSILON, expected_penumbra_db, filter_cost_us, filter_radius, targeted};
 pub use error_model::{Choice, Curve, ErrorModel};
 pub use group::{DEFAULT_FIXED_US, DEFAULT_LIGHT_US};
-pub use replan::{lights_moved, replan};
 pub use peel::depth_complexity;
+pub use replan::{lights_moved, replan};
 pub use topology::BAND_OVERHEAD_BYTES;
 pub use types::*;
 

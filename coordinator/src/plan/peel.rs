@@ -94,7 +94,9 @@ pub(super) fn resolve(
                     "{d} translucent layers: depth complexity above {MAX_PEELS}, capped (what \
                      lies behind the {d}th translucent surface is not seen)"
                 ),
-                n => format!("{d} translucent layer(s): the scene's depth complexity in view is {n}"),
+                n => {
+                    format!("{d} translucent layer(s): the scene's depth complexity in view is {n}")
+                }
             };
             (d, Some(n.min(MAX_PEELS + 1)), why)
         }

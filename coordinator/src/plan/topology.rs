@@ -489,9 +489,9 @@ pub(crate) fn peeled_stages(
         .collect();
     let mut stages: Vec<StagePlan> = Vec::with_capacity(count);
     let mut start = 0;
-    for i in 0..count {
+    for (i, compositor) in compositors.iter().take(count).enumerate() {
         let len = layers.len() / count + usize::from(i < layers.len() % count);
-        let id = compositors[i].id.clone();
+        let id = compositor.id.clone();
         let mut inputs = Vec::new();
         let mut ops: Vec<OpSpec> = Vec::new();
         let mut wiring: Vec<Vec<OpSource>> = Vec::new();

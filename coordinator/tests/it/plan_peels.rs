@@ -6,7 +6,7 @@ use crate::plan_rules::assert_stages_build;
 use crate::plan_scenes::stage;
 
 use lightfold_coordinator::plan::{
-    ClusterSpec, MAX_PEELS, PlanError, PlanOptions, Peels, Plan, depth_complexity, plan,
+    ClusterSpec, MAX_PEELS, Peels, Plan, PlanError, PlanOptions, depth_complexity, plan,
 };
 use lightfold_protocol::pipeline::OpSpec;
 use lightfold_protocol::{Layer, OpSource};
@@ -91,7 +91,11 @@ fn auto_peels_the_depth_complexity_one_cell_per_layer_back_to_front() {
         assert_eq!(hosts.len(), 1, "layer {layer}");
         let transmits = hosts[0].layers.iter().any(|l| l.0 == Layer::Transmittance);
         assert_eq!(transmits, layer > 0, "layer {layer}");
-        assert!(nodes.iter().all(|n| n.layers.iter().all(|l| l.0 != Layer::Depth)));
+        assert!(
+            nodes
+                .iter()
+                .all(|n| n.layers.iter().all(|l| l.0 != Layer::Depth))
+        );
         // Each node is configured with its layer.
         for n in &nodes {
             assert_eq!(p.node_config(&n.node).unwrap().peel, Some(layer));
@@ -129,7 +133,10 @@ fn auto_peels_the_depth_complexity_one_cell_per_layer_back_to_front() {
     assert!(matches!(root(&p).outputs[0].0, Layer::Radiance));
     let text = p.to_string();
     assert!(text.contains("peels: 2 translucent layer(s)"), "{text}");
-    assert!(text.contains("3 eye layers × 2 light group(s) = 6 nodes"), "{text}");
+    assert!(
+        text.contains("3 eye layers × 2 light group(s) = 6 nodes"),
+        "{text}"
+    );
     assert!(text.contains("translucent layer 1 ·"), "{text}");
 }
 
@@ -165,7 +172,10 @@ fn peeling_is_off_by_default_and_none_without_translucency_in_view() {
     .unwrap();
     q.peels = p.peels.clone();
     assert_eq!(p, q, "nothing but the reason differs");
-    assert!(p.to_string().contains("peels: none: no translucent surface"));
+    assert!(
+        p.to_string()
+            .contains("peels: none: no translucent surface")
+    );
 }
 
 #[test]
@@ -179,7 +189,12 @@ fn peels_are_capped_by_the_layers_and_the_nodes_and_refuse_what_they_do_not_take
     .unwrap();
     assert_eq!(p.peels.as_ref().unwrap().layers, MAX_PEELS.min(4));
     // Three render nodes hold the opaque layer and two translucent ones at most.
-    let p = plan(&panes(2), &ClusterSpec::local(3, 4), &peeled(Peels::Auto, 4)).unwrap();
+    let p = plan(
+        &panes(2),
+        &ClusterSpec::local(3, 4),
+        &peeled(Peels::Auto, 4),
+    )
+    .unwrap();
     let c = p.peels.as_ref().unwrap();
     assert_eq!(c.layers, 2);
     assert!(c.why.contains("3 nodes"), "{}", c.why);
