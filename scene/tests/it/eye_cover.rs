@@ -4,7 +4,7 @@
 use lightfold_scene::primitives::plane;
 use lightfold_scene::shading::{EyeCover, eye_cover, transmittance};
 use lightfold_scene::trace::Tracer;
-use lightfold_scene::{Camera, Material, Quality, Scene, Transmission};
+use lightfold_scene::{AlphaMode, Camera, Material, Quality, Scene, Texture, Transmission};
 
 const RED: [f32; 3] = [0.9, 0.2, 0.1];
 
@@ -150,4 +150,43 @@ fn a_shared_edge_or_panes_within_epsilon_are_one_layer_panes_apart_two() {
     let t = Tracer::new(&twin);
     assert_eq!(t.translucent_count(6.5, 3.5, 8), 1);
     assert_eq!(t.eye_layers(6.5, 3.5, 8).translucent.len(), 1);
+}
+
+#[test]
+fn a_textured_coverage_film_covers_by_alpha_times_texel_alpha_even_below_the_mask_cutoff() {
+    let mut s = top_down(&[2.0]);
+    // Uniform linear texel (64, 128, 255) with alpha 128: below the 0.5 cutoff at α = 0.5.
+    s.textures = vec![Texture {
+        name: "film".into(),
+        width: 2,
+        height: 2,
+        srgb: false,
+        rgba8: [64, 128, 255, 128].repeat(4),
+    }];
+    s.materials[1] = Material {
+        alpha: 0.5,
+        alpha_mode: AlphaMode::Mask { cutoff: 0.5 },
+        diffuse_texture: Some(0),
+        transmission: Some(coverage()),
+        ..Material::diffuse("film", [1.0; 3])
+    };
+    let t = Tracer::new(&s);
+    // The classic eye cuts it out; peeling keeps it, covering a = α · texel alpha.
+    assert!((t.primary(4, 4).unwrap().depth - 5.0).abs() < 1e-5);
+    let layers = t.eye_layers(4.5, 4.5, 4);
+    assert_eq!(layers.translucent.len(), 1);
+    let a = 0.5 * 128.0 / 255.0;
+    let cover = layers.translucent[0].cover;
+    assert!((cover.coverage - a).abs() < 1e-6, "{cover:?}");
+    for k in 0..3 {
+        assert!(
+            (cover.transmittance[k] - (1.0 - a)).abs() < 1e-6,
+            "{cover:?}"
+        );
+    }
+    // The same texel on a filter under the mask: masked out, no layer at all.
+    s.materials[1].transmission = Some(filter());
+    let t = Tracer::new(&s);
+    assert_eq!(t.translucent_count(4.5, 4.5, 4), 0);
+    assert!(t.eye_layers(4.5, 4.5, 4).translucent.is_empty());
 }
