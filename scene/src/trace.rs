@@ -8,6 +8,11 @@
 //! (`shading::mapped_normal`, on the front face before the flip); alpha-masked texels below the
 //! cutoff are transparent to eye and shadow rays alike; every other triangle casts shadows
 //! whatever its sidedness.
+//!
+//! Peeled eye rays ([`Tracer::eye_layers`], `docs/translucency.md`) split that: the opaque layer
+//! is the nearest surface that is not translucent; the translucent surfaces in front of it are
+//! layers of their own, nearest first, each covering by [`shading::eye_cover`] (a coverage
+//! material is never cut out by its mask there).
 
 use crate::bvh::{Bvh, Hit};
 use crate::shading::{self, EyeCover, V3, dot, normalize, sample_texture};
@@ -134,7 +139,8 @@ impl<'a> Tracer<'a> {
     /// centre) and what it hits.
     pub fn primary_at(&self, fx: f32, fy: f32) -> Option<SurfaceHit> {
         let (o, dir, depth_scale) = self.eye_origin_dir(fx, fy);
-        self.hit_along(o, dir, depth_scale, true).map(|(hit, _)| hit)
+        self.hit_along(o, dir, depth_scale, true)
+            .map(|(hit, _)| hit)
     }
 
     /// The eye ray through image point `(fx, fy)` peeled into layers (`docs/translucency.md`):
