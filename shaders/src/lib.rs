@@ -207,7 +207,10 @@ pub const MODULES: &[(&str, &str)] = &[
     ),
     ("peel", PEEL_WGSL),
     ("peel, metallic-roughness", PEEL_MR_WGSL),
-    ("peel, metallic-roughness, normal-mapped", PEEL_MR_MAPPED_WGSL),
+    (
+        "peel, metallic-roughness, normal-mapped",
+        PEEL_MR_MAPPED_WGSL,
+    ),
     ("pack", PACK_WGSL),
     ("ambient mask", AMBIENT_MASK_WGSL),
 ];

@@ -235,7 +235,12 @@ pub fn check_peel(config: &NodeConfig) -> Result<(), ConfigError> {
         }
     }
     let translucent = config.peel.is_some_and(|p| p >= 1);
-    if !translucent && config.layers.iter().any(|(l, _)| *l == Layer::Transmittance) {
+    if !translucent
+        && config
+            .layers
+            .iter()
+            .any(|(l, _)| *l == Layer::Transmittance)
+    {
         return Err(ConfigError::TransmittanceWithoutPeel(config.peel));
     }
     Ok(())
@@ -819,7 +824,13 @@ mod tests {
         // Beyond the cap.
         for peel in [MAX_PEEL + 1, u32::MAX] {
             let e = run(with(vec![illum, t], Some(peel))).unwrap_err();
-            assert_eq!(e, ConfigError::PeelTooDeep { peel, max: MAX_PEEL });
+            assert_eq!(
+                e,
+                ConfigError::PeelTooDeep {
+                    peel,
+                    max: MAX_PEEL
+                }
+            );
             assert_eq!(e.code(), ErrorCode::BadConfig);
         }
         // A peel as a sort-last part; the same part without a peel passes.
@@ -834,7 +845,11 @@ mod tests {
             assert_eq!(e.code(), ErrorCode::BadConfig);
         }
         // Transmittance in sRGB or a format of another channel count is no node's.
-        for f in [PixelFormat::Rgba8Srgb, PixelFormat::F16x6, PixelFormat::DepthF32] {
+        for f in [
+            PixelFormat::Rgba8Srgb,
+            PixelFormat::F16x6,
+            PixelFormat::DepthF32,
+        ] {
             assert!(!supports(Layer::Transmittance, f), "{f:?}");
             let e = run(with(vec![illum, (Layer::Transmittance, f)], Some(1))).unwrap_err();
             assert!(matches!(e, ConfigError::UnsupportedFormat { .. }), "{e}");

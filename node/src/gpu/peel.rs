@@ -15,8 +15,7 @@
 //! cleared to 1: 1 where there is no such layer, as everything else there is 0).
 
 use super::eye_pass::{
-    EyeDraws, EyeInputs, EyeTargets, attachments, draw_eye, eye_bind_group, record_raster,
-    scissor,
+    EyeDraws, EyeInputs, EyeTargets, attachments, draw_eye, eye_bind_group, record_raster, scissor,
 };
 use super::pipelines::{
     DrawContext, EYE_DEPTH_FORMAT, ILLUMINATION_FORMAT, MATERIAL_FORMAT, Pipelines, color_target,
