@@ -570,3 +570,93 @@ fn a_tile_of_a_peeled_layer_is_the_same_rows() {
     }
     let _ = t;
 }
+
+/// Bands in protocol order, from a channel big enough for the frame.
+fn bands(
+    f: impl FnOnce(&tokio::sync::mpsc::Sender<lightfold_node::daemon::bands::PackedBand>),
+) -> Vec<lightfold_node::daemon::bands::PackedBand> {
+    let (tx, mut rx) = tokio::sync::mpsc::channel(1024);
+    f(&tx);
+    drop(tx);
+    let mut out = Vec::new();
+    while let Ok(b) = rx.try_recv() {
+        out.push(b);
+    }
+    out
+}
+
+/// The transmittance layer packed on the device equals the CPU's pack of the read-back image, in
+/// both of its formats; a frame asking for it without a translucent peel is an error.
+#[test]
+fn transmittance_packs_on_the_device_as_on_the_cpu() {
+    use lightfold_node::daemon::bands::{BandLayout, LayerImages, assemble_frame, pack_frame};
+    use lightfold_protocol::{Layer, PixelFormat};
+    use std::sync::Arc;
+    let gpu = gpu();
+    let t = truth();
+    let mut r = renderer(&gpu);
+    let band_height = 16;
+    for format in [PixelFormat::F16x4, PixelFormat::Rgba8Linear] {
+        let layers = [
+            (Layer::Illumination, PixelFormat::F16x6),
+            (Layer::Diffuse, PixelFormat::F16x4),
+            (Layer::Depth, PixelFormat::DepthF32),
+            (Layer::Transmittance, format),
+        ];
+        r.set_peel(Some(1));
+        let (packed, _) = r
+            .render_packed(&gpu, &t.samples, None, [1.0; 3], &layers, band_height, 1.0)
+            .expect("frame")
+            .expect("this device packs");
+        let set = LayerSet::of(layers.iter().map(|(l, _)| *l));
+        let mut frame = r
+            .render(&gpu, &t.samples, None, [1.0; 3], set)
+            .expect("frame");
+        let images: LayerImages = layers
+            .iter()
+            .map(|&(layer, format)| {
+                let img = lightfold_node::daemon::render_thread::take_layer(&mut frame, layer)
+                    .expect("layer");
+                (layer, format, Arc::new(img))
+            })
+            .collect();
+        let layout = BandLayout {
+            epoch: 1,
+            frame: 1,
+            width: W,
+            height: H,
+            band_height,
+            scale: 1.0,
+        };
+        let device = bands(|tx| {
+            assemble_frame(&layout, &layers, &packed, tx).expect("device bands");
+        });
+        let cpu = bands(|tx| {
+            pack_frame(&layout, &images, None, tx).expect("CPU bands");
+        });
+        assert_eq!(device.len(), cpu.len(), "{format:?}");
+        for (d, c) in device.iter().zip(&cpu) {
+            assert_eq!(d.header, c.header, "{format:?}");
+            assert_eq!(d.payload, c.payload, "{format:?}");
+        }
+        // T is 1 where no glass is seen: no band of it is empty.
+        assert!(
+            cpu.iter()
+                .filter(|b| b.header.layer == Layer::Transmittance)
+                .all(|b| !b.header.empty),
+            "{format:?}"
+        );
+        // Without a translucent peel there is no transmittance, on either path.
+        for peel in [None, Some(0)] {
+            r.set_peel(peel);
+            let e = r
+                .render(&gpu, &t.samples, None, [1.0; 3], set)
+                .expect_err("no transmittance");
+            assert!(e.to_string().contains("peel >= 1"), "{e}");
+            let e = r
+                .render_packed(&gpu, &t.samples, None, [1.0; 3], &layers, band_height, 1.0)
+                .expect_err("no transmittance");
+            assert!(e.to_string().contains("peel >= 1"), "{e}");
+        }
+    }
+}
