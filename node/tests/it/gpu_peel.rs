@@ -301,8 +301,8 @@ fn expected(t: &Truth, d: usize) -> (NodeFrame, Image) {
             .copy_from_slice(&src.illumination.data[i * 6..i * 6 + 6]);
         depth.data[i] = src.depth.data[i];
         for (out, from) in m.iter_mut().zip(materials(src)) {
-            for k in 0..3 {
-                out.data[i * 3 + k] = from.data[i * 3 + k] * factor[k];
+            for (k, f) in factor.iter().enumerate() {
+                out.data[i * 3 + k] = from.data[i * 3 + k] * f;
             }
         }
         tr.data[i * 3..i * 3 + 3].copy_from_slice(&transmit);
