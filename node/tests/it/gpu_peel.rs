@@ -660,3 +660,93 @@ fn transmittance_packs_on_the_device_as_on_the_cpu() {
         }
     }
 }
+
+/// A node configured with `peel: Some(1)` streams the peeled layer and its transmittance, equal
+/// to a direct peeled render within each link format's bound; transmittance without a
+/// translucent peel is refused with `BadConfig`, and the node keeps serving.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_peeling_node_streams_the_peeled_layer() {
+    use crate::daemon_support::{
+        assemble, band_count, node_config, start_compositor, start_node, worst_excess,
+    };
+    use lightfold_node::daemon::render_thread::{shadow_filter, take_layer};
+    use lightfold_protocol::{ErrorCode, Layer, Message, PixelFormat};
+    use lightfold_scene::wire::camera_to_wire;
+    let mut node = start_node("node-peel", None).await;
+    let mut comp = start_compositor().await;
+    let mut coord = node.coordinator().await;
+    let scene = scene();
+    let hash = coord.send_scene(&scene).await;
+    let lights = samples(&scene);
+    let layers = vec![
+        (Layer::Illumination, PixelFormat::F32x6),
+        (Layer::Diffuse, PixelFormat::F16x4),
+        (Layer::Depth, PixelFormat::DepthF32),
+        (Layer::Transmittance, PixelFormat::F16x4),
+    ];
+    let mut config = node_config(3, hash, &lights, layers.clone(), &comp.addr);
+    config.camera = camera_to_wire(&scene.camera);
+    config.depth_bias = scene.quality.depth_bias;
+    config.slope_bias = scene.quality.slope_bias;
+    // Refused: transmittance of the opaque layer, and a peel deeper than the cap.
+    for (peel, needle) in [(Some(0), "needs peel >= 1"), (Some(99), "deeper than")] {
+        let bad = lightfold_protocol::NodeConfig {
+            peel,
+            ..config.clone()
+        };
+        match coord.request(Message::ConfigureNode(bad)).await {
+            Message::Error { code, message, .. }
+                if code == ErrorCode::BadConfig && message.contains(needle) => {}
+            other => panic!("peel {peel:?}: expected BadConfig ({needle}), got {other:?}"),
+        }
+    }
+    config.peel = Some(1);
+    assert_eq!(
+        coord.request(Message::ConfigureNode(config.clone())).await,
+        Message::Configured { epoch: 3 }
+    );
+    match coord.frame(3, 1).await {
+        Message::FrameDone(_) => {}
+        other => panic!("expected FrameDone, got {other:?}"),
+    }
+    let bands = comp.take(band_count(&config)).await;
+    assert!(comp.idle(), "exactly the configured bands arrive");
+    let gpu = gpu();
+    let options = RenderOptions {
+        shadow_map_size: scene.quality.shadow_map_size,
+        map_sizing: scene.quality.map_sizing,
+        filter: shadow_filter(config.filter),
+        depth_bias: config.depth_bias,
+        slope_bias: config.slope_bias,
+        ..RenderOptions::default()
+    };
+    let mut r = Renderer::new(&gpu, &scene, options).expect("renderer");
+    r.set_peel(Some(1));
+    let mut direct = r
+        .render(
+            &gpu,
+            &lights,
+            None,
+            config.color,
+            LayerSet::of(layers.iter().map(|(l, _)| *l)),
+        )
+        .expect("direct render");
+    for (layer, format) in &layers {
+        let want = take_layer(&mut direct, *layer).expect("direct layer");
+        let got = assemble(&bands, *layer, W, H);
+        let excess = worst_excess(*format, &got, &want, config.scale);
+        eprintln!("{layer:?} in {format:?}: worst excess over the bound {excess:e}");
+        assert!(excess <= 0.0, "{layer:?} in {format:?}: {excess}");
+    }
+    // The glass is in the streamed layer: T below 1 somewhere, 1 elsewhere.
+    let t = assemble(&bands, Layer::Transmittance, W, H);
+    let lo = t.data.iter().copied().fold(f32::INFINITY, f32::min);
+    let ones = t.data.iter().filter(|v| **v == 1.0).count();
+    eprintln!(
+        "T: least {lo}, {ones} channels exactly 1 of {}",
+        t.data.len()
+    );
+    assert!(t.data.iter().any(|v| *v < 0.6) && t.data.iter().any(|v| *v == 1.0));
+    drop(coord);
+    node.stop().await;
+}
