@@ -36,6 +36,21 @@ macro_rules! eye_module {
             include_str!(concat!("../wgsl/", $pass)),
         )
     };
+    ($mr:literal, $lights:literal, $vertex:literal, $pass:literal, $extra:literal) => {
+        concat!(
+            "const METALLIC_ROUGHNESS: bool = ",
+            $mr,
+            ";\n",
+            include_str!("../wgsl/shading.wgsl"),
+            include_str!("../wgsl/materials.wgsl"),
+            include_str!("../wgsl/lighting.wgsl"),
+            include_str!(concat!("../wgsl/", $lights)),
+            include_str!(concat!("../wgsl/", $vertex)),
+            include_str!("../wgsl/eye.wgsl"),
+            include_str!(concat!("../wgsl/", $pass)),
+            include_str!(concat!("../wgsl/", $extra)),
+        )
+    };
 }
 
 /// Forward eye pass: `vs_eye` with `fs_illumination` (illumination + depth) or `fs_layers` (plus
@@ -102,6 +117,53 @@ pub fn eye_modules(metallic_roughness: bool, normal_mapped: bool) -> (&'static s
     }
 }
 
+/// Peeled eye layers (`NodeConfig::peel`): the forward module with `peel.wgsl` after it, entry
+/// points `fs_peel_opaque_illumination` / `fs_peel_opaque_layers` (the opaque layer),
+/// `fs_peel_opaque` (its depth alone), `fs_peel_depth` and `fs_peel_layers` (a translucent
+/// layer's peel passes); the previous pass's eye depth and [`PEEL_EPSILON`] in group 2. A module
+/// of its own, so the forward pass's is what it was.
+pub const PEEL_WGSL: &str = eye_module!(
+    "false",
+    "lights_storage.wgsl",
+    "eye_vertex.wgsl",
+    "forward.wgsl",
+    "peel.wgsl"
+);
+
+/// [`PEEL_WGSL`] with glTF metallic-roughness shading.
+pub const PEEL_MR_WGSL: &str = eye_module!(
+    "true",
+    "lights_storage.wgsl",
+    "eye_vertex.wgsl",
+    "forward.wgsl",
+    "peel.wgsl"
+);
+
+/// [`PEEL_MR_WGSL`] for a scene with normal maps.
+pub const PEEL_MR_MAPPED_WGSL: &str = eye_module!(
+    "true",
+    "lights_storage.wgsl",
+    "eye_vertex_mapped.wgsl",
+    "forward.wgsl",
+    "peel.wgsl"
+);
+
+/// The peel module for a scene (see [`eye_modules`]).
+pub fn peel_module(metallic_roughness: bool, normal_mapped: bool) -> &'static str {
+    match (metallic_roughness, normal_mapped) {
+        (false, _) => PEEL_WGSL,
+        (true, false) => PEEL_MR_WGSL,
+        (true, true) => PEEL_MR_MAPPED_WGSL,
+    }
+}
+
+/// A peel pass keeps a translucent fragment only where its eye depth exceeds the previous pass's
+/// by more than this fraction of it: a surface is never found twice (the same triangle's depth
+/// is recomputed bit for bit, and a mesh's shared edges are rasterised once), and two
+/// translucent surfaces nearer each other than 1e-5 of their depth (10 µm at 1 m; the CPU
+/// reference's ε is 1e-5 of the scene's diagonal) count as one, the nearer drawn.
+pub const PEEL_EPSILON: f32 = 1e-5;
+
 /// Lights one `cs_lights` dispatch takes (`CHUNK_LIGHTS` in `lights_uniform.wgsl`).
 pub const CHUNK_LIGHTS: usize = 64;
 /// Views one `cs_lights` dispatch takes (`CHUNK_VIEWS`): six per light.
@@ -142,6 +204,12 @@ pub const MODULES: &[(&str, &str)] = &[
     (
         "deferred, metallic-roughness, normal-mapped",
         DEFERRED_MR_MAPPED_WGSL,
+    ),
+    ("peel", PEEL_WGSL),
+    ("peel, metallic-roughness", PEEL_MR_WGSL),
+    (
+        "peel, metallic-roughness, normal-mapped",
+        PEEL_MR_MAPPED_WGSL,
     ),
     ("pack", PACK_WGSL),
     ("ambient mask", AMBIENT_MASK_WGSL),
@@ -200,6 +268,19 @@ mod tests {
             let forward = names(src, "forward");
             for e in ["vs_eye", "fs_illumination", "fs_layers", "fs_eye_filter"] {
                 assert!(forward.iter().any(|n| n == e), "forward lacks {e}");
+            }
+        }
+        for src in [PEEL_WGSL, PEEL_MR_WGSL, PEEL_MR_MAPPED_WGSL] {
+            let peel = names(src, "peel");
+            for e in [
+                "vs_eye",
+                "fs_peel_opaque_illumination",
+                "fs_peel_opaque_layers",
+                "fs_peel_opaque",
+                "fs_peel_depth",
+                "fs_peel_layers",
+            ] {
+                assert!(peel.iter().any(|n| n == e), "peel lacks {e}");
             }
         }
         for src in [DEFERRED_WGSL, DEFERRED_MR_WGSL, DEFERRED_MR_MAPPED_WGSL] {

@@ -70,6 +70,7 @@ fn resolved_before_material(f: &NodeFrame, factor: u32, ambient: [f32; 3]) -> Im
                 .unwrap(),
         ),
         ambient_mask: None,
+        transmittance: None,
         stats: Default::default(),
     };
     low.radiance(&r(&f.illumination), ambient).unwrap()

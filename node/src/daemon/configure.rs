@@ -13,8 +13,9 @@ use lightfold_scene::{Camera, LightSample, Scene, ShadowFilter};
 /// kernel each read taps² footprints).
 pub const MAX_CELL_TAPS: u32 = 8;
 
-/// Layers a render node produces (radiance is made by the material stage, never by a node).
-pub const NODE_LAYERS: [Layer; 7] = [
+/// Layers a render node produces (radiance is made by the material stage, never by a node;
+/// transmittance only by a node peeling a translucent layer, `NodeConfig::peel` ≥ 1).
+pub const NODE_LAYERS: [Layer; 8] = [
     Layer::Illumination,
     Layer::Diffuse,
     Layer::Specular,
@@ -22,7 +23,12 @@ pub const NODE_LAYERS: [Layer; 7] = [
     Layer::Emissive,
     Layer::Depth,
     Layer::AmbientMask,
+    Layer::Transmittance,
 ];
+
+/// The deepest peel a configuration may ask for (`NodeConfig::peel`; each translucent layer
+/// costs its node two rasters of the scene per peel).
+pub const MAX_PEEL: u32 = crate::gpu::MAX_PEEL;
 
 /// Formats a node can pack, by layer kind.
 pub fn supported_formats() -> Vec<PixelFormat> {
@@ -43,6 +49,8 @@ pub fn supports(layer: Layer, format: PixelFormat) -> bool {
             PixelFormat::Seed64 | PixelFormat::Rgb9e5x2 | PixelFormat::F16x6 | PixelFormat::F32x6
         ),
         Layer::Depth => format == PixelFormat::DepthF32,
+        // A transmittance is linear in [0, 1]: never sRGB-encoded.
+        Layer::Transmittance => matches!(format, PixelFormat::Rgba8Linear | PixelFormat::F16x4),
         _ => matches!(
             format,
             PixelFormat::Rgba8Linear | PixelFormat::Rgba8Srgb | PixelFormat::F16x4
@@ -125,6 +133,14 @@ pub enum ConfigError {
          y0 < y1 <= {height})"
     )]
     BadRows { y0: u32, y1: u32, height: u32 },
+    #[error(
+        "the transmittance layer is a translucent eye layer's: it needs peel >= 1 (peel is {0:?})"
+    )]
+    TransmittanceWithoutPeel(Option<u32>),
+    #[error("peel {peel} is deeper than a node renders (at most {max})")]
+    PeelTooDeep { peel: u32, max: u32 },
+    #[error("a peeled eye layer (peel {0}) cannot be a sort-last part (eye_meshes)")]
+    PeelWithEyeMeshes(u32),
 }
 
 impl ConfigError {
@@ -203,6 +219,33 @@ pub fn check_rows(rows: [u32; 2], height: u32) -> Result<(), ConfigError> {
     crate::gpu::check_rows(rows, height).map_err(|_| ConfigError::BadRows { y0, y1, height })
 }
 
+/// Checks a configuration's peel (`NodeConfig::peel`): at most [`MAX_PEEL`], not with sort-last
+/// eye meshes (the planner never combines them), and a transmittance layer only with a
+/// translucent peel (≥ 1).
+pub fn check_peel(config: &NodeConfig) -> Result<(), ConfigError> {
+    if let Some(peel) = config.peel {
+        if peel > MAX_PEEL {
+            return Err(ConfigError::PeelTooDeep {
+                peel,
+                max: MAX_PEEL,
+            });
+        }
+        if config.eye_meshes.is_some() {
+            return Err(ConfigError::PeelWithEyeMeshes(peel));
+        }
+    }
+    let translucent = config.peel.is_some_and(|p| p >= 1);
+    if !translucent
+        && config
+            .layers
+            .iter()
+            .any(|(l, _)| *l == Layer::Transmittance)
+    {
+        return Err(ConfigError::TransmittanceWithoutPeel(config.peel));
+    }
+    Ok(())
+}
+
 /// Checks a camera from a configuration or a frame request.
 pub fn check_camera(camera: &WireCamera) -> Result<Camera, ConfigError> {
     camera_from_wire(camera).map_err(ConfigError::Camera)
@@ -266,6 +309,7 @@ pub fn check(
     if config.downstream.trim().is_empty() {
         return Err(ConfigError::NoDownstream);
     }
+    check_peel(&config)?;
     let camera = check_camera(&config.camera)?;
     if let Some(rows) = config.rows {
         check_rows(rows, camera.height)?;
@@ -750,6 +794,67 @@ mod tests {
         }
         assert!(check_rows([0, 48], 48).is_ok());
         assert!(check_rows([0, 0], 0).is_err());
+    }
+
+    #[test]
+    fn peels_are_checked() {
+        let t = (Layer::Transmittance, PixelFormat::F16x4);
+        let illum = (Layer::Illumination, PixelFormat::F16x6);
+        let with = |layers: Vec<(Layer, PixelFormat)>, peel| NodeConfig {
+            peel,
+            ..config(layers, 1)
+        };
+        // Every peel up to the cap, with or without the transmittance layer where it is a
+        // translucent one.
+        for peel in [None, Some(0), Some(1), Some(2), Some(MAX_PEEL)] {
+            assert!(run(with(vec![illum], peel)).is_ok(), "{peel:?}");
+        }
+        for peel in [Some(1), Some(3), Some(MAX_PEEL)] {
+            assert!(run(with(vec![illum, t], peel)).is_ok(), "{peel:?}");
+            let linear = (Layer::Transmittance, PixelFormat::Rgba8Linear);
+            assert!(run(with(vec![illum, linear], peel)).is_ok(), "{peel:?}");
+        }
+        // Transmittance without a translucent peel.
+        for peel in [None, Some(0)] {
+            let e = run(with(vec![illum, t], peel)).unwrap_err();
+            assert_eq!(e, ConfigError::TransmittanceWithoutPeel(peel));
+            assert_eq!(e.code(), ErrorCode::BadConfig);
+            assert!(e.to_string().contains("needs peel >= 1"), "{e}");
+        }
+        // Beyond the cap.
+        for peel in [MAX_PEEL + 1, u32::MAX] {
+            let e = run(with(vec![illum, t], Some(peel))).unwrap_err();
+            assert_eq!(
+                e,
+                ConfigError::PeelTooDeep {
+                    peel,
+                    max: MAX_PEEL
+                }
+            );
+            assert_eq!(e.code(), ErrorCode::BadConfig);
+        }
+        // A peel as a sort-last part; the same part without a peel passes.
+        let part = |peel| NodeConfig {
+            eye_meshes: Some(vec![0]),
+            ..with(vec![illum], peel)
+        };
+        assert!(run(part(None)).is_ok());
+        for peel in [0, 2] {
+            let e = run(part(Some(peel))).unwrap_err();
+            assert_eq!(e, ConfigError::PeelWithEyeMeshes(peel));
+            assert_eq!(e.code(), ErrorCode::BadConfig);
+        }
+        // Transmittance in sRGB or a format of another channel count is no node's.
+        for f in [
+            PixelFormat::Rgba8Srgb,
+            PixelFormat::F16x6,
+            PixelFormat::DepthF32,
+        ] {
+            assert!(!supports(Layer::Transmittance, f), "{f:?}");
+            let e = run(with(vec![illum, (Layer::Transmittance, f)], Some(1))).unwrap_err();
+            assert!(matches!(e, ConfigError::UnsupportedFormat { .. }), "{e}");
+            assert_eq!(e.code(), ErrorCode::UnsupportedFormat);
+        }
     }
 
     #[test]

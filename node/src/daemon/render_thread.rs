@@ -367,6 +367,7 @@ fn configure(
                 .set_eye_meshes(setup.checked.config.eye_meshes.clone());
             c.renderer
                 .set_fit_to_eye_meshes(setup.checked.config.eye_meshes.is_some());
+            c.renderer.set_peel(setup.checked.config.peel);
             c.setup = setup;
         }
         return Ok(());
@@ -384,6 +385,8 @@ fn configure(
     // A sort-last node fits its maps to its part, as the planner does.
     renderer.set_eye_meshes(setup.checked.config.eye_meshes.clone());
     renderer.set_fit_to_eye_meshes(setup.checked.config.eye_meshes.is_some());
+    // The eye layer this node renders (checked: at most `configure::MAX_PEEL`).
+    renderer.set_peel(setup.checked.config.peel);
     tracing::info!(ms = start.elapsed().as_millis() as u64, "renderer built");
     *current = Some(Current {
         hash: setup.scene_hash,
@@ -535,7 +538,8 @@ pub fn take_layer(frame: &mut NodeFrame, layer: Layer) -> Option<Image> {
         Layer::Emissive => frame.emissive.take(),
         Layer::Depth => frame.depth.take(),
         Layer::AmbientMask => frame.ambient_mask.take(),
-        Layer::Radiance | Layer::Transmittance => None,
+        Layer::Transmittance => frame.transmittance.take(),
+        Layer::Radiance => None,
     }
 }
 

@@ -146,7 +146,7 @@ pub(super) struct EyeInputs<'a> {
 }
 
 /// Restricts `pass` to the rows `[y0, y1)` of a `width`-pixel-wide target (nothing for `None`).
-fn scissor(pass: &mut wgpu::RenderPass<'_>, rows: Option<[u32; 2]>, width: u32) {
+pub(super) fn scissor(pass: &mut wgpu::RenderPass<'_>, rows: Option<[u32; 2]>, width: u32) {
     if let Some([y0, y1]) = rows {
         pass.set_scissor_rect(0, y0, width, y1.saturating_sub(y0));
     }
@@ -242,7 +242,7 @@ pub(super) fn light_group(
 }
 
 /// Colour attachments over `views`, each loaded by `load` and stored.
-fn attachments(
+pub(super) fn attachments(
     views: &[wgpu::TextureView],
     load: wgpu::LoadOp<wgpu::Color>,
 ) -> Vec<Option<wgpu::RenderPassColorAttachment<'_>>> {
@@ -300,6 +300,12 @@ pub(super) fn record_raster(
     pass.set_pipeline(pipeline);
     pass.set_bind_group(0, cx.scene_bind_group, &[]);
     pass.set_bind_group(1, bind_group, &[]);
+    draw_eye(cx, &mut pass, draws);
+}
+
+/// Draws `draws` into `pass` (pipeline and bind groups set): the scene's vertex ranges, then the
+/// lossless levels'.
+pub(super) fn draw_eye(cx: &DrawContext<'_>, pass: &mut wgpu::RenderPass<'_>, draws: &EyeDraws) {
     pass.set_vertex_buffer(0, cx.vertices.slice(..));
     if let Some(t) = cx.tangents {
         pass.set_vertex_buffer(1, t.slice(..));

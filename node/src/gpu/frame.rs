@@ -91,6 +91,9 @@ pub struct LayerSet {
     /// Eq. 7's `I^a = m^a ⊘ m^d` (`Layer::AmbientMask`), computed from the m^d and m^a targets
     /// after the eye pass (`gpu::ambient_mask`).
     pub ambient_mask: bool,
+    /// A translucent eye layer's transmittance `T` (`Layer::Transmittance`), rendered by a
+    /// renderer peeling a translucent layer (`Renderer::set_peel` with d ≥ 1).
+    pub transmittance: bool,
 }
 
 impl LayerSet {
@@ -113,6 +116,7 @@ impl LayerSet {
             emissive: true,
             depth: true,
             ambient_mask: false,
+            transmittance: false,
         }
     }
 
@@ -129,7 +133,8 @@ impl LayerSet {
                 Layer::Emissive => set.emissive = true,
                 Layer::Depth => set.depth = true,
                 Layer::AmbientMask => set.ambient_mask = true,
-                Layer::Radiance | Layer::Transmittance => {}
+                Layer::Transmittance => set.transmittance = true,
+                Layer::Radiance => {}
             }
         }
         set
@@ -155,6 +160,9 @@ pub struct NodeFrame {
     pub ambient_mask: Option<Image>,
     /// 1 channel: eye-space distance along the camera's forward axis, 0 for background.
     pub depth: Option<Image>,
+    /// 3 channels: a peeled translucent layer's eye transmittance `T` (1 where the layer has no
+    /// surface); the material layers of such a frame are premultiplied by its eye coverage.
+    pub transmittance: Option<Image>,
     pub stats: RenderStats,
 }
 

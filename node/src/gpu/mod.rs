@@ -10,6 +10,7 @@ pub mod frame;
 pub mod lights;
 pub mod lod;
 pub mod pack;
+mod peel;
 mod pipelines;
 mod readback;
 pub mod renderer;
@@ -23,4 +24,5 @@ pub use frame::{
     check_rows,
 };
 pub use lights::Fault;
+pub use peel::MAX_PEEL;
 pub use renderer::Renderer;

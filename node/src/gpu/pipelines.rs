@@ -79,6 +79,10 @@ pub(super) struct Pipelines {
     filter: [(&'static str, f64); 3],
     /// `cs_lights` per set of lights it handles.
     light_passes: HashMap<LightSet, wgpu::ComputePipeline>,
+    /// Which eye module the scene's pipelines are built from (the peel passes build theirs from
+    /// the same choice: `gpu::peel`).
+    pub metallic_roughness: bool,
+    pub normal_mapped: bool,
 }
 
 /// G-buffer targets: position + material, shading normal, geometric normal (f32 bits).
@@ -105,7 +109,7 @@ const TANGENT_ATTRIBUTES: [wgpu::VertexAttribute; 1] = wgpu::vertex_attr_array![
 
 /// The eye pipelines' second vertex buffer where the scene is normal-mapped: a tangent per
 /// vertex (`eye_vertex_mapped.wgsl`).
-fn tangent_layout() -> wgpu::VertexBufferLayout<'static> {
+pub(super) fn tangent_layout() -> wgpu::VertexBufferLayout<'static> {
     wgpu::VertexBufferLayout {
         array_stride: std::mem::size_of::<super::scene_data::Tangent>() as u64,
         step_mode: wgpu::VertexStepMode::Vertex,
@@ -113,7 +117,7 @@ fn tangent_layout() -> wgpu::VertexBufferLayout<'static> {
     }
 }
 
-fn vertex_layout() -> wgpu::VertexBufferLayout<'static> {
+pub(super) fn vertex_layout() -> wgpu::VertexBufferLayout<'static> {
     wgpu::VertexBufferLayout {
         array_stride: std::mem::size_of::<Vertex>() as u64,
         step_mode: wgpu::VertexStepMode::Vertex,
@@ -121,7 +125,7 @@ fn vertex_layout() -> wgpu::VertexBufferLayout<'static> {
     }
 }
 
-fn depth_state(write: bool) -> wgpu::DepthStencilState {
+pub(super) fn depth_state(write: bool) -> wgpu::DepthStencilState {
     wgpu::DepthStencilState {
         format: DEPTH_FORMAT,
         depth_write_enabled: Some(write),
@@ -379,7 +383,7 @@ impl RasterLayouts {
 }
 
 /// A colour target written as is (no blending).
-fn color_target(format: wgpu::TextureFormat) -> Option<wgpu::ColorTargetState> {
+pub(super) fn color_target(format: wgpu::TextureFormat) -> Option<wgpu::ColorTargetState> {
     Some(wgpu::ColorTargetState {
         format,
         blend: None,
@@ -756,7 +760,14 @@ impl Pipelines {
             deferred_pl,
             filter,
             light_passes: HashMap::new(),
+            metallic_roughness,
+            normal_mapped,
         }
+    }
+
+    /// The eye pipelines' constants: the shadow filter's and `TRANSLUCENT`.
+    pub(super) fn eye_constants(&self) -> &[(&'static str, f64); 3] {
+        &self.filter
     }
 
     /// The deferred light pass for `lights`, compiled on first use (a handle: clones share the

@@ -17,6 +17,7 @@ use super::eye_pass::{
 use super::frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
 use super::lights::{Fault, Fit, LightPlan, Sides, TRANSLUCENT_TEXEL_BYTES, plan_lights_within};
 use super::pack::{self, DevicePacker, PackLayer, PackSource, PackedFrame};
+use super::peel::PeelPass;
 use super::pipelines::{DrawContext, LightSet, Pipelines};
 use super::readback::{ReadRequest, ReadRows, ReadSource, Staging, read};
 use super::scene_data::{SceneData, Vertex};
@@ -113,6 +114,10 @@ pub struct Renderer {
     eye_vertices: u32,
     /// The image rows `[y0, y1)` frames render (a sort-first tile); `None`: every row.
     rows: Option<[u32; 2]>,
+    /// The eye layer frames render (`NodeConfig::peel`; `None`: the classic eye pass).
+    peel: Option<u32>,
+    /// The peel passes and their targets, built when a frame first peels.
+    peel_pass: Option<PeelPass>,
 }
 
 impl Renderer {
@@ -202,6 +207,8 @@ impl Renderer {
             eye_culling: true,
             eye_vertices: 0,
             rows: None,
+            peel: None,
+            peel_pass: None,
         })
     }
 
@@ -447,6 +454,22 @@ impl Renderer {
         self.rows = rows;
     }
 
+    /// Which eye layer frames render from the next frame on (`NodeConfig::peel`,
+    /// `docs/translucency.md`): `None`, the classic eye pass (filters seen through and
+    /// multiplied into the material layers, coverage surfaces as cut-outs); `Some(0)`, the
+    /// opaque layer (every translucent surface skipped, nothing multiplied in); `Some(d)`, the
+    /// d-th nearest translucent surface in front of the opaque one (depth peeling: `gpu::peel`),
+    /// its material layers times its eye coverage, its eye transmittance in
+    /// [`NodeFrame::transmittance`]. A peeling renderer always takes the forward eye pass.
+    pub fn set_peel(&mut self, peel: Option<u32>) {
+        self.peel = peel;
+    }
+
+    /// The eye layer frames render (see [`Renderer::set_peel`]).
+    pub fn peel(&self) -> Option<u32> {
+        self.peel
+    }
+
     /// The rows frames render (see [`Renderer::set_rows`]).
     pub fn rows(&self) -> Option<[u32; 2]> {
         self.rows
@@ -478,8 +501,12 @@ impl Renderer {
     /// The eye pass a `w`×`h` frame uses: the chosen variant, except that the deferred pass
     /// falls back to the forward pass (the same image within f32 rounding) when its lit buffer
     /// (32 bytes per pixel, one storage binding) exceeds the device's limits — on lavapipe,
-    /// whose storage bindings stop at 128 MiB, above 2048 × 2048.
+    /// whose storage bindings stop at 128 MiB, above 2048 × 2048. A peeling renderer
+    /// ([`Renderer::set_peel`]) always takes the forward pass.
     pub fn frame_variant(&self, gpu: &Gpu, w: u32, h: u32) -> EyeVariant {
+        if self.peel.is_some() {
+            return EyeVariant::Forward;
+        }
         let lit = u64::from(w) * u64::from(h) * 32;
         let fits =
             lit <= gpu.limits.max_storage_buffer_binding_size && lit <= gpu.limits.max_buffer_size;
@@ -581,6 +608,7 @@ impl Renderer {
                 self.targets = None;
                 self.deferred = None;
                 self.ambient_mask = None;
+                self.peel_pass = None;
                 self.maps = None;
                 self.map_config = None;
                 self.map_keys.clear();
@@ -604,6 +632,7 @@ impl Renderer {
         let (w, h) = self.check_frame(gpu, lights, casters)?;
         let variant = self.frame_variant(gpu, w, h);
         if variant != self.variant
+            && self.peel.is_none()
             && self
                 .targets
                 .as_ref()
@@ -879,6 +908,21 @@ impl Renderer {
                 &inputs,
                 &light_pass,
             );
+        } else if let Some(depth) = self.peel {
+            let mut peel = match self.peel_pass.take() {
+                Some(p) => p,
+                None => PeelPass::new(&gpu.device, &self.pipelines),
+            };
+            let cx = self.draw_context(gpu);
+            if depth == 0 {
+                peel.render_opaque(&cx, &draws, targets, &inputs);
+            } else {
+                allocate(gpu, "the peel targets", || {
+                    peel.ensure_targets(&gpu.device, w, h)
+                })?;
+                peel.render_translucent(&cx, &draws, targets, &inputs, depth);
+            }
+            self.peel_pass = Some(peel);
         } else {
             render_eye(&self.draw_context(gpu), &draws, targets, &inputs);
         }
@@ -932,6 +976,10 @@ impl Renderer {
         if let Some(mask) = mask {
             sources.push(ReadSource::Texture(req(mask, 3)));
         }
+        let transmittance = transmittance_output(self.peel, self.peel_pass.as_ref(), layers)?;
+        if let Some(t) = transmittance {
+            sources.push(ReadSource::Texture(req(t, 3)));
+        }
         let rows = ReadRows::of(self.rows, h);
         let mut data =
             read(&gpu.device, &gpu.queue, &mut self.staging, &sources, rows)?.into_iter();
@@ -949,6 +997,7 @@ impl Renderer {
             emissive: None,
             depth: None,
             ambient_mask: None,
+            transmittance: None,
             stats: RenderStats::default(),
         };
         if lit {
@@ -984,6 +1033,9 @@ impl Renderer {
         if layers.ambient_mask {
             out.ambient_mask = Some(image(data.next().unwrap_or_default(), 3));
         }
+        if layers.transmittance {
+            out.transmittance = Some(image(data.next().unwrap_or_default(), 3));
+        }
         stats.readback_us = t2.elapsed().as_micros() as u64;
         stats.read_bytes = self.staging.bytes();
         out.stats = stats;
@@ -1006,10 +1058,9 @@ impl Renderer {
             return Err(RenderError::Gpu("no frame was rendered".into()));
         };
         let m = &targets.materials;
-        let mask = mask_output(
-            self.ambient_mask.as_ref(),
-            LayerSet::of(layers.iter().map(|l| l.0)),
-        )?;
+        let set = LayerSet::of(layers.iter().map(|l| l.0));
+        let mask = mask_output(self.ambient_mask.as_ref(), set)?;
+        let transmittance = transmittance_output(self.peel, self.peel_pass.as_ref(), set)?;
         let sources = layers
             .iter()
             .map(|&(layer, format)| {
@@ -1029,11 +1080,14 @@ impl Renderer {
                             return Err(RenderError::Gpu("no ambient mask was rendered".into()));
                         }
                     },
-                    Layer::Radiance | Layer::Transmittance => {
-                        return Err(RenderError::Gpu(format!(
-                            "this node renders no {} layer",
-                            lightfold_protocol::pipeline::layer_name(layer)
-                        )));
+                    Layer::Transmittance => match transmittance {
+                        Some(t) => PackSource::Texture(t),
+                        None => {
+                            return Err(RenderError::Gpu("no transmittance was rendered".into()));
+                        }
+                    },
+                    Layer::Radiance => {
+                        return Err(RenderError::Gpu("a node renders no radiance layer".into()));
                     }
                 };
                 Ok(PackLayer { source, format })
@@ -1445,6 +1499,28 @@ fn mask_output(
     pass.and_then(AmbientMaskPass::output)
         .map(Some)
         .ok_or_else(|| RenderError::Gpu("no ambient mask was rendered".into()))
+}
+
+/// The eye transmittance target of a renderer peeling `peel` with `pass`, when `layers` ask for
+/// it (`None` otherwise); an error when they ask for it and the frame peeled no translucent
+/// layer.
+fn transmittance_output(
+    peel: Option<u32>,
+    pass: Option<&PeelPass>,
+    layers: LayerSet,
+) -> Result<Option<&wgpu::Texture>, RenderError> {
+    if !layers.transmittance {
+        return Ok(None);
+    }
+    match (peel, pass) {
+        (Some(d), Some(p)) if d >= 1 => p
+            .transmittance()
+            .map(Some)
+            .ok_or_else(|| RenderError::Gpu("no transmittance was rendered".into())),
+        _ => Err(RenderError::Gpu(
+            "a transmittance layer needs a translucent peel (peel >= 1)".into(),
+        )),
+    }
 }
 
 fn wait(gpu: &Gpu) -> Result<(), RenderError> {

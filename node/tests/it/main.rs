@@ -14,5 +14,6 @@ mod gpu_device;
 mod gpu_metallic_roughness;
 mod gpu_modes;
 mod gpu_partitions;
+mod gpu_peel;
 mod gpu_tiles;
 mod gpu_translucent;
