@@ -145,7 +145,9 @@ pub fn single_device_peeled(gpu: &Gpu, scene: &Scene, peels: u32) -> Image {
             ..LayerSet::all()
         };
         let f = r.render(gpu, &samples, None, [1.0; 3], layers).unwrap();
-        let material = |l: &Option<Image>| l.as_ref().expect("every material layer rendered");
+        fn material(l: &Option<Image>) -> &Image {
+            l.as_ref().expect("every material layer rendered")
+        }
         let depth = material(&f.depth);
         let lit = shade(
             scene,
