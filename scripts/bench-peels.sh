@@ -19,5 +19,5 @@ for peels in off 1 2 3 4; do
   "$bin" demo --scene scenes/glass-stack.toml -K 16 --size "$size" --frames "$frames" \
     --tiles 1 --no-frame-files --out "$out/frame.png" --exr "$out/frame.exr" --peels "$peels" \
     2>/dev/null \
-    | grep -E "^(  peels:|frame interval|node-seconds|whole|penumbra|the plan peels|demo: daemon CPU)|links carry"
+    | grep -E "^(  peels:|frame interval|node-seconds|whole|penumbra|the plan peels|demo: daemon CPU|against the reference with all)|links carry"
 done

@@ -401,7 +401,8 @@ fn compare_last_frame(
         Some(c) if c.layers > 0 => {
             let all = in_view.max(c.layers);
             outln!(
-                "the plan peels {} translucent layer(s); the reference sees all {all} in view",
+                "the plan peels {} translucent layer(s); the reference peels {all} (every \
+                 translucent surface in view: {in_view})",
                 c.layers
             );
             all
