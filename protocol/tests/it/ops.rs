@@ -93,6 +93,7 @@ fn every_operator() -> Vec<OpSpec> {
             specular: true,
             ..PenumbraParams::planned(640, 480, 5, 45.0)
         }),
+        OpSpec::Blend(BlendParams { inputs: 4 }),
     ]
 }
 
@@ -227,6 +228,11 @@ fn out_of_range_parameters_are_refused_with_the_reason() {
         }))
         .contains("inputs must be at least 1")
     );
+    assert!(
+        reason(OpSpec::Blend(BlendParams { inputs: 1 }))
+            .contains("inputs must be at least 2 (a back and a layer over it), got 1")
+    );
+    assert!(reason(OpSpec::Blend(BlendParams { inputs: 5000 })).contains("at most 4096"));
     assert!(
         reason(OpSpec::Depth(DepthParams {
             inputs: u32::MAX,

@@ -344,6 +344,7 @@ pub(crate) fn op_spec() -> impl Strategy<Value = OpSpec> {
                     })
                 }
             ),
+        any::<u32>().prop_map(|inputs| OpSpec::Blend(BlendParams { inputs })),
     ]
 }
 
