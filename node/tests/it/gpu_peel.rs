@@ -750,3 +750,95 @@ async fn a_peeling_node_streams_the_peeled_layer() {
     drop(coord);
     node.stop().await;
 }
+
+/// Khronos AlphaBlendModeTest (metallic-roughness, textured BLEND labels with an alpha gradient):
+/// its peel 1 is the labels, each texel's eye transmittance grey (`1 − α · texture alpha` in every
+/// channel) and spread over (0, 1) by the gradient, its material layers premultiplied (none
+/// brighter than the classic frame's cut-out where both see the label).
+#[test]
+fn textured_coverage_peels_with_its_texture_alpha() {
+    let gpu = gpu();
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../assets/AlphaBlendModeTest/AlphaBlendModeTest.gltf"
+    );
+    let mut scene =
+        lightfold_scene::load_gltf(std::path::Path::new(path)).expect("AlphaBlendModeTest loads");
+    assert!(scene.materials.iter().any(|m| m.pbr.is_some()));
+    scene.lights = vec![lightfold_scene::Light {
+        name: "sun-ish".into(),
+        shape: lightfold_scene::LightShape::Point {
+            position: [0.0, 3.0, 3.0],
+        },
+        color: [1.0; 3],
+        power: 20.0,
+        range: None,
+        samples: 1,
+    }];
+    scene.camera = Camera {
+        position: [0.0, 1.2, 4.5],
+        target: [0.0, 0.6, 0.0],
+        up: [0.0, 1.0, 0.0],
+        fov_y_deg: 45.0,
+        width: W,
+        height: H,
+    };
+    let samples = samples(&scene);
+    let mut r =
+        Renderer::new(&gpu, &scene, RenderOptions::from_quality(&scene.quality)).expect("renderer");
+    r.set_peel(Some(1));
+    let f = r
+        .render(&gpu, &samples, None, [1.0; 3], layers(Some(1)))
+        .expect("peel 1");
+    let tr = f.transmittance.as_ref().expect("T");
+    let depth = f.depth.as_ref().expect("depth");
+    let md = f.diffuse.as_ref().expect("m^d");
+    let mut partial = 0;
+    for i in 0..(W * H) as usize {
+        let t = &tr.data[i * 3..i * 3 + 3];
+        assert!(
+            t.iter().all(|v| (0.0..=1.0).contains(v)),
+            "pixel {i}: {t:?}"
+        );
+        assert!(
+            t[0] == t[1] && t[1] == t[2],
+            "pixel {i}: coverage T is grey, {t:?}"
+        );
+        if depth.data[i] == 0.0 {
+            assert_eq!(t, [1.0; 3], "pixel {i} has no layer");
+            assert_eq!(
+                &md.data[i * 3..i * 3 + 3],
+                [0.0; 3],
+                "pixel {i} has no layer"
+            );
+        } else if t[0] > 0.05 && t[0] < 0.95 {
+            partial += 1;
+        }
+    }
+    eprintln!("{partial} pixels partly covered");
+    assert!(partial > 200, "{partial} pixels partly covered");
+    // The classic frame sees a label texel as a cut-out at α ≥ 0.5: there its m^d is the
+    // uncovered colour, which the peeled layer scales by a = 1 − T ≤ 1.
+    r.set_peel(None);
+    let classic = r
+        .render(&gpu, &samples, None, [1.0; 3], LayerSet::all())
+        .expect("classic");
+    let (cd, cz) = (classic.diffuse.unwrap(), classic.depth.unwrap());
+    let mut checked = 0;
+    for i in 0..(W * H) as usize {
+        let (z, zc) = (depth.data[i], cz.data[i]);
+        if z > 0.0 && (z - zc).abs() <= 1e-5 * zc {
+            checked += 1;
+            let a = 1.0 - tr.data[i * 3];
+            for k in 0..3 {
+                let (p, c) = (md.data[i * 3 + k], cd.data[i * 3 + k]);
+                assert!(
+                    (p - a * c).abs() <= 2e-3 * c + 1e-4,
+                    "pixel {i} channel {k}: peeled {p}, a {a} × classic {c}"
+                );
+            }
+        }
+    }
+    eprintln!("{checked} pixels where both see the label");
+    assert!(checked > 100, "{checked}");
+}
