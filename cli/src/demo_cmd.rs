@@ -394,10 +394,24 @@ fn compare_last_frame(
             ))
         );
     }
+    // A peeled plan is measured against every translucent layer in view (up to 16), so the
+    // error includes what a capped peel count leaves out.
+    let peels = match rendered.and_then(|p| p.peels.as_ref()) {
+        Some(c) if c.layers > 0 => {
+            let all = lightfold_coordinator::plan::depth_complexity(&last, 16).max(c.layers);
+            outln!(
+                "the plan peels {} translucent layer(s); the reference sees all {all} in view",
+                c.layers
+            );
+            all
+        }
+        _ => 0,
+    };
     let exr = &args.job.exr;
     let test = Image::read_exr(exr).with_context(|| format!("cannot read {}", exr.display()))?;
     let aa = args.job.plan.aa;
-    let (m, seconds) = lightfold_quality::against_point_sum::measure(&last, &samples, &test, aa)?;
+    let (m, seconds) =
+        lightfold_quality::against_point_sum::measure(&last, &samples, &test, aa, peels)?;
     outln!(
         "error against the CPU reference (exact sum over {which}, ray-traced shadows, {aa}×{aa} \
          rays per pixel; {seconds:.1} s on the CPU):"

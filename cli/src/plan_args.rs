@@ -58,6 +58,15 @@ pub(crate) struct PlanArgs {
     #[arg(long, default_value = "auto", value_parser = tiles_arg)]
     #[serde(default)]
     pub(crate) tiles: u32,
+    /// Peeled translucency: the eye sees glass and blended surfaces as D layers in front of the
+    /// opaque one (their own reflection and highlights, blended back to front over what lies
+    /// behind) instead of only tinting it. Each layer takes as many render nodes as the opaque
+    /// one. `off` (the default), `auto` (D = the scene's depth complexity in view, at most 4,
+    /// none without translucency in view) or 1–4 (docs/translucency.md § Peeled layers).
+    /// Excludes tiles, partitions and the penumbra filter.
+    #[arg(long, default_value = "off", value_parser = peels_arg)]
+    #[serde(default)]
+    pub(crate) peels: lightfold_coordinator::plan::Peels,
     /// Render the material layers on a node of their own (the paper's layout) instead of as
     /// extra targets of an illumination node at the last stage.
     #[arg(long)]
@@ -133,6 +142,7 @@ impl PlanArgs {
             supersample: self.aa,
             partitions: self.partitions,
             tiles: self.tiles,
+            peels: self.peels,
             ..PlanOptions::default()
         }
     }
@@ -165,6 +175,9 @@ impl PlanArgs {
             partitions_arg(&self.partitions.to_string())?;
         }
         tiles_arg(&self.tiles.to_string())?;
+        if let lightfold_coordinator::plan::Peels::Layers(d) = self.peels {
+            peels_arg(&d.to_string())?;
+        }
         if let Some(db) = self.target_psnr {
             target_db(&db.to_string())?;
         }
@@ -285,6 +298,21 @@ pub(crate) fn tiles_arg(s: &str) -> Result<u32, String> {
         n => match n.parse::<u32>() {
             Ok(t) if t <= max => Ok(t),
             _ => Err(format!("expected auto or 1 to {max} tiles, got {n:?}")),
+        },
+    }
+}
+
+/// `--peels`: `off`, `auto` or 1 to `MAX_PEELS` translucent layers.
+pub(crate) fn peels_arg(s: &str) -> Result<lightfold_coordinator::plan::Peels, String> {
+    use lightfold_coordinator::plan::{MAX_PEELS, Peels};
+    match s {
+        "off" => Ok(Peels::Off),
+        "auto" => Ok(Peels::Auto),
+        n => match n.parse::<u32>() {
+            Ok(d) if (1..=MAX_PEELS).contains(&d) => Ok(Peels::Layers(d)),
+            _ => Err(format!(
+                "expected off, auto or 1 to {MAX_PEELS} translucent layers, got {n:?}"
+            )),
         },
     }
 }

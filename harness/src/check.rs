@@ -127,6 +127,53 @@ pub fn single_device_parts(
     )
 }
 
+/// [`single_device`] with `peels` translucent eye layers (`docs/translucency.md` § Peeled
+/// layers): the opaque layer and each translucent one rendered on one device (each with every
+/// sample, as one node of each layer renders it), each shaded by eq. 2 with its own material
+/// layers, then laid over one another back to front as `blend` does (`R_d + T_d ⊙ behind`,
+/// the nearest last): what a peeled cluster's frame must equal.
+pub fn single_device_peeled(gpu: &Gpu, scene: &Scene, peels: u32) -> Image {
+    let samples = lightfold_scene::vpl::frame_samples(scene);
+    let mut r = Renderer::new(gpu, scene, RenderOptions::from_quality(&scene.quality)).unwrap();
+    r.set_fit_to_camera(true);
+    r.set_camera(&scene.camera);
+    let mut out: Option<Image> = None;
+    for d in std::iter::once(0).chain((1..=peels).rev()) {
+        r.set_peel(Some(d));
+        let layers = LayerSet {
+            transmittance: d > 0,
+            ..LayerSet::all()
+        };
+        let f = r.render(gpu, &samples, None, [1.0; 3], layers).unwrap();
+        fn material(l: &Option<Image>) -> &Image {
+            l.as_ref().expect("every material layer rendered")
+        }
+        let depth = material(&f.depth);
+        let lit = shade(
+            scene,
+            f.illumination.as_ref().expect("illumination rendered"),
+            [
+                material(&f.diffuse),
+                material(&f.specular),
+                material(&f.ambient),
+                material(&f.emissive),
+            ],
+            |i| depth.data[i] > 0.0,
+        );
+        out = Some(match (out, &f.transmittance) {
+            (None, _) => lit,
+            (Some(mut behind), Some(t)) => {
+                for ((b, l), t) in behind.data.iter_mut().zip(&lit.data).zip(&t.data) {
+                    *b = l + t.clamp(0.0, 1.0) * *b;
+                }
+                behind
+            }
+            (Some(_), None) => panic!("a translucent layer without its transmittance"),
+        });
+    }
+    out.expect("at least the opaque layer")
+}
+
 /// [`single_device`] with `--aa factor`: rendered at `factor` × the camera's width and height,
 /// the final radiance box-resolved to the camera's size (what `lightfold render --aa N` does, and
 /// the cluster's sink). `factor = 1` is [`single_device`] itself.

@@ -71,6 +71,17 @@ pub fn small_glass() -> Scene {
     s
 }
 
+/// `scenes/glass-stack.toml` (three staggered panes, glass as the eye sees it with `--peels`:
+/// `docs/translucency.md` § Peeled layers) small: 4 samples, 96×72.
+pub fn small_glass_stack() -> Scene {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/glass-stack.toml");
+    let mut s = lightfold_scene::load(path).unwrap();
+    s.quality.samples_per_area_light = Some(4);
+    s.camera.width = 96;
+    s.camera.height = 72;
+    s
+}
+
 /// The Khronos FlightHelmet (glTF metallic-roughness with base-colour, metallic-roughness,
 /// normal and occlusion textures, metal and dielectric parts) small: its framing light at 4
 /// samples, 96×72.

@@ -33,10 +33,10 @@ pub mod view_probe;
 
 pub use check::{
     Check, assert_close, assert_close_within, compare, radiance, single_device, single_device_aa,
-    single_device_filtered, single_device_parts,
+    single_device_filtered, single_device_parts, single_device_peeled,
 };
 pub use fixtures::{
-    gpu, latency_and_interval, ms, orbit_options, silhouettes, small, small_glass, small_helmet,
-    test_control,
+    gpu, latency_and_interval, ms, orbit_options, silhouettes, small, small_glass,
+    small_glass_stack, small_helmet, test_control,
 };
 pub use in_process::{ClusterOptions, InProcessCluster, RUN_DEADLINE, RunOutput, render_on};

@@ -32,6 +32,10 @@ const KIND_BAND: u8 = 4;
 const HELLO_FIXED: usize = 4 + 2 + 1 + 1 + 32;
 
 /// Everything a link carries.
+// A control message (a node's whole configuration inline) is larger than a band's header; bands
+// move by the thousand, but 300 bytes moved with each is nothing beside what they carry
+// (`Bytes`, shared), and boxing would allocate for every control message instead.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq)]
 pub enum Frame {
     Hello(Hello),

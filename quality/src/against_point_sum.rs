@@ -9,7 +9,9 @@ use lightfold_scene::{Image, LightSample, Scene};
 use std::time::Instant;
 
 /// Renders the reference for `scene` and measures `test` (a cluster's image) against it,
-/// returning the metrics and the reference's seconds on the CPU.
+/// returning the metrics and the reference's seconds on the CPU. With `peels` > 0 the reference
+/// sees that many translucent layers (`render_peeled`: their own reflection, blended back to
+/// front; `docs/translucency.md` § Peeled layers), the penumbra mask still the classic render's.
 /// With `aa` > 1 (the image's `--aa`) the reference is traced with `aa × aa` rays per pixel and
 /// resolved the same way (radiance box-filtered, depth nearest; coverage where a block has any).
 pub fn measure(
@@ -17,6 +19,7 @@ pub fn measure(
     samples: &[LightSample],
     test: &Image,
     aa: u32,
+    peels: u32,
 ) -> anyhow::Result<(Metrics, f64)> {
     let t = Instant::now();
     let mut scene = scene.clone();
@@ -29,7 +32,12 @@ pub fn measure(
         [1.0; 3],
         PointSumOptions { shadows: false },
     );
-    let reference = shadowed.radiance([1.0; 3], scene.ambient).box_resolve(aa)?;
+    let reference = if peels > 0 {
+        lightfold_reference::peel::radiance_peeled(&scene, samples, peels)
+    } else {
+        shadowed.radiance([1.0; 3], scene.ambient)
+    }
+    .box_resolve(aa)?;
     let unoccluded = open.radiance([1.0; 3], scene.ambient).box_resolve(aa)?;
     let depth = shadowed.depth.nearest_depth_resolve(aa)?;
     let coverage: Vec<bool> = if aa > 1 {

@@ -9,6 +9,7 @@ pub mod indirect;
 pub mod masks;
 pub mod metrics;
 pub mod output;
+pub mod peel;
 pub mod point_sum;
 pub mod truth;
 
@@ -19,6 +20,7 @@ pub use indirect::{OneBounceOptions, render_one_bounce};
 pub use lightfold_scene::trace::{SurfaceHit, Tracer};
 pub use metrics::{ErrorStats, Metrics, MetricsError, compare};
 pub use output::{ReferenceError, ReferenceMode, render_to_files};
+pub use peel::{PeeledLayers, radiance_peeled, render_peeled};
 pub use point_sum::{
     Layers, PointSumOptions, radiance_point_sum, render_point_sum, render_point_sum_with,
 };

@@ -101,10 +101,7 @@ pub fn render_point_sum_with(
     options: PointSumOptions,
 ) -> Layers {
     let tracer = Tracer::new(scene);
-    let weights: Vec<[f64; 3]> = samples
-        .iter()
-        .map(|s| [0, 1, 2].map(|k| colour_ratio(s.color[k], c_n[k])))
-        .collect();
+    let weights = sample_weights(samples, c_n);
     let pixels = render_pixels(&tracer, |_, _, hit, px| {
         accumulate_samples(
             &tracer,
@@ -124,6 +121,14 @@ pub fn radiance_point_sum(scene: &Scene, samples: &[LightSample]) -> Image {
     render_point_sum(scene, samples, [1.0; 3]).radiance([1.0; 3], scene.ambient)
 }
 
+/// `c_λ ⊘ c_n` of every sample: the weights [`accumulate_samples`] takes.
+pub(crate) fn sample_weights(samples: &[LightSample], c_n: [f32; 3]) -> Vec<[f64; 3]> {
+    samples
+        .iter()
+        .map(|s| [0, 1, 2].map(|k| colour_ratio(s.color[k], c_n[k])))
+        .collect()
+}
+
 /// `c_λ / c_n` per channel; a channel the node colour lacks contributes nothing.
 fn colour_ratio(c: f32, c_n: f32) -> f64 {
     if c_n != 0.0 && c_n.is_finite() {
@@ -134,7 +139,7 @@ fn colour_ratio(c: f32, c_n: f32) -> f64 {
 }
 
 /// Adds `Σ w_λ·(i^d_λ, i^s_λ)·s_λ` of `samples` at `hit` into `illum`.
-fn accumulate_samples(
+pub(crate) fn accumulate_samples(
     tracer: &Tracer<'_>,
     hit: &SurfaceHit,
     samples: &[LightSample],
@@ -205,30 +210,42 @@ pub(crate) fn render_pixels(
     tracer: &Tracer<'_>,
     light: impl Fn(u32, u32, &SurfaceHit, &mut PixelLayers) + Sync,
 ) -> Vec<PixelLayers> {
+    per_pixel(tracer, |x, y| {
+        let Some(hit) = tracer.primary(x, y) else {
+            return PixelLayers::default();
+        };
+        // Filters in front tint every material layer alike.
+        let t = tracer.eye_transmittance(x, y, &hit);
+        let mut px = PixelLayers::surface(tracer, &hit, t);
+        light(x, y, &hit, &mut px);
+        px
+    })
+}
+
+/// `f` of every pixel `(x, y)`, in parallel over rows, row-major.
+pub(crate) fn per_pixel<T: Send>(tracer: &Tracer<'_>, f: impl Fn(u32, u32) -> T + Sync) -> Vec<T> {
     let cam = &tracer.scene().camera;
     let (w, h) = (cam.width, cam.height);
-    let rows: Vec<Vec<PixelLayers>> = (0..h)
+    let rows: Vec<Vec<T>> = (0..h)
         .into_par_iter()
-        .map(|y| {
-            (0..w)
-                .map(|x| {
-                    let mut px = PixelLayers::default();
-                    if let Some(hit) = tracer.primary(x, y) {
-                        let sp = tracer.surface(&hit);
-                        // Filters in front tint every material layer alike.
-                        let t = tracer.eye_transmittance(x, y, &hit);
-                        px.covered = true;
-                        px.depth = hit.depth;
-                        px.diffuse = shading::mul(sp.diffuse, t);
-                        px.specular = shading::mul(sp.specular, t);
-                        px.ambient = shading::mul(sp.ambient, t);
-                        px.emissive = shading::mul(sp.emissive, t);
-                        light(x, y, &hit, &mut px);
-                    }
-                    px
-                })
-                .collect()
-        })
+        .map(|y| (0..w).map(|x| f(x, y)).collect())
         .collect();
     rows.into_iter().flatten().collect()
+}
+
+impl PixelLayers {
+    /// A pixel covered by `hit`: its depth and its material layers (`m^d`, `m^s`, `m^a`, `e`)
+    /// each multiplied by `factor`; no illumination yet.
+    pub(crate) fn surface(tracer: &Tracer<'_>, hit: &SurfaceHit, factor: V3) -> PixelLayers {
+        let sp = tracer.surface(hit);
+        PixelLayers {
+            covered: true,
+            depth: hit.depth,
+            diffuse: shading::mul(sp.diffuse, factor),
+            specular: shading::mul(sp.specular, factor),
+            ambient: shading::mul(sp.ambient, factor),
+            emissive: shading::mul(sp.emissive, factor),
+            ..PixelLayers::default()
+        }
+    }
 }

@@ -624,19 +624,57 @@ pub fn sample_texture(t: &Texture, uv: [f32; 2]) -> [f32; 4] {
 /// Non-finite inputs count as 0: opaque.
 #[inline]
 pub fn transmittance(tr: &crate::model::Transmission, alpha: f32, texture_rgb: V3) -> V3 {
-    let unit = |x: f32| {
-        if x.is_finite() {
-            x.clamp(0.0, 1.0)
-        } else {
-            0.0
-        }
-    };
     let covered = [0, 1, 2].map(|k| unit(tr.color[k]) * unit(texture_rgb[k]));
     if tr.coverage {
         let a = unit(alpha);
         covered.map(|c| (1.0 - a) + a * c)
     } else {
         covered
+    }
+}
+
+/// A value clamped to [0, 1], non-finite counted as 0.
+#[inline]
+fn unit(x: f32) -> f32 {
+    if x.is_finite() {
+        x.clamp(0.0, 1.0)
+    } else {
+        0.0
+    }
+}
+
+/// What the eye sees of one texel of a translucent surface when translucency is peeled
+/// ([`eye_cover`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct EyeCover {
+    /// `a`: the share of the pixel the surface's own colour covers; its four material layers
+    /// (`m^d`, `m^s`, `m^a`, `e`) are multiplied by it.
+    pub coverage: f32,
+    /// `T` (RGB): what it lets through of what lies behind it.
+    pub transmittance: V3,
+}
+
+/// The eye's view of one texel of translucent `tr` when translucency is peeled into layers
+/// (`docs/translucency.md`), `alpha` the material's alpha and `texel` the diffuse texture's
+/// linear RGBA there (white without one):
+/// - coverage (glTF BLEND): `a = α · texel alpha` clamped to [0, 1], `T = 1 − a` in all three
+///   channels (the covered share is the surface's own colour, not a filter);
+/// - a filter (glass): `a = 1`, `T = c ⊙ texel rgb` ([`transmittance`], clamped).
+///
+/// Non-finite inputs count as 0 (a NaN coverage covers nothing).
+#[inline]
+pub fn eye_cover(tr: &crate::model::Transmission, alpha: f32, texel: [f32; 4]) -> EyeCover {
+    if tr.coverage {
+        let a = unit(alpha * texel[3]);
+        EyeCover {
+            coverage: a,
+            transmittance: [1.0 - a; 3],
+        }
+    } else {
+        EyeCover {
+            coverage: 1.0,
+            transmittance: transmittance(tr, alpha * texel[3], [texel[0], texel[1], texel[2]]),
+        }
     }
 }
 

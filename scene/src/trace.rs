@@ -8,9 +8,14 @@
 //! (`shading::mapped_normal`, on the front face before the flip); alpha-masked texels below the
 //! cutoff are transparent to eye and shadow rays alike; every other triangle casts shadows
 //! whatever its sidedness.
+//!
+//! Peeled eye rays ([`Tracer::eye_layers`], `docs/translucency.md`) split that: the opaque layer
+//! is the nearest surface that is not translucent; the translucent surfaces in front of it are
+//! layers of their own, nearest first, each covering by [`shading::eye_cover`] (a coverage
+//! material is never cut out by its mask there).
 
-use crate::bvh::Bvh;
-use crate::shading::{self, V3, dot, normalize, sample_texture};
+use crate::bvh::{Bvh, Hit};
+use crate::shading::{self, EyeCover, V3, dot, normalize, sample_texture};
 use crate::{AlphaMode, LightSample, Material, SampleKind, Scene};
 
 /// Shadow-ray origin offset and end shortening, relative to the scene's bounding diagonal.
@@ -37,6 +42,24 @@ impl SurfaceHit {
     pub fn position_f32(&self) -> V3 {
         self.position.map(|c| c as f32)
     }
+}
+
+/// An eye ray peeled into layers ([`Tracer::eye_layers`]).
+#[derive(Debug, Clone, Default)]
+pub struct EyeLayers {
+    /// The nearest surface that is not translucent (layer 0), `None` where the ray meets none.
+    pub opaque: Option<SurfaceHit>,
+    /// The translucent surfaces in front of it, nearest first.
+    pub translucent: Vec<TranslucentHit>,
+}
+
+/// One translucent layer of an eye ray: the surface, shaded like any other, and what the eye
+/// sees of it there.
+#[derive(Debug, Clone, Copy)]
+pub struct TranslucentHit {
+    pub surface: SurfaceHit,
+    /// Its coverage `a` (its material layers' factor) and transmittance `T` at the hit.
+    pub cover: EyeCover,
 }
 
 /// Per-triangle data, indexed by the BVH triangle id.
@@ -115,10 +138,101 @@ impl<'a> Tracer<'a> {
     /// The eye ray through image point `(fx, fy)` (pixels, `(0.5, 0.5)` the first pixel's
     /// centre) and what it hits.
     pub fn primary_at(&self, fx: f32, fy: f32) -> Option<SurfaceHit> {
+        let (o, dir, depth_scale) = self.eye_origin_dir(fx, fy);
+        self.hit_along(o, dir, depth_scale, true)
+            .map(|(hit, _)| hit)
+    }
+
+    /// The eye ray through image point `(fx, fy)` peeled into layers (`docs/translucency.md`):
+    /// the nearest surface that is not translucent (the opaque layer; single-sided back faces and
+    /// masked-out texels skipped, as [`Tracer::primary_at`] skips them), and the translucent
+    /// surfaces strictly in front of it (anywhere along the ray without one), nearest first, at
+    /// most `max` of them, each with what the eye sees of it ([`shading::eye_cover`]). A
+    /// translucent hit skips single-sided back faces and, for a filter, masked-out texels; a
+    /// coverage material is never masked out here (it blends by its coverage instead). Hits
+    /// within the tracer's epsilon of the previous one count once (a shared edge).
+    pub fn eye_layers(&self, fx: f32, fy: f32, max: usize) -> EyeLayers {
+        let (o, dir, depth_scale) = self.eye_origin_dir(fx, fy);
+        let opaque = self.opaque_eye_hit(o, dir);
+        let mut translucent = Vec::new();
+        if max > 0 && self.translucent {
+            let tmax = opaque.map_or(f64::INFINITY, |h| h.t);
+            self.walk_hits(
+                o,
+                dir.map(f64::from),
+                tmax,
+                |id, u, v| self.peels(id, dir, u, v),
+                |hit| {
+                    let mat = self.triangle_material(hit.id);
+                    // `peels` accepts translucent materials only.
+                    if let Some(tr) = &mat.transmission {
+                        let texel = self.texel_at(hit.id, mat, hit.u, hit.v);
+                        translucent.push(TranslucentHit {
+                            surface: self.surface_hit(o, dir, hit, depth_scale).0,
+                            cover: shading::eye_cover(tr, mat.alpha, texel),
+                        });
+                    }
+                    translucent.len() < max
+                },
+            );
+        }
+        EyeLayers {
+            opaque: opaque.map(|h| self.surface_hit(o, dir, &h, depth_scale).0),
+            translucent,
+        }
+    }
+
+    /// How many translucent layers [`Tracer::eye_layers`] finds through image point `(fx, fy)`,
+    /// at most `cap`, without shading any of them (cheap enough for a planner's coarse grid).
+    pub fn translucent_count(&self, fx: f32, fy: f32, cap: usize) -> usize {
+        if cap == 0 || !self.translucent {
+            return 0;
+        }
+        let (o, dir, _) = self.eye_origin_dir(fx, fy);
+        let tmax = self.opaque_eye_hit(o, dir).map_or(f64::INFINITY, |h| h.t);
+        let mut n = 0;
+        self.walk_hits(
+            o,
+            dir.map(f64::from),
+            tmax,
+            |id, u, v| self.peels(id, dir, u, v),
+            |_| {
+                n += 1;
+                n < cap
+            },
+        );
+        n
+    }
+
+    /// The eye ray through image point `(fx, fy)`: origin, unit direction and the factor from
+    /// ray distance to eye depth.
+    fn eye_origin_dir(&self, fx: f32, fy: f32) -> ([f64; 3], V3, f32) {
         let cam = &self.scene.camera;
         let dir = cam.ray_dir(fx, fy);
         let forward = cam.frame().forward;
-        self.eye_ray(cam.position, dir, dot(dir, forward))
+        (cam.position.map(f64::from), dir, dot(dir, forward))
+    }
+
+    /// The opaque layer's hit of an eye ray: the nearest triangle that is not translucent,
+    /// single-sided back faces and masked-out texels skipped.
+    fn opaque_eye_hit(&self, o: [f64; 3], dir: V3) -> Option<Hit> {
+        self.bvh
+            .closest(o, dir.map(f64::from), 0.0, f64::INFINITY, |id, u, v| {
+                let mat = self.triangle_material(id);
+                !mat.is_translucent()
+                    && !self.single_sided_back(id, mat, dir)
+                    && !self.masked_out(id, mat, u, v)
+            })
+    }
+
+    /// Whether an eye ray along `dir` peels triangle `id` at `(u, v)` as a translucent layer:
+    /// translucent, not a single-sided back face, and for a filter not masked out.
+    fn peels(&self, id: u32, dir: V3, u: f64, v: f64) -> bool {
+        let mat = self.triangle_material(id);
+        let Some(tr) = &mat.transmission else {
+            return false;
+        };
+        !self.single_sided_back(id, mat, dir) && (tr.coverage || !self.masked_out(id, mat, u, v))
     }
 
     /// What the filters in front of the primary hit of pixel `(x, y)` let through (RGB): the
@@ -141,9 +255,7 @@ impl<'a> Tracer<'a> {
         let tmax = dot64(to_hit, d) / dot64(d, d).max(1e-30);
         let walked = self.walk(o, d, tmax, |id, u, v| {
             let mat = self.triangle_material(id);
-            if !mat.is_filter()
-                || (eye && !mat.double_sided && dot(self.geometric_normal(id), dir) >= 0.0)
-            {
+            if !mat.is_filter() || (eye && self.single_sided_back(id, mat, dir)) {
                 return Step::Skip;
             }
             self.tint(id, mat, u, v)
@@ -187,14 +299,19 @@ impl<'a> Tracer<'a> {
             if mat.is_filter() {
                 return false;
             }
-            if skip_single_sided_backs
-                && !mat.double_sided
-                && dot(self.geometric_normal(id), dir) >= 0.0
-            {
+            if skip_single_sided_backs && self.single_sided_back(id, mat, dir) {
                 return false;
             }
             !self.masked_out(id, mat, u, v)
         })?;
+        Some(self.surface_hit(o, dir, &hit, depth_scale))
+    }
+
+    /// The [`SurfaceHit`] of BVH hit `hit` on the ray from `o` along unit `dir` (normals facing
+    /// the ray's origin, depth `t · depth_scale`), and whether it is the back of a single-sided
+    /// material.
+    fn surface_hit(&self, o: [f64; 3], dir: V3, hit: &Hit, depth_scale: f32) -> (SurfaceHit, bool) {
+        let d = dir.map(f64::from);
         let info = self.tris[hit.id as usize];
         let mesh = &self.scene.meshes[info.mesh as usize];
         let ng_raw = self.geometric_normal(hit.id);
@@ -251,7 +368,7 @@ impl<'a> Tracer<'a> {
             material: mesh.material,
         };
         let mat = material_of(self.scene, mesh.material);
-        Some((surface, back && !mat.double_sided))
+        (surface, back && !mat.double_sided)
     }
 
     /// Whether `sample` is visible from the surface point (`s_λ ∈ {0, 1}`): no opaque triangle
@@ -317,32 +434,55 @@ impl<'a> Tracer<'a> {
         o: [f64; 3],
         d: [f64; 3],
         tmax: f64,
-        mut step: impl FnMut(u32, f64, f64) -> Step,
+        step: impl Fn(u32, f64, f64) -> Step,
     ) -> Option<[f64; 3]> {
         let mut t = [1.0f64; 3];
-        let mut tmin = 0.0;
-        // Bounded: each hit moves `tmin` on by at least `epsilon`.
-        for _ in 0..MAX_LAYERS {
-            let Some(hit) = self.bvh.closest(o, d, tmin, tmax, |id, u, v| {
-                !matches!(step(id, u, v), Step::Skip)
-            }) else {
-                return Some(t);
-            };
-            match step(hit.id, hit.u, hit.v) {
-                Step::Block => return None,
+        let mut blocked = false;
+        self.walk_hits(
+            o,
+            d,
+            tmax,
+            |id, u, v| !matches!(step(id, u, v), Step::Skip),
+            |hit| match step(hit.id, hit.u, hit.v) {
+                Step::Block => {
+                    blocked = true;
+                    false
+                }
                 Step::Tint(x) => {
                     for k in 0..3 {
                         t[k] *= f64::from(x[k]);
                     }
-                    if t == [0.0; 3] {
-                        return None;
-                    }
+                    blocked = t == [0.0; 3];
+                    !blocked
                 }
-                Step::Skip => {}
+                Step::Skip => true,
+            },
+        );
+        (!blocked).then_some(t)
+    }
+
+    /// Visits the hits `accept` allows on the ray from `o` along unit `d` over `(0, tmax)`,
+    /// nearest first, until `visit` returns false. A hit within `epsilon` beyond the previous
+    /// visited one is not visited (the shared edge of two triangles of one surface counts once).
+    fn walk_hits(
+        &self,
+        o: [f64; 3],
+        d: [f64; 3],
+        tmax: f64,
+        accept: impl Fn(u32, f64, f64) -> bool,
+        mut visit: impl FnMut(&Hit) -> bool,
+    ) {
+        let mut tmin = 0.0;
+        // Bounded: each hit moves `tmin` on by at least `epsilon`.
+        for _ in 0..MAX_LAYERS {
+            let Some(hit) = self.bvh.closest(o, d, tmin, tmax, &accept) else {
+                return;
+            };
+            if !visit(&hit) {
+                return;
             }
             tmin = hit.t + self.epsilon;
         }
-        Some(t)
     }
 
     /// The shadow ray of `visible` (origin, unit direction, length), `None` where there is
@@ -438,6 +578,12 @@ impl<'a> Tracer<'a> {
         } else {
             [0.0; 3]
         }
+    }
+
+    /// Whether the ray along `dir` meets triangle `id` of `mat` from the back of a single-sided
+    /// material (which eye rays skip).
+    fn single_sided_back(&self, id: u32, mat: &Material, dir: V3) -> bool {
+        !mat.double_sided && dot(self.geometric_normal(id), dir) >= 0.0
     }
 
     /// True when an alpha-masked texel at barycentrics `(u, v)` is below the cutoff.

@@ -194,6 +194,7 @@ pub(crate) fn plan(p: &Plan) -> Value {
                 "downstream": n.downstream, "est_ms": n.est_cost_us as f64 / 1000.0,
                 "part": n.part,
                 "tile": n.tile,
+                "peel": n.peel,
             })
         })
         .collect();
@@ -226,6 +227,7 @@ pub(crate) fn plan(p: &Plan) -> Value {
         "penumbra_radius": p.penumbra_radius, "penumbra": p.penumbra_line(),
         "partitions": p.partitions.len(), "partition": p.partition_line(),
         "tiles": p.tiles, "decomposition": p.decomposition_line(),
+        "peels": p.peel_line(),
     })
 }
 

@@ -950,7 +950,7 @@
     if (!plan || !plan.nodes) { box.replaceChildren(el('div', { class: 'dim', text: 'no plan yet' })); return; }
     const budget = plan.frame_budget_ms != null ? ` · budget ${ms(plan.frame_budget_ms)}` : '';
     $('plan-summary').textContent = `K ${plan.k ?? '–'} · ${plan.samples ?? '–'} samples · est. ${ms(plan.est_frame_ms)}/frame${budget}`;
-    const gave = [plan.gave_up, plan.penumbra, plan.decomposition, plan.partition].filter(Boolean).join(' · ');
+    const gave = [plan.gave_up, plan.penumbra, plan.peels, plan.decomposition, plan.partition].filter(Boolean).join(' · ');
     $('gave-up').hidden = !gave;
     $('gave-up').textContent = gave;
     const items = new Map(); // id -> {kind, col, lines}

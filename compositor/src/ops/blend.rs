@@ -108,7 +108,9 @@ impl Operator for Blend {
     fn apply(&self, inputs: &[BandView<'_>], out: &mut BandMut<'_>) -> Result<(), OpError> {
         check_band(NAME, &self.signature(), inputs, out)?;
         let back = inputs[0].layer(Layer::Radiance);
-        let fronts: Vec<(Option<&[f32]>, Option<&[f32]>)> = inputs[1..]
+        // Per front input, its radiance and transmittance (each absent in an empty band).
+        type Front<'a> = (Option<&'a [f32]>, Option<&'a [f32]>);
+        let fronts: Vec<Front<'_>> = inputs[1..]
             .iter()
             .map(|v| (v.layer(Layer::Radiance), v.layer(Layer::Transmittance)))
             .collect();

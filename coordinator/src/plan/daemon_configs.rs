@@ -41,7 +41,7 @@ impl Plan {
             eye_meshes: n.part.and_then(|p| self.partitions.get(p).cloned()),
             rows: n.tile.and_then(|t| self.tiles.get(t).copied()),
             moves: Vec::new(),
-            peel: None,
+            peel: n.peel,
         })
     }
 

@@ -185,6 +185,7 @@ impl Plan {
             )?;
         }
         let lines = [
+            self.peel_line(),
             self.decomposition_line(),
             self.partition_line(),
             self.shared_line(),
@@ -213,6 +214,11 @@ impl Plan {
             }
             if let Some((t, r)) = n.tile.and_then(|t| Some((t, self.tiles.get(t)?))) {
                 write!(f, "tile {t} (rows {}–{}) · ", r[0], r[1])?;
+            }
+            match n.peel {
+                Some(0) => write!(f, "opaque layer · ")?,
+                Some(d) => write!(f, "translucent layer {d} · ")?,
+                None => {}
             }
             if n.lights.is_empty() && n.layers.iter().all(|l| l.0 != Layer::Illumination) {
                 writeln!(
@@ -360,6 +366,24 @@ impl Plan {
 }
 
 impl Plan {
+    /// What the plan peels of the scene's translucency and why, one line, or `None` when it
+    /// was not asked to peel.
+    pub fn peel_line(&self) -> Option<String> {
+        self.peels.as_ref().map(|p| {
+            let cells = if p.layers > 0 {
+                let groups = self.nodes.iter().filter(|n| n.peel == Some(0)).count();
+                format!(
+                    " — {} eye layers × {groups} light group(s) = {} nodes, blended back to front",
+                    p.layers + 1,
+                    self.nodes.len()
+                )
+            } else {
+                String::new()
+            };
+            format!("peels: {}{cells}", p.why)
+        })
+    }
+
     /// How an automatic plan chose between tiles and an untiled image, one line, or `None` when
     /// the options fixed it.
     pub fn decomposition_line(&self) -> Option<String> {
@@ -474,6 +498,9 @@ impl Display for Brief<'_> {
             write!(f, "\n  {text}")?;
         }
         if let Some(text) = p.penumbra_line() {
+            write!(f, "\n  {text}")?;
+        }
+        if let Some(text) = p.peel_line() {
             write!(f, "\n  {text}")?;
         }
         if let Some(text) = p.decomposition_line() {

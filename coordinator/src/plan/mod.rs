@@ -16,6 +16,7 @@ mod geom;
 pub mod gloss;
 mod group;
 mod material;
+mod peel;
 mod phases;
 mod replan;
 mod shadow;
@@ -27,6 +28,7 @@ pub mod wire;
 pub use budget::{MAX_EPSILON, expected_penumbra_db, filter_cost_us, filter_radius, targeted};
 pub use error_model::{Choice, Curve, ErrorModel};
 pub use group::{DEFAULT_FIXED_US, DEFAULT_LIGHT_US};
+pub use peel::depth_complexity;
 pub use replan::{lights_moved, replan};
 pub use topology::BAND_OVERHEAD_BYTES;
 pub use types::*;
@@ -227,6 +229,22 @@ pub(crate) fn plan_with(
     previous: Option<&Plan>,
 ) -> Result<Plan, PlanError> {
     validate(scene, cluster, options)?;
+    if let Some((resolved, choice)) = peel::resolve(scene, cluster, options)? {
+        let mut plan = plan_grid(scene, cluster, &resolved, previous)?;
+        plan.peels = Some(choice);
+        return Ok(plan);
+    }
+    plan_grid(scene, cluster, options, previous)
+}
+
+/// [`plan_with`] after peeling is resolved: the tiles and partitions chosen where automatic,
+/// then the plan within its budget.
+fn plan_grid(
+    scene: &Scene,
+    cluster: &ClusterSpec,
+    options: &PlanOptions,
+    previous: Option<&Plan>,
+) -> Result<Plan, PlanError> {
     if options.tiles == 0 {
         return decompose::choose(scene, cluster, options, previous);
     }

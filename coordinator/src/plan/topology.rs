@@ -8,8 +8,8 @@
 use super::types::{DaemonSpec, Topology};
 use super::types::{Downstream, FormatChoice, InputRef, LinkPlan, MaterialMode, Source, StagePlan};
 use lightfold_protocol::pipeline::{
-    AccumulateParams, AmbientFold, AmbientMask, DepthParams, JoinParams, MaterialParams,
-    MaterialStage, MergeParams, NodeColor, OutputParams, PenumbraParams,
+    AccumulateParams, AmbientFold, AmbientMask, BlendParams, DepthParams, JoinParams,
+    MaterialParams, MaterialStage, MergeParams, NodeColor, OutputParams, PenumbraParams,
 };
 use lightfold_protocol::{Layer, OpSource, OpSpec, PixelFormat};
 use std::ops::Range;
@@ -464,6 +464,104 @@ pub(crate) fn partition_stages(
     (stages, dst)
 }
 
+/// The stages of a peeled plan (`docs/translucency.md` § Peeled layers): `layers[q]` are the
+/// nodes rendering eye layer q, back to front (the opaque layer first, the nearest translucent
+/// layer last), one per light group, the first of them also carrying the layer's material layers
+/// and, for a translucent layer, its transmittance. Each layer's illumination is summed over its
+/// groups (`accumulate`) and shaded with its own material layers (`material`: its radiance,
+/// premultiplied by its coverage); a translucent layer's radiance is put beside its
+/// transmittance (`merge`), and `blend` lays the layers over one another in order. Stages take
+/// contiguous runs of layers along a chain (the back first), each blending its own over the
+/// upstream radiance ("over" is applied in order, so a tree would need the combined
+/// transmittance too: peeled plans chain); the last stage applies the exposure. Returns the
+/// stages and, per layer and node, where the node streams.
+pub(crate) fn peeled_stages(
+    layers: &[Vec<IllumInput>],
+    translucent: &[bool],
+    finish: &Finish,
+    compositors: &[DaemonSpec],
+    formats: &FormatChoice,
+) -> (Vec<StagePlan>, Vec<Vec<Dest>>) {
+    let count = layers.len().min(compositors.len()).max(1);
+    let mut dst: Vec<Vec<Dest>> = layers
+        .iter()
+        .map(|l| vec![(String::new(), 0); l.len()])
+        .collect();
+    let mut stages: Vec<StagePlan> = Vec::with_capacity(count);
+    let mut start = 0;
+    for (i, compositor) in compositors.iter().take(count).enumerate() {
+        let len = layers.len() / count + usize::from(i < layers.len() % count);
+        let id = compositor.id.clone();
+        let mut inputs = Vec::new();
+        let mut ops: Vec<OpSpec> = Vec::new();
+        let mut wiring: Vec<Vec<OpSource>> = Vec::new();
+        // What `blend` lays over one another, back to front.
+        let mut over = Vec::new();
+        if let Some(prev) = stages.last_mut() {
+            prev.downstream = Downstream::Stage(id.clone());
+            prev.input_index = 0;
+            inputs.push(InputRef {
+                source: Source::Stage(prev.compositor.clone()),
+                layers: prev.outputs.clone(),
+            });
+            over.push(OpSource::Input(0));
+        }
+        for q in start..start + len {
+            let first = inputs.len() as u32;
+            for (j, n) in layers[q].iter().enumerate() {
+                dst[q][j] = (id.clone(), inputs.len() as u32);
+                inputs.push(InputRef {
+                    source: Source::Node(n.node.clone()),
+                    layers: n.layers.clone(),
+                });
+            }
+            let last = inputs.len() as u32;
+            ops.push(OpSpec::Accumulate(accumulate_params(
+                &layers[q], finish, false, None,
+            )));
+            wiring.push((first..last).map(OpSource::Input).collect());
+            ops.push(material_params(finish));
+            wiring.push(vec![
+                OpSource::Op(ops.len() as u32 - 2),
+                OpSource::Input(first),
+            ]);
+            if translucent[q] {
+                ops.push(OpSpec::Merge(MergeParams {
+                    inputs: vec![vec![Layer::Radiance], vec![Layer::Transmittance]],
+                }));
+                wiring.push(vec![
+                    OpSource::Op(ops.len() as u32 - 2),
+                    OpSource::Input(first),
+                ]);
+            }
+            over.push(OpSource::Op(ops.len() as u32 - 1));
+        }
+        start += len;
+        if over.len() > 1 {
+            ops.push(OpSpec::Blend(BlendParams {
+                inputs: over.len() as u32,
+            }));
+            wiring.push(over);
+        }
+        stages.push(StagePlan {
+            compositor: id,
+            ops,
+            wiring,
+            inputs,
+            outputs: vec![(Layer::Radiance, formats.sink)],
+            downstream: Downstream::Sink,
+            input_index: 0,
+        });
+    }
+    let root = stages.last_mut().expect("at least one stage");
+    root.ops.push(OpSpec::Output(OutputParams {
+        exposure: finish.exposure,
+    }));
+    root.wiring
+        .push(vec![OpSource::Op(root.ops.len() as u32 - 2)]);
+    (stages, dst)
+}
+
 /// Joins `stages` (the leaves) pair by pair, level by level, on the next compositors: each join
 /// is `join` with the pair as its inputs 0 and 1 (each carrying what that stage sends), on a
 /// compositor of its own; an odd stage moves up unchanged. The last stage is the root.
@@ -499,14 +597,19 @@ fn join_pairs(stages: &mut Vec<StagePlan>, compositors: &[DaemonSpec], join: &St
     }
 }
 
-/// Appends `material` and `output` to the root stage, which sends radiance to the sink.
-fn finish_root(root: &mut StagePlan, finish: &Finish, formats: &FormatChoice) {
-    root.ops.push(OpSpec::Material(MaterialParams {
+/// The one `material` stage (eq. 2) that shades the illumination sum with the material layers.
+fn material_params(finish: &Finish) -> OpSpec {
+    OpSpec::Material(MaterialParams {
         stage: MaterialStage::Single,
         ambient_color: finish.ambient_layer.then_some(finish.ambient),
         specular: matches!(finish.mode, MaterialMode::General),
         emissive: finish.emissive,
-    }));
+    })
+}
+
+/// Appends `material` and `output` to the root stage, which sends radiance to the sink.
+fn finish_root(root: &mut StagePlan, finish: &Finish, formats: &FormatChoice) {
+    root.ops.push(material_params(finish));
     root.ops.push(OpSpec::Output(OutputParams {
         exposure: finish.exposure,
     }));

@@ -342,6 +342,12 @@ pub struct PlanOptions {
     /// [`TILES_MIN_GAIN`] shorter than the untiled one (with the partitions resolved).
     #[serde(default)]
     pub tiles: u32,
+    /// Peeled translucency (`--peels`, `docs/translucency.md` § Peeled layers): the eye sees
+    /// the scene's translucent surfaces as D layers in front of the opaque one, each rendered
+    /// and lit by its own light groups and blended back to front at the stages. Off (the
+    /// default): glass is seen through and only tints (the classic eye pass).
+    #[serde(default)]
+    pub peels: Peels,
     /// Plan nodes that share one GPU (`Capabilities::device`) as one node per device with
     /// their lights together, when the cost model says that is faster (`plan/shared.rs`).
     pub merge_shared_devices: bool,
@@ -428,9 +434,41 @@ impl Default for PlanOptions {
             penumbra_filter: PenumbraFilter::Budget,
             partitions: 0,
             tiles: 0,
+            peels: Peels::Off,
             merge_shared_devices: true,
         }
     }
+}
+
+/// Most translucent layers a plan peels (`Peels`): each takes as many render nodes as the
+/// opaque layer.
+pub const MAX_PEELS: u32 = 4;
+
+/// How many translucent eye layers a plan peels (`PlanOptions::peels`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Peels {
+    /// None: filters tint what lies behind them, coverage surfaces are cut-outs.
+    #[default]
+    Off,
+    /// The scene's depth complexity in view (the most translucent surfaces in front of an
+    /// opaque one along any eye ray of a coarse grid), capped at [`MAX_PEELS`]; none where no
+    /// translucent surface is in view.
+    Auto,
+    /// This many (1 to [`MAX_PEELS`]).
+    Layers(u32),
+}
+
+/// What a plan peeled, and why (`Plan::peels`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PeelChoice {
+    /// Translucent layers peeled (each a cell of light groups: `NodePlan::peel`).
+    pub layers: u32,
+    /// The most translucent surfaces in front of an opaque one the planner found along an eye
+    /// ray (`None` where the count was asked for, not measured).
+    pub depth_complexity: Option<u32>,
+    /// The choice in words, as `lightfold plan` prints it.
+    pub why: String,
 }
 
 /// Why a sample is not rendered.
@@ -520,6 +558,10 @@ pub struct NodePlan {
     /// every row.
     #[serde(default)]
     pub tile: Option<usize>,
+    /// Peeled translucency: the eye layer this node renders (`NodeConfig::peel`: 0 the opaque
+    /// layer, d ≥ 1 the d-th translucent surface in front of it); `None` without peeling.
+    #[serde(default)]
+    pub peel: Option<u32>,
     /// The content hash of the scene this node is sent when it is not the plan's (a sort-last
     /// node gets only what it draws: `scene::partition::keep_meshes`); set by the control loop.
     #[serde(default)]
@@ -771,6 +813,10 @@ pub struct Plan {
     /// (`PlanOptions::tiles` 0); `None` when the options fixed it.
     #[serde(default)]
     pub decomposition: Option<Decomposition>,
+    /// Peeled translucency: how many translucent layers the plan peels and why (`None`: not
+    /// peeled).
+    #[serde(default)]
+    pub peels: Option<PeelChoice>,
 }
 
 /// The share by which a tiled plan's estimated frame must beat the untiled one for an automatic

@@ -5,6 +5,7 @@ mod plan_scenes;
 mod plan_budget;
 mod plan_formats;
 mod plan_gloss;
+mod plan_peels;
 mod plan_props;
 mod plan_rules;
 mod plan_tiles;

@@ -10,6 +10,7 @@ mod frame_budget;
 mod indirect;
 mod local_cluster;
 mod partitions;
+mod peels;
 mod penumbra_filter;
 mod plan_culling;
 mod plan_passes;

@@ -5,5 +5,6 @@ mod common;
 mod area;
 mod convergence;
 mod metrics;
+mod peel;
 mod point_sum;
 mod ties;

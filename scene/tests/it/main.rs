@@ -7,6 +7,7 @@ mod builtin;
 mod bvh;
 mod defaults;
 mod encode;
+mod eye_cover;
 mod gltf;
 mod hostile;
 mod layering;

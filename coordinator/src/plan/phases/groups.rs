@@ -274,6 +274,10 @@ pub(super) fn assign_nodes(
 ) -> Assignment {
     let Grouping { costs, groups, .. } = grouping;
     let own_node = options.material_own_node;
+    let peels = match options.peels {
+        Peels::Layers(d) => d,
+        Peels::Off | Peels::Auto => 0,
+    };
     let units: Vec<(Option<usize>, usize)> = if parts == 0 {
         (0..groups.len()).map(|g| (None, g)).collect()
     } else {
@@ -299,10 +303,12 @@ pub(super) fn assign_nodes(
         .collect();
     let mut on_node = group::assign(&unit_costs);
     if let Some(prev) = previous {
-        // A light keeps its node when the node keeps its part and tile.
-        let key = |part: Option<usize>, tile: Option<usize>, l: usize| {
-            let cell = part.map_or(0, |p| p + 1) * (crate::tiles::MAX_TILES as usize + 1)
-                + tile.map_or(0, |t| t + 1);
+        // A light keeps its node when the node keeps its part, tile and eye layer.
+        let key = |part: Option<usize>, tile: Option<usize>, peel: Option<u32>, l: usize| {
+            let cell = (part.map_or(0, |p| p + 1) * (crate::tiles::MAX_TILES as usize + 1)
+                + tile.map_or(0, |t| t + 1))
+                * (MAX_PEELS as usize + 2)
+                + peel.map_or(0, |d| d as usize + 1);
             cell * samples + l
         };
         let had: Vec<Vec<usize>> = cluster
@@ -313,7 +319,10 @@ pub(super) fn assign_nodes(
                     .iter()
                     .find(|p| p.node == n.id)
                     .map_or_else(Vec::new, |p| {
-                        p.lights.iter().map(|&l| key(p.part, p.tile, l)).collect()
+                        p.lights
+                            .iter()
+                            .map(|&l| key(p.part, p.tile, p.peel, l))
+                            .collect()
                     })
             })
             .collect();
@@ -327,10 +336,11 @@ pub(super) fn assign_nodes(
             .iter()
             .map(|&(c, g)| {
                 let (part, tile) = cell(c);
+                let peel = c.and_then(|c| super::shadows::peel_of(c, peels));
                 groups[g]
                     .lights
                     .iter()
-                    .map(|&l| key(part, tile, l))
+                    .map(|&l| key(part, tile, peel, l))
                     .collect()
             })
             .collect();

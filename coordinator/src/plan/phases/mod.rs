@@ -213,5 +213,6 @@ fn assemble(
         },
         partitions: parts,
         decomposition: None,
+        peels: None,
     }
 }

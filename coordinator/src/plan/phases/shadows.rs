@@ -100,6 +100,9 @@ pub(super) struct Fit {
     /// Sort-first tiles (1: none). A tile's node draws its cell's meshes into its rows with the
     /// maps of its sort-last part (the whole scene's without partitions).
     pub(super) tiles: usize,
+    /// Peeled translucent layers (0: none). Then the cells are the eye layers, back to front
+    /// ([`peel_of`]), each of every mesh, without parts or tiles.
+    pub(super) peels: u32,
 }
 
 impl Fit {
@@ -107,6 +110,21 @@ impl Fit {
     pub(super) fn cell(&self, cell: usize) -> (Option<usize>, Option<usize>) {
         cell_of(cell, !self.sort_last.is_empty(), self.tiles)
     }
+
+    /// Cell `cell`'s eye layer where the plan peels translucency (`NodePlan::peel`).
+    pub(super) fn peel(&self, cell: usize) -> Option<u32> {
+        peel_of(cell, self.peels)
+    }
+}
+
+/// The eye layer of cell `cell` of a plan peeling `peels` translucent layers (`None` for 0):
+/// the cells run back to front, as `blend` takes them: the opaque layer (0), then the deepest
+/// translucent layer (`peels`), …, the nearest (1).
+pub(super) fn peel_of(cell: usize, peels: u32) -> Option<u32> {
+    (peels > 0).then(|| match cell {
+        0 => 0,
+        c => peels + 1 - c as u32,
+    })
 }
 
 /// Cell `cell`'s sort-last part (where the grid is `partitioned`) and tile (of `tiles`, where
@@ -146,6 +164,21 @@ pub(super) fn fit_views(
         ViewFit { boxes, probes }
     };
     let whole = fit_where(&|_| true);
+    let peels = match options.peels {
+        Peels::Layers(d) => d,
+        Peels::Off | Peels::Auto => 0,
+    };
+    if peels > 0 {
+        // `plan_with` resolved the grid: no parts, no tiles; one cell per eye layer.
+        return Ok(Fit {
+            whole,
+            parts: vec![(0..scene.meshes.len() as u32).collect(); peels as usize + 1],
+            sort_last: Vec::new(),
+            part_fit: Vec::new(),
+            tiles: 1,
+            peels,
+        });
+    }
     let tiles = options.tiles.max(1) as usize;
     let sort_last = if options.partitions > 1 {
         let parts =
@@ -199,6 +232,7 @@ pub(super) fn fit_views(
         sort_last,
         part_fit,
         tiles,
+        peels: 0,
     })
 }
 

@@ -62,6 +62,8 @@ pub(super) fn wire_stages(
         placement,
     } = if fit.parts.is_empty() {
         unpartitioned(cluster, grouping, assignment, shadows, &finish)
+    } else if fit.peels > 0 {
+        peeled(&fit, cluster, grouping, assignment, shadows, &finish)
     } else {
         partitioned(&fit, cluster, grouping, assignment, shadows, &finish)
     };
@@ -155,6 +157,7 @@ fn unpartitioned(
             est_cost_us: ill.cost.round() as u64,
             part: None,
             tile: None,
+            peel: None,
             scene: None,
         })
         .collect();
@@ -186,6 +189,7 @@ fn unpartitioned(
                 est_cost_us: costs[m].frame(&[], material_layers.len()).round() as u64,
                 part: None,
                 tile: None,
+                peel: None,
                 scene: None,
             });
             MaterialPlacement::OwnNode {
@@ -195,6 +199,137 @@ fn unpartitioned(
         (topology::MaterialSite::OwnNode(_), None) => {
             unreachable!("the topology hosts the material layers whenever no own node is chosen")
         }
+    };
+    Layout {
+        stages,
+        nodes,
+        placement,
+    }
+}
+
+/// Each cell's units, the cheapest first (it hosts the cell's material layers): unit
+/// `u = (cell, group)` of `assignment`, costed with `extra` more targets.
+fn cell_units(
+    cells: usize,
+    grouping: &Grouping,
+    assignment: &Assignment,
+    shadows: &Shadows,
+    extra: usize,
+) -> Vec<Vec<usize>> {
+    let (units, on_node) = (&assignment.units, &assignment.on_node);
+    let mut cell_units: Vec<Vec<usize>> = vec![Vec::new(); cells];
+    for (u, &(c, _)) in units.iter().enumerate() {
+        cell_units[c.expect("grid units name their cell")].push(u);
+    }
+    let cost_of = |u: usize| {
+        let (c, g) = units[u];
+        grouping.costs[on_node[u]].frame(&shadows.of(c, &grouping.groups[g].lights), extra)
+    };
+    for list in &mut cell_units {
+        if let Some(first) = list
+            .iter()
+            .enumerate()
+            .min_by(|a, b| cost_of(*a.1).total_cmp(&cost_of(*b.1)).then(a.0.cmp(&b.0)))
+            .map(|(i, _)| i)
+        {
+            let host = list.remove(first);
+            list.insert(0, host);
+        }
+    }
+    cell_units
+}
+
+/// The nodes and stages of a peeled plan (`docs/translucency.md` § Peeled layers): one cell of
+/// light groups per eye layer, back to front (`Fit::peel`); each cell's cheapest node also
+/// renders its layer's material layers and, for a translucent layer, its transmittance.
+fn peeled(
+    fit: &Fit,
+    cluster: &ClusterSpec,
+    grouping: &Grouping,
+    assignment: &Assignment,
+    shadows: &Shadows,
+    finish: &topology::Finish,
+) -> Layout {
+    let Grouping { costs, groups, .. } = grouping;
+    let Assignment {
+        options,
+        units,
+        on_node,
+        ..
+    } = assignment;
+    let unit_shadows = |u: usize| {
+        let (c, g) = units[u];
+        shadows.of(c, &groups[g].lights)
+    };
+    let materials: Vec<(Layer, PixelFormat)> = finish
+        .material_layers
+        .iter()
+        .copied()
+        .filter(|l| l.0 != Layer::Depth)
+        .collect();
+    let cells = fit.parts.len();
+    let translucent: Vec<bool> = (0..cells).map(|c| fit.peel(c) != Some(0)).collect();
+    let host_layers = |c: usize| {
+        let mut layers = vec![(Layer::Illumination, options.formats.node)];
+        layers.extend(materials.iter().copied());
+        if translucent[c] {
+            // Transmittance in [0, 1] as half floats, as the node's target holds it.
+            layers.push((Layer::Transmittance, PixelFormat::F16x4));
+        }
+        layers
+    };
+    let cell_units = cell_units(cells, grouping, assignment, shadows, materials.len() + 1);
+    let cost_of = |u: usize, layers: usize| costs[on_node[u]].frame(&unit_shadows(u), layers);
+    let inputs: Vec<Vec<topology::IllumInput>> = cell_units
+        .iter()
+        .enumerate()
+        .map(|(c, list)| {
+            list.iter()
+                .enumerate()
+                .map(|(j, &u)| topology::IllumInput {
+                    node: cluster.nodes[on_node[u]].id.clone(),
+                    color: groups[units[u].1].color,
+                    layers: if j == 0 {
+                        host_layers(c)
+                    } else {
+                        vec![(Layer::Illumination, options.formats.node)]
+                    },
+                    cost: cost_of(u, 0),
+                })
+                .collect()
+        })
+        .collect();
+    let (stages, dst) = topology::peeled_stages(
+        &inputs,
+        &translucent,
+        finish,
+        &cluster.compositors,
+        &options.formats,
+    );
+    let mut nodes = Vec::with_capacity(units.len());
+    for (c, list) in cell_units.iter().enumerate() {
+        for (j, &u) in list.iter().enumerate() {
+            let g = &groups[units[u].1];
+            let (stage, input) = dst[c][j].clone();
+            let layers = inputs[c][j].layers.clone();
+            nodes.push(NodePlan {
+                node: inputs[c][j].node.clone(),
+                lights: g.lights.clone(),
+                color: g.color,
+                shadows: unit_shadows(u).into_iter().cloned().collect(),
+                est_cost_us: cost_of(u, layers.len() - 1).round() as u64,
+                layers,
+                downstream: stage,
+                input_index: input,
+                part: None,
+                tile: None,
+                peel: fit.peel(c),
+                scene: None,
+            });
+        }
+    }
+    let placement = MaterialPlacement::PerPart {
+        nodes: inputs.iter().map(|p| p[0].node.clone()).collect(),
     };
     Layout {
         stages,
@@ -240,26 +375,8 @@ fn partitioned(
     );
     let extra = host_layers.len() - 1;
     // Per part, its units with the cheapest first (it hosts the part's depth and materials).
-    let mut part_units: Vec<Vec<usize>> = vec![Vec::new(); fit.parts.len()];
-    for (u, &(p, _)) in units.iter().enumerate() {
-        part_units[p.expect("partitioned units name their part")].push(u);
-    }
+    let part_units = cell_units(fit.parts.len(), grouping, assignment, shadows, extra);
     let cost_of = |u: usize, layers: usize| costs[on_node[u]].frame(&unit_shadows(u), layers);
-    for list in &mut part_units {
-        if let Some(first) = list
-            .iter()
-            .enumerate()
-            .min_by(|a, b| {
-                cost_of(*a.1, extra)
-                    .total_cmp(&cost_of(*b.1, extra))
-                    .then(a.0.cmp(&b.0))
-            })
-            .map(|(i, _)| i)
-        {
-            let host = list.remove(first);
-            list.insert(0, host);
-        }
-    }
     let inputs: Vec<Vec<topology::IllumInput>> = part_units
         .iter()
         .map(|list| {
@@ -302,6 +419,7 @@ fn partitioned(
                 est_cost_us: cost_of(u, if j == 0 { extra } else { 0 }).round() as u64,
                 part,
                 tile,
+                peel: None,
                 scene: None,
             });
         }
