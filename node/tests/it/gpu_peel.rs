@@ -842,3 +842,67 @@ fn textured_coverage_peels_with_its_texture_alpha() {
     eprintln!("{checked} pixels where both see the label");
     assert!(checked > 100, "{checked}");
 }
+
+/// The CPU reference of peeled layers (`reference::render_peeled`, `Tracer::eye_layers`): each
+/// GPU peel against its layer, T against its T, and the blend of the GPU peels against the
+/// reference's composite; the classic frame as the back (its filters already multiplied in)
+/// fails the same comparison (negative control).
+#[test]
+fn peels_match_the_peeled_reference() {
+    let gpu = gpu();
+    let t = truth();
+    let scene = scene();
+    let reference = lightfold_reference::render_peeled(&scene, &t.samples, [1.0; 3], 2);
+    let mut r = renderer(&gpu);
+    let peels: Vec<NodeFrame> = (0..=2)
+        .map(|d| render_peel(&gpu, &mut r, Some(d)))
+        .collect();
+    for (d, frame) in peels.iter().enumerate() {
+        let want = if d == 0 {
+            &reference.opaque
+        } else {
+            &reference.layers[d - 1]
+        };
+        for (name, got, want) in [
+            ("illumination", &frame.illumination, &want.illumination),
+            ("m^d", &frame.diffuse, &want.diffuse),
+            ("m^s", &frame.specular, &want.specular),
+            ("m^a", &frame.ambient, &want.ambient),
+            ("depth", &frame.depth, &want.depth),
+        ] {
+            let c = compare(got.as_ref().expect(name), want, &t.mask);
+            eprintln!("peel {d} {name} against render_peeled: {c:?}");
+            assert!(c.passes(), "peel {d} {name}: {c:?}");
+        }
+        if d >= 1 {
+            let got = frame.transmittance.as_ref().expect("T");
+            let want = &reference.transmittance[d - 1];
+            // f16 targets: within 2.5e-4 of the reference everywhere compared.
+            let off = (0..(W * H) as usize)
+                .filter(|&i| t.mask[i])
+                .filter(|&i| {
+                    (0..3).any(|k| (got.data[i * 3 + k] - want.data[i * 3 + k]).abs() > 2.5e-4)
+                })
+                .count();
+            assert_eq!(off, 0, "peel {d}: {off} pixels' T differ");
+        }
+    }
+    let want = reference.radiance([1.0; 3], AMBIENT);
+    let front: Vec<(Image, Image)> = [2, 1]
+        .map(|d| {
+            (
+                radiance(&peels[d]),
+                peels[d].transmittance.clone().expect("T"),
+            )
+        })
+        .into();
+    let pairs: Vec<(Image, &Image)> = front.iter().map(|(r, t)| (r.clone(), t)).collect();
+    let got = blend(&radiance(&peels[0]), &pairs);
+    let c = compare(&got, &want, &t.mask);
+    eprintln!("blend of the GPU peels against render_peeled's composite: {c:?}");
+    assert!(c.passes(), "{c:?}");
+    let classic = render_peel(&gpu, &mut r, None);
+    let n = compare(&blend(&radiance(&classic), &pairs), &want, &t.mask);
+    eprintln!("classic back (double tint) against render_peeled: {n:?}");
+    assert!(!n.passes(), "the classic back passed: {n:?}");
+}
