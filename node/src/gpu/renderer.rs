@@ -460,7 +460,9 @@ impl Renderer {
     /// opaque layer (every translucent surface skipped, nothing multiplied in); `Some(d)`, the
     /// d-th nearest translucent surface in front of the opaque one (depth peeling: `gpu::peel`),
     /// its material layers times its eye coverage, its eye transmittance in
-    /// [`NodeFrame::transmittance`]. A peeling renderer always takes the forward eye pass.
+    /// [`NodeFrame::transmittance`]. A peeling renderer always takes the forward eye pass. A
+    /// peel deeper than [`crate::gpu::MAX_PEEL`] is refused when a frame renders
+    /// ([`RenderError::PeelTooDeep`]).
     pub fn set_peel(&mut self, peel: Option<u32>) {
         self.peel = peel;
     }
@@ -702,6 +704,14 @@ impl Renderer {
         }
         if let Some(rows) = self.rows {
             super::frame::check_rows(rows, h)?;
+        }
+        if let Some(peel) = self.peel
+            && peel > super::peel::MAX_PEEL
+        {
+            return Err(RenderError::PeelTooDeep {
+                peel,
+                maximum: super::peel::MAX_PEEL,
+            });
         }
         // The largest buffer a frame needs besides the lit buffer: the readback of a 16-byte
         // target. Checked here so the device is never asked for it.

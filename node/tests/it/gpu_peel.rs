@@ -646,6 +646,15 @@ fn transmittance_packs_on_the_device_as_on_the_cpu() {
                 .all(|b| !b.header.empty),
             "{format:?}"
         );
+        // A peel beyond the cap is refused, and the renderer still serves.
+        r.set_peel(Some(lightfold_node::gpu::MAX_PEEL + 1));
+        let e = r
+            .render(&gpu, &t.samples, None, [1.0; 3], set)
+            .expect_err("too deep");
+        assert!(
+            matches!(e, lightfold_node::gpu::RenderError::PeelTooDeep { .. }),
+            "{e}"
+        );
         // Without a translucent peel there is no transmittance, on either path.
         for peel in [None, Some(0)] {
             r.set_peel(peel);
