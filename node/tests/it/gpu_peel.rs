@@ -896,6 +896,37 @@ fn peels_match_the_peeled_reference() {
             assert_eq!(off, 0, "peel {d}: {off} pixels' T differ");
         }
     }
+    // Peel 0 in both eye variants (the renderer's default, deferred, above); the translucent
+    // peels are forward whatever the variant.
+    r.set_variant(lightfold_node::gpu::EyeVariant::Forward);
+    let forward = render_peel(&gpu, &mut r, Some(0));
+    r.set_variant(lightfold_node::gpu::EyeVariant::Deferred);
+    for (name, got, want) in [
+        (
+            "illumination",
+            &forward.illumination,
+            &reference.opaque.illumination,
+        ),
+        ("m^d", &forward.diffuse, &reference.opaque.diffuse),
+        ("depth", &forward.depth, &reference.opaque.depth),
+    ] {
+        let c = compare(got.as_ref().expect(name), want, &t.mask);
+        eprintln!("forward peel 0 {name} against render_peeled: {c:?}");
+        assert!(c.passes(), "forward peel 0 {name}: {c:?}");
+    }
+    let (a, b) = (
+        forward.illumination.as_ref().unwrap(),
+        peels[0].illumination.as_ref().unwrap(),
+    );
+    let worst = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| (x - y).abs() / y.abs().max(1e-3))
+        .fold(0.0f32, f32::max);
+    eprintln!("peel 0 forward against deferred: worst relative difference {worst:e}");
+    assert!(worst < 1e-4, "{worst}");
+    assert!(forward.diffuse == peels[0].diffuse && forward.depth == peels[0].depth);
     let want = reference.radiance([1.0; 3], AMBIENT);
     let front: Vec<(Image, Image)> = [2, 1]
         .map(|d| {
