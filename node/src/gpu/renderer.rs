@@ -635,7 +635,7 @@ impl Renderer {
         let (w, h) = self.check_frame(gpu, lights, casters)?;
         let variant = self.frame_variant(gpu, w, h);
         if variant != self.variant
-            && !self.peel.is_some_and(|d| d >= 1)
+            && self.peel.is_none_or(|d| d == 0)
             && self
                 .targets
                 .as_ref()
