@@ -47,13 +47,15 @@ fn main() -> anyhow::Result<()> {
         ..RenderOptions::from_quality(&scene.quality)
     };
     let mut r = Renderer::new(&gpu, &scene, opts)?;
-    // The classic pass in both variants (a peeling renderer always takes the forward one), then
-    // peels 0..=peels.
-    let modes: Vec<(Option<u32>, EyeVariant)> =
-        [(None, EyeVariant::Deferred), (None, EyeVariant::Forward)]
-            .into_iter()
-            .chain((0..=peels).map(|d| (Some(d), EyeVariant::Forward)))
-            .collect();
+    // The classic pass and peel 0 in both variants, then the translucent peels (forward).
+    let modes: Vec<(Option<u32>, EyeVariant)> = [
+        (None, EyeVariant::Deferred),
+        (None, EyeVariant::Forward),
+        (Some(0), EyeVariant::Deferred),
+    ]
+    .into_iter()
+    .chain((0..=peels).map(|d| (Some(d), EyeVariant::Forward)))
+    .collect();
     let mut times: Vec<Vec<f64>> = vec![Vec::new(); modes.len()];
     for f in 0..2 + frames {
         for (m, &(peel, variant)) in modes.iter().enumerate() {
@@ -81,7 +83,7 @@ fn main() -> anyhow::Result<()> {
         let ms = stats::median(t).expect("timed frames");
         let name = match peel {
             None => format!("classic (peel None), {variant:?}"),
-            Some(0) => "peel 0 (opaque)".to_string(),
+            Some(0) => format!("peel 0 (opaque), {variant:?}"),
             Some(d) => format!("peel {d}"),
         };
         println!("| {name} | {ms:.1} | {:.2} |", ms / classic);
