@@ -148,6 +148,44 @@ pub const PEEL_MR_MAPPED_WGSL: &str = eye_module!(
     "peel.wgsl"
 );
 
+/// Peel 0 in the deferred variant: the deferred module with `peel_gbuffer.wgsl` after it, entry
+/// points `fs_gbuffer_peel` / `fs_gbuffer_layers_peel` (the G-buffer rasters with every
+/// translucent material rejected).
+pub const PEEL_DEFERRED_WGSL: &str = eye_module!(
+    "false",
+    "lights_uniform.wgsl",
+    "eye_vertex.wgsl",
+    "deferred.wgsl",
+    "peel_gbuffer.wgsl"
+);
+
+/// [`PEEL_DEFERRED_WGSL`] with glTF metallic-roughness shading.
+pub const PEEL_DEFERRED_MR_WGSL: &str = eye_module!(
+    "true",
+    "lights_uniform.wgsl",
+    "eye_vertex.wgsl",
+    "deferred.wgsl",
+    "peel_gbuffer.wgsl"
+);
+
+/// [`PEEL_DEFERRED_MR_WGSL`] for a scene with normal maps.
+pub const PEEL_DEFERRED_MR_MAPPED_WGSL: &str = eye_module!(
+    "true",
+    "lights_uniform.wgsl",
+    "eye_vertex_mapped.wgsl",
+    "deferred.wgsl",
+    "peel_gbuffer.wgsl"
+);
+
+/// The deferred peel-0 module for a scene (see [`eye_modules`]).
+pub fn peel_deferred_module(metallic_roughness: bool, normal_mapped: bool) -> &'static str {
+    match (metallic_roughness, normal_mapped) {
+        (false, _) => PEEL_DEFERRED_WGSL,
+        (true, false) => PEEL_DEFERRED_MR_WGSL,
+        (true, true) => PEEL_DEFERRED_MR_MAPPED_WGSL,
+    }
+}
+
 /// The peel module for a scene (see [`eye_modules`]).
 pub fn peel_module(metallic_roughness: bool, normal_mapped: bool) -> &'static str {
     match (metallic_roughness, normal_mapped) {
@@ -281,6 +319,16 @@ mod tests {
                 "fs_peel_layers",
             ] {
                 assert!(peel.iter().any(|n| n == e), "peel lacks {e}");
+            }
+        }
+        for src in [
+            PEEL_DEFERRED_WGSL,
+            PEEL_DEFERRED_MR_WGSL,
+            PEEL_DEFERRED_MR_MAPPED_WGSL,
+        ] {
+            let peel = names(src, "peel deferred");
+            for e in ["vs_eye", "fs_gbuffer_peel", "fs_gbuffer_layers_peel"] {
+                assert!(peel.iter().any(|n| n == e), "peel deferred lacks {e}");
             }
         }
         for src in [DEFERRED_WGSL, DEFERRED_MR_WGSL, DEFERRED_MR_MAPPED_WGSL] {

@@ -105,7 +105,9 @@ fn chunk_groups(
         .collect()
 }
 
-/// Records and submits the G-buffer raster and the light dispatches of `light_pass`.
+/// Records and submits the G-buffer raster and the light dispatches of `light_pass`; `peel0`:
+/// peel 0's G-buffer rasters (without, with the material layers) in place of the classic ones,
+/// and no filters' pass.
 pub(super) fn render_deferred(
     cx: &DrawContext<'_>,
     draws: &super::eye_pass::EyeDraws,
@@ -113,6 +115,7 @@ pub(super) fn render_deferred(
     deferred: &DeferredTargets,
     inputs: &EyeInputs<'_>,
     light_pass: &wgpu::ComputePipeline,
+    peel0: Option<[&wgpu::RenderPipeline; 2]>,
 ) {
     let groups = chunk_groups(cx, inputs, draws.rows);
     let g = &deferred.gbuffer;
@@ -120,10 +123,14 @@ pub(super) fn render_deferred(
     if inputs.material_layers {
         colour.extend(targets.materials.iter());
     }
+    // Peel 0 (`gpu::peel`) brings its own G-buffer rasters, which reject every translucent
+    // material, and multiplies no filter in.
+    let [gbuffer, gbuffer_layers] =
+        peel0.unwrap_or([&cx.pipelines.gbuffer, &cx.pipelines.gbuffer_layers]);
     let pipeline = if inputs.material_layers {
-        &cx.pipelines.gbuffer_layers
+        gbuffer_layers
     } else {
-        &cx.pipelines.gbuffer
+        gbuffer
     };
     let mut encoder = cx
         .device
@@ -139,7 +146,7 @@ pub(super) fn render_deferred(
         &targets.depth_buffer,
         draws,
     );
-    if inputs.material_layers {
+    if inputs.material_layers && peel0.is_none() {
         record_filters(
             cx,
             &mut encoder,

@@ -224,6 +224,8 @@ pub enum RenderError {
     Allocation { what: &'static str, message: String },
     #[error("rows {y0}..{y1} are not a tile of the {height}-row image (need y0 < y1 <= {height})")]
     Rows { y0: u32, y1: u32, height: u32 },
+    #[error("peel {peel} is deeper than a renderer peels (at most {maximum})")]
+    PeelTooDeep { peel: u32, maximum: u32 },
     #[error("gpu: {0}")]
     Gpu(String),
 }

@@ -1,8 +1,11 @@
 //! Peeled eye layers (`NodeConfig::peel`, `docs/translucency.md`): the opaque layer (peel 0) and
 //! the d-th nearest translucent surface in front of it (peel d ≥ 1), from the peel module
 //! (`shaders/wgsl/peel.wgsl`, the forward module with the peel entry points after it). Built and
-//! allocated only when a renderer is first asked for a peel; always the forward pass (a peel
-//! node never takes the deferred variant).
+//! allocated only when a renderer is first asked for a peel. Peel 0 runs in either eye variant
+//! (its G-buffer rasters from the deferred module with `peel_gbuffer.wgsl`, the classic light
+//! pass after them); peels d ≥ 1 always run forward: a deferred translucent layer would need
+//! its G-buffer, eye depth, four material and its transmittance targets in one raster, nine
+//! colour attachments where devices guarantee eight.
 //!
 //! Peel d ≥ 1 is depth peeling, d passes in one submission. Pass k = 1..=d: a depth-only raster
 //! of the opaque surfaces into the cleared eye depth buffer (translucent materials, single-sided
@@ -18,8 +21,8 @@ use super::eye_pass::{
     EyeDraws, EyeInputs, EyeTargets, attachments, draw_eye, eye_bind_group, record_raster, scissor,
 };
 use super::pipelines::{
-    DrawContext, EYE_DEPTH_FORMAT, ILLUMINATION_FORMAT, MATERIAL_FORMAT, Pipelines, color_target,
-    depth_state, tangent_layout, vertex_layout,
+    DrawContext, EYE_DEPTH_FORMAT, GBUFFER_FORMAT, ILLUMINATION_FORMAT, MATERIAL_FORMAT, Pipelines,
+    color_target, depth_state, tangent_layout, vertex_layout,
 };
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
@@ -46,6 +49,8 @@ pub(super) struct PeelPass {
     /// Peel 0 (forward group layouts): without and with the material layers.
     opaque_illumination: wgpu::RenderPipeline,
     opaque_layers: wgpu::RenderPipeline,
+    /// Peel 0's G-buffer rasters (deferred variant): without and with the material layers.
+    gbuffer: [wgpu::RenderPipeline; 2],
     /// Peel d ≥ 1 (with group 2): the opaque surfaces' depth, a pass's eye depth, the layer.
     opaque_depth: wgpu::RenderPipeline,
     depth: wgpu::RenderPipeline,
@@ -134,20 +139,33 @@ impl PeelPass {
             ],
             immediate_size: 0,
         });
+        let gbuffer_module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("peel 0 g-buffer"),
+            source: wgpu::ShaderSource::Wgsl(
+                lightfold_shaders::peel_deferred_module(p.metallic_roughness, p.normal_mapped)
+                    .into(),
+            ),
+        });
+        let gbuffer_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("peel 0 g-buffer"),
+            bind_group_layouts: &[Some(&p.scene_layout), Some(&p.chunk_layout)],
+            immediate_size: 0,
+        });
         let eye_buffers = [Some(vertex_layout()), Some(tangent_layout())];
         let buffers = if p.normal_mapped {
             &eye_buffers[..]
         } else {
             &eye_buffers[..1]
         };
-        let pipeline = |layout: &wgpu::PipelineLayout,
-                        fs: &str,
-                        targets: &[Option<wgpu::ColorTargetState>]| {
+        let raster = |module: &wgpu::ShaderModule,
+                      layout: &wgpu::PipelineLayout,
+                      fs: &str,
+                      targets: &[Option<wgpu::ColorTargetState>]| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(fs),
                 layout: Some(layout),
                 vertex: wgpu::VertexState {
-                    module: &module,
+                    module,
                     entry_point: Some("vs_eye"),
                     compilation_options: Default::default(),
                     buffers,
@@ -157,7 +175,7 @@ impl PeelPass {
                 depth_stencil: Some(depth_state(true)),
                 multisample: Default::default(),
                 fragment: Some(wgpu::FragmentState {
-                    module: &module,
+                    module,
                     entry_point: Some(fs),
                     compilation_options: wgpu::PipelineCompilationOptions {
                         constants: p.eye_constants(),
@@ -169,6 +187,35 @@ impl PeelPass {
                 cache: None,
             })
         };
+        let pipeline = |layout: &wgpu::PipelineLayout,
+                        fs: &str,
+                        targets: &[Option<wgpu::ColorTargetState>]| {
+            raster(&module, layout, fs, targets)
+        };
+        let gbuffer_targets = [
+            color_target(GBUFFER_FORMAT),
+            color_target(GBUFFER_FORMAT),
+            color_target(GBUFFER_FORMAT),
+            color_target(EYE_DEPTH_FORMAT),
+            color_target(MATERIAL_FORMAT),
+            color_target(MATERIAL_FORMAT),
+            color_target(MATERIAL_FORMAT),
+            color_target(MATERIAL_FORMAT),
+        ];
+        let gbuffer = [
+            raster(
+                &gbuffer_module,
+                &gbuffer_layout,
+                "fs_gbuffer_peel",
+                &gbuffer_targets[..4],
+            ),
+            raster(
+                &gbuffer_module,
+                &gbuffer_layout,
+                "fs_gbuffer_layers_peel",
+                &gbuffer_targets,
+            ),
+        ];
         let illumination = [
             color_target(ILLUMINATION_FORMAT),
             color_target(ILLUMINATION_FORMAT),
@@ -187,6 +234,7 @@ impl PeelPass {
         PeelPass {
             opaque_illumination: pipeline(&forward, "fs_peel_opaque_illumination", &illumination),
             opaque_layers: pipeline(&forward, "fs_peel_opaque_layers", &layers[..7]),
+            gbuffer,
             opaque_depth: pipeline(&peeled, "fs_peel_opaque", &[]),
             depth: pipeline(&peeled, "fs_peel_depth", &[color_target(EYE_DEPTH_FORMAT)]),
             layers: pipeline(&peeled, "fs_peel_layers", &layers),
@@ -219,6 +267,12 @@ impl PeelPass {
             ping: ["peel depth 0", "peel depth 1"]
                 .map(|l| texture(device, l, [w, h], EYE_DEPTH_FORMAT, sampled)),
         });
+    }
+
+    /// Peel 0's G-buffer rasters (without, with the material layers) for
+    /// `deferred::render_deferred`.
+    pub(super) fn gbuffer(&self) -> [&wgpu::RenderPipeline; 2] {
+        [&self.gbuffer[0], &self.gbuffer[1]]
     }
 
     /// The eye transmittance of the last translucent layer rendered at this size.

@@ -460,7 +460,10 @@ impl Renderer {
     /// opaque layer (every translucent surface skipped, nothing multiplied in); `Some(d)`, the
     /// d-th nearest translucent surface in front of the opaque one (depth peeling: `gpu::peel`),
     /// its material layers times its eye coverage, its eye transmittance in
-    /// [`NodeFrame::transmittance`]. A peeling renderer always takes the forward eye pass.
+    /// [`NodeFrame::transmittance`]. Peel 0 takes either eye variant; peels d ≥ 1 always take
+    /// the forward pass ([`Renderer::frame_variant`]). A
+    /// peel deeper than [`crate::gpu::MAX_PEEL`] is refused when a frame renders
+    /// ([`RenderError::PeelTooDeep`]).
     pub fn set_peel(&mut self, peel: Option<u32>) {
         self.peel = peel;
     }
@@ -501,10 +504,10 @@ impl Renderer {
     /// The eye pass a `w`×`h` frame uses: the chosen variant, except that the deferred pass
     /// falls back to the forward pass (the same image within f32 rounding) when its lit buffer
     /// (32 bytes per pixel, one storage binding) exceeds the device's limits — on lavapipe,
-    /// whose storage bindings stop at 128 MiB, above 2048 × 2048. A peeling renderer
-    /// ([`Renderer::set_peel`]) always takes the forward pass.
+    /// whose storage bindings stop at 128 MiB, above 2048 × 2048. A renderer peeling a
+    /// translucent layer ([`Renderer::set_peel`] with d ≥ 1) always takes the forward pass.
     pub fn frame_variant(&self, gpu: &Gpu, w: u32, h: u32) -> EyeVariant {
-        if self.peel.is_some() {
+        if self.peel.is_some_and(|d| d >= 1) {
             return EyeVariant::Forward;
         }
         let lit = u64::from(w) * u64::from(h) * 32;
@@ -632,7 +635,7 @@ impl Renderer {
         let (w, h) = self.check_frame(gpu, lights, casters)?;
         let variant = self.frame_variant(gpu, w, h);
         if variant != self.variant
-            && self.peel.is_none()
+            && self.peel.is_none_or(|d| d == 0)
             && self
                 .targets
                 .as_ref()
@@ -702,6 +705,14 @@ impl Renderer {
         }
         if let Some(rows) = self.rows {
             super::frame::check_rows(rows, h)?;
+        }
+        if let Some(peel) = self.peel
+            && peel > super::peel::MAX_PEEL
+        {
+            return Err(RenderError::PeelTooDeep {
+                peel,
+                maximum: super::peel::MAX_PEEL,
+            });
         }
         // The largest buffer a frame needs besides the lit buffer: the readback of a 16-byte
         // target. Checked here so the device is never asked for it.
@@ -900,6 +911,15 @@ impl Renderer {
                 })?);
             }
             let deferred = self.deferred.as_ref().expect("allocated above");
+            // Peel 0 brings its G-buffer rasters (deferred frames peel nothing deeper).
+            if self.peel.is_some() && self.peel_pass.is_none() {
+                self.peel_pass = Some(PeelPass::new(&gpu.device, &self.pipelines));
+            }
+            let peel0 = self
+                .peel_pass
+                .as_ref()
+                .filter(|_| self.peel.is_some())
+                .map(PeelPass::gbuffer);
             render_deferred(
                 &self.draw_context(gpu),
                 &draws,
@@ -907,6 +927,7 @@ impl Renderer {
                 deferred,
                 &inputs,
                 &light_pass,
+                peel0,
             );
         } else if let Some(depth) = self.peel {
             let mut peel = match self.peel_pass.take() {

@@ -646,6 +646,15 @@ fn transmittance_packs_on_the_device_as_on_the_cpu() {
                 .all(|b| !b.header.empty),
             "{format:?}"
         );
+        // A peel beyond the cap is refused, and the renderer still serves.
+        r.set_peel(Some(lightfold_node::gpu::MAX_PEEL + 1));
+        let e = r
+            .render(&gpu, &t.samples, None, [1.0; 3], set)
+            .expect_err("too deep");
+        assert!(
+            matches!(e, lightfold_node::gpu::RenderError::PeelTooDeep { .. }),
+            "{e}"
+        );
         // Without a translucent peel there is no transmittance, on either path.
         for peel in [None, Some(0)] {
             r.set_peel(peel);
@@ -749,4 +758,191 @@ async fn a_peeling_node_streams_the_peeled_layer() {
     assert!(t.data.iter().any(|v| *v < 0.6) && t.data.contains(&1.0));
     drop(coord);
     node.stop().await;
+}
+
+/// Khronos AlphaBlendModeTest (metallic-roughness, textured BLEND labels with an alpha gradient):
+/// its peel 1 is the labels, each texel's eye transmittance grey (`1 − α · texture alpha` in every
+/// channel) and spread over (0, 1) by the gradient, its material layers premultiplied (none
+/// brighter than the classic frame's cut-out where both see the label).
+#[test]
+fn textured_coverage_peels_with_its_texture_alpha() {
+    let gpu = gpu();
+    let path = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../assets/AlphaBlendModeTest/AlphaBlendModeTest.gltf"
+    );
+    let mut scene =
+        lightfold_scene::load_gltf(std::path::Path::new(path)).expect("AlphaBlendModeTest loads");
+    assert!(scene.materials.iter().any(|m| m.pbr.is_some()));
+    scene.lights = vec![lightfold_scene::Light {
+        name: "sun-ish".into(),
+        shape: lightfold_scene::LightShape::Point {
+            position: [0.0, 3.0, 3.0],
+        },
+        color: [1.0; 3],
+        power: 20.0,
+        range: None,
+        samples: 1,
+    }];
+    scene.camera = Camera {
+        position: [0.0, 1.2, 4.5],
+        target: [0.0, 0.6, 0.0],
+        up: [0.0, 1.0, 0.0],
+        fov_y_deg: 45.0,
+        width: W,
+        height: H,
+    };
+    let samples = samples(&scene);
+    let mut r =
+        Renderer::new(&gpu, &scene, RenderOptions::from_quality(&scene.quality)).expect("renderer");
+    r.set_peel(Some(1));
+    let f = r
+        .render(&gpu, &samples, None, [1.0; 3], layers(Some(1)))
+        .expect("peel 1");
+    let tr = f.transmittance.as_ref().expect("T");
+    let depth = f.depth.as_ref().expect("depth");
+    let md = f.diffuse.as_ref().expect("m^d");
+    let mut partial = 0;
+    for i in 0..(W * H) as usize {
+        let t = &tr.data[i * 3..i * 3 + 3];
+        assert!(
+            t.iter().all(|v| (0.0..=1.0).contains(v)),
+            "pixel {i}: {t:?}"
+        );
+        assert!(
+            t[0] == t[1] && t[1] == t[2],
+            "pixel {i}: coverage T is grey, {t:?}"
+        );
+        if depth.data[i] == 0.0 {
+            assert_eq!(t, [1.0; 3], "pixel {i} has no layer");
+            assert_eq!(
+                &md.data[i * 3..i * 3 + 3],
+                [0.0; 3],
+                "pixel {i} has no layer"
+            );
+        } else if t[0] > 0.05 && t[0] < 0.95 {
+            partial += 1;
+        }
+    }
+    eprintln!("{partial} pixels partly covered");
+    assert!(partial > 200, "{partial} pixels partly covered");
+    // The classic frame sees a label texel as a cut-out at α ≥ 0.5: there its m^d is the
+    // uncovered colour, which the peeled layer scales by a = 1 − T ≤ 1.
+    r.set_peel(None);
+    let classic = r
+        .render(&gpu, &samples, None, [1.0; 3], LayerSet::all())
+        .expect("classic");
+    let (cd, cz) = (classic.diffuse.unwrap(), classic.depth.unwrap());
+    let mut checked = 0;
+    for i in 0..(W * H) as usize {
+        let (z, zc) = (depth.data[i], cz.data[i]);
+        if z > 0.0 && (z - zc).abs() <= 1e-5 * zc {
+            checked += 1;
+            let a = 1.0 - tr.data[i * 3];
+            for k in 0..3 {
+                let (p, c) = (md.data[i * 3 + k], cd.data[i * 3 + k]);
+                assert!(
+                    (p - a * c).abs() <= 2e-3 * c + 1e-4,
+                    "pixel {i} channel {k}: peeled {p}, a {a} × classic {c}"
+                );
+            }
+        }
+    }
+    eprintln!("{checked} pixels where both see the label");
+    assert!(checked > 100, "{checked}");
+}
+
+/// The CPU reference of peeled layers (`reference::render_peeled`, `Tracer::eye_layers`): each
+/// GPU peel against its layer, T against its T, and the blend of the GPU peels against the
+/// reference's composite; the classic frame as the back (its filters already multiplied in)
+/// fails the same comparison (negative control).
+#[test]
+fn peels_match_the_peeled_reference() {
+    let gpu = gpu();
+    let t = truth();
+    let scene = scene();
+    let reference = lightfold_reference::render_peeled(&scene, &t.samples, [1.0; 3], 2);
+    let mut r = renderer(&gpu);
+    let peels: Vec<NodeFrame> = (0..=2)
+        .map(|d| render_peel(&gpu, &mut r, Some(d)))
+        .collect();
+    for (d, frame) in peels.iter().enumerate() {
+        let want = if d == 0 {
+            &reference.opaque
+        } else {
+            &reference.layers[d - 1]
+        };
+        for (name, got, want) in [
+            ("illumination", &frame.illumination, &want.illumination),
+            ("m^d", &frame.diffuse, &want.diffuse),
+            ("m^s", &frame.specular, &want.specular),
+            ("m^a", &frame.ambient, &want.ambient),
+            ("depth", &frame.depth, &want.depth),
+        ] {
+            let c = compare(got.as_ref().expect(name), want, &t.mask);
+            eprintln!("peel {d} {name} against render_peeled: {c:?}");
+            assert!(c.passes(), "peel {d} {name}: {c:?}");
+        }
+        if d >= 1 {
+            let got = frame.transmittance.as_ref().expect("T");
+            let want = &reference.transmittance[d - 1];
+            // f16 targets: within 2.5e-4 of the reference everywhere compared.
+            let off = (0..(W * H) as usize)
+                .filter(|&i| t.mask[i])
+                .filter(|&i| {
+                    (0..3).any(|k| (got.data[i * 3 + k] - want.data[i * 3 + k]).abs() > 2.5e-4)
+                })
+                .count();
+            assert_eq!(off, 0, "peel {d}: {off} pixels' T differ");
+        }
+    }
+    // Peel 0 in both eye variants (the renderer's default, deferred, above); the translucent
+    // peels are forward whatever the variant.
+    r.set_variant(lightfold_node::gpu::EyeVariant::Forward);
+    let forward = render_peel(&gpu, &mut r, Some(0));
+    r.set_variant(lightfold_node::gpu::EyeVariant::Deferred);
+    for (name, got, want) in [
+        (
+            "illumination",
+            &forward.illumination,
+            &reference.opaque.illumination,
+        ),
+        ("m^d", &forward.diffuse, &reference.opaque.diffuse),
+        ("depth", &forward.depth, &reference.opaque.depth),
+    ] {
+        let c = compare(got.as_ref().expect(name), want, &t.mask);
+        eprintln!("forward peel 0 {name} against render_peeled: {c:?}");
+        assert!(c.passes(), "forward peel 0 {name}: {c:?}");
+    }
+    let (a, b) = (
+        forward.illumination.as_ref().unwrap(),
+        peels[0].illumination.as_ref().unwrap(),
+    );
+    let worst = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| (x - y).abs() / y.abs().max(1e-3))
+        .fold(0.0f32, f32::max);
+    eprintln!("peel 0 forward against deferred: worst relative difference {worst:e}");
+    assert!(worst < 1e-4, "{worst}");
+    assert!(forward.diffuse == peels[0].diffuse && forward.depth == peels[0].depth);
+    let want = reference.radiance([1.0; 3], AMBIENT);
+    let front: Vec<(Image, Image)> = [2, 1]
+        .map(|d| {
+            (
+                radiance(&peels[d]),
+                peels[d].transmittance.clone().expect("T"),
+            )
+        })
+        .into();
+    let pairs: Vec<(Image, &Image)> = front.iter().map(|(r, t)| (r.clone(), t)).collect();
+    let got = blend(&radiance(&peels[0]), &pairs);
+    let c = compare(&got, &want, &t.mask);
+    eprintln!("blend of the GPU peels against render_peeled's composite: {c:?}");
+    assert!(c.passes(), "{c:?}");
+    let classic = render_peel(&gpu, &mut r, None);
+    let n = compare(&blend(&radiance(&classic), &pairs), &want, &t.mask);
+    eprintln!("classic back (double tint) against render_peeled: {n:?}");
+    assert!(!n.passes(), "the classic back passed: {n:?}");
 }
