@@ -207,48 +207,19 @@ fn unpartitioned(
     }
 }
 
-/// Each cell's units, the cheapest first (it hosts the cell's material layers): unit
-/// `u = (cell, group)` of `assignment`, costed with `extra` more targets.
-fn cell_units(
-    cells: usize,
-    grouping: &Grouping,
-    assignment: &Assignment,
-    shadows: &Shadows,
-    extra: usize,
-) -> Vec<Vec<usize>> {
-    let (units, on_node) = (&assignment.units, &assignment.on_node);
-    let mut cell_units: Vec<Vec<usize>> = vec![Vec::new(); cells];
-    for (u, &(c, _)) in units.iter().enumerate() {
-        cell_units[c.expect("grid units name their cell")].push(u);
-    }
-    let cost_of = |u: usize| {
-        let (c, g) = units[u];
-        grouping.costs[on_node[u]].frame(&shadows.of(c, &grouping.groups[g].lights), extra)
-    };
-    for list in &mut cell_units {
-        if let Some(first) = list
-            .iter()
-            .enumerate()
-            .min_by(|a, b| cost_of(*a.1).total_cmp(&cost_of(*b.1)).then(a.0.cmp(&b.0)))
-            .map(|(i, _)| i)
-        {
-            let host = list.remove(first);
-            list.insert(0, host);
-        }
-    }
-    cell_units
-}
-
-/// The nodes and stages of a peeled plan (`docs/translucency.md` § Peeled layers): one cell of
-/// light groups per eye layer, back to front (`Fit::peel`); each cell's cheapest node also
-/// renders its layer's material layers and, for a translucent layer, its transmittance.
-fn peeled(
+/// The nodes and stages of a grid of cells (sort-last parts, sort-first tiles or both, or the
+/// eye layers of peeled translucency: `Fit`): unit `u = (cell, group)` on node `on_node[u]`;
+/// each cell's cheapest node (costed with its extra targets) also renders `host_layers(cell)`
+/// (its illumination first), the others their illumination. `stages` wires the cells' nodes
+/// into stages and says where each streams.
+fn grid(
     fit: &Fit,
     cluster: &ClusterSpec,
     grouping: &Grouping,
     assignment: &Assignment,
     shadows: &Shadows,
-    finish: &topology::Finish,
+    host_layers: impl Fn(usize) -> Vec<(Layer, PixelFormat)>,
+    stages: impl FnOnce(&[Vec<topology::IllumInput>]) -> (Vec<StagePlan>, Vec<Vec<topology::Dest>>),
 ) -> Layout {
     let Grouping { costs, groups, .. } = grouping;
     let Assignment {
@@ -261,25 +232,29 @@ fn peeled(
         let (c, g) = units[u];
         shadows.of(c, &groups[g].lights)
     };
-    let materials: Vec<(Layer, PixelFormat)> = finish
-        .material_layers
-        .iter()
-        .copied()
-        .filter(|l| l.0 != Layer::Depth)
-        .collect();
-    let cells = fit.parts.len();
-    let translucent: Vec<bool> = (0..cells).map(|c| fit.peel(c) != Some(0)).collect();
-    let host_layers = |c: usize| {
-        let mut layers = vec![(Layer::Illumination, options.formats.node)];
-        layers.extend(materials.iter().copied());
-        if translucent[c] {
-            // Transmittance in [0, 1] as half floats, as the node's target holds it.
-            layers.push((Layer::Transmittance, PixelFormat::F16x4));
-        }
-        layers
-    };
-    let cell_units = cell_units(cells, grouping, assignment, shadows, materials.len() + 1);
     let cost_of = |u: usize, layers: usize| costs[on_node[u]].frame(&unit_shadows(u), layers);
+    // Per cell, its units with the cheapest first (it hosts the cell's extra layers).
+    let cells = fit.parts.len();
+    let mut cell_units: Vec<Vec<usize>> = vec![Vec::new(); cells];
+    for (u, &(c, _)) in units.iter().enumerate() {
+        cell_units[c.expect("grid units name their cell")].push(u);
+    }
+    for (c, list) in cell_units.iter_mut().enumerate() {
+        let extra = host_layers(c).len() - 1;
+        if let Some(first) = list
+            .iter()
+            .enumerate()
+            .min_by(|a, b| {
+                cost_of(*a.1, extra)
+                    .total_cmp(&cost_of(*b.1, extra))
+                    .then(a.0.cmp(&b.0))
+            })
+            .map(|(i, _)| i)
+        {
+            let host = list.remove(first);
+            list.insert(0, host);
+        }
+    }
     let inputs: Vec<Vec<topology::IllumInput>> = cell_units
         .iter()
         .enumerate()
@@ -299,15 +274,10 @@ fn peeled(
                 .collect()
         })
         .collect();
-    let (stages, dst) = topology::peeled_stages(
-        &inputs,
-        &translucent,
-        finish,
-        &cluster.compositors,
-        &options.formats,
-    );
+    let (stages, dst) = stages(&inputs);
     let mut nodes = Vec::with_capacity(units.len());
     for (c, list) in cell_units.iter().enumerate() {
+        let (part, tile) = fit.cell(c);
         for (j, &u) in list.iter().enumerate() {
             let g = &groups[units[u].1];
             let (stage, input) = dst[c][j].clone();
@@ -321,8 +291,8 @@ fn peeled(
                 layers,
                 downstream: stage,
                 input_index: input,
-                part: None,
-                tile: None,
+                part,
+                tile,
                 peel: fit.peel(c),
                 scene: None,
             });
@@ -338,9 +308,58 @@ fn peeled(
     }
 }
 
-/// The nodes and stages of a grid of cells (sort-last parts, sort-first tiles or both: `Fit`):
-/// unit `u = (cell, group)` on node `on_node[u]`; each cell's cheapest node also renders its
-/// cell's eye depth and material layers.
+/// The nodes and stages of a peeled plan (`docs/translucency.md` § Peeled layers): one cell of
+/// light groups per eye layer, back to front (`Fit::peel`); each cell's cheapest node also
+/// renders its layer's material layers and, for a translucent layer, its transmittance.
+fn peeled(
+    fit: &Fit,
+    cluster: &ClusterSpec,
+    grouping: &Grouping,
+    assignment: &Assignment,
+    shadows: &Shadows,
+    finish: &topology::Finish,
+) -> Layout {
+    let options = &assignment.options;
+    let translucent: Vec<bool> = (0..fit.parts.len())
+        .map(|c| fit.peel(c) != Some(0))
+        .collect();
+    let host_layers = |c: usize| {
+        let mut layers = vec![(Layer::Illumination, options.formats.node)];
+        layers.extend(
+            finish
+                .material_layers
+                .iter()
+                .copied()
+                .filter(|l| l.0 != Layer::Depth),
+        );
+        if translucent[c] {
+            // Transmittance in [0, 1] as half floats, as the node's target holds it.
+            layers.push((Layer::Transmittance, PixelFormat::F16x4));
+        }
+        layers
+    };
+    grid(
+        fit,
+        cluster,
+        grouping,
+        assignment,
+        shadows,
+        host_layers,
+        |inputs| {
+            topology::peeled_stages(
+                inputs,
+                &translucent,
+                finish,
+                &cluster.compositors,
+                &options.formats,
+            )
+        },
+    )
+}
+
+/// The nodes and stages of a grid of sort-last parts, sort-first tiles or both: each cell's
+/// cheapest node also renders its cell's eye depth and material layers, and the stages
+/// depth-compose the cells.
 fn partitioned(
     fit: &Fit,
     cluster: &ClusterSpec,
@@ -349,87 +368,35 @@ fn partitioned(
     shadows: &Shadows,
     finish: &topology::Finish,
 ) -> Layout {
-    let Grouping { costs, groups, .. } = grouping;
-    let Assignment {
-        options,
-        units,
-        on_node,
-        ..
-    } = assignment;
-    let unit_shadows = |u: usize| {
-        let (p, g) = units[u];
-        shadows.of(p, &groups[g].lights)
-    };
+    let options = &assignment.options;
     // The eye depth (which the penumbra filter's material layers may already name) and the
     // material layers.
-    let mut host_layers = vec![
+    let mut host = vec![
         (Layer::Illumination, options.formats.node),
         (Layer::Depth, PixelFormat::DepthF32),
     ];
-    host_layers.extend(
+    host.extend(
         finish
             .material_layers
             .iter()
             .copied()
             .filter(|l| l.0 != Layer::Depth),
     );
-    let extra = host_layers.len() - 1;
-    // Per part, its units with the cheapest first (it hosts the part's depth and materials).
-    let part_units = cell_units(fit.parts.len(), grouping, assignment, shadows, extra);
-    let cost_of = |u: usize, layers: usize| costs[on_node[u]].frame(&unit_shadows(u), layers);
-    let inputs: Vec<Vec<topology::IllumInput>> = part_units
-        .iter()
-        .map(|list| {
-            list.iter()
-                .enumerate()
-                .map(|(j, &u)| topology::IllumInput {
-                    node: cluster.nodes[on_node[u]].id.clone(),
-                    color: groups[units[u].1].color,
-                    layers: if j == 0 {
-                        host_layers.clone()
-                    } else {
-                        vec![(Layer::Illumination, options.formats.node)]
-                    },
-                    cost: cost_of(u, 0),
-                })
-                .collect()
-        })
-        .collect();
-    let (stages, dst) = topology::partition_stages(
-        &inputs,
-        finish,
-        &cluster.compositors,
-        options.topology,
-        &options.formats,
-    );
-    let mut nodes = Vec::with_capacity(units.len());
-    for (p, list) in part_units.iter().enumerate() {
-        for (j, &u) in list.iter().enumerate() {
-            let g = &groups[units[u].1];
-            let (stage, input) = dst[p][j].clone();
-            let (part, tile) = fit.cell(p);
-            nodes.push(NodePlan {
-                node: inputs[p][j].node.clone(),
-                lights: g.lights.clone(),
-                color: g.color,
-                shadows: unit_shadows(u).into_iter().cloned().collect(),
-                layers: inputs[p][j].layers.clone(),
-                downstream: stage,
-                input_index: input,
-                est_cost_us: cost_of(u, if j == 0 { extra } else { 0 }).round() as u64,
-                part,
-                tile,
-                peel: None,
-                scene: None,
-            });
-        }
-    }
-    let placement = MaterialPlacement::PerPart {
-        nodes: inputs.iter().map(|p| p[0].node.clone()).collect(),
-    };
-    Layout {
-        stages,
-        nodes,
-        placement,
-    }
+    grid(
+        fit,
+        cluster,
+        grouping,
+        assignment,
+        shadows,
+        |_| host.clone(),
+        |inputs| {
+            topology::partition_stages(
+                inputs,
+                finish,
+                &cluster.compositors,
+                options.topology,
+                &options.formats,
+            )
+        },
+    )
 }
