@@ -526,12 +526,11 @@ impl ShadowFrame<'_> {
                 draw_range(pass, m);
             }
         };
-        let transmitted;
-        if tm.layered {
+        let transmitted = if tm.layered {
             let Some(drawn) = self.two_layers(encoder, layer, &has_transmit) else {
                 return 0;
             };
-            transmitted = drawn;
+            drawn
         } else {
             // The nearest translucent caster's depth.
             let mut pass = layer_pass(
@@ -542,11 +541,11 @@ impl ShadowFrame<'_> {
                 wgpu::LoadOp::Clear(self.maps.depth.clear()),
             );
             pass.set_pipeline(&cx.pipelines.shadow_translucent_depth);
-            transmitted = self.views_of(&mut pass, layer, &has_transmit, &|pass, drawn| {
+            self.views_of(&mut pass, layer, &has_transmit, &|pass, drawn| {
                 pass.set_pipeline(&cx.pipelines.shadow_translucent_depth);
                 translucent_only(pass, drawn);
-            });
-        }
+            })
+        };
         // Their transmittance, multiplied in behind the opaque casters' depth (tested, kept).
         let mut pass = layer_pass(
             encoder,
