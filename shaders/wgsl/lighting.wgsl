@@ -64,7 +64,8 @@ struct View {
     cascade_to: f32,
     // The map's square in its layer, in texels: (x, y, side, transmit). Maps of several sizes
     // share the array's layers (node/src/gpu/atlas.rs); every lookup stays inside its square.
-    // transmit = 1 where the view also has transmittance maps.
+    // transmit = 1 where the view also has transmittance maps, 2 where they have two
+    // translucent layers (peeling renderers).
     rect: vec4f,
 }
 
@@ -556,19 +557,31 @@ fn cell_filter(r_in: Receiver, cell: f32, slope_part: f32, own_const: f32) -> f3
     return plain / f32(taps * taps);
 }
 
+// Whether a receiver at reference depth `ref_depth` lies in front of the stored depth.
+fn in_front_of(ref_depth: f32, stored: f32) -> bool {
+    if (frame.flags & FLAG_CONVENTIONAL_Z) != 0u {
+        return ref_depth <= stored;
+    }
+    return ref_depth >= stored;
+}
+
 // What translucent casters let through to a receiver at texel t: the stored transmittance
 // where the receiver, at reference depth `ref_depth`, lies behind the nearest translucent caster,
-// else 1.
+// else 1. Views with two translucent layers (`View::rect.w` = 2, peeling renderers) keep the
+// second layer at layer + half the array's layers: a receiver behind the first layer but in
+// front of the second gets the first's own transmittance only.
 fn texel_transmit(r: Receiver, t: vec2i, ref_depth: f32) -> vec3f {
     let lo = vec2i(r.v.rect.xy);
     let c = clamp(t, lo, lo + vec2i(i32(r.v.rect.z) - 1));
     let stored = textureLoad(translucent_depth, c, r.layer, 0);
-    var in_front = ref_depth >= stored;
-    if (frame.flags & FLAG_CONVENTIONAL_Z) != 0u {
-        in_front = ref_depth <= stored;
-    }
-    if in_front {
+    if in_front_of(ref_depth, stored) {
         return vec3f(1.0);
+    }
+    if r.v.rect.w > 1.5 {
+        let second = r.layer + textureNumLayers(translucent_depth) / 2u;
+        if in_front_of(ref_depth, textureLoad(translucent_depth, c, second, 0)) {
+            return textureLoad(transmit_maps, c, second, 0).rgb;
+        }
     }
     return textureLoad(transmit_maps, c, r.layer, 0).rgb;
 }

@@ -72,3 +72,45 @@ fn fs_transmit(in: MaskedOut) -> @location(0) vec4f {
     let m = materials[in.material & ~NO_UV_BIT];
     return vec4f(texel_transmittance(m, in.uv, (in.material & NO_UV_BIT) == 0u), 1.0);
 }
+
+// Two translucent layers per light view (peeling renderers, `docs/translucency.md`): the
+// nearest translucent caster's depth as `fs_translucent_depth` writes it, and its own
+// transmittance T1 (the depth test keeps the nearest fragment's).
+@fragment
+fn fs_translucent_first(in: MaskedOut) -> @location(0) vec4f {
+    let m = materials[in.material & ~NO_UV_BIT];
+    let t = texel_transmittance(m, in.uv, (in.material & NO_UV_BIT) == 0u);
+    if all(t >= vec3f(1.0)) {
+        discard;
+    }
+    return vec4f(t, 1.0);
+}
+
+// The nearest translucent caster's depth, read by the second peel in light space.
+@group(2) @binding(0) var first_translucent: texture_depth_2d;
+// Reversed-Z (near 1) or conventional (near 0) shadow depth (`ShadowDepth`).
+override REVERSED_Z: bool = true;
+// A step of the depth format (Depth16Unorm's 2^-16; 0 for floats).
+override DEPTH_STEP: f32 = 0.0;
+// How far beyond the first a second layer must lie: a relative step in near/D.
+const SECOND_LAYER_EPSILON: f32 = 1e-4;
+
+// The second-nearest translucent caster's depth: fragments not beyond the first layer's depth
+// at their texel (by SECOND_LAYER_EPSILON of its near/D, or a step of the format) are
+// discarded, as are those that let everything through.
+@fragment
+fn fs_translucent_second(in: MaskedOut) {
+    let m = materials[in.material & ~NO_UV_BIT];
+    if all(texel_transmittance(m, in.uv, (in.material & NO_UV_BIT) == 0u) >= vec3f(1.0)) {
+        discard;
+    }
+    let first = textureLoad(first_translucent, vec2i(floor(in.clip.xy)), 0);
+    let z = clamp(in.clip.z, 0.0, 1.0);
+    var beyond = z < first - (first * SECOND_LAYER_EPSILON + DEPTH_STEP);
+    if !REVERSED_Z {
+        beyond = z > first + ((1.0 - first) * SECOND_LAYER_EPSILON + DEPTH_STEP);
+    }
+    if !beyond {
+        discard;
+    }
+}

@@ -49,6 +49,9 @@ pub enum Fault {
     /// A sort-first tile's eye culling takes its rows from the bottom of the image (a flipped
     /// sub-frustum: meshes in the tile are culled, others drawn).
     TileFrustumFlipped,
+    /// A peeling renderer's transmittance maps keep one translucent layer, as a classic one's
+    /// do: a translucent surface behind another is tinted by itself too.
+    OneTranslucentLayer,
 }
 
 /// `Light` in `shading.wgsl` (std430).
@@ -223,6 +226,9 @@ pub const MAP_TEXEL_BUDGET: u64 = SHADOW_MEMORY_BUDGET / SHADOW_TEXEL_BYTES;
 /// Bytes of one texel when the frame also has transmittance maps: the depth and object ID, a
 /// translucent depth (4) and an `Rgba16Float` transmittance (8) (`shadow_pass::TranslucentMaps`).
 pub const TRANSLUCENT_TEXEL_BYTES: u64 = SHADOW_TEXEL_BYTES + 12;
+/// Bytes of one texel when the transmittance maps have two translucent layers (peeling
+/// renderers): the second layer's depth (4) and the first layer's own transmittance (8) more.
+pub const LAYERED_TEXEL_BYTES: u64 = TRANSLUCENT_TEXEL_BYTES + 12;
 
 /// Packs `samples` and their shadow views, fitted by `fit` to `receivers` (every mesh's box),
 /// each light's views on maps of the side `sides` gives it, all packed into one texture array

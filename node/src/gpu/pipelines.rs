@@ -61,6 +61,12 @@ pub(super) struct Pipelines {
     /// transmittance map behind the opaque depth test (`docs/translucency.md`).
     pub shadow_translucent_depth: wgpu::RenderPipeline,
     pub shadow_transmit: wgpu::RenderPipeline,
+    /// Two translucent layers per view (peeling renderers): the nearest translucent caster's
+    /// depth with its own transmittance, and the second-nearest's depth (group 2: the first's
+    /// depth, `second_layout`).
+    pub shadow_translucent_first: wgpu::RenderPipeline,
+    pub shadow_translucent_second: wgpu::RenderPipeline,
+    pub second_layout: wgpu::BindGroupLayout,
     /// Whether the eye pipelines read transmittance maps (the scene has translucent casters).
     pub translucent: bool,
     pub eye_illumination: wgpu::RenderPipeline,
@@ -411,6 +417,8 @@ struct ShadowPipelines {
     masked: wgpu::RenderPipeline,
     translucent_depth: wgpu::RenderPipeline,
     transmit: wgpu::RenderPipeline,
+    translucent_first: wgpu::RenderPipeline,
+    translucent_second: wgpu::RenderPipeline,
 }
 
 /// What every shadow pipeline is built from: the device, `shadow.wgsl`, the shadow layout and
@@ -420,6 +428,8 @@ struct ShadowRasters<'a> {
     device: &'a wgpu::Device,
     module: &'a wgpu::ShaderModule,
     layout: &'a wgpu::PipelineLayout,
+    /// The second translucent layer's: the shadow layout and the first layer's depth.
+    second_layout: &'a wgpu::PipelineLayout,
     depth: ShadowDepth,
 }
 
@@ -434,6 +444,19 @@ impl ShadowRasters<'_> {
         write: bool,
         target: Option<wgpu::ColorTargetState>,
     ) -> wgpu::RenderPipeline {
+        self.pipeline_in(self.layout, vs, fs, write, target, &[])
+    }
+
+    /// [`Self::pipeline`] of pipeline layout `layout` and pipeline constants `constants`.
+    fn pipeline_in(
+        &self,
+        layout: &wgpu::PipelineLayout,
+        vs: &str,
+        fs: &str,
+        write: bool,
+        target: Option<wgpu::ColorTargetState>,
+        constants: &[(&str, f64)],
+    ) -> wgpu::RenderPipeline {
         let shadow_primitive = wgpu::PrimitiveState {
             cull_mode: None,
             // Casters between the light and the fitted near plane clamp to depth 1 instead of
@@ -444,7 +467,7 @@ impl ShadowRasters<'_> {
         self.device
             .create_render_pipeline(&wgpu::RenderPipelineDescriptor {
                 label: Some(fs),
-                layout: Some(self.layout),
+                layout: Some(layout),
                 vertex: wgpu::VertexState {
                     module: self.module,
                     entry_point: Some(vs),
@@ -461,7 +484,10 @@ impl ShadowRasters<'_> {
                 fragment: Some(wgpu::FragmentState {
                     module: self.module,
                     entry_point: Some(fs),
-                    compilation_options: Default::default(),
+                    compilation_options: wgpu::PipelineCompilationOptions {
+                        constants,
+                        ..Default::default()
+                    },
                     targets: &target.into_iter().map(Some).collect::<Vec<_>>(),
                 }),
                 multiview_mask: None,
@@ -492,11 +518,35 @@ impl ShadowRasters<'_> {
                 write_mask: wgpu::ColorWrites::ALL,
             }),
         );
+        let translucent_first = self.pipeline(
+            "vs_masked",
+            "fs_translucent_first",
+            true,
+            color_target(TRANSMIT_FORMAT),
+        );
+        let step = if self.depth.format() == wgpu::TextureFormat::Depth16Unorm {
+            1.0 / 65535.0
+        } else {
+            0.0
+        };
+        let translucent_second = self.pipeline_in(
+            self.second_layout,
+            "vs_masked",
+            "fs_translucent_second",
+            true,
+            None,
+            &[
+                ("REVERSED_Z", f64::from(u8::from(self.depth.reversed()))),
+                ("DEPTH_STEP", step),
+            ],
+        );
         ShadowPipelines {
             opaque,
             masked,
             translucent_depth,
             transmit,
+            translucent_first,
+            translucent_second,
         }
     }
 }
@@ -725,10 +775,33 @@ impl Pipelines {
         let groups = GroupLayouts::new(device);
         let modules = Modules::new(device, forward_wgsl, deferred_wgsl);
         let layouts = RasterLayouts::new(device, &groups);
+        let second_layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("first translucent depth"),
+            entries: &[wgpu::BindGroupLayoutEntry {
+                binding: 0,
+                visibility: wgpu::ShaderStages::FRAGMENT,
+                ty: wgpu::BindingType::Texture {
+                    sample_type: wgpu::TextureSampleType::Depth,
+                    view_dimension: wgpu::TextureViewDimension::D2,
+                    multisampled: false,
+                },
+                count: None,
+            }],
+        });
+        let second_pl = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("second translucent layer"),
+            bind_group_layouts: &[
+                Some(&groups.scene),
+                Some(&groups.shadow),
+                Some(&second_layout),
+            ],
+            immediate_size: 0,
+        });
         let shadow = ShadowRasters {
             device,
             module: &modules.shadow,
             layout: &layouts.shadow,
+            second_layout: &second_pl,
             depth,
         }
         .pipelines();
@@ -748,6 +821,9 @@ impl Pipelines {
             shadow_masked: shadow.masked,
             shadow_translucent_depth: shadow.translucent_depth,
             shadow_transmit: shadow.transmit,
+            shadow_translucent_first: shadow.translucent_first,
+            shadow_translucent_second: shadow.translucent_second,
+            second_layout,
             translucent,
             eye_illumination: eye.illumination,
             eye_layers: eye.layers,

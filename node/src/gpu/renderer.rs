@@ -15,7 +15,9 @@ use super::eye_pass::{
     GpuFrame, render_eye,
 };
 use super::frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, RenderStats};
-use super::lights::{Fault, Fit, LightPlan, Sides, TRANSLUCENT_TEXEL_BYTES, plan_lights_within};
+use super::lights::{
+    Fault, Fit, LAYERED_TEXEL_BYTES, LightPlan, Sides, TRANSLUCENT_TEXEL_BYTES, plan_lights_within,
+};
 use super::pack::{self, DevicePacker, PackLayer, PackSource, PackedFrame};
 use super::peel::PeelPass;
 use super::pipelines::{DrawContext, LightSet, Pipelines};
@@ -473,6 +475,12 @@ impl Renderer {
         self.peel
     }
 
+    /// Whether transmittance maps keep two translucent layers: a peeling renderer sees
+    /// translucent surfaces behind others (`docs/translucency.md`).
+    fn layered_maps(&self) -> bool {
+        self.peel.is_some() && self.options.fault != Some(Fault::OneTranslucentLayer)
+    }
+
     /// The rows frames render (see [`Renderer::set_rows`]).
     pub fn rows(&self) -> Option<[u32; 2]> {
         self.rows
@@ -757,7 +765,12 @@ impl Renderer {
         // Views of lights with translucent casters also get transmittance maps, and say so to
         // the lookups (`View::rect.w`); the whole array then takes more bytes per texel.
         let transmit_light = self.transmit_lights(frame_lights.len(), casters);
-        let texel_bytes = if transmit_light.contains(&true) {
+        // Peeling renderers see translucent surfaces behind others: their views keep two
+        // translucent layers (`View::rect.w` = 2; `docs/translucency.md`).
+        let layered = self.layered_maps();
+        let texel_bytes = if transmit_light.contains(&true) && layered {
+            LAYERED_TEXEL_BYTES
+        } else if transmit_light.contains(&true) {
             TRANSLUCENT_TEXEL_BYTES
         } else {
             SHADOW_TEXEL_BYTES
@@ -777,7 +790,11 @@ impl Renderer {
             .map(|&l| transmit_light.get(l as usize).copied().unwrap_or(false))
             .collect();
         for (v, &t) in plan.views.iter_mut().zip(&transmit) {
-            v.rect[3] = if t { 1.0 } else { 0.0 };
+            v.rect[3] = match (t, layered) {
+                (false, _) => 0.0,
+                (true, false) => 1.0,
+                (true, true) => 2.0,
+            };
         }
         let max_layers = gpu.limits.max_texture_array_layers;
         if layer_count(plan.atlas.layers as usize) > max_layers {
@@ -809,6 +826,7 @@ impl Renderer {
     ) -> Result<(), RenderError> {
         let opts = self.options;
         let any_transmit = transmit.contains(&true);
+        let layered = self.layered_maps();
         let config = MapConfig {
             size: plan.atlas.side.max(1),
             fault: opts.fault,
@@ -817,7 +835,7 @@ impl Renderer {
         let fits = self
             .maps
             .as_ref()
-            .is_some_and(|m| m.fits(config.size, plan.atlas.layers, any_transmit));
+            .is_some_and(|m| m.fits(config.size, plan.atlas.layers, any_transmit, layered));
         let kept_array = fits && self.map_config == Some(config);
         let fresh: Vec<bool> = keys
             .iter()
@@ -830,7 +848,14 @@ impl Renderer {
             self.maps = None;
             self.map_keys.clear();
             self.maps = Some(allocate(gpu, "the shadow maps", || {
-                ShadowMaps::new(&gpu.device, config.size, layers, depth, any_transmit)
+                ShadowMaps::new(
+                    &gpu.device,
+                    config.size,
+                    layers,
+                    depth,
+                    any_transmit,
+                    layered,
+                )
             })?);
         }
         if fresh.contains(&true) {

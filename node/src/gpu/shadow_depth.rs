@@ -36,7 +36,7 @@ impl ShadowDepth {
         }
     }
 
-    fn reversed(self) -> bool {
+    pub(super) fn reversed(self) -> bool {
         self != ShadowDepth::Conventional32
     }
 

@@ -36,6 +36,11 @@ pub(super) struct ShadowMaps {
 pub(super) struct TranslucentMaps {
     /// Whether these are full-size maps (else the 1 × 1 stand-ins).
     pub full: bool,
+    /// Two translucent layers per view (peeling renderers): both arrays hold twice the layers,
+    /// layer `layers + l` (`layers` the shadow maps' count) the second layer of layer l: the
+    /// second-nearest translucent caster's depth, and the nearest one's own transmittance T1
+    /// (layer l keeps the product of all of them in front of the nearest opaque caster).
+    pub layered: bool,
     _transmit: wgpu::Texture,
     pub transmit_view: wgpu::TextureView,
     transmit_layer_views: Vec<wgpu::TextureView>,
@@ -80,8 +85,16 @@ impl TranslucentMaps {
         layers: u32,
         depth: ShadowDepth,
         full: bool,
+        layered: bool,
     ) -> TranslucentMaps {
-        let (size, layers) = if full { (size, layers) } else { (1, 2) };
+        let layered = full && layered;
+        let (size, layers) = match (full, layered) {
+            (false, _) => (1, 2),
+            (true, false) => (size, layers),
+            // The lookups find layer l's second at l + (the array's layers) / 2.
+            (true, true) if (2 * layers).is_multiple_of(6) => (size, 2 * layers + 1),
+            (true, true) => (size, 2 * layers),
+        };
         let transmit = array_texture(device, "transmittance maps", size, layers, TRANSMIT_FORMAT);
         let depth_texture =
             array_texture(device, "translucent depth", size, layers, depth.format());
@@ -91,6 +104,7 @@ impl TranslucentMaps {
             array_views(&depth_texture, layers, "translucent depth");
         TranslucentMaps {
             full,
+            layered,
             _transmit: transmit,
             transmit_view,
             transmit_layer_views,
@@ -141,13 +155,15 @@ pub(super) fn layer_count(views: usize) -> u32 {
 }
 
 impl ShadowMaps {
-    /// `translucent`: also allocate the translucent casters' maps at full size.
+    /// `translucent`: also allocate the translucent casters' maps at full size, with two
+    /// translucent layers where `layered` (peeling renderers).
     pub(super) fn new(
         device: &wgpu::Device,
         size: u32,
         layers: u32,
         depth: ShadowDepth,
         translucent: bool,
+        layered: bool,
     ) -> ShadowMaps {
         let depth_texture = array_texture(device, "shadow maps", size, layers, depth.format());
         let ids = array_texture(
@@ -169,16 +185,18 @@ impl ShadowMaps {
             _ids: ids,
             id_view,
             id_layer_views,
-            translucent: TranslucentMaps::new(device, size, layers, depth, translucent),
+            translucent: TranslucentMaps::new(device, size, layers, depth, translucent, layered),
         }
     }
 
     /// Whether this array has `layers` layers (before padding) of `size`², with the
-    /// translucent casters' maps where `translucent` asks for them.
-    pub(super) fn fits(&self, size: u32, layers: u32, translucent: bool) -> bool {
+    /// translucent casters' maps where `translucent` asks for them, of two layers exactly
+    /// where `layered` does.
+    pub(super) fn fits(&self, size: u32, layers: u32, translucent: bool, layered: bool) -> bool {
         self.size == size
             && self.layers >= layer_count(layers as usize)
             && (self.translucent.full || !translucent)
+            && (!translucent || self.translucent.layered == layered)
     }
 }
 
@@ -508,9 +526,13 @@ impl ShadowFrame<'_> {
                 draw_range(pass, m);
             }
         };
-        let transmitted;
-        // The nearest translucent caster's depth.
-        {
+        let transmitted = if tm.layered {
+            let Some(drawn) = self.two_layers(encoder, layer, &has_transmit) else {
+                return 0;
+            };
+            drawn
+        } else {
+            // The nearest translucent caster's depth.
             let mut pass = layer_pass(
                 encoder,
                 "translucent depth pass",
@@ -519,11 +541,11 @@ impl ShadowFrame<'_> {
                 wgpu::LoadOp::Clear(self.maps.depth.clear()),
             );
             pass.set_pipeline(&cx.pipelines.shadow_translucent_depth);
-            transmitted = self.views_of(&mut pass, layer, &has_transmit, &|pass, drawn| {
+            self.views_of(&mut pass, layer, &has_transmit, &|pass, drawn| {
                 pass.set_pipeline(&cx.pipelines.shadow_translucent_depth);
                 translucent_only(pass, drawn);
-            });
-        }
+            })
+        };
         // Their transmittance, multiplied in behind the opaque casters' depth (tested, kept).
         let mut pass = layer_pass(
             encoder,
@@ -537,6 +559,66 @@ impl ShadowFrame<'_> {
             translucent_only(pass, drawn);
         });
         transmitted
+    }
+
+    /// The translucent layers of `layer`'s views with transmittance maps (`include`) in a
+    /// layered array: the nearest translucent caster's depth (layer l) with its own
+    /// transmittance T1 (layer L + l, cleared to 1), then the second-nearest's depth (layer
+    /// L + l): a second peel in light space, beyond the first's depth at the texel. Returns
+    /// the views drawn (`None`: the array lacks the layers).
+    fn two_layers(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        layer: u32,
+        include: &dyn Fn(usize) -> bool,
+    ) -> Option<u32> {
+        let (cx, tm) = (self.cx, &self.maps.translucent);
+        let second = (self.maps.layers + layer) as usize;
+        let (first_depth, t1, second_depth) = (
+            tm.depth_layer_views.get(layer as usize)?,
+            tm.transmit_layer_views.get(second)?,
+            tm.depth_layer_views.get(second)?,
+        );
+        let translucent_only = |pass: &mut wgpu::RenderPass<'_>, drawn: &[Piece]| {
+            for m in drawn.iter().filter(|m| m.translucent) {
+                draw_range(pass, m);
+            }
+        };
+        let transmitted;
+        {
+            let mut pass = layer_pass(
+                encoder,
+                "first translucent layer pass",
+                Some((t1, wgpu::Color::WHITE)),
+                first_depth,
+                wgpu::LoadOp::Clear(self.maps.depth.clear()),
+            );
+            transmitted = self.views_of(&mut pass, layer, include, &|pass, drawn| {
+                pass.set_pipeline(&cx.pipelines.shadow_translucent_first);
+                translucent_only(pass, drawn);
+            });
+        }
+        let first = cx.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("first translucent depth"),
+            layout: &cx.pipelines.second_layout,
+            entries: &[wgpu::BindGroupEntry {
+                binding: 0,
+                resource: wgpu::BindingResource::TextureView(first_depth),
+            }],
+        });
+        let mut pass = layer_pass(
+            encoder,
+            "second translucent layer pass",
+            None,
+            second_depth,
+            wgpu::LoadOp::Clear(self.maps.depth.clear()),
+        );
+        pass.set_bind_group(2, &first, &[]);
+        self.views_of(&mut pass, layer, include, &|pass, drawn| {
+            pass.set_pipeline(&cx.pipelines.shadow_translucent_second);
+            translucent_only(pass, drawn);
+        });
+        Some(transmitted)
     }
 }
 

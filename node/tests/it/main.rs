@@ -15,5 +15,6 @@ mod gpu_metallic_roughness;
 mod gpu_modes;
 mod gpu_partitions;
 mod gpu_peel;
+mod gpu_shadow_layers;
 mod gpu_tiles;
 mod gpu_translucent;
