@@ -69,14 +69,17 @@ pub(super) fn resolve(
                     "peels must be off, auto or 1 to {MAX_PEELS} translucent layers, got {d}"
                 ));
             }
-            if d + 1 > nodes {
-                return bad(format!(
-                    "{d} translucent layer(s) and the opaque one need at least {} render nodes, \
-                     there are {nodes}",
-                    d + 1
-                ));
-            }
-            (d, None, format!("{d} translucent layer(s), as asked"))
+            // Layers take the nodes there are, as tiles do (a lost node leaves fewer).
+            let fit = d.min(nodes.saturating_sub(1));
+            let why = if fit < d {
+                format!(
+                    "{fit} translucent layer(s) of the {d} asked: each layer and the opaque one \
+                     need a render node per light group, and there are {nodes} nodes"
+                )
+            } else {
+                format!("{d} translucent layer(s), as asked")
+            };
+            (fit, None, why)
         }
         Peels::Auto => {
             let n = depth_complexity(scene, MAX_PEELS + 1);
