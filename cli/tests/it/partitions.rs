@@ -180,3 +180,51 @@ fn plan_prints_the_partition_grid() {
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(text.contains("decomposition: "), "{text}");
 }
+
+/// `--peels`: `auto` peels the glass stack's three translucent layers and says why; an asked
+/// count beside tiles is refused with the reason; a bad count is refused by the parser.
+#[test]
+fn plan_peels_glass_as_asked_and_refuses_what_peeling_does_not_take() {
+    const STACK: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenes/glass-stack.toml");
+    let plan = |extra: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_lightfold"))
+            .args(["plan", "--scene", STACK, "--nodes", "8", "-K", "16"])
+            .args(extra)
+            .output()
+            .expect("runs")
+    };
+    let out = plan(&["--peels", "auto"]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        text.contains("peels: 3 translucent layer(s): the scene's depth complexity in view is 3"),
+        "{text}"
+    );
+    assert!(
+        text.contains("4 eye layers × 1 light group(s) = 4 nodes"),
+        "{text}"
+    );
+    assert!(
+        text.contains("opaque layer · ") && text.contains("translucent layer 3 · "),
+        "{text}"
+    );
+    // Off by default: the classic plan.
+    let out = plan(&[]);
+    assert!(out.status.success());
+    assert!(!String::from_utf8_lossy(&out.stdout).contains("peels:"));
+    let out = plan(&["--peels", "2", "--tiles", "2"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("peeled translucency takes no sort-first tiles"),
+        "{err}"
+    );
+    let out = plan(&["--peels", "5"]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("expected off, auto or 1 to 4"), "{err}");
+}
