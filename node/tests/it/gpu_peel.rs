@@ -23,7 +23,7 @@ use crate::gpu_support;
 
 use gpu_support::*;
 use lightfold_node::gpu::{Gpu, LayerSet, NodeFrame, RenderOptions, Renderer};
-use lightfold_reference::{Layers, Tracer, render_point_sum};
+use lightfold_reference::{Layers, render_point_sum};
 use lightfold_scene::primitives::plane;
 use lightfold_scene::{
     AlphaMode, Camera, Image, LightSample, Material, Scene, Texture, Transmission,
@@ -203,48 +203,6 @@ fn truth() -> &'static Truth {
             mask,
         }
     })
-}
-
-/// The edge mask of `gpu_translucent.rs`: `gpu_support`'s on the scene as it is and with its
-/// translucent materials opaque, less the pixels whose 3×3 neighbourhood sees the transmittance
-/// of some sample change by more than 1 % (a tinted shadow's edge).
-fn edge_free(scene: &Scene, samples: &[LightSample], reference: &Layers) -> Vec<bool> {
-    let mut opaque = scene.clone();
-    for m in &mut opaque.materials {
-        m.transmission = None;
-    }
-    let a = comparable(reference, &shadow_states(scene, samples).visible);
-    let b = comparable(reference, &shadow_states(&opaque, samples).visible);
-    let tracer = Tracer::new(scene);
-    let (w, h) = (W as i64, H as i64);
-    let tint: Vec<Vec<[f32; 3]>> = (0..w * h)
-        .map(|i| match tracer.primary((i % w) as u32, (i / w) as u32) {
-            Some(hit) => samples
-                .iter()
-                .map(|s| tracer.transmittance(&hit, s))
-                .collect(),
-            None => vec![[1.0; 3]; samples.len()],
-        })
-        .collect();
-    let steady = |i: i64| {
-        let (x, y) = (i % w, i / w);
-        let mine = &tint[i as usize];
-        (-1..=1).all(|dy| {
-            (-1..=1).all(|dx| {
-                let (nx, ny) = (x + dx, y + dy);
-                if nx < 0 || ny < 0 || nx >= w || ny >= h {
-                    return true;
-                }
-                tint[(ny * w + nx) as usize]
-                    .iter()
-                    .zip(mine)
-                    .all(|(p, q)| (0..3).all(|k| (p[k] - q[k]).abs() <= 0.01))
-            })
-        })
-    };
-    (0..w * h)
-        .map(|i| a[i as usize] && b[i as usize] && steady(i))
-        .collect()
 }
 
 /// A frame of the reference's layers (`None` for what the truth does not hold).

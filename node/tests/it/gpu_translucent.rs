@@ -13,7 +13,7 @@ use crate::gpu_support;
 
 use gpu_support::*;
 use lightfold_node::gpu::{EyeVariant, Gpu, LayerSet, NodeFrame, RenderOptions, Renderer};
-use lightfold_reference::{Layers, Tracer, render_point_sum};
+use lightfold_reference::{Layers, render_point_sum};
 use lightfold_scene::primitives::{cuboid, plane};
 use lightfold_scene::{
     AlphaMode, Camera, Image, LightSample, Material, Scene, Transmission, load_gltf,
@@ -90,15 +90,6 @@ fn pane_scene() -> Scene {
     s
 }
 
-/// The scene with every translucent material made opaque (`None`) or removed from shadows.
-fn without_transmission(scene: &Scene) -> Scene {
-    let mut s = scene.clone();
-    for m in &mut s.materials {
-        m.transmission = None;
-    }
-    s
-}
-
 struct Expected {
     scene: Scene,
     samples: Vec<LightSample>,
@@ -122,46 +113,6 @@ fn expected() -> &'static Expected {
             mask,
         }
     })
-}
-
-/// The edge mask of `gpu_support`, on the scene as it is and with its panes opaque, less the
-/// pixels whose 3×3 neighbourhood sees the transmittance of some sample change by more than
-/// 1 % (a texture's edge seen through a map of a few texels per edge, as shadow edges are).
-fn edge_free(scene: &Scene, samples: &[LightSample], reference: &Layers) -> Vec<bool> {
-    let states = shadow_states(scene, samples);
-    let opaque_states = shadow_states(&without_transmission(scene), samples);
-    let a = comparable(reference, &states.visible);
-    let b = comparable(reference, &opaque_states.visible);
-    let tracer = Tracer::new(scene);
-    let (w, h) = (scene.camera.width as i64, scene.camera.height as i64);
-    let tint: Vec<Vec<[f32; 3]>> = (0..w * h)
-        .map(|i| match tracer.primary((i % w) as u32, (i / w) as u32) {
-            Some(hit) => samples
-                .iter()
-                .map(|s| tracer.transmittance(&hit, s))
-                .collect(),
-            None => vec![[1.0; 3]; samples.len()],
-        })
-        .collect();
-    let steady = |i: i64| {
-        let (x, y) = (i % w, i / w);
-        let mine = &tint[i as usize];
-        (-1..=1).all(|dy| {
-            (-1..=1).all(|dx| {
-                let (nx, ny) = (x + dx, y + dy);
-                if nx < 0 || ny < 0 || nx >= w || ny >= h {
-                    return true;
-                }
-                tint[(ny * w + nx) as usize]
-                    .iter()
-                    .zip(mine)
-                    .all(|(p, q)| (0..3).all(|k| (p[k] - q[k]).abs() <= 0.01))
-            })
-        })
-    };
-    (0..w * h)
-        .map(|i| a[i as usize] && b[i as usize] && steady(i))
-        .collect()
 }
 
 fn render(gpu: &Gpu, scene: &Scene, samples: &[LightSample]) -> NodeFrame {

@@ -203,3 +203,53 @@ pub(crate) fn dump(name: &str, frame: &NodeFrame, reference: &Layers) {
 pub(crate) fn comparable(reference: &Layers, states: &[u64]) -> Vec<bool> {
     lightfold_reference::masks::comparable(&reference.depth, &reference.coverage, states)
 }
+
+/// The scene with every translucent material made opaque (`None`) or removed from shadows.
+pub(crate) fn without_transmission(scene: &Scene) -> Scene {
+    let mut s = scene.clone();
+    for m in &mut s.materials {
+        m.transmission = None;
+    }
+    s
+}
+
+/// The edge mask of `gpu_support`, on the scene as it is and with its panes opaque, less the
+/// pixels whose 3×3 neighbourhood sees the transmittance of some sample change by more than
+/// 1 % (a texture's edge seen through a map of a few texels per edge, as shadow edges are).
+pub(crate) fn edge_free(scene: &Scene, samples: &[LightSample], reference: &Layers) -> Vec<bool> {
+    use lightfold_reference::Tracer;
+    let states = shadow_states(scene, samples);
+    let opaque_states = shadow_states(&without_transmission(scene), samples);
+    let a = comparable(reference, &states.visible);
+    let b = comparable(reference, &opaque_states.visible);
+    let tracer = Tracer::new(scene);
+    let (w, h) = (scene.camera.width as i64, scene.camera.height as i64);
+    let tint: Vec<Vec<[f32; 3]>> = (0..w * h)
+        .map(|i| match tracer.primary((i % w) as u32, (i / w) as u32) {
+            Some(hit) => samples
+                .iter()
+                .map(|s| tracer.transmittance(&hit, s))
+                .collect(),
+            None => vec![[1.0; 3]; samples.len()],
+        })
+        .collect();
+    let steady = |i: i64| {
+        let (x, y) = (i % w, i / w);
+        let mine = &tint[i as usize];
+        (-1..=1).all(|dy| {
+            (-1..=1).all(|dx| {
+                let (nx, ny) = (x + dx, y + dy);
+                if nx < 0 || ny < 0 || nx >= w || ny >= h {
+                    return true;
+                }
+                tint[(ny * w + nx) as usize]
+                    .iter()
+                    .zip(mine)
+                    .all(|(p, q)| (0..3).all(|k| (p[k] - q[k]).abs() <= 0.01))
+            })
+        })
+    };
+    (0..w * h)
+        .map(|i| a[i as usize] && b[i as usize] && steady(i))
+        .collect()
+}
