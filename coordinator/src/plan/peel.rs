@@ -147,8 +147,10 @@ pub(super) fn resolve(
                 .to_string(),
         );
     }
-    let needed = partitions_for(scene, cluster, options);
-    if options.partitions == 0 && needed > 1 {
+    if options.partitions == 0
+        && let needed = partitions_for(scene, cluster, options)
+        && needed > 1
+    {
         return bad(format!(
             "the scene's geometry needs {needed} sort-last partitions on these nodes, which \
              peeled translucency does not take: turn peeling off"

@@ -338,13 +338,7 @@ pub(crate) fn partition_stages(
     } else {
         parts.len().min(compositors.len().div_ceil(2)).max(1)
     };
-    let mut chunks = Vec::with_capacity(count);
-    let mut start = 0;
-    for i in 0..count {
-        let len = parts.len() / count + usize::from(i < parts.len() % count);
-        chunks.push(start..start + len);
-        start += len;
-    }
+    let chunks = even_runs(parts.len(), count);
     // What travels between stages: the eye depth with every layer it selects.
     // (The depth the penumbra filter reads is the composed one.)
     let material_kinds: Vec<Layer> = finish
@@ -488,9 +482,7 @@ pub(crate) fn peeled_stages(
         .map(|l| vec![(String::new(), 0); l.len()])
         .collect();
     let mut stages: Vec<StagePlan> = Vec::with_capacity(count);
-    let mut start = 0;
-    for (i, compositor) in compositors.iter().take(count).enumerate() {
-        let len = layers.len() / count + usize::from(i < layers.len() % count);
+    for (run, compositor) in even_runs(layers.len(), count).into_iter().zip(compositors) {
         let id = compositor.id.clone();
         let mut inputs = Vec::new();
         let mut ops: Vec<OpSpec> = Vec::new();
@@ -506,7 +498,7 @@ pub(crate) fn peeled_stages(
             });
             over.push(OpSource::Input(0));
         }
-        for q in start..start + len {
+        for q in run {
             let first = inputs.len() as u32;
             for (j, n) in layers[q].iter().enumerate() {
                 dst[q][j] = (id.clone(), inputs.len() as u32);
@@ -536,7 +528,6 @@ pub(crate) fn peeled_stages(
             }
             over.push(OpSource::Op(ops.len() as u32 - 1));
         }
-        start += len;
         if over.len() > 1 {
             ops.push(OpSpec::Blend(BlendParams {
                 inputs: over.len() as u32,
@@ -560,6 +551,18 @@ pub(crate) fn peeled_stages(
     root.wiring
         .push(vec![OpSource::Op(root.ops.len() as u32 - 2)]);
     (stages, dst)
+}
+
+/// `n` items in `count` contiguous runs, the first `n % count` one longer (`count` ≥ 1).
+fn even_runs(n: usize, count: usize) -> Vec<Range<usize>> {
+    let mut start = 0;
+    (0..count)
+        .map(|i| {
+            let len = n / count + usize::from(i < n % count);
+            start += len;
+            start - len..start
+        })
+        .collect()
 }
 
 /// Joins `stages` (the leaves) pair by pair, level by level, on the next compositors: each join
