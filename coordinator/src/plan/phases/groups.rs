@@ -274,10 +274,7 @@ pub(super) fn assign_nodes(
 ) -> Assignment {
     let Grouping { costs, groups, .. } = grouping;
     let own_node = options.material_own_node;
-    let peels = match options.peels {
-        Peels::Layers(d) => d,
-        Peels::Off | Peels::Auto => 0,
-    };
+    let peels = options.peels.layers();
     let units: Vec<(Option<usize>, usize)> = if parts == 0 {
         (0..groups.len()).map(|g| (None, g)).collect()
     } else {

@@ -164,10 +164,7 @@ pub(super) fn fit_views(
         ViewFit { boxes, probes }
     };
     let whole = fit_where(&|_| true);
-    let peels = match options.peels {
-        Peels::Layers(d) => d,
-        Peels::Off | Peels::Auto => 0,
-    };
+    let peels = options.peels.layers();
     if peels > 0 {
         // `plan_with` resolved the grid: no parts, no tiles; one cell per eye layer.
         return Ok(Fit {
