@@ -20,7 +20,7 @@
 use super::scene_data::{Chunk, MeshRange, Vertex};
 use lightfold_scene::shadow_views::{ShadowView, ShadowViewKind};
 use rayon::prelude::*;
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 /// Simplified levels per chunk (a quarter, a sixteenth and a sixty-fourth of its triangles, where
 /// the simplifier gets there within the chunk's locked border).
@@ -227,6 +227,11 @@ fn build_mesh(vertices: &[Vertex], m: &MeshRange, chunks: &[Chunk], build: Build
     let mut out = Vec::new();
     let applies = !m.masked && !m.translucent && m.vertex_count / 3 >= MIN_TRIANGLES;
     let (mut levels, mut eye) = (Vec::new(), Vec::new());
+    let shared = if applies && build.eye {
+        shared_positions(vertices, m, chunks)
+    } else {
+        HashSet::new()
+    };
     for c in m.first_chunk..m.first_chunk + m.chunk_count {
         match chunks.get(c as usize) {
             Some(chunk) if applies => {
@@ -238,7 +243,7 @@ fn build_mesh(vertices: &[Vertex], m: &MeshRange, chunks: &[Chunk], build: Build
                     Vec::new()
                 });
                 eye.push(if build.eye {
-                    eye_level(tris, &mut out)
+                    eye_level(tris, &shared, &mut out)
                 } else {
                     None
                 });
@@ -355,12 +360,40 @@ fn simplify_chunk(tris: &[Vertex], out: &mut Vec<Vertex>, guarded: bool) -> Vec<
     levels
 }
 
+/// The positions (bits) of mesh `m`'s vertices that more than one of its chunks has: an eye
+/// level keeps them, so chunks drawn at different levels meet without cracks or T-junctions.
+fn shared_positions(vertices: &[Vertex], m: &MeshRange, chunks: &[Chunk]) -> HashSet<[u32; 3]> {
+    let mut shared = HashSet::new();
+    if m.chunk_count < 2 {
+        return shared;
+    }
+    let mut owner: HashMap<[u32; 3], u32> = HashMap::new();
+    for c in m.first_chunk..m.first_chunk + m.chunk_count {
+        let Some(chunk) = chunks.get(c as usize) else {
+            continue;
+        };
+        for v in &vertices
+            [chunk.first_vertex as usize..(chunk.first_vertex + chunk.vertex_count) as usize]
+        {
+            let p = v.position.map(f32::to_bits);
+            if *owner.entry(p).or_insert(c) != c {
+                shared.insert(p);
+            }
+        }
+    }
+    shared
+}
+
 /// A flat-shaded chunk's level for the eye pass, appended to `out`: its triangles welded by every
-/// attribute the eye pass reads (position, normal, UV, material, object), so attribute seams are
-/// borders and stay; simplified (borders locked) only as far as neither position nor UV moves by
-/// more than [`EYE_TOLERANCE`] of the chunk's size, and only where the area stays. Coplanar runs
-/// of a finely divided flat surface collapse; smooth-shaded chunks stay whole.
-fn eye_level(tris: &[Vertex], out: &mut Vec<Vertex>) -> Option<Level> {
+/// attribute the eye pass reads (position, normal, UV, material, object), and simplified only by
+/// collapses that keep the picture (`eye_locks`): every vertex whose collapse could move the
+/// surface, its outline, an attribute seam or the UV mapping is locked, so what is left merges
+/// coplanar runs of a finely divided flat surface (and slides seam vertices along straight
+/// seams, both sides alike) and nothing else. The simplifier's error (which includes its own
+/// regularisation, [`REGULARISATION`]) must stay within [`EYE_TOLERANCE`] of the chunk's size
+/// plus that regularisation, and the area within [`EYE_AREA_CHANGE`]. Smooth-shaded chunks stay
+/// whole.
+fn eye_level(tris: &[Vertex], shared: &HashSet<[u32; 3]>, out: &mut Vec<Vertex>) -> Option<Level> {
     // Only flat-shaded chunks: where shading normals are interpolated across a curved surface, a
     // collapse under any position bound still bends them.
     let flat = tris.iter().all(|v| {
@@ -403,8 +436,15 @@ fn eye_level(tris: &[Vertex], out: &mut Vec<Vertex>) -> Option<Level> {
         },
     );
     let size = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f32>().sqrt();
-    let tolerance = EYE_TOLERANCE * size.max(1e-6);
-    let locks = vec![false; positions.len()];
+    let size = size.max(1e-6);
+    let tolerance = EYE_TOLERANCE * size;
+    let uvs: Vec<[f32; 2]> = first.iter().map(|&i| tris[i].uv).collect();
+    let normals: Vec<[f32; 3]> = first.iter().map(|&i| tris[i].normal).collect();
+    let (locks, moved) = eye_locks(&indices, &positions, &normals, &uvs, shared, size);
+    // Every collapse left is exact, but the simplifier adds a small pull towards each vertex's
+    // own place to its error (up to REGULARISATION of the distance a vertex travels, at most the
+    // chunk's size): the bound allows that on top of the tolerance.
+    let limit = tolerance.hypot(REGULARISATION * size);
     let mut error = 0f32;
     let simplified = meshopt::simplify_with_attributes_and_locks_decoder(
         &indices,
@@ -414,20 +454,212 @@ fn eye_level(tris: &[Vertex], out: &mut Vec<Vertex>) -> Option<Level> {
         5 * std::mem::size_of::<f32>(),
         &locks,
         0,
-        tolerance,
-        meshopt::SimplifyOptions::LockBorder | meshopt::SimplifyOptions::ErrorAbsolute,
+        limit,
+        meshopt::SimplifyOptions::ErrorAbsolute,
         Some(&mut error),
     );
     let whole = area(&indices, &positions);
     if simplified.is_empty()
         || simplified.len() as f32 > EYE_MIN_SAVING * indices.len() as f32
         || error.is_nan()
-        || error > tolerance
+        || error > limit
+        || moved > tolerance
         || (area(&simplified, &positions) - whole).abs() > EYE_AREA_CHANGE * whole
     {
         return None;
     }
-    Some(append(out, &simplified, &positions, &first, tris, error))
+    Some(append(out, &simplified, &positions, &first, tris, moved))
+}
+
+/// The simplifier's regularisation (meshoptimizer 1.x adds a point quadric of 10⁻⁷ of each
+/// vertex's weight at its own place): a collapse that moves a vertex by `d` within its plane
+/// costs about √10⁻⁷ · `d` of error, surface moved or not.
+const REGULARISATION: f32 = 3.2e-4;
+
+/// How far (per metre of the chunk's size) the UV mapping of a welded component may differ
+/// between its triangles across the chunk for its vertices to collapse.
+const UV_DRIFT: f64 = 1e-4;
+
+/// How far a welded component's vertex normals may differ for its vertices to collapse.
+const NORMAL_DRIFT: f64 = 1e-5;
+
+/// Which of an eye level's welded vertices (`indices` into `positions`, with `uvs`) the
+/// simplifier must not move, so that every collapse it makes keeps the picture (each locked
+/// vertex locks every vertex at its place):
+/// - the chunk's outline (a position edge one triangle uses) and non-manifold edges, and the
+///   places in `shared` (other chunks have them): chunks and meshes meet as before, without
+///   cracks or T-junctions;
+/// - places where an attribute seam (a position edge whose two triangles weld it from different
+///   vertices: a building's corner, a roof's edge, a UV or material seam) branches, ends or bends:
+///   seam vertices may only slide along a straight seam, both sides alike;
+/// - vertices whose triangles do not lie in one plane (within 10⁻⁵ of the chunk's size) or do
+///   not share one UV mapping (within 10⁻⁴ over the chunk's size): a collapse there would bend
+///   the surface or the texture.
+fn eye_locks(
+    indices: &[u32],
+    positions: &[[f32; 3]],
+    normals: &[[f32; 3]],
+    uvs: &[[f32; 2]],
+    shared: &HashSet<[u32; 3]>,
+    size: f32,
+) -> (Vec<bool>, f32) {
+    let n = positions.len();
+    let size = f64::from(size);
+    let flatness = 1e-5 * size;
+    let mut place_of: HashMap<[u32; 3], u32> = HashMap::with_capacity(n);
+    let place: Vec<u32> = positions
+        .iter()
+        .map(|p| {
+            let k = place_of.len() as u32;
+            *place_of.entry(p.map(f32::to_bits)).or_insert(k)
+        })
+        .collect();
+    let mut locked_place = vec![false; place_of.len()];
+    for (p, &k) in &place_of {
+        if shared.contains(p) {
+            locked_place[k as usize] = true;
+        }
+    }
+    let p64 = |i: u32| positions[i as usize].map(f64::from);
+    let normal = |i: u32| normals[i as usize].map(f64::from);
+    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let cross = |a: [f64; 3], b: [f64; 3]| {
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
+    };
+    // Each triangle's unit normal and the gradients of its U and V.
+    let maps: Vec<Option<[[f64; 3]; 3]>> = indices
+        .chunks_exact(3)
+        .map(|t| {
+            let (e1, e2) = (sub(p64(t[1]), p64(t[0])), sub(p64(t[2]), p64(t[0])));
+            let nn = cross(e1, e2);
+            let len2 = dot(nn, nn);
+            if len2 <= 0.0 || !len2.is_finite() {
+                return None;
+            }
+            let (a, b) = (cross(e2, nn), cross(nn, e1));
+            let grad = |k: usize| {
+                let uv = |i: u32| f64::from(uvs[i as usize][k]);
+                let (d1, d2) = (uv(t[1]) - uv(t[0]), uv(t[2]) - uv(t[0]));
+                [0, 1, 2].map(|j| (d1 * a[j] + d2 * b[j]) / len2)
+            };
+            let l = len2.sqrt();
+            Some([nn.map(|c| c / l), grad(0), grad(1)])
+        })
+        .collect();
+    // Welded components (triangles joined by the welded vertices they share: one attribute
+    // region each); each must lie in one plane, with one UV mapping and one normal.
+    let mut parent: Vec<u32> = (0..n as u32).collect();
+    fn root(parent: &mut [u32], mut v: u32) -> u32 {
+        while parent[v as usize] != v {
+            parent[v as usize] = parent[parent[v as usize] as usize];
+            v = parent[v as usize];
+        }
+        v
+    }
+    for tri in indices.chunks_exact(3) {
+        for &o in &tri[1..] {
+            let (a, b) = (root(&mut parent, tri[0]), root(&mut parent, o));
+            parent[a.max(b) as usize] = a.min(b);
+        }
+    }
+    let mut reference: Vec<Option<usize>> = vec![None; n];
+    let mut bad = vec![false; n];
+    let mut off = vec![0f64; n];
+    for (t, tri) in indices.chunks_exact(3).enumerate() {
+        let r = root(&mut parent, tri[0]) as usize;
+        let Some(m) = maps[t] else {
+            continue;
+        };
+        let Some(rt) = reference[r] else {
+            reference[r] = Some(t);
+            continue;
+        };
+        let Some(rm) = maps[rt] else {
+            continue;
+        };
+        let origin = p64(indices[3 * rt]);
+        for &q in tri {
+            off[r] = off[r].max(dot(rm[0], sub(p64(q), origin)).abs());
+        }
+        let remapped = (1..3).any(|k| {
+            let d = sub(m[k], rm[k]);
+            dot(d, d).sqrt() * size > UV_DRIFT
+        });
+        let turned = {
+            let d = sub(normal(tri[0]), normal(indices[3 * rt]));
+            dot(d, d) > NORMAL_DRIFT * NORMAL_DRIFT
+        };
+        bad[r] |= remapped || turned || dot(m[0], rm[0]) < 0.0;
+    }
+    let mut moved = 0f64;
+    let bent: Vec<bool> = (0..n as u32)
+        .map(|v| {
+            let r = root(&mut parent, v) as usize;
+            let bent = bad[r] || off[r] > flatness;
+            if !bent {
+                moved = moved.max(2.0 * off[r]);
+            }
+            bent
+        })
+        .collect();
+    // Position edges: how many triangles use each, and whether its uses weld it differently.
+    let mut edges: HashMap<(u32, u32), (u32, (u32, u32), bool)> = HashMap::new();
+    for tri in indices.chunks_exact(3) {
+        for k in 0..3 {
+            let (a, b) = (tri[k], tri[(k + 1) % 3]);
+            let (pa, pb) = (place[a as usize], place[b as usize]);
+            let key = if pa < pb { (pa, pb) } else { (pb, pa) };
+            let welded = if a < b { (a, b) } else { (b, a) };
+            let e = edges.entry(key).or_insert((0, welded, false));
+            e.0 += 1;
+            e.2 |= e.1 != welded;
+        }
+    }
+    // Per place, the far ends of its seam edges (at most two kept; more locks it).
+    let mut seams: Vec<Vec<u32>> = vec![Vec::new(); locked_place.len()];
+    for (&(pa, pb), &(uses, _, seam)) in &edges {
+        if uses != 2 {
+            locked_place[pa as usize] = true;
+            locked_place[pb as usize] = true;
+        } else if seam {
+            seams[pa as usize].push(pb);
+            seams[pb as usize].push(pa);
+        }
+    }
+    let mut any_vertex = vec![u32::MAX; locked_place.len()];
+    let mut wedges = vec![0u32; locked_place.len()];
+    for (v, &k) in place.iter().enumerate() {
+        any_vertex[k as usize] = v as u32;
+        wedges[k as usize] += 1;
+    }
+    for k in 0..locked_place.len() {
+        let s = &seams[k];
+        let straight = match s.as_slice() {
+            [] => wedges[k] == 1,
+            [a, b] => {
+                let at = |q: u32| p64(any_vertex[q as usize]);
+                let (o, a, b) = (at(k as u32), at(*a), at(*b));
+                let (da, db) = (sub(a, o), sub(b, o));
+                let line = sub(b, a);
+                let len = dot(line, line).sqrt();
+                dot(da, db) < 0.0 && len > 0.0 && {
+                    let c = cross(da, line);
+                    dot(c, c).sqrt() / len <= flatness
+                }
+            }
+            _ => false,
+        };
+        locked_place[k] |= !straight;
+    }
+    let locks = (0..n)
+        .map(|v| bent[v] || locked_place[place[v] as usize])
+        .collect();
+    (locks, moved as f32)
 }
 
 /// Appends the triangles `simplified` (indices into the welded `positions`; `first[i]` the first
@@ -694,5 +926,162 @@ mod tests {
         )]);
         let data = SceneData::with_lod(&round, 4096, eye);
         assert!(data.lods.eye.iter().all(Option::is_none));
+    }
+
+    /// A box of six faces like the city's buildings (each face a `div × div` plane of its own
+    /// vertices, meeting its neighbours at attribute seams), at `center`.
+    fn subdivided_box(center: [f32; 3], half: [f32; 3], div: u32) -> Vec<lightfold_scene::Mesh> {
+        let [x, y, z] = center;
+        let [hx, hy, hz] = half;
+        [
+            (
+                [x, y, z + hz],
+                [0.0, 0.0, 1.0],
+                [1.0, 0.0, 0.0],
+                [2.0 * hx, 2.0 * hy],
+            ),
+            (
+                [x, y, z - hz],
+                [0.0, 0.0, -1.0],
+                [-1.0, 0.0, 0.0],
+                [2.0 * hx, 2.0 * hy],
+            ),
+            (
+                [x + hx, y, z],
+                [1.0, 0.0, 0.0],
+                [0.0, 0.0, -1.0],
+                [2.0 * hz, 2.0 * hy],
+            ),
+            (
+                [x - hx, y, z],
+                [-1.0, 0.0, 0.0],
+                [0.0, 0.0, 1.0],
+                [2.0 * hz, 2.0 * hy],
+            ),
+            (
+                [x, y + hy, z],
+                [0.0, 1.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [2.0 * hx, 2.0 * hz],
+            ),
+            (
+                [x, y - hy, z],
+                [0.0, -1.0, 0.0],
+                [1.0, 0.0, 0.0],
+                [2.0 * hx, 2.0 * hz],
+            ),
+        ]
+        .into_iter()
+        .map(|(c, n, u, size)| plane("face", c, n, u, size, div, 0))
+        .collect()
+    }
+
+    /// The eye level of `chunk` as triangles of positions.
+    fn eye_triangles(data: &SceneData, chunk: usize) -> Vec<[[f32; 3]; 3]> {
+        let l = data.lods.eye_level(chunk).expect("an eye level");
+        data.lod_vertices[l.first_vertex as usize..(l.first_vertex + l.vertex_count) as usize]
+            .chunks_exact(3)
+            .map(|t| [t[0].position, t[1].position, t[2].position])
+            .collect()
+    }
+
+    /// The chunk's own triangles as positions.
+    fn chunk_triangles(data: &SceneData, chunk: usize) -> Vec<[[f32; 3]; 3]> {
+        let c = &data.chunks[chunk];
+        data.vertices[c.first_vertex as usize..(c.first_vertex + c.vertex_count) as usize]
+            .chunks_exact(3)
+            .map(|t| [t[0].position, t[1].position, t[2].position])
+            .collect()
+    }
+
+    /// The undirected edges of `tris` welded by exact position, with how many triangles use each.
+    fn edge_uses(tris: &[[[f32; 3]; 3]]) -> HashMap<[[u32; 3]; 2], u32> {
+        let mut uses = HashMap::new();
+        for t in tris {
+            for k in 0..3 {
+                let (a, b) = (t[k].map(f32::to_bits), t[(k + 1) % 3].map(f32::to_bits));
+                *uses.entry(if a < b { [a, b] } else { [b, a] }).or_insert(0) += 1;
+            }
+        }
+        uses
+    }
+
+    fn triangles_area(tris: &[[[f32; 3]; 3]]) -> f64 {
+        let positions: Vec<[f32; 3]> = tris.iter().flatten().copied().collect();
+        let idx: Vec<u32> = (0..positions.len() as u32).collect();
+        area(&idx, &positions)
+    }
+
+    const EYE_ONLY: Build = Build {
+        shadow: false,
+        guarded: true,
+        eye: true,
+    };
+
+    /// A closed box of finely divided faces (the city's buildings' kind, its faces' own vertices
+    /// meeting at attribute seams along its edges) collapses to a few triangles a face in the
+    /// eye level, stays closed (every edge, welded by position, used by exactly two triangles)
+    /// and keeps its area.
+    #[test]
+    fn a_divided_box_collapses_to_a_few_triangles_and_stays_closed() {
+        let scene = one_mesh(subdivided_box([37.25, 4.5, -12.75], [2.5, 4.0, 3.0], 10));
+        let data = SceneData::with_lod(&scene, 4096, EYE_ONLY);
+        let whole = chunk_triangles(&data, 0);
+        assert_eq!(whole.len(), 1200);
+        assert!(
+            edge_uses(&whole).values().all(|&n| n == 2),
+            "the box is closed"
+        );
+        let level = eye_triangles(&data, 0);
+        assert!(level.len() <= 24, "{} triangles", level.len());
+        let open: Vec<_> = edge_uses(&level)
+            .into_iter()
+            .filter(|(_, n)| *n != 2)
+            .collect();
+        assert!(open.is_empty(), "edges not used twice: {open:?}");
+        let (a, b) = (triangles_area(&level), triangles_area(&whole));
+        assert!((a - b).abs() <= 1e-5 * b, "area {a} against {b}");
+    }
+
+    /// A plane of two chunks: their eye levels keep every vertex they share (an edge used once
+    /// in the levels together lies on the plane's outline), so chunks drawn at different levels
+    /// meet without cracks; the plane's outline stays whole.
+    #[test]
+    fn eye_levels_of_neighbouring_chunks_meet_without_cracks() {
+        let scene = one_mesh(vec![plane(
+            "floor",
+            [0.5, 0.0, 0.25],
+            [0.0, 1.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [4.0, 4.0],
+            64,
+            0,
+        )]);
+        let data = SceneData::with_lod(&scene, 4096, EYE_ONLY);
+        assert!(data.chunks.len() >= 2, "{} chunks", data.chunks.len());
+        let mut level = Vec::new();
+        let mut whole = Vec::new();
+        for c in 0..data.chunks.len() {
+            level.extend(eye_triangles(&data, c));
+            whole.extend(chunk_triangles(&data, c));
+        }
+        assert!(
+            level.len() * 4 < whole.len(),
+            "{} of {}",
+            level.len(),
+            whole.len()
+        );
+        let outline = |p: [u32; 3]| {
+            let p = p.map(f32::from_bits);
+            (p[0] - 0.5).abs() == 2.0 || (p[2] - 0.25).abs() == 2.0
+        };
+        for (edge, n) in edge_uses(&level) {
+            assert!(
+                n == 2 || (n == 1 && outline(edge[0]) && outline(edge[1])),
+                "edge {edge:?} used {n} times"
+            );
+        }
+        let (a, b) = (triangles_area(&level), triangles_area(&whole));
+        assert!((a - b).abs() <= 1e-5 * b, "area {a} against {b}");
     }
 }
