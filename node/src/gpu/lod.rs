@@ -8,11 +8,13 @@
 //!
 //! The eye pass draws full detail but for one more level per chunk where the chunk is
 //! flat-shaded (every vertex normal its triangle's): welded by every attribute it reads and
-//! simplified only while positions and UVs move by at most [`EYE_TOLERANCE`] of the chunk's size,
-//! which merges coplanar runs of a finely divided flat surface and nothing else (`eye_level`).
+//! simplified only by collapses that keep the picture (`eye_level`, `eye_locks`), which merges
+//! coplanar runs of a finely divided flat surface, across the straight attribute seams where its
+//! faces meet (a building's corners), and nothing else.
 //!
-//! Chunk borders are locked (`LockBorder`): the vertices a chunk shares with its neighbours never
-//! move, so chunks drawn at different levels meet without cracks. Alpha-masked and translucent
+//! Chunk borders are locked (the shadow levels' `LockBorder`, the eye levels' own locks): the
+//! vertices a chunk shares with its neighbours never move, so chunks drawn at different levels
+//! meet without cracks. Alpha-masked and translucent
 //! meshes keep their detail (their texels decide the shadow, not their triangles), and so do
 //! meshes of fewer than [`MIN_TRIANGLES`] (boxes, walls, panes: nothing to gain). Meshes a pose or
 //! a move changes are simplified again from their new vertices ([`Lods::update`]).
@@ -33,8 +35,8 @@ pub const MAX_ERROR_TEXELS: f32 = 0.5;
 /// Meshes of fewer triangles keep their detail.
 pub const MIN_TRIANGLES: u32 = 256;
 
-/// An eye level may move position, normal and UV by at most this share of its chunk's size:
-/// lossless but for rounding.
+/// An eye level may move the surface by at most this share of its chunk's size (its collapses
+/// are exact by construction: this bounds rounding and near-flat faces).
 pub const EYE_TOLERANCE: f32 = 1e-4;
 
 /// A chunk is flat-shaded where every vertex normal is its triangle's geometric normal within
@@ -476,8 +478,8 @@ fn eye_level(tris: &[Vertex], shared: &HashSet<[u32; 3]>, out: &mut Vec<Vertex>)
 /// costs about √10⁻⁷ · `d` of error, surface moved or not.
 const REGULARISATION: f32 = 3.2e-4;
 
-/// How far (per metre of the chunk's size) the UV mapping of a welded component may differ
-/// between its triangles across the chunk for its vertices to collapse.
+/// How far (in UV: a tenth of a texel of a 1024-texel texture) a welded component's vertices may
+/// lie off its fitted affine UV mapping for them to collapse.
 const UV_DRIFT: f64 = 1e-4;
 
 /// How far a welded component's vertex normals may differ for its vertices to collapse.
@@ -492,9 +494,12 @@ const NORMAL_DRIFT: f64 = 1e-5;
 /// - places where an attribute seam (a position edge whose two triangles weld it from different
 ///   vertices: a building's corner, a roof's edge, a UV or material seam) branches, ends or bends:
 ///   seam vertices may only slide along a straight seam, both sides alike;
-/// - vertices whose triangles do not lie in one plane (within 10⁻⁵ of the chunk's size) or do
-///   not share one UV mapping (within 10⁻⁴ over the chunk's size): a collapse there would bend
-///   the surface or the texture.
+/// - the vertices of a welded component that does not lie in one plane (within 10⁻⁵ of the
+///   chunk's size), is not mapped by one affine UV mapping ([`UV_DRIFT`]) or whose normals differ
+///   ([`NORMAL_DRIFT`]): a collapse there would bend the surface, the texture or the shading.
+///
+/// Also returns how far the collapses left may move the surface: twice the largest distance of a
+/// component that may collapse from its plane (rounding).
 fn eye_locks(
     indices: &[u32],
     positions: &[[f32; 3]],
@@ -531,28 +536,11 @@ fn eye_locks(
             a[0] * b[1] - a[1] * b[0],
         ]
     };
-    // Each triangle's unit normal and the gradients of its U and V.
-    let maps: Vec<Option<[[f64; 3]; 3]>> = indices
-        .chunks_exact(3)
-        .map(|t| {
-            let (e1, e2) = (sub(p64(t[1]), p64(t[0])), sub(p64(t[2]), p64(t[0])));
-            let nn = cross(e1, e2);
-            let len2 = dot(nn, nn);
-            if len2 <= 0.0 || !len2.is_finite() {
-                return None;
-            }
-            let (a, b) = (cross(e2, nn), cross(nn, e1));
-            let grad = |k: usize| {
-                let uv = |i: u32| f64::from(uvs[i as usize][k]);
-                let (d1, d2) = (uv(t[1]) - uv(t[0]), uv(t[2]) - uv(t[0]));
-                [0, 1, 2].map(|j| (d1 * a[j] + d2 * b[j]) / len2)
-            };
-            let l = len2.sqrt();
-            Some([nn.map(|c| c / l), grad(0), grad(1)])
-        })
-        .collect();
     // Welded components (triangles joined by the welded vertices they share: one attribute
-    // region each); each must lie in one plane, with one UV mapping and one normal.
+    // region each); each must lie in one plane, with one affine UV mapping and one normal. The
+    // plane and mapping are fitted to the whole component (area-weighted normal and UV
+    // gradients, through its vertices' centroid), so rounding in one small triangle far from the
+    // origin does not count as a bend.
     let mut parent: Vec<u32> = (0..n as u32).collect();
     fn root(parent: &mut [u32], mut v: u32) -> u32 {
         while parent[v as usize] != v {
@@ -567,39 +555,88 @@ fn eye_locks(
             parent[a.max(b) as usize] = a.min(b);
         }
     }
-    let mut reference: Vec<Option<usize>> = vec![None; n];
-    let mut bad = vec![false; n];
-    let mut off = vec![0f64; n];
-    for (t, tri) in indices.chunks_exact(3).enumerate() {
-        let r = root(&mut parent, tri[0]) as usize;
-        let Some(m) = maps[t] else {
+    let roots: Vec<usize> = (0..n as u32)
+        .map(|v| root(&mut parent, v) as usize)
+        .collect();
+    // Per component: Σ of twice each triangle's area vector, of its U and V gradients times
+    // twice its area, and of twice its area.
+    let mut fit = vec![[[0f64; 3]; 3]; n];
+    let mut weight = vec![0f64; n];
+    let mut normals_of = Vec::with_capacity(indices.len() / 3);
+    for tri in indices.chunks_exact(3) {
+        let (e1, e2) = (sub(p64(tri[1]), p64(tri[0])), sub(p64(tri[2]), p64(tri[0])));
+        let nn = cross(e1, e2);
+        normals_of.push(nn);
+        let len2 = dot(nn, nn);
+        if len2 <= 0.0 || !len2.is_finite() {
             continue;
-        };
-        let Some(rt) = reference[r] else {
-            reference[r] = Some(t);
-            continue;
-        };
-        let Some(rm) = maps[rt] else {
-            continue;
-        };
-        let origin = p64(indices[3 * rt]);
-        for &q in tri {
-            off[r] = off[r].max(dot(rm[0], sub(p64(q), origin)).abs());
         }
-        let remapped = (1..3).any(|k| {
-            let d = sub(m[k], rm[k]);
-            dot(d, d).sqrt() * size > UV_DRIFT
-        });
+        let (a, b) = (cross(e2, nn), cross(nn, e1));
+        let l = len2.sqrt();
+        let r = roots[tri[0] as usize];
+        for j in 0..3 {
+            fit[r][0][j] += nn[j];
+        }
+        for k in 0..2 {
+            let uv = |i: u32| f64::from(uvs[i as usize][k]);
+            let (d1, d2) = (uv(tri[1]) - uv(tri[0]), uv(tri[2]) - uv(tri[0]));
+            for j in 0..3 {
+                // The gradient (d1·a + d2·b) / |n|², weighted by |n|.
+                fit[r][1 + k][j] += (d1 * a[j] + d2 * b[j]) / l;
+            }
+        }
+        weight[r] += l;
+    }
+    let mut bad = vec![false; n];
+    for (tri, nn) in indices.chunks_exact(3).zip(&normals_of) {
+        let r = roots[tri[0] as usize];
+        bad[r] |= dot(*nn, fit[r][0]) < 0.0;
+    }
+    // Per component: its vertices' centroid and mean UV, and its first vertex.
+    let mut centre = vec![[0f64; 5]; n];
+    let mut count = vec![0f64; n];
+    let mut first_of = vec![u32::MAX; n];
+    for v in 0..n {
+        let r = roots[v];
+        let p = p64(v as u32);
+        for j in 0..3 {
+            centre[r][j] += p[j];
+        }
+        for k in 0..2 {
+            centre[r][3 + k] += f64::from(uvs[v][k]);
+        }
+        count[r] += 1.0;
+        if first_of[r] == u32::MAX {
+            first_of[r] = v as u32;
+        }
+    }
+    let mut off = vec![0f64; n];
+    for v in 0..n {
+        let r = roots[v];
+        if weight[r] <= 0.0 {
+            continue;
+        }
+        let plane = fit[r][0];
+        let unit = plane.map(|c| c / dot(plane, plane).sqrt());
+        let c = centre[r].map(|x| x / count[r]);
+        let d = sub(p64(v as u32), [c[0], c[1], c[2]]);
+        off[r] = off[r].max(dot(unit, d).abs());
+        let drift = (0..2)
+            .map(|k| {
+                let g = fit[r][1 + k].map(|x| x / weight[r]);
+                (f64::from(uvs[v][k]) - c[3 + k] - dot(g, d)).abs()
+            })
+            .fold(0f64, f64::max);
         let turned = {
-            let d = sub(normal(tri[0]), normal(indices[3 * rt]));
-            dot(d, d) > NORMAL_DRIFT * NORMAL_DRIFT
+            let t = sub(normal(v as u32), normal(first_of[r]));
+            dot(t, t) > NORMAL_DRIFT * NORMAL_DRIFT
         };
-        bad[r] |= remapped || turned || dot(m[0], rm[0]) < 0.0;
+        bad[r] |= drift > UV_DRIFT || turned;
     }
     let mut moved = 0f64;
-    let bent: Vec<bool> = (0..n as u32)
+    let bent: Vec<bool> = (0..n)
         .map(|v| {
-            let r = root(&mut parent, v) as usize;
+            let r = roots[v];
             let bent = bad[r] || off[r] > flatness;
             if !bent {
                 moved = moved.max(2.0 * off[r]);
@@ -1024,23 +1061,27 @@ mod tests {
     /// and keeps its area.
     #[test]
     fn a_divided_box_collapses_to_a_few_triangles_and_stays_closed() {
-        let scene = one_mesh(subdivided_box([37.25, 4.5, -12.75], [2.5, 4.0, 3.0], 10));
-        let data = SceneData::with_lod(&scene, 4096, EYE_ONLY);
-        let whole = chunk_triangles(&data, 0);
-        assert_eq!(whole.len(), 1200);
-        assert!(
-            edge_uses(&whole).values().all(|&n| n == 2),
-            "the box is closed"
-        );
-        let level = eye_triangles(&data, 0);
-        assert!(level.len() <= 24, "{} triangles", level.len());
-        let open: Vec<_> = edge_uses(&level)
-            .into_iter()
-            .filter(|(_, n)| *n != 2)
-            .collect();
-        assert!(open.is_empty(), "edges not used twice: {open:?}");
-        let (a, b) = (triangles_area(&level), triangles_area(&whole));
-        assert!((a - b).abs() <= 1e-5 * b, "area {a} against {b}");
+        // Near the origin, and as far out as the 10 M city's far corner (rounding in its
+        // positions is no bend).
+        for center in [[37.25, 4.5, -12.75], [283.7, 20.5, -291.3]] {
+            let scene = one_mesh(subdivided_box(center, [2.5, 4.0, 3.0], 10));
+            let data = SceneData::with_lod(&scene, 4096, EYE_ONLY);
+            let whole = chunk_triangles(&data, 0);
+            assert_eq!(whole.len(), 1200);
+            assert!(
+                edge_uses(&whole).values().all(|&n| n == 2),
+                "the box is closed"
+            );
+            let level = eye_triangles(&data, 0);
+            assert!(level.len() <= 24, "{center:?}: {} triangles", level.len());
+            let open: Vec<_> = edge_uses(&level)
+                .into_iter()
+                .filter(|(_, n)| *n != 2)
+                .collect();
+            assert!(open.is_empty(), "edges not used twice: {open:?}");
+            let (a, b) = (triangles_area(&level), triangles_area(&whole));
+            assert!((a - b).abs() <= 1e-5 * b, "area {a} against {b}");
+        }
     }
 
     /// A plane of two chunks: their eye levels keep every vertex they share (an edge used once
