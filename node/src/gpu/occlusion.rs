@@ -68,12 +68,49 @@ const MARGIN: f32 = 1e-5;
 const TEST_WORKGROUP: u32 = 64;
 const REDUCE_WORKGROUP: u32 = 8;
 
+/// Levels of the hierarchical depth a test reads at most (`MAX_LEVELS` in `occlusion.wgsl`):
+/// level 0 at 2 pixels a texel, so images up to 2^16 pixels a side.
+const MAX_LEVELS: usize = 16;
+
+/// `Level` in `occlusion.wgsl`: where a level starts in the pyramid buffer, and its size.
+#[repr(C)]
+#[derive(Debug, Clone, Copy, Pod, Zeroable, Default)]
+struct Level {
+    offset: u32,
+    width: u32,
+    height: u32,
+    _pad: u32,
+}
+
 /// `Reduce` in `occlusion.wgsl`.
 #[repr(C)]
 #[derive(Debug, Clone, Copy, Pod, Zeroable)]
 struct ReduceParams {
-    src_size: [u32; 2],
-    dst_size: [u32; 2],
+    src: Level,
+    dst: Level,
+    pixels: [u32; 2],
+    _pad: [u32; 2],
+}
+
+/// The levels of the hierarchical depth of a `w`×`h` depth buffer: level 0 a texel per 2×2
+/// pixels, each next level half the one before rounded up, down to one texel; packed one after
+/// the other. Texel x of level l covers pixels [x·2^(l+1), (x+1)·2^(l+1)).
+fn levels(w: u32, h: u32) -> Vec<Level> {
+    let mut out = Vec::new();
+    let (mut lw, mut lh, mut offset) = (w.div_ceil(2).max(1), h.div_ceil(2).max(1), 0);
+    loop {
+        out.push(Level {
+            offset,
+            width: lw,
+            height: lh,
+            _pad: 0,
+        });
+        offset += lw * lh;
+        if lw == 1 && lh == 1 {
+            return out;
+        }
+        (lw, lh) = (lw.div_ceil(2), lh.div_ceil(2));
+    }
 }
 
 /// `Test` in `occlusion.wgsl`.
@@ -87,6 +124,7 @@ struct TestParams {
     far_corner: u32,
     margin: f32,
     rows: [u32; 2],
+    level: [Level; MAX_LEVELS],
 }
 
 /// `Bounds` in `occlusion.wgsl`.
@@ -121,8 +159,8 @@ pub(super) struct OcclusionPass {
     test: wgpu::ComputePipeline,
     /// The occluders' depth, the eye pass's size.
     depth: Option<wgpu::Texture>,
-    /// The hierarchical depth: a mip chain of powers of two, level 0 a texel per 2×2 pixels.
-    hzb: Option<wgpu::Texture>,
+    /// The hierarchical depth's levels ([`levels`]), kept while the image size is.
+    hzb: Option<wgpu::Buffer>,
 }
 
 impl OcclusionPass {
@@ -262,40 +300,22 @@ impl OcclusionPass {
             return Ok(Vec::new());
         }
         let (w, h) = (test.width, test.height);
-        let base = [
-            w.div_ceil(2).next_power_of_two(),
-            h.div_ceil(2).next_power_of_two(),
-        ];
-        let levels = base[0].max(base[1]).ilog2() + 1;
-        if self
-            .hzb
-            .as_ref()
-            .is_none_or(|t| [t.width(), t.height()] != base)
-        {
-            self.hzb = Some(cx.device.create_texture(&wgpu::TextureDescriptor {
+        let pyramid = levels(w, h);
+        if pyramid.len() > MAX_LEVELS {
+            // Larger than any device's image: nothing is tested, everything shows.
+            cx.queue.submit([encoder.finish()]);
+            return Ok(vec![true; test.boxes.len()]);
+        }
+        let texels: u64 = pyramid.iter().map(|l| u64::from(l.width * l.height)).sum();
+        if self.hzb.as_ref().is_none_or(|b| b.size() != texels * 4) {
+            self.hzb = Some(cx.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some("hierarchical depth"),
-                size: wgpu::Extent3d {
-                    width: base[0],
-                    height: base[1],
-                    depth_or_array_layers: 1,
-                },
-                mip_level_count: levels,
-                sample_count: 1,
-                dimension: wgpu::TextureDimension::D2,
-                format: wgpu::TextureFormat::R32Float,
-                usage: wgpu::TextureUsages::STORAGE_BINDING | wgpu::TextureUsages::TEXTURE_BINDING,
-                view_formats: &[],
+                size: texels * 4,
+                usage: wgpu::BufferUsages::STORAGE,
+                mapped_at_creation: false,
             }));
         }
         let hzb = self.hzb.as_ref().expect("allocated above");
-        let level_view = |level: u32| {
-            hzb.create_view(&wgpu::TextureViewDescriptor {
-                base_mip_level: level,
-                mip_level_count: Some(1),
-                ..Default::default()
-            })
-        };
-        let size_at = |level: u32| [(base[0] >> level).max(1), (base[1] >> level).max(1)];
         let depth_view = depth.create_view(&Default::default());
         let buffer = |label: &str, contents: &[u8], usage| {
             cx.device
@@ -305,54 +325,51 @@ impl OcclusionPass {
                     usage,
                 })
         };
-        let mut groups = Vec::with_capacity(levels as usize);
-        for level in 0..levels {
-            let (src_size, pipeline) = if level == 0 {
-                ([w, h], &self.reduce_depth)
+        let mut groups = Vec::with_capacity(pyramid.len());
+        for (k, dst) in pyramid.iter().enumerate() {
+            let first = k == 0;
+            let pipeline = if first {
+                &self.reduce_depth
             } else {
-                (size_at(level - 1), &self.reduce)
+                &self.reduce
             };
             let params = ReduceParams {
-                src_size,
-                dst_size: size_at(level),
+                src: if first {
+                    Level::default()
+                } else {
+                    pyramid[k - 1]
+                },
+                dst: *dst,
+                pixels: [w, h],
+                _pad: [0; 2],
             };
             let uniform = buffer(
                 "hierarchical depth level",
                 bytemuck::bytes_of(&params),
                 wgpu::BufferUsages::UNIFORM,
             );
-            let src = if level == 0 {
-                None
-            } else {
-                Some(level_view(level - 1))
-            };
-            let dst = level_view(level);
-            let source = match &src {
-                Some(v) => wgpu::BindGroupEntry {
-                    binding: 3,
-                    resource: wgpu::BindingResource::TextureView(v),
+            let mut entries = vec![
+                wgpu::BindGroupEntry {
+                    binding: 0,
+                    resource: uniform.as_entire_binding(),
                 },
-                None => wgpu::BindGroupEntry {
+                wgpu::BindGroupEntry {
+                    binding: 2,
+                    resource: hzb.as_entire_binding(),
+                },
+            ];
+            if first {
+                entries.push(wgpu::BindGroupEntry {
                     binding: 1,
                     resource: wgpu::BindingResource::TextureView(&depth_view),
-                },
-            };
+                });
+            }
             let group = cx.device.create_bind_group(&wgpu::BindGroupDescriptor {
                 label: Some("hierarchical depth level"),
                 layout: &pipeline.get_bind_group_layout(0),
-                entries: &[
-                    wgpu::BindGroupEntry {
-                        binding: 0,
-                        resource: uniform.as_entire_binding(),
-                    },
-                    source,
-                    wgpu::BindGroupEntry {
-                        binding: 2,
-                        resource: wgpu::BindingResource::TextureView(&dst),
-                    },
-                ],
+                entries: &entries,
             });
-            groups.push((pipeline, group, params.dst_size));
+            groups.push((pipeline, group, [dst.width, dst.height]));
         }
         let boxes: Vec<GpuBounds> = test
             .boxes
@@ -367,10 +384,11 @@ impl OcclusionPass {
             view_proj: test.view_proj,
             size: [w as f32, h as f32],
             count,
-            levels,
+            levels: pyramid.len() as u32,
             far_corner: u32::from(test.far_corner),
             margin: MARGIN,
             rows: test.rows.unwrap_or([0, h]),
+            level: std::array::from_fn(|k| pyramid.get(k).copied().unwrap_or_default()),
         };
         let uniform = buffer(
             "occlusion test",
@@ -395,7 +413,6 @@ impl OcclusionPass {
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let whole = hzb.create_view(&Default::default());
         let test_group = cx.device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some("occlusion test"),
             layout: &self.test.get_bind_group_layout(0),
@@ -406,7 +423,7 @@ impl OcclusionPass {
                 },
                 wgpu::BindGroupEntry {
                     binding: 5,
-                    resource: wgpu::BindingResource::TextureView(&whole),
+                    resource: hzb.as_entire_binding(),
                 },
                 wgpu::BindGroupEntry {
                     binding: 6,
@@ -418,20 +435,24 @@ impl OcclusionPass {
                 },
             ],
         });
-        {
+        for (pipeline, group, [dw, dh]) in &groups {
             let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some("occlusion"),
+                label: Some("hierarchical depth level"),
                 timestamp_writes: None,
             });
-            for (pipeline, group, [dw, dh]) in &groups {
-                pass.set_pipeline(pipeline);
-                pass.set_bind_group(0, group, &[]);
-                pass.dispatch_workgroups(
-                    dw.div_ceil(REDUCE_WORKGROUP),
-                    dh.div_ceil(REDUCE_WORKGROUP),
-                    1,
-                );
-            }
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, group, &[]);
+            pass.dispatch_workgroups(
+                dw.div_ceil(REDUCE_WORKGROUP),
+                dh.div_ceil(REDUCE_WORKGROUP),
+                1,
+            );
+        }
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some("occlusion test"),
+                timestamp_writes: None,
+            });
             pass.set_pipeline(&self.test);
             pass.set_bind_group(0, &test_group, &[]);
             pass.dispatch_workgroups(count.div_ceil(TEST_WORKGROUP), 1, 1);
@@ -451,5 +472,42 @@ impl OcclusionPass {
         };
         readback.unmap();
         Ok(answers)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every level covers the image exactly: level l is ⌈w / 2^(l+1)⌉ × ⌈h / 2^(l+1)⌉ texels
+    /// (so texel x covers pixels [x·2^(l+1), (x+1)·2^(l+1))), packed without gaps, ending at one
+    /// texel, within what a test reads.
+    #[test]
+    fn levels_cover_the_image() {
+        for (w, h) in [
+            (1, 1),
+            (2, 1),
+            (200, 150),
+            (800, 600),
+            (1920, 1080),
+            (3840, 2160),
+        ] {
+            let l = levels(w, h);
+            let mut offset = 0;
+            for (k, level) in l.iter().enumerate() {
+                let span = 2u32 << k;
+                assert_eq!(
+                    (level.width, level.height),
+                    (w.div_ceil(span), h.div_ceil(span)),
+                    "{w}×{h} level {k}"
+                );
+                assert_eq!(level.offset, offset);
+                offset += level.width * level.height;
+            }
+            let top = l.last().unwrap();
+            assert_eq!((top.width, top.height), (1, 1));
+            assert!(l.len() <= MAX_LEVELS);
+        }
+        assert_eq!(levels(65_536, 2).len(), MAX_LEVELS);
     }
 }

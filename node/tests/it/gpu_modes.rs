@@ -552,8 +552,8 @@ fn street_camera(scene: &lightfold_scene::Scene) -> lightfold_scene::Camera {
 /// (last frame's visible chunks) and changes no pixel: illumination, diffuse and depth layers bit
 /// for bit those of the eye pass without it, on every built-in, a 20 k city and the 32 k wall,
 /// from each camera, a narrow turned one and (the city) street level, over frames whose camera
-/// moves (stale occluders), deferred (and, the city, forward). Some frame must hide vertices.
-/// Control (the city): testing a box's farthest corner instead of its nearest
+/// moves (stale occluders), deferred (and, the 20 k city, forward), and a million-triangle city
+/// from its own camera. Some frame must hide vertices. Control (the 20 k city): testing a box's farthest corner instead of its nearest
 /// (`Fault::OcclusionFarCorner`) hides boxes only partly behind the occluders and changes the
 /// picture.
 #[test]
@@ -562,11 +562,25 @@ fn eye_occlusion_changes_no_pixel() {
     let gpu = gpu();
     let mut hidden = 0u64;
     let mut control_differs = false;
-    for case in view_cases(false, (96, 72), 12.0) {
-        let city = case.name.starts_with("city");
+    // A million-triangle city from its own camera, orbiting half a degree a frame: chunks at
+    // the image's border come into view behind occluders that do not cover them (a test that
+    // read the wrong texels of its depth pyramid hid some).
+    let mut big = lightfold_scene::builtin("city:1m").unwrap();
+    big.camera.width = 200;
+    big.camera.height = 150;
+    let big = ViewCase {
+        name: "city:1m".into(),
+        samples: sampling::direct_samples(&big).into_iter().take(2).collect(),
+        cameras: [big.camera, big.camera],
+        scene: big,
+    };
+    for case in view_cases(false, (96, 72), 12.0).into_iter().chain([big]) {
+        let city = case.name == "city:20k";
         let mut cameras = case.cameras.to_vec();
         if city {
             cameras.push(street_camera(&case.scene));
+        } else if case.name == "city:1m" {
+            cameras.truncate(1);
         }
         let variants: &[EyeVariant] = if city {
             &[EyeVariant::Deferred, EyeVariant::Forward]
@@ -575,7 +589,11 @@ fn eye_occlusion_changes_no_pixel() {
         };
         for camera in cameras {
             // The camera moves between frames: the occluders are the last frame's.
-            let path = [camera, camera.orbited(4.0), camera.orbited(-3.0)];
+            let path = if case.name == "city:1m" {
+                [camera, camera.orbited(0.5), camera.orbited(1.0)]
+            } else {
+                [camera, camera.orbited(4.0), camera.orbited(-3.0)]
+            };
             for &variant in variants {
                 let renderer = |occlusion, fault| {
                     let opts = RenderOptions {
