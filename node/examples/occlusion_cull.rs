@@ -4,8 +4,9 @@
 //! camera moving a little every frame (orbiting 0.5° a frame, or walking `--walk` metres a frame
 //! along the street), walkthrough mode (maps kept). Three renderers take turns on every frame:
 //! frustum culling alone, occlusion culling every frame (`Always`) and the default (`Auto`); the
-//! median eye pass of `--frames` each, the vertices drawn and hidden, and whether the pictures
-//! agree bit for bit. Set `LP_NUM_THREADS` as the bench does.
+//! median eye pass of `--frames` each, the vertices drawn and hidden, and the pixels whose depth
+//! or illumination differ from frustum culling's (`OCCLUSION_DIFF=1` lists them). Set
+//! `LP_NUM_THREADS` as the bench does.
 //!
 //! `cargo run --release -p lightfold-node --example occlusion_cull -- [city:N] [--frames N] [--size WxH] [--walk M]`
 
@@ -67,10 +68,12 @@ fn main() -> anyhow::Result<()> {
         let mut ms = vec![Vec::new(); modes.len()];
         let mut drawn = vec![Vec::new(); modes.len()];
         let mut hidden = vec![Vec::new(); modes.len()];
-        let mut same = true;
+        // Pixels whose depth or illumination differs from the frustum-culled frame's.
+        let mut differ = vec![0usize; modes.len()];
         for i in 1..=frames {
             let camera = camera_at(i);
-            let mut first = None;
+            let mut out: Vec<Option<lightfold_node::gpu::NodeFrame>> = Vec::new();
+            out.resize_with(modes.len(), || None);
             // A different renderer goes first each frame.
             for k in 0..modes.len() {
                 let m = (k + i as usize) % modes.len();
@@ -80,27 +83,52 @@ fn main() -> anyhow::Result<()> {
                 ms[m].push(f.stats.eye_us as f64 / 1e3);
                 drawn[m].push(f64::from(r.eye_vertices()));
                 hidden[m].push(f64::from(r.occluded_vertices()));
-                match &first {
-                    None => first = Some(f),
-                    Some(g) => {
-                        same &= g.illumination == f.illumination && g.depth == f.depth;
+                out[m] = Some(f);
+            }
+            let base = out[0].as_ref().expect("rendered");
+            for (m, f) in out.iter().enumerate().skip(1) {
+                let f = f.as_ref().expect("rendered");
+                let (Some(a), Some(b), Some(ia), Some(ib)) = (
+                    base.depth.as_ref(),
+                    f.depth.as_ref(),
+                    base.illumination.as_ref(),
+                    f.illumination.as_ref(),
+                ) else {
+                    anyhow::bail!("a frame without its depth or illumination");
+                };
+                let per = ia.channels as usize;
+                for p in 0..a.data.len() {
+                    // Bit for bit (a NaN is the same NaN).
+                    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    if a.data[p].to_bits() != b.data[p].to_bits()
+                        || bits(&ia.data[p * per..][..per]) != bits(&ib.data[p * per..][..per])
+                    {
+                        differ[m] += 1;
+                        if std::env::var_os("OCCLUSION_DIFF").is_some() {
+                            eprintln!(
+                                "frame {i}, {}: pixel ({}, {}) depth {} against {}",
+                                modes[m].0,
+                                p as u32 % a.width,
+                                p as u32 / a.width,
+                                b.data[p],
+                                a.data[p]
+                            );
+                        }
                     }
                 }
             }
         }
         let median = |v: &[f64]| stats::median(v).unwrap_or(f64::NAN);
         let base = median(&ms[0]);
-        println!(
-            "{what} (pictures {}):",
-            if same { "identical" } else { "DIFFER" }
-        );
+        println!("{what}:");
         for (m, (label, _)) in modes.iter().enumerate() {
             println!(
-                "  {label:>9}: eye pass {:8.1} ms ({:.2}×), vertices drawn {:>10.0}, hidden {:>10.0}",
+                "  {label:>9}: eye pass {:8.1} ms ({:.2}×), vertices drawn {:>10.0}, hidden {:>10.0}, pixels differing {}",
                 median(&ms[m]),
                 median(&ms[m]) / base,
                 median(&drawn[m]),
                 median(&hidden[m]),
+                differ[m],
             );
         }
     }
