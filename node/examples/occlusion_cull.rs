@@ -96,7 +96,7 @@ fn main() -> anyhow::Result<()> {
                 ) else {
                     anyhow::bail!("a frame without its depth or illumination");
                 };
-                let per = ia.channels as usize;
+                let per = ia.channels;
                 for p in 0..a.data.len() {
                     // Bit for bit (a NaN is the same NaN).
                     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();

@@ -19,9 +19,11 @@
 //! are the next frame's occluders. A frame without occluders (the first, or after a pause) draws
 //! every candidate and tests them afterwards against the eye pass's own depth, which costs no
 //! second raster. Under [`EyeOcclusion::Auto`] (the default) frames whose candidates hold fewer
-//! than [`AUTO_MIN_VERTICES`] are not tested, and a test that hides less than
-//! [`AUTO_MIN_HIDDEN`] of the candidates' vertices pauses culling for [`AUTO_PAUSE`] frames:
-//! an open view pays a reduction and a test now and then, never the occluders' raster.
+//! than [`AUTO_MIN_VERTICES`] are not tested, and culling pauses for [`AUTO_PAUSE`] frames after
+//! a test that hid less than [`AUTO_MIN_HIDDEN`] of the candidates' vertices or a culled eye pass
+//! slower than the last one without ([`pays`]): an open view pays a reduction and a test now and
+//! then, never the occluders' raster, and a device whose eye pass is bound by its pixels stops
+//! drawing occluders it gains nothing from.
 
 use super::eye_pass::{EyeDraws, EyeInputs, draw_eye, eye_bind_group, scissor};
 use super::frame::RenderError;
@@ -36,7 +38,8 @@ pub enum EyeOcclusion {
     Off,
     /// Where it pays: frames of fewer than [`AUTO_MIN_VERTICES`] candidate vertices are not
     /// tested, and culling pauses for [`AUTO_PAUSE`] frames after a test hid less than
-    /// [`AUTO_MIN_HIDDEN`] of the candidates' vertices (the default).
+    /// [`AUTO_MIN_HIDDEN`] of the candidates' vertices or a culled eye pass was slower than the
+    /// last one without ([`pays`]; the default).
     #[default]
     Auto,
     /// Every frame, whatever it hides (tests, measurements).
@@ -59,6 +62,16 @@ pub const AUTO_PAUSE: u32 = 15;
 /// Most boxes one test takes (its dispatch's workgroup count and binding limits); a frame with
 /// more candidates draws them all.
 pub(super) const MAX_BOXES: usize = 65_535 * TEST_WORKGROUP as usize;
+
+/// Whether [`EyeOcclusion::Auto`] keeps culling after a test that hid `hidden` of `all` candidate
+/// vertices: it must hide at least [`AUTO_MIN_HIDDEN`] of them, and where the frame drew
+/// occluders, its eye pass (`timing.0`, occluders and test included, µs) must have been no slower
+/// than the last one drawn without (`timing.1`): on a device whose eye pass is bound by its
+/// pixels, hiding vertices saves nothing and the occluders' raster is a loss.
+pub(super) fn pays(hidden: u64, all: u64, timing: Option<(u64, u64)>) -> bool {
+    let enough = hidden as f64 >= f64::from(AUTO_MIN_HIDDEN) * all as f64 && hidden > 0;
+    enough && timing.is_none_or(|(culled, plain)| culled <= plain)
+}
 
 /// A box is hidden only where its nearest depth is below the farthest occluder depth by more
 /// than this share (the occluders' and the eye pass's pipelines may round a vertex apart).
@@ -482,6 +495,19 @@ mod tests {
     /// Every level covers the image exactly: level l is ⌈w / 2^(l+1)⌉ × ⌈h / 2^(l+1)⌉ texels
     /// (so texel x covers pixels [x·2^(l+1), (x+1)·2^(l+1))), packed without gaps, ending at one
     /// texel, within what a test reads.
+    #[test]
+    fn auto_culls_where_it_hides_enough_and_is_no_slower() {
+        // Hides a quarter or more: kept until a culled frame is timed.
+        assert!(pays(25, 100, None));
+        assert!(!pays(24, 100, None));
+        assert!(!pays(0, 0, None));
+        // Timed: kept while no slower than the last plain eye pass.
+        assert!(pays(80, 100, Some((900, 1000))));
+        assert!(pays(80, 100, Some((1000, 1000))));
+        assert!(!pays(80, 100, Some((1100, 1000))));
+        assert!(!pays(10, 100, Some((500, 1000))));
+    }
+
     #[test]
     fn levels_cover_the_image() {
         for (w, h) in [

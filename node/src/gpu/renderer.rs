@@ -124,6 +124,9 @@ pub struct Renderer {
     occluders: Option<Vec<u32>>,
     occlusion_pause: u32,
     occluded_vertices: u32,
+    /// The last eye pass drawn without occluders, in microseconds ([`EyeOcclusion::Auto`]
+    /// compares a culled eye pass with it).
+    plain_eye_us: Option<u64>,
     /// The image rows `[y0, y1)` frames render (a sort-first tile); `None`: every row.
     rows: Option<[u32; 2]>,
     /// The eye layer frames render (`NodeConfig::peel`; `None`: the classic eye pass).
@@ -223,6 +226,7 @@ impl Renderer {
             occluders: None,
             occlusion_pause: 0,
             occluded_vertices: 0,
+            plain_eye_us: None,
             rows: None,
             peel: None,
             peel_pass: None,
@@ -468,6 +472,7 @@ impl Renderer {
         self.occlusion = occlusion;
         self.occluders = None;
         self.occlusion_pause = 0;
+        self.plain_eye_us = None;
     }
 
     /// Vertices occlusion culling left out of the last eye pass (of those frustum culling kept).
@@ -920,6 +925,7 @@ impl Renderer {
         w: u32,
         h: u32,
     ) -> Result<(), RenderError> {
+        let started = Instant::now();
         if !self
             .targets
             .as_ref()
@@ -1067,8 +1073,14 @@ impl Renderer {
                 .get_or_insert_with(|| AmbientMaskPass::new(&gpu.device))
                 .run(&gpu.device, &gpu.queue, m_diffuse, m_ambient);
         }
-        self.occlusion_result(step, candidates.as_deref(), shown.as_deref());
-        wait(gpu)
+        wait(gpu)?;
+        self.occlusion_result(
+            step,
+            candidates.as_deref(),
+            shown.as_deref(),
+            started.elapsed().as_micros() as u64,
+        );
+        Ok(())
     }
 
     /// Reads the frame's requested layers back as f32 images (`lit_buffer`: the illumination is
@@ -1345,14 +1357,20 @@ impl Renderer {
     }
 
     /// Keeps what this frame's test found: the visible chunks as the next frame's occluders, or
-    /// (under [`EyeOcclusion::Auto`], when it hid too little to pay) a pause.
+    /// (under [`EyeOcclusion::Auto`], where culling does not pay: [`occlusion::pays`]) a pause.
+    /// `eye_us`: this frame's eye pass, occluders and test included.
     fn occlusion_result(
         &mut self,
         step: OcclusionStep,
         candidates: Option<&[EyeChunk]>,
         shown: Option<&[bool]>,
+        eye_us: u64,
     ) {
         self.occluded_vertices = 0;
+        let culled = matches!(step, OcclusionStep::Occluders(_));
+        if !culled {
+            self.plain_eye_us = Some(eye_us);
+        }
         let (Some(c), Some(v)) = (candidates, shown) else {
             return;
         };
@@ -1364,12 +1382,11 @@ impl Renderer {
                 .sum()
         };
         let (hidden, all) = (count(true), count(true) + count(false));
-        if matches!(step, OcclusionStep::Occluders(_)) {
+        if culled {
             self.occluded_vertices = hidden as u32;
         }
-        if self.occlusion == EyeOcclusion::Auto
-            && (hidden as f64) < f64::from(occlusion::AUTO_MIN_HIDDEN) * all as f64
-        {
+        let timing = culled.then_some(eye_us).zip(self.plain_eye_us);
+        if self.occlusion == EyeOcclusion::Auto && !occlusion::pays(hidden, all, timing) {
             self.occluders = None;
             self.occlusion_pause = occlusion::AUTO_PAUSE;
             return;
