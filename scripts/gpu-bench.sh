@@ -20,7 +20,8 @@
 #    requests in flight (device ms, CPU ms outside the device, interval ÷ device, bytes read back
 #    a pixel);
 # 3. `bench node` for animal, plant and box, the city at 1 M and 4 M triangles, shadow LOD off
-#    and on (the city at 4 M), and the GPU tests, as time allows.
+#    and on (the city at 4 M), occlusion culling (the city at 4 M, own camera and street level),
+#    and the GPU tests, as time allows.
 # Every table goes to a file under OUT_DIR. Each step checks the clock: the whole run stays under
 # about 9 minutes, and a step that would not fit is skipped with a line saying so (never
 # silently).
@@ -152,6 +153,20 @@ if skip_unless 90 "shadow LOD city:4M"; then
       || echo "shadow LOD: see $out/shadow-lod.txt" | tee -a "$out/log.txt"
   else
     echo "skipped: shadow LOD (no cargo here)" | tee -a "$out/log.txt"
+  fi
+fi
+
+# Occlusion culling (docs/scaling.md § Occlusion culling): the city at 4 M triangles from its
+# own camera and at street level, frustum culling alone, occlusion every frame and the default,
+# taking turns in one run.
+if skip_unless 90 "occlusion culling city:4M"; then
+  step "occlusion culling city:4M 1920x1080"
+  if command -v cargo >/dev/null; then
+    timeout 150 cargo run --release -q -p lightfold-node --example occlusion_cull -- \
+      --scene city:4M --size 1920x1080 --frames 5 2>&1 | grep -v INFO | tee "$out/occlusion.txt" \
+      || echo "occlusion culling: see $out/occlusion.txt" | tee -a "$out/log.txt"
+  else
+    echo "skipped: occlusion culling (no cargo here)" | tee -a "$out/log.txt"
   fi
 fi
 

@@ -228,6 +228,11 @@ pub const PACK_WGSL: &str = include_str!("../wgsl/pack.wgsl");
 /// pass's material targets (`node::gpu::ambient_mask`).
 pub const AMBIENT_MASK_WGSL: &str = include_str!("../wgsl/ambient_mask.wgsl");
 
+/// The eye pass's occlusion culling: `cs_reduce_depth` and `cs_reduce` build a hierarchical depth
+/// of the farthest depth per texel, `cs_test` tests boxes against it (`node::gpu::occlusion`).
+/// The occluders' depth pass is the forward module's `fs_occluder`.
+pub const OCCLUSION_WGSL: &str = include_str!("../wgsl/occlusion.wgsl");
+
 /// Every complete shader module with a name, for validation and diagnostics.
 pub const MODULES: &[(&str, &str)] = &[
     ("shadow", SHADOW_WGSL),
@@ -251,6 +256,7 @@ pub const MODULES: &[(&str, &str)] = &[
     ),
     ("pack", PACK_WGSL),
     ("ambient mask", AMBIENT_MASK_WGSL),
+    ("occlusion", OCCLUSION_WGSL),
 ];
 
 #[cfg(test)]
@@ -302,9 +308,19 @@ mod tests {
                 .iter()
                 .any(|n| n == "cs_ambient_mask")
         );
+        let occlusion = names(OCCLUSION_WGSL, "occlusion");
+        for e in ["cs_reduce_depth", "cs_reduce", "cs_test"] {
+            assert!(occlusion.iter().any(|n| n == e), "occlusion lacks {e}");
+        }
         for src in [FORWARD_WGSL, FORWARD_MR_WGSL, FORWARD_MR_MAPPED_WGSL] {
             let forward = names(src, "forward");
-            for e in ["vs_eye", "fs_illumination", "fs_layers", "fs_eye_filter"] {
+            for e in [
+                "vs_eye",
+                "fs_illumination",
+                "fs_layers",
+                "fs_eye_filter",
+                "fs_occluder",
+            ] {
                 assert!(forward.iter().any(|n| n == e), "forward lacks {e}");
             }
         }

@@ -49,3 +49,12 @@ fn fs_layers(in: VsOut, @builtin(front_facing) front: bool) -> LayersOut {
     out.emissive = m.emissive;
     return out;
 }
+
+// The occluders' depth pass (`node::gpu::occlusion`): depth only, where the eye pass would write
+// it (the same rejection), so the depth it leaves is never nearer than the eye pass's.
+@fragment
+fn fs_occluder(in: VsOut, @builtin(front_facing) front: bool) {
+    if rejected(in, front) {
+        discard;
+    }
+}

@@ -85,10 +85,11 @@ fn target(
     h: u32,
     format: wgpu::TextureFormat,
 ) -> wgpu::Texture {
-    // Depth buffers are never read back (GL cannot copy them); colour targets are.
-    // Material targets are also read by the ambient-mask pass (`gpu::ambient_mask`).
+    // Depth buffers are never read back (GL cannot copy them); colour targets are. The depth
+    // buffer is read by occlusion culling's test after the pass (`gpu::occlusion`), material
+    // targets by the ambient-mask pass (`gpu::ambient_mask`).
     let usage = if format == DEPTH_FORMAT {
-        wgpu::TextureUsages::RENDER_ATTACHMENT
+        wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::TEXTURE_BINDING
     } else if format == MATERIAL_FORMAT {
         wgpu::TextureUsages::RENDER_ATTACHMENT
             | wgpu::TextureUsages::COPY_SRC
@@ -263,7 +264,8 @@ pub(super) fn attachments(
 }
 
 /// Records one raster of the scene from the camera into `colour` (cleared to zero) with a
-/// reversed-Z depth buffer (kept for the filters' pass, [`record_filters`], where there is one).
+/// reversed-Z depth buffer (kept for the filters' pass, [`record_filters`], and occlusion
+/// culling's test, `gpu::occlusion`).
 pub(super) fn record_raster(
     cx: &DrawContext<'_>,
     encoder: &mut wgpu::CommandEncoder,
@@ -284,11 +286,7 @@ pub(super) fn record_raster(
             view: &depth_view,
             depth_ops: Some(wgpu::Operations {
                 load: wgpu::LoadOp::Clear(0.0),
-                store: if cx.pipelines.eye_filter.is_some() {
-                    wgpu::StoreOp::Store
-                } else {
-                    wgpu::StoreOp::Discard
-                },
+                store: wgpu::StoreOp::Store,
             }),
             stencil_ops: None,
         }),

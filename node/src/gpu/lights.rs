@@ -37,6 +37,9 @@ pub enum Fault {
     /// The eye pass draws only meshes wholly inside the view (a wrong culling: meshes the
     /// image's border cuts vanish).
     EyeCullPartial,
+    /// Eye-pass occlusion culling tests a box's farthest corner instead of its nearest, so boxes
+    /// only partly behind the occluders are left out (`gpu::occlusion`).
+    OcclusionFarCorner,
     /// Levels are simplified without the area guard and shadow views draw every chunk at its
     /// coarsest, whatever its error (`gpu::lod`).
     LodCoarsest,

@@ -705,7 +705,9 @@ fn eye_locks(
 
 /// Appends the triangles `simplified` (indices into the welded `positions`; `first[i]` the first
 /// of `tris` welded into `i`, whose other attributes the level takes) to `out`, each with its own
-/// geometric normal, as a level of `error`.
+/// geometric normal, as a level of `error`. Triangles of no area (a collapse can leave three
+/// vertices on a line) are left out: they cover nothing, and their normal is no direction (a
+/// rasteriser may still give such a sliver a fragment, which would shade to NaN).
 fn append(
     out: &mut Vec<Vertex>,
     simplified: &[u32],
@@ -718,6 +720,9 @@ fn append(
     for tri in simplified.chunks_exact(3) {
         let p = [0, 1, 2].map(|k| positions[tri[k] as usize]);
         let n = super::scene_data::geometric_normal(p[0], p[1], p[2]);
+        if n == [0.0; 3] {
+            continue;
+        }
         for (k, &i) in tri.iter().enumerate() {
             out.push(Vertex {
                 position: p[k],
@@ -779,6 +784,43 @@ pub fn texel_at(view: &ShadowView, side: f32, lo: [f32; 3], hi: [f32; 3]) -> f32
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A level keeps no triangle of zero area: three welded vertices on a line (what a collapse
+    /// can leave) have no normal, and a rasteriser that still gives the sliver a fragment shaded
+    /// it to NaN (one eye-depth pixel of the million-triangle city's street view did).
+    #[test]
+    fn levels_drop_triangles_of_no_area() {
+        let positions = [
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [2.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0],
+        ];
+        let tris: Vec<Vertex> = positions
+            .iter()
+            .map(|&position| Vertex {
+                position,
+                normal: [0.0, 0.0, 1.0],
+                geometric_normal: [0.0, 0.0, 1.0],
+                uv: [0.0; 2],
+                material: 0,
+                object: 1,
+            })
+            .collect();
+        let first = [0, 1, 2, 3];
+        let mut out = Vec::new();
+        // A proper triangle, then one on the x axis.
+        let level = append(
+            &mut out,
+            &[0, 1, 3, 0, 1, 2],
+            &positions,
+            &first,
+            &tris,
+            0.0,
+        );
+        assert_eq!(level.vertex_count, 3);
+        assert!(out.iter().all(|v| v.geometric_normal == [0.0, 0.0, 1.0]));
+    }
     use crate::gpu::scene_data::SceneData;
     use lightfold_scene::primitives::{cuboid, plane};
     use lightfold_scene::{Material, Scene};

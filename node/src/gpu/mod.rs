@@ -9,6 +9,7 @@ mod eye_pass;
 pub mod frame;
 pub mod lights;
 pub mod lod;
+mod occlusion;
 pub mod pack;
 mod peel;
 mod pipelines;
@@ -24,5 +25,6 @@ pub use frame::{
     check_rows,
 };
 pub use lights::Fault;
+pub use occlusion::{AUTO_MIN_HIDDEN, AUTO_MIN_VERTICES, AUTO_PAUSE, EyeOcclusion};
 pub use peel::MAX_PEEL;
 pub use renderer::Renderer;

@@ -412,7 +412,7 @@ impl DevicePacker {
         encoder.copy_buffer_to_buffer(&counts, 0, &staging, packed_size, counts_size);
         gpu.queue.submit([encoder.finish()]);
 
-        map_for_reading(device, &staging, read_bytes)?;
+        map_for_reading(device, &staging, read_bytes, "the packed frame")?;
         let frame = {
             let mapped = staging
                 .get_mapped_range(..read_bytes)
@@ -668,11 +668,13 @@ fn layer_offsets(
     Ok((offsets, out_size))
 }
 
-/// Maps `staging` for reading and waits for it.
-fn map_for_reading(
+/// Maps the first `size` bytes of `staging` for reading and waits for it; `what` names the
+/// contents in errors.
+pub(super) fn map_for_reading(
     device: &wgpu::Device,
     staging: &wgpu::Buffer,
     size: u64,
+    what: &str,
 ) -> Result<(), RenderError> {
     let (tx, rx) = std::sync::mpsc::channel();
     staging.map_async(wgpu::MapMode::Read, ..size, move |r| {
@@ -680,11 +682,11 @@ fn map_for_reading(
     });
     device
         .poll(wgpu::PollType::wait_indefinitely())
-        .map_err(|e| RenderError::Gpu(format!("pack wait: {e}")))?;
+        .map_err(|e| RenderError::Gpu(format!("waiting for {what}: {e}")))?;
     match rx.try_recv() {
         Ok(Ok(())) => Ok(()),
-        Ok(Err(e)) => Err(RenderError::Gpu(format!("map of the packed frame: {e}"))),
-        Err(_) => Err(RenderError::Gpu("the packed frame was never mapped".into())),
+        Ok(Err(e)) => Err(RenderError::Gpu(format!("map of {what}: {e}"))),
+        Err(_) => Err(RenderError::Gpu(format!("{what} was never mapped"))),
     }
 }
 

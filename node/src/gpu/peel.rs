@@ -22,7 +22,7 @@ use super::eye_pass::{
 };
 use super::pipelines::{
     DrawContext, EYE_DEPTH_FORMAT, GBUFFER_FORMAT, ILLUMINATION_FORMAT, MATERIAL_FORMAT, Pipelines,
-    color_target, depth_state, tangent_layout, vertex_layout,
+    color_target,
 };
 use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
@@ -151,41 +151,12 @@ impl PeelPass {
             bind_group_layouts: &[Some(&p.scene_layout), Some(&p.chunk_layout)],
             immediate_size: 0,
         });
-        let eye_buffers = [Some(vertex_layout()), Some(tangent_layout())];
-        let buffers = if p.normal_mapped {
-            &eye_buffers[..]
-        } else {
-            &eye_buffers[..1]
-        };
+        let rasters = p.eye_rasters(device);
         let raster = |module: &wgpu::ShaderModule,
                       layout: &wgpu::PipelineLayout,
                       fs: &str,
                       targets: &[Option<wgpu::ColorTargetState>]| {
-            device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-                label: Some(fs),
-                layout: Some(layout),
-                vertex: wgpu::VertexState {
-                    module,
-                    entry_point: Some("vs_eye"),
-                    compilation_options: Default::default(),
-                    buffers,
-                },
-                // Sidedness is decided per material in the shader.
-                primitive: wgpu::PrimitiveState::default(),
-                depth_stencil: Some(depth_state(true)),
-                multisample: Default::default(),
-                fragment: Some(wgpu::FragmentState {
-                    module,
-                    entry_point: Some(fs),
-                    compilation_options: wgpu::PipelineCompilationOptions {
-                        constants: p.eye_constants(),
-                        ..Default::default()
-                    },
-                    targets,
-                }),
-                multiview_mask: None,
-                cache: None,
-            })
+            rasters.pipeline(module, layout, fs, targets, true)
         };
         let pipeline = |layout: &wgpu::PipelineLayout,
                         fs: &str,

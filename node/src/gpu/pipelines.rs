@@ -564,8 +564,9 @@ struct EyePipelines {
 
 /// What every eye raster is built with: the device, the shadow filter's pipeline constants and
 /// whether the vertex stage reads a tangent per vertex.
+/// The renderer's own passes build theirs through [`Pipelines::eye_rasters`].
 #[derive(Debug, Clone, Copy)]
-struct EyeRasters<'a> {
+pub(super) struct EyeRasters<'a> {
     device: &'a wgpu::Device,
     filter: &'a [(&'static str, f64); 3],
     normal_mapped: bool,
@@ -574,7 +575,7 @@ struct EyeRasters<'a> {
 impl EyeRasters<'_> {
     /// One eye raster of `module`'s `vs_eye` and `fs` into `targets`. `write`: the raster
     /// writes depth (the filters' pass only tests against it).
-    fn pipeline(
+    pub(super) fn pipeline(
         &self,
         module: &wgpu::ShaderModule,
         layout: &wgpu::PipelineLayout,
@@ -841,9 +842,14 @@ impl Pipelines {
         }
     }
 
-    /// The eye pipelines' constants: the shadow filter's and `TRANSLUCENT`.
-    pub(super) fn eye_constants(&self) -> &[(&'static str, f64); 3] {
-        &self.filter
+    /// Builds eye rasters as the scene's own are built (its constants and vertex buffers), for
+    /// the passes that compile modules of their own (`gpu::peel`, `gpu::occlusion`).
+    pub(super) fn eye_rasters<'a>(&'a self, device: &'a wgpu::Device) -> EyeRasters<'a> {
+        EyeRasters {
+            device,
+            filter: &self.filter,
+            normal_mapped: self.normal_mapped,
+        }
     }
 
     /// The deferred light pass for `lights`, compiled on first use (a handle: clones share the

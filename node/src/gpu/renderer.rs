@@ -18,6 +18,7 @@ use super::frame::{EyeVariant, LayerSet, NodeFrame, RenderError, RenderOptions, 
 use super::lights::{
     Fault, Fit, LAYERED_TEXEL_BYTES, LightPlan, Sides, TRANSLUCENT_TEXEL_BYTES, plan_lights_within,
 };
+use super::occlusion::{self, EyeOcclusion, OcclusionPass};
 use super::pack::{self, DevicePacker, PackLayer, PackSource, PackedFrame};
 use super::peel::PeelPass;
 use super::pipelines::{DrawContext, LightSet, Pipelines};
@@ -114,6 +115,18 @@ pub struct Renderer {
     eye_culling: bool,
     /// Vertices the last eye pass drew.
     eye_vertices: u32,
+    /// Eye-pass occlusion culling (`gpu::occlusion`): the mode, its passes once a frame used
+    /// them, the chunks visible in the last tested frame (the next frame's occluders), the
+    /// frames left in an [`EyeOcclusion::Auto`] pause, and the vertices it left out of the last
+    /// eye pass.
+    occlusion: EyeOcclusion,
+    occlusion_pass: Option<OcclusionPass>,
+    occluders: Option<Vec<u32>>,
+    occlusion_pause: u32,
+    occluded_vertices: u32,
+    /// The last eye pass drawn without occluders, in microseconds ([`EyeOcclusion::Auto`]
+    /// compares a culled eye pass with it).
+    plain_eye_us: Option<u64>,
     /// The image rows `[y0, y1)` frames render (a sort-first tile); `None`: every row.
     rows: Option<[u32; 2]>,
     /// The eye layer frames render (`NodeConfig::peel`; `None`: the classic eye pass).
@@ -208,6 +221,12 @@ impl Renderer {
             eye_meshes: None,
             eye_culling: true,
             eye_vertices: 0,
+            occlusion: EyeOcclusion::default(),
+            occlusion_pass: None,
+            occluders: None,
+            occlusion_pause: 0,
+            occluded_vertices: 0,
+            plain_eye_us: None,
             rows: None,
             peel: None,
             peel_pass: None,
@@ -445,6 +464,20 @@ impl Renderer {
     /// default; the image is the same either way: a mesh outside makes no fragment).
     pub fn set_eye_culling(&mut self, on: bool) {
         self.eye_culling = on;
+    }
+
+    /// Whether the eye pass also leaves out the chunks hidden behind others (`gpu::occlusion`;
+    /// [`EyeOcclusion::Auto`] by default). The image is the same either way.
+    pub fn set_eye_occlusion(&mut self, occlusion: EyeOcclusion) {
+        self.occlusion = occlusion;
+        self.occluders = None;
+        self.occlusion_pause = 0;
+        self.plain_eye_us = None;
+    }
+
+    /// Vertices occlusion culling left out of the last eye pass (of those frustum culling kept).
+    pub fn occluded_vertices(&self) -> u32 {
+        self.occluded_vertices
     }
 
     /// Renders only the image rows `[y0, y1)` from the next frame on (`None`: every row), a
@@ -892,6 +925,7 @@ impl Renderer {
         w: u32,
         h: u32,
     ) -> Result<(), RenderError> {
+        let started = Instant::now();
         if !self
             .targets
             .as_ref()
@@ -907,8 +941,11 @@ impl Renderer {
         let light_pass = self
             .pipelines
             .light_pass(&gpu.device, LightSet::of(&plan.lights))?;
-        let targets = self.targets.as_ref().expect("allocated above");
         let frame = self.frame_uniform(plan);
+        let rows = self.raster_rows(h);
+        let candidates = self.eye_candidates(&self.cull_view_proj(&frame.view_proj, h));
+        let step = self.occlusion_step(candidates.as_deref());
+        let targets = self.targets.as_ref().expect("allocated above");
         let maps = self.maps.as_ref().expect("allocated with the shadow maps");
         let inputs = EyeInputs {
             frame,
@@ -919,9 +956,54 @@ impl Renderer {
             material_layers: layers.any_material(),
             vertex_count: self.scene.vertex_count,
         };
+        let far_corner = self.options.fault == Some(Fault::OcclusionFarCorner);
+        let test = |boxes| occlusion::Test {
+            view_proj: frame.view_proj,
+            width: w,
+            height: h,
+            boxes,
+            rows,
+            far_corner,
+        };
+        let mut pass = match step {
+            OcclusionStep::Off => None,
+            _ => Some(
+                self.occlusion_pass
+                    .take()
+                    .unwrap_or_else(|| OcclusionPass::new(&gpu.device, &self.pipelines)),
+            ),
+        };
+        let boxes: Vec<_> = match (&step, &candidates) {
+            (OcclusionStep::Off, _) | (_, None) => Vec::new(),
+            (_, Some(c)) => c.iter().map(|e| e.bounds).collect(),
+        };
+        // With occluders: draw them, test every candidate, keep those that may show.
+        let mut shown = None;
+        if let (OcclusionStep::Occluders(occluders), Some(c), Some(pass)) =
+            (&step, &candidates, pass.as_mut())
+        {
+            let draws = EyeDraws {
+                rows,
+                ..eye_draws_of(
+                    c.iter()
+                        .filter(|e| occluders.binary_search(&e.chunk).is_ok()),
+                )
+            };
+            let visible = pass.occluded_by(&self.draw_context(gpu), &inputs, &draws, &test(&boxes));
+            shown = Some(visible?);
+        }
         let draws = EyeDraws {
-            rows: self.raster_rows(h),
-            ..self.eye_draws(&self.cull_view_proj(&frame.view_proj, h))
+            rows,
+            ..match (&candidates, &shown) {
+                (None, _) => EyeDraws {
+                    scene: std::iter::once(0..self.scene.vertex_count).collect(),
+                    ..EyeDraws::default()
+                },
+                (Some(c), None) => eye_draws_of(c.iter()),
+                (Some(c), Some(v)) => {
+                    eye_draws_of(c.iter().zip(v).filter(|(_, v)| **v).map(|(e, _)| e))
+                }
+            }
         };
         self.eye_vertices = draws.vertices();
         if variant == EyeVariant::Deferred {
@@ -972,13 +1054,33 @@ impl Renderer {
         } else {
             render_eye(&self.draw_context(gpu), &draws, targets, &inputs);
         }
+        // Without occluders: test the candidates against the eye pass's own depth, for the next
+        // frame's.
+        if let (OcclusionStep::After, Some(pass)) = (&step, pass.as_mut()) {
+            let visible = pass.visible_in(
+                &self.draw_context(gpu),
+                &targets.depth_buffer,
+                &test(&boxes),
+            );
+            shown = Some(visible?);
+        }
+        if let Some(p) = pass {
+            self.occlusion_pass = Some(p);
+        }
         if layers.ambient_mask {
             let [m_diffuse, _, m_ambient, _] = &targets.materials;
             self.ambient_mask
                 .get_or_insert_with(|| AmbientMaskPass::new(&gpu.device))
                 .run(&gpu.device, &gpu.queue, m_diffuse, m_ambient);
         }
-        wait(gpu)
+        wait(gpu)?;
+        self.occlusion_result(
+            step,
+            candidates.as_deref(),
+            shown.as_deref(),
+            started.elapsed().as_micros() as u64,
+        );
+        Ok(())
     }
 
     /// Reads the frame's requested layers back as f32 images (`lit_buffer`: the illumination is
@@ -1171,20 +1273,18 @@ impl Renderer {
         }
     }
 
-    /// The vertex ranges the eye pass draws: every mesh, or those of
-    /// [`Renderer::set_eye_meshes`], less (with eye culling) the chunks whose bounds miss the
-    /// frustum of `view_proj` (contiguous ones merged into one draw); a chunk with a lossless
-    /// eye level (`gpu::lod`) from the level buffer.
-    fn eye_draws(&self, view_proj: &[[f32; 4]; 4]) -> EyeDraws {
+    /// The chunks the eye pass may draw: every mesh's, or those of [`Renderer::set_eye_meshes`],
+    /// less (with eye culling) those whose bounds miss the frustum of `view_proj`; a chunk with
+    /// a lossless eye level (`gpu::lod`) from the level buffer. `None`: every vertex of the
+    /// scene, with nothing to choose (no culling, partition, level or occlusion culling).
+    fn eye_candidates(&self, view_proj: &[[f32; 4]; 4]) -> Option<Vec<EyeChunk>> {
         let partial = self.options.fault == Some(Fault::EyeCullPartial);
         let lossy = self.options.fault == Some(Fault::EyeLodLossy);
         let lods = &self.scene.lods;
         let levels = self.lod_vertices.is_some() && if lossy { lods.any() } else { lods.has_eye() };
-        if self.eye_meshes.is_none() && !self.eye_culling && !partial && !levels {
-            return EyeDraws {
-                scene: std::iter::once(0..self.scene.vertex_count).collect(),
-                ..EyeDraws::default()
-            };
+        let occlusion = self.occlusion != EyeOcclusion::Off && self.peel.is_none();
+        if self.eye_meshes.is_none() && !self.eye_culling && !partial && !levels && !occlusion {
+            return None;
         }
         let shown = |(lo, hi): ([f32; 3], [f32; 3])| {
             if partial {
@@ -1202,7 +1302,7 @@ impl Renderer {
             ),
             None => Box::new(self.scene.meshes.iter()),
         };
-        let mut draws = EyeDraws::default();
+        let mut chunks = Vec::new();
         for r in chosen {
             let first = r.first_chunk as usize;
             for (k, c) in self.scene.mesh_chunks(r).iter().enumerate() {
@@ -1216,19 +1316,89 @@ impl Renderer {
                 } else {
                     lods.eye_level(first + k)
                 };
-                match level {
-                    Some(l) => draws
-                        .levels
-                        .push(l.first_vertex..l.first_vertex + l.vertex_count),
-                    None => draws
-                        .scene
-                        .push(c.first_vertex..c.first_vertex + c.vertex_count),
-                }
+                chunks.push(EyeChunk {
+                    chunk: (first + k) as u32,
+                    bounds: c.bounds,
+                    level: level.is_some(),
+                    range: match level {
+                        Some(l) => l.first_vertex..l.first_vertex + l.vertex_count,
+                        None => c.first_vertex..c.first_vertex + c.vertex_count,
+                    },
+                });
             }
         }
-        draws.scene = super::scene_data::merged(draws.scene);
-        draws.levels = super::scene_data::merged(draws.levels);
-        draws
+        Some(chunks)
+    }
+
+    /// What occlusion culling does this frame: test against last frame's visible chunks, test
+    /// after the eye pass (no occluders yet), or nothing (off, paused, a peel, every vertex
+    /// drawn, or more boxes than one test takes).
+    fn occlusion_step(&mut self, candidates: Option<&[EyeChunk]>) -> OcclusionStep {
+        let testable = candidates.is_some_and(|c| {
+            c.len() <= occlusion::MAX_BOXES
+                && (self.occlusion == EyeOcclusion::Always
+                    || c.iter()
+                        .map(|e| u64::from(e.range.end - e.range.start))
+                        .sum::<u64>()
+                        >= occlusion::AUTO_MIN_VERTICES)
+        });
+        if self.occlusion == EyeOcclusion::Off || self.peel.is_some() || !testable {
+            self.occluders = None;
+            return OcclusionStep::Off;
+        }
+        if self.occlusion_pause > 0 {
+            self.occlusion_pause -= 1;
+            return OcclusionStep::Off;
+        }
+        match self.occluders.take() {
+            Some(o) => OcclusionStep::Occluders(o),
+            None => OcclusionStep::After,
+        }
+    }
+
+    /// Keeps what this frame's test found: the visible chunks as the next frame's occluders, or
+    /// (under [`EyeOcclusion::Auto`], where culling does not pay: [`occlusion::pays`]) a pause.
+    /// `eye_us`: this frame's eye pass, occluders and test included.
+    fn occlusion_result(
+        &mut self,
+        step: OcclusionStep,
+        candidates: Option<&[EyeChunk]>,
+        shown: Option<&[bool]>,
+        eye_us: u64,
+    ) {
+        self.occluded_vertices = 0;
+        let culled = matches!(step, OcclusionStep::Occluders(_));
+        if !culled {
+            self.plain_eye_us = Some(eye_us);
+        }
+        let (Some(c), Some(v)) = (candidates, shown) else {
+            return;
+        };
+        let count = |hidden: bool| -> u64 {
+            c.iter()
+                .zip(v)
+                .filter(|(_, v)| **v != hidden)
+                .map(|(e, _)| u64::from(e.range.end - e.range.start))
+                .sum()
+        };
+        let (hidden, all) = (count(true), count(true) + count(false));
+        if culled {
+            self.occluded_vertices = hidden as u32;
+        }
+        let timing = culled.then_some(eye_us).zip(self.plain_eye_us);
+        if self.occlusion == EyeOcclusion::Auto && !occlusion::pays(hidden, all, timing) {
+            self.occluders = None;
+            self.occlusion_pause = occlusion::AUTO_PAUSE;
+            return;
+        }
+        let mut visible: Vec<u32> = c
+            .iter()
+            .zip(v)
+            .filter(|(_, v)| **v)
+            .map(|(e, _)| e.chunk)
+            .collect();
+        visible.sort_unstable();
+        self.occluders = Some(visible);
     }
 
     /// Per light of the frame, whether it has translucent casters (`casters[λ]`, or any mesh
@@ -1567,6 +1737,43 @@ fn transmittance_output(
             "a transmittance layer needs a translucent peel (peel >= 1)".into(),
         )),
     }
+}
+
+/// One chunk the eye pass may draw: its index in the scene's chunks, its bounds and its vertex
+/// range (in the level buffer where `level`).
+#[derive(Debug, Clone)]
+struct EyeChunk {
+    chunk: u32,
+    bounds: ([f32; 3], [f32; 3]),
+    level: bool,
+    range: std::ops::Range<u32>,
+}
+
+/// The eye pass's draws of `chunks`, contiguous ranges merged.
+fn eye_draws_of<'a>(chunks: impl Iterator<Item = &'a EyeChunk>) -> EyeDraws {
+    let (mut scene, mut levels) = (Vec::new(), Vec::new());
+    for c in chunks {
+        if c.level {
+            levels.push(c.range.clone());
+        } else {
+            scene.push(c.range.clone());
+        }
+    }
+    EyeDraws {
+        scene: super::scene_data::merged(scene),
+        levels: super::scene_data::merged(levels),
+        rows: None,
+    }
+}
+
+/// What occlusion culling does in one frame (`Renderer::occlusion_step`).
+#[derive(Debug)]
+enum OcclusionStep {
+    Off,
+    /// Draw these chunks (sorted) as occluders and test every candidate against them.
+    Occluders(Vec<u32>),
+    /// Draw every candidate, then test them against the eye pass's depth for the next frame.
+    After,
 }
 
 fn wait(gpu: &Gpu) -> Result<(), RenderError> {

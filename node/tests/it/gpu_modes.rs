@@ -538,6 +538,114 @@ fn eye_culling_changes_no_pixel() {
     );
 }
 
+/// The city's street-level camera of `docs/scaling.md`: along a street, most of the city hidden
+/// behind its first buildings.
+fn street_camera(scene: &lightfold_scene::Scene) -> lightfold_scene::Camera {
+    let mut street = scene.camera;
+    street.position = [0.5, 1.7, 0.5];
+    street.target = [40.0, 1.7, 0.5];
+    street.fov_y_deg = 50.0;
+    street
+}
+
+/// Issue 48: occlusion culling (`gpu::occlusion`) leaves out chunks hidden behind the occluders
+/// (last frame's visible chunks) and changes no pixel: illumination, diffuse and depth layers bit
+/// for bit those of the eye pass without it, on every built-in, a 20 k city and the 32 k wall,
+/// from each camera, a narrow turned one and (the city) street level, over frames whose camera
+/// moves (stale occluders), deferred (and, the 20 k city, forward), and a million-triangle city
+/// from its own camera. Some frame must hide vertices. Control (the 20 k city): testing a box's farthest corner instead of its nearest
+/// (`Fault::OcclusionFarCorner`) hides boxes only partly behind the occluders and changes the
+/// picture.
+#[test]
+fn eye_occlusion_changes_no_pixel() {
+    use lightfold_node::gpu::EyeOcclusion;
+    let gpu = gpu();
+    let mut hidden = 0u64;
+    let mut control_differs = false;
+    // A million-triangle city from its own camera, orbiting half a degree a frame: chunks at
+    // the image's border come into view behind occluders that do not cover them (a test that
+    // read the wrong texels of its depth pyramid hid some).
+    let mut big = lightfold_scene::builtin("city:1m").unwrap();
+    big.camera.width = 200;
+    big.camera.height = 150;
+    let big = ViewCase {
+        name: "city:1m".into(),
+        samples: sampling::direct_samples(&big).into_iter().take(2).collect(),
+        cameras: [big.camera, big.camera],
+        scene: big,
+    };
+    for case in view_cases(false, (96, 72), 12.0).into_iter().chain([big]) {
+        let city = case.name == "city:20k";
+        let mut cameras = case.cameras.to_vec();
+        if city {
+            cameras.push(street_camera(&case.scene));
+        } else if case.name == "city:1m" {
+            cameras.truncate(1);
+        }
+        let variants: &[EyeVariant] = if city {
+            &[EyeVariant::Deferred, EyeVariant::Forward]
+        } else {
+            &[EyeVariant::Deferred]
+        };
+        for camera in cameras {
+            // The camera moves between frames: the occluders are the last frame's.
+            let path = if case.name == "city:1m" {
+                [camera, camera.orbited(0.5), camera.orbited(1.0)]
+            } else {
+                [camera, camera.orbited(4.0), camera.orbited(-3.0)]
+            };
+            for &variant in variants {
+                let renderer = |occlusion, fault| {
+                    let opts = RenderOptions {
+                        fault,
+                        ..RenderOptions::from_quality(&case.scene.quality)
+                    };
+                    let mut r = Renderer::new(&gpu, &case.scene, opts).unwrap();
+                    r.set_variant(variant);
+                    r.set_eye_occlusion(occlusion);
+                    r
+                };
+                let mut plain = renderer(EyeOcclusion::Off, None);
+                let mut culled = renderer(EyeOcclusion::Always, None);
+                let mut wrong =
+                    city.then(|| renderer(EyeOcclusion::Always, Some(Fault::OcclusionFarCorner)));
+                for (k, c) in path.iter().enumerate() {
+                    let frame = |r: &mut Renderer| {
+                        r.set_camera(c);
+                        r.render(&gpu, &case.samples, None, C_N, LayerSet::all())
+                            .unwrap()
+                    };
+                    let want = frame(&mut plain);
+                    let got = frame(&mut culled);
+                    let what = format!("{}, frame {k}, {variant:?}", case.name);
+                    assert_eq!(got.illumination, want.illumination, "{what}: illumination");
+                    assert_eq!(got.diffuse, want.diffuse, "{what}: diffuse layer");
+                    assert_eq!(got.depth, want.depth, "{what}: depth layer");
+                    assert_eq!(
+                        culled.eye_vertices() + culled.occluded_vertices(),
+                        plain.eye_vertices(),
+                        "{what}: every candidate drawn or hidden"
+                    );
+                    if k == 0 {
+                        assert_eq!(culled.occluded_vertices(), 0, "no occluders yet");
+                    }
+                    eprintln!(
+                        "{what}: {} vertices drawn, {} hidden",
+                        culled.eye_vertices(),
+                        culled.occluded_vertices()
+                    );
+                    hidden += u64::from(culled.occluded_vertices());
+                    if let Some(wrong) = wrong.as_mut() {
+                        control_differs |= frame(wrong).depth != want.depth;
+                    }
+                }
+            }
+        }
+    }
+    assert!(hidden > 0, "no frame hid a vertex: the test proves nothing");
+    assert!(control_differs, "testing far corners changed no picture");
+}
+
 /// `balls` with a smooth sphere of 32 768 triangles floating over the ground (one mesh large
 /// enough for chunks and their simplified levels, curved, so a level moves its surface).
 fn balls_and_smooth_sphere() -> lightfold_scene::Scene {
