@@ -706,8 +706,9 @@ fn eye_locks(
 /// Appends the triangles `simplified` (indices into the welded `positions`; `first[i]` the first
 /// of `tris` welded into `i`, whose other attributes the level takes) to `out`, each with its own
 /// geometric normal, as a level of `error`. Triangles of no area (a collapse can leave three
-/// vertices on a line) are left out: they cover nothing, and their normal is no direction (a
-/// rasteriser may still give such a sliver a fragment, which would shade to NaN).
+/// vertices on a line, or within rounding of one: area below [`SLIVER`] of the longest edge
+/// squared) are left out: they cover nothing, and their normal is no direction (a rasteriser
+/// may still give such a sliver a fragment, which shaded to NaN).
 fn append(
     out: &mut Vec<Vertex>,
     simplified: &[u32],
@@ -720,7 +721,7 @@ fn append(
     for tri in simplified.chunks_exact(3) {
         let p = [0, 1, 2].map(|k| positions[tri[k] as usize]);
         let n = super::scene_data::geometric_normal(p[0], p[1], p[2]);
-        if n == [0.0; 3] {
+        if n == [0.0; 3] || sliver(p) {
             continue;
         }
         for (k, &i) in tri.iter().enumerate() {
@@ -737,6 +738,21 @@ fn append(
         vertex_count: out.len() as u32 - offset,
         error,
     }
+}
+
+/// A level's triangle whose area is below this share of its longest edge squared is a sliver of
+/// rounding (its height a ten-millionth of its length: what f32 positions hold), not a surface.
+const SLIVER: f64 = 1e-7;
+
+/// Whether the triangle `p` is a sliver ([`SLIVER`]).
+fn sliver(p: [[f32; 3]; 3]) -> bool {
+    let edge = |a: [f32; 3], b: [f32; 3]| -> f64 {
+        (0..3)
+            .map(|k| (f64::from(a[k]) - f64::from(b[k])).powi(2))
+            .sum()
+    };
+    let longest = edge(p[0], p[1]).max(edge(p[1], p[2])).max(edge(p[2], p[0]));
+    area(&[0, 1, 2], &p) < SLIVER * longest
 }
 
 /// The area of the triangles `indices` makes of `positions` (m²).
@@ -820,6 +836,17 @@ mod tests {
         );
         assert_eq!(level.vertex_count, 3);
         assert!(out.iter().all(|v| v.geometric_normal == [0.0, 0.0, 1.0]));
+        // Within rounding of a line (a 4 M city's levels had 17 k such, one shaded to NaN): left
+        // out; a thin but real triangle kept.
+        let thin = |height: f32| {
+            [
+                [-130.96027, 10.809292, 0.9411278],
+                [-130.96027, 21.618584, 3.0],
+                [-130.96027, 14.41239, 1.6274186 + height],
+            ]
+        };
+        assert!(sliver(thin(0.0)));
+        assert!(!sliver(thin(0.01)));
     }
     use crate::gpu::scene_data::SceneData;
     use lightfold_scene::primitives::{cuboid, plane};

@@ -20,8 +20,8 @@
 //! every candidate and tests them afterwards against the eye pass's own depth, which costs no
 //! second raster. Under [`EyeOcclusion::Auto`] (the default) frames whose candidates hold fewer
 //! than [`AUTO_MIN_VERTICES`] are not tested, and culling pauses for [`AUTO_PAUSE`] frames after
-//! a test that hid less than [`AUTO_MIN_HIDDEN`] of the candidates' vertices or a culled eye pass
-//! slower than the last one without ([`pays`]): an open view pays a reduction and a test now and
+//! a test that hid less than [`AUTO_MIN_HIDDEN`] of the candidates' vertices or two culled eye
+//! passes in a row slower than the last one without ([`judge`]): an open view pays a reduction and a test now and
 //! then, never the occluders' raster, and a device whose eye pass is bound by its pixels stops
 //! drawing occluders it gains nothing from.
 
@@ -38,8 +38,8 @@ pub enum EyeOcclusion {
     Off,
     /// Where it pays: frames of fewer than [`AUTO_MIN_VERTICES`] candidate vertices are not
     /// tested, and culling pauses for [`AUTO_PAUSE`] frames after a test hid less than
-    /// [`AUTO_MIN_HIDDEN`] of the candidates' vertices or a culled eye pass was slower than the
-    /// last one without ([`pays`]; the default).
+    /// [`AUTO_MIN_HIDDEN`] of the candidates' vertices or two culled eye passes in a row were
+    /// slower than the last one without ([`judge`]; the default).
     #[default]
     Auto,
     /// Every frame, whatever it hides (tests, measurements).
@@ -63,14 +63,43 @@ pub const AUTO_PAUSE: u32 = 15;
 /// more candidates draws them all.
 pub(super) const MAX_BOXES: usize = 65_535 * TEST_WORKGROUP as usize;
 
+/// What [`EyeOcclusion::Auto`] does after a test ([`judge`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Judgement {
+    /// Keep culling.
+    Keep,
+    /// Keep culling, but this culled eye pass was slower than the last one without: a second in
+    /// a row pauses.
+    Slower,
+    /// Pause for [`AUTO_PAUSE`] frames.
+    Pause,
+}
+
 /// Whether [`EyeOcclusion::Auto`] keeps culling after a test that hid `hidden` of `all` candidate
 /// vertices: it must hide at least [`AUTO_MIN_HIDDEN`] of them, and where the frame drew
-/// occluders, its eye pass (`timing.0`, occluders and test included, µs) must have been no slower
-/// than the last one drawn without (`timing.1`): on a device whose eye pass is bound by its
-/// pixels, hiding vertices saves nothing and the occluders' raster is a loss.
-pub(super) fn pays(hidden: u64, all: u64, timing: Option<(u64, u64)>) -> bool {
-    let enough = hidden as f64 >= f64::from(AUTO_MIN_HIDDEN) * all as f64 && hidden > 0;
-    enough && timing.is_none_or(|(culled, plain)| culled <= plain)
+/// occluders, its eye pass (`timing.0`, occluders and test included, µs) must not be slower than
+/// the last one drawn without (`timing.1`) twice in a row (`slower_before`: the last culled one
+/// was): on a device whose eye pass is bound by its pixels, hiding vertices saves nothing and the
+/// occluders' raster is a loss. One slow frame (a first use, a hiccup) does not pause.
+pub(super) fn judge(
+    hidden: u64,
+    all: u64,
+    timing: Option<(u64, u64)>,
+    slower_before: bool,
+) -> Judgement {
+    if hidden == 0 || (hidden as f64) < f64::from(AUTO_MIN_HIDDEN) * all as f64 {
+        return Judgement::Pause;
+    }
+    match timing {
+        Some((culled, plain)) if culled > plain => {
+            if slower_before {
+                Judgement::Pause
+            } else {
+                Judgement::Slower
+            }
+        }
+        _ => Judgement::Keep,
+    }
 }
 
 /// A box is hidden only where its nearest depth is below the farthest occluder depth by more
@@ -497,15 +526,17 @@ mod tests {
     /// texel, within what a test reads.
     #[test]
     fn auto_culls_where_it_hides_enough_and_is_no_slower() {
+        use Judgement::*;
         // Hides a quarter or more: kept until a culled frame is timed.
-        assert!(pays(25, 100, None));
-        assert!(!pays(24, 100, None));
-        assert!(!pays(0, 0, None));
-        // Timed: kept while no slower than the last plain eye pass.
-        assert!(pays(80, 100, Some((900, 1000))));
-        assert!(pays(80, 100, Some((1000, 1000))));
-        assert!(!pays(80, 100, Some((1100, 1000))));
-        assert!(!pays(10, 100, Some((500, 1000))));
+        assert_eq!(judge(25, 100, None, false), Keep);
+        assert_eq!(judge(24, 100, None, false), Pause);
+        assert_eq!(judge(0, 0, None, false), Pause);
+        // Timed: kept while no slower than the last plain eye pass; slower twice in a row pauses.
+        assert_eq!(judge(80, 100, Some((900, 1000)), true), Keep);
+        assert_eq!(judge(80, 100, Some((1000, 1000)), false), Keep);
+        assert_eq!(judge(80, 100, Some((1100, 1000)), false), Slower);
+        assert_eq!(judge(80, 100, Some((1100, 1000)), true), Pause);
+        assert_eq!(judge(10, 100, Some((500, 1000)), false), Pause);
     }
 
     #[test]

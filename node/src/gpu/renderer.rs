@@ -127,6 +127,8 @@ pub struct Renderer {
     /// The last eye pass drawn without occluders, in microseconds ([`EyeOcclusion::Auto`]
     /// compares a culled eye pass with it).
     plain_eye_us: Option<u64>,
+    /// The last culled eye pass was slower than that ([`occlusion::judge`]).
+    occlusion_slower: bool,
     /// The image rows `[y0, y1)` frames render (a sort-first tile); `None`: every row.
     rows: Option<[u32; 2]>,
     /// The eye layer frames render (`NodeConfig::peel`; `None`: the classic eye pass).
@@ -227,6 +229,7 @@ impl Renderer {
             occlusion_pause: 0,
             occluded_vertices: 0,
             plain_eye_us: None,
+            occlusion_slower: false,
             rows: None,
             peel: None,
             peel_pass: None,
@@ -473,6 +476,7 @@ impl Renderer {
         self.occluders = None;
         self.occlusion_pause = 0;
         self.plain_eye_us = None;
+        self.occlusion_slower = false;
     }
 
     /// Vertices occlusion culling left out of the last eye pass (of those frustum culling kept).
@@ -1357,7 +1361,7 @@ impl Renderer {
     }
 
     /// Keeps what this frame's test found: the visible chunks as the next frame's occluders, or
-    /// (under [`EyeOcclusion::Auto`], where culling does not pay: [`occlusion::pays`]) a pause.
+    /// (under [`EyeOcclusion::Auto`], where culling does not pay: [`occlusion::judge`]) a pause.
     /// `eye_us`: this frame's eye pass, occluders and test included.
     fn occlusion_result(
         &mut self,
@@ -1386,10 +1390,14 @@ impl Renderer {
             self.occluded_vertices = hidden as u32;
         }
         let timing = culled.then_some(eye_us).zip(self.plain_eye_us);
-        if self.occlusion == EyeOcclusion::Auto && !occlusion::pays(hidden, all, timing) {
-            self.occluders = None;
-            self.occlusion_pause = occlusion::AUTO_PAUSE;
-            return;
+        if self.occlusion == EyeOcclusion::Auto {
+            let judgement = occlusion::judge(hidden, all, timing, self.occlusion_slower);
+            self.occlusion_slower = judgement == occlusion::Judgement::Slower;
+            if judgement == occlusion::Judgement::Pause {
+                self.occluders = None;
+                self.occlusion_pause = occlusion::AUTO_PAUSE;
+                return;
+            }
         }
         let mut visible: Vec<u32> = c
             .iter()
