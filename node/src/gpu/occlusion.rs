@@ -52,9 +52,10 @@ pub enum EyeOcclusion {
 pub const AUTO_MIN_HIDDEN: f32 = 0.25;
 
 /// Under [`EyeOcclusion::Auto`], the fewest vertices among a frame's candidates for it to be
-/// tested at all (64 k triangles): below it the eye pass's vertex work is too small to repay
-/// the test, and small scenes never compile the occlusion passes.
-pub const AUTO_MIN_VERTICES: u64 = 3 * 65_536;
+/// tested at all (16 k triangles): below it the eye pass's vertex work is too small to repay
+/// the test, and small scenes never compile the occlusion passes. Above it, measured eye-pass
+/// times decide ([`judge`]).
+pub const AUTO_MIN_VERTICES: u64 = 3 * 16_384;
 
 /// Frames [`EyeOcclusion::Auto`] pauses for before testing again.
 pub const AUTO_PAUSE: u32 = 15;
