@@ -5,6 +5,7 @@
 # rendered), the paper's case for sort-first. Prints each run's per-daemon table and summary;
 # summarised in docs/scaling.md § Sort-first tiles.
 #   scripts/bench-tiles.sh [SIZE] [FRAMES]
+# LAYOUTS (layouts separated by '|', e.g. "--tiles 1|--tiles 2") runs only those.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 size=${1:-1920x1080}; frames=${2:-6}
@@ -13,7 +14,8 @@ bin=target/release/lightfold
 export NODEVICE_SELECT=1
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
-for layout in "--tiles 1" "--tiles auto" "--tiles 2" "--tiles 4" "--partitions 2" "--partitions 4"; do
+IFS='|' read -r -a layouts <<<"${LAYOUTS:---tiles 1|--tiles auto|--tiles 2|--tiles 4|--partitions 2|--partitions 4}"
+for layout in "${layouts[@]}"; do
   echo "=== $layout size=$size frames=$frames"
   # shellcheck disable=SC2086 # the layout is two words
   "$bin" demo -K 32 --size "$size" --frames "$frames" --orbit 2 --walkthrough --no-compare \
