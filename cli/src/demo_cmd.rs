@@ -13,7 +13,7 @@ use crate::coordinator_cmd::JobArgs;
 use anyhow::{Context, bail};
 use lightfold_coordinator::plan::{ClusterSpec, Plan, plan};
 use lightfold_harness::launcher::{
-    ANY_PORT, Launcher, cluster_file, cpu_seconds, frame_wait, send_signal, write_token,
+    ANY_PORT, Launcher, cluster_file, cpu_seconds, send_signal, write_token,
 };
 use lightfold_harness::local_cluster::{check_processes, on_this_machine, with_memory};
 use lightfold_scene::Image;
@@ -22,7 +22,7 @@ use rustix::process::Signal;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 #[derive(Debug, clap::Args)]
 pub(crate) struct Args {
@@ -136,7 +136,7 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     }
     let interrupt = Arc::new(Mutex::new(Interrupt::default()));
     watch_interrupt(Arc::clone(&interrupt));
-    let (scene, nodes, compositors, est_frame_us) = size_cluster(&args)?;
+    let (scene, nodes, compositors) = size_cluster(&args)?;
     // Removed when dropped: on every way out of this function, errors and panics included.
     let (temp, dir) = work_dir(&args)?;
     interrupt.lock().unwrap_or_else(|e| e.into_inner()).temp = temp.as_ref().map(|_| dir.clone());
@@ -145,15 +145,6 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     let launcher = Launcher {
         gpu_threads: args.gpu_threads,
         metrics: args.metrics,
-        // Compositors wait for bands as long as the plan says frames take (a slow frame is
-        // not a dead node).
-        compositor_args: vec![
-            "--input-timeout".into(),
-            format!(
-                "{:.1}",
-                frame_wait(est_frame_us, Duration::from_secs(30)).as_secs_f64()
-            ),
-        ],
         ..Launcher::this_exe(token_path.clone(), &args.daemon_log)?
     };
     let (children, daemons) = launcher.start_cluster(nodes, compositors)?;
@@ -161,11 +152,6 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
     std::fs::write(&cluster, cluster_file(&daemons))?;
     let (mut coord, plan_json) =
         coordinator_command(&launcher.exe, &args, &cluster, &token_path, &dir)?;
-    // The coordinator, too, waits on a frame as long as the plan says frames take.
-    coord.arg("--frame-timeout").arg(format!(
-        "{:.1}",
-        frame_wait(est_frame_us, Duration::from_secs(120)).as_secs_f64()
-    ));
     let mut child = coord
         .stdout(Stdio::inherit())
         .stderr(Stdio::inherit())
@@ -226,9 +212,9 @@ pub(crate) fn run(args: Args) -> anyhow::Result<()> {
 }
 
 /// Loads the job's scene and plans it against a large synthetic cluster, returning the scene
-/// with the number of render nodes and compositors the plan uses and its estimated frame
-/// (µs); says so, and fails when that is more processes than the demo may start.
-fn size_cluster(args: &Args) -> anyhow::Result<(lightfold_scene::Scene, usize, usize, u64)> {
+/// with the number of render nodes and compositors the plan uses; says so, and fails when
+/// that is more processes than the demo may start.
+fn size_cluster(args: &Args) -> anyhow::Result<(lightfold_scene::Scene, usize, usize)> {
     // The coordinator loads the scene again and says what it makes of it (a glTF's ignored
     // features, geometry sanitised): loaded quietly here, so it is said once.
     let scene =
@@ -260,7 +246,7 @@ fn size_cluster(args: &Args) -> anyhow::Result<(lightfold_scene::Scene, usize, u
         nodes,
         compositors
     );
-    Ok((scene, nodes, compositors, probe.est_frame_us))
+    Ok((scene, nodes, compositors))
 }
 
 /// The directory for the token, cluster file and pid list: `--work-dir`, created if missing,

@@ -74,17 +74,6 @@ pub struct Launcher {
     pub metrics: bool,
     /// More flags for render nodes (`--backend`, `--pack`).
     pub node_args: Vec<String>,
-    /// More flags for compositors (`--input-timeout`: [`frame_wait`]).
-    pub compositor_args: Vec<String>,
-}
-
-/// How long a daemon of a cluster whose plan estimates `est_frame_us` a frame should wait on a
-/// frame (a compositor for an input band, the coordinator for the whole frame): four estimated
-/// frames, never under `floor` (their defaults: 30 and 120 s). A band can only come once its
-/// node has rendered the frame, so a fixed wait drops every frame of a node slower than that (a
-/// 4K frame on a CPU rasteriser) and the job delivers none.
-pub fn frame_wait(est_frame_us: u64, floor: Duration) -> Duration {
-    floor.max(Duration::from_micros(est_frame_us.saturating_mul(4)))
 }
 
 impl Launcher {
@@ -98,7 +87,6 @@ impl Launcher {
             gpu_threads: 0,
             metrics: false,
             node_args: Vec::new(),
-            compositor_args: Vec::new(),
         })
     }
 
@@ -159,9 +147,6 @@ impl Launcher {
                 cmd.env("LP_NUM_THREADS", self.gpu_threads.to_string());
             }
             cmd.args(&self.node_args);
-        }
-        if role == "compositor" {
-            cmd.args(&self.compositor_args);
         }
         if self.metrics {
             cmd.args(["--metrics-listen", ANY_PORT]);
@@ -322,25 +307,6 @@ pub fn peak_rss_kib(pid: u32) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Four estimated frames, never under the floor: a one-node 4K frame on lavapipe (estimated
-    /// 117 s) gets 467 s, a fast frame the default.
-    #[test]
-    fn frames_are_awaited_as_long_as_they_take() {
-        let floor = Duration::from_secs(30);
-        assert_eq!(frame_wait(0, floor), floor);
-        assert_eq!(frame_wait(50_000, floor), floor);
-        assert_eq!(frame_wait(7_500_000, floor), floor);
-        assert_eq!(
-            frame_wait(116_668_500, floor),
-            Duration::from_micros(466_674_000)
-        );
-        assert_eq!(
-            frame_wait(116_668_500, Duration::from_secs(600)),
-            Duration::from_secs(600)
-        );
-        assert_eq!(frame_wait(u64::MAX, floor), Duration::from_micros(u64::MAX));
-    }
 
     #[test]
     fn this_process_is_measured_and_signalled() {

@@ -478,7 +478,6 @@ fn setup(args: &Args) -> anyhow::Result<(Setup, Launcher)> {
         gpu_threads: args.gpu_threads,
         metrics: false,
         node_args: Vec::new(),
-        compositor_args: Vec::new(),
     };
     let setup = Setup {
         scene,
