@@ -26,10 +26,7 @@ fn main() -> anyhow::Result<()> {
         .into_iter()
         .take(4)
         .collect();
-    let mut street = scene.camera;
-    street.position = [0.5, 1.7, 0.5];
-    street.target = [40.0, 1.7, 0.5];
-    street.fov_y_deg = 50.0;
+    let street = common::street_camera(&scene.camera);
     println!(
         "{name}: {} triangles, {} meshes, {w}×{h}, {} lights, walkthrough (maps kept)",
         scene.triangle_count(),

@@ -68,3 +68,15 @@ pub(crate) fn parse(
     }
     Ok(out)
 }
+
+/// The city's street-level view (`docs/scaling.md` § Eye-pass culling, § Occlusion culling): at
+/// eye height looking down one street, most of the city out of view or behind its first
+/// buildings; `camera`'s image size.
+#[allow(dead_code)] // not every example looks down the street
+pub(crate) fn street_camera(camera: &lightfold_scene::Camera) -> lightfold_scene::Camera {
+    let mut street = *camera;
+    street.position = [0.5, 1.7, 0.5];
+    street.target = [40.0, 1.7, 0.5];
+    street.fov_y_deg = 50.0;
+    street
+}

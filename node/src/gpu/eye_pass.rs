@@ -263,6 +263,35 @@ pub(super) fn attachments(
         .collect()
 }
 
+/// Begins a depth-only eye raster into `depth` (reversed-Z, cleared to "nothing": 0, stored),
+/// scissored to `rows` of a `width`-pixel-wide target: the peel passes' opaque depth, occlusion
+/// culling's occluders.
+pub(super) fn begin_depth_pass<'e>(
+    encoder: &'e mut wgpu::CommandEncoder,
+    label: &str,
+    depth: &wgpu::TextureView,
+    rows: Option<[u32; 2]>,
+    width: u32,
+) -> wgpu::RenderPass<'e> {
+    let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
+        label: Some(label),
+        color_attachments: &[],
+        depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
+            view: depth,
+            depth_ops: Some(wgpu::Operations {
+                load: wgpu::LoadOp::Clear(0.0),
+                store: wgpu::StoreOp::Store,
+            }),
+            stencil_ops: None,
+        }),
+        timestamp_writes: None,
+        occlusion_query_set: None,
+        multiview_mask: None,
+    });
+    scissor(&mut pass, rows, width);
+    pass
+}
+
 /// Records one raster of the scene from the camera into `colour` (cleared to zero) with a
 /// reversed-Z depth buffer (kept for the filters' pass, [`record_filters`], and occlusion
 /// culling's test, `gpu::occlusion`).

@@ -25,7 +25,7 @@
 //! then, never the occluders' raster, and a device whose eye pass is bound by its pixels stops
 //! drawing occluders it gains nothing from.
 
-use super::eye_pass::{EyeDraws, EyeInputs, draw_eye, eye_bind_group, scissor};
+use super::eye_pass::{EyeDraws, EyeInputs, begin_depth_pass, draw_eye, eye_bind_group};
 use super::frame::RenderError;
 use super::pipelines::{DrawContext, Pipelines};
 use bytemuck::{Pod, Zeroable};
@@ -287,22 +287,7 @@ impl OcclusionPass {
             });
         {
             let view = depth.create_view(&Default::default());
-            let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                label: Some("occluders"),
-                color_attachments: &[],
-                depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                    view: &view,
-                    depth_ops: Some(wgpu::Operations {
-                        load: wgpu::LoadOp::Clear(0.0),
-                        store: wgpu::StoreOp::Store,
-                    }),
-                    stencil_ops: None,
-                }),
-                timestamp_writes: None,
-                occlusion_query_set: None,
-                multiview_mask: None,
-            });
-            scissor(&mut pass, occluders.rows, w);
+            let mut pass = begin_depth_pass(&mut encoder, "occluders", &view, occluders.rows, w);
             pass.set_pipeline(&self.occluder);
             pass.set_bind_group(0, cx.scene_bind_group, &[]);
             pass.set_bind_group(1, &bind_group, &[]);

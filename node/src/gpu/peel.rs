@@ -18,7 +18,8 @@
 //! cleared to 1: 1 where there is no such layer, as everything else there is 0).
 
 use super::eye_pass::{
-    EyeDraws, EyeInputs, EyeTargets, attachments, draw_eye, eye_bind_group, record_raster, scissor,
+    EyeDraws, EyeInputs, EyeTargets, attachments, begin_depth_pass, draw_eye, eye_bind_group,
+    record_raster, scissor,
 };
 use super::pipelines::{
     DrawContext, EYE_DEPTH_FORMAT, GBUFFER_FORMAT, ILLUMINATION_FORMAT, MATERIAL_FORMAT, Pipelines,
@@ -350,22 +351,13 @@ impl PeelPass {
                 ],
             });
             {
-                let mut pass = encoder.begin_render_pass(&wgpu::RenderPassDescriptor {
-                    label: Some("peel: opaque depth"),
-                    color_attachments: &[],
-                    depth_stencil_attachment: Some(wgpu::RenderPassDepthStencilAttachment {
-                        view: &depth_view,
-                        depth_ops: Some(wgpu::Operations {
-                            load: wgpu::LoadOp::Clear(0.0),
-                            store: wgpu::StoreOp::Store,
-                        }),
-                        stencil_ops: None,
-                    }),
-                    timestamp_writes: None,
-                    occlusion_query_set: None,
-                    multiview_mask: None,
-                });
-                scissor(&mut pass, draws.rows, targets.width);
+                let mut pass = begin_depth_pass(
+                    &mut encoder,
+                    "peel: opaque depth",
+                    &depth_view,
+                    draws.rows,
+                    targets.width,
+                );
                 pass.set_pipeline(&self.opaque_depth);
                 pass.set_bind_group(0, cx.scene_bind_group, &[]);
                 pass.set_bind_group(1, &eye_group, &[]);

@@ -1378,14 +1378,12 @@ impl Renderer {
         let (Some(c), Some(v)) = (candidates, shown) else {
             return;
         };
-        let count = |hidden: bool| -> u64 {
-            c.iter()
-                .zip(v)
-                .filter(|(_, v)| **v != hidden)
-                .map(|(e, _)| u64::from(e.range.end - e.range.start))
-                .sum()
-        };
-        let (hidden, all) = (count(true), count(true) + count(false));
+        let (mut hidden, mut all) = (0u64, 0u64);
+        for (e, shown) in c.iter().zip(v) {
+            let n = u64::from(e.range.end - e.range.start);
+            all += n;
+            hidden += if *shown { 0 } else { n };
+        }
         if culled {
             self.occluded_vertices = hidden as u32;
         }
